@@ -1,0 +1,1 @@
+"""Calibrate: observation model, losses, optimisers, posteriors."""

@@ -1,0 +1,1 @@
+"""Light: Mitsuba backend choice, scene assembly, leaf BSDF, per-segment irradiance."""

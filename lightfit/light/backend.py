@@ -1,0 +1,166 @@
+"""The one place that decides how Mitsuba runs: libLLVM discovery and variant choice.
+
+Mitsuba's CPU (``llvm_ad_*``) variants JIT-compile through libLLVM >= 16, which
+Debian/Ubuntu do not ship by default (their libLLVM 14/15 crash with "Cannot select:
+fminimum"). lightfit depends on the ``karellen-llvm-core`` wheel, which installs
+``lib/libLLVM.so.<major>.<minor>`` under the environment prefix, and points Dr.Jit at it
+through ``DRJIT_LIBLLVM_PATH`` *before* the first ``import mitsuba`` — unless the user
+already set that variable, which always wins.
+
+Variant choice: ``cuda_ad_<mode>`` when a CUDA device is usable, else ``llvm_ad_<mode>``.
+Override with the environment variable ``LIGHTFIT_VARIANT`` (e.g. ``llvm_ad_mono``) or the
+CLI flag ``lightfit --variant``. Every other module gets Mitsuba through :func:`mitsuba`.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import glob
+import importlib
+import os
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+#: Colour mode of the variant: PAR is one band, so monochrome is all lightfit needs.
+DEFAULT_MODE = "mono"
+MIN_LLVM_MAJOR = 16
+ENV_VARIANT = "LIGHTFIT_VARIANT"
+ENV_LLVM = "DRJIT_LIBLLVM_PATH"
+
+
+class BackendError(RuntimeError):
+    """Mitsuba cannot run here; the message names what is missing and how to get it."""
+
+
+@dataclass(frozen=True)
+class BackendInfo:
+    """What :func:`mitsuba` configured.
+
+    Attributes:
+        variant: the Mitsuba variant in use, e.g. ``llvm_ad_mono``.
+        libllvm: path of the libLLVM Dr.Jit loads (``None`` for CUDA-only use).
+        libllvm_source: ``"user"`` if ``DRJIT_LIBLLVM_PATH`` was set before lightfit,
+            ``"lightfit"`` if lightfit found it, ``None`` if not found.
+        variant_source: ``"argument"``, ``"env"`` or ``"auto"``.
+    """
+
+    variant: str
+    libllvm: str | None
+    libllvm_source: str | None
+    variant_source: str
+
+
+_STATE: dict[str, object] = {}
+
+
+def _llvm_major(path: str) -> int | None:
+    m = re.search(r"libLLVM[-.]?(?:so\.)?(\d+)", Path(path).name)
+    return int(m.group(1)) if m else None
+
+
+def find_libllvm() -> str | None:
+    """Return the path of a libLLVM >= 16 shared library, or ``None``.
+
+    Search order: the environment prefix (``karellen-llvm-core`` puts it in
+    ``<prefix>/lib``), then the system linker path (e.g. Debian's ``libllvm19``).
+    The highest major version wins.
+    """
+    candidates: list[str] = []
+    for prefix in {sys.prefix, sys.base_prefix}:
+        candidates += glob.glob(os.path.join(prefix, "lib", "libLLVM*.so*"))
+    for d in ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib", "/usr/local/lib"):
+        candidates += glob.glob(os.path.join(d, "libLLVM*.so*"))
+        candidates += glob.glob(os.path.join(d, "llvm-*", "lib", "libLLVM*.so*"))
+    found = ctypes.util.find_library("LLVM")
+    if found:
+        candidates.append(found)
+    good = [(major, c) for c in candidates if (major := _llvm_major(c)) and major >= MIN_LLVM_MAJOR]
+    if not good:
+        return None
+    # Prefer the fully versioned file (libLLVM.so.23.1) of the newest major.
+    good.sort(key=lambda mc: (mc[0], len(Path(mc[1]).name)), reverse=True)
+    return good[0][1]
+
+
+def configure_libllvm() -> tuple[str | None, str | None]:
+    """Set ``DRJIT_LIBLLVM_PATH`` unless the user did; return (path, source)."""
+    user = os.environ.get(ENV_LLVM)
+    if user:
+        if not Path(user).exists():
+            raise BackendError(f"{ENV_LLVM}={user!r} does not exist; unset it or point it at libLLVM >= {MIN_LLVM_MAJOR}")
+        return user, "user"
+    path = find_libllvm()
+    if path is not None:
+        os.environ[ENV_LLVM] = path
+        return path, "lightfit"
+    return None, None
+
+
+def cuda_usable() -> bool:
+    """True when the CUDA driver library loads and reports at least one device."""
+    name = ctypes.util.find_library("cuda")
+    if not name:
+        return False
+    try:
+        lib = ctypes.CDLL(name)
+        if lib.cuInit(0) != 0:
+            return False
+        count = ctypes.c_int(0)
+        return lib.cuDeviceGetCount(ctypes.byref(count)) == 0 and count.value > 0
+    except OSError:
+        return False
+
+
+def choose_variant(requested: str | None = None, mode: str = DEFAULT_MODE) -> tuple[str, str]:
+    """Pick the Mitsuba variant: explicit argument > ``LIGHTFIT_VARIANT`` > auto.
+
+    Returns (variant, source). Auto is ``cuda_ad_<mode>`` if :func:`cuda_usable`, else
+    ``llvm_ad_<mode>``.
+    """
+    if requested:
+        return requested, "argument"
+    env = os.environ.get(ENV_VARIANT)
+    if env:
+        return env, "env"
+    return (f"cuda_ad_{mode}" if cuda_usable() else f"llvm_ad_{mode}"), "auto"
+
+
+def mitsuba(variant: str | None = None):
+    """Import Mitsuba with libLLVM configured and the variant set; return the module.
+
+    Calling it again with no argument returns the already configured module; calling it
+    with a different variant switches variant.
+
+    Raises:
+        BackendError: libLLVM >= 16 missing for an ``llvm_*`` variant, the variant is not
+            compiled into this Mitsuba build, or CUDA was requested without a device.
+    """
+    if "mi" in _STATE and variant in (None, _STATE["info"].variant):  # type: ignore[union-attr]
+        return _STATE["mi"]
+    libllvm, llvm_source = _STATE.get("llvm") or configure_libllvm()  # type: ignore[misc]
+    _STATE["llvm"] = (libllvm, llvm_source)
+    chosen, source = choose_variant(variant)
+    if chosen.startswith("llvm") and libllvm is None:
+        raise BackendError(
+            f"Mitsuba variant {chosen!r} needs libLLVM >= {MIN_LLVM_MAJOR}, and none was found in "
+            f"{sys.prefix}/lib or the system library path. Install the 'karellen-llvm-core' wheel "
+            f"(a lightfit dependency: `python3 tasks.py setup`) or set {ENV_LLVM} to a libLLVM.so."
+        )
+    if chosen.startswith("cuda") and not cuda_usable():
+        raise BackendError(f"Mitsuba variant {chosen!r} needs a CUDA device and driver; none is usable here. "
+                           f"Use an llvm_ad_* variant (unset {ENV_VARIANT} or drop --variant).")
+    mi = importlib.import_module("mitsuba")
+    if chosen not in mi.variants():
+        raise BackendError(f"Mitsuba variant {chosen!r} is not in this Mitsuba build; available: {', '.join(mi.variants())}")
+    mi.set_variant(chosen)
+    _STATE["mi"] = mi
+    _STATE["info"] = BackendInfo(chosen, libllvm, llvm_source, source)
+    return mi
+
+
+def info() -> BackendInfo:
+    """Configure (if needed) and describe the backend in use."""
+    mitsuba()
+    return _STATE["info"]  # type: ignore[return-value]

@@ -1,0 +1,1 @@
+"""Photosynthesis: FvCB + stomatal conductance fixed point in JAX."""

@@ -1,0 +1,1 @@
+"""Plant: CPlantBox growth, segment table, mesh and field geometry."""

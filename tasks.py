@@ -1,0 +1,91 @@
+#!/usr/bin/env python3
+"""Set up lightfit and run its two entry points, needing only Python >= 3.11.
+
+    python3 tasks.py run     # set up, then run the main job (20 April 2016, bundled data, CPU)
+    python3 tasks.py test    # set up, then run the test suite
+
+Setup is idempotent: the virtual environment ``.venv`` is (re)installed only when
+``requirements.lock`` or ``pyproject.toml`` changed since the last install. A Makefile
+would do the same, but `make` is not on a bare Debian/Ubuntu image and Python is.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = Path(os.environ.get("LIGHTFIT_VENV", ROOT / ".venv"))
+BIN = VENV / "bin"
+STAMP = VENV / ".lightfit-installed"
+
+
+def _sh(*cmd: str | Path) -> None:
+    print("+", " ".join(map(str, cmd)), flush=True)
+    subprocess.run([str(c) for c in cmd], check=True, cwd=ROOT)
+
+
+def _fingerprint() -> str:
+    h = hashlib.sha256()
+    for name in ("requirements.lock", "pyproject.toml"):
+        h.update((ROOT / name).read_bytes())
+    return h.hexdigest()
+
+
+def _make_venv() -> None:
+    if (BIN / "python").exists():
+        return
+    try:
+        _sh(sys.executable, "-m", "venv", VENV)
+    except subprocess.CalledProcessError:
+        # Debian/Ubuntu split ensurepip into python3-venv; install it if we can.
+        shutil.rmtree(VENV, ignore_errors=True)
+        if shutil.which("apt-get") and os.geteuid() == 0:
+            ver = f"{sys.version_info.major}.{sys.version_info.minor}"
+            _sh("apt-get", "update", "-q")
+            _sh("apt-get", "install", "-y", "-q", f"python{ver}-venv")
+            _sh(sys.executable, "-m", "venv", VENV)
+        else:
+            sys.exit("tasks.py: `python3 -m venv` failed; install the python3-venv package and retry")
+
+
+def setup() -> None:
+    if sys.version_info < (3, 11):
+        sys.exit(f"tasks.py: lightfit needs Python >= 3.11, this is {sys.version.split()[0]}")
+    _make_venv()
+    if STAMP.exists() and STAMP.read_text() == _fingerprint():
+        return
+    py = BIN / "python"
+    _sh(py, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
+    _sh(py, "-m", "pip", "install", "--quiet", "-r", "requirements.lock")
+    _sh(py, "-m", "pip", "install", "--quiet", "--no-deps", "-e", ".")
+    STAMP.write_text(_fingerprint())
+
+
+def main(argv: list[str]) -> None:
+    task, *rest = argv or ["help"]
+    if task == "setup":
+        setup()
+    elif task == "run":
+        setup()
+        _sh(BIN / "lightfit", "replicate", *(rest or ["--out", "results/2016-04-20"]))
+    elif task == "test":
+        setup()
+        _sh(BIN / "python", "-m", "pytest", "-n", "2", "--durations=15", *rest)
+    elif task == "bench":
+        setup()
+        for script in sorted((ROOT / "benchmarks").glob("bench_*.py")):
+            _sh(BIN / "python", script, *rest)
+    else:
+        sys.exit(__doc__)
+
+
+if __name__ == "__main__":
+    try:
+        main(sys.argv[1:])
+    except subprocess.CalledProcessError as err:
+        sys.exit(err.returncode)
