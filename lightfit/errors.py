@@ -1,0 +1,36 @@
+"""Errors for bad user input, each naming where the problem is and what was expected."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class InputError(ValueError):
+    """Bad input data or parameter.
+
+    The message always starts with the file (or parameter) it concerns, then the row
+    and column where known, then what was found and what was expected, so that a user can
+    fix the input without reading lightfit's source.
+    """
+
+    def __init__(
+        self,
+        problem: str,
+        *,
+        file: str | Path | None = None,
+        row: int | None = None,
+        column: str | None = None,
+        expected: str | None = None,
+    ):
+        self.problem, self.file, self.row, self.column, self.expected = problem, file, row, column, expected
+        where = []
+        if file is not None:
+            where.append(str(file))
+        if row is not None:
+            where.append(f"line {row}")
+        if column is not None:
+            where.append(f"column {column!r}")
+        msg = (", ".join(where) + ": " if where else "") + problem
+        if expected:
+            msg += f" (expected {expected})"
+        super().__init__(msg)

@@ -1,0 +1,247 @@
+"""The weather series contract (DESIGN §3) and the checks every reader passes through.
+
+A weather series is a ``pandas.DataFrame`` indexed by tz-aware UTC timestamps with unit-named
+columns (:data:`COLUMNS`). Readers hand :func:`check_and_repair` a frame plus the source line
+number of every row; it either raises :class:`~lightfit.errors.InputError` naming file, line,
+column and expectation, or applies a documented repair and records it in
+``df.attrs["qc"]`` (a list of dicts: ``kind``, ``column``, ``count``, ``detail``). Nothing is
+dropped silently and no NaN leaves this module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+
+#: Contract columns and their units (also in the names).
+COLUMNS: dict[str, str] = {
+    "ghi_w_m2": "global horizontal irradiance, W m⁻²",
+    "par_umol_m2_s": "photosynthetically active photon flux density, µmol m⁻² s⁻¹",
+    "tair_c": "air temperature, °C",
+    "rh": "relative humidity, 0–1",
+    "pair_kpa": "air pressure, kPa",
+    "co2_ppm": "CO2 mole fraction in air, ppm (µmol mol⁻¹)",
+    "dni_w_m2": "direct normal irradiance, W m⁻² (derived)",
+    "dhi_w_m2": "diffuse horizontal irradiance, W m⁻² (derived)",
+    "sun_elevation_deg": "apparent solar elevation, degrees (derived)",
+    "sun_azimuth_deg": "solar azimuth, degrees clockwise from north (derived)",
+}
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Plausible range of a measured column; values outside are errors, not repairs.
+
+    ``clamp_below`` / ``clamp_above`` define a tolerance band just outside the range in which
+    values are clamped (and counted) instead: sensor offsets such as night-time PAR of
+    −2 µmol m⁻² s⁻¹ or RH of 1.02 in fog.
+    """
+
+    low: float
+    high: float
+    clamp_below: float | None = None
+    clamp_above: float | None = None
+
+
+#: Physical plausibility at a temperate field site. Radiation sensors read slightly negative at
+#: night (thermal offset of thermopile pyranometers, dark offset of quantum sensors).
+BOUNDS: dict[str, Bounds] = {
+    "ghi_w_m2": Bounds(0.0, 1400.0, clamp_below=-30.0),
+    "par_umol_m2_s": Bounds(0.0, 3000.0, clamp_below=-30.0),
+    "tair_c": Bounds(-45.0, 50.0),
+    "rh": Bounds(0.0, 1.0, clamp_above=1.05),
+    "pair_kpa": Bounds(80.0, 110.0),
+    "co2_ppm": Bounds(200.0, 1500.0),
+}
+
+#: Numeric sentinels that loggers and data portals use for "no value".
+MISSING_SENTINELS = (-9999.0, -999.0, -99999.0)
+
+DEFAULT_MAX_GAP = pd.Timedelta("30min")
+
+
+def _record(qc: list[dict], kind: str, column: str | None, count: int, detail: str) -> None:
+    qc.append({"kind": kind, "column": column, "count": int(count), "detail": detail})
+
+
+def _line_of(lines: pd.Series, ts) -> int | None:
+    try:
+        return int(lines.loc[ts])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column: str, qc: list[dict]) -> pd.Series:
+    """Convert a column to float.
+
+    Empty cells, "NaN" and the sentinels :data:`MISSING_SENTINELS` become NaN (gaps that
+    :func:`check_and_repair` interpolates or rejects; sentinels are counted in ``qc``);
+    any other unparseable text raises, naming the line.
+    """
+    if pd.api.types.is_numeric_dtype(values):
+        out = values.astype(float)
+    else:
+        text = values.astype("string").str.strip()
+        empty = text.isna() | text.isin(["", "NaN", "nan", "NA", "null"])
+        out = pd.to_numeric(text.where(~empty), errors="coerce")
+        bad = out.isna() & ~empty
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise InputError(f"value {text.iloc[i]!r} is not a number", file=file, row=int(lines.iloc[i]), column=column,
+                             expected="a decimal number or an empty cell for a missing value")
+        out = out.astype(float)
+    sentinel = out.isin(MISSING_SENTINELS)
+    if sentinel.any():
+        out = out.mask(sentinel)
+        _record(qc, "sentinel", column, sentinel.sum(), f"{int(sentinel.sum())} value(s) in {MISSING_SENTINELS} read as missing")
+    return out
+
+
+def check_and_repair(
+    df: pd.DataFrame,
+    lines: pd.Series,
+    file: str | Path,
+    *,
+    max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP,
+    required: tuple[str, ...] = ("tair_c", "rh", "pair_kpa", "co2_ppm"),
+) -> pd.DataFrame:
+    """Validate a freshly read series and apply the documented repairs.
+
+    Args:
+        df: columns from :data:`COLUMNS`, index tz-aware UTC (``lines`` shares it).
+        lines: source line number (1-based) per row, for error messages.
+        file: source name for messages.
+        max_gap: longest run of missing values (or missing timestamps) that is linearly
+            interpolated; longer gaps raise. ``"0min"`` turns interpolation off.
+        required: columns that must be present; at least one of ``ghi_w_m2`` and
+            ``par_umol_m2_s`` is always required.
+
+    Repairs (each recorded in ``attrs["qc"]``): rows sorted by time; missing values
+    (empty cells, NaN or sentinels :data:`MISSING_SENTINELS`) and missing timestamps of a
+    regular series interpolated over gaps up to ``max_gap``; values in a column's clamp band
+    clamped to the range (e.g. night-time negative PAR set to 0).
+
+    Errors: missing required columns, duplicated timestamps, an irregular time step, gaps
+    longer than ``max_gap``, values outside the plausible range (:data:`BOUNDS`).
+    """
+    max_gap = pd.Timedelta(max_gap)
+    attrs = dict(df.attrs)
+    qc: list[dict] = list(attrs.get("qc", []))
+    df = df.copy()
+    missing = [c for c in required if c not in df.columns]
+    if not ({"ghi_w_m2", "par_umol_m2_s"} & set(df.columns)):
+        missing.append("ghi_w_m2 or par_umol_m2_s")
+    if missing:
+        raise InputError(f"missing column(s) {', '.join(missing)}", file=file,
+                         expected=f"columns for {', '.join(missing)}; found {', '.join(df.columns) or 'none'}")
+    if len(df) < 2:
+        raise InputError(f"only {len(df)} data row(s)", file=file, expected="a time series of at least 2 rows")
+
+    dup = df.index.duplicated(keep=False)
+    if dup.any():
+        first = df.index[dup][0]
+        rows = [int(x) for x in lines[dup].tolist()[:6]]
+        raise InputError(f"duplicated timestamp {first.isoformat()} ({int(dup.sum())} rows share a timestamp, e.g. lines {rows})",
+                         file=file, row=rows[0], expected="one row per timestamp")
+    if not df.index.is_monotonic_increasing:
+        _record(qc, "sorted", None, len(df), "rows were not in time order and were sorted")
+        order = np.argsort(df.index.values, kind="stable")
+        df, lines = df.iloc[order], lines.iloc[order]
+
+    for col in df.columns:
+        df[col] = parse_numeric(df[col], lines, file, col, qc)
+
+    # Regular time step: the most common spacing. Missing timestamps become missing rows.
+    steps = pd.Series(df.index[1:] - df.index[:-1])
+    step = steps.mode().iloc[0]
+    off_grid = ((df.index - df.index[0]) % step) != pd.Timedelta(0)
+    if off_grid.any():
+        bad = df.index[off_grid][0]
+        raise InputError(f"timestamp {bad.isoformat()} is off the regular {step} grid starting {df.index[0].isoformat()}",
+                         file=file, row=_line_of(lines, bad), expected=f"a regular time step of {step}")
+    full = pd.date_range(df.index[0], df.index[-1], freq=step)
+    if len(full) != len(df):
+        n_new = len(full) - len(df)
+        df = df.reindex(full)
+        _record(qc, "missing_timestamps", None, n_new, f"{n_new} missing timestamp(s) of the {step} grid inserted as gaps")
+
+    for col in df.columns:
+        na = df[col].isna()
+        if not na.any():
+            continue
+        # Length of each run of consecutive missing values, in time.
+        run_id = (na != na.shift()).cumsum()[na]
+        for _, run in df.index[na].to_series().groupby(run_id.values):
+            span = run.iloc[-1] - run.iloc[0] + step
+            at_edge = run.iloc[0] == df.index[0] or run.iloc[-1] == df.index[-1]
+            if span > max_gap or at_edge:
+                why = "at the start or end of the series (cannot interpolate)" if at_edge else f"longer than max_gap={max_gap}"
+                raise InputError(f"{len(run)} missing value(s) from {run.iloc[0].isoformat()} to {run.iloc[-1].isoformat()}, {why}",
+                                 file=file, row=_line_of(lines, run.iloc[0]), column=col,
+                                 expected="complete data, or gaps short enough to interpolate (raise max_gap)")
+        df[col] = df[col].interpolate(method="time", limit_area="inside")
+        _record(qc, "interpolated", col, na.sum(), f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {max_gap})")
+
+    for col, b in BOUNDS.items():
+        if col not in df.columns:
+            continue
+        v = df[col]
+        low_band = (v < b.low) & (v >= b.clamp_below) if b.clamp_below is not None else pd.Series(False, index=v.index)
+        high_band = (v > b.high) & (v <= b.clamp_above) if b.clamp_above is not None else pd.Series(False, index=v.index)
+        out = ((v < b.low) & ~low_band) | ((v > b.high) & ~high_band)
+        if out.any():
+            ts = v.index[out][0]
+            raise InputError(f"value {v[ts]:g} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); check the unit",
+                             file=file, row=_line_of(lines, ts), column=col,
+                             expected=f"{b.low:g} … {b.high:g} ({COLUMNS[col]})")
+        if low_band.any():
+            df.loc[low_band, col] = b.low
+            _record(qc, "clamped", col, low_band.sum(), f"{int(low_band.sum())} value(s) in [{b.clamp_below:g}, {b.low:g}) set to {b.low:g} (sensor offset)")
+        if high_band.any():
+            df.loc[high_band, col] = b.high
+            _record(qc, "clamped", col, high_band.sum(), f"{int(high_band.sum())} value(s) in ({b.high:g}, {b.clamp_above:g}] set to {b.high:g}")
+    df.index.name = "time_utc"
+    df.attrs = attrs | {"qc": qc}
+    return df
+
+
+def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.DataFrame:
+    """Change the time step of a contract series.
+
+    Args:
+        freq: new step (pandas offset alias), e.g. ``"30min"`` as in the reference paper.
+        how: ``"mean"`` averages the values in a window centred on each new timestamp (keeps
+            daily radiation sums); ``"sample"`` takes the value at each new timestamp (what the
+            reference paper did when it "sub-sampled 10-minute intervals to 30 minutes").
+
+    Solar geometry is recomputed at the new timestamps by :func:`lightfit.weather.add_solar`
+    when the input had it; averaging sun angles would be wrong.
+    """
+    measured = [c for c in df.columns if c in BOUNDS]
+    step = pd.Timedelta(freq)
+    if how == "sample":
+        out = df[measured].asfreq(freq)
+        if out.isna().any().any():
+            raise InputError(f"cannot sample at {freq}: the source has no value at some new timestamps", column="freq",
+                             expected="a step that is a multiple of the source step, or how='mean'")
+    elif how == "mean":
+        shifted = df[measured].copy()
+        shifted.index = shifted.index + step / 2
+        out = shifted.resample(freq).mean()
+        out = out.dropna(how="all")
+    else:
+        raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
+    out.attrs = dict(df.attrs)
+    out.attrs["qc"] = list(df.attrs.get("qc", [])) + [
+        {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"}]
+    out.index.name = "time_utc"
+    if "sun_elevation_deg" in df.columns:
+        from lightfit.weather.solar import add_solar
+
+        out = add_solar(out, site=df.attrs.get("site"))
+    return out

@@ -1,0 +1,77 @@
+"""Unit conversions for meteorological series. One function per conversion.
+
+All temperatures in °C at the interface, pressures in kPa, humidity as a 0–1 fraction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Specific gas constant of water vapour, J kg⁻¹ K⁻¹ (e.g. Monteith & Unsworth 2013, App. 2).
+R_WATER_VAPOUR = 461.5
+#: Molar gas constant, J mol⁻¹ K⁻¹ (CODATA 2018, exact).
+R_GAS = 8.314462618
+#: Kelvin offset.
+T0 = 273.15
+#: Fraction of broadband global radiation that is PAR (400–700 nm), energy basis (≈0.45–0.50;
+#: McCree 1972; Meek et al. 1984). DESIGN §6 uses 0.50.
+PAR_FRACTION = 0.50
+#: Photon-to-energy ratio of sunlight PAR, µmol J⁻¹ (McCree 1972: 4.57).
+UMOL_PER_JOULE_PAR = 4.57
+
+
+def saturation_vapour_pressure_kpa(tair_c):
+    r"""Saturation vapour pressure over water, kPa.
+
+    Magnus form with the Alduchov & Eskridge (1996, J. Appl. Meteor. 35, 601) coefficients:
+
+    .. math:: e_s(T) = 0.61094 \exp\!\left(\frac{17.625\,T}{T + 243.04}\right)
+
+    with T in °C; better than 0.4 % from −40 to 50 °C.
+    """
+    t = np.asarray(tair_c, dtype=float)
+    return 0.61094 * np.exp(17.625 * t / (t + 243.04))
+
+
+def vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c):
+    r"""Vapour pressure (kPa) from absolute humidity ρ_v (g m⁻³) by the ideal gas law.
+
+    .. math:: e = \rho_v R_v (T + 273.15)
+    """
+    return np.asarray(ah_g_m3, dtype=float) * 1e-3 * R_WATER_VAPOUR * (np.asarray(tair_c, dtype=float) + T0) * 1e-3
+
+
+def relative_humidity_from_absolute(ah_g_m3, tair_c):
+    """Relative humidity (0–1) from absolute humidity (g m⁻³) and air temperature (°C)."""
+    return vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c) / saturation_vapour_pressure_kpa(tair_c)
+
+
+def vapour_pressure_deficit_kpa(tair_c, rh):
+    """Vapour pressure deficit (kPa) from air temperature (°C) and relative humidity (0–1)."""
+    return saturation_vapour_pressure_kpa(tair_c) * (1.0 - np.asarray(rh, dtype=float))
+
+
+def co2_ppm_from_mmol_m3(c_mmol_m3, tair_c, pair_kpa):
+    r"""CO2 mole fraction (ppm = µmol mol⁻¹) from molar concentration (mmol m⁻³).
+
+    Ideal gas: the molar density of air is n/V = p / (R T), so
+
+    .. math:: x = \frac{c}{p/(R T)} = c\,\frac{R\,(T + 273.15)}{p}
+    """
+    c = np.asarray(c_mmol_m3, dtype=float) * 1e-3  # mol m⁻³
+    air = np.asarray(pair_kpa, dtype=float) * 1e3 / (R_GAS * (np.asarray(tair_c, dtype=float) + T0))
+    return c / air * 1e6
+
+
+def kpa_from_mbar(p_mbar):
+    """Pressure in kPa from mbar (= hPa)."""
+    return np.asarray(p_mbar, dtype=float) * 0.1
+
+
+def par_from_ghi(ghi_w_m2, par_fraction: float = PAR_FRACTION, umol_per_joule: float = UMOL_PER_JOULE_PAR):
+    """PAR photon flux density (µmol m⁻² s⁻¹) from global radiation (W m⁻²).
+
+    PAR = f_PAR · k · GHI with f_PAR ≈ 0.50 (energy share of 400–700 nm) and
+    k = 4.57 µmol J⁻¹ (McCree 1972), i.e. ≈ 2.29 µmol J⁻¹ of global radiation.
+    """
+    return np.asarray(ghi_w_m2, dtype=float) * par_fraction * umol_per_joule
