@@ -21,11 +21,11 @@ from lightfit.weather.readers import (
     write_lightfit_csv,
 )
 from lightfit.weather.reconstruct import Anchor, DayAssumptions, reconstruct_day
-from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, resample
+from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, resample, window
 from lightfit.weather.solar import SELHAUSEN, Site, add_solar, solar_position, split_direct_diffuse
 
 __all__ = [
     "Anchor", "BOUNDS", "BUNDLED", "COLUMNS", "DayAssumptions", "SELHAUSEN", "Site", "add_solar", "bundled_path",
     "check_and_repair", "load", "read_cplantbox_day", "read_lightfit_csv", "read_tereno", "read_weather",
-    "reconstruct_day", "resample", "sniff_format", "solar_position", "split_direct_diffuse", "write_lightfit_csv",
+    "reconstruct_day", "resample", "sniff_format", "window", "solar_position", "split_direct_diffuse", "write_lightfit_csv",
 ]

@@ -292,7 +292,7 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     head = "".join(f"# {k}: {v}\n" for k, v in metadata.items())
     body = df.rename_axis("time_utc").reset_index()
     body["time_utc"] = body["time_utc"].dt.strftime("%Y-%m-%dT%H:%M:%SZ")
-    path.write_text(head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"), encoding="utf-8")
+    path.write_text(head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n"), encoding="utf-8")
     return path
 
 

@@ -245,3 +245,22 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.Dat
 
         out = add_solar(out, site=df.attrs.get("site"))
     return out
+
+
+def window(df: pd.DataFrame, start: str | pd.Timestamp, hours: float, step: str = "30min", *, how: str = "sample",
+           tz: str = "Europe/Berlin") -> pd.DataFrame:
+    """Time steps ``start, start + step, …, start + hours`` (inclusive), e.g. a diurnal run.
+
+    The reference paper ran 2016-04-20 from 05:00 for 14 h in 30-minute steps (29 steps);
+    ``window(df, "2016-04-20 05:00", 14)`` gives those, with ``start`` read in ``tz`` (local
+    time unless it carries its own offset). ``how`` as in :func:`resample`.
+    """
+    t0 = pd.Timestamp(start)
+    t0 = (t0.tz_localize(tz) if t0.tzinfo is None else t0).tz_convert("UTC")
+    t1 = t0 + pd.Timedelta(hours=hours)
+    if t0 < df.index[0] or t1 > df.index[-1]:
+        raise InputError(f"window {t0.isoformat()} … {t1.isoformat()} is not covered by the series "
+                         f"({df.index[0].isoformat()} … {df.index[-1].isoformat()})",
+                         file=df.attrs.get("source"), expected="a series spanning the requested window")
+    out = resample(df, step, how)
+    return out.loc[t0:t1]

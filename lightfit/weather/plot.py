@@ -1,0 +1,70 @@
+"""Forcing plot: radiation, temperature/humidity, CO2/pressure, sun elevation, one PNG."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.dates as mdates  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+
+
+def provenance_label(df: pd.DataFrame) -> str:
+    """Upper-case provenance word for titles, so a reconstruction is never mistaken for data."""
+    return str(df.attrs.get("provenance", "unknown provenance")).upper()
+
+
+def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None, tz: str = "Europe/Berlin") -> Path:
+    """Write a four-panel PNG of a contract series; the title states its provenance.
+
+    Times are shown in ``tz`` (local civil time by default) and the axis says so.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    local = df.tz_convert(tz)
+    t = local.index.tz_localize(None)
+    fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
+    ax[0].plot([], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)")
+    ax[0].set_ylabel("PAR\nµmol m⁻² s⁻¹")
+    if {"dni_w_m2", "dhi_w_m2"} <= set(local.columns):
+        r = ax[0].twinx()
+        r.plot(t, local["ghi_w_m2"], color="k", lw=0.8, label="GHI")
+        r.plot(t, local["dhi_w_m2"], color="tab:blue", lw=0.8, ls="--", label="DHI")
+        r.plot(t, local["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI")
+        r.set_ylabel("W m⁻²")
+        r.legend(loc="upper right", fontsize=8)
+        ax[0].set_zorder(r.get_zorder() + 1)  # keep PAR visible above the W m⁻² curves
+        ax[0].patch.set_visible(False)
+    ax[0].plot(t, local["par_umol_m2_s"], color="tab:orange", lw=2.5)
+    anchor = df.attrs.get("metadata", {}).get("anchor") or df.attrs.get("anchor")
+    if anchor:
+        a = anchor if isinstance(anchor, dict) else ast.literal_eval(anchor)
+        ta = pd.Timestamp(a["time_local"], tz=a["tz"]).tz_convert(tz).tz_localize(None)
+        ax[0].plot([ta], [a["par_umol_m2_s"]], "k*", ms=12, label="recorded chamber point (anchor)")
+        ax[1].plot([ta], [a["tair_c"]], "k*", ms=12)
+    ax[0].legend(loc="upper left", fontsize=8)
+    ax[1].plot(t, local["tair_c"], color="tab:red")
+    ax[1].set_ylabel("T air (°C)")
+    h = ax[1].twinx()
+    h.plot(t, 100 * local["rh"], color="tab:blue")
+    h.set_ylabel("RH (%)", color="tab:blue")
+    ax[2].plot(t, local["co2_ppm"], color="tab:green")
+    ax[2].set_ylabel("CO2 (ppm)")
+    p = ax[2].twinx()
+    p.plot(t, local["pair_kpa"], color="tab:gray")
+    p.set_ylabel("p (kPa)", color="tab:gray")
+    if "sun_elevation_deg" in local.columns:
+        ax[3].plot(t, local["sun_elevation_deg"], color="goldenrod")
+        ax[3].axhline(0, color="k", lw=0.5)
+    ax[3].set_ylabel("sun elevation (°)")
+    ax[3].set_xlabel(f"time ({tz})")
+    ax[3].xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
+    src = Path(str(df.attrs.get("source", ""))).name
+    fig.suptitle(title or f"{provenance_label(df)} forcing — {src}", fontsize=11)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,69 @@
+"""Backend choice: libLLVM discovery, variant selection, clear errors."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from lightfit.light import backend
+
+
+def test_finds_libllvm_16_or_newer():
+    path = backend.find_libllvm()
+    assert path is not None and os.path.exists(path)
+    assert backend._llvm_major(path) >= 16
+
+
+def test_user_llvm_path_wins_and_is_checked(monkeypatch, tmp_path):
+    fake = tmp_path / "libLLVM.so.99"
+    fake.write_bytes(b"")
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(fake))
+    assert backend.configure_libllvm() == (str(fake), "user")
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "missing.so"))
+    with pytest.raises(backend.BackendError, match="does not exist"):
+        backend.configure_libllvm()
+
+
+def test_variant_precedence(monkeypatch):
+    monkeypatch.setenv("LIGHTFIT_VARIANT", "llvm_ad_rgb")
+    assert backend.choose_variant("scalar_rgb") == ("scalar_rgb", "argument")
+    assert backend.choose_variant() == ("llvm_ad_rgb", "env")
+    monkeypatch.delenv("LIGHTFIT_VARIANT")
+    expected = "cuda_ad_mono" if backend.cuda_usable() else "llvm_ad_mono"
+    assert backend.choose_variant() == (expected, "auto")
+
+
+def test_mitsuba_renders_with_llvm_in_a_fresh_process():
+    # A fresh interpreter, so DRJIT_LIBLLVM_PATH is set by lightfit before mitsuba's first import.
+    code = (
+        "import os; os.environ.pop('DRJIT_LIBLLVM_PATH', None)\n"
+        "from lightfit.light import backend\n"
+        "mi = backend.mitsuba('llvm_ad_mono')\n"
+        "import drjit as dr\n"
+        "s = mi.load_dict({'type': 'scene', 'sh': {'type': 'sphere'}})\n"
+        "ray = mi.Ray3f(mi.Point3f(0, 0, -5), mi.Vector3f(0, 0, 1))\n"
+        "si = s.ray_intersect(ray)\n"
+        "print(mi.variant(), os.environ['DRJIT_LIBLLVM_PATH'], float(si.t[0]))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DRJIT_LIBLLVM_PATH", "LIGHTFIT_VARIANT")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    variant, llvm, t = out.stdout.split()
+    assert variant == "llvm_ad_mono" and "libLLVM" in llvm
+    assert float(t) == pytest.approx(4.0, abs=1e-5)  # unit sphere hit at distance 5 − 1
+
+
+def test_unknown_variant_and_missing_cuda_are_clear_errors():
+    with pytest.raises(backend.BackendError, match="not in this Mitsuba build"):
+        backend.mitsuba("llvm_ad_hyperspectral")
+    if not backend.cuda_usable():
+        with pytest.raises(backend.BackendError, match="needs a CUDA device"):
+            backend.mitsuba("cuda_ad_mono")
+
+
+def test_missing_llvm_message(monkeypatch):
+    monkeypatch.setitem(backend._STATE, "llvm", (None, None))
+    monkeypatch.delitem(backend._STATE, "mi", raising=False)
+    with pytest.raises(backend.BackendError, match="karellen-llvm-core"):
+        backend.mitsuba("llvm_ad_rgb")

@@ -1,0 +1,70 @@
+"""The bundled data: provenance stated, reconstruction reproducible and anchored."""
+
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lightfit.errors import InputError
+from lightfit.weather import Anchor, load, read_weather, reconstruct_day, write_lightfit_csv
+from lightfit.weather.bundled import BUNDLED, DATA_DIR, bundled_path
+
+
+def test_every_data_file_has_provenance_in_readme():
+    readme = (DATA_DIR / "README.md").read_text(encoding="utf-8")
+    files = [p for p in DATA_DIR.rglob("*") if p.is_file() and p.name != "README.md"]
+    assert files
+    for p in files:
+        rel = p.relative_to(DATA_DIR).as_posix()
+        assert f"`{rel}`" in readme, f"data/README.md does not describe {rel}"
+        section = readme.split(f"`{rel}`", 1)[1].split("\n### ", 1)[0]
+        assert re.search(r"\*\*(real measurement|reconstruction|synthetic)\*\*", section), f"{rel}: no provenance class"
+
+
+def test_bundled_reconstruction_is_labelled_and_reproducible(tmp_path):
+    df = read_weather(bundled_path("2016-04-20"))
+    assert df.attrs["provenance"] == "reconstructed"
+    assert "RECONSTRUCTED" in df.attrs["metadata"]["title"]
+    fresh = reconstruct_day("2016-04-20")
+    cols = list(df.columns)
+    # The file stores 8 significant digits.
+    assert np.allclose(df[cols].to_numpy(), fresh[cols].to_numpy(), rtol=1e-7, atol=1e-9)
+    assert len(df) == 144 and df.index[0] == pd.Timestamp("2016-04-20", tz="UTC")
+
+
+def test_reconstruction_reproduces_the_anchor():
+    a = Anchor()
+    t = a.time_utc
+    idx = pd.date_range("2016-04-20", periods=1440 * 60 // 6, freq="6s", tz="UTC")
+    fine = reconstruct_day("2016-04-20", step="6s")
+    assert fine["par_umol_m2_s"].loc[t] == pytest.approx(a.par_umol_m2_s, rel=1e-9)
+    assert fine["tair_c"].loc[t] == pytest.approx(a.tair_c, abs=1e-9)
+    assert len(fine) == len(idx)
+    # Physically sane: no light at night, RH within 0–1, PAR peak near solar noon.
+    assert (fine.loc[fine["sun_elevation_deg"] < -1, "par_umol_m2_s"] == 0).all()
+    assert fine["rh"].between(0, 1).all()
+    peak = fine["par_umol_m2_s"].idxmax()
+    assert abs((peak - pd.Timestamp("2016-04-20 11:33", tz="UTC")).total_seconds()) < 600
+
+
+def test_load_bundled_names():
+    assert set(BUNDLED) == {"2016-04-20", "selhausen-cplantbox-day"}
+    df = load("2016-04-20")
+    assert {"dni_w_m2", "dhi_w_m2", "sun_elevation_deg", "sun_azimuth_deg"} <= set(df.columns)
+    real = load("selhausen-cplantbox-day", date="2016-06-23")
+    assert real.attrs["provenance"] == "measured"
+    with pytest.raises(InputError, match="date"):
+        load("selhausen-cplantbox-day")
+    with pytest.raises(InputError, match="no bundled weather"):
+        load("2016-04-21")
+
+
+def test_write_requires_provenance(tmp_path):
+    df = load("2016-04-20", solar=False)
+    with pytest.raises(InputError, match="provenance"):
+        write_lightfit_csv(df, tmp_path / "x.csv", {"title": "no provenance"})
+    p = write_lightfit_csv(df, tmp_path / "x.csv", {"provenance": "synthetic"})
+    back = read_weather(p)
+    assert back.attrs["provenance"] == "synthetic"
+    assert np.allclose(back.to_numpy(), df.to_numpy(), rtol=1e-5)

@@ -1,0 +1,278 @@
+"""Readers on the real CPlantBox day and the TERENO-layout fixture, and every bad-input case."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lightfit.errors import InputError
+from lightfit.weather import read_cplantbox_day, read_tereno, read_weather, resample, units, window
+from lightfit.weather.bundled import DATA_DIR, bundled_path
+
+FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
+CPB = DATA_DIR / "weather" / "selhausen_cplantbox_day.txt"
+
+
+def _table_lines(path: Path) -> tuple[list[str], int]:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    hdr = next(i for i, l in enumerate(lines) if l.startswith("Timestamp"))
+    return lines, hdr
+
+
+def _variant(tmp_path, edit) -> Path:
+    """A copy of the fixture with ``edit(lines, header_index)`` applied."""
+    lines, hdr = _table_lines(FIXTURE)
+    lines = edit(lines, hdr) or lines
+    p = tmp_path / "export.csv"
+    p.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return p
+
+
+def test_tereno_fixture_reads_and_converts():
+    df = read_tereno(FIXTURE)
+    lines, hdr = _table_lines(FIXTURE)
+    first = lines[hdr + 1].split(",")
+    # Timestamps are UTC+1 in the file -> one hour earlier in UTC.
+    assert df.index[0] == pd.Timestamp(first[0], tz="UTC") - pd.Timedelta("1h")
+    assert df.index.tz is not None and str(df.index.tz) == "UTC"
+    assert len(df) == len(lines) - hdr - 1
+    # Unit conversions of the first row, by the independent formulas in units.py.
+    t, ah, p_mbar, co2 = float(first[4]), float(first[5]), float(first[6]), float(first[7])
+    assert df["tair_c"].iloc[0] == pytest.approx(t)
+    assert df["pair_kpa"].iloc[0] == pytest.approx(p_mbar / 10)
+    assert df["rh"].iloc[0] == pytest.approx(units.relative_humidity_from_absolute(ah, t))
+    assert df["co2_ppm"].iloc[0] == pytest.approx(units.co2_ppm_from_mmol_m3(co2, t, p_mbar / 10))
+    assert df.attrs["provenance"] == "measured"  # what the caller declares; the fixture's own README says synthetic
+    assert "RadiationGlobal_Avg10min QualityFlag" in df.attrs["unused_columns"]
+    assert not df.isna().any().any()
+
+
+def test_tereno_fixture_night_offsets_clamped_and_counted():
+    df = read_tereno(FIXTURE)
+    clamp = [q for q in df.attrs["qc"] if q["kind"] == "clamped" and q["column"] == "par_umol_m2_s"]
+    assert clamp and clamp[0]["count"] == 2
+    assert (df["par_umol_m2_s"] >= 0).all()
+
+
+def test_tereno_co2_30min_held_and_reported():
+    df = read_tereno(FIXTURE)
+    held = [q for q in df.attrs["qc"] if q["kind"] == "held"]
+    assert held and held[0]["column"] == "co2_ppm"
+    # The held rows equal the preceding 30-min value.
+    assert df["co2_ppm"].iloc[1] == df["co2_ppm"].iloc[0]
+
+
+def test_header_found_by_content_with_long_preamble_and_semicolons(tmp_path):
+    def edit(lines, hdr):
+        pre = [f"Comment line {i}: metadata, with, commas" for i in range(90)]
+        return pre + [l.replace(",", ";") for l in lines[hdr:]]
+
+    df = read_tereno(_variant(tmp_path, edit))
+    assert len(df) == len(read_tereno(FIXTURE))
+    assert np.allclose(df["rh"], read_tereno(FIXTURE)["rh"])
+
+
+def test_timezone_is_a_parameter():
+    a = read_tereno(FIXTURE)
+    b = read_tereno(FIXTURE, tz="UTC")
+    assert (b.index - a.index == pd.Timedelta("1h")).all()
+
+
+def test_column_override_and_unknown_key():
+    df = read_tereno(FIXTURE, columns={"tair_c": "AirTemperature_2m_Avg10min_Sensor1 [°C]"})
+    assert df.attrs["columns_used"]["tair_c"].startswith("AirTemperature")
+    with pytest.raises(InputError, match="unknown quantity"):
+        read_tereno(FIXTURE, columns={"temperature": "x"})
+    with pytest.raises(InputError, match="not in the table"):
+        read_tereno(FIXTURE, columns={"tair_c": "Nope [°C]"})
+
+
+def test_missing_column(tmp_path):
+    def edit(lines, hdr):
+        return [",".join(c for j, c in enumerate(l.split(",")) if j != 4) if i >= hdr else l for i, l in enumerate(lines)]
+
+    # Without air temperature, absolute humidity cannot become RH: the error says so.
+    with pytest.raises(InputError, match=r"export\.csv.*AirTemperature"):
+        read_tereno(_variant(tmp_path, edit))
+
+    def no_radiation(lines, hdr):
+        return [",".join(c for j, c in enumerate(l.split(",")) if j not in (1, 2, 3)) if i >= hdr else l
+                for i, l in enumerate(lines)]
+
+    with pytest.raises(InputError, match=r"export\.csv: missing column\(s\) ghi_w_m2 or par_umol_m2_s"):
+        read_tereno(_variant(tmp_path, no_radiation))
+
+
+def test_unparseable_time_names_line(tmp_path):
+    def edit(lines, hdr):
+        lines[hdr + 5] = "20.04.2016 quarter past," + lines[hdr + 5].split(",", 1)[1]
+
+    with pytest.raises(InputError, match=r"line \d+.*cannot parse time"):
+        read_tereno(_variant(tmp_path, edit))
+
+
+def test_duplicated_timestamp(tmp_path):
+    def edit(lines, hdr):
+        lines.insert(hdr + 4, lines[hdr + 3])
+
+    with pytest.raises(InputError, match="duplicated timestamp"):
+        read_tereno(_variant(tmp_path, edit))
+
+
+def test_short_gap_interpolated_long_gap_rejected(tmp_path):
+    def short(lines, hdr):
+        del lines[hdr + 20]
+
+    df = read_tereno(_variant(tmp_path, short))
+    kinds = {q["kind"] for q in df.attrs["qc"]}
+    assert {"missing_timestamps", "interpolated"} <= kinds
+    ref = read_tereno(FIXTURE)
+    assert df["tair_c"].iloc[19] == pytest.approx(0.5 * (ref["tair_c"].iloc[18] + ref["tair_c"].iloc[20]))
+
+    def long(lines, hdr):
+        del lines[hdr + 20: hdr + 26]
+
+    with pytest.raises(InputError, match="longer than max_gap"):
+        read_tereno(_variant(tmp_path, long))
+    # Allowed when the user raises the limit.
+    assert len(read_tereno(_variant(tmp_path, long), max_gap="2h")) == len(ref)
+
+
+def test_empty_cell_and_sentinel_are_gaps(tmp_path):
+    def edit(lines, hdr):
+        cells = lines[hdr + 30].split(",")
+        cells[4] = ""
+        lines[hdr + 30] = ",".join(cells)
+        cells = lines[hdr + 40].split(",")
+        cells[1] = "-9999"
+        lines[hdr + 40] = ",".join(cells)
+
+    df = read_tereno(_variant(tmp_path, edit))
+    kinds = [(q["kind"], q["column"]) for q in df.attrs["qc"]]
+    assert ("interpolated", "tair_c") in kinds
+    assert any(k == "sentinel" for k, _ in kinds)
+    assert not df.isna().any().any()
+
+
+def test_not_a_number_names_line_and_column(tmp_path):
+    def edit(lines, hdr):
+        cells = lines[hdr + 10].split(",")
+        cells[4] = "warm"
+        lines[hdr + 10] = ",".join(cells)
+
+    with pytest.raises(InputError, match=rf"line {1 + 0}|'warm' is not a number") as e:
+        read_tereno(_variant(tmp_path, edit))
+    assert "AirTemperature" in str(e.value) and "line" in str(e.value)
+
+
+def test_out_of_range_value(tmp_path):
+    def edit(lines, hdr):
+        cells = lines[hdr + 12].split(",")
+        cells[4] = "300"
+        lines[hdr + 12] = ",".join(cells)
+
+    with pytest.raises(InputError, match=r"line \d+, column 'tair_c': value 300"):
+        read_tereno(_variant(tmp_path, edit))
+
+
+def test_large_negative_par_is_an_error_not_clamped(tmp_path):
+    def edit(lines, hdr):
+        cells = lines[hdr + 12].split(",")
+        cells[3] = "-250"
+        lines[hdr + 12] = ",".join(cells)
+
+    with pytest.raises(InputError, match="par_umol_m2_s"):
+        read_tereno(_variant(tmp_path, edit))
+
+
+def test_unit_mismatch(tmp_path):
+    def unknown_unit(lines, hdr):
+        lines[hdr] = lines[hdr].replace("[mbar]", "[psi]")
+
+    with pytest.raises(InputError, match=r"unit \[psi\] not understood"):
+        read_tereno(_variant(tmp_path, unknown_unit))
+
+    def pascal_labelled_mbar(lines, hdr):
+        for i in range(hdr + 1, len(lines)):
+            c = lines[i].split(",")
+            c[6] = f"{float(c[6]) * 100:.1f}"
+            lines[i] = ",".join(c)
+
+    with pytest.raises(InputError, match="pair_kpa.*check the unit"):
+        read_tereno(_variant(tmp_path, pascal_labelled_mbar))
+
+
+def test_off_grid_timestamp(tmp_path):
+    def edit(lines, hdr):
+        assert ":20:00" in lines[hdr + 3]
+        lines[hdr + 3] = lines[hdr + 3].replace(":20:00", ":23:00", 1)
+
+    with pytest.raises(InputError, match="off the regular"):
+        read_tereno(_variant(tmp_path, edit))
+
+
+def test_unsorted_rows_are_sorted_and_reported(tmp_path):
+    def edit(lines, hdr):
+        lines[hdr + 5], lines[hdr + 6] = lines[hdr + 6], lines[hdr + 5]
+
+    df = read_tereno(_variant(tmp_path, edit))
+    assert df.index.is_monotonic_increasing
+    assert any(q["kind"] == "sorted" for q in df.attrs["qc"])
+
+
+def test_not_a_tereno_file(tmp_path):
+    p = tmp_path / "x.csv"
+    p.write_text("a,b\n1,2\n")
+    with pytest.raises(InputError, match="no table header"):
+        read_tereno(p)
+    with pytest.raises(InputError, match="unrecognised"):
+        read_weather(p)
+    with pytest.raises(InputError, match="file not found"):
+        read_weather(tmp_path / "missing.csv")
+
+
+def test_cplantbox_real_day():
+    df = read_cplantbox_day(CPB, "2016-06-23")
+    raw = pd.read_csv(CPB, sep="\t")
+    assert len(df) == len(raw) == 144
+    # PAR mol m-2 s-1 -> µmol m-2 s-1, CO2 mol mol-1 -> ppm, local time (CEST) -> UTC.
+    i = int(raw["PAR"].to_numpy().argmax())
+    assert df["par_umol_m2_s"].iloc[i] == pytest.approx(raw["PAR"].iloc[i] * 1e6)
+    assert df["co2_ppm"].iloc[0] == pytest.approx(raw["co2"].iloc[0] * 1e6)
+    assert df.index[0] == pd.Timestamp("2016-06-22 22:00", tz="UTC")
+    assert df.attrs["unused_columns"] == ["ps", "nm"]
+    # The file's PAR is centred on solar noon (≈13:35 CEST) under the local-time assumption.
+    par = df["par_umol_m2_s"]
+    centre = (par * (par.index - par.index[0]).total_seconds()).sum() / par.sum()
+    noon_utc = (pd.Timestamp("2016-06-23 11:35", tz="UTC") - par.index[0]).total_seconds()
+    assert abs(centre - noon_utc) < 3600
+
+
+def test_cplantbox_needs_a_date():
+    with pytest.raises(InputError, match="date"):
+        read_weather(CPB)
+    with pytest.raises(InputError, match="not a date"):
+        read_cplantbox_day(CPB, "the twentieth")
+
+
+def test_resample_mean_and_sample():
+    df = read_weather(bundled_path("2016-04-20"))
+    s = resample(df, "30min", "sample")
+    assert s["par_umol_m2_s"].loc["2016-04-20 11:00+00:00"] == df["par_umol_m2_s"].loc["2016-04-20 11:00+00:00"]
+    m = resample(df, "30min", "mean")
+    t = pd.Timestamp("2016-04-20 11:00", tz="UTC")
+    win = df["par_umol_m2_s"].loc[t - pd.Timedelta("15min"): t + pd.Timedelta("14min")]
+    assert m["par_umol_m2_s"].loc[t] == pytest.approx(win.mean())
+    with pytest.raises(InputError, match="resampling method"):
+        resample(df, "30min", "median")
+
+
+def test_window_is_the_papers_29_steps():
+    df = read_weather(bundled_path("2016-04-20"))
+    w = window(df, "2016-04-20 05:00", 14, "30min")
+    assert len(w) == 29
+    assert w.index[0] == pd.Timestamp("2016-04-20 03:00", tz="UTC")
+    assert "sun_elevation_deg" not in w.columns  # only recomputed where the input had it
+    with pytest.raises(InputError, match="not covered"):
+        window(df, "2016-04-20 20:00", 14)
