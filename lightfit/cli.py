@@ -8,6 +8,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from lightfit.errors import InputError
@@ -29,7 +30,7 @@ def _main(variant: str = typer.Option(None, "--variant", envvar="LIGHTFIT_VARIAN
 
 
 def _fail(err: Exception) -> None:
-    err_console.print(f"[bold red]error:[/] {err}")
+    err_console.print(f"[bold red]error:[/] {escape(str(err))}")
     raise typer.Exit(2)
 
 
@@ -100,7 +101,7 @@ def _report(df) -> None:
     if a.get("unused_columns"):
         console.print(f"  [dim]not used: {', '.join(a['unused_columns'])}[/]")
     for q in a.get("qc", []):
-        console.print(f"  [yellow]repair[/] {q['kind']}: {q['detail']}")
+        console.print(f"  [yellow]repair[/] {q['kind']}: {escape(q['detail'])}")
 
 
 @weather_app.command("show")
