@@ -1,0 +1,158 @@
+r"""C3 Farquhar–von Caemmerer–Berry biochemistry (Farquhar et al. 1980).
+
+Rates are in µmol m⁻² s⁻¹ and CO2 mole fractions in µmol mol⁻¹ throughout, which keeps
+float32 arithmetic well scaled.
+
+.. math::
+    V_c = V_{cmax}\frac{c - \Gamma^*}{c + K_c(1 + O/K_o)},\qquad
+    V_j = \frac{J}{4}\frac{c - \Gamma^*}{c + 2\Gamma^*},\qquad
+    A_n = \min(V_c, V_j) - R_d
+
+with :math:`c` the CO2 mole fraction at the carboxylation site (chloroplast; equal to the
+intercellular value without mesophyll resistance).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
+from .parameters import FvCBParams, TemperatureParams
+from .temperature import arrhenius, deactivation, peaked_arrhenius
+
+
+class LeafCapacities(NamedTuple):
+    """Per-segment quantities fixed during the CO2 solve (all broadcast to one shape).
+
+    Attributes:
+        vcmax_umol_m2_s: Vcmax at leaf temperature [µmol m⁻² s⁻¹].
+        jmax_umol_m2_s: Jmax at leaf temperature [µmol m⁻² s⁻¹].
+        j_umol_m2_s: electron transport rate J [µmol m⁻² s⁻¹].
+        rd_umol_m2_s: day respiration Rd [µmol m⁻² s⁻¹].
+        gamma_star_umol_mol: Γ* [µmol mol⁻¹].
+        km_umol_mol: effective Michaelis constant Kc(1 + O/Ko) [µmol mol⁻¹].
+        gamma_rubisco_umol_mol: Rubisco-limited CO2 compensation point with Rd, Γ'
+            (CPlantBox ``deltagco2``) [µmol mol⁻¹].
+    """
+
+    vcmax_umol_m2_s: object
+    jmax_umol_m2_s: object
+    j_umol_m2_s: object
+    rd_umol_m2_s: object
+    gamma_star_umol_mol: object
+    km_umol_mol: object
+    gamma_rubisco_umol_mol: object
+
+
+def electron_transport_rate(par_abs_umol_m2_s, jmax_umol_m2_s, quantum_yield, curvature):
+    r"""Electron transport rate from the non-rectangular hyperbola [µmol m⁻² s⁻¹].
+
+    Smaller root of :math:`\theta J^2 - (\alpha Q + J_{max}) J + \alpha Q J_{max} = 0`,
+    written as :math:`J = 2\alpha Q J_{max} / (\alpha Q + J_{max} + \sqrt{\Delta})` with
+    :math:`\Delta = (\alpha Q - J_{max})^2 + 4(1-\theta)\alpha Q J_{max}`: the usual
+    :math:`(b - \sqrt{\Delta})/2\theta` cancels catastrophically in float32 at low light.
+
+    Args:
+        par_abs_umol_m2_s: absorbed PAR Q [µmol photons m⁻² s⁻¹].
+        jmax_umol_m2_s: Jmax [µmol m⁻² s⁻¹].
+        quantum_yield: alpha [-].
+        curvature: theta in (0, 1] [-].
+
+    Reference: von Caemmerer (2000), Biochemical models of leaf photosynthesis, eq. 2.14;
+    CPlantBox ``photoC3_init``.
+    """
+    aq = quantum_yield * par_abs_umol_m2_s
+    disc = (aq - jmax_umol_m2_s) ** 2 + 4.0 * (1.0 - curvature) * aq * jmax_umol_m2_s
+    # Double-where keeps sqrt and the division differentiable where they degenerate.
+    pos = disc > 0
+    root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)
+    den = aq + jmax_umol_m2_s + root
+    ok = den > 0
+    return jnp.where(ok, 2.0 * aq * jmax_umol_m2_s / jnp.where(ok, den, 1.0), 0.0)
+
+
+def rubisco_limited_rate(c_umol_mol, vcmax_umol_m2_s, gamma_star_umol_mol, km_umol_mol, clip):
+    """Rubisco-limited gross rate Vc (Fc) [µmol m⁻² s⁻¹] (Farquhar et al. 1980).
+
+    With ``clip`` the rate is limited to [0, Vcmax] as in CPlantBox ``photoC3_loop``.
+    """
+    vc = vcmax_umol_m2_s * (c_umol_mol - gamma_star_umol_mol) / (c_umol_mol + km_umol_mol)
+    return jnp.clip(vc, 0.0, vcmax_umol_m2_s) if clip else vc
+
+
+def electron_limited_rate(c_umol_mol, j_umol_m2_s, gamma_star_umol_mol, clip):
+    """Electron-transport-limited gross rate Vj (Fj) [µmol m⁻² s⁻¹], J/4 per CO2.
+
+    With ``clip`` the rate is kept ≥ 0 as in CPlantBox ``photoC3_loop``.
+    """
+    vj = 0.25 * j_umol_m2_s * (c_umol_mol - gamma_star_umol_mol) / (c_umol_mol + 2.0 * gamma_star_umol_mol)
+    return jnp.maximum(vj, 0.0) if clip else vj
+
+
+def assimilation(c_umol_mol, leaf: LeafCapacities, clip: bool):
+    """Net assimilation An = min(Vc, Vj) − Rd and the two gross rates [µmol m⁻² s⁻¹].
+
+    Returns:
+        ``(an, vc, vj)``.
+    """
+    vc = rubisco_limited_rate(c_umol_mol, leaf.vcmax_umol_m2_s, leaf.gamma_star_umol_mol, leaf.km_umol_mol, clip)
+    vj = electron_limited_rate(c_umol_mol, leaf.j_umol_m2_s, leaf.gamma_star_umol_mol, clip)
+    return jnp.minimum(vc, vj) - leaf.rd_umol_m2_s, vc, vj
+
+
+def rubisco_compensation_point(gamma_star_umol_mol, km_umol_mol, rd_over_vcmax):
+    r"""CO2 compensation point of the Rubisco-limited rate with day respiration [µmol mol⁻¹].
+
+    Solves :math:`V_c(\Gamma') = R_d`:
+    :math:`\Gamma' = \max\left(0, (\Gamma^* + K_m R_d/V_{cmax}) / (1 - R_d/V_{cmax})\right)`,
+    taking the ratio Rd/Vcmax directly so that Vcmax → 0 stays finite.
+
+    Reference: CPlantBox ``initVcVjRd`` (``deltagco2``), Giraud et al. (2023).
+    """
+    raw = (gamma_star_umol_mol + km_umol_mol * rd_over_vcmax) / (1.0 - rd_over_vcmax)
+    return jnp.where(rd_over_vcmax < 1.0, jnp.maximum(raw, 0.0), 0.0)
+
+
+def leaf_capacities(par_abs_umol_m2_s, tleaf_c, pair_kpa, fvcb: FvCBParams, temp: TemperatureParams) -> LeafCapacities:
+    """Temperature- and light-dependent capacities of a leaf segment.
+
+    Kc and Ko are tabulated as mole fractions at 101.325 kPa; being Michaelis constants
+    of partial pressures they scale as 101.325/P at pressure P. Γ* (an O2/CO2 ratio) and
+    the O2 mole fraction do not.
+
+    Args:
+        par_abs_umol_m2_s: absorbed PAR [µmol m⁻² s⁻¹].
+        tleaf_c: leaf temperature [°C].
+        pair_kpa: air pressure [kPa].
+        fvcb: :class:`FvCBParams`.
+        temp: :class:`TemperatureParams`.
+    """
+    t_k = tleaf_c + ZERO_CELSIUS_K
+    t_ref = temp.t_ref_k
+    vref = fvcb.vcmax_ref_umol_m2_s
+    jref = fvcb.jmax_to_vcmax * vref
+    f_rd = arrhenius(t_k, temp.ea_rd_j_mol, t_ref)
+    if temp.form == "cplantbox":
+        f_v = arrhenius(t_k, temp.ea_vcmax_j_mol, t_ref) * deactivation(t_k, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k)
+        f_j = arrhenius(t_k, temp.ea_jmax_j_mol, t_ref) * deactivation(t_k, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k)
+        # CPlantBox caps Jmax at its reference value (Photosynthesis.cpp, photoC3_init).
+        f_j = jnp.minimum(f_j, 1.0)
+    else:
+        f_v = peaked_arrhenius(t_k, temp.ea_vcmax_j_mol, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k, t_ref)
+        f_j = peaked_arrhenius(t_k, temp.ea_jmax_j_mol, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k, t_ref)
+    vcmax = vref * f_v
+    jmax = jref * f_j
+    rd = fvcb.rd_to_vcmax * vref * f_rd
+    p_scale = REFERENCE_PRESSURE_KPA / pair_kpa
+    kc = temp.kc_ref_umol_mol * arrhenius(t_k, temp.ea_kc_j_mol, t_ref) * p_scale
+    ko = temp.ko_ref_mmol_mol * arrhenius(t_k, temp.ea_ko_j_mol, t_ref) * p_scale
+    gamma_star = temp.gamma_star_ref_umol_mol * arrhenius(t_k, temp.ea_gamma_star_j_mol, t_ref)
+    km = kc * (1.0 + fvcb.o2_mmol_mol / ko)
+    j = electron_transport_rate(par_abs_umol_m2_s, jmax, fvcb.quantum_yield, fvcb.curvature)
+    # f_v underflows only far outside the validated temperature range.
+    safe_fv = jnp.where(f_v > 0, f_v, 1.0)
+    rd_over_vcmax = jnp.where(f_v > 0, fvcb.rd_to_vcmax * f_rd / safe_fv, jnp.inf)
+    gamma_rubisco = rubisco_compensation_point(gamma_star, km, rd_over_vcmax)
+    return LeafCapacities(vcmax, jmax, j, rd, gamma_star, km, gamma_rubisco)

@@ -1,0 +1,423 @@
+r"""Leaf photosynthesis per segment: FvCB + stomata + boundary layer, solved per segment.
+
+For the coupled closures (``"tuzet"``, ``"leuning"``) the unknown is the chloroplast CO2
+mole fraction :math:`c_c` (equal to :math:`c_i` without mesophyll resistance). Given
+:math:`c_c` every other quantity is explicit:
+
+.. math::
+    A_n = \min(V_c(c_c), V_j(c_c)) - R_d,\quad
+    c_s = c_a - A_n/g_b,\quad g_s = g_s(A_n, c_s, D),\quad c_i = c_c + A_n/g_m,
+
+and the segment is at steady state when the demand equals the diffusive supply through
+the three conductances in series:
+
+.. math:: r(c_c) = A_n(c_c) - g_{tot}(c_c)\,(c_a - c_c) = 0,\qquad
+          g_{tot} = (1/g_s + 1/g_b + 1/g_m)^{-1}.
+
+Because :math:`g_s \ge g_0 > 0` and :math:`A_n \ge -R_d` for :math:`c_c \ge \Gamma^*`,
+:math:`r \le 0` at :math:`lo = \min(\Gamma^*, c_a)` and :math:`r \ge 0` at
+:math:`hi = \max(\Gamma^*, c_a) + R_d / g_{tot,min}` with
+:math:`g_{tot,min} = (1/g_0 + 1/g_b + 1/g_m)^{-1}`: a bracket exists for every input, and
+:func:`.solver.bracketed_newton` converges on it. Derivatives of the root follow from the
+implicit function theorem, :math:`dc_c/d\theta = -(\partial r/\partial c_c)^{-1}\partial
+r/\partial\theta`, through optimistix's :class:`~optimistix.ImplicitAdjoint` with a
+diagonal (per-segment) linear solve; the loop itself is never differentiated.
+
+The ``"cplantbox"`` closure is CPlantBox's Tuzet variant, where ci follows in closed form
+from the leaf-surface CO2 (see :func:`.stomata.cplantbox_intercellular_co2`); it needs no
+iteration.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+
+from .fvcb import LeafCapacities, assimilation, leaf_capacities
+from .parameters import PhotosynthesisParams, cast_params, check_params, parameter_set
+from .solver import SolverConfig, bracketed_newton, fixed_point_iteration
+from .stomata import (
+    cplantbox_conductance,
+    cplantbox_intercellular_co2,
+    leuning_conductance,
+    tuzet_conductance,
+    vapour_pressure_deficit_kpa,
+)
+
+#: Value of :attr:`PhotosynthesisResult.limitation` where Fc ≤ Fj (Rubisco-limited).
+RUBISCO_LIMITED = 0
+#: Value of :attr:`PhotosynthesisResult.limitation` where Fj < Fc (electron-transport-limited).
+ELECTRON_TRANSPORT_LIMITED = 1
+
+
+class Environment(NamedTuple):
+    """Per-segment drivers after validation (arrays of one float dtype).
+
+    Attributes:
+        par_abs_umol_m2_s: absorbed PAR [µmol m⁻² s⁻¹].
+        tleaf_c: leaf temperature [°C].
+        co2_umol_mol: CO2 in air (or at the leaf surface without boundary layer) [µmol mol⁻¹].
+        vpd_kpa: leaf-to-air vapour pressure deficit [kPa].
+        pair_kpa: air pressure [kPa].
+        gb_mol_m2_s: boundary-layer conductance to CO2 [mol m⁻² s⁻¹] (``inf`` = none).
+        fw: water-stress factor [-].
+    """
+
+    par_abs_umol_m2_s: jax.Array
+    tleaf_c: jax.Array
+    co2_umol_mol: jax.Array
+    vpd_kpa: jax.Array
+    pair_kpa: jax.Array
+    gb_mol_m2_s: jax.Array
+    fw: jax.Array
+
+
+class PhotosynthesisResult(NamedTuple):
+    """Per-segment outputs (arrays of the broadcast input shape).
+
+    Attributes:
+        an_umol_m2_s: net CO2 assimilation An [µmol m⁻² s⁻¹].
+        gs_mol_m2_s: stomatal conductance to CO2 [mol m⁻² s⁻¹] (×1.6 for water vapour).
+        ci_umol_mol: intercellular CO2 [µmol mol⁻¹].
+        cs_umol_mol: CO2 at the leaf surface [µmol mol⁻¹].
+        cc_umol_mol: chloroplast CO2 (= ci without mesophyll resistance) [µmol mol⁻¹].
+        vc_umol_m2_s: Rubisco-limited gross rate Vc (CPlantBox "Fc") [µmol m⁻² s⁻¹].
+        vj_umol_m2_s: electron-transport-limited gross rate Vj ("Fj") [µmol m⁻² s⁻¹].
+        rd_umol_m2_s: day respiration Rd [µmol m⁻² s⁻¹].
+        limitation: :data:`ELECTRON_TRANSPORT_LIMITED` (1) where Fj < Fc, else
+            :data:`RUBISCO_LIMITED` (0).
+        converged: True where the steady state was found to tolerance and all outputs
+            are finite; never trust a value where this is False.
+        iterations: solver iterations used (0 for the closed-form ``"cplantbox"`` closure).
+    """
+
+    an_umol_m2_s: jax.Array
+    gs_mol_m2_s: jax.Array
+    ci_umol_mol: jax.Array
+    cs_umol_mol: jax.Array
+    cc_umol_mol: jax.Array
+    vc_umol_m2_s: jax.Array
+    vj_umol_m2_s: jax.Array
+    rd_umol_m2_s: jax.Array
+    limitation: jax.Array
+    converged: jax.Array
+    iterations: jax.Array
+
+
+# --------------------------------------------------------------------------- coupled closure
+
+
+def _stomatal_conductance(an, cs, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams):
+    s = params.stomata
+    if s.model == "tuzet":
+        return tuzet_conductance(an, cs, leaf.gamma_star_umol_mol, s.g0_mol_m2_s, s.a1, env.fw)
+    if s.model == "leuning":
+        return leuning_conductance(an, cs, leaf.gamma_star_umol_mol, env.vpd_kpa, s.g0_mol_m2_s, s.a1, s.d0_kpa, env.fw)
+    raise ValueError(f"stomatal model {s.model!r} has no coupled form")
+
+
+class _Fluxes(NamedTuple):
+    an: jax.Array
+    vc: jax.Array
+    vj: jax.Array
+    cs: jax.Array
+    gs: jax.Array
+    ci: jax.Array
+    gtot: jax.Array
+
+
+def _fluxes(cc, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams) -> _Fluxes:
+    an, vc, vj = assimilation(cc, leaf, params.fvcb.clip_rates)
+    cs = env.co2_umol_mol - an / env.gb_mol_m2_s
+    gs = _stomatal_conductance(an, cs, leaf, env, params)
+    gtot = 1.0 / (1.0 / gs + 1.0 / env.gb_mol_m2_s + 1.0 / params.fvcb.gm_mol_m2_s)
+    ci = cc + an / params.fvcb.gm_mol_m2_s
+    return _Fluxes(an, vc, vj, cs, gs, ci, gtot)
+
+
+def co2_balance_residual(cc_umol_mol, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams):
+    """Steady-state residual r(cc) = An − g_tot·(ca − cc) [µmol m⁻² s⁻¹] (see module doc)."""
+    f = _fluxes(cc_umol_mol, leaf, env, params)
+    return f.an - f.gtot * (env.co2_umol_mol - cc_umol_mol)
+
+
+def _residual_fn(cc, args):
+    leaf, env, params = args
+    return co2_balance_residual(cc, leaf, env, params)
+
+
+def _fixed_point_map(cc, args):
+    leaf, env, params = args
+    f = _fluxes(cc, leaf, env, params)
+    return env.co2_umol_mol - f.an / f.gtot
+
+
+def _bracket(leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams):
+    gamma = leaf.gamma_star_umol_mol
+    ca = env.co2_umol_mol
+    gtot_min = 1.0 / (1.0 / params.stomata.g0_mol_m2_s + 1.0 / env.gb_mol_m2_s + 1.0 / params.fvcb.gm_mol_m2_s)
+    lo = jnp.minimum(gamma, ca)
+    top = jnp.maximum(gamma, ca)
+    # Slack guards the sign of r(hi) against rounding; it only widens the bracket.
+    hi = top + 1.001 * jnp.maximum(leaf.rd_umol_m2_s, 0.0) / gtot_min + 1e-3 * (1.0 + top)
+    x0 = jnp.where(ca > gamma, gamma + 0.7 * (ca - gamma), 0.5 * (lo + jnp.minimum(hi, 2.0 * top)))
+    return lo, hi, x0
+
+
+def _primal(inputs):
+    leaf, env, params, config, _ = inputs
+    lo, hi, x0 = _bracket(leaf, env, params)
+    res = bracketed_newton(_residual_fn, x0, lo, hi, (leaf, env, params), config)
+    return res.x, (res.converged, res.iterations)
+
+
+def _rewrite(root, aux, inputs):
+    del aux
+    leaf, env, params, _, _ = inputs
+    return co2_balance_residual(root, leaf, env, params)
+
+
+def _broadcast_leaf(leaf: LeafCapacities, env: Environment) -> LeafCapacities:
+    shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in (*leaf, *env)))
+    return LeafCapacities(*(jnp.broadcast_to(x, shape) for x in leaf))
+
+
+def _finish(cc, f: _Fluxes, leaf: LeafCapacities, converged, iterations) -> PhotosynthesisResult:
+    outputs = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, leaf.rd_umol_m2_s)
+    finite = jnp.all(jnp.stack([jnp.isfinite(o) for o in jnp.broadcast_arrays(*outputs)]), axis=0)
+    limitation = jnp.where(f.vj < f.vc, ELECTRON_TRANSPORT_LIMITED, RUBISCO_LIMITED).astype(jnp.int8)
+    return PhotosynthesisResult(
+        an_umol_m2_s=f.an,
+        gs_mol_m2_s=f.gs,
+        ci_umol_mol=f.ci,
+        cs_umol_mol=f.cs,
+        cc_umol_mol=cc,
+        vc_umol_m2_s=f.vc,
+        vj_umol_m2_s=f.vj,
+        rd_umol_m2_s=leaf.rd_umol_m2_s + 0.0 * f.an,
+        limitation=limitation,
+        converged=converged & finite,
+        iterations=iterations,
+    )
+
+
+def _solve_cplantbox(leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams) -> PhotosynthesisResult:
+    s = params.stomata
+    ci = cplantbox_intercellular_co2(env.co2_umol_mol, leaf.gamma_rubisco_umol_mol, s.a1, env.fw)
+    an, vc, vj = assimilation(ci, leaf, params.fvcb.clip_rates)
+    gs = cplantbox_conductance(an, leaf.rd_umol_m2_s, ci, leaf.gamma_rubisco_umol_mol, s.g0_mol_m2_s, s.a1, env.fw)
+    cs = env.co2_umol_mol + 0.0 * an
+    f = _Fluxes(an, vc, vj, cs, gs, ci, gs)
+    zeros = jnp.zeros(jnp.shape(an), jnp.int32)
+    return _finish(ci, f, leaf, jnp.ones(jnp.shape(an), bool), zeros)
+
+
+def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
+    leaf = leaf_capacities(env.par_abs_umol_m2_s, env.tleaf_c, env.pair_kpa, params.fvcb, params.temperature)
+    leaf = _broadcast_leaf(leaf, env)
+    if params.stomata.model == "cplantbox":
+        return _solve_cplantbox(leaf, env, params)
+    adjoint = optx.ImplicitAdjoint(linear_solver=lx.Diagonal())
+    cc, (converged, iterations) = adjoint.apply(_primal, _rewrite, (leaf, env, params, config), frozenset({lx.diagonal_tag}))
+    f = _fluxes(cc, leaf, env, params)
+    return _finish(cc, f, leaf, converged, iterations)
+
+
+def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
+    leaf = _broadcast_leaf(
+        leaf_capacities(env.par_abs_umol_m2_s, env.tleaf_c, env.pair_kpa, params.fvcb, params.temperature), env
+    )
+    _, _, x0 = _bracket(leaf, env, params)
+    res = fixed_point_iteration(_fixed_point_map, x0, (leaf, env, params), config)
+    f = _fluxes(res.x, leaf, env, params)
+    return _finish(res.x, f, leaf, res.converged, res.iterations)
+
+
+_solve_jit = eqx.filter_jit(_solve_impl)
+_plain_jit = eqx.filter_jit(_plain_impl)
+
+
+# --------------------------------------------------------------------------- input handling
+
+
+def _is_traced(x) -> bool:
+    return isinstance(x, jax.core.Tracer)
+
+
+def _check_range(name, value, lo, hi, expected):
+    if value is None or _is_traced(value):
+        return
+    v = np.asarray(value)
+    if not np.issubdtype(v.dtype, np.number) or np.iscomplexobj(v):
+        raise TypeError(f"{name} must be a real number or array, got dtype {v.dtype}")
+    v = v.astype(float)
+    bad = ~(np.isfinite(v) & (v >= lo) & (v <= hi))
+    if np.any(bad):
+        first = v[bad].ravel()[0] if v.ndim else float(v)
+        raise ValueError(f"{name} must be {expected}; got {first!r} ({int(np.count_nonzero(bad))} bad value(s))")
+
+
+def prepare_environment(
+    par_abs_umol_m2_s,
+    tleaf_c,
+    co2_ppm,
+    rh=None,
+    pair_kpa=101.325,
+    params: PhotosynthesisParams | None = None,
+    *,
+    vpd_kpa=None,
+    gb_mol_m2_s=None,
+    fw=1.0,
+) -> tuple[Environment, PhotosynthesisParams]:
+    """Validate, broadcast and cast the drivers of :func:`solve` (Python side, before jit).
+
+    Value checks run only on concrete inputs; under ``jit``/``grad`` traced values are
+    passed through and only shapes are checked.
+    """
+    if params is None:
+        params = parameter_set("giraud2023")
+    check_params(params)
+    named = {
+        "par_abs_umol_m2_s": par_abs_umol_m2_s,
+        "tleaf_c": tleaf_c,
+        "co2_ppm": co2_ppm,
+        "rh": rh,
+        "pair_kpa": pair_kpa,
+        "vpd_kpa": vpd_kpa,
+        "gb_mol_m2_s": gb_mol_m2_s,
+        "fw": fw,
+    }
+    for name, value in named.items():
+        if value is not None and not hasattr(value, "shape") and not isinstance(value, (int, float, np.number, list, tuple)):
+            raise TypeError(f"{name} must be a number or array, got {type(value).__name__}")
+    present = {k: v for k, v in named.items() if v is not None}
+    try:
+        shape = np.broadcast_shapes(*(np.shape(v) for v in present.values()))
+    except ValueError:
+        shapes = ", ".join(f"{k}{tuple(np.shape(v))}" for k, v in present.items())
+        raise ValueError(f"input shapes do not broadcast together: {shapes}") from None
+    _check_range("par_abs_umol_m2_s", par_abs_umol_m2_s, 0.0, 1e4, "absorbed PAR in [0, 1e4] µmol m-2 s-1")
+    _check_range("tleaf_c", tleaf_c, -50.0, 60.0, "leaf temperature in [-50, 60] °C")
+    _check_range("co2_ppm", co2_ppm, 1e-3, 1e5, "CO2 mole fraction in (0, 1e5] µmol mol-1 (ppm)")
+    _check_range("rh", rh, 0.0, 1.0, "relative humidity in [0, 1] (a fraction, not %)")
+    _check_range("pair_kpa", pair_kpa, 10.0, 200.0, "air pressure in [10, 200] kPa")
+    _check_range("vpd_kpa", vpd_kpa, 0.0, 20.0, "vapour pressure deficit in [0, 20] kPa")
+    _check_range("gb_mol_m2_s", gb_mol_m2_s, 1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1")
+    _check_range("fw", fw, 0.0, 1.0, "water-stress factor in [0, 1]")
+    if params.stomata.model == "leuning" and rh is None and vpd_kpa is None:
+        raise ValueError("the Leuning closure needs humidity: pass rh (0-1) or vpd_kpa")
+    if params.stomata.model == "cplantbox" and gb_mol_m2_s is not None:
+        raise ValueError(
+            "gb_mol_m2_s: the 'cplantbox' closure takes co2_ppm at the leaf surface (as CPlantBox "
+            "does); use the 'tuzet' or 'leuning' closure for a boundary layer"
+        )
+
+    floats = [v for v in present.values() if hasattr(v, "dtype") and jnp.issubdtype(v.dtype, jnp.floating)]
+    dtype = jnp.result_type(*floats) if floats else jnp.result_type(float)
+
+    def arr(x):
+        return jnp.asarray(x, dtype)
+
+    tleaf = arr(tleaf_c)
+    if vpd_kpa is not None:
+        vpd = arr(vpd_kpa)
+    elif rh is not None:
+        vpd = vapour_pressure_deficit_kpa(tleaf, arr(rh))
+    else:
+        vpd = jnp.zeros((), dtype)
+    gb = jnp.asarray(jnp.inf, dtype) if gb_mol_m2_s is None else arr(gb_mol_m2_s)
+    env = Environment(
+        par_abs_umol_m2_s=arr(par_abs_umol_m2_s),
+        tleaf_c=tleaf,
+        co2_umol_mol=arr(co2_ppm),
+        vpd_kpa=vpd,
+        pair_kpa=arr(pair_kpa),
+        gb_mol_m2_s=gb,
+        fw=arr(fw),
+    )
+    del shape
+    return env, cast_params(params, dtype)
+
+
+def solve(
+    par_abs_umol_m2_s,
+    tleaf_c,
+    co2_ppm,
+    rh=None,
+    pair_kpa=101.325,
+    params: PhotosynthesisParams | None = None,
+    *,
+    vpd_kpa=None,
+    gb_mol_m2_s=None,
+    fw=1.0,
+    config: SolverConfig | None = None,
+) -> PhotosynthesisResult:
+    """Net CO2 assimilation, stomatal conductance and CO2 mole fractions per segment.
+
+    All array arguments broadcast together (e.g. ``(time, segment)``); parameter leaves may
+    be arrays broadcastable to that shape. The computation is jit-compiled, runs in the
+    dtype of the float inputs (float32 or float64), and is differentiable with respect to
+    every float input and parameter (implicit differentiation through the solve).
+
+    Args:
+        par_abs_umol_m2_s: absorbed PAR [µmol photons m⁻² s⁻¹], ≥ 0.
+        tleaf_c: leaf temperature [°C].
+        co2_ppm: CO2 mole fraction [µmol mol⁻¹]; in the air outside the boundary layer if
+            ``gb_mol_m2_s`` is given, else at the leaf surface.
+        rh: relative humidity of the air [0–1], used for the VPD at leaf temperature.
+        pair_kpa: air pressure [kPa].
+        params: :class:`PhotosynthesisParams`; default ``parameter_set("giraud2023")``.
+        vpd_kpa: leaf-to-air vapour pressure deficit [kPa]; overrides ``rh``.
+        gb_mol_m2_s: boundary-layer conductance to CO2 [mol m⁻² s⁻¹], in series with gs.
+        fw: water-stress factor [0–1]; 1 = no soil water limitation (default, as the
+            reference paper), see :func:`.stomata.water_stress_factor`.
+        config: :class:`SolverConfig`; default tolerances depend on the dtype.
+
+    Returns:
+        :class:`PhotosynthesisResult`.
+
+    Raises:
+        ValueError / TypeError: inputs of the wrong shape, type or range (checked before
+            jit on concrete values).
+    """
+    env, params = prepare_environment(
+        par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, params, vpd_kpa=vpd_kpa, gb_mol_m2_s=gb_mol_m2_s, fw=fw
+    )
+    if config is None:
+        config = SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype)
+    return _solve_jit(env, params, config)
+
+
+def solve_plain_iteration(
+    par_abs_umol_m2_s,
+    tleaf_c,
+    co2_ppm,
+    rh=None,
+    pair_kpa=101.325,
+    params: PhotosynthesisParams | None = None,
+    *,
+    vpd_kpa=None,
+    gb_mol_m2_s=None,
+    fw=1.0,
+    config: SolverConfig | None = None,
+) -> PhotosynthesisResult:
+    """Baseline: the same steady state by plain fixed-point iteration cc ← ca − An/g_tot.
+
+    Not robust (it oscillates or diverges where gs ≈ g0 and An ≈ 0); kept for the
+    benchmark and to test the robust solver against. Not differentiable by design.
+    Coupled closures only.
+    """
+    env, params = prepare_environment(
+        par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, params, vpd_kpa=vpd_kpa, gb_mol_m2_s=gb_mol_m2_s, fw=fw
+    )
+    if params.stomata.model == "cplantbox":
+        raise ValueError("params.stomata.model: 'cplantbox' is closed-form; plain iteration needs 'tuzet' or 'leuning'")
+    if config is None:
+        config = SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype)
+    return _plain_jit(env, params, config)

@@ -1,0 +1,332 @@
+"""Typed parameter PyTrees and the named parameter sets.
+
+All parameters are :class:`equinox.Module` PyTrees: float fields are leaves (differentiable,
+may be arrays broadcastable to the segment shape, e.g. a per-segment ``vcmax``); model
+choices are static fields. Units are in the field names.
+
+Named sets (:func:`parameter_set`):
+
+``"cplantbox"``
+    Defaults of CPlantBox 2.1.1 ``Photosynthesis.h`` (C3, Tuzet closure as CPlantBox
+    implements it, CPlantBox temperature forms, Chl = 55 µg cm⁻², VcmaxrefChl1/2 =
+    0.64/4.165, a1 = 4, a3 = 1.7, alpha = 0.2, theta = 0.9, g0 = 3e-4 mol m⁻² s⁻¹).
+``"giraud2023"``
+    Wheat values of Giraud et al. (2023) as the reference paper used them through
+    CPlantBox (``plant_photosynthesis/wheat_FcVB_Giraud2023adapted.py`` and DESIGN §4):
+    VcmaxrefChl1/2 = 1.28/8.33, Chl from SPAD 41 (Qian et al. 2021 formula, value passed
+    to CPlantBox unchanged), a1 = 1.5, a3 = 1.5, alpha = 0.4, theta = 0.6, g0 = 8e-3.
+``"giraud2023_coupled"``
+    The same leaf, but CO2 at the leaf surface, ci, gs and An solved as one coupled fixed
+    point with the Tuzet (2003) conductance (``a1_tuzet = 1 + a1_cplantbox = 2.5``, which
+    reproduces CPlantBox's ci/cs as g0 → 0 without a boundary layer).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+TEMPERATURE_FORMS = ("cplantbox", "peaked")
+STOMATAL_MODELS = ("cplantbox", "tuzet", "leuning")
+
+
+class TemperatureParams(eqx.Module):
+    """Temperature-response parameters.
+
+    Attributes:
+        t_ref_k: reference temperature [K] at which the ``*_ref`` values hold.
+        kc_ref_umol_mol: Michaelis constant of Rubisco for CO2 at ``t_ref_k`` [µmol mol⁻¹].
+        ko_ref_mmol_mol: Michaelis constant of Rubisco for O2 at ``t_ref_k`` [mmol mol⁻¹].
+        gamma_star_ref_umol_mol: CO2 compensation point without day respiration, Γ*,
+            at ``t_ref_k`` [µmol mol⁻¹].
+        ea_kc_j_mol, ea_ko_j_mol, ea_gamma_star_j_mol, ea_vcmax_j_mol, ea_jmax_j_mol,
+            ea_rd_j_mol: activation energies [J mol⁻¹].
+        hd_vcmax_j_mol, hd_jmax_j_mol: deactivation energies [J mol⁻¹].
+        entropy_vcmax_j_mol_k, entropy_jmax_j_mol_k: entropy terms [J mol⁻¹ K⁻¹].
+        form: ``"cplantbox"`` or ``"peaked"`` (see :mod:`.temperature`).
+    """
+
+    t_ref_k: jax.Array | float
+    kc_ref_umol_mol: jax.Array | float
+    ko_ref_mmol_mol: jax.Array | float
+    gamma_star_ref_umol_mol: jax.Array | float
+    ea_kc_j_mol: jax.Array | float
+    ea_ko_j_mol: jax.Array | float
+    ea_gamma_star_j_mol: jax.Array | float
+    ea_vcmax_j_mol: jax.Array | float
+    ea_jmax_j_mol: jax.Array | float
+    ea_rd_j_mol: jax.Array | float
+    hd_vcmax_j_mol: jax.Array | float
+    hd_jmax_j_mol: jax.Array | float
+    entropy_vcmax_j_mol_k: jax.Array | float
+    entropy_jmax_j_mol_k: jax.Array | float
+    form: str = eqx.field(static=True, default="peaked")
+
+    def __check_init__(self):
+        if self.form not in TEMPERATURE_FORMS:
+            raise ValueError(f"TemperatureParams.form must be one of {TEMPERATURE_FORMS}, got {self.form!r}")
+
+    @classmethod
+    def cplantbox(cls) -> TemperatureParams:
+        """CPlantBox 2.1.1 ``Photosynthesis.h`` values (T_ref = 293.2 K; Kc, Ko, Γ* from
+        Bernacchi et al. 2001 at 25 °C but used at 20.05 °C as CPlantBox does)."""
+        return cls(
+            t_ref_k=293.2,
+            kc_ref_umol_mol=302.0,
+            ko_ref_mmol_mol=256.0,
+            gamma_star_ref_umol_mol=42.75,
+            ea_kc_j_mol=59430.0,
+            ea_ko_j_mol=36000.0,
+            ea_gamma_star_j_mol=37830.0,
+            ea_vcmax_j_mol=58520.0,
+            ea_jmax_j_mol=37000.0,
+            ea_rd_j_mol=53000.0,
+            hd_vcmax_j_mol=220000.0,
+            hd_jmax_j_mol=220000.0,
+            entropy_vcmax_j_mol_k=700.0,
+            entropy_jmax_j_mol_k=700.0,
+            form="cplantbox",
+        )
+
+    @classmethod
+    def bernacchi2001(cls) -> TemperatureParams:
+        """Bernacchi et al. (2001) Kc, Ko, Γ*, Vcmax and Rd at 25 °C; Jmax activation
+        energy from Bernacchi et al. (2003); deactivation Hd = 200 kJ mol⁻¹ and ΔS from
+        Kattge & Knorr (2007) at a growth temperature of 15 °C; peaked form of Medlyn
+        et al. (2002)."""
+        return cls(
+            t_ref_k=298.15,
+            kc_ref_umol_mol=404.9,
+            ko_ref_mmol_mol=278.4,
+            gamma_star_ref_umol_mol=42.75,
+            ea_kc_j_mol=79430.0,
+            ea_ko_j_mol=36380.0,
+            ea_gamma_star_j_mol=37830.0,
+            ea_vcmax_j_mol=65330.0,
+            ea_jmax_j_mol=43540.0,
+            ea_rd_j_mol=46390.0,
+            hd_vcmax_j_mol=200000.0,
+            hd_jmax_j_mol=200000.0,
+            entropy_vcmax_j_mol_k=652.3,
+            entropy_jmax_j_mol_k=648.5,
+            form="peaked",
+        )
+
+
+class FvCBParams(eqx.Module):
+    """Farquhar–von Caemmerer–Berry C3 leaf parameters.
+
+    Attributes:
+        vcmax_ref_umol_m2_s: maximum carboxylation rate at the temperature reference
+            [µmol m⁻² s⁻¹]; see :func:`vcmax_ref_from_chlorophyll`.
+        jmax_to_vcmax: a3 = Jmax_ref / Vcmax_ref [-].
+        rd_to_vcmax: Rd_ref / Vcmax_ref [-] (0.015 after Bonan 2019, as CPlantBox).
+        quantum_yield: alpha, electrons per absorbed photon in the light response [-].
+        curvature: theta, curvature of the non-rectangular light response (0, 1] [-].
+        o2_mmol_mol: intercellular O2 mole fraction [mmol mol⁻¹].
+        gm_mol_m2_s: mesophyll conductance to CO2 [mol m⁻² s⁻¹]; ``inf`` = none. Used by
+            the coupled closures only (CPlantBox uses its gm in the water path only).
+        clip_rates: clip Vc to [0, Vcmax] and Vj to ≥ 0 as CPlantBox does; without it
+            the rates turn negative below Γ* (photorespiratory CO2 release).
+    """
+
+    vcmax_ref_umol_m2_s: jax.Array | float
+    jmax_to_vcmax: jax.Array | float
+    rd_to_vcmax: jax.Array | float
+    quantum_yield: jax.Array | float
+    curvature: jax.Array | float
+    o2_mmol_mol: jax.Array | float = 210.0
+    gm_mol_m2_s: jax.Array | float = float("inf")
+    clip_rates: bool = eqx.field(static=True, default=True)
+
+
+class StomataParams(eqx.Module):
+    """Stomatal-conductance closure. Conductances are to CO2 (×1.6 for water vapour).
+
+    Attributes:
+        g0_mol_m2_s: residual stomatal conductance [mol m⁻² s⁻¹], > 0 for the coupled
+            closures (with g0 = 0 a respiring leaf in the dark has no steady state).
+        a1: slope [-]. Its meaning depends on ``model``: for ``"cplantbox"`` it is
+            (ci − Γ')/(cs − ci) (Giraud et al. 2023); for ``"tuzet"`` and ``"leuning"`` it
+            is the slope of gs against An/(cs − Γ*) (Tuzet et al. 2003; Leuning 1995).
+        d0_kpa: VPD sensitivity D0 of the Leuning model [kPa].
+        model: ``"cplantbox"`` (ci in closed form as CPlantBox), ``"tuzet"`` or
+            ``"leuning"`` (coupled fixed point).
+    """
+
+    g0_mol_m2_s: jax.Array | float
+    a1: jax.Array | float
+    d0_kpa: jax.Array | float = 1.5
+    model: str = eqx.field(static=True, default="tuzet")
+
+    def __check_init__(self):
+        if self.model not in STOMATAL_MODELS:
+            raise ValueError(f"StomataParams.model must be one of {STOMATAL_MODELS}, got {self.model!r}")
+
+
+class PhotosynthesisParams(eqx.Module):
+    """All leaf photosynthesis parameters, with provenance.
+
+    Attributes:
+        fvcb: :class:`FvCBParams`.
+        temperature: :class:`TemperatureParams`.
+        stomata: :class:`StomataParams`.
+        name: set name (informative).
+        source: literature / software source of the values.
+    """
+
+    fvcb: FvCBParams
+    temperature: TemperatureParams
+    stomata: StomataParams
+    name: str = eqx.field(static=True, default="custom")
+    source: str = eqx.field(static=True, default="")
+
+
+def vcmax_ref_from_chlorophyll(chl_ug_cm2, slope=1.28, intercept_umol_m2_s=8.33):
+    r"""Vcmax at the reference temperature from leaf chlorophyll [µmol m⁻² s⁻¹].
+
+    .. math:: V_{cmax,ref} = \mathrm{VcmaxrefChl1}\cdot \mathrm{Chl} + \mathrm{VcmaxrefChl2}
+
+    Args:
+        chl_ug_cm2: leaf chlorophyll content as CPlantBox takes it [µg cm⁻²].
+        slope: VcmaxrefChl1 [µmol m⁻² s⁻¹ per µg cm⁻²].
+        intercept_umol_m2_s: VcmaxrefChl2 [µmol m⁻² s⁻¹].
+
+    Reference: Qian et al. (2021), doi:10.1029/2020JG006076; CPlantBox
+    ``Photosynthesis::initVcVjRd``.
+    """
+    return slope * chl_ug_cm2 + intercept_umol_m2_s
+
+
+def chlorophyll_from_spad_qian2021(spad):
+    """Leaf chlorophyll from a SPAD reading, 0.114·SPAD² + 7.39·SPAD + 10.6.
+
+    Returns the number CPlantBox scripts pass as ``Chl`` [µg cm⁻² by CPlantBox's
+    convention]. The fit of Qian et al. (2021, eq. 1) is in mg m⁻², i.e. ten times the
+    µg cm⁻² value; CPlantBox's own docstring notes the values "seem 10 times too high".
+    The ``giraud2023`` set keeps the value as the reference paper's scripts used it.
+    """
+    return 0.114 * spad**2 + 7.39 * spad + 10.6
+
+
+def _cplantbox() -> PhotosynthesisParams:
+    return PhotosynthesisParams(
+        fvcb=FvCBParams(
+            vcmax_ref_umol_m2_s=vcmax_ref_from_chlorophyll(55.0, 0.64, 4.165),
+            jmax_to_vcmax=1.7,
+            rd_to_vcmax=0.015,
+            quantum_yield=0.2,
+            curvature=0.9,
+            o2_mmol_mol=210.0,
+            clip_rates=True,
+        ),
+        temperature=TemperatureParams.cplantbox(),
+        stomata=StomataParams(g0_mol_m2_s=3e-4, a1=4.0, model="cplantbox"),
+        name="cplantbox",
+        source="CPlantBox 2.1.1 src/functional/Photosynthesis.h defaults (Giraud et al. 2023, "
+        "doi:10.1093/insilicoplants/diad013)",
+    )
+
+
+def _giraud_fvcb() -> FvCBParams:
+    return FvCBParams(
+        vcmax_ref_umol_m2_s=vcmax_ref_from_chlorophyll(chlorophyll_from_spad_qian2021(41.0), 1.28, 8.33),
+        jmax_to_vcmax=1.5,
+        rd_to_vcmax=0.015,
+        quantum_yield=0.4,
+        curvature=0.6,
+        o2_mmol_mol=210.0,
+        clip_rates=True,
+    )
+
+
+def _giraud2023() -> PhotosynthesisParams:
+    return PhotosynthesisParams(
+        fvcb=_giraud_fvcb(),
+        temperature=TemperatureParams.cplantbox(),
+        stomata=StomataParams(g0_mol_m2_s=8e-3, a1=1.5, model="cplantbox"),
+        name="giraud2023",
+        source="Giraud et al. (2023) wheat, as used by Baker et al. (2025) through CPlantBox "
+        "(wheat_FcVB_Giraud2023adapted.py; a1 = 0.6/0.4 as in Giraud's scripts; SPAD 41)",
+    )
+
+
+def _giraud2023_coupled() -> PhotosynthesisParams:
+    return PhotosynthesisParams(
+        fvcb=_giraud_fvcb(),
+        temperature=TemperatureParams.cplantbox(),
+        stomata=StomataParams(g0_mol_m2_s=8e-3, a1=2.5, model="tuzet"),
+        name="giraud2023_coupled",
+        source="giraud2023 leaf with the Tuzet et al. (2003) conductance solved as a coupled "
+        "fixed point (a1_tuzet = 1 + a1_cplantbox)",
+    )
+
+
+_SETS: dict[str, Callable[[], PhotosynthesisParams]] = {
+    "cplantbox": _cplantbox,
+    "giraud2023": _giraud2023,
+    "giraud2023_coupled": _giraud2023_coupled,
+}
+
+#: Names accepted by :func:`parameter_set`.
+PARAMETER_SET_NAMES = tuple(_SETS)
+
+
+def parameter_set(name: str) -> PhotosynthesisParams:
+    """Return a named parameter set (see the module docstring for values and sources).
+
+    Raises:
+        ValueError: ``name`` is not one of :data:`PARAMETER_SET_NAMES`.
+    """
+    try:
+        factory = _SETS[name]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"parameter_set: unknown name {name!r}; expected one of {list(PARAMETER_SET_NAMES)}"
+        ) from None
+    return factory()
+
+
+def cast_params(params: PhotosynthesisParams, dtype) -> PhotosynthesisParams:
+    """Cast every float leaf of ``params`` to ``dtype`` (static fields are untouched)."""
+    return jax.tree.map(lambda leaf: jnp.asarray(leaf, dtype), params)
+
+
+def check_params(params: PhotosynthesisParams) -> None:
+    """Raise ``ValueError`` for physically impossible parameter values.
+
+    Only concrete (non-traced) leaves are checked, so this is a no-op under ``jit``.
+    """
+    if not isinstance(params, PhotosynthesisParams):
+        raise TypeError(f"params must be a PhotosynthesisParams, got {type(params).__name__}")
+
+    def concrete(x):
+        if isinstance(x, jax.core.Tracer):
+            return None
+        return np.asarray(x, dtype=float)
+
+    def require(value, ok, label, expected):
+        v = concrete(value)
+        if v is not None and not np.all(ok(v)):
+            raise ValueError(f"params.{label} must be {expected}, got {v!r}")
+
+    f, s = params.fvcb, params.stomata
+    require(f.vcmax_ref_umol_m2_s, lambda v: (v >= 0) & np.isfinite(v), "fvcb.vcmax_ref_umol_m2_s", "finite and >= 0")
+    require(f.jmax_to_vcmax, lambda v: (v >= 0) & np.isfinite(v), "fvcb.jmax_to_vcmax", "finite and >= 0")
+    require(f.rd_to_vcmax, lambda v: (v >= 0) & np.isfinite(v), "fvcb.rd_to_vcmax", "finite and >= 0")
+    require(f.quantum_yield, lambda v: (v >= 0) & np.isfinite(v), "fvcb.quantum_yield", "finite and >= 0")
+    require(f.curvature, lambda v: (v > 0) & (v <= 1), "fvcb.curvature", "in (0, 1]")
+    require(f.o2_mmol_mol, lambda v: (v >= 0) & np.isfinite(v), "fvcb.o2_mmol_mol", "finite and >= 0")
+    require(f.gm_mol_m2_s, lambda v: v > 0, "fvcb.gm_mol_m2_s", "> 0 (inf for no mesophyll limitation)")
+    require(s.a1, lambda v: (v >= 0) & np.isfinite(v), "stomata.a1", "finite and >= 0")
+    require(s.d0_kpa, lambda v: (v > 0) & np.isfinite(v), "stomata.d0_kpa", "finite and > 0")
+    if s.model == "cplantbox":
+        require(s.g0_mol_m2_s, lambda v: (v >= 0) & np.isfinite(v), "stomata.g0_mol_m2_s", "finite and >= 0")
+    else:
+        require(s.g0_mol_m2_s, lambda v: (v > 0) & np.isfinite(v), "stomata.g0_mol_m2_s",
+                "finite and > 0 for the coupled closures")
+    require(params.temperature.t_ref_k, lambda v: v > 0, "temperature.t_ref_k", "> 0 K")

@@ -1,0 +1,119 @@
+r"""Stomatal conductance closures and the water-stress factor.
+
+All conductances are to CO2 [mol m⁻² s⁻¹] (for water vapour multiply stomatal conductance
+by 1.6 and boundary-layer conductance by 1.37). Net assimilation enters the coupled
+closures as :math:`A_n^+ = \max(A_n, 0)`, so that gs never falls below g0 when the leaf
+respires; the floor on :math:`c_s - \Gamma^*` only acts away from the solution (where
+:math:`A_n > 0` implies :math:`c_s > c_i > \Gamma^*`).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+#: Floor on cs − Γ* in the Tuzet / Leuning denominators [µmol mol⁻¹].
+_CS_GAMMA_FLOOR_UMOL_MOL = 1e-3
+
+
+def saturation_vapour_pressure_kpa(t_c):
+    r"""Saturation vapour pressure over water [kPa], Tetens form of FAO-56 (eq. 11).
+
+    .. math:: e_s(T) = 0.61078 \exp\left(\frac{17.27\,T}{T + 237.3}\right)
+
+    Args:
+        t_c: temperature [°C].
+
+    Reference: Allen et al. (1998), FAO Irrigation and Drainage Paper 56; CPlantBox ``get_es``.
+    """
+    return 0.61078 * jnp.exp(17.27 * t_c / (t_c + 237.3))
+
+
+def vapour_pressure_deficit_kpa(t_c, rh):
+    """Vapour pressure deficit [kPa] of air at temperature ``t_c`` [°C] and relative
+    humidity ``rh`` [0–1]: e_s(T)·(1 − RH)."""
+    return saturation_vapour_pressure_kpa(t_c) * (1.0 - rh)
+
+
+def water_stress_factor(psi_leaf_hpa, fwr=9.308e-2, sh_per_hpa=3.765e-4, p_crit_hpa=-7500.0, cutoff=0.0):
+    r"""Stomatal water-stress factor fw [-] from leaf water potential.
+
+    .. math:: f_w = f_{wr} + \max\left(0, (1 - f_{wr})
+              \frac{1 + e^{s_h p_{crit}}}{1 + e^{s_h (p_{crit} - \psi_l)}} - f_{cut}\right)
+
+    fw = 1 at ψ_l = 0 (no water limitation, the reference paper's assumption).
+
+    Args:
+        psi_leaf_hpa: leaf (guard-cell) water potential [hPa], ≤ 0.
+        fwr: residual opening under water stress [-] (Corso et al. 2020 fit).
+        sh_per_hpa: sensitivity s_h [hPa⁻¹].
+        p_crit_hpa: water potential of half closure p_crit [hPa].
+        cutoff: f_cut [-].
+
+    Reference: Tuzet et al. (2003), Plant Cell Environ. 26:1097, eq. 6; parameters and
+    residual term of CPlantBox ``loopCalcs``.
+    """
+    shape = (1.0 + jnp.exp(sh_per_hpa * p_crit_hpa)) / (1.0 + jnp.exp(sh_per_hpa * (p_crit_hpa - psi_leaf_hpa)))
+    return fwr + jnp.maximum(0.0, (1.0 - fwr) * shape - cutoff)
+
+
+def tuzet_conductance(an_umol_m2_s, cs_umol_mol, gamma_umol_mol, g0_mol_m2_s, a1, fw):
+    r"""Stomatal conductance to CO2 of Tuzet et al. (2003) [mol m⁻² s⁻¹].
+
+    .. math:: g_s = g_0 + a_1 f_w \frac{A_n^+}{c_s - \Gamma}
+
+    Args:
+        an_umol_m2_s: net assimilation [µmol m⁻² s⁻¹].
+        cs_umol_mol: CO2 at the leaf surface [µmol mol⁻¹].
+        gamma_umol_mol: CO2 compensation point Γ (here Γ*) [µmol mol⁻¹].
+        g0_mol_m2_s: residual conductance [mol m⁻² s⁻¹].
+        a1: slope [-].
+        fw: water-stress factor [-].
+
+    Reference: Tuzet, Perrier & Leuning (2003), Plant Cell Environ. 26:1097, eq. 5.
+    """
+    denom = jnp.maximum(cs_umol_mol - gamma_umol_mol, _CS_GAMMA_FLOOR_UMOL_MOL)
+    return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
+
+
+def leuning_conductance(an_umol_m2_s, cs_umol_mol, gamma_umol_mol, vpd_kpa, g0_mol_m2_s, a1, d0_kpa, fw):
+    r"""Stomatal conductance to CO2 of Leuning (1995) [mol m⁻² s⁻¹].
+
+    .. math:: g_s = g_0 + a_1 f_w \frac{A_n^+}{(c_s - \Gamma)(1 + D_s/D_0)}
+
+    Args:
+        vpd_kpa: vapour pressure deficit at the leaf surface D_s [kPa] (approximated by the
+            leaf-to-air deficit, :func:`vapour_pressure_deficit_kpa` at leaf temperature).
+        d0_kpa: D0 [kPa].
+        (others as :func:`tuzet_conductance`)
+
+    Reference: Leuning (1995), Plant Cell Environ. 18:339, eq. 11.
+    """
+    denom = jnp.maximum(cs_umol_mol - gamma_umol_mol, _CS_GAMMA_FLOOR_UMOL_MOL) * (1.0 + vpd_kpa / d0_kpa)
+    return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
+
+
+def cplantbox_intercellular_co2(cs_umol_mol, gamma_rubisco_umol_mol, a1, fw):
+    r"""Intercellular CO2 of CPlantBox's Tuzet variant, in closed form [µmol mol⁻¹].
+
+    .. math:: c_i = \max\left(\frac{a_1 f_w c_s + \Gamma'}{1 + a_1 f_w}, \Gamma'\right)
+
+    i.e. :math:`(c_i - \Gamma') = a_1 f_w (c_s - c_i)`; equivalent to Tuzet's closure
+    with g0 = 0 and slope 1 + a1·fw. Reference: CPlantBox ``Photosynthesis::loopCalcs``
+    (Giraud et al. 2023).
+    """
+    k = a1 * fw
+    return jnp.maximum((k * cs_umol_mol + gamma_rubisco_umol_mol) / (1.0 + k), gamma_rubisco_umol_mol)
+
+
+def cplantbox_conductance(an_umol_m2_s, rd_umol_m2_s, ci_umol_mol, gamma_rubisco_umol_mol, g0_mol_m2_s, a1, fw):
+    r"""Diagnostic stomatal conductance of CPlantBox's Tuzet variant [mol m⁻² s⁻¹].
+
+    .. math:: g_s = \max\left(g_0 + f_w a_1 \frac{A_n + R_d}{c_i - \Gamma'}, 0\right)
+
+    Where cs ≤ Γ' (so ci = Γ') CPlantBox divides by zero; there the leaf cannot gain
+    carbon and we return g0 instead. Reference: CPlantBox ``loopCalcs`` ("tuzet2003").
+    """
+    d = ci_umol_mol - gamma_rubisco_umol_mol
+    ok = d > 0
+    gs = g0_mol_m2_s + fw * a1 * (an_umol_m2_s + rd_umol_m2_s) / jnp.where(ok, d, 1.0)
+    return jnp.where(ok, jnp.maximum(gs, 0.0), g0_mol_m2_s + 0.0 * gs)
