@@ -1,0 +1,109 @@
+"""Mesh export with per-face segment ids (and any per-segment value) for other tools.
+
+- OBJ (Wavefront; DART, Blender): one group ``g seg_<id>`` per segment, so the id survives in
+  every OBJ reader; values go to a sidecar CSV ``<name>.segments.csv``.
+- PLY (binary little-endian; ParaView, MeshLab, trimesh): face properties ``segment_id`` and one
+  float property per value.
+- VTK legacy polydata (ParaView, VisIt): ``CELL_DATA`` arrays ``segment_id`` and the values.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+from lightfit.plant.mesh import Mesh
+
+FORMATS = ("obj", "ply", "vtk")
+
+
+def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, np.ndarray]:
+    out = {}
+    for name, series in (values or {}).items():
+        if not name.isidentifier():
+            raise InputError(f"value name {name!r} is not a plain identifier", column=name,
+                             expected="letters, digits and underscores (it becomes a file attribute)")
+        v = pd.Series(series).reindex(mesh.face_segment).to_numpy(dtype=float)
+        if np.isnan(v).any():
+            missing = np.unique(mesh.face_segment[np.isnan(v)])[:5]
+            raise InputError(f"value {name!r} has no entry for segment id(s) {missing.tolist()}", column=name,
+                             expected="a value for every segment in the mesh")
+        out[name] = v
+    return out
+
+
+def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+    """Wavefront OBJ with one group per segment; ``values`` go to ``<path>.segments.csv``."""
+    path = Path(path)
+    order = np.argsort(mesh.face_segment, kind="stable")
+    seg_sorted = mesh.face_segment[order]
+    starts = np.flatnonzero(np.r_[True, seg_sorted[1:] != seg_sorted[:-1]])
+    lines = ["# lightfit shoot mesh; units: m; groups seg_<segment_id>"]
+    lines += [f"v {x:.7g} {y:.7g} {z:.7g}" for x, y, z in mesh.vertices]
+    faces = mesh.faces[order] + 1
+    bounds = list(starts) + [len(order)]
+    for k in range(len(starts)):
+        lines.append(f"g seg_{seg_sorted[starts[k]]}")
+        lines += [f"f {a} {b} {c}" for a, b, c in faces[bounds[k]:bounds[k + 1]]]
+    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+    fv = _face_values(mesh, values)
+    if fv:
+        ids = np.unique(mesh.face_segment)
+        side = pd.DataFrame({"segment_id": ids} | {k: pd.Series(v, index=mesh.face_segment).groupby(level=0).first()
+                                                   .reindex(ids).to_numpy() for k, v in fv.items()})
+        side.to_csv(path.with_suffix(".segments.csv"), index=False)
+    return path
+
+
+def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+    """Binary PLY with face properties ``segment_id`` (int64) and float64 values."""
+    path = Path(path)
+    fv = _face_values(mesh, values)
+    header = ["ply", "format binary_little_endian 1.0", "comment lightfit shoot mesh, units m",
+              f"element vertex {len(mesh.vertices)}", "property double x", "property double y", "property double z",
+              f"element face {mesh.n_faces}", "property list uchar int vertex_indices", "property int64 segment_id"]
+    header += [f"property double {k}" for k in fv]
+    header.append("end_header")
+    vdt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
+    fdt = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("segment_id", "<i8")] + [(k, "<f8") for k in fv])
+    verts = np.empty(len(mesh.vertices), vdt)
+    verts["x"], verts["y"], verts["z"] = mesh.vertices.T
+    faces = np.empty(mesh.n_faces, fdt)
+    faces["n"], faces["v"], faces["segment_id"] = 3, mesh.faces, mesh.face_segment
+    for k, v in fv.items():
+        faces[k] = v
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(verts.tobytes())
+        f.write(faces.tobytes())
+    return path
+
+
+def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+    """VTK legacy ASCII polydata with cell arrays ``segment_id`` and the values."""
+    path = Path(path)
+    fv = _face_values(mesh, values)
+    out = ["# vtk DataFile Version 3.0", "lightfit shoot mesh (m)", "ASCII", "DATASET POLYDATA",
+           f"POINTS {len(mesh.vertices)} double"]
+    out += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices]
+    out.append(f"POLYGONS {mesh.n_faces} {4 * mesh.n_faces}")
+    out += [f"3 {a} {b} {c}" for a, b, c in mesh.faces]
+    out.append(f"CELL_DATA {mesh.n_faces}")
+    out += ["SCALARS segment_id long 1", "LOOKUP_TABLE default"] + [str(i) for i in mesh.face_segment]
+    for k, v in fv.items():
+        out += [f"SCALARS {k} double 1", "LOOKUP_TABLE default"] + [f"{x:.9g}" for x in v]
+    path.write_text("\n".join(out) + "\n", encoding="ascii")
+    return path
+
+
+def export(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+    """Write ``mesh`` in the format named by the suffix of ``path`` (.obj, .ply or .vtk)."""
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        raise InputError(f"unknown mesh format {path.suffix!r}", file=path, expected="a .obj, .ply or .vtk file name")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return {"obj": write_obj, "ply": write_ply, "vtk": write_vtk}[fmt](mesh, path, values)

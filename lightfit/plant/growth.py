@@ -1,0 +1,216 @@
+"""Grow one wheat plant with CPlantBox and export its segment table (G1).
+
+CPlantBox (Schnepf et al. 2018, Zhou et al. 2020; Giraud et al. 2023 for the wheat shoot) works
+in cm and days. The segment table converts to metres; its columns (DESIGN §3):
+
+========================  ==========================================================
+``plant_id``              plant index in the field grid (row * n + col), 0 for one plant
+``segment_index``         CPlantBox segment index within the plant (= end node − 1)
+``segment_id``            stable field-wide id: ``plant_id * SEGMENT_ID_STRIDE + segment_index``
+``organ_type``            ``"root"``, ``"stem"`` or ``"leaf"``
+``organ_id``              CPlantBox organ id (unique within the plant)
+``x0 y0 z0 x1 y1 z1``     segment end points, m (plant base at the origin before placement)
+``length_m``              segment length, m
+``radius_m``              CPlantBox radius, m (stems, roots, leaf sheaths)
+``blade_width_m``         leaf blade width, m (one-sided blade area / length; 0 off-blade)
+``blade_area_m2``         one-sided leaf blade area, m² (CPlantBox ``leafBladeSurface``)
+``creation_time_d``       days after the season start at which the segment's end formed
+``bx by bz``              branching direction: unit axis of the parent organ where the
+                          organ branches off (used to orient leaf blades)
+========================  ==========================================================
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+
+#: Organ type numbers of CPlantBox (``pb.OrganTypes``).
+ORGAN_NAMES = {2: "root", 3: "stem", 4: "leaf"}
+#: Organs that enter the light model.
+SHOOT_ORGANS = ("stem", "leaf")
+#: Segment ids are ``plant_id * SEGMENT_ID_STRIDE + segment_index``: stable across tiles.
+SEGMENT_ID_STRIDE = 1_000_000
+DEFAULT_PARAMETER_FILE = "Triticum_aestivum_adapted_2023.xml"
+CM = 0.01
+
+
+def parameter_dir() -> Path:
+    """CPlantBox's bundled plant structure parameter directory."""
+    import plantbox
+
+    return Path(plantbox.__file__).resolve().parent / "modelparameter" / "structural" / "plant"
+
+
+def resolve_parameter_file(name: str | os.PathLike) -> Path:
+    """A plant parameter XML: a path, or a file name in CPlantBox's bundled set.
+
+    Raises :class:`InputError` listing the bundled wheat files when it does not exist or is not
+    a CPlantBox ``<plant>`` XML.
+    """
+    p = Path(name)
+    if not p.exists():
+        p = parameter_dir() / str(name)
+    if not p.exists():
+        wheat = sorted(f.name for f in parameter_dir().glob("Triticum_aestivum_*.xml"))
+        raise InputError(f"plant parameter file {str(name)!r} not found", column="parameter_file",
+                         expected=f"a path or one of CPlantBox's wheat files: {', '.join(wheat)}")
+    head = p.read_text(encoding="utf-8", errors="replace")[:4000]
+    if "<plant" not in head:
+        raise InputError("not a CPlantBox plant parameter file (no <plant> element)", file=p,
+                         expected="an XML file such as Triticum_aestivum_adapted_2023.xml")
+    return p
+
+
+def _date(value, name: str) -> dt.date:
+    try:
+        return pd.Timestamp(value).date()
+    except (ValueError, TypeError) as err:
+        raise InputError(f"{name} {value!r} is not a date", column=name, expected="YYYY-MM-DD") from err
+
+
+@dataclass(frozen=True)
+class GrowthConfig:
+    """How plants are grown.
+
+    Attributes:
+        parameter_file: CPlantBox plant XML (path or bundled name). Default
+            ``Triticum_aestivum_adapted_2023.xml``: the winter wheat set adapted for the
+            Selhausen experiments (Giraud et al. 2023), one main stem, no tillers.
+        season_start: first day of simulated growth (the reference paper: 2016-03-05).
+        target_date: date the plants are grown to (the measurement day, 2016-04-20).
+        include_roots: keep root segments in the table. Off by default: roots are ~98 % of a
+            wheat plant's segments and never enter the light model.
+    """
+
+    parameter_file: str = DEFAULT_PARAMETER_FILE
+    season_start: str = "2016-03-05"
+    target_date: str = "2016-04-20"
+    include_roots: bool = False
+    _path: Path = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        start, end = _date(self.season_start, "season_start"), _date(self.target_date, "target_date")
+        if end <= start:
+            raise InputError(f"target_date {end} is not after season_start {start}", column="target_date",
+                             expected="season_start < target_date")
+        object.__setattr__(self, "_path", resolve_parameter_file(self.parameter_file))
+
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def days(self) -> float:
+        """Simulated growth duration, days."""
+        return float((_date(self.target_date, "target_date") - _date(self.season_start, "season_start")).days)
+
+    def fingerprint(self) -> str:
+        """Hash of everything that determines a grown plant except its seed."""
+        import importlib.metadata as md
+
+        h = hashlib.sha256()
+        h.update(self.path.read_bytes())
+        h.update(f"{self.season_start}|{self.target_date}|roots={self.include_roots}|cplantbox {md.version('cplantbox')}".encode())
+        return h.hexdigest()[:16]
+
+
+def plant_seed(global_seed: int, row: int, col: int) -> int:
+    """Seed of the plant at grid position (row, col), derived from the field's global seed.
+
+    ``numpy.random.SeedSequence`` hashes (global_seed, row, col) into a well-mixed 31-bit
+    integer, so any worker can rebuild any plant — its own or a neighbour in its buffer —
+    without communication (the reference paper's scheme).
+    """
+    if min(global_seed, row, col) < 0:
+        raise InputError("seeds and grid positions must be non-negative", column="seed",
+                         expected=f"global_seed ≥ 0, row ≥ 0, col ≥ 0; got {global_seed}, {row}, {col}")
+    return int(np.random.SeedSequence([int(global_seed), int(row), int(col)]).generate_state(1)[0] >> 1)
+
+
+def grow_plant(config: GrowthConfig, seed: int, plant_id: int = 0) -> pd.DataFrame:
+    """Simulate one plant from ``season_start`` to ``target_date``; return its segment table.
+
+    Deterministic: the same config and seed give the same table bit for bit.
+    """
+    import plantbox as pb
+
+    plant = pb.MappedPlant(int(seed))
+    plant.readParameters(str(config.path))
+    plant.initialize(False)
+    plant.simulate(config.days, False)
+    table = segment_table(plant, plant_id, include_roots=config.include_roots)
+    if not config.include_roots:
+        table = table[table["organ_type"] != "root"].reset_index(drop=True)
+    return table
+
+
+def segment_table(plant, plant_id: int = 0, include_roots: bool = True) -> pd.DataFrame:
+    """Segment table (see module docstring) of a simulated CPlantBox ``MappedPlant``.
+
+    With ``include_roots=False`` root organs are not visited (their ``organ_id`` stays −1),
+    which is 5× faster for wheat.
+    """
+    nodes = np.array(plant.getNodes(), dtype=float) * CM
+    segs = np.array([[s.x, s.y] for s in plant.segments], dtype=np.int64)
+    if not np.array_equal(segs[:, 1], np.arange(1, len(segs) + 1)):
+        raise RuntimeError("CPlantBox segment order changed: segment i no longer ends at node i + 1")
+    n = len(segs)
+    organ_id = np.full(n, -1, dtype=np.int64)
+    branch = np.tile([0.0, 0.0, 1.0], (n, 1))
+    organs = {o.getId(): o for t in ((2, 3, 4) if include_roots else (3, 4)) for o in plant.getOrgans(t)}
+    d = nodes[segs[:, 1]] - nodes[segs[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    unit = d / np.where(length > 0, length, 1.0)[:, None]
+    for oid, o in organs.items():
+        ids = np.asarray(o.getNodeIds(), dtype=np.int64)
+        if len(ids) < 2:
+            continue
+        seg_idx = ids[1:] - 1
+        organ_id[seg_idx] = oid
+        # Branching direction: the parent's axis at the branch node (the segment ending there),
+        # else the parent's first segment, else vertical.
+        parent = o.getParent() if o.organType() != 1 else None
+        b = np.array([0.0, 0.0, 1.0])
+        if parent is not None and parent.organType() >= 2 and ids[0] > 0:
+            b = unit[ids[0] - 1]
+        elif parent is not None and parent.organType() >= 2:
+            pids = np.asarray(parent.getNodeIds(), dtype=np.int64)
+            if len(pids) > 1:
+                b = unit[pids[1] - 1]
+        branch[seg_idx] = b
+    ot = np.asarray(plant.organTypes, dtype=np.int64)
+    area = np.asarray(plant.leafBladeSurface, dtype=float) * CM * CM
+    # CPlantBox leaves ~1e-19 m² of round-off where the blade begins; that is sheath, not blade.
+    area = np.where(area < 1e-12, 0.0, area)
+    radius = np.asarray(plant.radii, dtype=float) * CM
+    ct = np.asarray(plant.nodeCTs, dtype=float)[segs[:, 1]]
+    width = np.where((ot == 4) & (area > 0) & (length > 0), area / np.where(length > 0, length, 1.0), 0.0)
+    return pd.DataFrame({
+        "plant_id": np.full(n, plant_id, dtype=np.int64),
+        "segment_index": np.arange(n, dtype=np.int64),
+        "segment_id": plant_id * SEGMENT_ID_STRIDE + np.arange(n, dtype=np.int64),
+        "organ_type": pd.Categorical([ORGAN_NAMES.get(int(t), "other") for t in ot], categories=["root", "stem", "leaf", "other"]),
+        "organ_id": organ_id,
+        "x0": nodes[segs[:, 0], 0], "y0": nodes[segs[:, 0], 1], "z0": nodes[segs[:, 0], 2],
+        "x1": nodes[segs[:, 1], 0], "y1": nodes[segs[:, 1], 1], "z1": nodes[segs[:, 1], 2],
+        "length_m": length,
+        "radius_m": radius,
+        "blade_width_m": width,
+        "blade_area_m2": np.where(ot == 4, area, 0.0),
+        "creation_time_d": ct,
+        "bx": branch[:, 0], "by": branch[:, 1], "bz": branch[:, 2],
+    })
+
+
+def shoot(segments: pd.DataFrame) -> pd.DataFrame:
+    """The segments that enter the light model: stems and leaves (roots are kept elsewhere)."""
+    return segments[segments["organ_type"].isin(SHOOT_ORGANS)]

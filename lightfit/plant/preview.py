@@ -1,0 +1,50 @@
+"""Top and side view of a built field, as a PNG a person can look at."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import PolyCollection  # noqa: E402
+
+from lightfit.plant.field import FieldGeometry  # noqa: E402
+
+COLOURS = {("blade", True): "#2e8b3e", ("blade", False): "#9cc9a4", ("tube", True): "#8b6d2e", ("tube", False): "#cdb98f"}
+
+
+def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
+    """Top view (x–y) and side view (x–z) of the mesh; buffer plants drawn pale."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    m = geom.mesh
+    measured_ids = set(geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy().tolist())
+    measured = np.fromiter((s in measured_ids for s in m.face_segment), bool, m.n_faces)
+    tri = m.vertices[m.faces]
+    fig, ax = plt.subplots(1, 2, figsize=(13, 6), constrained_layout=True,
+                           gridspec_kw={"width_ratios": [1, 1.3]})
+    for (kind, meas), colour in COLOURS.items():
+        sel = (m.face_is_blade == (kind == "blade")) & (measured == meas)
+        if not sel.any():
+            continue
+        order = np.argsort(tri[sel][:, :, 2].mean(1))  # draw low faces first in the top view
+        ax[0].add_collection(PolyCollection(tri[sel][order][:, :, :2], facecolors=colour, edgecolors="none"))
+        order = np.argsort(-tri[sel][:, :, 1].mean(1))  # far (north) faces first in the side view
+        ax[1].add_collection(PolyCollection(tri[sel][order][:, :, [0, 2]], facecolors=colour, edgecolors="none"))
+    for a, (i, j), lab in ((ax[0], (0, 1), ("x east (m)", "y north (m)")), (ax[1], (0, 2), ("x east (m)", "z up (m)"))):
+        lo, hi = m.vertices[:, [i, j]].min(0), m.vertices[:, [i, j]].max(0)
+        pad = 0.03 * (hi - lo).max()
+        a.set_xlim(lo[0] - pad, hi[0] + pad)
+        a.set_ylim(lo[1] - pad, hi[1] + pad)
+        a.set_aspect("equal")
+        a.set_xlabel(lab[0])
+        a.set_ylabel(lab[1])
+    ax[0].set_title("top view (pale: buffer plants)")
+    ax[1].set_title("side view from the south")
+    fig.suptitle(title or f"{len(geom.plants)} plants, {len(geom.segments)} shoot segments, {m.n_faces} triangles")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
