@@ -76,10 +76,13 @@ def electron_transport_rate(par_abs_umol_m2_s, jmax_umol_m2_s, quantum_yield, cu
 def rubisco_limited_rate(c_umol_mol, vcmax_umol_m2_s, gamma_star_umol_mol, km_umol_mol, clip):
     """Rubisco-limited gross rate Vc (Fc) [µmol m⁻² s⁻¹] (Farquhar et al. 1980).
 
-    With ``clip`` the rate is limited to [0, Vcmax] as in CPlantBox ``photoC3_loop``.
+    With ``clip`` the rate is limited to [0, Vcmax] as in CPlantBox ``photoC3_loop``
+    (Vc ≤ Vcmax holds anyway for c > −Km, so only the sign clip is active).
     """
     vc = vcmax_umol_m2_s * (c_umol_mol - gamma_star_umol_mol) / (c_umol_mol + km_umol_mol)
-    return jnp.clip(vc, 0.0, vcmax_umol_m2_s) if clip else vc
+    # Clip on the sign of c − Γ*, not of the product: max(0·x, 0) would halve the
+    # derivative with respect to Vcmax at Vcmax = 0 (ties split the gradient).
+    return jnp.where(c_umol_mol > gamma_star_umol_mol, vc, 0.0) if clip else vc
 
 
 def electron_limited_rate(c_umol_mol, j_umol_m2_s, gamma_star_umol_mol, clip):
@@ -88,7 +91,8 @@ def electron_limited_rate(c_umol_mol, j_umol_m2_s, gamma_star_umol_mol, clip):
     With ``clip`` the rate is kept ≥ 0 as in CPlantBox ``photoC3_loop``.
     """
     vj = 0.25 * j_umol_m2_s * (c_umol_mol - gamma_star_umol_mol) / (c_umol_mol + 2.0 * gamma_star_umol_mol)
-    return jnp.maximum(vj, 0.0) if clip else vj
+    # Sign clip on c − Γ* keeps dVj/dJ exact at J = 0 (PAR = 0), see rubisco_limited_rate.
+    return jnp.where(c_umol_mol > gamma_star_umol_mol, vj, 0.0) if clip else vj
 
 
 def assimilation(c_umol_mol, leaf: LeafCapacities, clip: bool):

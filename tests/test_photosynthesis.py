@@ -1,0 +1,435 @@
+"""Photosynthesis: analytic checks, solver robustness, implicit gradients vs finite
+differences, float32, input validation and property-based tests.
+
+Peer validation against CPlantBox's C++ solver is in test_photosynthesis_peer.py.
+"""
+
+import os
+import subprocess
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import lightfit.photosynthesis as ps
+from lightfit.photosynthesis import model as psm
+
+P_KPA = 101.325
+
+
+def tuzet_leaf(g0=3e-4, a1=5.0, temperature=None, gm=float("inf"), model="tuzet"):
+    """CPlantBox default leaf with a coupled closure (the plain iteration fails for it)."""
+    p = ps.parameter_set("cplantbox")
+    temp = temperature if temperature is not None else p.temperature
+    return eqx.tree_at(
+        lambda q: (q.stomata, q.temperature, q.fvcb.gm_mol_m2_s),
+        p,
+        (ps.StomataParams(g0_mol_m2_s=g0, a1=a1, d0_kpa=1.5, model=model), temp, gm),
+    )
+
+
+def assert_mass_balance(res, co2_air, gb=np.inf, gm=np.inf, rtol=1e-9, atol=1e-9):
+    """Steady state: the same flux crosses boundary layer, stomata and mesophyll."""
+    an = np.asarray(res.an_umol_m2_s)
+    gs = np.asarray(res.gs_mol_m2_s)
+    np.testing.assert_allclose(gs * (res.cs_umol_mol - res.ci_umol_mol), an, rtol=rtol, atol=atol)
+    if np.isfinite(gb):
+        np.testing.assert_allclose(gb * (co2_air - np.asarray(res.cs_umol_mol)), an, rtol=rtol, atol=atol)
+    if np.isfinite(gm):
+        np.testing.assert_allclose(gm * (np.asarray(res.ci_umol_mol) - res.cc_umol_mol), an, rtol=rtol, atol=atol)
+
+
+# ----------------------------------------------------------------------------- components
+
+
+def test_electron_transport_solves_its_quadratic_and_limits():
+    q = np.array([0.0, 1e-3, 50.0, 500.0, 3000.0])
+    jmax, alpha, theta = 120.0, 0.3, 0.7
+    j = np.asarray(ps.electron_transport_rate(q, jmax, alpha, theta))
+    aq = alpha * q
+    np.testing.assert_allclose(theta * j**2 - (aq + jmax) * j + aq * jmax, 0.0, atol=1e-9)
+    assert np.all(j <= np.minimum(aq, jmax) + 1e-12)
+    # theta = 1 is the Blackman (min) response
+    np.testing.assert_allclose(ps.electron_transport_rate(q, jmax, alpha, 1.0), np.minimum(aq, jmax), rtol=1e-12)
+    # theta -> 0 is the rectangular hyperbola
+    np.testing.assert_allclose(ps.electron_transport_rate(q, jmax, alpha, 1e-12), aq * jmax / (aq + jmax + 1e-300), rtol=1e-9)
+
+
+def test_electron_transport_float32_is_accurate_at_low_light():
+    q = np.array([1e-3, 1e-1, 1.0], np.float32)
+    j32 = np.asarray(ps.electron_transport_rate(q, np.float32(400.0), np.float32(0.2), np.float32(0.9)))
+    j64 = np.asarray(ps.electron_transport_rate(q.astype(np.float64), 400.0, 0.2, 0.9))
+    assert j32.dtype == np.float32
+    np.testing.assert_allclose(j32, j64, rtol=1e-6)
+
+
+def test_temperature_factors_are_one_at_reference():
+    for t_ref in (293.2, 298.15):
+        assert float(ps.arrhenius(t_ref, 65330.0, t_ref)) == pytest.approx(1.0)
+        assert float(ps.peaked_arrhenius(t_ref, 65330.0, 2e5, 650.0, t_ref)) == pytest.approx(1.0)
+    # Arrhenius doubles Q10-like: ln f = Ea/R (1/Tref - 1/T)
+    f = float(ps.arrhenius(308.15, 50000.0, 298.15))
+    assert np.log(f) == pytest.approx(50000.0 / 8.314462618 * (1 / 298.15 - 1 / 308.15), rel=1e-12)
+
+
+def test_bernacchi_kinetics_at_25c_and_pressure_scaling():
+    p = ps.parameter_set("cplantbox")
+    temp = ps.TemperatureParams.bernacchi2001()
+    leaf = ps.leaf_capacities(0.0, 25.0, P_KPA, p.fvcb, temp)
+    assert float(leaf.gamma_star_umol_mol) == pytest.approx(42.75)
+    assert float(leaf.km_umol_mol) == pytest.approx(404.9 * (1 + 210.0 / 278.4))
+    # Michaelis constants are partial pressures: halving P doubles Kc and Ko as mole fractions
+    leaf_half = ps.leaf_capacities(0.0, 25.0, P_KPA / 2, p.fvcb, temp)
+    assert float(leaf_half.km_umol_mol) == pytest.approx(2 * 404.9 * (1 + 210.0 / (2 * 278.4)))
+    assert float(leaf_half.gamma_star_umol_mol) == pytest.approx(42.75)
+
+
+def test_water_stress_factor_limits():
+    assert float(ps.water_stress_factor(0.0)) == pytest.approx(1.0)
+    assert float(ps.water_stress_factor(-1e7)) == pytest.approx(9.308e-2)
+    psi = np.linspace(0, -30000, 50)
+    assert np.all(np.diff(np.asarray(ps.water_stress_factor(psi))) <= 0)
+
+
+def test_vapour_pressure():
+    # FAO-56 table: e_s(20 °C) = 2.338 kPa
+    assert float(ps.saturation_vapour_pressure_kpa(20.0)) == pytest.approx(2.338, abs=1e-3)
+    assert float(ps.vapour_pressure_deficit_kpa(20.0, 1.0)) == 0.0
+
+
+# ----------------------------------------------------------------------------- coupled solve
+
+
+def test_tuzet_without_g0_matches_closed_form():
+    """With g0 -> 0 and no boundary layer, Tuzet gives ci = cs - (cs - Γ*)/(a1 fw)."""
+    a1, fw = 4.0, 0.8
+    p = tuzet_leaf(g0=1e-12, a1=a1)
+    par = np.array([200.0, 800.0, 1500.0])
+    t = np.array([12.0, 20.0, 30.0])
+    cs = np.array([300.0, 400.0, 700.0])
+    res = ps.solve(par, t, cs, 0.6, P_KPA, p, fw=fw)
+    assert np.all(res.converged) and np.all(np.asarray(res.an_umol_m2_s) > 0)
+    gamma = np.asarray(ps.leaf_capacities(par, t, P_KPA, p.fvcb, p.temperature).gamma_star_umol_mol)
+    np.testing.assert_allclose(res.ci_umol_mol, cs - (cs - gamma) / (a1 * fw), rtol=1e-8)
+
+
+def test_leuning_equals_tuzet_at_zero_vpd_and_closes_with_vpd():
+    par, t, c = np.array([300.0, 1200.0]), np.array([18.0, 28.0]), np.array([400.0, 400.0])
+    tz = ps.solve(par, t, c, pair_kpa=P_KPA, params=tuzet_leaf(model="tuzet"), vpd_kpa=0.0)
+    le0 = ps.solve(par, t, c, pair_kpa=P_KPA, params=tuzet_leaf(model="leuning"), vpd_kpa=0.0)
+    np.testing.assert_allclose(le0.an_umol_m2_s, tz.an_umol_m2_s, rtol=1e-10)
+    le2 = ps.solve(par, t, c, pair_kpa=P_KPA, params=tuzet_leaf(model="leuning"), vpd_kpa=2.0)
+    assert np.all(np.asarray(le2.gs_mol_m2_s) < np.asarray(le0.gs_mol_m2_s))
+    assert np.all(np.asarray(le2.ci_umol_mol) < np.asarray(le0.ci_umol_mol))
+
+
+@pytest.mark.parametrize("gb,gm", [(np.inf, np.inf), (0.8, np.inf), (0.8, 0.15)])
+def test_steady_state_mass_balance(gb, gm):
+    p = tuzet_leaf(gm=gm, temperature=ps.TemperatureParams.bernacchi2001())
+    par = np.array([0.0, 30.0, 400.0, 1800.0])
+    t = np.array([5.0, 15.0, 25.0, 35.0])
+    ca = np.array([380.0, 150.0, 600.0, 1200.0])
+    res = ps.solve(par, t, ca, 0.5, P_KPA, p, gb_mol_m2_s=None if np.isinf(gb) else gb)
+    assert np.all(res.converged)
+    assert_mass_balance(res, ca, gb=gb, gm=gm)
+    np.testing.assert_allclose(
+        res.an_umol_m2_s, np.minimum(res.vc_umol_m2_s, res.vj_umol_m2_s) - np.asarray(res.rd_umol_m2_s), rtol=1e-12
+    )
+    lim = np.asarray(res.limitation)
+    assert np.array_equal(lim == ps.ELECTRON_TRANSPORT_LIMITED, np.asarray(res.vj_umol_m2_s) < np.asarray(res.vc_umol_m2_s))
+    assert lim[0] == ps.ELECTRON_TRANSPORT_LIMITED  # dark: J = 0
+
+
+@pytest.mark.parametrize("par,tleaf,cs", [(50.0, 25.0, 100.0), (3000.0, 45.0, 100.0)])
+def test_plain_iteration_fails_where_robust_solver_converges(par, tleaf, cs):
+    """The two verified failures of plain fixed-point iteration (gs ≈ g0, An ≈ 0)."""
+    p = tuzet_leaf()
+    plain = ps.solve_plain_iteration(par, tleaf, cs, 0.6, P_KPA, p)
+    robust = ps.solve(par, tleaf, cs, 0.6, P_KPA, p)
+    assert bool(robust.converged)
+    assert int(robust.iterations) <= 10
+    assert_mass_balance(robust, cs)
+    assert abs(float(robust.an_umol_m2_s)) < 0.1 and float(robust.gs_mol_m2_s) == pytest.approx(3e-4)
+    # plain iteration: either flagged, or its answer violates the steady state
+    off = abs(float(plain.gs_mol_m2_s * (plain.cs_umol_mol - plain.ci_umol_mol) - plain.an_umol_m2_s))
+    assert (not bool(plain.converged)) or off > 1e-3
+
+
+def test_plain_and_robust_agree_where_plain_converges():
+    p = tuzet_leaf(temperature=ps.TemperatureParams.bernacchi2001())
+    par = np.linspace(100, 2000, 20)
+    plain = ps.solve_plain_iteration(par, 22.0, 420.0, 0.6, P_KPA, p)
+    robust = ps.solve(par, 22.0, 420.0, 0.6, P_KPA, p)
+    ok = np.asarray(plain.converged)
+    assert ok.sum() >= 10
+    np.testing.assert_allclose(np.asarray(robust.an_umol_m2_s)[ok], np.asarray(plain.an_umol_m2_s)[ok], rtol=1e-8)
+
+
+def test_non_convergence_is_flagged():
+    p = tuzet_leaf()
+    res = ps.solve(np.array([50.0, 900.0]), 25.0, 100.0, 0.6, P_KPA, p, config=ps.SolverConfig(max_steps=1))
+    assert not np.all(res.converged)
+    assert np.all(np.asarray(res.iterations) <= 1)
+
+
+def test_jit_vmap_and_broadcast_agree():
+    p = ps.parameter_set("giraud2023_coupled")
+    par = np.linspace(0, 2000, 12).reshape(3, 4)  # (time, segment)
+    t = np.array([[10.0], [20.0], [30.0]])
+    direct = ps.solve(par, t, 410.0, 0.6, P_KPA, p, gb_mol_m2_s=1.2)
+    assert direct.an_umol_m2_s.shape == (3, 4)
+
+    @jax.jit
+    def per_time(par_row, t_row):
+        return ps.solve(par_row, t_row, 410.0, 0.6, P_KPA, p, gb_mol_m2_s=1.2).an_umol_m2_s
+
+    mapped = jax.vmap(per_time)(jnp.asarray(par), jnp.asarray(t))
+    np.testing.assert_allclose(mapped, direct.an_umol_m2_s, rtol=1e-10)
+
+
+# ----------------------------------------------------------------------------- gradients
+
+
+def _central_fd(f, x, rel=1e-4):
+    # Relative step: truncation error ~rel² and solver round-off (~1e-13) / h both << 1e-5.
+    h = rel * abs(x) if x != 0 else rel
+    return (f(x + h) - f(x - h)) / (2 * h)
+
+
+GRAD_POINTS = [
+    # (par, tleaf, ca): J-limited, Rubisco-limited, near compensation, dark
+    (300.0, 18.0, 400.0),
+    (1800.0, 25.0, 250.0),
+    (40.0, 30.0, 180.0),
+    (0.0, 20.0, 400.0),
+]
+
+
+@pytest.mark.parametrize("model", ["tuzet", "leuning", "cplantbox"])
+def test_implicit_gradients_match_central_differences(model):
+    base = tuzet_leaf(model=model, temperature=ps.TemperatureParams.bernacchi2001()) if model != "cplantbox" else ps.parameter_set("cplantbox")
+    gb = None if model == "cplantbox" else 1.5
+    leaves = {
+        "vcmax": lambda q: q.fvcb.vcmax_ref_umol_m2_s,
+        "alpha": lambda q: q.fvcb.quantum_yield,
+        "theta": lambda q: q.fvcb.curvature,
+        "g0": lambda q: q.stomata.g0_mol_m2_s,
+        "a1": lambda q: q.stomata.a1,
+    }
+    for par, t, ca in GRAD_POINTS:
+        def an(par_, t_, ca_, **vals):
+            q = base
+            for k, v in vals.items():
+                q = eqx.tree_at(leaves[k], q, v)
+            return ps.solve(par_, t_, ca_, 0.6, P_KPA, q, gb_mol_m2_s=gb).an_umol_m2_s
+
+        res = ps.solve(par, t, ca, 0.6, P_KPA, base, gb_mol_m2_s=gb)
+        assert bool(res.converged)
+        g = jax.grad(an, argnums=(0, 1, 2))(par, t, ca)
+        for i, gi in enumerate(g):
+            args = [par, t, ca]
+
+            def f(x, i=i, args=args):
+                a = list(args)
+                a[i] = x
+                return float(an(*a))
+
+            if i == 0 and par == 0.0:
+                fd = (f(1e-4) - f(0.0)) / 1e-4  # PAR >= 0: one-sided; curvature error ~1e-8
+                assert float(gi) == pytest.approx(fd, rel=1e-4, abs=1e-9)
+                continue
+            assert float(gi) == pytest.approx(_central_fd(f, args[i]), rel=1e-5, abs=1e-9), (model, par, t, ca, i)
+        for k, get in leaves.items():
+            v0 = float(get(base))
+            gk = jax.grad(lambda v: an(par, t, ca, **{k: v}))(v0)
+            fd = _central_fd(lambda v: float(an(par, t, ca, **{k: v})), v0)
+            assert float(gk) == pytest.approx(fd, rel=1e-5, abs=1e-9), (model, par, t, ca, k)
+
+
+def test_gradient_wrt_boundary_layer_and_gm():
+    p = tuzet_leaf(gm=0.3, temperature=ps.TemperatureParams.bernacchi2001())
+
+    def an(gb, gm):
+        q = eqx.tree_at(lambda r: r.fvcb.gm_mol_m2_s, p, gm)
+        return ps.solve(900.0, 22.0, 400.0, 0.6, P_KPA, q, gb_mol_m2_s=gb).an_umol_m2_s
+
+    g_gb, g_gm = jax.grad(an, argnums=(0, 1))(1.0, 0.3)
+    assert float(g_gb) == pytest.approx(_central_fd(lambda x: float(an(x, 0.3)), 1.0), rel=1e-5)
+    assert float(g_gm) == pytest.approx(_central_fd(lambda x: float(an(1.0, x)), 0.3), rel=1e-5)
+    assert float(g_gm) > 0 and float(g_gb) > 0
+
+
+# ----------------------------------------------------------------------------- extremes
+
+
+def _extreme_grid():
+    grid = np.array(np.meshgrid([0.0, 1e-3, 50.0, 3000.0], [-5.0, 45.0], [100.0, 2000.0], [0.05, 1.0], indexing="ij"))
+    return [g.ravel() for g in grid]
+
+
+def _variants():
+    cpb = ps.parameter_set("cplantbox")
+    yield "cplantbox", cpb, None
+    yield "giraud2023", ps.parameter_set("giraud2023"), None
+    yield "giraud2023_coupled+gb", ps.parameter_set("giraud2023_coupled"), 0.5
+    yield "tuzet", tuzet_leaf(), None
+    yield "leuning+gb+gm", tuzet_leaf(model="leuning", gm=0.2, temperature=ps.TemperatureParams.bernacchi2001()), 2.0
+    yield "g0->0", tuzet_leaf(g0=1e-9), None
+    yield "g0->0 cplantbox", eqx.tree_at(lambda q: q.stomata.g0_mol_m2_s, cpb, 0.0), None
+    yield "vcmax->0", eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, tuzet_leaf(), 0.0), None
+    yield "vcmax->0 cplantbox", eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, cpb, 1e-9), None
+    yield "a1 large", tuzet_leaf(a1=1e4), 1.0
+    yield "a1 large cplantbox", eqx.tree_at(lambda q: q.stomata.a1, cpb, 1e4), None
+    yield "unclipped rates", eqx.tree_at(lambda q: q.fvcb, tuzet_leaf(), ps.FvCBParams(39.365, 1.7, 0.015, 0.2, 0.9, clip_rates=False)), None
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("name,params,gb", list(_variants()), ids=[v[0] for v in _variants()])
+def test_extremes_finite_converged_and_differentiable(name, params, gb, dtype):
+    par, t, c, rh = (x.astype(dtype) for x in _extreme_grid())
+    res = ps.solve(par, t, c, rh, P_KPA, params, gb_mol_m2_s=gb)
+    assert res.an_umol_m2_s.dtype == dtype
+    for field, value in res._asdict().items():
+        assert np.all(np.isfinite(np.asarray(value, float))), (name, field)
+    assert np.all(res.converged), (name, np.flatnonzero(~np.asarray(res.converged)))
+    assert np.all(np.asarray(res.gs_mol_m2_s) >= 0)
+
+    def total(par_, vcmax, g0, a1):
+        q = eqx.tree_at(lambda r: (r.fvcb.vcmax_ref_umol_m2_s, r.stomata.g0_mol_m2_s, r.stomata.a1), params, (vcmax, g0, a1))
+        return jnp.sum(ps.solve(par_, t, c, rh, P_KPA, q, gb_mol_m2_s=gb).an_umol_m2_s)
+
+    grads = jax.grad(total, argnums=(0, 1, 2, 3))(
+        jnp.asarray(par), *(jnp.asarray(float(x), dtype) for x in (params.fvcb.vcmax_ref_umol_m2_s, params.stomata.g0_mol_m2_s, params.stomata.a1))
+    )
+    for g in grads:
+        assert np.all(np.isfinite(np.asarray(g))), name
+
+
+def test_float32_agrees_with_float64():
+    p = ps.parameter_set("giraud2023_coupled")
+    par = np.linspace(0, 2000, 41)
+    r64 = ps.solve(par, 21.0, 410.0, 0.6, P_KPA, p, gb_mol_m2_s=1.0)
+    r32 = ps.solve(par.astype(np.float32), np.float32(21.0), np.float32(410.0), 0.6, P_KPA, p, gb_mol_m2_s=1.0)
+    assert r32.an_umol_m2_s.dtype == np.float32 and np.all(r32.converged)
+    np.testing.assert_allclose(r32.an_umol_m2_s, r64.an_umol_m2_s, rtol=1e-4, atol=1e-3)
+
+
+# ----------------------------------------------------------------------------- properties
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    par=st.floats(0.0, 2500.0),
+    tleaf=st.floats(-5.0, 45.0),
+    ca=st.floats(100.0, 2000.0),
+    rh=st.floats(0.05, 1.0),
+    g0=st.floats(1e-6, 0.05),
+    a1=st.floats(1.0, 30.0),
+    gb=st.floats(0.05, 5.0),
+    model=st.sampled_from(["tuzet", "leuning"]),
+)
+def test_property_steady_state(par, tleaf, ca, rh, g0, a1, gb, model):
+    p = tuzet_leaf(g0=g0, a1=a1, model=model, temperature=ps.TemperatureParams.bernacchi2001())
+    res = ps.solve(par, tleaf, ca, rh, P_KPA, p, gb_mol_m2_s=gb)
+    assert bool(res.converged)
+    an = float(res.an_umol_m2_s)
+    assert_mass_balance(res, ca, gb=gb, rtol=1e-7, atol=1e-8)
+    assert float(res.gs_mol_m2_s) >= g0 * (1 - 1e-12)
+    # CO2 falls from air to chloroplast when the leaf assimilates, rises when it respires
+    cs, ci = float(res.cs_umol_mol), float(res.ci_umol_mol)
+    if an > 1e-9:
+        assert ci < cs < ca
+    elif an < -1e-9:
+        assert ci > cs > ca
+    assert an <= float(res.vj_umol_m2_s) - float(res.rd_umol_m2_s) + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(par=st.floats(0.0, 2500.0), tleaf=st.floats(0.0, 40.0), cs=st.floats(150.0, 1500.0), fw=st.floats(0.1, 1.0))
+def test_property_cplantbox_closure_identity(par, tleaf, cs, fw):
+    p = ps.parameter_set("cplantbox")
+    res = ps.solve(par, tleaf, cs, 0.6, P_KPA, p, fw=fw)
+    leaf = ps.leaf_capacities(par, tleaf, P_KPA, p.fvcb, p.temperature)
+    gp = float(leaf.gamma_rubisco_umol_mol)
+    ci = float(res.ci_umol_mol)
+    if cs > gp:
+        # (ci − Γ') = a1·fw·(cs − ci)
+        assert ci - gp == pytest.approx(4.0 * fw * (cs - ci), rel=1e-9)
+    else:
+        assert ci == pytest.approx(gp)
+    assert bool(res.converged)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(par_abs_umol_m2_s=-1.0), "par_abs_umol_m2_s"),
+        (dict(par_abs_umol_m2_s=np.nan), "par_abs_umol_m2_s"),
+        (dict(rh=60.0), "rh"),
+        (dict(rh=-0.1), "rh"),
+        (dict(tleaf_c=300.0), "tleaf_c"),
+        (dict(co2_ppm=0.0), "co2_ppm"),
+        (dict(pair_kpa=1013.0), "pair_kpa"),
+        (dict(fw=1.5), "fw"),
+        (dict(gb_mol_m2_s=0.0), "gb_mol_m2_s"),
+        (dict(par_abs_umol_m2_s=np.ones(3), tleaf_c=np.ones(4)), "broadcast"),
+    ],
+)
+def test_bad_input_raises_naming_the_parameter(kwargs, match):
+    args = dict(par_abs_umol_m2_s=100.0, tleaf_c=20.0, co2_ppm=400.0, rh=0.5, pair_kpa=P_KPA, params=tuzet_leaf())
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        ps.solve(**args)
+
+
+def test_bad_parameters_and_names():
+    with pytest.raises(ValueError, match="unknown name 'wheat'.*giraud2023"):
+        ps.parameter_set("wheat")
+    with pytest.raises(ValueError, match="g0_mol_m2_s"):
+        ps.solve(100.0, 20.0, 400.0, 0.5, P_KPA, tuzet_leaf(g0=0.0))
+    with pytest.raises(ValueError, match="curvature"):
+        ps.solve(100.0, 20.0, 400.0, 0.5, P_KPA, eqx.tree_at(lambda q: q.fvcb.curvature, tuzet_leaf(), 1.5))
+    with pytest.raises(ValueError, match="rh .*vpd_kpa"):
+        ps.solve(100.0, 20.0, 400.0, None, P_KPA, tuzet_leaf(model="leuning"))
+    with pytest.raises(ValueError, match="gb_mol_m2_s"):
+        ps.solve(100.0, 20.0, 400.0, 0.5, P_KPA, ps.parameter_set("cplantbox"), gb_mol_m2_s=1.0)
+    with pytest.raises(ValueError, match="model"):
+        ps.StomataParams(g0_mol_m2_s=0.01, a1=1.0, model="ball-berry")
+    with pytest.raises(TypeError, match="params"):
+        ps.solve(100.0, 20.0, 400.0, 0.5, P_KPA, {"g0": 0.01})
+
+
+def test_parameter_sets_have_sources_and_values():
+    for name in ps.PARAMETER_SET_NAMES:
+        p = ps.parameter_set(name)
+        assert p.name == name and len(p.source) > 20
+    g = ps.parameter_set("giraud2023")
+    chl = 0.114 * 41**2 + 7.39 * 41 + 10.6
+    assert float(g.fvcb.vcmax_ref_umol_m2_s) == pytest.approx(1.28 * chl + 8.33)
+    assert (float(g.fvcb.jmax_to_vcmax), float(g.fvcb.quantum_yield), float(g.fvcb.curvature)) == (1.5, 0.4, 0.6)
+    assert float(ps.parameter_set("cplantbox").fvcb.vcmax_ref_umol_m2_s) == pytest.approx(0.64 * 55 + 4.165)
+
+
+def test_import_leaves_jax_config_alone():
+    code = "import jax, lightfit.photosynthesis; print(jax.config.jax_enable_x64)"
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    env.pop("JAX_ENABLE_X64", None)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_residual_is_zero_at_the_reported_root():
+    p = ps.parameter_set("giraud2023_coupled")
+    env, q = psm.prepare_environment(np.array([10.0, 700.0, 2000.0]), 17.0, 420.0, 0.7, P_KPA, p, gb_mol_m2_s=0.9)
+    res = ps.solve(np.array([10.0, 700.0, 2000.0]), 17.0, 420.0, 0.7, P_KPA, p, gb_mol_m2_s=0.9)
+    leaf = ps.leaf_capacities(env.par_abs_umol_m2_s, env.tleaf_c, env.pair_kpa, q.fvcb, q.temperature)
+    r = ps.co2_balance_residual(res.cc_umol_mol, leaf, env, q)
+    np.testing.assert_allclose(r, 0.0, atol=1e-9)

@@ -1,0 +1,81 @@
+"""Peer validation: lightfit's CPlantBox-matched configuration against CPlantBox's own
+C++ photosynthesis (``plantbox.functional.Photosynthesis``) on identical inputs.
+
+Grid: PAR 0–2000 µmol m⁻² s⁻¹ × leaf T 5–35 °C × CO2 250–800 ppm, wet soil. CPlantBox's
+water-stress factor fw (≈0.98 in wet soil, computed from its xylem solve) is passed to
+lightfit as an input so both solve the same leaf problem.
+"""
+
+import numpy as np
+import pytest
+
+import lightfit.photosynthesis as ps
+
+pytest.importorskip("plantbox")
+from lightfit.photosynthesis.cplantbox_peer import run_cplantbox  # noqa: E402
+
+GRID = [g.ravel() for g in np.meshgrid(
+    [0.0, 50.0, 200.0, 500.0, 1000.0, 1500.0, 2000.0],
+    [5.0, 15.0, 25.0, 35.0],
+    [250.0, 400.0, 600.0, 800.0],
+    indexing="ij",
+)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["cplantbox", "giraud2023"])
+def test_an_matches_cplantbox_on_grid(name):
+    params = ps.parameter_set(name)
+    par, t, co2 = GRID
+    peer = run_cplantbox(par, t, co2, params)
+    assert np.all(np.isfinite(peer.an_umol_m2_s)) and peer.fw.min() > 0.9
+    res = ps.solve(par, t, co2, 0.6, 101.325, params, fw=peer.fw)
+    assert np.all(res.converged)
+    an = np.asarray(res.an_umol_m2_s)
+    err = np.abs(an - peer.an_umol_m2_s)
+    ok = (err <= 0.01 * np.abs(peer.an_umol_m2_s)) | (err <= 0.05)
+    assert ok.all(), list(zip(par[~ok], t[~ok], co2[~ok], an[~ok], peer.an_umol_m2_s[~ok]))
+    # the intermediate quantities agree as well
+    np.testing.assert_allclose(res.ci_umol_mol, peer.ci_umol_mol, rtol=1e-4)
+    np.testing.assert_allclose(res.vc_umol_m2_s, peer.vc_umol_m2_s, rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(res.vj_umol_m2_s, peer.vj_umol_m2_s, rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(res.gs_mol_m2_s, peer.gs_mol_m2_s, rtol=1e-3)
+
+
+def test_cplantbox_questionable_cases_are_documented():
+    """The two CPlantBox results docs/photosynthesis.md flags, reproduced on identical inputs.
+
+    1. Leaf segments without blade area (the sheath part of each leaf) return An = gs = ci
+       = 0 whatever the light, e.g. PAR 2000, 20 °C, 400 ppm: no assimilation and no
+       respiration. 2. Where cs ≤ Γ' (e.g. 45 °C, 250 ppm with the giraud2023 set) its
+       gs = g0 + a1·fw·(An + Rd)/(ci − Γ') divides by zero and is inf.
+    """
+    import plantbox as pb
+    from plantbox.functional.Photosynthesis import PhotosynthesisPython
+    from plantbox.functional.PlantHydraulicParameters import PlantHydraulicParameters
+
+    from lightfit.photosynthesis.cplantbox_peer import _plant
+
+    plant, base = _plant(14.0)
+    hyd = PlantHydraulicParameters()
+    hyd.read_parameters(base + "/functional/plant_hydraulics/wheat_Giraud2023adapted")
+    hm = PhotosynthesisPython(plant, hyd)
+    leaf_ids = np.asarray(plant.getSegmentIds(pb.leaf))
+    bladeless = np.asarray(plant.leafBladeSurface)[leaf_ids] == 0
+    assert bladeless.any() and (~bladeless).any()
+    n = len(leaf_ids)
+    hm.pCO2 = np.full(n, 400e-6)
+    es = 0.61078 * np.exp(17.27 * 20 / (20 + 237.3))
+    hm.solve(sim_time=14.0, rsx=np.full(60, -100.0), cells=True, ea=0.6 * es, es=es,
+             PAR=np.full(n, 2000e-6) * 86400 / 1e4, TairC=np.full(n, 20.0))
+    an, ci, gs = (np.asarray(x)[bladeless] for x in (hm.An, hm.ci, hm.gco2))
+    assert np.all(an == 0) and np.all(ci == 0) and np.all(gs == 0)
+    ours = ps.solve(2000.0, 20.0, 400.0, 0.6, 101.325, ps.parameter_set("cplantbox"))
+    assert float(ours.an_umol_m2_s) > 1.0
+
+    g = ps.parameter_set("giraud2023")
+    peer = run_cplantbox([2000.0], [45.0], [250.0], g)
+    assert np.isinf(peer.gs_mol_m2_s[0])
+    mine = ps.solve(2000.0, 45.0, 250.0, 0.6, 101.325, g, fw=peer.fw[0])
+    assert float(mine.an_umol_m2_s) == pytest.approx(peer.an_umol_m2_s[0], rel=1e-3)
+    assert float(mine.gs_mol_m2_s) == pytest.approx(float(g.stomata.g0_mol_m2_s))
