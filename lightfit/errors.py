@@ -34,3 +34,20 @@ class InputError(ValueError):
         if expected:
             msg += f" (expected {expected})"
         super().__init__(msg)
+
+
+def parse_date(value, name: str):
+    """A calendar date from ``YYYY-MM-DD`` text or a date/datetime; anything else raises.
+
+    Stricter than ``pandas.Timestamp``, which reads "April" as 0001-04-01.
+    """
+    import datetime as dt
+
+    if isinstance(value, dt.datetime):
+        return value.date()
+    if isinstance(value, dt.date):
+        return value
+    try:
+        return dt.date.fromisoformat(str(value).strip())
+    except ValueError as err:
+        raise InputError(f"{name} {value!r} is not a date", column=name, expected="YYYY-MM-DD") from err

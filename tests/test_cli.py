@@ -52,3 +52,19 @@ def test_replicate_with_a_tereno_export(tmp_path):
     assert r.exit_code == 0, r.output
     f = read_weather(tmp_path / "forcing.csv")
     assert len(f) == 29 and f.attrs["provenance"] == "measured"
+
+
+def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    ply, png = tmp_path / "f.ply", tmp_path / "f.png"
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--buffer-rows", "1", "--tiles", "2", "--export", str(ply),
+                            "--preview", str(png), "--segments", str(tmp_path / "seg.csv")])
+    assert r.exit_code == 0, r.output
+    assert "triangles" in r.output and "16 (4 / 12)" in r.output
+    assert ply.stat().st_size > 0 and png.stat().st_size > 10_000
+    seg = pd.read_csv(tmp_path / "seg.csv")
+    assert seg["measured"].sum() > 0 and set(seg["organ_type"]) == {"leaf", "stem"}
+    r = runner.invoke(app, ["field", "--row-spacing", "-1"])
+    assert r.exit_code == 2 and "row_spacing_m" in r.output
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--season-start", "2016-05-01"])
+    assert r.exit_code == 2 and "not after season_start" in r.output

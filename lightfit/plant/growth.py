@@ -22,7 +22,6 @@ in cm and days. The segment table converts to metres; its columns (DESIGN §3):
 
 from __future__ import annotations
 
-import datetime as dt
 import hashlib
 import os
 from dataclasses import dataclass, field
@@ -31,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, parse_date
 
 #: Organ type numbers of CPlantBox (``pb.OrganTypes``).
 ORGAN_NAMES = {2: "root", 3: "stem", 4: "leaf"}
@@ -70,13 +69,6 @@ def resolve_parameter_file(name: str | os.PathLike) -> Path:
     return p
 
 
-def _date(value, name: str) -> dt.date:
-    try:
-        return pd.Timestamp(value).date()
-    except (ValueError, TypeError) as err:
-        raise InputError(f"{name} {value!r} is not a date", column=name, expected="YYYY-MM-DD") from err
-
-
 @dataclass(frozen=True)
 class GrowthConfig:
     """How plants are grown.
@@ -98,7 +90,7 @@ class GrowthConfig:
     _path: Path = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        start, end = _date(self.season_start, "season_start"), _date(self.target_date, "target_date")
+        start, end = parse_date(self.season_start, "season_start"), parse_date(self.target_date, "target_date")
         if end <= start:
             raise InputError(f"target_date {end} is not after season_start {start}", column="target_date",
                              expected="season_start < target_date")
@@ -111,7 +103,7 @@ class GrowthConfig:
     @property
     def days(self) -> float:
         """Simulated growth duration, days."""
-        return float((_date(self.target_date, "target_date") - _date(self.season_start, "season_start")).days)
+        return float((parse_date(self.target_date, "target_date") - parse_date(self.season_start, "season_start")).days)
 
     def fingerprint(self) -> str:
         """Hash of everything that determines a grown plant except its seed."""

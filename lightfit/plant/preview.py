@@ -13,7 +13,8 @@ from matplotlib.collections import PolyCollection  # noqa: E402
 
 from lightfit.plant.field import FieldGeometry  # noqa: E402
 
-COLOURS = {("blade", True): "#2e8b3e", ("blade", False): "#9cc9a4", ("tube", True): "#8b6d2e", ("tube", False): "#cdb98f"}
+# Buffer plants first so the measured plants are drawn on top.
+COLOURS = {("tube", False): "#cdb98f", ("blade", False): "#b9dcbf", ("tube", True): "#8b6d2e", ("blade", True): "#1f7a31"}
 
 
 def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, parse_date
 from lightfit.weather import units
 from lightfit.weather.series import DEFAULT_MAX_GAP, check_and_repair, parse_numeric
 
@@ -216,10 +216,7 @@ def read_cplantbox_day(
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a CPlantBox weather file")
-    try:
-        day = pd.Timestamp(date).date()
-    except (ValueError, TypeError) as err:
-        raise InputError(f"date {date!r} is not a date", column="date", expected="YYYY-MM-DD") from err
+    day = parse_date(date, "date")
     table = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
     table.columns = [c.strip().strip('"') for c in table.columns]
     need = {"time": None, "PAR": "par_umol_m2_s", "co2": "co2_ppm", "RH": "rh", "Tair": "tair_c", "Pair": "pair_kpa"}

@@ -1,0 +1,254 @@
+"""Plant structure (G1), mesh (G3), field layout, tiles, cache and exports."""
+
+import logging
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+from lightfit.errors import InputError
+from lightfit.plant import (
+    Field,
+    GrowthConfig,
+    MeshResolution,
+    build,
+    expected_area,
+    export,
+    grow_plant,
+    load_or_grow,
+    plant_seed,
+    shoot_mesh,
+)
+from lightfit.plant.cache import cache_key
+
+
+@pytest.fixture(scope="module")
+def plant_table():
+    return grow_plant(GrowthConfig(), plant_seed(7, 3, 4), plant_id=11)
+
+
+@pytest.fixture(scope="module")
+def small_field(tmp_path_factory):
+    fld = Field(n_plants=9, buffer_rows=1, seed=3)
+    return fld, build(fld, cache_dir=tmp_path_factory.mktemp("cache"))
+
+
+def test_segment_table_contract(plant_table):
+    t = plant_table
+    assert set(t["organ_type"].unique()) == {"stem", "leaf"}  # roots dropped by default
+    assert (t["plant_id"] == 11).all()
+    assert (t["segment_id"] == 11 * 1_000_000 + t["segment_index"]).all()
+    length = np.linalg.norm(t[["x1", "y1", "z1"]].to_numpy() - t[["x0", "y0", "z0"]].to_numpy(), axis=1)
+    assert np.allclose(length, t["length_m"])
+    leaf = t[t["organ_type"] == "leaf"]
+    blade = leaf[leaf["blade_area_m2"] > 0]
+    assert np.allclose(blade["blade_width_m"] * blade["length_m"], blade["blade_area_m2"], rtol=1e-12)
+    # Wheat in late April: a plant some 0.3–0.8 m tall, blades 0.5–2 cm wide (CPlantBox file values).
+    assert 0.3 < t[["z0", "z1"]].to_numpy().max() < 0.8
+    assert 0.005 <= blade["blade_width_m"].max() <= 0.02
+    assert (t["creation_time_d"].between(0, GrowthConfig().days + 1e-9)).all()
+    b = t[["bx", "by", "bz"]].to_numpy()
+    assert np.allclose(np.linalg.norm(b, axis=1), 1.0)
+
+
+def test_roots_kept_available():
+    full = grow_plant(GrowthConfig(include_roots=True), 5)
+    shoot_only = grow_plant(GrowthConfig(), 5)
+    assert (full["organ_type"] == "root").sum() > 1000
+    sh = full[full["organ_type"] != "root"].reset_index(drop=True)
+    cols = ["segment_index", "x0", "y0", "z0", "x1", "y1", "z1", "blade_area_m2"]
+    assert np.array_equal(sh[cols].to_numpy(), shoot_only[cols].to_numpy())
+
+
+def test_same_seed_same_plant_bit_for_bit_and_seeds_differ():
+    g = GrowthConfig()
+    a, b = grow_plant(g, 123), grow_plant(g, 123)
+    assert a.equals(b)
+    c = grow_plant(g, 124)
+    assert not np.array_equal(a[["x1", "y1", "z1"]].to_numpy(), c[["x1", "y1", "z1"]].to_numpy())
+    assert plant_seed(1, 2, 3) == plant_seed(1, 2, 3) != plant_seed(1, 3, 2)
+
+
+@pytest.mark.parametrize("res", [MeshResolution(), MeshResolution(3, 2, 8), MeshResolution(1, 4, 3)])
+def test_mesh_area_equals_segment_area(plant_table, res):
+    m = shoot_mesh(plant_table, res)
+    exp = expected_area(plant_table)
+    got = m.area_per_segment().reindex(exp.index).fillna(0.0)
+    # Stated tolerance: 1e-9 relative (planar blade rectangles; prisms with perimeter-matched radius).
+    assert np.allclose(got, exp, rtol=1e-9, atol=1e-15)
+    blade = (plant_table["organ_type"] == "leaf") & (plant_table["blade_width_m"] > 0)
+    n_blade, n_tube = int(blade.sum()), int((~blade).sum())
+    assert m.n_faces == n_blade * 2 * res.along * res.across + n_tube * 2 * res.along * res.around
+
+
+def test_blade_perpendicular_to_branching_and_segment(plant_table):
+    m = shoot_mesh(plant_table)
+    seg = plant_table.set_index("segment_id")
+    sel = m.face_is_blade
+    n = m.normals()[sel]
+    s = seg.loc[m.face_segment[sel]]
+    t = (s[["x1", "y1", "z1"]].to_numpy() - s[["x0", "y0", "z0"]].to_numpy()) / s[["length_m"]].to_numpy()
+    b = s[["bx", "by", "bz"]].to_numpy()
+    w = np.cross(n, t)  # width direction recovered from the face
+    assert np.abs(np.einsum("ij,ij->i", n, t)).max() < 1e-9  # blade contains the segment direction
+    ok = np.linalg.norm(np.cross(t, b), axis=1) > 1e-6       # (where t is not parallel to b)
+    assert np.abs(np.einsum("ij,ij->i", w[ok], b[ok])).max() < 1e-9
+    assert (n[:, 2] >= -1e-12).all()  # upper side up
+
+
+def test_hand_built_leaf_lies_flat():
+    # A leaf leaving a vertical stem horizontally along +x: blade horizontal, normal +z, area w·L.
+    t = pd.DataFrame({
+        "plant_id": [0, 0], "segment_index": [0, 1], "segment_id": [0, 1],
+        "organ_type": pd.Categorical(["stem", "leaf"], categories=["root", "stem", "leaf", "other"]),
+        "organ_id": [1, 2], "x0": [0.0, 0.0], "y0": [0.0, 0.0], "z0": [0.0, 0.1], "x1": [0.0, 0.2], "y1": [0.0, 0.0],
+        "z1": [0.1, 0.1], "length_m": [0.1, 0.2], "radius_m": [0.002, 0.0003], "blade_width_m": [0.0, 0.01],
+        "blade_area_m2": [0.0, 0.002], "creation_time_d": [1.0, 2.0], "bx": [0, 0.0], "by": [0, 0.0], "bz": [1, 1.0],
+    })
+    m = shoot_mesh(t, MeshResolution(around=64))
+    leaf = m.face_segment == 1
+    assert np.allclose(m.normals()[leaf], [0, 0, 1])
+    assert m.face_areas()[leaf].sum() == pytest.approx(0.2 * 0.01, rel=1e-12)
+    assert m.face_areas()[~leaf].sum() == pytest.approx(2 * np.pi * 0.002 * 0.1, rel=1e-12)
+    # Leaf spans y ∈ [-w/2, w/2]
+    v = m.vertices[np.unique(m.faces[leaf])]
+    assert v[:, 1].min() == pytest.approx(-0.005) and v[:, 1].max() == pytest.approx(0.005)
+
+
+def test_field_grid_and_ids():
+    fld = Field(n_plants=10, buffer_rows=2, row_spacing_m=0.2, plant_spacing_m=0.05, row_direction_deg=90)
+    assert fld.n == 4 and fld.m == 8  # next larger square
+    p = fld.plants()
+    assert len(p) == 64 and p["measured"].sum() == 16
+    assert p["plant_id"].is_unique and p["seed"].is_unique
+    # Rows run east–west: neighbours in a row differ in x by the plant spacing, rows in y by the row spacing.
+    a, b, c = p.loc[0], p.loc[1], p.loc[fld.m]
+    assert b.x_m - a.x_m == pytest.approx(0.05) and b.y_m == pytest.approx(a.y_m)
+    assert c.y_m - a.y_m == pytest.approx(0.2)
+    meas = p[p["measured"]]
+    assert meas["x_m"].mean() == pytest.approx(0.0, abs=1e-12) and meas["y_m"].mean() == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("n_tiles", [1, 2, 3, 4, 6])
+def test_tiles_partition_and_buffer_neighbourhood(n_tiles):
+    fld = Field(n_plants=36, buffer_rows=2)
+    plants = fld.plants()
+    tiles = fld.tiles(n_tiles)
+    assert len(tiles) == n_tiles
+    measured = np.concatenate([t.measured for t in tiles])
+    assert sorted(measured) == sorted(plants.index[plants["measured"]])  # each measured plant in exactly one tile
+    for t in tiles:
+        own = plants.loc[t.measured]
+        # Independent brute force: every grid plant within Chebyshev distance ≤ B of the block.
+        r0, r1, c0, c1 = own["row"].min(), own["row"].max(), own["col"].min(), own["col"].max()
+        near = plants[(plants["row"].between(r0 - 2, r1 + 2)) & (plants["col"].between(c0 - 2, c1 + 2))]
+        assert sorted(near.index) == sorted(t.plant_ids)
+        assert len(own) == (r1 - r0 + 1) * (c1 - c0 + 1)  # contiguous block
+
+
+def test_plant_is_identical_in_its_tile_and_as_a_neighbours_buffer(tmp_path):
+    fld = Field(n_plants=16, buffer_rows=1, seed=9)
+    a, b = fld.tiles(2)
+    shared = np.intersect1d(a.measured, b.buffer)
+    assert len(shared) > 0
+    ga = build(fld, tile=a, cache_dir=tmp_path / "A")
+    gb = build(fld, tile=b, cache_dir=tmp_path / "B")  # separate caches: each grows its own copy
+    pid = int(shared[0])
+    sa = ga.segments[ga.segments.plant_id == pid].reset_index(drop=True)
+    sb = gb.segments[gb.segments.plant_id == pid].reset_index(drop=True)
+    assert sa["measured"].all() and not sb["measured"].any()
+    assert sa.drop(columns="measured").equals(sb.drop(columns="measured"))
+
+
+def test_build_whole_field(small_field):
+    fld, g = small_field
+    assert len(g.plants) == (3 + 2) ** 2
+    assert g.segments["segment_id"].is_unique
+    assert set(np.unique(g.mesh.face_segment)) <= set(g.segments["segment_id"])
+    assert g.segments.loc[g.segments.measured, "plant_id"].nunique() == 9
+    # Plants sit at their grid positions: each plant's stem base is at its (x, y).
+    base = g.segments[g.segments.organ_type == "stem"].groupby("plant_id")[["x0", "y0"]].first()
+    pos = g.plants.set_index("plant_id").loc[base.index, ["x_m", "y_m"]]
+    assert np.allclose(base.to_numpy(), pos.to_numpy(), atol=0.01)
+
+
+def test_cache_hit_corrupt_and_stale_entries(tmp_path, caplog):
+    g = GrowthConfig()
+    a, hit = load_or_grow(g, 42, 1, directory=tmp_path)
+    assert not hit
+    b, hit = load_or_grow(g, 42, 1, directory=tmp_path)
+    assert hit and a.equals(b)
+    path = tmp_path / f"{cache_key(g, 42)}.npz"
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF  # flip a byte in the middle
+    path.write_bytes(bytes(raw))
+    with caplog.at_level(logging.WARNING):
+        c, hit = load_or_grow(g, 42, 1, directory=tmp_path)
+    assert not hit and c.equals(a) and "corrupt or stale" in caplog.text
+    path.write_bytes(b"")  # truncated write
+    d, hit = load_or_grow(g, 42, 1, directory=tmp_path)
+    assert not hit and d.equals(a)
+    # A stale entry (another key's content under this name) is not used.
+    other = tmp_path / f"{cache_key(g, 43)}.npz"
+    load_or_grow(g, 43, 1, directory=tmp_path)
+    path.write_bytes(other.read_bytes())
+    e, hit = load_or_grow(g, 42, 1, directory=tmp_path)
+    assert not hit and e.equals(a)
+    # A different date is a different key.
+    assert cache_key(GrowthConfig(target_date="2016-04-21"), 42) != cache_key(g, 42)
+
+
+def test_exports_read_back_with_segment_ids(small_field, tmp_path):
+    _, g = small_field
+    m = g.mesh
+    seg = g.segments.set_index("segment_id")
+    values = {"measured": seg["measured"].astype(float), "blade_area_m2": seg["blade_area_m2"]}
+    # PLY through trimesh, an independent reader.
+    ply = trimesh.load(export(m, tmp_path / "f.ply", values), process=False)
+    raw = ply.metadata["_ply_raw"]["face"]["data"]
+    assert np.array_equal(raw["segment_id"].ravel(), m.face_segment)
+    assert np.allclose(raw["blade_area_m2"].ravel(), seg.loc[m.face_segment, "blade_area_m2"])
+    assert np.allclose(ply.vertices, m.vertices) and np.array_equal(ply.faces, m.faces)
+    # VTK legacy: parse the cell data back.
+    text = export(m, tmp_path / "f.vtk", values).read_text().splitlines()
+    i = text.index("SCALARS segment_id long 1") + 2
+    assert np.array_equal(np.array(text[i:i + m.n_faces], dtype=np.int64), m.face_segment)
+    # OBJ: groups name the segments; face count per group matches.
+    obj = export(m, tmp_path / "f.obj", values).read_text().splitlines()
+    counts, current = {}, None
+    for line in obj:
+        if line.startswith("g seg_"):
+            current = int(line[6:])
+        elif line.startswith("f "):
+            counts[current] = counts.get(current, 0) + 1
+    assert counts == pd.Series(m.face_segment).value_counts().to_dict()
+    side = pd.read_csv(tmp_path / "f.segments.csv")
+    assert set(side["segment_id"]) == set(np.unique(m.face_segment))
+    with pytest.raises(InputError, match="unknown mesh format"):
+        export(m, tmp_path / "f.stl")
+    with pytest.raises(InputError, match="no entry for segment"):
+        export(m, tmp_path / "g.ply", {"x": seg["measured"].iloc[:3]})
+
+
+def test_bad_inputs_are_clear_errors(tmp_path):
+    with pytest.raises(InputError, match="not found.*Triticum_aestivum"):
+        GrowthConfig(parameter_file="Triticum_nonexistent.xml")
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<notaplant/>")
+    with pytest.raises(InputError, match="no <plant> element"):
+        GrowthConfig(parameter_file=str(bad))
+    with pytest.raises(InputError, match="not after season_start"):
+        GrowthConfig(season_start="2016-04-20", target_date="2016-03-05")
+    with pytest.raises(InputError, match="not a date"):
+        GrowthConfig(target_date="April")
+    with pytest.raises(InputError, match="row_spacing_m"):
+        Field(row_spacing_m=-0.1)
+    with pytest.raises(InputError, match="plant_spacing_m"):
+        Field(plant_spacing_m=0.0)
+    with pytest.raises(InputError, match="buffer_rows"):
+        Field(buffer_rows=-1)
+    with pytest.raises(InputError, match="do not fit"):
+        Field(n_plants=4).tiles(9)
+    with pytest.raises(InputError, match="along"):
+        MeshResolution(along=0)
