@@ -1,0 +1,339 @@
+r"""Per-segment irradiance: one vectorised Dr.Jit pass over all requested segments.
+
+For each requested segment, K points are drawn uniformly (by area) on its mesh faces. Leaf
+blades are evaluated on both sides at every point, stems and sheaths on their outer side. On a
+side with unit normal n at point x:
+
+.. math::
+
+    E_{sun} = \cos^+(n, \omega_\odot)\,V(x, \omega_\odot) + \pi L_\odot(x, \omega), \qquad
+    E_{sky} = \pi L_{sky}(x, \omega), \qquad \omega \sim \cos\theta/\pi
+
+The direct sun comes from an explicit shadow ray. :math:`L_\odot, L_{sky}` are the sun and sky
+radiance arriving along the cosine-sampled ray ω, from a path tracer over the plant mesh
+(Mitsuba ray casting, the leaf BSDF) and the analytic soil, sun and sky of
+:class:`~lightfit.light.scene.FieldScene`: at each of up to ``bounces`` scattering vertices the
+sun is added by next-event estimation with a shadow ray, the next direction is drawn from the
+BSDF, and a path leaving upwards collects sky radiance. Absorbed light uses the leaf's
+absorptance for the direction the light comes from, :math:`a(\omega) = 1 - \rho(\omega)`, with
+the directional albedo ρ estimated by one BSDF sample (unbiased). Values are per unit one-sided
+area, summed over the two sides of a blade, in units of the sun's DNI (sun part) and of the
+sky's horizontal DHI (sky part).
+
+Gradients (AD mode: reverse) with respect to specular, roughness and subsurface use the
+estimator of path replay backpropagation (PRB, Vicini et al. 2021): sampling is detached and
+the BSDF weights f/pdf carry the derivative (pdf detached). Paths here are short (a few
+bounces), so instead of replaying them the whole unrolled computation is kept in Dr.Jit's AD
+graph and differentiated once; memory grows with samples × bounces.
+
+All random numbers — points, directions, BSDF samples along the path — are keyed by (seed,
+segment id, sample index), so a segment's values do not depend on which other segments are
+requested or how the field is partitioned.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lightfit.errors import InputError
+from lightfit.light.scene import FieldScene
+
+PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
+LEAF_PARAMETERS = ("specular", "roughness", "subsurface")
+_N_FIXED_DIMS = 19  # face, barycentrics, and 8 per side: direction 2, albedo 3, sun albedo 3
+_DIMS_PER_BOUNCE = 3
+
+
+def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
+    """Uniform [0, 1) numbers, shape ``keys.shape + (n_dims,)``, a pure function of (seed, key, dim).
+
+    SplitMix64 finaliser (Steele et al. 2014) over ``seed``, the 64-bit key and the dimension.
+    """
+    with np.errstate(over="ignore"):  # modular 64-bit arithmetic is the point
+        k = keys.astype(np.uint64)[..., None] * np.uint64(0x9E3779B97F4A7C15)
+        z = (k + np.uint64(seed % 2**64) * np.uint64(0xBF58476D1CE4E5B9)
+             + np.arange(n_dims, dtype=np.uint64) * np.uint64(0x94D049BB133111EB))
+        for _ in range(2):
+            z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            z = z ^ (z >> np.uint64(31))
+    # 24 bits: exactly representable in float32, and strictly below 1.
+    return (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
+
+
+@dataclass
+class Irradiance:
+    """Per-segment irradiance, per unit DNI (sun parts) and per unit DHI (sky parts).
+
+    All arrays have one entry per requested segment, in ``segment_id`` order. ``se_<part>``
+    is the Monte Carlo standard error. Multiply by PAR DNI / DHI (µmol m⁻² s⁻¹) to get PAR
+    per unit one-sided leaf (or stem lateral) area.
+    """
+
+    segment_id: np.ndarray
+    incident_sun: np.ndarray
+    incident_sky: np.ndarray
+    absorbed_sun: np.ndarray
+    absorbed_sky: np.ndarray
+    se: dict[str, np.ndarray]
+    samples: int
+    bounces: int
+    seed: int
+    sun_vector: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def total(self, part: str, dni: float, dhi: float) -> np.ndarray:
+        """``dni·<part>_sun + dhi·<part>_sky`` for ``part`` in {"incident", "absorbed"}."""
+        return dni * getattr(self, f"{part}_sun") + dhi * getattr(self, f"{part}_sky")
+
+    def front(self, part: str) -> np.ndarray:
+        """``part`` on the front side only (blades: the upper side; stems: the outer side)."""
+        return self.meta["front"][part]
+
+    def relative_se(self, part: str = "absorbed", dni: float = 1.0, dhi: float = 0.3) -> np.ndarray:
+        """Relative standard error of ``total(part, dni, dhi)`` (parts treated as independent)."""
+        v = self.total(part, dni, dhi)
+        se = np.sqrt((dni * self.se[f"{part}_sun"]) ** 2 + (dhi * self.se[f"{part}_sky"]) ** 2)
+        return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
+
+
+def bounces_for_tolerance(tolerance: float, optics) -> int:
+    r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
+
+    With leaf albedo ρ ≤ F_0 + (1 − F_0)c per scattering, the light left after b orders is at
+    most :math:`\rho^{b+1}/(1-\rho)` of the first-order light; a conservative bound (light
+    escaping the canopy only shortens the series).
+    """
+    if not 0 < tolerance < 1:
+        raise InputError(f"tolerance={tolerance!r}", column="tolerance", expected="a number in (0, 1)")
+    f0 = 0.08 * optics.specular
+    rho = max(f0 + (1 - f0) * optics.base_color, optics.soil_albedo, 1e-6)
+    if rho >= 1:
+        return 64
+    return max(0, math.ceil(math.log(tolerance * (1 - rho)) / math.log(rho)) - 1)
+
+
+class SegmentEstimator:
+    """Irradiance on requested segments of a :class:`FieldScene`.
+
+    Args:
+        field_scene: the scene (mesh, optics, sun).
+        segment_ids: segments to measure (e.g. the measurement area's); each must have faces.
+        samples: K, points per segment (blades: each point on both sides).
+        bounces: scattering orders after the first (0: direct sun and directly visible sky only).
+        seed: random seed; same seed, same result.
+        epsilon_m: ray origin offset along the side normal, m.
+    """
+
+    def __init__(self, field_scene: FieldScene, segment_ids, *, samples: int = 64, bounces: int = 3, seed: int = 0,
+                 epsilon_m: float = 1e-5):
+        if not isinstance(samples, (int, np.integer)) or samples < 2:
+            raise InputError(f"samples={samples!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)")
+        if not isinstance(bounces, (int, np.integer)) or bounces < 0:
+            raise InputError(f"bounces={bounces!r}", column="bounces", expected="an integer ≥ 0")
+        self.fs, self.samples, self.bounces, self.seed = field_scene, int(samples), int(bounces), int(seed)
+        mesh = field_scene.mesh
+        seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
+        order = np.argsort(mesh.face_segment, kind="stable")
+        fseg = mesh.face_segment[order]
+        start, end = np.searchsorted(fseg, seg, "left"), np.searchsorted(fseg, seg, "right")
+        if (start == end).any():
+            raise InputError(f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
+                             column="segment_ids", expected="ids of stem or leaf segments with non-zero length")
+        self.segment_id = seg
+        area = mesh.face_areas()[order]
+        cum = np.cumsum(area)
+        cum0 = cum - area
+        seg_area = cum[end - 1] - cum0[start]
+        self.area_m2 = seg_area
+        K = self.samples
+        keys = (seg[:, None].astype(np.uint64) << np.uint64(20)) + np.arange(K, dtype=np.uint64)[None, :]
+        u = keyed_uniforms(self.seed, keys, _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces)  # (S, K, dims)
+        target = cum0[start][:, None] + u[..., 0] * seg_area[:, None]
+        idx = np.clip(np.searchsorted(cum, target, "right"), start[:, None], (end - 1)[:, None])
+        face = order[idx]
+        tri = mesh.vertices[mesh.faces[face]]  # (S, K, 3, 3)
+        su = np.sqrt(u[..., 1])
+        b0, b1 = 1 - su, u[..., 2] * su
+        x = tri[..., 0, :] * b0[..., None] + tri[..., 1, :] * b1[..., None] + tri[..., 2, :] * (1 - b0 - b1)[..., None]
+        n = mesh.normals()[face]
+        # Zero-area faces have no normal; only a segment made entirely of them can pick one.
+        # It receives nothing: a zero normal gives cos = 0 and its rays are masked out.
+        blade = mesh.face_is_blade[face]
+        # Evaluations: every point on its front side; blade points also on the back side.
+        nb = _DIMS_PER_BOUNCE * self.bounces
+        path_f = u[..., _N_FIXED_DIMS:_N_FIXED_DIMS + nb]
+        path_b = u[..., _N_FIXED_DIMS + nb:]
+        front = dict(x=x.reshape(-1, 3), n=n.reshape(-1, 3),
+                     u=np.concatenate([u[..., 3:11], path_f], -1).reshape(-1, 8 + nb),
+                     seg=np.repeat(np.arange(len(seg)), K), pt=np.tile(np.arange(K), len(seg)))
+        bmask = blade.reshape(-1)
+        back = dict(x=front["x"][bmask], n=-front["n"][bmask],
+                    u=np.concatenate([u[..., 11:19], path_b], -1).reshape(-1, 8 + nb)[bmask],
+                    seg=front["seg"][bmask], pt=front["pt"][bmask])
+        self._ev = {k: np.concatenate([front[k], back[k]]) for k in front}
+        self._valid = np.linalg.norm(self._ev["n"], axis=1) > 0
+        self._ev["n"][~self._valid] = [0.0, 0.0, 1.0]
+        self._x = self._ev["x"] + epsilon_m * self._ev["n"]
+        self.n_evaluations = len(self._x)
+        self.is_blade = np.zeros(len(seg), bool)
+        np.logical_or.at(self.is_blade, front["seg"], bmask)
+
+    # -- Dr.Jit pieces -------------------------------------------------------------------
+    def _arrays(self):
+        mi = self.fs.mi
+        f32 = lambda a: np.ascontiguousarray(a.T, dtype=np.float32)  # noqa: E731
+        ev = self._ev
+        o = mi.Point3f(f32(self._x))
+        nrm = mi.Vector3f(f32(ev["n"]))
+        u = ev["u"].astype(np.float32)
+        frame = mi.Frame3f(nrm)
+        d = frame.to_world(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[:, 0], u[:, 1])))
+        return o, nrm, frame, d, u
+
+    def _absorptance(self, frame, w_world, u3):
+        """1 − one-sample estimate of the leaf's directional albedo for light from ``w_world``."""
+        mi = self.fs.mi
+        import drjit as dr
+
+        si = dr.zeros(mi.SurfaceInteraction3f, self.n_evaluations)
+        si.sh_frame = frame
+        si.n = frame.n
+        si.wi = frame.to_local(w_world)
+        bs, w = self.fs.bsdf.sample(mi.BSDFContext(), si, mi.Float(u3[:, 0]), mi.Point2f(u3[:, 1], u3[:, 2]))
+        return 1.0 - w[0]
+
+    def _direct_sun(self, o, nrm):
+        mi = self.fs.mi
+        import drjit as dr
+
+        sun = self.fs.sun
+        if sun[2] <= 0:
+            return mi.Float(dr.zeros(mi.Float, self.n_evaluations))
+        s = mi.Vector3f(*[float(c) for c in sun])
+        cos_s = dr.dot(nrm, s)
+        blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), cos_s > 0)
+        return dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
+
+    def _per_evaluation(self):
+        """Evaluation-level sun/sky incident and absorbed values (Dr.Jit, attached to params)."""
+        import drjit as dr
+
+        mi = self.fs.mi
+        o, nrm, frame, d, u = self._arrays()
+        L_sun, L_sky = self._trace(o, d, u)
+        e_dir = self._direct_sun(o, nrm)
+        a_d = self._absorptance(frame, d, u[:, 2:5])
+        sun = self.fs.sun
+        a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun]), u[:, 5:8]) if sun[2] > 0 else mi.Float(1.0)
+        e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
+        valid = mi.Bool(self._valid)
+        vals = {"incident_sun": e_dir + e_sunscat, "incident_sky": e_sky,
+                "absorbed_sun": e_dir * a_s + e_sunscat * a_d, "absorbed_sky": e_sky * a_d}
+        return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
+
+    def _trace(self, o, d, u):
+        """Sun and sky radiance arriving at ``o`` from direction ``d`` (both Dr.Jit), per unit DNI / DHI."""
+        import drjit as dr
+
+        mi, fs = self.fs.mi, self.fs
+        n_ev = self.n_evaluations
+        rho_soil = fs.optics.soil_albedo
+        sun = mi.Vector3f(*[float(c) for c in fs.sun])
+        sun_up = bool(fs.sun[2] > 0)
+        ctx = mi.BSDFContext()
+        beta = mi.Float(dr.ones(mi.Float, n_ev))
+        L_sun = mi.Float(dr.zeros(mi.Float, n_ev))
+        L_sky = mi.Float(dr.zeros(mi.Float, n_ev))
+        active = mi.Bool(dr.full(mi.Bool, True, n_ev))
+        eps = 1e-5
+        for depth in range(self.bounces + 1):
+            ray = mi.Ray3f(o, d)
+            si = fs.scene.ray_intersect(ray, active)
+            hit_leaf = active & si.is_valid()
+            t_soil = dr.select(d.z < 0, -o.z / d.z, dr.inf)
+            hit_soil = active & (d.z < 0) & (~hit_leaf | (t_soil < si.t))
+            hit_leaf &= ~hit_soil
+            escaped = active & ~hit_leaf & ~hit_soil
+            L_sky += dr.select(escaped, beta * fs.sky_radiance(d.z), 0.0)
+            if depth == self.bounces:
+                break
+            p_soil = o + d * t_soil
+            # Leaf vertex: NEE to the sun through the BSDF (reflection or transmission).
+            si.wi = si.to_local(-d)
+            ub = u[:, 8 + _DIMS_PER_BOUNCE * depth:8 + _DIMS_PER_BOUNCE * (depth + 1)]
+            if sun_up:
+                f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
+                side = dr.sign(dr.dot(si.n, sun))
+                vis_leaf = ~fs.scene.ray_test(mi.Ray3f(si.p + eps * side * si.n, sun), hit_leaf & (f_sun > 0))
+                vis_soil = ~fs.scene.ray_test(mi.Ray3f(p_soil + mi.Vector3f(0, 0, eps), sun), hit_soil)
+                L_sun += dr.select(hit_leaf & vis_leaf, beta * f_sun, 0.0)
+                L_sun += dr.select(hit_soil & vis_soil, beta * rho_soil / math.pi * sun.z, 0.0)
+            bs, w = self.fs.bsdf.sample(ctx, si, mi.Float(ub[:, 0]), mi.Point2f(ub[:, 1], ub[:, 2]), hit_leaf)
+            d_leaf = si.to_world(bs.wo)
+            side_out = dr.sign(dr.dot(si.n, d_leaf))
+            d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(
+                mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[:, 1], ub[:, 2])))
+            beta = dr.select(hit_leaf, beta * w[0], dr.select(hit_soil, beta * rho_soil, 0.0))
+            active = (hit_leaf & (w[0] > 0)) | hit_soil
+            o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
+            d = dr.detach(dr.select(hit_leaf, d_leaf, d_soil))
+        return L_sun, L_sky
+
+    # -- public --------------------------------------------------------------------------
+    def render(self) -> Irradiance:
+        """Primal pass: per-segment sun/sky incident and absorbed irradiance with standard errors."""
+        import drjit as dr
+
+        with dr.suspend_grad():
+            vals = self._per_evaluation()
+            dr.eval(vals)
+            ev = {k: np.asarray(v, dtype=np.float64) for k, v in vals.items()}
+        S, K = len(self.segment_id), self.samples
+        n_front = S * K
+        out, se, front = {}, {}, {}
+        for k, v in ev.items():
+            if not np.isfinite(v).all():
+                raise FloatingPointError(f"non-finite {k} in {int((~np.isfinite(v)).sum())} evaluation(s)")
+            per_point = np.zeros((S, K))
+            np.add.at(per_point, (self._ev["seg"], self._ev["pt"]), v)
+            out[k] = per_point.mean(1)
+            se[k] = per_point.std(1, ddof=1) / math.sqrt(K)
+            front[k] = v[:n_front].reshape(S, K).mean(1)
+        return Irradiance(self.segment_id, out["incident_sun"], out["incident_sky"], out["absorbed_sun"],
+                          out["absorbed_sky"], se, K, self.bounces, self.seed, self.fs.sun.copy(),
+                          meta={"n_evaluations": self.n_evaluations, "optics": self.fs.optics,
+                                "front": front, "is_blade": self.is_blade, "area_m2": self.area_m2})
+
+    def vjp(self, cotangent: dict[str, np.ndarray]) -> dict[str, float]:
+        """Gradient of Σ_parts Σ_segments cotangent[part]·value[part] w.r.t. the leaf parameters.
+
+        ``cotangent`` maps part names (:data:`PARTS`) to per-segment arrays (missing parts are
+        zero). Uses the same random numbers as :meth:`render`.
+        """
+        import drjit as dr
+
+        mi = self.fs.mi
+        S, K = len(self.segment_id), self.samples
+        unknown = set(cotangent) - set(PARTS)
+        if unknown:
+            raise InputError(f"unknown output(s) {sorted(unknown)}", column="cotangent", expected=", ".join(PARTS))
+        c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
+        w = {p: mi.Float((c[p][self._ev["seg"]] / K).astype(np.float32)) for p in PARTS}
+        params = self.fs.params
+        keys = [f"plants.bsdf.{k}" for k in LEAF_PARAMETERS]
+        for k in keys:
+            dr.enable_grad(params[k])
+        params.update()
+        try:
+            vals = self._per_evaluation()
+            dr.backward(dr.sum(sum(w[p] * vals[p] for p in PARTS)))
+            grads = {k.split(".")[-1]: float(dr.grad(params[k])[0]) for k in keys}
+        finally:
+            for k in keys:
+                dr.disable_grad(params[k])
+            params.update()
+        return grads

@@ -1,0 +1,120 @@
+"""Mitsuba scene of a field: plant mesh with the leaf BSDF, a soil plane, the sun and the sky.
+
+Units are relative: the sun has unit irradiance on a plane normal to its beam (DNI = 1), the
+sky unit irradiance on an unoccluded horizontal plane (DHI = 1), so a time step's weather only
+rescales the sun part and the sky part (DESIGN §3).
+
+Geometry conventions: x east, y north, z up, metres; the soil is the plane z = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from lightfit.errors import InputError
+from lightfit.light.backend import mitsuba
+from lightfit.light.bsdf import leaf_bsdf_dict
+from lightfit.plant.mesh import Mesh
+
+SKY_MODELS = ("isotropic", "overcast")
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Optical parameters of the scene, all in [0, 1].
+
+    Attributes:
+        specular: leaf glossy reflectance at normal incidence / 0.08 (0.5 → 4 %).
+        roughness: leaf microfacet roughness (GGX α = roughness²).
+        subsurface: share of the leaf's diffuse light transmitted to the other side.
+        base_color: leaf diffuse albedo (grey). The reference paper used 0.5; PROSPECT-D
+            wheat PAR absorptance 0.83–0.92 (DESIGN §6) corresponds to ≈ 0.1–0.2.
+        soil_albedo: Lambertian PAR albedo of the soil (moist loam ≈ 0.1–0.15).
+    """
+
+    specular: float = 0.5
+    roughness: float = 0.5
+    subsurface: float = 0.3
+    base_color: float = 0.5
+    soil_albedo: float = 0.12
+
+    def __post_init__(self):
+        for k, v in asdict(self).items():
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
+                raise InputError(f"{k}={v!r}", column=k, expected="a number in [0, 1]")
+
+
+def sun_vector(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
+    """Unit vector from the ground towards the sun (x east, y north, z up).
+
+    Azimuth is clockwise from north (pvlib convention).
+    """
+    el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
+    return np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+
+
+class FieldScene:
+    """A Mitsuba scene of a plant mesh plus the analytic parts of the field: soil, sun and sky.
+
+    Only the plants are Mitsuba geometry (ray intersection, the leaf BSDF). The soil is an
+    infinite Lambertian plane z = 0, and the sun and the sky are evaluated analytically by the
+    estimator (:mod:`lightfit.light.estimator`): no emitter is instantiated, and the infinite
+    soil means a ray leaving the field downwards always meets soil, never the sky.
+
+    Args:
+        mesh: the shoot mesh (``lightfit.plant.Mesh``).
+        optics: leaf and soil optical parameters.
+        sky: ``"isotropic"`` (uniform radiance, default) or ``"overcast"`` (CIE standard
+            overcast sky, Moon & Spencer 1942: radiance ∝ 1 + 2 cos θ_z, three times brighter
+            at the zenith than at the horizon).
+    """
+
+    def __init__(self, mesh: Mesh, optics: Optics = Optics(), *, sky: str = "isotropic"):
+        if sky not in SKY_MODELS:
+            raise InputError(f"unknown sky model {sky!r}", column="sky", expected=" or ".join(SKY_MODELS))
+        if mesh.n_faces == 0:
+            raise InputError("the mesh has no faces", column="mesh", expected="a field with at least one plant segment")
+        mi = mitsuba()
+        import drjit as dr
+
+        self.mi, self.mesh, self.optics, self.sky = mi, mesh, optics, sky
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict(leaf_bsdf_dict(optics.specular, optics.roughness, optics.subsurface, optics.base_color))
+        plants = mi.Mesh("plants", len(mesh.vertices), mesh.n_faces, props, False, False)
+        p = mi.traverse(plants)
+        p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(mesh.vertices.T, dtype=np.float32)))
+        p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(mesh.faces.T, dtype=np.uint32)))
+        p.update()
+        self.scene = mi.load_dict({"type": "scene", "plants": plants})
+        self.params = mi.traverse(self.scene)
+        self.bsdf = self.scene.shapes()[0].bsdf()
+        self.sun = np.array([0.0, 0.0, 1.0])
+
+    def set_sun(self, elevation_deg: float, azimuth_deg: float) -> None:
+        """Point the sun (elevation and azimuth in degrees); below the horizon its part is 0."""
+        if not (math.isfinite(elevation_deg) and math.isfinite(azimuth_deg)):
+            raise InputError(f"sun position ({elevation_deg}, {azimuth_deg})", column="sun",
+                             expected="finite elevation and azimuth in degrees")
+        self.sun = sun_vector(elevation_deg, azimuth_deg)
+
+    def sky_radiance(self, cos_zenith):
+        """Sky radiance per unit horizontal diffuse irradiance (Dr.Jit Float), 0 below the horizon."""
+        import drjit as dr
+
+        if self.sky == "isotropic":
+            return dr.select(cos_zenith > 0, mitsuba().Float(1.0 / math.pi), 0.0)
+        return dr.select(cos_zenith > 0, 9.0 / (7.0 * math.pi) * (1.0 + 2.0 * cos_zenith) / 3.0, 0.0)
+
+    def set_optics(self, **leaf: float) -> None:
+        """Change leaf parameters (``specular``, ``roughness``, ``subsurface``) in place, no rebuild."""
+        for name, v in leaf.items():
+            if name not in ("specular", "roughness", "subsurface"):
+                raise InputError(f"unknown leaf parameter {name!r}", column=name, expected="specular, roughness or subsurface")
+            if not (0.0 <= float(v) <= 1.0):
+                raise InputError(f"{name}={v!r}", column=name, expected="a value in [0, 1]")
+            self.params[f"plants.bsdf.{name}"] = self.mi.Float(float(v))
+        self.params.update()
+        self.optics = Optics(**{**asdict(self.optics), **{k: float(v) for k, v in leaf.items()}})
