@@ -4,3 +4,12 @@ Data flows one way: ``weather`` -> ``plant`` -> ``light`` -> ``photosynthesis`` 
 """
 
 __version__ = "0.1.0"
+
+# Dr.Jit reads DRJIT_LIBLLVM_PATH when it is first imported, so point it at libLLVM >= 16 as
+# early as possible: importing lightfit before drjit/mitsuba is enough.
+from lightfit.light.backend import configure_libllvm as _configure_libllvm  # noqa: E402
+
+try:
+    _configure_libllvm()
+except Exception:  # noqa: BLE001 - reported with a clear message when Mitsuba is first used
+    pass

@@ -85,8 +85,17 @@ def find_libllvm() -> str | None:
 
 
 def configure_libllvm() -> tuple[str | None, str | None]:
-    """Set ``DRJIT_LIBLLVM_PATH`` unless the user did; return (path, source)."""
+    """Set ``DRJIT_LIBLLVM_PATH`` unless the user did; return (path, source).
+
+    Dr.Jit reads the variable when it is imported: if ``drjit`` was imported before lightfit
+    configured it, a warning says so (the system's libLLVM may then be too old).
+    """
     user = os.environ.get(ENV_LLVM)
+    if "drjit" in sys.modules and not user:
+        import warnings
+
+        warnings.warn("drjit was imported before lightfit could set DRJIT_LIBLLVM_PATH; import lightfit first "
+                      "(or set DRJIT_LIBLLVM_PATH yourself) so that Dr.Jit uses libLLVM >= 16", RuntimeWarning, stacklevel=2)
     if user:
         if not Path(user).exists():
             raise BackendError(f"{ENV_LLVM}={user!r} does not exist; unset it or point it at libLLVM >= {MIN_LLVM_MAJOR}")

@@ -52,14 +52,14 @@ def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
 
     SplitMix64 finaliser (Steele et al. 2014) over ``seed``, the 64-bit key and the dimension.
     """
+    def mix(z):
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
+
     with np.errstate(over="ignore"):  # modular 64-bit arithmetic is the point
-        k = keys.astype(np.uint64)[..., None] * np.uint64(0x9E3779B97F4A7C15)
-        z = (k + np.uint64(seed % 2**64) * np.uint64(0xBF58476D1CE4E5B9)
-             + np.arange(n_dims, dtype=np.uint64) * np.uint64(0x94D049BB133111EB))
-        for _ in range(2):
-            z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-            z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-            z = z ^ (z >> np.uint64(31))
+        base = mix(keys.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + mix(np.uint64(seed % 2**64) + np.uint64(1)))
+        z = mix(base[..., None] + (np.arange(n_dims, dtype=np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15))
     # 24 bits: exactly representable in float32, and strictly below 1.
     return (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
 
@@ -183,16 +183,39 @@ class SegmentEstimator:
         np.logical_or.at(self.is_blade, front["seg"], bmask)
 
     # -- Dr.Jit pieces -------------------------------------------------------------------
-    def _arrays(self):
+    def _own(self, a):
+        """A Dr.Jit-owned float32 copy of a numpy vector (numpy memory has varying alignment,
+        which Dr.Jit bakes into kernels: owned copies keep kernels cacheable)."""
+        import drjit as dr
+
         mi = self.fs.mi
-        f32 = lambda a: np.ascontiguousarray(a.T, dtype=np.float32)  # noqa: E731
-        ev = self._ev
-        o = mi.Point3f(f32(self._x))
-        nrm = mi.Vector3f(f32(ev["n"]))
-        u = ev["u"].astype(np.float32)
-        frame = mi.Frame3f(nrm)
-        d = frame.to_world(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[:, 0], u[:, 1])))
-        return o, nrm, frame, d, u
+        src = mi.Float(np.ascontiguousarray(a, dtype=np.float32))
+        out = dr.empty(mi.Float, len(a))
+        dr.scatter(out, src, dr.arange(mi.UInt32, len(a)))
+        dr.eval(out)
+        return out
+
+    def _arrays(self):
+        """Sample positions, normals, frames, first directions and random columns, as Dr.Jit arrays.
+
+        Built once and kept: arrays owned by Dr.Jit are aligned alike on every call, so the
+        compiled kernels are reused (kernels wrapping numpy memory differ by its alignment).
+        """
+        if getattr(self, "_dr", None) is None:
+            import drjit as dr
+
+            mi = self.fs.mi
+
+            own = self._own
+            o = mi.Point3f(*(own(self._x[:, i]) for i in range(3)))
+            nrm = mi.Vector3f(*(own(self._ev["n"][:, i]) for i in range(3)))
+            u = [own(self._ev["u"][:, j]) for j in range(self._ev["u"].shape[1])]
+            frame = mi.Frame3f(nrm)
+            d = frame.to_world(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[0], u[1])))
+            valid = own(self._valid.astype(np.float32)) > 0.5
+            dr.eval(d, frame, valid)
+            self._dr = (o, nrm, frame, d, u, valid)
+        return self._dr
 
     def _absorptance(self, frame, w_world, u3):
         """1 − one-sample estimate of the leaf's directional albedo for light from ``w_world``."""
@@ -203,7 +226,7 @@ class SegmentEstimator:
         si.sh_frame = frame
         si.n = frame.n
         si.wi = frame.to_local(w_world)
-        bs, w = self.fs.bsdf.sample(mi.BSDFContext(), si, mi.Float(u3[:, 0]), mi.Point2f(u3[:, 1], u3[:, 2]))
+        bs, w = self.fs.bsdf.sample(mi.BSDFContext(), si, u3[0], mi.Point2f(u3[1], u3[2]))
         return 1.0 - w[0]
 
     def _direct_sun(self, o, nrm):
@@ -223,14 +246,14 @@ class SegmentEstimator:
         import drjit as dr
 
         mi = self.fs.mi
-        o, nrm, frame, d, u = self._arrays()
+        o, nrm, frame, d, u, _ = self._arrays()
         L_sun, L_sky = self._trace(o, d, u)
         e_dir = self._direct_sun(o, nrm)
-        a_d = self._absorptance(frame, d, u[:, 2:5])
+        a_d = self._absorptance(frame, d, u[2:5])
         sun = self.fs.sun
-        a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun]), u[:, 5:8]) if sun[2] > 0 else mi.Float(1.0)
+        a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun]), u[5:8]) if sun[2] > 0 else mi.Float(1.0)
         e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
-        valid = mi.Bool(self._valid)
+        valid = self._arrays()[5]
         vals = {"incident_sun": e_dir + e_sunscat, "incident_sky": e_sky,
                 "absorbed_sun": e_dir * a_s + e_sunscat * a_d, "absorbed_sky": e_sky * a_d}
         return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
@@ -264,7 +287,7 @@ class SegmentEstimator:
             p_soil = o + d * t_soil
             # Leaf vertex: NEE to the sun through the BSDF (reflection or transmission).
             si.wi = si.to_local(-d)
-            ub = u[:, 8 + _DIMS_PER_BOUNCE * depth:8 + _DIMS_PER_BOUNCE * (depth + 1)]
+            ub = u[8 + _DIMS_PER_BOUNCE * depth:8 + _DIMS_PER_BOUNCE * (depth + 1)]
             if sun_up:
                 f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
                 side = dr.sign(dr.dot(si.n, sun))
@@ -272,11 +295,11 @@ class SegmentEstimator:
                 vis_soil = ~fs.scene.ray_test(mi.Ray3f(p_soil + mi.Vector3f(0, 0, eps), sun), hit_soil)
                 L_sun += dr.select(hit_leaf & vis_leaf, beta * f_sun, 0.0)
                 L_sun += dr.select(hit_soil & vis_soil, beta * rho_soil / math.pi * sun.z, 0.0)
-            bs, w = self.fs.bsdf.sample(ctx, si, mi.Float(ub[:, 0]), mi.Point2f(ub[:, 1], ub[:, 2]), hit_leaf)
+            bs, w = self.fs.bsdf.sample(ctx, si, ub[0], mi.Point2f(ub[1], ub[2]), hit_leaf)
             d_leaf = si.to_world(bs.wo)
             side_out = dr.sign(dr.dot(si.n, d_leaf))
             d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(
-                mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[:, 1], ub[:, 2])))
+                mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[1], ub[2])))
             beta = dr.select(hit_leaf, beta * w[0], dr.select(hit_soil, beta * rho_soil, 0.0))
             active = (hit_leaf & (w[0] > 0)) | hit_soil
             o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
@@ -322,18 +345,21 @@ class SegmentEstimator:
         if unknown:
             raise InputError(f"unknown output(s) {sorted(unknown)}", column="cotangent", expected=", ".join(PARTS))
         c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
-        w = {p: mi.Float((c[p][self._ev["seg"]] / K).astype(np.float32)) for p in PARTS}
-        params = self.fs.params
-        keys = [f"plants.bsdf.{k}" for k in LEAF_PARAMETERS]
-        for k in keys:
-            dr.enable_grad(params[k])
-        params.update()
+        w = {p: self._own(c[p][self._ev["seg"]] / K) for p in PARTS}
+        # Differentiate with respect to per-lane copies of the parameters: the backward pass is
+        # then elementwise (a handful of fused kernels) instead of one reduction kernel per use
+        # of a scalar parameter; the lanes are summed at the end.
+        bsdf = self.fs.bsdf
+        saved = {k: getattr(bsdf, k) for k in LEAF_PARAMETERS}
+        wide = {k: dr.opaque(mi.Float, float(saved[k][0]), self.n_evaluations) for k in LEAF_PARAMETERS}
         try:
+            for k, v in wide.items():
+                dr.enable_grad(v)
+                setattr(bsdf, k, v)
             vals = self._per_evaluation()
             dr.backward(dr.sum(sum(w[p] * vals[p] for p in PARTS)))
-            grads = {k.split(".")[-1]: float(dr.grad(params[k])[0]) for k in keys}
+            grads = {k: float(np.sum(np.asarray(dr.grad(v), dtype=np.float64))) for k, v in wide.items()}
         finally:
-            for k in keys:
-                dr.disable_grad(params[k])
-            params.update()
+            for k, v in saved.items():
+                setattr(bsdf, k, v)
         return grads

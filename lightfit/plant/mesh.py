@@ -16,7 +16,7 @@ circumradius is enlarged to r·π / (n·sin(π/n)) so that the prism's lateral a
 cylinder's 2πrL exactly.
 
 Normals of blade faces point to the upper (adaxial) side: the side whose normal has a
-non-negative vertical component.
+non-negative vertical component; prism normals point outwards.
 """
 
 from __future__ import annotations
@@ -163,7 +163,8 @@ def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
     u = np.linspace(0.0, 1.0, res.along + 1)
     pts = (a[:, None, None, :] + u[None, :, None, None] * (b - a)[:, None, None, :]
            + (r[:, None, None] * ring)[:, None, :, :])
-    faces = _grid_faces(len(seg), res.along, n)
+    # Reverse the grid winding so that prism normals point away from the axis.
+    faces = _grid_faces(len(seg), res.along, n)[:, [0, 2, 1]]
     ids = np.repeat(seg["segment_id"].to_numpy(), 2 * res.along * n)
     return Mesh(pts.reshape(-1, 3), faces, ids, np.zeros(len(faces), bool))
 
