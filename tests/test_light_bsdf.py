@@ -1,0 +1,88 @@
+"""Leaf BSDF: white furnace, reciprocity, gradients of the albedo against finite differences."""
+
+import numpy as np
+import pytest
+
+import lightfit  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before drjit loads)
+from lightfit.errors import InputError
+from lightfit.light import backend
+from lightfit.light.bsdf import leaf_bsdf_dict
+
+mi = backend.mitsuba()
+import drjit as dr  # noqa: E402
+
+N = 400_000
+
+
+def _albedo(params, cos_i, seed=0, grad_key=None):
+    b = mi.load_dict(leaf_bsdf_dict(*params))
+    p = mi.traverse(b)
+    if grad_key:
+        dr.enable_grad(p[grad_key])
+        p.update()
+    si = dr.zeros(mi.SurfaceInteraction3f, N)
+    si.wi = mi.Vector3f(float(np.sqrt(1 - cos_i**2)), 0.0, float(cos_i))
+    s = mi.load_dict({"type": "independent"})
+    s.seed(seed, N)
+    _, w = b.sample(mi.BSDFContext(), si, s.next_1d(), s.next_2d())
+    m = dr.mean(w[0])
+    if grad_key:
+        dr.backward(m)
+        return float(dr.grad(p[grad_key])[0])
+    return float(m[0])
+
+
+@pytest.mark.parametrize("cos_i", [1.0, 0.5, 0.05, -0.7])
+def test_white_furnace_diffuse_parts_conserve_exactly(cos_i):
+    # No glossy lobe, white base: all light is reflected or transmitted, whatever the split.
+    for sub in (0.0, 0.4, 1.0):
+        assert _albedo((0.0, 0.5, sub, 1.0), cos_i) == pytest.approx(1.0, abs=1e-5)
+
+
+@pytest.mark.parametrize("spec, rough", [(1.0, 0.0), (1.0, 0.5), (1.0, 1.0), (0.5, 0.2)])
+@pytest.mark.parametrize("cos_i", [0.95, 0.3, 0.02])
+def test_white_furnace_never_creates_energy(spec, rough, cos_i):
+    a = _albedo((spec, rough, 0.3, 1.0), cos_i)
+    # F0 E_ggx + (1 - F0)·1 with E_ggx ≤ 1 (masking loses a little at grazing incidence).
+    f0 = 0.08 * spec
+    assert 1.0 - f0 - 1e-3 <= a <= 1.0 + 1e-3
+
+
+def test_reciprocity_and_two_sidedness():
+    b = mi.load_dict(leaf_bsdf_dict(0.8, 0.4, 0.3, 0.5))
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(2000, 3))
+    c = rng.normal(size=(2000, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+
+    def f(wi, wo):
+        si = dr.zeros(mi.SurfaceInteraction3f, len(wi))
+        si.wi = mi.Vector3f(wi.T.astype(np.float32))
+        v = np.asarray(b.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T.astype(np.float32))))
+        return v.ravel() / np.abs(wo[:, 2])
+
+    fab, fba = f(a, c), f(c, a)
+    assert np.allclose(fab, fba, rtol=1e-4, atol=1e-7)  # f(ωi, ωo) = f(ωo, ωi)
+    flip = np.array([1, 1, -1])
+    assert np.allclose(f(a * flip, c * flip), fab, rtol=1e-5, atol=1e-7)  # same from either side
+
+
+@pytest.mark.parametrize("key, i", [("specular", 0), ("roughness", 1), ("subsurface", 2)])
+def test_albedo_gradient_matches_finite_differences(key, i):
+    base = [0.5, 0.5, 0.3, 0.5]
+    for cos_i in (0.9, 0.3):
+        g = np.mean([_albedo(base, cos_i, seed, key) for seed in range(2)])
+        h = 0.02
+        hi, lo = list(base), list(base)
+        hi[i] += h
+        lo[i] -= h
+        fd = (_albedo(hi, cos_i, 7) - _albedo(lo, cos_i, 7)) / (2 * h)
+        assert g == pytest.approx(fd, abs=2e-3), (cos_i, g, fd)
+
+
+def test_parameters_outside_unit_interval_rejected():
+    with pytest.raises(InputError, match="roughness"):
+        leaf_bsdf_dict(roughness=1.5)
+    with pytest.raises(InputError, match="specular"):
+        leaf_bsdf_dict(specular=-0.1)

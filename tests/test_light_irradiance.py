@@ -1,0 +1,274 @@
+"""Per-segment irradiance against analytic physics, Mitsuba's irradiancemeter and finite differences."""
+
+import math
+
+import numpy as np
+import pytest
+
+import lightfit  # noqa: F401
+from lightfit.errors import InputError
+from lightfit.light import backend
+from lightfit.light.estimator import PARTS, SegmentEstimator, bounces_for_tolerance
+from lightfit.light.scene import FieldScene, Optics, sun_vector
+from lightfit.plant import Field, build
+from lightfit.plant.mesh import Mesh
+
+mi = backend.mitsuba()
+BLACK = Optics(specular=0.0, roughness=0.5, subsurface=0.0, base_color=0.0, soil_albedo=0.0)
+
+
+def square(center, normal, size, seg_id, blade=True):
+    """Two triangles, counter-clockwise around ``normal``."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    a = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    c = np.asarray(center, float)
+    h = size / 2
+    v = np.array([c - h * a - h * b, c + h * a - h * b, c + h * a + h * b, c - h * a + h * b])
+    return Mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), np.array([seg_id, seg_id]), np.array([blade, blade]))
+
+
+def tilted_leaf(beta_deg, azimuth_deg=180.0):
+    """A 10 cm square leaf 1 m above the soil, tilted by β towards ``azimuth_deg``."""
+    b, az = math.radians(beta_deg), math.radians(azimuth_deg)
+    n = [math.sin(b) * math.sin(az), math.sin(b) * math.cos(az), math.cos(b)]
+    return square([0, 0, 1.0], n, 0.1, 7), np.array(n)
+
+
+@pytest.mark.parametrize("beta, el, az", [(0, 60, 180), (40, 35, 180), (70, 20, 90), (120, 45, 0)])
+def test_unoccluded_tilted_plane_matches_analytic(beta, el, az):
+    rho = 0.2
+    mesh, n = tilted_leaf(beta)
+    fs = FieldScene(mesh, Optics(specular=0.0, base_color=0.0, subsurface=0.0, soil_albedo=rho))
+    fs.set_sun(el, az)
+    r = SegmentEstimator(fs, [7], samples=6000, bounces=2, seed=3).render()
+    cb = math.cos(math.radians(beta))
+    s = sun_vector(el, az)
+    cos_i = float(n @ s)
+    ground_view = (1 - cb) / 2
+    # Front side: direct sun + sky view factor + soil (lit by sky and sun) seen below the horizon.
+    exp_sun = max(cos_i, 0.0) + rho * s[2] * ground_view
+    exp_sky = (1 + cb) / 2 + rho * 1.0 * ground_view
+    front_sun, front_sky = r.front("incident_sun")[0], r.front("incident_sky")[0]
+    assert front_sun == pytest.approx(exp_sun, abs=0.01)
+    assert front_sky == pytest.approx(exp_sky, abs=0.01)
+    # Both sides together see the full sphere: sky 1 + soil ρ·(DHI 1 + DNI sin el).
+    assert r.incident_sky[0] == pytest.approx(1 + rho, abs=0.015)
+    assert r.incident_sun[0] == pytest.approx(abs(cos_i) + rho * s[2], abs=0.015)
+    # A black leaf absorbs everything it receives.
+    assert r.absorbed_sky[0] == pytest.approx(r.incident_sky[0], rel=1e-6)
+
+
+def test_sun_below_horizon_gives_exactly_zero_sun_part():
+    mesh, _ = tilted_leaf(30)
+    fs = FieldScene(mesh, Optics(soil_albedo=0.3))
+    for el in (-0.5, -20.0):
+        fs.set_sun(el, 120)
+        r = SegmentEstimator(fs, [7], samples=64, bounces=3, seed=1).render()
+        assert r.incident_sun[0] == 0.0 and r.absorbed_sun[0] == 0.0 and r.se["incident_sun"][0] == 0.0
+        assert r.incident_sky[0] > 0.5
+    fs.set_sun(0.0, 120)  # grazing: finite, tiny
+    r = SegmentEstimator(fs, [7], samples=64, bounces=3, seed=1).render()
+    assert np.isfinite(r.incident_sun[0]) and r.incident_sun[0] < 0.6
+
+
+def test_overcast_sky_is_normalised_and_zenith_weighted():
+    # Horizontal leaf: sees DHI = 1 from either sky; a vertical one sees less under overcast
+    # (L ∝ 1 + 2 cos θz): view factor ∫ over half the sky = 3/7·(1/2 + 2/3·1/π·... ) computed numerically.
+    flat, _ = tilted_leaf(0)
+    wall, _ = tilted_leaf(90)
+    vals = {}
+    for sky in ("isotropic", "overcast"):
+        for name, mesh in (("flat", flat), ("wall", wall)):
+            fs = FieldScene(mesh, BLACK, sky=sky)
+            fs.set_sun(-10, 0)
+            vals[sky, name] = SegmentEstimator(fs, [7], samples=4000, bounces=1, seed=2).render().front("incident_sky")[0]
+    assert vals["isotropic", "flat"] == pytest.approx(1.0, abs=0.01)
+    assert vals["overcast", "flat"] == pytest.approx(1.0, abs=0.01)
+    assert vals["isotropic", "wall"] == pytest.approx(0.5, abs=0.01)
+    # Vertical surface under the CIE overcast sky: (9/7)(1/2·1/3... ) = 0.5·(3 + 2·4/(3π)·... ) closed form:
+    # E = ∫ L(θ) cos(angle to wall normal) dω = L0/3 [π/2 + 2·(2/3)] with L0 = 9/(7π) -> 0.3954...
+    expected = 9 / (7 * math.pi) / 3 * (math.pi / 2 + 4 / 3)
+    assert vals["overcast", "wall"] == pytest.approx(expected, abs=0.01)
+
+
+def test_irradiancemeter_peer_for_diffuse_and_scattered_light():
+    """Front-side sky irradiance of one isolated tilted leaf vs Mitsuba's own irradiancemeter."""
+    beta, rho = 50.0, 0.3
+    mesh, n = tilted_leaf(beta)
+    fs = FieldScene(mesh, Optics(soil_albedo=rho))
+    fs.set_sun(-5, 0)
+    ours = SegmentEstimator(fs, [7], samples=8000, bounces=3, seed=5).render().front("incident_sky")[0]
+    T = mi.ScalarTransform4f
+    b = math.radians(beta)
+    meter = mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 4},
+        "leaf": {"type": "rectangle",
+                 "to_world": T.translate([0, 0, 1.0]).rotate([1, 0, 0], math.degrees(b)).scale(0.05),
+                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+                 "sensor": {"type": "irradiancemeter", "sampler": {"type": "independent", "sample_count": 1},
+                            "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"},
+                                     "pixel_format": "luminance"}}},
+        "ground": {"type": "rectangle", "to_world": T.scale([500, 500, 1]),
+                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [rho] * 3}}},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
+    })
+    img = mi.render(meter, spp=200_000, seed=1)
+    peer = float(np.asarray(img).ravel()[0])
+    # Mitsuba's rectangle normal +z rotated about x by +β tilts towards −y; ours towards azimuth 180 (−y).
+    assert n[1] < 0
+    expected = (1 + math.cos(b)) / 2 + rho * (1 - math.cos(b)) / 2
+    assert peer == pytest.approx(expected, abs=0.01)
+    assert ours == pytest.approx(peer, abs=0.012)
+
+
+def _random_canopy(lai, angles, rng, half=2.6, z=(0.2, 1.0), leaf=0.04):
+    n_leaves = int(round(lai * (2 * half) ** 2 / leaf**2))
+    centers = np.column_stack([rng.uniform(-half, half, n_leaves), rng.uniform(-half, half, n_leaves),
+                               rng.uniform(*z, n_leaves)])
+    if angles == "horizontal":
+        normals = np.tile([0.0, 0.0, 1.0], (n_leaves, 1))
+    else:  # spherical: normals uniform on the sphere
+        normals = rng.normal(size=(n_leaves, 3))
+    parts = [square(c, nn, leaf, 1) for c, nn in zip(centers, normals)]
+    # 400 small horizontal sensors on the soil in the central 1 m², ids 100+.
+    sx, sy = np.meshgrid(np.linspace(-0.5, 0.5, 20), np.linspace(-0.5, 0.5, 20))
+    parts += [square([x, y, 0.001], [0, 0, 1], 0.01, 100 + i) for i, (x, y) in enumerate(zip(sx.ravel(), sy.ravel()))]
+    return Mesh.concatenate(parts)
+
+
+@pytest.mark.parametrize("angles, G", [("horizontal", None), ("spherical", 0.5)])
+def test_beer_lambert_gap_fraction(angles, G):
+    lai = 1.5
+    mesh = _random_canopy(lai, angles, np.random.default_rng(11))
+    fs = FieldScene(mesh, BLACK)
+    sensors = np.arange(100, 500)
+    for el in (30.0, 50.0, 70.0):
+        fs.set_sun(el, 150)
+        r = SegmentEstimator(fs, sensors, samples=8, bounces=0, seed=1).render()
+        cos_z = math.sin(math.radians(el))
+        gap = r.front("incident_sun").mean() / cos_z
+        g = cos_z if G is None else G
+        assert gap == pytest.approx(math.exp(-g * lai / cos_z), abs=0.035), (angles, el)
+
+
+def _small_field():
+    g = build(Field(n_plants=4, buffer_rows=1, seed=1))
+    ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
+    return g, ids
+
+
+def test_gradients_match_central_differences_with_common_random_numbers():
+    g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics())
+    fs.set_sun(45, 180)
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3), "incident_sky": np.full(len(ids), 0.1)}
+
+    def J(r):
+        return sum(np.sum(ct[p] * getattr(r, p)) for p in ct)
+
+    names = ["specular", "roughness", "subsurface"]
+    G, F = [], []
+    for seed in range(8):
+        est = SegmentEstimator(fs, ids, samples=32, bounces=2, seed=seed)
+        grad = est.vjp(ct)
+        fd = []
+        for k in names:
+            base = getattr(fs.optics, k)
+            fs.set_optics(**{k: base + 0.1})
+            jp = J(est.render())
+            fs.set_optics(**{k: base - 0.1})
+            jm = J(est.render())
+            fs.set_optics(**{k: base})
+            fd.append((jp - jm) / 0.2)
+        G.append([grad[k] for k in names])
+        F.append(fd)
+    G, F = np.array(G), np.array(F)
+    se = np.sqrt(G.var(0, ddof=1) / len(G) + F.var(0, ddof=1) / len(F))
+    assert (np.abs(G.mean(0) - F.mean(0)) <= 3 * se + 1e-9).all(), (G.mean(0), F.mean(0), se)
+    assert (np.abs(G.mean(0)) > 0).all()
+
+
+@pytest.mark.parametrize("corner", [dict(specular=0.0, roughness=0.0, subsurface=0.0),
+                                    dict(specular=1.0, roughness=1.0, subsurface=1.0),
+                                    dict(specular=1.0, roughness=0.0, subsurface=1.0),
+                                    dict(specular=0.0, roughness=1.0, subsurface=0.0)])
+def test_extreme_parameters_give_finite_values_and_gradients(corner):
+    g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics(**corner))
+    for el in (89.0, 0.5):
+        fs.set_sun(el, 200)
+        est = SegmentEstimator(fs, ids, samples=8, bounces=3, seed=1)
+        r = est.render()
+        for p in PARTS:
+            assert np.isfinite(getattr(r, p)).all() and (getattr(r, p) >= 0).all()
+        grad = est.vjp({p: np.ones(len(ids)) for p in PARTS})
+        assert all(np.isfinite(v) for v in grad.values())
+
+
+def test_degenerate_faces():
+    leaf, _ = tilted_leaf(10)
+    flat = Mesh(np.array([[0, 0, 0.5], [0.1, 0, 0.5], [0.2, 0, 0.5]]), np.array([[0, 1, 2]]), np.array([9]), np.array([True]))
+    partial = Mesh(np.array([[0.3, 0, 0.5], [0.3, 0, 0.5], [0.4, 0.1, 0.5]]), np.array([[0, 1, 2]]), np.array([7]), np.array([True]))
+    fs = FieldScene(Mesh.concatenate([leaf, flat, partial]), Optics())
+    fs.set_sun(50, 180)
+    est = SegmentEstimator(fs, [7, 9], samples=16, bounces=2, seed=0)
+    r = est.render()
+    assert all(np.isfinite(getattr(r, p)).all() for p in PARTS)
+    assert r.incident_sky[1] == 0.0 and r.incident_sun[1] == 0.0  # segment 9 has no area
+    assert r.incident_sky[0] > 0.5
+    grad = est.vjp({"absorbed_sun": np.ones(2)})
+    assert all(np.isfinite(v) for v in grad.values())
+
+
+def test_deterministic_and_independent_of_the_requested_subset():
+    g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics())
+    fs.set_sun(40, 160)
+    a = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=4).render()
+    b = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=4).render()
+    sub = ids[::7]
+    c = SegmentEstimator(fs, sub, samples=16, bounces=2, seed=4).render()
+    d = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=5).render()
+    for p in PARTS:
+        assert np.array_equal(getattr(a, p), getattr(b, p))
+        assert np.array_equal(getattr(a, p)[np.isin(a.segment_id, sub)], getattr(c, p))
+    assert not np.array_equal(a.absorbed_sky, d.absorbed_sky)
+
+
+def test_monte_carlo_error_falls_as_one_over_sqrt_k():
+    g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics())
+    fs.set_sun(45, 180)
+    rse = [np.median(SegmentEstimator(fs, ids, samples=k, bounces=2, seed=1).render().relative_se()) for k in (16, 64)]
+    assert rse[1] == pytest.approx(rse[0] / 2, rel=0.2)
+
+
+def test_bounces_for_tolerance_is_monotone():
+    o = Optics()
+    b = [bounces_for_tolerance(t, o) for t in (0.1, 0.01, 0.001)]
+    assert b == sorted(b) and b[0] >= 1
+    assert bounces_for_tolerance(0.01, Optics(base_color=0.0, specular=0.0, soil_albedo=0.0)) == 0
+    with pytest.raises(InputError, match="tolerance"):
+        bounces_for_tolerance(1.5, o)
+
+
+def test_bad_inputs():
+    g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics())
+    with pytest.raises(InputError, match="have no faces"):
+        SegmentEstimator(fs, [123456789], samples=8)
+    with pytest.raises(InputError, match="samples"):
+        SegmentEstimator(fs, ids, samples=1)
+    with pytest.raises(InputError, match="bounces"):
+        SegmentEstimator(fs, ids, bounces=-1)
+    with pytest.raises(InputError, match="sky"):
+        FieldScene(g.mesh, sky="cloudy")
+    with pytest.raises(InputError, match="soil_albedo"):
+        Optics(soil_albedo=1.2)
+    with pytest.raises(InputError, match="subsurface"):
+        fs.set_optics(subsurface=2.0)
+    with pytest.raises(InputError, match="unknown output"):
+        SegmentEstimator(fs, ids[:3], samples=4).vjp({"absorbed": np.ones(3)})
