@@ -64,6 +64,20 @@ def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
     return (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
 
 
+def replicates_for(samples: int) -> int:
+    """Independent randomised replicates R used for the standard error (8 from K = 32 on)."""
+    return 8 if samples >= 32 else max(2, samples // 4)
+
+
+def kronecker_alpha(n_dims: int) -> np.ndarray:
+    r"""Generator of the :math:`R_d` low-discrepancy sequence (Roberts 2018): α_i = φ_d^{-(i+1)}
+    with φ_d the positive root of :math:`x^{d+1} = x + 1`."""
+    phi = 2.0
+    for _ in range(60):
+        phi = (1.0 + phi) ** (1.0 / (n_dims + 1))
+    return np.mod(phi ** -np.arange(1.0, n_dims + 1.0), 1.0)
+
+
 @dataclass
 class Irradiance:
     """Per-segment irradiance, per unit DNI (sun parts) and per unit DHI (sky parts).
@@ -122,7 +136,12 @@ class SegmentEstimator:
     Args:
         field_scene: the scene (mesh, optics, sun).
         segment_ids: segments to measure (e.g. the measurement area's); each must have faces.
-        samples: K, points per segment (blades: each point on both sides).
+        samples: K, points per segment (blades: each point on both sides), rounded up to a
+            multiple of the replicate count R (:func:`replicates_for`); points are randomised
+            quasi-Monte Carlo: replicate r of a segment is the Kronecker sequence
+            {Δ + j·α} (:func:`kronecker_alpha`) with a random shift Δ keyed by (seed, segment
+            id, r); replicates are independent, and the standard error comes from the spread of
+            the R replicate means.
         bounces: scattering orders after the first (0: direct sun and directly visible sky only).
         seed: random seed; same seed, same result.
         epsilon_m: ray origin offset along the side normal, m.
@@ -134,7 +153,10 @@ class SegmentEstimator:
             raise InputError(f"samples={samples!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)")
         if not isinstance(bounces, (int, np.integer)) or bounces < 0:
             raise InputError(f"bounces={bounces!r}", column="bounces", expected="an integer ≥ 0")
-        self.fs, self.samples, self.bounces, self.seed = field_scene, int(samples), int(bounces), int(seed)
+        self.fs, self.bounces, self.seed = field_scene, int(bounces), int(seed)
+        self.replicates = replicates_for(int(samples))
+        self.per_replicate = -(-int(samples) // self.replicates)
+        self.samples = self.replicates * self.per_replicate  # K rounded up to R·M
         mesh = field_scene.mesh
         seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
         order = np.argsort(mesh.face_segment, kind="stable")
@@ -149,48 +171,48 @@ class SegmentEstimator:
         cum0 = cum - area
         seg_area = cum[end - 1] - cum0[start]
         self.area_m2 = seg_area
-        K = self.samples
-        keys = (seg[:, None].astype(np.uint64) << np.uint64(20)) + np.arange(K, dtype=np.uint64)[None, :]
-        u = keyed_uniforms(self.seed, keys, _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces)  # (S, K, dims)
-        target = cum0[start][:, None] + u[..., 0] * seg_area[:, None]
+        K, R, M = self.samples, self.replicates, self.per_replicate
+        self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
+        keys = (seg[:, None].astype(np.uint64) << np.uint64(8)) + np.arange(R, dtype=np.uint64)[None, :]
+        self._shift = keyed_uniforms(self.seed, keys, self._n_dims)  # (S, R, D): one random shift per replicate
+        self._alpha = kronecker_alpha(self._n_dims)
+        j = np.arange(M)
+        pos = np.mod(self._shift[:, :, None, :3] + j[None, None, :, None] * self._alpha[:3], 1.0).reshape(len(seg), K, 3)
+        target = cum0[start][:, None] + pos[..., 0] * seg_area[:, None]
         idx = np.clip(np.searchsorted(cum, target, "right"), start[:, None], (end - 1)[:, None])
         face = order[idx]
         tri = mesh.vertices[mesh.faces[face]]  # (S, K, 3, 3)
-        su = np.sqrt(u[..., 1])
-        b0, b1 = 1 - su, u[..., 2] * su
+        su = np.sqrt(pos[..., 1])
+        b0, b1 = 1 - su, pos[..., 2] * su
         x = tri[..., 0, :] * b0[..., None] + tri[..., 1, :] * b1[..., None] + tri[..., 2, :] * (1 - b0 - b1)[..., None]
         n = mesh.normals()[face]
         # Zero-area faces have no normal; only a segment made entirely of them can pick one.
-        # It receives nothing: a zero normal gives cos = 0 and its rays are masked out.
-        blade = mesh.face_is_blade[face]
+        # It receives nothing: its evaluations are masked out.
+        blade = mesh.face_is_blade[face].reshape(-1)
         # Evaluations: every point on its front side; blade points also on the back side.
-        nb = _DIMS_PER_BOUNCE * self.bounces
-        path_f = u[..., _N_FIXED_DIMS:_N_FIXED_DIMS + nb]
-        path_b = u[..., _N_FIXED_DIMS + nb:]
-        front = dict(x=x.reshape(-1, 3), n=n.reshape(-1, 3),
-                     u=np.concatenate([u[..., 3:11], path_f], -1).reshape(-1, 8 + nb),
-                     seg=np.repeat(np.arange(len(seg)), K), pt=np.tile(np.arange(K), len(seg)))
-        bmask = blade.reshape(-1)
-        back = dict(x=front["x"][bmask], n=-front["n"][bmask],
-                    u=np.concatenate([u[..., 11:19], path_b], -1).reshape(-1, 8 + nb)[bmask],
-                    seg=front["seg"][bmask], pt=front["pt"][bmask])
-        self._ev = {k: np.concatenate([front[k], back[k]]) for k in front}
+        seg_i = np.repeat(np.arange(len(seg)), K)
+        pt = np.tile(np.arange(K), len(seg))
+        x, n = x.reshape(-1, 3), n.reshape(-1, 3)
+        self._ev = {"seg": np.concatenate([seg_i, seg_i[blade]]), "pt": np.concatenate([pt, pt[blade]]),
+                    "back": np.concatenate([np.zeros(len(pt), bool), np.ones(int(blade.sum()), bool)]),
+                    "n": np.concatenate([n, -n[blade]])}
         self._valid = np.linalg.norm(self._ev["n"], axis=1) > 0
         self._ev["n"][~self._valid] = [0.0, 0.0, 1.0]
-        self._x = self._ev["x"] + epsilon_m * self._ev["n"]
+        self._x = np.concatenate([x, x[blade]]) + epsilon_m * self._ev["n"]
         self.n_evaluations = len(self._x)
         self.is_blade = np.zeros(len(seg), bool)
-        np.logical_or.at(self.is_blade, front["seg"], bmask)
+        np.logical_or.at(self.is_blade, seg_i, blade)
 
     # -- Dr.Jit pieces -------------------------------------------------------------------
-    def _own(self, a):
-        """A Dr.Jit-owned float32 copy of a numpy vector (numpy memory has varying alignment,
-        which Dr.Jit bakes into kernels: owned copies keep kernels cacheable)."""
+    def _own(self, a, integer: bool = False):
+        """A Dr.Jit-owned float32 (or uint32) copy of a numpy vector (numpy memory has varying
+        alignment, which Dr.Jit bakes into kernels: owned copies keep kernels cacheable)."""
         import drjit as dr
 
         mi = self.fs.mi
-        src = mi.Float(np.ascontiguousarray(a, dtype=np.float32))
-        out = dr.empty(mi.Float, len(a))
+        T = mi.UInt32 if integer else mi.Float
+        src = T(np.ascontiguousarray(a, dtype=np.uint32 if integer else np.float32))
+        out = dr.empty(T, len(a))
         dr.scatter(out, src, dr.arange(mi.UInt32, len(a)))
         dr.eval(out)
         return out
@@ -209,7 +231,23 @@ class SegmentEstimator:
             own = self._own
             o = mi.Point3f(*(own(self._x[:, i]) for i in range(3)))
             nrm = mi.Vector3f(*(own(self._ev["n"][:, i]) for i in range(3)))
-            u = [own(self._ev["u"][:, j]) for j in range(self._ev["u"].shape[1])]
+            # Random columns generated here from the per-replicate shifts: u = {shift + j·α}.
+            ev = self._ev
+            R, M, D = self.replicates, self.per_replicate, self._n_dims
+            base = own((ev["seg"] * R + ev["pt"] // M) * D, integer=True)
+            jj = own((ev["pt"] % M).astype(np.float64))
+            back = own(ev["back"].astype(np.float64)) > 0.5
+            shift = own(self._shift.reshape(-1))
+            nb = _DIMS_PER_BOUNCE * self.bounces
+            front_dims = list(range(3, 11)) + list(range(_N_FIXED_DIMS, _N_FIXED_DIMS + nb))
+            back_dims = list(range(11, 19)) + list(range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb))
+            u = []
+            for df, db in zip(front_dims, back_dims):
+                v = dr.select(back, dr.gather(mi.Float, shift, base + db) + jj * float(self._alpha[db]),
+                              dr.gather(mi.Float, shift, base + df) + jj * float(self._alpha[df]))
+                v = dr.minimum(v - dr.floor(v), 1.0 - 2.0**-24)
+                dr.eval(v)
+                u.append(v)
             frame = mi.Frame3f(nrm)
             d = frame.to_world(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[0], u[1])))
             valid = own(self._valid.astype(np.float32)) > 0.5
@@ -324,7 +362,8 @@ class SegmentEstimator:
             per_point = np.zeros((S, K))
             np.add.at(per_point, (self._ev["seg"], self._ev["pt"]), v)
             out[k] = per_point.mean(1)
-            se[k] = per_point.std(1, ddof=1) / math.sqrt(K)
+            rep = per_point.reshape(S, self.replicates, self.per_replicate).mean(2)
+            se[k] = rep.std(1, ddof=1) / math.sqrt(self.replicates)
             front[k] = v[:n_front].reshape(S, K).mean(1)
         return Irradiance(self.segment_id, out["incident_sun"], out["incident_sky"], out["absorbed_sun"],
                           out["absorbed_sky"], se, K, self.bounces, self.seed, self.fs.sun.copy(),
