@@ -95,6 +95,14 @@ def test_blade_perpendicular_to_branching_and_segment(plant_table):
     ok = np.linalg.norm(np.cross(t, b), axis=1) > 1e-6       # (where t is not parallel to b)
     assert np.abs(np.einsum("ij,ij->i", w[ok], b[ok])).max() < 1e-9
     assert (n[:, 2] >= -1e-12).all()  # upper side up
+    # Prism faces face away from their segment's axis.
+    tube = ~m.face_is_blade
+    c = m.vertices[m.faces[tube]].mean(1)
+    st = seg.loc[m.face_segment[tube]]
+    a = st[["x0", "y0", "z0"]].to_numpy()
+    ax = (st[["x1", "y1", "z1"]].to_numpy() - a) / st[["length_m"]].to_numpy()
+    radial = (c - a) - np.einsum("ij,ij->i", c - a, ax)[:, None] * ax
+    assert (np.einsum("ij,ij->i", m.normals()[tube], radial) > 0).all()
 
 
 def test_hand_built_leaf_lies_flat():
@@ -123,10 +131,12 @@ def test_field_grid_and_ids():
     assert len(p) == 64 and p["measured"].sum() == 16
     assert p["plant_id"].is_unique and p["seed"].is_unique
     # Rows run east–west: neighbours in a row differ in x by the plant spacing, rows in y by the row spacing.
-    a, b, c = p.loc[0], p.loc[1], p.loc[fld.m]
+    at = p.set_index(["row", "col"])
+    a, b, c = at.loc[(0, 0)], at.loc[(0, 1)], at.loc[(1, 0)]
     assert b.x_m - a.x_m == pytest.approx(0.05) and b.y_m == pytest.approx(a.y_m)
     assert c.y_m - a.y_m == pytest.approx(0.2)
     meas = p[p["measured"]]
+    assert meas["r"].min() == 0 and meas["r"].max() == fld.n - 1
     assert meas["x_m"].mean() == pytest.approx(0.0, abs=1e-12) and meas["y_m"].mean() == pytest.approx(0.0, abs=1e-12)
 
 
@@ -145,6 +155,13 @@ def test_tiles_partition_and_buffer_neighbourhood(n_tiles):
         near = plants[(plants["row"].between(r0 - 2, r1 + 2)) & (plants["col"].between(c0 - 2, c1 + 2))]
         assert sorted(near.index) == sorted(t.plant_ids)
         assert len(own) == (r1 - r0 + 1) * (c1 - c0 + 1)  # contiguous block
+
+
+def test_measured_plants_do_not_depend_on_buffer_rows():
+    a = Field(n_plants=9, buffer_rows=0, seed=4).plants()
+    b = Field(n_plants=9, buffer_rows=3, seed=4).plants()
+    cols = ["plant_id", "seed", "x_m", "y_m"]
+    assert a[cols].equals(b.loc[b["measured"], cols])
 
 
 def test_plant_is_identical_in_its_tile_and_as_a_neighbours_buffer(tmp_path):

@@ -6,9 +6,11 @@ a row plants are ``plant_spacing_m`` apart, rows are ``row_spacing_m`` apart.
 
 The field is an M×M grid with M = N + 2B: the N×N measurement area (N = ⌈√n_plants⌉, the
 next larger square, as the reference paper does) surrounded by B buffer rows on every side.
-Grid position (row, col) fixes a plant's id (row·M + col), seed (:func:`plant_seed`) and
-position, so a plant is the same whichever tile builds it. Tiles partition the measurement area
-into W contiguous blocks, each carrying its own B buffer rows of neighbours.
+A plant is named by its position (r, c) relative to the measurement area's first plant
+(buffer plants have r or c < 0 or ≥ N). That position fixes its id,
+``plant_id = (r + 1000)·10⁴ + (c + 1000)``, its seed (:func:`plant_seed`) and its location, so
+a plant is the same whichever tile builds it and however many buffer rows surround it. Tiles
+partition the measurement area into W contiguous blocks, each carrying its own B buffer rows.
 """
 
 from __future__ import annotations
@@ -30,6 +32,15 @@ DEFAULT_ROW_SPACING_M = 0.125
 DEFAULT_PLANT_SPACING_M = 0.03
 #: The reference paper found two rows of buffer plants around the measurement area sufficient.
 DEFAULT_BUFFER_ROWS = 2
+
+
+#: Offset making relative plant coordinates non-negative in ids and seeds.
+ID_OFFSET = 1000
+
+
+def plant_id(r, c):
+    """Stable plant id of the plant at (r, c) relative to the measurement area."""
+    return (np.asarray(r) + ID_OFFSET) * 10_000 + (np.asarray(c) + ID_OFFSET)
 
 
 @dataclass(frozen=True)
@@ -78,9 +89,14 @@ class Field:
         return self.n + 2 * self.buffer_rows
 
     def plants(self) -> pd.DataFrame:
-        """One row per plant of the whole grid: ids, grid position, seed, position (m), measured flag."""
+        """One row per plant of the whole grid: ids, grid position, seed, position (m), measured flag.
+
+        ``row``/``col`` index the M×M grid (0 … M−1); ``r``/``c`` are relative to the
+        measurement area (0 … N−1 inside it).
+        """
         m, b = self.m, self.buffer_rows
         row, col = np.divmod(np.arange(m * m), m)
+        r, c = row - b, col - b
         along = (col - (m - 1) / 2) * self.plant_spacing_m
         across = (row - (m - 1) / 2) * self.row_spacing_m
         az = math.radians(self.row_direction_deg)
@@ -91,8 +107,8 @@ class Field:
         y = along * d[1] + across * p[1]
         measured = (row >= b) & (row < b + self.n) & (col >= b) & (col < b + self.n)
         return pd.DataFrame({
-            "plant_id": row * m + col, "row": row, "col": col,
-            "seed": [plant_seed(self.seed, r, c) for r, c in zip(row, col)],
+            "plant_id": plant_id(r, c), "row": row, "col": col, "r": r, "c": c,
+            "seed": [plant_seed(self.seed, int(i) + ID_OFFSET, int(j) + ID_OFFSET) for i, j in zip(r, c)],
             "x_m": x, "y_m": y, "measured": measured,
         }).set_index("plant_id", drop=False)
 
@@ -119,7 +135,7 @@ class Field:
                 R, C = np.meshgrid(np.arange(max(0, r0 - B), min(m, r1 + B + 1)),
                                    np.arange(max(0, c0 - B), min(m, c1 + B + 1)), indexing="ij")
                 inside = (R >= r0) & (R <= r1) & (C >= c0) & (C <= c1)
-                ids = R * m + C
+                ids = plant_id(R - B, C - B)
                 out.append(Tile(index=len(out), measured=np.sort(ids[inside]), buffer=np.sort(ids[~inside])))
         return out
 
