@@ -1,0 +1,213 @@
+"""Write a labelled synthetic image dataset from a coupled-model results file.
+
+Layout of the dataset directory::
+
+    metadata.json                 cameras, times, sun and sky, exposure, parameters, version
+    images/<cam>_<time>.exr       HDR radiance, W m⁻² sr⁻¹ per channel (float32)
+    images/<cam>_<time>.png       tone-mapped 8-bit sRGB (camera exposure applied)
+    labels/<cam>_<time>.npz       dense labels (see :mod:`lightfit.dataset.labels`)
+    gallery.png                   a few images with their labels side by side (like Fig. 3)
+    field_values.<ply|vtk>        the coloured field: per-face values of the first time step
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import lightfit
+from lightfit.dataset.camera import Camera, Sweep, camera_sweep, check_unique_names
+from lightfit.dataset.exposure import meter, tone_map, write_exr, write_png
+from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
+from lightfit.dataset.render import RenderSettings, render
+from lightfit.dataset.results import MARGIN, Results, build_geometry, lighting, open_results, select_times
+from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, scene_arrays
+from lightfit.errors import InputError
+
+DEFAULT_QUANTITIES = ("absorbed_par", "an", "vc", "vj", "gs", "limitation", MARGIN)
+EXPORT_FORMATS = ("ply", "vtk", "none")
+#: Class-valued quantities get int8 label maps; the rest float32.
+CLASS_QUANTITIES = ("limitation",)
+
+
+@dataclass
+class DatasetSpec:
+    """Everything that decides a dataset besides the results file.
+
+    Attributes:
+        cameras: explicit cameras; if empty, ``sweep`` generates them around the field.
+        sweep: camera sweep used when ``cameras`` is empty.
+        times: ISO timestamps of results steps, ``["all"]``, or ``None`` = the highest sun.
+        quantities: per-segment quantities to label (short names of
+            :data:`~lightfit.dataset.results.QUANTITIES`, full variable names, or
+            ``limitation_margin``); quantities absent from the results are skipped only when
+            left at the default, otherwise an error.
+        settings: renderer knobs (spp, path depth, colour, seed, threads).
+        materials: visual materials of the data scene.
+        weather: weather source (bundled name or file) when the results carry no sun/sky.
+        depth: write the ``depth_m`` label.
+        gallery_images: images shown in ``gallery.png`` (0 = no gallery).
+        export: ``"ply"``, ``"vtk"`` or ``"none"`` for the coloured field geometry.
+        cache_dir: plant cache directory (``None`` = lightfit's default).
+    """
+
+    cameras: list[Camera] = field(default_factory=list)
+    sweep: Sweep = field(default_factory=Sweep)
+    times: list[str] | None = None
+    quantities: tuple[str, ...] | None = None
+    settings: RenderSettings = field(default_factory=RenderSettings)
+    materials: VisualMaterials = field(default_factory=VisualMaterials)
+    weather: str | None = None
+    depth: bool = True
+    gallery_images: int = 4
+    export: str = "ply"
+    cache_dir: str | None = None
+
+
+def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()) -> dict:
+    """Render ``spec``'s cameras at its times and write the dataset to ``out_dir``; return the metadata."""
+    if spec.export not in EXPORT_FORMATS:
+        raise InputError(f"export={spec.export!r}", column="export", expected=" or ".join(EXPORT_FORMATS))
+    if not isinstance(spec.gallery_images, int) or spec.gallery_images < 0:
+        raise InputError(f"gallery_images={spec.gallery_images!r}", column="gallery_images", expected="an integer ≥ 0")
+    res = results if isinstance(results, Results) else open_results(results)
+    quantities = resolve_quantities(res, spec.quantities)
+    tix = select_times(res, spec.times)
+    lights = lighting(res, tix, spec.weather)
+    geom = build_geometry(res, cache_dir=spec.cache_dir)
+    cams = spec.cameras or camera_sweep(spec.sweep, canopy_height_m=_canopy_height(geom.segments))
+    check_unique_names(cams)
+    arrays = scene_arrays(geom.mesh, geom.segments, spec.materials, seed=spec.settings.seed)
+    rendered = render(arrays, cams, lights, spec.settings, spec.materials)
+
+    out = Path(out_dir)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    (out / "labels").mkdir(exist_ok=True)
+    per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
+    images = []
+    for c, cam in enumerate(cams):
+        geo = geometric_labels(rendered.face[c], rendered.depth_m[c], geom.mesh, geom.segments)
+        if not spec.depth:
+            geo.pop("depth_m")
+        for k, t in enumerate(tix):
+            images.append(_write_image(out, cam, res.times[t], t, lights[k], rendered.radiance[c][k], geo, per_segment[t]))
+    meta = _metadata(res, spec, quantities, cams, images, rendered)
+    if spec.gallery_images and images:
+        from lightfit.dataset.gallery import gallery
+
+        meta["gallery"] = gallery(out, images[: spec.gallery_images], quantities).name
+    if spec.export != "none":
+        meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
+    (out / "metadata.json").write_text(json.dumps(meta, indent=2, default=_json_default), encoding="utf-8")
+    return meta
+
+
+def resolve_quantities(res: Results, requested) -> list[str]:
+    """Validated quantity names; the default set keeps only those the results can provide."""
+    if requested is None:
+        have = []
+        for q in DEFAULT_QUANTITIES:
+            try:
+                res.variable(q if q != MARGIN else "vc"), res.variable(q if q != MARGIN else "vj")
+                have.append(q)
+            except InputError:
+                continue
+        return have
+    for q in requested:
+        res.variable(q)
+        if q == MARGIN:
+            res.variable("vc"), res.variable("vj")
+    return list(dict.fromkeys(requested))
+
+
+def _canopy_height(segments: pd.DataFrame) -> float:
+    return float(segments[["z0", "z1"]].to_numpy().max()) if len(segments) else 0.5
+
+
+def _stem(cam: Camera, time: pd.Timestamp) -> str:
+    return f"{cam.name}_{time.strftime('%Y%m%dT%H%MZ')}"
+
+
+def _write_image(out: Path, cam: Camera, time, t: int, light, radiance: np.ndarray, geo: dict, values: dict) -> dict:
+    """Write one image's EXR, PNG and label npz; return its metadata entry."""
+    stem = _stem(cam, time)
+    labels = dict(geo)
+    valid = np.zeros(geo["segment_id"].shape, dtype=bool)
+    for q, v in values.items():
+        f, known = quantity_map(geo["segment_id"], v.astype(float))
+        valid |= known
+        labels[q] = class_map(f) if (q in CLASS_QUANTITIES or v.name in CLASS_QUANTITIES) else f
+    if not values:
+        valid = geo["segment_id"] >= 0
+    labels["valid"] = valid
+    leaf = geo["organ"] == ORGAN_CODES["leaf"]
+    exp = meter(radiance, leaf, cam)
+    write_exr(radiance, out / "images" / f"{stem}.exr")
+    write_png(tone_map(radiance, exp.gain), out / "images" / f"{stem}.png")
+    np.savez_compressed(out / "labels" / f"{stem}.npz", **labels)
+    counts = {name: int((geo["organ"] == code).sum()) for name, code in ORGAN_CODES.items()}
+    return {
+        "name": stem, "camera": cam.name, "time_utc": time.isoformat(), "time_index": int(t),
+        "exr": f"images/{stem}.exr", "png": f"images/{stem}.png", "labels": f"labels/{stem}.npz",
+        "lighting": light.to_dict(), "exposure": exp.to_dict(), "pixels": counts | {"valid": int(valid.sum())},
+    }
+
+
+def export_field(mesh, values: dict[str, pd.Series], path: Path) -> dict:
+    """Write the faces of segments with finite values for every quantity, per-face values attached.
+
+    Uses :func:`lightfit.plant.export` (PLY or VTK by suffix). Buffer plants (no results) and
+    segments with any NaN quantity are left out; the counts are returned for the metadata.
+    """
+    from lightfit.plant import export
+    from lightfit.plant.mesh import Mesh
+
+    numeric = {q: v.astype(float) for q, v in values.items()}
+    keep = np.ones(mesh.n_faces, dtype=bool)
+    for v in numeric.values():
+        keep &= np.isfinite(v.reindex(mesh.face_segment).to_numpy())
+    if not keep.any():
+        return {"file": None, "faces": 0, "faces_left_out": int(mesh.n_faces), "reason": "no segment has finite values"}
+    sub = Mesh(mesh.vertices, mesh.faces[keep], mesh.face_segment[keep], mesh.face_is_blade[keep])
+    export(sub, path, values=numeric)
+    return {"file": path.name, "faces": int(keep.sum()), "faces_left_out": int((~keep).sum()), "values": list(numeric)}
+
+
+def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendered) -> dict:
+    return {
+        "lightfit_version": lightfit.__version__,
+        "results_file": str(res.path) if res.path else None,
+        "results_attrs": {k: res.ds.attrs[k] for k in res.ds.attrs},
+        "synthetic_values": bool(str(res.ds.attrs.get("synthetic", "")).lower() in ("1", "true", "yes")),
+        "render": asdict(spec.settings) | {"variant": rendered.variant, "in_process": rendered.in_process},
+        "materials": asdict(spec.materials),
+        "cameras": [c.to_dict() for c in cams],
+        "quantities": {q: {"variable": res.variable(q), "units": res.units(q)} for q in quantities},
+        "label_codes": {
+            "organ": ORGAN_CODES, "segment_id_background": -1, "plant_id_background": -1,
+            "limitation": {"1": "electron-transport limited (Fj < Fc)", "0": "Rubisco limited (Fj > Fc)", "-1": "no value"},
+            "float_no_value": "NaN (see 'valid')", "depth_m": "distance along the optical axis, m; NaN = sky",
+            MARGIN: "(Vj - Vc)/(Vj + Vc): > 0 Fj > Fc (red), < 0 Fj < Fc (blue)",
+        },
+        "image_units": "HDR radiance W m-2 sr-1 per channel under a white sun (DNI) and isotropic white sky (DHI/pi)",
+        "labels_sampling": "one ray through each pixel centre; images average spp jittered paths per pixel",
+        "images": images,
+    }
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return None if not math.isfinite(o) else float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return str(o)
+

@@ -1,0 +1,75 @@
+"""Gallery figure: a few images with their labels side by side (after the reference paper's Fig. 3).
+
+Columns: the tone-mapped image, segment ids (one colour per segment), absorbed PAR, and the
+limitation margin (Vj − Vc)/(Vj + Vc) on a divergent red/blue scale centred on 0 — red where
+Fj > Fc (Rubisco limited), blue where Fj < Fc (electron-transport limited) — or, when Vc/Vj are
+not in the results, the first other quantity.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lightfit.dataset.results import MARGIN
+
+PREFERRED = ("absorbed_par", MARGIN)
+
+
+def segment_colours(segment_id: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float colours: a fixed pseudo-random colour per segment id, black for background."""
+    h = (segment_id.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(2**24)
+    rgb = np.stack([(h >> np.uint64(s)) & np.uint64(255) for s in (0, 8, 16)], axis=-1).astype(float) / 255.0
+    rgb = 0.25 + 0.75 * rgb  # never as dark as the background
+    rgb[segment_id < 0] = 0.0
+    return rgb
+
+
+def _columns(quantities: list[str]) -> list[str]:
+    cols = [q for q in PREFERRED if q in quantities]
+    if MARGIN not in cols:
+        cols += [q for q in quantities if q not in cols][: 2 - len(cols)]
+    return cols
+
+
+def gallery(out_dir: Path, images: list[dict], quantities: list[str]) -> Path:
+    """Write ``gallery.png`` in ``out_dir`` for the image entries of the metadata; return its path."""
+    # The object API needs no pyplot backend: safe in any process (tests, notebooks, servers).
+    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    cols = _columns(quantities)
+    n = len(images)
+    fig = Figure(figsize=(3.2 * (2 + len(cols)), 3.0 * n))
+    axes = fig.subplots(n, 2 + len(cols), squeeze=False)
+    for r, entry in enumerate(images):
+        png = np.asarray(Image.open(out_dir / entry["png"]))
+        with np.load(out_dir / entry["labels"]) as z:
+            labels = {k: z[k] for k in z.files}
+        ax = axes[r]
+        ax[0].imshow(png, cmap="gray" if png.ndim == 2 else None, vmin=0, vmax=255)
+        clip = entry["exposure"]["clipped_leaf_fraction"]
+        ax[0].set_title(f"{entry['name']}\nclipped leaf px {clip:.1%}" if clip is not None else entry["name"], fontsize=8)
+        ax[1].imshow(segment_colours(labels["segment_id"]))
+        ax[1].set_title("segment id", fontsize=8)
+        for j, q in enumerate(cols):
+            a = ax[2 + j]
+            v = np.ma.masked_invalid(labels[q].astype(float))
+            if q == MARGIN:
+                lim = float(np.nanmax(np.abs(v))) if v.count() else 1.0
+                im = a.imshow(v, cmap="RdBu_r", norm=TwoSlopeNorm(0.0, -lim or -1.0, lim or 1.0))
+                a.set_title("(Vj−Vc)/(Vj+Vc): red Fj>Fc, blue Fj<Fc", fontsize=8)
+            else:
+                im = a.imshow(v, cmap="viridis")
+                a.set_title(q, fontsize=8)
+            a.set_facecolor("0.15")
+            fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
+        for a in ax:
+            a.set_xticks([])
+            a.set_yticks([])
+    fig.tight_layout()
+    path = Path(out_dir) / "gallery.png"
+    fig.savefig(path, dpi=100)
+    return path

@@ -1,0 +1,206 @@
+"""Read a coupled-model results file and rebuild the field it was computed on.
+
+Contract (netCDF, written by the coupled model): dims ``(time, segment)``; coordinate
+``segment`` = segment id (int64) and ``plant_id`` along it; data variables such as
+``absorbed_par_umol_m2_s``, ``an_umol_m2_s``, ``vc_umol_m2_s``, ``vj_umol_m2_s``,
+``gs_mol_m2_s`` and ``limitation`` (int8: 1 = electron-transport limited, Fj < Fc; 0 = Rubisco
+limited); attrs describing the field (``n_plants``, ``buffer_rows``, ``seed``,
+``parameter_file``, ``season_start``, ``target_date``, ``row_spacing_m``, ``plant_spacing_m``,
+optionally ``row_direction_deg``). Optional time series ``sun_elevation_deg``,
+``sun_azimuth_deg``, ``dni_w_m2``, ``dhi_w_m2`` set the light of the data scene; without them it
+comes from a weather series (the bundled one for the target date by default).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lightfit.dataset.scene import Lighting
+from lightfit.errors import InputError
+
+#: Short quantity names → results variables (units in the variable names).
+QUANTITIES = {
+    "absorbed_par": "absorbed_par_umol_m2_s",
+    "an": "an_umol_m2_s",
+    "vc": "vc_umol_m2_s",
+    "vj": "vj_umol_m2_s",
+    "gs": "gs_mol_m2_s",
+    "limitation": "limitation",
+}
+#: Derived: (Vj − Vc)/(Vj + Vc), dimensionless in [−1, 1]; > 0 where Fj > Fc (Rubisco limited,
+#: red in the gallery), < 0 where Fj < Fc (electron-transport limited, blue) — the divergent
+#: scale of the reference paper's Fig. 3.
+MARGIN = "limitation_margin"
+REQUIRED_ATTRS = ("n_plants", "buffer_rows", "seed")
+LIGHT_VARS = ("sun_elevation_deg", "sun_azimuth_deg", "dni_w_m2", "dhi_w_m2")
+
+
+@dataclass
+class Results:
+    """A loaded results file.
+
+    Attributes:
+        ds: the xarray Dataset (loaded into memory).
+        path: where it was read from.
+        times: its time coordinate as tz-aware UTC timestamps.
+    """
+
+    ds: object
+    path: Path | None
+    times: pd.DatetimeIndex
+
+    def variable(self, name: str) -> str:
+        """The dataset variable of a quantity (short name, full name or ``limitation_margin``)."""
+        full = QUANTITIES.get(name, name)
+        if full == MARGIN or (full in self.ds.data_vars and "segment" in self.ds[full].dims):
+            return full
+        avail = sorted(set(QUANTITIES) | {v for v in self.ds.data_vars if "segment" in self.ds[v].dims} | {MARGIN})
+        raise InputError(f"unknown quantity {name!r}", column="quantities", expected=f"one of {', '.join(avail)}")
+
+    def values(self, name: str, time_index: int) -> pd.Series:
+        """Per-segment values of a quantity at one time step, indexed by segment id (units as named)."""
+        full = self.variable(name)
+        if full == MARGIN:
+            vc, vj = (self.values(q, time_index).astype(float) for q in ("vc", "vj"))
+            total = vj + vc
+            return ((vj - vc) / total.where(total != 0)).rename(MARGIN)
+        da = self.ds[full]
+        if "time" in da.dims:
+            da = da.isel(time=time_index)
+        return pd.Series(np.asarray(da.values), index=self.ds["segment"].values.astype(np.int64), name=full)
+
+    def units(self, name: str) -> str:
+        full = self.variable(name)
+        if full in (MARGIN, "limitation"):
+            return "1"
+        return str(self.ds[full].attrs.get("units", full.split("_", 1)[-1] if "_" in full else ""))
+
+
+def open_results(source) -> Results:
+    """Load a results netCDF (path) or wrap an in-memory ``xarray.Dataset``; check the contract."""
+    import xarray as xr
+
+    path = None
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if not path.exists():
+            raise InputError("results file not found", file=path, expected="a netCDF written by the coupled model")
+        try:
+            ds = xr.load_dataset(path)
+        except Exception as err:  # noqa: BLE001 - any reader failure is a bad input file
+            raise InputError(f"cannot read as netCDF: {err}", file=path, expected="a netCDF results file") from err
+    else:
+        ds = source
+    where = path or "results"
+    if "segment" not in ds.coords:
+        raise InputError("no 'segment' coordinate", file=where, expected="dims (time, segment) with segment = segment id")
+    if "time" not in ds.coords or ds.sizes.get("time", 0) < 1:
+        raise InputError("no 'time' coordinate with at least one step", file=where, expected="dims (time, segment)")
+    missing = [a for a in REQUIRED_ATTRS if a not in ds.attrs]
+    if missing:
+        raise InputError(f"missing field attribute(s) {missing}", file=where,
+                         expected="attrs n_plants, buffer_rows, seed (and growth settings) describing the field")
+    times = pd.DatetimeIndex(ds["time"].values)
+    times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
+    return Results(ds, path, times)
+
+
+def field_of(res: Results):
+    """The :class:`lightfit.plant.Field` described by the results' attrs."""
+    from lightfit.plant import Field, GrowthConfig
+
+    a = res.ds.attrs
+    growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
+    kw = {k: float(a[k]) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
+    return Field(n_plants=int(a["n_plants"]), buffer_rows=int(a["buffer_rows"]), seed=int(a["seed"]),
+                 growth=GrowthConfig(**growth), **kw)
+
+
+def build_geometry(res: Results, cache_dir=None):
+    """Rebuild the field geometry (plants are deterministic from the seeds; cached on disk).
+
+    Raises :class:`InputError` when the results' segment ids are not all in the rebuilt field.
+    """
+    from lightfit.plant import build
+
+    geom = build(field_of(res), cache_dir=cache_dir)
+    ids = res.ds["segment"].values.astype(np.int64)
+    unknown = np.setdiff1d(ids, geom.segments["segment_id"].to_numpy())
+    if len(unknown):
+        raise InputError(f"{len(unknown)} segment id(s) of the results are not in the field rebuilt from its attrs "
+                         f"(e.g. {unknown[:5].tolist()})", file=res.path or "results",
+                         expected="the attrs of the field the results were computed on")
+    return geom
+
+
+def select_times(res: Results, times: list[str] | None) -> list[int]:
+    """Indices of the requested time steps: ISO timestamps (UTC unless zoned), ``"all"``, or
+    ``None`` = the step with the highest sun (or the first step when the sun is unknown)."""
+    if not times:
+        if "sun_elevation_deg" in res.ds:
+            return [int(np.nanargmax(res.ds["sun_elevation_deg"].values))]
+        return [int(np.argmax(_sun(res).sun_elevation_deg.to_numpy()))]
+    if list(times) == ["all"]:
+        return list(range(len(res.times)))
+    out = []
+    for t in times:
+        try:
+            ts = pd.Timestamp(t)
+        except ValueError as err:
+            raise InputError(f"time {t!r} is not a timestamp", column="times", expected="ISO 8601, e.g. 2016-04-20T10:00") from err
+        ts = ts.tz_localize("UTC") if ts.tz is None else ts.tz_convert("UTC")
+        hit = np.flatnonzero(res.times == ts)
+        if not len(hit):
+            raise InputError(f"time {ts} is not a step of the results", column="times",
+                             expected=f"one of {res.times[0]} … {res.times[-1]} ({len(res.times)} steps)")
+        out.append(int(hit[0]))
+    return out
+
+
+def _sun(res: Results) -> pd.DataFrame:
+    from lightfit import weather
+
+    return weather.solar_position(res.times)
+
+
+def lighting(res: Results, time_indices: list[int], weather_source: str | None = None) -> list[Lighting]:
+    """Sun and sky per selected time step.
+
+    From the results' own ``sun_elevation_deg``, ``sun_azimuth_deg``, ``dni_w_m2``, ``dhi_w_m2``
+    when present; otherwise sun angles from the solar position at the site and DNI/DHI from
+    ``weather_source`` (a bundled weather name or file; default the bundled series of the
+    results' target date), interpolated in time.
+    """
+    ds = res.ds
+    if all(v in ds for v in LIGHT_VARS):
+        cols = {v: ds[v].values[time_indices].astype(float) for v in LIGHT_VARS}
+    else:
+        wx = _weather(res, weather_source)
+        t = res.times[time_indices]
+        sun = _sun(res).iloc[time_indices]
+        joined = wx.index.union(t)
+        # Sun angles exact at each step (no interpolation across the azimuth wrap); irradiance
+        # interpolated linearly in time between weather records.
+        cols = {v: sun[v].to_numpy(dtype=float) for v in LIGHT_VARS[:2]}
+        cols |= {v: wx[v].reindex(joined).interpolate("time", limit_area="inside").reindex(t).to_numpy(dtype=float) for v in LIGHT_VARS[2:]}
+        if np.isnan(np.concatenate(list(cols.values()))).any():
+            raise InputError(f"weather {wx.attrs.get('source', weather_source)!r} does not cover the selected times "
+                             f"{list(t.astype(str))}", column="weather", expected="a series spanning the results' times")
+    return [Lighting(*(float(cols[v][i]) for v in LIGHT_VARS)) for i in range(len(time_indices))]
+
+
+def _weather(res: Results, source: str | None) -> pd.DataFrame:
+    from lightfit import weather
+
+    name = source or str(res.ds.attrs.get("target_date", ""))
+    if name in weather.BUNDLED:
+        return weather.load(name)
+    if source is None:
+        raise InputError(f"the results carry no {', '.join(LIGHT_VARS)} and no weather is bundled for "
+                         f"target_date {name!r}", column="weather",
+                         expected=f"a weather file or bundled name ({', '.join(weather.BUNDLED)})")
+    return weather.add_solar(weather.read_weather(source))

@@ -1,0 +1,63 @@
+"""A small *synthetic* results file in the coupled model's format, for tests, demos and benchmarks.
+
+The values are not a model run: absorbed PAR grows with segment height under the day's PAR,
+Vj follows a saturating light response, Vc is constant per plant, An = min(Vc, Vj) − Rd, and
+gs ∝ An. The dataset's attrs say ``synthetic = "true"`` so nothing downstream mistakes it for
+model output.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+
+
+def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_only: bool = True):
+    """An ``xarray.Dataset`` (time, segment) for ``fld`` (a :class:`lightfit.plant.Field`) at UTC ``times``."""
+    import xarray as xr
+
+    from lightfit import weather
+    from lightfit.plant import build
+
+    times = pd.DatetimeIndex(times)
+    times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
+    if len(times) == 0:
+        raise InputError("no times", column="times", expected="at least one UTC timestamp")
+    seg = build(fld, cache_dir=cache_dir).segments
+    if measured_only:
+        seg = seg[seg["measured"]]
+    rng = np.random.default_rng(seed)
+    sun = weather.solar_position(times)
+    par_top = 2000.0 * np.clip(np.sin(np.radians(sun["sun_elevation_deg"].to_numpy())), 0.0, None)  # µmol m-2 s-1
+    height = np.maximum(seg[["z0", "z1"]].to_numpy().mean(axis=1), 0.0)
+    rel = np.clip(height / max(height.max(), 1e-9), 0.0, 1.0) ** 2
+    shade = rng.uniform(0.3, 1.0, size=len(seg))
+    par = 0.85 * par_top[:, None] * (0.05 + 0.95 * rel * shade)[None, :]
+    vc_plant = pd.Series(rng.uniform(12.0, 26.0, size=seg["plant_id"].nunique()), index=np.unique(seg["plant_id"]))
+    vc = np.broadcast_to(vc_plant.reindex(seg["plant_id"]).to_numpy()[None, :], par.shape).copy()
+    vj = 40.0 * par / (par + 600.0)
+    an = np.minimum(vc, vj) - 1.0
+    gs = np.clip(0.01 + 0.012 * an, 0.01, None)
+    dims = ("time", "segment")
+    ds = xr.Dataset(
+        {
+            "absorbed_par_umol_m2_s": (dims, par.astype(np.float32), {"units": "umol m-2 s-1"}),
+            "an_umol_m2_s": (dims, an.astype(np.float32), {"units": "umol m-2 s-1"}),
+            "vc_umol_m2_s": (dims, vc.astype(np.float32), {"units": "umol m-2 s-1"}),
+            "vj_umol_m2_s": (dims, vj.astype(np.float32), {"units": "umol m-2 s-1"}),
+            "gs_mol_m2_s": (dims, gs.astype(np.float32), {"units": "mol m-2 s-1"}),
+            "limitation": (dims, (vj < vc).astype(np.int8), {"flag_values": "0 Rubisco limited, 1 electron-transport limited"}),
+        },
+        coords={"time": times.tz_convert(None).to_numpy(), "segment": seg["segment_id"].to_numpy(np.int64),
+                "plant_id": ("segment", seg["plant_id"].to_numpy(np.int64))},
+        attrs={
+            "n_plants": fld.n_plants, "buffer_rows": fld.buffer_rows, "seed": fld.seed,
+            "parameter_file": fld.growth.parameter_file, "season_start": fld.growth.season_start,
+            "target_date": fld.growth.target_date, "row_spacing_m": fld.row_spacing_m,
+            "plant_spacing_m": fld.plant_spacing_m, "row_direction_deg": fld.row_direction_deg,
+            "synthetic": "true", "title": "lightfit synthetic results (not a model run)",
+        },
+    )
+    return ds
