@@ -1,0 +1,349 @@
+"""Data scene: labels, determinism, exposure/clipping, bad specs, CLI, field export.
+
+The results file here is *synthetic* (``lightfit.dataset.synthetic_results``: values from a
+formula, attrs ``synthetic = "true"``) on a real tiny field: 2×2 measured plants + 1 buffer row.
+"""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from lightfit.dataset import (
+    MARGIN,
+    ORGAN_CODES,
+    Camera,
+    DatasetSpec,
+    Lighting,
+    RenderSettings,
+    Sweep,
+    build_geometry,
+    camera_sweep,
+    clipped_fraction,
+    load_cameras,
+    make_dataset,
+    meter,
+    open_results,
+    render,
+    scene_arrays,
+    synthetic_results,
+    tone_map,
+)
+from lightfit.dataset.cli import render_dataset
+from lightfit.errors import InputError
+from lightfit.plant import Field
+
+TIMES = ["2016-04-20T08:00", "2016-04-20T11:00"]
+SMALL = {"width_px": 64, "height_px": 64}
+# Looks down on the field from the south-east at ~45°: leaves, stems and soil in view.
+CAM = Camera(name="se", position_m=(0.45, -0.45, 0.75), look_at_m=(0.0, 0.0, 0.2), fov_deg=50.0, **SMALL)
+SUN = Lighting(sun_elevation_deg=45.0, sun_azimuth_deg=160.0, dni_w_m2=700.0, dhi_w_m2=120.0)
+
+
+@pytest.fixture(scope="module")
+def results_file(tmp_path_factory):
+    fld = Field(n_plants=4, buffer_rows=1, seed=1)
+    path = tmp_path_factory.mktemp("results") / "results.nc"
+    synthetic_results(fld, TIMES, seed=3).to_netcdf(path, engine="h5netcdf")
+    return path
+
+
+@pytest.fixture(scope="module")
+def geometry(results_file):
+    return build_geometry(open_results(results_file))
+
+
+@pytest.fixture(scope="module")
+def mono_dataset(results_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds_mono")
+    spec = DatasetSpec(cameras=[CAM], times=["all"], settings=RenderSettings(spp=2, colour="mono", seed=5), gallery_images=1)
+    return out, make_dataset(results_file, out, spec)
+
+
+def _labels(out, entry):
+    with np.load(out / entry["labels"]) as z:
+        return {k: z[k] for k in z.files}
+
+
+def test_labels_map_to_stored_segment_values(mono_dataset, results_file, geometry):
+    out, meta = mono_dataset
+    res = open_results(results_file)
+    assert meta["synthetic_values"] is True
+    for entry in meta["images"]:
+        lab = _labels(out, entry)
+        seg = lab["segment_id"]
+        fg = seg >= 0
+        assert fg.sum() > 100, "the camera should see plants"
+        for q in ("absorbed_par", "an", "vc", "vj", "gs"):
+            stored = res.values(q, entry["time_index"])
+            known = np.isin(seg, stored.index)
+            np.testing.assert_array_equal(lab[q][known], stored.reindex(seg[known]).to_numpy(np.float32))
+            assert np.isnan(lab[q][~known]).all()
+        lim = res.values("limitation", entry["time_index"])
+        known = np.isin(seg, lim.index)
+        np.testing.assert_array_equal(lab["limitation"][known], lim.reindex(seg[known]).to_numpy())
+        assert (lab["limitation"][~known] == -1).all()
+        np.testing.assert_array_equal(lab["valid"], known)
+        margin = res.values(MARGIN, entry["time_index"])
+        np.testing.assert_allclose(lab[MARGIN][known], margin.reindex(seg[known]).to_numpy(np.float32))
+        # Plant id and organ follow the segment table.
+        table = geometry.segments.set_index("segment_id")
+        np.testing.assert_array_equal(lab["plant_id"][fg], table["plant_id"].reindex(seg[fg]).to_numpy())
+        organ = table["organ_type"].astype(str).reindex(seg[fg]).map({"stem": 2, "leaf": 3}).to_numpy()
+        np.testing.assert_array_equal(lab["organ"][fg], organ)
+
+
+def test_background_sentinels(mono_dataset):
+    out, meta = mono_dataset
+    lab = _labels(out, meta["images"][0])
+    bg = lab["segment_id"] == -1
+    assert bg.any()
+    assert set(np.unique(lab["organ"][bg])) <= {ORGAN_CODES["sky"], ORGAN_CODES["soil"]}
+    assert (lab["plant_id"][bg] == -1).all()
+    assert np.isnan(lab["absorbed_par"][bg]).all() and not lab["valid"][bg].any()
+    assert (lab["organ"][~bg] >= ORGAN_CODES["stem"]).all()
+    assert np.isfinite(lab["depth_m"][lab["organ"] != ORGAN_CODES["sky"]]).all()
+
+
+def test_sky_pixels_have_no_depth(geometry):
+    """A camera looking at the horizon sees sky above it: organ 0 and depth NaN, exactly together."""
+    cam = Camera(name="horizon", position_m=(0.0, -1.5, 0.3), look_at_m=(0.0, 0.0, 0.3), **SMALL)
+    out = render(scene_arrays(geometry.mesh, geometry.segments), [cam], [SUN], RenderSettings(spp=1, colour="mono"))
+    face, depth = out.face[0], out.depth_m[0]
+    assert (face == -1).any() and (face >= 0).any()
+    np.testing.assert_array_equal(face == -1, np.isnan(depth))
+    assert (face[: 10] == -1).all()  # the top rows are sky
+
+
+def test_hit_points_lie_on_the_labelled_segment(geometry):
+    """Independent check of the face → segment mapping: each pixel's hit point is inside the
+    bounding box of the labelled segment's triangles."""
+    from lightfit.dataset import geometric_labels
+
+    out = render(scene_arrays(geometry.mesh, geometry.segments), [CAM], [SUN], RenderSettings(spp=1, colour="mono"))
+    lab = geometric_labels(out.face[0], out.depth_m[0], geometry.mesh, geometry.segments)
+    dirs = CAM.directions().reshape(CAM.height_px, CAM.width_px, 3)
+    t = lab["depth_m"] / (dirs @ CAM.basis()[2])
+    hit = np.asarray(CAM.position_m) + t[..., None] * dirs
+    mesh = geometry.mesh
+    rows, cols = np.nonzero(lab["segment_id"] >= 0)
+    for r, c in list(zip(rows, cols))[::7]:
+        v = mesh.vertices[mesh.faces[mesh.face_segment == lab["segment_id"][r, c]]].reshape(-1, 3)
+        assert ((hit[r, c] >= v.min(0) - 2e-3) & (hit[r, c] <= v.max(0) + 2e-3)).all()
+    soil = lab["organ"] == ORGAN_CODES["soil"]
+    np.testing.assert_allclose(hit[soil][:, 2], 0.0, atol=1e-4)
+
+
+def test_same_seed_same_images(geometry):
+    arrays = scene_arrays(geometry.mesh, geometry.segments, seed=2)
+    a = render(arrays, [CAM], [SUN], RenderSettings(spp=2, colour="mono", seed=11))
+    b = render(scene_arrays(geometry.mesh, geometry.segments, seed=2), [CAM], [SUN], RenderSettings(spp=2, colour="mono", seed=11))
+    c = render(arrays, [CAM], [SUN], RenderSettings(spp=2, colour="mono", seed=12))
+    np.testing.assert_array_equal(a.radiance[0][0], b.radiance[0][0])
+    np.testing.assert_array_equal(a.face[0], b.face[0])
+    assert not np.array_equal(a.radiance[0][0], c.radiance[0][0])
+    np.testing.assert_array_equal(a.face[0], c.face[0])  # labels do not depend on the seed
+    assert np.isfinite(a.radiance[0][0]).all() and (a.radiance[0][0] >= 0).all()
+
+
+def test_dataset_is_deterministic(results_file, tmp_path):
+    spec = DatasetSpec(cameras=[CAM], settings=RenderSettings(spp=1, colour="mono", seed=4), gallery_images=0, export="none")
+    m1, m2 = make_dataset(results_file, tmp_path / "a", spec), make_dataset(results_file, tmp_path / "b", spec)
+    for e1, e2 in zip(m1["images"], m2["images"]):
+        assert (tmp_path / "a" / e1["png"]).read_bytes() == (tmp_path / "b" / e2["png"]).read_bytes()
+        l1, l2 = _labels(tmp_path / "a", e1), _labels(tmp_path / "b", e2)
+        for k in l1:
+            np.testing.assert_array_equal(l1[k], l2[k])
+    assert m1["images"][0]["exposure"] == m2["images"][0]["exposure"]
+
+
+def test_overexposed_image_clips_every_leaf_pixel(geometry):
+    arrays = scene_arrays(geometry.mesh, geometry.segments)
+    out = render(arrays, [CAM], [SUN], RenderSettings(spp=1, colour="mono"))
+    from lightfit.dataset import geometric_labels
+
+    lab = geometric_labels(out.face[0], out.depth_m[0], geometry.mesh, geometry.segments)
+    leaf = lab["organ"] == ORGAN_CODES["leaf"]
+    over = Camera(**{**CAM.to_dict(), "exposure_mode": "fixed", "exposure_ev": 30.0})
+    rad = out.radiance[0][0]
+    e = meter(rad, leaf, over)
+    # Every lit leaf pixel clips; at 1 path per pixel a rare pixel's estimate is exactly 0.
+    lit = leaf & (rad.max(axis=-1) > 0)
+    assert e.clipped_leaf_fraction == pytest.approx(lit.sum() / leaf.sum()) and e.clipped_leaf_fraction > 0.99
+    assert e.leaf_pixels == leaf.sum()
+    assert (tone_map(rad, e.gain)[lit] == 255).all()
+    metered = meter(out.radiance[0][0], leaf, Camera(**{**CAM.to_dict(), "meter_percentile": 95.0}))
+    assert 0.0 < metered.clipped_leaf_fraction <= 0.06
+    under = meter(out.radiance[0][0], leaf, Camera(**{**CAM.to_dict(), "exposure_mode": "fixed", "exposure_ev": -30.0}))
+    assert under.clipped_leaf_fraction == 0.0
+
+
+def test_metering_on_known_arrays():
+    rad = np.zeros((10, 10, 3))
+    rad[..., 1] = np.arange(100).reshape(10, 10) + 1.0  # green channel 1 … 100
+    leaf = np.zeros((10, 10), bool)
+    leaf[:5] = True  # leaf pixels carry green 1 … 50
+    e = meter(rad, leaf, Camera(exposure_mode="leaf", meter_percentile=90.0, width_px=10, height_px=10))
+    assert e.metered_luminance == pytest.approx(np.percentile(np.arange(1, 51), 90))
+    assert e.clipped_leaf_fraction == pytest.approx(5 / 50)
+    assert clipped_fraction(rad, leaf, 1.0 / 25.0) == pytest.approx(26 / 50)
+    assert np.isnan(clipped_fraction(rad, np.zeros_like(leaf), 1.0))
+    dark = meter(np.zeros((4, 4, 3)), np.ones((4, 4), bool), Camera(width_px=4, height_px=4))
+    assert dark.dark and dark.gain == 1.0 and dark.clipped_leaf_fraction == 0.0
+    scene = meter(np.full((4, 4, 1), 2.0), np.zeros((4, 4), bool), Camera(exposure_mode="scene", width_px=4, height_px=4))
+    assert scene.gain == pytest.approx(0.18 / 2.0) and np.isnan(scene.clipped_leaf_fraction)
+
+
+@pytest.mark.parametrize("fields, column", [
+    ({"width_px": 0}, "width_px"),
+    ({"height_px": -5}, "height_px"),
+    ({"width_px": 64.5}, "width_px"),
+    ({"fov_deg": 0.0}, "fov_deg"),
+    ({"fov_deg": 180.0}, "fov_deg"),
+    ({"fov_deg": float("nan")}, "fov_deg"),
+    ({"position_m": (0.0, float("nan"), 1.0)}, "position_m"),
+    ({"position_m": (0.0, 0.0)}, "position_m"),
+    ({"position_m": (0.0, 0.0, -1.0)}, "position_m"),
+    ({"position_m": (0.0, 0.0, 1.0), "look_at_m": (0.0, 0.0, 1.0)}, "look_at_m"),
+    ({"position_m": (0.0, 0.0, 1.0), "look_at_m": (0.0, 0.0, 0.0)}, "up"),
+    ({"up": (0.0, 0.0, 0.0)}, "up"),
+    ({"exposure_mode": "auto"}, "exposure_mode"),
+    ({"meter_percentile": 0.0}, "meter_percentile"),
+    ({"exposure_ev": float("inf")}, "exposure_ev"),
+    ({"name": "a/b"}, "name"),
+])
+def test_bad_camera_specs(fields, column):
+    with pytest.raises(InputError) as err:
+        Camera(**fields)
+    assert err.value.column == column and column in str(err.value)
+
+
+def test_bad_sweep_and_settings():
+    for kw, col in (({"n": 0}, "n"), ({"distance_m": -1.0}, "distance_m"), ({"elevation_deg": 90.0}, "elevation_deg")):
+        with pytest.raises(InputError, match=col):
+            Sweep(**kw)
+    for kw, col in (({"spp": 0}, "spp"), ({"colour": "cmyk"}, "colour"), ({"max_depth": 1}, "max_depth"), ({"seed": -1}, "seed")):
+        with pytest.raises(InputError, match=col):
+            RenderSettings(**kw)
+
+
+def test_camera_sweep_and_file(tmp_path):
+    cams = camera_sweep(Sweep(n=3, distance_m=2.0, elevation_deg=30.0, camera=SMALL), canopy_height_m=0.6)
+    assert [c.name for c in cams] == ["sweep000", "sweep001", "sweep002"]
+    for c in cams:
+        assert np.hypot(*c.position_m[:2]) == pytest.approx(2.0)
+        assert c.look_at_m == (0.0, 0.0, 0.3) and c.width_px == 64
+    p = tmp_path / "cams.json"
+    p.write_text(json.dumps([CAM.to_dict(), {"position_m": [1, 1, 1]}]))
+    loaded = load_cameras(p)
+    assert loaded[0] == CAM and loaded[1].name == "cam001"
+    p.write_text(json.dumps([{"positon_m": [1, 1, 1]}]))
+    with pytest.raises(InputError, match="unknown key"):
+        load_cameras(p)
+    p.write_text(json.dumps([CAM.to_dict(), CAM.to_dict()]))
+    with pytest.raises(InputError, match="duplicate camera name"):
+        load_cameras(p)
+
+
+def test_unknown_quantity_and_time(results_file, tmp_path):
+    with pytest.raises(InputError, match="unknown quantity 'photons'") as err:
+        make_dataset(results_file, tmp_path, DatasetSpec(cameras=[CAM], quantities=("photons",)))
+    assert "absorbed_par" in str(err.value)
+    with pytest.raises(InputError, match="not a step of the results"):
+        make_dataset(results_file, tmp_path, DatasetSpec(cameras=[CAM], times=["2016-04-20T09:17"]))
+
+
+def test_results_that_do_not_match_the_field(results_file, tmp_path):
+    import xarray as xr
+
+    ds = xr.load_dataset(results_file)
+    bad = ds.assign_coords(segment=ds["segment"].values + 7)
+    with pytest.raises(InputError, match="not in the field rebuilt"):
+        make_dataset(bad, tmp_path, DatasetSpec(cameras=[CAM]))
+    no_attrs = ds.copy()
+    no_attrs.attrs = {}
+    with pytest.raises(InputError, match="missing field attribute"):
+        open_results(no_attrs)
+
+
+def test_field_export_ply_has_per_face_values(mono_dataset, geometry):
+    out, meta = mono_dataset
+    info = meta["field_export"]
+    head = (out / info["file"]).read_bytes().split(b"end_header")[0].decode()
+    for q in ("absorbed_par", "an", "limitation", MARGIN):
+        assert f"property double {q}" in head
+    measured = geometry.segments.loc[geometry.segments["measured"], "segment_id"]
+    assert info["faces"] == np.isin(geometry.mesh.face_segment, measured).sum()
+    assert info["faces"] + info["faces_left_out"] == geometry.mesh.n_faces
+
+
+def test_metadata_contents(mono_dataset):
+    out, meta = mono_dataset
+    disk = json.loads((out / "metadata.json").read_text())
+    assert disk["lightfit_version"] and disk["render"]["seed"] == 5 and len(disk["images"]) == len(TIMES)
+    e = disk["images"][0]
+    assert set(e["lighting"]) == {"sun_elevation_deg", "sun_azimuth_deg", "dni_w_m2", "dhi_w_m2"}
+    assert e["lighting"]["dni_w_m2"] > 0 and 0.0 <= e["exposure"]["clipped_leaf_fraction"] <= 1.0
+    assert pd.Timestamp(e["time_utc"]) == pd.Timestamp(TIMES[0], tz="UTC")
+    assert (out / e["exr"]).read_bytes()[:4] == b"\x76\x2f\x31\x01"  # OpenEXR magic number
+    assert (out / "gallery.png").exists()
+
+
+def test_cli_renders_rgb_dataset(results_file, tmp_path):
+    """End to end through the command, in colour: the rgb render runs in a child process."""
+    from PIL import Image
+
+    app = typer.Typer()
+    app.command("render-dataset")(render_dataset)
+    app.callback()(lambda: None)
+    out = tmp_path / "ds"
+    r = CliRunner().invoke(app, ["render-dataset", str(results_file), "--out", str(out), "--sweep", "2", "--width", "40",
+                                 "--height", "32", "--spp", "1", "--time", TIMES[1], "-q", "absorbed_par", "-q", "vc",
+                                 "-q", "vj", "-q", MARGIN, "--export", "vtk", "--gallery", "2"])
+    assert r.exit_code == 0, r.output
+    meta = json.loads((out / "metadata.json").read_text())
+    assert meta["render"]["colour"] == "rgb" and [e["camera"] for e in meta["images"]] == ["sweep000", "sweep001"]
+    png = np.asarray(Image.open(out / meta["images"][0]["png"]))
+    assert png.shape == (32, 40, 3)
+    assert not np.array_equal(png[..., 0], png[..., 1])  # colour, not grey
+    assert "SCALARS limitation_margin double 1" in (out / "field_values.vtk").read_text()
+    lab = _labels(out, meta["images"][0])
+    assert set(lab) == {"segment_id", "plant_id", "organ", "depth_m", "valid", "absorbed_par", "vc", "vj", MARGIN}
+    assert (out / "gallery.png").exists() and "clipped leaf pixels" in r.output
+
+
+@pytest.mark.parametrize("args, text", [
+    (["--fov-deg", "200"], "fov_deg"),
+    (["--width", "0"], "width_px"),
+    (["-q", "nope"], "unknown quantity"),
+    (["--time", "2016-04-20T11:00", "--all-times"], "--all-times"),
+    (["--colour", "cmyk"], "colour"),
+])
+def test_cli_bad_input(results_file, tmp_path, args, text):
+    app = typer.Typer()
+    app.command("render-dataset")(render_dataset)
+    app.callback()(lambda: None)
+    r = CliRunner().invoke(app, ["render-dataset", str(results_file), "--out", str(tmp_path / "x"), *args])
+    assert r.exit_code == 2, r.output
+    assert text in " ".join(r.output.split())
+
+
+def test_child_process_render_equals_in_process(geometry):
+    """The rgb-in-a-child path gives the same arrays as rendering here, for one variant and seed."""
+    from lightfit.dataset.render import _render_child, _variant_for, render_here
+    from lightfit.dataset.scene import VisualMaterials
+
+    arrays = scene_arrays(geometry.mesh, geometry.segments)
+    cam = Camera(name="c", position_m=CAM.position_m, look_at_m=CAM.look_at_m, width_px=24, height_px=16)
+    settings, mats = RenderSettings(spp=2, colour="mono", seed=9), VisualMaterials()
+    variant, here = _variant_for("mono")
+    child = _render_child(arrays, [cam], [SUN], settings, mats, variant)
+    if here:
+        rad, face, depth = render_here(arrays, [cam], [SUN], settings, mats, variant)
+        np.testing.assert_array_equal(child.radiance[0][0], rad[0][0])
+        np.testing.assert_array_equal(child.face[0], face[0])
+        np.testing.assert_array_equal(child.depth_m[0], depth[0])
+    assert not child.in_process and child.radiance[0][0].shape == (16, 24, 1)
