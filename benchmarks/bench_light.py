@@ -1,0 +1,192 @@
+"""Benchmark: per-segment irradiance on a 500-plant field, gradient cost, ray throughput, irradiancemeter.
+
+    python benchmarks/bench_light.py [--n-plants 500] [--samples 64]
+
+All ratios come from one run on one machine. Writes benchmarks/results/light.json and prints
+a table. Measured:
+1. Wall time of one primal pass over all measured shoot segments at K samples, its median
+   relative standard error of absorbed PAR (sun + 0.3·sky), and the K (and time, ∝ K) that a
+   median of 2 % needs.
+2. Estimator throughput (path samples/s) ÷ raw ``scene.ray_test`` throughput (rays/s) on random
+   rays through the same scene; each path sample casts about 1 + 3·(bounces + 1) rays.
+3. Reverse-mode gradient (three leaf parameters) time ÷ primal time (warm kernels).
+4. Our estimator vs one Mitsuba ``irradiancemeter`` render per segment, at equal standard error
+   of the front-side diffuse + scattered irradiance, on a small field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+import lightfit  # noqa: F401
+from lightfit.light import backend
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant import Field, build
+
+OUT = Path(__file__).resolve().parent / "results" / "light.json"
+
+
+def _timed(f, repeat=2):
+    f()  # compile / warm up
+    best = math.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = f()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def raw_ray_rate(fs: FieldScene, n: int) -> float:
+    mi = backend.mitsuba()
+    import drjit as dr
+
+    v = fs.mesh.vertices
+    lo, hi = v.min(0), v.max(0)
+    rng = np.random.default_rng(0)
+    o = rng.uniform(lo, hi, size=(n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    ray = mi.Ray3f(mi.Point3f(o.T), mi.Vector3f(d.T))
+    dr.eval(ray)
+
+    def run():
+        hit = fs.scene.ray_test(ray)
+        dr.eval(hit)
+        dr.sync_thread()
+
+    t, _ = _timed(run, 3)
+    return n / t
+
+
+def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
+    """Per-segment time at equal SE: one irradiancemeter render per segment vs our batched pass."""
+    mi = backend.mitsuba()
+    geom = build(Field(n_plants=4, buffer_rows=1, seed=2))
+    fs = FieldScene(geom.mesh, Optics(soil_albedo=0.12))
+    fs.set_sun(-10.0, 0.0)
+    seg = geom.segments[geom.segments["measured"] & (geom.segments["organ_type"] == "leaf")
+                        & (geom.segments["blade_area_m2"] > 0)]
+    ids = seg["segment_id"].to_numpy()
+    K = 256
+    t_ours, r = _timed(lambda: SegmentEstimator(fs, ids, samples=K, bounces=bounces, seed=1).render(), 1)
+    # Front-side SE from the front evaluations alone (rerun with front values as the target).
+    ours_val = r.front("incident_sky")
+    pick = np.linspace(0, len(ids) - 1, n_segments).astype(int)
+    m = geom.mesh
+    results = []
+    for i in pick:
+        sid = ids[i]
+        sel = m.face_segment == sid
+        # Reference value and SE for our estimator on this segment alone, front side.
+        reps = [SegmentEstimator(fs, [sid], samples=K, bounces=bounces, seed=s).render().front("incident_sky")[0]
+                for s in range(4)]
+        se_ours = float(np.std(reps, ddof=1))
+
+        def shape(faces):
+            sub = mi.Mesh(f"m{sid}{len(faces)}", len(m.vertices), len(faces), mi.Properties(), False, False)
+            p = mi.traverse(sub)
+            import drjit as dr
+
+            p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(m.vertices.T, dtype=np.float32)))
+            p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(faces.T, dtype=np.uint32)))
+            p.update()
+            return sub
+
+        target = shape(m.faces[sel])
+        rest = shape(m.faces[~sel])
+        sensor = mi.load_dict({"type": "irradiancemeter", "sampler": {"type": "independent", "sample_count": 1},
+                               "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"},
+                                        "pixel_format": "luminance"}})
+        props = mi.Properties()
+        props["sensor"] = sensor
+        props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0] * 3}})
+        tgt = mi.Mesh(f"t{sid}", len(m.vertices), int(sel.sum()), props, False, False)
+        pt = mi.traverse(tgt)
+        import drjit as dr
+
+        pt["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(m.vertices.T, dtype=np.float32)))
+        pt["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(m.faces[sel].T, dtype=np.uint32)))
+        pt.update()
+        del target
+        scene = mi.load_dict({
+            "type": "scene", "integrator": {"type": "path", "max_depth": bounces + 2},
+            "target": tgt, "rest": rest,
+            "ground": {"type": "rectangle", "to_world": mi.ScalarTransform4f.scale([300, 300, 1]),
+                       "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.12] * 3}}},
+            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
+        })
+        spp = 4096
+        vals, times = [], []
+        for s in range(4):
+            t = time.perf_counter()
+            img = mi.render(scene, spp=spp, seed=s + 1)
+            vals.append(float(np.asarray(img).ravel()[0]))
+            times.append(time.perf_counter() - t)
+        se_meter = float(np.std(vals, ddof=1))
+        # Time each needs for the same SE: t ∝ SE⁻².
+        t_meter = float(np.median(times[1:]))
+        t_ours_seg = t_ours / len(ids)
+        t_meter_equal = t_meter * (se_meter / max(se_ours, 1e-12)) ** 2
+        results.append({"segment_id": int(sid), "ours": float(ours_val[i]), "meter": float(np.mean(vals)),
+                        "se_ours": se_ours, "se_meter": se_meter, "t_ours_per_segment_s": t_ours_seg,
+                        "t_meter_equal_se_s": t_meter_equal, "speedup": t_meter_equal / t_ours_seg})
+        del scene, tgt, rest
+    return {"segments": results, "median_speedup": float(np.median([r["speedup"] for r in results]))}
+
+
+def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
+    console = Console()
+    geom = build(Field(n_plants=n_plants, buffer_rows=2, seed=1), progress=True)
+    fs = FieldScene(geom.mesh, Optics())
+    fs.set_sun(50.0, 180.0)
+    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
+    t_setup = time.perf_counter()
+    est = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1)
+    t_setup = time.perf_counter() - t_setup
+    t_primal, r = _timed(est.render, 1)
+    rse = float(np.nanmedian(r.relative_se()))
+    k2 = samples * (rse / 0.02) ** 2
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
+    t_grad, _ = _timed(lambda: est.vjp(ct), 1)
+    rays = raw_ray_rate(fs, 4_000_000)
+    path_rate = est.n_evaluations / t_primal
+    rays_per_sample = 1 + 3 * (bounces + 1)
+    meter = irradiancemeter_comparison()
+    res = {
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2), "segments": len(ids), "triangles": int(geom.mesh.n_faces),
+        "samples": est.samples, "bounces": bounces, "evaluations": est.n_evaluations,
+        "setup_s": t_setup, "primal_s": t_primal, "median_rse_absorbed": rse,
+        "samples_for_2pct_median": k2, "extrapolated_primal_s_at_2pct": t_primal * k2 / samples,
+        "goal_s_at_2pct": 10.0,
+        "path_samples_per_s": path_rate, "raw_ray_test_per_s": rays,
+        "path_over_raw": path_rate / rays, "ray_equivalent_over_raw": path_rate * rays_per_sample / rays,
+        "gradient_s": t_grad, "gradient_over_primal": t_grad / t_primal,
+        "irradiancemeter_median_speedup_equal_se": meter["median_speedup"], "irradiancemeter": meter["segments"],
+    }
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=2))
+    t = Table(title=f"irradiance benchmark: {res['segments']} segments, K={est.samples}, {bounces} bounces, 2 CPU cores")
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    for k, v in res.items():
+        if k != "irradiancemeter":
+            t.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+    console.print(t)
+    return res
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n-plants", type=int, default=500)
+    ap.add_argument("--samples", type=int, default=64)
+    a = ap.parse_args()
+    main(a.n_plants, a.samples)
