@@ -347,3 +347,16 @@ def test_child_process_render_equals_in_process(geometry):
         np.testing.assert_array_equal(child.face[0], face[0])
         np.testing.assert_array_equal(child.depth_m[0], depth[0])
     assert not child.in_process and child.radiance[0][0].shape == (16, 24, 1)
+
+
+def test_night_renders_black_and_reports_dark(geometry):
+    """No sun and no sky: a black image, no NaN, and metering falls back to gain 1 (dark)."""
+    night = Lighting(sun_elevation_deg=-10.0, sun_azimuth_deg=0.0, dni_w_m2=0.0, dhi_w_m2=0.0)
+    cam = Camera(name="n", position_m=CAM.position_m, look_at_m=CAM.look_at_m, width_px=16, height_px=16)
+    out = render(scene_arrays(geometry.mesh, geometry.segments), [cam], [night], RenderSettings(spp=1, colour="mono"))
+    rad = out.radiance[0][0]
+    assert (rad == 0).all()
+    e = meter(rad, out.face[0] >= 0, cam)
+    assert e.dark and e.gain == 1.0 and e.clipped_leaf_fraction == 0.0
+    with pytest.raises(InputError, match="dni_w_m2"):
+        Lighting(sun_elevation_deg=10.0, sun_azimuth_deg=0.0, dni_w_m2=-1.0, dhi_w_m2=0.0)
