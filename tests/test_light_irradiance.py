@@ -189,7 +189,9 @@ def test_gradients_match_central_differences_with_common_random_numbers():
         F.append(fd)
     G, F = np.array(G), np.array(F)
     se = np.sqrt(G.var(0, ddof=1) / len(G) + F.var(0, ddof=1) / len(F))
-    assert (np.abs(G.mean(0) - F.mean(0)) <= 3 * se + 1e-9).all(), (G.mean(0), F.mean(0), se)
+    # Frozen sampling makes AD and CRN differences estimate the same smooth function, so their
+    # spread is tiny; 3 % covers the O(h²) difference error and the bilinear albedo table in r.
+    assert (np.abs(G.mean(0) - F.mean(0)) <= 3 * se + 0.03 * np.abs(F.mean(0))).all(), (G.mean(0), F.mean(0), se)
     assert (np.abs(G.mean(0)) > 0).all()
 
 

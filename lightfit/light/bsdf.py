@@ -27,9 +27,11 @@ for light from ω_i is :math:`1 - F_0 E_{GGX}(\theta_i) - (1 - F_0)c`.
 
 from __future__ import annotations
 
+import numpy as np
+
 from lightfit.light.backend import mitsuba
 
-ALPHA_MIN = 1e-3
+ALPHA_MIN = 1e-2  # α floor (r ≈ 0.1): leaf cuticles are not mirrors, and it bounds the variance
 SPECULAR_F0_SCALE = 0.08
 PARAMETERS = ("specular", "roughness", "subsurface")
 
@@ -53,6 +55,26 @@ def _classes():
                                  mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide,
                                  mi.BSDFFlags.DiffuseTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide]
             self.m_flags = flags
+            # Frozen sampling (see ``freeze_sampling``): lobe probabilities and GGX α used to draw
+            # directions, independent of the parameters being differentiated. None: follow them.
+            self.sampling = None
+
+        def freeze_sampling(self, specular: float, roughness: float, subsurface: float, defensive: float = 0.2):
+            """Draw directions from a fixed mixture instead of the current parameters.
+
+            With frozen sampling, the estimate for fixed random numbers is a smooth function of
+            the parameters (no discrete lobe choice or microfacet sample moves with them), so its
+            derivative *is* the estimate of the derivative: finite differences with common random
+            numbers and gradient-based optimisers see a consistent, smooth objective. The lobe
+            probabilities are those of the reference parameters mixed with ``defensive`` of a
+            uniform choice, so that every lobe keeps a non-zero probability (unbiasedness).
+            """
+            f0 = SPECULAR_F0_SCALE * float(specular)
+            c = float(self.base_color[0])
+            w = np.array([f0, (1 - f0) * (1 - subsurface) * c, (1 - f0) * subsurface * c])
+            p = w / w.sum() if w.sum() > 0 else np.full(3, 1 / 3)
+            p = (1 - defensive) * p + defensive / 3
+            self.sampling = (float(p[0]), float(p[1]), float(p[2]), max(float(roughness) ** 2, 0.05))
 
         # -- helpers ---------------------------------------------------------------------
         def _weights(self):
@@ -65,7 +87,14 @@ def _classes():
             r = dr.clip(self.roughness, 0.0, 1.0)
             return mi.MicrofacetDistribution(mi.MicrofacetType.GGX, dr.maximum(r * r, ALPHA_MIN), True)
 
+        def _sampling_distr(self):
+            if self.sampling is None:
+                return self._distr()
+            return mi.MicrofacetDistribution(mi.MicrofacetType.GGX, self.sampling[3], True)
+
         def _lobe_probs(self):
+            if self.sampling is not None:
+                return tuple(mi.Float(p) for p in self.sampling[:3])
             w_s, w_d, w_t = (dr.detach(w) for w in self._weights())
             total = w_s + w_d + w_t
             safe = dr.select(total > 0, total, 1.0)
@@ -95,7 +124,7 @@ def _classes():
             p_s, p_d, p_t = self._lobe_probs()
             cos_i, cos_o = mi.Frame3f.cos_theta(wi), mi.Frame3f.cos_theta(wo)
             h = dr.normalize(wi + wo)
-            distr = self._distr()
+            distr = self._sampling_distr()
             pdf_spec = distr.pdf(wi, h) / (4.0 * dr.maximum(dr.abs(dr.dot(wo, h)), 1e-8))
             refl = p_s * pdf_spec + p_d * dr.inv_pi * cos_o
             trans = p_t * dr.inv_pi * -cos_o
@@ -107,7 +136,7 @@ def _classes():
             s = dr.sign(mi.Frame3f.cos_theta(si.wi))
             wi = self._flip(si.wi, s)
             p_s, p_d, p_t = self._lobe_probs()
-            distr = self._distr()
+            distr = self._sampling_distr()
             pick_s = sample1 < p_s
             pick_d = ~pick_s & (sample1 < p_s + p_d)
             pick_t = ~pick_s & ~pick_d
@@ -184,3 +213,64 @@ def leaf_bsdf_dict(specular: float = 0.5, roughness: float = 0.5, subsurface: fl
     register()
     return {"type": "leaf", "specular": float(specular), "roughness": float(roughness),
             "subsurface": float(subsurface), "base_color": float(base_color)}
+
+
+_ALBEDO_TABLE: dict[str, np.ndarray] = {}
+TABLE_MU = np.linspace(0.0, 1.0, 33)
+TABLE_R = np.linspace(0.0, 1.0, 33)  # roughness r; α = max(r², ALPHA_MIN)
+
+
+def ggx_albedo_table(n_samples: int = 16384, seed: int = 0) -> np.ndarray:
+    r"""Directional albedo :math:`E(\mu, r)` of the unit-weight GGX lobe (F = 1), tabulated.
+
+    :math:`E(\mu) = \int D\,G / (4\mu)\,d\omega_o` over the upper hemisphere, estimated by
+    visible-normal sampling (weight G₂/G₁, standard error < 0.1 %) on a 33 × 33 grid of
+    incidence cosine μ and roughness r. E = 1 at normal incidence for smooth surfaces and falls
+    at grazing incidence and high roughness (shadowing-masking).
+    """
+    key = mitsuba().variant()
+    if key not in _ALBEDO_TABLE:
+        mi = mitsuba()
+        import drjit as dr
+
+        mu, r = np.meshgrid(np.maximum(TABLE_MU, 1e-3), TABLE_R, indexing="ij")
+        n = mu.size * n_samples
+        mu_f = np.repeat(mu.ravel(), n_samples).astype(np.float32)
+        alpha = np.maximum(np.repeat(r.ravel(), n_samples) ** 2, ALPHA_MIN).astype(np.float32)
+        wi = mi.Vector3f(mi.Float(np.sqrt(1 - mu_f**2)), 0.0, mi.Float(mu_f))
+        distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, mi.Float(alpha), True)
+        s = mi.load_dict({"type": "independent"})
+        s.seed(seed, n)
+        m, pdf_m = distr.sample(wi, s.next_2d())
+        wo = mi.reflect(wi, m)
+        # f·cos θo / pdf(ωo) with f = D G / (4 cos θi cos θo) and pdf(ωo) = pdf(m) / (4 |ωo·m|)
+        w = distr.eval(m) * distr.G(wi, wo, m) * dr.abs(dr.dot(wo, m)) / (mi.Float(mu_f) * pdf_m)
+        w = dr.select((mi.Frame3f.cos_theta(wo) > 0) & (pdf_m > 0), w, 0.0)
+        _ALBEDO_TABLE[key] = np.asarray(w, dtype=np.float64).reshape(mu.size, n_samples).mean(1).reshape(mu.shape)
+    return _ALBEDO_TABLE[key]
+
+
+def leaf_albedo(bsdf, cos_i):
+    """Directional albedo ρ(θ_i) = F0·E_GGX(μ, r) + (1 − F0)·c of a leaf BSDF (Dr.Jit, differentiable).
+
+    Bilinear in the tabulated E (:func:`ggx_albedo_table`); ``cos_i`` of either sign (the leaf is
+    two-sided). Absorptance is 1 − ρ.
+    """
+    mi = mitsuba()
+    import drjit as dr
+
+    table = mi.Float(ggx_albedo_table().ravel().astype(np.float32))
+    nm, nr = len(TABLE_MU), len(TABLE_R)
+    x = dr.clip(dr.abs(cos_i), 0.0, 1.0) * (nm - 1)
+    y = dr.clip(bsdf.roughness, 0.0, 1.0) * (nr - 1)
+    x0 = dr.minimum(mi.UInt32(dr.floor(dr.detach(x))), nm - 2)
+    y0 = dr.minimum(mi.UInt32(dr.floor(dr.detach(y))), nr - 2)
+    fx, fy = x - mi.Float(x0), y - mi.Float(y0)
+
+    def at(i, j):
+        return dr.gather(mi.Float, table, i * nr + j)
+
+    e = ((1 - fx) * (1 - fy) * at(x0, y0) + fx * (1 - fy) * at(x0 + 1, y0)
+         + (1 - fx) * fy * at(x0, y0 + 1) + fx * fy * at(x0 + 1, y0 + 1))
+    f0 = SPECULAR_F0_SCALE * dr.clip(bsdf.specular, 0.0, 1.0)
+    return f0 * e + (1.0 - f0) * dr.clip(bsdf.base_color, 0.0, 1.0)

@@ -16,7 +16,8 @@ radiance arriving along the cosine-sampled ray ω, from a path tracer over the p
 sun is added by next-event estimation with a shadow ray, the next direction is drawn from the
 BSDF, and a path leaving upwards collects sky radiance. Absorbed light uses the leaf's
 absorptance for the direction the light comes from, :math:`a(\omega) = 1 - \rho(\omega)`, with
-the directional albedo ρ estimated by one BSDF sample (unbiased). Values are per unit one-sided
+the directional albedo ρ from a tabulated GGX albedo (:func:`~lightfit.light.bsdf.leaf_albedo`:
+deterministic, so absorbed light is never negative). Values are per unit one-sided
 area, summed over the two sides of a blade, in units of the sun's DNI (sun part) and of the
 sky's horizontal DHI (sky part).
 
@@ -39,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.light.bsdf import leaf_albedo
 from lightfit.light.scene import FieldScene
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
@@ -255,17 +257,9 @@ class SegmentEstimator:
             self._dr = (o, nrm, frame, d, u, valid)
         return self._dr
 
-    def _absorptance(self, frame, w_world, u3):
-        """1 − one-sample estimate of the leaf's directional albedo for light from ``w_world``."""
-        mi = self.fs.mi
-        import drjit as dr
-
-        si = dr.zeros(mi.SurfaceInteraction3f, self.n_evaluations)
-        si.sh_frame = frame
-        si.n = frame.n
-        si.wi = frame.to_local(w_world)
-        bs, w = self.fs.bsdf.sample(mi.BSDFContext(), si, u3[0], mi.Point2f(u3[1], u3[2]))
-        return 1.0 - w[0]
+    def _absorptance(self, frame, w_world, u3=None):
+        """Absorptance 1 − ρ(θ) of the leaf for light arriving from ``w_world`` (tabulated albedo)."""
+        return 1.0 - leaf_albedo(self.fs.bsdf, frame.to_local(w_world).z)
 
     def _direct_sun(self, o, nrm):
         mi = self.fs.mi

@@ -92,6 +92,19 @@ class FieldScene:
         self.params = mi.traverse(self.scene)
         self.bsdf = self.scene.shapes()[0].bsdf()
         self.sun = np.array([0.0, 0.0, 1.0])
+        self.freeze_sampling()
+
+    def freeze_sampling(self, optics: Optics | None = None) -> None:
+        """Draw path directions from the leaf BSDF at ``optics`` (default: the current optics),
+        whatever the parameters later set by :meth:`set_optics`.
+
+        Estimates for a fixed seed are then smooth in the leaf parameters, and their derivative
+        equals the reverse-mode gradient (see ``LeafBSDF.freeze_sampling``): what finite
+        differences and line searches need. Re-freeze near the parameters of interest to keep
+        the variance low.
+        """
+        o = optics or self.optics
+        self.bsdf.freeze_sampling(o.specular, o.roughness, o.subsurface)
 
     def set_sun(self, elevation_deg: float, azimuth_deg: float) -> None:
         """Point the sun (elevation and azimuth in degrees); below the horizon its part is 0."""
