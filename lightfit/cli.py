@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -137,40 +139,126 @@ def weather_show(
         console.print(f"csv → {weather.write_lightfit_csv(df, csv, meta)}")
 
 
+def _theta(theta: str | None) -> dict:
+    """Parameters from a JSON file (a calibration's output) or ``key=value,key=value``."""
+    if not theta:
+        return {}
+    p = Path(theta)
+    if p.exists():
+        data = json.loads(p.read_text())
+        return data.get("theta", data)
+    out = {}
+    for item in theta.split(","):
+        k, _, v = item.partition("=")
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise InputError(f"cannot read parameter {item!r}", column="theta",
+                             expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6") from None
+    return out
+
+
 @app.command()
 def replicate(
     out: Path = typer.Option(Path("results/2016-04-20"), help="Output directory."),
     weather_file: Path = typer.Option(None, "--weather", help="A real TERENO export (or other weather file) to use "
                                       "instead of the bundled reconstructed forcing."),
-    start: str = typer.Option("2016-04-20 05:00", help="First time step, local time (Europe/Berlin)."),
-    hours: float = typer.Option(14.0, help="Length of the diurnal run, hours."),
-    step: str = typer.Option("30min", help="Time step of the run."),
-    how: str = typer.Option("sample", help="How the step is taken from the 10-min data: sample (as the reference paper) or mean."),
+    observations: Path = typer.Option(None, help="Chamber observations CSV (default: the bundled record of the day)."),
+    quick: bool = typer.Option(False, "--quick", help="First look in under a minute: 4 plants, K=16, 2 bounces."),
+    n_plants: int = typer.Option(None, help="Plants in the measurement area (default 100; quick: 4)."),
+    buffer_rows: int = typer.Option(None, help="Buffer rows (default 2, the reference paper's finding)."),
+    samples: int = typer.Option(None, help="Irradiance samples per segment K (default 64; quick: 16)."),
+    bounces: int = typer.Option(None, help="Scattering orders (default 3; quick: 2)."),
+    theta: str = typer.Option(None, help="Leaf/light parameters: a calibration JSON or key=value,... "
+                              "(specular, roughness, subsurface, light_factor, vcmax_scale)."),
+    how: str = typer.Option("sample", help="30-min steps from 10-min data: sample (as the reference paper) or mean."),
 ):
-    """The main job: the 20 April 2016 Selhausen replication.
+    """The main job: the 20 April 2016 Selhausen replication (forcing, light, photosynthesis, Fig 4)."""
+    import dataclasses
 
-    Currently: prepares and shows the forcing of the diurnal run (table, CSV, PNG). The
-    light, photosynthesis and calibration stages join as they land.
-    """
-    from lightfit import weather
+    from lightfit.calibrate import replication as rep
     from lightfit.weather.plot import plot_forcing
 
+    cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
+    cfg = dataclasses.replace(cfg, how=how, **{k: v for k, v in dict(n_plants=n_plants, buffer_rows=buffer_rows,
+                                                                     samples=samples, bounces=bounces).items() if v is not None})
     try:
-        src = weather.read_weather(weather_file) if weather_file else weather.read_weather(weather.bundled_path("2016-04-20"))
-        src = weather.add_solar(src)
-        run = weather.window(src, start, hours, step, how=how)
+        w = rep.forcing(weather_file, how)
+        out.mkdir(parents=True, exist_ok=True)
+        _report(w)
+        label = str(w.attrs.get("provenance", "")).upper()
+        console.print(_table(w, f"{label} forcing of the diurnal run ({len(w)} steps of {rep.STEP})"))
+        meta = {"provenance": w.attrs["provenance"], "source": str(w.attrs.get("source")),
+                "note": f"{len(w)} steps of {rep.STEP} from {rep.START_LOCAL} local ({how})"}
+        from lightfit import weather
+
+        weather.write_lightfit_csv(w, out / "forcing.csv", meta)
+        plot_forcing(w, out / "forcing.png", title=f"{label} forcing, Selhausen 2016-04-20")
+        console.print(f"running: {cfg.n_plants} plants + {cfg.buffer_rows} buffer rows, K={cfg.samples}, "
+                      f"{cfg.bounces} bounces …")
+        ds, obs = rep.run(cfg, weather_file=weather_file, theta=_theta(theta),
+                          observations=observations or rep.OBSERVATIONS, out=out, progress=True)
     except InputError as err:
         _fail(err)
-    out.mkdir(parents=True, exist_ok=True)
-    _report(src)
-    label = src.attrs["provenance"].upper()
-    console.print(_table(run, f"{label} forcing of the diurnal run ({len(run)} steps of {step})"))
-    meta = {"provenance": src.attrs["provenance"], "source": str(src.attrs.get("source")),
-            "note": f"{len(run)} steps of {step} from {start} local ({how})"}
-    csv = weather.write_lightfit_csv(run, out / "forcing.csv", meta)
-    png = plot_forcing(src.loc[run.index[0]:run.index[-1]], out / "forcing.png",
-                       title=f"{label} forcing, Selhausen {start[:10]} — {Path(str(src.attrs.get('source'))).name}")
-    console.print(f"[green]wrote[/] {csv}\n[green]wrote[/] {png}")
+    s = rep.summary(ds)
+    t = Table(title=f"replication summary ({label} forcing; model PAR = {cfg.par_kind}, An per {cfg.an_per} area)")
+    for c in ["local_time", "sun_elevation_deg", "par_above_umol_m2_s", "plant_par_umol_m2_s", "plant_par_sd_umol_m2_s",
+              "canopy_an_umol_m2_s", "canopy_an_mc_sd", "frac_light_limited"]:
+        t.add_column(c.replace("_umol_m2_s", "").replace("_", " "), justify="right")
+    for _, r in s.iterrows():
+        t.add_row(r["local_time"], *(f"{r[c]:.3g}" if np.isfinite(r[c]) else "–" for c in list(s.columns)[1:]))
+    console.print(t)
+    if obs is not None:
+        console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
+    for f in ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv"):
+        console.print(f"[green]wrote[/] {out / f}")
+
+
+@app.command()
+def calibrate(
+    observations: Path = typer.Argument(..., help="Observations CSV (time, PAR, net CO2 uptake and their SDs)."),
+    out: Path = typer.Option(Path("results/calibration"), help="Output directory (history, result JSON, plot)."),
+    weather_file: Path = typer.Option(None, "--weather", help="TERENO export or other weather file (default: bundled)."),
+    parameters: str = typer.Option("specular,roughness,subsurface", help="Parameters to calibrate, comma-separated."),
+    start: str = typer.Option(None, help="Start values key=value,... (default: 0.5, 0.5, 0.3, 1, 1)."),
+    quick: bool = typer.Option(False, "--quick", help="CI-sized field (4 plants, K=16)."),
+    n_plants: int = typer.Option(None, help="Plants in the measurement area."),
+    samples: int = typer.Option(None, help="Irradiance samples per segment K."),
+    max_steps: int = typer.Option(30, help="Maximum optimiser steps."),
+    resume: bool = typer.Option(True, help="Continue from the history in OUT if present."),
+):
+    """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients."""
+    import dataclasses
+
+    from lightfit.calibrate import replication as rep
+    from lightfit.calibrate.fit import calibrate as run_calibration
+    from lightfit.calibrate.observations import read_observations
+
+    cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in dict(n_plants=n_plants, samples=samples).items() if v is not None})
+    try:
+        obs = read_observations(observations)
+        w = rep.forcing(weather_file, cfg.how)
+        model = rep.model_for(cfg, w, progress=True)
+        names = tuple(n.strip() for n in parameters.split(",") if n.strip())
+        out.mkdir(parents=True, exist_ok=True)
+        res = run_calibration(model, obs, names=names, start=_theta(start), max_steps=max_steps,
+                              history=out / "history.jsonl", resume=resume)
+    except InputError as err:
+        _fail(err)
+    (out / "calibration.json").write_text(json.dumps({"theta": res.theta, "loss": res.loss, "steps": res.steps,
+                                                      "converged": bool(res.converged), "seconds": res.seconds,
+                                                      "observations": str(observations), "parameters": list(names),
+                                                      "config": dataclasses.asdict(cfg)}, indent=2))
+    t = Table(title=f"calibration ({'converged' if res.converged else 'not converged'}, {res.steps} steps, {res.seconds:.0f} s)")
+    t.add_column("parameter")
+    t.add_column("value", justify="right")
+    for k, v in res.theta.items():
+        t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
+    t.add_row("loss (Gaussian NLL)", f"{res.loss:.4g}")
+    console.print(t)
+    console.print(f"[green]wrote[/] {out / 'calibration.json'}, {out / 'history.jsonl'}; "
+                  f"rerun `lightfit replicate --theta {out / 'calibration.json'}` to see the fit")
 
 
 @app.command("field")
@@ -242,6 +330,15 @@ def field_cmd(
         console.print(f"[green]wrote[/] {segments_csv}")
     if preview:
         console.print(f"[green]wrote[/] {plot_field(geom, preview)}")
+
+
+def _register_dataset() -> None:
+    from lightfit.dataset.cli import render_dataset
+
+    app.command("render-dataset")(render_dataset)
+
+
+_register_dataset()
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ def test_bridge_matches_estimator_under_jit_grad_and_vmap():
 
     @jax.jit
     def loss(leaf, seed):
-        r = f(leaf, sun, seed)
+        r, se = f(leaf, sun, seed)
         return jnp.sum(weights * r[PARTS.index("absorbed_sun")]) + 0.3 * jnp.sum(r[PARTS.index("absorbed_sky")])
 
     value, grad = jax.value_and_grad(loss)(leaf, 3)

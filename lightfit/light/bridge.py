@@ -1,8 +1,9 @@
 """JAX bridge: per-segment irradiance as a differentiable JAX function.
 
-``irradiance(leaf, sun_deg, seed)`` returns a ``(4, S)`` array — incident sun, incident sky,
-absorbed sun, absorbed sky (rows in :data:`~lightfit.light.estimator.PARTS` order) for the S
-requested segments, per unit DNI / DHI — and is callable inside ``jax.jit``, ``jax.grad`` and
+``irradiance(leaf, sun_deg, seed)`` returns ``(values, se)``, two ``(4, S)`` arrays — incident
+sun, incident sky, absorbed sun, absorbed sky (rows in :data:`~lightfit.light.estimator.PARTS`
+order) for the S requested segments, per unit DNI / DHI, and their Monte Carlo standard errors
+(no gradient flows through ``se``) — and is callable inside ``jax.jit``, ``jax.grad`` and
 ``jax.vmap``. Dr.Jit cannot be traced by JAX, so the forward and backward passes are
 ``jax.pure_callback``s into Mitsuba wrapped in a ``jax.custom_vjp`` (DESIGN §4): the backward
 callback runs the estimator's reverse-mode pass with the incoming cotangent. Purity: the result
@@ -23,7 +24,7 @@ from lightfit.light.scene import FieldScene
 
 
 def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, bounces: int = 3):
-    """Build ``irradiance(leaf, sun_deg, seed) -> (4, S)`` for fixed segments and sampling.
+    """Build ``irradiance(leaf, sun_deg, seed) -> (values, se)``, each (4, S), for fixed segments and sampling.
 
     Args:
         field_scene: scene whose leaf parameters and sun the function sets on every call.
@@ -53,7 +54,8 @@ def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, 
         dtype = np.asarray(leaf).dtype
         with lock:
             r = estimator(leaf, sun_deg, seed).render()
-        return np.stack([getattr(r, p) for p in PARTS]).astype(dtype)
+        return (np.stack([getattr(r, p) for p in PARTS]).astype(dtype),
+                np.stack([r.se[p] for p in PARTS]).astype(dtype))
 
     def backward_cb(leaf, sun_deg, seed, ct):
         dtype = np.asarray(leaf).dtype
@@ -65,7 +67,7 @@ def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, 
     def irradiance(leaf, sun_deg, seed):
         leaf = jnp.asarray(leaf)
         out = jax.ShapeDtypeStruct((len(PARTS), n_seg), leaf.dtype)
-        return jax.pure_callback(forward_cb, out, leaf, jnp.asarray(sun_deg, leaf.dtype), jnp.asarray(seed),
+        return jax.pure_callback(forward_cb, (out, out), leaf, jnp.asarray(sun_deg, leaf.dtype), jnp.asarray(seed),
                                  vmap_method="sequential")
 
     def fwd(leaf, sun_deg, seed):
@@ -74,6 +76,7 @@ def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, 
 
     def bwd(res, ct):
         leaf, sun_deg, seed = res
+        ct = ct[0]  # the standard errors carry no gradient
         g = jax.pure_callback(backward_cb, jax.ShapeDtypeStruct(leaf.shape, leaf.dtype), leaf, sun_deg, seed, ct,
                               vmap_method="sequential")
         return g, jnp.zeros_like(sun_deg), None

@@ -1,0 +1,125 @@
+"""Chamber observations: a simple CSV of PAR and net CO2 uptake with their standard deviations.
+
+Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
+
+    # provenance: measured            (or synthetic)
+    # time_zone: Europe/Berlin        (zone of naive timestamps; default UTC)
+    time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s
+    2016-04-20 12:13:48,1549.31,50,,
+    ...
+
+Empty cells are missing observations (allowed: a row may have PAR only). Every present value
+needs its standard deviation (> 0). Observations are assigned to the nearest time step of a run;
+several in one step are averaged (their SD combined as the SD of a mean), which the reference
+paper also did.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+
+COLUMNS = ("par_umol_m2_s", "par_sd_umol_m2_s", "an_umol_m2_s", "an_sd_umol_m2_s")
+PAIRS = (("par_umol_m2_s", "par_sd_umol_m2_s"), ("an_umol_m2_s", "an_sd_umol_m2_s"))
+
+
+def read_observations(path: str | Path) -> pd.DataFrame:
+    """Read an observations CSV into a DataFrame indexed by UTC time (attrs: provenance, source)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("file not found", file=path, expected="an observations CSV")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    meta, n_meta = {}, 0
+    for line in lines:
+        if not line.startswith("#"):
+            break
+        n_meta += 1
+        if ":" in line:
+            k, v = line[1:].split(":", 1)
+            meta[k.strip()] = v.strip()
+    if meta.get("provenance") not in ("measured", "synthetic", "reconstructed"):
+        raise InputError(f"metadata '# provenance: ...' is {meta.get('provenance')!r}", file=path, row=1,
+                         expected="'measured', 'reconstructed' or 'synthetic'")
+    from io import StringIO
+
+    df = pd.read_csv(StringIO("\n".join(lines[n_meta:])), dtype=str, keep_default_na=False)
+    if "time" not in df.columns:
+        raise InputError("no 'time' column", file=path, row=n_meta + 1, expected="columns time, " + ", ".join(COLUMNS))
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise InputError(f"missing column(s) {missing}", file=path, row=n_meta + 1, expected=", ".join(("time",) + COLUMNS))
+    tz = meta.get("time_zone", "UTC")
+    out = pd.DataFrame(index=range(len(df)))
+    for i, t in enumerate(df["time"]):
+        try:
+            ts = pd.Timestamp(t.strip())
+        except ValueError as err:
+            raise InputError(f"cannot parse time {t!r}", file=path, row=n_meta + 2 + i, column="time",
+                             expected="ISO 8601 such as 2016-04-20 12:13:48") from err
+        ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
+        out.loc[i, "time"] = ts.tz_convert("UTC")
+    for c in COLUMNS:
+        text = df[c].str.strip()
+        vals = pd.to_numeric(text.where(text != ""), errors="coerce")
+        bad = vals.isna() & (text != "")
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise InputError(f"value {text.iloc[i]!r} is not a number", file=path, row=n_meta + 2 + i, column=c,
+                             expected="a number or an empty cell (missing)")
+        out[c] = vals.astype(float)
+    for v, sd in PAIRS:
+        need = out[v].notna() & ~(out[sd] > 0)
+        if need.any():
+            i = int(np.flatnonzero(need.to_numpy())[0])
+            raise InputError(f"{v} is given without a positive standard deviation", file=path, row=n_meta + 2 + i,
+                             column=sd, expected="SD > 0 wherever the value is present")
+    if (out["par_umol_m2_s"] < 0).any():
+        i = int(np.flatnonzero((out["par_umol_m2_s"] < 0).to_numpy())[0])
+        raise InputError("negative PAR", file=path, row=n_meta + 2 + i, column="par_umol_m2_s", expected="PAR ≥ 0")
+    out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index()
+    out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta}
+    return out
+
+
+def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
+    """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance."""
+    if metadata.get("provenance") not in ("measured", "synthetic", "reconstructed"):
+        raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = df[list(COLUMNS)].copy()
+    body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
+    head = "".join(f"# {k}: {v}\n" for k, v in {**metadata, "time_zone": "UTC"}.items())
+    path.write_text(head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"), encoding="utf-8")
+    return path
+
+
+def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
+    """Observations on the run's time steps: values and SDs (NaN where missing) per step.
+
+    Each observation goes to the nearest step; observations more than half a step away from
+    every step raise. Several in one step are averaged, SD of the mean = √(Σ sd²) / n.
+    """
+    step = (times[1] - times[0]) if len(times) > 1 else pd.Timedelta("30min")
+    idx = np.abs(obs.index.values[:, None] - times.values[None, :]).argmin(1)
+    dist = np.abs(obs.index.values - times.values[idx])
+    far = dist > step.to_timedelta64() / 2
+    if far.any():
+        raise InputError(f"observation at {obs.index[far][0].isoformat()} lies outside the run "
+                         f"({times[0].isoformat()} … {times[-1].isoformat()})", file=obs.attrs.get("source"),
+                         column="time", expected="observation times within the simulated window")
+    out = {}
+    for v, sd in PAIRS:
+        val = np.full(len(times), np.nan)
+        err = np.full(len(times), np.nan)
+        for k in np.unique(idx):
+            sel = (idx == k) & obs[v].notna().to_numpy()
+            if sel.any():
+                val[k] = obs[v].to_numpy()[sel].mean()
+                err[k] = np.sqrt((obs[sd].to_numpy()[sel] ** 2).sum()) / sel.sum()
+        out[v], out[sd] = val, err
+    return out
