@@ -69,6 +69,8 @@ class Scenario:
         an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area).
         optics: soil albedo, base colour and the BSDF parameters used to freeze sampling.
         sky: ``"isotropic"`` or ``"overcast"``.
+        n_tiles, tile: run only tile ``tile`` of ``field.tiles(n_tiles)`` (its plants measured,
+            its buffer ring as geometry); ``None`` runs the whole measurement area.
     """
 
     weather: pd.DataFrame
@@ -81,8 +83,12 @@ class Scenario:
     an_per: str = "ground"
     optics: Optics = dc_field(default_factory=Optics)
     sky: str = "isotropic"
+    n_tiles: int = 1
+    tile: int | None = None
 
     def __post_init__(self):
+        if self.tile is not None and not 0 <= self.tile < self.n_tiles:
+            raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         if self.par_kind not in ("incident", "absorbed"):
             raise InputError(f"par_kind={self.par_kind!r}", column="par_kind", expected="'incident' or 'absorbed'")
         if self.an_per not in ("leaf", "ground"):
@@ -99,7 +105,8 @@ class CoupledModel:
 
     def __init__(self, scenario: Scenario, *, progress: bool = False):
         self.scenario = sc = scenario
-        self.geometry = build(sc.field, progress=progress)
+        tile = sc.field.tiles(sc.n_tiles)[sc.tile] if sc.tile is not None else None
+        self.geometry = build(sc.field, tile=tile, progress=progress)
         seg = self.geometry.segments
         meas = seg[seg["measured"]].sort_values("segment_id")
         self.segments = meas.reset_index(drop=True)
@@ -111,7 +118,8 @@ class CoupledModel:
             raise InputError("no leaf blades in the measurement area", column="field",
                              expected="plants grown long enough to have leaves")
         fld = sc.field
-        self.ground_area_m2 = fld.n**2 * fld.plant_spacing_m * fld.row_spacing_m
+        n_measured = fld.n**2 if tile is None else len(tile.measured)
+        self.ground_area_m2 = n_measured * fld.plant_spacing_m * fld.row_spacing_m
         self.scene = FieldScene(self.geometry.mesh, sc.optics, sky=sc.sky)
         self.irradiance = make_irradiance(self.scene, self.segment_id, samples=sc.samples, bounces=sc.bounces)
         w = sc.weather
@@ -241,6 +249,7 @@ class CoupledModel:
             "weather_provenance": str(self.scenario.weather.attrs.get("provenance", "unknown")),
             "weather_source": str(self.scenario.weather.attrs.get("source", "")),
             "n_plants": fld.n_plants, "buffer_rows": fld.buffer_rows, "seed": fld.seed,
+            "n_tiles": self.scenario.n_tiles, "tile": -1 if self.scenario.tile is None else self.scenario.tile,
             "row_spacing_m": fld.row_spacing_m, "plant_spacing_m": fld.plant_spacing_m,
             "row_direction_deg": fld.row_direction_deg, "parameter_file": g.parameter_file,
             "season_start": g.season_start, "target_date": g.target_date,
