@@ -211,7 +211,7 @@ class CoupledModel:
             return out
 
         ps = o["ps"]
-        times = self.times.tz_convert("UTC").tz_localize(None)
+        times = self.times.tz_convert("UTC").tz_localize(None).values
         seg = self.segments
         ds = xr.Dataset(
             {
