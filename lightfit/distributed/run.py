@@ -1,0 +1,426 @@
+"""Run a field's tiles (and time chunks) as Dask tasks and gather one Dataset.
+
+Each task is one (tile, time chunk): the worker rebuilds the tile's plants from their seeds
+(the plant cache on a shared disk makes this a load; no geometry is shipped), renders only the
+tile's measured segments at the chunk's sun positions, runs the photosynthesis and returns the
+per-segment Dataset of :meth:`lightfit.calibrate.forward.CoupledModel.simulate`. The client
+concatenates the parts along ``segment`` and ``time`` (sorted by segment id and time, the order
+of a single-process run) and recomputes the canopy aggregates from the per-segment values, so
+the result has the layout of a single-process run.
+
+What "partition-independent" means here (see :mod:`lightfit.distributed.tiles`):
+
+- ``halo_rows=None`` (default): per-segment values are bitwise identical to a single-process
+  run for any tiling and time chunking; canopy aggregates agree to floating-point summation
+  order (relative differences ~1e-15).
+- ``halo_rows=H``: each tile renders only H rows of plants around its block; segments near tile
+  boundaries see less far geometry than in the single-process scene, a bias that shrinks as H
+  grows (numbers in ``docs/distributed.md``).
+
+Fault tolerance is Dask's: tasks are pure functions of their spec, so a task whose worker dies
+is re-run elsewhere (up to ``distributed.scheduler.allowed-failures`` times, default 3) and
+gives the same values.
+
+Worker processes: the task function imports lightfit (which points Dr.Jit at libLLVM before
+Mitsuba loads), sets the Dr.Jit CPU thread count to ``LIGHTFIT_WORKER_THREADS`` (set by the
+embedded cluster) and, if ``FieldRun.x64`` (default), enables JAX float64 *in the worker
+process* (``jax.config.update("jax_enable_x64", True)``), so that workers compute in the same
+precision as a float64 single-process run. Library imports never change JAX's configuration.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+from lightfit.distributed.tiles import HaloField, check_tiles
+from lightfit.plant.field import Field
+
+#: Per-time canopy aggregates recomputed on the gathered Dataset.
+AGGREGATES = ("par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_sd_umol_m2_s", "canopy_an_umol_m2_s",
+              "canopy_an_mc_sd_umol_m2_s")
+ENV_THREADS = "LIGHTFIT_WORKER_THREADS"
+
+
+@dataclass
+class FieldRun:
+    """A coupled run of a field, to be split into tiles and time chunks.
+
+    Attributes:
+        field: the field (measurement area, buffer rows, seed, growth).
+        weather: contract series with solar columns at the run's time steps.
+        tiles: number of tiles W (blocks of the measurement area, ``Field.tiles``).
+        halo_rows: geometry around each tile: ``None`` = the whole field (exact, bitwise
+            partition-independent), an integer H = H plant rows/columns (the reference
+            paper's approach: smaller scenes, a boundary bias).
+        time_chunks: split the time steps into this many tasks per tile (strided, so each
+            chunk gets a similar share of daytime steps).
+        samples, bounces, seed: irradiance estimator (K samples per segment, scattering
+            orders, render seed of the common random numbers).
+        photosynthesis, par_kind, an_per, optics, sky: as in
+            :class:`lightfit.calibrate.forward.Scenario`.
+        theta: leaf/light parameters (defaults for missing keys).
+        x64: compute JAX photosynthesis in float64 in the workers.
+    """
+
+    field: Field
+    weather: pd.DataFrame
+    tiles: int = 1
+    halo_rows: int | None = None
+    time_chunks: int = 1
+    samples: int = 32
+    bounces: int = 3
+    seed: int = 0
+    photosynthesis: str = "giraud2023"
+    par_kind: str = "incident"
+    an_per: str = "ground"
+    optics: object = None
+    sky: str = "isotropic"
+    theta: dict = field(default_factory=dict)
+    x64: bool = True
+
+    def __post_init__(self):
+        self.halo_field = HaloField.of(self.field, self.halo_rows)  # validates halo_rows
+        self.tile_list = check_tiles(self.halo_field, self.tiles)
+        tc = self.time_chunks
+        if isinstance(tc, bool) or not isinstance(tc, (int, np.integer)) or tc < 1:
+            raise InputError(f"time_chunks={tc!r}", column="time_chunks", expected="an integer ≥ 1")
+        if tc > len(self.weather):
+            raise InputError(f"time_chunks={tc} > {len(self.weather)} time steps", column="time_chunks",
+                             expected=f"at most {len(self.weather)}")
+        for name in ("samples", "bounces"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "samples" else 0):
+                raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1" if name == "samples"
+                                 else "an integer ≥ 0")
+
+    def chunk_index(self) -> list[np.ndarray]:
+        """Row positions of the weather in each time chunk (strided)."""
+        idx = np.arange(len(self.weather))
+        return [idx[c::self.time_chunks] for c in range(self.time_chunks)]
+
+    def scenario(self, tile: int | None, rows=None):
+        """The :class:`Scenario` of one tile (``None``: single process, whole field) and time chunk."""
+        from lightfit.calibrate.forward import Scenario
+        from lightfit.light.scene import Optics
+
+        w = self.weather if rows is None else self.weather.iloc[rows]
+        fld = self.field if tile is None else self.halo_field
+        return Scenario(weather=w, field=fld, samples=self.samples, bounces=self.bounces, seed=self.seed,
+                        photosynthesis=self.photosynthesis, par_kind=self.par_kind, an_per=self.an_per,
+                        optics=self.optics if self.optics is not None else Optics(), sky=self.sky,
+                        n_tiles=self.tiles if tile is not None else 1, tile=tile)
+
+
+@dataclass
+class TaskSpec:
+    """What a worker needs for one task: small (a field spec, a few weather rows), no geometry."""
+
+    run: FieldRun
+    tile: int
+    chunk: int
+    rows: np.ndarray
+
+
+def _worker_setup(x64: bool) -> None:
+    import lightfit  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before Mitsuba loads)
+
+    threads = os.environ.get(ENV_THREADS)
+    if threads:
+        from lightfit.light.backend import mitsuba
+
+        mi = mitsuba()
+        if mi.variant().startswith("llvm"):
+            import drjit as dr
+
+            if dr.thread_count() != int(threads):
+                dr.set_thread_count(int(threads))
+    if x64:
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+
+
+def run_task(spec: TaskSpec):
+    """Worker side: build the tile, render, photosynthesis. Returns (Dataset, timing/size info)."""
+    t0 = time.perf_counter()
+    _worker_setup(spec.run.x64)
+    from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel
+
+    t1 = time.perf_counter()
+    sc = spec.run.scenario(spec.tile, spec.rows)
+    model = CoupledModel(sc)
+    t2 = time.perf_counter()
+    ds = model.simulate({**DEFAULT_THETA, **(spec.run.theta or {})})
+    t3 = time.perf_counter()
+    mesh = model.geometry.mesh
+    tile = spec.run.tile_list[spec.tile]
+    fld = spec.run.field
+    try:
+        from distributed import get_worker
+
+        worker = get_worker().address
+    except (ImportError, ValueError):
+        worker = "local"
+    info = {
+        "tile": int(spec.tile), "chunk": int(spec.chunk), "time_steps": int(len(spec.rows)),
+        "worker": worker, "pid": os.getpid(), "host": os.uname().nodename,
+        "setup_s": t1 - t0, "build_s": t2 - t1, "simulate_s": t3 - t2, "total_s": t3 - t0,
+        "plants_measured": int(len(tile.measured)), "plants_rendered": int(len(tile.plant_ids)),
+        "segments": int(len(model.segment_id)), "triangles": int(mesh.n_faces),
+        "triangles_measured": int(np.isin(mesh.face_segment, model.segment_id).sum()),
+        "ground_area_m2": len(tile.measured) * fld.plant_spacing_m * fld.row_spacing_m,
+    }
+    return ds, info
+
+
+def _aggregates(out, parts_mc: np.ndarray, ground_area_m2: float) -> dict:
+    """Canopy aggregates of :meth:`CoupledModel.observe` from per-segment values (numpy, float64)."""
+    area = out["area_m2"].values.astype(np.float64)
+    blade = out["is_blade"].values.astype(bool)
+    w = area / area.sum()
+    kind = out.attrs.get("par_kind", "incident")
+    par = out[f"{kind}_par_umol_m2_s"].values
+    se = out[f"{kind}_par_se_umol_m2_s"].values
+    mean = par @ w
+    sd = np.sqrt(np.maximum((par - mean[:, None]) ** 2 @ w, 0.0))
+    mc = np.sqrt((se**2) @ (w**2))
+    a_leaf = area[blade]
+    denom = a_leaf.sum() if out.attrs.get("an_per", "ground") == "leaf" else ground_area_m2
+    an = out["an_umol_m2_s"].values[:, blade] @ a_leaf / denom
+    return {"par_umol_m2_s": mean, "par_sd_umol_m2_s": sd, "par_mc_sd_umol_m2_s": mc,
+            "canopy_an_umol_m2_s": an, "canopy_an_mc_sd_umol_m2_s": np.sqrt(parts_mc / denom**2)}
+
+
+def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
+    """Merge task results ``[(Dataset, info), …]`` into the single-process layout.
+
+    Per-segment variables are concatenated (sorted by segment id, then time); per-time
+    weather/sun variables are taken from the parts; the canopy aggregates are recomputed from
+    the per-segment values and ``area_m2``/``is_blade``; the Monte Carlo SD of canopy An is
+    combined from each tile's (segments are independent: variances add).
+    """
+    import xarray as xr
+
+    if not results:
+        raise InputError("no task results to gather", column="results", expected="one result per task")
+    infos = [i for _, i in results]
+    expected = {(t, c) for t in range(run.tiles) for c in range(run.time_chunks)}
+    got = {(i["tile"], i["chunk"]) for i in infos}
+    if got != expected:
+        raise InputError(f"task results cover {sorted(got)}", column="results", expected=f"all of {sorted(expected)}")
+    ds0 = results[0][0]
+    seg_vars = [v for v in ds0.data_vars if "segment" in ds0[v].dims]
+    time_vars = [v for v in ds0.data_vars if "segment" not in ds0[v].dims and v not in AGGREGATES]
+    leaf = ds0.attrs.get("an_per", "ground") == "leaf"
+    chunks = []
+    for c in range(run.time_chunks):
+        part = sorted((r for r in results if r[1]["chunk"] == c), key=lambda r: r[1]["tile"])
+        seg = xr.concat([d[seg_vars] for d, _ in part], dim="segment", join="exact").sortby("segment")
+        for v in time_vars:
+            seg[v] = part[0][0][v]
+        # Σ over tiles of Var(canopy An_k)·denom_k²: each tile's Σ_blades (dAn/dPAR·SE·area)².
+        mc = 0.0
+        for d, i in part:
+            denom_k = float(d["area_m2"].values[d["is_blade"].values.astype(bool)].sum()) if leaf else i["ground_area_m2"]
+            mc = mc + d["canopy_an_mc_sd_umol_m2_s"].values.astype(np.float64) ** 2 * denom_k**2
+        seg["_an_mc_partial"] = ("time", mc)
+        chunks.append(seg)
+    out = chunks[0] if len(chunks) == 1 else xr.concat(chunks, dim="time", data_vars="minimal", coords="minimal",
+                                                       compat="equals", join="exact")
+    out = out.sortby("time")
+    if len(np.unique(out["segment"].values)) != out.sizes["segment"]:
+        raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
+    out.attrs = dict(ds0.attrs)
+    fld = run.field
+    agg = _aggregates(out, out["_an_mc_partial"].values, fld.n**2 * fld.plant_spacing_m * fld.row_spacing_m)
+    out = out.drop_vars("_an_mc_partial")
+    for k, v in agg.items():
+        out[k] = ("time", v)
+    out = out[list(ds0.data_vars)]
+    out.attrs = dict(ds0.attrs)
+    by_tile = {}
+    for i in infos:
+        by_tile.setdefault(i["tile"], i)
+    rendered = sum(i["triangles"] for i in by_tile.values())
+    measured = sum(i["triangles_measured"] for i in by_tile.values())
+    out.attrs.update({
+        "n_tiles": run.tiles, "tile": -1,
+        "halo_rows": -1 if run.halo_rows is None else run.halo_rows,
+        "halo": "whole field (exact)" if run.halo_rows is None else f"{run.halo_rows} plant rows/columns around each tile",
+        "time_chunks": run.time_chunks, "tasks": len(results),
+        "triangles_rendered": rendered, "triangles_measured": measured,
+        "buffer_overhead": rendered / measured if measured else math.nan,
+        "tile_timing_json": json.dumps(sorted(infos, key=lambda i: (i["tile"], i["chunk"]))),
+        **(extra_attrs or {}),
+    })
+    return out
+
+
+# -- clusters ------------------------------------------------------------------------------
+
+def gpu_count() -> int:
+    """CUDA devices visible to this process (``CUDA_VISIBLE_DEVICES`` or ``nvidia-smi -L``); 0 without."""
+    vis = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if vis is not None:
+        return len([d for d in vis.split(",") if d.strip() and d.strip() != "-1"])
+    import shutil
+    import subprocess
+
+    if not shutil.which("nvidia-smi"):
+        return 0
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return 0
+    return sum(1 for line in out.stdout.splitlines() if line.startswith("GPU "))
+
+
+def default_workers() -> tuple[int, int]:
+    """(workers, threads per worker) of the embedded cluster: one worker per GPU if any, else
+    one single-threaded worker per core, at most one per 2 GiB of memory."""
+    g = gpu_count()
+    if g:
+        return g, 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    try:
+        mem_gib = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError, AttributeError):
+        mem_gib = 2.0 * cores
+    return max(1, min(cores, int(mem_gib // 2))), 1
+
+
+class PinGPU:
+    """Worker plugin: worker i of an embedded cluster sees only GPU ``i mod n`` (before Mitsuba loads)."""
+
+    name = "lightfit-pin-gpu"
+
+    def __init__(self, n_gpus: int):
+        self.n_gpus = n_gpus
+
+    def setup(self, worker):
+        try:
+            i = int(worker.name)
+        except (TypeError, ValueError):
+            return
+        os.environ["CUDA_VISIBLE_DEVICES"] = str(i % self.n_gpus)
+
+
+@contextmanager
+def connect(scheduler: str | None = None, *, workers: int | None = None, threads_per_worker: int | None = None,
+            timeout_s: float = 30.0, dashboard: bool = False):
+    """A Dask client: joins ``scheduler`` (address, e.g. ``tcp://host:8786``) or starts an
+    embedded ``LocalCluster`` (processes, ``workers`` × ``threads_per_worker``; default sized to
+    the machine, :func:`default_workers`). Closes what it started."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        if workers is not None:
+            raise InputError(f"workers={workers} with scheduler={scheduler!r}", column="workers",
+                             expected="no --workers when joining an existing cluster (its workers are given)")
+        try:
+            client = Client(scheduler, timeout=timeout_s)
+        except (OSError, TimeoutError, ValueError, TypeError) as err:
+            raise InputError(f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {err})", column="scheduler",
+                             expected="the address of a running Dask scheduler, e.g. tcp://host:8786") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    n_def, t_def = default_workers()
+    n = n_def if workers is None else workers
+    t = t_def if threads_per_worker is None else threads_per_worker
+    for name, v in (("workers", n), ("threads_per_worker", t)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1")
+    env = {ENV_THREADS: str(t), "OMP_NUM_THREADS": str(t), "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    if t == 1:
+        env["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false "
+                            "intra_op_parallelism_threads=1").strip()
+    cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env,
+                           dashboard_address=":0" if dashboard else None)
+    try:
+        client = Client(cluster, timeout=timeout_s)
+        try:
+            g = gpu_count()
+            if g:
+                client.register_plugin(PinGPU(g))
+            yield client
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+# -- the run ---------------------------------------------------------------------------------
+
+def submit(client, run: FieldRun) -> list:
+    """Submit one task per (tile, time chunk); returns the futures."""
+    token = uuid.uuid4().hex[:10]
+    futures = []
+    for c, rows in enumerate(run.chunk_index()):
+        for k in range(run.tiles):
+            spec = TaskSpec(run=run, tile=k, chunk=c, rows=rows)
+            futures.append(client.submit(run_task, spec, key=f"lightfit-tile{k}-chunk{c}-{token}", pure=False))
+    return futures
+
+
+def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, workers: int | None = None,
+              threads_per_worker: int | None = None, progress: bool = False, timeout_s: float | None = None):
+    """Run ``run`` on Dask and return the gathered Dataset (layout of a single-process run).
+
+    Uses ``client`` if given, else joins ``scheduler``, else starts an embedded LocalCluster.
+    ``timeout_s`` bounds the wait for all tasks (``None``: no bound).
+    """
+    if client is None:
+        with connect(scheduler, workers=workers, threads_per_worker=threads_per_worker) as cl:
+            return run_field(run, client=cl, progress=progress, timeout_s=timeout_s)
+    from distributed import as_completed
+
+    t0 = time.perf_counter()
+    futures = submit(client, run)
+    results = []
+    bar = None
+    if progress:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        bar = Progress(TextColumn("[bold]tiles × time chunks"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                       TextColumn("{task.description}"))
+        bar.start()
+        task = bar.add_task("", total=len(futures))
+    try:
+        for fut in as_completed(futures, timeout=timeout_s):
+            ds, info = fut.result()
+            results.append((ds, info))
+            if bar is not None:
+                bar.update(task, advance=1, description=f"tile {info['tile']} chunk {info['chunk']}: "
+                           f"{info['total_s']:.1f} s on {info['worker']}")
+    finally:
+        if bar is not None:
+            bar.stop()
+        for f in futures:
+            f.release()
+    wall = time.perf_counter() - t0
+    n_workers = len(client.nthreads())
+    return gather(results, run, {"distributed_wall_s": wall, "distributed_workers": n_workers})
+
+
+def run_single(run: FieldRun):
+    """The same run in this process without tiling (the reference for partition independence)."""
+    from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel
+
+    return CoupledModel(run.scenario(None)).simulate({**DEFAULT_THETA, **(run.theta or {})})
+
+
+__all__ = ["AGGREGATES", "FieldRun", "PinGPU", "TaskSpec", "connect", "default_workers", "gather", "gpu_count",
+           "run_field", "run_single", "run_task", "submit"]

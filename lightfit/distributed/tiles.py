@@ -1,0 +1,101 @@
+"""Tiles of a field with a chosen geometry halo, and what they cost to render.
+
+A tile *measures* its block of the measurement area (:meth:`lightfit.plant.Field.tiles`) and
+*renders* a scene of its block plus a halo of surrounding plants. Two kinds of halo:
+
+``halo_rows=None`` (default, exact)
+    Every tile's scene is the whole field (measurement area + the field's buffer rows). The
+    sample streams of the irradiance estimator are keyed by (render seed, segment id, sample
+    index) and the scene around each segment is the same as in a single-process run, so each
+    per-segment value is **bitwise identical** whatever the tiling (tested). Tiling then splits
+    the *rays* (measured segments × samples), not the triangles.
+
+``halo_rows=H`` (the reference paper's approach)
+    A tile's scene is its block plus the plants within H rows/columns of it, clipped to the
+    field (H = ``field.buffer_rows`` reproduces ``Field.tiles``). Scenes are smaller (fewer
+    triangles render faster, less memory per worker), but a segment near a tile boundary no
+    longer sees the far geometry beyond H rows, so its value differs from the single-process
+    run by a *bias* (light leaking in through the missing plants), not by Monte Carlo noise.
+    The bias shrinks as H grows; its size is measured in ``benchmarks/bench_distributed.py``
+    and stated in ``docs/distributed.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lightfit.errors import InputError
+from lightfit.plant.field import ID_OFFSET, Field, Tile
+
+
+def plant_rc(ids) -> tuple[np.ndarray, np.ndarray]:
+    """Grid position (r, c) relative to the measurement area of plant ids (inverse of ``plant_id``)."""
+    ids = np.asarray(ids, dtype=np.int64)
+    return ids // 10_000 - ID_OFFSET, ids % 10_000 - ID_OFFSET
+
+
+@dataclass(frozen=True)
+class HaloField(Field):
+    """A :class:`~lightfit.plant.Field` whose tiles carry a geometry halo of ``halo_rows`` plants.
+
+    Plants, ids, seeds and positions are those of :class:`Field` (a plant is the same whatever
+    the tiling). Only :meth:`tiles` differs: the buffer of a tile is the whole rest of the field
+    (``halo_rows=None``: exact) or the plants within ``halo_rows`` rows and columns of its block,
+    clipped to the field's M×M grid (``halo_rows=buffer_rows`` gives ``Field.tiles``).
+
+    Attributes:
+        halo_rows: plants of geometry around each tile (rows and columns), or ``None`` for
+            the whole field.
+    """
+
+    halo_rows: int | None = None
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.halo_rows is not None and (not isinstance(self.halo_rows, (int, np.integer)) or self.halo_rows < 0):
+            raise InputError(f"halo_rows={self.halo_rows!r}", column="halo_rows",
+                             expected="an integer ≥ 0, or None for the whole field (exact)")
+
+    @classmethod
+    def of(cls, fld: Field, halo_rows: int | None = None) -> HaloField:
+        """The same field with a tile halo."""
+        return cls(n_plants=fld.n_plants, row_spacing_m=fld.row_spacing_m, plant_spacing_m=fld.plant_spacing_m,
+                   buffer_rows=fld.buffer_rows, row_direction_deg=fld.row_direction_deg, seed=fld.seed,
+                   growth=fld.growth, halo_rows=halo_rows)
+
+    def base(self) -> Field:
+        """The plain :class:`Field` (for single-process runs)."""
+        return Field(n_plants=self.n_plants, row_spacing_m=self.row_spacing_m, plant_spacing_m=self.plant_spacing_m,
+                     buffer_rows=self.buffer_rows, row_direction_deg=self.row_direction_deg, seed=self.seed,
+                     growth=self.growth)
+
+    def tiles(self, n_tiles: int = 1) -> list[Tile]:
+        base = Field.tiles(self, n_tiles)  # validates n_tiles (InputError naming n_tiles)
+        all_ids = self.plants().index.to_numpy()
+        r_all, c_all = plant_rc(all_ids)
+        out = []
+        for t in base:
+            if self.halo_rows is None:
+                keep = np.ones(len(all_ids), bool)
+            else:
+                r, c = plant_rc(t.measured)
+                h = self.halo_rows
+                keep = (r_all >= r.min() - h) & (r_all <= r.max() + h) & (c_all >= c.min() - h) & (c_all <= c.max() + h)
+            ring = np.setdiff1d(all_ids[keep], t.measured)
+            out.append(Tile(index=t.index, measured=t.measured, buffer=np.sort(ring)))
+        return out
+
+
+def check_tiles(fld: Field, n_tiles) -> list[Tile]:
+    """``fld.tiles(n_tiles)`` with an error naming ``tiles`` when the partition is impossible."""
+    if isinstance(n_tiles, bool) or not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
+        raise InputError(f"tiles={n_tiles!r}", column="tiles", expected="an integer ≥ 1")
+    try:
+        return fld.tiles(int(n_tiles))
+    except InputError as err:
+        raise InputError(f"tiles={n_tiles}: {err.problem}", column="tiles", expected=err.expected) from None
+
+
+__all__ = ["HaloField", "check_tiles", "plant_rc"]
