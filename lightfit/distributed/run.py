@@ -94,19 +94,32 @@ class FieldRun:
         tc = self.time_chunks
         if isinstance(tc, bool) or not isinstance(tc, (int, np.integer)) or tc < 1:
             raise InputError(f"time_chunks={tc!r}", column="time_chunks", expected="an integer ≥ 1")
-        if tc > len(self.weather):
-            raise InputError(f"time_chunks={tc} > {len(self.weather)} time steps", column="time_chunks",
-                             expected=f"at most {len(self.weather)}")
+        n_day = int(self.daytime().sum())
+        if n_day == 0:
+            raise InputError("weather has no daytime step", column="weather",
+                             expected="at least one step with sun elevation > -1° and DNI + DHI > 0")
+        if tc > n_day:
+            raise InputError(f"time_chunks={tc} > {n_day} daytime steps", column="time_chunks",
+                             expected=f"at most {n_day} (every chunk needs a daytime step)")
         for name in ("samples", "bounces"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "samples" else 0):
                 raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1" if name == "samples"
                                  else "an integer ≥ 0")
 
+    def daytime(self) -> np.ndarray:
+        """Steps the coupled model renders (its definition: DNI + DHI > 0 and sun elevation > -1°)."""
+        w = self.weather
+        return ((w["dni_w_m2"] + w["dhi_w_m2"]) > 0).to_numpy() & (w["sun_elevation_deg"] > -1).to_numpy()
+
     def chunk_index(self) -> list[np.ndarray]:
-        """Row positions of the weather in each time chunk (strided)."""
-        idx = np.arange(len(self.weather))
-        return [idx[c::self.time_chunks] for c in range(self.time_chunks)]
+        """Row positions of the weather in each time chunk: daytime and night steps dealt out
+        in turn, so every chunk has a similar share of the rendering (and at least one daytime
+        step, which the coupled model needs)."""
+        day = self.daytime()
+        d, n = np.flatnonzero(day), np.flatnonzero(~day)
+        c = self.time_chunks
+        return [np.sort(np.concatenate([d[i::c], n[i::c]])) for i in range(c)]
 
     def scenario(self, tile: int | None, rows=None):
         """The :class:`Scenario` of one tile (``None``: single process, whole field) and time chunk."""
@@ -376,14 +389,17 @@ def submit(client, run: FieldRun) -> list:
 
 
 def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, workers: int | None = None,
-              threads_per_worker: int | None = None, progress: bool = False, timeout_s: float | None = None):
+              threads_per_worker: int | None = None, progress: bool = False, timeout_s: float | None = None,
+              connect_timeout_s: float = 30.0):
     """Run ``run`` on Dask and return the gathered Dataset (layout of a single-process run).
 
     Uses ``client`` if given, else joins ``scheduler``, else starts an embedded LocalCluster.
-    ``timeout_s`` bounds the wait for all tasks (``None``: no bound).
+    ``timeout_s`` bounds the wait for all tasks (``None``: no bound); ``connect_timeout_s`` the
+    wait for the scheduler.
     """
     if client is None:
-        with connect(scheduler, workers=workers, threads_per_worker=threads_per_worker) as cl:
+        with connect(scheduler, workers=workers, threads_per_worker=threads_per_worker,
+                     timeout_s=connect_timeout_s) as cl:
             return run_field(run, client=cl, progress=progress, timeout_s=timeout_s)
     from distributed import as_completed
 

@@ -1,0 +1,175 @@
+"""Scale-out on Dask: partition independence, layout, metadata, fault tolerance, errors, CLI.
+
+Tiny fields (2×2 measured plants, one buffer row, K=8, 2 bounces, 2 time steps) on a
+LocalCluster of 2 single-threaded worker processes.
+"""
+
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from lightfit.calibrate.replication import forcing
+from lightfit.distributed import FieldRun, HaloField, connect, default_workers, gather, run_field, run_single, submit
+from lightfit.errors import InputError
+from lightfit.plant import Field
+
+FIELD = Field(n_plants=4, buffer_rows=1, seed=1)
+SEGMENT_VARS = ["incident_par_umol_m2_s", "absorbed_par_umol_m2_s", "incident_par_se_umol_m2_s",
+                "absorbed_par_se_umol_m2_s", "an_umol_m2_s", "gs_mol_m2_s", "ci_umol_mol", "vc_umol_m2_s",
+                "vj_umol_m2_s", "limitation", "converged"]
+AGGREGATES = ["par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_sd_umol_m2_s", "canopy_an_umol_m2_s",
+              "canopy_an_mc_sd_umol_m2_s"]
+
+
+@pytest.fixture(scope="module")
+def weather():
+    return forcing().iloc[[1, 5, 14]]  # 05:30 local (night), 07:30 (low sun), 12:00
+
+
+def make_run(weather, **kw):
+    return FieldRun(field=FIELD, weather=weather, **{"samples": 8, "bounces": 2, "par_kind": "absorbed", **kw})
+
+
+@pytest.fixture(scope="module")
+def reference(weather):
+    return run_single(make_run(weather))
+
+
+@pytest.fixture(scope="module")
+def client():
+    with connect(workers=2, threads_per_worker=1, timeout_s=60) as cl:
+        cl.wait_for_workers(2, timeout=60)
+        yield cl
+
+
+def assert_same(ds, ref):
+    assert list(ds.data_vars) == list(ref.data_vars)
+    assert list(ds.coords) == list(ref.coords)
+    assert dict(ds.sizes) == dict(ref.sizes)
+    for name in list(ref.coords):
+        np.testing.assert_array_equal(ds[name].values, ref[name].values)
+    for v in ref.data_vars:
+        assert ds[v].dims == ref[v].dims and ds[v].dtype == ref[v].dtype, v
+    for v in SEGMENT_VARS + ["sun_elevation_deg", "dni_w_m2", "tair_c"]:
+        np.testing.assert_array_equal(ds[v].values, ref[v].values, err_msg=v)  # bitwise (NaN == NaN)
+    for v in AGGREGATES:  # recomputed sums: equal up to summation order
+        np.testing.assert_allclose(ds[v].values, ref[v].values, rtol=1e-12, atol=1e-12, err_msg=v)
+
+
+@pytest.mark.parametrize("tiles,time_chunks", [(2, 1), (4, 2)])
+def test_exact_halo_is_bitwise_partition_independent(client, weather, reference, tiles, time_chunks):
+    ds = run_field(make_run(weather, tiles=tiles, time_chunks=time_chunks), client=client, timeout_s=240,
+                   progress=tiles == 4)
+    assert_same(ds, reference)
+    assert ds.attrs["n_tiles"] == tiles and ds.attrs["tile"] == -1 and ds.attrs["halo_rows"] == -1
+    assert ds.attrs["tasks"] == tiles * time_chunks and ds.attrs["distributed_workers"] == 2
+    timing = json.loads(ds.attrs["tile_timing_json"])
+    assert sorted((t["tile"], t["chunk"]) for t in timing) == [(k, c) for k in range(tiles) for c in range(time_chunks)]
+    assert all(t["total_s"] > 0 and t["triangles"] >= t["triangles_measured"] > 0 for t in timing)
+    # Exact halo: every tile renders the whole field.
+    assert len({t["triangles"] for t in timing}) == 1
+    assert ds.attrs["buffer_overhead"] == pytest.approx(tiles * timing[0]["triangles"] / ds.attrs["triangles_measured"])
+
+
+def test_paper_halo_equals_per_tile_runs(client, weather):
+    """halo_rows=H reproduces the single-process per-tile runs of ``Field.tiles`` exactly (H = buffer rows)."""
+    from lightfit.calibrate.forward import CoupledModel, Scenario
+
+    run = make_run(weather, tiles=2, halo_rows=FIELD.buffer_rows)
+    ds = run_field(run, client=client, timeout_s=240)
+    for k in range(2):
+        sc = Scenario(weather=weather, field=FIELD, samples=8, bounces=2, par_kind="absorbed", n_tiles=2, tile=k)
+        part = CoupledModel(sc).simulate()
+        sub = ds.sel(segment=part["segment"].values)
+        for v in SEGMENT_VARS:
+            np.testing.assert_array_equal(sub[v].values, part[v].values, err_msg=v)
+    timing = json.loads(ds.attrs["tile_timing_json"])
+    assert all(t["triangles"] < 36 * 650 for t in timing)  # smaller scenes than the 4×4 whole grid
+    assert 1 < ds.attrs["buffer_overhead"] < 2 * 16 / 4
+
+
+def test_halo_tiles_match_field_tiles_and_cover_field():
+    for fld in (Field(n_plants=16, buffer_rows=2, seed=0), Field(n_plants=25, buffer_rows=1, seed=3)):
+        for w in (1, 2, 4, 6):
+            for a, b in zip(HaloField.of(fld, fld.buffer_rows).tiles(w), fld.tiles(w)):
+                np.testing.assert_array_equal(a.measured, b.measured)
+                np.testing.assert_array_equal(a.buffer, b.buffer)
+            every = np.sort(fld.plants().index.to_numpy())
+            for big in (None, fld.n + fld.buffer_rows):  # halo covering the field = whole field
+                for t in HaloField.of(fld, big).tiles(w):
+                    np.testing.assert_array_equal(t.plant_ids, every)
+            measured = np.sort(np.concatenate([t.measured for t in fld.tiles(w)]))
+            np.testing.assert_array_equal(measured, np.sort(fld.plants().query("measured").index.to_numpy()))
+
+
+def test_worker_killed_mid_run_result_complete_and_equal(weather, reference):
+    """SIGKILL a worker process while it runs a task: Dask re-runs its tasks elsewhere; same result."""
+    run = make_run(weather, tiles=4, time_chunks=2)
+    with connect(workers=2, threads_per_worker=1, timeout_s=60) as cl:
+        cl.wait_for_workers(2, timeout=60)
+        pids = cl.run(os.getpid)  # {worker address: pid}
+        futures = submit(cl, run)
+        victim = None
+        deadline = time.monotonic() + 60
+        while victim is None and time.monotonic() < deadline:  # cold workers: first task takes seconds
+            busy = [a for a, keys in cl.processing().items() if keys and a in pids]
+            if busy:
+                victim = busy[0]
+            else:
+                time.sleep(0.01)
+        assert victim is not None, "no task started within 60 s"
+        os.kill(pids[victim], signal.SIGKILL)
+        results = cl.gather(futures, errors="raise")
+        ds = gather(results, run)
+    infos = [i for _, i in results]
+    assert len(infos) == 8
+    assert pids[victim] not in {i["pid"] for i in infos}  # the killed process delivered nothing
+    assert_same(ds, reference)
+
+
+def test_bad_input_names_the_parameter(weather):
+    with pytest.raises(InputError, match="tiles"):
+        make_run(weather, tiles=0)
+    with pytest.raises(InputError, match="tiles.*do not fit"):
+        make_run(weather, tiles=9)  # 3×3 blocks on a 2×2 area
+    with pytest.raises(InputError, match="time_chunks"):
+        make_run(weather, time_chunks=3)
+    with pytest.raises(InputError, match="halo_rows"):
+        make_run(weather, halo_rows=-1)
+    with pytest.raises(InputError, match="samples"):
+        make_run(weather, samples=0)
+    with pytest.raises(InputError, match="workers"):
+        with connect(workers=0):
+            pass
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match="scheduler"):
+        with connect("tcp://127.0.0.1:9", timeout_s=3):
+            pass
+    assert time.monotonic() - t0 < 30
+    n, t = default_workers()
+    assert n >= 1 and t == 1
+
+
+def test_cli_joins_existing_scheduler(client, tmp_path):
+    import xarray as xr
+    from typer.testing import CliRunner
+
+    from lightfit.distributed.cli import app
+
+    out = tmp_path / "r.nc"
+    args = ["field-run", "--scheduler", client.scheduler.address, "--n-plants", "4", "--buffer-rows", "1",
+            "--tiles", "2", "--samples", "8", "--bounces", "2", "--steps", "14:15", "--out", str(out), "--no-progress"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out, engine="h5netcdf") as ds:
+        assert ds.sizes["time"] == 1 and ds.attrs["n_tiles"] == 2
+        assert np.isfinite(ds["par_umol_m2_s"].values).all()
+    bad = CliRunner().invoke(app, args[:7] + ["--tiles", "9"] + args[9:])
+    assert bad.exit_code == 2 and "tiles" in bad.output
+    bad = CliRunner().invoke(app, ["field-run", "--scheduler", "tcp://127.0.0.1:9", "--n-plants", "4", "--steps", "14:15",
+                                   "--connect-timeout", "3"])
+    assert bad.exit_code == 2 and "scheduler" in bad.output
