@@ -105,8 +105,10 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
     every step raise. Several in one step are averaged, SD of the mean = √(Σ sd²) / n.
     """
     step = (times[1] - times[0]) if len(times) > 1 else pd.Timedelta("30min")
-    idx = np.abs(obs.index.values[:, None] - times.values[None, :]).argmin(1)
-    dist = np.abs(obs.index.values - times.values[idx])
+    o_t = obs.index.tz_convert("UTC").tz_localize(None).to_numpy()
+    m_t = times.tz_convert("UTC").tz_localize(None).to_numpy()
+    idx = np.abs(o_t[:, None] - m_t[None, :]).argmin(1)
+    dist = np.abs(o_t - m_t[idx])
     far = dist > step.to_timedelta64() / 2
     if far.any():
         raise InputError(f"observation at {obs.index[far][0].isoformat()} lies outside the run "

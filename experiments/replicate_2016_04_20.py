@@ -1,0 +1,61 @@
+"""The 20 April 2016 Selhausen replication (the README's first command runs this via the CLI).
+
+    python experiments/replicate_2016_04_20.py [--quick] [--out results/2016-04-20] [--weather TERENO.csv]
+    python experiments/replicate_2016_04_20.py --quick --write-reference tests/reference/replication_quick.json
+
+``--write-reference`` deliberately regenerates the stored regression curve (absorbed PAR and canopy
+net CO2 uptake per time step, with their Monte Carlo SDs) that tests/test_replication.py compares
+against; the file records how and with which versions it was made.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.metadata as md
+import json
+import sys
+from pathlib import Path
+
+import jax
+
+import lightfit
+from lightfit.calibrate import replication as rep
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def reference_curve(ds) -> dict:
+    return {
+        "time_utc": [str(t) for t in ds["time"].values],
+        "par_umol_m2_s": ds["par_umol_m2_s"].values.tolist(),
+        "par_mc_sd_umol_m2_s": ds["par_mc_sd_umol_m2_s"].values.tolist(),
+        "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values.tolist(),
+        "canopy_an_mc_sd_umol_m2_s": ds["canopy_an_mc_sd_umol_m2_s"].values.tolist(),
+    }
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "2016-04-20")
+    ap.add_argument("--weather", type=Path, default=None)
+    ap.add_argument("--write-reference", type=Path, default=None)
+    a = ap.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    cfg = rep.ReplicationConfig.quick() if a.quick else rep.ReplicationConfig()
+    ds, _ = rep.run(cfg, weather_file=a.weather, out=a.out, progress=True)
+    print(rep.summary(ds).round(3).to_string())
+    if a.write_reference:
+        ref = {"made_by": "python experiments/replicate_2016_04_20.py --quick --write-reference " + str(a.write_reference),
+               "config": dataclasses.asdict(cfg), "theta": "lightfit.calibrate.forward.DEFAULT_THETA",
+               "weather": ds.attrs["weather_source"], "weather_provenance": ds.attrs["weather_provenance"],
+               "versions": {p: md.version(p) for p in ("mitsuba", "drjit", "jax", "cplantbox", "numpy")} | {"lightfit": lightfit.__version__},
+               "python": sys.version.split()[0], "curve": reference_curve(ds)}
+        a.write_reference.parent.mkdir(parents=True, exist_ok=True)
+        a.write_reference.write_text(json.dumps(ref, indent=1))
+        print(f"wrote {a.write_reference}")
+
+
+if __name__ == "__main__":
+    main()
