@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.weather.readers import read_csv_with_metadata
 
 COLUMNS = ("par_umol_m2_s", "par_sd_umol_m2_s", "an_umol_m2_s", "an_sd_umol_m2_s")
 PAIRS = (("par_umol_m2_s", "par_sd_umol_m2_s"), ("an_umol_m2_s", "an_sd_umol_m2_s"))
@@ -32,21 +33,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="an observations CSV")
-    lines = path.read_text(encoding="utf-8").splitlines()
-    meta, n_meta = {}, 0
-    for line in lines:
-        if not line.startswith("#"):
-            break
-        n_meta += 1
-        if ":" in line:
-            k, v = line[1:].split(":", 1)
-            meta[k.strip()] = v.strip()
-    if meta.get("provenance") not in ("measured", "synthetic", "reconstructed"):
-        raise InputError(f"metadata '# provenance: ...' is {meta.get('provenance')!r}", file=path, row=1,
-                         expected="'measured', 'reconstructed' or 'synthetic'")
-    from io import StringIO
-
-    df = pd.read_csv(StringIO("\n".join(lines[n_meta:])), dtype=str, keep_default_na=False)
+    meta, n_meta, df = read_csv_with_metadata(path)
     if "time" not in df.columns:
         raise InputError("no 'time' column", file=path, row=n_meta + 1, expected="columns time, " + ", ".join(COLUMNS))
     missing = [c for c in COLUMNS if c not in df.columns]

@@ -241,15 +241,15 @@ def read_cplantbox_day(
     return check_and_repair(out, lt, path, max_gap=max_gap)
 
 
-def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP) -> pd.DataFrame:
-    """Read lightfit's own series CSV: ``# key: value`` metadata lines, then contract columns.
+PROVENANCES = ("measured", "reconstructed", "synthetic")
 
-    The ``time_utc`` column holds ISO 8601 UTC timestamps. The ``provenance`` metadata key is
-    required: a file must say whether it is measured, reconstructed or synthetic.
+
+def read_csv_with_metadata(path: Path) -> tuple[dict[str, str], int, pd.DataFrame]:
+    """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required.
+
+    Returns (metadata, number of metadata lines, table of strings). Shared by lightfit's own
+    weather files and the observations CSV.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", file=path, expected="a lightfit weather CSV")
     text = path.read_text(encoding="utf-8").splitlines()
     meta: dict[str, str] = {}
     n_meta = 0
@@ -260,10 +260,23 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
         if ":" in line:
             k, v = line[1:].split(":", 1)
             meta[k.strip()] = v.strip()
-    if meta.get("provenance") not in ("measured", "reconstructed", "synthetic"):
+    if meta.get("provenance") not in PROVENANCES:
         raise InputError(f"metadata line '# provenance: ...' is {meta.get('provenance')!r}", file=path, row=1,
                          expected="'measured', 'reconstructed' or 'synthetic'")
     table = pd.read_csv(io.StringIO("\n".join(text[n_meta:])), dtype=str, keep_default_na=False)
+    return meta, n_meta, table
+
+
+def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP) -> pd.DataFrame:
+    """Read lightfit's own series CSV: ``# key: value`` metadata lines, then contract columns.
+
+    The ``time_utc`` column holds ISO 8601 UTC timestamps. The ``provenance`` metadata key is
+    required: a file must say whether it is measured, reconstructed or synthetic.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError("file not found", file=path, expected="a lightfit weather CSV")
+    meta, n_meta, table = read_csv_with_metadata(path)
     if "time_utc" not in table.columns:
         raise InputError("no time_utc column", file=path, row=n_meta + 1, expected="a header starting with time_utc")
     lines = pd.Series(np.arange(len(table)) + n_meta + 2)
