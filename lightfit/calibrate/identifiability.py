@@ -1,0 +1,138 @@
+r"""Identifiability: Fisher information, stiff/sloppy directions, profile likelihood.
+
+For whitened residuals :math:`r(x) = (y - m(x))/\sqrt v` (Gaussian likelihood, variance treated
+as fixed) the Fisher information at :math:`\hat x` is :math:`F = J^\top J`, :math:`J = \partial r/\partial x`
+from ``jax.jacrev`` (reverse mode works through the Mitsuba bridge and the emulator alike). Its
+eigenvectors are the parameter combinations the data constrain: the largest eigenvalue is the
+*stiffest* combination (its 1σ width ≈ 1/√λ), the smallest the *sloppiest*. Coordinates:
+``scale="log"`` uses log-parameters (relative changes, the usual choice in sloppy-model analyses;
+eigenvector entries then read as exponents of a product of parameters), ``"natural"`` the
+parameters themselves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from lightfit.errors import InputError
+
+
+@dataclass
+class FisherResult:
+    """Fisher matrix (in the chosen coordinates), eigenvalues (descending) and eigenvectors (columns)."""
+
+    names: tuple
+    x: np.ndarray
+    scale: str
+    fisher: np.ndarray
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    jacobian: np.ndarray
+
+    @property
+    def stiff(self) -> str:
+        return combination(self.eigenvectors[:, 0], self.names, self.scale)
+
+    @property
+    def sloppy(self) -> str:
+        return combination(self.eigenvectors[:, -1], self.names, self.scale)
+
+    @property
+    def widths(self) -> np.ndarray:
+        """1σ widths along each eigenvector, 1/√λ (inf for λ ≤ 0)."""
+        lam = np.asarray(self.eigenvalues)
+        return np.where(lam > 0, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
+
+    def table(self) -> list[dict]:
+        return [{"eigenvalue": float(l), "width_1sigma": float(w), "combination": combination(v, self.names, self.scale)}
+                for l, w, v in zip(self.eigenvalues, self.widths, self.eigenvectors.T)]
+
+
+def combination(vec, names, scale: str = "log", tol: float = 0.1) -> str:
+    """Human-readable combination, e.g. ``+0.71 log specular −0.70 log subsurface`` (|entry| ≥ tol)."""
+    vec = np.asarray(vec, float)
+    vec = vec * np.sign(vec[np.argmax(np.abs(vec))])
+    pre = "log " if scale == "log" else ""
+    terms = [f"{v:+.2f} {pre}{n}" for v, n in sorted(zip(vec, names), key=lambda t: -abs(t[0])) if abs(v) >= tol]
+    return " ".join(terms)
+
+
+def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult:
+    """Fisher information of whitened ``residuals(x) -> (n,)`` at ``x0`` (natural parameters).
+
+    The Jacobian is taken by ``jax.jacrev``; with ``scale="log"`` with respect to log x
+    (requires x0 > 0).
+    """
+    x0 = np.asarray(x0, float)
+    names = tuple(names)
+    if x0.shape != (len(names),):
+        raise InputError(f"x0 shape {x0.shape}", column="x0", expected=f"({len(names)},) — one value per name")
+    if scale == "log":
+        if np.any(x0 <= 0):
+            bad = [n for n, v in zip(names, x0) if v <= 0]
+            raise InputError(f"non-positive value(s) of {bad}", column=", ".join(bad), expected="> 0 for scale='log'")
+        jac = jax.jacrev(lambda lx: residuals(jnp.exp(lx)))(jnp.log(jnp.asarray(x0)))
+    elif scale == "natural":
+        jac = jax.jacrev(residuals)(jnp.asarray(x0))
+    else:
+        raise InputError(f"scale={scale!r}", column="scale", expected="'log' or 'natural'")
+    J = np.asarray(jac, float)
+    F = J.T @ J
+    lam, vec = np.linalg.eigh(F)
+    order = np.argsort(lam)[::-1]
+    return FisherResult(names, x0, scale, F, lam[order], vec[:, order], J)
+
+
+def profile_likelihood(nll, x_hat, direction, ts, *, scale: str = "log", maxiter: int = 200):
+    r"""Profile of ``nll(x)`` along ``direction`` through ``x_hat``.
+
+    At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x),
+    and w (orthogonal to d) is optimised (scipy BFGS with JAX gradients, warm-started from the
+    neighbouring t). Returns ``(ts, profile, slice)``: the profiled and the plain-slice nll.
+    """
+    from scipy.optimize import minimize
+
+    x_hat = np.asarray(x_hat, float)
+    d = np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    u0 = np.log(x_hat) if scale == "log" else x_hat
+    to_x = (lambda u: jnp.exp(u)) if scale == "log" else (lambda u: u)
+    # orthonormal basis of the complement of d
+    q, _ = np.linalg.qr(np.column_stack([d, np.eye(len(d))]))
+    basis = q[:, 1 : len(d)]
+    ts = np.asarray(ts, float)
+
+    def f_w(w, t):
+        return nll(to_x(jnp.asarray(u0 + t * d) + jnp.asarray(basis) @ w))
+
+    vg = jax.jit(jax.value_and_grad(f_w))
+    prof, slc = np.empty(len(ts)), np.empty(len(ts))
+    order = np.argsort(np.abs(ts))
+    w = np.zeros(basis.shape[1])
+    last = {}
+    for i in order:
+        t = ts[i]
+        slc[i] = float(f_w(jnp.zeros(basis.shape[1]), t))
+        # warm start from the nearest already-solved offset on the same side
+        near = [j for j in last if np.sign(ts[j]) == np.sign(t) or ts[j] == 0]
+        w0 = last[min(near, key=lambda j: abs(ts[j] - t))] if near else w
+
+        def fun(wv, t=t):
+            v, g = vg(jnp.asarray(wv), t)
+            v, g = float(v), np.asarray(g, float)
+            return (v, g) if np.isfinite(v) else (1e30, np.zeros_like(g))
+
+        if basis.shape[1]:
+            r = minimize(fun, w0, jac=True, method="BFGS", options={"maxiter": maxiter, "gtol": 1e-6})
+            last[i] = r.x
+            prof[i] = min(r.fun, slc[i])
+        else:
+            prof[i] = slc[i]
+    return ts, prof, slc
+
+
+__all__ = ["FisherResult", "combination", "fisher_information", "profile_likelihood"]
