@@ -322,8 +322,10 @@ def diagnostics(chain: np.ndarray, accepted: np.ndarray | None = None, *, burn_f
     if len(kept) < 2:
         tau = np.full(d, np.nan)
     else:
-        tau = emcee.autocorr.integrated_time(kept, c=c, tol=0, quiet=True)
-    ess = w * len(kept) / tau
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tau = emcee.autocorr.integrated_time(kept, c=c, tol=0, quiet=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ess = w * len(kept) / tau
     out = {"names": list(names) if names is not None else [f"x{i}" for i in range(d)], "n_steps": n,
            "n_walkers": w, "n_kept": len(kept), "burn": burn, "tau": tau, "ess": ess,
            "tau_reliable": bool(np.all(len(kept) >= 50 * tau))}
@@ -466,8 +468,6 @@ def sample(log_prob, names, path: str | Path, *, nwalkers: int = 32, max_steps: 
             bar.stop()
     chain = backend.get_chain()
     d = diagnostics(chain, backend.accepted, burn_fraction=(stop or StopRule()).burn_fraction, names=names)
-    if stop is not None and stopped_by == "max_steps" and backend.iteration >= max_steps:
-        d["rule_met"] = False
     d["rule_met"] = stopped_by == "rule"
     with h5py.File(path, "a") as f:
         f[group].attrs["diagnostics"] = json.dumps(_jsonable(d))

@@ -1,0 +1,154 @@
+"""Posterior and identifiability study for the 20 April 2016 configuration (twin experiments).
+
+    .venv/bin/python experiments/posterior_2016_04_20.py [--quick] [--out results/posterior]
+
+1. Emulator of the renders over the wide prior box (specular, subsurface ∈ [0, 1], roughness ∈
+   [0.3, 1]) from a Sobol design of full renders; its error measured on held-out full renders.
+2. **Synthetic** observations (twin experiment): the coupled model at known parameters with a
+   DIFFERENT render seed (7) than the calibrated model (0), plus Gaussian noise (seed 0): PAR at
+   every daytime step, SD 5 % + 5 µmol m⁻² s⁻¹; net CO2 uptake at every step, SD 1 µmol m⁻² s⁻¹.
+   Written to OUT/synthetic_observations.csv with provenance ``synthetic``.
+3. Posteriors with PAR only, CO2 only and both (wide priors): posterior SD per parameter and the
+   tightening ratios; Fisher spectrum and profile likelihood of each; emulator error relative to
+   the posterior width.
+4. Equal-fit parameter sets: the two most distant (in prior-scaled units) posterior samples whose
+   log-likelihood is within 0.5 of the best, re-evaluated with FULL renders.
+5. The real single-point record (bundled chamber observation) with informed priors.
+Results: OUT/*.h5 (runs), OUT/summary.json. ``--tiny`` writes the notebook fixture.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from lightfit.calibrate import emulator as E  # noqa: E402
+from lightfit.calibrate import posterior as P  # noqa: E402
+from lightfit.calibrate import posterior_analysis as A  # noqa: E402
+from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel  # noqa: E402
+from lightfit.calibrate.observations import read_observations, write_observations  # noqa: E402
+from lightfit.calibrate.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
+
+TRUTH = {"specular": 0.6, "roughness": 0.6, "subsurface": 0.1, "light_factor": 1.0, "vcmax_scale": 1.0}
+NAMES = ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")
+WIDE_BOX = ([0.0, 0.3, 0.0], [1.0, 1.0, 1.0])
+
+
+def synthetic_observations(model: CoupledModel, theta: dict, data_seed: int, noise_seed: int) -> pd.DataFrame:
+    """Synthetic chamber series from the model at ``theta`` rendered with ``data_seed`` (+ noise)."""
+    import dataclasses
+
+    data_model = CoupledModel(dataclasses.replace(model.scenario, seed=data_seed))
+    o = data_model.observe({**DEFAULT_THETA, **theta})
+    rng = np.random.default_rng(noise_seed)
+    par, an = np.asarray(o["par_umol_m2_s"]), np.asarray(o["an_umol_m2_s"])
+    par_sd = np.where(model.day, 0.05 * par + 5.0, np.nan)
+    an_sd = np.full(len(an), 1.0)
+    df = pd.DataFrame({"par_umol_m2_s": np.where(model.day, par + par_sd * rng.standard_normal(len(par)), np.nan),
+                       "par_sd_umol_m2_s": par_sd, "an_umol_m2_s": an + an_sd * rng.standard_normal(len(an)),
+                       "an_sd_umol_m2_s": an_sd}, index=model.times)
+    df["par_umol_m2_s"] = df["par_umol_m2_s"].clip(lower=0)
+    return df
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", type=Path, default=Path("results/posterior"))
+    ap.add_argument("--n-design", type=int, default=64)
+    ap.add_argument("--n-test", type=int, default=8)
+    ap.add_argument("--walkers", type=int, default=32)
+    ap.add_argument("--max-steps", type=int, default=3000)
+    ap.add_argument("--tiny", type=Path, default=None, help="also write a tiny run (notebook fixture) here")
+    args = ap.parse_args(argv)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = ReplicationConfig.quick()  # CI-sized field; the default field costs ~80 s per render pass
+    model = model_for(cfg, forcing())
+    summary: dict = {"config": "ReplicationConfig.quick()", "truth": TRUTH}
+    emu_path = out / "emulator_quick_wide.npz"
+    val_path = out / "validation_quick_wide.npz"
+    if emu_path.exists():
+        emu = E.PartsEmulator.load(emu_path)
+    else:
+        emu = E.build_emulator(model, *WIDE_BOX, n_design=args.n_design, seed=0, progress=True)
+        emu.save(emu_path)
+    if val_path.exists():
+        z = np.load(val_path)
+        leaf_test, full = z["leaf_test"], (z["values"], z["se"])
+    else:
+        leaf_test = E.sobol_design(16, *WIDE_BOX, seed=1)[: args.n_test]
+        full = E.render_parts(model, leaf_test, progress=True)
+        np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
+    summary["emulator"] = {"degree": emu.degree, "n_design": len(emu.design), "loo_rms": emu.loo_rms,
+                           "render_seconds": emu.render_seconds}
+    obs_path = out / "synthetic_observations.csv"
+    syn = synthetic_observations(model, TRUTH, data_seed=7, noise_seed=0)
+    write_observations(syn, obs_path, {"provenance": "synthetic",
+                                       "description": "twin experiment: lightfit coupled model (quick field, render "
+                                                      f"seed 7) at {json.dumps(TRUTH)} + Gaussian noise (seed 0)"})
+    obs = read_observations(obs_path)
+    wide = P.PRIORS_WIDE
+    runs = {}
+    for label, use in (("par", ("par",)), ("an", ("an",)), ("both", ("par", "an"))):
+        t = time.perf_counter()
+        r = A.run(model, obs, emu, out / f"twin_{label}.h5", names=NAMES, priors=wide, use=use, nwalkers=args.walkers,
+                  max_steps=args.max_steps, seed=0, validation_renders=(leaf_test, full), progress=True,
+                  attrs={"experiment": f"twin, {label}"})
+        r["wall_seconds"] = time.perf_counter() - t
+        runs[label] = r
+        print(label, json.dumps({k: r[k] for k in ("stopped_by", "n_steps", "sd", "sloppy")}, default=str))
+    summary["twin"] = runs
+    summary["tightening"] = {
+        n: {"sd_par": runs["par"]["sd"][n], "sd_an": runs["an"]["sd"][n], "sd_both": runs["both"]["sd"][n],
+            "both_over_par": runs["both"]["sd"][n] / runs["par"]["sd"][n],
+            "both_over_an": runs["both"]["sd"][n] / runs["an"]["sd"][n]} for n in NAMES}
+    # equal-fit parameter sets from the 'both' posterior, checked with full renders
+    run = P.load_run(out / "twin_both.h5")
+    s = P.flat_samples(run)
+    fast = E.FastObservables(model, emu)
+    lp = P.LogPosterior(fast, model.times, obs, NAMES, wide)
+    ll = lp.loglike_batch(s)
+    good = s[ll >= ll.max() - 0.5]
+    lo = np.array([wide[n].support[0] for n in NAMES])
+    hi = np.array([min(wide[n].support[1], 4.0) for n in NAMES])
+    z = (good - lo) / (hi - lo)
+    dist = np.linalg.norm(z[:, None] - z[None], axis=-1)
+    i, j = np.unravel_index(np.argmax(dist), dist.shape)
+    exact = P.LogPosterior(model.observe, model.times, obs, NAMES, wide)
+    pairs = []
+    for x in (good[i], good[j]):
+        pairs.append({"theta": dict(zip(NAMES, x.tolist())), "loglike_emulator": float(lp.loglike_batch(x[None])[0]),
+                      "loglike_full_render": float(exact.log_likelihood(x)),
+                      "chi2_full_render": float(np.sum(np.asarray(exact.residuals(x)) ** 2)),
+                      "n_observations": exact.n_observations})
+    summary["equal_fit"] = {"sets": pairs, "prior_scaled_distance": float(dist[i, j])}
+    # the real single-point record, informed priors, emulator over the wide box
+    real = read_observations(OBSERVATIONS)
+    r = A.run(model, real, emu, out / "record_informed.h5", names=("specular", "roughness", "subsurface", "light_factor"),
+              priors=P.PRIORS_INFORMED, nwalkers=args.walkers, max_steps=args.max_steps, seed=0,
+              validation_renders=(leaf_test, full), progress=True, attrs={"experiment": "real single PAR record"})
+    summary["record_informed"] = r
+    (out / "summary.json").write_text(json.dumps(P._jsonable(summary), indent=2, default=str))
+    if args.tiny:
+        args.tiny.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out / "tiny.h5"
+        A.run(model, obs, emu, tmp, names=NAMES, priors=wide, nwalkers=12, max_steps=150, seed=0, stop=None,
+              resume=False, validation_renders=(leaf_test[:3], (full[0][:3], full[1][:3])), progress=False,
+              n_predictive=32, n_profile=9, attrs={"experiment": "tiny twin run (notebook fixture)"})
+        shutil.copy(tmp, args.tiny)
+        print("tiny run", args.tiny, args.tiny.stat().st_size, "bytes")
+    print(json.dumps(P._jsonable({"tightening": summary["tightening"], "equal_fit": summary["equal_fit"]}), indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,266 @@
+"""Posterior sampling, diagnostics, emulator and identifiability (lightfit.calibrate.posterior & co)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import time
+
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from lightfit.calibrate import emulator as E
+from lightfit.calibrate import posterior as P
+from lightfit.calibrate.fit import make_loss, to_unconstrained
+from lightfit.calibrate.identifiability import combination, fisher_information, profile_likelihood
+from lightfit.errors import InputError
+
+COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
+PREC = np.linalg.inv(COV)
+MU = np.array([1.0, -2.0, 0.5])
+
+
+class Gauss:
+    """Vectorised correlated Gaussian log-density; optionally raises KeyboardInterrupt after n calls."""
+
+    def __init__(self, interrupt_after=None, sleep=0.0):
+        self.calls, self.interrupt_after, self.sleep = 0, interrupt_after, sleep
+
+    def __call__(self, xs):
+        self.calls += 1
+        if self.interrupt_after is not None and self.calls > self.interrupt_after:
+            raise KeyboardInterrupt
+        if self.sleep:
+            time.sleep(self.sleep)
+        d = np.atleast_2d(xs) - MU
+        return -0.5 * np.einsum("ij,jk,ik->i", d, PREC, d)
+
+
+def _init(nw=8, seed=3):
+    return np.random.default_rng(seed).normal(size=(nw, 3))
+
+
+NAMES = ("a", "b", "c")
+
+
+def test_resume_after_interruption_gives_identical_chain(tmp_path):
+    ref = P.sample(Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=60, seed=11, initial=_init(), progress=False)
+    assert ref.stopped_by == "max_steps" and ref.chain.shape == (60, 8, 3)
+    # interrupted after the initial evaluation + 2 half-moves per step × 17 steps, in the middle of a step
+    part = P.sample(Gauss(interrupt_after=1 + 2 * 17 + 1), NAMES, tmp_path / "run.h5", nwalkers=8, max_steps=60,
+                    seed=11, initial=_init(), progress=False)
+    assert part.stopped_by == "interrupted" and len(part.chain) == 17
+    # resuming with another seed argument must not matter: the stored generator state is used
+    done = P.sample(Gauss(), NAMES, tmp_path / "run.h5", nwalkers=8, max_steps=60, seed=999, progress=False)
+    assert done.steps_this_call == 43
+    np.testing.assert_array_equal(done.chain, ref.chain)
+    np.testing.assert_array_equal(done.log_prob, ref.log_prob)
+    run = P.load_run(tmp_path / "run.h5")
+    np.testing.assert_array_equal(run["accepted"], P.load_run(tmp_path / "ref.h5")["accepted"])
+
+
+def test_resume_after_sigkill(tmp_path):
+    """A process killed with SIGKILL while sampling resumes with no lost samples and identical chains."""
+    path = tmp_path / "kill.h5"
+    code = textwrap.dedent(f"""
+        import sys, numpy as np
+        sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parent)!r})
+        from test_posterior import Gauss, _init, NAMES
+        from lightfit.calibrate import posterior as P
+        P.sample(Gauss(sleep=0.01), NAMES, {str(path)!r}, nwalkers=8, max_steps=100000, seed=5, initial=_init(),
+                 progress=False)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.time() + 60
+    import h5py
+
+    n = 0
+    while time.time() < deadline:
+        time.sleep(0.3)
+        try:
+            with h5py.File(path, "r") as f:
+                n = int(f["mcmc"].attrs["iteration"])
+        except (OSError, KeyError):
+            continue
+        if n >= 20:
+            break
+    proc.kill()
+    proc.wait()
+    assert n >= 20
+    stored = P.load_run(path)["chain"]
+    total = len(stored) + 15
+    done = P.sample(Gauss(), NAMES, path, nwalkers=8, max_steps=total, seed=5, progress=False)
+    ref = P.sample(Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=total, seed=5, initial=_init(),
+                   progress=False)
+    np.testing.assert_array_equal(done.chain, ref.chain)
+
+
+def test_diagnostics_on_ar1_with_known_tau():
+    """AR(1) chains x_t = φ x_{t−1} + ε have τ = (1 + φ)/(1 − φ)."""
+    rng = np.random.default_rng(0)
+    phi, n, w = 0.8, 4000, 16
+    x = np.zeros((n, w, 1))
+    for t in range(1, n):
+        x[t] = phi * x[t - 1] + rng.standard_normal((w, 1))
+    d = P.diagnostics(x, burn_fraction=0.0)
+    tau = (1 + phi) / (1 - phi)
+    assert d["tau"][0] == pytest.approx(tau, rel=0.15)
+    assert d["ess"][0] == pytest.approx(n * w / tau, rel=0.15)
+    assert d["tau_reliable"]
+
+
+def test_sampler_on_gaussian_target_meets_stop_rule(tmp_path):
+    stop = P.StopRule(target_ess=200, tau_multiple=20, check_every=100, min_steps=200)
+    r = P.sample(Gauss(), NAMES, tmp_path / "g.h5", nwalkers=16, max_steps=5000, seed=1,
+                 initial=np.random.default_rng(1).normal(size=(16, 3)), stop=stop, progress=False)
+    assert r.stopped_by == "rule" and r.diagnostics["rule_met"]
+    d = r.diagnostics
+    assert np.all(d["ess"] >= 200) and np.all(d["n_kept"] >= 20 * d["tau"])
+    assert 0.15 < d["acceptance_mean"] < 0.8
+    s = P.flat_samples({"chain": r.chain})
+    se = np.sqrt(np.diag(COV) / d["ess"])
+    assert np.all(np.abs(s.mean(0) - MU) < 5 * se)
+    np.testing.assert_allclose(np.cov(s.T), COV, atol=0.25)
+
+
+def test_fisher_matches_analytic_toy_model():
+    """Linear model y = A x: F = Aᵀ A / σ²; and a product model whose log-Fisher has a null direction."""
+    A = np.array([[1.0, 2.0, 0.0], [0.0, 1.0, 1.0], [1.0, 0.0, 3.0], [2.0, 1.0, 1.0]])
+    sigma = 0.5
+    x0 = np.array([0.3, 1.2, 0.7])
+    fi = fisher_information(lambda x: (jnp.asarray(A) @ x) / sigma, x0, ("p", "q", "r"), scale="natural")
+    F = A.T @ A / sigma**2
+    np.testing.assert_allclose(fi.fisher, F, rtol=1e-10)
+    lam, vec = np.linalg.eigh(F)
+    np.testing.assert_allclose(fi.eigenvalues, lam[::-1], rtol=1e-10)
+    for k in range(3):
+        assert abs(abs(fi.eigenvectors[:, k] @ vec[:, ::-1][:, k]) - 1) < 1e-10
+    # m_t = a·b·exp(−c t): only a·b is identifiable → log-Fisher null direction (1, −1, 0)/√2
+    t = jnp.linspace(0, 2, 7)
+    fi2 = fisher_information(lambda x: x[0] * x[1] * jnp.exp(-x[2] * t) / 0.1, np.array([2.0, 0.5, 1.0]),
+                             ("a", "b", "c"), scale="log")
+    assert fi2.eigenvalues[-1] < 1e-9 * fi2.eigenvalues[0]
+    np.testing.assert_allclose(np.abs(fi2.eigenvectors[:, -1]), [2**-0.5, 2**-0.5, 0], atol=1e-8)
+    assert fi2.sloppy in ("+0.71 log a -0.71 log b", "+0.71 log b -0.71 log a")
+    assert combination([0.0, 1.0, 0.05], ("a", "b", "c")) == "+1.00 log b"
+
+
+def test_profile_likelihood_on_quadratic_toy():
+    """For a Gaussian nll ½ xᵀ H x, the profile along d is t²/(2 dᵀ H⁻¹ d) and the slice is ½ t² dᵀ H d."""
+    H = np.array([[4.0, 1.9], [1.9, 1.0]])
+    d = np.array([1.0, -2.0]) / np.sqrt(5)
+    ts, prof, slc = profile_likelihood(lambda x: 0.5 * x @ jnp.asarray(H) @ x, np.zeros(2), d,
+                                       np.linspace(-1, 1, 5), scale="natural")
+    np.testing.assert_allclose(slc, 0.5 * ts**2 * (d @ H @ d), rtol=1e-10)
+    np.testing.assert_allclose(prof, ts**2 / (2 * (d @ np.linalg.solve(H, d))), atol=1e-7)
+
+
+class FakeModel:
+    """observe(theta): PAR = light_factor·(400 + 100·specular)·shape, An = vcmax_scale·20·shape."""
+
+    def __init__(self):
+        self.times = pd.date_range("2016-04-20 04:00", periods=6, freq="30min", tz="UTC")
+        self.shape = jnp.asarray([0.0, 0.3, 0.7, 1.0, 0.8, 0.4])
+
+    def observe(self, th):
+        par = th["light_factor"] * (400 + 100 * th["specular"]) * self.shape
+        an = th["vcmax_scale"] * 20 * self.shape - 2.0
+        return {"par_umol_m2_s": par, "par_mc_var": 4.0 * self.shape, "an_umol_m2_s": an, "an_mc_var": 0.01 * self.shape}
+
+
+def _fake_obs(model):
+    rng = np.random.default_rng(2)
+    m = model.observe({"specular": 0.5, "light_factor": 1.1, "vcmax_scale": 0.9})
+    df = pd.DataFrame({"par_umol_m2_s": np.asarray(m["par_umol_m2_s"]) + rng.normal(0, 10, 6),
+                       "par_sd_umol_m2_s": 10.0, "an_umol_m2_s": np.asarray(m["an_umol_m2_s"]) + rng.normal(0, 1, 6),
+                       "an_sd_umol_m2_s": 1.0}, index=model.times)
+    df.loc[model.times[0], ["an_umol_m2_s"]] = np.nan
+    df.attrs = {"source": "synthetic test", "provenance": "synthetic"}
+    return df
+
+
+def test_log_likelihood_equals_make_loss_plus_normalisation():
+    model = FakeModel()
+    obs = _fake_obs(model)
+    names = ("specular", "light_factor", "vcmax_scale")
+    lp = P.LogPosterior(model.observe, model.times, obs, names, P.PRIORS_INFORMED)
+    loss = make_loss(model, obs, names)
+    x = np.array([0.55, 1.05, 0.95])
+    z = jnp.asarray([to_unconstrained(v, n) for v, n in zip(x, names)])
+    m = model.observe({"specular": x[0], "light_factor": x[1], "vcmax_scale": x[2]})
+    var = np.concatenate([10.0**2 + np.asarray(m["par_mc_var"]), 1.0 + np.asarray(m["an_mc_var"][1:])])
+    expect = -float(loss(z)[0]) - 0.5 * np.sum(np.log(2 * np.pi * var))
+    assert float(lp.log_likelihood(jnp.asarray(x))) == pytest.approx(expect, rel=1e-9)
+    assert lp.n_observations == loss.n_observations == 11
+    # outside the prior support → −inf; vectorised call
+    out = lp(np.array([x, [0.1, 1.0, 1.0]]))
+    assert np.isfinite(out[0]) and out[1] == -np.inf
+    # PAR only: the CO2 series does not enter
+    lp_par = P.LogPosterior(model.observe, model.times, obs, names, P.PRIORS_INFORMED, use=("par",))
+    assert lp_par.n_observations == 6
+
+
+def test_bad_input_names_the_parameter(tmp_path):
+    model = FakeModel()
+    obs = _fake_obs(model)
+    with pytest.raises(InputError, match="speculr"):
+        P.LogPosterior(model.observe, model.times, obs, ("speculr",))
+    with pytest.raises(InputError, match="nwalkers"):
+        P.sample(Gauss(), NAMES, tmp_path / "x.h5", nwalkers=4, max_steps=10, initial=_init(4))
+    with pytest.raises(InputError, match="specular"):
+        P.LogPosterior(model.observe, model.times, obs, ("specular",),
+                       {"specular": P.Prior("uniform", -0.5, 1.0, "test")})
+    with pytest.raises(InputError, match="use"):
+        P.LogPosterior(model.observe, model.times, obs, ("specular",), use=("co2",))
+    with pytest.raises(InputError, match="prior bounds"):
+        P.Prior("uniform", 1.0, 0.0, "test")
+    P.sample(Gauss(), NAMES, tmp_path / "y.h5", nwalkers=8, max_steps=3, initial=_init(), progress=False)
+    with pytest.raises(InputError, match="names"):
+        P.sample(Gauss(), ("a", "b", "d"), tmp_path / "y.h5", nwalkers=8, max_steps=5, progress=False)
+
+
+def test_emulator_reproduces_polynomial_and_roundtrips(tmp_path):
+    lo, hi = np.array([0.2, 0.3, 0.0]), np.array([0.8, 1.0, 0.5])
+    design = E.sobol_design(32, lo, hi, seed=0)
+
+    def truth(x):  # a degree-3 polynomial field: (n, T=2, 4, S=3)
+        s, r, u = x[:, 0], x[:, 1], x[:, 2]
+        base = 0.3 + 0.1 * s - 0.2 * r**2 + 0.05 * s * u * r + 0.4 * u**3
+        return base[:, None, None, None] * np.arange(1, 25).reshape(1, 2, 4, 3)
+
+    emu = E.fit_emulator(design, truth(design), 0.01 * truth(design), lo, hi, degrees=(1, 2, 3, 4))
+    assert emu.degree >= 3 and emu.loo_rms[3] < 1e-10
+    test = E.sobol_design(8, lo, hi, seed=5)
+    for x, y in zip(test, truth(test)):
+        v, se = emu(dict(zip(E.LEAF, x)))
+        np.testing.assert_allclose(np.asarray(v), y, atol=1e-9)
+    emu.save(tmp_path / "e.npz")
+    back = E.PartsEmulator.load(tmp_path / "e.npz")
+    np.testing.assert_array_equal(back.coef_values, emu.coef_values)
+    assert back.degree == emu.degree and back.loo_rms == emu.loo_rms
+    with pytest.raises(InputError, match="n_design"):
+        E.fit_emulator(design[:3], truth(design[:3]), truth(design[:3]), lo, hi, degrees=(2,))
+
+
+def test_fast_observables_match_observe_on_quick_field():
+    """Emulated parts through FastObservables equal observe() on the same parts (exact photosynthesis),
+    the tabulated photosynthesis is within 0.05 µmol m⁻² s⁻¹, and the emulator interpolates its design."""
+    from lightfit.calibrate.replication import ReplicationConfig, forcing, model_for
+
+    model = model_for(ReplicationConfig.quick(), forcing())
+    lo, hi = [0.46, 0.5, 0.05], [0.74, 0.7, 0.17]
+    emu = E.build_emulator(model, lo, hi, n_design=6, degrees=(1,), seed=0)
+    th = {"specular": 0.6, "roughness": 0.6, "subsurface": 0.1, "light_factor": 1.2, "vcmax_scale": 0.9}
+    ref = E.emulated_model(model, emu).observe(th)
+    exact = E.FastObservables(model, emu, n_grid=None)(th)
+    tab = E.FastObservables(model, emu, n_grid=64)(th)
+    for k in ("par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_var", "an_umol_m2_s", "an_mc_var"):
+        np.testing.assert_allclose(np.asarray(exact[k]), np.asarray(ref[k]), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(tab["an_umol_m2_s"]), np.asarray(ref["an_umol_m2_s"]), atol=0.05)
+    np.testing.assert_allclose(np.asarray(tab["par_umol_m2_s"]), np.asarray(ref["par_umol_m2_s"]), rtol=1e-12)
+    # validate() against a full render at a design point: degree-1 fit error stays small
+    val = E.validate(model, E.FastObservables(model, emu), emu.design[:1], theta_extra={"light_factor": 1.0})
+    assert np.abs(val["err_par_umol_m2_s"]).max() < 5.0
