@@ -332,13 +332,16 @@ def field_cmd(
         console.print(f"[green]wrote[/] {plot_field(geom, preview)}")
 
 
-def _register_dataset() -> None:
+def _register_subcommands() -> None:
+    """Commands whose code lives with their capability (imports stay lazy inside them)."""
     from lightfit.dataset.cli import render_dataset
+    from lightfit.distributed.cli import field_run
 
     app.command("render-dataset")(render_dataset)
+    app.command("field-run")(field_run)
 
 
-_register_dataset()
+_register_subcommands()
 
 
 if __name__ == "__main__":
