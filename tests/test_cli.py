@@ -39,7 +39,7 @@ def test_weather_show_bad_input_exits_2_with_message(tmp_path):
 
 
 def test_replicate_writes_labelled_forcing(tmp_path):
-    r = runner.invoke(app, ["replicate", "--out", str(tmp_path)])
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
     assert "RECONSTRUCTED" in r.output
     f = read_weather(tmp_path / "forcing.csv")
@@ -48,7 +48,7 @@ def test_replicate_writes_labelled_forcing(tmp_path):
 
 
 def test_replicate_with_a_tereno_export(tmp_path):
-    r = runner.invoke(app, ["replicate", "--out", str(tmp_path), "--weather", str(FIXTURE)])
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(FIXTURE)])
     assert r.exit_code == 0, r.output
     f = read_weather(tmp_path / "forcing.csv")
     assert len(f) == 29 and f.attrs["provenance"] == "measured"
