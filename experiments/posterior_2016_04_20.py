@@ -119,6 +119,7 @@ def main(argv=None):
     lp = P.LogPosterior(fast, model.times, obs, NAMES, wide)
     ll = lp.loglike_batch(s)
     good = s[ll >= ll.max() - 0.5]
+    good = good[np.random.default_rng(0).permutation(len(good))[:2000]]
     lo = np.array([wide[n].support[0] for n in NAMES])
     hi = np.array([min(wide[n].support[1], 4.0) for n in NAMES])
     z = (good - lo) / (hi - lo)

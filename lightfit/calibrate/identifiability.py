@@ -110,13 +110,14 @@ def profile_likelihood(nll, x_hat, direction, ts, *, scale: str = "log", maxiter
         return nll(to_x(jnp.asarray(u0 + t * d) + jnp.asarray(basis) @ w))
 
     vg = jax.jit(jax.value_and_grad(f_w))
+    f_j = jax.jit(f_w)
     prof, slc = np.empty(len(ts)), np.empty(len(ts))
     order = np.argsort(np.abs(ts))
     w = np.zeros(basis.shape[1])
     last = {}
     for i in order:
         t = ts[i]
-        slc[i] = float(f_w(jnp.zeros(basis.shape[1]), t))
+        slc[i] = float(f_j(jnp.zeros(basis.shape[1]), t))
         # warm start from the nearest already-solved offset on the same side
         near = [j for j in last if np.sign(ts[j]) == np.sign(t) or ts[j] == 0]
         w0 = last[min(near, key=lambda j: abs(ts[j] - t))] if near else w

@@ -243,8 +243,11 @@ class LogPosterior:
         """emcee's vectorised log-probability: (n, ndim) → (n,)."""
         return np.asarray(self._batch(jnp.asarray(np.atleast_2d(xs), jnp.float64)), dtype=np.float64)
 
-    def loglike_batch(self, xs: np.ndarray) -> np.ndarray:
-        return np.asarray(self._batch_ll(jnp.asarray(np.atleast_2d(xs), jnp.float64)), dtype=np.float64)
+    def loglike_batch(self, xs: np.ndarray, chunk: int = 64) -> np.ndarray:
+        """Log-likelihood of many points, evaluated ``chunk`` at a time (bounded memory)."""
+        xs = np.atleast_2d(xs)
+        return np.concatenate([np.asarray(self._batch_ll(jnp.asarray(xs[i : i + chunk], jnp.float64)), dtype=np.float64)
+                               for i in range(0, len(xs), chunk)])
 
     def initial(self, nwalkers: int, seed: int) -> np.ndarray:
         """Walkers drawn from the prior (generator seeded with ``seed``)."""

@@ -119,7 +119,9 @@ def run(model: CoupledModel, obs: pd.DataFrame, emulator: PartsEmulator, path: s
         x = jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
         return lp.residuals(x)
 
-    fi = fisher_information(resid, x_map[idx], model_names, scale="log")
+    # log-parameters (relative changes) unless the optimum sits on a zero bound
+    scale = "log" if np.all(x_map[idx] > 1e-6) else "natural"
+    fi = fisher_information(resid, x_map[idx], model_names, scale=scale)
     an["fisher"] = {"names": list(model_names), "matrix": fi.fisher, "eigenvalues": fi.eigenvalues,
                     "eigenvectors": fi.eigenvectors, "table": fi.table(), "stiff": fi.stiff, "sloppy": fi.sloppy,
                     "scale": fi.scale}
@@ -132,10 +134,11 @@ def run(model: CoupledModel, obs: pd.DataFrame, emulator: PartsEmulator, path: s
         x = jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
         return -lp.log_likelihood(x)
 
-    ts, prof, slc = profile_likelihood(nll, x_map[idx], d, ts, scale="log")
-    inside = np.array([lp.in_support(_put(x_map, idx, np.exp(np.log(x_map[idx]) + t * d))) for t in ts])
+    ts, prof, slc = profile_likelihood(nll, x_map[idx], d, ts, scale=scale)
+    to_x = (lambda t: np.exp(np.log(x_map[idx]) + t * d)) if scale == "log" else (lambda t: x_map[idx] + t * d)
+    inside = np.array([lp.in_support(_put(x_map, idx, to_x(t))) for t in ts])
     an["profile"] = {"t": ts, "profile_nll": prof, "slice_nll": slc, "direction": d, "in_prior_box": inside.astype(np.int8),
-                     "combination": fi.sloppy}
+                     "combination": fi.sloppy, "scale": scale}
     # posterior predictive
     rng = np.random.default_rng(seed + 1)
     draws = samples[rng.choice(len(samples), size=min(n_predictive, len(samples)), replace=False)]
