@@ -65,8 +65,13 @@ def sobol_design(n: int, lo, hi, seed: int) -> np.ndarray:
     """``n`` scrambled-Sobol points in the box [lo, hi] (3 leaf parameters), explicit seed."""
     from scipy.stats import qmc
 
+    import warnings
+
     s = qmc.Sobol(d=3, scramble=True, seed=np.random.default_rng(seed))
-    return qmc.scale(s.random(n), np.asarray(lo, float), np.asarray(hi, float))
+    with warnings.catch_warnings():  # balance needs n = 2^k; any n is fine for a regression design
+        warnings.simplefilter("ignore", UserWarning)
+        pts = s.random(n)
+    return qmc.scale(pts, np.asarray(lo, float), np.asarray(hi, float))
 
 
 def render_parts(model: CoupledModel, leaf, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
