@@ -334,9 +334,11 @@ def field_cmd(
 
 def _register_subcommands() -> None:
     """Commands whose code lives with their capability (imports stay lazy inside them)."""
+    from lightfit.calibrate.posterior_cli import posterior
     from lightfit.dataset.cli import render_dataset
     from lightfit.distributed.cli import field_run
 
+    app.command("posterior")(posterior)
     app.command("render-dataset")(render_dataset)
     app.command("field-run")(field_run)
 
