@@ -167,6 +167,8 @@ def replicate(
     quick: bool = typer.Option(False, "--quick", help="First look in under a minute: 4 plants, K=16, 2 bounces."),
     n_plants: int = typer.Option(None, help="Plants in the measurement area (default 100; quick: 4)."),
     buffer_rows: int = typer.Option(None, help="Buffer rows (default 2, the reference paper's finding)."),
+    buffer_along: int = typer.Option(None, help="Buffer plants along each row end (default: = buffer rows; "
+                                     "≈ 4× buffer rows makes the buffer as wide in metres both ways)."),
     samples: int = typer.Option(None, help="Irradiance samples per segment K (default 64; quick: 16)."),
     bounces: int = typer.Option(None, help="Scattering orders (default 3; quick: 2)."),
     theta: str = typer.Option(None, help="Leaf/light parameters: a calibration JSON or key=value,... "
@@ -181,7 +183,8 @@ def replicate(
 
     cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
     cfg = dataclasses.replace(cfg, how=how, **{k: v for k, v in dict(n_plants=n_plants, buffer_rows=buffer_rows,
-                                                                     samples=samples, bounces=bounces).items() if v is not None})
+                                                                     buffer_along=buffer_along, samples=samples,
+                                                                     bounces=bounces).items() if v is not None})
     try:
         w = rep.forcing(weather_file, how)
         out.mkdir(parents=True, exist_ok=True)
@@ -267,6 +270,7 @@ def field_cmd(
     row_spacing: float = typer.Option(0.125, help="Distance between wheat rows, m."),
     plant_spacing: float = typer.Option(0.03, help="Distance between plants in a row, m."),
     buffer_rows: int = typer.Option(2, help="Rows of unmeasured buffer plants around the measurement area."),
+    buffer_along: int = typer.Option(None, help="Buffer plants along each row end (default: = buffer rows)."),
     row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
     seed: int = typer.Option(0, help="Global seed; plant seeds derive from it and grid positions."),
     parameter_file: str = typer.Option("Triticum_aestivum_adapted_2023.xml", help="CPlantBox plant XML (path or bundled name)."),
@@ -287,7 +291,7 @@ def field_cmd(
 
     try:
         g = plant.GrowthConfig(parameter_file, season_start, date)
-        fld = plant.Field(n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, seed, g)
+        fld = plant.Field(n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, seed, g, buffer_along)
         parts = fld.tiles(tiles)
         if tile is not None and not 0 <= tile < len(parts):
             raise InputError(f"tile {tile} does not exist", column="tile", expected=f"0 … {len(parts) - 1}")

@@ -164,6 +164,28 @@ def test_measured_plants_do_not_depend_on_buffer_rows():
     assert a[cols].equals(b.loc[b["measured"], cols])
 
 
+def test_buffer_along_rows_widens_only_the_row_ends():
+    sq = Field(n_plants=9, buffer_rows=1, seed=4)
+    wide = Field(n_plants=9, buffer_rows=1, buffer_along=4, seed=4)
+    p = wide.plants()
+    assert len(p) == (3 + 2) * (3 + 8) and p["measured"].sum() == 9
+    assert p["r"].min() == -1 and p["c"].min() == -4 and p["c"].max() == 3 + 3
+    cols = ["plant_id", "seed", "x_m", "y_m"]
+    assert sq.plants().loc[sq.plants()["measured"], cols].equals(p.loc[p["measured"], cols])
+    # Rows run east-west (x): the extra buffer lies along x, 4 plants × 3 cm beyond the measured plants.
+    meas = p[p["measured"]]
+    assert p["x_m"].max() - meas["x_m"].max() == pytest.approx(4 * 0.03)
+    assert p["y_m"].max() - meas["y_m"].max() == pytest.approx(1 * 0.125)
+    for t in wide.tiles(2):
+        ring = p.loc[t.buffer]
+        own = p.loc[t.measured]
+        assert ring["c"].min() >= own["c"].min() - 4 and ring["r"].min() >= own["r"].min() - 1
+        assert ((ring["c"] < own["c"].min()) | (ring["c"] > own["c"].max()) | (ring["r"] < own["r"].min())
+                | (ring["r"] > own["r"].max())).all()
+    with pytest.raises(InputError, match="buffer_along"):
+        Field(buffer_along=-2)
+
+
 def test_plant_is_identical_in_its_tile_and_as_a_neighbours_buffer(tmp_path):
     fld = Field(n_plants=16, buffer_rows=1, seed=9)
     a, b = fld.tiles(2)

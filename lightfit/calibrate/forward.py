@@ -248,7 +248,7 @@ class CoupledModel:
             "title": "lightfit coupled run", "time_zone": "UTC",
             "weather_provenance": str(self.scenario.weather.attrs.get("provenance", "unknown")),
             "weather_source": str(self.scenario.weather.attrs.get("source", "")),
-            "n_plants": fld.n_plants, "buffer_rows": fld.buffer_rows, "seed": fld.seed,
+            "n_plants": fld.n_plants, "buffer_rows": fld.buffer_rows, "buffer_along": fld.b_along, "seed": fld.seed,
             "n_tiles": self.scenario.n_tiles, "tile": -1 if self.scenario.tile is None else self.scenario.tile,
             "row_spacing_m": fld.row_spacing_m, "plant_spacing_m": fld.plant_spacing_m,
             "row_direction_deg": fld.row_direction_deg, "parameter_file": g.parameter_file,

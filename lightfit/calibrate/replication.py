@@ -33,6 +33,7 @@ class ReplicationConfig:
 
     n_plants: int = 100
     buffer_rows: int = 2
+    buffer_along: int | None = None
     seed: int = 1
     samples: int = 64
     bounces: int = 3
@@ -54,7 +55,8 @@ def forcing(weather_file: str | Path | None = None, how: str = "sample") -> pd.D
 
 
 def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:
-    sc = Scenario(weather=w, field=Field(n_plants=cfg.n_plants, buffer_rows=cfg.buffer_rows, seed=cfg.seed),
+    sc = Scenario(weather=w, field=Field(n_plants=cfg.n_plants, buffer_rows=cfg.buffer_rows, seed=cfg.seed,
+                                         buffer_along=cfg.buffer_along),
                   samples=cfg.samples, bounces=cfg.bounces, seed=cfg.render_seed, par_kind=cfg.par_kind, an_per=cfg.an_per)
     return CoupledModel(sc, progress=progress)
 

@@ -117,6 +117,7 @@ def field_of(res: Results):
     growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
     kw = {k: float(a[k]) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
     return Field(n_plants=int(a["n_plants"]), buffer_rows=int(a["buffer_rows"]), seed=int(a["seed"]),
+                 buffer_along=int(a["buffer_along"]) if "buffer_along" in a else None,
                  growth=GrowthConfig(**growth), **kw)
 
 
