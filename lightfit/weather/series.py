@@ -150,7 +150,7 @@ def check_and_repair(
                          file=file, row=rows[0], expected="one row per timestamp")
     if not df.index.is_monotonic_increasing:
         _record(qc, "sorted", None, len(df), "rows were not in time order and were sorted")
-        order = np.argsort(df.index.values, kind="stable")
+        order = np.argsort(df.index.asi8, kind="stable")
         df, lines = df.iloc[order], lines.iloc[order]
 
     for col in df.columns:
