@@ -199,7 +199,7 @@ def replicate(
         plot_forcing(w, out / "forcing.png", title=f"{label} forcing, Selhausen 2016-04-20")
         console.print(f"running: {cfg.n_plants} plants + {cfg.buffer_rows} buffer rows, K={cfg.samples}, "
                       f"{cfg.bounces} bounces …")
-        ds, obs = rep.run(cfg, weather_file=weather_file, theta=_theta(theta),
+        ds, obs = rep.run(cfg, weather_file=weather_file, theta=_theta(theta), forcing_df=w,
                           observations=observations or rep.OBSERVATIONS, out=out, progress=True)
     except InputError as err:
         _fail(err)

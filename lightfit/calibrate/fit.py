@@ -163,7 +163,7 @@ def calibrate(model: CoupledModel, obs, *, names=("specular", "roughness", "subs
             if bar:
                 bar.update(task, completed=k + 1, info=f"loss {f:.4g}  " + " ".join(f"{n[:4]}={v:.3f}" for n, v in theta.items()))
             if bool(done):
-                converged = result == optx.RESULTS.successful
+                converged = bool(result == optx.RESULTS.successful)
                 break
     finally:
         if bar:

@@ -26,7 +26,6 @@ through the photosynthesis fixed point).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 
@@ -263,9 +262,4 @@ class CoupledModel:
         return ds
 
 
-def ground_area(fld: Field) -> float:
-    """Ground area of the measurement area, m²."""
-    return fld.n**2 * fld.plant_spacing_m * fld.row_spacing_m
-
-
-__all__ = ["CoupledModel", "DEFAULT_THETA", "PARAMETERS", "Scenario", "ground_area", "math"]
+__all__ = ["CoupledModel", "DEFAULT_THETA", "PARAMETERS", "Scenario"]

@@ -21,6 +21,7 @@ from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel, Scenario
 from lightfit.calibrate.observations import align, read_observations
 from lightfit.plant import Field
 from lightfit.weather.bundled import DATA_DIR
+from lightfit.weather.units import par_from_ghi
 
 START_LOCAL = "2016-04-20 05:00"
 HOURS, STEP = 14.0, "30min"
@@ -62,9 +63,12 @@ def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -
 
 
 def run(cfg: ReplicationConfig, *, weather_file=None, theta: dict | None = None, observations=OBSERVATIONS,
-        out: Path | None = None, progress: bool = False):
-    """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None)."""
-    w = forcing(weather_file, cfg.how)
+        out: Path | None = None, progress: bool = False, forcing_df: pd.DataFrame | None = None):
+    """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None).
+
+    ``forcing_df``: the run's forcing if already read (``forcing(weather_file, cfg.how)``).
+    """
+    w = forcing(weather_file, cfg.how) if forcing_df is None else forcing_df
     model = model_for(cfg, w, progress)
     ds = model.simulate({**DEFAULT_THETA, **(theta or {})})
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
@@ -102,8 +106,8 @@ def summary(ds) -> pd.DataFrame:
     return pd.DataFrame({
         "local_time": t.tz_convert("Europe/Berlin").strftime("%H:%M"),
         "sun_elevation_deg": ds["sun_elevation_deg"].values,
-        "par_above_umol_m2_s": 2.285 * (ds["dni_w_m2"].values * np.sin(np.radians(np.clip(ds["sun_elevation_deg"].values, 0, 90)))
-                                        + ds["dhi_w_m2"].values),
+        "par_above_umol_m2_s": par_from_ghi(ds["dni_w_m2"].values * np.sin(np.radians(np.clip(ds["sun_elevation_deg"].values, 0, 90)))
+                                            + ds["dhi_w_m2"].values),
         "plant_par_umol_m2_s": ds["par_umol_m2_s"].values, "plant_par_sd_umol_m2_s": ds["par_sd_umol_m2_s"].values,
         "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values,
         "canopy_an_mc_sd": ds["canopy_an_mc_sd_umol_m2_s"].values,

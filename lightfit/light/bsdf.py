@@ -250,6 +250,24 @@ def ggx_albedo_table(n_samples: int = 16384, seed: int = 0) -> np.ndarray:
     return _ALBEDO_TABLE[key]
 
 
+_ALBEDO_TABLE_DR: dict = {}
+
+
+def _albedo_table_drjit():
+    """The albedo table as one Dr.Jit array per variant: made once, so every kernel that reads it
+    sees the same memory (and alignment) and compiled kernels are reused."""
+    mi = mitsuba()
+    if mi.variant() not in _ALBEDO_TABLE_DR:
+        import drjit as dr
+
+        t = ggx_albedo_table().ravel()
+        out = dr.empty(mi.Float, len(t))
+        dr.scatter(out, mi.Float(t.astype(np.float32)), dr.arange(mi.UInt32, len(t)))
+        dr.eval(out)
+        _ALBEDO_TABLE_DR[mi.variant()] = out
+    return _ALBEDO_TABLE_DR[mi.variant()]
+
+
 def leaf_albedo(bsdf, cos_i):
     """Directional albedo ρ(θ_i) = F0·E_GGX(μ, r) + (1 − F0)·c of a leaf BSDF (Dr.Jit, differentiable).
 
@@ -259,7 +277,7 @@ def leaf_albedo(bsdf, cos_i):
     mi = mitsuba()
     import drjit as dr
 
-    table = mi.Float(ggx_albedo_table().ravel().astype(np.float32))
+    table = _albedo_table_drjit()
     nm, nr = len(TABLE_MU), len(TABLE_R)
     x = dr.clip(dr.abs(cos_i), 0.0, 1.0) * (nm - 1)
     y = dr.clip(bsdf.roughness, 0.0, 1.0) * (nr - 1)

@@ -45,7 +45,12 @@ from lightfit.light.scene import FieldScene
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
 LEAF_PARAMETERS = ("specular", "roughness", "subsurface")
-_N_FIXED_DIMS = 19  # face, barycentrics, and 8 per side: direction 2, albedo 3, sun albedo 3
+# Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
+# first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
+# albedo — kept in the numbering so that every other dimension keeps its random stream (and the
+# stored regression curve its values); they are never generated.
+_N_FIXED_DIMS = 19
+_USED_PER_SIDE = 2
 _DIMS_PER_BOUNCE = 3
 
 
@@ -241,8 +246,8 @@ class SegmentEstimator:
             back = own(ev["back"].astype(np.float64)) > 0.5
             shift = own(self._shift.reshape(-1))
             nb = _DIMS_PER_BOUNCE * self.bounces
-            front_dims = list(range(3, 11)) + list(range(_N_FIXED_DIMS, _N_FIXED_DIMS + nb))
-            back_dims = list(range(11, 19)) + list(range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb))
+            front_dims = list(range(3, 3 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS, _N_FIXED_DIMS + nb))
+            back_dims = list(range(11, 11 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb))
             u = []
             for df, db in zip(front_dims, back_dims):
                 v = dr.select(back, dr.gather(mi.Float, shift, base + db) + jj * float(self._alpha[db]),
@@ -257,7 +262,7 @@ class SegmentEstimator:
             self._dr = (o, nrm, frame, d, u, valid)
         return self._dr
 
-    def _absorptance(self, frame, w_world, u3=None):
+    def _absorptance(self, frame, w_world):
         """Absorptance 1 − ρ(θ) of the leaf for light arriving from ``w_world`` (tabulated albedo)."""
         return 1.0 - leaf_albedo(self.fs.bsdf, frame.to_local(w_world).z)
 
@@ -278,14 +283,13 @@ class SegmentEstimator:
         import drjit as dr
 
         mi = self.fs.mi
-        o, nrm, frame, d, u, _ = self._arrays()
+        o, nrm, frame, d, u, valid = self._arrays()
         L_sun, L_sky = self._trace(o, d, u)
         e_dir = self._direct_sun(o, nrm)
-        a_d = self._absorptance(frame, d, u[2:5])
+        a_d = self._absorptance(frame, d)
         sun = self.fs.sun
-        a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun]), u[5:8]) if sun[2] > 0 else mi.Float(1.0)
+        a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun])) if sun[2] > 0 else mi.Float(1.0)
         e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
-        valid = self._arrays()[5]
         vals = {"incident_sun": e_dir + e_sunscat, "incident_sky": e_sky,
                 "absorbed_sun": e_dir * a_s + e_sunscat * a_d, "absorbed_sky": e_sky * a_d}
         return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
@@ -319,7 +323,7 @@ class SegmentEstimator:
             p_soil = o + d * t_soil
             # Leaf vertex: NEE to the sun through the BSDF (reflection or transmission).
             si.wi = si.to_local(-d)
-            ub = u[8 + _DIMS_PER_BOUNCE * depth:8 + _DIMS_PER_BOUNCE * (depth + 1)]
+            ub = u[_USED_PER_SIDE + _DIMS_PER_BOUNCE * depth:_USED_PER_SIDE + _DIMS_PER_BOUNCE * (depth + 1)]
             if sun_up:
                 f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
                 side = dr.sign(dr.dot(si.n, sun))
