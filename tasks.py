@@ -2,7 +2,7 @@
 """Set up lightfit and run its two entry points, needing only Python >= 3.11.
 
     python3 tasks.py run     # set up, then run the main job (20 April 2016, bundled data, CPU)
-    python3 tasks.py test    # set up, then run the test suite
+    python3 tasks.py test    # set up, then lint (ruff) and run the test suite
 
 Setup is idempotent: the virtual environment ``.venv`` is (re)installed only when
 ``requirements.lock`` or ``pyproject.toml`` changed since the last install. A Makefile
@@ -54,7 +54,7 @@ def _make_venv() -> None:
 
 
 def setup() -> None:
-    if sys.version_info < (3, 11):
+    if sys.version_info < (3, 11):  # noqa: UP036 — tasks.py runs under any python3
         sys.exit(f"tasks.py: lightfit needs Python >= 3.11, this is {sys.version.split()[0]}")
     _make_venv()
     if STAMP.exists() and STAMP.read_text() == _fingerprint():
@@ -75,6 +75,8 @@ def main(argv: list[str]) -> None:
         _sh(BIN / "lightfit", "replicate", *(rest or ["--out", "results/2016-04-20"]))
     elif task == "test":
         setup()
+        _sh(BIN / "ruff", "check", ".")
+        _sh(BIN / "ruff", "format", "--check", ".")
         _sh(BIN / "python", "-m", "pytest", "-n", "2", "--durations=15", *rest)
     elif task == "bench":
         setup()

@@ -25,9 +25,9 @@ from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
-from lightfit.calibrate import replication as rep
-from lightfit.calibrate.fit import calibrate, make_loss, to_unconstrained
-from lightfit.calibrate.twin import twin_observations
+from lightfit import replication as rep
+from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.twin import twin_observations
 
 OUT = Path(__file__).resolve().parent / "results" / "calibration.json"
 NAMES = ("specular", "roughness", "subsurface")
@@ -45,7 +45,9 @@ def _best(f, n=2):
 
 def bench(name: str, cfg, do_calibrate: bool, evals_per_calibration: int | None) -> dict:
     model = rep.model_for(cfg, rep.forcing())
-    obs = twin_observations(model, {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}, render_seed=101, noise_seed=7)
+    obs = twin_observations(
+        model, {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}, render_seed=101, noise_seed=7
+    )
     loss = make_loss(model, obs, NAMES)
     z = jnp.asarray([to_unconstrained(v, n) for v, n in zip((0.4, 0.6, 0.3), NAMES)])
     f = jax.jit(lambda z: loss(z)[0])
@@ -59,14 +61,32 @@ def bench(name: str, cfg, do_calibrate: bool, evals_per_calibration: int | None)
 
     t_fd = _best(fd, 1)
     g_ad, g_fd = np.asarray(vg(z)[1]), np.asarray(fd())
-    res = {"config": name, "segments": len(model.segment_id), "daytime_steps": int(model.day.sum()),
-           "loss_s": t_f, "loss_and_grad_s": t_vg, "fd_grad_s": t_fd, "fd_over_ad": t_fd / t_vg,
-           "grad_ad": g_ad.tolist(), "grad_fd": g_fd.tolist()}
+    res = {
+        "config": name,
+        "segments": len(model.segment_id),
+        "daytime_steps": int(model.day.sum()),
+        "loss_s": t_f,
+        "loss_and_grad_s": t_vg,
+        "fd_grad_s": t_fd,
+        "fd_over_ad": t_fd / t_vg,
+        "grad_ad": g_ad.tolist(),
+        "grad_fd": g_fd.tolist(),
+    }
     if do_calibrate:
-        r = calibrate(model, obs, names=NAMES, start={"specular": 0.4, "roughness": 0.6, "subsurface": 0.3},
-                      max_steps=30, progress=True)
-        res |= {"calibration_s": r.seconds, "calibration_steps": r.steps, "calibration_loss": r.loss,
-                "calibration_theta": {k: r.theta[k] for k in NAMES}}
+        r = calibrate(
+            model,
+            obs,
+            names=NAMES,
+            start={"specular": 0.4, "roughness": 0.6, "subsurface": 0.3},
+            max_steps=30,
+            progress=True,
+        )
+        res |= {
+            "calibration_s": r.seconds,
+            "calibration_steps": r.steps,
+            "calibration_loss": r.loss,
+            "calibration_theta": {k: r.theta[k] for k in NAMES},
+        }
     elif evals_per_calibration:
         res["calibration_s_estimated"] = evals_per_calibration * t_vg
     return res
@@ -83,13 +103,35 @@ def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(rows, indent=2))
     t = Table(title="calibration cost (2 CPU cores, one run)")
-    for c in ("config", "segments", "daytime_steps", "loss_s", "loss_and_grad_s", "fd_grad_s", "fd_over_ad",
-              "calibration_s", "calibration_s_estimated"):
+    for c in (
+        "config",
+        "segments",
+        "daytime_steps",
+        "loss_s",
+        "loss_and_grad_s",
+        "fd_grad_s",
+        "fd_over_ad",
+        "calibration_s",
+        "calibration_s_estimated",
+    ):
         t.add_column(c, justify="right")
     for r in rows:
-        t.add_row(*(f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "–")) for c in
-                    ("config", "segments", "daytime_steps", "loss_s", "loss_and_grad_s", "fd_grad_s", "fd_over_ad",
-                     "calibration_s", "calibration_s_estimated")))
+        t.add_row(
+            *(
+                f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "–"))
+                for c in (
+                    "config",
+                    "segments",
+                    "daytime_steps",
+                    "loss_s",
+                    "loss_and_grad_s",
+                    "fd_grad_s",
+                    "fd_over_ad",
+                    "calibration_s",
+                    "calibration_s_estimated",
+                )
+            )
+        )
     Console().print(t)
     return rows
 

@@ -45,8 +45,20 @@ def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int 
     from rich.console import Console
     from rich.table import Table
 
-    from lightfit.dataset import (DatasetSpec, RenderSettings, Sweep, build_geometry, camera_sweep, lighting, make_dataset,
-                                  open_results, render, scene_arrays, select_times, synthetic_results)
+    from lightfit.dataset import (
+        DatasetSpec,
+        RenderSettings,
+        Sweep,
+        build_geometry,
+        camera_sweep,
+        lighting,
+        make_dataset,
+        open_results,
+        render,
+        scene_arrays,
+        select_times,
+        synthetic_results,
+    )
     from lightfit.plant import Field
 
     fld = Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
@@ -67,29 +79,50 @@ def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int 
         render(arrays, cams, lights, settings)
         t_render = time.perf_counter() - t0
         t0 = time.perf_counter()
-        make_dataset(res, tmp / f"ds{side}", DatasetSpec(cameras=cams, settings=settings, gallery_images=0, export="none"))
+        make_dataset(
+            res, tmp / f"ds{side}", DatasetSpec(cameras=cams, settings=settings, gallery_images=0, export="none")
+        )
         t_e2e = time.perf_counter() - t0
-        rows.append({"resolution_px": side, "images": n_images, "spp": spp,
-                     "render_images_per_s": n_images / t_render, "end_to_end_images_per_s": n_images / t_e2e,
-                     "render_s_per_image": t_render / n_images, "end_to_end_s_per_image": t_e2e / n_images,
-                     "paths_per_s": n_images * side * side * spp / t_render})
+        rows.append(
+            {
+                "resolution_px": side,
+                "images": n_images,
+                "spp": spp,
+                "render_images_per_s": n_images / t_render,
+                "end_to_end_images_per_s": n_images / t_e2e,
+                "render_s_per_image": t_render / n_images,
+                "end_to_end_s_per_image": t_e2e / n_images,
+                "paths_per_s": n_images * side * side * spp / t_render,
+            }
+        )
     out = {
-        "field": {"n_plants_measured": fld.n ** 2, "plants_built": len(geom.plants), "triangles": int(geom.mesh.n_faces)},
-        "cores": CORES, "variant": "llvm_ad_rgb", "max_depth": settings.max_depth, "results": "synthetic",
-        "machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "cpu_count": os.cpu_count(),
+        "field": {"n_plants_measured": fld.n**2, "plants_built": len(geom.plants), "triangles": int(geom.mesh.n_faces)},
+        "cores": CORES,
+        "variant": "llvm_ad_rgb",
+        "max_depth": settings.max_depth,
+        "results": "synthetic",
+        "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+        "cpu_count": os.cpu_count(),
         "rows": rows,
         "command": f"python benchmarks/bench_dataset.py --spp {spp} --images {n_images} --n-plants {n_plants} "
-                   f"--buffer-rows {buffer_rows}",
+        f"--buffer-rows {buffer_rows}",
     }
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2))
-    t = Table(title=f"data scene on {CORES} cores: {out['field']['plants_built']} plants, "
-                    f"{out['field']['triangles']} triangles, {spp} spp, rgb")
+    t = Table(
+        title=f"data scene on {CORES} cores: {out['field']['plants_built']} plants, "
+        f"{out['field']['triangles']} triangles, {spp} spp, rgb"
+    )
     for c in ("resolution", "render img/s", "end-to-end img/s", "render s/img", "Mpaths/s"):
         t.add_column(c, justify="right")
     for r in rows:
-        t.add_row(f"{r['resolution_px']}²", f"{r['render_images_per_s']:.3f}", f"{r['end_to_end_images_per_s']:.3f}",
-                  f"{r['render_s_per_image']:.2f}", f"{r['paths_per_s'] / 1e6:.2f}")
+        t.add_row(
+            f"{r['resolution_px']}²",
+            f"{r['render_images_per_s']:.3f}",
+            f"{r['end_to_end_images_per_s']:.3f}",
+            f"{r['render_s_per_image']:.2f}",
+            f"{r['paths_per_s'] / 1e6:.2f}",
+        )
     Console().print(t)
     return out
 

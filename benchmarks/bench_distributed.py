@@ -33,9 +33,9 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from lightfit.calibrate.replication import forcing  # noqa: E402
 from lightfit.distributed import FieldRun, connect, run_field, run_single  # noqa: E402
 from lightfit.plant import Field  # noqa: E402
+from lightfit.replication import forcing  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 
@@ -56,44 +56,85 @@ def available_parallelism() -> dict:
     one = _burn(0)
     with mp.get_context("spawn").Pool(2) as p:
         two = p.map(_burn, [0, 1])
-    return {"loop_1proc_s": one, "loop_2proc_s": two, "effective_parallelism_2": 2 * one / max(two),
-            "loadavg_1min": os.getloadavg()[0]}
+    return {
+        "loop_1proc_s": one,
+        "loop_2proc_s": two,
+        "effective_parallelism_2": 2 * one / max(two),
+        "loadavg_1min": os.getloadavg()[0],
+    }
 
 
 def warm(client, weather):
     """One tiny run on every worker: imports, Dr.Jit kernels, JAX compilation of common code."""
     n = len(client.nthreads())
-    run_field(FieldRun(field=Field(n_plants=4, buffer_rows=1, seed=1), weather=weather, tiles=min(n, 4), samples=4,
-                       bounces=1), client=client, timeout_s=600)
+    run_field(
+        FieldRun(
+            field=Field(n_plants=4, buffer_rows=1, seed=1), weather=weather, tiles=min(n, 4), samples=4, bounces=1
+        ),
+        client=client,
+        timeout_s=600,
+    )
 
 
 def timed(client, run):
     ds = run_field(run, client=client, timeout_s=1200)
     tasks = json.loads(ds.attrs["tile_timing_json"])
     return ds, {
-        "wall_s": ds.attrs["distributed_wall_s"], "workers": ds.attrs["distributed_workers"],
-        "tiles": run.tiles, "halo_rows": run.halo_rows, "n_plants": run.field.n**2,
-        "task_s": sum(t["total_s"] for t in tasks), "build_s": sum(t["build_s"] for t in tasks),
+        "wall_s": ds.attrs["distributed_wall_s"],
+        "workers": ds.attrs["distributed_workers"],
+        "tiles": run.tiles,
+        "halo_rows": run.halo_rows,
+        "n_plants": run.field.n**2,
+        "task_s": sum(t["total_s"] for t in tasks),
+        "build_s": sum(t["build_s"] for t in tasks),
         "simulate_s": sum(t["simulate_s"] for t in tasks),
-        "triangles_rendered": ds.attrs["triangles_rendered"], "triangles_measured": ds.attrs["triangles_measured"],
+        "triangles_rendered": ds.attrs["triangles_rendered"],
+        "triangles_measured": ds.attrs["triangles_measured"],
         "buffer_overhead": ds.attrs["buffer_overhead"],
         "max_tile_triangles": max(t["triangles"] for t in tasks),
-        "tasks": [{k: t[k] for k in ("tile", "chunk", "worker", "build_s", "simulate_s", "total_s", "triangles",
-                                     "triangles_measured", "segments")} for t in tasks],
+        "tasks": [
+            {
+                k: t[k]
+                for k in (
+                    "tile",
+                    "chunk",
+                    "worker",
+                    "build_s",
+                    "simulate_s",
+                    "total_s",
+                    "triangles",
+                    "triangles_measured",
+                    "segments",
+                )
+            }
+            for t in tasks
+        ],
     }
 
 
 def halo_bias(weather, n_plants, buffer_rows, samples, bounces, tiles, halos):
     """Differences of halo-H tiled runs from the exact (single-process) run, in-process."""
-    from lightfit.calibrate.forward import CoupledModel
+    from lightfit.model.coupled import CoupledModel
 
-    base = FieldRun(field=Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1), weather=weather,
-                    samples=samples, bounces=bounces, par_kind="absorbed")
+    base = FieldRun(
+        field=Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1),
+        weather=weather,
+        samples=samples,
+        bounces=bounces,
+        par_kind="absorbed",
+    )
     ref = run_single(base)
     out = []
     for h in halos:
-        run = FieldRun(field=base.field, weather=weather, tiles=tiles, halo_rows=h, samples=samples, bounces=bounces,
-                       par_kind="absorbed")
+        run = FieldRun(
+            field=base.field,
+            weather=weather,
+            tiles=tiles,
+            halo_rows=h,
+            samples=samples,
+            bounces=bounces,
+            par_kind="absorbed",
+        )
         parts = []
         for k in range(tiles):
             m = CoupledModel(run.scenario(k))
@@ -108,17 +149,22 @@ def halo_bias(weather, n_plants, buffer_rows, samples, bounces, tiles, halos):
         w = ref["area_m2"].values / ref["area_m2"].values.sum()
         canopy_a, canopy_b = a @ w, b @ w
         diff = a - b
-        out.append({
-            "halo_rows": h, "tiles": tiles,
-            "canopy_absorbed_par_rel_diff": ((canopy_a - canopy_b) / canopy_b).tolist(),
-            "canopy_mc_sd_rel": (ref["par_mc_sd_umol_m2_s"].values[day] / canopy_b).tolist(),
-            "segments_changed_frac": float((diff != 0).mean()),
-            "segment_rms_diff_over_rms_se": float(np.sqrt((diff**2).mean()) / np.sqrt((se**2).mean())),
-            "segments_beyond_3se_frac": float((np.abs(diff) > 3 * np.sqrt(2) * np.maximum(se, 1e-12)).mean()),
-            "sun_elevation_deg": ref["sun_elevation_deg"].values[day].tolist(),
-        })
-        print(f"halo {h}: canopy rel diff {out[-1]['canopy_absorbed_par_rel_diff']}, "
-              f"MC rel SD {out[-1]['canopy_mc_sd_rel']}, changed {out[-1]['segments_changed_frac']:.3f}")
+        out.append(
+            {
+                "halo_rows": h,
+                "tiles": tiles,
+                "canopy_absorbed_par_rel_diff": ((canopy_a - canopy_b) / canopy_b).tolist(),
+                "canopy_mc_sd_rel": (ref["par_mc_sd_umol_m2_s"].values[day] / canopy_b).tolist(),
+                "segments_changed_frac": float((diff != 0).mean()),
+                "segment_rms_diff_over_rms_se": float(np.sqrt((diff**2).mean()) / np.sqrt((se**2).mean())),
+                "segments_beyond_3se_frac": float((np.abs(diff) > 3 * np.sqrt(2) * np.maximum(se, 1e-12)).mean()),
+                "sun_elevation_deg": ref["sun_elevation_deg"].values[day].tolist(),
+            }
+        )
+        print(
+            f"halo {h}: canopy rel diff {out[-1]['canopy_absorbed_par_rel_diff']}, "
+            f"MC rel SD {out[-1]['canopy_mc_sd_rel']}, changed {out[-1]['segments_changed_frac']:.3f}"
+        )
     return out
 
 
@@ -129,7 +175,10 @@ def plot(res, path):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
-    for label, key, c in (("exact halo (whole field)", "exact", "tab:blue"), ("paper halo (H = buffer rows)", "paper", "tab:orange")):
+    for label, key, c in (
+        ("exact halo (whole field)", "exact", "tab:blue"),
+        ("paper halo (H = buffer rows)", "paper", "tab:orange"),
+    ):
         rows = res["tiles"][key]
         w = [r["tiles"] for r in rows]
         ax[0].plot(w, [r["task_s"] for r in rows], "o-", color=c, label=f"{label}: Σ task time")
@@ -172,16 +221,30 @@ def main():
     w_all = forcing()
     weather = w_all.iloc[[8, 14]]  # 09:00 and 12:00 local
     n_plants, buffer_rows, samples, bounces = (16, 1, 8, 2) if args.quick else (100, 2, 32, 3)
-    cfg = {"n_plants": n_plants, "buffer_rows": buffer_rows, "samples": samples, "bounces": bounces,
-           "time_steps_utc": [str(t) for t in weather.index], "machine": platform.node(), "cores": os.cpu_count(),
-           "threads_per_worker": 1}
+    cfg = {
+        "n_plants": n_plants,
+        "buffer_rows": buffer_rows,
+        "samples": samples,
+        "bounces": bounces,
+        "time_steps_utc": [str(t) for t in weather.index],
+        "machine": platform.node(),
+        "cores": os.cpu_count(),
+        "threads_per_worker": 1,
+    }
     res = {"config": cfg, "tiles": {}, "strong": {}, "weak": [], "machine_load_before": available_parallelism()}
     print("machine load before:", res["machine_load_before"])
     field = Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
 
     def mk(tiles, halo, fld=field):
-        return FieldRun(field=fld, weather=weather, tiles=tiles, halo_rows=halo, samples=samples, bounces=bounces,
-                        par_kind="absorbed")
+        return FieldRun(
+            field=fld,
+            weather=weather,
+            tiles=tiles,
+            halo_rows=halo,
+            samples=samples,
+            bounces=bounces,
+            par_kind="absorbed",
+        )
 
     t0 = time.time()
     with connect(workers=1, threads_per_worker=1, timeout_s=60) as client:
@@ -191,8 +254,10 @@ def main():
             for tiles in (1, 2, 4, 8):
                 _, r = timed(client, mk(tiles, halo))
                 res["tiles"][key].append(r)
-                print(f"[tiles] {key} W={tiles}: wall {r['wall_s']:.1f} s, Σtask {r['task_s']:.1f} s "
-                      f"(build {r['build_s']:.1f}, simulate {r['simulate_s']:.1f}), overhead {r['buffer_overhead']:.2f}")
+                print(
+                    f"[tiles] {key} W={tiles}: wall {r['wall_s']:.1f} s, Σtask {r['task_s']:.1f} s "
+                    f"(build {r['build_s']:.1f}, simulate {r['simulate_s']:.1f}), overhead {r['buffer_overhead']:.2f}"
+                )
     strong_tiles = 4
     res["strong"] = {"tiles": strong_tiles, "exact": [], "paper": []}
     weak_sizes = {1: 36, 2: 64} if not args.quick else {1: 4, 2: 9}
@@ -217,10 +282,21 @@ def main():
     for r in res["weak"]:
         # time per measured plant, relative: T1/n1 ÷ (T_N / (n_N / N))
         r["efficiency"] = (w1["wall_s"] / w1["n_plants"]) / (r["wall_s"] / (r["n_plants"] / r["workers"]))
-    res["halo"] = halo_bias(w_all.iloc[[6, 14]], 36 if not args.quick else 9, 4 if not args.quick else 2,
-                            samples, bounces, 4, [1, 2, 4] if not args.quick else [1, 2])
-    res["halo_config"] = {"n_plants": 36 if not args.quick else 9, "buffer_rows": 4 if not args.quick else 2,
-                          "tiles": 4, "time_steps_utc": [str(t) for t in w_all.index[[6, 14]]]}
+    res["halo"] = halo_bias(
+        w_all.iloc[[6, 14]],
+        36 if not args.quick else 9,
+        4 if not args.quick else 2,
+        samples,
+        bounces,
+        4,
+        [1, 2, 4] if not args.quick else [1, 2],
+    )
+    res["halo_config"] = {
+        "n_plants": 36 if not args.quick else 9,
+        "buffer_rows": 4 if not args.quick else 2,
+        "tiles": 4,
+        "time_steps_utc": [str(t) for t in w_all.index[[6, 14]]],
+    }
     res["machine_load_after"] = available_parallelism()
     print("machine load after:", res["machine_load_after"])
     res["total_s"] = time.time() - t0

@@ -45,13 +45,21 @@ def main(n_plants: int = 500, buffer_rows: int = 2) -> dict:
     t_mesh = time.perf_counter() - t0
     n_built = len(cold.plants)
     res = {
-        "n_plants_measured": int(fld.n**2), "n_plants_built": n_built, "buffer_rows": buffer_rows,
-        "segments": len(cold.segments), "triangles": int(cold.mesh.n_faces),
-        "segments_per_plant": len(cold.segments) / n_built, "triangles_per_plant": cold.mesh.n_faces / n_built,
-        "build_cold_s": t_cold, "build_warm_cache_s": t_warm, "mesh_only_s": t_mesh,
-        "cold_over_warm": t_cold / t_warm, "peak_traced_memory_warm_build_mb": peak / 2**20,
+        "n_plants_measured": int(fld.n**2),
+        "n_plants_built": n_built,
+        "buffer_rows": buffer_rows,
+        "segments": len(cold.segments),
+        "triangles": int(cold.mesh.n_faces),
+        "segments_per_plant": len(cold.segments) / n_built,
+        "triangles_per_plant": cold.mesh.n_faces / n_built,
+        "build_cold_s": t_cold,
+        "build_warm_cache_s": t_warm,
+        "mesh_only_s": t_mesh,
+        "cold_over_warm": t_cold / t_warm,
+        "peak_traced_memory_warm_build_mb": peak / 2**20,
         "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "cache_hits_warm": warm.cache_hits, "mesh_vertices": len(mesh.vertices),
+        "cache_hits_warm": warm.cache_hits,
+        "mesh_vertices": len(mesh.vertices),
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
     }
     OUT.parent.mkdir(parents=True, exist_ok=True)

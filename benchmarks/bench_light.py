@@ -73,8 +73,9 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
     geom = build(Field(n_plants=4, buffer_rows=1, seed=2))
     fs = FieldScene(geom.mesh, Optics(soil_albedo=0.12))
     fs.set_sun(-10.0, 0.0)
-    seg = geom.segments[geom.segments["measured"] & (geom.segments["organ_type"] == "leaf")
-                        & (geom.segments["blade_area_m2"] > 0)]
+    seg = geom.segments[
+        geom.segments["measured"] & (geom.segments["organ_type"] == "leaf") & (geom.segments["blade_area_m2"] > 0)
+    ]
     ids = seg["segment_id"].to_numpy()
     K = 256
     t_ours, r = _timed(lambda: SegmentEstimator(fs, ids, samples=K, bounces=bounces, seed=1).render(), 1)
@@ -87,8 +88,10 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
         sid = ids[i]
         sel = m.face_segment == sid
         # Reference value and SE for our estimator on this segment alone, front side.
-        reps = [SegmentEstimator(fs, [sid], samples=K, bounces=bounces, seed=s).render().front("incident_sky")[0]
-                for s in range(4)]
+        reps = [
+            SegmentEstimator(fs, [sid], samples=K, bounces=bounces, seed=s).render().front("incident_sky")[0]
+            for s in range(4)
+        ]
         se_ours = float(np.std(reps, ddof=1))
 
         def shape(faces):
@@ -103,9 +106,19 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
 
         target = shape(m.faces[sel])
         rest = shape(m.faces[~sel])
-        sensor = mi.load_dict({"type": "irradiancemeter", "sampler": {"type": "independent", "sample_count": 1},
-                               "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"},
-                                        "pixel_format": "luminance"}})
+        sensor = mi.load_dict(
+            {
+                "type": "irradiancemeter",
+                "sampler": {"type": "independent", "sample_count": 1},
+                "film": {
+                    "type": "hdrfilm",
+                    "width": 1,
+                    "height": 1,
+                    "rfilter": {"type": "box"},
+                    "pixel_format": "luminance",
+                },
+            }
+        )
         props = mi.Properties()
         props["sensor"] = sensor
         props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0] * 3}})
@@ -117,13 +130,20 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
         pt["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(m.faces[sel].T, dtype=np.uint32)))
         pt.update()
         del target
-        scene = mi.load_dict({
-            "type": "scene", "integrator": {"type": "path", "max_depth": bounces + 2},
-            "target": tgt, "rest": rest,
-            "ground": {"type": "rectangle", "to_world": mi.ScalarTransform4f.scale([300, 300, 1]),
-                       "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.12] * 3}}},
-            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
-        })
+        scene = mi.load_dict(
+            {
+                "type": "scene",
+                "integrator": {"type": "path", "max_depth": bounces + 2},
+                "target": tgt,
+                "rest": rest,
+                "ground": {
+                    "type": "rectangle",
+                    "to_world": mi.ScalarTransform4f.scale([300, 300, 1]),
+                    "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.12] * 3}},
+                },
+                "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
+            }
+        )
         spp = 4096
         vals, times = [], []
         for s in range(4):
@@ -136,9 +156,18 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
         t_meter = float(np.median(times[1:]))
         t_ours_seg = t_ours / len(ids)
         t_meter_equal = t_meter * (se_meter / max(se_ours, 1e-12)) ** 2
-        results.append({"segment_id": int(sid), "ours": float(ours_val[i]), "meter": float(np.mean(vals)),
-                        "se_ours": se_ours, "se_meter": se_meter, "t_ours_per_segment_s": t_ours_seg,
-                        "t_meter_equal_se_s": t_meter_equal, "speedup": t_meter_equal / t_ours_seg})
+        results.append(
+            {
+                "segment_id": int(sid),
+                "ours": float(ours_val[i]),
+                "meter": float(np.mean(vals)),
+                "se_ours": se_ours,
+                "se_meter": se_meter,
+                "t_ours_per_segment_s": t_ours_seg,
+                "t_meter_equal_se_s": t_meter_equal,
+                "speedup": t_meter_equal / t_ours_seg,
+            }
+        )
         del scene, tgt, rest
     return {"segments": results, "median_speedup": float(np.median([r["speedup"] for r in results]))}
 
@@ -162,19 +191,32 @@ def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
     rays_per_sample = 1 + 3 * (bounces + 1)
     meter = irradiancemeter_comparison()
     res = {
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2), "segments": len(ids), "triangles": int(geom.mesh.n_faces),
-        "samples": est.samples, "bounces": bounces, "evaluations": est.n_evaluations,
-        "setup_s": t_setup, "primal_s": t_primal, "median_rse_absorbed": rse,
-        "samples_for_2pct_median": k2, "extrapolated_primal_s_at_2pct": t_primal * k2 / samples,
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "segments": len(ids),
+        "triangles": int(geom.mesh.n_faces),
+        "samples": est.samples,
+        "bounces": bounces,
+        "evaluations": est.n_evaluations,
+        "setup_s": t_setup,
+        "primal_s": t_primal,
+        "median_rse_absorbed": rse,
+        "samples_for_2pct_median": k2,
+        "extrapolated_primal_s_at_2pct": t_primal * k2 / samples,
         "goal_s_at_2pct": 10.0,
-        "path_samples_per_s": path_rate, "raw_ray_test_per_s": rays,
-        "path_over_raw": path_rate / rays, "ray_equivalent_over_raw": path_rate * rays_per_sample / rays,
-        "gradient_s": t_grad, "gradient_over_primal": t_grad / t_primal,
-        "irradiancemeter_median_speedup_equal_se": meter["median_speedup"], "irradiancemeter": meter["segments"],
+        "path_samples_per_s": path_rate,
+        "raw_ray_test_per_s": rays,
+        "path_over_raw": path_rate / rays,
+        "ray_equivalent_over_raw": path_rate * rays_per_sample / rays,
+        "gradient_s": t_grad,
+        "gradient_over_primal": t_grad / t_primal,
+        "irradiancemeter_median_speedup_equal_se": meter["median_speedup"],
+        "irradiancemeter": meter["segments"],
     }
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2))
-    t = Table(title=f"irradiance benchmark: {res['segments']} segments, K={est.samples}, {bounces} bounces, 2 CPU cores")
+    t = Table(
+        title=f"irradiance benchmark: {res['segments']} segments, K={est.samples}, {bounces} bounces, 2 CPU cores"
+    )
     t.add_column("quantity")
     t.add_column("value", justify="right")
     for k, v in res.items():

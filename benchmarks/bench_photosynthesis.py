@@ -100,8 +100,9 @@ def bench_peer(n_points, repeats):
     cpb_per_seg = peer.solve_seconds / n_points
     rows = {}
     for dtype in (np.float64, np.float32):
-        env, q = psm.prepare_environment(*(x.astype(dtype) for x in (par, t, co2)), 0.6, 101.325, params,
-                                         fw=peer.fw.astype(dtype))
+        env, q = psm.prepare_environment(
+            *(x.astype(dtype) for x in (par, t, co2)), 0.6, 101.325, params, fw=peer.fw.astype(dtype)
+        )
         cfg = ps.SolverConfig.for_dtype(dtype)
         fwd = jax.jit(lambda e, p: psm._solve_impl(e, p, cfg))
         r = fwd(env, q)
@@ -136,7 +137,8 @@ def bench_peer(n_points, repeats):
 
 def table(rows, peer):
     lines = [
-        "| closure | dtype | segments | forward seg/s | gradient seg/s | mean / max iters | robust ÷ plain time | plain converged |",
+        "| closure | dtype | segments | forward seg/s | gradient seg/s | mean / max iters "
+        "| robust ÷ plain time | plain converged |",
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
@@ -184,10 +186,14 @@ def main(argv=None):
     peer = bench_peer(args.peer_points, args.repeats)
     result = {
         "command": "python benchmarks/bench_photosynthesis.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "backend": jax.default_backend()},
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "jax": jax.__version__,
+            "backend": jax.default_backend(),
+        },
         "inputs": "uniform PAR 0-2000 µmol m-2 s-1, T 5-35 °C, CO2 250-800 ppm, RH 0.3-0.9; "
-                  "coupled rows: giraud2023_coupled with gb = 1 mol m-2 s-1; cplantbox rows: closed form",
+        "coupled rows: giraud2023_coupled with gb = 1 mol m-2 s-1; cplantbox rows: closed form",
         "rows": rows,
         "peer": peer,
     }

@@ -29,11 +29,11 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from lightfit.calibrate import emulator as E  # noqa: E402
-from lightfit.calibrate import posterior as P  # noqa: E402
-from lightfit.calibrate import posterior_analysis as A  # noqa: E402
-from lightfit.calibrate.observations import read_observations  # noqa: E402
-from lightfit.calibrate.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
+from lightfit.inference import mcmc as P  # noqa: E402
+from lightfit.inference import posterior as A  # noqa: E402
+from lightfit.inference.observations import read_observations  # noqa: E402
+from lightfit.model import emulator as E  # noqa: E402
+from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
 
 NAMES = ("specular", "roughness", "subsurface", "light_factor")
 
@@ -76,8 +76,15 @@ def main(argv=None):
     dv = [get("design", i, x) for i, x in enumerate(design[: args.n_design])]
     tv = [get("test", i, x) for i, x in enumerate(test[: args.n_test])]
     t = time.perf_counter()
-    emu = E.fit_emulator(design[: args.n_design], np.stack([v for v, _ in dv]), np.stack([s for _, s in dv]), lo, hi,
-                         degrees=(1, 2, 3), render_seconds=float(np.sum(seconds[: args.n_design])))
+    emu = E.fit_emulator(
+        design[: args.n_design],
+        np.stack([v for v, _ in dv]),
+        np.stack([s for _, s in dv]),
+        lo,
+        hi,
+        degrees=(1, 2, 3),
+        render_seconds=float(np.sum(seconds[: args.n_design])),
+    )
     t_fit = time.perf_counter() - t
     obs = read_observations(OBSERVATIONS)
     fast = E.FastObservables(model, emu)
@@ -88,29 +95,53 @@ def main(argv=None):
     for _ in range(5):
         lp(xs)
     t_lp = (time.perf_counter() - t) / 5
-    res = A.run(model, obs, emu, args.out, names=NAMES, priors=pri, nwalkers=args.walkers, max_steps=20000, seed=0,
-                resume=False, stop=P.StopRule(target_ess=50), progress=True,
-                validation_renders=(test[: args.n_test], (np.stack([v for v, _ in tv]), np.stack([s for _, s in tv]))))
+    res = A.run(
+        model,
+        obs,
+        emu,
+        args.out,
+        names=NAMES,
+        priors=pri,
+        nwalkers=args.walkers,
+        max_steps=20000,
+        seed=0,
+        resume=False,
+        stop=P.StopRule(target_ess=50),
+        progress=True,
+        validation_renders=(test[: args.n_test], (np.stack([v for v, _ in tv]), np.stack([s for _, s in tv]))),
+    )
     out = {
         "command": "benchmarks/bench_posterior.py " + " ".join(argv or []),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor()},
         "config": "ReplicationConfig() default: 100 plants, 2 buffer rows, K=64, 3 bounces, absorbed PAR; "
-                  "bundled chamber record (1 PAR point); informed priors",
-        "n_segments": int(len(model.segment_id)), "n_blades": int(model.is_blade.sum()),
-        "daytime_steps": int(model.day.sum()), "model_build_s": t_build,
-        "full_render_pass_s": {"median": float(np.median(seconds)), "min": float(np.min(seconds)),
-                               "max": float(np.max(seconds)), "n": len(seconds)},
-        "emulator": {"n_design": args.n_design, "degree": emu.degree, "loo_rms": emu.loo_rms,
-                     "design_render_s": emu.render_seconds, "fit_s": t_fit},
-        "log_prob_half_ensemble_s": t_lp, "walkers": args.walkers,
+        "bundled chamber record (1 PAR point); informed priors",
+        "n_segments": int(len(model.segment_id)),
+        "n_blades": int(model.is_blade.sum()),
+        "daytime_steps": int(model.day.sum()),
+        "model_build_s": t_build,
+        "full_render_pass_s": {
+            "median": float(np.median(seconds)),
+            "min": float(np.min(seconds)),
+            "max": float(np.max(seconds)),
+            "n": len(seconds),
+        },
+        "emulator": {
+            "n_design": args.n_design,
+            "degree": emu.degree,
+            "loo_rms": emu.loo_rms,
+            "design_render_s": emu.render_seconds,
+            "fit_s": t_fit,
+        },
+        "log_prob_half_ensemble_s": t_lp,
+        "walkers": args.walkers,
         "sampling": {k: res[k] for k in ("stopped_by", "n_steps", "tau", "ess", "acceptance_mean", "seconds_sampling")},
         "min_ess_per_parameter": float(np.min(res["ess"])),
         "analysis_s": res["seconds_total"] - res["seconds_sampling"],
         "emulator_error": res.get("emulator_error"),
         "posterior": {"mean": res["mean"], "sd": res["sd"], "stiff": res["stiff"], "sloppy": res["sloppy"]},
         "note": "The full render passes are counted separately from sampling: the emulator is built once per "
-                "configuration (and cached), then every posterior run (other data, priors, seeds) reuses it. "
-                "Render times were measured while other jobs shared the 2 cores.",
+        "configuration (and cached), then every posterior run (other data, priors, seeds) reuses it. "
+        "Render times were measured while other jobs shared the 2 cores.",
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(P._jsonable(out), indent=2, default=str))

@@ -41,8 +41,13 @@ def main(n_plants: int = 16, samples: int = 128) -> dict:
         t = time.perf_counter()
         r = SegmentEstimator(fs, ids, samples=samples, bounces=3, seed=1).render()
         total = float((r.total("absorbed", dni, dhi) * r.meta["area_m2"]).sum())
-        res[f"{rows},{along}"] = {"buffer_rows": rows, "buffer_along": along, "plants": len(g.plants),
-                                  "render_s": time.perf_counter() - t, "canopy_absorbed": total}
+        res[f"{rows},{along}"] = {
+            "buffer_rows": rows,
+            "buffer_along": along,
+            "plants": len(g.plants),
+            "render_s": time.perf_counter() - t,
+            "canopy_absorbed": total,
+        }
     ref = res[f"{BUFFERS[-1][0]},{BUFFERS[-1][1]}"]["canopy_absorbed"]
     print("| buffer rows | buffer_along | plants built | canopy absorbed PAR vs wide field |")
     for v in res.values():

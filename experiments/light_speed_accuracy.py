@@ -38,10 +38,12 @@ from lightfit.weather.units import par_from_ghi  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = dict(samples=1024, bounces=8, buffer_rows=6, along=1, across=1)
 DEFAULT = dict(samples=64, bounces=3, buffer_rows=2, along=1, across=1)
-SWEEP = ([{"samples": k} for k in (8, 16, 32, 64, 128, 256)]
-         + [{"bounces": b} for b in (0, 1, 2, 4, 6)]
-         + [{"buffer_rows": b} for b in (0, 1, 3, 4, 6)]
-         + [{"along": 3, "across": 2}])
+SWEEP = (
+    [{"samples": k} for k in (8, 16, 32, 64, 128, 256)]
+    + [{"bounces": b} for b in (0, 1, 2, 4, 6)]
+    + [{"buffer_rows": b} for b in (0, 1, 3, 4, 6)]
+    + [{"along": 3, "across": 2}]
+)
 
 
 def _absorbed(n_plants: int, setting: dict, sun: tuple[float, float], dni: float, dhi: float, seed: int):
@@ -51,14 +53,23 @@ def _absorbed(n_plants: int, setting: dict, sun: tuple[float, float], dni: float
     fs.set_sun(*sun)
     seg = geom.segments[geom.segments["measured"]]
     t0 = time.perf_counter()
-    est = SegmentEstimator(fs, seg["segment_id"].to_numpy(), samples=setting["samples"], bounces=setting["bounces"], seed=seed)
+    est = SegmentEstimator(
+        fs, seg["segment_id"].to_numpy(), samples=setting["samples"], bounces=setting["bounces"], seed=seed
+    )
     r = est.render()
     elapsed = time.perf_counter() - t0
     key = seg.set_index("segment_id").loc[r.segment_id]
     plants = fld.plants().set_index("plant_id").loc[key["plant_id"]]
-    out = pd.DataFrame({"r": plants["r"].to_numpy(), "c": plants["c"].to_numpy(), "segment_index": key["segment_index"].to_numpy(),
-                        "area_m2": r.meta["area_m2"], "absorbed": r.total("absorbed", dni, dhi),
-                        "rse": r.relative_se("absorbed", dni, dhi)}).set_index(["r", "c", "segment_index"])
+    out = pd.DataFrame(
+        {
+            "r": plants["r"].to_numpy(),
+            "c": plants["c"].to_numpy(),
+            "segment_index": key["segment_index"].to_numpy(),
+            "area_m2": r.meta["area_m2"],
+            "absorbed": r.total("absorbed", dni, dhi),
+            "rse": r.relative_se("absorbed", dni, dhi),
+        }
+    ).set_index(["r", "c", "segment_index"])
     return out, elapsed, est.n_evaluations
 
 
@@ -69,7 +80,9 @@ def main(n_plants: int = 16, out_dir: Path = ROOT / "results" / "light_speed_acc
     sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
     dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
     console = Console()
-    console.print(f"sun {sun[0]:.1f}° / {sun[1]:.1f}°, PAR DNI {dni:.0f}, DHI {dhi:.0f} µmol m⁻² s⁻¹ (RECONSTRUCTED forcing)")
+    console.print(
+        f"sun {sun[0]:.1f}° / {sun[1]:.1f}°, PAR DNI {dni:.0f}, DHI {dhi:.0f} µmol m⁻² s⁻¹ (RECONSTRUCTED forcing)"
+    )
     refs = {}
 
     def reference(buffer_rows):
@@ -83,24 +96,43 @@ def main(n_plants: int = 16, out_dir: Path = ROOT / "results" / "light_speed_acc
         setting = {**DEFAULT, **change}
         # Sampling, depth and resolution are judged against a reference with the same buffer
         # (their own error); buffer rows against the wide-buffer reference (the edge bias).
-        ref, ref_total, t_ref = reference(REFERENCE["buffer_rows"] if "buffer_rows" in change or not change
-                                          else setting["buffer_rows"])
+        ref, ref_total, t_ref = reference(
+            REFERENCE["buffer_rows"] if "buffer_rows" in change or not change else setting["buffer_rows"]
+        )
         res, t, n_ev = _absorbed(n_plants, setting, sun, dni, dhi, seed=1)
         j = res.join(ref, rsuffix="_ref", how="inner")
         lit = j["absorbed_ref"] > 1e-3 * j["absorbed_ref"].max()
         rel = (j["absorbed"] - j["absorbed_ref"]).abs()[lit] / j["absorbed_ref"][lit]
         total = float((res["absorbed"] * res["area_m2"]).sum())
-        rows.append({**setting, "changed": ",".join(change) or "default", "time_s": t, "evaluations": n_ev,
-                     "median_rel_err_segment": float(rel.median()), "p90_rel_err_segment": float(rel.quantile(0.9)),
-                     "median_reported_rse": float(np.nanmedian(res["rse"])),
-                     "canopy_total_rel_err": abs(total - ref_total) / ref_total})
+        rows.append(
+            {
+                **setting,
+                "changed": ",".join(change) or "default",
+                "time_s": t,
+                "evaluations": n_ev,
+                "median_rel_err_segment": float(rel.median()),
+                "p90_rel_err_segment": float(rel.quantile(0.9)),
+                "median_reported_rse": float(np.nanmedian(res["rse"])),
+                "canopy_total_rel_err": abs(total - ref_total) / ref_total,
+            }
+        )
         console.print(rows[-1])
     df = pd.DataFrame(rows)
     df.to_csv(out_dir / "sweep.csv", index=False)
-    (out_dir / "sweep.json").write_text(json.dumps({"reference": REFERENCE, "reference_time_s": {str(k): v[2] for k, v in refs.items()},
-                                                     "sun_deg": sun,
-                                                     "dni_par": dni, "dhi_par": dhi, "n_plants": n_plants,
-                                                     "rows": rows}, indent=2))
+    (out_dir / "sweep.json").write_text(
+        json.dumps(
+            {
+                "reference": REFERENCE,
+                "reference_time_s": {str(k): v[2] for k, v in refs.items()},
+                "sun_deg": sun,
+                "dni_par": dni,
+                "dhi_par": dhi,
+                "n_plants": n_plants,
+                "rows": rows,
+            },
+            indent=2,
+        )
+    )
     fig, ax = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
     for name, grp in df.groupby("changed"):
         for a, col in zip(ax, ("median_rel_err_segment", "canopy_total_rel_err")):
@@ -116,13 +148,37 @@ def main(n_plants: int = 16, out_dir: Path = ROOT / "results" / "light_speed_acc
     fig.suptitle(f"Irradiance speed/accuracy, {n_plants} measured plants (reference: K=1024, 8 bounces, 6 buffer rows)")
     fig.savefig(out_dir / "pareto.png", dpi=110)
     t = Table(title="speed/accuracy (absorbed PAR, vs reference)")
-    for c in ("changed", "samples", "bounces", "buffer_rows", "along", "time_s", "median_rel_err_segment",
-              "p90_rel_err_segment", "median_reported_rse", "canopy_total_rel_err"):
+    for c in (
+        "changed",
+        "samples",
+        "bounces",
+        "buffer_rows",
+        "along",
+        "time_s",
+        "median_rel_err_segment",
+        "p90_rel_err_segment",
+        "median_reported_rse",
+        "canopy_total_rel_err",
+    ):
         t.add_column(c, justify="right")
     for r in rows:
-        t.add_row(*(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in
-                    ("changed", "samples", "bounces", "buffer_rows", "along", "time_s", "median_rel_err_segment",
-                     "p90_rel_err_segment", "median_reported_rse", "canopy_total_rel_err")))
+        t.add_row(
+            *(
+                f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c])
+                for c in (
+                    "changed",
+                    "samples",
+                    "bounces",
+                    "buffer_rows",
+                    "along",
+                    "time_s",
+                    "median_rel_err_segment",
+                    "p90_rel_err_segment",
+                    "median_reported_rse",
+                    "canopy_total_rel_err",
+                )
+            )
+        )
     console.print(t)
     return df
 

@@ -37,9 +37,16 @@ Parameters:
 Quality flags: ok, doubtful, bad, unevaluated
 """
 
-COLS = ["Timestamp", "RadiationGlobal_Avg10min [W*m-2]", "RadiationGlobal_Avg10min QualityFlag",
-        "RadiationPhotosyntheticActive_2m_Avg10min [umol*m-2*s-1]", "AirTemperature_2m_Avg10min_Sensor1 [°C]",
-        "AirHumidity_2m_Avg10min [g*m-3]", "AirPressure_1m_Avg10min [mbar]", "AirConcentration_CO2_2m_Avg30min [mmol*m-3]"]
+COLS = [
+    "Timestamp",
+    "RadiationGlobal_Avg10min [W*m-2]",
+    "RadiationGlobal_Avg10min QualityFlag",
+    "RadiationPhotosyntheticActive_2m_Avg10min [umol*m-2*s-1]",
+    "AirTemperature_2m_Avg10min_Sensor1 [°C]",
+    "AirHumidity_2m_Avg10min [g*m-3]",
+    "AirPressure_1m_Avg10min [mbar]",
+    "AirConcentration_CO2_2m_Avg30min [mmol*m-3]",
+]
 
 
 def main() -> Path:
@@ -54,10 +61,22 @@ def main() -> Path:
     rows = []
     for i, (t, r) in enumerate(local.iterrows()):
         c = f"{co2.iloc[i]:.4f}" if t.minute in (0, 30) else ""
-        rows.append([t.strftime("%Y-%m-%d %H:%M:%S"), f"{r.ghi_w_m2:.2f}", "ok", f"{par[i]:.2f}", f"{r.tair_c:.2f}",
-                     f"{ah.iloc[i]:.3f}", f"{r.pair_kpa * 10:.2f}", c])
+        rows.append(
+            [
+                t.strftime("%Y-%m-%d %H:%M:%S"),
+                f"{r.ghi_w_m2:.2f}",
+                "ok",
+                f"{par[i]:.2f}",
+                f"{r.tair_c:.2f}",
+                f"{ah.iloc[i]:.3f}",
+                f"{r.pair_kpa * 10:.2f}",
+                c,
+            ]
+        )
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(HEADER + "\n" + ",".join(COLS) + "\n" + "\n".join(",".join(r) for r in rows) + "\n", encoding="utf-8")
+    OUT.write_text(
+        HEADER + "\n" + ",".join(COLS) + "\n" + "\n".join(",".join(r) for r in rows) + "\n", encoding="utf-8"
+    )
     assert np.isfinite(par).all()
     return OUT
 

@@ -32,12 +32,12 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from lightfit.calibrate import emulator as E  # noqa: E402
-from lightfit.calibrate import posterior as P  # noqa: E402
-from lightfit.calibrate import posterior_analysis as A  # noqa: E402
-from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel  # noqa: E402
-from lightfit.calibrate.observations import read_observations, write_observations  # noqa: E402
-from lightfit.calibrate.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
+from lightfit.inference import mcmc as P  # noqa: E402
+from lightfit.inference import posterior as A  # noqa: E402
+from lightfit.inference.observations import read_observations, write_observations  # noqa: E402
+from lightfit.model import emulator as E  # noqa: E402
+from lightfit.model.coupled import DEFAULT_THETA, CoupledModel  # noqa: E402
+from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
 
 TRUTH = {"specular": 0.6, "roughness": 0.6, "subsurface": 0.1, "light_factor": 1.0, "vcmax_scale": 1.0}
 NAMES = ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")
@@ -54,9 +54,15 @@ def synthetic_observations(model: CoupledModel, theta: dict, data_seed: int, noi
     par, an = np.asarray(o["par_umol_m2_s"]), np.asarray(o["an_umol_m2_s"])
     par_sd = np.where(model.day, 0.05 * par + 5.0, np.nan)
     an_sd = np.full(len(an), 1.0)
-    df = pd.DataFrame({"par_umol_m2_s": np.where(model.day, par + par_sd * rng.standard_normal(len(par)), np.nan),
-                       "par_sd_umol_m2_s": par_sd, "an_umol_m2_s": an + an_sd * rng.standard_normal(len(an)),
-                       "an_sd_umol_m2_s": an_sd}, index=model.times)
+    df = pd.DataFrame(
+        {
+            "par_umol_m2_s": np.where(model.day, par + par_sd * rng.standard_normal(len(par)), np.nan),
+            "par_sd_umol_m2_s": par_sd,
+            "an_umol_m2_s": an + an_sd * rng.standard_normal(len(an)),
+            "an_sd_umol_m2_s": an_sd,
+        },
+        index=model.times,
+    )
     df["par_umol_m2_s"] = df["par_umol_m2_s"].clip(lower=0)
     return df
 
@@ -89,29 +95,57 @@ def main(argv=None):
         leaf_test = E.sobol_design(16, *WIDE_BOX, seed=1)[: args.n_test]
         full = E.render_parts(model, leaf_test, progress=True)
         np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
-    summary["emulator"] = {"degree": emu.degree, "n_design": len(emu.design), "loo_rms": emu.loo_rms,
-                           "render_seconds": emu.render_seconds}
+    summary["emulator"] = {
+        "degree": emu.degree,
+        "n_design": len(emu.design),
+        "loo_rms": emu.loo_rms,
+        "render_seconds": emu.render_seconds,
+    }
     obs_path = out / "synthetic_observations.csv"
     syn = synthetic_observations(model, TRUTH, data_seed=7, noise_seed=0)
-    write_observations(syn, obs_path, {"provenance": "synthetic",
-                                       "description": "twin experiment: lightfit coupled model (quick field, render "
-                                                      f"seed 7) at {json.dumps(TRUTH)} + Gaussian noise (seed 0)"})
+    write_observations(
+        syn,
+        obs_path,
+        {
+            "provenance": "synthetic",
+            "description": "twin experiment: lightfit coupled model (quick field, render "
+            f"seed 7) at {json.dumps(TRUTH)} + Gaussian noise (seed 0)",
+        },
+    )
     obs = read_observations(obs_path)
     wide = P.PRIORS_WIDE
     runs = {}
     for label, use in (("par", ("par",)), ("an", ("an",)), ("both", ("par", "an"))):
         t = time.perf_counter()
-        r = A.run(model, obs, emu, out / f"twin_{label}.h5", names=NAMES, priors=wide, use=use, nwalkers=args.walkers,
-                  max_steps=args.max_steps, seed=0, validation_renders=(leaf_test, full), progress=True,
-                  attrs={"experiment": f"twin, {label}"})
+        r = A.run(
+            model,
+            obs,
+            emu,
+            out / f"twin_{label}.h5",
+            names=NAMES,
+            priors=wide,
+            use=use,
+            nwalkers=args.walkers,
+            max_steps=args.max_steps,
+            seed=0,
+            validation_renders=(leaf_test, full),
+            progress=True,
+            attrs={"experiment": f"twin, {label}"},
+        )
         r["wall_seconds"] = time.perf_counter() - t
         runs[label] = r
         print(label, json.dumps({k: r[k] for k in ("stopped_by", "n_steps", "sd", "sloppy")}, default=str))
     summary["twin"] = runs
     summary["tightening"] = {
-        n: {"sd_par": runs["par"]["sd"][n], "sd_an": runs["an"]["sd"][n], "sd_both": runs["both"]["sd"][n],
+        n: {
+            "sd_par": runs["par"]["sd"][n],
+            "sd_an": runs["an"]["sd"][n],
+            "sd_both": runs["both"]["sd"][n],
             "both_over_par": runs["both"]["sd"][n] / runs["par"]["sd"][n],
-            "both_over_an": runs["both"]["sd"][n] / runs["an"]["sd"][n]} for n in NAMES}
+            "both_over_an": runs["both"]["sd"][n] / runs["an"]["sd"][n],
+        }
+        for n in NAMES
+    }
     # equal-fit parameter sets from the 'both' posterior, checked with full renders
     run = P.load_run(out / "twin_both.h5")
     s = P.flat_samples(run)
@@ -128,24 +162,55 @@ def main(argv=None):
     exact = P.LogPosterior(model.observe, model.times, obs, NAMES, wide)
     pairs = []
     for x in (good[i], good[j]):
-        pairs.append({"theta": dict(zip(NAMES, x.tolist())), "loglike_emulator": float(lp.loglike_batch(x[None])[0]),
-                      "loglike_full_render": float(exact.log_likelihood(x)),
-                      "chi2_full_render": float(np.sum(np.asarray(exact.residuals(x)) ** 2)),
-                      "n_observations": exact.n_observations})
+        pairs.append(
+            {
+                "theta": dict(zip(NAMES, x.tolist())),
+                "loglike_emulator": float(lp.loglike_batch(x[None])[0]),
+                "loglike_full_render": float(exact.log_likelihood(x)),
+                "chi2_full_render": float(np.sum(np.asarray(exact.residuals(x)) ** 2)),
+                "n_observations": exact.n_observations,
+            }
+        )
     summary["equal_fit"] = {"sets": pairs, "prior_scaled_distance": float(dist[i, j])}
     # the real single-point record, informed priors, emulator over the wide box
     real = read_observations(OBSERVATIONS)
-    r = A.run(model, real, emu, out / "record_informed.h5", names=("specular", "roughness", "subsurface", "light_factor"),
-              priors=P.PRIORS_INFORMED, nwalkers=args.walkers, max_steps=args.max_steps, seed=0,
-              validation_renders=(leaf_test, full), progress=True, attrs={"experiment": "real single PAR record"})
+    r = A.run(
+        model,
+        real,
+        emu,
+        out / "record_informed.h5",
+        names=("specular", "roughness", "subsurface", "light_factor"),
+        priors=P.PRIORS_INFORMED,
+        nwalkers=args.walkers,
+        max_steps=args.max_steps,
+        seed=0,
+        validation_renders=(leaf_test, full),
+        progress=True,
+        attrs={"experiment": "real single PAR record"},
+    )
     summary["record_informed"] = r
     (out / "summary.json").write_text(json.dumps(P._jsonable(summary), indent=2, default=str))
     if args.tiny:
         args.tiny.parent.mkdir(parents=True, exist_ok=True)
         tmp = out / "tiny.h5"
-        A.run(model, obs, emu, tmp, names=NAMES, priors=wide, nwalkers=12, max_steps=150, seed=0, stop=None,
-              resume=False, validation_renders=(leaf_test[:3], (full[0][:3], full[1][:3])), progress=False,
-              n_predictive=32, n_profile=9, attrs={"experiment": "tiny twin run (notebook fixture)"})
+        A.run(
+            model,
+            obs,
+            emu,
+            tmp,
+            names=NAMES,
+            priors=wide,
+            nwalkers=12,
+            max_steps=150,
+            seed=0,
+            stop=None,
+            resume=False,
+            validation_renders=(leaf_test[:3], (full[0][:3], full[1][:3])),
+            progress=False,
+            n_predictive=32,
+            n_profile=9,
+            attrs={"experiment": "tiny twin run (notebook fixture)"},
+        )
         shutil.copy(tmp, args.tiny)
         print("tiny run", args.tiny, args.tiny.stat().st_size, "bytes")
     print(json.dumps(P._jsonable({"tightening": summary["tightening"], "equal_fit": summary["equal_fit"]}), indent=1))

@@ -26,13 +26,15 @@ def main(out: Path = DEFAULT_OUT) -> Path:
     df = reconstruct_day("2016-04-20", anchor=anchor, assumptions=assumptions)
     meta = {
         "provenance": "reconstructed",
-        "title": "Selhausen 2016-04-20, RECONSTRUCTED forcing (clear-sky physics anchored on one chamber point; not a measurement)",
+        "title": "Selhausen 2016-04-20, RECONSTRUCTED forcing "
+        "(clear-sky physics anchored on one chamber point; not a measurement)",
         "site": "Selhausen field minirhizotron facility, 50.865 N, 6.447 E, 103 m",
         "generator": "experiments/reconstruct_forcing_2016_04_20.py (lightfit.weather.reconstruct_day)",
         "anchor": str(asdict(anchor)),
         "assumptions": str(asdict(assumptions)),
         "clear_sky_scale": f"{df.attrs['clear_sky_scale']:.6f}",
-        "columns": "time_utc (UTC), ghi_w_m2 (W m-2), par_umol_m2_s (umol m-2 s-1), tair_c (degC), rh (0-1), pair_kpa (kPa), co2_ppm (ppm)",
+        "columns": "time_utc (UTC), ghi_w_m2 (W m-2), par_umol_m2_s (umol m-2 s-1), tair_c (degC), rh (0-1), "
+        "pair_kpa (kPa), co2_ppm (ppm)",
     }
     return write_lightfit_csv(df[MEASURED], out, meta)
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import jax
 
 import lightfit
-from lightfit.calibrate import replication as rep
+from lightfit import replication as rep
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,11 +47,17 @@ def main(argv=None):
     ds, _ = rep.run(cfg, weather_file=a.weather, out=a.out, progress=True)
     print(rep.summary(ds).round(3).to_string())
     if a.write_reference:
-        ref = {"made_by": "python experiments/replicate_2016_04_20.py --quick --write-reference " + str(a.write_reference),
-               "config": dataclasses.asdict(cfg), "theta": "lightfit.calibrate.forward.DEFAULT_THETA",
-               "weather": ds.attrs["weather_source"], "weather_provenance": ds.attrs["weather_provenance"],
-               "versions": {p: md.version(p) for p in ("mitsuba", "drjit", "jax", "cplantbox", "numpy")} | {"lightfit": lightfit.__version__},
-               "python": sys.version.split()[0], "curve": reference_curve(ds)}
+        ref = {
+            "made_by": "python experiments/replicate_2016_04_20.py --quick --write-reference " + str(a.write_reference),
+            "config": dataclasses.asdict(cfg),
+            "theta": "lightfit.model.coupled.DEFAULT_THETA",
+            "weather": ds.attrs["weather_source"],
+            "weather_provenance": ds.attrs["weather_provenance"],
+            "versions": {p: md.version(p) for p in ("mitsuba", "drjit", "jax", "cplantbox", "numpy")}
+            | {"lightfit": lightfit.__version__},
+            "python": sys.version.split()[0],
+            "curve": reference_curve(ds),
+        }
         a.write_reference.parent.mkdir(parents=True, exist_ok=True)
         a.write_reference.write_text(json.dumps(ref, indent=1))
         print(f"wrote {a.write_reference}")

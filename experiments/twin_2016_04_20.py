@@ -22,10 +22,10 @@ import jax
 import jax.numpy as jnp
 
 import lightfit  # noqa: F401
-from lightfit.calibrate import replication as rep
-from lightfit.calibrate.fit import calibrate, make_loss, to_unconstrained
-from lightfit.calibrate.observations import read_observations, write_observations
-from lightfit.calibrate.twin import twin_observations
+from lightfit import replication as rep
+from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.observations import read_observations, write_observations
+from lightfit.inference.twin import twin_observations
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}
@@ -35,26 +35,54 @@ DATA = ROOT / "data" / "observations" / "twin_2016-04-20_synthetic.csv"
 def main(quick: bool = False, out: Path = ROOT / "results" / "twin") -> dict:
     jax.config.update("jax_enable_x64", True)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = rep.ReplicationConfig.quick() if quick else dataclasses.replace(rep.ReplicationConfig(), n_plants=9, samples=32)
+    cfg = (
+        rep.ReplicationConfig.quick() if quick else dataclasses.replace(rep.ReplicationConfig(), n_plants=9, samples=32)
+    )
     model = rep.model_for(cfg, rep.forcing())
     obs = twin_observations(model, TRUTH, render_seed=101, noise_seed=7)
     path = DATA if not quick else out / "twin_observations.csv"
-    write_observations(obs, path, {"provenance": "synthetic",
-                                   "title": "SYNTHETIC twin observations, 2016-04-20 configuration (not measured)",
-                                   "generator": "experiments/twin_2016_04_20.py", "truth": json.dumps(TRUTH),
-                                   "config": json.dumps(dataclasses.asdict(cfg)), "render_seed": "101", "noise_seed": "7"})
+    write_observations(
+        obs,
+        path,
+        {
+            "provenance": "synthetic",
+            "title": "SYNTHETIC twin observations, 2016-04-20 configuration (not measured)",
+            "generator": "experiments/twin_2016_04_20.py",
+            "truth": json.dumps(TRUTH),
+            "config": json.dumps(dataclasses.asdict(cfg)),
+            "render_seed": "101",
+            "noise_seed": "7",
+        },
+    )
     obs = read_observations(path)
     names_all = ("specular", "roughness", "subsurface")
     loss_all = make_loss(model, obs, names_all)
     at_truth = float(loss_all(jnp.asarray([to_unconstrained(TRUTH[n], n) for n in names_all]))[0])
-    one = calibrate(model, obs, names=("specular",), start={"specular": 0.3}, fixed={k: v for k, v in TRUTH.items() if k != "specular"},
-                    history=out / "history_specular.jsonl", resume=False)
-    three = calibrate(model, obs, names=names_all, start={"specular": 0.3, "roughness": 0.7, "subsurface": 0.2},
-                      history=out / "history_three.jsonl", resume=False)
-    res = {"truth": TRUTH, "loss_at_truth": at_truth, "n_observations": loss_all.n_observations,
-           "specular_only": {"theta": one.theta, "loss": one.loss, "steps": one.steps, "seconds": one.seconds},
-           "all_three": {"theta": three.theta, "loss": three.loss, "steps": three.steps, "seconds": three.seconds},
-           "config": dataclasses.asdict(cfg)}
+    one = calibrate(
+        model,
+        obs,
+        names=("specular",),
+        start={"specular": 0.3},
+        fixed={k: v for k, v in TRUTH.items() if k != "specular"},
+        history=out / "history_specular.jsonl",
+        resume=False,
+    )
+    three = calibrate(
+        model,
+        obs,
+        names=names_all,
+        start={"specular": 0.3, "roughness": 0.7, "subsurface": 0.2},
+        history=out / "history_three.jsonl",
+        resume=False,
+    )
+    res = {
+        "truth": TRUTH,
+        "loss_at_truth": at_truth,
+        "n_observations": loss_all.n_observations,
+        "specular_only": {"theta": one.theta, "loss": one.loss, "steps": one.steps, "seconds": one.seconds},
+        "all_three": {"theta": three.theta, "loss": three.loss, "steps": three.steps, "seconds": three.seconds},
+        "config": dataclasses.asdict(cfg),
+    }
     (out / "twin.json").write_text(json.dumps(res, indent=2))
     print(json.dumps(res, indent=2))
     return res

@@ -20,7 +20,9 @@ def test_info_names_variant_and_llvm():
 
 def test_weather_show_file_with_plot_and_csv(tmp_path):
     png, csv = tmp_path / "w.png", tmp_path / "w.csv"
-    r = runner.invoke(app, ["weather", "show", str(FIXTURE), "--resample", "30min", "--plot", str(png), "--csv", str(csv)])
+    r = runner.invoke(
+        app, ["weather", "show", str(FIXTURE), "--resample", "30min", "--plot", str(png), "--csv", str(csv)]
+    )
     assert r.exit_code == 0, r.output
     assert "clamped" in r.output  # night PAR offsets are reported, not hidden
     assert png.stat().st_size > 10_000
@@ -57,8 +59,24 @@ def test_replicate_with_a_tereno_export(tmp_path):
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     ply, png = tmp_path / "f.ply", tmp_path / "f.png"
-    r = runner.invoke(app, ["field", "--n-plants", "4", "--buffer-rows", "1", "--tiles", "2", "--export", str(ply),
-                            "--preview", str(png), "--segments", str(tmp_path / "seg.csv")])
+    r = runner.invoke(
+        app,
+        [
+            "field",
+            "--n-plants",
+            "4",
+            "--buffer-rows",
+            "1",
+            "--tiles",
+            "2",
+            "--export",
+            str(ply),
+            "--preview",
+            str(png),
+            "--segments",
+            str(tmp_path / "seg.csv"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     assert "triangles" in r.output and "16 (4 / 12)" in r.output
     assert ply.stat().st_size > 0 and png.stat().st_size > 10_000

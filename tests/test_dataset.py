@@ -12,6 +12,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
+from lightfit.cli.render_dataset import render_dataset
 from lightfit.dataset import (
     MARGIN,
     ORGAN_CODES,
@@ -32,7 +33,6 @@ from lightfit.dataset import (
     synthetic_results,
     tone_map,
 )
-from lightfit.dataset.cli import render_dataset
 from lightfit.errors import InputError
 from lightfit.plant import Field
 
@@ -59,7 +59,9 @@ def geometry(results_file):
 @pytest.fixture(scope="module")
 def mono_dataset(results_file, tmp_path_factory):
     out = tmp_path_factory.mktemp("ds_mono")
-    spec = DatasetSpec(cameras=[CAM], times=["all"], settings=RenderSettings(spp=2, colour="mono", seed=5), gallery_images=1)
+    spec = DatasetSpec(
+        cameras=[CAM], times=["all"], settings=RenderSettings(spp=2, colour="mono", seed=5), gallery_images=1
+    )
     return out, make_dataset(results_file, out, spec)
 
 
@@ -115,7 +117,7 @@ def test_sky_pixels_have_no_depth(geometry):
     face, depth = out.face[0], out.depth_m[0]
     assert (face == -1).any() and (face >= 0).any()
     np.testing.assert_array_equal(face == -1, np.isnan(depth))
-    assert (face[: 10] == -1).all()  # the top rows are sky
+    assert (face[:10] == -1).all()  # the top rows are sky
 
 
 def test_hit_points_lie_on_the_labelled_segment(geometry):
@@ -140,7 +142,12 @@ def test_hit_points_lie_on_the_labelled_segment(geometry):
 def test_same_seed_same_images(geometry):
     arrays = scene_arrays(geometry.mesh, geometry.segments, seed=2)
     a = render(arrays, [CAM], [SUN], RenderSettings(spp=2, colour="mono", seed=11))
-    b = render(scene_arrays(geometry.mesh, geometry.segments, seed=2), [CAM], [SUN], RenderSettings(spp=2, colour="mono", seed=11))
+    b = render(
+        scene_arrays(geometry.mesh, geometry.segments, seed=2),
+        [CAM],
+        [SUN],
+        RenderSettings(spp=2, colour="mono", seed=11),
+    )
     c = render(arrays, [CAM], [SUN], RenderSettings(spp=2, colour="mono", seed=12))
     np.testing.assert_array_equal(a.radiance[0][0], b.radiance[0][0])
     np.testing.assert_array_equal(a.face[0], b.face[0])
@@ -150,7 +157,9 @@ def test_same_seed_same_images(geometry):
 
 
 def test_dataset_is_deterministic(results_file, tmp_path):
-    spec = DatasetSpec(cameras=[CAM], settings=RenderSettings(spp=1, colour="mono", seed=4), gallery_images=0, export="none")
+    spec = DatasetSpec(
+        cameras=[CAM], settings=RenderSettings(spp=1, colour="mono", seed=4), gallery_images=0, export="none"
+    )
     m1, m2 = make_dataset(results_file, tmp_path / "a", spec), make_dataset(results_file, tmp_path / "b", spec)
     for e1, e2 in zip(m1["images"], m2["images"]):
         assert (tmp_path / "a" / e1["png"]).read_bytes() == (tmp_path / "b" / e2["png"]).read_bytes()
@@ -193,28 +202,33 @@ def test_metering_on_known_arrays():
     assert np.isnan(clipped_fraction(rad, np.zeros_like(leaf), 1.0))
     dark = meter(np.zeros((4, 4, 3)), np.ones((4, 4), bool), Camera(width_px=4, height_px=4))
     assert dark.dark and dark.gain == 1.0 and dark.clipped_leaf_fraction == 0.0
-    scene = meter(np.full((4, 4, 1), 2.0), np.zeros((4, 4), bool), Camera(exposure_mode="scene", width_px=4, height_px=4))
+    scene = meter(
+        np.full((4, 4, 1), 2.0), np.zeros((4, 4), bool), Camera(exposure_mode="scene", width_px=4, height_px=4)
+    )
     assert scene.gain == pytest.approx(0.18 / 2.0) and np.isnan(scene.clipped_leaf_fraction)
 
 
-@pytest.mark.parametrize("fields, column", [
-    ({"width_px": 0}, "width_px"),
-    ({"height_px": -5}, "height_px"),
-    ({"width_px": 64.5}, "width_px"),
-    ({"fov_deg": 0.0}, "fov_deg"),
-    ({"fov_deg": 180.0}, "fov_deg"),
-    ({"fov_deg": float("nan")}, "fov_deg"),
-    ({"position_m": (0.0, float("nan"), 1.0)}, "position_m"),
-    ({"position_m": (0.0, 0.0)}, "position_m"),
-    ({"position_m": (0.0, 0.0, -1.0)}, "position_m"),
-    ({"position_m": (0.0, 0.0, 1.0), "look_at_m": (0.0, 0.0, 1.0)}, "look_at_m"),
-    ({"position_m": (0.0, 0.0, 1.0), "look_at_m": (0.0, 0.0, 0.0)}, "up"),
-    ({"up": (0.0, 0.0, 0.0)}, "up"),
-    ({"exposure_mode": "auto"}, "exposure_mode"),
-    ({"meter_percentile": 0.0}, "meter_percentile"),
-    ({"exposure_ev": float("inf")}, "exposure_ev"),
-    ({"name": "a/b"}, "name"),
-])
+@pytest.mark.parametrize(
+    "fields, column",
+    [
+        ({"width_px": 0}, "width_px"),
+        ({"height_px": -5}, "height_px"),
+        ({"width_px": 64.5}, "width_px"),
+        ({"fov_deg": 0.0}, "fov_deg"),
+        ({"fov_deg": 180.0}, "fov_deg"),
+        ({"fov_deg": float("nan")}, "fov_deg"),
+        ({"position_m": (0.0, float("nan"), 1.0)}, "position_m"),
+        ({"position_m": (0.0, 0.0)}, "position_m"),
+        ({"position_m": (0.0, 0.0, -1.0)}, "position_m"),
+        ({"position_m": (0.0, 0.0, 1.0), "look_at_m": (0.0, 0.0, 1.0)}, "look_at_m"),
+        ({"position_m": (0.0, 0.0, 1.0), "look_at_m": (0.0, 0.0, 0.0)}, "up"),
+        ({"up": (0.0, 0.0, 0.0)}, "up"),
+        ({"exposure_mode": "auto"}, "exposure_mode"),
+        ({"meter_percentile": 0.0}, "meter_percentile"),
+        ({"exposure_ev": float("inf")}, "exposure_ev"),
+        ({"name": "a/b"}, "name"),
+    ],
+)
 def test_bad_camera_specs(fields, column):
     with pytest.raises(InputError) as err:
         Camera(**fields)
@@ -225,7 +239,12 @@ def test_bad_sweep_and_settings():
     for kw, col in (({"n": 0}, "n"), ({"distance_m": -1.0}, "distance_m"), ({"elevation_deg": 90.0}, "elevation_deg")):
         with pytest.raises(InputError, match=col):
             Sweep(**kw)
-    for kw, col in (({"spp": 0}, "spp"), ({"colour": "cmyk"}, "colour"), ({"max_depth": 1}, "max_depth"), ({"seed": -1}, "seed")):
+    for kw, col in (
+        ({"spp": 0}, "spp"),
+        ({"colour": "cmyk"}, "colour"),
+        ({"max_depth": 1}, "max_depth"),
+        ({"seed": -1}, "seed"),
+    ):
         with pytest.raises(InputError, match=col):
             RenderSettings(**kw)
 
@@ -300,9 +319,37 @@ def test_cli_renders_rgb_dataset(results_file, tmp_path):
     app.command("render-dataset")(render_dataset)
     app.callback()(lambda: None)
     out = tmp_path / "ds"
-    r = CliRunner().invoke(app, ["render-dataset", str(results_file), "--out", str(out), "--sweep", "2", "--width", "40",
-                                 "--height", "32", "--spp", "1", "--time", TIMES[1], "-q", "absorbed_par", "-q", "vc",
-                                 "-q", "vj", "-q", MARGIN, "--export", "vtk", "--gallery", "2"])
+    r = CliRunner().invoke(
+        app,
+        [
+            "render-dataset",
+            str(results_file),
+            "--out",
+            str(out),
+            "--sweep",
+            "2",
+            "--width",
+            "40",
+            "--height",
+            "32",
+            "--spp",
+            "1",
+            "--time",
+            TIMES[1],
+            "-q",
+            "absorbed_par",
+            "-q",
+            "vc",
+            "-q",
+            "vj",
+            "-q",
+            MARGIN,
+            "--export",
+            "vtk",
+            "--gallery",
+            "2",
+        ],
+    )
     assert r.exit_code == 0, r.output
     meta = json.loads((out / "metadata.json").read_text())
     assert meta["render"]["colour"] == "rgb" and [e["camera"] for e in meta["images"]] == ["sweep000", "sweep001"]
@@ -315,13 +362,16 @@ def test_cli_renders_rgb_dataset(results_file, tmp_path):
     assert (out / "gallery.png").exists() and "clipped leaf pixels" in r.output
 
 
-@pytest.mark.parametrize("args, text", [
-    (["--fov-deg", "200"], "fov_deg"),
-    (["--width", "0"], "width_px"),
-    (["-q", "nope"], "unknown quantity"),
-    (["--time", "2016-04-20T11:00", "--all-times"], "--all-times"),
-    (["--colour", "cmyk"], "colour"),
-])
+@pytest.mark.parametrize(
+    "args, text",
+    [
+        (["--fov-deg", "200"], "fov_deg"),
+        (["--width", "0"], "width_px"),
+        (["-q", "nope"], "unknown quantity"),
+        (["--time", "2016-04-20T11:00", "--all-times"], "--all-times"),
+        (["--colour", "cmyk"], "colour"),
+    ],
+)
 def test_cli_bad_input(results_file, tmp_path, args, text):
     app = typer.Typer()
     app.command("render-dataset")(render_dataset)

@@ -12,17 +12,32 @@ import time
 import numpy as np
 import pytest
 
-from lightfit.calibrate.replication import forcing
 from lightfit.distributed import FieldRun, HaloField, connect, default_workers, gather, run_field, run_single, submit
 from lightfit.errors import InputError
 from lightfit.plant import Field
+from lightfit.replication import forcing
 
 FIELD = Field(n_plants=4, buffer_rows=1, seed=1)
-SEGMENT_VARS = ["incident_par_umol_m2_s", "absorbed_par_umol_m2_s", "incident_par_se_umol_m2_s",
-                "absorbed_par_se_umol_m2_s", "an_umol_m2_s", "gs_mol_m2_s", "ci_umol_mol", "vc_umol_m2_s",
-                "vj_umol_m2_s", "limitation", "converged"]
-AGGREGATES = ["par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_sd_umol_m2_s", "canopy_an_umol_m2_s",
-              "canopy_an_mc_sd_umol_m2_s"]
+SEGMENT_VARS = [
+    "incident_par_umol_m2_s",
+    "absorbed_par_umol_m2_s",
+    "incident_par_se_umol_m2_s",
+    "absorbed_par_se_umol_m2_s",
+    "an_umol_m2_s",
+    "gs_mol_m2_s",
+    "ci_umol_mol",
+    "vc_umol_m2_s",
+    "vj_umol_m2_s",
+    "limitation",
+    "converged",
+]
+AGGREGATES = [
+    "par_umol_m2_s",
+    "par_sd_umol_m2_s",
+    "par_mc_sd_umol_m2_s",
+    "canopy_an_umol_m2_s",
+    "canopy_an_mc_sd_umol_m2_s",
+]
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +77,9 @@ def assert_same(ds, ref):
 
 @pytest.mark.parametrize("tiles,time_chunks", [(2, 1), (4, 2)])
 def test_exact_halo_is_bitwise_partition_independent(client, weather, reference, tiles, time_chunks):
-    ds = run_field(make_run(weather, tiles=tiles, time_chunks=time_chunks), client=client, timeout_s=240,
-                   progress=tiles == 4)
+    ds = run_field(
+        make_run(weather, tiles=tiles, time_chunks=time_chunks), client=client, timeout_s=240, progress=tiles == 4
+    )
     assert_same(ds, reference)
     assert ds.attrs["n_tiles"] == tiles and ds.attrs["tile"] == -1 and ds.attrs["halo_rows"] == -1
     assert ds.attrs["tasks"] == tiles * time_chunks and ds.attrs["distributed_workers"] == 2
@@ -77,7 +93,7 @@ def test_exact_halo_is_bitwise_partition_independent(client, weather, reference,
 
 def test_paper_halo_equals_per_tile_runs(client, weather):
     """halo_rows=H reproduces the single-process per-tile runs of ``Field.tiles`` exactly (H = buffer rows)."""
-    from lightfit.calibrate.forward import CoupledModel, Scenario
+    from lightfit.model.coupled import CoupledModel, Scenario
 
     run = make_run(weather, tiles=2, halo_rows=FIELD.buffer_rows)
     ds = run_field(run, client=client, timeout_s=240)
@@ -158,11 +174,29 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
     import xarray as xr
     from typer.testing import CliRunner
 
-    from lightfit.distributed.cli import app
+    from lightfit.cli.field_run import app
 
     out = tmp_path / "r.nc"
-    args = ["field-run", "--scheduler", client.scheduler.address, "--n-plants", "4", "--buffer-rows", "1",
-            "--tiles", "2", "--samples", "8", "--bounces", "2", "--steps", "14:15", "--out", str(out), "--no-progress"]
+    args = [
+        "field-run",
+        "--scheduler",
+        client.scheduler.address,
+        "--n-plants",
+        "4",
+        "--buffer-rows",
+        "1",
+        "--tiles",
+        "2",
+        "--samples",
+        "8",
+        "--bounces",
+        "2",
+        "--steps",
+        "14:15",
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 0, r.output
     with xr.open_dataset(out, engine="h5netcdf") as ds:
@@ -170,6 +204,18 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         assert np.isfinite(ds["par_umol_m2_s"].values).all()
     bad = CliRunner().invoke(app, args[:7] + ["--tiles", "9"] + args[9:])
     assert bad.exit_code == 2 and "tiles" in bad.output
-    bad = CliRunner().invoke(app, ["field-run", "--scheduler", "tcp://127.0.0.1:9", "--n-plants", "4", "--steps", "14:15",
-                                   "--connect-timeout", "3"])
+    bad = CliRunner().invoke(
+        app,
+        [
+            "field-run",
+            "--scheduler",
+            "tcp://127.0.0.1:9",
+            "--n-plants",
+            "4",
+            "--steps",
+            "14:15",
+            "--connect-timeout",
+            "3",
+        ],
+    )
     assert bad.exit_code == 2 and "scheduler" in bad.output

@@ -83,7 +83,9 @@ def test_overcast_sky_is_normalised_and_zenith_weighted():
         for name, mesh in (("flat", flat), ("wall", wall)):
             fs = FieldScene(mesh, BLACK, sky=sky)
             fs.set_sun(-10, 0)
-            vals[sky, name] = SegmentEstimator(fs, [7], samples=4000, bounces=1, seed=2).render().front("incident_sky")[0]
+            vals[sky, name] = (
+                SegmentEstimator(fs, [7], samples=4000, bounces=1, seed=2).render().front("incident_sky")[0]
+            )
     assert vals["isotropic", "flat"] == pytest.approx(1.0, abs=0.01)
     assert vals["overcast", "flat"] == pytest.approx(1.0, abs=0.01)
     assert vals["isotropic", "wall"] == pytest.approx(0.5, abs=0.01)
@@ -102,19 +104,34 @@ def test_irradiancemeter_peer_for_diffuse_and_scattered_light():
     ours = SegmentEstimator(fs, [7], samples=8000, bounces=3, seed=5).render().front("incident_sky")[0]
     T = mi.ScalarTransform4f
     b = math.radians(beta)
-    meter = mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": 4},
-        "leaf": {"type": "rectangle",
-                 "to_world": T.translate([0, 0, 1.0]).rotate([1, 0, 0], math.degrees(b)).scale(0.05),
-                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
-                 "sensor": {"type": "irradiancemeter", "sampler": {"type": "independent", "sample_count": 1},
-                            "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"},
-                                     "pixel_format": "luminance"}}},
-        "ground": {"type": "rectangle", "to_world": T.scale([500, 500, 1]),
-                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [rho] * 3}}},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
-    })
+    meter = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 4},
+            "leaf": {
+                "type": "rectangle",
+                "to_world": T.translate([0, 0, 1.0]).rotate([1, 0, 0], math.degrees(b)).scale(0.05),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+                "sensor": {
+                    "type": "irradiancemeter",
+                    "sampler": {"type": "independent", "sample_count": 1},
+                    "film": {
+                        "type": "hdrfilm",
+                        "width": 1,
+                        "height": 1,
+                        "rfilter": {"type": "box"},
+                        "pixel_format": "luminance",
+                    },
+                },
+            },
+            "ground": {
+                "type": "rectangle",
+                "to_world": T.scale([500, 500, 1]),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [rho] * 3}},
+            },
+            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
+        }
+    )
     img = mi.render(meter, spp=200_000, seed=1)
     peer = float(np.asarray(img).ravel()[0])
     # Mitsuba's rectangle normal +z rotated about x by +β tilts towards −y; ours towards azimuth 180 (−y).
@@ -126,8 +143,9 @@ def test_irradiancemeter_peer_for_diffuse_and_scattered_light():
 
 def _random_canopy(lai, angles, rng, half=3.5, z=(0.2, 1.0), leaf=0.04):
     n_leaves = int(round(lai * (2 * half) ** 2 / leaf**2))
-    centers = np.column_stack([rng.uniform(-half, half, n_leaves), rng.uniform(-half, half, n_leaves),
-                               rng.uniform(*z, n_leaves)])
+    centers = np.column_stack(
+        [rng.uniform(-half, half, n_leaves), rng.uniform(-half, half, n_leaves), rng.uniform(*z, n_leaves)]
+    )
     if angles == "horizontal":
         normals = np.tile([0.0, 0.0, 1.0], (n_leaves, 1))
     else:  # spherical: normals uniform on the sphere
@@ -166,7 +184,11 @@ def test_gradients_match_central_differences_with_common_random_numbers():
     g, ids = _small_field()
     fs = FieldScene(g.mesh, Optics())
     fs.set_sun(45, 180)
-    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3), "incident_sky": np.full(len(ids), 0.1)}
+    ct = {
+        "absorbed_sun": np.ones(len(ids)),
+        "absorbed_sky": np.full(len(ids), 0.3),
+        "incident_sky": np.full(len(ids), 0.1),
+    }
 
     def J(r):
         return sum(np.sum(ct[p] * getattr(r, p)) for p in ct)
@@ -195,10 +217,15 @@ def test_gradients_match_central_differences_with_common_random_numbers():
     assert (np.abs(G.mean(0)) > 0).all()
 
 
-@pytest.mark.parametrize("corner", [dict(specular=0.0, roughness=0.0, subsurface=0.0),
-                                    dict(specular=1.0, roughness=1.0, subsurface=1.0),
-                                    dict(specular=1.0, roughness=0.0, subsurface=1.0),
-                                    dict(specular=0.0, roughness=1.0, subsurface=0.0)])
+@pytest.mark.parametrize(
+    "corner",
+    [
+        dict(specular=0.0, roughness=0.0, subsurface=0.0),
+        dict(specular=1.0, roughness=1.0, subsurface=1.0),
+        dict(specular=1.0, roughness=0.0, subsurface=1.0),
+        dict(specular=0.0, roughness=1.0, subsurface=0.0),
+    ],
+)
 def test_extreme_parameters_give_finite_values_and_gradients(corner):
     g, ids = _small_field()
     fs = FieldScene(g.mesh, Optics(**corner))
@@ -214,8 +241,15 @@ def test_extreme_parameters_give_finite_values_and_gradients(corner):
 
 def test_degenerate_faces():
     leaf, _ = tilted_leaf(10)
-    flat = Mesh(np.array([[0, 0, 0.5], [0.1, 0, 0.5], [0.2, 0, 0.5]]), np.array([[0, 1, 2]]), np.array([9]), np.array([True]))
-    partial = Mesh(np.array([[0.3, 0, 0.5], [0.3, 0, 0.5], [0.4, 0.1, 0.5]]), np.array([[0, 1, 2]]), np.array([7]), np.array([True]))
+    flat = Mesh(
+        np.array([[0, 0, 0.5], [0.1, 0, 0.5], [0.2, 0, 0.5]]), np.array([[0, 1, 2]]), np.array([9]), np.array([True])
+    )
+    partial = Mesh(
+        np.array([[0.3, 0, 0.5], [0.3, 0, 0.5], [0.4, 0.1, 0.5]]),
+        np.array([[0, 1, 2]]),
+        np.array([7]),
+        np.array([True]),
+    )
     fs = FieldScene(Mesh.concatenate([leaf, flat, partial]), Optics())
     fs.set_sun(50, 180)
     est = SegmentEstimator(fs, [7, 9], samples=16, bounces=2, seed=0)

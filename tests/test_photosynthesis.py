@@ -57,7 +57,9 @@ def test_electron_transport_solves_its_quadratic_and_limits():
     # theta = 1 is the Blackman (min) response
     np.testing.assert_allclose(ps.electron_transport_rate(q, jmax, alpha, 1.0), np.minimum(aq, jmax), rtol=1e-12)
     # theta -> 0 is the rectangular hyperbola
-    np.testing.assert_allclose(ps.electron_transport_rate(q, jmax, alpha, 1e-12), aq * jmax / (aq + jmax + 1e-300), rtol=1e-9)
+    np.testing.assert_allclose(
+        ps.electron_transport_rate(q, jmax, alpha, 1e-12), aq * jmax / (aq + jmax + 1e-300), rtol=1e-9
+    )
 
 
 def test_electron_transport_float32_is_accurate_at_low_light():
@@ -141,7 +143,9 @@ def test_steady_state_mass_balance(gb, gm):
         res.an_umol_m2_s, np.minimum(res.vc_umol_m2_s, res.vj_umol_m2_s) - np.asarray(res.rd_umol_m2_s), rtol=1e-12
     )
     lim = np.asarray(res.limitation)
-    assert np.array_equal(lim == ps.ELECTRON_TRANSPORT_LIMITED, np.asarray(res.vj_umol_m2_s) < np.asarray(res.vc_umol_m2_s))
+    assert np.array_equal(
+        lim == ps.ELECTRON_TRANSPORT_LIMITED, np.asarray(res.vj_umol_m2_s) < np.asarray(res.vc_umol_m2_s)
+    )
     assert lim[0] == ps.ELECTRON_TRANSPORT_LIMITED  # dark: J = 0
 
 
@@ -209,7 +213,11 @@ GRAD_POINTS = np.array([(300.0, 18.0, 400.0), (1800.0, 25.0, 250.0), (40.0, 30.0
 
 @pytest.mark.parametrize("model", ["tuzet", "leuning", "cplantbox"])
 def test_implicit_gradients_match_central_differences(model):
-    base = tuzet_leaf(model=model, temperature=ps.TemperatureParams.bernacchi2001()) if model != "cplantbox" else ps.parameter_set("cplantbox")
+    base = (
+        tuzet_leaf(model=model, temperature=ps.TemperatureParams.bernacchi2001())
+        if model != "cplantbox"
+        else ps.parameter_set("cplantbox")
+    )
     gb = None if model == "cplantbox" else 1.5
     leaves = {
         "vcmax": lambda q: q.fvcb.vcmax_ref_umol_m2_s,
@@ -280,7 +288,11 @@ def _variants():
     yield "vcmax->0 cplantbox", eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, cpb, 1e-9), None
     yield "a1 large", tuzet_leaf(a1=1e4), 1.0
     yield "a1 large cplantbox", eqx.tree_at(lambda q: q.stomata.a1, cpb, 1e4), None
-    yield "unclipped rates", eqx.tree_at(lambda q: q.fvcb, tuzet_leaf(), ps.FvCBParams(39.365, 1.7, 0.015, 0.2, 0.9, clip_rates=False)), None
+    yield (
+        "unclipped rates",
+        eqx.tree_at(lambda q: q.fvcb, tuzet_leaf(), ps.FvCBParams(39.365, 1.7, 0.015, 0.2, 0.9, clip_rates=False)),
+        None,
+    )
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
@@ -295,11 +307,17 @@ def test_extremes_finite_converged_and_differentiable(name, params, gb, dtype):
     assert np.all(np.asarray(res.gs_mol_m2_s) >= 0)
 
     def total(par_, vcmax, g0, a1):
-        q = eqx.tree_at(lambda r: (r.fvcb.vcmax_ref_umol_m2_s, r.stomata.g0_mol_m2_s, r.stomata.a1), params, (vcmax, g0, a1))
+        q = eqx.tree_at(
+            lambda r: (r.fvcb.vcmax_ref_umol_m2_s, r.stomata.g0_mol_m2_s, r.stomata.a1), params, (vcmax, g0, a1)
+        )
         return jnp.sum(ps.solve(par_, t, c, rh, P_KPA, q, gb_mol_m2_s=gb).an_umol_m2_s)
 
     grads = jax.grad(total, argnums=(0, 1, 2, 3))(
-        jnp.asarray(par), *(jnp.asarray(float(x), dtype) for x in (params.fvcb.vcmax_ref_umol_m2_s, params.stomata.g0_mol_m2_s, params.stomata.a1))
+        jnp.asarray(par),
+        *(
+            jnp.asarray(float(x), dtype)
+            for x in (params.fvcb.vcmax_ref_umol_m2_s, params.stomata.g0_mol_m2_s, params.stomata.a1)
+        ),
     )
     for g in grads:
         assert np.all(np.isfinite(np.asarray(g))), name

@@ -14,12 +14,15 @@ import lightfit.photosynthesis as ps
 pytest.importorskip("plantbox")
 from lightfit.photosynthesis.cplantbox_peer import run_cplantbox  # noqa: E402
 
-GRID = [g.ravel() for g in np.meshgrid(
-    [0.0, 50.0, 200.0, 500.0, 1000.0, 1500.0, 2000.0],
-    [5.0, 15.0, 25.0, 35.0],
-    [250.0, 400.0, 600.0, 800.0],
-    indexing="ij",
-)]
+GRID = [
+    g.ravel()
+    for g in np.meshgrid(
+        [0.0, 50.0, 200.0, 500.0, 1000.0, 1500.0, 2000.0],
+        [5.0, 15.0, 25.0, 35.0],
+        [250.0, 400.0, 600.0, 800.0],
+        indexing="ij",
+    )
+]
 
 
 @pytest.mark.slow
@@ -66,8 +69,15 @@ def test_cplantbox_questionable_cases_are_documented():
     n = len(leaf_ids)
     hm.pCO2 = np.full(n, 400e-6)
     es = 0.61078 * np.exp(17.27 * 20 / (20 + 237.3))
-    hm.solve(sim_time=14.0, rsx=np.full(60, -100.0), cells=True, ea=0.6 * es, es=es,
-             PAR=np.full(n, 2000e-6) * 86400 / 1e4, TairC=np.full(n, 20.0))
+    hm.solve(
+        sim_time=14.0,
+        rsx=np.full(60, -100.0),
+        cells=True,
+        ea=0.6 * es,
+        es=es,
+        PAR=np.full(n, 2000e-6) * 86400 / 1e4,
+        TairC=np.full(n, 20.0),
+    )
     an, ci, gs = (np.asarray(x)[bladeless] for x in (hm.An, hm.ci, hm.gco2))
     assert np.all(an == 0) and np.all(ci == 0) and np.all(gs == 0)
     ours = ps.solve(2000.0, 20.0, 400.0, 0.6, 101.325, ps.parameter_set("cplantbox"))

@@ -92,7 +92,7 @@ def test_blade_perpendicular_to_branching_and_segment(plant_table):
     b = s[["bx", "by", "bz"]].to_numpy()
     w = np.cross(n, t)  # width direction recovered from the face
     assert np.abs(np.einsum("ij,ij->i", n, t)).max() < 1e-9  # blade contains the segment direction
-    ok = np.linalg.norm(np.cross(t, b), axis=1) > 1e-6       # (where t is not parallel to b)
+    ok = np.linalg.norm(np.cross(t, b), axis=1) > 1e-6  # (where t is not parallel to b)
     assert np.abs(np.einsum("ij,ij->i", w[ok], b[ok])).max() < 1e-9
     assert (n[:, 2] >= -1e-12).all()  # upper side up
     # Prism faces face away from their segment's axis.
@@ -107,13 +107,29 @@ def test_blade_perpendicular_to_branching_and_segment(plant_table):
 
 def test_hand_built_leaf_lies_flat():
     # A leaf leaving a vertical stem horizontally along +x: blade horizontal, normal +z, area w·L.
-    t = pd.DataFrame({
-        "plant_id": [0, 0], "segment_index": [0, 1], "segment_id": [0, 1],
-        "organ_type": pd.Categorical(["stem", "leaf"], categories=["root", "stem", "leaf", "other"]),
-        "organ_id": [1, 2], "x0": [0.0, 0.0], "y0": [0.0, 0.0], "z0": [0.0, 0.1], "x1": [0.0, 0.2], "y1": [0.0, 0.0],
-        "z1": [0.1, 0.1], "length_m": [0.1, 0.2], "radius_m": [0.002, 0.0003], "blade_width_m": [0.0, 0.01],
-        "blade_area_m2": [0.0, 0.002], "creation_time_d": [1.0, 2.0], "bx": [0, 0.0], "by": [0, 0.0], "bz": [1, 1.0],
-    })
+    t = pd.DataFrame(
+        {
+            "plant_id": [0, 0],
+            "segment_index": [0, 1],
+            "segment_id": [0, 1],
+            "organ_type": pd.Categorical(["stem", "leaf"], categories=["root", "stem", "leaf", "other"]),
+            "organ_id": [1, 2],
+            "x0": [0.0, 0.0],
+            "y0": [0.0, 0.0],
+            "z0": [0.0, 0.1],
+            "x1": [0.0, 0.2],
+            "y1": [0.0, 0.0],
+            "z1": [0.1, 0.1],
+            "length_m": [0.1, 0.2],
+            "radius_m": [0.002, 0.0003],
+            "blade_width_m": [0.0, 0.01],
+            "blade_area_m2": [0.0, 0.002],
+            "creation_time_d": [1.0, 2.0],
+            "bx": [0, 0.0],
+            "by": [0, 0.0],
+            "bz": [1, 1.0],
+        }
+    )
     m = shoot_mesh(t, MeshResolution(around=64))
     leaf = m.face_segment == 1
     assert np.allclose(m.normals()[leaf], [0, 0, 1])
@@ -180,8 +196,12 @@ def test_buffer_along_rows_widens_only_the_row_ends():
         ring = p.loc[t.buffer]
         own = p.loc[t.measured]
         assert ring["c"].min() >= own["c"].min() - 4 and ring["r"].min() >= own["r"].min() - 1
-        assert ((ring["c"] < own["c"].min()) | (ring["c"] > own["c"].max()) | (ring["r"] < own["r"].min())
-                | (ring["r"] > own["r"].max())).all()
+        assert (
+            (ring["c"] < own["c"].min())
+            | (ring["c"] > own["c"].max())
+            | (ring["r"] < own["r"].min())
+            | (ring["r"] > own["r"].max())
+        ).all()
     with pytest.raises(InputError, match="buffer_along"):
         Field(buffer_along=-2)
 
@@ -252,7 +272,7 @@ def test_exports_read_back_with_segment_ids(small_field, tmp_path):
     # VTK legacy: parse the cell data back.
     text = export(m, tmp_path / "f.vtk", values).read_text().splitlines()
     i = text.index("SCALARS segment_id long 1") + 2
-    assert np.array_equal(np.array(text[i:i + m.n_faces], dtype=np.int64), m.face_segment)
+    assert np.array_equal(np.array(text[i : i + m.n_faces], dtype=np.int64), m.face_segment)
     # OBJ: groups name the segments; face count per group matches.
     obj = export(m, tmp_path / "f.obj", values).read_text().splitlines()
     counts, current = {}, None

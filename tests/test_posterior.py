@@ -1,4 +1,4 @@
-"""Posterior sampling, diagnostics, emulator and identifiability (lightfit.calibrate.posterior & co)."""
+"""Posterior sampling, diagnostics, emulator and identifiability (lightfit.inference.mcmc & co)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from lightfit.calibrate import emulator as E
-from lightfit.calibrate import posterior as P
-from lightfit.calibrate.fit import make_loss, to_unconstrained
-from lightfit.calibrate.identifiability import combination, fisher_information, profile_likelihood
 from lightfit.errors import InputError
+from lightfit.inference import mcmc as P
+from lightfit.inference.calibration import make_loss, to_unconstrained
+from lightfit.inference.identifiability import combination, fisher_information, profile_likelihood
+from lightfit.model import emulator as E
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
 PREC = np.linalg.inv(COV)
@@ -47,11 +47,21 @@ NAMES = ("a", "b", "c")
 
 
 def test_resume_after_interruption_gives_identical_chain(tmp_path):
-    ref = P.sample(Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=60, seed=11, initial=_init(), progress=False)
+    ref = P.sample(
+        Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=60, seed=11, initial=_init(), progress=False
+    )
     assert ref.stopped_by == "max_steps" and ref.chain.shape == (60, 8, 3)
     # interrupted after the initial evaluation + 2 half-moves per step × 17 steps, in the middle of a step
-    part = P.sample(Gauss(interrupt_after=1 + 2 * 17 + 1), NAMES, tmp_path / "run.h5", nwalkers=8, max_steps=60,
-                    seed=11, initial=_init(), progress=False)
+    part = P.sample(
+        Gauss(interrupt_after=1 + 2 * 17 + 1),
+        NAMES,
+        tmp_path / "run.h5",
+        nwalkers=8,
+        max_steps=60,
+        seed=11,
+        initial=_init(),
+        progress=False,
+    )
     assert part.stopped_by == "interrupted" and len(part.chain) == 17
     # resuming with another seed argument must not matter: the stored generator state is used
     done = P.sample(Gauss(), NAMES, tmp_path / "run.h5", nwalkers=8, max_steps=60, seed=999, progress=False)
@@ -67,9 +77,9 @@ def test_resume_after_sigkill(tmp_path):
     path = tmp_path / "kill.h5"
     code = textwrap.dedent(f"""
         import sys, numpy as np
-        sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parent)!r})
+        sys.path.insert(0, {str(__import__("pathlib").Path(__file__).parent)!r})
         from test_posterior import Gauss, _init, NAMES
-        from lightfit.calibrate import posterior as P
+        from lightfit.inference import mcmc as P
         P.sample(Gauss(sleep=0.01), NAMES, {str(path)!r}, nwalkers=8, max_steps=100000, seed=5, initial=_init(),
                  progress=False)
     """)
@@ -93,8 +103,9 @@ def test_resume_after_sigkill(tmp_path):
     stored = P.load_run(path)["chain"]
     total = len(stored) + 15
     done = P.sample(Gauss(), NAMES, path, nwalkers=8, max_steps=total, seed=5, progress=False)
-    ref = P.sample(Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=total, seed=5, initial=_init(),
-                   progress=False)
+    ref = P.sample(
+        Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=total, seed=5, initial=_init(), progress=False
+    )
     np.testing.assert_array_equal(done.chain, ref.chain)
 
 
@@ -114,8 +125,17 @@ def test_diagnostics_on_ar1_with_known_tau():
 
 def test_sampler_on_gaussian_target_meets_stop_rule(tmp_path):
     stop = P.StopRule(target_ess=200, tau_multiple=20, check_every=100, min_steps=200)
-    r = P.sample(Gauss(), NAMES, tmp_path / "g.h5", nwalkers=16, max_steps=5000, seed=1,
-                 initial=np.random.default_rng(1).normal(size=(16, 3)), stop=stop, progress=False)
+    r = P.sample(
+        Gauss(),
+        NAMES,
+        tmp_path / "g.h5",
+        nwalkers=16,
+        max_steps=5000,
+        seed=1,
+        initial=np.random.default_rng(1).normal(size=(16, 3)),
+        stop=stop,
+        progress=False,
+    )
     assert r.stopped_by == "rule" and r.diagnostics["rule_met"]
     d = r.diagnostics
     assert np.all(d["ess"] >= 200) and np.all(d["n_kept"] >= 20 * d["tau"])
@@ -140,8 +160,9 @@ def test_fisher_matches_analytic_toy_model():
         assert abs(abs(fi.eigenvectors[:, k] @ vec[:, ::-1][:, k]) - 1) < 1e-10
     # m_t = a·b·exp(−c t): only a·b is identifiable → log-Fisher null direction (1, −1, 0)/√2
     t = jnp.linspace(0, 2, 7)
-    fi2 = fisher_information(lambda x: x[0] * x[1] * jnp.exp(-x[2] * t) / 0.1, np.array([2.0, 0.5, 1.0]),
-                             ("a", "b", "c"), scale="log")
+    fi2 = fisher_information(
+        lambda x: x[0] * x[1] * jnp.exp(-x[2] * t) / 0.1, np.array([2.0, 0.5, 1.0]), ("a", "b", "c"), scale="log"
+    )
     assert fi2.eigenvalues[-1] < 1e-9 * fi2.eigenvalues[0]
     np.testing.assert_allclose(np.abs(fi2.eigenvectors[:, -1]), [2**-0.5, 2**-0.5, 0], atol=1e-8)
     assert fi2.sloppy in ("+0.71 log a -0.71 log b", "+0.71 log b -0.71 log a")
@@ -152,8 +173,9 @@ def test_profile_likelihood_on_quadratic_toy():
     """For a Gaussian nll ½ xᵀ H x, the profile along d is t²/(2 dᵀ H⁻¹ d) and the slice is ½ t² dᵀ H d."""
     H = np.array([[4.0, 1.9], [1.9, 1.0]])
     d = np.array([1.0, -2.0]) / np.sqrt(5)
-    ts, prof, slc = profile_likelihood(lambda x: 0.5 * x @ jnp.asarray(H) @ x, np.zeros(2), d,
-                                       np.linspace(-1, 1, 5), scale="natural")
+    ts, prof, slc = profile_likelihood(
+        lambda x: 0.5 * x @ jnp.asarray(H) @ x, np.zeros(2), d, np.linspace(-1, 1, 5), scale="natural"
+    )
     np.testing.assert_allclose(slc, 0.5 * ts**2 * (d @ H @ d), rtol=1e-10)
     np.testing.assert_allclose(prof, ts**2 / (2 * (d @ np.linalg.solve(H, d))), atol=1e-7)
 
@@ -168,15 +190,26 @@ class FakeModel:
     def observe(self, th):
         par = th["light_factor"] * (400 + 100 * th["specular"]) * self.shape
         an = th["vcmax_scale"] * 20 * self.shape - 2.0
-        return {"par_umol_m2_s": par, "par_mc_var": 4.0 * self.shape, "an_umol_m2_s": an, "an_mc_var": 0.01 * self.shape}
+        return {
+            "par_umol_m2_s": par,
+            "par_mc_var": 4.0 * self.shape,
+            "an_umol_m2_s": an,
+            "an_mc_var": 0.01 * self.shape,
+        }
 
 
 def _fake_obs(model):
     rng = np.random.default_rng(2)
     m = model.observe({"specular": 0.5, "light_factor": 1.1, "vcmax_scale": 0.9})
-    df = pd.DataFrame({"par_umol_m2_s": np.asarray(m["par_umol_m2_s"]) + rng.normal(0, 10, 6),
-                       "par_sd_umol_m2_s": 10.0, "an_umol_m2_s": np.asarray(m["an_umol_m2_s"]) + rng.normal(0, 1, 6),
-                       "an_sd_umol_m2_s": 1.0}, index=model.times)
+    df = pd.DataFrame(
+        {
+            "par_umol_m2_s": np.asarray(m["par_umol_m2_s"]) + rng.normal(0, 10, 6),
+            "par_sd_umol_m2_s": 10.0,
+            "an_umol_m2_s": np.asarray(m["an_umol_m2_s"]) + rng.normal(0, 1, 6),
+            "an_sd_umol_m2_s": 1.0,
+        },
+        index=model.times,
+    )
     df.loc[model.times[0], ["an_umol_m2_s"]] = np.nan
     df.attrs = {"source": "synthetic test", "provenance": "synthetic"}
     return df
@@ -211,8 +244,9 @@ def test_bad_input_names_the_parameter(tmp_path):
     with pytest.raises(InputError, match="nwalkers"):
         P.sample(Gauss(), NAMES, tmp_path / "x.h5", nwalkers=4, max_steps=10, initial=_init(4))
     with pytest.raises(InputError, match="specular"):
-        P.LogPosterior(model.observe, model.times, obs, ("specular",),
-                       {"specular": P.Prior("uniform", -0.5, 1.0, "test")})
+        P.LogPosterior(
+            model.observe, model.times, obs, ("specular",), {"specular": P.Prior("uniform", -0.5, 1.0, "test")}
+        )
     with pytest.raises(InputError, match="use"):
         P.LogPosterior(model.observe, model.times, obs, ("specular",), use=("co2",))
     with pytest.raises(InputError, match="prior bounds"):
@@ -248,7 +282,7 @@ def test_emulator_reproduces_polynomial_and_roundtrips(tmp_path):
 def test_fast_observables_match_observe_on_quick_field():
     """Emulated parts through FastObservables equal observe() on the same parts (exact photosynthesis),
     the tabulated photosynthesis is within 0.05 µmol m⁻² s⁻¹, and the emulator interpolates its design."""
-    from lightfit.calibrate.replication import ReplicationConfig, forcing, model_for
+    from lightfit.replication import ReplicationConfig, forcing, model_for
 
     model = model_for(ReplicationConfig.quick(), forcing())
     lo, hi = [0.46, 0.5, 0.05], [0.74, 0.7, 0.17]

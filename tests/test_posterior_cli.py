@@ -7,8 +7,8 @@ import json
 import typer
 from typer.testing import CliRunner
 
-from lightfit.calibrate.posterior import load_run
-from lightfit.calibrate.posterior_cli import posterior
+from lightfit.cli.posterior import posterior
+from lightfit.inference.mcmc import load_run
 
 
 def _app():
@@ -20,8 +20,22 @@ def _app():
 
 def test_posterior_cli_quick(tmp_path):
     out = tmp_path / "post"
-    args = ["posterior", "--quick", "--out", str(out), "--parameters", "specular,light_factor", "--walkers", "8",
-            "--max-steps", "30", "--n-design", "6", "--n-test", "1"]
+    args = [
+        "posterior",
+        "--quick",
+        "--out",
+        str(out),
+        "--parameters",
+        "specular,light_factor",
+        "--walkers",
+        "8",
+        "--max-steps",
+        "30",
+        "--n-design",
+        "6",
+        "--n-test",
+        "1",
+    ]
     r = CliRunner().invoke(_app(), args)
     assert r.exit_code == 0, r.output
     s = json.loads((out / "summary.json").read_text())

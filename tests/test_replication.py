@@ -1,6 +1,5 @@
 """The coupled model, observations, calibration and the 20 April 2016 regression curve."""
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -11,13 +10,13 @@ import pytest
 from typer.testing import CliRunner
 
 import lightfit  # noqa: F401
-from lightfit.calibrate import replication as rep
-from lightfit.calibrate.fit import calibrate, make_loss, to_unconstrained
-from lightfit.calibrate.forward import DEFAULT_THETA
-from lightfit.calibrate.observations import align, read_observations, write_observations
-from lightfit.calibrate.twin import twin_observations
+from lightfit import replication as rep
 from lightfit.cli import app
 from lightfit.errors import InputError
+from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.observations import align, read_observations, write_observations
+from lightfit.inference.twin import twin_observations
+from lightfit.model.coupled import DEFAULT_THETA
 
 REFERENCE = Path(__file__).parent / "reference" / "replication_quick.json"
 
@@ -59,7 +58,9 @@ def test_observables_are_consistent_with_the_segment_fields(short_model):
 
 
 def test_end_to_end_gradient_matches_central_differences(short_model):
-    obs = twin_observations(short_model, {"specular": 0.6, "roughness": 0.4, "subsurface": 0.5}, render_seed=3, noise_seed=1)
+    obs = twin_observations(
+        short_model, {"specular": 0.6, "roughness": 0.4, "subsurface": 0.5}, render_seed=3, noise_seed=1
+    )
     names = ("specular", "subsurface", "light_factor", "vcmax_scale")
     loss = make_loss(short_model, obs, names)
     z = jnp.asarray([to_unconstrained(v, n) for v, n in zip((0.45, 0.35, 1.1, 0.9), names)])
@@ -77,10 +78,19 @@ def test_twin_calibration_recovers_specular(short_model, tmp_path):
     truth = {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}
     # Same render seed as the model: this tests the calibration machinery on an exact model; the
     # honest twin (another seed, so Monte Carlo noise differs) is experiments/twin_2016_04_20.py.
-    obs = twin_observations(short_model, truth, render_seed=short_model.scenario.seed, noise_seed=2,
-                            par_sd_rel=0.01, an_sd_umol_m2_s=0.3)
-    res = calibrate(short_model, obs, names=("specular",), start={"specular": 0.3},
-                    fixed={"roughness": 0.4, "subsurface": 0.6}, history=tmp_path / "h.jsonl", resume=False, progress=False)
+    obs = twin_observations(
+        short_model, truth, render_seed=short_model.scenario.seed, noise_seed=2, par_sd_rel=0.01, an_sd_umol_m2_s=0.3
+    )
+    res = calibrate(
+        short_model,
+        obs,
+        names=("specular",),
+        start={"specular": 0.3},
+        fixed={"roughness": 0.4, "subsurface": 0.6},
+        history=tmp_path / "h.jsonl",
+        resume=False,
+        progress=False,
+    )
     assert res.theta["specular"] == pytest.approx(0.7, abs=0.12)
     lines = (tmp_path / "h.jsonl").read_text().splitlines()
     assert len(lines) >= 2 and json.loads(lines[-1])["loss"] <= json.loads(lines[0])["loss"]
@@ -89,14 +99,30 @@ def test_twin_calibration_recovers_specular(short_model, tmp_path):
 def test_calibration_resumes_from_history(short_model, tmp_path):
     obs = twin_observations(short_model, {"specular": 0.7}, render_seed=5, noise_seed=3)
     h = tmp_path / "h.jsonl"
-    first = calibrate(short_model, obs, names=("specular",), start={"specular": 0.2}, max_steps=2, history=h,
-                      resume=False, progress=False)
+    first = calibrate(
+        short_model,
+        obs,
+        names=("specular",),
+        start={"specular": 0.2},
+        max_steps=2,
+        history=h,
+        resume=False,
+        progress=False,
+    )
     n_first = len(h.read_text().splitlines())
     # A line cut by an interruption is ignored; finished steps are kept and continued from.
     with open(h, "a") as f:
         f.write('{"step": 99, "loss": 0.1, "the')
-    second = calibrate(short_model, obs, names=("specular",), start={"specular": 0.2}, max_steps=3, history=h,
-                       resume=True, progress=False)
+    second = calibrate(
+        short_model,
+        obs,
+        names=("specular",),
+        start={"specular": 0.2},
+        max_steps=3,
+        history=h,
+        resume=True,
+        progress=False,
+    )
     lines = h.read_text().splitlines()
     assert len(lines) > n_first
     assert second.loss <= first.loss + 1e-9
@@ -104,9 +130,15 @@ def test_calibration_resumes_from_history(short_model, tmp_path):
 
 def test_observation_file_round_trip_and_alignment(tmp_path):
     times = pd.date_range("2016-04-20 09:00", periods=5, freq="30min", tz="UTC")
-    df = pd.DataFrame({"par_umol_m2_s": [100.0, np.nan, 300.0, 310.0, 400.0], "par_sd_umol_m2_s": [5.0, np.nan, 5, 5, 5],
-                       "an_umol_m2_s": [np.nan, 2.0, 3.0, np.nan, 4.0], "an_sd_umol_m2_s": [np.nan, 0.5, 0.5, np.nan, 0.5]},
-                      index=times + pd.Timedelta("2min"))
+    df = pd.DataFrame(
+        {
+            "par_umol_m2_s": [100.0, np.nan, 300.0, 310.0, 400.0],
+            "par_sd_umol_m2_s": [5.0, np.nan, 5, 5, 5],
+            "an_umol_m2_s": [np.nan, 2.0, 3.0, np.nan, 4.0],
+            "an_sd_umol_m2_s": [np.nan, 0.5, 0.5, np.nan, 0.5],
+        },
+        index=times + pd.Timedelta("2min"),
+    )
     p = write_observations(df, tmp_path / "obs.csv", {"provenance": "synthetic"})
     back = read_observations(p)
     assert back.attrs["provenance"] == "synthetic"
@@ -126,13 +158,22 @@ def test_observation_file_round_trip_and_alignment(tmp_path):
         align(late, times)
 
 
-@pytest.mark.parametrize("body, match", [
-    ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s\n", "missing column"),
-    ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\nsoon,1,1,,\n", "cannot parse time"),
-    ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n2016-04-20 10:00,bright,1,,\n", "not a number"),
-    ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n2016-04-20 10:00,100,,,\n", "standard deviation"),
-    ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n2016-04-20 10:00,-5,1,,\n", "negative PAR"),
-])
+@pytest.mark.parametrize(
+    "body, match",
+    [
+        ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s\n", "missing column"),
+        ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\nsoon,1,1,,\n", "cannot parse time"),
+        (
+            "time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n2016-04-20 10:00,bright,1,,\n",
+            "not a number",
+        ),
+        (
+            "time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n2016-04-20 10:00,100,,,\n",
+            "standard deviation",
+        ),
+        ("time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n2016-04-20 10:00,-5,1,,\n", "negative PAR"),
+    ],
+)
 def test_bad_observation_files(tmp_path, body, match):
     p = tmp_path / "o.csv"
     p.write_text("# provenance: measured\n" + body)
@@ -170,10 +211,24 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     assert "obs_par_umol_m2_s" in ds and np.isfinite(ds["obs_par_umol_m2_s"].values).sum() == 1
     ds.close()
     obs = tmp_path / "obs.csv"
-    obs.write_text("# provenance: synthetic\n# time_zone: UTC\ntime,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n"
-                   "2016-04-20 10:00,450,20,60,3\n2016-04-20 11:00,480,20,70,3\n")
-    r = runner.invoke(app, ["calibrate", str(obs), "--quick", "--parameters", "light_factor", "--max-steps", "3",
-                            "--out", str(tmp_path / "cal")])
+    obs.write_text(
+        "# provenance: synthetic\n# time_zone: UTC\ntime,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n"
+        "2016-04-20 10:00,450,20,60,3\n2016-04-20 11:00,480,20,70,3\n"
+    )
+    r = runner.invoke(
+        app,
+        [
+            "calibrate",
+            str(obs),
+            "--quick",
+            "--parameters",
+            "light_factor",
+            "--max-steps",
+            "3",
+            "--out",
+            str(tmp_path / "cal"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     res = json.loads((tmp_path / "cal" / "calibration.json").read_text())
     assert res["parameters"] == ["light_factor"] and res["theta"]["light_factor"] > 0

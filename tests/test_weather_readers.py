@@ -16,7 +16,7 @@ CPB = DATA_DIR / "weather" / "selhausen_cplantbox_day.txt"
 
 def _table_lines(path: Path) -> tuple[list[str], int]:
     lines = path.read_text(encoding="utf-8").splitlines()
-    hdr = next(i for i, l in enumerate(lines) if l.startswith("Timestamp"))
+    hdr = next(i for i, ln in enumerate(lines) if ln.startswith("Timestamp"))
     return lines, hdr
 
 
@@ -66,7 +66,7 @@ def test_tereno_co2_30min_held_and_reported():
 def test_header_found_by_content_with_long_preamble_and_semicolons(tmp_path):
     def edit(lines, hdr):
         pre = [f"Comment line {i}: metadata, with, commas" for i in range(90)]
-        return pre + [l.replace(",", ";") for l in lines[hdr:]]
+        return pre + [ln.replace(",", ";") for ln in lines[hdr:]]
 
     df = read_tereno(_variant(tmp_path, edit))
     assert len(df) == len(read_tereno(FIXTURE))
@@ -90,15 +90,19 @@ def test_column_override_and_unknown_key():
 
 def test_missing_column(tmp_path):
     def edit(lines, hdr):
-        return [",".join(c for j, c in enumerate(l.split(",")) if j != 4) if i >= hdr else l for i, l in enumerate(lines)]
+        return [
+            ",".join(c for j, c in enumerate(ln.split(",")) if j != 4) if i >= hdr else ln for i, ln in enumerate(lines)
+        ]
 
     # Without air temperature, absolute humidity cannot become RH: the error says so.
     with pytest.raises(InputError, match=r"export\.csv.*AirTemperature"):
         read_tereno(_variant(tmp_path, edit))
 
     def no_radiation(lines, hdr):
-        return [",".join(c for j, c in enumerate(l.split(",")) if j not in (1, 2, 3)) if i >= hdr else l
-                for i, l in enumerate(lines)]
+        return [
+            ",".join(c for j, c in enumerate(ln.split(",")) if j not in (1, 2, 3)) if i >= hdr else ln
+            for i, ln in enumerate(lines)
+        ]
 
     with pytest.raises(InputError, match=r"export\.csv: missing column\(s\) ghi_w_m2 or par_umol_m2_s"):
         read_tereno(_variant(tmp_path, no_radiation))
@@ -131,7 +135,7 @@ def test_short_gap_interpolated_long_gap_rejected(tmp_path):
     assert df["tair_c"].iloc[19] == pytest.approx(0.5 * (ref["tair_c"].iloc[18] + ref["tair_c"].iloc[20]))
 
     def long(lines, hdr):
-        del lines[hdr + 20: hdr + 26]
+        del lines[hdr + 20 : hdr + 26]
 
     with pytest.raises(InputError, match="longer than max_gap"):
         read_tereno(_variant(tmp_path, long))
@@ -262,7 +266,7 @@ def test_resample_mean_and_sample():
     assert s["par_umol_m2_s"].loc["2016-04-20 11:00+00:00"] == df["par_umol_m2_s"].loc["2016-04-20 11:00+00:00"]
     m = resample(df, "30min", "mean")
     t = pd.Timestamp("2016-04-20 11:00", tz="UTC")
-    win = df["par_umol_m2_s"].loc[t - pd.Timedelta("15min"): t + pd.Timedelta("14min")]
+    win = df["par_umol_m2_s"].loc[t - pd.Timedelta("15min") : t + pd.Timedelta("14min")]
     assert m["par_umol_m2_s"].loc[t] == pytest.approx(win.mean())
     with pytest.raises(InputError, match="resampling method"):
         resample(df, "30min", "median")

@@ -19,15 +19,23 @@ def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> flo
     M = 357.52911 + jc * (35999.05029 - 0.0001537 * jc)
     e = 0.016708634 - jc * (0.000042037 + 0.0000001267 * jc)
     r = math.radians
-    C = (math.sin(r(M)) * (1.914602 - jc * (0.004817 + 0.000014 * jc)) + math.sin(r(2 * M)) * (0.019993 - 0.000101 * jc)
-         + math.sin(r(3 * M)) * 0.000289)
+    C = (
+        math.sin(r(M)) * (1.914602 - jc * (0.004817 + 0.000014 * jc))
+        + math.sin(r(2 * M)) * (0.019993 - 0.000101 * jc)
+        + math.sin(r(3 * M)) * 0.000289
+    )
     app_long = L + C - 0.00569 - 0.00478 * math.sin(r(125.04 - 1934.136 * jc))
     mean_obl = 23 + (26 + (21.448 - jc * (46.815 + jc * (0.00059 - jc * 0.001813))) / 60) / 60
     obl = mean_obl + 0.00256 * math.cos(r(125.04 - 1934.136 * jc))
     decl = math.degrees(math.asin(math.sin(r(obl)) * math.sin(r(app_long))))
     y = math.tan(r(obl / 2)) ** 2
-    eot = 4 * math.degrees(y * math.sin(2 * r(L)) - 2 * e * math.sin(r(M)) + 4 * e * y * math.sin(r(M)) * math.cos(2 * r(L))
-                           - 0.5 * y * y * math.sin(4 * r(L)) - 1.25 * e * e * math.sin(2 * r(M)))
+    eot = 4 * math.degrees(
+        y * math.sin(2 * r(L))
+        - 2 * e * math.sin(r(M))
+        + 4 * e * y * math.sin(r(M)) * math.cos(2 * r(L))
+        - 0.5 * y * y * math.sin(4 * r(L))
+        - 1.25 * e * e * math.sin(2 * r(M))
+    )
     minutes = ts.hour * 60 + ts.minute + ts.second / 60
     tst = (minutes + eot + 4 * lon) % 1440
     ha = tst / 4 - 180 if tst / 4 >= 0 else tst / 4 + 180
@@ -38,12 +46,15 @@ def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> flo
     return el + refr
 
 
-@pytest.mark.parametrize("utc", ["2016-04-20 09:00", "2016-04-20 11:30", "2016-04-20 11:13:48", "2016-04-20 15:00",
-                                 "2016-06-23 11:30"])
+@pytest.mark.parametrize(
+    "utc", ["2016-04-20 09:00", "2016-04-20 11:30", "2016-04-20 11:13:48", "2016-04-20 15:00", "2016-06-23 11:30"]
+)
 def test_elevation_matches_noaa(utc):
     t = pd.DatetimeIndex([pd.Timestamp(utc, tz="UTC")])
     ours = solar_position(t, SELHAUSEN)["sun_elevation_deg"].iloc[0]
-    assert ours == pytest.approx(noaa_apparent_elevation_deg(t[0], SELHAUSEN.latitude_deg, SELHAUSEN.longitude_deg), abs=0.05)
+    assert ours == pytest.approx(
+        noaa_apparent_elevation_deg(t[0], SELHAUSEN.latitude_deg, SELHAUSEN.longitude_deg), abs=0.05
+    )
 
 
 def test_noon_elevation_is_colatitude_plus_declination():

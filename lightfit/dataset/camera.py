@@ -61,30 +61,57 @@ class Camera:
         for name in ("width_px", "height_px"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SIDE_PX:
-                raise InputError(f"camera {self.name!r}: {name}={v!r}", column=name,
-                                 expected=f"an integer number of pixels in [1, {MAX_SIDE_PX}]")
+                raise InputError(
+                    f"camera {self.name!r}: {name}={v!r}",
+                    column=name,
+                    expected=f"an integer number of pixels in [1, {MAX_SIDE_PX}]",
+                )
         if not (_finite_number(self.fov_deg) and 0.0 < self.fov_deg < 180.0):
-            raise InputError(f"camera {self.name!r}: fov_deg={self.fov_deg!r}", column="fov_deg",
-                             expected="a horizontal field of view in degrees, strictly between 0 and 180")
+            raise InputError(
+                f"camera {self.name!r}: fov_deg={self.fov_deg!r}",
+                column="fov_deg",
+                expected="a horizontal field of view in degrees, strictly between 0 and 180",
+            )
         if self.position_m[2] <= 0.0:
-            raise InputError(f"camera {self.name!r}: position_m={self.position_m} is not above the soil", column="position_m",
-                             expected="z > 0 m (the soil is the plane z = 0; from below it the camera sees nothing)")
+            raise InputError(
+                f"camera {self.name!r}: position_m={self.position_m} is not above the soil",
+                column="position_m",
+                expected="z > 0 m (the soil is the plane z = 0; from below it the camera sees nothing)",
+            )
         view = np.subtract(self.look_at_m, self.position_m)
         if np.linalg.norm(view) < 1e-9:
-            raise InputError(f"camera {self.name!r}: look_at_m equals position_m {self.position_m}", column="look_at_m",
-                             expected="a point different from the camera position")
-        if np.linalg.norm(self.up) < 1e-12 or np.linalg.norm(np.cross(view / np.linalg.norm(view), _unit(self.up))) < 1e-6:
-            raise InputError(f"camera {self.name!r}: up={self.up} is zero or parallel to the view direction", column="up",
-                             expected="a direction not parallel to look_at_m − position_m (tilt it slightly for a nadir view)")
+            raise InputError(
+                f"camera {self.name!r}: look_at_m equals position_m {self.position_m}",
+                column="look_at_m",
+                expected="a point different from the camera position",
+            )
+        if (
+            np.linalg.norm(self.up) < 1e-12
+            or np.linalg.norm(np.cross(view / np.linalg.norm(view), _unit(self.up))) < 1e-6
+        ):
+            raise InputError(
+                f"camera {self.name!r}: up={self.up} is zero or parallel to the view direction",
+                column="up",
+                expected="a direction not parallel to look_at_m − position_m (tilt it slightly for a nadir view)",
+            )
         if self.exposure_mode not in EXPOSURE_MODES:
-            raise InputError(f"camera {self.name!r}: unknown exposure_mode {self.exposure_mode!r}", column="exposure_mode",
-                             expected=" or ".join(EXPOSURE_MODES))
+            raise InputError(
+                f"camera {self.name!r}: unknown exposure_mode {self.exposure_mode!r}",
+                column="exposure_mode",
+                expected=" or ".join(EXPOSURE_MODES),
+            )
         if not _finite_number(self.exposure_ev):
-            raise InputError(f"camera {self.name!r}: exposure_ev={self.exposure_ev!r}", column="exposure_ev",
-                             expected="a finite number of stops")
+            raise InputError(
+                f"camera {self.name!r}: exposure_ev={self.exposure_ev!r}",
+                column="exposure_ev",
+                expected="a finite number of stops",
+            )
         if not (_finite_number(self.meter_percentile) and 0.0 < self.meter_percentile <= 100.0):
-            raise InputError(f"camera {self.name!r}: meter_percentile={self.meter_percentile!r}", column="meter_percentile",
-                             expected="a percentile in (0, 100]")
+            raise InputError(
+                f"camera {self.name!r}: meter_percentile={self.meter_percentile!r}",
+                column="meter_percentile",
+                expected="a percentile in (0, 100]",
+            )
 
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Orthonormal (right, up, forward) vectors of the camera frame."""
@@ -134,7 +161,9 @@ def _vec3(v, name: str) -> tuple[float, float, float]:
 def _check_name(name) -> None:
     ok = isinstance(name, str) and name != "" and all(c.isalnum() or c in "-_" for c in name)
     if not ok:
-        raise InputError(f"camera name {name!r}", column="name", expected="a non-empty name of letters, digits, '-' and '_'")
+        raise InputError(
+            f"camera name {name!r}", column="name", expected="a non-empty name of letters, digits, '-' and '_'"
+        )
 
 
 @dataclass(frozen=True)
@@ -160,23 +189,42 @@ class Sweep:
         if isinstance(self.n, bool) or not isinstance(self.n, (int, np.integer)) or self.n < 1:
             raise InputError(f"sweep n={self.n!r}", column="n", expected="an integer number of cameras ≥ 1")
         if not (_finite_number(self.distance_m) and self.distance_m > 0):
-            raise InputError(f"sweep distance_m={self.distance_m!r}", column="distance_m", expected="a positive distance in metres")
+            raise InputError(
+                f"sweep distance_m={self.distance_m!r}", column="distance_m", expected="a positive distance in metres"
+            )
         if not (_finite_number(self.elevation_deg) and 0.0 < self.elevation_deg < 90.0):
-            raise InputError(f"sweep elevation_deg={self.elevation_deg!r}", column="elevation_deg",
-                             expected="degrees strictly between 0 and 90")
+            raise InputError(
+                f"sweep elevation_deg={self.elevation_deg!r}",
+                column="elevation_deg",
+                expected="degrees strictly between 0 and 90",
+            )
 
 
 def camera_sweep(sweep: Sweep, centre_m=(0.0, 0.0), canopy_height_m: float = 0.5) -> list[Camera]:
-    """The cameras of a :class:`Sweep` around ``centre_m`` (x, y in m); extra ``Camera`` fields from ``sweep.camera``."""
+    """The cameras of a :class:`Sweep` around ``centre_m`` (x, y in m).
+
+    Extra ``Camera`` fields come from ``sweep.camera``.
+    """
     tz = sweep.target_height_m if sweep.target_height_m is not None else canopy_height_m / 2.0
     el = math.radians(sweep.elevation_deg)
     cams = []
     for k in range(sweep.n):
         az = math.radians(sweep.start_azimuth_deg + 360.0 * k / sweep.n)
-        pos = (centre_m[0] + sweep.distance_m * math.sin(az), centre_m[1] + sweep.distance_m * math.cos(az),
-               tz + sweep.distance_m * math.tan(el))
-        cams.append(Camera(**{**sweep.camera, "name": f"sweep{k:03d}", "position_m": pos,
-                              "look_at_m": (centre_m[0], centre_m[1], tz)}))
+        pos = (
+            centre_m[0] + sweep.distance_m * math.sin(az),
+            centre_m[1] + sweep.distance_m * math.cos(az),
+            tz + sweep.distance_m * math.tan(el),
+        )
+        cams.append(
+            Camera(
+                **{
+                    **sweep.camera,
+                    "name": f"sweep{k:03d}",
+                    "position_m": pos,
+                    "look_at_m": (centre_m[0], centre_m[1], tz),
+                }
+            )
+        )
     return cams
 
 
@@ -200,7 +248,9 @@ def load_cameras(path: str | Path) -> list[Camera]:
             raise InputError(f"camera #{i} is {type(c).__name__}", file=path, expected="a JSON object")
         bad = set(c) - known
         if bad:
-            raise InputError(f"camera #{i}: unknown key(s) {sorted(bad)}", file=path, expected=f"keys among {sorted(known)}")
+            raise InputError(
+                f"camera #{i}: unknown key(s) {sorted(bad)}", file=path, expected=f"keys among {sorted(known)}"
+            )
         cams.append(Camera(**{"name": f"cam{i:03d}", **c}))
     check_unique_names(cams)
     return cams

@@ -95,7 +95,9 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
         if not spec.depth:
             geo.pop("depth_m")
         for k, t in enumerate(tix):
-            images.append(_write_image(out, cam, res.times[t], t, lights[k], rendered.radiance[c][k], geo, per_segment[t]))
+            images.append(
+                _write_image(out, cam, res.times[t], t, lights[k], rendered.radiance[c][k], geo, per_segment[t])
+            )
     meta = _metadata(res, spec, quantities, cams, images, rendered)
     if spec.gallery_images and images:
         from lightfit.dataset.gallery import gallery
@@ -152,9 +154,16 @@ def _write_image(out: Path, cam: Camera, time, t: int, light, radiance: np.ndarr
     np.savez_compressed(out / "labels" / f"{stem}.npz", **labels)
     counts = {name: int((geo["organ"] == code).sum()) for name, code in ORGAN_CODES.items()}
     return {
-        "name": stem, "camera": cam.name, "time_utc": time.isoformat(), "time_index": int(t),
-        "exr": f"images/{stem}.exr", "png": f"images/{stem}.png", "labels": f"labels/{stem}.npz",
-        "lighting": light.to_dict(), "exposure": exp.to_dict(), "pixels": counts | {"valid": int(valid.sum())},
+        "name": stem,
+        "camera": cam.name,
+        "time_utc": time.isoformat(),
+        "time_index": int(t),
+        "exr": f"images/{stem}.exr",
+        "png": f"images/{stem}.png",
+        "labels": f"labels/{stem}.npz",
+        "lighting": light.to_dict(),
+        "exposure": exp.to_dict(),
+        "pixels": counts | {"valid": int(valid.sum())},
     }
 
 
@@ -189,9 +198,16 @@ def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendere
         "cameras": [c.to_dict() for c in cams],
         "quantities": {q: {"variable": res.variable(q), "units": res.units(q)} for q in quantities},
         "label_codes": {
-            "organ": ORGAN_CODES, "segment_id_background": -1, "plant_id_background": -1,
-            "limitation": {"1": "electron-transport limited (Fj < Fc)", "0": "Rubisco limited (Fj > Fc)", "-1": "no value"},
-            "float_no_value": "NaN (see 'valid')", "depth_m": "distance along the optical axis, m; NaN = sky",
+            "organ": ORGAN_CODES,
+            "segment_id_background": -1,
+            "plant_id_background": -1,
+            "limitation": {
+                "1": "electron-transport limited (Fj < Fc)",
+                "0": "Rubisco limited (Fj > Fc)",
+                "-1": "no value",
+            },
+            "float_no_value": "NaN (see 'valid')",
+            "depth_m": "distance along the optical axis, m; NaN = sky",
             MARGIN: "(Vj - Vc)/(Vj + Vc): > 0 Fj > Fc (red), < 0 Fj < Fc (blue)",
         },
         "image_units": "HDR radiance W m-2 sr-1 per channel under a white sun (DNI) and isotropic white sky (DHI/pi)",
@@ -210,4 +226,3 @@ def _json_default(o):
     if isinstance(o, np.bool_):
         return bool(o)
     return str(o)
-

@@ -56,7 +56,7 @@ def luminance(radiance: np.ndarray) -> np.ndarray:
 def meter(radiance: np.ndarray, leaf_mask: np.ndarray, cam: Camera) -> Exposure:
     """Set the gain of ``cam``'s exposure mode on this image and measure clipping on leaves."""
     y = luminance(radiance).astype(np.float64)
-    comp = 2.0 ** cam.exposure_ev
+    comp = 2.0**cam.exposure_ev
     if cam.exposure_mode == "fixed":
         metered, base = float("nan"), 1.0
     elif cam.exposure_mode == "scene":

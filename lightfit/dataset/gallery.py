@@ -51,7 +51,9 @@ def gallery(out_dir: Path, images: list[dict], quantities: list[str]) -> Path:
         ax = axes[r]
         ax[0].imshow(png, cmap="gray" if png.ndim == 2 else None, vmin=0, vmax=255)
         clip = entry["exposure"]["clipped_leaf_fraction"]
-        ax[0].set_title(f"{entry['name']}\nclipped leaf px {clip:.1%}" if clip is not None else entry["name"], fontsize=8)
+        ax[0].set_title(
+            f"{entry['name']}\nclipped leaf px {clip:.1%}" if clip is not None else entry["name"], fontsize=8
+        )
         ax[1].imshow(segment_colours(labels["segment_id"]))
         ax[1].set_title("segment id", fontsize=8)
         for j, q in enumerate(cols):

@@ -30,7 +30,9 @@ NO_SEGMENT = -1
 NO_CLASS = -1
 
 
-def geometric_labels(face: np.ndarray, depth_m: np.ndarray, mesh: Mesh, segments: pd.DataFrame) -> dict[str, np.ndarray]:
+def geometric_labels(
+    face: np.ndarray, depth_m: np.ndarray, mesh: Mesh, segments: pd.DataFrame
+) -> dict[str, np.ndarray]:
     """Segment id, plant id and organ code per pixel from the face index under its centre.
 
     Args:

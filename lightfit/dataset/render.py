@@ -109,8 +109,13 @@ def pass_seed(seed: int, image: int, k: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(image), int(k)]).generate_state(1)[0])
 
 
-def render(arrays: SceneArrays, cameras: list[Camera], lights: list[Lighting], settings: RenderSettings = RenderSettings(),
-           materials: VisualMaterials = VisualMaterials()) -> RenderOutput:
+def render(
+    arrays: SceneArrays,
+    cameras: list[Camera],
+    lights: list[Lighting],
+    settings: RenderSettings = RenderSettings(),
+    materials: VisualMaterials = VisualMaterials(),
+) -> RenderOutput:
     """Render every camera under every lighting, in this process or a child (module docstring)."""
     if not cameras:
         raise InputError("no cameras", column="cameras", expected="at least one camera")
@@ -138,8 +143,12 @@ def render_here(arrays, cameras, lights, settings, materials, variant):
         face, depth = _primary_hits(mi, dr, scene_of.scene(None), cam)
         faces.append(face)
         depths.append(depth)
-        radiance.append([_radiance(mi, dr, scene_of.scene(light), cam, settings, ci * len(lights) + ti)
-                         for ti, light in enumerate(lights)])
+        radiance.append(
+            [
+                _radiance(mi, dr, scene_of.scene(light), cam, settings, ci * len(lights) + ti)
+                for ti, light in enumerate(lights)
+            ]
+        )
     return radiance, faces, depths
 
 
@@ -151,14 +160,19 @@ class _SceneBuilder:
         props = mi.Properties()
         # principledthin: a thin two-sided sheet with diffuse transmission — leaves lit from
         # behind glow as in real images; transmission 0 on soil and stems.
-        props["bsdf"] = mi.load_dict({
-            "type": "principledthin", "roughness": float(materials.roughness),
-            "base_color": {"type": "mesh_attribute", "name": "face_rgb"},
-            "diff_trans": {"type": "mesh_attribute", "name": "face_transmission"},
-        })
+        props["bsdf"] = mi.load_dict(
+            {
+                "type": "principledthin",
+                "roughness": float(materials.roughness),
+                "base_color": {"type": "mesh_attribute", "name": "face_rgb"},
+                "diff_trans": {"type": "mesh_attribute", "name": "face_transmission"},
+            }
+        )
         mesh = mi.Mesh("data_scene", len(arrays.vertices), len(arrays.faces), props, False, False)
         mesh.add_attribute("face_rgb", 3, mi.Float(np.ascontiguousarray(arrays.face_rgb, dtype=np.float32).ravel()))
-        mesh.add_attribute("face_transmission", 1, mi.Float(np.ascontiguousarray(arrays.face_transmission, dtype=np.float32)))
+        mesh.add_attribute(
+            "face_transmission", 1, mi.Float(np.ascontiguousarray(arrays.face_transmission, dtype=np.float32))
+        )
         p = mi.traverse(mesh)
         p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(arrays.vertices.T, dtype=np.float32)))
         p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(arrays.faces.T, dtype=np.uint32)))
@@ -180,7 +194,11 @@ def _emitters(light: Lighting) -> dict:
     out = {}
     if light.sun_elevation_deg > 0 and light.dni_w_m2 > 0:
         s = sun_vector(light.sun_elevation_deg, light.sun_azimuth_deg)
-        out["sun"] = {"type": "directional", "direction": (-s).tolist(), "irradiance": {"type": "rgb", "value": float(light.dni_w_m2)}}
+        out["sun"] = {
+            "type": "directional",
+            "direction": (-s).tolist(),
+            "irradiance": {"type": "rgb", "value": float(light.dni_w_m2)},
+        }
     if light.dhi_w_m2 > 0:
         out["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": float(light.dhi_w_m2 / np.pi)}}
     return out
@@ -226,23 +244,45 @@ def _render_child(arrays, cameras, lights, settings, materials, variant) -> Rend
     """Render in ``python -m lightfit.dataset.worker`` with ``variant``; arrays via a temp .npz."""
     with tempfile.TemporaryDirectory(prefix="lightfit-render-") as tmp:
         job, out = Path(tmp) / "job.npz", Path(tmp) / "out.npz"
-        spec = {"cameras": [c.to_dict() for c in cameras], "lights": [lt.to_dict() for lt in lights],
-                "settings": asdict(settings), "materials": asdict(materials), "variant": variant,
-                "n_plant_faces": arrays.n_plant_faces}
-        np.savez(job, vertices=arrays.vertices, faces=arrays.faces, face_rgb=arrays.face_rgb,
-                 face_transmission=arrays.face_transmission, spec=np.array(json.dumps(spec)))
+        spec = {
+            "cameras": [c.to_dict() for c in cameras],
+            "lights": [lt.to_dict() for lt in lights],
+            "settings": asdict(settings),
+            "materials": asdict(materials),
+            "variant": variant,
+            "n_plant_faces": arrays.n_plant_faces,
+        }
+        np.savez(
+            job,
+            vertices=arrays.vertices,
+            faces=arrays.faces,
+            face_rgb=arrays.face_rgb,
+            face_transmission=arrays.face_transmission,
+            spec=np.array(json.dumps(spec)),
+        )
         env = dict(os.environ)
         env.pop("LIGHTFIT_VARIANT", None)  # the worker sets the variant explicitly
-        proc = subprocess.run([sys.executable, "-m", "lightfit.dataset.worker", str(job), str(out)],
-                              capture_output=True, text=True, env=env)
+        proc = subprocess.run(
+            [sys.executable, "-m", "lightfit.dataset.worker", str(job), str(out)],
+            capture_output=True,
+            text=True,
+            env=env,
+        )
         if proc.returncode != 0:
-            raise RuntimeError(f"data-scene render in a child process ({variant}) failed with exit code "
-                               f"{proc.returncode}:\n{proc.stderr[-4000:]}")
+            raise RuntimeError(
+                f"data-scene render in a child process ({variant}) failed with exit code "
+                f"{proc.returncode}:\n{proc.stderr[-4000:]}"
+            )
         with np.load(out) as z:
             nc, nt = len(cameras), len(lights)
             radiance = [[z[f"radiance_{c}_{t}"] for t in range(nt)] for c in range(nc)]
-            return RenderOutput(radiance, [z[f"face_{c}"] for c in range(nc)], [z[f"depth_{c}"] for c in range(nc)],
-                                variant=variant, in_process=False)
+            return RenderOutput(
+                radiance,
+                [z[f"face_{c}"] for c in range(nc)],
+                [z[f"depth_{c}"] for c in range(nc)],
+                variant=variant,
+                in_process=False,
+            )
 
 
 def run_job(job: Path, out: Path) -> None:

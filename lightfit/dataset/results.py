@@ -97,13 +97,18 @@ def open_results(source) -> Results:
         ds = source
     where = path or "results"
     if "segment" not in ds.coords:
-        raise InputError("no 'segment' coordinate", file=where, expected="dims (time, segment) with segment = segment id")
+        raise InputError(
+            "no 'segment' coordinate", file=where, expected="dims (time, segment) with segment = segment id"
+        )
     if "time" not in ds.coords or ds.sizes.get("time", 0) < 1:
         raise InputError("no 'time' coordinate with at least one step", file=where, expected="dims (time, segment)")
     missing = [a for a in REQUIRED_ATTRS if a not in ds.attrs]
     if missing:
-        raise InputError(f"missing field attribute(s) {missing}", file=where,
-                         expected="attrs n_plants, buffer_rows, seed (and growth settings) describing the field")
+        raise InputError(
+            f"missing field attribute(s) {missing}",
+            file=where,
+            expected="attrs n_plants, buffer_rows, seed (and growth settings) describing the field",
+        )
     times = pd.DatetimeIndex(ds["time"].values)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
     return Results(ds, path, times)
@@ -116,9 +121,14 @@ def field_of(res: Results):
     a = res.ds.attrs
     growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
     kw = {k: float(a[k]) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
-    return Field(n_plants=int(a["n_plants"]), buffer_rows=int(a["buffer_rows"]), seed=int(a["seed"]),
-                 buffer_along=int(a["buffer_along"]) if "buffer_along" in a else None,
-                 growth=GrowthConfig(**growth), **kw)
+    return Field(
+        n_plants=int(a["n_plants"]),
+        buffer_rows=int(a["buffer_rows"]),
+        seed=int(a["seed"]),
+        buffer_along=int(a["buffer_along"]) if "buffer_along" in a else None,
+        growth=GrowthConfig(**growth),
+        **kw,
+    )
 
 
 def build_geometry(res: Results, cache_dir=None):
@@ -132,9 +142,12 @@ def build_geometry(res: Results, cache_dir=None):
     ids = res.ds["segment"].values.astype(np.int64)
     unknown = np.setdiff1d(ids, geom.segments["segment_id"].to_numpy())
     if len(unknown):
-        raise InputError(f"{len(unknown)} segment id(s) of the results are not in the field rebuilt from its attrs "
-                         f"(e.g. {unknown[:5].tolist()})", file=res.path or "results",
-                         expected="the attrs of the field the results were computed on")
+        raise InputError(
+            f"{len(unknown)} segment id(s) of the results are not in the field rebuilt from its attrs "
+            f"(e.g. {unknown[:5].tolist()})",
+            file=res.path or "results",
+            expected="the attrs of the field the results were computed on",
+        )
     return geom
 
 
@@ -152,12 +165,17 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
         try:
             ts = pd.Timestamp(t)
         except ValueError as err:
-            raise InputError(f"time {t!r} is not a timestamp", column="times", expected="ISO 8601, e.g. 2016-04-20T10:00") from err
+            raise InputError(
+                f"time {t!r} is not a timestamp", column="times", expected="ISO 8601, e.g. 2016-04-20T10:00"
+            ) from err
         ts = ts.tz_localize("UTC") if ts.tz is None else ts.tz_convert("UTC")
         hit = np.flatnonzero(res.times == ts)
         if not len(hit):
-            raise InputError(f"time {ts} is not a step of the results", column="times",
-                             expected=f"one of {res.times[0]} … {res.times[-1]} ({len(res.times)} steps)")
+            raise InputError(
+                f"time {ts} is not a step of the results",
+                column="times",
+                expected=f"one of {res.times[0]} … {res.times[-1]} ({len(res.times)} steps)",
+            )
         out.append(int(hit[0]))
     return out
 
@@ -187,10 +205,17 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
         # Sun angles exact at each step (no interpolation across the azimuth wrap); irradiance
         # interpolated linearly in time between weather records.
         cols = {v: sun[v].to_numpy(dtype=float) for v in LIGHT_VARS[:2]}
-        cols |= {v: wx[v].reindex(joined).interpolate("time", limit_area="inside").reindex(t).to_numpy(dtype=float) for v in LIGHT_VARS[2:]}
+        cols |= {
+            v: wx[v].reindex(joined).interpolate("time", limit_area="inside").reindex(t).to_numpy(dtype=float)
+            for v in LIGHT_VARS[2:]
+        }
         if np.isnan(np.concatenate(list(cols.values()))).any():
-            raise InputError(f"weather {wx.attrs.get('source', weather_source)!r} does not cover the selected times "
-                             f"{list(t.astype(str))}", column="weather", expected="a series spanning the results' times")
+            raise InputError(
+                f"weather {wx.attrs.get('source', weather_source)!r} does not cover the selected times "
+                f"{list(t.astype(str))}",
+                column="weather",
+                expected="a series spanning the results' times",
+            )
     return [Lighting(*(float(cols[v][i]) for v in LIGHT_VARS)) for i in range(len(time_indices))]
 
 
@@ -201,7 +226,9 @@ def _weather(res: Results, source: str | None) -> pd.DataFrame:
     if name in weather.BUNDLED:
         return weather.load(name)
     if source is None:
-        raise InputError(f"the results carry no {', '.join(LIGHT_VARS)} and no weather is bundled for "
-                         f"target_date {name!r}", column="weather",
-                         expected=f"a weather file or bundled name ({', '.join(weather.BUNDLED)})")
+        raise InputError(
+            f"the results carry no {', '.join(LIGHT_VARS)} and no weather is bundled for target_date {name!r}",
+            column="weather",
+            expected=f"a weather file or bundled name ({', '.join(weather.BUNDLED)})",
+        )
     return weather.add_solar(weather.read_weather(source))

@@ -57,8 +57,11 @@ class VisualMaterials:
             if not (math.isfinite(v) and 0.0 <= v <= 1.0):
                 raise InputError(f"{k}={v!r}", column=k, expected="a number in [0, 1]")
         if not (math.isfinite(self.soil_half_size_m) and self.soil_half_size_m > 0):
-            raise InputError(f"soil_half_size_m={self.soil_half_size_m!r}", column="soil_half_size_m",
-                             expected="a positive distance in metres")
+            raise InputError(
+                f"soil_half_size_m={self.soil_half_size_m!r}",
+                column="soil_half_size_m",
+                expected="a positive distance in metres",
+            )
 
 
 @dataclass(frozen=True)
@@ -83,8 +86,11 @@ class Lighting:
             if not math.isfinite(v):
                 raise InputError(f"{k}={v!r}", column=k, expected="a finite number")
         if self.dni_w_m2 < 0 or self.dhi_w_m2 < 0:
-            raise InputError(f"irradiance DNI={self.dni_w_m2}, DHI={self.dhi_w_m2}", column="dni_w_m2/dhi_w_m2",
-                             expected="non-negative W m⁻²")
+            raise InputError(
+                f"irradiance DNI={self.dni_w_m2}, DHI={self.dhi_w_m2}",
+                column="dni_w_m2/dhi_w_m2",
+                expected="non-negative W m⁻²",
+            )
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -124,14 +130,22 @@ def organ_colour_factor(segments: pd.DataFrame, spread: float, seed: int) -> pd.
     return pd.Series(factor, index=segments["segment_id"].to_numpy())
 
 
-def scene_arrays(mesh: Mesh, segments: pd.DataFrame, materials: VisualMaterials = VisualMaterials(),
-                 seed: int = 0, centre_m=(0.0, 0.0)) -> SceneArrays:
+def scene_arrays(
+    mesh: Mesh,
+    segments: pd.DataFrame,
+    materials: VisualMaterials = VisualMaterials(),
+    seed: int = 0,
+    centre_m=(0.0, 0.0),
+) -> SceneArrays:
     """Colour the plant mesh by organ and append a square soil plane at z = 0."""
     seg = segments.set_index("segment_id")
     organ = seg["organ_type"].astype(str).reindex(mesh.face_segment).to_numpy()
     if pd.isna(organ).any():
-        raise InputError("the mesh has faces whose segment id is not in the segment table", column="segment_id",
-                         expected="the mesh and segments of one FieldGeometry")
+        raise InputError(
+            "the mesh has faces whose segment id is not in the segment table",
+            column="segment_id",
+            expected="the mesh and segments of one FieldGeometry",
+        )
     factor = organ_colour_factor(segments, materials.colour_variation, seed).reindex(mesh.face_segment).to_numpy()
     is_leaf = organ == "leaf"
     rgb = np.where(is_leaf[:, None], materials.leaf_rgb, materials.stem_rgb) * factor[:, None]

@@ -6,9 +6,33 @@ LocalCluster, an existing scheduler or a given client), :func:`connect` (a clien
 halo). See ``docs/distributed.md``.
 """
 
-from lightfit.distributed.run import (AGGREGATES, FieldRun, TaskSpec, connect, default_workers, gather, gpu_count,
-                                      run_field, run_single, run_task, submit)
+from lightfit.distributed.run import (
+    AGGREGATES,
+    FieldRun,
+    TaskSpec,
+    connect,
+    default_workers,
+    gather,
+    gpu_count,
+    run_field,
+    run_single,
+    run_task,
+    submit,
+)
 from lightfit.distributed.tiles import HaloField, check_tiles
 
-__all__ = ["AGGREGATES", "FieldRun", "HaloField", "TaskSpec", "check_tiles", "connect", "default_workers", "gather",
-           "gpu_count", "run_field", "run_single", "run_task", "submit"]
+__all__ = [
+    "AGGREGATES",
+    "FieldRun",
+    "HaloField",
+    "TaskSpec",
+    "check_tiles",
+    "connect",
+    "default_workers",
+    "gather",
+    "gpu_count",
+    "run_field",
+    "run_single",
+    "run_task",
+    "submit",
+]

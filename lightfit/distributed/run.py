@@ -3,7 +3,7 @@
 Each task is one (tile, time chunk): the worker rebuilds the tile's plants from their seeds
 (the plant cache on a shared disk makes this a load; no geometry is shipped), renders only the
 tile's measured segments at the chunk's sun positions, runs the photosynthesis and returns the
-per-segment Dataset of :meth:`lightfit.calibrate.forward.CoupledModel.simulate`. The client
+per-segment Dataset of :meth:`lightfit.model.coupled.CoupledModel.simulate`. The client
 concatenates the parts along ``segment`` and ``time`` (sorted by segment id and time, the order
 of a single-process run) and recomputes the canopy aggregates from the per-segment values, so
 the result has the layout of a single-process run.
@@ -41,13 +41,18 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
 from lightfit.distributed.tiles import HaloField, check_tiles
+from lightfit.errors import InputError
 from lightfit.plant.field import Field
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset.
-AGGREGATES = ("par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_sd_umol_m2_s", "canopy_an_umol_m2_s",
-              "canopy_an_mc_sd_umol_m2_s")
+AGGREGATES = (
+    "par_umol_m2_s",
+    "par_sd_umol_m2_s",
+    "par_mc_sd_umol_m2_s",
+    "canopy_an_umol_m2_s",
+    "canopy_an_mc_sd_umol_m2_s",
+)
 ENV_THREADS = "LIGHTFIT_WORKER_THREADS"
 
 
@@ -67,7 +72,7 @@ class FieldRun:
         samples, bounces, seed: irradiance estimator (K samples per segment, scattering
             orders, render seed of the common random numbers).
         photosynthesis, par_kind, an_per, optics, sky: as in
-            :class:`lightfit.calibrate.forward.Scenario`.
+            :class:`lightfit.model.coupled.Scenario`.
         theta: leaf/light parameters (defaults for missing keys).
         x64: compute JAX photosynthesis in float64 in the workers.
     """
@@ -96,16 +101,23 @@ class FieldRun:
             raise InputError(f"time_chunks={tc!r}", column="time_chunks", expected="an integer ≥ 1")
         n_day = int(self.daytime().sum())
         if n_day == 0:
-            raise InputError("weather has no daytime step", column="weather",
-                             expected="at least one step with sun elevation > -1° and DNI + DHI > 0")
+            raise InputError(
+                "weather has no daytime step",
+                column="weather",
+                expected="at least one step with sun elevation > -1° and DNI + DHI > 0",
+            )
         if tc > n_day:
-            raise InputError(f"time_chunks={tc} > {n_day} daytime steps", column="time_chunks",
-                             expected=f"at most {n_day} (every chunk needs a daytime step)")
+            raise InputError(
+                f"time_chunks={tc} > {n_day} daytime steps",
+                column="time_chunks",
+                expected=f"at most {n_day} (every chunk needs a daytime step)",
+            )
         for name in ("samples", "bounces"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "samples" else 0):
-                raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1" if name == "samples"
-                                 else "an integer ≥ 0")
+                raise InputError(
+                    f"{name}={v!r}", column=name, expected="an integer ≥ 1" if name == "samples" else "an integer ≥ 0"
+                )
 
     def daytime(self) -> np.ndarray:
         """Steps the coupled model renders (its definition: DNI + DHI > 0 and sun elevation > -1°)."""
@@ -123,15 +135,25 @@ class FieldRun:
 
     def scenario(self, tile: int | None, rows=None):
         """The :class:`Scenario` of one tile (``None``: single process, whole field) and time chunk."""
-        from lightfit.calibrate.forward import Scenario
         from lightfit.light.scene import Optics
+        from lightfit.model.coupled import Scenario
 
         w = self.weather if rows is None else self.weather.iloc[rows]
         fld = self.field if tile is None else self.halo_field
-        return Scenario(weather=w, field=fld, samples=self.samples, bounces=self.bounces, seed=self.seed,
-                        photosynthesis=self.photosynthesis, par_kind=self.par_kind, an_per=self.an_per,
-                        optics=self.optics if self.optics is not None else Optics(), sky=self.sky,
-                        n_tiles=self.tiles if tile is not None else 1, tile=tile)
+        return Scenario(
+            weather=w,
+            field=fld,
+            samples=self.samples,
+            bounces=self.bounces,
+            seed=self.seed,
+            photosynthesis=self.photosynthesis,
+            par_kind=self.par_kind,
+            an_per=self.an_per,
+            optics=self.optics if self.optics is not None else Optics(),
+            sky=self.sky,
+            n_tiles=self.tiles if tile is not None else 1,
+            tile=tile,
+        )
 
 
 @dataclass
@@ -167,7 +189,7 @@ def run_task(spec: TaskSpec):
     """Worker side: build the tile, render, photosynthesis. Returns (Dataset, timing/size info)."""
     t0 = time.perf_counter()
     _worker_setup(spec.run.x64)
-    from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel
+    from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
 
     t1 = time.perf_counter()
     sc = spec.run.scenario(spec.tile, spec.rows)
@@ -185,11 +207,20 @@ def run_task(spec: TaskSpec):
     except (ImportError, ValueError):
         worker = "local"
     info = {
-        "tile": int(spec.tile), "chunk": int(spec.chunk), "time_steps": int(len(spec.rows)),
-        "worker": worker, "pid": os.getpid(), "host": os.uname().nodename,
-        "setup_s": t1 - t0, "build_s": t2 - t1, "simulate_s": t3 - t2, "total_s": t3 - t0,
-        "plants_measured": int(len(tile.measured)), "plants_rendered": int(len(tile.plant_ids)),
-        "segments": int(len(model.segment_id)), "triangles": int(mesh.n_faces),
+        "tile": int(spec.tile),
+        "chunk": int(spec.chunk),
+        "time_steps": int(len(spec.rows)),
+        "worker": worker,
+        "pid": os.getpid(),
+        "host": os.uname().nodename,
+        "setup_s": t1 - t0,
+        "build_s": t2 - t1,
+        "simulate_s": t3 - t2,
+        "total_s": t3 - t0,
+        "plants_measured": int(len(tile.measured)),
+        "plants_rendered": int(len(tile.plant_ids)),
+        "segments": int(len(model.segment_id)),
+        "triangles": int(mesh.n_faces),
         "triangles_measured": int(np.isin(mesh.face_segment, model.segment_id).sum()),
         "ground_area_m2": len(tile.measured) * fld.plant_spacing_m * fld.row_spacing_m,
     }
@@ -210,8 +241,13 @@ def _aggregates(out, parts_mc: np.ndarray, ground_area_m2: float) -> dict:
     a_leaf = area[blade]
     denom = a_leaf.sum() if out.attrs.get("an_per", "ground") == "leaf" else ground_area_m2
     an = out["an_umol_m2_s"].values[:, blade] @ a_leaf / denom
-    return {"par_umol_m2_s": mean, "par_sd_umol_m2_s": sd, "par_mc_sd_umol_m2_s": mc,
-            "canopy_an_umol_m2_s": an, "canopy_an_mc_sd_umol_m2_s": np.sqrt(parts_mc / denom**2)}
+    return {
+        "par_umol_m2_s": mean,
+        "par_sd_umol_m2_s": sd,
+        "par_mc_sd_umol_m2_s": mc,
+        "canopy_an_umol_m2_s": an,
+        "canopy_an_mc_sd_umol_m2_s": np.sqrt(parts_mc / denom**2),
+    }
 
 
 def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
@@ -244,12 +280,17 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
         # Σ over tiles of Var(canopy An_k)·denom_k²: each tile's Σ_blades (dAn/dPAR·SE·area)².
         mc = 0.0
         for d, i in part:
-            denom_k = float(d["area_m2"].values[d["is_blade"].values.astype(bool)].sum()) if leaf else i["ground_area_m2"]
+            denom_k = (
+                float(d["area_m2"].values[d["is_blade"].values.astype(bool)].sum()) if leaf else i["ground_area_m2"]
+            )
             mc = mc + d["canopy_an_mc_sd_umol_m2_s"].values.astype(np.float64) ** 2 * denom_k**2
         seg["_an_mc_partial"] = ("time", mc)
         chunks.append(seg)
-    out = chunks[0] if len(chunks) == 1 else xr.concat(chunks, dim="time", data_vars="minimal", coords="minimal",
-                                                       compat="equals", join="exact")
+    out = (
+        chunks[0]
+        if len(chunks) == 1
+        else xr.concat(chunks, dim="time", data_vars="minimal", coords="minimal", compat="equals", join="exact")
+    )
     out = out.sortby("time")
     if len(np.unique(out["segment"].values)) != out.sizes["segment"]:
         raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
@@ -266,20 +307,28 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
         by_tile.setdefault(i["tile"], i)
     rendered = sum(i["triangles"] for i in by_tile.values())
     measured = sum(i["triangles_measured"] for i in by_tile.values())
-    out.attrs.update({
-        "n_tiles": run.tiles, "tile": -1,
-        "halo_rows": -1 if run.halo_rows is None else run.halo_rows,
-        "halo": "whole field (exact)" if run.halo_rows is None else f"{run.halo_rows} plant rows/columns around each tile",
-        "time_chunks": run.time_chunks, "tasks": len(results),
-        "triangles_rendered": rendered, "triangles_measured": measured,
-        "buffer_overhead": rendered / measured if measured else math.nan,
-        "tile_timing_json": json.dumps(sorted(infos, key=lambda i: (i["tile"], i["chunk"]))),
-        **(extra_attrs or {}),
-    })
+    out.attrs.update(
+        {
+            "n_tiles": run.tiles,
+            "tile": -1,
+            "halo_rows": -1 if run.halo_rows is None else run.halo_rows,
+            "halo": "whole field (exact)"
+            if run.halo_rows is None
+            else f"{run.halo_rows} plant rows/columns around each tile",
+            "time_chunks": run.time_chunks,
+            "tasks": len(results),
+            "triangles_rendered": rendered,
+            "triangles_measured": measured,
+            "buffer_overhead": rendered / measured if measured else math.nan,
+            "tile_timing_json": json.dumps(sorted(infos, key=lambda i: (i["tile"], i["chunk"]))),
+            **(extra_attrs or {}),
+        }
+    )
     return out
 
 
 # -- clusters ------------------------------------------------------------------------------
+
 
 def gpu_count() -> int:
     """CUDA devices visible to this process (``CUDA_VISIBLE_DEVICES`` or ``nvidia-smi -L``); 0 without."""
@@ -329,8 +378,14 @@ class PinGPU:
 
 
 @contextmanager
-def connect(scheduler: str | None = None, *, workers: int | None = None, threads_per_worker: int | None = None,
-            timeout_s: float = 30.0, dashboard: bool = False):
+def connect(
+    scheduler: str | None = None,
+    *,
+    workers: int | None = None,
+    threads_per_worker: int | None = None,
+    timeout_s: float = 30.0,
+    dashboard: bool = False,
+):
     """A Dask client: joins ``scheduler`` (address, e.g. ``tcp://host:8786``) or starts an
     embedded ``LocalCluster`` (processes, ``workers`` × ``threads_per_worker``; default sized to
     the machine, :func:`default_workers`). Closes what it started."""
@@ -338,13 +393,19 @@ def connect(scheduler: str | None = None, *, workers: int | None = None, threads
 
     if scheduler:
         if workers is not None:
-            raise InputError(f"workers={workers} with scheduler={scheduler!r}", column="workers",
-                             expected="no --workers when joining an existing cluster (its workers are given)")
+            raise InputError(
+                f"workers={workers} with scheduler={scheduler!r}",
+                column="workers",
+                expected="no --workers when joining an existing cluster (its workers are given)",
+            )
         try:
             client = Client(scheduler, timeout=timeout_s)
         except (OSError, TimeoutError, ValueError, TypeError) as err:
-            raise InputError(f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {err})", column="scheduler",
-                             expected="the address of a running Dask scheduler, e.g. tcp://host:8786") from None
+            raise InputError(
+                f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {err})",
+                column="scheduler",
+                expected="the address of a running Dask scheduler, e.g. tcp://host:8786",
+            ) from None
         try:
             yield client
         finally:
@@ -358,10 +419,12 @@ def connect(scheduler: str | None = None, *, workers: int | None = None, threads
             raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1")
     env = {ENV_THREADS: str(t), "OMP_NUM_THREADS": str(t), "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
     if t == 1:
-        env["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false "
-                            "intra_op_parallelism_threads=1").strip()
-    cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env,
-                           dashboard_address=":0" if dashboard else None)
+        env["XLA_FLAGS"] = (
+            os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+        ).strip()
+    cluster = LocalCluster(
+        n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0" if dashboard else None
+    )
     try:
         client = Client(cluster, timeout=timeout_s)
         try:
@@ -377,6 +440,7 @@ def connect(scheduler: str | None = None, *, workers: int | None = None, threads
 
 # -- the run ---------------------------------------------------------------------------------
 
+
 def submit(client, run: FieldRun) -> list:
     """Submit one task per (tile, time chunk); returns the futures."""
     token = uuid.uuid4().hex[:10]
@@ -388,9 +452,17 @@ def submit(client, run: FieldRun) -> list:
     return futures
 
 
-def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, workers: int | None = None,
-              threads_per_worker: int | None = None, progress: bool = False, timeout_s: float | None = None,
-              connect_timeout_s: float = 30.0):
+def run_field(
+    run: FieldRun,
+    *,
+    client=None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    threads_per_worker: int | None = None,
+    progress: bool = False,
+    timeout_s: float | None = None,
+    connect_timeout_s: float = 30.0,
+):
     """Run ``run`` on Dask and return the gathered Dataset (layout of a single-process run).
 
     Uses ``client`` if given, else joins ``scheduler``, else starts an embedded LocalCluster.
@@ -398,8 +470,9 @@ def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, worke
     wait for the scheduler.
     """
     if client is None:
-        with connect(scheduler, workers=workers, threads_per_worker=threads_per_worker,
-                     timeout_s=connect_timeout_s) as cl:
+        with connect(
+            scheduler, workers=workers, threads_per_worker=threads_per_worker, timeout_s=connect_timeout_s
+        ) as cl:
             return run_field(run, client=cl, progress=progress, timeout_s=timeout_s)
     from distributed import as_completed
 
@@ -410,8 +483,13 @@ def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, worke
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        bar = Progress(TextColumn("[bold]tiles × time chunks"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                       TextColumn("{task.description}"))
+        bar = Progress(
+            TextColumn("[bold]tiles × time chunks"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("{task.description}"),
+        )
         bar.start()
         task = bar.add_task("", total=len(futures))
     try:
@@ -419,8 +497,12 @@ def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, worke
             ds, info = fut.result()
             results.append((ds, info))
             if bar is not None:
-                bar.update(task, advance=1, description=f"tile {info['tile']} chunk {info['chunk']}: "
-                           f"{info['total_s']:.1f} s on {info['worker']}")
+                bar.update(
+                    task,
+                    advance=1,
+                    description=f"tile {info['tile']} chunk {info['chunk']}: "
+                    f"{info['total_s']:.1f} s on {info['worker']}",
+                )
     finally:
         if bar is not None:
             bar.stop()
@@ -433,10 +515,22 @@ def run_field(run: FieldRun, *, client=None, scheduler: str | None = None, worke
 
 def run_single(run: FieldRun):
     """The same run in this process without tiling (the reference for partition independence)."""
-    from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel
+    from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
 
     return CoupledModel(run.scenario(None)).simulate({**DEFAULT_THETA, **(run.theta or {})})
 
 
-__all__ = ["AGGREGATES", "FieldRun", "PinGPU", "TaskSpec", "connect", "default_workers", "gather", "gpu_count",
-           "run_field", "run_single", "run_task", "submit"]
+__all__ = [
+    "AGGREGATES",
+    "FieldRun",
+    "PinGPU",
+    "TaskSpec",
+    "connect",
+    "default_workers",
+    "gather",
+    "gpu_count",
+    "run_field",
+    "run_single",
+    "run_task",
+    "submit",
+]

@@ -55,21 +55,39 @@ class HaloField(Field):
     def __post_init__(self):
         super().__post_init__()
         if self.halo_rows is not None and (not isinstance(self.halo_rows, (int, np.integer)) or self.halo_rows < 0):
-            raise InputError(f"halo_rows={self.halo_rows!r}", column="halo_rows",
-                             expected="an integer ≥ 0, or None for the whole field (exact)")
+            raise InputError(
+                f"halo_rows={self.halo_rows!r}",
+                column="halo_rows",
+                expected="an integer ≥ 0, or None for the whole field (exact)",
+            )
 
     @classmethod
     def of(cls, fld: Field, halo_rows: int | None = None) -> HaloField:
         """The same field with a tile halo."""
-        return cls(n_plants=fld.n_plants, row_spacing_m=fld.row_spacing_m, plant_spacing_m=fld.plant_spacing_m,
-                   buffer_rows=fld.buffer_rows, row_direction_deg=fld.row_direction_deg, seed=fld.seed,
-                   growth=fld.growth, buffer_along=fld.buffer_along, halo_rows=halo_rows)
+        return cls(
+            n_plants=fld.n_plants,
+            row_spacing_m=fld.row_spacing_m,
+            plant_spacing_m=fld.plant_spacing_m,
+            buffer_rows=fld.buffer_rows,
+            row_direction_deg=fld.row_direction_deg,
+            seed=fld.seed,
+            growth=fld.growth,
+            buffer_along=fld.buffer_along,
+            halo_rows=halo_rows,
+        )
 
     def base(self) -> Field:
         """The plain :class:`Field` (for single-process runs)."""
-        return Field(n_plants=self.n_plants, row_spacing_m=self.row_spacing_m, plant_spacing_m=self.plant_spacing_m,
-                     buffer_rows=self.buffer_rows, row_direction_deg=self.row_direction_deg, seed=self.seed,
-                     growth=self.growth, buffer_along=self.buffer_along)
+        return Field(
+            n_plants=self.n_plants,
+            row_spacing_m=self.row_spacing_m,
+            plant_spacing_m=self.plant_spacing_m,
+            buffer_rows=self.buffer_rows,
+            row_direction_deg=self.row_direction_deg,
+            seed=self.seed,
+            growth=self.growth,
+            buffer_along=self.buffer_along,
+        )
 
     def tiles(self, n_tiles: int = 1) -> list[Tile]:
         base = Field.tiles(self, n_tiles)  # validates n_tiles (InputError naming n_tiles)

@@ -94,11 +94,17 @@ def configure_libllvm() -> tuple[str | None, str | None]:
     if "drjit" in sys.modules and not user:
         import warnings
 
-        warnings.warn("drjit was imported before lightfit could set DRJIT_LIBLLVM_PATH; import lightfit first "
-                      "(or set DRJIT_LIBLLVM_PATH yourself) so that Dr.Jit uses libLLVM >= 16", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            "drjit was imported before lightfit could set DRJIT_LIBLLVM_PATH; import lightfit first "
+            "(or set DRJIT_LIBLLVM_PATH yourself) so that Dr.Jit uses libLLVM >= 16",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     if user:
         if not Path(user).exists():
-            raise BackendError(f"{ENV_LLVM}={user!r} does not exist; unset it or point it at libLLVM >= {MIN_LLVM_MAJOR}")
+            raise BackendError(
+                f"{ENV_LLVM}={user!r} does not exist; unset it or point it at libLLVM >= {MIN_LLVM_MAJOR}"
+            )
         return user, "user"
     path = find_libllvm()
     if path is not None:
@@ -158,11 +164,15 @@ def mitsuba(variant: str | None = None):
             f"(a lightfit dependency: `python3 tasks.py setup`) or set {ENV_LLVM} to a libLLVM.so."
         )
     if chosen.startswith("cuda") and not cuda_usable():
-        raise BackendError(f"Mitsuba variant {chosen!r} needs a CUDA device and driver; none is usable here. "
-                           f"Use an llvm_ad_* variant (unset {ENV_VARIANT} or drop --variant).")
+        raise BackendError(
+            f"Mitsuba variant {chosen!r} needs a CUDA device and driver; none is usable here. "
+            f"Use an llvm_ad_* variant (unset {ENV_VARIANT} or drop --variant)."
+        )
     mi = importlib.import_module("mitsuba")
     if chosen not in mi.variants():
-        raise BackendError(f"Mitsuba variant {chosen!r} is not in this Mitsuba build; available: {', '.join(mi.variants())}")
+        raise BackendError(
+            f"Mitsuba variant {chosen!r} is not in this Mitsuba build; available: {', '.join(mi.variants())}"
+        )
     mi.set_variant(chosen)
     _STATE["mi"] = mi
     _STATE["info"] = BackendInfo(chosen, libllvm, llvm_source, source)

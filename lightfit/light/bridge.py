@@ -5,7 +5,7 @@ sun, incident sky, absorbed sun, absorbed sky (rows in :data:`~lightfit.light.es
 order) for the S requested segments, per unit DNI / DHI, and their Monte Carlo standard errors
 (no gradient flows through ``se``) — and is callable inside ``jax.jit``, ``jax.grad`` and
 ``jax.vmap``. Dr.Jit cannot be traced by JAX, so the forward and backward passes are
-``jax.pure_callback``s into Mitsuba wrapped in a ``jax.custom_vjp`` (DESIGN §4): the backward
+``jax.pure_callback``s into Mitsuba wrapped in a ``jax.custom_vjp`` (docs/design.md §4): the backward
 callback runs the estimator's reverse-mode pass with the incoming cotangent. Purity: the result
 depends only on the arguments (the seed is an argument; the scene and sampling settings are
 fixed when the function is made). Under ``vmap`` the callbacks run sequentially.
@@ -54,31 +54,40 @@ def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, 
         dtype = np.asarray(leaf).dtype
         with lock:
             r = estimator(leaf, sun_deg, seed).render()
-        return (np.stack([getattr(r, p) for p in PARTS]).astype(dtype),
-                np.stack([r.se[p] for p in PARTS]).astype(dtype))
+        return (
+            np.stack([getattr(r, p) for p in PARTS]).astype(dtype),
+            np.stack([r.se[p] for p in PARTS]).astype(dtype),
+        )
 
     def backward_cb(leaf, sun_deg, seed, ct):
         dtype = np.asarray(leaf).dtype
         with lock:
-            g = estimator(leaf, sun_deg, seed).vjp({p: np.asarray(ct[i], dtype=np.float64) for i, p in enumerate(PARTS)})
+            g = estimator(leaf, sun_deg, seed).vjp(
+                {p: np.asarray(ct[i], dtype=np.float64) for i, p in enumerate(PARTS)}
+            )
         return np.array([g[k] for k in LEAF_PARAMETERS], dtype=dtype)
 
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
         leaf = jnp.asarray(leaf)
         out = jax.ShapeDtypeStruct((len(PARTS), n_seg), leaf.dtype)
-        return jax.pure_callback(forward_cb, (out, out), leaf, jnp.asarray(sun_deg, leaf.dtype), jnp.asarray(seed),
-                                 vmap_method="sequential")
+        return jax.pure_callback(
+            forward_cb, (out, out), leaf, jnp.asarray(sun_deg, leaf.dtype), jnp.asarray(seed), vmap_method="sequential"
+        )
 
     def fwd(leaf, sun_deg, seed):
-        return irradiance(leaf, sun_deg, seed), (jnp.asarray(leaf), jnp.asarray(sun_deg, jnp.asarray(leaf).dtype),
-                                                 jnp.asarray(seed))
+        return irradiance(leaf, sun_deg, seed), (
+            jnp.asarray(leaf),
+            jnp.asarray(sun_deg, jnp.asarray(leaf).dtype),
+            jnp.asarray(seed),
+        )
 
     def bwd(res, ct):
         leaf, sun_deg, seed = res
         ct = ct[0]  # the standard errors carry no gradient
-        g = jax.pure_callback(backward_cb, jax.ShapeDtypeStruct(leaf.shape, leaf.dtype), leaf, sun_deg, seed, ct,
-                              vmap_method="sequential")
+        g = jax.pure_callback(
+            backward_cb, jax.ShapeDtypeStruct(leaf.shape, leaf.dtype), leaf, sun_deg, seed, ct, vmap_method="sequential"
+        )
         return g, jnp.zeros_like(sun_deg), None
 
     irradiance.defvjp(fwd, bwd)

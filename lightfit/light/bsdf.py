@@ -33,6 +33,8 @@ from lightfit.light.backend import mitsuba
 
 ALPHA_MIN = 1e-2  # α floor (r ≈ 0.1): leaf cuticles are not mirrors, and it bounds the variance
 SPECULAR_F0_SCALE = 0.08
+#: The leaf model's three parameters, in the order every leaf vector uses.
+LEAF_PARAMETERS = ("specular", "roughness", "subsurface")
 PARAMETERS = ("specular", "roughness", "subsurface")
 
 
@@ -49,11 +51,18 @@ def _classes():
             self.roughness = mi.Float(props.get("roughness", 0.5))
             self.subsurface = mi.Float(props.get("subsurface", 0.0))
             self.base_color = mi.Float(props.get("base_color", 0.5))
-            flags = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.DiffuseTransmission
-                     | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide)
-            self.m_components = [mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide,
-                                 mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide,
-                                 mi.BSDFFlags.DiffuseTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide]
+            flags = (
+                mi.BSDFFlags.GlossyReflection
+                | mi.BSDFFlags.DiffuseReflection
+                | mi.BSDFFlags.DiffuseTransmission
+                | mi.BSDFFlags.FrontSide
+                | mi.BSDFFlags.BackSide
+            )
+            self.m_components = [
+                mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide,
+                mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide,
+                mi.BSDFFlags.DiffuseTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide,
+            ]
             self.m_flags = flags
             # Frozen sampling (see ``freeze_sampling``): lobe probabilities and GGX α used to draw
             # directions, independent of the parameters being differentiated. None: follow them.
@@ -151,9 +160,13 @@ def _classes():
             bs.pdf = self._pdf_local(wi, wo, active)
             bs.eta = 1.0
             bs.sampled_component = dr.select(pick_s, mi.UInt32(0), dr.select(pick_d, mi.UInt32(1), mi.UInt32(2)))
-            bs.sampled_type = dr.select(pick_s, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                        dr.select(pick_d, mi.UInt32(+mi.BSDFFlags.DiffuseReflection),
-                                                  mi.UInt32(+mi.BSDFFlags.DiffuseTransmission)))
+            bs.sampled_type = dr.select(
+                pick_s,
+                mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                dr.select(
+                    pick_d, mi.UInt32(+mi.BSDFFlags.DiffuseReflection), mi.UInt32(+mi.BSDFFlags.DiffuseTransmission)
+                ),
+            )
             value = self._eval_local(wi, wo, active)
             # A glossy sample reflected below the surface is lost; counting it as transmission
             # would add the glossy lobe's density to the transmission pdf and bias the estimate.
@@ -203,16 +216,28 @@ def register() -> None:
     _REGISTERED.add(mi.variant())
 
 
-def leaf_bsdf_dict(specular: float = 0.5, roughness: float = 0.5, subsurface: float = 0.0, base_color: float = 0.5) -> dict:
+def leaf_bsdf_dict(
+    specular: float = 0.5, roughness: float = 0.5, subsurface: float = 0.0, base_color: float = 0.5
+) -> dict:
     """Mitsuba scene-dict entry of a leaf material; raises on parameters outside [0, 1]."""
     from lightfit.errors import InputError
 
-    for name, v in (("specular", specular), ("roughness", roughness), ("subsurface", subsurface), ("base_color", base_color)):
+    for name, v in (
+        ("specular", specular),
+        ("roughness", roughness),
+        ("subsurface", subsurface),
+        ("base_color", base_color),
+    ):
         if not (0.0 <= float(v) <= 1.0):
             raise InputError(f"leaf {name}={v!r}", column=name, expected="a value in [0, 1]")
     register()
-    return {"type": "leaf", "specular": float(specular), "roughness": float(roughness),
-            "subsurface": float(subsurface), "base_color": float(base_color)}
+    return {
+        "type": "leaf",
+        "specular": float(specular),
+        "roughness": float(roughness),
+        "subsurface": float(subsurface),
+        "base_color": float(base_color),
+    }
 
 
 _ALBEDO_TABLE: dict[str, np.ndarray] = {}
@@ -288,7 +313,11 @@ def leaf_albedo(bsdf, cos_i):
     def at(i, j):
         return dr.gather(mi.Float, table, i * nr + j)
 
-    e = ((1 - fx) * (1 - fy) * at(x0, y0) + fx * (1 - fy) * at(x0 + 1, y0)
-         + (1 - fx) * fy * at(x0, y0 + 1) + fx * fy * at(x0 + 1, y0 + 1))
+    e = (
+        (1 - fx) * (1 - fy) * at(x0, y0)
+        + fx * (1 - fy) * at(x0 + 1, y0)
+        + (1 - fx) * fy * at(x0, y0 + 1)
+        + fx * fy * at(x0 + 1, y0 + 1)
+    )
     f0 = SPECULAR_F0_SCALE * dr.clip(bsdf.specular, 0.0, 1.0)
     return f0 * e + (1.0 - f0) * dr.clip(bsdf.base_color, 0.0, 1.0)

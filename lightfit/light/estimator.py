@@ -40,11 +40,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lightfit.errors import InputError
-from lightfit.light.bsdf import leaf_albedo
+from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
 from lightfit.light.scene import FieldScene
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
-LEAF_PARAMETERS = ("specular", "roughness", "subsurface")
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
 # first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
 # albedo — kept in the numbering so that every other dimension keeps its random stream (and the
@@ -59,6 +58,7 @@ def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
 
     SplitMix64 finaliser (Steele et al. 2014) over ``seed``, the 64-bit key and the dimension.
     """
+
     def mix(z):
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
@@ -130,7 +130,7 @@ def bounces_for_tolerance(tolerance: float, optics) -> int:
     """
     if not 0 < tolerance < 1:
         raise InputError(f"tolerance={tolerance!r}", column="tolerance", expected="a number in (0, 1)")
-    f0 = 0.08 * optics.specular
+    f0 = SPECULAR_F0_SCALE * optics.specular
     rho = max(f0 + (1 - f0) * optics.base_color, optics.soil_albedo, 1e-6)
     if rho >= 1:
         return 64
@@ -154,10 +154,20 @@ class SegmentEstimator:
         epsilon_m: ray origin offset along the side normal, m.
     """
 
-    def __init__(self, field_scene: FieldScene, segment_ids, *, samples: int = 64, bounces: int = 3, seed: int = 0,
-                 epsilon_m: float = 1e-5):
+    def __init__(
+        self,
+        field_scene: FieldScene,
+        segment_ids,
+        *,
+        samples: int = 64,
+        bounces: int = 3,
+        seed: int = 0,
+        epsilon_m: float = 1e-5,
+    ):
         if not isinstance(samples, (int, np.integer)) or samples < 2:
-            raise InputError(f"samples={samples!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)")
+            raise InputError(
+                f"samples={samples!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)"
+            )
         if not isinstance(bounces, (int, np.integer)) or bounces < 0:
             raise InputError(f"bounces={bounces!r}", column="bounces", expected="an integer ≥ 0")
         self.fs, self.bounces, self.seed = field_scene, int(bounces), int(seed)
@@ -170,8 +180,11 @@ class SegmentEstimator:
         fseg = mesh.face_segment[order]
         start, end = np.searchsorted(fseg, seg, "left"), np.searchsorted(fseg, seg, "right")
         if (start == end).any():
-            raise InputError(f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
-                             column="segment_ids", expected="ids of stem or leaf segments with non-zero length")
+            raise InputError(
+                f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
+                column="segment_ids",
+                expected="ids of stem or leaf segments with non-zero length",
+            )
         self.segment_id = seg
         area = mesh.face_areas()[order]
         cum = np.cumsum(area)
@@ -184,7 +197,9 @@ class SegmentEstimator:
         self._shift = keyed_uniforms(self.seed, keys, self._n_dims)  # (S, R, D): one random shift per replicate
         self._alpha = kronecker_alpha(self._n_dims)
         j = np.arange(M)
-        pos = np.mod(self._shift[:, :, None, :3] + j[None, None, :, None] * self._alpha[:3], 1.0).reshape(len(seg), K, 3)
+        pos = np.mod(self._shift[:, :, None, :3] + j[None, None, :, None] * self._alpha[:3], 1.0).reshape(
+            len(seg), K, 3
+        )
         target = cum0[start][:, None] + pos[..., 0] * seg_area[:, None]
         idx = np.clip(np.searchsorted(cum, target, "right"), start[:, None], (end - 1)[:, None])
         face = order[idx]
@@ -200,9 +215,12 @@ class SegmentEstimator:
         seg_i = np.repeat(np.arange(len(seg)), K)
         pt = np.tile(np.arange(K), len(seg))
         x, n = x.reshape(-1, 3), n.reshape(-1, 3)
-        self._ev = {"seg": np.concatenate([seg_i, seg_i[blade]]), "pt": np.concatenate([pt, pt[blade]]),
-                    "back": np.concatenate([np.zeros(len(pt), bool), np.ones(int(blade.sum()), bool)]),
-                    "n": np.concatenate([n, -n[blade]])}
+        self._ev = {
+            "seg": np.concatenate([seg_i, seg_i[blade]]),
+            "pt": np.concatenate([pt, pt[blade]]),
+            "back": np.concatenate([np.zeros(len(pt), bool), np.ones(int(blade.sum()), bool)]),
+            "n": np.concatenate([n, -n[blade]]),
+        }
         self._valid = np.linalg.norm(self._ev["n"], axis=1) > 0
         self._ev["n"][~self._valid] = [0.0, 0.0, 1.0]
         self._x = np.concatenate([x, x[blade]]) + epsilon_m * self._ev["n"]
@@ -250,8 +268,11 @@ class SegmentEstimator:
             back_dims = list(range(11, 11 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb))
             u = []
             for df, db in zip(front_dims, back_dims):
-                v = dr.select(back, dr.gather(mi.Float, shift, base + db) + jj * float(self._alpha[db]),
-                              dr.gather(mi.Float, shift, base + df) + jj * float(self._alpha[df]))
+                v = dr.select(
+                    back,
+                    dr.gather(mi.Float, shift, base + db) + jj * float(self._alpha[db]),
+                    dr.gather(mi.Float, shift, base + df) + jj * float(self._alpha[df]),
+                )
                 v = dr.minimum(v - dr.floor(v), 1.0 - 2.0**-24)
                 dr.eval(v)
                 u.append(v)
@@ -290,8 +311,12 @@ class SegmentEstimator:
         sun = self.fs.sun
         a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun])) if sun[2] > 0 else mi.Float(1.0)
         e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
-        vals = {"incident_sun": e_dir + e_sunscat, "incident_sky": e_sky,
-                "absorbed_sun": e_dir * a_s + e_sunscat * a_d, "absorbed_sky": e_sky * a_d}
+        vals = {
+            "incident_sun": e_dir + e_sunscat,
+            "incident_sky": e_sky,
+            "absorbed_sun": e_dir * a_s + e_sunscat * a_d,
+            "absorbed_sky": e_sky * a_d,
+        }
         return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
 
     def _trace(self, o, d, u):
@@ -323,7 +348,7 @@ class SegmentEstimator:
             p_soil = o + d * t_soil
             # Leaf vertex: NEE to the sun through the BSDF (reflection or transmission).
             si.wi = si.to_local(-d)
-            ub = u[_USED_PER_SIDE + _DIMS_PER_BOUNCE * depth:_USED_PER_SIDE + _DIMS_PER_BOUNCE * (depth + 1)]
+            ub = u[_USED_PER_SIDE + _DIMS_PER_BOUNCE * depth : _USED_PER_SIDE + _DIMS_PER_BOUNCE * (depth + 1)]
             if sun_up:
                 f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
                 side = dr.sign(dr.dot(si.n, sun))
@@ -335,7 +360,8 @@ class SegmentEstimator:
             d_leaf = si.to_world(bs.wo)
             side_out = dr.sign(dr.dot(si.n, d_leaf))
             d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(
-                mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[1], ub[2])))
+                mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[1], ub[2]))
+            )
             beta = dr.select(hit_leaf, beta * w[0], dr.select(hit_soil, beta * rho_soil, 0.0))
             active = (hit_leaf & (w[0] > 0)) | hit_soil
             o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
@@ -363,10 +389,25 @@ class SegmentEstimator:
             rep = per_point.reshape(S, self.replicates, self.per_replicate).mean(2)
             se[k] = rep.std(1, ddof=1) / math.sqrt(self.replicates)
             front[k] = v[:n_front].reshape(S, K).mean(1)
-        return Irradiance(self.segment_id, out["incident_sun"], out["incident_sky"], out["absorbed_sun"],
-                          out["absorbed_sky"], se, K, self.bounces, self.seed, self.fs.sun.copy(),
-                          meta={"n_evaluations": self.n_evaluations, "optics": self.fs.optics,
-                                "front": front, "is_blade": self.is_blade, "area_m2": self.area_m2})
+        return Irradiance(
+            self.segment_id,
+            out["incident_sun"],
+            out["incident_sky"],
+            out["absorbed_sun"],
+            out["absorbed_sky"],
+            se,
+            K,
+            self.bounces,
+            self.seed,
+            self.fs.sun.copy(),
+            meta={
+                "n_evaluations": self.n_evaluations,
+                "optics": self.fs.optics,
+                "front": front,
+                "is_blade": self.is_blade,
+                "area_m2": self.area_m2,
+            },
+        )
 
     def vjp(self, cotangent: dict[str, np.ndarray]) -> dict[str, float]:
         """Gradient of Σ_parts Σ_segments cotangent[part]·value[part] w.r.t. the leaf parameters.
@@ -402,9 +443,19 @@ class SegmentEstimator:
         return grads
 
 
-def samples_for_accuracy(field_scene: FieldScene, segment_ids, target_rse: float, *, bounces: int = 3, seed: int = 0,
-                         pilot: int = 32, quantile: float = 0.5, dni: float = 1.0, dhi: float = 0.3,
-                         max_samples: int = 1 << 16) -> int:
+def samples_for_accuracy(
+    field_scene: FieldScene,
+    segment_ids,
+    target_rse: float,
+    *,
+    bounces: int = 3,
+    seed: int = 0,
+    pilot: int = 32,
+    quantile: float = 0.5,
+    dni: float = 1.0,
+    dhi: float = 0.3,
+    max_samples: int = 1 << 16,
+) -> int:
     """K needed for the ``quantile`` of per-segment relative SE of absorbed PAR to reach ``target_rse``.
 
     Runs a pilot with ``pilot`` samples and scales by the Monte Carlo rate K ∝ rse⁻²

@@ -2,7 +2,7 @@
 
 Units are relative: the sun has unit irradiance on a plane normal to its beam (DNI = 1), the
 sky unit irradiance on an unoccluded horizontal plane (DHI = 1), so a time step's weather only
-rescales the sun part and the sky part (DESIGN §3).
+rescales the sun part and the sky part (docs/design.md §3).
 
 Geometry conventions: x east, y north, z up, metres; the soil is the plane z = 0.
 """
@@ -31,7 +31,7 @@ class Optics:
         roughness: leaf microfacet roughness (GGX α = roughness²).
         subsurface: share of the leaf's diffuse light transmitted to the other side.
         base_color: leaf diffuse albedo (grey). The reference paper used 0.5; PROSPECT-D
-            wheat PAR absorptance 0.83–0.92 (DESIGN §6) corresponds to ≈ 0.1–0.2.
+            wheat PAR absorptance 0.83–0.92 (docs/design.md §6) corresponds to ≈ 0.1–0.2.
         soil_albedo: Lambertian PAR albedo of the soil (moist loam ≈ 0.1–0.15).
     """
 
@@ -82,7 +82,9 @@ class FieldScene:
 
         self.mi, self.mesh, self.optics, self.sky = mi, mesh, optics, sky
         props = mi.Properties()
-        props["bsdf"] = mi.load_dict(leaf_bsdf_dict(optics.specular, optics.roughness, optics.subsurface, optics.base_color))
+        props["bsdf"] = mi.load_dict(
+            leaf_bsdf_dict(optics.specular, optics.roughness, optics.subsurface, optics.base_color)
+        )
         plants = mi.Mesh("plants", len(mesh.vertices), mesh.n_faces, props, False, False)
         p = mi.traverse(plants)
         p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(mesh.vertices.T, dtype=np.float32)))
@@ -109,8 +111,11 @@ class FieldScene:
     def set_sun(self, elevation_deg: float, azimuth_deg: float) -> None:
         """Point the sun (elevation and azimuth in degrees); below the horizon its part is 0."""
         if not (math.isfinite(elevation_deg) and math.isfinite(azimuth_deg)):
-            raise InputError(f"sun position ({elevation_deg}, {azimuth_deg})", column="sun",
-                             expected="finite elevation and azimuth in degrees")
+            raise InputError(
+                f"sun position ({elevation_deg}, {azimuth_deg})",
+                column="sun",
+                expected="finite elevation and azimuth in degrees",
+            )
         self.sun = sun_vector(elevation_deg, azimuth_deg)
 
     def sky_radiance(self, cos_zenith):
@@ -125,7 +130,9 @@ class FieldScene:
         """Change leaf parameters (``specular``, ``roughness``, ``subsurface``) in place, no rebuild."""
         for name, v in leaf.items():
             if name not in ("specular", "roughness", "subsurface"):
-                raise InputError(f"unknown leaf parameter {name!r}", column=name, expected="specular, roughness or subsurface")
+                raise InputError(
+                    f"unknown leaf parameter {name!r}", column=name, expected="specular, roughness or subsurface"
+                )
             if not (0.0 <= float(v) <= 1.0):
                 raise InputError(f"{name}={v!r}", column=name, expected="a value in [0, 1]")
             self.params[f"plants.bsdf.{name}"] = self.mi.Float(float(v))

@@ -64,17 +64,29 @@ def _check_comparable(params: PhotosynthesisParams) -> None:
     if params.stomata.model != "cplantbox":
         raise ValueError("params.stomata.model must be 'cplantbox' to compare with CPlantBox")
     ref = TemperatureParams.cplantbox()
-    same = all(np.allclose(np.asarray(getattr(params.temperature, f)), np.asarray(getattr(ref, f)))
-               for f in ("t_ref_k", "kc_ref_umol_mol", "ko_ref_mmol_mol", "gamma_star_ref_umol_mol"))
+    same = all(
+        np.allclose(np.asarray(getattr(params.temperature, f)), np.asarray(getattr(ref, f)))
+        for f in ("t_ref_k", "kc_ref_umol_mol", "ko_ref_mmol_mol", "gamma_star_ref_umol_mol")
+    )
     if params.temperature.form != "cplantbox" or not same:
-        raise ValueError("params.temperature must be TemperatureParams.cplantbox(): CPlantBox's "
-                         "temperature constants are compiled in")
+        raise ValueError(
+            "params.temperature must be TemperatureParams.cplantbox(): CPlantBox's "
+            "temperature constants are compiled in"
+        )
     if not np.isclose(float(params.fvcb.rd_to_vcmax), 0.015) or not params.fvcb.clip_rates:
         raise ValueError("CPlantBox fixes rd_to_vcmax = 0.015 and clips the rates")
 
 
-def run_cplantbox(par_abs_umol_m2_s, tleaf_c, co2_ppm, params: PhotosynthesisParams, *, rh: float = 0.6,
-                  soil_psi_cm: float = -100.0, plant_age_d: float = 14.0) -> PeerOutput:
+def run_cplantbox(
+    par_abs_umol_m2_s,
+    tleaf_c,
+    co2_ppm,
+    params: PhotosynthesisParams,
+    *,
+    rh: float = 0.6,
+    soil_psi_cm: float = -100.0,
+    plant_age_d: float = 14.0,
+) -> PeerOutput:
     """CPlantBox photosynthesis at each point of the 1-D input arrays (same length).
 
     Args:
@@ -124,8 +136,15 @@ def run_cplantbox(par_abs_umol_m2_s, tleaf_c, co2_ppm, params: PhotosynthesisPar
         c[slots[: idx.size]] = co2[idx]
         hm.pCO2 = c * 1e-6
         t0 = time.perf_counter()
-        hm.solve(sim_time=plant_age_d, rsx=np.full(60, soil_psi_cm), cells=True, ea=es * rh, es=es,
-                 PAR=q * 1e-6 * _SECONDS_PER_DAY / 1e4, TairC=t)
+        hm.solve(
+            sim_time=plant_age_d,
+            rsx=np.full(60, soil_psi_cm),
+            cells=True,
+            ea=es * rh,
+            es=es,
+            PAR=q * 1e-6 * _SECONDS_PER_DAY / 1e4,
+            TairC=t,
+        )
         elapsed += time.perf_counter() - t0
         n_solves += 1
         sel = slots[: idx.size]

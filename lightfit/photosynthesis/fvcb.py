@@ -139,8 +139,12 @@ def leaf_capacities(par_abs_umol_m2_s, tleaf_c, pair_kpa, fvcb: FvCBParams, temp
     jref = fvcb.jmax_to_vcmax * vref
     f_rd = arrhenius(t_k, temp.ea_rd_j_mol, t_ref)
     if temp.form == "cplantbox":
-        f_v = arrhenius(t_k, temp.ea_vcmax_j_mol, t_ref) * deactivation(t_k, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k)
-        f_j = arrhenius(t_k, temp.ea_jmax_j_mol, t_ref) * deactivation(t_k, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k)
+        f_v = arrhenius(t_k, temp.ea_vcmax_j_mol, t_ref) * deactivation(
+            t_k, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k
+        )
+        f_j = arrhenius(t_k, temp.ea_jmax_j_mol, t_ref) * deactivation(
+            t_k, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k
+        )
         # CPlantBox caps Jmax at its reference value (Photosynthesis.cpp, photoC3_init).
         f_j = jnp.minimum(f_j, 1.0)
     else:

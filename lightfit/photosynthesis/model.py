@@ -224,7 +224,9 @@ def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
     if params.stomata.model == "cplantbox":
         return _solve_cplantbox(leaf, env, params)
     adjoint = optx.ImplicitAdjoint(linear_solver=lx.Diagonal())
-    cc, (converged, iterations) = adjoint.apply(_primal, _rewrite, (leaf, env, params, config), frozenset({lx.diagonal_tag}))
+    cc, (converged, iterations) = adjoint.apply(
+        _primal, _rewrite, (leaf, env, params, config), frozenset({lx.diagonal_tag})
+    )
     f = _fluxes(cc, leaf, env, params)
     return _finish(cc, f, leaf, converged, iterations)
 
@@ -294,7 +296,11 @@ def prepare_environment(
         "fw": fw,
     }
     for name, value in named.items():
-        if value is not None and not hasattr(value, "shape") and not isinstance(value, (int, float, np.number, list, tuple)):
+        if (
+            value is not None
+            and not hasattr(value, "shape")
+            and not isinstance(value, (int, float, np.number, list, tuple))
+        ):
             raise TypeError(f"{name} must be a number or array, got {type(value).__name__}")
     present = {k: v for k, v in named.items() if v is not None}
     try:

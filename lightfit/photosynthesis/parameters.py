@@ -12,7 +12,7 @@ Named sets (:func:`parameter_set`):
     0.64/4.165, a1 = 4, a3 = 1.7, alpha = 0.2, theta = 0.9, g0 = 3e-4 mol m⁻² s⁻¹).
 ``"giraud2023"``
     Wheat values of Giraud et al. (2023) as the reference paper used them through
-    CPlantBox (``plant_photosynthesis/wheat_FcVB_Giraud2023adapted.py`` and DESIGN §4):
+    CPlantBox (``plant_photosynthesis/wheat_FcVB_Giraud2023adapted.py`` and docs/design.md §4):
     VcmaxrefChl1/2 = 1.28/8.33, Chl from SPAD 41 (Qian et al. 2021 formula, value passed
     to CPlantBox unchanged), a1 = 1.5, a3 = 1.5, alpha = 0.4, theta = 0.6, g0 = 8e-3.
 ``"giraud2023_coupled"``
@@ -285,9 +285,7 @@ def parameter_set(name: str) -> PhotosynthesisParams:
     try:
         factory = _SETS[name]
     except (KeyError, TypeError):
-        raise ValueError(
-            f"parameter_set: unknown name {name!r}; expected one of {list(PARAMETER_SET_NAMES)}"
-        ) from None
+        raise ValueError(f"parameter_set: unknown name {name!r}; expected one of {list(PARAMETER_SET_NAMES)}") from None
     return factory()
 
 
@@ -327,6 +325,10 @@ def check_params(params: PhotosynthesisParams) -> None:
     if s.model == "cplantbox":
         require(s.g0_mol_m2_s, lambda v: (v >= 0) & np.isfinite(v), "stomata.g0_mol_m2_s", "finite and >= 0")
     else:
-        require(s.g0_mol_m2_s, lambda v: (v > 0) & np.isfinite(v), "stomata.g0_mol_m2_s",
-                "finite and > 0 for the coupled closures")
+        require(
+            s.g0_mol_m2_s,
+            lambda v: (v > 0) & np.isfinite(v),
+            "stomata.g0_mol_m2_s",
+            "finite and > 0 for the coupled closures",
+        )
     require(params.temperature.t_ref_k, lambda v: v > 0, "temperature.t_ref_k", "> 0 K")

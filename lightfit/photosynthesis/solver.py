@@ -103,9 +103,7 @@ def bracketed_newton(fn, x0, lo, hi, args, config: SolverConfig) -> RootResult:
         # The predicted Newton correction |r/r'| is the error estimate once Newton has
         # converged; the bisection fallback would otherwise take over at round-off level.
         predicted = jnp.abs(r_new) <= tol * jnp.abs(d_new)
-        finished = jnp.isfinite(r_new) & (
-            (jnp.abs(dx) <= tol) | predicted | (hi_new - lo_new <= tol)
-        )
+        finished = jnp.isfinite(r_new) & ((jnp.abs(dx) <= tol) | predicted | (hi_new - lo_new <= tol))
 
         def upd(new, old):
             return jnp.where(active, new, old)

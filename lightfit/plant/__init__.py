@@ -1,9 +1,9 @@
 """Plant: CPlantBox growth (G1 segment table), shoot mesh (G3) and field geometry.
 
-    from lightfit import plant
-    fld = plant.Field(n_plants=100, buffer_rows=2, seed=1)
-    geom = plant.build(fld)                         # whole field; or tile=fld.tiles(4)[0]
-    plant.export(geom.mesh, "field.ply")
+from lightfit import plant
+fld = plant.Field(n_plants=100, buffer_rows=2, seed=1)
+geom = plant.build(fld)                         # whole field; or tile=fld.tiles(4)[0]
+plant.export(geom.mesh, "field.ply")
 """
 
 from lightfit.plant.cache import cache_dir, load_or_grow
@@ -13,7 +13,20 @@ from lightfit.plant.growth import GrowthConfig, grow_plant, plant_seed, resolve_
 from lightfit.plant.mesh import Mesh, MeshResolution, expected_area, shoot_mesh
 
 __all__ = [
-    "Field", "FieldGeometry", "GrowthConfig", "Mesh", "MeshResolution", "Tile", "build", "cache_dir",
-    "expected_area", "export", "grow_plant", "load_or_grow", "plant_seed", "resolve_parameter_file", "shoot",
+    "Field",
+    "FieldGeometry",
+    "GrowthConfig",
+    "Mesh",
+    "MeshResolution",
+    "Tile",
+    "build",
+    "cache_dir",
+    "expected_area",
+    "export",
+    "grow_plant",
+    "load_or_grow",
+    "plant_seed",
+    "resolve_parameter_file",
+    "shoot",
     "shoot_mesh",
 ]

@@ -60,7 +60,9 @@ def _from_arrays(arrays: dict[str, np.ndarray], columns: list[str]) -> pd.DataFr
     return df
 
 
-def load_or_grow(config: GrowthConfig, seed: int, plant_id: int = 0, *, directory: Path | None = None) -> tuple[pd.DataFrame, bool]:
+def load_or_grow(
+    config: GrowthConfig, seed: int, plant_id: int = 0, *, directory: Path | None = None
+) -> tuple[pd.DataFrame, bool]:
     """The plant grown from ``seed``: from the cache if a valid entry exists, else simulated and stored.
 
     Returns (segment table with ``plant_id`` set, whether it came from the cache).

@@ -24,13 +24,19 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
     out = {}
     for name, series in (values or {}).items():
         if not name.isidentifier():
-            raise InputError(f"value name {name!r} is not a plain identifier", column=name,
-                             expected="letters, digits and underscores (it becomes a file attribute)")
+            raise InputError(
+                f"value name {name!r} is not a plain identifier",
+                column=name,
+                expected="letters, digits and underscores (it becomes a file attribute)",
+            )
         v = pd.Series(series).reindex(mesh.face_segment).to_numpy(dtype=float)
         if np.isnan(v).any():
             missing = np.unique(mesh.face_segment[np.isnan(v)])[:5]
-            raise InputError(f"value {name!r} has no entry for segment id(s) {missing.tolist()}", column=name,
-                             expected="a value for every segment in the mesh")
+            raise InputError(
+                f"value {name!r} has no entry for segment id(s) {missing.tolist()}",
+                column=name,
+                expected="a value for every segment in the mesh",
+            )
         out[name] = v
     return out
 
@@ -47,13 +53,18 @@ def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     bounds = list(starts) + [len(order)]
     for k in range(len(starts)):
         lines.append(f"g seg_{seg_sorted[starts[k]]}")
-        lines += [f"f {a} {b} {c}" for a, b, c in faces[bounds[k]:bounds[k + 1]]]
+        lines += [f"f {a} {b} {c}" for a, b, c in faces[bounds[k] : bounds[k + 1]]]
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
     fv = _face_values(mesh, values)
     if fv:
         ids = np.unique(mesh.face_segment)
-        side = pd.DataFrame({"segment_id": ids} | {k: pd.Series(v, index=mesh.face_segment).groupby(level=0).first()
-                                                   .reindex(ids).to_numpy() for k, v in fv.items()})
+        side = pd.DataFrame(
+            {"segment_id": ids}
+            | {
+                k: pd.Series(v, index=mesh.face_segment).groupby(level=0).first().reindex(ids).to_numpy()
+                for k, v in fv.items()
+            }
+        )
         side.to_csv(path.with_suffix(".segments.csv"), index=False)
     return path
 
@@ -62,9 +73,18 @@ def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     """Binary PLY with face properties ``segment_id`` (int64) and float64 values."""
     path = Path(path)
     fv = _face_values(mesh, values)
-    header = ["ply", "format binary_little_endian 1.0", "comment lightfit shoot mesh, units m",
-              f"element vertex {len(mesh.vertices)}", "property double x", "property double y", "property double z",
-              f"element face {mesh.n_faces}", "property list uchar int vertex_indices", "property int64 segment_id"]
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment lightfit shoot mesh, units m",
+        f"element vertex {len(mesh.vertices)}",
+        "property double x",
+        "property double y",
+        "property double z",
+        f"element face {mesh.n_faces}",
+        "property list uchar int vertex_indices",
+        "property int64 segment_id",
+    ]
     header += [f"property double {k}" for k in fv]
     header.append("end_header")
     vdt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
@@ -86,8 +106,13 @@ def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     """VTK legacy ASCII polydata with cell arrays ``segment_id`` and the values."""
     path = Path(path)
     fv = _face_values(mesh, values)
-    out = ["# vtk DataFile Version 3.0", "lightfit shoot mesh (m)", "ASCII", "DATASET POLYDATA",
-           f"POINTS {len(mesh.vertices)} double"]
+    out = [
+        "# vtk DataFile Version 3.0",
+        "lightfit shoot mesh (m)",
+        "ASCII",
+        "DATASET POLYDATA",
+        f"POINTS {len(mesh.vertices)} double",
+    ]
     out += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices]
     out.append(f"POLYGONS {mesh.n_faces} {4 * mesh.n_faces}")
     out += [f"3 {a} {b} {c}" for a, b, c in mesh.faces]

@@ -74,9 +74,14 @@ class Field:
     buffer_along: int | None = None
 
     def __post_init__(self):
-        if self.buffer_along is not None and (not isinstance(self.buffer_along, (int, np.integer)) or self.buffer_along < 0):
-            raise InputError(f"buffer_along={self.buffer_along!r}", column="buffer_along",
-                             expected="an integer ≥ 0, or None for buffer_rows")
+        if self.buffer_along is not None and (
+            not isinstance(self.buffer_along, (int, np.integer)) or self.buffer_along < 0
+        ):
+            raise InputError(
+                f"buffer_along={self.buffer_along!r}",
+                column="buffer_along",
+                expected="an integer ≥ 0, or None for buffer_rows",
+            )
         if not isinstance(self.n_plants, (int, np.integer)) or self.n_plants < 1:
             raise InputError(f"n_plants={self.n_plants!r}", column="n_plants", expected="an integer ≥ 1")
         for name in ("row_spacing_m", "plant_spacing_m"):
@@ -126,11 +131,19 @@ class Field:
         x = along * d[0] + across * p[0]
         y = along * d[1] + across * p[1]
         measured = (r >= 0) & (r < self.n) & (c >= 0) & (c < self.n)
-        return pd.DataFrame({
-            "plant_id": plant_id(r, c), "row": row, "col": col, "r": r, "c": c,
-            "seed": [plant_seed(self.seed, int(i) + ID_OFFSET, int(j) + ID_OFFSET) for i, j in zip(r, c)],
-            "x_m": x, "y_m": y, "measured": measured,
-        }).set_index("plant_id", drop=False)
+        return pd.DataFrame(
+            {
+                "plant_id": plant_id(r, c),
+                "row": row,
+                "col": col,
+                "r": r,
+                "c": c,
+                "seed": [plant_seed(self.seed, int(i) + ID_OFFSET, int(j) + ID_OFFSET) for i, j in zip(r, c)],
+                "x_m": x,
+                "y_m": y,
+                "measured": measured,
+            }
+        ).set_index("plant_id", drop=False)
 
     def tiles(self, n_tiles: int = 1) -> list[Tile]:
         """Partition the measurement area into ``n_tiles`` blocks, each with its buffer ring.
@@ -143,17 +156,23 @@ class Field:
         a = max(d for d in range(1, math.isqrt(n_tiles) + 1) if n_tiles % d == 0)
         bcount = n_tiles // a
         if a > self.n or bcount > self.n:
-            raise InputError(f"{n_tiles} tiles ({a}×{bcount}) do not fit a {self.n}×{self.n} measurement area",
-                             column="n_tiles", expected=f"at most {self.n} tiles per side")
+            raise InputError(
+                f"{n_tiles} tiles ({a}×{bcount}) do not fit a {self.n}×{self.n} measurement area",
+                column="n_tiles",
+                expected=f"at most {self.n} tiles per side",
+            )
         B, m, Ba, ma = self.buffer_rows, self.m, self.b_along, self.m_along
         rows = np.array_split(np.arange(B, B + self.n), a)
         cols = np.array_split(np.arange(Ba, Ba + self.n), bcount)
         out = []
-        for i, rr in enumerate(rows):
-            for j, cc in enumerate(cols):
+        for rr in rows:
+            for cc in cols:
                 r0, r1, c0, c1 = rr[0], rr[-1], cc[0], cc[-1]
-                R, C = np.meshgrid(np.arange(max(0, r0 - B), min(m, r1 + B + 1)),
-                                   np.arange(max(0, c0 - Ba), min(ma, c1 + Ba + 1)), indexing="ij")
+                R, C = np.meshgrid(
+                    np.arange(max(0, r0 - B), min(m, r1 + B + 1)),
+                    np.arange(max(0, c0 - Ba), min(ma, c1 + Ba + 1)),
+                    indexing="ij",
+                )
                 inside = (R >= r0) & (R <= r1) & (C >= c0) & (C <= c1)
                 ids = plant_id(R - B, C - Ba)
                 out.append(Tile(index=len(out), measured=np.sort(ids[inside]), buffer=np.sort(ids[~inside])))
@@ -191,8 +210,14 @@ class FieldGeometry:
     cache_hits: int = 0
 
 
-def build(fld: Field, *, tile: Tile | None = None, resolution: MeshResolution = MeshResolution(),
-          cache_dir=None, progress: bool = False) -> FieldGeometry:
+def build(
+    fld: Field,
+    *,
+    tile: Tile | None = None,
+    resolution: MeshResolution = MeshResolution(),
+    cache_dir=None,
+    progress: bool = False,
+) -> FieldGeometry:
     """Grow (or load from cache), place and mesh the plants of a field or of one tile.
 
     Without ``tile``: the whole grid, measured = the measurement area. With a tile: its

@@ -1,7 +1,7 @@
 """Grow one wheat plant with CPlantBox and export its segment table (G1).
 
 CPlantBox (Schnepf et al. 2018, Zhou et al. 2020; Giraud et al. 2023 for the wheat shoot) works
-in cm and days. The segment table converts to metres; its columns (DESIGN §3):
+in cm and days. The segment table converts to metres; its columns (docs/design.md §3):
 
 ========================  ==========================================================
 ``plant_id``              plant index in the field grid (row * n + col), 0 for one plant
@@ -60,12 +60,18 @@ def resolve_parameter_file(name: str | os.PathLike) -> Path:
         p = parameter_dir() / str(name)
     if not p.exists():
         wheat = sorted(f.name for f in parameter_dir().glob("Triticum_aestivum_*.xml"))
-        raise InputError(f"plant parameter file {str(name)!r} not found", column="parameter_file",
-                         expected=f"a path or one of CPlantBox's wheat files: {', '.join(wheat)}")
+        raise InputError(
+            f"plant parameter file {str(name)!r} not found",
+            column="parameter_file",
+            expected=f"a path or one of CPlantBox's wheat files: {', '.join(wheat)}",
+        )
     head = p.read_text(encoding="utf-8", errors="replace")[:4000]
     if "<plant" not in head:
-        raise InputError("not a CPlantBox plant parameter file (no <plant> element)", file=p,
-                         expected="an XML file such as Triticum_aestivum_adapted_2023.xml")
+        raise InputError(
+            "not a CPlantBox plant parameter file (no <plant> element)",
+            file=p,
+            expected="an XML file such as Triticum_aestivum_adapted_2023.xml",
+        )
     return p
 
 
@@ -92,8 +98,11 @@ class GrowthConfig:
     def __post_init__(self):
         start, end = parse_date(self.season_start, "season_start"), parse_date(self.target_date, "target_date")
         if end <= start:
-            raise InputError(f"target_date {end} is not after season_start {start}", column="target_date",
-                             expected="season_start < target_date")
+            raise InputError(
+                f"target_date {end} is not after season_start {start}",
+                column="target_date",
+                expected="season_start < target_date",
+            )
         object.__setattr__(self, "_path", resolve_parameter_file(self.parameter_file))
 
     @property
@@ -111,7 +120,8 @@ class GrowthConfig:
 
         h = hashlib.sha256()
         h.update(self.path.read_bytes())
-        h.update(f"{self.season_start}|{self.target_date}|roots={self.include_roots}|cplantbox {md.version('cplantbox')}".encode())
+        key = f"{self.season_start}|{self.target_date}|roots={self.include_roots}|cplantbox {md.version('cplantbox')}"
+        h.update(key.encode())
         return h.hexdigest()[:16]
 
 
@@ -123,8 +133,11 @@ def plant_seed(global_seed: int, row: int, col: int) -> int:
     without communication (the reference paper's scheme).
     """
     if min(global_seed, row, col) < 0:
-        raise InputError("seeds and grid positions must be non-negative", column="seed",
-                         expected=f"global_seed ≥ 0, row ≥ 0, col ≥ 0; got {global_seed}, {row}, {col}")
+        raise InputError(
+            "seeds and grid positions must be non-negative",
+            column="seed",
+            expected=f"global_seed ≥ 0, row ≥ 0, col ≥ 0; got {global_seed}, {row}, {col}",
+        )
     return int(np.random.SeedSequence([int(global_seed), int(row), int(col)]).generate_state(1)[0] >> 1)
 
 
@@ -186,21 +199,31 @@ def segment_table(plant, plant_id: int = 0, include_roots: bool = True) -> pd.Da
     radius = np.asarray(plant.radii, dtype=float) * CM
     ct = np.asarray(plant.nodeCTs, dtype=float)[segs[:, 1]]
     width = np.where((ot == 4) & (area > 0) & (length > 0), area / np.where(length > 0, length, 1.0), 0.0)
-    return pd.DataFrame({
-        "plant_id": np.full(n, plant_id, dtype=np.int64),
-        "segment_index": np.arange(n, dtype=np.int64),
-        "segment_id": plant_id * SEGMENT_ID_STRIDE + np.arange(n, dtype=np.int64),
-        "organ_type": pd.Categorical([ORGAN_NAMES.get(int(t), "other") for t in ot], categories=["root", "stem", "leaf", "other"]),
-        "organ_id": organ_id,
-        "x0": nodes[segs[:, 0], 0], "y0": nodes[segs[:, 0], 1], "z0": nodes[segs[:, 0], 2],
-        "x1": nodes[segs[:, 1], 0], "y1": nodes[segs[:, 1], 1], "z1": nodes[segs[:, 1], 2],
-        "length_m": length,
-        "radius_m": radius,
-        "blade_width_m": width,
-        "blade_area_m2": np.where(ot == 4, area, 0.0),
-        "creation_time_d": ct,
-        "bx": branch[:, 0], "by": branch[:, 1], "bz": branch[:, 2],
-    })
+    return pd.DataFrame(
+        {
+            "plant_id": np.full(n, plant_id, dtype=np.int64),
+            "segment_index": np.arange(n, dtype=np.int64),
+            "segment_id": plant_id * SEGMENT_ID_STRIDE + np.arange(n, dtype=np.int64),
+            "organ_type": pd.Categorical(
+                [ORGAN_NAMES.get(int(t), "other") for t in ot], categories=["root", "stem", "leaf", "other"]
+            ),
+            "organ_id": organ_id,
+            "x0": nodes[segs[:, 0], 0],
+            "y0": nodes[segs[:, 0], 1],
+            "z0": nodes[segs[:, 0], 2],
+            "x1": nodes[segs[:, 1], 0],
+            "y1": nodes[segs[:, 1], 1],
+            "z1": nodes[segs[:, 1], 2],
+            "length_m": length,
+            "radius_m": radius,
+            "blade_width_m": width,
+            "blade_area_m2": np.where(ot == 4, area, 0.0),
+            "creation_time_d": ct,
+            "bx": branch[:, 0],
+            "by": branch[:, 1],
+            "bz": branch[:, 2],
+        }
+    )
 
 
 def shoot(segments: pd.DataFrame) -> pd.DataFrame:

@@ -91,8 +91,9 @@ class Mesh:
         """A ``trimesh.Trimesh`` with ``face_attributes['segment_id']`` (vertices not merged)."""
         import trimesh
 
-        return trimesh.Trimesh(self.vertices, self.faces, process=False,
-                               face_attributes={"segment_id": self.face_segment})
+        return trimesh.Trimesh(
+            self.vertices, self.faces, process=False, face_attributes={"segment_id": self.face_segment}
+        )
 
     @staticmethod
     def concatenate(meshes: list[Mesh]) -> Mesh:
@@ -140,8 +141,11 @@ def blade_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
     width = seg["blade_width_m"].to_numpy()
     u = np.linspace(0.0, 1.0, res.along + 1)
     v = np.linspace(-0.5, 0.5, res.across + 1)
-    pts = (a[:, None, None, :] + u[None, :, None, None] * (b - a)[:, None, None, :]
-           + v[None, None, :, None] * (width[:, None] * w)[:, None, None, :])
+    pts = (
+        a[:, None, None, :]
+        + u[None, :, None, None] * (b - a)[:, None, None, :]
+        + v[None, None, :, None] * (width[:, None] * w)[:, None, None, :]
+    )
     faces = _grid_faces(len(seg), res.along, res.across)
     n_per = 2 * res.along * res.across
     ids = np.repeat(seg["segment_id"].to_numpy(), n_per)
@@ -161,8 +165,11 @@ def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
     theta = np.linspace(0.0, 2 * np.pi, n + 1)  # closing column repeats the first angle
     ring = np.cos(theta)[None, :, None] * e1[:, None, :] + np.sin(theta)[None, :, None] * e2[:, None, :]
     u = np.linspace(0.0, 1.0, res.along + 1)
-    pts = (a[:, None, None, :] + u[None, :, None, None] * (b - a)[:, None, None, :]
-           + (r[:, None, None] * ring)[:, None, :, :])
+    pts = (
+        a[:, None, None, :]
+        + u[None, :, None, None] * (b - a)[:, None, None, :]
+        + (r[:, None, None] * ring)[:, None, :, :]
+    )
     # Reverse the grid winding so that prism normals point away from the axis.
     faces = _grid_faces(len(seg), res.along, n)[:, [0, 2, 1]]
     ids = np.repeat(seg["segment_id"].to_numpy(), 2 * res.along * n)

@@ -14,7 +14,12 @@ from matplotlib.collections import PolyCollection  # noqa: E402
 from lightfit.plant.field import FieldGeometry  # noqa: E402
 
 # Buffer plants first so the measured plants are drawn on top.
-COLOURS = {("tube", False): "#cdb98f", ("blade", False): "#b9dcbf", ("tube", True): "#8b6d2e", ("blade", True): "#1f7a31"}
+COLOURS = {
+    ("tube", False): "#cdb98f",
+    ("blade", False): "#b9dcbf",
+    ("tube", True): "#8b6d2e",
+    ("blade", True): "#1f7a31",
+}
 
 
 def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
@@ -25,8 +30,7 @@ def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
     measured_ids = set(geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy().tolist())
     measured = np.fromiter((s in measured_ids for s in m.face_segment), bool, m.n_faces)
     tri = m.vertices[m.faces]
-    fig, ax = plt.subplots(1, 2, figsize=(13, 6), constrained_layout=True,
-                           gridspec_kw={"width_ratios": [1, 1.3]})
+    fig, ax = plt.subplots(1, 2, figsize=(13, 6), constrained_layout=True, gridspec_kw={"width_ratios": [1, 1.3]})
     for (kind, meas), colour in COLOURS.items():
         sel = (m.face_is_blade == (kind == "blade")) & (measured == meas)
         if not sel.any():

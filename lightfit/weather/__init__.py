@@ -1,6 +1,6 @@
 """Weather: TERENO and CPlantBox readers, units, sun position, direct/diffuse split.
 
-Every reader returns the DESIGN §3 contract: a DataFrame indexed by tz-aware UTC timestamps
+Every reader returns the docs/design.md §3 contract: a DataFrame indexed by tz-aware UTC timestamps
 with unit-named columns (:data:`~lightfit.weather.series.COLUMNS`) and provenance in
 ``attrs``. Typical use::
 
@@ -25,7 +25,26 @@ from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, resample,
 from lightfit.weather.solar import SELHAUSEN, Site, add_solar, solar_position, split_direct_diffuse
 
 __all__ = [
-    "Anchor", "BOUNDS", "BUNDLED", "COLUMNS", "DayAssumptions", "SELHAUSEN", "Site", "add_solar", "bundled_path",
-    "check_and_repair", "load", "read_cplantbox_day", "read_lightfit_csv", "read_tereno", "read_weather",
-    "reconstruct_day", "resample", "sniff_format", "window", "solar_position", "split_direct_diffuse", "write_lightfit_csv",
+    "Anchor",
+    "BOUNDS",
+    "BUNDLED",
+    "COLUMNS",
+    "DayAssumptions",
+    "SELHAUSEN",
+    "Site",
+    "add_solar",
+    "bundled_path",
+    "check_and_repair",
+    "load",
+    "read_cplantbox_day",
+    "read_lightfit_csv",
+    "read_tereno",
+    "read_weather",
+    "reconstruct_day",
+    "resample",
+    "sniff_format",
+    "window",
+    "solar_position",
+    "split_direct_diffuse",
+    "write_lightfit_csv",
 ]

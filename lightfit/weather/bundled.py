@@ -25,8 +25,11 @@ def bundled_path(name: str) -> Path:
         raise InputError(f"no bundled weather named {name!r}", column="name", expected=" or ".join(BUNDLED))
     path = DATA_DIR / "weather" / BUNDLED[name][0]
     if not path.exists():
-        raise InputError("bundled file is missing from this installation", file=path,
-                         expected="a source checkout of lightfit (data/ is not part of the wheel)")
+        raise InputError(
+            "bundled file is missing from this installation",
+            file=path,
+            expected="a source checkout of lightfit (data/ is not part of the wheel)",
+        )
     return path
 
 

@@ -36,18 +36,24 @@ def _norm_unit(u: str) -> str:
 
 # quantity -> (column-name pattern, preferred exact name, {normalised unit: converter tag})
 TERENO_QUANTITIES: dict[str, tuple[str, str, dict[str, str]]] = {
-    "ghi_w_m2": (r"^RadiationGlobal", "RadiationGlobal_Avg10min",
-                 {"wm-2": "same", "w/m2": "same"}),
-    "par_umol_m2_s": (r"^RadiationPhotosyntheticActive", "RadiationPhotosyntheticActive_2m_Avg10min",
-                      {"umolm-2s-1": "same", "umol/m2/s": "same", "umol/(m2s)": "same"}),
-    "tair_c": (r"^AirTemperature", "AirTemperature_2m_Avg10min_Sensor1",
-               {"degc": "same", "c": "same", "k": "kelvin"}),
-    "humidity": (r"^AirHumidity", "AirHumidity_2m_Avg10min",
-                 {"gm-3": "absolute", "g/m3": "absolute", "%": "percent"}),
-    "pair_kpa": (r"^AirPressure", "AirPressure_1m_Avg10min",
-                 {"mbar": "mbar", "hpa": "mbar", "kpa": "same", "pa": "pa"}),
-    "co2_ppm": (r"^AirConcentration_?CO2", "AirConcentration_CO2_2m_Avg30min",
-                {"mmolm-3": "mmol_m3", "mmol/m3": "mmol_m3", "ppm": "same", "umolmol-1": "same", "umol/mol": "same"}),
+    "ghi_w_m2": (r"^RadiationGlobal", "RadiationGlobal_Avg10min", {"wm-2": "same", "w/m2": "same"}),
+    "par_umol_m2_s": (
+        r"^RadiationPhotosyntheticActive",
+        "RadiationPhotosyntheticActive_2m_Avg10min",
+        {"umolm-2s-1": "same", "umol/m2/s": "same", "umol/(m2s)": "same"},
+    ),
+    "tair_c": (r"^AirTemperature", "AirTemperature_2m_Avg10min_Sensor1", {"degc": "same", "c": "same", "k": "kelvin"}),
+    "humidity": (r"^AirHumidity", "AirHumidity_2m_Avg10min", {"gm-3": "absolute", "g/m3": "absolute", "%": "percent"}),
+    "pair_kpa": (
+        r"^AirPressure",
+        "AirPressure_1m_Avg10min",
+        {"mbar": "mbar", "hpa": "mbar", "kpa": "same", "pa": "pa"},
+    ),
+    "co2_ppm": (
+        r"^AirConcentration_?CO2",
+        "AirConcentration_CO2_2m_Avg30min",
+        {"mmolm-3": "mmol_m3", "mmol/m3": "mmol_m3", "ppm": "same", "umolmol-1": "same", "umol/mol": "same"},
+    ),
 }
 _TIME_NAMES = re.compile(r"^(timestamp|time|date|datetime|date_time|zeitstempel)\b", re.IGNORECASE)
 _COL = re.compile(r"^\s*(?P<name>[^\[]+?)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
@@ -63,16 +69,22 @@ def _find_table(text_lines: list[str], file) -> tuple[int, str]:
     for i, line in enumerate(text_lines):
         if line.lstrip().startswith("#"):
             continue
-        hits = sum(bool(re.search(pat, cell.strip().strip('"'))) for pat, _, _ in TERENO_QUANTITIES.values()
-                   for cell in re.split(r"[,;\t]", line))
+        hits = sum(
+            bool(re.search(pat, cell.strip().strip('"')))
+            for pat, _, _ in TERENO_QUANTITIES.values()
+            for cell in re.split(r"[,;\t]", line)
+        )
         if hits >= 1:
             delim = max([",", ";", "\t"], key=line.count)
             cells = [c.strip().strip('"') for c in line.split(delim)]
             if any(_TIME_NAMES.match(c) for c in cells):
                 return i, delim
-    raise InputError("no table header found: no line names a time column and a TERENO quantity such as "
-                     "'RadiationGlobal_Avg10min [W*m-2]'", file=file,
-                     expected="a TERENO data-portal CSV export (header lines, then a table with a Timestamp column)")
+    raise InputError(
+        "no table header found: no line names a time column and a TERENO quantity such as "
+        "'RadiationGlobal_Avg10min [W*m-2]'",
+        file=file,
+        expected="a TERENO data-portal CSV export (header lines, then a table with a Timestamp column)",
+    )
 
 
 def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -> pd.DatetimeIndex:
@@ -86,8 +98,13 @@ def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -
     else:
         t = pd.to_datetime(text, format="ISO8601", errors="coerce")
         i = int(np.flatnonzero(t.isna().to_numpy())[0])
-        raise InputError(f"cannot parse time {text.iloc[i]!r}", file=file, row=int(lines.iloc[i]), column=column,
-                         expected="timestamps like 2016-04-20 12:10:00")
+        raise InputError(
+            f"cannot parse time {text.iloc[i]!r}",
+            file=file,
+            row=int(lines.iloc[i]),
+            column=column,
+            expected="timestamps like 2016-04-20 12:10:00",
+        )
     idx = pd.DatetimeIndex(t)
     idx = idx.tz_localize(tz, ambiguous="raise", nonexistent="raise") if idx.tz is None else idx
     return idx.tz_convert("UTC")
@@ -123,8 +140,9 @@ def read_tereno(
         raise InputError("file not found", file=path, expected="a TERENO CSV export")
     text_lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     hdr, delim = _find_table(text_lines, path)
-    table = pd.read_csv(io.StringIO("\n".join(text_lines[hdr:])), sep=delim, dtype=str, keep_default_na=False,
-                        skip_blank_lines=False)
+    table = pd.read_csv(
+        io.StringIO("\n".join(text_lines[hdr:])), sep=delim, dtype=str, keep_default_na=False, skip_blank_lines=False
+    )
     table.columns = [c.strip().strip('"') for c in table.columns]
     lines = pd.Series(np.arange(len(table)) + hdr + 2)  # 1-based; header is line hdr+1
     keep = table.apply(lambda r: any(str(v).strip() for v in r), axis=1).to_numpy()
@@ -139,30 +157,45 @@ def read_tereno(
     columns = dict(columns or {})
     unknown = set(columns) - set(TERENO_QUANTITIES)
     if unknown:
-        raise InputError(f"unknown quantity key(s) {sorted(unknown)} in columns=", expected=", ".join(TERENO_QUANTITIES))
+        raise InputError(
+            f"unknown quantity key(s) {sorted(unknown)} in columns=", expected=", ".join(TERENO_QUANTITIES)
+        )
     for qty, (pattern, preferred, unit_map) in TERENO_QUANTITIES.items():
         if qty in columns:
             if columns[qty] not in table.columns:
-                raise InputError(f"column {columns[qty]!r} requested for {qty} is not in the table", file=path,
-                                 expected=f"one of {list(table.columns)}")
+                raise InputError(
+                    f"column {columns[qty]!r} requested for {qty} is not in the table",
+                    file=path,
+                    expected=f"one of {list(table.columns)}",
+                )
             src = columns[qty]
         else:
-            cands = [c for c in table.columns if re.search(pattern, _split_header(c)[0])
-                     and not re.search(r"(qual|flag)", c, re.IGNORECASE)]
+            cands = [
+                c
+                for c in table.columns
+                if re.search(pattern, _split_header(c)[0]) and not re.search(r"(qual|flag)", c, re.IGNORECASE)
+            ]
             if not cands:
                 continue
             src = next((c for c in cands if _split_header(c)[0] == preferred), cands[0])
         name, unit = _split_header(src)
         tag = unit_map.get(_norm_unit(unit or ""))
         if tag is None:
-            raise InputError(f"unit [{unit}] not understood for {qty}", file=path, row=hdr + 1, column=src,
-                             expected="one of " + ", ".join(f"[{u}]" for u in unit_map))
+            raise InputError(
+                f"unit [{unit}] not understood for {qty}",
+                file=path,
+                row=hdr + 1,
+                column=src,
+                expected="one of " + ", ".join(f"[{u}]" for u in unit_map),
+            )
         raw[qty] = parse_numeric(table[src].set_axis(times), lines.set_axis(times), path, src, qc)
         conv[qty], used[qty] = tag, f"{src}"
     if "tair_c" in raw and conv["tair_c"] == "kelvin":
         raw["tair_c"] = raw["tair_c"] - units.T0
     if "pair_kpa" in raw:
-        raw["pair_kpa"] = {"mbar": units.kpa_from_mbar, "pa": lambda p: p * 1e-3, "same": lambda p: p}[conv["pair_kpa"]](raw["pair_kpa"])
+        raw["pair_kpa"] = {"mbar": units.kpa_from_mbar, "pa": lambda p: p * 1e-3, "same": lambda p: p}[
+            conv["pair_kpa"]
+        ](raw["pair_kpa"])
     out = pd.DataFrame(index=times)
     for qty in ("ghi_w_m2", "par_umol_m2_s", "tair_c", "pair_kpa"):
         if qty in raw:
@@ -170,16 +203,22 @@ def read_tereno(
     if "humidity" in raw:
         if conv["humidity"] == "absolute":
             if "tair_c" not in out:
-                raise InputError("absolute humidity needs air temperature to convert to relative humidity", file=path,
-                                 expected="an AirTemperature column")
+                raise InputError(
+                    "absolute humidity needs air temperature to convert to relative humidity",
+                    file=path,
+                    expected="an AirTemperature column",
+                )
             out["rh"] = units.relative_humidity_from_absolute(raw["humidity"], out["tair_c"])
         else:
             out["rh"] = raw["humidity"] / 100.0
     if "co2_ppm" in raw:
         if conv["co2_ppm"] == "mmol_m3":
             if not {"tair_c", "pair_kpa"} <= set(out.columns):
-                raise InputError("CO2 in mmol m-3 needs air temperature and pressure to convert to ppm", file=path,
-                                 expected="AirTemperature and AirPressure columns")
+                raise InputError(
+                    "CO2 in mmol m-3 needs air temperature and pressure to convert to ppm",
+                    file=path,
+                    expected="AirTemperature and AirPressure columns",
+                )
             out["co2_ppm"] = units.co2_ppm_from_mmol_m3(raw["co2_ppm"], out["tair_c"], out["pair_kpa"])
         else:
             out["co2_ppm"] = raw["co2_ppm"]
@@ -190,11 +229,23 @@ def read_tereno(
         n = int((held.notna() & out["co2_ppm"].isna()).sum())
         if n:
             out["co2_ppm"] = held
-            qc.append({"kind": "held", "column": "co2_ppm", "count": n,
-                       "detail": f"{n} value(s) of the 30-min CO2 series held over the 10-min rows in between"})
-    out.attrs = {"source": str(path), "format": "tereno", "provenance": provenance, "timezone_assumed": tz,
-                 "columns_used": used, "unused_columns": [c for c in table.columns if c not in used.values() and c != time_col],
-                 "qc": qc}
+            qc.append(
+                {
+                    "kind": "held",
+                    "column": "co2_ppm",
+                    "count": n,
+                    "detail": f"{n} value(s) of the 30-min CO2 series held over the 10-min rows in between",
+                }
+            )
+    out.attrs = {
+        "source": str(path),
+        "format": "tereno",
+        "provenance": provenance,
+        "timezone_assumed": tz,
+        "columns_used": used,
+        "unused_columns": [c for c in table.columns if c not in used.values() and c != time_col],
+        "qc": qc,
+    }
     return check_and_repair(out, lines.set_axis(times), path, max_gap=max_gap)
 
 
@@ -235,9 +286,15 @@ def read_cplantbox_day(
     out["rh"] = parse_numeric(table["RH"].set_axis(times), lt, path, "RH", qc)
     out["pair_kpa"] = parse_numeric(table["Pair"].set_axis(times), lt, path, "Pair", qc)
     out["co2_ppm"] = parse_numeric(table["co2"].set_axis(times), lt, path, "co2", qc) * 1e6
-    out.attrs = {"source": str(path), "format": "cplantbox", "provenance": provenance, "timezone_assumed": tz,
-                 "columns_used": {v: k for k, v in need.items() if v},
-                 "unused_columns": [c for c in table.columns if c not in need], "qc": qc}
+    out.attrs = {
+        "source": str(path),
+        "format": "cplantbox",
+        "provenance": provenance,
+        "timezone_assumed": tz,
+        "columns_used": {v: k for k, v in need.items() if v},
+        "unused_columns": [c for c in table.columns if c not in need],
+        "qc": qc,
+    }
     return check_and_repair(out, lt, path, max_gap=max_gap)
 
 
@@ -261,8 +318,12 @@ def read_csv_with_metadata(path: Path) -> tuple[dict[str, str], int, pd.DataFram
             k, v = line[1:].split(":", 1)
             meta[k.strip()] = v.strip()
     if meta.get("provenance") not in PROVENANCES:
-        raise InputError(f"metadata line '# provenance: ...' is {meta.get('provenance')!r}", file=path, row=1,
-                         expected="'measured', 'reconstructed' or 'synthetic'")
+        raise InputError(
+            f"metadata line '# provenance: ...' is {meta.get('provenance')!r}",
+            file=path,
+            row=1,
+            expected="'measured', 'reconstructed' or 'synthetic'",
+        )
     table = pd.read_csv(io.StringIO("\n".join(text[n_meta:])), dtype=str, keep_default_na=False)
     return meta, n_meta, table
 
@@ -287,16 +348,25 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
     for c in table.columns:
         if c != "time_utc":
             out[c] = parse_numeric(table[c].set_axis(times), lt, path, c, qc)
-    out.attrs = {"source": str(path), "format": "lightfit", "provenance": meta["provenance"],
-                 "timezone_assumed": "UTC", "metadata": meta, "columns_used": {c: c for c in out.columns},
-                 "unused_columns": [], "qc": qc}
+    out.attrs = {
+        "source": str(path),
+        "format": "lightfit",
+        "provenance": meta["provenance"],
+        "timezone_assumed": "UTC",
+        "metadata": meta,
+        "columns_used": {c: c for c in out.columns},
+        "unused_columns": [],
+        "qc": qc,
+    }
     return check_and_repair(out, lt, path, max_gap=max_gap)
 
 
 def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
     """Write a contract series with ``# key: value`` metadata (must include ``provenance``)."""
     if metadata.get("provenance") not in ("measured", "reconstructed", "synthetic"):
-        raise InputError("metadata must state provenance", column="provenance", expected="'measured', 'reconstructed' or 'synthetic'")
+        raise InputError(
+            "metadata must state provenance", column="provenance", expected="'measured', 'reconstructed' or 'synthetic'"
+        )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     head = "".join(f"# {k}: {v}\n" for k, v in metadata.items())
@@ -318,8 +388,11 @@ def sniff_format(path: str | Path) -> str:
         return "cplantbox"
     if any(re.search(pat.lstrip("^"), head) for pat, _, _ in TERENO_QUANTITIES.values()):
         return "tereno"
-    raise InputError("unrecognised weather file format", file=path,
-                     expected="a TERENO CSV export, a CPlantBox weather file or a lightfit CSV")
+    raise InputError(
+        "unrecognised weather file format",
+        file=path,
+        expected="a TERENO CSV export, a CPlantBox weather file or a lightfit CSV",
+    )
 
 
 def read_weather(path: str | Path, *, format: str = "auto", date=None, tz: str | None = None, **kwargs) -> pd.DataFrame:
@@ -332,7 +405,9 @@ def read_weather(path: str | Path, *, format: str = "auto", date=None, tz: str |
         return read_tereno(path, **({"tz": tz} if tz else {}), **kwargs)
     if fmt == "cplantbox":
         if date is None:
-            raise InputError("a CPlantBox weather file has no date", file=path, column="date", expected="date=YYYY-MM-DD")
+            raise InputError(
+                "a CPlantBox weather file has no date", file=path, column="date", expected="date=YYYY-MM-DD"
+            )
         return read_cplantbox_day(path, date, **({"tz": tz} if tz else {}), **kwargs)
     if fmt == "lightfit":
         return read_lightfit_csv(path, **kwargs)

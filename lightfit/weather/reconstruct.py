@@ -1,7 +1,7 @@
 """Reconstructed forcing for a day whose measured series is not available offline.
 
 The only on-record measurement of 2016-04-20 at Selhausen is one chamber point
-(12:13:48 local time, PAR 1549.31 µmol m⁻² s⁻¹, Tair 19.2 °C; DESIGN §5). Everything else in
+(12:13:48 local time, PAR 1549.31 µmol m⁻² s⁻¹, Tair 19.2 °C; docs/design.md §5). Everything else in
 :func:`reconstruct_day` is physics for the site and date plus stated assumptions; the result
 is labelled ``provenance = "reconstructed"`` and must never be called measured.
 """
@@ -70,7 +70,8 @@ class DayAssumptions:
 def solar_noon_utc(date: str, site: Site = SELHAUSEN) -> pd.Timestamp:
     """Time of solar transit (UTC) on ``date`` at ``site``, from pvlib's SPA."""
     tr = pvlib.solarposition.sun_rise_set_transit_spa(
-        pd.DatetimeIndex([pd.Timestamp(date, tz="UTC") + pd.Timedelta("12h")]), site.latitude_deg, site.longitude_deg)
+        pd.DatetimeIndex([pd.Timestamp(date, tz="UTC") + pd.Timedelta("12h")]), site.latitude_deg, site.longitude_deg
+    )
     return pd.Timestamp(tr["transit"].iloc[0]).tz_convert("UTC")
 
 
@@ -114,15 +115,26 @@ def reconstruct_day(
     rh = e / units.saturation_vapour_pressure_kpa(tair)
     p = assumptions.pressure_kpa or pvlib.atmosphere.alt2pres(site.altitude_m) / 1000.0
 
-    df = pd.DataFrame({
-        "ghi_w_m2": ghi.to_numpy(),
-        "par_umol_m2_s": units.par_from_ghi(ghi.to_numpy()),
-        "tair_c": np.asarray(tair, dtype=float),
-        "rh": np.asarray(rh, dtype=float),
-        "pair_kpa": np.full(len(times), p),
-        "co2_ppm": np.full(len(times), assumptions.co2_ppm),
-    }, index=times.rename("time_utc"))
-    df.attrs = {"source": "lightfit.weather.reconstruct_day", "format": "lightfit", "provenance": "reconstructed",
-                "timezone_assumed": "UTC", "anchor": asdict(anchor), "assumptions": asdict(assumptions),
-                "clear_sky_scale": k, "qc": [], "site": site}
+    df = pd.DataFrame(
+        {
+            "ghi_w_m2": ghi.to_numpy(),
+            "par_umol_m2_s": units.par_from_ghi(ghi.to_numpy()),
+            "tair_c": np.asarray(tair, dtype=float),
+            "rh": np.asarray(rh, dtype=float),
+            "pair_kpa": np.full(len(times), p),
+            "co2_ppm": np.full(len(times), assumptions.co2_ppm),
+        },
+        index=times.rename("time_utc"),
+    )
+    df.attrs = {
+        "source": "lightfit.weather.reconstruct_day",
+        "format": "lightfit",
+        "provenance": "reconstructed",
+        "timezone_assumed": "UTC",
+        "anchor": asdict(anchor),
+        "assumptions": asdict(assumptions),
+        "clear_sky_scale": k,
+        "qc": [],
+        "site": site,
+    }
     return add_solar(df, site)

@@ -1,4 +1,4 @@
-"""The weather series contract (DESIGN §3) and the checks every reader passes through.
+"""The weather series contract (docs/design.md §3) and the checks every reader passes through.
 
 A weather series is a ``pandas.DataFrame`` indexed by tz-aware UTC timestamps with unit-named
 columns (:data:`COLUMNS`). Readers hand :func:`check_and_repair` a frame plus the source line
@@ -92,13 +92,24 @@ def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column:
         bad = out.isna() & ~empty
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(f"value {text.iloc[i]!r} is not a number", file=file, row=int(lines.iloc[i]), column=column,
-                             expected="a decimal number or an empty cell for a missing value")
+            raise InputError(
+                f"value {text.iloc[i]!r} is not a number",
+                file=file,
+                row=int(lines.iloc[i]),
+                column=column,
+                expected="a decimal number or an empty cell for a missing value",
+            )
         out = out.astype(float)
     sentinel = out.isin(MISSING_SENTINELS)
     if sentinel.any():
         out = out.mask(sentinel)
-        _record(qc, "sentinel", column, sentinel.sum(), f"{int(sentinel.sum())} value(s) in {MISSING_SENTINELS} read as missing")
+        _record(
+            qc,
+            "sentinel",
+            column,
+            sentinel.sum(),
+            f"{int(sentinel.sum())} value(s) in {MISSING_SENTINELS} read as missing",
+        )
     return out
 
 
@@ -137,8 +148,11 @@ def check_and_repair(
     if not ({"ghi_w_m2", "par_umol_m2_s"} & set(df.columns)):
         missing.append("ghi_w_m2 or par_umol_m2_s")
     if missing:
-        raise InputError(f"missing column(s) {', '.join(missing)}", file=file,
-                         expected=f"columns for {', '.join(missing)}; found {', '.join(df.columns) or 'none'}")
+        raise InputError(
+            f"missing column(s) {', '.join(missing)}",
+            file=file,
+            expected=f"columns for {', '.join(missing)}; found {', '.join(df.columns) or 'none'}",
+        )
     if len(df) < 2:
         raise InputError(f"only {len(df)} data row(s)", file=file, expected="a time series of at least 2 rows")
 
@@ -146,8 +160,12 @@ def check_and_repair(
     if dup.any():
         first = df.index[dup][0]
         rows = [int(x) for x in lines[dup].tolist()[:6]]
-        raise InputError(f"duplicated timestamp {first.isoformat()} ({int(dup.sum())} rows share a timestamp, e.g. lines {rows})",
-                         file=file, row=rows[0], expected="one row per timestamp")
+        raise InputError(
+            f"duplicated timestamp {first.isoformat()} ({int(dup.sum())} rows share a timestamp, e.g. lines {rows})",
+            file=file,
+            row=rows[0],
+            expected="one row per timestamp",
+        )
     if not df.index.is_monotonic_increasing:
         _record(qc, "sorted", None, len(df), "rows were not in time order and were sorted")
         order = np.argsort(df.index.asi8, kind="stable")
@@ -162,13 +180,19 @@ def check_and_repair(
     off_grid = ((df.index - df.index[0]) % step) != pd.Timedelta(0)
     if off_grid.any():
         bad = df.index[off_grid][0]
-        raise InputError(f"timestamp {bad.isoformat()} is off the regular {step} grid starting {df.index[0].isoformat()}",
-                         file=file, row=_line_of(lines, bad), expected=f"a regular time step of {step}")
+        raise InputError(
+            f"timestamp {bad.isoformat()} is off the regular {step} grid starting {df.index[0].isoformat()}",
+            file=file,
+            row=_line_of(lines, bad),
+            expected=f"a regular time step of {step}",
+        )
     full = pd.date_range(df.index[0], df.index[-1], freq=step)
     if len(full) != len(df):
         n_new = len(full) - len(df)
         df = df.reindex(full)
-        _record(qc, "missing_timestamps", None, n_new, f"{n_new} missing timestamp(s) of the {step} grid inserted as gaps")
+        _record(
+            qc, "missing_timestamps", None, n_new, f"{n_new} missing timestamp(s) of the {step} grid inserted as gaps"
+        )
 
     for col in df.columns:
         na = df[col].isna()
@@ -180,31 +204,63 @@ def check_and_repair(
             span = run.iloc[-1] - run.iloc[0] + step
             at_edge = run.iloc[0] == df.index[0] or run.iloc[-1] == df.index[-1]
             if span > max_gap or at_edge:
-                why = "at the start or end of the series (cannot interpolate)" if at_edge else f"longer than max_gap={max_gap}"
-                raise InputError(f"{len(run)} missing value(s) from {run.iloc[0].isoformat()} to {run.iloc[-1].isoformat()}, {why}",
-                                 file=file, row=_line_of(lines, run.iloc[0]), column=col,
-                                 expected="complete data, or gaps short enough to interpolate (raise max_gap)")
+                why = (
+                    "at the start or end of the series (cannot interpolate)"
+                    if at_edge
+                    else f"longer than max_gap={max_gap}"
+                )
+                raise InputError(
+                    f"{len(run)} missing value(s) from {run.iloc[0].isoformat()} to {run.iloc[-1].isoformat()}, {why}",
+                    file=file,
+                    row=_line_of(lines, run.iloc[0]),
+                    column=col,
+                    expected="complete data, or gaps short enough to interpolate (raise max_gap)",
+                )
         df[col] = df[col].interpolate(method="time", limit_area="inside")
-        _record(qc, "interpolated", col, na.sum(), f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {max_gap})")
+        _record(
+            qc,
+            "interpolated",
+            col,
+            na.sum(),
+            f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {max_gap})",
+        )
 
     for col, b in BOUNDS.items():
         if col not in df.columns:
             continue
         v = df[col]
         low_band = (v < b.low) & (v >= b.clamp_below) if b.clamp_below is not None else pd.Series(False, index=v.index)
-        high_band = (v > b.high) & (v <= b.clamp_above) if b.clamp_above is not None else pd.Series(False, index=v.index)
+        high_band = (
+            (v > b.high) & (v <= b.clamp_above) if b.clamp_above is not None else pd.Series(False, index=v.index)
+        )
         out = ((v < b.low) & ~low_band) | ((v > b.high) & ~high_band)
         if out.any():
             ts = v.index[out][0]
-            raise InputError(f"value {v[ts]:g} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); check the unit",
-                             file=file, row=_line_of(lines, ts), column=col,
-                             expected=f"{b.low:g} … {b.high:g} ({COLUMNS[col]})")
+            raise InputError(
+                f"value {v[ts]:g} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); check the unit",
+                file=file,
+                row=_line_of(lines, ts),
+                column=col,
+                expected=f"{b.low:g} … {b.high:g} ({COLUMNS[col]})",
+            )
         if low_band.any():
             df.loc[low_band, col] = b.low
-            _record(qc, "clamped", col, low_band.sum(), f"{int(low_band.sum())} value(s) in [{b.clamp_below:g}, {b.low:g}) set to {b.low:g} (sensor offset)")
+            _record(
+                qc,
+                "clamped",
+                col,
+                low_band.sum(),
+                f"{int(low_band.sum())} value(s) in [{b.clamp_below:g}, {b.low:g}) set to {b.low:g} (sensor offset)",
+            )
         if high_band.any():
             df.loc[high_band, col] = b.high
-            _record(qc, "clamped", col, high_band.sum(), f"{int(high_band.sum())} value(s) in ({b.high:g}, {b.clamp_above:g}] set to {b.high:g}")
+            _record(
+                qc,
+                "clamped",
+                col,
+                high_band.sum(),
+                f"{int(high_band.sum())} value(s) in ({b.high:g}, {b.clamp_above:g}] set to {b.high:g}",
+            )
     df.index.name = "time_utc"
     df.attrs = attrs | {"qc": qc}
     return df
@@ -227,8 +283,11 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.Dat
     if how == "sample":
         out = df[measured].asfreq(freq)
         if out.isna().any().any():
-            raise InputError(f"cannot sample at {freq}: the source has no value at some new timestamps", column="freq",
-                             expected="a step that is a multiple of the source step, or how='mean'")
+            raise InputError(
+                f"cannot sample at {freq}: the source has no value at some new timestamps",
+                column="freq",
+                expected="a step that is a multiple of the source step, or how='mean'",
+            )
     elif how == "mean":
         shifted = df[measured].copy()
         shifted.index = shifted.index + step / 2
@@ -238,7 +297,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.Dat
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
     out.attrs = dict(df.attrs)
     out.attrs["qc"] = list(df.attrs.get("qc", [])) + [
-        {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"}]
+        {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"}
+    ]
     out.index.name = "time_utc"
     if "sun_elevation_deg" in df.columns:
         from lightfit.weather.solar import add_solar
@@ -247,8 +307,15 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.Dat
     return out
 
 
-def window(df: pd.DataFrame, start: str | pd.Timestamp, hours: float, step: str = "30min", *, how: str = "sample",
-           tz: str = "Europe/Berlin") -> pd.DataFrame:
+def window(
+    df: pd.DataFrame,
+    start: str | pd.Timestamp,
+    hours: float,
+    step: str = "30min",
+    *,
+    how: str = "sample",
+    tz: str = "Europe/Berlin",
+) -> pd.DataFrame:
     """Time steps ``start, start + step, …, start + hours`` (inclusive), e.g. a diurnal run.
 
     The reference paper ran 2016-04-20 from 05:00 for 14 h in 30-minute steps (29 steps);
@@ -259,8 +326,11 @@ def window(df: pd.DataFrame, start: str | pd.Timestamp, hours: float, step: str 
     t0 = (t0.tz_localize(tz) if t0.tzinfo is None else t0).tz_convert("UTC")
     t1 = t0 + pd.Timedelta(hours=hours)
     if t0 < df.index[0] or t1 > df.index[-1]:
-        raise InputError(f"window {t0.isoformat()} … {t1.isoformat()} is not covered by the series "
-                         f"({df.index[0].isoformat()} … {df.index[-1].isoformat()})",
-                         file=df.attrs.get("source"), expected="a series spanning the requested window")
+        raise InputError(
+            f"window {t0.isoformat()} … {t1.isoformat()} is not covered by the series "
+            f"({df.index[0].isoformat()} … {df.index[-1].isoformat()})",
+            file=df.attrs.get("source"),
+            expected="a series spanning the requested window",
+        )
     out = resample(df, step, how)
     return out.loc[t0:t1]

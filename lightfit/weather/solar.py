@@ -45,7 +45,9 @@ def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFr
     Azimuth is clockwise from north.
     """
     if times.tz is None:
-        raise InputError("timestamps are timezone-naive", column="time", expected="tz-aware timestamps (lightfit uses UTC)")
+        raise InputError(
+            "timestamps are timezone-naive", column="time", expected="tz-aware timestamps (lightfit uses UTC)"
+        )
     sp = pvlib.solarposition.get_solarposition(times, site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
     return pd.DataFrame({"sun_elevation_deg": sp["apparent_elevation"], "sun_azimuth_deg": sp["azimuth"]}, index=times)
 
@@ -59,7 +61,9 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     radiation is diffuse.
     """
     if model not in SPLIT_MODELS:
-        raise InputError(f"unknown direct/diffuse split model {model!r}", column="split_model", expected=" or ".join(SPLIT_MODELS))
+        raise InputError(
+            f"unknown direct/diffuse split model {model!r}", column="split_model", expected=" or ".join(SPLIT_MODELS)
+        )
     zenith = 90.0 - sun_elevation_deg
     times = ghi_w_m2.index
     if model == "erbs":
@@ -87,12 +91,24 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     k = float(par_from_ghi(1.0))
     if "par_umol_m2_s" not in out.columns:
         out["par_umol_m2_s"] = par_from_ghi(out["ghi_w_m2"])
-        qc.append({"kind": "derived", "column": "par_umol_m2_s", "count": len(out),
-                   "detail": f"PAR estimated from global radiation × {k:.3f} µmol J⁻¹ (0.50 × 4.57)"})
+        qc.append(
+            {
+                "kind": "derived",
+                "column": "par_umol_m2_s",
+                "count": len(out),
+                "detail": f"PAR estimated from global radiation × {k:.3f} µmol J⁻¹ (0.50 × 4.57)",
+            }
+        )
     if "ghi_w_m2" not in out.columns:
         out["ghi_w_m2"] = out["par_umol_m2_s"] / k
-        qc.append({"kind": "derived", "column": "ghi_w_m2", "count": len(out),
-                   "detail": f"global radiation estimated from PAR / {k:.3f} µmol J⁻¹"})
+        qc.append(
+            {
+                "kind": "derived",
+                "column": "ghi_w_m2",
+                "count": len(out),
+                "detail": f"global radiation estimated from PAR / {k:.3f} µmol J⁻¹",
+            }
+        )
     sp = solar_position(out.index, site)
     out["sun_elevation_deg"] = sp["sun_elevation_deg"]
     out["sun_azimuth_deg"] = sp["sun_azimuth_deg"]

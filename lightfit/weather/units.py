@@ -14,7 +14,7 @@ R_GAS = 8.314462618
 #: Kelvin offset.
 T0 = 273.15
 #: Fraction of broadband global radiation that is PAR (400–700 nm), energy basis (≈0.45–0.50;
-#: McCree 1972; Meek et al. 1984). DESIGN §6 uses 0.50.
+#: McCree 1972; Meek et al. 1984). docs/design.md §6 uses 0.50.
 PAR_FRACTION = 0.50
 #: Photon-to-energy ratio of sunlight PAR, µmol J⁻¹ (McCree 1972: 4.57).
 UMOL_PER_JOULE_PAR = 4.57

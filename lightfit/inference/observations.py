@@ -38,15 +38,22 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         raise InputError("no 'time' column", file=path, row=n_meta + 1, expected="columns time, " + ", ".join(COLUMNS))
     missing = [c for c in COLUMNS if c not in df.columns]
     if missing:
-        raise InputError(f"missing column(s) {missing}", file=path, row=n_meta + 1, expected=", ".join(("time",) + COLUMNS))
+        raise InputError(
+            f"missing column(s) {missing}", file=path, row=n_meta + 1, expected=", ".join(("time",) + COLUMNS)
+        )
     tz = meta.get("time_zone", "UTC")
     out = pd.DataFrame(index=range(len(df)))
     for i, t in enumerate(df["time"]):
         try:
             ts = pd.Timestamp(t.strip())
         except ValueError as err:
-            raise InputError(f"cannot parse time {t!r}", file=path, row=n_meta + 2 + i, column="time",
-                             expected="ISO 8601 such as 2016-04-20 12:13:48") from err
+            raise InputError(
+                f"cannot parse time {t!r}",
+                file=path,
+                row=n_meta + 2 + i,
+                column="time",
+                expected="ISO 8601 such as 2016-04-20 12:13:48",
+            ) from err
         ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
     for c in COLUMNS:
@@ -55,15 +62,25 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         bad = vals.isna() & (text != "")
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(f"value {text.iloc[i]!r} is not a number", file=path, row=n_meta + 2 + i, column=c,
-                             expected="a number or an empty cell (missing)")
+            raise InputError(
+                f"value {text.iloc[i]!r} is not a number",
+                file=path,
+                row=n_meta + 2 + i,
+                column=c,
+                expected="a number or an empty cell (missing)",
+            )
         out[c] = vals.astype(float)
     for v, sd in PAIRS:
         need = out[v].notna() & ~(out[sd] > 0)
         if need.any():
             i = int(np.flatnonzero(need.to_numpy())[0])
-            raise InputError(f"{v} is given without a positive standard deviation", file=path, row=n_meta + 2 + i,
-                             column=sd, expected="SD > 0 wherever the value is present")
+            raise InputError(
+                f"{v} is given without a positive standard deviation",
+                file=path,
+                row=n_meta + 2 + i,
+                column=sd,
+                expected="SD > 0 wherever the value is present",
+            )
     if (out["par_umol_m2_s"] < 0).any():
         i = int(np.flatnonzero((out["par_umol_m2_s"] < 0).to_numpy())[0])
         raise InputError("negative PAR", file=path, row=n_meta + 2 + i, column="par_umol_m2_s", expected="PAR ≥ 0")
@@ -98,9 +115,13 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
     dist = np.abs(o_t - m_t[idx])
     far = dist > step.to_timedelta64() / 2
     if far.any():
-        raise InputError(f"observation at {obs.index[far][0].isoformat()} lies outside the run "
-                         f"({times[0].isoformat()} … {times[-1].isoformat()})", file=obs.attrs.get("source"),
-                         column="time", expected="observation times within the simulated window")
+        raise InputError(
+            f"observation at {obs.index[far][0].isoformat()} lies outside the run "
+            f"({times[0].isoformat()} … {times[-1].isoformat()})",
+            file=obs.attrs.get("source"),
+            column="time",
+            expected="observation times within the simulated window",
+        )
     out = {}
     for v, sd in PAIRS:
         val = np.full(len(times), np.nan)

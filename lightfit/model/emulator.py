@@ -16,7 +16,7 @@ step × part × segment; the same design for all outputs, so one pseudo-inverse)
 chosen by leave-one-out cross-validation (closed form via the hat matrix).
 
 :class:`FastObservables` turns emulated parts into the model's observables with the same
-formulas as :meth:`lightfit.calibrate.forward.CoupledModel.observe`, with one more speed-up:
+formulas as :meth:`lightfit.model.coupled.CoupledModel.observe`, with one more speed-up:
 the leaf photosynthesis of step ``t`` depends on the segment only through its absorbed PAR (same
 air temperature, CO2, humidity and pressure for all blades), so it is solved exactly on a grid of
 ``n_grid`` absorbed-PAR values (dense at low light, :math:`q_g = q_{max}(g/(G-1))^2`) and
@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel
 from lightfit.errors import InputError
 from lightfit.light.estimator import PARTS
+from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
 from lightfit.photosynthesis import solve
 
 LEAF = ("specular", "roughness", "subsurface")
@@ -63,9 +63,9 @@ def legendre_basis(u, expo: np.ndarray):
 
 def sobol_design(n: int, lo, hi, seed: int) -> np.ndarray:
     """``n`` scrambled-Sobol points in the box [lo, hi] (3 leaf parameters), explicit seed."""
-    from scipy.stats import qmc
-
     import warnings
+
+    from scipy.stats import qmc
 
     s = qmc.Sobol(d=3, scramble=True, seed=np.random.default_rng(seed))
     with warnings.catch_warnings():  # balance needs n = 2^k; any n is fine for a regression design
@@ -141,22 +141,39 @@ class PartsEmulator:
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, lo=self.lo, hi=self.hi, degree=self.degree, coef_values=self.coef_values,
-                            coef_se=self.coef_se, design=self.design, render_seconds=self.render_seconds,
-                            render_seed=self.render_seed, loo_rms=json.dumps({str(k): v for k, v in self.loo_rms.items()}))
+        np.savez_compressed(
+            path,
+            lo=self.lo,
+            hi=self.hi,
+            degree=self.degree,
+            coef_values=self.coef_values,
+            coef_se=self.coef_se,
+            design=self.design,
+            render_seconds=self.render_seconds,
+            render_seed=self.render_seed,
+            loo_rms=json.dumps({str(k): v for k, v in self.loo_rms.items()}),
+        )
         return path
 
     @staticmethod
     def load(path: str | Path) -> PartsEmulator:
         with np.load(path) as z:
-            return PartsEmulator(lo=z["lo"], hi=z["hi"], degree=int(z["degree"]), coef_values=z["coef_values"],
-                                 coef_se=z["coef_se"], design=z["design"], render_seconds=float(z["render_seconds"]),
-                                 render_seed=int(z["render_seed"]),
-                                 loo_rms={int(k): v for k, v in json.loads(str(z["loo_rms"])).items()})
+            return PartsEmulator(
+                lo=z["lo"],
+                hi=z["hi"],
+                degree=int(z["degree"]),
+                coef_values=z["coef_values"],
+                coef_se=z["coef_se"],
+                design=z["design"],
+                render_seconds=float(z["render_seconds"]),
+                render_seed=int(z["render_seed"]),
+                loo_rms={int(k): v for k, v in json.loads(str(z["loo_rms"])).items()},
+            )
 
 
-def fit_emulator(design, values, se, lo, hi, degrees=(1, 2, 3, 4, 5), render_seconds: float = float("nan"),
-                 render_seed: int = 0) -> PartsEmulator:
+def fit_emulator(
+    design, values, se, lo, hi, degrees=(1, 2, 3, 4, 5), render_seconds: float = float("nan"), render_seed: int = 0
+) -> PartsEmulator:
     """Least-squares fit at the design; degree by leave-one-out RMS (degrees with ≤ 0.8 n terms)."""
     design = np.asarray(design, float)
     n = len(design)
@@ -185,13 +202,24 @@ def fit_emulator(design, values, se, lo, hi, degrees=(1, 2, 3, 4, 5), render_sec
     return PartsEmulator(lo, hi, best, cv, cs, design, loo, render_seconds, render_seed)
 
 
-def build_emulator(model: CoupledModel, lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0), *, n_design: int = 40,
-                   degrees=(1, 2, 3, 4, 5), seed: int = 0, progress: bool = False) -> PartsEmulator:
+def build_emulator(
+    model: CoupledModel,
+    lo=(0.0, 0.0, 0.0),
+    hi=(1.0, 1.0, 1.0),
+    *,
+    n_design: int = 40,
+    degrees=(1, 2, 3, 4, 5),
+    seed: int = 0,
+    progress: bool = False,
+) -> PartsEmulator:
     """Render ``n_design`` Sobol points (seed ``seed``) of the box [lo, hi] and fit the emulator."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo) or np.any(lo < 0) or np.any(hi > 1):
-        raise InputError(f"emulator box lo={lo.tolist()}, hi={hi.tolist()}", column="specular, roughness, subsurface",
-                         expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters")
+        raise InputError(
+            f"emulator box lo={lo.tolist()}, hi={hi.tolist()}",
+            column="specular, roughness, subsurface",
+            expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters",
+        )
     design = sobol_design(n_design, lo, hi, seed)
     t0 = time.perf_counter()
     v, s = render_parts(model, design, progress)
@@ -220,9 +248,12 @@ class FastObservables:
         self.rows = rows
         e = emulator
         if e.coef_values.shape[1:] != (len(self.day), len(PARTS), len(m.segment_id)):
-            raise InputError(f"emulator shape {e.coef_values.shape[1:]} does not match the model "
-                             f"({len(self.day)} daytime steps, {len(m.segment_id)} segments)", column="emulator",
-                             expected="an emulator built for this model")
+            raise InputError(
+                f"emulator shape {e.coef_values.shape[1:]} does not match the model "
+                f"({len(self.day)} daytime steps, {len(m.segment_id)} segments)",
+                column="emulator",
+                expected="an emulator built for this model",
+            )
         # Coefficients of the needed rows, flattened: (n_terms, T_day * n_rows * S).
         self._cv = jnp.asarray(e.coef_values[:, :, rows, :].reshape(len(e.coef_values), -1))
         self._cs = jnp.asarray(e.coef_se[:, :, rows, :].reshape(len(e.coef_se), -1))
@@ -260,15 +291,23 @@ class FastObservables:
         b = self.blades
         q = jnp.zeros((self.T, len(b))).at[day].set(jnp.maximum(field(self.abs_rows, v)[:, b], 0.0))
         q_se = jnp.zeros((self.T, len(b))).at[day].set(se(self.abs_rows)[:, b])
-        params = eqx.tree_at(lambda p: p.fvcb.vcmax_ref_umol_m2_s, m.params,
-                             m.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(th["vcmax_scale"], jnp.float64))
+        params = eqx.tree_at(
+            lambda p: p.fvcb.vcmax_ref_umol_m2_s,
+            m.params,
+            m.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(th["vcmax_scale"], jnp.float64),
+        )
         an_leaf, dan = self._leaf(q, params)
         a_leaf = jnp.asarray(m.area_m2[b])
         denom = a_leaf.sum() if m.scenario.an_per == "leaf" else m.ground_area_m2
         an = an_leaf @ a_leaf / denom
         an_mc_var = (jax.lax.stop_gradient(dan) * q_se) ** 2 @ (a_leaf / denom) ** 2
-        return {"par_umol_m2_s": par_mean, "par_sd_umol_m2_s": par_sd, "par_mc_var": jax.lax.stop_gradient(par_mc_var),
-                "an_umol_m2_s": an, "an_mc_var": jax.lax.stop_gradient(an_mc_var)}
+        return {
+            "par_umol_m2_s": par_mean,
+            "par_sd_umol_m2_s": par_sd,
+            "par_mc_var": jax.lax.stop_gradient(par_mc_var),
+            "an_umol_m2_s": an,
+            "an_mc_var": jax.lax.stop_gradient(an_mc_var),
+        }
 
     def _env(self, shape):
         m = self.model
@@ -300,8 +339,14 @@ class FastObservables:
 OBSERVABLES = ("par_umol_m2_s", "an_umol_m2_s")
 
 
-def validate(model: CoupledModel, fast: FastObservables, leaf_test, theta_extra: dict | None = None,
-             full: tuple[np.ndarray, np.ndarray] | None = None, progress: bool = False) -> dict:
+def validate(
+    model: CoupledModel,
+    fast: FastObservables,
+    leaf_test,
+    theta_extra: dict | None = None,
+    full: tuple[np.ndarray, np.ndarray] | None = None,
+    progress: bool = False,
+) -> dict:
     """Error of ``fast`` against full renders + exact photosynthesis at held-out leaf parameters.
 
     Args:
@@ -350,7 +395,10 @@ class _PartsModel(CoupledModel):
 
 
 def emulated_model(model: CoupledModel, emulator: PartsEmulator) -> CoupledModel:
-    """``model`` with its renders replaced by the emulator: ``observe`` / ``simulate`` / ``make_loss`` work unchanged."""
+    """``model`` with its renders replaced by the emulator.
+
+    ``observe`` / ``simulate`` / ``make_loss`` work unchanged.
+    """
     return _PartsModel(model, emulator)
 
 
@@ -358,5 +406,16 @@ def _observe_with_parts(model: CoupledModel, theta: dict, values, se) -> dict:
     return _PartsModel(model, lambda th: (jnp.asarray(values), jnp.asarray(se))).observe(theta)
 
 
-__all__ = ["FastObservables", "LEAF", "PartsEmulator", "build_emulator", "emulated_model", "exponents",
-           "fit_emulator", "legendre_basis", "render_parts", "sobol_design", "validate"]
+__all__ = [
+    "FastObservables",
+    "LEAF",
+    "PartsEmulator",
+    "build_emulator",
+    "emulated_model",
+    "exponents",
+    "fit_emulator",
+    "legendre_basis",
+    "render_parts",
+    "sobol_design",
+    "validate",
+]

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -15,8 +14,11 @@ from rich.table import Table
 
 from lightfit.errors import InputError
 
-app = typer.Typer(help="Differentiable light and photosynthesis for wheat canopies.", no_args_is_help=True,
-                  pretty_exceptions_enable=False)
+app = typer.Typer(
+    help="Differentiable light and photosynthesis for wheat canopies.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
 weather_app = typer.Typer(help="Read, check, convert and plot weather series.", no_args_is_help=True)
 app.add_typer(weather_app, name="weather")
 console = Console()
@@ -26,8 +28,14 @@ _STATE: dict[str, str | None] = {"variant": None}
 
 
 @app.callback()
-def _main(variant: str = typer.Option(None, "--variant", envvar="LIGHTFIT_VARIANT",
-                                      help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: auto).")):
+def _main(
+    variant: str = typer.Option(
+        None,
+        "--variant",
+        envvar="LIGHTFIT_VARIANT",
+        help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: auto).",
+    ),
+):
     _STATE["variant"] = variant
 
 
@@ -45,8 +53,22 @@ def info():
 
     t = Table(title="lightfit environment", show_header=False)
     t.add_row("python", sys.version.split()[0])
-    for pkg in ("lightfit", "jax", "jaxlib", "drjit", "mitsuba", "optimistix", "jaxopt", "emcee", "cplantbox",
-                "pvlib", "numpy", "pandas", "xarray", "trimesh"):
+    for pkg in (
+        "lightfit",
+        "jax",
+        "jaxlib",
+        "drjit",
+        "mitsuba",
+        "optimistix",
+        "jaxopt",
+        "emcee",
+        "cplantbox",
+        "pvlib",
+        "numpy",
+        "pandas",
+        "xarray",
+        "trimesh",
+    ):
         try:
             t.add_row(pkg, md.version(pkg))
         except md.PackageNotFoundError:
@@ -66,14 +88,25 @@ def _load(source: str, fmt: str, date: str | None, tz: str | None, max_gap: str,
     from lightfit import weather
 
     if source in weather.BUNDLED:
-        df = weather.read_weather(weather.bundled_path(source), date=date or weather.BUNDLED[source][1], max_gap=max_gap)
+        df = weather.read_weather(
+            weather.bundled_path(source), date=date or weather.BUNDLED[source][1], max_gap=max_gap
+        )
     else:
         df = weather.read_weather(source, format=fmt, date=date, tz=tz, max_gap=max_gap)
     return weather.add_solar(df, split_model=split)
 
 
-_SHORT = {"par_umol_m2_s": "PAR", "ghi_w_m2": "GHI", "dni_w_m2": "DNI", "dhi_w_m2": "DHI", "sun_elevation_deg": "sun°",
-          "tair_c": "T °C", "rh": "RH", "pair_kpa": "p kPa", "co2_ppm": "CO2"}
+_SHORT = {
+    "par_umol_m2_s": "PAR",
+    "ghi_w_m2": "GHI",
+    "dni_w_m2": "DNI",
+    "dhi_w_m2": "DHI",
+    "sun_elevation_deg": "sun°",
+    "tair_c": "T °C",
+    "rh": "RH",
+    "pair_kpa": "p kPa",
+    "co2_ppm": "CO2",
+}
 
 
 _DIGITS = {"rh": 2, "tair_c": 1, "pair_kpa": 1}
@@ -88,15 +121,21 @@ def _table(df, title: str, max_rows: int = 40, tz: str = "Europe/Berlin") -> Tab
         t.add_column(_SHORT[c], justify="right")
     step = max(1, len(df) // max_rows)
     for ts, row in df.iloc[::step].iterrows():
-        t.add_row(ts.strftime("%m-%d %H:%M"), ts.tz_convert(tz).strftime("%H:%M"),
-                  *(f"{row[c]:.{_DIGITS.get(c, 0)}f}" for c in cols))
+        t.add_row(
+            ts.strftime("%m-%d %H:%M"),
+            ts.tz_convert(tz).strftime("%H:%M"),
+            *(f"{row[c]:.{_DIGITS.get(c, 0)}f}" for c in cols),
+        )
     return t
 
 
 def _report(df) -> None:
     a = df.attrs
-    console.print(f"[bold]source[/] {a.get('source')}  [bold]format[/] {a.get('format')}  "
-                  f"[bold]provenance[/] [magenta]{a.get('provenance')}[/]  [bold]timestamps assumed in[/] {a.get('timezone_assumed')}")
+    console.print(
+        f"[bold]source[/] {a.get('source')}  [bold]format[/] {a.get('format')}  "
+        f"[bold]provenance[/] [magenta]{a.get('provenance')}[/]  "
+        f"[bold]timestamps assumed in[/] {a.get('timezone_assumed')}"
+    )
     for k, v in a.get("columns_used", {}).items():
         if k != v:
             console.print(f"  {k:>14} ← {v}")
@@ -108,7 +147,9 @@ def _report(df) -> None:
 
 @weather_app.command("show")
 def weather_show(
-    source: str = typer.Argument("2016-04-20", help="A bundled series name (2016-04-20, selhausen-cplantbox-day) or a file."),
+    source: str = typer.Argument(
+        "2016-04-20", help="A bundled series name (2016-04-20, selhausen-cplantbox-day) or a file."
+    ),
     fmt: str = typer.Option("auto", "--format", help="auto, tereno, cplantbox or lightfit."),
     date: str = typer.Option(None, help="Calendar date for undated files (CPlantBox day), YYYY-MM-DD."),
     tz: str = typer.Option(None, help="Timezone of the file's timestamps (default: the format's convention)."),
@@ -130,12 +171,17 @@ def weather_show(
     except InputError as err:
         _fail(err)
     _report(df)
-    console.print(_table(df, f"{df.attrs.get('provenance', '').upper()} weather: {Path(str(df.attrs.get('source'))).name}"))
+    console.print(
+        _table(df, f"{df.attrs.get('provenance', '').upper()} weather: {Path(str(df.attrs.get('source'))).name}")
+    )
     if plot:
         console.print(f"plot → {plot_forcing(df, plot)}")
     if csv:
-        meta = {"provenance": df.attrs["provenance"], "source": str(df.attrs.get("source")),
-                "qc": json.dumps(df.attrs.get("qc", []), ensure_ascii=False)}
+        meta = {
+            "provenance": df.attrs["provenance"],
+            "source": str(df.attrs.get("source")),
+            "qc": json.dumps(df.attrs.get("qc", []), ensure_ascii=False),
+        }
         console.print(f"csv → {weather.write_lightfit_csv(df, csv, meta)}")
 
 
@@ -153,60 +199,99 @@ def _theta(theta: str | None) -> dict:
         try:
             out[k.strip()] = float(v)
         except ValueError:
-            raise InputError(f"cannot read parameter {item!r}", column="theta",
-                             expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6") from None
+            raise InputError(
+                f"cannot read parameter {item!r}",
+                column="theta",
+                expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
+            ) from None
     return out
 
 
 @app.command()
 def replicate(
     out: Path = typer.Option(Path("results/2016-04-20"), help="Output directory."),
-    weather_file: Path = typer.Option(None, "--weather", help="A real TERENO export (or other weather file) to use "
-                                      "instead of the bundled reconstructed forcing."),
+    weather_file: Path = typer.Option(
+        None,
+        "--weather",
+        help="A real TERENO export (or other weather file) to use instead of the bundled reconstructed forcing.",
+    ),
     observations: Path = typer.Option(None, help="Chamber observations CSV (default: the bundled record of the day)."),
     quick: bool = typer.Option(False, "--quick", help="First look in under a minute: 4 plants, K=16, 2 bounces."),
     n_plants: int = typer.Option(None, help="Plants in the measurement area (default 100; quick: 4)."),
     buffer_rows: int = typer.Option(None, help="Buffer rows (default 2, the reference paper's finding)."),
-    buffer_along: int = typer.Option(None, help="Buffer plants along each row end (default: = buffer rows; "
-                                     "≈ 4× buffer rows makes the buffer as wide in metres both ways)."),
+    buffer_along: int = typer.Option(
+        None,
+        help="Buffer plants along each row end (default: = buffer rows; "
+        "≈ 4× buffer rows makes the buffer as wide in metres both ways).",
+    ),
     samples: int = typer.Option(None, help="Irradiance samples per segment K (default 64; quick: 16)."),
     bounces: int = typer.Option(None, help="Scattering orders (default 3; quick: 2)."),
-    theta: str = typer.Option(None, help="Leaf/light parameters: a calibration JSON or key=value,... "
-                              "(specular, roughness, subsurface, light_factor, vcmax_scale)."),
+    theta: str = typer.Option(
+        None,
+        help="Leaf/light parameters: a calibration JSON or key=value,... "
+        "(specular, roughness, subsurface, light_factor, vcmax_scale).",
+    ),
     how: str = typer.Option("sample", help="30-min steps from 10-min data: sample (as the reference paper) or mean."),
 ):
     """The main job: the 20 April 2016 Selhausen replication (forcing, light, photosynthesis, Fig 4)."""
     import dataclasses
 
-    from lightfit.calibrate import replication as rep
+    from lightfit import replication as rep
     from lightfit.weather.plot import plot_forcing
 
     cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
-    cfg = dataclasses.replace(cfg, how=how, **{k: v for k, v in dict(n_plants=n_plants, buffer_rows=buffer_rows,
-                                                                     buffer_along=buffer_along, samples=samples,
-                                                                     bounces=bounces).items() if v is not None})
+    cfg = dataclasses.replace(
+        cfg,
+        how=how,
+        **{
+            k: v
+            for k, v in dict(
+                n_plants=n_plants, buffer_rows=buffer_rows, buffer_along=buffer_along, samples=samples, bounces=bounces
+            ).items()
+            if v is not None
+        },
+    )
     try:
         w = rep.forcing(weather_file, how)
         out.mkdir(parents=True, exist_ok=True)
         _report(w)
         label = str(w.attrs.get("provenance", "")).upper()
         console.print(_table(w, f"{label} forcing of the diurnal run ({len(w)} steps of {rep.STEP})"))
-        meta = {"provenance": w.attrs["provenance"], "source": str(w.attrs.get("source")),
-                "note": f"{len(w)} steps of {rep.STEP} from {rep.START_LOCAL} local ({how})"}
+        meta = {
+            "provenance": w.attrs["provenance"],
+            "source": str(w.attrs.get("source")),
+            "note": f"{len(w)} steps of {rep.STEP} from {rep.START_LOCAL} local ({how})",
+        }
         from lightfit import weather
 
         weather.write_lightfit_csv(w, out / "forcing.csv", meta)
         plot_forcing(w, out / "forcing.png", title=f"{label} forcing, Selhausen 2016-04-20")
-        console.print(f"running: {cfg.n_plants} plants + {cfg.buffer_rows} buffer rows, K={cfg.samples}, "
-                      f"{cfg.bounces} bounces …")
-        ds, obs = rep.run(cfg, weather_file=weather_file, theta=_theta(theta), forcing_df=w,
-                          observations=observations or rep.OBSERVATIONS, out=out, progress=True)
+        console.print(
+            f"running: {cfg.n_plants} plants + {cfg.buffer_rows} buffer rows, K={cfg.samples}, {cfg.bounces} bounces …"
+        )
+        ds, obs = rep.run(
+            cfg,
+            weather_file=weather_file,
+            theta=_theta(theta),
+            forcing_df=w,
+            observations=observations or rep.OBSERVATIONS,
+            out=out,
+            progress=True,
+        )
     except InputError as err:
         _fail(err)
     s = rep.summary(ds)
     t = Table(title=f"replication summary ({label} forcing; model PAR = {cfg.par_kind}, An per {cfg.an_per} area)")
-    for c in ["local_time", "sun_elevation_deg", "par_above_umol_m2_s", "plant_par_umol_m2_s", "plant_par_sd_umol_m2_s",
-              "canopy_an_umol_m2_s", "canopy_an_mc_sd", "frac_light_limited"]:
+    for c in [
+        "local_time",
+        "sun_elevation_deg",
+        "par_above_umol_m2_s",
+        "plant_par_umol_m2_s",
+        "plant_par_sd_umol_m2_s",
+        "canopy_an_umol_m2_s",
+        "canopy_an_mc_sd",
+        "frac_light_limited",
+    ]:
         t.add_column(c.replace("_umol_m2_s", "").replace("_", " "), justify="right")
     for _, r in s.iterrows():
         t.add_row(r["local_time"], *(f"{r[c]:.3g}" if np.isfinite(r[c]) else "–" for c in list(s.columns)[1:]))
@@ -221,7 +306,9 @@ def replicate(
 def calibrate(
     observations: Path = typer.Argument(..., help="Observations CSV (time, PAR, net CO2 uptake and their SDs)."),
     out: Path = typer.Option(Path("results/calibration"), help="Output directory (history, result JSON, plot)."),
-    weather_file: Path = typer.Option(None, "--weather", help="TERENO export or other weather file (default: bundled)."),
+    weather_file: Path = typer.Option(
+        None, "--weather", help="TERENO export or other weather file (default: bundled)."
+    ),
     parameters: str = typer.Option("specular,roughness,subsurface", help="Parameters to calibrate, comma-separated."),
     start: str = typer.Option(None, help="Start values key=value,... (default: 0.5, 0.5, 0.3, 1, 1)."),
     quick: bool = typer.Option(False, "--quick", help="CI-sized field (4 plants, K=16)."),
@@ -233,35 +320,60 @@ def calibrate(
     """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients."""
     import dataclasses
 
-    from lightfit.calibrate import replication as rep
-    from lightfit.calibrate.fit import calibrate as run_calibration
-    from lightfit.calibrate.observations import read_observations
+    from lightfit import replication as rep
+    from lightfit.inference.calibration import calibrate as run_calibration
+    from lightfit.inference.observations import read_observations
 
     cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
-    cfg = dataclasses.replace(cfg, **{k: v for k, v in dict(n_plants=n_plants, samples=samples).items() if v is not None})
+    cfg = dataclasses.replace(
+        cfg, **{k: v for k, v in dict(n_plants=n_plants, samples=samples).items() if v is not None}
+    )
     try:
         obs = read_observations(observations)
         w = rep.forcing(weather_file, cfg.how)
         model = rep.model_for(cfg, w, progress=True)
         names = tuple(n.strip() for n in parameters.split(",") if n.strip())
         out.mkdir(parents=True, exist_ok=True)
-        res = run_calibration(model, obs, names=names, start=_theta(start), max_steps=max_steps,
-                              history=out / "history.jsonl", resume=resume)
+        res = run_calibration(
+            model,
+            obs,
+            names=names,
+            start=_theta(start),
+            max_steps=max_steps,
+            history=out / "history.jsonl",
+            resume=resume,
+        )
     except InputError as err:
         _fail(err)
-    (out / "calibration.json").write_text(json.dumps({"theta": res.theta, "loss": res.loss, "steps": res.steps,
-                                                      "converged": bool(res.converged), "seconds": res.seconds,
-                                                      "observations": str(observations), "parameters": list(names),
-                                                      "config": dataclasses.asdict(cfg)}, indent=2))
-    t = Table(title=f"calibration ({'converged' if res.converged else 'not converged'}, {res.steps} steps, {res.seconds:.0f} s)")
+    (out / "calibration.json").write_text(
+        json.dumps(
+            {
+                "theta": res.theta,
+                "loss": res.loss,
+                "steps": res.steps,
+                "converged": bool(res.converged),
+                "seconds": res.seconds,
+                "observations": str(observations),
+                "parameters": list(names),
+                "config": dataclasses.asdict(cfg),
+            },
+            indent=2,
+        )
+    )
+    t = Table(
+        title=f"calibration ({'converged' if res.converged else 'not converged'}, "
+        f"{res.steps} steps, {res.seconds:.0f} s)"
+    )
     t.add_column("parameter")
     t.add_column("value", justify="right")
     for k, v in res.theta.items():
         t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
     t.add_row("loss (Gaussian NLL)", f"{res.loss:.4g}")
     console.print(t)
-    console.print(f"[green]wrote[/] {out / 'calibration.json'}, {out / 'history.jsonl'}; "
-                  f"rerun `lightfit replicate --theta {out / 'calibration.json'}` to see the fit")
+    console.print(
+        f"[green]wrote[/] {out / 'calibration.json'}, {out / 'history.jsonl'}; "
+        f"rerun `lightfit replicate --theta {out / 'calibration.json'}` to see the fit"
+    )
 
 
 @app.command("field")
@@ -273,7 +385,9 @@ def field_cmd(
     buffer_along: int = typer.Option(None, help="Buffer plants along each row end (default: = buffer rows)."),
     row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
     seed: int = typer.Option(0, help="Global seed; plant seeds derive from it and grid positions."),
-    parameter_file: str = typer.Option("Triticum_aestivum_adapted_2023.xml", help="CPlantBox plant XML (path or bundled name)."),
+    parameter_file: str = typer.Option(
+        "Triticum_aestivum_adapted_2023.xml", help="CPlantBox plant XML (path or bundled name)."
+    ),
     season_start: str = typer.Option("2016-03-05", help="First day of growth."),
     date: str = typer.Option("2016-04-20", help="Date the plants are grown to."),
     tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),
@@ -302,14 +416,19 @@ def field_cmd(
     seg = geom.segments
     meas = seg[seg["measured"]]
     area_m2 = fld.n * fld.plant_spacing_m * fld.n * fld.row_spacing_m
-    t = Table(title=f"field {fld.n}×{fld.n} measured + {fld.buffer_rows} buffer rows, grown "
-                    f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}")
+    t = Table(
+        title=f"field {fld.n}×{fld.n} measured + {fld.buffer_rows} buffer rows, grown "
+        f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}"
+    )
     t.add_column("quantity")
     t.add_column("value", justify="right")
     n_meas = int(geom.plants["measured"].sum()) if tile is None else len(parts[tile].measured)
     t.add_row("plants built (measured / buffer)", f"{len(geom.plants)} ({n_meas} / {len(geom.plants) - n_meas})")
     t.add_row("plants from cache", str(geom.cache_hits))
-    t.add_row("shoot segments (leaf / stem)", f"{len(seg)} ({int((seg.organ_type == 'leaf').sum())} / {int((seg.organ_type == 'stem').sum())})")
+    t.add_row(
+        "shoot segments (leaf / stem)",
+        f"{len(seg)} ({int((seg.organ_type == 'leaf').sum())} / {int((seg.organ_type == 'stem').sum())})",
+    )
     t.add_row("measured segments", str(len(meas)))
     t.add_row("triangles", str(geom.mesh.n_faces))
     t.add_row("triangles per plant", f"{geom.mesh.n_faces / len(geom.plants):.0f}")
@@ -319,12 +438,17 @@ def field_cmd(
     t.add_row("canopy height (m)", f"{geom.mesh.vertices[:, 2].max():.3f}")
     if tiles > 1:
         sizes = [f"{len(p.measured)}+{len(p.buffer)}" for p in parts]
-        t.add_row(f"tiles (measured+buffer plants), overhead ×{sum(len(p.plant_ids) for p in parts) / (fld.n ** 2):.2f}", ", ".join(sizes))
+        t.add_row(
+            f"tiles (measured+buffer plants), overhead ×{sum(len(p.plant_ids) for p in parts) / (fld.n**2):.2f}",
+            ", ".join(sizes),
+        )
     console.print(t)
     for path in export or []:
         try:
-            values = {"measured": seg.set_index("segment_id")["measured"].astype(float),
-                      "plant_id": seg.set_index("segment_id")["plant_id"].astype(float)}
+            values = {
+                "measured": seg.set_index("segment_id")["measured"].astype(float),
+                "plant_id": seg.set_index("segment_id")["plant_id"].astype(float),
+            }
             console.print(f"[green]wrote[/] {plant.export(geom.mesh, path, values)}")
         except InputError as err:
             _fail(err)
@@ -338,9 +462,9 @@ def field_cmd(
 
 def _register_subcommands() -> None:
     """Commands whose code lives with their capability (imports stay lazy inside them)."""
-    from lightfit.calibrate.posterior_cli import posterior
-    from lightfit.dataset.cli import render_dataset
-    from lightfit.distributed.cli import field_run
+    from lightfit.cli.field_run import field_run
+    from lightfit.cli.posterior import posterior
+    from lightfit.cli.render_dataset import render_dataset
 
     app.command("posterior")(posterior)
     app.command("render-dataset")(render_dataset)

@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 
 from lightfit import weather
-from lightfit.calibrate.forward import DEFAULT_THETA, CoupledModel, Scenario
-from lightfit.calibrate.observations import align, read_observations
+from lightfit.inference.observations import align, read_observations
+from lightfit.model.coupled import DEFAULT_THETA, CoupledModel, Scenario
 from lightfit.plant import Field
 from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.units import par_from_ghi
@@ -50,20 +50,36 @@ class ReplicationConfig:
 
 def forcing(weather_file: str | Path | None = None, how: str = "sample") -> pd.DataFrame:
     """The run's 29 steps: bundled reconstruction, or the given weather file, with solar columns."""
-    src = weather.read_weather(weather_file) if weather_file else weather.read_weather(weather.bundled_path("2016-04-20"))
+    src = (
+        weather.read_weather(weather_file) if weather_file else weather.read_weather(weather.bundled_path("2016-04-20"))
+    )
     src = weather.add_solar(src)
     return weather.window(src, START_LOCAL, HOURS, STEP, how=how)
 
 
 def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:
-    sc = Scenario(weather=w, field=Field(n_plants=cfg.n_plants, buffer_rows=cfg.buffer_rows, seed=cfg.seed,
-                                         buffer_along=cfg.buffer_along),
-                  samples=cfg.samples, bounces=cfg.bounces, seed=cfg.render_seed, par_kind=cfg.par_kind, an_per=cfg.an_per)
+    sc = Scenario(
+        weather=w,
+        field=Field(n_plants=cfg.n_plants, buffer_rows=cfg.buffer_rows, seed=cfg.seed, buffer_along=cfg.buffer_along),
+        samples=cfg.samples,
+        bounces=cfg.bounces,
+        seed=cfg.render_seed,
+        par_kind=cfg.par_kind,
+        an_per=cfg.an_per,
+    )
     return CoupledModel(sc, progress=progress)
 
 
-def run(cfg: ReplicationConfig, *, weather_file=None, theta: dict | None = None, observations=OBSERVATIONS,
-        out: Path | None = None, progress: bool = False, forcing_df: pd.DataFrame | None = None):
+def run(
+    cfg: ReplicationConfig,
+    *,
+    weather_file=None,
+    theta: dict | None = None,
+    observations=OBSERVATIONS,
+    out: Path | None = None,
+    progress: bool = False,
+    forcing_df: pd.DataFrame | None = None,
+):
     """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None).
 
     ``forcing_df``: the run's forcing if already read (``forcing(weather_file, cfg.how)``).
@@ -103,16 +119,22 @@ def summary(ds) -> pd.DataFrame:
     blades = ds["is_blade"].values.astype(bool)
     lim = ds["limitation"].values[:, blades]
     light_limited = np.where((lim >= 0).any(1), (lim == 1).sum(1) / np.maximum((lim >= 0).sum(1), 1), np.nan)
-    return pd.DataFrame({
-        "local_time": t.tz_convert("Europe/Berlin").strftime("%H:%M"),
-        "sun_elevation_deg": ds["sun_elevation_deg"].values,
-        "par_above_umol_m2_s": par_from_ghi(ds["dni_w_m2"].values * np.sin(np.radians(np.clip(ds["sun_elevation_deg"].values, 0, 90)))
-                                            + ds["dhi_w_m2"].values),
-        "plant_par_umol_m2_s": ds["par_umol_m2_s"].values, "plant_par_sd_umol_m2_s": ds["par_sd_umol_m2_s"].values,
-        "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values,
-        "canopy_an_mc_sd": ds["canopy_an_mc_sd_umol_m2_s"].values,
-        "frac_light_limited": light_limited,
-    }, index=t.rename("time_utc"))
+    return pd.DataFrame(
+        {
+            "local_time": t.tz_convert("Europe/Berlin").strftime("%H:%M"),
+            "sun_elevation_deg": ds["sun_elevation_deg"].values,
+            "par_above_umol_m2_s": par_from_ghi(
+                ds["dni_w_m2"].values * np.sin(np.radians(np.clip(ds["sun_elevation_deg"].values, 0, 90)))
+                + ds["dhi_w_m2"].values
+            ),
+            "plant_par_umol_m2_s": ds["par_umol_m2_s"].values,
+            "plant_par_sd_umol_m2_s": ds["par_sd_umol_m2_s"].values,
+            "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values,
+            "canopy_an_mc_sd": ds["canopy_an_mc_sd_umol_m2_s"].values,
+            "frac_light_limited": light_limited,
+        },
+        index=t.rename("time_utc"),
+    )
 
 
 def plot(ds, path: Path) -> Path:
@@ -130,8 +152,14 @@ def plot(ds, path: Path) -> Path:
     ax.fill_between(t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments")
     ax.plot(t, par, color="tab:blue", lw=2, label=f"model: {kind} PAR, mean over segments")
     if "obs_par_umol_m2_s" in ds:
-        ax.errorbar(t, ds["obs_par_umol_m2_s"].values, yerr=ds["obs_par_sd_umol_m2_s"].values, fmt="s", color="navy",
-                    label="observed PAR (chamber)")
+        ax.errorbar(
+            t,
+            ds["obs_par_umol_m2_s"].values,
+            yerr=ds["obs_par_sd_umol_m2_s"].values,
+            fmt="s",
+            color="navy",
+            label="observed PAR (chamber)",
+        )
     ax.set_ylabel("PAR (µmol m⁻² s⁻¹)", color="tab:blue")
     ax2 = ax.twinx()
     an, an_sd = ds["canopy_an_umol_m2_s"].values, ds["canopy_an_mc_sd_umol_m2_s"].values
@@ -139,8 +167,14 @@ def plot(ds, path: Path) -> Path:
     ax2.fill_between(t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2)
     ax2.plot(t, an, color="tab:red", lw=2, label=f"model: net CO2 uptake per {per} area (±2 MC SE)")
     if "obs_an_umol_m2_s" in ds and np.isfinite(ds["obs_an_umol_m2_s"].values).any():
-        ax2.errorbar(t, ds["obs_an_umol_m2_s"].values, yerr=ds["obs_an_sd_umol_m2_s"].values, fmt="o", color="darkred",
-                     label="observed net CO2 uptake")
+        ax2.errorbar(
+            t,
+            ds["obs_an_umol_m2_s"].values,
+            yerr=ds["obs_an_sd_umol_m2_s"].values,
+            fmt="o",
+            color="darkred",
+            label="observed net CO2 uptake",
+        )
     ax2.set_ylabel(f"net CO2 uptake (µmol m⁻² {per} s⁻¹)", color="tab:red")
     ax.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
     ax.set_xlabel("local time (Europe/Berlin), 2016-04-20")
@@ -148,8 +182,11 @@ def plot(ds, path: Path) -> Path:
     h2, l2 = ax2.get_legend_handles_labels()
     ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
     prov = ds.attrs.get("weather_provenance", "unknown").upper()
-    fig.suptitle(f"Selhausen 2016-04-20 replication — {prov} forcing; {ds.attrs.get('n_plants')} plants "
-                 f"(+{ds.attrs.get('buffer_rows')} buffer rows), K={ds.attrs.get('samples')}", fontsize=11)
+    fig.suptitle(
+        f"Selhausen 2016-04-20 replication — {prov} forcing; {ds.attrs.get('n_plants')} plants "
+        f"(+{ds.attrs.get('buffer_rows')} buffer rows), K={ds.attrs.get('samples')}",
+        fontsize=11,
+    )
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -1,6 +1,6 @@
 r"""Bayesian posteriors of the leaf-optics (and light, Vcmax, noise) parameters with emcee.
 
-Likelihood (Gaussian, as :func:`lightfit.calibrate.fit.make_loss`, plus the normalisation that a
+Likelihood (Gaussian, as :func:`lightfit.inference.calibration.make_loss`, plus the normalisation that a
 free noise scale needs): for every observed step k of PAR and net CO2 uptake
 
 .. math:: \log L(\theta) = -\tfrac12 \sum_k \Big[\frac{(y_k - m_k(\theta))^2}{v_k} + \log(2\pi v_k)\Big],
@@ -8,7 +8,7 @@ free noise scale needs): for every observed step k of PAR and net CO2 uptake
 
 with the measurement SD σ_k, the optional ``noise_scale`` λ (1 when not sampled) and the model's
 Monte Carlo variance s_k². With λ = 1 it equals ``−make_loss(...) − ½Σ log(2π v_k)`` (tested).
-The model m(θ) is :class:`lightfit.calibrate.emulator.FastObservables` — emulated renders and
+The model m(θ) is :class:`lightfit.model.emulator.FastObservables` — emulated renders and
 tabulated photosynthesis, whose error against full renders is measured and reported relative to
 the posterior width (:func:`emulator_error_vs_width`).
 
@@ -42,9 +42,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from lightfit.calibrate.forward import DEFAULT_THETA, PARAMETERS
-from lightfit.calibrate.observations import align
 from lightfit.errors import InputError
+from lightfit.inference.observations import align
+from lightfit.model.coupled import DEFAULT_THETA, PARAMETERS
 
 #: Everything the posterior can sample: the model parameters plus a measurement-noise scale.
 SAMPLED = (*PARAMETERS, "noise_scale")
@@ -107,22 +107,41 @@ class Prior:
 
 _F0 = "F0 = 0.08·specular (lightfit.light.bsdf)"
 _T = "leaf transmittance = (1 − F0)·subsurface·base_color, base_color 0.5"
-#: Priors informed by leaf optics (DESIGN.md §6) — the default.
+#: Priors informed by leaf optics (docs/design.md §6) — the default.
 PRIORS_INFORMED: dict[str, Prior] = {
-    "specular": Prior("uniform", 0.4625, 0.7375,
-                      f"upper leaf surface reflection 3.7–5.9 % (DESIGN.md §6), {_F0}: 0.037/0.08 … 0.059/0.08"),
-    "roughness": Prior("uniform", 0.3, 1.0,
-                       "no measurement; lower bound 0.3 (GGX α ≥ 0.09) excludes mirror-like cuticles, for which the "
-                       "frozen-sampling estimator's per-segment variance explodes (glints)"),
-    "subsurface": Prior("uniform", 0.04, 0.18,
-                        f"PROSPECT-D wheat PAR transmittance 0.02–0.08 (DESIGN.md §6), {_T}: ≈ 0.04 … 0.17"),
-    "light_factor": Prior("lognormal", 1.0, 0.5,
-                          "broad: median 1 (PAR = 0.5 × 4.57 µmol/J × radiation), ±1 SD in log covers the reference "
-                          "paper's fitted 1.637", lo=0.25, hi=4.0),
-    "vcmax_scale": Prior("lognormal", 1.0, 0.25, "Vcmax varies ≈ ±25 % with cultivar and leaf age (1 SD in log)",
-                         lo=0.25, hi=4.0),
-    "noise_scale": Prior("loguniform", 0.3, 3.0, "scale-invariant (Jeffreys) prior on the factor multiplying the "
-                         "reported measurement SDs"),
+    "specular": Prior(
+        "uniform",
+        0.4625,
+        0.7375,
+        f"upper leaf surface reflection 3.7–5.9 % (docs/design.md §6), {_F0}: 0.037/0.08 … 0.059/0.08",
+    ),
+    "roughness": Prior(
+        "uniform",
+        0.3,
+        1.0,
+        "no measurement; lower bound 0.3 (GGX α ≥ 0.09) excludes mirror-like cuticles, for which the "
+        "frozen-sampling estimator's per-segment variance explodes (glints)",
+    ),
+    "subsurface": Prior(
+        "uniform", 0.04, 0.18, f"PROSPECT-D wheat PAR transmittance 0.02–0.08 (docs/design.md §6), {_T}: ≈ 0.04 … 0.17"
+    ),
+    "light_factor": Prior(
+        "lognormal",
+        1.0,
+        0.5,
+        "broad: median 1 (PAR = 0.5 × 4.57 µmol/J × radiation), ±1 SD in log covers the reference paper's fitted 1.637",
+        lo=0.25,
+        hi=4.0,
+    ),
+    "vcmax_scale": Prior(
+        "lognormal", 1.0, 0.25, "Vcmax varies ≈ ±25 % with cultivar and leaf age (1 SD in log)", lo=0.25, hi=4.0
+    ),
+    "noise_scale": Prior(
+        "loguniform",
+        0.3,
+        3.0,
+        "scale-invariant (Jeffreys) prior on the factor multiplying the reported measurement SDs",
+    ),
 }
 #: Wide priors over the whole leaf-parameter box (roughness ≥ 0.3 as above): lets the posterior reach the
 #: biophysically unrealistic combinations the reference paper warns about.
@@ -149,8 +168,11 @@ def check_names(names, priors: dict[str, Prior]) -> tuple[str, ...]:
             lo, hi = priors[n].support
             plo, phi = PARAMETERS[n]
             if lo < plo or (phi is not None and hi > phi):
-                raise InputError(f"prior support of {n} is [{lo}, {hi}]", column=n,
-                                 expected=f"within the parameter's domain [{plo}, {phi}]")
+                raise InputError(
+                    f"prior support of {n} is [{lo}, {hi}]",
+                    column=n,
+                    expected=f"within the parameter's domain [{plo}, {phi}]",
+                )
     return names
 
 
@@ -169,8 +191,16 @@ class LogPosterior:
         fixed: values of non-sampled model parameters (default :data:`DEFAULT_THETA`).
     """
 
-    def __init__(self, forward, times, obs, names, priors: dict[str, Prior] | None = None, fixed: dict | None = None,
-                 use=("par", "an")):
+    def __init__(
+        self,
+        forward,
+        times,
+        obs,
+        names,
+        priors: dict[str, Prior] | None = None,
+        fixed: dict | None = None,
+        use=("par", "an"),
+    ):
         self.priors = dict(priors or PRIORS_INFORMED)
         self.names = check_names(names, self.priors)
         bad = [u for u in use if u not in ("par", "an")]
@@ -185,12 +215,19 @@ class LogPosterior:
         self.y, self.sd, self.mask = {}, {}, {}
         for u, v, sd in (("par", "par_umol_m2_s", "par_sd_umol_m2_s"), ("an", "an_umol_m2_s", "an_sd_umol_m2_s")):
             have = ~np.isnan(target[v]) & (u in self.use)
-            self.y[u], self.sd[u] = jnp.asarray(np.nan_to_num(target[v])), jnp.asarray(np.nan_to_num(target[sd], nan=1.0))
+            self.y[u], self.sd[u] = (
+                jnp.asarray(np.nan_to_num(target[v])),
+                jnp.asarray(np.nan_to_num(target[sd], nan=1.0)),
+            )
             self.mask[u] = jnp.asarray(have)
         self.n_observations = int(sum(np.asarray(m).sum() for m in self.mask.values()))
         if self.n_observations == 0:
-            raise InputError("no observation of the used series falls on a simulated step", file=obs.attrs.get("source"),
-                             column="use", expected="PAR or net CO2 observations within the run")
+            raise InputError(
+                "no observation of the used series falls on a simulated step",
+                file=obs.attrs.get("source"),
+                column="use",
+                expected="PAR or net CO2 observations within the run",
+            )
         self._batch = jax.jit(jax.vmap(self.log_prob))
         self._batch_ll = jax.jit(jax.vmap(self.log_likelihood))
 
@@ -236,7 +273,9 @@ class LogPosterior:
         out = []
         for n in self.names:
             p = self.priors[n]
-            out.append(0.5 * (p.a + p.b) if p.kind == "uniform" else (math.sqrt(p.a * p.b) if p.kind == "loguniform" else p.a))
+            out.append(
+                0.5 * (p.a + p.b) if p.kind == "uniform" else (math.sqrt(p.a * p.b) if p.kind == "loguniform" else p.a)
+            )
         return np.asarray(out)
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
@@ -246,8 +285,12 @@ class LogPosterior:
     def loglike_batch(self, xs: np.ndarray, chunk: int = 64) -> np.ndarray:
         """Log-likelihood of many points, evaluated ``chunk`` at a time (bounded memory)."""
         xs = np.atleast_2d(xs)
-        return np.concatenate([np.asarray(self._batch_ll(jnp.asarray(xs[i : i + chunk], jnp.float64)), dtype=np.float64)
-                               for i in range(0, len(xs), chunk)])
+        return np.concatenate(
+            [
+                np.asarray(self._batch_ll(jnp.asarray(xs[i : i + chunk], jnp.float64)), dtype=np.float64)
+                for i in range(0, len(xs), chunk)
+            ]
+        )
 
     def initial(self, nwalkers: int, seed: int) -> np.ndarray:
         """Walkers drawn from the prior (generator seeded with ``seed``)."""
@@ -307,8 +350,9 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
 # ----------------------------------------------------------------------------------------------
 # Diagnostics
 # ----------------------------------------------------------------------------------------------
-def diagnostics(chain: np.ndarray, accepted: np.ndarray | None = None, *, burn_fraction: float = 0.25,
-                names=None, c: float = 5.0) -> dict:
+def diagnostics(
+    chain: np.ndarray, accepted: np.ndarray | None = None, *, burn_fraction: float = 0.25, names=None, c: float = 5.0
+) -> dict:
     """Convergence diagnostics of an ensemble chain of shape (n_steps, n_walkers, ndim).
 
     Returns a dict: ``n_steps``, ``n_kept`` (after discarding ``burn_fraction``), ``tau`` (integrated
@@ -329,9 +373,16 @@ def diagnostics(chain: np.ndarray, accepted: np.ndarray | None = None, *, burn_f
             tau = emcee.autocorr.integrated_time(kept, c=c, tol=0, quiet=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         ess = w * len(kept) / tau
-    out = {"names": list(names) if names is not None else [f"x{i}" for i in range(d)], "n_steps": n,
-           "n_walkers": w, "n_kept": len(kept), "burn": burn, "tau": tau, "ess": ess,
-           "tau_reliable": bool(np.all(len(kept) >= 50 * tau))}
+    out = {
+        "names": list(names) if names is not None else [f"x{i}" for i in range(d)],
+        "n_steps": n,
+        "n_walkers": w,
+        "n_kept": len(kept),
+        "burn": burn,
+        "tau": tau,
+        "ess": ess,
+        "tau_reliable": bool(np.all(len(kept) >= 50 * tau)),
+    }
     if accepted is not None:
         acc = np.asarray(accepted, float) / max(n, 1)
         out["acceptance"] = acc
@@ -374,10 +425,23 @@ class SamplerResult:
     steps_this_call: int
 
 
-def sample(log_prob, names, path: str | Path, *, nwalkers: int = 32, max_steps: int = 5000, seed: int = 0,
-           initial: np.ndarray | None = None, resume: bool = True, stop: StopRule | None = None,
-           progress: bool = True, group: str = "mcmc", attrs: dict | None = None, max_seconds: float | None = None,
-           moves=None) -> SamplerResult:
+def sample(
+    log_prob,
+    names,
+    path: str | Path,
+    *,
+    nwalkers: int = 32,
+    max_steps: int = 5000,
+    seed: int = 0,
+    initial: np.ndarray | None = None,
+    resume: bool = True,
+    stop: StopRule | None = None,
+    progress: bool = True,
+    group: str = "mcmc",
+    attrs: dict | None = None,
+    max_seconds: float | None = None,
+    moves=None,
+) -> SamplerResult:
     """Run (or resume) an emcee ensemble over ``names`` with the vectorised ``log_prob`` into HDF5 ``path``.
 
     Args:
@@ -407,9 +471,12 @@ def sample(log_prob, names, path: str | Path, *, nwalkers: int = 32, max_steps: 
                 g = f[group]
                 stored = tuple(json.loads(g.attrs.get("names", "[]")))
                 if stored != names or int(g.attrs["nwalkers"]) != nwalkers:
-                    raise InputError(f"{path} holds a run over {list(stored)} with {int(g.attrs['nwalkers'])} walkers",
-                                     file=path, column="names",
-                                     expected=f"the same names {list(names)} and nwalkers={nwalkers}, or resume=False")
+                    raise InputError(
+                        f"{path} holds a run over {list(stored)} with {int(g.attrs['nwalkers'])} walkers",
+                        file=path,
+                        column="names",
+                        expected=f"the same names {list(names)} and nwalkers={nwalkers}, or resume=False",
+                    )
                 fresh = False
     if fresh:
         backend.reset(nwalkers, ndim)
@@ -440,8 +507,13 @@ def sample(log_prob, names, path: str | Path, *, nwalkers: int = 32, max_steps: 
     if progress and todo > 0:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        bar = Progress(TextColumn("sampling"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                       TextColumn("{task.fields[info]}"))
+        bar = Progress(
+            TextColumn("sampling"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("{task.fields[info]}"),
+        )
         task = bar.add_task("mcmc", total=max_steps, completed=done, info="")
         bar.start()
     k = 0
@@ -453,10 +525,15 @@ def sample(log_prob, names, path: str | Path, *, nwalkers: int = 32, max_steps: 
                 if bar:
                     bar.update(task, completed=it)
                 if stop is not None and it % stop.check_every == 0:
-                    d = diagnostics(backend.get_chain(), backend.accepted, burn_fraction=stop.burn_fraction, names=names)
+                    d = diagnostics(
+                        backend.get_chain(), backend.accepted, burn_fraction=stop.burn_fraction, names=names
+                    )
                     if bar:
-                        bar.update(task, info=f"τ max {np.nanmax(d['tau']):.1f}  ESS min {np.nanmin(d['ess']):.0f}  "
-                                              f"acc {d['acceptance_mean']:.2f}")
+                        bar.update(
+                            task,
+                            info=f"τ max {np.nanmax(d['tau']):.1f}  ESS min {np.nanmin(d['ess']):.0f}  "
+                            f"acc {d['acceptance_mean']:.2f}",
+                        )
                     if stop.check(d, tau_prev):
                         stopped_by = "rule"
                         break
@@ -495,14 +572,19 @@ def load_run(path: str | Path, group: str = "mcmc") -> dict:
     (JSON-decoded), ``diagnostics`` (recomputed) and any analysis groups written next to it."""
     path = Path(path)
     if not path.exists():
-        raise InputError("file not found", file=path, expected="an HDF5 file written by lightfit.calibrate.posterior")
+        raise InputError("file not found", file=path, expected="an HDF5 file written by lightfit.inference.mcmc")
     with h5py.File(path, "r") as f:
         if group not in f:
             raise InputError(f"no group {group!r}", file=path, expected="a posterior run")
         g = f[group]
         n = int(g.attrs["iteration"])
-        out = {"names": tuple(json.loads(g.attrs["names"])), "chain": g["chain"][:n], "log_prob": g["log_prob"][:n],
-               "accepted": g["accepted"][:], "attrs": {}}
+        out = {
+            "names": tuple(json.loads(g.attrs["names"])),
+            "chain": g["chain"][:n],
+            "log_prob": g["log_prob"][:n],
+            "accepted": g["accepted"][:],
+            "attrs": {},
+        }
         for k, v in g.attrs.items():
             try:
                 out["attrs"][k] = json.loads(v) if isinstance(v, str) else (v.item() if hasattr(v, "item") else v)
@@ -551,14 +633,36 @@ def flat_samples(run: dict, burn_fraction: float = 0.25, thin: int = 1) -> np.nd
 def summarize(samples: np.ndarray, names) -> dict:
     """Mean, SD, 5/50/95 % quantiles per parameter and the correlation matrix."""
     q = np.percentile(samples, [5, 50, 95], axis=0)
-    return {"names": list(names), "mean": samples.mean(0), "sd": samples.std(0, ddof=1), "q05": q[0], "q50": q[1],
-            "q95": q[2], "corr": np.corrcoef(samples.T) if samples.shape[1] > 1 else np.ones((1, 1))}
+    return {
+        "names": list(names),
+        "mean": samples.mean(0),
+        "sd": samples.std(0, ddof=1),
+        "q05": q[0],
+        "q50": q[1],
+        "q95": q[2],
+        "corr": np.corrcoef(samples.T) if samples.shape[1] > 1 else np.ones((1, 1)),
+    }
 
 
 def priors_table(priors: dict[str, Prior], names) -> list[dict]:
     return [{"parameter": n, **{k: v for k, v in asdict(priors[n]).items() if v is not None}} for n in names]
 
 
-__all__ = ["LogPosterior", "PRIORS_INFORMED", "PRIORS_WIDE", "PRIOR_SETS", "Prior", "ResumableHDFBackend", "SAMPLED",
-           "SamplerResult", "StopRule", "diagnostics", "flat_samples", "load_run", "priors_table", "sample", "summarize",
-           "write_group"]
+__all__ = [
+    "LogPosterior",
+    "PRIORS_INFORMED",
+    "PRIORS_WIDE",
+    "PRIOR_SETS",
+    "Prior",
+    "ResumableHDFBackend",
+    "SAMPLED",
+    "SamplerResult",
+    "StopRule",
+    "diagnostics",
+    "flat_samples",
+    "load_run",
+    "priors_table",
+    "sample",
+    "summarize",
+    "write_group",
+]

@@ -25,11 +25,17 @@ def render_dataset(
     exposure_mode: str = typer.Option("leaf", help="Sweep cameras' metering: leaf (leaf pixels only), scene or fixed."),
     exposure_ev: float = typer.Option(0.0, help="Exposure compensation of sweep cameras, stops."),
     meter_percentile: float = typer.Option(99.0, help="Leaf metering: percentile of leaf pixels mapped to white."),
-    time: list[str] = typer.Option(None, "--time", help="Results time step(s), ISO UTC (repeatable); default: highest sun."),
+    time: list[str] = typer.Option(
+        None, "--time", help="Results time step(s), ISO UTC (repeatable); default: highest sun."
+    ),
     all_times: bool = typer.Option(False, "--all-times", help="Render every time step of the results."),
-    quantity: list[str] = typer.Option(None, "--quantity", "-q",
-                                       help="Quantity to label (repeatable): absorbed_par, an, vc, vj, gs, limitation, "
-                                            "limitation_margin or a results variable; default: all available."),
+    quantity: list[str] = typer.Option(
+        None,
+        "--quantity",
+        "-q",
+        help="Quantity to label (repeatable): absorbed_par, an, vc, vj, gs, limitation, "
+        "limitation_margin or a results variable; default: all available.",
+    ),
     spp: int = typer.Option(16, help="Paths per pixel (noise ∝ 1/√spp)."),
     max_depth: int = typer.Option(4, help="Longest light path in vertices (2 = direct light only)."),
     colour: str = typer.Option("rgb", help="rgb or mono (luminance) images."),
@@ -50,8 +56,14 @@ def render_dataset(
     try:
         if time and all_times:
             raise InputError("--time and --all-times both given", column="time", expected="one of them")
-        cam_fields = {"width_px": width, "height_px": height, "fov_deg": fov_deg, "exposure_mode": exposure_mode,
-                      "exposure_ev": exposure_ev, "meter_percentile": meter_percentile}
+        cam_fields = {
+            "width_px": width,
+            "height_px": height,
+            "fov_deg": fov_deg,
+            "exposure_mode": exposure_mode,
+            "exposure_ev": exposure_ev,
+            "meter_percentile": meter_percentile,
+        }
         Camera(**cam_fields)  # validate the sweep camera settings before any geometry is built
         spec = DatasetSpec(
             cameras=load_cameras(cameras) if cameras else [],
@@ -59,7 +71,10 @@ def render_dataset(
             times=["all"] if all_times else (list(time or []) or None),
             quantities=tuple(quantity) if quantity else None,
             settings=RenderSettings(spp=spp, max_depth=max_depth, colour=colour, seed=seed, threads=threads),
-            weather=weather, depth=depth, gallery_images=gallery, export=export,
+            weather=weather,
+            depth=depth,
+            gallery_images=gallery,
+            export=export,
             cache_dir=str(cache_dir) if cache_dir else None,
         )
         meta = make_dataset(results, out, spec)
@@ -71,5 +86,7 @@ def render_dataset(
         clip = im["exposure"]["clipped_leaf_fraction"]
         clip_txt = "no leaf in view" if clip is None else f"clipped leaf pixels {clip:.1%}"
         console.print(f"{escape(im['name'])}: {im['pixels']['leaf']} leaf px, {clip_txt}")
-    console.print(f"wrote {len(meta['images'])} image(s) with labels to {escape(str(out))} "
-                  f"({meta['render']['variant']}, {meta['render']['spp']} spp)")
+    console.print(
+        f"wrote {len(meta['images'])} image(s) with labels to {escape(str(out))} "
+        f"({meta['render']['variant']}, {meta['render']['spp']} spp)"
+    )

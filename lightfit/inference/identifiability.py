@@ -48,8 +48,10 @@ class FisherResult:
         return np.where(lam > 0, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
 
     def table(self) -> list[dict]:
-        return [{"eigenvalue": float(l), "width_1sigma": float(w), "combination": combination(v, self.names, self.scale)}
-                for l, w, v in zip(self.eigenvalues, self.widths, self.eigenvectors.T)]
+        return [
+            {"eigenvalue": float(ev), "width_1sigma": float(w), "combination": combination(v, self.names, self.scale)}
+            for ev, w, v in zip(self.eigenvalues, self.widths, self.eigenvectors.T)
+        ]
 
 
 def combination(vec, names, scale: str = "log", tol: float = 0.1) -> str:

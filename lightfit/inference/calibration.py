@@ -26,9 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from lightfit.calibrate.forward import DEFAULT_THETA, PARAMETERS, CoupledModel
-from lightfit.calibrate.observations import align
 from lightfit.errors import InputError
+from lightfit.inference.observations import align
+from lightfit.model.coupled import DEFAULT_THETA, PARAMETERS, CoupledModel
 
 
 def to_unconstrained(value: float, name: str) -> float:
@@ -52,8 +52,11 @@ def make_loss(model: CoupledModel, obs, names: tuple[str, ...], fixed: dict | No
     target = align(obs, model.times)
     have = {k: ~np.isnan(v) for k, v in target.items()}
     if not (have["par_umol_m2_s"].any() or have["an_umol_m2_s"].any()):
-        raise InputError("no observation falls on a simulated step", file=obs.attrs.get("source"),
-                         expected="PAR or net CO2 observations within the run")
+        raise InputError(
+            "no observation falls on a simulated step",
+            file=obs.attrs.get("source"),
+            expected="PAR or net CO2 observations within the run",
+        )
     y = {k: jnp.asarray(np.nan_to_num(v)) for k, v in target.items()}
     mask = {k: jnp.asarray(v) for k, v in have.items()}
     base = {**DEFAULT_THETA, **(fixed or {})}
@@ -64,7 +67,10 @@ def make_loss(model: CoupledModel, obs, names: tuple[str, ...], fixed: dict | No
     def loss(z, args=None):
         m = model.observe(theta_of(z))
         total = 0.0
-        for v, sd, mc in (("par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_var"), ("an_umol_m2_s", "an_sd_umol_m2_s", "an_mc_var")):
+        for v, sd, mc in (
+            ("par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_var"),
+            ("an_umol_m2_s", "an_sd_umol_m2_s", "an_mc_var"),
+        ):
             var = y[sd] ** 2 + m[mc]
             r2 = jnp.where(mask[v], (y[v] - m[v]) ** 2 / jnp.where(mask[v], var, 1.0), 0.0)
             total = total + 0.5 * jnp.sum(r2)
@@ -99,9 +105,20 @@ def _read_history(path: Path) -> list[dict]:
     return out
 
 
-def calibrate(model: CoupledModel, obs, *, names=("specular", "roughness", "subsurface"), start: dict | None = None,
-              fixed: dict | None = None, max_steps: int = 30, rtol: float = 1e-4, atol: float = 1e-4,
-              history: str | Path | None = None, resume: bool = True, progress: bool = True) -> CalibrationResult:
+def calibrate(
+    model: CoupledModel,
+    obs,
+    *,
+    names=("specular", "roughness", "subsurface"),
+    start: dict | None = None,
+    fixed: dict | None = None,
+    max_steps: int = 30,
+    rtol: float = 1e-4,
+    atol: float = 1e-4,
+    history: str | Path | None = None,
+    resume: bool = True,
+    progress: bool = True,
+) -> CalibrationResult:
     """Minimise the loss over ``names`` with optimistix BFGS; see the module docstring.
 
     Args:
@@ -137,8 +154,13 @@ def calibrate(model: CoupledModel, obs, *, names=("specular", "roughness", "subs
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        bar = Progress(TextColumn("calibrating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                       TextColumn("{task.fields[info]}"))
+        bar = Progress(
+            TextColumn("calibrating"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("{task.fields[info]}"),
+        )
         task = bar.add_task("cal", total=max_steps, info="")
         bar.start()
     try:
@@ -157,18 +179,35 @@ def calibrate(model: CoupledModel, obs, *, names=("specular", "roughness", "subs
             if hist:
                 hist.parent.mkdir(parents=True, exist_ok=True)
                 with open(hist, "a", encoding="utf-8") as fh:
-                    fh.write(json.dumps({"step": step0 + k + 1, "loss": f, "theta": theta,
-                                         "grad_unconstrained": [float(x) for x in np.asarray(g)],
-                                         "seconds": time.perf_counter() - t0}) + "\n")
+                    fh.write(
+                        json.dumps(
+                            {
+                                "step": step0 + k + 1,
+                                "loss": f,
+                                "theta": theta,
+                                "grad_unconstrained": [float(x) for x in np.asarray(g)],
+                                "seconds": time.perf_counter() - t0,
+                            }
+                        )
+                        + "\n"
+                    )
             if bar:
-                bar.update(task, completed=k + 1, info=f"loss {f:.4g}  " + " ".join(f"{n[:4]}={v:.3f}" for n, v in theta.items()))
+                bar.update(
+                    task,
+                    completed=k + 1,
+                    info=f"loss {f:.4g}  " + " ".join(f"{n[:4]}={v:.3f}" for n, v in theta.items()),
+                )
             if bool(done):
                 converged = bool(result == optx.RESULTS.successful)
                 break
     finally:
         if bar:
             bar.stop()
-    theta = {**DEFAULT_THETA, **(fixed or {}), **{n: float(from_unconstrained(best_z[i], n)) for i, n in enumerate(names)}}
+    theta = {
+        **DEFAULT_THETA,
+        **(fixed or {}),
+        **{n: float(from_unconstrained(best_z[i], n)) for i, n in enumerate(names)},
+    }
     if past and min(r["loss"] for r in past) < best_loss:
         b = min(past, key=lambda r: r["loss"])
         theta = {**theta, **b["theta"]}

@@ -95,8 +95,11 @@ class Scenario:
         need = {"sun_elevation_deg", "sun_azimuth_deg", "dni_w_m2", "dhi_w_m2", "tair_c", "rh", "pair_kpa", "co2_ppm"}
         missing = need - set(self.weather.columns)
         if missing:
-            raise InputError(f"weather lacks {sorted(missing)}", column="weather",
-                             expected="a contract series with solar columns (lightfit.weather.add_solar)")
+            raise InputError(
+                f"weather lacks {sorted(missing)}",
+                column="weather",
+                expected="a contract series with solar columns (lightfit.weather.add_solar)",
+            )
 
 
 class CoupledModel:
@@ -110,12 +113,16 @@ class CoupledModel:
         meas = seg[seg["measured"]].sort_values("segment_id")
         self.segments = meas.reset_index(drop=True)
         self.segment_id = meas["segment_id"].to_numpy()
-        self.area_m2 = (meas["blade_area_m2"].where(meas["blade_area_m2"] > 0,
-                                                    2 * np.pi * meas["radius_m"] * meas["length_m"])).to_numpy()
+        self.area_m2 = (
+            meas["blade_area_m2"].where(meas["blade_area_m2"] > 0, 2 * np.pi * meas["radius_m"] * meas["length_m"])
+        ).to_numpy()
         self.is_blade = ((meas["organ_type"] == "leaf") & (meas["blade_area_m2"] > 0)).to_numpy()
         if not self.is_blade.any():
-            raise InputError("no leaf blades in the measurement area", column="field",
-                             expected="plants grown long enough to have leaves")
+            raise InputError(
+                "no leaf blades in the measurement area",
+                column="field",
+                expected="plants grown long enough to have leaves",
+            )
         fld = sc.field
         n_measured = fld.n**2 if tile is None else len(tile.measured)
         self.ground_area_m2 = n_measured * fld.plant_spacing_m * fld.row_spacing_m
@@ -176,8 +183,11 @@ class CoupledModel:
         par_mc_var = (par_se**2) @ (w**2)
         # Photosynthesis on the leaf blades.
         b = np.flatnonzero(self.is_blade)
-        params = eqx.tree_at(lambda p: p.fvcb.vcmax_ref_umol_m2_s, self.params,
-                             self.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(theta["vcmax_scale"], jnp.float64))
+        params = eqx.tree_at(
+            lambda p: p.fvcb.vcmax_ref_umol_m2_s,
+            self.params,
+            self.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(theta["vcmax_scale"], jnp.float64),
+        )
         q = jnp.maximum(absorbed[:, b], 0.0)
         shape = q.shape
         t_c, co2 = jnp.broadcast_to(self.tair_c[:, None], shape), jnp.broadcast_to(self.co2_ppm[:, None], shape)
@@ -189,10 +199,19 @@ class CoupledModel:
         denom = a_leaf.sum() if self.scenario.an_per == "leaf" else self.ground_area_m2
         an = ps.an_umol_m2_s @ a_leaf / denom
         an_mc_var = (jax.lax.stop_gradient(dan) * abs_se_full[:, b]) ** 2 @ (a_leaf / denom) ** 2
-        return {"par_umol_m2_s": par_mean, "par_sd_umol_m2_s": par_sd, "par_mc_var": jax.lax.stop_gradient(par_mc_var),
-                "an_umol_m2_s": an, "an_mc_var": jax.lax.stop_gradient(an_mc_var),
-                "incident_par": inc, "absorbed_par": absorbed, "incident_se": inc_se_full, "absorbed_se": abs_se_full,
-                "ps": ps, "blade_index": b}
+        return {
+            "par_umol_m2_s": par_mean,
+            "par_sd_umol_m2_s": par_sd,
+            "par_mc_var": jax.lax.stop_gradient(par_mc_var),
+            "an_umol_m2_s": an,
+            "an_mc_var": jax.lax.stop_gradient(an_mc_var),
+            "incident_par": inc,
+            "absorbed_par": absorbed,
+            "incident_se": inc_se_full,
+            "absorbed_se": abs_se_full,
+            "ps": ps,
+            "blade_index": b,
+        }
 
     # -- results ---------------------------------------------------------------------
     def simulate(self, theta: dict | None = None):
@@ -237,27 +256,45 @@ class CoupledModel:
                 "tair_c": ("time", self.tair_c),
                 "co2_ppm": ("time", self.co2_ppm),
             },
-            coords={"time": times, "segment": self.segment_id,
-                    "plant_id": ("segment", seg["plant_id"].to_numpy()),
-                    "organ_type": ("segment", seg["organ_type"].astype(str).to_numpy()),
-                    "area_m2": ("segment", self.area_m2), "is_blade": ("segment", self.is_blade)},
+            coords={
+                "time": times,
+                "segment": self.segment_id,
+                "plant_id": ("segment", seg["plant_id"].to_numpy()),
+                "organ_type": ("segment", seg["organ_type"].astype(str).to_numpy()),
+                "area_m2": ("segment", self.area_m2),
+                "is_blade": ("segment", self.is_blade),
+            },
         )
         fld, g = self.scenario.field, self.scenario.field.growth
         ds.attrs = {
-            "title": "lightfit coupled run", "time_zone": "UTC",
+            "title": "lightfit coupled run",
+            "time_zone": "UTC",
             "weather_provenance": str(self.scenario.weather.attrs.get("provenance", "unknown")),
             "weather_source": str(self.scenario.weather.attrs.get("source", "")),
-            "n_plants": fld.n_plants, "buffer_rows": fld.buffer_rows, "buffer_along": fld.b_along, "seed": fld.seed,
-            "n_tiles": self.scenario.n_tiles, "tile": -1 if self.scenario.tile is None else self.scenario.tile,
-            "row_spacing_m": fld.row_spacing_m, "plant_spacing_m": fld.plant_spacing_m,
-            "row_direction_deg": fld.row_direction_deg, "parameter_file": g.parameter_file,
-            "season_start": g.season_start, "target_date": g.target_date,
-            "samples": self.scenario.samples, "bounces": self.scenario.bounces, "render_seed": self.scenario.seed,
-            "photosynthesis": self.scenario.photosynthesis, "par_kind": self.scenario.par_kind,
-            "an_per": self.scenario.an_per, "sky": self.scenario.sky, "soil_albedo": self.scenario.optics.soil_albedo,
+            "n_plants": fld.n_plants,
+            "buffer_rows": fld.buffer_rows,
+            "buffer_along": fld.b_along,
+            "seed": fld.seed,
+            "n_tiles": self.scenario.n_tiles,
+            "tile": -1 if self.scenario.tile is None else self.scenario.tile,
+            "row_spacing_m": fld.row_spacing_m,
+            "plant_spacing_m": fld.plant_spacing_m,
+            "row_direction_deg": fld.row_direction_deg,
+            "parameter_file": g.parameter_file,
+            "season_start": g.season_start,
+            "target_date": g.target_date,
+            "samples": self.scenario.samples,
+            "bounces": self.scenario.bounces,
+            "render_seed": self.scenario.seed,
+            "photosynthesis": self.scenario.photosynthesis,
+            "par_kind": self.scenario.par_kind,
+            "an_per": self.scenario.an_per,
+            "sky": self.scenario.sky,
+            "soil_albedo": self.scenario.optics.soil_albedo,
             "base_color": self.scenario.optics.base_color,
             **{f"theta_{k}": float(v) for k, v in th.items()},
-            "leaf_temperature": "air temperature (assumption)", "co2_at_leaf_surface": "air CO2 (assumption)",
+            "leaf_temperature": "air temperature (assumption)",
+            "co2_at_leaf_surface": "air CO2 (assumption)",
         }
         return ds
 

@@ -12,12 +12,18 @@ import typer
 
 
 def posterior(
-    observations: Path = typer.Argument(None, help="Observations CSV (default: the bundled 2016-04-20 chamber record)."),
+    observations: Path = typer.Argument(
+        None, help="Observations CSV (default: the bundled 2016-04-20 chamber record)."
+    ),
     out: Path = typer.Option(Path("results/posterior"), help="Output directory (run.h5, emulator, summary.json)."),
-    weather_file: Path = typer.Option(None, "--weather", help="TERENO export or other weather file (default: bundled)."),
-    parameters: str = typer.Option("specular,roughness,subsurface,light_factor",
-                                   help="Sampled parameters, comma-separated (also vcmax_scale, noise_scale)."),
-    priors: str = typer.Option("informed", help="Prior set: 'informed' (DESIGN §6 leaf optics) or 'wide'."),
+    weather_file: Path = typer.Option(
+        None, "--weather", help="TERENO export or other weather file (default: bundled)."
+    ),
+    parameters: str = typer.Option(
+        "specular,roughness,subsurface,light_factor",
+        help="Sampled parameters, comma-separated (also vcmax_scale, noise_scale).",
+    ),
+    priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
     use: str = typer.Option("par,an", help="Series in the likelihood: par, an or par,an."),
     quick: bool = typer.Option(False, "--quick", help="CI-sized field (4 plants, K=16)."),
     walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters)."),
@@ -36,12 +42,12 @@ def posterior(
     from rich.console import Console
     from rich.table import Table
 
-    from lightfit.calibrate import emulator as E
-    from lightfit.calibrate import posterior as P
-    from lightfit.calibrate import posterior_analysis as A
-    from lightfit.calibrate import replication as rep
-    from lightfit.calibrate.observations import read_observations
+    from lightfit import replication as rep
     from lightfit.errors import InputError
+    from lightfit.inference import mcmc as P
+    from lightfit.inference import posterior as A
+    from lightfit.inference.observations import read_observations
+    from lightfit.model import emulator as E
 
     console = Console()
     try:
@@ -58,8 +64,11 @@ def posterior(
         out.mkdir(parents=True, exist_ok=True)
         emu_path = out / "emulator.npz"
         emu = E.PartsEmulator.load(emu_path) if emu_path.exists() else None
-        if emu is None or not (np.allclose(emu.lo, lo) and np.allclose(emu.hi, hi)) \
-                or emu.coef_values.shape[1:] != (int(model.day.sum()), 4, len(model.segment_id)):
+        if (
+            emu is None
+            or not (np.allclose(emu.lo, lo) and np.allclose(emu.hi, hi))
+            or emu.coef_values.shape[1:] != (int(model.day.sum()), 4, len(model.segment_id))
+        ):
             emu = E.build_emulator(model, lo, hi, n_design=n_design, seed=0, progress=True)
             emu.save(emu_path)
         val_path = out / "validation.npz"
@@ -71,24 +80,46 @@ def posterior(
             full = E.render_parts(model, leaf_test, progress=True)
             np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
             val = (leaf_test, full)
-        res = A.run(model, obs, emu, out / "run.h5", names=names, priors=prior_set, use=uses, nwalkers=walkers,
-                    max_steps=max_steps, seed=seed, resume=resume, stop=P.StopRule(target_ess=target_ess),
-                    validation_renders=val if n_test > 0 else None,
-                    max_seconds=None if max_minutes is None else 60 * max_minutes,
-                    attrs={"config": dataclasses.asdict(cfg), "priors_set": priors})
+        res = A.run(
+            model,
+            obs,
+            emu,
+            out / "run.h5",
+            names=names,
+            priors=prior_set,
+            use=uses,
+            nwalkers=walkers,
+            max_steps=max_steps,
+            seed=seed,
+            resume=resume,
+            stop=P.StopRule(target_ess=target_ess),
+            validation_renders=val if n_test > 0 else None,
+            max_seconds=None if max_minutes is None else 60 * max_minutes,
+            attrs={"config": dataclasses.asdict(cfg), "priors_set": priors},
+        )
     except InputError as err:
         console.print(f"[red]error:[/] {err}")
         raise typer.Exit(2) from None
     (out / "summary.json").write_text(json.dumps(P._jsonable(res), indent=2, default=str))
-    t = Table(title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling)")
+    t = Table(
+        title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling)"
+    )
     for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS"):
         t.add_column(c, justify="right")
     for i, n in enumerate(res["names"]):
-        t.add_row(n, f"{res['mean'][n]:.4g}", f"{res['sd'][n]:.3g}", f"{res['x_map'][n]:.4g}", f"{res['tau'][i]:.1f}",
-                  f"{res['ess'][i]:.0f}")
+        t.add_row(
+            n,
+            f"{res['mean'][n]:.4g}",
+            f"{res['sd'][n]:.3g}",
+            f"{res['x_map'][n]:.4g}",
+            f"{res['tau'][i]:.1f}",
+            f"{res['ess'][i]:.0f}",
+        )
     console.print(t)
     console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
     if "emulator_error" in res:
         console.print(f"emulator error → max shift {res['emulator_error']['max_shift_over_sd']:.3g} posterior SD")
-    console.print(f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
-                  f"with LIGHTFIT_POSTERIOR_RUN={out / 'run.h5'}")
+    console.print(
+        f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
+        f"with LIGHTFIT_POSTERIOR_RUN={out / 'run.h5'}"
+    )

@@ -1,1 +1,0 @@
-"""Calibrate: observation model, losses, optimisers, posteriors."""

@@ -1,0 +1,1 @@
+"""Inference: observations, likelihood, gradient calibration, MCMC posteriors, identifiability."""

@@ -1,0 +1,273 @@
+"""Posterior pipeline: emulator → emcee → optimum, Fisher, profile, predictive, emulator-error check.
+
+Everything a run produces goes into one HDF5 file: group ``mcmc`` (chains, written step by step,
+resumable) and group ``analysis`` (summary, correlations, Fisher spectrum, profile likelihood,
+posterior-predictive diurnal curves with the observations, emulator error relative to the
+posterior width). ``notebooks/posterior_analysis.ipynb`` reads such a file.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from lightfit.inference.identifiability import fisher_information, profile_likelihood
+from lightfit.inference.mcmc import LogPosterior, StopRule, flat_samples, priors_table, sample, summarize, write_group
+from lightfit.inference.observations import align
+from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
+from lightfit.model.emulator import LEAF, FastObservables, PartsEmulator, validate
+
+
+def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarray:
+    """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start``."""
+    from scipy.optimize import minimize
+
+    bounds = [lp.priors[n].support for n in lp.names]
+    vg = jax.jit(jax.value_and_grad(lambda x: -(lp.log_prior(x) + lp.log_likelihood(x))))
+
+    def fun(x):
+        v, g = vg(jnp.asarray(x))
+        return (float(v), np.asarray(g, float)) if np.isfinite(float(v)) else (1e30, np.zeros(len(x)))
+
+    r = minimize(
+        fun, np.asarray(start, float), jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": maxiter}
+    )
+    return r.x if r.fun <= fun(start)[0] else np.asarray(start, float)
+
+
+def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray, validation: dict) -> dict:
+    """Translate the emulator's observable errors at held-out renders into parameter shifts.
+
+    For each held-out point the error δy (emulated − full) is whitened with the likelihood's
+    variances at the optimum (δr) and mapped to the linearised shift of the posterior mean,
+    δx = Σ_post Jᵀ δr (J: Jacobian of the whitened residuals), reported relative to the posterior
+    SD of each parameter. Also: ‖δr‖ (the error in units of the observation noise; the change of
+    −log L is at most ≈ ‖r‖‖δr‖ + ½‖δr‖²).
+    """
+    J = np.asarray(jax.jacrev(lp.residuals)(jnp.asarray(x_map)), float)
+    th = lp.theta_of(jnp.asarray(x_map))
+    m = lp.forward({k: v for k, v in th.items() if k != "noise_scale"})
+    lam = float(th["noise_scale"])
+    sd = np.sqrt(np.diag(cov))
+    rows, shifts, norms = [], [], []
+    for i in range(len(validation["err_par_umol_m2_s"])):
+        dr = []
+        for u, v, mc in (("par", "par_umol_m2_s", "par_mc_var"), ("an", "an_umol_m2_s", "an_mc_var")):
+            var = (lam * np.asarray(lp.sd[u])) ** 2 + np.asarray(m[mc])
+            dr.append(np.where(np.asarray(lp.mask[u]), validation[f"err_{v}"][i] / np.sqrt(var), 0.0))
+        dr = np.concatenate(dr)
+        dx = cov @ J.T @ (-dr)  # residual r = y − m, so δr = −δm/√v
+        shifts.append(np.abs(dx) / sd)
+        norms.append(float(np.linalg.norm(dr)))
+    shifts = np.asarray(shifts)
+    for j, n in enumerate(lp.names):
+        rows.append(
+            {
+                "parameter": n,
+                "posterior_sd": float(sd[j]),
+                "max_shift_over_sd": float(shifts[:, j].max()),
+                "rms_shift_over_sd": float(np.sqrt((shifts[:, j] ** 2).mean())),
+            }
+        )
+    return {
+        "per_parameter": rows,
+        "max_shift_over_sd": float(shifts.max()),
+        "max_whitened_error_norm": max(norms),
+        "max_abs_error_par_umol_m2_s": float(np.abs(validation["err_par_umol_m2_s"]).max()),
+        "max_abs_error_an_umol_m2_s": float(np.abs(validation["err_an_umol_m2_s"]).max()),
+        "parts_rms": validation["parts_rms"],
+        "parts_max": validation["parts_max"],
+        "n_test": int(len(validation["err_par_umol_m2_s"])),
+    }
+
+
+def run(
+    model: CoupledModel,
+    obs: pd.DataFrame,
+    emulator: PartsEmulator,
+    path: str | Path,
+    *,
+    names=("specular", "roughness", "subsurface", "light_factor"),
+    priors=None,
+    fixed=None,
+    use=("par", "an"),
+    nwalkers: int = 32,
+    max_steps: int = 4000,
+    seed: int = 0,
+    stop: StopRule | None = StopRule(),
+    resume: bool = True,
+    progress: bool = True,
+    validation_renders=None,
+    n_predictive: int = 64,
+    n_profile: int = 15,
+    analysis: bool = True,
+    max_seconds: float | None = None,
+    n_grid: int = 64,
+    attrs: dict | None = None,
+) -> dict:
+    """Sample the posterior into ``path`` and (``analysis=True``) write the analysis group.
+
+    ``validation_renders``: ``(leaf_test, (values, se))`` full renders at held-out points for the
+    emulator-error report (skipped when None). Returns a dict of the main numbers.
+    """
+    t0 = time.perf_counter()
+    fast = FastObservables(model, emulator, n_grid=n_grid)
+    lp = LogPosterior(fast, model.times, obs, names, priors, fixed, use)
+    meta = {
+        "priors": priors_table(lp.priors, lp.names),
+        "use": list(use),
+        "fixed": {k: float(v) for k, v in lp.base.items()},
+        "observations": {"source": str(obs.attrs.get("source", "")), "provenance": obs.attrs.get("provenance", "")},
+        "scenario": {
+            "n_segments": int(len(model.segment_id)),
+            "samples": model.scenario.samples,
+            "bounces": model.scenario.bounces,
+            "render_seed": model.scenario.seed,
+            "n_plants": model.scenario.field.n_plants,
+            "par_kind": model.scenario.par_kind,
+            "an_per": model.scenario.an_per,
+        },
+        "emulator": {
+            "degree": emulator.degree,
+            "n_design": int(len(emulator.design)),
+            "lo": emulator.lo.tolist(),
+            "hi": emulator.hi.tolist(),
+            "render_seconds": emulator.render_seconds,
+            "n_grid": n_grid,
+        },
+        **(attrs or {}),
+    }
+    res = sample(
+        lp,
+        lp.names,
+        path,
+        nwalkers=nwalkers,
+        max_steps=max_steps,
+        seed=seed,
+        resume=resume,
+        stop=stop,
+        progress=progress,
+        attrs=meta,
+        max_seconds=max_seconds,
+    )
+    out = {
+        "names": list(lp.names),
+        "stopped_by": res.stopped_by,
+        "seconds_sampling": res.seconds,
+        "n_steps": int(res.diagnostics["n_steps"]),
+        "tau": res.diagnostics["tau"].tolist(),
+        "ess": res.diagnostics["ess"].tolist(),
+        "acceptance_mean": res.diagnostics.get("acceptance_mean"),
+    }
+    if not analysis:
+        return out
+    samples = flat_samples({"chain": res.chain})
+    summ = summarize(samples, lp.names)
+    cov = np.cov(samples.T).reshape(len(lp.names), len(lp.names))
+    flat_lp = res.log_prob[int(0.25 * len(res.log_prob)) :].reshape(-1)
+    x_map = optimum(lp, samples[np.argmax(flat_lp)])
+    an: dict = {
+        "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
+        "x_map": x_map,
+        "log_prob_map": float(lp(x_map[None])[0]),
+    }
+    # Fisher information of the model parameters (noise scale held at its optimum)
+    model_names = tuple(n for n in lp.names if n != "noise_scale")
+    idx = [lp.names.index(n) for n in model_names]
+
+    def resid(xm):
+        x = jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
+        return lp.residuals(x)
+
+    # log-parameters (relative changes) unless the optimum sits on a zero bound
+    scale = "log" if np.all(x_map[idx] > 1e-6) else "natural"
+    fi = fisher_information(resid, x_map[idx], model_names, scale=scale)
+    an["fisher"] = {
+        "names": list(model_names),
+        "matrix": fi.fisher,
+        "eigenvalues": fi.eigenvalues,
+        "eigenvectors": fi.eigenvectors,
+        "table": fi.table(),
+        "stiff": fi.stiff,
+        "sloppy": fi.sloppy,
+        "scale": fi.scale,
+    }
+    # profile likelihood along the sloppiest direction (in log-parameters)
+    d = fi.eigenvectors[:, -1]
+    width = float(min(fi.widths[-1], 1.0))
+    ts = np.linspace(-2.0 * width, 2.0 * width, n_profile)
+
+    def nll(xm):
+        x = jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
+        return -lp.log_likelihood(x)
+
+    ts, prof, slc = profile_likelihood(nll, x_map[idx], d, ts, scale=scale)
+    to_x = (lambda t: np.exp(np.log(x_map[idx]) + t * d)) if scale == "log" else (lambda t: x_map[idx] + t * d)
+    inside = np.array([lp.in_support(_put(x_map, idx, to_x(t))) for t in ts])
+    an["profile"] = {
+        "t": ts,
+        "profile_nll": prof,
+        "slice_nll": slc,
+        "direction": d,
+        "in_prior_box": inside.astype(np.int8),
+        "combination": fi.sloppy,
+        "scale": scale,
+    }
+    # posterior predictive
+    rng = np.random.default_rng(seed + 1)
+    draws = samples[rng.choice(len(samples), size=min(n_predictive, len(samples)), replace=False)]
+    f = jax.jit(
+        jax.vmap(
+            lambda x: {k: v for k, v in fast({k: v for k, v in lp.theta_of(x).items() if k != "noise_scale"}).items()}
+        )
+    )
+    pred = f(jnp.asarray(draws))
+    target = align(obs, model.times)
+    an["predictive"] = {
+        "time_utc": model.times.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
+        "par_umol_m2_s": np.asarray(pred["par_umol_m2_s"]),
+        "an_umol_m2_s": np.asarray(pred["an_umol_m2_s"]),
+        "par_mc_sd": np.sqrt(np.asarray(pred["par_mc_var"])),
+        "an_mc_sd": np.sqrt(np.asarray(pred["an_mc_var"])),
+        **{f"obs_{k}": np.asarray(v) for k, v in target.items()},
+    }
+    if validation_renders is not None:
+        leaf_test, full = validation_renders
+        extra = {
+            k: float(v) for k, v in lp.theta_of(jnp.asarray(x_map)).items() if k in ("light_factor", "vcmax_scale")
+        }
+        val = validate(model, fast, leaf_test, theta_extra=extra, full=full)
+        an["emulator_error"] = emulator_error_vs_width(lp, x_map, cov, val)
+        out["emulator_error"] = an["emulator_error"]
+    write_group(path, "analysis", an)
+    out.update(
+        {
+            "x_map": dict(zip(lp.names, x_map.tolist())),
+            "mean": dict(zip(lp.names, summ["mean"].tolist())),
+            "sd": dict(zip(lp.names, summ["sd"].tolist())),
+            "corr": summ["corr"].tolist(),
+            "fisher": fi.table(),
+            "stiff": fi.stiff,
+            "sloppy": fi.sloppy,
+            "seconds_total": time.perf_counter() - t0,
+        }
+    )
+    return out
+
+
+def _put(x, idx, vals):
+    y = np.asarray(x, float).copy()
+    y[idx] = vals
+    return y
+
+
+def leaf_theta(x) -> dict:
+    return {**DEFAULT_THETA, **dict(zip(LEAF, x))}
+
+
+__all__ = ["emulator_error_vs_width", "optimum", "run"]
