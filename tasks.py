@@ -29,6 +29,17 @@ def _sh(*cmd: str | Path) -> None:
     subprocess.run([str(c) for c in cmd], check=True, cwd=ROOT)
 
 
+def _install(*args: str) -> None:
+    """pip install, its build-backend chatter (setuptools notices) shown only if it fails."""
+    cmd = [str(BIN / "python"), "-m", "pip", "install", "--quiet", *args]
+    print("+", " ".join(cmd), flush=True)
+    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if r.returncode:
+        sys.stdout.write(r.stdout)
+        sys.stderr.write(r.stderr)
+        raise subprocess.CalledProcessError(r.returncode, cmd)
+
+
 def _fingerprint() -> str:
     h = hashlib.sha256()
     for name in ("requirements.lock", "pyproject.toml"):
@@ -59,10 +70,9 @@ def setup() -> None:
     _make_venv()
     if STAMP.exists() and STAMP.read_text() == _fingerprint():
         return
-    py = BIN / "python"
-    _sh(py, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
-    _sh(py, "-m", "pip", "install", "--quiet", "-r", "requirements.lock")
-    _sh(py, "-m", "pip", "install", "--quiet", "--no-deps", "-e", ".")
+    _install("--upgrade", "pip")
+    _install("-r", "requirements.lock")
+    _install("--no-deps", "-e", ".")
     STAMP.write_text(_fingerprint())
 
 
