@@ -1,6 +1,8 @@
 """lightfit: differentiable light and photosynthesis for wheat canopies.
 
-Data flows one way: ``weather`` -> ``plant`` -> ``light`` -> ``photosynthesis`` -> ``calibrate``.
+Data flows one way: ``weather`` -> ``plant`` -> ``light`` -> ``photosynthesis`` -> ``model`` ->
+``inference``; ``replication`` (the 20 April 2016 main job), ``distributed``, ``dataset`` and ``cli``
+use them and nothing below imports them (docs/architecture.md).
 """
 
 __version__ = "0.1.0"
