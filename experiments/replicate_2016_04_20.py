@@ -21,6 +21,7 @@ import jax
 
 import lightfit
 from lightfit import replication as rep
+from lightfit.model.parameters import Theta
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,8 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def reference_curve(ds) -> dict:
     return {
         "time_utc": [str(t) for t in ds["time"].values],
-        "par_umol_m2_s": ds["par_umol_m2_s"].values.tolist(),
-        "par_mc_sd_umol_m2_s": ds["par_mc_sd_umol_m2_s"].values.tolist(),
+        "plant_par_umol_m2_s": ds["plant_par_umol_m2_s"].values.tolist(),
+        "plant_par_mc_sd_umol_m2_s": ds["plant_par_mc_sd_umol_m2_s"].values.tolist(),
         "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values.tolist(),
         "canopy_an_mc_sd_umol_m2_s": ds["canopy_an_mc_sd_umol_m2_s"].values.tolist(),
     }
@@ -50,7 +51,7 @@ def main(argv=None):
         ref = {
             "made_by": "python experiments/replicate_2016_04_20.py --quick --write-reference " + str(a.write_reference),
             "config": dataclasses.asdict(cfg),
-            "theta": "lightfit.model.coupled.DEFAULT_THETA",
+            "theta": Theta().to_dict(),
             "weather": ds.attrs["weather_source"],
             "weather_provenance": ds.attrs["weather_provenance"],
             "versions": {p: md.version(p) for p in ("mitsuba", "drjit", "jax", "cplantbox", "numpy")}

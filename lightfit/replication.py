@@ -127,8 +127,8 @@ def summary(ds) -> pd.DataFrame:
                 ds["dni_w_m2"].values * np.sin(np.radians(np.clip(ds["sun_elevation_deg"].values, 0, 90)))
                 + ds["dhi_w_m2"].values
             ),
-            "plant_par_umol_m2_s": ds["par_umol_m2_s"].values,
-            "plant_par_sd_umol_m2_s": ds["par_sd_umol_m2_s"].values,
+            "plant_par_umol_m2_s": ds["plant_par_umol_m2_s"].values,
+            "plant_par_sd_umol_m2_s": ds["plant_par_spread_umol_m2_s"].values,
             "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values,
             "canopy_an_mc_sd": ds["canopy_an_mc_sd_umol_m2_s"].values,
             "frac_light_limited": light_limited,
@@ -147,7 +147,7 @@ def plot(ds, path: Path) -> Path:
 
     t = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC").tz_convert("Europe/Berlin").tz_localize(None)
     fig, ax = plt.subplots(figsize=(10, 5.5), constrained_layout=True)
-    par, sd = ds["par_umol_m2_s"].values, ds["par_sd_umol_m2_s"].values
+    par, sd = ds["plant_par_umol_m2_s"].values, ds["plant_par_spread_umol_m2_s"].values
     kind = ds.attrs.get("par_kind", "absorbed")
     ax.fill_between(t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments")
     ax.plot(t, par, color="tab:blue", lw=2, label=f"model: {kind} PAR, mean over segments")

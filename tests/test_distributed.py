@@ -32,9 +32,9 @@ SEGMENT_VARS = [
     "converged",
 ]
 AGGREGATES = [
-    "par_umol_m2_s",
-    "par_sd_umol_m2_s",
-    "par_mc_sd_umol_m2_s",
+    "plant_par_umol_m2_s",
+    "plant_par_spread_umol_m2_s",
+    "plant_par_mc_sd_umol_m2_s",
     "canopy_an_umol_m2_s",
     "canopy_an_mc_sd_umol_m2_s",
 ]
@@ -201,7 +201,7 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
     assert r.exit_code == 0, r.output
     with xr.open_dataset(out, engine="h5netcdf") as ds:
         assert ds.sizes["time"] == 1 and ds.attrs["n_tiles"] == 2
-        assert np.isfinite(ds["par_umol_m2_s"].values).all()
+        assert np.isfinite(ds["plant_par_umol_m2_s"].values).all()
     bad = CliRunner().invoke(app, args[:7] + ["--tiles", "9"] + args[9:])
     assert bad.exit_code == 2 and "tiles" in bad.output
     bad = CliRunner().invoke(

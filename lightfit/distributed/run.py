@@ -47,9 +47,9 @@ from lightfit.plant.field import Field
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset.
 AGGREGATES = (
-    "par_umol_m2_s",
-    "par_sd_umol_m2_s",
-    "par_mc_sd_umol_m2_s",
+    "plant_par_umol_m2_s",
+    "plant_par_spread_umol_m2_s",
+    "plant_par_mc_sd_umol_m2_s",
     "canopy_an_umol_m2_s",
     "canopy_an_mc_sd_umol_m2_s",
 )
@@ -242,9 +242,9 @@ def _aggregates(out, parts_mc: np.ndarray, ground_area_m2: float) -> dict:
     denom = a_leaf.sum() if out.attrs.get("an_per", "ground") == "leaf" else ground_area_m2
     an = out["an_umol_m2_s"].values[:, blade] @ a_leaf / denom
     return {
-        "par_umol_m2_s": mean,
-        "par_sd_umol_m2_s": sd,
-        "par_mc_sd_umol_m2_s": mc,
+        "plant_par_umol_m2_s": mean,
+        "plant_par_spread_umol_m2_s": sd,
+        "plant_par_mc_sd_umol_m2_s": mc,
         "canopy_an_umol_m2_s": an,
         "canopy_an_mc_sd_umol_m2_s": np.sqrt(parts_mc / denom**2),
     }

@@ -26,6 +26,7 @@ through the photosynthesis fixed point).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 
@@ -39,6 +40,7 @@ from lightfit.errors import InputError
 from lightfit.light.bridge import make_irradiance
 from lightfit.light.estimator import PARTS
 from lightfit.light.scene import FieldScene, Optics
+from lightfit.model.parameters import Theta, as_theta
 from lightfit.photosynthesis import parameter_set, solve
 from lightfit.plant import Field, build
 from lightfit.weather.units import par_from_ghi
@@ -51,6 +53,14 @@ PARAMETERS = {
     "light_factor": (0.0, None),
     "vcmax_scale": (0.0, None),
 }
+#: The observation operator's outputs per time step (Monte Carlo uncertainty as an SD).
+OBSERVABLES = (
+    "plant_par_umol_m2_s",
+    "plant_par_spread_umol_m2_s",
+    "plant_par_mc_sd_umol_m2_s",
+    "canopy_an_umol_m2_s",
+    "canopy_an_mc_sd_umol_m2_s",
+)
 DEFAULT_THETA = {"specular": 0.5, "roughness": 0.5, "subsurface": 0.3, "light_factor": 1.0, "vcmax_scale": 1.0}
 
 
@@ -142,9 +152,9 @@ class CoupledModel:
         self.params = parameter_set(sc.photosynthesis)
 
     # -- forward -----------------------------------------------------------------------
-    def parts(self, theta: dict):
+    def parts(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S)."""
-        leaf = jnp.stack([jnp.asarray(theta[k], jnp.float64) for k in ("specular", "roughness", "subsurface")])
+        leaf = as_theta(theta).leaf
         vals, ses = [], []
         for i in np.flatnonzero(self.day):
             v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
@@ -152,17 +162,17 @@ class CoupledModel:
             ses.append(s)
         return jnp.stack(vals), jnp.stack(ses)
 
-    def observe(self, theta: dict) -> dict:
+    def observe(self, theta: Theta | Mapping[str, float]) -> dict:
         """Observables and per-segment fields for all time steps (night steps: zero light).
 
-        Returns a dict of JAX arrays: ``par_umol_m2_s``, ``par_sd_umol_m2_s``, ``par_mc_var``,
-        ``an_umol_m2_s``, ``an_mc_var`` (T,), and per segment (T, S): ``incident_par``,
+        Returns a dict of JAX arrays: the :data:`OBSERVABLES` (T,), and per segment (T, S): ``incident_par``,
         ``absorbed_par``, ``an``, plus the photosynthesis result (blades only) under ``"ps"``.
         """
+        theta = as_theta(theta)
         vals, ses = self.parts(theta)
         T, S = len(self.times), len(self.segment_id)
         day = np.flatnonzero(self.day)
-        f = jnp.asarray(theta["light_factor"], jnp.float64)
+        f = jnp.asarray(theta.light_factor, jnp.float64)
         dni = f * jnp.asarray(self.dni_par[day])[:, None]
         dhi = f * jnp.asarray(self.dhi_par[day])[:, None]
         ix = {p: PARTS.index(p) for p in PARTS}
@@ -186,7 +196,7 @@ class CoupledModel:
         params = eqx.tree_at(
             lambda p: p.fvcb.vcmax_ref_umol_m2_s,
             self.params,
-            self.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(theta["vcmax_scale"], jnp.float64),
+            self.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(theta.vcmax_scale, jnp.float64),
         )
         q = jnp.maximum(absorbed[:, b], 0.0)
         shape = q.shape
@@ -200,11 +210,11 @@ class CoupledModel:
         an = ps.an_umol_m2_s @ a_leaf / denom
         an_mc_var = (jax.lax.stop_gradient(dan) * abs_se_full[:, b]) ** 2 @ (a_leaf / denom) ** 2
         return {
-            "par_umol_m2_s": par_mean,
-            "par_sd_umol_m2_s": par_sd,
-            "par_mc_var": jax.lax.stop_gradient(par_mc_var),
-            "an_umol_m2_s": an,
-            "an_mc_var": jax.lax.stop_gradient(an_mc_var),
+            "plant_par_umol_m2_s": par_mean,
+            "plant_par_spread_umol_m2_s": par_sd,
+            "plant_par_mc_sd_umol_m2_s": jax.lax.stop_gradient(jnp.sqrt(par_mc_var)),
+            "canopy_an_umol_m2_s": an,
+            "canopy_an_mc_sd_umol_m2_s": jax.lax.stop_gradient(jnp.sqrt(an_mc_var)),
             "incident_par": inc,
             "absorbed_par": absorbed,
             "incident_se": inc_se_full,
@@ -214,11 +224,11 @@ class CoupledModel:
         }
 
     # -- results ---------------------------------------------------------------------
-    def simulate(self, theta: dict | None = None):
+    def simulate(self, theta: Theta | Mapping[str, float] | None = None):
         """Run forward at ``theta`` (defaults for missing keys) and return an xarray Dataset."""
         import xarray as xr
 
-        th = {**DEFAULT_THETA, **(theta or {})}
+        th = as_theta(theta)
         o = self.observe(th)
         b = o["blade_index"]
         T, S = len(self.times), len(self.segment_id)
@@ -244,11 +254,7 @@ class CoupledModel:
                 "vj_umol_m2_s": (("time", "segment"), per_segment(ps.vj_umol_m2_s)),
                 "limitation": (("time", "segment"), per_segment(ps.limitation, -1, np.int8)),
                 "converged": (("time", "segment"), per_segment(ps.converged, True, bool)),
-                "par_umol_m2_s": ("time", np.asarray(o["par_umol_m2_s"])),
-                "par_sd_umol_m2_s": ("time", np.asarray(o["par_sd_umol_m2_s"])),
-                "par_mc_sd_umol_m2_s": ("time", np.sqrt(np.asarray(o["par_mc_var"]))),
-                "canopy_an_umol_m2_s": ("time", np.asarray(o["an_umol_m2_s"])),
-                "canopy_an_mc_sd_umol_m2_s": ("time", np.sqrt(np.asarray(o["an_mc_var"]))),
+                **{k: ("time", np.asarray(o[k])) for k in OBSERVABLES},
                 "sun_elevation_deg": ("time", self.sun_deg[:, 0]),
                 "sun_azimuth_deg": ("time", self.sun_deg[:, 1]),
                 "dni_w_m2": ("time", self.scenario.weather["dni_w_m2"].to_numpy(float)),
@@ -292,11 +298,11 @@ class CoupledModel:
             "sky": self.scenario.sky,
             "soil_albedo": self.scenario.optics.soil_albedo,
             "base_color": self.scenario.optics.base_color,
-            **{f"theta_{k}": float(v) for k, v in th.items()},
+            **{f"theta_{k}": float(v) for k, v in th.to_dict().items()},
             "leaf_temperature": "air temperature (assumption)",
             "co2_at_leaf_surface": "air CO2 (assumption)",
         }
         return ds
 
 
-__all__ = ["CoupledModel", "DEFAULT_THETA", "PARAMETERS", "Scenario"]
+__all__ = ["CoupledModel", "DEFAULT_THETA", "OBSERVABLES", "PARAMETERS", "Scenario"]

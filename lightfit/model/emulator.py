@@ -29,6 +29,7 @@ from __future__ import annotations
 import itertools
 import json
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,7 +40,8 @@ import numpy as np
 
 from lightfit.errors import InputError
 from lightfit.light.estimator import PARTS
-from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.parameters import Theta, as_theta
 from lightfit.photosynthesis import solve
 
 LEAF = ("specular", "roughness", "subsurface")
@@ -129,9 +131,9 @@ class PartsEmulator:
         u = 2.0 * (jnp.asarray(leaf) - self.lo) / (self.hi - self.lo) - 1.0
         return legendre_basis(u, self.expo)
 
-    def __call__(self, theta: dict):
+    def __call__(self, theta: Theta | Mapping[str, float]):
         """Emulated ``(values, se)``, each (T_day, 4, S) — a drop-in for ``model.parts``."""
-        leaf = jnp.stack([jnp.asarray(theta[k], jnp.float64) for k in LEAF])
+        leaf = as_theta(theta).leaf
         b = self.basis(leaf)
         v = jnp.tensordot(b, jnp.asarray(self.coef_values), axes=1)
         s = jnp.tensordot(b, jnp.asarray(self.coef_se), axes=1)
@@ -229,10 +231,10 @@ def build_emulator(
 class FastObservables:
     """The observables of :meth:`CoupledModel.observe` from emulated parts; jit- and vmap-able.
 
-    ``fast(theta)`` → dict with ``par_umol_m2_s``, ``par_sd_umol_m2_s``, ``par_mc_var``,
-    ``an_umol_m2_s``, ``an_mc_var`` (each (T,)), as ``observe``. ``n_grid=None`` solves the
-    photosynthesis of every blade (exact, slow for large fields); an integer tabulates it per step
-    on that many absorbed-PAR values (see the module docstring).
+    ``fast(theta)`` → dict of the :data:`~lightfit.model.coupled.OBSERVABLES` (each (T,)), as
+    ``observe``. ``n_grid=None`` solves the photosynthesis of every blade (exact, slow for large
+    fields); an integer tabulates it per step on that many absorbed-PAR values (see the module
+    docstring).
     """
 
     def __init__(self, model: CoupledModel, emulator: PartsEmulator, n_grid: int | None = 64):
@@ -260,18 +262,18 @@ class FastObservables:
         self._shape = (len(self.day), len(rows), len(m.segment_id))
         self._ri = {r: i for i, r in enumerate(rows)}
 
-    def parts(self, theta: dict):
-        leaf = jnp.stack([jnp.asarray(theta[k], jnp.float64) for k in LEAF])
+    def parts(self, theta: Theta | Mapping[str, float]):
+        leaf = as_theta(theta).leaf
         b = self.emulator.basis(leaf)
         v = (b @ self._cv).reshape(self._shape)
         s = jax.lax.stop_gradient(jnp.maximum((b @ self._cs).reshape(self._shape), 0.0))
         return v, s
 
-    def __call__(self, theta: dict) -> dict:
+    def __call__(self, theta: Theta | Mapping[str, float]) -> dict:
         m = self.model
-        th = {**DEFAULT_THETA, **theta}
+        th = as_theta(theta)
         v, s = self.parts(th)
-        f = jnp.asarray(th["light_factor"], jnp.float64)
+        f = jnp.asarray(th.light_factor, jnp.float64)
         dni = f * jnp.asarray(m.dni_par[self.day])[:, None]
         dhi = f * jnp.asarray(m.dhi_par[self.day])[:, None]
         ri = self._ri
@@ -294,7 +296,7 @@ class FastObservables:
         params = eqx.tree_at(
             lambda p: p.fvcb.vcmax_ref_umol_m2_s,
             m.params,
-            m.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(th["vcmax_scale"], jnp.float64),
+            m.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(th.vcmax_scale, jnp.float64),
         )
         an_leaf, dan = self._leaf(q, params)
         a_leaf = jnp.asarray(m.area_m2[b])
@@ -302,11 +304,11 @@ class FastObservables:
         an = an_leaf @ a_leaf / denom
         an_mc_var = (jax.lax.stop_gradient(dan) * q_se) ** 2 @ (a_leaf / denom) ** 2
         return {
-            "par_umol_m2_s": par_mean,
-            "par_sd_umol_m2_s": par_sd,
-            "par_mc_var": jax.lax.stop_gradient(par_mc_var),
-            "an_umol_m2_s": an,
-            "an_mc_var": jax.lax.stop_gradient(an_mc_var),
+            "plant_par_umol_m2_s": par_mean,
+            "plant_par_spread_umol_m2_s": par_sd,
+            "plant_par_mc_sd_umol_m2_s": jax.lax.stop_gradient(jnp.sqrt(par_mc_var)),
+            "canopy_an_umol_m2_s": an,
+            "canopy_an_mc_sd_umol_m2_s": jax.lax.stop_gradient(jnp.sqrt(an_mc_var)),
         }
 
     def _env(self, shape):
@@ -336,7 +338,8 @@ class FastObservables:
         return an, dan
 
 
-OBSERVABLES = ("par_umol_m2_s", "an_umol_m2_s")
+#: Observables whose emulation error :func:`validate` reports (``err_<name>``, ``full_<name>``).
+VALIDATED = ("plant_par_umol_m2_s", "canopy_an_umol_m2_s")
 
 
 def validate(
@@ -361,18 +364,18 @@ def validate(
     leaf_test = np.atleast_2d(np.asarray(leaf_test, float))
     if full is None:
         full = render_parts(model, leaf_test, progress)
-    out = {k: [] for k in ("err_" + o for o in OBSERVABLES)}
-    out.update({"full_" + o: [] for o in OBSERVABLES})
+    out = {k: [] for k in ("err_" + o for o in VALIDATED)}
+    out.update({"full_" + o: [] for o in VALIDATED})
     parts_err = []
     fast_j = jax.jit(fast)
     for x, v, s in zip(leaf_test, *full):
-        th = {**DEFAULT_THETA, **(theta_extra or {}), **dict(zip(LEAF, x))}
+        th = as_theta(theta_extra).replace(**dict(zip(LEAF, x)))
         # exact observables from the full render (observe with the render replaced by its result)
         ref = _observe_with_parts(model, th, v, s)
         emu = fast_j(th)
         ev, _ = fast.emulator(th)
         parts_err.append(np.asarray(ev) - v)
-        for o in OBSERVABLES:
+        for o in VALIDATED:
             out["err_" + o].append(np.asarray(emu[o]) - np.asarray(ref[o]))
             out["full_" + o].append(np.asarray(ref[o]))
     res = {k: np.asarray(v) for k, v in out.items()}
@@ -418,4 +421,5 @@ __all__ = [
     "render_parts",
     "sobol_design",
     "validate",
+    "VALIDATED",
 ]
