@@ -40,3 +40,103 @@ def test_bridge_matches_estimator_under_jit_grad_and_vmap():
     many = jax.vmap(lambda s: loss(leaf, s))(jnp.arange(3))
     assert many.shape == (3,) and np.isclose(float(many[2]), float(loss(leaf, 2)))
     assert len(set(np.asarray(many).tolist())) == 3
+
+
+# Eager (un-jitted) jax.grad used to hang forever in the backward callback: the callback indexed
+# its jax.Array cotangent (new JAX work issued from a JAX callback thread, never run). The script
+# below runs eager and jitted gradients through the bridge and through a tiny coupled model in a
+# subprocess, so a regression fails on the timeout instead of hanging the suite. Inside every
+# callback, host-to-device transfers are disallowed (a callback that indexes or computes on a
+# jax.Array needs one), so a callback that calls JAX fails on any machine, even where the
+# deadlock itself does not strike.
+_EAGER_GRAD_SCRIPT = r"""
+import json, os
+os.environ["JAX_PLATFORMS"] = "cpu"
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+
+calls = {"n": 0}
+_pure_callback = jax.pure_callback
+
+
+def guarded_pure_callback(callback, result_shape_dtypes, *args, **kwargs):
+    def guarded(*a):
+        calls["n"] += 1
+        with jax.transfer_guard_host_to_device("disallow"):
+            out = callback(*a)
+        for leaf in jax.tree.leaves(out):
+            assert isinstance(leaf, np.ndarray), f"callback returned {type(leaf).__name__}, not numpy"
+        return out
+
+    return _pure_callback(guarded, result_shape_dtypes, *args, **kwargs)
+
+
+jax.pure_callback = guarded_pure_callback
+
+import lightfit
+from lightfit import weather
+from lightfit.light.bridge import make_irradiance
+from lightfit.light.estimator import PARTS
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.model.coupled import CoupledModel, Scenario
+from lightfit.plant import Field, build
+
+out = {}
+# 1. The bridge alone.
+g = build(Field(n_plants=1, buffer_rows=1, seed=2))
+ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
+f = make_irradiance(FieldScene(g.mesh, Optics()), ids, samples=8, bounces=2)
+sun = jnp.array([40.0, 170.0])
+w = jnp.asarray(np.linspace(0.5, 1.5, len(ids)))
+
+
+def bridge_loss(leaf):
+    r, _ = f(leaf, sun, 3)
+    return jnp.sum(w * r[PARTS.index("absorbed_sun")]) + 0.3 * jnp.sum(r[PARTS.index("incident_sky")])
+
+
+leaf = jnp.array([0.4, 0.6, 0.2])
+out["bridge_eager"] = np.asarray(jax.grad(bridge_loss)(leaf)).tolist()
+out["bridge_jit"] = np.asarray(jax.jit(jax.grad(bridge_loss))(leaf)).tolist()
+
+# 2. A tiny coupled model: one plant, three steps around noon.
+src = weather.add_solar(weather.read_weather(weather.bundled_path("2016-04-20")))
+wx = weather.window(src, "2016-04-20 12:00", 1, "30min")
+m = CoupledModel(Scenario(weather=wx, field=Field(n_plants=1, buffer_rows=1, seed=2), samples=8, bounces=2))
+NAMES = ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")
+
+
+def model_loss(x):
+    o = m.observe({n: x[i] for i, n in enumerate(NAMES)})
+    return 1e-3 * jnp.sum(o["plant_par_umol_m2_s"]) + jnp.sum(o["canopy_an_umol_m2_s"])
+
+
+x = jnp.array([0.5, 0.5, 0.3, 1.0, 1.0])
+out["model_eager"] = np.asarray(jax.grad(model_loss)(x)).tolist()
+out["model_jit"] = np.asarray(jax.jit(jax.grad(model_loss))(x)).tolist()
+out["callbacks"] = calls["n"]
+print("RESULT", json.dumps(out))
+"""
+
+
+def test_eager_grad_does_not_deadlock_and_matches_jit():
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    try:
+        p = subprocess.run(
+            [sys.executable, "-c", _EAGER_GRAD_SCRIPT], capture_output=True, text=True, timeout=180, env=env
+        )
+    except subprocess.TimeoutExpired as e:
+        raise AssertionError(f"eager jax.grad through the bridge hung (> {e.timeout} s)") from None
+    assert p.returncode == 0, p.stderr[-4000:]
+    line = next(ln for ln in p.stdout.splitlines() if ln.startswith("RESULT "))
+    r = json.loads(line[len("RESULT ") :])
+    assert r["callbacks"] > 0  # the guard saw the callbacks
+    for k in ("bridge", "model"):
+        eager, jitted = np.asarray(r[f"{k}_eager"]), np.asarray(r[f"{k}_jit"])
+        assert np.isfinite(eager).all() and np.abs(eager).max() > 0, (k, eager)
+        assert np.allclose(eager, jitted, rtol=1e-6, atol=1e-9 * np.abs(jitted).max()), (k, eager, jitted)

@@ -9,21 +9,36 @@ order) for the S requested segments, per unit DNI / DHI, and their Monte Carlo s
 callback runs the estimator's reverse-mode pass with the incoming cotangent. Purity: the result
 depends only on the arguments (the seed is an argument; the scene and sampling settings are
 fixed when the function is made). Under ``vmap`` the callbacks run sequentially.
+
+The callbacks never call JAX. JAX hands a callback its arguments as ``jax.Array`` objects and runs
+it on one of its own CPU threads; outside ``jax.jit`` (eager dispatch), new JAX work issued
+from inside the callback — even indexing ``ct[i]`` — may be queued behind the callback that is
+waiting for it, and ``jax.grad`` without ``jit`` then hung forever. So every callback converts
+all its arguments to numpy once, on entry (:func:`_host`), and computes with numpy only.
 """
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lightfit.light.estimator import LEAF_PARAMETERS, PARTS, SegmentEstimator
 from lightfit.light.scene import FieldScene
 
 
-def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, bounces: int = 3):
+def _host(*args) -> tuple[np.ndarray, ...]:
+    """The callback's arguments as numpy arrays (host copies; no JAX work is issued)."""
+    return tuple(np.asarray(a) for a in args)
+
+
+def make_irradiance(
+    field_scene: FieldScene, segment_ids: ArrayLike, *, samples: int = 64, bounces: int = 3
+) -> Callable[[ArrayLike, ArrayLike, ArrayLike], tuple[jax.Array, jax.Array]]:
     """Build ``irradiance(leaf, sun_deg, seed) -> (values, se)``, each (4, S), for fixed segments and sampling.
 
     Args:
@@ -40,32 +55,32 @@ def make_irradiance(field_scene: FieldScene, segment_ids, *, samples: int = 64, 
     lock = threading.Lock()
     cache: dict[int, SegmentEstimator] = {}
 
-    def estimator(leaf, sun_deg, seed) -> SegmentEstimator:
-        field_scene.set_optics(**{k: float(np.clip(v, 0.0, 1.0)) for k, v in zip(LEAF_PARAMETERS, np.asarray(leaf))})
-        el, az = (float(x) for x in np.asarray(sun_deg))
+    def estimator(leaf: np.ndarray, sun_deg: np.ndarray, seed: np.ndarray) -> SegmentEstimator:
+        # numpy arguments only (see the module docstring).
+        field_scene.set_optics(**{k: float(np.clip(v, 0.0, 1.0)) for k, v in zip(LEAF_PARAMETERS, leaf)})
+        el, az = (float(x) for x in sun_deg)
         field_scene.set_sun(el, az)
-        s = int(np.asarray(seed))
+        s = int(seed)
         if s not in cache:
             cache.clear()  # keep one: sampling arrays are large
             cache[s] = SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s)
         return cache[s]
 
     def forward_cb(leaf, sun_deg, seed):
-        dtype = np.asarray(leaf).dtype
+        leaf, sun_deg, seed = _host(leaf, sun_deg, seed)
         with lock:
             r = estimator(leaf, sun_deg, seed).render()
         return (
-            np.stack([getattr(r, p) for p in PARTS]).astype(dtype),
-            np.stack([r.se[p] for p in PARTS]).astype(dtype),
+            np.stack([getattr(r, p) for p in PARTS]).astype(leaf.dtype),
+            np.stack([r.se[p] for p in PARTS]).astype(leaf.dtype),
         )
 
     def backward_cb(leaf, sun_deg, seed, ct):
-        dtype = np.asarray(leaf).dtype
+        leaf, sun_deg, seed, ct = _host(leaf, sun_deg, seed, ct)
+        cotangent = {p: ct[i].astype(np.float64) for i, p in enumerate(PARTS)}
         with lock:
-            g = estimator(leaf, sun_deg, seed).vjp(
-                {p: np.asarray(ct[i], dtype=np.float64) for i, p in enumerate(PARTS)}
-            )
-        return np.array([g[k] for k in LEAF_PARAMETERS], dtype=dtype)
+            g = estimator(leaf, sun_deg, seed).vjp(cotangent)
+        return np.array([g[k] for k in LEAF_PARAMETERS], dtype=leaf.dtype)
 
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
