@@ -1,0 +1,202 @@
+"""Packaging and layout: declared dependencies match imports; the package layout flows one way.
+
+Both checks read the source with :mod:`ast` (nothing is imported), so they are fast and see
+imports inside functions too (the CLI imports its heavy dependencies lazily).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "lightfit"
+
+#: Import name → distribution name, where they differ. (A name not listed is its own distribution.)
+DISTRIBUTION_OF = {
+    "PIL": "pillow",
+    "plantbox": "cplantbox",
+    "yaml": "pyyaml",
+    "sklearn": "scikit-learn",
+    "skimage": "scikit-image",
+    "cv2": "opencv-python",
+    "distributed": "dask",  # declared as dask[distributed]; the extra installs `distributed`
+}
+
+#: Declared dependencies that lightfit never imports by name, and why they are needed anyway.
+NOT_IMPORTED = {
+    "jaxlib": "JAX's compiled backend; jax imports it",
+    "karellen-llvm-core": "ships libLLVM for Dr.Jit's CPU backend; light/backend.py finds it by path",
+    "h5netcdf": "xarray's netCDF engine, named as engine='h5netcdf'",
+    "corner": "posterior corner plots in notebooks/posterior_analysis.ipynb, not in the package",
+}
+
+
+def normalize(name: str) -> str:
+    """PEP 503 normalised distribution name."""
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def declared_dependencies(pyproject: Path) -> set[str]:
+    """Normalised distribution names of ``[project].dependencies`` (extras and versions dropped)."""
+    deps = tomllib.loads(pyproject.read_text())["project"]["dependencies"]
+    return {normalize(re.match(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)", d).group(1)) for d in deps}
+
+
+def module_name(path: Path, root: Path) -> str:
+    """Dotted module name of ``path`` (a file under ``root``'s parent package tree)."""
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports_of(path: Path, root: Path) -> set[str]:
+    """Absolute dotted names ``path`` imports (relative imports resolved), anywhere in the file.
+
+    ``importlib.import_module("x")`` with a literal name counts as importing ``x``.
+    """
+    tree = ast.parse(path.read_text(), filename=str(path))
+    here = module_name(path, root).split(".")
+    package = here if path.name == "__init__.py" else here[:-1]
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                out.add(node.module)
+            else:
+                base = package[: len(package) - node.level + 1]
+                out.add(".".join(base + ([node.module] if node.module else [])))
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr == "import_module"
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
+            out.add(node.args[0].value)
+    return out
+
+
+def third_party_imports(root: Path) -> dict[str, set[str]]:
+    """Top-level third-party import names under ``root`` → the modules importing them."""
+    own = root.name
+    found: dict[str, set[str]] = {}
+    for path in sorted(root.rglob("*.py")):
+        for name in imports_of(path, root):
+            top = name.split(".")[0]
+            if top in (own, "__future__") or top in sys.stdlib_module_names:
+                continue
+            found.setdefault(top, set()).add(module_name(path, root))
+    return found
+
+
+def dependency_mismatches(root: Path, pyproject: Path) -> tuple[dict[str, set[str]], set[str]]:
+    """(imported but undeclared: distribution → importing modules, declared but never imported)."""
+    declared = declared_dependencies(pyproject)
+    used: dict[str, set[str]] = {}
+    for top, modules in third_party_imports(root).items():
+        used.setdefault(normalize(DISTRIBUTION_OF.get(top, top)), set()).update(modules)
+    undeclared = {d: m for d, m in used.items() if d not in declared}
+    unused = declared - set(used) - {normalize(n) for n in NOT_IMPORTED}
+    return undeclared, unused
+
+
+def test_imports_and_declared_dependencies_match():
+    undeclared, unused = dependency_mismatches(PACKAGE, ROOT / "pyproject.toml")
+    assert not undeclared, f"imported by lightfit but not in [project].dependencies: {undeclared}"
+    assert not unused, f"declared in [project].dependencies but never imported by lightfit: {sorted(unused)}"
+    # The exceptions are still declared (otherwise the list is stale).
+    stale = {normalize(n) for n in NOT_IMPORTED} - declared_dependencies(ROOT / "pyproject.toml")
+    assert not stale, f"NOT_IMPORTED lists undeclared packages: {sorted(stale)}"
+
+
+def test_dependency_check_catches_both_directions(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("import numpy\nfrom . import sub\n")
+    (pkg / "sub" / "__init__.py").write_text(
+        "import os\nfrom PIL import Image\nfrom .mod import x\n\n\ndef f():\n    import undeclared_thing.deep\n"
+    )
+    (pkg / "sub" / "mod.py").write_text("import importlib\nx = importlib.import_module('plantbox')\n")
+    (tmp_path / "pyproject.toml").write_text(
+        '[project]\nname = "pkg"\ndependencies = ["numpy>=2", "Pillow>=10", "cplantbox", "never_used[extra]>=1"]\n'
+    )
+    undeclared, unused = dependency_mismatches(pkg, tmp_path / "pyproject.toml")
+    assert undeclared == {"undeclared-thing": {"pkg.sub"}}
+    assert unused == {"never-used"}
+    assert imports_of(pkg / "sub" / "__init__.py", pkg) >= {"pkg.sub.mod", "os", "PIL", "undeclared_thing.deep"}
+
+
+# -- layout: the pipeline flows one way ---------------------------------------------------------
+
+#: Rank of each subpackage / top-level module along the pipeline. A module may import its own
+#: rank or lower ranks, never a higher one. ``errors`` and ``precision`` are shared helpers, and
+#: the package root (``import lightfit``) sets up the Mitsuba backend; all may be imported anywhere.
+RANK = {
+    "weather": 0,
+    "plant": 1,
+    "light": 2,
+    "photosynthesis": 3,
+    "model": 4,
+    "inference": 5,
+    "replication": 6,
+    "distributed": 6,
+    "dataset": 6,
+    "cli": 7,
+}
+SHARED = {"errors", "precision", ""}
+
+
+def layer_violations(root: Path) -> list[str]:
+    """``'importer -> imported'`` for every import of a later part of the pipeline."""
+    own = root.name
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        me = module_name(path, root)
+        mine = me.split(".")[1] if "." in me else ""
+        for name in sorted(imports_of(path, root)):
+            parts = name.split(".")
+            if parts[0] != own:
+                continue
+            theirs = parts[1] if len(parts) > 1 else ""
+            if mine in SHARED or theirs in SHARED or mine == theirs:
+                continue
+            assert mine in RANK and theirs in RANK, f"give {me} / {name} a rank in RANK"
+            if RANK[theirs] > RANK[mine] or (RANK[theirs] == RANK[mine] and mine != theirs):
+                bad.append(f"{me} -> {name}")
+    return bad
+
+
+def test_layout_flows_one_way():
+    assert layer_violations(PACKAGE) == []
+
+
+@pytest.mark.parametrize(
+    ("importer", "source", "ok"),
+    [
+        ("light/x.py", "from lightfit.model.coupled import CoupledModel\n", False),
+        ("photosynthesis/x.py", "def f():\n    import lightfit.inference\n", False),
+        ("model/x.py", "from lightfit.cli import app\n", False),
+        ("model/x.py", "from ..inference import likelihood\n", False),
+        ("dataset/x.py", "from lightfit.replication import run\n", False),
+        ("model/x.py", "from lightfit.light.bridge import make_irradiance\nfrom lightfit.errors import E\n", True),
+        ("cli/x.py", "from lightfit.inference import calibration\n", True),
+    ],
+)
+def test_layout_check_catches_reversed_imports(tmp_path, importer, source, ok):
+    pkg = tmp_path / "lightfit"
+    for rel in ("__init__.py", importer):
+        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
+        (pkg / rel).write_text("")
+    (pkg / Path(importer).parent / "__init__.py").write_text("")
+    (pkg / importer).write_text(source)
+    assert (layer_violations(pkg) == []) == ok
