@@ -1,21 +1,106 @@
-"""The `lightfit` command line, end to end in-process."""
+"""The `lightfit` command line, end to end, always through the real app (`lightfit.cli.app`)."""
 
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
 import pandas as pd
+import pytest
+import typer
 from typer.testing import CliRunner
 
-from lightfit.cli import app
+from lightfit.cli import COMMANDS, app
 from lightfit.weather import read_weather
 from lightfit.weather.bundled import DATA_DIR
 
 runner = CliRunner()
 FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
+OBSERVATIONS = DATA_DIR / "observations" / "chamber_2016-04-20_record.csv"
+MODEL_COMMANDS = ("replicate", "calibrate", "posterior", "field-run")
 
 
-def test_info_names_variant_and_llvm():
+def _flat(text: str) -> str:
+    """Output with line breaks and runs of spaces collapsed (tables and panels wrap at 80 columns)."""
+    return " ".join(text.split())
+
+
+def assert_user_error(r, *words: str) -> None:
+    """Exit status 2, every word in the message on stderr, nothing on stdout's error path, no traceback."""
+    assert r.exit_code == 2, r.output
+    assert isinstance(r.exception, SystemExit), r.exception  # not an uncaught exception
+    err = _flat(r.stderr)
+    assert err.startswith("error:") or "Usage:" in err, err
+    for w in words:
+        assert w in err, (w, err)
+    assert "Traceback" not in r.output
+
+
+def test_help_lists_every_command():
+    r = runner.invoke(app, ["--help"])
+    assert r.exit_code == 0, r.output
+    assert set(COMMANDS) == {
+        "info",
+        "weather",
+        "field",
+        "replicate",
+        "calibrate",
+        "posterior",
+        "field-run",
+        "render-dataset",
+    }
+    for name in COMMANDS:
+        assert f" {name} " in r.stdout, name
+    group = typer.main.get_command(app)
+    assert set(group.commands) == set(COMMANDS)
+
+
+def test_model_commands_share_their_options():
+    """Every command that runs the model has the same field/light/photosynthesis/weather options, with the same help."""
+    from lightfit.photosynthesis import PARAMETER_SET_NAMES
+
+    group = typer.main.get_command(app)
+
+    def shared(name):
+        return {p.name: (tuple(p.opts), p.help) for p in group.commands[name].params if p.rich_help_panel}
+
+    ref = shared("replicate")
+    for flag in (
+        "--quick",
+        "--n-plants",
+        "--buffer-rows",
+        "--buffer-along",
+        "--field-seed",
+        "--samples",
+        "--bounces",
+        "--render-seed",
+        "--par-kind",
+        "--photosynthesis",
+        "--an-per",
+        "--weather",
+        "--how",
+        "--steps",
+    ):
+        assert any(flag in opts for opts, _ in ref.values()), flag
+    for name in MODEL_COMMANDS[1:]:
+        own = {k: v for k, v in shared(name).items() if k in ref}
+        assert own == ref, name
+    help_text = ref["photosynthesis"][1]
+    assert all(n in help_text for n in PARAMETER_SET_NAMES)  # the help lists the sets that exist
+
+
+def test_info_names_variant_llvm_and_precision():
     r = runner.invoke(app, ["info"])
     assert r.exit_code == 0, r.output
-    assert "mitsuba variant" in r.output and "_ad_mono" in r.output
-    assert "libLLVM" in r.output
+    assert "mitsuba variant" in r.stdout and "_ad_mono" in r.stdout
+    assert "libLLVM" in r.stdout
+    assert "float64" in r.stdout
+
+
+def test_info_bad_variant_exits_2():
+    r = runner.invoke(app, ["--variant", "nonsense_variant", "info"])
+    assert_user_error(r, "nonsense_variant")
 
 
 def test_weather_show_file_with_plot_and_csv(tmp_path):
@@ -24,7 +109,7 @@ def test_weather_show_file_with_plot_and_csv(tmp_path):
         app, ["weather", "show", str(FIXTURE), "--resample", "30min", "--plot", str(png), "--csv", str(csv)]
     )
     assert r.exit_code == 0, r.output
-    assert "clamped" in r.output  # night PAR offsets are reported, not hidden
+    assert "clamped" in r.stdout  # night PAR offsets are reported, not hidden
     assert png.stat().st_size > 10_000
     back = read_weather(csv)
     assert (back.index[1:] - back.index[:-1] == pd.Timedelta("30min")).all()
@@ -33,27 +118,55 @@ def test_weather_show_file_with_plot_and_csv(tmp_path):
 def test_weather_show_bad_input_exits_2_with_message(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text(FIXTURE.read_text(encoding="utf-8").replace("[mbar]", "[psi]"), encoding="utf-8")
-    r = runner.invoke(app, ["weather", "show", str(bad)])
-    assert r.exit_code == 2
-    assert "bad.csv" in r.output and "psi" in r.output
-    r = runner.invoke(app, ["weather", "show", "selhausen-cplantbox-day"])
-    assert r.exit_code == 2 and "date" in r.output
+    assert_user_error(runner.invoke(app, ["weather", "show", str(bad)]), "bad.csv", "psi")
+    assert_user_error(runner.invoke(app, ["weather", "show", "selhausen-cplantbox-day"]), "date")
+    assert_user_error(runner.invoke(app, ["weather", "show", str(tmp_path / "missing.csv")]), "missing.csv")
 
 
 def test_replicate_writes_labelled_forcing(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
-    assert "RECONSTRUCTED" in r.output
+    assert "RECONSTRUCTED" in r.stdout
     f = read_weather(tmp_path / "forcing.csv")
     assert len(f) == 29 and f.attrs["provenance"] == "reconstructed"
     assert (tmp_path / "forcing.png").stat().st_size > 10_000
 
 
-def test_replicate_with_a_tereno_export(tmp_path):
-    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(FIXTURE)])
+def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
+    r = runner.invoke(
+        app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(FIXTURE), "--steps", "14:16"]
+    )
     assert r.exit_code == 0, r.output
     f = read_weather(tmp_path / "forcing.csv")
-    assert len(f) == 29 and f.attrs["provenance"] == "measured"
+    assert len(f) == 2 and f.attrs["provenance"] == "measured"
+
+
+@pytest.mark.parametrize(
+    "command, args, words",
+    [
+        ("replicate", ["--weather", "no-such-weather.csv"], ["no-such-weather.csv"]),
+        ("replicate", ["--observations", "no-such-obs.csv"], ["no-such-obs.csv"]),
+        ("replicate", ["--photosynthesis", "c3-magic"], ["photosynthesis", "c3-magic", "giraud2023"]),
+        ("replicate", ["--theta", "specular=shiny"], ["theta", "specular=shiny"]),
+        ("calibrate", ["no-such-obs.csv"], ["no-such-obs.csv"]),
+        ("calibrate", ["OBS", "--steps", "40"], ["steps", "40"]),
+        ("calibrate", ["OBS", "--how", "median"], ["how", "median"]),
+        ("posterior", ["--priors", "flat"], ["priors", "flat"]),
+        ("posterior", ["--samples", "0"], ["samples"]),
+        ("field-run", ["--steps", "0"], ["steps"]),
+        ("field-run", ["--bounces", "-1"], ["bounces"]),
+    ],
+)
+def test_model_commands_reject_bad_input_before_running(command, args, words, tmp_path):
+    """Bad options of the shared group are caught before any plant is grown: exit 2, message naming them."""
+    args = [str(OBSERVATIONS) if a == "OBS" else a for a in args]
+    r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path / "out"), *args])
+    assert_user_error(r, *words)
+
+
+def test_bad_par_kind_names_the_parameter(tmp_path):
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--par-kind", "diffuse"])
+    assert_user_error(r, "par_kind", "diffuse")
 
 
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
@@ -78,11 +191,63 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
         ],
     )
     assert r.exit_code == 0, r.output
-    assert "triangles" in r.output and "16 (4 / 12)" in r.output
+    assert "triangles" in r.stdout and "16 (4 / 12)" in r.stdout
     assert ply.stat().st_size > 0 and png.stat().st_size > 10_000
     seg = pd.read_csv(tmp_path / "seg.csv")
     assert seg["measured"].sum() > 0 and set(seg["organ_type"]) == {"leaf", "stem"}
-    r = runner.invoke(app, ["field", "--row-spacing", "-1"])
-    assert r.exit_code == 2 and "row_spacing_m" in r.output
-    r = runner.invoke(app, ["field", "--n-plants", "4", "--season-start", "2016-05-01"])
-    assert r.exit_code == 2 and "not after season_start" in r.output
+    assert_user_error(runner.invoke(app, ["field", "--row-spacing", "-1"]), "row_spacing_m")
+    assert_user_error(
+        runner.invoke(app, ["field", "--n-plants", "4", "--season-start", "2016-05-01"]), "not after season_start"
+    )
+    assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--tiles", "2", "--tile", "5"]), "tile")
+
+
+def test_usage_errors_exit_2():
+    r = runner.invoke(app, ["replicate", "--no-such-option"])
+    assert r.exit_code == 2 and "no-such-option" in r.stderr
+
+
+def _child_env() -> dict[str, str]:
+    """The environment of a user's shell: no JAX_ENABLE_X64 (the test suite enables x64 in-process only)."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    env["JAX_PLATFORMS"] = "cpu"
+    return env
+
+
+@pytest.mark.slow
+def test_replicate_subprocess_runs_float64_without_warnings(tmp_path):
+    """`lightfit replicate --quick` as a user runs it: float64 results, recorded, and a quiet stderr."""
+    import xarray as xr
+
+    p = subprocess.run(
+        [sys.executable, "-m", "lightfit.cli", "replicate", "--quick", "--out", str(tmp_path)],
+        env=_child_env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert p.returncode == 0, p.stderr
+    assert "warning" not in p.stderr.lower(), p.stderr
+    assert "truncated" not in p.stderr + p.stdout
+    with xr.open_dataset(tmp_path / "results.nc", engine="h5netcdf") as ds:
+        floats = {v: ds[v].dtype for v in ds.data_vars if np.issubdtype(ds[v].dtype, np.floating)}
+        assert floats and all(dt == np.float64 for dt in floats.values()), floats
+        assert ds.attrs["precision"] == "float64"
+
+
+@pytest.mark.slow
+def test_calibrate_subprocess_runs_bfgs_in_float64(tmp_path):
+    """Two time steps around the bundled record's one PAR observation (12:13 local), two BFGS steps."""
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]
+    p = subprocess.run(
+        [sys.executable, "-m", "lightfit.cli", *args, "--max-steps", "2", "--out", str(tmp_path / "cal")],
+        env=_child_env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert p.returncode == 0, p.stderr
+    assert "warning" not in p.stderr.lower(), p.stderr
+    res = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    assert res["precision"] == "float64" and res["config"]["steps"] == "14:16"
+    assert res["theta"]["light_factor"] > 0

@@ -9,10 +9,9 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-import typer
 from typer.testing import CliRunner
 
-from lightfit.cli.render_dataset import render_dataset
+from lightfit.cli import app
 from lightfit.dataset import (
     MARGIN,
     ORGAN_CODES,
@@ -315,9 +314,6 @@ def test_cli_renders_rgb_dataset(results_file, tmp_path):
     """End to end through the command, in colour: the rgb render runs in a child process."""
     from PIL import Image
 
-    app = typer.Typer()
-    app.command("render-dataset")(render_dataset)
-    app.callback()(lambda: None)
     out = tmp_path / "ds"
     r = CliRunner().invoke(
         app,
@@ -373,12 +369,9 @@ def test_cli_renders_rgb_dataset(results_file, tmp_path):
     ],
 )
 def test_cli_bad_input(results_file, tmp_path, args, text):
-    app = typer.Typer()
-    app.command("render-dataset")(render_dataset)
-    app.callback()(lambda: None)
     r = CliRunner().invoke(app, ["render-dataset", str(results_file), "--out", str(tmp_path / "x"), *args])
     assert r.exit_code == 2, r.output
-    assert text in " ".join(r.output.split())
+    assert text in " ".join(r.stderr.split())
 
 
 def test_child_process_render_equals_in_process(geometry):

@@ -1,21 +1,13 @@
-"""The posterior command function (registered as ``lightfit posterior``) on the CI-sized field."""
+"""``lightfit posterior`` on the CI-sized field, through the real app."""
 
 from __future__ import annotations
 
 import json
 
-import typer
 from typer.testing import CliRunner
 
-from lightfit.cli.posterior import posterior
+from lightfit.cli import app
 from lightfit.inference.mcmc import load_run
-
-
-def _app():
-    app = typer.Typer()
-    app.command("posterior")(posterior)
-    app.command("noop")(lambda: None)  # keep 'posterior' a sub-command, as in lightfit.cli
-    return app
 
 
 def test_posterior_cli_quick(tmp_path):
@@ -36,7 +28,7 @@ def test_posterior_cli_quick(tmp_path):
         "--n-test",
         "1",
     ]
-    r = CliRunner().invoke(_app(), args)
+    r = CliRunner().invoke(app, args)
     assert r.exit_code == 0, r.output
     s = json.loads((out / "summary.json").read_text())
     assert s["names"] == ["specular", "light_factor"] and s["n_steps"] == 30
@@ -44,11 +36,11 @@ def test_posterior_cli_quick(tmp_path):
     run = load_run(out / "run.h5")
     assert run["chain"].shape == (30, 8, 2) and "analysis" in run
     # resuming to more steps appends
-    r = CliRunner().invoke(_app(), args[:-6] + ["--max-steps", "40", "--n-design", "6", "--n-test", "1"])
+    r = CliRunner().invoke(app, args[:-6] + ["--max-steps", "40", "--n-design", "6", "--n-test", "1"])
     assert r.exit_code == 0, r.output
     assert load_run(out / "run.h5")["chain"].shape == (40, 8, 2)
 
 
 def test_posterior_cli_bad_parameter(tmp_path):
-    r = CliRunner().invoke(_app(), ["posterior", "--quick", "--out", str(tmp_path), "--parameters", "specularity"])
-    assert r.exit_code == 2 and "specularity" in r.output
+    r = CliRunner().invoke(app, ["posterior", "--quick", "--out", str(tmp_path), "--parameters", "specularity"])
+    assert r.exit_code == 2 and "specularity" in r.stderr

@@ -1,7 +1,4 @@
-"""``lightfit posterior``: emcee posterior of the 20 April 2016 configuration (typer command function).
-
-Register with ``app.command("posterior")(posterior)`` in :mod:`lightfit.cli`.
-"""
+"""``lightfit posterior``: emcee posterior of the leaf optics on emulated renders, then identifiability."""
 
 from __future__ import annotations
 
@@ -9,97 +6,92 @@ import json
 from pathlib import Path
 
 import typer
+from rich.table import Table
+
+from lightfit.cli.common import console, parse_names
+from lightfit.cli.options import ModelOptions, coupled_model, model_options, resolve, weather
+from lightfit.errors import InputError
 
 
+@model_options
 def posterior(
     observations: Path = typer.Argument(
         None, help="Observations CSV (default: the bundled 2016-04-20 chamber record)."
     ),
     out: Path = typer.Option(Path("results/posterior"), help="Output directory (run.h5, emulator, summary.json)."),
-    weather_file: Path = typer.Option(
-        None, "--weather", help="TERENO export or other weather file (default: bundled)."
-    ),
     parameters: str = typer.Option(
         "specular,roughness,subsurface,light_factor",
         help="Sampled parameters, comma-separated (also vcmax_scale, noise_scale).",
     ),
     priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
     use: str = typer.Option("par,an", help="Series in the likelihood: par, an or par,an."),
-    quick: bool = typer.Option(False, "--quick", help="CI-sized field (4 plants, K=16)."),
     walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters)."),
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
     max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),
-    seed: int = typer.Option(0, help="Sampler seed (initial walkers and moves)."),
+    sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(40, help="Full renders for the emulator design (cached in OUT)."),
     n_test: int = typer.Option(4, help="Held-out full renders measuring the emulator error."),
     resume: bool = typer.Option(True, help="Continue the run in OUT/run.h5 if present."),
-):
+    *,
+    model: ModelOptions,
+) -> None:
     """Sample the posterior with emcee (emulated renders), then Fisher, profile and predictive analysis."""
-    import dataclasses
-
     import numpy as np
-    from rich.console import Console
-    from rich.table import Table
 
     from lightfit import replication as rep
-    from lightfit.errors import InputError
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
     from lightfit.inference.observations import read_observations
     from lightfit.model import emulator as E
 
-    console = Console()
-    try:
-        if priors not in P.PRIOR_SETS:
-            raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
-        prior_set = P.PRIOR_SETS[priors]
-        names = P.check_names([n.strip() for n in parameters.split(",") if n.strip()], prior_set)
-        uses = tuple(u.strip() for u in use.split(",") if u.strip())
-        cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
-        obs = read_observations(observations or rep.OBSERVATIONS)
-        model = rep.model_for(cfg, rep.forcing(weather_file, cfg.how), progress=True)
-        lo = [prior_set[n].support[0] for n in E.LEAF]
-        hi = [prior_set[n].support[1] for n in E.LEAF]
-        out.mkdir(parents=True, exist_ok=True)
-        emu_path = out / "emulator.npz"
-        emu = E.PartsEmulator.load(emu_path) if emu_path.exists() else None
-        if (
-            emu is None
-            or not (np.allclose(emu.lo, lo) and np.allclose(emu.hi, hi))
-            or emu.coef_values.shape[1:] != (int(model.day.sum()), 4, len(model.segment_id))
-        ):
-            emu = E.build_emulator(model, lo, hi, n_design=n_design, seed=0, progress=True)
-            emu.save(emu_path)
-        val_path = out / "validation.npz"
-        if val_path.exists() and np.load(val_path)["values"].shape[1:] == emu.coef_values.shape[1:]:
-            z = np.load(val_path)
-            val = (z["leaf_test"], (z["values"], z["se"]))
-        else:
-            leaf_test = E.sobol_design(max(n_test, 1), lo, hi, seed=1)[:n_test]
-            full = E.render_parts(model, leaf_test, progress=True)
-            np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
-            val = (leaf_test, full)
-        res = A.run(
-            model,
-            obs,
-            emu,
-            out / "run.h5",
-            names=names,
-            priors=prior_set,
-            use=uses,
-            nwalkers=walkers,
-            max_steps=max_steps,
-            seed=seed,
-            resume=resume,
-            stop=P.StopRule(target_ess=target_ess),
-            validation_renders=val if n_test > 0 else None,
-            max_seconds=None if max_minutes is None else 60 * max_minutes,
-            attrs={"config": dataclasses.asdict(cfg), "priors_set": priors},
-        )
-    except InputError as err:
-        console.print(f"[red]error:[/] {err}")
-        raise typer.Exit(2) from None
+    s = resolve(model)
+    if priors not in P.PRIOR_SETS:
+        raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
+    prior_set = P.PRIOR_SETS[priors]
+    names = P.check_names(list(parse_names(parameters)), prior_set)
+    uses = parse_names(use)
+    obs = read_observations(observations or rep.OBSERVATIONS)
+    m = coupled_model(s, weather(s))
+    lo = [prior_set[n].support[0] for n in E.LEAF]
+    hi = [prior_set[n].support[1] for n in E.LEAF]
+    out.mkdir(parents=True, exist_ok=True)
+    emu_path = out / "emulator.npz"
+    emu = E.PartsEmulator.load(emu_path) if emu_path.exists() else None
+    # A cached emulator is reused only if it was built for the same prior box and the same model size.
+    if (
+        emu is None
+        or not (np.allclose(emu.lo, lo) and np.allclose(emu.hi, hi))
+        or emu.coef_values.shape[1:] != (int(m.day.sum()), 4, len(m.segment_id))
+    ):
+        emu = E.build_emulator(m, lo, hi, n_design=n_design, seed=0, progress=True)
+        emu.save(emu_path)
+    val_path = out / "validation.npz"
+    if val_path.exists() and np.load(val_path)["values"].shape[1:] == emu.coef_values.shape[1:]:
+        z = np.load(val_path)
+        val = (z["leaf_test"], (z["values"], z["se"]))
+    else:
+        leaf_test = E.sobol_design(max(n_test, 1), lo, hi, seed=1)[:n_test]
+        full = E.render_parts(m, leaf_test, progress=True)
+        np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
+        val = (leaf_test, full)
+    res = A.run(
+        m,
+        obs,
+        emu,
+        out / "run.h5",
+        names=names,
+        priors=prior_set,
+        use=uses,
+        nwalkers=walkers,
+        max_steps=max_steps,
+        seed=sampler_seed,
+        resume=resume,
+        stop=P.StopRule(target_ess=target_ess),
+        validation_renders=val if n_test > 0 else None,
+        max_seconds=None if max_minutes is None else 60 * max_minutes,
+        attrs={"config": s.as_dict(), "priors_set": priors},
+    )
     (out / "summary.json").write_text(json.dumps(P._jsonable(res), indent=2, default=str))
     t = Table(
         title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling)"

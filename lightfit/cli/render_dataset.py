@@ -1,7 +1,4 @@
-"""``lightfit render-dataset``: a labelled image dataset from a results file.
-
-Registered on the main app with ``app.command("render-dataset")(render_dataset)``.
-"""
+"""``lightfit render-dataset``: a labelled image dataset from a results file."""
 
 from __future__ import annotations
 
@@ -9,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from lightfit.cli.common import console
 from lightfit.errors import InputError
 
 
@@ -46,42 +44,36 @@ def render_dataset(
     gallery: int = typer.Option(4, help="Images in gallery.png (0 = none)."),
     export: str = typer.Option("ply", help="Coloured field geometry: ply, vtk or none."),
     cache_dir: Path = typer.Option(None, help="Plant cache directory (default: lightfit's)."),
-):
+) -> None:
     """Render synthetic images with dense functional labels (absorbed PAR, An, Fj/Fc limitation) from a run."""
-    from rich.console import Console
     from rich.markup import escape
 
     from lightfit.dataset import Camera, DatasetSpec, RenderSettings, Sweep, load_cameras, make_dataset
 
-    try:
-        if time and all_times:
-            raise InputError("--time and --all-times both given", column="time", expected="one of them")
-        cam_fields = {
-            "width_px": width,
-            "height_px": height,
-            "fov_deg": fov_deg,
-            "exposure_mode": exposure_mode,
-            "exposure_ev": exposure_ev,
-            "meter_percentile": meter_percentile,
-        }
-        Camera(**cam_fields)  # validate the sweep camera settings before any geometry is built
-        spec = DatasetSpec(
-            cameras=load_cameras(cameras) if cameras else [],
-            sweep=Sweep(n=sweep, distance_m=sweep_distance_m, elevation_deg=sweep_elevation_deg, camera=cam_fields),
-            times=["all"] if all_times else (list(time or []) or None),
-            quantities=tuple(quantity) if quantity else None,
-            settings=RenderSettings(spp=spp, max_depth=max_depth, colour=colour, seed=seed, threads=threads),
-            weather=weather,
-            depth=depth,
-            gallery_images=gallery,
-            export=export,
-            cache_dir=str(cache_dir) if cache_dir else None,
-        )
-        meta = make_dataset(results, out, spec)
-    except InputError as err:
-        Console(stderr=True).print(f"[bold red]error:[/] {escape(str(err))}")
-        raise typer.Exit(2) from err
-    console = Console()
+    if time and all_times:
+        raise InputError("--time and --all-times both given", column="time", expected="one of them")
+    cam_fields = {
+        "width_px": width,
+        "height_px": height,
+        "fov_deg": fov_deg,
+        "exposure_mode": exposure_mode,
+        "exposure_ev": exposure_ev,
+        "meter_percentile": meter_percentile,
+    }
+    Camera(**cam_fields)  # validate the sweep camera settings before any geometry is built
+    spec = DatasetSpec(
+        cameras=load_cameras(cameras) if cameras else [],
+        sweep=Sweep(n=sweep, distance_m=sweep_distance_m, elevation_deg=sweep_elevation_deg, camera=cam_fields),
+        times=["all"] if all_times else (list(time or []) or None),
+        quantities=tuple(quantity) if quantity else None,
+        settings=RenderSettings(spp=spp, max_depth=max_depth, colour=colour, seed=seed, threads=threads),
+        weather=weather,
+        depth=depth,
+        gallery_images=gallery,
+        export=export,
+        cache_dir=str(cache_dir) if cache_dir else None,
+    )
+    meta = make_dataset(results, out, spec)
     for im in meta["images"]:
         clip = im["exposure"]["clipped_leaf_fraction"]
         clip_txt = "no leaf in view" if clip is None else f"clipped leaf pixels {clip:.1%}"

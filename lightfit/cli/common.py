@@ -1,0 +1,128 @@
+"""What every command shares: the consoles, the one error handler, parameter and weather-table helpers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+from typer.core import TyperGroup
+
+from lightfit.errors import InputError
+
+#: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """Exceptions that mean "the input is wrong", not "lightfit is broken" (those keep their traceback)."""
+    from lightfit.light.backend import BackendError
+
+    return (InputError, BackendError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
+
+
+def error_message(err: BaseException) -> str:
+    """One line naming the file or parameter concerned (``InputError`` messages already do)."""
+    if isinstance(err, OSError) and err.filename is not None:
+        return f"{err.filename}: {err.strerror or err}"
+    return str(err)
+
+
+class LightfitGroup(TyperGroup):
+    """The app's command group, with the one error handler of the command line.
+
+    Expected user errors raised anywhere below it (any command, the weather sub-app, the
+    callback) print ``error: <message>`` on stderr and exit with status 2 — no traceback.
+    Usage errors (unknown option, missing argument) are typer's, also on stderr with status 2.
+    """
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except _user_errors() as err:
+            # soft_wrap: a long file path must stay on one line, for users and for tests alike.
+            err_console.print(f"[bold red]error:[/] {escape(error_message(err))}", soft_wrap=True, highlight=False)
+            raise typer.Exit(2) from None
+
+
+def parse_theta(theta: str | None) -> dict[str, float]:
+    """Parameters from a JSON file (a calibration's output) or ``key=value,key=value`` text."""
+    if not theta:
+        return {}
+    p = Path(theta)
+    if p.exists():
+        try:
+            data = json.loads(p.read_text())
+        except json.JSONDecodeError as err:
+            raise InputError(f"not JSON: {err}", file=p, expected="a calibration.json") from None
+        return data.get("theta", data)
+    out = {}
+    for item in theta.split(","):
+        k, _, v = item.partition("=")
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise InputError(
+                f"cannot read parameter {item!r}",
+                column="theta",
+                expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
+            ) from None
+    return out
+
+
+def parse_names(text: str) -> tuple[str, ...]:
+    """``"a, b,c"`` → ``("a", "b", "c")``."""
+    return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
+_SHORT = {
+    "par_umol_m2_s": "PAR",
+    "ghi_w_m2": "GHI",
+    "dni_w_m2": "DNI",
+    "dhi_w_m2": "DHI",
+    "sun_elevation_deg": "sun°",
+    "tair_c": "T °C",
+    "rh": "RH",
+    "pair_kpa": "p kPa",
+    "co2_ppm": "CO2",
+}
+_DIGITS = {"rh": 2, "tair_c": 1, "pair_kpa": 1}
+
+
+def weather_table(df, title: str, max_rows: int = 40, tz: str = "Europe/Berlin") -> Table:
+    """A weather series as a table (every k-th row so that at most ``max_rows`` are shown)."""
+    t = Table(title=title, caption="PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm")
+    t.add_column("UTC")
+    t.add_column(tz.split("/")[-1])
+    cols = [c for c in _SHORT if c in df.columns]
+    for c in cols:
+        t.add_column(_SHORT[c], justify="right")
+    step = max(1, len(df) // max_rows)
+    for ts, row in df.iloc[::step].iterrows():
+        t.add_row(
+            ts.strftime("%m-%d %H:%M"),
+            ts.tz_convert(tz).strftime("%H:%M"),
+            *(f"{row[c]:.{_DIGITS.get(c, 0)}f}" for c in cols),
+        )
+    return t
+
+
+def weather_report(df) -> None:
+    """Print where a weather series came from, which columns were used and what was repaired."""
+    a = df.attrs
+    console.print(
+        f"[bold]source[/] {escape(str(a.get('source')))}  [bold]format[/] {a.get('format')}  "
+        f"[bold]provenance[/] [magenta]{a.get('provenance')}[/]  "
+        f"[bold]timestamps assumed in[/] {a.get('timezone_assumed')}"
+    )
+    for k, v in a.get("columns_used", {}).items():
+        if k != v:
+            console.print(f"  {k:>14} ← {escape(str(v))}")
+    if a.get("unused_columns"):
+        console.print(f"  [dim]not used: {escape(', '.join(a['unused_columns']))}[/]")
+    for q in a.get("qc", []):
+        console.print(f"  [yellow]repair[/] {q['kind']}: {escape(q['detail'])}")

@@ -1,0 +1,94 @@
+"""``lightfit field``: build a field of CPlantBox wheat, report it, export and preview its mesh."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from lightfit.cli.common import console
+from lightfit.errors import InputError
+
+
+def field(
+    n_plants: int = typer.Option(25, help="Plants in the measurement area, rounded up to a square N×N."),
+    row_spacing: float = typer.Option(0.125, help="Distance between wheat rows, m."),
+    plant_spacing: float = typer.Option(0.03, help="Distance between plants in a row, m."),
+    buffer_rows: int = typer.Option(2, help="Rows of unmeasured buffer plants around the measurement area."),
+    buffer_along: int = typer.Option(
+        None,
+        help="Buffer plants along each row end (default: = buffer rows; "
+        "≈ 4× buffer rows makes the buffer as wide in metres both ways).",
+    ),
+    row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
+    field_seed: int = typer.Option(
+        1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
+    ),
+    parameter_file: str = typer.Option(
+        "Triticum_aestivum_adapted_2023.xml", help="CPlantBox plant XML (path or bundled name)."
+    ),
+    season_start: str = typer.Option("2016-03-05", help="First day of growth."),
+    date: str = typer.Option("2016-04-20", help="Date the plants are grown to."),
+    tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),
+    tile: int = typer.Option(None, help="Build only this tile (0-based) with its buffer ring."),
+    along: int = typer.Option(1, help="Mesh subdivisions along each segment."),
+    across: int = typer.Option(1, help="Mesh subdivisions across each leaf blade."),
+    around: int = typer.Option(6, help="Sides of stem/sheath prisms."),
+    export: list[Path] = typer.Option(None, help="Write the mesh: .obj, .ply or .vtk (repeatable)."),
+    preview: Path = typer.Option(None, help="Write a PNG with top and side views."),
+    segments_csv: Path = typer.Option(None, "--segments", help="Write the segment table (G1) as CSV."),
+) -> None:
+    """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
+    from lightfit import plant
+    from lightfit.plant.preview import plot_field
+
+    g = plant.GrowthConfig(parameter_file, season_start, date)
+    fld = plant.Field(n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along)
+    parts = fld.tiles(tiles)
+    if tile is not None and not 0 <= tile < len(parts):
+        raise InputError(f"tile {tile} does not exist", column="tile", expected=f"0 … {len(parts) - 1}")
+    res = plant.MeshResolution(along, across, around)
+    geom = plant.build(fld, tile=parts[tile] if tile is not None else None, resolution=res, progress=True)
+    seg = geom.segments
+    meas = seg[seg["measured"]]
+    area_m2 = fld.n * fld.plant_spacing_m * fld.n * fld.row_spacing_m
+    t = Table(
+        title=f"field {fld.n}×{fld.n} measured + {fld.buffer_rows} buffer rows, grown "
+        f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}"
+    )
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    n_meas = int(geom.plants["measured"].sum()) if tile is None else len(parts[tile].measured)
+    t.add_row("plants built (measured / buffer)", f"{len(geom.plants)} ({n_meas} / {len(geom.plants) - n_meas})")
+    t.add_row("plants from cache", str(geom.cache_hits))
+    t.add_row(
+        "shoot segments (leaf / stem)",
+        f"{len(seg)} ({int((seg.organ_type == 'leaf').sum())} / {int((seg.organ_type == 'stem').sum())})",
+    )
+    t.add_row("measured segments", str(len(meas)))
+    t.add_row("triangles", str(geom.mesh.n_faces))
+    t.add_row("triangles per plant", f"{geom.mesh.n_faces / len(geom.plants):.0f}")
+    t.add_row("one-sided leaf blade area per plant (m²)", f"{seg['blade_area_m2'].sum() / len(geom.plants):.4f}")
+    if tile is None:
+        t.add_row("leaf area index of the measurement area", f"{meas['blade_area_m2'].sum() / area_m2:.2f}")
+    t.add_row("canopy height (m)", f"{geom.mesh.vertices[:, 2].max():.3f}")
+    if tiles > 1:
+        sizes = [f"{len(p.measured)}+{len(p.buffer)}" for p in parts]
+        t.add_row(
+            f"tiles (measured+buffer plants), overhead ×{sum(len(p.plant_ids) for p in parts) / (fld.n**2):.2f}",
+            ", ".join(sizes),
+        )
+    console.print(t)
+    for path in export or []:
+        values = {
+            "measured": seg.set_index("segment_id")["measured"].astype(float),
+            "plant_id": seg.set_index("segment_id")["plant_id"].astype(float),
+        }
+        console.print(f"[green]wrote[/] {plant.export(geom.mesh, path, values)}")
+    if segments_csv:
+        segments_csv.parent.mkdir(parents=True, exist_ok=True)
+        seg.to_csv(segments_csv, index=False, float_format="%.8g")
+        console.print(f"[green]wrote[/] {segments_csv}")
+    if preview:
+        console.print(f"[green]wrote[/] {plot_field(geom, preview)}")

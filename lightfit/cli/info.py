@@ -1,0 +1,56 @@
+"""``lightfit info``: versions, the Mitsuba variant in use and the libLLVM path."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from rich.table import Table
+
+from lightfit.cli.common import console
+
+_PACKAGES = (
+    "lightfit",
+    "jax",
+    "jaxlib",
+    "drjit",
+    "mitsuba",
+    "optimistix",
+    "jaxopt",
+    "emcee",
+    "cplantbox",
+    "pvlib",
+    "numpy",
+    "pandas",
+    "xarray",
+    "trimesh",
+)
+
+
+def info(ctx: typer.Context) -> None:
+    """Print versions, the Mitsuba variant in use, the libLLVM path and the JAX precision."""
+    import importlib.metadata as md
+
+    from lightfit.light import backend
+    from lightfit.precision import precision
+
+    t = Table(title="lightfit environment", show_header=False)
+    t.add_row("python", sys.version.split()[0])
+    for pkg in _PACKAGES:
+        try:
+            t.add_row(pkg, md.version(pkg))
+        except md.PackageNotFoundError:
+            t.add_row(pkg, "[red]not installed[/]")
+    t.add_row("JAX precision", precision())
+    variant = (ctx.obj or {}).get("variant")
+    try:
+        if variant is not None:
+            backend.mitsuba(variant)
+        b = backend.info()
+    except backend.BackendError:
+        console.print(t)  # what is known so far, then the error handler reports the backend problem
+        raise
+    t.add_row("mitsuba variant", f"{b.variant} ({b.variant_source})")
+    t.add_row("libLLVM", f"{b.libllvm} ({b.libllvm_source})")
+    t.add_row("CUDA usable", str(backend.cuda_usable()))
+    console.print(t)

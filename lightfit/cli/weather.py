@@ -1,0 +1,61 @@
+"""``lightfit weather …``: read, check, convert and plot weather series (a sub-app)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from lightfit.cli.common import console, weather_report, weather_table
+
+app = typer.Typer(help="Read, check, convert and plot weather series.", no_args_is_help=True)
+
+
+def load(source: str, fmt: str, date: str | None, tz: str | None, max_gap: str, split: str):
+    """A bundled series (by name) or a file, in the weather contract with solar columns."""
+    from lightfit import weather
+
+    if source in weather.BUNDLED:
+        df = weather.read_weather(
+            weather.bundled_path(source), date=date or weather.BUNDLED[source][1], max_gap=max_gap
+        )
+    else:
+        df = weather.read_weather(source, format=fmt, date=date, tz=tz, max_gap=max_gap)
+    return weather.add_solar(df, split_model=split)
+
+
+@app.command("show")
+def show(
+    source: str = typer.Argument(
+        "2016-04-20", help="A bundled series name (2016-04-20, selhausen-cplantbox-day) or a file."
+    ),
+    fmt: str = typer.Option("auto", "--format", help="auto, tereno, cplantbox or lightfit."),
+    date: str = typer.Option(None, help="Calendar date for undated files (CPlantBox day), YYYY-MM-DD."),
+    tz: str = typer.Option(None, help="Timezone of the file's timestamps (default: the format's convention)."),
+    max_gap: str = typer.Option("30min", help="Longest gap to interpolate."),
+    split: str = typer.Option("erbs", help="Direct/diffuse split model: erbs or boland."),
+    resample: str = typer.Option(None, help="New time step, e.g. 30min."),
+    how: str = typer.Option("mean", help="Resampling: mean (centred window) or sample."),
+    plot: Path = typer.Option(None, help="Write a PNG plot here."),
+    csv: Path = typer.Option(None, help="Write the contract series as CSV here."),
+) -> None:
+    """Read a weather series, report its checks and repairs, print it, optionally plot/convert."""
+    from lightfit import weather
+    from lightfit.weather.plot import plot_forcing
+
+    df = load(source, fmt, date, tz, max_gap, split)
+    if resample:
+        df = weather.resample(df, resample, how)
+    weather_report(df)
+    name = Path(str(df.attrs.get("source"))).name
+    console.print(weather_table(df, f"{df.attrs.get('provenance', '').upper()} weather: {name}"))
+    if plot:
+        console.print(f"plot → {plot_forcing(df, plot)}")
+    if csv:
+        meta = {
+            "provenance": df.attrs["provenance"],
+            "source": str(df.attrs.get("source")),
+            "qc": json.dumps(df.attrs.get("qc", []), ensure_ascii=False),
+        }
+        console.print(f"csv → {weather.write_lightfit_csv(df, csv, meta)}")
