@@ -174,7 +174,7 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
     import xarray as xr
     from typer.testing import CliRunner
 
-    from lightfit.cli.field_run import app
+    from lightfit.cli import app
 
     out = tmp_path / "r.nc"
     args = [
@@ -203,7 +203,7 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         assert ds.sizes["time"] == 1 and ds.attrs["n_tiles"] == 2
         assert np.isfinite(ds["plant_par_umol_m2_s"].values).all()
     bad = CliRunner().invoke(app, args[:7] + ["--tiles", "9"] + args[9:])
-    assert bad.exit_code == 2 and "tiles" in bad.output
+    assert bad.exit_code == 2 and "tiles" in bad.stderr
     bad = CliRunner().invoke(
         app,
         [
@@ -218,4 +218,4 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
             "3",
         ],
     )
-    assert bad.exit_code == 2 and "scheduler" in bad.output
+    assert bad.exit_code == 2 and "scheduler" in bad.stderr
