@@ -166,8 +166,13 @@ class TaskSpec:
     rows: np.ndarray
 
 
-def _worker_setup(x64: bool) -> None:
+def _worker_setup() -> None:
+    """Prepare a worker process: libLLVM for Dr.Jit, its CPU threads, and lightfit's float64 policy."""
     import lightfit  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before Mitsuba loads)
+    from lightfit.precision import use_float64
+
+    # Workers are separate processes: the client's JAX configuration does not reach them.
+    use_float64()
 
     threads = os.environ.get(ENV_THREADS)
     if threads:
@@ -179,16 +184,12 @@ def _worker_setup(x64: bool) -> None:
 
             if dr.thread_count() != int(threads):
                 dr.set_thread_count(int(threads))
-    if x64:
-        import jax
-
-        jax.config.update("jax_enable_x64", True)
 
 
 def run_task(spec: TaskSpec):
     """Worker side: build the tile, render, photosynthesis. Returns (Dataset, timing/size info)."""
     t0 = time.perf_counter()
-    _worker_setup(spec.run.x64)
+    _worker_setup()
     from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
 
     t1 = time.perf_counter()
