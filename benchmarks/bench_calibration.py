@@ -28,6 +28,9 @@ import lightfit  # noqa: F401
 from lightfit import replication as rep
 from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
 from lightfit.inference.twin import twin_observations
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "calibration.json"
 NAMES = ("specular", "roughness", "subsurface")
@@ -93,7 +96,6 @@ def bench(name: str, cfg, do_calibrate: bool, evals_per_calibration: int | None)
 
 
 def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
-    jax.config.update("jax_enable_x64", True)
     cfgs = {"quick": rep.ReplicationConfig.quick(), "default": rep.ReplicationConfig()}
     rows = []
     for name in configs:

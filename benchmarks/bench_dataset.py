@@ -25,6 +25,9 @@ from pathlib import Path
 
 import lightfit  # noqa: F401 - libLLVM before Dr.Jit
 from lightfit.light.backend import mitsuba
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "dataset.json"
 CORES = 2

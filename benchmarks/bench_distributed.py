@@ -27,9 +27,9 @@ from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-import jax  # noqa: E402
+from lightfit.precision import use_float64  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import numpy as np  # noqa: E402
 

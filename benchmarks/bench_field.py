@@ -22,6 +22,9 @@ from rich.console import Console
 from rich.table import Table
 
 from lightfit.plant import Field, MeshResolution, build, shoot_mesh
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "field.json"
 

@@ -31,6 +31,9 @@ from lightfit.light import backend
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "light.json"
 

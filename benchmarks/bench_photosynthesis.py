@@ -21,8 +21,10 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
 
-# The benchmark (not the library) opts into float64 so both precisions can be timed.
-jax.config.update("jax_enable_x64", True)
+# float64 is lightfit's precision; the float32 timings pass float32 arrays explicitly.
+from lightfit.precision import use_float64  # noqa: E402
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

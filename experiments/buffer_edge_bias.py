@@ -22,7 +22,10 @@ from lightfit import weather
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
+from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
 BUFFERS = [(2, 2), (6, 6), (2, 8), (3, 12), (6, 24), (10, 40)]

@@ -33,7 +33,10 @@ from lightfit import weather  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.light.scene import FieldScene, Optics  # noqa: E402
 from lightfit.plant import Field, MeshResolution, build  # noqa: E402
+from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi  # noqa: E402
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = dict(samples=1024, bounces=8, buffer_rows=6, along=1, across=1)

@@ -14,7 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lightfit.precision import use_float64
 from lightfit.weather import load, units
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "data" / "fixtures" / "tereno_SE_EC_001_fixture.csv"

@@ -25,9 +25,9 @@ import shutil
 import time
 from pathlib import Path
 
-import jax
+from lightfit.precision import use_float64
 
-jax.config.update("jax_enable_x64", True)
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402

@@ -14,7 +14,10 @@ import argparse
 from dataclasses import asdict
 from pathlib import Path
 
+from lightfit.precision import use_float64
 from lightfit.weather import Anchor, DayAssumptions, reconstruct_day, write_lightfit_csv
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "data" / "weather" / "selhausen_2016-04-20_reconstructed.csv"

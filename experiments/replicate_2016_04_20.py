@@ -17,11 +17,12 @@ import json
 import sys
 from pathlib import Path
 
-import jax
-
 import lightfit
 from lightfit import replication as rep
 from lightfit.model.parameters import Theta
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +44,6 @@ def main(argv=None):
     ap.add_argument("--weather", type=Path, default=None)
     ap.add_argument("--write-reference", type=Path, default=None)
     a = ap.parse_args(argv)
-    jax.config.update("jax_enable_x64", True)
     cfg = rep.ReplicationConfig.quick() if a.quick else rep.ReplicationConfig()
     ds, _ = rep.run(cfg, weather_file=a.weather, out=a.out, progress=True)
     print(rep.summary(ds).round(3).to_string())

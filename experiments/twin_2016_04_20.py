@@ -18,7 +18,6 @@ import dataclasses
 import json
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 
 import lightfit  # noqa: F401
@@ -26,6 +25,9 @@ from lightfit import replication as rep
 from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
 from lightfit.inference.observations import read_observations, write_observations
 from lightfit.inference.twin import twin_observations
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}
@@ -33,7 +35,6 @@ DATA = ROOT / "data" / "observations" / "twin_2016-04-20_synthetic.csv"
 
 
 def main(quick: bool = False, out: Path = ROOT / "results" / "twin") -> dict:
-    jax.config.update("jax_enable_x64", True)
     out.mkdir(parents=True, exist_ok=True)
     cfg = (
         rep.ReplicationConfig.quick() if quick else dataclasses.replace(rep.ReplicationConfig(), n_plants=9, samples=32)
