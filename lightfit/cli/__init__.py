@@ -44,7 +44,6 @@ app = typer.Typer(
 
 @app.callback()
 def _main(
-    ctx: typer.Context,
     variant: str = typer.Option(
         None,
         "--variant",
@@ -52,11 +51,15 @@ def _main(
         help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: auto).",
     ),
 ) -> None:
+    """Runs before every command: the precision policy, and the Mitsuba variant if one is asked for."""
     from lightfit.precision import use_float64
 
     # Before any command creates a JAX array: lightfit computes in float64 only (lightfit.precision).
     use_float64()
-    ctx.obj = {"variant": variant}
+    if variant:
+        from lightfit.light import backend
+
+        backend.mitsuba(variant)  # a bad variant is a user error (BackendError → exit 2) before any work
 
 
 app.command("info")(info)

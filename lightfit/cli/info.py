@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 
-import typer
 from rich.table import Table
 
 from lightfit.cli.common import console
@@ -27,7 +26,7 @@ _PACKAGES = (
 )
 
 
-def info(ctx: typer.Context) -> None:
+def info() -> None:
     """Print versions, the Mitsuba variant in use, the libLLVM path and the JAX precision."""
     import importlib.metadata as md
 
@@ -42,11 +41,8 @@ def info(ctx: typer.Context) -> None:
         except md.PackageNotFoundError:
             t.add_row(pkg, "[red]not installed[/]")
     t.add_row("JAX precision", precision())
-    variant = (ctx.obj or {}).get("variant")
     try:
-        if variant is not None:
-            backend.mitsuba(variant)
-        b = backend.info()
+        b = backend.info()  # the variant of --variant (applied by the app callback), LIGHTFIT_VARIANT or auto
     except backend.BackendError:
         console.print(t)  # what is known so far, then the error handler reports the backend problem
         raise
