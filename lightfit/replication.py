@@ -18,10 +18,12 @@ import pandas as pd
 
 from lightfit import weather
 from lightfit.inference.observations import align, read_observations
-from lightfit.model.coupled import DEFAULT_THETA, CoupledModel, Scenario
+from lightfit.model import schema
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.parameters import Theta
+from lightfit.model.scenario import Scenario
 from lightfit.plant import Field
 from lightfit.weather.bundled import DATA_DIR
-from lightfit.weather.units import par_from_ghi
 
 START_LOCAL = "2016-04-20 05:00"
 HOURS, STEP = 14.0, "30min"
@@ -74,7 +76,7 @@ def run(
     cfg: ReplicationConfig,
     *,
     weather_file=None,
-    theta: dict | None = None,
+    theta: Theta | dict | None = None,
     observations=OBSERVATIONS,
     out: Path | None = None,
     progress: bool = False,
@@ -86,13 +88,14 @@ def run(
     """
     w = forcing(weather_file, cfg.how) if forcing_df is None else forcing_df
     model = model_for(cfg, w, progress)
-    ds = model.simulate({**DEFAULT_THETA, **(theta or {})})
+    ds = model.simulate(theta)
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     obs = read_observations(observations) if observations else None
     if obs is not None:
         a = align(obs, model.times)
         for k, v in a.items():
             ds[f"obs_{k}"] = ("time", v)
+        schema.annotate(ds)
         ds.attrs["observations"] = f"{obs.attrs['source']} ({obs.attrs['provenance']})"
     if out is not None:
         out = Path(out)
@@ -114,7 +117,8 @@ def write_netcdf(ds, path: Path) -> Path:
 
 
 def summary(ds) -> pd.DataFrame:
-    """One row per time step: sun, above-canopy PAR, plant PAR (mean, spread), canopy An, limitation."""
+    """One row per time step: sun, above-canopy PAR (the weather's), plant PAR (mean, spread),
+    canopy An and its Monte Carlo SD, share of light-limited blades (units: :mod:`lightfit.model.schema`)."""
     t = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     blades = ds["is_blade"].values.astype(bool)
     lim = ds["limitation"].values[:, blades]
@@ -123,14 +127,16 @@ def summary(ds) -> pd.DataFrame:
         {
             "local_time": t.tz_convert("Europe/Berlin").strftime("%H:%M"),
             "sun_elevation_deg": ds["sun_elevation_deg"].values,
-            "par_above_umol_m2_s": par_from_ghi(
-                ds["dni_w_m2"].values * np.sin(np.radians(np.clip(ds["sun_elevation_deg"].values, 0, 90)))
-                + ds["dhi_w_m2"].values
-            ),
-            "plant_par_umol_m2_s": ds["plant_par_umol_m2_s"].values,
-            "plant_par_sd_umol_m2_s": ds["plant_par_spread_umol_m2_s"].values,
-            "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].values,
-            "canopy_an_mc_sd": ds["canopy_an_mc_sd_umol_m2_s"].values,
+            **{
+                k: ds[k].values
+                for k in (
+                    "above_canopy_par_umol_m2_s",
+                    "plant_par_umol_m2_s",
+                    "plant_par_spread_umol_m2_s",
+                    "canopy_an_umol_m2_s",
+                    "canopy_an_mc_sd_umol_m2_s",
+                )
+            },
             "frac_light_limited": light_limited,
         },
         index=t.rename("time_utc"),
@@ -151,11 +157,11 @@ def plot(ds, path: Path) -> Path:
     kind = ds.attrs.get("par_kind", "absorbed")
     ax.fill_between(t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments")
     ax.plot(t, par, color="tab:blue", lw=2, label=f"model: {kind} PAR, mean over segments")
-    if "obs_par_umol_m2_s" in ds:
+    if "obs_plant_par_umol_m2_s" in ds:
         ax.errorbar(
             t,
-            ds["obs_par_umol_m2_s"].values,
-            yerr=ds["obs_par_sd_umol_m2_s"].values,
+            ds["obs_plant_par_umol_m2_s"].values,
+            yerr=ds["obs_plant_par_sd_umol_m2_s"].values,
             fmt="s",
             color="navy",
             label="observed PAR (chamber)",
@@ -165,12 +171,12 @@ def plot(ds, path: Path) -> Path:
     an, an_sd = ds["canopy_an_umol_m2_s"].values, ds["canopy_an_mc_sd_umol_m2_s"].values
     per = ds.attrs.get("an_per", "ground")
     ax2.fill_between(t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2)
-    ax2.plot(t, an, color="tab:red", lw=2, label=f"model: net CO2 uptake per {per} area (±2 MC SE)")
-    if "obs_an_umol_m2_s" in ds and np.isfinite(ds["obs_an_umol_m2_s"].values).any():
+    ax2.plot(t, an, color="tab:red", lw=2, label=f"model: net CO2 uptake per {per} area (±2 MC SD)")
+    if "obs_canopy_an_umol_m2_s" in ds and np.isfinite(ds["obs_canopy_an_umol_m2_s"].values).any():
         ax2.errorbar(
             t,
-            ds["obs_an_umol_m2_s"].values,
-            yerr=ds["obs_an_sd_umol_m2_s"].values,
+            ds["obs_canopy_an_umol_m2_s"].values,
+            yerr=ds["obs_canopy_an_sd_umol_m2_s"].values,
             fmt="o",
             color="darkred",
             label="observed net CO2 uptake",

@@ -21,13 +21,14 @@ FIELD = Field(n_plants=4, buffer_rows=1, seed=1)
 SEGMENT_VARS = [
     "incident_par_umol_m2_s",
     "absorbed_par_umol_m2_s",
-    "incident_par_se_umol_m2_s",
-    "absorbed_par_se_umol_m2_s",
-    "an_umol_m2_s",
-    "gs_mol_m2_s",
-    "ci_umol_mol",
-    "vc_umol_m2_s",
-    "vj_umol_m2_s",
+    "incident_par_mc_sd_umol_m2_s",
+    "absorbed_par_mc_sd_umol_m2_s",
+    "leaf_an_umol_m2_s",
+    "leaf_an_mc_sd_umol_m2_s",
+    "leaf_gs_mol_m2_s",
+    "leaf_ci_umol_mol",
+    "leaf_vc_umol_m2_s",
+    "leaf_vj_umol_m2_s",
     "limitation",
     "converged",
 ]
@@ -70,8 +71,10 @@ def assert_same(ds, ref):
     for v in ref.data_vars:
         assert ds[v].dims == ref[v].dims and ds[v].dtype == ref[v].dtype, v
     for v in SEGMENT_VARS + ["sun_elevation_deg", "dni_w_m2", "tair_c"]:
+        assert ds[v].attrs == ref[v].attrs, v
         np.testing.assert_array_equal(ds[v].values, ref[v].values, err_msg=v)  # bitwise (NaN == NaN)
     for v in AGGREGATES:  # recomputed sums: equal up to summation order
+        assert ds[v].attrs["units"] == ref[v].attrs["units"] == "umol m-2 s-1", v
         np.testing.assert_allclose(ds[v].values, ref[v].values, rtol=1e-12, atol=1e-12, err_msg=v)
 
 
@@ -93,7 +96,8 @@ def test_exact_halo_is_bitwise_partition_independent(client, weather, reference,
 
 def test_paper_halo_equals_per_tile_runs(client, weather):
     """halo_rows=H reproduces the single-process per-tile runs of ``Field.tiles`` exactly (H = buffer rows)."""
-    from lightfit.model.coupled import CoupledModel, Scenario
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.scenario import Scenario
 
     run = make_run(weather, tiles=2, halo_rows=FIELD.buffer_rows)
     ds = run_field(run, client=client, timeout_s=240)

@@ -16,7 +16,7 @@ from lightfit.errors import InputError
 from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
 from lightfit.inference.observations import align, read_observations, write_observations
 from lightfit.inference.twin import twin_observations
-from lightfit.model.coupled import DEFAULT_THETA
+from lightfit.model.parameters import Theta
 
 REFERENCE = Path(__file__).parent / "reference" / "replication_quick.json"
 
@@ -48,16 +48,16 @@ def test_regression_against_stored_20_april_curve():
 
 def test_observables_are_consistent_with_the_segment_fields(short_model):
     m = short_model
-    o = m.observe(DEFAULT_THETA)
+    o = m.observe(Theta())
     w = m.area_m2 / m.area_m2.sum()
-    assert np.allclose(np.asarray(o["plant_par_umol_m2_s"]), np.asarray(o["absorbed_par"]) @ w)
+    assert np.allclose(np.asarray(o["plant_par_umol_m2_s"]), np.asarray(o["absorbed_par_umol_m2_s"]) @ w)
     b = o["blade_index"]
-    an = np.asarray(o["ps"].an_umol_m2_s) @ m.area_m2[b] / m.ground_area_m2
+    an = np.asarray(o["photosynthesis"].an_umol_m2_s) @ m.area_m2[b] / m.ground_area_m2
     assert np.allclose(np.asarray(o["canopy_an_umol_m2_s"]), an)
     # Doubling the light factor doubles absorbed PAR exactly (weather only rescales renders).
-    o2 = m.observe({**DEFAULT_THETA, "light_factor": 2.0})
-    assert np.allclose(np.asarray(o2["absorbed_par"]), 2 * np.asarray(o["absorbed_par"]))
-    assert (np.asarray(o["plant_par_mc_sd_umol_m2_s"]) > 0).all()
+    o2 = m.observe(Theta(light_factor=2.0))
+    assert np.allclose(np.asarray(o2["absorbed_par_umol_m2_s"]), 2 * np.asarray(o["absorbed_par_umol_m2_s"]))
+    assert (np.asarray(o["plant_par_mc_sd_umol_m2_s"])[m.day] > 0).all()
     assert np.isfinite(np.asarray(o["canopy_an_mc_sd_umol_m2_s"])).all()
 
 

@@ -1,9 +1,10 @@
 """Read a coupled-model results file and rebuild the field it was computed on.
 
 Contract (netCDF, written by the coupled model): dims ``(time, segment)``; coordinate
-``segment`` = segment id (int64) and ``plant_id`` along it; data variables such as
-``absorbed_par_umol_m2_s``, ``an_umol_m2_s``, ``vc_umol_m2_s``, ``vj_umol_m2_s``,
-``gs_mol_m2_s`` and ``limitation`` (int8: 1 = electron-transport limited, Fj < Fc; 0 = Rubisco
+``segment`` = segment id (int64) and ``plant_id`` along it; data variables of the results
+schema (:mod:`lightfit.model.schema`, which gives their units and meaning) such as
+``absorbed_par_umol_m2_s``, ``leaf_an_umol_m2_s``, ``leaf_vc_umol_m2_s``, ``leaf_vj_umol_m2_s``,
+``leaf_gs_mol_m2_s`` and ``limitation`` (int8: 1 = electron-transport limited, Fj < Fc; 0 = Rubisco
 limited); attrs describing the field (``n_plants``, ``buffer_rows``, ``seed``,
 ``parameter_file``, ``season_start``, ``target_date``, ``row_spacing_m``, ``plant_spacing_m``,
 optionally ``row_direction_deg``). Optional time series ``sun_elevation_deg``,
@@ -21,14 +22,15 @@ import pandas as pd
 
 from lightfit.dataset.scene import Lighting
 from lightfit.errors import InputError
+from lightfit.model import schema
 
-#: Short quantity names → results variables (units in the variable names).
+#: Short quantity names → results variables (units: :mod:`lightfit.model.schema`).
 QUANTITIES = {
     "absorbed_par": "absorbed_par_umol_m2_s",
-    "an": "an_umol_m2_s",
-    "vc": "vc_umol_m2_s",
-    "vj": "vj_umol_m2_s",
-    "gs": "gs_mol_m2_s",
+    "an": "leaf_an_umol_m2_s",
+    "vc": "leaf_vc_umol_m2_s",
+    "vj": "leaf_vj_umol_m2_s",
+    "gs": "leaf_gs_mol_m2_s",
     "limitation": "limitation",
 }
 #: Derived: (Vj − Vc)/(Vj + Vc), dimensionless in [−1, 1]; > 0 where Fj > Fc (Rubisco limited,
@@ -62,7 +64,7 @@ class Results:
         raise InputError(f"unknown quantity {name!r}", column="quantities", expected=f"one of {', '.join(avail)}")
 
     def values(self, name: str, time_index: int) -> pd.Series:
-        """Per-segment values of a quantity at one time step, indexed by segment id (units as named)."""
+        """Per-segment values of a quantity at one time step, indexed by segment id (:meth:`units`)."""
         full = self.variable(name)
         if full == MARGIN:
             vc, vj = (self.values(q, time_index).astype(float) for q in ("vc", "vj"))
@@ -74,10 +76,9 @@ class Results:
         return pd.Series(np.asarray(da.values), index=self.ds["segment"].values.astype(np.int64), name=full)
 
     def units(self, name: str) -> str:
+        """Units of a quantity, from the results schema (``"1"``: dimensionless)."""
         full = self.variable(name)
-        if full in (MARGIN, "limitation"):
-            return "1"
-        return str(self.ds[full].attrs.get("units", full.split("_", 1)[-1] if "_" in full else ""))
+        return "1" if full == MARGIN else schema.units(full)
 
 
 def open_results(source) -> Results:

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.model import schema
 
 
 def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_only: bool = True):
@@ -43,16 +44,12 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     dims = ("time", "segment")
     ds = xr.Dataset(
         {
-            "absorbed_par_umol_m2_s": (dims, par.astype(np.float32), {"units": "umol m-2 s-1"}),
-            "an_umol_m2_s": (dims, an.astype(np.float32), {"units": "umol m-2 s-1"}),
-            "vc_umol_m2_s": (dims, vc.astype(np.float32), {"units": "umol m-2 s-1"}),
-            "vj_umol_m2_s": (dims, vj.astype(np.float32), {"units": "umol m-2 s-1"}),
-            "gs_mol_m2_s": (dims, gs.astype(np.float32), {"units": "mol m-2 s-1"}),
-            "limitation": (
-                dims,
-                (vj < vc).astype(np.int8),
-                {"flag_values": "0 Rubisco limited, 1 electron-transport limited"},
-            ),
+            "absorbed_par_umol_m2_s": (dims, par.astype(np.float32)),
+            "leaf_an_umol_m2_s": (dims, an.astype(np.float32)),
+            "leaf_vc_umol_m2_s": (dims, vc.astype(np.float32)),
+            "leaf_vj_umol_m2_s": (dims, vj.astype(np.float32)),
+            "leaf_gs_mol_m2_s": (dims, gs.astype(np.float32)),
+            "limitation": (dims, (vj < vc).astype(np.int8)),
         },
         coords={
             "time": times.tz_convert(None).to_numpy(),
@@ -73,4 +70,4 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
             "title": "lightfit synthetic results (not a model run)",
         },
     )
-    return ds
+    return schema.annotate(ds)

@@ -43,16 +43,12 @@ import pandas as pd
 
 from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError
+from lightfit.model import schema
+from lightfit.model.parameters import Theta
 from lightfit.plant.field import Field
 
-#: Per-time canopy aggregates recomputed on the gathered Dataset.
-AGGREGATES = (
-    "plant_par_umol_m2_s",
-    "plant_par_spread_umol_m2_s",
-    "plant_par_mc_sd_umol_m2_s",
-    "canopy_an_umol_m2_s",
-    "canopy_an_mc_sd_umol_m2_s",
-)
+#: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
+AGGREGATES = schema.OBSERVABLES
 ENV_THREADS = "LIGHTFIT_WORKER_THREADS"
 
 
@@ -73,7 +69,8 @@ class FieldRun:
             orders, render seed of the common random numbers).
         photosynthesis, par_kind, an_per, optics, sky: as in
             :class:`lightfit.model.coupled.Scenario`.
-        theta: leaf/light parameters (defaults for missing keys).
+        theta: model parameters (a :class:`~lightfit.model.parameters.Theta`, or a mapping of
+            some names; defaults for the rest).
         x64: compute JAX photosynthesis in float64 in the workers.
     """
 
@@ -90,7 +87,7 @@ class FieldRun:
     an_per: str = "ground"
     optics: object = None
     sky: str = "isotropic"
-    theta: dict = field(default_factory=dict)
+    theta: Theta | dict = field(default_factory=Theta)
     x64: bool = True
 
     def __post_init__(self):
@@ -120,9 +117,10 @@ class FieldRun:
                 )
 
     def daytime(self) -> np.ndarray:
-        """Steps the coupled model renders (its definition: DNI + DHI > 0 and sun elevation > -1°)."""
-        w = self.weather
-        return ((w["dni_w_m2"] + w["dhi_w_m2"]) > 0).to_numpy() & (w["sun_elevation_deg"] > -1).to_numpy()
+        """Steps the coupled model renders (:func:`lightfit.model.scenario.daytime`)."""
+        from lightfit.model.scenario import daytime
+
+        return daytime(self.weather)
 
     def chunk_index(self) -> list[np.ndarray]:
         """Row positions of the weather in each time chunk: daytime and night steps dealt out
@@ -136,7 +134,7 @@ class FieldRun:
     def scenario(self, tile: int | None, rows=None):
         """The :class:`Scenario` of one tile (``None``: single process, whole field) and time chunk."""
         from lightfit.light.scene import Optics
-        from lightfit.model.coupled import Scenario
+        from lightfit.model.scenario import Scenario
 
         w = self.weather if rows is None else self.weather.iloc[rows]
         fld = self.field if tile is None else self.halo_field
@@ -190,17 +188,16 @@ def run_task(spec: TaskSpec):
     """Worker side: build the tile, render, photosynthesis. Returns (Dataset, timing/size info)."""
     t0 = time.perf_counter()
     _worker_setup()
-    from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
+    from lightfit.model.coupled import CoupledModel
 
     t1 = time.perf_counter()
     sc = spec.run.scenario(spec.tile, spec.rows)
     model = CoupledModel(sc)
     t2 = time.perf_counter()
-    ds = model.simulate({**DEFAULT_THETA, **(spec.run.theta or {})})
+    ds = model.simulate(spec.run.theta)
     t3 = time.perf_counter()
     mesh = model.geometry.mesh
     tile = spec.run.tile_list[spec.tile]
-    fld = spec.run.field
     try:
         from distributed import get_worker
 
@@ -223,41 +220,34 @@ def run_task(spec: TaskSpec):
         "segments": int(len(model.segment_id)),
         "triangles": int(mesh.n_faces),
         "triangles_measured": int(np.isin(mesh.face_segment, model.segment_id).sum()),
-        "ground_area_m2": len(tile.measured) * fld.plant_spacing_m * fld.row_spacing_m,
+        "ground_area_m2": model.ground_area_m2,
     }
     return ds, info
 
 
-def _aggregates(out, parts_mc: np.ndarray, ground_area_m2: float) -> dict:
-    """Canopy aggregates of :meth:`CoupledModel.observe` from per-segment values (numpy, float64)."""
+def _aggregates(out) -> dict:
+    """The observables of the gathered per-segment values (:func:`lightfit.model.observe.observables`, numpy)."""
+    from lightfit.model.observe import an_denominator, observables
+
     area = out["area_m2"].values.astype(np.float64)
     blade = out["is_blade"].values.astype(bool)
-    w = area / area.sum()
-    kind = out.attrs.get("par_kind", "incident")
+    kind = out.attrs["par_kind"]
     par = out[f"{kind}_par_umol_m2_s"].values
-    se = out[f"{kind}_par_se_umol_m2_s"].values
-    mean = par @ w
-    sd = np.sqrt(np.maximum((par - mean[:, None]) ** 2 @ w, 0.0))
-    mc = np.sqrt((se**2) @ (w**2))
-    a_leaf = area[blade]
-    denom = a_leaf.sum() if out.attrs.get("an_per", "ground") == "leaf" else ground_area_m2
-    an = out["an_umol_m2_s"].values[:, blade] @ a_leaf / denom
-    return {
-        "plant_par_umol_m2_s": mean,
-        "plant_par_spread_umol_m2_s": sd,
-        "plant_par_mc_sd_umol_m2_s": mc,
-        "canopy_an_umol_m2_s": an,
-        "canopy_an_mc_sd_umol_m2_s": np.sqrt(parts_mc / denom**2),
-    }
+    par_sd = out[f"{kind}_par_mc_sd_umol_m2_s"].values
+    an = out["leaf_an_umol_m2_s"].values[:, blade]
+    an_sd = out["leaf_an_mc_sd_umol_m2_s"].values[:, blade]
+    denom = an_denominator(area[blade], out.attrs["an_per"], float(out.attrs["ground_area_m2"]))
+    return observables(par, par_sd, area, an, an_sd, area[blade], denom)
 
 
 def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     """Merge task results ``[(Dataset, info), …]`` into the single-process layout.
 
-    Per-segment variables are concatenated (sorted by segment id, then time); per-time
-    weather/sun variables are taken from the parts; the canopy aggregates are recomputed from
-    the per-segment values and ``area_m2``/``is_blade``; the Monte Carlo SD of canopy An is
-    combined from each tile's (segments are independent: variances add).
+    Per-segment variables (dimensions from :mod:`lightfit.model.schema`) are concatenated
+    (sorted by segment id, then time); per-time weather/sun variables are taken from the parts;
+    the observables are recomputed from the per-segment values by the observation operator
+    (:func:`lightfit.model.observe.observables`): segments are independent, so canopy sums and
+    Monte Carlo variances add over tiles.
     """
     import xarray as xr
 
@@ -269,23 +259,14 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     if got != expected:
         raise InputError(f"task results cover {sorted(got)}", column="results", expected=f"all of {sorted(expected)}")
     ds0 = results[0][0]
-    seg_vars = [v for v in ds0.data_vars if "segment" in ds0[v].dims]
-    time_vars = [v for v in ds0.data_vars if "segment" not in ds0[v].dims and v not in AGGREGATES]
-    leaf = ds0.attrs.get("an_per", "ground") == "leaf"
+    seg_vars = [v for v in ds0.data_vars if "segment" in schema.variable(v).dims]
+    time_vars = [v for v in ds0.data_vars if "segment" not in schema.variable(v).dims and v not in AGGREGATES]
     chunks = []
     for c in range(run.time_chunks):
         part = sorted((r for r in results if r[1]["chunk"] == c), key=lambda r: r[1]["tile"])
         seg = xr.concat([d[seg_vars] for d, _ in part], dim="segment", join="exact").sortby("segment")
         for v in time_vars:
             seg[v] = part[0][0][v]
-        # Σ over tiles of Var(canopy An_k)·denom_k²: each tile's Σ_blades (dAn/dPAR·SE·area)².
-        mc = 0.0
-        for d, i in part:
-            denom_k = (
-                float(d["area_m2"].values[d["is_blade"].values.astype(bool)].sum()) if leaf else i["ground_area_m2"]
-            )
-            mc = mc + d["canopy_an_mc_sd_umol_m2_s"].values.astype(np.float64) ** 2 * denom_k**2
-        seg["_an_mc_partial"] = ("time", mc)
         chunks.append(seg)
     out = (
         chunks[0]
@@ -295,14 +276,10 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     out = out.sortby("time")
     if len(np.unique(out["segment"].values)) != out.sizes["segment"]:
         raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
-    out.attrs = dict(ds0.attrs)
-    fld = run.field
-    agg = _aggregates(out, out["_an_mc_partial"].values, fld.n**2 * fld.plant_spacing_m * fld.row_spacing_m)
-    out = out.drop_vars("_an_mc_partial")
-    for k, v in agg.items():
+    out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.field.ground_area_m2}
+    for k, v in _aggregates(out).items():
         out[k] = ("time", v)
-    out = out[list(ds0.data_vars)]
-    out.attrs = dict(ds0.attrs)
+    out = schema.annotate(out[list(ds0.data_vars)])
     by_tile = {}
     for i in infos:
         by_tile.setdefault(i["tile"], i)
@@ -516,9 +493,9 @@ def run_field(
 
 def run_single(run: FieldRun):
     """The same run in this process without tiling (the reference for partition independence)."""
-    from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
+    from lightfit.model.coupled import CoupledModel
 
-    return CoupledModel(run.scenario(None)).simulate({**DEFAULT_THETA, **(run.theta or {})})
+    return CoupledModel(run.scenario(None)).simulate(run.theta)
 
 
 __all__ = [

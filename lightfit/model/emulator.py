@@ -15,13 +15,10 @@ fitted by least squares to full renders at a scrambled-Sobol design (one coeffic
 step × part × segment; the same design for all outputs, so one pseudo-inverse). The degree is
 chosen by leave-one-out cross-validation (closed form via the hat matrix).
 
-:class:`FastObservables` turns emulated parts into the model's observables with the same
-formulas as :meth:`lightfit.model.coupled.CoupledModel.observe`, with one more speed-up:
-the leaf photosynthesis of step ``t`` depends on the segment only through its absorbed PAR (same
-air temperature, CO2, humidity and pressure for all blades), so it is solved exactly on a grid of
-``n_grid`` absorbed-PAR values (dense at low light, :math:`q_g = q_{max}(g/(G-1))^2`) and
-interpolated linearly in :math:`\sqrt q` for every blade. The combined error of both
-approximations is measured against full renders + the full photosynthesis by :func:`validate`.
+:class:`FastObservables` turns emulated parts into the model's observables through the model's
+own observation operator (:mod:`lightfit.model.observe`), with one more speed-up: the leaf
+photosynthesis is tabulated per step (:func:`lightfit.model.observe.tabulated_leaf`). The combined
+error of both approximations is measured against full renders + the full photosynthesis by :func:`validate`.
 """
 
 from __future__ import annotations
@@ -33,18 +30,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import PARTS
 from lightfit.model.coupled import CoupledModel
+from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.photosynthesis import solve
-
-LEAF = ("specular", "roughness", "subsurface")
 
 
 def exponents(degree: int) -> np.ndarray:
@@ -89,7 +84,7 @@ def render_parts(model: CoupledModel, leaf, progress: bool = False) -> tuple[np.
         bar.start()
     try:
         for x in leaf:
-            v, s = model.parts(dict(zip(LEAF, x)))
+            v, s = model.render(dict(zip(LEAF_PARAMETERS, x)))
             vals.append(np.asarray(v))
             ses.append(np.asarray(s))
             if bar:
@@ -231,111 +226,44 @@ def build_emulator(
 class FastObservables:
     """The observables of :meth:`CoupledModel.observe` from emulated parts; jit- and vmap-able.
 
-    ``fast(theta)`` → dict of the :data:`~lightfit.model.coupled.OBSERVABLES` (each (T,)), as
-    ``observe``. ``n_grid=None`` solves the photosynthesis of every blade (exact, slow for large
-    fields); an integer tabulates it per step on that many absorbed-PAR values (see the module
-    docstring).
+    ``fast(theta)`` → dict of the :data:`~lightfit.model.observe.OBSERVABLES` (each (T,)), from
+    the model's own observation operator with two speed-ups: only the needed parts are emulated,
+    and ``n_grid`` (an integer) tabulates the leaf photosynthesis per step
+    (:func:`~lightfit.model.observe.tabulated_leaf`); ``n_grid=None`` solves it for every blade
+    (exact, slow for large fields).
     """
 
     def __init__(self, model: CoupledModel, emulator: PartsEmulator, n_grid: int | None = 64):
         self.model, self.emulator, self.n_grid = model, emulator, n_grid
-        m = model
-        self.day = np.flatnonzero(m.day)
-        self.T = len(m.times)
-        self.blades = np.flatnonzero(m.is_blade)
-        kind = m.scenario.par_kind
-        self.par_rows = (PARTS.index(f"{kind}_sun"), PARTS.index(f"{kind}_sky"))
-        self.abs_rows = (PARTS.index("absorbed_sun"), PARTS.index("absorbed_sky"))
-        rows = sorted(set(self.par_rows + self.abs_rows))
-        self.rows = rows
+        self.leaf = exact_leaf if n_grid is None else tabulated_leaf(n_grid)
+        n_day, n_seg = int(model.day.sum()), len(model.segment_id)
         e = emulator
-        if e.coef_values.shape[1:] != (len(self.day), len(PARTS), len(m.segment_id)):
+        if e.coef_values.shape[1:] != (n_day, len(PARTS), n_seg):
             raise InputError(
                 f"emulator shape {e.coef_values.shape[1:]} does not match the model "
-                f"({len(self.day)} daytime steps, {len(m.segment_id)} segments)",
+                f"({n_day} daytime steps, {n_seg} segments)",
                 column="emulator",
                 expected="an emulator built for this model",
             )
+        kinds = {model.scenario.par_kind, "absorbed"}
+        self.rows = tuple(p for p in PARTS if p.rsplit("_", 1)[0] in kinds)
+        idx = [PARTS.index(p) for p in self.rows]
         # Coefficients of the needed rows, flattened: (n_terms, T_day * n_rows * S).
-        self._cv = jnp.asarray(e.coef_values[:, :, rows, :].reshape(len(e.coef_values), -1))
-        self._cs = jnp.asarray(e.coef_se[:, :, rows, :].reshape(len(e.coef_se), -1))
-        self._shape = (len(self.day), len(rows), len(m.segment_id))
-        self._ri = {r: i for i, r in enumerate(rows)}
+        self._cv = jnp.asarray(e.coef_values[:, :, idx, :].reshape(len(e.coef_values), -1))
+        self._cs = jnp.asarray(e.coef_se[:, :, idx, :].reshape(len(e.coef_se), -1))
+        self._shape = (n_day, len(idx), n_seg)
 
     def parts(self, theta: Theta | Mapping[str, float]):
-        leaf = as_theta(theta).leaf
-        b = self.emulator.basis(leaf)
+        """Emulated parts of :attr:`rows` only: values and SE, each (T_day, len(rows), S)."""
+        b = self.emulator.basis(as_theta(theta).leaf)
         v = (b @ self._cv).reshape(self._shape)
         s = jax.lax.stop_gradient(jnp.maximum((b @ self._cs).reshape(self._shape), 0.0))
         return v, s
 
     def __call__(self, theta: Theta | Mapping[str, float]) -> dict:
-        m = self.model
         th = as_theta(theta)
-        v, s = self.parts(th)
-        f = jnp.asarray(th.light_factor, jnp.float64)
-        dni = f * jnp.asarray(m.dni_par[self.day])[:, None]
-        dhi = f * jnp.asarray(m.dhi_par[self.day])[:, None]
-        ri = self._ri
-
-        def field(rows, arr):
-            return dni * arr[:, ri[rows[0]]] + dhi * arr[:, ri[rows[1]]]
-
-        def se(rows):
-            return jnp.sqrt((dni * s[:, ri[rows[0]]]) ** 2 + (dhi * s[:, ri[rows[1]]]) ** 2)
-
-        day = self.day
-        w = jnp.asarray(m.area_m2 / m.area_m2.sum())
-        par_d, par_se_d = field(self.par_rows, v), se(self.par_rows)
-        par_mean = jnp.zeros(self.T).at[day].set(par_d @ w)
-        par_sd = jnp.zeros(self.T).at[day].set(jnp.sqrt(jnp.maximum((par_d - (par_d @ w)[:, None]) ** 2 @ w, 0.0)))
-        par_mc_var = jnp.zeros(self.T).at[day].set((par_se_d**2) @ (w**2))
-        b = self.blades
-        q = jnp.zeros((self.T, len(b))).at[day].set(jnp.maximum(field(self.abs_rows, v)[:, b], 0.0))
-        q_se = jnp.zeros((self.T, len(b))).at[day].set(se(self.abs_rows)[:, b])
-        params = eqx.tree_at(
-            lambda p: p.fvcb.vcmax_ref_umol_m2_s,
-            m.params,
-            m.params.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(th.vcmax_scale, jnp.float64),
-        )
-        an_leaf, dan = self._leaf(q, params)
-        a_leaf = jnp.asarray(m.area_m2[b])
-        denom = a_leaf.sum() if m.scenario.an_per == "leaf" else m.ground_area_m2
-        an = an_leaf @ a_leaf / denom
-        an_mc_var = (jax.lax.stop_gradient(dan) * q_se) ** 2 @ (a_leaf / denom) ** 2
-        return {
-            "plant_par_umol_m2_s": par_mean,
-            "plant_par_spread_umol_m2_s": par_sd,
-            "plant_par_mc_sd_umol_m2_s": jax.lax.stop_gradient(jnp.sqrt(par_mc_var)),
-            "canopy_an_umol_m2_s": an,
-            "canopy_an_mc_sd_umol_m2_s": jax.lax.stop_gradient(jnp.sqrt(an_mc_var)),
-        }
-
-    def _env(self, shape):
-        m = self.model
-        return [jnp.broadcast_to(jnp.asarray(x)[:, None], shape) for x in (m.tair_c, m.co2_ppm, m.rh, m.pair_kpa)]
-
-    def _leaf(self, q, params):
-        """Per-blade net assimilation and dAn/dq (T, B): exact, or tabulated per step."""
-        if self.n_grid is None:
-            t_c, co2, rh, p = self._env(q.shape)
-            res = solve(q, t_c, co2, rh, p, params)
-            _, dan = jax.jvp(lambda x: solve(x, t_c, co2, rh, p, params).an_umol_m2_s, (q,), (jnp.ones_like(q),))
-            return res.an_umol_m2_s, dan
-        G = self.n_grid
-        qmax = jnp.maximum(jnp.max(q, axis=1), 1e-6) * (1.0 + 1e-9)  # (T,)
-        g = jnp.linspace(0.0, 1.0, G)
-        qg = qmax[:, None] * g[None, :] ** 2
-        t_c, co2, rh, p = self._env(qg.shape)
-        an_g = solve(qg, t_c, co2, rh, p, params).an_umol_m2_s
-        _, dan_g = jax.jvp(lambda x: solve(x, t_c, co2, rh, p, params).an_umol_m2_s, (qg,), (jnp.ones_like(qg),))
-        x = jnp.sqrt(jnp.clip(q / qmax[:, None], 0.0, 1.0)) * (G - 1)
-        i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, G - 2)
-        frac = x - i
-        take = jax.vmap(lambda a, j: a[j])
-        an = (1 - frac) * take(an_g, i) + frac * take(an_g, i + 1)
-        dan = (1 - frac) * take(dan_g, i) + frac * take(dan_g, i + 1)
-        return an, dan
+        o = self.model.operator(*self.parts(th), th, rows=self.rows, leaf=self.leaf)
+        return {k: o[k] for k in OBSERVABLES}
 
 
 #: Observables whose emulation error :func:`validate` reports (``err_<name>``, ``full_<name>``).
@@ -369,9 +297,9 @@ def validate(
     parts_err = []
     fast_j = jax.jit(fast)
     for x, v, s in zip(leaf_test, *full):
-        th = as_theta(theta_extra).replace(**dict(zip(LEAF, x)))
+        th = as_theta(theta_extra).replace(**dict(zip(LEAF_PARAMETERS, x)))
         # exact observables from the full render (observe with the render replaced by its result)
-        ref = _observe_with_parts(model, th, v, s)
+        ref = model.with_light(lambda _, v=v, s=s: (jnp.asarray(v), jnp.asarray(s))).observe(th)
         emu = fast_j(th)
         ev, _ = fast.emulator(th)
         parts_err.append(np.asarray(ev) - v)
@@ -386,32 +314,13 @@ def validate(
     return res
 
 
-class _PartsModel(CoupledModel):
-    """A CoupledModel whose ``parts`` come from a callable (emulator or stored renders)."""
-
-    def __init__(self, model: CoupledModel, parts_fn):  # noqa: D107 — no geometry rebuild
-        self.__dict__.update(model.__dict__)
-        self._parts_fn = parts_fn
-
-    def parts(self, theta):
-        return self._parts_fn(theta)
-
-
 def emulated_model(model: CoupledModel, emulator: PartsEmulator) -> CoupledModel:
-    """``model`` with its renders replaced by the emulator.
-
-    ``observe`` / ``simulate`` / ``make_loss`` work unchanged.
-    """
-    return _PartsModel(model, emulator)
-
-
-def _observe_with_parts(model: CoupledModel, theta: dict, values, se) -> dict:
-    return _PartsModel(model, lambda th: (jnp.asarray(values), jnp.asarray(se))).observe(theta)
+    """``model`` with its renders replaced by the emulator (``model.with_light(emulator)``)."""
+    return model.with_light(emulator)
 
 
 __all__ = [
     "FastObservables",
-    "LEAF",
     "PartsEmulator",
     "build_emulator",
     "emulated_model",

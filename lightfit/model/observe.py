@@ -1,0 +1,266 @@
+r"""The observation operator: what a gas-exchange chamber sees of the coupled model.
+
+Every path that produces observables goes through this module: full renders
+(:meth:`lightfit.model.coupled.CoupledModel.observe`), emulated light parts
+(:class:`lightfit.model.emulator.FastObservables`) and per-segment results gathered from Dask
+tiles (:func:`lightfit.distributed.run.gather`, on numpy arrays).
+
+**Light at the segments.** For daytime step :math:`t` and measured segment :math:`s` the renderer
+gives parts :math:`i^{\odot}_{s,t}, i^{sky}_{s,t}` per unit DNI / DHI with Monte Carlo standard
+errors :math:`\sigma^{\odot}, \sigma^{sky}`; with the light factor :math:`f`
+
+.. math::
+
+    I_{s,t} = f\,(\mathrm{DNI}^{PAR}_t i^{\odot}_{s,t} + \mathrm{DHI}^{PAR}_t i^{sky}_{s,t}),\qquad
+    \sigma_{I,s,t} = f\,\sqrt{(\mathrm{DNI}^{PAR}_t\sigma^{\odot}_{s,t})^2 + (\mathrm{DHI}^{PAR}_t\sigma^{sky}_{s,t})^2}
+
+for incident and absorbed PAR (µmol m⁻² s⁻¹ per one-sided area). Night steps are not rendered:
+:math:`I = \sigma = 0`.
+
+**Plant PAR** (:func:`plant_par`), with area weights :math:`w_s = a_s / \sum a`:
+mean :math:`\bar I_t = \sum_s w_s I_{s,t}`, spread :math:`\sqrt{\sum_s w_s (I_{s,t} - \bar I_t)^2}`
+and Monte Carlo SD :math:`\sqrt{\sum_s w_s^2 \sigma_{I,s,t}^2}` (segments have their own sample
+streams, so their errors are independent).
+
+**Canopy net CO2 uptake** (:func:`canopy_an`): leaf photosynthesis gives :math:`A_{b,t}` of every
+leaf blade :math:`b` from its absorbed PAR :math:`q_{b,t}`;
+:math:`A_t = \sum_b a_b A_{b,t} / D` with :math:`D = \sum_b a_b` (per leaf area) or the ground
+area of the measured plants (per ground area). Its Monte Carlo SD propagates the absorbed-PAR
+error linearly, :math:`\sigma_{A,b,t} = |\partial A_{b,t}/\partial q|\,\sigma_{q,b,t}` and
+:math:`\sqrt{\sum_b (a_b \sigma_{A,b,t} / D)^2}`.
+
+Monte Carlo SDs carry no gradient (``jax.lax.stop_gradient``): they weight the likelihood, they
+are not fitted. The aggregate functions accept numpy arrays (computed in numpy, float64) or JAX
+arrays (computed in JAX, differentiable).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from lightfit.light.estimator import PARTS
+from lightfit.model.parameters import Theta
+from lightfit.model.scenario import Forcing
+from lightfit.model.schema import OBSERVABLES
+from lightfit.photosynthesis import PhotosynthesisParams, PhotosynthesisResult, solve
+
+
+def _numpy(*arrays) -> bool:
+    """True when every input is a numpy array or scalar: compute in numpy (float64, no tracing)."""
+    return all(isinstance(a, (np.ndarray, np.generic, float, int)) for a in arrays)
+
+
+def _no_grad(x):
+    return x if isinstance(x, np.ndarray) else jax.lax.stop_gradient(x)
+
+
+def plant_par(par, par_mc_sd, area_m2) -> tuple:
+    """Area-weighted mean, spread and Monte Carlo SD of PAR over the segments.
+
+    Args:
+        par, par_mc_sd: (T, S) PAR of every measured segment and its Monte Carlo SD.
+        area_m2: (S,) one-sided segment areas (the weights).
+
+    Returns ``(mean, spread, mc_sd)``, each (T,), µmol m⁻² s⁻¹.
+    """
+    xp = np if _numpy(par, par_mc_sd, area_m2) else jnp
+    w = area_m2 / area_m2.sum()
+    mean = par @ w
+    spread = xp.sqrt(xp.maximum((par - mean[:, None]) ** 2 @ w, 0.0))
+    mc_sd = xp.sqrt(_no_grad((par_mc_sd**2) @ (w**2)))
+    return mean, spread, mc_sd
+
+
+def canopy_an(an, an_mc_sd, blade_area_m2, denominator_m2) -> tuple:
+    """Net CO2 uptake of the blades per ``denominator_m2`` and its Monte Carlo SD.
+
+    Args:
+        an, an_mc_sd: (T, B) leaf net assimilation of every blade and its Monte Carlo SD,
+            µmol m⁻² s⁻¹ per one-sided leaf area.
+        blade_area_m2: (B,) one-sided blade areas.
+        denominator_m2: leaf area (Σ blade area) or ground area, m² (:func:`an_denominator`).
+
+    Returns ``(canopy_an, canopy_an_mc_sd)``, each (T,).
+    """
+    xp = np if _numpy(an, an_mc_sd, blade_area_m2) else jnp
+    return an @ blade_area_m2 / denominator_m2, xp.sqrt(_no_grad(an_mc_sd**2 @ (blade_area_m2 / denominator_m2) ** 2))
+
+
+def an_denominator(blade_area_m2, an_per: str, ground_area_m2: float):
+    """Area canopy An refers to: Σ blade area (``an_per="leaf"``) or the measured ground area."""
+    return blade_area_m2.sum() if an_per == "leaf" else ground_area_m2
+
+
+def observables(par, par_mc_sd, area_m2, an, an_mc_sd, blade_area_m2, denominator_m2) -> dict:
+    """The :data:`OBSERVABLES` from per-segment PAR (T, S) and per-blade leaf An (T, B)."""
+    mean, spread, par_sd = plant_par(par, par_mc_sd, area_m2)
+    can, can_sd = canopy_an(an, an_mc_sd, blade_area_m2, denominator_m2)
+    return dict(zip(OBSERVABLES, (mean, spread, par_sd, can, can_sd)))
+
+
+# -- leaf photosynthesis --------------------------------------------------------------------
+
+
+class LeafResponse(NamedTuple):
+    """Leaf photosynthesis of the blades: net assimilation and dAn/dq, each (T, B), µmol m⁻² s⁻¹
+    and mol mol⁻¹; ``result`` the full solution (conductance, Ci, limitation…) where computed."""
+
+    an: jax.Array
+    dan_dq: jax.Array
+    result: PhotosynthesisResult | None = None
+
+
+#: ``leaf(q, forcing, params)``: absorbed PAR (T, B) → :class:`LeafResponse`.
+LeafPhotosynthesis = Callable[[jax.Array, Forcing, PhotosynthesisParams], LeafResponse]
+
+
+def _environment(forcing: Forcing, shape):
+    return [
+        jnp.broadcast_to(jnp.asarray(x)[:, None], shape)
+        for x in (forcing.tair_c, forcing.co2_ppm, forcing.rh, forcing.pair_kpa)
+    ]
+
+
+def _solve_with_slope(q, forcing: Forcing, params: PhotosynthesisParams):
+    t_c, co2, rh, p = _environment(forcing, q.shape)
+    res = solve(q, t_c, co2, rh, p, params)
+    # Blades are independent, so a JVP with a ones tangent gives every blade's dAn/dq at once.
+    _, dan = jax.jvp(lambda x: solve(x, t_c, co2, rh, p, params).an_umol_m2_s, (q,), (jnp.ones_like(q),))
+    return res, dan
+
+
+def exact_leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
+    """The photosynthesis solved for every blade (with the full result)."""
+    res, dan = _solve_with_slope(q, forcing, params)
+    return LeafResponse(res.an_umol_m2_s, dan, res)
+
+
+def tabulated_leaf(n_grid: int = 64) -> LeafPhotosynthesis:
+    r"""Leaf photosynthesis tabulated per step on ``n_grid`` absorbed-PAR values.
+
+    Within a step all blades share air temperature, CO2, humidity and pressure, so An depends on
+    the blade only through q. It is solved exactly at :math:`q_g = q_{max}(g/(G-1))^2` (dense at
+    low light) and interpolated linearly in :math:`\sqrt q`, as is dAn/dq.
+    """
+
+    def leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
+        G = n_grid
+        qmax = jnp.maximum(jnp.max(q, axis=1), 1e-6) * (1.0 + 1e-9)  # (T,)
+        g = jnp.linspace(0.0, 1.0, G)
+        res, dan_g = _solve_with_slope(qmax[:, None] * g[None, :] ** 2, forcing, params)
+        x = jnp.sqrt(jnp.clip(q / qmax[:, None], 0.0, 1.0)) * (G - 1)
+        i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, G - 2)
+        frac = x - i
+        take = jax.vmap(lambda a, j: a[j])
+
+        def interp(table):
+            return (1 - frac) * take(table, i) + frac * take(table, i + 1)
+
+        return LeafResponse(interp(res.an_umol_m2_s), interp(dan_g))
+
+    return leaf
+
+
+# -- the operator -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ObservationOperator:
+    """The fixed inputs of one model's observation operator; call it on light parts and θ.
+
+    Attributes:
+        forcing: per-step weather (:class:`~lightfit.model.scenario.Forcing`).
+        area_m2: (S,) one-sided areas of the measured segments; ``is_blade`` (S,) leaf blades.
+        par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observables.
+        denominator_m2: area canopy An refers to (:func:`an_denominator`).
+        params: the photosynthesis parameter set (Vcmax scaled by θ's ``vcmax_scale``).
+    """
+
+    forcing: Forcing
+    area_m2: np.ndarray
+    is_blade: np.ndarray
+    par_kind: str
+    denominator_m2: float
+    params: PhotosynthesisParams
+
+    @property
+    def blades(self) -> np.ndarray:
+        return np.flatnonzero(self.is_blade)
+
+    def light(self, values, se, kind: str, light_factor, rows: Sequence[str] = PARTS):
+        """PAR of ``kind`` at every segment and step and its Monte Carlo SD, each (T, S).
+
+        ``values``/``se``: (T_day, len(rows), S) parts per unit DNI / DHI named by ``rows``.
+        """
+        fc = self.forcing
+        day = np.flatnonzero(fc.day)
+        f = jnp.asarray(light_factor, jnp.float64)
+        dni, dhi = (f * jnp.asarray(x[day])[:, None] for x in (fc.dni_par, fc.dhi_par))
+        sun, sky = rows.index(f"{kind}_sun"), rows.index(f"{kind}_sky")
+        x = dni * values[:, sun] + dhi * values[:, sky]
+        sd = jnp.sqrt((dni * se[:, sun]) ** 2 + (dhi * se[:, sky]) ** 2)
+        zeros = jnp.zeros((len(fc.day), values.shape[-1]))
+        return zeros.at[day].set(x), zeros.at[day].set(sd)
+
+    def photosynthesis_params(self, vcmax_scale) -> PhotosynthesisParams:
+        p = self.params
+        scaled = p.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(vcmax_scale, jnp.float64)
+        return eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, p, scaled)
+
+    def __call__(
+        self, values, se, theta: Theta, *, rows: Sequence[str] = PARTS, leaf: LeafPhotosynthesis = exact_leaf
+    ) -> dict:
+        """Observables and per-segment fields from light parts at ``theta``.
+
+        Returns the :data:`OBSERVABLES` (T,), per segment (T, S) ``<kind>_par_umol_m2_s`` and
+        ``<kind>_par_mc_sd_umol_m2_s`` for each kind whose parts are in ``rows``, per blade (T, B)
+        ``leaf_an_umol_m2_s`` and ``leaf_an_mc_sd_umol_m2_s``, ``blade_index`` (B,) and
+        ``photosynthesis`` (the full result on the blades, or None for a tabulated ``leaf``).
+        """
+        kinds = [k for k in ("incident", "absorbed") if f"{k}_sun" in rows and f"{k}_sky" in rows]
+        out = {}
+        for k in kinds:
+            out[f"{k}_par_umol_m2_s"], out[f"{k}_par_mc_sd_umol_m2_s"] = self.light(
+                values, se, k, theta.light_factor, rows
+            )
+        b = self.blades
+        q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
+        r = leaf(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
+        an_sd = jax.lax.stop_gradient(jnp.abs(r.dan_dq)) * out["absorbed_par_mc_sd_umol_m2_s"][:, b]
+        out |= observables(
+            out[f"{self.par_kind}_par_umol_m2_s"],
+            out[f"{self.par_kind}_par_mc_sd_umol_m2_s"],
+            self.area_m2,
+            r.an,
+            an_sd,
+            self.area_m2[b],
+            self.denominator_m2,
+        )
+        out |= {
+            "leaf_an_umol_m2_s": r.an,
+            "leaf_an_mc_sd_umol_m2_s": an_sd,
+            "blade_index": b,
+            "photosynthesis": r.result,
+        }
+        return out
+
+
+__all__ = [
+    "OBSERVABLES",
+    "LeafPhotosynthesis",
+    "LeafResponse",
+    "ObservationOperator",
+    "an_denominator",
+    "canopy_an",
+    "exact_leaf",
+    "observables",
+    "plant_par",
+    "tabulated_leaf",
+]

@@ -1,0 +1,134 @@
+r"""What a coupled run needs besides the calibrated parameters: the :class:`Scenario`, and the
+per-step :class:`Forcing` the observation operator reads from its weather.
+
+A step is *daytime* (rendered) when :math:`\mathrm{DNI} + \mathrm{DHI} > 0` and the sun is above
+−1° elevation (:func:`daytime`); night steps get zero light. The weather's DNI and DHI are turned
+into photon fluxes with :func:`lightfit.weather.units.par_from_ghi` (2.285 µmol J⁻¹ = 0.50 × 4.57).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+
+import numpy as np
+import pandas as pd
+
+from lightfit.errors import InputError
+from lightfit.light.scene import Optics
+from lightfit.plant import Field
+from lightfit.plant.field import Tile
+from lightfit.weather.units import par_from_ghi
+
+#: Weather columns a scenario needs (a contract series with solar columns).
+WEATHER_COLUMNS = (
+    "sun_elevation_deg",
+    "sun_azimuth_deg",
+    "dni_w_m2",
+    "dhi_w_m2",
+    "tair_c",
+    "rh",
+    "pair_kpa",
+    "co2_ppm",
+)
+
+
+def daytime(weather: pd.DataFrame) -> np.ndarray:
+    """Steps the coupled model renders: DNI + DHI > 0 and sun elevation > −1° (bool, (T,))."""
+    w = weather
+    return ((w["dni_w_m2"] + w["dhi_w_m2"]) > 0).to_numpy() & (w["sun_elevation_deg"] > -1).to_numpy()
+
+
+@dataclass(frozen=True)
+class Forcing:
+    """Per-step inputs of the observation operator, float64 arrays of shape (T,).
+
+    Attributes:
+        day: :func:`daytime` mask.
+        dni_par, dhi_par: direct-normal and diffuse PAR photon flux, µmol m⁻² s⁻¹.
+        tair_c: air temperature (= leaf temperature, a documented simplification), °C.
+        co2_ppm: air CO2 (= CO2 at the leaf surface), µmol mol⁻¹.
+        rh: relative humidity, 0–1. pair_kpa: air pressure, kPa.
+    """
+
+    day: np.ndarray
+    dni_par: np.ndarray
+    dhi_par: np.ndarray
+    tair_c: np.ndarray
+    co2_ppm: np.ndarray
+    rh: np.ndarray
+    pair_kpa: np.ndarray
+
+    @staticmethod
+    def of(weather: pd.DataFrame) -> Forcing:
+        w, dt = weather, np.float64
+        return Forcing(
+            day=daytime(w),
+            dni_par=np.asarray(par_from_ghi(w["dni_w_m2"]), dt),
+            dhi_par=np.asarray(par_from_ghi(w["dhi_w_m2"]), dt),
+            tair_c=w["tair_c"].to_numpy(dt),
+            co2_ppm=w["co2_ppm"].to_numpy(dt),
+            rh=w["rh"].to_numpy(dt),
+            pair_kpa=w["pair_kpa"].to_numpy(dt),
+        )
+
+
+@dataclass
+class Scenario:
+    """Everything a forward run needs besides the calibrated parameters.
+
+    Attributes:
+        weather: contract series with solar columns at the run's time steps (e.g.
+            ``weather.window(df, "2016-04-20 05:00", 14, "30min")``).
+        field: the field (plants, buffers, seed, growth).
+        samples, bounces, seed: irradiance estimator settings (seed: common random numbers).
+        photosynthesis: parameter-set name (``lightfit.photosynthesis.parameter_set``).
+        par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
+        an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area of the
+            measured plants) for canopy net CO2 uptake.
+        optics: soil albedo, base colour and the BSDF parameters used to freeze sampling.
+        sky: ``"isotropic"`` or ``"overcast"``.
+        n_tiles, tile: run only tile ``tile`` of ``field.tiles(n_tiles)`` (its plants measured,
+            its buffer ring as geometry); ``None`` runs the whole measurement area.
+    """
+
+    weather: pd.DataFrame
+    field: Field = dc_field(default_factory=lambda: Field(n_plants=9, buffer_rows=2, seed=1))
+    samples: int = 32
+    bounces: int = 3
+    seed: int = 0
+    photosynthesis: str = "giraud2023"
+    par_kind: str = "incident"
+    an_per: str = "ground"
+    optics: Optics = dc_field(default_factory=Optics)
+    sky: str = "isotropic"
+    n_tiles: int = 1
+    tile: int | None = None
+
+    def __post_init__(self):
+        if self.tile is not None and not 0 <= self.tile < self.n_tiles:
+            raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
+        if self.par_kind not in ("incident", "absorbed"):
+            raise InputError(f"par_kind={self.par_kind!r}", column="par_kind", expected="'incident' or 'absorbed'")
+        if self.an_per not in ("leaf", "ground"):
+            raise InputError(f"an_per={self.an_per!r}", column="an_per", expected="'leaf' or 'ground'")
+        missing = set(WEATHER_COLUMNS) - set(self.weather.columns)
+        if missing:
+            raise InputError(
+                f"weather lacks {sorted(missing)}",
+                column="weather",
+                expected="a contract series with solar columns (lightfit.weather.add_solar)",
+            )
+
+    @property
+    def measured_tile(self) -> Tile | None:
+        """The tile this scenario measures (``None``: the whole measurement area)."""
+        return None if self.tile is None else self.field.tiles(self.n_tiles)[self.tile]
+
+    @property
+    def ground_area_m2(self) -> float:
+        """Ground area of the measured plants, m² (the denominator of canopy An per ground)."""
+        return self.field.measured_area_m2(self.measured_tile)
+
+
+__all__ = ["Forcing", "Scenario", "WEATHER_COLUMNS", "daytime"]

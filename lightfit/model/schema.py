@@ -1,0 +1,160 @@
+"""The results schema: every variable and coordinate of a coupled run's results (results.nc).
+
+Each entry gives the variable's dimensions and CF-style attributes: ``units`` (UDUNITS strings,
+``"1"`` for dimensionless numbers and flags), ``long_name`` and, where the basis of an area flux
+matters, a ``comment`` saying which area it is per. Monte Carlo uncertainty is always a standard
+deviation (``*_mc_sd_*``), in the unit of the quantity.
+
+Area bases: PAR at a segment is per unit *one-sided* area of that segment (a leaf blade's area,
+or the lateral surface of a stem or sheath); leaf photosynthesis is per one-sided leaf area;
+canopy net CO2 uptake is per ground area of the measured plants (N² × plant spacing × row
+spacing) or per one-sided leaf area of the measured blades (results attribute ``an_per``).
+
+:meth:`lightfit.model.coupled.CoupledModel.simulate` writes these attributes (:func:`annotate`);
+readers (:mod:`lightfit.dataset`, :func:`lightfit.distributed.gather`) take units and meaning
+from here (:func:`units`), not from variable names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from lightfit.errors import InputError
+
+UMOL = "umol m-2 s-1"
+_SEGMENT_AREA = "per unit one-sided area of the segment (leaf blade, or stem/sheath lateral surface)"
+_LEAF_AREA = "per unit one-sided leaf area; leaf blades only (NaN elsewhere)"
+_CANOPY_AREA = (
+    "per unit ground area of the measured plants (an_per = 'ground') or per unit one-sided leaf area "
+    "of the measured blades (an_per = 'leaf'), see the attribute an_per"
+)
+_PLANT_PAR = "incident or absorbed PAR (attribute par_kind), per unit one-sided segment area, area-weighted"
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One results variable: dimensions and CF attributes (``units`` None: none, e.g. time)."""
+
+    dims: tuple[str, ...]
+    units: str | None
+    long_name: str
+    comment: str = ""
+    flags: str = ""
+
+    def attrs(self) -> dict[str, str]:
+        a = {"long_name": self.long_name}
+        if self.units is not None:
+            a["units"] = self.units
+        if self.comment:
+            a["comment"] = self.comment
+        if self.flags:
+            values, meanings = zip(*(f.split(" ", 1) for f in self.flags.split(", ")))
+            a["flag_values"] = " ".join(values)
+            a["flag_meanings"] = " ".join(m.replace(" ", "_") for m in meanings)
+        return a
+
+
+TS, T, S = ("time", "segment"), ("time",), ("segment",)
+
+#: The observation operator's outputs per time step (:mod:`lightfit.model.observe`).
+OBSERVABLES = (
+    "plant_par_umol_m2_s",
+    "plant_par_spread_umol_m2_s",
+    "plant_par_mc_sd_umol_m2_s",
+    "canopy_an_umol_m2_s",
+    "canopy_an_mc_sd_umol_m2_s",
+)
+
+#: Every variable and coordinate of results.nc.
+VARIABLES: dict[str, Variable] = {
+    # -- coordinates ------------------------------------------------------------------------
+    "time": Variable(T, None, "time (UTC) of the step"),
+    "segment": Variable(S, "1", "segment id (CPlantBox shoot segment, stable for a given field)"),
+    "plant_id": Variable(S, "1", "plant id of the segment (grid position in the field)"),
+    "organ_type": Variable(S, None, "organ of the segment: leaf (blade or sheath) or stem"),
+    "area_m2": Variable(S, "m2", "one-sided area of the segment", "blade area, or 2 pi r l for stems and sheaths"),
+    "is_blade": Variable(S, "1", "segment is a leaf blade (has photosynthesis)", flags="0 no, 1 yes"),
+    # -- per segment: light -----------------------------------------------------------------
+    "incident_par_umol_m2_s": Variable(TS, UMOL, "PAR incident on the segment", _SEGMENT_AREA),
+    "absorbed_par_umol_m2_s": Variable(TS, UMOL, "PAR absorbed by the segment", _SEGMENT_AREA),
+    "incident_par_mc_sd_umol_m2_s": Variable(TS, UMOL, "Monte Carlo standard deviation of incident PAR", _SEGMENT_AREA),
+    "absorbed_par_mc_sd_umol_m2_s": Variable(TS, UMOL, "Monte Carlo standard deviation of absorbed PAR", _SEGMENT_AREA),
+    # -- per segment: leaf photosynthesis (blades) ------------------------------------------
+    "leaf_an_umol_m2_s": Variable(TS, UMOL, "leaf net CO2 assimilation", _LEAF_AREA),
+    "leaf_an_mc_sd_umol_m2_s": Variable(
+        TS,
+        UMOL,
+        "Monte Carlo standard deviation of leaf net CO2 assimilation",
+        _LEAF_AREA + "; |dAn/dPAR| times the absorbed-PAR Monte Carlo SD",
+    ),
+    "leaf_gs_mol_m2_s": Variable(TS, "mol m-2 s-1", "stomatal conductance to water vapour", _LEAF_AREA),
+    "leaf_ci_umol_mol": Variable(TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only"),
+    "leaf_vc_umol_m2_s": Variable(TS, UMOL, "Rubisco-limited carboxylation rate", _LEAF_AREA),
+    "leaf_vj_umol_m2_s": Variable(TS, UMOL, "electron-transport-limited carboxylation rate", _LEAF_AREA),
+    "limitation": Variable(
+        TS,
+        "1",
+        "limiting process of leaf photosynthesis",
+        "-1 where not a leaf blade",
+        flags="-1 not a blade, 0 Rubisco limited, 1 electron transport limited",
+    ),
+    "converged": Variable(TS, "1", "photosynthesis solver converged", flags="0 no, 1 yes"),
+    # -- per time: observables (lightfit.model.observe) ---------------------------------------
+    "plant_par_umol_m2_s": Variable(T, UMOL, "mean PAR at the measured plants", _PLANT_PAR + " mean over segments"),
+    "plant_par_spread_umol_m2_s": Variable(
+        T, UMOL, "spread of PAR across the measured plants' segments", _PLANT_PAR + " standard deviation"
+    ),
+    "plant_par_mc_sd_umol_m2_s": Variable(T, UMOL, "Monte Carlo standard deviation of mean PAR at the plants"),
+    "canopy_an_umol_m2_s": Variable(T, UMOL, "net CO2 uptake of the measured leaf blades", _CANOPY_AREA),
+    "canopy_an_mc_sd_umol_m2_s": Variable(
+        T, UMOL, "Monte Carlo standard deviation of canopy net CO2 uptake", _CANOPY_AREA
+    ),
+    # -- per time: forcing ------------------------------------------------------------------
+    "above_canopy_par_umol_m2_s": Variable(
+        T, UMOL, "PAR above the canopy (weather)", "per unit horizontal area; the weather series' PAR"
+    ),
+    "dni_w_m2": Variable(T, "W m-2", "direct normal irradiance (weather)", "per unit area normal to the sun"),
+    "dhi_w_m2": Variable(T, "W m-2", "diffuse horizontal irradiance (weather)", "per unit horizontal area"),
+    "tair_c": Variable(T, "degC", "air temperature (taken as leaf temperature)"),
+    "co2_ppm": Variable(T, "ppm", "air CO2 mole fraction (taken as CO2 at the leaf surface)"),
+    "rh": Variable(T, "1", "relative humidity (fraction, 0-1)"),
+    "pair_kpa": Variable(T, "kPa", "air pressure"),
+    "sun_elevation_deg": Variable(T, "degree", "solar elevation angle"),
+    "sun_azimuth_deg": Variable(T, "degree", "solar azimuth angle (clockwise from north)"),
+    # -- per time: observations added by the replication (lightfit.inference.observations) ----
+    "obs_plant_par_umol_m2_s": Variable(T, UMOL, "observed mean PAR at the plants (chamber)", _PLANT_PAR),
+    "obs_plant_par_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed PAR at the plants"),
+    "obs_canopy_an_umol_m2_s": Variable(T, UMOL, "observed canopy net CO2 uptake (chamber)", _CANOPY_AREA),
+    "obs_canopy_an_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed canopy net CO2 uptake"),
+}
+
+
+def variable(name: str) -> Variable:
+    """The schema entry of ``name``; :class:`InputError` for a name outside the schema."""
+    try:
+        return VARIABLES[name]
+    except KeyError:
+        raise InputError(
+            f"results variable {name!r} is not in the schema",
+            column=name,
+            expected="a name of lightfit.model.schema.VARIABLES",
+        ) from None
+
+
+def units(name: str) -> str:
+    """The units of a results variable (``"1"`` when dimensionless)."""
+    return variable(name).units or "1"
+
+
+def annotate(ds):
+    """``ds`` with the schema's attributes on every variable and coordinate (in place; returned).
+
+    Raises :class:`InputError` for a variable the schema does not know, so that no variable is
+    written without units.
+    """
+    for name in ds.variables:
+        ds[name].attrs.update(variable(str(name)).attrs())
+    return ds
+
+
+__all__ = ["OBSERVABLES", "VARIABLES", "Variable", "annotate", "units", "variable"]

@@ -1,0 +1,169 @@
+"""The coupled-model package: ground area, the one observation operator on every path, the results schema."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import lightfit  # noqa: F401
+from lightfit import replication as rep
+from lightfit.distributed.run import FieldRun, TaskSpec, gather, run_task
+from lightfit.errors import InputError
+from lightfit.light.bsdf import LEAF_PARAMETERS
+from lightfit.model import emulator as E
+from lightfit.model import schema
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.parameters import Theta
+from lightfit.model.scenario import Scenario
+from lightfit.photosynthesis import solve
+from lightfit.plant import Field
+
+FIELD = Field(n_plants=4, buffer_rows=1, seed=1)
+THETA = Theta(specular=0.6, roughness=0.4, subsurface=0.2, light_factor=1.3, vcmax_scale=0.8)
+
+
+@pytest.fixture(scope="module")
+def weather():
+    return rep.forcing().iloc[[1, 5, 14]]  # 05:30 local (night), 07:30 (low sun), 12:00
+
+
+@pytest.fixture(scope="module")
+def run(weather):
+    return FieldRun(field=FIELD, weather=weather, samples=8, bounces=2, par_kind="absorbed", tiles=2, theta=THETA)
+
+
+@pytest.fixture(scope="module")
+def model(run):
+    return CoupledModel(run.scenario(None))
+
+
+@pytest.fixture(scope="module")
+def full(model):
+    return model.observe(THETA)
+
+
+@pytest.fixture(scope="module")
+def simulated(model):
+    return model.simulate(THETA)
+
+
+def test_ground_area_is_plants_times_spacings(weather):
+    fld = Field(n_plants=7, buffer_rows=1, row_spacing_m=0.2, plant_spacing_m=0.05)  # rounds up to 3×3
+    assert fld.ground_area_m2 == pytest.approx(9 * 0.2 * 0.05)
+    tiles = fld.tiles(3)
+    areas = [fld.measured_area_m2(t) for t in tiles]
+    assert sum(areas) == pytest.approx(fld.ground_area_m2)
+    assert areas[0] == pytest.approx(len(tiles[0].measured) * 0.01)
+    sc = Scenario(weather=weather, field=fld, n_tiles=3, tile=1)
+    assert sc.ground_area_m2 == pytest.approx(3 * 0.01)  # a 1×3 block of the 3×3 area
+    assert Scenario(weather=weather, field=fld).ground_area_m2 == pytest.approx(0.09)
+
+
+def test_observables_against_an_independent_computation(model, full, weather):
+    """Plant PAR and canopy An from the per-segment fields by plain numpy; the canopy-An Monte Carlo
+    SD by central differences of the photosynthesis (the operator uses a JVP)."""
+    a = model.area_m2
+    absorbed = np.asarray(full["absorbed_par_umol_m2_s"])
+    sd = np.asarray(full["absorbed_par_mc_sd_umol_m2_s"])
+    mean = np.average(absorbed, axis=1, weights=a)
+    spread = np.sqrt(np.average((absorbed - mean[:, None]) ** 2, axis=1, weights=a))
+    np.testing.assert_allclose(np.asarray(full["plant_par_umol_m2_s"]), mean, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(full["plant_par_spread_umol_m2_s"]), spread, rtol=1e-9, atol=1e-9)
+    mc = np.sqrt(((a / a.sum()) ** 2 * sd**2).sum(axis=1))
+    np.testing.assert_allclose(np.asarray(full["plant_par_mc_sd_umol_m2_s"]), mc, rtol=1e-12)
+    # Night step: no light, no Monte Carlo error; dark respiration only.
+    assert not model.day[0] and model.day[1:].all()
+    for k in ("plant_par_umol_m2_s", "plant_par_mc_sd_umol_m2_s", "canopy_an_mc_sd_umol_m2_s"):
+        assert float(full[k][0]) == 0.0, k
+    assert float(full["canopy_an_umol_m2_s"][0]) < 0
+    # Canopy An per ground area: 4 plants × 3 cm × 12.5 cm.
+    ground = 4 * 0.03 * 0.125
+    b = model.is_blade
+    q = np.maximum(absorbed[:, b], 0.0)
+    env = [
+        np.broadcast_to(weather[c].to_numpy(float)[:, None], q.shape) for c in ("tair_c", "co2_ppm", "rh", "pair_kpa")
+    ]
+    params = model.operator.photosynthesis_params(THETA.vcmax_scale)
+
+    def an(x):
+        return np.asarray(solve(jnp.asarray(x), *env, params).an_umol_m2_s)
+
+    np.testing.assert_allclose(np.asarray(full["canopy_an_umol_m2_s"]), an(q) @ a[b] / ground, rtol=1e-10)
+    h = 1e-3
+    dan = (an(q + h) - an(np.maximum(q - h, 0.0))) / (q + h - np.maximum(q - h, 0.0))
+    mc_an = np.sqrt(((a[b] / ground) ** 2 * (dan * sd[:, b]) ** 2).sum(axis=1))
+    np.testing.assert_allclose(np.asarray(full["canopy_an_mc_sd_umol_m2_s"]), mc_an, rtol=1e-3, atol=1e-9)
+
+
+def test_every_path_gives_the_same_observables(model, full, run, simulated):
+    """Full renders, injected stored parts, emulated parts and the Dask gather all use one operator."""
+    parts = model.render(THETA)
+    stored = model.with_light(lambda theta: parts)
+    assert stored.geometry is model.geometry and stored.light is not model.light
+    via_stored = stored.observe(THETA)
+    # An emulator of degree 0 fitted to two copies of the same render is those parts.
+    design = np.array([[0.2, 0.2, 0.2], [0.8, 0.8, 0.8]])
+    v, s = (np.stack([np.asarray(x)] * 2) for x in parts)
+    emu = E.fit_emulator(design, v, s, [0, 0, 0], [1, 1, 1], degrees=(0,))
+    fast = E.FastObservables(model, emu, n_grid=None)(THETA)
+    tasks = [TaskSpec(run=run, tile=k, chunk=0, rows=run.chunk_index()[0]) for k in range(run.tiles)]
+    gathered = gather([run_task(t) for t in tasks], run)
+    for k in schema.OBSERVABLES:
+        ref = np.asarray(full[k])
+        np.testing.assert_array_equal(np.asarray(via_stored[k]), ref, err_msg=k)
+        np.testing.assert_allclose(np.asarray(fast[k]), ref, rtol=1e-12, atol=1e-12, err_msg=k)
+        np.testing.assert_allclose(gathered[k].values, ref, rtol=1e-12, atol=1e-12, err_msg=k)
+        np.testing.assert_array_equal(simulated[k].values, ref, err_msg=k)
+    assert gathered.attrs["ground_area_m2"] == pytest.approx(FIELD.ground_area_m2)
+
+
+def test_theta_or_mapping(model, full):
+    as_map = model.observe({**THETA.to_dict()})
+    for k in schema.OBSERVABLES:
+        np.testing.assert_array_equal(np.asarray(as_map[k]), np.asarray(full[k]))
+    leaf = dict(zip(LEAF_PARAMETERS, (0.6, 0.4, 0.2)))
+    v1, _ = model.render(leaf)
+    v2, _ = model.render(THETA)
+    np.testing.assert_array_equal(np.asarray(v1), np.asarray(v2))  # light_factor/vcmax do not enter the render
+
+
+def test_results_carry_the_schema(simulated, tmp_path):
+    ds = simulated
+    assert ds.attrs["precision"] == "float64" == jnp.zeros(()).dtype.name
+    for name in ds.data_vars:
+        attrs = ds[name].attrs
+        assert attrs["units"] and attrs["long_name"], name
+        assert attrs == schema.variable(name).attrs(), name
+    for name in ds.coords:
+        assert ds[name].attrs["long_name"], name
+    # Spot checks of units a reader relies on (written out here, not taken from the schema).
+    expect = {
+        "leaf_an_umol_m2_s": "umol m-2 s-1",
+        "leaf_gs_mol_m2_s": "mol m-2 s-1",
+        "leaf_ci_umol_mol": "umol mol-1",
+        "dni_w_m2": "W m-2",
+        "tair_c": "degC",
+        "pair_kpa": "kPa",
+        "sun_elevation_deg": "degree",
+        "rh": "1",
+        "area_m2": "m2",
+    }
+    for name, u in expect.items():
+        assert ds[name].attrs["units"] == u, name
+    assert not any("_se_" in v or "var" in v for v in ds.data_vars)  # Monte Carlo error only as SDs
+    np.testing.assert_allclose(  # the weather's own PAR above the canopy
+        ds["above_canopy_par_umol_m2_s"].values, rep.forcing().iloc[[1, 5, 14]]["par_umol_m2_s"].to_numpy()
+    )
+    import xarray as xr
+
+    back = xr.open_dataset(rep.write_netcdf(ds, tmp_path / "r.nc"), engine="h5netcdf")
+    try:
+        assert all(back[v].attrs.get("units") for v in back.data_vars)
+        assert back.attrs["precision"] == "float64"
+    finally:
+        back.close()
+
+
+def test_schema_refuses_unknown_variables(simulated):
+    ds = simulated[["plant_par_umol_m2_s"]].assign(mystery=("time", np.zeros(simulated.sizes["time"])))
+    with pytest.raises(InputError, match="mystery"):
+        schema.annotate(ds)
