@@ -115,6 +115,7 @@ def timed(client, run):
 def halo_bias(weather, n_plants, buffer_rows, samples, bounces, tiles, halos):
     """Differences of halo-H tiled runs from the exact (single-process) run, in-process."""
     from lightfit.model.coupled import CoupledModel
+    from lightfit.model.observe import plant_par
 
     base = FieldRun(
         field=Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1),
@@ -141,20 +142,20 @@ def halo_bias(weather, n_plants, buffer_rows, samples, bounces, tiles, halos):
             parts.append(m.simulate())
         import xarray as xr
 
-        seg = xr.concat([p[["absorbed_par_umol_m2_s", "an_umol_m2_s"]] for p in parts], "segment").sortby("segment")
-        day = ref["sun_elevation_deg"].values > 0
+        seg = xr.concat([p[["absorbed_par_umol_m2_s"]] for p in parts], "segment").sortby("segment")
+        day = ref["sun_elevation_deg"].values > 0  # sun above the horizon: relative differences are defined
         a = seg["absorbed_par_umol_m2_s"].values[day]
         b = ref["absorbed_par_umol_m2_s"].values[day]
-        se = ref["absorbed_par_se_umol_m2_s"].values[day]
-        w = ref["area_m2"].values / ref["area_m2"].values.sum()
-        canopy_a, canopy_b = a @ w, b @ w
+        se = ref["absorbed_par_mc_sd_umol_m2_s"].values[day]
+        area = ref["area_m2"].values
+        canopy_a, canopy_b = (plant_par(x, np.zeros_like(x), area)[0] for x in (a, b))
         diff = a - b
         out.append(
             {
                 "halo_rows": h,
                 "tiles": tiles,
                 "canopy_absorbed_par_rel_diff": ((canopy_a - canopy_b) / canopy_b).tolist(),
-                "canopy_mc_sd_rel": (ref["par_mc_sd_umol_m2_s"].values[day] / canopy_b).tolist(),
+                "canopy_mc_sd_rel": (ref["plant_par_mc_sd_umol_m2_s"].values[day] / canopy_b).tolist(),
                 "segments_changed_frac": float((diff != 0).mean()),
                 "segment_rms_diff_over_rms_se": float(np.sqrt((diff**2).mean()) / np.sqrt((se**2).mean())),
                 "segments_beyond_3se_frac": float((np.abs(diff) > 3 * np.sqrt(2) * np.maximum(se, 1e-12)).mean()),

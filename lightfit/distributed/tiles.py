@@ -22,7 +22,7 @@ A tile *measures* its block of the measurement area (:meth:`lightfit.plant.Field
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -64,30 +64,11 @@ class HaloField(Field):
     @classmethod
     def of(cls, fld: Field, halo_rows: int | None = None) -> HaloField:
         """The same field with a tile halo."""
-        return cls(
-            n_plants=fld.n_plants,
-            row_spacing_m=fld.row_spacing_m,
-            plant_spacing_m=fld.plant_spacing_m,
-            buffer_rows=fld.buffer_rows,
-            row_direction_deg=fld.row_direction_deg,
-            seed=fld.seed,
-            growth=fld.growth,
-            buffer_along=fld.buffer_along,
-            halo_rows=halo_rows,
-        )
+        return cls(**_field_values(fld), halo_rows=halo_rows)
 
     def base(self) -> Field:
         """The plain :class:`Field` (for single-process runs)."""
-        return Field(
-            n_plants=self.n_plants,
-            row_spacing_m=self.row_spacing_m,
-            plant_spacing_m=self.plant_spacing_m,
-            buffer_rows=self.buffer_rows,
-            row_direction_deg=self.row_direction_deg,
-            seed=self.seed,
-            growth=self.growth,
-            buffer_along=self.buffer_along,
-        )
+        return Field(**_field_values(self))
 
     def tiles(self, n_tiles: int = 1) -> list[Tile]:
         base = Field.tiles(self, n_tiles)  # validates n_tiles (InputError naming n_tiles)
@@ -104,6 +85,10 @@ class HaloField(Field):
             ring = np.setdiff1d(all_ids[keep], t.measured)
             out.append(Tile(index=t.index, measured=t.measured, buffer=np.sort(ring)))
         return out
+
+
+def _field_values(fld: Field) -> dict:
+    return {f.name: getattr(fld, f.name) for f in fields(Field)}
 
 
 def check_tiles(fld: Field, n_tiles) -> list[Tile]:

@@ -18,7 +18,6 @@ through the photosynthesis fixed point).
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Callable, Mapping
 from functools import cached_property
 
@@ -31,15 +30,14 @@ from lightfit.light.bridge import make_irradiance
 from lightfit.light.scene import FieldScene
 from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator
-from lightfit.model.parameters import BOUNDS, Theta, as_theta
+from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build
 
-# Transitional dict views of model.parameters for code not yet moved to Theta (inference);
-# remove once nothing imports them.
+# Transitional: the defaults as a dict for experiments/posterior_2016_04_20.py, which merges
+# dicts; remove once it uses Theta.
 DEFAULT_THETA = Theta().to_dict()
-PARAMETERS = {n: (lo, None if hi == math.inf else hi) for n, (lo, hi) in BOUNDS.items()}
 
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S) in
 #: :data:`~lightfit.light.estimator.PARTS` order, per unit DNI / DHI.
@@ -218,4 +216,4 @@ class CoupledModel:
         return ds
 
 
-__all__ = ["CoupledModel", "DEFAULT_THETA", "LightParts", "PARAMETERS", "Scenario"]
+__all__ = ["CoupledModel", "DEFAULT_THETA", "LightParts", "Scenario"]
