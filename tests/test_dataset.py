@@ -403,3 +403,15 @@ def test_night_renders_black_and_reports_dark(geometry):
     assert e.dark and e.gain == 1.0 and e.clipped_leaf_fraction == 0.0
     with pytest.raises(InputError, match="dni_w_m2"):
         Lighting(sun_elevation_deg=10.0, sun_azimuth_deg=0.0, dni_w_m2=-1.0, dhi_w_m2=0.0)
+
+
+def test_units_come_from_the_results_schema(results_file, mono_dataset):
+    res = open_results(results_file)
+    expect = {"absorbed_par": "umol m-2 s-1", "an": "umol m-2 s-1", "gs": "mol m-2 s-1", "limitation": "1", MARGIN: "1"}
+    assert {q: res.units(q) for q in expect} == expect
+    assert res.ds["leaf_gs_mol_m2_s"].attrs["units"] == "mol m-2 s-1"  # the file carries them too
+    _, meta = mono_dataset
+    assert meta["quantities"]["gs"] == {"variable": "leaf_gs_mol_m2_s", "units": "mol m-2 s-1"}
+    renamed = open_results(res.ds.rename({"leaf_gs_mol_m2_s": "gs_in_some_unit"}))
+    with pytest.raises(InputError, match="gs_in_some_unit"):  # no guessing from the name
+        renamed.units("gs_in_some_unit")
