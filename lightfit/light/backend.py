@@ -22,6 +22,7 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 #: Colour mode of the variant: PAR is one band, so monochrome is all lightfit needs.
 DEFAULT_MODE = "mono"
@@ -142,7 +143,7 @@ def choose_variant(requested: str | None = None, mode: str = DEFAULT_MODE) -> tu
     return (f"cuda_ad_{mode}" if cuda_usable() else f"llvm_ad_{mode}"), "auto"
 
 
-def mitsuba(variant: str | None = None):
+def mitsuba(variant: str | None = None) -> ModuleType:
     """Import Mitsuba with libLLVM configured and the variant set; return the module.
 
     Calling it again with no argument returns the already configured module; calling it

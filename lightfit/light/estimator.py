@@ -38,10 +38,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
-from lightfit.light.scene import FieldScene
+from lightfit.light.scene import FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
@@ -121,7 +122,7 @@ class Irradiance:
         return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
 
 
-def bounces_for_tolerance(tolerance: float, optics) -> int:
+def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
 
     With leaf albedo ρ ≤ F_0 + (1 − F_0)c per scattering, the light left after b orders is at
@@ -157,7 +158,7 @@ class SegmentEstimator:
     def __init__(
         self,
         field_scene: FieldScene,
-        segment_ids,
+        segment_ids: ArrayLike,
         *,
         samples: int = 64,
         bounces: int = 3,
@@ -445,7 +446,7 @@ class SegmentEstimator:
 
 def samples_for_accuracy(
     field_scene: FieldScene,
-    segment_ids,
+    segment_ids: ArrayLike,
     target_rse: float,
     *,
     bounces: int = 3,

@@ -16,6 +16,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .parameters import PhotosynthesisParams, TemperatureParams
 
@@ -78,9 +79,9 @@ def _check_comparable(params: PhotosynthesisParams) -> None:
 
 
 def run_cplantbox(
-    par_abs_umol_m2_s,
-    tleaf_c,
-    co2_ppm,
+    par_abs_umol_m2_s: ArrayLike,
+    tleaf_c: ArrayLike,
+    co2_ppm: ArrayLike,
     params: PhotosynthesisParams,
     *,
     rh: float = 0.6,

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .parameters import FvCBParams, TemperatureParams
@@ -46,7 +48,9 @@ class LeafCapacities(NamedTuple):
     gamma_rubisco_umol_mol: object
 
 
-def electron_transport_rate(par_abs_umol_m2_s, jmax_umol_m2_s, quantum_yield, curvature):
+def electron_transport_rate(
+    par_abs_umol_m2_s: ArrayLike, jmax_umol_m2_s: ArrayLike, quantum_yield: ArrayLike, curvature: ArrayLike
+) -> jax.Array:
     r"""Electron transport rate from the non-rectangular hyperbola [µmol m⁻² s⁻¹].
 
     Smaller root of :math:`\theta J^2 - (\alpha Q + J_{max}) J + \alpha Q J_{max} = 0`,
@@ -73,7 +77,13 @@ def electron_transport_rate(par_abs_umol_m2_s, jmax_umol_m2_s, quantum_yield, cu
     return jnp.where(ok, 2.0 * aq * jmax_umol_m2_s / jnp.where(ok, den, 1.0), 0.0)
 
 
-def rubisco_limited_rate(c_umol_mol, vcmax_umol_m2_s, gamma_star_umol_mol, km_umol_mol, clip):
+def rubisco_limited_rate(
+    c_umol_mol: ArrayLike,
+    vcmax_umol_m2_s: ArrayLike,
+    gamma_star_umol_mol: ArrayLike,
+    km_umol_mol: ArrayLike,
+    clip: bool,
+) -> jax.Array:
     """Rubisco-limited gross rate Vc (Fc) [µmol m⁻² s⁻¹] (Farquhar et al. 1980).
 
     With ``clip`` the rate is limited to [0, Vcmax] as in CPlantBox ``photoC3_loop``
@@ -85,7 +95,9 @@ def rubisco_limited_rate(c_umol_mol, vcmax_umol_m2_s, gamma_star_umol_mol, km_um
     return jnp.where(c_umol_mol > gamma_star_umol_mol, vc, 0.0) if clip else vc
 
 
-def electron_limited_rate(c_umol_mol, j_umol_m2_s, gamma_star_umol_mol, clip):
+def electron_limited_rate(
+    c_umol_mol: ArrayLike, j_umol_m2_s: ArrayLike, gamma_star_umol_mol: ArrayLike, clip: bool
+) -> jax.Array:
     """Electron-transport-limited gross rate Vj (Fj) [µmol m⁻² s⁻¹], J/4 per CO2.
 
     With ``clip`` the rate is kept ≥ 0 as in CPlantBox ``photoC3_loop``.
@@ -95,7 +107,7 @@ def electron_limited_rate(c_umol_mol, j_umol_m2_s, gamma_star_umol_mol, clip):
     return jnp.where(c_umol_mol > gamma_star_umol_mol, vj, 0.0) if clip else vj
 
 
-def assimilation(c_umol_mol, leaf: LeafCapacities, clip: bool):
+def assimilation(c_umol_mol: ArrayLike, leaf: LeafCapacities, clip: bool) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Net assimilation An = min(Vc, Vj) − Rd and the two gross rates [µmol m⁻² s⁻¹].
 
     Returns:
@@ -106,7 +118,9 @@ def assimilation(c_umol_mol, leaf: LeafCapacities, clip: bool):
     return jnp.minimum(vc, vj) - leaf.rd_umol_m2_s, vc, vj
 
 
-def rubisco_compensation_point(gamma_star_umol_mol, km_umol_mol, rd_over_vcmax):
+def rubisco_compensation_point(
+    gamma_star_umol_mol: ArrayLike, km_umol_mol: ArrayLike, rd_over_vcmax: ArrayLike
+) -> jax.Array:
     r"""CO2 compensation point of the Rubisco-limited rate with day respiration [µmol mol⁻¹].
 
     Solves :math:`V_c(\Gamma') = R_d`:
@@ -119,7 +133,9 @@ def rubisco_compensation_point(gamma_star_umol_mol, km_umol_mol, rd_over_vcmax):
     return jnp.where(rd_over_vcmax < 1.0, jnp.maximum(raw, 0.0), 0.0)
 
 
-def leaf_capacities(par_abs_umol_m2_s, tleaf_c, pair_kpa, fvcb: FvCBParams, temp: TemperatureParams) -> LeafCapacities:
+def leaf_capacities(
+    par_abs_umol_m2_s: ArrayLike, tleaf_c: ArrayLike, pair_kpa: ArrayLike, fvcb: FvCBParams, temp: TemperatureParams
+) -> LeafCapacities:
     """Temperature- and light-dependent capacities of a leaf segment.
 
     Kc and Ko are tabulated as mole fractions at 101.325 kPa; being Michaelis constants

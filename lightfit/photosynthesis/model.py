@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
+from jax.typing import ArrayLike
 
 from .fvcb import LeafCapacities, assimilation, leaf_capacities
 from .parameters import PhotosynthesisParams, cast_params, check_params, parameter_set
@@ -141,7 +142,9 @@ def _fluxes(cc, leaf: LeafCapacities, env: Environment, params: PhotosynthesisPa
     return _Fluxes(an, vc, vj, cs, gs, ci, gtot)
 
 
-def co2_balance_residual(cc_umol_mol, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams):
+def co2_balance_residual(
+    cc_umol_mol: jax.Array, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams
+) -> jax.Array:
     """Steady-state residual r(cc) = An − g_tot·(ca − cc) [µmol m⁻² s⁻¹] (see module doc)."""
     f = _fluxes(cc_umol_mol, leaf, env, params)
     return f.an - f.gtot * (env.co2_umol_mol - cc_umol_mol)
@@ -266,16 +269,16 @@ def _check_range(name, value, lo, hi, expected):
 
 
 def prepare_environment(
-    par_abs_umol_m2_s,
-    tleaf_c,
-    co2_ppm,
-    rh=None,
-    pair_kpa=101.325,
+    par_abs_umol_m2_s: ArrayLike,
+    tleaf_c: ArrayLike,
+    co2_ppm: ArrayLike,
+    rh: ArrayLike | None = None,
+    pair_kpa: ArrayLike = 101.325,
     params: PhotosynthesisParams | None = None,
     *,
-    vpd_kpa=None,
-    gb_mol_m2_s=None,
-    fw=1.0,
+    vpd_kpa: ArrayLike | None = None,
+    gb_mol_m2_s: ArrayLike | None = None,
+    fw: ArrayLike = 1.0,
 ) -> tuple[Environment, PhotosynthesisParams]:
     """Validate, broadcast and cast the drivers of :func:`solve` (Python side, before jit).
 
@@ -352,16 +355,16 @@ def prepare_environment(
 
 
 def solve(
-    par_abs_umol_m2_s,
-    tleaf_c,
-    co2_ppm,
-    rh=None,
-    pair_kpa=101.325,
+    par_abs_umol_m2_s: ArrayLike,
+    tleaf_c: ArrayLike,
+    co2_ppm: ArrayLike,
+    rh: ArrayLike | None = None,
+    pair_kpa: ArrayLike = 101.325,
     params: PhotosynthesisParams | None = None,
     *,
-    vpd_kpa=None,
-    gb_mol_m2_s=None,
-    fw=1.0,
+    vpd_kpa: ArrayLike | None = None,
+    gb_mol_m2_s: ArrayLike | None = None,
+    fw: ArrayLike = 1.0,
     config: SolverConfig | None = None,
 ) -> PhotosynthesisResult:
     """Net CO2 assimilation, stomatal conductance and CO2 mole fractions per segment.
@@ -401,16 +404,16 @@ def solve(
 
 
 def solve_plain_iteration(
-    par_abs_umol_m2_s,
-    tleaf_c,
-    co2_ppm,
-    rh=None,
-    pair_kpa=101.325,
+    par_abs_umol_m2_s: ArrayLike,
+    tleaf_c: ArrayLike,
+    co2_ppm: ArrayLike,
+    rh: ArrayLike | None = None,
+    pair_kpa: ArrayLike = 101.325,
     params: PhotosynthesisParams | None = None,
     *,
-    vpd_kpa=None,
-    gb_mol_m2_s=None,
-    fw=1.0,
+    vpd_kpa: ArrayLike | None = None,
+    gb_mol_m2_s: ArrayLike | None = None,
+    fw: ArrayLike = 1.0,
     config: SolverConfig | None = None,
 ) -> PhotosynthesisResult:
     """Baseline: the same steady state by plain fixed-point iteration cc ← ca − An/g_tot.

@@ -29,6 +29,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike, DTypeLike
 
 TEMPERATURE_FORMS = ("cplantbox", "peaked")
 STOMATAL_MODELS = ("cplantbox", "tuzet", "leuning")
@@ -186,7 +187,9 @@ class PhotosynthesisParams(eqx.Module):
     source: str = eqx.field(static=True, default="")
 
 
-def vcmax_ref_from_chlorophyll(chl_ug_cm2, slope=1.28, intercept_umol_m2_s=8.33):
+def vcmax_ref_from_chlorophyll(
+    chl_ug_cm2: ArrayLike, slope: float = 1.28, intercept_umol_m2_s: float = 8.33
+) -> ArrayLike:
     r"""Vcmax at the reference temperature from leaf chlorophyll [µmol m⁻² s⁻¹].
 
     .. math:: V_{cmax,ref} = \mathrm{VcmaxrefChl1}\cdot \mathrm{Chl} + \mathrm{VcmaxrefChl2}
@@ -202,7 +205,7 @@ def vcmax_ref_from_chlorophyll(chl_ug_cm2, slope=1.28, intercept_umol_m2_s=8.33)
     return slope * chl_ug_cm2 + intercept_umol_m2_s
 
 
-def chlorophyll_from_spad_qian2021(spad):
+def chlorophyll_from_spad_qian2021(spad: ArrayLike) -> ArrayLike:
     """Leaf chlorophyll from a SPAD reading, 0.114·SPAD² + 7.39·SPAD + 10.6.
 
     Returns the number CPlantBox scripts pass as ``Chl`` [µg cm⁻² by CPlantBox's
@@ -289,7 +292,7 @@ def parameter_set(name: str) -> PhotosynthesisParams:
     return factory()
 
 
-def cast_params(params: PhotosynthesisParams, dtype) -> PhotosynthesisParams:
+def cast_params(params: PhotosynthesisParams, dtype: DTypeLike) -> PhotosynthesisParams:
     """Cast every float leaf of ``params`` to ``dtype`` (static fields are untouched)."""
     return jax.tree.map(lambda leaf: jnp.asarray(leaf, dtype), params)
 

@@ -17,11 +17,13 @@ baseline for benchmarks and for demonstrating its failures.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.typing import DTypeLike
 
 
 class SolverConfig(eqx.Module):
@@ -41,7 +43,7 @@ class SolverConfig(eqx.Module):
     max_steps: int = eqx.field(static=True, default=100)
 
     @classmethod
-    def for_dtype(cls, dtype, max_steps: int = 100) -> SolverConfig:
+    def for_dtype(cls, dtype: DTypeLike, max_steps: int = 100) -> SolverConfig:
         """Default tolerances for ``dtype``: 1e-11 relative in float64, 2e-6 in float32."""
         if jnp.finfo(dtype).bits >= 64:
             return cls(rtol=1e-11, atol_umol_mol=1e-9, max_steps=max_steps)
@@ -60,7 +62,14 @@ def _value_and_slope(fn, x, args):
     return jax.jvp(lambda y: fn(y, args), (x,), (jnp.ones_like(x),))
 
 
-def bracketed_newton(fn, x0, lo, hi, args, config: SolverConfig) -> RootResult:
+def bracketed_newton(
+    fn: Callable[[jax.Array, Any], jax.Array],
+    x0: jax.Array,
+    lo: jax.Array,
+    hi: jax.Array,
+    args: Any,
+    config: SolverConfig,
+) -> RootResult:
     """Safeguarded Newton on ``fn(x, args) = 0`` elementwise, given ``fn(lo) <= 0 <= fn(hi)``.
 
     Args:
@@ -125,7 +134,9 @@ def bracketed_newton(fn, x0, lo, hi, args, config: SolverConfig) -> RootResult:
     return RootResult(x, done & jnp.isfinite(r), n)
 
 
-def fixed_point_iteration(g, x0, args, config: SolverConfig) -> RootResult:
+def fixed_point_iteration(
+    g: Callable[[jax.Array, Any], jax.Array], x0: jax.Array, args: Any, config: SolverConfig
+) -> RootResult:
     """Plain iteration ``x <- g(x, args)`` elementwise (baseline; no safeguard).
 
     Converged where ``|g(x) - x| <= atol + rtol·|x|`` within ``config.max_steps``.

@@ -9,13 +9,15 @@ respires; the floor on :math:`c_s - \Gamma^*` only acts away from the solution (
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 #: Floor on cs − Γ* in the Tuzet / Leuning denominators [µmol mol⁻¹].
 _CS_GAMMA_FLOOR_UMOL_MOL = 1e-3
 
 
-def saturation_vapour_pressure_kpa(t_c):
+def saturation_vapour_pressure_kpa(t_c: ArrayLike) -> jax.Array:
     r"""Saturation vapour pressure over water [kPa], Tetens form of FAO-56 (eq. 11).
 
     .. math:: e_s(T) = 0.61078 \exp\left(\frac{17.27\,T}{T + 237.3}\right)
@@ -28,13 +30,19 @@ def saturation_vapour_pressure_kpa(t_c):
     return 0.61078 * jnp.exp(17.27 * t_c / (t_c + 237.3))
 
 
-def vapour_pressure_deficit_kpa(t_c, rh):
+def vapour_pressure_deficit_kpa(t_c: ArrayLike, rh: ArrayLike) -> jax.Array:
     """Vapour pressure deficit [kPa] of air at temperature ``t_c`` [°C] and relative
     humidity ``rh`` [0–1]: e_s(T)·(1 − RH)."""
     return saturation_vapour_pressure_kpa(t_c) * (1.0 - rh)
 
 
-def water_stress_factor(psi_leaf_hpa, fwr=9.308e-2, sh_per_hpa=3.765e-4, p_crit_hpa=-7500.0, cutoff=0.0):
+def water_stress_factor(
+    psi_leaf_hpa: ArrayLike,
+    fwr: ArrayLike = 9.308e-2,
+    sh_per_hpa: ArrayLike = 3.765e-4,
+    p_crit_hpa: ArrayLike = -7500.0,
+    cutoff: ArrayLike = 0.0,
+) -> jax.Array:
     r"""Stomatal water-stress factor fw [-] from leaf water potential.
 
     .. math:: f_w = f_{wr} + \max\left(0, (1 - f_{wr})
@@ -56,7 +64,14 @@ def water_stress_factor(psi_leaf_hpa, fwr=9.308e-2, sh_per_hpa=3.765e-4, p_crit_
     return fwr + jnp.maximum(0.0, (1.0 - fwr) * shape - cutoff)
 
 
-def tuzet_conductance(an_umol_m2_s, cs_umol_mol, gamma_umol_mol, g0_mol_m2_s, a1, fw):
+def tuzet_conductance(
+    an_umol_m2_s: ArrayLike,
+    cs_umol_mol: ArrayLike,
+    gamma_umol_mol: ArrayLike,
+    g0_mol_m2_s: ArrayLike,
+    a1: ArrayLike,
+    fw: ArrayLike,
+) -> jax.Array:
     r"""Stomatal conductance to CO2 of Tuzet et al. (2003) [mol m⁻² s⁻¹].
 
     .. math:: g_s = g_0 + a_1 f_w \frac{A_n^+}{c_s - \Gamma}
@@ -75,7 +90,16 @@ def tuzet_conductance(an_umol_m2_s, cs_umol_mol, gamma_umol_mol, g0_mol_m2_s, a1
     return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
 
 
-def leuning_conductance(an_umol_m2_s, cs_umol_mol, gamma_umol_mol, vpd_kpa, g0_mol_m2_s, a1, d0_kpa, fw):
+def leuning_conductance(
+    an_umol_m2_s: ArrayLike,
+    cs_umol_mol: ArrayLike,
+    gamma_umol_mol: ArrayLike,
+    vpd_kpa: ArrayLike,
+    g0_mol_m2_s: ArrayLike,
+    a1: ArrayLike,
+    d0_kpa: ArrayLike,
+    fw: ArrayLike,
+) -> jax.Array:
     r"""Stomatal conductance to CO2 of Leuning (1995) [mol m⁻² s⁻¹].
 
     .. math:: g_s = g_0 + a_1 f_w \frac{A_n^+}{(c_s - \Gamma)(1 + D_s/D_0)}
@@ -92,7 +116,9 @@ def leuning_conductance(an_umol_m2_s, cs_umol_mol, gamma_umol_mol, vpd_kpa, g0_m
     return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
 
 
-def cplantbox_intercellular_co2(cs_umol_mol, gamma_rubisco_umol_mol, a1, fw):
+def cplantbox_intercellular_co2(
+    cs_umol_mol: ArrayLike, gamma_rubisco_umol_mol: ArrayLike, a1: ArrayLike, fw: ArrayLike
+) -> jax.Array:
     r"""Intercellular CO2 of CPlantBox's Tuzet variant, in closed form [µmol mol⁻¹].
 
     .. math:: c_i = \max\left(\frac{a_1 f_w c_s + \Gamma'}{1 + a_1 f_w}, \Gamma'\right)
@@ -105,7 +131,15 @@ def cplantbox_intercellular_co2(cs_umol_mol, gamma_rubisco_umol_mol, a1, fw):
     return jnp.maximum((k * cs_umol_mol + gamma_rubisco_umol_mol) / (1.0 + k), gamma_rubisco_umol_mol)
 
 
-def cplantbox_conductance(an_umol_m2_s, rd_umol_m2_s, ci_umol_mol, gamma_rubisco_umol_mol, g0_mol_m2_s, a1, fw):
+def cplantbox_conductance(
+    an_umol_m2_s: ArrayLike,
+    rd_umol_m2_s: ArrayLike,
+    ci_umol_mol: ArrayLike,
+    gamma_rubisco_umol_mol: ArrayLike,
+    g0_mol_m2_s: ArrayLike,
+    a1: ArrayLike,
+    fw: ArrayLike,
+) -> jax.Array:
     r"""Diagnostic stomatal conductance of CPlantBox's Tuzet variant [mol m⁻² s⁻¹].
 
     .. math:: g_s = \max\left(g_0 + f_w a_1 \frac{A_n + R_d}{c_i - \Gamma'}, 0\right)

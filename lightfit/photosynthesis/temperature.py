@@ -16,12 +16,14 @@ Two families are provided, selected by :attr:`TemperatureParams.form`:
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from .constants import GAS_CONSTANT_J_MOL_K
 
 
-def arrhenius(t_leaf_k, activation_energy_j_mol, t_ref_k):
+def arrhenius(t_leaf_k: ArrayLike, activation_energy_j_mol: ArrayLike, t_ref_k: ArrayLike) -> jax.Array:
     r"""Arrhenius factor relative to the reference temperature [-].
 
     .. math:: f(T) = \exp\!\left(\frac{E_a}{R\,T_{ref}}\left(1 - \frac{T_{ref}}{T}\right)\right)
@@ -36,7 +38,7 @@ def arrhenius(t_leaf_k, activation_energy_j_mol, t_ref_k):
     return jnp.exp(activation_energy_j_mol / (GAS_CONSTANT_J_MOL_K * t_ref_k) * (1.0 - t_ref_k / t_leaf_k))
 
 
-def deactivation(t_leaf_k, deactivation_energy_j_mol, entropy_j_mol_k):
+def deactivation(t_leaf_k: ArrayLike, deactivation_energy_j_mol: ArrayLike, entropy_j_mol_k: ArrayLike) -> jax.Array:
     r"""High-temperature deactivation term [-] (not normalised).
 
     .. math:: h(T) = \frac{1}{1 + \exp\!\left(\frac{S\,T - H_d}{R\,T}\right)}
@@ -53,7 +55,13 @@ def deactivation(t_leaf_k, deactivation_energy_j_mol, entropy_j_mol_k):
     return jnp.exp(-jnp.logaddexp(0.0, x))
 
 
-def peaked_arrhenius(t_leaf_k, activation_energy_j_mol, deactivation_energy_j_mol, entropy_j_mol_k, t_ref_k):
+def peaked_arrhenius(
+    t_leaf_k: ArrayLike,
+    activation_energy_j_mol: ArrayLike,
+    deactivation_energy_j_mol: ArrayLike,
+    entropy_j_mol_k: ArrayLike,
+    t_ref_k: ArrayLike,
+) -> jax.Array:
     r"""Peaked Arrhenius factor normalised to 1 at the reference temperature [-].
 
     .. math:: f(T) = \exp\!\left(\frac{E_a}{R T_{ref}}\left(1-\frac{T_{ref}}{T}\right)\right)

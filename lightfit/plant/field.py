@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.plant.cache import load_or_grow
@@ -38,7 +40,7 @@ DEFAULT_BUFFER_ROWS = 2
 ID_OFFSET = 1000
 
 
-def plant_id(r, c):
+def plant_id(r: ArrayLike, c: ArrayLike) -> np.ndarray:
     """Stable plant id of the plant at (r, c) relative to the measurement area."""
     return (np.asarray(r) + ID_OFFSET) * 10_000 + (np.asarray(c) + ID_OFFSET)
 
@@ -230,7 +232,7 @@ def build(
     *,
     tile: Tile | None = None,
     resolution: MeshResolution = MeshResolution(),
-    cache_dir=None,
+    cache_dir: str | Path | None = None,
     progress: bool = False,
 ) -> FieldGeometry:
     """Grow (or load from cache), place and mesh the plants of a field or of one tile.

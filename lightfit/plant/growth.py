@@ -26,6 +26,7 @@ import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -158,7 +159,7 @@ def grow_plant(config: GrowthConfig, seed: int, plant_id: int = 0) -> pd.DataFra
     return table
 
 
-def segment_table(plant, plant_id: int = 0, include_roots: bool = True) -> pd.DataFrame:
+def segment_table(plant: Any, plant_id: int = 0, include_roots: bool = True) -> pd.DataFrame:
     """Segment table (see module docstring) of a simulated CPlantBox ``MappedPlant``.
 
     With ``include_roots=False`` root organs are not visited (their ``organ_id`` stays −1),

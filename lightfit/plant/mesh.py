@@ -22,11 +22,15 @@ non-negative vertical component; prism normals point outwards.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+
+if TYPE_CHECKING:
+    import trimesh
 
 
 @dataclass(frozen=True)
@@ -87,7 +91,7 @@ class Mesh:
         """Mesh area per segment id, m²."""
         return pd.Series(self.face_areas()).groupby(self.face_segment).sum()
 
-    def to_trimesh(self):
+    def to_trimesh(self) -> trimesh.Trimesh:
         """A ``trimesh.Trimesh`` with ``face_attributes['segment_id']`` (vertices not merged)."""
         import trimesh
 

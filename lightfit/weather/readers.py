@@ -18,6 +18,7 @@ import datetime as dt
 import io
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -395,7 +396,14 @@ def sniff_format(path: str | Path) -> str:
     )
 
 
-def read_weather(path: str | Path, *, format: str = "auto", date=None, tz: str | None = None, **kwargs) -> pd.DataFrame:
+def read_weather(
+    path: str | Path,
+    *,
+    format: str = "auto",
+    date: str | dt.date | None = None,
+    tz: str | None = None,
+    **kwargs: Any,
+) -> pd.DataFrame:
     """Read any supported weather file; ``format`` ``"auto"`` sniffs it.
 
     ``date`` is required for CPlantBox day files; ``tz`` overrides the format's default.

@@ -6,6 +6,7 @@ All temperatures in °C at the interface, pressures in kPa, humidity as a 0–1 
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: Specific gas constant of water vapour, J kg⁻¹ K⁻¹ (e.g. Monteith & Unsworth 2013, App. 2).
 R_WATER_VAPOUR = 461.5
@@ -20,7 +21,7 @@ PAR_FRACTION = 0.50
 UMOL_PER_JOULE_PAR = 4.57
 
 
-def saturation_vapour_pressure_kpa(tair_c):
+def saturation_vapour_pressure_kpa(tair_c: ArrayLike) -> np.ndarray:
     r"""Saturation vapour pressure over water, kPa.
 
     Magnus form with the Alduchov & Eskridge (1996, J. Appl. Meteor. 35, 601) coefficients:
@@ -33,7 +34,7 @@ def saturation_vapour_pressure_kpa(tair_c):
     return 0.61094 * np.exp(17.625 * t / (t + 243.04))
 
 
-def vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c):
+def vapour_pressure_from_absolute_humidity_kpa(ah_g_m3: ArrayLike, tair_c: ArrayLike) -> np.ndarray:
     r"""Vapour pressure (kPa) from absolute humidity ρ_v (g m⁻³) by the ideal gas law.
 
     .. math:: e = \rho_v R_v (T + 273.15)
@@ -41,17 +42,17 @@ def vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c):
     return np.asarray(ah_g_m3, dtype=float) * 1e-3 * R_WATER_VAPOUR * (np.asarray(tair_c, dtype=float) + T0) * 1e-3
 
 
-def relative_humidity_from_absolute(ah_g_m3, tair_c):
+def relative_humidity_from_absolute(ah_g_m3: ArrayLike, tair_c: ArrayLike) -> np.ndarray:
     """Relative humidity (0–1) from absolute humidity (g m⁻³) and air temperature (°C)."""
     return vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c) / saturation_vapour_pressure_kpa(tair_c)
 
 
-def vapour_pressure_deficit_kpa(tair_c, rh):
+def vapour_pressure_deficit_kpa(tair_c: ArrayLike, rh: ArrayLike) -> np.ndarray:
     """Vapour pressure deficit (kPa) from air temperature (°C) and relative humidity (0–1)."""
     return saturation_vapour_pressure_kpa(tair_c) * (1.0 - np.asarray(rh, dtype=float))
 
 
-def co2_ppm_from_mmol_m3(c_mmol_m3, tair_c, pair_kpa):
+def co2_ppm_from_mmol_m3(c_mmol_m3: ArrayLike, tair_c: ArrayLike, pair_kpa: ArrayLike) -> np.ndarray:
     r"""CO2 mole fraction (ppm = µmol mol⁻¹) from molar concentration (mmol m⁻³).
 
     Ideal gas: the molar density of air is n/V = p / (R T), so
@@ -63,12 +64,14 @@ def co2_ppm_from_mmol_m3(c_mmol_m3, tair_c, pair_kpa):
     return c / air * 1e6
 
 
-def kpa_from_mbar(p_mbar):
+def kpa_from_mbar(p_mbar: ArrayLike) -> np.ndarray:
     """Pressure in kPa from mbar (= hPa)."""
     return np.asarray(p_mbar, dtype=float) * 0.1
 
 
-def par_from_ghi(ghi_w_m2, par_fraction: float = PAR_FRACTION, umol_per_joule: float = UMOL_PER_JOULE_PAR):
+def par_from_ghi(
+    ghi_w_m2: ArrayLike, par_fraction: float = PAR_FRACTION, umol_per_joule: float = UMOL_PER_JOULE_PAR
+) -> np.ndarray:
     """PAR photon flux density (µmol m⁻² s⁻¹) from global radiation (W m⁻²).
 
     PAR = f_PAR · k · GHI with f_PAR ≈ 0.50 (energy share of 400–700 nm) and
