@@ -61,8 +61,9 @@ class Field:
         buffer_along: buffer plants along each row at either end (default: ``buffer_rows``).
             Rows count plants, and plants stand much closer within a row (3 cm) than rows do
             (12.5 cm): two buffer rows are 25 cm across the rows but 6 cm along them, and light
-            leaking in along the rows biases a small measurement area (+81 % canopy absorbed PAR
-            on 4 × 4 plants of this wheat with 2 and 2, docs/light.md, "Field-edge bias").
+            leaking in along the rows biases a small measurement area: +81 % canopy absorbed PAR
+            on 4 × 4 plants of this wheat with 2 buffer rows and 2 along (docs/light.md,
+            "Field-edge bias").
             ``buffer_along ≈ buffer_rows · row_spacing / plant_spacing`` makes the buffer the
             same distance both ways.
     """
