@@ -78,7 +78,8 @@ from lightfit import weather
 from lightfit.light.bridge import make_irradiance
 from lightfit.light.estimator import PARTS
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.model.coupled import CoupledModel, Scenario
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.scenario import Scenario
 from lightfit.plant import Field, build
 
 out = {}
