@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lightfit.light.estimator import LEAF_PARAMETERS, PARTS, SegmentEstimator
+from lightfit.light.bsdf import LEAF_PARAMETERS
+from lightfit.light.estimator import PARTS, SegmentEstimator
 from lightfit.light.scene import FieldScene
 
 

@@ -35,7 +35,6 @@ ALPHA_MIN = 1e-2  # α floor (r ≈ 0.1): leaf cuticles are not mirrors, and it 
 SPECULAR_F0_SCALE = 0.08
 #: The leaf model's three parameters, in the order every leaf vector uses.
 LEAF_PARAMETERS = ("specular", "roughness", "subsurface")
-PARAMETERS = ("specular", "roughness", "subsurface")
 
 
 def _classes():
@@ -190,7 +189,7 @@ def _classes():
             return mi.Spectrum(self._eval_local(wi, wo_, ok)), self._pdf_local(wi, wo_, ok)
 
         def traverse(self, cb):
-            for name in PARAMETERS:
+            for name in LEAF_PARAMETERS:
                 cb.put(name, getattr(self, name), mi.ParamFlags.Differentiable)
             cb.put("base_color", self.base_color, mi.ParamFlags.Differentiable)
 

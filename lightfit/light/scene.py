@@ -16,7 +16,7 @@ import numpy as np
 
 from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
-from lightfit.light.bsdf import leaf_bsdf_dict
+from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.plant.mesh import Mesh
 
 SKY_MODELS = ("isotropic", "overcast")
@@ -129,10 +129,8 @@ class FieldScene:
     def set_optics(self, **leaf: float) -> None:
         """Change leaf parameters (``specular``, ``roughness``, ``subsurface``) in place, no rebuild."""
         for name, v in leaf.items():
-            if name not in ("specular", "roughness", "subsurface"):
-                raise InputError(
-                    f"unknown leaf parameter {name!r}", column=name, expected="specular, roughness or subsurface"
-                )
+            if name not in LEAF_PARAMETERS:
+                raise InputError(f"unknown leaf parameter {name!r}", column=name, expected=", ".join(LEAF_PARAMETERS))
             if not (0.0 <= float(v) <= 1.0):
                 raise InputError(f"{name}={v!r}", column=name, expected="a value in [0, 1]")
             self.params[f"plants.bsdf.{name}"] = self.mi.Float(float(v))
