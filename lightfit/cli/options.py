@@ -5,7 +5,7 @@
 names, same help, same defaults) and receives them as one :class:`ModelOptions` argument.
 :func:`resolve` fills what was not given from the main job's configuration
 (:class:`lightfit.replication.ReplicationConfig`, or its ``quick()`` size), and
-:func:`scenario` builds the :class:`~lightfit.model.coupled.Scenario` from the result.
+:func:`scenario` builds the :class:`~lightfit.model.scenario.Scenario` from the result.
 
 Defaults are ``None`` here ("not given") so that ``--quick`` can change the size while an
 explicit option still wins, e.g. ``--quick --samples 32``.
@@ -230,7 +230,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def resolve(opts: ModelOptions) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
-    from lightfit.model.coupled import Scenario
+    from lightfit.model.scenario import Scenario
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
 
@@ -281,8 +281,8 @@ def weather(s: ModelSettings):
 
 
 def scenario(s: ModelSettings, w=None):
-    """The :class:`~lightfit.model.coupled.Scenario` of the settings (``w``: the forcing if already read)."""
-    from lightfit.model.coupled import Scenario
+    """The :class:`~lightfit.model.scenario.Scenario` of the settings (``w``: the forcing if already read)."""
+    from lightfit.model.scenario import Scenario
     from lightfit.plant import Field
 
     return Scenario(

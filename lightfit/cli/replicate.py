@@ -28,7 +28,7 @@ def replicate(
     """The main job: the 20 April 2016 Selhausen replication (forcing, light, photosynthesis, Fig 4)."""
     from lightfit import replication as rep
     from lightfit import weather as wx
-    from lightfit.model.coupled import Scenario
+    from lightfit.model.scenario import Scenario
     from lightfit.weather.plot import plot_forcing
 
     s = resolve(model)
