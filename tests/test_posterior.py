@@ -16,7 +16,10 @@ from lightfit.errors import InputError
 from lightfit.inference import mcmc as P
 from lightfit.inference.calibration import make_loss, to_unconstrained
 from lightfit.inference.identifiability import combination, fisher_information, profile_likelihood
+from lightfit.inference.likelihood import GaussianLikelihood
+from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model import emulator as E
+from lightfit.model.parameters import Theta
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
 PREC = np.linalg.inv(COV)
@@ -180,53 +183,107 @@ def test_profile_likelihood_on_quadratic_toy():
     np.testing.assert_allclose(prof, ts**2 / (2 * (d @ np.linalg.solve(H, d))), atol=1e-7)
 
 
+OBSERVABLES = (
+    "plant_par_umol_m2_s",
+    "plant_par_spread_umol_m2_s",
+    "plant_par_mc_sd_umol_m2_s",
+    "canopy_an_umol_m2_s",
+    "canopy_an_mc_sd_umol_m2_s",
+)
+
+
 class FakeModel:
-    """observe(theta): PAR = light_factor·(400 + 100·specular)·shape, An = vcmax_scale·20·shape."""
+    """observe(theta): PAR = light_factor·(400 + 100·specular)·shape, An = vcmax_scale·20·shape − 2."""
 
     def __init__(self):
         self.times = pd.date_range("2016-04-20 04:00", periods=6, freq="30min", tz="UTC")
         self.shape = jnp.asarray([0.0, 0.3, 0.7, 1.0, 0.8, 0.4])
 
-    def observe(self, th):
-        par = th["light_factor"] * (400 + 100 * th["specular"]) * self.shape
-        an = th["vcmax_scale"] * 20 * self.shape - 2.0
+    def observe(self, th: Theta):
         return {
-            "par_umol_m2_s": par,
-            "par_mc_var": 4.0 * self.shape,
-            "an_umol_m2_s": an,
-            "an_mc_var": 0.01 * self.shape,
+            "plant_par_umol_m2_s": th.light_factor * (400 + 100 * th.specular) * self.shape,
+            "plant_par_mc_sd_umol_m2_s": 2.0 * jnp.sqrt(self.shape),
+            "canopy_an_umol_m2_s": th.vcmax_scale * 20 * self.shape - 2.0,
+            "canopy_an_mc_sd_umol_m2_s": 0.1 * jnp.sqrt(self.shape),
         }
+
+
+TRUE = Theta(specular=0.5, light_factor=1.1, vcmax_scale=0.9)
 
 
 def _fake_obs(model):
     rng = np.random.default_rng(2)
-    m = model.observe({"specular": 0.5, "light_factor": 1.1, "vcmax_scale": 0.9})
+    m = model.observe(TRUE)
     df = pd.DataFrame(
         {
-            "par_umol_m2_s": np.asarray(m["par_umol_m2_s"]) + rng.normal(0, 10, 6),
-            "par_sd_umol_m2_s": 10.0,
-            "an_umol_m2_s": np.asarray(m["an_umol_m2_s"]) + rng.normal(0, 1, 6),
-            "an_sd_umol_m2_s": 1.0,
+            "plant_par_umol_m2_s": np.asarray(m["plant_par_umol_m2_s"]) + rng.normal(0, 10, 6),
+            "plant_par_sd_umol_m2_s": 10.0,
+            "canopy_an_umol_m2_s": np.asarray(m["canopy_an_umol_m2_s"]) + rng.normal(0, 1, 6),
+            "canopy_an_sd_umol_m2_s": 1.0,
         },
         index=model.times,
     )
-    df.loc[model.times[0], ["an_umol_m2_s"]] = np.nan
+    df.loc[model.times[0], ["canopy_an_umol_m2_s"]] = np.nan
     df.attrs = {"source": "synthetic test", "provenance": "synthetic"}
     return df
 
 
-def test_log_likelihood_equals_make_loss_plus_normalisation():
+def _scipy_terms(obs, m, lam=1.0, use=("par", "an")):
+    """Independent reference: per observed step, (y, model mean, SD) with SD² = (λσ)² + s², in numpy."""
+    rows = []
+    for u, v, sd, mc in (
+        ("par", "plant_par_umol_m2_s", "plant_par_sd_umol_m2_s", "plant_par_mc_sd_umol_m2_s"),
+        ("an", "canopy_an_umol_m2_s", "canopy_an_sd_umol_m2_s", "canopy_an_mc_sd_umol_m2_s"),
+    ):
+        if u not in use:
+            continue
+        ok = obs[v].notna().to_numpy()
+        y, sig, mean, s = obs[v].to_numpy()[ok], obs[sd].to_numpy()[ok], np.asarray(m[v])[ok], np.asarray(m[mc])[ok]
+        rows.append((y, mean, np.sqrt((lam * sig) ** 2 + s**2)))
+    return [np.concatenate(c) for c in zip(*rows)]
+
+
+@pytest.mark.parametrize("lam, use", [(1.0, ("par", "an")), (1.7, ("par", "an")), (0.6, ("an",)), (1.0, ("par",))])
+def test_likelihood_matches_scipy_normal(lam, use):
+    """log L = Σ log N(y | m, (λσ)² + s²) over the observed steps, as scipy.stats.norm computes it;
+    the calibration loss is ½ Σ z², the whitened residuals z = (y − m)/SD; missing values are left out."""
+    from scipy.stats import norm
+
+    model = FakeModel()
+    obs = _fake_obs(model)
+    lik = GaussianLikelihood(obs, model.times, use)
+    th = Theta(specular=0.55, light_factor=1.05, vcmax_scale=0.95)
+    m = model.observe(th)
+    y, mean, sd = _scipy_terms(obs, m, lam, use)
+    assert lik.n_observations == len(y) == 6 * ("par" in use) + 5 * ("an" in use)
+    assert float(lik.log_likelihood(m, lam)) == pytest.approx(norm.logpdf(y, mean, sd).sum(), rel=1e-12)
+    z = np.asarray(lik.whitened(m, lam))
+    np.testing.assert_allclose(np.sort(z[z != 0]), np.sort((y - mean) / sd), rtol=1e-12)
+    if lam == 1.0:
+        assert float(lik.loss(m)) == pytest.approx(0.5 * np.sum(((y - mean) / sd) ** 2), rel=1e-12)
+
+
+def test_calibration_and_posterior_use_the_likelihood():
+    """make_loss, LogPosterior (with and without a sampled noise scale) agree with scipy at one point."""
+    from scipy.stats import norm
+
     model = FakeModel()
     obs = _fake_obs(model)
     names = ("specular", "light_factor", "vcmax_scale")
-    lp = P.LogPosterior(model.observe, model.times, obs, names, P.PRIORS_INFORMED)
-    loss = make_loss(model, obs, names)
     x = np.array([0.55, 1.05, 0.95])
+    m = model.observe(Theta(specular=0.55, light_factor=1.05, vcmax_scale=0.95))
+    y, mean, sd = _scipy_terms(obs, m)
+    loss = make_loss(model, obs, names)
     z = jnp.asarray([to_unconstrained(v, n) for v, n in zip(x, names)])
-    m = model.observe({"specular": x[0], "light_factor": x[1], "vcmax_scale": x[2]})
-    var = np.concatenate([10.0**2 + np.asarray(m["par_mc_var"]), 1.0 + np.asarray(m["an_mc_var"][1:])])
-    expect = -float(loss(z)[0]) - 0.5 * np.sum(np.log(2 * np.pi * var))
-    assert float(lp.log_likelihood(jnp.asarray(x))) == pytest.approx(expect, rel=1e-9)
+    assert float(loss(z)[0]) == pytest.approx(0.5 * np.sum(((y - mean) / sd) ** 2), rel=1e-9)
+    assert float(loss.natural(jnp.asarray(x))) == pytest.approx(float(loss(z)[0]), rel=1e-9)
+    lp = P.LogPosterior(model.observe, model.times, obs, names, P.PRIORS_INFORMED)
+    assert float(lp.log_likelihood(jnp.asarray(x))) == pytest.approx(norm.logpdf(y, mean, sd).sum(), rel=1e-12)
+    lp_noise = P.LogPosterior(model.observe, model.times, obs, (*names, "noise_scale"), P.PRIORS_INFORMED)
+    y, mean, sd = _scipy_terms(obs, m, lam=1.4)
+    assert float(lp_noise.log_likelihood(jnp.asarray([*x, 1.4]))) == pytest.approx(
+        norm.logpdf(y, mean, sd).sum(), rel=1e-12
+    )
     assert lp.n_observations == loss.n_observations == 11
     # outside the prior support → −inf; vectorised call
     out = lp(np.array([x, [0.1, 1.0, 1.0]]))
@@ -269,7 +326,7 @@ def test_emulator_reproduces_polynomial_and_roundtrips(tmp_path):
     assert emu.degree >= 3 and emu.loo_rms[3] < 1e-10
     test = E.sobol_design(8, lo, hi, seed=5)
     for x, y in zip(test, truth(test)):
-        v, se = emu(dict(zip(E.LEAF, x)))
+        v, se = emu(dict(zip(LEAF_PARAMETERS, x)))
         np.testing.assert_allclose(np.asarray(v), y, atol=1e-9)
     emu.save(tmp_path / "e.npz")
     back = E.PartsEmulator.load(tmp_path / "e.npz")
@@ -287,14 +344,18 @@ def test_fast_observables_match_observe_on_quick_field():
     model = model_for(ReplicationConfig.quick(), forcing())
     lo, hi = [0.46, 0.5, 0.05], [0.74, 0.7, 0.17]
     emu = E.build_emulator(model, lo, hi, n_design=6, degrees=(1,), seed=0)
-    th = {"specular": 0.6, "roughness": 0.6, "subsurface": 0.1, "light_factor": 1.2, "vcmax_scale": 0.9}
+    th = Theta(specular=0.6, roughness=0.6, subsurface=0.1, light_factor=1.2, vcmax_scale=0.9)
     ref = E.emulated_model(model, emu).observe(th)
     exact = E.FastObservables(model, emu, n_grid=None)(th)
     tab = E.FastObservables(model, emu, n_grid=64)(th)
-    for k in ("par_umol_m2_s", "par_sd_umol_m2_s", "par_mc_var", "an_umol_m2_s", "an_mc_var"):
+    for k in OBSERVABLES:  # the observation operator's five outputs (T,)
         np.testing.assert_allclose(np.asarray(exact[k]), np.asarray(ref[k]), rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(np.asarray(tab["an_umol_m2_s"]), np.asarray(ref["an_umol_m2_s"]), atol=0.05)
-    np.testing.assert_allclose(np.asarray(tab["par_umol_m2_s"]), np.asarray(ref["par_umol_m2_s"]), rtol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(tab["canopy_an_umol_m2_s"]), np.asarray(ref["canopy_an_umol_m2_s"]), atol=0.05
+    )
+    np.testing.assert_allclose(
+        np.asarray(tab["plant_par_umol_m2_s"]), np.asarray(ref["plant_par_umol_m2_s"]), rtol=1e-12
+    )
     # validate() against a full render at a design point: degree-1 fit error stays small
     val = E.validate(model, E.FastObservables(model, emu), emu.design[:1], theta_extra={"light_factor": 1.0})
-    assert np.abs(val["err_par_umol_m2_s"]).max() < 5.0
+    assert np.abs(val["err_plant_par_umol_m2_s"]).max() < 5.0

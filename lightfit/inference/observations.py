@@ -1,21 +1,26 @@
-"""Chamber observations: a simple CSV of PAR and net CO2 uptake with their standard deviations.
+"""Chamber observations: a simple CSV of PAR at the plants and canopy net CO2 uptake with their SDs.
 
 Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
 
     # provenance: measured            (or synthetic)
     # time_zone: Europe/Berlin        (zone of naive timestamps; default UTC)
-    time,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s
+    time,plant_par_umol_m2_s,plant_par_sd_umol_m2_s,canopy_an_umol_m2_s,canopy_an_sd_umol_m2_s
     2016-04-20 12:13:48,1549.31,50,,
     ...
 
-Empty cells are missing observations (allowed: a row may have PAR only). Every present value
-needs its standard deviation (> 0). Observations are assigned to the nearest time step of a run;
-several in one step are averaged (their SD combined as the SD of a mean), which the reference
-paper also did.
+The value columns carry the names of the coupled model's observables
+(:data:`lightfit.model.coupled.OBSERVABLES`): ``plant_par_umol_m2_s`` is mean PAR at the plants,
+``canopy_an_umol_m2_s`` canopy net CO2 uptake, both µmol m⁻² s⁻¹; the ``*_sd_*`` columns are the
+measurement standard deviations (same unit). Empty cells are missing observations (allowed: a row
+may have PAR only). Every present value needs its SD (> 0). Observations are assigned to the
+nearest time step of a run; several in one step are averaged (their SD combined as the SD of a
+mean), which the reference paper also did. Files with the earlier names (``par_umol_m2_s`` …)
+are refused with a message naming the new columns.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,8 +29,31 @@ import pandas as pd
 from lightfit.errors import InputError
 from lightfit.weather.readers import read_csv_with_metadata
 
-COLUMNS = ("par_umol_m2_s", "par_sd_umol_m2_s", "an_umol_m2_s", "an_sd_umol_m2_s")
-PAIRS = (("par_umol_m2_s", "par_sd_umol_m2_s"), ("an_umol_m2_s", "an_sd_umol_m2_s"))
+
+@dataclass(frozen=True)
+class Series:
+    """One observed series: its short name, the column/observable key of its values, the column of
+    its measurement SD and the forward model's key of its Monte Carlo SD (all µmol m⁻² s⁻¹)."""
+
+    name: str
+    value: str
+    sd: str
+    mc_sd: str
+
+
+#: The observed series, in likelihood order (PAR first).
+SERIES = (
+    Series("par", "plant_par_umol_m2_s", "plant_par_sd_umol_m2_s", "plant_par_mc_sd_umol_m2_s"),
+    Series("an", "canopy_an_umol_m2_s", "canopy_an_sd_umol_m2_s", "canopy_an_mc_sd_umol_m2_s"),
+)
+COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
+#: Column names before the observables were renamed (issue 12), and their new names.
+RENAMED = {
+    "par_umol_m2_s": "plant_par_umol_m2_s",
+    "par_sd_umol_m2_s": "plant_par_sd_umol_m2_s",
+    "an_umol_m2_s": "canopy_an_umol_m2_s",
+    "an_sd_umol_m2_s": "canopy_an_sd_umol_m2_s",
+}
 
 
 def read_observations(path: str | Path) -> pd.DataFrame:
@@ -36,6 +64,14 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     meta, n_meta, df = read_csv_with_metadata(path)
     if "time" not in df.columns:
         raise InputError("no 'time' column", file=path, row=n_meta + 1, expected="columns time, " + ", ".join(COLUMNS))
+    old = [c for c in RENAMED if c in df.columns]
+    if old:
+        raise InputError(
+            "old-style column names " + ", ".join(f"{c} (now {RENAMED[c]})" for c in old),
+            file=path,
+            row=n_meta + 1,
+            expected="columns time, " + ", ".join(COLUMNS),
+        )
     missing = [c for c in COLUMNS if c not in df.columns]
     if missing:
         raise InputError(
@@ -70,7 +106,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 expected="a number or an empty cell (missing)",
             )
         out[c] = vals.astype(float)
-    for v, sd in PAIRS:
+    for v, sd in ((s.value, s.sd) for s in SERIES):
         need = out[v].notna() & ~(out[sd] > 0)
         if need.any():
             i = int(np.flatnonzero(need.to_numpy())[0])
@@ -81,9 +117,10 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 column=sd,
                 expected="SD > 0 wherever the value is present",
             )
-    if (out["par_umol_m2_s"] < 0).any():
-        i = int(np.flatnonzero((out["par_umol_m2_s"] < 0).to_numpy())[0])
-        raise InputError("negative PAR", file=path, row=n_meta + 2 + i, column="par_umol_m2_s", expected="PAR ≥ 0")
+    par = SERIES[0].value
+    if (out[par] < 0).any():
+        i = int(np.flatnonzero((out[par] < 0).to_numpy())[0])
+        raise InputError("negative PAR", file=path, row=n_meta + 2 + i, column=par, expected="PAR ≥ 0")
     out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index()
     out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta}
     return out
@@ -123,7 +160,7 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
             expected="observation times within the simulated window",
         )
     out = {}
-    for v, sd in PAIRS:
+    for v, sd in ((s.value, s.sd) for s in SERIES):
         val = np.full(len(times), np.nan)
         err = np.full(len(times), np.nan)
         for k in np.unique(idx):

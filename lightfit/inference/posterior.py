@@ -17,10 +17,20 @@ import numpy as np
 import pandas as pd
 
 from lightfit.inference.identifiability import fisher_information, profile_likelihood
-from lightfit.inference.mcmc import LogPosterior, StopRule, flat_samples, priors_table, sample, summarize, write_group
-from lightfit.inference.observations import align
-from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
-from lightfit.model.emulator import LEAF, FastObservables, PartsEmulator, validate
+from lightfit.inference.likelihood import USES
+from lightfit.inference.mcmc import (
+    NOISE_SCALE,
+    LogPosterior,
+    StopRule,
+    flat_samples,
+    priors_table,
+    sample,
+    summarize,
+    write_group,
+)
+from lightfit.inference.observations import SERIES, align
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.emulator import FastObservables, PartsEmulator, validate
 
 
 def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarray:
@@ -43,46 +53,40 @@ def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarr
 def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray, validation: dict) -> dict:
     """Translate the emulator's observable errors at held-out renders into parameter shifts.
 
-    For each held-out point the error δy (emulated − full) is whitened with the likelihood's
-    variances at the optimum (δr) and mapped to the linearised shift of the posterior mean,
-    δx = Σ_post Jᵀ δr (J: Jacobian of the whitened residuals), reported relative to the posterior
-    SD of each parameter. Also: ‖δr‖ (the error in units of the observation noise; the change of
-    −log L is at most ≈ ‖r‖‖δr‖ + ½‖δr‖²).
+    For each held-out point the error δm (emulated − full, ``validation["err_<observable>"]``) is
+    whitened with the likelihood's variances at the optimum, δr = −δm/√v (the residual is y − m),
+    and mapped to the linearised shift of the posterior mean, δx = Σ_post Jᵀ δr (J: Jacobian of the
+    whitened residuals), reported relative to the posterior SD of each parameter. Also: ‖δr‖ (the
+    error in units of the observation noise; the change of −log L is at most ≈ ‖r‖‖δr‖ + ½‖δr‖²).
     """
     J = np.asarray(jax.jacrev(lp.residuals)(jnp.asarray(x_map)), float)
-    th = lp.theta_of(jnp.asarray(x_map))
-    m = lp.forward({k: v for k, v in th.items() if k != "noise_scale"})
-    lam = float(th["noise_scale"])
+    m, lam = lp.observables(jnp.asarray(x_map))
     sd = np.sqrt(np.diag(cov))
-    rows, shifts, norms = [], [], []
-    for i in range(len(validation["err_par_umol_m2_s"])):
-        dr = []
-        for u, v, mc in (("par", "par_umol_m2_s", "par_mc_var"), ("an", "an_umol_m2_s", "an_mc_var")):
-            var = (lam * np.asarray(lp.sd[u])) ** 2 + np.asarray(m[mc])
-            dr.append(np.where(np.asarray(lp.mask[u]), validation[f"err_{v}"][i] / np.sqrt(var), 0.0))
-        dr = np.concatenate(dr)
-        dx = cov @ J.T @ (-dr)  # residual r = y − m, so δr = −δm/√v
-        shifts.append(np.abs(dx) / sd)
+    n_test = len(validation[f"err_{SERIES[0].value}"])
+    shifts, norms = [], []
+    for i in range(n_test):
+        delta = {s.name: -jnp.asarray(validation[f"err_{s.value}"][i]) for s in SERIES}
+        dr = np.asarray(lp.likelihood.whiten(delta, m, lam))
+        shifts.append(np.abs(cov @ J.T @ dr) / sd)
         norms.append(float(np.linalg.norm(dr)))
     shifts = np.asarray(shifts)
-    for j, n in enumerate(lp.names):
-        rows.append(
-            {
-                "parameter": n,
-                "posterior_sd": float(sd[j]),
-                "max_shift_over_sd": float(shifts[:, j].max()),
-                "rms_shift_over_sd": float(np.sqrt((shifts[:, j] ** 2).mean())),
-            }
-        )
+    rows = [
+        {
+            "parameter": n,
+            "posterior_sd": float(sd[j]),
+            "max_shift_over_sd": float(shifts[:, j].max()),
+            "rms_shift_over_sd": float(np.sqrt((shifts[:, j] ** 2).mean())),
+        }
+        for j, n in enumerate(lp.names)
+    ]
     return {
         "per_parameter": rows,
         "max_shift_over_sd": float(shifts.max()),
         "max_whitened_error_norm": max(norms),
-        "max_abs_error_par_umol_m2_s": float(np.abs(validation["err_par_umol_m2_s"]).max()),
-        "max_abs_error_an_umol_m2_s": float(np.abs(validation["err_an_umol_m2_s"]).max()),
+        **{f"max_abs_error_{s.value}": float(np.abs(validation[f"err_{s.value}"]).max()) for s in SERIES},
         "parts_rms": validation["parts_rms"],
         "parts_max": validation["parts_max"],
-        "n_test": int(len(validation["err_par_umol_m2_s"])),
+        "n_test": int(n_test),
     }
 
 
@@ -95,7 +99,7 @@ def run(
     names=("specular", "roughness", "subsurface", "light_factor"),
     priors=None,
     fixed=None,
-    use=("par", "an"),
+    use=USES,
     nwalkers: int = 32,
     max_steps: int = 4000,
     seed: int = 0,
@@ -121,7 +125,7 @@ def run(
     meta = {
         "priors": priors_table(lp.priors, lp.names),
         "use": list(use),
-        "fixed": {k: float(v) for k, v in lp.base.items()},
+        "fixed": {**lp.base.to_dict(), NOISE_SCALE: lp.noise_scale},
         "observations": {"source": str(obs.attrs.get("source", "")), "provenance": obs.attrs.get("provenance", "")},
         "scenario": {
             "n_segments": int(len(model.segment_id)),
@@ -177,7 +181,7 @@ def run(
         "log_prob_map": float(lp(x_map[None])[0]),
     }
     # Fisher information of the model parameters (noise scale held at its optimum)
-    model_names = tuple(n for n in lp.names if n != "noise_scale")
+    model_names = tuple(n for n in lp.names if n != NOISE_SCALE)
     idx = [lp.names.index(n) for n in model_names]
 
     def resid(xm):
@@ -221,26 +225,17 @@ def run(
     # posterior predictive
     rng = np.random.default_rng(seed + 1)
     draws = samples[rng.choice(len(samples), size=min(n_predictive, len(samples)), replace=False)]
-    f = jax.jit(
-        jax.vmap(
-            lambda x: {k: v for k, v in fast({k: v for k, v in lp.theta_of(x).items() if k != "noise_scale"}).items()}
-        )
-    )
-    pred = f(jnp.asarray(draws))
+    pred = jax.jit(jax.vmap(lambda x: lp.observables(x)[0]))(jnp.asarray(draws))
     target = align(obs, model.times)
     an["predictive"] = {
         "time_utc": model.times.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
-        "par_umol_m2_s": np.asarray(pred["par_umol_m2_s"]),
-        "an_umol_m2_s": np.asarray(pred["an_umol_m2_s"]),
-        "par_mc_sd": np.sqrt(np.asarray(pred["par_mc_var"])),
-        "an_mc_sd": np.sqrt(np.asarray(pred["an_mc_var"])),
+        **{k: np.asarray(pred[k]) for s in SERIES for k in (s.value, s.mc_sd)},
         **{f"obs_{k}": np.asarray(v) for k, v in target.items()},
     }
     if validation_renders is not None:
         leaf_test, full = validation_renders
-        extra = {
-            k: float(v) for k, v in lp.theta_of(jnp.asarray(x_map)).items() if k in ("light_factor", "vcmax_scale")
-        }
+        th_map, _ = lp.split(jnp.asarray(x_map))
+        extra = {k: float(getattr(th_map, k)) for k in ("light_factor", "vcmax_scale")}
         val = validate(model, fast, leaf_test, theta_extra=extra, full=full)
         an["emulator_error"] = emulator_error_vs_width(lp, x_map, cov, val)
         out["emulator_error"] = an["emulator_error"]
@@ -264,10 +259,6 @@ def _put(x, idx, vals):
     y = np.asarray(x, float).copy()
     y[idx] = vals
     return y
-
-
-def leaf_theta(x) -> dict:
-    return {**DEFAULT_THETA, **dict(zip(LEAF, x))}
 
 
 __all__ = ["emulator_error_vs_width", "optimum", "run"]

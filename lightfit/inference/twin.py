@@ -1,54 +1,72 @@
 """Synthetic ("twin") observations: the model at known parameters plus Gaussian noise.
 
-Used to test that calibration recovers what it should and to expose what it cannot. The
-observations are rendered with a *different* random seed than the model being calibrated, so a
-twin experiment does not fit its own Monte Carlo noise. Everything produced here is labelled
-``provenance = synthetic``.
+Used to test that calibration and the posterior recover what they should and to expose what they
+cannot. The observations are rendered with a *different* random seed than the model being
+calibrated, so a twin experiment does not fit its own Monte Carlo noise. Everything produced here
+is labelled ``provenance = synthetic``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import pandas as pd
 
-from lightfit.model.coupled import DEFAULT_THETA, CoupledModel
+from lightfit.inference.observations import SERIES
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.parameters import Theta, as_theta
+
+
+def par_sd_relative(rel: float = 0.03, floor: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
+    """PAR measurement SD ``max(rel·PAR, floor)`` (µmol m⁻² s⁻¹)."""
+    return lambda par: np.maximum(rel * par, floor)
 
 
 def twin_observations(
     model: CoupledModel,
-    theta: dict,
+    theta: Theta | Mapping[str, float],
     *,
     render_seed: int,
     noise_seed: int,
-    par_sd_rel: float = 0.03,
+    par_sd: Callable[[np.ndarray], np.ndarray] = par_sd_relative(),
     an_sd_umol_m2_s: float = 1.0,
+    an_at_night: bool = False,
 ) -> pd.DataFrame:
-    """Observations on the model's daytime steps from ``theta``, rendered with ``render_seed``.
+    """Observations on the model's steps from ``theta``, rendered with ``render_seed``.
 
-    PAR gets Gaussian noise of SD ``par_sd_rel``·PAR (at least 1 µmol m⁻² s⁻¹), net CO2 uptake
-    SD ``an_sd_umol_m2_s``; both SDs are written with the values. Night steps are left missing.
+    PAR at the plants gets Gaussian noise of SD ``par_sd(PAR)`` (default 3 %, at least
+    1 µmol m⁻² s⁻¹) and is clipped at 0; canopy net CO2 uptake SD ``an_sd_umol_m2_s``; both SDs are
+    written with the values. Night steps are missing, except CO2 uptake (respiration) when
+    ``an_at_night``. Noise: one standard-normal draw per step for PAR, then one per step for CO2,
+    from ``numpy.random.default_rng(noise_seed)``.
     """
     sc = dataclasses.replace(model.scenario, seed=render_seed)
-    twin = CoupledModel(sc)
-    o = twin.observe({**DEFAULT_THETA, **theta})
+    o = CoupledModel(sc).observe(as_theta(theta))
     rng = np.random.default_rng(noise_seed)
-    par = np.asarray(o["par_umol_m2_s"])
-    an = np.asarray(o["an_umol_m2_s"])
-    par_sd = np.maximum(par_sd_rel * par, 1.0)
+    par_s, an_s = SERIES
+    par = np.asarray(o[par_s.value])
+    an = np.asarray(o[an_s.value])
+    sd = np.asarray(par_sd(par), float)
+    noisy_par = np.clip(par + sd * rng.standard_normal(len(par)), 0.0, None)
+    noisy_an = an + an_sd_umol_m2_s * rng.standard_normal(len(an))
+    day = model.day
+    an_steps = np.ones(len(an), bool) if an_at_night else day
     df = pd.DataFrame(
         {
-            "par_umol_m2_s": par + rng.normal(0.0, par_sd),
-            "par_sd_umol_m2_s": par_sd,
-            "an_umol_m2_s": an + rng.normal(0.0, an_sd_umol_m2_s, len(an)),
-            "an_sd_umol_m2_s": an_sd_umol_m2_s,
+            par_s.value: np.where(day, noisy_par, np.nan),
+            par_s.sd: np.where(day, sd, np.nan),
+            an_s.value: np.where(an_steps, noisy_an, np.nan),
+            an_s.sd: np.where(an_steps, an_sd_umol_m2_s, np.nan),
         },
         index=model.times,
     )
-    df.loc[~model.day, :] = np.nan
     df.attrs = {
         "provenance": "synthetic",
-        "source": f"twin: theta={theta}, render_seed={render_seed}, noise_seed={noise_seed}",
+        "source": f"twin: theta={as_theta(theta).to_dict()}, render_seed={render_seed}, noise_seed={noise_seed}",
     }
     return df
+
+
+__all__ = ["par_sd_relative", "twin_observations"]

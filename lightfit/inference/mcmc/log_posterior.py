@@ -1,0 +1,120 @@
+r"""The log-posterior that emcee samples: priors plus the Gaussian likelihood of the observations.
+
+.. math:: \log p(x \mid y) = \sum_j \log \pi_j(x_j) + \log L(\theta(x), \lambda(x)) + \text{const},
+
+with x the sampled values over ``names`` (model parameters and optionally the noise scale λ),
+θ(x) the model parameters (:class:`~lightfit.model.parameters.Theta`; unsampled ones from
+``fixed`` or the defaults) and log L from :class:`~lightfit.inference.likelihood.GaussianLikelihood`.
+The forward model is typically :class:`lightfit.model.emulator.FastObservables` (emulated renders,
+tabulated photosynthesis) for speed, or ``model.observe`` for exact checks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from lightfit.inference.likelihood import USES, GaussianLikelihood
+from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
+from lightfit.model.parameters import Theta, as_theta
+
+
+class LogPosterior:
+    """Vectorised log-posterior over ``names`` for observations ``obs`` and a forward function.
+
+    Args:
+        forward: ``forward(theta: Theta) -> dict`` of observables (``FastObservables`` or
+            ``model.observe``); must be JAX-traceable for the vectorised/jitted use.
+        times: the model's time steps (``model.times``) — observations are aligned to them.
+        obs: observations DataFrame (``read_observations``); ``use``: which series enter the
+            likelihood, ``("par", "an")`` or one of them (twin experiments).
+        priors: a prior for every sampled name (default :data:`PRIORS_INFORMED`).
+        fixed: values of unsampled parameters: model parameters (default: ``Theta()``) and
+            ``noise_scale`` (default 1).
+    """
+
+    def __init__(
+        self,
+        forward: Callable[[Theta], Mapping],
+        times: pd.DatetimeIndex,
+        obs: pd.DataFrame,
+        names: Sequence[str],
+        priors: Mapping[str, Prior] | None = None,
+        fixed: Mapping[str, float] | None = None,
+        use: Sequence[str] = USES,
+    ):
+        self.priors = dict(priors or PRIORS_INFORMED)
+        self.names = check_sampled(names, self.priors)
+        fixed = dict(fixed or {})
+        self.noise_scale = float(fixed.pop(NOISE_SCALE, 1.0))
+        self.base = as_theta(fixed)
+        self.forward = forward
+        self.likelihood = GaussianLikelihood(obs, times, use)
+        self.use = self.likelihood.use
+        self.n_observations = self.likelihood.n_observations
+        self._batch = jax.jit(jax.vmap(self.log_prob))
+        self._batch_ll = jax.jit(jax.vmap(self.log_likelihood))
+
+    def split(self, x) -> tuple[Theta, jax.Array]:
+        """Model parameters θ(x) and noise scale λ(x) of a sampled vector ``x`` (JAX-traceable)."""
+        model = [(i, n) for i, n in enumerate(self.names) if n != NOISE_SCALE]
+        theta = self.base.replace(**{n: x[i] for i, n in model})
+        lam = x[self.names.index(NOISE_SCALE)] if NOISE_SCALE in self.names else self.noise_scale
+        return theta, jnp.asarray(lam, jnp.float64)
+
+    def observables(self, x) -> tuple[Mapping, jax.Array]:
+        """Forward outputs at θ(x), and λ(x)."""
+        theta, lam = self.split(x)
+        return self.forward(theta), lam
+
+    def log_prior(self, x):
+        return sum(self.priors[n].logpdf(x[i]) for i, n in enumerate(self.names))
+
+    def log_likelihood(self, x):
+        m, lam = self.observables(x)
+        return self.likelihood.log_likelihood(m, lam)
+
+    def residuals(self, x):
+        """Whitened residuals (y − m)/√v of the used observations (zeros elsewhere), shape (len(use)·T,)."""
+        m, lam = self.observables(x)
+        return self.likelihood.whitened(m, lam)
+
+    def in_support(self, x) -> bool:
+        return bool(np.isfinite(float(self.log_prior(jnp.asarray(x, jnp.float64)))))
+
+    def log_prob(self, x):
+        x = jnp.asarray(x, jnp.float64)
+        lp = self.log_prior(x)
+        # evaluate the likelihood at a safe point outside the support (no NaN from the model)
+        safe = jnp.where(jnp.isfinite(lp), x, jnp.asarray(self.center()))
+        return jnp.where(jnp.isfinite(lp), lp + self.log_likelihood(safe), -jnp.inf)
+
+    def center(self) -> np.ndarray:
+        """A point inside every prior's support."""
+        return np.asarray([self.priors[n].center for n in self.names])
+
+    def __call__(self, xs: np.ndarray) -> np.ndarray:
+        """emcee's vectorised log-probability: (n, ndim) → (n,)."""
+        return np.asarray(self._batch(jnp.asarray(np.atleast_2d(xs), jnp.float64)), dtype=np.float64)
+
+    def loglike_batch(self, xs: np.ndarray, chunk: int = 64) -> np.ndarray:
+        """Log-likelihood of many points, evaluated ``chunk`` at a time (bounded memory)."""
+        xs = np.atleast_2d(xs)
+        return np.concatenate(
+            [
+                np.asarray(self._batch_ll(jnp.asarray(xs[i : i + chunk], jnp.float64)), dtype=np.float64)
+                for i in range(0, len(xs), chunk)
+            ]
+        )
+
+    def initial(self, nwalkers: int, seed: int) -> np.ndarray:
+        """Walkers drawn from the prior (generator seeded with ``seed``)."""
+        rng = np.random.default_rng(seed)
+        return np.column_stack([self.priors[n].sample(rng, nwalkers) for n in self.names])
+
+
+__all__ = ["LogPosterior"]

@@ -1,0 +1,166 @@
+"""Priors of the sampled parameters (the model's five and the inference-only noise scale), with sources."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from lightfit.errors import InputError
+from lightfit.model.parameters import BOUNDS, NAMES
+
+#: The inference-only parameter: factor λ on the reported measurement SDs (see
+#: :mod:`lightfit.inference.likelihood`); not a model parameter, so not part of ``Theta``.
+NOISE_SCALE = "noise_scale"
+#: Everything the posterior can sample: the model parameters plus the noise scale.
+SAMPLED = (*NAMES, NOISE_SCALE)
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A one-dimensional prior with its source.
+
+    kinds: ``uniform`` (a = lower, b = upper), ``loguniform`` (a, b > 0), ``lognormal`` (a = median,
+    b = SD of the natural log, truncated to [lo, hi]).
+    """
+
+    kind: str
+    a: float
+    b: float
+    source: str
+    lo: float | None = None
+    hi: float | None = None
+
+    def __post_init__(self):
+        if self.kind not in ("uniform", "loguniform", "lognormal"):
+            raise InputError(f"prior kind {self.kind!r}", column="prior", expected="uniform, loguniform or lognormal")
+        if self.kind in ("uniform", "loguniform") and not self.a < self.b:
+            raise InputError(f"prior bounds a={self.a}, b={self.b}", column="prior", expected="a < b")
+        if self.kind in ("loguniform", "lognormal") and not (self.a > 0 and self.b > 0):
+            raise InputError(f"prior a={self.a}, b={self.b}", column="prior", expected="a > 0 and b > 0")
+
+    @property
+    def support(self) -> tuple[float, float]:
+        if self.kind in ("uniform", "loguniform"):
+            return (self.a, self.b)
+        return (self.lo if self.lo is not None else 0.0, self.hi if self.hi is not None else math.inf)
+
+    @property
+    def center(self) -> float:
+        """A point well inside the support: midpoint, geometric midpoint or median."""
+        if self.kind == "uniform":
+            return 0.5 * (self.a + self.b)
+        return math.sqrt(self.a * self.b) if self.kind == "loguniform" else self.a
+
+    def logpdf(self, x):
+        """Log density (up to a constant) at x; −inf outside the support. JAX-traceable."""
+        lo, hi = self.support
+        inside = (x >= lo) & (x <= hi)
+        if self.kind == "uniform":
+            val = jnp.zeros_like(x)
+        elif self.kind == "loguniform":
+            val = -jnp.log(jnp.where(inside, x, 1.0))
+        else:
+            lx = jnp.log(jnp.where(inside, x, 1.0))
+            val = -lx - 0.5 * ((lx - math.log(self.a)) / self.b) ** 2
+        return jnp.where(inside, val, -jnp.inf)
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        lo, hi = self.support
+        if self.kind == "uniform":
+            return rng.uniform(lo, hi, n)
+        if self.kind == "loguniform":
+            return np.exp(rng.uniform(math.log(lo), math.log(hi), n))
+        out = np.exp(math.log(self.a) + self.b * rng.standard_normal(n))
+        return np.clip(out, lo, hi)
+
+
+_F0 = "F0 = 0.08·specular (lightfit.light.bsdf)"
+_T = "leaf transmittance = (1 − F0)·subsurface·base_color, base_color 0.5"
+#: Priors informed by leaf optics (docs/design.md §6) — the default.
+PRIORS_INFORMED: dict[str, Prior] = {
+    "specular": Prior(
+        "uniform",
+        0.4625,
+        0.7375,
+        f"upper leaf surface reflection 3.7–5.9 % (docs/design.md §6), {_F0}: 0.037/0.08 … 0.059/0.08",
+    ),
+    "roughness": Prior(
+        "uniform",
+        0.3,
+        1.0,
+        "no measurement; lower bound 0.3 (GGX α ≥ 0.09) excludes mirror-like cuticles, for which the "
+        "frozen-sampling estimator's per-segment variance explodes (glints)",
+    ),
+    "subsurface": Prior(
+        "uniform", 0.04, 0.18, f"PROSPECT-D wheat PAR transmittance 0.02–0.08 (docs/design.md §6), {_T}: ≈ 0.04 … 0.17"
+    ),
+    "light_factor": Prior(
+        "lognormal",
+        1.0,
+        0.5,
+        "broad: median 1 (PAR = 0.5 × 4.57 µmol/J × radiation), ±1 SD in log covers the reference paper's fitted 1.637",
+        lo=0.25,
+        hi=4.0,
+    ),
+    "vcmax_scale": Prior(
+        "lognormal", 1.0, 0.25, "Vcmax varies ≈ ±25 % with cultivar and leaf age (1 SD in log)", lo=0.25, hi=4.0
+    ),
+    NOISE_SCALE: Prior(
+        "loguniform",
+        0.3,
+        3.0,
+        "scale-invariant (Jeffreys) prior on the factor multiplying the reported measurement SDs",
+    ),
+}
+#: Wide priors over the whole leaf-parameter box (roughness ≥ 0.3 as above): lets the posterior reach the
+#: biophysically unrealistic combinations the reference paper warns about.
+PRIORS_WIDE: dict[str, Prior] = {
+    **PRIORS_INFORMED,
+    "specular": Prior("uniform", 0.0, 1.0, "whole parameter range (uninformative)"),
+    "subsurface": Prior("uniform", 0.0, 1.0, "whole parameter range (uninformative)"),
+}
+PRIOR_SETS = {"informed": PRIORS_INFORMED, "wide": PRIORS_WIDE}
+
+
+def check_sampled(names, priors: dict[str, Prior]) -> tuple[str, ...]:
+    """``names`` as a tuple if each is sampleable, given once, has a prior, and its prior's support lies
+    in the parameter's domain (:data:`lightfit.model.parameters.BOUNDS`); else :class:`InputError`."""
+    names = tuple(names)
+    unknown = [n for n in names if n not in SAMPLED]
+    if unknown:
+        raise InputError(f"unknown parameter(s) {unknown}", column="parameters", expected=", ".join(SAMPLED))
+    if len(set(names)) != len(names):
+        raise InputError(f"duplicate parameter names {list(names)}", column="parameters", expected="each name once")
+    missing = [n for n in names if n not in priors]
+    if missing:
+        raise InputError(f"no prior for {missing}", column="priors", expected="a Prior for every sampled parameter")
+    for n in names:
+        if n in BOUNDS:
+            (lo, hi), (plo, phi) = priors[n].support, BOUNDS[n]
+            if lo < plo or hi > phi:
+                raise InputError(
+                    f"prior support of {n} is [{lo}, {hi}]",
+                    column=n,
+                    expected=f"within the parameter's domain [{plo}, {phi}]",
+                )
+    return names
+
+
+def priors_table(priors: dict[str, Prior], names) -> list[dict]:
+    """One row per name: the prior's fields (JSON-ready), for run metadata and reports."""
+    return [{"parameter": n, **{k: v for k, v in asdict(priors[n]).items() if v is not None}} for n in names]
+
+
+__all__ = [
+    "NOISE_SCALE",
+    "PRIORS_INFORMED",
+    "PRIORS_WIDE",
+    "PRIOR_SETS",
+    "Prior",
+    "SAMPLED",
+    "check_sampled",
+    "priors_table",
+]

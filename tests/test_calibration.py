@@ -1,0 +1,247 @@
+"""Observations files, twin observations and gradient calibration (lightfit.inference)."""
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from lightfit import replication as rep
+from lightfit.errors import InputError
+from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.observations import COLUMNS, align, read_observations, write_observations
+from lightfit.inference.twin import par_sd_relative, twin_observations
+from lightfit.model.parameters import Theta
+
+HEADER = "time," + ",".join(COLUMNS) + "\n"
+TRUTH = Theta(specular=0.7, roughness=0.4, subsurface=0.6)
+
+
+@pytest.fixture(scope="module")
+def short_model():
+    """Quick configuration on a 3-hour window around noon (7 steps)."""
+    w = rep.forcing()
+    w = w.loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"]
+    return rep.model_for(rep.ReplicationConfig.quick(), w)
+
+
+def test_end_to_end_gradient_matches_central_differences(short_model):
+    obs = twin_observations(short_model, TRUTH.replace(subsurface=0.5), render_seed=3, noise_seed=1)
+    names = ("specular", "subsurface", "light_factor", "vcmax_scale")
+    loss = make_loss(short_model, obs, names)
+    z = jnp.asarray([to_unconstrained(v, n) for v, n in zip((0.45, 0.35, 1.1, 0.9), names)])
+    g = np.asarray(jax.grad(lambda z: loss(z)[0])(z))
+    h = 1e-3
+    fd = [(float(loss(z.at[i].add(h))[0]) - float(loss(z.at[i].add(-h))[0])) / (2 * h) for i in range(len(names))]
+    # Fixed seed + frozen sampling: the loss is smooth in θ and reverse-mode is its exact gradient
+    # (up to the bilinear albedo table and float32 rendering).
+    assert np.allclose(g, fd, rtol=0.03, atol=0.05 * np.abs(fd).max()), (g, fd)
+
+
+@pytest.fixture(scope="module")
+def twin_model():
+    """Quick field with K = 128 samples on 10:00–11:00 UTC (3 steps): the Monte Carlo error of the
+    renders is correlated across steps, so more samples (not more steps) make specular identifiable."""
+    w = rep.forcing().loc["2016-04-20 10:00+00:00":"2016-04-20 11:00+00:00"]
+    return rep.model_for(dataclasses.replace(rep.ReplicationConfig.quick(), samples=128), w)
+
+
+@pytest.fixture(scope="module")
+def twin_fits(twin_model, tmp_path_factory):
+    """Specular calibrated from 0.3 by both optimisers against twin observations rendered with
+    ANOTHER seed (3; the model renders with 0), so the renders' Monte Carlo errors differ as with real data."""
+    assert twin_model.scenario.seed != 3
+    obs = twin_observations(
+        twin_model, TRUTH, render_seed=3, noise_seed=2, par_sd=par_sd_relative(0.01), an_sd_umol_m2_s=0.3
+    )
+    fixed = {"roughness": TRUTH.roughness, "subsurface": TRUTH.subsurface}
+    hist = tmp_path_factory.mktemp("twin") / "h.jsonl"
+    start = {"specular": 0.3}
+    fits = {
+        m: calibrate(
+            twin_model,
+            obs,
+            names=("specular",),
+            start=start,
+            fixed=fixed,
+            method=m,
+            history=hist if m == "bfgs" else None,
+            progress=False,
+        )
+        for m in ("bfgs", "lbfgsb")
+    }
+    return obs, fits, hist
+
+
+def _specular_sd(model, obs) -> float:
+    """SD of the fitted specular implied by the measurement SDs σ and the Monte Carlo SDs s.
+
+    Linearised weighted least squares with weights 1/v, v = σ² + s²: the estimate moves by
+    δx = Σ J v⁻¹ δm / Σ J² v⁻¹ (J = ∂m/∂specular by central differences). Measurement noise is
+    independent per step (variance σ²); the Monte Carlo difference between the two renders (SD √2·s)
+    is taken as fully correlated across steps (same geometry, slowly moving sun): the worst case.
+    """
+    h = 0.02
+    up, down, mid = (model.observe(TRUTH.replace(specular=TRUTH.specular + d)) for d in (h, -h, 0.0))
+    target = align(obs, model.times)
+    den, var_noise, mc_shift = 0.0, 0.0, 0.0
+    for v, sd, mc in (
+        ("plant_par_umol_m2_s", "plant_par_sd_umol_m2_s", "plant_par_mc_sd_umol_m2_s"),
+        ("canopy_an_umol_m2_s", "canopy_an_sd_umol_m2_s", "canopy_an_mc_sd_umol_m2_s"),
+    ):
+        ok = ~np.isnan(target[v])
+        J = ((np.asarray(up[v]) - np.asarray(down[v])) / (2 * h))[ok]
+        sig, s = target[sd][ok], np.asarray(mid[mc])[ok]
+        w = J / (sig**2 + s**2)
+        den += np.sum(w * J)
+        var_noise += np.sum(w**2 * sig**2)
+        mc_shift += np.sum(np.abs(w) * np.sqrt(2) * s)
+    return float(np.hypot(np.sqrt(var_noise), mc_shift) / den)
+
+
+def test_twin_calibration_recovers_specular(twin_model, twin_fits):
+    obs, fits, hist = twin_fits
+    res = fits["bfgs"]
+    sd = _specular_sd(twin_model, obs)  # ≈ 0.07
+    assert 3 * sd < TRUTH.specular - 0.3  # the check below means something: the start is > 3 SD away
+    assert res.converged and res.steps >= 2 and res.gradients == res.steps <= res.evaluations
+    # truth within 3 SDs of the estimate (measurement noise + the two renders' Monte Carlo errors)
+    assert abs(res.theta["specular"] - TRUTH.specular) <= 3 * sd, (res.theta["specular"], sd)
+    lines = [json.loads(x) for x in hist.read_text().splitlines()]
+    assert len(lines) == res.steps and lines[-1]["loss"] <= lines[0]["loss"]
+    assert lines[-1]["evaluations"] == res.evaluations and lines[0]["coordinates"] == "unconstrained"
+
+
+def test_bfgs_and_lbfgsb_reach_the_same_optimum(twin_fits):
+    _, fits, _ = twin_fits
+    a, b = fits["bfgs"], fits["lbfgsb"]
+    assert a.method == "bfgs" and b.method == "lbfgsb" and a.converged and b.converged
+    assert b.theta["specular"] == pytest.approx(a.theta["specular"], abs=2e-3)
+    assert b.loss == pytest.approx(a.loss, rel=1e-4)
+    assert b.theta["roughness"] == TRUTH.roughness and b.theta["light_factor"] == 1.0
+
+
+def test_calibration_resumes_from_history(short_model, tmp_path):
+    obs = twin_observations(short_model, {"specular": 0.7}, render_seed=5, noise_seed=3)
+    h = tmp_path / "h.jsonl"
+    first = calibrate(
+        short_model,
+        obs,
+        names=("specular",),
+        start={"specular": 0.2},
+        max_steps=2,
+        history=h,
+        resume=False,
+        progress=False,
+    )
+    assert first.stopped_by == "max_steps" and first.steps == 2 and not first.converged
+    n_first = len(h.read_text().splitlines())
+    # A line cut by an interruption is ignored; finished steps are kept and continued from.
+    with open(h, "a") as f:
+        f.write('{"step": 99, "loss": 0.1, "the')
+    second = calibrate(
+        short_model,
+        obs,
+        names=("specular",),
+        start={"specular": 0.2},
+        max_steps=3,
+        history=h,
+        resume=True,
+        progress=False,
+    )
+    lines = h.read_text().splitlines()
+    assert len(lines) > n_first
+    assert second.loss <= first.loss + 1e-9
+
+
+def test_observation_file_round_trip_and_alignment(tmp_path):
+    times = pd.date_range("2016-04-20 09:00", periods=5, freq="30min", tz="UTC")
+    df = pd.DataFrame(
+        {
+            "plant_par_umol_m2_s": [100.0, np.nan, 300.0, 310.0, 400.0],
+            "plant_par_sd_umol_m2_s": [5.0, np.nan, 5, 5, 5],
+            "canopy_an_umol_m2_s": [np.nan, 2.0, 3.0, np.nan, 4.0],
+            "canopy_an_sd_umol_m2_s": [np.nan, 0.5, 0.5, np.nan, 0.5],
+        },
+        index=times + pd.Timedelta("2min"),
+    )
+    p = write_observations(df, tmp_path / "obs.csv", {"provenance": "synthetic"})
+    back = read_observations(p)
+    assert back.attrs["provenance"] == "synthetic"
+    a = align(back, times)
+    assert a["plant_par_umol_m2_s"][0] == 100.0 and np.isnan(a["plant_par_umol_m2_s"][1])
+    assert a["canopy_an_umol_m2_s"][1] == 2.0
+    # Two observations in one step are averaged; SD of the mean.
+    two = pd.concat([df.iloc[[2]], df.iloc[[2]].assign(plant_par_umol_m2_s=320.0)])
+    two.index = [times[2], times[2] + pd.Timedelta("5min")]
+    two.attrs = {"source": "x"}
+    a2 = align(two, times)
+    assert a2["plant_par_umol_m2_s"][2] == pytest.approx(310.0)
+    assert a2["plant_par_sd_umol_m2_s"][2] == pytest.approx(5 / np.sqrt(2))
+    late = df.iloc[[0]].copy()
+    late.index = [times[-1] + pd.Timedelta("3h")]
+    late.attrs = {"source": "late.csv"}
+    with pytest.raises(InputError, match="outside the run"):
+        align(late, times)
+
+
+@pytest.mark.parametrize(
+    "body, match",
+    [
+        ("time,plant_par_umol_m2_s,plant_par_sd_umol_m2_s,canopy_an_umol_m2_s\n", "missing column"),
+        (HEADER + "soon,1,1,,\n", "cannot parse time"),
+        (HEADER + "2016-04-20 10:00,bright,1,,\n", "not a number"),
+        (HEADER + "2016-04-20 10:00,100,,,\n", "standard deviation"),
+        (HEADER + "2016-04-20 10:00,-5,1,,\n", "negative PAR"),
+    ],
+)
+def test_bad_observation_files(tmp_path, body, match):
+    p = tmp_path / "o.csv"
+    p.write_text("# provenance: measured\n" + body)
+    with pytest.raises(InputError, match=match):
+        read_observations(p)
+    q = tmp_path / "noprov.csv"
+    q.write_text(body)
+    with pytest.raises(InputError, match="provenance"):
+        read_observations(q)
+
+
+def test_old_style_columns_are_refused_with_the_new_names(tmp_path):
+    p = tmp_path / "old.csv"
+    p.write_text(
+        "# provenance: measured\ntime,par_umol_m2_s,par_sd_umol_m2_s,an_umol_m2_s,an_sd_umol_m2_s\n"
+        "2016-04-20 10:00,100,5,,\n"
+    )
+    with pytest.raises(InputError) as err:
+        read_observations(p)
+    msg = str(err.value)
+    assert str(p) in msg and "old-style column names" in msg
+    assert "par_umol_m2_s (now plant_par_umol_m2_s)" in msg and "an_sd_umol_m2_s (now canopy_an_sd_umol_m2_s)" in msg
+    assert "expected columns time, " + ", ".join(COLUMNS) in msg
+
+
+def test_bundled_record_is_real_and_par_only():
+    o = read_observations(rep.OBSERVATIONS)
+    assert o.attrs["provenance"] == "measured" and len(o) == 1
+    assert o["plant_par_umol_m2_s"].iloc[0] == pytest.approx(1549.31) and np.isnan(o["canopy_an_umol_m2_s"].iloc[0])
+    assert o.index[0] == pd.Timestamp("2016-04-20 10:13:48", tz="UTC")
+
+
+def test_unknown_parameter_and_no_overlap(short_model):
+    record = read_observations(rep.OBSERVATIONS)  # one PAR value at 10:13:48 UTC, inside the window
+    with pytest.raises(InputError, match="unknown parameter"):
+        make_loss(short_model, record, ("glossiness",))
+    # the same record a day later falls on no simulated step
+    next_day = record.copy()
+    next_day.index = record.index + pd.Timedelta("1D")
+    next_day.attrs = {**record.attrs, "source": "next_day.csv"}
+    with pytest.raises(InputError, match="next_day.csv.*outside the run"):
+        make_loss(short_model, next_day, ("specular",))
+    # inside the window, but no value of the series used: nothing to fit
+    with pytest.raises(InputError, match="no observation of canopy_an_umol_m2_s falls on a simulated step"):
+        make_loss(short_model, record, ("specular",), use=("an",))
+    with pytest.raises(InputError, match="no observation of canopy_an_umol_m2_s falls on a simulated step"):
+        calibrate(short_model, record, names=("specular",), use=("an",), progress=False)
