@@ -1,19 +1,48 @@
-"""notebooks/posterior_analysis.ipynb executes on the tiny saved run (tests/fixtures/posterior_tiny.h5)."""
+"""notebooks/posterior_analysis.ipynb executes on the tiny saved run (tests/fixtures/posterior_tiny.h5)
+and shows that run's numbers."""
 
 from __future__ import annotations
 
-import os
+import io
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
+
+from lightfit.inference.mcmc import flat_samples, load_run, summarize
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK = ROOT / "notebooks" / "posterior_analysis.ipynb"
 FIXTURE = ROOT / "tests" / "fixtures" / "posterior_tiny.h5"
+#: figures the notebook draws: chains, corner, correlations, Fisher spectrum, profile, predictive
+N_FIGURES = 6
 
 
 def test_fixture_is_small():
     assert FIXTURE.exists() and FIXTURE.stat().st_size < 1_000_000
+
+
+def _cell(nb, marker: str):
+    """The executed code cell whose source contains ``marker``."""
+    cells = [c for c in nb.cells if c.cell_type == "code" and marker in c.source]
+    assert len(cells) == 1, marker
+    return cells[0]
+
+
+def _text(cell, kind: str = "stream") -> str:
+    """Concatenated stdout (``kind="stream"``) or text/plain of results/displays of a cell."""
+    if kind == "stream":
+        return "".join(o["text"] for o in cell.outputs if o["output_type"] == "stream")
+    return "".join(
+        o["data"]["text/plain"] for o in cell.outputs if o["output_type"] in ("execute_result", "display_data")
+    )
+
+
+def _table(cell) -> pd.DataFrame:
+    """The DataFrame a cell displayed last, read back from its text/plain rendering."""
+    out = [o for o in cell.outputs if o["output_type"] == "execute_result"]
+    return pd.read_csv(io.StringIO(out[-1]["data"]["text/plain"]), sep=r"\s+", index_col=0)
 
 
 def test_notebook_executes(tmp_path, monkeypatch):
@@ -25,16 +54,38 @@ def test_notebook_executes(tmp_path, monkeypatch):
         KernelSpecManager().get_kernel_spec("python3")
     except NoSuchKernel:
         pytest.skip("no python3 kernel spec (install ipykernel)")
-    monkeypatch.setenv("LIGHTFIT_POSTERIOR_RUN", str(FIXTURE))
+    monkeypatch.delenv("LIGHTFIT_POSTERIOR_RUN", raising=False)  # the notebook's default: the fixture
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
-    monkeypatch.setenv("MPLBACKEND", "Agg")
+    # figures come back as image/png outputs only with the inline backend the notebook selects
+    monkeypatch.delenv("MPLBACKEND", raising=False)
     nb = nbformat.read(NOTEBOOK, as_version=4)
     client = nbclient.NotebookClient(
         nb, kernel_name="python3", timeout=120, resources={"metadata": {"path": str(NOTEBOOK.parent)}}
     )
     client.execute()
-    errors = [
-        o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.get("output_type") == "error"
-    ]
-    assert not errors
-    assert os.environ["LIGHTFIT_POSTERIOR_RUN"] == str(FIXTURE)
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+    assert not [o for o in outputs if o["output_type"] == "error"]
+    assert sum("image/png" in o.get("data", {}) for o in outputs) == N_FIGURES
+
+    # the numbers shown are the stored run's
+    run = load_run(FIXTURE)
+    d, an = run["diagnostics"], run["analysis"]
+    head = _text(_cell(nb, "load_run(path)"))
+    assert str(FIXTURE) in head and "tiny twin run (notebook fixture)" in head
+    assert (
+        f"steps {d['n_steps']}, walkers {d['n_walkers']}, kept {d['n_kept']} after burn-in; "
+        f"acceptance {d['acceptance_mean']:.2f}; stopped by: max_steps"
+    ) in _text(_cell(nb, 'd = run["diagnostics"]'))
+    diag = _table(_cell(nb, 'd = run["diagnostics"]'))
+    np.testing.assert_allclose(diag["tau_steps"], np.round(d["tau"], 1), atol=0.051)
+    summ = summarize(flat_samples(run), run["names"])
+    table = _table(_cell(nb, "summ = summarize"))
+    assert list(table.index) == list(run["names"])
+    for k in ("mean", "sd", "q05", "q50", "q95"):
+        np.testing.assert_allclose(table[k], np.round(summ[k], 4), atol=5.1e-5, err_msg=k)
+    fisher = _text(_cell(nb, 'fi = an["fisher"]'))
+    assert f"stiffest: {an['fisher']['stiff']}" in fisher and f"sloppiest: {an['fisher']['sloppy']}" in fisher
+    ee = an["emulator_error"]
+    assert f"max shift {ee['max_shift_over_sd']:.3g} posterior SD over {ee['n_test']} held-out renders" in _text(
+        _cell(nb, 'ee = an.get("emulator_error")')
+    )
