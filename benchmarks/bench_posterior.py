@@ -32,6 +32,7 @@ import numpy as np  # noqa: E402
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
 from lightfit.inference.observations import read_observations  # noqa: E402
+from lightfit.light.bsdf import LEAF_PARAMETERS  # noqa: E402
 from lightfit.model import emulator as E  # noqa: E402
 from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
 
@@ -48,8 +49,8 @@ def main(argv=None):
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/posterior.json"))
     args = ap.parse_args(argv)
     pri = P.PRIORS_INFORMED
-    lo = [pri[n].support[0] for n in E.LEAF]
-    hi = [pri[n].support[1] for n in E.LEAF]
+    lo = [pri[n].support[0] for n in LEAF_PARAMETERS]
+    hi = [pri[n].support[1] for n in LEAF_PARAMETERS]
     t = time.perf_counter()
     cfg = ReplicationConfig()
     model = model_for(cfg, forcing())
@@ -144,8 +145,8 @@ def main(argv=None):
         "Render times were measured while other jobs shared the 2 cores.",
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(P._jsonable(out), indent=2, default=str))
-    print(json.dumps(P._jsonable(out), indent=2, default=str))
+    args.json.write_text(json.dumps(P.jsonable(out), indent=2, default=str))
+    print(json.dumps(P.jsonable(out), indent=2, default=str))
 
 
 if __name__ == "__main__":

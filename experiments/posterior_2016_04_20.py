@@ -30,41 +30,18 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
 
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
 from lightfit.inference.observations import read_observations, write_observations  # noqa: E402
+from lightfit.inference.twin import twin_observations  # noqa: E402
 from lightfit.model import emulator as E  # noqa: E402
-from lightfit.model.coupled import DEFAULT_THETA, CoupledModel  # noqa: E402
+from lightfit.model.parameters import Theta  # noqa: E402
 from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
 
-TRUTH = {"specular": 0.6, "roughness": 0.6, "subsurface": 0.1, "light_factor": 1.0, "vcmax_scale": 1.0}
+TRUTH = Theta(specular=0.6, roughness=0.6, subsurface=0.1, light_factor=1.0, vcmax_scale=1.0)
 NAMES = ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")
 WIDE_BOX = ([0.0, 0.3, 0.0], [1.0, 1.0, 1.0])
-
-
-def synthetic_observations(model: CoupledModel, theta: dict, data_seed: int, noise_seed: int) -> pd.DataFrame:
-    """Synthetic chamber series from the model at ``theta`` rendered with ``data_seed`` (+ noise)."""
-    import dataclasses
-
-    data_model = CoupledModel(dataclasses.replace(model.scenario, seed=data_seed))
-    o = data_model.observe({**DEFAULT_THETA, **theta})
-    rng = np.random.default_rng(noise_seed)
-    par, an = np.asarray(o["par_umol_m2_s"]), np.asarray(o["an_umol_m2_s"])
-    par_sd = np.where(model.day, 0.05 * par + 5.0, np.nan)
-    an_sd = np.full(len(an), 1.0)
-    df = pd.DataFrame(
-        {
-            "par_umol_m2_s": np.where(model.day, par + par_sd * rng.standard_normal(len(par)), np.nan),
-            "par_sd_umol_m2_s": par_sd,
-            "an_umol_m2_s": an + an_sd * rng.standard_normal(len(an)),
-            "an_sd_umol_m2_s": an_sd,
-        },
-        index=model.times,
-    )
-    df["par_umol_m2_s"] = df["par_umol_m2_s"].clip(lower=0)
-    return df
 
 
 def main(argv=None):
@@ -80,7 +57,7 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     cfg = ReplicationConfig.quick()  # CI-sized field; the default field costs ~80 s per render pass
     model = model_for(cfg, forcing())
-    summary: dict = {"config": "ReplicationConfig.quick()", "truth": TRUTH}
+    summary: dict = {"config": "ReplicationConfig.quick()", "truth": TRUTH.to_dict()}
     emu_path = out / "emulator_quick_wide.npz"
     val_path = out / "validation_quick_wide.npz"
     if emu_path.exists():
@@ -102,14 +79,16 @@ def main(argv=None):
         "render_seconds": emu.render_seconds,
     }
     obs_path = out / "synthetic_observations.csv"
-    syn = synthetic_observations(model, TRUTH, data_seed=7, noise_seed=0)
+    syn = twin_observations(
+        model, TRUTH, render_seed=7, noise_seed=0, par_sd=lambda par: 0.05 * par + 5.0, an_at_night=True
+    )
     write_observations(
         syn,
         obs_path,
         {
             "provenance": "synthetic",
             "description": "twin experiment: lightfit coupled model (quick field, render "
-            f"seed 7) at {json.dumps(TRUTH)} + Gaussian noise (seed 0)",
+            f"seed 7) at {json.dumps(TRUTH.to_dict())} + Gaussian noise (seed 0)",
         },
     )
     obs = read_observations(obs_path)
@@ -189,7 +168,7 @@ def main(argv=None):
         attrs={"experiment": "real single PAR record"},
     )
     summary["record_informed"] = r
-    (out / "summary.json").write_text(json.dumps(P._jsonable(summary), indent=2, default=str))
+    (out / "summary.json").write_text(json.dumps(P.jsonable(summary), indent=2, default=str))
     if args.tiny:
         args.tiny.parent.mkdir(parents=True, exist_ok=True)
         tmp = out / "tiny.h5"
@@ -213,7 +192,7 @@ def main(argv=None):
         )
         shutil.copy(tmp, args.tiny)
         print("tiny run", args.tiny, args.tiny.stat().st_size, "bytes")
-    print(json.dumps(P._jsonable({"tightening": summary["tightening"], "equal_fit": summary["equal_fit"]}), indent=1))
+    print(json.dumps(P.jsonable({"tightening": summary["tightening"], "equal_fit": summary["equal_fit"]}), indent=1))
 
 
 if __name__ == "__main__":

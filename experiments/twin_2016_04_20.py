@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 import lightfit  # noqa: F401
 from lightfit import replication as rep
-from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.calibration import calibrate, make_loss
 from lightfit.inference.observations import read_observations, write_observations
 from lightfit.inference.twin import twin_observations
 from lightfit.precision import use_float64
@@ -58,7 +58,7 @@ def main(quick: bool = False, out: Path = ROOT / "results" / "twin") -> dict:
     obs = read_observations(path)
     names_all = ("specular", "roughness", "subsurface")
     loss_all = make_loss(model, obs, names_all)
-    at_truth = float(loss_all(jnp.asarray([to_unconstrained(TRUTH[n], n) for n in names_all]))[0])
+    at_truth = float(loss_all.natural(jnp.asarray([TRUTH[n] for n in names_all])))
     one = calibrate(
         model,
         obs,
@@ -80,13 +80,18 @@ def main(quick: bool = False, out: Path = ROOT / "results" / "twin") -> dict:
         "truth": TRUTH,
         "loss_at_truth": at_truth,
         "n_observations": loss_all.n_observations,
-        "specular_only": {"theta": one.theta, "loss": one.loss, "steps": one.steps, "seconds": one.seconds},
-        "all_three": {"theta": three.theta, "loss": three.loss, "steps": three.steps, "seconds": three.seconds},
+        "specular_only": _summary(one),
+        "all_three": _summary(three),
         "config": dataclasses.asdict(cfg),
     }
     (out / "twin.json").write_text(json.dumps(res, indent=2))
     print(json.dumps(res, indent=2))
     return res
+
+
+def _summary(r) -> dict:
+    keys = ("theta", "loss", "steps", "evaluations", "gradients", "stopped_by", "seconds")
+    return {k: getattr(r, k) for k in keys}
 
 
 if __name__ == "__main__":
