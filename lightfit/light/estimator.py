@@ -224,8 +224,13 @@ class SegmentEstimator:
         }
         self._valid = np.linalg.norm(self._ev["n"], axis=1) > 0
         self._ev["n"][~self._valid] = [0.0, 0.0, 1.0]
+        if field_scene.cell is not None:
+            # A point on a face overhanging the periodic cell is the same point of the infinite
+            # field as its image inside the cell: rays start from there.
+            x = field_scene.cell.wrap(x)
         self._x = np.concatenate([x, x[blade]]) + epsilon_m * self._ev["n"]
         self.n_evaluations = len(self._x)
+        self._wrap_log: list = []  # periodic rays cast (kind, active, capped, crossings), see render()
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
 
@@ -297,8 +302,18 @@ class SegmentEstimator:
             return mi.Float(dr.zeros(mi.Float, self.n_evaluations))
         s = mi.Vector3f(*[float(c) for c in sun])
         cos_s = dr.dot(nrm, s)
-        blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), cos_s > 0)
+        if self.fs.tracer is None:
+            blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), cos_s > 0)
+        else:
+            blocked = self._occluded("sun", o, s, cos_s > 0)
         return dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
+
+    def _occluded(self, kind: str, o, d, active):
+        """Periodic shadow rays towards the sun (``d``), logged for :meth:`render`'s meta."""
+        tracer = self.fs.tracer
+        blocked, capped, k = tracer.occluded(o, d, active, cap=tracer.crossings_for(self.fs.sun))
+        self._wrap_log.append((kind, active, capped, k))
+        return blocked
 
     def _per_evaluation(self):
         """Evaluation-level sun/sky incident and absorbed values (Dr.Jit, attached to params)."""
@@ -335,26 +350,37 @@ class SegmentEstimator:
         L_sky = mi.Float(dr.zeros(mi.Float, n_ev))
         active = mi.Bool(dr.full(mi.Bool, True, n_ev))
         eps = 1e-5
+        periodic = fs.tracer is not None
         for depth in range(self.bounces + 1):
-            ray = mi.Ray3f(o, d)
-            si = fs.scene.ray_intersect(ray, active)
-            hit_leaf = active & si.is_valid()
-            t_soil = dr.select(d.z < 0, -o.z / d.z, dr.inf)
-            hit_soil = active & (d.z < 0) & (~hit_leaf | (t_soil < si.t))
-            hit_leaf &= ~hit_soil
-            escaped = active & ~hit_leaf & ~hit_soil
+            if periodic:
+                hit_leaf, si, hit_soil, p_soil, escaped, capped, k = fs.tracer.intersect(o, d, active)
+                self._wrap_log.append(("path", active, capped, k))
+            else:
+                ray = mi.Ray3f(o, d)
+                si = fs.scene.ray_intersect(ray, active)
+                hit_leaf = active & si.is_valid()
+                t_soil = dr.select(d.z < 0, -o.z / d.z, dr.inf)
+                hit_soil = active & (d.z < 0) & (~hit_leaf | (t_soil < si.t))
+                hit_leaf &= ~hit_soil
+                escaped = active & ~hit_leaf & ~hit_soil
             L_sky += dr.select(escaped, beta * fs.sky_radiance(d.z), 0.0)
             if depth == self.bounces:
                 break
-            p_soil = o + d * t_soil
+            if not periodic:
+                p_soil = o + d * t_soil
             # Leaf vertex: NEE to the sun through the BSDF (reflection or transmission).
             si.wi = si.to_local(-d)
             ub = u[_USED_PER_SIDE + _DIMS_PER_BOUNCE * depth : _USED_PER_SIDE + _DIMS_PER_BOUNCE * (depth + 1)]
             if sun_up:
                 f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
                 side = dr.sign(dr.dot(si.n, sun))
-                vis_leaf = ~fs.scene.ray_test(mi.Ray3f(si.p + eps * side * si.n, sun), hit_leaf & (f_sun > 0))
-                vis_soil = ~fs.scene.ray_test(mi.Ray3f(p_soil + mi.Vector3f(0, 0, eps), sun), hit_soil)
+                o_leaf, o_soil = si.p + eps * side * si.n, p_soil + mi.Vector3f(0, 0, eps)
+                if periodic:
+                    vis_leaf = ~self._occluded("nee", o_leaf, sun, hit_leaf & (f_sun > 0))
+                    vis_soil = ~self._occluded("nee", o_soil, sun, hit_soil)
+                else:
+                    vis_leaf = ~fs.scene.ray_test(mi.Ray3f(o_leaf, sun), hit_leaf & (f_sun > 0))
+                    vis_soil = ~fs.scene.ray_test(mi.Ray3f(o_soil, sun), hit_soil)
                 L_sun += dr.select(hit_leaf & vis_leaf, beta * f_sun, 0.0)
                 L_sun += dr.select(hit_soil & vis_soil, beta * rho_soil / math.pi * sun.z, 0.0)
             bs, w = self.fs.bsdf.sample(ctx, si, ub[0], mi.Point2f(ub[1], ub[2]), hit_leaf)
@@ -375,9 +401,11 @@ class SegmentEstimator:
         import drjit as dr
 
         with dr.suspend_grad():
+            self._wrap_log = []
             vals = self._per_evaluation()
             dr.eval(vals)
             ev = {k: np.asarray(v, dtype=np.float64) for k, v in vals.items()}
+            periodic = self._wrap_summary()
         S, K = len(self.segment_id), self.samples
         n_front = S * K
         out, se, front = {}, {}, {}
@@ -407,8 +435,41 @@ class SegmentEstimator:
                 "front": front,
                 "is_blade": self.is_blade,
                 "area_m2": self.area_m2,
+                **({} if periodic is None else {"periodic": periodic}),
             },
         )
+
+    def _wrap_summary(self) -> dict | None:
+        """Rays cast, crossings made and rays stopped by the crossing cap, per kind of ray.
+
+        Kinds: ``"path"`` (the first cosine-sampled ray and every scattered segment),
+        ``"sun"`` (direct-sun shadow rays), ``"nee"`` (sun shadow rays from leaf and soil
+        vertices). ``capped_share`` is capped ÷ rays over all kinds.
+        """
+        tracer = self.fs.tracer
+        if tracer is None:
+            return None
+        import drjit as dr
+
+        out = {
+            "cell_m": tuple(float(v) for v in tracer.cell.size_m),
+            "z_top_m": tracer.z_top,
+            "crossing_cap": tracer.cap,
+            "sun_crossing_cap": tracer.crossings_for(self.fs.sun),
+            "crossing_tolerance": tracer.tolerance,
+        }
+        tot = {"rays": 0, "capped": 0}
+        for kind in ("path", "sun", "nee"):
+            logs = [x for x in self._wrap_log if x[0] == kind]
+            rays = sum(int(dr.count(a)[0]) for _, a, _, _ in logs)
+            capped = sum(int(dr.count(c)[0]) for _, _, c, _ in logs)
+            crossings = sum(int(dr.sum(dr.select(a, k, 0))[0]) for _, a, _, k in logs)
+            out[kind] = {"rays": rays, "capped": capped, "crossings": crossings}
+            tot["rays"] += rays
+            tot["capped"] += capped
+        out["capped_share"] = tot["capped"] / max(tot["rays"], 1)
+        self._wrap_log = []
+        return out
 
     def vjp(self, cotangent: dict[str, np.ndarray]) -> dict[str, float]:
         """Gradient of Σ_parts Σ_segments cotangent[part]·value[part] w.r.t. the leaf parameters.
@@ -435,7 +496,9 @@ class SegmentEstimator:
             for k, v in wide.items():
                 dr.enable_grad(v)
                 setattr(bsdf, k, v)
+            self._wrap_log = []
             vals = self._per_evaluation()
+            self._wrap_log = []
             dr.backward(dr.sum(sum(w[p] * vals[p] for p in PARTS)))
             grads = {k: float(np.sum(np.asarray(dr.grad(v), dtype=np.float64))) for k, v in wide.items()}
         finally:

@@ -17,7 +17,9 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
+from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
+from lightfit.plant.periodic import PeriodicCell
 
 SKY_MODELS = ("isotropic", "overcast")
 
@@ -64,15 +66,33 @@ class FieldScene:
     estimator (:mod:`lightfit.light.estimator`): no emitter is instantiated, and the infinite
     soil means a ray leaving the field downwards always meets soil, never the sky.
 
+    With a periodic ``cell`` the mesh is one cell of an infinite field: the Mitsuba geometry
+    holds the periodic images of every face that reaches into the cell
+    (:meth:`~lightfit.plant.periodic.PeriodicCell.images`) and every ray is cast through
+    :attr:`tracer` (:class:`~lightfit.light.periodic.PeriodicTracer`), which wraps rays leaving
+    the cell's sides back in through the opposite side. ``mesh`` stays the original faces (the
+    estimator samples points on them only, so no area is counted twice).
+
     Args:
         mesh: the shoot mesh (``lightfit.plant.Mesh``).
         optics: leaf and soil optical parameters.
         sky: ``"isotropic"`` (uniform radiance, default) or ``"overcast"`` (CIE standard
             overcast sky, Moon & Spencer 1942: radiance ∝ 1 + 2 cos θ_z, three times brighter
             at the zenith than at the horizon).
+        cell: periodic cell (``Field.cell``), or ``None`` for a finite field on bare soil.
+        crossing_tolerance: share of light the periodic crossing cap may truncate
+            (:func:`~lightfit.light.periodic.crossing_cap`); periodic scenes only.
     """
 
-    def __init__(self, mesh: Mesh, optics: Optics = Optics(), *, sky: str = "isotropic"):
+    def __init__(
+        self,
+        mesh: Mesh,
+        optics: Optics = Optics(),
+        *,
+        sky: str = "isotropic",
+        cell: PeriodicCell | None = None,
+        crossing_tolerance: float = DEFAULT_CROSSING_TOLERANCE,
+    ):
         if sky not in SKY_MODELS:
             raise InputError(f"unknown sky model {sky!r}", column="sky", expected=" or ".join(SKY_MODELS))
         if mesh.n_faces == 0:
@@ -80,20 +100,28 @@ class FieldScene:
         mi = mitsuba()
         import drjit as dr
 
-        self.mi, self.mesh, self.optics, self.sky = mi, mesh, optics, sky
+        self.mi, self.mesh, self.optics, self.sky, self.cell = mi, mesh, optics, sky, cell
+        geometry = mesh if cell is None else cell.images(mesh)
         props = mi.Properties()
         props["bsdf"] = mi.load_dict(
             leaf_bsdf_dict(optics.specular, optics.roughness, optics.subsurface, optics.base_color)
         )
-        plants = mi.Mesh("plants", len(mesh.vertices), mesh.n_faces, props, False, False)
+        plants = mi.Mesh("plants", len(geometry.vertices), geometry.n_faces, props, False, False)
         p = mi.traverse(plants)
-        p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(mesh.vertices.T, dtype=np.float32)))
-        p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(mesh.faces.T, dtype=np.uint32)))
+        p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(geometry.vertices.T, dtype=np.float32)))
+        p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(geometry.faces.T, dtype=np.uint32)))
         p.update()
         self.scene = mi.load_dict({"type": "scene", "plants": plants})
         self.params = mi.traverse(self.scene)
         self.bsdf = self.scene.shapes()[0].bsdf()
         self.sun = np.array([0.0, 0.0, 1.0])
+        #: Ray casting through the periodic cell (``None`` for a finite field).
+        self.tracer = (
+            None
+            if cell is None
+            else PeriodicTracer(self.scene, cell, float(mesh.vertices[:, 2].max()), crossing_tolerance)
+        )
+        self.n_scene_faces = geometry.n_faces
         self.freeze_sampling()
 
     def freeze_sampling(self, optics: Optics | None = None) -> None:

@@ -98,7 +98,7 @@ class CoupledModel:
     def irradiance(self):
         """The Mitsuba scene's JAX irradiance function of the measured segments (built on first use)."""
         sc = self.scenario
-        scene = FieldScene(self.geometry.mesh, sc.optics, sky=sc.sky)
+        scene = FieldScene(self.geometry.mesh, sc.optics, sky=sc.sky, cell=self.geometry.cell)
         return make_irradiance(scene, self.segment_id, samples=sc.samples, bounces=sc.bounces)
 
     def render(self, theta: Theta | Mapping[str, float]):
@@ -188,6 +188,7 @@ class CoupledModel:
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
             "weather_source": str(w.attrs.get("source", "")),
             "n_plants": fld.n_plants,
+            "boundary": fld.boundary,
             "buffer_rows": fld.buffer_rows,
             "buffer_along": fld.b_along,
             "seed": fld.seed,

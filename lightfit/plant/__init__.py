@@ -3,6 +3,7 @@
 from lightfit import plant
 fld = plant.Field(n_plants=100, buffer_rows=2, seed=1)
 geom = plant.build(fld)                         # whole field; or tile=fld.tiles(4)[0]
+cell = plant.build(plant.Field(n_plants=100, boundary="periodic", seed=1))  # one cell of an infinite field
 plant.export(geom.mesh, "field.ply")
 """
 
@@ -11,6 +12,7 @@ from lightfit.plant.export import export
 from lightfit.plant.field import Field, FieldGeometry, Tile, build
 from lightfit.plant.growth import GrowthConfig, grow_plant, plant_seed, resolve_parameter_file, shoot
 from lightfit.plant.mesh import Mesh, MeshResolution, expected_area, shoot_mesh
+from lightfit.plant.periodic import PeriodicCell
 
 __all__ = [
     "Field",
@@ -18,6 +20,7 @@ __all__ = [
     "GrowthConfig",
     "Mesh",
     "MeshResolution",
+    "PeriodicCell",
     "Tile",
     "build",
     "cache_dir",

@@ -1,4 +1,4 @@
-"""A field of wheat plants: grid, measurement area, buffer rows and tiles.
+"""A field of wheat plants: grid, measurement area, boundary (buffer rows or periodic) and tiles.
 
 Coordinates: x east, y north, z up, metres; the measurement area is centred on the origin.
 Wheat rows run along ``row_direction_deg`` (compass azimuth, default 90° = east–west); within
@@ -11,6 +11,17 @@ A plant is named by its position (r, c) relative to the measurement area's first
 ``plant_id = (r + 1000)·10⁴ + (c + 1000)``, its seed (:func:`plant_seed`) and its location, so
 a plant is the same whichever tile builds it and however many buffer rows surround it. Tiles
 partition the measurement area into W contiguous blocks, each carrying its own B buffer rows.
+
+Two boundaries (``Field.boundary``):
+
+- ``"finite"``: the measurement area plus its buffer rows, on bare soil (the reference paper's
+  setup). Light leaks in through the edges: +48 % canopy absorbed PAR for the default 10 × 10
+  plants with 2 buffer rows (docs/light.md, "Field-edge bias").
+- ``"periodic"``: the measurement area is one cell of an infinite field
+  (:class:`~lightfit.plant.periodic.PeriodicCell`: N plants × plant spacing along the rows by
+  N rows × row spacing across them, so both spacings continue across the seam), and the light
+  estimator wraps rays through it (docs/light.md, "Periodic boundary"). No buffer plants are
+  grown; a tile's geometry is the whole cell.
 """
 
 from __future__ import annotations
@@ -27,6 +38,7 @@ from lightfit.errors import InputError
 from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
+from lightfit.plant.periodic import PeriodicCell
 
 #: Winter wheat at ~270 plants m⁻²: 12.5 cm drill rows (common German practice) and 3 cm
 #: within the row (≈ 330 seeds m⁻² sown at ~80 % establishment).
@@ -34,6 +46,8 @@ DEFAULT_ROW_SPACING_M = 0.125
 DEFAULT_PLANT_SPACING_M = 0.03
 #: The reference paper found two rows of buffer plants around the measurement area sufficient.
 DEFAULT_BUFFER_ROWS = 2
+#: Field boundaries: buffer rows on bare soil, or one cell of an infinite periodic field.
+BOUNDARIES = ("finite", "periodic")
 
 
 #: Offset making relative plant coordinates non-negative in ids and seeds.
@@ -54,7 +68,8 @@ class Field:
         row_spacing_m: distance between wheat rows, m.
         plant_spacing_m: distance between plants within a row, m.
         buffer_rows: rows of unmeasured neighbour plants around the measurement area (and
-            around each tile).
+            around each tile); default :data:`DEFAULT_BUFFER_ROWS` for a finite field, 0 (the
+            only allowed value) for a periodic one.
         row_direction_deg: compass azimuth of the rows, degrees (90 = rows run east–west).
         seed: global seed; each plant's seed derives from it and the plant's grid position.
         growth: how plants are grown (parameter file, dates).
@@ -65,19 +80,36 @@ class Field:
             on 4 × 4 plants of this wheat with 2 buffer rows and 2 along (docs/light.md,
             "Field-edge bias").
             ``buffer_along ≈ buffer_rows · row_spacing / plant_spacing`` makes the buffer the
-            same distance both ways.
+            same distance both ways. Periodic fields: ``None`` or 0.
+        boundary: ``"finite"`` (buffer rows on bare soil, the reference paper's setup; the
+            default in this release) or ``"periodic"`` (the measurement area is one cell of an
+            infinite field, :attr:`cell`; no buffers).
     """
 
     n_plants: int = 25
     row_spacing_m: float = DEFAULT_ROW_SPACING_M
     plant_spacing_m: float = DEFAULT_PLANT_SPACING_M
-    buffer_rows: int = DEFAULT_BUFFER_ROWS
+    buffer_rows: int | None = None
     row_direction_deg: float = 90.0
     seed: int = 0
     growth: GrowthConfig = field(default_factory=GrowthConfig)
     buffer_along: int | None = None
+    boundary: str = "finite"
 
     def __post_init__(self):
+        if self.boundary not in BOUNDARIES:
+            raise InputError(f"boundary={self.boundary!r}", column="boundary", expected=" or ".join(BOUNDARIES))
+        if self.boundary == "periodic":
+            # Buffer plants would double the field inside the cell: refuse rather than ignore.
+            for name in ("buffer_rows", "buffer_along"):
+                if getattr(self, name) not in (None, 0):
+                    raise InputError(
+                        f"{name}={getattr(self, name)!r} with boundary='periodic'",
+                        column=name,
+                        expected="0 or None: a periodic field has no buffer plants (its neighbours are its own copies)",
+                    )
+        if self.buffer_rows is None:  # frozen dataclass: set the boundary's default once
+            object.__setattr__(self, "buffer_rows", DEFAULT_BUFFER_ROWS if self.boundary == "finite" else 0)
         if self.buffer_along is not None and (
             not isinstance(self.buffer_along, (int, np.integer)) or self.buffer_along < 0
         ):
@@ -96,6 +128,28 @@ class Field:
             raise InputError(f"buffer_rows={self.buffer_rows!r}", column="buffer_rows", expected="an integer ≥ 0")
         if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise InputError(f"seed={self.seed!r}", column="seed", expected="an integer ≥ 0")
+
+    @property
+    def periodic(self) -> bool:
+        """True for a periodic field."""
+        return self.boundary == "periodic"
+
+    @property
+    def cell(self) -> PeriodicCell | None:
+        """The periodic cell (bounds in metres: ``cell.bounds_m`` in the row frame,
+        ``cell.corners_xy`` in x, y), centred on the origin; ``None`` for a finite field.
+
+        N plants × plant spacing along the rows by N rows × row spacing across them: every
+        plant of the measurement area sits in the middle of its own spacing × spacing patch, so
+        the spacings continue across the seam.
+        """
+        if not self.periodic:
+            return None
+        return PeriodicCell(
+            along_m=self.n * float(self.plant_spacing_m),
+            across_m=self.n * float(self.row_spacing_m),
+            row_direction_deg=float(self.row_direction_deg),
+        )
 
     @property
     def n(self) -> int:
@@ -167,7 +221,8 @@ class Field:
         """Partition the measurement area into ``n_tiles`` blocks, each with its buffer ring.
 
         The block grid is the most nearly square factorisation a × b = n_tiles; rows and
-        columns are split as evenly as possible.
+        columns are split as evenly as possible. In a periodic field a tile's buffer is the
+        rest of the cell: light wraps through the whole cell, so every tile needs all of it.
         """
         if not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
             raise InputError(f"n_tiles={n_tiles!r}", column="n_tiles", expected="an integer ≥ 1")
@@ -193,7 +248,13 @@ class Field:
                 )
                 inside = (R >= r0) & (R <= r1) & (C >= c0) & (C <= c1)
                 ids = plant_id(R - B, C - Ba)
-                out.append(Tile(index=len(out), measured=np.sort(ids[inside]), buffer=np.sort(ids[~inside])))
+                measured = np.sort(ids[inside])
+                if self.periodic:
+                    everyone = plant_id(*np.divmod(np.arange(self.n**2), self.n))
+                    buffer = np.sort(np.setdiff1d(everyone, measured))
+                else:
+                    buffer = np.sort(ids[~inside])
+                out.append(Tile(index=len(out), measured=measured, buffer=buffer))
         return out
 
 
@@ -220,12 +281,15 @@ class FieldGeometry:
         mesh: shoot mesh; ``mesh.face_segment`` refers to ``segments.segment_id``.
         plants: the plant rows built (see :meth:`Field.plants`).
         cache_hits: plants loaded from the cache rather than simulated.
+        cell: the periodic cell the mesh fills (``Field.cell``), ``None`` for a finite field;
+            pass it to :class:`lightfit.light.scene.FieldScene`.
     """
 
     segments: pd.DataFrame
     mesh: Mesh
     plants: pd.DataFrame
     cache_hits: int = 0
+    cell: PeriodicCell | None = None
 
 
 def build(
@@ -239,7 +303,8 @@ def build(
     """Grow (or load from cache), place and mesh the plants of a field or of one tile.
 
     Without ``tile``: the whole grid, measured = the measurement area. With a tile: its
-    plants and its buffer ring, measured = the tile's own plants.
+    plants and its buffer ring, measured = the tile's own plants (periodic: the whole cell is
+    built, measured = the tile's plants).
     """
     table = fld.plants()
     if tile is None:
@@ -265,4 +330,4 @@ def build(
         parts.append(seg)
     segments = pd.concat(parts, ignore_index=True)
     segments = segments[segments["organ_type"].isin(["stem", "leaf"])].reset_index(drop=True)
-    return FieldGeometry(segments, shoot_mesh(segments, resolution), chosen, hits)
+    return FieldGeometry(segments, shoot_mesh(segments, resolution), chosen, hits, fld.cell)

@@ -1,0 +1,323 @@
+"""Periodic boundaries: the measured plants as one cell of an infinite field (issue 13).
+
+Independent references: Beer–Lambert gap fraction of a homogeneous random canopy, energy
+conservation, translation invariance of an infinite field, finite differences for the gradient.
+Every canopy is hand-made (small square leaves in a small cell), so each test takes seconds.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+import lightfit  # noqa: F401
+from lightfit.errors import InputError
+from lightfit.light.estimator import PARTS, SegmentEstimator
+from lightfit.light.periodic import crossing_cap
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant import Field, build
+from lightfit.plant.mesh import Mesh
+from lightfit.plant.periodic import PeriodicCell
+
+BLACK = Optics(specular=0.0, roughness=0.5, subsurface=0.0, base_color=0.0, soil_albedo=0.0)
+SENSOR_ID0 = 100_000
+
+
+def square(center, normal, size, seg_id):
+    """A square blade of side ``size`` (two triangles, counter-clockwise around ``normal``)."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    a = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    c, h = np.asarray(center, float), size / 2
+    v = np.array([c - h * a - h * b, c + h * a - h * b, c + h * a + h * b, c - h * a + h * b])
+    return Mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), np.array([seg_id, seg_id]), np.array([True, True]))
+
+
+def canopy(cell, lai, angles, rng, *, leaf=0.01, z=(0.1, 1.0), sensors=50, sensor_size=0.005):
+    """Random canopy filling ``cell`` (leaf k has segment id k + 1) over a grid of soil sensors.
+
+    Leaves: squares of side ``leaf`` with uniform random centres in the cell × ``z``, normals
+    vertical (``"horizontal"``) or uniform on the sphere (``"spherical"``). Sensors: a
+    ``sensors`` × ``sensors`` grid of small horizontal squares 1 mm above the soil, ids from
+    :data:`SENSOR_ID0`, one at the centre of each grid cell (a uniform sample of the ground).
+    """
+    n = int(round(lai * cell.area_m2 / leaf**2))
+    A, B = cell.size_m
+    ab = np.column_stack([rng.uniform(-A / 2, A / 2, n), rng.uniform(-B / 2, B / 2, n)])
+    centers = np.column_stack([cell.to_world(ab), rng.uniform(*z, n)])
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1)) if angles == "horizontal" else rng.normal(size=(n, 3))
+    parts = [square(c, nn, leaf, k + 1) for k, (c, nn) in enumerate(zip(centers, normals))]
+    g = (np.arange(sensors) + 0.5) / sensors - 0.5
+    ga, gb = np.meshgrid(g * A, g * B)
+    xy = cell.to_world(np.column_stack([ga.ravel(), gb.ravel()]))
+    parts += [square([x, y, 0.001], [0, 0, 1], sensor_size, SENSOR_ID0 + i) for i, (x, y) in enumerate(xy)]
+    return Mesh.concatenate(parts), n
+
+
+def sensor_ids(mesh):
+    return np.unique(mesh.face_segment[mesh.face_segment >= SENSOR_ID0])
+
+
+def leaf_ids(mesh):
+    return np.unique(mesh.face_segment[mesh.face_segment < SENSOR_ID0])
+
+
+# -- geometry ---------------------------------------------------------------------------------
+def test_cell_wrap_and_images_of_overhanging_faces():
+    cell = PeriodicCell(1.0, 2.0, row_direction_deg=90.0)  # along = x (1 m), across = y (2 m)
+    assert cell.bounds_m == ((-0.5, 0.5), (-1.0, 1.0))
+    assert cell.wrap([[0.7, -1.3, 0.2]]) == pytest.approx(np.array([[-0.3, 0.7, 0.2]]))
+    inside = square([0.0, 0.0, 0.5], [0, 0, 1], 0.2, 1)
+    side = square([0.5, 0.0, 0.5], [0, 0, 1], 0.2, 2)  # over the +x face
+    corner = square([0.5, 1.0, 0.5], [0, 0, 1], 0.2, 3)  # over the +x, +y corner
+    long_leaf = square([0.0, 0.0, 0.5], [0, 0, 1], 2.5, 4)  # longer than the cell both ways
+    img = cell.images(Mesh.concatenate([inside, side, corner, long_leaf]))
+    per_seg = np.bincount(img.face_segment)
+    assert per_seg[1] == 2 and per_seg[2] == 4 and per_seg[3] == 8  # faces: 1, 2, 4 images × 2 triangles
+    assert per_seg[4] >= 2 * 3 * 2  # spans ≥ 3 periods along x and 2 across y
+    # Every image is a whole lattice vector away from its original.
+    shift = img.vertices[img.faces[img.face_segment == 2]][:, 0, :2] - side.vertices[side.faces][:, 0, :2].repeat(2, 0)
+    assert sorted({round(float(s), 9) for s in shift[:, 0]}) == [-1.0, 0.0]
+
+
+def test_rotated_cell_tiles_the_plane():
+    cell = PeriodicCell(0.3, 0.5, row_direction_deg=30.0)
+    rng = np.random.default_rng(0)
+    p = np.column_stack([rng.uniform(-3, 3, (200, 2)), rng.uniform(0, 1, 200)])
+    w = cell.wrap(p)
+    ab = cell.to_local(w)
+    assert (np.abs(ab) <= cell.size_m / 2 + 1e-12).all()
+    # The move is a lattice vector: integer multiples of the periods in the cell frame.
+    k = (cell.to_local(w) - cell.to_local(p)) / cell.size_m
+    assert np.allclose(k, np.round(k)) and np.array_equal(w[:, 2], p[:, 2])
+
+
+def test_field_boundary_api():
+    fin = Field(n_plants=9, seed=2)
+    assert fin.boundary == "finite" and fin.buffer_rows == 2 and fin.cell is None
+    per = Field(n_plants=9, seed=2, boundary="periodic")
+    assert per.buffer_rows == 0 and per.b_along == 0 and per.m == 3
+    assert per.cell.bounds_m == ((-0.045, 0.045), (-0.1875, 0.1875))  # 3 × 3 cm by 3 × 12.5 cm
+    assert per.cell.area_m2 == pytest.approx(per.ground_area_m2)
+    p = per.plants()
+    assert len(p) == 9 and p["measured"].all()
+    # The cell's plants are the finite field's measured plants (ids, seeds, positions).
+    q = fin.plants()
+    q = q[q["measured"]]
+    assert np.array_equal(p.index, q.index) and np.array_equal(p["seed"], q["seed"])
+    assert np.allclose(p[["x_m", "y_m"]], q[["x_m", "y_m"]])
+    assert (np.abs(per.cell.to_local(p[["x_m", "y_m"]].to_numpy())) < per.cell.size_m / 2).all()
+    # Tiles measure blocks; each needs the whole cell as geometry.
+    tiles = per.tiles(3)
+    assert np.array_equal(np.sort(np.concatenate([t.measured for t in tiles])), np.sort(p.index))
+    for t in tiles:
+        assert np.array_equal(t.plant_ids, np.sort(p.index))
+    for kw, name in ((dict(buffer_rows=2), "buffer_rows"), (dict(buffer_along=4), "buffer_along")):
+        with pytest.raises(InputError, match=name):
+            Field(n_plants=9, boundary="periodic", **kw)
+    assert Field(n_plants=9, boundary="periodic", buffer_rows=0, buffer_along=0).cell == per.cell
+    with pytest.raises(InputError, match="boundary"):
+        Field(boundary="torus")
+
+
+# -- Beer–Lambert -------------------------------------------------------------------------------
+@pytest.fixture(scope="module", params=["spherical", "horizontal"])
+def random_canopy(request):
+    cell = PeriodicCell(0.5, 0.5, row_direction_deg=90.0)
+    lai = 0.5 if request.param == "spherical" else 0.8
+    mesh, _ = canopy(cell, lai, request.param, np.random.default_rng(11))
+    return request.param, lai, cell, mesh
+
+
+def gap_fraction(fs, mesh, el):
+    """Mean direct-sun visibility of the soil sensors and its standard error (sensor spread)."""
+    fs.set_sun(el, 150)
+    r = SegmentEstimator(fs, sensor_ids(mesh), samples=4, bounces=0, seed=1).render()
+    v = r.front("incident_sun") / math.sin(math.radians(el))
+    return v.mean(), v.std(ddof=1) / math.sqrt(len(v)), r
+
+
+def test_beer_lambert_gap_fraction_in_a_periodic_cell(random_canopy):
+    """exp(−G·LAI/sin β) at 10–90° in a 0.5 m cell; shadows are up to 5.7 m long (11 cells)."""
+    angles, lai, cell, mesh = random_canopy
+    fs = FieldScene(mesh, BLACK, cell=cell)
+    for el in (10.0, 30.0, 60.0, 90.0):
+        gap, se, r = gap_fraction(fs, mesh, el)
+        s = math.sin(math.radians(el))
+        expected = math.exp(-(s if angles == "horizontal" else 0.5) * lai / s)
+        # Binomial spread over 2 500 sensors ≈ 0.008; 4 SE plus 0.01 for the one random canopy
+        # and its finite 1 cm leaves.
+        assert gap == pytest.approx(expected, abs=4 * se + 0.01), (angles, el, gap, expected, se)
+        assert r.meta["periodic"]["sun"]["capped"] == 0
+
+
+def test_beer_lambert_fails_in_the_finite_cell_at_low_sun(random_canopy):
+    angles, lai, cell, mesh = random_canopy
+    gap, _, r = gap_fraction(FieldScene(mesh, BLACK), mesh, 10.0)
+    expected = math.exp(-(1.0 if angles == "horizontal" else 0.5 / math.sin(math.radians(10))) * lai)
+    assert "periodic" not in r.meta
+    assert gap > expected + 0.3  # light leaks in under the edges of the 0.5 m patch
+
+
+# -- overhangs ----------------------------------------------------------------------------------
+def test_overhanging_leaf_shades_the_opposite_side_and_is_sampled_once():
+    cell = PeriodicCell(1.0, 1.0)
+    leaf = square([0.5, 0.5, 0.5], [0, 0, 1], 0.4, 1)  # centred on the +x, +y corner
+    where = {2: (-0.45, -0.45), 3: (0.45, 0.45), 4: (-0.45, 0.45), 5: (0.45, -0.45), 6: (0.0, 0.0)}
+    sensors = [square([x, y, 0.001], [0, 0, 1], 0.01, k) for k, (x, y) in where.items()]
+    mesh = Mesh.concatenate([leaf, *sensors])
+    fs = FieldScene(mesh, BLACK, cell=cell)
+    fs.set_sun(90.0, 0.0)
+    r = SegmentEstimator(fs, [1, 2, 3, 4, 5, 6], samples=64, bounces=1, seed=0).render()
+    lit = r.front("incident_sun")
+    assert lit[1:5] == pytest.approx(0.0, abs=1e-6)  # every corner lies under an image of the leaf
+    assert lit[5] == pytest.approx(1.0, abs=1e-6)
+    assert r.meta["area_m2"][0] == pytest.approx(0.16)  # sampled on the original faces only
+    # Its points (¾ of them outside the cell) see the open sky above and black soil below.
+    assert r.front("incident_sun")[0] == pytest.approx(1.0, abs=1e-6)
+    assert r.front("incident_sky")[0] == pytest.approx(1.0, abs=1e-6)
+    finite = SegmentEstimator(FieldScene(mesh, BLACK), [2, 3, 4, 5], samples=64, bounces=1, seed=0).render()
+    assert finite.front("incident_sun") == pytest.approx([1.0, 0.0, 1.0, 1.0], abs=1e-6)
+
+
+# -- energy closure -----------------------------------------------------------------------------
+def test_energy_closure_of_downward_transport_through_a_periodic_canopy():
+    """Arriving = absorbed by leaves + arriving at the soil, for sun and sky.
+
+    Horizontal leaves that only transmit (specular 0, subsurface 1, albedo 0.5) over black soil:
+    light only moves down, so nothing escapes upwards and the budget closes with what reaches
+    the soil, measured by a uniform grid of small sensors 1 mm above it. Any light lost or
+    gained through the cell's sides (by the first rays, shadow rays or transmitted path
+    segments) breaks the closure; the finite version of the cell must break it.
+    """
+    cell = PeriodicCell(0.4, 0.6, row_direction_deg=110.0)
+    mesh, _ = canopy(cell, 1.0, "horizontal", np.random.default_rng(5), z=(0.05, 0.6), sensors=40)
+    optics = Optics(specular=0.0, roughness=0.5, subsurface=1.0, base_color=0.5, soil_albedo=0.0)
+    leaves, sensors = leaf_ids(mesh), sensor_ids(mesh)
+
+    def budget(fs, el):
+        fs.set_sun(el, 200.0)
+        ids = np.concatenate([leaves, sensors])
+        r = SegmentEstimator(fs, ids, samples=16, bounces=6, seed=3).render()
+        is_leaf = np.isin(r.segment_id, leaves)
+        area = r.meta["area_m2"][is_leaf]
+        out = {}
+        for part, arriving in (("sun", math.sin(math.radians(el))), ("sky", 1.0)):
+            canopy_abs = (area * getattr(r, f"absorbed_{part}")[is_leaf]).sum() / cell.area_m2
+            soil = r.front(f"incident_{part}")[~is_leaf]
+            se = math.hypot(
+                math.sqrt(((area * r.se[f"absorbed_{part}"][is_leaf]) ** 2).sum()) / cell.area_m2,
+                soil.std(ddof=1) / math.sqrt(len(soil)),
+            )
+            out[part] = ((canopy_abs + soil.mean()) / arriving, se / arriving)
+        return out
+
+    periodic = budget(FieldScene(mesh, optics, cell=cell), 20.0)
+    for part, (ratio, se) in periodic.items():
+        # 6 transmissions leave ≤ 0.5⁷ ≈ 0.8 % of the light that met 7 leaves (almost none
+        # does at LAI 1); the crossing cap truncates ≤ 0.1 %.
+        assert ratio == pytest.approx(1.0, abs=4 * se + 0.01), (part, ratio, se)
+    finite = budget(FieldScene(mesh, optics), 20.0)
+    assert abs(finite["sun"][0] - 1.0) > 0.2  # the sun enters through the patch's sides
+
+
+# -- translation invariance ---------------------------------------------------------------------
+def test_shifting_every_face_by_a_fraction_of_the_cell_changes_nothing():
+    cell = PeriodicCell(0.3, 0.45, row_direction_deg=30.0)  # rows not along an axis
+    mesh, _ = canopy(cell, 2.0, "spherical", np.random.default_rng(7), leaf=0.02, z=(0.05, 0.5), sensors=2)
+    ids = leaf_ids(mesh)
+    shift = cell.lattice_shift(0.37, 0.61)
+    moved = mesh.vertices.copy()
+    moved[:, :2] += shift
+    # Wrap every face (by its centroid) back into the cell: leaves straddle the seams now.
+    tri = moved[mesh.faces]
+    centroid = tri.mean(1)
+    tri[..., :2] += (cell.wrap(centroid) - centroid)[:, None, :2]
+    wrapped = Mesh(
+        tri.reshape(-1, 3), np.arange(3 * mesh.n_faces).reshape(-1, 3), mesh.face_segment, mesh.face_is_blade
+    )
+    totals = []
+    for m in (mesh, wrapped):
+        fs = FieldScene(m, Optics(), cell=cell)
+        fs.set_sun(25.0, 230.0)
+        r = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=9).render()
+        area = r.meta["area_m2"]
+        totals.append({p: ((area * getattr(r, p)).sum(), math.sqrt(((area * r.se[p]) ** 2).sum())) for p in PARTS})
+    for p in PARTS:
+        (a, se), (b, _) = totals[0][p], totals[1][p]
+        # The same infinite field, sampled at the same points: equal up to float32 round-off
+        # (measured: 1e-8 relative), far inside the Monte Carlo error (≈ 1 %).
+        assert abs(a - b) <= min(se, 1e-4 * abs(a)), (p, a, b, se)
+
+
+# -- gradients ----------------------------------------------------------------------------------
+def test_gradient_matches_finite_differences_with_common_random_numbers():
+    cell = PeriodicCell(0.3, 0.3, row_direction_deg=90.0)
+    mesh, _ = canopy(cell, 1.5, "spherical", np.random.default_rng(3), leaf=0.03, z=(0.05, 0.5), sensors=2)
+    ids = leaf_ids(mesh)
+    fs = FieldScene(mesh, Optics(), cell=cell)
+    fs.set_sun(20.0, 160.0)
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
+
+    def J(r):
+        return sum(np.sum(ct[p] * getattr(r, p)) for p in ct)
+
+    G, F = [], []
+    for seed in range(4):
+        est = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=seed)
+        G.append(est.vjp(ct)["subsurface"])
+        fs.set_optics(subsurface=0.4)
+        jp = J(est.render())
+        fs.set_optics(subsurface=0.2)
+        jm = J(est.render())
+        fs.set_optics(subsurface=0.3)
+        F.append((jp - jm) / 0.2)
+    G, F = np.array(G), np.array(F)
+    assert np.isfinite(G).all() and (np.abs(G) > 0).all()
+    # Frozen sampling: AD and CRN differences estimate the same smooth function (see
+    # tests/test_light_irradiance.py); 3 % covers the O(h²) term and the albedo table.
+    assert np.abs(G - F).max() <= 0.03 * np.abs(F).max(), (G, F)
+
+
+# -- crossing cap -------------------------------------------------------------------------------
+def test_crossing_cap_bounds_truncation_and_is_reported():
+    cell = PeriodicCell(0.5, 0.5)
+    assert crossing_cap(cell, 1.0, 1e-3) == 2 + math.ceil(4 / math.pi * math.sqrt(8) / 1e-3)
+    assert crossing_cap(cell, 1.0, 1e-2) < crossing_cap(cell, 1.0, 1e-3)
+    with pytest.raises(InputError, match="crossing"):
+        crossing_cap(cell, 1.0, 0.0)
+    mesh, _ = canopy(cell, 0.2, "spherical", np.random.default_rng(2), sensors=10)
+    ids = leaf_ids(mesh)[:50]
+    share = {}
+    for tol in (0.9, 1e-3):
+        fs = FieldScene(mesh, Optics(), cell=cell, crossing_tolerance=tol)
+        fs.set_sun(5.0, 100.0)
+        r = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=0).render()
+        meta = r.meta["periodic"]
+        assert meta["sun"]["capped"] == 0 and meta["nee"]["capped"] == 0  # sun rays: exact cap
+        assert meta["sun_crossing_cap"] >= 1 / math.tan(math.radians(5)) / 0.5 * (1 - 1e-9)
+        share[tol] = meta["capped_share"]
+        assert 0 <= share[tol] <= 1 and meta["path"]["rays"] > 0
+    # A loose tolerance caps rays (they count as dark); the default one caps far fewer, and
+    # within its bound τ of the weight.
+    assert share[0.9] > share[1e-3] and share[1e-3] <= 1e-3
+
+
+# -- real plants --------------------------------------------------------------------------------
+def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies():
+    fld = Field(n_plants=4, seed=1, boundary="periodic")
+    g = build(fld)
+    assert g.cell == fld.cell and g.segments["measured"].all()
+    ids = g.segments["segment_id"].to_numpy()
+    fs_p = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fs_f = FieldScene(g.mesh, Optics())  # the same 2 × 2 plants alone on bare soil
+    totals = []
+    for fs in (fs_p, fs_f):
+        fs.set_sun(30.0, 150.0)
+        r = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=0).render()
+        for p in PARTS:
+            assert np.isfinite(getattr(r, p)).all() and (getattr(r, p) >= 0).all()
+        totals.append(r.total("absorbed", 1.0, 0.3) @ r.meta["area_m2"])
+    # An endless canopy shades itself: much less light per plant than an isolated 2 × 2 block.
+    assert totals[0] < 0.8 * totals[1]
