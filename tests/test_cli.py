@@ -151,6 +151,11 @@ def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
         ("calibrate", ["no-such-obs.csv"], ["no-such-obs.csv"]),
         ("calibrate", ["OBS", "--steps", "40"], ["steps", "40"]),
         ("calibrate", ["OBS", "--how", "median"], ["how", "median"]),
+        ("calibrate", ["OBS", "--method", "newton"], ["method", "newton", "lbfgsb"]),
+        ("calibrate", ["OBS", "--use", "co2"], ["use", "co2"]),
+        ("calibrate", ["OBS", "--parameters", "shininess"], ["unknown parameter", "shininess"]),
+        ("calibrate", ["OBS", "--start", "glossiness=1"], ["start", "glossiness"]),
+        ("replicate", ["--theta", "glossiness=1"], ["theta", "glossiness"]),
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
         ("posterior", ["--samples", "0"], ["samples"]),
         ("field-run", ["--steps", "0"], ["steps"]),
@@ -233,6 +238,16 @@ def test_replicate_subprocess_runs_float64_without_warnings(tmp_path):
         floats = {v: ds[v].dtype for v in ds.data_vars if np.issubdtype(ds[v].dtype, np.floating)}
         assert floats and all(dt == np.float64 for dt in floats.values()), floats
         assert ds.attrs["precision"] == "float64"
+
+
+def test_calibrate_bounded_method_on_two_steps(tmp_path):
+    """--method lbfgsb and --use reach the calibration; --steps keeps it to the two steps around the observation."""
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]
+    r = runner.invoke(app, [*args, "--method", "lbfgsb", "--use", "par", "--max-steps", "2", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    res = json.loads((tmp_path / "calibration.json").read_text())
+    assert res["method"] == "lbfgsb" and res["use"] == ["par"] and res["steps"] >= 1
+    assert "lbfgsb" in r.stdout
 
 
 @pytest.mark.slow

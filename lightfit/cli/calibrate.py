@@ -9,7 +9,8 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names, parse_theta
-from lightfit.cli.options import ModelOptions, coupled_model, model_options, resolve, weather
+from lightfit.cli.options import ModelOptions, Use, coupled_model, model_options, resolve, weather
+from lightfit.errors import InputError
 
 
 @model_options
@@ -18,24 +19,48 @@ def calibrate(
     out: Path = typer.Option(Path("results/calibration"), help="Output directory (history, result JSON, plot)."),
     parameters: str = typer.Option("specular,roughness,subsurface", help="Parameters to calibrate, comma-separated."),
     start: str = typer.Option(None, help="Start values key=value,... (default: 0.5, 0.5, 0.3, 1, 1)."),
-    max_steps: int = typer.Option(30, help="Maximum optimiser steps."),
+    method: str = typer.Option(
+        "bfgs",
+        help="Optimiser: bfgs (optimistix BFGS on logit/log-transformed parameters) "
+        "or lbfgsb (jaxopt L-BFGS-B on the natural parameters within their bounds).",
+    ),
+    use: Use = "par,an",
+    max_steps: int = typer.Option(30, help="Maximum accepted optimiser steps."),
     resume: bool = typer.Option(True, help="Continue from the history in OUT if present."),
     *,
     model: ModelOptions,
 ) -> None:
-    """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (BFGS, float64)."""
+    """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64)."""
+    from lightfit.inference.calibration import METHODS
     from lightfit.inference.calibration import calibrate as run_calibration
+    from lightfit.inference.likelihood import USES
     from lightfit.inference.observations import read_observations
+    from lightfit.model.parameters import check_names
     from lightfit.precision import precision
 
     s = resolve(model)
-    names = parse_names(parameters)
+    # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
+    if method not in METHODS:
+        raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
+    uses = parse_names(use)
+    if not uses or not set(uses) <= set(USES):
+        raise InputError(f"use={use!r}", column="use", expected="par, an or par,an")
+    names = check_names(parse_names(parameters))
     th0 = parse_theta(start)
+    check_names(th0, what="start")
     obs = read_observations(observations)
     m = coupled_model(s, weather(s))
     out.mkdir(parents=True, exist_ok=True)
     res = run_calibration(
-        m, obs, names=names, start=th0, max_steps=max_steps, history=out / "history.jsonl", resume=resume
+        m,
+        obs,
+        names=names,
+        start=th0,
+        method=method,
+        use=uses,
+        max_steps=max_steps,
+        history=out / "history.jsonl",
+        resume=resume,
     )
     (out / "calibration.json").write_text(
         json.dumps(
@@ -43,7 +68,11 @@ def calibrate(
                 "theta": res.theta,
                 "loss": res.loss,
                 "steps": res.steps,
+                "evaluations": res.evaluations,
+                "stopped_by": res.stopped_by,
                 "converged": bool(res.converged),
+                "method": res.method,
+                "use": list(uses),
                 "seconds": res.seconds,
                 "observations": str(observations),
                 "parameters": list(names),
@@ -54,8 +83,8 @@ def calibrate(
         )
     )
     t = Table(
-        title=f"calibration ({'converged' if res.converged else 'not converged'}, "
-        f"{res.steps} steps, {res.seconds:.0f} s)"
+        title=f"calibration ({res.method}: {res.stopped_by}, {res.steps} steps, "
+        f"{res.evaluations} loss evaluations, {res.seconds:.0f} s)"
     )
     t.add_column("parameter")
     t.add_column("value", justify="right")

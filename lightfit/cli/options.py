@@ -199,6 +199,10 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
 assert set(_OPTIONS) == {f.name for f in dataclasses.fields(ModelOptions)}
 
 
+#: ``--use`` of the commands that compare the model with observations (calibrate, posterior).
+Use = Annotated[str, typer.Option("--use", help="Observed series in the likelihood: par, an or par,an.")]
+
+
 def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
     """Give a command the shared model options; it receives them as its ``model: ModelOptions`` argument.
 

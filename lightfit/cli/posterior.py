@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names
-from lightfit.cli.options import ModelOptions, coupled_model, model_options, resolve, weather
+from lightfit.cli.options import ModelOptions, Use, coupled_model, model_options, resolve, weather
 from lightfit.errors import InputError
 
 
@@ -24,7 +24,7 @@ def posterior(
         help="Sampled parameters, comma-separated (also vcmax_scale, noise_scale).",
     ),
     priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
-    use: str = typer.Option("par,an", help="Series in the likelihood: par, an or par,an."),
+    use: Use = "par,an",
     walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters)."),
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
@@ -43,18 +43,19 @@ def posterior(
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
     from lightfit.inference.observations import read_observations
+    from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
 
     s = resolve(model)
     if priors not in P.PRIOR_SETS:
         raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
     prior_set = P.PRIOR_SETS[priors]
-    names = P.check_names(list(parse_names(parameters)), prior_set)
+    names = P.check_sampled(list(parse_names(parameters)), prior_set)
     uses = parse_names(use)
     obs = read_observations(observations or rep.OBSERVATIONS)
     m = coupled_model(s, weather(s))
-    lo = [prior_set[n].support[0] for n in E.LEAF]
-    hi = [prior_set[n].support[1] for n in E.LEAF]
+    lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
+    hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]
     out.mkdir(parents=True, exist_ok=True)
     emu_path = out / "emulator.npz"
     emu = E.PartsEmulator.load(emu_path) if emu_path.exists() else None
@@ -92,7 +93,7 @@ def posterior(
         max_seconds=None if max_minutes is None else 60 * max_minutes,
         attrs={"config": s.as_dict(), "priors_set": priors},
     )
-    (out / "summary.json").write_text(json.dumps(P._jsonable(res), indent=2, default=str))
+    (out / "summary.json").write_text(json.dumps(P.jsonable(res), indent=2, default=str))
     t = Table(
         title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling)"
     )

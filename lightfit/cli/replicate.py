@@ -28,6 +28,7 @@ def replicate(
     """The main job: the 20 April 2016 Selhausen replication (forcing, light, photosynthesis, Fig 4)."""
     from lightfit import replication as rep
     from lightfit import weather as wx
+    from lightfit.model.parameters import check_names
     from lightfit.model.scenario import Scenario
     from lightfit.weather.plot import plot_forcing
 
@@ -42,6 +43,7 @@ def replicate(
         )
     cfg = s.replication_config()
     th = parse_theta(theta)
+    check_names(th, what="theta")  # before minutes of plant growth, not after
     w = weather(s)
     out.mkdir(parents=True, exist_ok=True)
     weather_report(w)
