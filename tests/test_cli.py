@@ -207,6 +207,16 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--tiles", "2", "--tile", "5"]), "tile")
 
 
+def test_error_messages_name_the_file_or_the_limit():
+    from lightfit.cli.common import error_message
+
+    assert (
+        error_message(FileNotFoundError(2, "No such file or directory", "x.csv")) == "x.csv: No such file or directory"
+    )
+    assert error_message(TimeoutError()) == "timed out"
+    assert error_message(TimeoutError("3 s")) == "timed out: 3 s"
+
+
 def test_usage_errors_exit_2():
     r = runner.invoke(app, ["replicate", "--no-such-option"])
     assert r.exit_code == 2 and "no-such-option" in r.stderr

@@ -22,11 +22,22 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     """Exceptions that mean "the input is wrong", not "lightfit is broken" (those keep their traceback)."""
     from lightfit.light.backend import BackendError
 
-    return (InputError, BackendError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
+    # TimeoutError: a limit the user set ran out (field-run --timeout / --connect-timeout).
+    return (
+        InputError,
+        BackendError,
+        FileNotFoundError,
+        IsADirectoryError,
+        NotADirectoryError,
+        PermissionError,
+        TimeoutError,
+    )
 
 
 def error_message(err: BaseException) -> str:
     """One line naming the file or parameter concerned (``InputError`` messages already do)."""
+    if isinstance(err, TimeoutError):
+        return f"timed out: {err}" if str(err) else "timed out"
     if isinstance(err, OSError) and err.filename is not None:
         return f"{err.filename}: {err.strerror or err}"
     return str(err)
