@@ -205,6 +205,8 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
     assert r.exit_code == 0, r.output
     with xr.open_dataset(out, engine="h5netcdf") as ds:
         assert ds.sizes["time"] == 1 and ds.attrs["n_tiles"] == 2
+        # Computed in the worker processes, which get float64 from _worker_setup (not from this test process).
+        assert ds.attrs["precision"] == "float64" and ds["plant_par_umol_m2_s"].dtype == np.float64
         assert np.isfinite(ds["plant_par_umol_m2_s"].values).all()
     bad = CliRunner().invoke(app, args[:7] + ["--tiles", "9"] + args[9:])
     assert bad.exit_code == 2 and "tiles" in bad.stderr
