@@ -1,14 +1,33 @@
-"""Benchmark: loss-and-gradient cost, AD vs finite differences, and calibration time.
+"""Benchmark: the two calibration optimisers side by side; loss-and-gradient cost, AD vs finite differences.
 
-    python benchmarks/bench_calibration.py [--configs quick,default] [--calibrate quick]
+    python benchmarks/bench_calibration.py                      # optimisers (1.5–2.5 min on 2 cores)
+    python benchmarks/bench_calibration.py --gradients quick,default [--calibrate quick]
 
-For each configuration of the 20 April replication (quick: 4 plants, K=16, 2 bounces;
+**Optimisers** (default; writes benchmarks/results/calibration_optimisers.json): optimistix BFGS
+on logit/log-transformed parameters (``method="bfgs"``) against jaxopt's box-constrained L-BFGS-B
+on the natural parameters (``method="lbfgsb"``): same model, same twin observations (rendered
+with another seed, 101, at specular 0.7, roughness 0.4, subsurface 0.6, plus noise), same start,
+same step limit. Two problems, because full renders of the quick field cost ≈ 1–3 s per loss
+evaluation on 2 shared cores:
+
+1. ``emulated``: the quick configuration's whole day (25 daytime steps), renders replaced by a
+   polynomial emulator fitted to full renders (``FastObservables``, exact photosynthesis), four
+   parameters (specular, subsurface, light_factor, vcmax_scale; roughness fixed at its true 0.4:
+   the emulator box starts at 0.3);
+2. ``renders``: the quick field with full renders on a 3-hour window (7 daytime steps), specular
+   alone from 0.3.
+
+Reported per run: loss reached, accepted steps, loss and gradient evaluations, why it stopped,
+wall time (including JIT compilation), and per problem the time ratio L-BFGS-B / BFGS.
+
+**Gradients** (``--gradients``; writes benchmarks/results/calibration.json): for each configuration
+of the 20 April replication (quick: 4 plants, K=16, 2 bounces;
 default: 100 plants, K=64, 3 bounces) on twin observations: time of one jitted loss evaluation,
 of one loss + reverse-mode gradient over the three leaf parameters, and of a central
 finite-difference gradient with the same fixed random numbers (equal accuracy: with frozen
 sampling both differentiate the same smooth estimate). A full three-parameter calibration is
 timed for the configurations given in ``--calibrate`` (others: estimated as measured time per
-evaluation × the evaluations the quick calibration needed). Writes benchmarks/results/calibration.json.
+evaluation × the evaluations the quick calibration needed).
 """
 
 from __future__ import annotations
@@ -26,14 +45,17 @@ from rich.table import Table
 
 import lightfit  # noqa: F401
 from lightfit import replication as rep
-from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.calibration import METHODS, calibrate, make_loss, to_unconstrained
 from lightfit.inference.twin import twin_observations
+from lightfit.model import emulator as E
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "calibration.json"
+OUT_OPTIMISERS = OUT.with_name("calibration_optimisers.json")
 NAMES = ("specular", "roughness", "subsurface")
+TRUTH = {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}
 
 
 def _best(f, n=2):
@@ -95,6 +117,92 @@ def bench(name: str, cfg, do_calibrate: bool, evals_per_calibration: int | None)
     return res
 
 
+def compare(label: str, model, obs, names, start: dict, fixed: dict, forward=None, max_steps: int = 100) -> list[dict]:
+    """Both optimisers on one problem; rows with the counts and times, the second with the time ratio."""
+    rows = []
+    for method in METHODS:
+        r = calibrate(
+            model,
+            obs,
+            names=names,
+            start=start,
+            fixed=fixed,
+            method=method,
+            forward=forward,
+            max_steps=max_steps,
+            progress=False,
+        )
+        rows.append(
+            {
+                "problem": label,
+                "method": method,
+                "parameters": list(names),
+                "start": start,
+                "theta": {n: r.theta[n] for n in names},
+                "loss": r.loss,
+                "accepted_steps": r.steps,
+                "loss_evaluations": r.evaluations,
+                "gradient_evaluations": r.gradients,
+                "stopped_by": r.stopped_by,
+                "seconds": r.seconds,
+            }
+        )
+        Console().print(rows[-1])
+    rows[1]["time_ratio_vs_bfgs"] = rows[1]["seconds"] / rows[0]["seconds"]
+    rows[1]["loss_minus_bfgs"] = rows[1]["loss"] - rows[0]["loss"]
+    return rows
+
+
+def optimisers(n_design: int = 24) -> dict:
+    """The side-by-side comparison described in the module docstring."""
+    t0 = time.perf_counter()
+    cfg = rep.ReplicationConfig.quick()
+    day = rep.model_for(cfg, rep.forcing())
+    obs = twin_observations(day, TRUTH, render_seed=101, noise_seed=7)
+    t = time.perf_counter()
+    emu = E.build_emulator(day, (0.0, 0.3, 0.0), (1.0, 1.0, 1.0), n_design=n_design, degrees=(2, 3, 4), seed=0)
+    t_emu = time.perf_counter() - t
+    fast = E.FastObservables(day, emu, n_grid=None)
+    names = ("specular", "subsurface", "light_factor", "vcmax_scale")
+    start = {"specular": 0.4, "subsurface": 0.3, "light_factor": 0.8, "vcmax_scale": 1.2}
+    rows = compare("emulated", day, obs, names, start, {"roughness": TRUTH["roughness"]}, forward=fast)
+    w = rep.forcing().loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"]
+    short = rep.model_for(cfg, w)
+    obs_short = twin_observations(short, TRUTH, render_seed=101, noise_seed=7)
+    fixed = {k: TRUTH[k] for k in ("roughness", "subsurface")}
+    rows += compare("renders", short, obs_short, ("specular",), {"specular": 0.3}, fixed, max_steps=30)
+    return {
+        "command": "python benchmarks/bench_calibration.py",
+        "machine": "2 CPU cores shared with other jobs; one run",
+        "problems": {
+            "emulated": f"quick field (4 plants, K=16, 2 bounces), 25 daytime steps; emulator degree {emu.degree} "
+            f"from {n_design} full renders over specular [0,1], roughness [0.3,1], subsurface [0,1] "
+            f"({t_emu:.0f} s to build); exact photosynthesis",
+            "renders": "quick field, full renders, 09:00-12:00 UTC (7 daytime steps)",
+        },
+        "observations": "twin: render seed 101 (model: 0), truth specular 0.7, roughness 0.4, subsurface 0.6, "
+        "light_factor 1, vcmax_scale 1; PAR SD 3 % (≥ 1), CO2 SD 1 µmol m-2 s-1, noise seed 7",
+        "runs": rows,
+        "seconds_total": time.perf_counter() - t0,
+    }
+
+
+def print_optimisers(res: dict) -> None:
+    t = Table(title="calibration optimisers: BFGS (logit/log) vs L-BFGS-B (box), " + res["machine"])
+    cols = ("problem", "method", "loss", "accepted_steps", "loss_evaluations", "gradient_evaluations")
+    for c in (*cols, "stopped_by", "seconds", "time_ratio_vs_bfgs", "theta"):
+        t.add_column(c.replace("_", " "), justify="right")
+    for r in res["runs"]:
+        t.add_row(
+            *(f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c]) for c in cols),
+            r["stopped_by"],
+            f"{r['seconds']:.1f}",
+            f"{r['time_ratio_vs_bfgs']:.2f}" if "time_ratio_vs_bfgs" in r else "–",
+            " ".join(f"{k[:4]}={v:.4f}" for k, v in r["theta"].items()),
+        )
+    Console(width=200).print(t)
+
+
 def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
     cfgs = {"quick": rep.ReplicationConfig.quick(), "default": rep.ReplicationConfig()}
     rows = []
@@ -140,7 +248,14 @@ def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--configs", default="quick,default")
-    ap.add_argument("--calibrate", default="quick")
+    ap.add_argument("--gradients", default=None, help="configurations for the gradient-cost benchmark, e.g. quick")
+    ap.add_argument("--calibrate", default="quick", help="with --gradients: also time a BFGS calibration here")
+    ap.add_argument("--n-design", type=int, default=24, help="full renders for the emulator (optimisers)")
     a = ap.parse_args()
-    main(tuple(a.configs.split(",")), tuple(x for x in a.calibrate.split(",") if x))
+    if a.gradients:
+        main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x))
+    else:
+        res = optimisers(a.n_design)
+        OUT_OPTIMISERS.parent.mkdir(parents=True, exist_ok=True)
+        OUT_OPTIMISERS.write_text(json.dumps(res, indent=2))
+        print_optimisers(res)

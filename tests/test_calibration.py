@@ -127,33 +127,29 @@ def test_bfgs_and_lbfgsb_reach_the_same_optimum(twin_fits):
 def test_calibration_resumes_from_history(short_model, tmp_path):
     obs = twin_observations(short_model, {"specular": 0.7}, render_seed=5, noise_seed=3)
     h = tmp_path / "h.jsonl"
-    first = calibrate(
-        short_model,
-        obs,
-        names=("specular",),
-        start={"specular": 0.2},
-        max_steps=2,
-        history=h,
-        resume=False,
-        progress=False,
-    )
+
+    def run(max_steps: int, resume: bool):
+        return calibrate(
+            short_model,
+            obs,
+            names=("specular",),
+            start={"specular": 0.2},
+            max_steps=max_steps,
+            history=h,
+            resume=resume,
+            progress=False,
+        )
+
+    first = run(2, resume=False)
     assert first.stopped_by == "max_steps" and first.steps == 2 and not first.converged
     n_first = len(h.read_text().splitlines())
     # A line cut by an interruption is ignored; finished steps are kept and continued from.
     with open(h, "a") as f:
         f.write('{"step": 99, "loss": 0.1, "the')
-    second = calibrate(
-        short_model,
-        obs,
-        names=("specular",),
-        start={"specular": 0.2},
-        max_steps=3,
-        history=h,
-        resume=True,
-        progress=False,
-    )
-    lines = h.read_text().splitlines()
-    assert len(lines) > n_first
+    second = run(3, resume=True)
+    lines = [json.loads(x) for x in h.read_text().splitlines()]  # the cut line is gone, all others parse
+    assert len(lines) == n_first + second.steps - first.steps > n_first
+    assert [r["step"] for r in lines] == list(range(1, len(lines) + 1))
     assert second.loss <= first.loss + 1e-9
 
 

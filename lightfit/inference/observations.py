@@ -92,38 +92,40 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             ) from err
         ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
+    first = n_meta + 2  # file line of the first data row
     for c in COLUMNS:
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
-        bad = vals.isna() & (text != "")
-        if bad.any():
-            i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(
-                f"value {text.iloc[i]!r} is not a number",
-                file=path,
-                row=n_meta + 2 + i,
-                column=c,
-                expected="a number or an empty cell (missing)",
-            )
+        _first_bad(
+            vals.isna() & (text != ""),
+            path,
+            first,
+            c,
+            "a number or an empty cell (missing)",
+            lambda i, text=text: f"value {text.iloc[i]!r} is not a number",
+        )
         out[c] = vals.astype(float)
-    for v, sd in ((s.value, s.sd) for s in SERIES):
-        need = out[v].notna() & ~(out[sd] > 0)
-        if need.any():
-            i = int(np.flatnonzero(need.to_numpy())[0])
-            raise InputError(
-                f"{v} is given without a positive standard deviation",
-                file=path,
-                row=n_meta + 2 + i,
-                column=sd,
-                expected="SD > 0 wherever the value is present",
-            )
+    for s in SERIES:
+        _first_bad(
+            out[s.value].notna() & ~(out[s.sd] > 0),
+            path,
+            first,
+            s.sd,
+            "SD > 0 wherever the value is present",
+            lambda i, s=s: f"{s.value} is given without a positive standard deviation",
+        )
     par = SERIES[0].value
-    if (out[par] < 0).any():
-        i = int(np.flatnonzero((out[par] < 0).to_numpy())[0])
-        raise InputError("negative PAR", file=path, row=n_meta + 2 + i, column=par, expected="PAR ≥ 0")
+    _first_bad(out[par] < 0, path, first, par, "PAR ≥ 0", lambda i: "negative PAR")
     out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index()
     out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta}
     return out
+
+
+def _first_bad(bad: pd.Series, path: Path, first: int, column: str, expected: str, problem) -> None:
+    """:class:`InputError` at the first data row where ``bad`` holds; ``problem(i)`` describes row i."""
+    if bad.any():
+        i = int(np.flatnonzero(bad.to_numpy())[0])
+        raise InputError(problem(i), file=path, row=first + i, column=column, expected=expected)
 
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:

@@ -90,6 +90,59 @@ def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray
     }
 
 
+def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) -> tuple[dict, dict]:
+    """Fisher information of the model parameters at ``x_map`` (noise scale held there) and the profile
+    likelihood along the sloppiest direction, ±2 widths; in log-parameters (relative changes) unless the
+    optimum sits on a zero bound."""
+    model_names = tuple(n for n in lp.names if n != NOISE_SCALE)
+    idx = [lp.names.index(n) for n in model_names]
+
+    def at(xm):
+        return jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
+
+    scale = "log" if np.all(x_map[idx] > 1e-6) else "natural"
+    fi = fisher_information(lambda xm: lp.residuals(at(xm)), x_map[idx], model_names, scale=scale)
+    fisher = {
+        "names": list(model_names),
+        "matrix": fi.fisher,
+        "eigenvalues": fi.eigenvalues,
+        "eigenvectors": fi.eigenvectors,
+        "table": fi.table(),
+        "stiff": fi.stiff,
+        "sloppy": fi.sloppy,
+        "scale": fi.scale,
+    }
+    d = fi.eigenvectors[:, -1]
+    width = float(min(fi.widths[-1], 1.0))
+    ts = np.linspace(-2.0 * width, 2.0 * width, n_profile)
+    ts, prof, slc = profile_likelihood(lambda xm: -lp.log_likelihood(at(xm)), x_map[idx], d, ts, scale=scale)
+    to_x = (lambda t: np.exp(np.log(x_map[idx]) + t * d)) if scale == "log" else (lambda t: x_map[idx] + t * d)
+    inside = np.array([lp.in_support(np.asarray(at(to_x(t)))) for t in ts])
+    profile = {
+        "t": ts,
+        "profile_nll": prof,
+        "slice_nll": slc,
+        "direction": d,
+        "in_prior_box": inside.astype(np.int8),
+        "combination": fi.sloppy,
+        "scale": scale,
+    }
+    return fisher, profile
+
+
+def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, samples, n: int, seed: int) -> dict:
+    """Observables (and their Monte Carlo SDs) at ``n`` random posterior samples, (n, T) each, with the
+    observations on the run's steps (``obs_<column>``)."""
+    rng = np.random.default_rng(seed)
+    draws = samples[rng.choice(len(samples), size=min(n, len(samples)), replace=False)]
+    pred = jax.jit(jax.vmap(lambda x: lp.observables(x)[0]))(jnp.asarray(draws))
+    return {
+        "time_utc": times.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
+        **{k: np.asarray(pred[k]) for s in SERIES for k in (s.value, s.mc_sd)},
+        **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times).items()},
+    }
+
+
 def run(
     model: CoupledModel,
     obs: pd.DataFrame,
@@ -175,62 +228,14 @@ def run(
     cov = np.cov(samples.T).reshape(len(lp.names), len(lp.names))
     flat_lp = res.log_prob[int(0.25 * len(res.log_prob)) :].reshape(-1)
     x_map = optimum(lp, samples[np.argmax(flat_lp)])
+    fisher, profile = identifiability(lp, x_map, n_profile)
     an: dict = {
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
         "x_map": x_map,
         "log_prob_map": float(lp(x_map[None])[0]),
-    }
-    # Fisher information of the model parameters (noise scale held at its optimum)
-    model_names = tuple(n for n in lp.names if n != NOISE_SCALE)
-    idx = [lp.names.index(n) for n in model_names]
-
-    def resid(xm):
-        x = jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
-        return lp.residuals(x)
-
-    # log-parameters (relative changes) unless the optimum sits on a zero bound
-    scale = "log" if np.all(x_map[idx] > 1e-6) else "natural"
-    fi = fisher_information(resid, x_map[idx], model_names, scale=scale)
-    an["fisher"] = {
-        "names": list(model_names),
-        "matrix": fi.fisher,
-        "eigenvalues": fi.eigenvalues,
-        "eigenvectors": fi.eigenvectors,
-        "table": fi.table(),
-        "stiff": fi.stiff,
-        "sloppy": fi.sloppy,
-        "scale": fi.scale,
-    }
-    # profile likelihood along the sloppiest direction (in log-parameters)
-    d = fi.eigenvectors[:, -1]
-    width = float(min(fi.widths[-1], 1.0))
-    ts = np.linspace(-2.0 * width, 2.0 * width, n_profile)
-
-    def nll(xm):
-        x = jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
-        return -lp.log_likelihood(x)
-
-    ts, prof, slc = profile_likelihood(nll, x_map[idx], d, ts, scale=scale)
-    to_x = (lambda t: np.exp(np.log(x_map[idx]) + t * d)) if scale == "log" else (lambda t: x_map[idx] + t * d)
-    inside = np.array([lp.in_support(_put(x_map, idx, to_x(t))) for t in ts])
-    an["profile"] = {
-        "t": ts,
-        "profile_nll": prof,
-        "slice_nll": slc,
-        "direction": d,
-        "in_prior_box": inside.astype(np.int8),
-        "combination": fi.sloppy,
-        "scale": scale,
-    }
-    # posterior predictive
-    rng = np.random.default_rng(seed + 1)
-    draws = samples[rng.choice(len(samples), size=min(n_predictive, len(samples)), replace=False)]
-    pred = jax.jit(jax.vmap(lambda x: lp.observables(x)[0]))(jnp.asarray(draws))
-    target = align(obs, model.times)
-    an["predictive"] = {
-        "time_utc": model.times.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
-        **{k: np.asarray(pred[k]) for s in SERIES for k in (s.value, s.mc_sd)},
-        **{f"obs_{k}": np.asarray(v) for k, v in target.items()},
+        "fisher": fisher,
+        "profile": profile,
+        "predictive": predictive(lp, obs, model.times, samples, n_predictive, seed + 1),
     }
     if validation_renders is not None:
         leaf_test, full = validation_renders
@@ -246,19 +251,13 @@ def run(
             "mean": dict(zip(lp.names, summ["mean"].tolist())),
             "sd": dict(zip(lp.names, summ["sd"].tolist())),
             "corr": summ["corr"].tolist(),
-            "fisher": fi.table(),
-            "stiff": fi.stiff,
-            "sloppy": fi.sloppy,
+            "fisher": fisher["table"],
+            "stiff": fisher["stiff"],
+            "sloppy": fisher["sloppy"],
             "seconds_total": time.perf_counter() - t0,
         }
     )
     return out
 
 
-def _put(x, idx, vals):
-    y = np.asarray(x, float).copy()
-    y[idx] = vals
-    return y
-
-
-__all__ = ["emulator_error_vs_width", "optimum", "run"]
+__all__ = ["emulator_error_vs_width", "identifiability", "optimum", "predictive", "run"]
