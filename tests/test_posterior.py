@@ -20,6 +20,7 @@ from lightfit.inference.likelihood import GaussianLikelihood
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model import emulator as E
 from lightfit.model.parameters import Theta
+from lightfit.model.schema import OBSERVABLES
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
 PREC = np.linalg.inv(COV)
@@ -181,15 +182,6 @@ def test_profile_likelihood_on_quadratic_toy():
     )
     np.testing.assert_allclose(slc, 0.5 * ts**2 * (d @ H @ d), rtol=1e-10)
     np.testing.assert_allclose(prof, ts**2 / (2 * (d @ np.linalg.solve(H, d))), atol=1e-7)
-
-
-OBSERVABLES = (
-    "plant_par_umol_m2_s",
-    "plant_par_spread_umol_m2_s",
-    "plant_par_mc_sd_umol_m2_s",
-    "canopy_an_umol_m2_s",
-    "canopy_an_mc_sd_umol_m2_s",
-)
 
 
 class FakeModel:
