@@ -144,9 +144,10 @@ class PeriodicTracer:
             test: shadow rays (``ray_test``: any hit) instead of nearest hits.
 
         Returns:
-            ``(status, origin, maxt, crossings)``: per lane the :data:`INACTIVE` … :data:`CAPPED`
-            status, the origin and length limit of its last segment (re-intersecting that
-            segment gives the hit) and the number of crossings made.
+            ``(status, origin, maxt, crossings, pi)``: per lane the :data:`INACTIVE` …
+            :data:`CAPPED` status, the origin and length limit of its last segment, the number
+            of crossings made, and (``test=False``) Mitsuba's preliminary intersection of the
+            hit, relative to that last segment.
         """
         mi, scene = self.mi, self.scene
         import drjit as dr
@@ -166,12 +167,14 @@ class PeriodicTracer:
         status = dr.select(active, mi.UInt32(RUNNING), mi.UInt32(INACTIVE))
         maxt = dr.zeros(mi.Float, n)
         k = dr.zeros(mi.UInt32, n)
+        # The hit found inside the loop is kept: no second traversal to find it again.
+        pi = dr.zeros(mi.PreliminaryIntersection3f, 1 if test else n)
 
         def exit_distance(u, du, half):
             t = dr.select(du > 0, (half - u) / du, dr.select(du < 0, (-half - u) / du, inf))
             return dr.maximum(t, 0.0)
 
-        def body(o, status, maxt, k):
+        def body(o, status, maxt, k, pi):
             running = status == RUNNING
             a, b = self._local(o)
             ta, tb = exit_distance(a, da, A2), exit_distance(b, db, B2)
@@ -181,10 +184,11 @@ class PeriodicTracer:
             ray = mi.Ray3f(o, d)
             ray.maxt = t_max
             if test:
-                hit = scene.ray_test(ray, running)
+                hit = running & scene.ray_test(ray, running)
             else:
-                hit = scene.ray_intersect_preliminary(ray, False, running).is_valid()
-            hit &= running
+                pi_new = scene.ray_intersect_preliminary(ray, False, running)
+                hit = running & pi_new.is_valid()
+                pi = dr.select(hit, pi_new, pi)
             on_soil = running & ~hit & (t_soil <= t_exit)
             # Going up and leaving the box above the canopy top: nothing further can be hit.
             up = running & ~hit & ~on_soil & (d.z > 0) & (o.z + t_exit * d.z >= z_top)
@@ -206,13 +210,13 @@ class PeriodicTracer:
             maxt = dr.select(running & ~cross, t_max, maxt)
             k = dr.select(cross, k + 1, k)
             status = dr.select(running, new, status)
-            return o, status, maxt, k
+            return o, status, maxt, k, pi
 
-        o, status, maxt, k = dr.while_loop(
-            state=(o, status, maxt, k), cond=lambda o, status, maxt, k: status == RUNNING, body=body
+        o, status, maxt, k, pi = dr.while_loop(
+            state=(o, status, maxt, k, pi), cond=lambda o, status, maxt, k, pi: status == RUNNING, body=body
         )
-        dr.eval(o, status, maxt, k)
-        return status, o, maxt, k
+        dr.eval(o, status, maxt, k, pi)
+        return status, o, maxt, k, pi
 
     def intersect(self, o, d, active, cap: int | None = None):
         """Nearest hit of path rays: ``(hit_leaf, si, hit_soil, p_soil, escaped, capped, crossings)``.
@@ -221,19 +225,18 @@ class PeriodicTracer:
         ``p_soil`` the soil point (where ``hit_soil``), both inside the cell.
         """
         mi = self.mi
-        status, o_last, maxt, k = self.walk(o, d, active, cap=self.cap if cap is None else cap, soil=True, test=False)
+        status, o_last, maxt, k, pi = self.walk(
+            o, d, active, cap=self.cap if cap is None else cap, soil=True, test=False
+        )
         hit_leaf = status == LEAF
-        ray = mi.Ray3f(o_last, d)
+        ray = mi.Ray3f(o_last, mi.Vector3f(d))
         ray.maxt = maxt
-        si = self.scene.ray_intersect(ray, hit_leaf)
-        # The last segment is re-traced exactly, so it finds the same hit; guard against
-        # round-off all the same.
-        hit_leaf &= si.is_valid()
+        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, hit_leaf)
         hit_soil = status == SOIL
         return hit_leaf, si, hit_soil, o_last + d * maxt, status == SKY, status == CAPPED, k
 
     def occluded(self, o, d, active, cap: int):
         """Shadow rays: ``(blocked, capped, crossings)``; a capped ray counts as blocked."""
-        status, _, _, k = self.walk(o, d, active, cap=cap, soil=False, test=True)
+        status, _, _, k, _ = self.walk(o, d, active, cap=cap, soil=False, test=True)
         capped = status == CAPPED
         return (status == LEAF) | capped, capped, k
