@@ -58,7 +58,7 @@ def to_unconstrained(value: float, name: str) -> float:
     return math.log(u / (1 - u))
 
 
-def from_unconstrained(z, name: str):
+def from_unconstrained(z, name: str) -> jax.Array:
     """Inverse of :func:`to_unconstrained` (JAX-traceable)."""
     lo, hi = BOUNDS[name]
     return lo + (jnp.exp(z) if math.isinf(hi) else (hi - lo) * jax.nn.sigmoid(z))
@@ -78,16 +78,16 @@ class Loss:
     def theta(self, x) -> Theta:
         return self.base.with_vector(self.names, x)
 
-    def natural(self, x):
+    def natural(self, x) -> jax.Array:
         return self.likelihood.loss(self.forward(self.theta(x)))
 
-    def to_natural(self, z):
+    def to_natural(self, z) -> jax.Array:
         return jnp.stack([from_unconstrained(z[i], n) for i, n in enumerate(self.names)])
 
     def to_unconstrained(self, x) -> jax.Array:
         return jnp.asarray([to_unconstrained(float(v), n) for v, n in zip(x, self.names)], jnp.float64)
 
-    def __call__(self, z, args=None):
+    def __call__(self, z, args=None) -> tuple[jax.Array, None]:
         return self.natural(self.to_natural(z)), None
 
 

@@ -89,7 +89,9 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     return FisherResult(names, x0, scale, F, lam[order], vec[:, order], J)
 
 
-def profile_likelihood(nll, x_hat, direction, ts, *, scale: str = "log", maxiter: int = 200):
+def profile_likelihood(
+    nll, x_hat, direction, ts, *, scale: str = "log", maxiter: int = 200
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Profile of ``nll(x)`` along ``direction`` through ``x_hat``.
 
     At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x),

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -87,7 +88,7 @@ class GaussianLikelihood:
             for s in self.series
         }
 
-    def whiten(self, delta: Mapping, m: Mapping, noise_scale=1.0):
+    def whiten(self, delta: Mapping, m: Mapping, noise_scale=1.0) -> jax.Array:
         """δ_k/√v_k of per-series differences ``delta[series name]`` (T,), concatenated over the used
         series in order, zero where there is no observation: shape (len(use)·T,)."""
         v = self.variances(m, noise_scale)
@@ -95,15 +96,15 @@ class GaussianLikelihood:
             [jnp.where(self.mask[s.name], delta[s.name] / jnp.sqrt(v[s.name]), 0.0) for s in self.series]
         )
 
-    def whitened(self, m: Mapping, noise_scale=1.0):
+    def whitened(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """Whitened residuals w_k = (y_k − m_k)/√v_k (see :meth:`whiten`)."""
         return self.whiten({s.name: self.y[s.name] - m[s.value] for s in self.series}, m, noise_scale)
 
-    def loss(self, m: Mapping):
+    def loss(self, m: Mapping) -> jax.Array:
         """Calibration loss ½ Σ r²/v at λ = 1 (no normalisation; see the module docstring)."""
         return 0.5 * jnp.sum(self.whitened(m) ** 2)
 
-    def log_likelihood(self, m: Mapping, noise_scale=1.0):
+    def log_likelihood(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """log L = −½ Σ [r²/v + log(2π v)] over the observed steps of the used series."""
         v = self.variances(m, noise_scale)
         log_norm = sum(jnp.sum(jnp.where(self.mask[s.name], jnp.log(2 * jnp.pi * v[s.name]), 0.0)) for s in self.series)

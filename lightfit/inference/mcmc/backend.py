@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import emcee
 import h5py
@@ -67,7 +68,7 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
             return ("MT19937", np.asarray(g["rng_key"][i - 1], np.uint32), int(pos), int(has_gauss), float(cached))
 
 
-def jsonable(d):
+def jsonable(d: Any) -> Any:
     """``d`` with numpy arrays and scalars turned into lists and Python numbers (for ``json.dumps``)."""
     if isinstance(d, dict):
         return {k: jsonable(v) for k, v in d.items()}

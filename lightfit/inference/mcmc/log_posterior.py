@@ -71,14 +71,14 @@ class LogPosterior:
         theta, lam = self.split(x)
         return self.forward(theta), lam
 
-    def log_prior(self, x):
+    def log_prior(self, x) -> jax.Array:
         return sum(self.priors[n].logpdf(x[i]) for i, n in enumerate(self.names))
 
-    def log_likelihood(self, x):
+    def log_likelihood(self, x) -> jax.Array:
         m, lam = self.observables(x)
         return self.likelihood.log_likelihood(m, lam)
 
-    def residuals(self, x):
+    def residuals(self, x) -> jax.Array:
         """Whitened residuals (y − m)/√v of the used observations (zeros elsewhere), shape (len(use)·T,)."""
         m, lam = self.observables(x)
         return self.likelihood.whitened(m, lam)
@@ -86,7 +86,7 @@ class LogPosterior:
     def in_support(self, x) -> bool:
         return bool(np.isfinite(float(self.log_prior(jnp.asarray(x, jnp.float64)))))
 
-    def log_prob(self, x):
+    def log_prob(self, x) -> jax.Array:
         x = jnp.asarray(x, jnp.float64)
         lp = self.log_prior(x)
         # evaluate the likelihood at a safe point outside the support (no NaN from the model)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -54,7 +55,7 @@ class Prior:
             return 0.5 * (self.a + self.b)
         return math.sqrt(self.a * self.b) if self.kind == "loguniform" else self.a
 
-    def logpdf(self, x):
+    def logpdf(self, x) -> jax.Array:
         """Log density (up to a constant) at x; −inf outside the support. JAX-traceable."""
         lo, hi = self.support
         inside = (x >= lo) & (x <= hi)
