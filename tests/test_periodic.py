@@ -321,3 +321,25 @@ def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies():
         totals.append(r.total("absorbed", 1.0, 0.3) @ r.meta["area_m2"])
     # An endless canopy shades itself: much less light per plant than an isolated 2 × 2 block.
     assert totals[0] < 0.8 * totals[1]
+
+
+def test_coupled_model_renders_a_periodic_field_periodically(monkeypatch):
+    from lightfit import replication as rep
+    from lightfit.model import coupled
+    from lightfit.model.parameters import Theta
+    from lightfit.model.scenario import Scenario
+
+    scenes = []
+
+    def spy(*args, **kw):
+        scenes.append(FieldScene(*args, **kw))
+        return scenes[-1]
+
+    monkeypatch.setattr(coupled, "FieldScene", spy)
+    fld = Field(n_plants=4, seed=1, boundary="periodic")
+    sc = Scenario(weather=rep.forcing().iloc[[14]], field=fld, samples=8, bounces=1)
+    model = coupled.CoupledModel(sc)
+    assert model.ground_area_m2 == pytest.approx(fld.cell.area_m2)
+    vals, _ = model.render(Theta())
+    assert scenes[0].cell == fld.cell and scenes[0].tracer is not None
+    assert np.isfinite(np.asarray(vals)).all() and (np.asarray(vals) >= 0).all()
