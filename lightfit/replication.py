@@ -44,6 +44,7 @@ class ReplicationConfig:
     par_kind: str = "absorbed"
     an_per: str = "ground"
     how: str = "sample"
+    photosynthesis: str = Scenario.photosynthesis
 
     @staticmethod
     def quick() -> ReplicationConfig:
@@ -68,6 +69,7 @@ def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -
         seed=cfg.render_seed,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,
+        photosynthesis=cfg.photosynthesis,
     )
     return CoupledModel(sc, progress=progress)
 

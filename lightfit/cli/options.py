@@ -84,6 +84,7 @@ class ModelSettings:
             par_kind=self.par_kind,
             an_per=self.an_per,
             how=self.how,
+            photosynthesis=self.photosynthesis,
         )
 
 
@@ -234,7 +235,6 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def resolve(opts: ModelOptions) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
-    from lightfit.model.scenario import Scenario
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
 
@@ -253,7 +253,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         bounces=given(opts.bounces, base.bounces),
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),
-        photosynthesis=given(opts.photosynthesis, Scenario.photosynthesis),
+        photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         an_per=given(opts.an_per, base.an_per),
         weather_file=None if opts.weather_file is None else str(opts.weather_file),
         how=given(opts.how, base.how),

@@ -10,7 +10,6 @@ from rich.table import Table
 
 from lightfit.cli.common import console, parse_theta, weather_report, weather_table
 from lightfit.cli.options import ModelOptions, model_options, resolve, weather
-from lightfit.errors import InputError
 
 
 @model_options
@@ -29,18 +28,9 @@ def replicate(
     from lightfit import replication as rep
     from lightfit import weather as wx
     from lightfit.model.parameters import check_names
-    from lightfit.model.scenario import Scenario
     from lightfit.weather.plot import plot_forcing
 
     s = resolve(model)
-    if s.photosynthesis != Scenario.photosynthesis:
-        # lightfit.replication.run builds its model from a ReplicationConfig, which has no
-        # photosynthesis set yet; refuse rather than silently run the default set.
-        raise InputError(
-            f"photosynthesis={s.photosynthesis!r} is not available for the main job yet",
-            column="photosynthesis",
-            expected=repr(Scenario.photosynthesis),
-        )
     cfg = s.replication_config()
     th = parse_theta(theta)
     check_names(th, what="theta")  # before minutes of plant growth, not after

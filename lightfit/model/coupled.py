@@ -34,6 +34,7 @@ from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build
+from lightfit.precision import precision
 
 # Transitional: the defaults as a dict for experiments/posterior_2016_04_20.py, which merges
 # dicts; remove once it uses Theta.
@@ -183,7 +184,7 @@ class CoupledModel:
         ds.attrs = {
             "title": "lightfit coupled run",
             "conventions": "variable attributes: lightfit.model.schema (CF-style units, long_name)",
-            "precision": jnp.zeros(()).dtype.name,
+            "precision": precision(),
             "time_zone": "UTC",
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
             "weather_source": str(w.attrs.get("source", "")),
