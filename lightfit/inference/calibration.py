@@ -114,7 +114,8 @@ class CalibrationResult:
     Attributes:
         theta: all model parameters at the best point (plain floats).
         loss: calibration loss there.
-        steps: accepted optimiser steps, including those of a resumed history.
+        steps: accepted optimiser steps (L-BFGS-B: iterations, the last one possibly a failed line
+            search), including those of a resumed history.
         evaluations, gradients: loss and gradient evaluations in this call (line-search trials
             included; BFGS computes the gradient only at accepted points).
         stopped_by: ``"converged"``, ``"max_steps"`` or ``"failed: <reason>"``.
