@@ -23,6 +23,7 @@ import json
 import os
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -34,6 +35,7 @@ use_float64()  # lightfit's precision policy (lightfit.precision), before any JA
 import numpy as np  # noqa: E402
 
 from lightfit.distributed import FieldRun, connect, run_field, run_single  # noqa: E402
+from lightfit.model.scenario import Scenario  # noqa: E402
 from lightfit.plant import Field  # noqa: E402
 from lightfit.replication import forcing  # noqa: E402
 
@@ -67,13 +69,8 @@ def available_parallelism() -> dict:
 def warm(client, weather):
     """One tiny run on every worker: imports, Dr.Jit kernels, JAX compilation of common code."""
     n = len(client.nthreads())
-    run_field(
-        FieldRun(
-            field=Field(n_plants=4, buffer_rows=1, seed=1), weather=weather, tiles=min(n, 4), samples=4, bounces=1
-        ),
-        client=client,
-        timeout_s=600,
-    )
+    sc = Scenario(weather=weather, field=Field(n_plants=4, buffer_rows=1, seed=1), samples=4, bounces=1)
+    run_field(FieldRun(sc, tiles=min(n, 4)), client=client, timeout_s=600)
 
 
 def timed(client, run):
@@ -84,7 +81,7 @@ def timed(client, run):
         "workers": ds.attrs["distributed_workers"],
         "tiles": run.tiles,
         "halo_rows": run.halo_rows,
-        "n_plants": run.field.n**2,
+        "n_plants": run.scenario.field.n**2,
         "task_s": sum(t["total_s"] for t in tasks),
         "build_s": sum(t["build_s"] for t in tasks),
         "simulate_s": sum(t["simulate_s"] for t in tasks),
@@ -117,29 +114,18 @@ def halo_bias(weather, n_plants, buffer_rows, samples, bounces, tiles, halos):
     from lightfit.model.coupled import CoupledModel
     from lightfit.model.observe import plant_par
 
-    base = FieldRun(
-        field=Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1),
+    sc = Scenario(
         weather=weather,
+        field=Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1),
         samples=samples,
         bounces=bounces,
         par_kind="absorbed",
     )
-    ref = run_single(base)
+    ref = run_single(FieldRun(sc))
     out = []
     for h in halos:
-        run = FieldRun(
-            field=base.field,
-            weather=weather,
-            tiles=tiles,
-            halo_rows=h,
-            samples=samples,
-            bounces=bounces,
-            par_kind="absorbed",
-        )
-        parts = []
-        for k in range(tiles):
-            m = CoupledModel(run.scenario(k))
-            parts.append(m.simulate())
+        run = FieldRun(sc, tiles=tiles, halo_rows=h)
+        parts = [CoupledModel(run.task_scenario(k)).simulate() for k in range(tiles)]
         import xarray as xr
 
         seg = xr.concat([p[["absorbed_par_umol_m2_s"]] for p in parts], "segment").sortby("segment")
@@ -235,17 +221,10 @@ def main():
     res = {"config": cfg, "tiles": {}, "strong": {}, "weak": [], "machine_load_before": available_parallelism()}
     print("machine load before:", res["machine_load_before"])
     field = Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
+    sc = Scenario(weather=weather, field=field, samples=samples, bounces=bounces, par_kind="absorbed")
 
     def mk(tiles, halo, fld=field):
-        return FieldRun(
-            field=fld,
-            weather=weather,
-            tiles=tiles,
-            halo_rows=halo,
-            samples=samples,
-            bounces=bounces,
-            par_kind="absorbed",
-        )
+        return FieldRun(replace(sc, field=fld), tiles=tiles, halo_rows=halo)
 
     t0 = time.time()
     with connect(workers=1, threads_per_worker=1, timeout_s=60) as client:

@@ -4,6 +4,7 @@ Tiny fields (2×2 measured plants, one buffer row, K=8, 2 bounces, 2 time steps)
 LocalCluster of 2 single-threaded worker processes.
 """
 
+import dataclasses
 import json
 import os
 import signal
@@ -14,6 +15,7 @@ import pytest
 
 from lightfit.distributed import FieldRun, HaloField, connect, default_workers, gather, run_field, run_single, submit
 from lightfit.errors import InputError
+from lightfit.model.scenario import Scenario
 from lightfit.plant import Field
 from lightfit.replication import forcing
 
@@ -46,8 +48,9 @@ def weather():
     return forcing().iloc[[1, 5, 14]]  # 05:30 local (night), 07:30 (low sun), 12:00
 
 
-def make_run(weather, **kw):
-    return FieldRun(field=FIELD, weather=weather, **{"samples": 8, "bounces": 2, "par_kind": "absorbed", **kw})
+def make_run(weather, fld=FIELD, samples=8, **kw):
+    """A FieldRun of the test scenario; ``kw``: how to split it (tiles, halo_rows, time_chunks)."""
+    return FieldRun(Scenario(weather=weather, field=fld, samples=samples, bounces=2, par_kind="absorbed"), **kw)
 
 
 @pytest.fixture(scope="module")
@@ -97,19 +100,46 @@ def test_exact_halo_is_bitwise_partition_independent(client, weather, reference,
 def test_paper_halo_equals_per_tile_runs(client, weather):
     """halo_rows=H reproduces the single-process per-tile runs of ``Field.tiles`` exactly (H = buffer rows)."""
     from lightfit.model.coupled import CoupledModel
-    from lightfit.model.scenario import Scenario
 
     run = make_run(weather, tiles=2, halo_rows=FIELD.buffer_rows)
     ds = run_field(run, client=client, timeout_s=240)
     for k in range(2):
-        sc = Scenario(weather=weather, field=FIELD, samples=8, bounces=2, par_kind="absorbed", n_tiles=2, tile=k)
-        part = CoupledModel(sc).simulate()
+        part = CoupledModel(dataclasses.replace(run.scenario, n_tiles=2, tile=k)).simulate()  # plain Field.tiles
         sub = ds.sel(segment=part["segment"].values)
         for v in SEGMENT_VARS:
             np.testing.assert_array_equal(sub[v].values, part[v].values, err_msg=v)
     timing = json.loads(ds.attrs["tile_timing_json"])
     assert all(t["triangles"] < 36 * 650 for t in timing)  # smaller scenes than the 4×4 whole grid
     assert 1 < ds.attrs["buffer_overhead"] < 2 * 16 / 4
+
+
+def test_periodic_field_is_bitwise_partition_independent(client, weather):
+    """A periodic Field (one cell of an infinite field) reaches every task: each tile renders the whole cell."""
+    run = make_run(weather, Field(n_plants=4, seed=1, boundary="periodic"), tiles=2)
+    ds = run_field(run, client=client, timeout_s=240)
+    ref = run_single(run)
+    assert ds.attrs["boundary"] == ref.attrs["boundary"] == "periodic"
+    for v in SEGMENT_VARS:
+        np.testing.assert_array_equal(ds[v].values, ref[v].values, err_msg=v)
+    with pytest.raises(InputError, match="halo_rows.*periodic"):
+        make_run(weather, run.scenario.field, tiles=2, halo_rows=1)
+
+
+def test_task_scenarios_are_the_run_scenario_split(weather):
+    """Each task's Scenario is the run's, with only its tile, halo field and weather rows changed."""
+    run = make_run(weather, tiles=4, halo_rows=1, time_chunks=2)
+    split = {"weather", "field", "n_tiles", "tile"}
+    for rows in run.chunk_index():
+        for k in range(run.tiles):
+            sc = run.task_scenario(k, rows)
+            for f in dataclasses.fields(Scenario):
+                if f.name not in split:
+                    assert getattr(sc, f.name) == getattr(run.scenario, f.name), f.name
+            assert (sc.n_tiles, sc.tile) == (4, k) and isinstance(sc.field, HaloField) and sc.field.halo_rows == 1
+            assert sc.field.base() == FIELD
+            assert sc.weather.index.equals(weather.index[rows])
+            assert sc.measured_tile.measured.tolist() == run.tile_list[k].measured.tolist()
+    assert run.task_scenario(0).weather is run.scenario.weather
 
 
 def test_halo_tiles_match_field_tiles_and_cover_field():
@@ -162,6 +192,8 @@ def test_bad_input_names_the_parameter(weather):
         make_run(weather, halo_rows=-1)
     with pytest.raises(InputError, match="samples"):
         make_run(weather, samples=0)
+    with pytest.raises(InputError, match="scenario"):  # FieldRun makes the tiles
+        FieldRun(dataclasses.replace(make_run(weather).scenario, n_tiles=2, tile=0))
     with pytest.raises(InputError, match="workers"):
         with connect(workers=0):
             pass

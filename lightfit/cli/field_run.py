@@ -57,26 +57,11 @@ def field_run(
     from lightfit.replication import write_netcdf
 
     s = resolve(model)
-    sc = scenario(s)
-    # The tasks rebuild their tile's Scenario from the FieldRun; it carries the same settings.
-    run = FieldRun(
-        field=sc.field,
-        weather=sc.weather,
-        tiles=tiles,
-        halo_rows=halo_rows,
-        time_chunks=time_chunks,
-        samples=sc.samples,
-        bounces=sc.bounces,
-        seed=sc.seed,
-        photosynthesis=sc.photosynthesis,
-        par_kind=sc.par_kind,
-        an_per=sc.an_per,
-        optics=sc.optics,
-        sky=sc.sky,
-    )
+    run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)
+    sc = run.scenario
     console.print(
-        f"{run.field.n}² plants + {s.buffer_rows} buffer rows, {tiles} tile(s) × {time_chunks} time "
-        f"chunk(s), {len(sc.weather)} steps, K={s.samples}, {s.bounces} bounces, halo: "
+        f"{sc.field.n}² plants + {sc.field.buffer_rows} buffer rows, {tiles} tile(s) × {time_chunks} time "
+        f"chunk(s), {len(sc.weather)} steps, K={sc.samples}, {sc.bounces} bounces, halo: "
         f"{'whole field' if halo_rows is None else f'{halo_rows} rows'}"
     )
     ds = run_field(

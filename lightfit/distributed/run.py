@@ -23,9 +23,9 @@ gives the same values.
 
 Worker processes: the task function imports lightfit (which points Dr.Jit at libLLVM before
 Mitsuba loads), sets the Dr.Jit CPU thread count to ``LIGHTFIT_WORKER_THREADS`` (set by the
-embedded cluster) and, if ``FieldRun.x64`` (default), enables JAX float64 *in the worker
-process* (``jax.config.update("jax_enable_x64", True)``), so that workers compute in the same
-precision as a float64 single-process run. Library imports never change JAX's configuration.
+embedded cluster) and applies lightfit's precision policy *in the worker process*
+(:func:`lightfit.precision.use_float64`), so that workers compute in the same precision as a
+single-process run. Library imports never change JAX's configuration.
 """
 
 from __future__ import annotations
@@ -36,16 +36,15 @@ import os
 import time
 import uuid
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-import pandas as pd
 
 from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError
 from lightfit.model import schema
 from lightfit.model.parameters import Theta
-from lightfit.plant.field import Field
+from lightfit.model.scenario import Scenario, daytime
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
 AGGREGATES = schema.OBSERVABLES
@@ -56,47 +55,47 @@ ENV_THREADS = "LIGHTFIT_WORKER_THREADS"
 class FieldRun:
     """A coupled run of a field, to be split into tiles and time chunks.
 
+    What to run is one :class:`~lightfit.model.scenario.Scenario` (field, weather, irradiance
+    estimator, photosynthesis, optics, sky: one home for those options); the run adds only how
+    to split it. Each task runs the scenario of its tile and time chunk (:meth:`task_scenario`).
+
     Attributes:
-        field: the field (measurement area, buffer rows, seed, growth).
-        weather: contract series with solar columns at the run's time steps.
+        scenario: the whole run, as a single process would run it (``scenario.tile`` is None).
         tiles: number of tiles W (blocks of the measurement area, ``Field.tiles``).
         halo_rows: geometry around each tile: ``None`` = the whole field (exact, bitwise
             partition-independent), an integer H = H plant rows/columns (the reference
-            paper's approach: smaller scenes, a boundary bias).
+            paper's approach: smaller scenes, a boundary bias; finite fields only).
         time_chunks: split the time steps into this many tasks per tile (strided, so each
             chunk gets a similar share of daytime steps).
-        samples, bounces, seed: irradiance estimator (K samples per segment, scattering
-            orders, render seed of the common random numbers).
-        photosynthesis, par_kind, an_per, optics, sky: as in
-            :class:`lightfit.model.coupled.Scenario`.
         theta: model parameters (a :class:`~lightfit.model.parameters.Theta`, or a mapping of
             some names; defaults for the rest).
-        x64: compute JAX photosynthesis in float64 in the workers.
     """
 
-    field: Field
-    weather: pd.DataFrame
+    scenario: Scenario
     tiles: int = 1
     halo_rows: int | None = None
     time_chunks: int = 1
-    samples: int = 32
-    bounces: int = 3
-    seed: int = 0
-    photosynthesis: str = "giraud2023"
-    par_kind: str = "incident"
-    an_per: str = "ground"
-    optics: object = None
-    sky: str = "isotropic"
     theta: Theta | dict = field(default_factory=Theta)
-    x64: bool = True
 
     def __post_init__(self):
-        self.halo_field = HaloField.of(self.field, self.halo_rows)  # validates halo_rows
+        sc = self.scenario
+        if sc.tile is not None:
+            raise InputError(
+                f"scenario.tile={sc.tile!r}",
+                column="scenario",
+                expected="the whole field (tile=None): FieldRun makes the tiles",
+            )
+        # Not checked by Scenario: a run with no sample or a negative scattering order.
+        for name, low in (("samples", 1), ("bounces", 0)):
+            v = getattr(sc, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+                raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
+        self.halo_field = HaloField.of(sc.field, self.halo_rows)  # validates halo_rows
         self.tile_list = check_tiles(self.halo_field, self.tiles)
         tc = self.time_chunks
         if isinstance(tc, bool) or not isinstance(tc, (int, np.integer)) or tc < 1:
             raise InputError(f"time_chunks={tc!r}", column="time_chunks", expected="an integer ≥ 1")
-        n_day = int(self.daytime().sum())
+        n_day = int(daytime(sc.weather).sum())
         if n_day == 0:
             raise InputError(
                 "weather has no daytime step",
@@ -109,47 +108,24 @@ class FieldRun:
                 column="time_chunks",
                 expected=f"at most {n_day} (every chunk needs a daytime step)",
             )
-        for name in ("samples", "bounces"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "samples" else 0):
-                raise InputError(
-                    f"{name}={v!r}", column=name, expected="an integer ≥ 1" if name == "samples" else "an integer ≥ 0"
-                )
-
-    def daytime(self) -> np.ndarray:
-        """Steps the coupled model renders (:func:`lightfit.model.scenario.daytime`)."""
-        from lightfit.model.scenario import daytime
-
-        return daytime(self.weather)
 
     def chunk_index(self) -> list[np.ndarray]:
         """Row positions of the weather in each time chunk: daytime and night steps dealt out
         in turn, so every chunk has a similar share of the rendering (and at least one daytime
         step, which the coupled model needs)."""
-        day = self.daytime()
+        day = daytime(self.scenario.weather)
         d, n = np.flatnonzero(day), np.flatnonzero(~day)
         c = self.time_chunks
         return [np.sort(np.concatenate([d[i::c], n[i::c]])) for i in range(c)]
 
-    def scenario(self, tile: int | None, rows=None):
-        """The :class:`Scenario` of one tile (``None``: single process, whole field) and time chunk."""
-        from lightfit.light.scene import Optics
-        from lightfit.model.scenario import Scenario
-
-        w = self.weather if rows is None else self.weather.iloc[rows]
-        fld = self.field if tile is None else self.halo_field
-        return Scenario(
-            weather=w,
-            field=fld,
-            samples=self.samples,
-            bounces=self.bounces,
-            seed=self.seed,
-            photosynthesis=self.photosynthesis,
-            par_kind=self.par_kind,
-            an_per=self.an_per,
-            optics=self.optics if self.optics is not None else Optics(),
-            sky=self.sky,
-            n_tiles=self.tiles if tile is not None else 1,
+    def task_scenario(self, tile: int, rows=None) -> Scenario:
+        """The :attr:`scenario` of one tile (its halo field) and time chunk (weather ``rows``; ``None``: all)."""
+        w = self.scenario.weather
+        return replace(
+            self.scenario,
+            weather=w if rows is None else w.iloc[rows],
+            field=self.halo_field,
+            n_tiles=self.tiles,
             tile=tile,
         )
 
@@ -191,7 +167,7 @@ def run_task(spec: TaskSpec):
     from lightfit.model.coupled import CoupledModel
 
     t1 = time.perf_counter()
-    sc = spec.run.scenario(spec.tile, spec.rows)
+    sc = spec.run.task_scenario(spec.tile, spec.rows)
     model = CoupledModel(sc)
     t2 = time.perf_counter()
     ds = model.simulate(spec.run.theta)
@@ -276,7 +252,7 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     out = out.sortby("time")
     if len(np.unique(out["segment"].values)) != out.sizes["segment"]:
         raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
-    out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.field.ground_area_m2}
+    out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.scenario.ground_area_m2}
     for k, v in _aggregates(out).items():
         out[k] = ("time", v)
     out = schema.annotate(out[list(ds0.data_vars)])
@@ -495,7 +471,7 @@ def run_single(run: FieldRun):
     """The same run in this process without tiling (the reference for partition independence)."""
     from lightfit.model.coupled import CoupledModel
 
-    return CoupledModel(run.scenario(None)).simulate(run.theta)
+    return CoupledModel(run.scenario).simulate(run.theta)
 
 
 __all__ = [

@@ -43,7 +43,8 @@ class HaloField(Field):
     Plants, ids, seeds and positions are those of :class:`Field` (a plant is the same whatever
     the tiling). Only :meth:`tiles` differs: the buffer of a tile is the whole rest of the field
     (``halo_rows=None``: exact) or the plants within ``halo_rows`` rows and columns of its block,
-    clipped to the field's M×M grid (``halo_rows=buffer_rows`` gives ``Field.tiles``).
+    clipped to the field's M×M grid (``halo_rows=buffer_rows`` gives ``Field.tiles``). A periodic
+    field (``boundary="periodic"``) takes only ``halo_rows=None``: its tiles render the whole cell.
 
     Attributes:
         halo_rows: plants of geometry around each tile (rows and columns), or ``None`` for
@@ -59,6 +60,12 @@ class HaloField(Field):
                 f"halo_rows={self.halo_rows!r}",
                 column="halo_rows",
                 expected="an integer ≥ 0, or None for the whole field (exact)",
+            )
+        if self.periodic and self.halo_rows is not None:
+            raise InputError(
+                f"halo_rows={self.halo_rows!r} with boundary='periodic'",
+                column="halo_rows",
+                expected="None: light wraps through the whole periodic cell, so every tile renders all of it",
             )
 
     @classmethod
