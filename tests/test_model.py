@@ -28,12 +28,13 @@ def weather():
 
 @pytest.fixture(scope="module")
 def run(weather):
-    return FieldRun(field=FIELD, weather=weather, samples=8, bounces=2, par_kind="absorbed", tiles=2, theta=THETA)
+    sc = Scenario(weather=weather, field=FIELD, samples=8, bounces=2, par_kind="absorbed")
+    return FieldRun(sc, tiles=2, theta=THETA)
 
 
 @pytest.fixture(scope="module")
 def model(run):
-    return CoupledModel(run.scenario(None))
+    return CoupledModel(run.scenario)
 
 
 @pytest.fixture(scope="module")

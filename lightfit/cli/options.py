@@ -266,11 +266,6 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         )
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
-    for name in ("samples", "n_plants"):
-        if getattr(s, name) < 1:
-            raise InputError(f"{name}={getattr(s, name)!r}", column=name, expected="an integer ≥ 1")
-    if s.bounces < 0:
-        raise InputError(f"bounces={s.bounces!r}", column="bounces", expected="an integer ≥ 0")
     return s
 
 

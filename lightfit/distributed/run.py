@@ -85,11 +85,6 @@ class FieldRun:
                 column="scenario",
                 expected="the whole field (tile=None): FieldRun makes the tiles",
             )
-        # Not checked by Scenario: a run with no sample or a negative scattering order.
-        for name, low in (("samples", 1), ("bounces", 0)):
-            v = getattr(sc, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-                raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
         self.halo_field = HaloField.of(sc.field, self.halo_rows)  # validates halo_rows
         self.tile_list = check_tiles(self.halo_field, self.tiles)
         tc = self.time_chunks

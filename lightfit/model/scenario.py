@@ -106,6 +106,11 @@ class Scenario:
     tile: int | None = None
 
     def __post_init__(self):
+        # The estimator needs two samples for a standard error; checked here, before plants grow.
+        for name, low in (("samples", 2), ("bounces", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+                raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         if self.par_kind not in ("incident", "absorbed"):
