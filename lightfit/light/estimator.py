@@ -27,6 +27,12 @@ the BSDF weights f/pdf carry the derivative (pdf detached). Paths here are short
 bounces), so instead of replaying them the whole unrolled computation is kept in Dr.Jit's AD
 graph and differentiated once; memory grows with samples × bounces.
 
+In a periodic scene (``FieldScene(..., cell=...)``) every ray above — the first cosine-sampled
+ray, each scattered segment, the direct-sun and next-event shadow rays — is cast through
+:class:`~lightfit.light.periodic.PeriodicTracer`, which wraps it through the cell's side faces;
+points on faces overhanging the cell are first moved into it. Finite scenes take the original
+code path unchanged.
+
 All random numbers — points, directions, BSDF samples along the path — are keyed by (seed,
 segment id, sample index), so a segment's values do not depend on which other segments are
 requested or how the field is partitioned.
@@ -92,7 +98,9 @@ class Irradiance:
 
     All arrays have one entry per requested segment, in ``segment_id`` order. ``se_<part>``
     is the Monte Carlo standard error. Multiply by PAR DNI / DHI (µmol m⁻² s⁻¹) to get PAR
-    per unit one-sided leaf (or stem lateral) area.
+    per unit one-sided leaf (or stem lateral) area. In a periodic scene ``meta["periodic"]``
+    reports the crossing cap and, per kind of ray, the rays cast, side crossings made and rays
+    stopped by the cap (:meth:`SegmentEstimator.render`).
     """
 
     segment_id: np.ndarray
@@ -397,7 +405,10 @@ class SegmentEstimator:
 
     # -- public --------------------------------------------------------------------------
     def render(self) -> Irradiance:
-        """Primal pass: per-segment sun/sky incident and absorbed irradiance with standard errors."""
+        """Primal pass: per-segment sun/sky incident and absorbed irradiance with standard errors.
+
+        In a periodic scene ``meta["periodic"]`` holds the ray counts of :meth:`_wrap_summary`.
+        """
         import drjit as dr
 
         with dr.suspend_grad():

@@ -48,6 +48,7 @@ import math
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.light.backend import mitsuba
 from lightfit.plant.periodic import PeriodicCell
 
 #: Default tolerance τ: share of any scattering order's light that the crossing cap may truncate.
@@ -80,8 +81,6 @@ class PeriodicTracer:
     """
 
     def __init__(self, scene, cell: PeriodicCell, z_top: float, tolerance: float = DEFAULT_CROSSING_TOLERANCE):
-        from lightfit.light.backend import mitsuba
-
         self.mi, self.scene, self.cell = mitsuba(), scene, cell
         self.z_top = float(z_top)
         self.tolerance = float(tolerance)

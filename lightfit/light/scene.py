@@ -121,7 +121,7 @@ class FieldScene:
             if cell is None
             else PeriodicTracer(self.scene, cell, float(mesh.vertices[:, 2].max()), crossing_tolerance)
         )
-        self.n_scene_faces = geometry.n_faces
+        self.n_scene_faces = geometry.n_faces  # faces Mitsuba holds (with the periodic images)
         self.freeze_sampling()
 
     def freeze_sampling(self, optics: Optics | None = None) -> None:
