@@ -119,6 +119,21 @@ def test_field_boundary_api():
     assert Field(n_plants=9, boundary="periodic", buffer_rows=0, buffer_along=0).cell == per.cell
     with pytest.raises(InputError, match="boundary"):
         Field(boundary="torus")
+    # Rows in any compass direction: the cell turns with them and still holds every plant.
+    skew = Field(n_plants=16, boundary="periodic", row_direction_deg=37.0)
+    ab = skew.cell.to_local(skew.plants()[["x_m", "y_m"]].to_numpy())
+    assert (np.abs(ab) < skew.cell.size_m / 2).all()
+    assert np.unique(np.round(ab[:, 0] / skew.plant_spacing_m, 6)).size == 4  # 4 plants along each row
+
+
+def test_a_periodic_tile_builds_the_whole_cell_and_measures_its_block():
+    fld = Field(n_plants=4, seed=1, boundary="periodic")
+    whole = build(fld)
+    tile = fld.tiles(2)[1]
+    part = build(fld, tile=tile)
+    assert part.cell == fld.cell and part.mesh.n_faces == whole.mesh.n_faces
+    measured = part.plants.loc[part.plants["plant_id"].isin(tile.measured)]
+    assert len(measured) == 2 and part.segments["measured"].sum() < len(part.segments)
 
 
 # -- Beer–Lambert -------------------------------------------------------------------------------
