@@ -1,7 +1,8 @@
 """The 20 April 2016 Selhausen replication: the main job.
 
-CPlantBox wheat grown from 2016-03-05 to 2016-04-20, a field with a measurement area and two
-buffer rows, the day's forcing (bundled reconstruction unless a real TERENO export is given),
+CPlantBox wheat grown from 2016-03-05 to 2016-04-20, a 10 × 10-plant measurement area as one
+cell of an infinite periodic field (default; ``boundary="finite"`` with two buffer rows is the
+reference paper's setup), the day's forcing (bundled reconstruction unless a real TERENO export is given),
 05:00–19:00 local time in 30-minute steps (29 steps), light and photosynthesis per segment.
 Outputs: results netCDF (time × segment), a Fig-4-like PNG (PAR with its spread across
 segments, canopy net CO2 uptake, observations where present), the forcing, and a summary table.
@@ -10,7 +11,7 @@ segments, canopy net CO2 uptake, observations where present), the forcing, and a
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,10 +33,18 @@ OBSERVATIONS = DATA_DIR / "observations" / "chamber_2016-04-20_record.csv"
 
 @dataclass(frozen=True)
 class ReplicationConfig:
-    """Knobs of the replication; ``quick()`` is the under-a-minute first look (and the CI size)."""
+    """Knobs of the replication; ``quick()`` is the under-a-minute first look (and the CI size).
+
+    ``boundary``: ``"periodic"`` (default: the measurement area is one cell of an infinite field,
+    no buffer plants; docs/light.md, "Periodic boundary") or ``"finite"`` (buffer rows on bare
+    soil; with ``buffer_rows=None`` → 2, the reference paper's setup). ``buffer_rows`` /
+    ``buffer_along``: ``None`` means the boundary's default (2 finite, 0 periodic); explicit
+    non-zero buffers with a periodic boundary are refused (:class:`lightfit.plant.Field`).
+    """
 
     n_plants: int = 100
-    buffer_rows: int = 2
+    boundary: str = "periodic"
+    buffer_rows: int | None = None
     buffer_along: int | None = None
     seed: int = 1
     samples: int = 64
@@ -48,7 +57,21 @@ class ReplicationConfig:
 
     @staticmethod
     def quick() -> ReplicationConfig:
-        return ReplicationConfig(n_plants=4, buffer_rows=2, samples=16, bounces=2)
+        return ReplicationConfig(n_plants=4, samples=16, bounces=2)
+
+    def finite(self, buffer_rows: int = 2, buffer_along: int | None = None) -> ReplicationConfig:
+        """The same run on a finite field; the defaults are the reference paper's 2 buffer rows."""
+        return replace(self, boundary="finite", buffer_rows=buffer_rows, buffer_along=buffer_along)
+
+    def field(self) -> Field:
+        """The run's :class:`~lightfit.plant.Field` (checks boundary and buffers)."""
+        return Field(
+            n_plants=self.n_plants,
+            buffer_rows=self.buffer_rows,
+            seed=self.seed,
+            buffer_along=self.buffer_along,
+            boundary=self.boundary,
+        )
 
 
 def forcing(weather_file: str | Path | None = None, how: str = "sample") -> pd.DataFrame:
@@ -60,10 +83,11 @@ def forcing(weather_file: str | Path | None = None, how: str = "sample") -> pd.D
     return weather.window(src, START_LOCAL, HOURS, STEP, how=how)
 
 
-def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:
-    sc = Scenario(
+def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
+    """The :class:`Scenario` of a configuration over the forcing ``w`` (the one place that maps one to the other)."""
+    return Scenario(
         weather=w,
-        field=Field(n_plants=cfg.n_plants, buffer_rows=cfg.buffer_rows, seed=cfg.seed, buffer_along=cfg.buffer_along),
+        field=cfg.field(),
         samples=cfg.samples,
         bounces=cfg.bounces,
         seed=cfg.render_seed,
@@ -71,7 +95,10 @@ def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -
         an_per=cfg.an_per,
         photosynthesis=cfg.photosynthesis,
     )
-    return CoupledModel(sc, progress=progress)
+
+
+def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:
+    return CoupledModel(scenario_for(cfg, w), progress=progress)
 
 
 def run(
@@ -145,6 +172,14 @@ def summary(ds) -> pd.DataFrame:
     )
 
 
+def field_label(attrs) -> str:
+    """The field's boundary in words, from results attrs (or a dict with the same keys)."""
+    if attrs.get("boundary", "finite") == "periodic":
+        return "periodic boundary (one cell of an infinite field)"
+    rows, along = attrs.get("buffer_rows"), attrs.get("buffer_along", attrs.get("buffer_rows"))
+    return f"finite field, {rows} buffer rows" + ("" if along == rows else f" and {along} plants along")
+
+
 def plot(ds, path: Path) -> Path:
     """Fig-4-like: plant PAR (mean ± spread across segments) and canopy net CO2 uptake over the day."""
     import matplotlib
@@ -191,8 +226,8 @@ def plot(ds, path: Path) -> Path:
     ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
     prov = ds.attrs.get("weather_provenance", "unknown").upper()
     fig.suptitle(
-        f"Selhausen 2016-04-20 replication — {prov} forcing; {ds.attrs.get('n_plants')} plants "
-        f"(+{ds.attrs.get('buffer_rows')} buffer rows), K={ds.attrs.get('samples')}",
+        f"Selhausen 2016-04-20 replication — {prov} forcing; {ds.attrs.get('n_plants')} plants, "
+        f"{field_label(ds.attrs)}, K={ds.attrs.get('samples')}",
         fontsize=11,
     )
     fig.savefig(path, dpi=110)

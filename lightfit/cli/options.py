@@ -281,19 +281,9 @@ def weather(s: ModelSettings):
 
 def scenario(s: ModelSettings, w=None):
     """The :class:`~lightfit.model.scenario.Scenario` of the settings (``w``: the forcing if already read)."""
-    from lightfit.model.scenario import Scenario
-    from lightfit.plant import Field
+    from lightfit.replication import scenario_for
 
-    return Scenario(
-        weather=weather(s) if w is None else w,
-        field=Field(n_plants=s.n_plants, buffer_rows=s.buffer_rows, seed=s.field_seed, buffer_along=s.buffer_along),
-        samples=s.samples,
-        bounces=s.bounces,
-        seed=s.render_seed,
-        photosynthesis=s.photosynthesis,
-        par_kind=s.par_kind,
-        an_per=s.an_per,
-    )
+    return scenario_for(s.replication_config(), weather(s) if w is None else w)
 
 
 def coupled_model(s: ModelSettings, w=None, progress: bool = True):
