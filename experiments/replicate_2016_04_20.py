@@ -1,11 +1,18 @@
 """The 20 April 2016 Selhausen replication (the README's first command runs this via the CLI).
 
-    python experiments/replicate_2016_04_20.py [--quick] [--out results/2016-04-20] [--weather TERENO.csv]
+    python experiments/replicate_2016_04_20.py [--quick] [--boundary periodic|finite] [--out results/2016-04-20]
+        [--weather TERENO.csv]
     python experiments/replicate_2016_04_20.py --quick --write-reference tests/reference/replication_quick.json
+    python experiments/replicate_2016_04_20.py --quick --boundary finite \
+        --write-reference tests/reference/replication_quick_finite.json
 
-``--write-reference`` deliberately regenerates the stored regression curve (absorbed PAR and canopy
+``--boundary``: ``periodic`` (default, the main job's field: one cell of an infinite field) or
+``finite`` (2 buffer rows on bare soil, the reference paper's setup).
+
+``--write-reference`` deliberately regenerates a stored regression curve (absorbed PAR and canopy
 net CO2 uptake per time step, with their Monte Carlo SDs) that tests/test_replication.py compares
-against; the file records how and with which versions it was made.
+against: replication_quick.json for the periodic default, replication_quick_finite.json for the
+paper's finite setup. The file records how and with which versions it was made.
 """
 
 from __future__ import annotations
@@ -42,14 +49,20 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "2016-04-20")
     ap.add_argument("--weather", type=Path, default=None)
+    ap.add_argument("--boundary", choices=("periodic", "finite"), default="periodic")
     ap.add_argument("--write-reference", type=Path, default=None)
     a = ap.parse_args(argv)
     cfg = rep.ReplicationConfig.quick() if a.quick else rep.ReplicationConfig()
+    if a.boundary == "finite":
+        cfg = cfg.finite()  # the reference paper's 2 buffer rows
     ds, _ = rep.run(cfg, weather_file=a.weather, out=a.out, progress=True)
     print(rep.summary(ds).round(3).to_string())
     if a.write_reference:
         ref = {
-            "made_by": "python experiments/replicate_2016_04_20.py --quick --write-reference " + str(a.write_reference),
+            "made_by": "python experiments/replicate_2016_04_20.py "
+            + " ".join([*(["--quick"] if a.quick else []), "--boundary", a.boundary])
+            + " --write-reference "
+            + str(a.write_reference),
             "config": dataclasses.asdict(cfg),
             "theta": Theta().to_dict(),
             "weather": ds.attrs["weather_source"],

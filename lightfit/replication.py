@@ -173,7 +173,9 @@ def summary(ds) -> pd.DataFrame:
 
 
 def field_label(attrs) -> str:
-    """The field's boundary in words, from results attrs (or a dict with the same keys)."""
+    """The field's boundary in words, from results attrs (or a :class:`~lightfit.plant.Field`)."""
+    if isinstance(attrs, Field):
+        attrs = {"boundary": attrs.boundary, "buffer_rows": attrs.buffer_rows, "buffer_along": attrs.b_along}
     if attrs.get("boundary", "finite") == "periodic":
         return "periodic boundary (one cell of an infinite field)"
     rows, along = attrs.get("buffer_rows"), attrs.get("buffer_along", attrs.get("buffer_rows"))

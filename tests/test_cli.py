@@ -69,6 +69,7 @@ def test_model_commands_share_their_options():
     for flag in (
         "--quick",
         "--n-plants",
+        "--boundary",
         "--buffer-rows",
         "--buffer-along",
         "--field-seed",
@@ -160,6 +161,11 @@ def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
         ("posterior", ["--samples", "0"], ["samples"]),
         ("field-run", ["--steps", "0"], ["steps"]),
         ("field-run", ["--bounces", "-1"], ["bounces"]),
+        ("replicate", ["--buffer-rows", "2"], ["--buffer-rows", "--boundary periodic"]),
+        ("calibrate", ["OBS", "--buffer-along", "8"], ["--buffer-along", "--boundary periodic"]),
+        ("posterior", ["--boundary", "torus"], ["boundary", "torus", "periodic"]),
+        ("field-run", ["--buffer-rows", "1", "--buffer-along", "4"], ["--buffer-rows and --buffer-along", "periodic"]),
+        ("replicate", ["--boundary", "periodic", "--buffer-rows", "0"], ["--buffer-rows"]),
     ],
 )
 def test_model_commands_reject_bad_input_before_running(command, args, words, tmp_path):
@@ -183,6 +189,8 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
             "field",
             "--n-plants",
             "4",
+            "--boundary",
+            "finite",
             "--buffer-rows",
             "1",
             "--tiles",
@@ -205,6 +213,11 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
         runner.invoke(app, ["field", "--n-plants", "4", "--season-start", "2016-05-01"]), "not after season_start"
     )
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--tiles", "2", "--tile", "5"]), "tile")
+    # Default periodic: the measurement area alone is the field (no buffer plants); buffers refused.
+    r = runner.invoke(app, ["field", "--n-plants", "4"])
+    assert r.exit_code == 0, r.output
+    assert "4 (4 / 0)" in r.stdout and "periodic boundary" in _flat(r.stdout)
+    assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--buffer-rows", "2"]), "--buffer-rows")
 
 
 def test_error_messages_name_the_file_or_the_limit():

@@ -219,6 +219,8 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         client.scheduler.address,
         "--n-plants",
         "4",
+        "--boundary",
+        "finite",
         "--buffer-rows",
         "1",
         "--tiles",
@@ -240,7 +242,7 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         # Computed in the worker processes, which get float64 from _worker_setup (not from this test process).
         assert ds.attrs["precision"] == "float64" and ds["plant_par_umol_m2_s"].dtype == np.float64
         assert np.isfinite(ds["plant_par_umol_m2_s"].values).all()
-    bad = CliRunner().invoke(app, args[:7] + ["--tiles", "9"] + args[9:])
+    bad = CliRunner().invoke(app, args[:9] + ["--tiles", "9"] + args[11:])
     assert bad.exit_code == 2 and "tiles" in bad.stderr
     bad = CliRunner().invoke(
         app,

@@ -12,7 +12,12 @@ from lightfit import replication as rep
 from lightfit.cli import app
 from lightfit.model.parameters import Theta
 
-REFERENCE = Path(__file__).parent / "reference" / "replication_quick.json"
+REFERENCES = Path(__file__).parent / "reference"
+#: The stored 20 April curves: the periodic default (regenerated deliberately for it) and the
+#: reference paper's finite field with 2 buffer rows (bitwise the curve of the finite default
+#: before the periodic boundary became the default).
+REFERENCE = REFERENCES / "replication_quick.json"
+REFERENCE_FINITE = REFERENCES / "replication_quick_finite.json"
 
 
 @pytest.fixture(scope="module")
@@ -23,11 +28,7 @@ def short_model():
     return rep.model_for(rep.ReplicationConfig.quick(), w)
 
 
-def test_regression_against_stored_20_april_curve():
-    ref = json.loads(REFERENCE.read_text())
-    cfg = rep.ReplicationConfig(**ref["config"])
-    ds, _ = rep.run(cfg, observations=None)
-    c = ref["curve"]
+def assert_matches_curve(ds, c):
     for v, sd in (
         ("plant_par_umol_m2_s", "plant_par_mc_sd_umol_m2_s"),
         ("canopy_an_umol_m2_s", "canopy_an_mc_sd_umol_m2_s"),
@@ -37,7 +38,35 @@ def test_regression_against_stored_20_april_curve():
         # rounding; a model change moving the curve by 4 Monte Carlo SDs (of a difference) fails.
         tol = 4 * np.sqrt(2) * err + 1e-6 * np.abs(old) + 1e-9
         assert (np.abs(new - old) <= tol).all(), (v, np.abs(new - old).max())
+
+
+@pytest.mark.parametrize(
+    "path, boundary, buffer_rows", [(REFERENCE, "periodic", 0), (REFERENCE_FINITE, "finite", 2)], ids=lambda x: str(x)
+)
+def test_regression_against_stored_20_april_curve(path, boundary, buffer_rows):
+    ref = json.loads(path.read_text())
+    cfg = rep.ReplicationConfig(**ref["config"])
+    assert cfg.boundary == boundary  # each file says which field it is
+    if path == REFERENCE:
+        assert cfg == rep.ReplicationConfig.quick()  # the stored curve is the quick default's
+    else:
+        assert cfg == rep.ReplicationConfig.quick().finite()  # the reference paper's 2 buffer rows
+    ds, _ = rep.run(cfg, observations=None)
+    assert_matches_curve(ds, ref["curve"])
     assert ds.attrs["weather_provenance"] == "reconstructed"
+    assert ds.attrs["boundary"] == boundary and ds.attrs["buffer_rows"] == buffer_rows
+
+
+def test_cli_boundary_finite_reproduces_the_papers_setup(tmp_path):
+    """``lightfit replicate --quick --boundary finite`` (default 2 buffer rows) gives the finite reference curve."""
+    import xarray as xr
+
+    r = CliRunner().invoke(app, ["replicate", "--quick", "--boundary", "finite", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "finite field, 2 buffer rows" in " ".join(r.stdout.split())
+    with xr.open_dataset(tmp_path / "results.nc", engine="h5netcdf") as ds:
+        assert ds.attrs["boundary"] == "finite" and ds.attrs["buffer_rows"] == 2
+        assert_matches_curve(ds, json.loads(REFERENCE_FINITE.read_text())["curve"])
 
 
 def test_observables_are_consistent_with_the_segment_fields(short_model):
@@ -65,6 +94,8 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
 
     ds = xr.open_dataset(tmp_path / "rep" / "results.nc", engine="h5netcdf")
     assert set(ds.dims) == {"time", "segment"} and ds.sizes["time"] == 29
+    assert ds.attrs["boundary"] == "periodic" and ds.attrs["buffer_rows"] == 0  # the default field
+    assert "periodic boundary" in " ".join(r.stdout.split())
     assert "obs_plant_par_umol_m2_s" in ds and np.isfinite(ds["obs_plant_par_umol_m2_s"].values).sum() == 1
     ds.close()
     obs = tmp_path / "obs.csv"

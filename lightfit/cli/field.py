@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console
+from lightfit.cli.options import BOUNDARY_HELP, BUFFER_ALONG_HELP, BUFFER_ROWS_HELP, check_boundary
 from lightfit.errors import InputError
 
 
@@ -15,12 +16,9 @@ def field(
     n_plants: int = typer.Option(25, help="Plants in the measurement area, rounded up to a square N×N."),
     row_spacing: float = typer.Option(0.125, help="Distance between wheat rows, m."),
     plant_spacing: float = typer.Option(0.03, help="Distance between plants in a row, m."),
-    buffer_rows: int = typer.Option(2, help="Rows of unmeasured buffer plants around the measurement area."),
-    buffer_along: int = typer.Option(
-        None,
-        help="Buffer plants along each row end (default: = buffer rows; "
-        "≈ 4× buffer rows makes the buffer as wide in metres both ways).",
-    ),
+    boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
+    buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
+    buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
     row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
@@ -42,9 +40,13 @@ def field(
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
     from lightfit import plant
     from lightfit.plant.preview import plot_field
+    from lightfit.replication import field_label
 
+    buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
     g = plant.GrowthConfig(parameter_file, season_start, date)
-    fld = plant.Field(n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along)
+    fld = plant.Field(
+        n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along, boundary
+    )
     parts = fld.tiles(tiles)
     if tile is not None and not 0 <= tile < len(parts):
         raise InputError(f"tile {tile} does not exist", column="tile", expected=f"0 … {len(parts) - 1}")
@@ -54,7 +56,8 @@ def field(
     meas = seg[seg["measured"]]
     area_m2 = fld.n * fld.plant_spacing_m * fld.n * fld.row_spacing_m
     t = Table(
-        title=f"field {fld.n}×{fld.n} measured + {fld.buffer_rows} buffer rows, grown "
+        title=f"field {fld.n}×{fld.n} measured, "
+        f"{field_label(fld)}, grown "
         f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}"
     )
     t.add_column("quantity")

@@ -54,13 +54,13 @@ def field_run(
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
     from lightfit.distributed.run import FieldRun, run_field
-    from lightfit.replication import write_netcdf
+    from lightfit.replication import field_label, write_netcdf
 
     s = resolve(model)
     run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)
     sc = run.scenario
     console.print(
-        f"{sc.field.n}² plants + {sc.field.buffer_rows} buffer rows, {tiles} tile(s) × {time_chunks} time "
+        f"{sc.field.n}² plants, {field_label(sc.field)}, {tiles} tile(s) × {time_chunks} time "
         f"chunk(s), {len(sc.weather)} steps, K={sc.samples}, {sc.bounces} bounces, halo: "
         f"{'whole field' if halo_rows is None else f'{halo_rows} rows'}"
     )

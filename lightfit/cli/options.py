@@ -26,6 +26,21 @@ from lightfit.errors import InputError
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER = "Field", "Light", "Photosynthesis", "Weather"
 
+#: Help of the field-boundary options (shared with the ``field`` command).
+BOUNDARY_HELP = (
+    "Field boundary: periodic (default: the measurement area is one cell of an infinite field, "
+    "no buffer plants) or finite (buffer rows on bare soil; --boundary finite with its default "
+    "2 buffer rows is the reference paper's setup)."
+)
+BUFFER_ROWS_HELP = (
+    "Finite fields only: rows of unmeasured buffer plants around the measurement area "
+    "(default 2, the reference paper's)."
+)
+BUFFER_ALONG_HELP = (
+    "Finite fields only: buffer plants along each row end (default: = buffer rows; "
+    "≈ 4× buffer rows makes the buffer as wide in metres both ways)."
+)
+
 
 @dataclass(frozen=True)
 class ModelOptions:
@@ -33,6 +48,7 @@ class ModelOptions:
 
     quick: bool = False
     n_plants: int | None = None
+    boundary: str | None = None
     buffer_rows: int | None = None
     buffer_along: int | None = None
     field_seed: int | None = None
@@ -53,7 +69,8 @@ class ModelSettings:
 
     quick: bool
     n_plants: int
-    buffer_rows: int
+    boundary: str
+    buffer_rows: int | None
     buffer_along: int | None
     field_seed: int
     samples: int
@@ -75,6 +92,7 @@ class ModelSettings:
 
         return ReplicationConfig(
             n_plants=self.n_plants,
+            boundary=self.boundary,
             buffer_rows=self.buffer_rows,
             buffer_along=self.buffer_along,
             seed=self.field_seed,
@@ -106,11 +124,19 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             rich_help_panel=_FIELD,
         ),
     ),
+    "boundary": (
+        str | None,
+        typer.Option(
+            "--boundary",
+            help=BOUNDARY_HELP,
+            rich_help_panel=_FIELD,
+        ),
+    ),
     "buffer_rows": (
         int | None,
         typer.Option(
             "--buffer-rows",
-            help="Rows of unmeasured buffer plants around the measurement area (default 2, the reference paper's).",
+            help=BUFFER_ROWS_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -118,8 +144,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         int | None,
         typer.Option(
             "--buffer-along",
-            help="Buffer plants along each row end (default: = buffer rows; "
-            "≈ 4× buffer rows makes the buffer as wide in metres both ways).",
+            help=BUFFER_ALONG_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -243,11 +268,14 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     def given(value, default):
         return default if value is None else value
 
+    boundary = given(opts.boundary, base.boundary)
+    buffers = check_boundary(boundary, opts.buffer_rows, opts.buffer_along)
     s = ModelSettings(
         quick=opts.quick,
         n_plants=given(opts.n_plants, base.n_plants),
-        buffer_rows=given(opts.buffer_rows, base.buffer_rows),
-        buffer_along=given(opts.buffer_along, base.buffer_along),
+        boundary=boundary,
+        buffer_rows=buffers[0],
+        buffer_along=buffers[1],
         field_seed=given(opts.field_seed, base.seed),
         samples=given(opts.samples, base.samples),
         bounces=given(opts.bounces, base.bounces),
@@ -267,6 +295,30 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
     return s
+
+
+def check_boundary(boundary: str, buffer_rows: int | None, buffer_along: int | None) -> tuple[int | None, int | None]:
+    """``--boundary`` with the buffers given: (buffer_rows, buffer_along) of the field.
+
+    Periodic: no buffers (``(None, None)``); ``--buffer-rows`` / ``--buffer-along`` given
+    explicitly are an error naming them (a periodic field's neighbours are its own copies).
+    Finite: the buffers as given; ``None`` rows → 2 (the reference paper's), ``None`` along → rows.
+    """
+    from lightfit.plant.field import BOUNDARIES, DEFAULT_BUFFER_ROWS
+
+    if boundary not in BOUNDARIES:
+        raise InputError(f"boundary={boundary!r}", column="boundary", expected=" or ".join(BOUNDARIES))
+    if boundary == "periodic":
+        given = [f"--{n}" for n, v in (("buffer-rows", buffer_rows), ("buffer-along", buffer_along)) if v is not None]
+        if given:
+            raise InputError(
+                f"{' and '.join(given)} given with --boundary periodic",
+                column="boundary",
+                expected="no buffer options with a periodic field (its neighbours are its own copies), "
+                "or --boundary finite",
+            )
+        return None, None
+    return (DEFAULT_BUFFER_ROWS if buffer_rows is None else buffer_rows), buffer_along
 
 
 def weather(s: ModelSettings):

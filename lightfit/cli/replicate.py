@@ -32,6 +32,7 @@ def replicate(
 
     s = resolve(model)
     cfg = s.replication_config()
+    fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)
     check_names(th, what="theta")  # before minutes of plant growth, not after
     w = weather(s)
@@ -46,7 +47,7 @@ def replicate(
     }
     wx.write_lightfit_csv(w, out / "forcing.csv", meta)
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, Selhausen 2016-04-20")
-    console.print(f"running: {s.n_plants} plants + {s.buffer_rows} buffer rows, K={s.samples}, {s.bounces} bounces …")
+    console.print(f"running: {fld.n}×{fld.n} plants, {rep.field_label(fld)}, K={s.samples}, {s.bounces} bounces …")
     ds, obs = rep.run(
         cfg,
         weather_file=s.weather_file,
@@ -57,7 +58,10 @@ def replicate(
         progress=True,
     )
     summary = rep.summary(ds)
-    t = Table(title=f"replication summary ({label} forcing; model PAR = {s.par_kind}, An per {s.an_per} area)")
+    t = Table(
+        title=f"replication summary ({label} forcing; {rep.field_label(ds.attrs)}; "
+        f"model PAR = {s.par_kind}, An per {s.an_per} area)"
+    )
     # The columns are the summary's own (lightfit.replication.summary), first one the local time.
     first, *numbers = summary.columns
     for c in summary.columns:
