@@ -20,6 +20,7 @@ from lightfit.dataset import (
     Lighting,
     RenderSettings,
     Sweep,
+    VisualMaterials,
     build_geometry,
     camera_sweep,
     clipped_fraction,
@@ -415,3 +416,84 @@ def test_units_come_from_the_results_schema(results_file, mono_dataset):
     renamed = open_results(res.ds.rename({"leaf_gs_mol_m2_s": "gs_in_some_unit"}))
     with pytest.raises(InputError, match="gs_in_some_unit"):  # no guessing from the name
         renamed.units("gs_in_some_unit")
+
+
+@pytest.fixture(scope="module")
+def periodic_results_file(tmp_path_factory):
+    fld = Field(n_plants=4, seed=1, boundary="periodic")
+    path = tmp_path_factory.mktemp("results_periodic") / "results.nc"
+    synthetic_results(fld, TIMES[1:], seed=3).to_netcdf(path, engine="h5netcdf")
+    return path
+
+
+def test_periodic_results_rebuild_the_periodic_cell(periodic_results_file, results_file):
+    from lightfit.dataset.results import field_of
+
+    fld = field_of(open_results(periodic_results_file))
+    assert fld.boundary == "periodic" and fld.buffer_rows == 0 and fld.cell is not None
+    assert build_geometry(open_results(periodic_results_file)).cell == fld.cell
+    assert field_of(open_results(results_file)).boundary == "finite"
+    # Files written before the periodic boundary carry no 'boundary' attr: they are finite fields.
+    ds = open_results(results_file).ds.copy()
+    del ds.attrs["boundary"]
+    assert field_of(open_results(ds)) == field_of(open_results(results_file))
+    ds.attrs["boundary"] = "toroidal"
+    with pytest.raises(InputError, match="toroidal"):
+        field_of(open_results(ds))
+
+
+def test_periodic_field_images_show_an_endless_canopy(periodic_results_file, results_file, tmp_path):
+    """Near the image edges an oblique view of a periodic field sees canopy, where the finite block shows soil."""
+    cam = Camera(
+        name="obl", position_m=(0.35, -0.35, 0.7), look_at_m=(0.0, 0.0, 0.0), fov_deg=50.0, width_px=48, height_px=48
+    )
+    spec = DatasetSpec(
+        cameras=[cam],
+        times=[TIMES[1]],
+        settings=RenderSettings(spp=1, colour="mono"),
+        materials=VisualMaterials(periodic_max_reach_m=1.0),
+        gallery_images=0,
+        export="none",
+    )
+    border = {}
+    for name, path in (("finite", results_file), ("periodic", periodic_results_file)):
+        meta = make_dataset(path, tmp_path / name, spec)
+        lab = _labels(tmp_path / name, meta["images"][0])
+        o = lab["organ"]
+        edge = np.concatenate([o[0], o[-1], o[:, 0], o[:, -1]])
+        border[name] = np.isin(edge, [ORGAN_CODES["leaf"], ORGAN_CODES["stem"]]).mean()
+        assert meta["field_boundary"] == name
+        if name == "periodic":
+            pc = meta["periodic_canopy"]
+            assert pc["copies"] > 100 and not pc["capped_by_max_faces"] and 0.5 < pc["reach_m"] <= 1.0
+            # Copies keep their segment ids: canopy pixels anywhere carry the stored values.
+            assert lab["valid"][lab["segment_id"] >= 0].all()
+            assert (lab["segment_id"][[0, -1]] >= 0).mean() > 0.8
+    assert border["finite"] < 0.3 and border["periodic"] > 0.9, border
+
+
+def test_periodic_canopy_copies_and_budget():
+    from lightfit.dataset import periodic_canopy, view_reach_m
+    from lightfit.plant import Mesh
+    from lightfit.plant.periodic import PeriodicCell
+
+    cell = PeriodicCell(along_m=0.3, across_m=0.5)
+    tri = Mesh(
+        np.array([[0, 0, 0.1], [0.1, 0, 0.1], [0, 0.1, 0.2]], float),
+        np.array([[0, 1, 2]]),
+        np.array([7]),
+        np.array([True]),
+    )
+    m, info = periodic_canopy(tri, cell, reach_m=1.0)
+    assert np.array_equal(m.vertices[:3], tri.vertices)  # the original first, unchanged
+    assert (m.face_segment == 7).all() and m.n_faces == info["copies"]
+    shifts = m.vertices[::3, :2] - tri.vertices[0, :2]
+    assert np.abs(np.linalg.norm(shifts, axis=1)).max() <= 1.0 + 0.5 * np.hypot(0.3, 0.5) + 1e-9
+    small, info2 = periodic_canopy(tri, cell, reach_m=1.0, max_faces=5)
+    assert small.n_faces == 5 and info2["capped_by_max_faces"] and info2["reach_m"] < 1.0
+    # A camera looking straight down sees the ground within tan(fov/2)·height (corners: √2 of it).
+    down = Camera(position_m=(0, 0, 1.0), look_at_m=(0, 0, 0), up=(0, 1, 0), fov_deg=90.0)
+    assert view_reach_m([down]) == pytest.approx(np.sqrt(2), rel=1e-6)
+    assert view_reach_m([down], max_reach_m=0.5) == 0.5
+    sky = Camera(position_m=(0, 0, 1.0), look_at_m=(1, 0, 2.0), fov_deg=30.0)
+    assert view_reach_m([sky]) == 0.0

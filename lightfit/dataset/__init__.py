@@ -17,7 +17,15 @@ from lightfit.dataset.exposure import Exposure, clipped_fraction, luminance, met
 from lightfit.dataset.labels import geometric_labels, quantity_map
 from lightfit.dataset.render import RenderOutput, RenderSettings, render
 from lightfit.dataset.results import MARGIN, QUANTITIES, Results, build_geometry, lighting, open_results, select_times
-from lightfit.dataset.scene import ORGAN_CODES, Lighting, SceneArrays, VisualMaterials, scene_arrays
+from lightfit.dataset.scene import (
+    ORGAN_CODES,
+    Lighting,
+    SceneArrays,
+    VisualMaterials,
+    periodic_canopy,
+    scene_arrays,
+    view_reach_m,
+)
 from lightfit.dataset.synthetic import synthetic_results
 
 __all__ = [
@@ -47,10 +55,12 @@ __all__ = [
     "make_dataset",
     "meter",
     "open_results",
+    "periodic_canopy",
     "quantity_map",
     "render",
     "scene_arrays",
     "select_times",
     "synthetic_results",
     "tone_map",
+    "view_reach_m",
 ]

@@ -26,7 +26,7 @@ from lightfit.dataset.exposure import meter, tone_map, write_exr, write_png
 from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
 from lightfit.dataset.render import RenderSettings, render
 from lightfit.dataset.results import MARGIN, Results, build_geometry, lighting, open_results, select_times
-from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, scene_arrays
+from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
 from lightfit.errors import InputError
 
 DEFAULT_QUANTITIES = ("absorbed_par", "an", "vc", "vj", "gs", "limitation", MARGIN)
@@ -82,7 +82,13 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     geom = build_geometry(res, cache_dir=spec.cache_dir)
     cams = spec.cameras or camera_sweep(spec.sweep, canopy_height_m=_canopy_height(geom.segments))
     check_unique_names(cams)
-    arrays = scene_arrays(geom.mesh, geom.segments, spec.materials, seed=spec.settings.seed)
+    # A periodic field is one cell of an endless canopy: the scene repeats the cell as far as the
+    # cameras see the ground (copies keep segment ids, so labels name the plant imaged).
+    mesh, periodic = geom.mesh, None
+    if geom.cell is not None:
+        reach = view_reach_m(cams, geom.cell.center_xy, spec.materials.periodic_max_reach_m)
+        mesh, periodic = periodic_canopy(geom.mesh, geom.cell, reach)
+    arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
     rendered = render(arrays, cams, lights, spec.settings, spec.materials)
 
     out = Path(out_dir)
@@ -91,7 +97,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
     images = []
     for c, cam in enumerate(cams):
-        geo = geometric_labels(rendered.face[c], rendered.depth_m[c], geom.mesh, geom.segments)
+        geo = geometric_labels(rendered.face[c], rendered.depth_m[c], mesh, geom.segments)
         if not spec.depth:
             geo.pop("depth_m")
         for k, t in enumerate(tix):
@@ -99,6 +105,9 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
                 _write_image(out, cam, res.times[t], t, lights[k], rendered.radiance[c][k], geo, per_segment[t])
             )
     meta = _metadata(res, spec, quantities, cams, images, rendered)
+    meta["field_boundary"] = "periodic" if periodic else "finite"
+    if periodic:
+        meta["periodic_canopy"] = periodic
     if spec.gallery_images and images:
         from lightfit.dataset.gallery import gallery
 

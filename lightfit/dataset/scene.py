@@ -5,6 +5,13 @@ PAR, not for pictures. Here the same plant mesh gets visible-band colours (linea
 reflectances), leaves transmit part of their diffuse light (backlit leaves glow), and the soil
 is a large finite plane so that the horizon and sky appear in oblique views.
 
+A periodic field (``Field(boundary="periodic")``) is one cell of an endless canopy, so its
+picture must not be a block on bare soil: :func:`periodic_canopy` repeats the cell's mesh by the
+lattice vectors (explicit shifted copies, as VPL and Eradiate build periodic scenes) out to the
+distance at which the cameras' rays reach the ground (:func:`view_reach_m`), within
+``VisualMaterials.periodic_max_reach_m`` and :data:`MAX_PERIODIC_FACES`. Every copy keeps its
+segment ids: a pixel on a copy is labelled with the plant it is an image of.
+
 Everything in this module is plain numpy: the arrays travel unchanged to whichever process
 renders them (see :mod:`lightfit.dataset.render`).
 """
@@ -12,16 +19,20 @@ renders them (see :mod:`lightfit.dataset.render`).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.plant.mesh import Mesh
+from lightfit.plant.periodic import PeriodicCell
 
 #: Organ codes of the ``organ`` label array.
 ORGAN_CODES = {"sky": 0, "soil": 1, "stem": 2, "leaf": 3}
+#: Most plant triangles the copies of a periodic cell may put in the data scene (≈ 0.5 GB of
+#: float32 vertices and attributes); the nearest copies are kept when the reach needs more.
+MAX_PERIODIC_FACES = 4_000_000
 
 
 @dataclass(frozen=True)
@@ -37,6 +48,8 @@ class VisualMaterials:
         colour_variation: relative spread (uniform ±) of each organ's albedo, drawn from the
             scene seed, so that leaves are told apart by eye as in real images.
         soil_half_size_m: half side of the square soil plane centred on the field, m.
+        periodic_max_reach_m: periodic fields: the copies of the cell reach at most this far
+            from its centre, m (beyond, oblique views see bare soil towards the horizon).
     """
 
     leaf_rgb: tuple[float, float, float] = (0.05, 0.12, 0.03)
@@ -46,6 +59,7 @@ class VisualMaterials:
     roughness: float = 0.5
     colour_variation: float = 0.15
     soil_half_size_m: float = 200.0
+    periodic_max_reach_m: float = 5.0
 
     def __post_init__(self):
         for k in ("leaf_rgb", "stem_rgb", "soil_rgb"):
@@ -56,12 +70,10 @@ class VisualMaterials:
             v = getattr(self, k)
             if not (math.isfinite(v) and 0.0 <= v <= 1.0):
                 raise InputError(f"{k}={v!r}", column=k, expected="a number in [0, 1]")
-        if not (math.isfinite(self.soil_half_size_m) and self.soil_half_size_m > 0):
-            raise InputError(
-                f"soil_half_size_m={self.soil_half_size_m!r}",
-                column="soil_half_size_m",
-                expected="a positive distance in metres",
-            )
+        for k in ("soil_half_size_m", "periodic_max_reach_m"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"{k}={v!r}", column=k, expected="a positive distance in metres")
 
 
 @dataclass(frozen=True)
@@ -161,3 +173,68 @@ def scene_arrays(
         face_transmission=np.r_[trans, 0.0, 0.0].astype(np.float32),
         n_plant_faces=int(mesh.n_faces),
     )
+
+
+def view_reach_m(cameras, centre_xy=(0.0, 0.0), max_reach_m: float = 5.0, rays_per_side: int = 33) -> float:
+    """Farthest horizontal distance from ``centre_xy`` at which the cameras' rays reach the ground, m.
+
+    A grid of ``rays_per_side``² rays spanning each camera's image (corners and edges included)
+    is intersected with the plane z = 0; rays that never reach it (sky) are ignored, and the
+    answer is capped at ``max_reach_m`` (grazing rays reach the ground very far away).
+    """
+    reach = 0.0
+    for cam in cameras:
+        probe = replace(cam, width_px=rays_per_side, height_px=rays_per_side)
+        # Pixel centres of a coarse image, plus its exact corners (jitter 0 and 1 at the borders).
+        j = np.full((rays_per_side, rays_per_side, 2), 0.5)
+        j[:, 0, 0], j[:, -1, 0], j[0, :, 1], j[-1, :, 1] = 0.0, 1.0, 0.0, 1.0
+        d = probe.directions(j)
+        down = d[:, 2] < -1e-9
+        if not down.any():
+            continue
+        t = -cam.position_m[2] / d[down, 2]
+        xy = np.asarray(cam.position_m[:2]) + t[:, None] * d[down, :2]
+        reach = max(reach, float(np.linalg.norm(xy - np.asarray(centre_xy, dtype=float), axis=1).max()))
+        if reach >= max_reach_m:
+            return float(max_reach_m)
+    return min(reach, float(max_reach_m))
+
+
+def periodic_canopy(
+    mesh: Mesh, cell: PeriodicCell, reach_m: float, max_faces: int = MAX_PERIODIC_FACES
+) -> tuple[Mesh, dict]:
+    """The cell's mesh and its copies shifted by lattice vectors, covering a disc of ``reach_m``.
+
+    Copy (i, j) is the mesh moved by ``cell.lattice_shift(i, j)``; it is kept when the copy's
+    cell comes within ``reach_m`` of the cell centre, nearest first, at most ``max_faces`` faces
+    in all. The original comes first (its faces keep their indices), every copy keeps the
+    segment ids and blade flags. Returns the mesh and a summary for the dataset's metadata
+    (``reach_m``: the radius fully covered, less than requested when ``max_faces`` capped it).
+    """
+    a, b = cell.size_m
+    half_diag = 0.5 * math.hypot(a, b)
+    ni, nj = (int(math.ceil((reach_m + half_diag) / p)) for p in (a, b))
+    i, j = (g.ravel() for g in np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij"))
+    dist = np.linalg.norm(cell.lattice_shift(i, j), axis=-1)
+    keep = dist - half_diag <= reach_m
+    i, j, dist = i[keep], j[keep], dist[keep]
+    order = np.lexsort((j, i, dist))  # nearest first, (0, 0) first; ties in a fixed order
+    n_max = max(1, int(max_faces // max(mesh.n_faces, 1)))
+    capped = len(order) > n_max
+    # Fully covered out to the nearest copy left out (less its half-diagonal).
+    covered = float(dist[order[n_max]] - half_diag) if capped else float(reach_m)
+    order = order[:n_max]
+    parts = []
+    for k in order:
+        v = mesh.vertices.copy()
+        v[:, :2] += cell.lattice_shift(i[k], j[k])
+        parts.append(Mesh(v, mesh.faces, mesh.face_segment, mesh.face_is_blade))
+    out = Mesh.concatenate(parts)
+    return out, {
+        "cell_m": [float(a), float(b)],
+        "copies": len(order),
+        "reach_m": covered,
+        "requested_reach_m": float(reach_m),
+        "capped_by_max_faces": bool(capped),
+        "plant_faces": int(out.n_faces),
+    }

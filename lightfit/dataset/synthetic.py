@@ -58,7 +58,9 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
         },
         attrs={
             "n_plants": fld.n_plants,
+            "boundary": fld.boundary,
             "buffer_rows": fld.buffer_rows,
+            "buffer_along": fld.b_along,
             "seed": fld.seed,
             "parameter_file": fld.growth.parameter_file,
             "season_start": fld.growth.season_start,
