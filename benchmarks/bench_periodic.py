@@ -210,6 +210,17 @@ def main_job(tmp: Path, options: tuple[str, ...] = ()) -> dict:
     return out
 
 
+def _code_state() -> dict:
+    """The commit measured and whether lightfit/ had uncommitted changes (they would be measured too)."""
+
+    def git(*args):
+        r = subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True)
+        return r.stdout.strip() if r.returncode == 0 else None
+
+    status = git("status", "--porcelain", "--", "lightfit")
+    return {"commit": git("rev-parse", "HEAD"), "lightfit_uncommitted": None if status is None else status.splitlines()}
+
+
 def table(res: dict) -> str:
     lines = [
         "| N × N | field | plants grown | triangles | render (s) | peak RSS (MB) | canopy absorbed PAR (µmol s⁻¹) "
@@ -266,6 +277,7 @@ def main(
         "main_job": mj,
         "bench_wall_s": wall,
         "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
+        "code": _code_state(),
     }
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=1, default=float))
