@@ -80,7 +80,7 @@ class Scenario:
     Attributes:
         weather: contract series with solar columns at the run's time steps (e.g.
             ``weather.window(df, "2016-04-20 05:00", 14, "30min")``).
-        field: the field (plants, buffers, seed, growth).
+        field: the field (plants, boundary and buffers, seed, growth).
         samples, bounces, seed: irradiance estimator settings (seed: common random numbers).
         photosynthesis: parameter-set name (``lightfit.photosynthesis.parameter_set``).
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
