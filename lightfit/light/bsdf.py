@@ -8,8 +8,10 @@ Parameters, each in [0, 1] and differentiable (Mitsuba ``ParamFlags.Differentiab
 - ``roughness``: GGX microfacet roughness, :math:`\alpha = \max(r^2, \alpha_{min})` (Burley 2012).
 - ``subsurface``: share of the diffuse (non-specular) light passed to the other side.
 
-and a fixed grey ``base_color`` c (the reference paper used 0.5). With ω in the local frame of
-the side the light arrives on (cos θ_i > 0):
+and a grey diffuse ``base_color`` c, not calibrated: the reference paper fixed it at 0.5 (preset
+``paper``); the ``prospect`` preset derives it, with the default subsurface, from the PAR
+reflectance and transmittance of leaf traits (PROSPECT-D, :mod:`lightfit.light.leaf_optics`).
+With ω in the local frame of the side the light arrives on (cos θ_i > 0):
 
 .. math::
 
@@ -272,6 +274,17 @@ def ggx_albedo_table(n_samples: int = 16384, seed: int = 0) -> np.ndarray:
         w = dr.select((mi.Frame3f.cos_theta(wo) > 0) & (pdf_m > 0), w, 0.0)
         _ALBEDO_TABLE[key] = np.asarray(w, dtype=np.float64).reshape(mu.size, n_samples).mean(1).reshape(mu.shape)
     return _ALBEDO_TABLE[key]
+
+
+def ggx_white_sky_albedo(roughness: float) -> float:
+    r"""Albedo of the unit-weight GGX lobe under a uniform sky, :math:`\bar E(r) = 2\int_0^1 E(\mu, r)\,\mu\,d\mu`.
+
+    From :func:`ggx_albedo_table` (trapezoid rule in μ, linear in r). The glossy lobe of a leaf
+    reflects :math:`F_0 \bar E` of uniform diffuse light (≈ 0.88 F0 at roughness 0.5).
+    """
+    table = ggx_albedo_table()
+    per_r = 2.0 * np.trapezoid(table * TABLE_MU[:, None], TABLE_MU, axis=0)
+    return float(np.interp(min(max(float(roughness), 0.0), 1.0), TABLE_R, per_r))
 
 
 _ALBEDO_TABLE_DR: dict = {}

@@ -17,6 +17,7 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
+from lightfit.light.leaf_optics import LeafTraits, leaf_bsdf_parameters, preset_parameters
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
@@ -32,9 +33,13 @@ class Optics:
         specular: leaf glossy reflectance at normal incidence / 0.08 (0.5 → 4 %).
         roughness: leaf microfacet roughness (GGX α = roughness²).
         subsurface: share of the leaf's diffuse light transmitted to the other side.
-        base_color: leaf diffuse albedo (grey). The reference paper used 0.5; PROSPECT-D
-            wheat PAR absorptance 0.83–0.92 (docs/design.md §6) corresponds to ≈ 0.1–0.2.
+        base_color: leaf diffuse albedo (grey), not calibrated. The defaults are the reference
+            paper's grey leaf (preset ``paper``: base colour 0.5, subsurface 0.3); the
+            ``prospect`` preset and :meth:`from_traits` derive base colour and subsurface from
+            PROSPECT-D leaf traits (:mod:`lightfit.light.leaf_optics`; wheat: ≈ 0.07 and 0.6).
         soil_albedo: Lambertian PAR albedo of the soil (moist loam ≈ 0.1–0.15).
+
+    ``Optics.preset("prospect")`` / ``Optics.preset("paper")``, ``Optics.from_traits(LeafTraits(Cab=40))``.
     """
 
     specular: float = 0.5
@@ -47,6 +52,25 @@ class Optics:
         for k, v in asdict(self).items():
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
                 raise InputError(f"{k}={v!r}", column=k, expected="a number in [0, 1]")
+
+    @classmethod
+    def from_traits(
+        cls,
+        traits: LeafTraits | None = None,
+        *,
+        specular: float = 0.5,
+        roughness: float = 0.5,
+        soil_albedo: float = 0.12,
+    ) -> Optics:
+        """Leaf optics whose PAR R and T are PROSPECT-D's for ``traits`` (default: the wheat leaf)."""
+        leaf = leaf_bsdf_parameters(LeafTraits() if traits is None else traits, specular=specular, roughness=roughness)
+        return cls(**leaf, soil_albedo=soil_albedo)
+
+    @classmethod
+    def preset(cls, name: str, **overrides: float) -> Optics:
+        """Named optics: ``prospect`` (PROSPECT-D wheat leaf) or ``paper`` (the reference paper's grey
+        0.5 leaf); ``overrides`` replace single fields (e.g. ``soil_albedo``)."""
+        return cls(**{**preset_parameters(name), "soil_albedo": 0.12, **overrides})
 
 
 def sun_vector(elevation_deg: float, azimuth_deg: float) -> np.ndarray:

@@ -1,0 +1,146 @@
+"""Leaf optics from PROSPECT-D traits: PAR R/T against the package, published ranges, the BSDF
+mapping measured with the light estimator, presets and bad traits."""
+
+import math
+
+import numpy as np
+import pytest
+import xleaf
+
+import lightfit  # noqa: F401
+from lightfit.errors import InputError
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.leaf_optics import (
+    PAPER_LEAF,
+    LeafTraits,
+    leaf_bsdf_parameters,
+    par_optics,
+    preset_parameters,
+)
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant.mesh import Mesh
+
+
+def _planck_photons(lam_nm, t_k=5800.0):
+    """Photon spectral flux of a blackbody, written out independently: B_λ / (hc/λ)."""
+    h, c, k = 6.62607015e-34, 2.99792458e8, 1.380649e-23
+    lam = lam_nm * 1e-9
+    b_lambda = 2 * h * c**2 / lam**5 / np.expm1(h * c / (lam * k * t_k))
+    return b_lambda * lam / (h * c)
+
+
+def test_default_par_optics_match_the_package_called_directly():
+    t = LeafTraits()
+    r, tr = xleaf.simulate_leaf(chl=t.Cab, car=t.Car, antho=t.Anth, ewt=t.Cw, lma=t.Cm, N=t.N, transmittance=True)
+    lam = np.asarray(xleaf.wavelengths) * 1000.0
+    par = (lam > 399.5) & (lam < 700.5)
+    w = _planck_photons(lam[par])
+    expect_r = np.sum(r[par] * w) / np.sum(w)  # uniform 1 nm grid: sums suffice
+    expect_t = np.sum(tr[par] * w) / np.sum(w)
+    got = par_optics(t)
+    assert got.R == pytest.approx(expect_r, abs=2e-4)
+    assert got.T == pytest.approx(expect_t, abs=2e-4)
+
+
+def test_default_wheat_leaf_is_in_the_published_ranges():
+    p = par_optics()
+    assert 0.06 <= p.R <= 0.09
+    assert 0.02 <= p.T <= 0.08
+    assert 0.83 <= p.A <= 0.92
+
+
+def test_more_chlorophyll_absorbs_more():
+    a = [par_optics(LeafTraits(Cab=c)).A for c in (10, 25, 40, 55, 80)]
+    assert np.all(np.diff(a) > 0)
+    base = [Optics.from_traits(LeafTraits(Cab=c)).base_color for c in (10, 40, 80)]
+    assert np.all(np.diff(base) < 0)
+
+
+def test_bsdf_parameters_reproduce_r_and_t():
+    from lightfit.light.bsdf import SPECULAR_F0_SCALE, ggx_white_sky_albedo
+
+    p = par_optics()
+    for s, rough in ((0.5, 0.5), (0.3, 0.8), (0.6, 0.3)):
+        leaf = leaf_bsdf_parameters(specular=s, roughness=rough)
+        f0 = SPECULAR_F0_SCALE * s
+        assert f0 * ggx_white_sky_albedo(rough) + (1 - f0) * (1 - leaf["subsurface"]) * leaf["base_color"] == (
+            pytest.approx(p.R, rel=1e-9)
+        )
+        assert (1 - f0) * leaf["subsurface"] * leaf["base_color"] == pytest.approx(p.T, rel=1e-9)
+        assert 0 < leaf["base_color"] < 1 and 0 < leaf["subsurface"] < 1
+
+
+def test_presets():
+    assert Optics.preset("paper") == Optics()  # today's defaults, exactly
+    assert preset_parameters("paper") == PAPER_LEAF
+    pro = Optics.preset("prospect")
+    assert pro == Optics.from_traits(LeafTraits())
+    assert (pro.specular, pro.roughness, pro.soil_albedo) == (0.5, 0.5, 0.12)
+    assert 0.05 < pro.base_color < 0.1 and 0.5 < pro.subsurface < 0.7
+    assert Optics.preset("prospect", soil_albedo=0.0).soil_albedo == 0.0
+    with pytest.raises(InputError, match="preset"):
+        Optics.preset("grey")
+
+
+def _leaf_and_sensor():
+    """A 10 cm horizontal leaf 1 m above the soil (id 7) and a 2 cm sensor 1 mm below it (id 8)."""
+
+    def square(h, z):
+        return np.array([[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]], float)
+
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    return Mesh(
+        np.vstack([square(0.05, 1.0), square(0.01, 0.999)]),
+        np.vstack([faces, faces + 4]),
+        np.array([7, 7, 8, 8]),
+        np.ones(4, bool),
+    )
+
+
+@pytest.mark.parametrize("preset", ["prospect", "paper"])
+def test_isolated_leaf_absorptance_under_a_uniform_sky(preset):
+    """The estimator on an isolated horizontal leaf over black soil, isotropic sky."""
+    optics = Optics.preset(preset, soil_albedo=0.0)
+    fs = FieldScene(_leaf_and_sensor(), optics, sky="isotropic")
+    fs.set_sun(60.0, 180.0)
+    r = SegmentEstimator(fs, [7, 8], samples=2048, bounces=3, seed=0).render()
+    leaf_abs = r.absorbed_sky[0] / r.incident_sky[0]
+    assert r.incident_sky[0] == pytest.approx(1.0, abs=0.005)  # the sensor hides a negligible share of the sky
+    if preset == "prospect":
+        p = par_optics()
+        assert 0.83 <= leaf_abs <= 0.92
+        assert leaf_abs == pytest.approx(p.A, abs=0.005)
+        # Light under the leaf: its transmittance T (the leaf covers ≈ all of the sensor's sky;
+        # the sensor and the leaf's underside exchange < 0.5 % more).
+        assert r.incident_sky[1] == pytest.approx(p.T, rel=0.03)
+    else:
+        assert leaf_abs == pytest.approx(0.5, abs=0.03)
+        assert r.incident_sky[1] == pytest.approx(0.96 * 0.3 * 0.5, rel=0.15)  # + sensor-leaf exchange
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"Cab": -1.0},
+        {"Cab": math.nan},
+        {"Car": math.inf},
+        {"Anth": 99.0},
+        {"N": 0.5},
+        {"Cw": 1.0},
+        {"Cm": -0.001},
+        {"Cab": "40"},
+        {"N": True},
+    ],
+)
+def test_bad_traits_name_the_trait(bad):
+    (name,) = bad
+    with pytest.raises(InputError, match=name) as err:
+        LeafTraits(**bad)
+    assert err.value.column == name
+
+
+def test_specular_too_strong_for_prospect_reflectance():
+    with pytest.raises(InputError, match="specular"):
+        leaf_bsdf_parameters(LeafTraits(Cab=100.0), specular=1.0, roughness=0.1)
+    with pytest.raises(InputError, match="roughness"):
+        leaf_bsdf_parameters(roughness=math.nan)
