@@ -211,7 +211,7 @@ def _central_fd(f, x, rel=1e-4):
 GRAD_POINTS = np.array([(300.0, 18.0, 400.0), (1800.0, 25.0, 250.0), (40.0, 30.0, 180.0), (0.0, 20.0, 400.0)]).T
 
 
-@pytest.mark.parametrize("model", ["tuzet", "leuning", "cplantbox"])
+@pytest.mark.parametrize("model", ["tuzet", "leuning", "medlyn", "cplantbox"])
 def test_implicit_gradients_match_central_differences(model):
     base = (
         tuzet_leaf(model=model, temperature=ps.TemperatureParams.bernacchi2001())
@@ -271,13 +271,18 @@ def test_gradient_wrt_boundary_layer_and_gm():
 
 
 def _extreme_grid():
-    grid = np.array(np.meshgrid([0.0, 1e-3, 50.0, 3000.0], [-5.0, 45.0], [100.0, 2000.0], [0.05, 1.0], indexing="ij"))
+    # night, dim, full sun; frost, heat (40 and 45 °C); CO2 100, 1000, 2000 ppm; dry and saturated air
+    grid = np.array(
+        np.meshgrid([0.0, 1e-3, 50.0, 3000.0], [-5.0, 40.0, 45.0], [100.0, 1000.0, 2000.0], [0.05, 1.0], indexing="ij")
+    )
     return [g.ravel() for g in grid]
 
 
 def _variants():
     cpb = ps.parameter_set("cplantbox")
     yield "cplantbox", cpb, None
+    yield "winter_wheat", ps.parameter_set("winter_wheat"), None
+    yield "winter_wheat+gb", ps.parameter_set("winter_wheat"), 1.0
     yield "giraud2023", ps.parameter_set("giraud2023"), None
     yield "giraud2023_coupled+gb", ps.parameter_set("giraud2023_coupled"), 0.5
     yield "tuzet", tuzet_leaf(), None
@@ -344,7 +349,7 @@ def test_float32_agrees_with_float64():
     g0=st.floats(1e-6, 0.05),
     a1=st.floats(1.0, 30.0),
     gb=st.floats(0.05, 5.0),
-    model=st.sampled_from(["tuzet", "leuning"]),
+    model=st.sampled_from(["tuzet", "leuning", "medlyn"]),
 )
 def test_property_steady_state(par, tleaf, ca, rh, g0, a1, gb, model):
     p = tuzet_leaf(g0=g0, a1=a1, model=model, temperature=ps.TemperatureParams.bernacchi2001())
@@ -446,3 +451,112 @@ def test_residual_is_zero_at_the_reported_root():
     leaf = ps.leaf_capacities(env.par_abs_umol_m2_s, env.tleaf_c, env.pair_kpa, q.fvcb, q.temperature)
     r = ps.co2_balance_residual(res.cc_umol_mol, leaf, env, q)
     np.testing.assert_allclose(r, 0.0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- winter_wheat (default set)
+
+R_GAS = 8.314462618
+
+
+def _wheat():
+    return ps.parameter_set("winter_wheat")
+
+
+def test_winter_wheat_is_the_default_with_its_literature_values():
+    assert ps.DEFAULT_PARAMETER_SET == "winter_wheat" and ps.DEFAULT_PARAMETER_SET in ps.PARAMETER_SET_NAMES
+    p = _wheat()
+    f, s, t = p.fvcb, p.stomata, p.temperature
+    assert float(f.vcmax_ref_umol_m2_s) == 100.0 and float(t.t_ref_k) == 298.15  # Vcmax25
+    assert float(f.jmax_to_vcmax) == pytest.approx(2.59 - 0.035 * 15.0)  # Kattge & Knorr (2007), 15 °C
+    assert float(f.rd_to_vcmax) == 0.015  # Collatz et al. (1991)
+    assert (float(f.quantum_yield), float(f.curvature)) == (4 * 0.088, 0.7)  # Evans (2013), Fig. 2
+    assert s.model == "medlyn" and float(s.a1) == 5.79  # Lin et al. (2015), C3 crops
+    assert float(s.g0_mol_m2_s) == pytest.approx(0.01 / 1.6)
+    assert t == ps.TemperatureParams.bernacchi2001()
+    # Published ranges at 25 °C: Vcmax25 80–150, Jmax25/Vcmax25 1.6–2.1, Rd25 1–2 µmol m⁻² s⁻¹
+    assert 80 <= float(f.vcmax_ref_umol_m2_s) <= 150 and 1.6 <= float(f.jmax_to_vcmax) <= 2.1
+    assert 1.0 <= float(f.rd_to_vcmax * f.vcmax_ref_umol_m2_s) <= 2.0
+    # solve without params uses the default set
+    par, tl = np.array([0.0, 300.0, 1500.0]), np.array([8.0, 18.0, 25.0])
+    np.testing.assert_array_equal(
+        ps.solve(par, tl, 410.0, 0.6).an_umol_m2_s, ps.solve(par, tl, 410.0, 0.6, P_KPA, p).an_umol_m2_s
+    )
+
+
+def test_winter_wheat_dark_respiration_is_rd25_with_bernacchi_arrhenius():
+    t = np.array([25.0, 10.0, 0.0, 35.0])
+    res = ps.solve(np.zeros(4), t, 400.0, 0.7, P_KPA, _wheat())
+    assert np.all(res.converged)
+    tk = t + 273.15
+    expected = 1.5 * np.exp(46390.0 / R_GAS * (1 / 298.15 - 1 / tk))  # Rd25 = 0.015·100; Bernacchi et al. 2001
+    np.testing.assert_allclose(-np.asarray(res.an_umol_m2_s), expected, rtol=1e-10)
+    assert float(res.an_umol_m2_s[0]) == pytest.approx(-1.5, rel=1e-12)
+    # with An < 0 the Medlyn conductance is g0: ci = ca + Rd/g0 in the dark
+    np.testing.assert_allclose(res.gs_mol_m2_s, 0.01 / 1.6, rtol=1e-12)
+    np.testing.assert_allclose(res.ci_umol_mol, 400.0 + expected / (0.01 / 1.6), rtol=1e-9)
+
+
+def test_winter_wheat_rubisco_limited_rate_is_the_analytic_fvcb():
+    """Full sun, low CO2, 25 °C: An = Vcmax25 (ci − Γ*)/(ci + Kc(1 + O/Ko)) − Rd25 with
+    Bernacchi et al. (2001) constants written out here (independent of the package's tables)."""
+    ca = np.array([120.0, 180.0, 250.0])
+    res = ps.solve(np.full(3, 2000.0), 25.0, ca, 0.6, P_KPA, _wheat())
+    assert np.all(res.converged)
+    assert np.all(np.asarray(res.limitation) == ps.RUBISCO_LIMITED)
+    ci = np.asarray(res.ci_umol_mol)
+    an_fvcb = 100.0 * (ci - 42.75) / (ci + 404.9 * (1 + 210.0 / 278.4)) - 1.5
+    np.testing.assert_allclose(res.an_umol_m2_s, an_fvcb, rtol=1e-10)
+    # and the electron-transport-limited rate at low light: J from the hyperbola with Jmax25 = 206.5
+    q = 100.0
+    lo = ps.solve(q, 25.0, 400.0, 0.6, P_KPA, _wheat())
+    aq, jmax, th = 4 * 0.088 * q, 206.5, 0.7
+    j = ((aq + jmax) - np.sqrt((aq + jmax) ** 2 - 4 * th * aq * jmax)) / (2 * th)
+    c = float(lo.ci_umol_mol)
+    assert int(lo.limitation) == ps.ELECTRON_TRANSPORT_LIMITED
+    assert float(lo.an_umol_m2_s) == pytest.approx(j / 4 * (c - 42.75) / (c + 2 * 42.75) - 1.5, rel=1e-9)
+
+
+def test_winter_wheat_medlyn_ci_over_cs_is_analytic():
+    """Medlyn et al. (2011): with An > 0 and g0 → 0, ci/cs = g1/(g1 + √D)."""
+    p = eqx.tree_at(lambda q: q.stomata.g0_mol_m2_s, _wheat(), 1e-12)
+    vpd = np.array([0.5, 1.0, 2.0, 3.0])
+    res = ps.solve(np.full(4, 1200.0), 22.0, 400.0, None, P_KPA, p, vpd_kpa=vpd)
+    assert np.all(res.converged) and np.all(np.asarray(res.an_umol_m2_s) > 0)
+    np.testing.assert_allclose(np.asarray(res.ci_umol_mol) / 400.0, 5.79 / (5.79 + np.sqrt(vpd)), rtol=1e-9)
+    # saturated air: VPD floored at 0.05 kPa, so gs stays finite
+    sat = ps.solve(1200.0, 22.0, 400.0, 1.0, P_KPA, p)
+    assert bool(sat.converged) and np.isfinite(float(sat.gs_mol_m2_s))
+    assert float(sat.ci_umol_mol) / 400.0 == pytest.approx(5.79 / (5.79 + np.sqrt(0.05)), rel=1e-9)
+
+
+def test_winter_wheat_light_response_in_the_published_range():
+    """Flag leaves of wheat: light-saturated An 20–35 µmol m⁻² s⁻¹ at 25 °C and ambient CO2
+    (Evans 2013, Fig. 2: 30 gross for a wheat leaf; Silva-Pérez et al. 2020), saturation above
+    ~1000 µmol m⁻² s⁻¹, low-light photon yield 0.05–0.07 mol CO2 per absorbed photon (0.058
+    for C3 leaves in normal air, Evans 2013), stomatal conductance to water 0.2–0.8."""
+    par = np.array([0.0, 20.0, 500.0, 1000.0, 1500.0, 2000.0])
+    res = ps.solve(par, 25.0, 400.0, 0.6, P_KPA, _wheat())
+    an = np.asarray(res.an_umol_m2_s)
+    assert np.all(res.converged)
+    assert 20.0 <= an.max() <= 35.0
+    assert np.all(np.diff(an) >= -1e-9)  # non-decreasing in light
+    assert an[3] >= 0.9 * an.max()
+    assert 0.05 <= (an[1] - an[0]) / 20.0 <= 0.07
+    assert 0.2 <= 1.6 * float(res.gs_mol_m2_s[-1]) <= 0.8
+    # both limitations occur: electron transport at low light, Rubisco at high light
+    assert set(np.asarray(res.limitation[1:]).tolist()) == {ps.RUBISCO_LIMITED, ps.ELECTRON_TRANSPORT_LIMITED}
+    # the reference paper's preset is far outside (Vcmax_ref ≈ 655): documented, not a default
+    g = ps.solve(par, 25.0, 400.0, 0.6, P_KPA, ps.parameter_set("giraud2023"))
+    assert float(np.max(g.an_umol_m2_s)) > 35.0 and float(-g.an_umol_m2_s[0]) > 5.0
+
+
+def test_winter_wheat_extremes_without_jit():
+    """The extreme grid of test_extremes_finite_converged_and_differentiable, eagerly (no jit)."""
+    par, t, c, rh = _extreme_grid()
+    p = _wheat()
+    with jax.disable_jit():
+        res = ps.solve(par, t, c, rh, P_KPA, p)
+        g = jax.grad(lambda q: jnp.sum(ps.solve(q, t, c, rh, P_KPA, p).an_umol_m2_s))(jnp.asarray(par))
+    assert np.all(res.converged)
+    assert np.all(np.isfinite(np.asarray(g)))
+    np.testing.assert_allclose(res.an_umol_m2_s, ps.solve(par, t, c, rh, P_KPA, p).an_umol_m2_s, rtol=1e-9, atol=1e-12)

@@ -3,7 +3,7 @@
 Public API::
 
     from lightfit.photosynthesis import solve, parameter_set
-    res = solve(par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, parameter_set("giraud2023"))
+    res = solve(par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, parameter_set("winter_wheat"))
     res.an_umol_m2_s, res.gs_mol_m2_s, res.ci_umol_mol, res.converged
 
 See ``docs/photosynthesis.md`` for the model, solver, parameter sets and validation.
@@ -29,6 +29,7 @@ from .model import (
     solve_plain_iteration,
 )
 from .parameters import (
+    DEFAULT_PARAMETER_SET,
     PARAMETER_SET_NAMES,
     FvCBParams,
     PhotosynthesisParams,
@@ -43,6 +44,7 @@ from .stomata import (
     cplantbox_conductance,
     cplantbox_intercellular_co2,
     leuning_conductance,
+    medlyn_conductance,
     saturation_vapour_pressure_kpa,
     tuzet_conductance,
     vapour_pressure_deficit_kpa,
@@ -53,6 +55,7 @@ from .temperature import arrhenius, deactivation, peaked_arrhenius
 __all__ = [
     "ELECTRON_TRANSPORT_LIMITED",
     "RUBISCO_LIMITED",
+    "DEFAULT_PARAMETER_SET",
     "PARAMETER_SET_NAMES",
     "Environment",
     "FvCBParams",
@@ -75,6 +78,7 @@ __all__ = [
     "fixed_point_iteration",
     "leaf_capacities",
     "leuning_conductance",
+    "medlyn_conductance",
     "parameter_set",
     "peaked_arrhenius",
     "prepare_environment",

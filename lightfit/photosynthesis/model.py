@@ -1,6 +1,6 @@
 r"""Leaf photosynthesis per segment: FvCB + stomata + boundary layer, solved per segment.
 
-For the coupled closures (``"tuzet"``, ``"leuning"``) the unknown is the chloroplast CO2
+For the coupled closures (``"tuzet"``, ``"leuning"``, ``"medlyn"``) the unknown is the chloroplast CO2
 mole fraction :math:`c_c` (equal to :math:`c_i` without mesophyll resistance). Given
 :math:`c_c` every other quantity is explicit:
 
@@ -41,12 +41,13 @@ import optimistix as optx
 from jax.typing import ArrayLike
 
 from .fvcb import LeafCapacities, assimilation, leaf_capacities
-from .parameters import PhotosynthesisParams, cast_params, check_params, parameter_set
+from .parameters import DEFAULT_PARAMETER_SET, PhotosynthesisParams, cast_params, check_params, parameter_set
 from .solver import SolverConfig, bracketed_newton, fixed_point_iteration
 from .stomata import (
     cplantbox_conductance,
     cplantbox_intercellular_co2,
     leuning_conductance,
+    medlyn_conductance,
     tuzet_conductance,
     vapour_pressure_deficit_kpa,
 )
@@ -120,6 +121,8 @@ def _stomatal_conductance(an, cs, leaf: LeafCapacities, env: Environment, params
         return tuzet_conductance(an, cs, leaf.gamma_star_umol_mol, s.g0_mol_m2_s, s.a1, env.fw)
     if s.model == "leuning":
         return leuning_conductance(an, cs, leaf.gamma_star_umol_mol, env.vpd_kpa, s.g0_mol_m2_s, s.a1, s.d0_kpa, env.fw)
+    if s.model == "medlyn":
+        return medlyn_conductance(an, cs, env.vpd_kpa, s.g0_mol_m2_s, s.a1, env.fw)
     raise ValueError(f"stomatal model {s.model!r} has no coupled form")
 
 
@@ -286,7 +289,7 @@ def prepare_environment(
     passed through and only shapes are checked.
     """
     if params is None:
-        params = parameter_set("giraud2023")
+        params = parameter_set(DEFAULT_PARAMETER_SET)
     check_params(params)
     named = {
         "par_abs_umol_m2_s": par_abs_umol_m2_s,
@@ -319,12 +322,12 @@ def prepare_environment(
     _check_range("vpd_kpa", vpd_kpa, 0.0, 20.0, "vapour pressure deficit in [0, 20] kPa")
     _check_range("gb_mol_m2_s", gb_mol_m2_s, 1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1")
     _check_range("fw", fw, 0.0, 1.0, "water-stress factor in [0, 1]")
-    if params.stomata.model == "leuning" and rh is None and vpd_kpa is None:
-        raise ValueError("the Leuning closure needs humidity: pass rh (0-1) or vpd_kpa")
+    if params.stomata.model in ("leuning", "medlyn") and rh is None and vpd_kpa is None:
+        raise ValueError(f"the {params.stomata.model.capitalize()} closure needs humidity: pass rh (0-1) or vpd_kpa")
     if params.stomata.model == "cplantbox" and gb_mol_m2_s is not None:
         raise ValueError(
             "gb_mol_m2_s: the 'cplantbox' closure takes co2_ppm at the leaf surface (as CPlantBox "
-            "does); use the 'tuzet' or 'leuning' closure for a boundary layer"
+            "does); use the 'tuzet', 'leuning' or 'medlyn' closure for a boundary layer"
         )
 
     floats = [v for v in present.values() if hasattr(v, "dtype") and jnp.issubdtype(v.dtype, jnp.floating)]
@@ -381,7 +384,8 @@ def solve(
             ``gb_mol_m2_s`` is given, else at the leaf surface.
         rh: relative humidity of the air [0–1], used for the VPD at leaf temperature.
         pair_kpa: air pressure [kPa].
-        params: :class:`PhotosynthesisParams`; default ``parameter_set("giraud2023")``.
+        params: :class:`PhotosynthesisParams`; default
+            ``parameter_set(DEFAULT_PARAMETER_SET)`` (``"winter_wheat"``).
         vpd_kpa: leaf-to-air vapour pressure deficit [kPa]; overrides ``rh``.
         gb_mol_m2_s: boundary-layer conductance to CO2 [mol m⁻² s⁻¹], in series with gs.
         fw: water-stress factor [0–1]; 1 = no soil water limitation (default, as the
@@ -426,7 +430,7 @@ def solve_plain_iteration(
         par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, params, vpd_kpa=vpd_kpa, gb_mol_m2_s=gb_mol_m2_s, fw=fw
     )
     if params.stomata.model == "cplantbox":
-        raise ValueError("params.stomata.model: 'cplantbox' is closed-form; plain iteration needs 'tuzet' or 'leuning'")
+        raise ValueError("params.stomata.model: 'cplantbox' is closed-form; plain iteration needs a coupled closure")
     if config is None:
         config = SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype)
     return _plain_jit(env, params, config)

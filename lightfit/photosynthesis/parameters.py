@@ -4,14 +4,45 @@ All parameters are :class:`equinox.Module` PyTrees: float fields are leaves (dif
 may be arrays broadcastable to the segment shape, e.g. a per-segment ``vcmax``); model
 choices are static fields. Units are in the field names.
 
-Named sets (:func:`parameter_set`):
+Named sets (:func:`parameter_set`; :data:`DEFAULT_PARAMETER_SET` = ``"winter_wheat"``):
 
+``"winter_wheat"`` (default)
+    Winter wheat upper/flag leaves from the literature (values at 25 °C; docs/photosynthesis.md,
+    "Parameter sets", has the table with the published ranges they were checked against):
+
+    * Vcmax25 = 100 µmol m⁻² s⁻¹: mid-range of gas-exchange Vcmax25 of field- and
+      glasshouse-grown wheat flag leaves (≈ 80–150; Silva-Pérez et al. 2020, J. Exp. Bot.
+      71:2299; Silva-Pérez et al. 2017, Plant Cell Environ. 40:1552; Theobald et al. 1998,
+      Plant Physiol. 118:945).
+    * Jmax25/Vcmax25 = 2.065 = 2.59 − 0.035·T_growth at T_growth = 15 °C (Kattge & Knorr
+      2007, Plant Cell Environ. 30:1176; the same growth temperature as the entropy terms of
+      the temperature response) → Jmax25 = 206.5 µmol m⁻² s⁻¹; wheat ratios of 1.6–2.1 are
+      reported in the papers above.
+    * Rd25 = 0.015·Vcmax25 = 1.5 µmol m⁻² s⁻¹ (Collatz et al. 1991, Agric. For. Meteorol.
+      54:107); Arrhenius with Ea = 46.39 kJ mol⁻¹ (Bernacchi et al. 2001). The model has no
+      light inhibition of day respiration: Rd in light is the dark value (an upper bound).
+    * Kc, Ko, Γ* and the Vcmax, Rd temperature responses: Bernacchi et al. (2001, Plant Cell
+      Environ. 24:253); Jmax Ea from Bernacchi et al. (2003); peaked form of Medlyn et al.
+      (2002) with Kattge & Knorr (2007) Hd and ΔS (:meth:`TemperatureParams.bernacchi2001`).
+    * alpha = 0.352 electrons per absorbed photon = 4 × 0.088, the maximum photon yield of C3
+      leaves without photorespiration (0.088 mol CO2 mol⁻¹ photons; Evans 2013, Plant Physiol.
+      162:1780, Fig. 2), since J/4 is the CO2 rate at no photorespiration; at 25 °C and
+      400 ppm this gives a low-light yield of ≈ 0.065 (0.058 in normal air in the same
+      figure). theta = 0.7, the wheat-leaf convexity of the same figure (Evans & Farquhar 1991
+      data, Ögren & Evans 1993 equation).
+    * Stomata: Medlyn et al. (2011) unified optimal model (``"medlyn"``) with g1 = 5.79
+      kPa^0.5, the C3-crop value of Lin et al. (2015, Nature Clim. Change 5:459) that CLM5
+      uses for wheat; g0 = 0.01 mol H2O m⁻² s⁻¹ = 6.25e-3 mol CO2 m⁻² s⁻¹, the low end
+      of night-time conductances of C3 crop leaves (Caird et al. 2007, Plant Physiol.
+      143:4); it sets only ci in the dark (ci = ca + Rd/g0), not An.
 ``"cplantbox"``
     Defaults of CPlantBox 2.1.1 ``Photosynthesis.h`` (C3, Tuzet closure as CPlantBox
     implements it, CPlantBox temperature forms, Chl = 55 µg cm⁻², VcmaxrefChl1/2 =
     0.64/4.165, a1 = 4, a3 = 1.7, alpha = 0.2, theta = 0.9, g0 = 3e-4 mol m⁻² s⁻¹).
 ``"giraud2023"``
-    Wheat values of Giraud et al. (2023) as the reference paper used them through
+    The reference paper's preset, kept for exact replication (Vcmax_ref ≈ 655, Rd ≈ 10 µmol
+    m⁻² s⁻¹ at 20 °C: not physiologically credible, see docs/design.md §4). Wheat values of
+    Giraud et al. (2023) as the reference paper used them through
     CPlantBox (``plant_photosynthesis/wheat_FcVB_Giraud2023adapted.py`` and docs/design.md §4):
     VcmaxrefChl1/2 = 1.28/8.33, Chl from SPAD 41 (Qian et al. 2021 formula, value passed
     to CPlantBox unchanged), a1 = 1.5, a3 = 1.5, alpha = 0.4, theta = 0.6, g0 = 8e-3.
@@ -32,7 +63,7 @@ import numpy as np
 from jax.typing import ArrayLike, DTypeLike
 
 TEMPERATURE_FORMS = ("cplantbox", "peaked")
-STOMATAL_MODELS = ("cplantbox", "tuzet", "leuning")
+STOMATAL_MODELS = ("cplantbox", "tuzet", "leuning", "medlyn")
 
 
 class TemperatureParams(eqx.Module):
@@ -151,12 +182,14 @@ class StomataParams(eqx.Module):
     Attributes:
         g0_mol_m2_s: residual stomatal conductance [mol m⁻² s⁻¹], > 0 for the coupled
             closures (with g0 = 0 a respiring leaf in the dark has no steady state).
-        a1: slope [-]. Its meaning depends on ``model``: for ``"cplantbox"`` it is
-            (ci − Γ')/(cs − ci) (Giraud et al. 2023); for ``"tuzet"`` and ``"leuning"`` it
-            is the slope of gs against An/(cs − Γ*) (Tuzet et al. 2003; Leuning 1995).
+        a1: slope. Its meaning depends on ``model``: for ``"cplantbox"`` it is
+            (ci − Γ')/(cs − ci) (Giraud et al. 2023) [-]; for ``"tuzet"`` and ``"leuning"`` it
+            is the slope of gs against An/(cs − Γ*) (Tuzet et al. 2003; Leuning 1995) [-];
+            for ``"medlyn"`` it is g1 [kPa^0.5] of gs = g0 + (1 + g1/√D)·An/cs (Medlyn
+            et al. 2011, conductance to CO2).
         d0_kpa: VPD sensitivity D0 of the Leuning model [kPa].
-        model: ``"cplantbox"`` (ci in closed form as CPlantBox), ``"tuzet"`` or
-            ``"leuning"`` (coupled fixed point).
+        model: ``"cplantbox"`` (ci in closed form as CPlantBox), ``"tuzet"``,
+            ``"leuning"`` or ``"medlyn"`` (coupled fixed point).
     """
 
     g0_mol_m2_s: jax.Array | float
@@ -269,7 +302,36 @@ def _giraud2023_coupled() -> PhotosynthesisParams:
     )
 
 
+#: Vcmax at 25 °C of the ``winter_wheat`` set [µmol m⁻² s⁻¹] (module docstring).
+WINTER_WHEAT_VCMAX25_UMOL_M2_S = 100.0
+#: Medlyn g1 of the ``winter_wheat`` set [kPa^0.5] (Lin et al. 2015, C3 crops).
+WINTER_WHEAT_G1_KPA05 = 5.79
+
+
+def _winter_wheat() -> PhotosynthesisParams:
+    return PhotosynthesisParams(
+        fvcb=FvCBParams(
+            vcmax_ref_umol_m2_s=WINTER_WHEAT_VCMAX25_UMOL_M2_S,
+            jmax_to_vcmax=2.59 - 0.035 * 15.0,  # Kattge & Knorr (2007) at T_growth = 15 °C
+            rd_to_vcmax=0.015,
+            quantum_yield=4 * 0.088,  # Evans (2013), C3 photon yield without photorespiration
+            curvature=0.7,
+            o2_mmol_mol=210.0,
+            clip_rates=True,
+        ),
+        temperature=TemperatureParams.bernacchi2001(),
+        stomata=StomataParams(g0_mol_m2_s=0.01 / 1.6, a1=WINTER_WHEAT_G1_KPA05, model="medlyn"),
+        name="winter_wheat",
+        source="Winter wheat from the literature at 25 °C: Vcmax25 100 (Silva-Pérez et al. 2017, 2020; "
+        "Theobald et al. 1998), Jmax25/Vcmax25 2.065 (Kattge & Knorr 2007 at 15 °C growth), "
+        "Rd25 0.015 Vcmax25 (Collatz et al. 1991), Bernacchi et al. (2001, 2003) kinetics and temperature "
+        "responses, alpha 4 x 0.088 and theta 0.7 (Evans 2013, Fig. 2), Medlyn et al. (2011) stomata with "
+        "g1 5.79 kPa^0.5 (Lin et al. 2015, C3 crops) and g0 0.01 mol H2O m-2 s-1 (Caird et al. 2007)",
+    )
+
+
 _SETS: dict[str, Callable[[], PhotosynthesisParams]] = {
+    "winter_wheat": _winter_wheat,
     "cplantbox": _cplantbox,
     "giraud2023": _giraud2023,
     "giraud2023_coupled": _giraud2023_coupled,
@@ -277,6 +339,9 @@ _SETS: dict[str, Callable[[], PhotosynthesisParams]] = {
 
 #: Names accepted by :func:`parameter_set`.
 PARAMETER_SET_NAMES = tuple(_SETS)
+
+#: The set used where none is named (``solve``, the coupled model's ``Scenario``).
+DEFAULT_PARAMETER_SET = "winter_wheat"
 
 
 def parameter_set(name: str) -> PhotosynthesisParams:

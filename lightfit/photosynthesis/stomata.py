@@ -116,6 +116,39 @@ def leuning_conductance(
     return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
 
 
+#: Floor on the leaf-to-air VPD in the Medlyn closure [kPa] (CLM5 ``PhotosynthesisMod``
+#: floors it at 50 Pa): g1/√D diverges at saturation (RH = 1, e.g. dew at dawn).
+MEDLYN_VPD_FLOOR_KPA = 0.05
+
+
+def medlyn_conductance(
+    an_umol_m2_s: ArrayLike,
+    cs_umol_mol: ArrayLike,
+    vpd_kpa: ArrayLike,
+    g0_mol_m2_s: ArrayLike,
+    g1_kpa05: ArrayLike,
+    fw: ArrayLike,
+) -> jax.Array:
+    r"""Stomatal conductance to CO2 of Medlyn et al. (2011) [mol m⁻² s⁻¹].
+
+    .. math:: g_s = g_0 + f_w \left(1 + \frac{g_1}{\sqrt{\max(D, D_{min})}}\right)\frac{A_n^+}{c_s}
+
+    i.e. the unified stomatal optimisation model, whose water-vapour form
+    :math:`g_{sw} = g_{0w} + 1.6 (1 + g_1/\sqrt{D}) A_n/c_s` is divided by 1.6;
+    :math:`D_{min}` = :data:`MEDLYN_VPD_FLOOR_KPA`.
+
+    Args:
+        vpd_kpa: leaf-to-air vapour pressure deficit D [kPa].
+        g1_kpa05: slope g1 [kPa^0.5].
+        (others as :func:`tuzet_conductance`)
+
+    Reference: Medlyn et al. (2011), Global Change Biol. 17:2134, eq. 11 (corrigendum 2012).
+    """
+    d = jnp.maximum(vpd_kpa, MEDLYN_VPD_FLOOR_KPA)
+    cs = jnp.maximum(cs_umol_mol, _CS_GAMMA_FLOOR_UMOL_MOL)
+    return g0_mol_m2_s + fw * (1.0 + g1_kpa05 / jnp.sqrt(d)) * jnp.maximum(an_umol_m2_s, 0.0) / cs
+
+
 def cplantbox_intercellular_co2(
     cs_umol_mol: ArrayLike, gamma_rubisco_umol_mol: ArrayLike, a1: ArrayLike, fw: ArrayLike
 ) -> jax.Array:
