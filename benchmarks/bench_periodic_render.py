@@ -20,6 +20,12 @@ With ``--day`` the main job's pipeline is timed end to end as well: build the 10
 geometry from the plant cache, make the scene and render every daytime step of the replication
 forcing (2016-04-20, primal, K samples), finite and periodic taking turns at each step.
 
+With ``--walk`` the ray walk itself is measured on the first (cosine-sampled) rays of all
+10 × 10 segments, best of 5, taking turns: one clipped intersection per ray (crossings
+disabled, ``cap=0``), the full walk, the walk through a super-cell of (r_a, r_b) neighbour cells
+held as geometry (explicit copies in the BVH: fewer crossings, a larger BVH), and a plain
+intersection of the same rays in the finite 2-buffer-row field.
+
 Writes benchmarks/results/periodic_render.json and prints a table.
 """
 
@@ -135,7 +141,9 @@ def timed_interleaved(setups: dict, repeat: int) -> dict:
     return {k: {**best[k], **summary(setups[k][0], results[k])} for k in setups}
 
 
-def main(plants=(16, 100), samples: int = 64, bounces: int = 3, repeat: int = 2, day: bool = False) -> dict:
+def main(
+    plants=(16, 100), samples: int = 64, bounces: int = 3, repeat: int = 2, day: bool = False, walk: bool = False
+) -> dict:
     row = weather.load("2016-04-20").loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
     main_sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
     suns = {"2016-04-20 10:00 UTC": main_sun, f"low {LOW_SUN_DEG:g}°": (LOW_SUN_DEG, main_sun[1])}
@@ -172,6 +180,8 @@ def main(plants=(16, 100), samples: int = 64, bounces: int = 3, repeat: int = 2,
             print(_row(case), flush=True)
     if day:
         res["day"] = main_job_day(samples, bounces)
+    if walk:
+        res["walk"] = walk_costs()
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2, default=float))
     print()
@@ -192,7 +202,78 @@ def main(plants=(16, 100), samples: int = 64, bounces: int = 3, repeat: int = 2,
                 f"{v['total_s']:.2f} |"
             )
         print(f"periodic ÷ finite: render {d['render_ratio']:.2f}, total {d['total_ratio']:.2f}")
+    if walk:
+        w = res["walk"]
+        print(f"\nwalk of the first rays of 10 × 10 ({w['rays']} rays), best of 5:")
+        print("| what | scene faces | s | ÷ one clipped intersection | crossings / ray |\n|---|---|---|---|---|")
+        for k, v in w["seconds"].items():
+            cr = w["crossings_per_ray"].get(k)
+            print(
+                f"| {k} | {w['scene_faces'].get(k, '')} | {v:.3f} | {w['over_one_clipped_intersection'][k]:.2f} | "
+                f"{'' if cr is None else f'{cr:.3f}'} |"
+            )
     return res
+
+
+def walk_costs(n_plants: int = 100, rings=((1, 0), (2, 0), (1, 1)), repeat: int = 5) -> dict:
+    """Seconds per walk of the same first rays (module doc, ``--walk``), and crossings per ray."""
+    import drjit as dr
+
+    from lightfit.light.periodic import PeriodicCell
+
+    g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"))
+    gf = build(Field(n_plants=n_plants, seed=1, buffer_rows=2))
+    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fin = FieldScene(gf.mesh, Optics())
+    est = SegmentEstimator(fs, g.segments["segment_id"].to_numpy(), samples=64, bounces=3, seed=1)
+    o, _, _, d, _, _ = est._arrays()
+    mi, cell = fs.mi, g.cell
+    scenes = {"cell": fs}
+    for ra, rb in rings:  # the super-cell (2r_a + 1)A × (2r_b + 1)B holding the cell's copies
+        big = PeriodicCell(cell.along_m * (2 * ra + 1), cell.across_m * (2 * rb + 1), cell.row_direction_deg)
+        copies = [g.mesh]
+        for i in range(-ra, ra + 1):
+            for j in range(-rb, rb + 1):
+                if i or j:
+                    v = g.mesh.vertices.copy()
+                    v[:, :2] += cell.lattice_shift(i, j)
+                    copies.append(type(g.mesh)(v, g.mesh.faces, g.mesh.face_segment, g.mesh.face_is_blade))
+        scenes[f"ring {ra},{rb}"] = FieldScene(type(g.mesh).concatenate(copies), Optics(), cell=big)
+
+    def walk(sc, cap=None):
+        def f():
+            out = sc.tracer.walk(o, d, True, cap=sc.tracer.cap if cap is None else cap, soil=True, test=False)
+            dr.eval(out)
+            return out
+
+        return f
+
+    def plain():
+        si = fin.scene.ray_intersect(mi.Ray3f(o, d), True)
+        dr.eval(si.t)
+
+    fns = {"finite: plain intersection": plain, "periodic: one clipped intersection (cap 0)": walk(fs, 0)}
+    fns |= {f"periodic walk, {k}": walk(sc) for k, sc in scenes.items()}
+    crossings = {k: float(np.asarray(f()[3]).mean()) for k, f in fns.items() if k.startswith("periodic walk")}
+    best = dict.fromkeys(fns, math.inf)
+    for _ in range(repeat):
+        for k, f in fns.items():
+            _sync()
+            t = time.perf_counter()
+            f()
+            _sync()
+            best[k] = min(best[k], time.perf_counter() - t)
+    faces = {f"periodic walk, {k}": sc.n_scene_faces for k, sc in scenes.items()}
+    faces["finite: plain intersection"] = fin.n_scene_faces
+    return {
+        "rays": int(dr.width(o)),
+        "seconds": best,
+        "over_one_clipped_intersection": {
+            k: v / best["periodic: one clipped intersection (cap 0)"] for k, v in best.items()
+        },
+        "crossings_per_ray": crossings,
+        "scene_faces": faces,
+    }
 
 
 def main_job_day(samples: int, bounces: int, n_plants: int = 100) -> dict:
@@ -256,5 +337,6 @@ if __name__ == "__main__":
     ap.add_argument("--bounces", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--day", action="store_true", help="also time the main job's day end to end")
+    ap.add_argument("--walk", action="store_true", help="also time the walk alone, and rings of copies")
     a = ap.parse_args()
-    main(tuple(a.plants), a.samples, a.bounces, a.repeat, a.day)
+    main(tuple(a.plants), a.samples, a.bounces, a.repeat, a.day, a.walk)
