@@ -184,7 +184,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--photosynthesis",
-            help="Photosynthesis parameter set: cplantbox, giraud2023 or giraud2023_coupled (default giraud2023).",
+            help="Photosynthesis parameter set: winter_wheat, cplantbox, giraud2023 or giraud2023_coupled "
+            "(default: the main job's, lightfit.model.scenario.Scenario.photosynthesis; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,
         ),
     ),
