@@ -220,6 +220,25 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--buffer-rows", "2"]), "--buffer-rows")
 
 
+def test_calibrate_refuses_to_resume_a_history_of_other_settings(tmp_path):
+    """A history from the finite default (results written before the periodic boundary carry no
+    'boundary') is not resumed into a periodic run; --boundary finite passes that check."""
+    out = tmp_path / "cal"
+    out.mkdir()
+    (out / "history.jsonl").write_text('{"step": 1, "loss": 3.0, "theta": {"light_factor": 1.2}}\n')
+    old = {"quick": True, "n_plants": 4, "buffer_rows": 2, "buffer_along": None, "field_seed": 1, "samples": 16}
+    old |= {"bounces": 2, "render_seed": 0, "par_kind": "absorbed", "photosynthesis": "giraud2023"}
+    old |= {"an_per": "ground", "weather_file": None, "how": "sample", "steps": None}
+    (out / "calibration.json").write_text(json.dumps({"config": old}))
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--photosynthesis", "giraud2023", "--out", str(out)]
+    r = runner.invoke(app, args)
+    assert_user_error(
+        r, "calibration history", "boundary: 'finite' → 'periodic'", "buffer_rows: 2 → None", "--no-resume"
+    )
+    r = runner.invoke(app, [*args, "--boundary", "finite", "--samples", "8"])
+    assert_user_error(r, "samples: 16 → 8")  # the same field now; only K differs
+
+
 def test_error_messages_name_the_file_or_the_limit():
     from lightfit.cli.common import error_message
 

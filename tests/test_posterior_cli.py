@@ -39,6 +39,10 @@ def test_posterior_cli_quick(tmp_path):
     r = CliRunner().invoke(app, args[:-6] + ["--max-steps", "40", "--n-design", "6", "--n-test", "1"])
     assert r.exit_code == 0, r.output
     assert load_run(out / "run.h5")["chain"].shape == (40, 8, 2)
+    assert json.loads((out / "emulator_settings.json").read_text())["boundary"] == "periodic"
+    # The stored chain is the periodic field's: resuming it on another field is refused, before any plant grows.
+    r = CliRunner().invoke(app, [*args, "--boundary", "finite"])
+    assert r.exit_code == 2 and "posterior run" in r.stderr and "boundary: 'periodic' → 'finite'" in r.stderr
 
 
 def test_posterior_cli_bad_parameter(tmp_path):

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names, parse_theta
-from lightfit.cli.options import ModelOptions, Use, coupled_model, model_options, resolve, weather
+from lightfit.cli.options import ModelOptions, Use, check_resumable, coupled_model, model_options, resolve, weather
 from lightfit.errors import InputError
 
 
@@ -49,8 +49,17 @@ def calibrate(
     th0 = parse_theta(start)
     check_names(th0, what="start")
     obs = read_observations(observations)
+    # A history made with other model settings (e.g. the finite field, before periodic became the
+    # default) must not be resumed into this run: checked before the plants are grown.
+    settings = out / "settings.json"
+    if resume and (out / "history.jsonl").exists():
+        for f in (settings, out / "calibration.json"):
+            if f.exists():
+                check_resumable(json.loads(f.read_text()).get("config"), s, f, "calibration history")
+                break
     m = coupled_model(s, weather(s))
     out.mkdir(parents=True, exist_ok=True)
+    settings.write_text(json.dumps({"config": s.as_dict()}, indent=2))
     res = run_calibration(
         m,
         obs,

@@ -298,6 +298,47 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     return s
 
 
+#: Settings that change what the model renders: a cached emulator is valid only for the same values.
+RENDER_SETTINGS = (
+    "n_plants",
+    "boundary",
+    "buffer_rows",
+    "buffer_along",
+    "field_seed",
+    "samples",
+    "bounces",
+    "render_seed",
+    "weather_file",
+    "how",
+    "steps",
+)
+#: Settings that change the model's outputs: a resumed calibration or posterior needs the same values.
+MODEL_SETTINGS = (*RENDER_SETTINGS, "par_kind", "photosynthesis", "an_per")
+
+
+def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTINGS) -> list[str]:
+    """``"key: before → now"`` for each of ``keys`` that differs between a stored run's settings
+    (its ``config``) and ``s``. Settings written before the periodic boundary have no
+    ``boundary``: they were finite fields. ``previous=None`` (nothing stored): no difference.
+    """
+    if previous is None:
+        return []
+    now = s.as_dict()
+    before = {"boundary": "finite"} | dict(previous)
+    return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
+
+
+def check_resumable(previous: dict | None, s: ModelSettings, file, what: str) -> None:
+    """Refuse to resume a run stored with other model settings (it would mix two models)."""
+    diff = changed_settings(previous, s)
+    if diff:
+        raise InputError(
+            f"the {what} there was made with other model settings ({'; '.join(diff)})",
+            file=file,
+            expected="the same settings as that run, --no-resume to start again, or another --out",
+        )
+
+
 def check_boundary(boundary: str, buffer_rows: int | None, buffer_along: int | None) -> tuple[int | None, int | None]:
     """``--boundary`` with the buffers given: (buffer_rows, buffer_along) of the field.
 

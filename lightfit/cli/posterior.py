@@ -9,7 +9,17 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names
-from lightfit.cli.options import ModelOptions, Use, coupled_model, model_options, resolve, weather
+from lightfit.cli.options import (
+    RENDER_SETTINGS,
+    ModelOptions,
+    Use,
+    changed_settings,
+    check_resumable,
+    coupled_model,
+    model_options,
+    resolve,
+    weather,
+)
 from lightfit.errors import InputError
 
 
@@ -53,20 +63,30 @@ def posterior(
     names = P.check_sampled(list(parse_names(parameters)), prior_set)
     uses = parse_names(use)
     obs = read_observations(observations or rep.OBSERVATIONS)
+    # A stored chain made with other model settings (e.g. the finite field, before periodic became
+    # the default) must not be resumed: checked before the plants are grown.
+    if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
+        check_resumable(P.load_run(out / "run.h5")["attrs"].get("config"), s, out / "run.h5", "posterior run")
     m = coupled_model(s, weather(s))
     lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
     hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]
     out.mkdir(parents=True, exist_ok=True)
-    emu_path = out / "emulator.npz"
+    emu_path, emu_settings = out / "emulator.npz", out / "emulator_settings.json"
     emu = E.PartsEmulator.load(emu_path) if emu_path.exists() else None
-    # A cached emulator is reused only if it was built for the same prior box and the same model size.
+    # A cached emulator is reused only if it was built for the same prior box, the same model size
+    # and the same render settings (boundary included; an emulator without its settings file
+    # predates them and is rebuilt).
+    stale = not emu_settings.exists() or changed_settings(json.loads(emu_settings.read_text()), s, RENDER_SETTINGS)
     if (
         emu is None
+        or stale
         or not (np.allclose(emu.lo, lo) and np.allclose(emu.hi, hi))
         or emu.coef_values.shape[1:] != (int(m.day.sum()), 4, len(m.segment_id))
     ):
         emu = E.build_emulator(m, lo, hi, n_design=n_design, seed=0, progress=True)
         emu.save(emu_path)
+        emu_settings.write_text(json.dumps(s.as_dict(), indent=2))
+        (out / "validation.npz").unlink(missing_ok=True)  # renders of the old model
     val_path = out / "validation.npz"
     if val_path.exists() and np.load(val_path)["values"].shape[1:] == emu.coef_values.shape[1:]:
         z = np.load(val_path)
