@@ -8,7 +8,9 @@
    ``--full`` also the default configuration) run by :func:`lightfit.replication.run` once per set,
    reading the night-time (sun below the horizon) and noon (12:00–14:00 local) canopy net CO2
    exchange per ground area, checked against −8 … −1 (night) and 15 … 50 (noon) µmol m⁻² s⁻¹,
-   and the fraction of Rubisco-limited blades at noon.
+   and the fraction of Rubisco-limited blades at noon. The quick configuration is also run with
+   the PROSPECT-D leaf (``Optics.preset("prospect")``, absorptance ≈ 0.90 instead of the grey
+   0.5 leaf that is still ``Optics()``'s default), to show what the leaf-optics item will change.
 
 Prints a Markdown table and writes results/photosynthesis_default_check.json. Every number comes
 from the model run here.
@@ -30,7 +32,9 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import lightfit.photosynthesis as ps  # noqa: E402
-from lightfit.replication import ReplicationConfig, run  # noqa: E402
+from lightfit.light.scene import Optics  # noqa: E402
+from lightfit.model.coupled import CoupledModel  # noqa: E402
+from lightfit.replication import ReplicationConfig, forcing, run, scenario_for  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = (ps.DEFAULT_PARAMETER_SET, "giraud2023")
@@ -57,9 +61,13 @@ def light_response(name: str) -> dict:
     }
 
 
-def canopy(cfg: ReplicationConfig, name: str) -> dict:
+def canopy(cfg: ReplicationConfig, name: str, optics: str | None = None) -> dict:
     t0 = time.perf_counter()
-    ds, _ = run(replace(cfg, photosynthesis=name), observations=None)
+    cfg = replace(cfg, photosynthesis=name)
+    if optics is None:
+        ds, _ = run(cfg, observations=None)
+    else:  # the same run with another leaf (ReplicationConfig has no optics field)
+        ds = CoupledModel(replace(scenario_for(cfg, forcing(None, cfg.how)), optics=Optics.preset(optics))).simulate()
     local = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC").tz_convert("Europe/Berlin")
     an = ds["canopy_an_umol_m2_s"].values
     night = ds["sun_elevation_deg"].values < 0
@@ -70,6 +78,7 @@ def canopy(cfg: ReplicationConfig, name: str) -> dict:
     n_night, n_noon = float(an[night].mean()), float(an[noon].mean())
     return {
         "photosynthesis": name,
+        "optics": optics or "Optics() default (grey 0.5 leaf)",
         "night_steps_local": [t.strftime("%H:%M") for t in local[night]],
         "night_canopy_an_umol_m2_s": an[night].round(3).tolist(),
         "night_mean_umol_m2_s": n_night,
@@ -87,11 +96,16 @@ def canopy(cfg: ReplicationConfig, name: str) -> dict:
 
 
 def main(full: bool = False) -> dict:
-    configs = {"quick": ReplicationConfig.quick()} | ({"default": ReplicationConfig()} if full else {})
+    configs = {
+        "quick": (ReplicationConfig.quick(), None),
+        "quick, PROSPECT leaf": (ReplicationConfig.quick(), "prospect"),
+    }
+    if full:
+        configs["default"] = (ReplicationConfig(), None)
     out = {
         "ranges": {"night": NIGHT_RANGE, "noon": NOON_RANGE, "leaf_saturated": LEAF_SATURATED_RANGE},
         "leaf": {name: light_response(name) for name in SETS},
-        "canopy": {k: {name: canopy(cfg, name) for name in SETS} for k, cfg in configs.items()},
+        "canopy": {k: {name: canopy(cfg, name, optics) for name in SETS} for k, (cfg, optics) in configs.items()},
     }
     print("| set | leaf Rd (25 °C) | leaf light-saturated An (25 °C, 400 ppm) |")
     print("|---|---:|---:|")
