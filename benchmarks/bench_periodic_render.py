@@ -1,6 +1,6 @@
 """Benchmark: render time of the periodic cell vs the finite 2-buffer-row default (issue 13).
 
-    python benchmarks/bench_periodic_render.py [--plants 16 100] [--samples 64] [--repeat 2]
+    python benchmarks/bench_periodic_render.py [--plants 16 100] [--samples 64] [--repeat 2] [--day] [--walk]
 
 Side by side in one run, for the same measured plants (N × N, seed 1) at two sun positions
 (the 2016-04-20 10:00 UTC sun of the main job, and a low sun at 15° elevation, same azimuth),
