@@ -97,7 +97,7 @@ class Scenario:
     samples: int = 32
     bounces: int = 3
     seed: int = 0
-    photosynthesis: str = "giraud2023"
+    photosynthesis: str = "winter_wheat"
     par_kind: str = "incident"
     an_per: str = "ground"
     optics: Optics = dc_field(default_factory=Optics)
