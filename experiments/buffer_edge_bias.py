@@ -5,7 +5,7 @@
 Same measured plants (4 × 4 by default), same sun and weather (2016-04-20 10:00 UTC,
 reconstructed forcing), K samples, 3 bounces; canopy absorbed PAR of the measured segments for
 several (buffer_rows, buffer_along) against the widest field (10 rows, 40 plants along). Prints the
-README table and writes results/buffer_edge_bias.json.
+"Field-edge bias" table in docs/light.md and writes results/buffer_edge_bias.json.
 """
 
 from __future__ import annotations
