@@ -155,7 +155,12 @@ def tabulated_leaf(n_grid: int = 64) -> LeafPhotosynthesis:
         qmax = jnp.maximum(jnp.max(q, axis=1), 1e-6) * (1.0 + 1e-9)  # (T,)
         g = jnp.linspace(0.0, 1.0, G)
         res, dan_g = _solve_with_slope(qmax[:, None] * g[None, :] ** 2, forcing, params)
-        x = jnp.sqrt(jnp.clip(q / qmax[:, None], 0.0, 1.0)) * (G - 1)
+        r = jnp.clip(q / qmax[:, None], 0.0, 1.0)
+        # sqrt has an infinite slope at 0: dark blades (night steps, q = 0) would send inf·0 = NaN
+        # into the cotangent of qmax and from there into the implicit solve. Their interpolation
+        # coordinate is constant 0, so give it a zero derivative (double-where keeps it finite).
+        lit = r > 0
+        x = jnp.where(lit, jnp.sqrt(jnp.where(lit, r, 1.0)), 0.0) * (G - 1)
         i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, G - 2)
         frac = x - i
         take = jax.vmap(lambda a, j: a[j])
