@@ -195,7 +195,18 @@ def plot(ds, path: Path) -> Path:
     par, sd = ds["plant_par_umol_m2_s"].values, ds["plant_par_spread_umol_m2_s"].values
     kind = ds.attrs.get("par_kind", "absorbed")
     ax.fill_between(t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments")
-    ax.plot(t, par, color="tab:blue", lw=2, label=f"model: {kind} PAR, mean over segments")
+    ax.plot(t, par, color="tab:blue", lw=2, label=f"model: {kind} PAR at the plants, mean over segments")
+    if "above_canopy_par_umol_m2_s" in ds:
+        # What a horizontal quantum sensor above the canopy reads: the quantity the chamber's PAR
+        # record is, so the observation is compared with it rather than with PAR at the plants.
+        ax.plot(
+            t,
+            ds["above_canopy_par_umol_m2_s"].values,
+            color="grey",
+            lw=1.5,
+            ls="--",
+            label="forcing: PAR above the canopy (horizontal)",
+        )
     if "obs_plant_par_umol_m2_s" in ds:
         ax.errorbar(
             t,
@@ -203,7 +214,7 @@ def plot(ds, path: Path) -> Path:
             yerr=ds["obs_plant_par_sd_umol_m2_s"].values,
             fmt="s",
             color="navy",
-            label="observed PAR (chamber)",
+            label="observed PAR (chamber quantum sensor, above the canopy)",
         )
     ax.set_ylabel("PAR (µmol m⁻² s⁻¹)", color="tab:blue")
     ax2 = ax.twinx()
@@ -228,8 +239,8 @@ def plot(ds, path: Path) -> Path:
     ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
     prov = ds.attrs.get("weather_provenance", "unknown").upper()
     fig.suptitle(
-        f"Selhausen 2016-04-20 replication — {prov} forcing; {ds.attrs.get('n_plants')} plants, "
-        f"{field_label(ds.attrs)}, K={ds.attrs.get('samples')}",
+        f"Selhausen 2016-04-20 replication — {prov} forcing\n{ds.attrs.get('n_plants')} plants, "
+        f"{field_label(ds.attrs)}, K={ds.attrs.get('samples')}, photosynthesis {ds.attrs.get('photosynthesis')}",
         fontsize=11,
     )
     fig.savefig(path, dpi=110)
