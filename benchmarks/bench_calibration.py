@@ -213,7 +213,7 @@ def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(rows, indent=2))
     t = Table(title="calibration cost (2 CPU cores, one run)")
-    for c in (
+    columns = (
         "config",
         "segments",
         "daytime_steps",
@@ -223,25 +223,11 @@ def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
         "fd_over_ad",
         "calibration_s",
         "calibration_s_estimated",
-    ):
+    )
+    for c in columns:
         t.add_column(c, justify="right")
     for r in rows:
-        t.add_row(
-            *(
-                f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "–"))
-                for c in (
-                    "config",
-                    "segments",
-                    "daytime_steps",
-                    "loss_s",
-                    "loss_and_grad_s",
-                    "fd_grad_s",
-                    "fd_over_ad",
-                    "calibration_s",
-                    "calibration_s_estimated",
-                )
-            )
-        )
+        t.add_row(*(f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "–")) for c in columns))
     Console().print(t)
     return rows
 

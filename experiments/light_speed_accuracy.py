@@ -151,7 +151,7 @@ def main(n_plants: int = 16, out_dir: Path = ROOT / "results" / "light_speed_acc
     fig.suptitle(f"Irradiance speed/accuracy, {n_plants} measured plants (reference: K=1024, 8 bounces, 6 buffer rows)")
     fig.savefig(out_dir / "pareto.png", dpi=110)
     t = Table(title="speed/accuracy (absorbed PAR, vs reference)")
-    for c in (
+    columns = (
         "changed",
         "samples",
         "bounces",
@@ -162,26 +162,11 @@ def main(n_plants: int = 16, out_dir: Path = ROOT / "results" / "light_speed_acc
         "p90_rel_err_segment",
         "median_reported_rse",
         "canopy_total_rel_err",
-    ):
+    )
+    for c in columns:
         t.add_column(c, justify="right")
     for r in rows:
-        t.add_row(
-            *(
-                f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c])
-                for c in (
-                    "changed",
-                    "samples",
-                    "bounces",
-                    "buffer_rows",
-                    "along",
-                    "time_s",
-                    "median_rel_err_segment",
-                    "p90_rel_err_segment",
-                    "median_reported_rse",
-                    "canopy_total_rel_err",
-                )
-            )
-        )
+        t.add_row(*(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in columns))
     console.print(t)
     return df
 

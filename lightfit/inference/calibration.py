@@ -272,7 +272,8 @@ def calibrate(
         # drop a line cut by an interruption, so that the steps appended below stay readable
         hist.write_text("".join(json.dumps(r) + "\n" for r in past), encoding="utf-8")
         if past:
-            th0 = th0.replace(**{n: min(past, key=lambda r: r["loss"])["theta"][n] for n in names})
+            best_past = min(past, key=lambda r: r["loss"])
+            th0 = th0.replace(**{n: best_past["theta"][n] for n in names})
     elif hist and hist.exists():
         hist.unlink()
     opt = (_BFGS if method == "bfgs" else _LBFGSB)(loss, np.asarray(th0.vector(names)), rtol=rtol, atol=atol, gtol=gtol)
@@ -309,9 +310,8 @@ def calibrate(
             if accepted >= max_steps:
                 break
     theta = loss.theta(jnp.asarray(best_x))
-    if past and min(r["loss"] for r in past) < best_loss:
-        b = min(past, key=lambda r: r["loss"])
-        theta, best_loss = theta.replace(**b["theta"]), b["loss"]
+    if past and best_past["loss"] < best_loss:
+        theta, best_loss = theta.replace(**best_past["theta"]), best_past["loss"]
     return CalibrationResult(
         theta.to_dict(),
         best_loss,

@@ -36,10 +36,6 @@ from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build
 from lightfit.precision import precision
 
-# Transitional: the defaults as a dict for experiments/posterior_2016_04_20.py, which merges
-# dicts; remove once it uses Theta.
-DEFAULT_THETA = Theta().to_dict()
-
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S) in
 #: :data:`~lightfit.light.estimator.PARTS` order, per unit DNI / DHI.
 LightParts = Callable[[Theta], tuple[jax.Array, jax.Array]]
@@ -218,4 +214,4 @@ class CoupledModel:
         return ds
 
 
-__all__ = ["CoupledModel", "DEFAULT_THETA", "LightParts", "Scenario"]
+__all__ = ["CoupledModel", "LightParts", "Scenario"]
