@@ -138,7 +138,8 @@ def test_dependency_check_catches_both_directions(tmp_path):
 
 # -- layout: the pipeline flows one way ---------------------------------------------------------
 
-#: Rank of each subpackage / top-level module along the pipeline. A module may import its own
+#: Rank of each subpackage / top-level module along the pipeline (``report`` draws what
+#: ``replication`` runs, below it). A module may import its own
 #: rank or lower ranks, never a higher one. ``errors`` and ``precision`` are shared helpers, and
 #: the package root (``import lightfit``) sets up the Mitsuba backend; all may be imported anywhere.
 RANK = {
@@ -149,6 +150,7 @@ RANK = {
     "model": 4,
     "inference": 5,
     "replication": 6,
+    "report": 5.5,
     "distributed": 6,
     "dataset": 6,
     "cli": 7,

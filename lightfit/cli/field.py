@@ -40,7 +40,7 @@ def field(
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
     from lightfit import plant
     from lightfit.plant.preview import plot_field
-    from lightfit.replication import field_label
+    from lightfit.report import field_label
 
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
     g = plant.GrowthConfig(parameter_file, season_start, date)

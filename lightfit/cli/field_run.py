@@ -54,7 +54,8 @@ def field_run(
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
     from lightfit.distributed.run import FieldRun, run_field
-    from lightfit.replication import field_label, write_netcdf
+    from lightfit.replication import write_netcdf
+    from lightfit.report import field_label
 
     s = resolve(model)
     run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)

@@ -28,6 +28,7 @@ def replicate(
     from lightfit import replication as rep
     from lightfit import weather as wx
     from lightfit.model.parameters import check_names
+    from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing
 
     s = resolve(model)
@@ -47,7 +48,7 @@ def replicate(
     }
     wx.write_lightfit_csv(w, out / "forcing.csv", meta)
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, Selhausen 2016-04-20")
-    console.print(f"running: {fld.n}×{fld.n} plants, {rep.field_label(fld)}, K={s.samples}, {s.bounces} bounces …")
+    console.print(f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, K={s.samples}, {s.bounces} bounces …")
     ds, obs = rep.run(
         cfg,
         weather_file=s.weather_file,
@@ -57,16 +58,16 @@ def replicate(
         out=out,
         progress=True,
     )
-    summary = rep.summary(ds)
+    table = summary(ds)
     t = Table(
-        title=f"replication summary ({label} forcing; {rep.field_label(ds.attrs)}; "
+        title=f"replication summary ({label} forcing; {field_label(ds.attrs)}; "
         f"model PAR = {s.par_kind}, An per {s.an_per} area)"
     )
-    # The columns are the summary's own (lightfit.replication.summary), first one the local time.
-    first, *numbers = summary.columns
-    for c in summary.columns:
+    # The columns are the summary's own (lightfit.report.summary), first one the local time.
+    first, *numbers = table.columns
+    for c in table.columns:
         t.add_column(c.replace("_umol_m2_s", "").replace("_", " "), justify="right")
-    for _, r in summary.iterrows():
+    for _, r in table.iterrows():
         t.add_row(str(r[first]), *(f"{r[c]:.3g}" if np.isfinite(r[c]) else "–" for c in numbers))
     console.print(t)
     if obs is not None:
