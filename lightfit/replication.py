@@ -18,10 +18,14 @@ import numpy as np
 import pandas as pd
 
 from lightfit import weather
+from lightfit.errors import InputError
 from lightfit.inference.observations import align, read_observations
+from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
+from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
+from lightfit.light.scene import Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
-from lightfit.model.parameters import Theta
+from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Scenario
 from lightfit.plant import Field
 from lightfit.report import plot, summary
@@ -41,6 +45,12 @@ class ReplicationConfig:
     soil; with ``buffer_rows=None`` → 2, the reference paper's setup). ``buffer_rows`` /
     ``buffer_along``: ``None`` means the boundary's default (2 finite, 0 periodic); explicit
     non-zero buffers with a periodic boundary are refused (:class:`lightfit.plant.Field`).
+
+    ``optics``: leaf optics preset, ``"prospect"`` (default: PROSPECT-D wheat leaf, PAR absorptance
+    0.90) or ``"paper"`` (the reference paper's grey 0.5 leaf); ``chlorophyll_ug_cm2``: leaf
+    chlorophyll a+b of the ``prospect`` leaf (``None``: the default trait, 50.5 µg cm⁻²; prior range
+    :data:`lightfit.light.leaf_optics.CHLOROPHYLL_PRIOR_UG_CM2`). Named presets of the whole model
+    setup: :data:`PAPER_PRESET` via :meth:`paper` / :meth:`with_preset` (docs/model.md, "Presets").
     """
 
     n_plants: int = 100
@@ -55,10 +65,48 @@ class ReplicationConfig:
     an_per: str = "ground"
     how: str = "sample"
     photosynthesis: str = Scenario.photosynthesis
+    optics: str = DEFAULT_PRESET
+    chlorophyll_ug_cm2: float | None = None
 
     @staticmethod
     def quick() -> ReplicationConfig:
         return ReplicationConfig(n_plants=4, samples=16, bounces=2)
+
+    @staticmethod
+    def paper() -> ReplicationConfig:
+        """The reference paper's whole setup at the main job's size (:data:`PAPER_PRESET`)."""
+        return ReplicationConfig().with_preset("paper")
+
+    def with_preset(self, name: str) -> ReplicationConfig:
+        """This configuration with the model choices of a named preset (:data:`PRESETS`): ``"default"``
+        (lightfit's credible default: the class defaults) or ``"paper"`` (:data:`PAPER_PRESET`). The
+        run's size (plants, samples, bounces, seeds) is kept: ``quick().with_preset("paper")`` is the
+        paper's setup at the CI size."""
+        if name == "paper":
+            return replace(self, **PAPER_PRESET)
+        if name == "default":
+            base = ReplicationConfig()
+            return replace(self, **{k: getattr(base, k) for k in PAPER_PRESET})
+        raise InputError(f"preset={name!r}", column="preset", expected=" or ".join(PRESETS))
+
+    def leaf_optics(self) -> Optics:
+        """The run's :class:`~lightfit.light.scene.Optics` (checks the preset and the chlorophyll)."""
+        if self.optics not in LEAF_PRESETS:
+            raise InputError(f"optics={self.optics!r}", column="optics", expected=" or ".join(LEAF_PRESETS))
+        if self.chlorophyll_ug_cm2 is None:
+            return Optics.preset(self.optics)
+        if self.optics != "prospect":
+            raise InputError(
+                f"chlorophyll_ug_cm2={self.chlorophyll_ug_cm2!r} with optics {self.optics!r}",
+                column="chlorophyll_ug_cm2",
+                expected="optics 'prospect' (the paper's grey leaf is not made from leaf traits)",
+            )
+        try:
+            return Optics.from_traits(LeafTraits(Cab=self.chlorophyll_ug_cm2))
+        except InputError as e:
+            raise InputError(
+                f"chlorophyll_ug_cm2={self.chlorophyll_ug_cm2!r}", column="chlorophyll_ug_cm2", expected=e.expected
+            ) from None
 
     def finite(self, buffer_rows: int = 2, buffer_along: int | None = None) -> ReplicationConfig:
         """The same run on a finite field; the defaults are the reference paper's 2 buffer rows."""
@@ -73,6 +121,22 @@ class ReplicationConfig:
             buffer_along=self.buffer_along,
             boundary=self.boundary,
         )
+
+
+#: The reference paper's setup (Baker et al. 2025): a finite field with 2 buffer rows on bare soil,
+#: the grey 0.5 leaf, the giraud2023 photosynthesis set and, as PAR at the plants, the area-mean
+#: absorbed PAR of all leaf segments. ``replication_quick_finite.json`` is its regression curve.
+PAPER_PRESET = {
+    "boundary": "finite",
+    "buffer_rows": 2,
+    "buffer_along": None,
+    "optics": "paper",
+    "chlorophyll_ug_cm2": None,
+    "photosynthesis": "giraud2023",
+    "par_kind": "absorbed",
+}
+#: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.
+PRESETS = ("default", "paper")
 
 
 def forcing(weather_file: str | Path | None = None, how: str = "sample") -> pd.DataFrame:
@@ -95,6 +159,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,
         photosynthesis=cfg.photosynthesis,
+        optics=cfg.leaf_optics(),
     )
 
 
@@ -118,7 +183,7 @@ def run(
     """
     w = forcing(weather_file, cfg.how) if forcing_df is None else forcing_df
     model = model_for(cfg, w, progress)
-    ds = model.simulate(theta)
+    ds = model.simulate(as_theta(theta, model.scenario.theta))  # leaf defaults: the run's optics
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     obs = read_observations(observations) if observations else None
     if obs is not None:

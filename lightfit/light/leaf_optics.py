@@ -22,9 +22,10 @@ the leaf's bi-hemispherical albedo is :math:`F_0\bar E + (1 - F_0)c` and its tra
 
 so the leaf's absorptance is PROSPECT's :math:`1 - R - T` and its transmittance is T.
 
-**Presets** (:data:`PRESETS`): ``prospect`` (the default traits :class:`LeafTraits` with the
-default specular 0.5 and roughness 0.5; base colour and subsurface derived) and ``paper`` (the
-reference paper's grey leaf: base colour 0.5, specular 0.5, roughness 0.5, subsurface 0.3).
+**Presets** (:data:`PRESETS`): ``prospect``, lightfit's default (:data:`DEFAULT_PRESET`: the
+default traits :class:`LeafTraits` with the default specular 0.5 and roughness 0.5; base colour
+≈ 0.067 and subsurface ≈ 0.596 derived) and ``paper`` (the reference paper's grey leaf: base
+colour 0.5, specular 0.5, roughness 0.5, subsurface 0.3).
 """
 
 from __future__ import annotations
@@ -41,6 +42,12 @@ PAR_BAND_NM = (400.0, 700.0)
 #: Temperature of the blackbody whose photon spectrum weights the PAR band (the solar disc).
 PAR_BLACKBODY_K = 5800.0
 PRESETS = ("prospect", "paper")
+#: The leaf optics of lightfit's credible default (``Scenario.optics``, ``Theta``'s leaf defaults).
+DEFAULT_PRESET = "prospect"
+#: Prior range of leaf chlorophyll a+b (µg cm⁻²) for wheat: genotype-mean SPAD 32–52 in 28 wheat
+#: genotypes over several environments (Hamblin et al. 2014, PLoS ONE 9:e92529) through the SPAD
+#: fit of :attr:`LeafTraits.Cab` (Qian et al. 2021; mg m⁻² / 10). The default 50.5 (SPAD 41) lies inside.
+CHLOROPHYLL_PRIOR_UG_CM2 = (36.4, 70.3)
 #: The reference paper's grey leaf (Baker et al. 2025; lightfit's defaults until the `prospect` preset).
 PAPER_LEAF = {"specular": 0.5, "roughness": 0.5, "subsurface": 0.3, "base_color": 0.5}
 

@@ -8,14 +8,21 @@ name                      domain       default  meaning
 ========================  ===========  =======  ===============================================
 ``specular``              [0, 1]       0.5      glossy-lobe strength, :math:`F_0 = 0.08\,s`
 ``roughness``             [0, 1]       0.5      GGX roughness of the cuticle
-``subsurface``            [0, 1]       0.3      share of diffuse light transmitted
+``subsurface``            [0, 1]       ≈ 0.596  share of diffuse light transmitted
 ``light_factor``          (0, ∞)       1.0      multiplies the weather's PAR (dimensionless)
 ``vcmax_scale``           (0, ∞)       1.0      multiplies the photosynthesis set's Vcmax
 ========================  ===========  =======  ===============================================
 
 The leaf names come from :data:`lightfit.light.bsdf.LEAF_PARAMETERS` (the leaf model owns
-them). Change a value with ``theta.replace(roughness=0.3)``; build one from a vector over some
-names (what optimisers and samplers hold) with ``Theta().with_vector(names, x)``.
+them). The leaf defaults are the default leaf optics' (``Optics.preset("prospect")``: the
+subsurface that, with the derived base colour ≈ 0.067, reproduces PROSPECT-D's PAR reflectance
+0.061 and transmittance 0.038 of the default wheat leaf, :mod:`lightfit.light.leaf_optics`),
+derived on first use rather than written down twice. A scenario with other optics (the
+reference paper's grey leaf, preset ``paper``: subsurface 0.3; other leaf traits) has its own
+leaf defaults: :meth:`Theta.for_optics`.
+
+Change a value with ``theta.replace(roughness=0.3)``; build one from a vector over some names
+(what optimisers and samplers hold) with ``Theta().with_vector(names, x)``.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
+from functools import cache
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -44,14 +52,32 @@ assert tuple(BOUNDS)[:3] == LEAF_PARAMETERS  # one order for the leaf vector eve
 NAMES: tuple[str, ...] = tuple(BOUNDS)
 
 
+@cache
+def _default_leaf() -> dict[str, float]:
+    """The default leaf optics' BSDF parameters (computed once: PROSPECT-D and the GGX table)."""
+    from lightfit.light.leaf_optics import DEFAULT_PRESET, preset_parameters
+
+    return preset_parameters(DEFAULT_PRESET)
+
+
+def _leaf_default(name: str):
+    return eqx.field(default_factory=lambda: _default_leaf()[name])
+
+
 class Theta(eqx.Module):
     """Values of the coupled model's parameters (see the module docstring for units and domains)."""
 
-    specular: float = 0.5
-    roughness: float = 0.5
-    subsurface: float = 0.3
+    specular: float = _leaf_default("specular")
+    roughness: float = _leaf_default("roughness")
+    subsurface: float = _leaf_default("subsurface")
     light_factor: float = 1.0
     vcmax_scale: float = 1.0
+
+    @classmethod
+    def for_optics(cls, optics, **values) -> Theta:
+        """Defaults whose leaf parameters are those of ``optics`` (a :class:`lightfit.light.scene.Optics`,
+        e.g. ``Optics.preset("paper")`` → subsurface 0.3), with ``values`` replaced."""
+        return cls(**{k: float(getattr(optics, k)) for k in LEAF_PARAMETERS}).replace(**values)
 
     @property
     def leaf(self):

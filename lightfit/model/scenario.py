@@ -15,7 +15,9 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.scene import Optics
+from lightfit.model.parameters import Theta
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
 from lightfit.weather.units import par_from_ghi
@@ -87,6 +89,10 @@ class Scenario:
         an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area of the
             measured plants) for canopy net CO2 uptake.
         optics: soil albedo, base colour and the BSDF parameters used to freeze sampling.
+            Default: ``Optics.preset("prospect")``, the PROSPECT-D wheat leaf (PAR absorptance
+            0.90; docs/light.md, "Leaf optics"); ``Optics.preset("paper")`` is the reference
+            paper's grey 0.5 leaf. The leaf parameters rendered are the run's ``Theta``; its
+            defaults for these optics are :attr:`theta` (``Theta.for_optics``).
         sky: ``"isotropic"`` or ``"overcast"``.
         n_tiles, tile: run only tile ``tile`` of ``field.tiles(n_tiles)`` (its plants measured,
             its buffer ring as geometry); ``None`` runs the whole measurement area.
@@ -100,7 +106,7 @@ class Scenario:
     photosynthesis: str = "winter_wheat"
     par_kind: str = "incident"
     an_per: str = "ground"
-    optics: Optics = dc_field(default_factory=Optics)
+    optics: Optics = dc_field(default_factory=lambda: Optics.preset(DEFAULT_PRESET))
     sky: str = "isotropic"
     n_tiles: int = 1
     tile: int | None = None
@@ -124,6 +130,11 @@ class Scenario:
                 column="weather",
                 expected="a contract series with solar columns (lightfit.weather.add_solar)",
             )
+
+    @property
+    def theta(self):
+        """Default parameters of this scenario: the leaf parameters of its optics, the rest Theta's."""
+        return Theta.for_optics(self.optics)
 
     @property
     def measured_tile(self) -> Tile | None:
