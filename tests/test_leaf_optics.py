@@ -71,7 +71,7 @@ def test_bsdf_parameters_reproduce_r_and_t():
 
 
 def test_presets():
-    assert Optics.preset("paper") == Optics()  # today's defaults, exactly
+    assert Optics.preset("paper") == Optics()  # the Optics class's own defaults: the grey leaf
     assert preset_parameters("paper") == PAPER_LEAF
     pro = Optics.preset("prospect")
     assert pro == Optics.from_traits(LeafTraits())
@@ -144,3 +144,50 @@ def test_specular_too_strong_for_prospect_reflectance():
         leaf_bsdf_parameters(LeafTraits(Cab=100.0), specular=1.0, roughness=0.1)
     with pytest.raises(InputError, match="roughness"):
         leaf_bsdf_parameters(roughness=math.nan)
+
+
+def test_default_leaf_is_prospect_everywhere():
+    """Scenario's optics, Theta's leaf defaults and the leaf module's default preset are one leaf."""
+    import pandas as pd
+
+    from lightfit.light.leaf_optics import DEFAULT_PRESET
+    from lightfit.model.parameters import Theta
+    from lightfit.model.scenario import WEATHER_COLUMNS, Scenario
+
+    assert DEFAULT_PRESET == "prospect"
+    sc = Scenario(weather=pd.DataFrame({c: [0.0] for c in WEATHER_COLUMNS}))
+    assert sc.optics == Optics.preset("prospect")
+    th = Theta()
+    assert (th.specular, th.roughness, th.subsurface) == (sc.optics.specular, sc.optics.roughness, sc.optics.subsurface)
+    assert th.subsurface == pytest.approx(0.596, abs=1e-3)  # the value docs and the CHANGELOG state
+    assert sc.theta == th
+    paper = Theta.for_optics(Optics.preset("paper"), light_factor=2.0)
+    assert (paper.subsurface, paper.light_factor, paper.vcmax_scale) == (0.3, 2.0, 1.0)
+
+
+def test_informed_subsurface_prior_spans_prospect_transmittance():
+    """The prior's stated bounds follow from the default leaf and PROSPECT-D's wheat T range 0.02–0.08."""
+    from lightfit.inference.mcmc.priors import PRIORS_INFORMED, SUBSURFACE_INFORMED
+    from lightfit.light.bsdf import SPECULAR_F0_SCALE
+
+    o = Optics.preset("prospect")
+    per_unit = (1 - SPECULAR_F0_SCALE * o.specular) * o.base_color  # T per unit subsurface
+    lo, hi = 0.02 / per_unit, min(1.0, 0.08 / per_unit)
+    assert SUBSURFACE_INFORMED == pytest.approx((lo, hi), abs=0.005)
+    assert PRIORS_INFORMED["subsurface"].support == SUBSURFACE_INFORMED
+    assert lo < o.subsurface < hi  # the default lies inside its prior
+
+
+def test_chlorophyll_prior_range_follows_the_spad_fit():
+    """CHLOROPHYLL_PRIOR_UG_CM2 is SPAD 32–52 through the photosynthesis module's SPAD fit (mg m⁻² → µg cm⁻²),
+    and the default trait is SPAD 41."""
+    from lightfit.light.leaf_optics import CHLOROPHYLL_PRIOR_UG_CM2
+    from lightfit.photosynthesis import chlorophyll_from_spad_qian2021 as chl
+
+    assert CHLOROPHYLL_PRIOR_UG_CM2 == pytest.approx((chl(32.0) / 10, chl(52.0) / 10), abs=0.05)
+    assert LeafTraits().Cab == pytest.approx(chl(41.0) / 10, abs=0.05)
+    lo, hi = CHLOROPHYLL_PRIOR_UG_CM2
+    a_lo, a_hi = par_optics(LeafTraits(Cab=lo)).A, par_optics(LeafTraits(Cab=hi)).A
+    # The prior range spans absorptance 0.873 … 0.922: credible wheat leaves (PROSPECT-D 0.83–0.92;
+    # the top, SPAD 52, is 0.002 above that range's upper end).
+    assert 0.83 <= a_lo < par_optics().A < a_hi <= 0.925

@@ -79,8 +79,16 @@ class Prior:
 
 
 _F0 = "F0 = 0.08·specular (lightfit.light.bsdf)"
-_T = "leaf transmittance = (1 − F0)·subsurface·base_color, base_color 0.5"
-#: Priors informed by leaf optics (docs/design.md §6) — the default.
+_T = (
+    "leaf transmittance T = (1 − F0)·subsurface·base_color with the default (PROSPECT-D) leaf's "
+    "base_color 0.0667 and F0 0.04: subsurface = T / 0.0640"
+)
+#: Subsurface range of the default leaf (``Optics.preset("prospect")``) that spans PROSPECT-D's
+#: wheat PAR transmittance 0.02–0.08 (docs/design.md §6): 0.02/0.0640 = 0.31 … 0.08/0.0640 = 1.25,
+#: capped at the domain's 1 (T ≤ 0.064). tests/test_leaf_optics.py recomputes it from the preset.
+#: (The reference paper's grey leaf, base colour 0.5, would need 0.04–0.17.)
+SUBSURFACE_INFORMED = (0.31, 1.0)
+#: Priors informed by leaf optics (docs/design.md §6) for the default leaf optics — the default.
 PRIORS_INFORMED: dict[str, Prior] = {
     "specular": Prior(
         "uniform",
@@ -96,7 +104,9 @@ PRIORS_INFORMED: dict[str, Prior] = {
         "frozen-sampling estimator's per-segment variance explodes (glints)",
     ),
     "subsurface": Prior(
-        "uniform", 0.04, 0.18, f"PROSPECT-D wheat PAR transmittance 0.02–0.08 (docs/design.md §6), {_T}: ≈ 0.04 … 0.17"
+        "uniform",
+        *SUBSURFACE_INFORMED,
+        f"PROSPECT-D wheat PAR transmittance 0.02–0.08 (docs/design.md §6), {_T}: 0.31 … 1 (capped)",
     ),
     "light_factor": Prior(
         "lognormal",
@@ -161,6 +171,7 @@ __all__ = [
     "PRIORS_WIDE",
     "PRIOR_SETS",
     "Prior",
+    "SUBSURFACE_INFORMED",
     "SAMPLED",
     "check_sampled",
     "priors_table",
