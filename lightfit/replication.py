@@ -1,11 +1,15 @@
-"""The 20 April 2016 Selhausen replication: the main job.
+"""The main job: a diurnal run of CPlantBox wheat at a site, by default the 20 April 2016 Selhausen replication.
 
-CPlantBox wheat grown from 2016-03-05 to 2016-04-20, a 10 × 10-plant measurement area as one
-cell of an infinite periodic field (default; ``boundary="finite"`` with two buffer rows is the
-reference paper's setup), the day's forcing (bundled reconstruction unless a real TERENO export is given),
-05:00–19:00 local time in 30-minute steps (29 steps), light and photosynthesis per segment.
-Outputs: results netCDF (time × segment), a Fig-4-like PNG (PAR with its spread across
-segments, canopy net CO2 uptake, observations where present), the forcing, and a summary table.
+CPlantBox wheat grown from 2016-03-05 to the run's date (default 2016-04-20), a 10 × 10-plant
+measurement area as one cell of an infinite periodic field (default; ``boundary="finite"`` with
+two buffer rows is the reference paper's setup), the day's forcing (bundled reconstruction of
+20 April 2016 unless a weather file or bundled name is given), a window of local time at the
+site (default 05:00–19:00 local in 30-minute steps, 29 steps, at Selhausen; :class:`Window`,
+:class:`Site`), light and photosynthesis per segment. Several dates make several days, each with
+its plants grown to its date, concatenated along time (:func:`run`).
+Outputs: results netCDF (time × segment; its attrs record the dates, window and site), a
+Fig-4-like PNG (PAR with its spread across segments, canopy net CO2 uptake, observations where
+present), the forcing, and a summary table.
 """
 
 from __future__ import annotations
@@ -16,10 +20,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import xarray as xr
 
 from lightfit import weather
-from lightfit.errors import InputError
+from lightfit.errors import InputError, parse_date
 from lightfit.inference.observations import align, read_observations
+from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
 from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
 from lightfit.light.scene import Optics
@@ -28,11 +34,23 @@ from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Scenario
 from lightfit.plant import Field
+from lightfit.plant.growth import GrowthConfig
 from lightfit.report import plot, summary
 from lightfit.weather.bundled import DATA_DIR
+from lightfit.weather.site import SELHAUSEN, Site, Window
 
-START_LOCAL = "2016-04-20 05:00"
-HOURS, STEP = 14.0, "30min"
+#: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
+DEFAULT_DATE = "2016-04-20"
+
+
+def as_dates(value: str | tuple | list) -> tuple[str, ...]:
+    """One date or several as sorted ``YYYY-MM-DD`` strings; empty or repeated dates are an error."""
+    dates = tuple(str(parse_date(d, "date")) for d in ((value,) if isinstance(value, str) else value))
+    if not dates or len(set(dates)) != len(dates):
+        raise InputError(f"dates={value!r}", column="date", expected="one or more different dates YYYY-MM-DD")
+    return tuple(sorted(dates))
+
+
 OBSERVATIONS = DATA_DIR / "observations" / "chamber_2016-04-20_record.csv"
 
 
@@ -51,6 +69,9 @@ class ReplicationConfig:
     chlorophyll a+b of the ``prospect`` leaf (``None``: the default trait, 50.5 µg cm⁻²; prior range
     :data:`lightfit.light.leaf_optics.CHLOROPHYLL_PRIOR_UG_CM2`). Named presets of the whole model
     setup: :data:`PAPER_PRESET` via :meth:`paper` / :meth:`with_preset` (docs/model.md, "Presets").
+    ``bounces``: ``None`` (default) → as many scattering orders as keep the truncated light under
+    :data:`BOUNCE_TOLERANCE` for the run's leaf (:func:`~lightfit.light.estimator.bounces_for_tolerance`:
+    2 for the default leaf, 8 for the grey ``paper`` leaf; measured by experiments/defaults_check.py).
     """
 
     n_plants: int = 100
@@ -59,7 +80,7 @@ class ReplicationConfig:
     buffer_along: int | None = None
     seed: int = 1
     samples: int = 64
-    bounces: int = 3
+    bounces: int | None = None
     render_seed: int = 0
     par_kind: str = "absorbed"
     an_per: str = "ground"
@@ -67,6 +88,12 @@ class ReplicationConfig:
     photosynthesis: str = Scenario.photosynthesis
     optics: str = DEFAULT_PRESET
     chlorophyll_ug_cm2: float | None = None
+    dates: tuple[str, ...] = (DEFAULT_DATE,)
+    window: Window = Window()
+    site: Site = SELHAUSEN
+
+    def __post_init__(self):
+        object.__setattr__(self, "dates", as_dates(self.dates))
 
     @staticmethod
     def quick() -> ReplicationConfig:
@@ -112,14 +139,33 @@ class ReplicationConfig:
         """The same run on a finite field; the defaults are the reference paper's 2 buffer rows."""
         return replace(self, boundary="finite", buffer_rows=buffer_rows, buffer_along=buffer_along)
 
-    def field(self) -> Field:
-        """The run's :class:`~lightfit.plant.Field` (checks boundary and buffers)."""
+    def field(self, date: str | None = None) -> Field:
+        """The run's :class:`~lightfit.plant.Field` with plants grown to ``date`` (default: the
+        first of :attr:`dates`); checks boundary, buffers and the growth range."""
         return Field(
             n_plants=self.n_plants,
             buffer_rows=self.buffer_rows,
             seed=self.seed,
             buffer_along=self.buffer_along,
             boundary=self.boundary,
+            growth=GrowthConfig(target_date=self.dates[0] if date is None else str(parse_date(date, "date"))),
+        )
+
+    def window_utc(self, date: str) -> tuple[pd.Timestamp, pd.Timestamp]:
+        """First and last step of ``date``'s window, UTC."""
+        return self.window.bounds_utc(date, self.site.timezone)
+
+    def date_of(self, w: pd.DataFrame) -> str:
+        """The date of :attr:`dates` whose window holds every step of the forcing ``w``."""
+        for d in self.dates:
+            t0, t1 = self.window_utc(d)
+            if len(w) and w.index[0] >= t0 and w.index[-1] <= t1:
+                return d
+        raise InputError(
+            f"the forcing's steps {w.index[0] if len(w) else '–'} … {w.index[-1] if len(w) else '–'} are not "
+            f"inside one day's window of {', '.join(self.dates)}",
+            column="date",
+            expected="one day's forcing per scenario (replication.days splits a several-day forcing)",
         )
 
 
@@ -137,29 +183,116 @@ PAPER_PRESET = {
 }
 #: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.
 PRESETS = ("default", "paper")
+#: Share of light the default bounces may truncate (``ReplicationConfig.bounces=None``). The
+#: default leaf absorbs 90 %, so 2 orders suffice: at 12:00 on 20 April the canopy-total absorbed
+#: PAR is 0.14 % (default field) / 0.3 % (quick) below its 8-bounce value (experiments/defaults_check.py).
+BOUNCE_TOLERANCE = 0.01
 
 
-def forcing(weather_file: str | Path | None = None, how: str = "sample") -> pd.DataFrame:
-    """The run's 29 steps: bundled reconstruction, or the given weather file, with solar columns."""
-    src = (
-        weather.read_weather(weather_file) if weather_file else weather.read_weather(weather.bundled_path("2016-04-20"))
-    )
-    src = weather.add_solar(src)
-    return weather.window(src, START_LOCAL, HOURS, STEP, how=how)
+def forcing(
+    weather_file: str | Path | None = None,
+    how: str = "sample",
+    *,
+    dates: tuple[str, ...] | str | None = None,
+    window: Window = Window(),
+    site: Site = SELHAUSEN,
+) -> pd.DataFrame:
+    """The run's steps, with solar columns for ``site``: the ``window`` (local time at the site) of each date.
+
+    ``weather_file``: a weather file or bundled name (:func:`lightfit.weather.read_source`);
+    default the bundled reconstruction of 2016-04-20, the only day it covers. ``dates``: one or
+    more dates (default 2016-04-20); an undated file (CPlantBox day) needs them given, and with
+    several it is placed on each. Several dates give one series concatenated in time.
+    Errors name the file and the parameter (``date``, ``start/hours``) when the window is not
+    covered.
+    """
+    given = dates is not None
+    dates = as_dates(dates or DEFAULT_DATE)
+    source = weather_file if weather_file else DEFAULT_DATE
+    if not weather_file and set(dates) != {DEFAULT_DATE}:
+        raise InputError(
+            f"--date {', '.join(d for d in dates if d != DEFAULT_DATE)}: no bundled forcing for that day",
+            expected=f"--weather FILE covering the date(s) (the bundled forcing is {DEFAULT_DATE} only)",
+        )
+    weather.require_date(source, dates if given else None)
+    undated = weather.is_undated(source)
+    days = []
+    src = None
+    for d in dates:
+        if src is None or undated:
+            src = weather.add_solar(weather.read_source(source, date=d), site=site)
+        t0, t1 = window.bounds_utc(d, site.timezone)
+        if t0 < src.index[0] or t1 > src.index[-1]:
+            raise InputError(
+                f"the window {window.describe(d, site.timezone)} (--date {d}, --start-time {window.start}, "
+                f"--hours {window.hours:g}) is not covered: the file spans {_span(src, site.timezone)}",
+                file=src.attrs.get("source"),
+                expected="a --date inside the file's span and a --start-time/--hours window within it",
+            )
+        days.append(weather.window(src, t0, window.hours, window.step, how=how))
+    if len(days) == 1:
+        return days[0]
+    out = pd.concat(days)
+    out.attrs = dict(days[0].attrs)
+    return out
+
+
+def _span(df: pd.DataFrame, tz: str) -> str:
+    a, b = (t.tz_convert(tz).strftime("%Y-%m-%d %H:%M") for t in (df.index[0], df.index[-1]))
+    return f"{a} … {b} ({tz})"
+
+
+def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    """A (several-day) forcing split into (date, that day's steps) by the configuration's windows."""
+    out = []
+    for d in cfg.dates:
+        t0, t1 = cfg.window_utc(d)
+        wd = w.loc[t0:t1]
+        if len(wd):
+            wd.attrs = dict(w.attrs)
+            out.append((d, wd))
+    return out
+
+
+def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None) -> pd.DataFrame:
+    """:func:`forcing` with the configuration's dates, window, site and resampling."""
+    return forcing(weather_file, cfg.how, dates=cfg.dates, window=cfg.window, site=cfg.site)
+
+
+def when_attrs(cfg: ReplicationConfig, date: str) -> dict[str, str | float]:
+    """netCDF attrs recording a run's day, window and site (the plants' ``target_date`` is the date)."""
+    site = cfg.site
+    return {
+        "date": date,
+        "window": cfg.window.describe(date, site.timezone),
+        "site": site.name,
+        "site_latitude_deg": site.latitude_deg,
+        "site_longitude_deg": site.longitude_deg,
+        "site_altitude_m": site.altitude_m,
+        "site_timezone": site.timezone,
+    }
+
+
+def _within(obs: pd.DataFrame, times: pd.DatetimeIndex) -> bool:
+    """True when every observation lies within half a step of the run's steps (what :func:`align` accepts)."""
+    half = ((times[1] - times[0]) if len(times) > 1 else pd.Timedelta("30min")) / 2
+    t = obs.index.tz_convert("UTC")
+    return bool(((t >= times[0] - half) & (t <= times[-1] + half)).all())
 
 
 def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
     """The :class:`Scenario` of a configuration over the forcing ``w`` (the one place that maps one to the other)."""
+    optics = cfg.leaf_optics()
     return Scenario(
         weather=w,
-        field=cfg.field(),
+        field=cfg.field(cfg.date_of(w)),
         samples=cfg.samples,
-        bounces=cfg.bounces,
+        bounces=cfg.bounces if cfg.bounces is not None else bounces_for_tolerance(BOUNCE_TOLERANCE, optics),
         seed=cfg.render_seed,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,
         photosynthesis=cfg.photosynthesis,
-        optics=cfg.leaf_optics(),
+        optics=optics,
     )
 
 
@@ -179,15 +312,27 @@ def run(
 ):
     """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None).
 
-    ``forcing_df``: the run's forcing if already read (``forcing(weather_file, cfg.how)``).
+    ``forcing_df``: the run's forcing if already read (:func:`forcing_of`). The bundled chamber
+    record (the default ``observations``) is left out when the run's steps do not reach it (another
+    day or window); other observations outside the run are an error.
     """
-    w = forcing(weather_file, cfg.how) if forcing_df is None else forcing_df
-    model = model_for(cfg, w, progress)
-    ds = model.simulate(as_theta(theta, model.scenario.theta))  # leaf defaults: the run's optics
+    w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
+    parts = []
+    for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
+        model = model_for(cfg, wd, progress)
+        d = model.simulate(as_theta(theta, model.scenario.theta))  # leaf defaults: the run's optics
+        d.attrs |= when_attrs(cfg, date)
+        parts.append(d)
+    if not parts:
+        raise InputError("the forcing has no step in the run's windows", column="date", expected=", ".join(cfg.dates))
+    ds = parts[0] if len(parts) == 1 else concat_days(parts)
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
+    times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     obs = read_observations(observations) if observations else None
+    if obs is not None and observations == OBSERVATIONS and not _within(obs, times):
+        obs = None  # the bundled record is of 20 April 2016, 12:13 local: not of this run's steps
     if obs is not None:
-        a = align(obs, model.times)
+        a = align(obs, times)
         for k, v in a.items():
             ds[f"obs_{k}"] = ("time", v)
         schema.annotate(ds)
@@ -199,6 +344,40 @@ def run(
         plot(ds, out / "replication.png")
         summary(ds).to_csv(out / "summary.csv", float_format="%.4g")
     return ds, obs
+
+
+#: Several-day results: a segment of day k has id ``segment_id + k · DAY_SEGMENT_STRIDE`` (ids of one day
+#: stay below 10¹⁴: :data:`lightfit.plant.growth.SEGMENT_ID_STRIDE` × plant ids < 10⁸).
+DAY_SEGMENT_STRIDE = 10**14
+
+
+def concat_days(parts: list) -> xr.Dataset:
+    """Several days' results (each from :meth:`CoupledModel.simulate`) as one Dataset along ``time``.
+
+    Each day has its own plants, grown to its date, and CPlantBox renumbers a plant's segments as
+    it grows: segment *i* on 20 April is not segment *i* on 23 June. So the days' segments are
+    kept apart: day *k*'s segment ids are offset by *k* × :data:`DAY_SEGMENT_STRIDE`, and a
+    per-segment value is NaN (``limitation`` −1, ``converged`` true) at the steps of other days;
+    canopy variables are each day's own. ``day`` (time) names each step's date; the attrs are the
+    first day's, with ``date``/``window``/``target_date`` listing every day.
+    """
+    static = ["plant_id", "organ_type", "area_m2", "is_blade"]
+    days_, statics = [], []
+    for k, p in enumerate(parts):
+        p = p.assign_coords(segment=p["segment"].values + k * DAY_SEGMENT_STRIDE)
+        statics.append(p[static].reset_coords()[static])
+        p = p.reset_coords(static, drop=True)
+        days_.append(p.assign_coords(day=("time", [p.attrs["date"]] * p.sizes["time"])))
+    fill = {"limitation": -1, "converged": True}
+    out = xr.concat(days_, dim="time", join="outer", combine_attrs="override", fill_value=fill)
+    out = out.assign_coords(xr.concat(statics, dim="segment"))
+    out["limitation"] = out["limitation"].astype(np.int8)
+    out["converged"] = out["converged"].astype(bool)
+    for k in ("date", "window", "target_date"):
+        out.attrs[k] = "; ".join(str(p.attrs[k]) for p in parts)
+    # Every other variable keeps its schema attributes from the days; ``day`` is this function's own.
+    out["day"].attrs = {"long_name": "date of the step's day (plants grown to it), YYYY-MM-DD"}
+    return out
 
 
 def write_netcdf(ds, path: Path) -> Path:

@@ -82,6 +82,15 @@ def test_model_commands_share_their_options():
         "--weather",
         "--how",
         "--steps",
+        "--date",
+        "--start-time",
+        "--hours",
+        "--step",
+        "--site",
+        "--latitude",
+        "--longitude",
+        "--altitude-m",
+        "--timezone",
     ):
         assert any(flag in opts for opts, _ in ref.values()), flag
     for name in MODEL_COMMANDS[1:]:
@@ -288,7 +297,7 @@ def test_calibrate_bounded_method_on_two_steps(tmp_path):
     r = runner.invoke(app, [*args, "--method", "lbfgsb", "--use", "par", "--max-steps", "2", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
     res = json.loads((tmp_path / "calibration.json").read_text())
-    assert res["method"] == "lbfgsb" and res["use"] == ["par"] and res["steps"] >= 1
+    assert res["method"] == "lbfgsb" and res["use"] == ["plant_par"] and res["steps"] >= 1
     assert "lbfgsb" in r.stdout
 
 
@@ -308,3 +317,75 @@ def test_calibrate_subprocess_runs_bfgs_in_float64(tmp_path):
     res = json.loads((tmp_path / "cal" / "calibration.json").read_text())
     assert res["precision"] == "float64" and res["config"]["steps"] == "14:16"
     assert res["theta"]["light_factor"] > 0
+
+
+#: A bad value for every option of every command whose values lightfit checks itself (typer checks
+#: int/float types; the walker covers those with "x"). Keyed by option flag; "OBS" is the record.
+BAD_VALUES = {
+    "--date": ["2016-02-30", "April", "2015-06-23", "2016-12-01"],
+    "--start-time": ["25:00", "5"],
+    "--hours": ["0", "30"],
+    "--step": ["2x", "0min", "20h"],
+    "--site": ["atlantis"],
+    "--latitude": ["95"],
+    "--timezone": ["Mars/Olympus"],
+    "--weather": ["no-such-weather.csv", "selhausen-cplantbox-dayz"],
+    "--boundary": ["torus"],
+    "--par-kind": ["diffuse"],
+    "--photosynthesis": ["c3-magic"],
+    "--an-per": ["plant"],
+    "--how": ["median"],
+    "--steps": ["0", "a:b"],
+    "--samples": ["1", "x"],
+    "--bounces": ["-1", "x"],
+    "--n-plants": ["0", "x"],
+    "--field-seed": ["-3"],
+    "--buffer-rows": ["2"],
+}
+#: Options that need others to be wrong (a site's coordinates come together).
+WITH = {"--latitude": ["--longitude", "6", "--timezone", "UTC"], "--timezone": ["--latitude", "50", "--longitude", "6"]}
+
+
+def _walk():
+    group = typer.main.get_command(app)
+    for name in MODEL_COMMANDS:
+        flags = {o for p in group.commands[name].params for o in p.opts}
+        for flag, values in BAD_VALUES.items():
+            if flag in flags:
+                for v in values:
+                    yield name, flag, v
+
+
+@pytest.mark.parametrize("command, flag, value", list(_walk()))
+def test_every_bad_option_value_exits_2_with_one_line(command, flag, value, tmp_path, monkeypatch):
+    """Issue 17 item 6: each model command, each checked option, bad values: exit 2, one line naming
+    the option (or its parameter), no traceback, and nothing grown or rendered (an empty plant cache)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    own = [str(OBSERVATIONS)] if command in ("calibrate",) else []
+    r = runner.invoke(app, [command, *own, "--quick", "--out", str(tmp_path / "out"), flag, value, *WITH.get(flag, [])])
+    assert_user_error(r)
+    err = r.stderr.strip()
+    if err.startswith("error:"):
+        assert len(err.splitlines()) == 1, err
+        words = {flag.lstrip("-"), flag.lstrip("-").replace("-", "_"), value}
+        assert any(w in err for w in words) or flag in err, err
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
+
+
+def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_path):
+    """--weather accepts what `lightfit weather show` accepts; an undated file without --date names both."""
+    for source in ("selhausen-cplantbox-day", str(DATA_DIR / "weather" / "selhausen_cplantbox_day.txt")):
+        r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", source])
+        assert_user_error(r, "selhausen_cplantbox_day.txt", "no date", "--date")
+    r = runner.invoke(
+        app,
+        ["replicate", "--quick", "--out", str(tmp_path), "--weather", "selhausen-cplantbox-day", "--date", "2016-06-23"]
+        + ["--start-time", "20:00", "--hours", "6"],
+    )
+    assert_user_error(r, "selhausen_cplantbox_day.txt", "--date 2016-06-23", "--start-time 20:00", "--hours 6")
+    bad = tmp_path / "renamed.txt"
+    bad.write_text((DATA_DIR / "weather" / "selhausen_cplantbox_day.txt").read_text().replace('"Tair"', '"Temp"'))
+    r = runner.invoke(
+        app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(bad), "--date", "2016-06-23"]
+    )
+    assert_user_error(r, "renamed.txt", "Tair")

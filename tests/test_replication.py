@@ -13,9 +13,10 @@ from lightfit.cli import app
 from lightfit.model.parameters import Theta
 
 REFERENCES = Path(__file__).parent / "reference"
-#: The stored 20 April curves: the periodic default (regenerated deliberately for it) and the
-#: reference paper's finite field with 2 buffer rows (bitwise the curve of the finite default
-#: before the periodic boundary became the default).
+#: The stored 20 April curves: the periodic default (regenerated deliberately for it: PROSPECT-D
+#: leaf, winter_wheat) and the reference paper's setup, the ``paper`` preset (finite field with 2
+#: buffer rows, grey 0.5 leaf, giraud2023; bitwise the curve of the finite default before the
+#: periodic boundary and the credible defaults).
 REFERENCE = REFERENCES / "replication_quick.json"
 REFERENCE_FINITE = REFERENCES / "replication_quick_finite.json"
 
@@ -49,26 +50,73 @@ def test_regression_against_stored_20_april_curve(path, boundary, buffer_rows):
     assert cfg.boundary == boundary  # each file says which field it is
     # The periodic curve is the quick default's field, the finite one the reference paper's (2 buffer rows).
     quick = rep.ReplicationConfig.quick()
-    assert cfg.field() == (quick if path == REFERENCE else quick.finite()).field()
-    assert (cfg.samples, cfg.bounces) == (quick.samples, quick.bounces)
+    assert cfg == (quick if path == REFERENCE else quick.with_preset("paper"))  # the file is that preset's curve
     ds, _ = rep.run(cfg, observations=None)
     assert_matches_curve(ds, ref["curve"])
     assert ds.attrs["weather_provenance"] == "reconstructed"
     assert ds.attrs["boundary"] == boundary and ds.attrs["buffer_rows"] == buffer_rows
 
 
-def test_cli_boundary_finite_reproduces_the_papers_setup(tmp_path):
-    """``lightfit replicate --quick --boundary finite`` (default 2 buffer rows) gives the finite reference curve."""
+def test_cli_preset_paper_reproduces_the_papers_setup(tmp_path):
+    """``lightfit replicate --quick --preset paper`` gives the paper preset's reference curve."""
     import xarray as xr
 
     ref = json.loads(REFERENCE_FINITE.read_text())
-    args = ["replicate", "--quick", "--boundary", "finite", "--out", str(tmp_path)]
-    r = CliRunner().invoke(app, [*args, "--photosynthesis", ref["config"]["photosynthesis"]])
+    r = CliRunner().invoke(app, ["replicate", "--quick", "--preset", "paper", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
     assert "finite field, 2 buffer rows" in " ".join(r.stdout.split())
     with xr.open_dataset(tmp_path / "results.nc", engine="h5netcdf") as ds:
         assert ds.attrs["boundary"] == "finite" and ds.attrs["buffer_rows"] == 2
+        assert ds.attrs["photosynthesis"] == "giraud2023" and ds.attrs["base_color"] == 0.5
+        assert ds.attrs["theta_subsurface"] == 0.3  # the grey leaf's own leaf defaults
         assert_matches_curve(ds, ref["curve"])
+
+
+def test_presets_and_leaf_options():
+    """The paper preset is the paper's setup; presets keep the run's size; bad leaf options name themselves."""
+    from lightfit.errors import InputError
+    from lightfit.light.scene import Optics
+
+    paper = rep.ReplicationConfig.paper()
+    assert (paper.boundary, paper.buffer_rows, paper.optics, paper.photosynthesis, paper.par_kind) == (
+        "finite",
+        2,
+        "paper",
+        "giraud2023",
+        "absorbed",
+    )
+    assert paper.leaf_optics() == Optics.preset("paper")
+    assert paper.with_preset("default") == rep.ReplicationConfig()
+    quick_paper = rep.ReplicationConfig.quick().with_preset("paper")
+    assert (quick_paper.n_plants, quick_paper.samples, quick_paper.bounces) == (4, 16, 2)
+    assert rep.ReplicationConfig().leaf_optics() == Optics.preset("prospect")
+    lo = rep.ReplicationConfig(chlorophyll_ug_cm2=36.4).leaf_optics()
+    assert lo.base_color > Optics.preset("prospect").base_color  # less chlorophyll: a paler leaf
+    for cfg, column in (
+        (rep.ReplicationConfig(optics="grey"), "optics"),
+        (paper.__class__(optics="paper", chlorophyll_ug_cm2=40.0), "chlorophyll_ug_cm2"),
+        (rep.ReplicationConfig(chlorophyll_ug_cm2=-3.0), "chlorophyll_ug_cm2"),
+    ):
+        with pytest.raises(InputError) as err:
+            cfg.leaf_optics()
+        assert err.value.column == column
+    with pytest.raises(InputError, match="preset"):
+        rep.ReplicationConfig().with_preset("unreal")
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--preset", "unreal"], "preset"),
+        (["--optics", "grey"], "optics"),
+        (["--optics", "paper", "--chlorophyll-ug-cm2", "40"], "chlorophyll"),
+        (["--chlorophyll-ug-cm2", "500"], "chlorophyll"),
+    ],
+)
+def test_cli_bad_preset_or_leaf_exits_2_with_one_line(tmp_path, args, message):
+    r = CliRunner().invoke(app, ["replicate", "--quick", "--out", str(tmp_path), *args])
+    assert r.exit_code == 2 and message in r.stderr, r.output
+    assert not (tmp_path / "results.nc").exists()
 
 
 def test_observables_are_consistent_with_the_segment_fields(short_model):

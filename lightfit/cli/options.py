@@ -1,7 +1,7 @@
 """The options shared by every command that runs the coupled model, and the one place that turns them into a model.
 
 ``replicate``, ``calibrate``, ``posterior`` and ``field-run`` are decorated with
-:func:`model_options`: each gets the same field / light / photosynthesis / weather options (same
+:func:`model_options`: each gets the same field / light / photosynthesis / weather / day-and-site options (same
 names, same help, same defaults) and receives them as one :class:`ModelOptions` argument.
 :func:`resolve` fills what was not given from the main job's configuration
 (:class:`lightfit.replication.ReplicationConfig`, or its ``quick()`` size), and
@@ -15,16 +15,17 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from lightfit.errors import InputError
+from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
-_FIELD, _LIGHT, _PHOTO, _WEATHER = "Field", "Light", "Photosynthesis", "Weather"
+_FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
 
 #: Help of the field-boundary options (shared with the ``field`` command).
 BOUNDARY_HELP = (
@@ -58,9 +59,21 @@ class ModelOptions:
     par_kind: str | None = None
     photosynthesis: str | None = None
     an_per: str | None = None
-    weather_file: Path | None = None
+    preset: str | None = None
+    optics: str | None = None
+    chlorophyll_ug_cm2: float | None = None
+    weather_file: str | None = None
     how: str | None = None
     steps: str | None = None
+    dates: list[str] | None = None
+    start_time: str | None = None
+    hours: float | None = None
+    step: str | None = None
+    site: str | None = None
+    latitude: float | None = None
+    longitude: float | None = None
+    altitude_m: float | None = None
+    timezone: str | None = None
 
 
 @dataclass(frozen=True)
@@ -79,12 +92,24 @@ class ModelSettings:
     par_kind: str
     photosynthesis: str
     an_per: str
+    preset: str
+    optics: str
+    chlorophyll_ug_cm2: float | None
     weather_file: str | None
     how: str
     steps: str | None
+    dates: tuple[str, ...]
+    start_time: str
+    hours: float
+    step: str
+    site: Site
 
     def as_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """JSON-ready (the site as a dict, dates as a list), as stored in a run's settings."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    def window(self) -> Window:
+        return Window(self.start_time, self.hours, self.step)
 
     def replication_config(self):
         """The same settings as a :class:`lightfit.replication.ReplicationConfig`."""
@@ -103,6 +128,11 @@ class ModelSettings:
             an_per=self.an_per,
             how=self.how,
             photosynthesis=self.photosynthesis,
+            optics=self.optics,
+            chlorophyll_ug_cm2=self.chlorophyll_ug_cm2,
+            dates=self.dates,
+            window=self.window(),
+            site=self.site,
         )
 
 
@@ -164,7 +194,13 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
     ),
     "bounces": (
         int | None,
-        typer.Option("--bounces", help="Scattering orders (default 3; --quick: 2).", rich_help_panel=_LIGHT),
+        typer.Option(
+            "--bounces",
+            help="Scattering orders (default: as many as keep the truncated light under 1 % for the leaf, "
+            "lightfit.light.estimator.bounces_for_tolerance: 2 for the default leaf, 8 for --optics paper; "
+            "--quick: 2).",
+            rich_help_panel=_LIGHT,
+        ),
     ),
     "render_seed": (
         int | None,
@@ -189,6 +225,34 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             rich_help_panel=_PHOTO,
         ),
     ),
+    "preset": (
+        str | None,
+        typer.Option(
+            "--preset",
+            help="Model setup: default (lightfit's credible default: periodic field, PROSPECT-D leaf, "
+            "winter_wheat photosynthesis) or paper (the reference paper's: finite field with 2 buffer rows, "
+            "grey 0.5 leaf, giraud2023; docs/model.md, 'Presets'). Explicit options still win.",
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "optics": (
+        str | None,
+        typer.Option(
+            "--optics",
+            help="Leaf optics: prospect (default: PROSPECT-D wheat leaf, PAR absorptance 0.90) or paper "
+            "(the reference paper's grey 0.5 leaf, absorptance 0.49); docs/light.md, 'Leaf optics'.",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "chlorophyll_ug_cm2": (
+        float | None,
+        typer.Option(
+            "--chlorophyll-ug-cm2",
+            help="Leaf chlorophyll a+b of the prospect leaf, µg cm⁻² (default 50.5 = SPAD 41; "
+            "prior range 36.4–70.3 = SPAD 32–52 of wheat; changes leaf optics only).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
     "an_per": (
         str | None,
         typer.Option(
@@ -198,11 +262,12 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         ),
     ),
     "weather_file": (
-        Path | None,
+        str | None,
         typer.Option(
             "--weather",
-            help="A real TERENO export (or other weather file) instead of the bundled reconstructed "
-            "forcing of 2016-04-20.",
+            help="Weather: a TERENO export, CPlantBox day file or lightfit CSV covering the run's window, "
+            "or a bundled name (2016-04-20, selhausen-cplantbox-day; the latter is undated and needs --date). "
+            "Default: the bundled reconstructed forcing of 2016-04-20, the only day it covers.",
             rich_help_panel=_WEATHER,
         ),
     ),
@@ -218,8 +283,67 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--steps",
-            help="Time steps to run: a count from 05:00 local (e.g. 5) or positions a:b (default: all 29).",
+            help="Time steps of each day to run: a count from the window's start (e.g. 5) or positions a:b "
+            "(default: all, 29 for the 05:00–19:00 window in 30-min steps).",
             rich_help_panel=_WEATHER,
+        ),
+    ),
+    "dates": (
+        list[str] | None,
+        typer.Option(
+            "--date",
+            help="Day of the run, YYYY-MM-DD (default 2016-04-20); plants are grown to it from 2016-03-05. "
+            "Repeat for several days in one results set (replicate). Needed with an undated weather file.",
+            rich_help_panel=_WHEN,
+        ),
+    ),
+    "start_time": (
+        str | None,
+        typer.Option(
+            "--start-time",
+            help="Start of each day's window, local time HH:MM at the site (default 05:00).",
+            rich_help_panel=_WHEN,
+        ),
+    ),
+    "hours": (
+        float | None,
+        typer.Option("--hours", help="Length of each day's window, hours (default 14).", rich_help_panel=_WHEN),
+    ),
+    "step": (
+        str | None,
+        typer.Option(
+            "--step", help="Time step of the window, e.g. 30min or 1h (default 30min).", rich_help_panel=_WHEN
+        ),
+    ),
+    "site": (
+        str | None,
+        typer.Option(
+            "--site",
+            help="Named site: selhausen (default; 50.865 N, 6.447 E, 103 m, Europe/Berlin). "
+            "Or give --latitude, --longitude and --timezone instead.",
+            rich_help_panel=_WHEN,
+        ),
+    ),
+    "latitude": (
+        float | None,
+        typer.Option("--latitude", help="Site latitude, degrees north (instead of --site).", rich_help_panel=_WHEN),
+    ),
+    "longitude": (
+        float | None,
+        typer.Option("--longitude", help="Site longitude, degrees east (instead of --site).", rich_help_panel=_WHEN),
+    ),
+    "altitude_m": (
+        float | None,
+        typer.Option(
+            "--altitude-m", help="Site altitude, m above sea level (with --latitude; default 0).", rich_help_panel=_WHEN
+        ),
+    ),
+    "timezone": (
+        str | None,
+        typer.Option(
+            "--timezone",
+            help="Site time zone, IANA name such as Europe/Berlin (with --latitude): the window's local time.",
+            rich_help_panel=_WHEN,
         ),
     ),
 }
@@ -227,7 +351,14 @@ assert set(_OPTIONS) == {f.name for f in dataclasses.fields(ModelOptions)}
 
 
 #: ``--use`` of the commands that compare the model with observations (calibrate, posterior).
-Use = Annotated[str, typer.Option("--use", help="Observed series in the likelihood: par, an or par,an.")]
+Use = Annotated[
+    str,
+    typer.Option(
+        "--use",
+        help="Observed series in the likelihood, comma-separated: above_canopy_par, plant_par (par), canopy_apar, "
+        "fapar, canopy_an (an), nee (docs/calibration.md). Default: every series the observations file has.",
+    ),
+]
 
 
 def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -265,6 +396,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     from lightfit.replication import ReplicationConfig
 
     base = ReplicationConfig.quick() if opts.quick else ReplicationConfig()
+    preset = "default" if opts.preset is None else opts.preset
+    base = base.with_preset(preset)  # the preset's model choices; explicit options below still win
 
     def given(value, default):
         return default if value is None else value
@@ -284,18 +417,92 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         an_per=given(opts.an_per, base.an_per),
+        preset=preset,
+        optics=given(opts.optics, base.optics),
+        chlorophyll_ug_cm2=given(opts.chlorophyll_ug_cm2, base.chlorophyll_ug_cm2),
         weather_file=None if opts.weather_file is None else str(opts.weather_file),
         how=given(opts.how, base.how),
         steps=opts.steps,
+        dates=_dates(opts, base.dates),
+        start_time=given(opts.start_time, base.window.start),
+        hours=given(opts.hours, base.window.hours),
+        step=given(opts.step, base.window.step),
+        site=_site(opts),
     )
     # Checked here (not only deep inside the run) so that a typo fails before minutes of plant growth.
     if s.photosynthesis not in PARAMETER_SET_NAMES:
         raise InputError(
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
+    check_leaf(s.optics, s.chlorophyll_ug_cm2)
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
+    _option_error(s.window, "--start-time, --hours or --step")
+    if s.steps:
+        _steps(s.steps, _n_steps(s.window()))
+    if s.weather_file is not None:
+        from lightfit import weather as wx
+
+        # The one resolver of weather sources (bundled name or file), before any plant grows.
+        wx.require_date(s.weather_file, opts.dates or None)
     return s
+
+
+def _option_error(make, flags: str):
+    """``make()``, with an :class:`InputError` restated for the command line (naming ``flags``)."""
+    try:
+        return make()
+    except InputError as e:
+        raise InputError(f"{flags}: {e.problem}", expected=e.expected) from None
+
+
+def _n_steps(window: Window) -> int:
+    import pandas as pd
+
+    return int(pd.Timedelta(hours=window.hours) // pd.Timedelta(window.step)) + 1
+
+
+def _dates(opts: ModelOptions, default: tuple[str, ...]) -> tuple[str, ...]:
+    """``--date`` values checked: real dates, no repeats, inside the wheat growth model's range."""
+    from lightfit.plant.growth import GrowthConfig
+    from lightfit.replication import as_dates
+
+    if not opts.dates:
+        return default
+    dates = _option_error(lambda: as_dates(opts.dates), "--date")
+    for d in dates:
+        _option_error(lambda d=d: GrowthConfig(target_date=d), f"--date {d}")
+    return dates
+
+
+def _site(opts: ModelOptions) -> Site:
+    """``--site NAME`` or ``--latitude/--longitude/--timezone`` (``--altitude-m``, default 0): not both."""
+    coords = {"--latitude": opts.latitude, "--longitude": opts.longitude, "--altitude-m": opts.altitude_m}
+    coords["--timezone"] = opts.timezone
+    given = [k for k, v in coords.items() if v is not None]
+    if opts.site is not None and given:
+        raise InputError(
+            f"--site {opts.site} given with {', '.join(given)}",
+            column="site",
+            expected="either a named --site or --latitude, --longitude and --timezone",
+        )
+    if opts.site is not None:
+        return _option_error(lambda: site_named(opts.site), "--site")
+    if not given:
+        return SELHAUSEN
+    missing = [k for k in ("--latitude", "--longitude", "--timezone") if coords[k] is None]
+    if missing:
+        raise InputError(
+            f"{', '.join(given)} given without {', '.join(missing)}",
+            column="site",
+            expected="--latitude, --longitude and --timezone together (--altitude-m optional, default 0)",
+        )
+    _option_error(lambda: check_timezone(opts.timezone), "--timezone")
+    name = f"{opts.latitude:g} N, {opts.longitude:g} E"
+    alt = 0.0 if opts.altitude_m is None else opts.altitude_m
+    return _option_error(
+        lambda: Site(opts.latitude, opts.longitude, alt, name, opts.timezone), "--latitude/--longitude/--altitude-m"
+    )
 
 
 #: Settings that change what the model renders: a cached emulator is valid only for the same values.
@@ -308,9 +515,16 @@ RENDER_SETTINGS = (
     "samples",
     "bounces",
     "render_seed",
+    "optics",
+    "chlorophyll_ug_cm2",
     "weather_file",
     "how",
     "steps",
+    "dates",
+    "start_time",
+    "hours",
+    "step",
+    "site",
 )
 #: Settings that change the model's outputs: a resumed calibration or posterior needs the same values.
 MODEL_SETTINGS = (*RENDER_SETTINGS, "par_kind", "photosynthesis", "an_per")
@@ -319,13 +533,20 @@ MODEL_SETTINGS = (*RENDER_SETTINGS, "par_kind", "photosynthesis", "an_per")
 def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTINGS) -> list[str]:
     """``"key: before → now"`` for each of ``keys`` that differs between a stored run's settings
     (its ``config``) and ``s``. Settings written before the periodic boundary have no
-    ``boundary``: they were finite fields. ``previous=None`` (nothing stored): no difference.
+    ``boundary``: they were finite fields; settings written before leaf optics have no
+    ``optics``: they had the grey leaf (``paper``). ``previous=None`` (nothing stored): no difference.
     """
     if previous is None:
         return []
     now = s.as_dict()
-    before = {"boundary": "finite"} | dict(previous)
+    # Settings stored before a key existed ran with what is now its default.
+    before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None} | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
+
+
+#: The day-and-site settings every run had before they were options (the 20 April 2016 replication).
+_WHEN_DEFAULTS = {"dates": ["2016-04-20"], "start_time": "05:00", "hours": 14.0, "step": "30min"}
+_WHEN_DEFAULTS["site"] = dataclasses.asdict(SELHAUSEN)
 
 
 def check_resumable(previous: dict | None, s: ModelSettings, file, what: str) -> None:
@@ -337,6 +558,29 @@ def check_resumable(previous: dict | None, s: ModelSettings, file, what: str) ->
             file=file,
             expected="the same settings as that run, --no-resume to start again, or another --out",
         )
+
+
+def check_leaf(optics: str, chlorophyll_ug_cm2: float | None) -> None:
+    """``--optics`` and ``--chlorophyll-ug-cm2``: a known leaf preset, and chlorophyll only for the
+    prospect leaf, in PROSPECT-D's range (checked before plants grow; cheap, no spectra computed)."""
+    from lightfit.light.leaf_optics import PRESETS, LeafTraits
+
+    if optics not in PRESETS:
+        raise InputError(f"optics={optics!r}", column="optics", expected=" or ".join(PRESETS))
+    if chlorophyll_ug_cm2 is None:
+        return
+    if optics != "prospect":
+        raise InputError(
+            f"--chlorophyll-ug-cm2 given with --optics {optics}",
+            column="chlorophyll_ug_cm2",
+            expected="--optics prospect (the paper's grey leaf is not made from leaf traits)",
+        )
+    try:
+        LeafTraits(Cab=chlorophyll_ug_cm2)
+    except InputError as e:
+        raise InputError(
+            f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r}", column="chlorophyll_ug_cm2", expected=e.expected
+        ) from None
 
 
 def check_boundary(boundary: str, buffer_rows: int | None, buffer_along: int | None) -> tuple[int | None, int | None]:
@@ -364,13 +608,19 @@ def check_boundary(boundary: str, buffer_rows: int | None, buffer_along: int | N
 
 
 def weather(s: ModelSettings):
-    """The run's forcing: 30-min steps of 2016-04-20 05:00–19:00 local, or the ``--steps`` of them."""
-    from lightfit.replication import forcing
+    """The run's forcing: each date's window (default 2016-04-20 05:00–19:00 local, 30-min steps),
+    or the ``--steps`` of each day."""
+    import pandas as pd
 
-    if s.weather_file is not None and not Path(s.weather_file).is_file():
-        raise InputError("no such file", file=s.weather_file, expected="a weather file (--weather)")
-    w = forcing(s.weather_file, s.how)
-    return w.iloc[_steps(s.steps, len(w))] if s.steps else w
+    from lightfit.replication import days, forcing
+
+    w = forcing(s.weather_file, s.how, dates=s.dates, window=s.window(), site=s.site)
+    if not s.steps:
+        return w
+    parts = [wd.iloc[_steps(s.steps, len(wd))] for _, wd in days(s.replication_config(), w)]
+    out = pd.concat(parts)
+    out.attrs = dict(w.attrs)
+    return out
 
 
 def scenario(s: ModelSettings, w=None):

@@ -1,4 +1,5 @@
-"""``lightfit replicate``: the main job, the 20 April 2016 Selhausen replication."""
+"""``lightfit replicate``: the main job, the 20 April 2016 Selhausen replication by default; any day
+and site with ``--date``, ``--start-time/--hours/--step`` and ``--site`` or coordinates."""
 
 from __future__ import annotations
 
@@ -14,8 +15,12 @@ from lightfit.cli.options import ModelOptions, model_options, resolve, weather
 
 @model_options
 def replicate(
-    out: Path = typer.Option(Path("results/2016-04-20"), help="Output directory."),
-    observations: Path = typer.Option(None, help="Chamber observations CSV (default: the bundled record of the day)."),
+    out: Path = typer.Option(None, help="Output directory (default results/DATE, e.g. results/2016-04-20)."),
+    observations: Path = typer.Option(
+        None,
+        help="Chamber observations CSV (default: the bundled record of 20 April 2016, "
+        "used when the run's steps reach it).",
+    ),
     theta: str = typer.Option(
         None,
         help="Leaf/light parameters: a calibration JSON or key=value,... "
@@ -24,7 +29,10 @@ def replicate(
     *,
     model: ModelOptions,
 ) -> None:
-    """The main job: the 20 April 2016 Selhausen replication (forcing, light, photosynthesis, Fig 4)."""
+    """The main job: a diurnal run, by default the 20 April 2016 Selhausen replication (Fig 4).
+
+    Another day or site: --date, --start-time/--hours/--step, --site or --latitude/--longitude/--timezone.
+    """
     from lightfit import replication as rep
     from lightfit import weather as wx
     from lightfit.model.parameters import check_names
@@ -37,17 +45,19 @@ def replicate(
     th = parse_theta(theta)
     check_names(th, what="theta")  # before minutes of plant growth, not after
     w = weather(s)
+    out = out or Path("results") / "+".join(s.dates)
     out.mkdir(parents=True, exist_ok=True)
     weather_report(w)
     label = str(w.attrs.get("provenance", "")).upper()
-    console.print(weather_table(w, f"{label} forcing of the diurnal run ({len(w)} steps of {rep.STEP})"))
+    tz, when = s.site.timezone, "; ".join(s.window().describe(d, s.site.timezone) for d in s.dates)
+    console.print(weather_table(w, f"{label} forcing of the diurnal run ({len(w)} steps: {when})", tz=tz))
     meta = {
         "provenance": w.attrs["provenance"],
         "source": str(w.attrs.get("source")),
-        "note": f"{len(w)} steps of {rep.STEP} from {rep.START_LOCAL} local ({s.how})",
+        "note": f"{len(w)} steps, {when}, {s.site.name} ({s.how})",
     }
     wx.write_lightfit_csv(w, out / "forcing.csv", meta)
-    plot_forcing(w, out / "forcing.png", title=f"{label} forcing, Selhausen 2016-04-20")
+    plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     console.print(f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, K={s.samples}, {s.bounces} bounces …")
     ds, obs = rep.run(
         cfg,

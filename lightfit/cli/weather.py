@@ -16,12 +16,7 @@ def load(source: str, fmt: str, date: str | None, tz: str | None, max_gap: str, 
     """A bundled series (by name) or a file, in the weather contract with solar columns."""
     from lightfit import weather
 
-    if source in weather.BUNDLED:
-        df = weather.read_weather(
-            weather.bundled_path(source), date=date or weather.BUNDLED[source][1], max_gap=max_gap
-        )
-    else:
-        df = weather.read_weather(source, format=fmt, date=date, tz=tz, max_gap=max_gap)
+    df = weather.read_source(source, format=fmt, date=date, tz=tz, max_gap=max_gap)
     return weather.add_solar(df, split_model=split)
 
 

@@ -41,6 +41,12 @@ SHOOT_ORGANS = ("stem", "leaf")
 SEGMENT_ID_STRIDE = 1_000_000
 DEFAULT_PARAMETER_FILE = "Triticum_aestivum_adapted_2023.xml"
 CM = 0.01
+#: Longest growth the wheat parameter sets describe, days after ``season_start``. CPlantBox's wheat
+#: has no senescence or ripening: organs reach their maximum length (``lmax``) and stay green, so
+#: by ≈ 100 days after the 5 March start the canopy no longer changes (measured: the same blade
+#: area on 23 June and 30 September). Winter wheat in the Lower Rhine basin is harvested in mid to
+#: late July (≈ 140 days after 5 March); 150 days ends the growth model's range with a little slack.
+MAX_GROWTH_DAYS = 150
 
 
 def parameter_dir() -> Path:
@@ -84,8 +90,10 @@ class GrowthConfig:
         parameter_file: CPlantBox plant XML (path or bundled name). Default
             ``Triticum_aestivum_adapted_2023.xml``: the winter wheat set adapted for the
             Selhausen experiments (Giraud et al. 2023), one main stem, no tillers.
-        season_start: first day of simulated growth (the reference paper: 2016-03-05).
-        target_date: date the plants are grown to (the measurement day, 2016-04-20).
+        season_start: first day of simulated growth (the reference paper: 2016-03-05; the crop was
+            sown 2015-10-26, growth over winter is not simulated).
+        target_date: date the plants are grown to (the measurement day, 2016-04-20): after
+            ``season_start`` and at most :data:`MAX_GROWTH_DAYS` days after it.
         include_roots: keep root segments in the table. Off by default: roots are ~98 % of a
             wheat plant's segments and never enter the light model.
     """
@@ -103,6 +111,13 @@ class GrowthConfig:
                 f"target_date {end} is not after season_start {start}",
                 column="target_date",
                 expected="season_start < target_date",
+            )
+        if (end - start).days > MAX_GROWTH_DAYS:
+            raise InputError(
+                f"target_date {end} is {(end - start).days} days after season_start {start}, beyond the "
+                f"wheat growth model's range (no senescence or ripening; harvest is in July)",
+                column="target_date",
+                expected=f"a date at most {MAX_GROWTH_DAYS} days after season_start",
             )
         object.__setattr__(self, "_path", resolve_parameter_file(self.parameter_file))
 

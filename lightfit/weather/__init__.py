@@ -7,11 +7,12 @@ with unit-named columns (:data:`~lightfit.weather.series.COLUMNS`) and provenanc
     from lightfit import weather
     df = weather.load("2016-04-20")                    # bundled default for the day
     df = weather.read_weather("SE_EC_001.csv")         # a real TERENO export
+    df = weather.read_source("selhausen-cplantbox-day", date="2016-06-23")  # bundled name or file
     df = weather.add_solar(df)                         # sun angles, DNI/DHI
     df30 = weather.resample(df, "30min")
 """
 
-from lightfit.weather.bundled import BUNDLED, bundled_path, load
+from lightfit.weather.bundled import BUNDLED, bundled_path, is_undated, load, read_source, require_date, source_path
 from lightfit.weather.readers import (
     read_cplantbox_day,
     read_lightfit_csv,
@@ -22,7 +23,8 @@ from lightfit.weather.readers import (
 )
 from lightfit.weather.reconstruct import Anchor, DayAssumptions, reconstruct_day
 from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, resample, window
-from lightfit.weather.solar import SELHAUSEN, Site, add_solar, solar_position, split_direct_diffuse
+from lightfit.weather.site import SELHAUSEN, SITES, Site, Window, site_named
+from lightfit.weather.solar import add_solar, solar_position, split_direct_diffuse
 
 __all__ = [
     "Anchor",
@@ -31,18 +33,25 @@ __all__ = [
     "COLUMNS",
     "DayAssumptions",
     "SELHAUSEN",
+    "SITES",
     "Site",
+    "Window",
     "add_solar",
     "bundled_path",
     "check_and_repair",
+    "is_undated",
     "load",
     "read_cplantbox_day",
     "read_lightfit_csv",
+    "read_source",
     "read_tereno",
     "read_weather",
     "reconstruct_day",
+    "require_date",
     "resample",
+    "site_named",
     "sniff_format",
+    "source_path",
     "window",
     "solar_position",
     "split_direct_diffuse",

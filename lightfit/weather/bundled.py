@@ -1,4 +1,6 @@
-"""The weather files bundled in ``data/weather`` (provenance in ``data/README.md``)."""
+"""The weather files bundled in ``data/weather`` (provenance in ``data/README.md``), and the one
+resolver of a weather *source* that every command uses: a bundled name or a file path
+(:func:`source_path`, :func:`read_source`)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.weather.readers import read_weather
+from lightfit.weather.readers import read_weather, sniff_format
 from lightfit.weather.solar import add_solar
 
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
@@ -33,12 +35,56 @@ def bundled_path(name: str) -> Path:
     return path
 
 
+def source_path(source: str | Path) -> Path:
+    """A weather source as a file: a bundled name (:data:`BUNDLED`) or an existing file path.
+
+    The one place that decides what ``--weather`` / ``weather show SOURCE`` means, so that every
+    command accepts the same sources.
+    """
+    if str(source) in BUNDLED:
+        return bundled_path(str(source))
+    path = Path(source)
+    if not path.is_file():
+        raise InputError(
+            "no such weather file or bundled name",
+            file=path,
+            expected=f"a weather file or one of the bundled names {', '.join(BUNDLED)}",
+        )
+    return path
+
+
+def is_undated(source: str | Path) -> bool:
+    """True when the source's timestamps carry no date (a CPlantBox day file): it needs one from the caller."""
+    return sniff_format(source_path(source)) == "cplantbox"
+
+
+def require_date(source: str | Path, date) -> None:
+    """An undated source (CPlantBox day file) needs a date from the caller; lightfit never invents one."""
+    if date is None and is_undated(source):
+        raise InputError(
+            "the file has no date (a CPlantBox day file) and no --date was given",
+            file=source_path(source),
+            expected="the day it was measured on, --date YYYY-MM-DD",
+        )
+
+
+def read_source(source: str | Path, *, date: str | None = None, **kwargs) -> pd.DataFrame:
+    """Read a weather source (bundled name or file; :func:`source_path`) into the contract, without solar columns.
+
+    ``date`` places an undated file (CPlantBox day) on a calendar day; dated files ignore it
+    (the run's window selects the day). ``kwargs`` go to :func:`~lightfit.weather.read_weather`.
+    """
+    path = source_path(source)
+    bundled_date = BUNDLED[str(source)][1] if str(source) in BUNDLED else None
+    return read_weather(path, date=date or bundled_date, **kwargs)
+
+
 def load(name: str = "2016-04-20", *, date: str | None = None, solar: bool = True) -> pd.DataFrame:
     """Load a bundled series by name, with solar columns unless ``solar=False``.
 
     The real CPlantBox day is undated: pass ``date`` to place it on a calendar day (it sets
     the sun angles); lightfit never invents one.
     """
-    path = bundled_path(name)
-    df = read_weather(path, date=date or BUNDLED[name][1])
+    bundled_path(name)  # only bundled names here
+    df = read_source(name, date=date)
     return add_solar(df) if solar and "sun_elevation_deg" not in df.columns else df

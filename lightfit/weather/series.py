@@ -76,6 +76,29 @@ def _line_of(lines: pd.Series, ts) -> int | None:
         return None
 
 
+def _gap_problem(run: pd.Series, present: pd.DatetimeIndex, lines: pd.Series, attrs: dict, col: str) -> str:
+    """A gap in the file's own terms: its timestamps (in the file's time zone) and line numbers.
+
+    Missing *rows* (timestamps absent from the file) are named by the lines around them; missing
+    *values* (empty cells, sentinels) by their own lines.
+    """
+    tz = attrs.get("timezone_assumed") or "UTC"
+
+    def at(ts) -> str:
+        return ts.tz_convert(tz).strftime("%Y-%m-%d %H:%M")
+
+    first, last = run.iloc[0], run.iloc[-1]
+    times = f"{at(first)} … {at(last)} ({tz})"
+    if not present.isin(run.index).any():  # every missing step is a missing row (none is in the file)
+        before = present[present < first]
+        after = present[present > last]
+        around = [f"line {_line_of(lines, t)} ({at(t)})" for t in (before[-1:].tolist() + after[:1].tolist())]
+        return f"{len(run)} row(s) missing from the file, {times}: nothing between " + " and ".join(around)
+    rows = [r for r in (_line_of(lines, t) for t in run) if r is not None]
+    where = f", lines {min(rows)}–{max(rows)}" if rows else ""
+    return f"{len(run)} missing value(s) of {col}, {times}{where}"
+
+
 def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column: str, qc: list[dict]) -> pd.Series:
     """Convert a column to float.
 
@@ -187,6 +210,7 @@ def check_and_repair(
             expected=f"a regular time step of {step}",
         )
     full = pd.date_range(df.index[0], df.index[-1], freq=step)
+    present = df.index  # rows the file has (the rest of ``full`` are missing rows)
     if len(full) != len(df):
         n_new = len(full) - len(df)
         df = df.reindex(full)
@@ -209,11 +233,13 @@ def check_and_repair(
                     if at_edge
                     else f"longer than max_gap={max_gap}"
                 )
+                rows_missing = not present.isin(run.index).any()
                 raise InputError(
-                    f"{len(run)} missing value(s) from {run.iloc[0].isoformat()} to {run.iloc[-1].isoformat()}, {why}",
+                    _gap_problem(run, present, lines, attrs, col) + f", {why}",
                     file=file,
                     row=_line_of(lines, run.iloc[0]),
-                    column=col,
+                    # Missing rows lack every column: name the column only for missing values.
+                    column=None if rows_missing else attrs.get("columns_used", {}).get(col, col),
                     expected="complete data, or gaps short enough to interpolate (raise max_gap)",
                 )
         df[col] = df[col].interpolate(method="time", limit_area="inside")

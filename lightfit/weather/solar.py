@@ -1,39 +1,18 @@
 """Sun position and the direct/diffuse split of global radiation, via pvlib.
 
-Site defaults are the Selhausen field minirhizotron facility (50.865 N, 6.447 E).
+The site (coordinates, altitude) is a :class:`~lightfit.weather.site.Site`; the default is the
+Selhausen field minirhizotron facility (:data:`~lightfit.weather.site.SELHAUSEN`).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 import pvlib
 
 from lightfit.errors import InputError
+from lightfit.weather.site import SELHAUSEN, Site
 from lightfit.weather.units import par_from_ghi
-
-
-@dataclass(frozen=True)
-class Site:
-    """A field site.
-
-    Attributes:
-        latitude_deg: degrees north.
-        longitude_deg: degrees east.
-        altitude_m: metres above sea level (Selhausen: 103 m, FLUXNET DE-RuS metadata; the
-            reference paper prints 203 m — the difference changes sun angles by < 0.001°).
-        name: label for plots and metadata.
-    """
-
-    latitude_deg: float = 50.865
-    longitude_deg: float = 6.447
-    altitude_m: float = 103.0
-    name: str = "Selhausen"
-
-
-SELHAUSEN = Site()
 
 SPLIT_MODELS = ("erbs", "boland")
 

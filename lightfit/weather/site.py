@@ -1,0 +1,134 @@
+"""Where and when a run happens: the field :class:`Site` and the diurnal :class:`Window`.
+
+One home for both: solar geometry (:func:`lightfit.weather.solar.solar_position`) reads the
+site's coordinates, and a run's window reads its start in the site's local time zone
+(:meth:`Window.bounds_utc`). Named sites are in :data:`SITES`.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+from dataclasses import dataclass
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+import pandas as pd
+
+from lightfit.errors import InputError, parse_date
+
+
+def check_timezone(name: str, column: str = "timezone") -> str:
+    """``name`` if it is an IANA time zone (``Europe/Berlin``, ``UTC``, ``Etc/GMT-1``), else :class:`InputError`."""
+    try:
+        ZoneInfo(str(name))
+    except (ZoneInfoNotFoundError, ValueError):
+        raise InputError(
+            f"{column}={name!r} is not a time zone", column=column, expected="an IANA name such as Europe/Berlin or UTC"
+        ) from None
+    return str(name)
+
+
+@dataclass(frozen=True)
+class Site:
+    """A field site.
+
+    Attributes:
+        latitude_deg: degrees north (−90 … 90).
+        longitude_deg: degrees east (−180 … 180).
+        altitude_m: metres above sea level (Selhausen: 103 m, FLUXNET DE-RuS metadata; the
+            reference paper prints 203 m — the difference changes sun angles by < 0.001°).
+        name: label for plots and metadata.
+        timezone: IANA time zone of the site's local civil time, in which a run's window
+            starts (:class:`Window`) and results are labelled.
+    """
+
+    latitude_deg: float = 50.865
+    longitude_deg: float = 6.447
+    altitude_m: float = 103.0
+    name: str = "Selhausen"
+    timezone: str = "Europe/Berlin"
+
+    def __post_init__(self):
+        for attr, low, high, what in (
+            ("latitude_deg", -90.0, 90.0, "degrees north, −90 … 90"),
+            ("longitude_deg", -180.0, 180.0, "degrees east, −180 … 180"),
+            # Dead Sea shore to above the highest fields (pvlib's pressure model needs a sane value).
+            ("altitude_m", -500.0, 9000.0, "metres above sea level, −500 … 9000"),
+        ):
+            v = getattr(self, attr)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not low <= v <= high:
+                raise InputError(f"{attr}={v!r}", column=attr, expected=what)
+        check_timezone(self.timezone)
+
+
+#: Selhausen field minirhizotron facility (TERENO Rur catchment), the reference paper's site:
+#: 50.865 N, 6.447 E (Baker et al. 2025, in silico Plants diaf018; Cai et al. 2016, Vadose Zone J.
+#: 15), 103 m (FLUXNET DE-RuS), local civil time CET/CEST.
+SELHAUSEN = Site()
+
+#: Named sites for ``--site``.
+SITES: dict[str, Site] = {"selhausen": SELHAUSEN}
+
+
+def site_named(name: str) -> Site:
+    """The named site (case-insensitive), else :class:`InputError` listing :data:`SITES`."""
+    key = str(name).strip().lower()
+    if key not in SITES:
+        raise InputError(f"no site named {name!r}", column="site", expected=" or ".join(SITES))
+    return SITES[key]
+
+
+_HHMM = re.compile(r"^([01]?\d|2[0-3]):([0-5]\d)$")
+
+
+@dataclass(frozen=True)
+class Window:
+    """A diurnal run window: ``start`` local time, ``hours`` long, one step every ``step``.
+
+    Steps are ``start, start + step, …, start + hours`` inclusive; the defaults are the reference
+    paper's 05:00–19:00 local in 30-minute steps (29 steps).
+
+    Attributes:
+        start: local clock time ``HH:MM`` (in the site's time zone).
+        hours: window length, hours (> 0, ≤ 24).
+        step: time step, a pandas offset such as ``30min`` or ``1h`` (> 0, ≤ ``hours``).
+    """
+
+    start: str = "05:00"
+    hours: float = 14.0
+    step: str = "30min"
+
+    def __post_init__(self):
+        if not _HHMM.match(str(self.start)):
+            raise InputError(f"start={self.start!r}", column="start", expected="a local clock time HH:MM, e.g. 05:00")
+        h = self.hours
+        if isinstance(h, bool) or not isinstance(h, (int, float)) or not math.isfinite(h) or not 0 < h <= 24:
+            raise InputError(f"hours={h!r}", column="hours", expected="a window length in hours, 0 < hours ≤ 24")
+        try:
+            step = pd.Timedelta(self.step)
+        except (ValueError, TypeError):
+            step = None
+        if step is None or step <= pd.Timedelta(0) or step > pd.Timedelta(hours=h):
+            raise InputError(
+                f"step={self.step!r}",
+                column="step",
+                expected=f"a positive time step ≤ the window ({h:g} h), e.g. 30min",
+            )
+
+    def start_local(self, date: str | dt.date, timezone: str) -> pd.Timestamp:
+        """The window's first step on ``date`` as a tz-aware timestamp in ``timezone``."""
+        day = parse_date(date, "date")
+        return pd.Timestamp(f"{day.isoformat()} {self.start}").tz_localize(timezone)
+
+    def bounds_utc(self, date: str | dt.date, timezone: str) -> tuple[pd.Timestamp, pd.Timestamp]:
+        """First and last step on ``date`` (local ``start`` in ``timezone``), in UTC."""
+        t0 = self.start_local(date, timezone).tz_convert("UTC")
+        return t0, t0 + pd.Timedelta(hours=self.hours)
+
+    def describe(self, date: str | dt.date, timezone: str) -> str:
+        """``2016-04-20 05:00 + 14 h (Europe/Berlin), 30min steps``: for messages and metadata."""
+        return f"{parse_date(date, 'date')} {self.start} + {self.hours:g} h ({timezone}), {self.step} steps"
+
+
+__all__ = ["SELHAUSEN", "SITES", "Site", "Window", "check_timezone", "site_named"]

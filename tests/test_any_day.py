@@ -1,0 +1,117 @@
+"""Any day, any site (issue 14 item 4): the run's date, window and site reach the forcing, the sun and the plants."""
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pvlib
+import pytest
+from typer.testing import CliRunner
+
+from lightfit import replication as rep
+from lightfit import weather
+from lightfit.cli import app
+from lightfit.errors import InputError
+from lightfit.weather import Site, Window
+from lightfit.weather.bundled import DATA_DIR
+
+runner = CliRunner()
+REAL_DAY = DATA_DIR / "weather" / "selhausen_cplantbox_day.txt"
+
+
+def test_default_forcing_is_bitwise_the_replications():
+    """The default run's forcing is exactly what the fixed 2016-04-20 05:00 + 14 h window gave before
+    date, window and site became options (the old code path, written out here)."""
+    old = weather.window(
+        weather.add_solar(weather.read_weather(weather.bundled_path("2016-04-20"))),
+        "2016-04-20 05:00",
+        14.0,
+        "30min",
+        how="sample",
+    )
+    for new in (rep.forcing(), rep.forcing_of(rep.ReplicationConfig())):
+        pd.testing.assert_frame_equal(new, old, check_exact=True)
+    assert len(old) == 29
+
+
+def test_site_and_date_move_the_sun_as_pvlib_says():
+    """Another site (southern hemisphere, other time zone) and date: the window's steps start at the
+    local clock time there and the sun angles are pvlib's for those coordinates (called directly)."""
+    site = Site(-34.0, 18.5, 40.0, "Cape Town", "Africa/Johannesburg")
+    win = Window("10:00", 2.0, "1h")
+    w = rep.forcing(REAL_DAY, dates="2016-06-23", window=win, site=site)
+    t = pd.date_range("2016-06-23 10:00", periods=3, freq="1h", tz="Africa/Johannesburg").tz_convert("UTC")
+    assert w.index.equals(t)
+    sp = pvlib.solarposition.get_solarposition(t, -34.0, 18.5, altitude=40.0)
+    np.testing.assert_allclose(w["sun_elevation_deg"], sp["apparent_elevation"], atol=1e-9)
+    np.testing.assert_allclose(w["sun_azimuth_deg"], sp["azimuth"], atol=1e-9)
+    # Winter noon at 34 °S is lower than summer noon at Selhausen (50.9 °N): about 32.5° vs 62.6°.
+    sel = rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("13:30", 0.5), site=weather.SELHAUSEN)
+    assert w["sun_elevation_deg"].max() < 33 < 62 < sel["sun_elevation_deg"].max()
+
+
+def test_bundled_real_day_by_name_and_by_path_is_the_same_forcing():
+    by_name = rep.forcing("selhausen-cplantbox-day", dates="2016-06-23", window=Window("12:00", 1.0))
+    by_path = rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("12:00", 1.0))
+    pd.testing.assert_frame_equal(by_name, by_path, check_exact=True)
+    assert by_name.attrs["provenance"] == "measured"
+
+
+def test_undated_file_needs_a_date_and_the_window_must_be_in_the_file():
+    with pytest.raises(InputError, match="no date.*--date"):
+        rep.forcing(REAL_DAY)
+    with pytest.raises(InputError, match=r"selhausen_cplantbox_day.txt.*--date 2016-06-23.*--start-time 20:00"):
+        rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("20:00", 6.0))
+    with pytest.raises(InputError, match="--date 2016-06-23: no bundled forcing"):
+        rep.forcing(dates="2016-06-23")
+
+
+def test_plants_are_grown_to_the_run_date_within_the_growth_models_range():
+    cfg = rep.ReplicationConfig(dates=("2016-06-23", "2016-05-10"))
+    assert cfg.dates == ("2016-05-10", "2016-06-23")  # sorted
+    assert cfg.field().growth.target_date == "2016-05-10"
+    assert cfg.field("2016-06-23").growth.target_date == "2016-06-23"
+    assert cfg.field().growth.season_start == "2016-03-05"  # the season start is kept
+    for bad in ("2016-03-01", "2016-11-30"):
+        with pytest.raises(InputError, match="target_date"):
+            rep.ReplicationConfig(dates=(bad,)).field()
+
+
+def test_bundled_real_day_runs_from_the_cli(tmp_path, monkeypatch):
+    """The real TERENO day (undated) with --date, by bundled name, on a 2-step window, quick field."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    args = ["replicate", "--quick", "--weather", "selhausen-cplantbox-day", "--date", "2016-06-23"]
+    r = runner.invoke(app, [*args, "--start-time", "13:00", "--hours", "0.5", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    import xarray as xr
+
+    with xr.open_dataset(tmp_path / "o" / "results.nc") as ds:
+        assert ds.sizes["time"] == 2
+        assert ds.attrs["date"] == ds.attrs["target_date"] == "2016-06-23"
+        assert ds.attrs["site"] == "Selhausen" and ds.attrs["site_timezone"] == "Europe/Berlin"
+        assert ds.attrs["weather_provenance"] == "measured"
+        assert (ds["canopy_an_umol_m2_s"].values > 0).all()  # around noon in June: net uptake
+        assert "obs_plant_par_umol_m2_s" not in ds  # the bundled 20 April record is not this day's
+
+
+def test_several_days_in_one_results_set(tmp_path, monkeypatch):
+    """Two dates: one Dataset along time with a ``day`` coordinate, plants grown to each date
+    (more leaf area on the later one), segments the union of both days'."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    cfg = rep.ReplicationConfig(
+        n_plants=1, samples=4, bounces=1, dates=("2016-04-20", "2016-06-23"), window=Window("12:00", 0.5)
+    )
+    ds, _ = rep.run(cfg, weather_file=REAL_DAY, observations=None)
+    assert list(ds["day"].values) == ["2016-04-20"] * 2 + ["2016-06-23"] * 2
+    assert ds.attrs["target_date"] == "2016-04-20; 2016-06-23"
+    # Each day's plants are its own (CPlantBox renumbers segments as a plant grows): segments of
+    # one day are NaN on the other's steps, and each day's canopy values are its own run's.
+    day_of_segment = ds["segment"].values // rep.DAY_SEGMENT_STRIDE
+    par = ds["absorbed_par_umol_m2_s"].values
+    for k, steps in enumerate((slice(0, 2), slice(2, 4))):
+        assert np.isfinite(par[steps][:, day_of_segment == k]).all()
+        assert np.isnan(par[steps][:, day_of_segment != k]).all()
+    alone, _ = rep.run(replace(cfg, dates=("2016-06-23",)), weather_file=REAL_DAY, observations=None)
+    np.testing.assert_array_equal(ds["canopy_an_umol_m2_s"].values[2:], alone["canopy_an_umol_m2_s"].values)
+    assert (ds["organ_type"].values[day_of_segment == 1] == alone["organ_type"].values).all()
+    rep.write_netcdf(ds, tmp_path / "r.nc")  # the union is writable
