@@ -24,7 +24,7 @@ import xarray as xr
 
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
-from lightfit.inference.observations import align, read_observations
+from lightfit.inference.observations import SERIES, align, read_observations
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
 from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
@@ -333,8 +333,9 @@ def run(
         obs = None  # the bundled record is of 20 April 2016, 12:13 local: not of this run's steps
     if obs is not None:
         a = align(obs, times)
-        for k, v in a.items():
-            ds[f"obs_{k}"] = ("time", v)
+        for s in SERIES:  # the quantities the observations have, each beside its model observable
+            if np.isfinite(a[s.value]).any():
+                ds[f"obs_{s.value}"], ds[f"obs_{s.sd}"] = ("time", a[s.value]), ("time", a[s.sd])
         schema.annotate(ds)
         ds.attrs["observations"] = f"{obs.attrs['source']} ({obs.attrs['provenance']})"
     if out is not None:

@@ -10,10 +10,24 @@ import pandas as pd
 
 from lightfit.plant import Field
 
+#: Per-time variables of the summary table (those a results file has), after local time and sun.
+SUMMARY_COLUMNS = (
+    "above_canopy_par_umol_m2_s",
+    "plant_par_umol_m2_s",
+    "plant_par_spread_umol_m2_s",
+    "canopy_apar_umol_m2_s",
+    "fapar",
+    "canopy_an_umol_m2_s",
+    "canopy_an_mc_sd_umol_m2_s",
+)
+
 
 def summary(ds) -> pd.DataFrame:
-    """One row per time step: sun, above-canopy PAR (the weather's), plant PAR (mean, spread),
-    canopy An and its Monte Carlo SD, share of light-limited blades (units: :mod:`lightfit.model.schema`)."""
+    """One row per time step: sun, the model's above-canopy PAR sensor, plant PAR (mean, spread),
+    canopy APAR and fAPAR, canopy An and its Monte Carlo SD, share of light-limited blades and the
+    number of blades whose photosynthesis solve did not converge (units: :mod:`lightfit.model.schema`)."""
+    from lightfit.model.coupled import unconverged_per_step
+
     t = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     blades = ds["is_blade"].values.astype(bool)
     lim = ds["limitation"].values[:, blades]
@@ -22,20 +36,21 @@ def summary(ds) -> pd.DataFrame:
         {
             "local_time": t.tz_convert("Europe/Berlin").strftime("%H:%M"),
             "sun_elevation_deg": ds["sun_elevation_deg"].values,
-            **{
-                k: ds[k].values
-                for k in (
-                    "above_canopy_par_umol_m2_s",
-                    "plant_par_umol_m2_s",
-                    "plant_par_spread_umol_m2_s",
-                    "canopy_an_umol_m2_s",
-                    "canopy_an_mc_sd_umol_m2_s",
-                )
-            },
+            **{k: ds[k].values for k in SUMMARY_COLUMNS if k in ds},
             "frac_light_limited": light_limited,
+            "unconverged_blades": unconverged_per_step(ds),
         },
         index=t.rename("time_utc"),
     )
+
+
+def run_label(attrs) -> str:
+    """The model choices of a run in words (leaf optics, photosynthesis set, field), from results attrs."""
+    import json
+
+    cfg = json.loads(attrs.get("replication_config", "{}") or "{}")
+    optics = cfg.get("optics") or f"base colour {float(attrs.get('base_color', np.nan)):.3g}"
+    return f"leaf {optics}, photosynthesis {attrs.get('photosynthesis')}, {field_label(attrs)}"
 
 
 def field_label(attrs) -> str:
@@ -48,67 +63,131 @@ def field_label(attrs) -> str:
     return f"finite field, {rows} buffer rows" + ("" if along == rows else f" and {along} plants along")
 
 
-def plot(ds, path: Path) -> Path:
-    """Fig-4-like: plant PAR (mean ± spread across segments) and canopy net CO2 uptake over the day."""
+def plot(ds, path: Path, compare=None) -> Path:
+    """The replication figure: like with like, one panel per kind of quantity.
+
+    (a) PAR on a horizontal quantum sensor above the canopy — the model's sensor
+    (``above_canopy_par_umol_m2_s``) with the observed above-canopy PAR (the chamber's record) on
+    the same axis, and the weather series' own PAR; (b) PAR absorbed (or incident) at the plants,
+    mean ± spread over segments per one-sided area, and canopy APAR per ground area, with any
+    observations of these; (c) canopy net CO2 uptake per ground (or leaf) area ± 2 Monte Carlo
+    SD, with observed uptake. ``compare``: a second run's results (e.g. the ``paper`` preset,
+    :meth:`lightfit.replication.ReplicationConfig.paper`) drawn dashed beside this one's.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.dates as mdates
     import matplotlib.pyplot as plt
 
-    t = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC").tz_convert("Europe/Berlin").tz_localize(None)
-    fig, ax = plt.subplots(figsize=(10, 5.5), constrained_layout=True)
-    par, sd = ds["plant_par_umol_m2_s"].values, ds["plant_par_spread_umol_m2_s"].values
-    kind = ds.attrs.get("par_kind", "absorbed")
-    ax.fill_between(t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments")
-    ax.plot(t, par, color="tab:blue", lw=2, label=f"model: {kind} PAR at the plants, mean over segments")
-    if "above_canopy_par_umol_m2_s" in ds:
-        # What a horizontal quantum sensor above the canopy reads: the quantity the chamber's PAR
-        # record is, so the observation is compared with it rather than with PAR at the plants.
-        ax.plot(
-            t,
-            ds["above_canopy_par_umol_m2_s"].values,
-            color="grey",
-            lw=1.5,
-            ls="--",
-            label="forcing: PAR above the canopy (horizontal)",
-        )
-    if "obs_plant_par_umol_m2_s" in ds:
-        ax.errorbar(
-            t,
-            ds["obs_plant_par_umol_m2_s"].values,
-            yerr=ds["obs_plant_par_sd_umol_m2_s"].values,
-            fmt="s",
-            color="navy",
-            label="observed PAR (chamber quantum sensor, above the canopy)",
-        )
-    ax.set_ylabel("PAR (µmol m⁻² s⁻¹)", color="tab:blue")
-    ax2 = ax.twinx()
-    an, an_sd = ds["canopy_an_umol_m2_s"].values, ds["canopy_an_mc_sd_umol_m2_s"].values
-    per = ds.attrs.get("an_per", "ground")
-    ax2.fill_between(t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2)
-    ax2.plot(t, an, color="tab:red", lw=2, label=f"model: net CO2 uptake per {per} area (±2 MC SD)")
-    if "obs_canopy_an_umol_m2_s" in ds and np.isfinite(ds["obs_canopy_an_umol_m2_s"].values).any():
-        ax2.errorbar(
-            t,
-            ds["obs_canopy_an_umol_m2_s"].values,
-            yerr=ds["obs_canopy_an_sd_umol_m2_s"].values,
-            fmt="o",
-            color="darkred",
-            label="observed net CO2 uptake",
-        )
-    ax2.set_ylabel(f"net CO2 uptake (µmol m⁻² {per} s⁻¹)", color="tab:red")
-    ax.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
-    ax.set_xlabel("local time (Europe/Berlin), 2016-04-20")
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
-    prov = ds.attrs.get("weather_provenance", "unknown").upper()
-    fig.suptitle(
-        f"Selhausen 2016-04-20 replication — {prov} forcing\n{ds.attrs.get('n_plants')} plants, "
-        f"{field_label(ds.attrs)}, K={ds.attrs.get('samples')}, photosynthesis {ds.attrs.get('photosynthesis')}",
-        fontsize=11,
+    def local(d):
+        return pd.DatetimeIndex(d["time"].values).tz_localize("UTC").tz_convert("Europe/Berlin").tz_localize(None)
+
+    t = local(ds)
+    fig, (ax_a, ax_b, ax_c) = plt.subplots(3, 1, figsize=(10, 11), sharex=True, constrained_layout=True)
+    runs = [(ds, "-", f"default: {run_label(ds.attrs)}")]
+    if compare is not None:
+        runs.append((compare, "--", f"compared: {run_label(compare.attrs)}"))
+
+    # (a) above the canopy
+    for d, ls, lab in runs:
+        if "above_canopy_par_umol_m2_s" in d:
+            ax_a.plot(
+                local(d),
+                d["above_canopy_par_umol_m2_s"].values,
+                color="darkorange",
+                lw=2,
+                ls=ls,
+                label=f"model sensor ({lab.split(':')[0]}, light factor {d.attrs.get('theta_light_factor', 1):.3g})",
+            )
+    if "weather_par_umol_m2_s" in ds:
+        ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="grey", lw=1, ls=":", label="weather series' PAR")
+    _observed(
+        ax_a, ds, t, "above_canopy_par", "s", "navy", "observed (chamber quantum sensor, horizontal, above the canopy)"
     )
+    ax_a.set_ylabel("PAR above the canopy\n(µmol m⁻² s⁻¹, horizontal)")
+    ax_a.set_title("(a) horizontal quantum sensor above the canopy", loc="left", fontsize=10)
+
+    # (b) at the plants
+    kind = ds.attrs.get("par_kind", "absorbed")
+    for i, (d, ls, lab) in enumerate(runs):
+        par, sd = d["plant_par_umol_m2_s"].values, d["plant_par_spread_umol_m2_s"].values
+        if i == 0:
+            ax_b.fill_between(
+                t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments"
+            )
+        k = d.attrs.get("par_kind", kind)
+        ax_b.plot(
+            local(d),
+            par,
+            color="tab:blue",
+            lw=2,
+            ls=ls,
+            label=f"{k} PAR per leaf/stem area, mean over segments ({lab.split(':')[0]})",
+        )
+        if "canopy_apar_umol_m2_s" in d:
+            ax_b.plot(
+                local(d),
+                d["canopy_apar_umol_m2_s"].values,
+                color="tab:green",
+                lw=1.5,
+                ls=ls,
+                label=f"canopy APAR per ground area ({lab.split(':')[0]})",
+            )
+    _observed(ax_b, ds, t, "plant_par", "s", "navy", "observed PAR at the plants")
+    _observed(ax_b, ds, t, "canopy_apar", "D", "darkgreen", "observed canopy APAR")
+    ax_b.set_ylabel("PAR at the plants\n(µmol m⁻² s⁻¹)")
+    ax_b.set_title("(b) PAR at the plants", loc="left", fontsize=10)
+
+    # (c) net CO2 uptake
+    per = ds.attrs.get("an_per", "ground")
+    for i, (d, ls, lab) in enumerate(runs):
+        an, an_sd = d["canopy_an_umol_m2_s"].values, d["canopy_an_mc_sd_umol_m2_s"].values
+        if i == 0:
+            ax_c.fill_between(t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2, label="± 2 Monte Carlo SD")
+        ax_c.plot(local(d), an, color="tab:red", lw=2, ls=ls, label=f"model ({lab.split(':')[0]})")
+    _observed(ax_c, ds, t, "canopy_an", "o", "darkred", "observed net CO2 uptake")
+    ax_c.axhline(0, color="k", lw=0.5)
+    ax_c.set_ylabel(f"canopy net CO2 uptake\n(µmol m⁻² {per} s⁻¹)")
+    ax_c.set_title(
+        f"(c) canopy net CO2 uptake per {per} area (leaf dark respiration included)", loc="left", fontsize=10
+    )
+
+    day = pd.Timestamp(t[0]).strftime("%Y-%m-%d") if len(t) else ""
+    ax_c.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
+    ax_c.set_xlabel(f"local time (Europe/Berlin), {day}")
+    for ax in (ax_a, ax_b, ax_c):
+        ax.grid(alpha=0.3)
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    prov = ds.attrs.get("weather_provenance", "unknown").upper()
+    src = Path(str(ds.attrs.get("weather_source", ""))).name
+    lines = [
+        f"Selhausen {day} — {prov} forcing ({src}); {ds.attrs.get('n_plants')} plants, K={ds.attrs.get('samples')}",
+        runs[0][2],
+    ]
+    if compare is not None:
+        lines.append(runs[1][2] + " (dashed)")
+    fig.suptitle("\n".join(lines), fontsize=10)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None:
+    """Observations of series ``name`` (:data:`lightfit.inference.observations.SERIES`) with their SDs, if any."""
+    from lightfit.inference.observations import BY_NAME
+
+    s = BY_NAME[name]
+    key = f"obs_{s.value}"
+    if key in ds and np.isfinite(ds[key].values).any():
+        ax.errorbar(
+            t,
+            ds[key].values,
+            yerr=ds[f"obs_{s.sd}"].values,
+            fmt=marker,
+            color=color,
+            ms=7,
+            capsize=3,
+            label=label,
+            zorder=5,
+        )

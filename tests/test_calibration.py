@@ -197,7 +197,7 @@ def test_observation_file_round_trip_and_alignment(tmp_path):
         (HEADER + "soon,1,1,,\n", "cannot parse time"),
         (HEADER + "2016-04-20 10:00,bright,1,,\n", "not a number"),
         (HEADER + "2016-04-20 10:00,100,,,\n", "standard deviation"),
-        (HEADER + "2016-04-20 10:00,-5,1,,\n", "negative PAR"),
+        (HEADER + "2016-04-20 10:00,-5,1,,\n", "negative value of plant_par_umol_m2_s"),
     ],
 )
 def test_bad_observation_files(tmp_path, body, match):
@@ -226,9 +226,11 @@ def test_old_style_columns_are_refused_with_the_new_names(tmp_path):
 
 
 def test_bundled_record_is_real_and_par_only():
+    """The chamber's record is a horizontal quantum sensor above the canopy (issue 14), nothing else."""
     o = read_observations(rep.OBSERVATIONS)
     assert o.attrs["provenance"] == "measured" and len(o) == 1
-    assert o["plant_par_umol_m2_s"].iloc[0] == pytest.approx(1549.31) and np.isnan(o["canopy_an_umol_m2_s"].iloc[0])
+    assert o["above_canopy_par_umol_m2_s"].iloc[0] == pytest.approx(1549.31)
+    assert o.drop(columns=["above_canopy_par_umol_m2_s", "above_canopy_par_sd_umol_m2_s"]).isna().all().all()
     assert o.index[0] == pd.Timestamp("2016-04-20 10:13:48", tz="UTC")
 
 

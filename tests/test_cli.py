@@ -294,10 +294,12 @@ def test_replicate_subprocess_runs_float64_without_warnings(tmp_path):
 def test_calibrate_bounded_method_on_two_steps(tmp_path):
     """--method lbfgsb and --use reach the calibration; --steps keeps it to the two steps around the observation."""
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]
-    r = runner.invoke(app, [*args, "--method", "lbfgsb", "--use", "par", "--max-steps", "2", "--out", str(tmp_path)])
+    r = runner.invoke(
+        app, [*args, "--method", "lbfgsb", "--use", "above_canopy_par", "--max-steps", "2", "--out", str(tmp_path)]
+    )
     assert r.exit_code == 0, r.output
     res = json.loads((tmp_path / "calibration.json").read_text())
-    assert res["method"] == "lbfgsb" and res["use"] == ["plant_par"] and res["steps"] >= 1
+    assert res["method"] == "lbfgsb" and res["use"] == ["above_canopy_par"] and res["steps"] >= 1
     assert "lbfgsb" in r.stdout
 
 

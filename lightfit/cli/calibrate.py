@@ -24,7 +24,7 @@ def calibrate(
         help="Optimiser: bfgs (optimistix BFGS on logit/log-transformed parameters) "
         "or lbfgsb (jaxopt L-BFGS-B on the natural parameters within their bounds).",
     ),
-    use: Use = "par,an",
+    use: Use = "",
     max_steps: int = typer.Option(30, help="Maximum accepted optimiser steps."),
     resume: bool = typer.Option(True, help="Continue from the history in OUT if present."),
     *,
@@ -33,7 +33,7 @@ def calibrate(
     """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64)."""
     from lightfit.inference.calibration import METHODS
     from lightfit.inference.calibration import calibrate as run_calibration
-    from lightfit.inference.likelihood import USES
+    from lightfit.inference.likelihood import resolve_use
     from lightfit.inference.observations import read_observations
     from lightfit.model.parameters import check_names
     from lightfit.precision import precision
@@ -42,13 +42,12 @@ def calibrate(
     # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
-    uses = parse_names(use)
-    if not uses or not set(uses) <= set(USES):
-        raise InputError(f"use={use!r}", column="use", expected="par, an or par,an")
+    uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters))
     th0 = parse_theta(start)
     check_names(th0, what="start")
     obs = read_observations(observations)
+    uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     # A history made with other model settings (e.g. the finite field, before periodic became the
     # default) must not be resumed into this run: checked before the plants are grown.
     settings = out / "settings.json"

@@ -34,7 +34,7 @@ def posterior(
         help="Sampled parameters, comma-separated (also vcmax_scale, noise_scale).",
     ),
     priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
-    use: Use = "par,an",
+    use: Use = "",
     walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters)."),
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
@@ -52,6 +52,7 @@ def posterior(
     from lightfit import replication as rep
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
+    from lightfit.inference.likelihood import resolve_use
     from lightfit.inference.observations import read_observations
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -61,8 +62,8 @@ def posterior(
         raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
     prior_set = P.PRIOR_SETS[priors]
     names = P.check_sampled(list(parse_names(parameters)), prior_set)
-    uses = parse_names(use)
     obs = read_observations(observations or rep.OBSERVATIONS)
+    uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     # A stored chain made with other model settings (e.g. the finite field, before periodic became
     # the default) must not be resumed: checked before the plants are grown.
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:

@@ -198,7 +198,8 @@ def run_task(spec: TaskSpec):
 
 def _aggregates(out) -> dict:
     """The observables of the gathered per-segment values (:func:`lightfit.model.observe.observables`, numpy)."""
-    from lightfit.model.observe import an_denominator, observables
+    from lightfit.model.observe import above_canopy_par, an_denominator, observables
+    from lightfit.weather.units import par_from_ghi
 
     area = out["area_m2"].values.astype(np.float64)
     blade = out["is_blade"].values.astype(bool)
@@ -207,8 +208,28 @@ def _aggregates(out) -> dict:
     par_sd = out[f"{kind}_par_mc_sd_umol_m2_s"].values
     an = out["leaf_an_umol_m2_s"].values[:, blade]
     an_sd = out["leaf_an_mc_sd_umol_m2_s"].values[:, blade]
-    denom = an_denominator(area[blade], out.attrs["an_per"], float(out.attrs["ground_area_m2"]))
-    return observables(par, par_sd, area, an, an_sd, area[blade], denom)
+    ground = float(out.attrs["ground_area_m2"])
+    denom = an_denominator(area[blade], out.attrs["an_per"], ground)
+    above = above_canopy_par(
+        par_from_ghi(out["dni_w_m2"].values),
+        par_from_ghi(out["dhi_w_m2"].values),
+        out["sun_elevation_deg"].values,
+        float(out.attrs["theta_light_factor"]),
+    )
+    return observables(
+        par,
+        par_sd,
+        area,
+        an,
+        an_sd,
+        area[blade],
+        denom,
+        absorbed=out["absorbed_par_umol_m2_s"].values,
+        absorbed_mc_sd=out["absorbed_par_mc_sd_umol_m2_s"].values,
+        ground_area_m2=ground,
+        above_par=above,
+        soil_respiration_umol_m2_s=float(out.attrs.get("soil_respiration_umol_m2_s", 0.0)),
+    )
 
 
 def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):

@@ -1,7 +1,9 @@
 r"""The Gaussian likelihood of chamber observations given the coupled model's observables.
 
-For every used series u (``"par"``: PAR at the plants, ``"an"``: canopy net CO2 uptake; see
-:data:`lightfit.inference.observations.SERIES`) and every time step k with an observation,
+For every used series u (a quantity of :data:`lightfit.inference.observations.SERIES`, e.g.
+``"above_canopy_par"``: a horizontal quantum sensor above the canopy, ``"canopy_an"``: canopy net
+CO2 uptake; each compared with the observation operator of the same name in
+:mod:`lightfit.model.observe`) and every time step k with an observation,
 
 .. math::
 
@@ -42,10 +44,28 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.inference.observations import SERIES, align
+from lightfit.inference.observations import ALIASES, SERIES, align, observed, series
 
 #: Short names of the series a likelihood can use, in order.
 USES = tuple(s.name for s in SERIES)
+
+
+def resolve_use(use: Sequence[str] | None, obs: pd.DataFrame | None = None) -> tuple[str, ...]:
+    """Series names of ``use`` (aliases ``par``/``an`` resolved, order of :data:`SERIES`, no
+    duplicates); ``None`` or empty: every series with a value in ``obs``. :class:`InputError` for
+    an unknown name."""
+    if not use:
+        if obs is None:
+            return USES
+        use = observed(obs)
+        if not use:
+            raise InputError(
+                "no observed value in any column",
+                file=obs.attrs.get("source"),
+                expected="at least one value of " + ", ".join(s.value for s in SERIES),
+            )
+    names = {series(str(u)).name for u in use}
+    return tuple(n for n in USES if n in names)
 
 
 class GaussianLikelihood:
@@ -54,16 +74,17 @@ class GaussianLikelihood:
     Args:
         obs: observations (:func:`~lightfit.inference.observations.read_observations`).
         times: the run's time steps (``model.times``).
-        use: which series enter, a non-empty subset of ``("par", "an")``.
+        use: which series enter (names of :data:`USES` or their aliases ``par``, ``an``); ``None``:
+            every series the observations have a value of.
 
     Raises :class:`InputError` when an observation lies outside the run or no observation of the
     used series falls on a simulated step.
     """
 
-    def __init__(self, obs: pd.DataFrame, times: pd.DatetimeIndex, use: Sequence[str] = USES):
-        use = tuple(use)
-        if not use or any(u not in USES for u in use):
-            raise InputError(f"use={use!r}", column="use", expected="a non-empty subset of ('par', 'an')")
+    def __init__(self, obs: pd.DataFrame, times: pd.DatetimeIndex, use: Sequence[str] | None = None):
+        if use is not None and (isinstance(use, str) or not tuple(use)):
+            raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
+        use = resolve_use(use, obs)
         self.use = use
         self.series = tuple(s for s in SERIES if s.name in use)
         target = align(obs, times)
@@ -76,7 +97,7 @@ class GaussianLikelihood:
             raise InputError(
                 f"no observation of {' or '.join(s.value for s in self.series)} falls on a simulated step",
                 file=obs.attrs.get("source"),
-                column="use" if len(use) < len(USES) else None,
+                column="use",
                 expected="observations of the used series within the run",
             )
 
@@ -111,4 +132,4 @@ class GaussianLikelihood:
         return -0.5 * (jnp.sum(self.whitened(m, noise_scale) ** 2) + log_norm)
 
 
-__all__ = ["USES", "GaussianLikelihood"]
+__all__ = ["ALIASES", "USES", "GaussianLikelihood", "resolve_use"]

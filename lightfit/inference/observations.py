@@ -1,21 +1,41 @@
-"""Chamber observations: a simple CSV of PAR at the plants and canopy net CO2 uptake with their SDs.
+"""Observations: a CSV whose columns name the quantity each instrument measured, with their SDs.
 
 Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
 
-    # provenance: measured            (or synthetic)
+    # provenance: measured            (or synthetic, reconstructed)
     # time_zone: Europe/Berlin        (zone of naive timestamps; default UTC)
-    time,plant_par_umol_m2_s,plant_par_sd_umol_m2_s,canopy_an_umol_m2_s,canopy_an_sd_umol_m2_s
-    2016-04-20 12:13:48,1549.31,50,,
-    ...
+    time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s
+    2016-04-20 12:13:48,1549.31,77.47
 
-The value columns carry the names of the coupled model's observables
-(:data:`lightfit.model.coupled.OBSERVABLES`): ``plant_par_umol_m2_s`` is mean PAR at the plants,
-``canopy_an_umol_m2_s`` canopy net CO2 uptake, both µmol m⁻² s⁻¹; the ``*_sd_*`` columns are the
-measurement standard deviations (same unit). Empty cells are missing observations (allowed: a row
-may have PAR only). Every present value needs its SD (> 0). Observations are assigned to the
-nearest time step of a run; several in one step are averaged (their SD combined as the SD of a
-mean), which the reference paper also did. Files with the earlier names (``par_umol_m2_s`` …)
-are refused with a message naming the new columns.
+Each observed quantity is a pair of columns, its value and its measurement standard deviation
+(same unit), named after the coupled model's observable it is compared with (:data:`SERIES`,
+operators in :mod:`lightfit.model.observe`). A file has any non-empty subset of these pairs:
+
+======================  ==============================  ===============  ==========================================
+series (``--use``)      value column (SD: ``*_sd*``)    unit             what the instrument measures
+======================  ==============================  ===============  ==========================================
+``above_canopy_par``    ``above_canopy_par_umol_m2_s``  µmol m⁻² s⁻¹     horizontal quantum sensor above the canopy
+                                                                         (a station's or a chamber's PAR sensor)
+``plant_par``           ``plant_par_umol_m2_s``         µmol m⁻² s⁻¹     PAR at the plants: area-mean incident or
+                                                                         absorbed PAR per one-sided area of the
+                                                                         measured segments (run option ``par_kind``);
+                                                                         no single instrument reads this
+``canopy_apar``         ``canopy_apar_umol_m2_s``       µmol m⁻² s⁻¹     PAR absorbed by the canopy per ground area
+                                                                         (e.g. above-canopy PAR × fAPAR)
+``fapar``               ``fapar``                       1                fraction of absorbed PAR, APAR / PAR above
+                                                                         the canopy on a horizontal plane
+``canopy_an``           ``canopy_an_umol_m2_s``         µmol m⁻² s⁻¹     canopy net CO2 uptake of the leaf blades,
+                                                                         per ground area (or leaf area: ``an_per``)
+``nee``                 ``nee_umol_m2_s``               µmol m⁻² s⁻¹     chamber net ecosystem CO2 exchange per
+                                                                         ground area, positive = CO2 released
+======================  ==============================  ===============  ==========================================
+
+The short names ``par`` and ``an`` of earlier versions mean ``plant_par`` and ``canopy_an``.
+Empty cells are missing observations (a row may have some quantities only). Every present value
+needs its SD (> 0). Observations are assigned to the nearest time step of a run; several in one
+step are averaged (their SD combined as the SD of a mean), which the reference paper also did.
+Files with the names before issue 12 (``par_umol_m2_s`` …) and unknown columns are refused with
+a message naming the known columns.
 """
 
 from __future__ import annotations
@@ -32,20 +52,64 @@ from lightfit.weather.readers import read_csv_with_metadata
 
 @dataclass(frozen=True)
 class Series:
-    """One observed series: its short name, the column/observable key of its values, the column of
-    its measurement SD and the forward model's key of its Monte Carlo SD (all µmol m⁻² s⁻¹)."""
+    """One observed quantity: its short name (``--use``), the column/observable key of its values,
+    the column of its measurement SD, the forward model's key of its Monte Carlo SD, its unit and
+    what it is."""
 
     name: str
     value: str
     sd: str
     mc_sd: str
+    unit: str = "umol m-2 s-1"
+    meaning: str = ""
+    nonnegative: bool = False
 
 
-#: The observed series, in likelihood order (PAR first).
+#: The observable quantities, in likelihood order.
 SERIES = (
-    Series("par", "plant_par_umol_m2_s", "plant_par_sd_umol_m2_s", "plant_par_mc_sd_umol_m2_s"),
-    Series("an", "canopy_an_umol_m2_s", "canopy_an_sd_umol_m2_s", "canopy_an_mc_sd_umol_m2_s"),
+    Series(
+        "plant_par",
+        "plant_par_umol_m2_s",
+        "plant_par_sd_umol_m2_s",
+        "plant_par_mc_sd_umol_m2_s",
+        meaning="area-mean incident or absorbed PAR at the measured plants",
+        nonnegative=True,
+    ),
+    Series(
+        "canopy_an",
+        "canopy_an_umol_m2_s",
+        "canopy_an_sd_umol_m2_s",
+        "canopy_an_mc_sd_umol_m2_s",
+        meaning="canopy net CO2 uptake of the measured leaf blades",
+    ),
+    Series(
+        "above_canopy_par",
+        "above_canopy_par_umol_m2_s",
+        "above_canopy_par_sd_umol_m2_s",
+        "above_canopy_par_mc_sd_umol_m2_s",
+        meaning="PAR on a horizontal quantum sensor above the canopy",
+        nonnegative=True,
+    ),
+    Series(
+        "canopy_apar",
+        "canopy_apar_umol_m2_s",
+        "canopy_apar_sd_umol_m2_s",
+        "canopy_apar_mc_sd_umol_m2_s",
+        meaning="PAR absorbed by the canopy per ground area",
+        nonnegative=True,
+    ),
+    Series("fapar", "fapar", "fapar_sd", "fapar_mc_sd", unit="1", meaning="fraction of absorbed PAR", nonnegative=True),
+    Series(
+        "nee",
+        "nee_umol_m2_s",
+        "nee_sd_umol_m2_s",
+        "nee_mc_sd_umol_m2_s",
+        meaning="chamber net ecosystem CO2 exchange per ground area (positive: release)",
+    ),
 )
+BY_NAME = {s.name: s for s in SERIES}
+#: Short names of earlier versions.
+ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
 #: Column names before the observables were renamed (issue 12), and their new names.
 RENAMED = {
@@ -54,6 +118,19 @@ RENAMED = {
     "an_umol_m2_s": "canopy_an_umol_m2_s",
     "an_sd_umol_m2_s": "canopy_an_sd_umol_m2_s",
 }
+
+
+def series(name: str) -> Series:
+    """The :class:`Series` of a short name (or its alias ``par``/``an``); :class:`InputError` otherwise."""
+    s = BY_NAME.get(ALIASES.get(name, name))
+    if s is None:
+        raise InputError(f"use={name!r}", column="use", expected="series names " + ", ".join([*BY_NAME, *ALIASES]))
+    return s
+
+
+def observed(obs: pd.DataFrame) -> tuple[str, ...]:
+    """Short names of the series with at least one value in ``obs``, in :data:`SERIES` order."""
+    return tuple(s.name for s in SERIES if s.value in obs.columns and obs[s.value].notna().any())
 
 
 def read_observations(path: str | Path) -> pd.DataFrame:
@@ -72,10 +149,22 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             row=n_meta + 1,
             expected="columns time, " + ", ".join(COLUMNS),
         )
-    missing = [c for c in COLUMNS if c not in df.columns]
-    if missing:
+    unknown = [c for c in df.columns if c != "time" and c not in COLUMNS]
+    if unknown:
         raise InputError(
-            f"missing column(s) {missing}", file=path, row=n_meta + 1, expected=", ".join(("time",) + COLUMNS)
+            f"unknown column(s) {unknown}",
+            file=path,
+            row=n_meta + 1,
+            expected="time and value/SD column pairs of " + ", ".join(COLUMNS),
+        )
+    present = [s for s in SERIES if s.value in df.columns or s.sd in df.columns]
+    missing = [c for s in present for c in (s.value, s.sd) if c not in df.columns]
+    if missing or not present:
+        raise InputError(
+            f"missing column(s) {missing}" if missing else "no observed quantity",
+            file=path,
+            row=n_meta + 1,
+            expected="time and at least one value/SD column pair of " + ", ".join(COLUMNS),
         )
     tz = meta.get("time_zone", "UTC")
     out = pd.DataFrame(index=range(len(df)))
@@ -93,7 +182,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
     first = n_meta + 2  # file line of the first data row
-    for c in COLUMNS:
+    for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
         _first_bad(
@@ -105,7 +194,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             lambda i, text=text: f"value {text.iloc[i]!r} is not a number",
         )
         out[c] = vals.astype(float)
-    for s in SERIES:
+    for s in present:
         _first_bad(
             out[s.value].notna() & ~(out[s.sd] > 0),
             path,
@@ -114,8 +203,13 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             "SD > 0 wherever the value is present",
             lambda i, s=s: f"{s.value} is given without a positive standard deviation",
         )
-    par = SERIES[0].value
-    _first_bad(out[par] < 0, path, first, par, "PAR ≥ 0", lambda i: "negative PAR")
+        if s.nonnegative:
+            _first_bad(
+                out[s.value] < 0, path, first, s.value, "a value ≥ 0", lambda i, s=s: f"negative value of {s.value}"
+            )
+    for c in COLUMNS:  # absent quantities: all missing, so every reader sees the same columns
+        if c not in out:
+            out[c] = np.nan
     out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index()
     out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta}
     return out
@@ -134,7 +228,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    body = df[list(COLUMNS)].copy()
+    body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
     body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
     head = "".join(f"# {k}: {v}\n" for k, v in {**metadata, "time_zone": "UTC"}.items())
     path.write_text(head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"), encoding="utf-8")
@@ -142,7 +236,8 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
 
 
 def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
-    """Observations on the run's time steps: values and SDs (NaN where missing) per step.
+    """Observations on the run's time steps: values and SDs (NaN where missing) per step, for
+    every column of :data:`COLUMNS` (all NaN for a quantity ``obs`` does not have).
 
     Each observation goes to the nearest step; observations more than half a step away from
     every step raise. Several in one step are averaged, SD of the mean = √(Σ sd²) / n.
@@ -165,6 +260,9 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
     for v, sd in ((s.value, s.sd) for s in SERIES):
         val = np.full(len(times), np.nan)
         err = np.full(len(times), np.nan)
+        out[v], out[sd] = val, err
+        if v not in obs.columns:  # a quantity the observations do not have
+            continue
         for k in np.unique(idx):
             sel = (idx == k) & obs[v].notna().to_numpy()
             if sel.any():

@@ -177,7 +177,7 @@ def run(
     lp = LogPosterior(fast, model.times, obs, names, priors, fixed, use)
     meta = {
         "priors": priors_table(lp.priors, lp.names),
-        "use": list(use),
+        "use": list(lp.use),
         "fixed": {**lp.base.to_dict(), NOISE_SCALE: lp.noise_scale},
         "observations": {"source": str(obs.attrs.get("source", "")), "provenance": obs.attrs.get("provenance", "")},
         "scenario": {

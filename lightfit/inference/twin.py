@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 import pandas as pd
 
-from lightfit.inference.observations import SERIES
+from lightfit.inference.observations import BY_NAME
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
 
@@ -45,7 +45,7 @@ def twin_observations(
     sc = dataclasses.replace(model.scenario, seed=render_seed)
     o = CoupledModel(sc).observe(as_theta(theta))
     rng = np.random.default_rng(noise_seed)
-    par_s, an_s = SERIES
+    par_s, an_s = BY_NAME["plant_par"], BY_NAME["canopy_an"]
     par = np.asarray(o[par_s.value])
     an = np.asarray(o[an_s.value])
     sd = np.asarray(par_sd(par), float)

@@ -24,6 +24,7 @@ from functools import cached_property
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.light.bridge import make_irradiance
@@ -81,6 +82,8 @@ class CoupledModel:
             par_kind=sc.par_kind,
             denominator_m2=an_denominator(self.area_m2[self.is_blade], sc.an_per, self.ground_area_m2),
             params=parameter_set(sc.photosynthesis),
+            ground_area_m2=self.ground_area_m2,
+            sun_elevation_deg=self.sun_deg[:, 0].copy(),
         )
         self.light = self.render if light is None else light
 
@@ -153,7 +156,7 @@ class CoupledModel:
             "leaf_vj_umol_m2_s": ps.vj_umol_m2_s,
         }
         w = self.scenario.weather
-        weather = {"above_canopy_par_umol_m2_s": "par_umol_m2_s", "dni_w_m2": "dni_w_m2", "dhi_w_m2": "dhi_w_m2"}
+        weather = {"weather_par_umol_m2_s": "par_umol_m2_s", "dni_w_m2": "dni_w_m2", "dhi_w_m2": "dhi_w_m2"}
         weather |= {k: k for k in ("tair_c", "co2_ppm", "rh", "pair_kpa", "sun_elevation_deg", "sun_azimuth_deg")}
         seg = self.segments
         ds = xr.Dataset(
@@ -175,6 +178,7 @@ class CoupledModel:
             },
         )
         schema.annotate(ds)
+        warn_unconverged(ds)
         sc = self.scenario
         fld, g = sc.field, sc.field.growth
         ds.attrs = {
@@ -204,6 +208,7 @@ class CoupledModel:
             "photosynthesis": sc.photosynthesis,
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,
+            "soil_respiration_umol_m2_s": self.operator.soil_respiration_umol_m2_s,
             "sky": sc.sky,
             "soil_albedo": sc.optics.soil_albedo,
             "base_color": sc.optics.base_color,
@@ -214,4 +219,44 @@ class CoupledModel:
         return ds
 
 
-__all__ = ["CoupledModel", "LightParts", "Scenario"]
+class NonConvergenceWarning(UserWarning):
+    """Some leaf photosynthesis solves did not converge (their values are the solver's last iterate)."""
+
+
+def unconverged_per_step(ds) -> np.ndarray:
+    """Number of leaf blades whose photosynthesis solve did not converge, per time step (T,) ints."""
+    blades = ds["is_blade"].values.astype(bool)
+    return (~ds["converged"].values[:, blades].astype(bool)).sum(axis=1)
+
+
+def warn_unconverged(ds) -> int:
+    """Warn (:class:`NonConvergenceWarning`) naming the steps and blades whose solve did not converge.
+
+    Returns the number of unconverged blade-steps (0: no warning). The results keep the flags
+    (``converged``) and :func:`lightfit.report.summary` counts them per step.
+    """
+    n = unconverged_per_step(ds)
+    if not n.any():
+        return 0
+    import warnings
+
+    t = pd.DatetimeIndex(ds["time"].values)
+    steps = ", ".join(f"{t[i]:%Y-%m-%d %H:%M} UTC ({n[i]} blades)" for i in np.flatnonzero(n))
+    warnings.warn(
+        f"leaf photosynthesis did not converge for {int(n.sum())} blade-step(s) of "
+        f"{int(ds['is_blade'].values.astype(bool).sum())} blades at {np.count_nonzero(n)} step(s): {steps}; "
+        "their values are the solver's last iterate (results.nc: converged = 0)",
+        NonConvergenceWarning,
+        stacklevel=3,
+    )
+    return int(n.sum())
+
+
+__all__ = [
+    "CoupledModel",
+    "LightParts",
+    "NonConvergenceWarning",
+    "Scenario",
+    "unconverged_per_step",
+    "warn_unconverged",
+]

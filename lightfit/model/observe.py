@@ -1,4 +1,4 @@
-r"""The observation operator: what a gas-exchange chamber sees of the coupled model.
+r"""The observation operator: what the instruments (quantum sensors, a gas-exchange chamber) see of the coupled model.
 
 Every path that produces observables goes through this module: full renders
 (:meth:`lightfit.model.coupled.CoupledModel.observe`), emulated light parts
@@ -28,6 +28,33 @@ leaf blade :math:`b` from its absorbed PAR :math:`q_{b,t}`;
 area of the measured plants (per ground area). Its Monte Carlo SD propagates the absorbed-PAR
 error linearly, :math:`\sigma_{A,b,t} = |\partial A_{b,t}/\partial q|\,\sigma_{q,b,t}` and
 :math:`\sqrt{\sum_b (a_b \sigma_{A,b,t} / D)^2}`.
+
+**Instrument operators.** Each observable is what one instrument measures, in the instrument's
+own terms (:data:`OBSERVABLES`; the observations CSV names them, :mod:`lightfit.inference.observations`):
+
+- :func:`above_canopy_par` — a horizontal quantum sensor above the canopy (a station's or a
+  chamber's PAR sensor): :math:`f\,(\mathrm{DNI}^{PAR}_t \sin\beta_t + \mathrm{DHI}^{PAR}_t)`,
+  β the sun elevation. The weather contract's DNI and DHI are the split of the measured global
+  radiation (:func:`lightfit.weather.solar.split_direct_diffuse`, DNI sin β + DHI = GHI), so at
+  f = 1 this is the global radiation in PAR units — the model's light field, analytic and exact
+  (no Monte Carlo error).
+- :func:`canopy_apar` — PAR absorbed by all measured segments per unit ground area of the
+  measurement area, :math:`\mathrm{APAR}_t = \sum_s a_s\,q_{s,t} / G` (a: one-sided area, q:
+  absorbed PAR, G: ground area; Monte Carlo SD :math:`\sqrt{\sum_s (a_s\sigma_{q,s,t}/G)^2}`).
+- :func:`fapar` — fraction of the PAR incident on a horizontal plane above the canopy that the
+  canopy absorbs, :math:`\mathrm{APAR}_t / \mathrm{PAR}^{above}_t` (0 at night); the usual
+  definition of fAPAR (e.g. Gobron et al. 2006, Remote Sens. Environ. 101, 176; stems and
+  sheaths count, as in a canopy's radiation balance).
+- :func:`chamber_nee` — net ecosystem CO2 exchange of the chamber footprint (the measurement
+  area), per ground area, in the micrometeorological sign convention (positive: CO2 released to
+  the atmosphere): :math:`\mathrm{NEE}_t = -A^{ground}_t + R_{soil}`, with the canopy net uptake
+  per ground area :math:`A^{ground}_t` (leaf dark respiration included) and a constant soil
+  respiration :math:`R_{soil}` (µmol m⁻² ground s⁻¹; default :data:`SOIL_RESPIRATION_UMOL_M2_S`
+  = 0: lightfit does not model soil or root respiration, so a user comparing with a chamber on
+  soil must give a value, e.g. from the chamber's night or bare-soil readings).
+
+Absorbed PAR per segment stays an output (``absorbed_par_umol_m2_s``, results.nc) for users who
+compare leaf by leaf.
 
 Monte Carlo SDs carry no gradient (``jax.lax.stop_gradient``): they weight the likelihood, they
 are not fitted. The aggregate functions accept numpy arrays (computed in numpy, float64) or JAX
@@ -78,6 +105,17 @@ def plant_par(par, par_mc_sd, area_m2) -> tuple:
     return mean, spread, mc_sd
 
 
+def area_total(x, x_mc_sd, area_m2, denominator_m2) -> tuple:
+    r"""Area-weighted sum of a per-area flux over segments per ``denominator_m2``, and its Monte Carlo SD.
+
+    :math:`\sum_s a_s x_{s,t} / D` and :math:`\sqrt{\sum_s (a_s \sigma_{s,t} / D)^2}` (segments
+    have independent sample streams). Args: ``x, x_mc_sd`` (T, S) in any unit per m² of segment,
+    ``area_m2`` (S,) one-sided areas, ``denominator_m2`` m². Returns two (T,) arrays.
+    """
+    xp = np if _numpy(x, x_mc_sd, area_m2) else jnp
+    return x @ area_m2 / denominator_m2, xp.sqrt(_no_grad(x_mc_sd**2 @ (area_m2 / denominator_m2) ** 2))
+
+
 def canopy_an(an, an_mc_sd, blade_area_m2, denominator_m2) -> tuple:
     """Net CO2 uptake of the blades per ``denominator_m2`` and its Monte Carlo SD.
 
@@ -89,8 +127,68 @@ def canopy_an(an, an_mc_sd, blade_area_m2, denominator_m2) -> tuple:
 
     Returns ``(canopy_an, canopy_an_mc_sd)``, each (T,).
     """
-    xp = np if _numpy(an, an_mc_sd, blade_area_m2) else jnp
-    return an @ blade_area_m2 / denominator_m2, xp.sqrt(_no_grad(an_mc_sd**2 @ (blade_area_m2 / denominator_m2) ** 2))
+    return area_total(an, an_mc_sd, blade_area_m2, denominator_m2)
+
+
+def canopy_apar(absorbed, absorbed_mc_sd, area_m2, ground_area_m2) -> tuple:
+    """Canopy APAR: PAR absorbed by all measured segments per unit ground area, and its Monte Carlo SD.
+
+    Args:
+        absorbed, absorbed_mc_sd: (T, S) absorbed PAR per one-sided segment area, µmol m⁻² s⁻¹.
+        area_m2: (S,) one-sided segment areas (blades, and the lateral surface of stems/sheaths).
+        ground_area_m2: ground area of the measured plants, m².
+
+    Returns ``(apar, apar_mc_sd)``, each (T,), µmol m⁻² ground s⁻¹.
+    """
+    return area_total(absorbed, absorbed_mc_sd, area_m2, ground_area_m2)
+
+
+def above_canopy_par(dni_par, dhi_par, sun_elevation_deg, light_factor=1.0):
+    r"""PAR on a horizontal quantum sensor above the canopy, µmol m⁻² s⁻¹ (T,).
+
+    :math:`f\,(\mathrm{DNI}^{PAR} \sin^+\beta + \mathrm{DHI}^{PAR})`: the cosine law for the
+    direct beam on a horizontal plane plus the diffuse horizontal flux (e.g. Duffie & Beckman 2013,
+    *Solar Engineering of Thermal Processes*, eq. 2.15.1 with a horizontal surface).
+
+    Args:
+        dni_par, dhi_par: (T,) direct-normal and diffuse-horizontal PAR, µmol m⁻² s⁻¹.
+        sun_elevation_deg: (T,) sun elevation β, degrees (below the horizon the beam counts 0).
+        light_factor: f, the model's multiplier of the forcing's light (dimensionless).
+    """
+    xp = np if _numpy(dni_par, dhi_par, sun_elevation_deg, light_factor) else jnp
+    sin_b = xp.maximum(xp.sin(xp.deg2rad(sun_elevation_deg)), 0.0)
+    return light_factor * (dni_par * sin_b + dhi_par)
+
+
+def fapar(apar, apar_mc_sd, above_par) -> tuple:
+    """Fraction of absorbed PAR, APAR / PAR above the canopy (dimensionless), and its Monte Carlo SD.
+
+    Args:
+        apar, apar_mc_sd: (T,) canopy APAR per ground area and its SD (:func:`canopy_apar`).
+        above_par: (T,) PAR on a horizontal plane above the canopy (:func:`above_canopy_par`).
+
+    Steps without light above the canopy (night) give 0 (and SD 0), not 0/0.
+    """
+    xp = np if _numpy(apar, apar_mc_sd, above_par) else jnp
+    lit = above_par > 0
+    safe = xp.where(lit, above_par, 1.0)  # double-where: no NaN gradient from 0/0 at night
+    return xp.where(lit, apar / safe, 0.0), xp.where(lit, apar_mc_sd / safe, 0.0)
+
+
+#: Soil (and root) respiration of the chamber footprint, µmol m⁻² ground s⁻¹. lightfit models
+#: neither, so the default adds nothing; give a measured value to compare with a chamber on soil.
+SOIL_RESPIRATION_UMOL_M2_S = 0.0
+
+
+def chamber_nee(canopy_an_ground, canopy_an_ground_mc_sd, soil_respiration_umol_m2_s=SOIL_RESPIRATION_UMOL_M2_S):
+    """Net ecosystem CO2 exchange of a chamber footprint per ground area, µmol m⁻² s⁻¹, and its SD.
+
+    NEE = −A + R_soil, micrometeorological sign convention (positive: CO2 released to the air;
+    Baldocchi 2003, Global Change Biol. 9, 479): ``canopy_an_ground`` (T,) is the canopy's net CO2
+    uptake per ground area (leaf dark respiration included, :func:`canopy_an`),
+    ``soil_respiration_umol_m2_s`` a constant soil respiration. The Monte Carlo SD is the canopy's.
+    """
+    return soil_respiration_umol_m2_s - canopy_an_ground, canopy_an_ground_mc_sd
 
 
 def an_denominator(blade_area_m2, an_per: str, ground_area_m2: float):
@@ -98,11 +196,39 @@ def an_denominator(blade_area_m2, an_per: str, ground_area_m2: float):
     return blade_area_m2.sum() if an_per == "leaf" else ground_area_m2
 
 
-def observables(par, par_mc_sd, area_m2, an, an_mc_sd, blade_area_m2, denominator_m2) -> dict:
-    """The :data:`OBSERVABLES` from per-segment PAR (T, S) and per-blade leaf An (T, B)."""
+def observables(
+    par,
+    par_mc_sd,
+    area_m2,
+    an,
+    an_mc_sd,
+    blade_area_m2,
+    denominator_m2,
+    *,
+    absorbed,
+    absorbed_mc_sd,
+    ground_area_m2: float,
+    above_par,
+    soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S,
+) -> dict:
+    """The :data:`OBSERVABLES` (each (T,)) from per-segment PAR (T, S), per-blade leaf An (T, B),
+    per-segment absorbed PAR (T, S) and PAR above the canopy (T,) (:func:`above_canopy_par`).
+
+    ``par``/``par_mc_sd`` are the plant-PAR kind (incident or absorbed); canopy An is per
+    ``denominator_m2``, APAR and NEE per ``ground_area_m2``.
+    """
+    xp = np if _numpy(par, an, above_par) else jnp
     mean, spread, par_sd = plant_par(par, par_mc_sd, area_m2)
     can, can_sd = canopy_an(an, an_mc_sd, blade_area_m2, denominator_m2)
-    return dict(zip(OBSERVABLES, (mean, spread, par_sd, can, can_sd)))
+    if denominator_m2 == ground_area_m2:
+        an_ground, an_ground_sd = can, can_sd
+    else:
+        an_ground, an_ground_sd = canopy_an(an, an_mc_sd, blade_area_m2, ground_area_m2)
+    apar, apar_sd = canopy_apar(absorbed, absorbed_mc_sd, area_m2, ground_area_m2)
+    fa, fa_sd = fapar(apar, apar_sd, above_par)
+    nee, nee_sd = chamber_nee(an_ground, an_ground_sd, soil_respiration_umol_m2_s)
+    values = (mean, spread, par_sd, can, can_sd, above_par, xp.zeros_like(above_par), apar, apar_sd, fa, fa_sd)
+    return dict(zip(OBSERVABLES, values + (nee, nee_sd), strict=True))
 
 
 # -- leaf photosynthesis --------------------------------------------------------------------
@@ -186,6 +312,9 @@ class ObservationOperator:
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observables.
         denominator_m2: area canopy An refers to (:func:`an_denominator`).
         params: the photosynthesis parameter set (Vcmax scaled by θ's ``vcmax_scale``).
+        ground_area_m2: ground area of the measured plants (APAR, NEE), m².
+        sun_elevation_deg: (T,) sun elevation of every step (the above-canopy sensor), degrees.
+        soil_respiration_umol_m2_s: soil respiration added to the chamber NEE (:func:`chamber_nee`).
     """
 
     forcing: Forcing
@@ -194,6 +323,9 @@ class ObservationOperator:
     par_kind: str
     denominator_m2: float
     params: PhotosynthesisParams
+    ground_area_m2: float
+    sun_elevation_deg: np.ndarray
+    soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S
 
     @property
     def blades(self) -> np.ndarray:
@@ -239,6 +371,10 @@ class ObservationOperator:
         q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
         r = leaf(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
         an_sd = jax.lax.stop_gradient(jnp.abs(r.dan_dq)) * out["absorbed_par_mc_sd_umol_m2_s"][:, b]
+        f = jnp.asarray(theta.light_factor, jnp.float64)
+        above = above_canopy_par(
+            jnp.asarray(self.forcing.dni_par), jnp.asarray(self.forcing.dhi_par), jnp.asarray(self.sun_elevation_deg), f
+        )
         out |= observables(
             out[f"{self.par_kind}_par_umol_m2_s"],
             out[f"{self.par_kind}_par_mc_sd_umol_m2_s"],
@@ -247,6 +383,11 @@ class ObservationOperator:
             an_sd,
             self.area_m2[b],
             self.denominator_m2,
+            absorbed=out["absorbed_par_umol_m2_s"],
+            absorbed_mc_sd=out["absorbed_par_mc_sd_umol_m2_s"],
+            ground_area_m2=self.ground_area_m2,
+            above_par=above,
+            soil_respiration_umol_m2_s=self.soil_respiration_umol_m2_s,
         )
         out |= {
             "leaf_an_umol_m2_s": r.an,
@@ -259,12 +400,18 @@ class ObservationOperator:
 
 __all__ = [
     "OBSERVABLES",
+    "SOIL_RESPIRATION_UMOL_M2_S",
     "LeafPhotosynthesis",
     "LeafResponse",
     "ObservationOperator",
+    "above_canopy_par",
     "an_denominator",
+    "area_total",
     "canopy_an",
+    "canopy_apar",
+    "chamber_nee",
     "exact_leaf",
+    "fapar",
     "observables",
     "plant_par",
     "tabulated_leaf",

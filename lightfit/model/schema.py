@@ -8,7 +8,9 @@ deviation (``*_mc_sd_*``), in the unit of the quantity.
 Area bases: PAR at a segment is per unit *one-sided* area of that segment (a leaf blade's area,
 or the lateral surface of a stem or sheath); leaf photosynthesis is per one-sided leaf area;
 canopy net CO2 uptake is per ground area of the measured plants (N² × plant spacing × row
-spacing) or per one-sided leaf area of the measured blades (results attribute ``an_per``).
+spacing) or per one-sided leaf area of the measured blades (results attribute ``an_per``);
+canopy APAR and chamber NEE are always per ground area of the measured plants; above-canopy PAR
+is per unit horizontal area.
 
 :meth:`lightfit.model.coupled.CoupledModel.simulate` writes these attributes (:func:`annotate`);
 readers (:mod:`lightfit.dataset`, :func:`lightfit.distributed.gather`) take units and meaning
@@ -27,6 +29,10 @@ _LEAF_AREA = "per unit one-sided leaf area; leaf blades only (NaN elsewhere)"
 _CANOPY_AREA = (
     "per unit ground area of the measured plants (an_per = 'ground') or per unit one-sided leaf area "
     "of the measured blades (an_per = 'leaf'), see the attribute an_per"
+)
+_NEE = (
+    "per unit ground area of the measured plants; positive = CO2 released to the air; "
+    "soil respiration (attribute soil_respiration_umol_m2_s) minus canopy net uptake"
 )
 _PLANT_PAR = "incident or absorbed PAR (attribute par_kind), per unit one-sided segment area, area-weighted"
 
@@ -63,6 +69,14 @@ OBSERVABLES = (
     "plant_par_mc_sd_umol_m2_s",
     "canopy_an_umol_m2_s",
     "canopy_an_mc_sd_umol_m2_s",
+    "above_canopy_par_umol_m2_s",
+    "above_canopy_par_mc_sd_umol_m2_s",
+    "canopy_apar_umol_m2_s",
+    "canopy_apar_mc_sd_umol_m2_s",
+    "fapar",
+    "fapar_mc_sd",
+    "nee_umol_m2_s",
+    "nee_mc_sd_umol_m2_s",
 )
 
 #: Every variable and coordinate of results.nc.
@@ -109,9 +123,38 @@ VARIABLES: dict[str, Variable] = {
     "canopy_an_mc_sd_umol_m2_s": Variable(
         T, UMOL, "Monte Carlo standard deviation of canopy net CO2 uptake", _CANOPY_AREA
     ),
-    # -- per time: forcing ------------------------------------------------------------------
     "above_canopy_par_umol_m2_s": Variable(
-        T, UMOL, "PAR above the canopy (weather)", "per unit horizontal area; the weather series' PAR"
+        T,
+        UMOL,
+        "PAR on a horizontal quantum sensor above the canopy (model)",
+        "per unit horizontal area; light_factor * (DNI_PAR sin(sun elevation) + DHI_PAR)",
+    ),
+    "above_canopy_par_mc_sd_umol_m2_s": Variable(
+        T, UMOL, "Monte Carlo standard deviation of above-canopy PAR", "zero: analytic, not rendered"
+    ),
+    "canopy_apar_umol_m2_s": Variable(
+        T, UMOL, "PAR absorbed by the measured plants (APAR)", "per unit ground area of the measured plants"
+    ),
+    "canopy_apar_mc_sd_umol_m2_s": Variable(
+        T, UMOL, "Monte Carlo standard deviation of canopy APAR", "per unit ground area of the measured plants"
+    ),
+    "fapar": Variable(
+        T, "1", "fraction of absorbed PAR", "canopy APAR / PAR on a horizontal plane above the canopy; 0 at night"
+    ),
+    "fapar_mc_sd": Variable(T, "1", "Monte Carlo standard deviation of fAPAR"),
+    "nee_umol_m2_s": Variable(
+        T,
+        UMOL,
+        "net ecosystem CO2 exchange of the chamber footprint",
+        _NEE,
+    ),
+    "nee_mc_sd_umol_m2_s": Variable(T, UMOL, "Monte Carlo standard deviation of NEE", _NEE),
+    # -- per time: forcing ------------------------------------------------------------------
+    "weather_par_umol_m2_s": Variable(
+        T,
+        UMOL,
+        "PAR of the weather series (station quantum sensor or derived from global radiation)",
+        "per unit horizontal area; not scaled by light_factor",
     ),
     "dni_w_m2": Variable(T, "W m-2", "direct normal irradiance (weather)", "per unit area normal to the sun"),
     "dhi_w_m2": Variable(T, "W m-2", "diffuse horizontal irradiance (weather)", "per unit horizontal area"),
@@ -126,6 +169,18 @@ VARIABLES: dict[str, Variable] = {
     "obs_plant_par_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed PAR at the plants"),
     "obs_canopy_an_umol_m2_s": Variable(T, UMOL, "observed canopy net CO2 uptake (chamber)", _CANOPY_AREA),
     "obs_canopy_an_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed canopy net CO2 uptake"),
+    "obs_above_canopy_par_umol_m2_s": Variable(
+        T, UMOL, "observed PAR on a horizontal quantum sensor above the canopy", "per unit horizontal area"
+    ),
+    "obs_above_canopy_par_sd_umol_m2_s": Variable(
+        T, UMOL, "measurement standard deviation of observed above-canopy PAR"
+    ),
+    "obs_canopy_apar_umol_m2_s": Variable(T, UMOL, "observed canopy APAR", "per unit ground area"),
+    "obs_canopy_apar_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed canopy APAR"),
+    "obs_fapar": Variable(T, "1", "observed fraction of absorbed PAR"),
+    "obs_fapar_sd": Variable(T, "1", "measurement standard deviation of observed fAPAR"),
+    "obs_nee_umol_m2_s": Variable(T, UMOL, "observed chamber net ecosystem CO2 exchange", _NEE),
+    "obs_nee_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed NEE"),
 }
 
 
