@@ -2,6 +2,7 @@
 
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 
 import lightfit  # noqa: F401
@@ -194,3 +195,25 @@ def test_tabulated_leaf_gradient_is_finite_with_dark_blades(weather, set_name):
     g_exact = float(jax.jit(jax.grad(lambda s: total(exact_leaf, s)))(1.0))
     assert np.isfinite(g_tab)
     assert g_tab == pytest.approx(g_exact, rel=0.02)
+
+
+def test_forced_non_convergence_is_warned_and_counted(model, monkeypatch):
+    """A solver capped at one iteration leaves blades unconverged: simulate warns naming the steps
+    and blades, and the summary table counts them per step (issue 17)."""
+    from lightfit.model.coupled import NonConvergenceWarning
+    from lightfit.photosynthesis.solver import SolverConfig
+    from lightfit.report import summary
+
+    parts = model.render(THETA)
+    stored = model.with_light(lambda theta: parts)
+    capped = SolverConfig.for_dtype.__func__
+    monkeypatch.setattr(SolverConfig, "for_dtype", classmethod(lambda cls, dtype, max_steps=100: capped(cls, dtype, 1)))
+    with pytest.warns(NonConvergenceWarning, match=r"did not converge for \d+ blade-step") as rec:
+        ds = stored.simulate(THETA)
+    blades = ds["is_blade"].values
+    bad = (~ds["converged"].values[:, blades]).sum(1)
+    assert bad.sum() > 0
+    assert summary(ds)["unconverged_blades"].tolist() == bad.tolist()
+    msg = str(rec[0].message)
+    for i in np.flatnonzero(bad):
+        assert f"({bad[i]} blades)" in msg and pd.Timestamp(ds["time"].values[i]).strftime("%H:%M UTC") in msg

@@ -161,3 +161,25 @@ def test_unconverged_solves_are_counted_and_warned():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert warn_unconverged(ok) == 0
+
+
+def test_cli_shows_lightfit_warnings_as_one_line():
+    """The command line prints a lightfit warning as one ``warning: …`` line on stderr (exit 0)."""
+    import typer
+    from typer.testing import CliRunner
+
+    from lightfit.cli.common import LightfitGroup
+
+    app = typer.Typer(cls=LightfitGroup)
+
+    @app.command()
+    def go():
+        warnings.warn("leaf photosynthesis did not converge for 2 blade-step(s)", NonConvergenceWarning, stacklevel=1)
+
+    @app.command()
+    def other():
+        pass
+
+    r = CliRunner().invoke(app, ["go"])
+    assert r.exit_code == 0, r.output
+    assert r.stderr.strip().splitlines() == ["warning: leaf photosynthesis did not converge for 2 blade-step(s)"]

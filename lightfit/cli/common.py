@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import typer
@@ -43,6 +44,18 @@ def error_message(err: BaseException) -> str:
     return str(err)
 
 
+_python_showwarning = warnings.showwarning
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """lightfit's own warnings (e.g. unconverged photosynthesis) as one line ``warning: …`` on
+    stderr; others as Python shows them."""
+    if category.__module__.startswith("lightfit"):
+        err_console.print(f"[bold yellow]warning:[/] {escape(str(message))}", soft_wrap=True, highlight=False)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
 class LightfitGroup(TyperGroup):
     """The app's command group, with the one error handler of the command line.
 
@@ -53,7 +66,9 @@ class LightfitGroup(TyperGroup):
 
     def invoke(self, ctx):
         try:
-            return super().invoke(ctx)
+            with warnings.catch_warnings():
+                warnings.showwarning = _show_warning
+                return super().invoke(ctx)
         except _user_errors() as err:
             # soft_wrap: a long file path must stay on one line, for users and for tests alike.
             err_console.print(f"[bold red]error:[/] {escape(error_message(err))}", soft_wrap=True, highlight=False)
