@@ -627,6 +627,12 @@ def scenario(s: ModelSettings, w=None):
     """The :class:`~lightfit.model.scenario.Scenario` of the settings (``w``: the forcing if already read)."""
     from lightfit.replication import scenario_for
 
+    if len(s.dates) > 1:  # one scenario is one day's plants; replicate concatenates several runs
+        raise InputError(
+            f"--date given {len(s.dates)} times ({', '.join(s.dates)})",
+            column="date",
+            expected="one --date for this command (replicate takes several)",
+        )
     return scenario_for(s.replication_config(), weather(s) if w is None else w)
 
 
