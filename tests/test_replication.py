@@ -29,6 +29,15 @@ def short_model():
     return rep.model_for(rep.ReplicationConfig.quick(), w)
 
 
+def config_of(ref: dict) -> rep.ReplicationConfig:
+    """A stored reference's configuration (``dataclasses.asdict`` wrote its window and site as dicts)."""
+    from lightfit.weather.site import Site, Window
+
+    c = dict(ref["config"])
+    c["window"], c["site"] = Window(**c["window"]), Site(**c["site"])
+    return rep.ReplicationConfig(**c)
+
+
 def assert_matches_curve(ds, c):
     for v, sd in (
         ("plant_par_umol_m2_s", "plant_par_mc_sd_umol_m2_s"),
@@ -46,7 +55,7 @@ def assert_matches_curve(ds, c):
 )
 def test_regression_against_stored_20_april_curve(path, boundary, buffer_rows):
     ref = json.loads(path.read_text())
-    cfg = rep.ReplicationConfig(**ref["config"])
+    cfg = config_of(ref)
     assert cfg.boundary == boundary  # each file says which field it is
     # The periodic curve is the quick default's field, the finite one the reference paper's (2 buffer rows).
     quick = rep.ReplicationConfig.quick()
