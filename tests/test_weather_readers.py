@@ -280,3 +280,18 @@ def test_window_is_the_papers_29_steps():
     assert "sun_elevation_deg" not in w.columns  # only recomputed where the input had it
     with pytest.raises(InputError, match="not covered"):
         window(df, "2016-04-20 20:00", 14)
+
+
+def test_missing_rows_are_named_in_the_files_terms(tmp_path):
+    """Two hours of rows absent from a TERENO export: the error names the lines around the hole and
+    its time range in the file's own time zone (UTC+1), not a contract column in UTC (issue 17)."""
+    lines = (DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv").read_text(encoding="utf-8").splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("2016-04-20 11:00"))
+    bad = tmp_path / "holes.csv"
+    bad.write_text("\n".join(lines[:i] + lines[i + 12 :]) + "\n", encoding="utf-8")
+    with pytest.raises(InputError) as e:
+        read_weather(bad)
+    msg = str(e.value)
+    assert "12 row(s) missing" in msg and "2016-04-20 11:00 … 2016-04-20 12:50 (Etc/GMT-1)" in msg
+    assert f"line {i} (2016-04-20 10:50) and line {i + 1} (2016-04-20 13:00)" in msg
+    assert "column" not in msg  # every column is missing there: none is singled out
