@@ -497,3 +497,26 @@ def test_periodic_canopy_copies_and_budget():
     assert view_reach_m([down], max_reach_m=0.5) == 0.5
     sky = Camera(position_m=(0, 0, 1.0), look_at_m=(1, 0, 2.0), fov_deg=30.0)
     assert view_reach_m([sky]) == 0.0
+
+
+def test_sun_of_results_from_another_site(results_file):
+    """Results of a run elsewhere (attrs from lightfit.replication.when_attrs) are lit by that
+    site's sun: compared with pvlib's solar position called directly at the same coordinates."""
+    import pvlib
+
+    from lightfit.dataset.results import _sun
+
+    res = open_results(results_file)
+    res.ds.attrs |= {
+        "site": "Cape Town",
+        "site_latitude_deg": -33.92,
+        "site_longitude_deg": 18.42,
+        "site_altitude_m": 10.0,
+        "site_timezone": "Africa/Johannesburg",
+    }
+    want = pvlib.solarposition.get_solarposition(res.times, -33.92, 18.42, altitude=10.0)
+    got = _sun(res)
+    np.testing.assert_allclose(got["sun_elevation_deg"], want["apparent_elevation"], atol=1e-9)
+    np.testing.assert_allclose(got["sun_azimuth_deg"], want["azimuth"], atol=1e-9)
+    # And not Selhausen's sun (the results' times are 2016-04-20 at Selhausen).
+    assert np.abs(got["sun_elevation_deg"].to_numpy() - _sun(open_results(results_file))["sun_elevation_deg"]).min() > 5

@@ -191,10 +191,27 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
     return out
 
 
+def _site(res: Results):
+    """The run's site from its results attrs (:func:`lightfit.replication.when_attrs`); results
+    written before sites were recorded are Selhausen runs."""
+    from lightfit.weather.site import SELHAUSEN, Site
+
+    a = res.ds.attrs
+    if "site_latitude_deg" not in a:
+        return SELHAUSEN
+    return Site(
+        latitude_deg=float(a["site_latitude_deg"]),
+        longitude_deg=float(a["site_longitude_deg"]),
+        altitude_m=float(a.get("site_altitude_m", SELHAUSEN.altitude_m)),
+        name=str(a.get("site", "site")),
+        timezone=str(a.get("site_timezone", "UTC")),
+    )
+
+
 def _sun(res: Results) -> pd.DataFrame:
     from lightfit import weather
 
-    return weather.solar_position(res.times)
+    return weather.solar_position(res.times, _site(res))
 
 
 def lighting(res: Results, time_indices: list[int], weather_source: str | None = None) -> list[Lighting]:
@@ -233,13 +250,13 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
 def _weather(res: Results, source: str | None) -> pd.DataFrame:
     from lightfit import weather
 
-    name = source or str(res.ds.attrs.get("target_date", ""))
-    if name in weather.BUNDLED:
-        return weather.load(name)
-    if source is None:
+    date = str(res.ds.attrs.get("target_date", ""))
+    if source is None and date not in weather.BUNDLED:
         raise InputError(
-            f"the results carry no {', '.join(LIGHT_VARS)} and no weather is bundled for target_date {name!r}",
+            f"the results carry no {', '.join(LIGHT_VARS)} and no weather is bundled for target_date {date!r}",
             column="weather",
             expected=f"a weather file or bundled name ({', '.join(weather.BUNDLED)})",
         )
-    return weather.add_solar(weather.read_weather(source))
+    # The one resolver of weather sources (bundled names and files alike), placed on the run's
+    # date if the file is undated, with the run's site for the direct/diffuse split.
+    return weather.add_solar(weather.read_source(source or date, date=date or None), _site(res))
