@@ -309,8 +309,13 @@ def run(
     out: Path | None = None,
     progress: bool = False,
     forcing_df: pd.DataFrame | None = None,
+    compare: ReplicationConfig | None = None,
 ):
     """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None).
+
+    ``compare``: a second configuration (e.g. ``cfg.with_preset("paper")``) run on the same forcing
+    with its own leaf defaults (a second full run: twice the time); its results go to
+    ``results_compare.nc`` and its curves into the figure beside this run's (:func:`lightfit.report.plot`).
 
     ``forcing_df``: the run's forcing if already read (:func:`forcing_of`). The bundled chamber
     record (the default ``observations``) is left out when the run's steps do not reach it (another
@@ -342,7 +347,11 @@ def run(
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         write_netcdf(ds, out / "results.nc")
-        plot(ds, out / "replication.png")
+        other = None
+        if compare is not None:
+            other, _ = run(compare, weather_file=weather_file, observations=None, progress=progress, forcing_df=w)
+            write_netcdf(other, out / "results_compare.nc")
+        plot(ds, out / "replication.png", compare=other)
         summary(ds).to_csv(out / "summary.csv", float_format="%.4g")
     return ds, obs
 

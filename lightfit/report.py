@@ -34,7 +34,7 @@ def summary(ds) -> pd.DataFrame:
     light_limited = np.where((lim >= 0).any(1), (lim == 1).sum(1) / np.maximum((lim >= 0).sum(1), 1), np.nan)
     return pd.DataFrame(
         {
-            "local_time": t.tz_convert("Europe/Berlin").strftime("%H:%M"),
+            "local_time": t.tz_convert(_tz(ds)).strftime("%H:%M"),
             "sun_elevation_deg": ds["sun_elevation_deg"].values,
             **{k: ds[k].values for k in SUMMARY_COLUMNS if k in ds},
             "frac_light_limited": light_limited,
@@ -42,6 +42,27 @@ def summary(ds) -> pd.DataFrame:
         },
         index=t.rename("time_utc"),
     )
+
+
+def _tz(ds) -> str:
+    """The run's local time zone (results attr ``site_timezone``; Selhausen's before sites were options)."""
+    return str(ds.attrs.get("site_timezone", "Europe/Berlin"))
+
+
+def preset_name(attrs, other: str = "this run") -> str:
+    """``"default"`` or ``"paper"`` when the run's model choices are those of a named preset
+    (:data:`lightfit.replication.PAPER_PRESET`), else ``other``."""
+    import json
+
+    from lightfit.replication import PRESETS, ReplicationConfig
+
+    cfg = json.loads(attrs.get("replication_config", "{}") or "{}")
+    for name in PRESETS:
+        ref = ReplicationConfig().with_preset(name)
+        keys = ("boundary", "optics", "photosynthesis", "par_kind")
+        if cfg and all(cfg.get(k) == getattr(ref, k) for k in keys):
+            return name
+    return other
 
 
 def run_label(attrs) -> str:
@@ -80,14 +101,16 @@ def plot(ds, path: Path, compare=None) -> Path:
     import matplotlib.dates as mdates
     import matplotlib.pyplot as plt
 
+    tz = _tz(ds)
+
     def local(d):
-        return pd.DatetimeIndex(d["time"].values).tz_localize("UTC").tz_convert("Europe/Berlin").tz_localize(None)
+        return pd.DatetimeIndex(d["time"].values).tz_localize("UTC").tz_convert(tz).tz_localize(None)
 
     t = local(ds)
     fig, (ax_a, ax_b, ax_c) = plt.subplots(3, 1, figsize=(10, 11), sharex=True, constrained_layout=True)
-    runs = [(ds, "-", f"default: {run_label(ds.attrs)}")]
+    runs = [(ds, "-", f"{preset_name(ds.attrs)}: {run_label(ds.attrs)}")]
     if compare is not None:
-        runs.append((compare, "--", f"compared: {run_label(compare.attrs)}"))
+        runs.append((compare, "--", f"{preset_name(compare.attrs, 'compared')}: {run_label(compare.attrs)}"))
 
     # (a) above the canopy
     for d, ls, lab in runs:
@@ -155,14 +178,15 @@ def plot(ds, path: Path, compare=None) -> Path:
 
     day = pd.Timestamp(t[0]).strftime("%Y-%m-%d") if len(t) else ""
     ax_c.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
-    ax_c.set_xlabel(f"local time (Europe/Berlin), {day}")
+    ax_c.set_xlabel(f"local time ({tz}), {day}")
     for ax in (ax_a, ax_b, ax_c):
         ax.grid(alpha=0.3)
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
     prov = ds.attrs.get("weather_provenance", "unknown").upper()
     src = Path(str(ds.attrs.get("weather_source", ""))).name
     lines = [
-        f"Selhausen {day} — {prov} forcing ({src}); {ds.attrs.get('n_plants')} plants, K={ds.attrs.get('samples')}",
+        f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
+        f"{ds.attrs.get('n_plants')} plants, K={ds.attrs.get('samples')}",
         runs[0][2],
     ]
     if compare is not None:

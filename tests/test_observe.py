@@ -127,7 +127,7 @@ def test_light_factor_from_the_chamber_record_is_near_one(noon_model):
     parts = m.render(Theta())
     stored = m.with_light(lambda theta: parts)
     rec = read_observations(rep.OBSERVATIONS)
-    res = calibrate(stored, rec, names=("light_factor",), use=None, progress=False)
+    res = calibrate(stored, rec, names=("light_factor",), use=("above_canopy_par",), progress=False)
     f = res.theta["light_factor"]
     k = int(np.argmin(np.abs(m.times - rec.index[0])))
     p_k = float(stored.observe(Theta())["above_canopy_par_umol_m2_s"][k])
@@ -183,3 +183,17 @@ def test_cli_shows_lightfit_warnings_as_one_line():
     r = CliRunner().invoke(app, ["go"])
     assert r.exit_code == 0, r.output
     assert r.stderr.strip().splitlines() == ["warning: leaf photosynthesis did not converge for 2 blade-step(s)"]
+
+
+def test_figure_with_a_compared_preset(noon_model, tmp_path):
+    """The figure draws a second run beside the first; runs are named by their preset."""
+    import json
+    from dataclasses import asdict
+
+    from lightfit.report import plot, preset_name
+
+    ds = noon_model.simulate(Theta())
+    a = ds.assign_attrs(replication_config=json.dumps(asdict(rep.ReplicationConfig.quick())))
+    b = ds.assign_attrs(replication_config=json.dumps(asdict(rep.ReplicationConfig.quick().with_preset("paper"))))
+    assert (preset_name(a.attrs), preset_name(b.attrs), preset_name({}, "x")) == ("default", "paper", "x")
+    assert plot(a, tmp_path / "f.png", compare=b).stat().st_size > 10_000

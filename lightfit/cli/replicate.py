@@ -26,6 +26,11 @@ def replicate(
         help="Leaf/light parameters: a calibration JSON or key=value,... "
         "(specular, roughness, subsurface, light_factor, vcmax_scale).",
     ),
+    compare_preset: str = typer.Option(
+        None,
+        help="Also run this preset (default or paper) on the same forcing and draw it dashed in the figure "
+        "(results_compare.nc; a second full run).",
+    ),
     *,
     model: ModelOptions,
 ) -> None:
@@ -44,6 +49,7 @@ def replicate(
     fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)
     check_names(th, what="theta")  # before minutes of plant growth, not after
+    cmp = None if compare_preset is None else cfg.with_preset(compare_preset)  # checks the name first
     w = weather(s)
     out = out or Path("results") / "+".join(s.dates)
     out.mkdir(parents=True, exist_ok=True)
@@ -67,6 +73,7 @@ def replicate(
         observations=observations or rep.OBSERVATIONS,
         out=out,
         progress=True,
+        compare=cmp,
     )
     table = summary(ds)
     t = Table(
@@ -82,5 +89,6 @@ def replicate(
     console.print(t)
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
-    for f in ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv"):
+    files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
+    for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")
