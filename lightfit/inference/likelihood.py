@@ -85,9 +85,13 @@ class GaussianLikelihood:
         if use is not None and (isinstance(use, str) or not tuple(use)):
             raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
         use = resolve_use(use, obs)
-        self.use = use
-        self.series = tuple(s for s in SERIES if s.name in use)
         target = align(obs, times)
+        requested = tuple(s for s in SERIES if s.name in use)
+        # A requested series without any observation on the run's steps adds nothing to the
+        # likelihood; it is left out, so the forward model need not provide it (the default
+        # ``use=USES`` of callers means "whatever the observations have").
+        self.series = tuple(s for s in requested if not np.isnan(target[s.value]).all())
+        self.use = tuple(s.name for s in self.series)
         #: per used series: observation y (0 where missing), measurement SD σ (1 where missing), mask
         self.y = {s.name: jnp.asarray(np.nan_to_num(target[s.value])) for s in self.series}
         self.sd = {s.name: jnp.asarray(np.nan_to_num(target[s.sd], nan=1.0)) for s in self.series}
@@ -95,7 +99,7 @@ class GaussianLikelihood:
         self.n_observations = int(sum(np.asarray(m).sum() for m in self.mask.values()))
         if self.n_observations == 0:
             raise InputError(
-                f"no observation of {' or '.join(s.value for s in self.series)} falls on a simulated step",
+                f"no observation of {' or '.join(s.value for s in requested)} falls on a simulated step",
                 file=obs.attrs.get("source"),
                 column="use",
                 expected="observations of the used series within the run",
