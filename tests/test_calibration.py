@@ -153,9 +153,11 @@ def test_calibration_resumes_from_history(short_model, tmp_path):
     with open(h, "a") as f:
         f.write('{"step": 99, "loss": 0.1, "the')
     second = run(3, resume=True)
-    lines = [json.loads(x) for x in h.read_text().splitlines()]  # the cut line is gone, all others parse
-    assert len(lines) == n_first + second.steps - first.steps > n_first
+    *lines, final = [json.loads(x) for x in h.read_text().splitlines()]  # the cut line is gone, all others parse
+    assert len(lines) == n_first - 1 + second.steps - first.steps > n_first - 1
     assert [r["step"] for r in lines] == list(range(1, len(lines) + 1))
+    assert final["stopped_by"] == second.stopped_by and final["steps"] == second.steps == 3
+    assert final["evaluations"] == second.evaluations >= lines[-1]["evaluations"]
     assert second.loss <= first.loss + 1e-9
 
 

@@ -7,6 +7,7 @@
 ``lightfit replicate``     the main job, 20 April 2016 (:mod:`.replicate`)
 ``lightfit calibrate``     gradient calibration against observations (:mod:`.calibrate`)
 ``lightfit posterior``     emcee posterior and identifiability (:mod:`.posterior`)
+``lightfit posterior-status`` progress, τ, ESS, acceptance of a running or finished posterior
 ``lightfit field-run``     a field's tiles on Dask (:mod:`.field_run`)
 ``lightfit render-dataset`` labelled images from a results file (:mod:`.render_dataset`)
 ========================  ==============================================================
@@ -30,7 +31,7 @@ from lightfit.cli.common import LightfitGroup
 from lightfit.cli.field import field
 from lightfit.cli.field_run import field_run
 from lightfit.cli.info import info
-from lightfit.cli.posterior import posterior
+from lightfit.cli.posterior import posterior, posterior_status
 from lightfit.cli.render_dataset import render_dataset
 from lightfit.cli.replicate import replicate
 
@@ -68,8 +69,19 @@ app.command("field")(field)
 app.command("replicate")(replicate)
 app.command("calibrate")(calibrate)
 app.command("posterior")(posterior)
+app.command("posterior-status")(posterior_status)
 app.command("field-run")(field_run)
 app.command("render-dataset")(render_dataset)
 
 #: The commands, in the order of ``lightfit --help``.
-COMMANDS = ("info", "weather", "field", "replicate", "calibrate", "posterior", "field-run", "render-dataset")
+COMMANDS = (
+    "info",
+    "weather",
+    "field",
+    "replicate",
+    "calibrate",
+    "posterior",
+    "posterior-status",
+    "field-run",
+    "render-dataset",
+)

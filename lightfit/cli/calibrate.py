@@ -25,8 +25,10 @@ def calibrate(
         "or lbfgsb (jaxopt L-BFGS-B on the natural parameters within their bounds).",
     ),
     use: Use = "",
-    max_steps: int = typer.Option(30, help="Maximum accepted optimiser steps."),
-    resume: bool = typer.Option(True, help="Continue from the history in OUT if present."),
+    max_steps: int = typer.Option(30, help="Maximum accepted optimiser steps in all (a resumed run's included)."),
+    resume: bool = typer.Option(
+        True, help="Continue the run in OUT if present (exactly, from its saved optimiser state)."
+    ),
     *,
     model: ModelOptions,
 ) -> None:
@@ -69,6 +71,7 @@ def calibrate(
         max_steps=max_steps,
         history=out / "history.jsonl",
         resume=resume,
+        say=lambda x: console.print(x),
     )
     (out / "calibration.json").write_text(
         json.dumps(
@@ -77,7 +80,9 @@ def calibrate(
                 "loss": res.loss,
                 "steps": res.steps,
                 "evaluations": res.evaluations,
+                "gradients": res.gradients,
                 "stopped_by": res.stopped_by,
+                "reason": res.reason,
                 "converged": bool(res.converged),
                 "method": res.method,
                 "use": list(uses),
@@ -91,8 +96,9 @@ def calibrate(
         )
     )
     t = Table(
-        title=f"calibration ({res.method}: {res.stopped_by}, {res.steps} steps, "
-        f"{res.evaluations} loss evaluations, {res.seconds:.0f} s)"
+        title=f"calibration ({res.method}: {res.steps} accepted steps, {res.evaluations} loss and "
+        f"{res.gradients} gradient evaluations, {res.seconds:.0f} s)",
+        caption=f"stopped: {res.reason}",
     )
     t.add_column("parameter")
     t.add_column("value", justify="right")

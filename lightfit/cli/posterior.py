@@ -10,10 +10,8 @@ from rich.table import Table
 
 from lightfit.cli.common import console, parse_names
 from lightfit.cli.options import (
-    RENDER_SETTINGS,
     ModelOptions,
     Use,
-    changed_settings,
     check_resumable,
     coupled_model,
     model_options,
@@ -41,13 +39,15 @@ def posterior(
     max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),
     sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(40, help="Full renders for the emulator design (cached in OUT)."),
-    n_test: int = typer.Option(4, help="Held-out full renders measuring the emulator error."),
+    n_test: int = typer.Option(4, help="Held-out full renders measuring the emulator error (0: no check)."),
     resume: bool = typer.Option(True, help="Continue the run in OUT/run.h5 if present."),
+    analysis: bool = typer.Option(
+        True, help="After sampling, the analysis (optimum, Fisher, profile, predictive, emulator error)."
+    ),
     *,
     model: ModelOptions,
 ) -> None:
     """Sample the posterior with emcee (emulated renders), then Fisher, profile and predictive analysis."""
-    import numpy as np
 
     from lightfit import replication as rep
     from lightfit.inference import mcmc as P
@@ -58,6 +58,8 @@ def posterior(
     from lightfit.model import emulator as E
 
     s = resolve(model)
+    if n_test < 0:
+        raise InputError(f"n_test={n_test}", column="n-test", expected="0 (no emulator check) or more held-out renders")
     if priors not in P.PRIOR_SETS:
         raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
     prior_set = P.PRIOR_SETS[priors]
@@ -72,31 +74,25 @@ def posterior(
     lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
     hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]
     out.mkdir(parents=True, exist_ok=True)
-    emu_path, emu_settings = out / "emulator.npz", out / "emulator_settings.json"
-    emu = E.PartsEmulator.load(emu_path) if emu_path.exists() else None
-    # A cached emulator is reused only if it was built for the same prior box, the same model size
-    # and the same render settings (boundary included; an emulator without its settings file
-    # predates them and is rebuilt).
-    stale = not emu_settings.exists() or changed_settings(json.loads(emu_settings.read_text()), s, RENDER_SETTINGS)
-    if (
-        emu is None
-        or stale
-        or not (np.allclose(emu.lo, lo) and np.allclose(emu.hi, hi))
-        or emu.coef_values.shape[1:] != (int(m.day.sum()), 4, len(m.segment_id))
-    ):
-        emu = E.build_emulator(m, lo, hi, n_design=n_design, seed=0, progress=True)
-        emu.save(emu_path)
-        emu_settings.write_text(json.dumps(s.as_dict(), indent=2))
-        (out / "validation.npz").unlink(missing_ok=True)  # renders of the old model
-    val_path = out / "validation.npz"
-    if val_path.exists() and np.load(val_path)["values"].shape[1:] == emu.coef_values.shape[1:]:
-        z = np.load(val_path)
-        val = (z["leaf_test"], (z["values"], z["se"]))
-    else:
-        leaf_test = E.sobol_design(max(n_test, 1), lo, hi, seed=1)[:n_test]
-        full = E.render_parts(m, leaf_test, progress=True)
-        np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
-        val = (leaf_test, full)
+    emu_key = E.emulator_key(E.render_key(m), lo, hi, n_design, 0, E.DEGREES)
+    if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
+        before = P.load_run(out / "run.h5")["attrs"].get("emulator_key")
+        if before is not None and before != emu_key:
+            changes = "; ".join(E.key_changes(before, emu_key))
+            raise InputError(
+                f"the posterior run there was sampled on another emulator ({changes})",
+                file=out / "run.h5",
+                expected="the run's --n-design and model settings, --no-resume to start again, or another --out",
+            )
+    # Design and held-out renders are kept one by one in OUT/renders (an interrupted design continues
+    # where it stopped); the emulator is refitted whenever its key (design, box, scene) changed.
+    emu = E.cached_emulator(
+        m, out / "emulator.npz", lo, hi, n_design=n_design, seed=0, progress=True, say=lambda x: console.print(x)
+    )
+    val = None
+    if n_test > 0 and analysis:
+        leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
+        val = (leaf_test, E.render_parts(m, leaf_test, progress=True, cache=out / "renders"))
     res = A.run(
         m,
         obs,
@@ -110,11 +106,16 @@ def posterior(
         seed=sampler_seed,
         resume=resume,
         stop=P.StopRule(target_ess=target_ess),
-        validation_renders=val if n_test > 0 else None,
+        validation_renders=val,
+        analysis=analysis,
         max_seconds=None if max_minutes is None else 60 * max_minutes,
-        attrs={"config": s.as_dict(), "priors_set": priors},
+        attrs={"config": s.as_dict(), "priors_set": priors, "emulator_key": emu_key},
     )
     (out / "summary.json").write_text(json.dumps(P.jsonable(res), indent=2, default=str))
+    if not analysis:
+        _print_status(P.backend.run_status(out / "run.h5"))
+        console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")
+        return
     t = Table(
         title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling)"
     )
@@ -136,4 +137,52 @@ def posterior(
     console.print(
         f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
         f"with LIGHTFIT_POSTERIOR_RUN={out / 'run.h5'}"
+    )
+
+
+def posterior_status(
+    run: Path = typer.Argument(..., help="A posterior run: its OUT directory or the run.h5 in it."),
+) -> None:
+    """Progress, τ, ESS and acceptance of a posterior run, while it is written or after it ended."""
+    from lightfit.inference.mcmc.backend import run_status
+
+    path = run / "run.h5" if run.is_dir() else run
+    if not path.exists():
+        raise InputError("no such run", file=path, expected="a directory written by `lightfit posterior` or its run.h5")
+    try:
+        status = run_status(path)
+    except (OSError, KeyError) as e:
+        raise InputError(f"not readable as a posterior run ({e})", file=path, expected="an HDF5 run file") from None
+    _print_status(status)
+
+
+def _print_status(st: dict) -> None:
+    """The table of :func:`lightfit.inference.mcmc.backend.run_status`."""
+    import numpy as np
+
+    d = st["diagnostics"]
+    state = {"running": "running", "killed": "ended without finishing (resumable)"}.get(
+        st["state"], f"stopped: {st['stopped_by']}"
+    )
+    t = Table(title=st["path"])
+    for c in ("parameter", "τ (steps)", "ESS", "τ at last check", "ESS at last check"):
+        t.add_column(c, justify="right")
+    last = st["last_check"]
+    for i, n in enumerate(st["names"]):
+        t.add_row(
+            n,
+            f"{d['tau'][i]:.1f}",
+            f"{d['ess'][i]:.0f}",
+            "–" if last is None else f"{last['tau'][i]:.1f}",
+            "–" if last is None else f"{last['ess'][i]:.0f}",
+        )
+    console.print(t)
+    console.print(f"{st['steps']}/{st['max_steps']} steps, {state}")
+    acc = d.get("acceptance_mean", float("nan"))
+    flag = "" if d.get("acceptance_ok", True) else " (outside 0.15–0.8)"
+    check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
+    console.print(
+        f"acceptance {acc:.2f}{flag}; τ reliable (n_kept ≥ 50 τ): {bool(d['tau_reliable'])}; {check}; "
+        f"max τ {np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else float('nan'):.1f}; "
+        f"analysis {'written' if st['analysis'] else 'not written'}"
     )

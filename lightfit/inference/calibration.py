@@ -16,16 +16,22 @@ optimisers, chosen by ``method``:
   lobe is a mirror and the estimator's variance is unbounded).
 
 Both are driven step by step, so that every accepted step is shown in a progress display and
-appended to a JSON-lines history; ``resume=True`` restarts from the best point of an existing
-history (finished work is never lost; the quasi-Newton Hessian approximation is rebuilt). The
-result counts accepted steps, loss evaluations and gradient evaluations separately, and says why
-the optimiser stopped.
+appended to a JSON-lines history. After every trial the optimiser's whole state (iterate,
+quasi-Newton matrix, line-search state, counters) is written atomically next to the history
+(``<history>.state.npz``), so a calibration killed at any moment and rerun with the same
+arguments continues exactly: same steps, same history, same optimum as an uninterrupted run
+(history lines written after the last saved state are dropped and redone). Without a matching
+state (older histories, other method/start/tolerances/series) ``resume=True`` restarts from the
+best point of the history and says so. The result counts accepted steps, loss evaluations and
+gradient evaluations separately, and says why the optimiser stopped (``stopped_by`` and the
+sentence ``reason``); the history ends with a record of the same.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -116,9 +122,12 @@ class CalibrationResult:
         loss: calibration loss there.
         steps: accepted optimiser steps (L-BFGS-B: iterations, the last one possibly a failed line
             search), including those of a resumed history.
-        evaluations, gradients: loss and gradient evaluations in this call (line-search trials
-            included; BFGS computes the gradient only at accepted points).
-        stopped_by: ``"converged"``, ``"max_steps"`` or ``"failed: <reason>"``.
+        evaluations, gradients: loss and gradient evaluations (line-search trials included; BFGS
+            computes the gradient only at accepted points), including those before an exact resume.
+        stopped_by: ``"converged"`` (the method's tolerances met), ``"max_steps"`` (step limit),
+            ``"stalled"`` (10·max_steps trials without reaching the step limit: the line search keeps
+            rejecting) or ``"failed: <reason>"`` (e.g. ``"failed: line search"``).
+        reason: the same as a sentence with the numbers (tolerances, counts).
     """
 
     theta: dict[str, float]
@@ -130,6 +139,7 @@ class CalibrationResult:
     method: str
     history: Path | None
     seconds: float
+    reason: str = ""
 
     @property
     def converged(self) -> bool:
@@ -137,15 +147,37 @@ class CalibrationResult:
 
 
 def _read_history(path: Path) -> list[dict]:
+    """The step records of a history (the final ``stopped_by`` record and a cut last line skipped)."""
     if not path.exists():
         return []
     out = []
     for line in path.read_text(encoding="utf-8").splitlines():
         try:
-            out.append(json.loads(line))
+            r = json.loads(line)
         except json.JSONDecodeError:
             break  # a line cut by an interruption; everything before it is intact
+        if "loss" in r:
+            out.append(r)
     return out
+
+
+def _save_state(path: Path, opt, counters: dict, key: dict) -> None:
+    """Write the optimiser's state pytree and the loop's counters atomically (tmp file + rename)."""
+    leaves = jax.tree_util.tree_leaves(opt.state)
+    arrays = {f"leaf{i}": np.asarray(v) for i, v in enumerate(leaves)}
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, point=np.asarray(opt.current), meta=json.dumps({"key": key, **counters}), **arrays)
+    os.replace(tmp, path)
+
+
+def _load_state(path: Path) -> dict | None:
+    try:
+        with np.load(path) as z:
+            meta = json.loads(str(z["meta"]))
+            n = sum(1 for k in z.files if k.startswith("leaf"))
+            return {**meta, "point": z["point"], "leaves": [z[f"leaf{i}"] for i in range(n)]}
+    except (OSError, ValueError, KeyError):
+        return None  # unreadable: start from the history's best point instead
 
 
 class _BFGS:
@@ -183,6 +215,14 @@ class _BFGS:
     def point(self):
         """Accepted point: natural x, loss, gradient (in the optimiser's coordinates)."""
         return self.loss.to_natural(self.z), float(self.state.f_info.f), np.asarray(self.state.f_info.grad)
+
+    @property
+    def current(self):
+        return self.z
+
+    def restore(self, point, leaves, evaluations: int) -> None:
+        self.z, self.state = jnp.asarray(point), _unflatten(self.state, leaves)
+        self.evaluations = evaluations
 
 
 class _LBFGSB:
@@ -222,6 +262,29 @@ class _LBFGSB:
     def point(self):
         return self.x, float(self.state.value), np.asarray(self.state.grad)
 
+    @property
+    def current(self):
+        return self.x
+
+    def restore(self, point, leaves, evaluations: int) -> None:
+        self.x, self.state = jnp.asarray(point), _unflatten(self.state, leaves)
+
+
+def _unflatten(template, leaves):
+    """A state pytree like ``template`` with the stored ``leaves`` (same types and dtypes as the template's)."""
+    old, tree = jax.tree_util.tree_flatten(template)
+    if len(old) != len(leaves):
+        raise ValueError("stored optimiser state does not fit")
+    new = [
+        np.asarray(v, o.dtype) if isinstance(o, np.ndarray) else jnp.asarray(v, o.dtype) for o, v in zip(old, leaves)
+    ]
+    return jax.tree_util.tree_unflatten(tree, new)
+
+
+#: Environment variable for the resume tests: ``"calibrate:N"`` ends the process (``os._exit``, like
+#: SIGKILL) after accepted step N is appended to the history, before the optimiser state is saved.
+KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
+
 
 def calibrate(
     model: CoupledModel,
@@ -240,6 +303,7 @@ def calibrate(
     history: str | Path | None = None,
     resume: bool = True,
     progress: bool = True,
+    say: Callable[[str], None] = print,
 ) -> CalibrationResult:
     """Minimise the calibration loss over ``names``; see the module docstring.
 
@@ -253,76 +317,146 @@ def calibrate(
             benchmark the gradient is ≈ −0.05 where the loss is lowest), so no Wolfe step exists.
             jaxopt, which provides L-BFGS-B, is no longer maintained upstream (it says so on import);
             it works with the pinned JAX and is kept for this bounded option.
-        max_steps: most accepted steps in this call (BFGS also stops after 10·max_steps trials).
+        max_steps: most accepted steps in all, resumed ones included (and at most 10·max_steps
+            loss evaluations: beyond that the run counts as ``"stalled"``).
         use: which observed series enter the loss (``"par"``, ``"an"``).
         forward: model outputs of a ``Theta`` (default ``model.observe``; e.g. an emulator).
         history: JSON-lines file; one line per accepted step (step, loss, theta, gradient in the
-            optimiser's coordinates, evaluations so far, time).
-        resume: continue from the best point in ``history`` if it exists.
+            optimiser's coordinates, evaluations and gradients so far, time), then one line
+            ``{"stopped_by", "reason", "steps", "evaluations", "gradients"}``; the optimiser state
+            is kept next to it (``<history>.state.npz``).
+        resume: continue exactly from the saved state (or from the best point in ``history``).
+        say: where a one-line notice goes (a resume that cannot be exact).
     """
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
     loss = make_loss(model, obs, names, fixed, use=use, forward=forward)
     names = loss.names
     th0 = as_theta(start, base=loss.base)
-    past: list[dict] = []
     hist = Path(history) if history else None
-    if hist and resume and hist.exists():
+    state_file = hist.with_name(hist.name + ".state.npz") if hist else None
+    key = {
+        "method": method,
+        "names": list(names),
+        "start": [float(v) for v in np.asarray(th0.vector(names))],
+        "base": loss.base.to_dict(),
+        "tolerances": [rtol, atol, gtol],
+        "use": list(use),
+    }
+    saved = _load_state(state_file) if hist and resume and state_file.exists() else None
+    if saved is not None and saved.get("key") != key:
+        changed = [k for k in key if saved.get("key", {}).get(k) != key[k]]
+        say(f"{state_file}: saved with other {', '.join(changed)}; continuing from the history's best point")
+        saved = None
+    past: list[dict] = []
+    if saved is None and hist and resume and hist.exists():
         past = _read_history(hist)
         # drop a line cut by an interruption, so that the steps appended below stay readable
         hist.write_text("".join(json.dumps(r) + "\n" for r in past), encoding="utf-8")
         if past:
             best_past = min(past, key=lambda r: r["loss"])
             th0 = th0.replace(**{n: best_past["theta"][n] for n in names})
-    elif hist and hist.exists():
-        hist.unlink()
+    elif saved is None and hist:
+        hist.unlink(missing_ok=True)
+    if saved is None and state_file is not None:
+        state_file.unlink(missing_ok=True)
     opt = (_BFGS if method == "bfgs" else _LBFGSB)(loss, np.asarray(th0.vector(names)), rtol=rtol, atol=atol, gtol=gtol)
     t0 = time.perf_counter()
-    best_loss, best_x = math.inf, np.asarray(th0.vector(names))
-    accepted, stopped_by = 0, "max_steps"
-    with progress_bar("calibrating", max_steps, show=progress) as bar:
-        for _ in range(10 * max_steps):
+    c = {"accepted": len(past), "trials": 0, "best_loss": math.inf, "best_x": None, "stopped_by": None}
+    c["best_x"] = [float(v) for v in np.asarray(th0.vector(names))]
+    if saved is not None:
+        opt.restore(saved["point"], saved["leaves"], saved["evaluations"])
+        c = {k: saved[k] for k in c}
+        if c["stopped_by"] in ("max_steps", "stalled"):
+            c["stopped_by"] = None  # limits, not the optimiser's verdict: a rerun with a larger max_steps goes on
+        # lines appended after the saved state (a kill in between) are redone identically below
+        hist.write_text("".join(json.dumps(r) + "\n" for r in _read_history(hist)[: c["accepted"]]), encoding="utf-8")
+    if past and best_past["loss"] < c["best_loss"]:
+        c["best_loss"], c["best_x"] = best_past["loss"], [best_past["theta"][n] for n in names]
+
+    def counts() -> str:
+        return f"{c['accepted']} steps, {opt.evaluations} evaluations, {opt.gradients} gradients"
+
+    with progress_bar("calibrating", max_steps, completed=c["accepted"], show=progress) as bar:
+        while c["stopped_by"] is None:
+            if c["accepted"] >= max_steps:
+                c["stopped_by"] = "max_steps"
+                break
+            if c["trials"] >= 10 * max_steps:
+                c["stopped_by"] = "stalled"
+                break
             new, reason = opt.step()
+            c["trials"] += 1
             if new:
-                accepted += 1
+                c["accepted"] += 1
                 x, f, g = opt.point()
                 values = {n: float(v) for n, v in zip(names, np.asarray(x))}
-                if f < best_loss:
-                    best_loss, best_x = f, np.asarray(x)
+                if f < c["best_loss"]:
+                    c["best_loss"], c["best_x"] = f, [float(v) for v in np.asarray(x)]
                 if hist:
                     record = {
-                        "step": len(past) + accepted,
+                        "step": c["accepted"],
                         "loss": f,
                         "theta": values,
                         "grad": [float(v) for v in g],
                         "coordinates": opt.coordinates,
                         "evaluations": opt.evaluations,
+                        "gradients": opt.gradients,
                         "seconds": time.perf_counter() - t0,
                     }
                     hist.parent.mkdir(parents=True, exist_ok=True)
                     with open(hist, "a", encoding="utf-8") as fh:
                         fh.write(json.dumps(record) + "\n")
-                info = f"loss {f:.4g}  " + " ".join(f"{n[:4]}={v:.3f}" for n, v in values.items())
-                bar.update(completed=accepted, info=info)
+                    if os.environ.get(KILL_HOOK, "") == f"calibrate:{c['accepted']}":
+                        os._exit(137)
+                info = f"loss {f:.4g}  {opt.evaluations} evals  " + " ".join(
+                    f"{n[:4]}={v:.3f}" for n, v in values.items()
+                )
+                bar.update(completed=c["accepted"], info=info)
             if reason is not None:
-                stopped_by = reason
-                break
-            if accepted >= max_steps:
-                break
-    theta = loss.theta(jnp.asarray(best_x))
-    if past and best_past["loss"] < best_loss:
-        theta, best_loss = theta.replace(**best_past["theta"]), best_past["loss"]
+                c["stopped_by"] = reason
+            if state_file is not None:
+                _save_state(state_file, opt, {**c, "evaluations": opt.evaluations}, key)
+        why = _reason(c["stopped_by"], method, rtol, atol, gtol, max_steps, c["trials"])
+        bar.update(info=f"{why}; {counts()}")
+    if state_file is not None:
+        _save_state(state_file, opt, {**c, "evaluations": opt.evaluations}, key)
+    if hist:
+        steps = _read_history(hist)
+        final = {
+            "stopped_by": c["stopped_by"],
+            "reason": why,
+            "steps": c["accepted"],
+            "evaluations": opt.evaluations,
+            "gradients": opt.gradients,
+        }
+        hist.write_text("".join(json.dumps(r) + "\n" for r in [*steps, final]), encoding="utf-8")
+    theta = loss.theta(jnp.asarray(c["best_x"]))
     return CalibrationResult(
         theta.to_dict(),
-        best_loss,
-        len(past) + accepted,
+        c["best_loss"],
+        c["accepted"],
         opt.evaluations,
         opt.gradients,
-        stopped_by,
+        c["stopped_by"],
         method,
         hist,
         time.perf_counter() - t0,
+        why,
     )
+
+
+def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, trials: int) -> str:
+    """``stopped_by`` as a sentence with the numbers."""
+    if stopped_by == "converged":
+        if method == "bfgs":
+            return f"converged: parameter and loss changes within rtol {rtol:g}, atol {atol:g}"
+        return f"converged: projected gradient ∞-norm ≤ gtol {gtol:g}"
+    if stopped_by == "max_steps":
+        return f"step limit: {max_steps} accepted steps"
+    if stopped_by == "stalled":
+        return f"stalled: {trials} trials (limit 10 × max_steps) without reaching {max_steps} accepted steps"
+    return stopped_by
 
 
 __all__ = ["CalibrationResult", "Loss", "calibrate", "from_unconstrained", "make_loss", "to_unconstrained"]

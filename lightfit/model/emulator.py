@@ -19,14 +19,24 @@ chosen by leave-one-out cross-validation (closed form via the hat matrix).
 own observation operator (:mod:`lightfit.model.observe`), with one more speed-up: the leaf
 photosynthesis is tabulated per step (:func:`lightfit.model.observe.tabulated_leaf`). The combined
 error of both approximations is measured against full renders + the full photosynthesis by :func:`validate`.
+
+Caching (:func:`cached_emulator`): every finished design render is kept on disk as soon as it is
+done (one file per leaf-parameter point, named by a hash of :func:`render_key` and the point), so a
+design killed half-way renders only its missing points when rerun. The fitted emulator is stored
+with its :func:`emulator_key` — design size and seed, box, degrees and the render key (scene,
+field geometry, optics, estimator settings, sun positions and times, lightfit/Mitsuba versions) —
+and reused only when the key matches; otherwise it is refitted, saying which entries changed.
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
 import itertools
 import json
+import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +50,9 @@ from lightfit.light.estimator import PARTS
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
+
+#: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
+DEGREES = (1, 2, 3, 4, 5)
 
 
 def exponents(degree: int) -> np.ndarray:
@@ -71,10 +84,77 @@ def sobol_design(n: int, lo, hi, seed: int) -> np.ndarray:
     return qmc.scale(pts, np.asarray(lo, float), np.asarray(hi, float))
 
 
-def render_parts(model: CoupledModel, leaf, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Full renders at each row of ``leaf`` (n, 3): values and SE, each (n, T_day, 4, S)."""
+def _digest(*arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
+def render_key(model: CoupledModel) -> dict:
+    """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
+    settings (samples, bounces, seed), sky, optics, the field (plants, growth parameter file,
+    boundary) and its geometry (hash of the segment table), the measured segments, times, sun
+    positions and the daytime mask, and the lightfit, Mitsuba and Dr.Jit versions. JSON-ready."""
+    import pandas as pd
+
+    from lightfit import __version__
+
+    sc = model.scenario
+    versions = {"lightfit": __version__}
+    for pkg in ("mitsuba", "drjit"):
+        try:
+            versions[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            versions[pkg] = None
+    return {
+        **versions,
+        "samples": int(sc.samples),
+        "bounces": int(sc.bounces),
+        "render_seed": int(sc.seed),
+        "sky": sc.sky,
+        "n_tiles": int(sc.n_tiles),
+        "tile": sc.tile,
+        "optics": repr(sc.optics),
+        "field": repr(sc.field),
+        "growth": sc.field.growth.fingerprint(),
+        "geometry": _digest(pd.util.hash_pandas_object(model.geometry.segments, index=True).to_numpy()),
+        "segments": _digest(np.asarray(model.segment_id, np.int64)),
+        "times_utc": [str(x) for x in model.times.tz_convert("UTC")],
+        "sun": _digest(np.asarray(model.sun_deg, np.float64)),
+        "day": _digest(np.asarray(model.day, bool)),
+    }
+
+
+#: Environment variable for the resume tests: ``"render:N"`` ends the process (``os._exit``, like
+#: SIGKILL) right after the N-th new render of a :func:`render_parts` call is stored.
+KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
+
+
+def render_parts(
+    model: CoupledModel, leaf, progress: bool = False, cache: str | Path | None = None, key: dict | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Full renders at each row of ``leaf`` (n, 3): values and SE, each (n, T_day, 4, S).
+
+    ``cache``: a directory keeping each finished render (``<hash>.npz``, written atomically): points
+    already there are read instead of rendered. ``key``: :func:`render_key` of ``model`` if already
+    computed.
+    """
+    v, s, _ = _render_parts(model, leaf, progress, cache, key)
+    return v, s
+
+
+def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`render_parts` and the summed render time of the points, s (stored with each render, so
+    it is the same whether a point was rendered now or read from the cache)."""
     leaf = np.atleast_2d(np.asarray(leaf, float))
-    vals, ses = [], []
+    if len(leaf) == 0:
+        raise InputError(
+            "no points to render", column="leaf", expected="at least one (specular, roughness, subsurface)"
+        )
+    cache = None if cache is None else Path(cache)
+    rkey = json.dumps(key or render_key(model), sort_keys=True) if cache is not None else ""
+    vals, ses, seconds, fresh = [], [], 0.0, 0
     bar = None
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -84,15 +164,31 @@ def render_parts(model: CoupledModel, leaf, progress: bool = False) -> tuple[np.
         bar.start()
     try:
         for x in leaf:
-            v, s = model.render(dict(zip(LEAF_PARAMETERS, x)))
-            vals.append(np.asarray(v))
-            ses.append(np.asarray(s))
+            file = None if cache is None else cache / f"{_digest(rkey.encode(), x.astype(np.float64))}.npz"
+            if file is not None and file.exists():
+                with np.load(file) as z:
+                    v, s, dt = z["values"], z["se"], float(z["seconds"])
+            else:
+                t0 = time.perf_counter()
+                v, s = (np.asarray(a) for a in model.render(dict(zip(LEAF_PARAMETERS, x))))
+                dt = time.perf_counter() - t0
+                if file is not None:
+                    file.parent.mkdir(parents=True, exist_ok=True)
+                    tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
+                    np.savez(tmp, values=v, se=s, seconds=dt, leaf=x, key=rkey)
+                    os.replace(tmp, file)  # atomic: a kill leaves the render either whole or absent
+                fresh += 1
+                if os.environ.get(KILL_HOOK, "") == f"render:{fresh}":
+                    os._exit(137)
+            vals.append(v)
+            ses.append(s)
+            seconds += dt
             if bar:
                 bar.update(task, advance=1)
     finally:
         if bar:
             bar.stop()
-    return np.stack(vals), np.stack(ses)
+    return np.stack(vals), np.stack(ses), seconds
 
 
 @dataclass
@@ -117,6 +213,7 @@ class PartsEmulator:
     loo_rms: dict = field(default_factory=dict)
     render_seconds: float = float("nan")
     render_seed: int = 0
+    key: dict = field(default_factory=dict)
 
     @property
     def expo(self) -> np.ndarray:
@@ -149,6 +246,7 @@ class PartsEmulator:
             render_seconds=self.render_seconds,
             render_seed=self.render_seed,
             loo_rms=json.dumps({str(k): v for k, v in self.loo_rms.items()}),
+            key=json.dumps(self.key, sort_keys=True),
         )
         return path
 
@@ -165,11 +263,12 @@ class PartsEmulator:
                 render_seconds=float(z["render_seconds"]),
                 render_seed=int(z["render_seed"]),
                 loo_rms={int(k): v for k, v in json.loads(str(z["loo_rms"])).items()},
+                key=json.loads(str(z["key"])) if "key" in z else {},
             )
 
 
 def fit_emulator(
-    design, values, se, lo, hi, degrees=(1, 2, 3, 4, 5), render_seconds: float = float("nan"), render_seed: int = 0
+    design, values, se, lo, hi, degrees=DEGREES, render_seconds: float = float("nan"), render_seed: int = 0
 ) -> PartsEmulator:
     """Least-squares fit at the design; degree by leave-one-out RMS (degrees with ≤ 0.8 n terms)."""
     design = np.asarray(design, float)
@@ -205,11 +304,14 @@ def build_emulator(
     hi=(1.0, 1.0, 1.0),
     *,
     n_design: int = 40,
-    degrees=(1, 2, 3, 4, 5),
+    degrees=DEGREES,
     seed: int = 0,
     progress: bool = False,
+    cache: str | Path | None = None,
 ) -> PartsEmulator:
-    """Render ``n_design`` Sobol points (seed ``seed``) of the box [lo, hi] and fit the emulator."""
+    """Render ``n_design`` Sobol points (seed ``seed``) of the box [lo, hi] and fit the emulator.
+    ``cache``: directory keeping each finished render (see :func:`render_parts`); the emulator's
+    :attr:`~PartsEmulator.key` is then its :func:`emulator_key`."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo) or np.any(lo < 0) or np.any(hi > 1):
         raise InputError(
@@ -218,9 +320,69 @@ def build_emulator(
             expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters",
         )
     design = sobol_design(n_design, lo, hi, seed)
-    t0 = time.perf_counter()
-    v, s = render_parts(model, design, progress)
-    return fit_emulator(design, v, s, lo, hi, degrees, time.perf_counter() - t0, model.scenario.seed)
+    rkey = render_key(model) if cache is not None else None
+    v, s, seconds = _render_parts(model, design, progress, cache, rkey)
+    emu = fit_emulator(design, v, s, lo, hi, degrees, seconds, model.scenario.seed)
+    if rkey is not None:
+        emu.key = emulator_key(rkey, lo, hi, n_design, seed, degrees)
+    return emu
+
+
+def emulator_key(render: dict, lo, hi, n_design: int, seed: int, degrees) -> dict:
+    """What a fitted emulator depends on: the :func:`render_key` of its model, the box, the design
+    size and seed and the degrees tried (JSON-ready)."""
+    return {
+        "n_design": int(n_design),
+        "design_seed": int(seed),
+        "lo": [float(v) for v in np.asarray(lo, float)],
+        "hi": [float(v) for v in np.asarray(hi, float)],
+        "degrees": [int(d) for d in degrees],
+        **render,
+    }
+
+
+def key_changes(before: dict, now: dict) -> list[str]:
+    """``"entry: before → now"`` for each entry of two cache keys that differs (long values shortened)."""
+
+    def short(v):
+        s = repr(v)
+        return s if len(s) <= 40 else s[:37] + "…"
+
+    return [f"{k}: {short(before.get(k))} → {short(now.get(k))}" for k in now if before.get(k) != now.get(k)] + [
+        f"{k}: {short(before[k])} → None" for k in before if k not in now
+    ]
+
+
+def cached_emulator(
+    model: CoupledModel,
+    path: str | Path,
+    lo,
+    hi,
+    *,
+    n_design: int = 40,
+    degrees=DEGREES,
+    seed: int = 0,
+    progress: bool = False,
+    say: Callable[[str], None] = print,
+) -> PartsEmulator:
+    """The emulator stored at ``path`` if its key is this model's and these settings'
+    (:func:`emulator_key`), else built (renders kept in ``<path's folder>/renders``, so an
+    interrupted design continues where it stopped) and stored. A stored emulator that does not
+    match is reported through ``say`` (one line naming the changed entries) before the rebuild."""
+    path = Path(path)
+    rkey = render_key(model)
+    key = emulator_key(rkey, lo, hi, n_design, seed, degrees)
+    if path.exists():
+        old = PartsEmulator.load(path)
+        if old.key == key:
+            return old
+        changes = key_changes(old.key, key) if old.key else ["no key (written by an older lightfit)"]
+        say(f"emulator {path} was built for other settings ({'; '.join(changes)}): rebuilding")
+    emu = build_emulator(
+        model, lo, hi, n_design=n_design, degrees=degrees, seed=seed, progress=progress, cache=path.parent / "renders"
+    )
+    emu.save(path)
+    return emu
 
 
 class FastObservables:
@@ -324,10 +486,14 @@ __all__ = [
     "FastObservables",
     "PartsEmulator",
     "build_emulator",
+    "cached_emulator",
+    "DEGREES",
     "emulated_model",
+    "emulator_key",
     "exponents",
     "fit_emulator",
     "legendre_basis",
+    "render_key",
     "render_parts",
     "sobol_design",
     "validate",

@@ -6,11 +6,24 @@ any moment resumes from the last complete step and continues exactly as an unint
 the same seed would (tested bit for bit). A partly written step is overwritten. (HDF5 itself has
 no journal: a kill in the middle of a metadata write can in principle corrupt the file;
 h5py/HDF5 give no stronger guarantee.)
+
+Reading while a run is written: the writer opens the file once per step and closes it again, and
+opens it *without* HDF5's file lock (:func:`open_h5`), so a reader that holds the file open — e.g.
+``h5py.File(path)`` with h5py's default locking in a notebook — never makes the sampler fail
+(emcee's own backend locks and dies with ``BlockingIOError``). Two writers on one file are kept
+apart by a separate lock file instead (:func:`writer_lock`). A reader sees the file as of the last
+step closed before it opened it (reopen to refresh; a read that coincides with a step's write can
+fail and is simply retried, :func:`load_run` does so).
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
+import os
+import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +35,55 @@ from lightfit.errors import InputError
 from lightfit.inference.mcmc.diagnostics import diagnostics
 
 
+def open_h5(path: str | Path, mode: str = "r") -> h5py.File:
+    """``h5py.File`` without HDF5's file lock: the run file's writer and lightfit's readers use it, so
+    that neither blocks on (nor is blocked by) a reader holding the file open (see the module doc)."""
+    return h5py.File(path, mode, locking=False)
+
+
+@contextlib.contextmanager
+def writer_lock(path: str | Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``<path>.lock`` while a run is written: a second writer of the same
+    run file gets an :class:`InputError` instead of interleaving its steps (the HDF5 file itself is
+    opened unlocked, :func:`open_h5`). The lock dies with its process (SIGKILL included)."""
+    lock = Path(f"{path}.lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(
+                "another process is writing this run", file=path, expected="one writer per run file (or another --out)"
+            ) from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _retry(read, attempts: int = 20, wait_s: float = 0.1):
+    """``read()``, retried when it coincides with the writer's step (OSError/KeyError from a half-written
+    file, seen by a reader that opened it mid-step)."""
+    for i in range(attempts):
+        try:
+            return read()
+        except (OSError, KeyError):
+            if i == attempts - 1:
+                raise
+            time.sleep(wait_s)
+
+
 class ResumableHDFBackend(emcee.backends.HDFBackend):
-    """HDFBackend whose generator state and acceptance flags are stored per step (see module doc)."""
+    """HDFBackend whose generator state and acceptance flags are stored per step (see module doc),
+    opened without HDF5's file lock (readers never disturb it)."""
+
+    def open(self, mode="r"):
+        if self.read_only and mode != "r":
+            raise RuntimeError("the backend is read-only")
+        f = open_h5(self.filename, mode)
+        if not self.dtype_set and self.name in f and "chain" in f[self.name]:
+            self.dtype, self.dtype_set = f[self.name]["chain"].dtype, True
+        return f
 
     def reset(self, nwalkers, ndim):
         super().reset(nwalkers, ndim)
@@ -85,7 +145,7 @@ def stored_run(path: Path, group: str) -> tuple[tuple[str, ...], int] | None:
     """(names, nwalkers) of a run with at least one step stored in ``path``/``group``, else None."""
     if not path.exists():
         return None
-    with h5py.File(path, "r") as f:
+    with open_h5(path) as f:
         if group not in f or int(f[group].attrs.get("iteration", 0)) == 0:
             return None
         g = f[group]
@@ -94,11 +154,16 @@ def stored_run(path: Path, group: str) -> tuple[tuple[str, ...], int] | None:
 
 def load_run(path: str | Path, group: str = "mcmc") -> dict:
     """Read a stored run: ``names``, ``chain`` (n, walkers, ndim), ``log_prob``, ``accepted``, ``attrs``
-    (JSON-decoded), ``diagnostics`` (recomputed) and any analysis groups written next to it."""
+    (JSON-decoded), ``diagnostics`` (recomputed), the stop rule's ``checks`` (step, τ, ESS per check)
+    and any analysis groups written next to it. Safe while the run is being written (see the module doc)."""
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="an HDF5 file written by lightfit.inference.mcmc")
-    with h5py.File(path, "r") as f:
+    return _retry(lambda: _load_run(path, group))
+
+
+def _load_run(path: Path, group: str) -> dict:
+    with open_h5(path) as f:
         if group not in f:
             raise InputError(f"no group {group!r}", file=path, expected="a posterior run")
         g = f[group]
@@ -107,7 +172,8 @@ def load_run(path: str | Path, group: str = "mcmc") -> dict:
             "names": tuple(json.loads(g.attrs["names"])),
             "chain": g["chain"][:n],
             "log_prob": g["log_prob"][:n],
-            "accepted": g["accepted"][:],
+            "accepted": g["accepted_step"][:n].sum(axis=0) if "accepted_step" in g else g["accepted"][:],
+            "checks": {k: g[f"check_{k}"][:] for k in ("step", "tau", "ess") if f"check_{k}" in g},
             "attrs": {},
         }
         for k, v in g.attrs.items():
@@ -119,6 +185,53 @@ def load_run(path: str | Path, group: str = "mcmc") -> dict:
             out["analysis"] = _read_group(f["analysis"])
     out["diagnostics"] = diagnostics(out["chain"], out["accepted"], names=out["names"])
     return out
+
+
+def writer_running(path: str | Path) -> bool:
+    """Whether a process holds the run's writer lock (:func:`writer_lock`) now. Probed with a shared
+    non-blocking lock taken and released at once (a writer starting in that instant would be refused)."""
+    lock = Path(f"{path}.lock")
+    if not lock.exists():
+        return False
+    fd = os.open(lock, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
+def run_status(path: str | Path, group: str = "mcmc") -> dict:
+    """Progress of a run being written or finished: ``steps``, ``max_steps``, ``state`` (``"running"``,
+    ``"stopped"`` with ``stopped_by``, or ``"killed"`` — a call that ended without recording why, e.g.
+    SIGKILL; resumable), per-parameter τ, ESS (:func:`diagnostics` on the stored chain), acceptance,
+    and the stop rule's last check (step, τ, ESS). Reads without locking (module doc)."""
+    run = load_run(path, group)
+    a = run["attrs"]
+    stopped_by = a.get("stopped_by")
+    if writer_running(path):
+        state = "running"
+    elif stopped_by in (None, "running"):
+        state = "killed"
+    else:
+        state = "stopped"
+    checks = run["checks"]
+    last = None
+    if len(checks.get("step", [])):
+        last = {"step": int(checks["step"][-1]), "tau": checks["tau"][-1], "ess": checks["ess"][-1]}
+    return {
+        "path": str(path),
+        "names": run["names"],
+        "steps": len(run["chain"]),
+        "max_steps": a.get("max_steps"),
+        "state": state,
+        "stopped_by": None if stopped_by == "running" else stopped_by,
+        "diagnostics": run["diagnostics"],
+        "last_check": last,
+        "analysis": "analysis" in run,
+    }
 
 
 def _read_group(g) -> dict:
@@ -133,7 +246,7 @@ def _read_group(g) -> dict:
 def write_group(path: str | Path, name: str, data: dict) -> None:
     """Write (replace) HDF5 group ``name``: numeric arrays as datasets, dicts as subgroups, anything
     else as JSON attributes."""
-    with h5py.File(path, "a") as f:
+    with open_h5(path, "a") as f:
         if name in f:
             del f[name]
         _write(f.create_group(name), data)
@@ -149,4 +262,14 @@ def _write(g, data: dict):
             g.attrs[k] = json.dumps(jsonable(v))
 
 
-__all__ = ["ResumableHDFBackend", "jsonable", "load_run", "stored_run", "write_group"]
+__all__ = [
+    "ResumableHDFBackend",
+    "jsonable",
+    "load_run",
+    "open_h5",
+    "run_status",
+    "stored_run",
+    "write_group",
+    "writer_lock",
+    "writer_running",
+]

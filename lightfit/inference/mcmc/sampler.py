@@ -8,18 +8,19 @@ walkers (one call of the log-probability per half-ensemble), storing every step 
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import emcee
-import h5py
 import numpy as np
 
 from lightfit.errors import InputError
-from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, stored_run
+from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, open_h5, stored_run, writer_lock
 from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics
 from lightfit.inference.progress import progress_bar
 
@@ -27,7 +28,8 @@ from lightfit.inference.progress import progress_bar
 @dataclass
 class SamplerResult:
     """What :func:`sample` returns. ``chain``: (n_steps, n_walkers, ndim); ``stopped_by``:
-    ``"rule"`` (stop rule met), ``"max_steps"``, ``"max_seconds"`` or ``"interrupted"``."""
+    ``"rule"`` (stop rule met), ``"max_steps"``, ``"max_seconds"`` or ``"interrupted"`` (the last two
+    are resumable; the file also keeps ``stopped_by`` and ``stopped_at``, the step count at the end)."""
 
     names: tuple
     chain: np.ndarray
@@ -78,6 +80,29 @@ def sample(
         raise InputError(f"max_steps={max_steps}", column="max_steps", expected="≥ 1")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    with writer_lock(path):
+        return _sample(
+            log_prob,
+            names,
+            path,
+            nwalkers,
+            max_steps,
+            seed,
+            initial,
+            resume,
+            stop,
+            progress,
+            group,
+            attrs,
+            max_seconds,
+            moves,
+        )
+
+
+def _sample(
+    log_prob, names, path, nwalkers, max_steps, seed, initial, resume, stop, progress, group, attrs, max_seconds, moves
+) -> SamplerResult:
+    ndim = len(names)
     backend = ResumableHDFBackend(str(path), name=group)
     stored = stored_run(path, group) if resume else None
     if stored is not None and stored != (names, nwalkers):
@@ -94,11 +119,18 @@ def sample(
     sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True, backend=backend, moves=moves)
     sampler.random_state = np.random.RandomState(seed).get_state()  # overwritten by state.random_state
     done = backend.iteration
-    todo = max_steps - done
+    with open_h5(path, "a") as f:  # what `lightfit posterior-status` shows while this call runs
+        f[group].attrs["max_steps"] = max_steps
+        f[group].attrs["stopped_by"] = "running"
+    checks = _Checks(backend, stop, names)
     t0 = time.perf_counter()
     stopped_by = "max_steps"
-    tau_prev = None
     k = 0
+    # A run stopped by the rule (or killed between its last step and that step's check) is not extended:
+    # the check at the last stored step is made (again) first; it is a pure function of the chain.
+    if checks.due(done) and checks.met(done):
+        stopped_by = "rule"
+    todo = 0 if stopped_by == "rule" else max_steps - done
     with progress_bar("sampling", max_steps, completed=done, show=progress and todo > 0) as bar:
         try:
             steps = sampler.sample(state, iterations=todo, store=True, progress=False) if todo > 0 else ()
@@ -106,18 +138,17 @@ def sample(
                 k += 1
                 it = backend.iteration
                 bar.update(completed=it)
-                if stop is not None and it % stop.check_every == 0:
-                    d = diagnostics(
-                        backend.get_chain(), backend.accepted, burn_fraction=stop.burn_fraction, names=names
-                    )
+                _test_kill_hook(it)
+                if checks.due(it):
+                    met = checks.met(it)
+                    d = checks.last
                     bar.update(
                         info=f"τ max {np.nanmax(d['tau']):.1f}  ESS min {np.nanmin(d['ess']):.0f}  "
                         f"acc {d['acceptance_mean']:.2f}"
                     )
-                    if stop.check(d, tau_prev):
+                    if met:
                         stopped_by = "rule"
                         break
-                    tau_prev = d["tau"]
                 if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
                     stopped_by = "max_seconds"
                     break
@@ -126,16 +157,92 @@ def sample(
     chain = backend.get_chain()
     d = diagnostics(chain, backend.accepted, burn_fraction=(stop or StopRule()).burn_fraction, names=names)
     d["rule_met"] = stopped_by == "rule"
-    with h5py.File(path, "a") as f:
+    with open_h5(path, "a") as f:
         f[group].attrs["diagnostics"] = json.dumps(jsonable(d))
         f[group].attrs["stopped_by"] = stopped_by
+        f[group].attrs["stopped_at"] = len(chain)
     return SamplerResult(names, chain, backend.get_log_prob(), d, path, stopped_by, time.perf_counter() - t0, k)
+
+
+#: Environment variable for the resume tests: ``"sample:N"`` ends the process (``os._exit``, no cleanup,
+#: like SIGKILL) right after step N is stored, before that step's stop-rule check.
+KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
+
+
+def _test_kill_hook(step: int) -> None:
+    spec = os.environ.get(KILL_HOOK, "")
+    if spec.startswith("sample:") and int(spec.split(":", 1)[1]) == step:
+        os._exit(137)
+
+
+class _Checks:
+    """The stop rule's checks of a run, kept in the run file (``check_step``, ``check_tau``, ``check_ess``,
+    one row per check) so that a resumed run decides exactly as an uninterrupted one: the check at step
+    n compares τ with the check at n − check_every, which a resumed process did not see. Rows missing
+    after a kill (between a step and its check) are recomputed from the stored chain, as are all rows
+    when the stored ones were made with another rule (``stop_rule`` attribute)."""
+
+    def __init__(self, backend: ResumableHDFBackend, stop: StopRule | None, names):
+        self.backend, self.stop, self.names = backend, stop, names
+        self.rows: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step → (τ, ESS)
+        self.last: dict = {}
+        if stop is None:
+            return
+        rule = json.dumps(dataclasses.asdict(stop))
+        done = backend.iteration
+        with backend.open("a") as f:
+            g = f[backend.name]
+            for k in ("step", "tau", "ess"):
+                if f"check_{k}" not in g:
+                    shape = (0,) if k == "step" else (0, len(names))
+                    g.create_dataset(f"check_{k}", shape, maxshape=(None, *shape[1:]), dtype=float)
+            if g.attrs.get("stop_rule") == rule:
+                for s, tau, ess in zip(g["check_step"][:], g["check_tau"][:], g["check_ess"][:]):
+                    if s <= done:
+                        self.rows[int(s)] = (tau, ess)
+            g.attrs["stop_rule"] = rule
+        missing = [s for s in range(stop.check_every, done + 1, stop.check_every) if s not in self.rows]
+        if missing:
+            chain = backend.get_chain()
+            for s in missing:
+                d = self._diagnostics(chain[:s], None)
+                self.rows[s] = (d["tau"], d["ess"])
+        self._write()
+
+    def due(self, step: int) -> bool:
+        return self.stop is not None and step > 0 and step % self.stop.check_every == 0
+
+    def _diagnostics(self, chain, accepted) -> dict:
+        return diagnostics(chain, accepted, burn_fraction=self.stop.burn_fraction, names=self.names)
+
+    def met(self, step: int) -> bool:
+        """Check the rule at ``step`` (the last stored step), record τ and ESS, return whether it is met."""
+        d = self._diagnostics(self.backend.get_chain(), self.backend.accepted)
+        self.last = d
+        self.rows[step] = (d["tau"], d["ess"])
+        self._write()
+        prev = self.rows.get(step - self.stop.check_every)
+        return self.stop.check(d, None if prev is None else prev[0])
+
+    def _write(self) -> None:
+        steps = sorted(self.rows)
+        shape = (len(steps), len(self.names))
+        data = {
+            "step": np.asarray(steps, float),
+            "tau": np.array([self.rows[s][0] for s in steps]).reshape(shape),
+            "ess": np.array([self.rows[s][1] for s in steps]).reshape(shape),
+        }
+        with self.backend.open("a") as f:
+            g = f[self.backend.name]
+            for k, v in data.items():
+                g[f"check_{k}"].resize(len(steps), axis=0)
+                g[f"check_{k}"][...] = v
 
 
 def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs) -> emcee.State:
     """Reset ``backend`` for a new run, store its metadata, return the initial state."""
     backend.reset(nwalkers, len(names))
-    with h5py.File(path, "a") as f:
+    with open_h5(path, "a") as f:
         g = f[group]
         g.attrs["names"] = json.dumps(list(names))
         g.attrs["seed"] = seed

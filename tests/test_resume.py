@@ -1,0 +1,195 @@
+"""Long runs killed at any moment and rerun with the same command end exactly as uninterrupted runs (issue 17).
+
+``lightfit posterior`` and ``lightfit calibrate`` run as subprocesses on the CI-sized field (3 daytime
+steps). Kill points: the test hook ``LIGHTFIT_TEST_KILL_AFTER`` (``os._exit`` at a chosen render, step or
+accepted calibration step — deterministic) and one real SIGKILL from outside during sampling. The
+reference is the same command run without interruption; the comparison is bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from lightfit.inference import mcmc as P
+
+MODEL = ["--quick", "--steps", "12:15"]
+POSTERIOR = [
+    "posterior",
+    *MODEL,
+    "--parameters",
+    "light_factor",
+    "--walkers",
+    "8",
+    "--max-steps",
+    "1000",
+    "--n-design",
+    "6",
+    "--n-test",
+    "0",
+    "--no-analysis",
+    "--target-ess",
+    "10",
+]
+
+
+def lightfit(args, out: Path | None, kill_after: str | None = None, wait: bool = True):
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "COLUMNS": "200"}  # rich: no wrapped lines
+    env.pop("LIGHTFIT_TEST_KILL_AFTER", None)
+    if kill_after:
+        env["LIGHTFIT_TEST_KILL_AFTER"] = kill_after
+    cmd = [sys.executable, "-m", "lightfit.cli", *args, *([] if out is None else ["--out", str(out)])]
+    p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    if not wait:
+        return p
+    output, _ = p.communicate(timeout=600)
+    return p.returncode, output
+
+
+def iteration(path: Path) -> int:
+    """Steps stored, read with h5py's *default* file locking while the writer may be running."""
+    try:
+        with h5py.File(path, "r") as f:
+            return int(f["mcmc"].attrs["iteration"])
+    except (OSError, KeyError):
+        return -1  # not created yet, or opened in the middle of a step's write
+
+
+def h5_contents(path: Path) -> dict:
+    """Every dataset of the run group (raw, unsliced) and the attributes that are not wall times."""
+    out = {}
+    with h5py.File(path, "r") as f:
+        g = f["mcmc"]
+        for k, v in g.items():
+            out[k] = v[()]
+        for k in ("iteration", "stopped_by", "stopped_at", "diagnostics", "stop_rule", "max_steps"):
+            out["attr:" + k] = g.attrs[k]
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The uninterrupted run, read (default locking) every 0.1 s while it samples."""
+    out = tmp_path_factory.mktemp("ref")
+    p = lightfit(POSTERIOR, out, wait=False)
+    seen = set()
+    while p.poll() is None:
+        seen.add(iteration(out / "run.h5"))
+        time.sleep(0.1)
+    output = p.stdout.read()
+    assert p.returncode == 0, output
+    return out, seen, output
+
+
+def test_reading_the_run_file_while_sampling_does_not_disturb_the_sampler(reference):
+    out, seen, output = reference
+    run = P.load_run(out / "run.h5")
+    assert run["attrs"]["stopped_by"] == "rule"
+    # the reader saw the run in progress (several intermediate step counts), and the sampler finished
+    assert len({n for n in seen if 0 < n < len(run["chain"])}) >= 3, sorted(seen)
+    assert "stopped: rule" in output
+
+
+def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, tmp_path):
+    ref, _, _ = reference
+    out = tmp_path / "killed"
+    # 1. during the emulator design, after 3 of its 6 renders
+    rc, output = lightfit(POSTERIOR, out, kill_after="render:3")
+    assert rc == 137 and not (out / "emulator.npz").exists() and len(list((out / "renders").glob("*.npz"))) == 3
+    # 2. a real SIGKILL from outside while sampling (after at least one stop-rule check at step 50)
+    p = lightfit(POSTERIOR, out, wait=False)
+    deadline = time.time() + 300
+    while iteration(out / "run.h5") < 60 and p.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    killed_at = iteration(out / "run.h5")
+    assert 60 <= killed_at < 600, killed_at
+    # rendering resumed: the design has all 6 renders now (3 kept from the first attempt)
+    assert len(list((out / "renders").glob("*.npz"))) == 6
+    # 3. right after step 600 is stored, before its stop-rule check (the check a resumed run must not skip)
+    rc, output = lightfit(POSTERIOR, out, kill_after="sample:600")
+    assert rc == 137, output
+    assert iteration(out / "run.h5") == 600
+    rc, output = lightfit(POSTERIOR, out)
+    assert rc == 0, output
+    a, b = h5_contents(ref / "run.h5"), h5_contents(out / "run.h5")
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(b[k], a[k], err_msg=k)
+    assert a["attr:stopped_by"] == "rule" and a["attr:stopped_at"] > 600
+    with np.load(ref / "emulator.npz") as x, np.load(out / "emulator.npz") as y:
+        np.testing.assert_array_equal(x["coef_values"], y["coef_values"])
+    # A finished run rerun is not extended: the rule is met at its last step.
+    rc, output = lightfit(POSTERIOR, out)
+    assert rc == 0 and "stopped: rule" in output
+    assert h5_contents(out / "run.h5")["attr:iteration"] == a["attr:iteration"]
+    # status of the finished run
+    rc, output = lightfit(["posterior-status", str(out)], None)
+    assert rc == 0 and "stopped: rule" in output and "light_factor" in output
+
+
+def test_n_design_change_rebuilds_the_emulator(reference, tmp_path):
+    ref, _, _ = reference
+    out = tmp_path / "n7"
+    shutil.copytree(ref / "renders", out / "renders")
+    shutil.copy(ref / "emulator.npz", out / "emulator.npz")
+    args = [*POSTERIOR, "--n-design", "7", "--max-steps", "5"]
+    rc, output = lightfit(args, out)
+    assert rc == 0, output
+    assert "was built for other settings (n_design: 6 → 7" in output.replace("\n", "")
+    assert len(P.load_run(out / "run.h5")["chain"]) == 5
+    assert len(list((out / "renders").glob("*.npz"))) == 7  # the 6 renders of the old design reused
+    with np.load(out / "emulator.npz") as z:
+        assert len(z["design"]) == 7
+    # resuming that chain on an emulator of another design is refused with one line
+    rc, output = lightfit([*POSTERIOR, "--n-design", "8", "--max-steps", "10"], out)
+    assert rc == 2 and "another emulator (n_design: 7 → 8" in output.replace("\n", "") and "Traceback" not in output
+
+
+def test_n_test_negative_is_refused(tmp_path):
+    rc, output = lightfit([*POSTERIOR, "--n-test", "-1"], tmp_path)
+    assert rc == 2 and "n_test=-1" in output and "Traceback" not in output
+
+
+CALIBRATE = ["calibrate", None, *MODEL, "--parameters", "specular", "--max-steps", "4"]
+
+
+def _observations(path: Path) -> Path:
+    path.write_text(
+        "# provenance: synthetic\n# note: resume test\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
+        "2016-04-20T09:00:00Z,300,20\n2016-04-20T09:30:00Z,350,20\n2016-04-20T10:00:00Z,400,20\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+def _history(out: Path) -> list[dict]:
+    rows = [json.loads(x) for x in (out / "history.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
+
+
+def test_calibrate_killed_and_rerun_reaches_the_same_optimum_and_history(tmp_path):
+    args = list(CALIBRATE)
+    args[1] = str(_observations(tmp_path / "obs.csv"))
+    rc, output = lightfit(args, tmp_path / "ref")
+    assert rc == 0, output
+    rc, output = lightfit(args, tmp_path / "killed", kill_after="calibrate:2")
+    assert rc == 137, output
+    rc, output = lightfit(args, tmp_path / "killed")
+    assert rc == 0, output
+    assert _history(tmp_path / "killed") == _history(tmp_path / "ref")
+    a, b = (json.loads((tmp_path / d / "calibration.json").read_text()) for d in ("ref", "killed"))
+    for k in ("theta", "loss", "steps", "evaluations", "gradients", "stopped_by", "reason"):
+        assert a[k] == b[k], k
+    assert "accepted steps" in output and "stopped:" in output
