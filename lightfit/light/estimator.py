@@ -239,6 +239,8 @@ class SegmentEstimator:
         self._x = np.concatenate([x, x[blade]]) + epsilon_m * self._ev["n"]
         self.n_evaluations = len(self._x)
         self._wrap_log: list = []  # periodic rays cast (kind, active, capped, crossings), see render()
+        # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
+        self._fuse = False
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
 
@@ -301,6 +303,14 @@ class SegmentEstimator:
         """Absorptance 1 − ρ(θ) of the leaf for light arriving from ``w_world`` (tabulated albedo)."""
         return 1.0 - leaf_albedo(self.fs.bsdf, frame.to_local(w_world).z)
 
+    def _sun_vector(self):
+        """The sun direction as an *opaque* Dr.Jit vector: the render's kernel then does not
+        depend on the sun, so one compiled kernel serves every time step of a day (and is
+        cached on disk); with literals every sun position compiled its own."""
+        import drjit as dr
+
+        return dr.opaque(self.fs.mi.Vector3f, [float(c) for c in self.fs.sun])
+
     def _direct_sun(self, o, nrm):
         mi = self.fs.mi
         import drjit as dr
@@ -308,7 +318,7 @@ class SegmentEstimator:
         sun = self.fs.sun
         if sun[2] <= 0:
             return mi.Float(dr.zeros(mi.Float, self.n_evaluations))
-        s = mi.Vector3f(*[float(c) for c in sun])
+        s = self._sun_vector()
         cos_s = dr.dot(nrm, s)
         if self.fs.tracer is None:
             blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), cos_s > 0)
@@ -319,7 +329,7 @@ class SegmentEstimator:
     def _occluded(self, kind: str, o, d, active):
         """Periodic shadow rays towards the sun (``d``), logged for :meth:`render`'s meta."""
         tracer = self.fs.tracer
-        blocked, capped, k = tracer.occluded(o, d, active, cap=tracer.crossings_for(self.fs.sun))
+        blocked, capped, k = tracer.occluded(o, d, active, cap=tracer.crossings_for(self.fs.sun), fuse=self._fuse)
         self._wrap_log.append((kind, active, capped, k))
         return blocked
 
@@ -333,7 +343,7 @@ class SegmentEstimator:
         e_dir = self._direct_sun(o, nrm)
         a_d = self._absorptance(frame, d)
         sun = self.fs.sun
-        a_s = self._absorptance(frame, mi.Vector3f(*[float(c) for c in sun])) if sun[2] > 0 else mi.Float(1.0)
+        a_s = self._absorptance(frame, self._sun_vector()) if sun[2] > 0 else mi.Float(1.0)
         e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
         vals = {
             "incident_sun": e_dir + e_sunscat,
@@ -350,7 +360,7 @@ class SegmentEstimator:
         mi, fs = self.fs.mi, self.fs
         n_ev = self.n_evaluations
         rho_soil = fs.optics.soil_albedo
-        sun = mi.Vector3f(*[float(c) for c in fs.sun])
+        sun = self._sun_vector()
         sun_up = bool(fs.sun[2] > 0)
         ctx = mi.BSDFContext()
         beta = mi.Float(dr.ones(mi.Float, n_ev))
@@ -361,7 +371,7 @@ class SegmentEstimator:
         periodic = fs.tracer is not None
         for depth in range(self.bounces + 1):
             if periodic:
-                hit_leaf, si, hit_soil, p_soil, escaped, capped, k = fs.tracer.intersect(o, d, active)
+                hit_leaf, si, hit_soil, p_soil, escaped, capped, k = fs.tracer.intersect(o, d, active, fuse=self._fuse)
                 self._wrap_log.append(("path", active, capped, k))
             else:
                 ray = mi.Ray3f(o, d)
@@ -412,11 +422,17 @@ class SegmentEstimator:
         import drjit as dr
 
         with dr.suspend_grad():
-            self._wrap_log = []
-            vals = self._per_evaluation()
-            dr.eval(vals)
+            self._wrap_log, self._fuse = [], True
+            try:
+                vals = self._per_evaluation()
+            finally:
+                self._fuse = False
+            counts = self._wrap_counts()
+            # One evaluation of everything: the whole render (periodic walks included) is one
+            # kernel; evaluating the ray counts apart would recompute the walks they count.
+            dr.eval(vals, counts)
             ev = {k: np.asarray(v, dtype=np.float64) for k, v in vals.items()}
-            periodic = self._wrap_summary()
+            periodic = self._wrap_summary(counts)
         S, K = len(self.segment_id), self.samples
         n_front = S * K
         out, se, front = {}, {}, {}
@@ -450,18 +466,37 @@ class SegmentEstimator:
             },
         )
 
-    def _wrap_summary(self) -> dict | None:
+    def _wrap_counts(self) -> dict | None:
+        """Per evaluation and kind of ray: rays cast, rays capped and crossings made (lazy UInt32
+        arrays of :attr:`_wrap_log`, to be evaluated with the render)."""
+        if self.fs.tracer is None:
+            return None
+        import drjit as dr
+
+        U = self.fs.mi.UInt32
+        zero = dr.zeros(U, self.n_evaluations)
+        counts = {}
+        for kind in ("path", "sun", "nee"):
+            rays, capped, crossings = zero, zero, zero
+            for _, a, c, k in (x for x in self._wrap_log if x[0] == kind):
+                rays = rays + dr.select(a, U(1), U(0))
+                capped = capped + dr.select(c, U(1), U(0))
+                crossings = crossings + dr.select(a, k, U(0))
+            counts[kind] = {"rays": rays, "capped": capped, "crossings": crossings}
+        self._wrap_log = []
+        return counts
+
+    def _wrap_summary(self, counts: dict | None) -> dict | None:
         """Rays cast, crossings made and rays stopped by the crossing cap, per kind of ray.
 
         Kinds: ``"path"`` (the first cosine-sampled ray and every scattered segment),
         ``"sun"`` (direct-sun shadow rays), ``"nee"`` (sun shadow rays from leaf and soil
-        vertices). ``capped_share`` is capped ÷ rays over all kinds.
+        vertices). ``capped_share`` is capped ÷ rays over all kinds. ``counts``: the evaluated
+        :meth:`_wrap_counts`.
         """
         tracer = self.fs.tracer
         if tracer is None:
             return None
-        import drjit as dr
-
         out = {
             "cell_m": tuple(float(v) for v in tracer.cell.size_m),
             "z_top_m": tracer.z_top,
@@ -469,17 +504,10 @@ class SegmentEstimator:
             "sun_crossing_cap": tracer.crossings_for(self.fs.sun),
             "crossing_tolerance": tracer.tolerance,
         }
-        tot = {"rays": 0, "capped": 0}
-        for kind in ("path", "sun", "nee"):
-            logs = [x for x in self._wrap_log if x[0] == kind]
-            rays = sum(int(dr.count(a)[0]) for _, a, _, _ in logs)
-            capped = sum(int(dr.count(c)[0]) for _, _, c, _ in logs)
-            crossings = sum(int(dr.sum(dr.select(a, k, 0))[0]) for _, a, _, k in logs)
-            out[kind] = {"rays": rays, "capped": capped, "crossings": crossings}
-            tot["rays"] += rays
-            tot["capped"] += capped
-        out["capped_share"] = tot["capped"] / max(tot["rays"], 1)
-        self._wrap_log = []
+        for kind, c in counts.items():
+            out[kind] = {k: int(np.asarray(v, dtype=np.int64).sum()) for k, v in c.items()}
+        rays = sum(out[k]["rays"] for k in counts)
+        out["capped_share"] = sum(out[k]["capped"] for k in counts) / max(rays, 1)
         return out
 
     def vjp(self, cotangent: dict[str, np.ndarray]) -> dict[str, float]:

@@ -132,7 +132,7 @@ class PeriodicTracer:
         a, b = self._local(o)
         return self._shift(o, -dr.floor(a / c["A"] + 0.5), -dr.floor(b / c["B"] + 0.5))
 
-    def walk(self, o, d, active, *, cap: int, soil: bool, test: bool):
+    def walk(self, o, d, active, *, cap: int, soil: bool, test: bool, fuse: bool = False):
         """Trace rays segment by segment through the cell (module doc) in one symbolic loop.
 
         Args:
@@ -141,6 +141,11 @@ class PeriodicTracer:
             cap: most crossings before a ray counts as :data:`CAPPED`.
             soil: stop rays going down at the soil plane z = 0.
             test: shadow rays (``ray_test``: any hit) instead of nearest hits.
+            fuse: leave the walk unevaluated, to be fused into the caller's kernel (a primal
+                render evaluates as one kernel: module doc, "Speed"). Otherwise inputs and
+                outputs are evaluated and the walk is its own kernel, the same for every bounce
+                (what a differentiated render needs: its backward kernels would recompute an
+                unevaluated walk each time they read it).
 
         Returns:
             ``(status, origin, maxt, crossings, pi)``: per lane the :data:`INACTIVE` …
@@ -154,12 +159,11 @@ class PeriodicTracer:
         c = self._constants()
         A2, B2, z_top = c["A"] * 0.5, c["B"] * 0.5, c["z_top"]
         cap = dr.opaque(mi.UInt32, int(cap))
-        # Evaluated inputs and outputs: the walk is then its own kernel, the same one for every
-        # bounce (not fused into, and recompiled with, whatever computed the rays).
         o, d = mi.Point3f(dr.detach(o)), mi.Vector3f(dr.detach(d))
         n = dr.width(o)
         active = mi.Bool(active) & dr.full(mi.Bool, True, n)
-        dr.make_opaque(o, d, active)
+        if not fuse:
+            dr.make_opaque(o, d, active)
         da, db = d.x * c["ex"] + d.y * c["ey"], d.x * c["fx"] + d.y * c["fy"]
         inf = dr.inf
         o = self.wrap(o)
@@ -214,10 +218,11 @@ class PeriodicTracer:
         o, status, maxt, k, pi = dr.while_loop(
             state=(o, status, maxt, k, pi), cond=lambda o, status, maxt, k, pi: status == RUNNING, body=body
         )
-        dr.eval(o, status, maxt, k, pi)
+        if not fuse:
+            dr.eval(o, status, maxt, k, pi)
         return status, o, maxt, k, pi
 
-    def intersect(self, o, d, active, cap: int | None = None):
+    def intersect(self, o, d, active, cap: int | None = None, fuse: bool = False):
         """Nearest hit of path rays: ``(hit_leaf, si, hit_soil, p_soil, escaped, capped, crossings)``.
 
         ``si`` is Mitsuba's full surface interaction of the leaf hit (valid where ``hit_leaf``),
@@ -225,7 +230,7 @@ class PeriodicTracer:
         """
         mi = self.mi
         status, o_last, maxt, k, pi = self.walk(
-            o, d, active, cap=self.cap if cap is None else cap, soil=True, test=False
+            o, d, active, cap=self.cap if cap is None else cap, soil=True, test=False, fuse=fuse
         )
         hit_leaf = status == LEAF
         ray = mi.Ray3f(o_last, mi.Vector3f(d))
@@ -234,8 +239,8 @@ class PeriodicTracer:
         hit_soil = status == SOIL
         return hit_leaf, si, hit_soil, o_last + d * maxt, status == SKY, status == CAPPED, k
 
-    def occluded(self, o, d, active, cap: int):
+    def occluded(self, o, d, active, cap: int, fuse: bool = False):
         """Shadow rays: ``(blocked, capped, crossings)``; a capped ray counts as blocked."""
-        status, _, _, k, _ = self.walk(o, d, active, cap=cap, soil=False, test=True)
+        status, _, _, k, _ = self.walk(o, d, active, cap=cap, soil=False, test=True, fuse=fuse)
         capped = status == CAPPED
         return (status == LEAF) | capped, capped, k
