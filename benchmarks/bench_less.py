@@ -1,0 +1,435 @@
+"""Benchmark: per-segment absorbed PAR, lightfit against LESS 3 on the same mesh, optics, sun and sky.
+
+    python benchmarks/bench_less.py [--plants 16] [--boundary finite periodic]
+        [--less-samples 16 64] [--lightfit-samples 64 256] [--replicates 4] [--target 0.02]
+
+LESS 3 (PyPI ``less3d``; Qi et al. 2019, Remote Sens. Environ. 221:695) is an independent ray
+tracer used here as a peer only: its licence (LESS Academic and Non-Commercial Research
+License 1.0) allows non-commercial research and evaluation, so it is never a lightfit
+dependency, never in CI or tests. It lives in its own environment, ``.venv-less`` (README,
+"Optional: LESS 3 peer"); without it this script says so and stops (exit 0).
+
+Two steps, so that lightfit and LESS never share an environment: this script grows the field,
+writes its triangles, optics and sun to a folder, runs ``benchmarks/less_runner.py`` with the
+LESS environment's Python (all LESS runs in one process, side by side with lightfit's runs on the
+same cores), reads back LESS's absorbed irradiance per triangle side and compares, per segment:
+
+- **Physics, identical in both**: lightfit's mesh (blades two-sided, stems and sheaths their
+  outer side); Lambertian leaves, reflectance 0.0825 and transmittance 0.0675 per side (lightfit
+  ``Optics(specular=0, base_color=0.15, subsurface=0.45)``; Caribu's green leaf in PAR); soil
+  albedo 0.12; the 2016-04-20 10:00 UTC sun at Selhausen (elevation 46.52°, azimuth 145.82°);
+  an isotropic sky; 3 scattering events (LESS ``max_depth=3``; with albedo 0.15 the truncated
+  light is < 0.1 %, :func:`~lightfit.light.estimator.bounces_for_tolerance`).
+- **Agreement**: absorbed PAR per unit DNI (sun part) and per unit DHI (sky part) per segment,
+  from the mean of the replicates at the largest sample counts: median and 90th percentile of
+  |LESS − lightfit| / lightfit, the median |z| of the difference over its Monte Carlo SE
+  (against Student's t with 2(R − 1) degrees of freedom when the difference is noise alone:
+  0.72 for R = 4), and the relative bias of canopy totals (Σ area × value) with its SE. LESS
+  runs the sun and the sky separately for this (its runs take one illumination); lightfit's one
+  render gives both parts.
+- **Noise**: absorbed PAR at DNI 1 and DHI 0.3 (a clear day) in one run of each tool; per
+  segment the standard deviation over R replicates (lightfit: seeds; LESS, which has no seed:
+  the triangles written in R random orders, its random streams being keyed by primitive index)
+  over the replicates' mean, median over blades and over stems. lightfit's own SE
+  (``Irradiance.relative_se``) is checked against its seed spread.
+- **Time at equal noise**: wall time of one estimate (lightfit: estimator set-up + render; LESS:
+  ``scene.simulate``; scene building apart) at two sample counts each; the median relative SE
+  follows c·n^(−p) (p fitted, ≈ 0.5) and the time a + b·n, which give each tool's time to a
+  median relative SE of ``--target`` on blades and on stems; the ratio LESS ÷ lightfit is the
+  speed-up. Both use every core of this machine (Dr.Jit and Embree threads).
+- **Periodic cell** (``--boundary periodic``): lightfit's periodic cell (ray wrapping, periodic
+  images of overhanging faces) against LESS's "repetitive scene" on the same cell: LESS
+  receives lightfit's periodic images (faces reaching into the cell, shifted by whole periods)
+  and a soil tile the size of the cell, and each face is measured on its image whose centroid
+  lies in the cell.
+
+Writes benchmarks/results/less.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+import lightfit  # noqa: F401
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant import Field, build
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "less.json"
+RUNNER = ROOT / "benchmarks" / "less_runner.py"
+LESS_PYTHON = Path(os.environ.get("LIGHTFIT_LESS_PYTHON", ROOT / ".venv-less" / "bin" / "python"))
+#: Lambertian leaf in PAR, per side (Caribu's green leaf; docs/design.md §7).
+LEAF_R, LEAF_T = 0.0825, 0.0675
+SOIL_ALBEDO = 0.12
+#: 2016-04-20 10:00 UTC at Selhausen (lightfit.weather.solar.solar_position).
+SUN_ELEVATION_DEG, SUN_AZIMUTH_DEG = 46.521508, 145.817464
+BOUNCES = 3
+#: Half-width of the soil quad LESS receives around a finite field, m: a downward ray from a
+#: leaf at most 0.6 m high misses it only within 0.7° of the horizon.
+GROUND_HALF_M = 50.0
+MIX_DHI = 0.3  # DHI / DNI of the noise runs (a clear day)
+
+
+def lambertian_optics() -> Optics:
+    """lightfit optics equal to LESS's ``Lambertian(reflectance=R, transmittance=T)``: no glossy lobe
+    (F0 = 0), diffuse albedo c = R + T, transmitted share T / (R + T)."""
+    return Optics(
+        specular=0.0,
+        roughness=0.5,
+        subsurface=LEAF_T / (LEAF_R + LEAF_T),
+        base_color=LEAF_R + LEAF_T,
+        soil_albedo=SOIL_ALBEDO,
+    )
+
+
+def export(geom, boundary: str, folder: Path, runs: list[dict]) -> dict:
+    """Write mesh.npz and job.json for less_runner.py; returns which exported face measures which
+    lightfit face (``measure``: index into the exported triangles, one per lightfit face)."""
+    mesh = geom.mesh
+    if boundary == "finite":
+        tri = mesh.vertices[mesh.faces]
+        centre = 0.5 * (mesh.vertices[:, :2].min(0) + mesh.vertices[:, :2].max(0))
+        shift = GROUND_HALF_M - centre
+        size = (2 * GROUND_HALF_M, 2 * GROUND_HALF_M)
+        measure = np.arange(mesh.n_faces)
+        repetitive = 0
+    else:
+        cell = geom.cell
+        ea, _ = cell.axes
+        if abs(ea[0] - 1) > 1e-9:
+            raise SystemExit("the LESS export supports rows running east-west only (row_direction_deg=90)")
+        # Each original face and its images, in the order of cell.images (which copies each face
+        # once per lattice vector that makes it overlap the cell).
+        ids = np.arange(mesh.n_faces)
+        tagged = type(mesh)(mesh.vertices, mesh.faces, ids, mesh.face_is_blade)
+        img = cell.images(tagged)
+        tri = img.vertices[img.faces]
+        ab = cell.to_local(tri.mean(1))
+        (a0, a1), (b0, b1) = cell.bounds_m
+        inside = (ab[:, 0] >= a0) & (ab[:, 0] < a1) & (ab[:, 1] >= b0) & (ab[:, 1] < b1)
+        measure = np.full(mesh.n_faces, -1)
+        measure[img.face_segment[inside]] = np.nonzero(inside)[0]
+        if (measure < 0).any():
+            raise SystemExit(f"{int((measure < 0).sum())} faces have no image with its centroid in the cell")
+        shift = cell.size_m / 2 - np.asarray(cell.center_xy)
+        size = tuple(float(v) for v in cell.size_m)
+        repetitive = 1  # True: LESS's documented default wrap limit (100)
+    tri = tri.copy()
+    tri[..., :2] += shift
+    w, d = size
+    ground = np.array([[0.0, 0.0, 0.0], [w, 0.0, 0.0], [w, d, 0.0], [0.0, d, 0.0]])
+    folder.mkdir(parents=True, exist_ok=True)
+    np.savez(folder / "mesh.npz", triangles=tri, ground=ground)
+    job = {
+        "optics": {"reflectance": LEAF_R, "transmittance": LEAF_T, "soil_albedo": SOIL_ALBEDO},
+        "sun": {"zenith_deg": 90.0 - SUN_ELEVATION_DEG, "azimuth_deg": SUN_AZIMUTH_DEG},
+        "max_depth": BOUNCES,
+        "repetitive": bool(repetitive),
+        "scene_size_m": [float(w), float(d)],
+        "runs": runs,
+    }
+    (folder / "job.json").write_text(json.dumps(job, indent=1))
+    return {"measure": measure, "n_exported": len(tri)}
+
+
+def per_segment(values_face: np.ndarray, geom, seg_index: np.ndarray, n_seg: int) -> np.ndarray:
+    """Area-weighted mean over each segment's faces (per unit one-sided area)."""
+    a = geom.mesh.face_areas()
+    num = np.bincount(seg_index, a * values_face, minlength=n_seg)
+    den = np.bincount(seg_index, a, minlength=n_seg)
+    return np.divide(num, den, out=np.full(n_seg, np.nan), where=den > 0)
+
+
+def less_segments(folder: Path, label: str, geom, exp: dict, seg_index, n_seg) -> tuple[np.ndarray, float]:
+    """LESS absorbed irradiance per segment (blades: both sides; stems: outer side) and its time."""
+    z = np.load(folder / "out" / f"{label}.npz")
+    m = exp["measure"]
+    top, bot = z["top"][m], z["bot"][m]
+    v = top + np.where(geom.mesh.face_is_blade, bot, 0.0)
+    return per_segment(v, geom, seg_index, n_seg), float(z["simulate_s"])
+
+
+def rel_spread(reps: np.ndarray) -> np.ndarray:
+    """Per-segment relative SD of one replicate: SD over replicates (axis 0) / their mean."""
+    m = reps.mean(0)
+    return np.divide(reps.std(0, ddof=1), np.abs(m), out=np.full(m.shape, np.nan), where=m > 0)
+
+
+def equal_noise(points: list[dict], target: float) -> dict:
+    """Time to a median relative SE of ``target`` from (n, rse, time) points: rse = c·n^-p, t = a + b·n."""
+    (n1, r1, t1), (n2, r2, t2) = ((p["n"], p["median_rse"], p["time_s"]) for p in points[:2])
+    p = math.log(r1 / r2) / math.log(n2 / n1)
+    n_t = n2 * (r2 / target) ** (1 / p)
+    b = (t2 - t1) / (n2 - n1)
+    a = max(t1 - b * n1, 0.0)
+    return {"exponent": p, "n_at_target": n_t, "time_s_at_target": a + b * n_t, "overhead_s": a, "s_per_n": b}
+
+
+def expected_abs_z(reps: int) -> float:
+    """Median |z| of a difference that is noise alone, with both SEs from ``reps`` replicates:
+    Student's t with 2(R − 1) degrees of freedom (Welch's, equal variances)."""
+    from scipy.stats import t
+
+    return float(t.ppf(0.75, 2 * (reps - 1)))
+
+
+def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
+    """Per-segment and canopy-total agreement of two estimates on the segments in ``mask``."""
+    ok = mask & (lf_mean > 0) & np.isfinite(less_mean)
+    d = (less_mean - lf_mean)[ok]
+    rel = np.abs(d) / lf_mean[ok]
+    se = np.hypot(less_se, lf_se)[ok]
+    tot_l, tot_f = float(np.sum(area[ok] * less_mean[ok])), float(np.sum(area[ok] * lf_mean[ok]))
+    se_tot = math.hypot(
+        float(np.sqrt(np.sum((area[ok] * less_se[ok]) ** 2))), float(np.sqrt(np.sum((area[ok] * lf_se[ok]) ** 2)))
+    )
+    return {
+        "segments": int(ok.sum()),
+        "median_rel_diff": float(np.median(rel)),
+        "p90_rel_diff": float(np.quantile(rel, 0.9)),
+        "median_rel_noise_of_diff": float(np.median(se / lf_mean[ok])),
+        "median_abs_z": float(np.median(np.abs(d) / np.where(se > 0, se, np.inf))),
+        "median_abs_z_if_noise": expected_abs_z(reps),
+        "canopy_total_bias": tot_l / tot_f - 1.0,
+        "canopy_total_bias_se": se_tot / tot_f,
+    }
+
+
+def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console) -> dict:
+    fld = Field(n_plants=n_plants, seed=1, boundary=boundary)
+    geom = build(fld)
+    t = time.perf_counter()
+    fs = FieldScene(geom.mesh, lambertian_optics(), cell=geom.cell)
+    scene_s = time.perf_counter() - t
+    fs.set_sun(SUN_ELEVATION_DEG, SUN_AZIMUTH_DEG)
+    seg_ids = np.unique(geom.mesh.face_segment)
+    seg_index = np.searchsorted(seg_ids, geom.mesh.face_segment)
+    n_seg = len(seg_ids)
+    area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=n_seg)
+
+    # LESS runs, grouped by replicate (one scene build per face order).
+    runs = []
+    for r in range(1, reps + 1):
+        runs += [
+            {"label": f"sun_r{r}", "n_samples": max(less_n), "permutation_seed": r, "dni": 1.0, "dhi": 0.0},
+            {"label": f"sky_r{r}", "n_samples": max(less_n), "permutation_seed": r, "dni": 0.0, "dhi": 1.0},
+        ]
+        runs += [
+            {"label": f"mix_n{n}_r{r}", "n_samples": n, "permutation_seed": r, "dni": 1.0, "dhi": MIX_DHI}
+            for n in less_n
+        ]
+    folder = Path(tempfile.mkdtemp(prefix=f"lightfit-less-{boundary}-"))
+    exp = export(geom, boundary, folder, runs)
+    console.print(f"[{boundary}] {n_seg} segments, {geom.mesh.n_faces} faces ({exp['n_exported']} exported to LESS)")
+    t = time.perf_counter()
+    proc = subprocess.run([str(LESS_PYTHON), str(RUNNER), str(folder)], capture_output=True, text=True)
+    less_wall = time.perf_counter() - t
+    if proc.returncode != 0:
+        raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+
+    # lightfit runs: one warm-up (kernel compilation), then R seeds per K.
+    t = time.perf_counter()
+    SegmentEstimator(fs, seg_ids, samples=min(lf_k), bounces=BOUNCES, seed=0).render()
+    warmup_s = time.perf_counter() - t
+    lf = {}
+    for k in lf_k:
+        out = []
+        for s in range(1, reps + 1):
+            t = time.perf_counter()
+            r = SegmentEstimator(fs, seg_ids, samples=k, bounces=BOUNCES, seed=s).render()
+            out.append((time.perf_counter() - t, r))
+        lf[k] = out
+
+    blade = np.zeros(n_seg, bool)
+    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
+    classes = {"blades": blade, "stems": ~blade, "all": np.ones(n_seg, bool)}
+
+    # Agreement per part at the largest sample counts.
+    res_agree = {}
+    big = lf[max(lf_k)]
+    for part in ("sun", "sky"):
+        L = np.array(
+            [less_segments(folder, f"{part}_r{r}", geom, exp, seg_index, n_seg)[0] for r in range(1, reps + 1)]
+        )
+        F = np.array([getattr(x[1], f"absorbed_{part}") for x in big])
+        l_m, l_se = L.mean(0), L.std(0, ddof=1) / math.sqrt(reps)
+        f_m, f_se = F.mean(0), F.std(0, ddof=1) / math.sqrt(reps)
+        res_agree[part] = {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in classes.items()}
+
+    # Noise and time at DNI 1, DHI 0.3.
+    res_noise = {"less": {}, "lightfit": {}}
+    for n in less_n:
+        got = [less_segments(folder, f"mix_n{n}_r{r}", geom, exp, seg_index, n_seg) for r in range(1, reps + 1)]
+        rse = rel_spread(np.array([g[0] for g in got]))
+        res_noise["less"][n] = {
+            "time_s": float(np.median([g[1] for g in got])),
+            **{c: float(np.nanmedian(rse[m])) for c, m in classes.items()},
+        }
+    for k in lf_k:
+        vals = np.array([x[1].total("absorbed", 1.0, MIX_DHI) for x in lf[k]])
+        rse = rel_spread(vals)
+        own = np.median([x[1].relative_se("absorbed", 1.0, MIX_DHI) for x in lf[k]], axis=0)
+        res_noise["lightfit"][k] = {
+            "time_s": float(np.median([x[0] for x in lf[k]])),
+            **{c: float(np.nanmedian(rse[m])) for c, m in classes.items()},
+            **{f"own_se_{c}": float(np.nanmedian(own[m])) for c, m in classes.items()},
+        }
+    res_equal = {}
+    for c in classes:
+        eq = {}
+        for tool, d in res_noise.items():
+            pts = [{"n": n, "median_rse": v[c], "time_s": v["time_s"]} for n, v in sorted(d.items())]
+            eq[tool] = equal_noise(pts, target)
+        eq["speedup_lightfit_over_less"] = eq["less"]["time_s_at_target"] / eq["lightfit"]["time_s_at_target"]
+        res_equal[c] = eq
+    return {
+        "boundary": boundary,
+        "plants_grown": int(len(geom.plants)),
+        "segments": n_seg,
+        "blade_segments": int(blade.sum()),
+        "faces": int(geom.mesh.n_faces),
+        "faces_exported_to_less": int(exp["n_exported"]),
+        "lightfit_scene_s": scene_s,
+        "lightfit_warmup_s": warmup_s,
+        "less_build_s": float(np.load(folder / "out" / "sun_r1.npz")["build_s"]),
+        "less_process_wall_s": less_wall,
+        "agreement": res_agree,
+        "noise": {t: {str(k): v for k, v in d.items()} for t, d in res_noise.items()},
+        "equal_noise": res_equal,
+    }
+
+
+def main(n_plants, boundaries, less_n, lf_k, reps, target) -> dict | None:
+    console = Console()
+    if not LESS_PYTHON.exists():
+        console.print(
+            f"LESS 3 is not installed ({LESS_PYTHON} missing): skipping. "
+            "Install it in its own environment: python -m venv .venv-less && .venv-less/bin/pip install less3d==3.0.7"
+        )
+        return None
+    version = subprocess.run(
+        [str(LESS_PYTHON), "-c", "import importlib.metadata as m; print(m.version('less3d'))"],
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+    ).stdout.strip()
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "lightfit"], cwd=ROOT, capture_output=True, text=True
+    ).stdout
+    res = {
+        "less3d": version,
+        "lightfit_commit": commit,
+        "lightfit_uncommitted_changes": bool(dirty.strip()),
+        "cpu_cores": os.cpu_count(),
+        "load_average_start": os.getloadavg()[0],
+        "settings": {
+            "leaf_reflectance": LEAF_R,
+            "leaf_transmittance": LEAF_T,
+            "soil_albedo": SOIL_ALBEDO,
+            "sun_elevation_deg": SUN_ELEVATION_DEG,
+            "sun_azimuth_deg": SUN_AZIMUTH_DEG,
+            "bounces": BOUNCES,
+            "sky": "isotropic",
+            "noise_mix_dhi_over_dni": MIX_DHI,
+            "replicates": reps,
+            "target_median_rse": target,
+            "less_samples_per_triangle_side": list(less_n),
+            "lightfit_samples_per_segment": list(lf_k),
+            "n_plants_measured": n_plants,
+        },
+        "results": {},
+    }
+    for b in boundaries:
+        res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console)
+    res["load_average_end"] = os.getloadavg()[0]
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=2))
+    print_tables(res, console)
+    return res
+
+
+def print_tables(res: dict, console: Console) -> None:
+    for b, r in res["results"].items():
+        t = Table(
+            title=f"LESS {res['less3d']} vs lightfit, {b}: {r['segments']} segments, agreement "
+            f"(mean of {res['settings']['replicates']} replicates)"
+        )
+        z0 = next(iter(next(iter(r["agreement"].values())).values()))["median_abs_z_if_noise"]
+        for c in (
+            "part",
+            "segments",
+            "median |rel diff|",
+            "p90 |rel diff|",
+            "median noise of diff",
+            f"median |z| (noise: {z0:.2f})",
+            "canopy total bias",
+        ):
+            t.add_column(c, justify="right")
+        for part, d in r["agreement"].items():
+            for c, a in d.items():
+                t.add_row(
+                    f"{part} {c}",
+                    str(a["segments"]),
+                    f"{a['median_rel_diff']:.2%}",
+                    f"{a['p90_rel_diff']:.2%}",
+                    f"{a['median_rel_noise_of_diff']:.2%}",
+                    f"{a['median_abs_z']:.2f}",
+                    f"{a['canopy_total_bias']:+.2%} ± {a['canopy_total_bias_se']:.2%}",
+                )
+        console.print(t)
+        t = Table(title=f"{b}: median per-segment relative SE (DNI 1, DHI 0.3) and time per estimate")
+        for c in ("tool", "n", "time s", "blades", "stems", "all", "own SE blades/stems"):
+            t.add_column(c, justify="right")
+        for tool, d in r["noise"].items():
+            for n, v in d.items():
+                own = f"{v['own_se_blades']:.2%} / {v['own_se_stems']:.2%}" if "own_se_blades" in v else ""
+                t.add_row(
+                    tool, n, f"{v['time_s']:.2f}", f"{v['blades']:.2%}", f"{v['stems']:.2%}", f"{v['all']:.2%}", own
+                )
+        console.print(t)
+        tgt = res["settings"]["target_median_rse"]
+        t = Table(title=f"{b}: time to a median relative SE of {tgt:.0%}")
+        for c in ("segments", "lightfit K", "lightfit s", "LESS n", "LESS s", "LESS ÷ lightfit", "exponents lf / LESS"):
+            t.add_column(c, justify="right")
+        for c, e in r["equal_noise"].items():
+            t.add_row(
+                c,
+                f"{e['lightfit']['n_at_target']:.0f}",
+                f"{e['lightfit']['time_s_at_target']:.2f}",
+                f"{e['less']['n_at_target']:.0f}",
+                f"{e['less']['time_s_at_target']:.2f}",
+                f"{e['speedup_lightfit_over_less']:.2f}",
+                f"{e['lightfit']['exponent']:.2f} / {e['less']['exponent']:.2f}",
+            )
+        console.print(t)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--plants", type=int, default=16, help="measured plants (N × N)")
+    ap.add_argument("--boundary", nargs="+", default=["finite", "periodic"], choices=["finite", "periodic"])
+    ap.add_argument("--less-samples", type=int, nargs=2, default=[16, 64], help="LESS n per triangle side")
+    ap.add_argument("--lightfit-samples", type=int, nargs=2, default=[64, 256], help="lightfit K per segment")
+    ap.add_argument("--replicates", type=int, default=4)
+    ap.add_argument("--target", type=float, default=0.02, help="median relative SE for the equal-noise times")
+    a = ap.parse_args()
+    if main(a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target) is None:
+        sys.exit(0)
