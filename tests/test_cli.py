@@ -49,6 +49,7 @@ def test_help_lists_every_command():
         "posterior",
         "field-run",
         "render-dataset",
+        "posterior-status",
     }
     for name in COMMANDS:
         assert f" {name} " in r.stdout, name

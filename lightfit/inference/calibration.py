@@ -341,7 +341,7 @@ def calibrate(
         "start": [float(v) for v in np.asarray(th0.vector(names))],
         "base": loss.base.to_dict(),
         "tolerances": [rtol, atol, gtol],
-        "use": list(use),
+        "use": list(loss.likelihood.use),
     }
     saved = _load_state(state_file) if hist and resume and state_file.exists() else None
     if saved is not None and saved.get("key") != key:
