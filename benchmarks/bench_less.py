@@ -41,7 +41,10 @@ same cores), reads back LESS's absorbed irradiance per triangle side and compare
   images of overhanging faces) against LESS's "repetitive scene" on the same cell: LESS
   receives lightfit's periodic images (faces reaching into the cell, shifted by whole periods)
   and a soil tile the size of the cell, and each face is measured on its image whose centroid
-  lies in the cell.
+  lies in the cell. Measured: LESS 3.0.7's repetitive scene is not a usable peer for a wheat cell
+  (12 cm along the rows for 4 × 4 plants): at its default wrap cap (100) the sun part agrees but
+  the sky part is about three times lightfit's (stems far more), and with a larger cap
+  (``LIGHTFIT_LESS_WRAP_CAP=1000``) the sun part vanishes (docs/light.md, "Peer: LESS 3").
 
 Writes benchmarks/results/less.json and prints a table.
 """
@@ -52,6 +55,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -83,6 +87,7 @@ BOUNCES = 3
 #: Half-width of the soil quad LESS receives around a finite field, m: a downward ray from a
 #: leaf at most 0.6 m high misses it only within 0.7° of the horizon.
 GROUND_HALF_M = 50.0
+LESS_WRAP_CAP = 100  # LESS's own default (repetitive=True)
 MIX_DHI = 0.3  # DHI / DNI of the noise runs (a clear day)
 
 
@@ -129,7 +134,7 @@ def export(geom, boundary: str, folder: Path, runs: list[dict]) -> dict:
             raise SystemExit(f"{int((measure < 0).sum())} faces have no image with its centroid in the cell")
         shift = cell.size_m / 2 - np.asarray(cell.center_xy)
         size = tuple(float(v) for v in cell.size_m)
-        repetitive = 1  # True: LESS's documented default wrap limit (100)
+        repetitive = int(os.environ.get("LIGHTFIT_LESS_WRAP_CAP", LESS_WRAP_CAP))
     tri = tri.copy()
     tri[..., :2] += shift
     w, d = size
@@ -140,7 +145,7 @@ def export(geom, boundary: str, folder: Path, runs: list[dict]) -> dict:
         "optics": {"reflectance": LEAF_R, "transmittance": LEAF_T, "soil_albedo": SOIL_ALBEDO},
         "sun": {"zenith_deg": 90.0 - SUN_ELEVATION_DEG, "azimuth_deg": SUN_AZIMUTH_DEG},
         "max_depth": BOUNCES,
-        "repetitive": bool(repetitive),
+        "repetitive": int(repetitive),
         "scene_size_m": [float(w), float(d)],
         "runs": runs,
     }
@@ -235,6 +240,31 @@ def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console) -> dic
             for n in less_n
         ]
     folder = Path(tempfile.mkdtemp(prefix=f"lightfit-less-{boundary}-"))
+    try:
+        return _run_in(
+            folder,
+            geom,
+            fs,
+            boundary,
+            runs,
+            seg_ids,
+            seg_index,
+            n_seg,
+            area,
+            lf_k,
+            less_n,
+            reps,
+            target,
+            scene_s,
+            console,
+        )
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _run_in(
+    folder, geom, fs, boundary, runs, seg_ids, seg_index, n_seg, area, lf_k, less_n, reps, target, scene_s, console
+) -> dict:
     exp = export(geom, boundary, folder, runs)
     console.print(f"[{boundary}] {n_seg} segments, {geom.mesh.n_faces} faces ({exp['n_exported']} exported to LESS)")
     t = time.perf_counter()

@@ -105,7 +105,7 @@ def main(export: Path) -> None:
             plant.set_property("soil", less.Lambertian(reflectance=o["soil_albedo"]))
             scene = less.Scene(backend="embree")
             scene.size = tuple(job["scene_size_m"])
-            scene.repetitive = bool(job["repetitive"])  # True: LESS's documented wrap limit (100)
+            scene.repetitive = int(job["repetitive"])  # 0: finite; else the wrap-count cap
             scene.add(plant, positions=[(0.0, 0.0, 0.0)])
             scene.illumination = less.Illumination(
                 source=less.Sun(zenith=sun["zenith_deg"], azimuth=sun["azimuth_deg"], irradiance=1.0),
