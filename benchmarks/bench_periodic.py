@@ -1,7 +1,7 @@
 """Benchmark: periodic boundary vs a wide finite field and vs the 2-buffer-row default (issue 13).
 
     python benchmarks/bench_periodic.py [--sizes 4,10,23] [--wide-sizes 4,10,23] [--samples 64]
-        [--seeds 2] [--main-job | --no-main-job] [--main-job-options "--quick"]
+        [--seeds 2] [--main-job | --no-main-job] [--main-job-options "--quick"] [--no-equal-cost]
 
 Part 1, edge bias and cost, at 2016-04-20 10:00 UTC (reconstructed forcing; the sun and weather
 of ``experiments/periodic_vs_wide.py``, whose field setups this imports), K samples, 3 bounces,
@@ -24,11 +24,18 @@ by the wide field's mean, next to the same RMS that Monte Carlo noise alone woul
 includes kernel compilation), build time, plants grown and triangles. Plants come from the
 user's plant cache (grown once if absent; ``grow_or_load_s`` says how long that took).
 
-Part 2, the main job end to end: ``lightfit replicate`` (100 plants, K = 64, 3 bounces, the 29
-steps of the day) with its default periodic boundary and with ``--boundary finite``, one after
-the other in this run, each in a child process with an empty temporary plant cache
-(``LIGHTFIT_CACHE``, :mod:`lightfit.plant.cache`), so its wall time covers growing the plants,
-rendering every daytime step and the photosynthesis.
+With ``--equal-cost`` (default) the periodic cell is rendered once more with the K at which its
+render costs as much CPU time as the 2-buffer-row default's at ``--samples``: its edge bias and
+Monte Carlo SD at the default's cost.
+
+Part 2, the main job end to end: ``lightfit replicate`` (100 plants, K = 64, the 29 steps of the
+day) for each of :data:`MAIN_JOBS`: today's default (periodic, PROSPECT-D leaf, 2 bounces) and
+the same in the finite field; the old default's settings (grey leaf, 3 bounces) in the periodic
+cell and the old default itself (finite, 2 buffer rows). Each runs first cold (an empty
+temporary plant cache, ``LIGHTFIT_CACHE``, and an empty Dr.Jit kernel cache: the first run
+after installing), then warm; wall time covers growing the plants, compiling kernels, rendering
+every daytime step and the photosynthesis. CPU time (user + system of the child) is reported
+next to wall time: on a shared machine it is the steadier measure.
 
 Writes benchmarks/results/periodic.json and prints a table (Markdown, as in docs/light.md).
 """
@@ -94,11 +101,12 @@ def case(n: int, setup: str, samples: int, seeds: int, out: Path) -> None:
     fs.set_sun(*sun)
     scene_s = time.perf_counter() - t
     ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
-    values, variances, render_s, meta = [], [], [], None
+    values, variances, render_s, render_cpu_s, meta = [], [], [], [], None
     for seed in range(seeds):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         r = SegmentEstimator(fs, ids, samples=samples, bounces=3, seed=seed).render()
         render_s.append(time.perf_counter() - t)
+        render_cpu_s.append(time.process_time() - c)
         values.append(r.total("absorbed", dni, dhi))
         variances.append((dni * r.se["absorbed_sun"]) ** 2 + (dhi * r.se["absorbed_sky"]) ** 2)
         area, meta = r.meta["area_m2"], r.meta.get("periodic")
@@ -119,6 +127,7 @@ def case(n: int, setup: str, samples: int, seeds: int, out: Path) -> None:
                 "grow_or_load_s": grow_s,
                 "scene_s": scene_s,
                 "render_s": render_s,
+                "render_cpu_s": render_cpu_s,
                 "canopy_absorbed_umol_s": float(v @ area),
                 "canopy_absorbed_sd": float(math.sqrt(var @ area**2)),
                 "baseline_rss_mb": baseline,
@@ -129,30 +138,49 @@ def case(n: int, setup: str, samples: int, seeds: int, out: Path) -> None:
     )
 
 
-def _child(args: list[str], env: dict | None = None) -> tuple[float, float, int]:
-    """Run ``python args…``; (wall s, the child's peak RSS MB, exit status)."""
+def _child(args: list[str], env: dict | None = None, cpu: bool = False) -> tuple:
+    """Run ``python args…``; (wall s, the child's peak RSS MB, exit status[, its CPU s: user + system])."""
     t = time.perf_counter()
     p = subprocess.Popen([sys.executable, *args], env=env)
     _, status, usage = os.wait4(p.pid, 0)
-    return time.perf_counter() - t, usage.ru_maxrss / 1024, os.waitstatus_to_exitcode(status)
+    res = (time.perf_counter() - t, usage.ru_maxrss / 1024, os.waitstatus_to_exitcode(status))
+    return (*res, usage.ru_utime + usage.ru_stime) if cpu else res
 
 
-def edge_bias(sizes, wide_sizes, samples, seeds, tmp: Path) -> list[dict]:
+EQUAL_COST = "periodic, equal cost"
+
+
+def edge_bias(sizes, wide_sizes, samples, seeds, tmp: Path, equal_cost: bool = True) -> list[dict]:
+    """Part 1 (module doc). With ``equal_cost``, the periodic cell is rendered once more with the
+    K that makes its render as cheap as the 2-buffer-row default's at ``samples`` (K scaled by the
+    ratio of the two renders' least CPU times, rounded down to whole replicates): its edge bias
+    and Monte Carlo error at the default's cost."""
+    from lightfit.light.estimator import replicates_for
+
     rows = []
     for n in sizes:
         per = {}
-        for setup in ("periodic", "default", "wide"):
+        jobs = [("periodic", "periodic", samples), ("default", "default", samples), ("wide", "wide", samples)]
+        if equal_cost:
+            jobs.append((EQUAL_COST, "periodic", None))
+        for label, setup, k in jobs:
             if setup == "wide" and n not in wide_sizes:
                 continue
-            out = tmp / f"{n}_{setup}.json"
-            argv = [__file__, "--case", str(n), setup, "--samples", str(samples), "--seeds", str(seeds)]
+            if k is None:  # equal cost: from the two renders just made
+                t = {r["setup"]: min(r["render_cpu_s"]) for r in rows if r["n"] == n}
+                rep = replicates_for(samples)
+                k = max(2 * rep, rep * math.floor(samples * t["default"] / t["periodic"] / rep))
+            out = tmp / f"{n}_{label.replace(' ', '_').replace(',', '')}.json"
+            argv = [__file__, "--case", str(n), setup, "--samples", str(k), "--seeds", str(seeds)]
             wall, rss, rc = _child([*argv, "--case-out", str(out)])
             if rc != 0:
-                raise RuntimeError(f"case {n} {setup} failed with exit status {rc}")
-            res = json.loads(out.read_text()) | {"wall_s": wall, "peak_rss_mb": rss}
+                raise RuntimeError(f"case {n} {label} failed with exit status {rc}")
+            res = json.loads(out.read_text()) | {"wall_s": wall, "peak_rss_mb": rss, "setup": label, "samples": k}
             with np.load(out.with_suffix(".npz")) as z:
-                per[setup] = {k: z[k] for k in z.files}
-            print(f"{n}×{n} {setup}: {res['canopy_absorbed_umol_s']:.2f} ± {res['canopy_absorbed_sd']:.2f} µmol/s")
+                per[label] = {k: z[k] for k in z.files}
+            print(
+                f"{n}×{n} {label} (K={k}): {res['canopy_absorbed_umol_s']:.2f} ± {res['canopy_absorbed_sd']:.2f} µmol/s"
+            )
             rows.append(res)
         if "wide" not in per:
             continue
@@ -180,33 +208,75 @@ def edge_bias(sizes, wide_sizes, samples, seeds, tmp: Path) -> list[dict]:
     return rows
 
 
-def main_job(tmp: Path, options: tuple[str, ...] = ()) -> dict:
-    """``lightfit replicate`` default (periodic) and ``--boundary finite``, each from an empty plant cache."""
-    out = {}
-    for name, extra in (("periodic", [*options]), ("finite", [*options, "--boundary", "finite"])):
-        cache = tmp / f"cache_{name}"
-        env = dict(os.environ, LIGHTFIT_CACHE=str(cache))
-        argv = ["-m", "lightfit.cli", "replicate", "--out", str(tmp / f"main_{name}"), *extra]
-        wall, rss, rc = _child(argv, env)
-        if rc != 0:
-            raise RuntimeError(f"lightfit replicate {' '.join(extra)} failed with exit status {rc}")
-        import xarray as xr
+#: The main jobs timed: (name, ``lightfit replicate`` options, what it is). Pairs at the same leaf,
+#: samples and bounces: default / default_finite and paper_periodic / old_default; the goal
+#: (issue 13) compares default with old_default.
+MAIN_JOBS = (
+    ("default", (), "today's default: periodic cell, PROSPECT-D leaf, bounces for 1 % (2), winter_wheat"),
+    ("default_finite", ("--boundary", "finite"), "the same settings in the finite field (2 buffer rows)"),
+    (
+        "paper_periodic",
+        ("--preset", "paper", "--bounces", "3", "--boundary", "periodic"),
+        "the old default's settings (grey leaf, 3 bounces, giraud2023) in the periodic cell",
+    ),
+    (
+        "old_default",
+        ("--preset", "paper", "--bounces", "3"),
+        "the default before the periodic boundary: finite, 2 buffer rows, grey leaf, 3 bounces, giraud2023",
+    ),
+)
 
-        with xr.open_dataset(tmp / f"main_{name}" / "results.nc", engine="h5netcdf") as ds:
-            a = dict(ds.attrs)
-            par = ds["plant_par_umol_m2_s"].values
-            an = ds["canopy_an_umol_m2_s"].values
-        out[name] = {
-            "command": "lightfit replicate --out DIR " + " ".join(extra),
-            "boundary": a["boundary"],
-            "buffer_rows": int(a["buffer_rows"]),
-            "plants_grown": len(list((cache / "plants").glob("*.npz"))),
-            "wall_s": wall,
-            "peak_rss_mb": rss,
-            "daily_max_plant_par_umol_m2_s": float(np.nanmax(par)),
-            "daily_max_canopy_an_umol_m2_s": float(np.nanmax(an)),
-        }
-        print(f"main job {name}: {wall:.0f} s, {out[name]['plants_grown']} plants grown, {rss:.0f} MB")
+
+def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS) -> dict:
+    """``lightfit replicate`` for each of ``jobs``, first cold, then warm.
+
+    Cold: an empty plant cache (``LIGHTFIT_CACHE``) and an empty Dr.Jit kernel cache (``HOME``
+    of the child is a fresh directory; ``MPLCONFIGDIR`` stays the user's, so matplotlib's font
+    cache is not rebuilt): the first run after installing. Warm: the same command again with both
+    caches as the cold run left them. Cold runs take turns first, then warm ones, so drifting load
+    on the shared machine touches every job alike. Per run: wall time, the child's CPU time
+    (user + system, all threads: steadier than wall time while other processes compete for the
+    cores) and peak RSS (``os.wait4``).
+    """
+    import matplotlib
+    import xarray as xr
+
+    out = {
+        name: {"command": "lightfit replicate --out DIR " + " ".join(extra), "what": what} for name, extra, what in jobs
+    }
+    for state in ("cold", "warm"):
+        for name, extra, _ in jobs:
+            cache, home = tmp / f"cache_{name}", tmp / f"home_{name}"
+            home.mkdir(exist_ok=True)
+            env = dict(os.environ, LIGHTFIT_CACHE=str(cache), HOME=str(home), MPLCONFIGDIR=matplotlib.get_configdir())
+            argv = ["-m", "lightfit.cli", "replicate", "--out", str(tmp / f"main_{name}"), *options, *extra]
+            wall, rss, rc, cpu = _child(argv, env, cpu=True)
+            if rc != 0:
+                raise RuntimeError(f"lightfit replicate {' '.join([*options, *extra])} failed with exit status {rc}")
+            with xr.open_dataset(tmp / f"main_{name}" / "results.nc", engine="h5netcdf") as ds:
+                a = dict(ds.attrs)
+                par = ds["plant_par_umol_m2_s"].values
+                an = ds["canopy_an_umol_m2_s"].values
+            r = out[name]
+            r |= {
+                "boundary": a["boundary"],
+                "buffer_rows": int(a["buffer_rows"]),
+                "samples": int(a["samples"]),
+                "bounces": int(a["bounces"]),
+                "base_color": float(a["base_color"]),
+                "photosynthesis": a["photosynthesis"],
+                "plants_grown": len(list((cache / "plants").glob("*.npz"))),
+                "daily_max_plant_par_umol_m2_s": float(np.nanmax(par)),
+                "daily_max_canopy_an_umol_m2_s": float(np.nanmax(an)),
+                state: {"wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss},
+            }
+            print(f"main job {name} ({state}): {wall:.0f} s wall, {cpu:.0f} s CPU, {rss:.0f} MB")
+    ref = out.get("old_default")
+    for r in out.values():
+        for state in ("cold", "warm"):
+            if ref is not None:
+                r[state]["cpu_vs_old_default"] = r[state]["cpu_s"] / ref[state]["cpu_s"]
+                r[state]["wall_vs_old_default"] = r[state]["wall_s"] / ref[state]["wall_s"]
     return out
 
 
@@ -223,9 +293,9 @@ def _code_state() -> dict:
 
 def table(res: dict) -> str:
     lines = [
-        "| N × N | field | plants grown | triangles | render (s) | peak RSS (MB) | canopy absorbed PAR (µmol s⁻¹) "
+        "| N × N | field | K | plants grown | triangles | render (s) | peak RSS (MB) | canopy absorbed PAR (µmol s⁻¹) "
         "| vs wide field | per-segment RMS difference from wide ÷ mean (MC noise alone) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in res["fields"]:
         vs = f"{100 * r['vs_wide']:+.2f} % ± {100 * r['vs_wide_sd']:.2f} %" if "vs_wide" in r else "–"
@@ -235,25 +305,45 @@ def table(res: dict) -> str:
             else "–"
         )
         lines.append(
-            f"| {r['n']} × {r['n']} | {r['setup']} | {r['plants_grown']} | {r['scene_faces']} | "
+            f"| {r['n']} × {r['n']} | {r['setup']} | {r.get('samples', res['samples'])} | {r['plants_grown']} "
+            f"| {r['scene_faces']} | "
             f"{min(r['render_s']):.1f} | {r['peak_rss_mb']:.0f} | "
             f"{r['canopy_absorbed_umol_s']:.2f} ± {r['canopy_absorbed_sd']:.2f} | {vs} | {seg} |"
         )
     if res.get("main_job"):
-        lines += ["", "| main job | plants grown | wall time (s) | peak RSS (MB) |", "|---|---:|---:|---:|"]
+        lines += [
+            "",
+            "| main job | boundary | leaf base colour | bounces | plants grown | cold: wall / CPU (s) "
+            "| warm: wall / CPU (s) | CPU ÷ old default (cold / warm) | peak RSS (MB) |",
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        ]
         for v in res["main_job"].values():
-            lines.append(f"| `{v['command']}` | {v['plants_grown']} | {v['wall_s']:.0f} | {v['peak_rss_mb']:.0f} |")
+            c, w = v["cold"], v["warm"]
+            ratio = (
+                f"{c['cpu_vs_old_default']:.2f} / {w['cpu_vs_old_default']:.2f}" if "cpu_vs_old_default" in c else "–"
+            )
+            lines.append(
+                f"| `{v['command']}` | {v['boundary']} | {v['base_color']:.2f} | {v['bounces']} | {v['plants_grown']} "
+                f"| {c['wall_s']:.0f} / {c['cpu_s']:.0f} | {w['wall_s']:.0f} / {w['cpu_s']:.0f} | {ratio} "
+                f"| {max(c['peak_rss_mb'], w['peak_rss_mb']):.0f} |"
+            )
     return "\n".join(lines)
 
 
 def main(
-    sizes=(4, 10, 23), wide_sizes=(4, 10, 23), samples=64, seeds=2, with_main_job=True, main_job_options=()
+    sizes=(4, 10, 23),
+    wide_sizes=(4, 10, 23),
+    samples=64,
+    seeds=2,
+    with_main_job=True,
+    main_job_options=(),
+    equal_cost=True,
 ) -> dict:
     (sun_el, sun_az), dni, dhi = _sun()
     with tempfile.TemporaryDirectory(prefix="lightfit-bench-periodic-") as d:
         tmp = Path(d)
         t0 = time.perf_counter()
-        fields = edge_bias(sizes, wide_sizes, samples, seeds, tmp)
+        fields = edge_bias(sizes, wide_sizes, samples, seeds, tmp, equal_cost)
         mj = main_job(tmp, main_job_options) if with_main_job else None
         wall = time.perf_counter() - t0
     res = {
@@ -273,6 +363,9 @@ def main(
         "memory": "peak resident set size of the child process that built and rendered the field "
         "(ru_maxrss via os.wait4), including the baseline_rss_mb of Python, JAX and Mitsuba",
         "render_s": "per render seed; the first includes kernel compilation, the table shows the fastest",
+        "render_cpu_s": "per render seed, CPU time of the child (all threads)",
+        "main_job_note": "each job cold (empty plant cache and Dr.Jit kernel cache: the child's HOME is new) "
+        "then warm (both caches as the cold run left them); cpu_s is the child's user + system time",
         "fields": fields,
         "main_job": mj,
         "bench_wall_s": wall,
@@ -293,6 +386,7 @@ if __name__ == "__main__":
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--main-job", action=argparse.BooleanOptionalAction, default=True)
+    ap.add_argument("--equal-cost", action=argparse.BooleanOptionalAction, default=True)
     ap.add_argument("--main-job-options", default="", help="extra options of both main jobs, e.g. '--quick'")
     ap.add_argument("--case", nargs=2, metavar=("N", "SETUP"), help=argparse.SUPPRESS)
     ap.add_argument("--case-out", type=Path, help=argparse.SUPPRESS)
@@ -301,4 +395,12 @@ if __name__ == "__main__":
         case(int(a.case[0]), a.case[1], a.samples, a.seeds, a.case_out)
     else:
         ints = lambda s: tuple(int(x) for x in s.split(",") if x)  # noqa: E731
-        main(ints(a.sizes), ints(a.wide_sizes), a.samples, a.seeds, a.main_job, tuple(a.main_job_options.split()))
+        main(
+            ints(a.sizes),
+            ints(a.wide_sizes),
+            a.samples,
+            a.seeds,
+            a.main_job,
+            tuple(a.main_job_options.split()),
+            a.equal_cost,
+        )
