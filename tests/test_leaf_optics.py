@@ -191,3 +191,16 @@ def test_chlorophyll_prior_range_follows_the_spad_fit():
     # The prior range spans absorptance 0.873 … 0.922: credible wheat leaves (PROSPECT-D 0.83–0.92;
     # the top, SPAD 52, is 0.002 above that range's upper end).
     assert 0.83 <= a_lo < par_optics().A < a_hi <= 0.925
+
+
+def test_informed_priors_follow_the_run_leaf():
+    """informed_priors(optics) gives the default leaf's stored prior and, for the reference paper's grey
+    leaf, the subsurface range that spans the same PROSPECT-D transmittance (0.02–0.08 / (0.96·0.5))."""
+    from lightfit.inference.mcmc.priors import PRIORS_INFORMED, informed_priors
+
+    assert informed_priors(Optics.preset("prospect"))["subsurface"].support == PRIORS_INFORMED["subsurface"].support
+    grey = informed_priors(Optics.preset("paper"))
+    assert grey["subsurface"].support == pytest.approx((0.02 / 0.48, 0.08 / 0.48), abs=0.005)
+    assert {k: v for k, v in grey.items() if k != "subsurface"} == {
+        k: v for k, v in PRIORS_INFORMED.items() if k != "subsurface"
+    }

@@ -94,6 +94,10 @@ class CoupledModel:
         return other
 
     # -- forward -----------------------------------------------------------------------
+    def theta(self, theta: Theta | Mapping[str, float] | None = None) -> Theta:
+        """``theta`` completed with this scenario's defaults (the leaf parameters of its optics)."""
+        return as_theta(theta, base=self.scenario.theta)
+
     @cached_property
     def irradiance(self):
         """The Mitsuba scene's JAX irradiance function of the measured segments (built on first use)."""
@@ -103,7 +107,7 @@ class CoupledModel:
 
     def render(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S)."""
-        leaf = as_theta(theta).leaf
+        leaf = self.theta(theta).leaf
         vals, ses = [], []
         for i in np.flatnonzero(self.day):
             v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
@@ -113,7 +117,7 @@ class CoupledModel:
 
     def parts(self, theta: Theta | Mapping[str, float]):
         """Light parts from this model's source (:meth:`render` unless injected), each (T_day, 4, S)."""
-        return self.light(as_theta(theta))
+        return self.light(self.theta(theta))
 
     def observe(self, theta: Theta | Mapping[str, float]) -> dict:
         """Observables and per-segment fields for all time steps (night steps: zero light).
@@ -123,7 +127,7 @@ class CoupledModel:
         PAR and their Monte Carlo SDs, per blade (T, B) leaf An and its Monte Carlo SD, the full
         photosynthesis result on the blades under ``"photosynthesis"`` and ``"blade_index"``.
         """
-        theta = as_theta(theta)
+        theta = self.theta(theta)
         return self.operator(*self.parts(theta), theta)
 
     # -- results ---------------------------------------------------------------------
@@ -134,7 +138,7 @@ class CoupledModel:
         """
         import xarray as xr
 
-        th = as_theta(theta)
+        th = self.theta(theta)
         o = self.observe(th)
         b = o["blade_index"]
         T, S = len(self.times), len(self.segment_id)

@@ -136,6 +136,38 @@ PRIORS_WIDE: dict[str, Prior] = {
 PRIOR_SETS = {"informed": PRIORS_INFORMED, "wide": PRIORS_WIDE}
 
 
+#: PROSPECT-D's wheat leaf PAR transmittance range (docs/design.md §6) that the informed
+#: subsurface prior spans, whatever the leaf's base colour.
+TRANSMITTANCE_RANGE = (0.02, 0.08)
+
+
+def informed_priors(optics=None) -> dict[str, Prior]:
+    r""":data:`PRIORS_INFORMED` for a run's leaf optics (``None``: the default PROSPECT-D leaf).
+
+    The subsurface prior is the one that depends on the leaf: it spans PROSPECT-D's wheat PAR
+    transmittance :data:`TRANSMITTANCE_RANGE` through :math:`T = (1 - F_0)\,s\,c` (base colour
+    :math:`c`, :math:`F_0` at the optics' specular), capped at 1 — 0.31–1 for the default leaf,
+    0.04–0.17 for the reference paper's grey leaf (``Optics.preset("paper")``).
+    """
+    if optics is None:
+        return dict(PRIORS_INFORMED)
+    from lightfit.light.bsdf import SPECULAR_F0_SCALE
+
+    per_unit = (1 - SPECULAR_F0_SCALE * optics.specular) * optics.base_color
+    lo, hi = (round(min(1.0, t / per_unit), 2) for t in TRANSMITTANCE_RANGE)
+    if lo >= 1.0:
+        raise InputError(
+            f"base_color={optics.base_color!r}",
+            column="base_color",
+            expected="a leaf that can transmit PROSPECT-D's 2–8 % of PAR (subsurface ≤ 1)",
+        )
+    note = (
+        f"PROSPECT-D wheat PAR transmittance {TRANSMITTANCE_RANGE[0]}–{TRANSMITTANCE_RANGE[1]} (docs/design.md §6), "
+        f"T = (1 − F0)·subsurface·base_color with base_color {optics.base_color:.4g}: {lo} … {hi}"
+    )
+    return {**PRIORS_INFORMED, "subsurface": Prior("uniform", lo, hi, note)}
+
+
 def check_sampled(names, priors: dict[str, Prior]) -> tuple[str, ...]:
     """``names`` as a tuple if each is sampleable, given once, has a prior, and its prior's support lies
     in the parameter's domain (:data:`lightfit.model.parameters.BOUNDS`); else :class:`InputError`."""
@@ -174,5 +206,6 @@ __all__ = [
     "SUBSURFACE_INFORMED",
     "SAMPLED",
     "check_sampled",
+    "informed_priors",
     "priors_table",
 ]
