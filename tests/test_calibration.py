@@ -255,3 +255,36 @@ def test_unknown_parameter_and_no_overlap(short_model):
         make_loss(short_model, record, ("specular",), use=("an",))
     with pytest.raises(InputError, match="no observation of canopy_an_umol_m2_s falls on a simulated step"):
         calibrate(short_model, record, names=("specular",), use=("an",), progress=False)
+
+
+def test_surrogate_calibration_reaches_the_full_render_optimum(twin_model, twin_fits, tmp_path):
+    """Trust-region calibration on the emulator (issue 15) against the direct full-render calibration
+    of the same twin: the optimum it returns has a full-render loss within z·σ_L of the direct
+    optimum's (σ_L: Monte Carlo SD of the loss, lightfit.inference.trust_region), and its full-render
+    check passed; every render is kept in the cache, so a rerun renders nothing and ends the same."""
+    from lightfit.inference.trust_region import loss_sd, surrogate_calibrate
+    from lightfit.model import emulator as E
+
+    obs, fits, _ = twin_fits
+    direct = fits["lbfgsb"]
+    fixed = {"roughness": TRUTH.roughness, "subsurface": TRUTH.subsurface}
+    kw = dict(names=("specular",), start={"specular": 0.3}, fixed=fixed, lo=(0.0, 0.3, 0.0), hi=(1.0, 1.0, 1.0))
+    kw |= dict(n_design=8, cache=tmp_path / "cache", progress=False, say=lambda _: None)
+    res = surrogate_calibrate(twin_model, obs, out=tmp_path / "out", **kw)
+    assert res.mode == "surrogate" and res.passed and res.rounds[-1]["passed"]
+    assert res.rendered == 8 + len(res.rounds)  # design + one check render per round
+    row = res.rounds[-1]
+    assert abs(row["loss_full"] - row["loss_surrogate"]) <= res.z * row["loss_sd"]
+    # the full-render loss at the direct optimum and its Monte Carlo SD
+    lik = make_loss(twin_model, obs, ("specular",), fixed).likelihood
+    m = twin_model.observe(Theta(**direct.theta))
+    sd = loss_sd(lik, m)
+    assert res.loss_full <= direct.loss + 2 * sd, (res.loss_full, direct.loss, sd)
+    assert abs(res.result.theta["specular"] - direct.theta["specular"]) <= 3 * _specular_sd(twin_model, obs)
+    lines = (tmp_path / "out" / "trust_region.jsonl").read_text().splitlines()
+    assert [json.loads(x)["passed"] for x in lines] == [r["passed"] for r in res.rounds]
+    # rerun (e.g. after a kill): every render from the cache, same rounds and optimum
+    before = dict(E.COUNTS)
+    again = surrogate_calibrate(twin_model, obs, out=tmp_path / "out2", **kw)
+    assert E.COUNTS["rendered"] == before["rendered"] and again.rendered == 0
+    assert again.result.theta == res.result.theta and again.loss_full == res.loss_full

@@ -55,18 +55,19 @@ MARGIN = 1e-6
 METHODS = ("bfgs", "lbfgsb")
 
 
-def to_unconstrained(value: float, name: str) -> float:
-    """z of a natural value: log(x − lo) when unbounded above, else logit((x − lo)/(hi − lo))."""
-    lo, hi = BOUNDS[name]
+def to_unconstrained(value: float, name: str, bounds: Mapping[str, tuple[float, float]] | None = None) -> float:
+    """z of a natural value: log(x − lo) when unbounded above, else logit((x − lo)/(hi − lo)).
+    ``bounds``: (lo, hi) per name replacing :data:`BOUNDS` (e.g. an emulator's box)."""
+    lo, hi = (bounds or {}).get(name, BOUNDS[name])
     if math.isinf(hi):
         return math.log(max(value - lo, MARGIN))
     u = min(max((value - lo) / (hi - lo), MARGIN), 1 - MARGIN)
     return math.log(u / (1 - u))
 
 
-def from_unconstrained(z, name: str) -> jax.Array:
+def from_unconstrained(z, name: str, bounds: Mapping[str, tuple[float, float]] | None = None) -> jax.Array:
     """Inverse of :func:`to_unconstrained` (JAX-traceable)."""
-    lo, hi = BOUNDS[name]
+    lo, hi = (bounds or {}).get(name, BOUNDS[name])
     return lo + (jnp.exp(z) if math.isinf(hi) else (hi - lo) * jax.nn.sigmoid(z))
 
 
@@ -75,11 +76,20 @@ class Loss:
 
     ``loss(z)`` → ``(value, None)`` over unconstrained z (optimistix's signature);
     ``loss.natural(x)`` → value over the natural parameters; ``loss.theta(x)`` the model parameters.
+    ``bounds``: (lo, hi) per name narrowing :data:`BOUNDS` (both optimisers stay inside).
     """
 
-    def __init__(self, forward: Callable[[Theta], Mapping], likelihood: GaussianLikelihood, names, base: Theta):
+    def __init__(
+        self,
+        forward: Callable[[Theta], Mapping],
+        likelihood: GaussianLikelihood,
+        names,
+        base: Theta,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+    ):
         self.forward, self.likelihood, self.names, self.base = forward, likelihood, tuple(names), base
         self.n_observations = likelihood.n_observations
+        self.bounds = {n: tuple(float(v) for v in (bounds or {}).get(n, BOUNDS[n])) for n in self.names}
 
     def theta(self, x) -> Theta:
         return self.base.with_vector(self.names, x)
@@ -88,10 +98,10 @@ class Loss:
         return self.likelihood.loss(self.forward(self.theta(x)))
 
     def to_natural(self, z) -> jax.Array:
-        return jnp.stack([from_unconstrained(z[i], n) for i, n in enumerate(self.names)])
+        return jnp.stack([from_unconstrained(z[i], n, self.bounds) for i, n in enumerate(self.names)])
 
     def to_unconstrained(self, x) -> jax.Array:
-        return jnp.asarray([to_unconstrained(float(v), n) for v, n in zip(x, self.names)], jnp.float64)
+        return jnp.asarray([to_unconstrained(float(v), n, self.bounds) for v, n in zip(x, self.names)], jnp.float64)
 
     def __call__(self, z, args=None) -> tuple[jax.Array, None]:
         return self.natural(self.to_natural(z)), None
@@ -105,12 +115,14 @@ def make_loss(
     *,
     use: Sequence[str] = USES,
     forward: Callable[[Theta], Mapping] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> Loss:
     """The calibration :class:`Loss` of ``model`` (or ``forward``, e.g. an emulator, on the model's
     time steps) against ``obs``. Unknown names, observations outside the run or none of the used
     series on a simulated step raise :class:`InputError`."""
     names = check_names(names)
-    return Loss(forward or model.observe, GaussianLikelihood(obs, model.times, use), names, as_theta(fixed))
+    lik = GaussianLikelihood(obs, model.times, use)
+    return Loss(forward or model.observe, lik, names, as_theta(fixed), bounds)
 
 
 @dataclass
@@ -236,7 +248,7 @@ class _LBFGSB:
             warnings.filterwarnings("ignore", "JAXopt is no longer maintained", DeprecationWarning)
             from jaxopt import LBFGSB
 
-        lo, hi = np.array([BOUNDS[n] for n in loss.names]).T
+        lo, hi = np.array([loss.bounds[n] for n in loss.names]).T
         span = np.where(np.isinf(hi), 1.0, hi - lo)
         self.bounds = (jnp.asarray(lo + MARGIN * span), jnp.asarray(np.where(np.isinf(hi), hi, hi - MARGIN * span)))
         self.loss = loss
@@ -300,6 +312,7 @@ def calibrate(
     gtol: float = 1e-2,
     use: Sequence[str] = USES,
     forward: Callable[[Theta], Mapping] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
     history: str | Path | None = None,
     resume: bool = True,
     progress: bool = True,
@@ -321,6 +334,8 @@ def calibrate(
             loss evaluations: beyond that the run counts as ``"stalled"``).
         use: which observed series enter the loss (``"par"``, ``"an"``).
         forward: model outputs of a ``Theta`` (default ``model.observe``; e.g. an emulator).
+        bounds: (lo, hi) per calibrated name narrowing :data:`~lightfit.model.parameters.BOUNDS`
+            (an emulator is only valid in its box).
         history: JSON-lines file; one line per accepted step (step, loss, theta, gradient in the
             optimiser's coordinates, evaluations and gradients so far, time), then one line
             ``{"stopped_by", "reason", "steps", "evaluations", "gradients"}``; the optimiser state
@@ -330,7 +345,7 @@ def calibrate(
     """
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
-    loss = make_loss(model, obs, names, fixed, use=use, forward=forward)
+    loss = make_loss(model, obs, names, fixed, use=use, forward=forward, bounds=bounds)
     names = loss.names
     th0 = as_theta(start, base=loss.base)
     hist = Path(history) if history else None
@@ -343,6 +358,8 @@ def calibrate(
         "tolerances": [rtol, atol, gtol],
         "use": list(loss.likelihood.use),
     }
+    if bounds:  # absent without: states saved before bounds existed still resume exactly
+        key["bounds"] = {n: list(loss.bounds[n]) for n in names}
     saved = _load_state(state_file) if hist and resume and state_file.exists() else None
     if saved is not None and saved.get("key") != key:
         changed = [k for k in key if saved.get("key", {}).get(k) != key[k]]

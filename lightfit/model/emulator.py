@@ -26,10 +26,18 @@ design killed half-way renders only its missing points when rerun. The fitted em
 with its :func:`emulator_key` — design size and seed, box, degrees and the render key (scene,
 field geometry, optics, estimator settings, sun positions and times, lightfit/Mitsuba versions) —
 and reused only when the key matches; otherwise it is refitted, saying which entries changed.
+
+Shared design cache (:func:`cache_root`, :func:`design_dir`): ``lightfit calibrate`` and ``lightfit
+posterior`` keep their design renders and fitted emulators in one directory per render key,
+``<cache>/designs/<hash of render_key>/`` with ``<cache>`` = ``$LIGHTFIT_CACHE`` or
+``~/.cache/lightfit``, so a calibration followed by a posterior of the same configuration renders
+nothing new. :func:`restrict` cuts a model down to the steps that observations need, so that only
+those sun positions are rendered (and keyed).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib.metadata
 import itertools
@@ -130,6 +138,10 @@ def render_key(model: CoupledModel) -> dict:
 #: SIGKILL) right after the N-th new render of a :func:`render_parts` call is stored.
 KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
 
+#: Renders done by this process (``"rendered"``: new full renders; ``"cached"``: read from a render
+#: cache instead). Counted, so that tests and the command line can say what a design cost.
+COUNTS = {"rendered": 0, "cached": 0}
+
 
 def render_parts(
     model: CoupledModel, leaf, progress: bool = False, cache: str | Path | None = None, key: dict | None = None
@@ -168,6 +180,7 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
             if file is not None and file.exists():
                 with np.load(file) as z:
                     v, s, dt = z["values"], z["se"], float(z["seconds"])
+                COUNTS["cached"] += 1
             else:
                 t0 = time.perf_counter()
                 v, s = (np.asarray(a) for a in model.render(dict(zip(LEAF_PARAMETERS, x))))
@@ -178,6 +191,7 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
                     np.savez(tmp, values=v, se=s, seconds=dt, leaf=x, key=rkey)
                     os.replace(tmp, file)  # atomic: a kill leaves the render either whole or absent
                 fresh += 1
+                COUNTS["rendered"] += 1
                 if os.environ.get(KILL_HOOK, "") == f"render:{fresh}":
                     os._exit(137)
             vals.append(v)
@@ -308,10 +322,13 @@ def build_emulator(
     seed: int = 0,
     progress: bool = False,
     cache: str | Path | None = None,
+    extra=None,
 ) -> PartsEmulator:
     """Render ``n_design`` Sobol points (seed ``seed``) of the box [lo, hi] and fit the emulator.
     ``cache``: directory keeping each finished render (see :func:`render_parts`); the emulator's
-    :attr:`~PartsEmulator.key` is then its :func:`emulator_key`."""
+    :attr:`~PartsEmulator.key` is then its :func:`emulator_key`. ``extra``: (m, 3) further points
+    rendered and fitted after the Sobol design (the trust-region calibration's renders at its
+    candidate optima, :mod:`lightfit.inference.trust_region`)."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo) or np.any(lo < 0) or np.any(hi > 1):
         raise InputError(
@@ -320,18 +337,20 @@ def build_emulator(
             expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters",
         )
     design = sobol_design(n_design, lo, hi, seed)
+    if extra is not None and len(extra):
+        design = np.concatenate([design, np.asarray(extra, float).reshape(-1, 3)])
     rkey = render_key(model) if cache is not None else None
     v, s, seconds = _render_parts(model, design, progress, cache, rkey)
     emu = fit_emulator(design, v, s, lo, hi, degrees, seconds, model.scenario.seed)
     if rkey is not None:
-        emu.key = emulator_key(rkey, lo, hi, n_design, seed, degrees)
+        emu.key = emulator_key(rkey, lo, hi, n_design, seed, degrees, extra)
     return emu
 
 
-def emulator_key(render: dict, lo, hi, n_design: int, seed: int, degrees) -> dict:
+def emulator_key(render: dict, lo, hi, n_design: int, seed: int, degrees, extra=None) -> dict:
     """What a fitted emulator depends on: the :func:`render_key` of its model, the box, the design
-    size and seed and the degrees tried (JSON-ready)."""
-    return {
+    size and seed, the degrees tried and the extra design points if any (JSON-ready)."""
+    key = {
         "n_design": int(n_design),
         "design_seed": int(seed),
         "lo": [float(v) for v in np.asarray(lo, float)],
@@ -339,6 +358,9 @@ def emulator_key(render: dict, lo, hi, n_design: int, seed: int, degrees) -> dic
         "degrees": [int(d) for d in degrees],
         **render,
     }
+    if extra is not None and len(extra):  # absent when none: keys of plain Sobol designs stay as they were
+        key["extra"] = [[float(v) for v in x] for x in np.asarray(extra, float).reshape(-1, 3)]
+    return key
 
 
 def key_changes(before: dict, now: dict) -> list[str]:
@@ -364,14 +386,17 @@ def cached_emulator(
     seed: int = 0,
     progress: bool = False,
     say: Callable[[str], None] = print,
+    renders: str | Path | None = None,
+    extra=None,
 ) -> PartsEmulator:
     """The emulator stored at ``path`` if its key is this model's and these settings'
-    (:func:`emulator_key`), else built (renders kept in ``<path's folder>/renders``, so an
-    interrupted design continues where it stopped) and stored. A stored emulator that does not
-    match is reported through ``say`` (one line naming the changed entries) before the rebuild."""
+    (:func:`emulator_key`), else built (renders kept in ``renders``, default ``<path's
+    folder>/renders``, so an interrupted design continues where it stopped) and stored. A stored
+    emulator that does not match is reported through ``say`` (one line naming the changed entries)
+    before the rebuild. ``extra``: further design points (see :func:`build_emulator`)."""
     path = Path(path)
     rkey = render_key(model)
-    key = emulator_key(rkey, lo, hi, n_design, seed, degrees)
+    key = emulator_key(rkey, lo, hi, n_design, seed, degrees, extra)
     if path.exists():
         old = PartsEmulator.load(path)
         if old.key == key:
@@ -379,10 +404,124 @@ def cached_emulator(
         changes = key_changes(old.key, key) if old.key else ["no key (written by an older lightfit)"]
         say(f"emulator {path} was built for other settings ({'; '.join(changes)}): rebuilding")
     emu = build_emulator(
-        model, lo, hi, n_design=n_design, degrees=degrees, seed=seed, progress=progress, cache=path.parent / "renders"
+        model,
+        lo,
+        hi,
+        n_design=n_design,
+        degrees=degrees,
+        seed=seed,
+        progress=progress,
+        cache=Path(renders) if renders is not None else path.parent / "renders",
+        extra=extra,
     )
     emu.save(path)
     return emu
+
+
+#: Environment variable naming the shared cache directory (default ``~/.cache/lightfit``).
+CACHE_ENV = "LIGHTFIT_CACHE"
+
+#: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
+#: emulator, so one command's design serves the other).
+DESIGN_SIZE = 20
+
+
+def cache_root(cache: str | Path | None = None) -> Path:
+    """The shared cache directory: ``cache`` if given, else ``$LIGHTFIT_CACHE``, else ``~/.cache/lightfit``."""
+    if cache is not None:
+        return Path(cache)
+    env = os.environ.get(CACHE_ENV)
+    return Path(env) if env else Path.home() / ".cache" / "lightfit"
+
+
+def design_dir(model: CoupledModel, cache: str | Path | None = None, key: dict | None = None) -> Path:
+    """``<cache>/designs/<hash of render_key(model)>``: where every render and fitted emulator of
+    this configuration is kept, whichever command made it. The key itself is written next to them
+    (``render_key.json``) so that a directory can be told apart by reading it."""
+    key = key or render_key(model)
+    text = json.dumps(key, sort_keys=True)
+    d = cache_root(cache) / "designs" / _digest(text.encode())
+    if not (d / "render_key.json").exists():
+        d.mkdir(parents=True, exist_ok=True)
+        tmp = d / f"render_key.{os.getpid()}.tmp"
+        tmp.write_text(json.dumps(key, indent=2, sort_keys=True), encoding="utf-8")
+        os.replace(tmp, d / "render_key.json")
+    return d
+
+
+def shared_emulator(
+    model: CoupledModel,
+    lo,
+    hi,
+    *,
+    n_design: int = DESIGN_SIZE,
+    degrees=DEGREES,
+    seed: int = 0,
+    extra=None,
+    cache: str | Path | None = None,
+    progress: bool = False,
+    say: Callable[[str], None] = print,
+) -> PartsEmulator:
+    """:func:`cached_emulator` in the shared cache: renders in ``design_dir(model)/renders``, the fitted
+    emulator in ``design_dir(model)/emulator-<hash of its key>.npz`` (one file per design, so the
+    calibration's refined design and the posterior's plain one do not overwrite each other)."""
+    rkey = render_key(model)
+    d = design_dir(model, cache, rkey)
+    key = emulator_key(rkey, lo, hi, n_design, seed, degrees, extra)
+    path = d / f"emulator-{_digest(json.dumps(key, sort_keys=True).encode())}.npz"
+    return cached_emulator(
+        model,
+        path,
+        lo,
+        hi,
+        n_design=n_design,
+        degrees=degrees,
+        seed=seed,
+        progress=progress,
+        say=say,
+        renders=d / "renders",
+        extra=extra,
+    )
+
+
+def restrict(model: CoupledModel, keep, rendered=None) -> CoupledModel:
+    """``model`` on the steps ``keep`` (T,) bool only, rendering only the steps ``rendered`` of them.
+
+    Observations need only some steps: a step without any observation needs nothing, and a step
+    whose observed series do not depend on the light at the plants (the above-canopy sensor,
+    :func:`~lightfit.model.observe.above_canopy_par`, is analytic) needs no render. The returned
+    model (geometry, scene and photosynthesis shared) has ``times``, forcing and sun positions of the
+    kept steps, and its daytime mask ``day`` is ``day & rendered``: steps kept but not rendered get
+    zero light at the plants, like the night, so *their* plant observables are not the model's
+    (they are not observed). Its :func:`render_key` names only the rendered sun positions, so
+    renders are cached per set of needed steps. ``rendered=None``: every kept daytime step.
+    """
+    keep = np.asarray(keep, bool)
+    if keep.shape != model.day.shape or not keep.any():
+        raise InputError(
+            f"steps to keep: {int(keep.sum())} of shape {keep.shape}",
+            column="steps",
+            expected=f"a boolean mask over the run's {len(model.day)} steps with at least one step",
+        )
+    rendered = keep if rendered is None else np.asarray(rendered, bool) & keep
+    day = (model.day & rendered)[keep]
+    fc = model.forcing
+    forcing = dataclasses.replace(
+        fc,
+        day=day,
+        **{f.name: np.asarray(getattr(fc, f.name))[keep] for f in dataclasses.fields(fc) if f.name != "day"},
+    )
+    other = model.with_light(model.light)
+    other.times = model.times[keep]
+    other.forcing = forcing
+    other.day = day
+    other.sun_deg = model.sun_deg[keep]
+    other.operator = dataclasses.replace(
+        model.operator, forcing=forcing, sun_elevation_deg=np.asarray(model.operator.sun_elevation_deg)[keep]
+    )
+    if model.light == model.render:  # a bound method of the original: render the kept steps instead
+        other.light = other.render
+    return other
 
 
 class FastObservables:
@@ -483,8 +622,15 @@ def emulated_model(model: CoupledModel, emulator: PartsEmulator) -> CoupledModel
 
 
 __all__ = [
+    "CACHE_ENV",
+    "COUNTS",
+    "DESIGN_SIZE",
     "FastObservables",
     "PartsEmulator",
+    "cache_root",
+    "design_dir",
+    "restrict",
+    "shared_emulator",
     "build_emulator",
     "cached_emulator",
     "DEGREES",

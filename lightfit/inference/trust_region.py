@@ -1,0 +1,293 @@
+r"""Calibration on the render emulator, checked against full renders (trust-region loop).
+
+Every loss evaluation of a direct calibration renders every needed sun position (minutes on the
+default field). Here the optimiser runs on the emulator of the light parts
+(:class:`~lightfit.model.emulator.PartsEmulator`, the same design as ``lightfit posterior``'s, kept
+in the shared design cache), where a loss and its gradient take milliseconds, and full renders are
+spent only where they decide something:
+
+1. fit the emulator to the design renders (Sobol design over the box [lo, hi] plus the renders at
+   the optima of earlier rounds);
+2. minimise the calibration loss on it, bounded to the box (jaxopt L-BFGS-B by default), from the
+   previous round's optimum;
+3. render at the candidate optimum :math:`x^*` and evaluate the full-render loss there;
+4. accept when the surrogate predicted that loss within Monte Carlo error,
+
+   .. math:: |\mathcal L_{full}(x^*) - \mathcal L_{sur}(x^*)| \le z\,\sigma_{\mathcal L},\qquad
+       \sigma_{\mathcal L}^2 = \sum_k \frac{r_k^2 s_k^2}{v_k^2} + \tfrac12\sum_k \frac{s_k^4}{v_k^2},
+
+   the standard deviation of the loss :math:`\tfrac12\sum r_k^2/v_k` when each observable
+   :math:`m_k` carries independent Gaussian Monte Carlo error of SD :math:`s_k` (the model's own
+   estimate; :math:`r_k = y_k - m_k`, :math:`v_k` the likelihood's variance; first term: the
+   linear change of the loss, second: the variance of the quadratic term). ``z = 2`` by default.
+   Otherwise add :math:`x^*` to the design and go to 1.
+
+Why this criterion: the emulator reproduces renders made with the *same* random numbers, so any
+difference between surrogate and full render at :math:`x^*` is emulation error; a difference
+below the loss's Monte Carlo spread cannot be told from the noise any other render seed would
+add, so more renders would not make the optimum more trustworthy. The round's emulator error of
+each observable relative to its Monte Carlo SD is reported as well.
+
+Resumable: every render is kept in the design cache the moment it is finished, and a rerun redoes
+the (cheap, deterministic) fits and optimisations from the cached renders, so it reaches the same
+rounds and optimum without rendering again. The rounds go to ``<out>/trust_region.jsonl``.
+
+Only what the observations need is rendered (:func:`observed_model`): steps with no observation are
+dropped, steps whose observed series do not depend on the light at the plants (the above-canopy
+sensor) are not rendered; when nothing needs a render (e.g. the bundled chamber record alone),
+none is made, and when no leaf parameter is calibrated a single render at the fixed leaf serves
+every evaluation exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from lightfit.inference.calibration import CalibrationResult, calibrate
+from lightfit.inference.likelihood import USES, GaussianLikelihood, resolve_use
+from lightfit.inference.observations import SERIES, align
+from lightfit.model import emulator as E
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.parameters import Theta, as_theta, check_names
+
+#: Series whose operator does not use the light at the plants (no render needed for them).
+RENDER_FREE = ("above_canopy_par",)
+
+
+def observed_model(
+    model: CoupledModel, obs: pd.DataFrame, use: Sequence[str] | None = None
+) -> tuple[CoupledModel, pd.DataFrame, int]:
+    """The model cut to the steps the observations need, the observations without empty rows, and
+    the number of steps to render.
+
+    Kept: steps with any observed value (of any series, so that every row still aligns). Rendered:
+    kept daytime steps where a used series other than :data:`RENDER_FREE` has a value. See
+    :func:`lightfit.model.emulator.restrict`.
+    """
+    values = [s.value for s in SERIES if s.value in obs.columns]
+    o = obs[obs[values].notna().any(axis=1)]
+    o.attrs = dict(obs.attrs)
+    target = align(o, model.times)
+    have = {s.name: ~np.isnan(target[s.value]) for s in SERIES}
+    keep = np.any(list(have.values()), axis=0)
+    if not keep.any():  # nothing on the run's steps: the likelihood says so with the file's name
+        GaussianLikelihood(o, model.times, use)
+    used = resolve_use(use, o)
+    light = [have[n] for n in used if n not in RENDER_FREE]
+    rendered = np.any(light, axis=0) & model.day if light else np.zeros_like(keep)
+    return E.restrict(model, keep, rendered), o, int((rendered & keep).sum())
+
+
+def loss_sd(likelihood: GaussianLikelihood, m: Mapping) -> float:
+    """σ_L of the module docstring: the Monte Carlo SD of the calibration loss at observables ``m``."""
+    w = likelihood.whitened(m)
+    q = likelihood.whiten({s.name: m[s.mc_sd] for s in likelihood.series}, m)
+    return float(jnp.sqrt(jnp.sum(w**2 * q**2) + 0.5 * jnp.sum(q**4)))
+
+
+@dataclass
+class SurrogateCalibration:
+    """Outcome of :func:`surrogate_calibrate`.
+
+    Attributes:
+        result: the last round's calibration on the surrogate (``theta``, ``loss``, counts, stop reason).
+        rounds: one dict per round (design size, degree, optimum, surrogate and full-render loss,
+            σ_L, passed, emulator error per observable in MC SDs, seconds).
+        passed: whether the last round's full-render check passed.
+        loss_full: full-render loss at the returned optimum.
+        rendered, cached: full renders made by this call / read from the cache.
+        steps_rendered: sun positions per render (the needed daytime steps).
+        mode: ``"surrogate"`` (emulator rounds), ``"one render"`` (no leaf parameter calibrated:
+            one render at the fixed leaf, exact) or ``"no render"`` (no used series needs the light
+            at the plants, exact).
+    """
+
+    result: CalibrationResult
+    rounds: list[dict]
+    passed: bool
+    loss_full: float
+    rendered: int
+    cached: int
+    steps_rendered: int
+    mode: str
+    seconds: float
+    z: float
+    design_dir: Path | None = None
+    emulator: E.PartsEmulator | None = field(default=None, repr=False)
+
+    def table(self) -> list[dict]:
+        """The rounds as rows for a printed table / JSON."""
+        return self.rounds
+
+
+def surrogate_calibrate(
+    model: CoupledModel,
+    obs: pd.DataFrame,
+    *,
+    names: Sequence[str] = ("specular", "roughness", "subsurface"),
+    start: Theta | Mapping[str, float] | None = None,
+    fixed: Theta | Mapping[str, float] | None = None,
+    use: Sequence[str] | None = USES,
+    lo=(0.0, 0.0, 0.0),
+    hi=(1.0, 1.0, 1.0),
+    n_design: int = E.DESIGN_SIZE,
+    design_seed: int = 0,
+    cache: str | Path | None = None,
+    out: str | Path | None = None,
+    max_rounds: int = 6,
+    z: float = 2.0,
+    method: str = "lbfgsb",
+    max_steps: int = 200,
+    n_grid: int | None = 64,
+    progress: bool = True,
+    say: Callable[[str], None] = print,
+) -> SurrogateCalibration:
+    """Calibrate on the emulator inside the box [lo, hi] of the leaf parameters, checked by full
+    renders (see the module docstring).
+
+    Args:
+        model: the coupled model (all steps; it is cut to what ``obs`` needs here).
+        lo, hi: emulator box of (specular, roughness, subsurface): the posterior's prior support, so
+            that both commands share one design.
+        n_design, design_seed: Sobol design of the first round.
+        cache: shared cache root (:func:`~lightfit.model.emulator.cache_root`).
+        out: directory for ``trust_region.jsonl`` and the rounds' optimiser histories.
+        max_rounds: most emulator rounds (each adds one render when its check fails).
+        z: acceptance threshold in σ_L.
+        method, max_steps: the optimiser on the surrogate (:func:`~lightfit.inference.calibration.calibrate`).
+        n_grid: leaf photosynthesis table size of :class:`~lightfit.model.emulator.FastObservables`
+            (``None``: exact per blade).
+    """
+    t0 = time.perf_counter()
+    names = check_names(names)
+    counts0 = dict(E.COUNTS)
+    m, o, n_steps = observed_model(model, obs, use)
+    use = resolve_use(use, o)
+    lik = GaussianLikelihood(o, m.times, use)
+    base = as_theta(fixed)
+    x0 = as_theta(start, base=base)
+    out = None if out is None else Path(out)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    leaf_names = [n for n in names if n in E.LEAF_PARAMETERS]
+    bounds = {n: (float(lo[i]), float(hi[i])) for i, n in enumerate(E.LEAF_PARAMETERS) if n in leaf_names}
+    ddir = None
+
+    def done(res, rounds, passed, loss_full, mode, emu=None):
+        return SurrogateCalibration(
+            res,
+            rounds,
+            passed,
+            loss_full,
+            E.COUNTS["rendered"] - counts0["rendered"],
+            E.COUNTS["cached"] - counts0["cached"],
+            n_steps,
+            mode,
+            time.perf_counter() - t0,
+            z,
+            ddir,
+            emu,
+        )
+
+    def run(forward, start_theta, tag, bnds=None):
+        return calibrate(
+            m,
+            o,
+            names=names,
+            start=start_theta,
+            fixed=base,
+            method=method,
+            max_steps=max_steps,
+            use=use,
+            forward=forward,
+            bounds=bnds,
+            history=None if out is None else out / f"{tag}.jsonl",
+            resume=False,  # cheap and deterministic from the cached renders: redone, not resumed
+            progress=progress,
+            say=say,
+        )
+
+    if n_steps == 0 or not leaf_names:
+        if n_steps == 0:
+            zeros = (jnp.zeros((0, len(E.PARTS), len(m.segment_id))),) * 2
+            light, mode = (lambda _: zeros), "no render"
+        else:
+            ddir = E.design_dir(m, cache)
+            v, s = E.render_parts(m, np.asarray(base.leaf)[None], cache=ddir / "renders")
+            light, mode = (lambda _: (jnp.asarray(v[0]), jnp.asarray(s[0]))), "one render"
+        exact = m.with_light(light)
+        res = run(exact.observe, x0, "exact")
+        say(f"calibrated exactly ({mode}: {n_steps} sun positions need the light at the plants)")
+        return done(res, [], True, res.loss, mode)
+
+    ddir = E.design_dir(m, cache)
+    renders = ddir / "renders"
+    log = None if out is None else out / "trust_region.jsonl"
+    if log is not None:
+        log.unlink(missing_ok=True)
+    extra: list[list[float]] = []
+    rounds: list[dict] = []
+    th = x0
+    res = None
+    for r in range(max_rounds):
+        t_round = time.perf_counter()
+        emu = E.shared_emulator(
+            m, lo, hi, n_design=n_design, seed=design_seed, extra=extra or None, cache=cache, progress=progress, say=say
+        )
+        fast = E.FastObservables(m, emu, n_grid=n_grid)
+        res = run(fast, th, f"round{r}", bounds)
+        th = as_theta(res.theta)
+        x = np.asarray(th.leaf, float)
+        v, s = E.render_parts(m, x[None], progress=False, cache=renders)
+        full = m.with_light(lambda _, v=v, s=s: (jnp.asarray(v[0]), jnp.asarray(s[0]))).observe(th)
+        sur = jax.jit(fast)(th)
+        l_full, l_sur = float(lik.loss(full)), float(lik.loss(sur))
+        sd = loss_sd(lik, full)
+        passed = bool(abs(l_full - l_sur) <= z * sd)
+        err = {}
+        for sr in lik.series:
+            mask = np.asarray(lik.mask[sr.name])
+            mc = np.asarray(full[sr.mc_sd])[mask]
+            diff = np.abs(np.asarray(sur[sr.value]) - np.asarray(full[sr.value]))[mask]
+            err[sr.name] = float(np.max(diff / np.where(mc > 0, mc, np.nan))) if mc.size and (mc > 0).any() else 0.0
+        row = {
+            "round": r,
+            "design": int(len(emu.design)),
+            "degree": int(emu.degree),
+            "theta": {n: float(getattr(th, n)) for n in names},
+            "loss_surrogate": l_sur,
+            "loss_full": l_full,
+            "loss_sd": sd,
+            "difference_over_sd": abs(l_full - l_sur) / sd if sd > 0 else math.inf,
+            "passed": passed,
+            "emulator_error_over_mc_sd": err,
+            "optimiser_steps": res.steps,
+            "stopped_by": res.stopped_by,
+            "seconds": time.perf_counter() - t_round,
+        }
+        rounds.append(row)
+        if log is not None:
+            with open(log, "a", encoding="utf-8") as fh:
+                fh.write(json.dumps(row) + "\n")
+        say(
+            f"round {r}: design {row['design']} (degree {row['degree']}), surrogate loss {l_sur:.4g}, "
+            f"full-render loss {l_full:.4g}, |Δ| = {row['difference_over_sd']:.2f} σ_L "
+            f"({'passed' if passed else 'refining'})"
+        )
+        if passed:
+            return done(res, rounds, True, l_full, "surrogate", emu)
+        extra.append([float(v) for v in x])
+    return done(res, rounds, False, rounds[-1]["loss_full"], "surrogate", emu)
+
+
+__all__ = ["RENDER_FREE", "SurrogateCalibration", "loss_sd", "observed_model", "surrogate_calibrate"]
