@@ -295,6 +295,31 @@ def test_gradient_matches_finite_differences_with_common_random_numbers():
     assert np.abs(G - F).max() <= 0.03 * np.abs(F).max(), (G, F)
 
 
+@pytest.mark.parametrize("periodic", [True, False], ids=["periodic", "finite"])
+def test_paths_kept_across_suns_give_a_fresh_estimators_values(periodic):
+    """A render reuses the sun-independent paths of the last one (same leaf parameters); the
+    values must be bitwise those of a fresh estimator, for a new sun and for new leaf parameters
+    (which must not reuse the old paths: a stale cache would keep the old absorbed light)."""
+    cell = PeriodicCell(0.3, 0.3, row_direction_deg=70.0)
+    mesh, _ = canopy(cell, 1.5, "spherical", np.random.default_rng(5), leaf=0.03, z=(0.05, 0.5), sensors=4)
+    ids = np.unique(mesh.face_segment)
+    fs = FieldScene(mesh, Optics(), cell=cell if periodic else None)
+
+    def values(r):
+        return np.stack([getattr(r, p) for p in PARTS])
+
+    est = SegmentEstimator(fs, ids, samples=8, bounces=2, seed=1)
+    for el, az, leaf in ((30.0, 150.0, {}), (-5.0, 80.0, {}), (60.0, 200.0, {}), (60.0, 200.0, {"subsurface": 0.6})):
+        fs.set_optics(**leaf)
+        fs.set_sun(el, az)
+        kept = est.render()
+        fresh = SegmentEstimator(fs, ids, samples=8, bounces=2, seed=1).render()
+        np.testing.assert_array_equal(values(kept), values(fresh))
+        if periodic:
+            assert kept.meta["periodic"] == fresh.meta["periodic"]  # ray counts include the kept paths'
+    assert est._kept is not None and est._kept[0][0][2] == pytest.approx(0.6)  # re-traced at the new subsurface
+
+
 # -- crossing cap -------------------------------------------------------------------------------
 def test_crossing_cap_bounds_truncation_and_is_reported():
     cell = PeriodicCell(0.5, 0.5)

@@ -33,6 +33,13 @@ ray, each scattered segment, the direct-sun and next-event shadow rays — is ca
 points on faces overhanging the cell are first moved into it. Finite scenes take the original
 code path unchanged.
 
+A primal render is split into the sun-independent paths (points, cosine-sampled first rays,
+every scattered segment, the sky radiance they bring back: the directions come from the BSDF's
+frozen sampling, not from the sun) and the sun's part (direct-sun and next-event shadow rays
+from the path vertices). The paths are evaluated once and kept while the leaf parameters stay,
+so the time steps of a day, which differ only in the sun, each cast only the sun's rays (values
+bitwise those of a fresh estimator; 2–2.5× less CPU per step after the first, measured on 20 April).
+
 All random numbers — points, directions, BSDF samples along the path — are keyed by (seed,
 segment id, sample index), so a segment's values do not depend on which other segments are
 requested or how the field is partitioned.
@@ -241,6 +248,7 @@ class SegmentEstimator:
         self._wrap_log: list = []  # periodic rays cast (kind, active, capped, crossings), see render()
         # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
         self._fuse = False
+        self._kept = None  # (key, vertices, L_sky, ray counts) of _kept_paths
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
 
@@ -333,13 +341,18 @@ class SegmentEstimator:
         self._wrap_log.append((kind, active, capped, k))
         return blocked
 
-    def _per_evaluation(self):
-        """Evaluation-level sun/sky incident and absorbed values (Dr.Jit, attached to params)."""
+    def _per_evaluation(self, keep_paths: bool = False):
+        """Evaluation-level sun/sky incident and absorbed values (Dr.Jit, attached to params).
+
+        ``keep_paths``: reuse the paths of an earlier call with the same leaf parameters
+        (:meth:`_kept_paths`; primal renders only).
+        """
         import drjit as dr
 
         mi = self.fs.mi
         o, nrm, frame, d, u, valid = self._arrays()
-        L_sun, L_sky = self._trace(o, d, u)
+        vertices, L_sky = self._kept_paths() if keep_paths else self._paths(o, d, u)
+        L_sun = self._sun_at_vertices(vertices)
         e_dir = self._direct_sun(o, nrm)
         a_d = self._absorptance(frame, d)
         sun = self.fs.sun
@@ -353,22 +366,30 @@ class SegmentEstimator:
         }
         return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
 
-    def _trace(self, o, d, u):
-        """Sun and sky radiance arriving at ``o`` from direction ``d`` (both Dr.Jit), per unit DNI / DHI."""
+    def _paths(self, o, d, u):
+        """The sun-independent part of the paths from ``o`` along ``d``: their scattering vertices
+        and the sky radiance they bring back (per unit DHI).
+
+        Directions are drawn from the BSDF's (frozen) sampling and the random columns ``u``, so
+        the paths depend on the leaf parameters and the geometry but not on the sun: a day's
+        time steps share them (:meth:`render` keeps them while the leaf parameters stay).
+
+        Returns ``(vertices, L_sky)``: per scattering order one dict with ``hit_leaf``,
+        ``hit_soil``, the vertex ``p`` (leaf or soil point), the leaf's normal ``n``, shading
+        ``frame`` and incoming direction ``wi`` (local), and the path throughput ``beta`` there.
+        """
         import drjit as dr
 
         mi, fs = self.fs.mi, self.fs
         n_ev = self.n_evaluations
         rho_soil = fs.optics.soil_albedo
-        sun = self._sun_vector()
-        sun_up = bool(fs.sun[2] > 0)
         ctx = mi.BSDFContext()
         beta = mi.Float(dr.ones(mi.Float, n_ev))
-        L_sun = mi.Float(dr.zeros(mi.Float, n_ev))
         L_sky = mi.Float(dr.zeros(mi.Float, n_ev))
         active = mi.Bool(dr.full(mi.Bool, True, n_ev))
         eps = 1e-5
         periodic = fs.tracer is not None
+        vertices = []
         for depth in range(self.bounces + 1):
             if periodic:
                 hit_leaf, si, hit_soil, p_soil, escaped, capped, k = fs.tracer.intersect(o, d, active, fuse=self._fuse)
@@ -386,21 +407,19 @@ class SegmentEstimator:
                 break
             if not periodic:
                 p_soil = o + d * t_soil
-            # Leaf vertex: NEE to the sun through the BSDF (reflection or transmission).
             si.wi = si.to_local(-d)
+            vertices.append(
+                {
+                    "hit_leaf": hit_leaf,
+                    "hit_soil": hit_soil,
+                    "p": dr.select(hit_leaf, si.p, p_soil),
+                    "n": si.n,
+                    "frame": si.sh_frame,
+                    "wi": si.wi,
+                    "beta": beta,
+                }
+            )
             ub = u[_USED_PER_SIDE + _DIMS_PER_BOUNCE * depth : _USED_PER_SIDE + _DIMS_PER_BOUNCE * (depth + 1)]
-            if sun_up:
-                f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
-                side = dr.sign(dr.dot(si.n, sun))
-                o_leaf, o_soil = si.p + eps * side * si.n, p_soil + mi.Vector3f(0, 0, eps)
-                if periodic:
-                    vis_leaf = ~self._occluded("nee", o_leaf, sun, hit_leaf & (f_sun > 0))
-                    vis_soil = ~self._occluded("nee", o_soil, sun, hit_soil)
-                else:
-                    vis_leaf = ~fs.scene.ray_test(mi.Ray3f(o_leaf, sun), hit_leaf & (f_sun > 0))
-                    vis_soil = ~fs.scene.ray_test(mi.Ray3f(o_soil, sun), hit_soil)
-                L_sun += dr.select(hit_leaf & vis_leaf, beta * f_sun, 0.0)
-                L_sun += dr.select(hit_soil & vis_soil, beta * rho_soil / math.pi * sun.z, 0.0)
             bs, w = self.fs.bsdf.sample(ctx, si, ub[0], mi.Point2f(ub[1], ub[2]), hit_leaf)
             d_leaf = si.to_world(bs.wo)
             side_out = dr.sign(dr.dot(si.n, d_leaf))
@@ -411,23 +430,83 @@ class SegmentEstimator:
             active = (hit_leaf & (w[0] > 0)) | hit_soil
             o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
             d = dr.detach(dr.select(hit_leaf, d_leaf, d_soil))
-        return L_sun, L_sky
+        return vertices, L_sky
+
+    def _kept_paths(self):
+        """:meth:`_paths`, evaluated once and kept while the leaf parameters, the BSDF's frozen
+        sampling, the soil albedo and the sky model stay the same.
+
+        A day's time steps differ only in the sun, so they share one set of paths: each step
+        then casts only the sun's shadow rays (about half the rays of a render). Memory: the
+        vertices of every scattering order, ≈ 70 bytes per evaluation and order.
+        """
+        import drjit as dr
+
+        bsdf = self.fs.bsdf
+        key = (
+            tuple(float(getattr(bsdf, k)[0]) for k in (*LEAF_PARAMETERS, "base_color")),
+            bsdf.sampling,
+            self.fs.optics.soil_albedo,
+            self.fs.sky,
+        )
+        if self._kept is None or self._kept[0] != key:
+            self._kept = None  # free the old paths before tracing new ones
+            o, _, _, d, u, _ = self._arrays()
+            log, self._wrap_log = self._wrap_log, []
+            vertices, L_sky = self._paths(o, d, u)
+            counts = self._wrap_counts()
+            dr.eval(vertices, L_sky, counts)
+            self._wrap_log = log
+            self._kept = (key, vertices, L_sky, counts)
+        return self._kept[1], self._kept[2]
+
+    def _sun_at_vertices(self, vertices):
+        """Sun radiance scattered towards the paths' origins (per unit DNI): next-event estimation
+        to the sun, with a shadow ray, at every leaf vertex (through the BSDF, reflection or
+        transmission) and soil vertex of :meth:`_paths`."""
+        import drjit as dr
+
+        mi, fs = self.fs.mi, self.fs
+        L_sun = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
+        if fs.sun[2] <= 0:
+            return L_sun
+        rho_soil = fs.optics.soil_albedo
+        sun = self._sun_vector()
+        ctx = mi.BSDFContext()
+        eps = 1e-5
+        for v in vertices:
+            hit_leaf, hit_soil, beta, p, n = v["hit_leaf"], v["hit_soil"], v["beta"], v["p"], v["n"]
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.sh_frame, si.wi = v["frame"], v["wi"]
+            f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
+            side = dr.sign(dr.dot(n, sun))
+            o_leaf, o_soil = p + eps * side * n, p + mi.Vector3f(0, 0, eps)
+            if fs.tracer is not None:
+                vis_leaf = ~self._occluded("nee", o_leaf, sun, hit_leaf & (f_sun > 0))
+                vis_soil = ~self._occluded("nee", o_soil, sun, hit_soil)
+            else:
+                vis_leaf = ~fs.scene.ray_test(mi.Ray3f(o_leaf, sun), hit_leaf & (f_sun > 0))
+                vis_soil = ~fs.scene.ray_test(mi.Ray3f(o_soil, sun), hit_soil)
+            L_sun += dr.select(hit_leaf & vis_leaf, beta * f_sun, 0.0)
+            L_sun += dr.select(hit_soil & vis_soil, beta * rho_soil / math.pi * sun.z, 0.0)
+        return L_sun
 
     # -- public --------------------------------------------------------------------------
     def render(self) -> Irradiance:
         """Primal pass: per-segment sun/sky incident and absorbed irradiance with standard errors.
 
-        In a periodic scene ``meta["periodic"]`` holds the ray counts of :meth:`_wrap_summary`.
+        In a periodic scene ``meta["periodic"]`` holds the ray counts of :meth:`_wrap_summary`
+        (kept paths, :meth:`_kept_paths`, are counted in every render that uses them).
         """
         import drjit as dr
 
         with dr.suspend_grad():
             self._wrap_log, self._fuse = [], True
             try:
-                vals = self._per_evaluation()
+                vals = self._per_evaluation(keep_paths=True)
             finally:
                 self._fuse = False
-            counts = self._wrap_counts()
+            counts = self._wrap_counts(None if self._kept is None else self._kept[3])
             # One evaluation of everything: the whole render (periodic walks included) is one
             # kernel; evaluating the ray counts apart would recompute the walks they count.
             dr.eval(vals, counts)
@@ -466,9 +545,10 @@ class SegmentEstimator:
             },
         )
 
-    def _wrap_counts(self) -> dict | None:
+    def _wrap_counts(self, base: dict | None = None) -> dict | None:
         """Per evaluation and kind of ray: rays cast, rays capped and crossings made (lazy UInt32
-        arrays of :attr:`_wrap_log`, to be evaluated with the render)."""
+        arrays of :attr:`_wrap_log`, to be evaluated with the render), added to ``base`` (counts
+        of the same form, e.g. of kept paths)."""
         if self.fs.tracer is None:
             return None
         import drjit as dr
@@ -477,7 +557,8 @@ class SegmentEstimator:
         zero = dr.zeros(U, self.n_evaluations)
         counts = {}
         for kind in ("path", "sun", "nee"):
-            rays, capped, crossings = zero, zero, zero
+            b = {} if base is None else base[kind]
+            rays, capped, crossings = (b.get(c, zero) for c in ("rays", "capped", "crossings"))
             for _, a, c, k in (x for x in self._wrap_log if x[0] == kind):
                 rays = rays + dr.select(a, U(1), U(0))
                 capped = capped + dr.select(c, U(1), U(0))
