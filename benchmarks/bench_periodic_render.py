@@ -61,7 +61,10 @@ def _sync():
 
 
 def profile(est: SegmentEstimator) -> dict:
-    """Seconds spent in the periodic walks of one primal render, per kind of ray (synchronised)."""
+    """Seconds spent in the periodic walks of one primal render, per kind of ray (synchronised).
+
+    Each walk is timed as its own kernel (``fuse=False``); an ordinary render fuses them into
+    one kernel, so ``render_s`` here is that of the unfused render."""
     import drjit as dr
 
     tracer = est.fs.tracer
@@ -73,7 +76,7 @@ def profile(est: SegmentEstimator) -> dict:
         dr.eval(o, d, active)
         _sync()
         t = time.perf_counter()
-        out = walk(o, d, active, **kw)
+        out = walk(o, d, active, **(kw | {"fuse": False}))  # its own kernel, to be timed
         _sync()
         spent[kind[0]] += time.perf_counter() - t
         kind[0] = "path"
@@ -87,6 +90,7 @@ def profile(est: SegmentEstimator) -> dict:
     try:
         est.render()  # warm with the wrappers
         spent.clear()
+        est._kept = None  # trace the paths again (a render keeps them for the next sun)
         _sync()
         t = time.perf_counter()
         est.render()
@@ -122,7 +126,9 @@ def summary(est, r) -> dict:
 
 def timed_interleaved(setups: dict, repeat: int) -> dict:
     """Best of ``repeat`` primal and vjp times per setup, the setups taking turns in each round
-    (so that load from other processes on the shared machine hits them alike)."""
+    (so that load from other processes on the shared machine hits them alike). Each primal is a
+    whole render (its paths traced, not kept from the previous call: ``--day`` times the kept
+    paths of a day's steps)."""
     best = {k: {"primal_s": math.inf, "vjp_s": math.inf} for k in setups}
     results = {}
     for k, (est, ct) in setups.items():  # warm up: compile or load kernels
@@ -133,6 +139,7 @@ def timed_interleaved(setups: dict, repeat: int) -> dict:
         for what in ("primal_s", "vjp_s"):
             for k, (est, ct) in setups.items():
                 est.fs.set_sun(*est._sun)
+                est._kept = None  # a whole render: paths traced again, not kept from the last one
                 _sync()
                 t = time.perf_counter()
                 est.render() if what == "primal_s" else est.vjp(ct)
