@@ -5,13 +5,24 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from lightfit.cli import app
 from lightfit.inference.mcmc import load_run
+from lightfit.model import emulator as E
+
+
+@pytest.fixture(autouse=True)
+def design_cache(tmp_path, monkeypatch):
+    """Every test its own shared design cache (never the user's ~/.cache/lightfit)."""
+    monkeypatch.setenv(E.CACHE_ENV, str(tmp_path / "cache"))
+    return tmp_path / "cache"
 
 
 def test_posterior_cli_quick(tmp_path):
+    """Bundled chamber record: the above-canopy sensor needs no render, so the design renders nothing
+    (and there is nothing to check the emulator against)."""
     out = tmp_path / "post"
     args = [
         "posterior",
@@ -33,7 +44,8 @@ def test_posterior_cli_quick(tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((out / "summary.json").read_text())
     assert s["names"] == ["specular", "light_factor"] and s["n_steps"] == 30
-    assert "emulator_error" in s and "sloppy" in s
+    assert "emulator_error" not in s and "sloppy" in s
+    assert "design: 0 new renders, 0 from the cache (0 sun positions" in r.output.replace("\n", "")
     run = load_run(out / "run.h5")
     assert run["chain"].shape == (30, 8, 2) and "analysis" in run
     # resuming to more steps appends
@@ -59,3 +71,41 @@ def test_posterior_cli_n_test_zero(tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["n_steps"] == 20 and "emulator_error" not in s
+
+
+OBS = (
+    "# provenance: synthetic\n# note: cache test\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
+    "2016-04-20T09:00:00Z,300,20\n2016-04-20T10:00:00Z,400,20\n"
+)
+
+
+def test_calibrate_then_posterior_share_the_design_and_a_key_change_rebuilds(tmp_path, design_cache):
+    """One emulator design for both commands (issue 15): lightfit calibrate renders the design (and its
+    check renders), lightfit posterior on the same configuration renders nothing new; another render
+    setting (--samples) is another key, so its design is rendered afresh."""
+    obs = tmp_path / "obs.csv"
+    obs.write_text(OBS, encoding="utf-8")
+    model = ["--quick", "--steps", "12:15", "--n-design", "6"]
+    r = CliRunner().invoke(
+        app, ["calibrate", str(obs), *model, "--parameters", "specular", "--out", str(tmp_path / "cal")]
+    )
+    assert r.exit_code == 0, r.output
+    cal = json.loads((tmp_path / "cal" / "calibration.json").read_text())["surrogate"]
+    assert cal["mode"] == "surrogate" and cal["passed"] and cal["sun_positions_rendered"] == 2
+    assert cal["renders_new"] == 6 + len(cal["rounds"]) and "full-render check" in r.output
+    before = dict(E.COUNTS)
+    post = ["posterior", str(obs), *model, "--parameters", "specular", "--walkers", "4", "--max-steps", "10"]
+    r = CliRunner().invoke(app, [*post, "--n-test", "0", "--no-analysis", "--out", str(tmp_path / "post")])
+    assert r.exit_code == 0, r.output
+    assert E.COUNTS["rendered"] == before["rendered"]  # counted: no render at all
+    # calibrate's first-round emulator (the plain Sobol design) is this one: not even refitted
+    assert "design: 0 new renders, 0 from the cache (2 sun positions" in r.output.replace("\n", "")
+    (d,) = (design_cache / "designs").iterdir()
+    assert len(list((d / "renders").glob("*.npz"))) == 6 + len(cal["rounds"])
+    # another render key (samples 16 → 8): a new design directory, rendered anew
+    r = CliRunner().invoke(
+        app, [*post, "--samples", "8", "--n-test", "0", "--no-analysis", "--out", str(tmp_path / "post8")]
+    )
+    assert r.exit_code == 0, r.output
+    assert E.COUNTS["rendered"] == before["rendered"] + 6
+    assert len(list((design_cache / "designs").iterdir())) == 2

@@ -41,11 +41,21 @@ POSTERIOR = [
     "--target-ess",
     "10",
 ]
+# PAR at the plants on the three steps: the posterior renders them (the bundled chamber record alone
+# is the above-canopy sensor, which needs no render at all)
+OBS_HEADER = "# provenance: synthetic\n# note: resume test\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
+OBS_ROWS = "2016-04-20T09:00:00Z,300,20\n2016-04-20T09:30:00Z,350,20\n2016-04-20T10:00:00Z,400,20\n"
 
 
 def lightfit(args, out: Path | None, kill_after: str | None = None, wait: bool = True):
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "COLUMNS": "200"}  # rich: no wrapped lines
     env.pop("LIGHTFIT_TEST_KILL_AFTER", None)
+    if out is not None:  # each run its own design cache, so that a rerun finds only its own renders
+        env["LIGHTFIT_CACHE"] = str(out / "cache")
+    if args and args[0] == "posterior":
+        obs = Path(os.environ.get("TMPDIR", "/tmp")) / f"lightfit-resume-obs-{os.getpid()}.csv"
+        obs.write_text(OBS_HEADER + OBS_ROWS, encoding="utf-8")
+        args = [args[0], str(obs), *args[1:]]
     if kill_after:
         env["LIGHTFIT_TEST_KILL_AFTER"] = kill_after
     cmd = [sys.executable, "-m", "lightfit.cli", *args, *([] if out is None else ["--out", str(out)])]
@@ -54,6 +64,11 @@ def lightfit(args, out: Path | None, kill_after: str | None = None, wait: bool =
         return p
     output, _ = p.communicate(timeout=600)
     return p.returncode, output
+
+
+def renders(out: Path) -> list[Path]:
+    """Design renders kept in the run's design cache."""
+    return list((out / "cache" / "designs").glob("*/renders/*.npz"))
 
 
 def iteration(path: Path) -> int:
@@ -105,7 +120,7 @@ def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, t
     out = tmp_path / "killed"
     # 1. during the emulator design, after 3 of its 6 renders
     rc, output = lightfit(POSTERIOR, out, kill_after="render:3")
-    assert rc == 137 and not (out / "emulator.npz").exists() and len(list((out / "renders").glob("*.npz"))) == 3
+    assert rc == 137 and not (out / "emulator.npz").exists() and len(renders(out)) == 3
     # 2. a real SIGKILL from outside while sampling (after at least one stop-rule check at step 50)
     p = lightfit(POSTERIOR, out, wait=False)
     deadline = time.time() + 300
@@ -116,7 +131,7 @@ def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, t
     killed_at = iteration(out / "run.h5")
     assert 60 <= killed_at < 600, killed_at
     # rendering resumed: the design has all 6 renders now (3 kept from the first attempt)
-    assert len(list((out / "renders").glob("*.npz"))) == 6
+    assert len(renders(out)) == 6
     # 3. right after step 600 is stored, before its stop-rule check (the check a resumed run must not skip)
     rc, output = lightfit(POSTERIOR, out, kill_after="sample:600")
     assert rc == 137, output
@@ -142,14 +157,14 @@ def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, t
 def test_n_design_change_rebuilds_the_emulator(reference, tmp_path):
     ref, _, _ = reference
     out = tmp_path / "n7"
-    shutil.copytree(ref / "renders", out / "renders")
+    shutil.copytree(ref / "cache", out / "cache")
     shutil.copy(ref / "emulator.npz", out / "emulator.npz")
     args = [*POSTERIOR, "--n-design", "7", "--max-steps", "5"]
     rc, output = lightfit(args, out)
     assert rc == 0, output
     assert "was built for other settings (n_design: 6 → 7" in output.replace("\n", "")
     assert len(P.load_run(out / "run.h5")["chain"]) == 5
-    assert len(list((out / "renders").glob("*.npz"))) == 7  # the 6 renders of the old design reused
+    assert len(renders(out)) == 7  # the 6 renders of the old design reused
     with np.load(out / "emulator.npz") as z:
         assert len(z["design"]) == 7
     # resuming that chain on an emulator of another design is refused with one line
@@ -162,15 +177,11 @@ def test_n_test_negative_is_refused(tmp_path):
     assert rc == 2 and "n_test=-1" in output and "Traceback" not in output
 
 
-CALIBRATE = ["calibrate", None, *MODEL, "--parameters", "specular", "--max-steps", "4"]
+CALIBRATE = ["calibrate", None, *MODEL, "--parameters", "specular", "--max-steps", "4", "--no-surrogate"]
 
 
 def _observations(path: Path) -> Path:
-    path.write_text(
-        "# provenance: synthetic\n# note: resume test\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
-        "2016-04-20T09:00:00Z,300,20\n2016-04-20T09:30:00Z,350,20\n2016-04-20T10:00:00Z,400,20\n",
-        encoding="utf-8",
-    )
+    path.write_text(OBS_HEADER + OBS_ROWS, encoding="utf-8")
     return path
 
 
@@ -193,3 +204,23 @@ def test_calibrate_killed_and_rerun_reaches_the_same_optimum_and_history(tmp_pat
     for k in ("theta", "loss", "steps", "evaluations", "gradients", "stopped_by", "reason"):
         assert a[k] == b[k], k
     assert "accepted steps" in output and "stopped:" in output
+
+
+def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_run(tmp_path):
+    """The surrogate calibration (default) keeps every render in the design cache: killed after its third
+    design render and rerun, it renders only the rest and ends with the uninterrupted run's rounds and optimum."""
+    args = [*CALIBRATE[:-1], "--n-design", "6"]
+    args[1] = str(_observations(tmp_path / "obs.csv"))
+    rc, output = lightfit(args, tmp_path / "ref")
+    assert rc == 0, output
+    assert "full-render check" in output and "passed" in output
+    rc, output = lightfit(args, tmp_path / "killed", kill_after="render:3")
+    assert rc == 137 and len(renders(tmp_path / "killed")) == 3, output
+    rc, output = lightfit(args, tmp_path / "killed")
+    assert rc == 0, output
+    a, b = (json.loads((tmp_path / d / "calibration.json").read_text()) for d in ("ref", "killed"))
+    assert a["theta"] == b["theta"] and a["loss"] == b["loss"]
+    strip = [{k: v for k, v in r.items() if k != "seconds"} for r in a["surrogate"]["rounds"]]
+    assert strip == [{k: v for k, v in r.items() if k != "seconds"} for r in b["surrogate"]["rounds"]]
+    assert a["surrogate"]["passed"] and a["surrogate"]["renders_new"] == 6 + len(strip)
+    assert b["surrogate"]["renders_cached"] == 3 and b["surrogate"]["renders_new"] == 3 + len(strip)

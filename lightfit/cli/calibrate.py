@@ -29,14 +29,29 @@ def calibrate(
     resume: bool = typer.Option(
         True, help="Continue the run in OUT if present (exactly, from its saved optimiser state)."
     ),
+    surrogate: bool = typer.Option(
+        True,
+        "--surrogate/--no-surrogate",
+        help="Optimise on the render emulator (the design lightfit posterior uses, cached), checked by full "
+        "renders at the optimum (default); --no-surrogate renders at every loss evaluation.",
+    ),
+    n_design: int = typer.Option(
+        None, help="Emulator design renders (default: the size lightfit posterior uses, so both share one design)."
+    ),
+    max_rounds: int = typer.Option(6, help="Surrogate rounds at most (each adds one render at its optimum)."),
+    priors: str = typer.Option("informed", help="Prior set whose leaf-parameter support is the emulator's box."),
+    cache: Path = typer.Option(None, help="Design cache (default: $LIGHTFIT_CACHE or ~/.cache/lightfit)."),
     *,
     model: ModelOptions,
 ) -> None:
     """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64)."""
+    from lightfit.inference import mcmc as P
     from lightfit.inference.calibration import METHODS
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import resolve_use
     from lightfit.inference.observations import read_observations
+    from lightfit.inference.trust_region import observed_model, surrogate_calibrate
+    from lightfit.model import emulator as E
     from lightfit.model.parameters import check_names
     from lightfit.precision import precision
 
@@ -44,6 +59,13 @@ def calibrate(
     # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
+    if priors not in P.PRIOR_SETS:
+        raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
+    n_design = E.DESIGN_SIZE if n_design is None else n_design
+    if surrogate and n_design < 5:
+        raise InputError(f"n_design={n_design}", column="n-design", expected="at least 5 design renders")
+    if max_rounds < 1:
+        raise InputError(f"max_rounds={max_rounds}", column="max-rounds", expected="at least 1")
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters))
     th0 = parse_theta(start)
@@ -61,43 +83,80 @@ def calibrate(
     m = coupled_model(s, weather(s))
     out.mkdir(parents=True, exist_ok=True)
     settings.write_text(json.dumps({"config": s.as_dict()}, indent=2))
-    res = run_calibration(
-        m,
-        obs,
-        names=names,
-        start=th0,
-        method=method,
-        use=uses,
-        max_steps=max_steps,
-        history=out / "history.jsonl",
-        resume=resume,
-        say=lambda x: console.print(x),
-    )
-    (out / "calibration.json").write_text(
-        json.dumps(
-            {
-                "theta": res.theta,
-                "loss": res.loss,
-                "steps": res.steps,
-                "evaluations": res.evaluations,
-                "gradients": res.gradients,
-                "stopped_by": res.stopped_by,
-                "reason": res.reason,
-                "converged": bool(res.converged),
-                "method": res.method,
-                "use": list(uses),
-                "seconds": res.seconds,
-                "observations": str(observations),
-                "parameters": list(names),
-                "config": s.as_dict(),
-                "precision": precision(),
-            },
-            indent=2,
+    say = lambda x: console.print(x)  # noqa: E731
+    tr = None
+    if surrogate:
+        box = P.PRIOR_SETS[priors]
+        lo = [box[n].support[0] for n in E.LEAF_PARAMETERS]
+        hi = [box[n].support[1] for n in E.LEAF_PARAMETERS]
+        tr = surrogate_calibrate(
+            m,
+            obs,
+            names=names,
+            start=th0,
+            use=uses,
+            lo=lo,
+            hi=hi,
+            n_design=n_design,
+            cache=cache,
+            out=out / "trust_region",
+            max_rounds=max_rounds,
+            method=method,
+            max_steps=max_steps,
+            say=say,
         )
-    )
+        res = tr.result
+    else:
+        m, obs, _ = observed_model(m, obs, uses)  # render only the steps the observations need
+        res = run_calibration(
+            m,
+            obs,
+            names=names,
+            start=th0,
+            method=method,
+            use=uses,
+            max_steps=max_steps,
+            history=out / "history.jsonl",
+            resume=resume,
+            say=say,
+        )
+    record = {
+        "theta": res.theta,
+        "loss": res.loss,
+        "steps": res.steps,
+        "evaluations": res.evaluations,
+        "gradients": res.gradients,
+        "stopped_by": res.stopped_by,
+        "reason": res.reason,
+        "converged": bool(res.converged),
+        "method": res.method,
+        "use": list(uses),
+        "seconds": res.seconds if tr is None else tr.seconds,
+        "observations": str(observations),
+        "parameters": list(names),
+        "config": s.as_dict(),
+        "precision": precision(),
+    }
+    if tr is not None:
+        record["surrogate"] = {
+            "mode": tr.mode,
+            "passed": tr.passed,
+            "criterion": f"|full-render loss - surrogate loss| <= {tr.z:g} sigma_L at the optimum "
+            "(sigma_L: Monte Carlo SD of the loss, lightfit.inference.trust_region)",
+            "loss_full": tr.loss_full,
+            "renders_new": tr.rendered,
+            "renders_cached": tr.cached,
+            "sun_positions_rendered": tr.steps_rendered,
+            "n_design": n_design,
+            "box": {"lo": lo, "hi": hi, "priors": priors},
+            "design_dir": None if tr.design_dir is None else str(tr.design_dir),
+            "rounds": tr.rounds,
+        }
+    (out / "calibration.json").write_text(json.dumps(record, indent=2))
     t = Table(
-        title=f"calibration ({res.method}: {res.steps} accepted steps, {res.evaluations} loss and "
-        f"{res.gradients} gradient evaluations, {res.seconds:.0f} s)",
+        title=f"calibration ({res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}: "
+        f"{res.steps} accepted steps, {res.evaluations} loss and {res.gradients} gradient evaluations, "
+        f"{record['seconds']:.0f} s)",
         caption=f"stopped: {res.reason}",
     )
     t.add_column("parameter")
@@ -106,7 +165,36 @@ def calibrate(
         t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
     t.add_row("loss (Gaussian NLL)", f"{res.loss:.4g}")
     console.print(t)
+    if tr is not None:
+        _print_check(tr)
     console.print(
-        f"[green]wrote[/] {out / 'calibration.json'}, {out / 'history.jsonl'}; "
+        f"[green]wrote[/] {out / 'calibration.json'}, {out / ('trust_region' if tr else 'history.jsonl')}; "
         f"rerun `lightfit replicate --theta {out / 'calibration.json'}` to see the fit"
     )
+
+
+def _print_check(tr) -> None:
+    """The full-render check of a surrogate calibration, one row per round."""
+    if tr.mode != "surrogate":
+        console.print(f"full-render check: not needed ({tr.mode}; the loss was exact); renders: {tr.rendered} new")
+        return
+    t = Table(
+        title=f"full-render check at the optimum ({tr.rendered} new renders, {tr.cached} from the cache, "
+        f"{tr.steps_rendered} sun positions each)",
+        caption=f"passes when |full − surrogate| ≤ {tr.z:g} σ_L (σ_L: Monte Carlo SD of the loss); "
+        + ("[green]passed[/]" if tr.passed else "[red]not passed within --max-rounds[/]"),
+    )
+    for c in ("round", "design", "degree", "surrogate loss", "full-render loss", "σ_L", "|Δ|/σ_L", "check"):
+        t.add_column(c, justify="right")
+    for r in tr.rounds:
+        t.add_row(
+            str(r["round"]),
+            str(r["design"]),
+            str(r["degree"]),
+            f"{r['loss_surrogate']:.4g}",
+            f"{r['loss_full']:.4g}",
+            f"{r['loss_sd']:.3g}",
+            f"{r['difference_over_sd']:.2f}",
+            "passed" if r["passed"] else "refine",
+        )
+    console.print(t)

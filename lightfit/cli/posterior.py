@@ -38,9 +38,14 @@ def posterior(
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
     max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),
     sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
-    n_design: int = typer.Option(40, help="Full renders for the emulator design (cached in OUT)."),
+    n_design: int = typer.Option(
+        None,
+        help="Full renders for the emulator design (default: the size lightfit calibrate uses; kept in the "
+        "shared design cache, so a calibration's design serves the posterior).",
+    ),
     n_test: int = typer.Option(4, help="Held-out full renders measuring the emulator error (0: no check)."),
     resume: bool = typer.Option(True, help="Continue the run in OUT/run.h5 if present."),
+    cache: Path = typer.Option(None, help="Design cache (default: $LIGHTFIT_CACHE or ~/.cache/lightfit)."),
     analysis: bool = typer.Option(
         True, help="After sampling, the analysis (optimum, Fisher, profile, predictive, emulator error)."
     ),
@@ -54,10 +59,12 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import resolve_use
     from lightfit.inference.observations import read_observations
+    from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
 
     s = resolve(model)
+    n_design = E.DESIGN_SIZE if n_design is None else n_design
     if n_test < 0:
         raise InputError(f"n_test={n_test}", column="n-test", expected="0 (no emulator check) or more held-out renders")
     if priors not in P.PRIOR_SETS:
@@ -71,6 +78,8 @@ def posterior(
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
         check_resumable(P.load_run(out / "run.h5")["attrs"].get("config"), s, out / "run.h5", "posterior run")
     m = coupled_model(s, weather(s))
+    # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
+    m, obs, n_rendered = observed_model(m, obs, uses)
     lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
     hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]
     out.mkdir(parents=True, exist_ok=True)
@@ -84,15 +93,23 @@ def posterior(
                 file=out / "run.h5",
                 expected="the run's --n-design and model settings, --no-resume to start again, or another --out",
             )
-    # Design and held-out renders are kept one by one in OUT/renders (an interrupted design continues
-    # where it stopped); the emulator is refitted whenever its key (design, box, scene) changed.
-    emu = E.cached_emulator(
-        m, out / "emulator.npz", lo, hi, n_design=n_design, seed=0, progress=True, say=lambda x: console.print(x)
+    # Design and held-out renders are kept one by one in the shared design cache (an interrupted design
+    # continues where it stopped, and lightfit calibrate's design of the same configuration is reused);
+    # the emulator is refitted whenever its key (design, box, scene) changed. OUT/emulator.npz is the run's copy.
+    counts = dict(E.COUNTS)
+    emu = E.shared_emulator(
+        m, lo, hi, n_design=n_design, seed=0, cache=cache, progress=True, say=lambda x: console.print(x)
     )
+    emu.save(out / "emulator.npz")
     val = None
-    if n_test > 0 and analysis:
+    if n_test > 0 and analysis and n_rendered > 0:
         leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
-        val = (leaf_test, E.render_parts(m, leaf_test, progress=True, cache=out / "renders"))
+        renders = E.design_dir(m, cache) / "renders"
+        val = (leaf_test, E.render_parts(m, leaf_test, progress=True, cache=renders))
+    console.print(
+        f"design: {E.COUNTS['rendered'] - counts['rendered']} new renders, {E.COUNTS['cached'] - counts['cached']} "
+        f"from the cache ({n_rendered} sun positions each; {E.design_dir(m, cache)})"
+    )
     res = A.run(
         m,
         obs,

@@ -164,6 +164,9 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
         raise InputError(
             "no points to render", column="leaf", expected="at least one (specular, roughness, subsurface)"
         )
+    if not np.asarray(model.day).any():  # no step needs the light at the plants (see restrict): nothing to render
+        empty = np.zeros((len(leaf), 0, len(PARTS), len(model.segment_id)))
+        return empty, empty.copy(), 0.0
     cache = None if cache is None else Path(cache)
     rkey = json.dumps(key or render_key(model), sort_keys=True) if cache is not None else ""
     vals, ses, seconds, fresh = [], [], 0.0, 0
@@ -341,7 +344,11 @@ def build_emulator(
         design = np.concatenate([design, np.asarray(extra, float).reshape(-1, 3)])
     rkey = render_key(model) if cache is not None else None
     v, s, seconds = _render_parts(model, design, progress, cache, rkey)
-    emu = fit_emulator(design, v, s, lo, hi, degrees, seconds, model.scenario.seed)
+    if v.shape[1] == 0:  # nothing rendered (no step needs it): the constant zero, exact
+        z = np.zeros((1, *v.shape[1:]))
+        emu = PartsEmulator(lo, hi, 0, z, z.copy(), design, {}, 0.0, model.scenario.seed)
+    else:
+        emu = fit_emulator(design, v, s, lo, hi, degrees, seconds, model.scenario.seed)
     if rkey is not None:
         emu.key = emulator_key(rkey, lo, hi, n_design, seed, degrees, extra)
     return emu
