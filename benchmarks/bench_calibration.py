@@ -28,6 +28,16 @@ finite-difference gradient with the same fixed random numbers (equal accuracy: w
 sampling both differentiate the same smooth estimate). A full three-parameter calibration is
 timed for the configurations given in ``--calibrate`` (others: estimated as measured time per
 evaluation × the evaluations the quick calibration needed).
+
+**Surrogate commands** (``--cli quick`` or ``--cli default``; writes
+benchmarks/results/calibration_cli_<config>.json): the real ``lightfit calibrate`` and ``lightfit
+posterior`` commands as subprocesses on one configuration, observations = the bundled chamber
+record (above-canopy sensor: informs only the light factor) merged with the synthetic twin series
+(plant PAR + canopy An at the 25 daytime steps), parameters specular, roughness, subsurface,
+light_factor. Timed in order, with a fresh ``LIGHTFIT_CACHE`` (so plants and design are cold):
+(1) calibrate cold, (2) the same calibrate again into a new OUT (design cached), (3) posterior on
+the same configuration after the calibration (design cached), (4) posterior with another fresh
+cache (cold). Reported: wall times, new/cached renders, the full-render check, ESS at stop.
 """
 
 from __future__ import annotations
@@ -232,13 +242,90 @@ def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
     return rows
 
 
+def cli(config: str, n_design: int | None = None, max_minutes: float = 30.0) -> dict:
+    """The surrogate commands benchmark (see the module docstring)."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    import pandas as pd
+
+    from lightfit.inference.observations import read_observations
+
+    work = Path(tempfile.mkdtemp(prefix="bench-cli-"))
+    data = Path(rep.OBSERVATIONS).parent
+    a, b = read_observations(rep.OBSERVATIONS), read_observations(data / "twin_2016-04-20_synthetic.csv")
+    both = pd.concat([a, b]).sort_index()
+    both.index = both.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ")
+    obs = work / "chamber_plus_twin.csv"
+    with open(obs, "w", encoding="utf-8") as fh:
+        fh.write("# provenance: synthetic\n# note: bundled chamber record (measured) + synthetic twin series\n")
+        both.to_csv(fh, index_label="time")
+    size = ["--quick"] if config == "quick" else []
+    names = "specular,roughness,subsurface,light_factor"
+    design = [] if n_design is None else ["--n-design", str(n_design)]
+
+    def run(args, cache):
+        env = {**os.environ, "LIGHTFIT_CACHE": str(cache), "COLUMNS": "200"}
+        t0 = time.perf_counter()
+        p = subprocess.run([sys.executable, "-m", "lightfit.cli", *args], env=env, capture_output=True, text=True)
+        dt = time.perf_counter() - t0
+        if p.returncode != 0:
+            raise RuntimeError(p.stdout[-3000:] + p.stderr[-3000:])
+        Console(width=200).print(p.stdout[-2500:])
+        return dt
+
+    cal = ["calibrate", str(obs), *size, *design, "--parameters", names]
+    post = ["posterior", str(obs), *size, *design, "--parameters", names, "--max-minutes", str(max_minutes)]
+    res = {"config": config, "observations": "chamber record + synthetic twin (plant_par, canopy_an)"}
+    res["calibrate_cold_s"] = run([*cal, "--out", str(work / "cal1")], work / "cache")
+    res["calibrate_cached_s"] = run([*cal, "--out", str(work / "cal2")], work / "cache")
+    c = json.loads((work / "cal1" / "calibration.json").read_text())
+    c2 = json.loads((work / "cal2" / "calibration.json").read_text())
+    res["calibration"] = {k: c[k] for k in ("theta", "loss", "steps", "stopped_by")} | {
+        "check": {k: v for k, v in c["surrogate"].items() if k != "rounds"},
+        "rounds": c["surrogate"]["rounds"],
+        "cached_run_renders_new": c2["surrogate"]["renders_new"],
+    }
+    res["posterior_after_calibrate_s"] = run([*post, "--out", str(work / "post1")], work / "cache")
+    res["posterior_cold_s"] = run([*post, "--out", str(work / "post2")], work / "cache_cold")
+    for tag in ("post1", "post2"):
+        sm = json.loads((work / tag / "summary.json").read_text())
+        res[tag] = {k: sm.get(k) for k in ("stopped_by", "n_steps", "ess", "tau", "seconds_sampling", "seconds_total")}
+    out = OUT.with_name(f"calibration_cli_{config}.json")
+    out.write_text(json.dumps(res, indent=2, default=str))
+    t = Table(title=f"lightfit calibrate / posterior on the emulator ({config}, 2 CPU cores, one run)")
+    for col in ("stage", "wall s", "notes"):
+        t.add_column(col)
+    chk = res["calibration"]["check"]
+    t.add_row(
+        "calibrate, cold cache",
+        f"{res['calibrate_cold_s']:.0f}",
+        f"{chk['renders_new']} renders; check {'passed' if chk['passed'] else 'NOT passed'}",
+    )
+    new2 = c2["surrogate"]["renders_new"]
+    t.add_row("calibrate, design cached", f"{res['calibrate_cached_s']:.0f}", f"{new2} renders")
+    for tag, label in (("post1", "posterior after calibrate"), ("post2", "posterior, cold cache")):
+        key = "posterior_after_calibrate_s" if tag == "post1" else "posterior_cold_s"
+        ess = res[tag]["ess"] or []
+        low = min(ess) if ess else float("nan")
+        t.add_row(label, f"{res[key]:.0f}", f"{res[tag]['stopped_by']}, min ESS {low:.0f}")
+    Console().print(t)
+    return res
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gradients", default=None, help="configurations for the gradient-cost benchmark, e.g. quick")
     ap.add_argument("--calibrate", default="quick", help="with --gradients: also time a BFGS calibration here")
     ap.add_argument("--n-design", type=int, default=24, help="full renders for the emulator (optimisers)")
+    ap.add_argument("--cli", default=None, help="time the surrogate calibrate/posterior commands: quick or default")
+    ap.add_argument("--design", type=int, default=None, help="with --cli: --n-design (default: the shared size)")
     a = ap.parse_args()
-    if a.gradients:
+    if a.cli:
+        cli(a.cli, a.design)
+    elif a.gradients:
         main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x))
     else:
         res = optimisers(a.n_design)

@@ -58,6 +58,7 @@ from lightfit.light.estimator import PARTS
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
+from lightfit.plant.cache import ENV_CACHE
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
 DEGREES = (1, 2, 3, 4, 5)
@@ -426,7 +427,7 @@ def cached_emulator(
 
 
 #: Environment variable naming the shared cache directory (default ``~/.cache/lightfit``).
-CACHE_ENV = "LIGHTFIT_CACHE"
+CACHE_ENV = ENV_CACHE
 
 #: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
 #: emulator, so one command's design serves the other).
