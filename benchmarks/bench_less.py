@@ -36,7 +36,8 @@ same cores), reads back LESS's absorbed irradiance per triangle side and compare
   ``scene.simulate``; scene building apart) at two sample counts each; the median relative SE
   follows c·n^(−p) (p fitted, ≈ 0.5) and the time a + b·n, which give each tool's time to a
   median relative SE of ``--target`` on blades and on stems; the ratio LESS ÷ lightfit is the
-  speed-up. Both use every core of this machine (Dr.Jit and Embree threads).
+  speed-up. Both use every core of this machine (Dr.Jit and Embree threads), taking turns
+  replicate by replicate so that they meet the same load.
 - **Periodic cell** (``--boundary periodic``): lightfit's periodic cell (ray wrapping, periodic
   images of overhanging faces) against LESS's "repetitive scene" on the same cell: LESS
   receives lightfit's periodic images (faces reaching into the cell, shifted by whole periods)
@@ -46,7 +47,8 @@ same cores), reads back LESS's absorbed irradiance per triangle side and compare
   the sky part is about three times lightfit's (stems far more), and with a larger cap
   (``LIGHTFIT_LESS_WRAP_CAP=1000``) the sun part vanishes (docs/light.md, "Peer: LESS 3").
 
-Writes benchmarks/results/less.json and prints a table.
+Writes benchmarks/results/less.json (a boundary not run this time keeps its last run under
+``earlier_runs``, with that run's conditions) and prints a table.
 """
 
 from __future__ import annotations
@@ -267,24 +269,25 @@ def _run_in(
 ) -> dict:
     exp = export(geom, boundary, folder, runs)
     console.print(f"[{boundary}] {n_seg} segments, {geom.mesh.n_faces} faces ({exp['n_exported']} exported to LESS)")
-    t = time.perf_counter()
-    proc = subprocess.run([str(LESS_PYTHON), str(RUNNER), str(folder)], capture_output=True, text=True)
-    less_wall = time.perf_counter() - t
-    if proc.returncode != 0:
-        raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
-
-    # lightfit runs: one warm-up (kernel compilation), then R seeds per K.
+    # Taking turns, replicate by replicate, so that both tools meet the same load on the shared
+    # cores: LESS (one process per replicate: one face order, one scene build), then lightfit's
+    # seed r at every K, after one lightfit warm-up render (kernel compilation).
     t = time.perf_counter()
     SegmentEstimator(fs, seg_ids, samples=min(lf_k), bounces=BOUNCES, seed=0).render()
     warmup_s = time.perf_counter() - t
-    lf = {}
-    for k in lf_k:
-        out = []
-        for s in range(1, reps + 1):
+    lf = {k: [] for k in lf_k}
+    less_wall = 0.0
+    for rep in range(1, reps + 1):
+        t = time.perf_counter()
+        proc = subprocess.run([str(LESS_PYTHON), str(RUNNER), str(folder), str(rep)], capture_output=True, text=True)
+        less_wall += time.perf_counter() - t
+        if proc.returncode != 0:
+            raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+        for k in lf_k:
             t = time.perf_counter()
-            r = SegmentEstimator(fs, seg_ids, samples=k, bounces=BOUNCES, seed=s).render()
-            out.append((time.perf_counter() - t, r))
-        lf[k] = out
+            r = SegmentEstimator(fs, seg_ids, samples=k, bounces=BOUNCES, seed=rep).render()
+            lf[k].append((time.perf_counter() - t, r))
+        console.print(f"[{boundary}] replicate {rep}/{reps} done, load average {os.getloadavg()[0]:.1f}")
 
     blade = np.zeros(n_seg, bool)
     np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
@@ -390,6 +393,14 @@ def main(n_plants, boundaries, less_n, lf_k, reps, target) -> dict | None:
     for b in boundaries:
         res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console)
     res["load_average_end"] = os.getloadavg()[0]
+    if OUT.exists():  # keep the last run of a boundary not run now, with its own conditions
+        old = json.loads(OUT.read_text())
+        earlier = {b: r for b, r in old.get("earlier_runs", {}).items() if b not in boundaries}
+        for b, r in old.get("results", {}).items():
+            if b not in boundaries:
+                earlier[b] = {**{k: v for k, v in old.items() if k not in ("results", "earlier_runs")}, "result": r}
+        if earlier:
+            res["earlier_runs"] = earlier
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2))
     print_tables(res, console)

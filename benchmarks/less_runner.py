@@ -1,6 +1,6 @@
 """Run LESS 3 (``less3d``) on a field exported by ``benchmarks/bench_less.py``.
 
-    /work/main/.venv-less/bin/python benchmarks/less_runner.py EXPORT_DIR
+    .venv-less/bin/python benchmarks/less_runner.py EXPORT_DIR [PERMUTATION_SEED]
 
 Runs under the separate LESS environment (``.venv-less``, see README "Optional: LESS 3 peer"):
 it imports ``less`` and numpy only, never lightfit. LESS is a benchmark peer, never a lightfit
@@ -74,7 +74,8 @@ def write_obj(path: Path, triangles: np.ndarray, ground: np.ndarray, width_m: fl
         fh.write(f"g soil\nf {g} {g + 1} {g + 2}\nf {g} {g + 2} {g + 3}\n")
 
 
-def main(export: Path) -> None:
+def main(export: Path, only_seed: int | None = None) -> None:
+    """Run the job's runs (only those of ``only_seed``, one face order, when given)."""
     import less
     from less.spectral_profile import SpectralBand, SpectralProfile
 
@@ -91,6 +92,8 @@ def main(export: Path) -> None:
     built: dict[int, tuple] = {}
     for run in job["runs"]:
         seed = int(run["permutation_seed"])
+        if only_seed is not None and seed != only_seed:
+            continue
         if seed not in built:
             built.clear()  # one scene at a time (memory)
             perm = np.arange(n) if seed == 0 else np.random.default_rng(seed).permutation(n)
@@ -140,6 +143,6 @@ def main(export: Path) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 2:
-        sys.exit("usage: less_runner.py EXPORT_DIR")
-    main(Path(sys.argv[1]))
+    if len(sys.argv) not in (2, 3):
+        sys.exit("usage: less_runner.py EXPORT_DIR [PERMUTATION_SEED]")
+    main(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) == 3 else None)
