@@ -276,7 +276,9 @@ def cli(config: str, n_design: int | None = None, max_minutes: float = 30.0) -> 
         Console(width=200).print(p.stdout[-2500:])
         return dt
 
-    cal = ["calibrate", str(obs), *size, *design, "--parameters", names]
+    # L-BFGS-B: BFGS's first step on log(light_factor) with an identity Hessian jumps by the raw gradient
+    # (≈ 1e4 here, loss ≈ 7e3 at the start) to an infinite light factor and its linear solve gets NaN
+    cal = ["calibrate", str(obs), *size, *design, "--parameters", names, "--method", "lbfgsb"]
     post = ["posterior", str(obs), *size, *design, "--parameters", names, "--max-minutes", str(max_minutes)]
     res = {"config": config, "observations": "chamber record + synthetic twin (plant_par, canopy_an)"}
     res["calibrate_cold_s"] = run([*cal, "--out", str(work / "cal1")], work / "cache")

@@ -97,6 +97,11 @@ def posterior(
     # continues where it stopped, and lightfit calibrate's design of the same configuration is reused);
     # the emulator is refitted whenever its key (design, box, scene) changed. OUT/emulator.npz is the run's copy.
     counts = dict(E.COUNTS)
+    if (out / "emulator.npz").exists():  # the run's copy: say what changed since this run's last design
+        before = E.PartsEmulator.load(out / "emulator.npz").key
+        if before != emu_key:
+            changes = "; ".join(E.key_changes(before, emu_key)) if before else "no key (written by an older lightfit)"
+            console.print(f"emulator {out / 'emulator.npz'} was built for other settings ({changes}): rebuilding")
     emu = E.shared_emulator(
         m, lo, hi, n_design=n_design, seed=0, cache=cache, progress=True, say=lambda x: console.print(x)
     )
