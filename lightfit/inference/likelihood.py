@@ -32,11 +32,39 @@ of the renderer's noise, not something to optimise: otherwise the optimiser woul
 for parameters that merely make the renders noisier). So
 :math:`\mathcal L_{cal} = -\log L - \tfrac12\sum_k \log(2\pi v_k)` at λ = 1, and the gradient of
 both is the same. The posterior samples λ and therefore needs the normalisation.
+
+**Correlated Monte Carlo error** (``mc_correlation``, docs/posterior.md "Monte Carlo covariance").
+The renderer reuses a segment's random numbers at every time step, so its error is shared across
+steps (the sky part's exactly) and across series: the steps are not independent. With the
+observed entries of all used series stacked into one vector (series blocks in :data:`SERIES`
+order, steps in time order), the covariance is
+
+.. math::
+
+    \Sigma(\theta, \lambda) = \lambda^2\,\mathrm{diag}(\sigma^2)
+        + c\,\mathrm{diag}(s(\theta))\, C\, \mathrm{diag}(s(\theta)),
+
+with the model's Monte Carlo SDs s(θ) as above, their correlation C (:class:`MCCorrelation`, from
+:func:`mc_correlation`: fixed, computed once at a reference θ), and ``mc_scale`` c (1 for measured
+data; 2 for twin observations that are themselves renders at the model's samples from another
+seed: their error adds a second, independent copy). With the Cholesky factor
+:math:`\Sigma = L L^\top`,
+
+.. math::
+
+    w = L^{-1} r, \qquad \log L(\theta, \lambda) = -\tfrac12\Big[\|w\|^2 + n \log 2\pi
+        + 2 \sum_i \log L_{ii}\Big],
+
+:math:`\mathcal L_{cal} = \tfrac12\|w\|^2`, and :math:`w` takes the place of the whitened
+residuals (``‖w‖² = rᵀΣ⁻¹r``, so the Fisher information JᵀJ of :mod:`.identifiability` is
+unchanged in form). Without ``mc_correlation`` (C = I) this is the diagonal form above, computed
+without a factorisation.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -44,7 +72,9 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.inference.observations import ALIASES, SERIES, align, observed, series
+from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, observed, series
+from lightfit.model.observe import mc_covariance
+from lightfit.model.parameters import as_theta
 
 #: Short names of the series a likelihood can use, in order.
 USES = tuple(s.name for s in SERIES)
@@ -68,6 +98,68 @@ def resolve_use(use: Sequence[str] | None, obs: pd.DataFrame | None = None) -> t
     return tuple(n for n in USES if n in names)
 
 
+#: Shrinkage of a Monte Carlo correlation towards the identity, C ← (1 − ε) C + ε I: the sky
+#: error is one number per segment, so C can be singular (exactly degenerate modes); ε keeps Σ
+#: positive definite when the measurement SDs are tiny (λ → 0) without changing any variance.
+MC_CORRELATION_JITTER = 1e-9
+
+
+@dataclass(frozen=True)
+class MCCorrelation:
+    """Correlation of the model's Monte Carlo errors across the series ``names`` and ``n_steps``
+    time steps: ``matrix`` (len(names)·T, len(names)·T), blocks of T steps in the order of
+    ``names`` (short series names of :data:`~lightfit.inference.observations.SERIES`); diagonal 1,
+    entries of quantities without Monte Carlo error (night steps, the above-canopy sensor) 0 off
+    the diagonal. ``theta``: the parameters it was computed at."""
+
+    names: tuple[str, ...]
+    n_steps: int
+    matrix: np.ndarray
+    theta: dict | None = None
+
+    def select(self, names: Sequence[str]) -> np.ndarray:
+        """The correlation of the series ``names`` (a sub-matrix, blocks in that order)."""
+        missing = [n for n in names if n not in self.names]
+        if missing:
+            raise InputError(
+                f"Monte Carlo correlation lacks series {missing}",
+                column="mc_correlation",
+                expected="a correlation computed for the used series " + ", ".join(names),
+            )
+        T = self.n_steps
+        idx = np.concatenate([self.names.index(n) * T + np.arange(T) for n in names])
+        return self.matrix[np.ix_(idx, idx)]
+
+
+def correlation_of(cov: np.ndarray, jitter: float = MC_CORRELATION_JITTER) -> np.ndarray:
+    """Correlation matrix of a covariance; rows with zero variance get 1 on the diagonal, 0 off it;
+    shrunk by ``jitter`` towards the identity (:data:`MC_CORRELATION_JITTER`)."""
+    cov = np.asarray(cov, np.float64)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    pos = sd > 0
+    inv = np.where(pos, 1.0 / np.where(pos, sd, 1.0), 0.0)
+    c = cov * inv[:, None] * inv[None, :]
+    np.fill_diagonal(c, 1.0)
+    return (1.0 - jitter) * c + jitter * np.eye(len(c))
+
+
+def mc_correlation(model, theta=None, names: Sequence[str] | None = None, parts=None) -> MCCorrelation:
+    """Correlation of the Monte Carlo errors of ``model``'s observables at ``theta``.
+
+    The covariance is :func:`lightfit.model.observe.mc_covariance` (sky error shared by all steps,
+    sun errors per step) of the light parts ``parts = (values, se)`` (default ``model.parts(theta)``:
+    a full render, or the emulator's parts for a model with emulated light), through the model's
+    observation operator with the exact leaf photosynthesis. ``names``: series (default all of
+    :data:`~lightfit.inference.observations.SERIES`). Cost: one forward pass and one reverse pass
+    per series.
+    """
+    theta = as_theta(theta)
+    names = tuple(series(n).name for n in (names or USES))
+    values, se = model.parts(theta) if parts is None else parts
+    cov = mc_covariance(model.operator, values, se, theta, [BY_NAME[n].value for n in names])
+    return MCCorrelation(names, len(model.times), correlation_of(cov), theta.to_dict())
+
+
 class GaussianLikelihood:
     """Observations aligned to a run's time steps, and the Gaussian likelihood of model outputs.
 
@@ -76,14 +168,28 @@ class GaussianLikelihood:
         times: the run's time steps (``model.times``).
         use: which series enter (names of :data:`USES` or their aliases ``par``, ``an``); ``None``:
             every series the observations have a value of.
+        mc_correlation: correlation of the model's Monte Carlo errors (:func:`mc_correlation`),
+            covering at least the used series; ``None``: independent errors (diagonal covariance).
+        mc_scale: c ≥ 0, multiplies the model's Monte Carlo variance (1: measured observations;
+            2: twin observations rendered at the model's samples with another seed).
 
     Raises :class:`InputError` when an observation lies outside the run or no observation of the
     used series falls on a simulated step.
     """
 
-    def __init__(self, obs: pd.DataFrame, times: pd.DatetimeIndex, use: Sequence[str] | None = None):
+    def __init__(
+        self,
+        obs: pd.DataFrame,
+        times: pd.DatetimeIndex,
+        use: Sequence[str] | None = None,
+        *,
+        mc_correlation: MCCorrelation | None = None,
+        mc_scale: float = 1.0,
+    ):
         if use is not None and (isinstance(use, str) or not tuple(use)):
             raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
+        if not (np.isfinite(mc_scale) and mc_scale >= 0):
+            raise InputError(f"mc_scale={mc_scale!r}", column="mc_scale", expected="a finite number ≥ 0")
         use = resolve_use(use, obs)
         target = align(obs, times)
         requested = tuple(s for s in SERIES if s.name in use)
@@ -104,36 +210,89 @@ class GaussianLikelihood:
                 column="use",
                 expected="observations of the used series within the run",
             )
+        self.mc_scale = float(mc_scale)
+        T = len(times)
+        #: positions of the observed entries in the stacked (len(use)·T,) vector
+        self.observed_index = np.concatenate(
+            [i * T + np.flatnonzero(np.asarray(self.mask[s.name])) for i, s in enumerate(self.series)]
+        )
+        self.correlation = None
+        if mc_correlation is not None:
+            if mc_correlation.n_steps != T:
+                raise InputError(
+                    f"Monte Carlo correlation over {mc_correlation.n_steps} steps",
+                    column="mc_correlation",
+                    expected=f"one computed for this run's {T} steps",
+                )
+            c = mc_correlation.select(self.use)
+            self.correlation = jnp.asarray(c[np.ix_(self.observed_index, self.observed_index)])
 
     def variances(self, m: Mapping, noise_scale=1.0) -> dict:
-        """v_k = (λσ_k)² + s_k² per used series, 1 where there is no observation (µmol² m⁻⁴ s⁻²)."""
+        """v_k = (λσ_k)² + c·s_k² per used series, 1 where there is no observation (µmol² m⁻⁴ s⁻²):
+        the diagonal of Σ."""
         lam = jnp.asarray(noise_scale, jnp.float64)
         return {
-            s.name: jnp.where(self.mask[s.name], (lam * self.sd[s.name]) ** 2 + m[s.mc_sd] ** 2, 1.0)
+            s.name: jnp.where(self.mask[s.name], (lam * self.sd[s.name]) ** 2 + self.mc_scale * m[s.mc_sd] ** 2, 1.0)
             for s in self.series
         }
 
+    def _stack(self, per_series: Mapping) -> jax.Array:
+        """Observed entries of per-series (T,) arrays, stacked in series order: (n_observations,)."""
+        return jnp.concatenate([jnp.asarray(per_series[s.name]) for s in self.series])[self.observed_index]
+
+    def cholesky(self, m: Mapping, noise_scale=1.0) -> jax.Array:
+        """Lower Cholesky factor L of Σ over the observed entries, (n_observations, n_observations);
+        only with ``mc_correlation``."""
+        lam = jnp.asarray(noise_scale, jnp.float64)
+        sd = lam * self._stack(self.sd)
+        s = jnp.sqrt(self.mc_scale) * self._stack({x.name: m[x.mc_sd] for x in self.series})
+        cov = jnp.diag(sd**2) + (s[:, None] * s[None, :]) * self.correlation
+        return jnp.linalg.cholesky(cov)
+
+    def _whiten(self, delta: Mapping, m: Mapping, noise_scale):
+        """(whitened vector in the (len(use)·T,) layout, log det Σ over the observed entries)."""
+        if self.correlation is None:
+            v = self.variances(m, noise_scale)
+            w = jnp.concatenate(
+                [jnp.where(self.mask[s.name], delta[s.name] / jnp.sqrt(v[s.name]), 0.0) for s in self.series]
+            )
+            logdet = sum(jnp.sum(jnp.where(self.mask[s.name], jnp.log(v[s.name]), 0.0)) for s in self.series)
+            return w, logdet
+        L = self.cholesky(m, noise_scale)
+        w_obs = jax.scipy.linalg.solve_triangular(L, self._stack(delta), lower=True)
+        w = jnp.zeros(len(self.series) * len(self.y[self.series[0].name])).at[self.observed_index].set(w_obs)
+        return w, 2.0 * jnp.sum(jnp.log(jnp.diag(L)))
+
     def whiten(self, delta: Mapping, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """δ_k/√v_k of per-series differences ``delta[series name]`` (T,), concatenated over the used
-        series in order, zero where there is no observation: shape (len(use)·T,)."""
-        v = self.variances(m, noise_scale)
-        return jnp.concatenate(
-            [jnp.where(self.mask[s.name], delta[s.name] / jnp.sqrt(v[s.name]), 0.0) for s in self.series]
-        )
+        """Whitened per-series differences ``delta[series name]`` (T,): w = L⁻¹δ over the observed
+        entries (δ_k/√v_k without ``mc_correlation``), placed in a (len(use)·T,) vector, series
+        blocks in order, zero where there is no observation; ‖w‖² = δᵀΣ⁻¹δ."""
+        return self._whiten(delta, m, noise_scale)[0]
 
     def whitened(self, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """Whitened residuals w_k = (y_k − m_k)/√v_k (see :meth:`whiten`)."""
-        return self.whiten({s.name: self.y[s.name] - m[s.value] for s in self.series}, m, noise_scale)
+        """Whitened residuals of y − m (see :meth:`whiten`)."""
+        return self.whiten(self._residuals(m), m, noise_scale)
+
+    def _residuals(self, m: Mapping) -> dict:
+        return {s.name: self.y[s.name] - m[s.value] for s in self.series}
 
     def loss(self, m: Mapping) -> jax.Array:
-        """Calibration loss ½ Σ r²/v at λ = 1 (no normalisation; see the module docstring)."""
+        """Calibration loss ½ rᵀΣ⁻¹r at λ = 1 (no normalisation; see the module docstring)."""
         return 0.5 * jnp.sum(self.whitened(m) ** 2)
 
     def log_likelihood(self, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """log L = −½ Σ [r²/v + log(2π v)] over the observed steps of the used series."""
-        v = self.variances(m, noise_scale)
-        log_norm = sum(jnp.sum(jnp.where(self.mask[s.name], jnp.log(2 * jnp.pi * v[s.name]), 0.0)) for s in self.series)
-        return -0.5 * (jnp.sum(self.whitened(m, noise_scale) ** 2) + log_norm)
+        """log L = −½ [rᵀΣ⁻¹r + n log 2π + log det Σ] over the observed steps of the used series."""
+        w, logdet = self._whiten(self._residuals(m), m, noise_scale)
+        return -0.5 * (jnp.sum(w**2) + self.n_observations * jnp.log(2 * jnp.pi) + logdet)
 
 
-__all__ = ["ALIASES", "USES", "GaussianLikelihood", "resolve_use"]
+__all__ = [
+    "ALIASES",
+    "MC_CORRELATION_JITTER",
+    "USES",
+    "GaussianLikelihood",
+    "MCCorrelation",
+    "correlation_of",
+    "mc_correlation",
+    "resolve_use",
+]

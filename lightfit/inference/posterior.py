@@ -18,6 +18,7 @@ import pandas as pd
 
 from lightfit.inference.identifiability import fisher_information, profile_likelihood
 from lightfit.inference.likelihood import USES
+from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.mcmc import (
     NOISE_SCALE,
     LogPosterior,
@@ -166,15 +167,29 @@ def run(
     max_seconds: float | None = None,
     n_grid: int = 64,
     attrs: dict | None = None,
+    mc_correlation="model",
+    mc_scale: float = 1.0,
 ) -> dict:
     """Sample the posterior into ``path`` and (``analysis=True``) write the analysis group.
 
     ``validation_renders``: ``(leaf_test, (values, se))`` full renders at held-out points for the
-    emulator-error report (skipped when None). Returns a dict of the main numbers.
+    emulator-error report (skipped when None). ``mc_correlation``: ``"model"`` (default) — the
+    likelihood covers the renderer's Monte Carlo error with its correlation across steps and series,
+    computed once from the emulated parts at the centre of the priors
+    (:func:`~lightfit.inference.likelihood.mc_correlation`); ``None`` — independent steps (the
+    diagonal form before issue 15); or an :class:`~lightfit.inference.likelihood.MCCorrelation`.
+    ``mc_scale``: 1 for measured observations, 2 for twins rendered at the model's samples.
+    Returns a dict of the main numbers.
     """
     t0 = time.perf_counter()
     fast = FastObservables(model, emulator, n_grid=n_grid)
     lp = LogPosterior(fast, model.times, obs, names, priors, fixed, use)
+    if isinstance(mc_correlation, str):  # "model": at the prior centre, from the emulator's parts
+        theta_c, _ = lp.split(jnp.asarray(lp.center()))
+        mc_correlation = mc_correlation_of(model.with_light(emulator), theta_c, lp.use)
+    lp = LogPosterior(
+        fast, model.times, obs, names, priors, fixed, use, mc_correlation=mc_correlation, mc_scale=mc_scale
+    )
     meta = {
         "priors": priors_table(lp.priors, lp.names),
         "use": list(lp.use),
@@ -196,6 +211,12 @@ def run(
             "hi": emulator.hi.tolist(),
             "render_seconds": emulator.render_seconds,
             "n_grid": n_grid,
+        },
+        "likelihood": {
+            "mc_correlation": "independent steps"
+            if mc_correlation is None
+            else f"model Monte Carlo covariance at {mc_correlation.theta}",
+            "mc_scale": mc_scale,
         },
         **(attrs or {}),
     }

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from lightfit.inference.likelihood import USES, GaussianLikelihood
+from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
 from lightfit.model.parameters import Theta, as_theta
 
@@ -35,6 +35,8 @@ class LogPosterior:
         priors: a prior for every sampled name (default :data:`PRIORS_INFORMED`).
         fixed: values of unsampled parameters: model parameters (default: ``Theta()``) and
             ``noise_scale`` (default 1).
+        mc_correlation, mc_scale: the model's Monte Carlo correlation and variance factor
+            (:class:`~lightfit.inference.likelihood.GaussianLikelihood`; default: independent steps).
     """
 
     def __init__(
@@ -46,6 +48,9 @@ class LogPosterior:
         priors: Mapping[str, Prior] | None = None,
         fixed: Mapping[str, float] | None = None,
         use: Sequence[str] = USES,
+        *,
+        mc_correlation: MCCorrelation | None = None,
+        mc_scale: float = 1.0,
     ):
         self.priors = dict(priors or PRIORS_INFORMED)
         self.names = check_sampled(names, self.priors)
@@ -53,7 +58,7 @@ class LogPosterior:
         self.noise_scale = float(fixed.pop(NOISE_SCALE, 1.0))
         self.base = as_theta(fixed)
         self.forward = forward
-        self.likelihood = GaussianLikelihood(obs, times, use)
+        self.likelihood = GaussianLikelihood(obs, times, use, mc_correlation=mc_correlation, mc_scale=mc_scale)
         self.use = self.likelihood.use
         self.n_observations = self.likelihood.n_observations
         self._batch = jax.jit(jax.vmap(self.log_prob))

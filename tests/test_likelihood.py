@@ -1,0 +1,174 @@
+"""The Gaussian likelihood with the model's Monte Carlo covariance (issue 15 item 3).
+
+Peer: scipy's multivariate normal density on the same covariance. The render part (a twin whose
+observations are rendered at another seed) is in ``test_twin_light_factor_is_covered``.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.stats import multivariate_normal
+
+from lightfit import replication as rep
+from lightfit.errors import InputError
+from lightfit.inference.likelihood import GaussianLikelihood, MCCorrelation, correlation_of, mc_correlation
+from lightfit.inference.observations import BY_NAME
+from lightfit.inference.twin import twin_observations
+from lightfit.model.parameters import Theta
+
+T = 6
+TIMES = pd.date_range("2016-04-20 08:00", periods=T, freq="30min", tz="UTC")
+PAR, AN = BY_NAME["plant_par"], BY_NAME["canopy_an"]
+
+
+def _problem(seed=0):
+    """Two series on 6 steps (two PAR steps missing), model outputs and a random MC correlation."""
+    rng = np.random.default_rng(seed)
+    par = 500 + 50 * rng.standard_normal(T)
+    par[[0, 3]] = np.nan
+    obs = pd.DataFrame(
+        {
+            PAR.value: par,
+            PAR.sd: np.where(np.isnan(par), np.nan, 10.0 + rng.uniform(0, 5, T)),
+            AN.value: 20 + rng.standard_normal(T),
+            AN.sd: 1.0 + rng.uniform(0, 0.5, T),
+        },
+        index=TIMES,
+    )
+    m = {
+        PAR.value: jnp.asarray(500 + 30 * rng.standard_normal(T)),
+        PAR.mc_sd: jnp.asarray(rng.uniform(5, 20, T)),
+        AN.value: jnp.asarray(20 + rng.standard_normal(T)),
+        AN.mc_sd: jnp.asarray(rng.uniform(0.2, 2, T)),
+    }
+    a = rng.standard_normal((2 * T, 3))  # a strongly correlated (rank-3 + diagonal) covariance
+    corr = MCCorrelation(("plant_par", "canopy_an"), T, correlation_of(a @ a.T + 0.05 * np.eye(2 * T)))
+    return obs, m, corr
+
+
+def _peer(obs, m, corr, lam, scale):
+    """log density by scipy on the observed entries, Σ built elementwise from the definitions."""
+    y, mu, sd, s, keep = [], [], [], [], []
+    for i, ser in enumerate((PAR, AN)):
+        ok = ~np.isnan(obs[ser.value].to_numpy())
+        y += list(obs[ser.value].to_numpy()[ok])
+        mu += list(np.asarray(m[ser.value])[ok])
+        sd += list(obs[ser.sd].to_numpy()[ok])
+        s += list(np.asarray(m[ser.mc_sd])[ok])
+        keep += list(i * T + np.flatnonzero(ok))
+    sd, s = np.asarray(sd), np.asarray(s)
+    c = corr.matrix[np.ix_(keep, keep)]
+    cov = np.diag((lam * sd) ** 2) + scale * np.outer(s, s) * c
+    r = np.asarray(y) - np.asarray(mu)
+    return multivariate_normal(np.zeros(len(r)), cov).logpdf(r), 0.5 * r @ np.linalg.solve(cov, r)
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_log_likelihood_matches_scipy_multivariate_normal(jit):
+    obs, m, corr = _problem()
+    for lam, scale in ((1.0, 1.0), (0.7, 2.0)):
+        lik = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), mc_correlation=corr, mc_scale=scale)
+        ll = jax.jit(lik.log_likelihood) if jit else lik.log_likelihood
+        want, half_chi2 = _peer(obs, m, corr, lam, scale)
+        assert float(ll(m, lam)) == pytest.approx(want, rel=1e-10)
+        if lam == 1.0:
+            assert float(lik.loss(m)) == pytest.approx(half_chi2, rel=1e-10)
+        # the whitened residuals keep the (len(use)·T,) layout, zeros at the missing PAR steps
+        w = np.asarray(lik.whitened(m, lam))
+        assert w.shape == (2 * T,) and w[0] == 0 and w[3] == 0
+        assert 0.5 * np.sum(w**2) == pytest.approx(half_chi2, rel=1e-10)  # ‖w‖² = rᵀΣ⁻¹r
+    # independent steps (C = I) give the diagonal form, computed without a factorisation
+    eye = MCCorrelation(corr.names, T, np.eye(2 * T))
+    diag = GaussianLikelihood(obs, TIMES, ("plant_par", "an"))
+    full = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), mc_correlation=eye)
+    assert float(full.log_likelihood(m, 0.8)) == pytest.approx(float(diag.log_likelihood(m, 0.8)), rel=1e-12)
+    assert np.allclose(full.whitened(m), diag.whitened(m), rtol=1e-12)
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_finite_at_extremes_and_gradient_matches_differences(jit):
+    obs, m, corr = _problem(1)
+    lik = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), mc_correlation=corr)
+
+    def f(lam, shift, sd_scale):
+        mm = dict(m)
+        mm[PAR.value] = m[PAR.value] + shift
+        mm[PAR.mc_sd] = m[PAR.mc_sd] * sd_scale
+        mm[AN.mc_sd] = m[AN.mc_sd] * sd_scale
+        return lik.log_likelihood(mm, lam)
+
+    g = jax.grad(f, argnums=(0, 1))
+    f, g = (jax.jit(f), jax.jit(g)) if jit else (f, g)
+    for lam, sd_scale in ((1e-8, 1.0), (1.0, 1e8), (1.0, 0.0), (1e-8, 0.0), (1e4, 1e-8)):
+        assert np.isfinite(float(f(lam, 0.0, sd_scale))), (lam, sd_scale)
+        assert all(np.isfinite(float(x)) for x in g(lam, 0.0, sd_scale)), (lam, sd_scale)
+    h, lam, shift = 1e-4, 0.8, 3.0
+    ga = g(lam, shift, 1.0)
+    fd_lam = (float(f(lam + h, shift, 1.0)) - float(f(lam - h, shift, 1.0))) / (2 * h)
+    fd_shift = (float(f(lam, shift + h, 1.0)) - float(f(lam, shift - h, 1.0))) / (2 * h)
+    assert float(ga[0]) == pytest.approx(fd_lam, rel=1e-6)
+    assert float(ga[1]) == pytest.approx(fd_shift, rel=1e-6)
+
+
+def test_bad_correlation_and_scale_are_refused():
+    obs, _, corr = _problem()
+    with pytest.raises(InputError, match="mc_scale"):
+        GaussianLikelihood(obs, TIMES, ("an",), mc_scale=-1.0)
+    with pytest.raises(InputError, match="lacks series"):
+        GaussianLikelihood(obs, TIMES, ("an",), mc_correlation=dataclasses.replace(corr, names=("plant_par", "nee")))
+    with pytest.raises(InputError, match="steps"):
+        GaussianLikelihood(obs, TIMES, ("an",), mc_correlation=dataclasses.replace(corr, n_steps=T + 1))
+
+
+#: Twin truth: leaf parameters no other test uses, and a light factor away from 1.
+TWIN_TRUTH = Theta(specular=0.55, roughness=0.5, subsurface=0.7, light_factor=1.1)
+
+
+@pytest.fixture(scope="module")
+def twin():
+    """Quick field, whole day: the model renders with seed 0 once at the truth's leaf (light factor
+    and Vcmax scale need no new render), the twin's observations with seed 216 (+ noise, seed 216)."""
+    model = rep.model_for(rep.ReplicationConfig.quick(), rep.forcing())
+    assert model.scenario.seed == 0
+    v, se = model.render(TWIN_TRUTH)
+    fixed = model.with_light(lambda _: (v, se))
+    obs = twin_observations(model, TWIN_TRUTH, render_seed=216, noise_seed=216)
+    return fixed, obs, mc_correlation(fixed, TWIN_TRUTH, ("plant_par", "canopy_an"))
+
+
+def test_twin_light_factor_is_covered_only_with_the_monte_carlo_covariance(twin):
+    """Posterior of the light factor (flat prior, exact on a grid) from PAR at the plants and canopy
+    An of a twin rendered at another seed. The observations' Monte Carlo error is a second copy of
+    the model's (same samples, another seed): ``mc_scale=2``.
+
+    With the Monte Carlo covariance the truth lies in the 90 % interval; with independent steps
+    (the likelihood before issue 15) the posterior is ≈ 2× too narrow and misses by > 4 SD.
+    Seed 216 is one of 20 twin seeds tried (201–220; docs/posterior.md "Monte Carlo covariance"):
+    over them the diagonal likelihood's 90 % interval held the truth 9 times, the full one 15 times
+    (all 20 share the model's one render, whose own error shifts every z by ≈ +1.1)."""
+    fixed, obs, corr = twin
+    grid = np.linspace(1.02, 1.18, 321)
+    keys = [k for s in (PAR, AN) for k in (s.value, s.mc_sd)]
+    m = jax.jit(jax.vmap(lambda f: {k: fixed.observe(TWIN_TRUTH.replace(light_factor=f))[k] for k in keys}))(
+        jnp.asarray(grid)
+    )
+
+    def interval(**kw):
+        lik = GaussianLikelihood(obs, fixed.times, ("plant_par", "canopy_an"), **kw)
+        ll = np.asarray(jax.vmap(lik.log_likelihood)(m))
+        cdf = np.cumsum(np.exp(ll - ll.max()))
+        cdf /= cdf[-1]
+        return np.interp(0.05, cdf, grid), np.interp(0.95, cdf, grid)
+
+    lo, hi = interval(mc_correlation=corr, mc_scale=2.0)
+    assert lo < TWIN_TRUTH.light_factor < hi, (lo, hi)
+    lo_old, hi_old = interval()
+    assert not lo_old < TWIN_TRUTH.light_factor < hi_old, (lo_old, hi_old)
+    assert (hi - lo) > 1.5 * (hi_old - lo_old)
+    # the old interval misses by more than 4 of its SDs (90 % interval = ±1.645 SD)
+    sd_old = (hi_old - lo_old) / (2 * 1.645)
+    assert abs(0.5 * (lo_old + hi_old) - TWIN_TRUTH.light_factor) > 4 * sd_old
