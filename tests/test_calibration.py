@@ -120,7 +120,8 @@ def test_twin_calibration_recovers_specular(twin_model, twin_fits):
     assert res.converged and res.steps >= 2 and res.gradients == res.steps <= res.evaluations
     # truth within 3 SDs of the estimate (measurement noise + the two renders' Monte Carlo errors)
     assert abs(res.theta["specular"] - TRUTH.specular) <= 3 * sd, (res.theta["specular"], sd)
-    lines = [json.loads(x) for x in hist.read_text().splitlines()]
+    *lines, final = [json.loads(x) for x in hist.read_text().splitlines()]  # steps, then the stop record
+    assert final["stopped_by"] == res.stopped_by == "converged" and final["steps"] == res.steps
     assert len(lines) == res.steps and lines[-1]["loss"] <= lines[0]["loss"]
     assert lines[-1]["evaluations"] == res.evaluations and lines[0]["coordinates"] == "unconstrained"
 

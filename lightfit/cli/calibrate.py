@@ -18,11 +18,13 @@ def calibrate(
     observations: Path = typer.Argument(..., help="Observations CSV (time, PAR, net CO2 uptake and their SDs)."),
     out: Path = typer.Option(Path("results/calibration"), help="Output directory (history, result JSON, plot)."),
     parameters: str = typer.Option("specular,roughness,subsurface", help="Parameters to calibrate, comma-separated."),
-    start: str = typer.Option(None, help="Start values key=value,... (default: 0.5, 0.5, 0.3, 1, 1)."),
+    start: str = typer.Option(
+        None, help="Start values key=value,... (default: the run leaf's parameters, light_factor 1, vcmax_scale 1)."
+    ),
     method: str = typer.Option(
-        "bfgs",
-        help="Optimiser: bfgs (optimistix BFGS on logit/log-transformed parameters) "
-        "or lbfgsb (jaxopt L-BFGS-B on the natural parameters within their bounds).",
+        "lbfgsb",
+        help="Optimiser: lbfgsb (jaxopt L-BFGS-B on the natural parameters within their bounds) "
+        "or bfgs (optimistix BFGS on logit/log-transformed parameters).",
     ),
     use: Use = "",
     max_steps: int = typer.Option(30, help="Maximum accepted optimiser steps in all (a resumed run's included)."),

@@ -174,7 +174,7 @@ def surrogate_calibrate(
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)
     lik = GaussianLikelihood(o, m.times, use)
-    base = as_theta(fixed)
+    base = model.theta(fixed)
     x0 = as_theta(start, base=base)
     out = None if out is None else Path(out)
     if out is not None:
