@@ -142,7 +142,7 @@ class PeriodicTracer:
             soil: stop rays going down at the soil plane z = 0.
             test: shadow rays (``ray_test``: any hit) instead of nearest hits.
             fuse: leave the walk unevaluated, to be fused into the caller's kernel (a primal
-                render evaluates as one kernel: module doc, "Speed"). Otherwise inputs and
+                render evaluates as one kernel; docs/light.md, "Ray wrapping"). Otherwise inputs and
                 outputs are evaluated and the walk is its own kernel, the same for every bounce
                 (what a differentiated render needs: its backward kernels would recompute an
                 unevaluated walk each time they read it).
