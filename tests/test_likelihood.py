@@ -124,6 +124,41 @@ def test_bad_correlation_and_scale_are_refused():
         GaussianLikelihood(obs, TIMES, ("an",), mc_correlation=dataclasses.replace(corr, n_steps=T + 1))
 
 
+@pytest.mark.parametrize("correlated", [True, False])
+def test_loss_sd_matches_monte_carlo_draws_of_the_model_error(correlated):
+    """σ_L of the trust region's full-render check (trust_region.loss_sd): the SD of the loss
+    ½ rᵀΣ⁻¹r when the model's observables carry Monte Carlo error e ~ N(0, Σ_MC),
+    Σ_MC = diag(s) C diag(s) — checked against 40 000 draws of e, with the loss of each draw computed
+    by numpy from the covariance built elementwise (``_peer``), at a residual far from zero (the
+    linear term dominates) and at zero residual (only ½ tr((Σ⁻¹Σ_MC)²) is left)."""
+    from lightfit.inference.trust_region import loss_sd
+
+    obs, m, corr = _problem(2)
+    lik = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), mc_correlation=corr if correlated else None)
+    c = corr.matrix if correlated else np.eye(2 * T)
+    keep = [i * T + k for i, ser in enumerate((PAR, AN)) for k in np.flatnonzero(~np.isnan(obs[ser.value].to_numpy()))]
+    s = np.concatenate([np.asarray(m[PAR.mc_sd]), np.asarray(m[AN.mc_sd])])[keep]
+    sigma_mc = np.outer(s, s) * c[np.ix_(keep, keep)]
+    rng = np.random.default_rng(7)
+    e = rng.multivariate_normal(np.zeros(len(keep)), sigma_mc, size=40_000)
+    for at_truth in (False, True):
+        mm = dict(m)
+        if at_truth:  # the model equals the observations: zero residual
+            mm[PAR.value] = jnp.asarray(np.nan_to_num(obs[PAR.value].to_numpy()))
+            mm[AN.value] = jnp.asarray(obs[AN.value].to_numpy())
+        _, half_chi2 = _peer(obs, mm, MCCorrelation(corr.names, T, c), 1.0, 1.0)
+        r = np.concatenate([obs[x.value].to_numpy() - np.asarray(mm[x.value]) for x in (PAR, AN)])[keep]
+        cov = np.diag(np.concatenate([obs[PAR.sd].to_numpy(), obs[AN.sd].to_numpy()])[keep] ** 2) + sigma_mc
+        d = r[None, :] - e  # residuals of the model with its Monte Carlo error drawn anew
+        losses = 0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(cov, d.T).T)
+        assert float(lik.loss(mm)) == pytest.approx(half_chi2, rel=1e-10)
+        # SD of a sample SD of n draws: ≈ SD·√((κ − 1)/4n), a few % here; 5 % is > 3 of them
+        assert loss_sd(lik, mm) == pytest.approx(losses.std(), rel=0.05), (at_truth, loss_sd(lik, mm), losses.std())
+    if correlated:  # the independent-steps formula would be off here: the check means something
+        diag = GaussianLikelihood(obs, TIMES, ("plant_par", "an"))
+        assert abs(loss_sd(diag, m) / loss_sd(lik, m) - 1) > 0.2
+
+
 #: Twin truth: leaf parameters no other test uses, and a light factor away from 1.
 TWIN_TRUTH = Theta(specular=0.55, roughness=0.5, subsurface=0.7, light_factor=1.1)
 

@@ -18,8 +18,11 @@ from lightfit.inference.calibration import make_loss, to_unconstrained
 from lightfit.inference.identifiability import combination, fisher_information, profile_likelihood
 from lightfit.inference.likelihood import GaussianLikelihood
 from lightfit.light.bsdf import LEAF_PARAMETERS
+from lightfit.light.scene import Optics
 from lightfit.model import emulator as E
+from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta
+from lightfit.model.scenario import Scenario
 from lightfit.model.schema import OBSERVABLES
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
@@ -184,10 +187,23 @@ def test_profile_likelihood_on_quadratic_toy():
     np.testing.assert_allclose(prof, ts**2 / (2 * (d @ np.linalg.solve(H, d))), atol=1e-7)
 
 
-class FakeModel:
-    """observe(theta): PAR = light_factor·(400 + 100·specular)·shape, An = vcmax_scale·20·shape − 2."""
+class _Scenario:
+    """The part of a Scenario the inference uses: its optics and their leaf defaults."""
 
-    def __init__(self):
+    theta = Scenario.theta  # the real property: Theta.for_optics(self.optics)
+
+    def __init__(self, optics):
+        self.optics = optics
+
+
+class FakeModel:
+    """observe(theta): PAR = light_factor·(400 + 100·specular)·shape, An = vcmax_scale·20·shape − 2.
+    ``theta``: the real CoupledModel.theta (θ completed with the leaf of ``optics``, default PROSPECT-D)."""
+
+    theta = CoupledModel.theta
+
+    def __init__(self, optics: str = "prospect"):
+        self.scenario = _Scenario(Optics.preset(optics))
         self.times = pd.date_range("2016-04-20 04:00", periods=6, freq="30min", tz="UTC")
         self.shape = jnp.asarray([0.0, 0.3, 0.7, 1.0, 0.8, 0.4])
 
@@ -283,6 +299,95 @@ def test_calibration_and_posterior_use_the_likelihood():
     # PAR only: the CO2 series does not enter
     lp_par = P.LogPosterior(model.observe, model.times, obs, names, P.PRIORS_INFORMED, use=("par",))
     assert lp_par.n_observations == 6
+
+
+@pytest.mark.parametrize("optics, subsurface", [("prospect", (0.31, 1.0)), ("paper", (0.04, 0.17))])
+def test_posterior_samples_around_the_runs_leaf(optics, subsurface):
+    """The log-posterior the posterior workflow builds (posterior.log_posterior, which run() samples)
+    takes the informed priors of the run's leaf and fixes the unsampled leaf parameters at that leaf's
+    own values: the grey paper leaf gets its subsurface prior 0.04–0.17 (PROSPECT-D transmittance
+    2–8 % at base colour 0.5), not the default leaf's 0.31–1, and its own roughness/subsurface."""
+    from lightfit.inference import posterior as A
+    from lightfit.inference.mcmc.priors import informed_priors
+
+    model = FakeModel(optics)
+    leaf = Optics.preset(optics)
+    obs = _fake_obs(model)
+    lp = A.log_posterior(model, obs, model.observe, names=("specular", "light_factor"), mc_correlation=None)
+    assert lp.priors["subsurface"].support == subsurface
+    assert lp.priors == informed_priors(leaf) == A.prior_set("informed", leaf)
+    assert lp.base.roughness == pytest.approx(leaf.roughness) and lp.base.subsurface == pytest.approx(leaf.subsurface)
+    assert lp.base.light_factor == 1.0 and lp.noise_scale == 1.0
+    # the run's fixed values still win over the leaf's; the noise scale is set apart
+    lp = A.log_posterior(
+        model,
+        obs,
+        model.observe,
+        names=("specular",),
+        fixed={"subsurface": 0.1, "noise_scale": 2.0},
+        mc_correlation=None,
+    )
+    assert lp.base.subsurface == pytest.approx(0.1) and lp.noise_scale == 2.0
+    assert A.prior_set("wide", leaf)["subsurface"].support == (0.0, 1.0)
+
+
+def test_a_run_with_another_likelihood_form_is_not_resumed(tmp_path):
+    """The posterior's resume key includes the likelihood form (Monte Carlo correlation mode and
+    mc_scale): a stored run sampled with another form is refused, naming what changed; runs stored
+    before the form was recorded count as what they were (no attribute: independent steps)."""
+    from lightfit.inference import posterior as A
+    from lightfit.inference.likelihood import likelihood_form
+
+    model_form, indep = likelihood_form("model"), likelihood_form(None)
+    A.check_likelihood(tmp_path / "none.h5", model_form)  # no run there: nothing to check
+    cases = {
+        "new.h5": {"likelihood": {**model_form, "correlation_at": None}},
+        "sentence.h5": {"likelihood": {"mc_correlation": "model Monte Carlo covariance at {}", "mc_scale": 2.0}},
+        "old.h5": {},
+    }
+    for name, attrs in cases.items():
+        P.sample(Gauss(), NAMES, tmp_path / name, nwalkers=8, max_steps=2, initial=_init(), progress=False, attrs=attrs)
+    A.check_likelihood(tmp_path / "new.h5", model_form)
+    with pytest.raises(InputError, match=r"another likelihood \(mc_correlation: 'model' → 'independent'\)"):
+        A.check_likelihood(tmp_path / "new.h5", indep)
+    with pytest.raises(InputError, match=r"mc_scale: 2.0 → 1.0"):
+        A.check_likelihood(tmp_path / "sentence.h5", model_form)
+    A.check_likelihood(tmp_path / "old.h5", indep)
+    with pytest.raises(InputError, match="'independent' → 'model'"):
+        A.check_likelihood(tmp_path / "old.h5", model_form)
+
+
+def test_calibration_key_includes_the_likelihood_form(tmp_path):
+    """A calibration history saved with independent steps is not resumed exactly with the Monte Carlo
+    correlation (one line says why and it continues from the history's best point); with the same form
+    it resumes exactly (no notice). The correlated loss equals ½ rᵀΣ⁻¹r computed by numpy."""
+    from lightfit.inference.calibration import calibrate
+    from lightfit.inference.likelihood import MCCorrelation, correlation_of
+
+    model = FakeModel()
+    obs = _fake_obs(model)
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((12, 2))
+    corr = MCCorrelation(("plant_par", "canopy_an"), 6, correlation_of(a @ a.T + 0.1 * np.eye(12)))
+    # the correlated loss against numpy
+    th = Theta(specular=0.55, light_factor=1.05, vcmax_scale=0.95)
+    m = model.observe(th)
+    y, mean, sd = _scipy_terms(obs, m)
+    s = np.concatenate([np.asarray(m["plant_par_mc_sd_umol_m2_s"]), np.asarray(m["canopy_an_mc_sd_umol_m2_s"])[1:]])
+    keep = np.r_[0:6, 7:12]  # the first canopy An step is missing
+    sig = np.concatenate([obs["plant_par_sd_umol_m2_s"], obs["canopy_an_sd_umol_m2_s"][1:]])
+    cov = np.diag(sig**2) + np.outer(s, s) * corr.matrix[np.ix_(keep, keep)]
+    r = y - mean
+    loss = make_loss(model, obs, ("specular", "light_factor", "vcmax_scale"), mc_correlation=corr)
+    assert float(loss.natural(jnp.asarray([0.55, 1.05, 0.95]))) == pytest.approx(0.5 * r @ np.linalg.solve(cov, r))
+    said = []
+    kw = dict(names=("light_factor",), history=tmp_path / "h.jsonl", progress=False, say=said.append)
+    calibrate(model, obs, max_steps=1, **kw)
+    calibrate(model, obs, max_steps=2, **kw)
+    assert said == []  # same form: exact resume
+    calibrate(model, obs, max_steps=3, mc_correlation=corr, **kw)
+    assert len(said) == 1 and "saved with other likelihood (mc_correlation: 'independent' → 'model')" in said[0]
+    assert "continuing from the history's best point" in said[0]
 
 
 def test_bad_input_names_the_parameter(tmp_path):

@@ -4,7 +4,9 @@ Loss: the calibration loss of :class:`~lightfit.inference.likelihood.GaussianLik
 
 .. math:: \mathcal L(\theta) = \tfrac12 \sum_{k \in obs} \frac{(y_k - m_k(\theta))^2}{\sigma_k^2 + s_k^2}
 
-(measurement SD σ_k, the model's Monte Carlo SD s_k, treated as a constant in the gradient).
+(measurement SD σ_k, the model's Monte Carlo SD s_k, treated as a constant in the gradient), or
+with ``mc_correlation`` the correlated form ½ rᵀΣ⁻¹r with the model's Monte Carlo correlation
+across steps and series (:mod:`lightfit.inference.likelihood`; ``lightfit calibrate``'s default).
 Gradients by reverse mode through the Mitsuba bridge and the implicit photosynthesis solve. Two
 optimisers, chosen by ``method``:
 
@@ -51,7 +53,8 @@ import optimistix as optx
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.inference.likelihood import USES, GaussianLikelihood
+from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form
+from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.progress import progress_bar
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
@@ -122,13 +125,32 @@ def make_loss(
     use: Sequence[str] = USES,
     forward: Callable[[Theta], Mapping] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    mc_correlation: MCCorrelation | str | None = None,
+    mc_scale: float = 1.0,
+    at: Theta | Mapping[str, float] | None = None,
 ) -> Loss:
     """The calibration :class:`Loss` of ``model`` (or ``forward``, e.g. an emulator, on the model's
     time steps) against ``obs``. Unknown names, observations outside the run or none of the used
-    series on a simulated step raise :class:`InputError`."""
+    series on a simulated step raise :class:`InputError`.
+
+    ``mc_correlation``: the likelihood's Monte Carlo correlation across steps and series
+    (:class:`~lightfit.inference.likelihood.GaussianLikelihood`): ``None`` (independent steps),
+    an :class:`~lightfit.inference.likelihood.MCCorrelation`, or ``"model"`` — computed once here by
+    :func:`~lightfit.inference.likelihood.mc_correlation` from ``model``'s light parts at ``at``
+    (default: the fixed values; one render and one reverse pass per series unless the model's light
+    is injected, e.g. ``model.with_light(emulator)``). ``mc_scale``: c of the likelihood (1 for
+    measured data, 2 for twins rendered at the model's samples). ``model`` may be a
+    :class:`~lightfit.inference.multiday.MultiDayModel` (several days, one likelihood)."""
     names = check_names(names)
-    lik = GaussianLikelihood(obs, model.times, use)
-    return Loss(forward or model.observe, lik, names, model.theta(fixed), bounds)
+    base = model.theta(fixed)
+    lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale)
+    if isinstance(mc_correlation, str) and likelihood_form(mc_correlation)["mc_correlation"] == "model":
+        mc_correlation = mc_correlation_of(model, as_theta(at, base=base), lik.use)
+    elif isinstance(mc_correlation, str):
+        mc_correlation = None
+    if mc_correlation is not None:
+        lik = GaussianLikelihood(obs, model.times, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale)
+    return Loss(forward or model.observe, lik, names, base, bounds)
 
 
 @dataclass
@@ -323,6 +345,8 @@ def calibrate(
     resume: bool = True,
     progress: bool = True,
     say: Callable[[str], None] = print,
+    mc_correlation: MCCorrelation | str | None = None,
+    mc_scale: float = 1.0,
 ) -> CalibrationResult:
     """Minimise the calibration loss over ``names``; see the module docstring.
 
@@ -348,12 +372,28 @@ def calibrate(
             is kept next to it (``<history>.state.npz``).
         resume: continue exactly from the saved state (or from the best point in ``history``).
         say: where a one-line notice goes (a resume that cannot be exact).
+        mc_correlation, mc_scale: the likelihood's Monte Carlo form (:func:`make_loss`; ``"model"``
+            computes the correlation at ``start``); both enter the resume key, so a history made
+            with another form is continued from its best point, not exactly, and the notice says so.
     """
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
-    loss = make_loss(model, obs, names, fixed, use=use, forward=forward, bounds=bounds)
+    form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
+    base = model.theta(fixed)
+    th0 = as_theta(start, base=base)
+    loss = make_loss(
+        model,
+        obs,
+        names,
+        base,
+        use=use,
+        forward=forward,
+        bounds=bounds,
+        mc_correlation=mc_correlation,
+        mc_scale=mc_scale,
+        at=th0,
+    )
     names = loss.names
-    th0 = as_theta(start, base=loss.base)
     hist = Path(history) if history else None
     state_file = hist.with_name(hist.name + ".state.npz") if hist else None
     key = {
@@ -363,13 +403,25 @@ def calibrate(
         "base": loss.base.to_dict(),
         "tolerances": [rtol, atol, gtol],
         "use": list(loss.likelihood.use),
+        "likelihood": form,
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
     saved = _load_state(state_file) if hist and resume and state_file.exists() else None
-    if saved is not None and saved.get("key") != key:
-        changed = [k for k in key if saved.get("key", {}).get(k) != key[k]]
-        say(f"{state_file}: saved with other {', '.join(changed)}; continuing from the history's best point")
+    # states saved before the likelihood's form was recorded used independent steps
+    old = {"likelihood": likelihood_form(None), **(saved or {}).get("key", {})}
+    if saved is not None and old != key:
+        changed = [k for k in {**old, **key} if old.get(k) != key.get(k)]
+        before = old["likelihood"]
+        what = [
+            "likelihood ("
+            + "; ".join(f"{k}: {before.get(k)!r} → {v!r}" for k, v in form.items() if before.get(k) != v)
+            + ")"
+            if k == "likelihood"
+            else k
+            for k in changed
+        ]
+        say(f"{state_file}: saved with other {', '.join(what)}; continuing from the history's best point")
         saved = None
     past: list[dict] = []
     if saved is None and hist and resume and hist.exists():

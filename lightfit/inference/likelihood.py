@@ -151,13 +151,39 @@ def mc_correlation(model, theta=None, names: Sequence[str] | None = None, parts=
     a full render, or the emulator's parts for a model with emulated light), through the model's
     observation operator with the exact leaf photosynthesis. ``names``: series (default all of
     :data:`~lightfit.inference.observations.SERIES`). Cost: one forward pass and one reverse pass
-    per series.
+    per series. A :class:`~lightfit.inference.multiday.MultiDayModel`: each day's correlation,
+    independent across days (block-diagonal).
     """
+    if getattr(model, "day_models", None) is not None:  # several days (lightfit.inference.multiday)
+        return model.mc_correlation(theta, names)
     theta = as_theta(theta)
     names = tuple(series(n).name for n in (names or USES))
     values, se = model.parts(theta) if parts is None else parts
     cov = mc_covariance(model.operator, values, se, theta, [BY_NAME[n].value for n in names])
     return MCCorrelation(names, len(model.times), correlation_of(cov), theta.to_dict())
+
+
+#: The two forms of the Monte Carlo part of the likelihood (``mc_correlation`` argument of
+#: :func:`likelihood_form`): the model's correlation across steps and series, or independent steps.
+MC_FORMS = ("model", "independent")
+
+
+def likelihood_form(mc_correlation, mc_scale: float = 1.0) -> dict:
+    """The likelihood's form as it enters resume keys: ``{"mc_correlation": "model" | "independent",
+    "mc_scale": c}``. ``mc_correlation``: ``"model"``, ``None``/``"independent"``/``"none"`` or an
+    :class:`MCCorrelation` (``"model"``: a run resumed with the other form would mix two
+    likelihoods). :class:`InputError` for anything else."""
+    if isinstance(mc_correlation, MCCorrelation):
+        mode = "model"
+    elif mc_correlation is None or mc_correlation in ("independent", "none"):
+        mode = "independent"
+    elif mc_correlation == "model":
+        mode = "model"
+    else:
+        raise InputError(
+            f"mc_correlation={mc_correlation!r}", column="mc_correlation", expected="'model' or 'independent'"
+        )
+    return {"mc_correlation": mode, "mc_scale": float(mc_scale)}
 
 
 class GaussianLikelihood:
@@ -216,6 +242,8 @@ class GaussianLikelihood:
         self.observed_index = np.concatenate(
             [i * T + np.flatnonzero(np.asarray(self.mask[s.name])) for i, s in enumerate(self.series)]
         )
+        #: the correlation given (None: independent steps); :attr:`correlation` is its observed part
+        self.mc_correlation = mc_correlation
         self.correlation = None
         if mc_correlation is not None:
             if mc_correlation.n_steps != T:
@@ -248,6 +276,27 @@ class GaussianLikelihood:
         s = jnp.sqrt(self.mc_scale) * self._stack({x.name: m[x.mc_sd] for x in self.series})
         cov = jnp.diag(sd**2) + (s[:, None] * s[None, :]) * self.correlation
         return jnp.linalg.cholesky(cov)
+
+    def mc_covariance(self, m: Mapping) -> jax.Array:
+        """The model's own Monte Carlo covariance over the observed entries, diag(s) C diag(s)
+        (C = I without ``mc_correlation``; not multiplied by ``mc_scale``: the error one render of
+        the model carries), (n_observations, n_observations), µmol² m⁻⁴ s⁻²."""
+        s = self._stack({x.name: m[x.mc_sd] for x in self.series})
+        if self.correlation is None:
+            return jnp.diag(s**2)
+        return (s[:, None] * s[None, :]) * self.correlation
+
+    def whitened_mc_covariance(self, m: Mapping, noise_scale=1.0) -> jax.Array:
+        """W = L⁻¹ Σ_MC L⁻ᵀ (Σ = LLᵀ the likelihood's covariance at λ = ``noise_scale``, Σ_MC from
+        :meth:`mc_covariance`): the model's Monte Carlo covariance in whitened coordinates
+        (dimensionless, over the observed entries); diag(s²/v) without ``mc_correlation``."""
+        mc = self.mc_covariance(m)
+        if self.correlation is None:
+            v = self._stack(self.variances(m, noise_scale))
+            return mc / jnp.sqrt(v[:, None] * v[None, :])
+        L = self.cholesky(m, noise_scale)
+        a = jax.scipy.linalg.solve_triangular(L, mc, lower=True)
+        return jax.scipy.linalg.solve_triangular(L, a.T, lower=True).T
 
     def _whiten(self, delta: Mapping, m: Mapping, noise_scale):
         """(whitened vector in the (len(use)·T,) layout, log det Σ over the observed entries)."""
@@ -289,10 +338,12 @@ class GaussianLikelihood:
 __all__ = [
     "ALIASES",
     "MC_CORRELATION_JITTER",
+    "MC_FORMS",
     "USES",
     "GaussianLikelihood",
     "MCCorrelation",
     "correlation_of",
+    "likelihood_form",
     "mc_correlation",
     "resolve_use",
 ]

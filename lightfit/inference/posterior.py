@@ -16,22 +16,104 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from lightfit.errors import InputError
 from lightfit.inference.identifiability import fisher_information, profile_likelihood
-from lightfit.inference.likelihood import USES
+from lightfit.inference.likelihood import MC_FORMS, USES, MCCorrelation, likelihood_form
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.mcmc import (
     NOISE_SCALE,
+    PRIOR_SETS,
     LogPosterior,
+    Prior,
     StopRule,
     flat_samples,
+    load_run,
     priors_table,
     sample,
     summarize,
     write_group,
 )
+from lightfit.inference.mcmc.backend import stored_run
+from lightfit.inference.mcmc.priors import informed_priors
+from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align
 from lightfit.model.coupled import CoupledModel
-from lightfit.model.emulator import FastObservables, PartsEmulator, validate
+from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, validate
+
+
+def prior_set(name: str, optics=None) -> dict[str, Prior]:
+    """The prior set ``name`` of :data:`~lightfit.inference.mcmc.priors.PRIOR_SETS` for a run's leaf
+    ``optics``: ``"informed"`` is :func:`~lightfit.inference.mcmc.priors.informed_priors` of that leaf
+    (its subsurface prior spans PROSPECT-D's transmittance for the leaf's base colour: 0.31–1 for the
+    default leaf, 0.04–0.17 for the reference paper's grey leaf); ``"wide"`` is the same for any leaf."""
+    if name not in PRIOR_SETS:
+        raise InputError(f"priors={name!r}", column="priors", expected=" or ".join(PRIOR_SETS))
+    return informed_priors(optics) if name == "informed" else dict(PRIOR_SETS[name])
+
+
+def log_posterior(
+    model,
+    obs: pd.DataFrame,
+    forward,
+    *,
+    names=("specular", "roughness", "subsurface", "light_factor"),
+    priors=None,
+    fixed=None,
+    use=USES,
+    mc_correlation="model",
+    mc_scale: float = 1.0,
+    light_model=None,
+) -> LogPosterior:
+    """The :class:`~lightfit.inference.mcmc.LogPosterior` that :func:`run` samples, for the run's leaf.
+
+    ``priors`` default: the informed priors of the run's leaf (:func:`prior_set` ``"informed"`` of
+    ``model.scenario.optics``); unsampled model parameters: ``fixed`` completed with the run's own
+    leaf (``model.theta(fixed)``), so a grey-leaf run (``--optics paper``) is sampled around the grey
+    leaf with its prior; ``noise_scale`` from ``fixed`` (default 1). ``mc_correlation``: ``"model"`` —
+    the model's Monte Carlo correlation at the centre of the priors, from ``light_model``'s parts
+    (default ``model``'s; :func:`run` passes the emulated model, so no render); ``None`` — independent
+    steps; or an :class:`~lightfit.inference.likelihood.MCCorrelation`. ``model`` may be a
+    :class:`~lightfit.inference.multiday.MultiDayModel`."""
+    form = likelihood_form(mc_correlation, mc_scale)
+    priors = prior_set("informed", model.scenario.optics) if priors is None else priors
+    fixed = dict(fixed or {})
+    lam = fixed.pop(NOISE_SCALE, None)
+    base = {**model.theta(fixed).to_dict(), **({} if lam is None else {NOISE_SCALE: lam})}
+    lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale)
+    if isinstance(mc_correlation, MCCorrelation) or form["mc_correlation"] == "independent":
+        corr = mc_correlation if isinstance(mc_correlation, MCCorrelation) else None
+    else:
+        theta_c, _ = lp.split(jnp.asarray(lp.center()))
+        corr = mc_correlation_of(light_model or model, theta_c, lp.use)
+    return LogPosterior(forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale)
+
+
+def stored_likelihood(attrs: dict) -> dict:
+    """The likelihood form (:func:`~lightfit.inference.likelihood.likelihood_form`) a stored posterior
+    run was sampled with, from its attributes; runs stored before the form was recorded: independent
+    steps (no ``likelihood`` attribute) or read from its sentence."""
+    lk = attrs.get("likelihood")
+    if not isinstance(lk, dict):
+        return likelihood_form(None)
+    mode = lk.get("mc_correlation")
+    if mode not in MC_FORMS:  # written as a sentence: "independent steps" / "model Monte Carlo covariance at …"
+        mode = "independent" if mode in (None, "independent steps") else "model"
+    return {"mc_correlation": mode, "mc_scale": float(lk.get("mc_scale", 1.0))}
+
+
+def check_likelihood(path: str | Path, form: dict) -> None:
+    """Refuse to resume a posterior run in ``path`` sampled with another likelihood form (one chain
+    would mix two posteriors): :class:`InputError` naming what changed."""
+    if stored_run(Path(path), "mcmc") is None:
+        return
+    before = stored_likelihood(load_run(path)["attrs"])
+    if before != form:
+        changes = "; ".join(f"{k}: {before[k]!r} → {form[k]!r}" for k in form if before[k] != form[k])
+        raise InputError(
+            f"the posterior run there was sampled with another likelihood ({changes})",
+            file=path,
+            expected="the run's --mc-correlation and --mc-scale, --no-resume to start again, or another --out",
+        )
 
 
 def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarray:
@@ -144,10 +226,22 @@ def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, sam
     }
 
 
+def _join_validations(vals: list[dict]) -> dict:
+    """Several days' :func:`~lightfit.model.emulator.validate` results as one over the concatenated
+    steps (errors and full values side by side in time; parts error: RMS over all, largest)."""
+    if len(vals) == 1:
+        return vals[0]
+    out = {k: np.concatenate([v[k] for v in vals], axis=1) for o in VALIDATED for k in (f"err_{o}", f"full_{o}")}
+    out["parts_rms"] = float(np.sqrt(np.mean([v["parts_rms"] ** 2 for v in vals])))
+    out["parts_max"] = float(max(v["parts_max"] for v in vals))
+    out["leaf_test"] = vals[0]["leaf_test"]
+    return out
+
+
 def run(
-    model: CoupledModel,
+    model: CoupledModel | MultiDayModel,
     obs: pd.DataFrame,
-    emulator: PartsEmulator,
+    emulator: PartsEmulator | list[PartsEmulator],
     path: str | Path,
     *,
     names=("specular", "roughness", "subsurface", "light_factor"),
@@ -172,52 +266,71 @@ def run(
 ) -> dict:
     """Sample the posterior into ``path`` and (``analysis=True``) write the analysis group.
 
-    ``validation_renders``: ``(leaf_test, (values, se))`` full renders at held-out points for the
-    emulator-error report (skipped when None). ``mc_correlation``: ``"model"`` (default) — the
-    likelihood covers the renderer's Monte Carlo error with its correlation across steps and series,
-    computed once from the emulated parts at the centre of the priors
-    (:func:`~lightfit.inference.likelihood.mc_correlation`); ``None`` — independent steps (the
-    diagonal form before issue 15); or an :class:`~lightfit.inference.likelihood.MCCorrelation`.
-    ``mc_scale``: 1 for measured observations, 2 for twins rendered at the model's samples.
+    The log-posterior is :func:`log_posterior` (priors default: the informed priors of the run's leaf;
+    unsampled parameters: the run's leaf defaults). ``validation_renders``: ``(leaf_test, (values,
+    se))`` full renders at held-out points for the emulator-error report (skipped when None).
+    ``mc_correlation``: ``"model"`` (default) — the likelihood covers the renderer's Monte Carlo error
+    with its correlation across steps and series, computed once from the emulated parts at the centre
+    of the priors (:func:`~lightfit.inference.likelihood.mc_correlation`); ``None`` — independent
+    steps (the diagonal form before issue 15); or an
+    :class:`~lightfit.inference.likelihood.MCCorrelation`. ``mc_scale``: 1 for measured observations,
+    2 for twins rendered at the model's samples. Both are stored with the run, and a run stored with
+    another form is not resumed (:func:`check_likelihood`).
+
+    Several days: ``model`` a :class:`~lightfit.inference.multiday.MultiDayModel`, ``emulator`` and
+    ``validation_renders`` one per day (lists, in date order).
     Returns a dict of the main numbers.
     """
     t0 = time.perf_counter()
-    fast = FastObservables(model, emulator, n_grid=n_grid)
-    lp = LogPosterior(fast, model.times, obs, names, priors, fixed, use)
-    if isinstance(mc_correlation, str):  # "model": at the prior centre, from the emulator's parts
-        theta_c, _ = lp.split(jnp.asarray(lp.center()))
-        mc_correlation = mc_correlation_of(model.with_light(emulator), theta_c, lp.use)
-    lp = LogPosterior(
-        fast, model.times, obs, names, priors, fixed, use, mc_correlation=mc_correlation, mc_scale=mc_scale
+    form = likelihood_form(mc_correlation, mc_scale)
+    if resume:
+        check_likelihood(path, form)
+    days = days_of(model)
+    emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]
+    fasts = [FastObservables(d, e, n_grid=n_grid) for d, e in zip(days, emus)]
+    fast = joined(model, fasts)
+    lp = log_posterior(
+        model,
+        obs,
+        fast,
+        names=names,
+        priors=priors,
+        fixed=fixed,
+        use=use,
+        mc_correlation=mc_correlation,
+        mc_scale=mc_scale,
+        light_model=with_lights(model, emus),
     )
+    corr = lp.likelihood.mc_correlation
+    emu_meta = [
+        {
+            "degree": e.degree,
+            "n_design": int(len(e.design)),
+            "lo": e.lo.tolist(),
+            "hi": e.hi.tolist(),
+            "render_seconds": e.render_seconds,
+            "n_grid": n_grid,
+        }
+        for e in emus
+    ]
+    sc = model.scenario
     meta = {
         "priors": priors_table(lp.priors, lp.names),
         "use": list(lp.use),
         "fixed": {**lp.base.to_dict(), NOISE_SCALE: lp.noise_scale},
         "observations": {"source": str(obs.attrs.get("source", "")), "provenance": obs.attrs.get("provenance", "")},
         "scenario": {
-            "n_segments": int(len(model.segment_id)),
-            "samples": model.scenario.samples,
-            "bounces": model.scenario.bounces,
-            "render_seed": model.scenario.seed,
-            "n_plants": model.scenario.field.n_plants,
-            "par_kind": model.scenario.par_kind,
-            "an_per": model.scenario.an_per,
+            "n_segments": int(sum(len(d.segment_id) for d in days)),
+            "samples": sc.samples,
+            "bounces": sc.bounces,
+            "render_seed": sc.seed,
+            "n_plants": sc.field.n_plants,
+            "par_kind": sc.par_kind,
+            "an_per": sc.an_per,
+            **({"dates": list(model.dates)} if isinstance(model, MultiDayModel) else {}),
         },
-        "emulator": {
-            "degree": emulator.degree,
-            "n_design": int(len(emulator.design)),
-            "lo": emulator.lo.tolist(),
-            "hi": emulator.hi.tolist(),
-            "render_seconds": emulator.render_seconds,
-            "n_grid": n_grid,
-        },
-        "likelihood": {
-            "mc_correlation": "independent steps"
-            if mc_correlation is None
-            else f"model Monte Carlo covariance at {mc_correlation.theta}",
-            "mc_scale": mc_scale,
-        },
+        "emulator": emu_meta[0] if len(emu_meta) == 1 else emu_meta,
+        "likelihood": {**form, "correlation_at": None if corr is None else corr.theta},
         **(attrs or {}),
     }
     res = sample(
@@ -259,10 +372,14 @@ def run(
         "predictive": predictive(lp, obs, model.times, samples, n_predictive, seed + 1),
     }
     if validation_renders is not None:
-        leaf_test, full = validation_renders
+        per_day = validation_renders if isinstance(model, MultiDayModel) else [validation_renders]
         th_map, _ = lp.split(jnp.asarray(x_map))
         extra = {k: float(getattr(th_map, k)) for k in ("light_factor", "vcmax_scale")}
-        val = validate(model, fast, leaf_test, theta_extra=extra, full=full)
+        vals = [
+            validate(d, f, leaf_test, theta_extra=extra, full=full)
+            for d, f, (leaf_test, full) in zip(days, fasts, per_day)
+        ]
+        val = _join_validations(vals)
         an["emulator_error"] = emulator_error_vs_width(lp, x_map, cov, val)
         out["emulator_error"] = an["emulator_error"]
     write_group(path, "analysis", an)
@@ -281,4 +398,14 @@ def run(
     return out
 
 
-__all__ = ["emulator_error_vs_width", "identifiability", "optimum", "predictive", "run"]
+__all__ = [
+    "check_likelihood",
+    "emulator_error_vs_width",
+    "identifiability",
+    "log_posterior",
+    "optimum",
+    "predictive",
+    "prior_set",
+    "run",
+    "stored_likelihood",
+]

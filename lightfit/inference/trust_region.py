@@ -14,12 +14,21 @@ spent only where they decide something:
 4. accept when the surrogate predicted that loss within Monte Carlo error,
 
    .. math:: |\mathcal L_{full}(x^*) - \mathcal L_{sur}(x^*)| \le z\,\sigma_{\mathcal L},\qquad
-       \sigma_{\mathcal L}^2 = \sum_k \frac{r_k^2 s_k^2}{v_k^2} + \tfrac12\sum_k \frac{s_k^4}{v_k^2},
+       \sigma_{\mathcal L}^2 = r^\top \Sigma^{-1}\Sigma_{MC}\Sigma^{-1} r
+           + \tfrac12 \operatorname{tr}\big((\Sigma^{-1}\Sigma_{MC})^2\big),
 
-   the standard deviation of the loss :math:`\tfrac12\sum r_k^2/v_k` when each observable
-   :math:`m_k` carries independent Gaussian Monte Carlo error of SD :math:`s_k` (the model's own
-   estimate; :math:`r_k = y_k - m_k`, :math:`v_k` the likelihood's variance; first term: the
-   linear change of the loss, second: the variance of the quadratic term). ``z = 2`` by default.
+   the variance of the loss :math:`\tfrac12 r^\top\Sigma^{-1} r` when the observables carry
+   Gaussian Monte Carlo error :math:`e \sim N(0, \Sigma_{MC})` (:math:`r = y - m` the residual,
+   :math:`\Sigma` the likelihood's covariance, :math:`\Sigma_{MC} = \mathrm{diag}(s)\,C\,
+   \mathrm{diag}(s)` the model's own Monte Carlo covariance with the likelihood's correlation C,
+   identity for independent steps). For a Gaussian quadratic form, with
+   :math:`A = \Sigma^{-1}`: :math:`\tfrac12 (r+e)^\top A (r+e) = \tfrac12 r^\top A r + r^\top A e
+   + \tfrac12 e^\top A e`; the linear term has variance :math:`r^\top A\Sigma_{MC}A r`, the
+   quadratic one :math:`\tfrac12\operatorname{tr}((A\Sigma_{MC})^2)`, and they are uncorrelated
+   (odd moments of e vanish). Computed in whitened coordinates, :math:`W = L^{-1}\Sigma_{MC}L^{-\top}`,
+   :math:`w = L^{-1}r`: :math:`\sigma_{\mathcal L}^2 = w^\top W w + \tfrac12\|W\|_F^2`. With
+   independent steps this is :math:`\sum_k r_k^2 s_k^2/v_k^2 + \tfrac12\sum_k s_k^4/v_k^2`.
+   ``z = 2`` by default.
    Otherwise add :math:`x^*` to the design and go to 1.
 
 Why this criterion: the emulator reproduces renders made with the *same* random numbers, so any
@@ -53,8 +62,11 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from lightfit.errors import InputError
 from lightfit.inference.calibration import CalibrationResult, calibrate
-from lightfit.inference.likelihood import USES, GaussianLikelihood, resolve_use
+from lightfit.inference.likelihood import USES, GaussianLikelihood, likelihood_form, resolve_use
+from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
+from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align
 from lightfit.model import emulator as E
 from lightfit.model.coupled import CoupledModel
@@ -72,8 +84,26 @@ def observed_model(
 
     Kept: steps with any observed value (of any series, so that every row still aligns). Rendered:
     kept daytime steps where a used series other than :data:`RENDER_FREE` has a value. See
-    :func:`lightfit.model.emulator.restrict`.
+    :func:`lightfit.model.emulator.restrict`. A :class:`~lightfit.inference.multiday.MultiDayModel`:
+    each day cut to its own observations (a day without any is an error naming it); the count sums
+    the days'.
     """
+    if isinstance(model, MultiDayModel):
+        cut, kept, n = {}, [], 0
+        for d, part in model.split(obs).items():
+            if not len(part):
+                raise InputError(
+                    f"no observation on {d}",
+                    file=obs.attrs.get("source"),
+                    column="time",
+                    expected=f"observations on every date of the run ({', '.join(model.dates)})",
+                )
+            cut[d], o_d, n_d = observed_model(model.day_models[d], part, use)
+            kept.append(o_d)
+            n += n_d
+        o = pd.concat(kept)
+        o.attrs = dict(obs.attrs)
+        return MultiDayModel(cut), o, n
     values = [s.value for s in SERIES if s.value in obs.columns]
     o = obs[obs[values].notna().any(axis=1)]
     o.attrs = dict(obs.attrs)
@@ -89,10 +119,11 @@ def observed_model(
 
 
 def loss_sd(likelihood: GaussianLikelihood, m: Mapping) -> float:
-    """σ_L of the module docstring: the Monte Carlo SD of the calibration loss at observables ``m``."""
-    w = likelihood.whitened(m)
-    q = likelihood.whiten({s.name: m[s.mc_sd] for s in likelihood.series}, m)
-    return float(jnp.sqrt(jnp.sum(w**2 * q**2) + 0.5 * jnp.sum(q**4)))
+    """σ_L of the module docstring: the Monte Carlo SD of the calibration loss at observables ``m``
+    (the likelihood's own Monte Carlo correlation, if it has one)."""
+    w = likelihood.whitened(m)[likelihood.observed_index]
+    W = likelihood.whitened_mc_covariance(m)
+    return float(jnp.sqrt(w @ W @ w + 0.5 * jnp.sum(W**2)))
 
 
 @dataclass
@@ -122,8 +153,8 @@ class SurrogateCalibration:
     mode: str
     seconds: float
     z: float
-    design_dir: Path | None = None
-    emulator: E.PartsEmulator | None = field(default=None, repr=False)
+    design_dir: Path | list[Path] | None = None
+    emulator: E.PartsEmulator | list[E.PartsEmulator] | None = field(default=None, repr=False)
 
     def table(self) -> list[dict]:
         """The rounds as rows for a printed table / JSON."""
@@ -151,6 +182,8 @@ def surrogate_calibrate(
     n_grid: int | None = 64,
     progress: bool = True,
     say: Callable[[str], None] = print,
+    mc_correlation: str | None = "model",
+    mc_scale: float = 1.0,
 ) -> SurrogateCalibration:
     """Calibrate on the emulator inside the box [lo, hi] of the leaf parameters, checked by full
     renders (see the module docstring).
@@ -167,13 +200,22 @@ def surrogate_calibrate(
         method, max_steps: the optimiser on the surrogate (:func:`~lightfit.inference.calibration.calibrate`).
         n_grid: leaf photosynthesis table size of :class:`~lightfit.model.emulator.FastObservables`
             (``None``: exact per blade).
+        mc_correlation: ``"model"`` (default): the likelihood (optimised loss and check) takes the
+            model's Monte Carlo correlation across steps and series, computed once from the first
+            round's emulator at ``start`` (no extra render; exact light in the no-/one-render modes);
+            ``None``: independent steps. ``mc_scale``: c of the likelihood (2 for twins rendered at
+            the model's samples).
+
+    ``model`` may be a :class:`~lightfit.inference.multiday.MultiDayModel`: one emulator per day (each
+    in its own design directory; ``design_dir`` and ``emulator`` are then lists), every round renders
+    each day at the candidate optimum, and the check compares the days' summed losses.
     """
     t0 = time.perf_counter()
     names = check_names(names)
+    form = likelihood_form(mc_correlation, mc_scale)
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)
-    lik = GaussianLikelihood(o, m.times, use)
     base = model.theta(fixed)
     x0 = as_theta(start, base=base)
     out = None if out is None else Path(out)
@@ -181,9 +223,20 @@ def surrogate_calibrate(
         out.mkdir(parents=True, exist_ok=True)
     leaf_names = [n for n in names if n in E.LEAF_PARAMETERS]
     bounds = {n: (float(lo[i]), float(hi[i])) for i, n in enumerate(E.LEAF_PARAMETERS) if n in leaf_names}
-    ddir = None
+    days = days_of(m)  # one model per day (a single-day run: [m])
+    ddirs: list[Path] = []
+    corr = None
 
-    def done(res, rounds, passed, loss_full, mode, emu=None):
+    def likelihood(light_model) -> GaussianLikelihood:
+        """The run's likelihood; with the model's Monte Carlo correlation computed (once) from
+        ``light_model`` at the start point."""
+        nonlocal corr
+        lik = GaussianLikelihood(o, m.times, use, mc_scale=mc_scale)
+        if form["mc_correlation"] == "model" and corr is None:
+            corr = mc_correlation_of(light_model, x0, lik.use)
+        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, mc_scale=mc_scale)
+
+    def done(res, rounds, passed, loss_full, mode, emus=None):
         return SurrogateCalibration(
             res,
             rounds,
@@ -195,8 +248,8 @@ def surrogate_calibrate(
             mode,
             time.perf_counter() - t0,
             z,
-            ddir,
-            emu,
+            (ddirs[0] if len(ddirs) == 1 else ddirs) or None,
+            None if emus is None else (emus[0] if len(emus) == 1 else emus),
         )
 
     def run(forward, start_theta, tag, bnds=None):
@@ -215,23 +268,31 @@ def surrogate_calibrate(
             resume=False,  # cheap and deterministic from the cached renders: redone, not resumed
             progress=progress,
             say=say,
+            mc_correlation=corr,
+            mc_scale=mc_scale,
         )
 
+    def fixed_light(v, s):
+        return lambda _, v=v, s=s: (jnp.asarray(v), jnp.asarray(s))
+
     if n_steps == 0 or not leaf_names:
-        if n_steps == 0:
-            zeros = (jnp.zeros((0, len(E.PARTS), len(m.segment_id))),) * 2
-            light, mode = (lambda _: zeros), "no render"
-        else:
-            ddir = E.design_dir(m, cache)
-            v, s = E.render_parts(m, np.asarray(base.leaf)[None], cache=ddir / "renders")
-            light, mode = (lambda _: (jnp.asarray(v[0]), jnp.asarray(s[0]))), "one render"
-        exact = m.with_light(light)
+        lights = []
+        for d in days:
+            if n_steps == 0:
+                zeros = (jnp.zeros((0, len(E.PARTS), len(d.segment_id))),) * 2
+                lights.append(lambda _, z=zeros: z)
+            else:
+                ddirs.append(E.design_dir(d, cache))
+                v, sd = E.render_parts(d, np.asarray(base.leaf)[None], cache=ddirs[-1] / "renders")
+                lights.append(fixed_light(v[0], sd[0]))
+        mode = "no render" if n_steps == 0 else "one render"
+        exact = with_lights(m, lights)
+        lik = likelihood(exact)
         res = run(exact.observe, x0, "exact")
         say(f"calibrated exactly ({mode}: {n_steps} sun positions need the light at the plants)")
         return done(res, [], True, res.loss, mode)
 
-    ddir = E.design_dir(m, cache)
-    renders = ddir / "renders"
+    ddirs = [E.design_dir(d, cache) for d in days]
     log = None if out is None else out / "trust_region.jsonl"
     if log is not None:
         log.unlink(missing_ok=True)
@@ -239,17 +300,34 @@ def surrogate_calibrate(
     rounds: list[dict] = []
     th = x0
     res = None
+    lik = None
     for r in range(max_rounds):
         t_round = time.perf_counter()
-        emu = E.shared_emulator(
-            m, lo, hi, n_design=n_design, seed=design_seed, extra=extra or None, cache=cache, progress=progress, say=say
-        )
-        fast = E.FastObservables(m, emu, n_grid=n_grid)
+        emus = [
+            E.shared_emulator(
+                d,
+                lo,
+                hi,
+                n_design=n_design,
+                seed=design_seed,
+                extra=extra or None,
+                cache=cache,
+                progress=progress,
+                say=say,
+            )
+            for d in days
+        ]
+        if lik is None:  # the correlation from the first round's emulator at the start point (no extra render)
+            lik = likelihood(with_lights(m, emus))
+        fast = joined(m, [E.FastObservables(d, e, n_grid=n_grid) for d, e in zip(days, emus)])
         res = run(fast, th, f"round{r}", bounds)
         th = as_theta(res.theta)
         x = np.asarray(th.leaf, float)
-        v, s = E.render_parts(m, x[None], progress=False, cache=renders)
-        full = m.with_light(lambda _, v=v, s=s: (jnp.asarray(v[0]), jnp.asarray(s[0]))).observe(th)
+        lights = []
+        for d, dd in zip(days, ddirs):
+            v, sd = E.render_parts(d, x[None], progress=False, cache=dd / "renders")
+            lights.append(fixed_light(v[0], sd[0]))
+        full = with_lights(m, lights).observe(th)
         sur = jax.jit(fast)(th)
         l_full, l_sur = float(lik.loss(full)), float(lik.loss(sur))
         sd = loss_sd(lik, full)
@@ -262,8 +340,8 @@ def surrogate_calibrate(
             err[sr.name] = float(np.max(diff / np.where(mc > 0, mc, np.nan))) if mc.size and (mc > 0).any() else 0.0
         row = {
             "round": r,
-            "design": int(len(emu.design)),
-            "degree": int(emu.degree),
+            "design": int(len(emus[0].design)),
+            "degree": int(emus[0].degree) if len(emus) == 1 else [int(e.degree) for e in emus],
             "theta": {n: float(getattr(th, n)) for n in names},
             "loss_surrogate": l_sur,
             "loss_full": l_full,
@@ -285,9 +363,9 @@ def surrogate_calibrate(
             f"({'passed' if passed else 'refining'})"
         )
         if passed:
-            return done(res, rounds, True, l_full, "surrogate", emu)
+            return done(res, rounds, True, l_full, "surrogate", emus)
         extra.append([float(v) for v in x])
-    return done(res, rounds, False, rounds[-1]["loss_full"], "surrogate", emu)
+    return done(res, rounds, False, rounds[-1]["loss_full"], "surrogate", emus)
 
 
 __all__ = ["RENDER_FREE", "SurrogateCalibration", "loss_sd", "observed_model", "surrogate_calibrate"]
