@@ -518,8 +518,12 @@ class SegmentEstimator:
         for k, v in ev.items():
             if not np.isfinite(v).all():
                 raise FloatingPointError(f"non-finite {k} in {int((~np.isfinite(v)).sum())} evaluation(s)")
-            per_point = np.zeros((S, K))
-            np.add.at(per_point, (self._ev["seg"], self._ev["pt"]), v)
+            # Evaluations are every point's front side in (segment, point) order, then the back
+            # sides of blade points (each point once): the sum per point without np.add.at
+            # (18 → 7 ms per part for the main job), in the same order, so with the same rounding.
+            per_point = v[:n_front].reshape(S, K).copy()
+            back = self._ev["seg"][n_front:] * K + self._ev["pt"][n_front:]
+            per_point.reshape(-1)[back] += v[n_front:]
             out[k] = per_point.mean(1)
             rep = per_point.reshape(S, self.replicates, self.per_replicate).mean(2)
             se[k] = rep.std(1, ddof=1) / math.sqrt(self.replicates)
