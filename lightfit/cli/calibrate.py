@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names, parse_theta
-from lightfit.cli.options import ModelOptions, Use, check_resumable, coupled_model, model_options, resolve, weather
+from lightfit.cli.options import ModelOptions, Use, check_resumable, model_options, resolve, run_model
 from lightfit.errors import InputError
 
 
@@ -43,15 +43,26 @@ def calibrate(
     max_rounds: int = typer.Option(6, help="Surrogate rounds at most (each adds one render at its optimum)."),
     priors: str = typer.Option("informed", help="Prior set whose leaf-parameter support is the emulator's box."),
     cache: Path = typer.Option(None, help="Design cache (default: $LIGHTFIT_CACHE or ~/.cache/lightfit)."),
+    mc_correlation: str = typer.Option(
+        "model",
+        help="Likelihood's Monte Carlo error: 'model' (its correlation across steps and series, computed once at "
+        "the start; the default) or 'independent' (independent steps, the form before issue 15).",
+    ),
+    mc_scale: float = typer.Option(
+        1.0, help="Factor on the model's Monte Carlo variance in the likelihood (2 for twins rendered at another seed)."
+    ),
     *,
     model: ModelOptions,
 ) -> None:
-    """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64)."""
+    """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64).
+
+    Several --date: one calibration against the observations of every day (each day's plants and forcing)."""
     from lightfit.inference import mcmc as P
     from lightfit.inference.calibration import METHODS
     from lightfit.inference.calibration import calibrate as run_calibration
-    from lightfit.inference.likelihood import resolve_use
+    from lightfit.inference.likelihood import likelihood_form, resolve_use
     from lightfit.inference.observations import read_observations
+    from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
     from lightfit.model.parameters import check_names
@@ -66,6 +77,9 @@ def calibrate(
     n_design = E.DESIGN_SIZE if n_design is None else n_design
     if surrogate and n_design < 5:
         raise InputError(f"n_design={n_design}", column="n-design", expected="at least 5 design renders")
+    form = likelihood_form(mc_correlation, mc_scale)
+    if not (mc_scale >= 0 and mc_scale < float("inf")):
+        raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
     if max_rounds < 1:
         raise InputError(f"max_rounds={max_rounds}", column="max-rounds", expected="at least 1")
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
@@ -82,13 +96,13 @@ def calibrate(
             if f.exists():
                 check_resumable(json.loads(f.read_text()).get("config"), s, f, "calibration history")
                 break
-    m = coupled_model(s, weather(s))
+    m = run_model(s)  # several --date: one model per day
     out.mkdir(parents=True, exist_ok=True)
     settings.write_text(json.dumps({"config": s.as_dict()}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
     tr = None
     if surrogate:
-        box = P.PRIOR_SETS[priors]
+        box = prior_set(priors, m.scenario.optics)  # the run leaf's informed priors
         lo = [box[n].support[0] for n in E.LEAF_PARAMETERS]
         hi = [box[n].support[1] for n in E.LEAF_PARAMETERS]
         tr = surrogate_calibrate(
@@ -106,6 +120,8 @@ def calibrate(
             method=method,
             max_steps=max_steps,
             say=say,
+            mc_correlation=form["mc_correlation"],
+            mc_scale=mc_scale,
         )
         res = tr.result
     else:
@@ -121,6 +137,8 @@ def calibrate(
             history=out / "history.jsonl",
             resume=resume,
             say=say,
+            mc_correlation=form["mc_correlation"],
+            mc_scale=mc_scale,
         )
     record = {
         "theta": res.theta,
@@ -133,6 +151,8 @@ def calibrate(
         "converged": bool(res.converged),
         "method": res.method,
         "use": list(uses),
+        "dates": list(getattr(m, "dates", s.dates)),
+        "likelihood": form,
         "seconds": res.seconds if tr is None else tr.seconds,
         "observations": str(observations),
         "parameters": list(names),
@@ -151,7 +171,11 @@ def calibrate(
             "sun_positions_rendered": tr.steps_rendered,
             "n_design": n_design,
             "box": {"lo": lo, "hi": hi, "priors": priors},
-            "design_dir": None if tr.design_dir is None else str(tr.design_dir),
+            "design_dir": None
+            if tr.design_dir is None
+            else [str(d) for d in tr.design_dir]
+            if isinstance(tr.design_dir, list)
+            else str(tr.design_dir),
             "rounds": tr.rounds,
         }
     (out / "calibration.json").write_text(json.dumps(record, indent=2))

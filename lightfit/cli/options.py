@@ -643,6 +643,24 @@ def coupled_model(s: ModelSettings, w=None, progress: bool = True):
     return CoupledModel(scenario(s, w), progress=progress)
 
 
+def run_model(s: ModelSettings, progress: bool = True):
+    """The model of a calibration or posterior: one :class:`~lightfit.model.coupled.CoupledModel` for
+    one date; for several ``--date`` a :class:`~lightfit.inference.multiday.MultiDayModel` of one model
+    per date (plants grown to it, that day's forcing and window)."""
+    if len(s.dates) <= 1:
+        return coupled_model(s, weather(s), progress)
+    from lightfit.inference.multiday import MultiDayModel
+    from lightfit.replication import days
+
+    w = weather(s)
+    return MultiDayModel(
+        {
+            d: coupled_model(dataclasses.replace(s, dates=(d,)), wd, progress)
+            for d, wd in days(s.replication_config(), w)
+        }
+    )
+
+
 def _steps(text: str, n: int) -> slice:
     """``"5"`` → the first 5 steps; ``"a:b"`` → positions a to b (Python slice, either end optional)."""
     try:

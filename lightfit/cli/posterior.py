@@ -9,15 +9,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names
-from lightfit.cli.options import (
-    ModelOptions,
-    Use,
-    check_resumable,
-    coupled_model,
-    model_options,
-    resolve,
-    weather,
-)
+from lightfit.cli.options import ModelOptions, Use, check_resumable, model_options, resolve, run_model
 from lightfit.errors import InputError
 
 
@@ -49,15 +41,26 @@ def posterior(
     analysis: bool = typer.Option(
         True, help="After sampling, the analysis (optimum, Fisher, profile, predictive, emulator error)."
     ),
+    mc_correlation: str = typer.Option(
+        "model",
+        help="Likelihood's Monte Carlo error: 'model' (its correlation across steps and series, at the centre of "
+        "the priors; the default) or 'independent' (independent steps, the form before issue 15).",
+    ),
+    mc_scale: float = typer.Option(
+        1.0, help="Factor on the model's Monte Carlo variance in the likelihood (2 for twins rendered at another seed)."
+    ),
     *,
     model: ModelOptions,
 ) -> None:
-    """Sample the posterior with emcee (emulated renders), then Fisher, profile and predictive analysis."""
+    """Sample the posterior with emcee (emulated renders), then Fisher, profile and predictive analysis.
+
+    Several --date: one posterior given the observations of every day (one model and emulator per day)."""
 
     from lightfit import replication as rep
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
-    from lightfit.inference.likelihood import resolve_use
+    from lightfit.inference.likelihood import likelihood_form, resolve_use
+    from lightfit.inference.multiday import days_of
     from lightfit.inference.observations import read_observations
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -69,25 +72,35 @@ def posterior(
         raise InputError(f"n_test={n_test}", column="n-test", expected="0 (no emulator check) or more held-out renders")
     if priors not in P.PRIOR_SETS:
         raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
-    prior_set = P.PRIOR_SETS[priors]
-    names = P.check_sampled(list(parse_names(parameters)), prior_set)
+    form = likelihood_form(mc_correlation, mc_scale)
+    if not (mc_scale >= 0 and mc_scale < float("inf")):
+        raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
+    names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     obs = read_observations(observations or rep.OBSERVATIONS)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     # A stored chain made with other model settings (e.g. the finite field, before periodic became
-    # the default) must not be resumed: checked before the plants are grown.
+    # the default) or another likelihood must not be resumed: checked before the plants are grown.
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
         check_resumable(P.load_run(out / "run.h5")["attrs"].get("config"), s, out / "run.h5", "posterior run")
-    m = coupled_model(s, weather(s))
+        A.check_likelihood(out / "run.h5", form)
+    m = run_model(s)  # several --date: one model per day
     # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
     m, obs, n_rendered = observed_model(m, obs, uses)
+    prior_set = A.prior_set(priors, m.scenario.optics)  # informed: the priors of the run's leaf
     lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
     hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]
     out.mkdir(parents=True, exist_ok=True)
-    emu_key = E.emulator_key(E.render_key(m), lo, hi, n_design, 0, E.DEGREES)
+    days = days_of(m)
+    dates = getattr(m, "dates", None)  # None: one day (files and keys as before several days existed)
+    keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, 0, E.DEGREES) for d in days]
+    emu_key = keys[0] if dates is None else dict(zip(dates, keys))
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
         before = P.load_run(out / "run.h5")["attrs"].get("emulator_key")
         if before is not None and before != emu_key:
-            changes = "; ".join(E.key_changes(before, emu_key))
+            if dates is None or not isinstance(before, dict) or set(before) != set(emu_key):
+                changes = "; ".join(E.key_changes(before, emu_key)) if dates is None else "other dates"
+            else:
+                changes = "; ".join(f"{d}: {c}" for d in dates for c in E.key_changes(before[d], emu_key[d]))
             raise InputError(
                 f"the posterior run there was sampled on another emulator ({changes})",
                 file=out / "run.h5",
@@ -95,30 +108,35 @@ def posterior(
             )
     # Design and held-out renders are kept one by one in the shared design cache (an interrupted design
     # continues where it stopped, and lightfit calibrate's design of the same configuration is reused);
-    # the emulator is refitted whenever its key (design, box, scene) changed. OUT/emulator.npz is the run's copy.
+    # the emulator is refitted whenever its key (design, box, scene) changed. OUT/emulator.npz is the run's
+    # copy (several days: OUT/emulator-<date>.npz, one per day, each day in its own design directory).
     counts = dict(E.COUNTS)
-    if (out / "emulator.npz").exists():  # the run's copy: say what changed since this run's last design
-        before = E.PartsEmulator.load(out / "emulator.npz").key
-        if before != emu_key:
-            changes = "; ".join(E.key_changes(before, emu_key)) if before else "no key (written by an older lightfit)"
-            console.print(f"emulator {out / 'emulator.npz'} was built for other settings ({changes}): rebuilding")
-    emu = E.shared_emulator(
-        m, lo, hi, n_design=n_design, seed=0, cache=cache, progress=True, say=lambda x: console.print(x)
-    )
-    emu.save(out / "emulator.npz")
-    val = None
-    if n_test > 0 and analysis and n_rendered > 0:
-        leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
-        renders = E.design_dir(m, cache) / "renders"
-        val = (leaf_test, E.render_parts(m, leaf_test, progress=True, cache=renders))
+    emus, val = [], []
+    for i, (d, key) in enumerate(zip(days, keys)):
+        copy = out / ("emulator.npz" if dates is None else f"emulator-{dates[i]}.npz")
+        if copy.exists():  # the run's copy: say what changed since this run's last design
+            before = E.PartsEmulator.load(copy).key
+            if before != key:
+                changes = "; ".join(E.key_changes(before, key)) if before else "no key (written by an older lightfit)"
+                console.print(f"emulator {copy} was built for other settings ({changes}): rebuilding")
+        emu = E.shared_emulator(
+            d, lo, hi, n_design=n_design, seed=0, cache=cache, progress=True, say=lambda x: console.print(x)
+        )
+        emu.save(copy)
+        emus.append(emu)
+        if n_test > 0 and analysis and n_rendered > 0:
+            leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
+            renders = E.design_dir(d, cache) / "renders"
+            val.append((leaf_test, E.render_parts(d, leaf_test, progress=True, cache=renders)))
+    where = ", ".join(str(E.design_dir(d, cache)) for d in days)
     console.print(
         f"design: {E.COUNTS['rendered'] - counts['rendered']} new renders, {E.COUNTS['cached'] - counts['cached']} "
-        f"from the cache ({n_rendered} sun positions each; {E.design_dir(m, cache)})"
+        f"from the cache ({n_rendered} sun positions each; {where})"
     )
     res = A.run(
         m,
         obs,
-        emu,
+        emus[0] if dates is None else emus,
         out / "run.h5",
         names=names,
         priors=prior_set,
@@ -128,10 +146,12 @@ def posterior(
         seed=sampler_seed,
         resume=resume,
         stop=P.StopRule(target_ess=target_ess),
-        validation_renders=val,
+        validation_renders=(val[0] if dates is None else val) if val else None,
         analysis=analysis,
         max_seconds=None if max_minutes is None else 60 * max_minutes,
         attrs={"config": s.as_dict(), "priors_set": priors, "emulator_key": emu_key},
+        mc_correlation=form["mc_correlation"],
+        mc_scale=mc_scale,
     )
     (out / "summary.json").write_text(json.dumps(P.jsonable(res), indent=2, default=str))
     if not analysis:
