@@ -116,6 +116,15 @@ class ReplicationConfig:
             return replace(self, **{k: getattr(base, k) for k in PAPER_PRESET})
         raise InputError(f"preset={name!r}", column="preset", expected=" or ".join(PRESETS))
 
+    @property
+    def preset(self) -> str | None:
+        """The named preset whose model choices this configuration has (``None``: neither)."""
+        for name in PRESETS:
+            ref = ReplicationConfig().with_preset(name)
+            if all(getattr(self, k) == getattr(ref, k) for k in ("boundary", "optics", "photosynthesis", "par_kind")):
+                return name
+        return None
+
     def leaf_optics(self) -> Optics:
         """The run's :class:`~lightfit.light.scene.Optics` (checks the preset and the chlorophyll)."""
         if self.optics not in LEAF_PRESETS:
@@ -332,6 +341,7 @@ def run(
         raise InputError("the forcing has no step in the run's windows", column="date", expected=", ".join(cfg.dates))
     ds = parts[0] if len(parts) == 1 else concat_days(parts)
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
+    ds.attrs["preset"] = cfg.preset or "none"
     times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     obs = read_observations(observations) if observations else None
     if obs is not None and observations == OBSERVATIONS and not _within(obs, times):

@@ -51,18 +51,9 @@ def _tz(ds) -> str:
 
 def preset_name(attrs, other: str = "this run") -> str:
     """``"default"`` or ``"paper"`` when the run's model choices are those of a named preset
-    (:data:`lightfit.replication.PAPER_PRESET`), else ``other``."""
-    import json
-
-    from lightfit.replication import PRESETS, ReplicationConfig
-
-    cfg = json.loads(attrs.get("replication_config", "{}") or "{}")
-    for name in PRESETS:
-        ref = ReplicationConfig().with_preset(name)
-        keys = ("boundary", "optics", "photosynthesis", "par_kind")
-        if cfg and all(cfg.get(k) == getattr(ref, k) for k in keys):
-            return name
-    return other
+    (``attrs["preset"]``, :attr:`lightfit.replication.ReplicationConfig.preset`), else ``other``."""
+    name = attrs.get("preset", "none")
+    return other if name in ("none", None, "") else str(name)
 
 
 def run_label(attrs) -> str:

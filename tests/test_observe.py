@@ -193,7 +193,9 @@ def test_figure_with_a_compared_preset(noon_model, tmp_path):
     from lightfit.report import plot, preset_name
 
     ds = noon_model.simulate(Theta())
-    a = ds.assign_attrs(replication_config=json.dumps(asdict(rep.ReplicationConfig.quick())))
-    b = ds.assign_attrs(replication_config=json.dumps(asdict(rep.ReplicationConfig.quick().with_preset("paper"))))
+    a, b = (
+        ds.assign_attrs(replication_config=json.dumps(asdict(c)), preset=c.preset)
+        for c in (rep.ReplicationConfig.quick(), rep.ReplicationConfig.quick().with_preset("paper"))
+    )
     assert (preset_name(a.attrs), preset_name(b.attrs), preset_name({}, "x")) == ("default", "paper", "x")
     assert plot(a, tmp_path / "f.png", compare=b).stat().st_size > 10_000

@@ -155,7 +155,10 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     assert set(ds.dims) == {"time", "segment"} and ds.sizes["time"] == 29
     assert ds.attrs["boundary"] == "periodic" and ds.attrs["buffer_rows"] == 0  # the default field
     assert "periodic boundary" in " ".join(r.stdout.split())
-    assert "obs_plant_par_umol_m2_s" in ds and np.isfinite(ds["obs_plant_par_umol_m2_s"].values).sum() == 1
+    # The bundled chamber record is an above-canopy quantum sensor: compared with that operator.
+    obs_par = "obs_above_canopy_par_umol_m2_s"
+    assert obs_par in ds and np.isfinite(ds[obs_par].values).sum() == 1
+    assert ds.attrs["preset"] == "default"
     ds.close()
     obs = tmp_path / "obs.csv"
     obs.write_text(
