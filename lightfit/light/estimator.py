@@ -190,23 +190,8 @@ class SegmentEstimator:
         self.replicates = replicates_for(int(samples))
         self.per_replicate = -(-int(samples) // self.replicates)
         self.samples = self.replicates * self.per_replicate  # K rounded up to R·M
-        mesh = field_scene.mesh
         seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
-        order = np.argsort(mesh.face_segment, kind="stable")
-        fseg = mesh.face_segment[order]
-        start, end = np.searchsorted(fseg, seg, "left"), np.searchsorted(fseg, seg, "right")
-        if (start == end).any():
-            raise InputError(
-                f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
-                column="segment_ids",
-                expected="ids of stem or leaf segments with non-zero length",
-            )
         self.segment_id = seg
-        area = mesh.face_areas()[order]
-        cum = np.cumsum(area)
-        cum0 = cum - area
-        seg_area = cum[end - 1] - cum0[start]
-        self.area_m2 = seg_area
         K, R, M = self.samples, self.replicates, self.per_replicate
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
         keys = (seg[:, None].astype(np.uint64) << np.uint64(8)) + np.arange(R, dtype=np.uint64)[None, :]
@@ -216,17 +201,7 @@ class SegmentEstimator:
         pos = np.mod(self._shift[:, :, None, :3] + j[None, None, :, None] * self._alpha[:3], 1.0).reshape(
             len(seg), K, 3
         )
-        target = cum0[start][:, None] + pos[..., 0] * seg_area[:, None]
-        idx = np.clip(np.searchsorted(cum, target, "right"), start[:, None], (end - 1)[:, None])
-        face = order[idx]
-        tri = mesh.vertices[mesh.faces[face]]  # (S, K, 3, 3)
-        su = np.sqrt(pos[..., 1])
-        b0, b1 = 1 - su, pos[..., 2] * su
-        x = tri[..., 0, :] * b0[..., None] + tri[..., 1, :] * b1[..., None] + tri[..., 2, :] * (1 - b0 - b1)[..., None]
-        n = mesh.normals()[face]
-        # Zero-area faces have no normal; only a segment made entirely of them can pick one.
-        # It receives nothing: its evaluations are masked out.
-        blade = mesh.face_is_blade[face].reshape(-1)
+        x, n, blade, self.area_m2 = self._place(seg, pos)
         # Evaluations: every point on its front side; blade points also on the back side.
         seg_i = np.repeat(np.arange(len(seg)), K)
         pt = np.tile(np.arange(K), len(seg))
@@ -251,6 +226,42 @@ class SegmentEstimator:
         self._kept = None  # (key, vertices, L_sky, ray counts) of _kept_paths
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
+
+    def _place(self, seg: np.ndarray, pos: np.ndarray):
+        """Sample points of the requested ids from their quasi-random coordinates.
+
+        The one hook for where an estimator measures (:class:`lightfit.light.sensors.SensorEstimator`
+        overrides it with sensor lines; the tracing is shared). ``pos`` (S, K, 3) in [0, 1):
+        here dim 0 picks a face by area, dims 1–2 a uniform point on it. Returns ``(x, n, blade,
+        area_m2)``: points (S, K, 3), unit normals of their front sides (S, K, 3), whether each
+        point also has a back side (S·K,), and the one-sided area of every id (S,), m².
+        """
+        mesh = self.fs.mesh
+        order = np.argsort(mesh.face_segment, kind="stable")
+        fseg = mesh.face_segment[order]
+        start, end = np.searchsorted(fseg, seg, "left"), np.searchsorted(fseg, seg, "right")
+        if (start == end).any():
+            raise InputError(
+                f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
+                column="segment_ids",
+                expected="ids of stem or leaf segments with non-zero length",
+            )
+        area = mesh.face_areas()[order]
+        cum = np.cumsum(area)
+        cum0 = cum - area
+        seg_area = cum[end - 1] - cum0[start]
+        target = cum0[start][:, None] + pos[..., 0] * seg_area[:, None]
+        idx = np.clip(np.searchsorted(cum, target, "right"), start[:, None], (end - 1)[:, None])
+        face = order[idx]
+        tri = mesh.vertices[mesh.faces[face]]  # (S, K, 3, 3)
+        su = np.sqrt(pos[..., 1])
+        b0, b1 = 1 - su, pos[..., 2] * su
+        x = tri[..., 0, :] * b0[..., None] + tri[..., 1, :] * b1[..., None] + tri[..., 2, :] * (1 - b0 - b1)[..., None]
+        n = mesh.normals()[face]
+        # Zero-area faces have no normal; only a segment made entirely of them can pick one.
+        # It receives nothing: its evaluations are masked out.
+        blade = mesh.face_is_blade[face].reshape(-1)
+        return x, n, blade, seg_area
 
     # -- Dr.Jit pieces -------------------------------------------------------------------
     def _own(self, a, integer: bool = False):
