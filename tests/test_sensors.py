@@ -1,0 +1,143 @@
+"""Virtual horizontal quantum sensors (ceptometer at the soil, sensors at a height), issue 14 item 3.
+
+Independent references: the analytic above-canopy sensor DNI·sin β + DHI (above the canopy and
+on the soil of an empty field), Beer–Lambert transmittance of a homogeneous random canopy of
+small black leaves in a periodic cell (the canopy of tests/test_periodic.py), and energy
+conservation (black leaves on black soil: what the leaves absorb plus what reaches the soil is
+what arrives above, so the one-sensor fAPAR ≈ 1 − τ equals the rendered canopy fAPAR).
+"""
+
+import math
+
+import numpy as np
+import pytest
+from test_periodic import BLACK, canopy, square
+
+import lightfit  # noqa: F401
+from lightfit.errors import InputError
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.light.sensors import (
+    Sensor,
+    SensorEstimator,
+    ceptometer,
+    default_sensors,
+    horizontal_points,
+    measured_area,
+)
+from lightfit.plant import Field
+from lightfit.plant.periodic import PeriodicCell
+
+GREY = Optics(specular=0.5, roughness=0.4, subsurface=0.5, base_color=0.5, soil_albedo=0.3)
+CELL = PeriodicCell(0.5, 0.5, row_direction_deg=90.0)
+
+
+@pytest.fixture(scope="module")
+def spherical():
+    """LAI 0.5 of 1 cm leaves with spherical angles in 0.1–1.0 m, in a 0.5 m periodic cell."""
+    mesh, n = canopy(CELL, 0.5, "spherical", np.random.default_rng(11), sensors=0)
+    return mesh, n
+
+
+def test_sensor_above_the_canopy_reads_the_analytic_above_canopy_value(spherical):
+    """Every ray of an upward sensor above the canopy top escapes: DNI sin β + DHI, for both skies."""
+    mesh, _ = spherical
+    above = ceptometer(CELL, height_m=1.2, placements=3)
+    for sky in ("isotropic", "overcast"):
+        fs = FieldScene(mesh, GREY, sky=sky, cell=CELL)
+        for el in (20.0, 65.0):
+            fs.set_sun(el, 140.0)
+            r = SensorEstimator(fs, [above], samples=256, bounces=2, seed=1).render()
+            assert r.incident_sun[0] == pytest.approx(math.sin(math.radians(el)), abs=1e-5)
+            # Isotropic: π L = 1 on every ray; overcast: the sky's radiance is normalised to DHI = 1.
+            assert r.incident_sky[0] == pytest.approx(1.0, abs=max(4 * r.se["incident_sky"][0], 1e-5)), sky
+
+
+def test_sensor_on_the_soil_of_an_empty_field_reads_the_analytic_value():
+    """A finite field whose only leaf is 50 m away: the soil sensor sees the whole sky and the sun."""
+    far = square([50.0, 0.0, 0.5], [0, 0, 1], 0.05, 1)
+    fs = FieldScene(far, GREY)
+    soil = ceptometer(CELL, placements=4)
+    for el in (15.0, 50.0):
+        fs.set_sun(el, 180.0)
+        r = SensorEstimator(fs, [soil], samples=128, bounces=3, seed=2).render()
+        assert r.incident_sun[0] == pytest.approx(math.sin(math.radians(el)), abs=1e-5)
+        assert r.incident_sky[0] == pytest.approx(1.0, abs=1e-5)
+
+
+@pytest.mark.parametrize("el", [30.0, 60.0])
+def test_ceptometer_direct_transmittance_follows_beer_lambert(spherical, el):
+    """τ_dir = exp(−G·LAI/sin β), G = ½ (spherical leaves), from 8 bars of 0.8 m across the cell."""
+    mesh, _ = spherical
+    fs = FieldScene(mesh, BLACK, cell=CELL)
+    fs.set_sun(el, 150.0)
+    r = SensorEstimator(fs, [ceptometer(CELL)], samples=4096, bounces=0, seed=3).render()
+    s = math.sin(math.radians(el))
+    tau, se = r.incident_sun[0] / s, r.se["incident_sun"][0] / s
+    expected = math.exp(-0.5 * 0.5 / s)
+    # 4 SE plus 0.02 for the one random canopy of finite 1 cm leaves (tests/test_periodic.py).
+    assert tau == pytest.approx(expected, abs=4 * se + 0.02), (tau, expected, se)
+    assert se < 0.02
+    assert r.meta["periodic"]["sun"]["capped"] == 0
+
+
+def test_black_canopy_energy_closes_so_one_minus_tau_is_fapar(spherical):
+    """Black leaves on black soil: APAR/above + τ = 1 for sun and sky, i.e. the ceptometer's
+    1 − τ equals the canopy fAPAR rendered on the leaves (to Monte Carlo error)."""
+    mesh, n = spherical
+    fs = FieldScene(mesh, BLACK, cell=CELL)
+    fs.set_sun(40.0, 200.0)
+    leaves = SegmentEstimator(fs, np.arange(1, n + 1), samples=16, bounces=1, seed=4).render()
+    soil = SensorEstimator(fs, [ceptometer(CELL)], samples=4096, bounces=1, seed=4).render()
+    arriving = {"sun": math.sin(math.radians(40.0)), "sky": 1.0}
+    for part, above in arriving.items():
+        apar = (leaves.meta["area_m2"] * getattr(leaves, f"absorbed_{part}")).sum() / CELL.area_m2
+        apar_se = math.sqrt(((leaves.meta["area_m2"] * leaves.se[f"absorbed_{part}"]) ** 2).sum()) / CELL.area_m2
+        tau = getattr(soil, f"incident_{part}")[0] / above
+        se = math.hypot(apar_se / above, soil.se[f"incident_{part}"][0] / above)
+        assert apar / above == pytest.approx(1.0 - tau, abs=4 * se + 0.01), (part, apar / above, tau, se)
+
+
+def test_sensors_give_gradients_and_do_not_change_the_segments(spherical):
+    """Scattered light reaches the soil sensor through the leaves' BSDF: the sensor has a
+    gradient by the leaf parameters (checked against finite differences, common random numbers)."""
+    mesh, n = spherical
+    fs = FieldScene(mesh, GREY, cell=CELL)
+    fs.set_sun(50.0, 120.0)
+    est = SensorEstimator(fs, [ceptometer(CELL, placements=2)], samples=512, bounces=2, seed=5)
+    g = est.vjp({"incident_sky": np.ones(1)})
+    h = 1e-2
+    fs.set_optics(subsurface=GREY.subsurface + h)
+    plus = est.render().incident_sky[0]
+    fs.set_optics(subsurface=GREY.subsurface - h)
+    minus = est.render().incident_sky[0]
+    fs.set_optics(subsurface=GREY.subsurface)
+    fd = (plus - minus) / (2 * h)
+    assert fd > 0  # more transmission through the leaves, more light on the soil
+    assert g["subsurface"] == pytest.approx(fd, rel=0.05, abs=1e-4)
+
+
+def test_sensor_layouts_and_bad_input():
+    fld = Field(n_plants=9, buffer_rows=1)
+    (cep,) = default_sensors(fld)
+    a, b = cep.lines()
+    area = measured_area(fld)
+    assert len(a) == 8 and cep.height_m == 0.0
+    # Across the rows (⊥ to the row direction), clipped to the finite area's width.
+    length = np.linalg.norm(b - a, axis=1)
+    assert length == pytest.approx(min(0.8, area.size_m[1]))
+    ea, _ = area.axes
+    assert np.abs((b - a)[:, :2] @ ea) == pytest.approx(0.0, abs=1e-12)
+    ab = np.concatenate([area.to_local(a), area.to_local(b)])
+    assert (np.abs(ab) <= area.size_m / 2 + 1e-12).all()
+    periodic = Field(n_plants=9, buffer_rows=0, boundary="periodic")
+    (p,) = default_sensors(periodic)
+    assert np.linalg.norm(np.subtract(*p.lines()), axis=1) == pytest.approx(0.8)
+    with pytest.raises(InputError, match="heights"):
+        Sensor("tilted", ((0, 0, 0),), ((1, 0, 0.1),))
+    with pytest.raises(InputError, match="placements"):
+        ceptometer(area, placements=0)
+    with pytest.raises(InputError, match="sensors"):
+        SensorEstimator(FieldScene(square([0, 0, 0.5], [0, 0, 1], 0.1, 1), GREY), [])
+    pt = horizontal_points("grid", [[0.0, 0.0, 0.3], [0.1, 0.0, 0.3]])
+    assert pt.height_m == pytest.approx(0.3)
