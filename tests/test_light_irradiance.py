@@ -280,7 +280,8 @@ def test_monte_carlo_error_falls_as_one_over_sqrt_k():
     g, ids = _small_field()
     fs = FieldScene(g.mesh, Optics())
     fs.set_sun(45, 180)
-    rse = [np.median(SegmentEstimator(fs, ids, samples=k, bounces=2, seed=1).render().relative_se()) for k in (16, 64)]
+    # K = 32 and 128: both with 8 replicates (with 4, at K = 16, the median SE is biased low).
+    rse = [np.median(SegmentEstimator(fs, ids, samples=k, bounces=2, seed=1).render().relative_se()) for k in (32, 128)]
     assert rse[1] == pytest.approx(rse[0] / 2, rel=0.2)
 
 

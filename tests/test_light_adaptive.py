@@ -1,0 +1,99 @@
+"""Adaptive per-segment sampling (``render_adaptive``, ``AdaptiveEstimator``) and the standard error
+of the absorbed total (sun–sky covariance), against fixed-K renders, seed-to-seed spread and
+finite differences with common random numbers."""
+
+import numpy as np
+import pytest
+
+import lightfit  # noqa: F401
+from lightfit.errors import InputError
+from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator, render_adaptive
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant import Field, build
+
+
+@pytest.fixture(scope="module")
+def scene():
+    g = build(Field(n_plants=4, buffer_rows=1, seed=1))
+    ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
+    fs = FieldScene(g.mesh, Optics())
+    fs.set_sun(45, 180)
+    return fs, ids
+
+
+def test_continued_sequences_equal_one_longer_render(scene):
+    fs, ids = scene
+    whole = SegmentEstimator(fs, ids, samples=64, bounces=2, seed=3).render()
+    a = SegmentEstimator(fs, ids, samples=32, bounces=2, seed=3).render()
+    b = SegmentEstimator(fs, ids, samples=32, bounces=2, seed=3, first=4).render()
+    for p in PARTS:
+        joined = (a.meta["replicate_means"][p] + b.meta["replicate_means"][p]) / 2
+        np.testing.assert_allclose(joined, whole.meta["replicate_means"][p], rtol=1e-12, atol=1e-15)
+
+
+def test_standard_error_of_the_total_matches_the_seed_spread(scene):
+    fs, ids = scene
+    runs = [SegmentEstimator(fs, ids, samples=32, bounces=2, seed=s).render() for s in range(12)]
+    tot = np.array([r.total("absorbed", 1.0, 0.3) for r in runs])
+    spread = tot.var(0, ddof=1)  # per segment, over seeds
+    with_cov = np.array([(r.relative_se() * r.total("absorbed", 1.0, 0.3)) ** 2 for r in runs]).mean(0)
+    indep = np.array([r.se["absorbed_sun"] ** 2 + (0.3 * r.se["absorbed_sky"]) ** 2 for r in runs]).mean(0)
+    ok = spread > 0
+    # Mean over segments of the predicted ÷ observed variance: 1 for an unbiased SE (the ratio of
+    # means over ~500 segments, each from 12 seeds, is within a few per cent of its expectation).
+    ratio = with_cov[ok].sum() / spread[ok].sum()
+    assert ratio == pytest.approx(1.0, abs=0.12), ratio
+    # Without the covariance the SE of the total is too large (sky and scattered sun compete).
+    assert indep[ok].sum() / spread[ok].sum() > ratio + 0.1
+
+
+def test_adaptive_render_reaches_the_target_and_equals_fixed_renders(scene):
+    fs, ids = scene
+    r = render_adaptive(fs, ids, 0.08, bounces=2, seed=2, max_samples=512)
+    again = render_adaptive(fs, ids, 0.08, bounces=2, seed=2, max_samples=512)
+    K, rse = r.meta["samples_per_segment"], r.meta["reached_rse"]
+    for p in PARTS:
+        assert np.array_equal(getattr(r, p), getattr(again, p))
+    assert ((rse <= 0.08) | (K == 512) | ~np.isfinite(rse)).all()
+    assert len(np.unique(K)) >= 3 and K.min() == 32
+    np.testing.assert_allclose(rse, r.relative_se(), rtol=1e-12)
+    # A segment stopped at K has the estimate of a plain render with K samples.
+    for k in np.unique(K)[:3]:
+        sel = K == k
+        fixed = SegmentEstimator(fs, ids[sel], samples=int(k), bounces=2, seed=2).render()
+        for p in PARTS:
+            np.testing.assert_allclose(getattr(r, p)[sel], getattr(fixed, p), rtol=1e-10, atol=1e-14)
+            np.testing.assert_allclose(r.se[p][sel], fixed.se[p], rtol=1e-8, atol=1e-14)
+    # Fewer evaluations than the fixed K the noisiest segments needed.
+    assert r.meta["n_evaluations"] < 0.5 * SegmentEstimator(fs, ids, samples=512, bounces=2).n_evaluations
+
+
+def test_adaptive_estimator_gradient_matches_common_random_number_differences(scene):
+    fs, ids = scene
+    est = AdaptiveEstimator(fs, ids, 0.1, bounces=2, seed=5, max_samples=256)
+    r = est.render()
+    np.testing.assert_allclose(r.absorbed_sun, est.allocation.absorbed_sun, rtol=1e-10)
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
+    grad = est.vjp(ct)
+    h = 0.05
+    for k in ("specular", "roughness", "subsurface"):
+        base = getattr(fs.optics, k)
+        vals = []
+        for x in (base + h, base - h):
+            fs.set_optics(**{k: x})
+            q = est.render()
+            vals.append(sum(np.sum(ct[p] * getattr(q, p)) for p in ct))
+        fs.set_optics(**{k: base})
+        fd = (vals[0] - vals[1]) / (2 * h)
+        # Frozen sampling: AD and CRN differences see the same smooth function; 5 % covers O(h²) and
+        # the bilinear albedo table in roughness (3.7 % at this seed).
+        assert grad[k] == pytest.approx(fd, rel=0.05, abs=0.01), (k, grad[k], fd)
+
+
+def test_bad_adaptive_inputs(scene):
+    fs, ids = scene
+    for kw, name in ((dict(target_rse=0.0), "target_rse"), (dict(target_rse=0.1, pilot=8), "pilot")):
+        with pytest.raises(InputError, match=name):
+            render_adaptive(fs, ids, **kw)
+    with pytest.raises(InputError, match="first"):
+        SegmentEstimator(fs, ids, samples=8, first=-1)
