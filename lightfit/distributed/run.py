@@ -47,7 +47,10 @@ from lightfit.model.parameters import Theta
 from lightfit.model.scenario import Scenario, daytime
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
-AGGREGATES = schema.OBSERVABLES
+#: Observables recomputed from the gathered segments. The virtual sensors' (ceptometer) are not
+#: per segment: every tile renders them with the same layout, and gather takes tile 0's — exact
+#: when the tiles render the whole field (``halo_rows=None``, periodic), approximate with halos.
+AGGREGATES = tuple(k for k in schema.OBSERVABLES if k not in schema.SENSOR_OBSERVABLES)
 ENV_THREADS = "LIGHTFIT_WORKER_THREADS"
 
 
@@ -270,7 +273,8 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
         raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
     out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.scenario.ground_area_m2}
     for k, v in _aggregates(out).items():
-        out[k] = ("time", v)
+        if k in AGGREGATES:
+            out[k] = ("time", v)
     out = schema.annotate(out[list(ds0.data_vars)])
     by_tile = {}
     for i in infos:

@@ -1,8 +1,9 @@
 """JAX bridge: per-segment irradiance as a differentiable JAX function.
 
-``irradiance(leaf, sun_deg, seed)`` returns ``(values, se)``, two ``(4, S)`` arrays — incident
+``irradiance(leaf, sun_deg, seed)`` returns ``(values, se)``, two ``(4, S + P)`` arrays — incident
 sun, incident sky, absorbed sun, absorbed sky (rows in :data:`~lightfit.light.estimator.PARTS`
-order) for the S requested segments, per unit DNI / DHI, and their Monte Carlo standard errors
+order) for the S requested segments and P virtual sensors (:mod:`lightfit.light.sensors`; none
+unless asked), per unit DNI / DHI, and their Monte Carlo standard errors
 (no gradient flows through ``se``) — and is callable inside ``jax.jit``, ``jax.grad`` and
 ``jax.vmap``. Dr.Jit cannot be traced by JAX, so the forward and backward passes are
 ``jax.pure_callback``s into Mitsuba wrapped in a ``jax.custom_vjp`` (docs/design.md §4): the backward
@@ -30,6 +31,7 @@ from numpy.typing import ArrayLike
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import PARTS, SegmentEstimator
 from lightfit.light.scene import FieldScene
+from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
 
 
 def _host(*args) -> tuple[np.ndarray, ...]:
@@ -38,14 +40,23 @@ def _host(*args) -> tuple[np.ndarray, ...]:
 
 
 def make_irradiance(
-    field_scene: FieldScene, segment_ids: ArrayLike, *, samples: int = 64, bounces: int = 3
+    field_scene: FieldScene,
+    segment_ids: ArrayLike,
+    *,
+    samples: int = 64,
+    bounces: int = 3,
+    sensors: tuple[Sensor, ...] = (),
+    sensor_samples: int = DEFAULT_SENSOR_SAMPLES,
 ) -> Callable[[ArrayLike, ArrayLike, ArrayLike], tuple[jax.Array, jax.Array]]:
-    """Build ``irradiance(leaf, sun_deg, seed) -> (values, se)``, each (4, S), for fixed segments and sampling.
+    """Build ``irradiance(leaf, sun_deg, seed) -> (values, se)``, each (4, S + P), for fixed segments and sampling.
 
     Args:
         field_scene: scene whose leaf parameters and sun the function sets on every call.
         segment_ids: segments measured (their order is ``np.unique(segment_ids)``).
         samples, bounces: estimator settings (see :class:`SegmentEstimator`).
+        sensors: P virtual horizontal sensors (:mod:`lightfit.light.sensors`), rendered with the
+            same scene, bounces and seed, ``sensor_samples`` points each; their parts are the
+            last P columns (incident parts: the sensor's reading).
 
     The returned function's arguments: ``leaf`` — (3,) specular, roughness, subsurface in
     [0, 1]; ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer.
@@ -53,10 +64,11 @@ def make_irradiance(
     """
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
     n_seg = len(ids)
+    n_out = n_seg + len(sensors)
     lock = threading.Lock()
-    cache: dict[int, SegmentEstimator] = {}
+    cache: dict[int, tuple] = {}
 
-    def estimator(leaf: np.ndarray, sun_deg: np.ndarray, seed: np.ndarray) -> SegmentEstimator:
+    def estimators(leaf: np.ndarray, sun_deg: np.ndarray, seed: np.ndarray) -> tuple:
         # numpy arguments only (see the module docstring).
         field_scene.set_optics(**{k: float(np.clip(v, 0.0, 1.0)) for k, v in zip(LEAF_PARAMETERS, leaf)})
         el, az = (float(x) for x in sun_deg)
@@ -64,29 +76,36 @@ def make_irradiance(
         s = int(seed)
         if s not in cache:
             cache.clear()  # keep one: sampling arrays are large
-            cache[s] = SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s)
+            est = [SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s)]
+            if sensors:
+                est.append(SensorEstimator(field_scene, sensors, samples=sensor_samples, bounces=bounces, seed=s))
+            cache[s] = tuple(est)
         return cache[s]
 
     def forward_cb(leaf, sun_deg, seed):
         leaf, sun_deg, seed = _host(leaf, sun_deg, seed)
         with lock:
-            r = estimator(leaf, sun_deg, seed).render()
+            rs = [e.render() for e in estimators(leaf, sun_deg, seed)]
         return (
-            np.stack([getattr(r, p) for p in PARTS]).astype(leaf.dtype),
-            np.stack([r.se[p] for p in PARTS]).astype(leaf.dtype),
+            np.concatenate([np.stack([getattr(r, p) for p in PARTS]) for r in rs], axis=1).astype(leaf.dtype),
+            np.concatenate([np.stack([r.se[p] for p in PARTS]) for r in rs], axis=1).astype(leaf.dtype),
         )
 
     def backward_cb(leaf, sun_deg, seed, ct):
         leaf, sun_deg, seed, ct = _host(leaf, sun_deg, seed, ct)
-        cotangent = {p: ct[i].astype(np.float64) for i, p in enumerate(PARTS)}
+        g = dict.fromkeys(LEAF_PARAMETERS, 0.0)
         with lock:
-            g = estimator(leaf, sun_deg, seed).vjp(cotangent)
+            for e, cols in zip(estimators(leaf, sun_deg, seed), (slice(0, n_seg), slice(n_seg, n_out))):
+                c = ct[:, cols].astype(np.float64)
+                if c.any():
+                    for k, v in e.vjp({p: c[i] for i, p in enumerate(PARTS)}).items():
+                        g[k] += v
         return np.array([g[k] for k in LEAF_PARAMETERS], dtype=leaf.dtype)
 
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
         leaf = jnp.asarray(leaf)
-        out = jax.ShapeDtypeStruct((len(PARTS), n_seg), leaf.dtype)
+        out = jax.ShapeDtypeStruct((len(PARTS), n_out), leaf.dtype)
         return jax.pure_callback(
             forward_cb, (out, out), leaf, jnp.asarray(sun_deg, leaf.dtype), jnp.asarray(seed), vmap_method="sequential"
         )
@@ -108,4 +127,5 @@ def make_irradiance(
 
     irradiance.defvjp(fwd, bwd)
     irradiance.segment_id = ids
+    irradiance.sensors = tuple(sensors)
     return irradiance

@@ -29,6 +29,7 @@ import pandas as pd
 from lightfit.errors import InputError
 from lightfit.light.bridge import make_irradiance
 from lightfit.light.scene import FieldScene
+from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator
 from lightfit.model.parameters import Theta, as_theta
@@ -37,8 +38,9 @@ from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build
 from lightfit.precision import precision
 
-#: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S) in
-#: :data:`~lightfit.light.estimator.PARTS` order, per unit DNI / DHI.
+#: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S + P) in
+#: :data:`~lightfit.light.estimator.PARTS` order, per unit DNI / DHI: S measured segments, then
+#: P virtual sensors (:attr:`CoupledModel.sensors`).
 LightParts = Callable[[Theta], tuple[jax.Array, jax.Array]]
 
 
@@ -49,10 +51,22 @@ class CoupledModel:
         scenario: the run.
         light: source of light parts (default: full renders, :meth:`render`).
         progress: show plant growth progress.
+        sensors: virtual horizontal sensors rendered with the segments (:mod:`lightfit.light.sensors`);
+            default (``None``): a ceptometer on the soil of the measurement area
+            (:func:`~lightfit.light.sensors.default_sensors`: ≈ 0.2 % of the main job's
+            evaluations, so it is always rendered); ``()``: none (its observables are NaN).
     """
 
-    def __init__(self, scenario: Scenario, *, light: LightParts | None = None, progress: bool = False):
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        light: LightParts | None = None,
+        progress: bool = False,
+        sensors: tuple[Sensor, ...] | None = None,
+    ):
         self.scenario = sc = scenario
+        self.sensors = default_sensors(sc.field) if sensors is None else tuple(sensors)
         self.geometry = build(sc.field, tile=sc.measured_tile, progress=progress)
         seg = self.geometry.segments
         meas = seg[seg["measured"]].sort_values("segment_id")
@@ -84,8 +98,14 @@ class CoupledModel:
             params=parameter_set(sc.photosynthesis),
             ground_area_m2=self.ground_area_m2,
             sun_elevation_deg=self.sun_deg[:, 0].copy(),
+            sensors=tuple(s.name for s in self.sensors),
         )
         self.light = self.render if light is None else light
+
+    @property
+    def n_columns(self) -> int:
+        """Columns of the light parts: measured segments, then virtual sensors."""
+        return len(self.segment_id) + len(self.sensors)
 
     def with_light(self, light: LightParts) -> CoupledModel:
         """This model with another source of light parts (geometry and forcing shared, not rebuilt)."""
@@ -103,10 +123,10 @@ class CoupledModel:
         """The Mitsuba scene's JAX irradiance function of the measured segments (built on first use)."""
         sc = self.scenario
         scene = FieldScene(self.geometry.mesh, sc.optics, sky=sc.sky, cell=self.geometry.cell)
-        return make_irradiance(scene, self.segment_id, samples=sc.samples, bounces=sc.bounces)
+        return make_irradiance(scene, self.segment_id, samples=sc.samples, bounces=sc.bounces, sensors=self.sensors)
 
     def render(self, theta: Theta | Mapping[str, float]):
-        """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S)."""
+        """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""
         leaf = self.theta(theta).leaf
         vals, ses = [], []
         for i in np.flatnonzero(self.day):
@@ -116,7 +136,7 @@ class CoupledModel:
         return jnp.stack(vals), jnp.stack(ses)
 
     def parts(self, theta: Theta | Mapping[str, float]):
-        """Light parts from this model's source (:meth:`render` unless injected), each (T_day, 4, S)."""
+        """Light parts from this model's source (:meth:`render` unless injected), each (T_day, 4, S + P)."""
         return self.light(self.theta(theta))
 
     def observe(self, theta: Theta | Mapping[str, float]) -> dict:
@@ -214,6 +234,7 @@ class CoupledModel:
             "an_per": sc.an_per,
             "soil_respiration_umol_m2_s": self.operator.soil_respiration_umol_m2_s,
             "sky": sc.sky,
+            "ceptometer": describe_sensors(self.sensors),
             "soil_albedo": sc.optics.soil_albedo,
             "base_color": sc.optics.base_color,
             **{f"theta_{k}": v for k, v in th.to_dict().items()},
@@ -221,6 +242,18 @@ class CoupledModel:
             "co2_at_leaf_surface": "air CO2 (assumption)",
         }
         return ds
+
+
+def describe_sensors(sensors) -> str:
+    """One line per run for results attributes: each sensor's placements, bar length and height."""
+    if not sensors:
+        return "none (not rendered)"
+    out = []
+    for s in sensors:
+        a, b = s.lines()
+        length = float(np.linalg.norm(b - a, axis=1).mean())
+        out.append(f"{s.name}: {len(a)} bar(s) of {length:.2f} m across the rows at {s.height_m:.2f} m, upward-facing")
+    return "; ".join(out)
 
 
 class NonConvergenceWarning(UserWarning):

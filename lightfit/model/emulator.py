@@ -55,6 +55,7 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import PARTS
+from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
@@ -129,6 +130,8 @@ def render_key(model: CoupledModel) -> dict:
         "growth": sc.field.growth.fingerprint(),
         "geometry": _digest(pd.util.hash_pandas_object(model.geometry.segments, index=True).to_numpy()),
         "segments": _digest(np.asarray(model.segment_id, np.int64)),
+        "sensors": [[x.name, _digest(np.concatenate(x.lines()))] for x in model.sensors],
+        "sensor_samples": DEFAULT_SENSOR_SAMPLES,
         "times_utc": [str(x) for x in model.times.tz_convert("UTC")],
         "sun": _digest(np.asarray(model.sun_deg, np.float64)),
         "day": _digest(np.asarray(model.day, bool)),
@@ -166,7 +169,7 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
             "no points to render", column="leaf", expected="at least one (specular, roughness, subsurface)"
         )
     if not np.asarray(model.day).any():  # no step needs the light at the plants (see restrict): nothing to render
-        empty = np.zeros((len(leaf), 0, len(PARTS), len(model.segment_id)))
+        empty = np.zeros((len(leaf), 0, len(PARTS), model.n_columns))
         return empty, empty.copy(), 0.0
     cache = None if cache is None else Path(cache)
     rkey = json.dumps(key or render_key(model), sort_keys=True) if cache is not None else ""
@@ -545,7 +548,7 @@ class FastObservables:
     def __init__(self, model: CoupledModel, emulator: PartsEmulator, n_grid: int | None = 64):
         self.model, self.emulator, self.n_grid = model, emulator, n_grid
         self.leaf = exact_leaf if n_grid is None else tabulated_leaf(n_grid)
-        n_day, n_seg = int(model.day.sum()), len(model.segment_id)
+        n_day, n_seg = int(model.day.sum()), model.n_columns  # segments, then virtual sensors
         e = emulator
         if e.coef_values.shape[1:] != (n_day, len(PARTS), n_seg):
             raise InputError(
@@ -554,7 +557,7 @@ class FastObservables:
                 column="emulator",
                 expected="an emulator built for this model",
             )
-        kinds = {model.scenario.par_kind, "absorbed"}
+        kinds = {model.scenario.par_kind, "absorbed"} | ({"incident"} if model.sensors else set())
         self.rows = tuple(p for p in PARTS if p.rsplit("_", 1)[0] in kinds)
         idx = [PARTS.index(p) for p in self.rows]
         # Coefficients of the needed rows, flattened: (n_terms, T_day * n_rows * S).

@@ -45,6 +45,16 @@ own terms (:data:`OBSERVABLES`; the observations CSV names them, :mod:`lightfit.
   canopy absorbs, :math:`\mathrm{APAR}_t / \mathrm{PAR}^{above}_t` (0 at night); the usual
   definition of fAPAR (e.g. Gobron et al. 2006, Remote Sens. Environ. 101, 176; stems and
   sheaths count, as in a canopy's radiation balance).
+- :func:`ceptometer_transmittance` — a line quantum sensor (ceptometer) on the soil under the
+  canopy, rendered like the segments (:mod:`lightfit.light.sensors`: direct sun with shadow rays,
+  sky, light scattered by leaves and soil, periodic wrapping; per unit DNI / DHI, so the light
+  factor and the weather scale it as they scale the segments): transmitted PAR
+  :math:`E^{soil}_t = f\,(\mathrm{DNI}^{PAR}_t e^{\odot}_t + \mathrm{DHI}^{PAR}_t e^{sky}_t)`
+  (``transmitted_par_umol_m2_s``, mean over the bar's placements) and the transmittance
+  :math:`\tau_t = E^{soil}_t / \mathrm{PAR}^{above}_t` (f cancels).
+- :func:`ceptometer_fapar` — fAPAR as a single ceptometer estimates it, :math:`1 - \tau_t` (the
+  one-sensor approximation; it neglects reflected PAR). :func:`fapar` is the canopy's own
+  absorbed share; for black leaves on black soil the two agree (tests/test_sensors.py).
 - :func:`chamber_nee` — net ecosystem CO2 exchange of the chamber footprint (the measurement
   area), per ground area, in the micrometeorological sign convention (positive: CO2 released to
   the atmosphere): :math:`\mathrm{NEE}_t = -A^{ground}_t + R_{soil}`, with the canopy net uptake
@@ -160,6 +170,14 @@ def above_canopy_par(dni_par, dhi_par, sun_elevation_deg, light_factor=1.0):
     return light_factor * (dni_par * sin_b + dhi_par)
 
 
+def _ratio(x, x_mc_sd, above_par) -> tuple:
+    """``x / above_par`` and ``x_mc_sd / above_par`` where there is light above the canopy, 0 at night."""
+    xp = np if _numpy(x, x_mc_sd, above_par) else jnp
+    lit = above_par > 0
+    safe = xp.where(lit, above_par, 1.0)  # double-where: no NaN gradient from 0/0 at night
+    return xp.where(lit, x / safe, 0.0), xp.where(lit, x_mc_sd / safe, 0.0)
+
+
 def fapar(apar, apar_mc_sd, above_par) -> tuple:
     """Fraction of absorbed PAR, APAR / PAR above the canopy (dimensionless), and its Monte Carlo SD.
 
@@ -169,10 +187,36 @@ def fapar(apar, apar_mc_sd, above_par) -> tuple:
 
     Steps without light above the canopy (night) give 0 (and SD 0), not 0/0.
     """
-    xp = np if _numpy(apar, apar_mc_sd, above_par) else jnp
+    return _ratio(apar, apar_mc_sd, above_par)
+
+
+def ceptometer_transmittance(transmitted, transmitted_mc_sd, above_par) -> tuple:
+    r"""Canopy PAR transmittance read by a ceptometer, :math:`\tau = E_{soil} / E_{above}`, and its SD.
+
+    Args:
+        transmitted, transmitted_mc_sd: (T,) PAR on the line sensor on the soil (mean over its
+            placements, :class:`lightfit.light.sensors.Sensor`) and its Monte Carlo SD, µmol m⁻² s⁻¹.
+        above_par: (T,) PAR above the canopy (:func:`above_canopy_par`; analytic, no error).
+
+    0 at night (as :func:`fapar`). A real ceptometer takes the above-canopy reading with the same
+    bar or a reference sensor; here it is the model's above-canopy sensor, exact.
+    """
+    return _ratio(transmitted, transmitted_mc_sd, above_par)
+
+
+def ceptometer_fapar(transmittance, transmittance_mc_sd, above_par) -> tuple:
+    r"""fAPAR from a ceptometer in the one-sensor approximation :math:`1 - \tau`, and its SD.
+
+    The full radiation balance of the canopy, :math:`1 - \tau - \rho_c + \tau\rho_s`
+    (reflection of canopy and soil; measured with an upward and a downward sensor above and
+    below), needs the upwelling PAR; the common single-bar protocol neglects it (Gallo & Daughtry
+    1986, Agron. J. 78, 752; the AccuPAR manual), overestimating fAPAR by the canopy's PAR
+    reflectance minus what the soil returns (a few percent for green cereals). ``above_par``
+    marks the night (0 there).
+    """
+    xp = np if _numpy(transmittance, transmittance_mc_sd, above_par) else jnp
     lit = above_par > 0
-    safe = xp.where(lit, above_par, 1.0)  # double-where: no NaN gradient from 0/0 at night
-    return xp.where(lit, apar / safe, 0.0), xp.where(lit, apar_mc_sd / safe, 0.0)
+    return xp.where(lit, 1.0 - transmittance, 0.0), transmittance_mc_sd
 
 
 #: Soil (and root) respiration of the chamber footprint, µmol m⁻² ground s⁻¹. lightfit models
@@ -210,9 +254,13 @@ def observables(
     ground_area_m2: float,
     above_par,
     soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S,
+    transmitted=None,
+    transmitted_mc_sd=None,
 ) -> dict:
     """The :data:`OBSERVABLES` (each (T,)) from per-segment PAR (T, S), per-blade leaf An (T, B),
-    per-segment absorbed PAR (T, S) and PAR above the canopy (T,) (:func:`above_canopy_par`).
+    per-segment absorbed PAR (T, S), PAR above the canopy (T,) (:func:`above_canopy_par`) and
+    PAR on the ceptometer on the soil (T,) with its SD (``None``: no ceptometer rendered, its
+    observables are NaN).
 
     ``par``/``par_mc_sd`` are the plant-PAR kind (incident or absorbed); canopy An is per
     ``denominator_m2``, APAR and NEE per ``ground_area_m2``.
@@ -227,8 +275,13 @@ def observables(
     apar, apar_sd = canopy_apar(absorbed, absorbed_mc_sd, area_m2, ground_area_m2)
     fa, fa_sd = fapar(apar, apar_sd, above_par)
     nee, nee_sd = chamber_nee(an_ground, an_ground_sd, soil_respiration_umol_m2_s)
+    if transmitted is None:
+        transmitted = transmitted_mc_sd = xp.full_like(above_par, xp.nan)
+    tau, tau_sd = ceptometer_transmittance(transmitted, transmitted_mc_sd, above_par)
+    cf, cf_sd = ceptometer_fapar(tau, tau_sd, above_par)
     values = (mean, spread, par_sd, can, can_sd, above_par, xp.zeros_like(above_par), apar, apar_sd, fa, fa_sd)
-    return dict(zip(OBSERVABLES, values + (nee, nee_sd), strict=True))
+    values += (nee, nee_sd, transmitted, transmitted_mc_sd, tau, tau_sd, cf, cf_sd)
+    return dict(zip(OBSERVABLES, values, strict=True))
 
 
 # -- leaf photosynthesis --------------------------------------------------------------------
@@ -315,6 +368,10 @@ class ObservationOperator:
         ground_area_m2: ground area of the measured plants (APAR, NEE), m².
         sun_elevation_deg: (T,) sun elevation of every step (the above-canopy sensor), degrees.
         soil_respiration_umol_m2_s: soil respiration added to the chamber NEE (:func:`chamber_nee`).
+        sensors: names of the virtual sensors (:mod:`lightfit.light.sensors`) whose parts follow the
+            S segments' as the last columns of the light parts (the first, a ceptometer on the
+            soil, gives the ``transmitted_par`` and ``ceptometer_*`` observables). Parts without
+            those columns (e.g. zero daytime steps) give NaN there (0 when no step is lit).
     """
 
     forcing: Forcing
@@ -326,6 +383,7 @@ class ObservationOperator:
     ground_area_m2: float
     sun_elevation_deg: np.ndarray
     soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S
+    sensors: tuple[str, ...] = ()
 
     @property
     def blades(self) -> np.ndarray:
@@ -334,7 +392,8 @@ class ObservationOperator:
     def light(self, values, se, kind: str, light_factor, rows: Sequence[str] = PARTS):
         """PAR of ``kind`` at every segment and step and its Monte Carlo SD, each (T, S).
 
-        ``values``/``se``: (T_day, len(rows), S) parts per unit DNI / DHI named by ``rows``.
+        ``values``/``se``: (T_day, len(rows), S) parts per unit DNI / DHI named by ``rows`` (S: every
+        column, segments and sensors).
         """
         fc = self.forcing
         day = np.flatnonzero(fc.day)
@@ -363,10 +422,18 @@ class ObservationOperator:
         """
         kinds = [k for k in ("incident", "absorbed") if f"{k}_sun" in rows and f"{k}_sky" in rows]
         out = {}
+        S = len(self.area_m2)
+        with_sensors = bool(self.sensors) and values.shape[-1] == S + len(self.sensors)
+        sensor = None
         for k in kinds:
-            out[f"{k}_par_umol_m2_s"], out[f"{k}_par_mc_sd_umol_m2_s"] = self.light(
-                values, se, k, theta.light_factor, rows
-            )
+            x, sd = self.light(values, se, k, theta.light_factor, rows)
+            out[f"{k}_par_umol_m2_s"], out[f"{k}_par_mc_sd_umol_m2_s"] = x[:, :S], sd[:, :S]
+            if k == "incident" and with_sensors:
+                sensor = (x[:, S], sd[:, S])  # the ceptometer: a sensor reads incident PAR
+        if sensor is None and not (self.sensors and values.shape[0] == 0):
+            sensor = (None, None)  # no ceptometer columns: NaN observables
+        elif sensor is None:  # no daytime step: nothing lit, nothing read
+            sensor = (jnp.zeros(len(self.forcing.day)),) * 2
         b = self.blades
         q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
         r = leaf(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
@@ -388,6 +455,8 @@ class ObservationOperator:
             ground_area_m2=self.ground_area_m2,
             above_par=above,
             soil_respiration_umol_m2_s=self.soil_respiration_umol_m2_s,
+            transmitted=sensor[0],
+            transmitted_mc_sd=None if sensor[1] is None else jax.lax.stop_gradient(sensor[1]),
         )
         out |= {
             "leaf_an_umol_m2_s": r.an,
@@ -471,6 +540,8 @@ __all__ = [
     "area_total",
     "canopy_an",
     "canopy_apar",
+    "ceptometer_fapar",
+    "ceptometer_transmittance",
     "chamber_nee",
     "exact_leaf",
     "fapar",

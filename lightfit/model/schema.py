@@ -34,6 +34,10 @@ _NEE = (
     "per unit ground area of the measured plants; positive = CO2 released to the air; "
     "soil respiration (attribute soil_respiration_umol_m2_s) minus canopy net uptake"
 )
+_CEPTOMETER = (
+    "per unit horizontal area; upward-facing bars on the soil across the rows, mean over the placements "
+    "(results attribute ceptometer); NaN where the run renders no ceptometer"
+)
 _PLANT_PAR = "incident or absorbed PAR (attribute par_kind), per unit one-sided segment area, area-weighted"
 
 
@@ -62,6 +66,16 @@ class Variable:
 
 TS, T, S = ("time", "segment"), ("time",), ("segment",)
 
+#: Observables of the virtual sensors (:mod:`lightfit.light.sensors`): NaN where a run renders none.
+SENSOR_OBSERVABLES = (
+    "transmitted_par_umol_m2_s",
+    "transmitted_par_mc_sd_umol_m2_s",
+    "ceptometer_transmittance",
+    "ceptometer_transmittance_mc_sd",
+    "ceptometer_fapar",
+    "ceptometer_fapar_mc_sd",
+)
+
 #: The observation operator's outputs per time step (:mod:`lightfit.model.observe`).
 OBSERVABLES = (
     "plant_par_umol_m2_s",
@@ -77,6 +91,7 @@ OBSERVABLES = (
     "fapar_mc_sd",
     "nee_umol_m2_s",
     "nee_mc_sd_umol_m2_s",
+    *SENSOR_OBSERVABLES,
 )
 
 #: Every variable and coordinate of results.nc.
@@ -149,6 +164,23 @@ VARIABLES: dict[str, Variable] = {
         _NEE,
     ),
     "nee_mc_sd_umol_m2_s": Variable(T, UMOL, "Monte Carlo standard deviation of NEE", _NEE),
+    "transmitted_par_umol_m2_s": Variable(
+        T, UMOL, "PAR on a line quantum sensor (ceptometer) on the soil under the canopy", _CEPTOMETER
+    ),
+    "transmitted_par_mc_sd_umol_m2_s": Variable(
+        T, UMOL, "Monte Carlo standard deviation of transmitted PAR", _CEPTOMETER
+    ),
+    "ceptometer_transmittance": Variable(
+        T, "1", "canopy PAR transmittance read by the ceptometer", "transmitted PAR / above-canopy PAR; 0 at night"
+    ),
+    "ceptometer_transmittance_mc_sd": Variable(T, "1", "Monte Carlo standard deviation of the transmittance"),
+    "ceptometer_fapar": Variable(
+        T,
+        "1",
+        "fAPAR from a ceptometer, one-sensor approximation 1 - transmittance",
+        "neglects the PAR reflected by canopy and soil (an upward+downward pair would subtract it); 0 at night",
+    ),
+    "ceptometer_fapar_mc_sd": Variable(T, "1", "Monte Carlo standard deviation of the ceptometer fAPAR"),
     # -- per time: forcing ------------------------------------------------------------------
     "weather_par_umol_m2_s": Variable(
         T,
@@ -181,6 +213,14 @@ VARIABLES: dict[str, Variable] = {
     "obs_fapar_sd": Variable(T, "1", "measurement standard deviation of observed fAPAR"),
     "obs_nee_umol_m2_s": Variable(T, UMOL, "observed chamber net ecosystem CO2 exchange", _NEE),
     "obs_nee_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed NEE"),
+    "obs_transmitted_par_umol_m2_s": Variable(
+        T, UMOL, "observed PAR on a line quantum sensor on the soil", _CEPTOMETER
+    ),
+    "obs_transmitted_par_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed transmitted PAR"),
+    "obs_ceptometer_transmittance": Variable(T, "1", "observed canopy PAR transmittance (ceptometer)"),
+    "obs_ceptometer_transmittance_sd": Variable(T, "1", "measurement standard deviation of observed transmittance"),
+    "obs_ceptometer_fapar": Variable(T, "1", "observed fAPAR from a ceptometer (1 - transmittance)"),
+    "obs_ceptometer_fapar_sd": Variable(T, "1", "measurement standard deviation of observed ceptometer fAPAR"),
 }
 
 
@@ -212,4 +252,4 @@ def annotate(ds):
     return ds
 
 
-__all__ = ["OBSERVABLES", "VARIABLES", "Variable", "annotate", "units", "variable"]
+__all__ = ["OBSERVABLES", "SENSOR_OBSERVABLES", "VARIABLES", "Variable", "annotate", "units", "variable"]
