@@ -7,6 +7,7 @@ conservation (black leaves on black soil: what the leaves absorb plus what reach
 what arrives above, so the one-sensor fAPAR ≈ 1 − τ equals the rendered canopy fAPAR).
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -141,3 +142,63 @@ def test_sensor_layouts_and_bad_input():
         SensorEstimator(FieldScene(square([0, 0, 0.5], [0, 0, 1], 0.1, 1), GREY), [])
     pt = horizontal_points("grid", [[0.0, 0.0, 0.3], [0.1, 0.0, 0.3]])
     assert pt.height_m == pytest.approx(0.3)
+
+
+# -- the observation operator -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def small_model():
+    from lightfit import replication as rep
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.scenario import Scenario
+
+    weather = rep.forcing().iloc[[1, 14]]  # 05:30 local (night), 12:00
+    sc = Scenario(weather=weather, field=Field(n_plants=4, buffer_rows=1, seed=1), samples=8, bounces=1)
+    return CoupledModel(sc)
+
+
+def test_ceptometer_observables_are_the_sensor_render_scaled_by_the_weather(small_model):
+    """transmitted = f·(DNI_PAR·e_sun + DHI_PAR·e_sky) of an independent SensorEstimator render at
+    the step's sun; τ = transmitted / above; ceptometer fAPAR = 1 − τ; 0 at night; NaN without sensors."""
+    from lightfit.model.parameters import Theta
+
+    m = small_model
+    th = m.theta(Theta(light_factor=1.2))
+    o = m.observe(th)
+    sc = m.scenario
+    fs = FieldScene(m.geometry.mesh, sc.optics, sky=sc.sky, cell=m.geometry.cell)
+    fs.set_optics(**dict(zip(("specular", "roughness", "subsurface"), np.asarray(th.leaf, float))))
+    fs.set_sun(*m.sun_deg[1])
+    r = SensorEstimator(fs, m.sensors, bounces=sc.bounces, seed=sc.seed).render()
+    fc = m.forcing
+    expected = 1.2 * (fc.dni_par[1] * r.incident_sun[0] + fc.dhi_par[1] * r.incident_sky[0])
+    got = np.asarray(o["transmitted_par_umol_m2_s"])
+    assert got[0] == 0.0 and got[1] == pytest.approx(expected, rel=1e-5)
+    above = np.asarray(o["above_canopy_par_umol_m2_s"])
+    tau = np.asarray(o["ceptometer_transmittance"])
+    assert tau[1] == pytest.approx(got[1] / above[1], rel=1e-9) and 0 < tau[1] < 1
+    assert np.asarray(o["ceptometer_fapar"]) == pytest.approx([0.0, 1 - tau[1]])
+    sd = 1.2 * math.hypot(fc.dni_par[1] * r.se["incident_sun"][0], fc.dhi_par[1] * r.se["incident_sky"][0])
+    assert float(o["transmitted_par_mc_sd_umol_m2_s"][1]) == pytest.approx(sd, rel=1e-4)
+    parts = m.render(th)
+    assert parts[0].shape[-1] == len(m.segment_id) + 1 == m.n_columns
+    bare = m.with_light(lambda _: tuple(x[..., :-1] for x in parts))
+    bare.operator = dataclasses.replace(m.operator, sensors=())
+    assert np.isnan(np.asarray(bare.observe(th)["ceptometer_transmittance"])[1])
+
+
+def test_observations_name_the_ceptometer_series(tmp_path):
+    from lightfit.inference.observations import observed, read_observations, series
+
+    f = tmp_path / "obs.csv"
+    f.write_text(
+        "# provenance: synthetic\n"
+        "time,ceptometer_transmittance,ceptometer_transmittance_sd,transmitted_par_umol_m2_s,"
+        "transmitted_par_sd_umol_m2_s\n2016-04-20 11:00:00,0.2,0.03,300,40\n",
+        encoding="utf-8",
+    )
+    obs = read_observations(f)
+    assert observed(obs) == ("transmitted_par", "ceptometer_transmittance")
+    assert series("ceptometer_fapar").unit == "1"
+    f.write_text("# provenance: synthetic\ntime,ceptometer_transmittance,ceptometer_transmittance_sd\nx,-0.1,0.1\n")
+    with pytest.raises(InputError):
+        read_observations(f)

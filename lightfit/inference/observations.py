@@ -11,24 +11,30 @@ Each observed quantity is a pair of columns, its value and its measurement stand
 (same unit), named after the coupled model's observable it is compared with (:data:`SERIES`,
 operators in :mod:`lightfit.model.observe`). A file has any non-empty subset of these pairs:
 
-======================  ==============================  ===============  ==========================================
-series (``--use``)      value column (SD: ``*_sd*``)    unit             what the instrument measures
-======================  ==============================  ===============  ==========================================
-``above_canopy_par``    ``above_canopy_par_umol_m2_s``  µmol m⁻² s⁻¹     horizontal quantum sensor above the canopy
-                                                                         (a station's or a chamber's PAR sensor)
-``plant_par``           ``plant_par_umol_m2_s``         µmol m⁻² s⁻¹     PAR at the plants: area-mean incident or
-                                                                         absorbed PAR per one-sided area of the
-                                                                         measured segments (run option ``par_kind``);
-                                                                         no single instrument reads this
-``canopy_apar``         ``canopy_apar_umol_m2_s``       µmol m⁻² s⁻¹     PAR absorbed by the canopy per ground area
-                                                                         (e.g. above-canopy PAR × fAPAR)
-``fapar``               ``fapar``                       1                fraction of absorbed PAR, APAR / PAR above
-                                                                         the canopy on a horizontal plane
-``canopy_an``           ``canopy_an_umol_m2_s``         µmol m⁻² s⁻¹     canopy net CO2 uptake of the leaf blades,
-                                                                         per ground area (or leaf area: ``an_per``)
-``nee``                 ``nee_umol_m2_s``               µmol m⁻² s⁻¹     chamber net ecosystem CO2 exchange per
-                                                                         ground area, positive = CO2 released
-======================  ==============================  ===============  ==========================================
+============================  ==============================  ============  ==========================================
+series (``--use``)            value column (SD: ``*_sd*``)    unit          what the instrument measures
+============================  ==============================  ============  ==========================================
+``above_canopy_par``          ``above_canopy_par_umol_m2_s``  µmol m⁻² s⁻¹  horizontal quantum sensor above the canopy
+                                                                            (a station's or a chamber's PAR sensor)
+``plant_par``                 ``plant_par_umol_m2_s``         µmol m⁻² s⁻¹  PAR at the plants: area-mean incident or
+                                                                            absorbed PAR per one-sided area of the
+                                                                            measured segments (run option ``par_kind``);
+                                                                            no single instrument reads this
+``canopy_apar``               ``canopy_apar_umol_m2_s``       µmol m⁻² s⁻¹  PAR absorbed by the canopy per ground area
+                                                                            (e.g. above-canopy PAR × fAPAR)
+``fapar``                     ``fapar``                       1             fraction of absorbed PAR, APAR / PAR above
+                                                                            the canopy on a horizontal plane
+``canopy_an``                 ``canopy_an_umol_m2_s``         µmol m⁻² s⁻¹  canopy net CO2 uptake of the leaf blades,
+                                                                            per ground area (or leaf area: ``an_per``)
+``nee``                       ``nee_umol_m2_s``               µmol m⁻² s⁻¹  chamber net ecosystem CO2 exchange per
+                                                                            ground area, positive = CO2 released
+``transmitted_par``           ``transmitted_par_umol_m2_s``   µmol m⁻² s⁻¹  line quantum sensor (ceptometer) on the soil
+                                                                            under the canopy, mean over its placements
+``ceptometer_transmittance``  ``ceptometer_transmittance``    1             canopy PAR transmittance, ceptometer below
+                                                                            ÷ reading above the canopy
+``ceptometer_fapar``          ``ceptometer_fapar``            1             fAPAR from a ceptometer, 1 − transmittance
+                                                                            (one-sensor approximation)
+============================  ==============================  ============  ==========================================
 
 The short names ``par`` and ``an`` of earlier versions mean ``plant_par`` and ``canopy_an``.
 Empty cells are missing observations (a row may have some quantities only). Every present value
@@ -105,6 +111,31 @@ SERIES = (
         "nee_sd_umol_m2_s",
         "nee_mc_sd_umol_m2_s",
         meaning="chamber net ecosystem CO2 exchange per ground area (positive: release)",
+    ),
+    Series(
+        "transmitted_par",
+        "transmitted_par_umol_m2_s",
+        "transmitted_par_sd_umol_m2_s",
+        "transmitted_par_mc_sd_umol_m2_s",
+        meaning="PAR on a line quantum sensor (ceptometer) on the soil under the canopy",
+        nonnegative=True,
+    ),
+    Series(
+        "ceptometer_transmittance",
+        "ceptometer_transmittance",
+        "ceptometer_transmittance_sd",
+        "ceptometer_transmittance_mc_sd",
+        unit="1",
+        meaning="canopy PAR transmittance from a ceptometer (below / above the canopy)",
+        nonnegative=True,
+    ),
+    Series(
+        "ceptometer_fapar",
+        "ceptometer_fapar",
+        "ceptometer_fapar_sd",
+        "ceptometer_fapar_mc_sd",
+        unit="1",
+        meaning="fAPAR from a ceptometer, 1 - transmittance (one-sensor approximation)",
     ),
 )
 BY_NAME = {s.name: s for s in SERIES}
