@@ -1,8 +1,9 @@
 """Long runs killed at any moment and rerun with the same command end exactly as uninterrupted runs (issue 17).
 
 ``lightfit posterior`` and ``lightfit calibrate`` run as subprocesses on the CI-sized field (3 daytime
-steps). Kill points: the test hook ``LIGHTFIT_TEST_KILL_AFTER`` (``os._exit`` at a chosen render, step or
-accepted calibration step — deterministic) and one real SIGKILL from outside during sampling. The
+steps). Kill points: SIGKILL at chosen moments — sent by the process to itself at a chosen render, step or
+accepted calibration step (``lightfit.killpoint``, ``LIGHTFIT_TEST_KILL_AFTER``; deterministic) and
+once from outside during sampling. The
 reference is the same command run without interruption; the comparison is bit for bit.
 """
 
@@ -45,6 +46,10 @@ POSTERIOR = [
 # is the above-canopy sensor, which needs no render at all)
 OBS_HEADER = "# provenance: synthetic\n# note: resume test\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
 OBS_ROWS = "2016-04-20T09:00:00Z,300,20\n2016-04-20T09:30:00Z,350,20\n2016-04-20T10:00:00Z,400,20\n"
+
+
+#: Return code of a subprocess ended by SIGKILL.
+KILLED = -signal.SIGKILL
 
 
 def lightfit(args, out: Path | None, kill_after: str | None = None, wait: bool = True):
@@ -120,7 +125,7 @@ def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, t
     out = tmp_path / "killed"
     # 1. during the emulator design, after 3 of its 6 renders
     rc, output = lightfit(POSTERIOR, out, kill_after="render:3")
-    assert rc == 137 and not (out / "emulator.npz").exists() and len(renders(out)) == 3
+    assert rc == KILLED and not (out / "emulator.npz").exists() and len(renders(out)) == 3
     # 2. a real SIGKILL from outside while sampling (after at least one stop-rule check at step 50)
     p = lightfit(POSTERIOR, out, wait=False)
     deadline = time.time() + 300
@@ -137,7 +142,7 @@ def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, t
     n_kill = 50 * ((int(P.load_run(ref / "run.h5")["attrs"]["stopped_at"]) - 1) // 50)
     assert n_kill > killed_at, (n_kill, killed_at)
     rc, output = lightfit(POSTERIOR, out, kill_after=f"sample:{n_kill}")
-    assert rc == 137, output
+    assert rc == KILLED, output
     assert iteration(out / "run.h5") == n_kill
     rc, output = lightfit(POSTERIOR, out)
     assert rc == 0, output
@@ -201,7 +206,7 @@ def test_calibrate_killed_and_rerun_reaches_the_same_optimum_and_history(tmp_pat
     rc, output = lightfit(args, tmp_path / "ref")
     assert rc == 0, output
     rc, output = lightfit(args, tmp_path / "killed", kill_after="calibrate:2")
-    assert rc == 137, output
+    assert rc == KILLED, output
     rc, output = lightfit(args, tmp_path / "killed")
     assert rc == 0, output
     assert _history(tmp_path / "killed") == _history(tmp_path / "ref")
@@ -220,7 +225,7 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
     assert rc == 0, output
     assert "full-render check" in output and "passed" in output
     rc, output = lightfit(args, tmp_path / "killed", kill_after="render:3")
-    assert rc == 137 and len(renders(tmp_path / "killed")) == 3, output
+    assert rc == KILLED and len(renders(tmp_path / "killed")) == 3, output
     rc, output = lightfit(args, tmp_path / "killed")
     assert rc == 0, output
     a, b = (json.loads((tmp_path / d / "calibration.json").read_text()) for d in ("ref", "killed"))

@@ -56,6 +56,7 @@ from lightfit.errors import InputError
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.progress import progress_bar
+from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
 
@@ -321,11 +322,6 @@ def _unflatten(template, leaves):
     return jax.tree_util.tree_unflatten(tree, new)
 
 
-#: Environment variable for the resume tests: ``"calibrate:N"`` ends the process (``os._exit``, like
-#: SIGKILL) after accepted step N is appended to the history, before the optimiser state is saved.
-KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
-
-
 def calibrate(
     model: CoupledModel,
     obs: pd.DataFrame,
@@ -482,8 +478,7 @@ def calibrate(
                     hist.parent.mkdir(parents=True, exist_ok=True)
                     with open(hist, "a", encoding="utf-8") as fh:
                         fh.write(json.dumps(record) + "\n")
-                    if os.environ.get(KILL_HOOK, "") == f"calibrate:{c['accepted']}":
-                        os._exit(137)
+                    kill_point("calibrate", c["accepted"])
                 info = f"loss {f:.4g}  {opt.evaluations} evals  " + " ".join(
                     f"{n[:4]}={v:.3f}" for n, v in values.items()
                 )

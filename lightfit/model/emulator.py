@@ -53,6 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import PARTS
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
@@ -138,10 +139,6 @@ def render_key(model: CoupledModel) -> dict:
     }
 
 
-#: Environment variable for the resume tests: ``"render:N"`` ends the process (``os._exit``, like
-#: SIGKILL) right after the N-th new render of a :func:`render_parts` call is stored.
-KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
-
 #: Renders done by this process (``"rendered"``: new full renders; ``"cached"``: read from a render
 #: cache instead). Counted, so that tests and the command line can say what a design cost.
 COUNTS = {"rendered": 0, "cached": 0}
@@ -199,8 +196,7 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
                     os.replace(tmp, file)  # atomic: a kill leaves the render either whole or absent
                 fresh += 1
                 COUNTS["rendered"] += 1
-                if os.environ.get(KILL_HOOK, "") == f"render:{fresh}":
-                    os._exit(137)
+                kill_point("render", fresh)
             vals.append(v)
             ses.append(s)
             seconds += dt

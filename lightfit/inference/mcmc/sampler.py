@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from lightfit.errors import InputError
 from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, open_h5, stored_run, writer_lock
 from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics
 from lightfit.inference.progress import progress_bar
+from lightfit.killpoint import kill_point
 
 
 @dataclass
@@ -138,7 +138,7 @@ def _sample(
                 k += 1
                 it = backend.iteration
                 bar.update(completed=it)
-                _test_kill_hook(it)
+                kill_point("sample", it)
                 if checks.due(it):
                     met = checks.met(it)
                     d = checks.last
@@ -162,17 +162,6 @@ def _sample(
         f[group].attrs["stopped_by"] = stopped_by
         f[group].attrs["stopped_at"] = len(chain)
     return SamplerResult(names, chain, backend.get_log_prob(), d, path, stopped_by, time.perf_counter() - t0, k)
-
-
-#: Environment variable for the resume tests: ``"sample:N"`` ends the process (``os._exit``, no cleanup,
-#: like SIGKILL) right after step N is stored, before that step's stop-rule check.
-KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
-
-
-def _test_kill_hook(step: int) -> None:
-    spec = os.environ.get(KILL_HOOK, "")
-    if spec.startswith("sample:") and int(spec.split(":", 1)[1]) == step:
-        os._exit(137)
 
 
 class _Checks:

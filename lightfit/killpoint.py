@@ -1,0 +1,24 @@
+"""Deterministic kill points for the resume tests (tests/test_resume.py).
+
+Long runs promise that a process killed at any moment and rerun with the same command ends with
+the uninterrupted run's result. Killing from outside at a precise moment (after a given render,
+MCMC step or calibration step) is racy, so the runs call :func:`kill_point` at the moments worth
+testing; with ``LIGHTFIT_TEST_KILL_AFTER="<kind>:<n>"`` in the environment the process sends
+itself SIGKILL there — the same signal, without cleanup, as a user's ``kill -9``.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+
+#: ``"render:N"`` (after the N-th new design render is stored), ``"sample:N"`` (after MCMC step N
+#: is stored, before its stop-rule check), ``"calibrate:N"`` (after accepted step N is in the
+#: history, before the optimiser state is saved).
+KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
+
+
+def kill_point(kind: str, n: int) -> None:
+    """SIGKILL this process if :data:`KILL_HOOK` names this moment (``kind:n``); else nothing."""
+    if os.environ.get(KILL_HOOK, "") == f"{kind}:{n}":
+        os.kill(os.getpid(), signal.SIGKILL)
