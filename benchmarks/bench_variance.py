@@ -1,0 +1,149 @@
+"""Benchmark: per-segment relative SE of absorbed PAR against time, fixed K vs adaptive sampling.
+
+    python benchmarks/bench_variance.py [--n-plants 500] [--target 0.02] [--bounces 3]
+
+Periodic field of ``n_plants`` measured plants (every segment measured), sun 50° elevation,
+absorbed PAR at DNI 1 and DHI 0.3. In one run, side by side on the same machine:
+
+1. fixed K = 64 (the old recipe): wall time, median and 90th percentile per-segment relative SE,
+   blades and stems apart, with the SE as it was computed before (sun and sky parts treated as
+   independent) and with their covariance (``Irradiance.cov``); the K and time a 2 % median needs,
+   extrapolated by K ∝ rse⁻² and time ∝ K;
+2. ``render_adaptive(target_rse=target)``: wall time, reached median/p90 per class, samples
+   spent (evaluations), rounds;
+3. ``AdaptiveEstimator``: a render at the kept allocation and the reverse-mode gradient (three
+   leaf parameters) ÷ that render's time.
+
+Writes benchmarks/results/variance.json and prints a table. Times are wall clock on a machine
+whose load is recorded (``load_average``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+import lightfit  # noqa: F401
+from lightfit.light.estimator import AdaptiveEstimator, SegmentEstimator, render_adaptive
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant import Field, build
+from lightfit.precision import use_float64
+
+use_float64()
+
+OUT = Path(__file__).resolve().parent / "results" / "variance.json"
+DNI, DHI = 1.0, 0.3
+
+
+def _stats(rse: np.ndarray, blade: np.ndarray) -> dict:
+    out = {}
+    for name, sel in (("all", np.ones_like(blade)), ("blades", blade), ("stems", ~blade)):
+        v = rse[sel & np.isfinite(rse)]
+        out[name] = {"median": float(np.median(v)), "p90": float(np.quantile(v, 0.9)), "n": int(sel.sum())}
+    return out
+
+
+def main(n_plants: int = 500, target: float = 0.02, bounces: int = 3, samples: int = 64) -> dict:
+    console = Console()
+    g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=False)
+    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fs.set_sun(50.0, 180.0)
+    ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
+    res = {
+        "n_plants": n_plants,
+        "segments": len(ids),
+        "bounces": bounces,
+        "target_rse": target,
+        "load_average_start": os.getloadavg(),
+    }
+    # 1. fixed K (warm-up render first: kernels compiled outside the timing)
+    SegmentEstimator(fs, ids[:200], samples=32, bounces=bounces, seed=9).render()
+    t = time.perf_counter()
+    r = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1).render()
+    t_fixed = time.perf_counter() - t
+    blade = r.meta["is_blade"]
+    tot = r.total("absorbed", DNI, DHI)
+    indep = np.sqrt((DNI * r.se["absorbed_sun"]) ** 2 + (DHI * r.se["absorbed_sky"]) ** 2) / tot
+    cov = r.relative_se("absorbed", DNI, DHI)
+    fixed = {
+        "samples": r.samples,
+        "time_s": t_fixed,
+        "rse_independent": _stats(indep, blade),
+        "rse": _stats(cov, blade),
+    }
+    for key in ("rse_independent", "rse"):
+        m = fixed[key]["all"]["median"]
+        fixed[key]["samples_for_target_median"] = samples * (m / target) ** 2
+        fixed[key]["time_s_for_target_median"] = t_fixed * (m / target) ** 2
+    res["fixed"] = fixed
+    # 2. adaptive
+    t = time.perf_counter()
+    a = render_adaptive(fs, ids, target, bounces=bounces, seed=1, max_samples=4096)
+    t_adapt = time.perf_counter() - t
+    K = a.meta["samples_per_segment"]
+    res["adaptive"] = {
+        "time_s": t_adapt,
+        "evaluations": int(a.meta["n_evaluations"]),
+        "evaluations_fixed_k": int(r.meta["n_evaluations"]),
+        "rounds": a.meta["rounds"],
+        "rse": _stats(a.meta["reached_rse"], blade),
+        "samples_median": float(np.median(K)),
+        "samples_mean": float(K.mean()),
+        "samples_mean_blades": float(K[blade].mean()),
+        "samples_mean_stems": float(K[~blade].mean()),
+        "at_max_samples": int((K == 4096).sum()),
+    }
+    # 3. kept allocation: render and gradient
+    est = AdaptiveEstimator(fs, ids, target, bounces=bounces, seed=1, max_samples=4096)
+    t = time.perf_counter()
+    est.render()
+    t_render = time.perf_counter() - t
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), DHI)}
+    t = time.perf_counter()
+    est.vjp(ct)
+    t_grad = time.perf_counter() - t
+    res["kept_allocation"] = {"render_s": t_render, "gradient_s": t_grad, "gradient_over_primal": t_grad / t_render}
+    res["load_average_end"] = os.getloadavg()
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=1))
+
+    tab = Table(title=f"{n_plants}-plant periodic field, {len(ids)} segments, {bounces} bounces, target {target:.0%}")
+    for c in ("run", "time s", "median all", "p90 all", "median blades", "p90 blades", "median stems", "p90 stems"):
+        tab.add_column(c)
+
+    def row(name, secs, s):
+        tab.add_row(
+            name,
+            f"{secs:.1f}",
+            *(f"{s[k][q]:.1%}" for k in ("all", "blades", "stems") for q in ("median", "p90")),
+        )
+
+    row(f"K={samples}, independent-parts SE", t_fixed, fixed["rse_independent"])
+    row(f"K={samples}, SE with covariance", t_fixed, fixed["rse"])
+    row("adaptive", t_adapt, res["adaptive"]["rse"])
+    console.print(tab)
+    console.print(
+        f"fixed K for a {target:.0%} median: {fixed['rse']['samples_for_target_median']:.0f} "
+        f"({fixed['rse']['time_s_for_target_median']:.0f} s; independent-parts SE: "
+        f"{fixed['rse_independent']['time_s_for_target_median']:.0f} s); adaptive {t_adapt:.1f} s, "
+        f"mean K {K.mean():.0f} (blades {K[blade].mean():.0f}, stems {K[~blade].mean():.0f}); "
+        f"gradient/primal at the kept allocation {t_grad / t_render:.2f}; load {res['load_average_end']}"
+    )
+    return res
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n-plants", type=int, default=500)
+    ap.add_argument("--target", type=float, default=0.02)
+    ap.add_argument("--bounces", type=int, default=3)
+    ap.add_argument("--samples", type=int, default=64)
+    a = ap.parse_args()
+    main(a.n_plants, a.target, a.bounces, a.samples)
