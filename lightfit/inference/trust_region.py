@@ -279,7 +279,7 @@ def surrogate_calibrate(
         lights = []
         for d in days:
             if n_steps == 0:
-                zeros = (jnp.zeros((0, len(E.PARTS), len(d.segment_id))),) * 2
+                zeros = (jnp.zeros((0, len(E.PARTS), d.n_columns)),) * 2
                 lights.append(lambda _, z=zeros: z)
             else:
                 ddirs.append(E.design_dir(d, cache))
