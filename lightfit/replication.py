@@ -72,6 +72,9 @@ class ReplicationConfig:
     ``bounces``: ``None`` (default) → as many scattering orders as keep the truncated light under
     :data:`BOUNCE_TOLERANCE` for the run's leaf (:func:`~lightfit.light.estimator.bounces_for_tolerance`:
     2 for the default leaf, 8 for the grey ``paper`` leaf; measured by experiments/defaults_check.py).
+    ``target_rse``: ``None`` (default) → ``samples`` points on every segment; a number in (0, 1) →
+    adaptive sampling to that per-segment relative SE of absorbed PAR, ``samples`` the starting count
+    (:attr:`lightfit.model.scenario.Scenario.target_rse`).
     """
 
     n_plants: int = 100
@@ -81,6 +84,7 @@ class ReplicationConfig:
     seed: int = 1
     samples: int = 64
     bounces: int | None = None
+    target_rse: float | None = None
     render_seed: int = 0
     par_kind: str = "absorbed"
     an_per: str = "ground"
@@ -298,6 +302,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         samples=cfg.samples,
         bounces=cfg.bounces if cfg.bounces is not None else bounces_for_tolerance(BOUNCE_TOLERANCE, optics),
         seed=cfg.render_seed,
+        target_rse=cfg.target_rse,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,
         photosynthesis=cfg.photosynthesis,

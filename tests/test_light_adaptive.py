@@ -97,3 +97,84 @@ def test_bad_adaptive_inputs(scene):
             render_adaptive(fs, ids, **kw)
     with pytest.raises(InputError, match="first"):
         SegmentEstimator(fs, ids, samples=8, first=-1)
+
+
+# -- the accuracy knob: Scenario.target_rse through the coupled model, the cache key and the CLI ----
+
+
+@pytest.mark.parametrize("bad", [0.0, 1.0, -0.05, float("nan"), True, "0.05"])
+def test_scenario_refuses_bad_target_rse(bad):
+    from lightfit import replication as rep
+    from lightfit.model.scenario import Scenario
+
+    with pytest.raises(InputError, match="target_rse"):
+        Scenario(weather=rep.forcing().iloc[[14]], target_rse=bad)
+
+
+@pytest.fixture(scope="module")
+def adaptive_model():
+    from lightfit import replication as rep
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.scenario import Scenario
+
+    w = rep.forcing().iloc[[5, 14]]  # 07:30 (low sun) and 12:00 local
+    sc = Scenario(weather=w, field=Field(n_plants=4, buffer_rows=1, seed=1), samples=32, bounces=1, target_rse=0.1)
+    return CoupledModel(sc, sensors=())
+
+
+def test_coupled_run_reaches_the_target_per_segment(adaptive_model, monkeypatch):
+    import lightfit.model.coupled as coupled
+
+    cap = 256  # instead of 8192: keeps the test to seconds; segments at the cap are reported as such
+    monkeypatch.setattr(coupled, "MAX_ADAPTIVE_SAMPLES", cap)
+    m = adaptive_model
+    m.__dict__.pop("irradiance", None)  # built with the cap above
+    ds = m.simulate()
+    K, rse = ds["samples_per_segment"].values, ds["reached_rse"].values
+    assert ds["samples_per_segment"].attrs["units"] == "1" and "relative" in ds["reached_rse"].attrs["long_name"]
+    assert ds.attrs["target_rse"] == 0.1 and ds.attrs["max_samples"] == cap
+    assert K.min() == 32 and K.max() <= cap and len(np.unique(K)) >= 2
+    assert ((rse <= 0.1) | (K == cap) | ~np.isfinite(rse)).all()
+    # The renders use the allocation: at the allocation point (highest sun, default leaf) the
+    # coupled parts of the segments given the most samples equal an independent fixed-K render.
+    leaf, sun, _, _ = m.allocation_point
+    i = int(np.flatnonzero(m.day)[np.argmax(m.sun_deg[m.day, 0])])
+    vals, _ = m.irradiance(leaf, sun, m.scenario.seed)
+    assert np.array_equal(sun, m.sun_deg[i])
+    k = int(K.max())
+    sel = K == k
+    fs = FieldScene(m.geometry.mesh, m.scenario.optics, sky=m.scenario.sky, cell=m.geometry.cell)
+    fs.set_optics(**dict(zip(("specular", "roughness", "subsurface"), (float(x) for x in leaf))))
+    fs.set_sun(*(float(x) for x in sun))
+    fixed = SegmentEstimator(fs, m.segment_id[sel], samples=k, bounces=1, seed=m.scenario.seed).render()
+    for j, p in enumerate(PARTS):
+        np.testing.assert_allclose(np.asarray(vals)[j, sel], getattr(fixed, p), rtol=1e-10, atol=1e-14)
+
+
+def test_render_key_names_the_target(adaptive_model):
+    import copy
+    import dataclasses
+
+    from lightfit.model.emulator import render_key
+
+    fixed = copy.copy(adaptive_model)
+    fixed.scenario = dataclasses.replace(adaptive_model.scenario, target_rse=None)
+    other = copy.copy(adaptive_model)
+    other.scenario = dataclasses.replace(adaptive_model.scenario, target_rse=0.05)
+    keys = [render_key(x) for x in (adaptive_model, fixed, other)]
+    assert keys[0]["target_rse"] == 0.1 and "target_rse" not in keys[1]  # fixed-K keys unchanged
+    assert keys[0] != keys[1] and keys[0] != keys[2]
+
+
+@pytest.mark.parametrize("value", ["0", "1.5"])
+def test_cli_refuses_bad_target_rse_in_one_line(value, tmp_path):
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    r = CliRunner().invoke(app, ["replicate", "--quick", "--target-rse", value, "--out", str(tmp_path)])
+    assert r.exit_code == 2, r.output
+    assert isinstance(r.exception, SystemExit), r.exception
+    err = " ".join(r.stderr.split())
+    assert err.startswith("error:") and "target" in err and "(0, 1)" in err, err
+    assert "Traceback" not in r.output and len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -55,6 +55,7 @@ class ModelOptions:
     field_seed: int | None = None
     samples: int | None = None
     bounces: int | None = None
+    target_rse: float | None = None
     render_seed: int | None = None
     par_kind: str | None = None
     photosynthesis: str | None = None
@@ -88,6 +89,7 @@ class ModelSettings:
     field_seed: int
     samples: int
     bounces: int
+    target_rse: float | None
     render_seed: int
     par_kind: str
     photosynthesis: str
@@ -123,6 +125,7 @@ class ModelSettings:
             seed=self.field_seed,
             samples=self.samples,
             bounces=self.bounces,
+            target_rse=self.target_rse,
             render_seed=self.render_seed,
             par_kind=self.par_kind,
             an_per=self.an_per,
@@ -199,6 +202,17 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             help="Scattering orders (default: as many as keep the truncated light under 1 % for the leaf, "
             "lightfit.light.estimator.bounces_for_tolerance: 2 for the default leaf, 8 for --optics paper; "
             "--quick: 2).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "target_rse": (
+        float | None,
+        typer.Option(
+            "--target-rse",
+            help="Accuracy knob: per-segment relative standard error of absorbed PAR to reach by adaptive "
+            "sampling (e.g. 0.05), in (0, 1); --samples is then each segment's starting count (at least 32), "
+            "samples are added up to 8192 where the error is above it; results.nc reports each segment's "
+            "samples and reached error. Default: none (every segment gets --samples points).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -414,6 +428,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         field_seed=given(opts.field_seed, base.seed),
         samples=given(opts.samples, base.samples),
         bounces=given(opts.bounces, base.bounces),
+        target_rse=given(opts.target_rse, base.target_rse),
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
@@ -436,6 +451,10 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
+    if s.target_rse is not None and not 0 < s.target_rse < 1:
+        raise InputError(
+            f"--target-rse {s.target_rse}", column="target_rse", expected="a relative standard error in (0, 1)"
+        )
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
     _option_error(s.window, "--start-time, --hours or --step")
@@ -515,6 +534,7 @@ RENDER_SETTINGS = (
     "field_seed",
     "samples",
     "bounces",
+    "target_rse",
     "render_seed",
     "optics",
     "chlorophyll_ug_cm2",

@@ -28,8 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
-from lightfit.light.estimator import PARTS, SegmentEstimator
+from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
 
@@ -47,6 +48,9 @@ def make_irradiance(
     bounces: int = 3,
     sensors: tuple[Sensor, ...] = (),
     sensor_samples: int = DEFAULT_SENSOR_SAMPLES,
+    target_rse: float | None = None,
+    allocate_at: tuple[ArrayLike, ArrayLike, float, float] | None = None,
+    max_samples: int = 8192,
 ) -> Callable[[ArrayLike, ArrayLike, ArrayLike], tuple[jax.Array, jax.Array]]:
     """Build ``irradiance(leaf, sun_deg, seed) -> (values, se)``, each (4, S + P), for fixed segments and sampling.
 
@@ -57,26 +61,61 @@ def make_irradiance(
         sensors: P virtual horizontal sensors (:mod:`lightfit.light.sensors`), rendered with the
             same scene, bounces and seed, ``sensor_samples`` points each; their parts are the
             last P columns (incident parts: the sensor's reading).
+        target_rse: ``None`` (default): every segment gets ``samples`` points. A number in (0, 1):
+            the per-segment relative standard error of absorbed PAR to reach; segments are
+            rendered with an :class:`~lightfit.light.estimator.AdaptiveEstimator`: ``samples``
+            is then the *starting* count (the pilot round, raised to 32 if smaller: the stopping
+            rule needs 8 replicates) and ``max_samples`` the cap. Sensors keep ``sensor_samples``.
+        allocate_at: ``(leaf, sun_deg, dni, dhi)`` at which the adaptive allocation is chosen
+            (once per seed, then kept for every sun and leaf: common random numbers, gradients
+            equal to finite differences); ``dni``/``dhi`` weight the sun and sky parts of the
+            absorbed PAR whose error is targeted. ``None``: the first call's leaf and sun with a
+            clear day's DHI/DNI = 0.3 — then the values depend on which call came first, so
+            callers wanting a pure function (:class:`~lightfit.model.coupled.CoupledModel`) give it.
 
     The returned function's arguments: ``leaf`` — (3,) specular, roughness, subsurface in
     [0, 1]; ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer.
     Gradients flow to ``leaf`` only.
     """
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
+    if target_rse is not None and not (isinstance(target_rse, (int, float)) and 0 < target_rse < 1):
+        raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
     n_seg = len(ids)
     n_out = n_seg + len(sensors)
     lock = threading.Lock()
     cache: dict[int, tuple] = {}
 
-    def estimators(leaf: np.ndarray, sun_deg: np.ndarray, seed: np.ndarray) -> tuple:
-        # numpy arguments only (see the module docstring).
+    def set_state(leaf, sun_deg):
         field_scene.set_optics(**{k: float(np.clip(v, 0.0, 1.0)) for k, v in zip(LEAF_PARAMETERS, leaf)})
         el, az = (float(x) for x in sun_deg)
         field_scene.set_sun(el, az)
+
+    def segment_estimator(leaf, sun_deg, s: int):
+        if target_rse is None:
+            return SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s)
+        a_leaf, a_sun, dni, dhi = (leaf, sun_deg, 1.0, 0.3) if allocate_at is None else allocate_at
+        set_state(np.asarray(a_leaf, np.float64), np.asarray(a_sun, np.float64))
+        est = AdaptiveEstimator(
+            field_scene,
+            ids,
+            float(target_rse),
+            bounces=bounces,
+            seed=s,
+            pilot=max(int(samples), 32),
+            max_samples=max(int(max_samples), int(samples), 32),
+            dni=float(dni),
+            dhi=float(dhi),
+        )
+        set_state(leaf, sun_deg)
+        return est
+
+    def estimators(leaf: np.ndarray, sun_deg: np.ndarray, seed: np.ndarray) -> tuple:
+        # numpy arguments only (see the module docstring).
+        set_state(leaf, sun_deg)
         s = int(seed)
         if s not in cache:
             cache.clear()  # keep one: sampling arrays are large
-            est = [SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s)]
+            est = [segment_estimator(leaf, sun_deg, s)]
             if sensors:
                 est.append(SensorEstimator(field_scene, sensors, samples=sensor_samples, bounces=bounces, seed=s))
             cache[s] = tuple(est)
@@ -125,7 +164,26 @@ def make_irradiance(
         )
         return g, jnp.zeros_like(sun_deg), None
 
+    def allocation(seed: int):
+        """The adaptive allocation (an :class:`~lightfit.light.estimator.Irradiance` whose meta has
+        ``samples_per_segment``, ``reached_rse``, ``target_rse``) used for ``seed``; ``None`` at fixed K."""
+        if target_rse is None:
+            return None
+        leaf, sun = (allocate_at[0], allocate_at[1]) if allocate_at is not None else (None, None)
+        with lock:
+            if int(seed) not in cache:
+                if leaf is None:
+                    raise InputError(
+                        "the adaptive allocation is made on the first call",
+                        column="allocate_at",
+                        expected="a call of the irradiance function first, or allocate_at",
+                    )
+                estimators(np.asarray(leaf, np.float64), np.asarray(sun, np.float64), np.asarray(seed))
+            return cache[int(seed)][0].allocation
+
     irradiance.defvjp(fwd, bwd)
     irradiance.segment_id = ids
     irradiance.sensors = tuple(sensors)
+    irradiance.target_rse = None if target_rse is None else float(target_rse)
+    irradiance.allocation = allocation
     return irradiance

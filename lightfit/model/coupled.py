@@ -33,7 +33,7 @@ from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import Forcing, Scenario
+from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Forcing, Scenario
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build
 from lightfit.precision import precision
@@ -123,7 +123,31 @@ class CoupledModel:
         """The Mitsuba scene's JAX irradiance function of the measured segments (built on first use)."""
         sc = self.scenario
         scene = FieldScene(self.geometry.mesh, sc.optics, sky=sc.sky, cell=self.geometry.cell)
-        return make_irradiance(scene, self.segment_id, samples=sc.samples, bounces=sc.bounces, sensors=self.sensors)
+        return make_irradiance(
+            scene,
+            self.segment_id,
+            samples=sc.samples,
+            bounces=sc.bounces,
+            sensors=self.sensors,
+            target_rse=sc.target_rse,
+            allocate_at=self.allocation_point if sc.target_rse is not None else None,
+            max_samples=MAX_ADAPTIVE_SAMPLES,
+        )
+
+    @property
+    def allocation_point(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """``(leaf, sun_deg, dni_par, dhi_par)`` at which adaptive sampling (``Scenario.target_rse``)
+        chooses each segment's K, once, kept for every step and leaf: the scenario's default leaf
+        and the daytime step with the highest sun (the largest light, which dominates daily sums),
+        its PAR weighting the sun and sky parts. A fixed point, so renders are a pure function of
+        the leaf parameters (gradients and the emulator's cache stay valid)."""
+        f = self.forcing
+        steps = np.flatnonzero(self.day)
+        i = steps[np.argmax(self.sun_deg[steps, 0])] if len(steps) else int(np.argmax(self.sun_deg[:, 0]))
+        dni, dhi = float(f.dni_par[i]), float(f.dhi_par[i])
+        if dni + dhi <= 0:  # no daytime step at all: a clear day's mix
+            dni, dhi = 1.0, 0.3
+        return np.asarray(self.scenario.theta.leaf, np.float64), self.sun_deg[i].copy(), dni, dhi
 
     def render(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""
@@ -201,9 +225,13 @@ class CoupledModel:
                 "is_blade": ("segment", self.is_blade),
             },
         )
+        sc = self.scenario
+        if sc.target_rse is not None:
+            alloc = self.irradiance.allocation(sc.seed)
+            ds["samples_per_segment"] = ("segment", np.asarray(alloc.meta["samples_per_segment"], np.int64))
+            ds["reached_rse"] = ("segment", np.asarray(alloc.meta["reached_rse"], np.float64))
         schema.annotate(ds)
         warn_unconverged(ds)
-        sc = self.scenario
         fld, g = sc.field, sc.field.growth
         ds.attrs = {
             "title": "lightfit coupled run",
@@ -227,6 +255,7 @@ class CoupledModel:
             "season_start": g.season_start,
             "target_date": g.target_date,
             "samples": sc.samples,
+            **({} if sc.target_rse is None else {"target_rse": sc.target_rse, "max_samples": MAX_ADAPTIVE_SAMPLES}),
             "bounces": sc.bounces,
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,

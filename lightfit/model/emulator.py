@@ -60,6 +60,7 @@ from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
+from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 from lightfit.plant.cache import ENV_CACHE
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
@@ -104,9 +105,10 @@ def _digest(*arrays) -> str:
 
 def render_key(model: CoupledModel) -> dict:
     """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
-    settings (samples, bounces, seed), sky, optics, the field (plants, growth parameter file,
-    boundary) and its geometry (hash of the segment table), the measured segments, times, sun
-    positions and the daytime mask, and the lightfit, Mitsuba and Dr.Jit versions. JSON-ready."""
+    settings (samples, bounces, seed; target_rse and the cap when adaptive), sky, optics, the field
+    (plants, growth parameter file, boundary) and its geometry (hash of the segment table), the
+    measured segments, times, sun positions and the daytime mask, and the lightfit, Mitsuba and
+    Dr.Jit versions. JSON-ready."""
     import pandas as pd
 
     from lightfit import __version__
@@ -136,6 +138,8 @@ def render_key(model: CoupledModel) -> dict:
         "times_utc": [str(x) for x in model.times.tz_convert("UTC")],
         "sun": _digest(np.asarray(model.sun_deg, np.float64)),
         "day": _digest(np.asarray(model.day, bool)),
+        # Adaptive sampling only: absent at a fixed K, so the keys of fixed-K caches stay as they were.
+        **({} if sc.target_rse is None else {"target_rse": float(sc.target_rse), "max_samples": MAX_ADAPTIVE_SAMPLES}),
     }
 
 

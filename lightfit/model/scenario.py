@@ -75,6 +75,11 @@ class Forcing:
         )
 
 
+#: Most points per segment adaptive sampling spends (:attr:`Scenario.target_rse`); segments still
+#: above the target there are reported (results ``samples_per_segment`` = this, ``reached_rse``).
+MAX_ADAPTIVE_SAMPLES = 8192
+
+
 @dataclass
 class Scenario:
     """Everything a forward run needs besides the calibrated parameters.
@@ -84,6 +89,12 @@ class Scenario:
             ``weather.window(df, "2016-04-20 05:00", 14, "30min")``).
         field: the field (plants, boundary and buffers, seed, growth).
         samples, bounces, seed: irradiance estimator settings (seed: common random numbers).
+        target_rse: ``None`` (default): every measured segment gets ``samples`` points. A number
+            in (0, 1): the per-segment relative standard error of absorbed PAR to reach, the
+            accuracy knob traded against time (adaptive sampling,
+            :class:`~lightfit.light.estimator.AdaptiveEstimator`; docs/light.md, "Adaptive
+            sampling to a target error"); ``samples`` is then the starting count of every
+            segment (at least 32) and :data:`MAX_ADAPTIVE_SAMPLES` the cap.
         photosynthesis: parameter-set name (``lightfit.photosynthesis.parameter_set``).
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
         an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area of the
@@ -103,6 +114,7 @@ class Scenario:
     samples: int = 32
     bounces: int = 3
     seed: int = 0
+    target_rse: float | None = None
     photosynthesis: str = "winter_wheat"
     par_kind: str = "incident"
     an_per: str = "ground"
@@ -117,6 +129,11 @@ class Scenario:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
+        t = self.target_rse
+        if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1):
+            raise InputError(
+                f"target_rse={t!r}", column="target_rse", expected="a relative standard error in (0, 1), or None"
+            )
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         if self.par_kind not in ("incident", "absorbed"):
@@ -147,4 +164,4 @@ class Scenario:
         return self.field.measured_area_m2(self.measured_tile)
 
 
-__all__ = ["Forcing", "Scenario", "WEATHER_COLUMNS", "daytime"]
+__all__ = ["MAX_ADAPTIVE_SAMPLES", "Forcing", "Scenario", "WEATHER_COLUMNS", "daytime"]

@@ -108,6 +108,21 @@ VARIABLES: dict[str, Variable] = {
     "absorbed_par_umol_m2_s": Variable(TS, UMOL, "PAR absorbed by the segment", _SEGMENT_AREA),
     "incident_par_mc_sd_umol_m2_s": Variable(TS, UMOL, "Monte Carlo standard deviation of incident PAR", _SEGMENT_AREA),
     "absorbed_par_mc_sd_umol_m2_s": Variable(TS, UMOL, "Monte Carlo standard deviation of absorbed PAR", _SEGMENT_AREA),
+    # Adaptive sampling only (attribute target_rse; absent at a fixed K, attribute samples).
+    "samples_per_segment": Variable(
+        S,
+        "1",
+        "irradiance sample points of the segment (adaptive sampling to target_rse)",
+        "chosen once at the allocation point (highest daytime sun, the scenario's default leaf) and kept; "
+        "= attribute max_samples where the target was not reached",
+    ),
+    "reached_rse": Variable(
+        S,
+        "1",
+        "relative Monte Carlo standard error of absorbed PAR reached by adaptive sampling",
+        "at the allocation point (highest daytime sun, PAR DNI/DHI of that step, sun-sky covariance "
+        "included); inf for segments receiving no light",
+    ),
     # -- per segment: leaf photosynthesis (blades) ------------------------------------------
     "leaf_an_umol_m2_s": Variable(TS, UMOL, "leaf net CO2 assimilation", _LEAF_AREA),
     "leaf_an_mc_sd_umol_m2_s": Variable(
