@@ -560,3 +560,55 @@ def test_winter_wheat_extremes_without_jit():
     assert np.all(res.converged)
     assert np.all(np.isfinite(np.asarray(g)))
     np.testing.assert_allclose(res.an_umol_m2_s, ps.solve(par, t, c, rh, P_KPA, p).an_umol_m2_s, rtol=1e-9, atol=1e-12)
+
+
+SLOPE_VARIANTS = [v for v in _variants() if v[0] in ("winter_wheat", "giraud2023", "leuning+gb+gm")]
+
+
+@pytest.mark.parametrize("name,params,gb", SLOPE_VARIANTS, ids=[v[0] for v in SLOPE_VARIANTS])
+def test_par_slope_equals_the_implicit_adjoint_jvp(name, params, gb):
+    """solve_with_par_slope's dAn/dq (elementwise implicit function theorem, one compilation) against a
+    forward product through optimistix's ImplicitAdjoint (lineax diagonal solve) on the extreme grid,
+    and its result against solve's; its An stays differentiable (finite gradients, jit and eager)."""
+    par, t, c, rh = _extreme_grid()
+    res, slope = ps.solve_with_par_slope(par, t, c, rh, P_KPA, params, gb_mol_m2_s=gb)
+    ref = ps.solve(par, t, c, rh, P_KPA, params, gb_mol_m2_s=gb)
+    for field, value in ref._asdict().items():
+        np.testing.assert_allclose(np.asarray(getattr(res, field)), value, rtol=1e-12, atol=1e-12, err_msg=field)
+    q = jnp.asarray(par)
+    _, jvp = jax.jvp(
+        lambda x: ps.solve(x, t, c, rh, P_KPA, params, gb_mol_m2_s=gb).an_umol_m2_s, (q,), (jnp.ones_like(q),)
+    )
+    assert np.all(np.isfinite(np.asarray(slope)))
+    np.testing.assert_allclose(np.asarray(slope), np.asarray(jvp), rtol=1e-9, atol=1e-12)
+
+    def total(x):
+        return jnp.sum(ps.solve_with_par_slope(x, t, c, rh, P_KPA, params, gb_mol_m2_s=gb)[0].an_umol_m2_s)
+
+    g = jax.grad(total)(q)
+    assert np.all(np.isfinite(np.asarray(g)))
+    if name == "winter_wheat":
+        with jax.disable_jit():
+            g_eager = jax.grad(total)(q)
+            _, s_eager = ps.solve_with_par_slope(par, t, c, rh, P_KPA, params)
+        np.testing.assert_allclose(np.asarray(g_eager), np.asarray(g), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(s_eager), np.asarray(slope), rtol=1e-9, atol=1e-12)
+
+
+def test_par_slope_matches_central_differences_and_float32():
+    """dAn/dq of the winter_wheat leaf against central differences of solve at GRAD_POINTS (one-sided in
+    the dark), and the float32 slope against the float64 one."""
+    p = ps.parameter_set("winter_wheat")
+    par, t, c = GRAD_POINTS
+    _, slope = ps.solve_with_par_slope(par, t, c, 0.6, P_KPA, p)
+    h = np.where(par > 0, 1e-4 * par, 1e-6)
+    lo = np.where(par > 0, par - h, par)
+
+    def an(x):
+        return np.asarray(ps.solve(x, t, c, 0.6, P_KPA, p).an_umol_m2_s)
+
+    fd = (an(par + h) - an(lo)) / (par + h - lo)
+    np.testing.assert_allclose(np.asarray(slope), fd, rtol=1e-5, atol=1e-9)
+    _, s32 = ps.solve_with_par_slope(*(x.astype(np.float32) for x in (par, t, c)), np.float32(0.6), P_KPA, p)
+    assert s32.dtype == np.float32
+    np.testing.assert_allclose(np.asarray(s32), np.asarray(slope), rtol=2e-3, atol=1e-5)

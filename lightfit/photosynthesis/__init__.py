@@ -27,6 +27,7 @@ from .model import (
     prepare_environment,
     solve,
     solve_plain_iteration,
+    solve_with_par_slope,
 )
 from .parameters import (
     DEFAULT_PARAMETER_SET,
@@ -87,6 +88,7 @@ __all__ = [
     "saturation_vapour_pressure_kpa",
     "solve",
     "solve_plain_iteration",
+    "solve_with_par_slope",
     "tuzet_conductance",
     "vapour_pressure_deficit_kpa",
     "vcmax_ref_from_chlorophyll",
