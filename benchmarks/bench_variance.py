@@ -8,7 +8,8 @@ absorbed PAR at DNI 1 and DHI 0.3. In one run, side by side on the same machine:
 1. fixed K = 64 (the old recipe): wall time, median and 90th percentile per-segment relative SE,
    blades and stems apart, with the SE as it was computed before (sun and sky parts treated as
    independent) and with their covariance (``Irradiance.cov``); the K and time a 2 % median needs,
-   extrapolated by K ∝ rse⁻² and time ∝ K;
+   extrapolated by K ∝ rse⁻² and time ∝ K; the sun and sky parts' own relative SE and the
+   share of the total's variance from the sun part (where a variance reduction must act);
 2. ``render_adaptive(target_rse=target)``: wall time, reached median/p90 per class, samples
    spent (evaluations), rounds;
 3. ``AdaptiveEstimator``: a render at the kept allocation and the reverse-mode gradient (three
@@ -78,6 +79,16 @@ def main(n_plants: int = 500, target: float = 0.02, bounces: int = 3, samples: i
         "rse_independent": _stats(indep, blade),
         "rse": _stats(cov, blade),
     }
+    # Where the noise is (what a variance reduction must target): each part's own relative SE,
+    # and the share of the total's variance from the sun part (direct sun + scattered sun).
+    for part in ("sun", "sky"):
+        v, se = getattr(r, f"absorbed_{part}"), r.se[f"absorbed_{part}"]
+        fixed[f"rse_{part}_part"] = _stats(np.divide(se, v, out=np.full_like(v, np.inf), where=v > 0), blade)
+    vs, vk = (DNI * r.se["absorbed_sun"]) ** 2, (DHI * r.se["absorbed_sky"]) ** 2
+    share = np.divide(vs, vs + vk, out=np.full_like(vs, np.nan), where=vs + vk > 0)
+    fixed["sun_variance_share_median"] = {
+        name: float(np.nanmedian(share[sel])) for name, sel in (("blades", blade), ("stems", ~blade))
+    }
     for key in ("rse_independent", "rse"):
         m = fixed[key]["all"]["median"]
         fixed[key]["samples_for_target_median"] = samples * (m / target) ** 2
@@ -127,6 +138,8 @@ def main(n_plants: int = 500, target: float = 0.02, bounces: int = 3, samples: i
 
     row(f"K={samples}, independent-parts SE", t_fixed, fixed["rse_independent"])
     row(f"K={samples}, SE with covariance", t_fixed, fixed["rse"])
+    row(f"K={samples}, sun part alone", t_fixed, fixed["rse_sun_part"])
+    row(f"K={samples}, sky part alone", t_fixed, fixed["rse_sky_part"])
     row("adaptive", t_adapt, res["adaptive"]["rse"])
     console.print(tab)
     console.print(
