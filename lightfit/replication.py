@@ -85,6 +85,7 @@ class ReplicationConfig:
     samples: int = 64
     bounces: int | None = None
     target_rse: float | None = None
+    ceptometer_height_m: float = 0.0
     render_seed: int = 0
     par_kind: str = "absorbed"
     an_per: str = "ground"
@@ -128,6 +129,13 @@ class ReplicationConfig:
             if all(getattr(self, k) == getattr(ref, k) for k in ("boundary", "optics", "photosynthesis", "par_kind")):
                 return name
         return None
+
+    def render_bounces(self) -> int:
+        """Scattering orders the run renders: ``bounces``, or for ``None`` as many as keep the truncated
+        light under :data:`BOUNCE_TOLERANCE` for the run's leaf (2 for the default leaf, 8 for the grey one)."""
+        if self.bounces is not None:
+            return self.bounces
+        return bounces_for_tolerance(BOUNCE_TOLERANCE, self.leaf_optics())
 
     def leaf_optics(self) -> Optics:
         """The run's :class:`~lightfit.light.scene.Optics` (checks the preset and the chlorophyll)."""
@@ -300,9 +308,10 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         weather=w,
         field=cfg.field(cfg.date_of(w)),
         samples=cfg.samples,
-        bounces=cfg.bounces if cfg.bounces is not None else bounces_for_tolerance(BOUNCE_TOLERANCE, optics),
+        bounces=cfg.render_bounces(),
         seed=cfg.render_seed,
         target_rse=cfg.target_rse,
+        ceptometer_height_m=cfg.ceptometer_height_m,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,
         photosynthesis=cfg.photosynthesis,

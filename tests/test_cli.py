@@ -143,6 +143,26 @@ def test_replicate_writes_labelled_forcing(tmp_path):
     assert (tmp_path / "forcing.png").stat().st_size > 10_000
 
 
+@pytest.mark.parametrize(
+    "args, bounces", [([], 2), (["--preset", "paper"], 8), (["--preset", "paper", "--bounces", "3"], 3)]
+)
+def test_replicate_names_the_bounces_it_renders(tmp_path, monkeypatch, args, bounces):
+    """The "running:" line gives the resolved number of bounces (not "None" when left at the default:
+    2 for the PROSPECT-D leaf, 8 for the paper's grey leaf of albedo 0.5; ReplicationConfig.render_bounces)."""
+    from lightfit import replication
+    from lightfit.errors import InputError
+
+    def stop(cfg, **kwargs):
+        assert cfg.render_bounces() == bounces
+        raise InputError("stopped before rendering", column="test", expected="nothing")
+
+    monkeypatch.setattr(replication, "run", stop)
+    r = runner.invoke(app, ["replicate", "--out", str(tmp_path), *args])
+    assert r.exit_code == 2, r.output
+    out = " ".join(r.stdout.split())  # rich wraps at the terminal width
+    assert f"K=64, {bounces} bounces" in out and "None bounces" not in out
+
+
 def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
     r = runner.invoke(
         app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(FIXTURE), "--steps", "14:16"]
