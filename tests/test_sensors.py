@@ -202,3 +202,26 @@ def test_observations_name_the_ceptometer_series(tmp_path):
     f.write_text("# provenance: synthetic\ntime,ceptometer_transmittance,ceptometer_transmittance_sd\nx,-0.1,0.1\n")
     with pytest.raises(InputError):
         read_observations(f)
+
+
+def test_ceptometer_height_is_a_scenario_knob():
+    """Scenario.ceptometer_height_m moves the default ceptometer: above the canopy top it reads the
+    analytic above-canopy PAR (τ = 1 exactly: every ray escapes), inside the canopy more than on the
+    soil; bad heights are refused before any plant grows."""
+    from lightfit import replication as rep
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.parameters import Theta
+    from lightfit.model.scenario import Scenario
+
+    weather = rep.forcing().iloc[[14]]  # 12:00 local
+    fld = Field(n_plants=4, seed=1, boundary="periodic")
+    tau = {}
+    for h in (0.0, 0.3, 2.0):
+        m = CoupledModel(Scenario(weather=weather, field=fld, samples=8, bounces=1, ceptometer_height_m=h))
+        assert m.sensors[0].height_m == h
+        tau[h] = float(m.observe(Theta())["ceptometer_transmittance"][0])
+    assert tau[2.0] == pytest.approx(1.0, abs=1e-6)
+    assert tau[0.0] < tau[0.3] < tau[2.0]
+    for bad in (-0.1, 11.0, True, "1"):
+        with pytest.raises(InputError, match="ceptometer_height_m"):
+            Scenario(weather=weather, field=fld, ceptometer_height_m=bad)

@@ -56,6 +56,7 @@ class ModelOptions:
     samples: int | None = None
     bounces: int | None = None
     target_rse: float | None = None
+    ceptometer_height_m: float | None = None
     render_seed: int | None = None
     par_kind: str | None = None
     photosynthesis: str | None = None
@@ -90,6 +91,7 @@ class ModelSettings:
     samples: int
     bounces: int
     target_rse: float | None
+    ceptometer_height_m: float
     render_seed: int
     par_kind: str
     photosynthesis: str
@@ -126,6 +128,7 @@ class ModelSettings:
             samples=self.samples,
             bounces=self.bounces,
             target_rse=self.target_rse,
+            ceptometer_height_m=self.ceptometer_height_m,
             render_seed=self.render_seed,
             par_kind=self.par_kind,
             an_per=self.an_per,
@@ -202,6 +205,16 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             help="Scattering orders (default: as many as keep the truncated light under 1 % for the leaf, "
             "lightfit.light.estimator.bounces_for_tolerance: 2 for the default leaf, 8 for --optics paper; "
             "--quick: 2).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "ceptometer_height_m": (
+        float | None,
+        typer.Option(
+            "--ceptometer-height-m",
+            help="Height of the virtual line quantum sensor (ceptometer) that gives transmitted_par, "
+            "ceptometer_transmittance and ceptometer_fapar, m above the soil (default 0: on the soil; "
+            "inside the canopy: PAR transmitted to that height).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -429,6 +442,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         samples=given(opts.samples, base.samples),
         bounces=given(opts.bounces, base.bounces),
         target_rse=given(opts.target_rse, base.target_rse),
+        ceptometer_height_m=given(opts.ceptometer_height_m, base.ceptometer_height_m),
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
@@ -535,6 +549,7 @@ RENDER_SETTINGS = (
     "samples",
     "bounces",
     "target_rse",
+    "ceptometer_height_m",
     "render_seed",
     "optics",
     "chlorophyll_ug_cm2",

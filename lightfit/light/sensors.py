@@ -152,10 +152,11 @@ def measured_area(field) -> PeriodicCell:
     )
 
 
-def default_sensors(field) -> tuple[Sensor, ...]:
-    """The sensors a coupled run renders by default: one ceptometer on the soil of the measured area
-    (:data:`CEPTOMETER_PLACEMENTS` bars of :data:`CEPTOMETER_LENGTH_M`, clipped to a finite area)."""
-    return (ceptometer(measured_area(field), clip=not field.periodic),)
+def default_sensors(field, height_m: float = SOIL_HEIGHT_M) -> tuple[Sensor, ...]:
+    """The sensors a coupled run renders by default: one ceptometer at ``height_m`` (m; default on
+    the soil) over the measured area (:data:`CEPTOMETER_PLACEMENTS` bars of
+    :data:`CEPTOMETER_LENGTH_M`, clipped to a finite area)."""
+    return (ceptometer(measured_area(field), height_m=height_m, clip=not field.periodic),)
 
 
 class SensorEstimator(SegmentEstimator):

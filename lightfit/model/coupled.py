@@ -66,7 +66,7 @@ class CoupledModel:
         sensors: tuple[Sensor, ...] | None = None,
     ):
         self.scenario = sc = scenario
-        self.sensors = default_sensors(sc.field) if sensors is None else tuple(sensors)
+        self.sensors = default_sensors(sc.field, sc.ceptometer_height_m) if sensors is None else tuple(sensors)
         self.geometry = build(sc.field, tile=sc.measured_tile, progress=progress)
         seg = self.geometry.segments
         meas = seg[seg["measured"]].sort_values("segment_id")

@@ -75,6 +75,8 @@ class Forcing:
         )
 
 
+#: Highest ceptometer a scenario accepts, m (well above any wheat canopy: a typo guard).
+MAX_CEPTOMETER_HEIGHT_M = 10.0
 #: Most points per segment adaptive sampling spends (:attr:`Scenario.target_rse`); segments still
 #: above the target there are reported (results ``samples_per_segment`` = this, ``reached_rse``).
 MAX_ADAPTIVE_SAMPLES = 8192
@@ -95,6 +97,9 @@ class Scenario:
             :class:`~lightfit.light.estimator.AdaptiveEstimator`; docs/light.md, "Adaptive
             sampling to a target error"); ``samples`` is then the starting count of every
             segment (at least 32) and :data:`MAX_ADAPTIVE_SAMPLES` the cap.
+        ceptometer_height_m: height of the default virtual line quantum sensor (ceptometer,
+            :func:`lightfit.light.sensors.default_sensors`) above the soil, m: 0 (default) reads
+            the PAR transmitted to the soil, a height inside the canopy the PAR transmitted to it.
         photosynthesis: parameter-set name (``lightfit.photosynthesis.parameter_set``).
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
         an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area of the
@@ -115,6 +120,7 @@ class Scenario:
     bounces: int = 3
     seed: int = 0
     target_rse: float | None = None
+    ceptometer_height_m: float = 0.0
     photosynthesis: str = "winter_wheat"
     par_kind: str = "incident"
     an_per: str = "ground"
@@ -133,6 +139,13 @@ class Scenario:
         if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1):
             raise InputError(
                 f"target_rse={t!r}", column="target_rse", expected="a relative standard error in (0, 1), or None"
+            )
+        h = self.ceptometer_height_m
+        if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0 <= h <= MAX_CEPTOMETER_HEIGHT_M:
+            raise InputError(
+                f"ceptometer_height_m={h!r}",
+                column="ceptometer_height_m",
+                expected=f"a height above the soil in metres, 0 … {MAX_CEPTOMETER_HEIGHT_M}",
             )
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
