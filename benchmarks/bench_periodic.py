@@ -227,8 +227,8 @@ MAIN_JOBS = (
 )
 
 
-def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS) -> dict:
-    """``lightfit replicate`` for each of ``jobs``, first cold, then warm.
+def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repeats: int = 1) -> dict:
+    """``lightfit replicate`` for each of ``jobs``, first cold, then warm (``warm_repeats`` rounds).
 
     Cold: an empty plant cache (``LIGHTFIT_CACHE``) and an empty Dr.Jit kernel cache (``HOME``
     of the child is a fresh directory; ``MPLCONFIGDIR`` stays the user's, so matplotlib's font
@@ -244,7 +244,7 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS) -> dict:
     out = {
         name: {"command": "lightfit replicate --out DIR " + " ".join(extra), "what": what} for name, extra, what in jobs
     }
-    for state in ("cold", "warm"):
+    for state in ("cold",) + ("warm",) * warm_repeats:
         for name, extra, _ in jobs:
             cache, home = tmp / f"cache_{name}", tmp / f"home_{name}"
             home.mkdir(exist_ok=True)
@@ -268,8 +268,13 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS) -> dict:
                 "plants_grown": len(list((cache / "plants").glob("*.npz"))),
                 "daily_max_plant_par_umol_m2_s": float(np.nanmax(par)),
                 "daily_max_canopy_an_umol_m2_s": float(np.nanmax(an)),
-                state: {"wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss},
             }
+            run = {"wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss}
+            if state == "cold":
+                r["cold"] = run
+            else:  # the warm entry is the mean over the rounds, which take turns between the jobs
+                r.setdefault("warm_runs", []).append(run)
+                r["warm"] = {k: float(np.mean([x[k] for x in r["warm_runs"]])) for k in run}
             print(f"main job {name} ({state}): {wall:.0f} s wall, {cpu:.0f} s CPU, {rss:.0f} MB")
     ref = out.get("old_default")
     for r in out.values():
@@ -390,8 +395,38 @@ if __name__ == "__main__":
     ap.add_argument("--main-job-options", default="", help="extra options of both main jobs, e.g. '--quick'")
     ap.add_argument("--case", nargs=2, metavar=("N", "SETUP"), help=argparse.SUPPRESS)
     ap.add_argument("--case-out", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--main-job-only",
+        metavar="JOBS",
+        help="only the main jobs named (comma-separated, e.g. default,old_default), written to the results' "
+        "main_job_rerun section; the rest of the results file is kept",
+    )
+    ap.add_argument("--warm-repeats", type=int, default=1, help="warm rounds of the main jobs (taking turns)")
     a = ap.parse_args()
-    if a.case:
+    if a.main_job_only:
+        names = a.main_job_only.split(",")
+        with tempfile.TemporaryDirectory(prefix="lightfit-bench-periodic-") as d:
+            mj = main_job(
+                Path(d), tuple(a.main_job_options.split()), [j for j in MAIN_JOBS if j[0] in names], a.warm_repeats
+            )
+        res = json.loads(OUT.read_text()) if OUT.exists() else {}
+        res["main_job_rerun"] = {
+            "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
+            "note": "cold once, then warm rounds taking turns; warm = mean of warm_runs; cpu_s = user + system",
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
+            "code": _code_state(),
+            "jobs": mj,
+        }
+        OUT.write_text(json.dumps(res, indent=1, default=float))
+        for name, r in mj.items():
+            c, w = r["cold"], r["warm"]
+            print(
+                f"{name}: cold {c['cpu_s']:.1f} s CPU ({c.get('cpu_vs_old_default', float('nan')):.2f}x), "
+                f"warm {w['cpu_s']:.1f} s CPU ({w.get('cpu_vs_old_default', float('nan')):.2f}x), "
+                f"warm runs {[round(x['cpu_s'], 1) for x in r['warm_runs']]}"
+            )
+        print(f"wrote {OUT} (main_job_rerun)")
+    elif a.case:
         case(int(a.case[0]), a.case[1], a.samples, a.seeds, a.case_out)
     else:
         ints = lambda s: tuple(int(x) for x in s.split(",") if x)  # noqa: E731
