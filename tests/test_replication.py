@@ -183,6 +183,6 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     assert r.exit_code == 0, r.output
     res = json.loads((tmp_path / "cal" / "calibration.json").read_text())
     assert res["parameters"] == ["light_factor"] and res["theta"]["light_factor"] > 0
-    assert res["precision"] == "float64" and res["method"] == "bfgs"
+    assert res["precision"] == "float64" and res["method"] == "lbfgsb"  # the command line's default
     r = runner.invoke(app, ["calibrate", str(obs), "--quick", "--parameters", "shininess"])
     assert r.exit_code == 2 and "unknown parameter" in r.stderr and "shininess" in r.stderr
