@@ -7,10 +7,33 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from rich import box
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_theta, weather_report, weather_table
 from lightfit.cli.options import ModelOptions, model_options, resolve, weather
+
+#: Short head and decimals of each summary column in the printed table (summary.csv keeps full names).
+SUMMARY_HEADS = {
+    "local_time": ("local", None),
+    "sun_elevation_deg": ("sun°", 1),
+    "above_canopy_par_umol_m2_s": ("PAR↑", 0),
+    "plant_par_umol_m2_s": ("PARpl", 0),
+    "plant_par_spread_umol_m2_s": ("±", 0),
+    "canopy_apar_umol_m2_s": ("APAR", 0),
+    "fapar": ("fAPAR", 2),
+    "canopy_an_umol_m2_s": ("An", 1),
+    "canopy_an_mc_sd_umol_m2_s": ("±MC", 2),
+    "frac_light_limited": ("light", 2),
+    "unconverged_blades": ("nc", 0),
+}
+
+
+def _cell(value, decimals: int | None) -> str:
+    if decimals is None:
+        return str(value)
+    v = float(value)
+    return f"{v:.{decimals}f}" if np.isfinite(v) else "–"
 
 
 @model_options
@@ -79,14 +102,20 @@ def replicate(
     table = summary(ds)
     t = Table(
         title=f"replication summary ({label} forcing; {field_label(ds.attrs)}; "
-        f"model PAR = {s.par_kind}, An per {s.an_per} area)"
+        f"model PAR = {s.par_kind}, An per {s.an_per} area)",
+        caption="PAR↑: the above-canopy sensor; PARpl: PAR at the plants (± its spread across "
+        "segments); APAR, An: per ground area; ±MC: Monte Carlo SD; light: share of light-limited "
+        "blades; nc: blades whose leaf solve did not converge. µmol m⁻² s⁻¹ unless a share.",
+        box=box.SIMPLE_HEAD,
+        padding=(0, 1),
+        pad_edge=False,
     )
-    # The columns are the summary's own (lightfit.report.summary), first one the local time.
-    first, *numbers = table.columns
+    # The columns are the summary's own (lightfit.report.summary); short heads and fixed decimals
+    # keep all of them readable in an 80-column terminal.
     for c in table.columns:
-        t.add_column(c.replace("_umol_m2_s", "").replace("_", " "), justify="right")
+        t.add_column(SUMMARY_HEADS.get(c, (c, 3))[0], justify="right")
     for _, r in table.iterrows():
-        t.add_row(str(r[first]), *(f"{r[c]:.3g}" if np.isfinite(r[c]) else "–" for c in numbers))
+        t.add_row(*(_cell(r[c], SUMMARY_HEADS.get(c, (c, 3))[1]) for c in table.columns))
     console.print(t)
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
