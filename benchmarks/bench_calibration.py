@@ -29,15 +29,20 @@ sampling both differentiate the same smooth estimate). A full three-parameter ca
 timed for the configurations given in ``--calibrate`` (others: estimated as measured time per
 evaluation × the evaluations the quick calibration needed).
 
-**Surrogate commands** (``--cli quick`` or ``--cli default``; writes
-benchmarks/results/calibration_cli_<config>.json): the real ``lightfit calibrate`` and ``lightfit
-posterior`` commands as subprocesses on one configuration, observations = the bundled chamber
-record (above-canopy sensor: informs only the light factor) merged with the synthetic twin series
-(plant PAR + canopy An at the 25 daytime steps), parameters specular, roughness, subsurface,
+**Surrogate commands** (``--cli quick`` or ``--cli default [--max-minutes 14] [--posterior-after]``;
+writes benchmarks/results/calibration_cli_<config>.json): the real ``lightfit calibrate`` and
+``lightfit posterior`` commands as subprocesses on one configuration, observations = the bundled
+chamber record (above-canopy sensor: informs only the light factor) merged with the synthetic twin
+series (plant PAR + canopy An at the 25 daytime steps), parameters specular, roughness, subsurface,
 light_factor. Timed in order, with a fresh ``LIGHTFIT_CACHE`` (so plants and design are cold):
-(1) calibrate cold, (2) the same calibrate again into a new OUT (design cached), (3) posterior on
-the same configuration after the calibration (design cached), (4) posterior with another fresh
-cache (cold). Reported: wall times, new/cached renders, the full-render check, ESS at stop.
+(1) calibrate cold, (2) the same calibrate again into a new OUT (design cached), (3) posterior with
+another fresh cache (cold), stop rule with ``--target-ess 50`` and ``--max-minutes`` of sampling;
+with ``--posterior-after`` also the posterior on the first cache after the calibration (design
+cached). Reported per stage: wall and CPU time, load average before and after, new/cached renders
+and the full-render check (calibrate); for the posterior the wall time at which a stop-rule check
+first had ESS ≥ 50 for every parameter, as estimated and with τ reliable (n_kept ≥ 20 τ, the stop
+rule's length condition) (``run.h5`` polled every 10 s), the stop reason, steps and ESS per
+parameter at the end.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ import json
 import time
 from pathlib import Path
 
+import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -55,6 +61,7 @@ from rich.table import Table
 
 import lightfit  # noqa: F401
 from lightfit import replication as rep
+from lightfit.inference import mcmc as P
 from lightfit.inference.calibration import METHODS, calibrate, make_loss, to_unconstrained
 from lightfit.inference.twin import twin_observations
 from lightfit.model import emulator as E
@@ -242,9 +249,30 @@ def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
     return rows
 
 
-def cli(config: str, n_design: int | None = None, max_minutes: float = 30.0) -> dict:
+def ess_checks(run_h5: Path, rule: P.StopRule = P.StopRule(target_ess=50.0)) -> dict:
+    """The first stop-rule checks (step, ESS per parameter) at which every parameter had ESS ≥ 50:
+    ``estimate`` whatever the chain's length; ``reliable`` also with n_kept ≥ 20 τ (the stop rule's
+    length condition: early on τ is underestimated and ESS with it). Missing: not reached yet."""
+    try:
+        with h5py.File(run_h5, "r") as f:
+            g = f["mcmc"]
+            step, tau, ess = g["check_step"][:], g["check_tau"][:], g["check_ess"][:]
+    except (OSError, KeyError):  # not written yet, or read while a step is written: try again later
+        return {}
+    kept = step - np.floor(rule.burn_fraction * step)
+    ok = ess.min(axis=1) >= rule.target_ess
+    reliable = ok & np.all(kept[:, None] >= rule.tau_multiple * tau, axis=1)
+    return {
+        k: {"step": int(step[i[0]]), "ess": ess[i[0]].tolist()}
+        for k, i in (("estimate", np.flatnonzero(ok)), ("reliable", np.flatnonzero(reliable)))
+        if len(i)
+    }
+
+
+def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, posterior_after: bool = False) -> dict:
     """The surrogate commands benchmark (see the module docstring)."""
     import os
+    import resource
     import subprocess
     import sys
     import tempfile
@@ -266,55 +294,111 @@ def cli(config: str, n_design: int | None = None, max_minutes: float = 30.0) -> 
     names = "specular,roughness,subsurface,light_factor"
     design = [] if n_design is None else ["--n-design", str(n_design)]
 
-    def run(args, cache):
+    def run(args, cache, watch: Path | None = None) -> dict:
+        """One command as a subprocess: wall and CPU seconds, load average before/after, its stdout; with
+        ``watch`` (a run.h5) also the wall time when a stop-rule check first had ESS ≥ 50 per parameter."""
         env = {**os.environ, "LIGHTFIT_CACHE": str(cache), "COLUMNS": "200"}
+        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        load0 = os.getloadavg()
         t0 = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "lightfit.cli", *args], env=env, capture_output=True, text=True)
+        p = subprocess.Popen(
+            [sys.executable, "-m", "lightfit.cli", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        )
+        first: dict = {}  # "estimate"/"reliable" → the check and the wall time it was first seen
+        while watch is not None and p.poll() is None and len(first) < 2:
+            time.sleep(10)
+            for k, hit in ess_checks(watch).items():
+                first.setdefault(k, hit | {"seconds": time.perf_counter() - t0})
+        out, err = (s.decode() for s in p.communicate())
         dt = time.perf_counter() - t0
+        cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         if p.returncode != 0:
-            raise RuntimeError(p.stdout[-3000:] + p.stderr[-3000:])
-        Console(width=200).print(p.stdout[-2500:])
-        return dt
+            raise RuntimeError(out[-3000:] + err[-3000:])
+        Console(width=200).print(out[-2500:])
+        cpu = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
+        rec = {"wall_s": dt, "cpu_s": cpu, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
+        if watch is not None:  # the posterior prints "design: N new renders, M from the cache (...)"
+            line = next((x for x in out.splitlines() if x.startswith("design:")), "")
+            rec["design_line"] = line
+            rec["first_check_ess_ge_50"] = ess_checks(watch) | first  # those seen after the end: no time
+        return rec
 
     # L-BFGS-B: BFGS's first step on log(light_factor) with an identity Hessian jumps by the raw gradient
     # (≈ 1e4 here, loss ≈ 7e3 at the start) to an infinite light factor and its linear solve gets NaN
     cal = ["calibrate", str(obs), *size, *design, "--parameters", names, "--method", "lbfgsb"]
-    post = ["posterior", str(obs), *size, *design, "--parameters", names, "--max-minutes", str(max_minutes)]
-    res = {"config": config, "observations": "chamber record + synthetic twin (plant_par, canopy_an)"}
-    res["calibrate_cold_s"] = run([*cal, "--out", str(work / "cal1")], work / "cache")
-    res["calibrate_cached_s"] = run([*cal, "--out", str(work / "cal2")], work / "cache")
+    post = ["posterior", str(obs), *size, *design, "--parameters", names, "--target-ess", "50"]
+    post += ["--max-minutes", str(max_minutes)]
+    res = {
+        "command": f"python benchmarks/bench_calibration.py --cli {config}"
+        + ("" if n_design is None else f" --design {n_design}")
+        + f" --max-minutes {max_minutes:g}"
+        + (" --posterior-after" if posterior_after else ""),
+        "config": config,
+        "machine": f"{os.cpu_count()} CPU cores; load average recorded before/after each stage; one run",
+        "observations": "chamber record + synthetic twin (plant_par, canopy_an)",
+        "parameters": names.split(","),
+        "goals": "issue 15: calibrate <= 15 min cold, <= 5 min cached, full-render check passed; "
+        "posterior >= 50 effective samples per parameter in <= 20 min cold",
+    }
+    res["calibrate_cold"] = run([*cal, "--out", str(work / "cal1")], work / "cache")
+    res["calibrate_cached"] = run([*cal, "--out", str(work / "cal2")], work / "cache")
     c = json.loads((work / "cal1" / "calibration.json").read_text())
     c2 = json.loads((work / "cal2" / "calibration.json").read_text())
+    for key, rec in (("calibrate_cold", c), ("calibrate_cached", c2)):
+        s = rec["surrogate"]
+        res[key] |= {
+            "renders_new": s["renders_new"],
+            "renders_cached": s["renders_cached"],
+            "check_passed": s["passed"],
+            "rounds": len(s["rounds"]),
+        }
     res["calibration"] = {k: c[k] for k in ("theta", "loss", "steps", "stopped_by")} | {
         "check": {k: v for k, v in c["surrogate"].items() if k != "rounds"},
         "rounds": c["surrogate"]["rounds"],
-        "cached_run_renders_new": c2["surrogate"]["renders_new"],
     }
-    res["posterior_after_calibrate_s"] = run([*post, "--out", str(work / "post1")], work / "cache")
-    res["posterior_cold_s"] = run([*post, "--out", str(work / "post2")], work / "cache_cold")
-    for tag in ("post1", "post2"):
+    stages = [("posterior_cold", work / "cache_cold", "post_cold")]
+    if posterior_after:
+        stages.insert(0, ("posterior_after_calibrate", work / "cache", "post_after"))
+    for key, cache, tag in stages:
+        res[key] = run([*post, "--out", str(work / tag)], cache, watch=work / tag / "run.h5")
         sm = json.loads((work / tag / "summary.json").read_text())
-        res[tag] = {k: sm.get(k) for k in ("stopped_by", "n_steps", "ess", "tau", "seconds_sampling", "seconds_total")}
+        res[key] |= {k: sm.get(k) for k in ("names", "stopped_by", "n_steps", "ess", "tau", "seconds_sampling")}
+        res[key]["min_ess"] = float(np.min(sm["ess"]))
     out = OUT.with_name(f"calibration_cli_{config}.json")
     out.write_text(json.dumps(res, indent=2, default=str))
-    t = Table(title=f"lightfit calibrate / posterior on the emulator ({config}, 2 CPU cores, one run)")
-    for col in ("stage", "wall s", "notes"):
-        t.add_column(col)
-    chk = res["calibration"]["check"]
-    t.add_row(
-        "calibrate, cold cache",
-        f"{res['calibrate_cold_s']:.0f}",
-        f"{chk['renders_new']} renders; check {'passed' if chk['passed'] else 'NOT passed'}",
-    )
-    new2 = c2["surrogate"]["renders_new"]
-    t.add_row("calibrate, design cached", f"{res['calibrate_cached_s']:.0f}", f"{new2} renders")
-    for tag, label in (("post1", "posterior after calibrate"), ("post2", "posterior, cold cache")):
-        key = "posterior_after_calibrate_s" if tag == "post1" else "posterior_cold_s"
-        ess = res[tag]["ess"] or []
-        low = min(ess) if ess else float("nan")
-        t.add_row(label, f"{res[key]:.0f}", f"{res[tag]['stopped_by']}, min ESS {low:.0f}")
-    Console().print(t)
+    print_cli(res)
     return res
+
+
+def print_cli(res: dict) -> None:
+    """The table of ``cli``'s stages (wall and CPU minutes, renders, check / ESS, load average)."""
+    t = Table(title=f"lightfit calibrate / posterior on the emulator ({res['config']}; {res['machine']})")
+    for col in ("stage", "wall min", "CPU min", "load before→after", "notes"):
+        t.add_column(col)
+    for key, label in (
+        ("calibrate_cold", "calibrate, cold cache"),
+        ("calibrate_cached", "calibrate, design cached"),
+        ("posterior_after_calibrate", "posterior after calibrate"),
+        ("posterior_cold", "posterior, cold cache"),
+    ):
+        r = res.get(key)
+        if r is None:
+            continue
+        if key.startswith("calibrate"):
+            note = f"{r['renders_new']} new + {r['renders_cached']} cached renders, {r['rounds']} rounds; check "
+            note += "passed" if r["check_passed"] else "NOT passed"
+        else:
+            first = r.get("first_check_ess_ge_50", {})
+            when = "; ".join(
+                f"ESS ≥ 50 ({k}) at step {c['step']}" + (f", {c['seconds'] / 60:.1f} min" if "seconds" in c else "")
+                for k, c in first.items()
+            )
+            when = when or "ESS < 50"
+            note = f"{r['design_line'][8:].split(' (')[0]}; {when}; stopped: {r['stopped_by']} at step "
+            note += f"{r['n_steps']}, ESS " + ", ".join(f"{n[:4]} {e:.0f}" for n, e in zip(r["names"], r["ess"]))
+        load = f"{r['loadavg_before'][0]:.1f}→{r['loadavg_after'][0]:.1f}"
+        t.add_row(label, f"{r['wall_s'] / 60:.1f}", f"{r['cpu_s'] / 60:.1f}", load, note)
+    Console(width=200).print(t)
 
 
 if __name__ == "__main__":
@@ -324,9 +408,11 @@ if __name__ == "__main__":
     ap.add_argument("--n-design", type=int, default=24, help="full renders for the emulator (optimisers)")
     ap.add_argument("--cli", default=None, help="time the surrogate calibrate/posterior commands: quick or default")
     ap.add_argument("--design", type=int, default=None, help="with --cli: --n-design (default: the shared size)")
+    ap.add_argument("--max-minutes", type=float, default=14.0, help="with --cli: posterior's sampling budget")
+    ap.add_argument("--posterior-after", action="store_true", help="with --cli: also the posterior after calibrate")
     a = ap.parse_args()
     if a.cli:
-        cli(a.cli, a.design)
+        cli(a.cli, a.design, a.max_minutes, a.posterior_after)
     elif a.gradients:
         main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x))
     else:

@@ -18,13 +18,16 @@ from typer.testing import CliRunner
 from lightfit import replication as rep
 from lightfit.cli import app
 from lightfit.errors import InputError
+from lightfit.inference import posterior as A
 from lightfit.inference.calibration import make_loss
 from lightfit.inference.likelihood import GaussianLikelihood, mc_correlation
 from lightfit.inference.mcmc import load_run
-from lightfit.inference.multiday import MultiDayModel
+from lightfit.inference.multiday import MultiDayModel, joined, with_lights
 from lightfit.inference.observations import BY_NAME, write_observations
 from lightfit.inference.twin import twin_observations
+from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.scene import Optics
+from lightfit.model import emulator as E
 from lightfit.model.parameters import Theta
 from lightfit.weather.site import Window
 
@@ -96,6 +99,33 @@ def test_multiday_likelihood_is_the_sum_of_the_days(days):
     grey.scenario = dataclasses.replace(grey.scenario, optics=Optics.preset("paper"))
     with pytest.raises(InputError, match="leaf optics"):
         MultiDayModel({DATES[0]: fixed[DATES[0]], DATES[1]: grey})
+
+
+@pytest.mark.slow  # ≈ 25 s on 2 idle cores: compiling the emulated days' forward and Monte Carlo correlation
+def test_multiday_posterior_on_emulators_is_the_sum_of_the_days(days):
+    """The posterior's two-date path on emulators, as ``lightfit posterior --date … --date …`` builds it
+    (one emulator per day, :func:`joined` fast forwards, Monte Carlo correlation from the emulated days at
+    the priors' centre): its log-likelihood equals the sum of the days' own single-day posteriors on the
+    same emulators, each with its own correlation, to 1e-10, at points across the prior box."""
+    fixed, obs = days
+    multi = MultiDayModel(fixed)
+    priors = A.prior_set("informed", multi.scenario.optics)
+    lo, hi = ([priors[n].support[k] for n in LEAF_PARAMETERS] for k in (0, 1))
+    # 5 renders per day (3 steps each), degree 1: enough to exercise the path; accuracy is not tested here
+    emus = [E.build_emulator(m, lo, hi, n_design=5, degrees=(1,), seed=0) for m in multi.models]
+    fasts = [E.FastObservables(m, e) for m, e in zip(multi.models, emus)]
+    names = (*LEAF_PARAMETERS, "light_factor")
+    kw = dict(names=names, use=USE, mc_scale=2.0)
+    lp = A.log_posterior(multi, obs, joined(multi, fasts), light_model=with_lights(multi, emus), **kw)
+    parts = multi.split(obs)
+    own = [
+        A.log_posterior(m, parts[d], f, light_model=m.with_light(e), **kw)
+        for (d, m), f, e in zip(multi.day_models.items(), fasts, emus)
+    ]
+    assert lp.likelihood.n_observations == sum(o.likelihood.n_observations for o in own) == 12
+    for x in (lp.center(), np.array([0.47, 0.35, 0.95, 0.9])):
+        want = sum(float(o.log_likelihood(jnp.asarray(x))) for o in own)
+        assert float(lp.log_likelihood(jnp.asarray(x))) == pytest.approx(want, rel=1e-10)
 
 
 def test_two_dates_in_one_calibration_and_one_posterior(days, tmp_path, monkeypatch):
