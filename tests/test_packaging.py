@@ -155,7 +155,7 @@ RANK = {
     "dataset": 6,
     "cli": 7,
 }
-SHARED = {"errors", "precision", "killpoint", ""}
+SHARED = {"errors", "precision", "killpoint", "cache", ""}
 
 
 def layer_violations(root: Path) -> list[str]:

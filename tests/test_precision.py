@@ -58,3 +58,42 @@ def test_every_script_applies_the_policy_at_module_level(script):
         and getattr(node.value.func, "id", None) == "use_float64"
     ]
     assert calls, f"{script.name}: add `from lightfit.precision import use_float64` and `use_float64()` at the top"
+
+
+def test_compilation_cache_keeps_programs_for_the_next_process(tmp_path):
+    """A second process finds the first one's compiled program on disk (JAX reports a cache hit)
+    instead of compiling it again; a ``JAX_COMPILATION_CACHE_DIR`` the user set is left alone."""
+    code = textwrap.dedent(
+        """
+        import logging, sys
+        import jax, jax.numpy as jnp
+        from lightfit.precision import use_compilation_cache
+        hits = []
+        class H(logging.Handler):
+            def emit(self, r):
+                hits.append(r.getMessage())
+        logging.getLogger("jax._src.compilation_cache").addHandler(H())
+        logging.getLogger("jax._src.compilation_cache").setLevel(logging.DEBUG)
+        logging.getLogger("jax._src.compiler").addHandler(H())
+        logging.getLogger("jax._src.compiler").setLevel(logging.DEBUG)
+        use_compilation_cache()
+        use_compilation_cache()
+        print(jax.config.jax_compilation_cache_dir)
+        print(float(jax.jit(lambda x: jnp.sin(x) * 3.0 + x**2)(0.5)))
+        print(any("cache hit" in m.lower() for m in hits))
+        """
+    )
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["LIGHTFIT_CACHE"] = str(tmp_path / "root")
+    runs = [
+        subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+        for _ in range(2)
+    ]
+    assert runs[0][0] == str(tmp_path / "root" / "jax")
+    assert runs[0][1] == runs[1][1]
+    assert (runs[0][2], runs[1][2]) == ("False", "True")
+    mine = str(tmp_path / "mine")
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**env, "JAX_COMPILATION_CACHE_DIR": mine}
+    )
+    assert out.stdout.split()[0] == mine and any((tmp_path / "mine").iterdir())

@@ -53,10 +53,11 @@ def _main(
     ),
 ) -> None:
     """Runs before every command: the precision policy, and the Mitsuba variant if one is asked for."""
-    from lightfit.precision import use_float64
+    from lightfit.precision import use_compilation_cache, use_float64
 
     # Before any command creates a JAX array: lightfit computes in float64 only (lightfit.precision).
     use_float64()
+    use_compilation_cache()
     if variant:
         from lightfit.light import backend
 

@@ -141,10 +141,11 @@ class TaskSpec:
 def _worker_setup() -> None:
     """Prepare a worker process: libLLVM for Dr.Jit, its CPU threads, and lightfit's float64 policy."""
     import lightfit  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before Mitsuba loads)
-    from lightfit.precision import use_float64
+    from lightfit.precision import use_compilation_cache, use_float64
 
     # Workers are separate processes: the client's JAX configuration does not reach them.
     use_float64()
+    use_compilation_cache()
 
     threads = os.environ.get(ENV_THREADS)
     if threads:

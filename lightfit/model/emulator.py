@@ -52,6 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from lightfit.cache import ENV_CACHE, cache_root
 from lightfit.errors import InputError
 from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -61,7 +62,6 @@ from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
-from lightfit.plant.cache import ENV_CACHE
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
 DEGREES = (1, 2, 3, 4, 5)
@@ -435,14 +435,6 @@ CACHE_ENV = ENV_CACHE
 #: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
 #: emulator, so one command's design serves the other).
 DESIGN_SIZE = 20
-
-
-def cache_root(cache: str | Path | None = None) -> Path:
-    """The shared cache directory: ``cache`` if given, else ``$LIGHTFIT_CACHE``, else ``~/.cache/lightfit``."""
-    if cache is not None:
-        return Path(cache)
-    env = os.environ.get(CACHE_ENV)
-    return Path(env) if env else Path.home() / ".cache" / "lightfit"
 
 
 def design_dir(model: CoupledModel, cache: str | Path | None = None, key: dict | None = None) -> Path:

@@ -18,18 +18,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from lightfit.cache import cache_root
 from lightfit.plant.growth import GrowthConfig, grow_plant
 
 log = logging.getLogger(__name__)
 #: Bump when the segment table layout changes: older entries become stale.
 SCHEMA = 1
-ENV_CACHE = "LIGHTFIT_CACHE"
 
 
 def cache_dir() -> Path:
     """``$LIGHTFIT_CACHE/plants`` or ``~/.cache/lightfit/plants``."""
-    root = Path(os.environ.get(ENV_CACHE) or Path.home() / ".cache" / "lightfit")
-    return root / "plants"
+    return cache_root() / "plants"
 
 
 def cache_key(config: GrowthConfig, seed: int) -> str:
