@@ -269,6 +269,17 @@ def ess_checks(run_h5: Path, rule: P.StopRule = P.StopRule(target_ess=50.0)) -> 
     }
 
 
+def git_state() -> dict:
+    """The commit measured and the tracked files changed in the working tree (another session's edit
+    counts: the commands import lightfit from this checkout)."""
+    import subprocess
+
+    def git(*args):
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=OUT.parents[2]).stdout.strip()
+
+    return {"commit": git("rev-parse", "HEAD"), "modified": git("diff", "--name-only", "HEAD").splitlines()}
+
+
 def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, posterior_after: bool = False) -> dict:
     """The surrogate commands benchmark (see the module docstring)."""
     import os
@@ -339,6 +350,7 @@ def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, pos
         "parameters": names.split(","),
         "goals": "issue 15: calibrate <= 15 min cold, <= 5 min cached, full-render check passed; "
         "posterior >= 50 effective samples per parameter in <= 20 min cold",
+        "git": git_state(),
     }
     res["calibrate_cold"] = run([*cal, "--out", str(work / "cal1")], work / "cache")
     res["calibrate_cached"] = run([*cal, "--out", str(work / "cal2")], work / "cache")
