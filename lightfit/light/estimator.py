@@ -506,15 +506,16 @@ class SegmentEstimator:
             si.sh_frame, si.wi = v["frame"], v["wi"]
             f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
             side = dr.sign(dr.dot(n, sun))
-            o_leaf, o_soil = p + eps * side * n, p + mi.Vector3f(0, 0, eps)
+            # Leaf and soil vertices are disjoint lanes: one shadow ray each, cast together, so
+            # the ray packets are full (two masked casts cost nearly twice one).
+            o = dr.select(hit_leaf, p + eps * side * n, p + mi.Vector3f(0, 0, eps))
+            cast = (hit_leaf & (f_sun > 0)) | hit_soil
             if fs.tracer is not None:
-                vis_leaf = ~self._occluded("nee", o_leaf, sun, hit_leaf & (f_sun > 0))
-                vis_soil = ~self._occluded("nee", o_soil, sun, hit_soil)
+                visible = ~self._occluded("nee", o, sun, cast)
             else:
-                vis_leaf = ~fs.scene.ray_test(mi.Ray3f(o_leaf, sun), hit_leaf & (f_sun > 0))
-                vis_soil = ~fs.scene.ray_test(mi.Ray3f(o_soil, sun), hit_soil)
-            L_sun += dr.select(hit_leaf & vis_leaf, beta * f_sun, 0.0)
-            L_sun += dr.select(hit_soil & vis_soil, beta * rho_soil / math.pi * sun.z, 0.0)
+                visible = ~fs.scene.ray_test(mi.Ray3f(o, sun), cast)
+            L_sun += dr.select(hit_leaf & visible, beta * f_sun, 0.0)
+            L_sun += dr.select(hit_soil & visible, beta * rho_soil / math.pi * sun.z, 0.0)
         return L_sun
 
     # -- public --------------------------------------------------------------------------
