@@ -1,7 +1,7 @@
 """Benchmark: per-segment relative SE of absorbed PAR against time, fixed K vs adaptive sampling.
 
     python benchmarks/bench_variance.py [--n-plants 500] [--target 0.02] [--bounces 3]
-        [--sun-points m] [--no-adaptive] [--repeat 1] [--out results/variance.json]
+        [--no-adaptive] [--repeat 1] [--out results/variance.json]
 
 Periodic field of ``n_plants`` measured plants (every segment measured), sun 50° elevation,
 absorbed PAR at DNI 1 and DHI 0.3. In one run, side by side on the same machine:
@@ -16,10 +16,10 @@ absorbed PAR at DNI 1 and DHI 0.3. In one run, side by side on the same machine:
 3. ``AdaptiveEstimator``: a render at the kept allocation and the reverse-mode gradient (three
    leaf parameters) ÷ that render's time.
 
-``--sun-points``: the estimator's direct-sun points per path point (default: the estimator's
-default; omitted from the constructor calls when not given, so the script also runs against an
-estimator without the knob, as ``benchmarks/bench_sun_points.py`` does for side-by-side runs).
-``--no-adaptive`` stops after 1. Writes benchmarks/results/variance.json (or ``--out``) and
+``--no-adaptive`` stops after 1; ``--repeat`` times that many fixed-K renders and keeps the
+fastest (wall and CPU time of the process, all threads: CPU time is the steadier measure on
+shared cores). ``benchmarks/bench_variance_compare.py`` runs this script against another
+commit's estimator in turns. Writes benchmarks/results/variance.json (or ``--out``) and
 prints a table. Times are wall clock on a machine
 whose load is recorded (``load_average``).
 """
@@ -61,13 +61,11 @@ def main(
     target: float = 0.02,
     bounces: int = 3,
     samples: int = 64,
-    sun_points: int | None = None,
     adaptive: bool = True,
     out: Path = OUT,
     repeat: int = 1,
 ) -> dict:
     console = Console()
-    kw = {} if sun_points is None else {"sun_points": sun_points}
     g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=False)
     fs = FieldScene(g.mesh, Optics(), cell=g.cell)
     fs.set_sun(50.0, 180.0)
@@ -77,15 +75,14 @@ def main(
         "segments": len(ids),
         "bounces": bounces,
         "target_rse": target,
-        "sun_points": sun_points,
         "load_average_start": os.getloadavg(),
     }
     # 1. fixed K (warm-up render first: kernels compiled outside the timing)
-    SegmentEstimator(fs, ids[:200], samples=32, bounces=bounces, seed=9, **kw).render()
+    SegmentEstimator(fs, ids[:200], samples=32, bounces=bounces, seed=9).render()
     walls, cpus = [], []
     for _ in range(repeat):  # the fastest of ``repeat`` renders (estimator built in each)
         t, c = time.perf_counter(), time.process_time()
-        r = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1, **kw).render()
+        r = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1).render()
         walls.append(time.perf_counter() - t)
         cpus.append(time.process_time() - c)
     t_fixed = min(walls)
@@ -123,7 +120,7 @@ def main(
         return res
     # 2. adaptive
     t = time.perf_counter()
-    a = render_adaptive(fs, ids, target, bounces=bounces, seed=1, max_samples=4096, **kw)
+    a = render_adaptive(fs, ids, target, bounces=bounces, seed=1, max_samples=4096)
     t_adapt = time.perf_counter() - t
     K = a.meta["samples_per_segment"]
     res["adaptive"] = {
@@ -139,7 +136,7 @@ def main(
         "at_max_samples": int((K == 4096).sum()),
     }
     # 3. kept allocation: render and gradient
-    est = AdaptiveEstimator(fs, ids, target, bounces=bounces, seed=1, max_samples=4096, **kw)
+    est = AdaptiveEstimator(fs, ids, target, bounces=bounces, seed=1, max_samples=4096)
     t = time.perf_counter()
     est.render()
     t_render = time.perf_counter() - t
@@ -185,9 +182,8 @@ if __name__ == "__main__":
     ap.add_argument("--target", type=float, default=0.02)
     ap.add_argument("--bounces", type=int, default=3)
     ap.add_argument("--samples", type=int, default=64)
-    ap.add_argument("--sun-points", type=int, default=None)
     ap.add_argument("--no-adaptive", action="store_true")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--repeat", type=int, default=1, help="fixed-K renders timed (the fastest is kept)")
     a = ap.parse_args()
-    main(a.n_plants, a.target, a.bounces, a.samples, a.sun_points, not a.no_adaptive, a.out, a.repeat)
+    main(a.n_plants, a.target, a.bounces, a.samples, not a.no_adaptive, a.out, a.repeat)

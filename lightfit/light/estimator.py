@@ -60,8 +60,7 @@ from lightfit.light.scene import FieldScene, Optics
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
 # first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
-# albedo — kept in the numbering so that every other dimension keeps its random stream (and the
-# stored regression curve its values); they are never generated.
+# albedo (kept in the numbering, never generated); then 3 per scattering order and side.
 _N_FIXED_DIMS = 19
 _USED_PER_SIDE = 2
 _DIMS_PER_BOUNCE = 3
@@ -74,14 +73,6 @@ _DIMS_PER_BOUNCE = 3
 # dimensions are independent uniforms hashed from (replicate shift, point index).
 _QMC_FRONT = (0, 1, 2, 3, 4)
 _QMC_BACK = (11, 12)
-#: Direct-sun points per path point (``SegmentEstimator(sun_points=)``); measured in docs/light.md
-#: ("Stratification").
-SUN_POINTS = 4
-# Key offset of the direct-sun point sequences: replicate r of a segment uses key (id << 8) + r
-# for its paths (r < 8) and (id << 8) + 128 + r for its direct-sun points.
-_SUN_KEY = 128
-# Points placed per numpy batch (the placement's temporaries are ≈ 150 bytes per point).
-_PLACE_BATCH = 1 << 20
 
 
 def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
@@ -203,9 +194,10 @@ class SegmentEstimator:
         segment_ids: segments to measure (e.g. the measurement area's); each must have faces.
         samples: K, points per segment (blades: each point on both sides), rounded up to a
             multiple of the replicate count R (:func:`replicates_for`); points are randomised
-            quasi-Monte Carlo: replicate r of a segment is the Kronecker sequence
-            {Δ + j·α} (:func:`kronecker_alpha`) with a random shift Δ keyed by (seed, segment
-            id, r); replicates are independent, and the standard error comes from the spread of
+            quasi-Monte Carlo: in replicate r of a segment, the point and the first direction of
+            each side are Kronecker sequences {Δ + j·α} (:func:`sequence_alpha`) with a random
+            shift Δ keyed by (seed, segment id, r), the scattering dimensions uniforms hashed from
+            Δ and j; replicates are independent, and the standard error comes from the spread of
             the R replicate means.
         bounces: scattering orders after the first (0: direct sun and directly visible sky only).
         seed: random seed; same seed, same result.
@@ -213,11 +205,6 @@ class SegmentEstimator:
         first: index of the first point taken from each replicate's sequence (default 0): an
             estimator with ``first = M`` continues one with M points per replicate
             (:func:`render_adaptive` adds samples in rounds this way).
-        sun_points: m, direct-sun points per path point. The direct sun needs one shadow ray per
-            point and no path, so it is estimated on its own point set of m·K points per
-            segment (replicate r: m·M points of its own randomised Kronecker sequence, so the
-            replicate structure, keyed random numbers and ``first`` carry over); every path
-            point carries the mean over its m direct-sun points.
     """
 
     def __init__(
@@ -230,7 +217,6 @@ class SegmentEstimator:
         seed: int = 0,
         epsilon_m: float = 1e-5,
         first: int = 0,
-        sun_points: int = SUN_POINTS,
     ):
         if not isinstance(samples, (int, np.integer)) or samples < 2:
             raise InputError(
@@ -252,9 +238,6 @@ class SegmentEstimator:
         if not isinstance(first, (int, np.integer)) or first < 0:
             raise InputError(f"first={first!r}", column="first", expected="an integer ≥ 0")
         self.first = int(first)
-        if not isinstance(sun_points, (int, np.integer)) or sun_points < 1:
-            raise InputError(f"sun_points={sun_points!r}", column="sun_points", expected="an integer ≥ 1")
-        self.sun_points = int(sun_points)
         j = np.arange(M) + self.first
         pos = np.mod(self._shift[:, :, None, :3] + j[None, None, :, None] * self._alpha[:3], 1.0).reshape(
             len(seg), K, 3
@@ -277,8 +260,6 @@ class SegmentEstimator:
             # field as its image inside the cell: rays start from there.
             x = field_scene.cell.wrap(x)
         self._x = np.concatenate([x, x[blade]]) + epsilon_m * self._ev["n"]
-        self._epsilon_m = float(epsilon_m)
-        self._sun_x, self._sun_n = self._place_sun_points(seg, keys)
         self.n_evaluations = len(self._x)
         self._wrap_log: list = []  # periodic rays cast (kind, active, capped, crossings), see render()
         # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
@@ -286,29 +267,6 @@ class SegmentEstimator:
         self._kept = None  # (key, vertices, L_sky, ray counts) of _kept_paths
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
-
-    def _place_sun_points(self, seg: np.ndarray, keys: np.ndarray):
-        """The direct sun's own points: m·M per replicate, the Kronecker sequence
-        {Δ' + j·α} in 3 dimensions with its own keyed shift Δ' per replicate, indices
-        j = m·(first + i) … m·(first + i) + m − 1 for path point i, placed by :meth:`_place`.
-        Returns positions (S·K·m, 3; in a periodic scene wrapped into the cell) and the front
-        sides' unit normals, in (segment, path point, direct point) order."""
-        S, R, M, m = len(seg), self.replicates, self.per_replicate, self.sun_points
-        shift = keyed_uniforms(self.seed, keys + np.uint64(_SUN_KEY), 3)  # (S, R, 3)
-        alpha = kronecker_alpha(3)
-        j = (np.arange(M * m) + self.first * m).astype(np.float64)
-        x, n = np.empty((S, R * M * m, 3)), np.empty((S, R * M * m, 3))
-        step = max(1, _PLACE_BATCH // max(S, 1))
-        for a in range(0, M * m, step):
-            jj = j[a : a + step]
-            pos = np.mod(shift[:, :, None, :] + jj[None, None, :, None] * alpha, 1.0)  # (S, R, b, 3)
-            xs, ns, _, _ = self._place(seg, pos.reshape(S, -1, 3))
-            cols = (np.arange(R)[:, None] * M * m + a + np.arange(len(jj))[None, :]).reshape(-1)
-            x[:, cols], n[:, cols] = xs, ns
-        x, n = x.reshape(-1, 3), n.reshape(-1, 3)
-        if self.fs.cell is not None:
-            x = self.fs.cell.wrap(x)
-        return x, n
 
     def _place(self, seg: np.ndarray, pos: np.ndarray):
         """Sample points of the requested ids from their quasi-random coordinates.
@@ -407,9 +365,9 @@ class SegmentEstimator:
             self._dr = (o, nrm, frame, d, u, valid)
         return self._dr
 
-    def _absorptance(self, cos_i):
-        """Absorptance 1 − ρ(θ) of the leaf for light arriving at cos θ = ``cos_i`` (tabulated albedo)."""
-        return 1.0 - leaf_albedo(self.fs.bsdf, cos_i)
+    def _absorptance(self, frame, w_world):
+        """Absorptance 1 − ρ(θ) of the leaf for light arriving from ``w_world`` (tabulated albedo)."""
+        return 1.0 - leaf_albedo(self.fs.bsdf, frame.to_local(w_world).z)
 
     def _sun_vector(self):
         """The sun direction as an *opaque* Dr.Jit vector: the render's kernel then does not
@@ -419,42 +377,20 @@ class SegmentEstimator:
 
         return dr.opaque(self.fs.mi.Vector3f, [float(c) for c in self.fs.sun])
 
-    def _direct_sun(self):
-        r"""Direct sun per evaluation, incident and absorbed (per unit DNI): the mean over the
-        evaluation's m direct-sun points (:meth:`_place_sun_points`) of
-        :math:`\cos^+(n, \omega_\odot)\,V(x, \omega_\odot)` and of that times the absorptance, one
-        shadow ray per point and side facing the sun (a blade point's back side uses −n)."""
+    def _direct_sun(self, o, nrm):
+        mi = self.fs.mi
         import drjit as dr
 
-        mi = self.fs.mi
-        zero = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
-        if self.fs.sun[2] <= 0:
-            return zero, zero
-        if getattr(self, "_dr_sun", None) is None:
-            own, m = self._own, self.sun_points
-            ev = self._ev
-            x = mi.Point3f(*(own(self._sun_x[:, i]) for i in range(3)))
-            n = mi.Vector3f(*(own(self._sun_n[:, i]) for i in range(3)))
-            first = own((ev["seg"] * self.samples + ev["pt"]) * m, integer=True)
-            side = own(np.where(ev["back"], -1.0, 1.0))
-            valid = own(self._valid.astype(np.float32)) > 0.5
-            dr.eval(x, n, first, side, valid)
-            self._dr_sun = (x, n, first, side, valid)
-        x, n, first, side, valid = self._dr_sun
+        sun = self.fs.sun
+        if sun[2] <= 0:
+            return mi.Float(dr.zeros(mi.Float, self.n_evaluations))
         s = self._sun_vector()
-        inc, ab = zero, zero
-        for i in range(self.sun_points):
-            nrm = side * dr.gather(mi.Vector3f, n, first + i)
-            o = dr.gather(mi.Point3f, x, first + i) + self._epsilon_m * nrm
-            cos_s = dr.dot(nrm, s)
-            lit = valid & (cos_s > 0)
-            if self.fs.tracer is None:
-                blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), lit)
-            else:
-                blocked = self._occluded("sun", o, s, lit)
-            e = dr.select(lit & ~blocked, cos_s, 0.0)
-            inc, ab = inc + e, ab + e * self._absorptance(cos_s)
-        return inc / self.sun_points, ab / self.sun_points
+        cos_s = dr.dot(nrm, s)
+        if self.fs.tracer is None:
+            blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), cos_s > 0)
+        else:
+            blocked = self._occluded("sun", o, s, cos_s > 0)
+        return dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
 
     def _occluded(self, kind: str, o, d, active):
         """Periodic shadow rays towards the sun (``d``), logged for :meth:`render`'s meta."""
@@ -471,16 +407,19 @@ class SegmentEstimator:
         """
         import drjit as dr
 
+        mi = self.fs.mi
         o, nrm, frame, d, u, valid = self._arrays()
         vertices, L_sky = self._kept_paths() if keep_paths else self._paths(o, d, u)
         L_sun = self._sun_at_vertices(vertices)
-        e_dir, e_dir_absorbed = self._direct_sun()
-        a_d = self._absorptance(frame.to_local(d).z)
+        e_dir = self._direct_sun(o, nrm)
+        a_d = self._absorptance(frame, d)
+        sun = self.fs.sun
+        a_s = self._absorptance(frame, self._sun_vector()) if sun[2] > 0 else mi.Float(1.0)
         e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
         vals = {
             "incident_sun": e_dir + e_sunscat,
             "incident_sky": e_sky,
-            "absorbed_sun": e_dir_absorbed + e_sunscat * a_d,
+            "absorbed_sun": e_dir * a_s + e_sunscat * a_d,
             "absorbed_sky": e_sky * a_d,
         }
         return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
@@ -831,7 +770,6 @@ def render_adaptive(
     max_samples: int = 8192,
     dni: float = 1.0,
     dhi: float = 0.3,
-    sun_points: int = SUN_POINTS,
 ) -> Irradiance:
     r"""Per-segment irradiance with samples added, in rounds, where the error is above ``target_rse``.
 
@@ -871,15 +809,7 @@ def render_adaptive(
     first, rounds, n_eval, meta0 = 0, [], 0, None
     while True:
         idx = np.flatnonzero(active)
-        est = SegmentEstimator(
-            field_scene,
-            ids[idx],
-            samples=R * (J - first),
-            bounces=bounces,
-            seed=seed,
-            first=first,
-            sun_points=sun_points,
-        )
+        est = SegmentEstimator(field_scene, ids[idx], samples=R * (J - first), bounces=bounces, seed=seed, first=first)
         r = est.render()
         if meta0 is None:
             meta0 = {k: r.meta[k] for k in ("optics", "is_blade", "area_m2")}
@@ -939,7 +869,6 @@ class AdaptiveEstimator:
         self.segment_id = self.allocation.segment_id
         self.samples = self.allocation.meta["samples_per_segment"]
         self.bounces, self.seed = self.allocation.bounces, self.allocation.seed
-        sun_points = kwargs.get("sun_points", SUN_POINTS)
         self.is_blade = self.allocation.meta["is_blade"]
         self.area_m2 = self.allocation.meta["area_m2"]
         self.groups = [
@@ -951,7 +880,6 @@ class AdaptiveEstimator:
                     samples=int(k),
                     bounces=self.bounces,
                     seed=self.seed,
-                    sun_points=sun_points,
                 ),
             )
             for k in np.unique(self.samples)
