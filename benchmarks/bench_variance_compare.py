@@ -2,7 +2,7 @@
 side by side in one session (issue 16: keep a variance reduction only if it wins).
 
     python benchmarks/bench_variance_compare.py [--base-commit f8e2a52] [--n-plants 16]
-        [--target 0.05] [--rounds 2] [--repeat 3] [--adaptive]
+        [--target 0.05] [--rounds 2] [--repeat 3] [--adaptive] [--out results/variance_compare.json]
 
 Each variant runs ``benchmarks/bench_variance.py`` (this tree's script) in its own process with
 ``PYTHONPATH`` at its package: ``base`` is ``lightfit/`` of ``--base-commit`` (``git archive``),
@@ -11,8 +11,8 @@ times, ``--repeat`` timed renders each; the time is the fastest CPU time of the 
 threads; wall time on the shared cores varies 2× with other load), the errors are deterministic.
 The relative SE at the base's time is rse × √(CPU ÷ CPU_base) (Monte Carlo error ∝ 1/√time).
 ``--adaptive``: then each variant's adaptive render to ``--target`` (and its gradient at the
-kept allocation), once, in turns. Writes benchmarks/results/variance_compare.json and prints
-tables.
+kept allocation), once, in turns. Writes benchmarks/results/variance_compare.json (or
+``--out``) and prints tables.
 """
 
 from __future__ import annotations
@@ -41,7 +41,9 @@ def _run(tree: Path, args: list[str], out: Path) -> dict:
     return json.loads(out.read_text())
 
 
-def main(base_commit: str, n_plants: int, target: float, rounds: int, repeat: int, adaptive: bool) -> dict:
+def main(
+    base_commit: str, n_plants: int, target: float, rounds: int, repeat: int, adaptive: bool, out: Path = OUT
+) -> dict:
     console = Console()
     tmp = Path(tempfile.mkdtemp(prefix="bench_variance_compare_"))
     base_tree = tmp / "base"
@@ -102,8 +104,8 @@ def main(base_commit: str, n_plants: int, target: float, rounds: int, repeat: in
             )
         console.print(tab)
     res["load_average_end"] = os.getloadavg()
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=1))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=1))
     return res
 
 
@@ -115,5 +117,6 @@ if __name__ == "__main__":
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=3, help="fixed-K renders timed per round")
     ap.add_argument("--adaptive", action="store_true", help="also compare the adaptive render")
+    ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args()
-    main(a.base_commit, a.n_plants, a.target, a.rounds, a.repeat, a.adaptive)
+    main(a.base_commit, a.n_plants, a.target, a.rounds, a.repeat, a.adaptive, a.out)
