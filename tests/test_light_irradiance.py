@@ -60,6 +60,34 @@ def test_unoccluded_tilted_plane_matches_analytic(beta, el, az):
     assert r.absorbed_sky[0] == pytest.approx(r.incident_sky[0], rel=1e-6)
 
 
+@pytest.mark.parametrize("shaded", [0.0, 0.3, 0.5, 0.85])
+def test_direct_sun_on_a_partly_shaded_square_matches_its_sunlit_share(shaded):
+    """A horizontal 10 cm square leaf under an opaque black board 5 cm above it, placed so that its
+    shadow covers the share ``shaded`` of the leaf (a straight edge across it), sun at 50°: the
+    direct irradiance on the upper side is sin 50° · (1 − shaded) exactly (no scattering: black
+    board, leaf and soil, 0 bounces). Unshaded, every point gets cos θ and the SE is 0; shaded,
+    the estimate is within 4 SE of the exact value (the SE has 7 degrees of freedom: over 12
+    seeds the largest |error| ÷ SE was 2.6 and the mean of its square 1.3–1.5, as expected of a
+    Student t with 7 degrees of freedom, 1.4)."""
+    el, az, h, size = 50.0, 200.0, 0.05, 0.1
+    s = sun_vector(el, az)
+    meshes = [square([0, 0, 0.5], [0, 0, 1], size, 7)]
+    if shaded > 0:
+        # The board covers leaf points with x < x_edge (and all y); lifted along the sun ray.
+        x_edge = -size / 2 + shaded * size
+        meshes.append(square(np.array([x_edge - 0.5, 0.0, 0.5]) + h * s / s[2], [0, 0, 1], 1.0, 8))
+    fs = FieldScene(Mesh.concatenate(meshes), BLACK)
+    fs.set_sun(el, az)
+    r = SegmentEstimator(fs, [7], samples=64, bounces=0, seed=2).render()
+    exact = math.sin(math.radians(el)) * (1 - shaded)
+    got, se = r.front("incident_sun")[0], r.se["incident_sun"][0]
+    assert r.incident_sun[0] == got  # the lower side faces away from the sun
+    if shaded == 0:
+        assert got == pytest.approx(exact, rel=1e-6) and se < 1e-6 * exact
+    else:
+        assert 0 < se and abs(got - exact) <= 4 * se, (got, exact, se)
+
+
 def test_sun_below_horizon_gives_exactly_zero_sun_part():
     mesh, _ = tilted_leaf(30)
     fs = FieldScene(mesh, Optics(soil_albedo=0.3))
@@ -276,13 +304,17 @@ def test_deterministic_and_independent_of_the_requested_subset():
     assert not np.array_equal(a.absorbed_sky, d.absorbed_sky)
 
 
-def test_monte_carlo_error_falls_as_one_over_sqrt_k():
+def test_monte_carlo_error_falls_at_least_as_one_over_sqrt_k():
+    """Randomised quasi-Monte Carlo: the error falls as K^-1/2 (plain Monte Carlo) or faster, at
+    most as K^-1 (a QMC point set on a smooth integrand); 4× the samples divide the median SE by
+    2 to 4 (measured 2.2–2.6 for seeds 1–3 since the point and first directions are
+    low-dimensional Kronecker sequences; 1.9–2.1 with the clustered 31-dimensional one before)."""
     g, ids = _small_field()
     fs = FieldScene(g.mesh, Optics())
     fs.set_sun(45, 180)
     # K = 32 and 128: both with 8 replicates (with 4, at K = 16, the median SE is biased low).
     rse = [np.median(SegmentEstimator(fs, ids, samples=k, bounces=2, seed=1).render().relative_se()) for k in (32, 128)]
-    assert rse[1] == pytest.approx(rse[0] / 2, rel=0.2)
+    assert 2 * 0.8 <= rse[0] / rse[1] <= 4, rse
 
 
 def test_bounces_for_tolerance_is_monotone():

@@ -60,11 +60,19 @@ from lightfit.light.scene import FieldScene, Optics
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
 # first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
-# albedo — kept in the numbering so that every other dimension keeps its random stream (and the
-# stored regression curve its values); they are never generated.
+# albedo (kept in the numbering, never generated); then 3 per scattering order and side.
 _N_FIXED_DIMS = 19
 _USED_PER_SIDE = 2
 _DIMS_PER_BOUNCE = 3
+# Which dimensions are low-discrepancy. A Kronecker sequence R_d in many dimensions has
+# generators α_i = φ_d^{-(i+1)} all close to 1 (0.98, 0.96, … for the 37 dimensions of 3
+# bounces), so the first few points of a replicate lie on a short line (8 points spanned 0.15 of
+# dimension 0): the points and first directions of a replicate were clustered, not spread. The
+# dimensions that matter most, the point (0–2) and the first direction of each side (3–4, 11–12),
+# are therefore Kronecker sequences of their own low dimension (R_5 and R_2); the scattering
+# dimensions are independent uniforms hashed from (replicate shift, point index).
+_QMC_FRONT = (0, 1, 2, 3, 4)
+_QMC_BACK = (11, 12)
 
 
 def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
@@ -83,6 +91,23 @@ def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int) -> np.ndarray:
         z = mix(base[..., None] + (np.arange(n_dims, dtype=np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15))
     # 24 bits: exactly representable in float32, and strictly below 1.
     return (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
+
+
+def sequence_alpha(n_dims: int) -> np.ndarray:
+    """Kronecker generator per random dimension of :class:`SegmentEstimator` (NaN: hashed)."""
+    alpha = np.full(n_dims, np.nan)
+    alpha[list(_QMC_FRONT)] = kronecker_alpha(len(_QMC_FRONT))
+    alpha[list(_QMC_BACK)] = kronecker_alpha(len(_QMC_BACK))
+    return alpha
+
+
+def _hash32(x):
+    """A 32-bit integer hash (Wellons' lowbias32) of Dr.Jit UInt32 ``x``: full avalanche."""
+    x = x ^ (x >> 16)
+    x = x * 0x7FEB352D
+    x = x ^ (x >> 15)
+    x = x * 0x846CA68B
+    return x ^ (x >> 16)
 
 
 def replicates_for(samples: int) -> int:
@@ -169,9 +194,10 @@ class SegmentEstimator:
         segment_ids: segments to measure (e.g. the measurement area's); each must have faces.
         samples: K, points per segment (blades: each point on both sides), rounded up to a
             multiple of the replicate count R (:func:`replicates_for`); points are randomised
-            quasi-Monte Carlo: replicate r of a segment is the Kronecker sequence
-            {Δ + j·α} (:func:`kronecker_alpha`) with a random shift Δ keyed by (seed, segment
-            id, r); replicates are independent, and the standard error comes from the spread of
+            quasi-Monte Carlo: in replicate r of a segment, the point and the first direction of
+            each side are Kronecker sequences {Δ + j·α} (:func:`sequence_alpha`) with a random
+            shift Δ keyed by (seed, segment id, r), the scattering dimensions uniforms hashed from
+            Δ and j; replicates are independent, and the standard error comes from the spread of
             the R replicate means.
         bounces: scattering orders after the first (0: direct sun and directly visible sky only).
         seed: random seed; same seed, same result.
@@ -208,7 +234,7 @@ class SegmentEstimator:
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
         keys = (seg[:, None].astype(np.uint64) << np.uint64(8)) + np.arange(R, dtype=np.uint64)[None, :]
         self._shift = keyed_uniforms(self.seed, keys, self._n_dims)  # (S, R, D): one random shift per replicate
-        self._alpha = kronecker_alpha(self._n_dims)
+        self._alpha = sequence_alpha(self._n_dims)
         if not isinstance(first, (int, np.integer)) or first < 0:
             raise InputError(f"first={first!r}", column="first", expected="an integer ≥ 0")
         self.first = int(first)
@@ -310,19 +336,25 @@ class SegmentEstimator:
             ev = self._ev
             R, M, D = self.replicates, self.per_replicate, self._n_dims
             base = own((ev["seg"] * R + ev["pt"] // M) * D, integer=True)
-            jj = own((ev["pt"] % M + self.first).astype(np.float64))
+            j_int = own(ev["pt"] % M + self.first, integer=True)
+            jj = mi.Float(j_int)
             back = own(ev["back"].astype(np.float64)) > 0.5
             shift = own(self._shift.reshape(-1))
             nb = _DIMS_PER_BOUNCE * self.bounces
             front_dims = list(range(3, 3 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS, _N_FIXED_DIMS + nb))
             back_dims = list(range(11, 11 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb))
+
+            def column(dim):
+                delta = dr.gather(mi.Float, shift, base + dim)
+                if np.isnan(self._alpha[dim]):
+                    # The replicate's keyed shift (24 bits) keys the hash; the point index varies it.
+                    h = _hash32(_hash32(mi.UInt32(delta * 2.0**24) + (dim * 0x9E3779B9) % 2**32) + j_int)
+                    return mi.Float(h >> 8) * 2.0**-24
+                return delta + jj * float(self._alpha[dim])
+
             u = []
             for df, db in zip(front_dims, back_dims):
-                v = dr.select(
-                    back,
-                    dr.gather(mi.Float, shift, base + db) + jj * float(self._alpha[db]),
-                    dr.gather(mi.Float, shift, base + df) + jj * float(self._alpha[df]),
-                )
+                v = dr.select(back, column(db), column(df))
                 v = dr.minimum(v - dr.floor(v), 1.0 - 2.0**-24)
                 dr.eval(v)
                 u.append(v)
