@@ -3,10 +3,10 @@
     python benchmarks/bench_light.py [--n-plants 500] [--samples 64]
 
 All ratios come from one run on one machine. Writes benchmarks/results/light.json and prints
-a table. Measured:
+a table, with the commit and the load average (the 2 cores are shared). Measured:
 1. Wall time of one primal pass over all measured shoot segments at K samples, its median
-   relative standard error of absorbed PAR (sun + 0.3·sky), and the K (and time, ∝ K) that a
-   median of 2 % needs.
+   relative standard error of absorbed PAR (sun + 0.3·sky; median and 90th percentile over
+   all segments, blades and stems), and the K (and time, ∝ K) that a median of 2 % needs.
 2. Estimator throughput (path samples/s) ÷ raw ``scene.ray_test`` throughput (rays/s) on random
    rays through the same scene; each path sample casts about 1 + 3·(bounces + 1) rays.
 3. Reverse-mode gradient (three leaf parameters) time ÷ primal time (warm kernels).
@@ -19,10 +19,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_variance import _stats  # per-class median / p90 (same script folder)
 from rich.console import Console
 from rich.table import Table
 
@@ -177,6 +180,7 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
 
 def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
     console = Console()
+    load_start = os.getloadavg()[0]
     geom = build(Field(n_plants=n_plants, buffer_rows=2, seed=1), progress=True)
     fs = FieldScene(geom.mesh, Optics())
     fs.set_sun(50.0, 180.0)
@@ -185,7 +189,8 @@ def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
     est = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1)
     t_setup = time.perf_counter() - t_setup
     t_primal, r = _timed(est.render, 1)
-    rse = float(np.nanmedian(r.relative_se()))
+    rse_all = r.relative_se()
+    rse = float(np.nanmedian(rse_all))
     k2 = samples * (rse / 0.02) ** 2
     ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
     t_grad, _ = _timed(lambda: est.vjp(ct), 1)
@@ -193,7 +198,16 @@ def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
     path_rate = est.n_evaluations / t_primal
     rays_per_sample = 1 + 3 * (bounces + 1)
     meter = irradiancemeter_comparison()
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True).stdout.strip()
+
     res = {
+        "lightfit_commit": git("rev-parse", "--short", "HEAD"),
+        "lightfit_uncommitted_changes": bool(git("status", "--porcelain", "lightfit")),
+        "cpu_cores": os.cpu_count(),
+        "load_average_start": load_start,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "triangles": int(geom.mesh.n_faces),
@@ -203,6 +217,7 @@ def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
         "setup_s": t_setup,
         "primal_s": t_primal,
         "median_rse_absorbed": rse,
+        "rse_absorbed": _stats(rse_all, np.asarray(r.meta["is_blade"], bool)),
         "samples_for_2pct_median": k2,
         "extrapolated_primal_s_at_2pct": t_primal * k2 / samples,
         "goal_s_at_2pct": 10.0,
@@ -214,6 +229,7 @@ def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
         "gradient_over_primal": t_grad / t_primal,
         "irradiancemeter_median_speedup_equal_se": meter["median_speedup"],
         "irradiancemeter": meter["segments"],
+        "load_average_end": os.getloadavg()[0],
     }
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2))
@@ -223,7 +239,10 @@ def main(n_plants: int = 500, samples: int = 64, bounces: int = 3) -> dict:
     t.add_column("quantity")
     t.add_column("value", justify="right")
     for k, v in res.items():
-        if k != "irradiancemeter":
+        if k == "rse_absorbed":
+            for c, q in v.items():
+                t.add_row(f"rse {c} median / p90", f"{q['median']:.2%} / {q['p90']:.2%}")
+        elif k != "irradiancemeter":
             t.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
     console.print(t)
     return res
