@@ -33,12 +33,15 @@ ray, each scattered segment, the direct-sun and next-event shadow rays — is ca
 points on faces overhanging the cell are first moved into it. Finite scenes take the original
 code path unchanged.
 
-A primal render is split into the sun-independent paths (points, cosine-sampled first rays,
-every scattered segment, the sky radiance they bring back: the directions come from the BSDF's
-frozen sampling, not from the sun) and the sun's part (direct-sun and next-event shadow rays
-from the path vertices). The paths are evaluated once and kept while the leaf parameters stay,
-so the time steps of a day, which differ only in the sun, each cast only the sun's rays (values
-bitwise those of a fresh estimator; 2–2.5× less CPU per step after the first, measured on 20 April).
+A primal render is split into the paths' geometry (points, cosine-sampled first rays, every
+scattered segment and the BSDF samples along them: the directions come from the BSDF's frozen
+sampling, so they depend on neither the sun nor the leaf parameters), the sun's shadow rays
+(direct sun and next-event rays from the path vertices: the sun only), and the weights (path
+throughputs, BSDF values towards the sun, absorptances: the leaf parameters). The geometry is
+traced once and kept (:meth:`SegmentEstimator._geometry`), so the time steps of a day each cast
+only the sun's rays, and :meth:`SegmentEstimator.render_many` weighs the same geometry and shadow
+rays at many leaf-parameter points without casting a ray (the emulator's design). Values are
+bitwise those of a fresh estimator.
 
 All random numbers — points, directions, BSDF samples along the path — are keyed by (seed,
 segment id, sample index), so a segment's values do not depend on which other segments are
