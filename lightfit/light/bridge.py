@@ -121,14 +121,40 @@ def make_irradiance(
             cache[s] = tuple(est)
         return cache[s]
 
+    def stacked(rs, dtype):
+        """(values, se), each (4, S + P), of the estimators' renders ``rs`` (segments, then sensors)."""
+        return (
+            np.concatenate([np.stack([getattr(r, p) for p in PARTS]) for r in rs], axis=1).astype(dtype),
+            np.concatenate([np.stack([r.se[p] for p in PARTS]) for r in rs], axis=1).astype(dtype),
+        )
+
     def forward_cb(leaf, sun_deg, seed):
         leaf, sun_deg, seed = _host(leaf, sun_deg, seed)
         with lock:
             rs = [e.render() for e in estimators(leaf, sun_deg, seed)]
-        return (
-            np.concatenate([np.stack([getattr(r, p) for p in PARTS]) for r in rs], axis=1).astype(leaf.dtype),
-            np.concatenate([np.stack([r.se[p] for p in PARTS]) for r in rs], axis=1).astype(leaf.dtype),
-        )
+        return stacked(rs, leaf.dtype)
+
+    def render_many(leaf_points, suns_deg, seed):
+        """The forward values at many leaf points and suns, tracing the paths once
+        (:meth:`~lightfit.light.estimator.SegmentEstimator.render_many`): yields, per row of
+        ``leaf_points`` (N, 3) as soon as it is done, ``(values, se)``, each (T, 4, S + P), what
+        ``irradiance(leaf, sun, seed)`` returns at each row of ``suns_deg`` (T, 2) — bitwise, when
+        both arrays have the dtype the JAX function would hand its callback (that of ``leaf``).
+        Not differentiable; numpy in and out."""
+        leaf_points, suns_deg = np.atleast_2d(np.asarray(leaf_points)), np.atleast_2d(np.asarray(suns_deg))
+        dtype = leaf_points.dtype
+        with lock:
+            ests = estimators(leaf_points[0], suns_deg[0], np.asarray(seed))
+        # set_state's clipping and float conversion, for every point and sun at once
+        leaf64 = np.clip(leaf_points.astype(np.float64), 0.0, 1.0)
+        gens = [e.render_many(leaf64, suns_deg.astype(np.float64)) for e in ests]
+        while True:
+            with lock:
+                per_est = [next(g, None) for g in gens]
+            if per_est[0] is None:
+                return
+            v, s = zip(*(stacked(rs, dtype) for rs in zip(*per_est)))
+            yield np.stack(v), np.stack(s)
 
     def backward_cb(leaf, sun_deg, seed, ct):
         leaf, sun_deg, seed, ct = _host(leaf, sun_deg, seed, ct)
@@ -186,4 +212,5 @@ def make_irradiance(
     irradiance.sensors = tuple(sensors)
     irradiance.target_rse = None if target_rse is None else float(target_rse)
     irradiance.allocation = allocation
+    irradiance.render_many = render_many
     return irradiance

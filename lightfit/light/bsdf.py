@@ -142,23 +142,44 @@ def _classes():
             return dr.select(active & (cos_i > 0) & (cos_o != 0), dr.detach(pdf), 0.0)
 
         # -- Mitsuba interface -----------------------------------------------------------
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            s = dr.sign(mi.Frame3f.cos_theta(si.wi))
-            wi = self._flip(si.wi, s)
+        def sample_direction(self, wi_local, sample1, sample2, active):
+            """The sampling half of :meth:`sample`: with frozen sampling it does not depend on the
+            leaf parameters, so a path's geometry can be traced once and weighed at many parameter
+            points (:meth:`weight`; ``SegmentEstimator.render_many``).
+
+            ``wi_local``: incoming direction in the shading frame (either side). Returns ``(s, wi,
+            wo, pdf, ok, pick_s, pick_d)``: the side sign s, ω_i and the sampled ω_o in the frame
+            flipped to the side of ω_i, the (detached) pdf of ω_o, whether the sample is usable,
+            and the lobe chosen.
+            """
+            s = dr.sign(mi.Frame3f.cos_theta(wi_local))
+            wi = self._flip(wi_local, s)
             p_s, p_d, p_t = self._lobe_probs()
             distr = self._sampling_distr()
             pick_s = sample1 < p_s
             pick_d = ~pick_s & (sample1 < p_s + p_d)
-            pick_t = ~pick_s & ~pick_d
             m, _ = distr.sample(dr.detach(wi), sample2)
             wo_s = mi.reflect(wi, m)
             wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
             wo = dr.select(pick_s, wo_s, wo_d)
-            wo = dr.select(pick_t, mi.Vector3f(wo_d.x, wo_d.y, -wo_d.z), wo)
+            wo = dr.select(~pick_s & ~pick_d, mi.Vector3f(wo_d.x, wo_d.y, -wo_d.z), wo)
             wo = dr.detach(wo)  # PRB convention: sampling is detached, the weight carries the gradient
+            pdf = self._pdf_local(wi, wo, active)
+            # A glossy sample reflected below the surface is lost; counting it as transmission
+            # would add the glossy lobe's density to the transmission pdf and bias the estimate.
+            ok = active & (pdf > 0) & (s != 0) & ~(pick_s & (mi.Frame3f.cos_theta(wo) <= 0))
+            return s, wi, wo, pdf, ok, pick_s, pick_d
+
+        def weight(self, wi, wo, pdf, ok, active):
+            """The weighing half of :meth:`sample`: f·|cos θ_o|/pdf at the current parameters for a
+            sample of :meth:`sample_direction` (0 where it is not ``ok``)."""
+            value = self._eval_local(wi, wo, active)
+            return dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            s, wi, wo, pdf, ok, pick_s, pick_d = self.sample_direction(si.wi, sample1, sample2, active)
             bs = dr.zeros(mi.BSDFSample3f)
             bs.wo = self._flip(wo, s)
-            bs.pdf = self._pdf_local(wi, wo, active)
             bs.eta = 1.0
             bs.sampled_component = dr.select(pick_s, mi.UInt32(0), dr.select(pick_d, mi.UInt32(1), mi.UInt32(2)))
             bs.sampled_type = dr.select(
@@ -168,12 +189,8 @@ def _classes():
                     pick_d, mi.UInt32(+mi.BSDFFlags.DiffuseReflection), mi.UInt32(+mi.BSDFFlags.DiffuseTransmission)
                 ),
             )
-            value = self._eval_local(wi, wo, active)
-            # A glossy sample reflected below the surface is lost; counting it as transmission
-            # would add the glossy lobe's density to the transmission pdf and bias the estimate.
-            ok = active & (bs.pdf > 0) & (s != 0) & ~(pick_s & (mi.Frame3f.cos_theta(wo) <= 0))
-            weight = dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
-            bs.pdf = dr.select(ok, bs.pdf, 0.0)
+            weight = self.weight(wi, wo, pdf, ok, active)
+            bs.pdf = dr.select(ok, pdf, 0.0)
             return bs, mi.Spectrum(weight)
 
         def eval(self, ctx, si, wo, active=True):

@@ -33,12 +33,15 @@ ray, each scattered segment, the direct-sun and next-event shadow rays — is ca
 points on faces overhanging the cell are first moved into it. Finite scenes take the original
 code path unchanged.
 
-A primal render is split into the sun-independent paths (points, cosine-sampled first rays,
-every scattered segment, the sky radiance they bring back: the directions come from the BSDF's
-frozen sampling, not from the sun) and the sun's part (direct-sun and next-event shadow rays
-from the path vertices). The paths are evaluated once and kept while the leaf parameters stay,
-so the time steps of a day, which differ only in the sun, each cast only the sun's rays (values
-bitwise those of a fresh estimator; 2–2.5× less CPU per step after the first, measured on 20 April).
+A primal render is split into the paths' geometry (points, cosine-sampled first rays, every
+scattered segment and the BSDF samples along them: the directions come from the BSDF's frozen
+sampling, so they depend on neither the sun nor the leaf parameters), the sun's shadow rays
+(direct sun and next-event rays from the path vertices: the sun only), and the weights (path
+throughputs, BSDF values towards the sun, absorptances: the leaf parameters). The geometry is
+traced once and kept (:meth:`SegmentEstimator._geometry`), so the time steps of a day each cast
+only the sun's rays, and :meth:`SegmentEstimator.render_many` weighs the same geometry and shadow
+rays at many leaf-parameter points without casting a ray (the emulator's design). Values are
+bitwise those of a fresh estimator.
 
 All random numbers — points, directions, BSDF samples along the path — are keyed by (seed,
 segment id, sample index), so a segment's values do not depend on which other segments are
@@ -264,7 +267,7 @@ class SegmentEstimator:
         self._wrap_log: list = []  # periodic rays cast (kind, active, capped, crossings), see render()
         # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
         self._fuse = False
-        self._kept = None  # (key, vertices, L_sky, ray counts) of _kept_paths
+        self._kept = None  # (key, geometry, ray counts) of _geometry
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
 
@@ -377,21 +380,6 @@ class SegmentEstimator:
 
         return dr.opaque(self.fs.mi.Vector3f, [float(c) for c in self.fs.sun])
 
-    def _direct_sun(self, o, nrm):
-        mi = self.fs.mi
-        import drjit as dr
-
-        sun = self.fs.sun
-        if sun[2] <= 0:
-            return mi.Float(dr.zeros(mi.Float, self.n_evaluations))
-        s = self._sun_vector()
-        cos_s = dr.dot(nrm, s)
-        if self.fs.tracer is None:
-            blocked = self.fs.scene.ray_test(mi.Ray3f(o, s), cos_s > 0)
-        else:
-            blocked = self._occluded("sun", o, s, cos_s > 0)
-        return dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
-
     def _occluded(self, kind: str, o, d, active):
         """Periodic shadow rays towards the sun (``d``), logged for :meth:`render`'s meta."""
         tracer = self.fs.tracer
@@ -399,55 +387,39 @@ class SegmentEstimator:
         self._wrap_log.append((kind, active, capped, k))
         return blocked
 
-    def _per_evaluation(self, keep_paths: bool = False):
-        """Evaluation-level sun/sky incident and absorbed values (Dr.Jit, attached to params).
+    def _per_evaluation(self):
+        """Evaluation-level sun/sky incident and absorbed values at the current leaf parameters and
+        sun (Dr.Jit; attached to the parameters when their gradients are enabled): the kept
+        geometry (:meth:`_geometry`), this sun's shadow rays (:meth:`_sun_rays`), weighed
+        (:meth:`_weigh`, :meth:`_values`)."""
+        geo = self._geometry()
+        return self._values(geo, self._weigh(geo), self._sun_rays(geo))
 
-        ``keep_paths``: reuse the paths of an earlier call with the same leaf parameters
-        (:meth:`_kept_paths`; primal renders only).
-        """
-        import drjit as dr
+    def _trace(self, o, d, u):
+        r"""The geometry of the paths from ``o`` along ``d``: what does not depend on the leaf
+        parameters or the sun.
 
-        mi = self.fs.mi
-        o, nrm, frame, d, u, valid = self._arrays()
-        vertices, L_sky = self._kept_paths() if keep_paths else self._paths(o, d, u)
-        L_sun = self._sun_at_vertices(vertices)
-        e_dir = self._direct_sun(o, nrm)
-        a_d = self._absorptance(frame, d)
-        sun = self.fs.sun
-        a_s = self._absorptance(frame, self._sun_vector()) if sun[2] > 0 else mi.Float(1.0)
-        e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
-        vals = {
-            "incident_sun": e_dir + e_sunscat,
-            "incident_sky": e_sky,
-            "absorbed_sun": e_dir * a_s + e_sunscat * a_d,
-            "absorbed_sky": e_sky * a_d,
-        }
-        return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
+        Directions come from the BSDF's frozen sampling (``LeafBSDF.sample_direction``) and the
+        random columns ``u``. A path is followed while its sample is usable (``ok``), whatever
+        its weight: where a parameter point's BSDF value is 0 (e.g. a transmission at
+        subsurface 0) that point's throughput becomes exactly 0 and every later contribution
+        adds +0, so its values are bitwise those of a path stopped there (which
+        :meth:`render` did before the geometry was shared across parameter points).
 
-    def _paths(self, o, d, u):
-        """The sun-independent part of the paths from ``o`` along ``d``: their scattering vertices
-        and the sky radiance they bring back (per unit DHI).
-
-        Directions are drawn from the BSDF's (frozen) sampling and the random columns ``u``, so
-        the paths depend on the leaf parameters and the geometry but not on the sun: a day's
-        time steps share them (:meth:`render` keeps them while the leaf parameters stay).
-
-        Returns ``(vertices, L_sky)``: per scattering order one dict with ``hit_leaf``,
-        ``hit_soil``, the vertex ``p`` (leaf or soil point), the leaf's normal ``n``, shading
-        ``frame`` and incoming direction ``wi`` (local), and the path throughput ``beta`` there.
+        Returns one dict per order 0 … ``bounces``: ``escaped`` (the ray left to the sky) and
+        ``dz`` (its direction's z) for the sky; for orders below ``bounces`` also the vertex:
+        ``hit_leaf``, ``hit_soil``, the point ``p``, the leaf's normal ``n``, shading ``frame``,
+        incoming direction ``wi`` (local), and the sample leaving it (``wo`` local to the side of
+        ``wi``, its ``pdf``, ``ok``).
         """
         import drjit as dr
 
         mi, fs = self.fs.mi, self.fs
         n_ev = self.n_evaluations
-        rho_soil = fs.optics.soil_albedo
-        ctx = mi.BSDFContext()
-        beta = mi.Float(dr.ones(mi.Float, n_ev))
-        L_sky = mi.Float(dr.zeros(mi.Float, n_ev))
         active = mi.Bool(dr.full(mi.Bool, True, n_ev))
         eps = 1e-5
         periodic = fs.tracer is not None
-        vertices = []
+        orders = []
         for depth in range(self.bounces + 1):
             if periodic:
                 hit_leaf, si, hit_soil, p_soil, escaped, capped, k = fs.tracer.intersect(o, d, active, fuse=self._fuse)
@@ -460,117 +432,264 @@ class SegmentEstimator:
                 hit_soil = active & (d.z < 0) & (~hit_leaf | (t_soil < si.t))
                 hit_leaf &= ~hit_soil
                 escaped = active & ~hit_leaf & ~hit_soil
-            L_sky += dr.select(escaped, beta * fs.sky_radiance(d.z), 0.0)
+            order = {"escaped": escaped, "dz": d.z}
+            orders.append(order)
             if depth == self.bounces:
                 break
             if not periodic:
                 p_soil = o + d * t_soil
             si.wi = si.to_local(-d)
-            vertices.append(
-                {
-                    "hit_leaf": hit_leaf,
-                    "hit_soil": hit_soil,
-                    "p": dr.select(hit_leaf, si.p, p_soil),
-                    "n": si.n,
-                    "frame": si.sh_frame,
-                    "wi": si.wi,
-                    "beta": beta,
-                }
-            )
             ub = u[_USED_PER_SIDE + _DIMS_PER_BOUNCE * depth : _USED_PER_SIDE + _DIMS_PER_BOUNCE * (depth + 1)]
-            bs, w = self.fs.bsdf.sample(ctx, si, ub[0], mi.Point2f(ub[1], ub[2]), hit_leaf)
-            d_leaf = si.to_world(bs.wo)
+            s, _, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, ub[0], mi.Point2f(ub[1], ub[2]), hit_leaf)
+            order.update(
+                hit_leaf=hit_leaf,
+                hit_soil=hit_soil,
+                p=dr.select(hit_leaf, si.p, p_soil),
+                n=si.n,
+                frame=si.sh_frame,
+                wi=si.wi,
+                wo=wo,
+                pdf=pdf,
+                ok=ok,
+            )
+            d_leaf = si.to_world(fs.bsdf._flip(wo, s))
             side_out = dr.sign(dr.dot(si.n, d_leaf))
             d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(
                 mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[1], ub[2]))
             )
-            beta = dr.select(hit_leaf, beta * w[0], dr.select(hit_soil, beta * rho_soil, 0.0))
-            active = (hit_leaf & (w[0] > 0)) | hit_soil
+            active = (hit_leaf & ok) | hit_soil
             o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
             d = dr.detach(dr.select(hit_leaf, d_leaf, d_soil))
-        return vertices, L_sky
+        return orders
 
-    def _kept_paths(self):
-        """:meth:`_paths`, evaluated once and kept while the leaf parameters, the BSDF's frozen
-        sampling, the soil albedo and the sky model stay the same.
+    def _geometry(self):
+        """:meth:`_trace`, evaluated once and kept while the BSDF's frozen sampling stays (with
+        sampling that follows the parameters, while they stay): every leaf-parameter point and
+        every sun shares it.
 
-        A day's time steps differ only in the sun, so they share one set of paths: each step
-        then casts only the sun's shadow rays (about half the rays of a render). Memory: the
-        vertices of every scattering order, ≈ 70 bytes per evaluation and order.
+        Memory: ≈ 100 bytes per evaluation and scattering order (points, normals, frames,
+        directions, pdf and masks), plus 5 per evaluation for the last order's escape.
         """
         import drjit as dr
 
         bsdf = self.fs.bsdf
-        key = (
-            tuple(float(getattr(bsdf, k)[0]) for k in (*LEAF_PARAMETERS, "base_color")),
-            bsdf.sampling,
-            self.fs.optics.soil_albedo,
-            self.fs.sky,
-        )
+        key = bsdf.sampling
+        if key is None:  # directions follow the parameters: the geometry is theirs
+            key = tuple(float(getattr(bsdf, k)[0]) for k in (*LEAF_PARAMETERS, "base_color"))
         if self._kept is None or self._kept[0] != key:
-            self._kept = None  # free the old paths before tracing new ones
-            o, _, _, d, u, _ = self._arrays()
-            log, self._wrap_log = self._wrap_log, []
-            vertices, L_sky = self._paths(o, d, u)
-            counts = self._wrap_counts()
-            dr.eval(vertices, L_sky, counts)
-            self._wrap_log = log
-            self._kept = (key, vertices, L_sky, counts)
-        return self._kept[1], self._kept[2]
+            self._kept = None  # free the old geometry before tracing anew
+            with dr.suspend_grad():
+                o, _, _, d, u, _ = self._arrays()
+                log, self._wrap_log = self._wrap_log, []
+                geo = self._trace(o, d, u)
+                counts = self._wrap_counts()
+                dr.eval(geo, counts)
+                self._wrap_log = log
+            self._kept = (key, geo, counts)
+        return self._kept[1]
 
-    def _sun_at_vertices(self, vertices):
-        """Sun radiance scattered towards the paths' origins (per unit DNI): next-event estimation
-        to the sun, with a shadow ray, at every leaf vertex (through the BSDF, reflection or
-        transmission) and soil vertex of :meth:`_paths`."""
+    def _weigh(self, geo):
+        """Path throughputs at the current leaf parameters: ``(betas, L_sky)``, the throughput
+        arriving at each vertex of ``geo`` and the sky radiance the paths bring back (per unit
+        DHI). Sun-independent."""
         import drjit as dr
 
         mi, fs = self.fs.mi, self.fs
-        L_sun = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
-        if fs.sun[2] <= 0:
-            return L_sun
         rho_soil = fs.optics.soil_albedo
+        beta = mi.Float(dr.ones(mi.Float, self.n_evaluations))
+        L_sky = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
+        betas = []
+        for depth, g in enumerate(geo):
+            L_sky += dr.select(g["escaped"], beta * fs.sky_radiance(g["dz"]), 0.0)
+            if depth == self.bounces:
+                break
+            betas.append(beta)
+            hit_leaf = g["hit_leaf"]
+            wi = fs.bsdf._flip(g["wi"], dr.sign(mi.Frame3f.cos_theta(g["wi"])))
+            w = fs.bsdf.weight(wi, g["wo"], g["pdf"], g["ok"], hit_leaf)
+            beta = dr.select(hit_leaf, beta * w, dr.select(g["hit_soil"], beta * rho_soil, 0.0))
+        return betas, L_sky
+
+    def _sun_rays(self, geo):
+        """The current sun's shadow rays: ``(e_dir, visible)``, the direct sun on each evaluation's
+        side (cos⁺ × visibility) and, per vertex of ``geo``, whether the sun is visible from it
+        (leaf vertices from the side facing the sun, soil vertices from above). Independent of
+        the leaf parameters; ``None`` with the sun below the horizon. Memory: 4 + ``bounces``
+        bytes per evaluation."""
+        import drjit as dr
+
+        mi, fs = self.fs.mi, self.fs
+        if fs.sun[2] <= 0:
+            return None
+        o, nrm, *_ = self._arrays()
         sun = self._sun_vector()
-        ctx = mi.BSDFContext()
+        cos_s = dr.dot(nrm, sun)
+        if fs.tracer is None:
+            blocked = fs.scene.ray_test(mi.Ray3f(o, sun), cos_s > 0)
+        else:
+            blocked = self._occluded("sun", o, sun, cos_s > 0)
+        e_dir = dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
         eps = 1e-5
-        for v in vertices:
-            hit_leaf, hit_soil, beta, p, n = v["hit_leaf"], v["hit_soil"], v["beta"], v["p"], v["n"]
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            si.sh_frame, si.wi = v["frame"], v["wi"]
-            f_sun = self.fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
+        visible = []
+        for g in geo[: self.bounces]:
+            hit_leaf, hit_soil, p, n = g["hit_leaf"], g["hit_soil"], g["p"], g["n"]
             side = dr.sign(dr.dot(n, sun))
-            # Leaf and soil vertices are disjoint lanes: one shadow ray each, cast together, so
-            # the ray packets are full (two masked casts cost nearly twice one).
-            o = dr.select(hit_leaf, p + eps * side * n, p + mi.Vector3f(0, 0, eps))
-            cast = (hit_leaf & (f_sun > 0)) | hit_soil
+            # Leaf vertices: a ray wherever a leaf is hit; where the BSDF towards the sun is 0 at
+            # some parameters their term is 0 whatever the ray finds. Leaf and soil vertices are
+            # disjoint lanes, cast together: full ray packets (two masked casts cost nearly twice one).
+            o_v = dr.select(hit_leaf, p + eps * side * n, p + mi.Vector3f(0, 0, eps))
             if fs.tracer is not None:
-                visible = ~self._occluded("nee", o, sun, cast)
+                visible.append(~self._occluded("nee", o_v, sun, hit_leaf | hit_soil))
             else:
-                visible = ~fs.scene.ray_test(mi.Ray3f(o, sun), cast)
-            L_sun += dr.select(hit_leaf & visible, beta * f_sun, 0.0)
-            L_sun += dr.select(hit_soil & visible, beta * rho_soil / math.pi * sun.z, 0.0)
-        return L_sun
+                visible.append(~fs.scene.ray_test(mi.Ray3f(o_v, sun), hit_leaf | hit_soil))
+        return e_dir, visible
+
+    def _values(self, geo, weights, sun_rays):
+        """Evaluation-level sun/sky incident and absorbed values from the geometry, the throughputs
+        (:meth:`_weigh`) and the sun's shadow rays (:meth:`_sun_rays`), at the current leaf
+        parameters and sun. The sun scattered towards the origin comes by next-event estimation
+        at every leaf vertex (through the BSDF, reflection or transmission) and soil vertex."""
+        import drjit as dr
+
+        mi, fs = self.fs.mi, self.fs
+        _, _, frame, d, _, valid = self._arrays()
+        betas, L_sky = weights
+        n_ev = self.n_evaluations
+        L_sun = mi.Float(dr.zeros(mi.Float, n_ev))
+        if sun_rays is None:
+            e_dir, a_s = mi.Float(dr.zeros(mi.Float, n_ev)), mi.Float(1.0)
+        else:
+            e_dir, visible = sun_rays
+            sun = self._sun_vector()
+            rho_soil = fs.optics.soil_albedo
+            ctx = mi.BSDFContext()
+            for g, beta, vis in zip(geo, betas, visible):
+                hit_leaf, hit_soil = g["hit_leaf"], g["hit_soil"]
+                si = dr.zeros(mi.SurfaceInteraction3f)
+                si.sh_frame, si.wi = g["frame"], g["wi"]
+                f_sun = fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
+                L_sun += dr.select(hit_leaf & vis, beta * f_sun, 0.0)
+                L_sun += dr.select(hit_soil & vis, beta * rho_soil / math.pi * sun.z, 0.0)
+            a_s = self._absorptance(frame, sun)
+        a_d = self._absorptance(frame, d)
+        e_sunscat, e_sky = math.pi * L_sun, math.pi * L_sky
+        vals = {
+            "incident_sun": e_dir + e_sunscat,
+            "incident_sky": e_sky,
+            "absorbed_sun": e_dir * a_s + e_sunscat * a_d,
+            "absorbed_sky": e_sky * a_d,
+        }
+        return {k: dr.select(valid, v, 0.0) for k, v in vals.items()}
 
     # -- public --------------------------------------------------------------------------
     def render(self) -> Irradiance:
         """Primal pass: per-segment sun/sky incident and absorbed irradiance with standard errors.
 
         In a periodic scene ``meta["periodic"]`` holds the ray counts of :meth:`_wrap_summary`
-        (kept paths, :meth:`_kept_paths`, are counted in every render that uses them).
+        (the kept geometry's rays, :meth:`_geometry`, are counted in every render that uses it).
         """
         import drjit as dr
 
         with dr.suspend_grad():
             self._wrap_log, self._fuse = [], True
             try:
-                vals = self._per_evaluation(keep_paths=True)
+                geo = self._geometry()
+                vals = self._values(geo, self._weigh(geo), self._sun_rays(geo))
             finally:
                 self._fuse = False
-            counts = self._wrap_counts(None if self._kept is None else self._kept[3])
-            # One evaluation of everything: the whole render (periodic walks included) is one
-            # kernel; evaluating the ray counts apart would recompute the walks they count.
+            counts = self._wrap_counts(self._kept[2])
+            # One evaluation of everything: the sun's shadow rays (periodic walks included) and
+            # the weights are one kernel; evaluating the ray counts apart would recompute the walks.
             dr.eval(vals, counts)
-            ev = {k: np.asarray(v, dtype=np.float64) for k, v in vals.items()}
-            periodic = self._wrap_summary(counts)
+            return self._irradiance(vals, self._wrap_summary(counts))
+
+    def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):
+        """:meth:`render` at many leaf-parameter points and suns, tracing the paths once.
+
+        With frozen sampling the geometry of every path and every shadow ray is the same at all
+        leaf-parameter points (:meth:`_trace`); only the throughputs change. So the paths are
+        traced once (kept, :meth:`_geometry`), each sun's shadow rays cast once, and every point
+        only weighs them (:meth:`_weigh`, :meth:`_values`: arithmetic, no rays).
+
+        Args:
+            leaf: (N, 3) specular, roughness, subsurface, each in [0, 1].
+            suns_deg: (T, 2) sun elevation and azimuth, degrees; ``None``: the scene's sun.
+
+        Yields, per row of ``leaf`` as soon as it is done, the list of T :class:`Irradiance`
+        that :meth:`render` returns after ``set_optics`` to that point and ``set_sun`` to each sun
+        (bitwise; ``meta["periodic"]`` included). The scene's leaf parameters and sun are as the
+        caller left them between and after the yields.
+
+        Memory besides the kept geometry: 4 + ``bounces`` bytes per evaluation and sun (the
+        shadow rays, kept for all T suns), and 4 × (1 + ``bounces``) bytes per evaluation for
+        the point being weighed — independent of N.
+        """
+        import drjit as dr
+
+        leaf = np.atleast_2d(np.asarray(leaf, dtype=np.float64))
+        if leaf.ndim != 2 or leaf.shape[1] != len(LEAF_PARAMETERS) or not np.all((leaf >= 0) & (leaf <= 1)):
+            raise InputError(
+                f"leaf points of shape {leaf.shape}",
+                column="leaf",
+                expected="(N, 3) specular, roughness, subsurface, each in [0, 1]",
+            )
+        fs = self.fs
+        suns = None if suns_deg is None else np.atleast_2d(np.asarray(suns_deg, dtype=np.float64))
+        if suns is not None and (suns.ndim != 2 or suns.shape[1] != 2):
+            raise InputError(f"suns of shape {suns.shape}", column="suns_deg", expected="(T, 2) elevation, azimuth")
+
+        def scene_state():
+            return fs.optics, fs.sun.copy()
+
+        def restore(state):
+            fs.set_optics(**{k: getattr(state[0], k) for k in LEAF_PARAMETERS})
+            fs.optics, fs.sun = state
+
+        state = scene_state()
+        sun_vectors = [state[1]] if suns is None else []
+        try:
+            for el, az in () if suns is None else suns:
+                fs.set_sun(el, az)
+                sun_vectors.append(fs.sun.copy())
+            # The shadow rays of every sun, once; their ray counts with the geometry's.
+            with dr.suspend_grad():
+                self._wrap_log, self._fuse = [], True
+                try:
+                    geo = self._geometry()
+                    rays = []
+                    for s in sun_vectors:
+                        fs.sun = s
+                        r = self._sun_rays(geo)
+                        counts = self._wrap_counts(self._kept[2])
+                        dr.eval(r, counts)
+                        rays.append((s, r, self._wrap_summary(counts)))
+                finally:
+                    self._fuse = False
+        finally:
+            restore(state)
+        for x in leaf:
+            state = scene_state()
+            try:
+                # The parameters stay literals, as in render(): made opaque, every point would share
+                # compiled kernels (≈ 0.1 s less per point on the quick field) but the values moved
+                # by float32 round-off (≈ 6e-8), no longer bitwise those of render().
+                fs.set_optics(**dict(zip(LEAF_PARAMETERS, x)))
+                out = []
+                with dr.suspend_grad():
+                    weights = self._weigh(geo)
+                    dr.eval(weights)
+                    for s, r, periodic in rays:
+                        fs.sun = s
+                        vals = self._values(geo, weights, r)
+                        dr.eval(vals)
+                        out.append(self._irradiance(vals, periodic))
+            finally:
+                restore(state)
+            yield out
+
+    def _irradiance(self, vals: dict, periodic: dict | None) -> Irradiance:
+        """Per-segment means, standard errors and replicate means of evaluated per-evaluation values."""
+        ev = {k: np.asarray(v, dtype=np.float64) for k, v in vals.items()}
         S, K = len(self.segment_id), self.samples
         n_front = S * K
         out, se, front, reps = {}, {}, {}, {}
@@ -889,11 +1008,20 @@ class AdaptiveEstimator:
 
     def render(self) -> Irradiance:
         """All segments at their allocated K (:meth:`SegmentEstimator.render` per group)."""
+        return self._join([est.render() for _, est in self.groups])
+
+    def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):
+        """:meth:`SegmentEstimator.render_many` per group, joined: per leaf point the list of
+        :meth:`render` results at each sun."""
+        for per_group in zip(*(est.render_many(leaf, suns_deg) for _, est in self.groups)):
+            yield [self._join(rs) for rs in zip(*per_group)]
+
+    def _join(self, results: list[Irradiance]) -> Irradiance:
+        """One :class:`Irradiance` from the groups' renders (same sun, same leaf parameters)."""
         S = len(self.segment_id)
         reps = {p: None for p in PARTS}
         front = {p: np.zeros(S) for p in PARTS}
-        for i, est in self.groups:
-            r = est.render()
+        for (i, _), r in zip(self.groups, results):
             for p in PARTS:
                 m = r.meta["replicate_means"][p]
                 if reps[p] is None:
@@ -903,7 +1031,7 @@ class AdaptiveEstimator:
         meta = {k: self.allocation.meta[k] for k in ("optics", "is_blade", "area_m2", "target_rse")}
         meta["n_evaluations"] = self.n_evaluations
         return _from_replicate_means(
-            self.segment_id, reps, front, self.samples, self.bounces, self.seed, self.fs.sun, meta
+            self.segment_id, reps, front, self.samples, self.bounces, self.seed, results[0].sun_vector, meta
         )
 
     def vjp(self, cotangent: dict[str, np.ndarray]) -> dict[str, float]:

@@ -159,6 +159,20 @@ class CoupledModel:
             ses.append(s)
         return jnp.stack(vals), jnp.stack(ses)
 
+    def render_many(self, thetas):
+        """:meth:`render` at each of ``thetas`` (Theta or mappings), tracing the paths once for all
+        (:meth:`lightfit.light.estimator.SegmentEstimator.render_many`): yields, per theta as soon
+        as it is done, numpy ``(values, se)`` each (T_day, 4, S + P), bitwise :meth:`render`'s."""
+        leaf = np.stack([np.asarray(jnp.asarray(self.theta(t).leaf)) for t in thetas])
+        days = np.flatnonzero(self.day)
+        if len(days) == 0:
+            for _ in leaf:
+                yield np.zeros((0, 4, self.n_columns), leaf.dtype), np.zeros((0, 4, self.n_columns), leaf.dtype)
+            return
+        # the sun positions as render() hands them to the irradiance function (in the leaf's dtype)
+        suns = np.stack([np.asarray(jnp.asarray(jnp.asarray(self.sun_deg[i]), leaf.dtype)) for i in days])
+        yield from self.irradiance.render_many(leaf, suns, self.scenario.seed)
+
     def parts(self, theta: Theta | Mapping[str, float]):
         """Light parts from this model's source (:meth:`render` unless injected), each (T_day, 4, S + P)."""
         return self.light(self.theta(theta))

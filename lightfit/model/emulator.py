@@ -174,41 +174,54 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
         return empty, empty.copy(), 0.0
     cache = None if cache is None else Path(cache)
     rkey = json.dumps(key or render_key(model), sort_keys=True) if cache is not None else ""
-    vals, ses, seconds, fresh = [], [], 0.0, 0
+    files = [None if cache is None else cache / f"{_digest(rkey.encode(), x.astype(np.float64))}.npz" for x in leaf]
+    vals, ses, secs = [None] * len(leaf), [None] * len(leaf), [0.0] * len(leaf)
+    todo, first = [], {}  # points to render; the first index of each cache file among them
+    for i, file in enumerate(files):
+        if file is not None and file.exists():
+            with np.load(file) as z:
+                vals[i], ses[i], secs[i] = z["values"], z["se"], float(z["seconds"])
+            COUNTS["cached"] += 1
+        elif file is None or file not in first:
+            todo.append(i)
+            first[file] = i
     bar = None
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         bar = Progress(TextColumn("rendering design"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-        task = bar.add_task("r", total=len(leaf))
+        task = bar.add_task("r", total=len(leaf), completed=len(leaf) - len(todo))
         bar.start()
     try:
-        for x in leaf:
-            file = None if cache is None else cache / f"{_digest(rkey.encode(), x.astype(np.float64))}.npz"
-            if file is not None and file.exists():
-                with np.load(file) as z:
-                    v, s, dt = z["values"], z["se"], float(z["seconds"])
-                COUNTS["cached"] += 1
-            else:
-                t0 = time.perf_counter()
-                v, s = (np.asarray(a) for a in model.render(dict(zip(LEAF_PARAMETERS, x))))
-                dt = time.perf_counter() - t0
-                if file is not None:
-                    file.parent.mkdir(parents=True, exist_ok=True)
-                    tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
-                    np.savez(tmp, values=v, se=s, seconds=dt, leaf=x, key=rkey)
-                    os.replace(tmp, file)  # atomic: a kill leaves the render either whole or absent
-                fresh += 1
-                COUNTS["rendered"] += 1
-                kill_point("render", fresh)
-            vals.append(v)
-            ses.append(s)
-            seconds += dt
+        # All missing points in one batch (CoupledModel.render_many: the paths are traced once and
+        # weighed at every point); each point is stored as soon as it is done, so a design killed
+        # half-way keeps its finished renders. A point's seconds are the time since the previous
+        # one (the first carries the shared tracing).
+        t0 = time.perf_counter()
+        renders = model.render_many([dict(zip(LEAF_PARAMETERS, leaf[i])) for i in todo]) if todo else ()
+        for fresh, (i, (v, s)) in enumerate(zip(todo, renders), start=1):
+            dt = time.perf_counter() - t0
+            file = files[i]
+            if file is not None:
+                file.parent.mkdir(parents=True, exist_ok=True)
+                tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
+                np.savez(tmp, values=v, se=s, seconds=dt, leaf=leaf[i], key=rkey)
+                os.replace(tmp, file)  # atomic: a kill leaves the render either whole or absent
+            COUNTS["rendered"] += 1
+            kill_point("render", fresh)
+            vals[i], ses[i], secs[i] = v, s, dt
             if bar:
                 bar.update(task, advance=1)
+            t0 = time.perf_counter()
     finally:
         if bar:
             bar.stop()
+    for i, file in enumerate(files):  # a point repeated in ``leaf``: its render, as if read from the cache
+        if vals[i] is None:
+            j = first[file]
+            vals[i], ses[i], secs[i] = vals[j], ses[j], secs[j]
+            COUNTS["cached"] += 1
+    seconds = float(sum(secs))
     return np.stack(vals), np.stack(ses), seconds
 
 
