@@ -111,12 +111,18 @@ def render_chunk(chunk: DesignChunk) -> dict:
     t1 = time.perf_counter()
     before = E.COUNTS["rendered"]
     E.render_parts(model, chunk.leaf, cache=chunk.cache, key=chunk.key)
+    t2 = time.perf_counter()
+    point_s = []
+    for x in chunk.leaf:  # each render's own seconds, as stored with it (the first carries the warm-up)
+        with np.load(E.render_file(chunk.cache, chunk.key, x)) as z:
+            point_s.append(float(z["seconds"]))
     return {
         "points": len(chunk.leaf),
         "rendered": E.COUNTS["rendered"] - before,
         "pid": os.getpid(),
         "build_s": t1 - t0,
-        "render_s": time.perf_counter() - t1,
+        "render_s": t2 - t1,
+        "point_s": point_s,
     }
 
 
@@ -153,7 +159,8 @@ def render_design(
         progress: a bar over finished points (files appearing in the cache).
         timeout_s: give up waiting after this many seconds (``None``: no bound).
 
-    Returns one dict per task (points, new renders, worker pid, build and render seconds); ``[]``
+    Returns one dict per task (points, new renders, worker pid, build and render seconds, each point's
+    render seconds); ``[]``
     when nothing was missing. A task's error (e.g. a worker whose render key differs) is raised here.
     """
     if not np.asarray(model.day).any():  # nothing to render at all (see restrict)
