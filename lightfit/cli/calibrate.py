@@ -9,7 +9,16 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names, parse_theta
-from lightfit.cli.options import ModelOptions, Use, check_resumable, model_options, resolve, run_model
+from lightfit.cli.options import (
+    DesignWorkers,
+    ModelOptions,
+    Scheduler,
+    Use,
+    check_resumable,
+    model_options,
+    resolve,
+    run_model,
+)
 from lightfit.errors import InputError
 
 
@@ -51,12 +60,16 @@ def calibrate(
     mc_scale: float = typer.Option(
         1.0, help="Factor on the model's Monte Carlo variance in the likelihood (2 for twins rendered at another seed)."
     ),
+    scheduler: Scheduler = None,
+    workers: DesignWorkers = None,
     *,
     model: ModelOptions,
 ) -> None:
     """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64).
 
-    Several --date: one calibration against the observations of every day (each day's plants and forcing)."""
+    Several --date: one calibration against the observations of every day (each day's plants and forcing).
+    --workers / --scheduler: the surrogate's design renders run on a Dask cluster (docs/posterior.md)."""
+    from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
     from lightfit.inference.calibration import METHODS
     from lightfit.inference.calibration import calibrate as run_calibration
@@ -105,24 +118,26 @@ def calibrate(
         box = prior_set(priors, m.scenario.optics)  # the run leaf's informed priors
         lo = [box[n].support[0] for n in E.LEAF_PARAMETERS]
         hi = [box[n].support[1] for n in E.LEAF_PARAMETERS]
-        tr = surrogate_calibrate(
-            m,
-            obs,
-            names=names,
-            start=th0,
-            use=uses,
-            lo=lo,
-            hi=hi,
-            n_design=n_design,
-            cache=cache,
-            out=out / "trust_region",
-            max_rounds=max_rounds,
-            method=method,
-            max_steps=max_steps,
-            say=say,
-            mc_correlation=form["mc_correlation"],
-            mc_scale=mc_scale,
-        )
+        with design_renderer(scheduler, workers) as render_points:
+            tr = surrogate_calibrate(
+                m,
+                obs,
+                names=names,
+                start=th0,
+                use=uses,
+                lo=lo,
+                hi=hi,
+                n_design=n_design,
+                cache=cache,
+                out=out / "trust_region",
+                max_rounds=max_rounds,
+                method=method,
+                max_steps=max_steps,
+                say=say,
+                mc_correlation=form["mc_correlation"],
+                mc_scale=mc_scale,
+                render_points=render_points,
+            )
         res = tr.result
     else:
         m, obs, _ = observed_model(m, obs, uses)  # render only the steps the observations need

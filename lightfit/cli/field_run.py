@@ -7,25 +7,15 @@ from pathlib import Path
 import typer
 
 from lightfit.cli.common import console
-from lightfit.cli.options import ModelOptions, model_options, resolve, scenario
-
-_DASK = "Dask"
+from lightfit.cli.options import DASK_PANEL as _DASK
+from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
 
 
 @model_options
 def field_run(
     out: Path = typer.Option(Path("results/field-run/results.nc"), help="Results netCDF (time × segment)."),
-    scheduler: str = typer.Option(
-        None,
-        help="Join this Dask scheduler (e.g. tcp://host:8786) instead of starting an embedded LocalCluster.",
-        rich_help_panel=_DASK,
-    ),
-    workers: int = typer.Option(
-        None,
-        help="Embedded cluster: worker processes (default: one per GPU, else one "
-        "per core, at most one per 2 GiB of memory).",
-        rich_help_panel=_DASK,
-    ),
+    scheduler: Scheduler = None,
+    workers: Workers = None,
     threads_per_worker: int = typer.Option(
         None, help="Embedded cluster: threads per worker (Dr.Jit CPU threads too; default 1).", rich_help_panel=_DASK
     ),

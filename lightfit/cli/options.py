@@ -388,6 +388,33 @@ Use = Annotated[
     ),
 ]
 
+#: Help panel of the Dask options (``lightfit field-run``, ``calibrate``, ``posterior``).
+DASK_PANEL = "Dask"
+
+#: ``--scheduler``: one definition for every command that can use a Dask cluster.
+Scheduler = Annotated[
+    str,
+    typer.Option(
+        help="Join this Dask scheduler (e.g. tcp://host:8786) instead of starting an embedded LocalCluster.",
+        rich_help_panel=DASK_PANEL,
+    ),
+]
+
+
+def workers_option(default: str) -> Any:
+    """``--workers`` (worker processes of an embedded LocalCluster); ``default``: what the command does
+    without it."""
+    return Annotated[
+        int, typer.Option(help=f"Embedded cluster: worker processes (default: {default}).", rich_help_panel=DASK_PANEL)
+    ]
+
+
+#: ``--workers`` of commands that always run on Dask (the embedded cluster's size when not given).
+Workers = workers_option("one per GPU, else one per core, at most one per 2 GiB of memory")
+
+#: ``--workers`` of commands whose Dask use is optional (the emulator design of calibrate and posterior).
+DesignWorkers = workers_option("no cluster: the design is rendered in this process unless --workers or --scheduler")
+
 
 def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
     """Give a command the shared model options; it receives them as its ``model: ModelOptions`` argument.

@@ -9,7 +9,16 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_names
-from lightfit.cli.options import ModelOptions, Use, check_resumable, model_options, resolve, run_model
+from lightfit.cli.options import (
+    DesignWorkers,
+    ModelOptions,
+    Scheduler,
+    Use,
+    check_resumable,
+    model_options,
+    resolve,
+    run_model,
+)
 from lightfit.errors import InputError
 
 
@@ -49,14 +58,18 @@ def posterior(
     mc_scale: float = typer.Option(
         1.0, help="Factor on the model's Monte Carlo variance in the likelihood (2 for twins rendered at another seed)."
     ),
+    scheduler: Scheduler = None,
+    workers: DesignWorkers = None,
     *,
     model: ModelOptions,
 ) -> None:
     """Sample the posterior with emcee (emulated renders), then Fisher, profile and predictive analysis.
 
-    Several --date: one posterior given the observations of every day (one model and emulator per day)."""
+    Several --date: one posterior given the observations of every day (one model and emulator per day).
+    --workers / --scheduler: the design and held-out renders run on a Dask cluster (docs/posterior.md)."""
 
     from lightfit import replication as rep
+    from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use
@@ -112,22 +125,35 @@ def posterior(
     # copy (several days: OUT/emulator-<date>.npz, one per day, each day in its own design directory).
     counts = dict(E.COUNTS)
     emus, val = [], []
-    for i, (d, key) in enumerate(zip(days, keys)):
-        copy = out / ("emulator.npz" if dates is None else f"emulator-{dates[i]}.npz")
-        if copy.exists():  # the run's copy: say what changed since this run's last design
-            before = E.PartsEmulator.load(copy).key
-            if before != key:
-                changes = "; ".join(E.key_changes(before, key)) if before else "no key (written by an older lightfit)"
-                console.print(f"emulator {copy} was built for other settings ({changes}): rebuilding")
-        emu = E.shared_emulator(
-            d, lo, hi, n_design=n_design, seed=0, cache=cache, progress=True, say=lambda x: console.print(x)
-        )
-        emu.save(copy)
-        emus.append(emu)
-        if n_test > 0 and analysis and n_rendered > 0:
-            leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
-            renders = E.design_dir(d, cache) / "renders"
-            val.append((leaf_test, E.render_parts(d, leaf_test, progress=True, cache=renders)))
+    with design_renderer(scheduler, workers) as render_points:
+        for i, (d, key) in enumerate(zip(days, keys)):
+            copy = out / ("emulator.npz" if dates is None else f"emulator-{dates[i]}.npz")
+            if copy.exists():  # the run's copy: say what changed since this run's last design
+                before = E.PartsEmulator.load(copy).key
+                if before != key:
+                    changes = (
+                        "; ".join(E.key_changes(before, key)) if before else "no key (written by an older lightfit)"
+                    )
+                    console.print(f"emulator {copy} was built for other settings ({changes}): rebuilding")
+            emu = E.shared_emulator(
+                d,
+                lo,
+                hi,
+                n_design=n_design,
+                seed=0,
+                cache=cache,
+                progress=True,
+                say=lambda x: console.print(x),
+                render_points=render_points,
+            )
+            emu.save(copy)
+            emus.append(emu)
+            if n_test > 0 and analysis and n_rendered > 0:
+                leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
+                renders = E.design_dir(d, cache) / "renders"
+                if render_points is not None:
+                    render_points(d, leaf_test, renders, E.render_key(d))
+                val.append((leaf_test, E.render_parts(d, leaf_test, progress=True, cache=renders)))
     where = ", ".join(str(E.design_dir(d, cache)) for d in days)
     console.print(
         f"design: {E.COUNTS['rendered'] - counts['rendered']} new renders, {E.COUNTS['cached'] - counts['cached']} "

@@ -359,7 +359,6 @@ def connect(
     workers: int | None = None,
     threads_per_worker: int | None = None,
     timeout_s: float = 30.0,
-    dashboard: bool = False,
 ):
     """A Dask client: joins ``scheduler`` (address, e.g. ``tcp://host:8786``) or starts an
     embedded ``LocalCluster`` (processes, ``workers`` × ``threads_per_worker``; default sized to
@@ -397,9 +396,9 @@ def connect(
         env["XLA_FLAGS"] = (
             os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
         ).strip()
-    cluster = LocalCluster(
-        n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0" if dashboard else None
-    )
+    # dashboard_address ":0": a free port. None does not disable the scheduler's HTTP server: it
+    # takes port 8787 and warns when another cluster (another lightfit run) holds it.
+    cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
     try:
         client = Client(cluster, timeout=timeout_s)
         try:

@@ -184,6 +184,7 @@ def surrogate_calibrate(
     say: Callable[[str], None] = print,
     mc_correlation: str | None = "model",
     mc_scale: float = 1.0,
+    render_points: E.RenderPoints | None = None,
 ) -> SurrogateCalibration:
     """Calibrate on the emulator inside the box [lo, hi] of the leaf parameters, checked by full
     renders (see the module docstring).
@@ -205,6 +206,10 @@ def surrogate_calibrate(
             round's emulator at ``start`` (no extra render; exact light in the no-/one-render modes);
             ``None``: independent steps. ``mc_scale``: c of the likelihood (2 for twins rendered at
             the model's samples).
+        render_points: renders the design points elsewhere first (e.g. on a Dask cluster,
+            :func:`lightfit.distributed.design.render_design`; see
+            :func:`~lightfit.model.emulator.build_emulator`). The single check render of a round
+            is made here.
 
     ``model`` may be a :class:`~lightfit.inference.multiday.MultiDayModel`: one emulator per day (each
     in its own design directory; ``design_dir`` and ``emulator`` are then lists), every round renders
@@ -314,6 +319,7 @@ def surrogate_calibrate(
                 cache=cache,
                 progress=progress,
                 say=say,
+                render_points=render_points,
             )
             for d in days
         ]

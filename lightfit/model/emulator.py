@@ -148,6 +148,20 @@ def render_key(model: CoupledModel) -> dict:
 COUNTS = {"rendered": 0, "cached": 0}
 
 
+def render_file(cache: str | Path, key: dict, leaf) -> Path:
+    """The file in which :func:`render_parts` keeps the render at ``leaf`` (3,) of a model whose
+    :func:`render_key` is ``key``, in the render directory ``cache`` (whether or not it exists yet).
+    Another process that fills the cache (:mod:`lightfit.distributed.design`) finds it here."""
+    text = json.dumps(key, sort_keys=True)
+    return Path(cache) / f"{_digest(text.encode(), np.asarray(leaf, np.float64))}.npz"
+
+
+#: Signature of the ``render_points`` hook of :func:`build_emulator`: ``(model, leaf (n, 3), render
+#: directory, render_key(model)) -> Any``; it makes sure each point's render is in the directory
+#: (e.g. :func:`lightfit.distributed.design.render_design` on a Dask cluster).
+RenderPoints = Callable[[CoupledModel, np.ndarray, Path, dict], object]
+
+
 def render_parts(
     model: CoupledModel, leaf, progress: bool = False, cache: str | Path | None = None, key: dict | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -174,7 +188,8 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
         return empty, empty.copy(), 0.0
     cache = None if cache is None else Path(cache)
     rkey = json.dumps(key or render_key(model), sort_keys=True) if cache is not None else ""
-    files = [None if cache is None else cache / f"{_digest(rkey.encode(), x.astype(np.float64))}.npz" for x in leaf]
+    key = key or render_key(model) if cache is not None else None
+    files = [None if cache is None else render_file(cache, key, x) for x in leaf]
     vals, ses, secs = [None] * len(leaf), [None] * len(leaf), [0.0] * len(leaf)
     todo, first = [], {}  # points to render; the first index of each cache file among them
     for i, file in enumerate(files):
@@ -343,12 +358,15 @@ def build_emulator(
     progress: bool = False,
     cache: str | Path | None = None,
     extra=None,
+    render_points: RenderPoints | None = None,
 ) -> PartsEmulator:
     """Render ``n_design`` Sobol points (seed ``seed``) of the box [lo, hi] and fit the emulator.
     ``cache``: directory keeping each finished render (see :func:`render_parts`); the emulator's
     :attr:`~PartsEmulator.key` is then its :func:`emulator_key`. ``extra``: (m, 3) further points
     rendered and fitted after the Sobol design (the trust-region calibration's renders at its
-    candidate optima, :mod:`lightfit.inference.trust_region`)."""
+    candidate optima, :mod:`lightfit.inference.trust_region`). ``render_points``: renders the design
+    into ``cache`` elsewhere first (:data:`RenderPoints`; needs ``cache``); the fit then reads every
+    point from the cache, and renders here only what the hook left missing."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo) or np.any(lo < 0) or np.any(hi > 1):
         raise InputError(
@@ -360,6 +378,12 @@ def build_emulator(
     if extra is not None and len(extra):
         design = np.concatenate([design, np.asarray(extra, float).reshape(-1, 3)])
     rkey = render_key(model) if cache is not None else None
+    if render_points is not None:
+        if cache is None:
+            raise InputError(
+                "render_points without a cache", column="cache", expected="the render directory the hook fills"
+            )
+        render_points(model, design, Path(cache), rkey)
     v, s, seconds = _render_parts(model, design, progress, cache, rkey)
     if v.shape[1] == 0:  # nothing rendered (no step needs it): the constant zero, exact
         z = np.zeros((1, *v.shape[1:]))
@@ -412,12 +436,13 @@ def cached_emulator(
     say: Callable[[str], None] = print,
     renders: str | Path | None = None,
     extra=None,
+    render_points: RenderPoints | None = None,
 ) -> PartsEmulator:
     """The emulator stored at ``path`` if its key is this model's and these settings'
     (:func:`emulator_key`), else built (renders kept in ``renders``, default ``<path's
     folder>/renders``, so an interrupted design continues where it stopped) and stored. A stored
     emulator that does not match is reported through ``say`` (one line naming the changed entries)
-    before the rebuild. ``extra``: further design points (see :func:`build_emulator`)."""
+    before the rebuild. ``extra``, ``render_points``: see :func:`build_emulator`."""
     path = Path(path)
     rkey = render_key(model)
     key = emulator_key(rkey, lo, hi, n_design, seed, degrees, extra)
@@ -437,6 +462,7 @@ def cached_emulator(
         progress=progress,
         cache=Path(renders) if renders is not None else path.parent / "renders",
         extra=extra,
+        render_points=render_points,
     )
     emu.save(path)
     return emu
@@ -477,6 +503,7 @@ def shared_emulator(
     cache: str | Path | None = None,
     progress: bool = False,
     say: Callable[[str], None] = print,
+    render_points: RenderPoints | None = None,
 ) -> PartsEmulator:
     """:func:`cached_emulator` in the shared cache: renders in ``design_dir(model)/renders``, the fitted
     emulator in ``design_dir(model)/emulator-<hash of its key>.npz`` (one file per design, so the
@@ -497,6 +524,7 @@ def shared_emulator(
         say=say,
         renders=d / "renders",
         extra=extra,
+        render_points=render_points,
     )
 
 
@@ -655,6 +683,8 @@ __all__ = [
     "exponents",
     "fit_emulator",
     "legendre_basis",
+    "RenderPoints",
+    "render_file",
     "render_key",
     "render_parts",
     "sobol_design",

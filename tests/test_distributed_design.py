@@ -1,0 +1,126 @@
+"""Emulator design renders on a Dask cluster (lightfit.distributed.design).
+
+Tiny field (2×2 measured plants, one buffer row, K=8, 2 bounces), a model restricted to 2 of 3 steps
+with one sun position rendered (so the step masks travel), on a LocalCluster of 2 single-threaded
+worker processes.
+"""
+
+from functools import partial
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from lightfit.distributed import connect
+from lightfit.distributed.design import design_renderer, missing_points, render_design, step_masks
+from lightfit.errors import InputError
+from lightfit.model import emulator as E
+from lightfit.model.coupled import CoupledModel
+from lightfit.model.scenario import Scenario
+from lightfit.plant import Field
+from lightfit.precision import use_float64
+from lightfit.replication import forcing
+
+LO, HI = (0.1, 0.1, 0.1), (0.9, 0.9, 0.9)
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    use_float64()  # as the command line and the workers do
+    sc = Scenario(
+        weather=forcing().iloc[[1, 5, 14]],  # 05:30 local (night), 07:30, 12:00
+        field=Field(n_plants=4, buffer_rows=1, seed=1),
+        samples=8,
+        bounces=2,
+        par_kind="absorbed",
+    )
+    # Kept: 07:30 and 12:00; rendered: 12:00 only (as observed_model cuts a calibration's model).
+    return E.restrict(CoupledModel(sc), [False, True, True], [False, False, True])
+
+
+@pytest.fixture(scope="module")
+def client():
+    with connect(workers=2, threads_per_worker=1, timeout_s=60) as cl:
+        yield cl
+
+
+def test_step_masks_rebuild_the_restricted_model(model):
+    """The masks shipped to the workers give back the client's model (same render key)."""
+    keep, rendered = step_masks(model)
+    assert keep.tolist() == [False, True, True] and rendered.tolist() == [False, False, True]
+    again = E.restrict(CoupledModel(model.scenario), keep, rendered)
+    assert E.render_key(again) == E.render_key(model)
+
+
+def test_cluster_renders_equal_local_renders_and_only_missing_points_are_sent(model, client, tmp_path):
+    """Points rendered by the workers into the cache are bitwise the local renders; a point already in
+    the cache is not sent; the emulator then fits from the cache without rendering here."""
+    cache = tmp_path / "renders"
+    key = E.render_key(model)
+    pts = E.sobol_design(3, LO, HI, seed=0)
+    E.render_parts(model, pts[:1], cache=cache, key=key)  # one point pre-populated locally
+    assert len(missing_points(pts, cache, key)) == 2  # render_file names the file render_parts wrote
+    info = render_design(client, model, pts, cache, key, progress=False)
+    assert sum(i["points"] for i in info) == 2 and sum(i["rendered"] for i in info) == 2
+    assert len(missing_points(pts, cache, key)) == 0
+    assert render_design(client, model, pts, cache, key, progress=False) == []  # nothing left to send
+    local_v, local_s = E.render_parts(model, pts[1:])  # in this process, no cache
+    for x, v, s in zip(pts[1:], local_v, local_s):
+        with np.load(E.render_file(cache, key, x)) as z:
+            np.testing.assert_array_equal(z["values"], v)
+            np.testing.assert_array_equal(z["se"], s)
+            np.testing.assert_array_equal(z["leaf"], x)
+
+
+def test_build_emulator_with_the_hook_renders_nothing_locally(model, client, tmp_path):
+    """build_emulator(render_points=...) sends the design to the cluster and fits from the cache: the
+    same emulator as a local build of the same design."""
+    before = dict(E.COUNTS)
+    hook = partial(render_design, client, progress=False)
+    emu = E.build_emulator(model, LO, HI, n_design=5, degrees=(1,), cache=tmp_path / "a", render_points=hook)
+    # counted as 5 new renders (made on the workers), none read from an earlier cache
+    assert E.COUNTS["rendered"] - before["rendered"] == 5 and E.COUNTS["cached"] == before["cached"]
+    local = E.build_emulator(model, LO, HI, n_design=5, degrees=(1,), cache=tmp_path / "b")
+    np.testing.assert_array_equal(emu.coef_values, local.coef_values)
+    np.testing.assert_array_equal(emu.coef_se, local.coef_se)
+    with pytest.raises(InputError, match="cache"):
+        E.build_emulator(model, LO, HI, n_design=5, render_points=hook)
+
+
+def test_worker_with_another_render_key_fails_loudly(model, client, tmp_path):
+    """A worker whose model is not the client's (here: the client claims K=9) refuses to fill the cache."""
+    key = {**E.render_key(model), "samples": 9}
+    with pytest.raises(InputError, match="samples: 9 → 8"):
+        render_design(client, model, E.sobol_design(1, LO, HI, seed=0), tmp_path, key, progress=False)
+    assert not list(tmp_path.glob("*.npz"))
+
+
+def test_design_renderer_without_options_is_local():
+    with design_renderer() as hook:
+        assert hook is None
+
+
+OBS = (
+    "# provenance: synthetic\n# note: dask design test\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
+    "2016-04-20T09:00:00Z,300,20\n2016-04-20T10:00:00Z,400,20\n"
+)
+
+
+def test_posterior_cli_workers_renders_the_design_on_the_cluster(tmp_path, monkeypatch):
+    """``lightfit posterior --workers 1``: the design is rendered by the embedded cluster's worker,
+    reported as this run's new renders."""
+    from lightfit.cli import app
+
+    monkeypatch.setenv(E.CACHE_ENV, str(tmp_path / "cache"))
+    obs = tmp_path / "obs.csv"
+    obs.write_text(OBS, encoding="utf-8")
+    args = ["posterior", str(obs), "--quick", "--steps", "12:15", "--n-design", "6", "--parameters", "specular"]
+    args += ["--walkers", "4", "--max-steps", "10", "--n-test", "0", "--no-analysis", "--workers", "1"]
+    before = dict(E.COUNTS)
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "post")])
+    assert r.exit_code == 0, r.output
+    assert "design: 6 new renders, 0 from the cache (2 sun positions" in r.output.replace("\n", "")
+    (d,) = (tmp_path / "cache" / "designs").iterdir()
+    files = sorted((d / "renders").glob("*.npz"))
+    assert len(files) == 6
+    assert E.COUNTS["rendered"] - before["rendered"] == 6
