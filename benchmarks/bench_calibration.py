@@ -29,20 +29,20 @@ sampling both differentiate the same smooth estimate). A full three-parameter ca
 timed for the configurations given in ``--calibrate`` (others: estimated as measured time per
 evaluation × the evaluations the quick calibration needed).
 
-**Surrogate commands** (``--cli quick`` or ``--cli default [--max-minutes 14] [--posterior-after]``;
-writes benchmarks/results/calibration_cli_<config>.json): the real ``lightfit calibrate`` and
-``lightfit posterior`` commands as subprocesses on one configuration, observations = the bundled
-chamber record (above-canopy sensor: informs only the light factor) merged with the synthetic twin
-series (plant PAR + canopy An at the 25 daytime steps), parameters specular, roughness, subsurface,
-light_factor. Timed in order, with a fresh ``LIGHTFIT_CACHE`` (so plants and design are cold):
-(1) calibrate cold, (2) the same calibrate again into a new OUT (design cached), (3) posterior with
-another fresh cache (cold), stop rule with ``--target-ess 50`` and ``--max-minutes`` of sampling;
-with ``--posterior-after`` also the posterior on the first cache after the calibration (design
-cached). Reported per stage: wall and CPU time, load average before and after, new/cached renders
-and the full-render check (calibrate); for the posterior the wall time at which a stop-rule check
-first had ESS ≥ 50 for every parameter, as estimated and with τ reliable (n_kept ≥ 20 τ, the stop
-rule's length condition) (``run.h5`` polled every 10 s), the stop reason, steps and ESS per
-parameter at the end.
+**Surrogate commands** (``--cli quick`` or ``--cli default [--max-minutes 14] [--posterior-after]
+[--no-posterior] [--json PATH]``; writes benchmarks/results/calibration_cli_<config>.json or PATH):
+the real ``lightfit calibrate`` and ``lightfit posterior`` commands as subprocesses on one
+configuration, observations = the bundled chamber record (above-canopy sensor: informs only the
+light factor) merged with the synthetic twin series (plant PAR + canopy An at the 25 daytime steps),
+parameters specular, roughness, subsurface, light_factor. Timed in order, with a fresh
+``LIGHTFIT_CACHE`` (so plants and design are cold): (1) calibrate cold, (2) the same calibrate again
+into a new OUT (design cached), (3) posterior with another fresh cache (cold), stop rule with
+``--target-ess 50`` and ``--max-minutes`` of sampling; with ``--posterior-after`` also the posterior
+on the first cache after the calibration (design cached). Reported per stage: wall and CPU time,
+load average before and after, new/cached renders and the full-render check (calibrate); for the
+posterior the wall time at which a stop-rule check first had ESS ≥ 50 for every parameter, as
+estimated and with τ reliable (n_kept ≥ 20 τ, the stop rule's length condition) (``run.h5`` polled
+every 10 s), the stop reason, steps and ESS per parameter at the end.
 """
 
 from __future__ import annotations
@@ -280,7 +280,14 @@ def git_state() -> dict:
     return {"commit": git("rev-parse", "HEAD"), "modified": git("diff", "--name-only", "HEAD").splitlines()}
 
 
-def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, posterior_after: bool = False) -> dict:
+def cli(
+    config: str,
+    n_design: int | None = None,
+    max_minutes: float = 14.0,
+    posterior_after: bool = False,
+    posterior: bool = True,
+    out: Path | None = None,
+) -> dict:
     """The surrogate commands benchmark (see the module docstring)."""
     import os
     import resource
@@ -343,7 +350,9 @@ def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, pos
         "command": f"python benchmarks/bench_calibration.py --cli {config}"
         + ("" if n_design is None else f" --design {n_design}")
         + f" --max-minutes {max_minutes:g}"
-        + (" --posterior-after" if posterior_after else ""),
+        + (" --posterior-after" if posterior_after else "")
+        + ("" if posterior else " --no-posterior")
+        + ("" if out is None else f" --json {out}"),
         "config": config,
         "machine": f"{os.cpu_count()} CPU cores; load average recorded before/after each stage; one run",
         "observations": "chamber record + synthetic twin (plant_par, canopy_an)",
@@ -368,7 +377,9 @@ def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, pos
         "check": {k: v for k, v in c["surrogate"].items() if k != "rounds"},
         "rounds": c["surrogate"]["rounds"],
     }
-    stages = [("posterior_cold", work / "cache_cold", "post_cold")]
+    stages = [("posterior_cold", work / "cache_cold", "post_cold")] if posterior else []
+    if not posterior:
+        res["posterior_cold"] = "not run (--no-posterior)"
     if posterior_after:
         stages.insert(0, ("posterior_after_calibrate", work / "cache", "post_after"))
     for key, cache, tag in stages:
@@ -376,7 +387,7 @@ def cli(config: str, n_design: int | None = None, max_minutes: float = 14.0, pos
         sm = json.loads((work / tag / "summary.json").read_text())
         res[key] |= {k: sm.get(k) for k in ("names", "stopped_by", "n_steps", "ess", "tau", "seconds_sampling")}
         res[key]["min_ess"] = float(np.min(sm["ess"]))
-    out = OUT.with_name(f"calibration_cli_{config}.json")
+    out = out or OUT.with_name(f"calibration_cli_{config}.json")
     out.write_text(json.dumps(res, indent=2, default=str))
     print_cli(res)
     return res
@@ -395,6 +406,9 @@ def print_cli(res: dict) -> None:
     ):
         r = res.get(key)
         if r is None:
+            continue
+        if isinstance(r, str):
+            t.add_row(label, "–", "–", "–", r)
             continue
         if key.startswith("calibrate"):
             note = f"{r['renders_new']} new + {r['renders_cached']} cached renders, {r['rounds']} rounds; check "
@@ -422,9 +436,11 @@ if __name__ == "__main__":
     ap.add_argument("--design", type=int, default=None, help="with --cli: --n-design (default: the shared size)")
     ap.add_argument("--max-minutes", type=float, default=14.0, help="with --cli: posterior's sampling budget")
     ap.add_argument("--posterior-after", action="store_true", help="with --cli: also the posterior after calibrate")
+    ap.add_argument("--no-posterior", action="store_true", help="with --cli: calibrate cold and cached only")
+    ap.add_argument("--json", type=Path, default=None, help="with --cli: output (default calibration_cli_<config>)")
     a = ap.parse_args()
     if a.cli:
-        cli(a.cli, a.design, a.max_minutes, a.posterior_after)
+        cli(a.cli, a.design, a.max_minutes, a.posterior_after, not a.no_posterior, a.json)
     elif a.gradients:
         main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x))
     else:
