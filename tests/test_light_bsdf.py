@@ -86,3 +86,22 @@ def test_parameters_outside_unit_interval_rejected():
         leaf_bsdf_dict(roughness=1.5)
     with pytest.raises(InputError, match="specular"):
         leaf_bsdf_dict(specular=-0.1)
+
+
+def test_albedo_table_is_kept_on_disk_bitwise(tmp_path, monkeypatch):
+    """The stored GGX albedo table is the computed one bit for bit; a damaged file is recomputed
+    and replaced, never used."""
+    from lightfit.light import bsdf
+
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path))
+    variant = backend.mitsuba().variant()
+    fresh = bsdf._compute_table(256, 3)
+    first = bsdf._stored_table(variant, 256, 3)  # computes and stores
+    (path,) = (tmp_path / "tables").glob("*.npy")
+    assert np.array_equal(first, fresh) and np.array_equal(np.load(path), fresh)
+    assert np.array_equal(bsdf._stored_table(variant, 256, 3), fresh)  # read back
+    path.write_bytes(path.read_bytes()[:100])  # truncated
+    assert np.array_equal(bsdf._stored_table(variant, 256, 3), fresh)
+    assert np.array_equal(np.load(path), fresh)
+    assert not np.array_equal(bsdf._stored_table(variant, 256, 4), fresh)  # another seed, another file
+    assert len(list((tmp_path / "tables").glob("*.npy"))) == 2

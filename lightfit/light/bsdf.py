@@ -259,6 +259,8 @@ def leaf_bsdf_dict(
 
 
 _ALBEDO_TABLE: dict[str, np.ndarray] = {}
+#: Bump when :func:`_compute_table` changes what it estimates: stored tables are then not read.
+_TABLE_FORMAT = 1
 TABLE_MU = np.linspace(0.0, 1.0, 33)
 TABLE_R = np.linspace(0.0, 1.0, 33)  # roughness r; α = max(r², ALPHA_MIN)
 
@@ -273,24 +275,62 @@ def ggx_albedo_table(n_samples: int = 16384, seed: int = 0) -> np.ndarray:
     """
     key = mitsuba().variant()
     if key not in _ALBEDO_TABLE:
-        mi = mitsuba()
-        import drjit as dr
-
-        mu, r = np.meshgrid(np.maximum(TABLE_MU, 1e-3), TABLE_R, indexing="ij")
-        n = mu.size * n_samples
-        mu_f = np.repeat(mu.ravel(), n_samples).astype(np.float32)
-        alpha = np.maximum(np.repeat(r.ravel(), n_samples) ** 2, ALPHA_MIN).astype(np.float32)
-        wi = mi.Vector3f(mi.Float(np.sqrt(1 - mu_f**2)), 0.0, mi.Float(mu_f))
-        distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, mi.Float(alpha), True)
-        s = mi.load_dict({"type": "independent"})
-        s.seed(seed, n)
-        m, pdf_m = distr.sample(wi, s.next_2d())
-        wo = mi.reflect(wi, m)
-        # f·cos θo / pdf(ωo) with f = D G / (4 cos θi cos θo) and pdf(ωo) = pdf(m) / (4 |ωo·m|)
-        w = distr.eval(m) * distr.G(wi, wo, m) * dr.abs(dr.dot(wo, m)) / (mi.Float(mu_f) * pdf_m)
-        w = dr.select((mi.Frame3f.cos_theta(wo) > 0) & (pdf_m > 0), w, 0.0)
-        _ALBEDO_TABLE[key] = np.asarray(w, dtype=np.float64).reshape(mu.size, n_samples).mean(1).reshape(mu.shape)
+        _ALBEDO_TABLE[key] = _stored_table(key, n_samples, seed)
     return _ALBEDO_TABLE[key]
+
+
+def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
+    """:func:`ggx_albedo_table` kept on disk (``<cache root>/tables``, :mod:`lightfit.cache`): its
+    17 M samples cost 3–5 s of CPU in every process. The file name carries everything the table
+    depends on (format, variant, Mitsuba version, grid, samples, seed), so a stale file is never read; a
+    file that does not load as the expected finite table is recomputed and replaced."""
+    import os
+
+    from lightfit.cache import cache_root
+
+    mi = mitsuba()
+    shape = (len(TABLE_MU), len(TABLE_R))
+    path = (
+        cache_root()
+        / "tables"
+        / f"ggx_albedo_v{_TABLE_FORMAT}_{variant}_{mi.__version__}_{shape[0]}x{shape[1]}_{n_samples}_{seed}.npy"
+    )
+    try:
+        table = np.load(path)
+        if table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all():
+            return table
+    except (OSError, ValueError):
+        pass
+    table = _compute_table(n_samples, seed)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
+        np.save(tmp, table)
+        os.replace(tmp, path)  # atomic: another process reads the whole table or none
+    except OSError:
+        pass  # a read-only cache costs time, not results
+    return table
+
+
+def _compute_table(n_samples: int, seed: int) -> np.ndarray:
+    """The Monte Carlo estimate of :func:`ggx_albedo_table` in the current Mitsuba variant."""
+    mi = mitsuba()
+    import drjit as dr
+
+    mu, r = np.meshgrid(np.maximum(TABLE_MU, 1e-3), TABLE_R, indexing="ij")
+    n = mu.size * n_samples
+    mu_f = np.repeat(mu.ravel(), n_samples).astype(np.float32)
+    alpha = np.maximum(np.repeat(r.ravel(), n_samples) ** 2, ALPHA_MIN).astype(np.float32)
+    wi = mi.Vector3f(mi.Float(np.sqrt(1 - mu_f**2)), 0.0, mi.Float(mu_f))
+    distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, mi.Float(alpha), True)
+    s = mi.load_dict({"type": "independent"})
+    s.seed(seed, n)
+    m, pdf_m = distr.sample(wi, s.next_2d())
+    wo = mi.reflect(wi, m)
+    # f·cos θo / pdf(ωo) with f = D G / (4 cos θi cos θo) and pdf(ωo) = pdf(m) / (4 |ωo·m|)
+    w = distr.eval(m) * distr.G(wi, wo, m) * dr.abs(dr.dot(wo, m)) / (mi.Float(mu_f) * pdf_m)
+    w = dr.select((mi.Frame3f.cos_theta(wo) > 0) & (pdf_m > 0), w, 0.0)
+    return np.asarray(w, dtype=np.float64).reshape(mu.size, n_samples).mean(1).reshape(mu.shape)
 
 
 def ggx_white_sky_albedo(roughness: float) -> float:
