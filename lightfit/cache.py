@@ -2,8 +2,9 @@
 
 ``$LIGHTFIT_CACHE`` if set, else ``~/.cache/lightfit``. Below it: ``plants/`` (grown plants,
 :mod:`lightfit.plant.cache`), ``designs/`` (emulator design renders and fitted emulators,
-:func:`lightfit.model.emulator.design_dir`) and ``jax/`` (JAX's persistent compilation cache,
-:func:`lightfit.precision.use_compilation_cache`). Deleting any of them is safe: it costs time,
+:func:`lightfit.model.emulator.design_dir`), ``jax/`` (JAX's persistent compilation cache,
+:func:`lightfit.precision.use_compilation_cache`) and ``tables/`` (the GGX albedo table,
+:func:`lightfit.light.bsdf.ggx_albedo_table`). Deleting any of them is safe: it costs time,
 never results.
 """
 
