@@ -343,3 +343,27 @@ def test_bad_inputs():
         fs.set_optics(subsurface=2.0)
     with pytest.raises(InputError, match="unknown output"):
         SegmentEstimator(fs, ids[:3], samples=4).vjp({"absorbed": np.ones(3)})
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_gradient_after_a_render_reuses_its_shadow_rays_bitwise(periodic):
+    """A vjp at the sun of the last render reuses that render's shadow rays: the gradient is
+    bitwise that of an estimator that never rendered; after the sun moves it casts its own."""
+    if periodic:
+        g = build(Field(n_plants=4, seed=1, boundary="periodic"))
+        ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
+    else:
+        g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    ct = {"absorbed_sun": np.ones(len(ids)), "incident_sky": np.full(len(ids), 0.1)}
+    for el, az in ((45.0, 180.0), (20.0, 100.0)):
+        fs.set_sun(el, az)
+        fresh = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=3).vjp(ct)
+        est = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=3)
+        fs.set_sun(60.0, 200.0)
+        est.render()  # shadow rays of another sun: not reused
+        fs.set_sun(el, az)
+        assert est.vjp(ct) == fresh
+        est.render()
+        assert est._sun_kept[0] == est._sun_key()  # kept, and used by the next vjp
+        assert est.vjp(ct) == fresh

@@ -393,7 +393,9 @@ class SegmentEstimator:
         geometry (:meth:`_geometry`), this sun's shadow rays (:meth:`_sun_rays`), weighed
         (:meth:`_weigh`, :meth:`_values`)."""
         geo = self._geometry()
-        return self._values(geo, self._weigh(geo), self._sun_rays(geo))
+        kept = getattr(self, "_sun_kept", None)
+        sun_rays = kept[1] if kept is not None and kept[0] == self._sun_key() else self._sun_rays(geo)
+        return self._values(geo, self._weigh(geo), sun_rays)
 
     def _trace(self, o, d, u):
         r"""The geometry of the paths from ``o`` along ``d``: what does not depend on the leaf
@@ -594,14 +596,22 @@ class SegmentEstimator:
             self._wrap_log, self._fuse = [], True
             try:
                 geo = self._geometry()
-                vals = self._values(geo, self._weigh(geo), self._sun_rays(geo))
+                sun_rays = self._sun_rays(geo)
+                vals = self._values(geo, self._weigh(geo), sun_rays)
             finally:
                 self._fuse = False
             counts = self._wrap_counts(self._kept[2])
             # One evaluation of everything: the sun's shadow rays (periodic walks included) and
             # the weights are one kernel; evaluating the ray counts apart would recompute the walks.
-            dr.eval(vals, counts)
+            # The shadow rays' results are kept for a vjp at the same sun (the bridge's backward
+            # pass follows its forward pass): 4 + bounces bytes per evaluation.
+            dr.eval(vals, counts, *(() if sun_rays is None else (sun_rays,)))
+            self._sun_kept = (self._sun_key(), sun_rays)
             return self._irradiance(vals, self._wrap_summary(counts))
+
+    def _sun_key(self):
+        """What the shadow rays depend on: the kept geometry and the sun."""
+        return (self._kept[0], tuple(float(c) for c in self.fs.sun))
 
     def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):
         """:meth:`render` at many leaf-parameter points and suns, tracing the paths once.
