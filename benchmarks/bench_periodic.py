@@ -241,14 +241,19 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repe
     import matplotlib
     import xarray as xr
 
+    jobs = [(*j, None)[:4] for j in jobs]  # (name, options, what, source tree or None: this checkout)
     out = {
-        name: {"command": "lightfit replicate --out DIR " + " ".join(extra), "what": what} for name, extra, what in jobs
+        name: {"command": "lightfit replicate --out DIR " + " ".join(extra), "what": what}
+        | ({} if tree is None else {"source": str(tree)})
+        for name, extra, what, tree in jobs
     }
     for state in ("cold",) + ("warm",) * warm_repeats:
-        for name, extra, _ in jobs:
+        for name, extra, _, tree in jobs:
             cache, home = tmp / f"cache_{name}", tmp / f"home_{name}"
             home.mkdir(exist_ok=True)
             env = dict(os.environ, LIGHTFIT_CACHE=str(cache), HOME=str(home), MPLCONFIGDIR=matplotlib.get_configdir())
+            if tree is not None:  # lightfit imported from that checkout (the venv's install points here)
+                env["PYTHONPATH"] = str(tree)
             argv = ["-m", "lightfit.cli", "replicate", "--out", str(tmp / f"main_{name}"), *options, *extra]
             wall, rss, rc, cpu = _child(argv, env, cpu=True)
             if rc != 0:
@@ -277,11 +282,14 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repe
                 r["warm"] = {k: float(np.mean([x[k] for x in r["warm_runs"]])) for k in run}
             print(f"main job {name} ({state}): {wall:.0f} s wall, {cpu:.0f} s CPU, {rss:.0f} MB")
     ref = out.get("old_default")
+    base = next((r for r in out.values() if "source" in r), None)
     for r in out.values():
         for state in ("cold", "warm"):
             if ref is not None:
                 r[state]["cpu_vs_old_default"] = r[state]["cpu_s"] / ref[state]["cpu_s"]
                 r[state]["wall_vs_old_default"] = r[state]["wall_s"] / ref[state]["wall_s"]
+            if base is not None:
+                r[state]["cpu_vs_baseline"] = r[state]["cpu_s"] / base[state]["cpu_s"]
     return out
 
 
@@ -402,13 +410,32 @@ if __name__ == "__main__":
         "main_job_rerun section; the rest of the results file is kept",
     )
     ap.add_argument("--warm-repeats", type=int, default=1, help="warm rounds of the main jobs (taking turns)")
+    ap.add_argument(
+        "--baseline-commit",
+        metavar="REF",
+        help="with --main-job-only: also time the default main job of this commit (checked out in a temporary "
+        "git worktree), e.g. the commit before the periodic boundary, as the job 'default_at_REF'",
+    )
     a = ap.parse_args()
     if a.main_job_only:
         names = a.main_job_only.split(",")
         with tempfile.TemporaryDirectory(prefix="lightfit-bench-periodic-") as d:
-            mj = main_job(
-                Path(d), tuple(a.main_job_options.split()), [j for j in MAIN_JOBS if j[0] in names], a.warm_repeats
-            )
+            jobs = [j for j in MAIN_JOBS if j[0] in names]
+            if a.baseline_commit:
+                tree = Path(d) / "baseline"
+                subprocess.run(
+                    ["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach", str(tree), a.baseline_commit],
+                    check=True,
+                )
+                sha = subprocess.run(
+                    ["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+                ).stdout.strip()
+                jobs.append((f"default_at_{sha}", (), f"the default main job of commit {sha}", tree))
+            try:
+                mj = main_job(Path(d), tuple(a.main_job_options.split()), jobs, a.warm_repeats)
+            finally:
+                if a.baseline_commit:
+                    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False)
         res = json.loads(OUT.read_text()) if OUT.exists() else {}
         res["main_job_rerun"] = {
             "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
@@ -420,9 +447,11 @@ if __name__ == "__main__":
         OUT.write_text(json.dumps(res, indent=1, default=float))
         for name, r in mj.items():
             c, w = r["cold"], r["warm"]
+            nan = float("nan")
             print(
-                f"{name}: cold {c['cpu_s']:.1f} s CPU ({c.get('cpu_vs_old_default', float('nan')):.2f}x), "
-                f"warm {w['cpu_s']:.1f} s CPU ({w.get('cpu_vs_old_default', float('nan')):.2f}x), "
+                f"{name}: cold {c['cpu_s']:.1f} s CPU ({c.get('cpu_vs_old_default', nan):.2f}x old default, "
+                f"{c.get('cpu_vs_baseline', nan):.2f}x baseline), warm {w['cpu_s']:.1f} s CPU "
+                f"({w.get('cpu_vs_old_default', nan):.2f}x, {w.get('cpu_vs_baseline', nan):.2f}x), "
                 f"warm runs {[round(x['cpu_s'], 1) for x in r['warm_runs']]}"
             )
         print(f"wrote {OUT} (main_job_rerun)")
