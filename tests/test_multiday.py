@@ -101,7 +101,7 @@ def test_multiday_likelihood_is_the_sum_of_the_days(days):
         MultiDayModel({DATES[0]: fixed[DATES[0]], DATES[1]: grey})
 
 
-@pytest.mark.slow  # 16 s alone (5 s after the test above), load 3: compiling the emulated days
+@pytest.mark.slow  # 16 s alone (5 s after the test above), load 3: compiles the days' emulated forwards
 def test_multiday_posterior_on_emulators_is_the_sum_of_the_days(days):
     """The posterior's two-date path on emulators, as ``lightfit posterior --date … --date …`` builds it
     (one emulator per day, :func:`joined` fast forwards, Monte Carlo correlation from the emulated days at
