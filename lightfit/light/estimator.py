@@ -61,6 +61,11 @@ from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
 from lightfit.light.scene import FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
+#: Version of the estimator's random numbers and sampling: bumped whenever a change moves rendered
+#: values (not only their rounding), so that renders kept on disk (emulator designs, keyed by
+#: :func:`lightfit.model.emulator.render_key`) from before the change are not reused with renders
+#: from after it. 2: low-dimensional Kronecker sequences for the point and first directions.
+ESTIMATOR_VERSION = 2
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
 # first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
 # albedo (kept in the numbering, never generated); then 3 per scattering order and side.

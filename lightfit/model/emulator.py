@@ -56,7 +56,7 @@ from lightfit.cache import ENV_CACHE, cache_root
 from lightfit.errors import InputError
 from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
-from lightfit.light.estimator import PARTS
+from lightfit.light.estimator import ESTIMATOR_VERSION, PARTS
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
@@ -107,14 +107,14 @@ def render_key(model: CoupledModel) -> dict:
     """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
     settings (samples, bounces, seed; target_rse and the cap when adaptive), sky, optics, the field
     (plants, growth parameter file, boundary) and its geometry (hash of the segment table), the
-    measured segments, times, sun positions and the daytime mask, and the lightfit, Mitsuba and
-    Dr.Jit versions. JSON-ready."""
+    measured segments, times, sun positions and the daytime mask, and the lightfit, estimator
+    (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba and Dr.Jit versions. JSON-ready."""
     import pandas as pd
 
     from lightfit import __version__
 
     sc = model.scenario
-    versions = {"lightfit": __version__}
+    versions = {"lightfit": __version__, "estimator": ESTIMATOR_VERSION}
     for pkg in ("mitsuba", "drjit"):
         try:
             versions[pkg] = importlib.metadata.version(pkg)
