@@ -287,6 +287,7 @@ def cli(
     posterior_after: bool = False,
     posterior: bool = True,
     out: Path | None = None,
+    calibrate: bool = True,
 ) -> dict:
     """The surrogate commands benchmark (see the module docstring)."""
     import os
@@ -353,6 +354,7 @@ def cli(
         + f" --max-minutes {max_minutes:g}"
         + (" --posterior-after" if posterior_after else "")
         + ("" if posterior else " --no-posterior")
+        + ("" if calibrate else " --no-calibrate")
         + ("" if out is None else f" --json {out}"),
         "config": config,
         "machine": f"{os.cpu_count()} CPU cores; load average recorded before/after each stage; one run",
@@ -362,22 +364,25 @@ def cli(
         "posterior >= 50 effective samples per parameter in <= 20 min cold",
         "git": git_state(),
     }
-    res["calibrate_cold"] = run([*cal, "--out", str(work / "cal1")], work / "cache")
-    res["calibrate_cached"] = run([*cal, "--out", str(work / "cal2")], work / "cache")
-    c = json.loads((work / "cal1" / "calibration.json").read_text())
-    c2 = json.loads((work / "cal2" / "calibration.json").read_text())
-    for key, rec in (("calibrate_cold", c), ("calibrate_cached", c2)):
-        s = rec["surrogate"]
-        res[key] |= {
-            "renders_new": s["renders_new"],
-            "renders_cached": s["renders_cached"],
-            "check_passed": s["passed"],
-            "rounds": len(s["rounds"]),
+    if calibrate:
+        res["calibrate_cold"] = run([*cal, "--out", str(work / "cal1")], work / "cache")
+        res["calibrate_cached"] = run([*cal, "--out", str(work / "cal2")], work / "cache")
+        c = json.loads((work / "cal1" / "calibration.json").read_text())
+        c2 = json.loads((work / "cal2" / "calibration.json").read_text())
+        for key, rec in (("calibrate_cold", c), ("calibrate_cached", c2)):
+            s = rec["surrogate"]
+            res[key] |= {
+                "renders_new": s["renders_new"],
+                "renders_cached": s["renders_cached"],
+                "check_passed": s["passed"],
+                "rounds": len(s["rounds"]),
+            }
+        res["calibration"] = {k: c[k] for k in ("theta", "loss", "steps", "stopped_by")} | {
+            "check": {k: v for k, v in c["surrogate"].items() if k != "rounds"},
+            "rounds": c["surrogate"]["rounds"],
         }
-    res["calibration"] = {k: c[k] for k in ("theta", "loss", "steps", "stopped_by")} | {
-        "check": {k: v for k, v in c["surrogate"].items() if k != "rounds"},
-        "rounds": c["surrogate"]["rounds"],
-    }
+    else:
+        res["calibrate_cold"] = res["calibrate_cached"] = "not run (--no-calibrate)"
     stages = [("posterior_cold", work / "cache_cold", "post_cold")] if posterior else []
     if not posterior:
         res["posterior_cold"] = "not run (--no-posterior)"
@@ -439,10 +444,11 @@ if __name__ == "__main__":
     ap.add_argument("--max-minutes", type=float, default=14.0, help="with --cli: posterior's sampling budget")
     ap.add_argument("--posterior-after", action="store_true", help="with --cli: also the posterior after calibrate")
     ap.add_argument("--no-posterior", action="store_true", help="with --cli: calibrate cold and cached only")
+    ap.add_argument("--no-calibrate", action="store_true", help="with --cli: the cold posterior only")
     ap.add_argument("--json", type=Path, default=None, help="with --cli: output (default calibration_cli_<config>)")
     a = ap.parse_args()
     if a.cli:
-        cli(a.cli, a.design, a.max_minutes, a.posterior_after, not a.no_posterior, a.json)
+        cli(a.cli, a.design, a.max_minutes, a.posterior_after, not a.no_posterior, a.json, not a.no_calibrate)
     elif a.gradients:
         main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x))
     else:
