@@ -181,10 +181,13 @@ def test_twin_light_factor_is_covered_only_with_the_monte_carlo_covariance(twin)
     the model's (same samples, another seed): ``mc_scale=2``.
 
     With the Monte Carlo covariance the truth lies in the 90 % interval; with independent steps
-    (the likelihood before issue 15) the posterior is ≈ 2× too narrow and misses by > 4 SD.
-    Seed 216 is one of 20 twin seeds tried (201–220; docs/posterior.md "Monte Carlo covariance"):
-    over them the diagonal likelihood's 90 % interval held the truth 9 times, the full one 15 times
-    (all 20 share the model's one render, whose own error shifts every z by ≈ +1.1)."""
+    (the likelihood before issue 15) the posterior is more than 1.5× too narrow. Seed 216 is one
+    of 20 twin seeds tried (201–220; docs/posterior.md "Monte Carlo covariance"): over them, with
+    the estimator's random numbers before the sequence fix (665b9b7), the diagonal likelihood's
+    90 % interval held the truth 9 times, the full one 15 times, and at 216 the diagonal one missed
+    by > 4 SD. With today's random numbers (less Monte Carlo error) the diagonal interval at 216
+    holds the truth by chance (1.097–1.118), so the test keeps what does not depend on the draw:
+    the width ratio (all 20 share the model's one render, whose own error shifts every z)."""
     fixed, obs, corr = twin
     grid = np.linspace(1.02, 1.18, 321)
     keys = [k for s in (PAR, AN) for k in (s.value, s.mc_sd)]
@@ -202,8 +205,6 @@ def test_twin_light_factor_is_covered_only_with_the_monte_carlo_covariance(twin)
     lo, hi = interval(mc_correlation=corr, mc_scale=2.0)
     assert lo < TWIN_TRUTH.light_factor < hi, (lo, hi)
     lo_old, hi_old = interval()
-    assert not lo_old < TWIN_TRUTH.light_factor < hi_old, (lo_old, hi_old)
-    assert (hi - lo) > 1.5 * (hi_old - lo_old)
-    # the old interval misses by more than 4 of its SDs (90 % interval = ±1.645 SD)
-    sd_old = (hi_old - lo_old) / (2 * 1.645)
-    assert abs(0.5 * (lo_old + hi_old) - TWIN_TRUTH.light_factor) > 4 * sd_old
+    # The independent-steps interval is too narrow whatever the draw: it ignores the Monte Carlo
+    # error shared across steps (both the model's and the twin's copy).
+    assert (hi - lo) > 1.5 * (hi_old - lo_old), ((lo, hi), (lo_old, hi_old))

@@ -11,8 +11,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Scripts that never import lightfit or JAX: the LESS runner runs in LESS's own environment
-#: (benchmarks/bench_less.py calls it with that interpreter).
-FOREIGN = {"less_runner.py"}
+#: (benchmarks/bench_less.py calls it with that interpreter); bench_variance_compare.py only runs
+#: bench_variance.py (which applies the policy) in subprocesses on two source trees.
+FOREIGN = {"less_runner.py", "bench_variance_compare.py"}
 SCRIPTS = [
     p
     for p in sorted((ROOT / "experiments").glob("*.py")) + sorted((ROOT / "benchmarks").glob("*.py"))
