@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from lightfit.cache import ENV_CACHE
 from lightfit.distributed import connect
 from lightfit.distributed.design import design_renderer, missing_points, render_design, step_masks
 from lightfit.errors import InputError
@@ -111,7 +112,7 @@ def test_posterior_cli_workers_renders_the_design_on_the_cluster(tmp_path, monke
     reported as this run's new renders."""
     from lightfit.cli import app
 
-    monkeypatch.setenv(E.CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path / "cache"))
     obs = tmp_path / "obs.csv"
     obs.write_text(OBS, encoding="utf-8")
     args = ["posterior", str(obs), "--quick", "--steps", "12:15", "--n-design", "6", "--parameters", "specular"]

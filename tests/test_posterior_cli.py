@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from lightfit.cache import ENV_CACHE
 from lightfit.cli import app
 from lightfit.inference.mcmc import load_run
 from lightfit.model import emulator as E
@@ -16,7 +17,7 @@ from lightfit.model import emulator as E
 @pytest.fixture(autouse=True)
 def design_cache(tmp_path, monkeypatch):
     """Every test its own shared design cache (never the user's ~/.cache/lightfit)."""
-    monkeypatch.setenv(E.CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path / "cache"))
     return tmp_path / "cache"
 
 

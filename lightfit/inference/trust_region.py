@@ -194,7 +194,7 @@ def surrogate_calibrate(
         lo, hi: emulator box of (specular, roughness, subsurface): the posterior's prior support, so
             that both commands share one design.
         n_design, design_seed: Sobol design of the first round.
-        cache: shared cache root (:func:`~lightfit.model.emulator.cache_root`).
+        cache: shared cache root (:func:`~lightfit.cache.cache_root`).
         out: directory for ``trust_region.jsonl`` and the rounds' optimiser histories.
         max_rounds: most emulator rounds (each adds one render when its check fails).
         z: acceptance threshold in σ_L.

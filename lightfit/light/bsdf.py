@@ -29,6 +29,8 @@ for light from ω_i is :math:`1 - F_0 E_{GGX}(\theta_i) - (1 - F_0)c`.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from lightfit.light.backend import mitsuba
@@ -284,8 +286,6 @@ def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
     17 M samples cost 3–5 s of CPU in every process. The file name carries everything the table
     depends on (format, variant, Mitsuba version, grid, samples, seed), so a stale file is never read; a
     file that does not load as the expected finite table is recomputed and replaced."""
-    import os
-
     from lightfit.cache import cache_root
 
     mi = mitsuba()

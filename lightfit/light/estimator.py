@@ -273,6 +273,7 @@ class SegmentEstimator:
         # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
         self._fuse = False
         self._kept = None  # (key, geometry, ray counts) of _geometry
+        self._sun_kept = None  # (_sun_key(), shadow rays) of the last render, for vjp
         self.is_blade = np.zeros(len(seg), bool)
         np.logical_or.at(self.is_blade, seg_i, blade)
 
@@ -398,7 +399,7 @@ class SegmentEstimator:
         geometry (:meth:`_geometry`), this sun's shadow rays (:meth:`_sun_rays`), weighed
         (:meth:`_weigh`, :meth:`_values`)."""
         geo = self._geometry()
-        kept = getattr(self, "_sun_kept", None)
+        kept = self._sun_kept
         sun_rays = kept[1] if kept is not None and kept[0] == self._sun_key() else self._sun_rays(geo)
         return self._values(geo, self._weigh(geo), sun_rays)
 

@@ -27,7 +27,7 @@ with its :func:`emulator_key` — design size and seed, box, degrees and the ren
 field geometry, optics, estimator settings, sun positions and times, lightfit/Mitsuba versions) —
 and reused only when the key matches; otherwise it is refitted, saying which entries changed.
 
-Shared design cache (:func:`cache_root`, :func:`design_dir`): ``lightfit calibrate`` and ``lightfit
+Shared design cache (:func:`lightfit.cache.cache_root`, :func:`design_dir`): ``lightfit calibrate`` and ``lightfit
 posterior`` keep their design renders and fitted emulators in one directory per render key,
 ``<cache>/designs/<hash of render_key>/`` with ``<cache>`` = ``$LIGHTFIT_CACHE`` or
 ``~/.cache/lightfit``, so a calibration followed by a posterior of the same configuration renders
@@ -52,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from lightfit.cache import ENV_CACHE, cache_root
+from lightfit.cache import cache_root
 from lightfit.errors import InputError
 from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -468,9 +468,6 @@ def cached_emulator(
     return emu
 
 
-#: Environment variable naming the shared cache directory (default ``~/.cache/lightfit``).
-CACHE_ENV = ENV_CACHE
-
 #: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
 #: emulator, so one command's design serves the other).
 DESIGN_SIZE = 20
@@ -666,12 +663,10 @@ def emulated_model(model: CoupledModel, emulator: PartsEmulator) -> CoupledModel
 
 
 __all__ = [
-    "CACHE_ENV",
     "COUNTS",
     "DESIGN_SIZE",
     "FastObservables",
     "PartsEmulator",
-    "cache_root",
     "design_dir",
     "restrict",
     "shared_emulator",
