@@ -393,6 +393,13 @@ def prepare_environment(
     return env, cast_params(params, dtype)
 
 
+def _prepared(config: SolverConfig | None, *args, **kwargs):
+    """:func:`prepare_environment` of ``args``/``kwargs``, and ``config`` or, if ``None``, the
+    default :class:`SolverConfig` for the inputs' dtype: what every solver entry point starts with."""
+    env, params = prepare_environment(*args, **kwargs)
+    return env, params, SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype) if config is None else config
+
+
 def solve(
     par_abs_umol_m2_s: ArrayLike,
     tleaf_c: ArrayLike,
@@ -435,11 +442,18 @@ def solve(
         ValueError / TypeError: inputs of the wrong shape, type or range (checked before
             jit on concrete values).
     """
-    env, params = prepare_environment(
-        par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, params, vpd_kpa=vpd_kpa, gb_mol_m2_s=gb_mol_m2_s, fw=fw
+    env, params, config = _prepared(
+        config,
+        par_abs_umol_m2_s,
+        tleaf_c,
+        co2_ppm,
+        rh,
+        pair_kpa,
+        params,
+        vpd_kpa=vpd_kpa,
+        gb_mol_m2_s=gb_mol_m2_s,
+        fw=fw,
     )
-    if config is None:
-        config = SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype)
     return _solve_jit(env, params, config)
 
 
@@ -465,11 +479,18 @@ def solve_with_par_slope(
     the cost of one compilation instead of two and one solve instead of two. Its output is
     differentiable like :func:`solve`'s.
     """
-    env, params = prepare_environment(
-        par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, params, vpd_kpa=vpd_kpa, gb_mol_m2_s=gb_mol_m2_s, fw=fw
+    env, params, config = _prepared(
+        config,
+        par_abs_umol_m2_s,
+        tleaf_c,
+        co2_ppm,
+        rh,
+        pair_kpa,
+        params,
+        vpd_kpa=vpd_kpa,
+        gb_mol_m2_s=gb_mol_m2_s,
+        fw=fw,
     )
-    if config is None:
-        config = SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype)
     return _solve_slope_jit(env, params, config)
 
 
@@ -492,11 +513,18 @@ def solve_plain_iteration(
     benchmark and to test the robust solver against. Not differentiable by design.
     Coupled closures only.
     """
-    env, params = prepare_environment(
-        par_abs_umol_m2_s, tleaf_c, co2_ppm, rh, pair_kpa, params, vpd_kpa=vpd_kpa, gb_mol_m2_s=gb_mol_m2_s, fw=fw
+    env, params, config = _prepared(
+        config,
+        par_abs_umol_m2_s,
+        tleaf_c,
+        co2_ppm,
+        rh,
+        pair_kpa,
+        params,
+        vpd_kpa=vpd_kpa,
+        gb_mol_m2_s=gb_mol_m2_s,
+        fw=fw,
     )
     if params.stomata.model == "cplantbox":
         raise ValueError("params.stomata.model: 'cplantbox' is closed-form; plain iteration needs a coupled closure")
-    if config is None:
-        config = SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype)
     return _plain_jit(env, params, config)
