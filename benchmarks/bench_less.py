@@ -218,7 +218,7 @@ def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
     }
 
 
-def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console) -> dict:
+def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None) -> dict:
     fld = Field(n_plants=n_plants, seed=1, boundary=boundary)
     geom = build(fld)
     t = time.perf_counter()
@@ -259,15 +259,37 @@ def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console) -> dic
             target,
             scene_s,
             console,
+            lf_alloc,
         )
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
 
 def _run_in(
-    folder, geom, fs, boundary, runs, seg_ids, seg_index, n_seg, area, lf_k, less_n, reps, target, scene_s, console
+    folder,
+    geom,
+    fs,
+    boundary,
+    runs,
+    seg_ids,
+    seg_index,
+    n_seg,
+    area,
+    lf_k,
+    less_n,
+    reps,
+    target,
+    scene_s,
+    console,
+    lf_alloc=None,
 ) -> dict:
     exp = export(geom, boundary, folder, runs)
+    blade = np.zeros(n_seg, bool)
+    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
+    classes = {"blades": blade, "stems": ~blade, "all": np.ones(n_seg, bool)}
+    # Per-class allocation (--allocated-samples): each class rendered on its own at its own K.
+    alloc = {} if lf_alloc is None else {"blades": int(lf_alloc[0]), "stems": int(lf_alloc[1])}
+    lf_class = {c: [] for c in alloc}
     console.print(f"[{boundary}] {n_seg} segments, {geom.mesh.n_faces} faces ({exp['n_exported']} exported to LESS)")
     # Taking turns, replicate by replicate, so that both tools meet the same load on the shared
     # cores: LESS (one process per replicate: one face order, one scene build), then lightfit's
@@ -287,11 +309,11 @@ def _run_in(
             t = time.perf_counter()
             r = SegmentEstimator(fs, seg_ids, samples=k, bounces=BOUNCES, seed=rep).render()
             lf[k].append((time.perf_counter() - t, r))
+        for c, k in alloc.items():
+            t = time.perf_counter()
+            r = SegmentEstimator(fs, seg_ids[classes[c]], samples=k, bounces=BOUNCES, seed=rep).render()
+            lf_class[c].append((time.perf_counter() - t, r))
         console.print(f"[{boundary}] replicate {rep}/{reps} done, load average {os.getloadavg()[0]:.1f}")
-
-    blade = np.zeros(n_seg, bool)
-    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
-    classes = {"blades": blade, "stems": ~blade, "all": np.ones(n_seg, bool)}
 
     # Agreement per part at the largest sample counts.
     res_agree = {}
@@ -331,6 +353,7 @@ def _run_in(
             eq[tool] = equal_noise(pts, target)
         eq["speedup_lightfit_over_less"] = eq["less"]["time_s_at_target"] / eq["lightfit"]["time_s_at_target"]
         res_equal[c] = eq
+    res_alloc = allocated(lf_class, res_noise["less"]) if alloc else None
     return {
         "boundary": boundary,
         "plants_grown": int(len(geom.plants)),
@@ -345,10 +368,49 @@ def _run_in(
         "agreement": res_agree,
         "noise": {t: {str(k): v for k, v in d.items()} for t, d in res_noise.items()},
         "equal_noise": res_equal,
+        **({} if res_alloc is None else {"allocated": res_alloc}),
     }
 
 
-def main(n_plants, boundaries, less_n, lf_k, reps, target) -> dict | None:
+def allocated(lf_class: dict, less_noise: dict) -> dict:
+    """lightfit with each class at its own K, against LESS at the error lightfit reached.
+
+    ``lf_class[c]``: per replicate (time, render of class c's segments alone at its K). Per class:
+    lightfit's measured time and median relative SE (seed spread), and LESS's time to that same
+    median from its fit (:func:`equal_noise`). ``both``: lightfit's two renders together (every
+    segment, each class at its K) against LESS at the larger of the two classes' n (LESS has one n
+    for every triangle).
+    """
+    out = {}
+    for c, runs in lf_class.items():
+        vals = np.array([r.total("absorbed", 1.0, MIX_DHI) for _, r in runs])
+        reached = float(np.nanmedian(rel_spread(vals)))
+        pts = [{"n": n, "median_rse": v[c], "time_s": v["time_s"]} for n, v in sorted(less_noise.items())]
+        less = equal_noise(pts, reached)
+        t = float(np.median([x[0] for x in runs]))
+        out[c] = {
+            "lightfit_samples": int(runs[0][1].samples),
+            "lightfit_segments": int(len(runs[0][1].segment_id)),
+            "lightfit_time_s": t,
+            "reached_median_rse": reached,
+            "less": less,
+            "speedup_lightfit_over_less": less["time_s_at_target"] / t,
+        }
+    if len(out) == 2:
+        t = sum(v["lightfit_time_s"] for v in out.values())
+        n = max(v["less"]["n_at_target"] for v in out.values())
+        less = next(iter(out.values()))["less"]
+        t_less = less["overhead_s"] + less["s_per_n"] * n
+        out["both"] = {
+            "lightfit_time_s": t,
+            "less_n": n,
+            "less_time_s": t_less,
+            "speedup_lightfit_over_less": t_less / t,
+        }
+    return out
+
+
+def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None) -> dict | None:
     console = Console()
     if not LESS_PYTHON.exists():
         console.print(
@@ -387,11 +449,12 @@ def main(n_plants, boundaries, less_n, lf_k, reps, target) -> dict | None:
             "less_samples_per_triangle_side": list(less_n),
             "lightfit_samples_per_segment": list(lf_k),
             "n_plants_measured": n_plants,
+            "lightfit_allocated_samples_blades_stems": None if lf_alloc is None else list(lf_alloc),
         },
         "results": {},
     }
     for b in boundaries:
-        res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console)
+        res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console, lf_alloc)
     res["load_average_end"] = os.getloadavg()[0]
     if OUT.exists():  # keep the last run of a boundary not run now, with its own conditions
         old = json.loads(OUT.read_text())
@@ -461,6 +524,32 @@ def print_tables(res: dict, console: Console) -> None:
                 f"{e['lightfit']['exponent']:.2f} / {e['less']['exponent']:.2f}",
             )
         console.print(t)
+        if "allocated" in r:
+            t = Table(title=f"{b}: lightfit with each class at its own K, LESS at the median error lightfit reached")
+            for c in ("segments", "lightfit K", "lightfit s", "median rel. SE", "LESS n", "LESS s", "LESS ÷ lightfit"):
+                t.add_column(c, justify="right")
+            for c, e in r["allocated"].items():
+                if c == "both":
+                    t.add_row(
+                        "both classes",
+                        "",
+                        f"{e['lightfit_time_s']:.2f}",
+                        "",
+                        f"{e['less_n']:.0f}",
+                        f"{e['less_time_s']:.2f}",
+                        f"{e['speedup_lightfit_over_less']:.2f}",
+                    )
+                    continue
+                t.add_row(
+                    c,
+                    str(e["lightfit_samples"]),
+                    f"{e['lightfit_time_s']:.2f}",
+                    f"{e['reached_median_rse']:.2%}",
+                    f"{e['less']['n_at_target']:.0f}",
+                    f"{e['less']['time_s_at_target']:.2f}",
+                    f"{e['speedup_lightfit_over_less']:.2f}",
+                )
+            console.print(t)
 
 
 if __name__ == "__main__":
@@ -471,6 +560,17 @@ if __name__ == "__main__":
     ap.add_argument("--lightfit-samples", type=int, nargs=2, default=[64, 256], help="lightfit K per segment")
     ap.add_argument("--replicates", type=int, default=4)
     ap.add_argument("--target", type=float, default=0.02, help="median relative SE for the equal-noise times")
+    ap.add_argument(
+        "--allocated-samples",
+        type=int,
+        nargs=2,
+        metavar=("K_BLADES", "K_STEMS"),
+        help="also render blades and stems each at its own K (e.g. the K each class needs for the target, "
+        "from a previous run's fits) and compare with LESS at the error reached",
+    )
     a = ap.parse_args()
-    if main(a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target) is None:
+    if (
+        main(a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target, a.allocated_samples)
+        is None
+    ):
         sys.exit(0)

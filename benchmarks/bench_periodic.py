@@ -37,6 +37,12 @@ after installing), then warm; wall time covers growing the plants, compiling ker
 every daytime step and the photosynthesis. CPU time (user + system of the child) is reported
 next to wall time: on a shared machine it is the steadier measure.
 
+Part 3, ``--step-costs``: where a main-job render step's CPU time goes, for the ``default`` and
+``old_default`` jobs in one process, taking turns step by step: the first daytime step (paths
+traced and kept) and the later ones split into the sun's shadow rays, the path weights, the
+values and the per-segment summary (each evaluated and synchronised on its own), with the rays
+each step casts per kind. Written to the results' ``step_costs`` section.
+
 Writes benchmarks/results/periodic.json and prints a table (Markdown, as in docs/light.md).
 """
 
@@ -293,6 +299,114 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repe
     return out
 
 
+def step_costs(rounds: int = 2) -> dict:
+    """CPU seconds per render step of the main jobs ``default`` and ``old_default`` (module doc, part 3).
+
+    Both estimators are built as the main job builds them (``lightfit.replication.model_for``:
+    its field, optics, samples, bounces and seed), then take turns at every daytime step, ``rounds``
+    times over the later steps. Rays per step: active lanes of each kind of shadow ray (direct
+    sun from the points, next-event from path vertices) at the last step.
+    """
+    import dataclasses
+
+    import drjit as dr
+
+    from lightfit import replication
+    from lightfit.light.estimator import SegmentEstimator
+    from lightfit.light.scene import FieldScene
+
+    def cpu():
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    w = replication.forcing()
+    configs = {
+        "default": replication.ReplicationConfig(),
+        "old_default": dataclasses.replace(replication.ReplicationConfig.paper(), bounces=3),
+    }
+    jobs = {}
+    for name, cfg in configs.items():
+        m = replication.model_for(cfg, w)
+        sc = m.scenario
+        fs = FieldScene(m.geometry.mesh, sc.optics, sky=sc.sky, cell=m.geometry.cell)
+        est = SegmentEstimator(fs, m.segment_id, samples=sc.samples, bounces=sc.bounces, seed=sc.seed)
+        jobs[name] = (est, m.sun_deg[m.day])
+    parts = ("sun_rays", "weights", "values", "summary", "render")
+    out = {
+        n: {
+            "boundary": "periodic" if e.fs.cell is not None else "finite",
+            "evaluations": e.n_evaluations,
+            "bounces": e.bounces,
+            "samples": e.samples,
+            "first_step_cpu_s": 0.0,
+            "later": dict.fromkeys(parts, 0.0),
+        }
+        for n, (e, _) in jobs.items()
+    }
+    for name, (est, suns) in jobs.items():
+        est.fs.set_sun(*suns[0])
+        c = cpu()
+        est.render()
+        dr.sync_thread()
+        out[name]["first_step_cpu_s"] = cpu() - c
+    n_later = len(next(iter(jobs.values()))[1]) - 1
+    for _ in range(rounds):
+        for i in range(1, n_later + 1):
+            for name, (est, suns) in jobs.items():
+                est.fs.set_sun(*suns[i])
+                acc = out[name]["later"]
+                with dr.suspend_grad():
+                    geo = est._geometry()
+                    c = cpu()
+                    rays = est._sun_rays(geo)
+                    dr.eval(rays)
+                    dr.sync_thread()
+                    acc["sun_rays"] += cpu() - c
+                    c = cpu()
+                    weights = est._weigh(geo)
+                    dr.eval(weights)
+                    dr.sync_thread()
+                    acc["weights"] += cpu() - c
+                    c = cpu()
+                    vals = est._values(geo, weights, rays)
+                    dr.eval(vals)
+                    dr.sync_thread()
+                    acc["values"] += cpu() - c
+                    c = cpu()
+                    est._irradiance(vals, None)
+                    acc["summary"] += cpu() - c
+                c = cpu()
+                est.render()
+                dr.sync_thread()
+                acc["render"] += cpu() - c
+    for name, (est, _) in jobs.items():
+        r = out[name]
+        r["later"] = {k: v / (rounds * n_later) for k, v in r["later"].items()}
+        # Shadow rays of the last step, per kind: direct sun where the side faces the sun, next-event
+        # rays from every leaf or soil vertex.
+        with dr.suspend_grad():
+            o, nrm, *_ = est._arrays()
+            geo = est._geometry()
+            sun = np.asarray(est.fs.sun)
+            r["rays_per_later_step"] = {
+                "sun": int(
+                    np.sum(np.asarray(nrm.x) * sun[0] + np.asarray(nrm.y) * sun[1] + np.asarray(nrm.z) * sun[2] > 0)
+                ),
+                **{
+                    f"nee_order_{d}": int(np.sum(np.asarray(g["hit_leaf"]) | np.asarray(g["hit_soil"])))
+                    for d, g in enumerate(geo[: est.bounces])
+                },
+            }
+        r["later"]["shadow_rays_per_cpu_s"] = sum(r["rays_per_later_step"].values()) / r["later"]["sun_rays"]
+    out["later_render_ratio_default_over_old"] = (
+        out["default"]["later"]["render"] / out["old_default"]["later"]["render"]
+    )
+    out["first_step_ratio_default_over_old"] = (
+        out["default"]["first_step_cpu_s"] / out["old_default"]["first_step_cpu_s"]
+    )
+    return out
+
+
 def _code_state() -> dict:
     """The commit measured and whether lightfit/ had uncommitted changes (they would be measured too)."""
 
@@ -416,8 +530,40 @@ if __name__ == "__main__":
         help="with --main-job-only: also time the default main job of this commit (checked out in a temporary "
         "git worktree), e.g. the commit before the periodic boundary, as the job 'default_at_REF'",
     )
+    ap.add_argument(
+        "--step-costs",
+        action="store_true",
+        help="only the CPU cost per render step of the default and old default main jobs (module doc, part 3), "
+        "written to the results' step_costs section",
+    )
     a = ap.parse_args()
-    if a.main_job_only:
+    if a.step_costs:
+        sc = step_costs()
+        res = json.loads(OUT.read_text()) if OUT.exists() else {}
+        res["step_costs"] = {
+            "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
+            "note": "CPU s (user + system) per step; later steps averaged over 2 rounds; parts evaluated apart",
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
+            "load_average_end": os.getloadavg()[0],
+            "code": _code_state(),
+            **sc,
+        }
+        OUT.write_text(json.dumps(res, indent=1, default=float))
+        print(
+            "| job | boundary | bounces | evaluations | first step s | later step s | sun rays | weights | values "
+            "| summary | shadow rays / step | shadow rays per CPU s |"
+        )
+        print("|" + "---|" * 12)
+        for name in ("default", "old_default"):
+            r = sc[name]
+            L = r["later"]
+            print(
+                f"| {name} | {r['boundary']} | {r['bounces']} | {r['evaluations']} | {r['first_step_cpu_s']:.2f} | "
+                f"{L['render']:.3f} | {L['sun_rays']:.3f} | {L['weights']:.3f} | {L['values']:.3f} | "
+                f"{L['summary']:.3f} | {sum(r['rays_per_later_step'].values())} | {L['shadow_rays_per_cpu_s']:.3g} |"
+            )
+        print(f"wrote {OUT} (step_costs)")
+    elif a.main_job_only:
         names = a.main_job_only.split(",")
         with tempfile.TemporaryDirectory(prefix="lightfit-bench-periodic-") as d:
             jobs = [j for j in MAIN_JOBS if j[0] in names]
