@@ -117,6 +117,12 @@ def replicate(
     for _, r in table.iterrows():
         t.add_row(*(_cell(r[c], SUMMARY_HEADS.get(c, (c, 3))[1]) for c in table.columns))
     console.print(t)
+    an, bias = (float(ds[v].sum()) for v in ("canopy_an_umol_m2_s", "canopy_an_mc_bias_umol_m2_s"))
+    if an > 0:
+        console.print(
+            f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
+            f"response; not subtracted): {bias / an:+.2%} at K={ds.attrs['samples']}, falling as 1/K (docs/model.md)"
+        )
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")

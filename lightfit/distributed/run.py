@@ -51,6 +51,9 @@ from lightfit.model.scenario import Scenario, daytime
 #: per segment: every tile renders them with the same layout, and gather takes tile 0's — exact
 #: when the tiles render the whole field (``halo_rows=None``, periodic), approximate with halos.
 AGGREGATES = tuple(k for k in schema.OBSERVABLES if k not in schema.SENSOR_OBSERVABLES)
+#: Per-time variables recomputed from the gathered per-segment values: the observables and the
+#: canopy's Monte Carlo bias (a sum over blades, like canopy An).
+RECOMPUTED = (*AGGREGATES, "canopy_an_mc_bias_umol_m2_s")
 ENV_THREADS = "LIGHTFIT_WORKER_THREADS"
 
 
@@ -202,7 +205,7 @@ def run_task(spec: TaskSpec):
 
 def _aggregates(out) -> dict:
     """The observables of the gathered per-segment values (:func:`lightfit.model.observe.observables`, numpy)."""
-    from lightfit.model.observe import above_canopy_par, an_denominator, observables
+    from lightfit.model.observe import above_canopy_par, an_denominator, area_total, observables
     from lightfit.weather.units import par_from_ghi
 
     area = out["area_m2"].values.astype(np.float64)
@@ -220,7 +223,11 @@ def _aggregates(out) -> dict:
         out["sun_elevation_deg"].values,
         float(out.attrs["theta_light_factor"]),
     )
-    return observables(
+    bias = {}
+    if "leaf_an_mc_bias_umol_m2_s" in out:
+        b = out["leaf_an_mc_bias_umol_m2_s"].values[:, blade]
+        bias["canopy_an_mc_bias_umol_m2_s"] = area_total(b, np.zeros_like(b), area[blade], denom)[0]
+    return bias | observables(
         par,
         par_sd,
         area,
@@ -256,7 +263,7 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
         raise InputError(f"task results cover {sorted(got)}", column="results", expected=f"all of {sorted(expected)}")
     ds0 = results[0][0]
     seg_vars = [v for v in ds0.data_vars if "segment" in schema.variable(v).dims]
-    time_vars = [v for v in ds0.data_vars if "segment" not in schema.variable(v).dims and v not in AGGREGATES]
+    time_vars = [v for v in ds0.data_vars if "segment" not in schema.variable(v).dims and v not in RECOMPUTED]
     chunks = []
     for c in range(run.time_chunks):
         part = sorted((r for r in results if r[1]["chunk"] == c), key=lambda r: r[1]["tile"])
@@ -274,7 +281,7 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
         raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
     out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.scenario.ground_area_m2}
     for k, v in _aggregates(out).items():
-        if k in AGGREGATES:
+        if k in RECOMPUTED:
             out[k] = ("time", v)
     out = schema.annotate(out[list(ds0.data_vars)])
     by_tile = {}

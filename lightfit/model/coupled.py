@@ -31,7 +31,7 @@ from lightfit.light.bridge import make_irradiance
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
-from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator
+from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator, an_noise_bias, area_total
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Forcing, Scenario
 from lightfit.photosynthesis import parameter_set
@@ -199,6 +199,14 @@ class CoupledModel:
         th = self.theta(theta)
         o = self.observe(th)
         b = o["blade_index"]
+        # Jensen bias of An from the light's Monte Carlo noise: reported, not subtracted (docs/model.md).
+        an_bias = an_noise_bias(
+            o["absorbed_par_umol_m2_s"][:, b],
+            o["absorbed_par_mc_sd_umol_m2_s"][:, b],
+            self.forcing,
+            self.operator.photosynthesis_params(th.vcmax_scale),
+        )
+        canopy_bias = area_total(an_bias, jnp.zeros_like(an_bias), self.area_m2[b], self.operator.denominator_m2)[0]
         T, S = len(self.times), len(self.segment_id)
 
         def per_segment(x, fill=np.nan, dtype=float):
@@ -212,6 +220,7 @@ class CoupledModel:
         leaf = {
             "leaf_an_umol_m2_s": ps.an_umol_m2_s,
             "leaf_an_mc_sd_umol_m2_s": o["leaf_an_mc_sd_umol_m2_s"],
+            "leaf_an_mc_bias_umol_m2_s": an_bias,
             "leaf_gs_mol_m2_s": ps.gs_mol_m2_s,
             "leaf_ci_umol_mol": ps.ci_umol_mol,
             "leaf_vc_umol_m2_s": ps.vc_umol_m2_s,
@@ -228,6 +237,7 @@ class CoupledModel:
                 "limitation": (("time", "segment"), per_segment(ps.limitation, -1, np.int8)),
                 "converged": (("time", "segment"), per_segment(ps.converged, True, bool)),
                 **{k: ("time", np.asarray(o[k])) for k in OBSERVABLES},
+                "canopy_an_mc_bias_umol_m2_s": ("time", np.asarray(canopy_bias)),
                 **{k: ("time", w[c].to_numpy(np.float64)) for k, c in weather.items() if c in w},
             },
             coords={

@@ -131,6 +131,12 @@ VARIABLES: dict[str, Variable] = {
         "Monte Carlo standard deviation of leaf net CO2 assimilation",
         _LEAF_AREA + "; |dAn/dPAR| times the absorbed-PAR Monte Carlo SD",
     ),
+    "leaf_an_mc_bias_umol_m2_s": Variable(
+        TS,
+        UMOL,
+        "expected shift of leaf net CO2 assimilation caused by Monte Carlo noise in absorbed PAR",
+        _LEAF_AREA + "; Jensen bias (negative where An saturates), not subtracted from leaf_an",
+    ),
     "leaf_gs_mol_m2_s": Variable(TS, "mol m-2 s-1", "stomatal conductance to water vapour", _LEAF_AREA),
     "leaf_ci_umol_mol": Variable(TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only"),
     "leaf_vc_umol_m2_s": Variable(TS, UMOL, "Rubisco-limited carboxylation rate", _LEAF_AREA),
@@ -152,6 +158,12 @@ VARIABLES: dict[str, Variable] = {
     "canopy_an_umol_m2_s": Variable(T, UMOL, "net CO2 uptake of the measured leaf blades", _CANOPY_AREA),
     "canopy_an_mc_sd_umol_m2_s": Variable(
         T, UMOL, "Monte Carlo standard deviation of canopy net CO2 uptake", _CANOPY_AREA
+    ),
+    "canopy_an_mc_bias_umol_m2_s": Variable(
+        T,
+        UMOL,
+        "expected shift of canopy net CO2 uptake caused by Monte Carlo noise in the blades' PAR",
+        _CANOPY_AREA + "; Jensen bias, not subtracted from canopy_an (lightfit.model.observe.an_noise_bias)",
     ),
     "above_canopy_par_umol_m2_s": Variable(
         T,
