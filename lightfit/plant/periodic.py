@@ -110,7 +110,8 @@ class PeriodicCell:
         a, b = np.moveaxis(self.to_local(p), -1, 0)
         i = -np.floor(a / self.along_m + 0.5)
         j = -np.floor(b / self.across_m + 0.5)
-        p[..., :2] += self.lattice_shift(i, j)
+        out = (i != 0) | (j != 0)  # most points are inside already: a zero shift would change nothing
+        p[out, :2] += self.lattice_shift(i[out], j[out])
         return p
 
     def images(self, mesh: Mesh, margin_m: float = IMAGE_MARGIN_M) -> Mesh:
