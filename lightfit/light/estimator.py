@@ -112,12 +112,20 @@ def _keyed(seed: int, keys: np.ndarray, dims: np.ndarray) -> np.ndarray:
     return (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
 
 
-def _used_dims(bounces: int) -> np.ndarray:
-    """The random dimensions the estimator reads: the point, each side's first direction and the
-    scattering orders (the others of the numbering are never generated)."""
+def _side_dims(bounces: int) -> tuple[list[int], list[int]]:
+    """The random dimensions each side's path reads, in order: its first direction, then 3 per
+    scattering order (front, back)."""
     nb = _DIMS_PER_BOUNCE * bounces
-    first = [*range(3), *range(3, 3 + _USED_PER_SIDE), *range(11, 11 + _USED_PER_SIDE)]
-    return np.array([*first, *range(_N_FIXED_DIMS, _N_FIXED_DIMS + 2 * nb)])
+    front = [*range(3, 3 + _USED_PER_SIDE), *range(_N_FIXED_DIMS, _N_FIXED_DIMS + nb)]
+    back = [*range(11, 11 + _USED_PER_SIDE), *range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb)]
+    return front, back
+
+
+def _used_dims(bounces: int) -> np.ndarray:
+    """The random dimensions the estimator reads: the point and both sides' paths (the others of
+    the numbering are never generated)."""
+    front, back = _side_dims(bounces)
+    return np.array([0, 1, 2, *front, *back])
 
 
 def sequence_alpha(n_dims: int) -> np.ndarray:
@@ -370,9 +378,7 @@ class SegmentEstimator:
             jj = mi.Float(j_int)
             back = own(ev["back"].astype(np.float64)) > 0.5
             shift = own(self._shift.reshape(-1))
-            nb = _DIMS_PER_BOUNCE * self.bounces
-            front_dims = list(range(3, 3 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS, _N_FIXED_DIMS + nb))
-            back_dims = list(range(11, 11 + _USED_PER_SIDE)) + list(range(_N_FIXED_DIMS + nb, _N_FIXED_DIMS + 2 * nb))
+            front_dims, back_dims = _side_dims(self.bounces)
 
             def column(dim):
                 delta = dr.gather(mi.Float, shift, base + dim)
