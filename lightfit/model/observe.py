@@ -358,7 +358,11 @@ def an_noise_bias(
     q = jnp.maximum(jnp.asarray(q, jnp.float64), 0.0)
     sd = jax.lax.stop_gradient(jnp.asarray(q_mc_sd, jnp.float64))
     at_q = leaf(q, forcing, params).an
-    mean = sum(float(wi) * leaf(jnp.maximum(q + float(xi) * sd, 0.0), forcing, params).an for xi, wi in zip(x, w))
+    # The middle node of an odd rule is q itself: solved once.
+    mean = sum(
+        float(wi) * (at_q if xi == 0 else leaf(jnp.maximum(q + float(xi) * sd, 0.0), forcing, params).an)
+        for xi, wi in zip(x, w)
+    )
     return mean - at_q
 
 
