@@ -58,7 +58,6 @@ import argparse
 import json
 import math
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -232,6 +231,11 @@ def _timed_render(fs, ids, samples: int, seed: int) -> tuple[float, object]:
 
 
 def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None) -> dict:
+    with tempfile.TemporaryDirectory(prefix=f"lightfit-less-{boundary}-", ignore_cleanup_errors=True) as d:
+        return _run_in(Path(d), boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc)
+
+
+def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None) -> dict:
     fld = Field(n_plants=n_plants, seed=1, boundary=boundary)
     geom = build(fld)
     t = time.perf_counter()
@@ -254,48 +258,6 @@ def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console, lf_all
             {"label": f"mix_n{n}_r{r}", "n_samples": n, "permutation_seed": r, "dni": 1.0, "dhi": MIX_DHI}
             for n in less_n
         ]
-    folder = Path(tempfile.mkdtemp(prefix=f"lightfit-less-{boundary}-"))
-    try:
-        return _run_in(
-            folder,
-            geom,
-            fs,
-            boundary,
-            runs,
-            seg_ids,
-            seg_index,
-            n_seg,
-            area,
-            lf_k,
-            less_n,
-            reps,
-            target,
-            scene_s,
-            console,
-            lf_alloc,
-        )
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-def _run_in(
-    folder,
-    geom,
-    fs,
-    boundary,
-    runs,
-    seg_ids,
-    seg_index,
-    n_seg,
-    area,
-    lf_k,
-    less_n,
-    reps,
-    target,
-    scene_s,
-    console,
-    lf_alloc=None,
-) -> dict:
     exp = export(geom, boundary, folder, runs)
     blade = np.zeros(n_seg, bool)
     np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
