@@ -147,7 +147,9 @@ def case(n: int, setup: str, samples: int, seeds: int, out: Path) -> None:
 def _child(args: list[str], env: dict | None = None, cpu: bool = False) -> tuple:
     """Run ``python args…``; (wall s, the child's peak RSS MB, exit status[, its CPU s: user + system])."""
     t = time.perf_counter()
-    p = subprocess.Popen([sys.executable, *args], env=env)
+    # -P: the working directory is not put first on sys.path, so the child imports lightfit from
+    # PYTHONPATH (another checkout, for a baseline commit) and not from wherever it was started.
+    p = subprocess.Popen([sys.executable, "-P", *args], env=env)
     _, status, usage = os.wait4(p.pid, 0)
     res = (time.perf_counter() - t, usage.ru_maxrss / 1024, os.waitstatus_to_exitcode(status))
     return (*res, usage.ru_utime + usage.ru_stime) if cpu else res
@@ -233,6 +235,11 @@ MAIN_JOBS = (
 )
 
 
+def _attr(attrs: dict, key: str, kind=str):
+    """A results.nc attribute, or None where the file lacks it (an older commit's, a baseline)."""
+    return None if key not in attrs else kind(attrs[key])
+
+
 def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repeats: int = 1) -> dict:
     """``lightfit replicate`` for each of ``jobs``, first cold, then warm (``warm_repeats`` rounds).
 
@@ -260,6 +267,15 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repe
             env = dict(os.environ, LIGHTFIT_CACHE=str(cache), HOME=str(home), MPLCONFIGDIR=matplotlib.get_configdir())
             if tree is not None:  # lightfit imported from that checkout (the venv's install points here)
                 env["PYTHONPATH"] = str(tree)
+                where = subprocess.run(
+                    [sys.executable, "-P", "-c", "import lightfit; print(lightfit.__file__)"],
+                    env=env,
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                ).stdout.strip()
+                if not Path(where).resolve().is_relative_to(Path(tree).resolve()):
+                    raise RuntimeError(f"job {name} should import lightfit from {tree}, but imports {where}")
             argv = ["-m", "lightfit.cli", "replicate", "--out", str(tmp / f"main_{name}"), *options, *extra]
             wall, rss, rc, cpu = _child(argv, env, cpu=True)
             if rc != 0:
@@ -270,12 +286,12 @@ def main_job(tmp: Path, options: tuple[str, ...] = (), jobs=MAIN_JOBS, warm_repe
                 an = ds["canopy_an_umol_m2_s"].values
             r = out[name]
             r |= {
-                "boundary": a["boundary"],
-                "buffer_rows": int(a["buffer_rows"]),
-                "samples": int(a["samples"]),
-                "bounces": int(a["bounces"]),
-                "base_color": float(a["base_color"]),
-                "photosynthesis": a["photosynthesis"],
+                "boundary": _attr(a, "boundary"),
+                "buffer_rows": _attr(a, "buffer_rows", int),
+                "samples": _attr(a, "samples", int),
+                "bounces": _attr(a, "bounces", int),
+                "base_color": _attr(a, "base_color", float),
+                "photosynthesis": _attr(a, "photosynthesis"),
                 "plants_grown": len(list((cache / "plants").glob("*.npz"))),
                 "daily_max_plant_par_umol_m2_s": float(np.nanmax(par)),
                 "daily_max_canopy_an_umol_m2_s": float(np.nanmax(an)),
