@@ -24,6 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
+
 #: Colour mode of the variant: PAR is one band, so monochrome is all lightfit needs.
 DEFAULT_MODE = "mono"
 MIN_LLVM_MAJOR = 16
@@ -184,3 +186,22 @@ def info() -> BackendInfo:
     """Configure (if needed) and describe the backend in use."""
     mitsuba()
     return _STATE["info"]  # type: ignore[return-value]
+
+
+def owned(a, T):
+    """A Dr.Jit-owned copy, of Dr.Jit type ``T`` (e.g. ``mi.Float``, ``mi.UInt32``, ``mi.Float64``),
+    of a numpy vector, evaluated.
+
+    Dr.Jit may wrap numpy memory instead of copying it, and bakes that memory's alignment into the
+    kernels that read it, so kernels reading wrapped arrays are compiled anew whenever the
+    alignment differs; kernels reading owned copies are reused (and cached on disk).
+    """
+    import drjit as dr
+
+    V = dr.VarType
+    dtype = {V.Float32: np.float32, V.Float64: np.float64, V.UInt32: np.uint32, V.Bool: np.bool_}[dr.type_v(T)]
+    src = T(np.ascontiguousarray(a, dtype=dtype))
+    out = dr.empty(T, len(a))
+    dr.scatter(out, src, dr.arange(dr.uint32_array_t(T), len(a)))
+    dr.eval(out)
+    return out

@@ -57,6 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
+from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
 from lightfit.light.scene import FieldScene, Optics
 
@@ -265,7 +266,7 @@ class SegmentEstimator:
         self.samples = self.replicates * self.per_replicate  # K rounded up to R·M
         seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
         self.segment_id = seg
-        K, R, M = self.samples, self.replicates, self.per_replicate
+        K, R = self.samples, self.replicates
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
         keys = (seg[:, None].astype(np.uint64) << np.uint64(8)) + np.arange(R, dtype=np.uint64)[None, :]
         # (S, R, D): one random shift per replicate, for the dimensions the paths read
@@ -274,110 +275,115 @@ class SegmentEstimator:
         if not isinstance(first, (int, np.integer)) or first < 0:
             raise InputError(f"first={first!r}", column="first", expected="an integer ≥ 0")
         self.first = int(first)
-        j = np.arange(M) + self.first
-        pos = np.mod(self._shift[:, :, None, :3] + j[None, None, :, None] * self._alpha[:3], 1.0).reshape(
-            len(seg), K, 3
-        )
-        x, n, blade, self.area_m2 = self._place(seg, pos)
-        # Evaluations: every point on its front side; blade points also on the back side.
-        seg_i = np.repeat(np.arange(len(seg)), K)
-        pt = np.tile(np.arange(K), len(seg))
-        x, n = x.reshape(-1, 3), n.reshape(-1, 3)
-        self._ev = {
-            "seg": np.concatenate([seg_i, seg_i[blade]]),
-            "pt": np.concatenate([pt, pt[blade]]),
-            "back": np.concatenate([np.zeros(len(pt), bool), np.ones(int(blade.sum()), bool)]),
-            "n": np.concatenate([n, -n[blade]]),
-        }
-        self._valid = (self._ev["n"] != 0).any(axis=1)
-        self._ev["n"][~self._valid] = [0.0, 0.0, 1.0]
-        if field_scene.cell is not None:
-            # A point on a face overhanging the periodic cell is the same point of the infinite
-            # field as its image inside the cell: rays start from there.
-            x = field_scene.cell.wrap(x)
-        self._x = np.concatenate([x, x[blade]]) + epsilon_m * self._ev["n"]
-        self.n_evaluations = len(self._x)
+        self.epsilon_m = float(epsilon_m)
+        self.area_m2 = self._layout(seg)
+        # Evaluations: every point's front side in (segment, point) order, then the back side of
+        # every point on a blade face, in the same order: ``_back_of`` is the front index of each.
+        import drjit as dr
+
+        front = dr.arange(self.fs.mi.UInt32, len(seg) * K)
+        blade = self._place(*self._point_coordinates(front))[2]
+        self._back_of = np.asarray(dr.compress(blade), dtype=np.int64)
+        self.n_evaluations = len(seg) * K + len(self._back_of)
+        self.is_blade = np.zeros(len(seg), bool)
+        self.is_blade[self._back_of // K] = True
         self._wrap_log: list = []  # periodic rays cast (kind, active, capped, crossings), see render()
         # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
         self._fuse = False
         self._kept = None  # (key, geometry, ray counts) of _geometry
         self._sun_kept = None  # (_sun_key(), shadow rays) of the last render, for vjp
-        self.is_blade = blade.reshape(len(seg), K).any(axis=1)  # points are in (segment, point) order
 
-    def _place(self, seg: np.ndarray, pos: np.ndarray):
-        """Sample points of the requested ids from their quasi-random coordinates.
+    def _layout(self, seg: np.ndarray) -> np.ndarray:
+        """Prepare :meth:`_place` for the requested ids; returns the one-sided area of each, m².
 
-        The one hook for where an estimator measures (:class:`lightfit.light.sensors.SensorEstimator`
-        overrides it with sensor lines; the tracing is shared). ``pos`` (S, K, 3) in [0, 1):
-        here dim 0 picks a face by area, dims 1–2 a uniform point on it. Returns ``(x, n, blade,
-        area_m2)``: points (S, K, 3), unit normals of their front sides (S, K, 3), whether each
-        point also has a back side (S·K,), and the one-sided area of every id (S,), m².
+        One of the two hooks for where an estimator measures, with :meth:`_place`
+        (:class:`lightfit.light.sensors.SensorEstimator` overrides both with sensor lines; the
+        tracing is shared)."""
+        area, self._ranges = self.fs.placement.ranges(seg)
+        return area
+
+    def _place(self, si, u):
+        """Points of the requested ids from their quasi-random coordinates (Dr.Jit).
+
+        ``si`` (UInt32): the point's index among the requested ids; ``u``: its three Float64
+        coordinates in [0, 1). Here dim 0 picks a face by area and dims 1–2 a uniform point on it
+        (:class:`~lightfit.light.placement.FacePlacement`). Returns ``(x, n, blade)``: the point
+        and the unit normal of its front side (three Float64 each; zero for a zero-area face:
+        only a segment made entirely of them can pick one, and its evaluations are masked out)
+        and whether it also has a back side.
         """
-        mesh = self.fs.mesh
-        order = np.argsort(mesh.face_segment, kind="stable")
-        fseg = mesh.face_segment[order]
-        start, end = np.searchsorted(fseg, seg, "left"), np.searchsorted(fseg, seg, "right")
-        if (start == end).any():
-            raise InputError(
-                f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
-                column="segment_ids",
-                expected="ids of stem or leaf segments with non-zero length",
-            )
-        area = mesh.face_areas()[order]
-        cum = np.cumsum(area)
-        cum0 = cum - area
-        seg_area = cum[end - 1] - cum0[start]
-        target = cum0[start][:, None] + pos[..., 0] * seg_area[:, None]
-        idx = np.clip(np.searchsorted(cum, target, "right"), start[:, None], (end - 1)[:, None])
-        face = order[idx]
-        # Each corner gathered from a contiguous (F, 3) array: the same arithmetic as on the
-        # (S, K, 3, 3) triangles, with a fifth less time and memory.
-        v0, v1, v2 = (np.ascontiguousarray(mesh.vertices[mesh.faces[:, i]]) for i in range(3))
-        su = np.sqrt(pos[..., 1])
-        b0, b1 = 1 - su, pos[..., 2] * su
-        x = v0[face] * b0[..., None] + v1[face] * b1[..., None] + v2[face] * (1 - b0 - b1)[..., None]
-        n = mesh.normals()[face]
-        # Zero-area faces have no normal; only a segment made entirely of them can pick one.
-        # It receives nothing: its evaluations are masked out.
-        blade = mesh.face_is_blade[face].reshape(-1)
-        return x, n, blade, seg_area
+        return self.fs.placement.place(self._ranges, si, u)
 
-    # -- Dr.Jit pieces -------------------------------------------------------------------
-    def _own(self, a, integer: bool = False):
-        """A Dr.Jit-owned float32 (or uint32) copy of a numpy vector (numpy memory has varying
-        alignment, which Dr.Jit bakes into kernels: owned copies keep kernels cacheable)."""
+    def _replicate_index(self, f):
+        """Of front points ``f`` (UInt32: segment index × K + point index): where their replicate's
+        shifts start in the flattened (S, R, D) shifts, and their index j in the replicate's
+        sequence (``first`` + point index within the replicate); both UInt32."""
         import drjit as dr
 
         mi = self.fs.mi
-        T = mi.UInt32 if integer else mi.Float
-        src = T(np.ascontiguousarray(a, dtype=np.uint32 if integer else np.float32))
-        out = dr.empty(T, len(a))
-        dr.scatter(out, src, dr.arange(mi.UInt32, len(a)))
-        dr.eval(out)
-        return out
+        K, M = dr.opaque(mi.UInt32, self.samples), dr.opaque(mi.UInt32, self.per_replicate)
+        R, D = dr.opaque(mi.UInt32, self.replicates), dr.opaque(mi.UInt32, self._n_dims)
+        pt = f % K
+        return ((f // K) * R + pt // M) * D, pt % M + dr.opaque(mi.UInt32, self.first)
 
+    def _point_coordinates(self, f):
+        """``(si, u)`` of front points ``f``: their index among the requested ids and their
+        coordinates {Δ + j·α} of dims 0–2 (Float64, as the shifts are)."""
+        import drjit as dr
+
+        mi = self.fs.mi
+        base, j = self._replicate_index(f)
+        j = mi.Float64(j)
+        shift = owned(self._shift.reshape(-1), mi.Float64)
+        u = []
+        for dim in range(3):
+            v = dr.gather(mi.Float64, shift, base + dim) + j * float(self._alpha[dim])
+            u.append(v - dr.floor(v))
+        return f // dr.opaque(mi.UInt32, self.samples), u
+
+    def _evaluations(self):
+        """Per evaluation (Dr.Jit): ``(f, back)``, the index of its point among the fronts and
+        whether it is that point's back side."""
+        import drjit as dr
+
+        mi = self.fs.mi
+        n_front = len(self.segment_id) * self.samples
+        i = dr.arange(mi.UInt32, self.n_evaluations)
+        back = i >= dr.opaque(mi.UInt32, n_front)
+        if not len(self._back_of):  # no blade points (e.g. sensors): fronts only
+            return i, back
+        back_of = owned(self._back_of, mi.UInt32)
+        return dr.select(back, dr.gather(mi.UInt32, back_of, i - dr.opaque(mi.UInt32, n_front), back), i), back
+
+    # -- Dr.Jit pieces -------------------------------------------------------------------
     def _arrays(self):
         """Sample positions, normals, frames, first directions and random columns, as Dr.Jit arrays.
 
-        Built once and kept: arrays owned by Dr.Jit are aligned alike on every call, so the
-        compiled kernels are reused (kernels wrapping numpy memory differ by its alignment).
+        Built once and kept, from the evaluations' points (:meth:`_evaluations`,
+        :meth:`_place`) and the per-replicate shifts, without per-evaluation numpy arrays.
         """
         if getattr(self, "_dr", None) is None:
             import drjit as dr
 
             mi = self.fs.mi
-
-            own = self._own
-            o = mi.Point3f(*(own(self._x[:, i]) for i in range(3)))
-            nrm = mi.Vector3f(*(own(self._ev["n"][:, i]) for i in range(3)))
+            f, back = self._evaluations()
+            si, x_u = self._point_coordinates(f)
+            x, n, _ = self._place(si, x_u)
+            n = [dr.select(back, -c, c) for c in n]
+            valid = (n[0] != 0) | (n[1] != 0) | (n[2] != 0)
+            n = [dr.select(valid, c, up) for c, up in zip(n, (0.0, 0.0, 1.0))]
+            if self.fs.tracer is not None:
+                # A point on a face overhanging the periodic cell is the same point of the
+                # infinite field as its image inside the cell: rays start from there.
+                x = self.fs.tracer.wrap64(x)
+            eps = dr.opaque(mi.Float64, self.epsilon_m)
+            o = mi.Point3f(*(mi.Float(c + eps * nc) for c, nc in zip(x, n)))
+            nrm = mi.Vector3f(*(mi.Float(c) for c in n))
+            dr.eval(o, nrm, valid)
             # Random columns generated here from the per-replicate shifts: u = {shift + j·α}.
-            ev = self._ev
-            R, M, D = self.replicates, self.per_replicate, self._n_dims
-            base = own((ev["seg"] * R + ev["pt"] // M) * D, integer=True)
-            j_int = own(ev["pt"] % M + self.first, integer=True)
+            base, j_int = self._replicate_index(f)
             jj = mi.Float(j_int)
-            back = own(ev["back"].astype(np.float64)) > 0.5
-            shift = own(self._shift.reshape(-1))
+            shift = owned(self._shift.reshape(-1), mi.Float)
             front_dims, back_dims = _side_dims(self.bounces)
 
             def column(dim):
@@ -396,7 +402,6 @@ class SegmentEstimator:
                 u.append(v)
             frame = mi.Frame3f(nrm)
             d = frame.to_world(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[0], u[1])))
-            valid = own(self._valid.astype(np.float32)) > 0.5
             dr.eval(d, frame, valid)
             self._dr = (o, nrm, frame, d, u, valid)
         return self._dr
@@ -732,7 +737,7 @@ class SegmentEstimator:
 
     def _irradiance(self, vals: dict, periodic: dict | None) -> Irradiance:
         """Per-segment means, standard errors and replicate means of evaluated per-evaluation values."""
-        ev = {k: np.asarray(v, dtype=np.float64) for k, v in vals.items()}
+        ev = {k: np.array(v, dtype=np.float64) for k, v in vals.items()}  # copies: modified below
         S, K = len(self.segment_id), self.samples
         n_front = S * K
         out, se, front, reps = {}, {}, {}, {}
@@ -741,15 +746,15 @@ class SegmentEstimator:
                 raise FloatingPointError(f"non-finite {k} in {int((~np.isfinite(v)).sum())} evaluation(s)")
             # Evaluations are every point's front side in (segment, point) order, then the back
             # sides of blade points (each point once): the sum per point without np.add.at
-            # (18 → 7 ms per part for the main job), in the same order, so with the same rounding.
-            per_point = v[:n_front].reshape(S, K).copy()
-            back = self._ev["seg"][n_front:] * K + self._ev["pt"][n_front:]
-            per_point.reshape(-1)[back] += v[n_front:]
+            # (18 → 7 ms per part for the main job), in the same order, so with the same rounding;
+            # in place (``v`` is this function's own copy), after the fronts' mean is taken.
+            per_point = v[:n_front].reshape(S, K)
+            front[k] = per_point.mean(1)
+            per_point.reshape(-1)[self._back_of] += v[n_front:]
             out[k] = per_point.mean(1)
             rep = per_point.reshape(S, self.replicates, self.per_replicate).mean(2)
             se[k] = rep.std(1, ddof=1) / math.sqrt(self.replicates)
             reps[k] = rep
-            front[k] = v[:n_front].reshape(S, K).mean(1)
         return Irradiance(
             self.segment_id,
             out["incident_sun"],
@@ -833,7 +838,8 @@ class SegmentEstimator:
         if unknown:
             raise InputError(f"unknown output(s) {sorted(unknown)}", column="cotangent", expected=", ".join(PARTS))
         c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
-        w = {p: self._own(c[p][self._ev["seg"]] / K) for p in PARTS}
+        si = self._evaluations()[0] // dr.opaque(mi.UInt32, K)
+        w = {p: dr.gather(mi.Float, owned(c[p] / K, mi.Float), si) for p in PARTS}
         # Differentiate with respect to per-lane copies of the parameters: the backward pass is
         # then elementwise (a handful of fused kernels) instead of one reduction kernel per use
         # of a scalar parameter; the lanes are summed at the end.

@@ -9,6 +9,7 @@ Geometry conventions: x east, y north, z up, metres; the soil is the plane z = 0
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass
 
@@ -19,6 +20,7 @@ from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.leaf_optics import LeafTraits, leaf_bsdf_parameters, preset_parameters
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
+from lightfit.light.placement import FacePlacement
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
 
@@ -147,6 +149,11 @@ class FieldScene:
         )
         self.n_scene_faces = geometry.n_faces  # faces Mitsuba holds (with the periodic images)
         self.freeze_sampling()
+
+    @functools.cached_property
+    def placement(self) -> FacePlacement:
+        """Area-uniform sample points on this scene's segments (Dr.Jit arrays, built on first use)."""
+        return FacePlacement(self.mi, self.mesh)
 
     def freeze_sampling(self, optics: Optics | None = None) -> None:
         """Draw path directions from the leaf BSDF at ``optics`` (default: the current optics),

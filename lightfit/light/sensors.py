@@ -13,8 +13,9 @@ arriving on the horizontal sensor surface from the upper hemisphere, per unit ho
 — the direct sun with a shadow ray, and the sky, sun and soil light scattered by the plants
 that arrives along cosine-sampled directions, exactly as on a leaf's side
 (:class:`~lightfit.light.estimator.SegmentEstimator`, which does the tracing: the sensors
-override only where the points are, :meth:`SensorEstimator._place`). Periodic wrapping,
-scattering orders, frozen BSDF sampling and paths kept across suns are the segments'.
+override only where the points are, :meth:`SensorEstimator._layout` and
+:meth:`SensorEstimator._place`). Periodic wrapping, scattering orders, frozen BSDF sampling
+and paths kept across suns are the segments'.
 Consequences that the tests check: a sensor above the canopy reads
 :math:`\mathrm{DNI}\sin\beta + \mathrm{DHI}` (the analytic above-canopy sensor,
 :func:`lightfit.model.observe.above_canopy_par`), and so does a sensor on the soil of an empty
@@ -38,6 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
+from lightfit.light.backend import owned
 from lightfit.light.estimator import Irradiance, SegmentEstimator
 from lightfit.light.scene import FieldScene
 from lightfit.plant.periodic import PeriodicCell
@@ -191,18 +193,41 @@ class SensorEstimator(SegmentEstimator):
             epsilon_m=epsilon_m,
         )
 
-    def _place(self, seg: np.ndarray, pos: np.ndarray):
-        """Points on the sensors' lines: the first coordinate picks the placement and the position
-        along it (stratified over placements); one upper side; ``area_m2`` = 1 (a reading is per
+    def _layout(self, seg: np.ndarray) -> np.ndarray:
+        """The sensors' lines as Dr.Jit arrays for :meth:`_place`; ``area_m2`` = 1 (a reading is per
         unit horizontal area)."""
-        x = np.empty(pos.shape[:2] + (3,))
-        for i, s in enumerate(self.sensors):
-            a, b = s.lines()
-            t = pos[i, :, 0] * len(a)
-            j = np.minimum(np.floor(t).astype(np.int64), len(a) - 1)
-            x[i] = a[j] + (t - j)[:, None] * (b[j] - a[j])
-        n = np.broadcast_to(np.array([0.0, 0.0, 1.0]), x.shape).copy()
-        return x, n, np.zeros(x.shape[0] * x.shape[1], bool), np.ones(len(seg))
+        mi = self.fs.mi
+        lines = [s.lines() for s in self.sensors]
+        a = np.concatenate([ln[0] for ln in lines])
+        b = np.concatenate([ln[1] for ln in lines])
+        count = np.array([len(ln[0]) for ln in lines])
+        offset = np.cumsum(count) - count
+        self._lines = (
+            [owned(a[:, c], mi.Float64) for c in range(3)],
+            [owned(b[:, c], mi.Float64) for c in range(3)],
+            owned(offset, mi.UInt32),
+            owned(count, mi.UInt32),
+        )
+        return np.ones(len(seg))
+
+    def _place(self, si, u):
+        """Points on the sensors' lines: the first coordinate picks the placement and the position
+        along it (stratified over placements); one upper side, no back side."""
+        import drjit as dr
+
+        mi = self.fs.mi
+        a, b, offset, count = self._lines
+        n = dr.gather(mi.UInt32, count, si)
+        t = u[0] * mi.Float64(n)
+        j = dr.minimum(mi.UInt32(dr.floor(t)), n - 1)
+        k = dr.gather(mi.UInt32, offset, si) + j
+        frac = t - mi.Float64(j)
+        x = []
+        for ac, bc in zip(a, b):
+            p, q = dr.gather(mi.Float64, ac, k), dr.gather(mi.Float64, bc, k)
+            x.append(p + frac * (q - p))
+        zero = dr.zeros(mi.Float64, dr.width(t))
+        return x, [zero, zero, zero + 1.0], dr.zeros(mi.Bool, dr.width(t))
 
 
 def render_sensors(
