@@ -281,6 +281,7 @@ class SegmentEstimator:
         # every point on a blade face, in the same order: ``_back_of`` is the front index of each.
         import drjit as dr
 
+        self._point_shift = owned(self._shift[:, :, :3].reshape(-1), self.fs.mi.Float64)  # dims 0–2, (S·R, 3)
         front = dr.arange(self.fs.mi.UInt32, len(seg) * K)
         blade = self._place(*self._point_coordinates(front))[2]
         self._back_of = np.asarray(dr.compress(blade), dtype=np.int64)
@@ -315,16 +316,15 @@ class SegmentEstimator:
         return self.fs.placement.place(self._ranges, si, u)
 
     def _replicate_index(self, f):
-        """Of front points ``f`` (UInt32: segment index × K + point index): where their replicate's
-        shifts start in the flattened (S, R, D) shifts, and their index j in the replicate's
-        sequence (``first`` + point index within the replicate); both UInt32."""
+        """Of front points ``f`` (UInt32: segment index × K + point index): their replicate's row
+        in the (S·R, D) shifts, and their index j in the replicate's sequence (``first`` + point
+        index within the replicate); both UInt32."""
         import drjit as dr
 
         mi = self.fs.mi
         K, M = dr.opaque(mi.UInt32, self.samples), dr.opaque(mi.UInt32, self.per_replicate)
-        R, D = dr.opaque(mi.UInt32, self.replicates), dr.opaque(mi.UInt32, self._n_dims)
         pt = f % K
-        return ((f // K) * R + pt // M) * D, pt % M + dr.opaque(mi.UInt32, self.first)
+        return (f // K) * dr.opaque(mi.UInt32, self.replicates) + pt // M, pt % M + dr.opaque(mi.UInt32, self.first)
 
     def _point_coordinates(self, f):
         """``(si, u)`` of front points ``f``: their index among the requested ids and their
@@ -332,12 +332,11 @@ class SegmentEstimator:
         import drjit as dr
 
         mi = self.fs.mi
-        base, j = self._replicate_index(f)
+        row, j = self._replicate_index(f)
         j = mi.Float64(j)
-        shift = owned(self._shift.reshape(-1), mi.Float64)
         u = []
         for dim in range(3):
-            v = dr.gather(mi.Float64, shift, base + dim) + j * float(self._alpha[dim])
+            v = dr.gather(mi.Float64, self._point_shift, row * 3 + dim) + j * float(self._alpha[dim])
             u.append(v - dr.floor(v))
         return f // dr.opaque(mi.UInt32, self.samples), u
 
@@ -381,7 +380,8 @@ class SegmentEstimator:
             nrm = mi.Vector3f(*(mi.Float(c) for c in n))
             dr.eval(o, nrm, valid)
             # Random columns generated here from the per-replicate shifts: u = {shift + j·α}.
-            base, j_int = self._replicate_index(f)
+            row, j_int = self._replicate_index(f)
+            base = row * dr.opaque(mi.UInt32, self._n_dims)
             jj = mi.Float(j_int)
             shift = owned(self._shift.reshape(-1), mi.Float)
             front_dims, back_dims = _side_dims(self.bounces)
