@@ -106,11 +106,16 @@ def _keyed(seed: int, keys: np.ndarray, dims: np.ndarray) -> np.ndarray:
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         return z ^ (z >> np.uint64(31))
 
+    golden = np.uint64(0x9E3779B97F4A7C15)
+    out = np.empty(keys.shape + (len(dims),))
     with np.errstate(over="ignore"):  # modular 64-bit arithmetic is the point
-        base = mix(keys.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + mix(np.uint64(seed % 2**64) + np.uint64(1)))
-        z = mix(base[..., None] + (dims.astype(np.uint64) + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15))
-    # 24 bits: exactly representable in float32, and strictly below 1.
-    return (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
+        base = mix(keys.astype(np.uint64) * golden + mix(np.uint64(seed % 2**64) + np.uint64(1)))
+        # One dimension at a time: temporaries of the keys' size, not of keys × dims.
+        for i, d in enumerate(np.asarray(dims, dtype=np.uint64)):
+            z = mix(base + (d + np.uint64(1)) * golden)
+            # 24 bits: exactly representable in float32, and strictly below 1.
+            out[..., i] = (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
+    return out
 
 
 def _side_dims(bounces: int) -> tuple[list[int], list[int]]:
@@ -269,8 +274,10 @@ class SegmentEstimator:
         K, R = self.samples, self.replicates
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
         keys = (seg[:, None].astype(np.uint64) << np.uint64(8)) + np.arange(R, dtype=np.uint64)[None, :]
-        # (S, R, D): one random shift per replicate, for the dimensions the paths read
-        self._shift = keyed_uniforms(self.seed, keys, self._n_dims, _used_dims(self.bounces))
+        # (S, R, used dimensions): one random shift per replicate, for the dimensions the paths read
+        used = _used_dims(self.bounces)
+        self._shift = _keyed(self.seed, keys, used)
+        self._column_of = {int(d): i for i, d in enumerate(used)}  # dimension → column of _shift
         self._alpha = sequence_alpha(self._n_dims)
         if not isinstance(first, (int, np.integer)) or first < 0:
             raise InputError(f"first={first!r}", column="first", expected="an integer ≥ 0")
@@ -281,7 +288,8 @@ class SegmentEstimator:
         # every point on a blade face, in the same order: ``_back_of`` is the front index of each.
         import drjit as dr
 
-        self._point_shift = owned(self._shift[:, :, :3].reshape(-1), self.fs.mi.Float64)  # dims 0–2, (S·R, 3)
+        # Dims 0–2 (the first three columns), (S·R, 3), in float64 for the points.
+        self._point_shift = owned(self._shift[:, :, :3].reshape(-1), self.fs.mi.Float64)
         front = dr.arange(self.fs.mi.UInt32, len(seg) * K)
         blade = self._place(*self._point_coordinates(front))[2]
         self._back_of = np.asarray(dr.compress(blade), dtype=np.int64)
@@ -317,7 +325,7 @@ class SegmentEstimator:
 
     def _replicate_index(self, f):
         """Of front points ``f`` (UInt32: segment index × K + point index): their replicate's row
-        in the (S·R, D) shifts, and their index j in the replicate's sequence (``first`` + point
+        in the (S·R, used dimensions) shifts, and their index j in the replicate's sequence (``first`` + point
         index within the replicate); both UInt32."""
         import drjit as dr
 
@@ -381,13 +389,13 @@ class SegmentEstimator:
             dr.eval(o, nrm, valid)
             # Random columns generated here from the per-replicate shifts: u = {shift + j·α}.
             row, j_int = self._replicate_index(f)
-            base = row * dr.opaque(mi.UInt32, self._n_dims)
+            base = row * dr.opaque(mi.UInt32, self._shift.shape[-1])
             jj = mi.Float(j_int)
             shift = owned(self._shift.reshape(-1), mi.Float)
             front_dims, back_dims = _side_dims(self.bounces)
 
             def column(dim):
-                delta = dr.gather(mi.Float, shift, base + dim)
+                delta = dr.gather(mi.Float, shift, base + self._column_of[dim])
                 if np.isnan(self._alpha[dim]):
                     # The replicate's keyed shift (24 bits) keys the hash; the point index varies it.
                     h = _hash32(_hash32(mi.UInt32(delta * 2.0**24) + (dim * 0x9E3779B9) % 2**32) + j_int)
