@@ -374,8 +374,8 @@ def test_keyed_uniforms_for_some_dimensions_are_those_of_all():
     from lightfit.light.estimator import keyed_uniforms
 
     keys = np.arange(12, dtype=np.uint64).reshape(3, 4)
-    full = keyed_uniforms(7, keys, 10)
-    some = keyed_uniforms(7, keys, 10, np.array([1, 4, 7]))
-    np.testing.assert_array_equal(some[..., [1, 4, 7]], full[..., [1, 4, 7]])
-    assert not some[..., [0, 2, 3, 5, 6, 8, 9]].any()
+    full = keyed_uniforms(7, keys, np.arange(10))
+    some = keyed_uniforms(7, keys, np.array([1, 4, 7]))
+    assert some.shape == (3, 4, 3)
+    np.testing.assert_array_equal(some, full[..., [1, 4, 7]])
     assert 0.0 <= full.min() and full.max() < 1.0 and len(np.unique(full)) == full.size

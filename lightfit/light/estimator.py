@@ -84,22 +84,12 @@ _QMC_FRONT = (0, 1, 2, 3, 4)
 _QMC_BACK = (11, 12)
 
 
-def keyed_uniforms(seed: int, keys: np.ndarray, n_dims: int, dims: np.ndarray | None = None) -> np.ndarray:
-    """Uniform [0, 1) numbers, shape ``keys.shape + (n_dims,)``, a pure function of (seed, key, dim).
+def keyed_uniforms(seed: int, keys: np.ndarray, dims: ArrayLike) -> np.ndarray:
+    """Uniform [0, 1) numbers, shape ``keys.shape + (len(dims),)``, a pure function of (seed, key, dim).
 
-    SplitMix64 finaliser (Steele et al. 2014) over ``seed``, the 64-bit key and the dimension.
-    With ``dims``, only those dimensions are computed (the others are 0): each dimension's
-    numbers are the same whichever others are computed.
+    SplitMix64 finaliser (Steele et al. 2014) over ``seed``, the 64-bit key and the dimension:
+    each dimension's numbers are the same whichever others are computed with it.
     """
-    if dims is None:
-        return _keyed(seed, keys, np.arange(n_dims))
-    out = np.zeros(keys.shape + (n_dims,))
-    out[..., dims] = _keyed(seed, keys, np.asarray(dims))
-    return out
-
-
-def _keyed(seed: int, keys: np.ndarray, dims: np.ndarray) -> np.ndarray:
-    """:func:`keyed_uniforms` for the dimensions ``dims``."""
 
     def mix(z):
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -276,11 +266,14 @@ class SegmentEstimator:
         keys = (seg[:, None].astype(np.uint64) << np.uint64(8)) + np.arange(R, dtype=np.uint64)[None, :]
         # (S, R, used dimensions): one random shift per replicate, for the dimensions the paths read
         used = _used_dims(self.bounces)
-        self._shift = _keyed(self.seed, keys, used)
+        self._shift = keyed_uniforms(self.seed, keys, used)
         self._column_of = {int(d): i for i, d in enumerate(used)}  # dimension → column of _shift
         self._alpha = sequence_alpha(self._n_dims)
-        if not isinstance(first, (int, np.integer)) or first < 0:
-            raise InputError(f"first={first!r}", column="first", expected="an integer ≥ 0")
+        # j = first + point index within a replicate is exact in float32 (the sequences' columns).
+        if not isinstance(first, (int, np.integer)) or not 0 <= first <= 2**24 - self.per_replicate:
+            raise InputError(
+                f"first={first!r}", column="first", expected=f"an integer in [0, {2**24 - self.per_replicate}]"
+            )
         self.first = int(first)
         self.epsilon_m = float(epsilon_m)
         self.area_m2 = self._layout(seg)
@@ -288,8 +281,9 @@ class SegmentEstimator:
         # every point on a blade face, in the same order: ``_back_of`` is the front index of each.
         import drjit as dr
 
-        # Dims 0–2 (the first three columns), (S·R, 3), in float64 for the points.
-        self._point_shift = owned(self._shift[:, :, :3].reshape(-1), self.fs.mi.Float64)
+        # Dims 0–2, (S·R, 3), in float64 for the points.
+        point_columns = [self._column_of[d] for d in range(3)]
+        self._point_shift = owned(self._shift[:, :, point_columns].reshape(-1), self.fs.mi.Float64)
         front = dr.arange(self.fs.mi.UInt32, len(seg) * K)
         blade = self._place(*self._point_coordinates(front))[2]
         self._back_of = np.asarray(dr.compress(blade), dtype=np.int64)
@@ -308,7 +302,7 @@ class SegmentEstimator:
         One of the two hooks for where an estimator measures, with :meth:`_place`
         (:class:`lightfit.light.sensors.SensorEstimator` overrides both with sensor lines; the
         tracing is shared)."""
-        area, self._ranges = self.fs.placement.ranges(seg)
+        area, self._ranges = self.fs.face_sampler.ranges(seg)
         return area
 
     def _place(self, si, u):
@@ -316,12 +310,12 @@ class SegmentEstimator:
 
         ``si`` (UInt32): the point's index among the requested ids; ``u``: its three Float64
         coordinates in [0, 1). Here dim 0 picks a face by area and dims 1–2 a uniform point on it
-        (:class:`~lightfit.light.placement.FacePlacement`). Returns ``(x, n, blade)``: the point
-        and the unit normal of its front side (three Float64 each; zero for a zero-area face:
+        (:class:`~lightfit.light.face_sampling.FaceSampler`). Returns ``(x, n, blade)``: the point
+        (m) and the unit normal of its front side (three Float64 each; zero for a zero-area face:
         only a segment made entirely of them can pick one, and its evaluations are masked out)
         and whether it also has a back side.
         """
-        return self.fs.placement.place(self._ranges, si, u)
+        return self.fs.face_sampler.place(self._ranges, si, u)
 
     def _replicate_index(self, f):
         """Of front points ``f`` (UInt32: segment index × K + point index): their replicate's row

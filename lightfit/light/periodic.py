@@ -133,21 +133,25 @@ class PeriodicTracer:
         return self._shift(o, -dr.floor(a / c["A"] + 0.5), -dr.floor(b / c["B"] + 0.5))
 
     def wrap64(self, x):
-        """Points given as three Dr.Jit Float64 arrays (x, y, z), moved by whole lattice vectors into
-        the cell: the arithmetic of :meth:`PeriodicCell.wrap` (numpy), in float64."""
+        """Points given as three Dr.Jit Float64 arrays (x, y, z), m, moved by whole lattice vectors
+        into the cell: the arithmetic of :meth:`PeriodicCell.wrap` (numpy), in float64, with the
+        cell as opaque constants (one compiled kernel for every cell). A point exactly on a side
+        face may be put on the other side than numpy puts it (its matrix product may round the
+        cell-frame coordinate differently): the same point of the infinite field."""
         import drjit as dr
 
         F64 = self.mi.Float64
-        (ex, ey), (fx, fy) = (tuple(float(c) for c in e) for e in self.cell.axes)
-        A, B = (float(p) for p in self.cell.size_m)
-        cx, cy = (float(c) for c in self.cell.center_xy)
+        (ex, ey), (fx, fy) = self.cell.axes
+        vals = dict(A=self.cell.size_m[0], B=self.cell.size_m[1], ex=ex, ey=ey, fx=fx, fy=fy)
+        c = {k: dr.opaque(F64, float(v)) for k, v in vals.items()}
+        cx, cy = (dr.opaque(F64, float(v)) for v in self.cell.center_xy)
         px, py = x[0] - cx, x[1] - cy
-        i = -dr.floor((px * ex + py * ey) / A + 0.5)
-        j = -dr.floor((px * fx + py * fy) / B + 0.5)
-        ia, jb = i * A, j * B
+        i = -dr.floor((px * c["ex"] + py * c["ey"]) / c["A"] + 0.5)
+        j = -dr.floor((px * c["fx"] + py * c["fy"]) / c["B"] + 0.5)
+        ia, jb = i * c["A"], j * c["B"]
         out = (i != 0) | (j != 0)
-        shift = (ia * ex + jb * fx, ia * ey + jb * fy)
-        return [F64(dr.select(out, c + s, c)) for c, s in zip(x[:2], shift)] + [x[2]]
+        shift = (ia * c["ex"] + jb * c["fx"], ia * c["ey"] + jb * c["fy"])
+        return [dr.select(out, p + s, p) for p, s in zip(x[:2], shift)] + [x[2]]
 
     def walk(self, o, d, active, *, cap: int, soil: bool, test: bool, fuse: bool = False):
         """Trace rays segment by segment through the cell (module doc) in one symbolic loop.

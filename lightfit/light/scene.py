@@ -18,9 +18,9 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
+from lightfit.light.face_sampling import FaceSampler
 from lightfit.light.leaf_optics import LeafTraits, leaf_bsdf_parameters, preset_parameters
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
-from lightfit.light.placement import FacePlacement
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
 
@@ -151,9 +151,9 @@ class FieldScene:
         self.freeze_sampling()
 
     @functools.cached_property
-    def placement(self) -> FacePlacement:
+    def face_sampler(self) -> FaceSampler:
         """Area-uniform sample points on this scene's segments (Dr.Jit arrays, built on first use)."""
-        return FacePlacement(self.mi, self.mesh)
+        return FaceSampler(self.mi, self.mesh)
 
     def freeze_sampling(self, optics: Optics | None = None) -> None:
         """Draw path directions from the leaf BSDF at ``optics`` (default: the current optics),

@@ -211,8 +211,8 @@ class SensorEstimator(SegmentEstimator):
         return np.ones(len(seg))
 
     def _place(self, si, u):
-        """Points on the sensors' lines: the first coordinate picks the placement and the position
-        along it (stratified over placements); one upper side, no back side."""
+        """Points on the sensors' lines (m): the first coordinate picks the placement and the
+        position along it (stratified over placements); one upper side, no back side."""
         import drjit as dr
 
         mi = self.fs.mi

@@ -11,9 +11,15 @@ triangle (Turk 1990; Pharr, Jakob & Humphreys, *PBR* 4th ed., §6.5.1):
 
 Everything runs in float64 inside Dr.Jit kernels, one lane per point, without the
 per-point temporaries a numpy version allocates (≈ 400 bytes per point; on a machine with slow
-page faults they cost seconds for a few million points). Dr.Jit does not fuse multiplies and
-adds, so the arithmetic is IEEE-identical to the numpy version it replaced (tested bitwise
-against a numpy transcription in ``tests/test_light_placement.py``).
+page faults they cost seconds for a few million points). On the CPU (LLVM) Dr.Jit does not fuse
+multiplies and adds, so the arithmetic is IEEE-identical to the numpy version it replaced
+(tested bitwise against a numpy transcription in ``tests/test_light_face_sampling.py``). The
+CUDA backend may contract them into fused multiply-adds: points then differ in the last bit, and
+very rarely a point on the border of two faces changes face.
+
+The face search runs within each segment's own faces (a binary search of as many steps as the
+largest segment needs), so the compiled kernel depends on the mesh only through that count and
+is reused, and cached on disk, across scenes.
 """
 
 from __future__ import annotations
@@ -24,12 +30,15 @@ from lightfit.errors import InputError
 from lightfit.light.backend import owned
 
 
-class FacePlacement:
+class FaceSampler:
     """Area-uniform points on the segments of one mesh (Dr.Jit arrays, built once per scene).
+
+    Memory: ≈ 110 bytes per face in Dr.Jit (corners, normals and cumulative areas in float64, the
+    sort order and blade flags; on a GPU, device memory) and 24 in numpy, for the scene's life.
 
     Args:
         mi: the Mitsuba module (variant set).
-        mesh: the shoot mesh (``lightfit.plant.Mesh``); its faces' ``face_segment`` ids.
+        mesh: the shoot mesh (``lightfit.plant.Mesh``), faces labelled by ``face_segment``.
     """
 
     def __init__(self, mi, mesh):
@@ -39,6 +48,8 @@ class FacePlacement:
         area = mesh.face_areas()[order]
         self._cum_np = np.cumsum(area)
         self._cum0_np = self._cum_np - area
+        # Binary-search steps for the segment with the most faces (n faces: bit length of n − 1).
+        self._search_steps = int(np.unique(self._fseg, return_counts=True)[1].max() - 1).bit_length()
         F64 = mi.Float64
         self._cum = owned(self._cum_np, F64)
         self._order = owned(order, mi.UInt32)
@@ -71,12 +82,14 @@ class FacePlacement:
         mi = self.mi
         first, last, cum0, area = ranges
         target = dr.gather(type(u0), cum0, si) + u0 * dr.gather(type(u0), area, si)
-        # First index whose cumulative area exceeds the target (numpy's searchsorted "right"),
-        # clipped to the segment's faces (rounding at its ends).
-        cum = self._cum
-        idx = dr.binary_search(0, dr.width(cum) - 1, lambda k: dr.gather(type(u0), cum, k) <= target)
-        idx = dr.minimum(dr.maximum(idx, dr.gather(mi.UInt32, first, si)), dr.gather(mi.UInt32, last, si))
-        return dr.gather(mi.UInt32, self._order, idx)
+        # The first of the segment's faces whose cumulative area exceeds the target, else its last
+        # (numpy's searchsorted "right" clipped to the segment: rounding at its ends).
+        lo, hi = dr.gather(mi.UInt32, first, si), dr.gather(mi.UInt32, last, si)
+        for _ in range(self._search_steps):
+            mid = (lo + hi) >> 1
+            below = dr.gather(type(u0), self._cum, mid) <= target
+            lo, hi = dr.select(below, dr.minimum(mid + 1, hi), lo), dr.select(below, hi, mid)
+        return dr.gather(mi.UInt32, self._order, lo)
 
     def is_blade(self, face):
         """Whether each face (UInt32 indices) is a leaf-blade face."""
