@@ -286,7 +286,8 @@ class SegmentEstimator:
         self._point_shift = owned(self._shift[:, :, point_columns].reshape(-1), self.fs.mi.Float64)
         front = dr.arange(self.fs.mi.UInt32, len(seg) * K)
         blade = self._place(*self._point_coordinates(front))[2]
-        self._back_of = np.asarray(dr.compress(blade), dtype=np.int64)
+        self._back_of_dr = dr.compress(blade)  # read by _evaluations (render and vjp)
+        self._back_of = np.asarray(self._back_of_dr, dtype=np.int64)
         self.n_evaluations = len(seg) * K + len(self._back_of)
         self.is_blade = np.zeros(len(seg), bool)
         self.is_blade[self._back_of // K] = True
@@ -319,8 +320,8 @@ class SegmentEstimator:
 
     def _replicate_index(self, f):
         """Of front points ``f`` (UInt32: segment index × K + point index): their replicate's row
-        in the (S·R, used dimensions) shifts, and their index j in the replicate's sequence (``first`` + point
-        index within the replicate); both UInt32."""
+        in the (S·R, used dimensions) shifts, and their index j in the replicate's sequence
+        (``first`` + point index within the replicate); both UInt32."""
         import drjit as dr
 
         mi = self.fs.mi
@@ -353,8 +354,8 @@ class SegmentEstimator:
         back = i >= dr.opaque(mi.UInt32, n_front)
         if not len(self._back_of):  # no blade points (e.g. sensors): fronts only
             return i, back
-        back_of = owned(self._back_of, mi.UInt32)
-        return dr.select(back, dr.gather(mi.UInt32, back_of, i - dr.opaque(mi.UInt32, n_front), back), i), back
+        f_back = dr.gather(mi.UInt32, self._back_of_dr, i - dr.opaque(mi.UInt32, n_front), back)
+        return dr.select(back, f_back, i), back
 
     # -- Dr.Jit pieces -------------------------------------------------------------------
     def _arrays(self):

@@ -97,20 +97,22 @@ class PeriodicTracer:
         return int(min(n + 2, MAX_SUN_CROSSINGS))
 
     # -- Dr.Jit ----------------------------------------------------------------------------
-    def _constants(self) -> dict:
-        """The cell as *opaque* Dr.Jit scalars: kernels then do not depend on the cell, canopy
-        height or cap, so one compiled walk serves every scene, sun and bounce (and is cached on
-        disk); with literals, every scene compiled its own loops (seconds per render)."""
-        if getattr(self, "_c", None) is None:
+    def _constants(self, T=None) -> dict:
+        """The cell as *opaque* Dr.Jit scalars of type ``T`` (default ``mi.Float``): kernels then do
+        not depend on the cell, canopy height or cap, so one compiled walk serves every scene, sun
+        and bounce (and is cached on disk); with literals, every scene compiled its own loops
+        (seconds per render)."""
+        T = self.mi.Float if T is None else T
+        cache = self.__dict__.setdefault("_c", {})
+        if T not in cache:
             import drjit as dr
 
-            F = self.mi.Float
             (ex, ey), (fx, fy) = self.cell.axes
             A, B = (float(p) for p in self.cell.size_m)
             cx, cy = (float(c) for c in self.cell.center_xy)
             vals = dict(A=A, B=B, ex=ex, ey=ey, fx=fx, fy=fy, cx=cx, cy=cy, z_top=self.z_top)
-            self._c = {k: dr.opaque(F, float(v)) for k, v in vals.items()}
-        return self._c
+            cache[T] = {k: dr.opaque(T, float(v)) for k, v in vals.items()}
+        return cache[T]
 
     def _local(self, o):
         """Cell-frame coordinates (a, b) of Dr.Jit points."""
@@ -140,12 +142,9 @@ class PeriodicTracer:
         cell-frame coordinate differently): the same point of the infinite field."""
         import drjit as dr
 
-        F64 = self.mi.Float64
-        (ex, ey), (fx, fy) = self.cell.axes
-        vals = dict(A=self.cell.size_m[0], B=self.cell.size_m[1], ex=ex, ey=ey, fx=fx, fy=fy)
-        c = {k: dr.opaque(F64, float(v)) for k, v in vals.items()}
-        cx, cy = (dr.opaque(F64, float(v)) for v in self.cell.center_xy)
-        px, py = x[0] - cx, x[1] - cy
+        c = self._constants(self.mi.Float64)
+        # Not _local/_shift: their float32 order of operations differs from numpy's.
+        px, py = x[0] - c["cx"], x[1] - c["cy"]
         i = -dr.floor((px * c["ex"] + py * c["ey"]) / c["A"] + 0.5)
         j = -dr.floor((px * c["fx"] + py * c["fy"]) / c["B"] + 0.5)
         ia, jb = i * c["A"], j * c["B"]
