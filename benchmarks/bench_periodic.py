@@ -331,9 +331,7 @@ def step_costs(rounds: int = 2) -> dict:
     from lightfit.light.estimator import SegmentEstimator
     from lightfit.light.scene import FieldScene
 
-    def cpu():
-        r = resource.getrusage(resource.RUSAGE_SELF)
-        return r.ru_utime + r.ru_stime
+    cpu = time.process_time  # user + system CPU of this process, as part 1's render_cpu_s
 
     w = replication.forcing()
     configs = {
