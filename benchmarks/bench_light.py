@@ -19,6 +19,9 @@ shared). Measured:
 3. Reverse-mode gradient (three leaf parameters) time ÷ primal time (warm kernels).
 4. Our estimator vs one Mitsuba ``irradiancemeter`` render per segment, at equal standard error
    of the front-side diffuse + scattered irradiance, on a small field.
+5. Periodic fields: the direct light from the paths against the projection
+   (``direct="projection"``, :func:`direct_projection_comparison`), steady-state time, median and
+   90th percentile, and the time a 2 % median needs.
 
 The Mitsuba variant is the package's choice (``cuda_ad_mono`` where a CUDA device is usable,
 ``LIGHTFIT_VARIANT`` to force one) and is recorded as ``mitsuba_variant``: run unchanged on a
@@ -82,6 +85,46 @@ def raw_ray_rate(fs: FieldScene, n: int) -> float:
 
     t, _ = _timed(run, 3)
     return n / t
+
+
+def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, settings) -> dict:
+    """Direct light from the paths vs by projection (issue 16), side by side in one process.
+
+    Each setting ``(samples, rays_per_m2)`` (``rays_per_m2`` 0: ``direct="paths"``) renders all
+    ``ids`` with two fresh estimators in turn; the second's time is the steady state (Dr.Jit
+    reuses the first's memory: on this machine first-touch memory costs ≈ 10 s per GiB, which the
+    first render pays). The time for a 2 % median scales K and the projection's rays together by
+    (median / 2 %)²: both parts' variances fall as 1/K and 1/rays.
+    """
+    import gc
+
+    out = []
+    for samples, rays in settings:
+        kw = dict(direct="projection", direct_rays_per_m2=rays) if rays else {}
+        times = []
+        for seed in (1, 2):
+            est = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=seed, **kw)
+            t = time.perf_counter()
+            r = est.render()
+            times.append(time.perf_counter() - t)
+            del est
+            gc.collect()
+        rse = r.relative_se()
+        med = float(np.nanmedian(rse))
+        f = (med / 0.02) ** 2
+        out.append(
+            {
+                "direct": "projection" if rays else "paths",
+                "samples": samples,
+                "rays_per_m2": rays or None,
+                "first_render_s": times[0],
+                "render_s": times[1],
+                "rse_absorbed": _stats(rse, np.asarray(r.meta["is_blade"], bool)),
+                "scale_for_2pct_median": f,
+                "extrapolated_s_at_2pct": times[1] * f,
+            }
+        )
+    return {"settings": out, "load_average": os.getloadavg()[0]}
 
 
 def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
@@ -224,6 +267,8 @@ def main(
     path_rate = est.n_evaluations / t_primal
     rays_per_sample = 1 + 3 * (bounces + 1)
     meter = irradiancemeter_comparison()
+    settings = [(64, 0), (64, 1e7), (256, 3e7)]  # (K, projection rays per m²; 0: paths)
+    direct = direct_projection_comparison(fs, ids, bounces, settings) if fs.tracer is not None else None
     root = Path(__file__).resolve().parents[1]
 
     def git(*args: str) -> str:
@@ -262,6 +307,7 @@ def main(
         "gradient_over_primal": t_grad / t_primal,
         "irradiancemeter_median_speedup_equal_se": meter["median_speedup"],
         "irradiancemeter": meter["segments"],
+        "direct_projection": direct,
         "load_average_end": os.getloadavg()[0],
     }
     if OUT.exists():  # keep the last run of every other setup, with its own conditions
@@ -283,6 +329,16 @@ def main(
         if k == "rse_absorbed":
             for c, q in v.items():
                 t.add_row(f"rse {c} median / p90", f"{q['median']:.2%} / {q['p90']:.2%}")
+        elif k == "direct_projection" and v is not None:
+            for q in v["settings"]:
+                label = f"{q['direct']} K={q['samples']}"
+                label += f", {q['rays_per_m2']:.0e} rays/m²" if q["rays_per_m2"] else ""
+                a = q["rse_absorbed"]["all"]
+                t.add_row(
+                    label,
+                    f"{q['render_s']:.1f} s (first {q['first_render_s']:.1f} s), median / p90 {a['median']:.2%} / "
+                    f"{a['p90']:.2%}, 2 % median ≈ {q['extrapolated_s_at_2pct']:.0f} s",
+                )
         elif k not in ("irradiancemeter", "earlier_runs"):
             t.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
     console.print(t)

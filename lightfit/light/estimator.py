@@ -46,6 +46,13 @@ bitwise those of a fresh estimator.
 All random numbers — points, directions, BSDF samples along the path — are keyed by (seed,
 segment id, sample index), so a segment's values do not depend on which other segments are
 requested or how the field is partitioned.
+
+``direct="projection"`` (periodic scenes) takes the unscattered light — the direct sun and the
+sky seen directly — from rays cast down over the whole cell instead
+(:mod:`lightfit.light.projection`): the paths then carry only scattered light (no direct-sun
+shadow ray at the point, no sky where the first ray escapes), and the two independent estimates
+are added replicate by replicate. Same expectation, a fraction of the variance where the direct
+light dominates (docs/light.md, "Direct light by projection").
 """
 
 from __future__ import annotations
@@ -59,9 +66,12 @@ from numpy.typing import ArrayLike
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
 from lightfit.light.scene import FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
+#: Where a :class:`SegmentEstimator`'s unscattered light comes from (its ``direct`` argument).
+DIRECT_MODES = ("paths", "projection")
 #: Version of the estimator's random numbers and sampling: bumped whenever a change moves rendered
 #: values (not only their rounding), so that renders kept on disk (emulator designs, keyed by
 #: :func:`lightfit.model.emulator.render_key`) from before the change are not reused with renders
@@ -236,6 +246,12 @@ class SegmentEstimator:
         first: index of the first point taken from each replicate's sequence (default 0): an
             estimator with ``first = M`` continues one with M points per replicate
             (:func:`render_adaptive` adds samples in rounds this way).
+        direct: where the unscattered light comes from: ``"paths"`` (each point's shadow ray to
+            the sun and its first ray escaping to the sky) or ``"projection"`` (periodic scenes:
+            rays cast down over the cell, :class:`~lightfit.light.projection.DirectProjection`).
+        direct_rays_per_m2: ``direct="projection"``: rays per m² of ground, for the sun and
+            again for the sky (the projection's accuracy knob; its cost does not grow with the
+            number of segments requested).
     """
 
     def __init__(
@@ -248,6 +264,8 @@ class SegmentEstimator:
         seed: int = 0,
         epsilon_m: float = 1e-5,
         first: int = 0,
+        direct: str = "paths",
+        direct_rays_per_m2: float = DEFAULT_RAYS_PER_M2,
     ):
         if not isinstance(samples, (int, np.integer)) or samples < 2:
             raise InputError(
@@ -255,6 +273,14 @@ class SegmentEstimator:
             )
         if not isinstance(bounces, (int, np.integer)) or bounces < 0:
             raise InputError(f"bounces={bounces!r}", column="bounces", expected="an integer ≥ 0")
+        if direct not in DIRECT_MODES:
+            raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
+        if direct == "projection" and first != 0:
+            raise InputError(
+                f"first={first!r} with direct='projection'",
+                column="first",
+                expected="first=0: the projection is the whole of the direct light, not a continuation",
+            )
         self.fs, self.bounces, self.seed = field_scene, int(bounces), int(seed)
         self.replicates = replicates_for(int(samples))
         self.per_replicate = -(-int(samples) // self.replicates)
@@ -296,6 +322,14 @@ class SegmentEstimator:
         self._fuse = False
         self._kept = None  # (key, geometry, ray counts) of _geometry
         self._sun_kept = None  # (_sun_key(), shadow rays) of the last render, for vjp
+        self.direct = direct
+        self._direct = (
+            DirectProjection(
+                self.fs, seg, self.area_m2, replicates=R, seed=self.seed, rays_per_m2=float(direct_rays_per_m2)
+            )
+            if direct == "projection"
+            else None
+        )
 
     def _layout(self, seg: np.ndarray) -> np.ndarray:
         """Prepare :meth:`_place` for the requested ids; returns the one-sided area of each, m².
@@ -543,7 +577,8 @@ class SegmentEstimator:
         L_sky = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
         betas = []
         for depth, g in enumerate(geo):
-            L_sky += dr.select(g["escaped"], beta * fs.sky_radiance(g["dz"]), 0.0)
+            if depth > 0 or self._direct is None:  # the projection has the directly seen sky
+                L_sky += dr.select(g["escaped"], beta * fs.sky_radiance(g["dz"]), 0.0)
             if depth == self.bounces:
                 break
             betas.append(beta)
@@ -567,11 +602,14 @@ class SegmentEstimator:
         o, nrm, *_ = self._arrays()
         sun = self._sun_vector()
         cos_s = dr.dot(nrm, sun)
-        if fs.tracer is None:
+        if self._direct is not None:  # the projection has the direct sun
+            e_dir = dr.zeros(mi.Float, self.n_evaluations)
+        elif fs.tracer is None:
             blocked = fs.scene.ray_test(mi.Ray3f(o, sun), cos_s > 0)
+            e_dir = dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
         else:
             blocked = self._occluded("sun", o, sun, cos_s > 0)
-        e_dir = dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
+            e_dir = dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
         eps = 1e-5
         visible = []
         for g in geo[: self.bounces]:
@@ -648,7 +686,9 @@ class SegmentEstimator:
             # pass follows its forward pass): 4 + bounces bytes per evaluation.
             dr.eval(vals, counts, *(() if sun_rays is None else (sun_rays,)))
             self._sun_kept = (self._sun_key(), sun_rays)
-            return self._irradiance(vals, self._wrap_summary(counts))
+            if self._direct is not None:
+                self._direct.forget_suns(keep=[self.fs.sun])
+            return self._irradiance(vals, self._wrap_summary(counts), self._direct_values())
 
     def _sun_key(self):
         """What the shadow rays depend on: the kept geometry and the sun."""
@@ -702,6 +742,8 @@ class SegmentEstimator:
             for el, az in () if suns is None else suns:
                 fs.set_sun(el, az)
                 sun_vectors.append(fs.sun.copy())
+            if self._direct is not None:
+                self._direct.forget_suns(keep=sun_vectors)
             # The shadow rays of every sun, once; their ray counts with the geometry's.
             with dr.suspend_grad():
                 self._wrap_log, self._fuse = [], True
@@ -733,13 +775,29 @@ class SegmentEstimator:
                         fs.sun = s
                         vals = self._values(geo, weights, r)
                         dr.eval(vals)
-                        out.append(self._irradiance(vals, periodic))
+                        out.append(self._irradiance(vals, periodic, self._direct_values()))
             finally:
                 restore(state)
             yield out
 
-    def _irradiance(self, vals: dict, periodic: dict | None) -> Irradiance:
-        """Per-segment means, standard errors and replicate means of evaluated per-evaluation values."""
+    def _direct_values(self) -> dict | None:
+        """The projection's replicate values (S, R) per part and their front-side shares (key
+        ``front``), at the current leaf parameters and sun; ``None`` with ``direct="paths"``."""
+        if self._direct is None:
+            return None
+        out, front = {}, {}
+        for kind in ("sun", "sky"):
+            v = self._direct.values(kind)
+            if v is None:  # the sun below the horizon
+                v = dict.fromkeys(("incident", "absorbed", "incident_front", "absorbed_front"), 0.0)
+            for part in ("incident", "absorbed"):
+                out[f"{part}_{kind}"] = v[part]
+                front[f"{part}_{kind}"] = v[f"{part}_front"]
+        return {**out, "front": front}
+
+    def _irradiance(self, vals: dict, periodic: dict | None, direct: dict | None = None) -> Irradiance:
+        """Per-segment means, standard errors and replicate means of evaluated per-evaluation values,
+        plus ``direct`` (:meth:`_direct_values`) replicate by replicate."""
         ev = {k: np.array(v, dtype=np.float64) for k, v in vals.items()}  # copies: modified below
         S, K = len(self.segment_id), self.samples
         n_front = S * K
@@ -756,6 +814,11 @@ class SegmentEstimator:
             per_point.reshape(-1)[self._back_of] += v[n_front:]
             out[k] = per_point.mean(1)
             rep = per_point.reshape(S, self.replicates, self.per_replicate).mean(2)
+            if direct is not None:  # independent estimates of the same expectation's two terms
+                d, d_front = np.broadcast_to(direct[k], rep.shape), np.broadcast_to(direct["front"][k], rep.shape)
+                front[k] = front[k] + d_front.mean(1)
+                out[k] = out[k] + d.mean(1)
+                rep = rep + d
             se[k] = rep.std(1, ddof=1) / math.sqrt(self.replicates)
             reps[k] = rep
         return Irradiance(
@@ -777,7 +840,9 @@ class SegmentEstimator:
                 "is_blade": self.is_blade,
                 "area_m2": self.area_m2,
                 "replicate_means": reps,
+                "direct": self.direct,
                 **({} if periodic is None else {"periodic": periodic}),
+                **({} if self._direct is None else {"direct_projection": self._direct.summary()}),
             },
         )
 
@@ -861,6 +926,10 @@ class SegmentEstimator:
         finally:
             for k, v in saved.items():
                 setattr(bsdf, k, v)
+        if self._direct is not None:
+            for kind in ("sun", "sky"):
+                g = self._direct.vjp(kind, c[f"absorbed_{kind}"])
+                grads = {k: grads[k] + g[k] for k in grads}
         return grads
 
 

@@ -148,6 +148,9 @@ class FieldScene:
             else PeriodicTracer(self.scene, cell, float(mesh.vertices[:, 2].max()), crossing_tolerance)
         )
         self.n_scene_faces = geometry.n_faces  # faces Mitsuba holds (with the periodic images)
+        #: The faces Mitsuba holds, in its order (``mesh`` plus, in a periodic cell, the images):
+        #: what a ray's ``prim_index`` indexes.
+        self.scene_mesh = geometry
         self.freeze_sampling()
 
     @functools.cached_property

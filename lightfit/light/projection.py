@@ -1,0 +1,270 @@
+r"""Direct sun and directly visible sky on every segment, by parallel rays cast *down* into a periodic cell.
+
+The unscattered part of a segment's light is a projection: the sun's beam, and each direction of
+the sky, lights what it meets first. So instead of asking, from K points on each segment, whether
+the sun and the sky are visible (:mod:`lightfit.light.estimator`, ``direct="paths"``), rays are
+launched from the canopy top over the whole cell and each deposits its flux on the first face it
+meets (forward, or "light", tracing; the projection Caribu and HELIOS use for direct light).
+
+**Estimator.** Replicate r casts m rays from a jittered n_a × n_b grid over the cell (area
+:math:`A_c`) at the canopy top, along :math:`-\omega`: the sun's direction, or for the sky a
+cosine-weighted direction (a Kronecker R₂ sequence over the grid index, shifted per replicate).
+Each carries the flux
+
+.. math::
+
+    \Phi = \frac{A_c}{m}\, w, \qquad w = \omega_z \ \text{(sun, per unit DNI)}, \qquad
+    w = \pi L(\omega) \ \text{(sky, per unit DHI; 1 for the isotropic sky)},
+
+and the replicate's value of segment s is :math:`\sum_{\text{rays hitting } s} \Phi / A_s`
+(incident) and :math:`\sum \Phi\,(1 - \rho(\mu))/A_s` (absorbed; ρ the leaf's directional albedo,
+μ the cosine of incidence). Its expectation is
+:math:`\frac{1}{A_s}\int L(\omega) \int_s V(x, \omega)\cos^+\theta\,dA\,d\omega`, exactly the
+direct part of the path estimator (its points' sun shadow ray and first ray escaping to the sky;
+tested: ``tests/test_light_projection.py``). Blades count both sides (as the path estimator sums
+a point's two sides), stems their outer side; rays stopped by the crossing cap carry no light
+(counted in :attr:`DirectProjection.capped`). The standard error comes from the R replicates'
+spread, as for the paths.
+
+**Why.** Every ray lands on something — a path estimator's rays from a shaded segment mostly meet
+leaves — and the rays are stratified over the cell. On the 100-plant cell (PROSPECT leaf, sun at
+50°) the projection needs ≈ 11× fewer rays than the paths' shadow rays for the same median
+per-segment error of the direct sun, and ≈ 9× fewer first rays for the directly visible sky
+(docs/light.md, "Direct light by projection"). Its cost does not depend on how many segments are
+requested: the whole cell is lit.
+
+**Determinism.** Positions and directions are keyed by (seed, kind, ray index) (TEA hashing), and
+the per-segment sums are taken in 64-bit fixed point (2⁻³² of a ray's weight), so the order in
+which threads add does not change a bit: same seed, same values.
+
+Gradients: ρ(μ) is the only dependence on the leaf parameters (:func:`~lightfit.light.bsdf.leaf_albedo`:
+specular and roughness; subsurface does not change a leaf's albedo), differentiated in reverse
+mode (:meth:`DirectProjection.vjp`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lightfit.errors import InputError
+from lightfit.light.backend import owned
+from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
+
+#: Default rays per m² of ground, per replicate set and kind (sun, sky): 1e7 is ≈ 1 000 rays per
+#: cm² of canopy, a median relative SE of the direct sun ≈ 2 % (sky ≈ 7 %) on the 500-plant cell.
+DEFAULT_RAYS_PER_M2 = 1.0e7
+_FIXED = 2.0**32  # fixed-point scale of the sums
+_NONE = 0xFFFFFFFF  # row of a face whose segment is not requested
+_R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
+
+
+@dataclass
+class Hits:
+    """The rays of one kind that met a requested segment (Dr.Jit arrays, one entry per hit).
+
+    ``index``: segment row · R + replicate; ``mu``: |cos| of incidence on the face; ``front``:
+    the face's front side was lit; ``weight``: the ray's w (``None``: every ray the same, ``w0``).
+    """
+
+    index: object
+    mu: object
+    front: object
+    weight: object
+    w0: float
+    rays: int
+    capped: int
+
+
+class DirectProjection:
+    """Direct sun and directly visible sky on the requested segments of a periodic scene.
+
+    Args:
+        field_scene: the scene; it must be periodic (``FieldScene(..., cell=...)``).
+        segment_ids: requested segments, sorted and unique (:class:`SegmentEstimator`'s order).
+        area_m2: their one-sided areas, m².
+        replicates: R, independent ray sets (the standard error's replicates).
+        seed: random seed.
+        rays_per_m2: rays per m² of ground for each kind, all replicates together.
+    """
+
+    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2: float):
+        if field_scene.tracer is None:
+            raise InputError(
+                "direct='projection' on a finite field",
+                column="direct",
+                expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
+            )
+        if not (isinstance(rays_per_m2, (int, float)) and math.isfinite(rays_per_m2) and rays_per_m2 > 0):
+            raise InputError(
+                f"direct_rays_per_m2={rays_per_m2!r}", column="direct_rays_per_m2", expected="a number > 0"
+            )
+        mi = field_scene.mi
+        self.fs, self.mi, self.R, self.seed = field_scene, mi, int(replicates), int(seed)
+        cell = field_scene.cell
+        A, B = (float(v) for v in cell.size_m)
+        m = max(1, round(rays_per_m2 * cell.area_m2 / self.R))
+        self.nx = max(1, round(math.sqrt(m * A / B)))
+        self.ny = max(1, -(-m // self.nx))
+        self.m = self.nx * self.ny  # rays per replicate
+        self.flux_ref = cell.area_m2 / self.m  # m² of ground per ray
+        seg = np.asarray(segment_ids, dtype=np.int64)
+        self.S = len(seg)
+        self._inv_area = 1.0 / np.asarray(area_m2, dtype=np.float64)
+        geometry = field_scene.scene_mesh
+        pos = np.minimum(np.searchsorted(seg, geometry.face_segment), len(seg) - 1)
+        row = np.where(seg[pos] == geometry.face_segment, pos, _NONE).astype(np.uint32)
+        normals = geometry.normals()
+        self._row = owned(row, mi.UInt32)
+        self._blade = owned(geometry.face_is_blade, mi.Bool)
+        self._normal = mi.Vector3f(*(owned(normals[:, c].astype(np.float32), mi.Float) for c in range(3)))
+        self._hits: dict = {}
+
+    # -- rays ------------------------------------------------------------------------------
+    def _key(self, kind: str, dim: int):
+        import drjit as dr
+
+        k = (self.seed * 0x9E3779B1 + {"sun": 1, "sky": 2}[kind] * 0x85EBCA77 + dim * 0xC2B2AE3D) % 2**32
+        return dr.opaque(self.mi.UInt32, k)
+
+    def _cast(self, kind: str) -> Hits:
+        import drjit as dr
+
+        mi, fs, tracer = self.mi, self.fs, self.fs.tracer
+        n = self.R * self.m
+        idx = dr.arange(mi.UInt32, n)
+        rep = idx // dr.opaque(mi.UInt32, self.m)
+        c = idx - rep * dr.opaque(mi.UInt32, self.m)
+        ja, jb = mi.sample_tea_32(idx, self._key(kind, 0))
+        to_unit = 2.0**-24
+        nx = dr.opaque(mi.UInt32, self.nx)
+        ia, ib = c % nx, c // nx
+        A, B = (float(v) for v in fs.cell.size_m)
+        a = ((mi.Float(ia) + mi.Float(ja >> 8) * to_unit) / self.nx - 0.5) * A
+        b = ((mi.Float(ib) + mi.Float(jb >> 8) * to_unit) / self.ny - 0.5) * B
+        (ex, ey), (fx, fy) = fs.cell.axes
+        cx, cy = fs.cell.center_xy
+        z0 = tracer.z_top + 1e-3
+        o = mi.Point3f(cx + a * ex + b * fx, cy + a * ey + b * fy, dr.full(mi.Float, z0, n))
+        if kind == "sun":
+            w = dr.opaque(mi.Vector3f, [float(v) for v in fs.sun])
+            cap = tracer.crossings_for(fs.sun)
+            weight, w0 = None, float(fs.sun[2])
+        else:
+            # Cosine-weighted directions: an R₂ sequence over the grid index, shifted per
+            # replicate (fixed point: exact for any index).
+            s1, s2 = mi.sample_tea_32(rep, self._key(kind, 1))
+            u1 = mi.Float((s1 + c * int(2**32 / _R2)) >> 8) * to_unit
+            u2 = mi.Float((s2 + c * int(2**32 / _R2**2)) >> 8) * to_unit
+            w = mi.Vector3f(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)))
+            cap = tracer.cap
+            weight, w0 = math.pi * fs.sky_radiance(w.z), 1.0
+        status, _, _, _, pi = tracer.walk(o, -w, mi.Bool(True), cap=cap, soil=True, test=False)
+        from lightfit.light.periodic import CAPPED, LEAF
+
+        hit = status == LEAF
+        face = pi.prim_index
+        row = dr.gather(mi.UInt32, self._row, face, hit)
+        cos_n = dr.dot(dr.gather(mi.Vector3f, self._normal, face, hit), w)
+        front = cos_n > 0
+        ok = hit & (row != _NONE) & (front | dr.gather(mi.Bool, self._blade, face, hit))
+        capped = dr.count(status == CAPPED)
+        sel = dr.compress(ok)
+        out = Hits(
+            index=dr.gather(mi.UInt32, row * self.R + rep, sel),
+            mu=dr.gather(mi.Float, dr.abs(cos_n), sel),
+            front=dr.gather(mi.Bool, front, sel),
+            weight=None if weight is None else dr.gather(mi.Float, weight, sel),
+            w0=w0,
+            rays=n,
+            capped=0,
+        )
+        dr.eval(out.index, out.mu, out.front, out.weight)
+        out.capped = int(np.asarray(capped).sum())
+        return out
+
+    def hits(self, kind: str) -> Hits | None:
+        """The hits of ``kind`` ("sun": at the scene's current sun, ``None`` below the horizon;
+        "sky"), cast on first use and kept (the sky's for the estimator's life, the sun's per sun)."""
+        if kind == "sun":
+            if self.fs.sun[2] <= 0:
+                return None
+            key = ("sun", *(float(v) for v in self.fs.sun))
+        else:
+            key = ("sky", self.fs.sky)
+        if key not in self._hits:
+            self._hits[key] = self._cast(kind)
+        return self._hits[key]
+
+    def forget_suns(self, keep=()) -> None:
+        """Drop kept sun hits except those of the sun vectors in ``keep``."""
+        keep = {("sun", *(float(v) for v in s)) for s in keep}
+        for k in [k for k in self._hits if k[0] == "sun" and k not in keep]:
+            del self._hits[k]
+
+    def summary(self) -> dict:
+        """What the projection cast: rays per m², the grid, and per kind kept so far the rays cast,
+        the hits on requested segments and the rays stopped by the crossing cap."""
+        import drjit as dr
+
+        out = {"rays_per_replicate": self.m, "grid": (self.nx, self.ny), "replicates": self.R}
+        out["rays_per_m2"] = self.R * self.m / self.fs.cell.area_m2
+        for key, h in self._hits.items():
+            out[key[0]] = {"rays": h.rays, "hits": int(dr.width(h.mu)), "capped": h.capped}
+        return out
+
+    # -- values ----------------------------------------------------------------------------
+    def values(self, kind: str) -> dict[str, np.ndarray] | None:
+        """Replicate values (S, R) of ``kind`` at the current leaf parameters: ``incident``,
+        ``absorbed`` (per unit DNI or DHI) and their front-side shares ``incident_front``,
+        ``absorbed_front``; ``None`` for the sun below the horizon."""
+        import drjit as dr
+
+        h = self.hits(kind)
+        if h is None:
+            return None
+        mi = self.mi
+        w = mi.Float(h.w0) if h.weight is None else h.weight
+        with dr.suspend_grad():
+            a = 1.0 - leaf_albedo(self.fs.bsdf, h.mu)
+            sums = {}
+            for name, v in (("incident", w), ("absorbed", w * a)):
+                q = mi.UInt64(mi.Float64(v) * _FIXED + 0.5)
+                for suffix, mask in (("", mi.Bool(True)), ("_front", h.front)):
+                    buf = dr.zeros(mi.UInt64, self.S * self.R)
+                    dr.scatter_reduce(dr.ReduceOp.Add, buf, q, h.index, mask)
+                    sums[name + suffix] = buf
+            dr.eval(sums)
+        scale = self.flux_ref / _FIXED * self._inv_area[:, None]
+        return {k: np.asarray(v, dtype=np.float64).reshape(self.S, self.R) * scale for k, v in sums.items()}
+
+    def vjp(self, kind: str, cotangent: np.ndarray) -> dict[str, float]:
+        """Gradient of Σ_s cotangent[s] · absorbed[s] (the replicates' mean) w.r.t. the leaf
+        parameters, for ``kind`` at the current sun (zeros below the horizon)."""
+        import drjit as dr
+
+        grads = dict.fromkeys(LEAF_PARAMETERS, 0.0)
+        h = self.hits(kind)
+        if h is None or dr.width(h.mu) == 0:
+            return grads
+        mi = self.mi
+        c = np.asarray(cotangent, dtype=np.float64) * self._inv_area * (self.flux_ref / self.R)
+        w = dr.gather(mi.Float, owned(np.repeat(c, self.R), mi.Float), h.index)
+        w = w * (h.w0 if h.weight is None else h.weight)
+        bsdf = self.fs.bsdf
+        saved = {k: getattr(bsdf, k) for k in LEAF_PARAMETERS}
+        # Per-hit copies of the parameters (as SegmentEstimator.vjp): an elementwise backward
+        # pass, summed in float64 at the end (the same sum whatever the threads' order).
+        wide = {k: dr.opaque(mi.Float, float(saved[k][0]), dr.width(h.mu)) for k in LEAF_PARAMETERS}
+        try:
+            for k, v in wide.items():
+                dr.enable_grad(v)
+                setattr(bsdf, k, v)
+            dr.backward(dr.sum(w * (1.0 - leaf_albedo(bsdf, h.mu))))
+            grads = {k: float(np.sum(np.asarray(dr.grad(v), dtype=np.float64))) for k, v in wide.items()}
+        finally:
+            for k, v in saved.items():
+                setattr(bsdf, k, v)
+        return grads

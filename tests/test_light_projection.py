@@ -1,0 +1,175 @@
+"""Direct light by projection (lightfit.light.projection; SegmentEstimator(direct="projection")).
+
+References: analytic values for a leaf that covers the whole periodic cell (every ray lands on
+it: the direct sun is exactly sin β per unit DNI, the sky exactly 1 per unit DHI, and the
+absorbed parts the leaf's absorptance at the sun's incidence and integrated over the cosine-
+weighted sky); the path estimator's own direct light (same expectation, independent random
+numbers: canopy totals and per-segment z-scores); the paths' scattered light, which must be the
+same random numbers in both modes; finite differences with common random numbers for the
+gradient; and bitwise repeatability.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_periodic import canopy, leaf_ids, square
+
+from lightfit.errors import InputError
+from lightfit.light.backend import mitsuba
+from lightfit.light.bsdf import leaf_albedo
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant.periodic import PeriodicCell
+
+OPTICS = Optics.preset("prospect")
+
+
+def _albedo(fs, mu):
+    mi = mitsuba()
+    return np.asarray(leaf_albedo(fs.bsdf, mi.Float(np.asarray(mu, np.float32))), dtype=np.float64)
+
+
+def test_a_leaf_covering_the_cell_gets_the_analytic_direct_light():
+    cell = PeriodicCell(0.2, 0.3, row_direction_deg=70.0, center_xy=(0.05, -0.1))
+    mesh = square([0.0, 0.0, 0.4], [0, 0, 1], 1.0, 1)
+    # The square spans the cell exactly: its corners at the cell's.
+    mesh.vertices[:, :2] = cell.corners_xy
+    fs = FieldScene(mesh, OPTICS, cell=cell)
+    el = 35.0
+    fs.set_sun(el, 120.0)
+    est = SegmentEstimator(fs, [1], samples=8, bounces=0, seed=3, direct="projection", direct_rays_per_m2=2e6)
+    r = est.render()
+    s = math.sin(math.radians(el))
+    assert r.incident_sun[0] == pytest.approx(s, rel=1e-6)
+    assert r.incident_sky[0] == pytest.approx(1.0, rel=1e-6)
+    assert r.front("incident_sun")[0] == pytest.approx(s, rel=1e-6)  # the upper side is lit
+    assert r.absorbed_sun[0] == pytest.approx(s * (1 - _albedo(fs, [s])[0]), rel=1e-5)
+    assert r.se["incident_sun"][0] < 1e-6 and r.se["incident_sky"][0] < 1e-6
+    # Sky: absorptance averaged over the cosine-weighted hemisphere, ∫ (1 − ρ(μ)) 2μ dμ.
+    mu = (np.arange(20000) + 0.5) / 20000
+    expected = np.sum((1 - _albedo(fs, mu)) * 2 * mu) / len(mu)
+    assert r.absorbed_sky[0] == pytest.approx(expected, abs=4 * r.se["absorbed_sky"][0] + 1e-5)
+    proj = r.meta["direct_projection"]
+    assert proj["sun"]["hits"] == proj["sun"]["rays"] and proj["sky"]["hits"] == proj["sky"]["rays"]
+
+
+@pytest.fixture(scope="module")
+def field():
+    cell = PeriodicCell(0.3, 0.3, row_direction_deg=90.0)
+    mesh, _ = canopy(cell, 2.0, "spherical", np.random.default_rng(5), leaf=0.03, z=(0.05, 0.5), sensors=2)
+    fs = FieldScene(mesh, OPTICS, cell=cell)
+    fs.set_sun(40.0, 150.0)
+    return fs, leaf_ids(mesh)
+
+
+def test_projection_estimates_the_paths_direct_light(field):
+    """Same expectation, independent random numbers: canopy totals within 4 combined SE and
+    per-segment z-scores centred on 0 with unit spread."""
+    fs, ids = field
+    z_all = {}
+    for seed in (1, 2):
+        paths = SegmentEstimator(fs, ids, samples=64, bounces=0, seed=seed).render()
+        proj = SegmentEstimator(fs, ids, samples=64, bounces=0, seed=seed, direct="projection").render()
+        area = paths.meta["area_m2"]
+        for part in ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky"):
+            a, b = getattr(paths, part), getattr(proj, part)
+            sa, sb = paths.se[part], proj.se[part]
+            ta, tb = (a * area).sum(), (b * area).sum()
+            st = math.hypot(math.sqrt(((sa * area) ** 2).sum()), math.sqrt(((sb * area) ** 2).sum()))
+            assert abs(ta - tb) <= 4 * st, (seed, part, ta, tb, st)
+            ok = (sa > 0) & (sb > 0)
+            z_all.setdefault(part, []).append((a[ok] - b[ok]) / np.hypot(sa[ok], sb[ok]))
+        # The projection is the less noisy of the two (the reason it exists).
+        assert np.median(proj.relative_se()) < 0.6 * np.median(paths.relative_se())
+    for part, z in z_all.items():
+        z = np.concatenate(z)
+        assert abs(z.mean()) < 0.15 and 0.7 < z.std() < 1.4, (part, z.mean(), z.std())
+
+
+def test_scattered_light_is_the_same_paths_in_both_modes(field):
+    """With projection the paths carry exactly the scattered light of the path estimator: its
+    value at B bounces minus its value at 0 bounces (the same random numbers)."""
+    fs, ids = field
+    paths = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=4).render()
+    direct = SegmentEstimator(fs, ids, samples=16, bounces=0, seed=4).render()
+    est = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=4, direct="projection")
+    proj = est.render()
+    d = est._direct_values()
+    for part in ("incident_sun", "absorbed_sun", "incident_sky", "absorbed_sky"):
+        scattered = getattr(paths, part) - getattr(direct, part)
+        np.testing.assert_allclose(getattr(proj, part) - d[part].mean(1), scattered, rtol=1e-5, atol=1e-7)
+
+
+def test_renders_are_repeatable_and_keep_across_suns(field):
+    fs, ids = field
+    kw = dict(samples=8, bounces=1, seed=7, direct="projection", direct_rays_per_m2=3e6)
+    a = SegmentEstimator(fs, ids, **kw).render()
+    est = SegmentEstimator(fs, ids, **kw)
+    b = est.render()
+    for part in ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky"):
+        assert np.array_equal(getattr(a, part), getattr(b, part))
+        assert np.array_equal(a.se[part], b.se[part])
+    fs.set_sun(10.0, 250.0)
+    try:
+        low = est.render()
+        fs.set_sun(-5.0, 250.0)
+        night = est.render()
+    finally:
+        fs.set_sun(40.0, 150.0)
+    assert np.array_equal(est.render().absorbed_sun, b.absorbed_sun)
+    assert not np.array_equal(low.absorbed_sun, b.absorbed_sun)
+    assert np.all(night.incident_sun == 0) and np.all(night.absorbed_sun == 0)
+    assert np.array_equal(night.incident_sky, b.incident_sky)  # the sky does not depend on the sun
+    # render_many weighs the kept hits: bitwise a render at each point and sun.
+    many = list(est.render_many([[0.2, 0.7, 0.4]], [[40.0, 150.0], [10.0, 250.0]]))[0]
+    fs.set_optics(specular=0.2, roughness=0.7, subsurface=0.4)
+    try:
+        ref = est.render()
+    finally:
+        fs.set_optics(**{k: getattr(OPTICS, k) for k in ("specular", "roughness", "subsurface")})
+    assert np.array_equal(many[0].absorbed_sun, ref.absorbed_sun)
+    assert np.array_equal(many[0].absorbed_sky, ref.absorbed_sky)
+
+
+def test_gradient_matches_finite_differences_with_common_random_numbers(field):
+    fs, ids = field
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
+
+    def J(r):
+        return sum(np.sum(ct[p] * getattr(r, p)) for p in ct)
+
+    # The albedo is bilinear in a roughness table with nodes every 1/32: the point and the steps
+    # stay inside one table cell, where the estimate is smooth.
+    x = {"specular": 0.5, "roughness": 0.515, "subsurface": 0.45}
+    h = {"specular": 0.1, "roughness": 0.01, "subsurface": 0.1}
+    est = SegmentEstimator(fs, ids, samples=8, bounces=1, seed=2, direct="projection", direct_rays_per_m2=3e6)
+    try:
+        fs.set_optics(**x)
+        g = est.vjp(ct)
+        for k, step in h.items():
+            fs.set_optics(**{k: x[k] + step})
+            jp = J(est.render())
+            fs.set_optics(**{k: x[k] - step})
+            jm = J(est.render())
+            fs.set_optics(**{k: x[k]})
+            fd = (jp - jm) / (2 * step)
+            assert np.isfinite(g[k])
+            assert g[k] == pytest.approx(fd, rel=0.03, abs=1e-4 * abs(J(est.render()))), (k, g[k], fd)
+    finally:
+        fs.set_optics(**{k: getattr(OPTICS, k) for k in x})
+
+
+def test_bad_settings_are_refused(field):
+    fs, ids = field
+    with pytest.raises(InputError, match="direct"):
+        SegmentEstimator(fs, ids, direct="rasterised")
+    with pytest.raises(InputError, match="direct_rays_per_m2"):
+        SegmentEstimator(fs, ids, direct="projection", direct_rays_per_m2=0)
+    with pytest.raises(InputError, match="first"):
+        SegmentEstimator(fs, ids, direct="projection", first=8)
+    finite = FieldScene(fs.mesh, OPTICS)
+    with pytest.raises(InputError, match="periodic"):
+        SegmentEstimator(finite, ids, direct="projection")
