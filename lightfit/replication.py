@@ -75,6 +75,8 @@ class ReplicationConfig:
     ``target_rse``: ``None`` (default) → ``samples`` points on every segment; a number in (0, 1) →
     adaptive sampling to that per-segment relative SE of absorbed PAR, ``samples`` the starting count
     (:attr:`lightfit.model.scenario.Scenario.target_rse`).
+    ``direct``: ``"auto"`` (default) → the direct light by projection in a periodic field, from the
+    paths in a finite one; ``"projection"`` or ``"paths"`` to choose (:attr:`Scenario.direct`).
     """
 
     n_plants: int = 100
@@ -85,6 +87,7 @@ class ReplicationConfig:
     samples: int = 64
     bounces: int | None = None
     target_rse: float | None = None
+    direct: str = "auto"
     ceptometer_height_m: float = 0.0
     render_seed: int = 0
     par_kind: str = "absorbed"
@@ -311,6 +314,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         bounces=cfg.render_bounces(),
         seed=cfg.render_seed,
         target_rse=cfg.target_rse,
+        direct=cfg.direct,
         ceptometer_height_m=cfg.ceptometer_height_m,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,

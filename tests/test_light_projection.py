@@ -173,3 +173,48 @@ def test_bad_settings_are_refused(field):
     finite = FieldScene(fs.mesh, OPTICS)
     with pytest.raises(InputError, match="periodic"):
         SegmentEstimator(finite, ids, direct="projection")
+
+
+def test_adaptive_rounds_add_paths_to_one_projection(field):
+    """render_adaptive with a projection: a segment stopped at K has the estimate of a plain
+    projection render with K samples; the AdaptiveEstimator keeps it (render, render_many, vjp)."""
+    from lightfit.light.estimator import PARTS, AdaptiveEstimator, render_adaptive
+
+    fs, ids = field
+    kw = dict(bounces=1, seed=3, max_samples=256, direct="projection", direct_rays_per_m2=3e6)
+    r = render_adaptive(fs, ids, 0.05, **kw)
+    K, rse = r.meta["samples_per_segment"], r.meta["reached_rse"]
+    assert len(np.unique(K)) >= 2
+    limited = r.meta["limited_by_projection"]
+    assert ((rse <= 0.05) | (K == 256) | limited | ~np.isfinite(rse)).all()
+    for k in np.unique(K)[:2]:
+        sel = K == k
+        fixed = SegmentEstimator(fs, ids[sel], samples=int(k), bounces=1, seed=3, direct="projection",
+                                 direct_rays_per_m2=3e6).render()  # fmt: skip
+        for p in PARTS:
+            np.testing.assert_allclose(getattr(r, p)[sel], getattr(fixed, p), rtol=1e-10, atol=1e-14)
+            np.testing.assert_allclose(r.se[p][sel], fixed.se[p], rtol=1e-8, atol=1e-14)
+    est = AdaptiveEstimator(fs, ids, 0.05, **kw)
+    again = est.render()
+    for p in PARTS:
+        np.testing.assert_allclose(getattr(again, p), getattr(r, p), rtol=1e-10, atol=1e-14)
+    many = list(est.render_many([[0.3, 0.6, 0.5]], [[40.0, 150.0], [25.0, 200.0]]))[0]
+    state = fs.optics
+    try:
+        fs.set_optics(specular=0.3, roughness=0.6, subsurface=0.5)
+        fs.set_sun(25.0, 200.0)
+        ref = est.render()
+    finally:
+        fs.set_optics(**{k: getattr(state, k) for k in ("specular", "roughness", "subsurface")})
+        fs.set_sun(40.0, 150.0)
+    np.testing.assert_allclose(many[1].absorbed_sun, ref.absorbed_sun, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(many[1].absorbed_sky, ref.absorbed_sky, rtol=1e-10, atol=1e-14)
+    ct = {"absorbed_sun": np.ones(len(ids))}
+    g = est.vjp(ct)
+    step = 0.1
+    vals = []
+    for x in (0.5 + step, 0.5 - step):
+        fs.set_optics(specular=x)
+        vals.append(est.render().absorbed_sun.sum())
+    fs.set_optics(specular=state.specular)
+    assert g["specular"] == pytest.approx((vals[0] - vals[1]) / (2 * step), rel=0.03)

@@ -56,6 +56,7 @@ class ModelOptions:
     samples: int | None = None
     bounces: int | None = None
     target_rse: float | None = None
+    direct: str | None = None
     ceptometer_height_m: float | None = None
     render_seed: int | None = None
     par_kind: str | None = None
@@ -91,6 +92,7 @@ class ModelSettings:
     samples: int
     bounces: int
     target_rse: float | None
+    direct: str
     ceptometer_height_m: float
     render_seed: int
     par_kind: str
@@ -128,6 +130,7 @@ class ModelSettings:
             samples=self.samples,
             bounces=self.bounces,
             target_rse=self.target_rse,
+            direct=self.direct,
             ceptometer_height_m=self.ceptometer_height_m,
             render_seed=self.render_seed,
             par_kind=self.par_kind,
@@ -226,6 +229,17 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "sampling (e.g. 0.05), in (0, 1); --samples is then each segment's starting count (at least 32), "
             "samples are added up to 8192 where the error is above it; results.nc reports each segment's "
             "samples and reached error. Default: none (every segment gets --samples points).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "direct": (
+        str | None,
+        typer.Option(
+            "--direct",
+            help="Where the segments' direct sun and directly seen sky come from: projection (rays cast "
+            "down over the periodic cell: same expectation, a fraction of the noise), paths (each sample "
+            "point's own rays; what finite fields need) or auto (default: projection in a periodic field, "
+            "paths in a finite one).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -447,6 +461,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def resolve(opts: ModelOptions) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
+    from lightfit.model.scenario import resolve_direct
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
 
@@ -469,6 +484,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         samples=given(opts.samples, base.samples),
         bounces=given(opts.bounces, base.bounces),
         target_rse=given(opts.target_rse, base.target_rse),
+        direct=resolve_direct(given(opts.direct, base.direct), boundary),
         ceptometer_height_m=given(opts.ceptometer_height_m, base.ceptometer_height_m),
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),
@@ -576,6 +592,7 @@ RENDER_SETTINGS = (
     "samples",
     "bounces",
     "target_rse",
+    "direct",
     "ceptometer_height_m",
     "render_seed",
     "optics",
@@ -597,13 +614,15 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     """``"key: before → now"`` for each of ``keys`` that differs between a stored run's settings
     (its ``config``) and ``s``. Settings written before the periodic boundary have no
     ``boundary``: they were finite fields; settings written before leaf optics have no
-    ``optics``: they had the grey leaf (``paper``). ``previous=None`` (nothing stored): no difference.
+    ``optics``: they had the grey leaf (``paper``); settings written before the projected direct
+    light have no ``direct``: their paths carried it. ``previous=None`` (nothing stored): no difference.
     """
     if previous is None:
         return []
     now = s.as_dict()
     # Settings stored before a key existed ran with what is now its default.
-    before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None} | _WHEN_DEFAULTS | dict(previous)
+    before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths"}
+    before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 
 

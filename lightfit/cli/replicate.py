@@ -119,9 +119,14 @@ def replicate(
     console.print(t)
     an, bias = (float(ds[v].sum()) for v in ("canopy_an_umol_m2_s", "canopy_an_mc_bias_umol_m2_s"))
     if an > 0:
+        # The bias goes as the blades' PAR variance: 1/K from the paths, and with a projection
+        # (attribute direct) also 1/rays.
+        falls = "falling as 1/K"
+        if ds.attrs.get("direct") == "projection":
+            falls = "falling with K and the projection's rays"
         console.print(
             f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
-            f"response; not subtracted): {bias / an:+.2%} at K={ds.attrs['samples']}, falling as 1/K (docs/model.md)"
+            f"response; not subtracted): {bias / an:+.2%} at K={ds.attrs['samples']}, {falls} (docs/model.md)"
         )
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")

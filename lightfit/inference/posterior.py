@@ -323,6 +323,7 @@ def run(
             "n_segments": int(sum(len(d.segment_id) for d in days)),
             "samples": sc.samples,
             "bounces": sc.bounces,
+            "direct": sc.direct,
             "render_seed": sc.seed,
             "n_plants": sc.field.n_plants,
             "par_kind": sc.par_kind,

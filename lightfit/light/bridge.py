@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
 
@@ -51,6 +52,8 @@ def make_irradiance(
     target_rse: float | None = None,
     allocate_at: tuple[ArrayLike, ArrayLike, float, float] | None = None,
     max_samples: int = 8192,
+    direct: str = "paths",
+    direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
 ) -> Callable[[ArrayLike, ArrayLike, ArrayLike], tuple[jax.Array, jax.Array]]:
     """Build ``irradiance(leaf, sun_deg, seed) -> (values, se)``, each (4, S + P), for fixed segments and sampling.
 
@@ -72,6 +75,8 @@ def make_irradiance(
             absorbed PAR whose error is targeted. ``None``: the first call's leaf and sun with a
             clear day's DHI/DNI = 0.3 — then the values depend on which call came first, so
             callers wanting a pure function (:class:`~lightfit.model.coupled.CoupledModel`) give it.
+        direct, direct_rays_per_m2: the segments' unscattered light from the paths or by
+            projection (:class:`SegmentEstimator`); sensors always use their own paths.
 
     The returned function's arguments: ``leaf`` — (3,) specular, roughness, subsurface in
     [0, 1]; ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer.
@@ -91,8 +96,9 @@ def make_irradiance(
         field_scene.set_sun(el, az)
 
     def segment_estimator(leaf, sun_deg, s: int):
+        direct_kw = dict(direct=direct, direct_rays_per_m2=direct_rays_per_m2)
         if target_rse is None:
-            return SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s)
+            return SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s, **direct_kw)
         a_leaf, a_sun, dni, dhi = (leaf, sun_deg, 1.0, 0.3) if allocate_at is None else allocate_at
         set_state(np.asarray(a_leaf, np.float64), np.asarray(a_sun, np.float64))
         est = AdaptiveEstimator(
@@ -105,6 +111,7 @@ def make_irradiance(
             max_samples=max(int(max_samples), int(samples), 32),
             dni=float(dni),
             dhi=float(dhi),
+            **direct_kw,
         )
         set_state(leaf, sun_deg)
         return est

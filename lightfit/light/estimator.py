@@ -71,7 +71,7 @@ from lightfit.light.scene import FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
 #: Where a :class:`SegmentEstimator`'s unscattered light comes from (its ``direct`` argument).
-DIRECT_MODES = ("paths", "projection")
+DIRECT_MODES = ("paths", "projection", "none")
 #: Version of the estimator's random numbers and sampling: bumped whenever a change moves rendered
 #: values (not only their rounding), so that renders kept on disk (emulator designs, keyed by
 #: :func:`lightfit.model.emulator.render_key`) from before the change are not reused with renders
@@ -247,11 +247,13 @@ class SegmentEstimator:
             estimator with ``first = M`` continues one with M points per replicate
             (:func:`render_adaptive` adds samples in rounds this way).
         direct: where the unscattered light comes from: ``"paths"`` (each point's shadow ray to
-            the sun and its first ray escaping to the sky) or ``"projection"`` (periodic scenes:
-            rays cast down over the cell, :class:`~lightfit.light.projection.DirectProjection`).
-        direct_rays_per_m2: ``direct="projection"``: rays per m² of ground, for the sun and
-            again for the sky (the projection's accuracy knob; its cost does not grow with the
-            number of segments requested).
+            the sun and its first ray escaping to the sky), ``"projection"`` (periodic scenes:
+            rays cast down over the cell, :class:`~lightfit.light.projection.DirectProjection`)
+            or ``"none"`` (scattered light only: what the paths carry with a projection).
+        direct_rays_per_m2: ``direct="projection"``: rays per m² of ground, ``(sun, sky)`` or
+            one number for both (the projection's accuracy knob; its cost does not grow with
+            the number of segments requested; the sun's rays are cast again for every sun, the
+            sky's once).
     """
 
     def __init__(
@@ -265,7 +267,7 @@ class SegmentEstimator:
         epsilon_m: float = 1e-5,
         first: int = 0,
         direct: str = "paths",
-        direct_rays_per_m2: float = DEFAULT_RAYS_PER_M2,
+        direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
     ):
         if not isinstance(samples, (int, np.integer)) or samples < 2:
             raise InputError(
@@ -275,7 +277,7 @@ class SegmentEstimator:
             raise InputError(f"bounces={bounces!r}", column="bounces", expected="an integer ≥ 0")
         if direct not in DIRECT_MODES:
             raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
-        if direct == "projection" and first != 0:
+        if direct == "projection" and first != 0:  # render_adaptive: rounds with "none", one projection
             raise InputError(
                 f"first={first!r} with direct='projection'",
                 column="first",
@@ -323,10 +325,9 @@ class SegmentEstimator:
         self._kept = None  # (key, geometry, ray counts) of _geometry
         self._sun_kept = None  # (_sun_key(), shadow rays) of the last render, for vjp
         self.direct = direct
+        self._scattered_only = direct != "paths"
         self._direct = (
-            DirectProjection(
-                self.fs, seg, self.area_m2, replicates=R, seed=self.seed, rays_per_m2=float(direct_rays_per_m2)
-            )
+            DirectProjection(self.fs, seg, self.area_m2, replicates=R, seed=self.seed, rays_per_m2=direct_rays_per_m2)
             if direct == "projection"
             else None
         )
@@ -577,7 +578,7 @@ class SegmentEstimator:
         L_sky = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
         betas = []
         for depth, g in enumerate(geo):
-            if depth > 0 or self._direct is None:  # the projection has the directly seen sky
+            if depth > 0 or not self._scattered_only:  # a projection has the directly seen sky
                 L_sky += dr.select(g["escaped"], beta * fs.sky_radiance(g["dz"]), 0.0)
             if depth == self.bounces:
                 break
@@ -602,7 +603,7 @@ class SegmentEstimator:
         o, nrm, *_ = self._arrays()
         sun = self._sun_vector()
         cos_s = dr.dot(nrm, sun)
-        if self._direct is not None:  # the projection has the direct sun
+        if self._scattered_only:  # a projection has the direct sun
             e_dir = dr.zeros(mi.Float, self.n_evaluations)
         elif fs.tracer is None:
             blocked = fs.scene.ray_test(mi.Ray3f(o, sun), cos_s > 0)
@@ -781,19 +782,8 @@ class SegmentEstimator:
             yield out
 
     def _direct_values(self) -> dict | None:
-        """The projection's replicate values (S, R) per part and their front-side shares (key
-        ``front``), at the current leaf parameters and sun; ``None`` with ``direct="paths"``."""
-        if self._direct is None:
-            return None
-        out, front = {}, {}
-        for kind in ("sun", "sky"):
-            v = self._direct.values(kind)
-            if v is None:  # the sun below the horizon
-                v = dict.fromkeys(("incident", "absorbed", "incident_front", "absorbed_front"), 0.0)
-            for part in ("incident", "absorbed"):
-                out[f"{part}_{kind}"] = v[part]
-                front[f"{part}_{kind}"] = v[f"{part}_front"]
-        return {**out, "front": front}
+        """:func:`_projected` of this estimator's projection (``None`` unless ``direct="projection"``)."""
+        return _projected(self._direct)
 
     def _irradiance(self, vals: dict, periodic: dict | None, direct: dict | None = None) -> Irradiance:
         """Per-segment means, standard errors and replicate means of evaluated per-evaluation values,
@@ -815,10 +805,9 @@ class SegmentEstimator:
             out[k] = per_point.mean(1)
             rep = per_point.reshape(S, self.replicates, self.per_replicate).mean(2)
             if direct is not None:  # independent estimates of the same expectation's two terms
-                d, d_front = np.broadcast_to(direct[k], rep.shape), np.broadcast_to(direct["front"][k], rep.shape)
-                front[k] = front[k] + d_front.mean(1)
-                out[k] = out[k] + d.mean(1)
-                rep = rep + d
+                front[k] = front[k] + direct["front"][k].mean(1)
+                out[k] = out[k] + direct[k].mean(1)
+                rep = rep + direct[k]
             se[k] = rep.std(1, ddof=1) / math.sqrt(self.replicates)
             reps[k] = rep
         return Irradiance(
@@ -926,11 +915,8 @@ class SegmentEstimator:
         finally:
             for k, v in saved.items():
                 setattr(bsdf, k, v)
-        if self._direct is not None:
-            for kind in ("sun", "sky"):
-                g = self._direct.vjp(kind, c[f"absorbed_{kind}"])
-                grads = {k: grads[k] + g[k] for k in grads}
-        return grads
+        g = _projection_vjp(self._direct, c)
+        return {k: grads[k] + g[k] for k in grads}
 
 
 def samples_for_accuracy(
@@ -962,6 +948,43 @@ def samples_for_accuracy(
         return pilot
     k = math.ceil(r.samples * (np.quantile(rse, quantile) / target_rse) ** 2)
     return int(min(max(k, 2 * replicates_for(k)), max_samples))
+
+
+def _projected(proj: DirectProjection | None) -> dict | None:
+    """A projection's replicate values (S, R) per part (:data:`PARTS`) and their front-side
+    shares (key ``front``), at the current leaf parameters and sun; ``None`` for no projection."""
+    if proj is None:
+        return None
+    out, front = {}, {}
+    for kind in ("sun", "sky"):
+        v = proj.values(kind)
+        if v is None:  # the sun below the horizon
+            v = dict.fromkeys(("incident", "absorbed", "incident_front", "absorbed_front"), 0.0)
+        for part in ("incident", "absorbed"):
+            out[f"{part}_{kind}"] = np.broadcast_to(v[part], (proj.S, proj.R))
+            front[f"{part}_{kind}"] = np.broadcast_to(v[f"{part}_front"], (proj.S, proj.R))
+    return {**out, "front": front}
+
+
+def _with_projected(reps: dict, front: dict, d: dict | None, idx=slice(None)) -> tuple[dict, dict]:
+    """Replicate means and front-side means of the paths plus a projection's (:func:`_projected`,
+    rows ``idx``): independent estimates of the two terms of one expectation, added replicate by
+    replicate."""
+    if d is None:
+        return reps, front
+    return (
+        {p: reps[p] + d[p][idx] for p in PARTS},
+        {p: front[p] + d["front"][p][idx].mean(1) for p in PARTS},
+    )
+
+
+def _projection_vjp(proj: DirectProjection | None, c: dict) -> dict[str, float]:
+    """A projection's gradient of Σ c[part]·value (absorbed parts; zeros without a projection)."""
+    grads = dict.fromkeys(LEAF_PARAMETERS, 0.0)
+    for kind in ("sun", "sky") if proj is not None else ():
+        g = proj.vjp(kind, c[f"absorbed_{kind}"])
+        grads = {k: grads[k] + g[k] for k in grads}
+    return grads
 
 
 def _sun_sky_cov(reps: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -1011,6 +1034,8 @@ def render_adaptive(
     max_samples: int = 8192,
     dni: float = 1.0,
     dhi: float = 0.3,
+    direct: str = "paths",
+    direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
 ) -> Irradiance:
     r"""Per-segment irradiance with samples added, in rounds, where the error is above ``target_rse``.
 
@@ -1030,6 +1055,11 @@ def render_adaptive(
     Stopping when the *estimated* SE falls below the target slightly favours replicates that
     happen to agree (a selection effect, as in any sequential design); with 8 replicates the
     reached error is within about 1.2 × the target for segments that stopped.
+
+    ``direct="projection"`` (:class:`SegmentEstimator`): the direct light is projected once for
+    all segments and the rounds add paths with scattered light only; a segment whose projected
+    part alone is above the target stops (more points cannot help: raise
+    ``direct_rays_per_m2``), counted in ``meta["limited_by_projection"]``.
     """
     if not 0 < target_rse < 1:
         raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
@@ -1039,9 +1069,13 @@ def render_adaptive(
         raise InputError(f"growth={growth!r}", column="growth", expected="an integer ≥ 2")
     if not isinstance(max_samples, (int, np.integer)) or max_samples < pilot:
         raise InputError(f"max_samples={max_samples!r}", column="max_samples", expected=f"an integer ≥ pilot ({pilot})")
+    if direct not in DIRECT_MODES[:2]:
+        raise InputError(f"direct={direct!r}", column="direct", expected="'paths' or 'projection'")
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
     S, R = len(ids), replicates_for(int(pilot))
     J, J_max = -(-int(pilot) // R), max(-(-int(pilot) // R), int(max_samples) // R)
+    paths_direct = "none" if direct == "projection" else "paths"
+    proj, D, limited = None, None, np.zeros(S, bool)
     sums = {p: np.zeros((S, R)) for p in PARTS}
     fsum = {p: np.zeros(S) for p in PARTS}
     M = np.zeros(S, dtype=np.int64)
@@ -1050,10 +1084,17 @@ def render_adaptive(
     first, rounds, n_eval, meta0 = 0, [], 0, None
     while True:
         idx = np.flatnonzero(active)
-        est = SegmentEstimator(field_scene, ids[idx], samples=R * (J - first), bounces=bounces, seed=seed, first=first)
+        est = SegmentEstimator(
+            field_scene, ids[idx], samples=R * (J - first), bounces=bounces, seed=seed, first=first, direct=paths_direct
+        )
         r = est.render()
         if meta0 is None:
             meta0 = {k: r.meta[k] for k in ("optics", "is_blade", "area_m2")}
+            if direct == "projection":
+                proj = DirectProjection(
+                    field_scene, ids, r.meta["area_m2"], replicates=R, seed=seed, rays_per_m2=direct_rays_per_m2
+                )
+                D = _projected(proj)
         n_eval += r.meta["n_evaluations"]
         for p in PARTS:
             sums[p][idx] += r.meta["replicate_means"][p] * (J - first)
@@ -1061,8 +1102,7 @@ def render_adaptive(
         M[idx] = J
         sub = _from_replicate_means(
             ids[idx],
-            {p: sums[p][idx] / J for p in PARTS},
-            {p: fsum[p][idx] / (R * J) for p in PARTS},
+            *_with_projected({p: sums[p][idx] / J for p in PARTS}, {p: fsum[p][idx] / (R * J) for p in PARTS}, D, idx),
             R * M[idx],
             bounces,
             seed,
@@ -1072,13 +1112,18 @@ def render_adaptive(
         rse[idx] = sub.relative_se("absorbed", dni, dhi)
         rounds.append({"samples": R * J, "segments": int(len(idx)), "evaluations": int(r.meta["n_evaluations"])})
         active[idx] = (rse[idx] > target_rse) & np.isfinite(rse[idx])
+        if D is not None:  # the projection's own error is not reduced by more points
+            own = D["absorbed_sun"][idx] * dni + D["absorbed_sky"][idx] * dhi
+            value = sub.total("absorbed", dni, dhi)
+            own_rse = np.divide(own.std(1, ddof=1) / math.sqrt(R), value, out=np.zeros(len(idx)), where=value > 0)
+            limited[idx] = active[idx] & (own_rse > target_rse)
+            active[idx] &= ~limited[idx]
         if J >= J_max or not active.any():
             break
         first, J = J, min(J * int(growth), J_max)
     return _from_replicate_means(
         ids,
-        {p: sums[p] / M[:, None] for p in PARTS},
-        {p: fsum[p] / (R * M) for p in PARTS},
+        *_with_projected({p: sums[p] / M[:, None] for p in PARTS}, {p: fsum[p] / (R * M) for p in PARTS}, D),
         R * M,
         bounces,
         seed,
@@ -1089,6 +1134,8 @@ def render_adaptive(
             "reached_rse": rse,
             "rounds": rounds,
             "target_rse": float(target_rse),
+            "direct": direct,
+            **({} if proj is None else {"direct_projection": proj.summary(), "limited_by_projection": limited}),
         },
     )
 
@@ -1112,6 +1159,20 @@ class AdaptiveEstimator:
         self.bounces, self.seed = self.allocation.bounces, self.allocation.seed
         self.is_blade = self.allocation.meta["is_blade"]
         self.area_m2 = self.allocation.meta["area_m2"]
+        self.direct = kwargs.get("direct", "paths")
+        R = self.allocation.meta["replicate_means"]["incident_sun"].shape[1]
+        self._direct = (
+            DirectProjection(
+                field_scene,
+                self.segment_id,
+                self.area_m2,
+                replicates=R,
+                seed=self.seed,
+                rays_per_m2=kwargs.get("direct_rays_per_m2", DEFAULT_RAYS_PER_M2),
+            )
+            if self.direct == "projection"
+            else None
+        )
         self.groups = [
             (
                 np.flatnonzero(self.samples == k),
@@ -1121,6 +1182,7 @@ class AdaptiveEstimator:
                     samples=int(k),
                     bounces=self.bounces,
                     seed=self.seed,
+                    direct="none" if self._direct is not None else "paths",
                 ),
             )
             for k in np.unique(self.samples)
@@ -1129,16 +1191,34 @@ class AdaptiveEstimator:
 
     def render(self) -> Irradiance:
         """All segments at their allocated K (:meth:`SegmentEstimator.render` per group)."""
-        return self._join([est.render() for _, est in self.groups])
+        results = [est.render() for _, est in self.groups]
+        if self._direct is not None:
+            self._direct.forget_suns(keep=[self.fs.sun])
+        return self._join(results, _projected(self._direct))
 
     def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):
         """:meth:`SegmentEstimator.render_many` per group, joined: per leaf point the list of
         :meth:`render` results at each sun."""
-        for per_group in zip(*(est.render_many(leaf, suns_deg) for _, est in self.groups)):
-            yield [self._join(rs) for rs in zip(*per_group)]
+        leaf = np.atleast_2d(np.asarray(leaf, dtype=np.float64))
+        fs = self.fs
+        for x, per_group in zip(leaf, zip(*(est.render_many(leaf, suns_deg) for _, est in self.groups))):
+            d = [None] * len(per_group[0])
+            if self._direct is not None:  # the projection at this point and each sun
+                optics, sun = fs.optics, fs.sun.copy()
+                try:
+                    fs.set_optics(**dict(zip(LEAF_PARAMETERS, x)))
+                    for t, row in enumerate([None] if suns_deg is None else np.atleast_2d(suns_deg)):
+                        if row is not None:
+                            fs.set_sun(*row)
+                        d[t] = _projected(self._direct)
+                finally:
+                    fs.set_optics(**{k: getattr(optics, k) for k in LEAF_PARAMETERS})
+                    fs.optics, fs.sun = optics, sun
+            yield [self._join(rs, dt) for rs, dt in zip(zip(*per_group), d)]
 
-    def _join(self, results: list[Irradiance]) -> Irradiance:
-        """One :class:`Irradiance` from the groups' renders (same sun, same leaf parameters)."""
+    def _join(self, results: list[Irradiance], d: dict | None = None) -> Irradiance:
+        """One :class:`Irradiance` from the groups' renders (same sun, same leaf parameters) and the
+        projection's values ``d`` (:func:`_projected`) there."""
         S = len(self.segment_id)
         reps = {p: None for p in PARTS}
         front = {p: np.zeros(S) for p in PARTS}
@@ -1149,8 +1229,9 @@ class AdaptiveEstimator:
                     reps[p] = np.zeros((S, m.shape[1]))
                 reps[p][i] = m
                 front[p][i] = r.front(p)
-        meta = {k: self.allocation.meta[k] for k in ("optics", "is_blade", "area_m2", "target_rse")}
+        meta = {k: self.allocation.meta[k] for k in ("optics", "is_blade", "area_m2", "target_rse", "direct")}
         meta["n_evaluations"] = self.n_evaluations
+        reps, front = _with_projected(reps, front, d)
         return _from_replicate_means(
             self.segment_id, reps, front, self.samples, self.bounces, self.seed, results[0].sun_vector, meta
         )
@@ -1163,4 +1244,6 @@ class AdaptiveEstimator:
             c = {p: np.broadcast_to(np.asarray(v, dtype=np.float64), (S,))[i] for p, v in cotangent.items()}
             for k, g in est.vjp(c).items():
                 out[k] += g
-        return out
+        c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
+        g = _projection_vjp(self._direct, c)
+        return {k: out[k] + g[k] for k in out}

@@ -53,9 +53,26 @@ from lightfit.errors import InputError
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
 
-#: Default rays per m² of ground, per replicate set and kind (sun, sky): 1e7 is ≈ 1 000 rays per
-#: cm² of canopy, a median relative SE of the direct sun ≈ 2 % (sky ≈ 7 %) on the 500-plant cell.
-DEFAULT_RAYS_PER_M2 = 1.0e7
+#: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
+DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
+
+
+def check_rays(rays_per_m2) -> tuple[float, float]:
+    """``(sun, sky)`` rays per m² of ground from a pair or one number for both; InputError otherwise."""
+    pair = (rays_per_m2, rays_per_m2) if isinstance(rays_per_m2, (int, float, np.number)) else rays_per_m2
+    try:
+        out = tuple(float(v) for v in pair)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 2 or isinstance(rays_per_m2, bool) or not all(math.isfinite(v) and v > 0 for v in out):
+        raise InputError(
+            f"direct_rays_per_m2={rays_per_m2!r}",
+            column="direct_rays_per_m2",
+            expected="rays per m² of ground > 0: one number, or (sun, sky)",
+        )
+    return out
+
+
 _FIXED = 2.0**32  # fixed-point scale of the sums
 _NONE = 0xFFFFFFFF  # row of a face whose segment is not requested
 _R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
@@ -66,7 +83,8 @@ class Hits:
     """The rays of one kind that met a requested segment (Dr.Jit arrays, one entry per hit).
 
     ``index``: segment row · R + replicate; ``mu``: |cos| of incidence on the face; ``front``:
-    the face's front side was lit; ``weight``: the ray's w (``None``: every ray the same, ``w0``).
+    the face's front side was lit; ``weight``: the ray's w (``None``: every ray the same, ``w0``);
+    ``rays`` cast, ``capped`` of them stopped by the crossing cap, ``flux_ref`` = A_c/m.
     """
 
     index: object
@@ -76,6 +94,7 @@ class Hits:
     w0: float
     rays: int
     capped: int
+    flux_ref: float  # m² of ground per ray
 
 
 class DirectProjection:
@@ -87,29 +106,28 @@ class DirectProjection:
         area_m2: their one-sided areas, m².
         replicates: R, independent ray sets (the standard error's replicates).
         seed: random seed.
-        rays_per_m2: rays per m² of ground for each kind, all replicates together.
+        rays_per_m2: rays per m² of ground, all replicates together: ``(sun, sky)``, or one number
+            for both.
     """
 
-    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2: float):
+    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2):
         if field_scene.tracer is None:
             raise InputError(
                 "direct='projection' on a finite field",
                 column="direct",
                 expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
             )
-        if not (isinstance(rays_per_m2, (int, float)) and math.isfinite(rays_per_m2) and rays_per_m2 > 0):
-            raise InputError(
-                f"direct_rays_per_m2={rays_per_m2!r}", column="direct_rays_per_m2", expected="a number > 0"
-            )
+        self.rays_per_m2 = dict(zip(("sun", "sky"), check_rays(rays_per_m2)))
         mi = field_scene.mi
         self.fs, self.mi, self.R, self.seed = field_scene, mi, int(replicates), int(seed)
         cell = field_scene.cell
         A, B = (float(v) for v in cell.size_m)
-        m = max(1, round(rays_per_m2 * cell.area_m2 / self.R))
-        self.nx = max(1, round(math.sqrt(m * A / B)))
-        self.ny = max(1, -(-m // self.nx))
-        self.m = self.nx * self.ny  # rays per replicate
-        self.flux_ref = cell.area_m2 / self.m  # m² of ground per ray
+        #: Per kind: the grid (n_a, n_b) of one replicate's rays over the cell.
+        self.grid = {}
+        for kind, rho in self.rays_per_m2.items():
+            m = max(1, round(rho * cell.area_m2 / self.R))
+            nx = max(1, round(math.sqrt(m * A / B)))
+            self.grid[kind] = (nx, max(1, -(-m // nx)))
         seg = np.asarray(segment_ids, dtype=np.int64)
         self.S = len(seg)
         self._inv_area = 1.0 / np.asarray(area_m2, dtype=np.float64)
@@ -133,17 +151,19 @@ class DirectProjection:
         import drjit as dr
 
         mi, fs, tracer = self.mi, self.fs, self.fs.tracer
-        n = self.R * self.m
+        gx, gy = self.grid[kind]
+        m = gx * gy
+        n = self.R * m
         idx = dr.arange(mi.UInt32, n)
-        rep = idx // dr.opaque(mi.UInt32, self.m)
-        c = idx - rep * dr.opaque(mi.UInt32, self.m)
+        rep = idx // dr.opaque(mi.UInt32, m)
+        c = idx - rep * dr.opaque(mi.UInt32, m)
         ja, jb = mi.sample_tea_32(idx, self._key(kind, 0))
         to_unit = 2.0**-24
-        nx = dr.opaque(mi.UInt32, self.nx)
+        nx = dr.opaque(mi.UInt32, gx)
         ia, ib = c % nx, c // nx
         A, B = (float(v) for v in fs.cell.size_m)
-        a = ((mi.Float(ia) + mi.Float(ja >> 8) * to_unit) / self.nx - 0.5) * A
-        b = ((mi.Float(ib) + mi.Float(jb >> 8) * to_unit) / self.ny - 0.5) * B
+        a = (mi.Float(ia) + mi.Float(ja >> 8) * to_unit) * dr.opaque(mi.Float, A / gx) - 0.5 * A
+        b = (mi.Float(ib) + mi.Float(jb >> 8) * to_unit) * dr.opaque(mi.Float, B / gy) - 0.5 * B
         (ex, ey), (fx, fy) = fs.cell.axes
         cx, cy = fs.cell.center_xy
         z0 = tracer.z_top + 1e-3
@@ -180,6 +200,7 @@ class DirectProjection:
             w0=w0,
             rays=n,
             capped=0,
+            flux_ref=fs.cell.area_m2 / m,
         )
         dr.eval(out.index, out.mu, out.front, out.weight)
         out.capped = int(np.asarray(capped).sum())
@@ -209,10 +230,11 @@ class DirectProjection:
         the hits on requested segments and the rays stopped by the crossing cap."""
         import drjit as dr
 
-        out = {"rays_per_replicate": self.m, "grid": (self.nx, self.ny), "replicates": self.R}
-        out["rays_per_m2"] = self.R * self.m / self.fs.cell.area_m2
+        out = {"replicates": self.R}
+        for kind, (gx, gy) in self.grid.items():
+            out[kind] = {"grid": (gx, gy), "rays_per_m2": self.R * gx * gy / self.fs.cell.area_m2}
         for key, h in self._hits.items():
-            out[key[0]] = {"rays": h.rays, "hits": int(dr.width(h.mu)), "capped": h.capped}
+            out[key[0]].update(rays=h.rays, hits=int(dr.width(h.mu)), capped=h.capped)
         return out
 
     # -- values ----------------------------------------------------------------------------
@@ -237,7 +259,7 @@ class DirectProjection:
                     dr.scatter_reduce(dr.ReduceOp.Add, buf, q, h.index, mask)
                     sums[name + suffix] = buf
             dr.eval(sums)
-        scale = self.flux_ref / _FIXED * self._inv_area[:, None]
+        scale = h.flux_ref / _FIXED * self._inv_area[:, None]
         return {k: np.asarray(v, dtype=np.float64).reshape(self.S, self.R) * scale for k, v in sums.items()}
 
     def vjp(self, kind: str, cotangent: np.ndarray) -> dict[str, float]:
@@ -250,7 +272,7 @@ class DirectProjection:
         if h is None or dr.width(h.mu) == 0:
             return grads
         mi = self.mi
-        c = np.asarray(cotangent, dtype=np.float64) * self._inv_area * (self.flux_ref / self.R)
+        c = np.asarray(cotangent, dtype=np.float64) * self._inv_area * (h.flux_ref / self.R)
         w = dr.gather(mi.Float, owned(np.repeat(c, self.R), mi.Float), h.index)
         w = w * (h.w0 if h.weight is None else h.weight)
         bsdf = self.fs.bsdf

@@ -132,6 +132,8 @@ class CoupledModel:
             target_rse=sc.target_rse,
             allocate_at=self.allocation_point if sc.target_rse is not None else None,
             max_samples=MAX_ADAPTIVE_SAMPLES,
+            direct=sc.direct,
+            direct_rays_per_m2=sc.direct_rays_per_m2,
         )
 
     @property
@@ -281,6 +283,8 @@ class CoupledModel:
             "samples": sc.samples,
             **({} if sc.target_rse is None else {"target_rse": sc.target_rse, "max_samples": MAX_ADAPTIVE_SAMPLES}),
             "bounces": sc.bounces,
+            "direct": sc.direct,
+            **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
             "par_kind": sc.par_kind,

@@ -105,7 +105,8 @@ def _digest(*arrays) -> str:
 
 def render_key(model: CoupledModel) -> dict:
     """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
-    settings (samples, bounces, seed; target_rse and the cap when adaptive), sky, optics, the field
+    settings (samples, bounces, seed; target_rse and the cap when adaptive; the projection and its
+    rays when the direct light is projected), sky, optics, the field
     (plants, growth parameter file, boundary) and its geometry (hash of the segment table), the
     measured segments, times, sun positions and the daytime mask, and the lightfit, estimator
     (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba and Dr.Jit versions. JSON-ready."""
@@ -140,6 +141,8 @@ def render_key(model: CoupledModel) -> dict:
         "day": _digest(np.asarray(model.day, bool)),
         # Adaptive sampling only: absent at a fixed K, so the keys of fixed-K caches stay as they were.
         **({} if sc.target_rse is None else {"target_rse": float(sc.target_rse), "max_samples": MAX_ADAPTIVE_SAMPLES}),
+        # Projected direct light only: absent with the paths' (the keys of earlier caches).
+        **({} if sc.direct == "paths" else {"direct": sc.direct, "direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
     }
 
 

@@ -16,6 +16,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.light.leaf_optics import DEFAULT_PRESET
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
 from lightfit.model.parameters import Theta
 from lightfit.plant import Field
@@ -82,6 +83,26 @@ MAX_CEPTOMETER_HEIGHT_M = 10.0
 MAX_ADAPTIVE_SAMPLES = 8192
 
 
+#: Values of :attr:`Scenario.direct` (``"auto"`` resolves by the field's boundary).
+DIRECT_CHOICES = ("auto", "projection", "paths")
+
+
+def resolve_direct(direct: str, boundary: str) -> str:
+    """``direct`` (:data:`DIRECT_CHOICES`) for a field with ``boundary``: ``"auto"`` → projection in
+    a periodic field, paths in a finite one; projection in a finite field is refused."""
+    if direct not in DIRECT_CHOICES:
+        raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_CHOICES)))
+    if direct == "auto":
+        return "projection" if boundary == "periodic" else "paths"
+    if direct == "projection" and boundary != "periodic":
+        raise InputError(
+            f"direct='projection' with a {boundary} field",
+            column="direct",
+            expected="a periodic field (boundary 'periodic'), or direct 'paths' (or 'auto')",
+        )
+    return direct
+
+
 @dataclass
 class Scenario:
     """Everything a forward run needs besides the calibrated parameters.
@@ -97,6 +118,15 @@ class Scenario:
             :class:`~lightfit.light.estimator.AdaptiveEstimator`; docs/light.md, "Adaptive
             sampling to a target error"); ``samples`` is then the starting count of every
             segment (at least 32) and :data:`MAX_ADAPTIVE_SAMPLES` the cap.
+        direct: where the renders' unscattered light (direct sun, directly seen sky) comes from:
+            ``"projection"`` (periodic fields: rays cast down over the cell,
+            :mod:`lightfit.light.projection`; same expectation as the paths, a fraction of their
+            variance: docs/light.md, "Direct light by projection"), ``"paths"`` (each sample
+            point's own shadow ray and first ray; what finite fields need), or ``"auto"``
+            (default): projection where the field is periodic, paths where it is finite.
+            Resolved at construction (the attribute then names the one used).
+        direct_rays_per_m2: ``direct="projection"``: its rays per m² of ground, ``(sun, sky)``
+            or one number for both (default :data:`lightfit.light.projection.DEFAULT_RAYS_PER_M2`).
         ceptometer_height_m: height of the default virtual line quantum sensor (ceptometer,
             :func:`lightfit.light.sensors.default_sensors`) above the soil, m: 0 (default) reads
             the PAR transmitted to the soil, a height inside the canopy the PAR transmitted to it.
@@ -120,6 +150,8 @@ class Scenario:
     bounces: int = 3
     seed: int = 0
     target_rse: float | None = None
+    direct: str = "auto"
+    direct_rays_per_m2: tuple[float, float] | float = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
     photosynthesis: str = "winter_wheat"
     par_kind: str = "incident"
@@ -140,6 +172,8 @@ class Scenario:
             raise InputError(
                 f"target_rse={t!r}", column="target_rse", expected="a relative standard error in (0, 1), or None"
             )
+        self.direct = resolve_direct(self.direct, self.field.boundary)
+        self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
         h = self.ceptometer_height_m
         if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0 <= h <= MAX_CEPTOMETER_HEIGHT_M:
             raise InputError(
@@ -177,4 +211,12 @@ class Scenario:
         return self.field.measured_area_m2(self.measured_tile)
 
 
-__all__ = ["MAX_ADAPTIVE_SAMPLES", "Forcing", "Scenario", "WEATHER_COLUMNS", "daytime"]
+__all__ = [
+    "DIRECT_CHOICES",
+    "MAX_ADAPTIVE_SAMPLES",
+    "Forcing",
+    "Scenario",
+    "WEATHER_COLUMNS",
+    "daytime",
+    "resolve_direct",
+]
