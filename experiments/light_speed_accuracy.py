@@ -6,12 +6,15 @@
 One field and sun position (2016-04-20, 10:00 UTC at Selhausen, reconstructed weather), the
 default leaf (PROSPECT-D, ``Optics.preset("prospect")``) and the default boundary (a periodic cell
 of the measured plants). From the main job's settings (K = 64, the leaf's bounces for 1 %
-truncation: 2, periodic, mesh 1 × 1) one knob is changed at a time — samples K, bounces, mesh
+truncation: 2, periodic, mesh 1 × 1, the direct light by projection with its default rays) one
+knob is changed at a time — where the direct light comes from (the paths: the default before
+issue 16's projection), the projection's rays per m² (sun, sky), samples K, bounces, mesh
 resolution, the boundary (a finite field with 0–6 buffer rows and as many buffer plants along the
 rows, the reference paper's setup at 2) and the accuracy knob ``target_rse`` (adaptive sampling,
 :func:`~lightfit.light.estimator.render_adaptive`) — and absorbed PAR per segment and the canopy
 total are compared with one reference: the mean of 8 seeds at K = 1024 (8 192 samples per
-segment), 4 bounces, periodic (segments matched by plant
+segment), 4 bounces, periodic, the direct light from the paths (an estimator independent of the
+projection's rays; segments matched by plant
 position and segment index, which do not depend on the boundary). Absorbed PAR uses that
 moment's DNI and DHI in PAR units. Time is the wall time of the estimator (set-up and render) on
 this machine's cores. Writes a CSV, a JSON and a Pareto plot (error against time), and prints a
@@ -38,7 +41,9 @@ from rich.table import Table  # noqa: E402
 import lightfit  # noqa: E402,F401
 from lightfit import weather  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance, render_adaptive  # noqa: E402
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2  # noqa: E402
 from lightfit.light.scene import FieldScene, Optics  # noqa: E402
+from lightfit.model.scenario import resolve_direct  # noqa: E402
 from lightfit.plant import Field, MeshResolution, build  # noqa: E402
 from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi  # noqa: E402
@@ -46,7 +51,9 @@ from lightfit.weather.units import par_from_ghi  # noqa: E402
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = dict(samples=1024, bounces=4, boundary="periodic", buffer_rows=0, along=1, across=1, target_rse=None)
+REFERENCE = dict(
+    samples=1024, bounces=4, boundary="periodic", buffer_rows=0, along=1, across=1, target_rse=None, direct="paths"
+)
 #: Independent seeds averaged for the reference (K = 1024 each: 8 192 samples per segment in all;
 #: one render at that K would hold ≈ 10 GB of paths). Its own median relative SE is reported: at
 #: high K the errors below are mostly the reference's noise.
@@ -56,9 +63,14 @@ REFERENCE_SEEDS = tuple(range(12345, 12353))
 def settings(optics: Optics) -> tuple[dict, list[dict]]:
     """The main job's settings for ``optics`` and the one-knob changes swept from them."""
     b = bounces_for_tolerance(0.01, optics)
-    default = dict(samples=64, bounces=b, boundary="periodic", buffer_rows=0, along=1, across=1, target_rse=None)
+    default = dict(
+        samples=64, bounces=b, boundary="periodic", buffer_rows=0, along=1, across=1, target_rse=None, direct="auto"
+    )
+    default["rays"] = DEFAULT_RAYS_PER_M2
     sweep = (
-        [{"samples": k} for k in (8, 16, 32, 128, 256, 512)]
+        [{"direct": "paths"}]
+        + [{"rays": r} for r in ((1e6, 1e7), (1e7, 1e7), (1e7, 3e7))]
+        + [{"samples": k} for k in (8, 16, 32, 128, 256, 512)]
         + [{"bounces": d} for d in (0, 1, 2, 3, 4, 6) if d != b]
         + [{"boundary": "finite", "buffer_rows": r} for r in (0, 2, 4, 6)]
         + [{"along": 3, "across": 2}]
@@ -80,9 +92,12 @@ def _absorbed(
     fs.set_sun(*sun)
     seg = geom.segments[geom.segments["measured"]]
     ids = seg["segment_id"].to_numpy()
+    direct = dict(direct=resolve_direct(setting["direct"], setting["boundary"]))
+    if direct["direct"] == "projection":
+        direct["direct_rays_per_m2"] = setting.get("rays", DEFAULT_RAYS_PER_M2)
     t0 = time.perf_counter()
     if setting["target_rse"] is None:
-        est = SegmentEstimator(fs, ids, samples=setting["samples"], bounces=setting["bounces"], seed=seed)
+        est = SegmentEstimator(fs, ids, samples=setting["samples"], bounces=setting["bounces"], seed=seed, **direct)
         r = est.render()
         n_ev, k_mean = est.n_evaluations, float(est.samples)
     else:  # the pilot K is the setting's samples (at least 32)
@@ -95,6 +110,7 @@ def _absorbed(
             pilot=max(32, setting["samples"]),
             dni=dni,
             dhi=dhi,
+            **direct,
         )
         n_ev, k_mean = r.meta["n_evaluations"], float(np.mean(r.meta["samples_per_segment"]))
     elapsed = time.perf_counter() - t0
@@ -121,6 +137,8 @@ LABELS = {
     "boundary": lambda r: f"finite, {r['buffer_rows']} rows",
     "along,across": lambda r: f"mesh {r['along']}×{r['across']}",
     "target_rse": lambda r: f"target {r['target_rse']:.0%}",
+    "direct": lambda r: f"direct from {r['direct']}",
+    "rays": lambda r: "rays {:.0e}/{:.0e}".format(*r["rays"]),
     "default": lambda r: f"default (K={r['samples']}, b={r['bounces']})",
 }
 
@@ -196,6 +214,9 @@ def main(
     rows = []
     for change in [{}] + sweep:
         setting = {**default, **change}
+        setting["direct"] = resolve_direct(setting["direct"], setting["boundary"])
+        if setting["direct"] == "paths":
+            setting["rays"] = None
         res, t, n_ev, k_mean = _absorbed(n_plants, setting, optics, sun, dni, dhi, seed=1)
         j = res.join(ref, rsuffix="_ref", how="inner")
         lit = j["absorbed_ref"] > 1e-3 * j["absorbed_ref"].max()
@@ -245,6 +266,7 @@ def main(
     t = Table(title="speed/accuracy (absorbed PAR, vs reference)")
     columns = (
         "changed",
+        "direct",
         "samples",
         "bounces",
         "boundary",
