@@ -1057,9 +1057,12 @@ def render_adaptive(
     reached error is within about 1.2 × the target for segments that stopped.
 
     ``direct="projection"`` (:class:`SegmentEstimator`): the direct light is projected once for
-    all segments and the rounds add paths with scattered light only; a segment whose projected
-    part alone is above the target stops (more points cannot help: raise
-    ``direct_rays_per_m2``), counted in ``meta["limited_by_projection"]``.
+    all segments and the rounds add paths with scattered light only. A segment still above the
+    target whose projected part alone is above it (more points cannot reduce that: typically
+    stems deep in the canopy, which few projected rays reach) takes its direct light from its
+    own points from then on: the paths' direct light of the points it has is added, and its
+    later rounds are ``direct="paths"``, so it ends with exactly the estimate of a
+    ``direct="paths"`` render with its K. ``meta["projected"]``: whose direct light is projected.
     """
     if not 0 < target_rse < 1:
         raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
@@ -1074,50 +1077,83 @@ def render_adaptive(
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
     S, R = len(ids), replicates_for(int(pilot))
     J, J_max = -(-int(pilot) // R), max(-(-int(pilot) // R), int(max_samples) // R)
-    paths_direct = "none" if direct == "projection" else "paths"
-    proj, D, limited = None, None, np.zeros(S, bool)
+    projected = np.full(S, direct == "projection")  # per segment: its direct light projected
+    proj, D = None, None
     sums = {p: np.zeros((S, R)) for p in PARTS}
     fsum = {p: np.zeros(S) for p in PARTS}
     M = np.zeros(S, dtype=np.int64)
     active = np.ones(S, bool)
     rse = np.full(S, np.inf)
     first, rounds, n_eval, meta0 = 0, [], 0, None
-    while True:
-        idx = np.flatnonzero(active)
-        est = SegmentEstimator(
-            field_scene, ids[idx], samples=R * (J - first), bounces=bounces, seed=seed, first=first, direct=paths_direct
-        )
-        r = est.render()
-        if meta0 is None:
-            meta0 = {k: r.meta[k] for k in ("optics", "is_blade", "area_m2")}
-            if direct == "projection":
-                proj = DirectProjection(
-                    field_scene, ids, r.meta["area_m2"], replicates=R, seed=seed, rays_per_m2=direct_rays_per_m2
-                )
-                D = _projected(proj)
-        n_eval += r.meta["n_evaluations"]
+
+    def add(rows, n_points, first_point, mode, n_bounces):
+        """Render ``n_points`` more points per replicate of segments ``rows`` and add them."""
+        r = SegmentEstimator(
+            field_scene,
+            ids[rows],
+            samples=R * n_points,
+            bounces=n_bounces,
+            seed=seed,
+            first=first_point,
+            direct=mode,
+        ).render()
         for p in PARTS:
-            sums[p][idx] += r.meta["replicate_means"][p] * (J - first)
-            fsum[p][idx] += r.front(p) * (R * (J - first))
-        M[idx] = J
-        sub = _from_replicate_means(
-            ids[idx],
-            *_with_projected({p: sums[p][idx] / J for p in PARTS}, {p: fsum[p][idx] / (R * J) for p in PARTS}, D, idx),
-            R * M[idx],
+            sums[p][rows] += r.meta["replicate_means"][p] * n_points
+            fsum[p][rows] += r.front(p) * (R * n_points)
+        return r
+
+    def estimate(rows):
+        return _from_replicate_means(
+            ids[rows],
+            *_with_projected(
+                {p: sums[p][rows] / M[rows, None] for p in PARTS},
+                {p: fsum[p][rows] / (R * M[rows]) for p in PARTS},
+                D,
+                rows,
+            ),
+            R * M[rows],
             bounces,
             seed,
             field_scene.sun,
             {},
         )
+
+    while True:
+        idx = np.flatnonzero(active)
+        evaluations = 0
+        for rows, mode in ((idx[projected[idx]], "none"), (idx[~projected[idx]], "paths")):
+            if len(rows):
+                r = add(rows, J - first, first, mode, bounces)
+                evaluations += r.meta["n_evaluations"]
+                if meta0 is None:  # round 0: every segment, in one mode
+                    meta0 = {k: r.meta[k] for k in ("optics", "is_blade", "area_m2")}
+        if proj is None and direct == "projection":
+            proj = DirectProjection(
+                field_scene, ids, meta0["area_m2"], replicates=R, seed=seed, rays_per_m2=direct_rays_per_m2
+            )
+            D = {p: np.array(v) for p, v in _projected(proj).items() if p != "front"}
+            D["front"] = {p: np.array(v) for p, v in _projected(proj)["front"].items()}
+        M[idx] = J
+        sub = estimate(idx)
         rse[idx] = sub.relative_se("absorbed", dni, dhi)
-        rounds.append({"samples": R * J, "segments": int(len(idx)), "evaluations": int(r.meta["n_evaluations"])})
-        active[idx] = (rse[idx] > target_rse) & np.isfinite(rse[idx])
-        if D is not None:  # the projection's own error is not reduced by more points
+        if D is not None:
+            # A projected part alone above the target cannot be reduced by more points: such a
+            # segment takes its direct light from its own points instead (the paths' direct light
+            # of the points rendered so far, then paths rounds), exactly as a direct="paths" render.
             own = D["absorbed_sun"][idx] * dni + D["absorbed_sky"][idx] * dhi
             value = sub.total("absorbed", dni, dhi)
             own_rse = np.divide(own.std(1, ddof=1) / math.sqrt(R), value, out=np.zeros(len(idx)), where=value > 0)
-            limited[idx] = active[idx] & (own_rse > target_rse)
-            active[idx] &= ~limited[idx]
+            switch = idx[projected[idx] & (rse[idx] > target_rse) & (own_rse > target_rse)]
+            if len(switch):
+                evaluations += add(switch, J, 0, "paths", 0).meta["n_evaluations"]
+                projected[switch] = False
+                for p in PARTS:
+                    D[p][switch] = 0.0
+                    D["front"][p][switch] = 0.0
+                rse[switch] = estimate(switch).relative_se("absorbed", dni, dhi)
+        n_eval += evaluations
+        rounds.append({"samples": R * J, "segments": int(len(idx)), "evaluations": int(evaluations)})
+        active[idx] = (rse[idx] > target_rse) & np.isfinite(rse[idx])
         if J >= J_max or not active.any():
             break
         first, J = J, min(J * int(growth), J_max)
@@ -1135,7 +1171,7 @@ def render_adaptive(
             "rounds": rounds,
             "target_rse": float(target_rse),
             "direct": direct,
-            **({} if proj is None else {"direct_projection": proj.summary(), "limited_by_projection": limited}),
+            **({} if proj is None else {"direct_projection": proj.summary(), "projected": projected}),
         },
     )
 
@@ -1173,19 +1209,23 @@ class AdaptiveEstimator:
             if self.direct == "projection"
             else None
         )
+        #: Per segment: whether its direct light is projected (:func:`render_adaptive`).
+        self.projected = np.asarray(self.allocation.meta.get("projected", np.zeros(len(self.samples), bool)))
         self.groups = [
             (
-                np.flatnonzero(self.samples == k),
+                np.flatnonzero(sel),
                 SegmentEstimator(
                     field_scene,
-                    self.segment_id[self.samples == k],
+                    self.segment_id[sel],
                     samples=int(k),
                     bounces=self.bounces,
                     seed=self.seed,
-                    direct="none" if self._direct is not None else "paths",
+                    direct="none" if projected else "paths",
                 ),
             )
             for k in np.unique(self.samples)
+            for projected in (True, False)
+            if (sel := (self.samples == k) & (self.projected == projected)).any()
         ]
         self.n_evaluations = sum(e.n_evaluations for _, e in self.groups)
 
@@ -1194,7 +1234,7 @@ class AdaptiveEstimator:
         results = [est.render() for _, est in self.groups]
         if self._direct is not None:
             self._direct.forget_suns(keep=[self.fs.sun])
-        return self._join(results, _projected(self._direct))
+        return self._join(results, self._projected_values())
 
     def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):
         """:meth:`SegmentEstimator.render_many` per group, joined: per leaf point the list of
@@ -1210,11 +1250,23 @@ class AdaptiveEstimator:
                     for t, row in enumerate([None] if suns_deg is None else np.atleast_2d(suns_deg)):
                         if row is not None:
                             fs.set_sun(*row)
-                        d[t] = _projected(self._direct)
+                        d[t] = self._projected_values()
                 finally:
                     fs.set_optics(**{k: getattr(optics, k) for k in LEAF_PARAMETERS})
                     fs.optics, fs.sun = optics, sun
             yield [self._join(rs, dt) for rs, dt in zip(zip(*per_group), d)]
+
+    def _projected_values(self) -> dict | None:
+        """:func:`_projected` at the current sun and leaf, zero for segments whose direct light
+        comes from their own paths."""
+        d = _projected(self._direct)
+        if d is None:
+            return None
+        keep = self.projected[:, None]
+        return {
+            **{p: np.where(keep, d[p], 0.0) for p in PARTS},
+            "front": {p: np.where(keep, d["front"][p], 0.0) for p in PARTS},
+        }
 
     def _join(self, results: list[Irradiance], d: dict | None = None) -> Irradiance:
         """One :class:`Irradiance` from the groups' renders (same sun, same leaf parameters) and the
@@ -1245,5 +1297,5 @@ class AdaptiveEstimator:
             for k, g in est.vjp(c).items():
                 out[k] += g
         c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
-        g = _projection_vjp(self._direct, c)
+        g = _projection_vjp(self._direct, {p: np.where(self.projected, v, 0.0) for p, v in c.items()})
         return {k: out[k] + g[k] for k in out}
