@@ -267,7 +267,7 @@ def main(
     path_rate = est.n_evaluations / t_primal
     rays_per_sample = 1 + 3 * (bounces + 1)
     meter = irradiancemeter_comparison()
-    settings = [(64, 0), (64, 1e7), (256, 3e7)]  # (K, projection rays per m²; 0: paths)
+    settings = [(64, 0), (64, 1e7), (32, 2e7)]  # (K, projection rays per m²; 0: paths)
     direct = direct_projection_comparison(fs, ids, bounces, settings) if fs.tracer is not None else None
     root = Path(__file__).resolve().parents[1]
 

@@ -65,14 +65,16 @@ def field():
     return fs, leaf_ids(mesh)
 
 
-def test_projection_estimates_the_paths_direct_light(field):
-    """Same expectation, independent random numbers: canopy totals within 4 combined SE and
-    per-segment z-scores centred on 0 with unit spread."""
+@pytest.mark.parametrize("bounces", [0, 2])
+def test_projection_estimates_what_the_paths_estimate(field, bounces):
+    """Same expectation, independent random numbers (0 bounces: the direct light; 2: also the
+    light scattered once by a leaf, forward, and the rest by the paths): canopy totals within 4
+    combined SE and per-segment z-scores centred on 0 with unit spread."""
     fs, ids = field
     z_all = {}
     for seed in (1, 2):
-        paths = SegmentEstimator(fs, ids, samples=64, bounces=0, seed=seed).render()
-        proj = SegmentEstimator(fs, ids, samples=64, bounces=0, seed=seed, direct="projection").render()
+        paths = SegmentEstimator(fs, ids, samples=64, bounces=bounces, seed=seed).render()
+        proj = SegmentEstimator(fs, ids, samples=64, bounces=bounces, seed=seed, direct="projection").render()
         area = paths.meta["area_m2"]
         for part in ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky"):
             a, b = getattr(paths, part), getattr(proj, part)
@@ -89,18 +91,25 @@ def test_projection_estimates_the_paths_direct_light(field):
         assert abs(z.mean()) < 0.15 and 0.7 < z.std() < 1.4, (part, z.mean(), z.std())
 
 
-def test_scattered_light_is_the_same_paths_in_both_modes(field):
-    """With projection the paths carry exactly the scattered light of the path estimator: its
-    value at B bounces minus its value at 0 bounces (the same random numbers)."""
-    fs, ids = field
-    paths = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=4).render()
-    direct = SegmentEstimator(fs, ids, samples=16, bounces=0, seed=4).render()
-    est = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=4, direct="projection")
-    proj = est.render()
-    d = est._direct_values()
-    for part in ("incident_sun", "absorbed_sun", "incident_sky", "absorbed_sky"):
-        scattered = getattr(paths, part) - getattr(direct, part)
-        np.testing.assert_allclose(getattr(proj, part) - d[part].mean(1), scattered, rtol=1e-5, atol=1e-7)
+def test_with_a_projection_the_paths_carry_light_scattered_twice_or_by_the_soil(field):
+    """The projection has the direct light and the light scattered once by a leaf: with one
+    bounce over black soil nothing is left to the paths (exactly 0), with two bounces only the
+    second order is (a few per cent of the scattered light)."""
+    fs0, ids = field
+    black_soil = FieldScene(fs0.mesh, Optics.preset("prospect", soil_albedo=0.0), cell=fs0.cell)
+    black_soil.set_sun(40.0, 150.0)
+    for bounces in (1, 2):
+        est = SegmentEstimator(black_soil, ids, samples=16, bounces=bounces, seed=4, direct="projection")
+        r = est.render()
+        d = est._direct_values()
+        paths = {p: getattr(r, p) - d[p].mean(1) for p in ("incident_sun", "absorbed_sun", "incident_sky")}
+        none = SegmentEstimator(black_soil, ids, samples=16, bounces=bounces, seed=4, direct="none").render()
+        for p, v in paths.items():
+            np.testing.assert_allclose(v, getattr(none, p), rtol=1e-5, atol=1e-7)
+            if bounces == 1:
+                assert np.all(getattr(none, p) == 0), p
+            else:
+                assert 0 < v.sum() < 0.2 * d[p].mean(1).sum(), p
 
 
 def test_renders_are_repeatable_and_keep_across_suns(field):
@@ -242,10 +251,11 @@ def test_extreme_suns_and_parameter_bounds_stay_finite(field, elevation):
                 assert np.isfinite(getattr(r, p)).all() and np.isfinite(r.se[p]).all(), (x, p)
                 assert (getattr(r, p) >= 0).all()
             assert all(np.isfinite(v) for v in est.vjp(ct).values()), x
-        if elevation < 1:
-            d = est._direct.values("sun")["incident"].mean(1)  # direct sun only
+        if elevation < 1:  # the direct sun alone (0 bounces: nothing scattered)
+            kw = dict(samples=8, bounces=0, seed=1, direct="projection", direct_rays_per_m2=3e6)
+            d = SegmentEstimator(fs, all_ids, **kw).render()
             beam = fs.cell.area_m2 * math.sin(math.radians(elevation))
-            assert (d * r.meta["area_m2"]).sum() == pytest.approx(beam, rel=1e-6)
+            assert (d.incident_sun * d.meta["area_m2"]).sum() == pytest.approx(beam, rel=1e-6)
     finally:
         fs.set_optics(**{k: getattr(OPTICS, k) for k in ("specular", "roughness", "subsurface")})
         fs.set_sun(40.0, 150.0)

@@ -327,7 +327,15 @@ class SegmentEstimator:
         self.direct = direct
         self._scattered_only = direct != "paths"
         self._direct = (
-            DirectProjection(self.fs, seg, self.area_m2, replicates=R, seed=self.seed, rays_per_m2=direct_rays_per_m2)
+            DirectProjection(
+                self.fs,
+                seg,
+                self.area_m2,
+                replicates=R,
+                seed=self.seed,
+                rays_per_m2=direct_rays_per_m2,
+                scatter=self.bounces >= 1,
+            )
             if direct == "projection"
             else None
         )
@@ -578,8 +586,12 @@ class SegmentEstimator:
         L_sky = mi.Float(dr.zeros(mi.Float, self.n_evaluations))
         betas = []
         for depth, g in enumerate(geo):
-            if depth > 0 or not self._scattered_only:  # a projection has the directly seen sky
-                L_sky += dr.select(g["escaped"], beta * fs.sky_radiance(g["dz"]), 0.0)
+            escaped = g["escaped"]
+            if self._scattered_only and depth <= 1:
+                # A projection has the sky seen directly (depth 0) and through one leaf (depth 1
+                # after a leaf); through the soil it is the paths'.
+                escaped = escaped & geo[0]["hit_soil"] if depth == 1 else mi.Bool(False)
+            L_sky += dr.select(escaped, beta * fs.sky_radiance(g["dz"]), 0.0)
             if depth == self.bounces:
                 break
             betas.append(beta)
@@ -613,8 +625,10 @@ class SegmentEstimator:
             e_dir = dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
         eps = 1e-5
         visible = []
-        for g in geo[: self.bounces]:
+        for depth, g in enumerate(geo[: self.bounces]):
             hit_leaf, hit_soil, p, n = g["hit_leaf"], g["hit_soil"], g["p"], g["n"]
+            if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf
+                hit_leaf = mi.Bool(False)
             side = dr.sign(dr.dot(n, sun))
             # Leaf vertices: a ray wherever a leaf is hit; where the BSDF towards the sun is 0 at
             # some parameters their term is 0 whatever the ray finds. Leaf and soil vertices are
@@ -645,8 +659,10 @@ class SegmentEstimator:
             sun = self._sun_vector()
             rho_soil = fs.optics.soil_albedo
             ctx = mi.BSDFContext()
-            for g, beta, vis in zip(geo, betas, visible):
+            for depth, (g, beta, vis) in enumerate(zip(geo, betas, visible)):
                 hit_leaf, hit_soil = g["hit_leaf"], g["hit_soil"]
+                if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf
+                    hit_leaf = mi.Bool(False)
                 si = dr.zeros(mi.SurfaceInteraction3f)
                 si.sh_frame, si.wi = g["frame"], g["wi"]
                 f_sun = fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
@@ -1060,9 +1076,10 @@ def render_adaptive(
     all segments and the rounds add paths with scattered light only. A segment still above the
     target whose projected part alone is above it (more points cannot reduce that: typically
     stems deep in the canopy, which few projected rays reach) takes its direct light from its
-    own points from then on: the paths' direct light of the points it has is added, and its
-    later rounds are ``direct="paths"``, so it ends with exactly the estimate of a
-    ``direct="paths"`` render with its K. ``meta["projected"]``: whose direct light is projected.
+    own points from then on: the points it has are rendered again with ``direct="paths"`` (their
+    scattered-only values dropped), as are its later rounds, so it ends with exactly the estimate
+    of a ``direct="paths"`` render with its K. ``meta["projected"]``: whose direct light is
+    projected.
     """
     if not 0 < target_rse < 1:
         raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
@@ -1086,13 +1103,13 @@ def render_adaptive(
     rse = np.full(S, np.inf)
     first, rounds, n_eval, meta0 = 0, [], 0, None
 
-    def add(rows, n_points, first_point, mode, n_bounces):
+    def add(rows, n_points, first_point, mode):
         """Render ``n_points`` more points per replicate of segments ``rows`` and add them."""
         r = SegmentEstimator(
             field_scene,
             ids[rows],
             samples=R * n_points,
-            bounces=n_bounces,
+            bounces=bounces,
             seed=seed,
             first=first_point,
             direct=mode,
@@ -1123,7 +1140,7 @@ def render_adaptive(
         evaluations = 0
         for rows, mode in ((idx[projected[idx]], "none"), (idx[~projected[idx]], "paths")):
             if len(rows):
-                r = add(rows, J - first, first, mode, bounces)
+                r = add(rows, J - first, first, mode)
                 evaluations += r.meta["n_evaluations"]
                 if meta0 is None:  # round 0: every segment, in one mode
                     meta0 = {k: r.meta[k] for k in ("optics", "is_blade", "area_m2")}
@@ -1145,7 +1162,10 @@ def render_adaptive(
             own_rse = np.divide(own.std(1, ddof=1) / math.sqrt(R), value, out=np.zeros(len(idx)), where=value > 0)
             switch = idx[projected[idx] & (rse[idx] > target_rse) & (own_rse > target_rse)]
             if len(switch):
-                evaluations += add(switch, J, 0, "paths", 0).meta["n_evaluations"]
+                for p in PARTS:  # its points again, with their own direct light
+                    sums[p][switch] = 0.0
+                    fsum[p][switch] = 0.0
+                evaluations += add(switch, J, 0, "paths").meta["n_evaluations"]
                 projected[switch] = False
                 for p in PARTS:
                     D[p][switch] = 0.0

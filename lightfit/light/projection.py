@@ -85,6 +85,9 @@ class Hits:
     ``index``: segment row · R + replicate; ``mu``: |cos| of incidence on the face; ``front``:
     the face's front side was lit; ``weight``: the ray's w (``None``: every ray the same, ``w0``);
     ``rays`` cast, ``capped`` of them stopped by the crossing cap, ``flux_ref`` = A_c/m.
+    ``scatter``: for light scattered once on its way (``None``: direct light), the leaf's sample
+    ``(wi, wo, pdf, ok)`` at the scattering vertex (``LeafBSDF.sample_direction``), whose weight
+    f·|cos θ_o|/pdf at the current parameters multiplies the ray's flux.
     """
 
     index: object
@@ -95,6 +98,7 @@ class Hits:
     rays: int
     capped: int
     flux_ref: float  # m² of ground per ray
+    scatter: tuple | None = None
 
 
 class DirectProjection:
@@ -108,9 +112,12 @@ class DirectProjection:
         seed: random seed.
         rays_per_m2: rays per m² of ground, all replicates together: ``(sun, sky)``, or one number
             for both.
+        scatter: also carry each ray's light scattered once by the leaf it meets (sampled as the
+            paths sample it) to the next face: the paths then leave out light scattered once by a
+            leaf (the estimator's ``direct="projection"`` with ``bounces`` ≥ 1).
     """
 
-    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2):
+    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2, scatter=True):
         if field_scene.tracer is None:
             raise InputError(
                 "direct='projection' on a finite field",
@@ -118,6 +125,7 @@ class DirectProjection:
                 expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
             )
         self.rays_per_m2 = dict(zip(("sun", "sky"), check_rays(rays_per_m2)))
+        self.scatter = bool(scatter)
         mi = field_scene.mi
         self.fs, self.mi, self.R, self.seed = field_scene, mi, int(replicates), int(seed)
         cell = field_scene.cell
@@ -181,32 +189,55 @@ class DirectProjection:
             w = mi.Vector3f(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)))
             cap = tracer.cap
             weight, w0 = math.pi * fs.sky_radiance(w.z), 1.0
-        status, _, _, _, pi = tracer.walk(o, -w, mi.Bool(True), cap=cap, soil=True, test=False)
-        from lightfit.light.periodic import CAPPED, LEAF
+        hit, si, _, _, _, capped, _ = tracer.intersect(o, -w, mi.Bool(True), cap=cap)
+        direct = self._deposit(hit, si.prim_index, w, rep, weight, w0, n, fs.cell.area_m2 / m, capped)
+        if not self.scatter:
+            return [direct]
+        # Light scattered once by a leaf on its way: the leaf's frozen sampling at the first hit
+        # (as the paths sample it) and the ray continued to the next face.
+        si.wi = si.to_local(w)  # towards the light
+        t0, t1 = mi.sample_tea_32(idx, self._key(kind, 2))
+        u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, mi.sample_tea_32(idx, self._key(kind, 3))[0])]
+        side, _, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
+        d1 = dr.detach(si.to_world(fs.bsdf._flip(wo, side)))
+        o1 = si.p + 1e-5 * dr.sign(dr.dot(si.n, d1)) * si.n
+        hit1, si1, _, _, _, capped1, _ = tracer.intersect(o1, d1, hit & ok, cap=tracer.cap)
+        scattered = self._deposit(
+            hit1, si1.prim_index, -d1, rep, weight, w0, n, fs.cell.area_m2 / m, capped1, (si.wi, wo, pdf, ok)
+        )
+        return [direct, scattered]
 
-        hit = status == LEAF
-        face = pi.prim_index
+    def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None) -> Hits:
+        """The rays that met a requested segment's counted side (blades: both, stems: the outer),
+        light arriving from ``w``, compacted."""
+        import drjit as dr
+
+        mi = self.mi
         row = dr.gather(mi.UInt32, self._row, face, hit)
         cos_n = dr.dot(dr.gather(mi.Vector3f, self._normal, face, hit), w)
         front = cos_n > 0
         ok = hit & (row != _NONE) & (front | dr.gather(mi.Bool, self._blade, face, hit))
-        capped = dr.count(status == CAPPED)
         sel = dr.compress(ok)
+
+        def take(x):
+            return None if x is None else dr.gather(type(x), x, sel)
+
         out = Hits(
             index=dr.gather(mi.UInt32, row * self.R + rep, sel),
             mu=dr.gather(mi.Float, dr.abs(cos_n), sel),
             front=dr.gather(mi.Bool, front, sel),
-            weight=None if weight is None else dr.gather(mi.Float, weight, sel),
+            weight=take(weight),
             w0=w0,
             rays=n,
             capped=0,
-            flux_ref=fs.cell.area_m2 / m,
+            flux_ref=flux_ref,
+            scatter=None if sample is None else tuple(take(x) for x in sample),
         )
-        dr.eval(out.index, out.mu, out.front, out.weight)
-        out.capped = int(np.asarray(capped).sum())
+        dr.eval(out.index, out.mu, out.front, out.weight, out.scatter)
+        out.capped = int(np.asarray(dr.count(capped)).sum())
         return out
 
-    def hits(self, kind: str) -> Hits | None:
+    def hits(self, kind: str) -> list[Hits] | None:
         """The hits of ``kind`` ("sun": at the scene's current sun, ``None`` below the horizon;
         "sky"), cast on first use and kept (the sky's for the estimator's life, the sun's per sun)."""
         if kind == "sun":
@@ -233,8 +264,10 @@ class DirectProjection:
         out = {"replicates": self.R}
         for kind, (gx, gy) in self.grid.items():
             out[kind] = {"grid": (gx, gy), "rays_per_m2": self.R * gx * gy / self.fs.cell.area_m2}
-        for key, h in self._hits.items():
-            out[key[0]].update(rays=h.rays, hits=int(dr.width(h.mu)), capped=h.capped)
+        for key, hs in self._hits.items():
+            out[key[0]].update(rays=hs[0].rays, hits=int(dr.width(hs[0].mu)), capped=hs[0].capped)
+            if len(hs) > 1:
+                out[key[0]].update(scattered_hits=int(dr.width(hs[1].mu)), scattered_capped=hs[1].capped)
         return out
 
     # -- values ----------------------------------------------------------------------------
@@ -244,23 +277,36 @@ class DirectProjection:
         ``absorbed_front``; ``None`` for the sun below the horizon."""
         import drjit as dr
 
-        h = self.hits(kind)
-        if h is None:
+        hits = self.hits(kind)
+        if hits is None:
             return None
         mi = self.mi
-        w = mi.Float(h.w0) if h.weight is None else h.weight
+        bufs = {k: dr.zeros(mi.UInt64, self.S * self.R) for k in ("incident", "absorbed")}
+        bufs |= {k + "_front": dr.zeros(mi.UInt64, self.S * self.R) for k in ("incident", "absorbed")}
         with dr.suspend_grad():
-            a = 1.0 - leaf_albedo(self.fs.bsdf, h.mu)
-            sums = {}
-            for name, v in (("incident", w), ("absorbed", w * a)):
-                q = mi.UInt64(mi.Float64(v) * _FIXED + 0.5)
-                for suffix, mask in (("", mi.Bool(True)), ("_front", h.front)):
-                    buf = dr.zeros(mi.UInt64, self.S * self.R)
-                    dr.scatter_reduce(dr.ReduceOp.Add, buf, q, h.index, mask)
-                    sums[name + suffix] = buf
-            dr.eval(sums)
-        scale = h.flux_ref / _FIXED * self._inv_area[:, None]
-        return {k: np.asarray(v, dtype=np.float64).reshape(self.S, self.R) * scale for k, v in sums.items()}
+            for h in hits:
+                # Fixed point relative to this kind's ray flux (the same A_c/m for all its hits).
+                w = self._flux(h) / hits[0].flux_ref
+                a = 1.0 - leaf_albedo(self.fs.bsdf, h.mu)
+                for name, v in (("incident", w), ("absorbed", w * a)):
+                    q = mi.UInt64(mi.Float64(v) * _FIXED + 0.5)
+                    for suffix, mask in (("", mi.Bool(True)), ("_front", h.front)):
+                        dr.scatter_reduce(dr.ReduceOp.Add, bufs[name + suffix], q, h.index, mask)
+            dr.eval(bufs)
+        scale = hits[0].flux_ref / _FIXED * self._inv_area[:, None]
+        return {k: np.asarray(v, dtype=np.float64).reshape(self.S, self.R) * scale for k, v in bufs.items()}
+
+    def _flux(self, h: Hits):
+        """Each hit's flux per unit DNI or DHI, m² (Dr.Jit; at the current leaf parameters when
+        the light was scattered on its way)."""
+        mi, bsdf = self.mi, self.fs.bsdf
+        f = h.flux_ref * (h.w0 if h.weight is None else h.weight)
+        if h.scatter is not None:
+            import drjit as dr
+
+            wi, wo, pdf, ok = h.scatter
+            f = f * bsdf.weight(bsdf._flip(wi, dr.sign(mi.Frame3f.cos_theta(wi))), wo, pdf, ok, mi.Bool(True))
+        return mi.Float(f)
 
     def vjp(self, kind: str, cotangent: np.ndarray) -> dict[str, float]:
         """Gradient of Σ_s cotangent[s] · absorbed[s] (the replicates' mean) w.r.t. the leaf
@@ -268,25 +314,26 @@ class DirectProjection:
         import drjit as dr
 
         grads = dict.fromkeys(LEAF_PARAMETERS, 0.0)
-        h = self.hits(kind)
-        if h is None or dr.width(h.mu) == 0:
-            return grads
         mi = self.mi
-        c = np.asarray(cotangent, dtype=np.float64) * self._inv_area * (h.flux_ref / self.R)
-        w = dr.gather(mi.Float, owned(np.repeat(c, self.R), mi.Float), h.index)
-        w = w * (h.w0 if h.weight is None else h.weight)
+        c = owned(np.repeat(np.asarray(cotangent, dtype=np.float64) * self._inv_area / self.R, self.R), mi.Float)
         bsdf = self.fs.bsdf
         saved = {k: getattr(bsdf, k) for k in LEAF_PARAMETERS}
-        # Per-hit copies of the parameters (as SegmentEstimator.vjp): an elementwise backward
-        # pass, summed in float64 at the end (the same sum whatever the threads' order).
-        wide = {k: dr.opaque(mi.Float, float(saved[k][0]), dr.width(h.mu)) for k in LEAF_PARAMETERS}
-        try:
-            for k, v in wide.items():
-                dr.enable_grad(v)
-                setattr(bsdf, k, v)
-            dr.backward(dr.sum(w * (1.0 - leaf_albedo(bsdf, h.mu))))
-            grads = {k: float(np.sum(np.asarray(dr.grad(v), dtype=np.float64))) for k, v in wide.items()}
-        finally:
-            for k, v in saved.items():
-                setattr(bsdf, k, v)
+        for h in self.hits(kind) or ():
+            n = dr.width(h.mu)
+            if n == 0:
+                continue
+            # Per-hit copies of the parameters (as SegmentEstimator.vjp): an elementwise backward
+            # pass, summed in float64 at the end (the same sum whatever the threads' order).
+            wide = {k: dr.opaque(mi.Float, float(saved[k][0]), n) for k in LEAF_PARAMETERS}
+            try:
+                for k, v in wide.items():
+                    dr.enable_grad(v)
+                    setattr(bsdf, k, v)
+                loss = dr.gather(mi.Float, c, h.index) * self._flux(h) * (1.0 - leaf_albedo(bsdf, h.mu))
+                dr.backward(dr.sum(loss))
+                for k, v in wide.items():
+                    grads[k] += float(np.sum(np.asarray(dr.grad(v), dtype=np.float64)))
+            finally:
+                for k, v in saved.items():
+                    setattr(bsdf, k, v)
         return grads
