@@ -48,11 +48,12 @@ segment id, sample index), so a segment's values do not depend on which other se
 requested or how the field is partitioned.
 
 ``direct="projection"`` (periodic scenes) takes the unscattered light — the direct sun and the
-sky seen directly — from rays cast down over the whole cell instead
-(:mod:`lightfit.light.projection`): the paths then carry only scattered light (no direct-sun
-shadow ray at the point, no sky where the first ray escapes), and the two independent estimates
-are added replicate by replicate. Same expectation, a fraction of the variance where the direct
-light dominates (docs/light.md, "Direct light by projection").
+sky seen directly — and, with ``bounces`` ≥ 1, the light scattered once by a leaf from rays cast
+down over the whole cell instead (:mod:`lightfit.light.projection`): the paths then carry only
+the rest (no direct-sun shadow ray at the point, no sky where the first ray escapes, no sun or
+sky through their first leaf vertex), and the two independent estimates are added replicate by
+replicate. Same expectation, a fraction of the variance (docs/light.md, "Direct light by
+projection").
 """
 
 from __future__ import annotations
@@ -249,7 +250,8 @@ class SegmentEstimator:
         direct: where the unscattered light comes from: ``"paths"`` (each point's shadow ray to
             the sun and its first ray escaping to the sky), ``"projection"`` (periodic scenes:
             rays cast down over the cell, :class:`~lightfit.light.projection.DirectProjection`)
-            or ``"none"`` (scattered light only: what the paths carry with a projection).
+            or ``"none"`` (what the paths carry alongside a projection: light scattered once by
+            the soil, or twice and more).
         direct_rays_per_m2: ``direct="projection"``: rays per m² of ground, ``(sun, sky)`` or
             one number for both (the projection's accuracy knob; its cost does not grow with
             the number of segments requested; the sun's rays are cast again for every sun, the

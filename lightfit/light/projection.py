@@ -26,6 +26,15 @@ a point's two sides), stems their outer side; rays stopped by the crossing cap c
 (counted in :attr:`DirectProjection.capped`). The standard error comes from the R replicates'
 spread, as for the paths.
 
+**Light scattered once by a leaf** (``scatter=True``; the estimator's default with ``bounces``
+≥ 1) is carried forward too: a ray that meets a leaf is continued in a direction drawn from the
+leaf's frozen sampling (``LeafBSDF.sample_direction``, as the paths draw theirs) and deposits
+:math:`\Phi\,f\,|\cos\theta_o|/p` on the next face it meets (light tracing; the BSDF is
+reciprocal). The paths then leave out the sun and the sky through one leaf (their next-event
+ray at the first leaf vertex and the sky found right after it), which carried most of their
+variance (0.91 of it, median over the 100-plant cell's segments, one-off split); light scattered
+by the soil, or twice and more, stays with the paths.
+
 **Why.** Every ray lands on something — a path estimator's rays from a shaded segment mostly meet
 leaves — and the rays are stratified over the cell. On the 100-plant cell (PROSPECT leaf, sun at
 50°) the projection needs ≈ 11× fewer rays than the paths' shadow rays for the same median
