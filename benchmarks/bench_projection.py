@@ -13,7 +13,9 @@ estimator each, in turn:
 * the time of a render at a new sun with the paths kept — what every later time step of a day
   costs (the sun's shadow rays, and the sun's projection; the sky's projection is kept) — the
   median of four suns;
-* the variance × step time relative to the paths' (efficiency: > 1 is better).
+* the variance × step time relative to the paths' (efficiency: > 1 is better);
+* the reverse-mode gradient of absorbed PAR (DNI 1, DHI 0.3) with respect to the three leaf
+  parameters at the last sun, and its time ÷ a step's (issue 16: ≤ 2.5× the primal).
 
 Writes benchmarks/results/projection.json and prints a table, with the commit and load average
 (2 shared cores: compare the settings of one run, not absolute times across runs).
@@ -73,6 +75,11 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
             t = time.perf_counter()
             est.render()
             steps.append(time.perf_counter() - t)
+        ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
+        est.vjp(ct)  # compile
+        t = time.perf_counter()
+        est.vjp(ct)
+        grad = time.perf_counter() - t
         rse = r.relative_se()
         rows.append(
             {
@@ -80,6 +87,8 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
                 "rays_per_m2_sun_sky": None if rays is None else list(rays),
                 "first_render_s": first,
                 "step_s": float(np.median(steps)),
+                "gradient_s": grad,
+                "gradient_over_step": grad / float(np.median(steps)),
                 "rse_absorbed": _stats(rse, np.asarray(r.meta["is_blade"], bool)),
             }
         )
@@ -111,7 +120,8 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2))
     t = Table(title=f"projected direct light: {len(ids)} segments, K={samples}, {bounces} bounces, 2 CPU cores")
-    for c in ("direct light", "first render", "time step", "median / p90 all", "blades / stems", "efficiency"):
+    heads = ("direct light", "first render", "time step", "gradient", "median / p90", "blades / stems", "efficiency")
+    for c in heads:
         t.add_column(c, justify="right")
     for q in rows:
         a = q["rse_absorbed"]
@@ -121,6 +131,7 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
             label,
             f"{q['first_render_s']:.2f} s",
             f"{q['step_s']:.2f} s",
+            f"{q['gradient_s']:.2f} s ({q['gradient_over_step']:.2f}×)",
             f"{a['all']['median']:.1%} / {a['all']['p90']:.1%}",
             f"{a['blades']['median']:.1%} / {a['stems']['median']:.1%}",
             f"{q['efficiency_vs_paths']:.1f}×",
