@@ -61,6 +61,7 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
+from lightfit.light.periodic import CAPPED, LEAF
 
 #: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
 DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
@@ -210,10 +211,12 @@ class DirectProjection:
         side, _, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
         d1 = dr.detach(si.to_world(fs.bsdf._flip(wo, side)))
         o1 = si.p + 1e-5 * dr.sign(dr.dot(si.n, d1)) * si.n
-        hit1, si1, _, _, _, capped1, _ = tracer.intersect(o1, d1, hit & ok, cap=tracer.cap)
+        # Only the face is needed where the scattered ray lands: no surface interaction.
+        status, _, _, _, pi = tracer.walk(o1, d1, hit & ok, cap=tracer.cap, soil=True, test=False)
         scattered = self._deposit(
-            hit1, si1.prim_index, -d1, rep, weight, w0, n, fs.cell.area_m2 / m, capped1, (si.wi, wo, pdf, ok)
-        )
+            status == LEAF, pi.prim_index, -d1, rep, weight, w0, n, fs.cell.area_m2 / m, status == CAPPED,
+            (si.wi, wo, pdf, ok),
+        )  # fmt: skip
         return [direct, scattered]
 
     def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None) -> Hits:
