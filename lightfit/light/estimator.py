@@ -336,7 +336,7 @@ class SegmentEstimator:
                 replicates=R,
                 seed=self.seed,
                 rays_per_m2=direct_rays_per_m2,
-                scatter=self.bounces >= 1,
+                bounces=self.bounces,
             )
             if direct == "projection"
             else None
@@ -997,10 +997,10 @@ def _with_projected(reps: dict, front: dict, d: dict | None, idx=slice(None)) ->
 
 
 def _projection_vjp(proj: DirectProjection | None, c: dict) -> dict[str, float]:
-    """A projection's gradient of Σ c[part]·value (absorbed parts; zeros without a projection)."""
+    """A projection's gradient of Σ c[part]·value over :data:`PARTS` (zeros without a projection)."""
     grads = dict.fromkeys(LEAF_PARAMETERS, 0.0)
     for kind in ("sun", "sky") if proj is not None else ():
-        g = proj.vjp(kind, c[f"absorbed_{kind}"])
+        g = proj.vjp(kind, c[f"incident_{kind}"], c[f"absorbed_{kind}"])
         grads = {k: grads[k] + g[k] for k in grads}
     return grads
 
@@ -1148,7 +1148,13 @@ def render_adaptive(
                     meta0 = {k: r.meta[k] for k in ("optics", "is_blade", "area_m2")}
         if proj is None and direct == "projection":
             proj = DirectProjection(
-                field_scene, ids, meta0["area_m2"], replicates=R, seed=seed, rays_per_m2=direct_rays_per_m2
+                field_scene,
+                ids,
+                meta0["area_m2"],
+                replicates=R,
+                seed=seed,
+                rays_per_m2=direct_rays_per_m2,
+                bounces=bounces,
             )
             D = {p: np.array(v) for p, v in _projected(proj).items() if p != "front"}
             D["front"] = {p: np.array(v) for p, v in _projected(proj)["front"].items()}
@@ -1227,6 +1233,7 @@ class AdaptiveEstimator:
                 replicates=R,
                 seed=self.seed,
                 rays_per_m2=kwargs.get("direct_rays_per_m2", DEFAULT_RAYS_PER_M2),
+                bounces=self.bounces,
             )
             if self.direct == "projection"
             else None

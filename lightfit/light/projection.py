@@ -26,9 +26,9 @@ a point's two sides), stems their outer side; rays stopped by the crossing cap c
 (counted in :attr:`DirectProjection.capped`). The standard error comes from the R replicates'
 spread, as for the paths.
 
-**Light scattered once by a leaf** (``scatter=True``; the estimator's default with ``bounces``
-≥ 1) is carried forward too: a ray that meets a leaf is continued in a direction drawn from the
-leaf's frozen sampling (``LeafBSDF.sample_direction``, as the paths draw theirs) and deposits
+**Light scattered once by a leaf** (with ``bounces`` ≥ 1) is carried forward too: a ray that
+meets a leaf is continued in a direction drawn from the leaf's frozen sampling
+(``LeafBSDF.sample_direction``, as the paths draw theirs) and deposits
 :math:`\Phi\,f\,|\cos\theta_o|/p` on the next face it meets (light tracing; the BSDF is
 reciprocal). The paths then leave out the sun and the sky through one leaf (their next-event
 ray at the first leaf vertex and the sky found right after it), which carried most of their
@@ -122,12 +122,12 @@ class DirectProjection:
         seed: random seed.
         rays_per_m2: rays per m² of ground, all replicates together: ``(sun, sky)``, or one number
             for both.
-        scatter: also carry each ray's light scattered once by the leaf it meets (sampled as the
-            paths sample it) to the next face: the paths then leave out light scattered once by a
-            leaf (the estimator's ``direct="projection"`` with ``bounces`` ≥ 1).
+        bounces: the scattering orders of the paths it goes with: with ≥ 1 each ray's light
+            scattered once by the leaf it meets (sampled as the paths sample it) is carried to the
+            next face too, and the paths leave it out; with 0 there is none to carry.
     """
 
-    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2, scatter=True):
+    def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2, bounces: int):
         if field_scene.tracer is None:
             raise InputError(
                 "direct='projection' on a finite field",
@@ -135,7 +135,7 @@ class DirectProjection:
                 expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
             )
         self.rays_per_m2 = dict(zip(("sun", "sky"), check_rays(rays_per_m2)))
-        self.scatter = bool(scatter)
+        self.scatter = bounces >= 1
         mi = field_scene.mi
         self.fs, self.mi, self.R, self.seed = field_scene, mi, int(replicates), int(seed)
         cell = field_scene.cell
@@ -320,14 +320,21 @@ class DirectProjection:
             f = f * bsdf.weight(bsdf._flip(wi, dr.sign(mi.Frame3f.cos_theta(wi))), wo, pdf, ok, mi.Bool(True))
         return mi.Float(f)
 
-    def vjp(self, kind: str, cotangent: np.ndarray) -> dict[str, float]:
-        """Gradient of Σ_s cotangent[s] · absorbed[s] (the replicates' mean) w.r.t. the leaf
-        parameters, for ``kind`` at the current sun (zeros below the horizon)."""
+    def vjp(self, kind: str, incident: np.ndarray, absorbed: np.ndarray) -> dict[str, float]:
+        """Gradient of Σ_s incident[s] · incident_s + absorbed[s] · absorbed_s (the replicates'
+        means of ``kind``) w.r.t. the leaf parameters, at the current sun (zeros below the
+        horizon). Incident light depends on them through the scattered rays' BSDF weight,
+        absorbed light also through the albedo."""
         import drjit as dr
 
         grads = dict.fromkeys(LEAF_PARAMETERS, 0.0)
         mi = self.mi
-        c = owned(np.repeat(np.asarray(cotangent, dtype=np.float64) * self._inv_area / self.R, self.R), mi.Float)
+
+        def per_hit(cotangent):
+            c = np.asarray(cotangent, dtype=np.float64) * self._inv_area / self.R
+            return owned(np.repeat(c, self.R), mi.Float)
+
+        c_inc, c_abs = per_hit(incident), per_hit(absorbed)
         bsdf = self.fs.bsdf
         saved = {k: getattr(bsdf, k) for k in LEAF_PARAMETERS}
         for h in self.hits(kind) or ():
@@ -341,7 +348,9 @@ class DirectProjection:
                 for k, v in wide.items():
                     dr.enable_grad(v)
                     setattr(bsdf, k, v)
-                loss = dr.gather(mi.Float, c, h.index) * self._flux(h) * (1.0 - leaf_albedo(bsdf, h.mu))
+                a = 1.0 - leaf_albedo(bsdf, h.mu)
+                c = dr.gather(mi.Float, c_inc, h.index) + dr.gather(mi.Float, c_abs, h.index) * a
+                loss = c * self._flux(h)
                 dr.backward(dr.sum(loss))
                 for k, v in wide.items():
                     grads[k] += float(np.sum(np.asarray(dr.grad(v), dtype=np.float64)))
