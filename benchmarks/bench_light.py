@@ -55,6 +55,19 @@ use_float64()  # lightfit's precision policy (lightfit.precision), before any JA
 OUT = Path(__file__).resolve().parent / "results" / "light.json"
 
 
+def commit_state() -> dict:
+    """The commit measured and whether lightfit/ had uncommitted changes (what every result records)."""
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True).stdout.strip()
+
+    return {
+        "lightfit_commit": git("rev-parse", "--short", "HEAD"),
+        "lightfit_uncommitted_changes": bool(git("status", "--porcelain", "lightfit")),
+    }
+
+
 def _timed(f, repeat=2):
     f()  # compile / warm up
     best = math.inf
@@ -269,14 +282,8 @@ def main(
     meter = irradiancemeter_comparison()
     settings = [(64, 0), (64, 1e7), (32, 2e7)]  # (K, projection rays per m²; 0: paths)
     direct = direct_projection_comparison(fs, ids, bounces, settings) if fs.tracer is not None else None
-    root = Path(__file__).resolve().parents[1]
-
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True).stdout.strip()
-
     res = {
-        "lightfit_commit": git("rev-parse", "--short", "HEAD"),
-        "lightfit_uncommitted_changes": bool(git("status", "--porcelain", "lightfit")),
+        **commit_state(),
         "cpu_cores": os.cpu_count(),
         # cuda_ad_mono where a CUDA device is usable (issue 16 item 4), else llvm_ad_mono.
         "mitsuba_variant": backend.info().variant,

@@ -27,11 +27,11 @@ import argparse
 import gc
 import json
 import os
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_light import commit_state  # same script folder
 from bench_variance import _stats  # per-class median / p90 (same script folder)
 from rich.console import Console
 from rich.table import Table
@@ -99,14 +99,8 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
         q["efficiency_vs_paths"] = (base["rse_absorbed"]["all"]["median"] ** 2 * base["step_s"]) / (
             q["rse_absorbed"]["all"]["median"] ** 2 * q["step_s"]
         )
-    root = Path(__file__).resolve().parents[1]
-
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True).stdout.strip()
-
     res = {
-        "lightfit_commit": git("rev-parse", "--short", "HEAD"),
-        "lightfit_uncommitted_changes": bool(git("status", "--porcelain", "lightfit")),
+        **commit_state(),
         "cpu_cores": os.cpu_count(),
         "load_average_start": load_start,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),

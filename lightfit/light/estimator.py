@@ -1156,15 +1156,15 @@ def render_adaptive(
                 rays_per_m2=direct_rays_per_m2,
                 bounces=bounces,
             )
-            D = {p: np.array(v) for p, v in _projected(proj).items() if p != "front"}
-            D["front"] = {p: np.array(v) for p, v in _projected(proj)["front"].items()}
+            d = _projected(proj)  # writable copies: switched segments' rows are zeroed
+            D = {p: np.array(d[p]) for p in PARTS} | {"front": {p: np.array(d["front"][p]) for p in PARTS}}
         M[idx] = J
         sub = estimate(idx)
         rse[idx] = sub.relative_se("absorbed", dni, dhi)
         if D is not None:
             # A projected part alone above the target cannot be reduced by more points: such a
-            # segment takes its direct light from its own points instead (the paths' direct light
-            # of the points rendered so far, then paths rounds), exactly as a direct="paths" render.
+            # segment takes its direct light from its own points instead (its points rendered
+            # again, then paths rounds), exactly as a direct="paths" render.
             own = D["absorbed_sun"][idx] * dni + D["absorbed_sky"][idx] * dhi
             value = sub.total("absorbed", dni, dhi)
             own_rse = np.divide(own.std(1, ddof=1) / math.sqrt(R), value, out=np.zeros(len(idx)), where=value > 0)
