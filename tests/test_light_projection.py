@@ -65,12 +65,16 @@ def field():
     return fs, leaf_ids(mesh)
 
 
-@pytest.mark.parametrize("bounces", [0, 2])
-def test_projection_estimates_what_the_paths_estimate(field, bounces):
+@pytest.mark.parametrize(("bounces", "soil_albedo"), [(0, None), (2, None), (1, 0.6)])
+def test_projection_estimates_what_the_paths_estimate(field, bounces, soil_albedo):
     """Same expectation, independent random numbers (0 bounces: the direct light; 2: also the
-    light scattered once by a leaf, forward, and the rest by the paths): canopy totals within 4
-    combined SE and per-segment z-scores centred on 0 with unit spread."""
+    light scattered once by a leaf or the soil, forward, and the rest by the paths; 1 over a
+    bright soil: the soil's share large): canopy totals within 4 combined SE and per-segment
+    z-scores centred on 0 with unit spread."""
     fs, ids = field
+    if soil_albedo is not None:
+        fs = FieldScene(fs.mesh, Optics.preset("prospect", soil_albedo=soil_albedo), cell=fs.cell)
+        fs.set_sun(40.0, 150.0)
     z_all = {}
     for seed in (1, 2):
         paths = SegmentEstimator(fs, ids, samples=64, bounces=bounces, seed=seed).render()
@@ -91,25 +95,28 @@ def test_projection_estimates_what_the_paths_estimate(field, bounces):
         assert abs(z.mean()) < 0.15 and 0.7 < z.std() < 1.4, (part, z.mean(), z.std())
 
 
-def test_with_a_projection_the_paths_carry_light_scattered_twice_or_by_the_soil(field):
-    """The projection has the direct light and the light scattered once by a leaf: with one
-    bounce over black soil nothing is left to the paths (exactly 0), with two bounces only the
-    second order is (a few per cent of the scattered light)."""
+def test_with_a_projection_the_paths_carry_only_light_scattered_twice_and_more(field):
+    """The projection has the direct light and the light scattered once by a leaf or the soil
+    (a bright soil here): with one bounce nothing is left to the paths (exactly 0), with two
+    bounces only the second order is (a few per cent of the scattered light)."""
     fs0, ids = field
-    black_soil = FieldScene(fs0.mesh, Optics.preset("prospect", soil_albedo=0.0), cell=fs0.cell)
-    black_soil.set_sun(40.0, 150.0)
+    bright_soil = FieldScene(fs0.mesh, Optics.preset("prospect", soil_albedo=0.5), cell=fs0.cell)
+    bright_soil.set_sun(40.0, 150.0)
     for bounces in (1, 2):
-        est = SegmentEstimator(black_soil, ids, samples=16, bounces=bounces, seed=4, direct="projection")
+        est = SegmentEstimator(bright_soil, ids, samples=16, bounces=bounces, seed=4, direct="projection")
         r = est.render()
         d = est._direct_values()
         paths = {p: getattr(r, p) - d[p].mean(1) for p in ("incident_sun", "absorbed_sun", "incident_sky")}
-        none = SegmentEstimator(black_soil, ids, samples=16, bounces=bounces, seed=4, direct="none").render()
+        none = SegmentEstimator(bright_soil, ids, samples=16, bounces=bounces, seed=4, direct="none").render()
         for p, v in paths.items():
             np.testing.assert_allclose(v, getattr(none, p), rtol=1e-5, atol=1e-7)
             if bounces == 1:
                 assert np.all(getattr(none, p) == 0), p
             else:
                 assert 0 < v.sum() < 0.2 * d[p].mean(1).sum(), p
+        # The soil's share is the projection's: it scales with the soil's albedo.
+        hits = est._direct.hits("sun")
+        assert hits[2].soil and int(np.asarray(hits[2].index).size) > 0
 
 
 def test_renders_are_repeatable_and_keep_across_suns(field):

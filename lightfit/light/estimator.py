@@ -250,8 +250,8 @@ class SegmentEstimator:
         direct: where the unscattered light comes from: ``"paths"`` (each point's shadow ray to
             the sun and its first ray escaping to the sky), ``"projection"`` (periodic scenes:
             rays cast down over the cell, :class:`~lightfit.light.projection.DirectProjection`)
-            or ``"none"`` (what the paths carry alongside a projection: light scattered once by
-            the soil, or twice and more).
+            or ``"none"`` (what the paths carry alongside a projection: light scattered twice
+            and more).
         direct_rays_per_m2: ``direct="projection"``: rays per m² of ground, ``(sun, sky)`` or
             one number for both (the projection's accuracy knob; its cost does not grow with
             the number of segments requested; the sun's rays are cast again for every sun, the
@@ -590,9 +590,8 @@ class SegmentEstimator:
         for depth, g in enumerate(geo):
             escaped = g["escaped"]
             if self._scattered_only and depth <= 1:
-                # A projection has the sky seen directly (depth 0) and through one leaf (depth 1
-                # after a leaf); through the soil it is the paths'.
-                escaped = escaped & geo[0]["hit_soil"] if depth == 1 else mi.Bool(False)
+                # A projection has the sky seen directly (depth 0) and through one leaf or the soil.
+                escaped = mi.Bool(False)
             L_sky += dr.select(escaped, beta * fs.sky_radiance(g["dz"]), 0.0)
             if depth == self.bounces:
                 break
@@ -629,8 +628,8 @@ class SegmentEstimator:
         visible = []
         for depth, g in enumerate(geo[: self.bounces]):
             hit_leaf, hit_soil, p, n = g["hit_leaf"], g["hit_soil"], g["p"], g["n"]
-            if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf
-                hit_leaf = mi.Bool(False)
+            if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf or the soil
+                hit_leaf = hit_soil = mi.Bool(False)
             side = dr.sign(dr.dot(n, sun))
             # Leaf vertices: a ray wherever a leaf is hit; where the BSDF towards the sun is 0 at
             # some parameters their term is 0 whatever the ray finds. Leaf and soil vertices are
@@ -663,8 +662,8 @@ class SegmentEstimator:
             ctx = mi.BSDFContext()
             for depth, (g, beta, vis) in enumerate(zip(geo, betas, visible)):
                 hit_leaf, hit_soil = g["hit_leaf"], g["hit_soil"]
-                if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf
-                    hit_leaf = mi.Bool(False)
+                if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf or the soil
+                    hit_leaf = hit_soil = mi.Bool(False)
                 si = dr.zeros(mi.SurfaceInteraction3f)
                 si.sh_frame, si.wi = g["frame"], g["wi"]
                 f_sun = fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]
@@ -928,7 +927,8 @@ class SegmentEstimator:
             self._wrap_log = []
             vals = self._per_evaluation()
             self._wrap_log = []
-            dr.backward(dr.sum(sum(w[p] * vals[p] for p in PARTS)))
+            # With a projection and one bounce the paths carry nothing: no dependence to follow.
+            dr.backward(dr.sum(sum(w[p] * vals[p] for p in PARTS)), flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
             grads = {k: float(np.sum(np.asarray(dr.grad(v), dtype=np.float64))) for k, v in wide.items()}
         finally:
             for k, v in saved.items():

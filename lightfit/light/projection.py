@@ -26,14 +26,16 @@ a point's two sides), stems their outer side; rays stopped by the crossing cap c
 (counted in :attr:`DirectProjection.capped`). The standard error comes from the R replicates'
 spread, as for the paths.
 
-**Light scattered once by a leaf** (with ``bounces`` ≥ 1) is carried forward too: a ray that
-meets a leaf is continued in a direction drawn from the leaf's frozen sampling
-(``LeafBSDF.sample_direction``, as the paths draw theirs) and deposits
-:math:`\Phi\,f\,|\cos\theta_o|/p` on the next face it meets (light tracing; the BSDF is
-reciprocal). The paths then leave out the sun and the sky through one leaf (their next-event
-ray at the first leaf vertex and the sky found right after it), which carried most of their
-variance (0.91 of it, median over the 100-plant cell's segments, one-off split); light scattered
-by the soil, or twice and more, stays with the paths.
+**Light scattered once** (with ``bounces`` ≥ 1) is carried forward too. A ray that meets a leaf
+is continued in a direction drawn from the leaf's frozen sampling (``LeafBSDF.sample_direction``,
+as the paths draw theirs) and deposits :math:`\Phi\,f\,|\cos\theta_o|/p` on the next face it
+meets (light tracing; the BSDF is reciprocal). A ray that reaches the soil is continued in a
+cosine-weighted direction and deposits :math:`\Phi\,\rho_{soil}` (a Lambertian soil: f cos/p = ρ).
+The paths then leave out the sun and the sky through one leaf or the soil (their next-event ray
+at the first vertex and the sky found right after it). Through a leaf that carried 0.91 of the
+paths' variance (median over the 100-plant cell's segments, one-off split); through the soil,
+most of what was left (light scattered twice and more, which stays with the paths, is smooth:
+with a black soil the paths' share of a segment's variance has median ≈ 0).
 
 **Why.** Every ray lands on something — a path estimator's rays from a shaded segment mostly meet
 leaves — and the rays are stratified over the cell. On the 100-plant cell (PROSPECT leaf, sun at
@@ -95,9 +97,11 @@ class Hits:
     ``index``: segment row · R + replicate; ``mu``: |cos| of incidence on the face; ``front``:
     the face's front side was lit; ``weight``: the ray's w (``None``: every ray the same, ``w0``);
     ``rays`` cast, ``capped`` of them stopped by the crossing cap, ``flux_ref`` = A_c/m.
-    ``scatter``: for light scattered once on its way (``None``: direct light), the leaf's sample
-    ``(wi, wo, pdf, ok)`` at the scattering vertex (``LeafBSDF.sample_direction``), whose weight
-    f·|cos θ_o|/pdf at the current parameters multiplies the ray's flux.
+    ``scatter``: for light scattered once by a leaf on its way (``None``: not by a leaf), the
+    leaf's sample ``(wi, wo, pdf, ok)`` at the scattering vertex (``LeafBSDF.sample_direction``),
+    whose weight f·|cos θ_o|/pdf at the current parameters multiplies the ray's flux. ``soil``:
+    the light was scattered once by the soil on its way (its albedo, at the time the values are
+    taken, multiplies the flux: cosine-weighted sampling of a Lambertian soil).
     """
 
     index: object
@@ -109,6 +113,7 @@ class Hits:
     capped: int
     flux_ref: float  # m² of ground per ray
     scatter: tuple | None = None
+    soil: bool = False
 
 
 class DirectProjection:
@@ -199,25 +204,32 @@ class DirectProjection:
             w = mi.Vector3f(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)))
             cap = tracer.cap
             weight, w0 = math.pi * fs.sky_radiance(w.z), 1.0
-        hit, si, _, _, _, capped, _ = tracer.intersect(o, -w, mi.Bool(True), cap=cap)
-        direct = self._deposit(hit, si.prim_index, w, rep, weight, w0, n, fs.cell.area_m2 / m, capped)
+        hit, si, on_soil, p_soil, _, capped, _ = tracer.intersect(o, -w, mi.Bool(True), cap=cap)
+        flux_ref = fs.cell.area_m2 / m
+        direct = self._deposit(hit, si.prim_index, w, rep, weight, w0, n, flux_ref, capped)
         if not self.scatter:
             return [direct]
-        # Light scattered once by a leaf on its way: the leaf's frozen sampling at the first hit
-        # (as the paths sample it) and the ray continued to the next face.
+        # Light scattered once on its way: at a leaf by the leaf's frozen sampling (as the paths
+        # sample it), at the soil by a cosine-weighted (Lambertian) direction, and the ray
+        # continued to the next face. Leaf and soil lanes are disjoint: one walk for both.
         si.wi = si.to_local(w)  # towards the light
         t0, t1 = mi.sample_tea_32(idx, self._key(kind, 2))
         u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, mi.sample_tea_32(idx, self._key(kind, 3))[0])]
         side, _, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
-        d1 = dr.detach(si.to_world(fs.bsdf._flip(wo, side)))
-        o1 = si.p + 1e-5 * dr.sign(dr.dot(si.n, d1)) * si.n
+        d_leaf = si.to_world(fs.bsdf._flip(wo, side))
+        d_soil = mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[1], u[2]))
+        d1 = dr.detach(dr.select(hit, d_leaf, d_soil))
+        eps = 1e-5
+        o1 = dr.select(hit, si.p + eps * dr.sign(dr.dot(si.n, d1)) * si.n, p_soil + mi.Vector3f(0, 0, eps))
         # Only the face is needed where the scattered ray lands: no surface interaction.
-        status, _, _, _, pi = tracer.walk(o1, d1, hit & ok, cap=tracer.cap, soil=True, test=False)
-        scattered = self._deposit(
-            status == LEAF, pi.prim_index, -d1, rep, weight, w0, n, fs.cell.area_m2 / m, status == CAPPED,
-            (si.wi, wo, pdf, ok),
-        )  # fmt: skip
-        return [direct, scattered]
+        status, _, _, _, pi = tracer.walk(o1, d1, (hit & ok) | on_soil, cap=tracer.cap, soil=True, test=False)
+        landed, stopped = status == LEAF, status == CAPPED
+        via_leaf = self._deposit(
+            landed & hit, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & hit, (si.wi, wo, pdf, ok)
+        )
+        via_soil = self._deposit(landed & on_soil, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & on_soil)
+        via_soil.soil = True
+        return [direct, via_leaf, via_soil]
 
     def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None) -> Hits:
         """The rays that met a requested segment's counted side (blades: both, stems: the outer),
@@ -270,7 +282,8 @@ class DirectProjection:
 
     def summary(self) -> dict:
         """What the projection cast: rays per m², the grid, and per kind kept so far the rays cast,
-        the hits on requested segments and the rays stopped by the crossing cap."""
+        the hits on requested segments and the rays stopped by the crossing cap (direct, and
+        scattered once by a leaf or the soil on the way: ``via_leaf_*``, ``via_soil_*``)."""
         import drjit as dr
 
         out = {"replicates": self.R}
@@ -278,8 +291,8 @@ class DirectProjection:
             out[kind] = {"grid": (gx, gy), "rays_per_m2": self.R * gx * gy / self.fs.cell.area_m2}
         for key, hs in self._hits.items():
             out[key[0]].update(rays=hs[0].rays, hits=int(dr.width(hs[0].mu)), capped=hs[0].capped)
-            if len(hs) > 1:
-                out[key[0]].update(scattered_hits=int(dr.width(hs[1].mu)), scattered_capped=hs[1].capped)
+            for name, h in zip(("via_leaf", "via_soil"), hs[1:]):
+                out[key[0]].update({f"{name}_hits": int(dr.width(h.mu)), f"{name}_capped": h.capped})
         return out
 
     # -- values ----------------------------------------------------------------------------
@@ -297,6 +310,8 @@ class DirectProjection:
         bufs |= {k + "_front": dr.zeros(mi.UInt64, self.S * self.R) for k in ("incident", "absorbed")}
         with dr.suspend_grad():
             for h in hits:
+                if dr.width(h.mu) == 0:  # e.g. no ray reached the soil
+                    continue
                 # Fixed point relative to this kind's ray flux (the same A_c/m for all its hits).
                 w = self._flux(h) / hits[0].flux_ref
                 a = 1.0 - leaf_albedo(self.fs.bsdf, h.mu)
@@ -313,6 +328,8 @@ class DirectProjection:
         the light was scattered on its way)."""
         mi, bsdf = self.mi, self.fs.bsdf
         f = h.flux_ref * (h.w0 if h.weight is None else h.weight)
+        if h.soil:
+            f = f * self.fs.optics.soil_albedo
         if h.scatter is not None:
             import drjit as dr
 
