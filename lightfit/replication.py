@@ -32,7 +32,7 @@ from lightfit.light.scene import Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import Scenario
+from lightfit.model.scenario import Scenario, main_job_samples, resolve_direct
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
 from lightfit.report import plot, summary
@@ -72,6 +72,8 @@ class ReplicationConfig:
     ``bounces``: ``None`` (default) → as many scattering orders as keep the truncated light under
     :data:`BOUNCE_TOLERANCE` for the run's leaf (:func:`~lightfit.light.estimator.bounces_for_tolerance`:
     2 for the default leaf, 8 for the grey ``paper`` leaf; measured by experiments/defaults_check.py).
+    ``samples``: points per segment K; ``None`` (default) → 32 where the direct light is
+    projected, 64 from the paths (:meth:`render_samples`).
     ``target_rse``: ``None`` (default) → ``samples`` points on every segment; a number in (0, 1) →
     adaptive sampling to that per-segment relative SE of absorbed PAR, ``samples`` the starting count
     (:attr:`lightfit.model.scenario.Scenario.target_rse`).
@@ -84,7 +86,7 @@ class ReplicationConfig:
     buffer_rows: int | None = None
     buffer_along: int | None = None
     seed: int = 1
-    samples: int = 64
+    samples: int | None = None
     bounces: int | None = None
     target_rse: float | None = None
     direct: str = "auto"
@@ -132,6 +134,14 @@ class ReplicationConfig:
             if all(getattr(self, k) == getattr(ref, k) for k in ("boundary", "optics", "photosynthesis", "par_kind")):
                 return name
         return None
+
+    def render_samples(self) -> int:
+        """Samples per segment K the run renders: ``samples``, or for ``None`` the main job's K for
+        its direct light (:func:`~lightfit.model.scenario.main_job_samples`: 32 with the
+        projection, 64 with the paths)."""
+        if self.samples is not None:
+            return self.samples
+        return main_job_samples(resolve_direct(self.direct, self.boundary))
 
     def render_bounces(self) -> int:
         """Scattering orders the run renders: ``bounces``, or for ``None`` as many as keep the truncated
@@ -310,7 +320,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
     return Scenario(
         weather=w,
         field=cfg.field(cfg.date_of(w)),
-        samples=cfg.samples,
+        samples=cfg.render_samples(),
         bounces=cfg.render_bounces(),
         seed=cfg.render_seed,
         target_rse=cfg.target_rse,

@@ -144,23 +144,31 @@ def test_replicate_writes_labelled_forcing(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args, bounces", [([], 2), (["--preset", "paper"], 8), (["--preset", "paper", "--bounces", "3"], 3)]
+    "args, bounces, k",
+    [
+        ([], 2, 32),
+        (["--preset", "paper"], 8, 64),
+        (["--preset", "paper", "--bounces", "3"], 3, 64),
+        (["--direct", "paths"], 2, 64),
+        (["--samples", "48"], 2, 48),
+    ],
 )
-def test_replicate_names_the_bounces_it_renders(tmp_path, monkeypatch, args, bounces):
+def test_replicate_names_the_bounces_and_samples_it_renders(tmp_path, monkeypatch, args, bounces, k):
     """The "running:" line gives the resolved number of bounces (not "None" when left at the default:
-    2 for the PROSPECT-D leaf, 8 for the paper's grey leaf of albedo 0.5; ReplicationConfig.render_bounces)."""
+    2 for the PROSPECT-D leaf, 8 for the paper's grey leaf of albedo 0.5; ReplicationConfig.render_bounces)
+    and samples (32 with the projected direct light, 64 with the paths, unless given)."""
     from lightfit import replication
     from lightfit.errors import InputError
 
     def stop(cfg, **kwargs):
-        assert cfg.render_bounces() == bounces
+        assert cfg.render_bounces() == bounces and cfg.render_samples() == k
         raise InputError("stopped before rendering", column="test", expected="nothing")
 
     monkeypatch.setattr(replication, "run", stop)
     r = runner.invoke(app, ["replicate", "--out", str(tmp_path), *args])
     assert r.exit_code == 2, r.output
     out = " ".join(r.stdout.split())  # rich wraps at the terminal width
-    assert f"K=64, {bounces} bounces" in out and "None bounces" not in out
+    assert f"K={k}, {bounces} bounces" in out and "None bounces" not in out
 
 
 def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):

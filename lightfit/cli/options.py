@@ -198,7 +198,10 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
     "samples": (
         int | None,
         typer.Option(
-            "--samples", help="Irradiance samples per segment K (default 64; --quick: 16).", rich_help_panel=_LIGHT
+            "--samples",
+            help="Irradiance samples per segment K (default 32 with the projected direct light, 64 with the "
+            "paths; --quick: 16).",
+            rich_help_panel=_LIGHT,
         ),
     ),
     "bounces": (
@@ -461,7 +464,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def resolve(opts: ModelOptions) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
-    from lightfit.model.scenario import resolve_direct
+    from lightfit.model.scenario import main_job_samples, resolve_direct
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
 
@@ -474,6 +477,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
 
     boundary = given(opts.boundary, base.boundary)
     buffers = check_boundary(boundary, opts.buffer_rows, opts.buffer_along)
+    direct = resolve_direct(given(opts.direct, base.direct), boundary)
     s = ModelSettings(
         quick=opts.quick,
         n_plants=given(opts.n_plants, base.n_plants),
@@ -481,10 +485,10 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         buffer_rows=buffers[0],
         buffer_along=buffers[1],
         field_seed=given(opts.field_seed, base.seed),
-        samples=given(opts.samples, base.samples),
+        samples=given(opts.samples, main_job_samples(direct) if base.samples is None else base.samples),
         bounces=given(opts.bounces, base.bounces),
         target_rse=given(opts.target_rse, base.target_rse),
-        direct=resolve_direct(given(opts.direct, base.direct), boundary),
+        direct=direct,
         ceptometer_height_m=given(opts.ceptometer_height_m, base.ceptometer_height_m),
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),

@@ -48,12 +48,12 @@ segment id, sample index), so a segment's values do not depend on which other se
 requested or how the field is partitioned.
 
 ``direct="projection"`` (periodic scenes) takes the unscattered light — the direct sun and the
-sky seen directly — and, with ``bounces`` ≥ 1, the light scattered once by a leaf from rays cast
-down over the whole cell instead (:mod:`lightfit.light.projection`): the paths then carry only
-the rest (no direct-sun shadow ray at the point, no sky where the first ray escapes, no sun or
-sky through their first leaf vertex), and the two independent estimates are added replicate by
-replicate. Same expectation, a fraction of the variance (docs/light.md, "Direct light by
-projection").
+sky seen directly — and, with ``bounces`` ≥ 1, the light scattered once by a leaf or the soil
+from rays cast down over the whole cell instead (:mod:`lightfit.light.projection`): the paths
+then carry only the rest, light scattered twice and more (no direct-sun shadow ray at the point,
+no sky where the first ray escapes, no sun or sky through their first vertex), and the two
+independent estimates are added replicate by replicate. Same expectation, a fraction of the
+variance (docs/light.md, "Direct light by projection").
 """
 
 from __future__ import annotations

@@ -103,6 +103,19 @@ def resolve_direct(direct: str, boundary: str) -> str:
     return direct
 
 
+#: The main job's samples per segment K for each resolved direct light (:func:`main_job_samples`).
+MAIN_JOB_SAMPLES = {"projection": 32, "paths": 64}
+
+
+def main_job_samples(direct: str) -> int:
+    """Samples per segment K of the main job (``ReplicationConfig(samples=None)``) for a resolved
+    ``direct``: 32 with the projection, which leaves the paths only light scattered twice and more
+    (K = 64 gave the 20 April run's plant-PAR and canopy-An Monte Carlo SD within 0.2 % of K = 32's,
+    for ≈ 1.3× the time: docs/light.md, "The soil's light, and fewer continued rays"); 64 with the
+    paths, which carry all the light."""
+    return MAIN_JOB_SAMPLES[direct]
+
+
 @dataclass
 class Scenario:
     """Everything a forward run needs besides the calibrated parameters.
@@ -218,5 +231,6 @@ __all__ = [
     "Scenario",
     "WEATHER_COLUMNS",
     "daytime",
+    "main_job_samples",
     "resolve_direct",
 ]
