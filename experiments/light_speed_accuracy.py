@@ -5,7 +5,7 @@
 
 One field and sun position (2016-04-20, 10:00 UTC at Selhausen, reconstructed weather), the
 default leaf (PROSPECT-D, ``Optics.preset("prospect")``) and the default boundary (a periodic cell
-of the measured plants). From the main job's settings (K = 64, the leaf's bounces for 1 %
+of the measured plants). From the main job's settings (K = 32, the leaf's bounces for 1 %
 truncation: 2, periodic, mesh 1 × 1, the direct light by projection with its default rays) one
 knob is changed at a time — where the direct light comes from (the paths: the default before
 issue 16's projection), the projection's rays per m² (sun, sky), samples K, bounces, mesh
@@ -43,7 +43,7 @@ from lightfit import weather  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance, render_adaptive  # noqa: E402
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2  # noqa: E402
 from lightfit.light.scene import FieldScene, Optics  # noqa: E402
-from lightfit.model.scenario import resolve_direct  # noqa: E402
+from lightfit.model.scenario import main_job_samples, resolve_direct  # noqa: E402
 from lightfit.plant import Field, MeshResolution, build  # noqa: E402
 from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi  # noqa: E402
@@ -63,14 +63,13 @@ REFERENCE_SEEDS = tuple(range(12345, 12353))
 def settings(optics: Optics) -> tuple[dict, list[dict]]:
     """The main job's settings for ``optics`` and the one-knob changes swept from them."""
     b = bounces_for_tolerance(0.01, optics)
-    default = dict(
-        samples=64, bounces=b, boundary="periodic", buffer_rows=0, along=1, across=1, target_rse=None, direct="auto"
-    )
+    default = dict(samples=main_job_samples("projection"), bounces=b, boundary="periodic", buffer_rows=0)
+    default |= dict(along=1, across=1, target_rse=None, direct="auto")
     default["rays"] = DEFAULT_RAYS_PER_M2
     sweep = (
-        [{"direct": "paths"}]
+        [{"direct": "paths", "samples": main_job_samples("paths")}]
         + [{"rays": r} for r in ((1e6, 1e7), (1e7, 1e7), (1e7, 3e7))]
-        + [{"samples": k} for k in (8, 16, 32, 128, 256, 512)]
+        + [{"samples": k} for k in (8, 16, 64, 128, 256, 512)]
         + [{"bounces": d} for d in (0, 1, 2, 3, 4, 6) if d != b]
         + [{"boundary": "finite", "buffer_rows": r} for r in (0, 2, 4, 6)]
         + [{"along": 3, "across": 2}]
@@ -138,6 +137,7 @@ LABELS = {
     "along,across": lambda r: f"mesh {r['along']}×{r['across']}",
     "target_rse": lambda r: f"target {r['target_rse']:.0%}",
     "direct": lambda r: f"direct from {r['direct']}",
+    "direct,samples": lambda r: f"direct from {r['direct']}, K={r['samples']}",
     "rays": lambda r: "rays {:.0e}/{:.0e}".format(*r["rays"]),
     "default": lambda r: f"default (K={r['samples']}, b={r['bounces']})",
 }
@@ -220,7 +220,7 @@ def main(
         if setting["direct"] == "paths":
             setting["rays"] = None
         res, t, n_ev, k_mean = _absorbed(n_plants, setting, optics, sun, dni, dhi, seed=1)
-        j = res.join(ref, rsuffix="_ref", how="inner")
+        j = res.join(ref.add_suffix("_ref"), how="inner")
         lit = j["absorbed_ref"] > 1e-3 * j["absorbed_ref"].max()
         rel = (j["absorbed"] - j["absorbed_ref"]).abs()[lit] / j["absorbed_ref"][lit]
         blade = j["is_blade"][lit]
