@@ -166,6 +166,26 @@ def test_render_key_names_the_target(adaptive_model):
     assert keys[0] != keys[1] and keys[0] != keys[2]
 
 
+def test_render_key_names_the_projection_and_its_version(adaptive_model):
+    """Renders kept on disk are not reused across a change of the projection (its version is in
+    the key); keys with the paths' direct light stay as they were before the projection."""
+    import dataclasses
+
+    from lightfit import replication as rep
+    from lightfit.light.projection import PROJECTION_VERSION
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.emulator import render_key
+    from lightfit.model.scenario import Scenario
+
+    w = rep.forcing().iloc[[14]]
+    sc = Scenario(weather=w, field=Field(n_plants=4, boundary="periodic", seed=1), samples=8, bounces=1)
+    projected = render_key(CoupledModel(sc, sensors=()))
+    paths = render_key(CoupledModel(dataclasses.replace(sc, direct="paths"), sensors=()))
+    assert projected["direct"] == "projection" and projected["projection_version"] == PROJECTION_VERSION >= 2
+    assert "direct" not in paths and "projection_version" not in paths
+    assert "direct" not in render_key(adaptive_model)  # a finite field: the paths
+
+
 @pytest.mark.parametrize("value", ["0", "1.5"])
 def test_cli_refuses_bad_target_rse_in_one_line(value, tmp_path):
     from typer.testing import CliRunner

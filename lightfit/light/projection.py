@@ -67,6 +67,11 @@ from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
 from lightfit.light.periodic import CAPPED, LEAF
 
+#: Version of the projection's rays and what they carry: bumped whenever a change moves its values
+#: (not only their rounding), so that renders kept on disk (:func:`lightfit.model.emulator.render_key`)
+#: are not reused across it. 1: direct light and light scattered once by a leaf; 2: also by the
+#: soil, and Russian roulette on the continued rays (:data:`CONTINUED_SHARE`).
+PROJECTION_VERSION = 2
 #: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
 DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
 

@@ -57,6 +57,7 @@ from lightfit.errors import InputError
 from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import ESTIMATOR_VERSION, PARTS
+from lightfit.light.projection import PROJECTION_VERSION
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
@@ -141,8 +142,17 @@ def render_key(model: CoupledModel) -> dict:
         "day": _digest(np.asarray(model.day, bool)),
         # Adaptive sampling only: absent at a fixed K, so the keys of fixed-K caches stay as they were.
         **({} if sc.target_rse is None else {"target_rse": float(sc.target_rse), "max_samples": MAX_ADAPTIVE_SAMPLES}),
-        # Projected direct light only: absent with the paths' (the keys of earlier caches).
-        **({} if sc.direct == "paths" else {"direct": sc.direct, "direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
+        # Projected direct light only: absent with the paths' (the keys of earlier caches); the
+        # projection's version from its second on (keys made with the first lack it).
+        **(
+            {}
+            if sc.direct == "paths"
+            else {
+                "direct": sc.direct,
+                "direct_rays_per_m2": list(sc.direct_rays_per_m2),
+                "projection_version": PROJECTION_VERSION,
+            }
+        ),
     }
 
 
