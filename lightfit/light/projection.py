@@ -65,7 +65,7 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
-from lightfit.light.periodic import CAPPED, LEAF
+from lightfit.light.periodic import CAPPED, LEAF, SOIL
 
 #: Version of the projection's rays and what they carry: bumped whenever a change moves its values
 #: (not only their rounding), so that renders kept on disk (:func:`lightfit.model.emulator.render_key`)
@@ -218,14 +218,30 @@ class DirectProjection:
             w = mi.Vector3f(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)))
             cap = tracer.cap
             weight, w0 = math.pi * fs.sky_radiance(w.z), 1.0
-        hit, si, on_soil, p_soil, _, capped, _ = tracer.intersect(o, -w, mi.Bool(True), cap=cap)
+        status, o_last, maxt, _, pi = tracer.walk(o, -w, mi.Bool(True), cap=cap, soil=True, test=False)
+        hit, on_soil = status == LEAF, status == SOIL
         flux_ref = fs.cell.area_m2 / m
-        direct = self._deposit(hit, si.prim_index, w, rep, weight, w0, n, flux_ref, capped)
+        direct = self._deposit(hit, pi.prim_index, w, rep, weight, w0, n, flux_ref, status == CAPPED)
         if not self.scatter:
             return [direct]
         # Light scattered once on its way: at a leaf by the leaf's frozen sampling (as the paths
         # sample it), at the soil by a cosine-weighted (Lambertian) direction, and the ray
-        # continued to the next face. Leaf and soil lanes are disjoint: one walk for both.
+        # continued to the next face. Russian roulette: a share q of the rays goes on, carrying
+        # 1/q of the flux. Only those lanes are kept (compacted): the surface interaction, the
+        # sampling and the second walk cost nothing for the others.
+        q = CONTINUED_SHARE[kind]
+        go_on = mi.Float(mi.sample_tea_32(idx, self._key(kind, 4))[0] >> 8) * to_unit < q
+        sel = dr.compress((hit | on_soil) & go_on)
+        idx, rep, hit, on_soil, o_last, maxt, pi = (
+            dr.gather(type(x), x, sel) for x in (idx, rep, hit, on_soil, o_last, maxt, pi)
+        )
+        if kind == "sky":
+            w, weight = dr.gather(mi.Vector3f, w, sel), dr.gather(mi.Float, weight, sel)
+        w0, weight = w0 / q, (None if weight is None else weight / q)
+        ray = mi.Ray3f(o_last, -w)
+        ray.maxt = maxt
+        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, hit)
+        p_soil = o_last - w * maxt
         si.wi = si.to_local(w)  # towards the light
         t0, t1 = mi.sample_tea_32(idx, self._key(kind, 2))
         u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, mi.sample_tea_32(idx, self._key(kind, 3))[0])]
@@ -235,12 +251,8 @@ class DirectProjection:
         d1 = dr.detach(dr.select(hit, d_leaf, d_soil))
         eps = 1e-5
         o1 = dr.select(hit, si.p + eps * dr.sign(dr.dot(si.n, d1)) * si.n, p_soil + mi.Vector3f(0, 0, eps))
-        # Russian roulette: a share q of the rays goes on, carrying 1/q of the flux.
-        q = CONTINUED_SHARE[kind]
-        go_on = mi.Float(mi.sample_tea_32(idx, self._key(kind, 4))[0] >> 8) * to_unit < q
-        w0, weight = w0 / q, (None if weight is None else weight / q)
         # Only the face is needed where the scattered ray lands: no surface interaction.
-        status, _, _, _, pi = tracer.walk(o1, d1, ((hit & ok) | on_soil) & go_on, cap=tracer.cap, soil=True, test=False)
+        status, _, _, _, pi = tracer.walk(o1, d1, (hit & ok) | on_soil, cap=tracer.cap, soil=True, test=False)
         landed, stopped = status == LEAF, status == CAPPED
         via_leaf = self._deposit(
             landed & hit, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & hit, (si.wi, wo, pdf, ok)
