@@ -505,7 +505,6 @@ class SegmentEstimator:
         mi, fs = self.fs.mi, self.fs
         n_ev = self.n_evaluations
         active = mi.Bool(dr.full(mi.Bool, True, n_ev))
-        eps = 1e-5
         periodic = fs.tracer is not None
         orders = []
         for depth in range(self.bounces + 1):
@@ -540,14 +539,8 @@ class SegmentEstimator:
                 pdf=pdf,
                 ok=ok,
             )
-            d_leaf = si.to_world(fs.bsdf._flip(wo, s))
-            side_out = dr.sign(dr.dot(si.n, d_leaf))
-            d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(
-                mi.warp.square_to_cosine_hemisphere(mi.Point2f(ub[1], ub[2]))
-            )
             active = (hit_leaf & ok) | hit_soil
-            o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
-            d = dr.detach(dr.select(hit_leaf, d_leaf, d_soil))
+            o, d = fs.scattered_ray(si, hit_leaf, p_soil, s, wo, mi.Point2f(ub[1], ub[2]))
         return orders
 
     def _geometry(self):
@@ -602,6 +595,14 @@ class SegmentEstimator:
             beta = dr.select(hit_leaf, beta * w, dr.select(g["hit_soil"], beta * rho_soil, 0.0))
         return betas, L_sky
 
+    def _nee_vertices(self, g, depth: int):
+        """The leaf and soil lanes of order ``depth`` of the geometry whose sun the paths take by
+        next-event estimation: all, except at the first vertex alongside a projection (it has
+        the sun through one leaf or the soil)."""
+        if depth == 0 and self._scattered_only:
+            return self.fs.mi.Bool(False), self.fs.mi.Bool(False)
+        return g["hit_leaf"], g["hit_soil"]
+
     def _sun_rays(self, geo):
         """The current sun's shadow rays: ``(e_dir, visible)``, the direct sun on each evaluation's
         side (cos⁺ × visibility) and, per vertex of ``geo``, whether the sun is visible from it
@@ -627,9 +628,7 @@ class SegmentEstimator:
         eps = 1e-5
         visible = []
         for depth, g in enumerate(geo[: self.bounces]):
-            hit_leaf, hit_soil, p, n = g["hit_leaf"], g["hit_soil"], g["p"], g["n"]
-            if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf or the soil
-                hit_leaf = hit_soil = mi.Bool(False)
+            (hit_leaf, hit_soil), p, n = self._nee_vertices(g, depth), g["p"], g["n"]
             side = dr.sign(dr.dot(n, sun))
             # Leaf vertices: a ray wherever a leaf is hit; where the BSDF towards the sun is 0 at
             # some parameters their term is 0 whatever the ray finds. Leaf and soil vertices are
@@ -661,9 +660,7 @@ class SegmentEstimator:
             rho_soil = fs.optics.soil_albedo
             ctx = mi.BSDFContext()
             for depth, (g, beta, vis) in enumerate(zip(geo, betas, visible)):
-                hit_leaf, hit_soil = g["hit_leaf"], g["hit_soil"]
-                if depth == 0 and self._scattered_only:  # a projection has the sun through one leaf or the soil
-                    hit_leaf = hit_soil = mi.Bool(False)
+                hit_leaf, hit_soil = self._nee_vertices(g, depth)
                 si = dr.zeros(mi.SurfaceInteraction3f)
                 si.sh_frame, si.wi = g["frame"], g["wi"]
                 f_sun = fs.bsdf.eval(ctx, si, si.to_local(sun), hit_leaf)[0]

@@ -112,7 +112,8 @@ class Hits:
     the face's front side was lit; ``weight``: the ray's w (``None``: every ray the same, ``w0``);
     ``rays`` cast, ``capped`` of them stopped by the crossing cap, ``flux_ref`` = A_c/m.
     ``scatter``: for light scattered once by a leaf on its way (``None``: not by a leaf), the
-    leaf's sample ``(wi, wo, pdf, ok)`` at the scattering vertex (``LeafBSDF.sample_direction``),
+    leaf's sample ``(wi, wo, pdf, ok)`` at the scattering vertex (``LeafBSDF.sample_direction``,
+    both directions in the frame flipped to the side of ω_i),
     whose weight f·|cos θ_o|/pdf at the current parameters multiplies the ray's flux. ``soil``:
     the light was scattered once by the soil on its way (its albedo, at the time the values are
     taken, multiplies the flux: cosine-weighted sampling of a Lambertian soil).
@@ -245,23 +246,20 @@ class DirectProjection:
         si.wi = si.to_local(w)  # towards the light
         t0, t1 = mi.sample_tea_32(idx, self._key(kind, 2))
         u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, mi.sample_tea_32(idx, self._key(kind, 3))[0])]
-        side, _, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
-        d_leaf = si.to_world(fs.bsdf._flip(wo, side))
-        d_soil = mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[1], u[2]))
-        d1 = dr.detach(dr.select(hit, d_leaf, d_soil))
-        eps = 1e-5
-        o1 = dr.select(hit, si.p + eps * dr.sign(dr.dot(si.n, d1)) * si.n, p_soil + mi.Vector3f(0, 0, eps))
+        side, wi, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
+        o1, d1 = fs.scattered_ray(si, hit, p_soil, side, wo, mi.Point2f(u[1], u[2]))
         # Only the face is needed where the scattered ray lands: no surface interaction.
         status, _, _, _, pi = tracer.walk(o1, d1, (hit & ok) | on_soil, cap=tracer.cap, soil=True, test=False)
         landed, stopped = status == LEAF, status == CAPPED
         via_leaf = self._deposit(
-            landed & hit, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & hit, (si.wi, wo, pdf, ok)
+            landed & hit, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & hit, (wi, wo, pdf, ok)
         )
-        via_soil = self._deposit(landed & on_soil, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & on_soil)
-        via_soil.soil = True
+        via_soil = self._deposit(
+            landed & on_soil, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & on_soil, soil=True
+        )
         return [direct, via_leaf, via_soil]
 
-    def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None) -> Hits:
+    def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None, soil=False) -> Hits:
         """The rays that met a requested segment's counted side (blades: both, stems: the outer),
         light arriving from ``w``, compacted."""
         import drjit as dr
@@ -286,6 +284,7 @@ class DirectProjection:
             capped=0,
             flux_ref=flux_ref,
             scatter=None if sample is None else tuple(take(x) for x in sample),
+            soil=soil,
         )
         dr.eval(out.index, out.mu, out.front, out.weight, out.scatter)
         out.capped = int(np.asarray(dr.count(capped)).sum())
@@ -361,10 +360,7 @@ class DirectProjection:
         if h.soil:
             f = f * self.fs.optics.soil_albedo
         if h.scatter is not None:
-            import drjit as dr
-
-            wi, wo, pdf, ok = h.scatter
-            f = f * bsdf.weight(bsdf._flip(wi, dr.sign(mi.Frame3f.cos_theta(wi))), wo, pdf, ok, mi.Bool(True))
+            f = f * bsdf.weight(*h.scatter, mi.Bool(True))
         return mi.Float(f)
 
     def vjp(self, kind: str, incident: np.ndarray, absorbed: np.ndarray) -> dict[str, float]:

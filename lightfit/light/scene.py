@@ -188,6 +188,23 @@ class FieldScene:
             return dr.select(cos_zenith > 0, mitsuba().Float(1.0 / math.pi), 0.0)
         return dr.select(cos_zenith > 0, 9.0 / (7.0 * math.pi) * (1.0 + 2.0 * cos_zenith) / 3.0, 0.0)
 
+    def scattered_ray(self, si, hit_leaf, p_soil, side, wo, sample2):
+        """The ray leaving a leaf or soil vertex: ``(origin, direction)``, detached.
+
+        At a leaf (``hit_leaf``) the direction is the leaf's sample ``wo``
+        (:meth:`LeafBSDF.sample_direction`, local to the side ``side`` of ``si``); elsewhere, at
+        the soil point ``p_soil``, a cosine-weighted direction from ``sample2`` (a Lambertian
+        soil). The origin is moved 10⁻⁵ m off the surface, to the side the ray leaves.
+        """
+        import drjit as dr
+
+        mi, eps = self.mi, 1e-5
+        d_leaf = si.to_world(self.bsdf._flip(wo, side))
+        side_out = dr.sign(dr.dot(si.n, d_leaf))
+        d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(mi.warp.square_to_cosine_hemisphere(sample2))
+        o = dr.select(hit_leaf, si.p + eps * side_out * si.n, p_soil + mi.Vector3f(0, 0, eps))
+        return o, dr.detach(dr.select(hit_leaf, d_leaf, d_soil))
+
     def set_optics(self, **leaf: float) -> None:
         """Change leaf parameters (``specular``, ``roughness``, ``subsurface``) in place, no rebuild."""
         for name, v in leaf.items():
