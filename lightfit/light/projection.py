@@ -248,6 +248,9 @@ class DirectProjection:
         u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, mi.sample_tea_32(idx, self._key(kind, 3))[0])]
         side, wi, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
         o1, d1 = fs.scattered_ray(si, hit, p_soil, side, wo, mi.Point2f(u[1], u[2]))
+        # One kernel for the ray and the sample the hits keep: evaluated apart, the surface
+        # interaction and the sampling were computed twice (for the walk, then for the deposit).
+        dr.eval(o1, d1, wi, wo, pdf, ok)
         # Only the face is needed where the scattered ray lands: no surface interaction.
         status, _, _, _, pi = tracer.walk(o1, d1, (hit & ok) | on_soil, cap=tracer.cap, soil=True, test=False)
         landed, stopped = status == LEAF, status == CAPPED
