@@ -102,7 +102,8 @@ CONTINUED_SHARE = {"sun": 0.5, "sky": 0.25}
 #: Most rays cast in one pass (one walk, one continuation, one deposit): the rays of a kind are cast
 #: in passes of this many (the same rays, keyed by their index, so the same values to the bit), so
 #: that a pass's working arrays stay small: on the 500-plant cell at 2 × 10⁷ rays per m², 4.7
-#: instead of 9.8 GB peak memory, at the same render time (docs/light.md, "Casting in passes").
+#: instead of 9.8 GB peak memory, at the same render time (docs/light.md, "Where the time goes,
+#: and casting in passes").
 CAST_CHUNK = 2**22
 _FIXED = 2.0**32  # fixed-point scale of the sums
 _NONE = 0xFFFFFFFF  # row of a face whose segment is not requested
