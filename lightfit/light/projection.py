@@ -361,8 +361,10 @@ class DirectProjection:
         if hits is None:
             return None
         mi = self.mi
-        bufs = {k: dr.zeros(mi.UInt64, self.S * self.R) for k in ("incident", "absorbed")}
-        bufs |= {k + "_front": dr.zeros(mi.UInt64, self.S * self.R) for k in ("incident", "absorbed")}
+        # The four sums of a (segment, replicate) side by side in one buffer: a hit's atomic adds
+        # then meet one cache line, not four (the sky's hits land on segments in random order).
+        names = ("incident", "absorbed", "incident_front", "absorbed_front")
+        buf = dr.zeros(mi.UInt64, len(names) * self.S * self.R)
         with dr.suspend_grad():
             for h in hits:
                 if dr.width(h.mu) == 0:  # e.g. no ray reached the soil
@@ -370,13 +372,15 @@ class DirectProjection:
                 # Fixed point relative to this kind's ray flux (the same A_c/m for all its hits).
                 w = self._flux(h) / hits[0].flux_ref
                 a = 1.0 - leaf_albedo(self.fs.bsdf, h.mu)
-                for name, v in (("incident", w), ("absorbed", w * a)):
+                at = h.index * len(names)
+                for slot, v in enumerate((w, w * a)):
                     q = mi.UInt64(mi.Float64(v) * _FIXED + 0.5)
-                    for suffix, mask in (("", mi.Bool(True)), ("_front", h.front)):
-                        dr.scatter_reduce(dr.ReduceOp.Add, bufs[name + suffix], q, h.index, mask)
-            dr.eval(bufs)
+                    dr.scatter_reduce(dr.ReduceOp.Add, buf, q, at + slot)
+                    dr.scatter_reduce(dr.ReduceOp.Add, buf, q, at + (slot + 2), h.front)
+            dr.eval(buf)
+        sums = np.asarray(buf, dtype=np.float64).reshape(self.S, self.R, len(names))
         scale = hits[0].flux_ref / _FIXED * self._inv_area[:, None]
-        return {k: np.asarray(v, dtype=np.float64).reshape(self.S, self.R) * scale for k, v in bufs.items()}
+        return {k: sums[:, :, i] * scale for i, k in enumerate(names)}
 
     def _flux(self, h: Hits):
         """Each hit's flux per unit DNI or DHI, m² (Dr.Jit; at the current leaf parameters when
