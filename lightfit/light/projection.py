@@ -121,9 +121,9 @@ class Hits:
     ``scatter``: for light scattered once by a leaf on its way (``None``: not by a leaf), the
     leaf's sample ``(wi, wo, pdf, ok)`` at the scattering vertex (``LeafBSDF.sample_direction``,
     both directions in the frame flipped to the side of ω_i),
-    whose weight f·|cos θ_o|/pdf at the current parameters multiplies the ray's flux. ``soil``:
-    the light was scattered once by the soil on its way (its albedo, at the time the values are
-    taken, multiplies the flux: cosine-weighted sampling of a Lambertian soil).
+    whose weight f·|cos θ_o|/pdf at the current parameters multiplies the ray's flux.
+    ``"via_soil"``: the light was scattered once by the soil on its way (its albedo, at the time
+    the values are taken, multiplies the flux: cosine-weighted sampling of a Lambertian soil).
     """
 
     index: object
@@ -135,8 +135,12 @@ class Hits:
     capped: int
     flux_ref: float  # m² of ground per ray
     scatter: tuple | None = None
-    soil: bool = False
     part: str = "direct"
+
+    @property
+    def soil(self) -> bool:
+        """The light was scattered once by the soil on its way."""
+        return self.part == "via_soil"
 
 
 class DirectProjection:
@@ -272,15 +276,14 @@ class DirectProjection:
         status, _, _, _, pi = tracer.walk(o1, d1, (hit & ok) | on_soil, cap=tracer.cap, soil=True, test=False)
         landed, stopped = status == LEAF, status == CAPPED
         via_leaf = self._deposit(
-            landed & hit, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & hit, (wi, wo, pdf, ok)
+            landed & hit, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & hit, (wi, wo, pdf, ok), "via_leaf"
         )
         via_soil = self._deposit(
-            landed & on_soil, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & on_soil, soil=True
+            landed & on_soil, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & on_soil, part="via_soil"
         )
-        via_leaf.part, via_soil.part = "via_leaf", "via_soil"
         return [direct, via_leaf, via_soil]
 
-    def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None, soil=False) -> Hits:
+    def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None, part="direct") -> Hits:
         """The rays that met a requested segment's counted side (blades: both, stems: the outer),
         light arriving from ``w``, compacted."""
         import drjit as dr
@@ -305,7 +308,7 @@ class DirectProjection:
             capped=0,
             flux_ref=flux_ref,
             scatter=None if sample is None else tuple(take(x) for x in sample),
-            soil=soil,
+            part=part,
         )
         dr.eval(out.index, out.mu, out.front, out.weight, out.scatter)
         out.capped = int(np.asarray(dr.count(capped)).sum())
