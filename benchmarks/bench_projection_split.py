@@ -36,6 +36,9 @@ import lightfit  # noqa: F401
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "projection_split.json"
 SKY_WEIGHT = 0.3  # DHI per unit DNI in the relative SE, as bench_light
