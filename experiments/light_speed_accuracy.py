@@ -24,6 +24,7 @@ table.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
 import time
@@ -143,21 +144,52 @@ LABELS = {
 }
 
 
+def _spread_labels(fig, texts) -> None:
+    """Move point labels (annotations in offset points) apart: each, from the top down, takes the
+    nearest offset beside its point where it overlaps no point and no label placed before it; a
+    thin leader line joins a label moved away from its point."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+
+    def box(t):  # the text alone: an annotation's own extent includes its leader line
+        return matplotlib.text.Text.get_window_extent(t, renderer)
+
+    def marker(t):
+        x, y = t.axes.transData.transform(t.xy)
+        return matplotlib.transforms.Bbox([[x - 4, y - 4], [x + 4, y + 4]])
+
+    placed = [marker(t) for t in texts]  # labels keep off the points too
+    for t in sorted(texts, key=lambda t: -t.axes.transData.transform(t.xy)[1]):
+        width = box(t).width * 72 / fig.dpi
+        offsets = [(dx, 3 + dy) for dx in (4, -4 - width, 12, -12 - width) for dy in range(-90, 91, 9)]
+        offsets.sort(key=lambda o: (o[0] + (width / 2 if o[0] < 0 else 0)) ** 2 + o[1] ** 2)
+        for dx, dy in [*offsets, (4, 3)]:  # nowhere free: where it was
+            t.xyann = (dx, dy)
+            if not any(box(t).overlaps(b) for b in placed):
+                break
+        placed.append(box(t))
+
+
 def pareto(df: pd.DataFrame, n_plants: int, optics_name: str, path: Path) -> None:
     """Error against time, one line per knob, each point labelled with its value."""
-    fig, ax = plt.subplots(1, 2, figsize=(13, 5.5), constrained_layout=True)
+    fig, ax = plt.subplots(1, 2, figsize=(13, 6), constrained_layout=True)
+    texts = {a: [] for a in ax}
     for name, grp in df.groupby("changed"):
         grp = grp.sort_values("time_s")
         for a, col in zip(ax, ("median_rel_err_segment", "canopy_total_rel_err")):
             line = a.plot(grp["time_s"], grp[col], "o-" if len(grp) > 1 else "o", label=name)[0]
             for _, r in grp.iterrows():
-                a.annotate(
-                    LABELS[name](r),
-                    (r["time_s"], r[col]),
-                    xytext=(4, 3),
-                    textcoords="offset points",
-                    fontsize=7,
-                    color=line.get_color(),
+                texts[a].append(
+                    a.annotate(
+                        LABELS[name](r),
+                        (r["time_s"], r[col]),
+                        xytext=(4, 3),
+                        textcoords="offset points",
+                        fontsize=7,
+                        color=line.get_color(),
+                        # a leader line, hidden under the marker unless the label is moved away
+                        arrowprops=dict(arrowstyle="-", lw=0.5, color=line.get_color(), shrinkA=0, shrinkB=4),
+                    )
                 )
     for a, title in zip(ax, ("median per-segment error (segments with light)", "canopy-total error")):
         a.set_xscale("log")
@@ -171,8 +203,18 @@ def pareto(df: pd.DataFrame, n_plants: int, optics_name: str, path: Path) -> Non
         f"Absorbed PAR per segment, {n_plants} measured plants, {optics_name} leaf, periodic cell: speed against "
         f"accuracy (reference: K = 1024 × {len(REFERENCE_SEEDS)} seeds, {REFERENCE['bounces']} bounces)"
     )
+    for t in texts.values():
+        _spread_labels(fig, t)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def replot(out_dir: Path) -> None:
+    """Redraw ``pareto.png`` from the ``sweep.csv`` and ``sweep.json`` a run wrote to ``out_dir``."""
+    meta = json.loads((out_dir / "sweep.json").read_text())
+    df = pd.read_csv(out_dir / "sweep.csv")
+    df["rays"] = [ast.literal_eval(v) if isinstance(v, str) else None for v in df["rays"]]
+    pareto(df, meta["n_plants"], meta["optics"], out_dir / "pareto.png")
 
 
 def main(
@@ -297,5 +339,9 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=16)
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "light_speed_accuracy")
     ap.add_argument("--optics", default="prospect", choices=["prospect", "paper"], help="leaf optics preset")
+    ap.add_argument("--replot", action="store_true", help="redraw pareto.png from the sweep already in --out")
     a = ap.parse_args()
-    main(a.n_plants, a.out, a.optics)
+    if a.replot:
+        replot(a.out)
+    else:
+        main(a.n_plants, a.out, a.optics)
