@@ -1,0 +1,212 @@
+"""Benchmark: what a projected sky ray costs and how its layout moves the per-segment noise (issue 16).
+
+    python benchmarks/bench_ray_layouts.py [--n-plants 500] [--rays 2e7] [--replicates 8]
+        [--vector-width 8]
+
+The sky seen directly is ≈ 0.56 of a median segment's variance in the projection
+(bench_projection_split.py); this measures, outside the estimator, whether another layout of the
+same number of sky rays would lower variance × time. On the defaults' field (the measured plants as
+one periodic cell) R replicates of m rays each are cast down from the canopy top and walked
+through the cell (:meth:`PeriodicTracer.walk`, as the projection's first rays), in these layouts:
+
+* ``per-ray R2``: a jittered grid over the cell, each ray its own cosine-weighted direction (an R₂
+  sequence over the grid index, shifted per replicate): the projection's sky today;
+* ``tiles x bins``: the same rays traced in another order (5 cm tiles of the cell, then 8 × 8 bins
+  of the direction's unit square): the values would be bitwise the same, only the order of the
+  walk changes (what a sort would buy);
+* ``D directions``: each replicate D directions (R₂ over the direction index, shifted per
+  replicate), each lighting the whole cell from its own jittered grid of m/D rays: parallel,
+  sun-like rays, coherent for the tracer, but only R·D directions in all;
+* ``sun``: one direction (the sun's layout, for the rate it reaches).
+
+Per layout: rays per second of the walk (the median over the R replicates' walks, after a
+warm-up), and the relative standard error of each segment's count of first hits (the sky seen
+directly of an isotropic sky, unit weights; the spread of the R replicates / √R), median over
+blades and over all segments. ``variance × time`` is the blades' median relative SE squared times
+the walk time, relative to ``per-ray R2`` (below 1: the layout pays). ``--vector-width`` sets
+Dr.Jit's LLVM packet width before anything is compiled (default: the CPU's, 16 with AVX-512) through
+drjit-core's ``jit_llvm_set_target`` (a C++ symbol of the library, not Python API), to measure
+whether narrower packets trace incoherent rays faster.
+
+Writes benchmarks/results/ray_layouts.json (or ray_layouts_width<W>.json) and prints a table,
+with the commit and the load average (2 shared cores: compare rows of one run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_light import commit_state  # same script folder
+from rich.console import Console
+from rich.table import Table
+
+import lightfit  # noqa: F401
+from lightfit.light import backend
+from lightfit.light.periodic import LEAF
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant import Field, build
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+RESULTS = Path(__file__).resolve().parent / "results"
+_G = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
+
+
+def set_vector_width(width: int) -> int:
+    """Dr.Jit's LLVM packet width for every kernel compiled from now on; returns the width in force."""
+    import drjit as dr
+
+    lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+    get = ctypes.CFUNCTYPE(ctypes.c_char_p)
+    cpu, features = get(("_Z19jit_llvm_target_cpuv", lib))(), get(("_Z24jit_llvm_target_featuresv", lib))()
+    setter = ctypes.CFUNCTYPE(None, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32)
+    setter(("_Z19jit_llvm_set_targetPKcS0_j", lib))(cpu, features, int(width))
+    return ctypes.CFUNCTYPE(ctypes.c_uint32)(("_Z21jit_llvm_vector_widthv", lib))()
+
+
+def cosine_directions(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Unit vectors towards the sky, cosine-weighted about the zenith, from the unit square."""
+    r, phi = np.sqrt(u1), 2 * np.pi * u2
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - u1))], 1)
+
+
+def jittered_grid(rng, cell, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell-frame coordinates (a, b), m, of about m points, one per cell of a grid, row by row."""
+    A, B = (float(v) for v in cell.size_m)
+    nx = max(1, round(math.sqrt(m * A / B)))
+    ny = max(1, -(-m // nx))
+    c = np.arange(nx * ny)
+    return (c % nx + rng.random(c.size)) * A / nx - A / 2, (c // nx + rng.random(c.size)) * B / ny - B / 2
+
+
+def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
+    """One replicate's rays of a layout: cell-frame origins (a, b) and directions towards the sky."""
+    if name.startswith("D="):
+        d = int(name[2:])
+        parts = [jittered_grid(rng, cell, -(-m // d)) for _ in range(d)]
+        j = np.arange(d)
+        w = cosine_directions((shift[0] + j / _G) % 1, (shift[1] + j / _G**2) % 1)
+        a = np.concatenate([p[0] for p in parts])
+        b = np.concatenate([p[1] for p in parts])
+        return a, b, np.repeat(w, [len(p[0]) for p in parts], axis=0)
+    a, b = jittered_grid(rng, cell, m)
+    if name == "sun":
+        return a, b, np.repeat(sun[None, :], len(a), axis=0)
+    c = np.arange(len(a))
+    u1, u2 = (shift[0] + c / _G) % 1, (shift[1] + c / _G**2) % 1
+    w = cosine_directions(u1, u2)
+    if name == "tiles x bins":
+        A, B = (float(v) for v in cell.size_m)
+        ta, tb = np.floor((a / A + 0.5) * A / 0.05), np.floor((b / B + 0.5) * B / 0.05)
+        order = np.lexsort((c, np.floor(u2 * 8), np.floor(u1 * 8), tb, ta))
+        a, b, w = a[order], b[order], w[order]
+    return a, b, w
+
+
+def main(n_plants: int = 500, rays: float = 2e7, replicates: int = 8, vector_width: int | None = None) -> dict:
+    mi = backend.mitsuba()  # the LLVM backend first: its target is then set before any kernel exists
+    width = set_vector_width(vector_width) if vector_width else None
+    import drjit as dr
+
+    load_start = os.getloadavg()[0]
+    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
+    fs = FieldScene(geom.mesh, Optics.preset("prospect"), cell=geom.cell)
+    fs.set_sun(50.0, 180.0)
+    cell, tr = fs.cell, fs.tracer
+    segments = geom.segments.set_index("segment_id")
+    seg_id = np.unique(fs.scene_mesh.face_segment)
+    row_of_face = np.searchsorted(seg_id, fs.scene_mesh.face_segment)
+    blade = segments.loc[seg_id, "blade_width_m"].to_numpy() > 0
+    m = round(rays * cell.area_m2 / replicates)
+    (ex, ey), (fx, fy) = cell.axes
+    cx, cy = cell.center_xy
+
+    def walk(a, b, w):
+        o = [cx + a * ex + b * fx, cy + a * ey + b * fy, np.full(len(a), tr.z_top + 1e-3)]
+        origin = mi.Point3f(*(mi.Float(x.astype(np.float32)) for x in o))
+        direction = mi.Vector3f(*(mi.Float(-w[:, i].astype(np.float32)) for i in range(3)))
+        dr.eval(origin, direction)
+        t = time.perf_counter()
+        status, _, _, _, pi = tr.walk(origin, direction, mi.Bool(True), cap=tr.cap, soil=True, test=False)
+        dr.sync_thread()
+        return time.perf_counter() - t, np.asarray(status), np.asarray(pi.prim_index)
+
+    names = ["per-ray R2", "tiles x bins", "D=16", "D=64", "D=256", "D=1024", "sun"]
+    rng = np.random.default_rng(12345)
+    shifts = rng.random((replicates, 2))
+    walk(*layout("per-ray R2", rng, cell, m, shifts[0], fs.sun))  # compile the walk
+    rows = {}
+    for name in names:
+        counts = np.zeros((len(seg_id), replicates))
+        times = []
+        for r in range(replicates):
+            rays_r = layout(name, rng, cell, m, shifts[r], fs.sun)
+            dt, status, prim = walk(*rays_r)
+            times.append(dt)
+            counts[:, r] = np.bincount(row_of_face[prim[status == LEAF]], minlength=len(seg_id))
+        mean = counts.mean(1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rse = np.where(mean > 0, counts.std(1, ddof=1) / np.sqrt(replicates) / mean, np.nan)
+        t = float(np.median(times))
+        rows[name] = {
+            "rays_per_s": m / t,
+            "walk_s_per_replicate": t,
+            "median_rse_blades": float(np.nanmedian(rse[blade])),
+            "median_rse_all": float(np.nanmedian(rse)),
+            "mean_hits_per_segment": float(mean.mean()),
+        }
+    base = rows["per-ray R2"]
+    for row in rows.values():
+        row["variance_x_time_blades"] = (row["median_rse_blades"] ** 2 * row["walk_s_per_replicate"]) / (
+            base["median_rse_blades"] ** 2 * base["walk_s_per_replicate"]
+        )
+    res = {
+        **commit_state(),
+        "cpu_cores": os.cpu_count(),
+        "llvm_vector_width": width,
+        "load_average_start": load_start,
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "segments_in_cell": len(seg_id),
+        "rays_per_m2": rays,
+        "replicates": replicates,
+        "rays_per_replicate": m,
+        "layouts": rows,
+        "load_average_end": os.getloadavg()[0],
+    }
+    out = RESULTS / ("ray_layouts.json" if width is None else f"ray_layouts_width{width}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=2))
+    t = Table(
+        title=f"sky ray layouts: {n_plants} plants, {rays:.1e} rays/m², R={replicates}, 2 CPU cores"
+        + ("" if width is None else f", LLVM width {width}")
+    )
+    for c in ("layout", "M rays/s", "median rse blades", "median rse all", "variance × time (blades)"):
+        t.add_column(c, justify="right")
+    for name, r in rows.items():
+        t.add_row(
+            name,
+            f"{r['rays_per_s'] / 1e6:.2f}",
+            f"{r['median_rse_blades']:.2%}",
+            f"{r['median_rse_all']:.2%}",
+            f"{r['variance_x_time_blades']:.2f}",
+        )
+    Console().print(t)
+    return res
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n-plants", type=int, default=500)
+    ap.add_argument("--rays", type=float, default=2e7, help="sky rays per m² of ground, all replicates")
+    ap.add_argument("--replicates", type=int, default=8)
+    ap.add_argument("--vector-width", type=int, default=None, help="Dr.Jit LLVM packet width (default: the CPU's)")
+    a = ap.parse_args()
+    main(a.n_plants, a.rays, a.replicates, a.vector_width)
