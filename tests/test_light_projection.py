@@ -148,6 +148,18 @@ def test_renders_are_repeatable_and_keep_across_suns(field):
         fs.set_optics(**{k: getattr(OPTICS, k) for k in ("specular", "roughness", "subsurface")})
     assert np.array_equal(many[0].absorbed_sun, ref.absorbed_sun)
     assert np.array_equal(many[0].absorbed_sky, ref.absorbed_sky)
+    # Done or closed early, render_many keeps the projected hits of the scene's sun only.
+    assert _kept_suns(est._direct) == [tuple(fs.sun)]
+    g = est.render_many([[0.2, 0.7, 0.4], [0.3, 0.6, 0.5]], [[40.0, 150.0], [10.0, 250.0], [25.0, 200.0]])
+    next(g)
+    assert len(_kept_suns(est._direct)) == 3
+    g.close()
+    assert _kept_suns(est._direct) == [tuple(fs.sun)]
+
+
+def _kept_suns(proj) -> list[tuple]:
+    """The sun vectors whose projected hits ``proj`` keeps."""
+    return [k[1:] for k in proj._hits if k[0] == "sun"]
 
 
 def test_casting_in_passes_gives_the_same_values_and_counts(field, monkeypatch):
@@ -244,6 +256,7 @@ def test_adaptive_rounds_add_paths_to_one_projection(field):
     for p in PARTS:  # switched segments: to float32 rounding, as above
         np.testing.assert_allclose(getattr(again, p), getattr(r, p), rtol=1e-7, atol=1e-14)
     many = list(est.render_many([[0.3, 0.6, 0.5]], [[40.0, 150.0], [25.0, 200.0]]))[0]
+    assert _kept_suns(est._direct) == [tuple(fs.sun)]  # the scene's sun only, once done
     state = fs.optics
     try:
         fs.set_optics(specular=0.3, roughness=0.6, subsurface=0.5)

@@ -728,7 +728,9 @@ class SegmentEstimator:
 
         Memory besides the kept geometry: 4 + ``bounces`` bytes per evaluation and sun (the
         shadow rays, kept for all T suns), and 4 × (1 + ``bounces``) bytes per evaluation for
-        the point being weighed — independent of N.
+        the point being weighed — independent of N. With ``direct="projection"`` the projected
+        hits of all T suns are kept too while the generator runs; when it ends or is closed only
+        the scene's sun's stay, as after :meth:`render`.
         """
         import drjit as dr
 
@@ -775,25 +777,28 @@ class SegmentEstimator:
                     self._fuse = False
         finally:
             restore(state)
-        for x in leaf:
-            state = scene_state()
-            try:
-                # The parameters stay literals, as in render(): made opaque, every point would share
-                # compiled kernels (≈ 0.1 s less per point on the quick field) but the values moved
-                # by float32 round-off (≈ 6e-8), no longer bitwise those of render().
-                fs.set_optics(**dict(zip(LEAF_PARAMETERS, x)))
-                out = []
-                with dr.suspend_grad():
-                    weights = self._weigh(geo)
-                    dr.eval(weights)
-                    for s, r, periodic in rays:
-                        fs.sun = s
-                        vals = self._values(geo, weights, r)
-                        dr.eval(vals)
-                        out.append(self._irradiance(vals, periodic, self._direct_values()))
-            finally:
-                restore(state)
-            yield out
+        try:
+            for x in leaf:
+                state = scene_state()
+                try:
+                    # The parameters stay literals, as in render(): made opaque, every point would
+                    # share compiled kernels (≈ 0.1 s less per point on the quick field) but the
+                    # values moved by float32 round-off (≈ 6e-8), no longer bitwise those of render().
+                    fs.set_optics(**dict(zip(LEAF_PARAMETERS, x)))
+                    out = []
+                    with dr.suspend_grad():
+                        weights = self._weigh(geo)
+                        dr.eval(weights)
+                        for s, r, periodic in rays:
+                            fs.sun = s
+                            vals = self._values(geo, weights, r)
+                            dr.eval(vals)
+                            out.append(self._irradiance(vals, periodic, self._direct_values()))
+                finally:
+                    restore(state)
+                yield out
+        finally:
+            _forget_other_suns(self._direct, fs)
 
     def _direct_values(self) -> dict | None:
         """:func:`_projected` of this estimator's projection (``None`` unless ``direct="projection"``)."""
@@ -963,6 +968,15 @@ def samples_for_accuracy(
         return pilot
     k = math.ceil(r.samples * (np.quantile(rse, quantile) / target_rse) ** 2)
     return int(min(max(k, 2 * replicates_for(k)), max_samples))
+
+
+def _forget_other_suns(proj: DirectProjection | None, fs: FieldScene) -> None:
+    """After a ``render_many``, which keeps the projected hits of all its suns while it weighs
+    them at every leaf point, keep only the scene's sun (as :meth:`SegmentEstimator.render` does):
+    each sun's hits take ≈ 9–45 bytes per ray that meets a segment, so a day's suns would hold
+    tens of times one render's memory until the next render."""
+    if proj is not None:
+        proj.forget_suns(keep=[fs.sun])
 
 
 def _projected(proj: DirectProjection | None) -> dict | None:
@@ -1267,20 +1281,23 @@ class AdaptiveEstimator:
         :meth:`render` results at each sun."""
         leaf = np.atleast_2d(np.asarray(leaf, dtype=np.float64))
         fs = self.fs
-        for x, per_group in zip(leaf, zip(*(est.render_many(leaf, suns_deg) for _, est in self.groups))):
-            d = [None] * len(per_group[0])
-            if self._direct is not None:  # the projection at this point and each sun
-                optics, sun = fs.optics, fs.sun.copy()
-                try:
-                    fs.set_optics(**dict(zip(LEAF_PARAMETERS, x)))
-                    for t, row in enumerate([None] if suns_deg is None else np.atleast_2d(suns_deg)):
-                        if row is not None:
-                            fs.set_sun(*row)
-                        d[t] = self._projected_values()
-                finally:
-                    fs.set_optics(**{k: getattr(optics, k) for k in LEAF_PARAMETERS})
-                    fs.optics, fs.sun = optics, sun
-            yield [self._join(rs, dt) for rs, dt in zip(zip(*per_group), d)]
+        try:
+            for x, per_group in zip(leaf, zip(*(est.render_many(leaf, suns_deg) for _, est in self.groups))):
+                d = [None] * len(per_group[0])
+                if self._direct is not None:  # the projection at this point and each sun
+                    optics, sun = fs.optics, fs.sun.copy()
+                    try:
+                        fs.set_optics(**dict(zip(LEAF_PARAMETERS, x)))
+                        for t, row in enumerate([None] if suns_deg is None else np.atleast_2d(suns_deg)):
+                            if row is not None:
+                                fs.set_sun(*row)
+                            d[t] = self._projected_values()
+                    finally:
+                        fs.set_optics(**{k: getattr(optics, k) for k in LEAF_PARAMETERS})
+                        fs.optics, fs.sun = optics, sun
+                yield [self._join(rs, dt) for rs, dt in zip(zip(*per_group), d)]
+        finally:
+            _forget_other_suns(self._direct, fs)
 
     def _projected_values(self) -> dict | None:
         """:func:`_projected` at the current sun and leaf, zero for segments whose direct light
