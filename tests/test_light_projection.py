@@ -21,7 +21,7 @@ from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import leaf_albedo
 from lightfit.light.estimator import SegmentEstimator
-from lightfit.light.scene import FieldScene, Optics
+from lightfit.light.scene import FieldScene, Optics, sun_vector
 from lightfit.plant.periodic import PeriodicCell
 
 OPTICS = Optics.preset("prospect")
@@ -148,18 +148,46 @@ def test_renders_are_repeatable_and_keep_across_suns(field):
         fs.set_optics(**{k: getattr(OPTICS, k) for k in ("specular", "roughness", "subsurface")})
     assert np.array_equal(many[0].absorbed_sun, ref.absorbed_sun)
     assert np.array_equal(many[0].absorbed_sky, ref.absorbed_sky)
-    # Done or closed early, render_many keeps the projected hits of the scene's sun only.
-    assert _kept_suns(est._direct) == [tuple(fs.sun)]
-    g = est.render_many([[0.2, 0.7, 0.4], [0.3, 0.6, 0.5]], [[40.0, 150.0], [10.0, 250.0], [25.0, 200.0]])
-    next(g)
-    assert len(_kept_suns(est._direct)) == 3
-    g.close()
-    assert _kept_suns(est._direct) == [tuple(fs.sun)]
 
 
-def _kept_suns(proj) -> list[tuple]:
-    """The sun vectors whose projected hits ``proj`` keeps."""
-    return [k[1:] for k in proj._hits if k[0] == "sun"]
+def test_suns_are_kept_within_the_memory_budget(field, monkeypatch):
+    """A render at a sun seen before reuses its projected hits (no cast; bitwise the same values);
+    past the budget the least recently used sun is dropped, after a render and when a
+    render_many ends or is closed early (with budget 0: the scene's sun only)."""
+    from lightfit.light import projection
+
+    fs, ids = field
+    suns = [(40.0, 150.0), (10.0, 250.0), (25.0, 200.0)]
+    vec = {s: tuple(float(v) for v in sun_vector(*s)) for s in suns}
+    est = SegmentEstimator(fs, ids, samples=8, bounces=1, seed=9, direct="projection", direct_rays_per_m2=2e6)
+    proj = est._direct
+    casts = []
+    cast = proj._cast
+    monkeypatch.setattr(proj, "_cast", lambda kind: casts.append(kind) or cast(kind))
+    first = {}
+    try:
+        for s in suns + suns[:1]:
+            fs.set_sun(*s)
+            first.setdefault(s, est.render())
+        assert casts.count("sun") == 3 and proj.kept_suns() == [vec[s] for s in (suns[1], suns[2], suns[0])]
+        again = est.render()  # (40°, 150°) once more: kept, the same bits
+        assert casts.count("sun") == 3 and np.array_equal(again.absorbed_sun, first[suns[0]].absorbed_sun)
+        # A budget for about two suns: the least recently used, (10°, 250°), goes.
+        per_sun = max(proj._sun_bytes.values())
+        monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 2.5 * per_sun)
+        est.render()
+        assert proj.kept_suns() == [vec[suns[2]], vec[suns[0]]]
+        # render_many keeps all its suns while it runs; done or closed early, it trims them.
+        monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 0)
+        many = est.render_many([[0.2, 0.7, 0.4], [0.3, 0.6, 0.5]], [list(s) for s in suns])
+        next(many)
+        assert sorted(proj.kept_suns()) == sorted(vec.values())
+        many.close()
+        assert proj.kept_suns() == [vec[suns[0]]]  # the scene's sun
+        list(est.render_many([[0.2, 0.7, 0.4]], [list(s) for s in suns]))
+        assert proj.kept_suns() == [vec[suns[0]]]
+    finally:
+        fs.set_sun(40.0, 150.0)
 
 
 def test_casting_in_passes_gives_the_same_values_and_counts(field, monkeypatch):
@@ -227,7 +255,7 @@ def test_bad_settings_are_refused(field):
         SegmentEstimator(finite, ids, direct="projection")
 
 
-def test_adaptive_rounds_add_paths_to_one_projection(field):
+def test_adaptive_rounds_add_paths_to_one_projection(field, monkeypatch):
     """render_adaptive with a projection: a segment stopped at K has the estimate of a plain
     projection render with K samples, or — where the projected part alone was above the target —
     of a plain render with the paths' direct light; the AdaptiveEstimator keeps it (render,
@@ -255,8 +283,12 @@ def test_adaptive_rounds_add_paths_to_one_projection(field):
     again = est.render()
     for p in PARTS:  # switched segments: to float32 rounding, as above
         np.testing.assert_allclose(getattr(again, p), getattr(r, p), rtol=1e-7, atol=1e-14)
-    many = list(est.render_many([[0.3, 0.6, 0.5]], [[40.0, 150.0], [25.0, 200.0]]))[0]
-    assert _kept_suns(est._direct) == [tuple(fs.sun)]  # the scene's sun only, once done
+    from lightfit.light import projection
+
+    with monkeypatch.context() as m:  # no budget: render_many trims to the scene's sun when done
+        m.setattr(projection, "SUN_HITS_BUDGET_BYTES", 0)
+        many = list(est.render_many([[0.3, 0.6, 0.5]], [[40.0, 150.0], [25.0, 200.0]]))[0]
+        assert est._direct.kept_suns() == [tuple(float(v) for v in fs.sun)]
     state = fs.optics
     try:
         fs.set_optics(specular=0.3, roughness=0.6, subsurface=0.5)

@@ -254,8 +254,8 @@ class SegmentEstimator:
             and more).
         direct_rays_per_m2: ``direct="projection"``: rays per m² of ground, ``(sun, sky)`` or
             one number for both (the projection's accuracy knob; its cost does not grow with
-            the number of segments requested; the sun's rays are cast again for every sun, the
-            sky's once).
+            the number of segments requested; the sun's rays are cast once per sun and kept
+            within ``projection.SUN_HITS_BUDGET_BYTES``, the sky's once).
     """
 
     def __init__(
@@ -702,7 +702,7 @@ class SegmentEstimator:
             dr.eval(vals, counts, *(() if sun_rays is None else (sun_rays,)))
             self._sun_kept = (self._sun_key(), sun_rays)
             if self._direct is not None:
-                self._direct.forget_suns(keep=[self.fs.sun])
+                self._direct.trim_suns(keep=[self.fs.sun])
             return self._irradiance(vals, self._wrap_summary(counts), self._direct_values())
 
     def _sun_key(self):
@@ -729,8 +729,9 @@ class SegmentEstimator:
         Memory besides the kept geometry: 4 + ``bounces`` bytes per evaluation and sun (the
         shadow rays, kept for all T suns), and 4 × (1 + ``bounces``) bytes per evaluation for
         the point being weighed — independent of N. With ``direct="projection"`` the projected
-        hits of all T suns are kept too while the generator runs; when it ends or is closed only
-        the scene's sun's stay, as after :meth:`render`.
+        hits of all T suns are kept too while the generator runs; when it ends or is closed they
+        are trimmed to the projection's memory budget, as after :meth:`render`
+        (:meth:`DirectProjection.trim_suns`).
         """
         import drjit as dr
 
@@ -760,7 +761,7 @@ class SegmentEstimator:
                 fs.set_sun(el, az)
                 sun_vectors.append(fs.sun.copy())
             if self._direct is not None:
-                self._direct.forget_suns(keep=sun_vectors)
+                self._direct.trim_suns(keep=sun_vectors)
             # The shadow rays of every sun, once; their ray counts with the geometry's.
             with dr.suspend_grad():
                 self._wrap_log, self._fuse = [], True
@@ -798,7 +799,7 @@ class SegmentEstimator:
                     restore(state)
                 yield out
         finally:
-            _forget_other_suns(self._direct, fs)
+            _trim_suns(self._direct, fs)
 
     def _direct_values(self) -> dict | None:
         """:func:`_projected` of this estimator's projection (``None`` unless ``direct="projection"``)."""
@@ -970,13 +971,13 @@ def samples_for_accuracy(
     return int(min(max(k, 2 * replicates_for(k)), max_samples))
 
 
-def _forget_other_suns(proj: DirectProjection | None, fs: FieldScene) -> None:
+def _trim_suns(proj: DirectProjection | None, fs: FieldScene) -> None:
     """After a ``render_many``, which keeps the projected hits of all its suns while it weighs
-    them at every leaf point, keep only the scene's sun (as :meth:`SegmentEstimator.render` does):
-    each sun's hits take ≈ 9–45 bytes per ray that meets a segment, so a day's suns would hold
-    tens of times one render's memory until the next render."""
+    them at every leaf point, hold them within the projection's memory budget
+    (:meth:`DirectProjection.trim_suns`, as :meth:`SegmentEstimator.render` does): each sun's hits
+    take ≈ 9–45 bytes per ray that meets a segment."""
     if proj is not None:
-        proj.forget_suns(keep=[fs.sun])
+        proj.trim_suns(keep=[fs.sun])
 
 
 def _projected(proj: DirectProjection | None) -> dict | None:
@@ -1273,7 +1274,7 @@ class AdaptiveEstimator:
         """All segments at their allocated K (:meth:`SegmentEstimator.render` per group)."""
         results = [est.render() for _, est in self.groups]
         if self._direct is not None:
-            self._direct.forget_suns(keep=[self.fs.sun])
+            self._direct.trim_suns(keep=[self.fs.sun])
         return self._join(results, self._projected_values())
 
     def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):
@@ -1297,7 +1298,7 @@ class AdaptiveEstimator:
                         fs.optics, fs.sun = optics, sun
                 yield [self._join(rs, dt) for rs, dt in zip(zip(*per_group), d)]
         finally:
-            _forget_other_suns(self._direct, fs)
+            _trim_suns(self._direct, fs)
 
     def _projected_values(self) -> dict | None:
         """:func:`_projected` at the current sun and leaf, zero for segments whose direct light

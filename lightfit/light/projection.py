@@ -105,6 +105,12 @@ CONTINUED_SHARE = {"sun": 0.5, "sky": 0.25}
 #: instead of 9.8 GB peak memory, at the same render time (docs/light.md, "Where the time goes,
 #: and casting in passes").
 CAST_CHUNK = 2**22
+#: Most bytes of projected sun hits an estimator keeps across suns (2 GiB). The hits depend on the
+#: sun and the seed only, not on the leaf parameters, so a calibration that renders a day's steps
+#: at every loss evaluation casts each sun once while they fit (5 steps of the default field:
+#: a loss 2.1×, a loss and its gradient 1.8× faster; docs/light.md, "Suns kept within a memory
+#: budget"); past the budget the least recently used sun is dropped and cast again when needed.
+SUN_HITS_BUDGET_BYTES = 2 * 2**30
 _FIXED = 2.0**32  # fixed-point scale of the sums
 _NONE = 0xFFFFFFFF  # row of a face whose segment is not requested
 _R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
@@ -141,6 +147,19 @@ class Hits:
     def soil(self) -> bool:
         """The light was scattered once by the soil on its way."""
         return self.part == "via_soil"
+
+
+def _sun_key(sun) -> tuple:
+    return ("sun", *(float(v) for v in sun))
+
+
+def _nbytes(h: Hits) -> int:
+    """Bytes the Dr.Jit arrays of ``h`` hold: per hit the row index, μ, the side, the sky's weight
+    and, for light scattered by a leaf, its sample (two directions, pdf, flag)."""
+    import drjit as dr
+
+    per_hit = 4 + 4 + 1 + (0 if h.weight is None else 4) + (0 if h.scatter is None else 12 + 12 + 4 + 1)
+    return int(dr.width(h.mu)) * per_hit
 
 
 class DirectProjection:
@@ -188,7 +207,8 @@ class DirectProjection:
         self._row = owned(row, mi.UInt32)
         self._blade = owned(geometry.face_is_blade, mi.Bool)
         self._normal = mi.Vector3f(*(owned(normals[:, c].astype(np.float32), mi.Float) for c in range(3)))
-        self._hits: dict = {}
+        self._hits: dict = {}  # (kind, …) → hits, the most recently used sun last
+        self._sun_bytes: dict = {}  # sun key → bytes its hits hold
 
     # -- rays ------------------------------------------------------------------------------
     def _key(self, kind: str, dim: int):
@@ -316,22 +336,36 @@ class DirectProjection:
 
     def hits(self, kind: str) -> list[Hits] | None:
         """The hits of ``kind`` ("sun": at the scene's current sun, ``None`` below the horizon;
-        "sky"), cast on first use and kept (the sky's for the estimator's life, the sun's per sun)."""
+        "sky"), cast on first use and kept: the sky's for the estimator's life, each sun's until
+        :meth:`trim_suns` drops it (they depend on the sun and the seed, not on the leaf)."""
         if kind == "sun":
             if self.fs.sun[2] <= 0:
                 return None
-            key = ("sun", *(float(v) for v in self.fs.sun))
+            key = _sun_key(self.fs.sun)
         else:
             key = ("sky", self.fs.sky)
-        if key not in self._hits:
+        if key in self._hits:
+            self._hits[key] = self._hits.pop(key)  # most recently used last
+        else:
             self._hits[key] = self._cast(kind)
+            if kind == "sun":
+                self._sun_bytes[key] = sum(_nbytes(h) for h in self._hits[key])
         return self._hits[key]
 
-    def forget_suns(self, keep=()) -> None:
-        """Drop kept sun hits except those of the sun vectors in ``keep``."""
-        keep = {("sun", *(float(v) for v in s)) for s in keep}
+    def trim_suns(self, keep=(), budget_bytes: float | None = None) -> None:
+        """Drop the least recently used suns' hits, except those of the sun vectors in ``keep``,
+        until the kept suns' hits hold at most ``budget_bytes`` (default
+        :data:`SUN_HITS_BUDGET_BYTES`; 0: keep only ``keep``)."""
+        budget = SUN_HITS_BUDGET_BYTES if budget_bytes is None else budget_bytes
+        keep = {_sun_key(s) for s in keep}
         for k in [k for k in self._hits if k[0] == "sun" and k not in keep]:
-            del self._hits[k]
+            if sum(self._sun_bytes.values()) <= budget:
+                break
+            del self._hits[k], self._sun_bytes[k]
+
+    def kept_suns(self) -> list[tuple[float, float, float]]:
+        """The sun vectors whose hits are kept, least recently used first."""
+        return [k[1:] for k in self._hits if k[0] == "sun"]
 
     def summary(self) -> dict:
         """What the projection cast: rays per m², the grid, and per kind kept so far the rays cast,
