@@ -177,6 +177,10 @@ def test_suns_are_kept_within_the_memory_budget(field, monkeypatch):
         monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 2.5 * per_sun)
         est.render()
         assert proj.kept_suns() == [vec[suns[2]], vec[suns[0]]]
+        fs.set_sun(*suns[1])  # a reverse pass at a dropped sun casts it, and trims as a render does
+        est.vjp({"absorbed_sun": np.ones(len(ids))})
+        assert proj.kept_suns() == [vec[suns[0]], vec[suns[1]]]
+        fs.set_sun(*suns[0])
         # render_many keeps all its suns while it runs; done or closed early, it trims them.
         monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 0)
         many = est.render_many([[0.2, 0.7, 0.4], [0.3, 0.6, 0.5]], [list(s) for s in suns])

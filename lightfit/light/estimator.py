@@ -1014,6 +1014,8 @@ def _projection_vjp(proj: DirectProjection | None, c: dict) -> dict[str, float]:
     for kind in ("sun", "sky") if proj is not None else ():
         g = proj.vjp(kind, c[f"incident_{kind}"], c[f"absorbed_{kind}"])
         grads = {k: grads[k] + g[k] for k in grads}
+    if proj is not None:  # the sun's hits, if cast here, within the budget as after a render
+        proj.trim_suns(keep=[proj.fs.sun])
     return grads
 
 
