@@ -55,15 +55,16 @@ def main(n_plants: int = 36, samples: int = 64, bounces: int = 3, repeats: int =
     ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
     est.render()  # compile every kernel once
     est.vjp(ct)
-    est._sun_kept = None
+    est._suns_kept.clear()
     est.vjp(ct)
     runs: dict[str, list[float]] = {k: [] for k in ("traced_primal", "primal", "vjp_after_render", "vjp_alone")}
     for _ in range(repeats):
         est._kept = None  # drop the kept paths: this render traces them
         runs["traced_primal"].append(_cpu(est.render))
+        est._suns_kept.clear()  # the kept paths, this sun's shadow rays cast again (a new step's)
         runs["primal"].append(_cpu(est.render))
         runs["vjp_after_render"].append(_cpu(lambda: est.vjp(ct)))
-        est._sun_kept = None  # nothing to reuse
+        est._suns_kept.clear()  # nothing to reuse
         runs["vjp_alone"].append(_cpu(lambda: est.vjp(ct)))
     med = {k: float(np.median(v)) for k, v in runs.items()}
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()

@@ -1,4 +1,4 @@
-"""Benchmark: a full-render calibration loss and its gradient with the suns' projected hits kept.
+"""Benchmark: a full-render calibration loss and its gradient with each sun's rays kept.
 
     python benchmarks/bench_kept_suns.py [--start 09:00] [--end 11:00] [--repeat 3]
 
@@ -6,14 +6,14 @@ The main job's default model (the measured plants as one periodic cell, the PROS
 direct light projected, K = 32) on a window of 20 April 2016 (reconstructed forcing; 09:00–11:00
 UTC: 5 steps), twin observations, and the calibration loss of specular and subsurface
 (:func:`lightfit.inference.calibration.make_loss`). Every loss evaluation renders each step at its
-sun; the projected sun hits depend on the sun and the seed, not on the leaf parameters, so with
-:data:`lightfit.light.projection.SUN_HITS_BUDGET_BYTES` (2 GiB) an estimator casts each sun once
-and later evaluations only weigh its hits, where with a budget of 0 (the behaviour before) each
-render dropped the other suns and cast its own again. For both budgets, in one process (budget 0
-first, then the default after one warm-up evaluation at the same point): the median time of a
-loss evaluation and of a loss-and-gradient evaluation (``jax.jit(jax.grad)``), at points moved
-slightly each time, that the values are bitwise the same, and the bytes of sun hits kept after
-the loss evaluations.
+sun; the projected sun hits and the paths' shadow rays depend on the sun and the seed, not on the
+leaf parameters, so with :data:`lightfit.light.projection.SUN_HITS_BUDGET_BYTES` (2 GiB) an
+estimator casts each sun's rays once and later evaluations only weigh them, where with a budget of
+0 (the behaviour before) each render dropped the other suns and cast its own again. For both
+budgets, in one process (budget 0 first, then the default after one warm-up evaluation at another
+point): the median time of a loss evaluation and of a loss-and-gradient evaluation
+(``jax.jit(jax.grad)``), at points moved slightly each time, that the values are bitwise the
+same, and the bytes of sun hits and shadow rays kept after the loss evaluations.
 
 Writes benchmarks/results/kept_suns.json and prints a table, with the commit and load average.
 """
@@ -59,7 +59,7 @@ def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
     grad(z0 + 1.0)
     rows, values = {}, {}
     default = projection.SUN_HITS_BUDGET_BYTES
-    for label, budget in (("budget 0 (each render casts its sun)", 0), ("default budget", default)):
+    for label, budget in (("budget 0: cast at every render", 0), ("kept within the budget", default)):
         projection.SUN_HITS_BUDGET_BYTES = budget
         loss(z0 - 1.0)  # one evaluation at another point: fills the kept suns (or not)
         t_loss, t_grad, vals = [], [], []
@@ -96,7 +96,7 @@ def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2))
     t = Table(title=f"full-render calibration loss, default model, {len(w)} steps, 2 CPU cores")
-    for c in ("projected sun hits", "loss", "loss + gradient", "kept sun hits"):
+    for c in ("each sun's rays", "loss", "loss + gradient", "kept after the losses"):
         t.add_column(c, justify="right")
     for label, r in rows.items():
         mib = r["kept_sun_bytes"] / 2**20
@@ -110,13 +110,18 @@ def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
 
 
 def _kept_bytes(seed: int) -> int:
-    """Bytes of sun hits kept by the live projections of ``seed`` (the model's estimator; the twin
-    observations' renders used another seed)."""
+    """Bytes of sun hits and shadow rays kept by the live estimators of ``seed`` (the model's; the
+    twin observations' renders used another seed)."""
     import gc
 
+    from lightfit.light.estimator import SegmentEstimator
+
     gc.collect()
-    live = [p for p in gc.get_objects() if isinstance(p, projection.DirectProjection) and p.seed == seed]
-    return sum(sum(p._sun_bytes.values()) for p in live)
+    live = [x for x in gc.get_objects() if isinstance(x, (projection.DirectProjection, SegmentEstimator))]
+    live = [x for x in live if x.seed == seed]
+    hits = sum(sum(x._sun_bytes.values()) for x in live if isinstance(x, projection.DirectProjection))
+    rays = sum(len(x._suns_kept) * x.n_evaluations * (4 + x.bounces) for x in live if isinstance(x, SegmentEstimator))
+    return hits + rays
 
 
 if __name__ == "__main__":

@@ -119,3 +119,33 @@ def test_render_many_bad_input(quick):
         next(est.render_many([[0.5, 1.5, 0.2]]))
     with pytest.raises(InputError, match="suns"):
         next(est.render_many([[0.5, 0.5, 0.2]], [[30.0, 100.0, 1.0]]))
+
+
+def test_a_sun_rendered_before_reuses_its_shadow_rays(quick, monkeypatch):
+    """A render at a sun rendered before weighs the shadow rays kept from then (no new ones) and
+    gives the bits of that first render, ray counts included; past the memory budget the least
+    recently rendered sun's shadow rays are dropped, never the current sun's."""
+    from lightfit.light import projection
+
+    m, fs = quick
+    sc = m.scenario
+    fs.set_optics(specular=0.5, roughness=0.5, subsurface=0.3)
+    est = SegmentEstimator(fs, m.segment_id, samples=sc.samples, bounces=sc.bounces, seed=3)
+    cast = []
+    sun_rays = est._sun_rays
+    monkeypatch.setattr(est, "_sun_rays", lambda geo: cast.append(tuple(fs.sun)) or sun_rays(geo))
+    renders = []
+    for sun in (SUNS[0], SUNS[1], SUNS[0]):
+        fs.set_sun(*sun)
+        renders.append(est.render())
+    assert len(cast) == 2
+    assert_same(renders[2], renders[0])
+    monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 1.5 * est.n_evaluations * (4 + est.bounces))
+    fs.set_sun(*SUNS[1])
+    again = est.render()
+    assert len(cast) == 2 and list(est._suns_kept) == [est._sun_key()]
+    assert_same(again, renders[1])
+    monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 0)
+    fs.set_sun(*SUNS[0])
+    est.render()  # dropped above: cast again, and kept alone even with no budget
+    assert len(cast) == 3 and list(est._suns_kept) == [est._sun_key()]

@@ -65,6 +65,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
+from lightfit.light import projection
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
@@ -325,7 +326,8 @@ class SegmentEstimator:
         # Periodic walks fused into the render's kernel (primal) or evaluated apart (vjp).
         self._fuse = False
         self._kept = None  # (key, geometry, ray counts) of _geometry
-        self._sun_kept = None  # (_sun_key(), shadow rays) of the last render, for vjp
+        #: _sun_key() → (shadow rays, ray counts) of the suns rendered, most recently used last
+        self._suns_kept: dict = {}
         self.direct = direct
         self._scattered_only = direct != "paths"
         self._direct = (
@@ -479,8 +481,8 @@ class SegmentEstimator:
         geometry (:meth:`_geometry`), this sun's shadow rays (:meth:`_sun_rays`), weighed
         (:meth:`_weigh`, :meth:`_values`)."""
         geo = self._geometry()
-        kept = self._sun_kept
-        sun_rays = kept[1] if kept is not None and kept[0] == self._sun_key() else self._sun_rays(geo)
+        kept = self._suns_kept.get(self._sun_key())
+        sun_rays = kept[0] if kept is not None else self._sun_rays(geo)
         return self._values(geo, self._weigh(geo), sun_rays)
 
     def _trace(self, o, d, u):
@@ -559,6 +561,7 @@ class SegmentEstimator:
             key = tuple(float(getattr(bsdf, k)[0]) for k in (*LEAF_PARAMETERS, "base_color"))
         if self._kept is None or self._kept[0] != key:
             self._kept = None  # free the old geometry before tracing anew
+            self._suns_kept.clear()  # its shadow rays
             with dr.suspend_grad():
                 o, _, _, d, u, _ = self._arrays()
                 log, self._wrap_log = self._wrap_log, []
@@ -690,20 +693,37 @@ class SegmentEstimator:
             self._wrap_log, self._fuse = [], True
             try:
                 geo = self._geometry()
-                sun_rays = self._sun_rays(geo)
+                kept = self._suns_kept.pop(self._sun_key(), None)
+                sun_rays = self._sun_rays(geo) if kept is None else kept[0]
                 vals = self._values(geo, self._weigh(geo), sun_rays)
             finally:
                 self._fuse = False
-            counts = self._wrap_counts(self._kept[2])
-            # One evaluation of everything: the sun's shadow rays (periodic walks included) and
-            # the weights are one kernel; evaluating the ray counts apart would recompute the walks.
-            # The shadow rays' results are kept for a vjp at the same sun (the bridge's backward
-            # pass follows its forward pass): 4 + bounces bytes per evaluation.
-            dr.eval(vals, counts, *(() if sun_rays is None else (sun_rays,)))
-            self._sun_kept = (self._sun_key(), sun_rays)
+            if kept is None:
+                counts = self._wrap_counts(self._kept[2])
+                # One evaluation of everything: the sun's shadow rays (periodic walks included)
+                # and the weights are one kernel; evaluating the ray counts apart would recompute
+                # the walks.
+                dr.eval(vals, counts, *(() if sun_rays is None else (sun_rays,)))
+                kept = (sun_rays, self._wrap_summary(counts))
+            else:  # a sun rendered before: its shadow rays only weighed, as render_many does
+                dr.eval(vals)
+            # The shadow rays are kept for later renders and a vjp at this sun (4 + bounces
+            # bytes per evaluation), within the same budget as the projection's sun hits.
+            self._suns_kept[self._sun_key()] = kept
+            self._trim_sun_rays()
             if self._direct is not None:
                 self._direct.trim_suns(keep=[self.fs.sun])
-            return self._irradiance(vals, self._wrap_summary(counts), self._direct_values())
+            return self._irradiance(vals, kept[1], self._direct_values())
+
+    def _trim_sun_rays(self) -> None:
+        """Drop the least recently rendered suns' shadow rays, but the current sun's, while the
+        kept ones hold more than :data:`~lightfit.light.projection.SUN_HITS_BUDGET_BYTES`."""
+        per_sun = self.n_evaluations * (4 + self.bounces)
+        current = self._sun_key()
+        for key in [k for k in self._suns_kept if k != current]:
+            if len(self._suns_kept) * per_sun <= projection.SUN_HITS_BUDGET_BYTES:
+                break
+            del self._suns_kept[key]
 
     def _sun_key(self):
         """What the shadow rays depend on: the kept geometry and the sun."""
