@@ -686,6 +686,9 @@ class SegmentEstimator:
 
         In a periodic scene ``meta["periodic"]`` holds the ray counts of :meth:`_wrap_summary`
         (the kept geometry's rays, :meth:`_geometry`, are counted in every render that uses it).
+        At a sun rendered before, the shadow rays kept from then are weighed again (no new rays;
+        bitwise that render's values and counts), within the memory budget of
+        :meth:`_trim_sun_rays`.
         """
         import drjit as dr
 

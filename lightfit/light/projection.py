@@ -105,11 +105,12 @@ CONTINUED_SHARE = {"sun": 0.5, "sky": 0.25}
 #: instead of 9.8 GB peak memory, at the same render time (docs/light.md, "Where the time goes,
 #: and casting in passes").
 CAST_CHUNK = 2**22
-#: Most bytes of projected sun hits an estimator keeps across suns (2 GiB). The hits depend on the
-#: sun and the seed only, not on the leaf parameters, so a calibration that renders a day's steps
-#: at every loss evaluation casts each sun once while they fit (5 steps of the default field:
-#: a loss 2.1×, a loss and its gradient 1.8× faster; docs/light.md, "Suns kept within a memory
-#: budget"); past the budget the least recently used sun is dropped and cast again when needed.
+#: Most bytes of projected sun hits an estimator keeps across suns (2 GiB; the paths' shadow rays
+#: have a budget of the same size). They depend on the sun and the seed only, not on the leaf
+#: parameters, so a calibration that renders a day's steps at every loss evaluation casts each
+#: sun once while they fit (5 steps of the default field, hits and shadow rays kept: a loss 4.6×,
+#: a loss and its gradient 4.3× faster; docs/light.md, "Suns kept within a memory budget"); past
+#: the budget the least recently used sun is dropped and cast again when needed.
 SUN_HITS_BUDGET_BYTES = 2 * 2**30
 _FIXED = 2.0**32  # fixed-point scale of the sums
 _NONE = 0xFFFFFFFF  # row of a face whose segment is not requested
