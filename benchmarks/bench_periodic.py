@@ -389,6 +389,7 @@ def step_costs(rounds: int = 2) -> dict:
                     c = cpu()
                     est._irradiance(vals, None)
                     acc["summary"] += cpu() - c
+                est._suns_kept.clear()  # a later step at a new sun: its shadow rays cast, not kept ones
                 c = cpu()
                 est.render()
                 dr.sync_thread()
