@@ -714,8 +714,7 @@ class SegmentEstimator:
             # bytes per evaluation), within the same budget as the projection's sun hits.
             self._suns_kept[self._sun_key()] = kept
             self._trim_sun_rays()
-            if self._direct is not None:
-                self._direct.trim_suns(keep=[self.fs.sun])
+            _trim_suns(self._direct, self.fs)
             return self._irradiance(vals, kept[1], self._direct_values())
 
     def _trim_sun_rays(self) -> None:
@@ -995,9 +994,9 @@ def samples_for_accuracy(
 
 
 def _trim_suns(proj: DirectProjection | None, fs: FieldScene) -> None:
-    """After a ``render_many``, which keeps the projected hits of all its suns while it weighs
-    them at every leaf point, hold them within the projection's memory budget
-    (:meth:`DirectProjection.trim_suns`, as :meth:`SegmentEstimator.render` does): each sun's hits
+    """Hold a projection's kept sun hits within its memory budget, the scene's sun's kept
+    (:meth:`DirectProjection.trim_suns`): after a render, a reverse pass, and a ``render_many``,
+    which keeps the hits of all its suns while it weighs them at every leaf point. Each sun's hits
     take ≈ 9–45 bytes per ray that meets a segment."""
     if proj is not None:
         proj.trim_suns(keep=[fs.sun])
@@ -1038,7 +1037,7 @@ def _projection_vjp(proj: DirectProjection | None, c: dict) -> dict[str, float]:
         g = proj.vjp(kind, c[f"incident_{kind}"], c[f"absorbed_{kind}"])
         grads = {k: grads[k] + g[k] for k in grads}
     if proj is not None:  # the sun's hits, if cast here, within the budget as after a render
-        proj.trim_suns(keep=[proj.fs.sun])
+        _trim_suns(proj, proj.fs)
     return grads
 
 
@@ -1298,8 +1297,7 @@ class AdaptiveEstimator:
     def render(self) -> Irradiance:
         """All segments at their allocated K (:meth:`SegmentEstimator.render` per group)."""
         results = [est.render() for _, est in self.groups]
-        if self._direct is not None:
-            self._direct.trim_suns(keep=[self.fs.sun])
+        _trim_suns(self._direct, self.fs)
         return self._join(results, self._projected_values())
 
     def render_many(self, leaf: ArrayLike, suns_deg: ArrayLike | None = None):

@@ -353,14 +353,13 @@ class DirectProjection:
                 self._sun_bytes[key] = sum(_nbytes(h) for h in self._hits[key])
         return self._hits[key]
 
-    def trim_suns(self, keep=(), budget_bytes: float | None = None) -> None:
+    def trim_suns(self, keep=()) -> None:
         """Drop the least recently used suns' hits, except those of the sun vectors in ``keep``,
-        until the kept suns' hits hold at most ``budget_bytes`` (default
-        :data:`SUN_HITS_BUDGET_BYTES`; 0: keep only ``keep``)."""
-        budget = SUN_HITS_BUDGET_BYTES if budget_bytes is None else budget_bytes
+        until the kept suns' hits hold at most :data:`SUN_HITS_BUDGET_BYTES` (0: keep only
+        ``keep``)."""
         keep = {_sun_key(s) for s in keep}
         for k in [k for k in self._hits if k[0] == "sun" and k not in keep]:
-            if sum(self._sun_bytes.values()) <= budget:
+            if sum(self._sun_bytes.values()) <= SUN_HITS_BUDGET_BYTES:
                 break
             del self._hits[k], self._sun_bytes[k]
 
