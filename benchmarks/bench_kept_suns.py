@@ -119,7 +119,7 @@ def _kept_bytes(seed: int) -> int:
     gc.collect()
     live = [x for x in gc.get_objects() if isinstance(x, (projection.DirectProjection, SegmentEstimator))]
     live = [x for x in live if x.seed == seed]
-    hits = sum(sum(x._sun_bytes.values()) for x in live if isinstance(x, projection.DirectProjection))
+    hits = sum(sum(x.kept_sun_bytes().values()) for x in live if isinstance(x, projection.DirectProjection))
     rays = sum(len(x._suns_kept) * x.n_evaluations * (4 + x.bounces) for x in live if isinstance(x, SegmentEstimator))
     return hits + rays
 

@@ -117,7 +117,11 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
     divided by the median of :math:`\sqrt{\chi^2_{R-1}/(R-1)}` too (``*_r_corrected``): the
     replicates' SE estimate is unbiased in variance, but the median over segments of its square
     root falls with fewer degrees of freedom (0.952 at R = 8, 0.888 at R = 4), which alone would
-    make R = 4 look 7 % better.
+    make R = 4 look 7 % better. The two seeds' renders of a setting also give each segment a
+    pooled variance (``*_pooled_seeds``: 2(R − 1) degrees of freedom, so a correction half as
+    large) and, as a check of the reported SEs against something they did not compute, the median
+    over segments of |z| = |v₁ − v₂| / √(SE₁² + SE₂²), which is Student's t median |t| with
+    2(R − 1) degrees of freedom (0.72 at R = 4) when the SEs are right.
 
     A day renders one estimator at every step's sun: the paths' geometry and the projected sky are
     kept, and only the sun's rays are cast again. So the second estimator then renders once more
@@ -127,17 +131,19 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
     import gc
 
     from scipy.stats import chi2
+    from scipy.stats import t as student_t
 
     out = []
     sun = fs.sun.copy()
     for samples, rays in settings:
         kw = dict(direct="projection", direct_rays_per_m2=rays) if rays else {}
-        times = []
+        times, renders = [], []
         for seed in (1, 2):
             est = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=seed, **kw)
             t = time.perf_counter()
             r = est.render()
             times.append(time.perf_counter() - t)
+            renders.append(r)
             R = est.replicates
             if seed == 2:  # a later step of a day: another sun, the same estimator
                 fs.set_sun(*STEP_SUN_DEG)
@@ -152,6 +158,17 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
         f = (med / 0.02) ** 2
         chi = math.sqrt(chi2.median(R - 1) / (R - 1))
         med_c = med / chi
+        # The two seeds together: their variance estimates pooled (2(R − 1) degrees of freedom,
+        # so a smaller correction than R - 1's), and the seeds' difference in units of its reported
+        # SE, whose median |z| is that of Student's t with 2(R − 1) degrees of freedom if the
+        # reported SEs are right (an independent check of them).
+        v = [x.total("absorbed", 1.0, 0.3) for x in renders]
+        se = [x.relative_se() * np.abs(m) for x, m in zip(renders, v)]
+        dof = 2 * (R - 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pooled = np.sqrt((se[0] ** 2 + se[1] ** 2) / 2) / np.abs((v[0] + v[1]) / 2)
+            z = np.abs(v[0] - v[1]) / np.sqrt(se[0] ** 2 + se[1] ** 2)
+        med_p = float(np.nanmedian(np.where(np.isfinite(pooled), pooled, np.nan))) / math.sqrt(chi2.median(dof) / dof)
         rse_step = r_step.relative_se()
         med_step = float(np.nanmedian(rse_step)) / chi
         out.append(
@@ -167,6 +184,10 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
                 "replicates": R,
                 "median_rse_r_corrected": med_c,
                 "extrapolated_s_at_2pct_r_corrected": times[1] * (med_c / 0.02) ** 2,
+                "median_rse_pooled_seeds": med_p,
+                "extrapolated_s_at_2pct_pooled_seeds": times[1] * (med_p / 0.02) ** 2,
+                "seed_difference_median_abs_z": float(np.nanmedian(np.where(np.isfinite(z), z, np.nan))),
+                "seed_difference_median_abs_z_expected": float(student_t.ppf(0.75, dof)),
                 "day_step_s": t_step,
                 "day_step_rse_absorbed": _stats(rse_step, np.asarray(r_step.meta["is_blade"], bool)),
                 "day_step_median_rse_r_corrected": med_step,
@@ -386,7 +407,10 @@ def main(
                     f"{q['render_s']:.1f} s (first {q['first_render_s']:.1f} s), median / p90 {a['median']:.2%} / "
                     f"{a['p90']:.2%}, 2 % median ≈ {q['extrapolated_s_at_2pct']:.0f} s (R = {q['replicates']}; "
                     f"R-corrected {q['median_rse_r_corrected']:.2%}, "
-                    f"≈ {q['extrapolated_s_at_2pct_r_corrected']:.0f} s); a later step of a day "
+                    f"≈ {q['extrapolated_s_at_2pct_r_corrected']:.0f} s; two seeds pooled "
+                    f"{q['median_rse_pooled_seeds']:.2%}, ≈ {q['extrapolated_s_at_2pct_pooled_seeds']:.0f} s; "
+                    f"seeds' median |z| {q['seed_difference_median_abs_z']:.2f}, expected "
+                    f"{q['seed_difference_median_abs_z_expected']:.2f}); a later step of a day "
                     f"{q['day_step_s']:.1f} s, {q['day_step_median_rse_r_corrected']:.2%} R-corrected, "
                     f"≈ {q['day_step_s_at_2pct_r_corrected']:.0f} s for 2 %",
                 )

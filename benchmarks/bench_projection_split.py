@@ -74,14 +74,15 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
 
     parts = {}
     for kind, weight in (("sun", 1.0), ("sky", SKY_WEIGHT)):
-        key = next(k for k in proj._hits if k[0] == kind)
-        kept = proj._hits[key]
+        store = proj._kept[kind]  # the one sun rendered, or the sky
+        key = next(iter(store))
+        kept = store[key]
         try:
             for part in ("direct", "via_leaf", "via_soil"):
-                proj._hits[key] = [h for h in kept if h.part == part]
+                store[key] = [h for h in kept if h.part == part]
                 parts[f"{kind}_{part}"] = weight * proj.values(kind)["absorbed"]
         finally:
-            proj._hits[key] = kept
+            store[key] = kept
     reps = r.meta["replicate_means"]
     total = reps["absorbed_sun"] + SKY_WEIGHT * reps["absorbed_sky"]
     parts["paths"] = total - sum(parts.values())

@@ -173,7 +173,7 @@ def test_suns_are_kept_within_the_memory_budget(field, monkeypatch):
         again = est.render()  # (40°, 150°) once more: kept, the same bits
         assert casts.count("sun") == 3 and np.array_equal(again.absorbed_sun, first[suns[0]].absorbed_sun)
         # A budget for about two suns: the least recently used, (10°, 250°), goes.
-        per_sun = max(proj._sun_bytes.values())
+        per_sun = max(proj.kept_sun_bytes().values())
         monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 2.5 * per_sun)
         est.render()
         assert proj.kept_suns() == [vec[suns[2]], vec[suns[0]]]

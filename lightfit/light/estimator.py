@@ -721,11 +721,7 @@ class SegmentEstimator:
         """Drop the least recently rendered suns' shadow rays, but the current sun's, while the
         kept ones hold more than :data:`~lightfit.light.projection.SUN_HITS_BUDGET_BYTES`."""
         per_sun = self.n_evaluations * (4 + self.bounces)
-        current = self._sun_key()
-        for key in [k for k in self._suns_kept if k != current]:
-            if len(self._suns_kept) * per_sun <= projection.SUN_HITS_BUDGET_BYTES:
-                break
-            del self._suns_kept[key]
+        projection.trim_least_recent(self._suns_kept, lambda _: per_sun, keep={self._sun_key()})
 
     def _sun_key(self):
         """What the shadow rays depend on: the kept geometry and the sun."""

@@ -154,13 +154,27 @@ def _sun_key(sun) -> tuple:
     return ("sun", *(float(v) for v in sun))
 
 
-def _nbytes(h: Hits) -> int:
-    """Bytes the Dr.Jit arrays of ``h`` hold: per hit the row index, μ, the side, the sky's weight
-    and, for light scattered by a leaf, its sample (two directions, pdf, flag)."""
+def _hits_bytes(hits: list[Hits]) -> int:
+    """Bytes the Dr.Jit arrays of ``hits`` hold: per hit the row index, μ, the side, the sky's
+    weight and, for light scattered by a leaf, its sample (two directions, pdf, flag)."""
     import drjit as dr
 
-    per_hit = 4 + 4 + 1 + (0 if h.weight is None else 4) + (0 if h.scatter is None else 12 + 12 + 4 + 1)
-    return int(dr.width(h.mu)) * per_hit
+    def per_hit(h):
+        return 4 + 4 + 1 + (0 if h.weight is None else 4) + (0 if h.scatter is None else 12 + 12 + 4 + 1)
+
+    return sum(int(dr.width(h.mu)) * per_hit(h) for h in hits)
+
+
+def trim_least_recent(kept: dict, nbytes, keep=()) -> None:
+    """Drop the least recently used entries of ``kept`` (the first in its order: a user moves an
+    entry to the end), never those keyed in ``keep``, while all of them together hold more than
+    :data:`SUN_HITS_BUDGET_BYTES`; ``nbytes(value)``: the bytes one entry holds. The one budget
+    rule for what is kept per sun: the projection's hits and the paths' shadow rays."""
+    total = sum(nbytes(v) for v in kept.values())
+    for key in [k for k in kept if k not in keep]:
+        if total <= SUN_HITS_BUDGET_BYTES:
+            break
+        total -= nbytes(kept.pop(key))
 
 
 class DirectProjection:
@@ -208,8 +222,8 @@ class DirectProjection:
         self._row = owned(row, mi.UInt32)
         self._blade = owned(geometry.face_is_blade, mi.Bool)
         self._normal = mi.Vector3f(*(owned(normals[:, c].astype(np.float32), mi.Float) for c in range(3)))
-        self._hits: dict = {}  # (kind, …) → hits, the most recently used sun last
-        self._sun_bytes: dict = {}  # sun key → bytes its hits hold
+        #: Per kind, the hits kept: sun key → hits (the most recently used sun last), sky → hits.
+        self._kept: dict = {"sun": {}, "sky": {}}
 
     # -- rays ------------------------------------------------------------------------------
     def _key(self, kind: str, dim: int):
@@ -345,27 +359,26 @@ class DirectProjection:
             key = _sun_key(self.fs.sun)
         else:
             key = ("sky", self.fs.sky)
-        if key in self._hits:
-            self._hits[key] = self._hits.pop(key)  # most recently used last
+        kept = self._kept[kind]
+        if key in kept:
+            kept[key] = kept.pop(key)  # most recently used last
         else:
-            self._hits[key] = self._cast(kind)
-            if kind == "sun":
-                self._sun_bytes[key] = sum(_nbytes(h) for h in self._hits[key])
-        return self._hits[key]
+            kept[key] = self._cast(kind)
+        return kept[key]
 
     def trim_suns(self, keep=()) -> None:
         """Drop the least recently used suns' hits, except those of the sun vectors in ``keep``,
         until the kept suns' hits hold at most :data:`SUN_HITS_BUDGET_BYTES` (0: keep only
         ``keep``)."""
-        keep = {_sun_key(s) for s in keep}
-        for k in [k for k in self._hits if k[0] == "sun" and k not in keep]:
-            if sum(self._sun_bytes.values()) <= SUN_HITS_BUDGET_BYTES:
-                break
-            del self._hits[k], self._sun_bytes[k]
+        trim_least_recent(self._kept["sun"], _hits_bytes, keep={_sun_key(s) for s in keep})
 
     def kept_suns(self) -> list[tuple[float, float, float]]:
         """The sun vectors whose hits are kept, least recently used first."""
-        return [k[1:] for k in self._hits if k[0] == "sun"]
+        return [k[1:] for k in self._kept["sun"]]
+
+    def kept_sun_bytes(self) -> dict[tuple[float, float, float], int]:
+        """Bytes each kept sun's hits hold, by sun vector."""
+        return {k[1:]: _hits_bytes(hs) for k, hs in self._kept["sun"].items()}
 
     def summary(self) -> dict:
         """What the projection cast: rays per m², the grid, and per kind kept so far the rays cast,
@@ -376,7 +389,7 @@ class DirectProjection:
         out = {"replicates": self.R}
         for kind, (gx, gy) in self.grid.items():
             out[kind] = {"grid": (gx, gy), "rays_per_m2": self.R * gx * gy / self.fs.cell.area_m2}
-        for key, hs in self._hits.items():
+        for key, hs in (*self._kept["sun"].items(), *self._kept["sky"].items()):
             counts = {}
             for h in hs:
                 prefix = "" if h.part == "direct" else f"{h.part}_"
