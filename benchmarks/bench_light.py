@@ -163,9 +163,9 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
         # SE, whose median |z| is that of Student's t with 2(R − 1) degrees of freedom if the
         # reported SEs are right (an independent check of them).
         v = [x.total("absorbed", 1.0, 0.3) for x in renders]
-        se = [x.relative_se() * np.abs(m) for x, m in zip(renders, v)]
         dof = 2 * (R - 1)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # segments without light: nan, left out
+            se = [x.relative_se() * np.abs(m) for x, m in zip(renders, v)]
             pooled = np.sqrt((se[0] ** 2 + se[1] ** 2) / 2) / np.abs((v[0] + v[1]) / 2)
             z = np.abs(v[0] - v[1]) / np.sqrt(se[0] ** 2 + se[1] ** 2)
         med_p = float(np.nanmedian(np.where(np.isfinite(pooled), pooled, np.nan))) / math.sqrt(chi2.median(dof) / dof)
