@@ -8,7 +8,8 @@ meets (forward, or "light", tracing; the projection Caribu and HELIOS use for di
 
 **Estimator.** Replicate r casts m rays from a jittered n_a × n_b grid over the cell (area
 :math:`A_c`) at the canopy top, along :math:`-\omega`: the sun's direction, or for the sky a
-cosine-weighted direction (a Kronecker R₂ sequence over the grid index, shifted per replicate).
+cosine-weighted direction (a Kronecker R₂ sequence over the grid cells in tiled Z-order,
+shifted per replicate: :data:`SKY_TILE`).
 Each carries the flux
 
 .. math::
@@ -70,8 +71,9 @@ from lightfit.light.periodic import CAPPED, LEAF, SOIL
 #: Version of the projection's rays and what they carry: bumped whenever a change moves its values
 #: (not only their rounding), so that renders kept on disk (:func:`lightfit.model.emulator.render_key`)
 #: are not reused across it. 1: direct light and light scattered once by a leaf; 2: also by the
-#: soil, and Russian roulette on the continued rays (:data:`CONTINUED_SHARE`).
-PROJECTION_VERSION = 2
+#: soil, and Russian roulette on the continued rays (:data:`CONTINUED_SHARE`); 3: the sky's directions
+#: over the grid cells in tiled Z-order (:data:`SKY_TILE`).
+PROJECTION_VERSION = 3
 #: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
 DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
 
@@ -115,6 +117,15 @@ SUN_HITS_BUDGET_BYTES = 2 * 2**30
 _FIXED = 2.0**32  # fixed-point scale of the sums
 _NONE = 0xFFFFFFFF  # row of a face whose segment is not requested
 _R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
+#: Cells per side of the tiles in which the sky's rays take consecutive R₂ directions: row-major
+#: inside a tile, tiles in Z-order (Morton), so that the rays meeting one segment, from a small
+#: patch of cells, get directions spread over the sky whatever the grid. Over the whole grid in
+#: row-major order (``0``, before) the spread depended on the row length: at some ray densities the
+#: sky part had up to 2.8× the variance (500-plant cell, 10⁸ rays per m²); in Z-order alone, ≈ 8 %
+#: more SE where row-major did well (docs/light.md, "The sky's directions and the grid";
+#: ``benchmarks/bench_sky_order.py``). Each ray's direction stays uniform (the per-replicate shift),
+#: so any order is unbiased.
+SKY_TILE = 16
 
 
 @dataclass
@@ -163,6 +174,23 @@ def _hits_bytes(hits: list[Hits]) -> int:
         return 4 + 4 + 1 + (0 if h.weight is None else 4) + (0 if h.scatter is None else 12 + 12 + 4 + 1)
 
     return sum(int(dr.width(h.mu)) * per_hit(h) for h in hits)
+
+
+def _sky_order(ia, ib, tile: int):
+    """Position of grid cell (ia, ib) (Dr.Jit UInt32) in the sky's direction sequence: row-major
+    inside ``tile`` × ``tile`` tiles, the tiles in Z-order (their coordinates' bits interleaved).
+    Unique while the grid has fewer than 2¹⁶ · ``tile`` cells per side; beyond, positions wrap
+    mod 2³² (still unbiased, see :data:`SKY_TILE`)."""
+
+    def spread(x):  # the 16 low bits of x to the even bits
+        x = (x | (x << 8)) & 0x00FF00FF
+        x = (x | (x << 4)) & 0x0F0F0F0F
+        x = (x | (x << 2)) & 0x33333333
+        return (x | (x << 1)) & 0x55555555
+
+    t = tile
+    z = spread(ia // t) | (spread(ib // t) << 1)
+    return z * (t * t) + (ib % t) * t + ia % t
 
 
 def trim_least_recent(kept: dict, nbytes, keep=()) -> None:
@@ -267,11 +295,12 @@ class DirectProjection:
             cap = tracer.crossings_for(fs.sun)
             weight, w0 = None, float(fs.sun[2])
         else:
-            # Cosine-weighted directions: an R₂ sequence over the grid index, shifted per
-            # replicate (fixed point: exact for any index).
+            # Cosine-weighted directions: an R₂ sequence over the grid cells in tiled Z-order
+            # (SKY_TILE), shifted per replicate (fixed point: exact for any index).
             s1, s2 = mi.sample_tea_32(rep, self._key(kind, 1))
-            u1 = mi.Float((s1 + c * int(2**32 / _R2)) >> 8) * to_unit
-            u2 = mi.Float((s2 + c * int(2**32 / _R2**2)) >> 8) * to_unit
+            j = _sky_order(ia, ib, SKY_TILE) if SKY_TILE else c
+            u1 = mi.Float((s1 + j * int(2**32 / _R2)) >> 8) * to_unit
+            u2 = mi.Float((s2 + j * int(2**32 / _R2**2)) >> 8) * to_unit
             w = mi.Vector3f(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)))
             cap = tracer.cap
             weight, w0 = math.pi * fs.sky_radiance(w.z), 1.0
