@@ -133,6 +133,9 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
     from scipy.stats import chi2
     from scipy.stats import t as student_t
 
+    def chi(dof):  # median of √(χ²_dof / dof): what the median SE over segments is biased by
+        return math.sqrt(chi2.median(dof) / dof)
+
     out = []
     sun = fs.sun.copy()
     for samples, rays in settings:
@@ -156,8 +159,7 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
         rse = r.relative_se()
         med = float(np.nanmedian(rse))
         f = (med / 0.02) ** 2
-        chi = math.sqrt(chi2.median(R - 1) / (R - 1))
-        med_c = med / chi
+        med_c = med / chi(R - 1)
         # The two seeds together: their variance estimates pooled (2(R − 1) degrees of freedom,
         # so a smaller correction than R - 1's), and the seeds' difference in units of its reported
         # SE, whose median |z| is that of Student's t with 2(R − 1) degrees of freedom if the
@@ -168,9 +170,9 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
             se = [x.relative_se() * np.abs(m) for x, m in zip(renders, v)]
             pooled = np.sqrt((se[0] ** 2 + se[1] ** 2) / 2) / np.abs((v[0] + v[1]) / 2)
             z = np.abs(v[0] - v[1]) / np.sqrt(se[0] ** 2 + se[1] ** 2)
-        med_p = float(np.nanmedian(np.where(np.isfinite(pooled), pooled, np.nan))) / math.sqrt(chi2.median(dof) / dof)
+        med_p = float(np.nanmedian(np.where(np.isfinite(pooled), pooled, np.nan))) / chi(dof)
         rse_step = r_step.relative_se()
-        med_step = float(np.nanmedian(rse_step)) / chi
+        med_step = float(np.nanmedian(rse_step)) / chi(R - 1)
         out.append(
             {
                 "direct": "projection" if rays else "paths",

@@ -179,8 +179,9 @@ def _hits_bytes(hits: list[Hits]) -> int:
 def _sky_order(ia, ib, tile: int):
     """Position of grid cell (ia, ib) (Dr.Jit UInt32) in the sky's direction sequence: row-major
     inside ``tile`` × ``tile`` tiles, the tiles in Z-order (their coordinates' bits interleaved).
-    Unique while the grid has fewer than 2¹⁶ · ``tile`` cells per side; beyond, positions wrap
-    mod 2³² (still unbiased, see :data:`SKY_TILE`)."""
+    Unique while each side has fewer than 2¹² tiles (65 536 cells at ``tile`` = 16): the tile's
+    Z-index times ``tile``² then stays below 2³²; beyond, positions wrap mod 2³² (still
+    unbiased, see :data:`SKY_TILE`)."""
 
     def spread(x):  # the 16 low bits of x to the even bits
         x = (x | (x << 8)) & 0x00FF00FF
