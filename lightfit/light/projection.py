@@ -128,13 +128,23 @@ _R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
 #: so any order is unbiased.
 SKY_TILE = 16
 #: Rounds of the TEA hash (Mitsuba's ``sample_tea_32``) that turn a ray's or replicate's index and
-#: a key into its random bits (:meth:`DirectProjection._bits`). Mitsuba's default of 4 does not
+#: a key into its random bits (:func:`random_bits`). Mitsuba's default of 4 does not
 #: mix consecutive indices: the per-replicate sky shifts of replicates 0–3 correlated up to 0.46
 #: and neighbouring cells' jitters were far from independent (χ² of consecutive pairs 5 × 10⁵ for
 #: 99), so the replicates were not independent and the sky's reported SE fell short of the seeds'
 #: spread (4–9 % in variance, ``benchmarks/bench_se_calibration.py``). 16 rounds pass the same
 #: checks (docs/light.md, "Are the reported standard errors right?").
 TEA_ROUNDS = 16
+
+
+def random_bits(mi, index, seed: int, kind: str, dim: int):
+    """Two independent uniform 32-bit words per entry of ``index`` (a ray's or a replicate's, a
+    ``mi.UInt32``), for the random dimension ``dim`` of ``kind``'s ("sun" or "sky") rays at ``seed``:
+    :data:`TEA_ROUNDS` rounds of TEA keyed by the three."""
+    import drjit as dr
+
+    k = (int(seed) * 0x9E3779B1 + {"sun": 1, "sky": 2}[kind] * 0x85EBCA77 + dim * 0xC2B2AE3D) % 2**32
+    return mi.sample_tea_32(index, dr.opaque(mi.UInt32, k), TEA_ROUNDS)
 
 
 @dataclass
@@ -264,14 +274,6 @@ class DirectProjection:
         self._kept: dict = {"sun": {}, "sky": {}}
 
     # -- rays ------------------------------------------------------------------------------
-    def _bits(self, index, kind: str, dim: int):
-        """Two independent 32-bit random words per ``index`` (a ray's or a replicate's), for the
-        random dimension ``dim`` of ``kind``'s rays at this seed (:data:`TEA_ROUNDS` rounds of TEA)."""
-        import drjit as dr
-
-        k = (self.seed * 0x9E3779B1 + {"sun": 1, "sky": 2}[kind] * 0x85EBCA77 + dim * 0xC2B2AE3D) % 2**32
-        return self.mi.sample_tea_32(index, dr.opaque(self.mi.UInt32, k), TEA_ROUNDS)
-
     def _cast(self, kind: str) -> list[Hits]:
         """All rays of ``kind``, in passes of at most :data:`CAST_CHUNK` rays."""
         gx, gy = self.grid[kind]
@@ -291,7 +293,7 @@ class DirectProjection:
         idx = dr.opaque(mi.UInt32, start) + dr.arange(mi.UInt32, n)
         rep = idx // dr.opaque(mi.UInt32, m)
         c = idx - rep * dr.opaque(mi.UInt32, m)
-        ja, jb = self._bits(idx, kind, 0)
+        ja, jb = random_bits(mi, idx, self.seed, kind, 0)
         to_unit = 2.0**-24
         nx = dr.opaque(mi.UInt32, gx)
         ia, ib = c % nx, c // nx
@@ -309,7 +311,7 @@ class DirectProjection:
         else:
             # Cosine-weighted directions: an R₂ sequence over the grid cells in tiled Z-order
             # (SKY_TILE), shifted per replicate (fixed point: exact for any index).
-            s1, s2 = self._bits(rep, kind, 1)
+            s1, s2 = random_bits(mi, rep, self.seed, kind, 1)
             j = _sky_order(ia, ib, SKY_TILE) if SKY_TILE else c
             u1 = mi.Float((s1 + j * int(2**32 / _R2)) >> 8) * to_unit
             u2 = mi.Float((s2 + j * int(2**32 / _R2**2)) >> 8) * to_unit
@@ -328,7 +330,7 @@ class DirectProjection:
         # 1/q of the flux. Only those lanes are kept (compacted): the surface interaction, the
         # sampling and the second walk cost nothing for the others.
         q = CONTINUED_SHARE[kind]
-        go_on = mi.Float(self._bits(idx, kind, 4)[0] >> 8) * to_unit < q
+        go_on = mi.Float(random_bits(mi, idx, self.seed, kind, 4)[0] >> 8) * to_unit < q
         sel = dr.compress((hit | on_soil) & go_on)
         idx, rep, hit, on_soil, o_last, maxt, pi = (
             dr.gather(type(x), x, sel) for x in (idx, rep, hit, on_soil, o_last, maxt, pi)
@@ -341,8 +343,8 @@ class DirectProjection:
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All, hit)
         p_soil = o_last - w * maxt
         si.wi = si.to_local(w)  # towards the light
-        t0, t1 = self._bits(idx, kind, 2)
-        u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, self._bits(idx, kind, 3)[0])]
+        t0, t1 = random_bits(mi, idx, self.seed, kind, 2)
+        u = [mi.Float(v >> 8) * to_unit for v in (t0, t1, random_bits(mi, idx, self.seed, kind, 3)[0])]
         side, wi, wo, pdf, ok, _, _ = fs.bsdf.sample_direction(si.wi, u[0], mi.Point2f(u[1], u[2]), hit)
         o1, d1 = fs.scattered_ray(si, hit, p_soil, side, wo, mi.Point2f(u[1], u[2]))
         # One kernel for the ray and the sample the hits keep: evaluated apart, the surface
