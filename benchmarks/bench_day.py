@@ -29,13 +29,12 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import math
 import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from bench_light import chi, commit_state  # same script folder
 from bench_variance import _stats
 from rich.console import Console
 from rich.table import Table
@@ -65,13 +64,6 @@ SETTINGS = (
     (32, (1.5e7, 6e7)),
     (16, (1e7, 1e8)),
 )
-
-
-def chi(dof: int) -> float:
-    """Median of √(χ²_dof / dof): the factor by which a median of replicate SEs falls short."""
-    from scipy.stats import chi2
-
-    return math.sqrt(chi2.median(dof) / dof)
 
 
 def day(fs: FieldScene, ids: np.ndarray, bounces: int, samples: int, rays, steps: int, seed: int = 2) -> dict:

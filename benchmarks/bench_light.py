@@ -100,6 +100,14 @@ def raw_ray_rate(fs: FieldScene, n: int) -> float:
     return n / t
 
 
+def chi(dof: int) -> float:
+    """Median of √(χ²_dof / dof): the factor by which a median over segments of replicate SEs
+    (dof degrees of freedom each) falls short of the median true SE."""
+    from scipy.stats import chi2
+
+    return math.sqrt(chi2.median(dof) / dof)
+
+
 #: The sun of a later step of a day (elevation, azimuth), degrees, after the bench's 50° / 180°.
 STEP_SUN_DEG = (45.0, 200.0)
 
@@ -130,11 +138,7 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
     """
     import gc
 
-    from scipy.stats import chi2
     from scipy.stats import t as student_t
-
-    def chi(dof):  # median of √(χ²_dof / dof): what the median SE over segments is biased by
-        return math.sqrt(chi2.median(dof) / dof)
 
     out = []
     sun = fs.sun.copy()
