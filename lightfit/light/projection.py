@@ -130,10 +130,11 @@ SKY_TILE = 16
 #: Rounds of the TEA hash (Mitsuba's ``sample_tea_32``) that turn a ray's or replicate's index and
 #: a key into its random bits (:func:`random_bits`). Mitsuba's default of 4 does not
 #: mix consecutive indices: the per-replicate sky shifts of replicates 0–3 correlated up to 0.46
-#: and neighbouring cells' jitters were far from independent (χ² of consecutive pairs 5 × 10⁵ for
-#: 99), so the replicates were not independent and the sky's reported SE fell short of the seeds'
-#: spread (4–9 % in variance, ``benchmarks/bench_se_calibration.py``). 16 rounds pass the same
-#: checks (docs/light.md, "Are the reported standard errors right?").
+#: and neighbouring cells' jitters were far from independent (χ² of 200 000 consecutive pairs
+#: 2.7 × 10⁵ for 99 degrees of freedom), so the replicates were not independent and the sky's
+#: reported SE fell short of the seeds' spread (≈ 3 % in variance over the 100-plant cell's
+#: segments, ``benchmarks/bench_se_calibration.py``; 5–9 % for the sky part on a small cell). 16
+#: rounds pass the same checks (docs/light.md, "Are the reported standard errors right?").
 TEA_ROUNDS = 16
 
 
