@@ -112,7 +112,35 @@ def chi(dof: int) -> float:
 STEP_SUN_DEG = (45.0, 200.0)
 
 
-def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, settings) -> dict:
+def organ_classes(segments, ids: np.ndarray) -> np.ndarray:
+    """Each segment's organ class: ``blade``, ``sheath`` (a leaf segment without blade area, which
+    CPlantBox gives the leaf's radius, 0.3 mm) or ``stem``."""
+    seg = segments.set_index("segment_id").loc[ids]
+    blade = seg["blade_width_m"].to_numpy() > 0
+    return np.where(seg["organ_type"].to_numpy() == "stem", "stem", np.where(blade, "blade", "sheath"))
+
+
+def organ_stats(rse: np.ndarray, organ: np.ndarray) -> dict:
+    """Per organ class: segments, median and p90 relative SE, and the share of the class above the
+    all-segment median (who sets that median)."""
+    ok = np.isfinite(rse)
+    median = float(np.median(rse[ok]))
+    out = {}
+    for name in ("blade", "sheath", "stem"):
+        v = rse[(organ == name) & ok]
+        if v.size:
+            out[name] = {
+                "n": int(v.size),
+                "median": float(np.median(v)),
+                "p90": float(np.quantile(v, 0.9)),
+                "share_above_all_median": float(np.mean(v > median)),
+            }
+    return out
+
+
+def direct_projection_comparison(
+    fs: FieldScene, ids: np.ndarray, bounces: int, settings, organ: np.ndarray | None = None
+) -> dict:
     r"""Direct light from the paths vs by projection (issue 16), side by side in one process.
 
     Each setting ``(samples, rays_per_m2)`` (``rays_per_m2`` 0: ``direct="paths"``) renders all
@@ -129,7 +157,8 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
     pooled variance (``*_pooled_seeds``: 2(R − 1) degrees of freedom, so a correction half as
     large) and, as a check of the reported SEs against something they did not compute, the median
     over segments of |z| = |v₁ − v₂| / √(SE₁² + SE₂²), which is Student's t median |t| with
-    2(R − 1) degrees of freedom (0.72 at R = 4) when the SEs are right.
+    2(R − 1) degrees of freedom (0.72 at R = 4) when the SEs are right. With ``organ``
+    (:func:`organ_classes`) the second seed's SEs are summarised per organ class too.
 
     A day renders one estimator at every step's sun: the paths' geometry and the projected sky are
     kept, and only the sun's rays are cast again. So the second estimator then renders once more
@@ -185,6 +214,7 @@ def direct_projection_comparison(fs: FieldScene, ids: np.ndarray, bounces: int, 
                 "first_render_s": times[0],
                 "render_s": times[1],
                 "rse_absorbed": _stats(rse, np.asarray(r.meta["is_blade"], bool)),
+                **({"rse_absorbed_by_organ": organ_stats(rse, organ)} if organ is not None else {}),
                 "scale_for_2pct_median": f,
                 "extrapolated_s_at_2pct": times[1] * f,
                 "replicates": R,
@@ -347,7 +377,8 @@ def main(
     # (K, projection rays per m² (sun, sky) or one for both; 0: paths). The last: the cost model's
     # reallocation (docs/light.md, "Where the time goes, and casting in passes").
     settings = [(64, 0), (64, 1e7), (32, 2e7), (16, (1.5e7, 2e7))]
-    direct = direct_projection_comparison(fs, ids, bounces, settings) if fs.tracer is not None else None
+    organ = organ_classes(geom.segments, ids)
+    direct = direct_projection_comparison(fs, ids, bounces, settings, organ) if fs.tracer is not None else None
     res = {
         **commit_state(),
         "cpu_cores": os.cpu_count(),
@@ -420,6 +451,12 @@ def main(
                     f"{q['day_step_s']:.1f} s, {q['day_step_median_rse_r_corrected']:.2%} R-corrected, "
                     f"≈ {q['day_step_s_at_2pct_r_corrected']:.0f} s for 2 %",
                 )
+                for name, o in q.get("rse_absorbed_by_organ", {}).items():
+                    t.add_row(
+                        f"  {name}s ({o['n']})",
+                        f"median / p90 {o['median']:.2%} / {o['p90']:.2%}, "
+                        f"{o['share_above_all_median']:.0%} above the all-segment median",
+                    )
         elif k not in ("irradiancemeter", "earlier_runs"):
             t.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
     console.print(t)

@@ -1,0 +1,194 @@
+"""Issue 16 item 4, prepared for a session that is lent a GPU: the 500-plant cell in ``cuda_ad_mono``.
+
+    python benchmarks/device_light.py prepare [--n-plants 500]        # here, once (≈ 1 min)
+    bash benchmarks/device_light.sh                                     # there, through `run`
+
+The device machine (docs/benchmarks.md, "GPU") has Python 3.12, numpy, pandas, scipy, rich and JAX,
+no network and no Mitsuba, and a call carries at most 64 MiB. ``prepare`` therefore writes, into the
+git-ignored folder ``device/``:
+
+* ``wheels/``: the cp312 Mitsuba and Dr.Jit wheels (the versions pinned in pyproject.toml) with what
+  lightfit never loads taken out — the other eight ``*_ad_*`` and the scalar variants' extension
+  modules, the headers, the spectral upsampling table and the volume, curve and other plugins that
+  no lightfit scene names — 67 → ≈ 46 MB;
+* ``geometry.npz``: the bench cell's mesh (``build(Field(n_plants, seed=1, boundary="periodic"))``,
+  as ``bench_light.py`` grows it; CPlantBox is not needed there), its periodic cell, the PROSPECT-D
+  optics, each segment's organ class, and the commit it was prepared at.
+
+``run`` (what ``device_light.sh`` calls there, after installing the wheels) renders the cell with
+the projection in the variant lightfit picks (``cuda_ad_mono`` where a CUDA device is usable) at
+rising ray densities, through ``bench_light.direct_projection_comparison`` (the same two seeds,
+the same R-corrected and pooled medians, the same later step of a day), and writes
+``$OUT/device_light.json`` after every setting, so a run stopped at its time limit keeps what it
+finished. It stops adding settings past ``--budget-s``. A dry run of the whole path on this
+machine: ``prepare --python-version 3.11 --n-plants 16`` then ``device_light.sh`` with
+``LIGHTFIT_VARIANT=llvm_ad_mono DEVICE_LIGHT_ARGS="--budget-s 60 --settings 16:1e6:2e6"``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEVICE = ROOT / "device"
+PINS = ("mitsuba==3.9.1", "drjit==1.5.0")
+# Variants lightfit can pick (lightfit.light.backend: cuda_ad_mono or llvm_ad_mono); the others go.
+KEEP_VARIANTS = ("cuda_ad_mono", "llvm_ad_mono")
+# Plugins no lightfit scene names and Mitsuba does not create by default (a scene without a sensor
+# still gets a perspective sensor, an hdrfilm, a gaussian filter and an independent sampler).
+UNUSED_PLUGINS = {
+    "volpath", "volpathmis", "ptracer", "prbvolpath", "ellipsoids", "ellipsoidsmesh", "sdfgrid",
+    "bsplinecurve", "linearcurve", "catmullrom", "hair", "measured", "measured_polarized", "pplastic",
+    "sunsky", "timed_sunsky", "gridvolume", "heterogeneous", "homogeneous", "constvolume", "sggx",
+    "blendphase", "hg", "rayleigh", "tabphase", "polarizer", "retarder", "stokes", "roughconductor",
+    "roughdielectric", "roughplastic", "conductor", "dielectric", "plastic", "thindielectric",
+    "envmap", "spot", "projector", "thinlens", "moment", "aov", "bumpmap", "normalmap", "blender",
+}  # fmt: skip
+SETTINGS = ((16, (1.5e7, 2e7)), (16, (6e7, 8e7)), (32, (1.5e8, 2e8)), (64, (4e8, 5e8)))
+
+
+def _strip_wheel(src: Path, dst: Path) -> None:
+    """Copy a wheel without the members lightfit never loads (RECORD rewritten to match)."""
+    variant_ext = ("cuda_ad_", "llvm_ad_", "scalar_")
+
+    def drop(name: str) -> bool:
+        base = name.rsplit("/", 1)[-1]
+        if name.startswith("mitsuba/") and base.startswith(variant_ext) and base.endswith(".so"):
+            return not base.startswith(KEEP_VARIANTS)
+        if name.startswith(("mitsuba/include/", "share/")) or name == "mitsuba/data/srgb.coeff":
+            return True
+        return "/plugins/" in name and base.removesuffix(".so") in UNUSED_PLUGINS
+
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
+        kept = [i for i in zin.infolist() if not drop(i.filename)]
+        names = {i.filename for i in kept}
+        for info in kept:
+            data = zin.read(info)
+            if info.filename.endswith(".dist-info/RECORD"):
+                lines = data.decode().splitlines()
+                data = ("\n".join(ln for ln in lines if ln.split(",", 1)[0] in names) + "\n").encode()
+            zout.writestr(info, data)
+
+
+def prepare(n_plants: int, python_version: str) -> None:
+    from bench_light import commit_state, organ_classes
+
+    from lightfit.light.scene import Optics
+    from lightfit.plant import Field, build
+
+    (DEVICE / "wheels").mkdir(parents=True, exist_ok=True)
+    raw = DEVICE / "raw"
+    tag = python_version.replace(".", "")
+    plat = ["manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64"]
+    for w in (DEVICE / "wheels").glob("*.whl"):
+        w.unlink()
+    subprocess.run(
+        [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:", "--python-version",
+         python_version, "--implementation", "cp", *[f"--platform={p}" for p in plat], "-d", str(raw), *PINS],
+        check=True,
+    )  # fmt: skip
+    for w in sorted(raw.glob(f"*-cp{tag}-*.whl")):
+        _strip_wheel(w, DEVICE / "wheels" / w.name)
+    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
+    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
+    organ = organ_classes(geom.segments, ids)
+    m, c = geom.mesh, geom.cell
+    np.savez_compressed(
+        DEVICE / "geometry.npz",
+        vertices=m.vertices,
+        faces=m.faces.astype(np.int32),
+        face_segment=m.face_segment,
+        face_is_blade=m.face_is_blade,
+        segment_ids=ids,
+        organ=organ,
+        cell=np.array([c.along_m, c.across_m, c.row_direction_deg, *c.center_xy]),
+        optics=json.dumps(Optics.preset("prospect").__dict__),
+        meta=json.dumps({"n_plants": n_plants, "python": python_version, **commit_state()}),
+    )
+    sizes = {p.name: p.stat().st_size for p in [*(DEVICE / "wheels").glob("*.whl"), DEVICE / "geometry.npz"]}
+    for name, size in sizes.items():
+        print(f"{size / 2**20:7.1f} MiB  device/{'wheels/' if name.endswith('.whl') else ''}{name}")
+    print(f"{sum(sizes.values()) / 2**20:7.1f} MiB  to carry (a call carries 64 MiB with the working tree)")
+    print('run: command "bash benchmarks/device_light.sh", carry ["device/wheels", "device/geometry.npz"]')
+
+
+def run(out: Path, budget_s: float, settings) -> dict:
+    from bench_light import direct_projection_comparison
+
+    from lightfit.light import backend
+    from lightfit.light.estimator import bounces_for_tolerance
+    from lightfit.light.scene import FieldScene, Optics
+    from lightfit.plant.mesh import Mesh
+    from lightfit.plant.periodic import PeriodicCell
+
+    t0 = time.perf_counter()
+    g = np.load(DEVICE / "geometry.npz")
+    mesh = Mesh(g["vertices"], g["faces"].astype(np.int64), g["face_segment"], g["face_is_blade"])
+    a, b, row, cx, cy = (float(v) for v in g["cell"])
+    optics = Optics(**json.loads(str(g["optics"])))
+    fs = FieldScene(mesh, optics, cell=PeriodicCell(a, b, row, (cx, cy)))
+    fs.set_sun(50.0, 180.0)
+    ids, organ = g["segment_ids"], g["organ"]
+    bounces = bounces_for_tolerance(0.01, optics)
+    smi = ["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"]
+    gpu = subprocess.run(smi, capture_output=True, text=True).stdout.strip() if shutil.which(smi[0]) else ""
+    res = {
+        "prepared": json.loads(str(g["meta"])),
+        "mitsuba_variant": backend.info().variant,
+        "gpu": gpu or None,
+        "segments": len(ids),
+        "triangles": int(mesh.n_faces),
+        "bounces": bounces,
+        "scene_s": time.perf_counter() - t0,
+        "settings": [],
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    for samples, rays in settings:
+        if time.perf_counter() - t0 > budget_s:
+            res["stopped_at_budget_s"] = budget_s
+            break
+        row = direct_projection_comparison(fs, ids, bounces, [(samples, rays)], organ=organ)["settings"][0]
+        res["settings"].append(row)
+        res["elapsed_s"] = time.perf_counter() - t0
+        (out / "device_light.json").write_text(json.dumps(res, indent=2))
+        a = row["rse_absorbed"]["all"]
+        print(
+            f"K={samples} rays/m² {rays}: {row['render_s']:.2f} s (first {row['first_render_s']:.2f} s), "
+            f"median / p90 {a['median']:.2%} / {a['p90']:.2%}, R-corrected {row['median_rse_r_corrected']:.2%} "
+            f"→ 2 % median ≈ {row['extrapolated_s_at_2pct_r_corrected']:.1f} s; later step {row['day_step_s']:.2f} s",
+            flush=True,
+        )
+    return res
+
+
+def _setting(text: str):
+    k, sun, sky = text.split(":")
+    return int(k), (float(sun), float(sky))
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("prepare", help="wheels and geometry into device/ (here)")
+    p.add_argument("--n-plants", type=int, default=500)
+    p.add_argument("--python-version", default="3.12", help="the device's Python (3.12); 3.11 for a dry run here")
+    r = sub.add_parser("run", help="render on the device (device_light.sh calls this)")
+    r.add_argument("--out", type=Path, default=Path(os.environ.get("OUT", ROOT / "benchmarks" / "results")))
+    r.add_argument("--budget-s", type=float, default=420.0, help="start no new setting after this many seconds")
+    r.add_argument("--settings", type=_setting, nargs="*", default=SETTINGS, help="K:sun_rays:sky_rays per m²")
+    a = ap.parse_args()
+    if a.cmd == "prepare":
+        prepare(a.n_plants, a.python_version)
+    else:
+        run(a.out, a.budget_s, a.settings)
