@@ -13,9 +13,13 @@ git-ignored folder ``device/``:
   no lightfit scene names — 67 → ≈ 46 MB;
 * ``geometry.npz``: the bench cell's mesh (``build(Field(n_plants, seed=1, boundary="periodic"))``,
   as ``bench_light.py`` grows it; CPlantBox is not needed there), its periodic cell, the PROSPECT-D
-  optics, each segment's organ class, and the commit it was prepared at.
+  optics, each segment's organ class, the commit it was prepared at, and a reference render made
+  here (``llvm_ad_mono``, the first setting, seed 11: absorbed PAR and its SE per segment).
 
-``run`` (what ``device_light.sh`` calls there, after installing the wheels) renders the cell with
+``run`` (what ``device_light.sh`` calls there, after installing the wheels) first renders the first
+setting with seed 12 and compares it with the reference segment by segment (median |z| of the
+difference in units of its combined SE, the share above 4, the canopy totals): the GPU's answer
+must be the CPU's within Monte Carlo noise before its time means anything. Then it renders the cell with
 the projection in the variant lightfit picks (``cuda_ad_mono`` where a CUDA device is usable) at
 rising ray densities, through ``bench_light.direct_projection_comparison`` (the same two seeds,
 the same R-corrected and pooled medians, the same later step of a day), and writes
@@ -55,6 +59,9 @@ UNUSED_PLUGINS = {
     "envmap", "spot", "projector", "thinlens", "moment", "aov", "bumpmap", "normalmap", "blender",
 }  # fmt: skip
 SETTINGS = ((16, (1.5e7, 2e7)), (16, (6e7, 8e7)), (32, (1.5e8, 2e8)), (64, (4e8, 5e8)))
+# The device renders SETTINGS[0] with another seed than the reference made here, so the two are
+# independent estimates and their differences, in units of the combined SE, should be noise.
+REFERENCE_SEED, DEVICE_SEED = 11, 12
 
 
 def _strip_wheel(src: Path, dst: Path) -> None:
@@ -80,6 +87,29 @@ def _strip_wheel(src: Path, dst: Path) -> None:
             zout.writestr(info, data)
 
 
+def _render(fs, ids, seed: int):
+    """The agreement check's render: the first setting of :data:`SETTINGS`, absorbed PAR at DNI 1,
+    DHI 0.3 and its standard error per segment."""
+    from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
+
+    samples, rays = SETTINGS[0]
+    bounces = bounces_for_tolerance(0.01, fs.optics)
+    kw = dict(direct="projection", direct_rays_per_m2=rays)
+    r = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=seed, **kw).render()
+    v = r.total("absorbed", 1.0, 0.3)
+    return v, r.relative_se() * np.abs(v)
+
+
+def _reference_render(geom, ids) -> dict:
+    from lightfit.light import backend
+    from lightfit.light.scene import FieldScene, Optics
+
+    fs = FieldScene(geom.mesh, Optics.preset("prospect"), cell=geom.cell)
+    fs.set_sun(50.0, 180.0)
+    v, se = _render(fs, ids, seed=REFERENCE_SEED)
+    return {"reference_absorbed": v, "reference_se": se, "reference_variant": backend.info().variant}
+
+
 def prepare(n_plants: int, python_version: str) -> None:
     from bench_light import commit_state, organ_classes
 
@@ -103,6 +133,7 @@ def prepare(n_plants: int, python_version: str) -> None:
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     organ = organ_classes(geom.segments, ids)
     m, c = geom.mesh, geom.cell
+    ref = _reference_render(geom, ids)  # this machine's llvm_ad_mono, for the device's agreement check
     np.savez_compressed(
         DEVICE / "geometry.npz",
         vertices=m.vertices,
@@ -114,6 +145,7 @@ def prepare(n_plants: int, python_version: str) -> None:
         cell=np.array([c.along_m, c.across_m, c.row_direction_deg, *c.center_xy]),
         optics=json.dumps(Optics.preset("prospect").__dict__),
         meta=json.dumps({"n_plants": n_plants, "python": python_version, **commit_state()}),
+        **ref,
     )
     sizes = {p.name: p.stat().st_size for p in [*(DEVICE / "wheels").glob("*.whl"), DEVICE / "geometry.npz"]}
     for name, size in sizes.items():
@@ -153,6 +185,15 @@ def run(out: Path, budget_s: float, settings) -> dict:
         "settings": [],
     }
     out.mkdir(parents=True, exist_ok=True)
+    res["agreement"] = _agreement(fs, ids, g)
+    print(
+        f"{res['mitsuba_variant']} against {res['agreement']['reference_variant']}: median |z| "
+        f"{res['agreement']['median_abs_z']:.3f} (noise: {res['agreement']['median_abs_z_if_noise']:.3f}), "
+        f"canopy total ratio − 1 {res['agreement']['canopy_total_ratio_minus_1']:+.2e} "
+        f"± {res['agreement']['canopy_total_ratio_se']:.1e}",
+        flush=True,
+    )
+    (out / "device_light.json").write_text(json.dumps(res, indent=2))
     for samples, rays in settings:
         if time.perf_counter() - t0 > budget_s:
             res["stopped_at_budget_s"] = budget_s
@@ -169,6 +210,31 @@ def run(out: Path, budget_s: float, settings) -> dict:
             flush=True,
         )
     return res
+
+
+def _agreement(fs, ids, g) -> dict:
+    """This variant's render against the reference made by ``prepare``: per-segment |z| (median
+    0.674 when the two differ by noise alone, with SEs from R = 4 replicates a little more) and
+    the canopy totals (area-weighted sums would need the areas; the plain sums are compared)."""
+    from scipy.stats import t as student_t
+
+    v, se = _render(fs, ids, seed=DEVICE_SEED)
+    ref, ref_se = g["reference_absorbed"], g["reference_se"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.abs(v - ref) / np.hypot(se, ref_se)
+    z = z[np.isfinite(z)]
+    total, total_ref = v.sum(), ref.sum()
+    ratio_se = np.hypot(np.sqrt((se**2).sum()) / total, np.sqrt((ref_se**2).sum()) / total_ref)
+    return {
+        "reference_variant": str(g["reference_variant"]),
+        "segments_compared": int(z.size),
+        "median_abs_z": float(np.median(z)),
+        "median_abs_z_if_noise": float(student_t.ppf(0.75, 6)),  # two renders, R − 1 = 3 each
+        "share_abs_z_above_4": float(np.mean(z > 4)),
+        "share_abs_z_above_4_if_noise": float(2 * student_t.sf(4.0, 6)),
+        "canopy_total_ratio_minus_1": float(total / total_ref - 1),
+        "canopy_total_ratio_se": float(ratio_se),
+    }
 
 
 def _setting(text: str):
