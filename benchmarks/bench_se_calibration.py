@@ -13,7 +13,7 @@ F's median; a ratio above that means the reported SEs are too small (what the se
 of ``bench_light.py`` hinted at, with a Student's t that skewed sparse counts only approximate).
 Also the ratio of sums Σ s² / Σ SE² (1 when unbiased; the noisiest segments weigh most) and the
 same by quartile of relative SE and for blades and stems. Each ``--tea-rounds`` value
-(:data:`lightfit.light.projection.TEA_ROUNDS`, the hash behind the projection's random numbers; 4
+(:data:`lightfit.light.keyed_random.TEA_ROUNDS`, the hash behind the projection's random numbers; 4
 was the value before: Mitsuba's default) is measured in turn in the same process, with its mean
 render time. Writes
 benchmarks/results/se_calibration.json and prints a table, with the commit and the load average.
@@ -35,7 +35,7 @@ from rich.table import Table
 from scipy.stats import f as fisher
 
 import lightfit  # noqa: F401
-from lightfit.light import projection
+from lightfit.light import keyed_random
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
@@ -57,9 +57,9 @@ def _ratios(spread: np.ndarray, se2: np.ndarray) -> dict:
 
 
 def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) -> dict:
-    """The seeds' spread against the reported SE² at the current :data:`projection.TEA_ROUNDS`."""
+    """The seeds' spread against the reported SE² at the current :data:`keyed_random.TEA_ROUNDS`."""
     values, se2, times = [], [], []
-    for seed in track(range(1, seeds + 1), description=f"{projection.TEA_ROUNDS} rounds", console=console):
+    for seed in track(range(1, seeds + 1), description=f"{keyed_random.TEA_ROUNDS} rounds", console=console):
         t = time.perf_counter()
         est = SegmentEstimator(
             fs, ids, samples=samples, bounces=bounces, seed=seed, direct="projection", direct_rays_per_m2=rays
@@ -82,7 +82,7 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
     for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
         groups[f"relative SE quartile {i + 1} ({lo:.1%}–{hi:.1%})"] = (rse >= lo) & (rse <= hi)
     return {
-        "tea_rounds": projection.TEA_ROUNDS,
+        "tea_rounds": keyed_random.TEA_ROUNDS,
         "replicates": R,
         "segments_compared": int(ok.sum()),
         # One render's median relative SE: from the reported SEs (pooled over the seeds, so hardly
@@ -106,13 +106,13 @@ def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2
     fs.set_sun(50.0, 180.0)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     runs = []
-    default = projection.TEA_ROUNDS
+    default = keyed_random.TEA_ROUNDS
     try:
         for n in rounds:
-            projection.TEA_ROUNDS = n
+            keyed_random.TEA_ROUNDS = n
             runs.append(calibration(fs, ids, bounces, seeds, samples, rays, console))
     finally:
-        projection.TEA_ROUNDS = default
+        keyed_random.TEA_ROUNDS = default
     res = {
         **commit_state(),
         "cpu_cores": os.cpu_count(),

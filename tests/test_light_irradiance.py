@@ -367,15 +367,3 @@ def test_gradient_after_a_render_reuses_its_shadow_rays_bitwise(periodic):
         est.render()
         assert est._sun_key() in est._suns_kept  # kept, and used by the next vjp
         assert est.vjp(ct) == fresh
-
-
-def test_keyed_uniforms_for_some_dimensions_are_those_of_all():
-    """Computing only the dimensions the paths read leaves each one's numbers as they were."""
-    from lightfit.light.estimator import keyed_uniforms
-
-    keys = np.arange(12, dtype=np.uint64).reshape(3, 4)
-    full = keyed_uniforms(7, keys, np.arange(10))
-    some = keyed_uniforms(7, keys, np.array([1, 4, 7]))
-    assert some.shape == (3, 4, 3)
-    np.testing.assert_array_equal(some, full[..., [1, 4, 7]])
-    assert 0.0 <= full.min() and full.max() < 1.0 and len(np.unique(full)) == full.size

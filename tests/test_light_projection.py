@@ -95,40 +95,6 @@ def test_projection_estimates_what_the_paths_estimate(field, bounces, soil_albed
         assert abs(z.mean()) < 0.15 and 0.7 < z.std() < 1.4, (part, z.mean(), z.std())
 
 
-def _pair_chi2(a: np.ndarray, b: np.ndarray) -> float:
-    """χ² of the 10 × 10 histogram of pairs of uniforms (99 degrees of freedom if independent)."""
-    h, _, _ = np.histogram2d(a, b, 10, range=[[0, 1], [0, 1]])
-    e = len(a) / 100
-    return float(((h - e) ** 2 / e).sum())
-
-
-def test_random_bits_of_consecutive_indices_and_replicates_are_independent(monkeypatch):
-    """The projection's random words: consecutive ray indices (neighbouring grid cells, one seed)
-    and the replicate shifts of replicates 0 and 1 (over 5 000 seeds) give pairs that pass a χ²
-    test of independence (99 dof; bound 160, p ≈ 10⁻⁴). Mitsuba's default 4 rounds of TEA fails
-    both by orders of magnitude (measured 2.7 × 10⁵ and 6.6 × 10³): its replicates were correlated."""
-    from scipy.stats import chi2
-
-    from lightfit.light import projection
-
-    mi = mitsuba()
-    bound = chi2.ppf(1 - 1e-4, 99)
-
-    def stats():
-        idx = mi.UInt32(np.arange(200_001, dtype=np.uint32))
-        u = np.asarray(projection.random_bits(mi, idx, 7, "sun", 0)[0], np.float64) / 2**32
-        seeds = range(5_000)
-        shift = [
-            np.array([int(projection.random_bits(mi, mi.UInt32(rep), s, "sky", 1)[0][0]) for s in seeds]) / 2**32
-            for rep in (0, 1)
-        ]
-        return _pair_chi2(u[:-1], u[1:]), _pair_chi2(*shift)
-
-    assert max(stats()) < bound, stats()
-    monkeypatch.setattr(projection, "TEA_ROUNDS", 4)
-    assert min(stats()) > 10 * bound
-
-
 def test_reported_standard_errors_match_the_seed_spread(field):
     """Each render's per-segment SE (from its R = 4 replicates, projection and paths, the sun–sky
     covariance included) against the spread of 12 seeds' values of absorbed PAR (sun + 0.3·sky):

@@ -68,6 +68,7 @@ from lightfit.errors import InputError
 from lightfit.light import projection
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
+from lightfit.light.keyed_random import hash32, keyed_uniforms
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
 from lightfit.light.scene import FieldScene, Optics
 
@@ -96,30 +97,6 @@ _QMC_FRONT = (0, 1, 2, 3, 4)
 _QMC_BACK = (11, 12)
 
 
-def keyed_uniforms(seed: int, keys: np.ndarray, dims: ArrayLike) -> np.ndarray:
-    """Uniform [0, 1) numbers, shape ``keys.shape + (len(dims),)``, a pure function of (seed, key, dim).
-
-    SplitMix64 finaliser (Steele et al. 2014) over ``seed``, the 64-bit key and the dimension:
-    each dimension's numbers are the same whichever others are computed with it.
-    """
-
-    def mix(z):
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        return z ^ (z >> np.uint64(31))
-
-    golden = np.uint64(0x9E3779B97F4A7C15)
-    out = np.empty(keys.shape + (len(dims),))
-    with np.errstate(over="ignore"):  # modular 64-bit arithmetic is the point
-        base = mix(keys.astype(np.uint64) * golden + mix(np.uint64(seed % 2**64) + np.uint64(1)))
-        # One dimension at a time: temporaries of the keys' size, not of keys × dims.
-        for i, d in enumerate(np.asarray(dims, dtype=np.uint64)):
-            z = mix(base + (d + np.uint64(1)) * golden)
-            # 24 bits: exactly representable in float32, and strictly below 1.
-            out[..., i] = (z >> np.uint64(40)).astype(np.float64) * (1.0 / 2**24)
-    return out
-
-
 def _side_dims(bounces: int) -> tuple[list[int], list[int]]:
     """The random dimensions each side's path reads, in order: its first direction, then 3 per
     scattering order (front, back)."""
@@ -142,15 +119,6 @@ def sequence_alpha(n_dims: int) -> np.ndarray:
     alpha[list(_QMC_FRONT)] = kronecker_alpha(len(_QMC_FRONT))
     alpha[list(_QMC_BACK)] = kronecker_alpha(len(_QMC_BACK))
     return alpha
-
-
-def _hash32(x):
-    """A 32-bit integer hash (Wellons' lowbias32) of Dr.Jit UInt32 ``x``: full avalanche."""
-    x = x ^ (x >> 16)
-    x = x * 0x7FEB352D
-    x = x ^ (x >> 15)
-    x = x * 0x846CA68B
-    return x ^ (x >> 16)
 
 
 def replicates_for(samples: int) -> int:
@@ -440,7 +408,7 @@ class SegmentEstimator:
                 delta = dr.gather(mi.Float, shift, base + self._column_of[dim])
                 if np.isnan(self._alpha[dim]):
                     # The replicate's keyed shift (24 bits) keys the hash; the point index varies it.
-                    h = _hash32(_hash32(mi.UInt32(delta * 2.0**24) + (dim * 0x9E3779B9) % 2**32) + j_int)
+                    h = hash32(hash32(mi.UInt32(delta * 2.0**24) + (dim * 0x9E3779B9) % 2**32) + j_int)
                     return mi.Float(h >> 8) * 2.0**-24
                 return delta + jj * float(self._alpha[dim])
 

@@ -66,14 +66,15 @@ import numpy as np
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
+from lightfit.light.keyed_random import random_bits
 from lightfit.light.periodic import CAPPED, LEAF, SOIL
 
 #: Version of the projection's rays and what they carry: bumped whenever a change moves its values
 #: (not only their rounding), so that renders kept on disk (:func:`lightfit.model.emulator.render_key`)
 #: are not reused across it. 1: direct light and light scattered once by a leaf; 2: also by the
 #: soil, and Russian roulette on the continued rays (:data:`CONTINUED_SHARE`); 3: the sky's directions
-#: over the grid cells in tiled Z-order (:data:`SKY_TILE`); 4: random bits from :data:`TEA_ROUNDS`
-#: rounds of TEA instead of 4 (independent replicates).
+#: over the grid cells in tiled Z-order (:data:`SKY_TILE`); 4: random bits from
+#: :data:`~lightfit.light.keyed_random.TEA_ROUNDS` rounds of TEA instead of 4 (independent replicates).
 PROJECTION_VERSION = 4
 #: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
 DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
@@ -127,25 +128,6 @@ _R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
 #: ``benchmarks/bench_sky_order.py``). Each ray's direction stays uniform (the per-replicate shift),
 #: so any order is unbiased.
 SKY_TILE = 16
-#: Rounds of the TEA hash (Mitsuba's ``sample_tea_32``) that turn a ray's or replicate's index and
-#: a key into its random bits (:func:`random_bits`). Mitsuba's default of 4 does not
-#: mix consecutive indices: the per-replicate sky shifts of replicates 0–3 correlated up to 0.46
-#: and neighbouring cells' jitters were far from independent (χ² of 200 000 consecutive pairs
-#: 2.7 × 10⁵ for 99 degrees of freedom), so the replicates were not independent and the sky's
-#: reported SE fell short of the seeds' spread (≈ 3 % in variance over the 100-plant cell's
-#: segments, ``benchmarks/bench_se_calibration.py``; 5–9 % for the sky part on a small cell). 16
-#: rounds pass the same checks (docs/light.md, "Are the reported standard errors right?").
-TEA_ROUNDS = 16
-
-
-def random_bits(mi, index, seed: int, kind: str, dim: int):
-    """Two independent uniform 32-bit words per entry of ``index`` (a ray's or a replicate's, a
-    ``mi.UInt32``), for the random dimension ``dim`` of ``kind``'s ("sun" or "sky") rays at ``seed``:
-    :data:`TEA_ROUNDS` rounds of TEA keyed by the three."""
-    import drjit as dr
-
-    k = (int(seed) * 0x9E3779B1 + {"sun": 1, "sky": 2}[kind] * 0x85EBCA77 + dim * 0xC2B2AE3D) % 2**32
-    return mi.sample_tea_32(index, dr.opaque(mi.UInt32, k), TEA_ROUNDS)
 
 
 @dataclass
