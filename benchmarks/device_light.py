@@ -43,6 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
+import lightfit  # noqa: F401  (before Dr.Jit: lightfit.light.backend sets up libLLVM)
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
 ROOT = Path(__file__).resolve().parents[1]
 DEVICE = ROOT / "device"
 PINS = ("mitsuba==3.9.1", "drjit==1.5.0")
@@ -243,7 +248,6 @@ def _setting(text: str):
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT / "benchmarks"))
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("prepare", help="wheels and geometry into device/ (here)")
