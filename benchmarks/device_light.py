@@ -10,7 +10,7 @@ git-ignored folder ``device/``:
 * ``wheels/``: the cp312 Mitsuba and Dr.Jit wheels (the versions pinned in pyproject.toml) with what
   lightfit never loads taken out — the other eight ``*_ad_*`` and the scalar variants' extension
   modules, the headers, the spectral upsampling table and the volume, curve and other plugins that
-  no lightfit scene names — 67 → ≈ 46 MB;
+  no lightfit scene names — 67 → 31 MiB;
 * ``geometry.npz``: the bench cell's mesh (``build(Field(n_plants, seed=1, boundary="periodic"))``,
   as ``bench_light.py`` grows it; CPlantBox is not needed there), its periodic cell, the PROSPECT-D
   optics, each segment's organ class, the commit it was prepared at, and a reference render made
@@ -76,7 +76,7 @@ def _strip_wheel(src: Path, dst: Path) -> None:
     def drop(name: str) -> bool:
         base = name.rsplit("/", 1)[-1]
         if name.startswith("mitsuba/") and base.startswith(variant_ext) and base.endswith(".so"):
-            return not base.startswith(KEEP_VARIANTS)
+            return base.split(".")[0] not in KEEP_VARIANTS
         if name.startswith(("mitsuba/include/", "share/")) or name == "mitsuba/data/srgb.coeff":
             return True
         return "/plugins/" in name and base.removesuffix(".so") in UNUSED_PLUGINS
