@@ -47,7 +47,7 @@ import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build
+from lightfit.plant import Field, build, organ_class
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -112,14 +112,6 @@ def chi(dof: int) -> float:
 STEP_SUN_DEG = (45.0, 200.0)
 
 
-def organ_classes(segments, ids: np.ndarray) -> np.ndarray:
-    """Each segment's organ class: ``blade``, ``sheath`` (a leaf segment without blade area, which
-    CPlantBox gives the leaf's radius, 0.3 mm) or ``stem``."""
-    seg = segments.set_index("segment_id").loc[ids]
-    blade = seg["blade_width_m"].to_numpy() > 0
-    return np.where(seg["organ_type"].to_numpy() == "stem", "stem", np.where(blade, "blade", "sheath"))
-
-
 def organ_stats(rse: np.ndarray, organ: np.ndarray) -> dict:
     """Per organ class: segments, median and p90 relative SE, and the share of the class above the
     all-segment median (who sets that median)."""
@@ -158,7 +150,7 @@ def direct_projection_comparison(
     large) and, as a check of the reported SEs against something they did not compute, the median
     over segments of |z| = |v₁ − v₂| / √(SE₁² + SE₂²), which is Student's t median |t| with
     2(R − 1) degrees of freedom (0.72 at R = 4) when the SEs are right. With ``organ``
-    (:func:`organ_classes`) the second seed's SEs are summarised per organ class too.
+    (:func:`lightfit.plant.organ_class`) the second seed's SEs are summarised per organ class too.
 
     A day renders one estimator at every step's sun: the paths' geometry and the projected sky are
     kept, and only the sun's rays are cast again. So the second estimator then renders once more
@@ -377,7 +369,7 @@ def main(
     # (K, projection rays per m² (sun, sky) or one for both; 0: paths). The last: the cost model's
     # reallocation (docs/light.md, "Where the time goes, and casting in passes").
     settings = [(64, 0), (64, 1e7), (32, 2e7), (16, (1.5e7, 2e7))]
-    organ = organ_classes(geom.segments, ids)
+    organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     direct = direct_projection_comparison(fs, ids, bounces, settings, organ) if fs.tracer is not None else None
     res = {
         **commit_state(),

@@ -116,10 +116,10 @@ def _reference_render(geom, ids) -> dict:
 
 
 def prepare(n_plants: int, python_version: str) -> None:
-    from bench_light import commit_state, organ_classes
+    from bench_light import commit_state
 
     from lightfit.light.scene import Optics
-    from lightfit.plant import Field, build
+    from lightfit.plant import Field, build, organ_class
 
     (DEVICE / "wheels").mkdir(parents=True, exist_ok=True)
     raw = DEVICE / "raw"
@@ -136,7 +136,7 @@ def prepare(n_plants: int, python_version: str) -> None:
         _strip_wheel(w, DEVICE / "wheels" / w.name)
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
-    organ = organ_classes(geom.segments, ids)
+    organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     m, c = geom.mesh, geom.cell
     ref = _reference_render(geom, ids)  # this machine's llvm_ad_mono, for the device's agreement check
     np.savez_compressed(

@@ -17,6 +17,8 @@ from lightfit.plant import (
     export,
     grow_plant,
     load_or_grow,
+    one_sided_area_m2,
+    organ_class,
     plant_seed,
     shoot_mesh,
 )
@@ -80,6 +82,23 @@ def test_mesh_area_equals_segment_area(plant_table, res):
     blade = (plant_table["organ_type"] == "leaf") & (plant_table["blade_width_m"] > 0)
     n_blade, n_tube = int(blade.sum()), int((~blade).sum())
     assert m.n_faces == n_blade * 2 * res.along * res.across + n_tube * 2 * res.along * res.around
+
+
+def test_organ_classes_split_each_leaf_into_its_basal_sheath_and_its_blade(plant_table):
+    """Sheaths are exactly the leaf segments where CPlantBox gives no blade surface, and each leaf
+    is its sheath (the basal zone) then its blade; the one-sided area is the blade's or 2πrL."""
+    cls = organ_class(plant_table)
+    leaf = plant_table["organ_type"].astype(str).to_numpy() == "leaf"
+    assert set(cls[leaf]) == {"blade", "sheath"} and set(cls[~leaf]) <= {"stem", "root", "other"}
+    np.testing.assert_array_equal(cls[leaf] == "sheath", plant_table["blade_area_m2"].to_numpy()[leaf] == 0)
+    for _, g in plant_table[leaf].groupby("organ_id"):
+        blade = organ_class(g.sort_values("segment_index")) == "blade"
+        assert blade.any() and np.all(np.diff(blade.astype(int)) >= 0)  # sheath first, then blade
+    area = one_sided_area_m2(plant_table)
+    t = plant_table
+    np.testing.assert_array_equal(area[cls == "blade"], t["blade_area_m2"].to_numpy()[cls == "blade"])
+    lateral = 2 * np.pi * t["radius_m"].to_numpy() * t["length_m"].to_numpy()
+    np.testing.assert_array_equal(area[cls != "blade"], lateral[cls != "blade"])
 
 
 def test_blade_perpendicular_to_branching_and_segment(plant_table):

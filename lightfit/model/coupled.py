@@ -35,7 +35,7 @@ from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denomina
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Forcing, Scenario
 from lightfit.photosynthesis import parameter_set
-from lightfit.plant import build
+from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import precision
 
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S + P) in
@@ -72,11 +72,8 @@ class CoupledModel:
         meas = seg[seg["measured"]].sort_values("segment_id")
         self.segments = meas.reset_index(drop=True)
         self.segment_id = meas["segment_id"].to_numpy()
-        # One-sided area: the blade's, or the lateral surface of stems and sheaths.
-        self.area_m2 = (
-            meas["blade_area_m2"].where(meas["blade_area_m2"] > 0, 2 * np.pi * meas["radius_m"] * meas["length_m"])
-        ).to_numpy()
-        self.is_blade = ((meas["organ_type"] == "leaf") & (meas["blade_area_m2"] > 0)).to_numpy()
+        self.area_m2 = one_sided_area_m2(meas)
+        self.is_blade = organ_class(meas) == "blade"
         if not self.is_blade.any():
             raise InputError(
                 "no leaf blades in the measurement area",

@@ -10,7 +10,15 @@ plant.export(geom.mesh, "field.ply")
 from lightfit.plant.cache import cache_dir, load_or_grow
 from lightfit.plant.export import export
 from lightfit.plant.field import Field, FieldGeometry, Tile, build
-from lightfit.plant.growth import GrowthConfig, grow_plant, plant_seed, resolve_parameter_file, shoot
+from lightfit.plant.growth import (
+    GrowthConfig,
+    grow_plant,
+    one_sided_area_m2,
+    organ_class,
+    plant_seed,
+    resolve_parameter_file,
+    shoot,
+)
 from lightfit.plant.mesh import Mesh, MeshResolution, expected_area, shoot_mesh
 from lightfit.plant.periodic import PeriodicCell
 
@@ -28,6 +36,8 @@ __all__ = [
     "export",
     "grow_plant",
     "load_or_grow",
+    "one_sided_area_m2",
+    "organ_class",
     "plant_seed",
     "resolve_parameter_file",
     "shoot",

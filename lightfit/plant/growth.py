@@ -49,6 +49,24 @@ CM = 0.01
 MAX_GROWTH_DAYS = 150
 
 
+def organ_class(segments: pd.DataFrame) -> np.ndarray:
+    """Each segment's organ class: ``"blade"`` (a leaf segment with blade width: a two-sided ribbon,
+    the only segments with photosynthesis), ``"sheath"`` (a leaf segment without: CPlantBox's basal
+    zone, a prism of the leaf radius; docs/plant.md), else its ``organ_type`` (``"stem"``,
+    ``"root"``, ``"other"``)."""
+    organ = segments["organ_type"].astype(str).to_numpy()
+    blade = (organ == "leaf") & (segments["blade_width_m"].to_numpy() > 0)
+    return np.where(blade, "blade", np.where(organ == "leaf", "sheath", organ))
+
+
+def one_sided_area_m2(segments: pd.DataFrame) -> np.ndarray:
+    """Each segment's one-sided area, m²: the blade area (one side) for blades, the lateral surface
+    2πrL for stems, sheaths and roots."""
+    blade = organ_class(segments) == "blade"
+    lateral = 2 * np.pi * segments["radius_m"].to_numpy() * segments["length_m"].to_numpy()
+    return np.where(blade, segments["blade_area_m2"].to_numpy(), lateral)
+
+
 def parameter_dir() -> Path:
     """CPlantBox's bundled plant structure parameter directory."""
     import plantbox

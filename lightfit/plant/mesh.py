@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.plant.growth import one_sided_area_m2, organ_class
 
 if TYPE_CHECKING:
     import trimesh
@@ -183,14 +184,13 @@ def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
 def shoot_mesh(segments: pd.DataFrame, res: MeshResolution = MeshResolution()) -> Mesh:
     """Mesh of the stems and leaves in a segment table (roots and zero-length segments skipped)."""
     seg = segments[segments["organ_type"].isin(["stem", "leaf"]) & (segments["length_m"] > 0)]
-    blade = (seg["organ_type"] == "leaf") & (seg["blade_width_m"] > 0)
-    tube = ~blade & (seg["radius_m"] > 0)
+    blade = organ_class(seg) == "blade"
+    tube = ~blade & (seg["radius_m"].to_numpy() > 0)
     return Mesh.concatenate([blade_mesh(seg[blade], res), prism_mesh(seg[tube], res)])
 
 
 def expected_area(segments: pd.DataFrame) -> pd.Series:
     """Area each segment's mesh should have, m²: blade area (one side) or 2πrL, by segment id."""
-    blade = (segments["organ_type"] == "leaf") & (segments["blade_width_m"] > 0)
-    area = np.where(blade, segments["blade_area_m2"], 2 * np.pi * segments["radius_m"] * segments["length_m"])
+    area = one_sided_area_m2(segments)
     keep = segments["organ_type"].isin(["stem", "leaf"]).to_numpy()
     return pd.Series(area[keep], index=segments["segment_id"].to_numpy()[keep])
