@@ -88,6 +88,7 @@ def test_organ_classes_split_each_leaf_into_its_basal_sheath_and_its_blade(plant
     """Sheaths are exactly the leaf segments where CPlantBox gives no blade surface, and each leaf
     is its sheath (the basal zone) then its blade; the one-sided area is the blade's or 2πrL."""
     cls = organ_class(plant_table)
+    assert cls.dtype.kind == "U"  # plain strings, which np.savez stores without pickle
     leaf = plant_table["organ_type"].astype(str).to_numpy() == "leaf"
     assert set(cls[leaf]) == {"blade", "sheath"} and set(cls[~leaf]) <= {"stem", "root", "other"}
     np.testing.assert_array_equal(cls[leaf] == "sheath", plant_table["blade_area_m2"].to_numpy()[leaf] == 0)

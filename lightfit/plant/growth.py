@@ -54,7 +54,7 @@ def organ_class(segments: pd.DataFrame) -> np.ndarray:
     the only segments with photosynthesis), ``"sheath"`` (a leaf segment without: CPlantBox's basal
     zone, a prism of the leaf radius; docs/plant.md), else its ``organ_type`` (``"stem"``,
     ``"root"``, ``"other"``)."""
-    organ = segments["organ_type"].astype(str).to_numpy()
+    organ = segments["organ_type"].to_numpy(dtype=str)
     blade = (organ == "leaf") & (segments["blade_width_m"].to_numpy() > 0)
     return np.where(blade, "blade", np.where(organ == "leaf", "sheath", organ))
 
