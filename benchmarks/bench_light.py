@@ -231,9 +231,7 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
     geom = build(Field(n_plants=4, buffer_rows=1, seed=2))
     fs = FieldScene(geom.mesh, Optics(soil_albedo=0.12))
     fs.set_sun(-10.0, 0.0)
-    seg = geom.segments[
-        geom.segments["measured"] & (geom.segments["organ_type"] == "leaf") & (geom.segments["blade_area_m2"] > 0)
-    ]
+    seg = geom.segments[geom.segments["measured"].to_numpy() & (organ_class(geom.segments) == "blade")]
     ids = seg["segment_id"].to_numpy()
     K = 256
     t_ours, r = _timed(lambda: SegmentEstimator(fs, ids, samples=K, bounces=bounces, seed=1).render(), 1)

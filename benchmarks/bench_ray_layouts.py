@@ -51,7 +51,7 @@ import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.periodic import LEAF
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build
+from lightfit.plant import Field, build, organ_class
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -124,7 +124,7 @@ def main(n_plants: int = 500, rays: float = 2e7, replicates: int = 8, vector_wid
     segments = geom.segments.set_index("segment_id")
     seg_id = np.unique(fs.scene_mesh.face_segment)
     row_of_face = np.searchsorted(seg_id, fs.scene_mesh.face_segment)
-    blade = segments.loc[seg_id, "blade_width_m"].to_numpy() > 0
+    blade = organ_class(segments.loc[seg_id]) == "blade"
     m = round(rays * cell.area_m2 / replicates)
     (ex, ey), (fx, fy) = cell.axes
     cx, cy = cell.center_xy

@@ -31,7 +31,7 @@ import lightfit  # noqa: F401
 from lightfit.light import projection
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build
+from lightfit.plant import Field, build, organ_class
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -50,7 +50,7 @@ def main(n_plants=(100, 500), rays=(1e7, 2e7, 5e7, 8e7, 1e8)) -> dict:
             fs = FieldScene(geom.mesh, Optics.preset("prospect"), cell=geom.cell)
             fs.set_sun(50.0, 180.0)
             ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
-            blade = geom.segments.set_index("segment_id").loc[ids, "blade_width_m"].to_numpy() > 0
+            blade = organ_class(geom.segments.set_index("segment_id").loc[ids]) == "blade"
             for rho in rays:
                 for name, tile in ORDERS.items():
                     projection.SKY_TILE = tile
