@@ -130,6 +130,35 @@ def organ_stats(rse: np.ndarray, organ: np.ndarray) -> dict:
     return out
 
 
+def blade_light_deciles(r, organ: np.ndarray, dhi: float = 0.3) -> dict:
+    r"""Which blades set the all-segment median: the blades by decile of absorbed PAR (DNI 1, DHI
+    ``dhi`` per unit one-sided area) with, per decile, the median absorbed PAR, relative SE, share
+    above the all-segment median and share of the variance from the sky part (the parts'
+    covariance left out), and the slope p of a least-squares fit
+    :math:`\log \mathrm{rse} = c - p \log v` over the blades (Poisson hits alone: p = ½)."""
+    v = r.total("absorbed", 1.0, dhi)
+    rse = r.relative_se("absorbed", 1.0, dhi)
+    all_median = float(np.median(rse[np.isfinite(rse)]))
+    b = (organ == "blade") & np.isfinite(rse) & (v > 0)
+    vb, rb = v[b], rse[b]
+    var_sun, var_sky = r.se["absorbed_sun"][b] ** 2, (dhi * r.se["absorbed_sky"][b]) ** 2
+    sky_share = var_sky / (var_sun + var_sky)
+    edges = np.quantile(vb, np.linspace(0, 1, 11))
+    dec = np.clip(np.searchsorted(edges, vb, side="right") - 1, 0, 9)
+    rows = [
+        {
+            "decile": int(i),
+            "absorbed_median": float(np.median(vb[dec == i])),
+            "rse_median": float(np.median(rb[dec == i])),
+            "share_above_all_median": float(np.mean(rb[dec == i] > all_median)),
+            "sky_variance_share_median": float(np.median(sky_share[dec == i])),
+        }
+        for i in range(10)
+    ]
+    slope = -float(np.polyfit(np.log(vb), np.log(rb), 1)[0])
+    return {"all_median": all_median, "deciles": rows, "rse_light_exponent": slope}
+
+
 def direct_projection_comparison(
     fs: FieldScene, ids: np.ndarray, bounces: int, settings, organ: np.ndarray | None = None
 ) -> dict:
@@ -207,6 +236,7 @@ def direct_projection_comparison(
                 "render_s": times[1],
                 "rse_absorbed": _stats(rse, np.asarray(r.meta["is_blade"], bool)),
                 **({"rse_absorbed_by_organ": organ_stats(rse, organ)} if organ is not None else {}),
+                **({"blades_by_absorbed_decile": blade_light_deciles(r, organ)} if organ is not None else {}),
                 "scale_for_2pct_median": f,
                 "extrapolated_s_at_2pct": times[1] * f,
                 "replicates": R,
@@ -446,6 +476,16 @@ def main(
                         f"  {name}s ({o['n']})",
                         f"median / p90 {o['median']:.2%} / {o['p90']:.2%}, "
                         f"{o['share_above_all_median']:.0%} above the all-segment median",
+                    )
+                if "blades_by_absorbed_decile" in q:
+                    bd = q["blades_by_absorbed_decile"]
+                    t.add_row(
+                        f"  blades by decile of absorbed PAR (rse ∝ v^-{bd['rse_light_exponent']:.2f})",
+                        "; ".join(
+                            f"{d['decile'] + 1}: v {d['absorbed_median']:.3f}, {d['rse_median']:.1%}, "
+                            f"{d['share_above_all_median']:.0%} above, sky {d['sky_variance_share_median']:.2f}"
+                            for d in bd["deciles"]
+                        ),
                     )
         elif k not in ("irradiancemeter", "earlier_runs"):
             t.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
