@@ -184,7 +184,11 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
         t.add_column(c, justify="right")
     for q in rows:
         t.add_row(
-            q["case"], f"{q['faces']:,}", f"{q['median_s']:.2f} s", f"{q['m_rays_per_s']:.2f}", f"{q['time_over_walk']:.2f}"
+            q["case"],
+            f"{q['faces']:,}",
+            f"{q['median_s']:.2f} s",
+            f"{q['m_rays_per_s']:.2f}",
+            f"{q['time_over_walk']:.2f}",
         )
     console.print(t)
     console.print(
