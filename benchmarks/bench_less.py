@@ -105,15 +105,16 @@ def lambertian_optics() -> Optics:
     )
 
 
-def export(geom, boundary: str, folder: Path, runs: list[dict]) -> dict:
+def export(geom, boundary: str, folder: Path, runs: list[dict], ground_half_m: float = GROUND_HALF_M) -> dict:
     """Write mesh.npz and job.json for less_runner.py; returns which exported face measures which
-    lightfit face (``measure``: index into the exported triangles, one per lightfit face)."""
+    lightfit face (``measure``: index into the exported triangles, one per lightfit face).
+    ``ground_half_m``: half-width of the soil quad around a finite field, m."""
     mesh = geom.mesh
     if boundary == "finite":
         tri = mesh.vertices[mesh.faces]
         centre = 0.5 * (mesh.vertices[:, :2].min(0) + mesh.vertices[:, :2].max(0))
-        shift = GROUND_HALF_M - centre
-        size = (2 * GROUND_HALF_M, 2 * GROUND_HALF_M)
+        shift = ground_half_m - centre
+        size = (2 * ground_half_m, 2 * ground_half_m)
         measure = np.arange(mesh.n_faces)
         repetitive = 0
     else:
@@ -218,6 +219,21 @@ def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
     }
 
 
+def agreement_classes(geom, seg_ids: np.ndarray, blade: np.ndarray) -> dict[str, np.ndarray]:
+    """The segment classes compared between the tools: blades, stems and all above the soil, and
+    apart the stems partly below it (CPlantBox starts each stem at the seed, 3 mm deep). lightfit
+    gives a buried point nothing; LESS's reverse tracer collects the sky for any ray that leaves
+    the scene, so a buried point there sees the sky from below its soil quad (and no sun)."""
+    s = geom.segments.set_index("segment_id").loc[seg_ids]
+    buried = (np.minimum(s["z0"].to_numpy(), s["z1"].to_numpy()) < 0).astype(bool)
+    return {
+        "blades": blade & ~buried,
+        "stems": ~blade & ~buried,
+        "all": ~buried,
+        "stems partly below the soil": ~blade & buried,
+    }
+
+
 def _timed_render(fs, ids, samples: int, seed: int) -> tuple[float, object]:
     """(seconds, render) of a fresh estimator (set-up + render, estimator freed): the faster of
     two identical runs, so that a one-off pause of the shared machine (or freeing the previous
@@ -262,6 +278,7 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
     blade = np.zeros(n_seg, bool)
     np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
     classes = {"blades": blade, "stems": ~blade, "all": np.ones(n_seg, bool)}
+    agree_classes = agreement_classes(geom, seg_ids, blade)
     # Per-class allocation (--allocated-samples): each class rendered on its own at its own K.
     alloc = {} if lf_alloc is None else {"blades": int(lf_alloc[0]), "stems": int(lf_alloc[1])}
     lf_class = {c: [] for c in alloc}
@@ -296,7 +313,7 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
         F = np.array([getattr(x[1], f"absorbed_{part}") for x in big])
         l_m, l_se = L.mean(0), L.std(0, ddof=1) / math.sqrt(reps)
         f_m, f_se = F.mean(0), F.std(0, ddof=1) / math.sqrt(reps)
-        res_agree[part] = {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in classes.items()}
+        res_agree[part] = {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in agree_classes.items()}
 
     # Noise and time at DNI 1, DHI 0.3.
     res_noise = {"less": {}, "lightfit": {}}

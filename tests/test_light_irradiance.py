@@ -367,3 +367,27 @@ def test_gradient_after_a_render_reuses_its_shadow_rays_bitwise(periodic):
         est.render()
         assert est._sun_key() in est._suns_kept  # kept, and used by the next vjp
         assert est.vjp(ct) == fresh
+
+
+@pytest.mark.parametrize("direct", ["paths", "projection"])
+def test_points_below_the_soil_receive_nothing(direct):
+    # A vertical wall (a stem-like, one-sided face) standing half in the soil, alone over black soil:
+    # its buried half gets nothing, so per unit of its whole area it sees half of what a free wall
+    # does: DHI/4 of sky and cos(i)/2 of direct sun. A face entirely below the soil gets exactly 0.
+    half = square([0.0, 0.0, 0.0], [0.0, -1.0, 0.0], 0.1, 7, blade=False)
+    buried = square([0.5, 0.0, -0.2], [0.0, -1.0, 0.0], 0.1, 8, blade=False)
+    mesh = Mesh.concatenate([half, buried])
+    if direct == "paths":
+        fs = FieldScene(mesh, BLACK)
+    else:  # a periodic cell wide enough that the wall's images hardly shade it (< 0.1 %)
+        from lightfit.plant.periodic import PeriodicCell
+
+        fs = FieldScene(mesh, BLACK, cell=PeriodicCell(along_m=2.0, across_m=2.0))
+    fs.set_sun(30.0, 180.0)
+    kw = {} if direct == "paths" else dict(direct="projection", direct_rays_per_m2=(2e6, 2e6))
+    r = SegmentEstimator(fs, [7, 8], samples=2000, bounces=1, seed=3, **kw).render()
+    cos_i = math.cos(math.radians(30.0))
+    assert r.incident_sky[0] == pytest.approx(0.25, abs=4 * r.se["incident_sky"][0] + 0.005)
+    assert r.incident_sun[0] == pytest.approx(cos_i / 2, abs=4 * r.se["incident_sun"][0] + 0.005)
+    for part in PARTS:
+        assert getattr(r, part)[1] == 0.0

@@ -389,6 +389,10 @@ class SegmentEstimator:
             n = [dr.select(back, -c, c) for c in n]
             valid = (n[0] != 0) | (n[1] != 0) | (n[2] != 0)
             n = [dr.select(valid, c, up) for c, up in zip(n, (0.0, 0.0, 1.0))]
+            # A point below the soil surface (CPlantBox starts each stem at the seed, 3 mm deep)
+            # receives nothing: the analytic soil stops rays going down only, so without this a
+            # buried point's rays going up would see the sun and sky (docs/light.md, "Model").
+            valid &= x[2] >= 0.0
             if self.fs.tracer is not None:
                 # A point on a face overhanging the periodic cell is the same point of the
                 # infinite field as its image inside the cell: rays start from there.
