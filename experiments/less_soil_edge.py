@@ -1,0 +1,161 @@
+"""Where LESS 3 and lightfit differ in canopy totals: the edge of LESS's soil (issue 16, item 3).
+
+    python experiments/less_soil_edge.py [--half-widths 5 12.5 50 200] [--replicates 4]
+
+Needs the LESS environment (README "Optional: LESS 3 peer"); without it, says so and stops.
+
+`benchmarks/bench_less.py` finds small canopy-total offsets between the two tools on the finite
+16-plant field that are beyond their noise (LESS ÷ lightfit − 1: sun on stems ≈ −1.3 %, sky on
+blades ≈ +0.6 %, on stems ≈ +1.2 %; docs/light.md "Peer: LESS 3"). lightfit's soil is an infinite
+plane; LESS gets an explicit Lambertian soil quad of half-width W around the field (its terrain is
+not seen by rays leaving leaves), and in LESS's reverse tracing a ray that leaves the scene in any
+direction, downward too, collects the sky. A ray from a leaf at height h going down within
+≈ atan(h / W) of the horizon misses the quad and sees the sky instead of the sunlit soil, so the
+offset this makes should fall as ≈ 1/W.
+
+This runs LESS (n = 64 per triangle side, ``--replicates`` face orders) on the same field with
+soil quads of several half-widths, and lightfit once (K = 256, the same number of seeds), and
+fits each canopy-total offset as c₀ + c₁/W: c₁ is the soil edge's share, c₀ what is left for an
+infinite soil. Settings are bench_less.py's (Lambertian leaf R 0.0825 / T 0.0675 per side, soil
+0.12, 3 scattering events, the sun of 2016-04-20 10:00 UTC, isotropic sky).
+
+Writes experiments/results/less_soil_edge.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
+
+from lightfit.light.estimator import SegmentEstimator  # noqa: E402
+from lightfit.light.scene import FieldScene  # noqa: E402
+from lightfit.plant import Field, build  # noqa: E402
+
+OUT = ROOT / "experiments" / "results" / "less_soil_edge.json"
+LESS_N, LIGHTFIT_K = 64, 256
+
+
+def main(half_widths: list[float], reps: int) -> dict | None:
+    console = Console()
+    if not bl.LESS_PYTHON.exists():
+        console.print(f"LESS not installed ({bl.LESS_PYTHON}): see README 'Optional: LESS 3 peer'. Nothing run.")
+        return None
+    geom = build(Field(n_plants=16, seed=1, boundary="finite"))
+    fs = FieldScene(geom.mesh, bl.lambertian_optics())
+    fs.set_sun(bl.SUN_ELEVATION_DEG, bl.SUN_AZIMUTH_DEG)
+    seg_ids = np.unique(geom.mesh.face_segment)
+    seg_index = np.searchsorted(seg_ids, geom.mesh.face_segment)
+    n_seg = len(seg_ids)
+    area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=n_seg)
+    blade = np.zeros(n_seg, bool)
+    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
+    classes = bl.agreement_classes(geom, seg_ids, blade)
+    classes = {"blades": classes["blades"], "stems": classes["stems"]}  # above the soil (see there)
+    lf = [
+        SegmentEstimator(fs, seg_ids, samples=LIGHTFIT_K, bounces=bl.BOUNCES, seed=r).render()
+        for r in range(1, reps + 1)
+    ]
+    console.print(f"lightfit: {reps} renders at K = {LIGHTFIT_K}")
+    rows = []
+    for w in half_widths:
+        runs = [
+            {"label": f"{part}_r{r}", "n_samples": LESS_N, "permutation_seed": r, "dni": dni, "dhi": dhi}
+            for r in range(1, reps + 1)
+            for part, dni, dhi in (("sun", 1.0, 0.0), ("sky", 0.0, 1.0))
+        ]
+        with tempfile.TemporaryDirectory(prefix="lightfit-less-edge-", ignore_cleanup_errors=True) as d:
+            folder = Path(d)
+            exp = bl.export(geom, "finite", folder, runs, ground_half_m=w)
+            for r in range(1, reps + 1):
+                proc = subprocess.run(
+                    [str(bl.LESS_PYTHON), str(bl.RUNNER), str(folder), str(r)], capture_output=True, text=True
+                )
+                if proc.returncode != 0:
+                    raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+            row = {"ground_half_width_m": w}
+            for part in ("sun", "sky"):
+                L = np.array(
+                    [
+                        bl.less_segments(folder, f"{part}_r{r}", geom, exp, seg_index, n_seg)[0]
+                        for r in range(1, reps + 1)
+                    ]
+                )
+                F = np.array([getattr(x, f"absorbed_{part}") for x in lf])
+                l_m, l_se = L.mean(0), L.std(0, ddof=1) / math.sqrt(reps)
+                f_m, f_se = F.mean(0), F.std(0, ddof=1) / math.sqrt(reps)
+                for c, m in classes.items():
+                    a = bl.agreement(l_m, l_se, f_m, f_se, area, m, reps)
+                    keep = ("canopy_total_bias", "canopy_total_bias_se", "median_abs_z")
+                    row[f"{part}_{c}"] = {k: a[k] for k in keep}
+        rows.append(row)
+        console.print(f"soil quad half-width {w} m done")
+    fits = {}
+    inv_w = 1.0 / np.asarray(half_widths)
+    for key in ("sun_blades", "sun_stems", "sky_blades", "sky_stems"):
+        y = np.array([r[key]["canopy_total_bias"] for r in rows])
+        s = np.array([r[key]["canopy_total_bias_se"] for r in rows])
+        X = np.stack([np.ones_like(inv_w), inv_w], 1) / s[:, None]
+        coef, *_ = np.linalg.lstsq(X, y / s, rcond=None)
+        cov = np.linalg.inv(X.T @ X)
+        fits[key] = {
+            "infinite_soil_offset": float(coef[0]),
+            "infinite_soil_offset_se": float(math.sqrt(cov[0, 0])),
+            "per_inverse_m": float(coef[1]),
+            "chi2_per_dof": float(np.sum(((X @ coef) - y / s) ** 2) / max(len(y) - 2, 1)),
+        }
+    res = {
+        **bl_commit(),
+        "plants_measured": 16,
+        "segments": n_seg,
+        "less_samples": LESS_N,
+        "lightfit_samples": LIGHTFIT_K,
+        "replicates": reps,
+        "rows": rows,
+        "fits_c0_plus_c1_over_w": fits,
+    }
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=2))
+    t = Table(title="canopy total, LESS ÷ lightfit − 1, by the half-width W of LESS's soil quad")
+    t.add_column("W")
+    keys = ("sun_blades", "sun_stems", "sky_blades", "sky_stems")
+    for k in keys:
+        t.add_column(k.replace("_", ", "), justify="right")
+    for r in rows:
+        t.add_row(
+            f"{r['ground_half_width_m']:g} m",
+            *(f"{r[k]['canopy_total_bias']:+.2%} ± {r[k]['canopy_total_bias_se']:.2%}" for k in keys),
+        )
+    t.add_row(
+        "fit, W → ∞",
+        *(f"{fits[k]['infinite_soil_offset']:+.2%} ± {fits[k]['infinite_soil_offset_se']:.2%}" for k in keys),
+    )
+    console.print(t)
+    return res
+
+
+def bl_commit() -> dict:
+    from bench_light import commit_state
+
+    return commit_state()
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--half-widths", type=float, nargs="+", default=[5.0, 12.5, 50.0, 200.0])
+    ap.add_argument("--replicates", type=int, default=4)
+    a = ap.parse_args()
+    main(a.half_widths, a.replicates)
