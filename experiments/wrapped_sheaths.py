@@ -1,0 +1,166 @@
+"""What wrapping the leaf sheaths around the stem would change (a measurement, not a model change).
+
+    python experiments/wrapped_sheaths.py [--n-plants 100]
+
+CPlantBox draws each wheat leaf's basal zone (its first 8 cm, no blade width: the sheath) as a
+0.6 mm rod leaning 13–24° from the vertical, so each blade starts 1.6–3.9 cm from its stem
+(docs/plant.md, "Leaf sheaths"; `experiments/canopy_structure.py`). A wheat sheath is a tube
+around the culm up to the collar. This experiment re-lays the sheaths that way on the main job's
+field — the measured plants as one periodic cell, seed 1, 20 April 2016 — and renders both:
+
+* each leaf's sheath segments go up the stem's axis at the leaf's node (the branching direction
+  CPlantBox records), keeping their lengths, as a tube of radius r_stem + (k + 1)·w, k the number
+  of the plant's leaves inserted above it (older sheaths outside younger ones) and w the leaf
+  radius CPlantBox gives the sheath (0.3 mm) taken as its wall thickness;
+* each blade is moved, unchanged in shape, so that it starts at the collar on the sheath's
+  surface, on the side its old collar lay.
+
+Rendered with the PROSPECT-D leaf and its bounces, K = 16, the direct light projected
+(1.5 × 10⁷ / 2 × 10⁷ rays per m², sun and sky), sun 50° / 180°, seed 2, absorbed PAR at DNI 1,
+DHI 0.3: canopy absorbed PAR per ground area by organ, the blades' per-segment distribution, the
+median relative SE per organ, and a ceptometer on the soil (the sensor of docs/model.md).
+
+Writes experiments/results/wrapped_sheaths.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from rich.console import Console
+from rich.table import Table
+
+from lightfit.precision import use_float64
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+OUT = Path(__file__).resolve().parent / "results" / "wrapped_sheaths.json"
+SUN_DEG = (50.0, 180.0)
+DHI_PER_DNI = 0.3
+ORGANS = ("blade", "sheath", "stem")
+
+
+def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
+    """The segment table with each leaf's sheath re-laid as a tube around its stem (module doc)."""
+    from lightfit.plant import organ_class
+
+    out = segments.copy()
+    organ = pd.Series(organ_class(segments), index=segments.index)
+    xyz0, xyz1 = ["x0", "y0", "z0"], ["x1", "y1", "z1"]
+    for _, plant in segments.groupby("plant_id"):
+        r_stem = float(plant.loc[organ[plant.index] == "stem", "radius_m"].max())
+        leaves = [g.sort_values("segment_index") for _, g in plant[plant["organ_type"] == "leaf"].groupby("organ_id")]
+        leaves.sort(key=lambda g: g["z0"].iloc[0])  # by node height: the lowest is the outermost
+        for k, leaf in enumerate(leaves):
+            sheath = leaf[organ[leaf.index] == "sheath"]
+            blade = leaf[organ[leaf.index] == "blade"]
+            if sheath.empty:
+                continue
+            p0 = sheath[xyz0].to_numpy()[0]
+            axis = sheath[["bx", "by", "bz"]].to_numpy()[0]
+            axis = axis / np.linalg.norm(axis)
+            s = np.concatenate([[0.0], np.cumsum(sheath["length_m"].to_numpy())])
+            nodes = p0 + s[:, None] * axis
+            wall = float(sheath["radius_m"].max())
+            out.loc[sheath.index, xyz0] = nodes[:-1]
+            out.loc[sheath.index, xyz1] = nodes[1:]
+            out.loc[sheath.index, "radius_m"] = r_stem + (len(leaves) - k) * wall
+            if blade.empty:
+                continue
+            old_collar = sheath[xyz1].to_numpy()[-1]
+            side = (old_collar - p0) - np.dot(old_collar - p0, axis) * axis
+            n = np.linalg.norm(side)
+            side = side / n if n > 0 else np.array([1.0, 0.0, 0.0])
+            shift = nodes[-1] + (r_stem + (len(leaves) - k) * wall) * side - old_collar
+            out.loc[blade.index, xyz0] = blade[xyz0].to_numpy() + shift
+            out.loc[blade.index, xyz1] = blade[xyz1].to_numpy() + shift
+    return out
+
+
+def render(segments: pd.DataFrame, geom, fld) -> dict:
+    from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
+    from lightfit.light.scene import FieldScene, Optics
+    from lightfit.light.sensors import SensorEstimator, ceptometer, measured_area
+    from lightfit.plant import one_sided_area_m2, organ_class
+    from lightfit.plant.mesh import shoot_mesh
+
+    optics = Optics.preset("prospect")
+    bounces = bounces_for_tolerance(0.01, optics)
+    fs = FieldScene(shoot_mesh(segments), optics, cell=geom.cell)
+    fs.set_sun(*SUN_DEG)
+    ids = segments.loc[segments["measured"], "segment_id"].to_numpy()
+    seg = segments.set_index("segment_id").loc[ids]
+    organ, area = organ_class(seg), one_sided_area_m2(seg)
+    r = SegmentEstimator(
+        fs, ids, samples=16, bounces=bounces, seed=2, direct="projection", direct_rays_per_m2=(1.5e7, 2e7)
+    ).render()
+    v = r.total("absorbed", 1.0, DHI_PER_DNI)
+    rse = r.relative_se("absorbed", 1.0, DHI_PER_DNI)
+    # Blades absorb on both sides: per unit one-sided area, times that area, is the segment's flux.
+    ground = geom.cell.area_m2
+    c = SensorEstimator(fs, [ceptometer(measured_area(fld))], samples=4096, bounces=bounces, seed=2).render()
+    above = np.sin(np.radians(SUN_DEG[0])) + DHI_PER_DNI  # PAR above the canopy, per unit DNI
+    cept = c.total("incident", 1.0, DHI_PER_DNI)[0] / above
+    cept_se = cept * c.relative_se("incident", 1.0, DHI_PER_DNI)[0]
+    out = {"ceptometer_transmittance": float(cept), "ceptometer_transmittance_se": float(cept_se), "organs": {}}
+    for o in ORGANS:
+        m = organ == o
+        ok = m & np.isfinite(rse)
+        out["organs"][o] = {
+            "absorbed_per_ground": float(np.sum(v[m] * area[m]) / ground),
+            "absorbed_per_area_p10_50_90": [float(x) for x in np.percentile(v[m], [10, 50, 90])],
+            "median_rse": float(np.median(np.where(ok, rse, np.inf)[m])),
+        }
+    finite = np.isfinite(rse)
+    # A segment without light has no relative SE: counted as above any target, not left out.
+    out["median_rse_all"] = float(np.median(np.where(finite, rse, np.inf)))
+    out["segments_without_light"] = int(np.sum(~finite))
+    return out
+
+
+def main(n_plants: int = 100) -> dict:
+    from lightfit.plant import Field, build
+
+    fld = Field(n_plants=n_plants, seed=1, boundary="periodic")
+    geom = build(fld)
+    wrapped = wrap_sheaths(geom.segments)
+    res = {
+        "n_plants": int(fld.n**2),
+        "sun_deg": SUN_DEG,
+        "dhi_per_dni": DHI_PER_DNI,
+        "rods (CPlantBox, today)": render(geom.segments, geom, fld),
+        "wrapped around the stem": render(wrapped, geom, fld),
+    }
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=2))
+    t = Table(title=f"sheaths as rods or as tubes around the stem: {res['n_plants']} plants, periodic cell")
+    t.add_column("quantity")
+    names = ("rods (CPlantBox, today)", "wrapped around the stem")
+    for n in names:
+        t.add_column(n, justify="right")
+    t.add_row(
+        "ceptometer transmittance",
+        *(f"{res[n]['ceptometer_transmittance']:.3f} ± {res[n]['ceptometer_transmittance_se']:.3f}" for n in names),
+    )
+    for o in ORGANS:
+        per_ground = (f"{res[n]['organs'][o]['absorbed_per_ground']:.4f}" for n in names)
+        t.add_row(f"{o}s: absorbed PAR per ground area", *per_ground)
+        t.add_row(
+            f"{o}s: per unit area p10 / 50 / 90",
+            *(" / ".join(f"{x:.3f}" for x in res[n]["organs"][o]["absorbed_per_area_p10_50_90"]) for n in names),
+        )
+        t.add_row(f"{o}s: median relative SE", *(f"{res[n]['organs'][o]['median_rse']:.2%}" for n in names))
+    t.add_row("all segments: median relative SE", *(f"{res[n]['median_rse_all']:.2%}" for n in names))
+    t.add_row("segments without light", *(str(res[n]["segments_without_light"]) for n in names))
+    Console().print(t)
+    return res
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n-plants", type=int, default=100)
+    main(ap.parse_args().n_plants)
