@@ -44,6 +44,9 @@ import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a pa
 from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
+from lightfit.precision import use_float64  # noqa: E402
+
+use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = ROOT / "experiments" / "results" / "less_soil_edge.json"
 LESS_N, LIGHTFIT_K = 64, 256
