@@ -90,7 +90,7 @@ BOUNCES = 3
 #: collects the sky for any ray that leaves the scene, downward too, so a ray from a leaf at
 #: height h that passes the quad's edge (within ≈ atan(h / W) below the horizon) sees sky instead
 #: of soil: +0.56 % sky on blades at 50 m, ≈ +0.1 % at 200 m (experiments/less_soil_edge.py).
-#: Vertices stay float32-exact to ≈ 15 µm at 200 m, 5 % of the thinnest radius (0.3 mm).
+#: In float32 a vertex at 200 m is kept to ≈ 15 µm, 5 % of the thinnest radius (0.3 mm).
 GROUND_HALF_M = 200.0
 LESS_WRAP_CAP = 100  # LESS's own default (repetitive=True)
 MIX_DHI = 0.3  # DHI / DNI of the noise runs (a clear day)
@@ -223,8 +223,9 @@ def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
 
 
 def agreement_classes(geom, seg_ids: np.ndarray, blade: np.ndarray) -> dict[str, np.ndarray]:
-    """The segment classes compared between the tools: blades, stems and all above the soil, and
-    apart the stems partly below it (CPlantBox starts each stem at the seed, 3 mm deep). lightfit
+    """The segment classes compared between the tools: blades, "stems" (stem and sheath prisms) and
+    all above the soil, and apart the stem and sheath segments partly below it (CPlantBox starts
+    each stem, and the leaf at its first node, at the seed, 3 mm deep). lightfit
     gives a buried point nothing; LESS's reverse tracer collects the sky for any ray that leaves
     the scene, so a buried point there sees the sky from below its soil quad (and no sun)."""
     s = geom.segments.set_index("segment_id").loc[seg_ids]
