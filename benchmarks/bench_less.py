@@ -222,6 +222,24 @@ def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
     }
 
 
+def run_less(folder: Path, rep: int) -> None:
+    """Run less_runner.py on the export in ``folder`` for replicate (face order) ``rep``."""
+    proc = subprocess.run([str(LESS_PYTHON), str(RUNNER), str(folder), str(rep)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+
+
+def part_agreement(folder, part: str, geom, exp: dict, seg_index, renders, area, classes: dict) -> dict:
+    """:func:`agreement` per class of the mean of LESS's replicates ``<part>_r1`` … and of
+    lightfit's ``renders`` (one per replicate) for ``part`` ("sun" or "sky")."""
+    reps, n_seg = len(renders), len(area)
+    L = np.array([less_segments(folder, f"{part}_r{r}", geom, exp, seg_index, n_seg)[0] for r in range(1, reps + 1)])
+    F = np.array([getattr(x, f"absorbed_{part}") for x in renders])
+    l_m, l_se = L.mean(0), L.std(0, ddof=1) / math.sqrt(reps)
+    f_m, f_se = F.mean(0), F.std(0, ddof=1) / math.sqrt(reps)
+    return {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in classes.items()}
+
+
 def agreement_classes(geom, seg_ids: np.ndarray, blade: np.ndarray) -> dict[str, np.ndarray]:
     """The segment classes compared between the tools: blades, "stems" (stem and sheath prisms) and
     all above the soil, and apart the stem and sheath segments partly below it (CPlantBox starts
@@ -297,10 +315,8 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
     less_wall = 0.0
     for rep in range(1, reps + 1):
         t = time.perf_counter()
-        proc = subprocess.run([str(LESS_PYTHON), str(RUNNER), str(folder), str(rep)], capture_output=True, text=True)
+        run_less(folder, rep)
         less_wall += time.perf_counter() - t
-        if proc.returncode != 0:
-            raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
         for k in lf_k:
             lf[k].append(_timed_render(fs, seg_ids, k, rep))
         for c, k in alloc.items():
@@ -311,13 +327,7 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
     res_agree = {}
     big = lf[max(lf_k)]
     for part in ("sun", "sky"):
-        L = np.array(
-            [less_segments(folder, f"{part}_r{r}", geom, exp, seg_index, n_seg)[0] for r in range(1, reps + 1)]
-        )
-        F = np.array([getattr(x[1], f"absorbed_{part}") for x in big])
-        l_m, l_se = L.mean(0), L.std(0, ddof=1) / math.sqrt(reps)
-        f_m, f_se = F.mean(0), F.std(0, ddof=1) / math.sqrt(reps)
-        res_agree[part] = {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in agree_classes.items()}
+        res_agree[part] = part_agreement(folder, part, geom, exp, seg_index, [x[1] for x in big], area, agree_classes)
 
     # Noise and time at DNI 1, DHI 0.3.
     res_noise = {"less": {}, "lightfit": {}}

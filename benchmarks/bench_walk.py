@@ -104,13 +104,7 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
     bounded.maxt = mi.Float((o_np[2] / -d_np[2]).astype(np.float32))  # to the soil plane
     dr.eval(o, d, bounded)
     big = tiled(fs.scene_mesh, cell)
-    props = mi.Properties()
-    tiles_shape = mi.Mesh("tiles", len(big.vertices), big.n_faces, props, False, False)
-    p = mi.traverse(tiles_shape)
-    p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(big.vertices.T, dtype=np.float32)))
-    p["faces"] = dr.ravel(mi.Vector3u(np.ascontiguousarray(big.faces.T, dtype=np.uint32)))
-    p.update()
-    tiles_scene = mi.load_dict({"type": "scene", "tiles": tiles_shape})
+    tiles_scene = FieldScene(big, optics).scene  # a finite scene: no periodic images, no tracer
 
     def walk(s):
         def run():

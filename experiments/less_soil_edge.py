@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -40,6 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
+from bench_light import commit_state  # noqa: E402
 
 from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.light.scene import FieldScene  # noqa: E402
@@ -66,8 +66,8 @@ def main(half_widths: list[float], reps: int) -> dict | None:
     area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=n_seg)
     blade = np.zeros(n_seg, bool)
     np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
-    classes = bl.agreement_classes(geom, seg_ids, blade)
-    classes = {"blades": classes["blades"], "stems": classes["stems"]}  # above the soil (see there)
+    above_soil = bl.agreement_classes(geom, seg_ids, blade)  # the buried bases apart: see there
+    classes = {c: above_soil[c] for c in ("blades", "stems")}
     lf = [
         SegmentEstimator(fs, seg_ids, samples=LIGHTFIT_K, bounces=bl.BOUNCES, seed=r).render()
         for r in range(1, reps + 1)
@@ -84,25 +84,11 @@ def main(half_widths: list[float], reps: int) -> dict | None:
             folder = Path(d)
             exp = bl.export(geom, "finite", folder, runs, ground_half_m=w)
             for r in range(1, reps + 1):
-                proc = subprocess.run(
-                    [str(bl.LESS_PYTHON), str(bl.RUNNER), str(folder), str(r)], capture_output=True, text=True
-                )
-                if proc.returncode != 0:
-                    raise SystemExit(f"less_runner failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+                bl.run_less(folder, r)
             row = {"ground_half_width_m": w}
+            keep = ("canopy_total_bias", "canopy_total_bias_se", "median_abs_z")
             for part in ("sun", "sky"):
-                L = np.array(
-                    [
-                        bl.less_segments(folder, f"{part}_r{r}", geom, exp, seg_index, n_seg)[0]
-                        for r in range(1, reps + 1)
-                    ]
-                )
-                F = np.array([getattr(x, f"absorbed_{part}") for x in lf])
-                l_m, l_se = L.mean(0), L.std(0, ddof=1) / math.sqrt(reps)
-                f_m, f_se = F.mean(0), F.std(0, ddof=1) / math.sqrt(reps)
-                for c, m in classes.items():
-                    a = bl.agreement(l_m, l_se, f_m, f_se, area, m, reps)
-                    keep = ("canopy_total_bias", "canopy_total_bias_se", "median_abs_z")
+                for c, a in bl.part_agreement(folder, part, geom, exp, seg_index, lf, area, classes).items():
                     row[f"{part}_{c}"] = {k: a[k] for k in keep}
         rows.append(row)
         console.print(f"soil quad half-width {w} m done")
@@ -121,7 +107,7 @@ def main(half_widths: list[float], reps: int) -> dict | None:
             "chi2_per_dof": float(np.sum(((X @ coef) - y / s) ** 2) / max(len(y) - 2, 1)),
         }
     res = {
-        **bl_commit(),
+        **commit_state(),
         "plants_measured": 16,
         "segments": n_seg,
         "less_samples": LESS_N,
@@ -148,12 +134,6 @@ def main(half_widths: list[float], reps: int) -> dict | None:
     )
     console.print(t)
     return res
-
-
-def bl_commit() -> dict:
-    from bench_light import commit_state
-
-    return commit_state()
 
 
 if __name__ == "__main__":
