@@ -10,7 +10,8 @@ one periodic cell) R replicates of m rays each are cast down from the canopy top
 through the cell (:meth:`PeriodicTracer.walk`, as the projection's first rays), in these layouts:
 
 * ``per-ray R2``: a jittered grid over the cell, each ray its own cosine-weighted direction (an R₂
-  sequence over the grid index, shifted per replicate): the projection's sky today;
+  sequence over the grid cells in the projection's tiled Z-order, ``projection.SKY_TILE``, shifted
+  per replicate): the projection's sky today;
 * ``tiles x bins``: the same rays traced in another order (5 cm tiles of the cell, then 8 × 8 bins
   of the direction's unit square): the values would be bitwise the same, only the order of the
   walk changes (what a sort would buy);
@@ -50,6 +51,7 @@ from rich.table import Table
 import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.periodic import LEAF
+from lightfit.light.projection import SKY_TILE, _sky_order
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build, organ_class
 from lightfit.precision import use_float64
@@ -78,13 +80,16 @@ def cosine_directions(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - u1))], 1)
 
 
-def jittered_grid(rng, cell, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cell-frame coordinates (a, b), m, of about m points, one per cell of a grid, row by row."""
+def jittered_grid(rng, cell, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell-frame coordinates (a, b), m, of about m points, one per cell of a grid, row by row, and
+    each point's place in the sky's direction sequence (the projection's tiled Z-order)."""
     A, B = (float(v) for v in cell.size_m)
     nx = max(1, round(math.sqrt(m * A / B)))
     ny = max(1, -(-m // nx))
-    c = np.arange(nx * ny)
-    return (c % nx + rng.random(c.size)) * A / nx - A / 2, (c // nx + rng.random(c.size)) * B / ny - B / 2
+    c = np.arange(nx * ny, dtype=np.uint64)
+    ia, ib = c % np.uint64(nx), c // np.uint64(nx)
+    j = _sky_order(ia, ib, SKY_TILE).astype(np.float64)
+    return (ia + rng.random(c.size)) * A / nx - A / 2, (ib + rng.random(c.size)) * B / ny - B / 2, j
 
 
 def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
@@ -97,11 +102,11 @@ def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
         a = np.concatenate([p[0] for p in parts])
         b = np.concatenate([p[1] for p in parts])
         return a, b, np.repeat(w, [len(p[0]) for p in parts], axis=0)
-    a, b = jittered_grid(rng, cell, m)
+    a, b, j = jittered_grid(rng, cell, m)
     if name == "sun":
         return a, b, np.repeat(sun[None, :], len(a), axis=0)
     c = np.arange(len(a))
-    u1, u2 = (shift[0] + c / _G) % 1, (shift[1] + c / _G**2) % 1
+    u1, u2 = (shift[0] + j / _G) % 1, (shift[1] + j / _G**2) % 1
     w = cosine_directions(u1, u2)
     if name == "tiles x bins":
         A, B = (float(v) for v in cell.size_m)
