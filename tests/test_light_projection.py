@@ -361,6 +361,33 @@ def test_extreme_suns_and_parameter_bounds_stay_finite(field, elevation):
         fs.set_sun(40.0, 150.0)
 
 
+def test_a_segment_without_area_gets_zero_light_not_nan():
+    """A segment whose faces are all degenerate has no area: the projection gives it 0 (as the paths
+    do), with a finite SE and gradient, and its neighbour's light is unchanged."""
+    from lightfit.plant.mesh import Mesh
+
+    cell = PeriodicCell(0.3, 0.3, row_direction_deg=90.0)
+    leaf = square([0.0, 0.0, 0.4], [0, 0, 1], 0.1, 7)
+    flat = Mesh(
+        np.array([[0, 0, 0.2], [0.05, 0, 0.2], [0.1, 0, 0.2]]), np.array([[0, 1, 2]]), np.array([9]), np.array([True])
+    )
+    kw = dict(samples=8, bounces=1, seed=2, direct="projection", direct_rays_per_m2=2e6)
+    ests, rs = [], []
+    for mesh, ids in ((Mesh.concatenate([leaf, flat]), [7, 9]), (leaf, [7])):
+        fs = FieldScene(mesh, OPTICS, cell=cell)
+        fs.set_sun(50.0, 180.0)
+        ests.append(SegmentEstimator(fs, ids, **kw))
+        rs.append(ests[-1].render())
+    r = rs[0]
+    assert r.meta["area_m2"][1] == 0.0
+    for p in ("incident_sun", "absorbed_sun", "incident_sky", "absorbed_sky"):
+        assert getattr(r, p)[1] == 0.0 and r.se[p][1] == 0.0, p
+        assert getattr(r, p)[0] == getattr(rs[1], p)[0], p
+    assert r.front("incident_sun")[0] == pytest.approx(math.sin(math.radians(50.0)), rel=0.02)  # nothing above
+    grad = ests[0].vjp({"absorbed_sun": np.ones(2), "absorbed_sky": np.ones(2)})
+    assert all(np.isfinite(v) for v in grad.values())
+
+
 def test_gradient_of_incident_light_includes_the_projected_scattering(field):
     """With a projection the light scattered once by a leaf reaches a segment through the leaf's
     BSDF weight, so even incident light depends on the leaf parameters: its gradient equals

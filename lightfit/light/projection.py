@@ -245,7 +245,9 @@ class DirectProjection:
             self.grid[kind] = (nx, max(1, -(-m // nx)))
         seg = np.asarray(segment_ids, dtype=np.int64)
         self.S = len(seg)
-        self._inv_area = 1.0 / np.asarray(area_m2, dtype=np.float64)
+        # A segment without area gets no hits and 0 light, as the paths give it (not 0 × ∞).
+        area = np.asarray(area_m2, dtype=np.float64)
+        self._inv_area = np.divide(1.0, area, out=np.zeros_like(area), where=area > 0)
         geometry = field_scene.scene_mesh
         pos = np.minimum(np.searchsorted(seg, geometry.face_segment), len(seg) - 1)
         row = np.where(seg[pos] == geometry.face_segment, pos, _NONE).astype(np.uint32)
