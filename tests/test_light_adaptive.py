@@ -164,6 +164,27 @@ def test_render_key_names_the_target(adaptive_model):
     keys = [render_key(x) for x in (adaptive_model, fixed, other)]
     assert keys[0]["target_rse"] == 0.1 and "target_rse" not in keys[1]  # fixed-K keys unchanged
     assert keys[0] != keys[1] and keys[0] != keys[2]
+    assert "allocated_at" not in keys[1]
+
+
+def test_render_key_names_where_the_allocation_was_chosen(adaptive_model):
+    """The same times, target and field under another sky at the highest sun: another allocation
+    (each segment's K weighs its sun and sky parts by that step's PAR), so another key."""
+    import dataclasses
+
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.emulator import render_key
+
+    w = adaptive_model.scenario.weather.copy()
+    w.iloc[1, w.columns.get_loc("dhi_w_m2")] *= 0.5
+    other = CoupledModel(dataclasses.replace(adaptive_model.scenario, weather=w), sensors=())
+    a, b = adaptive_model.allocation_point, other.allocation_point
+    assert np.array_equal(a[1], b[1]) and a[3] != b[3]  # same sun, another diffuse PAR
+    ka, kb = render_key(adaptive_model), render_key(other)
+    assert ka["allocated_at"]["dni_dhi_par"] == [a[2], a[3]]
+    assert ka != kb and {k: v for k, v in ka.items() if k != "allocated_at"} == {
+        k: v for k, v in kb.items() if k != "allocated_at"
+    }
 
 
 def test_render_key_names_the_projection_and_its_version(adaptive_model):

@@ -106,7 +106,7 @@ def _digest(*arrays) -> str:
 
 def render_key(model: CoupledModel) -> dict:
     """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
-    settings (samples, bounces, seed; target_rse and the cap when adaptive; the projection and its
+    settings (samples, bounces, seed; when adaptive the target, the cap and the allocation point; the projection and its
     rays when the direct light is projected), sky, optics, the field
     (plants, growth parameter file, boundary) and its geometry (hash of the segment table), the
     measured segments, times, sun positions and the daytime mask, and the lightfit, estimator
@@ -141,7 +141,7 @@ def render_key(model: CoupledModel) -> dict:
         "sun": _digest(np.asarray(model.sun_deg, np.float64)),
         "day": _digest(np.asarray(model.day, bool)),
         # Adaptive sampling only: absent at a fixed K, so the keys of fixed-K caches stay as they were.
-        **({} if sc.target_rse is None else {"target_rse": float(sc.target_rse), "max_samples": MAX_ADAPTIVE_SAMPLES}),
+        **({} if sc.target_rse is None else _allocation_key(model)),
         # Projected direct light only: absent with the paths' (the keys of earlier caches); the
         # projection's version from its second on (keys made with the first lack it).
         **(
@@ -153,6 +153,22 @@ def render_key(model: CoupledModel) -> dict:
                 "projection_version": PROJECTION_VERSION,
             }
         ),
+    }
+
+
+def _allocation_key(model: CoupledModel) -> dict:
+    """What fixes an adaptive allocation (``Scenario.target_rse``): the target, the cap, and the
+    point it is chosen at (:attr:`CoupledModel.allocation_point`: leaf, sun, the PAR weighting the
+    sun and sky parts), so renders made under another allocation are not reused."""
+    leaf, sun, dni, dhi = model.allocation_point
+    return {
+        "target_rse": float(model.scenario.target_rse),
+        "max_samples": MAX_ADAPTIVE_SAMPLES,
+        "allocated_at": {
+            "leaf": [float(x) for x in leaf],
+            "sun_deg": [float(x) for x in sun],
+            "dni_dhi_par": [dni, dhi],
+        },
     }
 
 
