@@ -270,8 +270,9 @@ def test_bad_settings_are_refused(field):
     fs, ids = field
     with pytest.raises(InputError, match="direct"):
         SegmentEstimator(fs, ids, direct="rasterised")
-    with pytest.raises(InputError, match="direct_rays_per_m2"):
-        SegmentEstimator(fs, ids, direct="projection", direct_rays_per_m2=0)
+    for bad in (0, "12", (1e6,), (1e6, float("nan")), True):  # "12" is not the pair (1, 2)
+        with pytest.raises(InputError, match="direct_rays_per_m2"):
+            SegmentEstimator(fs, ids, direct="projection", direct_rays_per_m2=bad)
     with pytest.raises(InputError, match="first"):
         SegmentEstimator(fs, ids, direct="projection", first=8)
     finite = FieldScene(fs.mesh, OPTICS)

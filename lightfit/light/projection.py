@@ -87,7 +87,11 @@ def check_rays(rays_per_m2) -> tuple[float, float]:
         out = tuple(float(v) for v in pair)
     except (TypeError, ValueError):
         out = ()
-    if len(out) != 2 or isinstance(rays_per_m2, bool) or not all(math.isfinite(v) and v > 0 for v in out):
+    if (
+        len(out) != 2
+        or isinstance(rays_per_m2, (bool, str, bytes))  # a string's characters are not a pair
+        or not all(math.isfinite(v) and v > 0 for v in out)
+    ):
         raise InputError(
             f"direct_rays_per_m2={rays_per_m2!r}",
             column="direct_rays_per_m2",
