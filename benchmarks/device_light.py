@@ -10,7 +10,7 @@ git-ignored folder ``device/``:
 * ``wheels/``: the cp312 Mitsuba and Dr.Jit wheels (the versions pinned in pyproject.toml) with what
   lightfit never loads taken out — the other eight ``*_ad_*`` and the scalar variants' extension
   modules, the headers, the spectral upsampling table and the volume, curve and other plugins that
-  no lightfit scene names — 67 → 31 MiB;
+  no lightfit scene names — 64 → 31 MiB;
 * ``geometry.npz``: the bench cell's mesh (``build(Field(n_plants, seed=1, boundary="periodic"))``,
   as ``bench_light.py`` grows it; CPlantBox is not needed there), its periodic cell, the PROSPECT-D
   optics, each segment's organ class, the commit it was prepared at, and a reference render made
