@@ -111,6 +111,20 @@ def test_scenario_refuses_bad_target_rse(bad):
         Scenario(weather=rep.forcing().iloc[[14]], target_rse=bad)
 
 
+def test_one_check_of_target_rse_everywhere():
+    """The scenario, the bridge, the estimators and the command line take target_rse through one
+    check: numpy numbers pass, strings, bools, NaN and the ends of (0, 1) do not."""
+    from lightfit.light.bridge import make_irradiance
+    from lightfit.light.estimator import check_target_rse
+
+    assert check_target_rse(np.float32(0.25)) == pytest.approx(0.25) and check_target_rse(0.1) == 0.1
+    for bad in (0, 1, float("nan"), True, "0.1"):
+        with pytest.raises(InputError, match="relative standard error in \\(0, 1\\)"):
+            check_target_rse(bad)
+        with pytest.raises(InputError, match="target_rse"):
+            make_irradiance(None, [1], target_rse=bad)
+
+
 @pytest.fixture(scope="module")
 def adaptive_model():
     from lightfit import replication as rep

@@ -23,6 +23,7 @@ from typing import Annotated, Any
 import typer
 
 from lightfit.errors import InputError
+from lightfit.light.estimator import check_target_rse
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
@@ -512,10 +513,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
-    if s.target_rse is not None and not 0 < s.target_rse < 1:
-        raise InputError(
-            f"--target-rse {s.target_rse}", column="target_rse", expected="a relative standard error in (0, 1)"
-        )
+    if s.target_rse is not None:
+        check_target_rse(s.target_rse, "--target-rse")
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
     _option_error(s.window, "--start-time, --hours or --step")

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
-from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator
+from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
@@ -83,8 +83,8 @@ def make_irradiance(
     Gradients flow to ``leaf`` only.
     """
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
-    if target_rse is not None and not (isinstance(target_rse, (int, float)) and 0 < target_rse < 1):
-        raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
+    if target_rse is not None:
+        check_target_rse(target_rse)
     n_seg = len(ids)
     n_out = n_seg + len(sensors)
     lock = threading.Lock()

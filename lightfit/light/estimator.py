@@ -181,6 +181,15 @@ class Irradiance:
         return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
 
 
+def check_target_rse(value, label: str = "target_rse") -> float:
+    """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1).
+    ``label`` names the value in the error (e.g. the command line's ``--target-rse``)."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not (ok and 0 < value < 1):
+        raise InputError(f"{label}={value!r}", column="target_rse", expected="a relative standard error in (0, 1)")
+    return float(value)
+
+
 def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
 
@@ -950,8 +959,7 @@ def samples_for_accuracy(
     and sky parts (default: a clear day's DHI/DNI ≈ 0.3). Segments receiving nothing (zero
     absorbed light) are ignored.
     """
-    if not 0 < target_rse < 1:
-        raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
+    check_target_rse(target_rse)
     r = SegmentEstimator(field_scene, segment_ids, samples=pilot, bounces=bounces, seed=seed).render()
     rse = r.relative_se("absorbed", dni, dhi)
     rse = rse[np.isfinite(rse)]
@@ -1087,8 +1095,7 @@ def render_adaptive(
     of a ``direct="paths"`` render with its K. ``meta["projected"]``: whose direct light is
     projected.
     """
-    if not 0 < target_rse < 1:
-        raise InputError(f"target_rse={target_rse!r}", column="target_rse", expected="a relative error in (0, 1)")
+    check_target_rse(target_rse)
     if not isinstance(pilot, (int, np.integer)) or pilot < 32:
         raise InputError(f"pilot={pilot!r}", column="pilot", expected="an integer ≥ 32 (8 replicates)")
     if not isinstance(growth, (int, np.integer)) or growth < 2:

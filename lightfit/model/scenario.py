@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.light.estimator import check_target_rse
 from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
@@ -180,11 +181,8 @@ class Scenario:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
-        t = self.target_rse
-        if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1):
-            raise InputError(
-                f"target_rse={t!r}", column="target_rse", expected="a relative standard error in (0, 1), or None"
-            )
+        if self.target_rse is not None:
+            check_target_rse(self.target_rse)
         self.direct = resolve_direct(self.direct, self.field.boundary)
         self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
         h = self.ceptometer_height_m
