@@ -28,6 +28,7 @@ from lightfit.inference.observations import SERIES, align, read_observations
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
 from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
@@ -79,6 +80,9 @@ class ReplicationConfig:
     (:attr:`lightfit.model.scenario.Scenario.target_rse`).
     ``direct``: ``"auto"`` (default) → the direct light by projection in a periodic field, from the
     paths in a finite one; ``"projection"`` or ``"paths"`` to choose (:attr:`Scenario.direct`).
+    ``direct_rays_per_m2``: the projection's (sun, sky) rays per m² of ground
+    (:attr:`Scenario.direct_rays_per_m2`; more rays, less per-segment noise, docs/light.md
+    "Recommended settings").
     """
 
     n_plants: int = 100
@@ -90,6 +94,7 @@ class ReplicationConfig:
     bounces: int | None = None
     target_rse: float | None = None
     direct: str = "auto"
+    direct_rays_per_m2: tuple[float, float] = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
     render_seed: int = 0
     par_kind: str = "absorbed"
@@ -325,6 +330,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         seed=cfg.render_seed,
         target_rse=cfg.target_rse,
         direct=cfg.direct,
+        direct_rays_per_m2=cfg.direct_rays_per_m2,
         ceptometer_height_m=cfg.ceptometer_height_m,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,

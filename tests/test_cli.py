@@ -171,6 +171,39 @@ def test_replicate_names_the_bounces_and_samples_it_renders(tmp_path, monkeypatc
     assert f"K={k}, {bounces} bounces" in out and "None bounces" not in out
 
 
+def test_direct_rays_option_reaches_the_scenario_and_is_a_render_setting(tmp_path, monkeypatch):
+    """--direct-rays-per-m2 SUN,SKY (or one number for both) sets the projection's rays of the run's
+    scenario and is named on the "running:" line; with the paths' direct light it is refused; a run
+    stored before the option existed compares as the default."""
+    from lightfit import replication
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+    from lightfit.errors import InputError
+    from lightfit.light.projection import DEFAULT_RAYS_PER_M2
+
+    seen = []
+
+    def stop(cfg, **kwargs):
+        seen.append(replication.scenario_for(cfg, replication.forcing_of(cfg)).direct_rays_per_m2)
+        raise InputError("stopped before rendering", column="test", expected="nothing")
+
+    monkeypatch.setattr(replication, "run", stop)
+    for given, rays in (("1e7,6e7", (1e7, 6e7)), ("2e7", (2e7, 2e7))):
+        r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--direct-rays-per-m2", given])
+        assert r.exit_code == 2 and seen[-1] == rays, r.output
+        assert "{:.3g} / {:.3g} sun / sky rays per m²".format(*rays) in " ".join(r.stdout.split())
+    r = runner.invoke(
+        app, ["replicate", "--quick", "--out", str(tmp_path), "--direct", "paths", "--direct-rays-per-m2", "1e7"]
+    )
+    assert_user_error(r, "--direct-rays-per-m2", "paths")
+    default, more = resolve(ModelOptions(quick=True)), resolve(ModelOptions(quick=True, direct_rays_per_m2="1e7"))
+    assert default.direct_rays_per_m2 == DEFAULT_RAYS_PER_M2
+    stored_before = {k: v for k, v in default.as_dict().items() if k != "direct_rays_per_m2"}
+    assert changed_settings(stored_before, default) == []
+    assert changed_settings(default.as_dict(), more) == [
+        "direct_rays_per_m2: [2500000.0, 10000000.0] → [10000000.0, 10000000.0]"
+    ]
+
+
 def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
     r = runner.invoke(
         app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(FIXTURE), "--steps", "14:16"]
@@ -372,6 +405,7 @@ BAD_VALUES = {
     "--n-plants": ["0", "x"],
     "--field-seed": ["-3"],
     "--buffer-rows": ["2"],
+    "--direct-rays-per-m2": ["0", "1e7,x", "1e6,2e6,3e6", "nan"],
 }
 #: Options that need others to be wrong (a site's coordinates come together).
 WITH = {"--latitude": ["--longitude", "6", "--timezone", "UTC"], "--timezone": ["--latitude", "50", "--longitude", "6"]}

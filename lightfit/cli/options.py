@@ -24,6 +24,7 @@ import typer
 
 from lightfit.errors import InputError
 from lightfit.light.estimator import check_target_rse
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
@@ -58,6 +59,7 @@ class ModelOptions:
     bounces: int | None = None
     target_rse: float | None = None
     direct: str | None = None
+    direct_rays_per_m2: str | None = None
     ceptometer_height_m: float | None = None
     render_seed: int | None = None
     par_kind: str | None = None
@@ -94,6 +96,7 @@ class ModelSettings:
     bounces: int
     target_rse: float | None
     direct: str
+    direct_rays_per_m2: tuple[float, float]
     ceptometer_height_m: float
     render_seed: int
     par_kind: str
@@ -132,6 +135,7 @@ class ModelSettings:
             bounces=self.bounces,
             target_rse=self.target_rse,
             direct=self.direct,
+            direct_rays_per_m2=tuple(self.direct_rays_per_m2),
             ceptometer_height_m=self.ceptometer_height_m,
             render_seed=self.render_seed,
             par_kind=self.par_kind,
@@ -244,6 +248,16 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "down over the periodic cell: same expectation, a fraction of the noise), paths (each sample "
             "point's own rays; what finite fields need) or auto (default: projection in a periodic field, "
             "paths in a finite one).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "direct_rays_per_m2": (
+        str | None,
+        typer.Option(
+            "--direct-rays-per-m2",
+            help="Rays per m² of ground the projection casts for the direct light: one number for sun and sky, "
+            "or SUN,SKY (default 2.5e6,1e7). More rays, less per-segment noise at a cost per cell area "
+            "(e.g. 1e7,1e7 or 1e7,6e7 for per-leaf light: docs/light.md, Recommended settings).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -490,6 +504,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         bounces=given(opts.bounces, base.bounces),
         target_rse=given(opts.target_rse, base.target_rse),
         direct=direct,
+        direct_rays_per_m2=_rays(opts.direct_rays_per_m2, direct, base.direct_rays_per_m2),
         ceptometer_height_m=given(opts.ceptometer_height_m, base.ceptometer_height_m),
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),
@@ -585,6 +600,25 @@ def _site(opts: ModelOptions) -> Site:
     )
 
 
+def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[float, float]:
+    """``--direct-rays-per-m2``: one number or ``SUN,SKY``, only with the projected direct light."""
+    from lightfit.light.projection import check_rays
+
+    if text is None:
+        return tuple(default)
+    if direct != "projection":
+        raise InputError(
+            f"--direct-rays-per-m2 {text} with the direct light from the paths",
+            column="direct_rays_per_m2",
+            expected="the projected direct light (--direct projection or auto, a periodic field)",
+        )
+    try:
+        parts = [float(v) for v in text.split(",")]
+    except ValueError:
+        parts = []
+    return check_rays(parts[0] if len(parts) == 1 else tuple(parts) or text)
+
+
 #: Settings that change what the model renders: a cached emulator is valid only for the same values.
 RENDER_SETTINGS = (
     "n_plants",
@@ -596,6 +630,7 @@ RENDER_SETTINGS = (
     "bounces",
     "target_rse",
     "direct",
+    "direct_rays_per_m2",
     "ceptometer_height_m",
     "render_seed",
     "optics",
@@ -618,13 +653,15 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     (its ``config``) and ``s``. Settings written before the periodic boundary have no
     ``boundary``: they were finite fields; settings written before leaf optics have no
     ``optics``: they had the grey leaf (``paper``); settings written before the projected direct
-    light have no ``direct``: their paths carried it. ``previous=None`` (nothing stored): no difference.
+    light have no ``direct``: their paths carried it; settings written before
+    ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
     """
     if previous is None:
         return []
     now = s.as_dict()
     # Settings stored before a key existed ran with what is now its default.
     before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths"}
+    before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 
