@@ -82,8 +82,8 @@ def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
         R = reps["absorbed_sun"].shape[1]
         x = r.total("absorbed", dni, dhi)
         sd_without = np.hypot(dni * r.se["absorbed_sun"], dhi * r.se["absorbed_sky"])
-        sd_with = r.relative_se("absorbed", dni, dhi) * np.abs(x)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # segments without light: SD 0, ratio NaN
+            sd_with = np.where(x != 0, r.relative_se("absorbed", dni, dhi) * np.abs(x), 0.0)
             ratio = sd_without / sd_with
         x_rep = dni * reps["absorbed_sun"] + dhi * reps["absorbed_sky"]  # (S, R)
 

@@ -221,6 +221,26 @@ def test_render_key_names_the_projection_and_its_version(adaptive_model):
     assert "direct" not in render_key(adaptive_model)  # a finite field: the paths
 
 
+def test_a_restricted_adaptive_model_allocates_at_its_own_point(adaptive_model):
+    """Restricted to the 07:30 step after the whole run's irradiance was built, an adaptive model
+    builds its own, allocated where its render key says (the kept step's sun), as a fresh model of
+    that step (e.g. on a Dask worker) would."""
+    from lightfit.model.emulator import render_key, restrict
+
+    m = adaptive_model
+    whole = m.irradiance
+    keep = np.zeros(len(m.day), bool)
+    keep[np.flatnonzero(m.day)[0]] = True
+    sub, fresh = restrict(m, keep), None
+    assert sub.irradiance is not whole
+    m.__dict__.pop("irradiance")
+    try:
+        fresh = restrict(m, keep)
+        assert render_key(fresh) == render_key(sub) and fresh.allocation_point[1][0] < m.allocation_point[1][0]
+    finally:
+        m.__dict__["irradiance"] = whole
+
+
 @pytest.mark.parametrize("value", ["0", "1.5"])
 def test_cli_refuses_bad_target_rse_in_one_line(value, tmp_path):
     from typer.testing import CliRunner

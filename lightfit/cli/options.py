@@ -614,9 +614,13 @@ def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[
         )
     try:
         parts = [float(v) for v in text.split(",")]
-    except ValueError:
-        parts = []
-    return check_rays(parts[0] if len(parts) == 1 else tuple(parts) or text)
+        return check_rays(parts[0] if len(parts) == 1 else tuple(parts))
+    except (ValueError, InputError):
+        raise InputError(
+            f"--direct-rays-per-m2 {text}",
+            column="direct_rays_per_m2",
+            expected="rays per m² of ground > 0: one number, or SUN,SKY (e.g. 1e7,6e7)",
+        ) from None
 
 
 #: Settings that change what the model renders: a cached emulator is valid only for the same values.

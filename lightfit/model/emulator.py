@@ -591,6 +591,11 @@ def restrict(model: CoupledModel, keep, rendered=None) -> CoupledModel:
     )
     if model.light == model.render:  # a bound method of the original: render the kept steps instead
         other.light = other.render
+    if model.scenario.target_rse is not None:
+        # An adaptive allocation is chosen at the kept steps' highest sun (allocation_point, and so
+        # render_key, of ``other``), as a fresh model of these steps would choose it: the original's
+        # irradiance, if built, was allocated at the whole run's.
+        other.__dict__.pop("irradiance", None)
     return other
 
 
