@@ -258,6 +258,9 @@ def test_cplantbox_needs_a_date():
         read_weather(CPB)
     with pytest.raises(InputError, match="not a date"):
         read_cplantbox_day(CPB, "the twentieth")
+    for clock_change in ("2016-03-27", "2016-10-30"):  # local 02:00–03:00 missing / twice: not a traceback
+        with pytest.raises(InputError, match="ambiguous or do not exist in Europe/Berlin"):
+            read_cplantbox_day(CPB, clock_change)
 
 
 def test_resample_mean_and_sample():
@@ -280,6 +283,30 @@ def test_window_is_the_papers_29_steps():
     assert "sun_elevation_deg" not in w.columns  # only recomputed where the input had it
     with pytest.raises(InputError, match="not covered"):
         window(df, "2016-04-20 20:00", 14)
+
+
+def test_window_steps_run_through_its_start_or_it_says_why_not():
+    """A start off the series' 30-min grid (05:15 local on 10-min data): averaged windows are centred
+    on 05:15, 05:45, … (29 steps; they were silently moved to 05:30 with a step lost), sampled ones
+    refuse what the source has no value at and take 05:10 as given; a step finer than the source's
+    is refused when averaging too (it silently returned the source step); resampling keeps the
+    input's direct/diffuse split model."""
+    from lightfit.weather.solar import add_solar
+
+    df = read_weather(bundled_path("2016-04-20"))
+    t0 = pd.Timestamp("2016-04-20 03:15", tz="UTC")
+    m = window(df, "2016-04-20 05:15", 14, "30min", how="mean")
+    assert len(m) == 29 and m.index[0] == t0 and m.index[-1] == t0 + pd.Timedelta(hours=14)
+    src = df["par_umol_m2_s"].loc[t0 - pd.Timedelta("15min") : t0 + pd.Timedelta("14min")]
+    assert len(src) == 3 and m["par_umol_m2_s"].iloc[0] == pytest.approx(src.mean())
+    with pytest.raises(InputError, match="cannot sample at 30min"):
+        window(df, "2016-04-20 05:15", 14, "30min")
+    s = window(df, "2016-04-20 05:10", 14, "30min")
+    assert len(s) == 29 and s["par_umol_m2_s"].iloc[0] == df["par_umol_m2_s"].loc["2016-04-20 03:10+00:00"]
+    with pytest.raises(InputError, match="cannot average at 5min"):
+        resample(df, "5min", "mean")
+    boland = add_solar(df, split_model="boland")
+    assert resample(boland, "30min", "mean").attrs["split_model"] == "boland"
 
 
 def test_missing_rows_are_named_in_the_files_terms(tmp_path):

@@ -107,7 +107,17 @@ def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -
             expected="timestamps like 2016-04-20 12:10:00",
         )
     idx = pd.DatetimeIndex(t)
-    idx = idx.tz_localize(tz, ambiguous="raise", nonexistent="raise") if idx.tz is None else idx
+    if idx.tz is None:
+        try:
+            idx = idx.tz_localize(tz, ambiguous="raise", nonexistent="raise")
+        except ValueError as e:  # pandas' AmbiguousTimeError / NonExistentTimeError: a clock change
+            raise InputError(
+                f"local times that are ambiguous or do not exist in {tz} ({e})",
+                file=file,
+                column=column,
+                expected="times that exist once in that zone: a day without a daylight-saving change, "
+                "or times with a UTC offset",
+            ) from None
     return idx.tz_convert("UTC")
 
 

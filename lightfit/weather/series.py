@@ -292,7 +292,7 @@ def check_and_repair(
     return df
 
 
-def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.DataFrame:
+def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=None) -> pd.DataFrame:
     """Change the time step of a contract series.
 
     Args:
@@ -300,25 +300,37 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.Dat
         how: ``"mean"`` averages the values in a window centred on each new timestamp (keeps
             daily radiation sums); ``"sample"`` takes the value at each new timestamp (what the
             reference paper did when it "sub-sampled 10-minute intervals to 30 minutes").
+        origin: a timestamp (tz-aware) the new steps pass through, e.g. a run's first step;
+            ``None``: the series' first timestamp (``"sample"``) or midnight (``"mean"``).
 
+    A step finer than the source's is refused for both (``"mean"`` would leave empty windows).
     Solar geometry is recomputed at the new timestamps by :func:`lightfit.weather.add_solar`
-    when the input had it; averaging sun angles would be wrong.
+    (with the input's split model) when the input had it; averaging sun angles would be wrong.
     """
     measured = [c for c in df.columns if c in BOUNDS]
     step = pd.Timedelta(freq)
     if how == "sample":
-        out = df[measured].asfreq(freq)
+        if origin is None:
+            out = df[measured].asfreq(freq)
+        else:
+            first = origin - step * ((origin - df.index[0]) // step)
+            out = df[measured].reindex(pd.date_range(first, df.index[-1], freq=step))
         if out.isna().any().any():
             raise InputError(
                 f"cannot sample at {freq}: the source has no value at some new timestamps",
                 column="freq",
-                expected="a step that is a multiple of the source step, or how='mean'",
+                expected="a step that is a multiple of the source step (and starts on it), or how='mean'",
             )
     elif how == "mean":
         shifted = df[measured].copy()
         shifted.index = shifted.index + step / 2
-        out = shifted.resample(freq).mean()
-        out = out.dropna(how="all")
+        out = shifted.resample(freq, origin="start_day" if origin is None else origin).mean()
+        if out.isna().all(axis=1).any():
+            raise InputError(
+                f"cannot average at {freq}: some new steps have no source value in their window",
+                column="freq",
+                expected="a step at least as long as the source step",
+            )
     else:
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
     out.attrs = dict(df.attrs)
@@ -329,7 +341,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean") -> pd.Dat
     if "sun_elevation_deg" in df.columns:
         from lightfit.weather.solar import add_solar
 
-        out = add_solar(out, site=df.attrs.get("site"))
+        out = add_solar(out, site=df.attrs.get("site"), split_model=df.attrs.get("split_model", "erbs"))
     return out
 
 
@@ -358,5 +370,5 @@ def window(
             file=df.attrs.get("source"),
             expected="a series spanning the requested window",
         )
-    out = resample(df, step, how)
+    out = resample(df, step, how, origin=t0)  # the steps run through the window's start
     return out.loc[t0:t1]
