@@ -79,6 +79,33 @@ def test_temperature_factors_are_one_at_reference():
     assert np.log(f) == pytest.approx(50000.0 / 8.314462618 * (1 / 298.15 - 1 / 308.15), rel=1e-12)
 
 
+def test_peaked_temperature_response_away_from_the_reference():
+    """Medlyn et al. (2002, Plant Cell Environ. 25, 1167) eq. 18, written out here, at 5–45 °C, and
+    its optimum T_opt = Hd / (ΔS − R ln(Ea / (Hd − Ea))) (their eq. 19) found by scanning the
+    library's factor: for winter_wheat's Vcmax (Ea 65.33, Hd 200 kJ mol⁻¹, ΔS 652.3 J mol⁻¹ K⁻¹)
+    T_opt ≈ 30.7 °C. At 25 °C alone (the other tests) the factor is 1 by construction."""
+    R, t_ref = 8.314462618, 298.15
+    temp = ps.TemperatureParams.bernacchi2001()  # winter_wheat's temperature set
+    for ea, hd, ds in (
+        (temp.ea_vcmax_j_mol, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k),
+        (temp.ea_jmax_j_mol, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k),
+    ):
+        t = np.linspace(278.15, 318.15, 9)
+        medlyn = (
+            np.exp(ea * (t - t_ref) / (R * t_ref * t))
+            * (1 + np.exp((t_ref * ds - hd) / (R * t_ref)))
+            / (1 + np.exp((t * ds - hd) / (R * t)))
+        )
+        np.testing.assert_allclose(np.asarray(ps.peaked_arrhenius(t, ea, hd, ds, t_ref)), medlyn, rtol=1e-10)
+        fine = np.linspace(288.15, 318.15, 30001)
+        t_opt = hd / (ds - R * np.log(ea / (hd - ea)))
+        f = np.asarray(ps.peaked_arrhenius(fine, ea, hd, ds, t_ref))
+        assert fine[np.argmax(f)] == pytest.approx(t_opt, abs=2e-3)
+    assert temp.hd_vcmax_j_mol / (temp.entropy_vcmax_j_mol_k - R * np.log(65330.0 / 134670.0)) - 273.15 == (
+        pytest.approx(30.7, abs=0.05)
+    )
+
+
 def test_bernacchi_kinetics_at_25c_and_pressure_scaling():
     p = ps.parameter_set("cplantbox")
     temp = ps.TemperatureParams.bernacchi2001()

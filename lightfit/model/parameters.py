@@ -10,8 +10,12 @@ name                      domain       default  meaning
 ``roughness``             [0, 1]       0.5      GGX roughness of the cuticle
 ``subsurface``            [0, 1]       ≈ 0.596  share of diffuse light transmitted
 ``light_factor``          (0, ∞)       1.0      multiplies the weather's PAR (dimensionless)
-``vcmax_scale``           (0, ∞)       1.0      multiplies the photosynthesis set's Vcmax
+``vcmax_scale``           (0, ∞)       1.0      multiplies the set's Vcmax_ref, and so Jmax_ref, Rd_ref
 ========================  ===========  =======  ===============================================
+
+``vcmax_scale`` scales the leaf's photosynthetic capacity: every photosynthesis set gives Jmax_ref
+and Rd_ref as ratios to Vcmax_ref (``jmax_to_vcmax``, ``rd_to_vcmax``), so all three move together
+(at night An moves through Rd alone; in low light through Jmax).
 
 The leaf names come from :data:`lightfit.light.bsdf.LEAF_PARAMETERS` (the leaf model owns
 them). The leaf defaults are the default leaf optics' (``Optics.preset("prospect")``: the
