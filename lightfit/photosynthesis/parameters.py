@@ -49,7 +49,8 @@ Named sets (:func:`parameter_set`; :data:`DEFAULT_PARAMETER_SET` = ``"winter_whe
 ``"giraud2023_coupled"``
     The same leaf, but CO2 at the leaf surface, ci, gs and An solved as one coupled fixed
     point with the Tuzet (2003) conductance (``a1_tuzet = 1 + a1_cplantbox = 2.5``, which
-    reproduces CPlantBox's ci/cs as g0 → 0 without a boundary layer).
+    comes close to CPlantBox's ci/cs as g0 → 0 without a boundary layer; not equal, as CPlantBox
+    anchors ci on Γ′, with Rd, and Tuzet on Γ*: docs/photosynthesis.md).
 """
 
 from __future__ import annotations
@@ -104,8 +105,9 @@ class TemperatureParams(eqx.Module):
 
     @classmethod
     def cplantbox(cls) -> TemperatureParams:
-        """CPlantBox 2.1.1 ``Photosynthesis.h`` values (T_ref = 293.2 K; Kc, Ko, Γ* from
-        Bernacchi et al. 2001 at 25 °C but used at 20.05 °C as CPlantBox does)."""
+        """CPlantBox 2.1.1 ``Photosynthesis.h`` values (T_ref = 293.2 K; Γ* = 42.75 µmol mol⁻¹ is
+        Bernacchi et al. 2001's value at 25 °C, used at 20.05 °C as CPlantBox does; Kc 302 µmol
+        mol⁻¹ and Ko 256 mmol mol⁻¹ are CPlantBox's own, not Bernacchi's 404.9 and 278.4)."""
         return cls(
             t_ref_k=293.2,
             kc_ref_umol_mol=302.0,
