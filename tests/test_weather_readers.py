@@ -253,6 +253,23 @@ def test_cplantbox_real_day():
     assert abs(centre - noon_utc) < 3600
 
 
+def test_the_undated_day_fits_the_example_date_and_not_23_june():
+    """The CPlantBox day's last dark readings before and after its light (06:30 and 21:00 local)
+    must have the sun near or below the horizon on the date the docs give it (data/README.md):
+    2016-04-27 fits (pvlib: 1.7° and −2.3°), 2016-06-23, which the docs suggested before, does not
+    (8.3° and 6.0°: a working PAR sensor reads light then)."""
+    import pvlib
+
+    raw = pd.read_csv(CPB, sep="\t")
+    lit = np.flatnonzero(raw["PAR"].to_numpy() > 0)
+    dark = [lit[0] - 1, lit[-1] + 1]
+    assert list(raw["time"].iloc[dark]) == ["06:30:00", "21:00:00"]
+    for date, fits in (("2016-04-27", True), ("2016-06-23", False)):
+        t = read_cplantbox_day(CPB, date).index[dark]
+        el = pvlib.solarposition.get_solarposition(t, 50.8659, 6.4471)["apparent_elevation"].to_numpy()
+        assert bool((el < 2.0).all()) == fits, (date, el)
+
+
 def test_cplantbox_needs_a_date():
     with pytest.raises(InputError, match="date"):
         read_weather(CPB)
