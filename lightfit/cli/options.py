@@ -24,7 +24,7 @@ import typer
 
 from lightfit.errors import InputError
 from lightfit.light.estimator import check_target_rse
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
@@ -256,8 +256,10 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--direct-rays-per-m2",
             help="Rays per m² of ground the projection casts for the direct light: one number for sun and sky, "
-            "or SUN,SKY (default 2.5e6,1e7). More rays, less per-segment noise at a cost per cell area "
-            "(e.g. 1e7,1e7 or 1e7,6e7 for per-leaf light: docs/light.md, Recommended settings).",
+            "or SUN,SKY (default {:g},{:g}). More rays, less per-segment noise at a cost per cell area "
+            "(e.g. 1e7,1e7 or 1e7,6e7 for per-leaf light: docs/light.md, Recommended settings).".format(
+                *DEFAULT_RAYS_PER_M2
+            ),
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -602,8 +604,6 @@ def _site(opts: ModelOptions) -> Site:
 
 def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[float, float]:
     """``--direct-rays-per-m2``: one number or ``SUN,SKY``, only with the projected direct light."""
-    from lightfit.light.projection import check_rays
-
     if text is None:
         return tuple(default)
     if direct != "projection":
