@@ -221,24 +221,31 @@ def test_render_key_names_the_projection_and_its_version(adaptive_model):
     assert "direct" not in render_key(adaptive_model)  # a finite field: the paths
 
 
-def test_a_restricted_adaptive_model_allocates_at_its_own_point(adaptive_model):
+def test_a_restricted_adaptive_model_allocates_at_its_own_point(adaptive_model, monkeypatch):
     """Restricted to the 07:30 step after the whole run's irradiance was built, an adaptive model
-    builds its own, allocated where its render key says (the kept step's sun), as a fresh model of
-    that step (e.g. on a Dask worker) would."""
+    builds its own, allocated where its render key says (the kept step's sun): the same samples per
+    segment as a model restricted before anything was built (what a Dask worker does)."""
+    import lightfit.model.coupled as coupled
     from lightfit.model.emulator import render_key, restrict
 
+    monkeypatch.setattr(coupled, "MAX_ADAPTIVE_SAMPLES", 256)  # seconds, not minutes
     m = adaptive_model
-    whole = m.irradiance
-    keep = np.zeros(len(m.day), bool)
-    keep[np.flatnonzero(m.day)[0]] = True
-    sub, fresh = restrict(m, keep), None
-    assert sub.irradiance is not whole
-    m.__dict__.pop("irradiance")
+    whole = m.__dict__.pop("irradiance", None)
     try:
-        fresh = restrict(m, keep)
-        assert render_key(fresh) == render_key(sub) and fresh.allocation_point[1][0] < m.allocation_point[1][0]
+        keep = np.zeros(len(m.day), bool)
+        keep[np.flatnonzero(m.day)[0]] = True
+        fresh = restrict(m, keep)  # nothing built yet
+        m.irradiance  # noqa: B018 (built at the whole run's point)
+        sub = restrict(m, keep)
+        assert sub.irradiance is not m.irradiance and render_key(sub) == render_key(fresh)
+        assert fresh.allocation_point[1][0] < m.allocation_point[1][0]
+        seed = m.scenario.seed
+        k_sub, k_fresh = (x.irradiance.allocation(seed).meta["samples_per_segment"] for x in (sub, fresh))
+        np.testing.assert_array_equal(k_sub, k_fresh)
     finally:
-        m.__dict__["irradiance"] = whole
+        m.__dict__.pop("irradiance", None)
+        if whole is not None:
+            m.__dict__["irradiance"] = whole
 
 
 @pytest.mark.parametrize("value", ["0", "1.5"])
