@@ -49,6 +49,15 @@ def _quantiles(x: np.ndarray) -> dict:
     return {"median": float(np.median(x)), "p10": float(np.quantile(x, 0.1)), "p90": float(np.quantile(x, 0.9))}
 
 
+def _total_ratio(w: np.ndarray, sd: np.ndarray, x_rep: np.ndarray) -> tuple[float, float, float]:
+    """(ratio, independent, from replicates): the SD of Σ w_s x_s with segments taken as
+    independent (per-segment SDs ``sd`` in quadrature) and the SE of that sum from the R replicates
+    ``x_rep`` (S, R)."""
+    independent = math.sqrt(float(((w * sd) ** 2).sum()))
+    from_replicates = float((w @ x_rep).std(ddof=1)) / math.sqrt(x_rep.shape[1])
+    return independent / from_replicates, independent, from_replicates
+
+
 def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
     from bench_light import commit_state
 
@@ -87,16 +96,10 @@ def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
             ratio = sd_without / sd_with
         x_rep = dni * reps["absorbed_sun"] + dhi * reps["absorbed_sky"]  # (S, R)
 
-        def total_ratio(w, sd, x_rep=x_rep, R=R):
-            """The independent-segments SD of Σ w_s x_s ÷ the SE of that sum from the replicates."""
-            independent = math.sqrt(float(((w * sd) ** 2).sum()))
-            from_replicates = float((w @ x_rep).std(ddof=1)) / math.sqrt(R)
-            return independent / from_replicates, independent, from_replicates
-
-        canopy = total_ratio(a / ground_m2, sd_without)
-        canopy_cov = total_ratio(a / ground_m2, sd_with)
+        canopy = _total_ratio(a / ground_m2, sd_without, x_rep)
+        canopy_cov = _total_ratio(a / ground_m2, sd_with, x_rep)
         wb = np.where(blade, a, 0.0) / a[blade].sum()
-        blades = total_ratio(wb, sd_without)
+        blades = _total_ratio(wb, sd_without, x_rep)
         totals.append(float(a @ x / ground_m2))
         runs.append(
             {

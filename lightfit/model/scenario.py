@@ -182,7 +182,7 @@ class Scenario:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
         if self.target_rse is not None:
-            check_target_rse(self.target_rse)
+            self.target_rse = check_target_rse(self.target_rse)
         self.direct = resolve_direct(self.direct, self.field.boundary)
         self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
         h = self.ceptometer_height_m

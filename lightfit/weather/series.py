@@ -310,11 +310,9 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     measured = [c for c in df.columns if c in BOUNDS]
     step = pd.Timedelta(freq)
     if how == "sample":
-        if origin is None:
-            out = df[measured].asfreq(freq)
-        else:
-            first = origin - step * ((origin - df.index[0]) // step)
-            out = df[measured].reindex(pd.date_range(first, df.index[-1], freq=step))
+        origin = df.index[0] if origin is None else origin
+        first = origin - step * ((origin - df.index[0]) // step)  # the first new step in the series
+        out = df[measured].reindex(pd.date_range(first, df.index[-1], freq=step))
         if out.isna().any().any():
             raise InputError(
                 f"cannot sample at {freq}: the source has no value at some new timestamps",
