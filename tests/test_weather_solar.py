@@ -94,3 +94,76 @@ def test_unknown_split_model():
     t = pd.DatetimeIndex([pd.Timestamp("2016-04-20 12:00", tz="UTC")])
     with pytest.raises(InputError, match="split model"):
         split_direct_diffuse(pd.Series([500.0], index=t), pd.Series([50.0], index=t), "magic")
+
+
+def _two_sensor_day(par_per_ghi: float) -> pd.DataFrame:
+    """A clear 20 April 2016 (GHI = 0.75 × 1361 W m⁻² × sin β) with a PAR sensor reading
+    ``par_per_ghi`` × GHI, and the other columns a forcing needs."""
+    t = pd.date_range("2016-04-20 00:00", "2016-04-20 23:30", freq="30min", tz="UTC")
+    el = solar_position(t)["sun_elevation_deg"]
+    ghi = np.clip(0.75 * 1361 * np.sin(np.radians(el)), 0, None)
+    return pd.DataFrame(
+        {"ghi_w_m2": ghi, "par_umol_m2_s": par_per_ghi * ghi, "tair_c": 15.0, "rh": 0.6, "pair_kpa": 100.0},
+        index=t,
+    ).assign(co2_ppm=400.0)
+
+
+def test_the_canopy_is_lit_with_the_measured_par():
+    """With a PAR sensor beside the pyranometer, the light model's horizontal PAR is the
+    measured PAR and its diffuse fraction that of the global radiation's split; before, it was
+    0.50 × 4.57 µmol J⁻¹ × GHI whatever the PAR sensor said (14 % more light at 2.0 µmol J⁻¹)."""
+    from lightfit.model.observe import above_canopy_par
+    from lightfit.model.scenario import Forcing
+    from lightfit.weather import add_solar
+
+    df = _two_sensor_day(2.0)
+    dawn = df.index[np.flatnonzero(df["ghi_w_m2"] > 0)[0]]
+    df.loc[dawn, "par_umol_m2_s"] = -0.8  # a sensor offset
+    w = add_solar(df)
+    assert [q for q in w.attrs["qc"] if q["kind"] == "checked"][0]["detail"].startswith(
+        "measured PAR / global radiation 2.000"
+    )
+    f = Forcing.of(w)
+    sin_b = np.sin(np.radians(w["sun_elevation_deg"].clip(lower=0).to_numpy()))
+    horizontal = f.dni_par * sin_b + f.dhi_par
+    lit = (w["ghi_w_m2"] > 0).to_numpy() & (w.index != dawn)
+    assert np.allclose(horizontal[lit], w["par_umol_m2_s"][lit], rtol=1e-12)
+    assert np.allclose(f.dhi_par[lit] / horizontal[lit], (w["dhi_w_m2"] / w["ghi_w_m2"])[lit], rtol=1e-12)
+    assert horizontal[w.index.get_loc(dawn)] == 0.0  # no negative light
+    assert (horizontal[~(w["ghi_w_m2"] > 0).to_numpy()] == 0).all()
+    assert np.allclose(
+        above_canopy_par(f.dni_par, f.dhi_par, w["sun_elevation_deg"].to_numpy())[lit], df["par_umol_m2_s"][lit]
+    )
+
+
+@pytest.mark.parametrize("measured", ["ghi_w_m2", "par_umol_m2_s"])
+def test_one_sensor_keeps_the_constant_photon_ratio(measured):
+    """Global radiation alone (PAR derived) or PAR alone (global radiation derived): 0.50 ×
+    4.57 µmol J⁻¹ (McCree 1972) converts the split, as before, and the horizontal PAR is the
+    series' PAR."""
+    from lightfit.model.scenario import Forcing
+    from lightfit.weather import add_solar
+
+    w = add_solar(_two_sensor_day(0.5 * 4.57)[[measured, "tair_c", "rh", "pair_kpa", "co2_ppm"]])
+    f = Forcing.of(w)
+    assert np.allclose(f.dni_par, 0.5 * 4.57 * w["dni_w_m2"], rtol=1e-12)
+    assert np.allclose(f.dhi_par, 0.5 * 4.57 * w["dhi_w_m2"], rtol=1e-12)
+    assert not any(q["kind"] == "checked" for q in w.attrs["qc"])
+
+
+@pytest.mark.parametrize("ratio", [0.45, 4.57e-3, 4.57])  # PAR in W m⁻², in mmol, all of it photons of PAR
+def test_a_par_sensor_in_other_units_is_refused(ratio):
+    from lightfit.weather import add_solar
+
+    with pytest.raises(InputError, match=r"par_umol_m2_s/ghi_w_m2.*1\.5–3 µmol J⁻¹"):
+        add_solar(_two_sensor_day(ratio))
+
+
+def test_missing_par_where_there_is_light_is_refused():
+    from lightfit.weather.solar import par_direct_diffuse
+
+    with pytest.raises(InputError, match="par_umol_m2_s.*step 1"):
+        par_direct_diffuse([0.0, 500.0], [0.0, 100.0], [-5.0, 40.0], [0.0, np.nan])
+    # Missing at night is no light either way.
+    dni, dhi = par_direct_diffuse([0.0, 500.0], [0.0, 100.0], [-5.0, 40.0], [np.nan, 800.0])
+    assert dni[0] == dhi[0] == 0.0 and np.isfinite([dni, dhi]).all()

@@ -151,4 +151,5 @@ def weather_report(df) -> None:
     if a.get("unused_columns"):
         console.print(f"  [dim]not used: {escape(', '.join(a['unused_columns']))}[/]")
     for q in a.get("qc", []):
-        console.print(f"  [yellow]repair[/] {q['kind']}: {escape(q['detail'])}")
+        label = "[green]check[/]" if q["kind"] == "checked" else "[yellow]repair[/]"
+        console.print(f"  {label} {q['kind']}: {escape(q['detail'])}")

@@ -206,7 +206,7 @@ def run_task(spec: TaskSpec):
 def _aggregates(out) -> dict:
     """The observables of the gathered per-segment values (:func:`lightfit.model.observe.observables`, numpy)."""
     from lightfit.model.observe import above_canopy_par, an_denominator, area_total, observables
-    from lightfit.weather.units import par_from_ghi
+    from lightfit.weather.solar import par_direct_diffuse
 
     area = out["area_m2"].values.astype(np.float64)
     blade = out["is_blade"].values.astype(bool)
@@ -217,10 +217,11 @@ def _aggregates(out) -> dict:
     an_sd = out["leaf_an_mc_sd_umol_m2_s"].values[:, blade]
     ground = float(out.attrs["ground_area_m2"])
     denom = an_denominator(area[blade], out.attrs["an_per"], ground)
+    sun = out["sun_elevation_deg"].values
+    measured = out["weather_par_umol_m2_s"].values if "weather_par_umol_m2_s" in out else None
     above = above_canopy_par(
-        par_from_ghi(out["dni_w_m2"].values),
-        par_from_ghi(out["dhi_w_m2"].values),
-        out["sun_elevation_deg"].values,
+        *par_direct_diffuse(out["dni_w_m2"].values, out["dhi_w_m2"].values, sun, measured),
+        sun,
         float(out.attrs["theta_light_factor"]),
     )
     bias = {}

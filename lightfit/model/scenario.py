@@ -3,7 +3,8 @@ per-step :class:`Forcing` the observation operator reads from its weather.
 
 A step is *daytime* (rendered) when :math:`\mathrm{DNI} + \mathrm{DHI} > 0` and the sun is above
 −1° elevation (:func:`daytime`); night steps get zero light. The weather's DNI and DHI are turned
-into photon fluxes with :func:`lightfit.weather.units.par_from_ghi` (2.285 µmol J⁻¹ = 0.50 × 4.57).
+into photon fluxes by :func:`lightfit.weather.solar.par_direct_diffuse`: scaled to the measured PAR
+where the series has a PAR sensor, else 0.50 × 4.57 = 2.285 µmol J⁻¹.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from lightfit.light.scene import Optics
 from lightfit.model.parameters import Theta
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
-from lightfit.weather.units import par_from_ghi
+from lightfit.weather.solar import par_direct_diffuse
 
 #: Weather columns a scenario needs (a contract series with solar columns).
 WEATHER_COLUMNS = (
@@ -49,7 +50,9 @@ class Forcing:
 
     Attributes:
         day: :func:`daytime` mask.
-        dni_par, dhi_par: direct-normal and diffuse PAR photon flux, µmol m⁻² s⁻¹.
+        dni_par, dhi_par: direct-normal and diffuse PAR photon flux, µmol m⁻² s⁻¹
+            (:func:`~lightfit.weather.solar.par_direct_diffuse`: the measured PAR, split as the
+            global radiation is).
         tair_c: air temperature (= leaf temperature, a documented simplification), °C.
         co2_ppm: air CO2 (= CO2 at the leaf surface), µmol mol⁻¹.
         rh: relative humidity, 0–1. pair_kpa: air pressure, kPa.
@@ -66,10 +69,12 @@ class Forcing:
     @staticmethod
     def of(weather: pd.DataFrame) -> Forcing:
         w, dt = weather, np.float64
+        par = w["par_umol_m2_s"] if "par_umol_m2_s" in w else None
+        dni_par, dhi_par = par_direct_diffuse(w["dni_w_m2"], w["dhi_w_m2"], w["sun_elevation_deg"], par)
         return Forcing(
             day=daytime(w),
-            dni_par=np.asarray(par_from_ghi(w["dni_w_m2"]), dt),
-            dhi_par=np.asarray(par_from_ghi(w["dhi_w_m2"]), dt),
+            dni_par=dni_par,
+            dhi_par=dhi_par,
             tair_c=w["tair_c"].to_numpy(dt),
             co2_ppm=w["co2_ppm"].to_numpy(dt),
             rh=w["rh"].to_numpy(dt),

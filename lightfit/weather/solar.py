@@ -15,6 +15,12 @@ from lightfit.weather.site import SELHAUSEN, Site
 from lightfit.weather.units import par_from_ghi
 
 SPLIT_MODELS = ("erbs", "boland")
+#: Measured PAR ÷ global radiation a series may have, µmol J⁻¹ (median over steps with global
+#: radiation above :data:`RATIO_MIN_GHI_W_M2`). Sunlight gives ≈ 2.0–2.3 (Meek et al. 1984, Agron.
+#: J. 76, 939: 2.04; McCree 1972 with a PAR share of 0.45–0.50: 2.06–2.29); outside these bounds a
+#: unit or clock slip is likelier than the sky.
+PAR_PER_GHI_BOUNDS = (1.5, 3.0)
+RATIO_MIN_GHI_W_M2 = 50.0
 
 
 def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFrame:
@@ -57,17 +63,91 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     return pd.DataFrame({"dni_w_m2": dni, "dhi_w_m2": dhi}, index=times)
 
 
+def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None) -> tuple[np.ndarray, np.ndarray]:
+    r"""Direct-normal and diffuse-horizontal PAR photon flux, µmol m⁻² s⁻¹, for the light model.
+
+    The split of global radiation (:func:`split_direct_diffuse`) sets the diffuse fraction; the
+    PAR itself comes from the series' PAR sensor where it has one:
+
+    .. math::
+        k_t = \frac{\mathrm{PAR}_t}{\mathrm{GHI}_t},\quad
+        \mathrm{GHI}_t = \mathrm{DNI}_t \sin\beta_t + \mathrm{DHI}_t,\quad
+        \mathrm{DNI}^{PAR}_t = k_t\,\mathrm{DNI}_t,\quad \mathrm{DHI}^{PAR}_t = k_t\,\mathrm{DHI}_t
+
+    (GHI by the split's closure), so the horizontal PAR the canopy is lit with,
+    DNI^PAR sin β + DHI^PAR, is the measured PAR at every step with light. Without a PAR series
+    (``None``) k = 0.50 × 4.57 µmol J⁻¹ (:func:`~lightfit.weather.units.par_from_ghi`); where
+    :func:`add_solar` derived PAR from global radiation, or global radiation from PAR, k is that
+    same constant, so only series with both sensors move. A PAR reading ≤ 0 (a sensor offset at
+    dawn) where GHI > 0 gives no light rather than negative light.
+
+    The diffuse fraction of PAR is taken as that of global radiation; under clear skies PAR's is
+    higher (a blue sky, Spitters et al. 1986, Agric. For. Meteorol. 38, 217), not modelled here.
+
+    Raises:
+        InputError: a step with light whose PAR is not a number.
+    """
+    dni = np.asarray(dni_w_m2, dtype=np.float64)
+    dhi = np.asarray(dhi_w_m2, dtype=np.float64)
+    ghi = dni * np.sin(np.radians(np.clip(np.asarray(sun_elevation_deg, dtype=np.float64), 0.0, None))) + dhi
+    k = np.full_like(ghi, float(par_from_ghi(1.0)))
+    if par_umol_m2_s is not None:
+        par = np.asarray(par_umol_m2_s, dtype=np.float64)
+        lit = ghi > 0
+        if np.isnan(par[lit]).any():
+            bad = np.flatnonzero(lit & np.isnan(par))
+            raise InputError(
+                f"PAR is missing at {bad.size} step(s) with global radiation (first: step {bad[0]})",
+                column="par_umol_m2_s",
+                expected="a PAR value wherever DNI or DHI is above 0 (fill or drop those steps)",
+            )
+        k = np.where(lit, np.maximum(np.where(lit, par, 0.0), 0.0) / np.where(lit, ghi, 1.0), k)
+    return k * dni, k * dhi
+
+
+def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series) -> float:
+    """Median measured PAR ÷ global radiation (µmol J⁻¹) over steps with global radiation above
+    :data:`RATIO_MIN_GHI_W_M2`; refused outside :data:`PAR_PER_GHI_BOUNDS` (NaN: too few such steps)."""
+    bright = (ghi_w_m2 > RATIO_MIN_GHI_W_M2) & par_umol_m2_s.notna()
+    if not bright.any():
+        return float("nan")
+    ratio = float((par_umol_m2_s[bright] / ghi_w_m2[bright]).median())
+    lo, hi = PAR_PER_GHI_BOUNDS
+    if not lo <= ratio <= hi:
+        raise InputError(
+            f"measured PAR / global radiation is {ratio:.3g} µmol J⁻¹ "
+            f"(median over {int(bright.sum())} steps with global radiation > {RATIO_MIN_GHI_W_M2:g} W m⁻²)",
+            column="par_umol_m2_s/ghi_w_m2",
+            expected=f"{lo:g}–{hi:g} µmol J⁻¹ (sunlight ≈ 2.0–2.3): check PAR is in µmol m⁻² s⁻¹, "
+            "global radiation in W m⁻², and that both share one clock",
+        )
+    return ratio
+
+
 def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "erbs") -> pd.DataFrame:
     """Add the derived contract columns: sun angles, DNI/DHI and (if absent) PAR from GHI.
 
     If only PAR was measured, global radiation is estimated as PAR / (0.50 × 4.57 µmol J⁻¹)
-    so that the split can run; either estimate is recorded in ``attrs["qc"]``.
+    so that the split can run; either estimate is recorded in ``attrs["qc"]``. With both measured,
+    their ratio is checked (:func:`check_par_per_ghi`) and recorded there: the light model takes
+    the PAR from the PAR sensor and the diffuse fraction from the split (:func:`par_direct_diffuse`).
     """
     site = site or df.attrs.get("site") or SELHAUSEN
     out = df.copy()
     out.attrs = dict(df.attrs)
     qc = list(out.attrs.get("qc", []))
     k = float(par_from_ghi(1.0))
+    if {"par_umol_m2_s", "ghi_w_m2"} <= set(out.columns):
+        ratio = check_par_per_ghi(out["par_umol_m2_s"], out["ghi_w_m2"])
+        qc.append(
+            {
+                "kind": "checked",
+                "column": "par_umol_m2_s",
+                "count": len(out),
+                "detail": f"measured PAR / global radiation {ratio:.3f} µmol J⁻¹ (median, global radiation > "
+                f"{RATIO_MIN_GHI_W_M2:g} W m⁻²); the light is lit with the measured PAR",
+            }
+        )
     if "par_umol_m2_s" not in out.columns:
         out["par_umol_m2_s"] = par_from_ghi(out["ghi_w_m2"])
         qc.append(

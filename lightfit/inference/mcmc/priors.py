@@ -112,7 +112,8 @@ PRIORS_INFORMED: dict[str, Prior] = {
         "lognormal",
         1.0,
         0.5,
-        "broad: median 1 (PAR = 0.5 × 4.57 µmol/J × radiation), ±1 SD in log covers the reference paper's fitted 1.637",
+        "broad: median 1 (the weather's PAR: measured, else 0.5 × 4.57 µmol/J × radiation), "
+        "±1 SD in log covers the reference paper's fitted 1.637",
         lo=0.25,
         hi=4.0,
     ),
