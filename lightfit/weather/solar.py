@@ -115,7 +115,7 @@ def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series) -> float:
     lo, hi = PAR_PER_GHI_BOUNDS
     if not lo <= ratio <= hi:
         raise InputError(
-            f"measured PAR / global radiation is {ratio:.3g} µmol J⁻¹ "
+            f"PAR / global radiation is {ratio:.3g} µmol J⁻¹ "
             f"(median over {int(bright.sum())} steps with global radiation > {RATIO_MIN_GHI_W_M2:g} W m⁻²)",
             column="par_umol_m2_s/ghi_w_m2",
             expected=f"{lo:g}–{hi:g} µmol J⁻¹ (sunlight ≈ 2.0–2.3): check PAR is in µmol m⁻² s⁻¹, "
@@ -144,8 +144,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
                 "kind": "checked",
                 "column": "par_umol_m2_s",
                 "count": len(out),
-                "detail": f"measured PAR / global radiation {ratio:.3f} µmol J⁻¹ (median, global radiation > "
-                f"{RATIO_MIN_GHI_W_M2:g} W m⁻²); the light is lit with the measured PAR",
+                "detail": f"PAR / global radiation {ratio:.3f} µmol J⁻¹ (median, global radiation > "
+                f"{RATIO_MIN_GHI_W_M2:g} W m⁻²); the canopy is lit with the series' PAR",
             }
         )
     if "par_umol_m2_s" not in out.columns:
