@@ -28,7 +28,7 @@ from lightfit.inference.observations import SERIES, align, read_observations
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
 from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
@@ -109,6 +109,9 @@ class ReplicationConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "dates", as_dates(self.dates))
+        # One form whatever it came from (one number, a list read back from JSON): configurations
+        # compare equal when they render the same rays.
+        object.__setattr__(self, "direct_rays_per_m2", check_rays(self.direct_rays_per_m2))
 
     @staticmethod
     def quick() -> ReplicationConfig:

@@ -82,10 +82,11 @@ def test_temperature_factors_are_one_at_reference():
 def test_peaked_temperature_response_away_from_the_reference():
     """Medlyn et al. (2002, Plant Cell Environ. 25, 1167) eq. 18, written out here, at 5–45 °C, and
     its optimum T_opt = Hd / (ΔS − R ln(Ea / (Hd − Ea))) (their eq. 19) found by scanning the
-    library's factor: for winter_wheat's Vcmax (Ea 65.33, Hd 200 kJ mol⁻¹, ΔS 652.3 J mol⁻¹ K⁻¹)
-    T_opt ≈ 30.7 °C. At 25 °C alone (the other tests) the factor is 1 by construction."""
+    library's factor: for winter_wheat's Vcmax (Kattge & Knorr 2007 at 15 °C growth: Ha 71.513,
+    Hd 200 kJ mol⁻¹, ΔS 652.34 J mol⁻¹ K⁻¹) T_opt ≈ 31.2 °C. At 25 °C alone (the other tests)
+    the factor is 1 by construction."""
     R, t_ref = 8.314462618, 298.15
-    temp = ps.TemperatureParams.bernacchi2001()  # winter_wheat's temperature set
+    temp = ps.TemperatureParams.kattge_knorr2007()  # winter_wheat's temperature set
     for ea, hd, ds in (
         (temp.ea_vcmax_j_mol, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k),
         (temp.ea_jmax_j_mol, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k),
@@ -101,14 +102,58 @@ def test_peaked_temperature_response_away_from_the_reference():
         t_opt = hd / (ds - R * np.log(ea / (hd - ea)))
         f = np.asarray(ps.peaked_arrhenius(fine, ea, hd, ds, t_ref))
         assert fine[np.argmax(f)] == pytest.approx(t_opt, abs=2e-3)
-    assert temp.hd_vcmax_j_mol / (temp.entropy_vcmax_j_mol_k - R * np.log(65330.0 / 134670.0)) - 273.15 == (
-        pytest.approx(30.7, abs=0.05)
+    assert temp.hd_vcmax_j_mol / (temp.entropy_vcmax_j_mol_k - R * np.log(71513.0 / 128487.0)) - 273.15 == (
+        pytest.approx(31.2, abs=0.05)
+    )
+
+
+@pytest.mark.parametrize("t_growth_c", [10.0, 15.0, 25.0])
+def test_winter_wheat_temperature_response_is_kattge_and_knorrs(t_growth_c):
+    """Kattge & Knorr (2007, Plant Cell Environ. 30, 1176) Vcmax and Jmax responses written out
+    from their published constants (Ha 71 513 / 49 884 J mol⁻¹, Hd 200 000, ΔS = 668.39 − 1.07 T_g
+    and 659.70 − 0.75 T_g, T_g in °C), relative to 25 °C, at leaf temperatures 0–40 °C; the
+    winter_wheat set is the 15 °C one, its Jmax25/Vcmax25 K&K's 2.59 − 0.035 T_g. Until this
+    test the set paired Bernacchi's Vcmax Ha (65.33 kJ mol⁻¹) with K&K's ΔS: +9 % at 15 °C."""
+    R, t_ref = 8.314462618, 298.15
+    t = np.linspace(273.15, 313.15, 41)
+
+    def kk(ha, a, b):
+        ds = a - b * t_growth_c
+        return (
+            np.exp(ha * (t - t_ref) / (R * t_ref * t))
+            * (1 + np.exp((t_ref * ds - 200000.0) / (R * t_ref)))
+            / (1 + np.exp((t * ds - 200000.0) / (R * t)))
+        )
+
+    temp = ps.TemperatureParams.kattge_knorr2007(t_growth_c)
+    for ours, ha, a, b in (
+        (
+            ps.peaked_arrhenius(t, temp.ea_vcmax_j_mol, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k, t_ref),
+            71513.0,
+            668.39,
+            1.07,
+        ),
+        (
+            ps.peaked_arrhenius(t, temp.ea_jmax_j_mol, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k, t_ref),
+            49884.0,
+            659.70,
+            0.75,
+        ),
+    ):
+        np.testing.assert_allclose(np.asarray(ours), kk(ha, a, b), rtol=1e-10)
+    wheat = ps.parameter_set("winter_wheat")
+    assert wheat.temperature == ps.TemperatureParams.kattge_knorr2007(15.0)
+    assert float(wheat.fvcb.jmax_to_vcmax) == pytest.approx(2.59 - 0.035 * 15.0)
+    # What the old pairing gave at 15 °C against K&K's curve (the docstring's +9 %).
+    old = ps.peaked_arrhenius(288.15, 65330.0, 200000.0, 668.39 - 1.07 * 15.0, t_ref)
+    assert float(old) / float(ps.peaked_arrhenius(288.15, 71513.0, 200000.0, 668.39 - 1.07 * 15.0, t_ref)) == (
+        pytest.approx(1.09, abs=0.01)
     )
 
 
 def test_bernacchi_kinetics_at_25c_and_pressure_scaling():
     p = ps.parameter_set("cplantbox")
-    temp = ps.TemperatureParams.bernacchi2001()
+    temp = ps.TemperatureParams.kattge_knorr2007()
     leaf = ps.leaf_capacities(0.0, 25.0, P_KPA, p.fvcb, temp)
     assert float(leaf.gamma_star_umol_mol) == pytest.approx(42.75)
     assert float(leaf.km_umol_mol) == pytest.approx(404.9 * (1 + 210.0 / 278.4))
@@ -159,7 +204,7 @@ def test_leuning_equals_tuzet_at_zero_vpd_and_closes_with_vpd():
 
 @pytest.mark.parametrize("gb,gm", [(np.inf, np.inf), (0.8, np.inf), (0.8, 0.15)])
 def test_steady_state_mass_balance(gb, gm):
-    p = tuzet_leaf(gm=gm, temperature=ps.TemperatureParams.bernacchi2001())
+    p = tuzet_leaf(gm=gm, temperature=ps.TemperatureParams.kattge_knorr2007())
     par = np.array([0.0, 30.0, 400.0, 1800.0])
     t = np.array([5.0, 15.0, 25.0, 35.0])
     ca = np.array([380.0, 150.0, 600.0, 1200.0])
@@ -192,7 +237,7 @@ def test_plain_iteration_fails_where_robust_solver_converges(par, tleaf, cs):
 
 
 def test_plain_and_robust_agree_where_plain_converges():
-    p = tuzet_leaf(temperature=ps.TemperatureParams.bernacchi2001())
+    p = tuzet_leaf(temperature=ps.TemperatureParams.kattge_knorr2007())
     par = np.linspace(100, 2000, 20)
     plain = ps.solve_plain_iteration(par, 22.0, 420.0, 0.6, P_KPA, p)
     robust = ps.solve(par, 22.0, 420.0, 0.6, P_KPA, p)
@@ -241,7 +286,7 @@ GRAD_POINTS = np.array([(300.0, 18.0, 400.0), (1800.0, 25.0, 250.0), (40.0, 30.0
 @pytest.mark.parametrize("model", ["tuzet", "leuning", "medlyn", "cplantbox"])
 def test_implicit_gradients_match_central_differences(model):
     base = (
-        tuzet_leaf(model=model, temperature=ps.TemperatureParams.bernacchi2001())
+        tuzet_leaf(model=model, temperature=ps.TemperatureParams.kattge_knorr2007())
         if model != "cplantbox"
         else ps.parameter_set("cplantbox")
     )
@@ -282,7 +327,7 @@ def test_implicit_gradients_match_central_differences(model):
 
 
 def test_gradient_wrt_boundary_layer_and_gm():
-    p = tuzet_leaf(gm=0.3, temperature=ps.TemperatureParams.bernacchi2001())
+    p = tuzet_leaf(gm=0.3, temperature=ps.TemperatureParams.kattge_knorr2007())
 
     def an(gb, gm):
         q = eqx.tree_at(lambda r: r.fvcb.gm_mol_m2_s, p, gm)
@@ -313,7 +358,7 @@ def _variants():
     yield "giraud2023", ps.parameter_set("giraud2023"), None
     yield "giraud2023_coupled+gb", ps.parameter_set("giraud2023_coupled"), 0.5
     yield "tuzet", tuzet_leaf(), None
-    yield "leuning+gb+gm", tuzet_leaf(model="leuning", gm=0.2, temperature=ps.TemperatureParams.bernacchi2001()), 2.0
+    yield "leuning+gb+gm", tuzet_leaf(model="leuning", gm=0.2, temperature=ps.TemperatureParams.kattge_knorr2007()), 2.0
     yield "g0->0", tuzet_leaf(g0=1e-9), None
     yield "g0->0 cplantbox", eqx.tree_at(lambda q: q.stomata.g0_mol_m2_s, cpb, 0.0), None
     yield "vcmax->0", eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, tuzet_leaf(), 0.0), None
@@ -379,7 +424,7 @@ def test_float32_agrees_with_float64():
     model=st.sampled_from(["tuzet", "leuning", "medlyn"]),
 )
 def test_property_steady_state(par, tleaf, ca, rh, g0, a1, gb, model):
-    p = tuzet_leaf(g0=g0, a1=a1, model=model, temperature=ps.TemperatureParams.bernacchi2001())
+    p = tuzet_leaf(g0=g0, a1=a1, model=model, temperature=ps.TemperatureParams.kattge_knorr2007())
     res = ps.solve(par, tleaf, ca, rh, P_KPA, p, gb_mol_m2_s=gb)
     assert bool(res.converged)
     an = float(res.an_umol_m2_s)
@@ -499,7 +544,7 @@ def test_winter_wheat_is_the_default_with_its_literature_values():
     assert (float(f.quantum_yield), float(f.curvature)) == (4 * 0.088, 0.7)  # Evans (2013), Fig. 2
     assert s.model == "medlyn" and float(s.a1) == 5.79  # Lin et al. (2015), C3 crops
     assert float(s.g0_mol_m2_s) == pytest.approx(0.01 / 1.6)
-    assert t == ps.TemperatureParams.bernacchi2001()
+    assert t == ps.TemperatureParams.kattge_knorr2007()
     # Published ranges at 25 °C: Vcmax25 80–150, Jmax25/Vcmax25 1.6–2.1, Rd25 1–2 µmol m⁻² s⁻¹
     assert 80 <= float(f.vcmax_ref_umol_m2_s) <= 150 and 1.6 <= float(f.jmax_to_vcmax) <= 2.1
     assert 1.0 <= float(f.rd_to_vcmax * f.vcmax_ref_umol_m2_s) <= 2.0

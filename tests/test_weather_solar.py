@@ -120,9 +120,7 @@ def test_the_canopy_is_lit_with_the_measured_par():
     dawn = df.index[np.flatnonzero(df["ghi_w_m2"] > 0)[0]]
     df.loc[dawn, "par_umol_m2_s"] = -0.8  # a sensor offset
     w = add_solar(df)
-    assert [q for q in w.attrs["qc"] if q["kind"] == "checked"][0]["detail"].startswith(
-        "PAR / global radiation 2.000"
-    )
+    assert [q for q in w.attrs["qc"] if q["kind"] == "checked"][0]["detail"].startswith("PAR / global radiation 2.000")
     f = Forcing.of(w)
     sin_b = np.sin(np.radians(w["sun_elevation_deg"].clip(lower=0).to_numpy()))
     horizontal = f.dni_par * sin_b + f.dhi_par
