@@ -136,7 +136,7 @@ def sunlit_rubisco_fraction(cfg: ReplicationConfig) -> dict:
     m = CoupledModel(scenario_for(cfg, w[noon]))
     th = m.scenario.theta
     vals, _ = m.parts(th)  # (1, 4, S): incident sun, incident sky, absorbed sun, absorbed sky per unit DNI/DHI
-    v = np.asarray(vals)[0]
+    v = np.asarray(vals)[0][:, : len(m.is_blade)]  # the segments (sensor columns follow them)
     beam = v[0] * m.forcing.dni_par[0]
     sunlit = beam >= 0.5 * (beam + v[1] * m.forcing.dhi_par[0])
     lim = np.asarray(m.observe(th)["photosynthesis"].limitation)[0]
