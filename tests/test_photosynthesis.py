@@ -684,3 +684,23 @@ def test_par_slope_matches_central_differences_and_float32():
     _, s32 = ps.solve_with_par_slope(*(x.astype(np.float32) for x in (par, t, c)), np.float32(0.6), P_KPA, p)
     assert s32.dtype == np.float32
     np.testing.assert_allclose(np.asarray(s32), np.asarray(slope), rtol=2e-3, atol=1e-5)
+
+
+def test_gamma_star_follows_o2_in_the_literature_sets():
+    """Γ* = 0.5·O / S_c/o (von Caemmerer 2000, eq. 2.16) is proportional to O2: halved at 10.5 %
+    O2, and at 2 % O2 photorespiration nearly stops. At 25 °C and 400 ppm a C3 leaf then fixes
+    ≈ 20–60 % more CO2 in strong light and in weak light (the O2 inhibition of C3 photosynthesis,
+    e.g. von Caemmerer 2000, ch. 2); with Γ* fixed the electron-limited (weak-light) rate would not
+    move at all. CPlantBox's form keeps Γ* fixed (tests/test_photosynthesis_peer.py)."""
+    p = ps.parameter_set("winter_wheat")
+
+    def at(o2):
+        return eqx.tree_at(lambda x: x.fvcb.o2_mmol_mol, p, o2)
+
+    for o2 in (105.0, 20.0):
+        leaf = ps.leaf_capacities(0.0, 25.0, P_KPA, at(o2).fvcb, p.temperature)
+        assert float(leaf.gamma_star_umol_mol) == pytest.approx(42.75 * o2 / 210.0)
+    par = np.array([1500.0, 150.0])
+    an = {o2: np.asarray(ps.solve(par, 25.0, 400.0, 0.6, P_KPA, at(o2)).an_umol_m2_s) for o2 in (210.0, 20.0)}
+    ratio = an[20.0] / an[210.0]
+    assert np.all((ratio > 1.2) & (ratio < 1.6)), ratio

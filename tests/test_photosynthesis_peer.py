@@ -89,3 +89,19 @@ def test_cplantbox_questionable_cases_are_documented():
     mine = ps.solve(2000.0, 45.0, 250.0, 0.6, 101.325, g, fw=peer.fw[0])
     assert float(mine.an_umol_m2_s) == pytest.approx(peer.an_umol_m2_s[0], rel=1e-3)
     assert float(mine.gs_mol_m2_s) == pytest.approx(float(g.stomata.g0_mol_m2_s))
+
+
+@pytest.mark.parametrize("o2", [20.0, 105.0])
+def test_cplantbox_keeps_gamma_star_whatever_the_o2(o2):
+    """CPlantBox's Γ* does not follow its O2 (``oi``); lightfit's ``cplantbox`` form does the same,
+    so the peer still agrees at 2 % and 10.5 % O2 (only Km moves), while lightfit's literature
+    sets scale Γ* with O2 (tests/test_photosynthesis.py)."""
+    import equinox as eqx
+
+    params = eqx.tree_at(lambda p: p.fvcb.o2_mmol_mol, ps.parameter_set("cplantbox"), o2)
+    par, t, co2 = np.array([1000.0, 1000.0, 300.0]), np.array([25.0, 15.0, 25.0]), np.array([400.0, 150.0, 250.0])
+    peer = run_cplantbox(par, t, co2, params)
+    res = ps.solve(par, t, co2, 0.6, 101.325, params, fw=peer.fw)
+    np.testing.assert_allclose(res.vj_umol_m2_s, peer.vj_umol_m2_s, rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(res.vc_umol_m2_s, peer.vc_umol_m2_s, rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(res.an_umol_m2_s, peer.an_umol_m2_s, rtol=1e-2, atol=0.05)

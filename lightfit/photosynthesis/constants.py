@@ -9,3 +9,7 @@ ZERO_CELSIUS_K = 273.15
 
 #: Pressure at which Michaelis constants are tabulated as mole fractions [kPa].
 REFERENCE_PRESSURE_KPA = 101.325
+
+#: O2 mole fraction at which Γ* is tabulated [mmol mol⁻¹] (21 %, Bernacchi et al. 2001's air).
+#: Γ* = 0.5·O / S_c/o (von Caemmerer 2000, eq. 2.16) is proportional to O2.
+GAMMA_STAR_REFERENCE_O2_MMOL_MOL = 210.0

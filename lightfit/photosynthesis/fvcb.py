@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
-from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
+from .constants import GAMMA_STAR_REFERENCE_O2_MMOL_MOL, REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .parameters import FvCBParams, TemperatureParams
 from .temperature import arrhenius, deactivation, peaked_arrhenius
 
@@ -140,7 +140,10 @@ def leaf_capacities(
 
     Kc and Ko are tabulated as mole fractions at 101.325 kPa; being Michaelis constants
     of partial pressures they scale as 101.325/P at pressure P. Γ* (an O2/CO2 ratio) and
-    the O2 mole fraction do not.
+    the O2 mole fraction do not. Γ* = 0.5·O / S_c/o is proportional to the O2 mole fraction
+    (von Caemmerer 2000, eq. 2.16), tabulated at 210 mmol mol⁻¹; CPlantBox's forms
+    (``temp.form == "cplantbox"``) keep it fixed, as CPlantBox does (its Γ* does not move with
+    its ``oi``: checked against ``cplantbox_peer`` at 20–210 mmol mol⁻¹).
 
     Args:
         par_abs_umol_m2_s: absorbed PAR [µmol m⁻² s⁻¹].
@@ -173,6 +176,8 @@ def leaf_capacities(
     kc = temp.kc_ref_umol_mol * arrhenius(t_k, temp.ea_kc_j_mol, t_ref) * p_scale
     ko = temp.ko_ref_mmol_mol * arrhenius(t_k, temp.ea_ko_j_mol, t_ref) * p_scale
     gamma_star = temp.gamma_star_ref_umol_mol * arrhenius(t_k, temp.ea_gamma_star_j_mol, t_ref)
+    if temp.form != "cplantbox":
+        gamma_star = gamma_star * (fvcb.o2_mmol_mol / GAMMA_STAR_REFERENCE_O2_MMOL_MOL)
     km = kc * (1.0 + fvcb.o2_mmol_mol / ko)
     j = electron_transport_rate(par_abs_umol_m2_s, jmax, fvcb.quantum_yield, fvcb.curvature)
     # f_v underflows only far outside the validated temperature range.
