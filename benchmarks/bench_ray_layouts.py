@@ -51,7 +51,7 @@ from rich.table import Table
 import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.periodic import LEAF
-from lightfit.light.projection import SKY_TILE, _sky_order
+from lightfit.light.projection import _R2, SKY_TILE, _sky_order
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build, organ_class
 from lightfit.precision import use_float64
@@ -59,7 +59,6 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 RESULTS = Path(__file__).resolve().parent / "results"
-_G = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
 
 
 def set_vector_width(width: int) -> int:
@@ -80,6 +79,12 @@ def cosine_directions(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - u1))], 1)
 
 
+def r2_point(shift, j):
+    """The j-th point of the projection's R₂ sequence (generators 1/g, 1/g², g the plastic number),
+    shifted by ``shift`` on the unit square: the sky's direction square (u1, u2)."""
+    return (shift[0] + j / _R2) % 1, (shift[1] + j / _R2**2) % 1
+
+
 def jittered_grid(rng, cell, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cell-frame coordinates (a, b), m, of about m points, one per cell of a grid, row by row, and
     each point's place in the sky's direction sequence (the projection's tiled Z-order)."""
@@ -98,7 +103,7 @@ def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
         d = int(name[2:])
         parts = [jittered_grid(rng, cell, -(-m // d)) for _ in range(d)]
         j = np.arange(d)
-        w = cosine_directions((shift[0] + j / _G) % 1, (shift[1] + j / _G**2) % 1)
+        w = cosine_directions(*r2_point(shift, j))
         a = np.concatenate([p[0] for p in parts])
         b = np.concatenate([p[1] for p in parts])
         return a, b, np.repeat(w, [len(p[0]) for p in parts], axis=0)
@@ -106,7 +111,7 @@ def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
     if name == "sun":
         return a, b, np.repeat(sun[None, :], len(a), axis=0)
     c = np.arange(len(a))
-    u1, u2 = (shift[0] + j / _G) % 1, (shift[1] + j / _G**2) % 1
+    u1, u2 = r2_point(shift, j)
     w = cosine_directions(u1, u2)
     if name == "tiles x bins":
         A, B = (float(v) for v in cell.size_m)

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_light import commit_state  # same script folder
-from bench_ray_layouts import cosine_directions, jittered_grid
+from bench_ray_layouts import cosine_directions, jittered_grid, r2_point
 from rich.console import Console
 from rich.table import Table
 
@@ -59,7 +59,6 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "sky_importance.json"
-_G = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
 #: (tile side in m, direction bins per axis): from cells coarser than a blade to finer than one.
 CELLS = [(0.05, 4), (0.02, 8), (0.01, 8), (0.005, 16)]
 ALPHAS = [0.1, 0.3, 0.5]
@@ -83,7 +82,7 @@ def cast_hits(fs, row_of_face, m: int, seed: int, chunk: int = 4_000_000) -> dic
     out = {k: [] for k in ("a", "b", "u1", "u2", "row")}
     for s in range(0, len(a), chunk):
         aa, bb, jj = a[s : s + chunk], b[s : s + chunk], j[s : s + chunk]
-        u1, u2 = (shift[0] + jj / _G) % 1, (shift[1] + jj / _G**2) % 1
+        u1, u2 = r2_point(shift, jj)
         w = cosine_directions(u1, u2)
         o = [cx + aa * ex + bb * fx, cy + aa * ey + bb * fy, np.full(len(aa), tr.z_top + 1e-3)]
         origin = mi.Point3f(*(mi.Float(x.astype(np.float32)) for x in o))

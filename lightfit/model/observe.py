@@ -87,6 +87,7 @@ from lightfit.model.parameters import Theta
 from lightfit.model.scenario import Forcing
 from lightfit.model.schema import OBSERVABLES
 from lightfit.photosynthesis import PhotosynthesisParams, PhotosynthesisResult, solve_with_par_slope
+from lightfit.weather.solar import horizontal_irradiance
 
 
 def _numpy(*arrays) -> bool:
@@ -156,9 +157,8 @@ def canopy_apar(absorbed, absorbed_mc_sd, area_m2, ground_area_m2) -> tuple:
 def above_canopy_par(dni_par, dhi_par, sun_elevation_deg, light_factor=1.0):
     r"""PAR on a horizontal quantum sensor above the canopy, µmol m⁻² s⁻¹ (T,).
 
-    :math:`f\,(\mathrm{DNI}^{PAR} \sin^+\beta + \mathrm{DHI}^{PAR})`: the cosine law for the
-    direct beam on a horizontal plane plus the diffuse horizontal flux (e.g. Duffie & Beckman 2013,
-    *Solar Engineering of Thermal Processes*, eq. 2.15.1 with a horizontal surface).
+    :math:`f\,(\mathrm{DNI}^{PAR} \sin^+\beta + \mathrm{DHI}^{PAR})`
+    (:func:`lightfit.weather.solar.horizontal_irradiance`, times the light factor).
 
     Args:
         dni_par, dhi_par: (T,) direct-normal and diffuse-horizontal PAR, µmol m⁻² s⁻¹.
@@ -166,8 +166,7 @@ def above_canopy_par(dni_par, dhi_par, sun_elevation_deg, light_factor=1.0):
         light_factor: f, the model's multiplier of the forcing's light (dimensionless).
     """
     xp = np if _numpy(dni_par, dhi_par, sun_elevation_deg, light_factor) else jnp
-    sin_b = xp.maximum(xp.sin(xp.deg2rad(sun_elevation_deg)), 0.0)
-    return light_factor * (dni_par * sin_b + dhi_par)
+    return light_factor * horizontal_irradiance(dni_par, dhi_par, sun_elevation_deg, xp)
 
 
 def _ratio(x, x_mc_sd, above_par) -> tuple:

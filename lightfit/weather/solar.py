@@ -63,6 +63,14 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     return pd.DataFrame({"dni_w_m2": dni, "dhi_w_m2": dhi}, index=times)
 
 
+def horizontal_irradiance(dni, dhi, sun_elevation_deg, xp=np):
+    r"""Irradiance (or photon flux) on a horizontal plane from its direct-normal and diffuse-horizontal
+    parts, in their unit: :math:`\mathrm{DNI} \sin^+\beta + \mathrm{DHI}`, the cosine law for the
+    beam (below the horizon it counts 0; e.g. Duffie & Beckman 2013, *Solar Engineering of Thermal
+    Processes*, eq. 2.15.1 with a horizontal surface). ``xp``: numpy or ``jax.numpy``."""
+    return dni * xp.maximum(xp.sin(xp.deg2rad(sun_elevation_deg)), 0.0) + dhi
+
+
 def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None) -> tuple[np.ndarray, np.ndarray]:
     r"""Direct-normal and diffuse-horizontal PAR photon flux, µmol m⁻² s⁻¹, for the light model.
 
@@ -89,7 +97,7 @@ def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None
     """
     dni = np.asarray(dni_w_m2, dtype=np.float64)
     dhi = np.asarray(dhi_w_m2, dtype=np.float64)
-    ghi = dni * np.sin(np.radians(np.clip(np.asarray(sun_elevation_deg, dtype=np.float64), 0.0, None))) + dhi
+    ghi = horizontal_irradiance(dni, dhi, np.asarray(sun_elevation_deg, dtype=np.float64))
     k = np.full_like(ghi, float(par_from_ghi(1.0)))
     if par_umol_m2_s is not None:
         par = np.asarray(par_umol_m2_s, dtype=np.float64)
@@ -101,7 +109,7 @@ def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None
                 column="par_umol_m2_s",
                 expected="a PAR value wherever DNI or DHI is above 0 (fill or drop those steps)",
             )
-        k = np.where(lit, np.maximum(np.where(lit, par, 0.0), 0.0) / np.where(lit, ghi, 1.0), k)
+        np.divide(np.maximum(par, 0.0), ghi, out=k, where=lit)
     return k * dni, k * dhi
 
 
