@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from lightfit.errors import InputError
-from lightfit.weather import SELHAUSEN, solar_position, split_direct_diffuse
+from lightfit.weather import SELHAUSEN, resample, solar_position, split_direct_diffuse
 
 
 def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> float:
@@ -121,6 +121,8 @@ def test_the_canopy_is_lit_with_the_measured_par():
     df.loc[dawn, "par_umol_m2_s"] = -0.8  # a sensor offset
     w = add_solar(df)
     assert [q for q in w.attrs["qc"] if q["kind"] == "checked"][0]["detail"].startswith("PAR / global radiation 2.000")
+    # Resampled, the series is checked again and its source's check replaced, not repeated.
+    assert sum(q["kind"] == "checked" for q in resample(w, "60min", "mean").attrs["qc"]) == 1
     f = Forcing.of(w)
     sin_b = np.sin(np.radians(w["sun_elevation_deg"].clip(lower=0).to_numpy()))
     horizontal = f.dni_par * sin_b + f.dhi_par

@@ -151,5 +151,5 @@ def weather_report(df) -> None:
     if a.get("unused_columns"):
         console.print(f"  [dim]not used: {escape(', '.join(a['unused_columns']))}[/]")
     for q in a.get("qc", []):
-        label = "[green]check[/]" if q["kind"] == "checked" else "[yellow]repair[/]"
-        console.print(f"  {label} {q['kind']}: {escape(q['detail'])}")
+        label = "[green]check[/]" if q["kind"] == "checked" else f"[yellow]repair[/] {q['kind']}:"
+        console.print(f"  {label} {escape(q['detail'])}")

@@ -147,6 +147,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     k = float(par_from_ghi(1.0))
     if {"par_umol_m2_s", "ghi_w_m2"} <= set(out.columns):
         ratio = check_par_per_ghi(out["par_umol_m2_s"], out["ghi_w_m2"])
+        # The check describes this series: a resampled one replaces its source's.
+        qc = [q for q in qc if q["kind"] != "checked" or q["column"] != "par_umol_m2_s"]
         qc.append(
             {
                 "kind": "checked",
