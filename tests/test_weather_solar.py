@@ -110,11 +110,12 @@ def _two_sensor_day(par_per_ghi: float) -> pd.DataFrame:
 
 def test_the_canopy_is_lit_with_the_measured_par():
     """With a PAR sensor beside the pyranometer, the light model's horizontal PAR is the
-    measured PAR and its diffuse fraction that of the global radiation's split; before, it was
-    0.50 × 4.57 µmol J⁻¹ × GHI whatever the PAR sensor said (14 % more light at 2.0 µmol J⁻¹)."""
+    measured PAR and its diffuse fraction Spitters' from the global radiation's split; before, it
+    was 0.50 × 4.57 µmol J⁻¹ × GHI whatever the PAR sensor said (14 % more light at 2.0 µmol J⁻¹)."""
     from lightfit.model.observe import above_canopy_par
     from lightfit.model.scenario import Forcing
     from lightfit.weather import add_solar
+    from lightfit.weather.solar import par_diffuse_fraction
 
     df = _two_sensor_day(2.0)
     dawn = df.index[np.flatnonzero(df["ghi_w_m2"] > 0)[0]]
@@ -128,7 +129,9 @@ def test_the_canopy_is_lit_with_the_measured_par():
     horizontal = f.dni_par * sin_b + f.dhi_par
     lit = (w["ghi_w_m2"] > 0).to_numpy() & (w.index != dawn)
     assert np.allclose(horizontal[lit], w["par_umol_m2_s"][lit], rtol=1e-12)
-    assert np.allclose(f.dhi_par[lit] / horizontal[lit], (w["dhi_w_m2"] / w["ghi_w_m2"])[lit], rtol=1e-12)
+    kd = (w["dhi_w_m2"] / w["ghi_w_m2"])[lit].to_numpy()
+    kd_par = f.dhi_par[lit] / horizontal[lit]
+    assert np.allclose(kd_par, par_diffuse_fraction(kd, w["sun_elevation_deg"][lit]), rtol=1e-12)
     assert horizontal[w.index.get_loc(dawn)] == 0.0  # no negative light
     assert (horizontal[~(w["ghi_w_m2"] > 0).to_numpy()] == 0).all()
     assert np.allclose(
@@ -139,16 +142,53 @@ def test_the_canopy_is_lit_with_the_measured_par():
 @pytest.mark.parametrize("measured", ["ghi_w_m2", "par_umol_m2_s"])
 def test_one_sensor_keeps_the_constant_photon_ratio(measured):
     """Global radiation alone (PAR derived) or PAR alone (global radiation derived): 0.50 ×
-    4.57 µmol J⁻¹ (McCree 1972) converts the split, as before, and the horizontal PAR is the
+    4.57 µmol J⁻¹ (McCree 1972) converts global radiation, and the horizontal PAR is the
     series' PAR."""
+    from lightfit.model.observe import above_canopy_par
     from lightfit.model.scenario import Forcing
     from lightfit.weather import add_solar
 
     w = add_solar(_two_sensor_day(0.5 * 4.57)[[measured, "tair_c", "rh", "pair_kpa", "co2_ppm"]])
     f = Forcing.of(w)
-    assert np.allclose(f.dni_par, 0.5 * 4.57 * w["dni_w_m2"], rtol=1e-12)
-    assert np.allclose(f.dhi_par, 0.5 * 4.57 * w["dhi_w_m2"], rtol=1e-12)
+    el = w["sun_elevation_deg"].to_numpy()
+    assert np.allclose(above_canopy_par(f.dni_par, f.dhi_par, el), w["par_umol_m2_s"], rtol=1e-12, atol=1e-9)
+    assert np.allclose(above_canopy_par(f.dni_par, f.dhi_par, el), 0.5 * 4.57 * w["ghi_w_m2"], rtol=1e-12, atol=1e-9)
     assert not any(q["kind"] == "checked" for q in w.attrs["qc"])
+
+
+# k_d, sun elevation (°), Spitters et al. (1986) eqs. 9–10 worked by hand:
+# [1 + 0.3 (1 − k_d²)] k_d / [1 + (1 − k_d²) sin²β cos³β].
+SPITTERS_BY_HAND = [
+    (0.15, 39.2, 0.1939875 / (1 + 0.9775 * 0.399461 * 0.465384)),  # clear sky, near the circumsolar term's peak
+    (0.15, 15.0, 0.1939875 / (1 + 0.9775 * 0.066987 * 0.901221)),  # clear, low sun
+    (0.15, 60.0, 0.1939875 / (1 + 0.9775 * 0.75 * 0.125)),  # clear, high sun
+    (0.5, 30.0, 0.5 * 1.225 / (1 + 0.75 * 0.25 * 0.649519)),  # broken cloud
+    (1.0, 30.0, 1.0),  # overcast: all diffuse either way
+    (0.0, 30.0, 0.0),
+]
+
+
+@pytest.mark.parametrize(("kd", "elevation", "expected"), SPITTERS_BY_HAND)
+def test_par_diffuse_fraction_is_spitters(kd, elevation, expected):
+    from lightfit.weather.solar import par_diffuse_fraction
+
+    assert par_diffuse_fraction(kd, elevation) == pytest.approx(expected, rel=2e-5)
+
+
+def test_par_is_more_diffuse_than_global_radiation_and_conserved():
+    """Over a grid of skies and suns PAR's diffuse fraction is in [k_d, 1] (the blue sky adds more
+    than the circumsolar term removes), and the split keeps the horizontal PAR."""
+    from lightfit.model.observe import above_canopy_par
+    from lightfit.weather.solar import par_diffuse_fraction, par_direct_diffuse
+
+    kd, el = np.meshgrid(np.linspace(0, 1, 21), np.linspace(0.5, 90, 40))
+    f = par_diffuse_fraction(kd, el)
+    assert ((f >= kd - 1e-15) & (f <= 1)).all()
+    ghi = 800.0 * np.sin(np.radians(el))
+    dni, dhi = (1 - kd) * ghi / np.sin(np.radians(el)), kd * ghi
+    dni_par, dhi_par = par_direct_diffuse(dni, dhi, el, 2.0 * ghi)
+    assert (dni_par >= 0).all() and (dhi_par >= 0).all()
+    assert np.allclose(above_canopy_par(dni_par, dhi_par, el), 2.0 * ghi, rtol=1e-12)
 
 
 @pytest.mark.parametrize("ratio", [0.45, 4.57e-3, 4.57])  # PAR in W m⁻², in mmol, all of it photons of PAR

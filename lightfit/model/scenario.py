@@ -4,7 +4,8 @@ per-step :class:`Forcing` the observation operator reads from its weather.
 A step is *daytime* (rendered) when :math:`\mathrm{DNI} + \mathrm{DHI} > 0` and the sun is above
 −1° elevation (:func:`daytime`); night steps get zero light. The weather's DNI and DHI are turned
 into photon fluxes by :func:`lightfit.weather.solar.par_direct_diffuse`: scaled to the measured PAR
-where the series has a PAR sensor, else 0.50 × 4.57 = 2.285 µmol J⁻¹.
+where the series has a PAR sensor, else 0.50 × 4.57 = 2.285 µmol J⁻¹, with PAR's diffuse fraction
+from global radiation's (Spitters et al. 1986).
 """
 
 from __future__ import annotations
@@ -51,8 +52,8 @@ class Forcing:
     Attributes:
         day: :func:`daytime` mask.
         dni_par, dhi_par: direct-normal and diffuse PAR photon flux, µmol m⁻² s⁻¹
-            (:func:`~lightfit.weather.solar.par_direct_diffuse`: the measured PAR, split as the
-            global radiation is).
+            (:func:`~lightfit.weather.solar.par_direct_diffuse`: the measured PAR, its diffuse
+            fraction Spitters' from the global radiation's split).
         tair_c: air temperature (= leaf temperature, a documented simplification), °C.
         co2_ppm: air CO2 (= CO2 at the leaf surface), µmol mol⁻¹.
         rh: relative humidity, 0–1. pair_kpa: air pressure, kPa.

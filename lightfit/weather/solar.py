@@ -74,34 +74,35 @@ def horizontal_irradiance(dni, dhi, sun_elevation_deg, xp=np):
 def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None) -> tuple[np.ndarray, np.ndarray]:
     r"""Direct-normal and diffuse-horizontal PAR photon flux, µmol m⁻² s⁻¹, for the light model.
 
-    The split of global radiation (:func:`split_direct_diffuse`) sets the diffuse fraction; the
-    PAR itself comes from the series' PAR sensor where it has one:
+    The horizontal PAR is the series' PAR sensor's where it has one,
 
     .. math::
-        k_t = \frac{\mathrm{PAR}_t}{\mathrm{GHI}_t},\quad
-        \mathrm{GHI}_t = \mathrm{DNI}_t \sin\beta_t + \mathrm{DHI}_t,\quad
-        \mathrm{DNI}^{PAR}_t = k_t\,\mathrm{DNI}_t,\quad \mathrm{DHI}^{PAR}_t = k_t\,\mathrm{DHI}_t
+        \mathrm{PAR}^h_t = k_t\,\mathrm{GHI}_t,\quad k_t = \frac{\mathrm{PAR}_t}{\mathrm{GHI}_t},\quad
+        \mathrm{GHI}_t = \mathrm{DNI}_t \sin\beta_t + \mathrm{DHI}_t
 
-    (GHI by the split's closure), so the horizontal PAR the canopy is lit with,
-    DNI^PAR sin β + DHI^PAR, is the measured PAR at every step with light. Without a PAR series
-    (``None``) k = 0.50 × 4.57 µmol J⁻¹ (:func:`~lightfit.weather.units.par_from_ghi`); where
-    :func:`add_solar` derived PAR from global radiation, or global radiation from PAR, k is that
-    same constant, so only series with both sensors move. A PAR reading ≤ 0 (a sensor offset at
-    dawn) where GHI > 0 gives no light rather than negative light.
+    (GHI by the split's closure), so the canopy is lit with the measured PAR at every step with
+    light. Without a PAR series (``None``) k = 0.50 × 4.57 µmol J⁻¹
+    (:func:`~lightfit.weather.units.par_from_ghi`); where :func:`add_solar` derived PAR from global
+    radiation, or global radiation from PAR, k is that same constant. A PAR reading ≤ 0 (a sensor
+    offset at dawn) where GHI > 0 gives no light rather than negative light.
 
-    The diffuse fraction of PAR is taken as that of global radiation; under clear skies PAR's is
-    higher (a blue sky, Spitters et al. 1986, Agric. For. Meteorol. 38, 217), not modelled here.
+    The diffuse fraction of PAR follows from global radiation's, k_d = DHI / GHI, by
+    :func:`par_diffuse_fraction` (Spitters et al. 1986): higher under a clear, blue sky, and
+    without the circumsolar part, which comes from around the sun and goes with the beam for the
+    light model's sky without a circumsolar peak. Then
+    DHI^PAR = k_d^PAR PAR^h and DNI^PAR = (1 − k_d^PAR) PAR^h / sin β.
 
     Raises:
         InputError: a step with light whose PAR is not a number.
     """
     dni = np.asarray(dni_w_m2, dtype=np.float64)
     dhi = np.asarray(dhi_w_m2, dtype=np.float64)
-    ghi = horizontal_irradiance(dni, dhi, np.asarray(sun_elevation_deg, dtype=np.float64))
+    el = np.asarray(sun_elevation_deg, dtype=np.float64)
+    ghi = horizontal_irradiance(dni, dhi, el)
+    lit = ghi > 0
     k = np.full_like(ghi, float(par_from_ghi(1.0)))
     if par_umol_m2_s is not None:
         par = np.asarray(par_umol_m2_s, dtype=np.float64)
-        lit = ghi > 0
         if np.isnan(par[lit]).any():
             bad = np.flatnonzero(lit & np.isnan(par))
             raise InputError(
@@ -110,7 +111,31 @@ def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None
                 expected="a PAR value wherever DNI or DHI is above 0 (fill or drop those steps)",
             )
         np.divide(np.maximum(par, 0.0), ghi, out=k, where=lit)
-    return k * dni, k * dhi
+    par_h = np.where(lit, k * ghi, 0.0)
+    kd_par = par_diffuse_fraction(np.divide(dhi, ghi, out=np.ones_like(ghi), where=lit), el)
+    sin_b = np.maximum(np.sin(np.radians(el)), 0.0)
+    dni_par = np.divide((1.0 - kd_par) * par_h, sin_b, out=np.zeros_like(ghi), where=sin_b > 0)
+    return dni_par, kd_par * par_h
+
+
+def par_diffuse_fraction(global_diffuse_fraction, sun_elevation_deg) -> np.ndarray:
+    r"""Diffuse fraction of PAR from that of global radiation k_d at sun elevation β (Spitters,
+    Toussaint & Goudriaan 1986, Agric. For. Meteorol. 38, 217, eqs. 9–10):
+
+    .. math::
+        k_d^{PAR} = \frac{[1 + 0.3\,(1 - k_d^2)]\,k_d}{1 + (1 - k_d^2)\cos^2(90° - \beta)\cos^3\beta}
+
+    The numerator is the blue sky's larger share of PAR (Rayleigh scattering; up to 1.3× under a
+    clear sky, 1× under overcast), the denominator removes the circumsolar part (Klucher's 1979
+    anisotropy term, up to 19 % of the diffuse at β ≈ 39°), which the light model's sky (uniform or
+    CIE overcast, no circumsolar peak) would otherwise spread over the hemisphere. Evaluated by
+    pvlib (:func:`pvlib.irradiance.diffuse_par_spitters`, documented there for daily totals at the
+    daily mean zenith), here per step with the step's β, as the formula's β is the sun's elevation
+    at an instant. At k_d = 1 (overcast, or the sun below the horizon) it is 1; it lies in [0, 1].
+    """
+    kd = np.clip(np.asarray(global_diffuse_fraction, dtype=np.float64), 0.0, 1.0)
+    el = np.asarray(sun_elevation_deg, dtype=np.float64)
+    return np.asarray(pvlib.irradiance.diffuse_par_spitters(90.0 - el, kd), dtype=np.float64)
 
 
 def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series) -> float:
@@ -138,7 +163,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     If only PAR was measured, global radiation is estimated as PAR / (0.50 × 4.57 µmol J⁻¹)
     so that the split can run; either estimate is recorded in ``attrs["qc"]``. With both measured,
     their ratio is checked (:func:`check_par_per_ghi`) and recorded there: the light model takes
-    the PAR from the PAR sensor and the diffuse fraction from the split (:func:`par_direct_diffuse`).
+    the PAR from the PAR sensor and its diffuse fraction from the split's (:func:`par_direct_diffuse`).
     """
     site = site or df.attrs.get("site") or SELHAUSEN
     out = df.copy()
