@@ -291,3 +291,14 @@ def test_surrogate_calibration_reaches_the_full_render_optimum(twin_model, twin_
     again = surrogate_calibrate(twin_model, obs, out=tmp_path / "out2", **kw)
     assert E.COUNTS["rendered"] == before["rendered"] and again.rendered == 0
     assert again.result.theta == res.result.theta and again.loss_full == res.loss_full
+
+
+def test_a_twin_on_unconverged_photosynthesis_is_refused(short_model, monkeypatch):
+    """Synthetic observations are never built on a solve that did not converge (solver capped at one
+    iteration): the error names θ."""
+    from lightfit.photosynthesis.solver import SolverConfig
+
+    capped = SolverConfig.for_dtype.__func__
+    monkeypatch.setattr(SolverConfig, "for_dtype", classmethod(lambda cls, dtype, max_steps=100: capped(cls, dtype, 1)))
+    with pytest.raises(InputError, match=r"theta.*did not converge for \d+ blade-step"):
+        twin_observations(short_model, {"specular": 0.7}, render_seed=5, noise_seed=3)

@@ -223,6 +223,29 @@ def test_forced_non_convergence_is_warned_and_counted(model, monkeypatch):
         assert f"({bad[i]} blades)" in msg and pd.Timestamp(ds["time"].values[i]).strftime("%H:%M UTC") in msg
 
 
+def test_forward_outputs_count_unconverged_blades(model, monkeypatch):
+    """The observation operator counts the blades whose photosynthesis did not converge per step,
+    with the exact leaf (the same count as simulate's flags) and the tabulated leaf inference uses
+    (a step counts all its blades when its grid did not converge); 0 when the solver converges."""
+    from lightfit.model.observe import CONVERGENCE_KEY, tabulated_leaf, unconverged
+    from lightfit.photosynthesis.solver import SolverConfig
+
+    parts = model.render(THETA)
+    stored = model.with_light(lambda theta: parts)
+    n_blades = int(model.is_blade.sum())
+    for leaf in (None, tabulated_leaf(16)):
+        o = stored.operator(*parts, stored.theta(THETA), **({} if leaf is None else {"leaf": leaf}))
+        assert int(unconverged(o)) == 0 and np.asarray(o[CONVERGENCE_KEY]).shape == (len(model.times),)
+    capped = SolverConfig.for_dtype.__func__
+    monkeypatch.setattr(SolverConfig, "for_dtype", classmethod(lambda cls, dtype, max_steps=100: capped(cls, dtype, 1)))
+    o = stored.observe(THETA)
+    flags = np.asarray(o["photosynthesis"].converged)
+    assert np.asarray(o[CONVERGENCE_KEY]).tolist() == (~flags).sum(axis=1).tolist()
+    assert int(unconverged(o)) > 0
+    tab = np.asarray(stored.operator(*parts, stored.theta(THETA), leaf=tabulated_leaf(16))[CONVERGENCE_KEY])
+    assert set(tab.tolist()) <= {0, n_blades} and tab.sum() > 0
+
+
 def test_an_noise_bias_matches_noise_averaged_photosynthesis(weather):
     """The Jensen bias of leaf An from Gaussian noise in its PAR (nine-node Gauss–Hermite) against
     the brute-force average of the exact leaf solve over 2 × 2 000 antithetic noise draws, at

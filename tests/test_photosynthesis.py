@@ -253,6 +253,34 @@ def test_non_convergence_is_flagged():
     assert np.all(np.asarray(res.iterations) <= 1)
 
 
+@pytest.mark.parametrize("form", ["winter_wheat", "giraud2023"])  # solved, closed form
+def test_non_finite_inputs_under_jit_are_not_converged(form):
+    """Under jit the range checks are skipped: a NaN light fell through the light response's
+    comparisons as darkness and came back "converged" (An = −Rd), an infinite Vcmax or light as
+    NaN. Every such input is now flagged, and the finite extremes beside them still converge."""
+    import equinox as eqx
+
+    base = ps.parameter_set(form)
+
+    @jax.jit
+    def run(par, t, co2, scale):
+        p = eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, base, base.fvcb.vcmax_ref_umol_m2_s * scale)
+        return ps.solve(par, t, co2, 0.6, P_KPA, p).converged
+
+    cases = {  # (PAR, T, CO2, Vcmax scale): converged?
+        (1500.0, 25.0, 420.0, 1.0): True,
+        (0.0, 10.0, 420.0, 1.0): True,
+        (1e7, 25.0, 420.0, 1.0): True,
+        (np.nan, 25.0, 420.0, 1.0): False,
+        (np.inf, 25.0, 420.0, 1.0): False,
+        (1500.0, np.nan, 420.0, 1.0): False,
+        (1500.0, 25.0, np.nan, 1.0): False,
+        (1500.0, 25.0, 420.0, np.inf): False,
+    }
+    got = {c: bool(run(*map(jnp.asarray, c))) for c in cases}
+    assert got == cases
+
+
 def test_jit_vmap_and_broadcast_agree():
     p = ps.parameter_set("giraud2023_coupled")
     par = np.linspace(0, 2000, 12).reshape(3, 4)  # (time, segment)

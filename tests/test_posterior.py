@@ -456,3 +456,66 @@ def test_fast_observables_match_observe_on_quick_field():
     # validate() against a full render at a design point: degree-1 fit error stays small
     val = E.validate(model, E.FastObservables(model, emu), emu.design[:1], theta_extra={"light_factor": 1.0})
     assert np.abs(val["err_plant_par_umol_m2_s"]).max() < 5.0
+
+
+class FailsAbove(FakeModel):
+    """FakeModel whose leaf photosynthesis does not converge (2 blades at every lit step) where
+    vcmax_scale > 1.3, and whose canopy An is NaN where vcmax_scale > 1.6."""
+
+    def observe(self, th: Theta):
+        from lightfit.model.observe import CONVERGENCE_KEY
+
+        out = super().observe(th)
+        out[CONVERGENCE_KEY] = jnp.where(th.vcmax_scale > 1.3, 2, 0) * (self.shape > 0)
+        out["canopy_an_umol_m2_s"] = jnp.where(th.vcmax_scale > 1.6, jnp.nan, out["canopy_an_umol_m2_s"])
+        return out
+
+
+def test_the_posterior_refuses_unconverged_photosynthesis(tmp_path):
+    """A θ whose photosynthesis did not converge gets log-probability −inf, never a value built on it
+    (before: finite at 1.4), and a NaN likelihood −inf instead of emcee's ValueError; the first is
+    warned, all are counted, and the sampler records the count in the run's file."""
+    import warnings
+
+    from lightfit.model.coupled import NonConvergenceWarning
+
+    model = FailsAbove()
+    names = ("specular", "light_factor", "vcmax_scale")
+    lp = P.LogPosterior(model.observe, model.times, _fake_obs(model), names, P.PRIORS_INFORMED)
+    xs = np.array([[0.55, 1.05, 0.95], [0.55, 1.05, 1.4], [0.55, 1.05, 1.7], [0.55, 1.05, 5.0]])
+    with pytest.warns(NonConvergenceWarning, match=r"'vcmax_scale': 1\.4.*did not converge"):
+        out = lp(xs)
+    assert np.isfinite(out[0]) and (out[1:] == -np.inf).all()
+    assert lp.refused == 2  # 5.0 lies outside the prior: not a refusal
+    assert float(lp.log_prob(jnp.asarray(xs[1]))) == -np.inf
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # warned once per posterior
+        lp(xs[1:3])
+    assert lp.refused == 4
+
+    lp = P.LogPosterior(model.observe, model.times, _fake_obs(model), names, P.PRIORS_INFORMED)
+    start = np.random.default_rng(4).uniform([0.5, 1.0, 1.0], [0.6, 1.1, 1.29], size=(16, 3))
+    with pytest.warns(NonConvergenceWarning):
+        run = P.sample(lp, names, tmp_path / "r.h5", nwalkers=16, max_steps=40, seed=1, initial=start, progress=False)
+    assert run.refused == lp.refused > 0
+    assert (run.chain[..., 2] <= 1.3).all()
+    assert P.load_run(tmp_path / "r.h5")["attrs"]["refused"] == run.refused
+
+
+def test_calibration_refuses_unconverged_photosynthesis():
+    """The loss is +inf where the photosynthesis did not converge (the line search rejects it), so
+    calibration from a good start stays out; from a start where it did not converge it stops and
+    says so, naming θ."""
+    from lightfit.inference.calibration import calibrate
+
+    model = FailsAbove()
+    obs = _fake_obs(model)
+    names = ("light_factor", "vcmax_scale")
+    loss = make_loss(model, obs, names)
+    assert float(loss.natural(jnp.asarray([1.05, 1.4]))) == np.inf
+    assert np.isfinite(float(loss.natural(jnp.asarray([1.05, 1.2]))))
+    good = calibrate(model, obs, names=names, start={"vcmax_scale": 1.25}, progress=False, say=lambda s: None)
+    assert good.stopped_by == "converged" and good.theta["vcmax_scale"] < 1.3
+    bad = calibrate(model, obs, names=names, start={"vcmax_scale": 1.4}, progress=False, say=lambda s: None)
+    assert bad.stopped_by.startswith("unconverged")
+    assert "did not converge at light_factor=" in bad.reason and "vcmax_scale=1.4" in bad.reason

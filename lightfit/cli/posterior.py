@@ -185,7 +185,9 @@ def posterior(
         console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")
         return
     t = Table(
-        title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling)"
+        title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling"
+        + (f", {res['refused']} proposals refused: photosynthesis did not converge" if res["refused"] else "")
+        + ")"
     )
     for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS"):
         t.add_column(c, justify="right")

@@ -58,6 +58,7 @@ from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.progress import progress_bar
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
+from lightfit.model.observe import unconverged
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
 
 #: Distance kept from finite bounds (see the module docstring).
@@ -105,7 +106,10 @@ class Loss:
         return self.base.with_vector(self.names, x)
 
     def natural(self, x) -> jax.Array:
-        return self.likelihood.loss(self.forward(self.theta(x)))
+        """The loss at natural parameters ``x``; +inf where a blade's photosynthesis did not converge
+        (no loss to trust there: the line searches reject the trial)."""
+        m = self.forward(self.theta(x))
+        return jnp.where(unconverged(m) > 0, jnp.inf, self.likelihood.loss(m))
 
     def to_natural(self, z) -> jax.Array:
         return jnp.stack([from_unconstrained(z[i], n, self.bounds) for i, n in enumerate(self.names)])
@@ -167,7 +171,8 @@ class CalibrationResult:
             computes the gradient only at accepted points), including those before an exact resume.
         stopped_by: ``"converged"`` (the method's tolerances met), ``"max_steps"`` (step limit),
             ``"stalled"`` (10·max_steps trials without reaching the step limit: the line search keeps
-            rejecting) or ``"failed: <reason>"`` (e.g. ``"failed: line search"``).
+            rejecting), ``"failed: <reason>"`` (e.g. ``"failed: line search"``) or ``"unconverged: θ"``
+            (the leaf photosynthesis did not converge at an accepted point: only a start can be one).
         reason: the same as a sentence with the numbers (tolerances, counts).
     """
 
@@ -462,6 +467,9 @@ def calibrate(
                 c["accepted"] += 1
                 x, f, g = opt.point()
                 values = {n: float(v) for n, v in zip(names, np.asarray(x))}
+                if not math.isfinite(f):  # an accepted point with no loss: the start was one
+                    c["stopped_by"] = "unconverged: " + ", ".join(f"{n}={v:.6g}" for n, v in values.items())
+                    break
                 if f < c["best_loss"]:
                     c["best_loss"], c["best_x"] = f, [float(v) for v in np.asarray(x)]
                 if hist:
@@ -526,6 +534,11 @@ def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, tria
         return f"step limit: {max_steps} accepted steps"
     if stopped_by == "stalled":
         return f"stalled: {trials} trials (limit 10 × max_steps) without reaching {max_steps} accepted steps"
+    if stopped_by.startswith("unconverged: "):
+        return (
+            f"failed: the leaf photosynthesis did not converge at {stopped_by.split(': ', 1)[1]} "
+            "(a start outside the model's range; SolverConfig sets the solver's limits)"
+        )
     return stopped_by
 
 

@@ -34,14 +34,17 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.model.coupled import CoupledModel
+from lightfit.model.observe import CONVERGENCE_KEY
 from lightfit.model.parameters import Theta
 from lightfit.model.schema import OBSERVABLES
 
 
 def concat_observables(outs: Sequence[Mapping]) -> dict:
-    """The :data:`~lightfit.model.schema.OBSERVABLES` (each (T_d,)) of several days' forward outputs,
+    """The :data:`~lightfit.model.schema.OBSERVABLES` (each (T_d,)) of several days' forward outputs
+    and their counts of unconverged blades (:data:`~lightfit.model.observe.CONVERGENCE_KEY`),
     concatenated along time; per-segment fields (whose segments differ from day to day) are left out."""
-    return {k: jnp.concatenate([jnp.asarray(o[k]) for o in outs]) for k in OBSERVABLES if all(k in o for o in outs)}
+    keys = (*OBSERVABLES, CONVERGENCE_KEY)
+    return {k: jnp.concatenate([jnp.asarray(o[k]) for o in outs]) for k in keys if all(k in o for o in outs)}
 
 
 class DaysForward:

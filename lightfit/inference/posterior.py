@@ -355,6 +355,7 @@ def run(
         "tau": res.diagnostics["tau"].tolist(),
         "ess": res.diagnostics["ess"].tolist(),
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
+        "refused": res.refused,
     }
     if not analysis:
         return out

@@ -14,8 +14,10 @@ from collections.abc import Callable, Mapping
 import numpy as np
 import pandas as pd
 
+from lightfit.errors import InputError
 from lightfit.inference.observations import BY_NAME
 from lightfit.model.coupled import CoupledModel
+from lightfit.model.observe import unconverged
 from lightfit.model.parameters import Theta, as_theta
 
 
@@ -40,10 +42,19 @@ def twin_observations(
     1 µmol m⁻² s⁻¹) and is clipped at 0; canopy net CO2 uptake SD ``an_sd_umol_m2_s``; both SDs are
     written with the values. Night steps are missing, except CO2 uptake (respiration) when
     ``an_at_night``. Noise: one standard-normal draw per step for PAR, then one per step for CO2,
-    from ``numpy.random.default_rng(noise_seed)``.
+    from ``numpy.random.default_rng(noise_seed)``. Refused (InputError naming ``theta``) where the
+    leaf photosynthesis did not converge.
     """
     sc = dataclasses.replace(model.scenario, seed=render_seed)
     o = CoupledModel(sc).observe(as_theta(theta))
+    n = int(unconverged(o))
+    if n:
+        raise InputError(
+            f"the leaf photosynthesis did not converge for {n} blade-step(s) at the twin's θ "
+            f"{as_theta(theta).to_dict()}: observations built on it would be the solver's last iterate",
+            column="theta",
+            expected="parameters inside the model's range (or a SolverConfig with more steps)",
+        )
     rng = np.random.default_rng(noise_seed)
     par_s, an_s = BY_NAME["plant_par"], BY_NAME["canopy_an"]
     par = np.asarray(o[par_s.value])

@@ -60,7 +60,7 @@ from lightfit.light.estimator import ESTIMATOR_VERSION, PARTS
 from lightfit.light.projection import PROJECTION_VERSION
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
-from lightfit.model.observe import OBSERVABLES, exact_leaf, tabulated_leaf
+from lightfit.model.observe import CONVERGENCE_KEY, OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 
@@ -602,7 +602,8 @@ def restrict(model: CoupledModel, keep, rendered=None) -> CoupledModel:
 class FastObservables:
     """The observables of :meth:`CoupledModel.observe` from emulated parts; jit- and vmap-able.
 
-    ``fast(theta)`` → dict of the :data:`~lightfit.model.observe.OBSERVABLES` (each (T,)), from
+    ``fast(theta)`` → dict of the :data:`~lightfit.model.observe.OBSERVABLES` (each (T,)) and the
+    count of unconverged blades per step (:data:`~lightfit.model.observe.CONVERGENCE_KEY`), from
     the model's own observation operator with two speed-ups: only the needed parts are emulated,
     and ``n_grid`` (an integer) tabulates the leaf photosynthesis per step
     (:func:`~lightfit.model.observe.tabulated_leaf`); ``n_grid=None`` solves it for every blade
@@ -639,7 +640,7 @@ class FastObservables:
     def __call__(self, theta: Theta | Mapping[str, float]) -> dict:
         th = as_theta(theta)
         o = self.model.operator(*self.parts(th), th, rows=self.rows, leaf=self.leaf)
-        return {k: o[k] for k in OBSERVABLES}
+        return {k: o[k] for k in (*OBSERVABLES, CONVERGENCE_KEY)}
 
 
 #: Observables whose emulation error :func:`validate` reports (``err_<name>``, ``full_<name>``): every

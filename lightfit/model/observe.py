@@ -73,7 +73,7 @@ arrays (computed in JAX, differentiable).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -285,13 +285,28 @@ def observables(
 
 # -- leaf photosynthesis --------------------------------------------------------------------
 
+#: Key of the operator's (T,) count of blades whose photosynthesis did not converge; forward
+#: functions (``observe``, :class:`~lightfit.model.emulator.FastObservables`) pass it on beside the
+#: :data:`OBSERVABLES`, and inference refuses a θ where it is not 0 (:func:`unconverged`).
+CONVERGENCE_KEY = "unconverged_blades"
+
+
+def unconverged(outputs: Mapping) -> jax.Array:
+    """Blades whose photosynthesis did not converge, summed over the steps of a forward's
+    ``outputs`` (0 where it has no :data:`CONVERGENCE_KEY`: a forward that solves nothing)."""
+    n = outputs.get(CONVERGENCE_KEY)
+    return jnp.asarray(0) if n is None else jnp.sum(jnp.asarray(n))
+
 
 class LeafResponse(NamedTuple):
     """Leaf photosynthesis of the blades: net assimilation and dAn/dq, each (T, B), µmol m⁻² s⁻¹
-    and mol mol⁻¹; ``result`` the full solution (conductance, Ci, limitation…) where computed."""
+    and mol mol⁻¹; ``converged`` (T, B) bool, False where the solve behind a blade's value did not
+    converge (:attr:`PhotosynthesisResult.converged`); ``result`` the full solution (conductance,
+    Ci, limitation…) where computed."""
 
     an: jax.Array
     dan_dq: jax.Array
+    converged: jax.Array
     result: PhotosynthesisResult | None = None
 
 
@@ -315,7 +330,7 @@ def _solve_with_slope(q, forcing: Forcing, params: PhotosynthesisParams):
 def exact_leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
     """The photosynthesis solved for every blade (with the full result)."""
     res, dan = _solve_with_slope(q, forcing, params)
-    return LeafResponse(res.an_umol_m2_s, dan, res)
+    return LeafResponse(res.an_umol_m2_s, dan, res.converged, res)
 
 
 def an_noise_bias(
@@ -370,7 +385,8 @@ def tabulated_leaf(n_grid: int = 64) -> LeafPhotosynthesis:
 
     Within a step all blades share air temperature, CO2, humidity and pressure, so An depends on
     the blade only through q. It is solved exactly at :math:`q_g = q_{max}(g/(G-1))^2` (dense at
-    low light) and interpolated linearly in :math:`\sqrt q`, as is dAn/dq.
+    low light) and interpolated linearly in :math:`\sqrt q`, as is dAn/dq. A step's blades count
+    as converged only where every grid point of the step did (and their own light is finite).
     """
 
     def leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
@@ -391,7 +407,8 @@ def tabulated_leaf(n_grid: int = 64) -> LeafPhotosynthesis:
         def interp(table):
             return (1 - frac) * take(table, i) + frac * take(table, i + 1)
 
-        return LeafResponse(interp(res.an_umol_m2_s), interp(dan_g))
+        step_converged = jnp.all(res.converged, axis=1, keepdims=True)  # (T, 1)
+        return LeafResponse(interp(res.an_umol_m2_s), interp(dan_g), step_converged & jnp.isfinite(q))
 
     return leaf
 
@@ -461,8 +478,10 @@ class ObservationOperator:
 
         Returns the :data:`OBSERVABLES` (T,), per segment (T, S) ``<kind>_par_umol_m2_s`` and
         ``<kind>_par_mc_sd_umol_m2_s`` for each kind whose parts are in ``rows``, per blade (T, B)
-        ``leaf_an_umol_m2_s`` and ``leaf_an_mc_sd_umol_m2_s``, ``blade_index`` (B,) and
-        ``photosynthesis`` (the full result on the blades, or None for a tabulated ``leaf``).
+        ``leaf_an_umol_m2_s`` and ``leaf_an_mc_sd_umol_m2_s``, ``blade_index`` (B,),
+        ``unconverged_blades`` (T,) int, the blades whose photosynthesis did not converge
+        (:data:`CONVERGENCE_KEY`; nonzero: never trust that step's An), and ``photosynthesis``
+        (the full result on the blades, or None for a tabulated ``leaf``).
         """
         kinds = [k for k in ("incident", "absorbed") if f"{k}_sun" in rows and f"{k}_sky" in rows]
         out = {}
@@ -506,6 +525,7 @@ class ObservationOperator:
             "leaf_an_umol_m2_s": r.an,
             "leaf_an_mc_sd_umol_m2_s": an_sd,
             "blade_index": b,
+            CONVERGENCE_KEY: jnp.sum(~r.converged, axis=1),
             "photosynthesis": r.result,
         }
         return out
@@ -574,6 +594,7 @@ def mc_covariance(
 
 
 __all__ = [
+    "CONVERGENCE_KEY",
     "OBSERVABLES",
     "SOIL_RESPIRATION_UMOL_M2_S",
     "LeafPhotosynthesis",
@@ -593,4 +614,5 @@ __all__ = [
     "observables",
     "plant_par",
     "tabulated_leaf",
+    "unconverged",
 ]

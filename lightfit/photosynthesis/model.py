@@ -94,8 +94,8 @@ class PhotosynthesisResult(NamedTuple):
         rd_umol_m2_s: day respiration Rd [µmol m⁻² s⁻¹].
         limitation: :data:`ELECTRON_TRANSPORT_LIMITED` (1) where Fj < Fc, else
             :data:`RUBISCO_LIMITED` (0).
-        converged: True where the steady state was found to tolerance and all outputs
-            are finite; never trust a value where this is False.
+        converged: True where the steady state was found to tolerance and all inputs and
+            outputs are finite; never trust a value where this is False.
         iterations: solver iterations used (0 for the closed-form ``"cplantbox"`` closure).
     """
 
@@ -194,9 +194,12 @@ def _broadcast_leaf(leaf: LeafCapacities, env: Environment) -> LeafCapacities:
     return LeafCapacities(*(jnp.broadcast_to(x, shape) for x in leaf))
 
 
-def _finish(cc, f: _Fluxes, leaf: LeafCapacities, converged, iterations) -> PhotosynthesisResult:
-    outputs = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, leaf.rd_umol_m2_s)
-    finite = jnp.all(jnp.stack([jnp.isfinite(o) for o in jnp.broadcast_arrays(*outputs)]), axis=0)
+def _finish(cc, f: _Fluxes, leaf: LeafCapacities, env: Environment, converged, iterations) -> PhotosynthesisResult:
+    # Inputs too: under jit the range checks are skipped, and a NaN light falls through the
+    # comparisons of the light response as darkness, giving a finite, "converged" An.
+    # (gb = inf means no boundary layer.)
+    checked = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, *leaf, *env._replace(gb_mol_m2_s=1.0 / env.gb_mol_m2_s))
+    finite = jnp.all(jnp.stack([jnp.isfinite(o) for o in jnp.broadcast_arrays(*checked)]), axis=0)
     limitation = jnp.where(f.vj < f.vc, ELECTRON_TRANSPORT_LIMITED, RUBISCO_LIMITED).astype(jnp.int8)
     return PhotosynthesisResult(
         an_umol_m2_s=f.an,
@@ -221,7 +224,7 @@ def _solve_cplantbox(leaf: LeafCapacities, env: Environment, params: Photosynthe
     cs = env.co2_umol_mol + 0.0 * an
     f = _Fluxes(an, vc, vj, cs, gs, ci, gs)
     zeros = jnp.zeros(jnp.shape(an), jnp.int32)
-    return _finish(ci, f, leaf, jnp.ones(jnp.shape(an), bool), zeros)
+    return _finish(ci, f, leaf, env, jnp.ones(jnp.shape(an), bool), zeros)
 
 
 def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
@@ -233,7 +236,7 @@ def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
         _primal, _rewrite, (leaf, env, params, config), frozenset({lx.diagonal_tag})
     )
     f = _fluxes(cc, leaf, env, params)
-    return _finish(cc, f, leaf, converged, iterations)
+    return _finish(cc, f, leaf, env, converged, iterations)
 
 
 def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
@@ -241,7 +244,7 @@ def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
     _, _, x0 = _bracket(leaf, env, params)
     res = fixed_point_iteration(_fixed_point_map, x0, (leaf, env, params), config)
     f = _fluxes(res.x, leaf, env, params)
-    return _finish(res.x, f, leaf, res.converged, res.iterations)
+    return _finish(res.x, f, leaf, env, res.converged, res.iterations)
 
 
 def _capacities(par, env: Environment, params: PhotosynthesisParams) -> LeafCapacities:

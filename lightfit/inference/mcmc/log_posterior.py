@@ -11,6 +11,7 @@ tabulated photosynthesis) for speed, or ``model.observe`` for exact checks.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 
 import jax
@@ -20,6 +21,8 @@ import pandas as pd
 
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
+from lightfit.model.coupled import NonConvergenceWarning
+from lightfit.model.observe import unconverged
 from lightfit.model.parameters import Theta, as_theta
 
 
@@ -61,7 +64,9 @@ class LogPosterior:
         self.likelihood = GaussianLikelihood(obs, times, use, mc_correlation=mc_correlation, mc_scale=mc_scale)
         self.use = self.likelihood.use
         self.n_observations = self.likelihood.n_observations
-        self._batch = jax.jit(jax.vmap(self.log_prob))
+        self._batch = jax.jit(jax.vmap(self.log_prob_refused))
+        #: Points inside the priors' support refused so far (:meth:`log_prob_refused`).
+        self.refused = 0
         self._batch_ll = jax.jit(jax.vmap(self.log_likelihood))
 
     def split(self, x) -> tuple[Theta, jax.Array]:
@@ -91,20 +96,44 @@ class LogPosterior:
     def in_support(self, x) -> bool:
         return bool(np.isfinite(float(self.log_prior(jnp.asarray(x, jnp.float64)))))
 
-    def log_prob(self, x) -> jax.Array:
+    def log_prob_refused(self, x) -> tuple[jax.Array, jax.Array]:
+        """log p(x | y), and whether a point inside the priors' support was refused (−inf) because
+        a blade's photosynthesis did not converge there or the likelihood was not finite: never a
+        NaN (emcee stops on one) and never a value built on an unconverged solve."""
         x = jnp.asarray(x, jnp.float64)
         lp = self.log_prior(x)
+        inside = jnp.isfinite(lp)
         # evaluate the likelihood at a safe point outside the support (no NaN from the model)
-        safe = jnp.where(jnp.isfinite(lp), x, jnp.asarray(self.center()))
-        return jnp.where(jnp.isfinite(lp), lp + self.log_likelihood(safe), -jnp.inf)
+        m, lam = self.observables(jnp.where(inside, x, jnp.asarray(self.center())))
+        ll = self.likelihood.log_likelihood(m, lam)
+        refused = inside & ((unconverged(m) > 0) | ~jnp.isfinite(ll))
+        return jnp.where(inside & ~refused, lp + ll, -jnp.inf), refused
+
+    def log_prob(self, x) -> jax.Array:
+        return self.log_prob_refused(x)[0]
 
     def center(self) -> np.ndarray:
         """A point inside every prior's support."""
         return np.asarray([self.priors[n].center for n in self.names])
 
     def __call__(self, xs: np.ndarray) -> np.ndarray:
-        """emcee's vectorised log-probability: (n, ndim) → (n,)."""
-        return np.asarray(self._batch(jnp.asarray(np.atleast_2d(xs), jnp.float64)), dtype=np.float64)
+        """emcee's vectorised log-probability: (n, ndim) → (n,). Refused points (−inf) are counted
+        in :attr:`refused`; the first is named in a :class:`NonConvergenceWarning`."""
+        xs = np.atleast_2d(xs)
+        lp, refused = (np.asarray(a) for a in self._batch(jnp.asarray(xs, jnp.float64)))
+        if refused.any():
+            if not self.refused:
+                first = dict(zip(self.names, (float(v) for v in xs[np.argmax(refused)])))
+                warnings.warn(
+                    NonConvergenceWarning(
+                        f"log-probability −inf inside the priors at {first}: the leaf photosynthesis did not "
+                        "converge or the likelihood was not finite there (later ones are counted in the run's "
+                        "'refused' attribute)"
+                    ),
+                    stacklevel=2,
+                )
+            self.refused += int(refused.sum())
+        return lp.astype(np.float64)
 
     def loglike_batch(self, xs: np.ndarray, chunk: int = 64) -> np.ndarray:
         """Log-likelihood of many points, evaluated ``chunk`` at a time (bounded memory)."""

@@ -29,7 +29,10 @@ from lightfit.killpoint import kill_point
 class SamplerResult:
     """What :func:`sample` returns. ``chain``: (n_steps, n_walkers, ndim); ``stopped_by``:
     ``"rule"`` (stop rule met), ``"max_steps"``, ``"max_seconds"`` or ``"interrupted"`` (the last two
-    are resumable; the file also keeps ``stopped_by`` and ``stopped_at``, the step count at the end)."""
+    are resumable; the file also keeps ``stopped_by`` and ``stopped_at``, the step count at the end).
+    ``refused``: proposals inside the priors that the log-probability refused (−inf: the leaf
+    photosynthesis did not converge, :meth:`LogPosterior.log_prob_refused`), over all calls on the
+    file (its ``refused`` attribute)."""
 
     names: tuple
     chain: np.ndarray
@@ -39,6 +42,7 @@ class SamplerResult:
     stopped_by: str
     seconds: float
     steps_this_call: int
+    refused: int = 0
 
 
 def sample(
@@ -126,6 +130,7 @@ def _sample(
     t0 = time.perf_counter()
     stopped_by = "max_steps"
     k = 0
+    refused_before = getattr(log_prob, "refused", 0)
     # A run stopped by the rule (or killed between its last step and that step's check) is not extended:
     # the check at the last stored step is made (again) first; it is a pure function of the chain.
     if checks.due(done) and checks.met(done):
@@ -161,7 +166,11 @@ def _sample(
         f[group].attrs["diagnostics"] = json.dumps(jsonable(d))
         f[group].attrs["stopped_by"] = stopped_by
         f[group].attrs["stopped_at"] = len(chain)
-    return SamplerResult(names, chain, backend.get_log_prob(), d, path, stopped_by, time.perf_counter() - t0, k)
+        refused = int(f[group].attrs.get("refused", 0)) + getattr(log_prob, "refused", 0) - refused_before
+        f[group].attrs["refused"] = refused
+    return SamplerResult(
+        names, chain, backend.get_log_prob(), d, path, stopped_by, time.perf_counter() - t0, k, refused
+    )
 
 
 class _Checks:
