@@ -26,6 +26,9 @@ def saturation_vapour_pressure_kpa(t_c: ArrayLike) -> jax.Array:
         t_c: temperature [°C].
 
     Reference: Allen et al. (1998), FAO Irrigation and Drainage Paper 56; CPlantBox ``get_es``.
+    The weather's humidity conversions take Alduchov & Eskridge's Magnus form
+    (:func:`lightfit.weather.units.saturation_vapour_pressure_kpa`), at most 0.21 % apart from 0 to 40 °C;
+    this one is kept here so that the leaf's VPD is CPlantBox's (tests/test_photosynthesis_peer.py).
     """
     return 0.61078 * jnp.exp(17.27 * t_c / (t_c + 237.3))
 
