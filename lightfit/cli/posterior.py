@@ -184,9 +184,11 @@ def posterior(
         _print_status(P.backend.run_status(out / "run.h5"))
         console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")
         return
+    refused = res["refused"]
+    why = "photosynthesis unconverged or likelihood not finite"
     t = Table(
         title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling"
-        + (f", {res['refused']} proposals refused: photosynthesis did not converge" if res["refused"] else "")
+        + (f", {refused} proposals refused: {why}" if refused else "")
         + ")"
     )
     for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS"):

@@ -171,8 +171,9 @@ class CalibrationResult:
             computes the gradient only at accepted points), including those before an exact resume.
         stopped_by: ``"converged"`` (the method's tolerances met), ``"max_steps"`` (step limit),
             ``"stalled"`` (10·max_steps trials without reaching the step limit: the line search keeps
-            rejecting), ``"failed: <reason>"`` (e.g. ``"failed: line search"``) or ``"unconverged: θ"``
-            (the leaf photosynthesis did not converge at an accepted point: only a start can be one).
+            rejecting), ``"failed: <reason>"`` (e.g. ``"failed: line search"``), ``"unconverged: θ"``
+            (the leaf photosynthesis did not converge at the start) or ``"against unconverged: θ"``
+            (BFGS's steps shrank against a region where it does not converge, the gradient not small).
         reason: the same as a sentence with the numbers (tolerances, counts).
     """
 
@@ -453,6 +454,12 @@ def calibrate(
     def counts() -> str:
         return f"{c['accepted']} steps, {opt.evaluations} evaluations, {opt.gradients} gradients"
 
+    def unconverged_at(x) -> str:
+        return "unconverged: " + ", ".join(f"{n}={float(v):.6g}" for n, v in zip(names, np.asarray(x)))
+
+    if saved is None and method == "lbfgsb" and not math.isfinite(opt.point()[1]):
+        c["stopped_by"] = unconverged_at(opt.point()[0])  # its first update would take a NaN gradient
+
     with progress_bar("calibrating", max_steps, completed=c["accepted"], show=progress) as bar:
         while c["stopped_by"] is None:
             if c["accepted"] >= max_steps:
@@ -467,8 +474,8 @@ def calibrate(
                 c["accepted"] += 1
                 x, f, g = opt.point()
                 values = {n: float(v) for n, v in zip(names, np.asarray(x))}
-                if not math.isfinite(f):  # an accepted point with no loss: the start was one
-                    c["stopped_by"] = "unconverged: " + ", ".join(f"{n}={v:.6g}" for n, v in values.items())
+                if not math.isfinite(f):  # an accepted point with no loss: BFGS's start was one
+                    c["stopped_by"] = unconverged_at(x)
                     break
                 if f < c["best_loss"]:
                     c["best_loss"], c["best_x"] = f, [float(v) for v in np.asarray(x)]
@@ -495,6 +502,8 @@ def calibrate(
                 c["stopped_by"] = reason
             if state_file is not None:
                 _save_state(state_file, opt, {**c, "evaluations": opt.evaluations}, key)
+        if method == "bfgs" and c["stopped_by"] == "converged" and _against_unconverged(opt, loss, rtol, atol, gtol):
+            c["stopped_by"] = "against unconverged: " + unconverged_at(opt.point()[0]).split(": ", 1)[1]
         why = _reason(c["stopped_by"], method, rtol, atol, gtol, max_steps, c["trials"])
         bar.update(info=f"{why}; {counts()}")
     if state_file is not None:
@@ -524,6 +533,20 @@ def calibrate(
     )
 
 
+def _against_unconverged(opt: _BFGS, loss: Loss, rtol: float, atol: float, gtol: float) -> bool:
+    """Whether BFGS's "converged" is its steps shrinking against a region where the photosynthesis
+    does not converge (the loss +inf there, every trial into it rejected) rather than an optimum: the
+    gradient is not small (∞-norm > ``gtol``) and a short step down it, 10 × the step tolerance,
+    has no finite loss. One loss evaluation, only when the gradient is not small."""
+    _, _, g = opt.point()
+    g = np.asarray(g, float)
+    if not np.abs(g).max() > gtol:
+        return False
+    z = np.asarray(opt.current, float)
+    step = 10 * (atol + rtol * np.abs(z).max())
+    return not math.isfinite(float(opt.fn(jnp.asarray(z - step * g / np.linalg.norm(g)))[0]))
+
+
 def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, trials: int) -> str:
     """``stopped_by`` as a sentence with the numbers."""
     if stopped_by == "converged":
@@ -538,6 +561,11 @@ def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, tria
         return (
             f"failed: the leaf photosynthesis did not converge at {stopped_by.split(': ', 1)[1]} "
             "(a start outside the model's range; SolverConfig sets the solver's limits)"
+        )
+    if stopped_by.startswith("against unconverged: "):
+        return (
+            f"stopped at {stopped_by.split(': ', 1)[1]} against a region where the leaf photosynthesis does "
+            "not converge: the loss still falls towards it (the gradient is not small), so this is not an optimum"
         )
     return stopped_by
 

@@ -134,7 +134,7 @@ def profile_likelihood(
         if basis.shape[1]:
             r = minimize(fun, w0, jac=True, method="BFGS", options={"maxiter": maxiter, "gtol": 1e-6})
             last[i] = r.x
-            prof[i] = min(r.fun, slc[i])
+            prof[i] = min(r.fun, slc[i]) if r.fun < 1e30 else slc[i]  # 1e30: nowhere finite
         else:
             prof[i] = slc[i]
     return ts, prof, slc

@@ -70,6 +70,7 @@ from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lig
 from lightfit.inference.observations import SERIES, align
 from lightfit.model import emulator as E
 from lightfit.model.coupled import CoupledModel
+from lightfit.model.observe import unconverged
 from lightfit.model.parameters import Theta, as_theta, check_names
 
 #: Series whose operator does not use the light at the plants (no render needed for them).
@@ -327,6 +328,9 @@ def surrogate_calibrate(
             lik = likelihood(with_lights(m, emus))
         fast = joined(m, [E.FastObservables(d, e, n_grid=n_grid) for d, e in zip(days, emus)])
         res = run(fast, th, f"round{r}", bounds)
+        if res.stopped_by.startswith("unconverged"):  # no surrogate optimum to check with a render
+            say(f"round {r}: {res.reason}")
+            return done(res, rounds, False, math.inf, "surrogate", emus)
         th = as_theta(res.theta)
         x = np.asarray(th.leaf, float)
         lights = []
@@ -335,7 +339,9 @@ def surrogate_calibrate(
             lights.append(fixed_light(v[0], sd[0]))
         full = with_lights(m, lights).observe(th)
         sur = jax.jit(fast)(th)
-        l_full, l_sur = float(lik.loss(full)), float(lik.loss(sur))
+        # a full render whose photosynthesis did not converge has no loss (the check fails, refining)
+        l_full = math.inf if int(unconverged(full)) else float(lik.loss(full))
+        l_sur = float(lik.loss(sur))
         sd = loss_sd(lik, full)
         passed = bool(abs(l_full - l_sur) <= z * sd)
         err = {}

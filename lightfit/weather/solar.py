@@ -127,7 +127,7 @@ def par_diffuse_fraction(global_diffuse_fraction, sun_elevation_deg) -> np.ndarr
 
     The numerator is the blue sky's larger share of PAR (Rayleigh scattering; up to 1.3× under a
     clear sky, 1× under overcast), the denominator removes the circumsolar part (Klucher's 1979
-    anisotropy term, up to 19 % of the diffuse at β ≈ 39°), which the light model's sky (uniform or
+    anisotropy term: it removes up to 16 % of the diffuse, at β ≈ 39°), which the light model's sky (uniform or
     CIE overcast, no circumsolar peak) would otherwise spread over the hemisphere. Evaluated by
     pvlib (:func:`pvlib.irradiance.diffuse_par_spitters`, documented there for daily totals at the
     daily mean zenith), here per step with the step's β, as the formula's β is the sun's elevation

@@ -75,7 +75,10 @@ def _retry(read, attempts: int = 20, wait_s: float = 0.1):
 
 class ResumableHDFBackend(emcee.backends.HDFBackend):
     """HDFBackend whose generator state and acceptance flags are stored per step (see module doc),
-    opened without HDF5's file lock (readers never disturb it)."""
+    opened without HDF5's file lock (readers never disturb it). ``refused``: a callable giving the
+    run's count of refused proposals so far, stored with each step (attribute ``refused``)."""
+
+    refused = None
 
     def open(self, mode="r"):
         if self.read_only and mode != "r":
@@ -115,6 +118,8 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
             g["rng_meta"][i, :] = (pos, has_gauss, cached)
             g["accepted_step"][i, :] = accepted
             g["accepted"][:] = g["accepted_step"][: i + 1].sum(axis=0)
+            if self.refused is not None:
+                g.attrs["refused"] = int(self.refused())
             g.attrs["iteration"] = i + 1  # last: commits the step
 
     @property

@@ -85,8 +85,14 @@ class LogPosterior:
         return sum(self.priors[n].logpdf(x[i]) for i, n in enumerate(self.names))
 
     def log_likelihood(self, x) -> jax.Array:
+        """log L at ``x``; −inf where it was refused (:meth:`log_prob_refused`)."""
+        return self._log_likelihood_refused(x)[0]
+
+    def _log_likelihood_refused(self, x) -> tuple[jax.Array, jax.Array]:
         m, lam = self.observables(x)
-        return self.likelihood.log_likelihood(m, lam)
+        ll = self.likelihood.log_likelihood(m, lam)
+        refused = (unconverged(m) > 0) | ~jnp.isfinite(ll)
+        return jnp.where(refused, -jnp.inf, ll), refused
 
     def residuals(self, x) -> jax.Array:
         """Whitened residuals (y − m)/√v of the used observations (zeros elsewhere), shape (len(use)·T,)."""
@@ -104,9 +110,8 @@ class LogPosterior:
         lp = self.log_prior(x)
         inside = jnp.isfinite(lp)
         # evaluate the likelihood at a safe point outside the support (no NaN from the model)
-        m, lam = self.observables(jnp.where(inside, x, jnp.asarray(self.center())))
-        ll = self.likelihood.log_likelihood(m, lam)
-        refused = inside & ((unconverged(m) > 0) | ~jnp.isfinite(ll))
+        ll, refused = self._log_likelihood_refused(jnp.where(inside, x, jnp.asarray(self.center())))
+        refused = inside & refused
         return jnp.where(inside & ~refused, lp + ll, -jnp.inf), refused
 
     def log_prob(self, x) -> jax.Array:

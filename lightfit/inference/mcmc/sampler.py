@@ -120,6 +120,12 @@ def _sample(
         state = _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs)
     else:
         state = backend.get_last_sample()
+    refused_stored = 0  # refusals of the steps stored so far: a resumed run goes on counting
+    if stored is not None:
+        with open_h5(path) as f:
+            refused_stored = int(f[group].attrs.get("refused", 0))
+    refused_before = getattr(log_prob, "refused", 0)
+    backend.refused = lambda: refused_stored + getattr(log_prob, "refused", 0) - refused_before
     sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True, backend=backend, moves=moves)
     sampler.random_state = np.random.RandomState(seed).get_state()  # overwritten by state.random_state
     done = backend.iteration
@@ -130,7 +136,6 @@ def _sample(
     t0 = time.perf_counter()
     stopped_by = "max_steps"
     k = 0
-    refused_before = getattr(log_prob, "refused", 0)
     # A run stopped by the rule (or killed between its last step and that step's check) is not extended:
     # the check at the last stored step is made (again) first; it is a pure function of the chain.
     if checks.due(done) and checks.met(done):
@@ -166,8 +171,7 @@ def _sample(
         f[group].attrs["diagnostics"] = json.dumps(jsonable(d))
         f[group].attrs["stopped_by"] = stopped_by
         f[group].attrs["stopped_at"] = len(chain)
-        refused = int(f[group].attrs.get("refused", 0)) + getattr(log_prob, "refused", 0) - refused_before
-        f[group].attrs["refused"] = refused
+        refused = int(f[group].attrs.get("refused", 0))
     return SamplerResult(
         names, chain, backend.get_log_prob(), d, path, stopped_by, time.perf_counter() - t0, k, refused
     )
