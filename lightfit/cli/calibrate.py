@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import typer
@@ -157,7 +158,7 @@ def calibrate(
         )
     record = {
         "theta": res.theta,
-        "loss": res.loss,
+        "loss": res.loss if math.isfinite(res.loss) else None,  # None: no point had a loss (strict JSON)
         "steps": res.steps,
         "evaluations": res.evaluations,
         "gradients": res.gradients,
