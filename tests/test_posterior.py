@@ -520,7 +520,7 @@ def test_the_posterior_refuses_unconverged_photosynthesis(tmp_path):
         warnings.simplefilter("ignore", NonConvergenceWarning)
         resumed = P.sample(lp, names, tmp_path / "k.h5", nwalkers=16, max_steps=40, seed=1, progress=False)
     np.testing.assert_array_equal(resumed.chain, run.chain)
-    assert resumed.refused == run.refused
+    assert resumed.refused == run.refused == P.backend.run_status(tmp_path / "k.h5")["refused"]
 
 
 def test_calibration_refuses_unconverged_photosynthesis():

@@ -258,3 +258,8 @@ def _print_status(st: dict) -> None:
         f"max τ {np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else float('nan'):.1f}; "
         f"analysis {'written' if st['analysis'] else 'not written'}"
     )
+    if st["refused"]:
+        console.print(
+            f"{st['refused']} proposals refused (log-probability −inf): the leaf photosynthesis did not "
+            "converge or the likelihood was not finite there"
+        )

@@ -212,7 +212,8 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
     """Progress of a run being written or finished: ``steps``, ``max_steps``, ``state`` (``"running"``,
     ``"stopped"`` with ``stopped_by``, or ``"killed"`` — a call that ended without recording why, e.g.
     SIGKILL; resumable), per-parameter τ, ESS (:func:`diagnostics` on the stored chain), acceptance,
-    and the stop rule's last check (step, τ, ESS). Reads without locking (module doc)."""
+    the stop rule's last check (step, τ, ESS) and ``refused`` (proposals refused so far: the leaf
+    photosynthesis did not converge or the likelihood was not finite). Reads without locking."""
     run = load_run(path, group)
     a = run["attrs"]
     stopped_by = a.get("stopped_by")
@@ -236,6 +237,7 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
         "diagnostics": run["diagnostics"],
         "last_check": last,
         "analysis": "analysis" in run,
+        "refused": int(a.get("refused", 0)),
     }
 
 
