@@ -58,7 +58,6 @@ from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.progress import progress_bar
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
-from lightfit.model.observe import unconverged
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
 
 #: Distance kept from finite bounds (see the module docstring).
@@ -107,9 +106,8 @@ class Loss:
 
     def natural(self, x) -> jax.Array:
         """The loss at natural parameters ``x``; +inf where a blade's photosynthesis did not converge
-        (no loss to trust there: the line searches reject the trial)."""
-        m = self.forward(self.theta(x))
-        return jnp.where(unconverged(m) > 0, jnp.inf, self.likelihood.loss(m))
+        (:meth:`GaussianLikelihood.loss`: the line searches reject the trial)."""
+        return self.likelihood.loss(self.forward(self.theta(x)))
 
     def to_natural(self, z) -> jax.Array:
         return jnp.stack([from_unconstrained(z[i], n, self.bounds) for i, n in enumerate(self.names)])
@@ -454,11 +452,11 @@ def calibrate(
     def counts() -> str:
         return f"{c['accepted']} steps, {opt.evaluations} evaluations, {opt.gradients} gradients"
 
-    def unconverged_at(x) -> str:
-        return "unconverged: " + ", ".join(f"{n}={float(v):.6g}" for n, v in zip(names, np.asarray(x)))
+    def at(x) -> str:
+        return ", ".join(f"{n}={float(v):.6g}" for n, v in zip(names, np.asarray(x)))
 
     if saved is None and method == "lbfgsb" and not math.isfinite(opt.point()[1]):
-        c["stopped_by"] = unconverged_at(opt.point()[0])  # its first update would take a NaN gradient
+        c["stopped_by"] = "unconverged: " + at(opt.point()[0])  # its first update would take a NaN gradient
 
     with progress_bar("calibrating", max_steps, completed=c["accepted"], show=progress) as bar:
         while c["stopped_by"] is None:
@@ -475,7 +473,7 @@ def calibrate(
                 x, f, g = opt.point()
                 values = {n: float(v) for n, v in zip(names, np.asarray(x))}
                 if not math.isfinite(f):  # an accepted point with no loss: BFGS's start was one
-                    c["stopped_by"] = unconverged_at(x)
+                    c["stopped_by"] = "unconverged: " + at(x)
                     break
                 if f < c["best_loss"]:
                     c["best_loss"], c["best_x"] = f, [float(v) for v in np.asarray(x)]
@@ -502,8 +500,8 @@ def calibrate(
                 c["stopped_by"] = reason
             if state_file is not None:
                 _save_state(state_file, opt, {**c, "evaluations": opt.evaluations}, key)
-        if method == "bfgs" and c["stopped_by"] == "converged" and _against_unconverged(opt, loss, rtol, atol, gtol):
-            c["stopped_by"] = "against unconverged: " + unconverged_at(opt.point()[0]).split(": ", 1)[1]
+        if method == "bfgs" and c["stopped_by"] == "converged" and _against_unconverged(opt, rtol, atol, gtol):
+            c["stopped_by"] = "against unconverged: " + at(opt.point()[0])
         why = _reason(c["stopped_by"], method, rtol, atol, gtol, max_steps, c["trials"])
         bar.update(info=f"{why}; {counts()}")
     if state_file is not None:
@@ -533,7 +531,7 @@ def calibrate(
     )
 
 
-def _against_unconverged(opt: _BFGS, loss: Loss, rtol: float, atol: float, gtol: float) -> bool:
+def _against_unconverged(opt: _BFGS, rtol: float, atol: float, gtol: float) -> bool:
     """Whether BFGS's "converged" is its steps shrinking against a region where the photosynthesis
     does not converge (the loss +inf there, every trial into it rejected) rather than an optimum: the
     gradient is not small (∞-norm > ``gtol``) and a short step down it, 10 × the step tolerance,

@@ -59,6 +59,10 @@ seed: their error adds a second, independent copy). With the Cholesky factor
 residuals (``‖w‖² = rᵀΣ⁻¹r``, so the Fisher information JᵀJ of :mod:`.identifiability` is
 unchanged in form). Without ``mc_correlation`` (C = I) this is the diagonal form above, computed
 without a factorisation.
+
+A model output whose leaf photosynthesis did not converge (a nonzero
+:data:`~lightfit.model.observe.CONVERGENCE_KEY` count) has no likelihood: the loss is +inf and
+log L −inf there, so optimisers reject the point and samplers never accept it.
 """
 
 from __future__ import annotations
@@ -73,7 +77,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, observed, series
-from lightfit.model.observe import mc_covariance
+from lightfit.model.observe import mc_covariance, unconverged
 from lightfit.model.parameters import as_theta
 
 #: Short names of the series a likelihood can use, in order.
@@ -326,13 +330,16 @@ class GaussianLikelihood:
         return {s.name: self.y[s.name] - m[s.value] for s in self.series}
 
     def loss(self, m: Mapping) -> jax.Array:
-        """Calibration loss ½ rᵀΣ⁻¹r at λ = 1 (no normalisation; see the module docstring)."""
-        return 0.5 * jnp.sum(self.whitened(m) ** 2)
+        """Calibration loss ½ rᵀΣ⁻¹r at λ = 1 (no normalisation; see the module docstring); +inf where
+        ``m``'s photosynthesis did not converge."""
+        return jnp.where(unconverged(m) > 0, jnp.inf, 0.5 * jnp.sum(self.whitened(m) ** 2))
 
     def log_likelihood(self, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """log L = −½ [rᵀΣ⁻¹r + n log 2π + log det Σ] over the observed steps of the used series."""
+        """log L = −½ [rᵀΣ⁻¹r + n log 2π + log det Σ] over the observed steps of the used series;
+        −inf where ``m``'s photosynthesis did not converge."""
         w, logdet = self._whiten(self._residuals(m), m, noise_scale)
-        return -0.5 * (jnp.sum(w**2) + self.n_observations * jnp.log(2 * jnp.pi) + logdet)
+        ll = -0.5 * (jnp.sum(w**2) + self.n_observations * jnp.log(2 * jnp.pi) + logdet)
+        return jnp.where(unconverged(m) > 0, -jnp.inf, ll)
 
 
 __all__ = [

@@ -287,7 +287,8 @@ def observables(
 
 #: Key of the operator's (T,) count of blades whose photosynthesis did not converge; forward
 #: functions (``observe``, :class:`~lightfit.model.emulator.FastObservables`) pass it on beside the
-#: :data:`OBSERVABLES`, and inference refuses a θ where it is not 0 (:func:`unconverged`).
+#: :data:`OBSERVABLES`, and the likelihood has no value where it is not 0 (:func:`unconverged`,
+#: :class:`~lightfit.inference.likelihood.GaussianLikelihood`).
 CONVERGENCE_KEY = "unconverged_blades"
 
 

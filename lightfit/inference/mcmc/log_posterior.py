@@ -22,7 +22,6 @@ import pandas as pd
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
 from lightfit.model.coupled import NonConvergenceWarning
-from lightfit.model.observe import unconverged
 from lightfit.model.parameters import Theta, as_theta
 
 
@@ -89,9 +88,9 @@ class LogPosterior:
         return self._log_likelihood_refused(x)[0]
 
     def _log_likelihood_refused(self, x) -> tuple[jax.Array, jax.Array]:
-        m, lam = self.observables(x)
-        ll = self.likelihood.log_likelihood(m, lam)
-        refused = (unconverged(m) > 0) | ~jnp.isfinite(ll)
+        # −inf already where the photosynthesis did not converge (GaussianLikelihood); NaN too here
+        ll = self.likelihood.log_likelihood(*self.observables(x))
+        refused = ~jnp.isfinite(ll)
         return jnp.where(refused, -jnp.inf, ll), refused
 
     def residuals(self, x) -> jax.Array:
