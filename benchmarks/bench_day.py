@@ -9,7 +9,7 @@ the sun's rays alone. A day can therefore afford more sky rays than one render. 
 bounces for 1 % truncation), one fresh estimator renders the first step (sun 50° / 180°) and then
 the later steps' suns in :data:`STEP_SUNS_DEG`. Reported: the first render's time, a later step's
 time (mean over the later suns), the later steps' median relative SE of absorbed PAR (sun +
-0.3·sky; R-corrected: divided by the median of √(χ²_{R−1}/(R−1)), as in ``bench_light.py``), and
+0.3·sky; R-corrected: divided by ``bench_light.median_se_factor``), and
 the time for a 2 % median, per later step and for a whole day of ``--steps`` steps. Both scale
 every part (the sky's single cast included) by (median / 2 %)²: each part's variance falls as
 1/rays and 1/K.
@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import chi, commit_state  # same script folder
+from bench_light import commit_state, finite_median, median_se_factor  # same script folder
 from bench_variance import _stats
 from rich.console import Console
 from rich.table import Table
@@ -82,7 +82,7 @@ def day(fs: FieldScene, ids: np.ndarray, bounces: int, samples: int, rays, steps
         r = est.render()
         t_steps.append(time.perf_counter() - t)
         rse = r.relative_se()
-        meds.append(float(np.nanmedian(rse)) / chi(est.replicates - 1))
+        meds.append(finite_median(rse) / median_se_factor(rse, est.replicates - 1))
         stats.append(_stats(rse, np.asarray(r.meta["is_blade"], bool)))
     fs.set_sun(*FIRST_SUN_DEG)
     del est
