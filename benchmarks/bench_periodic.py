@@ -28,9 +28,10 @@ With ``--equal-cost`` (default) the periodic cell is rendered once more with the
 render costs as much CPU time as the 2-buffer-row default's at ``--samples``: its edge bias and
 Monte Carlo SD at the default's cost.
 
-Part 2, the main job end to end: ``lightfit replicate`` (100 plants, K = 64, the 29 steps of the
-day) for each of :data:`MAIN_JOBS`: today's default (periodic, PROSPECT-D leaf, 2 bounces) and
-the same in the finite field; the old default's settings (grey leaf, 3 bounces) in the periodic
+Part 2, the main job end to end: ``lightfit replicate`` (100 plants, the main job's K: 32 with the
+projected direct light, 64 with the paths; the 29 steps of the day) for each of
+:data:`MAIN_JOBS`: today's default (periodic, PROSPECT-D leaf, 2 bounces) and the same in the
+finite field; the old default's settings (grey leaf, 3 bounces) in the periodic
 cell and the old default itself (finite, 2 buffer rows). Each runs first cold (an empty
 temporary plant cache, ``LIGHTFIT_CACHE``, and an empty Dr.Jit kernel cache: the first run
 after installing), then warm; wall time covers growing the plants, compiling kernels, rendering

@@ -101,6 +101,18 @@ def test_model_commands_share_their_options():
     assert all(n in help_text for n in PARAMETER_SET_NAMES)  # the help lists the sets that exist
 
 
+def test_n_design_help_states_the_design_size():
+    """calibrate and posterior share one emulator design; their --n-design help states its size (the
+    literal, since the command modules do not import JAX at import time, must match DESIGN_SIZE)."""
+    from lightfit.model.emulator import DESIGN_SIZE
+
+    group = typer.main.get_command(app)
+    for name in ("calibrate", "posterior"):
+        (param,) = [p for p in group.commands[name].params if p.name == "n_design"]
+        assert param.default is None  # resolved to DESIGN_SIZE in the command
+        assert f"(default {DESIGN_SIZE}, the size lightfit " in param.help, (name, param.help)
+
+
 def test_info_names_variant_llvm_and_precision():
     r = runner.invoke(app, ["info"])
     assert r.exit_code == 0, r.output

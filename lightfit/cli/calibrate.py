@@ -48,7 +48,9 @@ def calibrate(
         "renders at the optimum (default); --no-surrogate renders at every loss evaluation.",
     ),
     n_design: int = typer.Option(
-        None, help="Emulator design renders (default: the size lightfit posterior uses, so both share one design)."
+        None,
+        # 20: lightfit.model.emulator.DESIGN_SIZE, not imported here (JAX); tests/test_cli.py checks it
+        help="Emulator design renders (default 20, the size lightfit posterior uses, so both share one design).",
     ),
     max_rounds: int = typer.Option(6, help="Surrogate rounds at most (each adds one render at its optimum)."),
     priors: str = typer.Option("informed", help="Prior set whose leaf-parameter support is the emulator's box."),

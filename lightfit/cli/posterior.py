@@ -41,7 +41,8 @@ def posterior(
     sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(
         None,
-        help="Full renders for the emulator design (default: the size lightfit calibrate uses; kept in the "
+        # 20: lightfit.model.emulator.DESIGN_SIZE, not imported here (JAX); tests/test_cli.py checks it
+        help="Full renders for the emulator design (default 20, the size lightfit calibrate uses; kept in the "
         "shared design cache, so a calibration's design serves the posterior).",
     ),
     n_test: int = typer.Option(4, help="Held-out full renders measuring the emulator error (0: no check)."),
