@@ -33,7 +33,7 @@ from lightfit.light.scene import Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import Scenario, main_job_samples, resolve_direct
+from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples, resolve_direct
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
 from lightfit.report import plot, summary
@@ -97,8 +97,8 @@ class ReplicationConfig:
     direct_rays_per_m2: tuple[float, float] = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
     render_seed: int = 0
-    par_kind: str = "absorbed"
-    an_per: str = "ground"
+    par_kind: str = Scenario.par_kind
+    an_per: str = Scenario.an_per
     how: str = "sample"
     photosynthesis: str = Scenario.photosynthesis
     optics: str = DEFAULT_PRESET
@@ -225,10 +225,6 @@ PAPER_PRESET = {
 }
 #: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.
 PRESETS = ("default", "paper")
-#: Share of light the default bounces may truncate (``ReplicationConfig.bounces=None``). The
-#: default leaf absorbs 90 %, so 2 orders suffice: at 12:00 on 20 April the canopy-total absorbed
-#: PAR is 0.14 % (default field) / 0.3 % (quick) below its 8-bounce value (experiments/defaults_check.py).
-BOUNCE_TOLERANCE = 0.01
 
 
 def forcing(

@@ -48,6 +48,23 @@ def simulated(model):
     return model.simulate(THETA)
 
 
+def test_scenario_defaults_are_the_credible_defaults(weather):
+    """A bare Scenario is lightfit's default model, not the reference paper's setup: a periodic
+    cell (no buffer rows on bare soil), the bounces the leaf needs for 1 % truncation, and the
+    plant-PAR observable and photosynthesis set of ReplicationConfig (the command line's defaults)."""
+    from lightfit.light.estimator import bounces_for_tolerance
+    from lightfit.light.scene import Optics
+
+    sc = Scenario(weather=weather)
+    cfg = rep.ReplicationConfig()
+    assert sc.field.boundary == "periodic" == cfg.boundary
+    assert sc.direct == "projection"
+    assert sc.bounces == cfg.render_bounces() == bounces_for_tolerance(0.01, sc.optics) == 2
+    assert (sc.par_kind, sc.an_per, sc.photosynthesis) == (cfg.par_kind, cfg.an_per, cfg.photosynthesis)
+    assert Scenario(weather=weather, optics=Optics.preset("paper")).bounces == 8  # the grey leaf
+    assert Scenario(weather=weather, bounces=3).bounces == 3
+
+
 def test_ground_area_is_plants_times_spacings(weather):
     fld = Field(n_plants=7, buffer_rows=1, row_spacing_m=0.2, plant_spacing_m=0.05)  # rounds up to 3×3
     assert fld.ground_area_m2 == pytest.approx(9 * 0.2 * 0.05)
