@@ -99,23 +99,28 @@ def _leaf_and_sensor():
 
 @pytest.mark.parametrize("preset", ["prospect", "paper"])
 def test_isolated_leaf_absorptance_under_a_uniform_sky(preset):
-    """The estimator on an isolated horizontal leaf over black soil, isotropic sky."""
+    """The estimator on an isolated horizontal leaf over black soil, isotropic sky: the leaf absorbs
+    1 − R − T, its white-sky reflectance and transmittance written out from the BSDF's parameters
+    (for PROSPECT-D also PROSPECT's own A), and the sensor 1 mm under it receives T plus the light
+    it reflects back up and the leaf's underside returns, T·(1 + R²) at 3 bounces (the sensor has
+    the leaf's optics and sees ≈ only the leaf)."""
+    from lightfit.light.bsdf import SPECULAR_F0_SCALE, ggx_white_sky_albedo
+
     optics = Optics.preset(preset, soil_albedo=0.0)
+    f0 = SPECULAR_F0_SCALE * optics.specular
+    refl = f0 * ggx_white_sky_albedo(optics.roughness) + (1 - f0) * (1 - optics.subsurface) * optics.base_color
+    trans = (1 - f0) * optics.subsurface * optics.base_color
     fs = FieldScene(_leaf_and_sensor(), optics, sky="isotropic")
     fs.set_sun(60.0, 180.0)
     r = SegmentEstimator(fs, [7, 8], samples=2048, bounces=3, seed=0).render()
     leaf_abs = r.absorbed_sky[0] / r.incident_sky[0]
     assert r.incident_sky[0] == pytest.approx(1.0, abs=0.005)  # the sensor hides a negligible share of the sky
+    assert leaf_abs == pytest.approx(1 - refl - trans, abs=0.005)
+    assert r.incident_sky[1] == pytest.approx(trans * (1 + refl**2), rel=0.03)
     if preset == "prospect":
         p = par_optics()
         assert 0.83 <= leaf_abs <= 0.92
         assert leaf_abs == pytest.approx(p.A, abs=0.005)
-        # Light under the leaf: its transmittance T (the leaf covers ≈ all of the sensor's sky;
-        # the sensor and the leaf's underside exchange < 0.5 % more).
-        assert r.incident_sky[1] == pytest.approx(p.T, rel=0.03)
-    else:
-        assert leaf_abs == pytest.approx(0.5, abs=0.03)
-        assert r.incident_sky[1] == pytest.approx(0.96 * 0.3 * 0.5, rel=0.15)  # + sensor-leaf exchange
 
 
 @pytest.mark.parametrize(

@@ -3,7 +3,8 @@
 References: analytic values for a leaf that covers the whole periodic cell (every ray lands on
 it: the direct sun is exactly sin β per unit DNI, the sky exactly 1 per unit DHI, and the
 absorbed parts the leaf's absorptance at the sun's incidence and integrated over the cosine-
-weighted sky); the path estimator's own direct light (same expectation, independent random
+weighted sky, from ``leaf_albedo``, itself checked against the sampled leaf BSDF in
+test_light_bsdf.py); the path estimator's own direct light (same expectation, independent random
 numbers: canopy totals and per-segment z-scores); the paths' scattered light, which must be the
 same random numbers in both modes; finite differences with common random numbers for the
 gradient; and bitwise repeatability.

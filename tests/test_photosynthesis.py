@@ -211,14 +211,9 @@ def test_steady_state_mass_balance(gb, gm):
     res = ps.solve(par, t, ca, 0.5, P_KPA, p, gb_mol_m2_s=None if np.isinf(gb) else gb)
     assert np.all(res.converged)
     assert_mass_balance(res, ca, gb=gb, gm=gm)
-    np.testing.assert_allclose(
-        res.an_umol_m2_s, np.minimum(res.vc_umol_m2_s, res.vj_umol_m2_s) - np.asarray(res.rd_umol_m2_s), rtol=1e-12
-    )
-    lim = np.asarray(res.limitation)
-    assert np.array_equal(
-        lim == ps.ELECTRON_TRANSPORT_LIMITED, np.asarray(res.vj_umol_m2_s) < np.asarray(res.vc_umol_m2_s)
-    )
-    assert lim[0] == ps.ELECTRON_TRANSPORT_LIMITED  # dark: J = 0
+    # (An = min(Vc, Vj) − Rd and the limitation flag are the solver's own definitions; the rates
+    # themselves are checked against FvCB written out by hand in the winter_wheat tests below.)
+    assert np.asarray(res.limitation)[0] == ps.ELECTRON_TRANSPORT_LIMITED  # dark: J = 0
 
 
 @pytest.mark.parametrize("par,tleaf,cs", [(50.0, 25.0, 100.0), (3000.0, 45.0, 100.0)])
