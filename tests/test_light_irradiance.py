@@ -270,6 +270,9 @@ def test_extreme_parameters_give_finite_values_and_gradients(corner):
         r = est.render()
         for p in PARTS:
             assert np.isfinite(getattr(r, p)).all() and (getattr(r, p) >= 0).all()
+        for kind in ("sun", "sky"):  # a leaf absorbs at most what reaches it
+            absorbed, incident = getattr(r, f"absorbed_{kind}"), getattr(r, f"incident_{kind}")
+            assert (absorbed <= incident * (1 + 1e-6) + 1e-12).all()
         grad = est.vjp({p: np.ones(len(ids)) for p in PARTS})
         assert all(np.isfinite(v) for v in grad.values())
 

@@ -164,8 +164,12 @@ def test_bernacchi_kinetics_at_25c_and_pressure_scaling():
 
 
 def test_water_stress_factor_limits():
+    """Tuzet et al. (2003) eq. 6 with CPlantBox's parameters (f_wr 0.09308, s_h 3.765e-4 hPa⁻¹,
+    p_crit −7 500 hPa), worked by hand: 1 when unstressed, the residual opening at very low ψ,
+    and at half closure ψ = p_crit the shape (1 + e^{s_h p_crit}) / 2 = 0.529691."""
     assert float(ps.water_stress_factor(0.0)) == pytest.approx(1.0)
-    assert float(ps.water_stress_factor(-1e7)) == pytest.approx(9.308e-2)
+    assert float(ps.water_stress_factor(-1e7)) == pytest.approx(0.09308)
+    assert float(ps.water_stress_factor(-7500.0)) == pytest.approx(0.09308 + 0.90692 * 0.529691, rel=1e-5)
     psi = np.linspace(0, -30000, 50)
     assert np.all(np.diff(np.asarray(ps.water_stress_factor(psi))) <= 0)
 

@@ -165,9 +165,12 @@ def test_not_a_number_names_line_and_column(tmp_path):
         cells[4] = "warm"
         lines[hdr + 10] = ",".join(cells)
 
-    with pytest.raises(InputError, match=rf"line {1 + 0}|'warm' is not a number") as e:
+    _, hdr = _table_lines(FIXTURE)
+    # The edited row is list index hdr + 10, i.e. the file's line hdr + 11 (lines count from 1).
+    with pytest.raises(
+        InputError, match=rf"line {hdr + 11}, column 'AirTemperature[^']*': value 'warm' is not a number"
+    ):
         read_tereno(_variant(tmp_path, edit))
-    assert "AirTemperature" in str(e.value) and "line" in str(e.value)
 
 
 def test_out_of_range_value(tmp_path):

@@ -31,7 +31,8 @@ def test_co2_mmol_m3_to_ppm_by_hand():
 
 def test_pressure_and_par():
     assert units.kpa_from_mbar(1013.25) == pytest.approx(101.325)
-    assert units.par_from_ghi(1000.0) == pytest.approx(2285.0)
+    # PAR share of global radiation 0.5 × 4.57 µmol J⁻¹ of PAR quanta (McCree 1972).
+    assert units.par_from_ghi(1000.0) == pytest.approx(0.5 * 4.57 * 1000.0)
     assert units.par_from_ghi(np.array([0.0, 500.0]))[1] == pytest.approx(1142.5)
 
 
