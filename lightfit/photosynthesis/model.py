@@ -428,7 +428,9 @@ def solve(
         tleaf_c: leaf temperature [°C].
         co2_ppm: CO2 mole fraction [µmol mol⁻¹]; in the air outside the boundary layer if
             ``gb_mol_m2_s`` is given, else at the leaf surface.
-        rh: relative humidity of the air [0–1], used for the VPD at leaf temperature.
+        rh: relative humidity of the air [0–1]: the deficit is taken as D = e_s(T_leaf)·(1 − rh),
+            the leaf-to-air deficit when the leaf is at air temperature (as in lightfit's coupled
+            model); for a leaf warmer or cooler than the air pass ``vpd_kpa`` instead.
         pair_kpa: air pressure [kPa].
         params: :class:`PhotosynthesisParams`; default
             ``parameter_set(DEFAULT_PARAMETER_SET)`` (``"winter_wheat"``).
