@@ -64,7 +64,7 @@ def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int 
     )
     from lightfit.plant import Field
 
-    fld = Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
+    fld = Field(boundary="finite", n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
     tmp = Path(tempfile.mkdtemp(prefix="bench-dataset-"))
     results = tmp / "results.nc"
     synthetic_results(fld, ["2016-04-20T11:00"]).to_netcdf(results, engine="h5netcdf")

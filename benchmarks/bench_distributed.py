@@ -69,7 +69,9 @@ def available_parallelism() -> dict:
 def warm(client, weather):
     """One tiny run on every worker: imports, Dr.Jit kernels, JAX compilation of common code."""
     n = len(client.nthreads())
-    sc = Scenario(weather=weather, field=Field(n_plants=4, buffer_rows=1, seed=1), samples=4, bounces=1)
+    sc = Scenario(
+        weather=weather, field=Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1), samples=4, bounces=1
+    )
     run_field(FieldRun(sc, tiles=min(n, 4)), client=client, timeout_s=600)
 
 
@@ -116,7 +118,7 @@ def halo_bias(weather, n_plants, buffer_rows, samples, bounces, tiles, halos):
 
     sc = Scenario(
         weather=weather,
-        field=Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1),
+        field=Field(boundary="finite", n_plants=n_plants, buffer_rows=buffer_rows, seed=1),
         samples=samples,
         bounces=bounces,
         par_kind="absorbed",
@@ -220,7 +222,7 @@ def main():
     }
     res = {"config": cfg, "tiles": {}, "strong": {}, "weak": [], "machine_load_before": available_parallelism()}
     print("machine load before:", res["machine_load_before"])
-    field = Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
+    field = Field(boundary="finite", n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
     sc = Scenario(weather=weather, field=field, samples=samples, bounces=bounces, par_kind="absorbed")
 
     def mk(tiles, halo, fld=field):
@@ -249,7 +251,7 @@ def main():
                 _, r = timed(client, mk(strong_tiles, halo))
                 res["strong"][key].append(r)
                 print(f"[strong] {key} N={n_workers}: wall {r['wall_s']:.1f} s")
-            fld = Field(n_plants=weak_sizes[n_workers], buffer_rows=buffer_rows, seed=1)
+            fld = Field(boundary="finite", n_plants=weak_sizes[n_workers], buffer_rows=buffer_rows, seed=1)
             _, r = timed(client, mk(2 * n_workers, buffer_rows, fld))
             res["weak"].append(r)
             print(f"[weak] N={n_workers}, {fld.n**2} plants: wall {r['wall_s']:.1f} s")

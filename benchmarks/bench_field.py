@@ -30,7 +30,7 @@ OUT = Path(__file__).resolve().parent / "results" / "field.json"
 
 
 def main(n_plants: int = 500, buffer_rows: int = 2) -> dict:
-    fld = Field(n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
+    fld = Field(boundary="finite", n_plants=n_plants, buffer_rows=buffer_rows, seed=1)
     with tempfile.TemporaryDirectory() as cache:
         t0 = time.perf_counter()
         cold = build(fld, cache_dir=cache, progress=True)

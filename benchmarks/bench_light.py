@@ -276,7 +276,7 @@ def direct_projection_comparison(
 def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
     """Per-segment time at equal SE: one irradiancemeter render per segment vs our batched pass."""
     mi = backend.mitsuba()
-    geom = build(Field(n_plants=4, buffer_rows=1, seed=2))
+    geom = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=2))
     fs = FieldScene(geom.mesh, Optics(soil_albedo=0.12))
     fs.set_sun(-10.0, 0.0)
     seg = geom.segments[geom.segments["measured"].to_numpy() & (organ_class(geom.segments) == "blade")]
@@ -388,7 +388,7 @@ def main(
     optics = Optics.preset(optics_name)
     if bounces is None:
         bounces = bounces_for_tolerance(0.01, optics)
-    kw = dict(boundary="periodic") if boundary == "periodic" else dict(buffer_rows=2)
+    kw = dict(boundary="periodic") if boundary == "periodic" else dict(boundary="finite", buffer_rows=2)
     geom = build(Field(n_plants=n_plants, seed=1, **kw), progress=True)
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     fs.set_sun(50.0, 180.0)
@@ -425,7 +425,7 @@ def main(
         "load_average_start": load_start,
         "boundary": boundary,
         "optics": optics_name,
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(boundary="finite", n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "triangles": int(geom.mesh.n_faces),
         "samples": est.samples,

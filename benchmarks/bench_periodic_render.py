@@ -157,7 +157,7 @@ def main(
     res = {"samples": samples, "bounces": bounces, "repeat": repeat, "suns": suns, "cases": []}
     for n in plants:
         geoms = {}
-        for name, kw in (("finite", dict(buffer_rows=2)), ("periodic", dict(boundary="periodic"))):
+        for name, kw in (("finite", dict(boundary="finite", buffer_rows=2)), ("periodic", dict(boundary="periodic"))):
             g = build(Field(n_plants=n, seed=1, **kw))
             t = time.perf_counter()
             fs = FieldScene(g.mesh, Optics(), cell=g.cell)
@@ -229,7 +229,7 @@ def walk_costs(n_plants: int = 100, rings=((1, 0), (2, 0), (1, 1)), repeat: int 
     from lightfit.light.periodic import PeriodicCell
 
     g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"))
-    gf = build(Field(n_plants=n_plants, seed=1, buffer_rows=2))
+    gf = build(Field(boundary="finite", n_plants=n_plants, seed=1, buffer_rows=2))
     fs = FieldScene(g.mesh, Optics(), cell=g.cell)
     fin = FieldScene(gf.mesh, Optics())
     est = SegmentEstimator(fs, g.segments["segment_id"].to_numpy(), samples=64, bounces=3, seed=1)
@@ -290,7 +290,7 @@ def main_job_day(samples: int, bounces: int, n_plants: int = 100) -> dict:
     w = replication.forcing()
     suns = w.loc[w["sun_elevation_deg"] > 0, ["sun_elevation_deg", "sun_azimuth_deg"]].to_numpy(float)
     out, est = {}, {}
-    for name, kw in (("finite", dict(buffer_rows=2)), ("periodic", dict(boundary="periodic"))):
+    for name, kw in (("finite", dict(boundary="finite", buffer_rows=2)), ("periodic", dict(boundary="periodic"))):
         t = time.perf_counter()
         g = build(Field(n_plants=n_plants, seed=1, **kw))
         t_build = time.perf_counter() - t

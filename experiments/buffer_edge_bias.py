@@ -37,7 +37,7 @@ def main(n_plants: int = 16, samples: int = 128) -> dict:
     dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
     res = {}
     for rows, along in BUFFERS:
-        g = build(Field(n_plants=n_plants, buffer_rows=rows, buffer_along=along, seed=1))
+        g = build(Field(boundary="finite", n_plants=n_plants, buffer_rows=rows, buffer_along=along, seed=1))
         fs = FieldScene(g.mesh, Optics())
         fs.set_sun(*sun)
         ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()

@@ -86,7 +86,7 @@ def _absorbed(
         fld = Field(n_plants=n_plants, seed=1, boundary="periodic")
     else:
         r = setting["buffer_rows"]
-        fld = Field(n_plants=n_plants, seed=1, buffer_rows=r, buffer_along=r)
+        fld = Field(boundary="finite", n_plants=n_plants, seed=1, buffer_rows=r, buffer_along=r)
     geom = build(fld, resolution=MeshResolution(setting["along"], setting["across"]))
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     fs.set_sun(*sun)

@@ -49,8 +49,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SETUPS = {
     "periodic": dict(boundary="periodic"),
     "copies": dict(boundary="periodic"),
-    "wide": dict(buffer_rows=8, buffer_along=32),
-    "default": dict(buffer_rows=2),
+    "wide": dict(boundary="finite", buffer_rows=8, buffer_along=32),
+    "default": dict(boundary="finite", buffer_rows=2),
 }
 #: Reach of the explicit copies around the central cell, m (as the wide field's buffer).
 COPIES_REACH_M = 1.0

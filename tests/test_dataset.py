@@ -45,7 +45,7 @@ SUN = Lighting(sun_elevation_deg=45.0, sun_azimuth_deg=160.0, dni_w_m2=700.0, dh
 
 @pytest.fixture(scope="module")
 def results_file(tmp_path_factory):
-    fld = Field(n_plants=4, buffer_rows=1, seed=1)
+    fld = Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1)
     path = tmp_path_factory.mktemp("results") / "results.nc"
     synthetic_results(fld, TIMES, seed=3).to_netcdf(path, engine="h5netcdf")
     return path

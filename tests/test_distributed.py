@@ -19,7 +19,7 @@ from lightfit.model.scenario import Scenario
 from lightfit.plant import Field
 from lightfit.replication import forcing
 
-FIELD = Field(n_plants=4, buffer_rows=1, seed=1)
+FIELD = Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1)
 SEGMENT_VARS = [
     "incident_par_umol_m2_s",
     "absorbed_par_umol_m2_s",
@@ -143,7 +143,10 @@ def test_task_scenarios_are_the_run_scenario_split(weather):
 
 
 def test_halo_tiles_match_field_tiles_and_cover_field():
-    for fld in (Field(n_plants=16, buffer_rows=2, seed=0), Field(n_plants=25, buffer_rows=1, seed=3)):
+    for fld in (
+        Field(boundary="finite", n_plants=16, buffer_rows=2, seed=0),
+        Field(boundary="finite", n_plants=25, buffer_rows=1, seed=3),
+    ):
         for w in (1, 2, 4, 6):
             for a, b in zip(HaloField.of(fld, fld.buffer_rows).tiles(w), fld.tiles(w)):
                 np.testing.assert_array_equal(a.measured, b.measured)

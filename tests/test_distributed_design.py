@@ -30,7 +30,7 @@ def model(tmp_path_factory):
     use_float64()  # as the command line and the workers do
     sc = Scenario(
         weather=forcing().iloc[[1, 5, 14]],  # 05:30 local (night), 07:30, 12:00
-        field=Field(n_plants=4, buffer_rows=1, seed=1),
+        field=Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1),
         samples=8,
         bounces=2,
         par_kind="absorbed",

@@ -14,7 +14,7 @@ from lightfit.plant import Field, build
 
 @pytest.fixture(scope="module")
 def scene():
-    g = build(Field(n_plants=4, buffer_rows=1, seed=1))
+    g = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1))
     ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
     fs = FieldScene(g.mesh, Optics())
     fs.set_sun(45, 180)
@@ -132,7 +132,13 @@ def adaptive_model():
     from lightfit.model.scenario import Scenario
 
     w = rep.forcing().iloc[[5, 14]]  # 07:30 (low sun) and 12:00 local
-    sc = Scenario(weather=w, field=Field(n_plants=4, buffer_rows=1, seed=1), samples=32, bounces=1, target_rse=0.1)
+    sc = Scenario(
+        weather=w,
+        field=Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1),
+        samples=32,
+        bounces=1,
+        target_rse=0.1,
+    )
     return CoupledModel(sc, sensors=())
 
 

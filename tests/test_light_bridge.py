@@ -12,7 +12,7 @@ from lightfit.plant import Field, build
 
 
 def test_bridge_matches_estimator_under_jit_grad_and_vmap():
-    g = build(Field(n_plants=1, buffer_rows=1, seed=2))
+    g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
     ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
     fs = FieldScene(g.mesh, Optics())
     f = make_irradiance(fs, ids, samples=8, bounces=2)
@@ -84,7 +84,7 @@ from lightfit.plant import Field, build
 
 out = {}
 # 1. The bridge alone.
-g = build(Field(n_plants=1, buffer_rows=1, seed=2))
+g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
 ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
 f = make_irradiance(FieldScene(g.mesh, Optics()), ids, samples=8, bounces=2)
 sun = jnp.array([40.0, 170.0])
@@ -103,7 +103,8 @@ out["bridge_jit"] = np.asarray(jax.jit(jax.grad(bridge_loss))(leaf)).tolist()
 # 2. A tiny coupled model: one plant, three steps around noon.
 src = weather.add_solar(weather.read_weather(weather.bundled_path("2016-04-20")))
 wx = weather.window(src, "2016-04-20 12:00", 1, "30min")
-m = CoupledModel(Scenario(weather=wx, field=Field(n_plants=1, buffer_rows=1, seed=2), samples=8, bounces=2))
+fld = Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2)
+m = CoupledModel(Scenario(weather=wx, field=fld, samples=8, bounces=2))
 NAMES = ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")
 
 

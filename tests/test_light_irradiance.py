@@ -210,7 +210,7 @@ def test_beer_lambert_gap_fraction(angles, G):
 
 
 def _small_field():
-    g = build(Field(n_plants=4, buffer_rows=1, seed=1))
+    g = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1))
     ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
     return g, ids
 

@@ -18,7 +18,7 @@ from lightfit.model.scenario import Scenario
 from lightfit.photosynthesis import solve
 from lightfit.plant import Field
 
-FIELD = Field(n_plants=4, buffer_rows=1, seed=1)
+FIELD = Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1)
 THETA = Theta(specular=0.6, roughness=0.4, subsurface=0.2, light_factor=1.3, vcmax_scale=0.8)
 
 
@@ -66,7 +66,9 @@ def test_scenario_defaults_are_the_credible_defaults(weather):
 
 
 def test_ground_area_is_plants_times_spacings(weather):
-    fld = Field(n_plants=7, buffer_rows=1, row_spacing_m=0.2, plant_spacing_m=0.05)  # rounds up to 3×3
+    fld = Field(
+        boundary="finite", n_plants=7, buffer_rows=1, row_spacing_m=0.2, plant_spacing_m=0.05
+    )  # rounds up to 3×3
     assert fld.ground_area_m2 == pytest.approx(9 * 0.2 * 0.05)
     tiles = fld.tiles(3)
     areas = [fld.measured_area_m2(t) for t in tiles]

@@ -94,7 +94,7 @@ def test_rotated_cell_tiles_the_plane():
 
 
 def test_field_boundary_api():
-    fin = Field(n_plants=9, seed=2)
+    fin = Field(boundary="finite", n_plants=9, seed=2)
     assert fin.boundary == "finite" and fin.buffer_rows == 2 and fin.cell is None
     per = Field(n_plants=9, seed=2, boundary="periodic")
     assert per.buffer_rows == 0 and per.b_along == 0 and per.m == 3
@@ -117,6 +117,10 @@ def test_field_boundary_api():
         with pytest.raises(InputError, match=name):
             Field(n_plants=9, boundary="periodic", **kw)
     assert Field(n_plants=9, boundary="periodic", buffer_rows=0, buffer_along=0).cell == per.cell
+    # Periodic is the default; buffers without boundary='finite' are refused, naming the way out.
+    assert Field(n_plants=9, seed=2) == per
+    with pytest.raises(InputError, match="buffer_rows=2 with boundary='periodic'.*boundary='finite'"):
+        Field(n_plants=9, buffer_rows=2)
     with pytest.raises(InputError, match="boundary"):
         Field(boundary="torus")
     # Rows in any compass direction: the cell turns with them and still holds every plant.

@@ -32,7 +32,7 @@ def plant_table():
 
 @pytest.fixture(scope="module")
 def small_field(tmp_path_factory):
-    fld = Field(n_plants=9, buffer_rows=1, seed=3)
+    fld = Field(boundary="finite", n_plants=9, buffer_rows=1, seed=3)
     return fld, build(fld, cache_dir=tmp_path_factory.mktemp("cache"))
 
 
@@ -161,7 +161,9 @@ def test_hand_built_leaf_lies_flat():
 
 
 def test_field_grid_and_ids():
-    fld = Field(n_plants=10, buffer_rows=2, row_spacing_m=0.2, plant_spacing_m=0.05, row_direction_deg=90)
+    fld = Field(
+        boundary="finite", n_plants=10, buffer_rows=2, row_spacing_m=0.2, plant_spacing_m=0.05, row_direction_deg=90
+    )
     assert fld.n == 4 and fld.m == 8  # next larger square
     p = fld.plants()
     assert len(p) == 64 and p["measured"].sum() == 16
@@ -178,7 +180,7 @@ def test_field_grid_and_ids():
 
 @pytest.mark.parametrize("n_tiles", [1, 2, 3, 4, 6])
 def test_tiles_partition_and_buffer_neighbourhood(n_tiles):
-    fld = Field(n_plants=36, buffer_rows=2)
+    fld = Field(boundary="finite", n_plants=36, buffer_rows=2)
     plants = fld.plants()
     tiles = fld.tiles(n_tiles)
     assert len(tiles) == n_tiles
@@ -194,15 +196,15 @@ def test_tiles_partition_and_buffer_neighbourhood(n_tiles):
 
 
 def test_measured_plants_do_not_depend_on_buffer_rows():
-    a = Field(n_plants=9, buffer_rows=0, seed=4).plants()
-    b = Field(n_plants=9, buffer_rows=3, seed=4).plants()
+    a = Field(boundary="finite", n_plants=9, buffer_rows=0, seed=4).plants()
+    b = Field(boundary="finite", n_plants=9, buffer_rows=3, seed=4).plants()
     cols = ["plant_id", "seed", "x_m", "y_m"]
     assert a[cols].equals(b.loc[b["measured"], cols])
 
 
 def test_buffer_along_rows_widens_only_the_row_ends():
-    sq = Field(n_plants=9, buffer_rows=1, seed=4)
-    wide = Field(n_plants=9, buffer_rows=1, buffer_along=4, seed=4)
+    sq = Field(boundary="finite", n_plants=9, buffer_rows=1, seed=4)
+    wide = Field(boundary="finite", n_plants=9, buffer_rows=1, buffer_along=4, seed=4)
     p = wide.plants()
     assert len(p) == (3 + 2) * (3 + 8) and p["measured"].sum() == 9
     assert p["r"].min() == -1 and p["c"].min() == -4 and p["c"].max() == 3 + 3
@@ -223,11 +225,11 @@ def test_buffer_along_rows_widens_only_the_row_ends():
             | (ring["r"] > own["r"].max())
         ).all()
     with pytest.raises(InputError, match="buffer_along"):
-        Field(buffer_along=-2)
+        Field(boundary="finite", buffer_along=-2)
 
 
 def test_plant_is_identical_in_its_tile_and_as_a_neighbours_buffer(tmp_path):
-    fld = Field(n_plants=16, buffer_rows=1, seed=9)
+    fld = Field(boundary="finite", n_plants=16, buffer_rows=1, seed=9)
     a, b = fld.tiles(2)
     shared = np.intersect1d(a.measured, b.buffer)
     assert len(shared) > 0
@@ -322,12 +324,12 @@ def test_bad_inputs_are_clear_errors(tmp_path):
     with pytest.raises(InputError, match="not a date"):
         GrowthConfig(target_date="April")
     with pytest.raises(InputError, match="row_spacing_m"):
-        Field(row_spacing_m=-0.1)
+        Field(boundary="finite", row_spacing_m=-0.1)
     with pytest.raises(InputError, match="plant_spacing_m"):
-        Field(plant_spacing_m=0.0)
+        Field(boundary="finite", plant_spacing_m=0.0)
     with pytest.raises(InputError, match="buffer_rows"):
-        Field(buffer_rows=-1)
+        Field(boundary="finite", buffer_rows=-1)
     with pytest.raises(InputError, match="do not fit"):
-        Field(n_plants=4).tiles(9)
+        Field(boundary="finite", n_plants=4).tiles(9)
     with pytest.raises(InputError, match="along"):
         MeshResolution(along=0)

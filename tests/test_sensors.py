@@ -119,7 +119,7 @@ def test_sensors_give_gradients_and_do_not_change_the_segments(spherical):
 
 
 def test_sensor_layouts_and_bad_input():
-    fld = Field(n_plants=9, buffer_rows=1)
+    fld = Field(boundary="finite", n_plants=9, buffer_rows=1)
     (cep,) = default_sensors(fld)
     a, b = cep.lines()
     area = measured_area(fld)
@@ -152,7 +152,9 @@ def small_model():
     from lightfit.model.scenario import Scenario
 
     weather = rep.forcing().iloc[[1, 14]]  # 05:30 local (night), 12:00
-    sc = Scenario(weather=weather, field=Field(n_plants=4, buffer_rows=1, seed=1), samples=8, bounces=1)
+    sc = Scenario(
+        weather=weather, field=Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1), samples=8, bounces=1
+    )
     return CoupledModel(sc)
 
 

@@ -1,9 +1,9 @@
 """Plant: CPlantBox growth (G1 segment table), shoot mesh (G3) and field geometry.
 
 from lightfit import plant
-fld = plant.Field(n_plants=100, buffer_rows=2, seed=1)
+cell = plant.build(plant.Field(n_plants=100, seed=1))  # one periodic cell of an infinite field (default)
+fld = plant.Field(boundary="finite", n_plants=100, buffer_rows=2, seed=1)  # the paper's: 2 buffer rows
 geom = plant.build(fld)                         # whole field; or tile=fld.tiles(4)[0]
-cell = plant.build(plant.Field(n_plants=100, boundary="periodic", seed=1))  # one cell of an infinite field
 plant.export(geom.mesh, "field.ply")
 """
 

@@ -81,9 +81,10 @@ class Field:
             "Field-edge bias").
             ``buffer_along ≈ buffer_rows · row_spacing / plant_spacing`` makes the buffer the
             same distance both ways. Periodic fields: ``None`` or 0.
-        boundary: ``"finite"`` (buffer rows on bare soil, the reference paper's setup; the
-            default in this release) or ``"periodic"`` (the measurement area is one cell of an
-            infinite field, :attr:`cell`; no buffers).
+        boundary: ``"periodic"`` (default: the measurement area is one cell of an infinite
+            field, :attr:`cell`; no buffers, no edge bias) or ``"finite"`` (buffer rows on bare
+            soil, the reference paper's setup, whose edges let in +50 to +100 % canopy light on
+            small fields: docs/light.md, "Field-edge bias").
     """
 
     n_plants: int = 25
@@ -94,7 +95,7 @@ class Field:
     seed: int = 0
     growth: GrowthConfig = field(default_factory=GrowthConfig)
     buffer_along: int | None = None
-    boundary: str = "finite"
+    boundary: str = "periodic"
 
     def __post_init__(self):
         if self.boundary not in BOUNDARIES:
@@ -106,7 +107,10 @@ class Field:
                     raise InputError(
                         f"{name}={getattr(self, name)!r} with boundary='periodic'",
                         column=name,
-                        expected="0 or None: a periodic field has no buffer plants (its neighbours are its own copies)",
+                        expected=(
+                            "0 or None: a periodic field (the default) has no buffer plants, its neighbours"
+                            " are its own copies; boundary='finite' for buffer rows on bare soil"
+                        ),
                     )
         if self.buffer_rows is None:  # frozen dataclass: set the boundary's default once
             object.__setattr__(self, "buffer_rows", DEFAULT_BUFFER_ROWS if self.boundary == "finite" else 0)
