@@ -1,4 +1,4 @@
-"""Benchmark: render time of the periodic cell vs the finite 2-buffer-row default (issue 13).
+"""Benchmark: render time of the periodic cell vs the finite 2-buffer-row field (issue 13).
 
     python benchmarks/bench_periodic_render.py [--plants 16 100] [--samples 64] [--repeat 2] [--day] [--walk]
 
@@ -6,8 +6,8 @@ Side by side in one run, for the same measured plants (N × N, seed 1) at two su
 (the 2016-04-20 10:00 UTC sun of the main job, and a low sun at 15° elevation, same azimuth),
 K samples, 3 bounces, all measured segments:
 
-- ``finite``: the measured plants inside 2 buffer rows (today's default; it grows and meshes
-  the buffer plants too, ≈ 2× the plants for 10 × 10);
+- ``finite``: the measured plants inside 2 buffer rows (the default when this was written; it
+  grows and meshes the buffer plants too, ≈ 2× the plants for 10 × 10);
 - ``periodic``: the measured plants as one periodic cell (ray wrapping,
   :class:`lightfit.light.periodic.PeriodicTracer`).
 

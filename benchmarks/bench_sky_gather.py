@@ -122,7 +122,8 @@ def main(n_plants: int, samples: int) -> dict:
         c_blade[b] = var_g[b].mean() * samples
     t_point = T_gather / (len(bl) * samples)
     grid = np.linspace(0.3, 5.0, 95)
-    alone = min(a * T for a in grid if np.median(np.sqrt(sm["var"] / a) / x) <= TARGET)
+    lit = x > 0  # a segment without light has no relative SE; the median counts the others
+    alone = min((a * T for a in grid if np.median(np.sqrt(sm["var"][lit] / a) / x[lit]) <= TARGET), default=np.inf)
     res = {}
     for name, rounded in (("best", False), ("best_rounded", True)):
         best = min(

@@ -144,7 +144,9 @@ class Scenario:
         samples, bounces, seed: irradiance estimator settings (seed: common random numbers).
             ``bounces`` ``None`` (default): as many scattering orders as keep the truncated light
             under :data:`BOUNCE_TOLERANCE` for ``optics`` (2 for the default leaf, 8 for the grey
-            one; :func:`~lightfit.light.estimator.bounces_for_tolerance`).
+            one; :func:`~lightfit.light.estimator.bounces_for_tolerance`). Resolved at construction
+            (like ``direct``): ``dataclasses.replace(sc, optics=...)`` keeps the number, so pass
+            ``bounces=None`` with new optics to have it chosen again.
         target_rse: ``None`` (default): every measured segment gets ``samples`` points. A number
             in (0, 1): the per-segment relative standard error of absorbed PAR to reach, the
             accuracy knob traded against time (adaptive sampling,
