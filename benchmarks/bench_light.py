@@ -55,6 +55,22 @@ use_float64()  # lightfit's precision policy (lightfit.precision), before any JA
 OUT = Path(__file__).resolve().parent / "results" / "light.json"
 
 
+#: The benchmarks' sun on their cell (elevation, azimuth), degrees.
+BENCH_SUN_DEG = (50.0, 180.0)
+
+
+def periodic_cell(n_plants: int):
+    """The light benchmarks' scene: ``n_plants`` (seed 1) as one periodic cell, the default
+    PROSPECT-D leaf, the sun at :data:`BENCH_SUN_DEG`. Returns ``(geometry, scene, measured
+    segment ids, bounces for 1 % truncation)``."""
+    optics = Optics.preset("prospect")
+    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
+    fs = FieldScene(geom.mesh, optics, cell=geom.cell)
+    fs.set_sun(*BENCH_SUN_DEG)
+    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
+    return geom, fs, ids, bounces_for_tolerance(0.01, optics)
+
+
 def commit_state() -> dict:
     """The commit measured and whether lightfit/ had uncommitted changes (what every result records)."""
     root = Path(__file__).resolve().parents[1]

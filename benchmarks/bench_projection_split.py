@@ -28,14 +28,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from bench_light import commit_state, periodic_cell  # same script folder
 from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
-from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
-from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.plant import Field
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -48,12 +47,7 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
     import drjit as dr
 
     load_start = os.getloadavg()[0]
-    optics = Optics.preset("prospect")
-    bounces = bounces_for_tolerance(0.01, optics)
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
-    fs = FieldScene(geom.mesh, optics, cell=geom.cell)
-    fs.set_sun(50.0, 180.0)
-    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
+    geom, fs, ids, bounces = periodic_cell(n_plants)
     kw = dict(samples=samples, bounces=bounces, direct="projection", direct_rays_per_m2=rays)
     SegmentEstimator(fs, ids[:2000], seed=0, **kw).render()  # compile kernels
     est = SegmentEstimator(fs, ids, seed=1, **kw)

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from bench_light import commit_state, periodic_cell  # same script folder
 from rich.console import Console
 from rich.progress import track
 from rich.table import Table
@@ -36,9 +36,8 @@ from scipy.stats import f as fisher
 
 import lightfit  # noqa: F401
 from lightfit.light import keyed_random
-from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
-from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.plant import Field
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -99,12 +98,7 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
 def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2e7), rounds=(16, 4)) -> dict:
     console = Console()
     load_start = os.getloadavg()[0]
-    optics = Optics.preset("prospect")
-    bounces = bounces_for_tolerance(0.01, optics)
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
-    fs = FieldScene(geom.mesh, optics, cell=geom.cell)
-    fs.set_sun(50.0, 180.0)
-    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
+    geom, fs, ids, bounces = periodic_cell(n_plants)
     runs = []
     default = keyed_random.TEA_ROUNDS
     try:

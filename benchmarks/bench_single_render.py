@@ -23,14 +23,13 @@ import os
 import time
 from pathlib import Path
 
-from bench_light import commit_state, direct_projection_comparison  # same script folder
+from bench_light import commit_state, direct_projection_comparison, periodic_cell  # same script folder
 from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
-from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
-from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build, organ_class
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.plant import organ_class
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -42,14 +41,9 @@ GOAL_S = 60.0
 
 def main(n_plants: int, samples: int, rays: tuple[float, float]) -> dict:
     load_start = os.getloadavg()[0]
-    optics = Optics.preset("prospect")
-    bounces = bounces_for_tolerance(0.01, optics)
     t = time.perf_counter()
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
-    fs = FieldScene(geom.mesh, optics, cell=geom.cell)
-    fs.set_sun(50.0, 180.0)
+    geom, fs, ids, bounces = periodic_cell(n_plants)
     t_build = time.perf_counter() - t
-    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     SegmentEstimator(fs, ids[:2000], samples=samples, bounces=bounces, seed=0).render()  # compile kernels
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     row = direct_projection_comparison(fs, ids, bounces, [(samples, rays)], organ)["settings"][0]

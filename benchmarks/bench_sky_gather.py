@@ -44,14 +44,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from bench_light import BENCH_SUN_DEG, commit_state, periodic_cell  # same script folder
 from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
-from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
-from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build, organ_class
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.plant import organ_class
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -85,12 +84,7 @@ def hybrid_time(a, T, var, var_sky, c_blade, t_point, x, blade, rounded):
 
 def main(n_plants: int, samples: int) -> dict:
     load_start = os.getloadavg()[0]
-    optics = Optics.preset("prospect")
-    bounces = bounces_for_tolerance(0.01, optics)
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
-    fs = FieldScene(geom.mesh, optics, cell=geom.cell)
-    fs.set_sun(50.0, 180.0)
-    ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
+    geom, fs, ids, bounces = periodic_cell(n_plants)
     blade = np.asarray(organ_class(geom.segments.set_index("segment_id").loc[ids])) == "blade"
     kw = dict(direct="projection", direct_rays_per_m2=RAYS, seed=1)
     SegmentEstimator(fs, ids, samples=16, bounces=bounces, **kw).render()  # compile, hold memory
@@ -108,7 +102,7 @@ def main(n_plants: int, samples: int) -> dict:
     t = time.perf_counter()
     g = SegmentEstimator(fs, ids[bl], samples=samples, bounces=0, seed=7).render()
     T_gather = time.perf_counter() - t
-    fs.set_sun(50.0, 180.0)
+    fs.set_sun(*BENCH_SUN_DEG)
     var_g = (DHI * g.se["absorbed_sky"]) ** 2
     sky_p = SegmentEstimator(fs, ids[bl], samples=16, bounces=0, **kw).render()
     z = np.abs(g.absorbed_sky - sky_p.absorbed_sky) / np.hypot(g.se["absorbed_sky"], sky_p.se["absorbed_sky"])
