@@ -127,7 +127,7 @@ def main(n_plants: int = 500, steps: int = 29) -> dict:
         **commit_state(),
         "cpu_cores": os.cpu_count(),
         "mitsuba_variant": backend.info().variant,
-        "n_plants_measured": int(Field(boundary="finite", n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "bounces": bounces,
         "steps": steps,

@@ -404,8 +404,7 @@ def main(
     optics = Optics.preset(optics_name)
     if bounces is None:
         bounces = bounces_for_tolerance(0.01, optics)
-    kw = dict(boundary="periodic") if boundary == "periodic" else dict(boundary="finite", buffer_rows=2)
-    geom = build(Field(n_plants=n_plants, seed=1, **kw), progress=True)
+    geom = build(Field(n_plants=n_plants, seed=1, boundary=boundary), progress=True)  # finite: 2 buffer rows
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     fs.set_sun(50.0, 180.0)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
@@ -441,7 +440,7 @@ def main(
         "load_average_start": load_start,
         "boundary": boundary,
         "optics": optics_name,
-        "n_plants_measured": int(Field(boundary="finite", n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "triangles": int(geom.mesh.n_faces),
         "samples": est.samples,

@@ -103,7 +103,7 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
         **commit_state(),
         "cpu_cores": os.cpu_count(),
         "load_average_start": load_start,
-        "n_plants_measured": int(Field(boundary="finite", n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "samples": samples,
         "bounces": bounces,

@@ -96,7 +96,7 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
         **commit_state(),
         "cpu_cores": os.cpu_count(),
         "load_average_start": load_start,
-        "n_plants_measured": int(Field(boundary="finite", n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "samples": est.samples,
         "bounces": bounces,

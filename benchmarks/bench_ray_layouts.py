@@ -183,7 +183,7 @@ def main(n_plants: int = 500, rays: float = 2e7, replicates: int = 8, vector_wid
         "cpu_cores": os.cpu_count(),
         "llvm_vector_width": width,
         "load_average_start": load_start,
-        "n_plants_measured": int(Field(boundary="finite", n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments_in_cell": len(seg_id),
         "rays_per_m2": rays,
         "replicates": replicates,
