@@ -59,8 +59,16 @@ def test_tereno_co2_30min_held_and_reported():
     df = read_tereno(FIXTURE)
     held = [q for q in df.attrs["qc"] if q["kind"] == "held"]
     assert held and held[0]["column"] == "co2_ppm"
-    # The held rows equal the preceding 30-min value.
-    assert df["co2_ppm"].iloc[1] == df["co2_ppm"].iloc[0]
+    # The stamps end their means: the 10-min rows inside a 30-min interval take the mean that
+    # closes it, i.e. the next 30-min value, and rows past the last mean keep it.
+    raw = read_tereno(FIXTURE).attrs["timestamps"]
+    assert (raw.label, raw.interval) == ("end", pd.Timedelta("10min"))
+    first, second = df["co2_ppm"].iloc[0], df["co2_ppm"].iloc[3]
+    assert df["co2_ppm"].iloc[1] == df["co2_ppm"].iloc[2] == second != first
+    assert df["co2_ppm"].iloc[-1] == df["co2_ppm"].iloc[-3]
+    # Start-stamped means cover the rows after their stamp.
+    start = read_tereno(FIXTURE, time_label="start")
+    assert start["co2_ppm"].iloc[1] == start["co2_ppm"].iloc[2] == first
 
 
 def test_header_found_by_content_with_long_preamble_and_semicolons(tmp_path):

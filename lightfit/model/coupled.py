@@ -37,6 +37,7 @@ from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Forcing, Scenario
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import precision
+from lightfit.weather import timestamps
 
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S + P) in
 #: :data:`~lightfit.light.estimator.PARTS` order, per unit DNI / DHI: S measured segments, then
@@ -263,6 +264,7 @@ class CoupledModel:
             "time_zone": "UTC",
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
             "weather_source": str(w.attrs.get("source", "")),
+            "weather_timestamps": timestamps.of(w).describe(),
             "n_plants": fld.n_plants,
             "boundary": fld.boundary,
             "buffer_rows": fld.buffer_rows,

@@ -8,8 +8,13 @@ column → source column and unit), ``unused_columns`` and ``qc`` (repairs).
 Timezones. TERENO stations log in UTC+1 without daylight saving (CET); that is the
 default ``tz`` of :func:`read_tereno`. CPlantBox's undated day file is in local civil time
 (its PAR is symmetric about 13:45, i.e. solar noon at Selhausen in CEST), so its default is
-``Europe/Berlin``. Averaging-interval timestamps are used as given (not shifted to the
-interval centre). Everything is converted to UTC.
+``Europe/Berlin``. Everything is converted to UTC.
+
+Timestamps of means. Both formats hold interval means stamped at the interval's end, the
+loggers' convention (``time_label="end"`` to change; :mod:`lightfit.weather.timestamps`): the
+CPlantBox day's PAR is symmetric about 13:45, five minutes after the centre of its 10-minute
+means, and solar noon at Selhausen falls at 13:30–13:40 CEST. The series records it in
+``attrs["timestamps"]``, and the sun is taken at each interval's centre.
 """
 
 from __future__ import annotations
@@ -24,8 +29,9 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, parse_date
-from lightfit.weather import units
+from lightfit.weather import timestamps, units
 from lightfit.weather.series import DEFAULT_MAX_GAP, check_and_repair, parse_numeric
+from lightfit.weather.timestamps import Timestamps
 
 TERENO_TZ = "Etc/GMT-1"  # POSIX sign convention: Etc/GMT-1 is UTC+1
 CPLANTBOX_TZ = "Europe/Berlin"
@@ -128,6 +134,7 @@ def read_tereno(
     columns: dict[str, str] | None = None,
     max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP,
     provenance: str = "measured",
+    time_label: str = "end",
 ) -> pd.DataFrame:
     """Read a TERENO data-portal CSV export (e.g. station SE_EC_001) into a contract series.
 
@@ -145,10 +152,14 @@ def read_tereno(
             ``par_umol_m2_s``, ``tair_c``, ``humidity``, ``pair_kpa``, ``co2_ppm``.
         max_gap: longest gap that is interpolated (see :func:`~lightfit.weather.series.check_and_repair`).
         provenance: what the file is; only a real export is ``"measured"``.
+        time_label: where the stamp of each mean lies in its interval (``"end"``, ``"start"``,
+            ``"center"``); the interval is the radiation columns' (``Avg10min``: 10 min).
     """
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a TERENO CSV export")
+    if time_label not in ("start", "center", "end"):
+        raise InputError(f"time_label={time_label!r}", column="time_label", expected="'start', 'center' or 'end'")
     text_lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     hdr, delim = _find_table(text_lines, path)
     table = pd.read_csv(
@@ -233,11 +244,19 @@ def read_tereno(
             out["co2_ppm"] = units.co2_ppm_from_mmol_m3(raw["co2_ppm"], out["tair_c"], out["pair_kpa"])
         else:
             out["co2_ppm"] = raw["co2_ppm"]
-    # Slower quantities (CO2 at 30 min) arrive as empty cells between their timestamps:
-    # forward-hold them within their own period before the gap check sees them.
+    # Slower quantities (CO2 at 30 min) arrive as empty cells between their timestamps: each
+    # 30-min mean covers the 10-min rows inside its own interval, which lie before an end-stamp
+    # and after a start-stamp; rows past the last mean keep it (the interval it would close is
+    # not in the file).
     if "co2_ppm" in out and "Avg30min" in used.get("co2_ppm", ""):
-        held = out["co2_ppm"].ffill(limit=2)
-        n = int((held.notna() & out["co2_ppm"].isna()).sum())
+        co2 = out["co2_ppm"]
+        if time_label == "end":
+            held = co2.bfill(limit=2).ffill(limit=2)
+        elif time_label == "start":
+            held = co2.ffill(limit=2)
+        else:
+            held = co2.ffill(limit=1).bfill(limit=1)
+        n = int((held.notna() & co2.isna()).sum())
         if n:
             out["co2_ppm"] = held
             qc.append(
@@ -245,7 +264,8 @@ def read_tereno(
                     "kind": "held",
                     "column": "co2_ppm",
                     "count": n,
-                    "detail": f"{n} value(s) of the 30-min CO2 series held over the 10-min rows in between",
+                    "detail": f"{n} value(s) of the 30-min CO2 series held over the 10-min rows of their "
+                    f"own interval (stamps at the {time_label})",
                 }
             )
     out.attrs = {
@@ -253,11 +273,26 @@ def read_tereno(
         "format": "tereno",
         "provenance": provenance,
         "timezone_assumed": tz,
+        "timestamps": Timestamps(time_label, _averaging_interval(used, times)),
         "columns_used": used,
         "unused_columns": [c for c in table.columns if c not in used.values() and c != time_col],
         "qc": qc,
     }
     return check_and_repair(out, lines.set_axis(times), path, max_gap=max_gap)
+
+
+def _averaging_interval(used: dict[str, str], times: pd.DatetimeIndex) -> pd.Timedelta:
+    """The radiation columns' averaging interval (``…_Avg10min``), else the rows' step."""
+    for qty in ("ghi_w_m2", "par_umol_m2_s"):
+        m = re.search(r"Avg(\d+)min", used.get(qty, ""))
+        if m:
+            return pd.Timedelta(minutes=int(m.group(1)))
+    return _row_step(times)
+
+
+def _row_step(times: pd.DatetimeIndex) -> pd.Timedelta:
+    steps = times.sort_values().to_series().diff().dropna()
+    return steps.median() if len(steps) else pd.Timedelta(minutes=10)
 
 
 def read_cplantbox_day(
@@ -267,17 +302,21 @@ def read_cplantbox_day(
     tz: str = CPLANTBOX_TZ,
     max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP,
     provenance: str = "measured",
+    time_label: str = "end",
 ) -> pd.DataFrame:
     """Read CPlantBox's one-day weather file (``climate/Selhausen_weather_data.txt`` format).
 
     Tab-separated, quoted header ``"time" "PAR" "co2" "RH" "Tair" "Pair" ...`` with time
     HH:MM:SS, PAR in mol m⁻² s⁻¹, co2 in mol mol⁻¹, RH 0–1, Tair °C, Pair kPa. The file has
     no date: ``date`` supplies it. Extra columns (soil water potential ``ps``, ``nm``) are
-    listed in ``attrs["unused_columns"]``.
+    listed in ``attrs["unused_columns"]``. Its rows are means over the rows' step stamped at
+    ``time_label`` (the module's docstring says why the end).
     """
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a CPlantBox weather file")
+    if time_label not in ("start", "center", "end"):
+        raise InputError(f"time_label={time_label!r}", column="time_label", expected="'start', 'center' or 'end'")
     day = parse_date(date, "date")
     table = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
     table.columns = [c.strip().strip('"') for c in table.columns]
@@ -302,6 +341,7 @@ def read_cplantbox_day(
         "format": "cplantbox",
         "provenance": provenance,
         "timezone_assumed": tz,
+        "timestamps": Timestamps(time_label, _row_step(times)),
         "columns_used": {v: k for k, v in need.items() if v},
         "unused_columns": [c for c in table.columns if c not in need],
         "qc": qc,
@@ -343,7 +383,9 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
     """Read lightfit's own series CSV: ``# key: value`` metadata lines, then contract columns.
 
     The ``time_utc`` column holds ISO 8601 UTC timestamps. The ``provenance`` metadata key is
-    required: a file must say whether it is measured, reconstructed or synthetic.
+    required: a file must say whether it is measured, reconstructed or synthetic. ``time_label``
+    and ``averaging_interval`` say what the stamps mean (:mod:`lightfit.weather.timestamps`;
+    without them, instants).
     """
     path = Path(path)
     if not path.exists():
@@ -364,6 +406,7 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
         "format": "lightfit",
         "provenance": meta["provenance"],
         "timezone_assumed": "UTC",
+        "timestamps": Timestamps.from_metadata(meta, path),
         "metadata": meta,
         "columns_used": {c: c for c in out.columns},
         "unused_columns": [],
@@ -373,11 +416,17 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
 
 
 def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
-    """Write a contract series with ``# key: value`` metadata (must include ``provenance``)."""
+    """Write a contract series with ``# key: value`` metadata (must include ``provenance``).
+
+    The series' timestamps' meaning (``attrs["timestamps"]``) is written with it unless
+    ``metadata`` states it.
+    """
     if metadata.get("provenance") not in ("measured", "reconstructed", "synthetic"):
         raise InputError(
             "metadata must state provenance", column="provenance", expected="'measured', 'reconstructed' or 'synthetic'"
         )
+    if "time_label" not in metadata:
+        metadata = metadata | timestamps.of(df).metadata()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     head = "".join(f"# {k}: {v}\n" for k, v in metadata.items())

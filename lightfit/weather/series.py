@@ -17,6 +17,8 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.weather import timestamps
+from lightfit.weather.timestamps import Timestamps
 
 #: Contract columns and their units (also in the names).
 COLUMNS: dict[str, str] = {
@@ -297,9 +299,12 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
 
     Args:
         freq: new step (pandas offset alias), e.g. ``"30min"`` as in the reference paper.
-        how: ``"mean"`` averages the values in a window centred on each new timestamp (keeps
-            daily radiation sums); ``"sample"`` takes the value at each new timestamp (what the
-            reference paper did when it "sub-sampled 10-minute intervals to 30 minutes").
+        how: ``"mean"`` averages to means over ``freq`` (keeps daily radiation sums): for
+            instants (and centred means), in a window centred on each new timestamp; for means
+            stamped at their intervals' ends (starts), over the whole source intervals that end
+            (start) within the new interval, stamped the same way (:mod:`lightfit.weather.timestamps`).
+            ``"sample"`` takes the value at each new timestamp (what the reference paper did when
+            it "sub-sampled 10-minute intervals to 30 minutes"); the values keep their meaning.
         origin: a timestamp (tz-aware) the new steps pass through, e.g. a run's first step;
             ``None``: the series' first timestamp (``"sample"``) or midnight (``"mean"``).
 
@@ -320,9 +325,20 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 expected="a step that is a multiple of the source step (and starts on it), or how='mean'",
             )
     elif how == "mean":
-        shifted = df[measured].copy()
-        shifted.index = shifted.index + step / 2
-        out = shifted.resample(freq, origin="start_day" if origin is None else origin).mean()
+        source = timestamps.of(df)
+        if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
+            side = "right" if source.label == "end" else "left"
+            out = (
+                df[measured]
+                .resample(freq, closed=side, label=side, origin="start_day" if origin is None else origin)
+                .mean()
+            )
+            stamps = Timestamps(source.label, step)
+        else:  # instants or centred means: a window centred on each new stamp
+            shifted = df[measured].copy()
+            shifted.index = shifted.index + step / 2
+            out = shifted.resample(freq, origin="start_day" if origin is None else origin).mean()
+            stamps = Timestamps("center", step)
         if out.isna().all(axis=1).any():
             raise InputError(
                 f"cannot average at {freq}: some new steps have no source value in their window",
@@ -332,6 +348,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     else:
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
     out.attrs = dict(df.attrs)
+    if how == "mean":
+        out.attrs["timestamps"] = stamps
     out.attrs["qc"] = list(df.attrs.get("qc", [])) + [
         {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"}
     ]

@@ -11,6 +11,7 @@ import pandas as pd
 import pvlib
 
 from lightfit.errors import InputError
+from lightfit.weather import timestamps
 from lightfit.weather.site import SELHAUSEN, Site
 from lightfit.weather.units import par_from_ghi
 
@@ -164,6 +165,10 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     so that the split can run; either estimate is recorded in ``attrs["qc"]``. With both measured,
     their ratio is checked (:func:`check_par_per_ghi`) and recorded there: the light model takes
     the PAR from the PAR sensor and its diffuse fraction from the split's (:func:`par_direct_diffuse`).
+
+    The sun's angles are those at the centre of what each timestamp labels
+    (:mod:`lightfit.weather.timestamps`): the stamp itself for instants, five minutes before it
+    for the end-stamps of 10-minute means.
     """
     site = site or df.attrs.get("site") or SELHAUSEN
     out = df.copy()
@@ -203,9 +208,21 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
                 "detail": f"global radiation estimated from PAR / {k:.3f} µmol J⁻¹",
             }
         )
-    sp = solar_position(out.index, site)
-    out["sun_elevation_deg"] = sp["sun_elevation_deg"]
-    out["sun_azimuth_deg"] = sp["sun_azimuth_deg"]
+    stamps = timestamps.of(out)
+    sp = solar_position(stamps.centres(out.index), site)
+    out["sun_elevation_deg"] = sp["sun_elevation_deg"].to_numpy()
+    out["sun_azimuth_deg"] = sp["sun_azimuth_deg"].to_numpy()
+    if stamps.centre_offset != pd.Timedelta(0):
+        qc = [q for q in qc if q["kind"] != "sun at centres"]  # a resampled series replaces its source's
+        qc.append(
+            {
+                "kind": "sun at centres",
+                "column": "sun_elevation_deg",
+                "count": len(out),
+                "detail": f"the timestamps are the {stamps.describe()}: the sun is taken at each interval's "
+                f"centre ({stamps.centre_offset / pd.Timedelta(minutes=1):+g} min from its stamp)",
+            }
+        )
     split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
     out["dni_w_m2"], out["dhi_w_m2"] = split["dni_w_m2"], split["dhi_w_m2"]
     out.attrs["qc"] = qc

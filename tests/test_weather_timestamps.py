@@ -1,0 +1,142 @@
+"""Timestamps of interval means: the sun at each interval's centre, resampling that keeps whole
+intervals, the convention carried through lightfit's CSV, and bad input refused.
+
+The reference for the sun is the NOAA solar calculator (``tests/test_weather_solar.py``,
+independent of pvlib), evaluated minute by minute over each interval.
+"""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from test_weather_solar import noaa_apparent_elevation_deg
+
+from lightfit.errors import InputError
+from lightfit.weather import (
+    SELHAUSEN,
+    add_solar,
+    read_lightfit_csv,
+    read_source,
+    read_tereno,
+    resample,
+    write_lightfit_csv,
+)
+from lightfit.weather.bundled import DATA_DIR
+from lightfit.weather.timestamps import Timestamps
+
+FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
+
+
+def _noaa(t: pd.Timestamp) -> float:
+    return noaa_apparent_elevation_deg(t, SELHAUSEN.latitude_deg, SELHAUSEN.longitude_deg)
+
+
+def test_sun_of_a_10_min_mean_is_its_intervals_mean_sun():
+    """For end-stamped 10-min means, sin β lightfit uses equals the interval's minute-by-minute mean
+    of NOAA's sin β to 0.5 % from 5° up (the stamp's own sin β is 8–20 % off there in the morning)."""
+    df = add_solar(read_tereno(FIXTURE))
+    rows = df[(df["sun_elevation_deg"] > 5) & (df["sun_elevation_deg"] < 25)]
+    assert len(rows) >= 10
+    for t, beta in rows["sun_elevation_deg"].items():
+        minutes = [t - pd.Timedelta(seconds=30 + 60 * k) for k in range(10)]  # the interval's minute centres
+        mean_sin = np.mean([math.sin(math.radians(_noaa(m))) for m in minutes])
+        assert math.sin(math.radians(beta)) == pytest.approx(mean_sin, rel=5e-3)
+        assert beta == pytest.approx(_noaa(t - pd.Timedelta(minutes=5)), abs=0.05)
+    t0, beta0 = rows.index[0], rows["sun_elevation_deg"].iloc[0]
+    assert abs(math.sin(math.radians(_noaa(t0))) / math.sin(math.radians(beta0)) - 1) > 0.08
+
+
+def test_instants_keep_the_sun_at_their_stamps():
+    """The bundled reconstruction is computed at instants: its sun is at its stamps."""
+    df = add_solar(read_source("2016-04-20"))
+    assert df.attrs["timestamps"] == Timestamps()
+    t = pd.Timestamp("2016-04-20 06:00", tz="UTC")
+    assert df.loc[t, "sun_elevation_deg"] == pytest.approx(_noaa(t), abs=0.05)
+    assert not [q for q in df.attrs["qc"] if q["kind"] == "sun at centres"]
+
+
+def test_mean_resampling_keeps_whole_intervals_and_their_stamps():
+    """30-min means of end-stamped 10-min means: the three rows that end within (t − 30 min, t],
+    stamped at t, the sun 15 min before t."""
+    df = add_solar(read_tereno(FIXTURE))
+    r = resample(df, "30min", "mean")
+    assert r.attrs["timestamps"] == Timestamps("end", pd.Timedelta("30min"))
+    t = pd.Timestamp("2016-04-20 07:00", tz="UTC")
+    rows = df.loc[t - pd.Timedelta("20min") : t, "ghi_w_m2"]
+    assert len(rows) == 3
+    assert r.loc[t, "ghi_w_m2"] == pytest.approx(rows.mean(), rel=1e-12)
+    assert r.loc[t, "sun_elevation_deg"] == pytest.approx(_noaa(t - pd.Timedelta("15min")), abs=0.05)
+    # Sub-sampling keeps the 10-min means and their meaning.
+    s = resample(df, "30min", "sample")
+    assert s.attrs["timestamps"] == df.attrs["timestamps"]
+    assert s.loc[t, "sun_elevation_deg"] == df.loc[t, "sun_elevation_deg"]
+
+
+def test_instant_series_mean_resampling_is_centred():
+    df = add_solar(read_source("2016-04-20"))
+    r = resample(df, "30min", "mean")
+    assert r.attrs["timestamps"] == Timestamps("center", pd.Timedelta("30min"))
+    t = pd.Timestamp("2016-04-20 12:00", tz="UTC")
+    window = df.loc[t - pd.Timedelta("10min") : t + pd.Timedelta("10min"), "ghi_w_m2"]
+    assert r.loc[t, "ghi_w_m2"] == pytest.approx(window.mean())
+    assert r.loc[t, "sun_elevation_deg"] == df.loc[t, "sun_elevation_deg"]
+
+
+def test_lightfit_csv_carries_the_convention(tmp_path):
+    df = add_solar(read_tereno(FIXTURE))
+    p = write_lightfit_csv(df, tmp_path / "forcing.csv", {"provenance": "synthetic"})
+    text = p.read_text(encoding="utf-8")
+    assert "# time_label: end\n# averaging_interval: 10min\n" in text
+    back = read_lightfit_csv(p)
+    assert back.attrs["timestamps"] == df.attrs["timestamps"]
+    np.testing.assert_allclose(add_solar(back)["sun_elevation_deg"], df["sun_elevation_deg"], atol=1e-9)
+    # A file that does not say holds instants.
+    lines = [ln for ln in text.splitlines() if not ln.startswith(("# time_label", "# averaging_interval"))]
+    old = tmp_path / "old.csv"
+    old.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    assert read_lightfit_csv(old).attrs["timestamps"] == Timestamps()
+
+
+@pytest.mark.parametrize(
+    ("meta", "match"),
+    [
+        ({"time_label": "middle", "averaging_interval": "10min"}, "time_label.*middle"),
+        ({"time_label": "end"}, "averaging_interval"),
+        ({"time_label": "end", "averaging_interval": "ten minutes"}, "averaging_interval: ten minutes"),
+        ({"time_label": "instant", "averaging_interval": "10min"}, "averaging_interval"),
+    ],
+)
+def test_bad_metadata_names_the_file_and_key(tmp_path, meta, match):
+    df = read_source("2016-04-20").iloc[:3]
+    p = write_lightfit_csv(df, tmp_path / "bad.csv", {"provenance": "synthetic"} | meta)
+    with pytest.raises(InputError, match=match) as e:
+        read_lightfit_csv(p)
+    assert "bad.csv" in str(e.value)
+
+
+def test_bad_time_label_argument():
+    with pytest.raises(InputError, match="time_label"):
+        read_tereno(FIXTURE, time_label="middle")
+    with pytest.raises(InputError, match="averaging_interval"):
+        Timestamps("end", pd.Timedelta("-10min"))
+
+
+def test_cplantbox_day_reads_as_end_stamped_means():
+    """The bundled real day: its lit rows (PAR > 0) are centred nearest solar transit (NOAA's
+    11:32 UTC on the examples' date, 2016-04-27) when the stamps end their 10-min means: 8 min
+    after it, against 13 min read as instants and 18 min as starts. Evidence for the default, not
+    proof: a sensor's dark threshold need not be symmetric."""
+    df = read_source("selhausen-cplantbox-day", date="2016-04-27")
+    stamps = df.attrs["timestamps"]
+    assert (stamps.label, stamps.interval) == ("end", pd.Timedelta("10min"))
+    lit = df.index[df["par_umol_m2_s"] > 0]
+    mid = lit[0] + (lit[-1] - lit[0]) / 2
+    minutes = pd.date_range("2016-04-27 11:00", "2016-04-27 12:00", freq="1min", tz="UTC")
+    transit = minutes[int(np.argmax([_noaa(m) for m in minutes]))]
+    assert abs(transit - pd.Timestamp("2016-04-27 11:32", tz="UTC")) <= pd.Timedelta("1min")
+    ten = pd.Timedelta("10min")
+    off = {label: abs(mid + Timestamps(label, ten).centre_offset - transit) for label in ("start", "end")}
+    off["instant"] = abs(mid - transit)
+    assert off["end"] < off["instant"] < off["start"]
+    assert off["end"] <= pd.Timedelta("10min")
