@@ -2,14 +2,18 @@
 
     python experiments/interval_centres.py [--full] [--out experiments/results/interval_centres.json]
 
-The bundled real day (CPlantBox's Selhausen file, ``selhausen-cplantbox-day``, placed on
-2016-04-27 as in the README; 06:00 + 14 h local, 30-minute steps sub-sampled as the main job
-does) is read twice:
+Two days, each read twice:
 
-* ``end``: its stamps are the ends of 10-minute means (the default since this change): the sun is
-  taken five minutes before each stamp;
-* ``instant``: ``time_label="center"``, which puts the sun at the stamps — what lightfit did for
-  every file before (the file has CO2 on every row, so nothing else differs).
+* ``real``: the bundled real day (CPlantBox's Selhausen file, ``selhausen-cplantbox-day``, placed
+  on 2016-04-27 as in the README; 06:00 + 14 h local), an overcast day;
+* ``clear``: a clear day as a logger would record it: the 20 April 2016 reconstruction computed
+  minute by minute (``reconstruct_day(step="1min")``) and averaged into 10-minute means stamped at
+  their ends (synthetic, from the reconstruction's assumptions; 05:00 + 14 h local).
+
+``end`` reads the stamps as the ends of 10-minute means (the default since this change: the sun
+five minutes before each stamp); ``instant`` reads them with ``time_label="center"``, which puts
+the sun at the stamps, what lightfit did for every file before (both days have CO2 on every row,
+so nothing else differs). 30-minute steps are sub-sampled as the main job does.
 
 Both run the same model (the quick configuration unless ``--full``: the main job's), with the
 same plants and render seeds, so the differences are the sun's five minutes, not Monte Carlo
@@ -25,6 +29,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from rich.console import Console
 from rich.table import Table
 
@@ -32,17 +37,39 @@ from lightfit import replication as rep
 from lightfit import weather
 from lightfit.precision import use_float64
 from lightfit.weather.site import Window
+from lightfit.weather.timestamps import Timestamps
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 OUT = Path(__file__).resolve().parent / "results" / "interval_centres.json"
-DATE, WINDOW = "2016-04-27", Window("06:00", 14.0, "30min")
-SOURCE = "selhausen-cplantbox-day"
+DAYS = {  # name: (date, window)
+    "real": ("2016-04-27", Window("06:00", 14.0, "30min")),
+    "clear": ("2016-04-20", Window("05:00", 14.0, "30min")),
+}
+TEN = pd.Timedelta("10min")
 
 
-def forcing(cfg: rep.ReplicationConfig, time_label: str):
-    src = weather.add_solar(weather.read_source(SOURCE, date=DATE, time_label=time_label), site=cfg.site)
-    t0, _ = cfg.window.bounds_utc(DATE, cfg.site.timezone)
+def clear_logger_day(date: str) -> pd.DataFrame:
+    """The reconstruction's 1-min instants averaged into 10-min means stamped at their ends."""
+    fine = weather.reconstruct_day(date, step="1min")
+    cols = [c for c in fine.columns if c in weather.BOUNDS]
+    # the minute t stands for (t − 30 s, t + 30 s): the mean over (T − 10 min, T] takes minutes T − 9 … T
+    means = fine[cols].resample(TEN, closed="right", label="right", offset="-30s").mean()
+    means.index = means.index + pd.Timedelta("30s")
+    means = means.iloc[1:-1]  # whole intervals only
+    means.attrs = {"source": "20 April reconstruction, 1-min, as 10-min end-stamped means", "provenance": "synthetic"}
+    return means
+
+
+def forcing(cfg: rep.ReplicationConfig, day: str, time_label: str):
+    date = cfg.dates[0]
+    if day == "real":
+        src = weather.read_source("selhausen-cplantbox-day", date=date, time_label=time_label)
+    else:
+        src = clear_logger_day(date)
+        src.attrs["timestamps"] = Timestamps(time_label, TEN)
+    src = weather.add_solar(src, site=cfg.site)
+    t0, _ = cfg.window.bounds_utc(date, cfg.site.timezone)
     return weather.window(src, t0, cfg.window.hours, cfg.window.step, how=cfg.how)
 
 
@@ -52,55 +79,61 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args(argv)
     base = rep.ReplicationConfig() if a.full else rep.ReplicationConfig.quick()
-    cfg = dataclasses.replace(base, dates=(DATE,), window=WINDOW)
-    runs = {}
-    for label, time_label in (("end", "end"), ("instant", "center")):
-        w = forcing(cfg, time_label)
-        ds, _ = rep.run(cfg, forcing_df=w, observations=None, progress=True)
-        beam = w["dni_w_m2"] * np.sin(np.radians(w["sun_elevation_deg"].clip(lower=0)))
-        runs[label] = {
-            "sun_elevation_deg": w["sun_elevation_deg"].to_numpy(),
-            "beam_share": np.where(w["ghi_w_m2"] > 0, beam / w["ghi_w_m2"].where(w["ghi_w_m2"] > 0), 0.0),
-            "plant_par_umol_m2_s": ds["plant_par_umol_m2_s"].to_numpy(),
-            "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].to_numpy(),
-            "canopy_an_mc_sd_umol_m2_s": ds["canopy_an_mc_sd_umol_m2_s"].to_numpy(),
-        }
-        times = [str(t) for t in w.index]
-    e, i = runs["end"], runs["instant"]
-    day = {
-        k: {"end": float(e[k].sum()), "instant": float(i[k].sum()), "change": float(e[k].sum() / i[k].sum() - 1)}
-        for k in ("plant_par_umol_m2_s", "canopy_an_umol_m2_s")
-    }
     out = {
         "made_by": "python experiments/interval_centres.py" + (" --full" if a.full else ""),
-        "source": SOURCE,
-        "date": DATE,
-        "window": dataclasses.asdict(WINDOW),
         "config": "full" if a.full else "quick",
-        "time_utc": times,
-        "runs": {k: {q: v.tolist() for q, v in r.items()} for k, r in runs.items()},
-        "day_sums": day,
+        "days": {},
     }
+    console = Console()
+    for day, (date, win) in DAYS.items():
+        cfg = dataclasses.replace(base, dates=(date,), window=win)
+        runs = {}
+        for label, time_label in (("end", "end"), ("instant", "center")):
+            w = forcing(cfg, day, time_label)
+            ds, _ = rep.run(cfg, forcing_df=w, observations=None, progress=True)
+            ghi = w["ghi_w_m2"].to_numpy()
+            beam = w["dni_w_m2"].to_numpy() * np.sin(np.radians(w["sun_elevation_deg"].clip(lower=0).to_numpy()))
+            runs[label] = {
+                "sun_elevation_deg": w["sun_elevation_deg"].to_numpy(),
+                "beam_share": np.divide(beam, ghi, out=np.zeros_like(ghi), where=ghi > 0),
+                "plant_par_umol_m2_s": ds["plant_par_umol_m2_s"].to_numpy(),
+                "canopy_an_umol_m2_s": ds["canopy_an_umol_m2_s"].to_numpy(),
+                "canopy_an_mc_sd_umol_m2_s": ds["canopy_an_mc_sd_umol_m2_s"].to_numpy(),
+            }
+            times = [str(t) for t in w.index]
+        e, i = runs["end"], runs["instant"]
+        sums = {
+            k: {"end": float(e[k].sum()), "instant": float(i[k].sum()), "change": float(e[k].sum() / i[k].sum() - 1)}
+            for k in ("plant_par_umol_m2_s", "canopy_an_umol_m2_s")
+        }
+        out["days"][day] = {
+            "date": date,
+            "window": dataclasses.asdict(win),
+            "source": str(w.attrs.get("source")),
+            "time_utc": times,
+            "runs": {k: {q: v.tolist() for q, v in r.items()} for k, r in runs.items()},
+            "day_sums": sums,
+        }
+        t = Table(title=f"{day} day {date}: the sun at the centres of 10-min means (end) against the stamps (instant)")
+        for c in ("UTC", "sun ° end / instant", "beam share end / instant", "plant PAR end / instant", "canopy An Δ %"):
+            t.add_column(c, justify="right")
+        for k, ts in enumerate(times):
+            an_i = i["canopy_an_umol_m2_s"][k]
+            d_an = (e["canopy_an_umol_m2_s"][k] / an_i - 1) * 100 if abs(an_i) > 0.5 else float("nan")
+            t.add_row(
+                ts[11:16],
+                f"{e['sun_elevation_deg'][k]:.2f} / {i['sun_elevation_deg'][k]:.2f}",
+                f"{e['beam_share'][k]:.3f} / {i['beam_share'][k]:.3f}",
+                f"{e['plant_par_umol_m2_s'][k]:.1f} / {i['plant_par_umol_m2_s'][k]:.1f}",
+                f"{d_an:+.2f}",
+            )
+        console.print(t)
+        for k, v in sums.items():
+            console.print(
+                f"{day}: day's sum of {k}: {v['end']:.1f} against {v['instant']:.1f} ({v['change'] * 100:+.2f} %)"
+            )
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
-
-    t = Table(title=f"{SOURCE} on {DATE}: the sun at the centres of the 10-min means (end) against the stamps (instant)")
-    for c in ("UTC", "sun ° end / instant", "beam share end / instant", "plant PAR end / instant", "canopy An Δ %"):
-        t.add_column(c, justify="right")
-    for k, ts in enumerate(times):
-        an_i = i["canopy_an_umol_m2_s"][k]
-        d_an = (e["canopy_an_umol_m2_s"][k] / an_i - 1) * 100 if abs(an_i) > 0.5 else float("nan")
-        t.add_row(
-            ts[11:16],
-            f"{e['sun_elevation_deg'][k]:.2f} / {i['sun_elevation_deg'][k]:.2f}",
-            f"{e['beam_share'][k]:.3f} / {i['beam_share'][k]:.3f}",
-            f"{e['plant_par_umol_m2_s'][k]:.1f} / {i['plant_par_umol_m2_s'][k]:.1f}",
-            f"{d_an:+.2f}",
-        )
-    console = Console()
-    console.print(t)
-    for k, v in day.items():
-        console.print(f"day's sum of {k}: {v['end']:.1f} against {v['instant']:.1f} ({v['change'] * 100:+.2f} %)")
     console.print(f"→ {a.out}")
 
 
