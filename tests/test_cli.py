@@ -12,7 +12,7 @@ import typer
 from typer.testing import CliRunner
 
 from lightfit.cli import COMMANDS, app
-from lightfit.weather import read_weather
+from lightfit.weather import add_solar, read_weather
 from lightfit.weather.bundled import DATA_DIR
 
 runner = CliRunner()
@@ -136,6 +136,25 @@ def test_weather_show_file_with_plot_and_csv(tmp_path):
     assert png.stat().st_size > 10_000
     back = read_weather(csv)
     assert (back.index[1:] - back.index[:-1] == pd.Timedelta("30min")).all()
+    # The 30-min means of end-stamped 10-min means keep their meaning through the CSV.
+    assert "as the ends of 30-min means" in " ".join(r.stdout.split())
+    assert (back.attrs["timestamps"].label, back.attrs["timestamps"].interval) == ("end", pd.Timedelta("30min"))
+
+
+def test_weather_show_time_label(tmp_path):
+    """--time-label start: the sun 5 min after each stamp, recorded in the CSV; refused for a lightfit CSV."""
+    csv = tmp_path / "w.csv"
+    r = runner.invoke(app, ["weather", "show", str(FIXTURE), "--time-label", "start", "--csv", str(csv)])
+    assert r.exit_code == 0, r.output
+    back = read_weather(csv)
+    assert back.attrs["timestamps"].label == "start"
+    end = read_weather(FIXTURE)
+    t = pd.Timestamp("2016-04-20 08:00", tz="UTC")
+    assert add_solar(back).loc[t, "sun_elevation_deg"] == pytest.approx(
+        add_solar(end).loc[t + pd.Timedelta("10min"), "sun_elevation_deg"], abs=1e-9
+    )
+    assert_user_error(runner.invoke(app, ["weather", "show", str(csv), "--time-label", "end"]), "w.csv", "time_label")
+    assert_user_error(runner.invoke(app, ["weather", "show", str(FIXTURE), "--time-label", "middle"]), "time_label")
 
 
 def test_weather_show_bad_input_exits_2_with_message(tmp_path):

@@ -139,11 +139,14 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = "Europe/Berlin")
 
 def weather_report(df) -> None:
     """Print where a weather series came from, which columns were used and what was repaired."""
+    from lightfit.weather import timestamps
+
     a = df.attrs
     console.print(
         f"[bold]source[/] {escape(str(a.get('source')))}  [bold]format[/] {a.get('format')}  "
         f"[bold]provenance[/] [magenta]{a.get('provenance')}[/]  "
-        f"[bold]timestamps assumed in[/] {a.get('timezone_assumed')}"
+        f"[bold]timestamps assumed in[/] {a.get('timezone_assumed')}, as the "
+        f"{timestamps.of(df).describe()}"
     )
     for k, v in a.get("columns_used", {}).items():
         if k != v:
@@ -151,5 +154,5 @@ def weather_report(df) -> None:
     if a.get("unused_columns"):
         console.print(f"  [dim]not used: {escape(', '.join(a['unused_columns']))}[/]")
     for q in a.get("qc", []):
-        label = "[green]check[/]" if q["kind"] == "checked" else f"[yellow]repair[/] {q['kind']}:"
+        label = "[green]check[/]" if q["kind"] in ("checked", "sun at centres") else f"[yellow]repair[/] {q['kind']}:"
         console.print(f"  {label} {escape(q['detail'])}")

@@ -12,11 +12,12 @@ from lightfit.cli.common import console, weather_report, weather_table
 app = typer.Typer(help="Read, check, convert and plot weather series.", no_args_is_help=True)
 
 
-def load(source: str, fmt: str, date: str | None, tz: str | None, max_gap: str, split: str):
+def load(source: str, fmt: str, date: str | None, tz: str | None, max_gap: str, split: str, time_label=None):
     """A bundled series (by name) or a file, in the weather contract with solar columns."""
     from lightfit import weather
 
-    df = weather.read_source(source, format=fmt, date=date, tz=tz, max_gap=max_gap)
+    more = {} if time_label is None else {"time_label": time_label}
+    df = weather.read_source(source, format=fmt, date=date, tz=tz, max_gap=max_gap, **more)
     return weather.add_solar(df, split_model=split)
 
 
@@ -28,10 +29,17 @@ def show(
     fmt: str = typer.Option("auto", "--format", help="auto, tereno, cplantbox or lightfit."),
     date: str = typer.Option(None, help="Calendar date for undated files (CPlantBox day), YYYY-MM-DD."),
     tz: str = typer.Option(None, help="Timezone of the file's timestamps (default: the format's convention)."),
+    time_label: str = typer.Option(
+        None,
+        help="Where a TERENO or CPlantBox file stamps each mean in its interval: end (the default), start "
+        "or center; the sun is taken at the interval's centre. --csv records it for every later command.",
+    ),
     max_gap: str = typer.Option("30min", help="Longest gap to interpolate."),
     split: str = typer.Option("erbs", help="Direct/diffuse split model: erbs or boland."),
     resample: str = typer.Option(None, help="New time step, e.g. 30min."),
-    how: str = typer.Option("mean", help="Resampling: mean (centred window) or sample."),
+    how: str = typer.Option(
+        "mean", help="Resampling: mean (whole intervals; a centred window for instants) or sample."
+    ),
     plot: Path = typer.Option(None, help="Write a PNG plot here."),
     csv: Path = typer.Option(None, help="Write the contract series as CSV here."),
 ) -> None:
@@ -39,7 +47,7 @@ def show(
     from lightfit import weather
     from lightfit.weather.plot import plot_forcing
 
-    df = load(source, fmt, date, tz, max_gap, split)
+    df = load(source, fmt, date, tz, max_gap, split, time_label)
     if resample:
         df = weather.resample(df, resample, how)
     weather_report(df)

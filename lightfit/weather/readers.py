@@ -477,5 +477,12 @@ def read_weather(
             )
         return read_cplantbox_day(path, date, **({"tz": tz} if tz else {}), **kwargs)
     if fmt == "lightfit":
+        if "time_label" in kwargs:
+            raise InputError(
+                "a lightfit CSV states what its stamps mean in its own '# time_label:' line",
+                file=path,
+                column="time_label",
+                expected="no time_label for a lightfit CSV (edit its metadata instead)",
+            )
         return read_lightfit_csv(path, **kwargs)
     raise InputError(f"unknown weather format {fmt!r}", column="format", expected="auto, tereno, cplantbox or lightfit")
