@@ -20,6 +20,7 @@ from lightfit.weather import (
     read_source,
     read_tereno,
     resample,
+    window,
     write_lightfit_csv,
 )
 from lightfit.weather.bundled import DATA_DIR
@@ -140,3 +141,37 @@ def test_cplantbox_day_reads_as_end_stamped_means():
     off["instant"] = abs(mid - transit)
     assert off["end"] < off["instant"] < off["start"]
     assert off["end"] <= pd.Timedelta("10min")
+
+
+def test_mean_resampling_drops_partial_steps_and_refuses_misfits():
+    """Steps the series covers only in part are dropped and reported, a step that is not a multiple
+    of the means' interval is refused, and so is a window whose first step reaches before the data."""
+    df = add_solar(read_tereno(FIXTURE)).loc["2016-04-20 08:20":"2016-04-20 09:10"]
+    r = resample(df, "30min", "mean")
+    assert list(r.index) == [pd.Timestamp("2016-04-20 09:00", tz="UTC")]
+    assert r["ghi_w_m2"].iloc[0] == pytest.approx(df.loc["2016-04-20 08:40":"2016-04-20 09:00", "ghi_w_m2"].mean())
+    dropped = [q for q in r.attrs["qc"] if q["kind"] == "dropped"]
+    assert dropped and dropped[0]["count"] == 2
+    with pytest.raises(InputError, match="multiple"):
+        resample(df, "15min", "mean")
+    with pytest.raises(InputError, match="multiple"):  # means of sampled means would be mislabelled
+        resample(resample(add_solar(read_tereno(FIXTURE)), "30min", "sample"), "60min", "mean")
+    with pytest.raises(InputError, match="whole 30min steps"):
+        window(df, "2016-04-20 08:20", 0.5, "30min", how="mean", tz="UTC")
+
+
+def test_co2_of_a_missing_30_min_mean_is_a_gap_not_the_previous_one(tmp_path):
+    """A blank 30-min CO2 value leaves its interval's rows empty for the gap repair (interpolated
+    across, as any gap), instead of holding the previous interval's mean forward."""
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln.startswith("2016-04-20 04:30:00"))
+    lines[i] = lines[i].rsplit(",", 1)[0] + ","
+    p = tmp_path / "gap.csv"
+    p.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    df = read_tereno(p)
+    before, after = df.loc["2016-04-20 03:00", "co2_ppm"], df.loc["2016-04-20 04:00", "co2_ppm"]
+    # 03:10–03:30 UTC were the missing mean's rows: a gap between 03:00 and 03:40, which with
+    # 03:50 belongs to the mean stamped 04:00.
+    mid = df.loc["2016-04-20 03:10":"2016-04-20 03:50", "co2_ppm"].to_numpy()
+    np.testing.assert_allclose(mid[:3], np.interp([1, 2, 3], [0, 4], [before, after]), rtol=1e-12)
+    assert (mid[:3] != before).all() and (mid[3:] == after).all()

@@ -251,7 +251,10 @@ def read_tereno(
     if "co2_ppm" in out and "Avg30min" in used.get("co2_ppm", ""):
         co2 = out["co2_ppm"]
         if time_label == "end":
-            held = co2.bfill(limit=2).ffill(limit=2)
+            held = co2.bfill(limit=2)
+            last = co2.last_valid_index()
+            if last is not None:  # only the rows past the last mean keep it
+                held[held.index > last] = co2[last]
         elif time_label == "start":
             held = co2.ffill(limit=2)
         else:

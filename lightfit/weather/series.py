@@ -308,12 +308,15 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
         origin: a timestamp (tz-aware) the new steps pass through, e.g. a run's first step;
             ``None``: the series' first timestamp (``"sample"``) or midnight (``"mean"``).
 
-    A step finer than the source's is refused for both (``"mean"`` would leave empty windows).
+    A step finer than the source's is refused for both (``"mean"`` would leave empty windows). A mean
+    of start- or end-stamped means needs rows every interval and a step that is a multiple of it;
+    new steps the series covers only in part (at its ends) are dropped and reported in ``qc``.
     Solar geometry is recomputed at the new timestamps by :func:`lightfit.weather.add_solar`
     (with the input's split model) when the input had it; averaging sun angles would be wrong.
     """
     measured = [c for c in df.columns if c in BOUNDS]
     step = pd.Timedelta(freq)
+    qc_partial = None
     if how == "sample":
         origin = df.index[0] if origin is None else origin
         first = origin - step * ((origin - df.index[0]) // step)  # the first new step in the series
@@ -327,12 +330,29 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     elif how == "mean":
         source = timestamps.of(df)
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
+            rows = df.index.to_series().diff().dropna()
+            if step % source.interval or (len(rows) and (rows != source.interval).any()):
+                raise InputError(
+                    f"cannot average {source.describe()} at {freq} (rows {rows.min()} – {rows.max()} apart)",
+                    file=df.attrs.get("source"),
+                    column="freq",
+                    expected=f"rows every {source.interval} and a step that is a multiple of it",
+                )
             side = "right" if source.label == "end" else "left"
-            out = (
-                df[measured]
-                .resample(freq, closed=side, label=side, origin="start_day" if origin is None else origin)
-                .mean()
+            bins = df[measured].resample(
+                freq, closed=side, label=side, origin="start_day" if origin is None else origin
             )
+            out, n = bins.mean(), bins.size()
+            whole = n == step // source.interval
+            if not whole.all():  # the series' first and last new steps may reach past its ends
+                qc_partial = {
+                    "kind": "dropped",
+                    "column": None,
+                    "count": int((~whole).sum()),
+                    "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers only in "
+                    "part (a mean needs every source interval inside it)",
+                }
+                out = out[whole]
             stamps = Timestamps(source.label, step)
         else:  # instants or centred means: a window centred on each new stamp
             shifted = df[measured].copy()
@@ -353,6 +373,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     out.attrs["qc"] = list(df.attrs.get("qc", [])) + [
         {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"}
     ]
+    if how == "mean" and qc_partial:
+        out.attrs["qc"].append(qc_partial)
     out.index.name = "time_utc"
     if "sun_elevation_deg" in df.columns:
         from lightfit.weather.solar import add_solar
@@ -387,4 +409,12 @@ def window(
             expected="a series spanning the requested window",
         )
     out = resample(df, step, how, origin=t0)  # the steps run through the window's start
-    return out.loc[t0:t1]
+    out = out.loc[t0:t1]
+    if not len(out) or out.index[0] != t0 or out.index[-1] < t1 - pd.Timedelta(step):
+        raise InputError(
+            f"window {t0.isoformat()} … {t1.isoformat()}: the series' {timestamps.of(df).describe()} cover "
+            f"only {out.index[0].isoformat() if len(out) else 'none'} … of its {step} steps",
+            file=df.attrs.get("source"),
+            expected=f"a series whose whole {step} steps span the requested window",
+        )
+    return out
