@@ -158,8 +158,7 @@ def read_tereno(
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a TERENO CSV export")
-    if time_label not in ("start", "center", "end"):
-        raise InputError(f"time_label={time_label!r}", column="time_label", expected="'start', 'center' or 'end'")
+    timestamps.check_mean_label(time_label)
     text_lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     hdr, delim = _find_table(text_lines, path)
     table = pd.read_csv(
@@ -318,8 +317,7 @@ def read_cplantbox_day(
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a CPlantBox weather file")
-    if time_label not in ("start", "center", "end"):
-        raise InputError(f"time_label={time_label!r}", column="time_label", expected="'start', 'center' or 'end'")
+    timestamps.check_mean_label(time_label)
     day = parse_date(date, "date")
     table = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
     table.columns = [c.strip().strip('"') for c in table.columns]
