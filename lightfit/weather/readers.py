@@ -275,26 +275,27 @@ def read_tereno(
         "format": "tereno",
         "provenance": provenance,
         "timezone_assumed": tz,
-        "timestamps": Timestamps(time_label, _averaging_interval(used, times)),
         "columns_used": used,
         "unused_columns": [c for c in table.columns if c not in used.values() and c != time_col],
         "qc": qc,
     }
-    return check_and_repair(out, lines.set_axis(times), path, max_gap=max_gap)
+    out = check_and_repair(out, lines.set_axis(times), path, max_gap=max_gap)
+    return _with_means(out, time_label, _averaging_interval(used))
 
 
-def _averaging_interval(used: dict[str, str], times: pd.DatetimeIndex) -> pd.Timedelta:
-    """The radiation columns' averaging interval (``…_Avg10min``), else the rows' step."""
+def _averaging_interval(used: dict[str, str]) -> pd.Timedelta | None:
+    """The radiation columns' averaging interval (``…_Avg10min``), if their names say it."""
     for qty in ("ghi_w_m2", "par_umol_m2_s"):
         m = re.search(r"Avg(\d+)min", used.get(qty, ""))
         if m:
             return pd.Timedelta(minutes=int(m.group(1)))
-    return _row_step(times)
+    return None
 
 
-def _row_step(times: pd.DatetimeIndex) -> pd.Timedelta:
-    steps = times.sort_values().to_series().diff().dropna()
-    return steps.median() if len(steps) else pd.Timedelta(minutes=10)
+def _with_means(df: pd.DataFrame, time_label: str, interval: pd.Timedelta | None = None) -> pd.DataFrame:
+    """``df`` (repaired: a regular grid) marked as means over ``interval`` (default its step)."""
+    df.attrs["timestamps"] = Timestamps(time_label, df.index[1] - df.index[0] if interval is None else interval)
+    return df
 
 
 def read_cplantbox_day(
@@ -342,12 +343,11 @@ def read_cplantbox_day(
         "format": "cplantbox",
         "provenance": provenance,
         "timezone_assumed": tz,
-        "timestamps": Timestamps(time_label, _row_step(times)),
         "columns_used": {v: k for k, v in need.items() if v},
         "unused_columns": [c for c in table.columns if c not in need],
         "qc": qc,
     }
-    return check_and_repair(out, lt, path, max_gap=max_gap)
+    return _with_means(check_and_repair(out, lt, path, max_gap=max_gap), time_label)
 
 
 PROVENANCES = ("measured", "reconstructed", "synthetic")

@@ -316,7 +316,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     """
     measured = [c for c in df.columns if c in BOUNDS]
     step = pd.Timedelta(freq)
-    qc_partial = None
+    stamps, dropped = timestamps.of(df), []  # sampling keeps the rows and their meaning
     if how == "sample":
         origin = df.index[0] if origin is None else origin
         first = origin - step * ((origin - df.index[0]) // step)  # the first new step in the series
@@ -345,13 +345,15 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             out, n = bins.mean(), bins.size()
             whole = n == step // source.interval
             if not whole.all():  # the series' first and last new steps may reach past its ends
-                qc_partial = {
-                    "kind": "dropped",
-                    "column": None,
-                    "count": int((~whole).sum()),
-                    "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers only in "
-                    "part (a mean needs every source interval inside it)",
-                }
+                dropped.append(
+                    {
+                        "kind": "dropped",
+                        "column": None,
+                        "count": int((~whole).sum()),
+                        "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers only "
+                        "in part (a mean needs every source interval inside it)",
+                    }
+                )
                 out = out[whole]
             stamps = Timestamps(source.label, step)
         else:  # instants or centred means: a window centred on each new stamp
@@ -368,13 +370,12 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     else:
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
     out.attrs = dict(df.attrs)
-    if how == "mean":
-        out.attrs["timestamps"] = stamps
-    out.attrs["qc"] = list(df.attrs.get("qc", [])) + [
-        {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"}
+    out.attrs["timestamps"] = stamps
+    out.attrs["qc"] = [
+        *df.attrs.get("qc", []),
+        {"kind": "resampled", "column": None, "count": len(out), "detail": f"resampled to {freq} ({how})"},
+        *dropped,
     ]
-    if how == "mean" and qc_partial:
-        out.attrs["qc"].append(qc_partial)
     out.index.name = "time_utc"
     if "sun_elevation_deg" in df.columns:
         from lightfit.weather.solar import add_solar

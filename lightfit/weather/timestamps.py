@@ -4,12 +4,12 @@ A station logger writes the mean of an interval (TERENO's ``RadiationGlobal_Avg1
 timestamp, usually the interval's end. The geometry of a 10-minute mean taken at its end-stamp is
 five minutes late: the sun's elevation moves up to ≈ 0.8° in that time (April, Selhausen), which
 at a sun 5° up is ≈ 15 % in sin β, the clearness index and the beam the split puts on the canopy.
-The solar geometry that represents an interval mean is the geometry at the interval's centre (pvlib's guidance for
-interval-averaged data; to second order in the interval, the mean of sin β over the interval is
-sin β at its centre). This module is the one home of that convention: every series carries a
-:class:`Timestamps` in ``attrs["timestamps"]`` (absent: instants), :func:`lightfit.weather.add_solar`
-evaluates the sun at :meth:`Timestamps.centres`, and :func:`lightfit.weather.resample` keeps
-averages aligned with their stamps.
+The solar geometry that represents an interval mean is the geometry at the interval's centre
+(pvlib's guidance for interval-averaged data; to second order in the interval, the mean of sin β
+over the interval is sin β at its centre). This module is the one home of that convention: every
+series carries a :class:`Timestamps` in ``attrs["timestamps"]`` (absent: instants),
+:func:`lightfit.weather.add_solar` evaluates the sun at :meth:`Timestamps.centres`, and
+:func:`lightfit.weather.resample` keeps averages aligned with their stamps.
 """
 
 from __future__ import annotations
