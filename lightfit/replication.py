@@ -37,6 +37,7 @@ from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
 from lightfit.report import plot, summary
+from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.site import SELHAUSEN, Site, Window
 
@@ -311,13 +312,6 @@ def when_attrs(cfg: ReplicationConfig, date: str) -> dict[str, str | float]:
     }
 
 
-def _within(obs: pd.DataFrame, times: pd.DatetimeIndex) -> bool:
-    """True when every observation lies within half a step of the run's steps (what :func:`align` accepts)."""
-    half = ((times[1] - times[0]) if len(times) > 1 else pd.Timedelta("30min")) / 2
-    t = obs.index.tz_convert("UTC")
-    return bool(((t >= times[0] - half) & (t <= times[-1] + half)).all())
-
-
 def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
     """The :class:`Scenario` of a configuration over the forcing ``w`` (the one place that maps one to the other)."""
     optics = cfg.leaf_optics()
@@ -377,10 +371,14 @@ def run(
     ds.attrs["preset"] = cfg.preset or "none"
     times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     obs = read_observations(observations) if observations else None
-    if obs is not None and observations == OBSERVATIONS and not _within(obs, times):
-        obs = None  # the bundled record is of 20 April 2016, 12:13 local: not of this run's steps
     if obs is not None:
-        a = align(obs, times)
+        try:
+            a = align(obs, times, timestamps.of(w))
+        except InputError:
+            if observations != OBSERVATIONS:
+                raise
+            obs = None  # the bundled record is of 20 April 2016, 12:13 local: not of this run's steps
+    if obs is not None:
         for s in SERIES:  # the quantities the observations have, each beside its model observable
             if np.isfinite(a[s.value]).any():
                 ds[f"obs_{s.value}"], ds[f"obs_{s.sd}"] = ("time", a[s.value]), ("time", a[s.sd])
@@ -439,5 +437,8 @@ def write_netcdf(ds, path: Path) -> Path:
     for v in list(ds.variables):
         if ds[v].dtype == bool:
             ds[v] = ds[v].astype(np.int8)
+    if "time_bnds" in ds.variables:  # CF: a time and its bounds in one unit
+        for v in ("time", "time_bnds"):
+            ds[v].encoding.update(units="seconds since 1970-01-01 00:00:00", calendar="proleptic_gregorian")
     ds.to_netcdf(path, engine="h5netcdf")
     return path

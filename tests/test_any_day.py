@@ -93,6 +93,11 @@ def test_bundled_real_day_runs_from_the_cli(tmp_path, monkeypatch):
         assert ds.attrs["weather_provenance"] == "measured"
         assert (ds["canopy_an_umol_m2_s"].values > 0).all()  # around noon in June: net uptake
         assert not [v for v in ds.data_vars if v.startswith("obs_")]  # the 20 April record is not of this day
+        # The day's rows are 10-min means stamped at their ends: CF bounds (t − 10 min, t).
+        assert ds.attrs["weather_timestamps"] == "ends of 10-min means"
+        assert ds["time"].attrs.get("bounds", ds["time"].encoding.get("bounds")) == "time_bnds"
+        t = ds["time"].values
+        np.testing.assert_array_equal(ds["time_bnds"].values, np.column_stack([t - np.timedelta64(10, "m"), t]))
 
 
 def test_several_days_in_one_results_set(tmp_path, monkeypatch):
@@ -116,3 +121,5 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     np.testing.assert_array_equal(ds["canopy_an_umol_m2_s"].values[2:], alone["canopy_an_umol_m2_s"].values)
     assert (ds["organ_type"].values[day_of_segment == 1] == alone["organ_type"].values).all()
     rep.write_netcdf(ds, tmp_path / "r.nc")  # the union is writable
+    t = ds["time"].values
+    np.testing.assert_array_equal(ds["time_bnds"].values[:, 1], t)  # both days' bounds, end-stamps

@@ -25,6 +25,7 @@ from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta
 from lightfit.model.scenario import Scenario
 from lightfit.model.schema import OBSERVABLES
+from lightfit.weather.timestamps import INSTANTS
 
 COV = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 2.0]])
 PREC = np.linalg.inv(COV)
@@ -206,6 +207,7 @@ class FakeModel:
     def __init__(self, optics: str = "prospect"):
         self.scenario = _Scenario(Optics.preset(optics))
         self.times = pd.date_range("2016-04-20 04:00", periods=6, freq="30min", tz="UTC")
+        self.timestamps = INSTANTS
         self.shape = jnp.asarray([0.0, 0.3, 0.7, 1.0, 0.8, 0.4])
 
     def observe(self, th: Theta):

@@ -1,5 +1,6 @@
 """Timestamps of interval means: the sun at each interval's centre, resampling that keeps whole
-intervals, the convention carried through lightfit's CSV, and bad input refused.
+intervals, the convention carried through lightfit's CSV and the observations file, observations
+matched to the step whose interval holds them, and bad input refused.
 
 The reference for the sun is the NOAA solar calculator (``tests/test_weather_solar.py``,
 independent of pvlib), evaluated minute by minute over each interval.
@@ -13,6 +14,10 @@ import pytest
 from test_weather_solar import noaa_apparent_elevation_deg
 
 from lightfit.errors import InputError
+from lightfit.inference.likelihood import GaussianLikelihood
+from lightfit.inference.multiday import MultiDayModel
+from lightfit.inference.observations import align, read_observations, write_observations
+from lightfit.model.parameters import Theta
 from lightfit.weather import (
     SELHAUSEN,
     add_solar,
@@ -175,3 +180,103 @@ def test_co2_of_a_missing_30_min_mean_is_a_gap_not_the_previous_one(tmp_path):
     mid = df.loc["2016-04-20 03:10":"2016-04-20 03:50", "co2_ppm"].to_numpy()
     np.testing.assert_allclose(mid[:3], np.interp([1, 2, 3], [0, 4], [before, after]), rtol=1e-12)
     assert (mid[:3] != before).all() and (mid[3:] == after).all()
+
+
+# -- observations ---------------------------------------------------------------------------
+
+END10 = Timestamps("end", pd.Timedelta("10min"))
+STEPS = pd.date_range("2016-04-20 10:10", "2016-04-20 12:00", freq="10min", tz="UTC")  # ends of 10-min means
+
+
+def _obs(index, label=None, interval=None, source="obs.csv"):
+    df = pd.DataFrame(
+        {"above_canopy_par_umol_m2_s": np.arange(len(index), dtype=float) + 1.0, "above_canopy_par_sd_umol_m2_s": 1.0},
+        index=pd.DatetimeIndex(index),
+    )
+    df.attrs = {"source": source} | ({} if label is None else {"timestamps": Timestamps(label, interval)})
+    return df
+
+
+def test_spot_observations_go_to_the_mean_whose_interval_holds_them():
+    """Reference: the 10-min interval (stamp − 10 min, stamp] that holds an instant t is the one
+    stamped at t rounded up to 10 min (interval arithmetic, not the code's nearest-centre rule).
+    Matching by stamp instead sends every instant in the first half of an interval to the mean
+    before it."""
+    rng = np.random.default_rng(7)
+    t = STEPS[0] - pd.Timedelta("10min") + pd.to_timedelta(rng.uniform(0.5, 599.5, 200) * 11, unit="s")
+    t = t[t < STEPS[-1] - pd.Timedelta("1s")]
+    obs = _obs(t)
+    expected = np.searchsorted(STEPS, t.ceil("10min"))
+    a = align(obs, STEPS, END10)
+    for k in range(len(STEPS)):  # each step's value is the mean of the instants its interval holds
+        held = obs["above_canopy_par_umol_m2_s"].to_numpy()[expected == k]
+        got = a["above_canopy_par_umol_m2_s"][k]
+        assert (np.isnan(got) and not len(held)) or got == pytest.approx(held.mean())
+    # The reference paper's chamber reading at 12:13:48 (local 14:13:48 CEST): held by the mean
+    # stamped 12:20 UTC, where matching by stamp would give 12:10.
+    steps, chamber = STEPS.shift(3), _obs(pd.DatetimeIndex(["2016-04-20 12:13:48"], tz="UTC"))
+    for stamps, stamp in ((END10, "12:20"), (Timestamps(), "12:10")):
+        got = np.flatnonzero(np.isfinite(align(chamber, steps, stamps)["above_canopy_par_umol_m2_s"]))
+        assert got.tolist() == [steps.get_loc(pd.Timestamp(f"2016-04-20 {stamp}", tz="UTC"))]
+
+
+def test_means_meet_means_by_interval_not_by_stamp():
+    """A logger's end-stamped 10-min means against a run stamped at the starts of the same
+    intervals: the mean stamped 10:20 (10:10–10:20) is the run's step stamped 10:10."""
+    starts = STEPS - pd.Timedelta("10min")
+    obs = _obs(STEPS[2:5], "end", pd.Timedelta("10min"))
+    a = align(obs, starts, Timestamps("start", pd.Timedelta("10min")))
+    np.testing.assert_array_equal(np.flatnonzero(np.isfinite(a["above_canopy_par_umol_m2_s"])), [2, 3, 4])
+    np.testing.assert_array_equal(a["above_canopy_par_umol_m2_s"][2:5], [1.0, 2.0, 3.0])
+    lik = GaussianLikelihood(obs, starts, stamps=Timestamps("start", pd.Timedelta("10min")))
+    np.testing.assert_array_equal(np.flatnonzero(np.asarray(lik.mask["above_canopy_par"])), [2, 3, 4])
+
+
+def test_means_longer_than_a_step_are_refused():
+    obs = _obs(STEPS[3:4], "end", pd.Timedelta("30min"), source="nee_30min.csv")
+    with pytest.raises(InputError, match="30-min means") as e:
+        align(obs, STEPS, END10)
+    assert e.value.file is not None and "nee_30min.csv" in str(e.value.file)
+    assert e.value.column == "averaging_interval"
+
+
+def test_observations_file_carries_its_time_label(tmp_path):
+    obs = _obs(STEPS[:3], "end", pd.Timedelta("10min"))
+    p = write_observations(obs, tmp_path / "o.csv", {"provenance": "synthetic"})
+    text = p.read_text(encoding="utf-8")
+    assert "# time_label: end\n" in text and "# averaging_interval: 10min\n" in text
+    assert read_observations(p).attrs["timestamps"] == END10
+    plain = tmp_path / "plain.csv"
+    plain.write_text(
+        "# provenance: measured\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+        "2016-04-20 12:13:48,1549.31,77.47\n",
+        encoding="utf-8",
+    )
+    assert read_observations(plain).attrs["timestamps"] == Timestamps()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# time_label: middle\n" + plain.read_text(encoding="utf-8"), encoding="utf-8")
+    with pytest.raises(InputError, match="middle") as e:
+        read_observations(bad)
+    assert "bad.csv" in str(e.value.file) and e.value.column == "time_label"
+
+
+class _Day:
+    """What :class:`MultiDayModel` reads of a day's model."""
+
+    def __init__(self, times, stamps):
+        self.times, self.timestamps = times, stamps
+        self.day = np.ones(len(times), bool)
+        self.scenario = type("S", (), {"theta": Theta()})()
+
+
+def test_days_split_observations_by_interval():
+    """An instant 1 min after day one's last stamp lies in day two's first interval (end-stamps)."""
+    d1 = pd.date_range("2016-04-20 10:10", periods=3, freq="10min", tz="UTC")
+    d2 = d1 + pd.Timedelta("30min")  # 10:40 …: interval of 10:40 is (10:30, 10:40]
+    m = MultiDayModel({"2016-04-20a": _Day(d1, END10), "2016-04-20b": _Day(d2, END10)})
+    obs = _obs(pd.DatetimeIndex(["2016-04-20 10:31", "2016-04-20 10:29"], tz="UTC"))
+    parts = m.split(obs)
+    assert parts["2016-04-20a"].index.minute.tolist() == [29]
+    assert parts["2016-04-20b"].index.minute.tolist() == [31]
+    with pytest.raises(InputError, match="stamps differ"):
+        MultiDayModel({"a": _Day(d1, END10), "b": _Day(d2, Timestamps())})

@@ -146,13 +146,15 @@ def make_loss(
     :class:`~lightfit.inference.multiday.MultiDayModel` (several days, one likelihood)."""
     names = check_names(names)
     base = model.theta(fixed)
-    lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale)
+    lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps)
     if isinstance(mc_correlation, str) and likelihood_form(mc_correlation)["mc_correlation"] == "model":
         mc_correlation = mc_correlation_of(model, as_theta(at, base=base), lik.use)
     elif isinstance(mc_correlation, str):
         mc_correlation = None
     if mc_correlation is not None:
-        lik = GaussianLikelihood(obs, model.times, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale)
+        lik = GaussianLikelihood(
+            obs, model.times, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale, stamps=model.timestamps
+        )
     return Loss(forward or model.observe, lik, names, base, bounds)
 
 

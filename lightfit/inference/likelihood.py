@@ -79,6 +79,7 @@ from lightfit.errors import InputError
 from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, observed, series
 from lightfit.model.observe import mc_covariance, unconverged
 from lightfit.model.parameters import as_theta
+from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 #: Short names of the series a likelihood can use, in order.
 USES = tuple(s.name for s in SERIES)
@@ -202,6 +203,9 @@ class GaussianLikelihood:
             covering at least the used series; ``None``: independent errors (diagonal covariance).
         mc_scale: c ≥ 0, multiplies the model's Monte Carlo variance (1: measured observations;
             2: twin observations rendered at the model's samples with another seed).
+        stamps: what ``times`` label (``model.timestamps``: instants, or the start, centre or
+            end of means); observations go to the step whose centre is nearest theirs
+            (:func:`~lightfit.inference.observations.align`).
 
     Raises :class:`InputError` when an observation lies outside the run or no observation of the
     used series falls on a simulated step.
@@ -215,13 +219,15 @@ class GaussianLikelihood:
         *,
         mc_correlation: MCCorrelation | None = None,
         mc_scale: float = 1.0,
+        stamps: Timestamps = INSTANTS,
     ):
         if use is not None and (isinstance(use, str) or not tuple(use)):
             raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
         if not (np.isfinite(mc_scale) and mc_scale >= 0):
             raise InputError(f"mc_scale={mc_scale!r}", column="mc_scale", expected="a finite number ≥ 0")
         use = resolve_use(use, obs)
-        target = align(obs, times)
+        self.stamps = stamps
+        target = align(obs, times, stamps)
         requested = tuple(s for s in SERIES if s.name in use)
         # A requested series without any observation on the run's steps adds nothing to the
         # likelihood; it is left out, so the forward model need not provide it (the default

@@ -33,10 +33,12 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.inference.observations import nearest
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import CONVERGENCE_KEY
 from lightfit.model.parameters import Theta
 from lightfit.model.schema import OBSERVABLES
+from lightfit.weather import timestamps
 
 
 def concat_observables(outs: Sequence[Mapping]) -> dict:
@@ -95,6 +97,15 @@ class MultiDayModel:
                 column="date",
                 expected="days whose windows do not overlap",
             )
+        stamps = {m.timestamps for m in self.day_models.values()}
+        if len(stamps) > 1:
+            raise InputError(
+                "the days' weather stamps differ (" + ", ".join(sorted(s.describe() for s in stamps)) + ")",
+                column="time_label",
+                expected="one time convention on every day",
+            )
+        #: what ``times`` label (every day's forcing has the same :class:`~lightfit.weather.timestamps.Timestamps`)
+        self.timestamps = stamps.pop()
         self.day = np.concatenate([np.asarray(m.day, bool) for m in self.day_models.values()])
         self.n_steps = [len(m.times) for m in self.day_models.values()]
 
@@ -132,12 +143,12 @@ class MultiDayModel:
         return block_correlation([mc_correlation(m, theta, names) for m in self.models])
 
     def split(self, obs: pd.DataFrame) -> dict[str, pd.DataFrame]:
-        """The observations of each day: every row goes to the day of its nearest step (the day's own
-        alignment then refuses rows more than half a step away from its steps)."""
-        o_t = obs.index.tz_convert("UTC").tz_localize(None).to_numpy()
-        m_t = self.times.tz_localize(None).to_numpy()
-        nearest = np.abs(o_t[:, None] - m_t[None, :]).argmin(1) if len(o_t) else np.zeros(0, int)
-        day_of = np.searchsorted(np.cumsum(self.n_steps), nearest, side="right")
+        """The observations of each day: every row goes to the day of the step whose centre is
+        nearest its own (as in :func:`~lightfit.inference.observations.align`; the day's own
+        alignment then refuses rows more than half a step away)."""
+        o_t = timestamps.of(obs).centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
+        m_t = self.timestamps.centres(self.times).tz_localize(None).to_numpy()
+        day_of = np.searchsorted(np.cumsum(self.n_steps), nearest(o_t, m_t), side="right")
         out = {}
         for k, d in enumerate(self.dates):
             part = obs[day_of == k]

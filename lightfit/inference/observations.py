@@ -4,6 +4,8 @@ Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
 
     # provenance: measured            (or synthetic, reconstructed)
     # time_zone: Europe/Berlin        (zone of naive timestamps; default UTC)
+    # time_label: instant             (optional; or start / center / end of means)
+    # averaging_interval: 30min       (with start / center / end: the means' interval)
     time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s
     2016-04-20 12:13:48,1549.31,77.47
 
@@ -38,8 +40,17 @@ series (``--use``)            value column (SD: ``*_sd*``)    unit          what
 
 The short names ``par`` and ``an`` of earlier versions mean ``plant_par`` and ``canopy_an``.
 Empty cells are missing observations (a row may have some quantities only). Every present value
-needs its SD (> 0). Observations are assigned to the nearest time step of a run; several in one
-step are averaged (their SD combined as the SD of a mean), which the reference paper also did.
+needs its SD (> 0).
+
+Times. A row's time is an instant (a chamber closure, a spot reading) unless ``# time_label`` says
+that the rows are means over ``# averaging_interval`` stamped at its start, centre or end (an eddy
+covariance system's 30-min NEE, a logger's 10-min PAR), in the same convention as a weather
+series (:mod:`lightfit.weather.timestamps`). :func:`align` assigns each observation to the run's
+step whose *centre* is nearest the observation's centre, so a spot reading at 12:13:48 goes to the
+10-min mean stamped 12:20 (its interval holds 12:13:48), not to the one stamped 12:10; several in
+one step are averaged (their SD combined as the SD of a mean), which the reference paper also
+did. A mean over more than one of the run's steps is refused: run the model at the observation's
+interval instead (``--freq``, ``--how mean``).
 Files with the names before issue 12 (``par_umol_m2_s`` …) and unknown columns are refused with
 a message naming the known columns.
 """
@@ -53,7 +64,9 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.weather import timestamps
 from lightfit.weather.readers import read_csv_with_metadata
+from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
 @dataclass(frozen=True)
@@ -165,7 +178,9 @@ def observed(obs: pd.DataFrame) -> tuple[str, ...]:
 
 
 def read_observations(path: str | Path) -> pd.DataFrame:
-    """Read an observations CSV into a DataFrame indexed by UTC time (attrs: provenance, source)."""
+    """Read an observations CSV into a DataFrame indexed by UTC time (attrs: provenance, source,
+    ``timestamps``: the rows' :class:`~lightfit.weather.timestamps.Timestamps`, instants unless the
+    file's ``# time_label`` says otherwise)."""
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="an observations CSV")
@@ -198,6 +213,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             expected="time and at least one value/SD column pair of " + ", ".join(COLUMNS),
         )
     tz = meta.get("time_zone", "UTC")
+    stamps = Timestamps.from_metadata(meta, path)
     out = pd.DataFrame(index=range(len(df)))
     for i, t in enumerate(df["time"]):
         try:
@@ -242,7 +258,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         if c not in out:
             out[c] = np.nan
     out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index()
-    out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta}
+    out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta, "timestamps": stamps}
     return out
 
 
@@ -254,35 +270,50 @@ def _first_bad(bad: pd.Series, path: Path, first: int, column: str, expected: st
 
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
-    """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance."""
+    """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance
+    and the rows' time label (``attrs["timestamps"]``, instants where absent)."""
     if metadata.get("provenance") not in ("measured", "synthetic", "reconstructed"):
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
     body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
-    head = "".join(f"# {k}: {v}\n" for k, v in {**metadata, "time_zone": "UTC"}.items())
+    meta = {**metadata, "time_zone": "UTC", **timestamps.of(df).metadata()}
+    head = "".join(f"# {k}: {v}\n" for k, v in meta.items())
     path.write_text(head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"), encoding="utf-8")
     return path
 
 
-def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
+def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> dict[str, np.ndarray]:
     """Observations on the run's time steps: values and SDs (NaN where missing) per step, for
     every column of :data:`COLUMNS` (all NaN for a quantity ``obs`` does not have).
 
-    Each observation goes to the nearest step; observations more than half a step away from
-    every step raise. Several in one step are averaged, SD of the mean = √(Σ sd²) / n.
+    ``stamps`` says what the run's ``times`` label (the forcing's
+    :class:`~lightfit.weather.timestamps.Timestamps`, e.g. ``model.timestamps``), and
+    ``obs.attrs["timestamps"]`` what the observations' do (instants where absent). Each
+    observation goes to the step whose centre is nearest its own centre; observations more than
+    half a step from every step's centre raise, and so do means over more than one step (the
+    model's value at one step is not their mean). Several in one step are averaged, SD of the
+    mean = √(Σ sd²) / n.
     """
-    step = (times[1] - times[0]) if len(times) > 1 else pd.Timedelta("30min")
-    o_t = obs.index.tz_convert("UTC").tz_localize(None).to_numpy()
-    m_t = times.tz_convert("UTC").tz_localize(None).to_numpy()
-    idx = np.abs(o_t[:, None] - m_t[None, :]).argmin(1)
-    dist = np.abs(o_t - m_t[idx])
+    step = (times[1] - times[0]) if len(times) > 1 else (stamps.interval or pd.Timedelta("30min"))
+    own = timestamps.of(obs)
+    if own.interval is not None and own.interval > step:
+        raise InputError(
+            f"observations are {own.describe()}, the run's steps {step / pd.Timedelta(minutes=1):g} min apart",
+            file=obs.attrs.get("source"),
+            column="averaging_interval",
+            expected="means over at most one step of the run (run the model at their interval: --freq, --how mean)",
+        )
+    o_t = own.centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
+    m_t = stamps.centres(times.tz_convert("UTC")).tz_localize(None).to_numpy()
+    idx = nearest(o_t, m_t)
+    dist = np.abs(o_t - m_t[idx]) if len(o_t) else np.zeros(0, "timedelta64[ns]")
     far = dist > step.to_timedelta64() / 2
     if far.any():
         raise InputError(
             f"observation at {obs.index[far][0].isoformat()} lies outside the run "
-            f"({times[0].isoformat()} … {times[-1].isoformat()})",
+            f"({times[0].isoformat()} … {times[-1].isoformat()}, {stamps.describe()})",
             file=obs.attrs.get("source"),
             column="time",
             expected="observation times within the simulated window",
@@ -301,3 +332,10 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex) -> dict[str, np.ndarray]:
                 err[k] = np.sqrt((obs[sd].to_numpy()[sel] ** 2).sum()) / sel.sum()
         out[v], out[sd] = val, err
     return out
+
+
+def nearest(t: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Index of the entry of ``grid`` (datetime64) nearest to each of ``t``."""
+    if not len(t):
+        return np.zeros(0, int)
+    return np.abs(t[:, None] - grid[None, :]).argmin(1)

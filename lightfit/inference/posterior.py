@@ -79,13 +79,16 @@ def log_posterior(
     fixed = dict(fixed or {})
     lam = fixed.pop(NOISE_SCALE, None)
     base = {**model.theta(fixed).to_dict(), **({} if lam is None else {NOISE_SCALE: lam})}
-    lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale)
+    stamps = model.timestamps
+    lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale, stamps=stamps)
     if isinstance(mc_correlation, MCCorrelation) or form["mc_correlation"] == "independent":
         corr = mc_correlation if isinstance(mc_correlation, MCCorrelation) else None
     else:
         theta_c, _ = lp.split(jnp.asarray(lp.center()))
         corr = mc_correlation_of(light_model or model, theta_c, lp.use)
-    return LogPosterior(forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale)
+    return LogPosterior(
+        forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale, stamps=stamps
+    )
 
 
 def stored_likelihood(attrs: dict) -> dict:
@@ -222,7 +225,7 @@ def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, sam
     return {
         "time_utc": times.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
         **{k: np.asarray(pred[k]) for s in SERIES for k in (s.value, s.mc_sd)},
-        **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times).items()},
+        **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times, lp.likelihood.stamps).items()},
     }
 
 

@@ -107,11 +107,11 @@ def observed_model(
     values = [s.value for s in SERIES if s.value in obs.columns]
     o = obs[obs[values].notna().any(axis=1)]
     o.attrs = dict(obs.attrs)
-    target = align(o, model.times)
+    target = align(o, model.times, model.timestamps)
     have = {s.name: ~np.isnan(target[s.value]) for s in SERIES}
     keep = np.any(list(have.values()), axis=0)
     if not keep.any():  # nothing on the run's steps: the likelihood says so with the file's name
-        GaussianLikelihood(o, model.times, use)
+        GaussianLikelihood(o, model.times, use, stamps=model.timestamps)
     used = resolve_use(use, o)
     light = [have[n] for n in used if n not in RENDER_FREE]
     rendered = np.any(light, axis=0) & model.day if light else np.zeros_like(keep)
@@ -236,10 +236,10 @@ def surrogate_calibrate(
         """The run's likelihood; with the model's Monte Carlo correlation computed (once) from
         ``light_model`` at the start point."""
         nonlocal corr
-        lik = GaussianLikelihood(o, m.times, use, mc_scale=mc_scale)
+        lik = GaussianLikelihood(o, m.times, use, mc_scale=mc_scale, stamps=m.timestamps)
         if form["mc_correlation"] == "model" and corr is None:
             corr = mc_correlation_of(light_model, x0, lik.use)
-        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, mc_scale=mc_scale)
+        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, mc_scale=mc_scale, stamps=m.timestamps)
 
     def done(res, rounds, passed, loss_full, mode, emus=None):
         return SurrogateCalibration(

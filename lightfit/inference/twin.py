@@ -74,6 +74,7 @@ def twin_observations(
         index=model.times,
     )
     df.attrs = {
+        "timestamps": model.timestamps,  # the model's values at its steps: what its stamps label
         "provenance": "synthetic",
         "source": f"twin: theta={as_theta(theta).to_dict()}, render_seed={render_seed}, noise_seed={noise_seed}",
     }

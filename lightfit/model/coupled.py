@@ -84,6 +84,8 @@ class CoupledModel:
         self.ground_area_m2 = sc.ground_area_m2
         w = sc.weather
         self.times = w.index
+        #: what ``times`` label: the forcing's :class:`~lightfit.weather.timestamps.Timestamps`
+        self.timestamps = timestamps.of(w)
         self.forcing = Forcing.of(w)
         self.day = self.forcing.day
         self.sun_deg = np.column_stack([w["sun_elevation_deg"], w["sun_azimuth_deg"]]).astype(np.float64)
@@ -254,6 +256,9 @@ class CoupledModel:
             alloc = self.irradiance.allocation(sc.seed)
             ds["samples_per_segment"] = ("segment", np.asarray(alloc.meta["samples_per_segment"], np.int64))
             ds["reached_rse"] = ("segment", np.asarray(alloc.meta["reached_rse"], np.float64))
+        bounds = self.timestamps.bounds(self.times.tz_convert("UTC").tz_localize(None))
+        if bounds is not None:
+            ds["time_bnds"] = (("time", "bound"), np.column_stack([b.values for b in bounds]))
         schema.annotate(ds)
         warn_unconverged(ds)
         fld, g = sc.field, sc.field.growth
@@ -264,7 +269,7 @@ class CoupledModel:
             "time_zone": "UTC",
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
             "weather_source": str(w.attrs.get("source", "")),
-            "weather_timestamps": timestamps.of(w).describe(),
+            "weather_timestamps": self.timestamps.describe(),
             "n_plants": fld.n_plants,
             "boundary": fld.boundary,
             "buffer_rows": fld.buffer_rows,

@@ -98,6 +98,13 @@ OBSERVABLES = (
 VARIABLES: dict[str, Variable] = {
     # -- coordinates ------------------------------------------------------------------------
     "time": Variable(T, None, "time (UTC) of the step"),
+    "time_bnds": Variable(
+        ("time", "bound"),
+        None,
+        "start and end (UTC) of the interval whose mean the step's weather is",
+        comment="CF cell bounds of time (its attribute bounds); present only where the weather holds means "
+        "(attribute weather_timestamps); the sun is taken at the interval's centre",
+    ),
     "segment": Variable(S, "1", "segment id (CPlantBox shoot segment, stable for a given field)"),
     "plant_id": Variable(S, "1", "plant id of the segment (grid position in the field)"),
     "organ_type": Variable(S, None, "organ of the segment: leaf (blade or sheath) or stem"),
@@ -276,6 +283,8 @@ def annotate(ds):
     """
     for name in ds.variables:
         ds[name].attrs.update(variable(str(name)).attrs())
+    if "time_bnds" in ds.variables:
+        ds["time"].attrs["bounds"] = "time_bnds"
     return ds
 
 

@@ -66,6 +66,13 @@ class Timestamps:
         """The instants each stamp's value represents (where the sun's position is taken)."""
         return index + self.centre_offset
 
+    def bounds(self, index: pd.DatetimeIndex) -> tuple[pd.DatetimeIndex, pd.DatetimeIndex] | None:
+        """Start and end of the interval each stamp's mean covers (CF ``time_bnds``); None for instants."""
+        if self.interval is None:
+            return None
+        c = self.centres(index)
+        return c - self.interval / 2, c + self.interval / 2
+
     def describe(self) -> str:
         """E.g. ``"ends of 10-min means"`` or ``"instants"``."""
         if self.label == "instant":

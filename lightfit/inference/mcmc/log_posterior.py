@@ -23,6 +23,7 @@ from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelatio
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
 from lightfit.model.coupled import NonConvergenceWarning
 from lightfit.model.parameters import Theta, as_theta
+from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
 class LogPosterior:
@@ -39,6 +40,7 @@ class LogPosterior:
             ``noise_scale`` (default 1).
         mc_correlation, mc_scale: the model's Monte Carlo correlation and variance factor
             (:class:`~lightfit.inference.likelihood.GaussianLikelihood`; default: independent steps).
+        stamps: what ``times`` label (``model.timestamps``; default instants).
     """
 
     def __init__(
@@ -53,6 +55,7 @@ class LogPosterior:
         *,
         mc_correlation: MCCorrelation | None = None,
         mc_scale: float = 1.0,
+        stamps: Timestamps = INSTANTS,
     ):
         self.priors = dict(priors or PRIORS_INFORMED)
         self.names = check_sampled(names, self.priors)
@@ -60,7 +63,9 @@ class LogPosterior:
         self.noise_scale = float(fixed.pop(NOISE_SCALE, 1.0))
         self.base = as_theta(fixed)
         self.forward = forward
-        self.likelihood = GaussianLikelihood(obs, times, use, mc_correlation=mc_correlation, mc_scale=mc_scale)
+        self.likelihood = GaussianLikelihood(
+            obs, times, use, mc_correlation=mc_correlation, mc_scale=mc_scale, stamps=stamps
+        )
         self.use = self.likelihood.use
         self.n_observations = self.likelihood.n_observations
         self._batch = jax.jit(jax.vmap(self.log_prob_refused))
