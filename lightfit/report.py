@@ -75,6 +75,14 @@ def field_label(attrs) -> str:
     return f"finite field, {rows} buffer rows" + ("" if along == rows else f" and {along} plants along")
 
 
+def step_instants(ds) -> pd.DatetimeIndex:
+    """Each step at the instant it stands for (UTC), where the figure draws it: a mean's interval
+    centre (``time_bnds``, as the sun was taken), otherwise its stamp."""
+    b = ds["time_bnds"].values if "time_bnds" in ds else None
+    t = ds["time"].values if b is None else b[:, 0] + (b[:, 1] - b[:, 0]) / 2
+    return pd.DatetimeIndex(t).tz_localize("UTC")
+
+
 def plot(ds, path: Path, compare=None) -> Path:
     """The replication figure: like with like, one panel per kind of quantity.
 
@@ -95,7 +103,7 @@ def plot(ds, path: Path, compare=None) -> Path:
     tz = _tz(ds)
 
     def local(d):
-        return pd.DatetimeIndex(d["time"].values).tz_localize("UTC").tz_convert(tz).tz_localize(None)
+        return step_instants(d).tz_convert(tz).tz_localize(None)
 
     t = local(ds)
     fig, (ax_a, ax_b, ax_c) = plt.subplots(3, 1, figsize=(10, 11), sharex=True, constrained_layout=True)

@@ -12,6 +12,7 @@ from lightfit import replication as rep
 from lightfit import weather
 from lightfit.cli import app
 from lightfit.errors import InputError
+from lightfit.report import step_instants
 from lightfit.weather import Site, Window
 from lightfit.weather.bundled import DATA_DIR
 
@@ -98,6 +99,9 @@ def test_bundled_real_day_runs_from_the_cli(tmp_path, monkeypatch):
         assert ds["time"].attrs.get("bounds", ds["time"].encoding.get("bounds")) == "time_bnds"
         t = ds["time"].values
         np.testing.assert_array_equal(ds["time_bnds"].values, np.column_stack([t - np.timedelta64(10, "m"), t]))
+        # and the figure draws each step at its interval's centre, where its sun was taken
+        drawn = step_instants(ds).tz_localize(None).values
+        np.testing.assert_array_equal(drawn, t - np.timedelta64(5, "m"))
 
 
 def test_several_days_in_one_results_set(tmp_path, monkeypatch):
