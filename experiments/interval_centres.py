@@ -50,12 +50,13 @@ TEN = pd.Timedelta("10min")
 
 
 def clear_logger_day(date: str) -> pd.DataFrame:
-    """The reconstruction's 1-min instants averaged into 10-min means stamped at their ends."""
+    """The reconstruction's 1-min instants averaged into 10-min means stamped at their ends: the
+    trapezoid rule over the minutes T − 10 … T, i.e. the mean over (T − 10 min, T] to second order.
+    (Until this was corrected the mean took the minutes T − 10 … T − 1, 30 s early.)"""
     fine = weather.reconstruct_day(date, step="1min")
     cols = [c for c in fine.columns if c in weather.BOUNDS]
-    # the minute t stands for (t − 30 s, t + 30 s): the mean over (T − 10 min, T] takes minutes T − 9 … T
-    means = fine[cols].resample(TEN, closed="right", label="right", offset="-30s").mean()
-    means.index = means.index + pd.Timedelta("30s")
+    minute = (fine[cols] + fine[cols].shift(1)) / 2  # at t: the trapezoid mean over (t − 1 min, t]
+    means = minute.resample(TEN, closed="right", label="right").mean()
     means = means.iloc[1:-1]  # whole intervals only
     means.attrs = {"source": "20 April reconstruction, 1-min, as 10-min end-stamped means", "provenance": "synthetic"}
     return means
