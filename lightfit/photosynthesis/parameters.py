@@ -28,7 +28,7 @@ Named sets (:func:`parameter_set`; :data:`DEFAULT_PARAMETER_SET` = ``"winter_whe
     * alpha = 0.352 electrons per absorbed photon = 4 × 0.088, the maximum photon yield of C3
       leaves without photorespiration (0.088 mol CO2 mol⁻¹ photons; Evans 2013, Plant Physiol.
       162:1780, Fig. 2), since J/4 is the CO2 rate at no photorespiration; at 25 °C and
-      400 ppm this gives a low-light yield of ≈ 0.065 (0.058 in normal air in the same
+      400 ppm this gives a low-light yield of 0.063 (0.058 in normal air in the same
       figure). theta = 0.7, the wheat-leaf convexity of the same figure (Evans & Farquhar 1991
       data, Ögren & Evans 1993 equation).
     * Stomata: Medlyn et al. (2011) unified optimal model (``"medlyn"``) with g1 = 5.79

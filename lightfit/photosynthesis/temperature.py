@@ -3,9 +3,10 @@ r"""Temperature responses of the FvCB kinetic constants and leaf capacities.
 Two families are provided, selected by :attr:`TemperatureParams.form`:
 
 ``"peaked"``
-    Normalised peaked Arrhenius (Medlyn et al. 2002, Plant Cell Environ. 25:1167, eq. 18),
-    with Bernacchi et al. (2001, Plant Cell Environ. 24:253) activation energies for
-    :math:`K_c, K_o, \Gamma^*, V_{cmax}, R_d` by default.
+    Normalised peaked Arrhenius (Medlyn et al. 2002, Plant Cell Environ. 25:1167, eq. 18) for
+    :math:`V_{cmax}, J_{max}` (the default set, ``winter_wheat``, takes Kattge & Knorr 2007's
+    activation and deactivation energies and entropies), and plain Arrhenius with Bernacchi et al.
+    (2001, Plant Cell Environ. 24:253) activation energies for :math:`K_c, K_o, \Gamma^*, R_d`.
 
 ``"cplantbox"``
     The forms of CPlantBox's ``Photosynthesis::photoC3_init`` (Giraud et al. 2023): plain
