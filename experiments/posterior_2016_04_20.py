@@ -129,7 +129,7 @@ def main(argv=None):
     run = P.load_run(out / "twin_both.h5")
     s = P.flat_samples(run)
     fast = E.FastObservables(model, emu)
-    lp = P.LogPosterior(fast, model.times, obs, NAMES, wide)
+    lp = P.LogPosterior(fast, model.times, obs, NAMES, wide, stamps=model.timestamps)
     ll = lp.loglike_batch(s)
     good = s[ll >= ll.max() - 0.5]
     good = good[np.random.default_rng(0).permutation(len(good))[:2000]]
@@ -138,7 +138,7 @@ def main(argv=None):
     z = (good - lo) / (hi - lo)
     dist = np.linalg.norm(z[:, None] - z[None], axis=-1)
     i, j = np.unravel_index(np.argmax(dist), dist.shape)
-    exact = P.LogPosterior(model.observe, model.times, obs, NAMES, wide)
+    exact = P.LogPosterior(model.observe, model.times, obs, NAMES, wide, stamps=model.timestamps)
     pairs = []
     for x in (good[i], good[j]):
         pairs.append(

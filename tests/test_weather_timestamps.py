@@ -238,6 +238,39 @@ def test_means_longer_than_a_step_are_refused():
         align(obs, STEPS, END10)
     assert e.value.file is not None and "nee_30min.csv" in str(e.value.file)
     assert e.value.column == "averaging_interval"
+    # A run sampled every 30 min from 10-min means (--how sample) still has 10-min means at its steps.
+    with pytest.raises(InputError, match="30-min means"):
+        align(obs, STEPS[::3], END10)
+
+
+def test_a_mean_straddling_two_steps_is_refused():
+    """12:05–12:15 against 10-min steps (12:00, 12:10], (12:10, 12:20]: half in each."""
+    obs = _obs(pd.DatetimeIndex(["2016-04-20 11:15"], tz="UTC"), "end", pd.Timedelta("10min"), source="half.csv")
+    with pytest.raises(InputError, match="straddles") as e:
+        align(obs, STEPS, END10)
+    assert "half.csv" in str(e.value.file)
+
+
+def test_an_instant_on_a_border_goes_to_the_interval_that_holds_it():
+    """11:10 ends (11:00, 11:10] of end-stamps and starts [11:10, 11:20) of start-stamps."""
+    reading = _obs(pd.DatetimeIndex(["2016-04-20 11:10"], tz="UTC"))
+    for stamps, steps, holder in (
+        (END10, STEPS, "11:10"),  # the interval stamped 11:10 ends at the reading
+        (Timestamps("start", pd.Timedelta("10min")), STEPS, "11:10"),  # the one stamped 11:10 starts at it
+    ):
+        got = np.flatnonzero(np.isfinite(align(reading, steps, stamps)["above_canopy_par_umol_m2_s"]))
+        assert got.tolist() == [steps.get_loc(pd.Timestamp(f"2016-04-20 {holder}", tz="UTC"))], stamps
+
+
+def test_a_run_cut_to_one_step_keeps_the_observations_it_had():
+    """Calibration cuts a run to its observed steps; a 10-min-means run sampled every 30 min cut to
+    one step must still take the spot reading the whole run gave to that step."""
+    sampled = STEPS[::3]  # 10:10, 10:40, …: 10-min means every 30 min
+    reading = _obs(pd.DatetimeIndex(["2016-04-20 10:22"], tz="UTC"), source="spot.csv")
+    whole = np.isfinite(align(reading, sampled, END10)["above_canopy_par_umol_m2_s"])
+    assert np.flatnonzero(whole).tolist() == [1]  # centre 10:35, 13 min away; 10:05 is 17 min away
+    cut = align(reading, sampled[1:2], END10)["above_canopy_par_umol_m2_s"]
+    assert cut.tolist() == [1.0]
 
 
 def test_observations_file_carries_its_time_label(tmp_path):

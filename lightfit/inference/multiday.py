@@ -148,7 +148,8 @@ class MultiDayModel:
         alignment then refuses rows more than half a step away)."""
         o_t = timestamps.of(obs).centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
         m_t = self.timestamps.centres(self.times).tz_localize(None).to_numpy()
-        day_of = np.searchsorted(np.cumsum(self.n_steps), nearest(o_t, m_t), side="right")
+        step = nearest(o_t, m_t, later=self.timestamps.label == "start")
+        day_of = np.searchsorted(np.cumsum(self.n_steps), step, side="right")
         out = {}
         for k, d in enumerate(self.dates):
             part = obs[day_of == k]

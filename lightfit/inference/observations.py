@@ -49,8 +49,8 @@ series (:mod:`lightfit.weather.timestamps`). :func:`align` assigns each observat
 step whose *centre* is nearest the observation's centre, so a spot reading at 12:13:48 goes to the
 10-min mean stamped 12:20 (its interval holds 12:13:48), not to the one stamped 12:10; several in
 one step are averaged (their SD combined as the SD of a mean), which the reference paper also
-did. A mean over more than one of the run's steps is refused: run the model at the observation's
-interval instead (``--freq``, ``--how mean``).
+did. A mean over more than a step stands for is refused, and so is one that straddles two steps'
+intervals: run the model at the observation's interval instead (``--step``, ``--how mean``).
 Files with the names before issue 12 (``par_umol_m2_s`` …) and unknown columns are refused with
 a message naming the known columns.
 """
@@ -291,33 +291,55 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     ``stamps`` says what the run's ``times`` label (the forcing's
     :class:`~lightfit.weather.timestamps.Timestamps`, e.g. ``model.timestamps``), and
     ``obs.attrs["timestamps"]`` what the observations' do (instants where absent). Each
-    observation goes to the step whose centre is nearest its own centre; observations more than
-    half a step from every step's centre raise, and so do means over more than one step (the
-    model's value at one step is not their mean). Several in one step are averaged, SD of the
-    mean = √(Σ sd²) / n.
+    observation goes to the step whose centre is nearest its own centre (an instant on the border
+    of two intervals goes to the interval that holds it: the later one for start-stamps, the
+    earlier otherwise). Raised as :class:`InputError`, naming the file:
+
+    * an observation more than half a step (the steps' spacing; 30 min, or the averaging interval
+      if longer, for a one-step run) from every step's centre;
+    * means over a longer interval than what a step stands for (its averaging interval; for a run
+      on instants, the spacing): the model's value at one step is not their mean;
+    * where the run's means tile time, a mean that straddles two of them.
+
+    Several in one step are averaged, SD of the mean = √(Σ sd²) / n.
     """
-    step = (times[1] - times[0]) if len(times) > 1 else (stamps.interval or pd.Timedelta("30min"))
+    one = max(pd.Timedelta("30min"), stamps.interval or pd.Timedelta(0))  # a one-step run's spacing
+    spacing = (times[1] - times[0]) if len(times) > 1 else one
+    span = stamps.interval if stamps.interval is not None else spacing
     own = timestamps.of(obs)
-    if own.interval is not None and own.interval > step:
+    source = obs.attrs.get("source")
+    if own.interval is not None and own.interval > span:
         raise InputError(
-            f"observations are {own.describe()}, the run's steps {step / pd.Timedelta(minutes=1):g} min apart",
-            file=obs.attrs.get("source"),
+            f"observations are {own.describe()}, the run's steps {stamps.describe()} "
+            f"{spacing / pd.Timedelta(minutes=1):g} min apart",
+            file=source,
             column="averaging_interval",
-            expected="means over at most one step of the run (run the model at their interval: --freq, --how mean)",
+            expected="means over at most what one step stands for (run the model at theirs: --step, --how mean)",
         )
     o_t = own.centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
     m_t = stamps.centres(times.tz_convert("UTC")).tz_localize(None).to_numpy()
-    idx = nearest(o_t, m_t)
+    idx = nearest(o_t, m_t, later=stamps.label == "start")
     dist = np.abs(o_t - m_t[idx]) if len(o_t) else np.zeros(0, "timedelta64[ns]")
-    far = dist > step.to_timedelta64() / 2
+    far = dist > spacing.to_timedelta64() / 2
     if far.any():
         raise InputError(
             f"observation at {obs.index[far][0].isoformat()} lies outside the run "
             f"({times[0].isoformat()} … {times[-1].isoformat()}, {stamps.describe()})",
-            file=obs.attrs.get("source"),
+            file=source,
             column="time",
             expected="observation times within the simulated window",
         )
+    if own.interval is not None and stamps.interval is not None and spacing == stamps.interval:
+        straddle = dist > ((stamps.interval - own.interval) / 2).to_timedelta64()
+        if straddle.any():
+            k = int(np.flatnonzero(straddle)[0])
+            raise InputError(
+                f"the mean stamped {obs.index[k].isoformat()} ({own.describe()}) straddles two of the "
+                f"run's steps ({stamps.describe()})",
+                file=source,
+                column="time",
+                expected="means whose intervals lie within one step's interval",
+            )
     out = {}
     for v, sd in ((s.value, s.sd) for s in SERIES):
         val = np.full(len(times), np.nan)
@@ -334,8 +356,10 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     return out
 
 
-def nearest(t: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """Index of the entry of ``grid`` (datetime64) nearest to each of ``t``."""
+def nearest(t: np.ndarray, grid: np.ndarray, later: bool = False) -> np.ndarray:
+    """Index of the entry of the increasing ``grid`` (datetime64) nearest to each of ``t``; of
+    two equally near, the earlier, or the later with ``later``."""
     if not len(t):
         return np.zeros(0, int)
-    return np.abs(t[:, None] - grid[None, :]).argmin(1)
+    d = np.abs(t[:, None] - grid[None, :])
+    return len(grid) - 1 - d[:, ::-1].argmin(1) if later else d.argmin(1)
