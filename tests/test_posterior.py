@@ -562,3 +562,24 @@ def test_bfgs_against_unconverged_photosynthesis_is_not_converged():
     # an interior optimum is still converged (no false alarm)
     ok = calibrate(FailsAbove(), _fake_obs(FakeModel()), names=("vcmax_scale",), progress=False, say=lambda s: None)
     assert ok.converged and ok.theta["vcmax_scale"] == pytest.approx(0.9, abs=0.05)
+
+
+def test_a_run_whose_observations_met_other_steps_is_not_resumed(tmp_path):
+    """A stored chain records how observations met the steps; runs stored before that matched by
+    stamp, which equals matching by interval only for instants on instants."""
+    from lightfit.inference import posterior as A
+    from lightfit.weather.timestamps import Timestamps
+
+    end10 = Timestamps("end", pd.Timedelta("10min"))
+    spot = pd.DataFrame(index=pd.DatetimeIndex(["2016-04-20 12:13:48"], tz="UTC"))
+    A.check_matching(tmp_path / "none.h5", spot, end10)  # no run there: nothing to check
+    cases = {"new.h5": {"observation_matching": A.observation_matching(spot, end10)}, "old.h5": {}}
+    for name, attrs in cases.items():
+        P.sample(Gauss(), NAMES, tmp_path / name, nwalkers=8, max_steps=2, initial=_init(), progress=False, attrs=attrs)
+    A.check_matching(tmp_path / "new.h5", spot, end10)
+    with pytest.raises(InputError, match="instants to ends of 10-min means, by interval centre, this run instants to"):
+        A.check_matching(tmp_path / "new.h5", spot, INSTANTS)
+    A.check_matching(tmp_path / "old.h5", spot, INSTANTS)  # instants on instants: stamp = interval
+    with pytest.raises(InputError, match="by stamp") as e:
+        A.check_matching(tmp_path / "old.h5", spot, end10)
+    assert "old.h5" in str(e.value.file)

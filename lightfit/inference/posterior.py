@@ -39,6 +39,8 @@ from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lig
 from lightfit.inference.observations import SERIES, align
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, validate
+from lightfit.weather import timestamps
+from lightfit.weather.timestamps import Timestamps
 
 
 def prior_set(name: str, optics=None) -> dict[str, Prior]:
@@ -116,6 +118,32 @@ def check_likelihood(path: str | Path, form: dict) -> None:
             f"the posterior run there was sampled with another likelihood ({changes})",
             file=path,
             expected="the run's --mc-correlation and --mc-scale, --no-resume to start again, or another --out",
+        )
+
+
+def observation_matching(obs: pd.DataFrame, stamps: Timestamps) -> str:
+    """How ``obs`` meet a run's steps labelled by ``stamps`` (stored with a posterior run), e.g.
+    ``"instants to ends of 10-min means, by interval centre"``."""
+    return f"{timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre"
+
+
+def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps) -> None:
+    """Refuse to resume a posterior run in ``path`` whose observations met the steps otherwise
+    (:class:`InputError`). Runs stored before the matching was recorded matched by stamp, which is
+    the same only for instants on instants."""
+    if stored_run(Path(path), "mcmc") is None:
+        return
+    now = observation_matching(obs, stamps)
+    before = load_run(path)["attrs"].get("observation_matching")
+    if before is None:
+        if timestamps.of(obs).interval is None and stamps.interval is None:
+            return
+        before = "by stamp (before interval matching)"
+    if before != now:
+        raise InputError(
+            f"the posterior run there matched observations {before}, this run {now}",
+            file=path,
+            expected="--no-resume to start again, or another --out",
         )
 
 
@@ -288,6 +316,8 @@ def run(
     form = likelihood_form(mc_correlation, mc_scale)
     if resume:
         check_likelihood(path, form)
+    if resume:
+        check_matching(path, obs, model.timestamps)
     days = days_of(model)
     emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]
     fasts = [FastObservables(d, e, n_grid=n_grid) for d, e in zip(days, emus)]
@@ -335,6 +365,7 @@ def run(
         },
         "emulator": emu_meta[0] if len(emu_meta) == 1 else emu_meta,
         "likelihood": {**form, "correlation_at": None if corr is None else corr.theta},
+        "observation_matching": observation_matching(obs, model.timestamps),
         **(attrs or {}),
     }
     res = sample(
