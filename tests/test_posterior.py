@@ -583,3 +583,22 @@ def test_a_run_whose_observations_met_other_steps_is_not_resumed(tmp_path):
     with pytest.raises(InputError, match="by stamp") as e:
         A.check_matching(tmp_path / "old.h5", spot, end10)
     assert "old.h5" in str(e.value.file)
+
+
+def test_a_calibration_state_from_other_matching_is_not_resumed_exactly(tmp_path):
+    """A calibration state records the matching where means are involved: the same run resumes
+    exactly, one whose steps label other intervals continues from the history's best point."""
+    from lightfit.inference.calibration import calibrate
+    from lightfit.weather.timestamps import Timestamps
+
+    model = FakeModel()
+    obs = _fake_obs(model)
+    said = []
+    kw = dict(names=("light_factor",), history=tmp_path / "h.jsonl", progress=False, say=said.append)
+    model.timestamps = Timestamps("center", pd.Timedelta("30min"))
+    calibrate(model, obs, max_steps=1, **kw)
+    calibrate(model, obs, max_steps=2, **kw)
+    assert said == []  # same matching: exact resume
+    model.timestamps = Timestamps("center", pd.Timedelta("10min"))
+    calibrate(model, obs, max_steps=3, **kw)
+    assert len(said) == 1 and "observation_matching" in said[0] and "best point" in said[0]

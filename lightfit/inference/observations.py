@@ -356,6 +356,13 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     return out
 
 
+def observation_matching(obs: pd.DataFrame, stamps: Timestamps) -> str:
+    """How :func:`align` meets ``obs`` with a run's steps labelled by ``stamps`` (stored with
+    posterior runs and calibration states), e.g. ``"instants to ends of 10-min means, by interval
+    centre"``."""
+    return f"{timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre"
+
+
 def nearest(t: np.ndarray, grid: np.ndarray, later: bool = False) -> np.ndarray:
     """Index of the entry of the increasing ``grid`` (datetime64) nearest to each of ``t``; of
     two equally near, the earlier, or the later with ``later``."""

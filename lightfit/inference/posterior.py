@@ -36,7 +36,7 @@ from lightfit.inference.mcmc import (
 from lightfit.inference.mcmc.backend import stored_run
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
-from lightfit.inference.observations import SERIES, align
+from lightfit.inference.observations import SERIES, align, observation_matching
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, validate
 from lightfit.weather import timestamps
@@ -119,12 +119,6 @@ def check_likelihood(path: str | Path, form: dict) -> None:
             file=path,
             expected="the run's --mc-correlation and --mc-scale, --no-resume to start again, or another --out",
         )
-
-
-def observation_matching(obs: pd.DataFrame, stamps: Timestamps) -> str:
-    """How ``obs`` meet a run's steps labelled by ``stamps`` (stored with a posterior run), e.g.
-    ``"instants to ends of 10-min means, by interval centre"``."""
-    return f"{timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre"
 
 
 def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps) -> None:
