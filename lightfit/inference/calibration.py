@@ -55,12 +55,11 @@ import pandas as pd
 from lightfit.errors import InputError
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
-from lightfit.inference.observations import observation_matching
+from lightfit.inference.observations import matched_as_by_stamp, observation_matching
 from lightfit.inference.progress import progress_bar
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
-from lightfit.weather import timestamps
 
 #: Distance kept from finite bounds (see the module docstring).
 MARGIN = 1e-6
@@ -411,8 +410,7 @@ def calibrate(
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
-    if timestamps.of(obs).interval is not None or model.timestamps.interval is not None:
-        # absent for instants on instants, where matching by stamp (states saved before) is the same
+    if not matched_as_by_stamp(obs, model.timestamps):  # else absent: states saved before still resume exactly
         key["observation_matching"] = observation_matching(obs, model.timestamps)
     saved = _load_state(state_file) if hist and resume and state_file.exists() else None
     # states saved before the likelihood's form was recorded used independent steps

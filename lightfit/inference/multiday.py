@@ -33,12 +33,11 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.inference.observations import nearest
+from lightfit.inference.observations import nearest_steps
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import CONVERGENCE_KEY
 from lightfit.model.parameters import Theta
 from lightfit.model.schema import OBSERVABLES
-from lightfit.weather import timestamps
 
 
 def concat_observables(outs: Sequence[Mapping]) -> dict:
@@ -146,9 +145,7 @@ class MultiDayModel:
         """The observations of each day: every row goes to the day of the step whose centre is
         nearest its own (as in :func:`~lightfit.inference.observations.align`; the day's own
         alignment then refuses rows more than half a step away)."""
-        o_t = timestamps.of(obs).centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
-        m_t = self.timestamps.centres(self.times).tz_localize(None).to_numpy()
-        step = nearest(o_t, m_t, later=self.timestamps.label == "start")
+        step, _ = nearest_steps(obs, self.times, self.timestamps)
         day_of = np.searchsorted(np.cumsum(self.n_steps), step, side="right")
         out = {}
         for k, d in enumerate(self.dates):

@@ -316,10 +316,7 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
             column="averaging_interval",
             expected="means over at most what one step stands for (run the model at theirs: --step, --how mean)",
         )
-    o_t = own.centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
-    m_t = stamps.centres(times.tz_convert("UTC")).tz_localize(None).to_numpy()
-    idx = nearest(o_t, m_t, later=stamps.label == "start")
-    dist = np.abs(o_t - m_t[idx]) if len(o_t) else np.zeros(0, "timedelta64[ns]")
+    idx, dist = nearest_steps(obs, times, stamps)
     far = dist > spacing.to_timedelta64() / 2
     if far.any():
         raise InputError(
@@ -363,10 +360,20 @@ def observation_matching(obs: pd.DataFrame, stamps: Timestamps) -> str:
     return f"{timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre"
 
 
-def nearest(t: np.ndarray, grid: np.ndarray, later: bool = False) -> np.ndarray:
-    """Index of the entry of the increasing ``grid`` (datetime64) nearest to each of ``t``; of
-    two equally near, the earlier, or the later with ``later``."""
-    if not len(t):
-        return np.zeros(0, int)
-    d = np.abs(t[:, None] - grid[None, :])
-    return len(grid) - 1 - d[:, ::-1].argmin(1) if later else d.argmin(1)
+def matched_as_by_stamp(obs: pd.DataFrame, stamps: Timestamps) -> bool:
+    """Whether matching by interval centre gives what matching by stamp (before it) gave: for
+    instants on instants, where centres are stamps. Runs stored before may resume only then."""
+    return timestamps.of(obs).interval is None and stamps.interval is None
+
+
+def nearest_steps(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps) -> tuple[np.ndarray, np.ndarray]:
+    """For each observation, the index of the step (``times`` labelled by ``stamps``) whose centre
+    is nearest its own centre, and that distance (timedelta64); of two equally near, the interval
+    that holds the instant: the later one for start-stamps, the earlier otherwise."""
+    o_t = timestamps.of(obs).centres(obs.index.tz_convert("UTC")).tz_localize(None).to_numpy()
+    m_t = stamps.centres(times.tz_convert("UTC")).tz_localize(None).to_numpy()
+    if not len(o_t):
+        return np.zeros(0, int), np.zeros(0, "timedelta64[ns]")
+    d = np.abs(o_t[:, None] - m_t[None, :])
+    idx = len(m_t) - 1 - d[:, ::-1].argmin(1) if stamps.label == "start" else d.argmin(1)
+    return idx, np.abs(o_t - m_t[idx])

@@ -36,10 +36,9 @@ from lightfit.inference.mcmc import (
 from lightfit.inference.mcmc.backend import stored_run
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
-from lightfit.inference.observations import SERIES, align, observation_matching
+from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, validate
-from lightfit.weather import timestamps
 from lightfit.weather.timestamps import Timestamps
 
 
@@ -130,7 +129,7 @@ def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps) -> N
     now = observation_matching(obs, stamps)
     before = load_run(path)["attrs"].get("observation_matching")
     if before is None:
-        if timestamps.of(obs).interval is None and stamps.interval is None:
+        if matched_as_by_stamp(obs, stamps):
             return
         before = "by stamp (before interval matching)"
     if before != now:

@@ -316,7 +316,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     """
     measured = [c for c in df.columns if c in BOUNDS]
     step = pd.Timedelta(freq)
-    stamps, dropped = timestamps.of(df), []  # sampling keeps the rows and their meaning
+    source = timestamps.of(df)
+    stamps, dropped = source, []  # sampling keeps the rows and their meaning
     if how == "sample":
         origin = df.index[0] if origin is None else origin
         first = origin - step * ((origin - df.index[0]) // step)  # the first new step in the series
@@ -328,7 +329,6 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 expected="a step that is a multiple of the source step (and starts on it), or how='mean'",
             )
     elif how == "mean":
-        source = timestamps.of(df)
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
             rows = df.index.to_series().diff().dropna()
             if step % source.interval or (len(rows) and (rows != source.interval).any()):
