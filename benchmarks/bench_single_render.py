@@ -1,6 +1,6 @@
 """Benchmark: issue 16's single-render goal alone, at the recommended setting.
 
-    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16] [--rays 1.5e7,2e7]
+    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16] [--rays 1.5e7,2e7] [--out JSON]
 
 The goal: on the defaults' periodic cell of ``--n-plants`` plants (PROSPECT-D leaf, the bounces
 for 1 % truncation, sun 50° / 180°), a median per-segment relative SE of absorbed PAR (sun +
@@ -82,11 +82,12 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--rays", default="1.5e7,2e7", help="projection rays per m², sun,sky")
+    ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
     a = ap.parse_args()
     sun, sky = (float(x) for x in a.rays.split(","))
     res = main(a.n_plants, a.samples, (sun, sky))
-    OUT.parent.mkdir(exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=1, default=float))
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(res, indent=1, default=float))
     console = Console()
     console.print(table(res))
     by = res["rse_absorbed"]
@@ -95,4 +96,4 @@ if __name__ == "__main__":
         f"blades {100 * by['blades']['median']:.2f} %, stems and sheaths {100 * by['stems']['median']:.2f} %; "
         f"load {res['load_average_start']:.1f}–{res['load_average_end']:.1f}; commit {res.get('lightfit_commit')}"
     )
-    console.print(f"wrote {OUT}")
+    console.print(f"wrote {a.out}")

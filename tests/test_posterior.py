@@ -602,3 +602,38 @@ def test_a_calibration_state_from_other_matching_is_not_resumed_exactly(tmp_path
     model.timestamps = Timestamps("center", pd.Timedelta("10min"))
     calibrate(model, obs, max_steps=3, **kw)
     assert len(said) == 1 and "observation_matching" in said[0] and "best point" in said[0]
+
+
+@pytest.mark.parametrize("label", ["instant", "end", "start"])
+def test_predictive_draws_each_step_where_it_stands(label):
+    """The predictive's ``instant_utc`` is the stamp for instants and the interval centre for means
+    (stamp ∓ 15 min for 30-min means stamped at their end / start): where the report draws a step and
+    where its sun was taken. The draws are the model's observables at the sampled θ."""
+    from lightfit.inference.posterior import predictive
+    from lightfit.weather.timestamps import Timestamps
+
+    model = FakeModel()
+    stamps = INSTANTS if label == "instant" else Timestamps(label, pd.Timedelta("30min"))
+    obs = _fake_obs(model)
+    obs.attrs["timestamps"] = stamps
+    names = ("specular", "light_factor", "vcmax_scale")
+    from lightfit.inference.observations import SERIES
+
+    def observe(th):  # every series the predictive stores; the fake model has two
+        out = model.observe(th)
+        return {k: out.get(k, jnp.zeros(6)) for s in SERIES for k in (s.value, s.mc_sd)}
+
+    lp = P.LogPosterior(observe, model.times, obs, names, P.PRIORS_INFORMED, stamps=stamps)
+    samples = np.array([[0.5, 1.0, 1.0], [0.6, 1.1, 0.9], [0.55, 1.05, 0.95]])
+    p = predictive(lp, obs, model.times, samples, 2, seed=0)
+    stamp = pd.to_datetime(p["time_utc"])
+    shift = {"instant": 0, "end": -15, "start": 15}[label]
+    assert list(stamp) == list(model.times)
+    assert list(pd.to_datetime(p["instant_utc"])) == list(stamp + pd.Timedelta(minutes=shift))
+    assert p["plant_par_umol_m2_s"].shape == (2, 6)
+
+    def par(a, f, v):
+        return tuple(np.round(np.asarray(model.observe(Theta(specular=a, light_factor=f, vcmax_scale=v))[PAR]), 9))
+
+    PAR = "plant_par_umol_m2_s"
+    assert {tuple(np.round(r, 9)) for r in p[PAR]} <= {par(*s) for s in samples}

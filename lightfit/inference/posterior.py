@@ -239,12 +239,17 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
 
 def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, samples, n: int, seed: int) -> dict:
     """Observables (and their Monte Carlo SDs) at ``n`` random posterior samples, (n, T) each, with the
-    observations on the run's steps (``obs_<column>``)."""
+    observations on the run's steps (``obs_<column>``). ``time_utc``: the steps' stamps;
+    ``instant_utc``: the instants they stand for (a mean's interval centre, where its sun was taken
+    and where a plot draws it; the stamps for instants)."""
     rng = np.random.default_rng(seed)
     draws = samples[rng.choice(len(samples), size=min(n, len(samples)), replace=False)]
     pred = jax.jit(jax.vmap(lambda x: lp.observables(x)[0]))(jnp.asarray(draws))
+    stamps = lp.likelihood.stamps
+    utc = times.tz_convert("UTC")
     return {
-        "time_utc": times.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
+        "time_utc": utc.strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
+        "instant_utc": stamps.centres(utc).strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
         **{k: np.asarray(pred[k]) for s in SERIES for k in (s.value, s.mc_sd)},
         **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times, lp.likelihood.stamps).items()},
     }
