@@ -336,6 +336,25 @@ def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -
     return CoupledModel(scenario_for(cfg, w), progress=progress)
 
 
+def observations_for(w: pd.DataFrame, observations=OBSERVATIONS) -> pd.DataFrame | None:
+    """Observations (a file, or a frame already read) checked against the forcing ``w``'s steps,
+    before anything is rendered: a bad file or an observation outside the run fails in seconds,
+    not after the simulation. ``None`` without observations, and for the bundled chamber record
+    (:data:`OBSERVATIONS`, 20 April 2016 12:13 local) when the run's steps do not reach it; other
+    observations outside the run are an :class:`InputError`."""
+    if observations is None or (not isinstance(observations, pd.DataFrame) and not observations):
+        return None
+    bundled = isinstance(observations, (str, Path)) and Path(observations) == OBSERVATIONS
+    obs = observations if isinstance(observations, pd.DataFrame) else read_observations(observations)
+    try:
+        align(obs, w.index.tz_convert("UTC"), timestamps.of(w))
+    except InputError:
+        if not bundled:
+            raise
+        return None
+    return obs
+
+
 def run(
     cfg: ReplicationConfig,
     *,
@@ -353,11 +372,13 @@ def run(
     with its own leaf defaults (a second full run: twice the time); its results go to
     ``results_compare.nc`` and its curves into the figure beside this run's (:func:`lightfit.report.plot`).
 
-    ``forcing_df``: the run's forcing if already read (:func:`forcing_of`). The bundled chamber
-    record (the default ``observations``) is left out when the run's steps do not reach it (another
-    day or window); other observations outside the run are an error.
+    ``forcing_df``: the run's forcing if already read (:func:`forcing_of`). ``observations``: a
+    file or a frame, checked against the forcing's steps before the simulation
+    (:func:`observations_for`: the bundled chamber record, the default, is left out when the run's
+    steps do not reach it; other observations outside the run are an error).
     """
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
+    obs = observations_for(w, observations)
     parts = []
     for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
         model = model_for(cfg, wd, progress)
@@ -370,15 +391,8 @@ def run(
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     ds.attrs["preset"] = cfg.preset or "none"
     times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
-    obs = read_observations(observations) if observations else None
     if obs is not None:
-        try:
-            a = align(obs, times, timestamps.of(w))
-        except InputError:
-            if observations != OBSERVATIONS:
-                raise
-            obs = None  # the bundled record is of 20 April 2016, 12:13 local: not of this run's steps
-    if obs is not None:
+        a = align(obs, times, timestamps.of(w))
         for s in SERIES:  # the quantities the observations have, each beside its model observable
             if np.isfinite(a[s.value]).any():
                 ds[f"obs_{s.value}"], ds[f"obs_{s.sd}"] = ("time", a[s.value]), ("time", a[s.sd])

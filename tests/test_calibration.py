@@ -209,13 +209,57 @@ def test_observation_file_round_trip_and_alignment(tmp_path):
 )
 def test_bad_observation_files(tmp_path, body, match):
     p = tmp_path / "o.csv"
-    p.write_text("# provenance: measured\n" + body)
+    p.write_text("# provenance: measured\n# time_zone: UTC\n" + body)
     with pytest.raises(InputError, match=match):
         read_observations(p)
     q = tmp_path / "noprov.csv"
     q.write_text(body)
     with pytest.raises(InputError, match="provenance"):
         read_observations(q)
+
+
+def test_observation_times_need_a_zone_and_are_unique(tmp_path):
+    """Times without an offset need ``# time_zone`` (a local chamber log read as UTC would move every
+    reading by hours); times with an offset are read as written; a repeated time is refused, naming
+    both lines."""
+    cols = "time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+    p = tmp_path / "o.csv"
+    p.write_text("# provenance: measured\n" + cols + "2016-04-20 12:13:48,1549.31,77.47\n")
+    with pytest.raises(InputError, match="no time zone") as e:
+        read_observations(p)
+    assert e.value.row == 3 and e.value.column == "time" and e.value.file == p
+    p.write_text("# provenance: measured\n" + cols + "2016-04-20T12:13:48+02:00,1549.31,77.47\n")
+    assert read_observations(p).index[0] == pd.Timestamp("2016-04-20 10:13:48", tz="UTC")
+    p.write_text("# provenance: measured\n# time_zone: Europe/Berlin\n" + cols + "2016-04-20 12:13:48,1549.31,77.47\n")
+    assert read_observations(p).index[0] == pd.Timestamp("2016-04-20 10:13:48", tz="UTC")
+    rows = "2016-04-20 12:00,44,2\n2016-04-20 12:30,40,2\n2016-04-20 12:00,20,2\n"
+    p.write_text("# provenance: measured\n# time_zone: UTC\n" + cols + rows)
+    with pytest.raises(InputError, match="repeats line 4") as e:
+        read_observations(p)
+    assert e.value.row == 6
+
+
+@pytest.mark.parametrize(
+    "column, value, ok",
+    [
+        ("fapar", 0.94, True),
+        ("fapar", 1.1, True),
+        ("fapar", 94, False),
+        ("ceptometer_fapar", -0.2, True),
+        ("ceptometer_fapar", -60, False),
+        ("ceptometer_transmittance", 12, False),
+    ],
+)
+def test_fractions_are_refused_as_percentages(tmp_path, column, value, ok):
+    p = tmp_path / "o.csv"
+    head = f"# provenance: measured\n# time_zone: UTC\ntime,{column},{column}_sd\n"
+    p.write_text(head + f"2016-04-20 12:00,{value},0.05\n")
+    if ok:
+        assert read_observations(p)[column].iloc[0] == pytest.approx(value)
+    else:
+        with pytest.raises(InputError, match="percentage") as e:
+            read_observations(p)
+        assert e.value.column == column and e.value.row == 4
 
 
 def test_old_style_columns_are_refused_with_the_new_names(tmp_path):

@@ -394,6 +394,33 @@ def test_calibrate_bounded_method_on_two_steps(tmp_path):
     res = json.loads((tmp_path / "calibration.json").read_text())
     assert res["method"] == "lbfgsb" and res["use"] == ["above_canopy_par"] and res["steps"] >= 1
     assert "lbfgsb" in r.stdout
+    # the hint reruns the same model (quick field, the two steps) against the same observations
+    hint = _flat(r.stdout).split("to see the fit: ")[1]
+    assert hint.startswith("lightfit replicate --quick --steps 14:16 --theta ")
+    assert f"--observations {OBSERVATIONS}" in hint
+
+
+def test_model_options_as_arguments_parse_back_to_themselves():
+    """ModelOptions.args() (the calibration's hint) gives flags that the model commands parse back
+    to the same options: every flag real, repeated --date kept."""
+    from lightfit.cli.options import ModelOptions
+
+    opts = ModelOptions(
+        quick=True,
+        n_plants=6,
+        samples=16,
+        direct_rays_per_m2="1e7,2e7",
+        par_kind="absorbed",
+        weather_file="selhausen-cplantbox-day",
+        dates=["2016-04-27", "2016-04-28"],
+        start_time="06:00",
+        hours=14.0,
+        step="10min",
+        latitude=50.9,
+    )
+    cmd = typer.main.get_command(app).commands["replicate"]
+    ctx = cmd.make_context("replicate", [*opts.args(), "--out", "x"])
+    assert ModelOptions(**{k: ctx.params[k] for k in ModelOptions.__dataclass_fields__}) == opts
 
 
 @pytest.mark.slow
@@ -437,6 +464,10 @@ BAD_VALUES = {
     "--field-seed": ["-3"],
     "--buffer-rows": ["2"],
     "--direct-rays-per-m2": ["0", "1e7,x", "1e6,2e6,3e6", "nan"],
+    "--theta": ["specular=-1", "light_factor=0", "roughness=nan", "subsurface=1.5"],
+    "--start": ["specular=5", "vcmax_scale=-1"],
+    "--max-steps": ["0", "-1"],
+    "--walkers": ["3", "2"],
 }
 #: Options that need others to be wrong (a site's coordinates come together).
 WITH = {"--latitude": ["--longitude", "6", "--timezone", "UTC"], "--timezone": ["--latitude", "50", "--longitude", "6"]}
@@ -466,6 +497,7 @@ def test_every_bad_option_value_exits_2_with_one_line(command, flag, value, tmp_
         words = {flag.lstrip("-"), flag.lstrip("-").replace("-", "_"), value}
         assert any(w in err for w in words) or flag in err, err
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
+    assert not (tmp_path / "out" / "forcing.csv").exists()  # nothing written either
 
 
 def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_path):
@@ -487,3 +519,23 @@ def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_pa
         app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(bad), "--date", "2016-06-23"]
     )
     assert_user_error(r, "renamed.txt", "Tair")
+
+
+@pytest.mark.parametrize(
+    "body, words",
+    [
+        ("# time_zone: UTC\ntime,fapar,fapar_sd\n", ["no data rows"]),
+        ("time,fapar,fapar_sd\n2016-04-20 12:00,0.9,0.05\n", ["line 3", "time", "# time_zone:"]),
+        ("# time_zone: UTC\ntime,fapar,fapar_sd\n2016-04-20 12:00,94,3\n", ["line 4", "fapar", "percentage"]),
+    ],
+)
+def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path, monkeypatch):
+    """A bad observations file ends the run in seconds, before plants grow or the forcing is written
+    (a newcomer's review: it used to fail after the whole simulation, a header-only file with a traceback)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    f = tmp_path / "obs.csv"
+    f.write_text("# provenance: measured\n" + body, encoding="utf-8")
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "out"), "--observations", str(f)])
+    assert_user_error(r, str(f), *words)
+    assert not (tmp_path / "out" / "forcing.csv").exists()
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))

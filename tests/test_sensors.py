@@ -193,7 +193,7 @@ def test_observations_name_the_ceptometer_series(tmp_path):
 
     f = tmp_path / "obs.csv"
     f.write_text(
-        "# provenance: synthetic\n"
+        "# provenance: synthetic\n# time_zone: UTC\n"
         "time,ceptometer_transmittance,ceptometer_transmittance_sd,transmitted_par_umol_m2_s,"
         "transmitted_par_sd_umol_m2_s\n2016-04-20 11:00:00,0.2,0.03,300,40\n",
         encoding="utf-8",

@@ -125,11 +125,18 @@ def test_unparseable_time_names_line(tmp_path):
 
 
 def test_duplicated_timestamp(tmp_path):
+    """Named as the file writes it (its own zone, UTC+1 here) on the lines that share it."""
+
     def edit(lines, hdr):
         lines.insert(hdr + 4, lines[hdr + 3])
 
-    with pytest.raises(InputError, match="duplicated timestamp"):
-        read_tereno(_variant(tmp_path, edit))
+    with pytest.raises(InputError, match="duplicated timestamp") as e:
+        p = _variant(tmp_path, edit)
+        read_tereno(p)
+    text = p.read_text(encoding="utf-8").splitlines()
+    stamp = pd.Timestamp(text[e.value.row - 1].split(",")[0]).strftime("%Y-%m-%d %H:%M")
+    assert f"duplicated timestamp {stamp} (" in str(e.value)
+    assert text[e.value.row - 1] == text[e.value.row] and f"lines [{e.value.row}, {e.value.row + 1}]" in str(e.value)
 
 
 def test_short_gap_interpolated_long_gap_rejected(tmp_path):

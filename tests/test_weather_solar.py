@@ -197,6 +197,10 @@ def test_a_par_sensor_in_other_units_is_refused(ratio):
 
     with pytest.raises(InputError, match=r"par_umol_m2_s/ghi_w_m2.*1\.5–3 µmol J⁻¹"):
         add_solar(_two_sensor_day(ratio))
+    day = _two_sensor_day(ratio)
+    day.attrs["source"] = "station.csv"  # a series read from a file: the error names it
+    with pytest.raises(InputError, match=r"^station\.csv, column 'par_umol_m2_s/ghi_w_m2'"):
+        add_solar(day)
 
 
 def test_missing_par_where_there_is_light_is_refused():

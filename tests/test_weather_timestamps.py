@@ -281,7 +281,7 @@ def test_observations_file_carries_its_time_label(tmp_path):
     assert read_observations(p).attrs["timestamps"] == END10
     plain = tmp_path / "plain.csv"
     plain.write_text(
-        "# provenance: measured\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+        "# provenance: measured\n# time_zone: UTC\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
         "2016-04-20 12:13:48,1549.31,77.47\n",
         encoding="utf-8",
     )

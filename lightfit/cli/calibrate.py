@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 from pathlib import Path
 
 import typer
@@ -98,10 +99,11 @@ def calibrate(
         raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
     if max_rounds < 1:
         raise InputError(f"max_rounds={max_rounds}", column="max-rounds", expected="at least 1")
+    if max_steps < 1:  # before any render (the surrogate's optimiser runs after the design)
+        raise InputError(f"max_steps={max_steps}", column="max-steps", expected="at least 1")
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters))
-    th0 = parse_theta(start)
-    check_names(th0, what="start")
+    th0 = parse_theta(start, "start")
     obs = read_observations(observations)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     # A history made with other model settings (e.g. the finite field, before periodic became the
@@ -211,9 +213,13 @@ def calibrate(
     console.print(t)
     if tr is not None:
         _print_check(tr)
+    # The same model (field, days, window, light settings) and these observations, at the fit.
+    again = ["lightfit", "replicate", *model.args(), "--theta", str(out / "calibration.json")]
+    again += ["--observations", str(observations), "--out", str(out / "fit")]
     console.print(
         f"[green]wrote[/] {out / 'calibration.json'}, {out / ('trust_region' if tr else 'history.jsonl')}; "
-        f"rerun `lightfit replicate --theta {out / 'calibration.json'}` to see the fit"
+        f"to see the fit: {shlex.join(again)}",
+        soft_wrap=True,
     )
 
 

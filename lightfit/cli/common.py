@@ -13,6 +13,7 @@ from rich.table import Table
 from typer.core import TyperGroup
 
 from lightfit.errors import InputError
+from lightfit.model.parameters import check_theta
 
 #: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
 console = Console()
@@ -35,8 +36,15 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     )
 
 
-def error_message(err: BaseException) -> str:
-    """One line naming the file or parameter concerned (``InputError`` messages already do)."""
+def error_message(err: BaseException, flags: dict[str, str] | None = None) -> str:
+    """One line naming the file or parameter concerned (``InputError`` messages already do). An
+    :class:`InputError` about a parameter that is a command-line option (``flags``:
+    :func:`option_flags`; no file) names the option: ``option --preset: …``, not ``column 'preset'``."""
+    if isinstance(err, InputError) and err.file is None and err.column and flags:
+        flag = flags.get(err.column.lstrip("-").replace("-", "_"))
+        if flag is not None:
+            where = f"option {flag}" + (f", line {err.row}" if err.row is not None else "")
+            return f"{where}: {err.problem}" + (f" (expected {err.expected})" if err.expected else "")
     if isinstance(err, TimeoutError):
         return f"timed out: {err}" if str(err) else "timed out"
     if isinstance(err, OSError) and err.filename is not None:
@@ -70,13 +78,34 @@ class LightfitGroup(TyperGroup):
                 warnings.showwarning = _show_warning
                 return super().invoke(ctx)
         except _user_errors() as err:
+            msg = error_message(err, option_flags(self))
             # soft_wrap: a long file path must stay on one line, for users and for tests alike.
-            err_console.print(f"[bold red]error:[/] {escape(error_message(err))}", soft_wrap=True, highlight=False)
+            err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
             raise typer.Exit(2) from None
 
 
-def parse_theta(theta: str | None) -> dict[str, float]:
-    """Parameters from a JSON file (a calibration's output) or ``key=value,key=value`` text."""
+#: Library parameter names whose command-line option is spelled otherwise.
+OPTION_ALIASES = {"freq": "--step", "names": "--parameters", "nwalkers": "--walkers"}
+
+
+def option_flags(group) -> dict[str, str]:
+    """Every option of the command line (all commands and sub-commands) by its parameter name,
+    e.g. ``n_plants`` → ``--n-plants``, plus :data:`OPTION_ALIASES`."""
+    flags = dict(OPTION_ALIASES)
+    todo = [group]
+    while todo:
+        cmd = todo.pop()
+        todo.extend(getattr(cmd, "commands", {}).values())  # a group's commands (typer vendors click)
+        for p in cmd.params:
+            long = [o for o in getattr(p, "opts", ()) if o.startswith("--")]
+            if long and p.name:
+                flags.setdefault(p.name, long[0])
+    return flags
+
+
+def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
+    """Parameters from a JSON file (a calibration's output) or ``key=value,key=value`` text, each
+    checked against its domain (:func:`~lightfit.model.parameters.check_theta`; errors name ``option``)."""
     if not theta:
         return {}
     p = Path(theta)
@@ -85,7 +114,11 @@ def parse_theta(theta: str | None) -> dict[str, float]:
             data = json.loads(p.read_text())
         except json.JSONDecodeError as err:
             raise InputError(f"not JSON: {err}", file=p, expected="a calibration.json") from None
-        return data.get("theta", data)
+        values = data.get("theta", data)
+        try:
+            return check_theta(values, what="theta")
+        except InputError as err:
+            raise InputError(err.problem, file=p, column="theta", expected=err.expected) from None
     out = {}
     for item in theta.split(","):
         k, _, v = item.partition("=")
@@ -94,10 +127,10 @@ def parse_theta(theta: str | None) -> dict[str, float]:
         except ValueError:
             raise InputError(
                 f"cannot read parameter {item!r}",
-                column="theta",
+                column=option,
                 expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
             ) from None
-    return out
+    return check_theta(out, what=option)
 
 
 def parse_names(text: str) -> tuple[str, ...]:

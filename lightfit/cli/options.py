@@ -23,7 +23,7 @@ from typing import Annotated, Any
 import typer
 
 from lightfit.errors import InputError
-from lightfit.light.estimator import check_target_rse
+from lightfit.light.estimator import check_bounces, check_samples, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -80,6 +80,24 @@ class ModelOptions:
     longitude: float | None = None
     altitude_m: float | None = None
     timezone: str | None = None
+
+    def args(self) -> list[str]:
+        """These options as command-line arguments (the given ones only), e.g. ``["--quick",
+        "--date", "2016-04-20"]``: what another command needs to run the same model."""
+        out = []
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if value is None or value is False:
+                continue
+            info = _OPTIONS[f.name][1]  # in Annotated form typer takes the first argument as a flag
+            decls = [d for d in (info.default, *(info.param_decls or ())) if isinstance(d, str) and d.startswith("--")]
+            flag = decls[0] if decls else "--" + f.name.replace("_", "-")
+            if value is True:
+                out.append(flag)
+            else:
+                for v in value if isinstance(value, list) else [value]:
+                    out += [flag, str(v)]
+        return out
 
 
 @dataclass(frozen=True)
@@ -481,7 +499,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def resolve(opts: ModelOptions) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
-    from lightfit.model.scenario import main_job_samples, resolve_direct
+    from lightfit.model.scenario import check_choice, main_job_samples, resolve_direct
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
 
@@ -530,6 +548,11 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
+    check_choice("par_kind", s.par_kind)
+    check_choice("an_per", s.an_per)
+    check_samples(s.samples)
+    if s.bounces is not None:  # None: chosen from the leaf
+        check_bounces(s.bounces)
     if s.target_rse is not None:
         check_target_rse(s.target_rse, "--target-rse")
     if s.how not in ("sample", "mean"):

@@ -90,6 +90,7 @@ def posterior(
     if not (mc_scale >= 0 and mc_scale < float("inf")):
         raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
+    P.check_run_size(len(names), walkers, max_steps)  # before the design is rendered
     obs = read_observations(observations or rep.OBSERVATIONS)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     # A stored chain made with other model settings (e.g. the finite field, before periodic became

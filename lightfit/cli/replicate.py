@@ -12,6 +12,7 @@ from rich.table import Table
 
 from lightfit.cli.common import console, parse_theta, weather_report, weather_table
 from lightfit.cli.options import ModelOptions, model_options, resolve, weather
+from lightfit.errors import InputError
 
 #: Short head and decimals of each summary column in the printed table (summary.csv keeps full names).
 SUMMARY_HEADS = {
@@ -63,17 +64,22 @@ def replicate(
     """
     from lightfit import replication as rep
     from lightfit import weather as wx
-    from lightfit.model.parameters import check_names
     from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing
 
     s = resolve(model)
     cfg = s.replication_config()
     fld = cfg.field()  # checks boundary and buffers before anything is written
-    th = parse_theta(theta)
-    check_names(th, what="theta")  # before minutes of plant growth, not after
-    cmp = None if compare_preset is None else cfg.with_preset(compare_preset)  # checks the name first
+    th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
+    cmp = None
+    if compare_preset is not None:  # the name checked first
+        try:
+            cmp = cfg.with_preset(compare_preset)
+        except InputError as e:
+            problem = f"compare_preset={compare_preset!r}"
+            raise InputError(problem, column="compare_preset", expected=e.expected) from None
     w = weather(s)
+    obs = rep.observations_for(w, observations or rep.OBSERVATIONS)  # read and placed before anything is written
     out = out or Path("results") / "+".join(s.dates)
     out.mkdir(parents=True, exist_ok=True)
     weather_report(w)
@@ -95,7 +101,7 @@ def replicate(
         weather_file=s.weather_file,
         theta=th,
         forcing_df=w,
-        observations=observations or rep.OBSERVATIONS,
+        observations=obs,
         out=out,
         progress=True,
         compare=cmp,

@@ -47,6 +47,7 @@ def show(
     from lightfit import weather
     from lightfit.weather.plot import plot_forcing
 
+    weather.require_date(source, date)  # an undated file: say --date, as the model commands do
     df = load(source, fmt, date, tz, max_gap, split, time_label)
     if resample:
         df = weather.resample(df, resample, how)

@@ -381,6 +381,8 @@ def calibrate(
     """
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise InputError(f"max_steps={max_steps!r}", column="max_steps", expected="an integer ≥ 1")
     form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
     base = model.theta(fixed)
     th0 = as_theta(start, base=base)

@@ -3,7 +3,7 @@
 Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
 
     # provenance: measured            (or synthetic, reconstructed)
-    # time_zone: Europe/Berlin        (zone of naive timestamps; default UTC)
+    # time_zone: Europe/Berlin        (zone of naive timestamps; required when a time has no offset)
     # time_label: instant             (optional; or start / center / end of means)
     # averaging_interval: 30min       (with start / center / end: the means' interval)
     time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s
@@ -40,7 +40,12 @@ series (``--use``)            value column (SD: ``*_sd*``)    unit          what
 
 The short names ``par`` and ``an`` of earlier versions mean ``plant_par`` and ``canopy_an``.
 Empty cells are missing observations (a row may have some quantities only). Every present value
-needs its SD (> 0).
+needs its SD (> 0); fractions (unit 1) are refused beyond ±:data:`MAX_FRACTION` (a percentage
+such as 94 is not a fraction); two rows with the same time are refused.
+
+Time zone. Times with an offset (``2016-04-20T12:13:48+02:00``, ``…Z``) are read as written; times
+without one need the ``# time_zone`` line (e.g. ``Europe/Berlin`` for a chamber log kept in local
+time, ``UTC``): a file without it is refused rather than read in a guessed zone.
 
 Times. A row's time is an instant (a chamber closure, a spot reading) unless ``# time_label`` says
 that the rows are means over ``# averaging_interval`` stamped at its start, centre or end (an eddy
@@ -152,6 +157,9 @@ SERIES = (
     ),
 )
 BY_NAME = {s.name: s for s in SERIES}
+#: Largest |value| a fraction (unit "1": fAPAR, ceptometer transmittance) may have in an
+#: observations file: beyond 1 only by measurement noise; a percentage (e.g. 94) is refused.
+MAX_FRACTION = 1.5
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
@@ -212,7 +220,9 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             row=n_meta + 1,
             expected="time and at least one value/SD column pair of " + ", ".join(COLUMNS),
         )
-    tz = meta.get("time_zone", "UTC")
+    if df.empty:
+        raise InputError("no data rows", file=path, row=n_meta + 2, expected="at least one row of observations")
+    tz = meta.get("time_zone")
     stamps = Timestamps.from_metadata(meta, path)
     out = pd.DataFrame(index=range(len(df)))
     for i, t in enumerate(df["time"]):
@@ -226,9 +236,30 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 column="time",
                 expected="ISO 8601 such as 2016-04-20 12:13:48",
             ) from err
+        if ts.tzinfo is None and tz is None:
+            # A chamber log in local time read as UTC would move every reading by hours, silently.
+            raise InputError(
+                f"time {t.strip()!r} has no time zone and the file no '# time_zone:' line",
+                file=path,
+                row=n_meta + 2 + i,
+                column="time",
+                expected="a '# time_zone: Europe/Berlin' (or UTC) header line, or times with an offset "
+                "such as 2016-04-20T12:13:48+02:00",
+            )
         ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
     first = n_meta + 2  # file line of the first data row
+    times = pd.DatetimeIndex(out["time"])
+    if times.duplicated().any():  # two readings stamped alike are a copy slip or a clock fault, not a mean
+        j = int(np.flatnonzero(times.duplicated())[0])
+        i = int(np.flatnonzero(times == times[j])[0])
+        raise InputError(
+            f"time {df['time'].iloc[j].strip()!r} on line {first + j} repeats line {first + i}'s",
+            file=path,
+            row=first + j,
+            column="time",
+            expected="one row per time (several readings within a step are averaged, at distinct times)",
+        )
     for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
@@ -253,6 +284,15 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         if s.nonnegative:
             _first_bad(
                 out[s.value] < 0, path, first, s.value, "a value ≥ 0", lambda i, s=s: f"negative value of {s.value}"
+            )
+        if s.unit == "1":  # a fraction; 94 is a percentage (noise may take a fraction a little past 1)
+            _first_bad(
+                out[s.value].abs() > MAX_FRACTION,
+                path,
+                first,
+                s.value,
+                f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
+                lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
             )
     for c in COLUMNS:  # absent quantities: all missing, so every reader sees the same columns
         if c not in out:

@@ -181,6 +181,23 @@ class Irradiance:
         return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
 
 
+def check_samples(value, label: str = "samples") -> int:
+    """Points per segment K: an integer ≥ 2 (the standard error needs two). ``label`` names the
+    value in the error (e.g. the command line's ``--samples``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2:
+        raise InputError(
+            f"{label}={value!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)"
+        )
+    return int(value)
+
+
+def check_bounces(value, label: str = "bounces") -> int:
+    """Scattering orders traced: an integer ≥ 0. ``label`` names the value in the error."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise InputError(f"{label}={value!r}", column="bounces", expected="an integer ≥ 0")
+    return int(value)
+
+
 def check_target_rse(value, label: str = "target_rse") -> float:
     """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1).
     ``label`` names the value in the error (e.g. the command line's ``--target-rse``)."""
@@ -249,12 +266,8 @@ class SegmentEstimator:
         direct: str = "paths",
         direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
     ):
-        if not isinstance(samples, (int, np.integer)) or samples < 2:
-            raise InputError(
-                f"samples={samples!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)"
-            )
-        if not isinstance(bounces, (int, np.integer)) or bounces < 0:
-            raise InputError(f"bounces={bounces!r}", column="bounces", expected="an integer ≥ 0")
+        check_samples(samples)
+        check_bounces(bounces)
         if direct not in DIRECT_MODES:
             raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
         if direct == "projection" and first != 0:  # render_adaptive: rounds with "none", one projection

@@ -115,12 +115,37 @@ def check_names(names, *, what: str = "parameters") -> tuple[str, ...]:
     return names
 
 
+def _domain(name: str) -> str:
+    lo, hi = BOUNDS[name]
+    return f"{name} in [{lo:g}, {hi:g}]" if math.isfinite(hi) else f"{name} > {lo:g}"
+
+
+def check_theta(values: Mapping[str, float], *, what: str = "theta") -> dict[str, float]:
+    """``values`` (some parameter names → numbers) as floats, each inside its domain
+    (:data:`BOUNDS`; the unbounded factors strictly positive), or :class:`InputError` naming
+    ``what`` (e.g. the command line's ``theta``) and the parameter: a negative light factor
+    would render negative PAR, a specular of 2 a leaf that reflects more than it receives."""
+    check_names(values, what=what)
+    out = {}
+    for k, v in values.items():
+        lo, hi = BOUNDS[k]
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        ok = ok and (lo < v if math.isinf(hi) else lo <= v <= hi)
+        if not ok:
+            raise InputError(f"{k}={v!r}", column=what, expected=_domain(k))
+        out[k] = float(v)
+    return out
+
+
 def as_theta(value: Theta | Mapping[str, float] | None = None, base: Theta | None = None) -> Theta:
     """A :class:`Theta` from a Theta, a mapping of some names (the rest from ``base`` or the
-    defaults) or None (the defaults)."""
+    defaults) or None (the defaults). Numbers in a mapping are checked against their domains
+    (:func:`check_theta`); array values (e.g. an optimiser's traced vector) are taken as they are."""
     if isinstance(value, Theta):
         return value
-    return (base or Theta()).replace(**dict(value or {}))
+    value = dict(value or {})
+    numbers = {k: v for k, v in value.items() if isinstance(v, (int, float))}
+    return (base or Theta()).replace(**{**value, **check_theta(numbers)})
 
 
-__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_names"]
+__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_names", "check_theta"]

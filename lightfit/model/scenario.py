@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.light.estimator import bounces_for_tolerance, check_target_rse
+from lightfit.light.estimator import bounces_for_tolerance, check_bounces, check_samples, check_target_rse
 from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
@@ -81,6 +81,20 @@ class Forcing:
             rh=w["rh"].to_numpy(dt),
             pair_kpa=w["pair_kpa"].to_numpy(dt),
         )
+
+
+#: The values of a scenario's choices (what PAR at the plants means, what canopy An refers to).
+CHOICES = {"par_kind": ("incident", "absorbed"), "an_per": ("leaf", "ground")}
+
+
+def check_choice(name: str, value, label: str | None = None) -> str:
+    """``value`` if it is one of :data:`CHOICES` ``[name]``, else :class:`InputError` naming
+    ``label`` (default ``name``; e.g. the command line's ``--par-kind``)."""
+    if value not in CHOICES[name]:
+        raise InputError(
+            f"{label or name}={value!r}", column=name, expected=" or ".join(repr(c) for c in CHOICES[name])
+        )
+    return value
 
 
 #: Highest ceptometer a scenario accepts, m (well above any wheat canopy: a typo guard).
@@ -199,11 +213,8 @@ class Scenario:
     def __post_init__(self):
         if self.bounces is None:
             self.bounces = bounces_for_tolerance(BOUNCE_TOLERANCE, self.optics)
-        # The estimator needs two samples for a standard error; checked here, before plants grow.
-        for name, low in (("samples", 2), ("bounces", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-                raise InputError(f"{name}={v!r}", column=name, expected=f"an integer ≥ {low}")
+        # The estimator's own checks, here before plants grow.
+        self.samples, self.bounces = check_samples(self.samples), check_bounces(self.bounces)
         if self.target_rse is not None:
             self.target_rse = check_target_rse(self.target_rse)
         self.direct = resolve_direct(self.direct, self.field.boundary)
@@ -217,10 +228,8 @@ class Scenario:
             )
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
-        if self.par_kind not in ("incident", "absorbed"):
-            raise InputError(f"par_kind={self.par_kind!r}", column="par_kind", expected="'incident' or 'absorbed'")
-        if self.an_per not in ("leaf", "ground"):
-            raise InputError(f"an_per={self.an_per!r}", column="an_per", expected="'leaf' or 'ground'")
+        check_choice("par_kind", self.par_kind)
+        check_choice("an_per", self.an_per)
         missing = set(WEATHER_COLUMNS) - set(self.weather.columns)
         if missing:
             raise InputError(

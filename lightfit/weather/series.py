@@ -78,17 +78,25 @@ def _line_of(lines: pd.Series, ts) -> int | None:
         return None
 
 
+def _file_zone(attrs: dict) -> str:
+    """The zone a file's timestamps were read in (UTC unless the reader assumed another)."""
+    return attrs.get("timezone_assumed") or "UTC"
+
+
+def _in_file_zone(attrs: dict):
+    """``ts → "YYYY-MM-DD HH:MM"`` in the file's own time zone, as its lines read."""
+    tz = _file_zone(attrs)
+    return lambda ts: ts.tz_convert(tz).strftime("%Y-%m-%d %H:%M")
+
+
 def _gap_problem(run: pd.Series, present: pd.DatetimeIndex, lines: pd.Series, attrs: dict, col: str) -> str:
     """A gap in the file's own terms: its timestamps (in the file's time zone) and line numbers.
 
     Missing *rows* (timestamps absent from the file) are named by the lines around them; missing
     *values* (empty cells, sentinels) by their own lines.
     """
-    tz = attrs.get("timezone_assumed") or "UTC"
-
-    def at(ts) -> str:
-        return ts.tz_convert(tz).strftime("%Y-%m-%d %H:%M")
-
+    tz = _file_zone(attrs)
+    at = _in_file_zone(attrs)
     first, last = run.iloc[0], run.iloc[-1]
     times = f"{at(first)} … {at(last)} ({tz})"
     if not present.isin(run.index).any():  # every missing step is a missing row (none is in the file)
@@ -184,9 +192,11 @@ def check_and_repair(
     dup = df.index.duplicated(keep=False)
     if dup.any():
         first = df.index[dup][0]
-        rows = [int(x) for x in lines[dup].tolist()[:6]]
+        rows = [int(x) for x in lines[df.index == first].tolist()[:6]]
+        at = _in_file_zone(attrs)
         raise InputError(
-            f"duplicated timestamp {first.isoformat()} ({int(dup.sum())} rows share a timestamp, e.g. lines {rows})",
+            f"duplicated timestamp {at(first)} ({_file_zone(attrs)}) on lines {rows} "
+            f"({int(dup.sum())} rows share a timestamp)",
             file=file,
             row=rows[0],
             expected="one row per timestamp",

@@ -139,9 +139,10 @@ def par_diffuse_fraction(global_diffuse_fraction, sun_elevation_deg) -> np.ndarr
     return np.asarray(pvlib.irradiance.diffuse_par_spitters(90.0 - el, kd), dtype=np.float64)
 
 
-def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series) -> float:
+def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series, file=None) -> float:
     """Median measured PAR ÷ global radiation (µmol J⁻¹) over steps with global radiation above
-    :data:`RATIO_MIN_GHI_W_M2`; refused outside :data:`PAR_PER_GHI_BOUNDS` (NaN: too few such steps)."""
+    :data:`RATIO_MIN_GHI_W_M2`; refused outside :data:`PAR_PER_GHI_BOUNDS` (NaN: too few such steps),
+    naming ``file`` (the series' source) where given."""
     bright = (ghi_w_m2 > RATIO_MIN_GHI_W_M2) & par_umol_m2_s.notna()
     if not bright.any():
         return float("nan")
@@ -151,6 +152,7 @@ def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series) -> float:
         raise InputError(
             f"PAR / global radiation is {ratio:.3g} µmol J⁻¹ "
             f"(median over {int(bright.sum())} steps with global radiation > {RATIO_MIN_GHI_W_M2:g} W m⁻²)",
+            file=file,
             column="par_umol_m2_s/ghi_w_m2",
             expected=f"{lo:g}–{hi:g} µmol J⁻¹ (sunlight ≈ 2.0–2.3): check PAR is in µmol m⁻² s⁻¹, "
             "global radiation in W m⁻², and that both share one clock",
@@ -176,7 +178,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     qc = list(out.attrs.get("qc", []))
     k = float(par_from_ghi(1.0))
     if {"par_umol_m2_s", "ghi_w_m2"} <= set(out.columns):
-        ratio = check_par_per_ghi(out["par_umol_m2_s"], out["ghi_w_m2"])
+        ratio = check_par_per_ghi(out["par_umol_m2_s"], out["ghi_w_m2"], out.attrs.get("source"))
         # The check describes this series: a resampled one replaces its source's.
         qc = [q for q in qc if q["kind"] != "checked" or q["column"] != "par_umol_m2_s"]
         qc.append(

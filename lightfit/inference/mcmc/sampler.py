@@ -45,6 +45,17 @@ class SamplerResult:
     refused: int = 0
 
 
+def check_run_size(ndim: int, nwalkers: int, max_steps: int) -> None:
+    """emcee's stretch move needs an even number of walkers, at least two per parameter; a run
+    needs a step. :class:`InputError` naming the value otherwise (before anything is rendered)."""
+    if ndim == 0:
+        raise InputError("no parameters to sample", column="names", expected="at least one parameter")
+    if nwalkers < 2 * ndim or nwalkers % 2:
+        raise InputError(f"nwalkers={nwalkers}", column="nwalkers", expected=f"an even number ≥ 2·ndim = {2 * ndim}")
+    if max_steps < 1:
+        raise InputError(f"max_steps={max_steps}", column="max_steps", expected="≥ 1")
+
+
 def sample(
     log_prob: Callable[[np.ndarray], np.ndarray],
     names: Sequence[str],
@@ -75,13 +86,7 @@ def sample(
         max_seconds: stop (resumably) after this much wall time in this call.
     """
     names = tuple(names)
-    ndim = len(names)
-    if ndim == 0:
-        raise InputError("no parameters to sample", column="names", expected="at least one parameter")
-    if nwalkers < 2 * ndim or nwalkers % 2:
-        raise InputError(f"nwalkers={nwalkers}", column="nwalkers", expected=f"an even number ≥ 2·ndim = {2 * ndim}")
-    if max_steps < 1:
-        raise InputError(f"max_steps={max_steps}", column="max_steps", expected="≥ 1")
+    check_run_size(len(names), nwalkers, max_steps)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with writer_lock(path):
@@ -260,4 +265,4 @@ def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs
     return emcee.State(initial, random_state=np.random.RandomState(seed).get_state())
 
 
-__all__ = ["SamplerResult", "sample"]
+__all__ = ["SamplerResult", "check_run_size", "sample"]
