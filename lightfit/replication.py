@@ -346,6 +346,13 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS) -> pd.DataFrame
         return None
     bundled = isinstance(observations, (str, Path)) and Path(observations) == OBSERVATIONS
     obs = observations if isinstance(observations, pd.DataFrame) else read_observations(observations)
+    missing = [k for k in ("source", "provenance") if k not in obs.attrs]
+    if missing:  # the results record where the observations came from and what they are
+        raise InputError(
+            f"an observations frame without attrs {missing}",
+            column="observations",
+            expected="a frame from lightfit.inference.observations.read_observations (attrs source and provenance)",
+        )
     try:
         align(obs, w.index.tz_convert("UTC"), timestamps.of(w))
     except InputError:
@@ -440,9 +447,7 @@ def concat_days(parts: list) -> xr.Dataset:
     out["converged"] = out["converged"].astype(bool)
     for k in ("date", "window", "target_date"):
         out.attrs[k] = "; ".join(str(p.attrs[k]) for p in parts)
-    # Every other variable keeps its schema attributes from the days; ``day`` is this function's own.
-    out["day"].attrs = {"long_name": "date of the step's day (plants grown to it), YYYY-MM-DD"}
-    return out
+    return schema.annotate(out)
 
 
 def write_netcdf(ds, path: Path) -> Path:

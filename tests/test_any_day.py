@@ -111,8 +111,10 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     cfg = rep.ReplicationConfig(
         n_plants=1, samples=4, bounces=1, dates=("2016-04-20", "2016-06-23"), window=Window("12:00", 0.5)
     )
-    ds, _ = rep.run(cfg, weather_file=REAL_DAY, observations=None)
+    ds, obs = rep.run(cfg, weather_file=REAL_DAY)  # the bundled record (20 April, 12:13 local) falls in it
     assert list(ds["day"].values) == ["2016-04-20"] * 2 + ["2016-06-23"] * 2
+    assert obs is not None and np.isfinite(ds["obs_above_canopy_par_umol_m2_s"].values).sum() == 1
+    assert ds["day"].attrs["long_name"].startswith("date of the step's day")  # from the schema
     assert ds.attrs["target_date"] == "2016-04-20; 2016-06-23"
     # Each day's plants are its own (CPlantBox renumbers segments as a plant grows): segments of
     # one day are NaN on the other's steps, and each day's canopy values are its own run's.

@@ -220,8 +220,8 @@ def test_bad_observation_files(tmp_path, body, match):
 
 def test_observation_times_need_a_zone_and_are_unique(tmp_path):
     """Times without an offset need ``# time_zone`` (a local chamber log read as UTC would move every
-    reading by hours); times with an offset are read as written; a repeated time is refused, naming
-    both lines."""
+    reading by hours); times with an offset are read as written; a quantity given twice at one time
+    is refused, naming both lines (two instruments sharing a time on their own rows are not)."""
     cols = "time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
     p = tmp_path / "o.csv"
     p.write_text("# provenance: measured\n" + cols + "2016-04-20 12:13:48,1549.31,77.47\n")
@@ -236,7 +236,13 @@ def test_observation_times_need_a_zone_and_are_unique(tmp_path):
     p.write_text("# provenance: measured\n# time_zone: UTC\n" + cols + rows)
     with pytest.raises(InputError, match="repeats line 4") as e:
         read_observations(p)
-    assert e.value.row == 6
+    assert e.value.row == 6 and e.value.column == "above_canopy_par_umol_m2_s"
+    # two instruments logging the same time on their own rows: each quantity once, accepted
+    two = "time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s,nee_umol_m2_s,nee_sd_umol_m2_s\n"
+    rows = "2016-04-20 12:00,1500,75,,\n2016-04-20 12:00,,,-20,2\n"
+    p.write_text("# provenance: measured\n# time_zone: UTC\n" + two + rows)
+    a = align(read_observations(p), pd.date_range("2016-04-20 11:30", periods=3, freq="30min", tz="UTC"))
+    assert a["above_canopy_par_umol_m2_s"][1] == 1500 and a["nee_umol_m2_s"][1] == -20
 
 
 @pytest.mark.parametrize(

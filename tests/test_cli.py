@@ -468,6 +468,8 @@ BAD_VALUES = {
     "--start": ["specular=5", "vcmax_scale=-1"],
     "--max-steps": ["0", "-1"],
     "--walkers": ["3", "2"],
+    "--render-seed": ["-1"],
+    "--ceptometer-height-m": ["-1"],
 }
 #: Options that need others to be wrong (a site's coordinates come together).
 WITH = {"--latitude": ["--longitude", "6", "--timezone", "UTC"], "--timezone": ["--latitude", "50", "--longitude", "6"]}
@@ -539,3 +541,27 @@ def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path
     assert_user_error(r, str(f), *words)
     assert not (tmp_path / "out" / "forcing.csv").exists()
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
+
+
+@pytest.mark.parametrize(
+    "args, flag",
+    [
+        (["replicate", "--quick", "--field-seed", "-1"], "option --field-seed:"),
+        (["replicate", "--quick", "--preset", "foo"], "option --preset:"),
+        (["replicate", "--quick", "--compare-preset", "foo"], "--compare-preset:"),
+        (["weather", "show", "--resample", "7min", "--how", "sample"], "option --resample:"),
+        (["weather", "show", "--resample", "bogus"], "option --resample:"),
+        (["weather", "show", "--max-gap", "foo"], "option --max-gap:"),
+        (["replicate", "--quick", "--timezone", "Mars/X"], "--timezone given without"),
+    ],
+)
+def test_errors_name_the_option_the_command_has(args, flag, tmp_path):
+    """A library error about a parameter names the invoked command's own option (a review found
+    --field-seed reported as render-dataset's --seed, weather show's --resample as --step, and a
+    lone --timezone blamed on --site)."""
+    r = runner.invoke(app, [*args, "--out", str(tmp_path)] if args[0] == "replicate" else args)
+    assert_user_error(r, flag)
+    err = _flat(r.stderr)
+    assert "column '" not in err and "Traceback" not in r.output
+    for other in {"--seed:", "--step:", "--site:"} - {flag.split()[-1]}:
+        assert f"option {other}" not in err, err

@@ -75,7 +75,7 @@ def calibrate(
     --workers / --scheduler: the surrogate's design renders run on a Dask cluster (docs/posterior.md)."""
     from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
-    from lightfit.inference.calibration import METHODS
+    from lightfit.inference.calibration import METHODS, check_max_steps
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import likelihood_form, resolve_use
     from lightfit.inference.observations import read_observations
@@ -99,8 +99,7 @@ def calibrate(
         raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
     if max_rounds < 1:
         raise InputError(f"max_rounds={max_rounds}", column="max-rounds", expected="at least 1")
-    if max_steps < 1:  # before any render (the surrogate's optimiser runs after the design)
-        raise InputError(f"max_steps={max_steps}", column="max-steps", expected="at least 1")
+    check_max_steps(max_steps)  # before any render (the surrogate's optimiser runs after the design)
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters))
     th0 = parse_theta(start, "start")

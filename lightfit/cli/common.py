@@ -36,9 +36,77 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     )
 
 
+class LightfitGroup(TyperGroup):
+    """The app's command group, with the one error handler of the command line.
+
+    Expected user errors raised anywhere below it (any command, the weather sub-app, the
+    callback) print ``error: <message>`` on stderr and exit with status 2 — no traceback.
+    Usage errors (unknown option, missing argument) are typer's, also on stderr with status 2.
+    """
+
+    def invoke(self, ctx):
+        command = invoked_command(self, ctx)
+        try:
+            with warnings.catch_warnings():
+                warnings.showwarning = _show_warning
+                return super().invoke(ctx)
+        except _user_errors() as err:
+            msg = error_message(err, option_flags(command))
+            # soft_wrap: a long file path must stay on one line, for users and for tests alike.
+            err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
+            raise typer.Exit(2) from None
+
+
+def invoked_command(group, ctx):
+    """The (sub-)command that the group's arguments name, e.g. ``weather show``; the group itself
+    when they name none."""
+    args = [*(getattr(ctx, "_protected_args", None) or getattr(ctx, "protected_args", None) or []), *ctx.args]
+    command = group
+    for a in args:
+        sub = getattr(command, "commands", {}).get(a)  # a group's commands (typer vendors click)
+        if sub is None:
+            break
+        command = sub
+    return command
+
+
+#: Library parameter names whose command-line option is spelled otherwise: the first of the
+#: candidates that the invoked command has.
+OPTION_ALIASES = {
+    "freq": ("--step", "--resample"),
+    "names": ("--parameters",),
+    "nwalkers": ("--walkers",),
+    "seed": ("--field-seed",),
+    "width_px": ("--width",),
+    "distance_m": ("--sweep-distance-m",),
+    "quantities": ("--quantity",),
+    "times": ("--time",),
+    "plant_spacing_m": ("--plant-spacing",),
+    "row_spacing_m": ("--row-spacing",),
+    "split_model": ("--split",),
+    "format": ("--format",),
+}
+
+
+def option_flags(command) -> dict[str, str]:
+    """The options of one command by parameter name (``n_plants`` → ``--n-plants``), and the
+    :data:`OPTION_ALIASES` it has: an error names only an option that the user could have given."""
+    flags = {}
+    for p in command.params:
+        long = [o for o in getattr(p, "opts", ()) if o.startswith("--")]
+        if long and p.name:
+            flags[p.name] = long[0]
+    have = set(flags.values())
+    for name, candidates in OPTION_ALIASES.items():
+        found = [c for c in candidates if c in have]
+        if found and name not in flags:
+            flags[name] = found[0]
+    return flags
+
+
 def error_message(err: BaseException, flags: dict[str, str] | None = None) -> str:
     """One line naming the file or parameter concerned (``InputError`` messages already do). An
-    :class:`InputError` about a parameter that is a command-line option (``flags``:
+    :class:`InputError` about a parameter that is an option of the invoked command (``flags``:
     :func:`option_flags`; no file) names the option: ``option --preset: …``, not ``column 'preset'``."""
     if isinstance(err, InputError) and err.file is None and err.column and flags:
         flag = flags.get(err.column.lstrip("-").replace("-", "_"))
@@ -62,45 +130,6 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         err_console.print(f"[bold yellow]warning:[/] {escape(str(message))}", soft_wrap=True, highlight=False)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)
-
-
-class LightfitGroup(TyperGroup):
-    """The app's command group, with the one error handler of the command line.
-
-    Expected user errors raised anywhere below it (any command, the weather sub-app, the
-    callback) print ``error: <message>`` on stderr and exit with status 2 — no traceback.
-    Usage errors (unknown option, missing argument) are typer's, also on stderr with status 2.
-    """
-
-    def invoke(self, ctx):
-        try:
-            with warnings.catch_warnings():
-                warnings.showwarning = _show_warning
-                return super().invoke(ctx)
-        except _user_errors() as err:
-            msg = error_message(err, option_flags(self))
-            # soft_wrap: a long file path must stay on one line, for users and for tests alike.
-            err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
-            raise typer.Exit(2) from None
-
-
-#: Library parameter names whose command-line option is spelled otherwise.
-OPTION_ALIASES = {"freq": "--step", "names": "--parameters", "nwalkers": "--walkers"}
-
-
-def option_flags(group) -> dict[str, str]:
-    """Every option of the command line (all commands and sub-commands) by its parameter name,
-    e.g. ``n_plants`` → ``--n-plants``, plus :data:`OPTION_ALIASES`."""
-    flags = dict(OPTION_ALIASES)
-    todo = [group]
-    while todo:
-        cmd = todo.pop()
-        todo.extend(getattr(cmd, "commands", {}).values())  # a group's commands (typer vendors click)
-        for p in cmd.params:
-            long = [o for o in getattr(p, "opts", ()) if o.startswith("--")]
-            if long and p.name:
-                flags.setdefault(p.name, long[0])
-    return flags
 
 
 def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:

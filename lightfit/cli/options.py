@@ -499,7 +499,13 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 def resolve(opts: ModelOptions) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
-    from lightfit.model.scenario import check_choice, main_job_samples, resolve_direct
+    from lightfit.model.scenario import (
+        check_ceptometer_height,
+        check_choice,
+        check_seed,
+        main_job_samples,
+        resolve_direct,
+    )
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
 
@@ -551,13 +557,16 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
     check_samples(s.samples)
+    check_seed(s.render_seed)
+    if s.ceptometer_height_m is not None:
+        check_ceptometer_height(s.ceptometer_height_m)
     if s.bounces is not None:  # None: chosen from the leaf
         check_bounces(s.bounces)
     if s.target_rse is not None:
-        check_target_rse(s.target_rse, "--target-rse")
+        check_target_rse(s.target_rse)
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
-    _option_error(s.window, "--start-time, --hours or --step")
+    option_error(s.window, "--start-time, --hours or --step")
     if s.steps:
         _steps(s.steps, _n_steps(s.window()))
     if s.weather_file is not None:
@@ -568,7 +577,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     return s
 
 
-def _option_error(make, flags: str):
+def option_error(make, flags: str):
     """``make()``, with an :class:`InputError` restated for the command line (naming ``flags``)."""
     try:
         return make()
@@ -589,9 +598,9 @@ def _dates(opts: ModelOptions, default: tuple[str, ...]) -> tuple[str, ...]:
 
     if not opts.dates:
         return default
-    dates = _option_error(lambda: as_dates(opts.dates), "--date")
+    dates = option_error(lambda: as_dates(opts.dates), "--date")
     for d in dates:
-        _option_error(lambda d=d: GrowthConfig(target_date=d), f"--date {d}")
+        option_error(lambda d=d: GrowthConfig(target_date=d), f"--date {d}")
     return dates
 
 
@@ -607,20 +616,19 @@ def _site(opts: ModelOptions) -> Site:
             expected="either a named --site or --latitude, --longitude and --timezone",
         )
     if opts.site is not None:
-        return _option_error(lambda: site_named(opts.site), "--site")
+        return option_error(lambda: site_named(opts.site), "--site")
     if not given:
         return SELHAUSEN
     missing = [k for k in ("--latitude", "--longitude", "--timezone") if coords[k] is None]
     if missing:
         raise InputError(
             f"{', '.join(given)} given without {', '.join(missing)}",
-            column="site",
             expected="--latitude, --longitude and --timezone together (--altitude-m optional, default 0)",
         )
-    _option_error(lambda: check_timezone(opts.timezone), "--timezone")
+    option_error(lambda: check_timezone(opts.timezone), "--timezone")
     name = f"{opts.latitude:g} N, {opts.longitude:g} E"
     alt = 0.0 if opts.altitude_m is None else opts.altitude_m
-    return _option_error(
+    return option_error(
         lambda: Site(opts.latitude, opts.longitude, alt, name, opts.timezone), "--latitude/--longitude/--altitude-m"
     )
 

@@ -11,8 +11,7 @@ from rich import box
 from rich.table import Table
 
 from lightfit.cli.common import console, parse_theta, weather_report, weather_table
-from lightfit.cli.options import ModelOptions, model_options, resolve, weather
-from lightfit.errors import InputError
+from lightfit.cli.options import ModelOptions, model_options, option_error, resolve, weather
 
 #: Short head and decimals of each summary column in the printed table (summary.csv keeps full names).
 SUMMARY_HEADS = {
@@ -71,13 +70,8 @@ def replicate(
     cfg = s.replication_config()
     fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
-    cmp = None
-    if compare_preset is not None:  # the name checked first
-        try:
-            cmp = cfg.with_preset(compare_preset)
-        except InputError as e:
-            problem = f"compare_preset={compare_preset!r}"
-            raise InputError(problem, column="compare_preset", expected=e.expected) from None
+    # the name checked first; named as the option it came from (with_preset's error says "preset")
+    cmp = None if compare_preset is None else option_error(lambda: cfg.with_preset(compare_preset), "--compare-preset")
     w = weather(s)
     obs = rep.observations_for(w, observations or rep.OBSERVATIONS)  # read and placed before anything is written
     out = out or Path("results") / "+".join(s.dates)

@@ -329,6 +329,14 @@ def _unflatten(template, leaves):
     return jax.tree_util.tree_unflatten(tree, new)
 
 
+def check_max_steps(max_steps) -> int:
+    """The optimiser's accepted steps at most: an integer ≥ 1 (with 0 the start would be returned
+    as if it were a calibration)."""
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise InputError(f"max_steps={max_steps!r}", column="max_steps", expected="an integer ≥ 1")
+    return int(max_steps)
+
+
 def calibrate(
     model: CoupledModel,
     obs: pd.DataFrame,
@@ -381,8 +389,7 @@ def calibrate(
     """
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise InputError(f"max_steps={max_steps!r}", column="max_steps", expected="an integer ≥ 1")
+    check_max_steps(max_steps)
     form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
     base = model.theta(fixed)
     th0 = as_theta(start, base=base)
@@ -575,4 +582,12 @@ def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, tria
     return stopped_by
 
 
-__all__ = ["CalibrationResult", "Loss", "calibrate", "from_unconstrained", "make_loss", "to_unconstrained"]
+__all__ = [
+    "CalibrationResult",
+    "Loss",
+    "calibrate",
+    "check_max_steps",
+    "from_unconstrained",
+    "make_loss",
+    "to_unconstrained",
+]

@@ -41,7 +41,8 @@ series (``--use``)            value column (SD: ``*_sd*``)    unit          what
 The short names ``par`` and ``an`` of earlier versions mean ``plant_par`` and ``canopy_an``.
 Empty cells are missing observations (a row may have some quantities only). Every present value
 needs its SD (> 0); fractions (unit 1) are refused beyond ±:data:`MAX_FRACTION` (a percentage
-such as 94 is not a fraction); two rows with the same time are refused.
+such as 94 is not a fraction); a quantity given twice at one time is refused (two
+instruments may share a time on their own rows).
 
 Time zone. Times with an offset (``2016-04-20T12:13:48+02:00``, ``…Z``) are read as written; times
 without one need the ``# time_zone`` line (e.g. ``Europe/Berlin`` for a chamber log kept in local
@@ -249,17 +250,6 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
     first = n_meta + 2  # file line of the first data row
-    times = pd.DatetimeIndex(out["time"])
-    if times.duplicated().any():  # two readings stamped alike are a copy slip or a clock fault, not a mean
-        j = int(np.flatnonzero(times.duplicated())[0])
-        i = int(np.flatnonzero(times == times[j])[0])
-        raise InputError(
-            f"time {df['time'].iloc[j].strip()!r} on line {first + j} repeats line {first + i}'s",
-            file=path,
-            row=first + j,
-            column="time",
-            expected="one row per time (several readings within a step are averaged, at distinct times)",
-        )
     for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
@@ -272,6 +262,21 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             lambda i, text=text: f"value {text.iloc[i]!r} is not a number",
         )
         out[c] = vals.astype(float)
+    times = pd.DatetimeIndex(out["time"])
+    for c in (s.value for s in present):
+        # Two values of one quantity stamped alike are a copy slip or a clock fault, not a mean (two
+        # instruments may share a time on separate rows, each with its own quantity).
+        given = times[out[c].notna().to_numpy()]
+        if given.duplicated().any():
+            t = given[given.duplicated()][0]
+            i, j = np.flatnonzero((times == t) & out[c].notna().to_numpy())[:2]
+            raise InputError(
+                f"{c} at {df['time'].iloc[j].strip()!r} on line {first + j} repeats line {first + i}'s time",
+                file=path,
+                row=first + j,
+                column=c,
+                expected="one value of a quantity per time (readings within a step are averaged, at distinct times)",
+            )
     for s in present:
         _first_bad(
             out[s.value].notna() & ~(out[s.sd] > 0),

@@ -83,6 +83,24 @@ class Forcing:
         )
 
 
+def check_ceptometer_height(h) -> float:
+    """The ceptometer's height above the soil, m: 0 … :data:`MAX_CEPTOMETER_HEIGHT_M`."""
+    if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0 <= h <= MAX_CEPTOMETER_HEIGHT_M:
+        raise InputError(
+            f"ceptometer_height_m={h!r}",
+            column="ceptometer_height_m",
+            expected=f"a height above the soil in metres, 0 … {MAX_CEPTOMETER_HEIGHT_M}",
+        )
+    return float(h)
+
+
+def check_seed(seed) -> int:
+    """The render seed (the estimator's common random numbers): an integer ≥ 0."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed={seed!r}", column="render_seed", expected="an integer ≥ 0")
+    return int(seed)
+
+
 #: The values of a scenario's choices (what PAR at the plants means, what canopy An refers to).
 CHOICES = {"par_kind": ("incident", "absorbed"), "an_per": ("leaf", "ground")}
 
@@ -219,13 +237,8 @@ class Scenario:
             self.target_rse = check_target_rse(self.target_rse)
         self.direct = resolve_direct(self.direct, self.field.boundary)
         self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
-        h = self.ceptometer_height_m
-        if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0 <= h <= MAX_CEPTOMETER_HEIGHT_M:
-            raise InputError(
-                f"ceptometer_height_m={h!r}",
-                column="ceptometer_height_m",
-                expected=f"a height above the soil in metres, 0 … {MAX_CEPTOMETER_HEIGHT_M}",
-            )
+        check_ceptometer_height(self.ceptometer_height_m)
+        check_seed(self.seed)
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         check_choice("par_kind", self.par_kind)

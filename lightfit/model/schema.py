@@ -105,6 +105,9 @@ VARIABLES: dict[str, Variable] = {
         comment="CF cell bounds of time (its attribute bounds); present only where the weather holds means "
         "(attribute weather_timestamps); the sun is taken at the interval's centre",
     ),
+    "day": Variable(
+        T, None, "date of the step's day (plants grown to it), YYYY-MM-DD", comment="several-day results only"
+    ),
     "segment": Variable(S, "1", "segment id (CPlantBox shoot segment, stable for a given field)"),
     "plant_id": Variable(S, "1", "plant id of the segment (grid position in the field)"),
     "organ_type": Variable(S, None, "organ of the segment: leaf (blade or sheath) or stem"),

@@ -78,6 +78,22 @@ def _line_of(lines: pd.Series, ts) -> int | None:
         return None
 
 
+def duration(value, name: str, *, zero: bool = False) -> pd.Timedelta:
+    """A time span such as ``"30min"`` or ``"1h"`` (a pandas Timedelta), > 0 (≥ 0 with ``zero``),
+    or :class:`InputError` naming ``name``."""
+    try:
+        d = pd.Timedelta(value)
+    except (ValueError, TypeError):
+        d = None
+    if d is None or pd.isna(d) or d < pd.Timedelta(0) or (d == pd.Timedelta(0) and not zero):
+        raise InputError(
+            f"{name}={value!r}",
+            column=name,
+            expected="a time span such as 30min or 1h" + (", ≥ 0" if zero else ", > 0"),
+        )
+    return d
+
+
 def _file_zone(attrs: dict) -> str:
     """The zone a file's timestamps were read in (UTC unless the reader assumed another)."""
     return attrs.get("timezone_assumed") or "UTC"
@@ -173,7 +189,7 @@ def check_and_repair(
     Errors: missing required columns, duplicated timestamps, an irregular time step, gaps
     longer than ``max_gap``, values outside the plausible range (:data:`BOUNDS`).
     """
-    max_gap = pd.Timedelta(max_gap)
+    max_gap = duration(max_gap, "max_gap", zero=True)
     attrs = dict(df.attrs)
     qc: list[dict] = list(attrs.get("qc", []))
     df = df.copy()
@@ -325,7 +341,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     (with the input's split model) when the input had it; averaging sun angles would be wrong.
     """
     measured = [c for c in df.columns if c in BOUNDS]
-    step = pd.Timedelta(freq)
+    step = duration(freq, "freq")
     source = timestamps.of(df)
     stamps, dropped = source, []  # sampling keeps the rows and their meaning
     if how == "sample":
