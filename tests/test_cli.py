@@ -470,6 +470,11 @@ BAD_VALUES = {
     "--walkers": ["3", "2"],
     "--render-seed": ["-1"],
     "--ceptometer-height-m": ["-1"],
+    "--n-design": ["0", "1"],
+    "--target-ess": ["0"],
+    "--max-minutes": ["-1"],
+    "--timeout": ["-5"],
+    "--connect-timeout": ["0"],
 }
 #: Options that need others to be wrong (a site's coordinates come together).
 WITH = {"--latitude": ["--longitude", "6", "--timezone", "UTC"], "--timezone": ["--latitude", "50", "--longitude", "6"]}
@@ -565,3 +570,18 @@ def test_errors_name_the_option_the_command_has(args, flag, tmp_path):
     assert "column '" not in err and "Traceback" not in r.output
     for other in {"--seed:", "--step:", "--site:"} - {flag.split()[-1]}:
         assert f"option {other}" not in err, err
+
+
+def test_field_refuses_an_unknown_export_format_before_growing(tmp_path, monkeypatch):
+    """`lightfit field --export f.stl` fails before any plant grows (it used to print the whole report first)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--export", str(tmp_path / "f.stl")])
+    assert_user_error(r, "f.stl", "unknown mesh format", ".obj, .ply or .vtk")
+    assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
+
+
+def test_multiline_library_errors_print_as_one_line(tmp_path):
+    """A results file that is not netCDF: xarray's multi-line message is one line on stderr."""
+    r = runner.invoke(app, ["render-dataset", str(OBSERVATIONS), "-o", str(tmp_path / "x")])
+    assert_user_error(r)
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr

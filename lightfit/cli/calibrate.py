@@ -92,8 +92,8 @@ def calibrate(
     if priors not in P.PRIOR_SETS:
         raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
     n_design = E.DESIGN_SIZE if n_design is None else n_design
-    if surrogate and n_design < 5:
-        raise InputError(f"n_design={n_design}", column="n-design", expected="at least 5 design renders")
+    if surrogate:
+        E.check_design_size(n_design)  # before any render
     form = likelihood_form(mc_correlation, mc_scale)
     if not (mc_scale >= 0 and mc_scale < float("inf")):
         raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")

@@ -51,7 +51,7 @@ class LightfitGroup(TyperGroup):
                 warnings.showwarning = _show_warning
                 return super().invoke(ctx)
         except _user_errors() as err:
-            msg = error_message(err, option_flags(command))
+            msg = " ".join(error_message(err, option_flags(command)).splitlines())  # one line
             # soft_wrap: a long file path must stay on one line, for users and for tests alike.
             err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
             raise typer.Exit(2) from None
@@ -85,6 +85,12 @@ OPTION_ALIASES = {
     "row_spacing_m": ("--row-spacing",),
     "split_model": ("--split",),
     "format": ("--format",),
+    "n": ("--sweep",),
+    "gallery_images": ("--gallery",),
+    "elevation_deg": ("--sweep-elevation-deg",),
+    "height_px": ("--height",),
+    "n_tiles": ("--tiles",),
+    "target_date": ("--date",),
 }
 
 

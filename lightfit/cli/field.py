@@ -39,10 +39,13 @@ def field(
 ) -> None:
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
     from lightfit import plant
+    from lightfit.plant.export import mesh_format
     from lightfit.plant.preview import plot_field
     from lightfit.report import field_label
 
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
+    for path in export or []:  # before minutes of plant growth
+        mesh_format(path)
     g = plant.GrowthConfig(parameter_file, season_start, date)
     fld = plant.Field(
         n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along, boundary

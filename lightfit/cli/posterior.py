@@ -81,7 +81,11 @@ def posterior(
     from lightfit.model import emulator as E
 
     s = resolve(model)
-    n_design = E.DESIGN_SIZE if n_design is None else n_design
+    n_design = E.check_design_size(E.DESIGN_SIZE if n_design is None else n_design)  # before any render
+    if not target_ess > 0:
+        raise InputError(f"target_ess={target_ess!r}", column="target_ess", expected="> 0 effective samples")
+    if max_minutes is not None and not max_minutes > 0:
+        raise InputError(f"max_minutes={max_minutes!r}", column="max_minutes", expected="> 0 minutes (resumable)")
     if n_test < 0:
         raise InputError(f"n_test={n_test}", column="n-test", expected="0 (no emulator check) or more held-out renders")
     if priors not in P.PRIOR_SETS:
@@ -256,7 +260,8 @@ def _print_status(st: dict) -> None:
     flag = "" if d.get("acceptance_ok", True) else " (outside 0.15–0.8)"
     check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
     console.print(
-        f"acceptance {acc:.2f}{flag}; τ reliable (n_kept ≥ 50 τ): {bool(d['tau_reliable'])}; {check}; "
+        f"acceptance {acc:.2f}{flag}; τ reliable by emcee's rule of thumb (n_kept ≥ 50 τ; the stop rule asks "
+        f"20 τ): {bool(d['tau_reliable'])}; {check}; "
         f"max τ {np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else float('nan'):.1f}; "
         f"analysis {'written' if st['analysis'] else 'not written'}"
     )

@@ -367,7 +367,8 @@ def fit_emulator(
         if best is None or loo[d] < loo[best]:
             best = d
     if best is None:
-        raise InputError(f"n_design={n} is too small", column="n_design", expected="at least 5 design points")
+        check_design_size(n)  # too few for any degree
+        raise InputError(f"n_design={n}: no polynomial degree fits", column="n_design", expected="more design points")
     phi = np.asarray(legendre_basis(u, exponents(best)))
     pinv = np.linalg.pinv(phi)
     shape = np.asarray(values).shape[1:]
@@ -500,6 +501,17 @@ def cached_emulator(
 #: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
 #: emulator, so one command's design serves the other).
 DESIGN_SIZE = 20
+#: Fewest design renders an emulator is fitted from (the smallest polynomial degree needs them).
+MIN_DESIGN_SIZE = 5
+
+
+def check_design_size(n) -> int:
+    """Design renders: an integer ≥ :data:`MIN_DESIGN_SIZE`, checked before any is rendered."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < MIN_DESIGN_SIZE:
+        raise InputError(
+            f"n_design={n!r} is too small", column="n_design", expected=f"at least {MIN_DESIGN_SIZE} design points"
+        )
+    return int(n)
 
 
 def design_dir(model: CoupledModel, cache: str | Path | None = None, key: dict | None = None) -> Path:
@@ -700,6 +712,8 @@ def emulated_model(model: CoupledModel, emulator: PartsEmulator) -> CoupledModel
 __all__ = [
     "COUNTS",
     "DESIGN_SIZE",
+    "MIN_DESIGN_SIZE",
+    "check_design_size",
     "FastObservables",
     "PartsEmulator",
     "design_dir",

@@ -124,11 +124,19 @@ def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     return path
 
 
-def export(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
-    """Write ``mesh`` in the format named by the suffix of ``path`` (.obj, .ply or .vtk)."""
+def mesh_format(path: str | Path) -> str:
+    """The mesh format a file name asks for (``obj``, ``ply`` or ``vtk``), or :class:`InputError`
+    naming the file (callers check their outputs before the plants are grown)."""
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
         raise InputError(f"unknown mesh format {path.suffix!r}", file=path, expected="a .obj, .ply or .vtk file name")
+    return fmt
+
+
+def export(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+    """Write ``mesh`` in the format named by the suffix of ``path`` (.obj, .ply or .vtk)."""
+    path = Path(path)
+    fmt = mesh_format(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return {"obj": write_obj, "ply": write_ply, "vtk": write_vtk}[fmt](mesh, path, values)
