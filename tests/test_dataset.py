@@ -521,3 +521,14 @@ def test_sun_of_results_from_another_site(results_file):
     # And not Selhausen's sun: at the same instants Cape Town sees it to the north, Selhausen to the south-east/south.
     here = _sun(open_results(results_file))["sun_azimuth_deg"].to_numpy()
     assert np.abs(got["sun_azimuth_deg"].to_numpy() - here).min() > 60
+
+
+def test_an_output_folder_holding_a_dataset_is_refused(mono_dataset, results_file):
+    """A second dataset written into the first's folder would mix its images with the first's while
+    metadata.json listed only its own (a newcomer's review found three runs' images in one folder)."""
+    out, meta = mono_dataset
+    before = sorted(p.name for p in (out / "images").iterdir())
+    with pytest.raises(InputError, match="already holds a dataset") as e:
+        make_dataset(results_file, out, DatasetSpec(cameras=[CAM], quantities=("photons",)))
+    assert e.value.file == out
+    assert sorted(p.name for p in (out / "images").iterdir()) == before  # nothing written

@@ -75,6 +75,14 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
         raise InputError(f"export={spec.export!r}", column="export", expected=" or ".join(EXPORT_FORMATS))
     if not isinstance(spec.gallery_images, int) or spec.gallery_images < 0:
         raise InputError(f"gallery_images={spec.gallery_images!r}", column="gallery_images", expected="an integer ≥ 0")
+    out = Path(out_dir)
+    earlier = [d for d in ("images", "labels") if (out / d).is_dir() and any((out / d).iterdir())]
+    if earlier:  # their files would mix with this dataset's, while metadata.json lists only this one's
+        raise InputError(
+            f"the output folder already holds a dataset ({', '.join(f'{d}/' for d in earlier)} not empty)",
+            file=out,
+            expected="a new or empty output folder (-o)",
+        )
     res = results if isinstance(results, Results) else open_results(results)
     quantities = resolve_quantities(res, spec.quantities)
     tix = select_times(res, spec.times)
@@ -91,7 +99,6 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
     rendered = render(arrays, cams, lights, spec.settings, spec.materials)
 
-    out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(exist_ok=True)
     per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
