@@ -110,3 +110,40 @@ def test_calibrate_then_posterior_share_the_design_and_a_key_change_rebuilds(tmp
     assert r.exit_code == 0, r.output
     assert E.COUNTS["rendered"] == before["rendered"] + 6
     assert len(list((design_cache / "designs").iterdir())) == 2
+
+
+def test_posterior_cli_interrupted_while_sampling_says_how_to_resume(tmp_path, monkeypatch):
+    """Ctrl-C while sampling (a KeyboardInterrupt from the log-probability after 12 calls): exit 130,
+    a line saying that the run keeps its steps and to rerun the same command, and no analysis of the
+    partial chain (it used to exit 0 and analyse it); the same command then resumes and analyses."""
+    from lightfit.inference import posterior as A
+
+    real = A.sample
+
+    class Interrupting:
+        def __init__(self, lp):
+            self.lp, self.calls = lp, 0
+
+        def __getattr__(self, name):
+            return getattr(self.lp, name)
+
+        def __call__(self, x):
+            self.calls += 1
+            if self.calls > 12:
+                raise KeyboardInterrupt
+            return self.lp(x)
+
+    monkeypatch.setattr(A, "sample", lambda lp, *a, **k: real(Interrupting(lp), *a, **k))
+    out = tmp_path / "post"
+    args = ["posterior", "--quick", "--out", str(out), "--parameters", "specular,light_factor", "--walkers", "8"]
+    args += ["--max-steps", "30", "--n-design", "6", "--n-test", "1"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 130, r.output
+    assert "rerun the same command to resume" in " ".join(r.output.split())
+    run = load_run(out / "run.h5")
+    assert 0 < run["chain"].shape[0] < 30 and "analysis" not in run
+    monkeypatch.setattr(A, "sample", real)
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    run = load_run(out / "run.h5")
+    assert run["chain"].shape == (30, 8, 2) and "analysis" in run

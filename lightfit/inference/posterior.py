@@ -389,7 +389,7 @@ def run(
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
         "refused": res.refused,
     }
-    if not analysis:
+    if not analysis or res.stopped_by == "interrupted":  # an interrupted chain is resumed, not analysed
         return out
     samples = flat_samples({"chain": res.chain})
     summ = summarize(samples, lp.names)
