@@ -36,6 +36,18 @@ class InputError(ValueError):
         super().__init__(msg)
 
 
+def check_integer(value, name: str, low: int, *, column: str | None = None, why: str = "") -> int:
+    """``value`` as an ``int`` if it is an integer (Python or numpy; not a bool) ≥ ``low``, else
+    :class:`InputError` ``name=value`` naming ``column`` (default ``name``); ``why`` is added to
+    what was expected."""
+    from numbers import Integral
+
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < low:
+        expected = f"an integer ≥ {low}" + (f" ({why})" if why else "")
+        raise InputError(f"{name}={value!r}", column=column or name, expected=expected)
+    return int(value)
+
+
 def parse_date(value, name: str):
     """A calendar date from ``YYYY-MM-DD`` text or a date/datetime; anything else raises.
 

@@ -9,7 +9,6 @@ import typer
 from lightfit.cli.common import console
 from lightfit.cli.options import DASK_PANEL as _DASK
 from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
-from lightfit.errors import InputError
 
 
 @model_options
@@ -48,9 +47,6 @@ def field_run(
     from lightfit.replication import write_netcdf
     from lightfit.report import field_label
 
-    for name, value in (("timeout", timeout), ("connect_timeout", connect_timeout)):
-        if value is not None and not value > 0:  # before a cluster is started
-            raise InputError(f"{name}={value!r}", column=name, expected="> 0 seconds")
     s = resolve(model)
     run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)
     sc = run.scenario

@@ -82,8 +82,7 @@ def posterior(
 
     s = resolve(model)
     n_design = E.check_design_size(E.DESIGN_SIZE if n_design is None else n_design)  # before any render
-    if not target_ess > 0:
-        raise InputError(f"target_ess={target_ess!r}", column="target_ess", expected="> 0 effective samples")
+    stop = P.StopRule(target_ess=target_ess)  # checked before any render
     if max_minutes is not None and not max_minutes > 0:
         raise InputError(f"max_minutes={max_minutes!r}", column="max_minutes", expected="> 0 minutes (resumable)")
     if n_test < 0:
@@ -177,7 +176,7 @@ def posterior(
         max_steps=max_steps,
         seed=sampler_seed,
         resume=resume,
-        stop=P.StopRule(target_ess=target_ess),
+        stop=stop,
         validation_renders=(val[0] if dates is None else val) if val else None,
         analysis=analysis,
         max_seconds=None if max_minutes is None else 60 * max_minutes,

@@ -449,8 +449,11 @@ def run_field(
 
     Uses ``client`` if given, else joins ``scheduler``, else starts an embedded LocalCluster.
     ``timeout_s`` bounds the wait for all tasks (``None``: no bound); ``connect_timeout_s`` the
-    wait for the scheduler.
+    wait for the scheduler; both must be > 0 (checked before a cluster is started or joined).
     """
+    for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
+        if value is not None and not value > 0:
+            raise InputError(f"{name}={value!r}", column=name, expected="> 0 seconds")
     if client is None:
         with connect(
             scheduler, workers=workers, threads_per_worker=threads_per_worker, timeout_s=connect_timeout_s

@@ -52,7 +52,7 @@ import numpy as np
 import optimistix as optx
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.observations import matched_as_by_stamp, observation_matching
@@ -332,9 +332,7 @@ def _unflatten(template, leaves):
 def check_max_steps(max_steps) -> int:
     """The optimiser's accepted steps at most: an integer ≥ 1 (with 0 the start would be returned
     as if it were a calibration)."""
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise InputError(f"max_steps={max_steps!r}", column="max_steps", expected="an integer ≥ 1")
-    return int(max_steps)
+    return check_integer(max_steps, "max_steps", 1)
 
 
 def calibrate(

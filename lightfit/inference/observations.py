@@ -266,10 +266,11 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     for c in (s.value for s in present):
         # Two values of one quantity stamped alike are a copy slip or a clock fault, not a mean (two
         # instruments may share a time on separate rows, each with its own quantity).
-        given = times[out[c].notna().to_numpy()]
+        has = out[c].notna().to_numpy()
+        given = times[has]
         if given.duplicated().any():
             t = given[given.duplicated()][0]
-            i, j = np.flatnonzero((times == t) & out[c].notna().to_numpy())[:2]
+            i, j = np.flatnonzero((times == t) & has)[:2]
             raise InputError(
                 f"{c} at {df['time'].iloc[j].strip()!r} on line {first + j} repeats line {first + i}'s time",
                 file=path,

@@ -314,7 +314,6 @@ def run(
     form = likelihood_form(mc_correlation, mc_scale)
     if resume:
         check_likelihood(path, form)
-    if resume:
         check_matching(path, obs, model.timestamps)
     days = days_of(model)
     emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]

@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.light import projection
 from lightfit.light.backend import owned
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
@@ -181,29 +181,21 @@ class Irradiance:
         return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
 
 
-def check_samples(value, label: str = "samples") -> int:
-    """Points per segment K: an integer ≥ 2 (the standard error needs two). ``label`` names the
-    value in the error (e.g. the command line's ``--samples``)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2:
-        raise InputError(
-            f"{label}={value!r}", column="samples", expected="an integer ≥ 2 (needed for a standard error)"
-        )
-    return int(value)
+def check_samples(value) -> int:
+    """Points per segment K: an integer ≥ 2 (the standard error needs two)."""
+    return check_integer(value, "samples", 2, why="needed for a standard error")
 
 
-def check_bounces(value, label: str = "bounces") -> int:
-    """Scattering orders traced: an integer ≥ 0. ``label`` names the value in the error."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise InputError(f"{label}={value!r}", column="bounces", expected="an integer ≥ 0")
-    return int(value)
+def check_bounces(value) -> int:
+    """Scattering orders traced: an integer ≥ 0."""
+    return check_integer(value, "bounces", 0)
 
 
-def check_target_rse(value, label: str = "target_rse") -> float:
-    """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1).
-    ``label`` names the value in the error (e.g. the command line's ``--target-rse``)."""
+def check_target_rse(value) -> float:
+    """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1)."""
     ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
     if not (ok and 0 < value < 1):
-        raise InputError(f"{label}={value!r}", column="target_rse", expected="a relative standard error in (0, 1)")
+        raise InputError(f"target_rse={value!r}", column="target_rse", expected="a relative standard error in (0, 1)")
     return float(value)
 
 

@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from lightfit.cache import cache_root
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import ESTIMATOR_VERSION, PARTS
@@ -507,11 +507,7 @@ MIN_DESIGN_SIZE = 5
 
 def check_design_size(n) -> int:
     """Design renders: an integer ≥ :data:`MIN_DESIGN_SIZE`, checked before any is rendered."""
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < MIN_DESIGN_SIZE:
-        raise InputError(
-            f"n_design={n!r} is too small", column="n_design", expected=f"at least {MIN_DESIGN_SIZE} design points"
-        )
-    return int(n)
+    return check_integer(n, "n_design", MIN_DESIGN_SIZE, why="design points an emulator is fitted from")
 
 
 def design_dir(model: CoupledModel, cache: str | Path | None = None, key: dict | None = None) -> Path:

@@ -16,7 +16,7 @@ from dataclasses import field as dc_field
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.light.estimator import bounces_for_tolerance, check_bounces, check_samples, check_target_rse
 from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
@@ -96,22 +96,17 @@ def check_ceptometer_height(h) -> float:
 
 def check_seed(seed) -> int:
     """The render seed (the estimator's common random numbers): an integer ≥ 0."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed={seed!r}", column="render_seed", expected="an integer ≥ 0")
-    return int(seed)
+    return check_integer(seed, "seed", 0, column="render_seed")
 
 
 #: The values of a scenario's choices (what PAR at the plants means, what canopy An refers to).
 CHOICES = {"par_kind": ("incident", "absorbed"), "an_per": ("leaf", "ground")}
 
 
-def check_choice(name: str, value, label: str | None = None) -> str:
-    """``value`` if it is one of :data:`CHOICES` ``[name]``, else :class:`InputError` naming
-    ``label`` (default ``name``; e.g. the command line's ``--par-kind``)."""
+def check_choice(name: str, value) -> str:
+    """``value`` if it is one of :data:`CHOICES` ``[name]``, else :class:`InputError` naming it."""
     if value not in CHOICES[name]:
-        raise InputError(
-            f"{label or name}={value!r}", column=name, expected=" or ".join(repr(c) for c in CHOICES[name])
-        )
+        raise InputError(f"{name}={value!r}", column=name, expected=" or ".join(repr(c) for c in CHOICES[name]))
     return value
 
 

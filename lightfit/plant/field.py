@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
@@ -130,8 +130,7 @@ class Field:
                 raise InputError(f"{name}={v!r}", column=name, expected="a positive distance in metres")
         if not isinstance(self.buffer_rows, (int, np.integer)) or self.buffer_rows < 0:
             raise InputError(f"buffer_rows={self.buffer_rows!r}", column="buffer_rows", expected="an integer ≥ 0")
-        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise InputError(f"seed={self.seed!r}", column="seed", expected="an integer ≥ 0")
+        check_integer(self.seed, "seed", 0)
 
     @property
     def periodic(self) -> bool:

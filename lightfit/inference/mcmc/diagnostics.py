@@ -69,6 +69,10 @@ class StopRule:
     burn_fraction: float = 0.25
     min_steps: int = 100
 
+    def __post_init__(self):
+        if not self.target_ess > 0:  # 0 or less: the first check would stop any chain
+            raise InputError(f"target_ess={self.target_ess!r}", column="target_ess", expected="> 0 effective samples")
+
     def check(self, d: dict, tau_prev) -> bool:
         """Whether diagnostics ``d`` (and τ at the previous check, None at the first) meet the rule."""
         tau = d["tau"]

@@ -18,7 +18,7 @@ from pathlib import Path
 import emcee
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, open_h5, stored_run, writer_lock
 from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics
 from lightfit.inference.progress import progress_bar
@@ -52,8 +52,7 @@ def check_run_size(ndim: int, nwalkers: int, max_steps: int) -> None:
         raise InputError("no parameters to sample", column="names", expected="at least one parameter")
     if nwalkers < 2 * ndim or nwalkers % 2:
         raise InputError(f"nwalkers={nwalkers}", column="nwalkers", expected=f"an even number ≥ 2·ndim = {2 * ndim}")
-    if max_steps < 1:
-        raise InputError(f"max_steps={max_steps}", column="max_steps", expected="≥ 1")
+    check_integer(max_steps, "max_steps", 1)
 
 
 def sample(
