@@ -69,6 +69,10 @@ SETTINGS = ((16, (1.5e7, 2e7)), (16, (6e7, 8e7)), (32, (1.5e8, 2e8)), (64, (4e8,
 REFERENCE_SEED, DEVICE_SEED = 11, 12
 #: The sun of the reference and of every device render (elevation, azimuth), degrees: bench_light's.
 SUN_DEG = (50.0, 180.0)
+#: The gradient check's leaf parameters and central-difference steps: tests/test_light_projection.py's,
+#: where the albedo's roughness table (nodes every 1/32) is smooth across the steps.
+GRADIENT_AT = {"specular": 0.5, "roughness": 0.515, "subsurface": 0.45}
+FD_STEP = {"specular": 0.1, "roughness": 0.01, "subsurface": 0.1}
 
 
 def _strip_wheel(src: Path, dst: Path) -> None:
@@ -107,14 +111,48 @@ def _render(fs, ids, seed: int):
     return v, r.relative_se() * np.abs(v)
 
 
+def _cotangent(n: int) -> dict:
+    """The gradient check's objective J = Σ absorbed sun + 0.3 Σ absorbed sky (bench_gradient's)."""
+    return {"absorbed_sun": np.ones(n), "absorbed_sky": np.full(n, 0.3)}
+
+
+def _objective(r, ct: dict) -> float:
+    return float(sum(np.sum(ct[p] * getattr(r, p)) for p in ct))
+
+
+def _gradient_estimator(fs, ids):
+    """The first setting of :data:`SETTINGS` with the reference's seed, at :data:`GRADIENT_AT`."""
+    from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
+
+    samples, rays = SETTINGS[0]
+    fs.set_optics(**GRADIENT_AT)
+    return SegmentEstimator(
+        fs, ids, samples=samples, bounces=bounces_for_tolerance(0.01, fs.optics), seed=REFERENCE_SEED,
+        direct="projection", direct_rays_per_m2=rays,
+    )  # fmt: skip
+
+
 def _reference_render(geom, ids) -> dict:
+    """This machine's render for the device's agreement check (seed 11), and its gradient of
+    :func:`_objective` at :data:`GRADIENT_AT` with the same seed, which the device's must equal up
+    to rounding: Dr.Jit's random streams are the same on both backends."""
     from lightfit.light import backend
     from lightfit.light.scene import FieldScene, Optics
 
     fs = FieldScene(geom.mesh, Optics.preset("prospect"), cell=geom.cell)
     fs.set_sun(*SUN_DEG)
     v, se = _render(fs, ids, seed=REFERENCE_SEED)
-    return {"reference_absorbed": v, "reference_se": se, "reference_variant": backend.info().variant}
+    est = _gradient_estimator(fs, ids)
+    ct = _cotangent(len(ids))
+    j = _objective(est.render(), ct)
+    g = est.vjp(ct)
+    return {
+        "reference_absorbed": v,
+        "reference_se": se,
+        "reference_variant": backend.info().variant,
+        "reference_objective": j,
+        "reference_gradient": json.dumps(g),
+    }
 
 
 def prepare(n_plants: int, python_version: str) -> None:
@@ -202,6 +240,17 @@ def run(out: Path, budget_s: float, settings) -> dict:
         flush=True,
     )
     (out / "device_light.json").write_text(json.dumps(res, indent=2))
+    if "reference_gradient" in g.files:
+        res["gradient"] = _gradient_check(fs, ids, g)
+        gr = res["gradient"]
+        print(
+            f"gradient {'agrees' if gr['agrees'] else 'DISAGREES'}: max |relative difference| against "
+            f"{gr['reference_variant']} {gr['max_rel_diff_reference']:.1e}, against central differences "
+            f"(common random numbers) {gr['max_rel_diff_fd']:.1e}; vjp / primal {gr['vjp_over_primal']:.2f} "
+            f"({gr['vjp_s']:.2f} / {gr['primal_s']:.2f} s)",
+            flush=True,
+        )
+        (out / "device_light.json").write_text(json.dumps(res, indent=2))
     for samples, rays in settings:
         if time.perf_counter() - t0 > budget_s:
             res["stopped_at_budget_s"] = budget_s
@@ -247,6 +296,60 @@ def _agreement(fs, ids, g) -> dict:
         # Noise alone: the median |z| within 10 % of t₆'s (over 66 125 segments it hardly moves) and
         # the totals within 4 SE (p ≈ 6 × 10⁻⁵ to fail).
         "agrees": median_z < 1.1 * noise_z and abs(ratio) < 4 * ratio_se,
+    }
+
+
+def _gradient_check(fs, ids, g, repeats: int = 3) -> dict:
+    """The reverse-mode gradient on this variant against (a) the reference's, same seed, and (b)
+    central differences with common random numbers (the same estimator rendered at θ ± h), and
+    its time against the primal's (wall clock, medians of ``repeats``; the primal keeps its
+    paths and casts its sun again, as a new step of a day does, like bench_gradient.py)."""
+    ct = _cotangent(len(ids))
+    leaf = {k: getattr(fs.optics, k) for k in GRADIENT_AT}
+    est = _gradient_estimator(fs, ids)
+    try:
+        j = _objective(est.render(), ct)
+        grad = est.vjp(ct)
+        primal, vjp = [], []
+        for _ in range(repeats):
+            est._suns_kept.clear()
+            t = time.perf_counter()
+            est.render()
+            primal.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            est.vjp(ct)
+            vjp.append(time.perf_counter() - t)
+        fd = {}
+        for k, h in FD_STEP.items():
+            fs.set_optics(**{k: GRADIENT_AT[k] + h})
+            jp = _objective(est.render(), ct)
+            fs.set_optics(**{k: GRADIENT_AT[k] - h})
+            fd[k] = (jp - _objective(est.render(), ct)) / (2 * h)
+            fs.set_optics(**{k: GRADIENT_AT[k]})
+    finally:
+        fs.set_optics(**leaf)
+    ref = json.loads(str(g["reference_gradient"]))
+    # Relative to the largest component: a near-zero component's own ratio means nothing.
+    scale = max(abs(v) for v in ref.values())
+    d_ref = max(abs(grad[k] - ref[k]) for k in ref) / scale
+    d_fd = max(abs(grad[k] - fd[k]) for k in ref) / scale
+    return {
+        "at": GRADIENT_AT,
+        "fd_step": FD_STEP,
+        "reference_variant": str(g["reference_variant"]),
+        "objective": j,
+        "reference_objective": float(g["reference_objective"]),
+        "gradient": grad,
+        "reference_gradient": ref,
+        "central_differences": fd,
+        "max_rel_diff_reference": d_ref,
+        "max_rel_diff_fd": d_fd,
+        "primal_s": float(np.median(primal)),
+        "vjp_s": float(np.median(vjp)),
+        "vjp_over_primal": float(np.median(vjp) / np.median(primal)),
+        # Rounding alone (the same random numbers) within 10⁻³; central differences within
+        # tests/test_light_projection.py's 3 %.
+        "agrees": d_ref < 1e-3 and d_fd < 0.03,
     }
 
 
