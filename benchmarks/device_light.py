@@ -19,7 +19,10 @@ git-ignored folder ``device/``:
 ``run`` (what ``device_light.sh`` calls there, after installing the wheels) first renders the first
 setting with seed 12 and compares it with the reference segment by segment (median |z| of the
 difference in units of its combined SE, the share above 4, the canopy totals): the GPU's answer
-must be the CPU's within Monte Carlo noise before its time means anything. Then it renders the cell with
+must be the CPU's within Monte Carlo noise before its time means anything. The reverse-mode
+gradient with respect to the three leaf parameters is checked too, against the one ``prepare``
+made here with the same seed (rounding apart, equal) and against central differences with common
+random numbers there, and timed against the primal. Then it renders the cell with
 the projection in the variant lightfit picks (``cuda_ad_mono`` where a CUDA device is usable) at
 rising ray densities, through ``bench_light.direct_projection_comparison`` (the same two seeds,
 the same R-corrected and pooled medians, the same later step of a day), and writes

@@ -450,8 +450,18 @@ def concat_days(parts: list) -> xr.Dataset:
     return schema.annotate(out)
 
 
+def check_netcdf_name(path: str | Path) -> Path:
+    """``path`` if it names a netCDF file (``.nc``), else :class:`InputError` naming it: a results
+    file called ``r.csv`` would be netCDF under a name that every reader takes for text."""
+    path = Path(path)
+    if path.suffix.lower() != ".nc":
+        raise InputError("results are written as netCDF", file=path, expected="a file name ending in .nc")
+    return path
+
+
 def write_netcdf(ds, path: Path) -> Path:
-    """netCDF4 via h5netcdf (booleans stored as int8)."""
+    """netCDF4 via h5netcdf (booleans stored as int8) at ``path`` (a ``.nc`` name)."""
+    check_netcdf_name(path)
     ds = ds.copy()
     for v in list(ds.variables):
         if ds[v].dtype == bool:

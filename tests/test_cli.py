@@ -277,6 +277,14 @@ def test_model_commands_reject_bad_input_before_running(command, args, words, tm
     assert_user_error(r, *words)
 
 
+def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypatch):
+    """`field-run --out r.csv` wrote netCDF under a text file's name; now refused before any plant grows."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / "r.csv")])
+    assert_user_error(r, str(tmp_path / "r.csv"), "netCDF", ".nc")
+    assert not (tmp_path / "cache").exists() and not (tmp_path / "r.csv").exists()
+
+
 def test_bad_par_kind_names_the_parameter(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--par-kind", "diffuse"])
     assert_user_error(r, "par_kind", "diffuse")
@@ -578,6 +586,27 @@ def test_field_refuses_an_unknown_export_format_before_growing(tmp_path, monkeyp
     r = runner.invoke(app, ["field", "--n-plants", "4", "--export", str(tmp_path / "f.stl")])
     assert_user_error(r, "f.stl", "unknown mesh format", ".obj, .ply or .vtk")
     assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize("name", ["f.stl", "f"])
+def test_figure_names_without_a_known_format_are_refused_first(tmp_path, monkeypatch, name):
+    """`field --preview` and `weather show --plot` take the format from the suffix (a .jpg
+    preview is a JPEG); a name with no format they can write fails before any plant grows or
+    any weather is read."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--preview", str(tmp_path / name)])
+    assert_user_error(r, str(tmp_path / name), "image format", ".png, .pdf, .svg")
+    assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
+    r = runner.invoke(app, ["weather", "show", str(FIXTURE), "--plot", str(tmp_path / name)])
+    assert_user_error(r, str(tmp_path / name), "image format")
+    assert "clamped" not in r.stdout  # refused before the file was read and reported
+
+
+def test_weather_plot_format_follows_the_suffix(tmp_path):
+    svg = tmp_path / "w.svg"
+    r = runner.invoke(app, ["weather", "show", str(FIXTURE), "--plot", str(svg)])
+    assert r.exit_code == 0, r.output
+    assert svg.read_text().lstrip().startswith("<?xml") and "<svg" in svg.read_text()[:2000]
 
 
 def test_multiline_library_errors_print_as_one_line(tmp_path):

@@ -263,8 +263,14 @@ def test_camera_sweep_and_file(tmp_path):
     with pytest.raises(InputError, match="unknown key"):
         load_cameras(p)
     p.write_text(json.dumps([CAM.to_dict(), CAM.to_dict()]))
-    with pytest.raises(InputError, match="duplicate camera name"):
+    with pytest.raises(InputError, match="duplicate camera name") as err:
         load_cameras(p)
+    assert str(err.value).startswith(str(p))
+    # A camera's own check (a pinhole below the soil) names the file it came from, and the field.
+    p.write_text(json.dumps([{"name": "low", "position_m": [1, 1, -0.2]}]))
+    with pytest.raises(InputError, match="position_m") as err:
+        load_cameras(p)
+    assert str(err.value).startswith(f"{p}, column 'position_m': camera 'low'")
 
 
 def test_unknown_quantity_and_time(results_file, tmp_path):
@@ -521,6 +527,29 @@ def test_sun_of_results_from_another_site(results_file):
     # And not Selhausen's sun: at the same instants Cape Town sees it to the north, Selhausen to the south-east/south.
     here = _sun(open_results(results_file))["sun_azimuth_deg"].to_numpy()
     assert np.abs(got["sun_azimuth_deg"].to_numpy() - here).min() > 60
+
+
+def test_results_with_their_own_sun_and_sky_refuse_another_weather(results_file, tmp_path):
+    """Results that carry the sun and sky that lit their labels are imaged under that sky; a
+    --weather for them used to be ignored without a word, and is now refused."""
+    import xarray as xr
+
+    from lightfit.dataset.results import LIGHT_VARS, lighting
+
+    with xr.open_dataset(results_file, engine="h5netcdf") as ds:
+        lit = ds.load()
+    own = dict(zip(LIGHT_VARS, (41.0, 170.0, 650.0, 120.0), strict=True))
+    for v, x in own.items():
+        lit[v] = ("time", np.full(lit.sizes["time"], x))
+    path = tmp_path / "lit.nc"
+    lit.to_netcdf(path, engine="h5netcdf")
+    assert lighting(open_results(path), [0])[0] == Lighting(*own.values())
+    with pytest.raises(InputError, match="carry their own sun and sky") as e:
+        lighting(open_results(path), [0], "2016-04-20")
+    assert e.value.column == "weather"
+    r = CliRunner().invoke(app, ["render-dataset", str(path), "-o", str(tmp_path / "x"), "--weather", "2016-04-20"])
+    assert r.exit_code == 2 and "carry their own sun and sky" in " ".join(r.stderr.split())
+    assert not (tmp_path / "x" / "images").exists()
 
 
 def test_an_output_folder_holding_a_dataset_is_refused(mono_dataset, results_file):

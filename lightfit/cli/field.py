@@ -34,11 +34,14 @@ def field(
     across: int = typer.Option(1, help="Mesh subdivisions across each leaf blade."),
     around: int = typer.Option(6, help="Sides of stem/sheath prisms."),
     export: list[Path] = typer.Option(None, help="Write the mesh: .obj, .ply or .vtk (repeatable)."),
-    preview: Path = typer.Option(None, help="Write a PNG with top and side views."),
+    preview: Path = typer.Option(
+        None, help="Write an image with top and side views; the suffix gives the format (.png, .pdf, .svg, …)."
+    ),
     segments_csv: Path = typer.Option(None, "--segments", help="Write the segment table (G1) as CSV."),
 ) -> None:
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
     from lightfit import plant
+    from lightfit.figure import figure_format
     from lightfit.plant.export import mesh_format
     from lightfit.plant.preview import plot_field
     from lightfit.report import field_label
@@ -46,6 +49,8 @@ def field(
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
     for path in export or []:  # before minutes of plant growth
         mesh_format(path)
+    if preview:
+        figure_format(preview)
     g = plant.GrowthConfig(parameter_file, season_start, date)
     fld = plant.Field(
         n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along, boundary

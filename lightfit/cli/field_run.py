@@ -44,10 +44,11 @@ def field_run(
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
     from lightfit.distributed.run import FieldRun, run_field
-    from lightfit.replication import write_netcdf
+    from lightfit.replication import check_netcdf_name, write_netcdf
     from lightfit.report import field_label
 
     s = resolve(model)
+    check_netcdf_name(out)  # before any table is computed or plant grown
     run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)
     sc = run.scenario
     console.print(

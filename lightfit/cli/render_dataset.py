@@ -39,7 +39,9 @@ def render_dataset(
     colour: str = typer.Option("rgb", help="rgb or mono (luminance) images."),
     seed: int = typer.Option(0, help="Seed of the render and of organ colours (same seed → same images)."),
     threads: int = typer.Option(None, help="Dr.Jit render threads (default: Dr.Jit's choice)."),
-    weather: str = typer.Option(None, help="Weather (bundled name or file) when the results carry no sun/sky."),
+    weather: str = typer.Option(
+        None, help="Weather (bundled name or file) for results that carry no sun/sky (refused for those that do)."
+    ),
     depth: bool = typer.Option(True, "--depth/--no-depth", help="Write the depth_m label."),
     gallery: int = typer.Option(4, help="Images in gallery.png (0 = none)."),
     export: str = typer.Option("ply", help="Coloured field geometry: ply, vtk or none."),

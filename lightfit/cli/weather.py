@@ -40,14 +40,17 @@ def show(
     how: str = typer.Option(
         "mean", help="Resampling: mean (whole intervals; a centred window for instants) or sample."
     ),
-    plot: Path = typer.Option(None, help="Write a PNG plot here."),
+    plot: Path = typer.Option(None, help="Write a plot here; the suffix gives the format (.png, .pdf, .svg, …)."),
     csv: Path = typer.Option(None, help="Write the contract series as CSV here."),
 ) -> None:
     """Read a weather series, report its checks and repairs, print it, optionally plot/convert."""
     from lightfit import weather
+    from lightfit.figure import figure_format
     from lightfit.weather.plot import plot_forcing
 
     weather.require_date(source, date)  # an undated file: say --date, as the model commands do
+    if plot:
+        figure_format(plot)
     df = load(source, fmt, date, tz, max_gap, split, time_label)
     if resample:
         df = weather.resample(df, resample, how)

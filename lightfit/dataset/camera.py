@@ -251,8 +251,14 @@ def load_cameras(path: str | Path) -> list[Camera]:
             raise InputError(
                 f"camera #{i}: unknown key(s) {sorted(bad)}", file=path, expected=f"keys among {sorted(known)}"
             )
-        cams.append(Camera(**{"name": f"cam{i:03d}", **c}))
-    check_unique_names(cams)
+        try:
+            cams.append(Camera(**{"name": f"cam{i:03d}", **c}))
+        except InputError as err:  # the camera's own check, restated for the file it came from
+            raise InputError(err.problem, file=path, column=err.column, expected=err.expected) from err
+    try:
+        check_unique_names(cams)
+    except InputError as err:
+        raise InputError(err.problem, file=path, column=err.column, expected=err.expected) from err
     return cams
 
 

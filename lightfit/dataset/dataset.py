@@ -49,7 +49,8 @@ class DatasetSpec:
             left at the default, otherwise an error.
         settings: renderer knobs (spp, path depth, colour, seed, threads).
         materials: visual materials of the data scene.
-        weather: weather source (bundled name or file) when the results carry no sun/sky.
+        weather: weather source (bundled name or file) for results that carry no sun/sky; refused
+            for results that do (their sun and sky lit the labels).
         depth: write the ``depth_m`` label.
         gallery_images: images shown in ``gallery.png`` (0 = no gallery).
         export: ``"ply"``, ``"vtk"`` or ``"none"`` for the coloured field geometry.

@@ -220,9 +220,17 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
     From the results' own ``sun_elevation_deg``, ``sun_azimuth_deg``, ``dni_w_m2``, ``dhi_w_m2``
     when present; otherwise sun angles from the solar position at the site and DNI/DHI from
     ``weather_source`` (a bundled weather name or file; default the bundled series of the
-    results' target date), interpolated in time.
+    results' target date), interpolated in time. A ``weather_source`` for results that carry
+    their own sun and sky is refused: the images would be lit by another sky than the labels.
     """
     ds = res.ds
+    if all(v in ds for v in LIGHT_VARS) and weather_source is not None:
+        raise InputError(
+            f"weather {weather_source!r} given, but the results carry their own sun and sky "
+            f"({', '.join(LIGHT_VARS)}), which lit the labels",
+            column="weather",
+            expected="no weather for these results (it is used only for results without them)",
+        )
     if all(v in ds for v in LIGHT_VARS):
         cols = {v: ds[v].values[time_indices].astype(float) for v in LIGHT_VARS}
     else:

@@ -1,4 +1,4 @@
-"""Top and side view of a built field, as a PNG a person can look at."""
+"""Top and side view of a built field, as an image a person can look at (PNG, PDF, SVG, …)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
+from lightfit.figure import figure_format  # noqa: E402
 from lightfit.plant.field import FieldGeometry  # noqa: E402
 
 # Buffer plants first so the measured plants are drawn on top.
@@ -23,8 +24,10 @@ COLOURS = {
 
 
 def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
-    """Top view (x–y) and side view (x–z) of the mesh; buffer plants drawn pale."""
+    """Top view (x–y) and side view (x–z) of the mesh; buffer plants drawn pale. The format
+    comes from the suffix of ``path`` (:func:`lightfit.figure.figure_format`)."""
     path = Path(path)
+    figure_format(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     m = geom.mesh
     measured_ids = set(geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy().tolist())

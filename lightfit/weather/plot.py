@@ -12,6 +12,8 @@ import matplotlib.dates as mdates  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from lightfit.figure import figure_format  # noqa: E402
+
 
 def provenance_label(df: pd.DataFrame) -> str:
     """Upper-case provenance word for titles, so a reconstruction is never mistaken for data."""
@@ -19,11 +21,13 @@ def provenance_label(df: pd.DataFrame) -> str:
 
 
 def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None, tz: str = "Europe/Berlin") -> Path:
-    """Write a four-panel PNG of a contract series; the title states its provenance.
+    """Write a four-panel figure of a contract series; the title states its provenance. The
+    format comes from the suffix of ``path`` (:func:`lightfit.figure.figure_format`).
 
     Times are shown in ``tz`` (local civil time by default) and the axis says so.
     """
     path = Path(path)
+    figure_format(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     local = df.tz_convert(tz)
     t = local.index.tz_localize(None)

@@ -1,0 +1,25 @@
+"""The one check of a figure's file name that a user chooses (``field --preview``,
+``weather show --plot``): the format comes from the suffix, as matplotlib reads it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from lightfit.errors import InputError
+
+#: Suffixes matplotlib's Agg backend writes with no extra software (no LaTeX, no codec).
+FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "tif", "tiff", "eps")
+
+
+def figure_format(path: str | Path) -> str:
+    """The image format a file name asks for (:data:`FORMATS`), or :class:`InputError` naming
+    the file. Callers check before the work that the figure shows, so that a typo costs nothing."""
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        raise InputError(
+            f"unknown image format {path.suffix!r}" if fmt else "no image format in the file name",
+            file=path,
+            expected="a file name ending in " + ", ".join(f".{k}" for k in FORMATS),
+        )
+    return fmt
