@@ -4,7 +4,8 @@ Long runs promise that a process killed at any moment and rerun with the same co
 the uninterrupted run's result. Killing from outside at a precise moment (after a given render,
 MCMC step or calibration step) is racy, so the runs call :func:`kill_point` at the moments worth
 testing; with ``LIGHTFIT_TEST_KILL_AFTER="<kind>:<n>"`` in the environment the process sends
-itself SIGKILL there — the same signal, without cleanup, as a user's ``kill -9``.
+itself SIGKILL there — the same signal, without cleanup, as a user's ``kill -9``; with
+``"<kind>:<n>:INT"`` it sends SIGINT, a user's Ctrl-C, which Python raises as KeyboardInterrupt.
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
 
 
 def kill_point(kind: str, n: int) -> None:
-    """SIGKILL this process if :data:`KILL_HOOK` names this moment (``kind:n``); else nothing."""
-    if os.environ.get(KILL_HOOK, "") == f"{kind}:{n}":
+    """SIGKILL this process if :data:`KILL_HOOK` names this moment (``kind:n``), SIGINT if it
+    names it with ``:INT``; else nothing."""
+    hook = os.environ.get(KILL_HOOK, "")
+    if hook == f"{kind}:{n}":
         os.kill(os.getpid(), signal.SIGKILL)
+    elif hook == f"{kind}:{n}:INT":
+        os.kill(os.getpid(), signal.SIGINT)

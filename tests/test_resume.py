@@ -233,4 +233,15 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
     strip = [{k: v for k, v in r.items() if k != "seconds"} for r in a["surrogate"]["rounds"]]
     assert strip == [{k: v for k, v in r.items() if k != "seconds"} for r in b["surrogate"]["rounds"]]
     assert a["surrogate"]["passed"] and a["surrogate"]["renders_new"] == 6 + len(strip)
+    # Ctrl-C (SIGINT) after the third design render: exit 130 and a line that says what was kept and
+    # how to go on (it used to end in click's bare "Aborted!"); the same command then ends as above.
+    rc, output = lightfit(args, tmp_path / "ctrl-c", kill_after="render:3:INT")
+    flat = " ".join(output.split())
+    assert rc == 130 and len(renders(tmp_path / "ctrl-c")) == 3, output
+    assert "interrupted: every finished design render is kept" in flat and "rerun the same command to resume" in flat
+    assert "Traceback" not in output
+    rc, output = lightfit(args, tmp_path / "ctrl-c")
+    assert rc == 0, output
+    c = json.loads((tmp_path / "ctrl-c" / "calibration.json").read_text())
+    assert c["theta"] == a["theta"] and c["loss"] == a["loss"]
     assert b["surrogate"]["renders_cached"] == 3 and b["surrogate"]["renders_new"] == 3 + len(strip)

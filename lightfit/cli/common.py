@@ -55,6 +55,22 @@ class LightfitGroup(TyperGroup):
             # soft_wrap: a long file path must stay on one line, for users and for tests alike.
             err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
             raise typer.Exit(2) from None
+        except KeyboardInterrupt:  # Ctrl-C: what was kept, and how to go on; 128 + SIGINT, as shells do
+            kept = RESUMABLE.get(getattr(command, "name", None))
+            line = f"{kept}; rerun the same command to resume" if kept else "rerun the command to start it again"
+            err_console.print(f"[yellow]interrupted[/]: {line}", soft_wrap=True, highlight=False)
+            raise typer.Exit(130) from None
+
+
+#: What a command interrupted anywhere keeps for its rerun (tests/test_resume.py kills them at
+#: every stage and reruns them to the uninterrupted result). ``posterior`` interrupted while
+#: sampling says so itself, with the chain's status.
+RESUMABLE = {
+    "posterior": "every finished design render is kept in the design cache and every finished "
+    "sampling step in --out's run.h5",
+    "calibrate": "every finished design render is kept in the design cache and every accepted step "
+    "in --out (history.jsonl, or trust_region/ with the surrogate)",
+}
 
 
 def invoked_command(group, ctx):
