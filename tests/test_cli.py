@@ -526,7 +526,8 @@ def test_every_bad_option_value_exits_2_with_one_line(command, flag, value, tmp_
     the option (or its parameter), no traceback, and nothing grown or rendered (an empty plant cache)."""
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     own = [str(OBSERVATIONS)] if command in ("calibrate",) else []
-    r = runner.invoke(app, [command, *own, "--quick", "--out", str(tmp_path / "out"), flag, value, *WITH.get(flag, [])])
+    out = tmp_path / ("out.nc" if command == "field-run" else "out")  # field-run writes one netCDF file
+    r = runner.invoke(app, [command, *own, "--quick", "--out", str(out), flag, value, *WITH.get(flag, [])])
     assert_user_error(r)
     err = r.stderr.strip()
     if err.startswith("error:"):
