@@ -9,7 +9,10 @@ __version__ = "0.1.0"
 
 # Dr.Jit reads DRJIT_LIBLLVM_PATH when it is first imported, so point it at libLLVM >= 16 as
 # early as possible: importing lightfit before drjit/mitsuba is enough.
+from lightfit.light.backend import configure_jax_memory as _configure_jax_memory  # noqa: E402
 from lightfit.light.backend import configure_libllvm as _configure_libllvm  # noqa: E402
+
+_configure_jax_memory()
 
 try:
     _configure_libllvm()

@@ -54,6 +54,20 @@ def test_mitsuba_renders_with_llvm_in_a_fresh_process():
     assert float(t) == pytest.approx(4.0, abs=1e-5)  # unit sphere hit at distance 5 − 1
 
 
+@pytest.mark.parametrize("user", [None, "true"])
+def test_jax_leaves_the_gpu_memory_to_dr_jit_unless_the_user_says(user):
+    """Importing lightfit turns off JAX's preallocation of 75 % of a GPU (which a CUDA jaxlib would
+    take from Dr.Jit's cuda_ad renders); a value the user set stays. JAX reads it from the
+    environment when it creates its client, so a fresh interpreter shows what JAX would see."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_PYTHON_CLIENT_PREALLOCATE"}
+    if user is not None:
+        env["XLA_PYTHON_CLIENT_PREALLOCATE"] = user
+    code = "import os, lightfit; print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == (user or "false")
+
+
 def test_unknown_variant_and_missing_cuda_are_clear_errors():
     with pytest.raises(backend.BackendError, match="not in this Mitsuba build"):
         backend.mitsuba("llvm_ad_hyperspectral")

@@ -399,7 +399,8 @@ def connect(
     for name, v in (("workers", n), ("threads_per_worker", t)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1")
-    env = {ENV_THREADS: str(t), "OMP_NUM_THREADS": str(t), "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    # Workers inherit this process's environment, XLA_PYTHON_CLIENT_PREALLOCATE (backend.configure_jax_memory) too.
+    env = {ENV_THREADS: str(t), "OMP_NUM_THREADS": str(t)}
     if t == 1:
         env["XLA_FLAGS"] = (
             os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"

@@ -116,6 +116,18 @@ def configure_libllvm() -> tuple[str | None, str | None]:
     return None, None
 
 
+def configure_jax_memory() -> None:
+    """Keep JAX from preallocating a GPU's memory, unless the user set it
+    (``XLA_PYTHON_CLIENT_PREALLOCATE``).
+
+    With a CUDA jaxlib installed, JAX takes 75 % of a GPU's memory at its first computation
+    there, and Dr.Jit's renders in ``cuda_ad_*`` would then run out of what is left; lightfit's
+    JAX work (photosynthesis, inference) needs little. JAX reads the variable when it creates its
+    GPU client, so setting it when lightfit is imported is early enough.
+    """
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+
 def cuda_usable() -> bool:
     """True when the CUDA driver library loads and reports at least one device."""
     name = ctypes.util.find_library("cuda")
