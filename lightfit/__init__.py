@@ -8,7 +8,8 @@ use them and nothing below imports them (docs/architecture.md).
 __version__ = "0.1.0"
 
 # Dr.Jit reads DRJIT_LIBLLVM_PATH when it is first imported, so point it at libLLVM >= 16 as
-# early as possible: importing lightfit before drjit/mitsuba is enough.
+# early as possible: importing lightfit before drjit/mitsuba is enough. JAX reads
+# XLA_PYTHON_CLIENT_PREALLOCATE when it first uses a GPU: set before then too.
 from lightfit.light.backend import configure_jax_memory as _configure_jax_memory  # noqa: E402
 from lightfit.light.backend import configure_libllvm as _configure_libllvm  # noqa: E402
 

@@ -155,7 +155,7 @@ RANK = {
     "dataset": 6,
     "cli": 7,
 }
-SHARED = {"errors", "precision", "killpoint", "cache", ""}
+SHARED = {"errors", "precision", "killpoint", "cache", "figure", ""}
 
 
 def layer_violations(root: Path) -> list[str]:

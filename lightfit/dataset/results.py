@@ -224,14 +224,15 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
     their own sun and sky is refused: the images would be lit by another sky than the labels.
     """
     ds = res.ds
-    if all(v in ds for v in LIGHT_VARS) and weather_source is not None:
+    own = all(v in ds for v in LIGHT_VARS)
+    if own and weather_source is not None:
         raise InputError(
             f"weather {weather_source!r} given, but the results carry their own sun and sky "
             f"({', '.join(LIGHT_VARS)}), which lit the labels",
             column="weather",
             expected="no weather for these results (it is used only for results without them)",
         )
-    if all(v in ds for v in LIGHT_VARS):
+    if own:
         cols = {v: ds[v].values[time_indices].astype(float) for v in LIGHT_VARS}
     else:
         wx = _weather(res, weather_source)
