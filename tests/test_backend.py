@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from lightfit.light import backend
@@ -66,6 +67,28 @@ def test_jax_leaves_the_gpu_memory_to_dr_jit_unless_the_user_says(user):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == (user or "false")
+
+
+@pytest.mark.parametrize("n", [0, 1, 7323, backend.SUM_BLOCK, 3 * backend.SUM_BLOCK + 5])
+def test_sum_float64_is_the_float64_sum_with_the_same_bits_on_any_thread_count(n):
+    """The reverse passes' sum (per-hit gradients, summed on the device in blocks): numpy's float64
+    sum of the same values to rounding, and bit-identical whatever Dr.Jit's thread count."""
+    import drjit as dr
+
+    mi = backend.mitsuba()
+    x = np.random.default_rng(n).standard_normal(n).astype(np.float32) * 1e3
+    a = mi.Float(x)
+    want = float(np.sum(x.astype(np.float64)))
+    assert backend.sum_float64(a) == pytest.approx(want, rel=1e-12, abs=1e-9)
+    threads = dr.thread_count()
+    try:
+        got = set()
+        for k in (1, 2, 5):
+            dr.set_thread_count(k)
+            got.add(backend.sum_float64(a))
+    finally:
+        dr.set_thread_count(threads)
+    assert len(got) == 1
 
 
 def test_unknown_variant_and_missing_cuda_are_clear_errors():

@@ -66,7 +66,7 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError, check_integer
 from lightfit.light import projection
-from lightfit.light.backend import owned
+from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
 from lightfit.light.keyed_random import hash32, keyed_uniforms
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
@@ -936,7 +936,7 @@ class SegmentEstimator:
             self._wrap_log = []
             # With a projection and one bounce the paths carry nothing: no dependence to follow.
             dr.backward(dr.sum(sum(w[p] * vals[p] for p in PARTS)), flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
-            grads = {k: float(np.sum(np.asarray(dr.grad(v), dtype=np.float64))) for k, v in wide.items()}
+            grads = {k: sum_float64(dr.grad(v)) for k, v in wide.items()}
         finally:
             for k, v in saved.items():
                 setattr(bsdf, k, v)

@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lightfit.errors import InputError
-from lightfit.light.backend import owned
+from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
 from lightfit.light.keyed_random import random_bits
 from lightfit.light.periodic import CAPPED, LEAF, SOIL
@@ -508,7 +508,7 @@ class DirectProjection:
                 loss = c * self._flux(h)
                 dr.backward(dr.sum(loss))
                 for k, v in wide.items():
-                    grads[k] += float(np.sum(np.asarray(dr.grad(v), dtype=np.float64)))
+                    grads[k] += sum_float64(dr.grad(v))
             finally:
                 for k, v in saved.items():
                     setattr(bsdf, k, v)
