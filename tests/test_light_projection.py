@@ -215,6 +215,34 @@ def test_suns_are_kept_within_the_memory_budget(field, monkeypatch):
         fs.set_sun(40.0, 150.0)
 
 
+def test_a_pass_where_no_ray_goes_on_gives_empty_scattered_hits(field, monkeypatch):
+    """A pass none of whose rays is continued (a short last pass can have none; a benchmark with
+    other random words met one) used to fail inside Dr.Jit (an empty array divided by a scalar).
+    Now its scattered hit sets are empty: the direct hits are those of a normal render, bit for
+    bit, and the values and gradient are finite."""
+    import drjit as dr
+
+    from lightfit.light import projection
+
+    fs, ids = field
+    kw = dict(samples=8, bounces=2, seed=5, direct="projection", direct_rays_per_m2=(1e6, 2e6))
+    ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
+    normal = SegmentEstimator(fs, ids, **kw)
+    normal.render()
+    monkeypatch.setattr(projection, "CONTINUED_SHARE", {"sun": 1e-12, "sky": 1e-12})
+    est = SegmentEstimator(fs, ids, **kw)
+    r, g = est.render(), est.vjp(ct)
+    for kind in ("sun", "sky"):
+        direct, via_leaf, via_soil = est._direct.hits(kind)
+        assert dr.width(via_leaf.mu) == dr.width(via_soil.mu) == 0, kind
+        ref = normal._direct.hits(kind)[0]
+        assert np.array_equal(np.asarray(direct.index), np.asarray(ref.index)), kind
+        assert np.array_equal(np.asarray(direct.mu), np.asarray(ref.mu)), kind
+    for part in ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky"):
+        assert np.isfinite(getattr(r, part)).all() and (getattr(r, part) >= 0).all(), part
+    assert all(np.isfinite(v) for v in g.values()), g
+
+
 def test_casting_in_passes_gives_the_same_values_and_counts(field, monkeypatch):
     """The rays are keyed by their index and summed in fixed point: cast in many small passes
     (:data:`CAST_CHUNK`) they give one pass's values and SEs to the bit and the summary's counts

@@ -321,6 +321,8 @@ class DirectProjection:
         q = CONTINUED_SHARE[kind]
         go_on = mi.Float(random_bits(mi, idx, self.seed, kind, 4)[0] >> 8) * to_unit < q
         sel = dr.compress((hit | on_soil) & go_on)
+        if dr.width(sel) == 0:  # no ray of this pass goes on (a short last pass may have none)
+            return [direct, *(self._no_hits(kind, part, n, flux_ref) for part in ("via_leaf", "via_soil"))]
         idx, rep, hit, on_soil, o_last, maxt, pi = (
             dr.gather(type(x), x, sel) for x in (idx, rep, hit, on_soil, o_last, maxt, pi)
         )
@@ -349,6 +351,14 @@ class DirectProjection:
             landed & on_soil, pi.prim_index, -d1, rep, weight, w0, n, flux_ref, stopped & on_soil, part="via_soil"
         )
         return [direct, via_leaf, via_soil]
+
+    def _no_hits(self, kind: str, part: str, n: int, flux_ref: float) -> Hits:
+        """An empty set of ``part``'s hits for a pass of ``n`` rays of ``kind`` (Dr.Jit refuses
+        arithmetic between an empty array and a scalar, so the continuation is not run on none)."""
+        mi = self.mi
+        scatter = (mi.Vector3f(), mi.Vector3f(), mi.Float(), mi.Bool()) if part == "via_leaf" else None
+        weight = mi.Float() if kind == "sky" else None
+        return Hits(mi.UInt32(), mi.Float(), mi.Bool(), weight, 1.0, n, 0, flux_ref, scatter, part)
 
     def _deposit(self, hit, face, w, rep, weight, w0, n, flux_ref, capped, sample=None, part="direct") -> Hits:
         """The rays that met a requested segment's counted side (blades: both, stems: the outer),
