@@ -88,7 +88,9 @@ def main(
     t_fixed = min(walls)
     blade = r.meta["is_blade"]
     tot = r.total("absorbed", DNI, DHI)
-    indep = np.sqrt((DNI * r.se["absorbed_sun"]) ** 2 + (DHI * r.se["absorbed_sky"]) ** 2) / tot
+    # A segment no light reaches (tot = 0) has no relative SE: inf, as Irradiance.relative_se says.
+    se_indep = np.sqrt((DNI * r.se["absorbed_sun"]) ** 2 + (DHI * r.se["absorbed_sky"]) ** 2)
+    indep = np.divide(se_indep, tot, out=np.full_like(tot, np.inf), where=tot != 0)
     cov = r.relative_se("absorbed", DNI, DHI)
     fixed = {
         "samples": r.samples,

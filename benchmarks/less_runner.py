@@ -143,6 +143,13 @@ def main(export: Path, only_seed: int | None = None) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
-        sys.exit("usage: less_runner.py EXPORT_DIR [PERMUTATION_SEED]")
-    main(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) == 3 else None)
+    import argparse
+    import importlib.util
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("export", type=Path, help="the folder bench_less.py exported the field into")
+    ap.add_argument("permutation_seed", type=int, nargs="?", help="run only this face order's runs")
+    a = ap.parse_args()
+    if importlib.util.find_spec("less") is None:  # run by bench_less.py with .venv-less's Python
+        sys.exit("less_runner.py needs LESS 3 (less3d): run it with .venv-less/bin/python (README, LESS 3 peer)")
+    main(a.export, a.permutation_seed)

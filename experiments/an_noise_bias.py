@@ -144,4 +144,6 @@ if __name__ == "__main__":
     ap.add_argument("--seeds", type=int, default=4, help="render seeds per K (≥ 2 for standard errors)")
     ap.add_argument("--out", type=Path, default=ROOT / "experiments" / "results" / "an_noise_bias.json")
     a = ap.parse_args()
+    if len(set(a.samples)) < 2:  # the bias is fitted as a + c / K: one K cannot separate them
+        ap.error("--samples needs at least two different K (the bias is fitted as a + c/K)")
     main(a.samples, a.seeds, a.out)

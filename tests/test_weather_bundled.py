@@ -33,6 +33,19 @@ def test_bundled_reconstruction_is_labelled_and_reproducible(tmp_path):
     assert len(df) == 144 and df.index[0] == pd.Timestamp("2016-04-20", tz="UTC")
 
 
+def test_the_reconstruction_script_writes_the_bundled_file_byte_for_byte(tmp_path):
+    """experiments/reconstruct_forcing_2016_04_20.py promises the bundled file byte for byte, header
+    included (a header line the writer had gained, ``time_label``, was missing from the file)."""
+    import subprocess
+    import sys
+
+    script = DATA_DIR.parent / "experiments" / "reconstruct_forcing_2016_04_20.py"
+    out = tmp_path / "forcing.csv"
+    r = subprocess.run([sys.executable, str(script), "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes() == bundled_path("2016-04-20").read_bytes()
+
+
 def test_reconstruction_reproduces_the_anchor():
     a = Anchor()
     t = a.time_utc
