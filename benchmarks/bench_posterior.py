@@ -1,12 +1,15 @@
 """Benchmark: posterior sampling of the default 20 April 2016 configuration on the available cores.
 
     .venv/bin/python benchmarks/bench_posterior.py [--renders DIR] [--n-design 16] [--n-test 2]
+        [--walkers 32] [--max-steps 20000]
 
-Default field (100 plants, 2 buffer rows, K=64, 3 bounces, absorbed PAR), bundled chamber record,
-informed priors, sampled: specular, roughness, subsurface, light_factor. Steps and what is timed:
+The main job's configuration (``ReplicationConfig()``: its field, K, bounces and observable; the
+JSON's ``config`` records them), bundled chamber record, informed priors, sampled: specular,
+roughness, subsurface, light_factor. Steps and what is timed:
 
-1. full render passes (25 daytime steps) at a Sobol design over the prior box and at held-out
-   points — cached one file per render in DIR, so an interrupted benchmark loses no render;
+1. full render passes (the daytime steps) at a Sobol design over the prior box and at held-out
+   points — cached one file per render in DIR/designs/<hash of the render key>/bench_renders, so
+   an interrupted benchmark loses no render and another configuration never reads them;
 2. emulator fit (LOO-chosen degree) and its error at the held-out renders;
 3. emcee (32 walkers) until the stop rule (ESS ≥ 50 per parameter, n_kept ≥ 20 τ, stable τ);
 4. the analysis (optimum, Fisher, profile, predictive, emulator error vs posterior width).
@@ -35,6 +38,7 @@ from lightfit.inference.observations import read_observations  # noqa: E402
 from lightfit.light.bsdf import LEAF_PARAMETERS  # noqa: E402
 from lightfit.model import emulator as E  # noqa: E402
 from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
+from lightfit.report import field_label  # noqa: E402
 
 NAMES = ("specular", "roughness", "subsurface", "light_factor")
 
@@ -45,6 +49,7 @@ def main(argv=None):
     ap.add_argument("--n-design", type=int, default=16)
     ap.add_argument("--n-test", type=int, default=2)
     ap.add_argument("--walkers", type=int, default=32)
+    ap.add_argument("--max-steps", type=int, default=20000, help="emcee steps at most (the stop rule may end sooner)")
     ap.add_argument("--out", type=Path, default=Path("results/posterior/bench_default.h5"))
     ap.add_argument("--json", type=Path, default=Path("benchmarks/results/posterior.json"))
     args = ap.parse_args(argv)
@@ -55,7 +60,7 @@ def main(argv=None):
     cfg = ReplicationConfig()
     model = model_for(cfg, forcing())
     t_build = time.perf_counter() - t
-    d = args.renders
+    d = E.design_dir(model, args.renders) / "bench_renders"  # keyed by everything a render depends on
     d.mkdir(parents=True, exist_ok=True)
     design = E.sobol_design(16, lo, hi, 0)
     test = E.sobol_design(4, lo, hi, 1)[:3]
@@ -104,7 +109,7 @@ def main(argv=None):
         names=NAMES,
         priors=pri,
         nwalkers=args.walkers,
-        max_steps=20000,
+        max_steps=args.max_steps,
         seed=0,
         resume=False,
         stop=P.StopRule(target_ess=50),
@@ -114,8 +119,10 @@ def main(argv=None):
     out = {
         "command": "benchmarks/bench_posterior.py " + " ".join(argv or []),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor()},
-        "config": "ReplicationConfig() default: 100 plants, 2 buffer rows, K=64, 3 bounces, absorbed PAR; "
-        "bundled chamber record (1 PAR point); informed priors",
+        "config": f"ReplicationConfig() default: {cfg.n_plants} plants, {field_label(cfg.field())}, "
+        f"K={model.scenario.samples}, {model.scenario.bounces} bounces, {cfg.par_kind} PAR; "
+        "bundled chamber record; informed priors",
+        "render_key": E.render_key(model),
         "n_segments": int(len(model.segment_id)),
         "n_blades": int(model.is_blade.sum()),
         "daytime_steps": int(model.day.sum()),
