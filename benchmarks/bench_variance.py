@@ -27,6 +27,7 @@ whose load is recorded (``load_average``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -87,10 +88,7 @@ def main(
         cpus.append(time.process_time() - c)
     t_fixed = min(walls)
     blade = r.meta["is_blade"]
-    tot = r.total("absorbed", DNI, DHI)
-    # A segment no light reaches (tot = 0) has no relative SE: inf, as Irradiance.relative_se says.
-    se_indep = np.sqrt((DNI * r.se["absorbed_sun"]) ** 2 + (DHI * r.se["absorbed_sky"]) ** 2)
-    indep = np.divide(se_indep, tot, out=np.full_like(tot, np.inf), where=tot != 0)
+    indep = dataclasses.replace(r, cov={}).relative_se("absorbed", DNI, DHI)  # the parts as independent
     cov = r.relative_se("absorbed", DNI, DHI)
     fixed = {
         "samples": r.samples,

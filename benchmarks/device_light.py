@@ -192,7 +192,9 @@ def prepare(n_plants: int, python_version: str) -> None:
         organ=organ,
         cell=np.array([c.along_m, c.across_m, c.row_direction_deg, *c.center_xy]),
         optics=json.dumps(Optics.preset("prospect").__dict__),
-        meta=json.dumps({"n_plants": n_plants, "python": python_version, **commit_state()}),
+        meta=json.dumps(
+            {"n_plants": n_plants, "python": python_version, **commit_state(), "source_digest": source_digest()}
+        ),
         **ref,
     )
     sizes = {p.name: p.stat().st_size for p in [*(DEVICE / "wheels").glob("*.whl"), DEVICE / "geometry.npz"]}
@@ -200,6 +202,18 @@ def prepare(n_plants: int, python_version: str) -> None:
         print(f"{size / 2**20:7.1f} MiB  device/{'wheels/' if name.endswith('.whl') else ''}{name}")
     print(f"{sum(sizes.values()) / 2**20:7.1f} MiB  to carry (a call carries 64 MiB with the working tree)")
     print('run: command "bash benchmarks/device_light.sh", carry ["device/wheels", "device/geometry.npz"]')
+
+
+def source_digest() -> str:
+    """SHA-256 (first 12 hex digits) of lightfit's sources and this script, as they run: the
+    device gets a copy of the working tree without its git history, so the results name the code
+    by content; ``prepare`` records it too, with the commit."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for f in sorted([*(ROOT / "lightfit").rglob("*.py"), Path(__file__).resolve()]):
+        h.update(f.relative_to(ROOT).as_posix().encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:12]
 
 
 def run(out: Path, budget_s: float, settings) -> dict:
@@ -224,6 +238,7 @@ def run(out: Path, budget_s: float, settings) -> dict:
     gpu = subprocess.run(smi, capture_output=True, text=True).stdout.strip() if shutil.which(smi[0]) else ""
     res = {
         "prepared": json.loads(str(g["meta"])),
+        "source_digest": source_digest(),
         "mitsuba_variant": backend.info().variant,
         "gpu": gpu or None,
         "segments": len(ids),
@@ -305,8 +320,10 @@ def _agreement(fs, ids, g) -> dict:
 def _gradient_check(fs, ids, g, repeats: int = 3) -> dict:
     """The reverse-mode gradient on this variant against (a) the reference's, same seed, and (b)
     central differences with common random numbers (the same estimator rendered at θ ± h), and
-    its time against the primal's (wall clock, medians of ``repeats``; the primal keeps its
-    paths and casts its sun again, as a new step of a day does, like bench_gradient.py)."""
+    its time against the primal's (wall clock, medians of ``repeats``). The primal re-weighs the
+    estimator's kept paths and projected rays at the same sun, as a calibration's renders at new
+    leaf parameters do; a later step of a day, which casts the sun's rays again, is
+    ``day_step_s`` of the settings."""
     ct = _cotangent(len(ids))
     leaf = {k: getattr(fs.optics, k) for k in GRADIENT_AT}
     est = _gradient_estimator(fs, ids)

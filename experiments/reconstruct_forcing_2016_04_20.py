@@ -3,7 +3,8 @@
     python experiments/reconstruct_forcing_2016_04_20.py [--out data/weather/...csv]
 
 Deterministic: the same lightfit and pvlib versions give the same file byte for byte
-(tests/test_weather_bundled.py checks the bundled file against a fresh reconstruction).
+(tests/test_weather_bundled.py checks the bundled file against a fresh reconstruction: the
+header exactly, the values to 8 significant digits).
 Every assumption is a field of lightfit.weather.Anchor / DayAssumptions and is written
 into the file's metadata header; data/README.md explains them.
 """

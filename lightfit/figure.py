@@ -7,8 +7,9 @@ from pathlib import Path
 
 from lightfit.errors import InputError
 
-#: Suffixes matplotlib's Agg backend writes with no extra software (no LaTeX, no codec).
-FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "tif", "tiff", "eps")
+#: Suffixes matplotlib writes without a display through lightfit's dependencies (Pillow for the
+#: raster formats beyond PNG): its own list less pgf (needs LaTeX) and the raw buffers.
+FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff", "webp", "gif", "avif")
 
 
 def figure_format(path: str | Path) -> str:

@@ -285,8 +285,8 @@ def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypat
     assert not (tmp_path / "cache").exists() and not (tmp_path / "r.csv").exists()
 
 
-@pytest.mark.parametrize("command", ["replicate", "posterior"])
-def test_ctrl_c_exits_130_saying_what_was_kept(command, tmp_path, monkeypatch):
+@pytest.mark.parametrize("command, extra", [("replicate", []), ("posterior", []), ("posterior", ["--no-resume"])])
+def test_ctrl_c_exits_130_saying_what_was_kept(command, extra, tmp_path, monkeypatch):
     """A KeyboardInterrupt anywhere in a command: exit 130 (128 + SIGINT) and one line on stderr;
     a command that resumes says what it keeps (tests/test_resume.py sends a real SIGINT)."""
 
@@ -297,12 +297,14 @@ def test_ctrl_c_exits_130_saying_what_was_kept(command, tmp_path, monkeypatch):
 
     # The module, not the command function of the same name that lightfit.cli exports.
     monkeypatch.setattr(importlib.import_module(f"lightfit.cli.{command}"), "resolve", interrupted)
-    r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path)])
+    r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path), *extra])
     assert r.exit_code == 130, r.output
     line = " ".join(r.stderr.split())
     assert line.startswith("interrupted: ") and "Traceback" not in r.output and "Aborted" not in r.output
-    if command == "posterior":
-        assert "design cache" in line and "rerun the same command to resume" in line
+    if extra:  # the same command would start over again: say how to resume instead
+        assert "design cache" in line and line.endswith("rerun without --no-resume to resume")
+    elif command == "posterior":
+        assert "design cache" in line and line.endswith("rerun the same command to resume")
     else:
         assert line == "interrupted: rerun the command to start it again"
 

@@ -139,7 +139,7 @@ def test_posterior_cli_interrupted_while_sampling_says_how_to_resume(tmp_path, m
     args += ["--max-steps", "30", "--n-design", "6", "--n-test", "1"]
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 130, r.output
-    assert "rerun the same command to resume" in " ".join(r.output.split())
+    assert "rerun the same command to resume" in " ".join(r.stderr.split())  # on stderr, as every error
     run = load_run(out / "run.h5")
     assert 0 < run["chain"].shape[0] < 30 and "analysis" not in run
     monkeypatch.setattr(A, "sample", real)

@@ -33,9 +33,10 @@ def test_bundled_reconstruction_is_labelled_and_reproducible(tmp_path):
     assert len(df) == 144 and df.index[0] == pd.Timestamp("2016-04-20", tz="UTC")
 
 
-def test_the_reconstruction_script_writes_the_bundled_file_byte_for_byte(tmp_path):
-    """experiments/reconstruct_forcing_2016_04_20.py promises the bundled file byte for byte, header
-    included (a header line the writer had gained, ``time_label``, was missing from the file)."""
+def test_the_reconstruction_script_writes_the_bundled_files_header(tmp_path):
+    """experiments/reconstruct_forcing_2016_04_20.py writes the bundled file's header exactly (a line
+    the writer had gained, ``time_label``, was missing from the file) and its values (the test above
+    compares them to 8 significant digits, which other pvlib or numpy versions may move in the last)."""
     import subprocess
     import sys
 
@@ -43,7 +44,15 @@ def test_the_reconstruction_script_writes_the_bundled_file_byte_for_byte(tmp_pat
     out = tmp_path / "forcing.csv"
     r = subprocess.run([sys.executable, str(script), "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    assert out.read_bytes() == bundled_path("2016-04-20").read_bytes()
+
+    def header(path):  # the # lines and the column names
+        lines = path.read_text(encoding="utf-8").splitlines()
+        n = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+        return lines[: n + 1]
+
+    assert header(out) == header(bundled_path("2016-04-20"))
+    fresh, bundled = read_weather(out), read_weather(bundled_path("2016-04-20"))
+    assert np.allclose(fresh.to_numpy(float), bundled.to_numpy(float), rtol=1e-7, atol=1e-9)
 
 
 def test_reconstruction_reproduces_the_anchor():

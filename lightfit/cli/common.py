@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import warnings
 from pathlib import Path
+from typing import NoReturn
 
 import typer
 from rich.console import Console
@@ -45,7 +46,7 @@ class LightfitGroup(TyperGroup):
     """
 
     def invoke(self, ctx):
-        command = invoked_command(self, ctx)
+        command, args = invoked_command(self, ctx), invoked_args(ctx)  # click clears them when invoking
         try:
             with warnings.catch_warnings():
                 warnings.showwarning = _show_warning
@@ -55,11 +56,20 @@ class LightfitGroup(TyperGroup):
             # soft_wrap: a long file path must stay on one line, for users and for tests alike.
             err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
             raise typer.Exit(2) from None
-        except KeyboardInterrupt:  # Ctrl-C: what was kept, and how to go on; 128 + SIGINT, as shells do
-            kept = RESUMABLE.get(getattr(command, "name", None))
-            line = f"{kept}; rerun the same command to resume" if kept else "rerun the command to start it again"
-            err_console.print(f"[yellow]interrupted[/]: {line}", soft_wrap=True, highlight=False)
-            raise typer.Exit(130) from None
+        except KeyboardInterrupt:  # Ctrl-C
+            interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+
+
+def interrupted(kept: str | None, started_over: bool = False) -> NoReturn:
+    """Ctrl-C's one line on stderr — what was kept (``None``: nothing to resume from) and how to
+    go on — and exit status 130 (128 + SIGINT, as shells report it). ``started_over``: the run
+    was started with ``--no-resume``, which its rerun would repeat."""
+    if kept is None:
+        line = "rerun the command to start it again"
+    else:
+        line = f"{kept}; rerun {'without --no-resume' if started_over else 'the same command'} to resume"
+    err_console.print(f"[yellow]interrupted[/]: {line}", soft_wrap=True, highlight=False)
+    raise typer.Exit(130)
 
 
 #: What a command interrupted anywhere keeps for its rerun (tests/test_resume.py kills them at
@@ -73,12 +83,16 @@ RESUMABLE = {
 }
 
 
+def invoked_args(ctx) -> list[str]:
+    """The command line's arguments after the program's name, as the group's context holds them."""
+    return [*(getattr(ctx, "_protected_args", None) or getattr(ctx, "protected_args", None) or []), *ctx.args]
+
+
 def invoked_command(group, ctx):
     """The (sub-)command that the group's arguments name, e.g. ``weather show``; the group itself
     when they name none."""
-    args = [*(getattr(ctx, "_protected_args", None) or getattr(ctx, "protected_args", None) or []), *ctx.args]
     command = group
-    for a in args:
+    for a in invoked_args(ctx):
         sub = getattr(command, "commands", {}).get(a)  # a group's commands (typer vendors click)
         if sub is None:
             break

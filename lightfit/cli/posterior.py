@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import console, parse_names
+from lightfit.cli.common import console, interrupted, parse_names
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -187,9 +187,7 @@ def posterior(
     (out / "summary.json").write_text(json.dumps(P.jsonable(res), indent=2, default=str))
     if res["stopped_by"] == "interrupted":  # Ctrl-C while sampling: every finished step is kept
         _print_status(P.backend.run_status(out / "run.h5"))
-        kept = f"{out / 'run.h5'} keeps every finished step"
-        console.print(f"[yellow]interrupted[/]: {kept}; rerun the same command to resume")
-        raise typer.Exit(130)
+        interrupted(f"{out / 'run.h5'} keeps every finished step", started_over=not resume)
     if not analysis:
         _print_status(P.backend.run_status(out / "run.h5"))
         console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")

@@ -242,7 +242,6 @@ def load_cameras(path: str | Path) -> list[Camera]:
     if not isinstance(raw, list) or not raw:
         raise InputError("no cameras", file=path, expected="a non-empty JSON list of camera objects")
     known = set(Camera.__dataclass_fields__)
-    cams = []
     for i, c in enumerate(raw):
         if not isinstance(c, dict):
             raise InputError(f"camera #{i} is {type(c).__name__}", file=path, expected="a JSON object")
@@ -251,14 +250,11 @@ def load_cameras(path: str | Path) -> list[Camera]:
             raise InputError(
                 f"camera #{i}: unknown key(s) {sorted(bad)}", file=path, expected=f"keys among {sorted(known)}"
             )
-        try:
-            cams.append(Camera(**{"name": f"cam{i:03d}", **c}))
-        except InputError as err:  # the camera's own check, restated for the file it came from
-            raise InputError(err.problem, file=path, column=err.column, expected=err.expected) from err
     try:
+        cams = [Camera(**{"name": f"cam{i:03d}", **c}) for i, c in enumerate(raw)]
         check_unique_names(cams)
-    except InputError as err:
-        raise InputError(err.problem, file=path, column=err.column, expected=err.expected) from err
+    except InputError as err:  # the cameras' own checks, restated for the file they came from
+        raise InputError(err.problem, file=path, row=err.row, column=err.column, expected=err.expected) from err
     return cams
 
 

@@ -123,7 +123,8 @@ def configure_jax_memory() -> None:
     With a CUDA jaxlib installed, JAX takes 75 % of a GPU's memory at its first computation
     there, and Dr.Jit's renders in ``cuda_ad_*`` would then run out of what is left; lightfit's
     JAX work (photosynthesis, inference) needs little. JAX reads the variable when it creates its
-    GPU client, so setting it when lightfit is imported is early enough.
+    GPU client, so this holds where lightfit is imported before JAX first computes on a GPU (a
+    notebook that does that first keeps JAX's default); it applies to the whole process.
     """
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
@@ -225,15 +226,16 @@ SUM_BLOCK = 16384
 
 def sum_float64(x) -> float:
     """Σ x, a Dr.Jit array of the current variant, in float64: partial sums over blocks of
-    :data:`SUM_BLOCK` on the device, then the partials on the host. The same bits whatever the
-    number of threads (each block is summed by one worker, in order; tests/test_backend.py), and
-    only the partials are copied: a reverse pass's per-hit gradients (10⁷ floats and more) used
-    to be copied whole and summed by numpy, most of a gradient's time on 2 cores.
+    :data:`SUM_BLOCK` on the device, then the partials on the host. Evaluated block reductions
+    (``mode="evaluated"``: no atomics, which Dr.Jit would otherwise use for arrays over 1 GiB)
+    give the same bits whatever the number of threads (tests/test_backend.py), and only the
+    partials are copied: a reverse pass's per-hit gradients (10⁷ floats and more) used to be
+    copied whole and summed by numpy, 12× the time of the sum on a GPU (docs/benchmarks.md, "GPU").
     """
     import drjit as dr
 
     n = dr.width(x)
     if n == 0:
         return 0.0
-    partial = dr.block_sum(dr.float64_array_t(type(x))(x), min(SUM_BLOCK, n))
+    partial = dr.block_sum(dr.float64_array_t(type(x))(x), min(SUM_BLOCK, n), mode="evaluated")
     return float(np.sum(np.asarray(partial, dtype=np.float64)))
