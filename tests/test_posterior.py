@@ -501,6 +501,8 @@ def test_the_posterior_refuses_unconverged_photosynthesis(tmp_path):
     assert run.refused == lp.refused > 0
     assert (run.chain[..., 2] <= 1.3).all()
     assert P.load_run(tmp_path / "r.h5")["attrs"]["refused"] == run.refused
+    # The resume checks read the attributes alone (no chain, no diagnostics): the same dict.
+    assert P.backend.run_attrs(tmp_path / "r.h5") == P.load_run(tmp_path / "r.h5")["attrs"]
 
     # killed (SIGKILL after step 25 is stored) and resumed: the count is the uninterrupted run's
     code = textwrap.dedent(f"""

@@ -99,7 +99,7 @@ def posterior(
     # A stored chain made with other model settings (e.g. the finite field, before periodic became
     # the default) or another likelihood must not be resumed: checked before the plants are grown.
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
-        check_resumable(P.load_run(out / "run.h5")["attrs"].get("config"), s, out / "run.h5", "posterior run")
+        check_resumable(P.backend.run_attrs(out / "run.h5").get("config"), s, out / "run.h5", "posterior run")
         A.check_likelihood(out / "run.h5", form)
     m = run_model(s)  # several --date: one model per day
     # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
@@ -113,7 +113,7 @@ def posterior(
     keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, 0, E.DEGREES) for d in days]
     emu_key = keys[0] if dates is None else dict(zip(dates, keys))
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
-        before = P.load_run(out / "run.h5")["attrs"].get("emulator_key")
+        before = P.backend.run_attrs(out / "run.h5").get("emulator_key")
         if before is not None and before != emu_key:
             if dates is None or not isinstance(before, dict) or set(before) != set(emu_key):
                 changes = "; ".join(E.key_changes(before, emu_key)) if dates is None else "other dates"

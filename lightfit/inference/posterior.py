@@ -27,13 +27,12 @@ from lightfit.inference.mcmc import (
     Prior,
     StopRule,
     flat_samples,
-    load_run,
     priors_table,
     sample,
     summarize,
     write_group,
 )
-from lightfit.inference.mcmc.backend import stored_run
+from lightfit.inference.mcmc.backend import run_attrs, stored_run
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
@@ -110,7 +109,7 @@ def check_likelihood(path: str | Path, form: dict) -> None:
     would mix two posteriors): :class:`InputError` naming what changed."""
     if stored_run(Path(path), "mcmc") is None:
         return
-    before = stored_likelihood(load_run(path)["attrs"])
+    before = stored_likelihood(run_attrs(path))
     if before != form:
         changes = "; ".join(f"{k}: {before[k]!r} → {form[k]!r}" for k in form if before[k] != form[k])
         raise InputError(
@@ -127,7 +126,7 @@ def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps) -> N
     if stored_run(Path(path), "mcmc") is None:
         return
     now = observation_matching(obs, stamps)
-    before = load_run(path)["attrs"].get("observation_matching")
+    before = run_attrs(path).get("observation_matching")
     if before is None:
         if matched_as_by_stamp(obs, stamps):
             return

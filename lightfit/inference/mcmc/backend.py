@@ -167,6 +167,32 @@ def load_run(path: str | Path, group: str = "mcmc") -> dict:
     return _retry(lambda: _load_run(path, group))
 
 
+def run_attrs(path: str | Path, group: str = "mcmc") -> dict:
+    """A stored run's attributes (JSON-decoded, as :func:`load_run`'s ``attrs``) without reading its
+    chain or computing its diagnostics: what the resume checks compare."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("file not found", file=path, expected="an HDF5 file written by lightfit.inference.mcmc")
+
+    def read():
+        with open_h5(path) as f:
+            if group not in f:
+                raise InputError(f"no group {group!r}", file=path, expected="a posterior run")
+            return _decoded_attrs(f[group])
+
+    return _retry(read)
+
+
+def _decoded_attrs(g) -> dict:
+    out = {}
+    for k, v in g.attrs.items():
+        try:
+            out[k] = json.loads(v) if isinstance(v, str) else (v.item() if hasattr(v, "item") else v)
+        except (json.JSONDecodeError, TypeError):
+            out[k] = v
+    return out
+
+
 def _load_run(path: Path, group: str) -> dict:
     with open_h5(path) as f:
         if group not in f:
@@ -179,13 +205,8 @@ def _load_run(path: Path, group: str) -> dict:
             "log_prob": g["log_prob"][:n],
             "accepted": g["accepted_step"][:n].sum(axis=0) if "accepted_step" in g else g["accepted"][:],
             "checks": {k: g[f"check_{k}"][:] for k in ("step", "tau", "ess") if f"check_{k}" in g},
-            "attrs": {},
+            "attrs": _decoded_attrs(g),
         }
-        for k, v in g.attrs.items():
-            try:
-                out["attrs"][k] = json.loads(v) if isinstance(v, str) else (v.item() if hasattr(v, "item") else v)
-            except (json.JSONDecodeError, TypeError):
-                out["attrs"][k] = v
         if "analysis" in f:
             out["analysis"] = _read_group(f["analysis"])
     out["diagnostics"] = diagnostics(out["chain"], out["accepted"], names=out["names"])
