@@ -35,6 +35,11 @@ class InputError(ValueError):
             msg += f" (expected {expected})"
         super().__init__(msg)
 
+    def in_file(self, file: str | Path) -> InputError:
+        """This error restated for the file its value came from (raised by a check that saw
+        only the value, e.g. a camera's or a parameter's own)."""
+        return InputError(self.problem, file=file, row=self.row, column=self.column, expected=self.expected)
+
 
 def check_integer(value, name: str, low: int, *, column: str | None = None, why: str = "") -> int:
     """``value`` as an ``int`` if it is an integer (Python or numpy; not a bool) ≥ ``low``, else

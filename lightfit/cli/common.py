@@ -183,7 +183,7 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
         try:
             return check_theta(values, what="theta")
         except InputError as err:
-            raise InputError(err.problem, file=p, column="theta", expected=err.expected) from None
+            raise err.in_file(p) from None  # check_theta names column 'theta'
     out = {}
     for item in theta.split(","):
         k, _, v = item.partition("=")

@@ -254,7 +254,7 @@ def load_cameras(path: str | Path) -> list[Camera]:
         cams = [Camera(**{"name": f"cam{i:03d}", **c}) for i, c in enumerate(raw)]
         check_unique_names(cams)
     except InputError as err:  # the cameras' own checks, restated for the file they came from
-        raise InputError(err.problem, file=path, row=err.row, column=err.column, expected=err.expected) from err
+        raise err.in_file(path) from err
     return cams
 
 

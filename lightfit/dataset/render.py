@@ -33,7 +33,7 @@ import numpy as np
 
 from lightfit.dataset.camera import Camera
 from lightfit.dataset.scene import Lighting, SceneArrays, VisualMaterials
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.light.scene import sun_vector
 
 COLOURS = ("rgb", "mono")
@@ -60,9 +60,7 @@ class RenderSettings:
 
     def __post_init__(self):
         for k, lo in (("spp", 1), ("max_depth", 2)):
-            v = getattr(self, k)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise InputError(f"{k}={v!r}", column=k, expected=f"an integer ≥ {lo}")
+            check_integer(getattr(self, k), k, lo)
         if self.colour not in COLOURS:
             raise InputError(f"colour={self.colour!r}", column="colour", expected=" or ".join(COLOURS))
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**32:

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from lightfit.distributed.tiles import HaloField, check_tiles
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.model import schema
 from lightfit.model.parameters import Theta
 from lightfit.model.scenario import Scenario, daytime
@@ -93,9 +93,7 @@ class FieldRun:
             )
         self.halo_field = HaloField.of(sc.field, self.halo_rows)  # validates halo_rows
         self.tile_list = check_tiles(self.halo_field, self.tiles)
-        tc = self.time_chunks
-        if isinstance(tc, bool) or not isinstance(tc, (int, np.integer)) or tc < 1:
-            raise InputError(f"time_chunks={tc!r}", column="time_chunks", expected="an integer ≥ 1")
+        tc = check_integer(self.time_chunks, "time_chunks", 1)
         n_day = int(daytime(sc.weather).sum())
         if n_day == 0:
             raise InputError(
@@ -397,8 +395,7 @@ def connect(
     n = n_def if workers is None else workers
     t = t_def if threads_per_worker is None else threads_per_worker
     for name, v in (("workers", n), ("threads_per_worker", t)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise InputError(f"{name}={v!r}", column=name, expected="an integer ≥ 1")
+        check_integer(v, name, 1)
     # Workers inherit this process's environment, XLA_PYTHON_CLIENT_PREALLOCATE (backend.configure_jax_memory) too.
     env = {ENV_THREADS: str(t), "OMP_NUM_THREADS": str(t)}
     if t == 1:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.plant.field import ID_OFFSET, Field, Tile
 
 
@@ -100,10 +100,9 @@ def _field_values(fld: Field) -> dict:
 
 def check_tiles(fld: Field, n_tiles) -> list[Tile]:
     """``fld.tiles(n_tiles)`` with an error naming ``tiles`` when the partition is impossible."""
-    if isinstance(n_tiles, bool) or not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
-        raise InputError(f"tiles={n_tiles!r}", column="tiles", expected="an integer ≥ 1")
+    n_tiles = check_integer(n_tiles, "tiles", 1)
     try:
-        return fld.tiles(int(n_tiles))
+        return fld.tiles(n_tiles)
     except InputError as err:
         raise InputError(f"tiles={n_tiles}: {err.problem}", column="tiles", expected=err.expected) from None
 

@@ -101,7 +101,7 @@ class Timestamps:
         try:
             return cls(label, interval)
         except InputError as e:
-            raise InputError(e.problem, file=file, column=e.column, expected=e.expected) from None
+            raise e.in_file(file) from None
 
 
 INSTANTS = Timestamps()
