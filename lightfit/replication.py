@@ -36,6 +36,7 @@ from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples, resolve_direct
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
+from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
@@ -65,6 +66,8 @@ class ReplicationConfig:
     soil; with ``buffer_rows=None`` → 2, the reference paper's setup). ``buffer_rows`` /
     ``buffer_along``: ``None`` means the boundary's default (2 finite, 0 periodic); explicit
     non-zero buffers with a periodic boundary are refused (:class:`lightfit.plant.Field`).
+    ``sheaths``: ``"wrapped"`` (default: each leaf's sheath a tube around the stem up to the collar)
+    or ``"rods"`` (CPlantBox's thin rods, the reference paper's geometry; :attr:`Field.sheaths`).
 
     ``optics``: leaf optics preset, ``"prospect"`` (default: PROSPECT-D wheat leaf, PAR absorptance
     0.90) or ``"paper"`` (the reference paper's grey 0.5 leaf); ``chlorophyll_ug_cm2``: leaf
@@ -90,6 +93,7 @@ class ReplicationConfig:
     boundary: str = "periodic"
     buffer_rows: int | None = None
     buffer_along: int | None = None
+    sheaths: str = SHEATHS[0]
     seed: int = 1
     samples: int | None = None
     bounces: int | None = None
@@ -140,7 +144,8 @@ class ReplicationConfig:
         """The named preset whose model choices this configuration has (``None``: neither)."""
         for name in PRESETS:
             ref = ReplicationConfig().with_preset(name)
-            if all(getattr(self, k) == getattr(ref, k) for k in ("boundary", "optics", "photosynthesis", "par_kind")):
+            choices = ("boundary", "sheaths", "optics", "photosynthesis", "par_kind")
+            if all(getattr(self, k) == getattr(ref, k) for k in choices):
                 return name
         return None
 
@@ -191,6 +196,7 @@ class ReplicationConfig:
             seed=self.seed,
             buffer_along=self.buffer_along,
             boundary=self.boundary,
+            sheaths=self.sheaths,
             growth=GrowthConfig(target_date=self.dates[0] if date is None else str(parse_date(date, "date"))),
         )
 
@@ -213,12 +219,13 @@ class ReplicationConfig:
 
 
 #: The reference paper's setup (Baker et al. 2025): a finite field with 2 buffer rows on bare soil,
-#: the grey 0.5 leaf, the giraud2023 photosynthesis set and, as PAR at the plants, the area-mean
-#: absorbed PAR of all leaf segments. ``replication_quick_finite.json`` is its regression curve.
+#: CPlantBox's rod-like leaf sheaths, the grey 0.5 leaf, the giraud2023 photosynthesis set and, as
+#: PAR at the plants, the area-mean absorbed PAR of all leaf segments. ``replication_quick_finite.json`` is its regression curve.
 PAPER_PRESET = {
     "boundary": "finite",
     "buffer_rows": 2,
     "buffer_along": None,
+    "sheaths": "rods",
     "optics": "paper",
     "chlorophyll_ug_cm2": None,
     "photosynthesis": "giraud2023",

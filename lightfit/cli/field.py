@@ -8,7 +8,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console
-from lightfit.cli.options import BOUNDARY_HELP, BUFFER_ALONG_HELP, BUFFER_ROWS_HELP, check_boundary
+from lightfit.cli.options import BOUNDARY_HELP, BUFFER_ALONG_HELP, BUFFER_ROWS_HELP, SHEATHS_HELP, check_boundary
 from lightfit.errors import InputError
 
 
@@ -19,6 +19,7 @@ def field(
     boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
     buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
+    sheaths: str = typer.Option("wrapped", help=SHEATHS_HELP),
     row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
@@ -44,16 +45,18 @@ def field(
     from lightfit.figure import figure_format
     from lightfit.plant.export import mesh_format
     from lightfit.plant.preview import plot_field
+    from lightfit.plant.sheaths import check_sheaths
     from lightfit.report import field_label
 
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
+    check_sheaths(sheaths)
     for path in export or []:  # before minutes of plant growth
         mesh_format(path)
     if preview:
         figure_format(preview)
     g = plant.GrowthConfig(parameter_file, season_start, date)
     fld = plant.Field(
-        n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along, boundary
+        n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along, boundary, sheaths
     )
     parts = fld.tiles(tiles)
     if tile is not None and not 0 <= tile < len(parts):
@@ -78,6 +81,7 @@ def field(
         f"{len(seg)} ({int((seg.organ_type == 'leaf').sum())} / {int((seg.organ_type == 'stem').sum())})",
     )
     t.add_row("measured segments", str(len(meas)))
+    t.add_row("leaf sheaths", fld.sheaths)
     t.add_row("triangles", str(geom.mesh.n_faces))
     t.add_row("triangles per plant", f"{geom.mesh.n_faces / len(geom.plants):.0f}")
     t.add_row("one-sided leaf blade area per plant (m²)", f"{seg['blade_area_m2'].sum() / len(geom.plants):.4f}")

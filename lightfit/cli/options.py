@@ -25,6 +25,7 @@ import typer
 from lightfit.errors import InputError
 from lightfit.light.estimator import check_bounces, check_samples, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
+from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
@@ -38,6 +39,10 @@ BOUNDARY_HELP = (
 BUFFER_ROWS_HELP = (
     "Finite fields only: rows of unmeasured buffer plants around the measurement area "
     "(default 2, the reference paper's)."
+)
+SHEATHS_HELP = (
+    "Leaf sheaths: wrapped (default: each a tube around the stem up to the collar, where the blade "
+    "starts) or rods (CPlantBox's thin rods at the leaf's insertion angle, the reference paper's)."
 )
 BUFFER_ALONG_HELP = (
     "Finite fields only: buffer plants along each row end (default: = buffer rows; "
@@ -54,6 +59,7 @@ class ModelOptions:
     boundary: str | None = None
     buffer_rows: int | None = None
     buffer_along: int | None = None
+    sheaths: str | None = None
     field_seed: int | None = None
     samples: int | None = None
     bounces: int | None = None
@@ -109,6 +115,7 @@ class ModelSettings:
     boundary: str
     buffer_rows: int | None
     buffer_along: int | None
+    sheaths: str
     field_seed: int
     samples: int
     bounces: int
@@ -148,6 +155,7 @@ class ModelSettings:
             boundary=self.boundary,
             buffer_rows=self.buffer_rows,
             buffer_along=self.buffer_along,
+            sheaths=self.sheaths,
             seed=self.field_seed,
             samples=self.samples,
             bounces=self.bounces,
@@ -207,6 +215,14 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--buffer-along",
             help=BUFFER_ALONG_HELP,
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "sheaths": (
+        str | None,
+        typer.Option(
+            "--sheaths",
+            help=SHEATHS_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -525,6 +541,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         boundary=boundary,
         buffer_rows=buffers[0],
         buffer_along=buffers[1],
+        sheaths=check_sheaths(given(opts.sheaths, base.sheaths)),
         field_seed=given(opts.field_seed, base.seed),
         samples=given(opts.samples, main_job_samples(direct) if base.samples is None else base.samples),
         bounces=given(opts.bounces, base.bounces),
@@ -660,6 +677,7 @@ RENDER_SETTINGS = (
     "boundary",
     "buffer_rows",
     "buffer_along",
+    "sheaths",
     "field_seed",
     "samples",
     "bounces",
@@ -687,7 +705,8 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     """``"key: before → now"`` for each of ``keys`` that differs between a stored run's settings
     (its ``config``) and ``s``. Settings written before the periodic boundary have no
     ``boundary``: they were finite fields; settings written before leaf optics have no
-    ``optics``: they had the grey leaf (``paper``); settings written before the projected direct
+    ``optics``: they had the grey leaf (``paper``); settings written before ``sheaths`` had
+    CPlantBox's rods; settings written before the projected direct
     light have no ``direct``: their paths carried it; settings written before
     ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
     """
@@ -695,7 +714,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
         return []
     now = s.as_dict()
     # Settings stored before a key existed ran with what is now its default.
-    before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths"}
+    before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths", "sheaths": "rods"}
     before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]

@@ -7,8 +7,9 @@ schema (:mod:`lightfit.model.schema`, which gives their units and meaning) such 
 ``leaf_gs_mol_m2_s`` and ``limitation`` (int8: 1 = electron-transport limited, Fj < Fc; 0 = Rubisco
 limited); attrs describing the field (``n_plants``, ``buffer_rows``, ``seed``,
 ``parameter_file``, ``season_start``, ``target_date``, ``row_spacing_m``, ``plant_spacing_m``,
-optionally ``row_direction_deg``, ``buffer_along`` and ``boundary``: ``"finite"`` when absent,
-as files written before the periodic boundary are). Optional time series ``sun_elevation_deg``,
+optionally ``row_direction_deg``, ``buffer_along``, ``boundary``: ``"finite"`` when absent,
+as files written before the periodic boundary are, and ``sheaths``: ``"rods"`` when absent, as
+files written before wrapped sheaths are). Optional time series ``sun_elevation_deg``,
 ``sun_azimuth_deg``, ``dni_w_m2``, ``dhi_w_m2`` set the light of the data scene; without them it
 comes from a weather series (the bundled one for the target date by default).
 """
@@ -118,9 +119,11 @@ def open_results(source) -> Results:
 
 def field_of(res: Results):
     """The :class:`lightfit.plant.Field` described by the results' attrs (``boundary`` included:
-    a periodic run is rebuilt as its periodic cell, not as a finite block without buffers)."""
+    a periodic run is rebuilt as its periodic cell, not as a finite block without buffers; so are
+    ``sheaths``: a file without them had CPlantBox's rods)."""
     from lightfit.plant import Field, GrowthConfig
     from lightfit.plant.field import BOUNDARIES
+    from lightfit.plant.sheaths import SHEATHS
 
     a = res.ds.attrs
     growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
@@ -131,6 +134,11 @@ def field_of(res: Results):
             f"boundary={boundary!r}", file=res.path or "results", expected=f"attr boundary {' or '.join(BOUNDARIES)}"
         )
     periodic = boundary == "periodic"
+    sheaths = str(a.get("sheaths", "rods"))
+    if sheaths not in SHEATHS:
+        raise InputError(
+            f"sheaths={sheaths!r}", file=res.path or "results", expected=f"attr sheaths {' or '.join(SHEATHS)}"
+        )
     return Field(
         n_plants=int(a["n_plants"]),
         buffer_rows=None if periodic else int(a["buffer_rows"]),
@@ -138,6 +146,7 @@ def field_of(res: Results):
         buffer_along=int(a["buffer_along"]) if "buffer_along" in a and not periodic else None,
         growth=GrowthConfig(**growth),
         boundary=boundary,
+        sheaths=sheaths,
         **kw,
     )
 

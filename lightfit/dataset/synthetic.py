@@ -61,6 +61,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
             "boundary": fld.boundary,
             "buffer_rows": fld.buffer_rows,
             "buffer_along": fld.b_along,
+            "sheaths": fld.sheaths,
             "seed": fld.seed,
             "parameter_file": fld.growth.parameter_file,
             "season_start": fld.growth.season_start,

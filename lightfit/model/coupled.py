@@ -274,6 +274,7 @@ class CoupledModel:
             "boundary": fld.boundary,
             "buffer_rows": fld.buffer_rows,
             "buffer_along": fld.b_along,
+            "sheaths": fld.sheaths,
             "seed": fld.seed,
             "n_tiles": sc.n_tiles,
             "tile": -1 if sc.tile is None else sc.tile,

@@ -21,6 +21,7 @@ from lightfit.plant.growth import (
 )
 from lightfit.plant.mesh import Mesh, MeshResolution, expected_area, shoot_mesh
 from lightfit.plant.periodic import PeriodicCell
+from lightfit.plant.sheaths import SHEATHS
 
 __all__ = [
     "Field",
@@ -29,6 +30,7 @@ __all__ = [
     "Mesh",
     "MeshResolution",
     "PeriodicCell",
+    "SHEATHS",
     "Tile",
     "build",
     "cache_dir",

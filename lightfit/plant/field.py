@@ -39,6 +39,7 @@ from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
 from lightfit.plant.periodic import PeriodicCell
+from lightfit.plant.sheaths import SHEATHS, check_sheaths, lay_sheaths
 
 #: Winter wheat at ~270 plants m⁻²: 12.5 cm drill rows (common German practice) and 3 cm
 #: within the row (≈ 330 seeds m⁻² sown at ~80 % establishment).
@@ -85,6 +86,10 @@ class Field:
             field, :attr:`cell`; no buffers, no edge bias) or ``"finite"`` (buffer rows on bare
             soil, the reference paper's setup, whose edges let in +50 to +100 % canopy light on
             small fields: docs/light.md, "Field-edge bias").
+        sheaths: where each leaf's sheath (its basal zone) goes: ``"wrapped"`` (default) around the
+            stem up to the collar, the blade starting there, or ``"rods"``, CPlantBox's thin rods
+            at the leaf's insertion angle (the reference paper's geometry;
+            :mod:`lightfit.plant.sheaths`, docs/plant.md "Leaf sheaths").
     """
 
     n_plants: int = 25
@@ -96,8 +101,10 @@ class Field:
     growth: GrowthConfig = field(default_factory=GrowthConfig)
     buffer_along: int | None = None
     boundary: str = "periodic"
+    sheaths: str = SHEATHS[0]
 
     def __post_init__(self):
+        check_sheaths(self.sheaths)
         if self.boundary not in BOUNDARIES:
             raise InputError(f"boundary={self.boundary!r}", column="boundary", expected=" or ".join(BOUNDARIES))
         if self.boundary == "periodic":
@@ -303,7 +310,8 @@ def build(
     cache_dir: str | Path | None = None,
     progress: bool = False,
 ) -> FieldGeometry:
-    """Grow (or load from cache), place and mesh the plants of a field or of one tile.
+    """Grow (or load from cache), place, lay the sheaths of (``fld.sheaths``) and mesh the plants
+    of a field or of one tile.
 
     Without ``tile``: the whole grid, measured = the measurement area. With a tile: its
     plants and its buffer ring, measured = the tile's own plants (periodic: the whole cell is
@@ -333,4 +341,5 @@ def build(
         parts.append(seg)
     segments = pd.concat(parts, ignore_index=True)
     segments = segments[segments["organ_type"].isin(["stem", "leaf"])].reset_index(drop=True)
+    segments = lay_sheaths(segments, fld.sheaths)
     return FieldGeometry(segments, shoot_mesh(segments, resolution), chosen, hits, fld.cell)
