@@ -220,7 +220,8 @@ class ReplicationConfig:
 
 #: The reference paper's setup (Baker et al. 2025): a finite field with 2 buffer rows on bare soil,
 #: CPlantBox's rod-like leaf sheaths, the grey 0.5 leaf, the giraud2023 photosynthesis set and, as
-#: PAR at the plants, the area-mean absorbed PAR of all leaf segments. ``replication_quick_finite.json`` is its regression curve.
+#: PAR at the plants, the area-mean absorbed PAR of all leaf segments.
+#: ``replication_quick_finite.json`` is its regression curve.
 PAPER_PRESET = {
     "boundary": "finite",
     "buffer_rows": 2,
