@@ -1,0 +1,169 @@
+"""Leaf sheaths wrapped around the stem (``Field.sheaths``): geometry checked against its definition
+(lightfit.plant.sheaths): on the stem's axis, nested by age, blades moved rigidly to the collar."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lightfit.errors import InputError
+from lightfit.plant import Field, GrowthConfig, build, expected_area, grow_plant, organ_class, plant_seed, shoot_mesh
+from lightfit.plant.sheaths import SHEATHS, lay_sheaths, wrap_sheaths
+
+P0, P1 = ["x0", "y0", "z0"], ["x1", "y1", "z1"]
+
+
+@pytest.fixture(scope="module")
+def plants():
+    """Two plants as CPlantBox grows them, the second placed elsewhere (plants are independent)."""
+    a = grow_plant(GrowthConfig(), plant_seed(7, 3, 4), plant_id=11)
+    b = grow_plant(GrowthConfig(), plant_seed(7, 5, 6), plant_id=12)
+    for c0, c1, off in (("x0", "x1", 0.4), ("y0", "y1", -0.2)):
+        b[c0] += off
+        b[c1] += off
+    return pd.concat([a, b], ignore_index=True)
+
+
+@pytest.fixture(scope="module")
+def wrapped(plants):
+    return wrap_sheaths(plants)
+
+
+def _leaves(t):
+    """Each leaf's segments in order, with their organ classes."""
+    organ = pd.Series(organ_class(t), index=t.index)
+    for _, leaf in t[t["organ_type"] == "leaf"].groupby(["plant_id", "organ_id"]):
+        leaf = leaf.sort_values("segment_index")
+        yield leaf, organ[leaf.index].to_numpy()
+
+
+def test_rods_are_cplantbox_unchanged_and_bad_layouts_refused(plants):
+    assert lay_sheaths(plants, "rods") is plants
+    assert SHEATHS[0] == "wrapped" and Field().sheaths == "wrapped"
+    for bad in ("tubes", None, ""):
+        with pytest.raises(InputError, match="sheaths"):
+            Field(sheaths=bad)
+
+
+def test_sheaths_run_up_the_stem_axis_from_the_node_with_their_lengths(plants, wrapped):
+    n_sheaths = 0
+    for leaf, organ in _leaves(wrapped):
+        s = leaf[organ == "sheath"]
+        if s.empty:
+            continue
+        n_sheaths += 1
+        old = plants.loc[s.index]
+        node = old[P0].to_numpy()[0]
+        np.testing.assert_allclose(s[P0].to_numpy()[0], node, atol=1e-15)  # starts at the leaf's node
+        axis = old[["bx", "by", "bz"]].to_numpy()[0]
+        axis = axis / np.linalg.norm(axis)
+        for cols in (P0, P1):  # every end point on the axis through the node
+            d = s[cols].to_numpy() - node
+            off_axis = d - (d @ axis)[:, None] * axis
+            assert np.abs(off_axis).max() < 1e-12
+        np.testing.assert_allclose(s[P1].to_numpy()[:-1], s[P0].to_numpy()[1:], atol=1e-15)  # contiguous
+        length = np.linalg.norm(s[P1].to_numpy() - s[P0].to_numpy(), axis=1)
+        np.testing.assert_allclose(length, old["length_m"], rtol=1e-12)  # and as long as before
+    assert n_sheaths >= 8
+
+
+def test_sheath_tubes_enclose_the_stem_oldest_outside(plants, wrapped):
+    for _, plant in wrapped.groupby("plant_id"):
+        organ = organ_class(plant)
+        r_stem = plant.loc[organ == "stem", "radius_m"].max()
+        nodes = []  # (node height, tube radius, CPlantBox's sheath radius: the wall) per leaf
+        for leaf, lorgan in _leaves(plant):
+            s = leaf[lorgan == "sheath"]
+            if len(s):
+                assert (s["radius_m"] == s["radius_m"].iloc[0]).all()
+                nodes.append((leaf["z0"].iloc[0], s["radius_m"].iloc[0], plants.loc[s.index, "radius_m"].max()))
+            else:
+                nodes.append((leaf["z0"].iloc[0], None, None))
+        nodes.sort(key=lambda x: x[0])
+        n = len(nodes)
+        radii = [r for _, r, _ in nodes if r is not None]
+        expected = [r_stem + (n - k) * w for k, (_, r, w) in enumerate(nodes) if r is not None]
+        np.testing.assert_allclose(radii, expected, rtol=1e-12)
+        assert all(a > b > r_stem for a, b in zip(radii, radii[1:]))  # older outside younger outside the culm
+
+
+def test_blades_move_rigidly_to_the_collar_on_the_tube(plants, wrapped):
+    for leaf, organ in _leaves(wrapped):
+        s, b = leaf[organ == "sheath"], leaf[organ == "blade"]
+        if s.empty or b.empty:
+            continue
+        old = plants.loc[b.index]
+        # Shape and orientation kept: every segment's vector, and every point moved by one shift.
+        np.testing.assert_allclose(
+            b[P1].to_numpy() - b[P0].to_numpy(), old[P1].to_numpy() - old[P0].to_numpy(), atol=1e-15
+        )
+        shift = b[P0].to_numpy() - old[P0].to_numpy()
+        np.testing.assert_allclose(shift, np.broadcast_to(shift[0], shift.shape), atol=1e-15)
+        # The blade starts at the collar: at the sheath's top, on its tube's surface.
+        base, collar = b[P0].to_numpy()[0], s[P1].to_numpy()[-1]
+        axis = plants.loc[s.index[0], ["bx", "by", "bz"]].to_numpy(float)
+        axis = axis / np.linalg.norm(axis)
+        d = base - collar
+        assert abs(d @ axis) < 1e-12
+        np.testing.assert_allclose(np.linalg.norm(d), s["radius_m"].iloc[0], rtol=1e-9)
+    stems = organ_class(plants) == "stem"
+    cols = [*P0, *P1, "radius_m"]
+    np.testing.assert_array_equal(wrapped.loc[stems, cols].to_numpy(), plants.loc[stems, cols].to_numpy())
+
+
+def test_wrapped_field_mesh_has_the_tube_areas(tmp_path):
+    """A built field lays its sheaths as its ``sheaths`` says; the mesh's areas are the new 2πrL."""
+    rods = build(Field(n_plants=4, seed=2, sheaths="rods"), cache_dir=tmp_path)
+    wrapped = build(Field(n_plants=4, seed=2), cache_dir=tmp_path)
+    np.testing.assert_array_equal(wrapped.segments.to_numpy(), wrap_sheaths(rods.segments).to_numpy())
+    exp = expected_area(wrapped.segments)
+    got = wrapped.mesh.area_per_segment().reindex(exp.index).fillna(0.0)
+    np.testing.assert_allclose(got, exp, rtol=1e-9, atol=1e-15)
+    sheath = organ_class(wrapped.segments) == "sheath"
+    seg = wrapped.segments[sheath]
+    np.testing.assert_allclose(exp[seg["segment_id"]], 2 * np.pi * seg["radius_m"] * seg["length_m"], rtol=1e-12)
+    assert shoot_mesh(rods.segments).n_faces == wrapped.mesh.n_faces
+
+
+def test_the_knob_reaches_the_field_and_runs_stored_before_it_had_rods():
+    """``sheaths`` is a model setting: the default field wraps them, the paper preset keeps
+    CPlantBox's rods, ``--sheaths`` chooses, and a run stored before the setting existed (rods)
+    differs from today's default by exactly that."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+    from lightfit.replication import ReplicationConfig
+
+    assert ReplicationConfig().field().sheaths == "wrapped"
+    assert ReplicationConfig.paper().field().sheaths == "rods" and ReplicationConfig.paper().preset == "paper"
+    assert ReplicationConfig(sheaths="rods").preset is None  # neither preset's whole setup
+    default = resolve(ModelOptions(quick=True))
+    assert default.sheaths == "wrapped" and resolve(ModelOptions(quick=True, preset="paper")).sheaths == "rods"
+    chosen = resolve(ModelOptions(quick=True, sheaths="rods"))
+    assert chosen.replication_config().field().sheaths == "rods"
+    with pytest.raises(InputError, match="sheaths"):
+        resolve(ModelOptions(quick=True, sheaths="tubes"))
+    stored_before = {k: v for k, v in default.as_dict().items() if k != "sheaths"}
+    assert changed_settings(stored_before, default) == ["sheaths: 'rods' → 'wrapped'"]
+    assert changed_settings(stored_before, chosen) == []
+
+
+def test_cli_refuses_an_unknown_layout_before_growing():
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    for cmd in (["replicate", "--quick"], ["field", "--n-plants", "1"]):
+        r = CliRunner().invoke(app, [*cmd, "--sheaths", "tubes"])
+        assert r.exit_code == 2 and "sheaths" in r.output and "wrapped" in r.output, r.output
+        assert "growing" not in r.output
+
+
+def test_results_rebuild_their_sheaths_and_older_files_had_rods(tmp_path):
+    from lightfit.dataset.results import field_of, open_results
+    from lightfit.dataset.synthetic import synthetic_results
+
+    ds = synthetic_results(Field(n_plants=1, seed=4), ["2016-04-20T11:00"], cache_dir=tmp_path)
+    assert ds.attrs["sheaths"] == "wrapped" and field_of(open_results(ds)).sheaths == "wrapped"
+    del ds.attrs["sheaths"]  # written before the setting: CPlantBox's rods
+    assert field_of(open_results(ds)).sheaths == "rods"
+    ds.attrs["sheaths"] = "tubes"
+    with pytest.raises(InputError, match="tubes"):
+        field_of(open_results(ds))
