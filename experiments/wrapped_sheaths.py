@@ -1,19 +1,14 @@
-"""What wrapping the leaf sheaths around the stem would change (a measurement, not a model change).
+"""What wrapping the leaf sheaths around the stem changes: CPlantBox's rods against the default.
 
     python experiments/wrapped_sheaths.py [--n-plants 100]
 
 CPlantBox draws each wheat leaf's basal zone (its first 8 cm, no blade width: the sheath) as a
 0.6 mm rod leaning 13–24° from the vertical, so each blade starts 1.6–3.9 cm from its stem
 (docs/plant.md, "Leaf sheaths"; `experiments/canopy_structure.py`). A wheat sheath is a tube
-around the culm up to the collar. This experiment re-lays the sheaths that way on the main job's
-field — the measured plants as one periodic cell, seed 1, 20 April 2016 — and renders both:
-
-* each leaf's sheath segments go up the stem's axis at the leaf's node (the branching direction
-  CPlantBox records), keeping their lengths, as a tube of radius r_stem + (k + 1)·w, k the number
-  of the plant's leaves inserted above it (older sheaths outside younger ones) and w the leaf
-  radius CPlantBox gives the sheath (0.3 mm) taken as its wall thickness;
-* each blade is moved, unchanged in shape, so that it starts at the collar on the sheath's
-  surface, on the side its old collar lay.
+around the culm up to the collar: `Field(sheaths="wrapped")`, the default
+(`lightfit.plant.sheaths`). This experiment renders both layouts of the main job's field — the
+measured plants as one periodic cell, seed 1, 20 April 2016 — `sheaths="rods"` (CPlantBox's, the
+paper preset's) and `sheaths="wrapped"`:
 
 Rendered with the PROSPECT-D leaf and its bounces, K = 16, the direct light projected
 (1.5 × 10⁷ / 2 × 10⁷ rays per m², sun and sky), sun 50° / 180°, seed 2, absorbed PAR at DNI 1,
@@ -30,7 +25,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from rich.console import Console
 from rich.table import Table
 
@@ -42,55 +36,19 @@ OUT = Path(__file__).resolve().parent / "results" / "wrapped_sheaths.json"
 SUN_DEG = (50.0, 180.0)
 DHI_PER_DNI = 0.3
 ORGANS = ("blade", "sheath", "stem")
+ROD, WRAPPED = "rods (CPlantBox, the paper preset)", "wrapped around the stem (default)"
 
 
-def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
-    """The segment table with each leaf's sheath re-laid as a tube around its stem (module doc)."""
-    from lightfit.plant import organ_class
-
-    out = segments.copy()
-    organ = pd.Series(organ_class(segments), index=segments.index)
-    xyz0, xyz1 = ["x0", "y0", "z0"], ["x1", "y1", "z1"]
-    for _, plant in segments.groupby("plant_id"):
-        r_stem = float(plant.loc[organ[plant.index] == "stem", "radius_m"].max())
-        leaves = [g.sort_values("segment_index") for _, g in plant[plant["organ_type"] == "leaf"].groupby("organ_id")]
-        leaves.sort(key=lambda g: g["z0"].iloc[0])  # by node height: the lowest is the outermost
-        for k, leaf in enumerate(leaves):
-            sheath = leaf[organ[leaf.index] == "sheath"]
-            blade = leaf[organ[leaf.index] == "blade"]
-            if sheath.empty:
-                continue
-            p0 = sheath[xyz0].to_numpy()[0]
-            axis = sheath[["bx", "by", "bz"]].to_numpy()[0]
-            axis = axis / np.linalg.norm(axis)
-            s = np.concatenate([[0.0], np.cumsum(sheath["length_m"].to_numpy())])
-            nodes = p0 + s[:, None] * axis
-            wall = float(sheath["radius_m"].max())
-            out.loc[sheath.index, xyz0] = nodes[:-1]
-            out.loc[sheath.index, xyz1] = nodes[1:]
-            out.loc[sheath.index, "radius_m"] = r_stem + (len(leaves) - k) * wall
-            if blade.empty:
-                continue
-            old_collar = sheath[xyz1].to_numpy()[-1]
-            side = (old_collar - p0) - np.dot(old_collar - p0, axis) * axis
-            n = np.linalg.norm(side)
-            side = side / n if n > 0 else np.array([1.0, 0.0, 0.0])
-            shift = nodes[-1] + (r_stem + (len(leaves) - k) * wall) * side - old_collar
-            out.loc[blade.index, xyz0] = blade[xyz0].to_numpy() + shift
-            out.loc[blade.index, xyz1] = blade[xyz1].to_numpy() + shift
-    return out
-
-
-def render(segments: pd.DataFrame, geom, fld) -> dict:
+def render(geom, fld) -> dict:
     from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
     from lightfit.light.scene import FieldScene, Optics
     from lightfit.light.sensors import SensorEstimator, ceptometer, measured_area
     from lightfit.plant import one_sided_area_m2, organ_class
-    from lightfit.plant.mesh import shoot_mesh
 
     optics = Optics.preset("prospect")
     bounces = bounces_for_tolerance(0.01, optics)
-    fs = FieldScene(shoot_mesh(segments), optics, cell=geom.cell)
+    fs = FieldScene(geom.mesh, optics, cell=geom.cell)
+    segments = geom.segments
     fs.set_sun(*SUN_DEG)
     ids = segments.loc[segments["measured"], "segment_id"].to_numpy()
     seg = segments.set_index("segment_id").loc[ids]
@@ -125,21 +83,16 @@ def render(segments: pd.DataFrame, geom, fld) -> dict:
 def main(n_plants: int = 100) -> dict:
     from lightfit.plant import Field, build
 
-    fld = Field(n_plants=n_plants, seed=1, boundary="periodic")
-    geom = build(fld)
-    wrapped = wrap_sheaths(geom.segments)
-    res = {
-        "n_plants": int(fld.n**2),
-        "sun_deg": SUN_DEG,
-        "dhi_per_dni": DHI_PER_DNI,
-        "rods (CPlantBox, today)": render(geom.segments, geom, fld),
-        "wrapped around the stem": render(wrapped, geom, fld),
-    }
+    res = {"n_plants": int(Field(n_plants=n_plants).n ** 2), "sun_deg": SUN_DEG, "dhi_per_dni": DHI_PER_DNI}
+    for name, sheaths in ((ROD, "rods"), (WRAPPED, "wrapped")):
+        fld = Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths)
+        geom = build(fld)
+        res[name] = render(geom, fld)
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2))
     t = Table(title=f"sheaths as rods or as tubes around the stem: {res['n_plants']} plants, periodic cell")
     t.add_column("quantity")
-    names = ("rods (CPlantBox, today)", "wrapped around the stem")
+    names = (ROD, WRAPPED)
     for n in names:
         t.add_column(n, justify="right")
     t.add_row(
