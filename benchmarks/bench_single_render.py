@@ -1,6 +1,7 @@
 """Benchmark: issue 16's single-render goal alone, at the recommended setting.
 
-    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16] [--rays 1.5e7,2e7] [--out JSON]
+    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16] [--rays 1.5e7,2e7]
+        [--sheaths wrapped[,rods]] [--out JSON]
 
 The goal: on the defaults' periodic cell of ``--n-plants`` plants (PROSPECT-D leaf, the bounces
 for 1 % truncation, sun 50° / 180°), a median per-segment relative SE of absorbed PAR (sun +
@@ -10,6 +11,10 @@ among others after a much longer run; this script measures it alone, with the sa
 steady state, the median raw, corrected for R's downward bias, and pooled over both seeds), so a
 machine's speed can be checked against the goal in a few minutes. Times scale to a 2 % median by
 (median / 2 %)²: every part's variance falls as 1/rays and 1/K.
+
+``--sheaths``: the leaf sheaths' layout (``Field.sheaths``, default the model's default); several,
+comma-separated, are measured one after the other in one process (a side-by-side ratio), and the
+JSON then holds one result per layout under ``runs``.
 
 Writes benchmarks/results/single_render.json and prints a table, with the commit and the load
 average (the 2 cores are shared: absolute times move with the machine, see docs/light.md).
@@ -29,7 +34,8 @@ from rich.table import Table
 
 import lightfit  # noqa: F401
 from lightfit.light.estimator import SegmentEstimator
-from lightfit.plant import organ_class
+from lightfit.plant import SHEATHS, organ_class
+from lightfit.plant.sheaths import check_sheaths
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -39,10 +45,10 @@ OUT = Path(__file__).resolve().parent / "results" / "single_render.json"
 GOAL_S = 60.0
 
 
-def main(n_plants: int, samples: int, rays: tuple[float, float]) -> dict:
+def main(n_plants: int, samples: int, rays: tuple[float, float], sheaths: str = SHEATHS[0]) -> dict:
     load_start = os.getloadavg()[0]
     t = time.perf_counter()
-    geom, fs, ids, bounces = periodic_cell(n_plants)
+    geom, fs, ids, bounces = periodic_cell(n_plants, sheaths)
     t_build = time.perf_counter() - t
     SegmentEstimator(fs, ids[:2000], samples=samples, bounces=bounces, seed=0).render()  # compile kernels
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
@@ -51,6 +57,7 @@ def main(n_plants: int, samples: int, rays: tuple[float, float]) -> dict:
         **commit_state(),
         "cpu_cores": os.cpu_count(),
         "n_plants": n_plants,
+        "sheaths": sheaths,
         "segments": len(ids),
         "bounces": bounces,
         "build_s": t_build,
@@ -62,7 +69,10 @@ def main(n_plants: int, samples: int, rays: tuple[float, float]) -> dict:
 
 
 def table(res: dict) -> Table:
-    t = Table(title=f"one render, {res['n_plants']} plants ({res['segments']} segments), K = {res['samples']}")
+    t = Table(
+        title=f"one render, {res['n_plants']} plants ({res['segments']} segments), K = {res['samples']}, "
+        f"{res['sheaths']} sheaths"
+    )
     t.add_column("median SE is", justify="left")
     t.add_column("median", justify="right")
     t.add_column("time to a 2 % median", justify="right")
@@ -82,18 +92,26 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--rays", default="1.5e7,2e7", help="projection rays per m², sun,sky")
+    ap.add_argument(
+        "--sheaths", default=SHEATHS[0], help="leaf sheath layout(s), comma-separated: " + ", ".join(SHEATHS)
+    )
     ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
     a = ap.parse_args()
     sun, sky = (float(x) for x in a.rays.split(","))
-    res = main(a.n_plants, a.samples, (sun, sky))
+    layouts = a.sheaths.split(",")
+    for x in layouts:
+        check_sheaths(x)
+    runs = [main(a.n_plants, a.samples, (sun, sky), x) for x in layouts]
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(res, indent=1, default=float))
+    a.out.write_text(json.dumps(runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float))
     console = Console()
-    console.print(table(res))
-    by = res["rse_absorbed"]
-    console.print(
-        f"render {res['render_s']:.1f} s (first {res['first_render_s']:.1f} s); p90 {100 * by['all']['p90']:.1f} %; "
-        f"blades {100 * by['blades']['median']:.2f} %, stems and sheaths {100 * by['stems']['median']:.2f} %; "
-        f"load {res['load_average_start']:.1f}–{res['load_average_end']:.1f}; commit {res.get('lightfit_commit')}"
-    )
+    for res in runs:
+        console.print(table(res))
+        by = res["rse_absorbed"]
+        console.print(
+            f"render {res['render_s']:.1f} s (first {res['first_render_s']:.1f} s); "
+            f"p90 {100 * by['all']['p90']:.1f} %; "
+            f"blades {100 * by['blades']['median']:.2f} %, stems and sheaths {100 * by['stems']['median']:.2f} %; "
+            f"load {res['load_average_start']:.1f}–{res['load_average_end']:.1f}; commit {res.get('lightfit_commit')}"
+        )
     console.print(f"wrote {a.out}")

@@ -57,12 +57,13 @@ def preset_name(attrs, other: str = "this run") -> str:
 
 
 def run_label(attrs) -> str:
-    """The model choices of a run in words (leaf optics, photosynthesis set, field), from results attrs."""
+    """The model choices of a run in words (leaf optics, sheaths, photosynthesis set, field), from results attrs."""
     import json
 
     cfg = json.loads(attrs.get("replication_config", "{}") or "{}")
     optics = cfg.get("optics") or f"base colour {float(attrs.get('base_color', np.nan)):.3g}"
-    return f"leaf {optics}, photosynthesis {attrs.get('photosynthesis')}, {field_label(attrs)}"
+    sheaths = attrs.get("sheaths", "rods")  # results written before the setting had CPlantBox's rods
+    return f"leaf {optics}, {sheaths} sheaths, photosynthesis {attrs.get('photosynthesis')}, {field_label(attrs)}"
 
 
 def field_label(attrs) -> str:
