@@ -89,7 +89,9 @@ def replicate(
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
-    console.print(f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, K={k}, {n_b} bounces{rays} …")
+    console.print(
+        f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, K={k}, {n_b} bounces{rays} …"
+    )
     ds, obs = rep.run(
         cfg,
         weather_file=s.weather_file,
