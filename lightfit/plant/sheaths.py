@@ -9,16 +9,18 @@ pseudostem at the collar (e.g. Kirby & Appleyard 1987, *Cereal Development Guide
 Two layouts:
 
 ``"wrapped"`` (default)
-    Each leaf's sheath segments are re-laid, lengths kept, along the branching direction CPlantBox
-    records at the leaf's node (the stem's axis there), from the node up, as a tube of radius
+    Each leaf's sheath segments are re-laid, lengths kept, along its stem's axis from the leaf's
+    node up (beyond the stem's tip, straight on), as a tube of radius
 
     .. math:: r = r_\mathrm{stem} + (n - k)\,w,
 
-    :math:`r_\mathrm{stem}` the plant's stem radius, :math:`n` the plant's leaves, :math:`k` the
-    leaf's rank by node height (0 the lowest: the oldest, outermost sheath) and :math:`w` the leaf
-    radius CPlantBox gives the sheath, taken as its wall thickness. The blade is moved, shape and
-    orientation unchanged, to start at the collar on that tube's surface, on the side its collar
-    lay. A sheath's one-sided area is its tube's 2πrL. The culm inside its sheaths gets no light.
+    :math:`r_\mathrm{stem}` the stem's radius, :math:`n` the stem's sheathed leaves, :math:`k` the
+    leaf's rank by node position (0 the lowest: the oldest, outermost sheath) and :math:`w` the
+    leaf radius CPlantBox gives the sheath, taken as its wall thickness. The sheath follows the
+    stem where it bends, so the culm stays inside it. The blade is moved, shape and orientation
+    unchanged, to start at the collar on that tube's surface, on the side its collar lay. A
+    sheath's one-sided area is its tube's 2πrL. The culm inside its sheaths gets almost no light
+    (a tube's top is open: a 0.3 mm gap between culm and innermost sheath).
 ``"rods"``
     CPlantBox's layout, unchanged: the reference paper's geometry (its preset).
 
@@ -55,48 +57,101 @@ def lay_sheaths(segments: pd.DataFrame, sheaths: str) -> pd.DataFrame:
     return wrap_sheaths(segments)
 
 
+class _Axis:
+    """A stem's axis: the polyline through its segments' end points, by arc length (m), continued
+    straight beyond either end."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        d = np.diff(points, axis=0)
+        self.lengths = np.linalg.norm(d, axis=1)
+        self.units = np.divide(d, self.lengths[:, None], out=np.zeros_like(d), where=self.lengths[:, None] > 0)
+        self.arc = np.concatenate([[0.0], np.cumsum(self.lengths)])
+        valid = np.flatnonzero(self.lengths > 0)
+        self.first, self.last = self.units[valid[0]], self.units[valid[-1]]
+
+    def locate(self, q: np.ndarray) -> tuple[float, float]:
+        """Arc length of the axis point nearest ``q`` and the distance to it."""
+        t = np.clip(np.einsum("ij,ij->i", q - self.points[:-1], self.units), 0.0, self.lengths)
+        dist = np.linalg.norm(self.points[:-1] + t[:, None] * self.units - q, axis=1)
+        i = int(np.argmin(dist))
+        return float(self.arc[i] + t[i]), float(dist[i])
+
+    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points and unit tangents at arc lengths ``s``."""
+        s = np.asarray(s, float)
+        i = np.clip(np.searchsorted(self.arc, s, side="right") - 1, 0, len(self.lengths) - 1)
+        tangent = self.units[i]
+        base, offset = self.points[i], s - self.arc[i]
+        before, beyond = s < 0, s > self.arc[-1]
+        tangent = np.where(before[:, None], self.first, np.where(beyond[:, None], self.last, tangent))
+        base = np.where(before[:, None], self.points[0], np.where(beyond[:, None], self.points[-1], base))
+        offset = np.where(before, s, np.where(beyond, s - self.arc[-1], offset))
+        return base + offset[:, None] * tangent, tangent
+
+
 def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
-    """A copy of the segment table with every leaf's sheath wrapped around its plant's stem and
-    its blade moved to the collar (the ``"wrapped"`` layout of the module doc). Coordinates in
-    metres; plants are independent (``plant_id``), so a placed field gives the placed result."""
+    """A copy of the segment table with every leaf's sheath wrapped around its stem and its blade
+    moved to the collar (the ``"wrapped"`` layout of the module doc). Coordinates in metres;
+    plants are independent (``plant_id``), so a placed field gives the placed result.
+
+    A sheath follows its stem's axis (the polyline of the stem's segments, continued straight
+    beyond the stem's tip) from the point nearest the leaf's node, so the culm stays inside it
+    where it bends; each sheath segment is the chord between two points of that axis, its
+    ``length_m`` the chord's (CPlantBox's length to ≈ 10⁻⁴ where the stem bends by a degree). A
+    leaf goes with the nearest of its plant's stems (tillers), ranked among that stem's leaves by
+    node position. Without a stem the sheath goes straight along CPlantBox's branching direction.
+    """
     out = segments.copy()
     organ = organ_class(segments)
     xyz0, xyz1 = segments[_P0].to_numpy(float), segments[_P1].to_numpy(float)
     new0, new1 = xyz0.copy(), xyz1.copy()
     radius = segments["radius_m"].to_numpy(float).copy()
+    lengths = segments["length_m"].to_numpy(float).copy()
     axes = segments[["bx", "by", "bz"]].to_numpy(float)
-    lengths = segments["length_m"].to_numpy(float)
     plant, organ_id = segments["plant_id"].to_numpy(), segments["organ_id"].to_numpy()
-    leaf = segments["organ_type"].to_numpy(str) == "leaf"
     order = np.lexsort((segments["segment_index"].to_numpy(), organ_id, plant))
     for p in np.unique(plant):
         rows = order[plant[order] == p]
-        stem = rows[organ[rows] == "stem"]
-        r_stem = float(radius[stem].max()) if len(stem) else 0.0
-        leaves = [rows[organ_id[rows] == o] for o in np.unique(organ_id[rows[leaf[rows]]])]
-        leaves.sort(key=lambda r: (xyz0[r[0], 2], organ_id[r[0]]))  # by node height: the oldest first
-        n = len(leaves)
-        for k, r in enumerate(leaves):
+        organs = {o: rows[organ_id[rows] == o] for o in np.unique(organ_id[rows])}
+        stems = [
+            (_Axis(np.vstack([xyz0[r[:1]], xyz1[r]])), float(radius[r].max()))
+            for r in organs.values()
+            if organ[r[0]] == "stem" and np.linalg.norm(xyz1[r[-1]] - xyz0[r[0]]) > 0
+        ]
+        on_stem: dict[int, list] = {}  # stem index (-1: none) → [(node arc length, organ id, sheath, blade)]
+        for o, r in organs.items():
             sheath, blade = r[organ[r] == "sheath"], r[organ[r] == "blade"]
             if not len(sheath):
                 continue
             node = xyz0[sheath[0]]
-            axis = axes[sheath[0]] / np.linalg.norm(axes[sheath[0]])
-            s = np.concatenate([[0.0], np.cumsum(lengths[sheath])])
-            points = node + s[:, None] * axis
-            new0[sheath], new1[sheath] = points[:-1], points[1:]
-            r_tube = r_stem + (n - k) * float(radius[sheath].max())
-            radius[sheath] = r_tube
-            if not len(blade):
-                continue
-            old_collar = xyz1[sheath[-1]]
-            side = (old_collar - node) - np.dot(old_collar - node, axis) * axis
-            norm = np.linalg.norm(side)
-            side = side / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
-            shift = points[-1] + r_tube * side - old_collar
-            new0[blade], new1[blade] = xyz0[blade] + shift, xyz1[blade] + shift
+            where = [ax.locate(node) for ax, _ in stems]
+            j = int(np.argmin([d for _, d in where])) if stems else -1
+            on_stem.setdefault(j, []).append((where[j][0] if stems else node[2], o, sheath, blade))
+        for j, leaves in on_stem.items():
+            leaves.sort(key=lambda x: (x[0], x[1]))  # by node: the oldest, outermost first
+            n, r_stem = len(leaves), (stems[j][1] if j >= 0 else 0.0)
+            for k, (s0, _, sheath, blade) in enumerate(leaves):
+                s = np.concatenate([[0.0], np.cumsum(lengths[sheath])])
+                if j >= 0:
+                    points, tangents = stems[j][0].at(s0 + s)
+                else:
+                    axis = axes[sheath[0]] / np.linalg.norm(axes[sheath[0]])
+                    points, tangents = xyz0[sheath[0]] + s[:, None] * axis, np.broadcast_to(axis, (len(s), 3))
+                new0[sheath], new1[sheath] = points[:-1], points[1:]
+                lengths[sheath] = np.linalg.norm(points[1:] - points[:-1], axis=1)
+                r_tube = r_stem + (n - k) * float(radius[sheath].max())
+                radius[sheath] = r_tube
+                if not len(blade):
+                    continue
+                old_collar, collar, axis = xyz1[sheath[-1]], points[-1], tangents[-1]
+                side = (old_collar - collar) - np.dot(old_collar - collar, axis) * axis
+                norm = np.linalg.norm(side)
+                side = side / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
+                shift = collar + r_tube * side - old_collar
+                new0[blade], new1[blade] = xyz0[blade] + shift, xyz1[blade] + shift
     out[_P0], out[_P1] = new0, new1
-    out["radius_m"] = radius
+    out["radius_m"], out["length_m"] = radius, lengths
     return out
 
 
