@@ -1,8 +1,10 @@
 """The default canopy's structure by organ, and its direct-beam transmittance by Beer–Lambert.
 
-    python experiments/canopy_structure.py [--n-plants 100] [--out experiments/results/canopy_structure.json]
+    python experiments/canopy_structure.py [--n-plants 100] [--sheaths wrapped|rods]
+        [--out experiments/results/canopy_structure.json]
 
-On the main job's field (the measured plants as one periodic cell, seed 1, 20 April 2016):
+On the main job's field (the measured plants as one periodic cell, seed 1, 20 April 2016; the
+leaf sheaths laid out as ``--sheaths`` says, default the model's: docs/plant.md "Leaf sheaths"):
 
 * per organ class (:func:`lightfit.plant.organ_class`: blades, sheaths, stems): the share of the
   segments, of the one-sided area and of the absorbed PAR (sun and sky parts of one projection
@@ -134,13 +136,14 @@ def beer_lambert(geom) -> dict:
     return out
 
 
-def main(n_plants: int = 100, out: Path = OUT) -> dict:
+def main(n_plants: int = 100, out: Path = OUT, sheaths: str = "wrapped") -> dict:
     from lightfit.plant import Field, build
 
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
+    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     res = {
         "n_plants": n_plants,
+        "sheath_layout": sheaths,
         "segments": len(ids),
         "organs": organ_shares(geom, ids),
         "sheaths": sheath_geometry(geom.segments),
@@ -177,6 +180,7 @@ def main(n_plants: int = 100, out: Path = OUT) -> dict:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=100)
+    ap.add_argument("--sheaths", default="wrapped", choices=("wrapped", "rods"))
     ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args()
-    main(a.n_plants, a.out)
+    main(a.n_plants, a.out, a.sheaths)

@@ -151,6 +151,10 @@ def test_blades_move_rigidly_to_the_collar_on_the_tube(plants, wrapped):
         d = base - collar
         assert abs(d @ tangent[0]) < 1e-12
         np.testing.assert_allclose(np.linalg.norm(d), s["radius_m"].iloc[0], rtol=1e-9)
+        # ... on the side where CPlantBox's collar lay (seen from the stem's axis at the collar).
+        before = plants.loc[s.index[-1], P1].to_numpy(float) - collar
+        before -= (before @ tangent[0]) * tangent[0]
+        np.testing.assert_allclose(d / np.linalg.norm(d), before / np.linalg.norm(before), atol=1e-9)
     stems = organ_class(plants) == "stem"
     cols = [*P0, *P1, "radius_m"]
     np.testing.assert_array_equal(wrapped.loc[stems, cols].to_numpy(), plants.loc[stems, cols].to_numpy())
@@ -213,3 +217,59 @@ def test_results_rebuild_their_sheaths_and_older_files_had_rods(tmp_path):
     ds.attrs["sheaths"] = "tubes"
     with pytest.raises(InputError, match="tubes"):
         field_of(open_results(ds))
+
+
+def test_young_leaves_without_blades_are_wrapped_too():
+    """Early in the season (6 March) a leaf may be all sheath: it is wrapped like the others."""
+    young = grow_plant(GrowthConfig(target_date="2016-03-06"), plant_seed(7, 3, 4), plant_id=5)
+    organ = pd.Series(organ_class(young), index=young.index)
+    leaves = [(leaf, organ[leaf.index].to_numpy()) for leaf, _ in _leaves(young)]
+    assert any(not (o == "blade").any() for _, o in leaves)  # the case this test is for
+    wrapped = wrap_sheaths(young)
+    a, b = _stem_chain(young)
+    for leaf, o in leaves:
+        s = wrapped.loc[leaf.index[o == "sheath"]]
+        assert _nearest_on_chain(s[P1].to_numpy(), a, b)[1].max() < 1e-12
+        assert (s["radius_m"] > young.loc[organ == "stem", "radius_m"].max()).all()
+    assert np.isfinite(wrapped[[*P0, *P1, "radius_m", "length_m"]].to_numpy()).all()
+
+
+def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
+    """Leaves are ranked by their node on the stem whatever CPlantBox numbered them; two leaves at
+    one node are ranked by organ id. A made-up plant: a vertical stem, three one-sheath leaves."""
+    rows = [  # organ id, organ, node height (m); stem radius 1 mm, sheath wall 0.2 mm
+        (9, "stem", 0.0),
+        (3, "leaf", 0.02),
+        (1, "leaf", 0.02),
+        (2, "leaf", 0.0),
+    ]
+    recs = []
+    for i, (oid, kind, z) in enumerate(rows):
+        top = 0.1 if kind == "stem" else z + 0.05
+        recs.append(
+            {
+                "plant_id": 1,
+                "segment_index": i,
+                "segment_id": 1_000_000 + i,
+                "organ_type": kind,
+                "organ_id": oid,
+                "x0": 0.01 * (kind == "leaf"),  # CPlantBox's rod starts off the axis here: wrapping moves it
+                "y0": 0.0,
+                "z0": z,
+                "x1": 0.03 * (kind == "leaf"),
+                "y1": 0.0,
+                "z1": top,
+                "length_m": 0.1 if kind == "stem" else float(np.hypot(0.02, 0.05)),
+                "radius_m": 1e-3 if kind == "stem" else 2e-4,
+                "blade_width_m": 0.0,
+                "blade_area_m2": 0.0,
+                "creation_time_d": 1.0,
+                "bx": 0.0,
+                "by": 0.0,
+                "bz": 1.0,
+            }
+        )
+    wrapped = wrap_sheaths(pd.DataFrame(recs)).set_index("organ_id")
+    # By node: organ 2 (z = 0) is the oldest, then organs 1 and 3 at z = 0.02 in organ-id order.
+    np.testing.assert_allclose(wrapped.loc[[2, 1, 3], "radius_m"], [1e-3 + 3 * 2e-4, 1e-3 + 2 * 2e-4, 1e-3 + 2e-4])
+    np.testing.assert_allclose(wrapped.loc[[1, 2, 3], ["x0", "x1"]].to_numpy(), 0.0, atol=1e-15)  # on the stem axis

@@ -57,6 +57,15 @@ def lay_sheaths(segments: pd.DataFrame, sheaths: str) -> pd.DataFrame:
     return wrap_sheaths(segments)
 
 
+def _unit(*candidates: np.ndarray) -> np.ndarray:
+    """The first of ``candidates`` that is not (nearly) zero, normalised."""
+    for v in candidates:
+        n = np.linalg.norm(v)
+        if n > 1e-12:
+            return v / n
+    raise ValueError("no direction")  # the last candidate is a unit vector: not reached
+
+
 class _Axis:
     """A stem's axis: the polyline through its segments' end points, by arc length (m), continued
     straight beyond either end."""
@@ -136,7 +145,7 @@ def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
                 if j >= 0:
                     points, tangents = stems[j][0].at(s0 + s)
                 else:
-                    axis = axes[sheath[0]] / np.linalg.norm(axes[sheath[0]])
+                    axis = _unit(axes[sheath[0]], xyz1[sheath[0]] - xyz0[sheath[0]], np.array([0.0, 0.0, 1.0]))
                     points, tangents = xyz0[sheath[0]] + s[:, None] * axis, np.broadcast_to(axis, (len(s), 3))
                 new0[sheath], new1[sheath] = points[:-1], points[1:]
                 lengths[sheath] = np.linalg.norm(points[1:] - points[:-1], axis=1)
@@ -145,9 +154,14 @@ def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
                 if not len(blade):
                     continue
                 old_collar, collar, axis = xyz1[sheath[-1]], points[-1], tangents[-1]
-                side = (old_collar - collar) - np.dot(old_collar - collar, axis) * axis
-                norm = np.linalg.norm(side)
-                side = side / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
+                # Towards where the collar lay, square to the stem (else towards the blade's first step).
+                step = xyz1[blade[0]] - xyz0[blade[0]]
+                side = _unit(
+                    *(
+                        v - np.dot(v, axis) * axis
+                        for v in (old_collar - collar, step, np.eye(3)[np.argmin(np.abs(axis))])
+                    )
+                )
                 shift = collar + r_tube * side - old_collar
                 new0[blade], new1[blade] = xyz0[blade] + shift, xyz1[blade] + shift
     out[_P0], out[_P1] = new0, new1
