@@ -12,15 +12,15 @@ Two layouts:
     Each leaf's sheath segments are re-laid, lengths kept, along its stem's axis from the leaf's
     node up (beyond the stem's tip, straight on), as a tube of radius
 
-    .. math:: r = r_\mathrm{stem} + (n - k)\,w,
+    .. math:: r_k = w_k + \max\bigl(r_\mathrm{stem},\ \max_{j \in E_k} r_j\bigr),
 
-    :math:`r_\mathrm{stem}` the stem's radius, :math:`n` the stem's sheathed leaves, :math:`k` the
-    leaf's rank by node position (0 the lowest: the oldest, outermost sheath) and :math:`w` the
-    leaf radius CPlantBox gives the sheath, taken as its wall thickness. The sheath follows the
-    stem where it bends, so the culm stays inside it. The blade is moved, shape and orientation
-    unchanged, to start at the collar on that tube's surface, on the side its collar lay. A
-    sheath's one-sided area is its tube's 2πrL. The culm inside its sheaths gets almost no light
-    (a tube's top is open: a 0.3 mm gap between culm and innermost sheath).
+    :math:`w_k` the leaf radius CPlantBox gives the sheath, taken as its wall thickness,
+    :math:`r_\mathrm{stem}` the stem's radius and :math:`E_k` the younger sheaths that start
+    within sheath k's span (they are inside it): each sheath fits what it encloses, older outside
+    younger. The sheath follows the stem where it bends, so the culm stays inside it. The blade is
+    moved, shape and orientation unchanged, to start at the collar on that tube's surface, on the
+    side its collar lay. A sheath's one-sided area is its tube's 2πrL. The culm inside its sheaths
+    gets almost no light (a tube's top is open: a 0.3 mm gap between culm and innermost sheath).
 ``"rods"``
     CPlantBox's layout, unchanged: the reference paper's geometry (its preset).
 
@@ -64,6 +64,18 @@ def _unit(*candidates: np.ndarray) -> np.ndarray:
         if n > 1e-12:
             return v / n
     raise ValueError("no direction")  # the last candidate is a unit vector: not reached
+
+
+def _tube_radii(spans: list[tuple[float, float, float]], r_stem: float) -> list[float]:
+    """Outer radius of each sheath, from ``(start, end, wall)`` along the stem, oldest first: its
+    wall around whatever it encloses, the culm or the younger sheaths that start within its span
+    (whose own radii come first)."""
+    radii = [0.0] * len(spans)
+    for k in range(len(spans) - 1, -1, -1):
+        start, end, wall = spans[k]
+        inside = [radii[j] for j in range(k + 1, len(spans)) if spans[j][0] < end]
+        radii[k] = max([r_stem, *inside]) + wall
+    return radii
 
 
 class _Axis:
@@ -138,9 +150,12 @@ def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
             j = int(np.argmin([d for _, d in where])) if stems else -1
             on_stem.setdefault(j, []).append((where[j][0] if stems else node[2], o, sheath, blade))
         for j, leaves in on_stem.items():
-            leaves.sort(key=lambda x: (x[0], x[1]))  # by node: the oldest, outermost first
-            n, r_stem = len(leaves), (stems[j][1] if j >= 0 else 0.0)
-            for k, (s0, _, sheath, blade) in enumerate(leaves):
+            leaves.sort(key=lambda x: (x[0], x[1]))  # by node: the oldest first
+            tubes = _tube_radii(
+                [(s0, s0 + lengths[sheath].sum(), float(radius[sheath].max())) for s0, _, sheath, _ in leaves],
+                stems[j][1] if j >= 0 else 0.0,
+            )
+            for (s0, _, sheath, blade), r_tube in zip(leaves, tubes):
                 s = np.concatenate([[0.0], np.cumsum(lengths[sheath])])
                 if j >= 0:
                     points, tangents = stems[j][0].at(s0 + s)
@@ -149,7 +164,6 @@ def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
                     points, tangents = xyz0[sheath[0]] + s[:, None] * axis, np.broadcast_to(axis, (len(s), 3))
                 new0[sheath], new1[sheath] = points[:-1], points[1:]
                 lengths[sheath] = np.linalg.norm(points[1:] - points[:-1], axis=1)
-                r_tube = r_stem + (n - k) * float(radius[sheath].max())
                 radius[sheath] = r_tube
                 if not len(blade):
                     continue
