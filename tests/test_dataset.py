@@ -179,9 +179,10 @@ def test_overexposed_image_clips_every_leaf_pixel(geometry):
     over = Camera(**{**CAM.to_dict(), "exposure_mode": "fixed", "exposure_ev": 30.0})
     rad = out.radiance[0][0]
     e = meter(rad, leaf, over)
-    # Every lit leaf pixel clips; at 1 path per pixel a rare pixel's estimate is exactly 0.
+    # Every lit leaf pixel clips; at 1 path per pixel a pixel's estimate is exactly 0 where its one
+    # path found no light (a few per cent: leaf sheaths deep in the canopy, the culm's wrapping).
     lit = leaf & (rad.max(axis=-1) > 0)
-    assert e.clipped_leaf_fraction == pytest.approx(lit.sum() / leaf.sum()) and e.clipped_leaf_fraction > 0.99
+    assert e.clipped_leaf_fraction == pytest.approx(lit.sum() / leaf.sum()) and e.clipped_leaf_fraction > 0.95
     assert e.leaf_pixels == leaf.sum()
     assert (tone_map(rad, e.gain)[lit] == 255).all()
     metered = meter(out.radiance[0][0], leaf, Camera(**{**CAM.to_dict(), "meter_percentile": 95.0}))
