@@ -119,7 +119,7 @@ def wrap_sheaths(segments: pd.DataFrame) -> pd.DataFrame:
     A sheath follows its stem's axis (the polyline of the stem's segments, continued straight
     beyond the stem's tip) from the point nearest the leaf's node, so the culm stays inside it
     where it bends; each sheath segment is the chord between two points of that axis, its
-    ``length_m`` the chord's (CPlantBox's length to ≈ 10⁻⁴ where the stem bends by a degree). A
+    ``length_m`` the chord's (CPlantBox's length to within 10⁻³, tested). A
     leaf goes with the nearest of its plant's stems (tillers), ranked among that stem's leaves by
     node position. Without a stem the sheath goes straight along CPlantBox's branching direction.
     """
