@@ -280,6 +280,9 @@ def test_unknown_quantity_and_time(results_file, tmp_path):
     assert "absorbed_par" in str(err.value)
     with pytest.raises(InputError, match="not a step of the results"):
         make_dataset(results_file, tmp_path, DatasetSpec(cameras=[CAM], times=["2016-04-20T09:17"]))
+    for bad in (True, -1, 2.0):  # errors.check_integer: a bool is not a count of images
+        with pytest.raises(InputError, match="gallery_images"):
+            make_dataset(results_file, tmp_path, DatasetSpec(cameras=[CAM], gallery_images=bad))
 
 
 def test_results_that_do_not_match_the_field(results_file, tmp_path):

@@ -329,6 +329,10 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         Field(boundary="finite", plant_spacing_m=0.0)
     with pytest.raises(InputError, match="buffer_rows"):
         Field(boundary="finite", buffer_rows=-1)
+    for kw in ({"buffer_rows": True}, {"buffer_along": False}, {"n_plants": True}, {"n_plants": 4.0}):
+        with pytest.raises(InputError, match=next(iter(kw))):  # errors.check_integer: bools are not counts
+            Field(boundary="finite", **kw)
+    assert Field(boundary="finite", n_plants=np.int64(4), buffer_rows=np.int64(1)).m == 4  # numpy integers count
     with pytest.raises(InputError, match="do not fit"):
         Field(boundary="finite", n_plants=4).tiles(9)
     with pytest.raises(InputError, match="along"):

@@ -27,7 +27,7 @@ from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
 from lightfit.dataset.render import RenderSettings, render
 from lightfit.dataset.results import MARGIN, Results, build_geometry, lighting, open_results, select_times
 from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 
 DEFAULT_QUANTITIES = ("absorbed_par", "an", "vc", "vj", "gs", "limitation", MARGIN)
 EXPORT_FORMATS = ("ply", "vtk", "none")
@@ -74,8 +74,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     """Render ``spec``'s cameras at its times and write the dataset to ``out_dir``; return the metadata."""
     if spec.export not in EXPORT_FORMATS:
         raise InputError(f"export={spec.export!r}", column="export", expected=" or ".join(EXPORT_FORMATS))
-    if not isinstance(spec.gallery_images, int) or spec.gallery_images < 0:
-        raise InputError(f"gallery_images={spec.gallery_images!r}", column="gallery_images", expected="an integer ≥ 0")
+    check_integer(spec.gallery_images, "gallery_images", 0)
     out = Path(out_dir)
     earlier = [d for d in ("images", "labels") if (out / d).is_dir() and any((out / d).iterdir())]
     if earlier:  # their files would mix with this dataset's, while metadata.json lists only this one's

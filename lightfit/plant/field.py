@@ -121,22 +121,14 @@ class Field:
                     )
         if self.buffer_rows is None:  # frozen dataclass: set the boundary's default once
             object.__setattr__(self, "buffer_rows", DEFAULT_BUFFER_ROWS if self.boundary == "finite" else 0)
-        if self.buffer_along is not None and (
-            not isinstance(self.buffer_along, (int, np.integer)) or self.buffer_along < 0
-        ):
-            raise InputError(
-                f"buffer_along={self.buffer_along!r}",
-                column="buffer_along",
-                expected="an integer ≥ 0, or None for buffer_rows",
-            )
-        if not isinstance(self.n_plants, (int, np.integer)) or self.n_plants < 1:
-            raise InputError(f"n_plants={self.n_plants!r}", column="n_plants", expected="an integer ≥ 1")
+        if self.buffer_along is not None:
+            check_integer(self.buffer_along, "buffer_along", 0, why="or None for buffer_rows")
+        check_integer(self.n_plants, "n_plants", 1)
         for name in ("row_spacing_m", "plant_spacing_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"{name}={v!r}", column=name, expected="a positive distance in metres")
-        if not isinstance(self.buffer_rows, (int, np.integer)) or self.buffer_rows < 0:
-            raise InputError(f"buffer_rows={self.buffer_rows!r}", column="buffer_rows", expected="an integer ≥ 0")
+        check_integer(self.buffer_rows, "buffer_rows", 0)
         check_integer(self.seed, "seed", 0)
 
     @property
