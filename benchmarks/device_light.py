@@ -248,6 +248,10 @@ def run(out: Path, budget_s: float, settings) -> dict:
         "settings": [],
     }
     out.mkdir(parents=True, exist_ok=True)
+
+    def save():  # after every stage: a run stopped by the device's time limit keeps what it measured
+        (out / "device_light.json").write_text(json.dumps(res, indent=2))
+
     res["agreement"] = _agreement(fs, ids, g)
     print(
         f"{'agrees' if res['agreement']['agrees'] else 'DISAGREES'}: "
@@ -257,7 +261,7 @@ def run(out: Path, budget_s: float, settings) -> dict:
         f"± {res['agreement']['canopy_total_ratio_se']:.1e}",
         flush=True,
     )
-    (out / "device_light.json").write_text(json.dumps(res, indent=2))
+    save()
     if "reference_gradient" in g.files:
         res["gradient"] = _gradient_check(fs, ids, g)
         gr = res["gradient"]
@@ -268,7 +272,7 @@ def run(out: Path, budget_s: float, settings) -> dict:
             f"({gr['vjp_s']:.2f} / {gr['primal_s']:.2f} s)",
             flush=True,
         )
-        (out / "device_light.json").write_text(json.dumps(res, indent=2))
+        save()
     for samples, rays in settings:
         if time.perf_counter() - t0 > budget_s:
             res["stopped_at_budget_s"] = budget_s
@@ -276,7 +280,7 @@ def run(out: Path, budget_s: float, settings) -> dict:
         row = direct_projection_comparison(fs, ids, bounces, [(samples, rays)], organ=organ)["settings"][0]
         res["settings"].append(row)
         res["elapsed_s"] = time.perf_counter() - t0
-        (out / "device_light.json").write_text(json.dumps(res, indent=2))
+        save()
         a = row["rse_absorbed"]["all"]
         print(
             f"K={samples} rays/m² {rays}: {row['render_s']:.2f} s (first {row['first_render_s']:.2f} s), "

@@ -31,6 +31,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from lightfit.plant.sheaths import SHEATHS
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -136,7 +137,7 @@ def beer_lambert(geom) -> dict:
     return out
 
 
-def main(n_plants: int = 100, out: Path = OUT, sheaths: str = "wrapped") -> dict:
+def main(n_plants: int = 100, out: Path = OUT, sheaths: str = SHEATHS[0]) -> dict:
     from lightfit.plant import Field, build
 
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)
@@ -180,7 +181,7 @@ def main(n_plants: int = 100, out: Path = OUT, sheaths: str = "wrapped") -> dict
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=100)
-    ap.add_argument("--sheaths", default="wrapped", choices=("wrapped", "rods"))
+    ap.add_argument("--sheaths", default=SHEATHS[0], choices=SHEATHS)
     ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args()
     main(a.n_plants, a.out, a.sheaths)

@@ -45,11 +45,9 @@ def field(
     from lightfit.figure import figure_format
     from lightfit.plant.export import mesh_format
     from lightfit.plant.preview import plot_field
-    from lightfit.plant.sheaths import check_sheaths
     from lightfit.report import field_label
 
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
-    check_sheaths(sheaths)
     for path in export or []:  # before minutes of plant growth
         mesh_format(path)
     if preview:

@@ -123,7 +123,7 @@ def field_of(res: Results):
     ``sheaths``: a file without them had CPlantBox's rods)."""
     from lightfit.plant import Field, GrowthConfig
     from lightfit.plant.field import BOUNDARIES
-    from lightfit.plant.sheaths import SHEATHS
+    from lightfit.plant.sheaths import check_sheaths
 
     a = res.ds.attrs
     growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
@@ -134,11 +134,10 @@ def field_of(res: Results):
             f"boundary={boundary!r}", file=res.path or "results", expected=f"attr boundary {' or '.join(BOUNDARIES)}"
         )
     periodic = boundary == "periodic"
-    sheaths = str(a.get("sheaths", "rods"))
-    if sheaths not in SHEATHS:
-        raise InputError(
-            f"sheaths={sheaths!r}", file=res.path or "results", expected=f"attr sheaths {' or '.join(SHEATHS)}"
-        )
+    try:
+        sheaths = check_sheaths(str(a.get("sheaths", "rods")))
+    except InputError as e:
+        raise e.in_file(res.path or "results") from None
     return Field(
         n_plants=int(a["n_plants"]),
         buffer_rows=None if periodic else int(a["buffer_rows"]),
