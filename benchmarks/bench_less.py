@@ -72,6 +72,8 @@ import lightfit  # noqa: F401
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
+from lightfit.plant.growth import organ_class
+from lightfit.plant.sheaths import SHEATHS
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -167,12 +169,17 @@ def per_segment(values_face: np.ndarray, geom, seg_index: np.ndarray, n_seg: int
     return np.divide(num, den, out=np.full(n_seg, np.nan), where=den > 0)
 
 
-def less_segments(folder: Path, label: str, geom, exp: dict, seg_index, n_seg) -> tuple[np.ndarray, float]:
-    """LESS absorbed irradiance per segment (blades: both sides; stems: outer side) and its time."""
+def less_segments(
+    folder: Path, label: str, geom, exp: dict, seg_index, n_seg, side: str = "counted"
+) -> tuple[np.ndarray, float]:
+    """LESS absorbed irradiance per segment and its time. ``side``: ``"counted"``, the sides
+    lightfit counts (blades: both; stems and sheaths: the outer), or ``"inner"``, the other side of
+    stems and sheaths (0 on blades), which lightfit's light reaches but no segment counts."""
     z = np.load(folder / "out" / f"{label}.npz")
     m = exp["measure"]
     top, bot = z["top"][m], z["bot"][m]
-    v = top + np.where(geom.mesh.face_is_blade, bot, 0.0)
+    blade = geom.mesh.face_is_blade
+    v = top + np.where(blade, bot, 0.0) if side == "counted" else np.where(blade, 0.0, bot)
     return per_segment(v, geom, seg_index, n_seg), float(z["simulate_s"])
 
 
@@ -203,6 +210,7 @@ def expected_abs_z(reps: int) -> float:
 def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
     """Per-segment and canopy-total agreement of two estimates on the segments in ``mask``."""
     ok = mask & (lf_mean > 0) & np.isfinite(less_mean)
+    dark = mask & (lf_mean <= 0)  # no light in lightfit: no relative difference, reported apart
     d = (less_mean - lf_mean)[ok]
     rel = np.abs(d) / lf_mean[ok]
     se = np.hypot(less_se, lf_se)[ok]
@@ -219,6 +227,9 @@ def agreement(less_mean, less_se, lf_mean, lf_se, area, mask, reps) -> dict:
         "median_abs_z_if_noise": expected_abs_z(reps),
         "canopy_total_bias": tot_l / tot_f - 1.0,
         "canopy_total_bias_se": se_tot / tot_f,
+        "segments_dark_in_lightfit": int(dark.sum()),
+        # LESS's light on those, per unit area, relative to the class's mean in lightfit
+        "less_on_dark_rel_class_mean": float(np.mean(less_mean[dark]) / np.mean(lf_mean[ok])) if dark.any() else 0.0,
     }
 
 
@@ -241,16 +252,20 @@ def part_agreement(folder, part: str, geom, exp: dict, seg_index, renders, area,
 
 
 def agreement_classes(geom, seg_ids: np.ndarray, blade: np.ndarray) -> dict[str, np.ndarray]:
-    """The segment classes compared between the tools: blades, "stems" (stem and sheath prisms) and
+    """The segment classes compared between the tools: blades, "stems" (stem and sheath prisms or
+    tubes; also apart: the sheaths, and the culms, which wrapped sheaths enclose) and
     all above the soil, and apart the stem and sheath segments partly below it (CPlantBox starts
     each stem, and the leaf at its first node, at the seed, 3 mm deep). lightfit
     gives a buried point nothing; LESS's reverse tracer collects the sky for any ray that leaves
     the scene, so a buried point there sees the sky from below its soil quad (and no sun)."""
     s = geom.segments.set_index("segment_id").loc[seg_ids]
     buried = (np.minimum(s["z0"].to_numpy(), s["z1"].to_numpy()) < 0).astype(bool)
+    organ = organ_class(s.reset_index())
     return {
         "blades": blade & ~buried,
         "stems": ~blade & ~buried,
+        "sheaths": (organ == "sheath") & ~buried,
+        "culms": (organ == "stem") & ~buried,
         "all": ~buried,
         "stems partly below the soil": ~blade & buried,
     }
@@ -268,13 +283,32 @@ def _timed_render(fs, ids, samples: int, seed: int) -> tuple[float, object]:
     return best, r
 
 
-def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None) -> dict:
+def run_boundary(boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None, sheaths=SHEATHS[0]) -> dict:
     with tempfile.TemporaryDirectory(prefix=f"lightfit-less-{boundary}-", ignore_cleanup_errors=True) as d:
-        return _run_in(Path(d), boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc)
+        return _run_in(Path(d), boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc, sheaths)
 
 
-def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None) -> dict:
-    fld = Field(n_plants=n_plants, seed=1, boundary=boundary)
+def inner_side(folder, geom, exp, seg_index, n_seg, area, agree_classes, reps) -> dict:
+    """LESS's light absorbed on the inner side of the stems and sheaths (mean of the replicates),
+    which lightfit's estimators do not count for any segment: per part, as a share of the counted
+    light of the sheaths, of the culms and of every segment (Σ area × value)."""
+    out = {}
+    for part in ("sun", "sky"):
+        get = [
+            [less_segments(folder, f"{part}_r{r}", geom, exp, seg_index, n_seg, side)[0] for r in range(1, reps + 1)]
+            for side in ("counted", "inner")
+        ]
+        counted, inner = (np.nan_to_num(np.mean(g, axis=0)) * area for g in get)
+        out[part] = {
+            f"inner_over_counted_{c}": float(inner[m].sum() / counted[m].sum())
+            for c, m in agree_classes.items()
+            if c in ("sheaths", "culms", "all") and counted[m].sum() > 0
+        }
+    return out
+
+
+def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_alloc=None, sheaths=SHEATHS[0]):
+    fld = Field(n_plants=n_plants, seed=1, boundary=boundary, sheaths=sheaths)
     geom = build(fld)
     t = time.perf_counter()
     fs = FieldScene(geom.mesh, lambertian_optics(), cell=geom.cell)
@@ -328,6 +362,7 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
     big = lf[max(lf_k)]
     for part in ("sun", "sky"):
         res_agree[part] = part_agreement(folder, part, geom, exp, seg_index, [x[1] for x in big], area, agree_classes)
+    res_inner = inner_side(folder, geom, exp, seg_index, n_seg, area, agree_classes, reps)
 
     # Noise and time at DNI 1, DHI 0.3.
     res_noise = {"less": {}, "lightfit": {}}
@@ -368,6 +403,7 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
         "less_build_s": float(np.load(folder / "out" / "sun_r1.npz")["build_s"]),
         "less_process_wall_s": less_wall,
         "agreement": res_agree,
+        "less_inner_side": res_inner,
         "noise": {t: {str(k): v for k, v in d.items()} for t, d in res_noise.items()},
         "equal_noise": res_equal,
         **({} if res_alloc is None else {"allocated": res_alloc}),
@@ -412,7 +448,7 @@ def allocated(lf_class: dict, less_noise: dict) -> dict:
     return out
 
 
-def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None) -> dict | None:
+def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None, sheaths=SHEATHS[0], out=OUT) -> dict | None:
     console = Console()
     if not LESS_PYTHON.exists():
         console.print(
@@ -452,22 +488,23 @@ def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None) -> dic
             "lightfit_samples_per_segment": list(lf_k),
             "n_plants_measured": n_plants,
             "lightfit_allocated_samples_blades_stems": None if lf_alloc is None else list(lf_alloc),
+            "sheaths": sheaths,
         },
         "results": {},
     }
     for b in boundaries:
-        res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console, lf_alloc)
+        res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console, lf_alloc, sheaths)
     res["load_average_end"] = os.getloadavg()[0]
-    if OUT.exists():  # keep the last run of a boundary not run now, with its own conditions
-        old = json.loads(OUT.read_text())
+    if out.exists():  # keep the last run of a boundary not run now, with its own conditions
+        old = json.loads(out.read_text())
         earlier = {b: r for b, r in old.get("earlier_runs", {}).items() if b not in boundaries}
         for b, r in old.get("results", {}).items():
             if b not in boundaries:
                 earlier[b] = {**{k: v for k, v in old.items() if k not in ("results", "earlier_runs")}, "result": r}
         if earlier:
             res["earlier_runs"] = earlier
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=2))
     print_tables(res, console)
     return res
 
@@ -487,6 +524,7 @@ def print_tables(res: dict, console: Console) -> None:
             "median noise of diff",
             f"median |z| (noise: {z0:.2f})",
             "canopy total bias",
+            "dark in lightfit (LESS there ÷ class mean)",
         ):
             t.add_column(c, justify="right")
         for part, d in r["agreement"].items():
@@ -499,8 +537,12 @@ def print_tables(res: dict, console: Console) -> None:
                     f"{a['median_rel_noise_of_diff']:.2%}",
                     f"{a['median_abs_z']:.2f}",
                     f"{a['canopy_total_bias']:+.2%} ± {a['canopy_total_bias_se']:.2%}",
+                    f"{a.get('segments_dark_in_lightfit', 0)} ({a.get('less_on_dark_rel_class_mean', 0):.1%})",
                 )
         console.print(t)
+        for part, d in r.get("less_inner_side", {}).items():
+            shares = ", ".join(f"{k.removeprefix('inner_over_counted_')} {v:.2%}" for k, v in d.items())
+            console.print(f"LESS, {part}: light absorbed on stems' and sheaths' inner side ÷ counted light: {shares}")
         t = Table(title=f"{b}: median per-segment relative SE (DNI 1, DHI 0.3) and time per estimate")
         for c in ("tool", "n", "time s", "blades", "stems", "all", "own SE blades/stems"):
             t.add_column(c, justify="right")
@@ -570,9 +612,9 @@ if __name__ == "__main__":
         help="also render blades and stems each at its own K (e.g. the K each class needs for the target, "
         "from a previous run's fits) and compare with LESS at the error reached",
     )
+    ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
+    ap.add_argument("--out", type=Path, default=OUT, help="JSON written (default: benchmarks/results/less.json)")
     a = ap.parse_args()
-    if (
-        main(a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target, a.allocated_samples)
-        is None
-    ):
+    args = (a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target, a.allocated_samples)
+    if main(*args, sheaths=a.sheaths, out=a.out) is None:
         sys.exit(0)

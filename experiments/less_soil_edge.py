@@ -1,6 +1,7 @@
 """Where LESS 3 and lightfit differ in canopy totals: the edge of LESS's soil (issue 16, item 3).
 
     python experiments/less_soil_edge.py [--half-widths 5 12.5 50 200] [--replicates 4]
+        [--sheaths wrapped|rods] [--out experiments/results/less_soil_edge.json]
 
 Needs the LESS environment (README "Optional: LESS 3 peer"); without it, says so and stops.
 
@@ -44,6 +45,7 @@ from bench_light import commit_state  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
+from lightfit.plant.sheaths import SHEATHS  # noqa: E402
 from lightfit.precision import use_float64  # noqa: E402
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -52,12 +54,16 @@ OUT = ROOT / "experiments" / "results" / "less_soil_edge.json"
 LESS_N, LIGHTFIT_K = 64, 256
 
 
-def main(half_widths: list[float], reps: int) -> dict | None:
+#: The classes fitted: blades, stems and sheaths together, and each apart.
+CLASSES = ("blades", "stems", "sheaths", "culms")
+
+
+def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Path = OUT) -> dict | None:
     console = Console()
     if not bl.LESS_PYTHON.exists():
         console.print(f"LESS not installed ({bl.LESS_PYTHON}): see README 'Optional: LESS 3 peer'. Nothing run.")
         return None
-    geom = build(Field(n_plants=16, seed=1, boundary="finite"))
+    geom = build(Field(n_plants=16, seed=1, boundary="finite", sheaths=sheaths))
     fs = FieldScene(geom.mesh, bl.lambertian_optics())
     fs.set_sun(bl.SUN_ELEVATION_DEG, bl.SUN_AZIMUTH_DEG)
     seg_ids = np.unique(geom.mesh.face_segment)
@@ -67,7 +73,7 @@ def main(half_widths: list[float], reps: int) -> dict | None:
     blade = np.zeros(n_seg, bool)
     np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
     above_soil = bl.agreement_classes(geom, seg_ids, blade)  # the buried bases apart: see there
-    classes = {c: above_soil[c] for c in ("blades", "stems")}
+    classes = {c: above_soil[c] for c in CLASSES}
     lf = [
         SegmentEstimator(fs, seg_ids, samples=LIGHTFIT_K, bounces=bl.BOUNCES, seed=r).render()
         for r in range(1, reps + 1)
@@ -94,7 +100,8 @@ def main(half_widths: list[float], reps: int) -> dict | None:
         console.print(f"soil quad half-width {w} m done")
     fits = {}
     inv_w = 1.0 / np.asarray(half_widths)
-    for key in ("sun_blades", "sun_stems", "sky_blades", "sky_stems"):
+    keys = [f"{part}_{c}" for part in ("sun", "sky") for c in CLASSES]
+    for key in keys:
         y = np.array([r[key]["canopy_total_bias"] for r in rows])
         s = np.array([r[key]["canopy_total_bias_se"] for r in rows])
         X = np.stack([np.ones_like(inv_w), inv_w], 1) / s[:, None]
@@ -109,6 +116,7 @@ def main(half_widths: list[float], reps: int) -> dict | None:
     res = {
         **commit_state(),
         "plants_measured": 16,
+        "sheaths": sheaths,
         "segments": n_seg,
         "less_samples": LESS_N,
         "lightfit_samples": LIGHTFIT_K,
@@ -116,11 +124,10 @@ def main(half_widths: list[float], reps: int) -> dict | None:
         "rows": rows,
         "fits_c0_plus_c1_over_w": fits,
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=2))
     t = Table(title="canopy total, LESS ÷ lightfit − 1, by the half-width W of LESS's soil quad")
     t.add_column("W")
-    keys = ("sun_blades", "sun_stems", "sky_blades", "sky_stems")
     for k in keys:
         t.add_column(k.replace("_", ", "), justify="right")
     for r in rows:
@@ -140,5 +147,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--half-widths", type=float, nargs="+", default=[5.0, 12.5, 50.0, 200.0])
     ap.add_argument("--replicates", type=int, default=4)
+    ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
+    ap.add_argument("--out", type=Path, default=OUT, help="JSON written")
     a = ap.parse_args()
-    main(a.half_widths, a.replicates)
+    main(a.half_widths, a.replicates, a.sheaths, a.out)

@@ -7,7 +7,7 @@ import pytest
 
 import lightfit  # noqa: F401
 from lightfit.errors import InputError
-from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator, render_adaptive
+from lightfit.light.estimator import DARK_FLOOR, PARTS, AdaptiveEstimator, SegmentEstimator, render_adaptive
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
 
@@ -57,7 +57,7 @@ def test_adaptive_render_reaches_the_target_and_equals_fixed_renders(scene):
     K, rse = r.meta["samples_per_segment"], r.meta["reached_rse"]
     for p in PARTS:
         assert np.array_equal(getattr(r, p), getattr(again, p))
-    assert ((rse <= 0.08) | (K == 512) | ~np.isfinite(rse)).all()
+    assert ((rse <= 0.08) | (K == 512) | ~np.isfinite(rse) | r.meta["stopped_on_floor"]).all()
     assert len(np.unique(K)) >= 3 and K.min() == 32
     np.testing.assert_allclose(rse, r.relative_se(), rtol=1e-12)
     # A segment stopped at K has the estimate of a plain render with K samples.
@@ -69,6 +69,36 @@ def test_adaptive_render_reaches_the_target_and_equals_fixed_renders(scene):
             np.testing.assert_allclose(r.se[p][sel], fixed.se[p], rtol=1e-8, atol=1e-14)
     # Fewer evaluations than the fixed K the noisiest segments needed.
     assert r.meta["n_evaluations"] < 0.5 * SegmentEstimator(fs, ids, samples=512, bounces=2).n_evaluations
+
+
+def test_light_floor_stops_dark_segments_on_an_absolute_error(scene):
+    """The floor is dark_floor × the PAR on a horizontal surface above the canopy; a segment under
+    it is done when its absolute SE is below target × floor; every other segment's allocation is
+    the relative target's (dark_floor=0)."""
+    fs, ids = scene
+    kw = dict(bounces=2, seed=4, max_samples=512)
+    plain = render_adaptive(fs, ids, 0.05, dark_floor=0.0, **kw)
+    f = 0.05  # a high floor, so that this small field has segments under it
+    r = render_adaptive(fs, ids, 0.05, dark_floor=f, **kw)
+    mu = np.sin(np.radians(45.0))  # the fixture's sun elevation
+    assert r.meta["floor_absorbed"] == pytest.approx(f * (1.0 * mu + 0.3), rel=1e-12)
+    assert not plain.meta["stopped_on_floor"].any() and plain.meta["floor_absorbed"] == 0.0
+    K0, K = plain.meta["samples_per_segment"], r.meta["samples_per_segment"]
+    value = r.total("absorbed", 1.0, 0.3)
+    abs_se = np.multiply(r.meta["reached_rse"], value, out=np.zeros_like(value), where=value > 0)
+    floor = r.meta["stopped_on_floor"]
+    assert floor.sum() >= 5 and (value[floor] < r.meta["floor_absorbed"]).all()
+    assert (abs_se[floor] <= 0.05 * r.meta["floor_absorbed"] * (1 + 1e-12)).all()
+    # Fewer points where the floor stopped a segment, the same allocation and values elsewhere.
+    assert (K[floor] <= K0[floor]).all() and (floor | (K == K0)).all() and (K[floor] < K0[floor]).any()
+    same = K == K0
+    assert same.sum() > 0.5 * len(ids)
+    for p in PARTS:
+        np.testing.assert_array_equal(getattr(r, p)[same], getattr(plain, p)[same])
+    assert r.meta["n_evaluations"] < plain.meta["n_evaluations"]
+    for bad in (-0.1, 1.0, True, float("nan")):
+        with pytest.raises(InputError, match="dark_floor"):
+            render_adaptive(fs, ids, 0.05, dark_floor=bad, **kw)
 
 
 def test_adaptive_estimator_gradient_matches_common_random_number_differences(scene):
@@ -146,10 +176,10 @@ def adaptive_model():
 
 
 def test_coupled_run_reaches_the_target_per_segment(adaptive_model, monkeypatch):
-    import lightfit.model.coupled as coupled
+    import lightfit.model.scenario as scenario
 
     cap = 256  # instead of 8192: keeps the test to seconds; segments at the cap are reported as such
-    monkeypatch.setattr(coupled, "MAX_ADAPTIVE_SAMPLES", cap)
+    monkeypatch.setattr(scenario, "MAX_ADAPTIVE_SAMPLES", cap)
     m = adaptive_model
     m.__dict__.pop("irradiance", None)  # built with the cap above
     ds = m.simulate()
@@ -157,7 +187,9 @@ def test_coupled_run_reaches_the_target_per_segment(adaptive_model, monkeypatch)
     assert ds["samples_per_segment"].attrs["units"] == "1" and "relative" in ds["reached_rse"].attrs["long_name"]
     assert ds.attrs["target_rse"] == 0.1 and ds.attrs["max_samples"] == cap
     assert K.min() == 32 and K.max() <= cap and len(np.unique(K)) >= 2
-    assert ((rse <= 0.1) | (K == cap) | ~np.isfinite(rse)).all()
+    on_floor = ds["stopped_on_floor"].values.astype(bool)
+    assert ds.attrs["dark_floor"] == DARK_FLOOR and ds["stopped_on_floor"].attrs["flag_meanings"] == "no yes"
+    assert ((rse <= 0.1) | (K == cap) | ~np.isfinite(rse) | on_floor).all()
     # The renders use the allocation: at the allocation point (highest sun, default leaf) the
     # coupled parts of the segments given the most samples equal an independent fixed-K render.
     leaf, sun, _, _ = m.allocation_point
@@ -234,10 +266,10 @@ def test_a_restricted_adaptive_model_allocates_at_its_own_point(adaptive_model, 
     """Restricted to the 07:30 step after the whole run's irradiance was built, an adaptive model
     builds its own, allocated where its render key says (the kept step's sun): the same samples per
     segment as a model restricted before anything was built (what a Dask worker does)."""
-    import lightfit.model.coupled as coupled
+    import lightfit.model.scenario as scenario
     from lightfit.model.emulator import render_key, restrict
 
-    monkeypatch.setattr(coupled, "MAX_ADAPTIVE_SAMPLES", 256)  # seconds, not minutes
+    monkeypatch.setattr(scenario, "MAX_ADAPTIVE_SAMPLES", 256)  # seconds, not minutes
     m = adaptive_model
     whole = m.__dict__.pop("irradiance", None)
     try:

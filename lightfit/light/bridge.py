@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
-from lightfit.light.estimator import PARTS, AdaptiveEstimator, SegmentEstimator, check_target_rse
+from lightfit.light.estimator import DARK_FLOOR, PARTS, AdaptiveEstimator, SegmentEstimator, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
@@ -52,6 +52,7 @@ def make_irradiance(
     target_rse: float | None = None,
     allocate_at: tuple[ArrayLike, ArrayLike, float, float] | None = None,
     max_samples: int = 8192,
+    dark_floor: float = DARK_FLOOR,
     direct: str = "paths",
     direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
 ) -> Callable[[ArrayLike, ArrayLike, ArrayLike], tuple[jax.Array, jax.Array]]:
@@ -68,7 +69,8 @@ def make_irradiance(
             the per-segment relative standard error of absorbed PAR to reach; segments are
             rendered with an :class:`~lightfit.light.estimator.AdaptiveEstimator`: ``samples``
             is then the *starting* count (the pilot round, raised to 32 if smaller: the stopping
-            rule needs 8 replicates) and ``max_samples`` the cap. Sensors keep ``sensor_samples``.
+            rule needs 8 replicates), ``max_samples`` the cap and ``dark_floor`` the light floor
+            (:func:`~lightfit.light.estimator.render_adaptive`). Sensors keep ``sensor_samples``.
         allocate_at: ``(leaf, sun_deg, dni, dhi)`` at which the adaptive allocation is chosen
             (once per seed, then kept for every sun and leaf: common random numbers, gradients
             equal to finite differences); ``dni``/``dhi`` weight the sun and sky parts of the
@@ -109,6 +111,7 @@ def make_irradiance(
             seed=s,
             pilot=max(int(samples), 32),
             max_samples=max(int(max_samples), int(samples), 32),
+            dark_floor=dark_floor,
             dni=float(dni),
             dhi=float(dhi),
             **direct_kw,

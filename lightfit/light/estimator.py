@@ -199,6 +199,24 @@ def check_target_rse(value) -> float:
     return float(value)
 
 
+#: Adaptive sampling's light floor (:func:`render_adaptive`'s ``dark_floor``), a fraction of the
+#: PAR on a horizontal surface above the canopy: a segment absorbing less than that stops once its
+#: *absolute* SE is below ``target_rse`` × that light, instead of chasing a relative error on
+#: almost nothing (a culm inside its sheaths, a stem base under the canopy). 0.5 % of full sun
+#: (≈ 2 000 µmol m⁻² s⁻¹) is 10 µmol m⁻² s⁻¹, near a wheat leaf's light compensation point.
+DARK_FLOOR = 0.005
+
+
+def check_dark_floor(value) -> float:
+    """Adaptive sampling's light floor: a fraction of the PAR above the canopy in [0, 1)."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not (ok and 0 <= value < 1):
+        raise InputError(
+            f"dark_floor={value!r}", column="dark_floor", expected="a fraction of the PAR above the canopy in [0, 1)"
+        )
+    return float(value)
+
+
 def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
 
@@ -1071,6 +1089,7 @@ def render_adaptive(
     dhi: float = 0.3,
     direct: str = "paths",
     direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
+    dark_floor: float = DARK_FLOOR,
 ) -> Irradiance:
     r"""Per-segment irradiance with samples added, in rounds, where the error is above ``target_rse``.
 
@@ -1083,9 +1102,23 @@ def render_adaptive(
     ``max_samples``; segments receiving nothing (zero estimate) stop after the pilot.
     Deterministic given seed and target (the stopping rule reads only the estimates).
 
+    **The light floor.** A segment is done when its SE :math:`\sigma_s` of absorbed PAR meets
+
+    .. math:: \sigma_s \le t\,\max\bigl(v_s,\ f\,(\mathrm{dni}\,\cos\theta_\odot + \mathrm{dhi})\bigr),
+
+    :math:`v_s` its estimate, :math:`t` = ``target_rse``, :math:`f` = ``dark_floor``
+    (:data:`DARK_FLOOR`) and :math:`\mathrm{dni}\cos\theta_\odot + \mathrm{dhi}` the light on a
+    horizontal surface above the canopy (sun zenith :math:`\theta_\odot`). Above the floor that is
+    the relative target; below, an absolute one: points are not spent on a relative error of almost
+    nothing. The floor depends on the scene's sun and the weights only, not on which segments are
+    rendered, so tiles of a field still allocate as the whole field would. ``dark_floor=0``: the
+    relative target everywhere.
+
     ``meta``: ``samples_per_segment`` (K per segment), ``reached_rse`` (relative SE of absorbed
-    PAR at ``dni``/``dhi``), ``rounds`` (K and segments rendered per round), ``n_evaluations``
-    (all rounds), ``target_rse``. ``samples`` is the largest K.
+    PAR at ``dni``/``dhi``), ``stopped_on_floor`` (segments done by the floor with a relative SE
+    above the target), ``floor_absorbed`` (the floor, as absorbed PAR at ``dni``/``dhi``), ``dark_floor``,
+    ``rounds`` (K and segments rendered per round), ``n_evaluations`` (all rounds),
+    ``target_rse``. ``samples`` is the largest K.
 
     Stopping when the *estimated* SE falls below the target slightly favours replicates that
     happen to agree (a selection effect, as in any sequential design); with 8 replicates the
@@ -1101,6 +1134,7 @@ def render_adaptive(
     projected.
     """
     check_target_rse(target_rse)
+    check_dark_floor(dark_floor)
     if not isinstance(pilot, (int, np.integer)) or pilot < 32:
         raise InputError(f"pilot={pilot!r}", column="pilot", expected="an integer ≥ 32 (8 replicates)")
     if not isinstance(growth, (int, np.integer)) or growth < 2:
@@ -1119,6 +1153,8 @@ def render_adaptive(
     M = np.zeros(S, dtype=np.int64)
     active = np.ones(S, bool)
     rse = np.full(S, np.inf)
+    goal = np.full(S, float(target_rse))  # each segment's relative target, the floor's included
+    floor = float(dark_floor) * (dni * max(float(field_scene.sun[2]), 0.0) + dhi)
     first, rounds, n_eval, meta0 = 0, [], 0, None
 
     def add(rows, n_points, first_point, mode):
@@ -1136,6 +1172,11 @@ def render_adaptive(
             sums[p][rows] += r.meta["replicate_means"][p] * n_points
             fsum[p][rows] += r.front(p) * (R * n_points)
         return r
+
+    def relative_goal(value):
+        """Each segment's relative target: ``target_rse`` × max(1, floor / value) (inf at 0)."""
+        ratio = np.divide(floor, value, out=np.full(len(value), np.inf), where=value > 0)
+        return target_rse * np.maximum(1.0, ratio)
 
     def estimate(rows):
         return _from_replicate_means(
@@ -1177,14 +1218,15 @@ def render_adaptive(
         M[idx] = J
         sub = estimate(idx)
         rse[idx] = sub.relative_se("absorbed", dni, dhi)
+        value = sub.total("absorbed", dni, dhi)
+        goal[idx] = relative_goal(value)
         if D is not None:
             # A projected part alone above the target cannot be reduced by more points: such a
             # segment takes its direct light from its own points instead (its points rendered
             # again, then paths rounds), exactly as a direct="paths" render.
             own = D["absorbed_sun"][idx] * dni + D["absorbed_sky"][idx] * dhi
-            value = sub.total("absorbed", dni, dhi)
             own_rse = np.divide(own.std(1, ddof=1) / math.sqrt(R), value, out=np.zeros(len(idx)), where=value > 0)
-            switch = idx[projected[idx] & (rse[idx] > target_rse) & (own_rse > target_rse)]
+            switch = idx[projected[idx] & (rse[idx] > goal[idx]) & (own_rse > goal[idx])]
             if len(switch):
                 for p in PARTS:  # its points again, with their own direct light
                     sums[p][switch] = 0.0
@@ -1194,10 +1236,12 @@ def render_adaptive(
                 for p in PARTS:
                     D[p][switch] = 0.0
                     D["front"][p][switch] = 0.0
-                rse[switch] = estimate(switch).relative_se("absorbed", dni, dhi)
+                again = estimate(switch)
+                rse[switch] = again.relative_se("absorbed", dni, dhi)
+                goal[switch] = relative_goal(again.total("absorbed", dni, dhi))
         n_eval += evaluations
         rounds.append({"samples": R * J, "segments": int(len(idx)), "evaluations": int(evaluations)})
-        active[idx] = (rse[idx] > target_rse) & np.isfinite(rse[idx])
+        active[idx] = (rse[idx] > goal[idx]) & np.isfinite(rse[idx])
         if J >= J_max or not active.any():
             break
         first, J = J, min(J * int(growth), J_max)
@@ -1212,6 +1256,9 @@ def render_adaptive(
             **meta0,
             "n_evaluations": n_eval,
             "reached_rse": rse,
+            "stopped_on_floor": (rse > target_rse) & (rse <= goal) & np.isfinite(rse),
+            "floor_absorbed": floor,
+            "dark_floor": float(dark_floor),
             "rounds": rounds,
             "target_rse": float(target_rse),
             "direct": direct,

@@ -33,7 +33,7 @@ from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator, an_noise_bias, area_total
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Forcing, Scenario
+from lightfit.model.scenario import Forcing, Scenario, adaptive_limits
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import precision
@@ -131,7 +131,7 @@ class CoupledModel:
             sensors=self.sensors,
             target_rse=sc.target_rse,
             allocate_at=self.allocation_point if sc.target_rse is not None else None,
-            max_samples=MAX_ADAPTIVE_SAMPLES,
+            **adaptive_limits(),
             direct=sc.direct,
             direct_rays_per_m2=sc.direct_rays_per_m2,
         )
@@ -256,6 +256,7 @@ class CoupledModel:
             alloc = self.irradiance.allocation(sc.seed)
             ds["samples_per_segment"] = ("segment", np.asarray(alloc.meta["samples_per_segment"], np.int64))
             ds["reached_rse"] = ("segment", np.asarray(alloc.meta["reached_rse"], np.float64))
+            ds["stopped_on_floor"] = ("segment", np.asarray(alloc.meta["stopped_on_floor"], np.int8))
         bounds = self.timestamps.bounds(self.times.tz_convert("UTC").tz_localize(None))
         if bounds is not None:
             ds["time_bnds"] = (("time", "bound"), np.column_stack([b.values for b in bounds]))
@@ -286,7 +287,7 @@ class CoupledModel:
             "season_start": g.season_start,
             "target_date": g.target_date,
             "samples": sc.samples,
-            **({} if sc.target_rse is None else {"target_rse": sc.target_rse, "max_samples": MAX_ADAPTIVE_SAMPLES}),
+            **({} if sc.target_rse is None else {"target_rse": sc.target_rse, **adaptive_limits()}),
             "bounces": sc.bounces,
             "direct": sc.direct,
             **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),

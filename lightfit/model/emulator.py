@@ -62,7 +62,7 @@ from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import CONVERGENCE_KEY, OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
+from lightfit.model.scenario import adaptive_limits
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
 DEGREES = (1, 2, 3, 4, 5)
@@ -163,7 +163,7 @@ def _allocation_key(model: CoupledModel) -> dict:
     leaf, sun, dni, dhi = model.allocation_point
     return {
         "target_rse": float(model.scenario.target_rse),
-        "max_samples": MAX_ADAPTIVE_SAMPLES,
+        **adaptive_limits(),
         "allocated_at": {
             "leaf": [float(x) for x in leaf],
             "sun_deg": [float(x) for x in sun],

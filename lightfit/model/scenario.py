@@ -17,7 +17,13 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, check_integer
-from lightfit.light.estimator import bounces_for_tolerance, check_bounces, check_samples, check_target_rse
+from lightfit.light.estimator import (
+    DARK_FLOOR,
+    bounces_for_tolerance,
+    check_bounces,
+    check_samples,
+    check_target_rse,
+)
 from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
@@ -115,6 +121,13 @@ MAX_CEPTOMETER_HEIGHT_M = 10.0
 #: Most points per segment adaptive sampling spends (:attr:`Scenario.target_rse`); segments still
 #: above the target there are reported (results ``samples_per_segment`` = this, ``reached_rse``).
 MAX_ADAPTIVE_SAMPLES = 8192
+
+
+def adaptive_limits() -> dict:
+    """What bounds adaptive sampling besides its target (results attributes, the render cache
+    key): the cap :data:`MAX_ADAPTIVE_SAMPLES` and the light floor
+    :data:`~lightfit.light.estimator.DARK_FLOOR`."""
+    return {"max_samples": MAX_ADAPTIVE_SAMPLES, "dark_floor": DARK_FLOOR}
 
 
 #: Values of :attr:`Scenario.direct` (``"auto"`` resolves by the field's boundary).
@@ -265,6 +278,7 @@ class Scenario:
 __all__ = [
     "DIRECT_CHOICES",
     "MAX_ADAPTIVE_SAMPLES",
+    "adaptive_limits",
     "Forcing",
     "Scenario",
     "WEATHER_COLUMNS",

@@ -133,6 +133,15 @@ VARIABLES: dict[str, Variable] = {
         "at the allocation point (highest daytime sun, PAR DNI/DHI of that step, sun-sky covariance "
         "included); inf for segments receiving no light",
     ),
+    "stopped_on_floor": Variable(
+        S,
+        "1",
+        "segment done by adaptive sampling's light floor rather than the relative target",
+        "its absorbed PAR is below attribute dark_floor times the PAR on a horizontal surface above the "
+        "canopy, and its absolute Monte Carlo SE below target_rse times that floor "
+        "(lightfit.light.estimator.render_adaptive)",
+        flags="0 no, 1 yes",
+    ),
     # -- per segment: leaf photosynthesis (blades) ------------------------------------------
     "leaf_an_umol_m2_s": Variable(TS, UMOL, "leaf net CO2 assimilation", _LEAF_AREA),
     "leaf_an_mc_sd_umol_m2_s": Variable(
