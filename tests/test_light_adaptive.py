@@ -219,7 +219,9 @@ def test_render_key_names_the_target(adaptive_model):
     keys = [render_key(x) for x in (adaptive_model, fixed, other)]
     assert keys[0]["target_rse"] == 0.1 and "target_rse" not in keys[1]  # fixed-K keys unchanged
     assert keys[0] != keys[1] and keys[0] != keys[2]
-    assert "allocated_at" not in keys[1]
+    assert "allocated_at" not in keys[1] and "dark_floor" not in keys[1]
+    # Renders allocated under another light floor are not reused.
+    assert keys[0]["dark_floor"] == DARK_FLOOR and keys[0]["max_samples"] == 8192
 
 
 def test_render_key_names_where_the_allocation_was_chosen(adaptive_model):
