@@ -269,8 +269,9 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "--target-rse",
             help="Accuracy knob: per-segment relative standard error of absorbed PAR to reach by adaptive "
             "sampling (e.g. 0.05), in (0, 1); --samples is then each segment's starting count (at least 32), "
-            "samples are added up to 8192 where the error is above it; results.nc reports each segment's "
-            "samples and reached error. Default: none (every segment gets --samples points).",
+            "samples are added up to 8192 where the error is above it (for segments absorbing under 0.5 % of "
+            "the PAR above the canopy, an absolute error of the target times that light); results.nc reports each "
+            "segment's samples and reached error. Default: none (every segment gets --samples points).",
             rich_help_panel=_LIGHT,
         ),
     ),
