@@ -23,8 +23,9 @@ from typing import Annotated, Any
 import typer
 
 from lightfit.errors import InputError
-from lightfit.light.estimator import check_bounces, check_samples, check_target_rse
+from lightfit.light.estimator import DARK_FLOOR, check_bounces, check_samples, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
+from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -269,8 +270,9 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "--target-rse",
             help="Accuracy knob: per-segment relative standard error of absorbed PAR to reach by adaptive "
             "sampling (e.g. 0.05), in (0, 1); --samples is then each segment's starting count (at least 32), "
-            "samples are added up to 8192 where the error is above it (for segments absorbing under 0.5 % of "
-            "the PAR above the canopy, an absolute error of the target times that light); results.nc reports each "
+            f"samples are added up to {MAX_ADAPTIVE_SAMPLES} where the error is above it (for segments absorbing "
+            f"under {DARK_FLOOR:.1%} of the PAR above the canopy, an absolute error of the target times that "
+            "light); results.nc reports each "
             "segment's samples and reached error. Default: none (every segment gets --samples points).",
             rich_help_panel=_LIGHT,
         ),
