@@ -8,8 +8,8 @@ DNI 1 and DHI 0.3, the projected direct light at its default rays, a pilot of 32
 coupled model's cap (``MAX_ADAPTIVE_SAMPLES``). For each target the floors are run in turn, in
 one process (a warm-up render first), so their times are side by side. Reported per run: wall
 time, evaluations (points × sides rendered), segments at the cap and stopped by the floor,
-reached relative SE (median and 90th percentile over the segments above the largest floor, the
-same segments for every floor, and over all segments with light), and the canopy's absorbed PAR
+reached relative SE (median and 90th percentile over the segments above the largest floor, by
+each run's own estimate, and over all segments with light), and the canopy's absorbed PAR
 (Σ area × value) against the first floor's, in units of its Monte Carlo SE (the floor must not
 move it beyond noise).
 
@@ -49,8 +49,7 @@ def _quantiles(x: np.ndarray) -> dict:
 
 def run(fs, ids, target: float, floor: float, compare_floor: float) -> tuple[dict, object]:
     """One adaptive render; its SEs summarised over the segments above ``compare_floor`` (the
-    largest floor of the bench, so that every floor is judged on the same segments) and over all
-    with light."""
+    largest floor of the bench, by this run's estimate) and over all with light."""
     t = time.perf_counter()
     r = render_adaptive(
         fs, ids, target, bounces=2, seed=1, max_samples=MAX_ADAPTIVE_SAMPLES, direct="projection", dark_floor=floor

@@ -7,6 +7,7 @@ import pytest
 
 import lightfit  # noqa: F401
 from lightfit.errors import InputError
+from lightfit.light.bridge import make_irradiance
 from lightfit.light.estimator import DARK_FLOOR, PARTS, AdaptiveEstimator, SegmentEstimator, render_adaptive
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
@@ -88,7 +89,14 @@ def test_light_floor_stops_dark_segments_on_an_absolute_error(scene):
     abs_se = np.multiply(r.meta["reached_rse"], value, out=np.zeros_like(value), where=value > 0)
     floor = r.meta["stopped_on_floor"]
     assert floor.sum() >= 5 and (value[floor] < r.meta["floor_absorbed"]).all()
-    assert (abs_se[floor] <= 0.05 * r.meta["floor_absorbed"] * (1 + 1e-12)).all()
+    # Exactly the segments that missed the relative target and met the absolute one, and those
+    # without light after 3 / f points (the rule of three: their light is below the floor).
+    rse = r.meta["reached_rse"]
+    met_floor = np.isfinite(rse) & (rse > 0.05) & (abs_se <= 0.05 * r.meta["floor_absorbed"] * (1 + 1e-12))
+    unlit = ~np.isfinite(rse)
+    np.testing.assert_array_equal(floor, (met_floor | unlit) & (K >= 3 / f))
+    # Without the floor a segment without light goes on to the cap (no SE to judge it by).
+    assert (K[unlit] >= 3 / f).all() and (K0[~np.isfinite(plain.meta["reached_rse"])] == 512).all()
     # Fewer points where the floor stopped a segment, the same allocation and values elsewhere.
     assert (K[floor] <= K0[floor]).all() and (floor | (K == K0)).all() and (K[floor] < K0[floor]).any()
     same = K == K0
@@ -99,6 +107,15 @@ def test_light_floor_stops_dark_segments_on_an_absolute_error(scene):
     for bad in (-0.1, 1.0, True, float("nan")):
         with pytest.raises(InputError, match="dark_floor"):
             render_adaptive(fs, ids, 0.05, dark_floor=bad, **kw)
+        with pytest.raises(InputError, match="dark_floor"):
+            make_irradiance(fs, ids, target_rse=0.05, dark_floor=bad)
+    # At night the floor is the sky's share alone (the sun below the horizon adds nothing).
+    fs.set_sun(-5.0, 180.0)
+    try:
+        night = render_adaptive(fs, ids[:50], 0.05, dark_floor=f, bounces=1, seed=4, max_samples=32)
+    finally:
+        fs.set_sun(45.0, 180.0)
+    assert night.meta["floor_absorbed"] == pytest.approx(f * 0.3, rel=1e-12)
 
 
 def test_adaptive_estimator_gradient_matches_common_random_number_differences(scene):

@@ -456,3 +456,37 @@ def test_adaptive_projection_follows_the_bounces(field):
     fixed = SegmentEstimator(fs, ids[sel], samples=int(K[sel][0]), **kw).render()
     for p in PARTS:
         np.testing.assert_allclose(getattr(r, p)[sel], getattr(fixed, p), rtol=1e-10, atol=1e-14)
+
+
+def test_light_floor_leaves_the_other_segments_as_they_were():
+    """With the projection, the light floor stops dark segments and changes nothing else: every
+    segment it does not stop keeps its K, its projected-or-own direct light and its values (the
+    default 4-plant cell, whose culms inside their sheaths are dark)."""
+    from lightfit.light.estimator import PARTS, render_adaptive
+    from lightfit.light.scene import Optics
+    from lightfit.plant import Field, build
+
+    g = build(Field(n_plants=4, seed=1), progress=False)
+    ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
+    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fs.set_sun(50.0, 180.0)
+    kw = dict(bounces=2, seed=1, max_samples=256, direct="projection")
+    plain = render_adaptive(fs, ids, 0.1, dark_floor=0.0, **kw)
+    # A floor of 5 % (judged from 3 / f = 60 points on, below the cap of 256; the default 0.5 %
+    # waits for 600).
+    r = render_adaptive(fs, ids, 0.1, dark_floor=0.05, **kw)
+    on = r.meta["stopped_on_floor"]
+    assert on.sum() >= 3 and not plain.meta["stopped_on_floor"].any()
+    keep = ~on
+    np.testing.assert_array_equal(r.meta["samples_per_segment"][keep], plain.meta["samples_per_segment"][keep])
+    np.testing.assert_array_equal(r.meta["projected"][keep], plain.meta["projected"][keep])
+    for p in PARTS:
+        np.testing.assert_array_equal(getattr(r, p)[keep], getattr(plain, p)[keep])
+    assert (r.meta["samples_per_segment"][on] <= plain.meta["samples_per_segment"][on]).all()
+    assert r.meta["n_evaluations"] < plain.meta["n_evaluations"]
+    # A segment without light goes on until 3 / f points (the rule of three puts its light under
+    # the floor): 64 for f = 0.05; without the floor, to the cap.
+    for run, k in ((r, 64), (plain, 256)):
+        unlit = ~np.isfinite(run.meta["reached_rse"])
+        assert unlit.sum() >= 3 and (run.meta["samples_per_segment"][unlit] == k).all()
+        assert run.meta["stopped_on_floor"][unlit].all() == (run is r)

@@ -30,7 +30,14 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
-from lightfit.light.estimator import DARK_FLOOR, PARTS, AdaptiveEstimator, SegmentEstimator, check_target_rse
+from lightfit.light.estimator import (
+    DARK_FLOOR,
+    PARTS,
+    AdaptiveEstimator,
+    SegmentEstimator,
+    check_dark_floor,
+    check_target_rse,
+)
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
@@ -87,6 +94,7 @@ def make_irradiance(
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
     if target_rse is not None:
         check_target_rse(target_rse)
+        check_dark_floor(dark_floor)
     n_seg = len(ids)
     n_out = n_seg + len(sensors)
     lock = threading.Lock()

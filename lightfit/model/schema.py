@@ -124,7 +124,8 @@ VARIABLES: dict[str, Variable] = {
         "1",
         "irradiance sample points of the segment (adaptive sampling to target_rse)",
         "chosen once at the allocation point (highest daytime sun, the scenario's default leaf) and kept; "
-        "= attribute max_samples where the target was not reached",
+        "= attribute max_samples where neither the target nor the light floor was reached "
+        "(variable stopped_on_floor)",
     ),
     "reached_rse": Variable(
         S,
