@@ -3,7 +3,8 @@
     python benchmarks/bench_dark_floor.py [--n-plants 100] [--targets 0.1 0.05] [--floors 0 0.005]
         [--out benchmarks/results/dark_floor.json]
 
-The default field (periodic cell, wrapped sheaths), the sun at 50° elevation, absorbed PAR at
+The default field (periodic cell, wrapped sheaths, PROSPECT-D leaf, its 2 bounces; the light
+benchmarks' ``periodic_cell``), the sun at 50° elevation, absorbed PAR at
 DNI 1 and DHI 0.3, the projected direct light at its default rays, a pilot of 32 points and the
 coupled model's cap (``MAX_ADAPTIVE_SAMPLES``). For each target the floors are run in turn, in
 one process (a warm-up render first), so their times are side by side. Reported per run: wall
@@ -26,15 +27,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state
+from bench_light import commit_state, periodic_cell
 from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
 from lightfit.light.estimator import DARK_FLOOR, SegmentEstimator, render_adaptive
-from lightfit.light.scene import FieldScene, Optics
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
-from lightfit.plant import Field, build
+from lightfit.plant.sheaths import SHEATHS
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -47,12 +47,19 @@ def _quantiles(x: np.ndarray) -> dict:
     return {"median": float(np.median(x)), "p90": float(np.quantile(x, 0.9))}
 
 
-def run(fs, ids, target: float, floor: float, compare_floor: float) -> tuple[dict, object]:
+def run(fs, ids, target: float, floor: float, compare_floor: float, bounces: int) -> tuple[dict, object]:
     """One adaptive render; its SEs summarised over the segments above ``compare_floor`` (the
     largest floor of the bench, by this run's estimate) and over all with light."""
     t = time.perf_counter()
     r = render_adaptive(
-        fs, ids, target, bounces=2, seed=1, max_samples=MAX_ADAPTIVE_SAMPLES, direct="projection", dark_floor=floor
+        fs,
+        ids,
+        target,
+        bounces=bounces,
+        seed=1,
+        max_samples=MAX_ADAPTIVE_SAMPLES,
+        direct="projection",
+        dark_floor=floor,
     )
     wall = time.perf_counter() - t
     K, rse, on_floor = r.meta["samples_per_segment"], r.meta["reached_rse"], r.meta["stopped_on_floor"]
@@ -79,25 +86,22 @@ def run(fs, ids, target: float, floor: float, compare_floor: float) -> tuple[dic
 
 def main(n_plants: int, targets: list[float], floors: list[float], out: Path) -> dict:
     console = Console()
-    fld = Field(n_plants=n_plants, seed=1)
-    g = build(fld, progress=False)
-    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
-    fs.set_sun(50.0, 180.0)
-    ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
+    g, fs, ids, bounces = periodic_cell(n_plants)
     res = {
         **commit_state(),
         "n_plants": n_plants,
         "segments": len(ids),
-        "sheaths": fld.sheaths,
+        "sheaths": SHEATHS[0],
+        "bounces": bounces,
         "max_samples": MAX_ADAPTIVE_SAMPLES,
         "load_average_start": os.getloadavg()[0],
         "runs": [],
     }
-    SegmentEstimator(fs, ids[:200], samples=32, bounces=2, seed=9, direct="projection").render()  # warm-up
+    SegmentEstimator(fs, ids[:200], samples=32, bounces=bounces, seed=9, direct="projection").render()  # warm-up
     for target in targets:
         first = None
         for floor in floors:
-            row, _ = run(fs, ids, target, floor, max(floors))
+            row, _ = run(fs, ids, target, floor, max(floors), bounces)
             first = first or row
             d = row["canopy_absorbed"] - first["canopy_absorbed"]
             row["canopy_difference_z"] = d / math.hypot(row["canopy_absorbed_se"], first["canopy_absorbed_se"])

@@ -6,7 +6,8 @@
 A segment stopped by the floor (``render_adaptive(dark_floor=)``) stops when its *absolute* SE
 is small, and a segment's SE is small when its estimate happens to be low, so the floor can
 select low estimates (a sequential design's selection effect). This measures it where it can
-show: the 16-plant default cell (periodic, wrapped sheaths), the sun at 50°, absorbed PAR at DNI 1
+show: the 16-plant default cell (periodic, wrapped sheaths, PROSPECT-D leaf and its 2 bounces; the
+light benchmarks' ``periodic_cell``), the sun at 50°, absorbed PAR at DNI 1
 and DHI 0.3, target ``--target``, with the direct light from the paths and projected. The
 segments judged are fixed in advance, not by any run's data: those whose reference light is
 below the floor ("dark", mostly culms inside their sheaths) and, apart, the blades. The reference
@@ -33,11 +34,10 @@ from rich.table import Table
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_light import commit_state  # noqa: E402
+from bench_light import commit_state, periodic_cell  # noqa: E402
 
 from lightfit.light.estimator import DARK_FLOOR, SegmentEstimator, render_adaptive  # noqa: E402
-from lightfit.light.scene import FieldScene, Optics  # noqa: E402
-from lightfit.plant import Field, build  # noqa: E402
+from lightfit.plant.sheaths import SHEATHS  # noqa: E402
 from lightfit.precision import use_float64  # noqa: E402
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -51,17 +51,13 @@ MAX_SAMPLES = 4096
 
 def main(seeds: int, floors: list[float], target: float, out: Path) -> dict:
     console = Console()
-    fld = Field(n_plants=16, seed=1)
-    g = build(fld, progress=False)
-    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
-    fs.set_sun(50.0, 180.0)
-    ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
+    g, fs, ids, bounces = periodic_cell(16)
     refs = [
-        SegmentEstimator(fs, ids, samples=REF_K, bounces=2, seed=s).render().total("absorbed", DNI, DHI)
+        SegmentEstimator(fs, ids, samples=REF_K, bounces=bounces, seed=s).render().total("absorbed", DNI, DHI)
         for s in REF_SEEDS
     ]
     ref = np.mean(refs, 0)
-    first = render_adaptive(fs, ids, target, bounces=2, seed=0, max_samples=32, dark_floor=max(floors))
+    first = render_adaptive(fs, ids, target, bounces=bounces, seed=0, max_samples=32, dark_floor=max(floors))
     area, blade = first.meta["area_m2"], first.meta["is_blade"]
     floor_light = max(floors) * (DNI * float(fs.sun[2]) + DHI)
     classes = {"dark (reference below the floor)": (ref < floor_light) & (ref > 0), "blades": blade}
@@ -77,7 +73,7 @@ def main(seeds: int, floors: list[float], target: float, out: Path) -> dict:
             evals, flagged = [], []
             for seed in range(seeds):
                 r = render_adaptive(
-                    fs, ids, target, bounces=2, seed=seed, max_samples=MAX_SAMPLES, direct=direct, dark_floor=f
+                    fs, ids, target, bounces=bounces, seed=seed, max_samples=MAX_SAMPLES, direct=direct, dark_floor=f
                 )
                 v = r.total("absorbed", DNI, DHI)
                 for c, m in classes.items():
@@ -97,7 +93,7 @@ def main(seeds: int, floors: list[float], target: float, out: Path) -> dict:
     res = {
         **commit_state(),
         "n_plants": 16,
-        "sheaths": fld.sheaths,
+        "sheaths": SHEATHS[0],
         "target_rse": target,
         "seeds": seeds,
         "reference_samples": REF_K,
