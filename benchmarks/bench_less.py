@@ -251,6 +251,24 @@ def part_agreement(folder, part: str, geom, exp: dict, seg_index, renders, area,
     return {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in classes.items()}
 
 
+def segment_index(geom) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(segment ids, each face's index into them, each segment's area (m²), whether it is a
+    blade)`` of a built field, in the order both tools' per-segment values take."""
+    seg_ids = np.unique(geom.mesh.face_segment)
+    seg_index = np.searchsorted(seg_ids, geom.mesh.face_segment)
+    area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=len(seg_ids))
+    blade = np.zeros(len(seg_ids), bool)
+    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
+    return seg_ids, seg_index, area, blade
+
+
+def lightfit_renders(fs, seg_ids: np.ndarray, samples: int, reps: int) -> list:
+    """lightfit's renders of ``seg_ids`` at seeds 1 … ``reps`` (the LESS replicates' partners)."""
+    return [
+        SegmentEstimator(fs, seg_ids, samples=samples, bounces=BOUNCES, seed=r).render() for r in range(1, reps + 1)
+    ]
+
+
 def agreement_classes(geom, seg_ids: np.ndarray, blade: np.ndarray) -> dict[str, np.ndarray]:
     """The segment classes compared between the tools: blades, "stems" (stem and sheath prisms or
     tubes; also apart: the sheaths, and the culms, which wrapped sheaths enclose) and
@@ -314,10 +332,8 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
     fs = FieldScene(geom.mesh, lambertian_optics(), cell=geom.cell)
     scene_s = time.perf_counter() - t
     fs.set_sun(SUN_ELEVATION_DEG, SUN_AZIMUTH_DEG)
-    seg_ids = np.unique(geom.mesh.face_segment)
-    seg_index = np.searchsorted(seg_ids, geom.mesh.face_segment)
+    seg_ids, seg_index, area, blade = segment_index(geom)
     n_seg = len(seg_ids)
-    area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=n_seg)
 
     # LESS runs, grouped by replicate (one scene build per face order).
     runs = []
@@ -331,8 +347,6 @@ def _run_in(folder, boundary, n_plants, less_n, lf_k, reps, target, console, lf_
             for n in less_n
         ]
     exp = export(geom, boundary, folder, runs)
-    blade = np.zeros(n_seg, bool)
-    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
     classes = {"blades": blade, "stems": ~blade, "all": np.ones(n_seg, bool)}
     agree_classes = agreement_classes(geom, seg_ids, blade)
     # Per-class allocation (--allocated-samples): each class rendered on its own at its own K.

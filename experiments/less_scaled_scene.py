@@ -29,7 +29,6 @@ import tempfile
 import types
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -39,7 +38,6 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
 from bench_light import commit_state  # noqa: E402
 
-from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
 from lightfit.precision import use_float64  # noqa: E402
@@ -60,17 +58,9 @@ def main(scales: list[float], ground_half_m: float, reps: int, out: Path) -> dic
     geom = build(fld)
     fs = FieldScene(geom.mesh, bl.lambertian_optics())
     fs.set_sun(bl.SUN_ELEVATION_DEG, bl.SUN_AZIMUTH_DEG)
-    seg_ids = np.unique(geom.mesh.face_segment)
-    seg_index = np.searchsorted(seg_ids, geom.mesh.face_segment)
-    n_seg = len(seg_ids)
-    area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=n_seg)
-    blade = np.zeros(n_seg, bool)
-    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
+    seg_ids, seg_index, area, blade = bl.segment_index(geom)
     classes = {c: m for c, m in bl.agreement_classes(geom, seg_ids, blade).items() if c in CLASSES}
-    lf = [
-        SegmentEstimator(fs, seg_ids, samples=LIGHTFIT_K, bounces=bl.BOUNCES, seed=r).render()
-        for r in range(1, reps + 1)
-    ]
+    lf = bl.lightfit_renders(fs, seg_ids, LIGHTFIT_K, reps)
     rows = []
     for s in scales:
         m = geom.mesh

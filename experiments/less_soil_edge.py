@@ -42,7 +42,6 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
 from bench_light import commit_state  # noqa: E402
 
-from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
 from lightfit.plant.sheaths import SHEATHS  # noqa: E402
@@ -66,18 +65,11 @@ def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Pa
     geom = build(Field(n_plants=16, seed=1, boundary="finite", sheaths=sheaths))
     fs = FieldScene(geom.mesh, bl.lambertian_optics())
     fs.set_sun(bl.SUN_ELEVATION_DEG, bl.SUN_AZIMUTH_DEG)
-    seg_ids = np.unique(geom.mesh.face_segment)
-    seg_index = np.searchsorted(seg_ids, geom.mesh.face_segment)
+    seg_ids, seg_index, area, blade = bl.segment_index(geom)
     n_seg = len(seg_ids)
-    area = np.bincount(seg_index, geom.mesh.face_areas(), minlength=n_seg)
-    blade = np.zeros(n_seg, bool)
-    np.logical_or.at(blade, seg_index, geom.mesh.face_is_blade)
     above_soil = bl.agreement_classes(geom, seg_ids, blade)  # the buried bases apart: see there
     classes = {c: above_soil[c] for c in CLASSES}
-    lf = [
-        SegmentEstimator(fs, seg_ids, samples=LIGHTFIT_K, bounces=bl.BOUNCES, seed=r).render()
-        for r in range(1, reps + 1)
-    ]
+    lf = bl.lightfit_renders(fs, seg_ids, LIGHTFIT_K, reps)
     console.print(f"lightfit: {reps} renders at K = {LIGHTFIT_K}")
     rows = []
     for w in half_widths:
