@@ -262,3 +262,30 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         ],
     )
     assert bad.exit_code == 2 and "scheduler" in bad.stderr
+
+
+def test_adaptive_time_chunks_allocate_at_the_whole_runs_point(weather, monkeypatch):
+    """With adaptive sampling every task allocates at the whole run's point (its highest sun), not
+    at its time chunk's, so the tasks' samples per segment agree: tiles and time chunks give the
+    single process's result (each chunk allocated at its own sun before, and gather failed with
+    conflicting samples_per_segment). Tasks run in this process (no cluster needed)."""
+    import lightfit.model.scenario as scenario
+    from lightfit.distributed.run import TaskSpec, run_task
+    from lightfit.model.coupled import CoupledModel
+
+    monkeypatch.setattr(scenario, "MAX_ADAPTIVE_SAMPLES", 256)  # seconds, not minutes
+    sc = Scenario(weather=weather, field=FIELD, samples=32, bounces=2, par_kind="absorbed", target_rse=0.1)
+    ref = run_single(FieldRun(sc))
+    run = FieldRun(sc, tiles=2, time_chunks=2)
+    whole = CoupledModel(sc, sensors=()).allocation_point
+    chunks = run.chunk_index()
+    for rows in chunks:
+        leaf, sun, dni, dhi = run.task_scenario(0, rows).allocate_at
+        np.testing.assert_array_equal(sun, whole[1])
+        assert (leaf, dni, dhi) == (tuple(whole[0]), whole[2], whole[3])
+    tasks = [TaskSpec(run=run, tile=k, chunk=c, rows=rows) for c, rows in enumerate(chunks) for k in range(2)]
+    results = [run_task(t) for t in tasks]
+    ds = gather(results, run)
+    for v in ("samples_per_segment", "reached_rse", "stopped_on_floor", "absorbed_par_umol_m2_s"):
+        np.testing.assert_array_equal(ds[v].values, ref[v].values)
+    assert len(np.unique(ds["samples_per_segment"].values)) >= 2

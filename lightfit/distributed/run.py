@@ -44,7 +44,7 @@ from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError, check_integer
 from lightfit.model import schema
 from lightfit.model.parameters import Theta
-from lightfit.model.scenario import Scenario, daytime
+from lightfit.model.scenario import Forcing, Scenario, daytime
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
 #: Observables recomputed from the gathered segments. The virtual sensors' (ceptometer) are not
@@ -118,14 +118,25 @@ class FieldRun:
         return [np.sort(np.concatenate([d[i::c], n[i::c]])) for i in range(c)]
 
     def task_scenario(self, tile: int, rows=None) -> Scenario:
-        """The :attr:`scenario` of one tile (its halo field) and time chunk (weather ``rows``; ``None``: all)."""
-        w = self.scenario.weather
+        """The :attr:`scenario` of one tile (its halo field) and time chunk (weather ``rows``; ``None``: all).
+
+        With adaptive sampling every task allocates at the whole run's point
+        (:func:`~lightfit.model.coupled.allocation_point` of all its steps), not at its chunk's
+        highest sun, so the tasks' samples per segment agree and merge."""
+        from lightfit.model.coupled import allocation_point
+
+        sc, w = self.scenario, self.scenario.weather
+        at = sc.allocate_at
+        if sc.target_rse is not None and at is None:
+            sun = np.column_stack([w["sun_elevation_deg"], w["sun_azimuth_deg"]]).astype(np.float64)
+            at = allocation_point(Forcing.of(w), sun, np.asarray(sc.theta.leaf, np.float64))
         return replace(
-            self.scenario,
+            sc,
             weather=w if rows is None else w.iloc[rows],
             field=self.halo_field,
             n_tiles=self.tiles,
             tile=tile,
+            allocate_at=at,
         )
 
 

@@ -45,6 +45,21 @@ from lightfit.weather import timestamps
 LightParts = Callable[[Theta], tuple[jax.Array, jax.Array]]
 
 
+def allocation_point(
+    forcing: Forcing, sun_deg: np.ndarray, leaf: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``(leaf, sun_deg, dni_par, dhi_par)`` of the daytime step with the highest sun (the largest
+    light, which dominates daily sums), its PAR weighting the sun and sky parts; with no daytime
+    step, the highest sun and a clear day's mix (DHI / DNI = 0.3). ``sun_deg``: (T, 2) elevation
+    and azimuth, degrees, of the steps of ``forcing``."""
+    steps = np.flatnonzero(forcing.day)
+    i = steps[np.argmax(sun_deg[steps, 0])] if len(steps) else int(np.argmax(sun_deg[:, 0]))
+    dni, dhi = float(forcing.dni_par[i]), float(forcing.dhi_par[i])
+    if dni + dhi <= 0:
+        dni, dhi = 1.0, 0.3
+    return np.asarray(leaf, np.float64), np.asarray(sun_deg[i], np.float64).copy(), dni, dhi
+
+
 class CoupledModel:
     """Geometry, forcing and observation operator of one :class:`Scenario`, built once.
 
@@ -139,17 +154,15 @@ class CoupledModel:
     @property
     def allocation_point(self) -> tuple[np.ndarray, np.ndarray, float, float]:
         """``(leaf, sun_deg, dni_par, dhi_par)`` at which adaptive sampling (``Scenario.target_rse``)
-        chooses each segment's K, once, kept for every step and leaf: the scenario's default leaf
-        and the daytime step with the highest sun (the largest light, which dominates daily sums),
-        its PAR weighting the sun and sky parts. A fixed point, so renders are a pure function of
-        the leaf parameters (gradients and the emulator's cache stay valid)."""
-        f = self.forcing
-        steps = np.flatnonzero(self.day)
-        i = steps[np.argmax(self.sun_deg[steps, 0])] if len(steps) else int(np.argmax(self.sun_deg[:, 0]))
-        dni, dhi = float(f.dni_par[i]), float(f.dhi_par[i])
-        if dni + dhi <= 0:  # no daytime step at all: a clear day's mix
-            dni, dhi = 1.0, 0.3
-        return np.asarray(self.scenario.theta.leaf, np.float64), self.sun_deg[i].copy(), dni, dhi
+        chooses each segment's K, once, kept for every step and leaf: ``Scenario.allocate_at``
+        where given, else :func:`allocation_point` of this model's steps. A fixed point, so
+        renders are a pure function of the leaf parameters (gradients and the emulator's cache
+        stay valid)."""
+        sc = self.scenario
+        if sc.allocate_at is not None:
+            leaf, sun, dni, dhi = sc.allocate_at
+            return np.asarray(leaf, np.float64), np.asarray(sun, np.float64), float(dni), float(dhi)
+        return allocation_point(self.forcing, self.sun_deg, np.asarray(sc.theta.leaf, np.float64))
 
     def render(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""

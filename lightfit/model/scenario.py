@@ -130,6 +130,23 @@ def adaptive_limits() -> dict:
     return {"max_samples": MAX_ADAPTIVE_SAMPLES, "dark_floor": DARK_FLOOR}
 
 
+def check_allocate_at(value) -> tuple:
+    """``(leaf (3,) in [0, 1], sun_deg (2,) finite, dni_par ≥ 0, dhi_par ≥ 0)`` as floats, else
+    :class:`InputError` naming ``allocate_at``."""
+    expected = "(leaf: 3 numbers in [0, 1], sun_deg: elevation and azimuth in degrees, dni_par ≥ 0, dhi_par ≥ 0)"
+    try:
+        leaf, sun, dni, dhi = value
+        leaf = tuple(float(x) for x in np.asarray(leaf, np.float64).reshape(3))
+        sun = tuple(float(x) for x in np.asarray(sun, np.float64).reshape(2))
+        dni, dhi = float(dni), float(dhi)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"allocate_at={value!r}", column="allocate_at", expected=expected) from e
+    ok = all(0 <= x <= 1 for x in leaf) and all(np.isfinite(sun)) and dni >= 0 and dhi >= 0
+    if not (ok and np.isfinite(dni) and np.isfinite(dhi)):
+        raise InputError(f"allocate_at={value!r}", column="allocate_at", expected=expected)
+    return leaf, sun, dni, dhi
+
+
 #: Values of :attr:`Scenario.direct` (``"auto"`` resolves by the field's boundary).
 DIRECT_CHOICES = ("auto", "projection", "paths")
 
@@ -193,6 +210,11 @@ class Scenario:
             :class:`~lightfit.light.estimator.AdaptiveEstimator`; docs/light.md, "Adaptive
             sampling to a target error"); ``samples`` is then the starting count of every
             segment (at least 32) and :data:`MAX_ADAPTIVE_SAMPLES` the cap.
+        allocate_at: where adaptive sampling chooses each segment's K: ``None`` (default) the
+            daytime step with the highest sun of this scenario's weather, with its default leaf
+            (:attr:`~lightfit.model.coupled.CoupledModel.allocation_point`); or ``(leaf (3,),
+            sun_deg (2,), dni_par, dhi_par)``. A distributed run gives its time chunks the whole
+            run's point, so that every chunk allocates alike.
         direct: where the renders' unscattered light (direct sun, directly seen sky) comes from:
             ``"projection"`` (periodic fields: rays cast down over the cell,
             :mod:`lightfit.light.projection`; same expectation as the paths, a fraction of their
@@ -225,6 +247,7 @@ class Scenario:
     bounces: int | None = None
     seed: int = 0
     target_rse: float | None = None
+    allocate_at: tuple | None = None
     direct: str = "auto"
     direct_rays_per_m2: tuple[float, float] | float = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
@@ -243,6 +266,8 @@ class Scenario:
         self.samples, self.bounces = check_samples(self.samples), check_bounces(self.bounces)
         if self.target_rse is not None:
             self.target_rse = check_target_rse(self.target_rse)
+        if self.allocate_at is not None:
+            self.allocate_at = check_allocate_at(self.allocate_at)
         self.direct = resolve_direct(self.direct, self.field.boundary)
         self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
         check_ceptometer_height(self.ceptometer_height_m)
