@@ -26,7 +26,12 @@ def kill_point(kind: str, n: int) -> None:
     if hook == f"{kind}:{n}":
         os.kill(os.getpid(), signal.SIGKILL)
     elif hook == f"{kind}:{n}:INT":
-        # raise_signal delivers to this thread, so Python raises KeyboardInterrupt at once; a
-        # process-wide os.kill may land on a library's thread, and once in a fresh clone's CI run
-        # the interrupt was lost and the run went on to finish (tests/test_resume.py).
+        # A process started by a parent that ignores SIGINT inherits SIG_IGN, and Python then
+        # installs no KeyboardInterrupt handler: the simulated Ctrl-C would be lost (it was, in
+        # a full pytest -n 2 run, where a worker had come to ignore SIGINT). A user's terminal
+        # Ctrl-C meets Python's handler, so install it; raise_signal delivers to this thread.
+        try:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        except ValueError:  # not the main thread: the handler stays as it is
+            pass
         signal.raise_signal(signal.SIGINT)
