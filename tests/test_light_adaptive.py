@@ -320,3 +320,18 @@ def test_cli_refuses_bad_target_rse_in_one_line(value, tmp_path):
     err = " ".join(r.stderr.split())
     assert err.startswith("error:") and "target" in err and "(0, 1)" in err, err
     assert "Traceback" not in r.output and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [((0.5, 0.5), (50.0, 180.0), 1.0, 0.3), ((0.5, 0.5, 1.5), (50.0, 180.0), 1.0, 0.3), ((0.5,) * 3, (50.0,), 1, 0)]
+    + [((0.5,) * 3, (float("nan"), 180.0), 1.0, 0.3), ((0.5,) * 3, (50.0, 180.0), -1.0, 0.3), "noon"],
+)
+def test_scenario_refuses_a_bad_allocation_point(bad):
+    from lightfit import replication as rep
+    from lightfit.model.scenario import Scenario
+
+    with pytest.raises(InputError, match="allocate_at"):
+        Scenario(weather=rep.forcing().iloc[[14]], target_rse=0.1, allocate_at=bad)
+    good = Scenario(weather=rep.forcing().iloc[[14]], target_rse=0.1, allocate_at=((0.5,) * 3, (50, 180), 1, 0.3))
+    assert good.allocate_at == ((0.5, 0.5, 0.5), (50.0, 180.0), 1.0, 0.3)
