@@ -10,6 +10,7 @@ from rich.table import Table
 from lightfit.cli.common import console
 from lightfit.cli.options import BOUNDARY_HELP, BUFFER_ALONG_HELP, BUFFER_ROWS_HELP, SHEATHS_HELP, check_boundary
 from lightfit.errors import InputError
+from lightfit.plant.sheaths import SHEATHS
 
 
 def field(
@@ -19,7 +20,7 @@ def field(
     boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
     buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
-    sheaths: str = typer.Option("wrapped", help=SHEATHS_HELP),
+    sheaths: str = typer.Option(SHEATHS[0], help=SHEATHS_HELP),
     row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."

@@ -44,7 +44,7 @@ from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError, check_integer
 from lightfit.model import schema
 from lightfit.model.parameters import Theta
-from lightfit.model.scenario import Forcing, Scenario, daytime
+from lightfit.model.scenario import Forcing, Scenario, daytime, sun_positions_deg
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
 #: Observables recomputed from the gathered segments. The virtual sensors' (ceptometer) are not
@@ -128,8 +128,7 @@ class FieldRun:
         sc, w = self.scenario, self.scenario.weather
         at = sc.allocate_at
         if sc.target_rse is not None and at is None:
-            sun = np.column_stack([w["sun_elevation_deg"], w["sun_azimuth_deg"]]).astype(np.float64)
-            at = allocation_point(Forcing.of(w), sun, np.asarray(sc.theta.leaf, np.float64))
+            at = allocation_point(Forcing.of(w), sun_positions_deg(w), np.asarray(sc.theta.leaf, np.float64))
         return replace(
             sc,
             weather=w if rows is None else w.iloc[rows],

@@ -191,10 +191,14 @@ def check_bounces(value) -> int:
     return check_integer(value, "bounces", 0)
 
 
+def _is_real(value) -> bool:
+    """A real number (Python or numpy), not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
 def check_target_rse(value) -> float:
     """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1)."""
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    if not (ok and 0 < value < 1):
+    if not (_is_real(value) and 0 < value < 1):
         raise InputError(f"target_rse={value!r}", column="target_rse", expected="a relative standard error in (0, 1)")
     return float(value)
 
@@ -209,8 +213,7 @@ DARK_FLOOR = 0.005
 
 def check_dark_floor(value) -> float:
     """Adaptive sampling's light floor: a fraction of the PAR above the canopy in [0, 1)."""
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    if not (ok and 0 <= value < 1):
+    if not (_is_real(value) and 0 <= value < 1):
         raise InputError(
             f"dark_floor={value!r}", column="dark_floor", expected="a fraction of the PAR above the canopy in [0, 1)"
         )
@@ -1116,9 +1119,8 @@ def render_adaptive(
     the relative target; below, an absolute one: points are not spent on a relative error of almost
     nothing. The absolute goal is taken from :math:`3/f` points on: a dark segment's few hits give
     too unreliable an SE before (stopping on it selected low estimates). The floor depends on the
-    scene's sun and the weights only, not on which segments are
-    rendered, so tiles of a field still allocate as the whole field would. ``dark_floor=0``: the
-    relative target everywhere.
+    scene's sun and the weights only, not on which segments are rendered, so tiles of a field
+    still allocate as the whole field would. ``dark_floor=0``: the relative target everywhere.
 
     ``meta``: ``samples_per_segment`` (K per segment), ``reached_rse`` (relative SE of absorbed
     PAR at ``dni``/``dhi``), ``stopped_on_floor`` (segments done by the floor: a relative SE above

@@ -33,7 +33,7 @@ from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator, an_noise_bias, area_total
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import Forcing, Scenario, adaptive_limits
+from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import precision
@@ -103,7 +103,7 @@ class CoupledModel:
         self.timestamps = timestamps.of(w)
         self.forcing = Forcing.of(w)
         self.day = self.forcing.day
-        self.sun_deg = np.column_stack([w["sun_elevation_deg"], w["sun_azimuth_deg"]]).astype(np.float64)
+        self.sun_deg = sun_positions_deg(w)
         self.operator = ObservationOperator(
             forcing=self.forcing,
             area_m2=self.area_m2,

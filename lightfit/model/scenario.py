@@ -123,6 +123,11 @@ MAX_CEPTOMETER_HEIGHT_M = 10.0
 MAX_ADAPTIVE_SAMPLES = 8192
 
 
+def sun_positions_deg(weather: pd.DataFrame) -> np.ndarray:
+    """(T, 2) sun elevation and azimuth of the weather's steps, degrees (its solar columns)."""
+    return np.column_stack([weather["sun_elevation_deg"], weather["sun_azimuth_deg"]]).astype(np.float64)
+
+
 def adaptive_limits() -> dict:
     """What bounds adaptive sampling besides its target (results attributes, the render cache
     key): the cap :data:`MAX_ADAPTIVE_SAMPLES` and the light floor
@@ -304,6 +309,7 @@ __all__ = [
     "DIRECT_CHOICES",
     "MAX_ADAPTIVE_SAMPLES",
     "adaptive_limits",
+    "sun_positions_deg",
     "Forcing",
     "Scenario",
     "WEATHER_COLUMNS",

@@ -139,8 +139,8 @@ VARIABLES: dict[str, Variable] = {
         "1",
         "segment done by adaptive sampling's light floor rather than the relative target",
         "its absorbed PAR is below attribute dark_floor times the PAR on a horizontal surface above the "
-        "canopy, and its absolute Monte Carlo SE below target_rse times that floor "
-        "(lightfit.light.estimator.render_adaptive)",
+        "canopy and, after 3 / dark_floor sample points, its absolute Monte Carlo SE is below target_rse "
+        "times that floor or it has received no light at all (lightfit.light.estimator.render_adaptive)",
         flags="0 no, 1 yes",
     ),
     # -- per segment: leaf photosynthesis (blades) ------------------------------------------
