@@ -335,3 +335,28 @@ def test_scenario_refuses_a_bad_allocation_point(bad):
         Scenario(weather=rep.forcing().iloc[[14]], target_rse=0.1, allocate_at=bad)
     good = Scenario(weather=rep.forcing().iloc[[14]], target_rse=0.1, allocate_at=((0.5,) * 3, (50, 180), 1, 0.3))
     assert good.allocate_at == ((0.5, 0.5, 0.5), (50.0, 180.0), 1.0, 0.3)
+
+
+def test_the_bias_line_names_the_target_of_an_adaptive_run():
+    """With --target-rse the pilot's K is not what sets the noise: the line names the target and
+    the K range per segment; a fixed-K run keeps its K, a canopy taking up nothing gets no line."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import mc_bias_line
+
+    def run(an, **attrs):
+        k = xr.DataArray(np.array([32, 96, 8192]), dims="segment")
+        return xr.Dataset(
+            {
+                "canopy_an_umol_m2_s": ("time", np.array([0.0, an])),
+                "canopy_an_mc_bias_umol_m2_s": ("time", np.array([0.0, -0.02 * an])),
+                "samples_per_segment": k,
+            },
+            attrs={"samples": 32, "direct": "projection", **attrs},
+        )
+
+    fixed = mc_bias_line(run(40.0))
+    assert "-2.00% at K=32, falling with K and the projection's rays" in fixed
+    adaptive = mc_bias_line(run(40.0, target_rse=0.05))
+    assert "-2.00% at a target of 0.05 (K 32–8192 per segment), falling with the target" in adaptive
+    assert mc_bias_line(run(-1.0)) == ""

@@ -120,19 +120,33 @@ def replicate(
     for _, r in table.iterrows():
         t.add_row(*(_cell(r[c], SUMMARY_HEADS.get(c, (c, 3))[1]) for c in table.columns))
     console.print(t)
-    an, bias = (float(ds[v].sum()) for v in ("canopy_an_umol_m2_s", "canopy_an_mc_bias_umol_m2_s"))
-    if an > 0:
-        # The bias goes as the blades' PAR variance: 1/K from the paths, and with a projection
-        # (attribute direct) also 1/rays.
-        falls = "falling as 1/K"
-        if ds.attrs.get("direct") == "projection":
-            falls = "falling with K and the projection's rays"
-        console.print(
-            f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
-            f"response; not subtracted): {bias / an:+.2%} at K={ds.attrs['samples']}, {falls} (docs/model.md)"
-        )
+    line = mc_bias_line(ds)
+    if line:
+        console.print(line)
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")
+
+
+def mc_bias_line(ds) -> str:
+    """The run's Monte Carlo bias of the day's canopy An as one line ("" when the canopy took up
+    nothing), naming what sets the noise: a fixed K, or the adaptive target and its K range."""
+    an, bias = (float(ds[v].sum()) for v in ("canopy_an_umol_m2_s", "canopy_an_mc_bias_umol_m2_s"))
+    if an <= 0:
+        return ""
+    # The bias goes as the blades' PAR variance: 1/K from the paths, and with a projection
+    # (attribute direct) also 1/rays.
+    falls = "falling as 1/K"
+    if ds.attrs.get("direct") == "projection":
+        falls = "falling with K and the projection's rays"
+    at = f"K={ds.attrs['samples']}"
+    if "target_rse" in ds.attrs:  # adaptive: --samples is only the pilot, K differs per segment
+        k = ds["samples_per_segment"].values
+        at = f"a target of {float(ds.attrs['target_rse']):.3g} (K {k.min()}–{k.max()} per segment)"
+        falls = "falling with the target"
+    return (
+        f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
+        f"response; not subtracted): {bias / an:+.2%} at {at}, {falls} (docs/model.md)"
+    )
