@@ -48,7 +48,7 @@ def _cpu(f) -> float:
 def main(n_plants: int = 36, samples: int = 64, bounces: int = 3, repeats: int = 3) -> dict:
     load = os.getloadavg()[0]
     g = build(Field(boundary="finite", n_plants=n_plants, buffer_rows=2, seed=1))
-    fs = FieldScene(g.mesh, Optics())
+    fs = FieldScene(g.mesh, Optics.preset("paper"))
     fs.set_sun(50.0, 180.0)
     ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
     est = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1)

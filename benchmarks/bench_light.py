@@ -294,7 +294,7 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
     """Per-segment time at equal SE: one irradiancemeter render per segment vs our batched pass."""
     mi = backend.mitsuba()
     geom = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=2))
-    fs = FieldScene(geom.mesh, Optics(soil_albedo=0.12))
+    fs = FieldScene(geom.mesh, Optics.preset("paper"))
     fs.set_sun(-10.0, 0.0)
     seg = geom.segments[geom.segments["measured"].to_numpy() & (organ_class(geom.segments) == "blade")]
     ids = seg["segment_id"].to_numpy()

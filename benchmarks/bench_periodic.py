@@ -104,7 +104,7 @@ def case(n: int, setup: str, samples: int, seeds: int, out: Path) -> None:
     g = build(Field(n_plants=n * n, seed=1, **kw), progress=False)
     grow_s = time.perf_counter() - t
     t = time.perf_counter()
-    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
     fs.set_sun(*sun)
     scene_s = time.perf_counter() - t
     ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()

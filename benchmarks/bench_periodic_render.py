@@ -160,7 +160,7 @@ def main(
         for name, kw in (("finite", dict(boundary="finite", buffer_rows=2)), ("periodic", dict(boundary="periodic"))):
             g = build(Field(n_plants=n, seed=1, **kw))
             t = time.perf_counter()
-            fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+            fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
             geoms[name] = (g, fs, time.perf_counter() - t)
         for sun_name, sun in suns.items():
             case = {"n_plants": n, "sun": sun_name, "sun_deg": sun}
@@ -230,8 +230,8 @@ def walk_costs(n_plants: int = 100, rings=((1, 0), (2, 0), (1, 1)), repeat: int 
 
     g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"))
     gf = build(Field(boundary="finite", n_plants=n_plants, seed=1, buffer_rows=2))
-    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
-    fin = FieldScene(gf.mesh, Optics())
+    fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
+    fin = FieldScene(gf.mesh, Optics.preset("paper"))
     est = SegmentEstimator(fs, g.segments["segment_id"].to_numpy(), samples=64, bounces=3, seed=1)
     o, _, _, d, _, _ = est._arrays()
     mi, cell = fs.mi, g.cell
@@ -245,7 +245,7 @@ def walk_costs(n_plants: int = 100, rings=((1, 0), (2, 0), (1, 1)), repeat: int 
                     v = g.mesh.vertices.copy()
                     v[:, :2] += cell.lattice_shift(i, j)
                     copies.append(type(g.mesh)(v, g.mesh.faces, g.mesh.face_segment, g.mesh.face_is_blade))
-        scenes[f"ring {ra},{rb}"] = FieldScene(type(g.mesh).concatenate(copies), Optics(), cell=big)
+        scenes[f"ring {ra},{rb}"] = FieldScene(type(g.mesh).concatenate(copies), Optics.preset("paper"), cell=big)
 
     def walk(sc, cap=None):
         def f():
@@ -295,7 +295,7 @@ def main_job_day(samples: int, bounces: int, n_plants: int = 100) -> dict:
         g = build(Field(n_plants=n_plants, seed=1, **kw))
         t_build = time.perf_counter() - t
         t = time.perf_counter()
-        fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+        fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
         ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
         est[name] = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=1)
         _sync()

@@ -68,7 +68,7 @@ def main(
 ) -> dict:
     console = Console()
     g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=False)
-    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
     fs.set_sun(50.0, 180.0)
     ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
     res = {

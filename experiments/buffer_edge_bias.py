@@ -38,7 +38,7 @@ def main(n_plants: int = 16, samples: int = 128) -> dict:
     res = {}
     for rows, along in BUFFERS:
         g = build(Field(boundary="finite", n_plants=n_plants, buffer_rows=rows, buffer_along=along, seed=1))
-        fs = FieldScene(g.mesh, Optics())
+        fs = FieldScene(g.mesh, Optics.preset("paper"))
         fs.set_sun(*sun)
         ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
         t = time.perf_counter()

@@ -90,9 +90,9 @@ def main(n_plants: int = 100, samples: int = 64, seeds: int = 2) -> dict:
         g = build(Field(n_plants=n_plants, seed=1, **kw), progress=True)
         grow_s = time.perf_counter() - t
         if name == "copies":
-            fs = FieldScene(copies(g.mesh, g.cell)[0], Optics())
+            fs = FieldScene(copies(g.mesh, g.cell)[0], Optics.preset("paper"))
         else:
-            fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+            fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
         fs.set_sun(*sun)
         ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
         totals, variances, render_s, meta = [], [], [], None

@@ -71,9 +71,10 @@ def test_bsdf_parameters_reproduce_r_and_t():
 
 
 def test_presets():
-    assert Optics.preset("paper") == Optics()  # the Optics class's own defaults: the grey leaf
     assert preset_parameters("paper") == PAPER_LEAF
     pro = Optics.preset("prospect")
+    assert Optics() == pro  # the class's own defaults are the default leaf, not the paper's grey one
+    assert Optics(specular=0.7).base_color == pro.base_color  # a leaf parameter alone keeps the leaf
     assert pro == Optics.from_traits(LeafTraits())
     assert (pro.specular, pro.roughness, pro.soil_albedo) == (0.5, 0.5, 0.12)
     assert 0.05 < pro.base_color < 0.1 and 0.5 < pro.subsurface < 0.7

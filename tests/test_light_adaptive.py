@@ -17,7 +17,7 @@ from lightfit.plant import Field, build
 def scene():
     g = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=1))
     ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
-    fs = FieldScene(g.mesh, Optics())
+    fs = FieldScene(g.mesh, Optics.preset("paper"))
     fs.set_sun(45, 180)
     return fs, ids
 

@@ -14,7 +14,7 @@ from lightfit.plant import Field, build
 def test_bridge_matches_estimator_under_jit_grad_and_vmap():
     g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
     ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
-    fs = FieldScene(g.mesh, Optics())
+    fs = FieldScene(g.mesh, Optics.preset("paper"))
     f = make_irradiance(fs, ids, samples=8, bounces=2)
     leaf = jnp.array([0.4, 0.6, 0.2])
     sun = jnp.array([40.0, 170.0])
@@ -86,7 +86,7 @@ out = {}
 # 1. The bridge alone.
 g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
 ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
-f = make_irradiance(FieldScene(g.mesh, Optics()), ids, samples=8, bounces=2)
+f = make_irradiance(FieldScene(g.mesh, Optics.preset("paper")), ids, samples=8, bounces=2)
 sun = jnp.array([40.0, 170.0])
 w = jnp.asarray(np.linspace(0.5, 1.5, len(ids)))
 

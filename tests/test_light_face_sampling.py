@@ -128,7 +128,7 @@ def test_wrap64_is_the_cells_numpy_wrap():
     still be moved by a whole lattice vector onto the closed cell."""
     mi = mitsuba()
     cell = PeriodicCell(along_m=0.31, across_m=0.52, row_direction_deg=37.0, center_xy=(0.4, -1.3))
-    tracer = FieldScene(_mesh(), Optics(), cell=cell).tracer
+    tracer = FieldScene(_mesh(), Optics.preset("paper"), cell=cell).tracer
     rng = np.random.default_rng(4)
 
     def wrap64(p):
@@ -178,7 +178,7 @@ def test_estimator_layout_is_the_numpy_set_up(periodic):
     seg[np.flatnonzero(seg == 11)[0]] = 5  # a segment of one face
     mesh = Mesh(mesh.vertices, mesh.faces, seg, blade)
     cell = PeriodicCell(along_m=0.3, across_m=0.25, row_direction_deg=20.0) if periodic else None
-    fs = FieldScene(mesh, Optics(), cell=cell)
+    fs = FieldScene(mesh, Optics.preset("paper"), cell=cell)
     eps = 1e-5
     for samples, first in ((10, 0), (16, 3)):
         est = SegmentEstimator(fs, np.array([3, 5, 7, 11]), samples=samples, bounces=1, seed=2, first=first)
@@ -194,6 +194,6 @@ def test_estimator_layout_is_the_numpy_set_up(periodic):
 
 
 def test_first_beyond_float32_exact_indices_is_an_input_error():
-    fs = FieldScene(_mesh(), Optics())
+    fs = FieldScene(_mesh(), Optics.preset("paper"))
     with pytest.raises(InputError, match="first"):
         SegmentEstimator(fs, np.array([3]), samples=16, first=2**24)

@@ -468,7 +468,7 @@ def test_light_floor_leaves_the_other_segments_as_they_were():
 
     g = build(Field(n_plants=4, seed=1), progress=False)
     ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
-    fs = FieldScene(g.mesh, Optics(), cell=g.cell)
+    fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
     fs.set_sun(50.0, 180.0)
     kw = dict(bounces=2, seed=1, max_samples=256, direct="projection")
     plain = render_adaptive(fs, ids, 0.1, dark_floor=0.0, **kw)

@@ -258,7 +258,7 @@ def test_shifting_every_face_by_a_fraction_of_the_cell_changes_nothing():
     )
     totals = []
     for m in (mesh, wrapped):
-        fs = FieldScene(m, Optics(), cell=cell)
+        fs = FieldScene(m, Optics.preset("paper"), cell=cell)
         fs.set_sun(25.0, 230.0)
         r = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=9).render()
         area = r.meta["area_m2"]
@@ -275,7 +275,7 @@ def test_gradient_matches_finite_differences_with_common_random_numbers():
     cell = PeriodicCell(0.3, 0.3, row_direction_deg=90.0)
     mesh, _ = canopy(cell, 1.5, "spherical", np.random.default_rng(3), leaf=0.03, z=(0.05, 0.5), sensors=2)
     ids = leaf_ids(mesh)
-    fs = FieldScene(mesh, Optics(), cell=cell)
+    fs = FieldScene(mesh, Optics.preset("paper"), cell=cell)
     fs.set_sun(20.0, 160.0)
     ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
 
@@ -308,7 +308,7 @@ def test_paths_kept_across_suns_give_a_fresh_estimators_values(periodic):
     cell = PeriodicCell(0.3, 0.3, row_direction_deg=70.0)
     mesh, _ = canopy(cell, 1.5, "spherical", np.random.default_rng(5), leaf=0.03, z=(0.05, 0.5), sensors=4)
     ids = np.unique(mesh.face_segment)
-    fs = FieldScene(mesh, Optics(), cell=cell if periodic else None)
+    fs = FieldScene(mesh, Optics.preset("paper"), cell=cell if periodic else None)
 
     def values(r):
         return np.stack([getattr(r, p) for p in PARTS])
@@ -361,7 +361,7 @@ def test_crossing_cap_bounds_truncation_and_is_reported():
     ids = leaf_ids(mesh)[:50]
     share = {}
     for tol in (0.9, 1e-3):
-        fs = FieldScene(mesh, Optics(), cell=cell, crossing_tolerance=tol)
+        fs = FieldScene(mesh, Optics.preset("paper"), cell=cell, crossing_tolerance=tol)
         fs.set_sun(5.0, 100.0)
         r = SegmentEstimator(fs, ids, samples=16, bounces=2, seed=0).render()
         meta = r.meta["periodic"]
@@ -380,8 +380,8 @@ def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies():
     g = build(fld)
     assert g.cell == fld.cell and g.segments["measured"].all()
     ids = g.segments["segment_id"].to_numpy()
-    fs_p = FieldScene(g.mesh, Optics(), cell=g.cell)
-    fs_f = FieldScene(g.mesh, Optics())  # the same 2 × 2 plants alone on bare soil
+    fs_p = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
+    fs_f = FieldScene(g.mesh, Optics.preset("paper"))  # the same 2 × 2 plants alone on bare soil
     totals = []
     for fs in (fs_p, fs_f):
         fs.set_sun(30.0, 150.0)

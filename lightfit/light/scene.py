@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -19,12 +19,18 @@ from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.face_sampling import FaceSampler
-from lightfit.light.leaf_optics import LeafTraits, leaf_bsdf_parameters, preset_parameters
+from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, leaf_bsdf_parameters, preset_parameters
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
 
 SKY_MODELS = ("isotropic", "overcast")
+
+
+@functools.cache
+def _default_leaf() -> dict:
+    """The default preset's BSDF parameters, computed once (PROSPECT-D runs in ≈ 0.1 s)."""
+    return preset_parameters(DEFAULT_PRESET)
 
 
 @dataclass(frozen=True)
@@ -35,19 +41,21 @@ class Optics:
         specular: leaf glossy reflectance at normal incidence / 0.08 (0.5 → 4 %).
         roughness: leaf microfacet roughness (GGX α = roughness²).
         subsurface: share of the leaf's diffuse light transmitted to the other side.
-        base_color: leaf diffuse albedo (grey), not calibrated. The defaults are the reference
-            paper's grey leaf (preset ``paper``: base colour 0.5, subsurface 0.3); the
-            ``prospect`` preset and :meth:`from_traits` derive base colour and subsurface from
-            PROSPECT-D leaf traits (:mod:`lightfit.light.leaf_optics`; wheat: ≈ 0.07 and 0.6).
+        base_color: leaf diffuse albedo (grey), not calibrated.
         soil_albedo: Lambertian PAR albedo of the soil (moist loam ≈ 0.1–0.15).
 
-    ``Optics.preset("prospect")`` / ``Optics.preset("paper")``, ``Optics.from_traits(LeafTraits(Cab=40))``.
+    The defaults are lightfit's default leaf, ``Optics() == Optics.preset("prospect")``: base
+    colour and subsurface derived from the PROSPECT-D wheat leaf's PAR reflectance and
+    transmittance (:mod:`lightfit.light.leaf_optics`; ≈ 0.067 and 0.60, absorptance 0.90), the
+    same leaf as the coupled model's. The reference paper's grey leaf (base colour 0.5,
+    subsurface 0.3, absorptance 0.49) is ``Optics.preset("paper")``; other traits
+    ``Optics.from_traits(LeafTraits(Cab=40))``.
     """
 
     specular: float = 0.5
     roughness: float = 0.5
-    subsurface: float = 0.3
-    base_color: float = 0.5
+    subsurface: float = field(default_factory=lambda: _default_leaf()["subsurface"])
+    base_color: float = field(default_factory=lambda: _default_leaf()["base_color"])
     soil_albedo: float = 0.12
 
     def __post_init__(self):
@@ -101,7 +109,7 @@ class FieldScene:
 
     Args:
         mesh: the shoot mesh (``lightfit.plant.Mesh``).
-        optics: leaf and soil optical parameters.
+        optics: leaf and soil optical parameters (default ``Optics()``, the default leaf).
         sky: ``"isotropic"`` (uniform radiance, default) or ``"overcast"`` (CIE standard
             overcast sky, Moon & Spencer 1942: radiance ∝ 1 + 2 cos θ_z, three times brighter
             at the zenith than at the horizon).
@@ -113,7 +121,7 @@ class FieldScene:
     def __init__(
         self,
         mesh: Mesh,
-        optics: Optics = Optics(),
+        optics: Optics | None = None,
         *,
         sky: str = "isotropic",
         cell: PeriodicCell | None = None,
@@ -126,6 +134,7 @@ class FieldScene:
         mi = mitsuba()
         import drjit as dr
 
+        optics = Optics() if optics is None else optics
         self.mi, self.mesh, self.optics, self.sky, self.cell = mi, mesh, optics, sky, cell
         geometry = mesh if cell is None else cell.images(mesh)
         props = mi.Properties()
