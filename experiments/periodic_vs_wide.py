@@ -1,9 +1,12 @@
 """Periodic cell vs the same plants in the middle of a wide finite field (issue 13's 2 % check).
 
     python experiments/periodic_vs_wide.py [--n-plants 100] [--samples 64] [--seeds 2]
+        [--optics prospect|paper] [--bounces B] [--out PATH]
 
-Same measured plants (N × N, default 10 × 10), same sun and weather (2016-04-20 10:00 UTC,
-reconstructed forcing), K samples, 3 bounces. Canopy absorbed PAR (µmol s⁻¹ over the measured
+Same measured plants (N × N, default 10 × 10, the default wrapped sheaths), same sun and weather
+(2016-04-20 10:00 UTC, reconstructed forcing), K samples, the leaf of ``--optics`` (default the
+default PROSPECT-D leaf; the first runs used the paper's grey leaf) with its bounces for 1 %
+truncation (or ``--bounces``). Canopy absorbed PAR (µmol s⁻¹ over the measured
 plants' segments, sun + sky parts) for:
 
 - ``periodic``: the measured plants as one periodic cell (no buffer plants);
@@ -21,7 +24,7 @@ a field of all-different plants.
 Each is rendered with ``--seeds`` independent seeds; the canopy total's Monte Carlo SD comes from
 the per-segment standard errors (segments have independent random numbers). Growing the wide
 field's ≈ 1 900 plants takes minutes the first time (then they are cached). Prints a table and
-writes results/periodic_vs_wide.json.
+writes ``--out`` (default results/periodic_vs_wide.json).
 """
 
 from __future__ import annotations
@@ -37,7 +40,8 @@ import pandas as pd
 
 import lightfit  # noqa: F401
 from lightfit import weather
-from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
+from lightfit.light.leaf_optics import DEFAULT_PRESET, PRESETS
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, Mesh, build
 from lightfit.precision import use_float64
@@ -80,25 +84,34 @@ def math_ceil(x: float) -> int:
     return int(math.ceil(x - 1e-9))
 
 
-def main(n_plants: int = 100, samples: int = 64, seeds: int = 2) -> dict:
+def main(
+    n_plants: int = 100,
+    samples: int = 64,
+    seeds: int = 2,
+    optics: str = DEFAULT_PRESET,
+    bounces: int | None = None,
+    out: Path | None = None,
+) -> dict:
     row = weather.load("2016-04-20").loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
     sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
     dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
+    leaf = Optics.preset(optics)
+    bounces = bounces_for_tolerance(0.01, leaf) if bounces is None else bounces
     res = {}
     for name, kw in SETUPS.items():
         t = time.perf_counter()
         g = build(Field(n_plants=n_plants, seed=1, **kw), progress=True)
         grow_s = time.perf_counter() - t
         if name == "copies":
-            fs = FieldScene(copies(g.mesh, g.cell)[0], Optics.preset("paper"))
+            fs = FieldScene(copies(g.mesh, g.cell)[0], leaf)
         else:
-            fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
+            fs = FieldScene(g.mesh, leaf, cell=g.cell)
         fs.set_sun(*sun)
         ids = g.segments.loc[g.segments["measured"], "segment_id"].to_numpy()
         totals, variances, render_s, meta = [], [], [], None
         for seed in range(seeds):
             t = time.perf_counter()
-            r = SegmentEstimator(fs, ids, samples=samples, bounces=3, seed=seed).render()
+            r = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=seed).render()
             render_s.append(time.perf_counter() - t)
             a = r.meta["area_m2"]
             totals.append(float(r.total("absorbed", dni, dhi) @ a))
@@ -119,7 +132,10 @@ def main(n_plants: int = 100, samples: int = 64, seeds: int = 2) -> dict:
             "periodic": meta,
         }
     ref = res["wide"]
-    print(f"{n_plants} plants, K = {samples}, 3 bounces, {seeds} seed(s), sun {sun[0]:.1f}° / {sun[1]:.1f}°")
+    print(
+        f"{n_plants} plants, leaf {optics}, K = {samples}, {bounces} bounces, {seeds} seed(s), "
+        f"sun {sun[0]:.1f}° / {sun[1]:.1f}°"
+    )
     print("| field | plants built | render (s) | canopy absorbed PAR vs wide field | MC SD of that |")
     for name, v in res.items():
         ratio = v["canopy_absorbed_umol_s"] / ref["canopy_absorbed_umol_s"]
@@ -139,11 +155,21 @@ def main(n_plants: int = 100, samples: int = 64, seeds: int = 2) -> dict:
     )
     res["periodic"]["vs_copies"], res["periodic"]["vs_copies_sd"] = wrap, wrap_sd
     print(f"periodic (ray wrapping) vs explicit copies: {100 * wrap:+.2f} % (MC SD {100 * wrap_sd:.2f} %)")
-    out = ROOT / "results" / "periodic_vs_wide.json"
+    out = ROOT / "results" / "periodic_vs_wide.json" if out is None else Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(
         json.dumps(
-            {"sun_deg": sun, "dni_par": dni, "dhi_par": dhi, "samples": samples, "n_plants": n_plants, "fields": res},
+            {
+                "sun_deg": sun,
+                "dni_par": dni,
+                "dhi_par": dhi,
+                "samples": samples,
+                "bounces": bounces,
+                "optics": optics,
+                "sheaths": Field().sheaths,
+                "n_plants": n_plants,
+                "fields": res,
+            },
             indent=2,
         )
     )
@@ -155,5 +181,8 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=100)
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--optics", choices=PRESETS, default=DEFAULT_PRESET)
+    ap.add_argument("--bounces", type=int, default=None, help="default: the leaf's for 1 %% truncation")
+    ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
-    main(a.n_plants, a.samples, a.seeds)
+    main(a.n_plants, a.samples, a.seeds, a.optics, a.bounces, a.out)
