@@ -292,3 +292,21 @@ def test_an_noise_bias_matches_noise_averaged_photosynthesis(weather):
     assert np.all(np.abs(bias - brute)[lit] <= 4 * se[lit] + 0.05 * np.abs(brute[lit])), (bias, brute, se)
     three = np.asarray(an_noise_bias(jnp.asarray(q), jnp.asarray(sd), f, p, nodes=3))
     assert abs(three[2, 2] - brute[2, 2]) > 5 * se[2, 2]  # the kink (6 SE off): why nine nodes
+
+
+@pytest.mark.parametrize("target_rse", [None, 0.1])
+def test_a_run_of_night_steps_only_gives_zero_light_and_respiration(weather, target_rse):
+    """Only night steps (a short early window): no render, zero light, the leaves' dark
+    respiration; it used to fail stacking an empty list of renders. An adaptive run still reports
+    its allocation (made at the highest sun, docs/light.md), so only then is the scene built."""
+    night = weather.iloc[[0]]
+    m = CoupledModel(Scenario(weather=night, field=FIELD, samples=8, bounces=2, target_rse=target_rse))
+    values, se = m.render(THETA)
+    assert values.shape == se.shape == (0, 4, m.n_columns)
+    ds = m.simulate(THETA)
+    assert float(np.abs(ds["absorbed_par_umol_m2_s"]).max()) == 0.0
+    assert float(ds["canopy_an_umol_m2_s"].max()) < 0 and np.isfinite(ds["canopy_an_umol_m2_s"]).all()
+    if target_rse is None:
+        assert "irradiance" not in m.__dict__  # the scene was never built
+    else:
+        assert (ds["samples_per_segment"] >= 32).all() and ds.attrs["target_rse"] == target_rse

@@ -172,6 +172,9 @@ class CoupledModel:
             v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
             vals.append(v)
             ses.append(s)
+        if not vals:  # only night steps: nothing to render (and no scene to build)
+            none = jnp.zeros((0, 4, self.n_columns), jnp.asarray(leaf).dtype)
+            return none, none
         return jnp.stack(vals), jnp.stack(ses)
 
     def render_many(self, thetas):
