@@ -391,6 +391,12 @@ def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies():
         totals.append(r.total("absorbed", 1.0, 0.3) @ r.meta["area_m2"])
     # An endless canopy shades itself: much less light per plant than an isolated 2 × 2 block.
     assert totals[0] < 0.8 * totals[1]
+    # A scene of the geometry itself takes its cell: the periodic render, bitwise.
+    fs_g = FieldScene(g, Optics.preset("paper"))
+    assert fs_g.cell == g.cell and fs_g.mesh is g.mesh
+    fs_g.set_sun(30.0, 150.0)
+    r = SegmentEstimator(fs_g, ids, samples=16, bounces=2, seed=0).render()
+    assert r.total("absorbed", 1.0, 0.3) @ r.meta["area_m2"] == totals[0]
 
 
 def test_coupled_model_renders_a_periodic_field_periodically(monkeypatch):

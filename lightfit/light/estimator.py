@@ -984,6 +984,10 @@ def samples_for_accuracy(
     (randomised QMC converges at least that fast). Weights ``dni``/``dhi`` set the mix of the sun
     and sky parts (default: a clear day's DHI/DNI ≈ 0.3). Segments receiving nothing (zero
     absorbed light) are ignored.
+
+    The pilot takes the direct light from the paths, where K is the only knob. With the
+    projected direct light (``direct="projection"``) K hardly moves the error (it carries only
+    light scattered twice and more): raise ``direct_rays_per_m2`` or use :func:`render_adaptive`.
     """
     check_target_rse(target_rse)
     r = SegmentEstimator(field_scene, segment_ids, samples=pilot, bounces=bounces, seed=seed).render()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, leaf_bsdf_par
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
+
+if TYPE_CHECKING:
+    from lightfit.plant.field import FieldGeometry
 
 SKY_MODELS = ("isotropic", "overcast")
 
@@ -108,7 +112,11 @@ class FieldScene:
     estimator samples points on them only, so no area is counted twice).
 
     Args:
-        mesh: the shoot mesh (``lightfit.plant.Mesh``).
+        mesh: the shoot mesh (``lightfit.plant.Mesh``), or a built field
+            (:class:`~lightfit.plant.field.FieldGeometry`, what ``lightfit.plant.build`` returns):
+            its mesh and, unless ``cell`` is given, its periodic cell. Pass the geometry rather
+            than ``geom.mesh``: a periodic field's mesh without its cell is rendered as an
+            isolated patch on bare soil, lit from the sides.
         optics: leaf and soil optical parameters (default ``Optics()``, the default leaf).
         sky: ``"isotropic"`` (uniform radiance, default) or ``"overcast"`` (CIE standard
             overcast sky, Moon & Spencer 1942: radiance ∝ 1 + 2 cos θ_z, three times brighter
@@ -120,13 +128,15 @@ class FieldScene:
 
     def __init__(
         self,
-        mesh: Mesh,
+        mesh: Mesh | FieldGeometry,
         optics: Optics | None = None,
         *,
         sky: str = "isotropic",
         cell: PeriodicCell | None = None,
         crossing_tolerance: float = DEFAULT_CROSSING_TOLERANCE,
     ):
+        if not isinstance(mesh, Mesh) and hasattr(mesh, "mesh"):  # a FieldGeometry
+            mesh, cell = mesh.mesh, mesh.cell if cell is None else cell
         if sky not in SKY_MODELS:
             raise InputError(f"unknown sky model {sky!r}", column="sky", expected=" or ".join(SKY_MODELS))
         if mesh.n_faces == 0:
