@@ -226,6 +226,8 @@ def test_direct_rays_option_reaches_the_scenario_and_is_a_render_setting(tmp_pat
         app, ["replicate", "--quick", "--out", str(tmp_path), "--direct", "paths", "--direct-rays-per-m2", "1e7"]
     )
     assert_user_error(r, "--direct-rays-per-m2", "paths")
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), "--direct-rays-per-m2", "1e7,1e12"])
+    assert_user_error(r, "--direct-rays-per-m2", "1e+10")
     default, more = resolve(ModelOptions(quick=True)), resolve(ModelOptions(quick=True, direct_rays_per_m2="1e7"))
     assert default.direct_rays_per_m2 == DEFAULT_RAYS_PER_M2
     stored_before = {k: v for k, v in default.as_dict().items() if k != "direct_rays_per_m2"}

@@ -209,10 +209,14 @@ def test_coupled_run_reaches_the_target_per_segment(adaptive_model, monkeypatch)
     assert ((rse <= 0.1) | (K == cap) | ~np.isfinite(rse) | on_floor).all()
     # The renders use the allocation: at the allocation point (highest sun, default leaf) the
     # coupled parts of the segments given the most samples equal an independent fixed-K render.
-    leaf, sun, _, _ = m.allocation_point
+    leaf, sun, dni, dhi = m.allocation_point
     i = int(np.flatnonzero(m.day)[np.argmax(m.sun_deg[m.day, 0])])
     vals, _ = m.irradiance(leaf, sun, m.scenario.seed)
     assert np.array_equal(sun, m.sun_deg[i])
+    # The results name where reached_rse holds: that step's sun and PAR weighting.
+    at = [ds.attrs[f"allocation_{k}"] for k in ("sun_elevation_deg", "sun_azimuth_deg")]
+    assert at == list(sun) and ds.attrs["allocation_dni_par_umol_m2_s"] == dni > 0
+    assert ds.attrs["allocation_dhi_par_umol_m2_s"] == dhi > 0
     k = int(K.max())
     sel = K == k
     fs = FieldScene(m.geometry.mesh, m.scenario.optics, sky=m.scenario.sky, cell=m.geometry.cell)

@@ -299,7 +299,8 @@ def test_bad_settings_are_refused(field):
     fs, ids = field
     with pytest.raises(InputError, match="direct"):
         SegmentEstimator(fs, ids, direct="rasterised")
-    for bad in (0, "12", (1e6,), (1e6, float("nan")), True):  # "12" is not the pair (1, 2)
+    # "12" is not the pair (1, 2); 1e12 per m² is a typo for 1e7 that would cast for days
+    for bad in (0, "12", (1e6,), (1e6, float("nan")), True, 1e12, (1e7, 1.1e10)):
         with pytest.raises(InputError, match="direct_rays_per_m2"):
             SegmentEstimator(fs, ids, direct="projection", direct_rays_per_m2=bad)
     with pytest.raises(InputError, match="first"):

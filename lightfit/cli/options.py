@@ -24,7 +24,7 @@ import typer
 
 from lightfit.errors import InputError
 from lightfit.light.estimator import DARK_FLOOR, check_bounces, check_samples, check_target_rse
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
+from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
@@ -269,11 +269,13 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--target-rse",
             help="Accuracy knob: per-segment relative standard error of absorbed PAR to reach by adaptive "
-            "sampling (e.g. 0.05), in (0, 1); --samples is then each segment's starting count (at least 32), "
+            "sampling, in (0, 1) (0.05 for 5 %); --samples is then each segment's pilot count (at least 32), "
             f"samples are added up to {MAX_ADAPTIVE_SAMPLES} where the error is above it (for segments absorbing "
             f"under {DARK_FLOOR:.1%} of the PAR above the canopy, an absolute error of the target times that "
-            "light); results.nc reports each "
-            "segment's samples and reached error. Default: none (every segment gets --samples points).",
+            "light). Chosen once at the step with the highest sun and kept; results.nc reports each "
+            "segment's samples and the error reached there. It spends samples on the noisy segments (stems, "
+            "the worst tenth); --direct-rays-per-m2 lowers every segment's error at a fixed cost. Default: "
+            "none (every segment gets --samples points).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -670,7 +672,7 @@ def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[
         raise InputError(
             f"--direct-rays-per-m2 {text}",
             column="direct_rays_per_m2",
-            expected="rays per m² of ground > 0: one number, or SUN,SKY (e.g. 1e7,6e7)",
+            expected=f"rays per m² of ground in (0, {MAX_RAYS_PER_M2:.0e}]: one number, or SUN,SKY (e.g. 1e7,6e7)",
         ) from None
 
 

@@ -78,10 +78,15 @@ from lightfit.light.periodic import CAPPED, LEAF, SOIL
 PROJECTION_VERSION = 4
 #: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
 DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
+#: Most rays per m² a render accepts: 4 × 10⁸ / 5 × 10⁸ already give a 0.85 % median per-segment
+#: error on 500 plants (docs/benchmarks.md, GPU), and 10¹⁰ per m² is about an hour of casting per
+#: m² of cell on 2 CPU cores; more is taken for a typo (10¹² for 10⁷) rather than run for days.
+MAX_RAYS_PER_M2 = 1.0e10
 
 
 def check_rays(rays_per_m2) -> tuple[float, float]:
-    """``(sun, sky)`` rays per m² of ground from a pair or one number for both; InputError otherwise."""
+    """``(sun, sky)`` rays per m² of ground from a pair or one number for both, each in
+    (0, :data:`MAX_RAYS_PER_M2`]; InputError otherwise."""
     pair = (rays_per_m2, rays_per_m2) if isinstance(rays_per_m2, (int, float, np.number)) else rays_per_m2
     try:
         out = tuple(float(v) for v in pair)
@@ -90,12 +95,12 @@ def check_rays(rays_per_m2) -> tuple[float, float]:
     if (
         len(out) != 2
         or isinstance(rays_per_m2, (bool, str, bytes))  # a string's characters are not a pair
-        or not all(math.isfinite(v) and v > 0 for v in out)
+        or not all(math.isfinite(v) and 0 < v <= MAX_RAYS_PER_M2 for v in out)
     ):
         raise InputError(
             f"direct_rays_per_m2={rays_per_m2!r}",
             column="direct_rays_per_m2",
-            expected="rays per m² of ground > 0: one number, or (sun, sky)",
+            expected=f"rays per m² of ground in (0, {MAX_RAYS_PER_M2:.0e}]: one number, or (sun, sky)",
         )
     return out
 

@@ -164,6 +164,17 @@ class CoupledModel:
             return np.asarray(leaf, np.float64), np.asarray(sun, np.float64), float(dni), float(dhi)
         return allocation_point(self.forcing, self.sun_deg, np.asarray(sc.theta.leaf, np.float64))
 
+    def _allocated_at(self) -> dict:
+        """Results attributes naming where adaptive sampling chose each segment's K (what
+        ``reached_rse`` refers to): the sun and the PAR weighting of the sun and sky parts."""
+        leaf, sun, dni, dhi = self.allocation_point
+        return {
+            "allocation_sun_elevation_deg": float(sun[0]),
+            "allocation_sun_azimuth_deg": float(sun[1]),
+            "allocation_dni_par_umol_m2_s": float(dni),
+            "allocation_dhi_par_umol_m2_s": float(dhi),
+        }
+
     def render(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""
         leaf = self.theta(theta).leaf
@@ -303,7 +314,11 @@ class CoupledModel:
             "season_start": g.season_start,
             "target_date": g.target_date,
             "samples": sc.samples,
-            **({} if sc.target_rse is None else {"target_rse": sc.target_rse, **adaptive_limits()}),
+            **(
+                {}
+                if sc.target_rse is None
+                else {"target_rse": sc.target_rse, **adaptive_limits(), **self._allocated_at()}
+            ),
             "bounces": sc.bounces,
             "direct": sc.direct,
             **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),

@@ -25,6 +25,10 @@ from lightfit.errors import InputError
 
 UMOL = "umol m-2 s-1"
 _SEGMENT_AREA = "per unit one-sided area of the segment (leaf blade, or stem/sheath lateral surface)"
+_SD_BOUND = (
+    "hypot(DNI SE_sun, DHI SE_sky) of the step: an upper bound, without the sun-sky covariance that "
+    "reached_rse includes (1.00x at the blades' median, 1.25x at their 90th percentile; docs/model.md)"
+)
 _LEAF_AREA = "per unit one-sided leaf area; leaf blades only (NaN elsewhere)"
 _CANOPY_AREA = (
     "per unit ground area of the measured plants (an_per = 'ground') or per unit one-sided leaf area "
@@ -116,8 +120,12 @@ VARIABLES: dict[str, Variable] = {
     # -- per segment: light -----------------------------------------------------------------
     "incident_par_umol_m2_s": Variable(TS, UMOL, "PAR incident on the segment", _SEGMENT_AREA),
     "absorbed_par_umol_m2_s": Variable(TS, UMOL, "PAR absorbed by the segment", _SEGMENT_AREA),
-    "incident_par_mc_sd_umol_m2_s": Variable(TS, UMOL, "Monte Carlo standard deviation of incident PAR", _SEGMENT_AREA),
-    "absorbed_par_mc_sd_umol_m2_s": Variable(TS, UMOL, "Monte Carlo standard deviation of absorbed PAR", _SEGMENT_AREA),
+    "incident_par_mc_sd_umol_m2_s": Variable(
+        TS, UMOL, "Monte Carlo standard deviation of incident PAR", _SEGMENT_AREA + "; " + _SD_BOUND
+    ),
+    "absorbed_par_mc_sd_umol_m2_s": Variable(
+        TS, UMOL, "Monte Carlo standard deviation of absorbed PAR", _SEGMENT_AREA + "; " + _SD_BOUND
+    ),
     # Adaptive sampling only (attribute target_rse; absent at a fixed K, attribute samples).
     "samples_per_segment": Variable(
         S,
@@ -131,8 +139,9 @@ VARIABLES: dict[str, Variable] = {
         S,
         "1",
         "relative Monte Carlo standard error of absorbed PAR reached by adaptive sampling",
-        "at the allocation point (highest daytime sun, PAR DNI/DHI of that step, sun-sky covariance "
-        "included); inf for segments receiving no light",
+        "at the allocation point (highest daytime sun, PAR DNI/DHI of that step: attributes allocation_*; "
+        "sun-sky covariance included, so it can be below absorbed_par_mc_sd / absorbed_par there); inf for "
+        "segments receiving no light",
     ),
     "stopped_on_floor": Variable(
         S,
