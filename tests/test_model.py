@@ -310,3 +310,13 @@ def test_a_run_of_night_steps_only_gives_zero_light_and_respiration(weather, tar
         assert "irradiance" not in m.__dict__  # the scene was never built
     else:
         assert (ds["samples_per_segment"] >= 32).all() and ds.attrs["target_rse"] == target_rse
+
+
+def test_a_model_refuses_float32_jax_naming_the_fix(weather, monkeypatch):
+    """lightfit has no float32 mode: a library user who did not call use_float64() gets one clear
+    error naming it, instead of float32 results with a truncation warning per array."""
+    import lightfit.model.coupled as coupled
+
+    monkeypatch.setattr(coupled, "precision", lambda: "float32")
+    with pytest.raises(InputError, match=r"precision.*use_float64\(\)"):
+        CoupledModel(Scenario(weather=weather, field=FIELD, samples=8, bounces=2))

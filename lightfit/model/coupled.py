@@ -36,7 +36,7 @@ from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build, one_sided_area_m2, organ_class
-from lightfit.precision import precision
+from lightfit.precision import PRECISION, precision
 from lightfit.weather import timestamps
 
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S + P) in
@@ -81,6 +81,13 @@ class CoupledModel:
         progress: bool = False,
         sensors: tuple[Sensor, ...] | None = None,
     ):
+        if precision() != PRECISION:  # JAX would truncate every float64 array, with a warning each
+            raise InputError(
+                f"JAX computes in {precision()}",
+                column="precision",
+                expected=f"{PRECISION}: call lightfit.precision.use_float64() before building a CoupledModel "
+                "(lightfit has no float32 mode; importing it does not change JAX's configuration)",
+            )
         self.scenario = sc = scenario
         self.sensors = default_sensors(sc.field, sc.ceptometer_height_m) if sensors is None else tuple(sensors)
         self.geometry = build(sc.field, tile=sc.measured_tile, progress=progress)
