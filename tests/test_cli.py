@@ -263,6 +263,7 @@ def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
         ("replicate", ["--theta", "glossiness=1"], ["theta", "glossiness"]),
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
         ("posterior", ["--samples", "0"], ["samples"]),
+        ("replicate", ["--samples", "50"], ["samples=50", "48 or 56"]),  # 8 replicates × 7 = 56 would run
         ("field-run", ["--steps", "0"], ["steps"]),
         ("field-run", ["--bounces", "-1"], ["bounces"]),
         ("replicate", ["--buffer-rows", "2"], ["--buffer-rows", "--boundary periodic"]),

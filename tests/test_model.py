@@ -320,3 +320,15 @@ def test_a_model_refuses_float32_jax_naming_the_fix(weather, monkeypatch):
     monkeypatch.setattr(coupled, "precision", lambda: "float32")
     with pytest.raises(InputError, match=r"precision.*use_float64\(\)"):
         CoupledModel(Scenario(weather=weather, field=FIELD, samples=8, bounces=2))
+
+
+def test_a_scenario_records_the_k_it_renders(weather):
+    """K is R replicates × equal points: a K the estimator would round up (3 → 4, 50 → 56) is
+    refused with the nearest that it takes, so results.nc's samples is what was rendered."""
+    from lightfit.light.estimator import samples_used
+
+    assert [samples_used(k) for k in (2, 3, 8, 16, 31, 32, 50, 64)] == [2, 4, 8, 16, 35, 32, 56, 64]
+    for k, near in ((3, "2 or 4"), (50, "48 or 56")):
+        with pytest.raises(InputError, match=f"samples={k}.*{near}"):
+            Scenario(weather=weather, field=FIELD, samples=k)
+    assert Scenario(weather=weather, field=FIELD, samples=48).samples == 48

@@ -578,7 +578,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
-    check_samples(s.samples)
+    check_samples(s.samples, exact=True)
     check_seed(s.render_seed)
     if s.ceptometer_height_m is not None:
         check_ceptometer_height(s.ceptometer_height_m)

@@ -181,9 +181,27 @@ class Irradiance:
         return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
 
 
-def check_samples(value) -> int:
-    """Points per segment K: an integer ≥ 2 (the standard error needs two)."""
-    return check_integer(value, "samples", 2, why="needed for a standard error")
+def samples_used(samples: int) -> int:
+    """The K a render takes for a requested K: :func:`replicates_for` R replicates of ⌈K / R⌉
+    points each (K rounded up to a multiple of R)."""
+    r = replicates_for(int(samples))
+    return r * -(-int(samples) // r)
+
+
+def check_samples(value, *, exact: bool = False) -> int:
+    """Points per segment K: an integer ≥ 2 (the standard error needs two). ``exact``: also one
+    that a render takes as it is (:func:`samples_used`), for settings that are recorded with the
+    results, so that the K reported is the K rendered."""
+    k = check_integer(value, "samples", 2, why="needed for a standard error")
+    if exact and samples_used(k) != k:
+        below = max(j for j in range(2, k) if samples_used(j) == j)
+        raise InputError(
+            f"samples={k}",
+            column="samples",
+            expected=f"a K of {replicates_for(k)} replicates × equal points, which {k} is not: e.g. {below} or "
+            f"{samples_used(k)} (8, 16, 32, 64, … always are)",
+        )
+    return k
 
 
 def check_bounces(value) -> int:
@@ -290,9 +308,9 @@ class SegmentEstimator:
                 expected="first=0: the projection is the whole of the direct light, not a continuation",
             )
         self.fs, self.bounces, self.seed = field_scene, int(bounces), int(seed)
+        self.samples = samples_used(samples)  # K rounded up to R·M
         self.replicates = replicates_for(int(samples))
-        self.per_replicate = -(-int(samples) // self.replicates)
-        self.samples = self.replicates * self.per_replicate  # K rounded up to R·M
+        self.per_replicate = self.samples // self.replicates
         seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
         self.segment_id = seg
         K, R = self.samples, self.replicates
