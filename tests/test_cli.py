@@ -37,6 +37,15 @@ def assert_user_error(r, *words: str) -> None:
     assert "Traceback" not in r.output
 
 
+@pytest.mark.parametrize("command", ["replicate", "calibrate", "posterior", "field-run"])
+def test_help_texts_are_not_cut_at_80_columns(command):
+    """Rich cuts a word longer than the help column with "…": a reference such as
+    lightfit.light.estimator.bounces_for_tolerance could not be read in an 80-column terminal."""
+    r = runner.invoke(app, [command, "--help"], env={"COLUMNS": "80"})
+    assert r.exit_code == 0 and max(map(len, r.output.splitlines())) <= 80, r.output
+    assert "…" not in r.output, [line for line in r.output.splitlines() if "…" in line]
+
+
 def test_help_lists_every_command():
     r = runner.invoke(app, ["--help"])
     assert r.exit_code == 0, r.output

@@ -28,7 +28,11 @@ from lightfit.errors import InputError
 def calibrate(
     observations: Path = typer.Argument(..., help="Observations CSV (time, PAR, net CO2 uptake and their SDs)."),
     out: Path = typer.Option(Path("results/calibration"), help="Output directory (history, result JSON, plot)."),
-    parameters: str = typer.Option("specular,roughness,subsurface", help="Parameters to calibrate, comma-separated."),
+    parameters: str = typer.Option(
+        "specular,roughness,subsurface",
+        help="Parameters to calibrate, comma-separated (default: the three leaf parameters).",
+        show_default=False,
+    ),
     start: str = typer.Option(
         None, help="Start values key=value,... (default: the run leaf's parameters, light_factor 1, vcmax_scale 1)."
     ),

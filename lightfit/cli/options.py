@@ -25,7 +25,7 @@ import typer
 from lightfit.errors import InputError
 from lightfit.light.estimator import DARK_FLOOR, check_bounces, check_samples, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
-from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
+from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Scenario
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -249,8 +249,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--bounces",
             help="Scattering orders (default: as many as keep the truncated light under 1 % for the leaf, "
-            "lightfit.light.estimator.bounces_for_tolerance: 2 for the default leaf, 8 for --optics paper; "
-            "--quick: 2).",
+            "2 for the default leaf, 8 for --optics paper; --quick: 2; docs/light.md, Recommended settings).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -321,7 +320,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--photosynthesis",
             help="Photosynthesis parameter set: winter_wheat, cplantbox, giraud2023 or giraud2023_coupled "
-            "(default: the main job's, lightfit.model.scenario.Scenario.photosynthesis; docs/photosynthesis.md).",
+            f"(default: the main job's, {Scenario.photosynthesis}; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,
         ),
     ),

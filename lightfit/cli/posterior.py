@@ -30,7 +30,9 @@ def posterior(
     out: Path = typer.Option(Path("results/posterior"), help="Output directory (run.h5, emulator, summary.json)."),
     parameters: str = typer.Option(
         "specular,roughness,subsurface,light_factor",
-        help="Sampled parameters, comma-separated (also vcmax_scale, noise_scale).",
+        help="Sampled parameters, comma-separated (default: the three leaf parameters and light_factor; "
+        "also vcmax_scale, noise_scale).",
+        show_default=False,
     ),
     priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
     use: Use = "",
