@@ -191,6 +191,8 @@ def test_replicate_writes_labelled_forcing(tmp_path):
         (["--preset", "paper", "--bounces", "3"], 3, 64),
         (["--direct", "paths"], 2, 64),
         (["--samples", "48"], 2, 48),
+        (["--target-rse", "0.05"], 2, "target 0.05 (K from 32 to 8192 per segment)"),
+        (["--target-rse", "0.05", "--samples", "64"], 2, "target 0.05 (K from 64 to 8192 per segment)"),
     ],
 )
 def test_replicate_names_the_bounces_and_samples_it_renders(tmp_path, monkeypatch, args, bounces, k):
@@ -201,14 +203,15 @@ def test_replicate_names_the_bounces_and_samples_it_renders(tmp_path, monkeypatc
     from lightfit.errors import InputError
 
     def stop(cfg, **kwargs):
-        assert cfg.render_bounces() == bounces and cfg.render_samples() == k
+        assert cfg.render_bounces() == bounces and (isinstance(k, str) or cfg.render_samples() == k)
         raise InputError("stopped before rendering", column="test", expected="nothing")
 
     monkeypatch.setattr(replication, "run", stop)
     r = runner.invoke(app, ["replicate", "--out", str(tmp_path), *args])
     assert r.exit_code == 2, r.output
     out = " ".join(r.stdout.split())  # rich wraps at the terminal width
-    assert f"K={k}, {bounces} bounces" in out and "None bounces" not in out
+    said = k if isinstance(k, str) else f"K={k}"  # adaptive: the target and the range of K, not the pilot's
+    assert f"{said}, {bounces} bounces" in out and "None bounces" not in out
 
 
 def test_direct_rays_option_reaches_the_scenario_and_is_a_render_setting(tmp_path, monkeypatch):

@@ -12,6 +12,7 @@ from rich.table import Table
 
 from lightfit.cli.common import console, parse_theta, weather_report, weather_table
 from lightfit.cli.options import ModelOptions, model_options, option_error, resolve, weather
+from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 
 #: Short head and decimals of each summary column in the printed table (summary.csv keeps full names).
 SUMMARY_HEADS = {
@@ -89,8 +90,12 @@ def replicate(
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
+    if cfg.target_rse is not None:  # the pilot is raised to 32 (make_irradiance), then K per segment
+        k = f"target {cfg.target_rse:.3g} (K from {max(k, 32)} to {MAX_ADAPTIVE_SAMPLES} per segment)"
+    else:
+        k = f"K={k}"
     console.print(
-        f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, K={k}, {n_b} bounces{rays} …"
+        f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {k}, {n_b} bounces{rays} …"
     )
     ds, obs = rep.run(
         cfg,
