@@ -439,7 +439,8 @@ def concat_days(parts: list) -> xr.Dataset:
     kept apart: day *k*'s segment ids are offset by *k* × :data:`DAY_SEGMENT_STRIDE`, and a
     per-segment value is NaN (``limitation`` −1, ``converged`` true) at the steps of other days;
     canopy variables are each day's own. ``day`` (time) names each step's date; the attrs are the
-    first day's, with ``date``/``window``/``target_date`` listing every day.
+    first day's, with ``date``/``window``/``target_date`` (and an adaptive run's ``allocation_*``)
+    listing every day.
     """
     static = ["plant_id", "organ_type", "area_m2", "is_blade"]
     days_, statics = [], []
@@ -449,11 +450,13 @@ def concat_days(parts: list) -> xr.Dataset:
         p = p.reset_coords(static, drop=True)
         days_.append(p.assign_coords(day=("time", [p.attrs["date"]] * p.sizes["time"])))
     fill = {"limitation": -1, "converged": True}
-    out = xr.concat(days_, dim="time", join="outer", combine_attrs="override", fill_value=fill)
+    out = xr.concat(days_, dim="time", data_vars="all", join="outer", combine_attrs="override", fill_value=fill)
     out = out.assign_coords(xr.concat(statics, dim="segment"))
     out["limitation"] = out["limitation"].astype(np.int8)
     out["converged"] = out["converged"].astype(bool)
-    for k in ("date", "window", "target_date"):
+    # Each day allocates adaptive sampling at its own highest sun: every day's point, in order.
+    per_day = [k for k in parts[0].attrs if k.startswith("allocation_")]
+    for k in ("date", "window", "target_date", *per_day):
         out.attrs[k] = "; ".join(str(p.attrs[k]) for p in parts)
     return schema.annotate(out)
 

@@ -364,3 +364,42 @@ def test_the_bias_line_names_the_target_of_an_adaptive_run():
     adaptive = mc_bias_line(run(40.0, target_rse=0.05))
     assert "-2.00% at a target of 0.05 (K 32–8192 per segment), falling with the target" in adaptive
     assert mc_bias_line(run(-1.0)) == ""
+
+
+def test_several_days_of_an_adaptive_run_keep_each_days_allocation():
+    """`replicate` with several dates concatenates the days (replication.concat_days): each day
+    allocated at its own highest sun, so the allocation_* attributes list every day's in order,
+    and the bias line's K range spans the days (samples_per_segment has NaN between them)."""
+    import pandas as pd
+    import xarray as xr
+
+    from lightfit.cli.replicate import mc_bias_line
+    from lightfit.replication import concat_days
+
+    def day(date, k, elevation):
+        s = len(k)
+        per_step = (("time", "segment"), np.ones((2, s)))
+        return xr.Dataset(
+            {
+                "absorbed_par_umol_m2_s": per_step,
+                "limitation": (("time", "segment"), np.zeros((2, s), np.int8)),
+                "converged": (("time", "segment"), np.ones((2, s), bool)),
+                "canopy_an_umol_m2_s": ("time", [10.0, 10.0]),
+                "canopy_an_mc_bias_umol_m2_s": ("time", [-0.2, -0.2]),
+                "samples_per_segment": ("segment", np.array(k, np.int64)),
+            },
+            coords={
+                "time": pd.date_range(f"{date} 10:00", periods=2, freq="30min").values,
+                "segment": np.arange(s),
+                "plant_id": ("segment", np.zeros(s, int)),
+                "organ_type": ("segment", np.array(["leaf"] * s)),
+                "area_m2": ("segment", np.ones(s)),
+                "is_blade": ("segment", np.ones(s, bool)),
+            },
+            attrs={"date": date, "window": "w", "target_date": date, "samples": 32, "target_rse": 0.05}
+            | {"direct": "projection", "allocation_sun_elevation_deg": elevation},
+        )
+
+    out = concat_days([day("2016-04-20", [32, 64], 46.0), day("2016-06-23", [32, 128], 61.0)])
+    assert out.attrs["allocation_sun_elevation_deg"] == "46.0; 61.0"
+    assert "at a target of 0.05 (K 32–128 per segment)" in mc_bias_line(out)

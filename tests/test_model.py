@@ -310,6 +310,8 @@ def test_a_run_of_night_steps_only_gives_zero_light_and_respiration(weather, tar
         assert "irradiance" not in m.__dict__  # the scene was never built
     else:
         assert (ds["samples_per_segment"] >= 32).all() and ds.attrs["target_rse"] == target_rse
+        # allocated at a sun below the horizon weighted 1 : 0.3, which no step's PAR is: not named
+        assert not [k for k in ds.attrs if k.startswith("allocation_")]
 
 
 def test_a_model_refuses_float32_jax_naming_the_fix(weather, monkeypatch):
@@ -332,3 +334,7 @@ def test_a_scenario_records_the_k_it_renders(weather):
         with pytest.raises(InputError, match=f"samples={k}.*{near}"):
             Scenario(weather=weather, field=FIELD, samples=k)
     assert Scenario(weather=weather, field=FIELD, samples=48).samples == 48
+    # With a target the pilot is what is rendered first: raised to 32, so 30 passes and 50 does not.
+    assert Scenario(weather=weather, field=FIELD, samples=30, target_rse=0.1).samples == 30
+    with pytest.raises(InputError, match="samples=50"):
+        Scenario(weather=weather, field=FIELD, samples=50, target_rse=0.1)

@@ -577,7 +577,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
-    check_samples(s.samples, exact=True)
+    check_samples(s.samples)
+    check_samples(s.samples if s.target_rse is None else max(s.samples, 32), exact=True)  # the K rendered
     check_seed(s.render_seed)
     if s.ceptometer_height_m is not None:
         check_ceptometer_height(s.ceptometer_height_m)

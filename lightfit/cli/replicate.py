@@ -91,7 +91,8 @@ def replicate(
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
     if cfg.target_rse is not None:  # the pilot is raised to 32 (make_irradiance), then K per segment
-        k = f"target {cfg.target_rse:.3g} (K from {max(k, 32)} to {MAX_ADAPTIVE_SAMPLES} per segment)"
+        pilot = max(k, 32)  # as make_irradiance raises the pilot and the cap
+        k = f"target {cfg.target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
     else:
         k = f"K={k}"
     console.print(
@@ -148,8 +149,8 @@ def mc_bias_line(ds) -> str:
         falls = "falling with K and the projection's rays"
     at = f"K={ds.attrs['samples']}"
     if "target_rse" in ds.attrs:  # adaptive: --samples is only the pilot, K differs per segment
-        k = ds["samples_per_segment"].values
-        at = f"a target of {float(ds.attrs['target_rse']):.3g} (K {k.min()}–{k.max()} per segment)"
+        k = ds["samples_per_segment"].values  # (time, segment) with NaN between days when several
+        at = f"a target of {float(ds.attrs['target_rse']):.3g} (K {np.nanmin(k):.0f}–{np.nanmax(k):.0f} per segment)"
         falls = "falling with the target"
     return (
         f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "

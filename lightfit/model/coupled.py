@@ -173,7 +173,11 @@ class CoupledModel:
 
     def _allocated_at(self) -> dict:
         """Results attributes naming where adaptive sampling chose each segment's K (what
-        ``reached_rse`` refers to): the sun and the PAR weighting of the sun and sky parts."""
+        ``reached_rse`` refers to): the sun and the PAR weighting of the sun and sky parts. None
+        for a run of night steps only that allocates by itself: its point is a sun below the
+        horizon weighted 1 : 0.3, not a step's PAR."""
+        if self.scenario.allocate_at is None and not self.day.any():
+            return {}
         leaf, sun, dni, dhi = self.allocation_point
         return {
             "allocation_sun_elevation_deg": float(sun[0]),

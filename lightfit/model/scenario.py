@@ -268,7 +268,9 @@ class Scenario:
         if self.bounces is None:
             self.bounces = bounces_for_tolerance(BOUNCE_TOLERANCE, self.optics)
         # The estimator's own checks, here before plants grow.
-        self.samples, self.bounces = check_samples(self.samples, exact=True), check_bounces(self.bounces)
+        self.samples, self.bounces = check_samples(self.samples), check_bounces(self.bounces)
+        # The K rendered is the K recorded: a fixed K, or an adaptive run's pilot (raised to 32).
+        check_samples(self.samples if self.target_rse is None else max(self.samples, 32), exact=True)
         if self.target_rse is not None:
             self.target_rse = check_target_rse(self.target_rse)
         if self.allocate_at is not None:
