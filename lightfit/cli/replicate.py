@@ -90,8 +90,8 @@ def replicate(
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
-    if cfg.target_rse is not None:  # the pilot is raised to 32 (make_irradiance), then K per segment
-        pilot = max(k, 32)  # as make_irradiance raises the pilot and the cap
+    if cfg.target_rse is not None:  # K per segment, from the pilot (raised to 32 as make_irradiance does)
+        pilot = max(k, 32)
         k = f"target {cfg.target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
     else:
         k = f"K={k}"
