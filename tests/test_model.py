@@ -338,3 +338,23 @@ def test_a_scenario_records_the_k_it_renders(weather):
     assert Scenario(weather=weather, field=FIELD, samples=30, target_rse=0.1).samples == 30
     with pytest.raises(InputError, match="samples=50"):
         Scenario(weather=weather, field=FIELD, samples=50, target_rse=0.1)
+
+
+def test_a_run_shows_its_renders_progress_only_when_eager(weather, capsys):
+    """With progress=True an eager run shows a bar over its daytime steps (the renders are the
+    long part); a traced one (jax.grad, as calibration runs it) shows none: its loop runs once,
+    at trace time, where a bar would say nothing about the work."""
+    import jax
+
+    m = CoupledModel(Scenario(weather=weather, field=FIELD, samples=8, bounces=1), progress=True)
+    capsys.readouterr()
+    m.render(THETA)
+    out = capsys.readouterr().out
+    assert "rendering steps" in out and f"{int(m.day.sum())}/{int(m.day.sum())}" in out, out
+
+    def loss(leaf):
+        values, _ = m.render(dict(zip(LEAF_PARAMETERS, leaf)))
+        return values.sum()
+
+    g = jax.grad(loss)(jnp.asarray(THETA.leaf))
+    assert np.isfinite(np.asarray(g)).all() and "rendering steps" not in capsys.readouterr().out

@@ -56,10 +56,10 @@ from lightfit.errors import InputError, check_integer
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.observations import matched_as_by_stamp, observation_matching
-from lightfit.inference.progress import progress_bar
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
+from lightfit.progress import progress_bar
 
 #: Distance kept from finite bounds (see the module docstring).
 MARGIN = 1e-6

@@ -37,6 +37,7 @@ from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_posi
 from lightfit.photosynthesis import parameter_set
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
+from lightfit.progress import progress_bar
 from lightfit.weather import timestamps
 
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S + P) in
@@ -66,7 +67,7 @@ class CoupledModel:
     Args:
         scenario: the run.
         light: source of light parts (default: full renders, :meth:`render`).
-        progress: show plant growth progress.
+        progress: show plant growth, and a bar over the steps while an eager run renders them.
         sensors: virtual horizontal sensors rendered with the segments (:mod:`lightfit.light.sensors`);
             default (``None``): a ceptometer on the soil of the measurement area
             (:func:`~lightfit.light.sensors.default_sensors`: ≈ 0.2 % of the main job's
@@ -89,6 +90,7 @@ class CoupledModel:
                 "(lightfit has no float32 mode; importing it does not change JAX's configuration)",
             )
         self.scenario = sc = scenario
+        self.progress = progress
         self.sensors = default_sensors(sc.field, sc.ceptometer_height_m) if sensors is None else tuple(sensors)
         self.geometry = build(sc.field, tile=sc.measured_tile, progress=progress)
         seg = self.geometry.segments
@@ -190,10 +192,19 @@ class CoupledModel:
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""
         leaf = self.theta(theta).leaf
         vals, ses = [], []
-        for i in np.flatnonzero(self.day):
-            v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
-            vals.append(v)
-            ses.append(s)
+        days = np.flatnonzero(self.day)
+        # Not while JAX traces (calibration's jit and grad): the loop runs once then, at trace time.
+        show = self.progress and len(days) > 0 and not isinstance(leaf, jax.core.Tracer)
+        first = "choosing each segment's K" if self.scenario.target_rse is not None else ""
+        with progress_bar("rendering steps", len(days), show=show) as bar:
+            bar.update(info=first)
+            for n, i in enumerate(days):
+                v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
+                vals.append(v)
+                ses.append(s)
+                if show:  # JAX dispatches asynchronously: the bar moves when the step is rendered
+                    jax.block_until_ready(v)
+                bar.update(completed=n + 1, info=f"sun {self.sun_deg[i, 0]:.0f}°")
         if not vals:  # only night steps: nothing to render (and no scene to build)
             none = jnp.zeros((0, 4, self.n_columns), jnp.asarray(leaf).dtype)
             return none, none

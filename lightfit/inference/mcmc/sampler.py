@@ -21,8 +21,8 @@ import numpy as np
 from lightfit.errors import InputError, check_integer
 from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, open_h5, stored_run, writer_lock
 from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics
-from lightfit.inference.progress import progress_bar
 from lightfit.killpoint import kill_point
+from lightfit.progress import progress_bar
 
 
 @dataclass

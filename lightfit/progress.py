@@ -1,4 +1,5 @@
-"""The progress display that calibration and sampling share: label, bar, n/N, elapsed time, info text."""
+"""The progress display that long work shares (a run's renders, calibration, sampling): label,
+bar, n/N, elapsed time, info text."""
 
 from __future__ import annotations
 
