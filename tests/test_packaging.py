@@ -140,7 +140,7 @@ def test_dependency_check_catches_both_directions(tmp_path):
 
 #: Rank of each subpackage / top-level module along the pipeline (``report`` draws what
 #: ``replication`` runs, below it). A module may import its own
-#: rank or lower ranks, never a higher one. ``errors`` and ``precision`` are shared helpers, and
+#: rank or lower ranks, never a higher one. ``errors``, ``precision``, ``progress`` … are shared helpers, and
 #: the package root (``import lightfit``) sets up the Mitsuba backend; all may be imported anywhere.
 RANK = {
     "weather": 0,
@@ -155,7 +155,7 @@ RANK = {
     "dataset": 6,
     "cli": 7,
 }
-SHARED = {"errors", "precision", "killpoint", "cache", "figure", ""}
+SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", ""}
 
 
 def layer_violations(root: Path) -> list[str]:
