@@ -94,6 +94,11 @@ def test_sum_float64_is_the_float64_sum_with_the_same_bits_on_any_thread_count(n
 def test_unknown_variant_and_missing_cuda_are_clear_errors():
     with pytest.raises(backend.BackendError, match="not in this Mitsuba build"):
         backend.mitsuba("llvm_ad_hyperspectral")
+    # In the build but unable to render lightfit's scenes (tracebacks in the leaf BSDF before):
+    # refused before anything is set, naming the variants that can.
+    for variant in ("scalar_rgb", "llvm_ad_mono_polarized"):
+        with pytest.raises(backend.BackendError, match=f"{variant}' cannot run.*llvm_ad_mono"):
+            backend.mitsuba(variant)
     if not backend.cuda_usable():
         with pytest.raises(backend.BackendError, match="needs a CUDA device"):
             backend.mitsuba("cuda_ad_mono")

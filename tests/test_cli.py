@@ -276,6 +276,7 @@ def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
         ("posterior", ["--samples", "0"], ["samples"]),
         ("replicate", ["--samples", "50"], ["samples=50", "48 or 56"]),  # 8 replicates × 7 = 56 would run
+        ("replicate", ["--out", "run/results.nc"], ["--out is the folder", "field-run"]),
         ("field-run", ["--steps", "0"], ["steps"]),
         ("field-run", ["--bounces", "-1"], ["bounces"]),
         ("replicate", ["--buffer-rows", "2"], ["--buffer-rows", "--boundary periodic"]),
@@ -654,3 +655,13 @@ def test_multiline_library_errors_print_as_one_line(tmp_path):
     r = runner.invoke(app, ["render-dataset", str(OBSERVATIONS), "-o", str(tmp_path / "x")])
     assert_user_error(r)
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_banners_name_an_adaptive_runs_target_and_k_range():
+    """replicate's and field-run's banner: a fixed K, or the target with the pilot raised to 32 and
+    the cap (the estimator's; field-run said K=16 under --quick --target-rse)."""
+    from lightfit.cli.common import samples_label
+
+    assert samples_label(16, None) == "K=16"
+    assert samples_label(16, 0.1) == "target 0.1 (K from 32 to 8192 per segment)"
+    assert samples_label(16384, 0.05) == "target 0.05 (K from 16384 to 16384 per segment)"

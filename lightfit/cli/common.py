@@ -217,6 +217,17 @@ _SHORT = {
 _DIGITS = {"rh": 2, "tair_c": 1, "pair_kpa": 1}
 
 
+def samples_label(samples: int, target_rse: float | None) -> str:
+    """What a run's banner says about its samples: ``K=32``, or an adaptive run's target and the
+    range of K per segment (the pilot raised to 32 and the cap, as ``make_irradiance`` does)."""
+    from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
+
+    if target_rse is None:
+        return f"K={samples}"
+    pilot = max(int(samples), 32)
+    return f"target {target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
+
+
 def weather_table(df, title: str, max_rows: int = 40, tz: str = "Europe/Berlin") -> Table:
     """A weather series as a table (every k-th row so that at most ``max_rows`` are shown)."""
     t = Table(title=title, caption="PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm")

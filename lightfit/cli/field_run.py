@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import console
+from lightfit.cli.common import console, samples_label
 from lightfit.cli.options import DASK_PANEL as _DASK
 from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
 
@@ -53,7 +53,7 @@ def field_run(
     sc = run.scenario
     console.print(
         f"{sc.field.n}² plants, {field_label(sc.field)}, {tiles} tile(s) × {time_chunks} time "
-        f"chunk(s), {len(sc.weather)} steps, K={sc.samples}, {sc.bounces} bounces, halo: "
+        f"chunk(s), {len(sc.weather)} steps, {samples_label(sc.samples, sc.target_rse)}, {sc.bounces} bounces, halo: "
         f"{'whole field' if halo_rows is None else f'{halo_rows} rows'}"
     )
     ds = run_field(

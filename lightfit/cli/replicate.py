@@ -10,9 +10,9 @@ import typer
 from rich import box
 from rich.table import Table
 
-from lightfit.cli.common import console, parse_theta, weather_report, weather_table
+from lightfit.cli.common import console, parse_theta, samples_label, weather_report, weather_table
 from lightfit.cli.options import ModelOptions, model_options, option_error, resolve, weather
-from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
+from lightfit.errors import InputError
 
 #: Short head and decimals of each summary column in the printed table (summary.csv keeps full names).
 SUMMARY_HEADS = {
@@ -76,6 +76,12 @@ def replicate(
     w = weather(s)
     obs = rep.observations_for(w, observations or rep.OBSERVATIONS)  # read and placed before anything is written
     out = out or Path("results") / "+".join(s.dates)
+    if out.suffix.lower() == ".nc":  # field-run's --out is the file; here it is the folder of five files
+        raise InputError(
+            "--out is the folder for results.nc, summary.csv and the figures; this name is a netCDF file's",
+            file=out,
+            expected="a folder name (e.g. results/run1; field-run's --out is the .nc file itself)",
+        )
     out.mkdir(parents=True, exist_ok=True)
     weather_report(w)
     label = str(w.attrs.get("provenance", "")).upper()
@@ -90,11 +96,7 @@ def replicate(
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
-    if cfg.target_rse is not None:  # K per segment, from the pilot (raised to 32 as make_irradiance does)
-        pilot = max(k, 32)
-        k = f"target {cfg.target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
-    else:
-        k = f"K={k}"
+    k = samples_label(k, cfg.target_rse)
     console.print(
         f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {k}, {n_b} bounces{rays} …"
     )

@@ -185,9 +185,15 @@ def mitsuba(variant: str | None = None) -> ModuleType:
             f"Use an llvm_ad_* variant (unset {ENV_VARIANT} or drop --variant)."
         )
     mi = importlib.import_module("mitsuba")
-    if chosen not in mi.variants():
+    usable = [v for v in mi.variants() if v.startswith(("llvm_ad_", "cuda_ad_")) and "polarized" not in v]
+    if chosen not in usable:
+        # The estimator runs vectorised Dr.Jit kernels and differentiates them, with unpolarised
+        # spectra: scalar_*, non-AD and *_polarized variants are in the build but cannot render
+        # lightfit's scenes (a traceback deep in the leaf BSDF before).
+        why = "is not in this Mitsuba build" if chosen not in mi.variants() else "cannot run lightfit's renders"
         raise BackendError(
-            f"Mitsuba variant {chosen!r} is not in this Mitsuba build; available: {', '.join(mi.variants())}"
+            f"Mitsuba variant {chosen!r} {why}; lightfit needs a vectorised differentiable one "
+            f"(llvm_ad_* or cuda_ad_*, not polarised), here: {', '.join(usable)}"
         )
     mi.set_variant(chosen)
     _STATE["mi"] = mi
