@@ -665,3 +665,18 @@ def test_banners_name_an_adaptive_runs_target_and_k_range():
     assert samples_label(16, None) == "K=16"
     assert samples_label(16, 0.1) == "target 0.1 (K from 32 to 8192 per segment)"
     assert samples_label(16384, 0.05) == "target 0.05 (K from 16384 to 16384 per segment)"
+
+
+def test_field_run_records_where_and_when_as_replicate_does(tmp_path):
+    """field-run's file named no site, window, date or preset (a newcomer could not tell where a
+    field-scale result came from); it records them as replicate does (replication.when_attrs)."""
+    import xarray as xr
+
+    out = tmp_path / "r.nc"
+    args = ["field-run", "--quick", "--start-time", "11:00", "--hours", "0.5", "--workers", "1", "--no-progress"]
+    r = runner.invoke(app, [*args, "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(out) as ds:
+        a = ds.attrs
+        assert (a["site"], a["site_timezone"], a["date"], a["preset"]) == ("Selhausen", "Europe/Berlin", "2016-04-20", "default")
+        assert a["window"].startswith("2016-04-20 11:00 + 0.5 h") and '"n_plants"' in a["replication_config"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict
 from pathlib import Path
 
 import typer
@@ -44,7 +46,7 @@ def field_run(
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
     from lightfit.distributed.run import FieldRun, run_field
-    from lightfit.replication import check_netcdf_name, write_netcdf
+    from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label
 
     s = resolve(model)
@@ -65,6 +67,9 @@ def field_run(
         timeout_s=timeout,
         connect_timeout_s=connect_timeout,
     )
+    cfg = s.replication_config()  # where and when, as replicate records them
+    ds.attrs |= when_attrs(cfg, cfg.dates[0]) | {"preset": cfg.preset or "none"}
+    ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_netcdf(ds, out)
