@@ -678,5 +678,6 @@ def test_field_run_records_where_and_when_as_replicate_does(tmp_path):
     assert r.exit_code == 0, r.output
     with xr.open_dataset(out) as ds:
         a = ds.attrs
-        assert (a["site"], a["site_timezone"], a["date"], a["preset"]) == ("Selhausen", "Europe/Berlin", "2016-04-20", "default")
+        where = (a["site"], a["site_timezone"], a["date"], a["preset"])
+        assert where == ("Selhausen", "Europe/Berlin", "2016-04-20", "default")
         assert a["window"].startswith("2016-04-20 11:00 + 0.5 h") and '"n_plants"' in a["replication_config"]
