@@ -306,6 +306,10 @@ def test_exports_read_back_with_segment_ids(small_field, tmp_path):
     assert counts == pd.Series(m.face_segment).value_counts().to_dict()
     side = pd.read_csv(tmp_path / "f.segments.csv")
     assert set(side["segment_id"]) == set(np.unique(m.face_segment))
+    # a flag reads back as an integer (it was written 1.0), an area to 12 digits
+    assert side["measured"].dtype.kind == "i"
+    by_id = side.set_index("segment_id")
+    np.testing.assert_allclose(by_id["blade_area_m2"], seg.loc[by_id.index, "blade_area_m2"], rtol=1e-11)
     with pytest.raises(InputError, match="unknown mesh format"):
         export(m, tmp_path / "f.stl")
     with pytest.raises(InputError, match="no entry for segment"):

@@ -44,7 +44,7 @@ def field(
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
     from lightfit import plant
     from lightfit.figure import figure_format
-    from lightfit.plant.export import mesh_format
+    from lightfit.plant.export import mesh_format, sidecar_path
     from lightfit.plant.preview import plot_field
     from lightfit.report import field_label
 
@@ -100,6 +100,9 @@ def field(
             "plant_id": seg.set_index("segment_id")["plant_id"].astype(float),
         }
         console.print(f"[green]wrote[/] {plant.export(geom.mesh, path, values)}")
+        if mesh_format(path) == "obj":
+            side = sidecar_path(path)
+            console.print(f"[green]wrote[/] {side} (measured and plant_id per segment: OBJ has no face values)")
     if segments_csv:
         segments_csv.parent.mkdir(parents=True, exist_ok=True)
         seg.to_csv(segments_csv, index=False, float_format="%.8g")

@@ -41,6 +41,11 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
     return out
 
 
+def sidecar_path(obj_path: str | Path) -> Path:
+    """Where :func:`write_obj` puts the segments' values: OBJ has no face attributes."""
+    return Path(obj_path).with_suffix(".segments.csv")
+
+
 def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
     """Wavefront OBJ with one group per segment; ``values`` go to ``<path>.segments.csv``."""
     path = Path(path)
@@ -65,7 +70,7 @@ def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
                 for k, v in fv.items()
             }
         )
-        side.to_csv(path.with_suffix(".segments.csv"), index=False)
+        side.to_csv(sidecar_path(path), index=False, float_format="%.12g")  # ids and flags read as integers
     return path
 
 
