@@ -364,9 +364,11 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     )
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--tiles", "2", "--tile", "5"]), "tile")
     # Default periodic: the measurement area alone is the field (no buffer plants); buffers refused.
-    r = runner.invoke(app, ["field", "--n-plants", "4"])
-    assert r.exit_code == 0, r.output
-    assert "4 (4 / 0)" in r.stdout and "periodic boundary" in _flat(r.stdout)
+    # --quick is the model commands' quick field (it was refused as an unknown option).
+    for size in (["--n-plants", "4"], ["--quick"]):
+        r = runner.invoke(app, ["field", *size])
+        assert r.exit_code == 0, r.output
+        assert "4 (4 / 0)" in r.stdout and "periodic boundary" in _flat(r.stdout)
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--buffer-rows", "2"]), "--buffer-rows")
 
 

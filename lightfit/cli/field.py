@@ -14,7 +14,13 @@ from lightfit.plant.sheaths import SHEATHS
 
 
 def field(
-    n_plants: int = typer.Option(25, help="Plants in the measurement area, rounded up to a square N×N."),
+    n_plants: int = typer.Option(
+        None,
+        help="Plants in the measurement area, rounded up to a square N×N (default: the main job's, "
+        "as replicate and field-run build; --quick: theirs).",
+        show_default=False,
+    ),
+    quick: bool = typer.Option(False, "--quick", help="The small field of replicate --quick and field-run --quick."),
     row_spacing: float = typer.Option(0.125, help="Distance between wheat rows, m."),
     plant_spacing: float = typer.Option(0.03, help="Distance between plants in a row, m."),
     boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
@@ -46,8 +52,11 @@ def field(
     from lightfit.figure import figure_format
     from lightfit.plant.export import mesh_format, sidecar_path
     from lightfit.plant.preview import plot_field
+    from lightfit.replication import ReplicationConfig
     from lightfit.report import field_label
 
+    if n_plants is None:  # the field the model commands run, so that a preview shows it
+        n_plants = (ReplicationConfig.quick() if quick else ReplicationConfig()).n_plants
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
     for path in export or []:  # before minutes of plant growth
         mesh_format(path)
