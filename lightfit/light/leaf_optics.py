@@ -185,3 +185,14 @@ def preset_parameters(name: str) -> dict:
     if name == "prospect":
         return leaf_bsdf_parameters(LeafTraits())
     raise InputError(f"unknown leaf optics preset {name!r}", column="preset", expected=" or ".join(PRESETS))
+
+
+@lru_cache(maxsize=1)
+def _default_parameters() -> tuple[tuple[str, float], ...]:
+    return tuple(preset_parameters(DEFAULT_PRESET).items())
+
+
+def default_leaf_parameters() -> dict:
+    """The default preset's leaf BSDF parameters (:data:`DEFAULT_PRESET`), computed once (PROSPECT-D
+    and the GGX table): the defaults of :class:`~lightfit.light.scene.Optics` and of ``Theta``."""
+    return dict(_default_parameters())

@@ -20,7 +20,7 @@ from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.face_sampling import FaceSampler
-from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, leaf_bsdf_parameters, preset_parameters
+from lightfit.light.leaf_optics import LeafTraits, default_leaf_parameters, leaf_bsdf_parameters, preset_parameters
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
@@ -29,12 +29,6 @@ if TYPE_CHECKING:
     from lightfit.plant.field import FieldGeometry
 
 SKY_MODELS = ("isotropic", "overcast")
-
-
-@functools.cache
-def _default_leaf() -> dict:
-    """The default preset's BSDF parameters, computed once (PROSPECT-D runs in ≈ 0.1 s)."""
-    return preset_parameters(DEFAULT_PRESET)
 
 
 @dataclass(frozen=True)
@@ -58,8 +52,8 @@ class Optics:
 
     specular: float = 0.5
     roughness: float = 0.5
-    subsurface: float = field(default_factory=lambda: _default_leaf()["subsurface"])
-    base_color: float = field(default_factory=lambda: _default_leaf()["base_color"])
+    subsurface: float = field(default_factory=lambda: default_leaf_parameters()["subsurface"])
+    base_color: float = field(default_factory=lambda: default_leaf_parameters()["base_color"])
     soil_albedo: float = 0.12
 
     def __post_init__(self):

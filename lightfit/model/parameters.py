@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from functools import cache
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -56,16 +55,10 @@ assert tuple(BOUNDS)[:3] == LEAF_PARAMETERS  # one order for the leaf vector eve
 NAMES: tuple[str, ...] = tuple(BOUNDS)
 
 
-@cache
-def _default_leaf() -> dict[str, float]:
-    """The default leaf optics' BSDF parameters (computed once: PROSPECT-D and the GGX table)."""
-    from lightfit.light.leaf_optics import DEFAULT_PRESET, preset_parameters
-
-    return preset_parameters(DEFAULT_PRESET)
-
-
 def _leaf_default(name: str):
-    return eqx.field(default_factory=lambda: _default_leaf()[name])
+    from lightfit.light.leaf_optics import default_leaf_parameters
+
+    return eqx.field(default_factory=lambda: default_leaf_parameters()[name])
 
 
 class Theta(eqx.Module):
