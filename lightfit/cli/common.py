@@ -219,12 +219,13 @@ _DIGITS = {"rh": 2, "tair_c": 1, "pair_kpa": 1}
 
 def samples_label(samples: int, target_rse: float | None) -> str:
     """What a run's banner says about its samples: ``K=32``, or an adaptive run's target and the
-    range of K per segment (the pilot raised to 32 and the cap, as ``make_irradiance`` does)."""
+    range of K per segment (its pilot and the cap, as ``make_irradiance`` takes them)."""
+    from lightfit.light.estimator import adaptive_pilot
     from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 
     if target_rse is None:
         return f"K={samples}"
-    pilot = max(int(samples), 32)
+    pilot = adaptive_pilot(samples)
     return f"target {target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
 
 

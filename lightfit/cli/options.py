@@ -23,7 +23,7 @@ from typing import Annotated, Any
 import typer
 
 from lightfit.errors import InputError
-from lightfit.light.estimator import DARK_FLOOR, check_bounces, check_samples, check_target_rse
+from lightfit.light.estimator import DARK_FLOOR, MIN_PILOT, check_bounces, check_run_samples, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Scenario
 from lightfit.plant.sheaths import check_sheaths
@@ -268,7 +268,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--target-rse",
             help="Accuracy knob: per-segment relative standard error of absorbed PAR to reach by adaptive "
-            "sampling, in (0, 1) (0.05 for 5 %); --samples is then each segment's pilot count (at least 32), "
+            f"sampling, in (0, 1) (0.05 for 5 %); --samples is then each segment's pilot count (at least {MIN_PILOT}), "
             f"samples are added up to {MAX_ADAPTIVE_SAMPLES} where the error is above it (for segments absorbing "
             f"under {DARK_FLOOR:.1%} of the PAR above the canopy, an absolute error of the target times that "
             "light). Chosen once at the step with the highest sun and kept; results.nc reports each "
@@ -577,8 +577,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
-    check_samples(s.samples)
-    check_samples(s.samples if s.target_rse is None else max(s.samples, 32), exact=True)  # the K rendered
+    check_run_samples(s.samples, s.target_rse)
     check_seed(s.render_seed)
     if s.ceptometer_height_m is not None:
         check_ceptometer_height(s.ceptometer_height_m)

@@ -35,6 +35,7 @@ from lightfit.light.estimator import (
     PARTS,
     AdaptiveEstimator,
     SegmentEstimator,
+    adaptive_pilot,
     check_dark_floor,
     check_target_rse,
 )
@@ -117,8 +118,8 @@ def make_irradiance(
             float(target_rse),
             bounces=bounces,
             seed=s,
-            pilot=max(int(samples), 32),
-            max_samples=max(int(max_samples), int(samples), 32),
+            pilot=adaptive_pilot(samples),
+            max_samples=max(int(max_samples), adaptive_pilot(samples)),
             dark_floor=dark_floor,
             dni=float(dni),
             dhi=float(dhi),

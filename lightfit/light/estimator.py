@@ -188,6 +188,16 @@ def samples_used(samples: int) -> int:
     return r * -(-int(samples) // r)
 
 
+#: Fewest points per segment of adaptive sampling's first round (8 replicates, what its stopping
+#: rule needs): a smaller ``samples`` with a target is raised to it.
+MIN_PILOT = 32
+
+
+def adaptive_pilot(samples: int) -> int:
+    """Points per segment of adaptive sampling's first round for a run's ``samples``."""
+    return max(int(samples), MIN_PILOT)
+
+
 def check_samples(value, *, exact: bool = False) -> int:
     """Points per segment K: an integer ≥ 2 (the standard error needs two). ``exact``: also one
     that a render takes as it is (:func:`samples_used`), for settings that are recorded with the
@@ -201,6 +211,14 @@ def check_samples(value, *, exact: bool = False) -> int:
             expected=f"a K of {replicates_for(k)} replicates × equal points, which {k} is not: e.g. {below} or "
             f"{samples_used(k)} (8, 16, 32, 64, … always are)",
         )
+    return k
+
+
+def check_run_samples(value, target_rse: float | None) -> int:
+    """A run's ``samples`` (:func:`check_samples`) that it also renders as given: the fixed K, or
+    with a target the adaptive pilot (:func:`adaptive_pilot`), so the K recorded is the K rendered."""
+    k = check_samples(value)
+    check_samples(k if target_rse is None else adaptive_pilot(k), exact=True)
     return k
 
 
@@ -1166,8 +1184,8 @@ def render_adaptive(
     """
     check_target_rse(target_rse)
     check_dark_floor(dark_floor)
-    if not isinstance(pilot, (int, np.integer)) or pilot < 32:
-        raise InputError(f"pilot={pilot!r}", column="pilot", expected="an integer ≥ 32 (8 replicates)")
+    if not isinstance(pilot, (int, np.integer)) or pilot < MIN_PILOT:
+        raise InputError(f"pilot={pilot!r}", column="pilot", expected=f"an integer ≥ {MIN_PILOT} (8 replicates)")
     if not isinstance(growth, (int, np.integer)) or growth < 2:
         raise InputError(f"growth={growth!r}", column="growth", expected="an integer ≥ 2")
     if not isinstance(max_samples, (int, np.integer)) or max_samples < pilot:

@@ -21,7 +21,7 @@ from lightfit.light.estimator import (
     DARK_FLOOR,
     bounces_for_tolerance,
     check_bounces,
-    check_samples,
+    check_run_samples,
     check_target_rse,
 )
 from lightfit.light.leaf_optics import DEFAULT_PRESET
@@ -268,9 +268,8 @@ class Scenario:
         if self.bounces is None:
             self.bounces = bounces_for_tolerance(BOUNCE_TOLERANCE, self.optics)
         # The estimator's own checks, here before plants grow.
-        self.samples, self.bounces = check_samples(self.samples), check_bounces(self.bounces)
-        # The K rendered is the K recorded: a fixed K, or an adaptive run's pilot (raised to 32).
-        check_samples(self.samples if self.target_rse is None else max(self.samples, 32), exact=True)
+        self.samples = check_run_samples(self.samples, self.target_rse)
+        self.bounces = check_bounces(self.bounces)
         if self.target_rse is not None:
             self.target_rse = check_target_rse(self.target_rse)
         if self.allocate_at is not None:
