@@ -251,6 +251,29 @@ def part_agreement(folder, part: str, geom, exp: dict, seg_index, renders, area,
     return {c: agreement(l_m, l_se, f_m, f_se, area, m, reps) for c, m in classes.items()}
 
 
+def finite_agreement(geom, ground_half_m: float, less_n: int, reps: int, seg_index, renders, area, classes) -> dict:
+    """LESS on ``geom`` as a finite field on a soil quad of half-width ``ground_half_m`` (m): sun
+    and sky, ``reps`` runs of ``less_n`` samples each (one face order per replicate), against
+    lightfit's ``renders``. Per ``<part>_<class>``: the canopy total's bias, its SE and the
+    median |z| (:func:`part_agreement`). The experiments on LESS's scene take it from here."""
+    runs = [
+        {"label": f"{part}_r{r}", "n_samples": less_n, "permutation_seed": r, "dni": dni, "dhi": dhi}
+        for r in range(1, reps + 1)
+        for part, dni, dhi in (("sun", 1.0, 0.0), ("sky", 0.0, 1.0))
+    ]
+    keep = ("canopy_total_bias", "canopy_total_bias_se", "median_abs_z")
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="lightfit-less-", ignore_cleanup_errors=True) as d:
+        folder = Path(d)
+        exp = export(geom, "finite", folder, runs, ground_half_m=ground_half_m)
+        for r in range(1, reps + 1):
+            run_less(folder, r)
+        for part in ("sun", "sky"):
+            for c, a in part_agreement(folder, part, geom, exp, seg_index, renders, area, classes).items():
+                out[f"{part}_{c}"] = {k: a[k] for k in keep}
+    return out
+
+
 def segment_index(geom) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(segment ids, each face's index into them, each segment's area (m²), whether it is a
     blade)`` of a built field, in the order both tools' per-segment values take."""

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import types
 from pathlib import Path
 
@@ -67,21 +66,8 @@ def main(scales: list[float], ground_half_m: float, reps: int, out: Path) -> dic
         scaled = types.SimpleNamespace(
             mesh=type(m)(m.vertices * s, m.faces, m.face_segment, m.face_is_blade), segments=geom.segments
         )
-        runs = [
-            {"label": f"{part}_r{r}", "n_samples": LESS_N, "permutation_seed": r, "dni": dni, "dhi": dhi}
-            for r in range(1, reps + 1)
-            for part, dni, dhi in (("sun", 1.0, 0.0), ("sky", 0.0, 1.0))
-        ]
         row = {"scale": s, "ground_half_width_m": ground_half_m, "ground_half_width_unscaled_m": ground_half_m / s}
-        with tempfile.TemporaryDirectory(prefix="lightfit-less-scale-", ignore_cleanup_errors=True) as d:
-            folder = Path(d)
-            exp = bl.export(scaled, "finite", folder, runs, ground_half_m=ground_half_m)
-            for r in range(1, reps + 1):
-                bl.run_less(folder, r)
-            keep = ("canopy_total_bias", "canopy_total_bias_se", "median_abs_z")
-            for part in ("sun", "sky"):
-                for c, a in bl.part_agreement(folder, part, scaled, exp, seg_index, lf, area, classes).items():
-                    row[f"{part}_{c}"] = {k: a[k] for k in keep}
+        row |= bl.finite_agreement(scaled, ground_half_m, LESS_N, reps, seg_index, lf, area, classes)
         rows.append(row)
         console.print(f"scale {s:g} done")
     res = {

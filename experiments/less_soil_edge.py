@@ -29,7 +29,6 @@ import argparse
 import json
 import math
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -73,21 +72,8 @@ def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Pa
     console.print(f"lightfit: {reps} renders at K = {LIGHTFIT_K}")
     rows = []
     for w in half_widths:
-        runs = [
-            {"label": f"{part}_r{r}", "n_samples": LESS_N, "permutation_seed": r, "dni": dni, "dhi": dhi}
-            for r in range(1, reps + 1)
-            for part, dni, dhi in (("sun", 1.0, 0.0), ("sky", 0.0, 1.0))
-        ]
-        with tempfile.TemporaryDirectory(prefix="lightfit-less-edge-", ignore_cleanup_errors=True) as d:
-            folder = Path(d)
-            exp = bl.export(geom, "finite", folder, runs, ground_half_m=w)
-            for r in range(1, reps + 1):
-                bl.run_less(folder, r)
-            row = {"ground_half_width_m": w}
-            keep = ("canopy_total_bias", "canopy_total_bias_se", "median_abs_z")
-            for part in ("sun", "sky"):
-                for c, a in bl.part_agreement(folder, part, geom, exp, seg_index, lf, area, classes).items():
-                    row[f"{part}_{c}"] = {k: a[k] for k in keep}
+        row = {"ground_half_width_m": w}
+        row |= bl.finite_agreement(geom, w, LESS_N, reps, seg_index, lf, area, classes)
         rows.append(row)
         console.print(f"soil quad half-width {w} m done")
     fits = {}
