@@ -147,6 +147,12 @@ def test_bad_adaptive_inputs(scene):
             render_adaptive(fs, ids, **kw)
     with pytest.raises(InputError, match="first"):
         SegmentEstimator(fs, ids, samples=8, first=-1)
+    # Refused before the pilot: with no light to weigh, or NaN, every segment ran to the cap.
+    for dni, dhi in ((0.0, 0.0), (float("nan"), 0.3), (-1.0, 0.3), (1.0, float("inf"))):
+        with pytest.raises(InputError, match="dni"):
+            render_adaptive(fs, ids, 0.1, dni=dni, dhi=dhi)
+    with pytest.raises(InputError, match="finite field"):  # the scene fixture is finite
+        render_adaptive(fs, ids, 0.1, direct="projection")
 
 
 # -- the accuracy knob: Scenario.target_rse through the coupled model, the cache key and the CLI ----
@@ -329,7 +335,8 @@ def test_cli_refuses_bad_target_rse_in_one_line(value, tmp_path):
 @pytest.mark.parametrize(
     "bad",
     [((0.5, 0.5), (50.0, 180.0), 1.0, 0.3), ((0.5, 0.5, 1.5), (50.0, 180.0), 1.0, 0.3), ((0.5,) * 3, (50.0,), 1, 0)]
-    + [((0.5,) * 3, (float("nan"), 180.0), 1.0, 0.3), ((0.5,) * 3, (50.0, 180.0), -1.0, 0.3), "noon"],
+    + [((0.5,) * 3, (float("nan"), 180.0), 1.0, 0.3), ((0.5,) * 3, (50.0, 180.0), -1.0, 0.3), "noon"]
+    + [((0.5,) * 3, (50.0, 180.0), 0.0, 0.0)],  # no light to weigh the error by
 )
 def test_scenario_refuses_a_bad_allocation_point(bad):
     from lightfit import replication as rep

@@ -142,3 +142,46 @@ def test_eager_grad_does_not_deadlock_and_matches_jit():
         eager, jitted = np.asarray(r[f"{k}_eager"]), np.asarray(r[f"{k}_jit"])
         assert np.isfinite(eager).all() and np.abs(eager).max() > 0, (k, eager)
         assert np.allclose(eager, jitted, rtol=1e-6, atol=1e-9 * np.abs(jitted).max()), (k, eager, jitted)
+
+
+def test_bridge_refuses_bad_settings_and_shapes_and_is_flat_outside_the_box():
+    import pytest
+
+    from lightfit.errors import InputError
+
+    g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
+    ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()[:6]
+    fs = FieldScene(g.mesh, Optics.preset("paper"))
+    # Refused when the function is made, not at its first call inside a JAX callback.
+    for kw, name in (
+        (dict(samples=-3), "samples"),
+        (dict(bounces=-1), "bounces"),
+        (dict(direct="bogus"), "direct"),
+        (dict(direct="projection"), "finite field"),
+        (dict(target_rse=0.1, max_samples=8), "max_samples"),
+    ):
+        with pytest.raises(InputError, match=name):
+            make_irradiance(fs, ids, **kw)
+    with pytest.raises(InputError, match="segment_ids"):
+        make_irradiance(fs, ids[:0])
+    f = make_irradiance(fs, ids, samples=8, bounces=1)
+    sun = jnp.array([40.0, 170.0])
+    # A short leaf would keep the previous call's subsurface; refused at trace time, also under jit.
+    for bad in (jnp.array([0.5, 0.5]), jnp.array([0.5, 0.5, 0.5, 0.5])):
+        with pytest.raises(InputError, match="leaf of shape"):
+            f(bad, sun, 1)
+        with pytest.raises(InputError, match="leaf of shape"):
+            jax.jit(f)(bad, sun, 1)
+    with pytest.raises(InputError, match="sun_deg of shape"):
+        f(jnp.array([0.5, 0.5, 0.5]), jnp.array([40.0, 170.0, 1.0]), 1)
+
+    def loss(leaf):
+        return jnp.sum(f(leaf, sun, 1)[0][PARTS.index("absorbed_sun")])
+
+    # Outside [0, 1] the leaf is clamped: the same value as on the bound and no gradient there;
+    # on the bound itself the (one-sided) gradient stays.
+    out, edge = jnp.array([1.5, 0.5, 0.5]), jnp.array([1.0, 0.5, 0.5])
+    assert float(loss(out)) == float(loss(edge))
+    g_out, g_edge = np.asarray(jax.grad(loss)(out)), np.asarray(jax.grad(loss)(edge))
+    assert g_out[0] == 0.0 and g_edge[0] != 0.0
+    assert np.array_equal(g_out[1:], g_edge[1:])

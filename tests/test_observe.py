@@ -48,6 +48,22 @@ def test_fapar_is_zero_at_night_with_finite_gradients():
     assert np.isfinite(np.asarray(g)).all() and float(g[0]) == 0.0
 
 
+def test_plant_par_spread_has_finite_gradients_when_every_segment_has_the_same_par():
+    """At night (or any step where all segments see the same PAR) the spread is 0 and √ has an
+    infinite derivative there; the gradient is 0, not NaN, with and without jit."""
+    area = jnp.array([1.0, 2.0, 1.0])
+
+    def spread(par):
+        return O.plant_par(par, jnp.zeros_like(par), area)[1].sum()
+
+    for par in (jnp.zeros((2, 3)), jnp.full((2, 3), 300.0)):
+        for fn in (jax.grad(spread), jax.jit(jax.grad(spread))):
+            g = np.asarray(fn(par))
+            assert np.isfinite(g).all() and (g == 0).all()
+    # Away from equality the spread is the weighted SD (weights 1/4, 1/2, 1/4: mean 2, var 0.5).
+    assert float(O.plant_par(jnp.array([[1.0, 2.0, 3.0]]), jnp.zeros((1, 3)), area)[1][0]) == pytest.approx(0.5**0.5)
+
+
 def test_chamber_nee_sign_convention():
     """NEE = soil respiration − canopy net uptake: uptake 10 with soil 2 is −8 (CO2 taken up)."""
     nee, sd = O.chamber_nee(np.array([10.0, -3.0]), np.array([0.5, 0.1]), 2.0)

@@ -34,6 +34,7 @@ import numpy as np
 from lightfit.dataset.camera import Camera
 from lightfit.dataset.scene import Lighting, SceneArrays, VisualMaterials
 from lightfit.errors import InputError, check_integer
+from lightfit.light.keyed_random import check_seed
 from lightfit.light.scene import sun_vector
 
 COLOURS = ("rgb", "mono")
@@ -63,8 +64,7 @@ class RenderSettings:
             check_integer(getattr(self, k), k, lo)
         if self.colour not in COLOURS:
             raise InputError(f"colour={self.colour!r}", column="colour", expected=" or ".join(COLOURS))
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**32:
-            raise InputError(f"seed={self.seed!r}", column="seed", expected="an integer in [0, 2³²)")
+        check_seed(self.seed)
         if self.threads is not None and (not isinstance(self.threads, (int, np.integer)) or self.threads < 1):
             raise InputError(f"threads={self.threads!r}", column="threads", expected="an integer ≥ 1 or None")
 

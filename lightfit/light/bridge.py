@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import (
     DARK_FLOOR,
@@ -36,7 +36,10 @@ from lightfit.light.estimator import (
     AdaptiveEstimator,
     SegmentEstimator,
     adaptive_pilot,
+    check_bounces,
     check_dark_floor,
+    check_direct_light,
+    check_samples,
     check_target_rse,
 )
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2
@@ -89,20 +92,31 @@ def make_irradiance(
             projection (:class:`SegmentEstimator`); sensors always use their own paths.
 
     The returned function's arguments: ``leaf`` — (3,) specular, roughness, subsurface in
-    [0, 1]; ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer.
-    Gradients flow to ``leaf`` only.
+    [0, 1] (a value outside is clamped to it: the function is flat there, its gradient 0);
+    ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer in [0, 2³²).
+    Gradients flow to ``leaf`` only. Wrong shapes are refused when the function is traced.
     """
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
+    if len(ids) == 0:
+        raise InputError("no segments to render", column="segment_ids", expected="at least one segment id")
+    # Checked here, once: inside the callbacks an error reaches the caller wrapped in JAX's.
+    check_samples(samples)
+    check_bounces(bounces)
+    check_direct_light(field_scene, direct, direct_rays_per_m2)
+    if sensors:
+        check_samples(sensor_samples)
     if target_rse is not None:
         check_target_rse(target_rse)
         check_dark_floor(dark_floor)
+        check_integer(max_samples, "max_samples", adaptive_pilot(samples), why="the adaptive cap, at least the pilot")
     n_seg = len(ids)
     n_out = n_seg + len(sensors)
     lock = threading.Lock()
     cache: dict[int, tuple] = {}
 
     def set_state(leaf, sun_deg):
-        field_scene.set_optics(**{k: float(np.clip(v, 0.0, 1.0)) for k, v in zip(LEAF_PARAMETERS, leaf)})
+        # Clamped: the function is flat outside [0, 1] and backward_cb gives it no gradient there.
+        field_scene.set_optics(**{k: float(np.clip(v, 0.0, 1.0)) for k, v in zip(LEAF_PARAMETERS, leaf, strict=True)})
         el, az = (float(x) for x in sun_deg)
         field_scene.set_sun(el, az)
 
@@ -119,7 +133,7 @@ def make_irradiance(
             bounces=bounces,
             seed=s,
             pilot=adaptive_pilot(samples),
-            max_samples=max(int(max_samples), adaptive_pilot(samples)),
+            max_samples=int(max_samples),
             dark_floor=dark_floor,
             dni=float(dni),
             dhi=float(dhi),
@@ -184,10 +198,23 @@ def make_irradiance(
                 if c.any():
                     for k, v in e.vjp({p: c[i] for i, p in enumerate(PARTS)}).items():
                         g[k] += v
-        return np.array([g[k] for k in LEAF_PARAMETERS], dtype=leaf.dtype)
+        inside = (leaf >= 0.0) & (leaf <= 1.0)  # outside, the render is that of the clamped leaf: flat
+        return np.where(inside, [g[k] for k in LEAF_PARAMETERS], 0.0).astype(leaf.dtype)
+
+    def check_shapes(leaf, sun_deg, seed):
+        """At trace time (shapes are static): a short leaf would keep the previous call's last
+        parameters, a long one drop its tail."""
+        for name, a, shape, what in (
+            ("leaf", leaf, (3,), "(specular, roughness, subsurface)"),
+            ("sun_deg", sun_deg, (2,), "(elevation, azimuth) in degrees"),
+            ("seed", seed, (), "one integer"),
+        ):
+            if jnp.shape(a) != shape:
+                raise InputError(f"{name} of shape {jnp.shape(a)}", column=name, expected=f"shape {shape}: {what}")
 
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
+        check_shapes(leaf, sun_deg, seed)
         leaf = jnp.asarray(leaf)
         out = jax.ShapeDtypeStruct((len(PARTS), n_out), leaf.dtype)
         return jax.pure_callback(
@@ -195,6 +222,7 @@ def make_irradiance(
         )
 
     def fwd(leaf, sun_deg, seed):
+        check_shapes(leaf, sun_deg, seed)
         return irradiance(leaf, sun_deg, seed), (
             jnp.asarray(leaf),
             jnp.asarray(sun_deg, jnp.asarray(leaf).dtype),

@@ -41,6 +41,26 @@ SPECULAR_F0_SCALE = 0.08
 LEAF_PARAMETERS = ("specular", "roughness", "subsurface")
 
 
+def lobe_weights(specular, subsurface, base_color):
+    """The three lobes' weights (F_0, (1 − F_0)(1 − s_ss)c, (1 − F_0)s_ss c): glossy reflection,
+    diffuse reflection, diffuse transmission. Plain arithmetic, so numpy floats and Dr.Jit arrays
+    (differentiable) both go through this one formula."""
+    f0 = SPECULAR_F0_SCALE * specular
+    return f0, (1.0 - f0) * (1.0 - subsurface) * base_color, (1.0 - f0) * subsurface * base_color
+
+
+def unit_clamp(x):
+    """``x`` clamped to [0, 1] with the derivative of ``x`` itself (Dr.Jit, straight-through).
+
+    The parameters are checked to lie in [0, 1] where they are set, so the clamp only guards
+    against rounding; Dr.Jit's ``clip`` would send the whole derivative to the constant bound when
+    a parameter sits exactly on it (the gradient at specular = 0 or subsurface = 0 came out 0, and
+    an optimiser at a bound could not leave it)."""
+    import drjit as dr
+
+    return x + dr.detach(dr.clip(x, 0.0, 1.0) - x)
+
+
 def _classes():
     mi = mitsuba()
     import drjit as dr
@@ -81,22 +101,17 @@ def _classes():
             probabilities are those of the reference parameters mixed with ``defensive`` of a
             uniform choice, so that every lobe keeps a non-zero probability (unbiasedness).
             """
-            f0 = SPECULAR_F0_SCALE * float(specular)
-            c = float(self.base_color[0])
-            w = np.array([f0, (1 - f0) * (1 - subsurface) * c, (1 - f0) * subsurface * c])
+            w = np.array(lobe_weights(float(specular), float(subsurface), float(self.base_color[0])))
             p = w / w.sum() if w.sum() > 0 else np.full(3, 1 / 3)
             p = (1 - defensive) * p + defensive / 3
             self.sampling = (float(p[0]), float(p[1]), float(p[2]), max(float(roughness) ** 2, 0.05))
 
         # -- helpers ---------------------------------------------------------------------
         def _weights(self):
-            f0 = SPECULAR_F0_SCALE * dr.clip(self.specular, 0.0, 1.0)
-            ss = dr.clip(self.subsurface, 0.0, 1.0)
-            c = dr.clip(self.base_color, 0.0, 1.0)
-            return f0, (1.0 - f0) * (1.0 - ss) * c, (1.0 - f0) * ss * c
+            return lobe_weights(*(unit_clamp(p) for p in (self.specular, self.subsurface, self.base_color)))
 
         def _distr(self):
-            r = dr.clip(self.roughness, 0.0, 1.0)
+            r = unit_clamp(self.roughness)
             return mi.MicrofacetDistribution(mi.MicrofacetType.GGX, dr.maximum(r * r, ALPHA_MIN), True)
 
         def _sampling_distr(self):
@@ -374,7 +389,7 @@ def leaf_albedo(bsdf, cos_i):
     table = _albedo_table_drjit()
     nm, nr = len(TABLE_MU), len(TABLE_R)
     x = dr.clip(dr.abs(cos_i), 0.0, 1.0) * (nm - 1)
-    y = dr.clip(bsdf.roughness, 0.0, 1.0) * (nr - 1)
+    y = unit_clamp(bsdf.roughness) * (nr - 1)
     x0 = dr.minimum(mi.UInt32(dr.floor(dr.detach(x))), nm - 2)
     y0 = dr.minimum(mi.UInt32(dr.floor(dr.detach(y))), nr - 2)
     fx, fy = x - mi.Float(x0), y - mi.Float(y0)
@@ -388,5 +403,5 @@ def leaf_albedo(bsdf, cos_i):
         + (1 - fx) * fy * at(x0, y0 + 1)
         + fx * fy * at(x0 + 1, y0 + 1)
     )
-    f0 = SPECULAR_F0_SCALE * dr.clip(bsdf.specular, 0.0, 1.0)
-    return f0 * e + (1.0 - f0) * dr.clip(bsdf.base_color, 0.0, 1.0)
+    f0 = SPECULAR_F0_SCALE * unit_clamp(bsdf.specular)
+    return f0 * e + (1.0 - f0) * unit_clamp(bsdf.base_color)

@@ -67,8 +67,8 @@ from numpy.typing import ArrayLike
 from lightfit.errors import InputError, check_integer
 from lightfit.light import projection
 from lightfit.light.backend import owned, sum_float64
-from lightfit.light.bsdf import LEAF_PARAMETERS, SPECULAR_F0_SCALE, leaf_albedo
-from lightfit.light.keyed_random import hash32, keyed_uniforms
+from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo, lobe_weights
+from lightfit.light.keyed_random import check_seed, hash32, keyed_uniforms
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
 from lightfit.light.scene import FieldScene, Optics
 
@@ -139,8 +139,8 @@ def kronecker_alpha(n_dims: int) -> np.ndarray:
 class Irradiance:
     """Per-segment irradiance, per unit DNI (sun parts) and per unit DHI (sky parts).
 
-    All arrays have one entry per requested segment, in ``segment_id`` order. ``se_<part>``
-    is the Monte Carlo standard error. Multiply by PAR DNI / DHI (µmol m⁻² s⁻¹) to get PAR
+    All arrays have one entry per requested segment, in ``segment_id`` order. ``se[part]``
+    is the Monte Carlo standard error of ``part`` (:data:`PARTS`). Multiply by PAR DNI / DHI (µmol m⁻² s⁻¹) to get PAR
     per unit one-sided leaf (or stem lateral) area. In a periodic scene ``meta["periodic"]``
     reports the crossing cap and, per kind of ray, the rays cast, side crossings made and rays
     stopped by the cap (:meth:`SegmentEstimator.render`).
@@ -239,6 +239,27 @@ def check_target_rse(value) -> float:
     return float(value)
 
 
+def check_direct_light(field_scene: FieldScene, direct: str, rays_per_m2) -> None:
+    """A user's choice of the segments' unscattered light: ``"paths"``, or ``"projection"`` on a
+    periodic scene with valid rays per m² (:func:`~lightfit.light.projection.check_rays`); checked
+    before anything renders."""
+    if direct not in DIRECT_MODES[:2]:
+        raise InputError(f"direct={direct!r}", column="direct", expected="'paths' or 'projection'")
+    if direct == "projection":
+        projection.check_periodic(field_scene)
+        projection.check_rays(rays_per_m2)
+
+
+def check_par_weights(dni, dhi) -> tuple[float, float]:
+    """The weights of the sun and sky parts in an absorbed PAR whose error is judged (DNI and DHI,
+    any one unit): finite, ≥ 0 and not both 0 (nothing to judge)."""
+    if not (_is_real(dni) and _is_real(dhi) and math.isfinite(dni) and math.isfinite(dhi) and dni >= 0 and dhi >= 0):
+        raise InputError(f"dni={dni!r}, dhi={dhi!r}", column="dni, dhi", expected="finite numbers ≥ 0")
+    if dni + dhi == 0:
+        raise InputError("dni=0 and dhi=0", column="dni, dhi", expected="some light to weigh the error by")
+    return float(dni), float(dhi)
+
+
 #: Adaptive sampling's light floor (:func:`render_adaptive`'s ``dark_floor``), a fraction of the
 #: PAR on a horizontal surface above the canopy: a segment absorbing less than that stops once its
 #: *absolute* SE is below ``target_rse`` × that light, instead of chasing a relative error on
@@ -256,20 +277,41 @@ def check_dark_floor(value) -> float:
     return float(value)
 
 
+#: Largest ray origin offset ``epsilon_m`` (m) a render accepts: stems are 1.5 mm in radius and a
+#: sheath wraps its culm 0.3–0.9 mm away, so larger offsets step over organs.
+MAX_EPSILON_M = 1e-3
+
+
+#: Most scattering orders :func:`bounces_for_tolerance` hands out: beyond, the leaf or soil albedo
+#: is so close to 1 that the series is a modelling error rather than a setting.
+MAX_BOUNCES_FOR_TOLERANCE = 64
+
+
 def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
 
-    With leaf albedo ρ ≤ F_0 + (1 − F_0)c per scattering, the light left after b orders is at
-    most :math:`\rho^{b+1}/(1-\rho)` of the first-order light; a conservative bound (light
-    escaping the canopy only shortens the series).
+    With leaf albedo ρ ≤ F_0 + (1 − F_0)c per scattering (the lobes' weights summed), the light
+    left after b orders is at most :math:`\rho^{b+1}/(1-\rho)` of the first-order light; a
+    conservative bound (light escaping the canopy only shortens the series). More than
+    :data:`MAX_BOUNCES_FOR_TOLERANCE` orders (ρ near 1, where the series barely converges, or ρ ≥ 1,
+    where it does not) is refused: give ``bounces`` yourself.
     """
-    if not 0 < tolerance < 1:
+    if not (_is_real(tolerance) and 0 < tolerance < 1):
         raise InputError(f"tolerance={tolerance!r}", column="tolerance", expected="a number in (0, 1)")
-    f0 = SPECULAR_F0_SCALE * optics.specular
-    rho = max(f0 + (1 - f0) * optics.base_color, optics.soil_albedo, 1e-6)
-    if rho >= 1:
-        return 64
-    return max(0, math.ceil(math.log(tolerance * (1 - rho)) / math.log(rho)) - 1)
+    rho = max(sum(lobe_weights(optics.specular, optics.subsurface, optics.base_color)), optics.soil_albedo, 1e-6)
+    b = (
+        max(0, math.ceil(math.log(tolerance * (1 - rho)) / math.log(rho)) - 1)
+        if rho < 1
+        else MAX_BOUNCES_FOR_TOLERANCE + 1
+    )
+    if b > MAX_BOUNCES_FOR_TOLERANCE:
+        raise InputError(
+            f"an albedo of {rho:.4g} (leaf or soil) needs more than {MAX_BOUNCES_FOR_TOLERANCE} scattering orders for "
+            f"tolerance={tolerance!r}",
+            column="bounces",
+            expected="bounces given explicitly, or leaf and soil albedos below 1",
+        )
+    return b
 
 
 class SegmentEstimator:
@@ -317,6 +359,13 @@ class SegmentEstimator:
     ):
         check_samples(samples)
         check_bounces(bounces)
+        check_seed(seed)
+        if not (_is_real(epsilon_m) and 0 < epsilon_m <= MAX_EPSILON_M):
+            raise InputError(
+                f"epsilon_m={epsilon_m!r}",
+                column="epsilon_m",
+                expected=f"a ray offset in metres in (0, {MAX_EPSILON_M:g}]: organs are millimetres thick",
+            )
         if direct not in DIRECT_MODES:
             raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
         if direct == "projection" and first != 0:  # render_adaptive: rounds with "none", one projection
@@ -330,6 +379,8 @@ class SegmentEstimator:
         self.replicates = replicates_for(int(samples))
         self.per_replicate = self.samples // self.replicates
         seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
+        if len(seg) == 0:
+            raise InputError("no segments to render", column="segment_ids", expected="at least one segment id")
         self.segment_id = seg
         K, R = self.samples, self.replicates
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
@@ -1026,6 +1077,10 @@ def samples_for_accuracy(
     light scattered twice and more): raise ``direct_rays_per_m2`` or use :func:`render_adaptive`.
     """
     check_target_rse(target_rse)
+    check_par_weights(dni, dhi)
+    if not (_is_real(quantile) and 0 <= quantile <= 1):
+        raise InputError(f"quantile={quantile!r}", column="quantile", expected="a number in [0, 1]")
+    check_integer(max_samples, "max_samples", 2)
     r = SegmentEstimator(field_scene, segment_ids, samples=pilot, bounces=bounces, seed=seed).render()
     rse = r.relative_se("absorbed", dni, dhi)
     rse = rse[np.isfinite(rse)]
@@ -1184,14 +1239,16 @@ def render_adaptive(
     """
     check_target_rse(target_rse)
     check_dark_floor(dark_floor)
+    check_par_weights(dni, dhi)
     if not isinstance(pilot, (int, np.integer)) or pilot < MIN_PILOT:
         raise InputError(f"pilot={pilot!r}", column="pilot", expected=f"an integer ≥ {MIN_PILOT} (8 replicates)")
     if not isinstance(growth, (int, np.integer)) or growth < 2:
         raise InputError(f"growth={growth!r}", column="growth", expected="an integer ≥ 2")
     if not isinstance(max_samples, (int, np.integer)) or max_samples < pilot:
         raise InputError(f"max_samples={max_samples!r}", column="max_samples", expected=f"an integer ≥ pilot ({pilot})")
-    if direct not in DIRECT_MODES[:2]:
-        raise InputError(f"direct={direct!r}", column="direct", expected="'paths' or 'projection'")
+    check_direct_light(field_scene, direct, direct_rays_per_m2)
+    check_bounces(bounces)
+    check_seed(seed)
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
     S, R = len(ids), replicates_for(int(pilot))
     J, J_max = -(-int(pilot) // R), max(-(-int(pilot) // R), int(max_samples) // R)

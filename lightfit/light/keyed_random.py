@@ -25,6 +25,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightfit.errors import InputError
+
 #: Rounds of the TEA hash that turn a ray's or replicate's index and a key into its random bits
 #: (:func:`random_bits`). Mitsuba's default of 4 does not mix consecutive indices: the per-replicate
 #: sky shifts of replicates 0–3 correlated up to 0.46 and neighbouring cells' jitters were far from
@@ -34,6 +36,21 @@ from numpy.typing import ArrayLike
 #: the sky part on a small cell). 16 rounds pass the same checks (docs/light.md, "Are the reported
 #: standard errors right?").
 TEA_ROUNDS = 16
+
+
+#: Seeds are distinct below this: :func:`random_bits` hashes the seed in 32 bits.
+SEED_LIMIT = 2**32
+
+
+def check_seed(seed, column: str = "seed") -> int:
+    """A render's seed: an integer in [0, 2³²) (Python or numpy, not a bool). Larger seeds would
+    repeat smaller ones' random numbers (the hashes take the seed modulo 2³² or 2⁶⁴), and a float
+    seed would be rounded."""
+    from numbers import Integral
+
+    if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed < SEED_LIMIT:
+        raise InputError(f"seed={seed!r}", column=column, expected="an integer in [0, 2³²)")
+    return int(seed)
 
 
 def keyed_uniforms(seed: int, keys: np.ndarray, dims: ArrayLike) -> np.ndarray:

@@ -84,6 +84,16 @@ DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
 MAX_RAYS_PER_M2 = 1.0e10
 
 
+def check_periodic(field_scene) -> None:
+    """The projection needs a periodic scene: its rays wrap around the cell."""
+    if field_scene.tracer is None:
+        raise InputError(
+            "direct='projection' on a finite field",
+            column="direct",
+            expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
+        )
+
+
 def check_rays(rays_per_m2) -> tuple[float, float]:
     """``(sun, sky)`` rays per m² of ground from a pair or one number for both, each in
     (0, :data:`MAX_RAYS_PER_M2`]; InputError otherwise."""
@@ -234,12 +244,7 @@ class DirectProjection:
     """
 
     def __init__(self, field_scene, segment_ids, area_m2, *, replicates: int, seed: int, rays_per_m2, bounces: int):
-        if field_scene.tracer is None:
-            raise InputError(
-                "direct='projection' on a finite field",
-                column="direct",
-                expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
-            )
+        check_periodic(field_scene)
         self.rays_per_m2 = dict(zip(("sun", "sky"), check_rays(rays_per_m2)))
         self.scatter = bounces >= 1
         mi = field_scene.mi

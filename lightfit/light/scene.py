@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
@@ -184,12 +185,14 @@ class FieldScene:
         self.bsdf.freeze_sampling(o.specular, o.roughness, o.subsurface)
 
     def set_sun(self, elevation_deg: float, azimuth_deg: float) -> None:
-        """Point the sun (elevation and azimuth in degrees); below the horizon its part is 0."""
-        if not (math.isfinite(elevation_deg) and math.isfinite(azimuth_deg)):
+        """Point the sun (elevation in [−90, 90] and azimuth in degrees); below the horizon its
+        part is 0."""
+        ok = all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in (elevation_deg, azimuth_deg))
+        if not (ok and math.isfinite(elevation_deg) and math.isfinite(azimuth_deg) and abs(elevation_deg) <= 90):
             raise InputError(
-                f"sun position ({elevation_deg}, {azimuth_deg})",
+                f"sun position ({elevation_deg!r}, {azimuth_deg!r})",
                 column="sun",
-                expected="finite elevation and azimuth in degrees",
+                expected="finite numbers of degrees: elevation in [−90, 90] (above 90 is a mirrored sun), azimuth",
             )
         self.sun = sun_vector(elevation_deg, azimuth_deg)
 

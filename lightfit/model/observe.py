@@ -113,7 +113,11 @@ def plant_par(par, par_mc_sd, area_m2) -> tuple:
     xp = np if _numpy(par, par_mc_sd, area_m2) else jnp
     w = area_m2 / area_m2.sum()
     mean = par @ w
-    spread = xp.sqrt(xp.maximum((par - mean[:, None]) ** 2 @ w, 0.0))
+    var = (par - mean[:, None]) ** 2 @ w
+    # Double where: √ at 0 (equal PAR everywhere, e.g. at night) has an infinite derivative, and
+    # 0 · ∞ would make the spread's gradient NaN.
+    positive = var > 0
+    spread = xp.where(positive, xp.sqrt(xp.where(positive, var, 1.0)), 0.0)
     mc_sd = xp.sqrt(_no_grad((par_mc_sd**2) @ (w**2)))
     return mean, spread, mc_sd
 
@@ -466,6 +470,7 @@ class ObservationOperator:
         dni, dhi = (f * jnp.asarray(x[day])[:, None] for x in (fc.dni_par, fc.dhi_par))
         sun, sky = rows.index(f"{kind}_sun"), rows.index(f"{kind}_sky")
         x = dni * values[:, sun] + dhi * values[:, sky]
+        # The parts' errors taken as independent: an upper bound (their covariance is mostly < 0).
         sd = jnp.sqrt((dni * se[:, sun]) ** 2 + (dhi * se[:, sky]) ** 2)
         zeros = jnp.zeros((len(fc.day), values.shape[-1]))
         return zeros.at[day].set(x), zeros.at[day].set(sd)
@@ -553,7 +558,10 @@ def mc_covariance(
     "Monte Carlo covariance"): a segment's sky parts are *identical* at every step (isotropic sky,
     same rays), so their error is one number per segment for the whole day; its sun-part errors
     at different steps are nearly uncorrelated (pooled correlation 0.12 at 30 min, 0.06 at 1 h,
-    < 0.02 beyond: ignored here), sun and sky errors are uncorrelated, and incident and absorbed
+    < 0.02 beyond: ignored here), sun and sky errors are taken as uncorrelated (a segment's are
+    mostly negatively correlated, median −0.1 with the projected direct light, −0.3 with the paths'
+    in a finite field, :attr:`~lightfit.light.estimator.Irradiance.cov`: so this covariance and
+    the ``*_mc_sd_*`` overstate the error a little), and incident and absorbed
     parts of a segment err together (correlation 1.000). Segments have independent streams. With
     :math:`g_{k,t,s}` the derivative of observable k at step t by the parts of segment s (one
     reverse-mode pass per key; an observable at step t depends on that step's parts only), the

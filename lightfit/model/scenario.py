@@ -16,7 +16,7 @@ from dataclasses import field as dc_field
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError, check_integer
+from lightfit.errors import InputError
 from lightfit.light.estimator import (
     DARK_FLOOR,
     bounces_for_tolerance,
@@ -101,8 +101,10 @@ def check_ceptometer_height(h) -> float:
 
 
 def check_seed(seed) -> int:
-    """The render seed (the estimator's common random numbers): an integer ≥ 0."""
-    return check_integer(seed, "seed", 0, column="render_seed")
+    """The render seed (the estimator's common random numbers): an integer in [0, 2³²)."""
+    from lightfit.light.keyed_random import check_seed as check_render_seed
+
+    return check_render_seed(seed, column="render_seed")
 
 
 #: The values of a scenario's choices (what PAR at the plants means, what canopy An refers to).
@@ -136,9 +138,11 @@ def adaptive_limits() -> dict:
 
 
 def check_allocate_at(value) -> tuple:
-    """``(leaf (3,) in [0, 1], sun_deg (2,) finite, dni_par ≥ 0, dhi_par ≥ 0)`` as floats, else
-    :class:`InputError` naming ``allocate_at``."""
-    expected = "(leaf: 3 numbers in [0, 1], sun_deg: elevation and azimuth in degrees, dni_par ≥ 0, dhi_par ≥ 0)"
+    """``(leaf (3,) in [0, 1], sun_deg (2,) finite, dni_par ≥ 0, dhi_par ≥ 0, not both 0)`` as
+    floats, else :class:`InputError` naming ``allocate_at``."""
+    expected = (
+        "(leaf: 3 numbers in [0, 1], sun_deg: elevation and azimuth in degrees, dni_par ≥ 0, dhi_par ≥ 0, not both 0)"
+    )
     try:
         leaf, sun, dni, dhi = value
         leaf = tuple(float(x) for x in np.asarray(leaf, np.float64).reshape(3))
@@ -146,7 +150,7 @@ def check_allocate_at(value) -> tuple:
         dni, dhi = float(dni), float(dhi)
     except (TypeError, ValueError) as e:
         raise InputError(f"allocate_at={value!r}", column="allocate_at", expected=expected) from e
-    ok = all(0 <= x <= 1 for x in leaf) and all(np.isfinite(sun)) and dni >= 0 and dhi >= 0
+    ok = all(0 <= x <= 1 for x in leaf) and all(np.isfinite(sun)) and dni >= 0 and dhi >= 0 and dni + dhi > 0
     if not (ok and np.isfinite(dni) and np.isfinite(dhi)):
         raise InputError(f"allocate_at={value!r}", column="allocate_at", expected=expected)
     return leaf, sun, dni, dhi

@@ -152,9 +152,9 @@ def informed_priors(optics=None) -> dict[str, Prior]:
     """
     if optics is None:
         return dict(PRIORS_INFORMED)
-    from lightfit.light.bsdf import SPECULAR_F0_SCALE
+    from lightfit.light.bsdf import lobe_weights
 
-    per_unit = (1 - SPECULAR_F0_SCALE * optics.specular) * optics.base_color
+    per_unit = lobe_weights(optics.specular, 1.0, optics.base_color)[2]  # T per unit subsurface
     lo, hi = (round(min(1.0, t / per_unit), 2) for t in TRANSMITTANCE_RANGE)
     if lo >= 1.0:
         raise InputError(
