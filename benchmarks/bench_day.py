@@ -1,18 +1,19 @@
 """Benchmark: per-segment light at every step of a day, to a 2 % median (issue 16).
 
-    python benchmarks/bench_day.py [--n-plants 500] [--steps 29]
+    python benchmarks/bench_day.py [--n-plants 500] [--steps 29] [--sheaths wrapped|rods] [--out JSON]
 
 A day renders one estimator at every step's sun. The paths' geometry and the projected sky are
 kept, so only the first render casts the sky's rays and traces the paths; every later step casts
 the sun's rays alone. A day can therefore afford more sky rays than one render. For each setting
 (K, projection rays per m² for sun and sky) on the defaults' periodic cell (PROSPECT-D leaf, the
-bounces for 1 % truncation), one fresh estimator renders the first step (sun 50° / 180°) and then
-the later steps' suns in :data:`STEP_SUNS_DEG`. Reported: the first render's time, a later step's
-time (mean over the later suns), the later steps' median relative SE of absorbed PAR (sun +
-0.3·sky; R-corrected: divided by ``bench_light.median_se_factor``), and
-the time for a 2 % median, per later step and for a whole day of ``--steps`` steps. Both scale
-every part (the sky's single cast included) by (median / 2 %)²: each part's variance falls as
-1/rays and 1/K.
+bounces for 1 % truncation; ``--sheaths`` the leaf sheaths' layout, default the model's default,
+recorded as ``sheaths``; runs stored before it was recorded had ``rods``), one fresh estimator
+renders the first step (sun 50° / 180°) and then the later steps' suns in :data:`STEP_SUNS_DEG`.
+Reported: the first render's time, a later step's time (mean over the later suns), the later
+steps' median relative SE of absorbed PAR (sun + 0.3·sky; R-corrected: divided by
+``bench_light.median_se_factor``), and the time for a 2 % median, per later step and for a whole
+day of ``--steps`` steps. Both scale every part (the sky's single cast included) by
+(median / 2 %)²: each part's variance falls as 1/rays and 1/K.
 
 The later steps share the sky's rays, so their sky errors are correlated from step to step: a
 day's sum does not average them down. The per-step median is what each step's photosynthesis
@@ -20,8 +21,8 @@ sees.
 
 Before the settings, one render of the first setting at another seed compiles the kernels and
 lets Dr.Jit's allocator hold the memory the renders reuse (first-touch memory costs ≈ 10 s per
-GiB here). Writes benchmarks/results/day.json and prints a table, with the commit and the load
-average (the 2 cores are shared).
+GiB here). Writes benchmarks/results/day.json (or ``--out``) and prints a table, with the commit
+and the load average (the 2 cores are shared).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import Field, build
+from lightfit.plant import SHEATHS, Field, build
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -101,12 +102,12 @@ def day(fs: FieldScene, ids: np.ndarray, bounces: int, samples: int, rays, steps
     }
 
 
-def main(n_plants: int = 500, steps: int = 29) -> dict:
+def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: Path = OUT) -> dict:
     console = Console()
     load_start = os.getloadavg()[0]
     optics = Optics.preset("prospect")
     bounces = bounces_for_tolerance(0.01, optics)
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
+    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     fs.set_sun(*FIRST_SUN_DEG)
@@ -128,6 +129,7 @@ def main(n_plants: int = 500, steps: int = 29) -> dict:
         "cpu_cores": os.cpu_count(),
         "mitsuba_variant": backend.info().variant,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "sheaths": sheaths,
         "segments": len(ids),
         "bounces": bounces,
         "steps": steps,
@@ -137,8 +139,8 @@ def main(n_plants: int = 500, steps: int = 29) -> dict:
         "load_average_start": load_start,
         "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=2))
     t = Table(title=f"a day at a 2 % median per step: {len(ids)} segments, {steps} steps, 2 CPU cores")
     for c in (
         "K, sun / sky rays per m²",
@@ -167,5 +169,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--steps", type=int, default=29, help="steps in the day (the main job's 20 April: 29)")
+    ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
+    ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
     a = ap.parse_args()
-    main(a.n_plants, a.steps)
+    main(a.n_plants, a.steps, a.sheaths, a.out)

@@ -1,12 +1,14 @@
 """Benchmark: per-segment irradiance on a 500-plant field, gradient cost, ray throughput, irradiancemeter.
 
     python benchmarks/bench_light.py [--n-plants 500] [--samples 64] [--boundary periodic|finite]
-        [--optics prospect|paper] [--bounces B]
+        [--optics prospect|paper] [--bounces B] [--sheaths wrapped|rods] [--out JSON]
 
 The field is the defaults' (issue 16): the measured plants as one periodic cell, the PROSPECT-D
 leaf, the bounces that leaf needs for 1 % truncation (2); ``--boundary finite --optics paper
---bounces 3`` is the earlier setup (2 buffer rows, the grey leaf). All ratios come from one run on
-one machine. Writes benchmarks/results/light.json (the last run of another setup is kept under
+--bounces 3`` is the earlier setup (2 buffer rows, the grey leaf); ``--sheaths`` the leaf sheaths'
+layout (``Field.sheaths``, default the model's default; recorded as ``sheaths``, and runs stored
+before it was recorded had ``rods``). All ratios come from one run on one machine. Writes
+benchmarks/results/light.json (or ``--out``; the last run of another setup is kept under
 ``earlier_runs``) and prints a table, with the commit and the load average (the 2 cores are
 shared). Measured:
 1. Wall time of one primal pass over all measured shoot segments at K samples, twice: with the
@@ -290,10 +292,10 @@ def direct_projection_comparison(
     return {"settings": out, "load_average": os.getloadavg()[0]}
 
 
-def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3) -> dict:
+def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3, sheaths: str = SHEATHS[0]) -> dict:
     """Per-segment time at equal SE: one irradiancemeter render per segment vs our batched pass."""
     mi = backend.mitsuba()
-    geom = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=2))
+    geom = build(Field(boundary="finite", n_plants=4, buffer_rows=1, seed=2, sheaths=sheaths))
     fs = FieldScene(geom.mesh, Optics.preset("paper"))
     fs.set_sun(-10.0, 0.0)
     seg = geom.segments[geom.segments["measured"].to_numpy() & (organ_class(geom.segments) == "blade")]
@@ -399,13 +401,15 @@ def main(
     bounces: int | None = None,
     boundary: str = "periodic",
     optics_name="prospect",
+    sheaths: str = SHEATHS[0],
+    out: Path = OUT,
 ) -> dict:
     console = Console()
     load_start = os.getloadavg()[0]
     optics = Optics.preset(optics_name)
     if bounces is None:
         bounces = bounces_for_tolerance(0.01, optics)
-    geom = build(Field(n_plants=n_plants, seed=1, boundary=boundary), progress=True)  # finite: 2 buffer rows
+    geom = build(Field(n_plants=n_plants, seed=1, boundary=boundary, sheaths=sheaths), progress=True)  # finite: 2 rows
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     fs.set_sun(50.0, 180.0)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
@@ -427,7 +431,7 @@ def main(
     rays = raw_ray_rate(fs, 4_000_000)
     path_rate = est.n_evaluations / t_primal
     rays_per_sample = 1 + 3 * (bounces + 1)
-    meter = irradiancemeter_comparison()
+    meter = irradiancemeter_comparison(sheaths=sheaths)
     # (K, projection rays per m² (sun, sky) or one for both; 0: paths). The last: the cost model's
     # reallocation (docs/light.md, "Where the time goes, and casting in passes").
     settings = [(64, 0), (64, 1e7), (32, 2e7), (16, (1.5e7, 2e7))]
@@ -441,6 +445,7 @@ def main(
         "load_average_start": load_start,
         "boundary": boundary,
         "optics": optics_name,
+        "sheaths": sheaths,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "triangles": int(geom.mesh.n_faces),
@@ -468,16 +473,15 @@ def main(
         "direct_projection": direct,
         "load_average_end": os.getloadavg()[0],
     }
-    if OUT.exists():  # keep the last run of every other setup, with its own conditions
-        old = json.loads(OUT.read_text())
+    if out.exists():  # keep the last run of every other setup, with its own conditions
+        old = json.loads(out.read_text())
         earlier = old.pop("earlier_runs", {})
-        old_key = f"{old.get('boundary', 'finite')}_{old.get('optics', 'paper')}_{old.get('bounces')}_bounces"
-        earlier[old_key] = old
-        earlier.pop(f"{boundary}_{optics_name}_{bounces}_bounces", None)
+        earlier[_setup_key(old)] = old
+        earlier.pop(_setup_key(res), None)
         if earlier:
             res["earlier_runs"] = earlier
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=2))
     t = Table(
         title=f"irradiance benchmark: {res['segments']} segments, K={est.samples}, {bounces} bounces, 2 CPU cores"
     )
@@ -527,6 +531,14 @@ def main(
     return res
 
 
+def _setup_key(res: dict) -> str:
+    """A run's setup as ``earlier_runs`` keys it; runs stored before ``sheaths`` was recorded had
+    rods, and the rods' key is the one those runs had."""
+    key = f"{res.get('boundary', 'finite')}_{res.get('optics', 'paper')}_{res.get('bounces')}_bounces"
+    sheaths = res.get("sheaths", "rods")
+    return key if sheaths == "rods" else f"{key}_{sheaths}_sheaths"
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
@@ -534,5 +546,7 @@ if __name__ == "__main__":
     ap.add_argument("--bounces", type=int, default=None, help="default: the leaf's bounces for 1 %% truncation")
     ap.add_argument("--boundary", default="periodic", choices=["periodic", "finite"])
     ap.add_argument("--optics", default="prospect", choices=["prospect", "paper"], help="leaf optics preset")
+    ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
+    ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
     a = ap.parse_args()
-    main(a.n_plants, a.samples, a.bounces, a.boundary, a.optics)
+    main(a.n_plants, a.samples, a.bounces, a.boundary, a.optics, a.sheaths, a.out)

@@ -1,7 +1,7 @@
 """Issue 16 item 4, prepared for a session that is lent a GPU: the 500-plant cell in ``cuda_ad_mono``.
 
-    python benchmarks/device_light.py prepare [--n-plants 500]        # here, once (≈ 1 min)
-    bash benchmarks/device_light.sh                                     # there, through `run`
+    python benchmarks/device_light.py prepare [--n-plants 500] [--sheaths wrapped|rods]  # here, once (≈ 1 min)
+    bash benchmarks/device_light.sh                                                      # there, through `run`
 
 The device machine (docs/benchmarks.md, "GPU") has Python 3.12, numpy, pandas, scipy, rich and JAX,
 no network and no Mitsuba, and a call carries at most 64 MiB. ``prepare`` therefore writes, into the
@@ -11,10 +11,13 @@ git-ignored folder ``device/``:
   lightfit never loads taken out — the other eight ``*_ad_*`` and the scalar variants' extension
   modules, the headers, the spectral upsampling table and the volume, curve and other plugins that
   no lightfit scene names — 64 → 31 MiB;
-* ``geometry.npz``: the bench cell's mesh (``build(Field(n_plants, seed=1, boundary="periodic"))``,
-  as ``bench_light.py`` grows it; CPlantBox is not needed there), its periodic cell, the PROSPECT-D
-  optics, each segment's organ class, the commit it was prepared at, and a reference render made
-  here (``llvm_ad_mono``, the first setting, seed 11: absorbed PAR and its SE per segment).
+* ``geometry.npz``: the bench cell's mesh (``build(Field(n_plants, seed=1, boundary="periodic",
+  sheaths=sheaths))``, as ``bench_light.py`` grows it, ``--sheaths`` default the model's default;
+  CPlantBox is not needed there), its periodic cell, the PROSPECT-D optics, each segment's organ
+  class, the commit it was prepared at and the sheaths (the results' ``prepared``, and their
+  ``sheaths``: absent or None where prepared before it was recorded, with rods), and a reference
+  render made here (``llvm_ad_mono``, the first setting, seed 11: absorbed PAR and its SE per
+  segment).
 
 ``run`` (what ``device_light.sh`` calls there, after installing the wheels) first renders the first
 setting with seed 12 and compares it with the reference segment by segment (median |z| of the
@@ -158,7 +161,7 @@ def _reference_render(geom, ids) -> dict:
     }
 
 
-def prepare(n_plants: int, python_version: str) -> None:
+def prepare(n_plants: int, python_version: str, sheaths: str) -> None:
     from bench_light import commit_state
 
     from lightfit.light.scene import Optics
@@ -177,7 +180,7 @@ def prepare(n_plants: int, python_version: str) -> None:
     )  # fmt: skip
     for w in sorted(raw.glob(f"*-cp{tag}-*.whl")):
         _strip_wheel(w, DEVICE / "wheels" / w.name)
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
+    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     m, c = geom.mesh, geom.cell
@@ -193,7 +196,13 @@ def prepare(n_plants: int, python_version: str) -> None:
         cell=np.array([c.along_m, c.across_m, c.row_direction_deg, *c.center_xy]),
         optics=json.dumps(Optics.preset("prospect").__dict__),
         meta=json.dumps(
-            {"n_plants": n_plants, "python": python_version, **commit_state(), "source_digest": source_digest()}
+            {
+                "n_plants": n_plants,
+                "sheaths": sheaths,
+                "python": python_version,
+                **commit_state(),
+                "source_digest": source_digest(),
+            }
         ),
         **ref,
     )
@@ -236,8 +245,10 @@ def run(out: Path, budget_s: float, settings) -> dict:
     bounces = bounces_for_tolerance(0.01, optics)
     smi = ["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"]
     gpu = subprocess.run(smi, capture_output=True, text=True).stdout.strip() if shutil.which(smi[0]) else ""
+    prepared = json.loads(str(g["meta"]))
     res = {
-        "prepared": json.loads(str(g["meta"])),
+        "prepared": prepared,
+        "sheaths": prepared.get("sheaths"),  # None: prepared before it was recorded (rods)
         "source_digest": source_digest(),
         "mitsuba_variant": backend.info().variant,
         "gpu": gpu or None,
@@ -383,17 +394,20 @@ def _setting(text: str):
 
 
 if __name__ == "__main__":
+    from lightfit.plant import SHEATHS
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("prepare", help="wheels and geometry into device/ (here)")
     p.add_argument("--n-plants", type=int, default=500)
     p.add_argument("--python-version", default="3.12", help="the device's Python (3.12); 3.11 for a dry run here")
+    p.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
     r = sub.add_parser("run", help="render on the device (device_light.sh calls this)")
     r.add_argument("--out", type=Path, default=Path(os.environ.get("OUT", ROOT / "benchmarks" / "results")))
     r.add_argument("--budget-s", type=float, default=420.0, help="start no new setting after this many seconds")
     r.add_argument("--settings", type=_setting, nargs="*", default=SETTINGS, help="K:sun_rays:sky_rays per m²")
     a = ap.parse_args()
     if a.cmd == "prepare":
-        prepare(a.n_plants, a.python_version)
+        prepare(a.n_plants, a.python_version, a.sheaths)
     else:
         run(a.out, a.budget_s, a.settings)
