@@ -41,6 +41,13 @@ class InputError(ValueError):
         return InputError(self.problem, file=file, row=self.row, column=self.column, expected=self.expected)
 
 
+def is_real(value) -> bool:
+    """A real number (Python or numpy), not a bool."""
+    from numbers import Real
+
+    return isinstance(value, Real) and not isinstance(value, bool)
+
+
 def check_integer(value, name: str, low: int, *, column: str | None = None, why: str = "") -> int:
     """``value`` as an ``int`` if it is an integer (Python or numpy; not a bool) ≥ ``low``, else
     :class:`InputError` ``name=value`` naming ``column`` (default ``name``); ``why`` is added to

@@ -104,6 +104,8 @@ class ReplicationConfig:
     render_seed: int = 0
     par_kind: str = Scenario.par_kind
     an_per: str = Scenario.an_per
+    soil_respiration_umol_m2_s: float = Scenario.soil_respiration_umol_m2_s
+    soil_respiration_q10: float = Scenario.soil_respiration_q10
     how: str = "sample"
     photosynthesis: str = Scenario.photosynthesis
     optics: str = DEFAULT_PRESET
@@ -335,6 +337,8 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         ceptometer_height_m=cfg.ceptometer_height_m,
         par_kind=cfg.par_kind,
         an_per=cfg.an_per,
+        soil_respiration_umol_m2_s=cfg.soil_respiration_umol_m2_s,
+        soil_respiration_q10=cfg.soil_respiration_q10,
         photosynthesis=cfg.photosynthesis,
         optics=optics,
     )

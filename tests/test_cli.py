@@ -330,6 +330,23 @@ def test_bad_par_kind_names_the_parameter(tmp_path):
     assert_user_error(r, "par_kind", "diffuse")
 
 
+@pytest.mark.parametrize(
+    "args, token", [(["--soil-respiration", "-1"], "--soil-respiration"), (["--soil-respiration-q10", "9"], "q10")]
+)
+def test_bad_soil_respiration_names_the_option(tmp_path, args, token):
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), *args])
+    assert_user_error(r, token, args[1])
+
+
+def test_soil_respiration_options_reach_the_run_configuration():
+    from lightfit.cli.options import ModelOptions, resolve
+
+    cfg = resolve(ModelOptions(quick=True, soil_respiration=1.5, soil_respiration_q10=1.8)).replication_config()
+    assert (cfg.soil_respiration_umol_m2_s, cfg.soil_respiration_q10) == (1.5, 1.8)
+    default = resolve(ModelOptions(quick=True)).replication_config()
+    assert (default.soil_respiration_umol_m2_s, default.soil_respiration_q10) == (0.0, 2.0)
+
+
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     ply, png = tmp_path / "f.ply", tmp_path / "f.png"

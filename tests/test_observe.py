@@ -72,6 +72,30 @@ def test_chamber_nee_sign_convention():
     assert O.SOIL_RESPIRATION_UMOL_M2_S == 0.0
 
 
+def test_soil_respiration_follows_q10():
+    """R = R₁₀ Q₁₀^((T − 10)/10): doubling every 10 K at Q₁₀ = 2; constant at Q₁₀ = 1."""
+    t = np.array([0.0, 10.0, 20.0, 25.0])
+    np.testing.assert_allclose(O.soil_respiration(2.0, 2.0, t), [1.0, 2.0, 4.0, 4.0 * 2**0.5])
+    np.testing.assert_allclose(O.soil_respiration(2.0, 1.0, t), 2.0)
+
+
+@pytest.mark.parametrize(
+    "kw, name",
+    [
+        (dict(soil_respiration_umol_m2_s=-1.0), "soil_respiration_umol_m2_s"),
+        (dict(soil_respiration_umol_m2_s=float("nan")), "soil_respiration_umol_m2_s"),
+        (dict(soil_respiration_umol_m2_s="2"), "soil_respiration_umol_m2_s"),
+        (dict(soil_respiration_q10=0.5), "soil_respiration_q10"),
+        (dict(soil_respiration_q10=True), "soil_respiration_q10"),
+    ],
+)
+def test_scenario_refuses_bad_soil_respiration(kw, name):
+    from lightfit.model.scenario import Scenario
+
+    with pytest.raises(InputError, match=name):
+        Scenario(weather=rep.forcing().iloc[[14]], **kw)
+
+
 def test_every_series_has_an_observable_and_schema_entries():
     for s in SERIES:
         assert s.value in schema.OBSERVABLES and s.mc_sd in schema.OBSERVABLES, s.name
@@ -130,6 +154,27 @@ def noon_model():
     """The quick configuration on a 3-hour window around noon (the record at 10:13:48 UTC is on it)."""
     w = rep.forcing()
     return rep.model_for(rep.ReplicationConfig.quick(), w.loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"])
+
+
+def test_chamber_nee_adds_the_soils_respiration_at_each_steps_air_temperature(noon_model):
+    """The run option reaches the observable: NEE with R₁₀ = 2, Q₁₀ = 2.5 minus NEE without is
+    2 · 2.5^((T − 10)/10) at each step's air temperature from the forcing; nothing else moves, and
+    the results record both settings."""
+    import dataclasses
+
+    cfg = dataclasses.replace(rep.ReplicationConfig.quick(), soil_respiration_umol_m2_s=2.0, soil_respiration_q10=2.5)
+    w = rep.forcing().loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"]
+    parts = noon_model.render(Theta())
+    base = noon_model.with_light(lambda theta: parts).observe(Theta())
+    m = rep.model_for(cfg, w).with_light(lambda theta: parts)
+    got = m.observe(Theta())
+    t = w["tair_c"].to_numpy()
+    np.testing.assert_allclose(
+        np.asarray(got["nee_umol_m2_s"]) - np.asarray(base["nee_umol_m2_s"]), 2.0 * 2.5 ** ((t - 10) / 10), rtol=1e-12
+    )
+    np.testing.assert_array_equal(np.asarray(got["canopy_an_umol_m2_s"]), np.asarray(base["canopy_an_umol_m2_s"]))
+    ds = m.simulate(Theta())
+    assert ds.attrs["soil_respiration_umol_m2_s"] == 2.0 and ds.attrs["soil_respiration_q10"] == 2.5
 
 
 def test_light_factor_from_the_chamber_record_is_near_one(noon_model):

@@ -121,6 +121,7 @@ OPTION_ALIASES = {
     "height_px": ("--height",),
     "n_tiles": ("--tiles",),
     "target_date": ("--date",),
+    "soil_respiration_umol_m2_s": ("--soil-respiration",),
 }
 
 

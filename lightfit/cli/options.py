@@ -25,7 +25,7 @@ import typer
 from lightfit.errors import InputError
 from lightfit.light.estimator import DARK_FLOOR, MIN_PILOT, check_bounces, check_run_samples, check_target_rse
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
-from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, Scenario
+from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_UMOL_M2_S, Scenario
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -72,6 +72,8 @@ class ModelOptions:
     par_kind: str | None = None
     photosynthesis: str | None = None
     an_per: str | None = None
+    soil_respiration: float | None = None
+    soil_respiration_q10: float | None = None
     preset: str | None = None
     optics: str | None = None
     chlorophyll_ug_cm2: float | None = None
@@ -128,6 +130,8 @@ class ModelSettings:
     par_kind: str
     photosynthesis: str
     an_per: str
+    soil_respiration: float
+    soil_respiration_q10: float
     preset: str
     optics: str
     chlorophyll_ug_cm2: float | None
@@ -167,6 +171,8 @@ class ModelSettings:
             render_seed=self.render_seed,
             par_kind=self.par_kind,
             an_per=self.an_per,
+            soil_respiration_umol_m2_s=self.soil_respiration,
+            soil_respiration_q10=self.soil_respiration_q10,
             how=self.how,
             photosynthesis=self.photosynthesis,
             optics=self.optics,
@@ -360,6 +366,24 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             rich_help_panel=_PHOTO,
         ),
     ),
+    "soil_respiration": (
+        float | None,
+        typer.Option(
+            "--soil-respiration",
+            help="Soil and root respiration at 10 °C, µmol m⁻² s⁻¹, added to the chamber NEE only "
+            "(default 0: not modelled; from bare-soil readings, or night readings minus the leaves' "
+            "dark respiration, which the model adds itself).",
+            rich_help_panel=_PHOTO,
+        ),
+    ),
+    "soil_respiration_q10": (
+        float | None,
+        typer.Option(
+            "--soil-respiration-q10",
+            help="Q10 of that respiration, its factor per 10 K of air temperature (default 2; 1: constant).",
+            rich_help_panel=_PHOTO,
+        ),
+    ),
     "weather_file": (
         str | None,
         typer.Option(
@@ -523,6 +547,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         check_ceptometer_height,
         check_choice,
         check_seed,
+        check_soil_respiration,
         main_job_samples,
         resolve_direct,
     )
@@ -557,6 +582,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         an_per=given(opts.an_per, base.an_per),
+        soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
+        soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
         preset=preset,
         optics=given(opts.optics, base.optics),
         chlorophyll_ug_cm2=given(opts.chlorophyll_ug_cm2, base.chlorophyll_ug_cm2),
@@ -577,6 +604,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
+    check_soil_respiration(s.soil_respiration, s.soil_respiration_q10)
     check_run_samples(s.samples, s.target_rse)
     check_seed(s.render_seed)
     if s.ceptometer_height_m is not None:
@@ -702,7 +730,7 @@ RENDER_SETTINGS = (
     "site",
 )
 #: Settings that change the model's outputs: a resumed calibration or posterior needs the same values.
-MODEL_SETTINGS = (*RENDER_SETTINGS, "par_kind", "photosynthesis", "an_per")
+MODEL_SETTINGS = (*RENDER_SETTINGS, "par_kind", "photosynthesis", "an_per", "soil_respiration", "soil_respiration_q10")
 
 
 def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTINGS) -> list[str]:
@@ -719,6 +747,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     now = s.as_dict()
     # Settings stored before a key existed ran with what is now its default.
     before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths", "sheaths": "rods"}
+    before |= {"soil_respiration": SOIL_RESPIRATION_UMOL_M2_S, "soil_respiration_q10": SOIL_RESPIRATION_Q10}
     before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]

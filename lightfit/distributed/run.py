@@ -213,7 +213,7 @@ def run_task(spec: TaskSpec):
 
 def _aggregates(out) -> dict:
     """The observables of the gathered per-segment values (:func:`lightfit.model.observe.observables`, numpy)."""
-    from lightfit.model.observe import above_canopy_par, an_denominator, area_total, observables
+    from lightfit.model.observe import above_canopy_par, an_denominator, area_total, observables, soil_respiration
     from lightfit.weather.solar import par_direct_diffuse
 
     area = out["area_m2"].values.astype(np.float64)
@@ -248,7 +248,11 @@ def _aggregates(out) -> dict:
         absorbed_mc_sd=out["absorbed_par_mc_sd_umol_m2_s"].values,
         ground_area_m2=ground,
         above_par=above,
-        soil_respiration_umol_m2_s=float(out.attrs.get("soil_respiration_umol_m2_s", 0.0)),
+        soil_respiration_umol_m2_s=soil_respiration(
+            float(out.attrs.get("soil_respiration_umol_m2_s", 0.0)),
+            float(out.attrs.get("soil_respiration_q10", 1.0)),  # files without it: a constant
+            out["tair_c"].values,
+        ),
     )
 
 

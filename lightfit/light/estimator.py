@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError, check_integer
+from lightfit.errors import InputError, check_integer, is_real
 from lightfit.light import projection
 from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo, lobe_weights
@@ -227,14 +227,9 @@ def check_bounces(value) -> int:
     return check_integer(value, "bounces", 0)
 
 
-def _is_real(value) -> bool:
-    """A real number (Python or numpy), not a bool."""
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-
-
 def check_target_rse(value) -> float:
     """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1)."""
-    if not (_is_real(value) and 0 < value < 1):
+    if not (is_real(value) and 0 < value < 1):
         raise InputError(f"target_rse={value!r}", column="target_rse", expected="a relative standard error in (0, 1)")
     return float(value)
 
@@ -253,7 +248,7 @@ def check_direct_light(field_scene: FieldScene, direct: str, rays_per_m2) -> Non
 def check_par_weights(dni, dhi) -> tuple[float, float]:
     """The weights of the sun and sky parts in an absorbed PAR whose error is judged (DNI and DHI,
     any one unit): finite, ≥ 0 and not both 0 (nothing to judge)."""
-    if not (_is_real(dni) and _is_real(dhi) and math.isfinite(dni) and math.isfinite(dhi) and dni >= 0 and dhi >= 0):
+    if not (is_real(dni) and is_real(dhi) and math.isfinite(dni) and math.isfinite(dhi) and dni >= 0 and dhi >= 0):
         raise InputError(f"dni={dni!r}, dhi={dhi!r}", column="dni, dhi", expected="finite numbers ≥ 0")
     if dni + dhi == 0:
         raise InputError("dni=0 and dhi=0", column="dni, dhi", expected="some light to weigh the error by")
@@ -270,7 +265,7 @@ DARK_FLOOR = 0.005
 
 def check_dark_floor(value) -> float:
     """Adaptive sampling's light floor: a fraction of the PAR above the canopy in [0, 1)."""
-    if not (_is_real(value) and 0 <= value < 1):
+    if not (is_real(value) and 0 <= value < 1):
         raise InputError(
             f"dark_floor={value!r}", column="dark_floor", expected="a fraction of the PAR above the canopy in [0, 1)"
         )
@@ -296,7 +291,7 @@ def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     :data:`MAX_BOUNCES_FOR_TOLERANCE` orders (ρ near 1, where the series barely converges, or ρ ≥ 1,
     where it does not) is refused: give ``bounces`` yourself.
     """
-    if not (_is_real(tolerance) and 0 < tolerance < 1):
+    if not (is_real(tolerance) and 0 < tolerance < 1):
         raise InputError(f"tolerance={tolerance!r}", column="tolerance", expected="a number in (0, 1)")
     rho = max(sum(lobe_weights(optics.specular, optics.subsurface, optics.base_color)), optics.soil_albedo, 1e-6)
     b = (
@@ -360,7 +355,7 @@ class SegmentEstimator:
         check_samples(samples)
         check_bounces(bounces)
         check_seed(seed)
-        if not (_is_real(epsilon_m) and 0 < epsilon_m <= MAX_EPSILON_M):
+        if not (is_real(epsilon_m) and 0 < epsilon_m <= MAX_EPSILON_M):
             raise InputError(
                 f"epsilon_m={epsilon_m!r}",
                 column="epsilon_m",
@@ -1078,7 +1073,7 @@ def samples_for_accuracy(
     """
     check_target_rse(target_rse)
     check_par_weights(dni, dhi)
-    if not (_is_real(quantile) and 0 <= quantile <= 1):
+    if not (is_real(quantile) and 0 <= quantile <= 1):
         raise InputError(f"quantile={quantile!r}", column="quantile", expected="a number in [0, 1]")
     check_integer(max_samples, "max_samples", 2)
     r = SegmentEstimator(field_scene, segment_ids, samples=pilot, bounces=bounces, seed=seed).render()

@@ -122,6 +122,8 @@ class CoupledModel:
             params=parameter_set(sc.photosynthesis),
             ground_area_m2=self.ground_area_m2,
             sun_elevation_deg=self.sun_deg[:, 0].copy(),
+            soil_respiration_umol_m2_s=sc.soil_respiration_umol_m2_s,
+            soil_respiration_q10=sc.soil_respiration_q10,
             sensors=tuple(s.name for s in self.sensors),
         )
         self.light = self.render if light is None else light
@@ -349,6 +351,7 @@ class CoupledModel:
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,
             "soil_respiration_umol_m2_s": self.operator.soil_respiration_umol_m2_s,
+            "soil_respiration_q10": self.operator.soil_respiration_q10,
             "sky": sc.sky,
             "ceptometer": describe_sensors(self.sensors),
             "soil_albedo": sc.optics.soil_albedo,

@@ -60,10 +60,12 @@ own terms (:data:`OBSERVABLES`; the observations CSV names them, :mod:`lightfit.
 - :func:`chamber_nee` — net ecosystem CO2 exchange of the chamber footprint (the measurement
   area), per ground area, in the micrometeorological sign convention (positive: CO2 released to
   the atmosphere): :math:`\mathrm{NEE}_t = -A^{ground}_t + R_{soil}`, with the canopy net uptake
-  per ground area :math:`A^{ground}_t` (leaf dark respiration included) and a constant soil
-  respiration :math:`R_{soil}` (µmol m⁻² ground s⁻¹; default :data:`SOIL_RESPIRATION_UMOL_M2_S`
-  = 0: lightfit does not model soil or root respiration, so a user comparing with a chamber on
-  soil must give a value, e.g. from the chamber's night or bare-soil readings).
+  per ground area :math:`A^{ground}_t` (leaf dark respiration included) and the soil's
+  respiration :math:`R_{soil,t} = R_{10} Q_{10}^{(T_t - 10)/10}` (µmol m⁻² ground s⁻¹,
+  :func:`soil_respiration`; R₁₀ default :data:`SOIL_RESPIRATION_UMOL_M2_S` = 0: lightfit does not
+  model soil or root respiration, so a user comparing with a chamber on soil gives R₁₀, e.g. from
+  bare-soil readings, or from night readings *minus* the leaves' modelled dark respiration, which
+  those readings include and the model adds itself; Q₁₀ default 2).
 
 Absorbed PAR per segment stays an output (``absorbed_par_umol_m2_s``, results.nc) for users who
 compare leaf by leaf.
@@ -86,7 +88,7 @@ import numpy as np
 
 from lightfit.light.estimator import PARTS
 from lightfit.model.parameters import Theta
-from lightfit.model.scenario import Forcing
+from lightfit.model.scenario import SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_T_REF_C, SOIL_RESPIRATION_UMOL_M2_S, Forcing
 from lightfit.model.schema import OBSERVABLES
 from lightfit.photosynthesis import PhotosynthesisParams, PhotosynthesisResult, solve_with_par_slope
 from lightfit.weather.solar import horizontal_irradiance
@@ -225,9 +227,13 @@ def ceptometer_fapar(transmittance, transmittance_mc_sd, above_par) -> tuple:
     return xp.where(lit, 1.0 - transmittance, 0.0), transmittance_mc_sd
 
 
-#: Soil (and root) respiration of the chamber footprint, µmol m⁻² ground s⁻¹. lightfit models
-#: neither, so the default adds nothing; give a measured value to compare with a chamber on soil.
-SOIL_RESPIRATION_UMOL_M2_S = 0.0
+def soil_respiration(r_ref_umol_m2_s, q10, temperature_c, xp=np):
+    r"""Soil (and root) respiration, µmol m⁻² ground s⁻¹, at ``temperature_c`` (°C):
+    :math:`R = R_{10}\,Q_{10}^{(T - 10)/10}` (the Q₁₀ model; e.g. Lloyd & Taylor 1994, Funct.
+    Ecol. 8:315, who also discuss its limits) with ``r_ref_umol_m2_s`` = R₁₀ at
+    :data:`SOIL_RESPIRATION_T_REF_C`. The air temperature stands in for the soil's, which lags it
+    (a documented simplification). ``xp``: numpy or ``jax.numpy``."""
+    return r_ref_umol_m2_s * q10 ** ((xp.asarray(temperature_c) - SOIL_RESPIRATION_T_REF_C) / 10.0)
 
 
 def chamber_nee(canopy_an_ground, canopy_an_ground_mc_sd, soil_respiration_umol_m2_s=SOIL_RESPIRATION_UMOL_M2_S):
@@ -236,7 +242,8 @@ def chamber_nee(canopy_an_ground, canopy_an_ground_mc_sd, soil_respiration_umol_
     NEE = −A + R_soil, micrometeorological sign convention (positive: CO2 released to the air;
     Baldocchi 2003, Global Change Biol. 9, 479): ``canopy_an_ground`` (T,) is the canopy's net CO2
     uptake per ground area (leaf dark respiration included, :func:`canopy_an`),
-    ``soil_respiration_umol_m2_s`` a constant soil respiration. The Monte Carlo SD is the canopy's.
+    ``soil_respiration_umol_m2_s`` the soil's respiration, a number or one per step
+    (:func:`soil_respiration`). The Monte Carlo SD is the canopy's.
     """
     return soil_respiration_umol_m2_s - canopy_an_ground, canopy_an_ground_mc_sd
 
@@ -259,7 +266,7 @@ def observables(
     absorbed_mc_sd,
     ground_area_m2: float,
     above_par,
-    soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S,
+    soil_respiration_umol_m2_s: float | np.ndarray = SOIL_RESPIRATION_UMOL_M2_S,
     transmitted=None,
     transmitted_mc_sd=None,
 ) -> dict:
@@ -436,7 +443,9 @@ class ObservationOperator:
         params: the photosynthesis parameter set (Vcmax scaled by θ's ``vcmax_scale``).
         ground_area_m2: ground area of the measured plants (APAR, NEE), m².
         sun_elevation_deg: (T,) sun elevation of every step (the above-canopy sensor), degrees.
-        soil_respiration_umol_m2_s: soil respiration added to the chamber NEE (:func:`chamber_nee`).
+        soil_respiration_umol_m2_s, soil_respiration_q10: the soil's respiration at 10 °C (R₁₀,
+            µmol m⁻² ground s⁻¹) and its Q₁₀, added at each step's air temperature to the chamber
+            NEE (:func:`soil_respiration`, :func:`chamber_nee`).
         sensors: names of the virtual sensors (:mod:`lightfit.light.sensors`) whose parts follow the
             S segments' as the last columns of the light parts (the first, a ceptometer on the
             soil, gives the ``transmitted_par`` and ``ceptometer_*`` observables). Parts without
@@ -452,6 +461,7 @@ class ObservationOperator:
     ground_area_m2: float
     sun_elevation_deg: np.ndarray
     soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S
+    soil_respiration_q10: float = SOIL_RESPIRATION_Q10
     sensors: tuple[str, ...] = ()
 
     @property
@@ -526,7 +536,9 @@ class ObservationOperator:
             absorbed_mc_sd=out["absorbed_par_mc_sd_umol_m2_s"],
             ground_area_m2=self.ground_area_m2,
             above_par=above,
-            soil_respiration_umol_m2_s=self.soil_respiration_umol_m2_s,
+            soil_respiration_umol_m2_s=soil_respiration(
+                self.soil_respiration_umol_m2_s, self.soil_respiration_q10, self.forcing.tair_c
+            ),
             transmitted=sensor[0],
             transmitted_mc_sd=None if sensor[1] is None else jax.lax.stop_gradient(sensor[1]),
         )

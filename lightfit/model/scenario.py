@@ -16,7 +16,7 @@ from dataclasses import field as dc_field
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, is_real
 from lightfit.light.estimator import (
     DARK_FLOOR,
     bounces_for_tolerance,
@@ -156,6 +156,39 @@ def check_allocate_at(value) -> tuple:
     return leaf, sun, dni, dhi
 
 
+#: Soil (and root) respiration of the chamber footprint at :data:`SOIL_RESPIRATION_T_REF_C`
+#: (R₁₀), µmol m⁻² ground s⁻¹, for the chamber NEE (:func:`lightfit.model.observe.soil_respiration`).
+#: lightfit models neither, so the default adds nothing; a user comparing with a chamber on soil
+#: gives a value (``Scenario.soil_respiration_umol_m2_s``, ``--soil-respiration``).
+SOIL_RESPIRATION_UMOL_M2_S = 0.0
+#: Temperature sensitivity of soil respiration, the factor per 10 K: ≈ 2 for soils of temperate
+#: croplands (Raich & Schlesinger 1992, Tellus 44B:81; Davidson & Janssens 2006, Nature 440:165).
+SOIL_RESPIRATION_Q10 = 2.0
+#: Reference temperature of :data:`SOIL_RESPIRATION_UMOL_M2_S`, °C (R₁₀, Lloyd & Taylor 1994).
+SOIL_RESPIRATION_T_REF_C = 10.0
+#: Q₁₀ accepted: 1 (no temperature dependence) to 5, beyond the range soils show (≈ 1.3–3.5).
+SOIL_RESPIRATION_Q10_RANGE = (1.0, 5.0)
+
+
+def check_soil_respiration(r10, q10) -> tuple[float, float]:
+    """``(R₁₀ ≥ 0 finite, Q₁₀ in :data:`SOIL_RESPIRATION_Q10_RANGE`)`` as floats, else
+    :class:`InputError` naming the parameter."""
+    if not (is_real(r10) and np.isfinite(r10) and r10 >= 0):
+        raise InputError(
+            f"soil_respiration_umol_m2_s={r10!r}",
+            column="soil_respiration_umol_m2_s",
+            expected="soil respiration at 10 °C in µmol m⁻² s⁻¹, a finite number ≥ 0 (CO2 released)",
+        )
+    lo, hi = SOIL_RESPIRATION_Q10_RANGE
+    if not (is_real(q10) and lo <= q10 <= hi):
+        raise InputError(
+            f"soil_respiration_q10={q10!r}",
+            column="soil_respiration_q10",
+            expected=f"a factor per 10 K in [{lo:g}, {hi:g}] (1: constant)",
+        )
+    return float(r10), float(q10)
+
+
 #: Values of :attr:`Scenario.direct` (``"auto"`` resolves by the field's boundary).
 DIRECT_CHOICES = ("auto", "projection", "paths")
 
@@ -246,6 +279,11 @@ class Scenario:
             paper's grey 0.5 leaf. The leaf parameters rendered are the run's ``Theta``; its
             defaults for these optics are :attr:`theta` (``Theta.for_optics``).
         sky: ``"isotropic"`` or ``"overcast"``.
+        soil_respiration_umol_m2_s, soil_respiration_q10: the soil's (and roots') respiration at
+            10 °C, µmol m⁻² ground s⁻¹ (default 0: not modelled), and its Q₁₀ (default 2), added
+            at each step's air temperature to the chamber NEE observable only
+            (:func:`lightfit.model.observe.soil_respiration`). Take it from bare-soil readings, or
+            from night readings minus the leaves' dark respiration that the model adds itself.
         n_tiles, tile: run only tile ``tile`` of ``field.tiles(n_tiles)`` (its plants measured,
             its buffer ring as geometry); ``None`` runs the whole measurement area.
     """
@@ -265,6 +303,8 @@ class Scenario:
     an_per: str = "ground"
     optics: Optics = dc_field(default_factory=lambda: Optics.preset(DEFAULT_PRESET))
     sky: str = "isotropic"
+    soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S
+    soil_respiration_q10: float = SOIL_RESPIRATION_Q10
     n_tiles: int = 1
     tile: int | None = None
 
@@ -286,6 +326,9 @@ class Scenario:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         check_choice("par_kind", self.par_kind)
         check_choice("an_per", self.an_per)
+        self.soil_respiration_umol_m2_s, self.soil_respiration_q10 = check_soil_respiration(
+            self.soil_respiration_umol_m2_s, self.soil_respiration_q10
+        )
         missing = set(WEATHER_COLUMNS) - set(self.weather.columns)
         if missing:
             raise InputError(

@@ -36,7 +36,8 @@ _CANOPY_AREA = (
 )
 _NEE = (
     "per unit ground area of the measured plants; positive = CO2 released to the air; "
-    "soil respiration (attribute soil_respiration_umol_m2_s) minus canopy net uptake"
+    "soil respiration (attribute soil_respiration_umol_m2_s at 10 degC, times soil_respiration_q10 "
+    "per 10 K of air temperature) minus canopy net uptake"
 )
 _CEPTOMETER = (
     "per unit horizontal area; upward-facing bars on the soil across the rows, mean over the placements "
