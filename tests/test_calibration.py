@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import math
 
 import jax
 import jax.numpy as jnp
@@ -202,7 +203,7 @@ def test_observation_file_round_trip_and_alignment(tmp_path):
     [
         ("time,plant_par_umol_m2_s,plant_par_sd_umol_m2_s,canopy_an_umol_m2_s\n", "missing column"),
         (HEADER + "soon,1,1,,\n", "cannot parse time"),
-        (HEADER + "2016-04-20 10:00,bright,1,,\n", "not a number"),
+        (HEADER + "2016-04-20 10:00,bright,1,,\n", "not a (finite )?number"),
         (HEADER + "2016-04-20 10:00,100,,,\n", "standard deviation"),
         (HEADER + "2016-04-20 10:00,-5,1,,\n", "negative value of plant_par_umol_m2_s"),
     ],
@@ -301,10 +302,12 @@ def test_unknown_parameter_and_no_overlap(short_model):
     next_day.attrs = {**record.attrs, "source": "next_day.csv"}
     with pytest.raises(InputError, match="next_day.csv.*outside the run"):
         make_loss(short_model, next_day, ("specular",))
-    # inside the window, but no value of the series used: nothing to fit
-    with pytest.raises(InputError, match="no observation of canopy_an_umol_m2_s falls on a simulated step"):
+    # inside the window, but no value of the series used: nothing to fit (named as a series the
+    # record lacks, or as none of its values falling on a simulated step)
+    nothing = "use names canopy_an, which the observations have no value of|no observation of canopy_an_umol_m2_s"
+    with pytest.raises(InputError, match=nothing):
         make_loss(short_model, record, ("specular",), use=("an",))
-    with pytest.raises(InputError, match="no observation of canopy_an_umol_m2_s falls on a simulated step"):
+    with pytest.raises(InputError, match=nothing):
         calibrate(short_model, record, names=("specular",), use=("an",), progress=False)
 
 
@@ -352,3 +355,198 @@ def test_a_twin_on_unconverged_photosynthesis_is_refused(short_model, monkeypatc
     monkeypatch.setattr(SolverConfig, "for_dtype", classmethod(lambda cls, dtype, max_steps=100: capped(cls, dtype, 1)))
     with pytest.raises(InputError, match=r"theta.*did not converge for \d+ blade-step"):
         twin_observations(short_model, {"specular": 0.7}, render_seed=5, noise_seed=3)
+
+
+# --- resume key, bounds and parameter domains on a closed-form model (no render) ----------------
+
+
+def _fake():
+    """tests/test_posterior.py's closed-form model and its synthetic observations (6 steps)."""
+    from test_posterior import FakeModel, _fake_obs
+
+    model = FakeModel()
+    return model, _fake_obs(model)
+
+
+@dataclasses.dataclass
+class _FakeScenario:
+    """A Scenario-like dataclass: what the resume key hashes of a real model's settings."""
+
+    optics: object
+    photosynthesis: str = "winter_wheat"
+    theta = property(lambda self: Theta.for_optics(self.optics))
+
+
+def test_resume_with_other_observations_or_model_is_refused(tmp_path):
+    """A history's losses and optimiser state belong to the data and model it was made with: a
+    resume on edited observations (one value) or another model setting is refused, naming the
+    history and the way out, and leaves the history as it was; the same data (a copy) resume
+    exactly, to the uninterrupted run's result; resume=False starts again on the new data."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=2, **kw)
+    kept = h.read_text()
+    edited = obs.copy()
+    edited.iloc[3, edited.columns.get_loc("canopy_an_umol_m2_s")] += 0.5
+    with pytest.raises(InputError, match="other observations") as e:
+        calibrate(model, edited, history=h, max_steps=4, **kw)
+    assert e.value.file == h and "--no-resume" in str(e.value) and "another --out" in str(e.value)
+    assert h.read_text() == kept
+    other = type(model)()
+    other.scenario = _FakeScenario(model.scenario.optics, photosynthesis="giraud2023")
+    model.scenario = _FakeScenario(model.scenario.optics)
+    calibrate(model, obs, history=h, max_steps=2, resume=False, **kw)
+    with pytest.raises(InputError, match=r"other model settings \(photosynthesis\)"):
+        calibrate(other, obs, history=h, max_steps=4, **kw)
+    # the same observations (another object) and model: an exact resume, the uninterrupted run's result
+    resumed = calibrate(model, obs.copy(), history=h, max_steps=4, **kw)
+    whole = calibrate(model, obs, history=tmp_path / "whole.jsonl", max_steps=4, **kw)
+    assert resumed.theta == whole.theta and resumed.loss == whole.loss and resumed.steps == whole.steps
+    fresh = calibrate(model, edited, history=h, max_steps=4, resume=False, **kw)
+    alone = calibrate(model, edited, max_steps=4, **kw)
+    assert fresh.theta == alone.theta and fresh.theta != resumed.theta
+
+
+def test_model_digest_names_each_scenario_setting():
+    """The resume key's model part: one hash per Scenario field of a real scenario (no plants
+    grown), the same for an equal scenario, and changed only where a setting changed."""
+    from lightfit.inference.calibration import _model_digest
+
+    w = rep.forcing().loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"]
+    sc = rep.scenario_for(rep.ReplicationConfig.quick(), w)
+    m = lambda s: type("M", (), {"scenario": s})()  # noqa: E731
+    a = _model_digest(m(sc))
+    assert set(a) == {f.name for f in dataclasses.fields(sc)}
+    assert _model_digest(m(dataclasses.replace(sc))) == a
+    b = _model_digest(m(dataclasses.replace(sc, photosynthesis="giraud2023")))
+    assert [k for k in a if a[k] != b[k]] == ["photosynthesis"]
+    warmer = w.copy()
+    warmer.iloc[0, warmer.columns.get_loc("tair_c")] += 1.0
+    c = _model_digest(m(dataclasses.replace(sc, weather=warmer)))
+    assert [k for k in a if a[k] != c[k]] == ["weather"]
+
+
+def test_cli_resume_with_an_edited_observations_file_is_refused(tmp_path):
+    """`lightfit calibrate --no-surrogate` resumes its history in --out: with the observations file
+    edited (one value) it stops with a named error; --no-resume fits the edited value."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    runner = CliRunner()
+    src = rep.OBSERVATIONS.read_text()
+    assert "1549.31" in src
+    obs = tmp_path / "obs.csv"
+    obs.write_text(src)
+    args = ["calibrate", str(obs), "--quick", "--steps", "14:16", "--parameters", "light_factor"]
+    args += ["--use", "above_canopy_par", "--no-surrogate", "--mc-correlation", "independent", "--out", str(tmp_path)]
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0, r.output
+    first = json.loads((tmp_path / "calibration.json").read_text())["theta"]["light_factor"]
+    obs.write_text(src.replace("1549.31", "1400.00"))
+    r = runner.invoke(app, args)
+    assert r.exit_code == 2, r.output
+    err = " ".join(r.stderr.split())
+    assert "history.jsonl: the calibration history there was made with other observations" in err
+    assert "--no-resume" in err
+    r = runner.invoke(app, [*args, "--no-resume"])
+    assert r.exit_code == 0, r.output
+    again = json.loads((tmp_path / "calibration.json").read_text())["theta"]["light_factor"]
+    # light_factor scales the above-canopy PAR: the fit moves with the value
+    assert again == pytest.approx(first * 1400.00 / 1549.31, rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    "bounds, match",
+    [
+        ({"specular": (0.5, 0.5)}, r"bounds specular=\(0.5, 0.5\)"),  # was ZeroDivisionError
+        ({"specular": (0.7, 0.3)}, r"bounds specular=\(0.7, 0.3\)"),  # was accepted
+        ({"specular": (-0.5, 1.5)}, r"bounds specular=\(-0.5, 1.5\).*0 ≤ lo < hi ≤ 1"),  # was fitted at −0.22
+        ({"specular": (0.0, float("nan"))}, r"bounds specular=\(0.0, nan\)"),  # was "unconverged"
+        ({"specular": (0.0, float("inf"))}, r"bounds specular=\(0.0, inf\)"),
+        ({"light_factor": (float("-inf"), 2.0)}, "bounds light_factor"),
+        ({"specular": 0.5}, r"bounds specular=0.5"),
+        ({"roughness": (0.3, 1.0)}, "bounds for roughness, which is not calibrated"),  # was ignored
+        ({"glossiness": (0.3, 1.0)}, "unknown parameter"),
+    ],
+)
+def test_bad_bounds_are_refused(bounds, match):
+    model, obs = _fake()
+    names = ("specular", "light_factor")
+    with pytest.raises(InputError, match=match) as e:
+        calibrate(model, obs, names=names, bounds=bounds, progress=False, say=lambda _: None)
+    assert e.value.column == "bounds"
+    with pytest.raises(InputError, match=match):
+        make_loss(model, obs, names, bounds=bounds)
+
+
+def test_bounds_hold_the_fit_and_a_start_outside_them_is_refused():
+    """Valid bounds keep both optimisers inside (the unbounded optimum of specular is ≈ 0.5; an
+    infinite upper bound is kept where the domain has one); a start outside them, named or taken
+    from the defaults, is refused instead of being moved to the edge silently."""
+    model, obs = _fake()  # truth: specular 0.5 at light_factor 1.1, vcmax_scale 0.9
+    kw = dict(names=("specular", "vcmax_scale"), fixed={"light_factor": 1.1}, progress=False, say=lambda _: None)
+    free = calibrate(model, obs, **kw)
+    assert free.theta["specular"] == pytest.approx(0.5, abs=0.05)
+    box = {"specular": (0.6, 0.9), "vcmax_scale": (0.5, math.inf)}
+    for method in ("bfgs", "lbfgsb"):
+        res = calibrate(model, obs, bounds=box, start={"specular": 0.7}, method=method, **kw)
+        assert 0.6 <= res.theta["specular"] <= 0.6 + 1e-3 and res.loss >= free.loss
+    with pytest.raises(InputError, match=r"specular=0.9 outside its bounds \[0.4625, 0.7375\]") as e:
+        calibrate(model, obs, bounds={"specular": (0.4625, 0.7375)}, start={"specular": 0.9}, **kw)
+    assert e.value.column == "start"
+    with pytest.raises(InputError, match=r"specular=0.5 \(fixed or default, no start given\) outside"):
+        calibrate(model, obs, bounds={"specular": (0.6, 0.9)}, **kw)
+
+
+def test_theta_values_are_checked_like_numbers():
+    """A Theta is built unchecked (JAX rebuilds it inside traces): its concrete values are checked
+    where it enters (as_theta, calibrate's start and fixed), naming the argument; traced values
+    pass, so jit and grad through as_theta still work."""
+    from lightfit.model.parameters import as_theta
+
+    model, obs = _fake()
+    kw = dict(progress=False, say=lambda _: None)
+    bad_fixed = Theta(specular=1.5, vcmax_scale=-1.0)  # was calibrated ("converged") with these
+    with pytest.raises(InputError, match=r"specular=1.5 \(expected specular in \[0, 1\]\)") as e:
+        calibrate(model, obs, names=("light_factor",), fixed=bad_fixed, **kw)
+    assert e.value.column == "fixed"
+    with pytest.raises(InputError, match="specular=1.5") as e:  # was clamped to 1
+        calibrate(model, obs, names=("specular", "light_factor"), start=Theta(specular=1.5), **kw)
+    assert e.value.column == "start"
+    with pytest.raises(InputError, match=r"vcmax_scale=-1.0 \(expected vcmax_scale > 0\)"):
+        as_theta(Theta(vcmax_scale=-1.0))
+    with pytest.raises(InputError, match=r"light_factor=0.0"):
+        as_theta({"light_factor": np.float32(0.0)})  # numpy numbers too (were taken unchecked)
+    with pytest.raises(InputError, match=r"roughness=1.25"):
+        as_theta(Theta(roughness=np.array([0.2, 1.25, 0.4])))  # every element of an array
+    with pytest.raises(InputError, match="subsurface=nan"):
+        as_theta(Theta(subsurface=jnp.asarray(np.nan)))  # a concrete JAX array
+    with pytest.raises(InputError, match="specular='0.5'"):
+        as_theta(Theta(specular="0.5"))
+    assert as_theta(Theta(specular=np.float32(0.25))).specular == np.float32(0.25)
+    # traced: checked by nobody here, differentiated as before (d/dx x² = 2x)
+    f = lambda x: as_theta(Theta(specular=x, light_factor=2 * x)).specular ** 2  # noqa: E731
+    assert float(jax.grad(f)(0.3)) == pytest.approx(0.6)
+    assert float(jax.jit(f)(0.3)) == pytest.approx(0.09)
+    assert np.allclose(jax.vmap(jax.grad(f))(jnp.asarray([0.1, 0.2])), [0.2, 0.4])
+    loss = make_loss(model, obs, ("specular", "light_factor"))
+    g = jax.grad(lambda z: loss(z)[0])(jnp.zeros(2))
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_cli_start_outside_the_emulator_box_is_refused_before_the_plants_grow(tmp_path):
+    """With the surrogate (the default) the emulator's box is the informed priors' leaf support
+    (specular 0.4625–0.7375 for the default leaf): an explicit --start outside it is refused at once,
+    not moved to the box's edge (nor refused only after the design renders)."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    args = ["calibrate", str(rep.OBSERVATIONS), "--quick", "--parameters", "specular", "--start", "specular=0.9"]
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+    assert r.exit_code == 2, r.output
+    err = " ".join(r.stderr.split())
+    assert "--start specular=0.9" in err and "[0.4625, 0.7375]" in err and "--no-surrogate" in err
+    assert not (tmp_path / "settings.json").exists()  # refused before anything was built or written

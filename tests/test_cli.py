@@ -255,7 +255,8 @@ def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
     )
     assert r.exit_code == 0, r.output
     f = read_weather(tmp_path / "forcing.csv")
-    assert len(f) == 2 and f.attrs["provenance"] == "measured"
+    # The fixture is a synthetic file in the export layout and says so in its header.
+    assert len(f) == 2 and f.attrs["provenance"] == "synthetic"
 
 
 @pytest.mark.parametrize(

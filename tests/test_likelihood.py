@@ -124,6 +124,50 @@ def test_bad_correlation_and_scale_are_refused():
         GaussianLikelihood(obs, TIMES, ("an",), mc_correlation=dataclasses.replace(corr, n_steps=T + 1))
 
 
+def test_observations_built_in_code_are_checked_and_an_asked_series_must_be_there():
+    obs, _, _ = _problem()
+    # A series asked for by name but absent from the observations is refused, not dropped.
+    with pytest.raises(InputError, match="nee"):
+        GaussianLikelihood(obs.drop(columns=[AN.value, AN.sd]), TIMES, ("par", "nee"))
+    with pytest.raises(InputError, match="canopy_an"):
+        GaussianLikelihood(obs.drop(columns=[AN.value, AN.sd]), TIMES, ("an",))
+    # The callers' default (every series) still means "whatever the observations have".
+    from lightfit.inference.likelihood import USES
+
+    assert GaussianLikelihood(obs.drop(columns=[AN.value, AN.sd]), TIMES, USES).use == ("plant_par",)
+    # An SD of 0 made the loss infinite, a negative one counted as a variance, inf values passed.
+    for col, value in ((AN.sd, 0.0), (AN.sd, -10.0), (AN.value, np.inf), (AN.sd, np.inf)):
+        bad = obs.copy()
+        bad.iloc[2, bad.columns.get_loc(col)] = value
+        with pytest.raises(InputError, match=col):
+            GaussianLikelihood(bad, TIMES, ("par", "an"))
+
+
+def test_the_trust_region_refuses_a_start_or_fixed_leaf_outside_its_box():
+    """Before any design render: the emulator would be evaluated there (the paper's grey leaf fixes
+    subsurface at 0.3, outside its informed box 0.04–0.17)."""
+    from lightfit.inference.trust_region import check_in_box
+
+    lo, hi = (0.0, 0.0, 0.04), (1.0, 1.0, 0.17)
+    with pytest.raises(InputError, match=r"subsurface=0.3 \(fixed\).*calibrated too"):
+        check_in_box(Theta(specular=0.5, roughness=0.5, subsurface=0.3), ("specular", "roughness"), lo, hi)
+    with pytest.raises(InputError, match=r"subsurface=0.3 \(start\)"):
+        check_in_box(Theta(specular=0.5, roughness=0.5, subsurface=0.3), ("subsurface",), lo, hi)
+    check_in_box(Theta(specular=0.0, roughness=1.0, subsurface=0.17), ("specular", "roughness", "subsurface"), lo, hi)
+
+
+def test_an_observations_file_with_inf_is_refused_with_its_line(tmp_path):
+    from lightfit.inference.observations import read_observations
+
+    f = tmp_path / "obs.csv"
+    f.write_text(
+        "# provenance: synthetic\n# time_zone: UTC\ntime,canopy_an_umol_m2_s,canopy_an_sd_umol_m2_s\n"
+        "2016-04-20 10:00,20,1\n2016-04-20 10:30,inf,1\n"
+    )
+    with pytest.raises(InputError, match="line 5.*not a finite number"):
+        read_observations(f)
+
+
 @pytest.mark.parametrize("correlated", [True, False])
 def test_loss_sd_matches_monte_carlo_draws_of_the_model_error(correlated):
     """σ_L of the trust region's full-render check (trust_region.loss_sd): the SD of the loss

@@ -333,6 +333,9 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         Field(boundary="finite", plant_spacing_m=0.0)
     with pytest.raises(InputError, match="buffer_rows"):
         Field(boundary="finite", buffer_rows=-1)
+    for d in (float("nan"), float("inf"), "90"):  # NaN built a mesh of NaN vertices
+        with pytest.raises(InputError, match="row_direction_deg"):
+            Field(boundary="finite", row_direction_deg=d)
     for kw in ({"buffer_rows": True}, {"buffer_along": False}, {"n_plants": True}, {"n_plants": 4.0}):
         with pytest.raises(InputError, match=next(iter(kw))):  # errors.check_integer: bools are not counts
             Field(boundary="finite", **kw)

@@ -8,6 +8,7 @@ import textwrap
 import time
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -118,6 +119,42 @@ def test_resume_after_sigkill(tmp_path):
     np.testing.assert_array_equal(done.chain, ref.chain)
 
 
+def test_a_resume_with_other_initial_positions_or_moves_is_refused(tmp_path):
+    """A run's starting positions and moves are stored when it starts: a resume given other positions
+    (they were silently ignored) or other moves (a chain of two samplers) is refused, naming them; the
+    same ones (new objects) resume as the uninterrupted run; files from before they were stored resume
+    unchecked, as before."""
+    import emcee
+    import h5py
+
+    kw = dict(nwalkers=8, seed=11, progress=False)
+    ref = P.sample(Gauss(), NAMES, tmp_path / "ref.h5", max_steps=10, initial=_init(), **kw)
+    P.sample(Gauss(), NAMES, tmp_path / "run.h5", max_steps=5, initial=_init(), **kw)
+    with pytest.raises(InputError, match="other initial positions") as e:
+        P.sample(Gauss(), NAMES, tmp_path / "run.h5", max_steps=10, initial=_init(seed=4), **kw)
+    assert e.value.column == "initial" and e.value.file == tmp_path / "run.h5"
+    with pytest.raises(InputError, match=r"other moves .*DEMove") as e:
+        P.sample(Gauss(), NAMES, tmp_path / "run.h5", max_steps=10, moves=emcee.moves.DEMove(), **kw)
+    assert e.value.column == "moves"
+    with pytest.raises(InputError, match="'a': 3.0"):  # the same move with another parameter
+        P.sample(Gauss(), NAMES, tmp_path / "run.h5", max_steps=10, moves=emcee.moves.StretchMove(a=3.0), **kw)
+    assert len(P.load_run(tmp_path / "run.h5")["chain"]) == 5  # the refusals added no step
+    # the same positions and emcee's default move spelled out: resumed, the uninterrupted chain
+    done = P.sample(
+        Gauss(), NAMES, tmp_path / "run.h5", max_steps=10, initial=_init(), moves=emcee.moves.StretchMove(), **kw
+    )
+    np.testing.assert_array_equal(done.chain, ref.chain)
+    # weighted moves: described with their normalised weights, equal for new objects
+    mix = lambda: [(emcee.moves.DEMove(), 3.0), (emcee.moves.DESnookerMove(), 1.0)]  # noqa: E731
+    P.sample(Gauss(), NAMES, tmp_path / "mix.h5", max_steps=3, initial=_init(), moves=mix(), **kw)
+    assert [m["weight"] for m in P.load_run(tmp_path / "mix.h5")["attrs"]["moves"]] == [0.75, 0.25]
+    assert len(P.sample(Gauss(), NAMES, tmp_path / "mix.h5", max_steps=6, moves=mix(), **kw).chain) == 6
+    # a file written before the positions and moves were stored: resumed without the checks
+    with h5py.File(tmp_path / "mix.h5", "a") as f:
+        del f["mcmc"].attrs["initial_sha256"], f["mcmc"].attrs["moves"]
+    P.sample(Gauss(), NAMES, tmp_path / "mix.h5", max_steps=8, initial=_init(seed=4), moves=mix(), **kw)
+
+
 def test_diagnostics_on_ar1_with_known_tau():
     """AR(1) chains x_t = φ x_{t−1} + ε have τ = (1 + φ)/(1 − φ)."""
     rng = np.random.default_rng(0)
@@ -187,6 +224,27 @@ def test_profile_likelihood_on_quadratic_toy():
     )
     np.testing.assert_allclose(slc, 0.5 * ts**2 * (d @ H @ d), rtol=1e-10)
     np.testing.assert_allclose(prof, ts**2 / (2 * (d @ np.linalg.solve(H, d))), atol=1e-7)
+
+
+def test_profile_likelihood_stays_where_it_is_allowed():
+    """With ``allowed`` the other directions are optimised inside it only (the posterior keeps them
+    in the emulator's box). ½ xᵀHx along d = (1, 0) with x₂ ≥ −0.3: the optimum w = −0.75 t is
+    clamped at −0.3 for t > 0.4, where the profile rises above the unconstrained t²·0.4375 (0.64
+    against 0.4375 at t = 1); never below the constrained minimum, within 2 % of it (the line
+    search stops short of the boundary)."""
+    H = np.array([[2.0, 1.5], [1.5, 2.0]])
+    ts = np.linspace(-1, 1, 9)
+    _, prof, _ = profile_likelihood(
+        lambda x: 0.5 * x @ jnp.asarray(H) @ x,
+        np.zeros(2),
+        np.array([1.0, 0.0]),
+        ts,
+        scale="natural",
+        allowed=lambda x: x[1] >= -0.3,
+    )
+    w = np.maximum(-0.75 * ts, -0.3)
+    ref = 0.5 * (2 * ts**2 + 3 * ts * w + 2 * w**2)
+    assert (prof >= ref - 1e-9).all() and (prof <= 1.02 * ref + 1e-9).all(), (prof, ref)
 
 
 class _Scenario:
@@ -434,6 +492,14 @@ def test_emulator_reproduces_polynomial_and_roundtrips(tmp_path):
     assert back.degree == emu.degree and back.loo_rms == emu.loo_rms
     with pytest.raises(InputError, match="n_design"):
         E.fit_emulator(design[:3], truth(design[:3]), truth(design[:3]), lo, hi, degrees=(2,))
+    # Concrete leaf parameters outside the box would be extrapolated silently: refused, naming
+    # the parameter; on the box's faces it is evaluated, and traced values are the callers' care.
+    with pytest.raises(InputError, match="subsurface=0.6 outside the emulator's box"):
+        emu(dict(zip(LEAF_PARAMETERS, (0.5, 0.5, 0.6))))
+    np.testing.assert_allclose(np.asarray(emu(dict(zip(LEAF_PARAMETERS, hi)))[0]), truth(hi[None])[0], atol=1e-9)
+    assert np.isfinite(
+        float(jax.jit(lambda u: emu({"specular": 0.5, "roughness": 0.5, "subsurface": u})[0].sum())(0.9))
+    )
 
 
 def test_fast_observables_match_observe_on_quick_field():
@@ -564,6 +630,95 @@ def test_bfgs_against_unconverged_photosynthesis_is_not_converged():
     # an interior optimum is still converged (no false alarm)
     ok = calibrate(FailsAbove(), _fake_obs(FakeModel()), names=("vcmax_scale",), progress=False, say=lambda s: None)
     assert ok.converged and ok.theta["vcmax_scale"] == pytest.approx(0.9, abs=0.05)
+
+
+@pytest.mark.slow  # ≈ 20 s: six design renders and three compiled runs on the CI-sized field
+def test_a_posterior_run_resumes_only_with_its_own_settings(tmp_path):
+    """posterior.run stores its seed, series, priors, fixed values and a digest of the aligned
+    observations when it starts; a resume with any of them changed is refused (they were silently
+    accepted and the file then described the first run), naming the file and what changed, before
+    a step is added. The same settings resume to the uninterrupted run's chain and attributes; a file
+    from before the digest was stored resumes as before, and is not given one. Leaf parameters the
+    emulator's box does not hold are refused before anything is written."""
+    import shutil
+
+    import h5py
+
+    from lightfit import replication as rep
+    from lightfit.inference import posterior as A
+
+    weather = rep.forcing().loc["2016-04-20 10:00+00:00":"2016-04-20 11:00+00:00"]
+    model = rep.model_for(rep.ReplicationConfig.quick(), weather)
+    priors = A.prior_set("informed", model.scenario.optics)
+    lo, hi = ([priors[n].support[k] for n in LEAF_PARAMETERS] for k in (0, 1))
+    emu = E.build_emulator(model, lo, hi, n_design=6, degrees=(1,), seed=0)
+    n = len(model.times)
+    obs = pd.DataFrame(
+        {
+            "plant_par_umol_m2_s": np.linspace(300.0, 400.0, n),
+            "plant_par_sd_umol_m2_s": 20.0,
+            "canopy_an_umol_m2_s": np.linspace(8.0, 10.0, n),
+            "canopy_an_sd_umol_m2_s": 1.0,
+        },
+        index=model.times,
+    )
+    obs.attrs = {"source": "synthetic test", "provenance": "synthetic"}
+    kw = dict(names=("specular", "light_factor"), nwalkers=8, stop=None, analysis=False, progress=False)
+    kw |= dict(mc_correlation=None, seed=0)
+    ref = A.run(model, obs, emu, tmp_path / "ref.h5", max_steps=8, **kw)
+    path = tmp_path / "run.h5"
+    A.run(model, obs, emu, path, max_steps=4, **kw)
+
+    other_value, other_sd = obs.copy(), obs.copy()
+    other_value.iloc[1, 0] += 1.0  # one PAR value
+    other_sd.iloc[2, 3] = 1.5  # one canopy An SD
+    lf = P.Prior("lognormal", 1.0, 0.3, "test", lo=0.25, hi=4.0)
+    changes = [
+        ({"seed": 7}, obs, r"seed 0 \(--sampler-seed\), this run asks for seed 7"),
+        ({"use": ("par",)}, obs, r"use=\['plant_par', 'canopy_an'\], this run on use=\['plant_par'\]"),
+        ({}, other_value, "other observations"),
+        ({}, other_sd, "other observations"),
+        ({"priors": {**priors, "light_factor": lf}}, obs, r"other priors \(light_factor: .*'b': 0.5.* → .*'b': 0.3"),
+        ({"fixed": {"vcmax_scale": 2.0}}, obs, r"other fixed values \(vcmax_scale: 1.0 → 2.0\)"),
+        ({"fixed": {"roughness": 0.6}}, obs, r"other fixed values \(roughness: 0.5 → 0.6\)"),
+    ]
+    for change, o, says in changes:
+        with pytest.raises(InputError, match=says) as e:
+            A.run(model, o, emu, path, max_steps=8, **{**kw, **change})
+        assert e.value.file == path and "--no-resume" in str(e.value)
+    assert len(P.load_run(path)["chain"]) == 4  # nothing was added by the refused calls
+    # a fixed value of a sampled parameter is unused: not a difference
+    A.check_resume(path, A.resume_key(model, obs, names=kw["names"], fixed={"specular": 0.6}, seed=0))
+
+    # an older file (no digest of its observations): resumed, unchecked there, and not given a digest
+    old = tmp_path / "old.h5"
+    shutil.copy(path, old)
+    with h5py.File(old, "a") as f:
+        del f["mcmc"].attrs["observations_sha256"]
+    assert A.check_resume(old, A.resume_key(model, other_value, **{k: kw[k] for k in ("names", "seed")})) == (
+        "observations_sha256",
+    )
+    A.run(model, obs, emu, old, max_steps=6, **kw)
+    assert "observations_sha256" not in P.load_run(old)["attrs"]
+
+    # the same settings: the uninterrupted run's chain and attributes
+    res = A.run(model, obs, emu, path, max_steps=8, **kw)
+    assert res["n_steps"] == ref["n_steps"] == 8
+    run, uninterrupted = P.load_run(path), P.load_run(tmp_path / "ref.h5")
+    np.testing.assert_array_equal(run["chain"], uninterrupted["chain"])
+    for k in A.RESUME_ENTRIES:
+        assert run["attrs"][k] == uninterrupted["attrs"][k]
+    assert run["attrs"]["seed"] == 0 and run["attrs"]["use"] == ["plant_par", "canopy_an"]
+    assert run["attrs"]["fixed"]["vcmax_scale"] == 1.0
+
+    # leaf parameters outside the emulator's box (informed: subsurface 0.31–1, specular 0.4625–0.7375)
+    box = tmp_path / "box.h5"
+    with pytest.raises(InputError, match=r"subsurface is not sampled and stays at 0.2 .*box \[0.31, 1\]") as e:
+        A.run(model, obs, emu, box, max_steps=8, **{**kw, "fixed": {"subsurface": 0.2}})
+    assert e.value.column == "subsurface"
+    with pytest.raises(InputError, match=r"prior of specular spans \[0, 1\], beyond the emulator's box") as e:
+        A.run(model, obs, emu, box, max_steps=8, **{**kw, "priors": P.PRIORS_WIDE})
+    assert e.value.column == "specular" and not box.exists()
 
 
 def test_a_run_whose_observations_met_other_steps_is_not_resumed(tmp_path):

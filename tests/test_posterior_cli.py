@@ -58,6 +58,11 @@ def test_posterior_cli_quick(tmp_path):
     # The stored chain is the periodic field's: resuming it on another field is refused, before any plant grows.
     r = CliRunner().invoke(app, [*args, "--boundary", "finite"])
     assert r.exit_code == 2 and "posterior run" in r.stderr and "boundary: 'periodic' → 'finite'" in r.stderr
+    # Another sampler seed would continue the stored chain (seed 0) while the user asked for a new one: refused.
+    r = CliRunner().invoke(app, [*args, "--sampler-seed", "3"])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "sampled with seed 0 (--sampler-seed), this run asks for seed 3" in said
+    assert "--no-resume" in said and load_run(out / "run.h5")["chain"].shape == (40, 8, 2)
 
 
 def test_posterior_cli_bad_parameter(tmp_path):
@@ -72,6 +77,20 @@ def test_posterior_cli_n_test_zero(tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["n_steps"] == 20 and "emulator_error" not in s
+
+
+def test_posterior_cli_refuses_a_leaf_parameter_outside_the_emulator_box(tmp_path):
+    """--optics paper without subsurface among the parameters: the grey leaf's own subsurface (0.3)
+    lies outside the box the emulator is built on (its informed prior, 0.04–0.17), where the emulated
+    light would be extrapolated; refused naming it, before any design render (it ran to the end)."""
+    before = dict(E.COUNTS)
+    args = ["posterior", "--quick", "--steps", "12:15", "--optics", "paper", "--parameters", "specular,light_factor"]
+    r = CliRunner().invoke(app, [*args, "--walkers", "4", "--max-steps", "5", "--n-test", "0", "--out", str(tmp_path)])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2, r.output
+    assert "subsurface is not sampled and stays at 0.3" in said and "box [0.04, 0.17]" in said
+    assert "add it to --parameters" in said and "--priors wide" in said
+    assert E.COUNTS == before and not (tmp_path / "run.h5").exists()
 
 
 OBS = (

@@ -43,8 +43,10 @@ def test_tereno_fixture_reads_and_converts():
     assert df["pair_kpa"].iloc[0] == pytest.approx(p_mbar / 10)
     assert df["rh"].iloc[0] == pytest.approx(units.relative_humidity_from_absolute(ah, t))
     assert df["co2_ppm"].iloc[0] == pytest.approx(units.co2_ppm_from_mmol_m3(co2, t, p_mbar / 10))
-    assert df.attrs["provenance"] == "measured"  # what the caller declares; the fixture's own README says synthetic
-    assert "RadiationGlobal_Avg10min QualityFlag" in df.attrs["unused_columns"]
+    assert df.attrs["provenance"] == "synthetic"  # its header says "SYNTHETIC FIXTURE" (and data/README.md)
+    # The quality flags are read (and not listed as unused), each with the column it flags.
+    assert df.attrs["quality_flags"] == {"ghi_w_m2": "RadiationGlobal_Avg10min QualityFlag"}
+    assert "RadiationGlobal_Avg10min QualityFlag" not in df.attrs["unused_columns"]
     assert not df.isna().any().any()
 
 
@@ -81,10 +83,20 @@ def test_header_found_by_content_with_long_preamble_and_semicolons(tmp_path):
     assert np.allclose(df["rh"], read_tereno(FIXTURE)["rh"])
 
 
-def test_timezone_is_a_parameter():
+def test_timezone_is_a_parameter(tmp_path):
+    """Where the header states no zone, tz= sets it (default UTC+1); where it does, a tz that
+    disagrees is refused and one that agrees (UTC+1 is Etc/GMT-1) accepted."""
     a = read_tereno(FIXTURE)
-    b = read_tereno(FIXTURE, tz="UTC")
+    assert a.attrs["timezone_assumed"] == "Etc/GMT-1"  # the header's "Time zone: UTC+1"
+    no_zone = _variant(tmp_path, lambda lines, hdr: [ln for ln in lines if not ln.startswith("Time zone")])
+    assert read_tereno(no_zone).index.equals(a.index)  # the TERENO default, UTC+1
+    b = read_tereno(no_zone, tz="UTC")
     assert (b.index - a.index == pd.Timedelta("1h")).all()
+    assert read_tereno(FIXTURE, tz="UTC+1").index.equals(a.index)
+    with pytest.raises(
+        InputError, match=r"line 7, column 'tz': tz='UTC' disagrees with the header's 'Time zone: UTC\+1'"
+    ):
+        read_tereno(FIXTURE, tz="UTC")
 
 
 def test_column_override_and_unknown_key():

@@ -107,6 +107,21 @@ def calibrate(
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters))
     th0 = parse_theta(start, "start")
+    given = [n for n in names if n in th0 and n in E.LEAF_PARAMETERS]
+    if surrogate and given:
+        # The emulator is valid only in its box (the priors' leaf support); calibrate() refuses a
+        # start outside it too, but only after the design renders. The leaf is known before the
+        # plants grow (the same optics the model gets below).
+        support = prior_set(priors, s.replication_config().leaf_optics())
+        for n in given:
+            lo, hi = support[n].support
+            if not lo <= th0[n] <= hi:
+                raise InputError(
+                    f"--start {n}={th0[n]:g}",
+                    column="start",
+                    expected=f"{n} in [{lo:g}, {hi:g}], the emulator's box (the {priors} priors' support), "
+                    "or --no-surrogate (full renders, the whole domain)",
+                )
     obs = read_observations(observations)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     # A history made with other model settings (e.g. the finite field, before periodic became the

@@ -30,6 +30,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         InputError,
         BackendError,
         FileNotFoundError,
+        FileExistsError,  # a folder to create where a file is (--out afile/x)
         IsADirectoryError,
         NotADirectoryError,
         PermissionError,
@@ -122,6 +123,7 @@ OPTION_ALIASES = {
     "n_tiles": ("--tiles",),
     "target_date": ("--date",),
     "soil_respiration_umol_m2_s": ("--soil-respiration",),
+    "row_direction_deg": ("--row-direction",),
 }
 
 

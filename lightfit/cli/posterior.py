@@ -103,12 +103,24 @@ def posterior(
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
         check_resumable(P.backend.run_attrs(out / "run.h5").get("config"), s, out / "run.h5", "posterior run")
         A.check_likelihood(out / "run.h5", form)
+        A.check_resume(out / "run.h5", {"seed": sampler_seed})
     m = run_model(s)  # several --date: one model per day
     # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
     m, obs, n_rendered = observed_model(m, obs, uses)
     prior_set = A.prior_set(priors, m.scenario.optics)  # informed: the priors of the run's leaf
     lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
     hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]
+    # What A.run checks again, here before the design is rendered: the unsampled leaf parameters (the
+    # run's own leaf) inside the box, and a stored chain's priors, fixed values, series and observations.
+    key = A.resume_key(m, obs, names=names, priors=prior_set, use=uses, seed=sampler_seed)
+    A.check_emulator_box(lo, hi, names, prior_set, key["fixed"])
+    if resume:
+        unchecked = A.check_resume(out / "run.h5", key)
+        if unchecked:  # an older run file: resumed as before, without claiming these were compared
+            console.print(
+                f"{out / 'run.h5'} was written before lightfit recorded its {', '.join(unchecked)}: "
+                "resuming it without comparing them"
+            )
     out.mkdir(parents=True, exist_ok=True)
     days = days_of(m)
     dates = getattr(m, "dates", None)  # None: one day (files and keys as before several days existed)

@@ -1,4 +1,5 @@
-"""``lightfit weather …``: read, check, convert and plot weather series (a sub-app)."""
+"""``lightfit weather …``: the ``show`` command, which reads a weather series, reports its checks and
+repairs and prints it, and converts it to a lightfit CSV (``--csv``) or plots it (``--plot``)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,29 @@ import typer
 
 from lightfit.cli.common import console, weather_report, weather_table
 
-app = typer.Typer(help="Read, check, convert and plot weather series.", no_args_is_help=True)
+app = typer.Typer(
+    help="Weather series: 'show' reads one (a bundled name or a file), reports its checks and repairs and "
+    "prints it; with --csv it converts it to a lightfit CSV, with --plot it plots it.",
+    no_args_is_help=True,
+)
 
 
-def load(source: str, fmt: str, date: str | None, tz: str | None, max_gap: str, split: str, time_label=None):
+def load(
+    source: str,
+    fmt: str,
+    date: str | None,
+    tz: str | None,
+    max_gap: str,
+    split: str,
+    time_label=None,
+    provenance: str | None = None,
+):
     """A bundled series (by name) or a file, in the weather contract with solar columns."""
     from lightfit import weather
 
     more = {} if time_label is None else {"time_label": time_label}
+    if provenance is not None:
+        more["provenance"] = provenance
     df = weather.read_source(source, format=fmt, date=date, tz=tz, max_gap=max_gap, **more)
     return weather.add_solar(df, split_model=split)
 
@@ -27,8 +43,19 @@ def show(
         "2016-04-20", help="A bundled series name (2016-04-20, selhausen-cplantbox-day) or a file."
     ),
     fmt: str = typer.Option("auto", "--format", help="auto, tereno, cplantbox or lightfit."),
-    date: str = typer.Option(None, help="Calendar date for undated files (CPlantBox day), YYYY-MM-DD."),
-    tz: str = typer.Option(None, help="Timezone of the file's timestamps (default: the format's convention)."),
+    date: str = typer.Option(
+        None, help="Calendar date for undated files (CPlantBox day), YYYY-MM-DD; refused for dated files."
+    ),
+    tz: str = typer.Option(
+        None,
+        help="Timezone of a TERENO or CPlantBox file's timestamps, an IANA name or UTC±H (default: the TERENO "
+        "header's 'Time zone:', else the format's convention); refused for a lightfit CSV (UTC).",
+    ),
+    provenance: str = typer.Option(
+        None,
+        help="What the file is where it does not say: measured (a real sensor record), reconstructed or "
+        "synthetic. Default: the file's own word, else 'unstated'. Contradicting the file is refused.",
+    ),
     time_label: str = typer.Option(
         None,
         help="Where a TERENO or CPlantBox file stamps each mean in its interval: end (the default), start "
@@ -43,20 +70,27 @@ def show(
     plot: Path = typer.Option(None, help="Write a plot here; the suffix gives the format (.png, .pdf, .svg, …)."),
     csv: Path = typer.Option(None, help="Write the contract series as CSV here."),
 ) -> None:
-    """Read a weather series, report its checks and repairs, print it, optionally plot/convert."""
+    """Read a weather series, report its checks and repairs and print it; --csv converts it, --plot plots it."""
     from lightfit import weather
+    from lightfit.errors import InputError
     from lightfit.figure import figure_format
-    from lightfit.weather.plot import plot_forcing
+    from lightfit.weather.plot import plot_forcing, provenance_label
 
     weather.require_date(source, date)  # an undated file: say --date, as the model commands do
+    if date is not None and not weather.is_undated(source):
+        raise InputError(
+            f"--date {date} given for a file whose timestamps carry their dates",
+            file=weather.source_path(source),
+            expected="no --date (it places an undated CPlantBox day only)",
+        )
     if plot:
         figure_format(plot)
-    df = load(source, fmt, date, tz, max_gap, split, time_label)
+    df = load(source, fmt, date, tz, max_gap, split, time_label, provenance)
     if resample:
         df = weather.resample(df, resample, how)
     weather_report(df)
     name = Path(str(df.attrs.get("source"))).name
-    console.print(weather_table(df, f"{df.attrs.get('provenance', '').upper()} weather: {name}"))
+    console.print(weather_table(df, f"{provenance_label(df)} weather: {name}"))
     if plot:
         console.print(f"plot → {plot_forcing(df, plot)}")
     if csv:

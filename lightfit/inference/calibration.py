@@ -30,13 +30,17 @@ quasi-Newton matrix, line-search state, counters) is written atomically next to 
 arguments continues exactly: same steps, same history, same optimum as an uninterrupted run
 (history lines written after the last saved state are dropped and redone). Without a matching
 state (older histories, other method/start/tolerances/series) ``resume=True`` restarts from the
-best point of the history and says so. The result counts accepted steps, loss evaluations and
+best point of the history and says so; a history made with other observations or another model
+(the state records a hash of both) is refused with :class:`~lightfit.errors.InputError`, since its
+losses belong to another loss. The result counts accepted steps, loss evaluations and
 gradient evaluations separately, and says why the optimiser stopped (``stopped_by`` and the
 sentence ``reason``); the history ends with a record of the same.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -52,8 +56,8 @@ import numpy as np
 import optimistix as optx
 import pandas as pd
 
-from lightfit.errors import InputError, check_integer
-from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form
+from lightfit.errors import InputError, check_integer, is_real
+from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form, observations_digest
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.observations import matched_as_by_stamp, observation_matching
 from lightfit.killpoint import kill_point
@@ -82,12 +86,54 @@ def from_unconstrained(z, name: str, bounds: Mapping[str, tuple[float, float]] |
     return lo + (jnp.exp(z) if math.isinf(hi) else (hi - lo) * jax.nn.sigmoid(z))
 
 
+def check_bounds(
+    bounds: Mapping[str, tuple[float, float]] | None, names: Sequence[str]
+) -> dict[str, tuple[float, float]]:
+    """(lo, hi) per calibrated name in ``names``, in the parameter's own units: ``bounds``' pair where
+    given, else the domain's (:data:`BOUNDS`). A given pair must be two real numbers, lo finite,
+    lo < hi (the logit divides by hi − lo), inside the domain (hi may be infinite only where the
+    domain is unbounded above: outside it the model is undefined, e.g. a negative specular); and
+    only calibrated names may have bounds (others would be ignored). Anything else raises
+    :class:`InputError` naming ``bounds``, the parameter and what was expected."""
+    names = tuple(names)
+    given = dict(bounds or {})
+    check_names(given, what="bounds")
+    extra = [n for n in given if n not in names]
+    if extra:
+        raise InputError(
+            f"bounds for {', '.join(extra)}, which {'is' if len(extra) == 1 else 'are'} not calibrated",
+            column="bounds",
+            expected=f"bounds only for the calibrated parameters ({', '.join(names)})",
+        )
+    out = {}
+    for n in names:
+        lo_d, hi_d = BOUNDS[n]
+        if n not in given:
+            out[n] = (float(lo_d), float(hi_d))
+            continue
+        pair = given[n]
+        try:
+            lo, hi = pair
+        except (TypeError, ValueError):
+            lo = hi = None
+        ok = is_real(lo) and is_real(hi) and math.isfinite(lo) and not math.isnan(hi)
+        if not (ok and lo_d <= lo < hi <= hi_d):
+            raise InputError(
+                f"bounds {n}={pair!r}",
+                column="bounds",
+                expected=f"(lo, hi) with {lo_d:g} ≤ lo < hi ≤ {hi_d:g} ({n}'s domain), lo finite",
+            )
+        out[n] = (float(lo), float(hi))
+    return out
+
+
 class Loss:
     """The calibration loss over the parameters ``names`` (the others from ``base``).
 
     ``loss(z)`` → ``(value, None)`` over unconstrained z (optimistix's signature);
     ``loss.natural(x)`` → value over the natural parameters; ``loss.theta(x)`` the model parameters.
-    ``bounds``: (lo, hi) per name narrowing :data:`BOUNDS` (both optimisers stay inside).
+    ``bounds``: (lo, hi) per name narrowing :data:`BOUNDS` (both optimisers stay inside), checked by
+    :func:`check_bounds`.
     """
 
     def __init__(
@@ -100,7 +146,7 @@ class Loss:
     ):
         self.forward, self.likelihood, self.names, self.base = forward, likelihood, tuple(names), base
         self.n_observations = likelihood.n_observations
-        self.bounds = {n: tuple(float(v) for v in (bounds or {}).get(n, BOUNDS[n])) for n in self.names}
+        self.bounds = check_bounds(bounds, self.names)
 
     def theta(self, x) -> Theta:
         return self.base.with_vector(self.names, x)
@@ -335,6 +381,85 @@ def check_max_steps(max_steps) -> int:
     return check_integer(max_steps, "max_steps", 1)
 
 
+def _check_start(th0: Theta, start, box: Mapping, narrowed: Mapping) -> None:
+    """Refuse a start value outside its ``bounds`` (``box``: the checked (lo, hi) per calibrated name;
+    ``narrowed``: the names given bounds) instead of letting the optimisers move it to the edge
+    silently. Also a value not named in ``start`` (``fixed``'s or the default): no caller relies on
+    that move (the surrogate calibration checks its start against its box before rendering)."""
+    for n in narrowed:
+        v, (lo, hi) = float(getattr(th0, n)), box[n]
+        if not lo <= v <= hi:
+            named = isinstance(start, Theta) or n in (start or {})
+            source = "" if named else " (fixed or default, no start given)"
+            raise InputError(
+                f"{n}={v!r}{source} outside its bounds [{lo:g}, {hi:g}]",
+                column="start",
+                expected=f"a start inside the bounds ({lo:g} ≤ {n} ≤ {hi:g}), or bounds that hold it",
+            )
+
+
+def _digest(*parts: bytes) -> str:
+    h = hashlib.sha256()
+    for b in parts:
+        h.update(len(b).to_bytes(8, "little") + b)  # lengths: parts cannot run into each other
+    return h.hexdigest()[:16]
+
+
+def _model_digest(model) -> dict[str, str] | None:
+    """Hash per setting of what the model's outputs depend on besides θ: each field of its
+    :class:`~lightfit.model.scenario.Scenario` (weather, field, estimator settings, optics,
+    photosynthesis set, observables' forms, …); a multi-day model's per day. Per setting, so that a
+    setting added to Scenario later (absent from a stored key) does not block a resume, and the
+    refusal can name what changed. ``None`` for a model without a Scenario dataclass (a test
+    double). Light injected into the model (``with_light``) or a ``forward`` are not covered: the
+    surrogate calibration that uses them does not resume."""
+    days = getattr(model, "day_models", None)
+    if days is not None:
+        return {f"{d}: {k}": v for d, m in days.items() for k, v in (_model_digest(m) or {}).items()}
+    sc = getattr(model, "scenario", None)
+    if not dataclasses.is_dataclass(sc) or isinstance(sc, type):
+        return None
+    out = {}
+    for f in dataclasses.fields(sc):
+        v = getattr(sc, f.name)
+        if isinstance(v, pd.DataFrame):
+            rows = pd.util.hash_pandas_object(v, index=True).to_numpy()
+            out[f.name] = _digest(rows.tobytes(), json.dumps([str(c) for c in v.columns]).encode())
+        else:
+            out[f.name] = _digest(repr(v).encode())  # field, optics, numbers and names: repr is their value
+    return out
+
+
+def _check_same_data(saved: dict | None, data: dict, hist: Path, say: Callable[[str], None]) -> None:
+    """Refuse to resume a history made with other observations or another model: its losses and
+    optimiser state belong to another loss, so neither an exact resume nor a restart from its best
+    point would be a calibration against these data. A state saved before the data were recorded
+    cannot be checked: it resumes as before, with a notice."""
+    if saved is None:
+        return
+    before = saved.get("key", {}).get("data")
+    if before is None:
+        say(f"{hist}: saved before the observations and model were recorded; they are not checked")
+        return
+    changed = []
+    if before.get("observations") != data["observations"]:
+        changed.append("observations")
+    old, new = before.get("model"), data["model"]
+    if (old is None) != (new is None):
+        changed.append("model")
+    elif old is not None:
+        settings = [k for k in old if k in new and old[k] != new[k]]
+        if settings:
+            changed.append(f"model settings ({', '.join(settings)})")
+    if changed:
+        raise InputError(
+            f"the calibration history there was made with other {' and '.join(changed)}",
+            file=hist,
+            expected="the same observations and model as that run, --no-resume (resume=False) to start again, "
+            "or another --out (history)",
+        )
+
+
 def calibrate(
     model: CoupledModel,
     obs: pd.DataFrame,
@@ -360,8 +485,10 @@ def calibrate(
     """Minimise the calibration loss over ``names``; see the module docstring.
 
     Args:
-        start: starting values of (some of) ``names`` (others: ``fixed``, then the defaults).
-        fixed: values of the parameters not calibrated (default: ``Theta()``).
+        start: starting values of (some of) ``names`` (others: ``fixed``, then the defaults), each
+            inside its domain and its ``bounds`` (a value taken from ``fixed`` or the defaults too).
+        fixed: values of the parameters not calibrated (default: ``Theta()``), inside their domains
+            (a mapping or a :class:`Theta`, whose concrete values are checked as a mapping's).
         method: ``"bfgs"`` (rtol/atol: optimistix's Cauchy termination on parameters and loss) or
             ``"lbfgsb"`` (gtol: ∞-norm of the projected gradient step, loss per natural unit). On
             rendered losses L-BFGS-B usually ends with ``"failed: line search"`` at the optimum: loss
@@ -374,12 +501,15 @@ def calibrate(
         use: which observed series enter the loss (``"par"``, ``"an"``).
         forward: model outputs of a ``Theta`` (default ``model.observe``; e.g. an emulator).
         bounds: (lo, hi) per calibrated name narrowing :data:`~lightfit.model.parameters.BOUNDS`
-            (an emulator is only valid in its box).
+            (an emulator is only valid in its box), in the parameter's units; checked by
+            :func:`check_bounds` (finite lo < hi inside the domain, calibrated names only).
         history: JSON-lines file; one line per accepted step (step, loss, theta, gradient in the
             optimiser's coordinates, evaluations and gradients so far, time), then one line
             ``{"stopped_by", "reason", "steps", "evaluations", "gradients"}``; the optimiser state
             is kept next to it (``<history>.state.npz``).
-        resume: continue exactly from the saved state (or from the best point in ``history``).
+        resume: continue exactly from the saved state (or from the best point in ``history``). The
+            state records a hash of the aligned observations (values, SDs, mask, steps) and of the
+            model's scenario settings; a history made with other ones raises :class:`InputError`.
         say: where a one-line notice goes (a resume that cannot be exact).
         mc_correlation, mc_scale: the likelihood's Monte Carlo form (:func:`make_loss`; ``"model"``
             computes the correlation at ``start``); both enter the resume key, so a history made
@@ -389,8 +519,23 @@ def calibrate(
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
     check_max_steps(max_steps)
     form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
+    for what, given in (("fixed", fixed), ("start", start)):
+        if given is not None:
+            as_theta(given, what=what)  # domains, named; a Theta is built unchecked
     base = model.theta(fixed)
-    th0 = as_theta(start, base=base)
+    th0 = as_theta(start, base=base, what="start")
+    names = check_names(names)
+    _check_start(th0, start, check_bounds(bounds, names), bounds or {})
+    hist = Path(history) if history else None
+    state_file = hist.with_name(hist.name + ".state.npz") if hist else None
+    saved = _load_state(state_file) if hist and resume and state_file.exists() else None
+    data = None
+    if hist:
+        # The observations as the loss sees them (cheap: no render), so that a history of other
+        # data is refused before the "model" correlation below renders.
+        aligned = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps)
+        data = {"observations": observations_digest(aligned, model.times), "model": _model_digest(model)}
+        _check_same_data(saved, data, hist, say)
     loss = make_loss(
         model,
         obs,
@@ -404,8 +549,6 @@ def calibrate(
         at=th0,
     )
     names = loss.names
-    hist = Path(history) if history else None
-    state_file = hist.with_name(hist.name + ".state.npz") if hist else None
     key = {
         "method": method,
         "names": list(names),
@@ -419,9 +562,12 @@ def calibrate(
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
     if not matched_as_by_stamp(obs, model.timestamps):  # else absent: states saved before still resume exactly
         key["observation_matching"] = observation_matching(obs, model.timestamps)
-    saved = _load_state(state_file) if hist and resume and state_file.exists() else None
+    if data is not None:
+        key["data"] = data
     # states saved before the likelihood's form was recorded used independent steps
     old = {"likelihood": likelihood_form(None), **(saved or {}).get("key", {})}
+    if data is not None:  # _check_same_data passed: the same data (a setting unknown to one key aside)
+        old["data"] = data
     if saved is not None and old != key:
         changed = [k for k in {**old, **key} if old.get(k) != key.get(k)]
         before = old["likelihood"]
@@ -584,6 +730,7 @@ __all__ = [
     "CalibrationResult",
     "Loss",
     "calibrate",
+    "check_bounds",
     "check_max_steps",
     "from_unconstrained",
     "make_loss",

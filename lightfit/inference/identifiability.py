@@ -90,13 +90,16 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
 
 
 def profile_likelihood(
-    nll, x_hat, direction, ts, *, scale: str = "log", maxiter: int = 200
+    nll, x_hat, direction, ts, *, scale: str = "log", maxiter: int = 200, allowed=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Profile of ``nll(x)`` along ``direction`` through ``x_hat``.
 
     At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x),
     and w (orthogonal to d) is optimised (scipy BFGS with JAX gradients, warm-started from the
-    neighbouring t). Returns ``(ts, profile, slice)``: the profiled and the plain-slice nll.
+    neighbouring t). ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points
+    where ``nll`` may be evaluated, e.g. an emulator's box: outside it the objective is +∞, so the
+    line search steps back (the slice itself is evaluated wherever the line goes). Returns ``(ts,
+    profile, slice)``: the profiled and the plain-slice nll.
     """
     from scipy.optimize import minimize
 
@@ -113,7 +116,13 @@ def profile_likelihood(
     def f_w(w, t):
         return nll(to_x(jnp.asarray(u0 + t * d) + jnp.asarray(basis) @ w))
 
-    vg = jax.jit(jax.value_and_grad(f_w))
+    def f_inside(w, t):
+        if allowed is None:
+            return f_w(w, t)
+        x = to_x(jnp.asarray(u0 + t * d) + jnp.asarray(basis) @ w)
+        return jnp.where(allowed(x), f_w(w, t), jnp.inf)
+
+    vg = jax.jit(jax.value_and_grad(f_inside))
     f_j = jax.jit(f_w)
     prof, slc = np.empty(len(ts)), np.empty(len(ts))
     order = np.argsort(np.abs(ts))

@@ -67,6 +67,7 @@ log L −inf there, so optimisers reject the point and samplers never accept it.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -76,7 +77,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, observed, series
+from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, check_sds, observed, series
 from lightfit.model.observe import mc_covariance, unconverged
 from lightfit.model.parameters import as_theta
 from lightfit.weather.timestamps import INSTANTS, Timestamps
@@ -225,7 +226,18 @@ class GaussianLikelihood:
             raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
         if not (np.isfinite(mc_scale) and mc_scale >= 0):
             raise InputError(f"mc_scale={mc_scale!r}", column="mc_scale", expected="a finite number ≥ 0")
+        explicit = use is not None and tuple(use) != USES  # USES: callers' "whatever the file has"
         use = resolve_use(use, obs)
+        if explicit:
+            absent = [n for n in use if n not in observed(obs)]
+            if absent:
+                raise InputError(
+                    f"use names {', '.join(absent)}, which the observations have no value of",
+                    file=obs.attrs.get("source"),
+                    column="use",
+                    expected="series the observations have: " + (", ".join(observed(obs)) or "none"),
+                )
+        check_sds(obs)
         self.stamps = stamps
         target = align(obs, times, stamps)
         requested = tuple(s for s in SERIES if s.name in use)
@@ -348,6 +360,20 @@ class GaussianLikelihood:
         return jnp.where(unconverged(m) > 0, -jnp.inf, ll)
 
 
+def observations_digest(lik: GaussianLikelihood, times: pd.DatetimeIndex) -> str:
+    """SHA-256 of the observations as the likelihood sees them: per used series its values, SDs and
+    mask on the run's steps, and the steps' times. Two runs with the same digest fit the same data
+    (another file, column order or an unused series do not change it)."""
+    h = hashlib.sha256(b"lightfit observations v1")
+    h.update(np.asarray(pd.DatetimeIndex(times).asi8, np.int64).tobytes())
+    for s in lik.series:
+        h.update(s.name.encode())
+        h.update(np.ascontiguousarray(np.asarray(lik.y[s.name], np.float64)).tobytes())
+        h.update(np.ascontiguousarray(np.asarray(lik.sd[s.name], np.float64)).tobytes())
+        h.update(np.ascontiguousarray(np.asarray(lik.mask[s.name], np.uint8)).tobytes())
+    return h.hexdigest()
+
+
 __all__ = [
     "ALIASES",
     "MC_CORRELATION_JITTER",
@@ -358,5 +384,6 @@ __all__ = [
     "correlation_of",
     "likelihood_form",
     "mc_correlation",
+    "observations_digest",
     "resolve_use",
 ]

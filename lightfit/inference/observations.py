@@ -186,6 +186,34 @@ def observed(obs: pd.DataFrame) -> tuple[str, ...]:
     return tuple(s.name for s in SERIES if s.value in obs.columns and obs[s.value].notna().any())
 
 
+def check_sds(obs: pd.DataFrame) -> None:
+    """Observations built in code (not read from a file, which :func:`read_observations` checks
+    line by line): every present value finite, with a finite SD > 0 (an SD of 0 makes the
+    likelihood infinite, a negative one is no SD). :class:`InputError` naming the column and time."""
+    for s in SERIES:
+        if s.value not in obs.columns:
+            continue
+        v = pd.to_numeric(obs[s.value], errors="coerce").to_numpy(float)
+        sd = (
+            pd.to_numeric(obs[s.sd], errors="coerce").to_numpy(float)
+            if s.sd in obs.columns
+            else np.full(len(v), np.nan)
+        )
+        present = ~np.isnan(v)
+        for bad, col, what in (
+            (present & ~np.isfinite(v), s.value, "a finite value"),
+            (present & ~(np.isfinite(sd) & (sd > 0)), s.sd, "a finite SD > 0 wherever the value is present"),
+        ):
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise InputError(
+                    f"{col} at {obs.index[i]}: {obs[col].iloc[i] if col in obs.columns else 'missing'}",
+                    file=obs.attrs.get("source"),
+                    column=col,
+                    expected=what,
+                )
+
+
 def read_observations(path: str | Path) -> pd.DataFrame:
     """Read an observations CSV into a DataFrame indexed by UTC time (attrs: provenance, source,
     ``timestamps``: the rows' :class:`~lightfit.weather.timestamps.Timestamps`, instants unless the
@@ -254,12 +282,12 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
         _first_bad(
-            vals.isna() & (text != ""),
+            (vals.isna() & (text != "")) | np.isinf(vals),
             path,
             first,
             c,
-            "a number or an empty cell (missing)",
-            lambda i, text=text: f"value {text.iloc[i]!r} is not a number",
+            "a finite number or an empty cell (missing)",
+            lambda i, text=text: f"value {text.iloc[i]!r} is not a finite number",
         )
         out[c] = vals.astype(float)
     times = pd.DatetimeIndex(out["time"])

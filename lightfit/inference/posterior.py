@@ -9,6 +9,7 @@ posterior width). ``notebooks/posterior_analysis.ipynb`` reads such a file.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import jax
@@ -18,7 +19,15 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.inference.identifiability import fisher_information, profile_likelihood
-from lightfit.inference.likelihood import MC_FORMS, USES, MCCorrelation, likelihood_form
+from lightfit.inference.likelihood import (
+    MC_FORMS,
+    USES,
+    GaussianLikelihood,
+    MCCorrelation,
+    likelihood_form,
+    observations_digest,
+    resolve_use,
+)
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.mcmc import (
     NOISE_SCALE,
@@ -26,6 +35,7 @@ from lightfit.inference.mcmc import (
     LogPosterior,
     Prior,
     StopRule,
+    check_sampled,
     flat_samples,
     priors_table,
     sample,
@@ -36,6 +46,7 @@ from lightfit.inference.mcmc.backend import run_attrs, stored_run
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
+from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, validate
 from lightfit.weather.timestamps import Timestamps
@@ -79,6 +90,8 @@ def log_posterior(
     fixed = dict(fixed or {})
     lam = fixed.pop(NOISE_SCALE, None)
     base = {**model.theta(fixed).to_dict(), **({} if lam is None else {NOISE_SCALE: lam})}
+    for e in _emulators(forward):  # emulated forwards: inside their box only (no silent extrapolation)
+        check_emulator_box(e.lo, e.hi, check_sampled(names, priors), priors, base)
     stamps = model.timestamps
     lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale, stamps=stamps)
     if isinstance(mc_correlation, MCCorrelation) or form["mc_correlation"] == "independent":
@@ -89,6 +102,13 @@ def log_posterior(
     return LogPosterior(
         forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale, stamps=stamps
     )
+
+
+def _emulators(forward) -> list:
+    """The emulators behind ``forward`` (a :class:`~lightfit.model.emulator.FastObservables` or several
+    days' of them joined); none for an exact forward such as ``model.observe``."""
+    days = getattr(forward, "forwards", None) or (forward,)
+    return [f.emulator for f in days if hasattr(getattr(f, "emulator", None), "lo")]
 
 
 def stored_likelihood(attrs: dict) -> dict:
@@ -137,6 +157,137 @@ def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps) -> N
             file=path,
             expected="--no-resume to start again, or another --out",
         )
+
+
+#: What a resumed posterior run must share with the stored one, besides the checks above (names and
+#: walkers: the sampler; model settings and emulator: the command line), as :func:`resume_key` gives it.
+RESUME_ENTRIES = ("seed", "use", "priors", "fixed", "observations_sha256")
+_EXPECTED_RESUME = "the run's own settings to resume it, --no-resume to start again, or another --out"
+_STORED_AS = {"seed": int, "use": list, "priors": list, "fixed": dict, "observations_sha256": str}
+
+
+def resume_key(
+    model,
+    obs: pd.DataFrame,
+    *,
+    names=("specular", "roughness", "subsurface", "light_factor"),
+    priors=None,
+    fixed=None,
+    use=USES,
+    seed: int = 0,
+) -> dict:
+    """The entries of :data:`RESUME_ENTRIES` for a run of :func:`run` with these arguments, as they
+    are stored with it (``seed`` by the sampler, the rest in the run's attributes) and compared on
+    resume (:func:`check_resume`): ``use`` the series that enter the likelihood, ``priors`` the
+    sampled parameters' priors (:func:`~lightfit.inference.mcmc.priors_table`), ``fixed`` every model
+    parameter's value outside the sampled ones (the run's leaf completed with ``fixed``) and the
+    noise scale, ``observations_sha256`` :func:`observations_digest`. Cheap: no forward model."""
+    priors = prior_set("informed", model.scenario.optics) if priors is None else priors
+    names = check_sampled(names, priors)
+    fixed = dict(fixed or {})
+    lam = float(fixed.pop(NOISE_SCALE, 1.0))
+    lik = GaussianLikelihood(obs, model.times, use, stamps=model.timestamps)
+    return {
+        "seed": seed,
+        "use": list(lik.use),
+        "priors": priors_table(priors, names),
+        "fixed": {**model.theta(fixed).to_dict(), NOISE_SCALE: lam},
+        "observations_sha256": observations_digest(lik, model.times),
+    }
+
+
+def _prior_fields(table) -> dict:
+    """A priors table by parameter, without the sources (a reworded source is the same prior)."""
+    return {r["parameter"]: {k: v for k, v in r.items() if k not in ("parameter", "source")} for r in table}
+
+
+def _stored_use(use) -> tuple:
+    try:  # runs may have stored aliases; compared as the series they name
+        return resolve_use(tuple(use))
+    except InputError:
+        return tuple(use)
+
+
+def check_resume(path: str | Path, key: Mapping) -> tuple[str, ...]:
+    """Refuse to resume the posterior run in ``path`` with other settings than it was started with:
+    an :class:`InputError` naming the file and the first entry of ``key`` (:func:`resume_key`, or
+    some of its entries) that differs. The chain would otherwise continue one posterior with steps of
+    another, and the file's attributes (written when the run starts) would describe the first.
+
+    Returns the entries of ``key`` the stored run has no record of (written before lightfit stored
+    them): those are not checked, and the run resumes as before they were recorded."""
+    path = Path(path)
+    if stored_run(path, "mcmc") is None:
+        return ()
+    before = run_attrs(path)
+    sampled = {r["parameter"] for r in key.get("priors", ())} or set(before.get("names", ()))
+    unchecked = []
+    for entry in (e for e in RESUME_ENTRIES if e in key):
+        was, now = before.get(entry), key[entry]
+        if not isinstance(was, _STORED_AS[entry]):  # not recorded (older file), or in a form not read here
+            unchecked.append(entry)
+            continue
+        if entry == "seed":
+            if int(was) != int(now):
+                _refuse(path, f"was sampled with seed {int(was)} (--sampler-seed), this run asks for seed {int(now)}")
+        elif entry == "use":
+            if _stored_use(was) != tuple(now):
+                _refuse(path, f"was sampled on the series use={list(_stored_use(was))}, this run on use={list(now)}")
+        elif entry == "priors":
+            a, b = _prior_fields(was), _prior_fields(now)
+            # other sampled names are the sampler's refusal (names and walkers); here: the shared ones
+            changed = [f"{n}: {a[n]} → {b[n]}" for n in b if n in a and a[n] != b[n]]
+            if changed:
+                _refuse(path, f"was sampled with other priors ({'; '.join(changed)})")
+        elif entry == "fixed":
+            # a sampled parameter's entry is unused (its sampled value replaces it): only the others count
+            changed = [
+                f"{n}: {was[n]!r} → {now[n]!r}" for n in now if n in was and n not in sampled and was[n] != now[n]
+            ]
+            if changed:
+                _refuse(path, f"was sampled with other fixed values ({'; '.join(changed)})")
+        elif was != now:
+            _refuse(
+                path,
+                "was sampled on other observations (their values, SDs or missing entries on the run's steps, "
+                f"or the steps, differ: observations_sha256 {str(was)[:12]}… → {str(now)[:12]}…)",
+            )
+    return tuple(unchecked)
+
+
+def _refuse(path: Path, what: str) -> None:
+    raise InputError(f"the posterior run there {what}", file=path, expected=_EXPECTED_RESUME)
+
+
+def check_emulator_box(
+    lo: Sequence[float], hi: Sequence[float], names: Sequence[str], priors: Mapping[str, Prior], fixed: Mapping
+) -> None:
+    """Refuse a posterior whose leaf parameters can leave the emulator's box [``lo``, ``hi``] (per
+    :data:`~lightfit.light.bsdf.LEAF_PARAMETERS`): a sampled one whose prior support reaches outside
+    it, or an unsampled one whose fixed value (``fixed``: the run's leaf completed with the fixed
+    values) lies outside. The polynomial emulator would extrapolate there without any warning
+    (e.g. ``--optics paper`` fixes subsurface at the grey leaf's 0.3, outside its informed box
+    0.04–0.17). :class:`InputError` naming the parameter."""
+    for i, n in enumerate(LEAF_PARAMETERS):
+        low, high = float(lo[i]), float(hi[i])
+        tol = 1e-9 * (high - low)  # round-off, as the emulator's own check of concrete points allows
+        box = f"[{low:.6g}, {high:.6g}]"
+        if n in names:
+            a, b = priors[n].support
+            if a < low - tol or b > high + tol:
+                raise InputError(
+                    f"the prior of {n} spans [{a:.6g}, {b:.6g}], beyond the emulator's box {box}",
+                    column=n,
+                    expected=f"an emulator fitted on a box that holds the prior of {n} (or a narrower prior)",
+                )
+        elif not low - tol <= fixed[n] <= high + tol:
+            raise InputError(
+                f"{n} is not sampled and stays at {fixed[n]:.6g} (the run's leaf, or its fixed value), outside "
+                f"the emulator's box {box}, where the emulated light would be an extrapolation",
+                column=n,
+                expected=f"{n} sampled (add it to --parameters), or fixed inside the box; lightfit posterior "
+                f"builds the box from the priors, so priors whose {n} support holds {fixed[n]:.6g} (--priors wide)",
+            )
 
 
 def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarray:
@@ -221,7 +372,16 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
     d = fi.eigenvectors[:, -1]
     width = float(min(fi.widths[-1], 1.0))
     ts = np.linspace(-2.0 * width, 2.0 * width, n_profile)
-    ts, prof, slc = profile_likelihood(lambda xm: -lp.log_likelihood(at(xm)), x_map[idx], d, ts, scale=scale)
+    # The other directions are optimised inside the priors' support (the emulator's box): outside
+    # it the emulator would extrapolate (a review found the optimiser at specular 60).
+    ts, prof, slc = profile_likelihood(
+        lambda xm: -lp.log_likelihood(at(xm)),
+        x_map[idx],
+        d,
+        ts,
+        scale=scale,
+        allowed=lambda xm: jnp.isfinite(lp.log_prior(at(xm))),
+    )
     to_x = (lambda t: np.exp(np.log(x_map[idx]) + t * d)) if scale == "log" else (lambda t: x_map[idx] + t * d)
     inside = np.array([lp.in_support(np.asarray(at(to_x(t)))) for t in ts])
     profile = {
@@ -303,7 +463,10 @@ def run(
     steps (the diagonal form before issue 15); or an
     :class:`~lightfit.inference.likelihood.MCCorrelation`. ``mc_scale``: 1 for measured observations,
     2 for twins rendered at the model's samples. Both are stored with the run, and a run stored with
-    another form is not resumed (:func:`check_likelihood`).
+    another form is not resumed (:func:`check_likelihood`); nor is one started with another ``seed``,
+    ``use``, ``priors``, ``fixed`` values or observations (:func:`check_resume`). Leaf parameters the
+    emulators' box does not hold (a prior reaching beyond it, a fixed value outside) are refused
+    (:func:`check_emulator_box`).
 
     Several days: ``model`` a :class:`~lightfit.inference.multiday.MultiDayModel`, ``emulator`` and
     ``validation_renders`` one per day (lists, in date order).
@@ -316,6 +479,12 @@ def run(
         check_matching(path, obs, model.timestamps)
     days = days_of(model)
     emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]
+    priors = prior_set("informed", model.scenario.optics) if priors is None else priors
+    key = resume_key(model, obs, names=names, priors=priors, fixed=fixed, use=use, seed=seed)
+    for e in emus:  # before anything is computed on the emulators
+        check_emulator_box(e.lo, e.hi, names, priors, key["fixed"])
+    if resume:
+        check_resume(path, key)
     fasts = [FastObservables(d, e, n_grid=n_grid) for d, e in zip(days, emus)]
     fast = joined(model, fasts)
     lp = log_posterior(
@@ -343,10 +512,9 @@ def run(
         for e in emus
     ]
     sc = model.scenario
+    # What check_resume compares on resume: stored once, when the run starts (the sampler stores the seed).
     meta = {
-        "priors": priors_table(lp.priors, lp.names),
-        "use": list(lp.use),
-        "fixed": {**lp.base.to_dict(), NOISE_SCALE: lp.noise_scale},
+        **{k: v for k, v in key.items() if k != "seed"},
         "observations": {"source": str(obs.attrs.get("source", "")), "provenance": obs.attrs.get("provenance", "")},
         "scenario": {
             "n_segments": int(sum(len(d.segment_id) for d in days)),
@@ -431,13 +599,17 @@ def run(
 
 
 __all__ = [
+    "RESUME_ENTRIES",
+    "check_emulator_box",
     "check_likelihood",
+    "check_resume",
     "emulator_error_vs_width",
     "identifiability",
     "log_posterior",
     "optimum",
     "predictive",
     "prior_set",
+    "resume_key",
     "run",
     "stored_likelihood",
 ]

@@ -161,6 +161,26 @@ class SurrogateCalibration:
         return self.rounds
 
 
+def check_in_box(theta: Theta, calibrated: Sequence[str], lo, hi) -> None:
+    """Refuse a start or a fixed leaf value outside the emulator's box [lo, hi], before any design
+    render: the optimiser stays in the box, but the emulator would be evaluated there at the start
+    and at every fixed value, extrapolating silently."""
+    leaf = np.asarray(theta.leaf, np.float64)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    for i, n in enumerate(E.LEAF_PARAMETERS):
+        if not lo[i] <= leaf[i] <= hi[i]:
+            what, fix = (
+                ("start", "a start inside the box")
+                if n in calibrated
+                else ("fixed", f"{n} calibrated too, or fixed inside the box")
+            )
+            raise InputError(
+                f"{n}={leaf[i]:.6g} ({what}) outside the emulator's box [{lo[i]:.6g}, {hi[i]:.6g}] (the priors)",
+                column=n,
+                expected=fix,
+            )
+
+
 def surrogate_calibrate(
     model: CoupledModel,
     obs: pd.DataFrame,
@@ -297,6 +317,7 @@ def surrogate_calibrate(
         say(f"calibrated exactly ({mode}: {n_steps} sun positions need the light at the plants)")
         return done(res, [], True, res.loss, mode)
 
+    check_in_box(x0, leaf_names, lo, hi)
     ddirs = [E.design_dir(d, cache) for d in days]
     log = None if out is None else out / "trust_region.jsonl"
     if log is not None:

@@ -298,8 +298,28 @@ class PartsEmulator:
         return exponents(self.degree)
 
     def basis(self, leaf):
+        self.check_in_box(leaf)
         u = 2.0 * (jnp.asarray(leaf) - self.lo) / (self.hi - self.lo) - 1.0
         return legendre_basis(u, self.expo)
+
+    def check_in_box(self, leaf) -> None:
+        """Refuse concrete leaf parameters outside [lo, hi]: the polynomial would extrapolate
+        silently (far outside, the emulated light goes negative). Traced values (inside
+        ``jax.jit``/``grad``) cannot be checked here; their callers keep them in the box (the
+        priors' support, bounded optimisers)."""
+        if isinstance(leaf, jax.core.Tracer):
+            return
+        x = np.asarray(leaf, np.float64)
+        tol = 1e-9 * (self.hi - self.lo)
+        out = np.flatnonzero((x < self.lo - tol) | (x > self.hi + tol))
+        if len(out):
+            i = int(out[0])
+            raise InputError(
+                f"{LEAF_PARAMETERS[i]}={x[i]:.6g} outside the emulator's box [{self.lo[i]:.6g}, {self.hi[i]:.6g}]",
+                column=LEAF_PARAMETERS[i],
+                expected="leaf parameters inside the box the emulator was fitted on (or an emulator fitted on a "
+                "box that holds them)",
+            )
 
     def __call__(self, theta: Theta | Mapping[str, float]):
         """Emulated ``(values, se)``, each (T_day, 4, S) — a drop-in for ``model.parts``."""

@@ -36,7 +36,9 @@ import math
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from lightfit.errors import InputError
 from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -130,15 +132,47 @@ def check_theta(values: Mapping[str, float], *, what: str = "theta") -> dict[str
     return out
 
 
-def as_theta(value: Theta | Mapping[str, float] | None = None, base: Theta | None = None) -> Theta:
+def check_concrete(theta: Theta, *, what: str = "theta") -> Theta:
+    """``theta`` itself if each of its concrete values lies inside its domain (:data:`BOUNDS`), else
+    :class:`InputError` naming ``what`` and the parameter. Concrete: Python or numpy numbers and
+    arrays (every element is checked) and JAX arrays outside a trace. Traced values (inside
+    ``jax.jit``, ``grad`` or ``vmap``) cannot be read, so they pass as they are: the optimisers and
+    samplers that trace a Theta keep their values in the domain themselves."""
+    for name in NAMES:
+        v = getattr(theta, name)
+        if isinstance(v, jax.core.Tracer):
+            continue
+        lo, hi = BOUNDS[name]
+        try:
+            a = np.asarray(v)
+        except (TypeError, ValueError):
+            a = np.asarray(None)  # not a number at all: refused below
+        if a.dtype.kind not in "iuf":  # bools, strings, objects
+            raise InputError(f"{name}={v!r}", column=what, expected=_domain(name))
+        bad = ~np.isfinite(a) | ((a <= lo) if math.isinf(hi) else (a < lo) | (a > hi))
+        if bad.any():
+            first = a if a.ndim == 0 else a.reshape(-1)[int(np.argmax(bad.reshape(-1)))]
+            raise InputError(f"{name}={float(first)!r}", column=what, expected=_domain(name))
+    return theta
+
+
+def as_theta(
+    value: Theta | Mapping[str, float] | None = None, base: Theta | None = None, *, what: str = "theta"
+) -> Theta:
     """A :class:`Theta` from a Theta, a mapping of some names (the rest from ``base`` or the
-    defaults) or None (the defaults). Numbers in a mapping are checked against their domains
-    (:func:`check_theta`); array values (e.g. an optimiser's traced vector) are taken as they are."""
+    defaults) or None (the defaults). Concrete values, given either way, are checked against their
+    domains (:func:`check_theta`, :func:`check_concrete`; errors name ``what``): a Theta is built
+    without checks (JAX rebuilds it inside traces), so ``Theta(specular=1.5)`` is caught here.
+    Traced values (an optimiser's vector inside ``jax.jit``/``grad``) are taken as they are."""
     if isinstance(value, Theta):
-        return value
+        return check_concrete(value, what=what)
     value = dict(value or {})
     numbers = {k: v for k, v in value.items() if isinstance(v, (int, float))}
-    return (base or Theta()).replace(**{**value, **check_theta(numbers)})
+    numbers = check_theta(numbers, what=what)
+    arrays = {k: v for k, v in value.items() if k not in numbers}
+    check_names(arrays, what=what)
+    # arrays in the mapping (numpy, concrete JAX) are checked like a Theta's values, with base's
+    return check_concrete((base or Theta()).replace(**{**value, **numbers}), what=what)
 
 
-__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_names", "check_theta"]
+__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_concrete", "check_names", "check_theta"]

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError, check_integer
+from lightfit.errors import InputError, check_integer, is_real
 from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
@@ -128,6 +128,9 @@ class Field:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"{name}={v!r}", column=name, expected="a positive distance in metres")
+        d = self.row_direction_deg
+        if not (is_real(d) and math.isfinite(d)):  # NaN built a mesh of NaN, inf a math domain error
+            raise InputError(f"row_direction_deg={d!r}", column="row_direction_deg", expected="an azimuth in degrees")
         check_integer(self.buffer_rows, "buffer_rows", 0)
         check_integer(self.seed, "seed", 0)
 

@@ -6,7 +6,7 @@ with unit-named columns (:data:`~lightfit.weather.series.COLUMNS`) and provenanc
 
     from lightfit import weather
     df = weather.load("2016-04-20")                    # bundled default for the day
-    df = weather.read_weather("SE_EC_001.csv")         # a real TERENO export
+    df = weather.read_weather("SE_EC_001.csv", provenance="measured")  # a real TERENO export
     df = weather.read_source("selhausen-cplantbox-day", date="2016-04-27")  # bundled name or file
     df = weather.add_solar(df)                         # sun angles, DNI/DHI
     df30 = weather.resample(df, "30min")

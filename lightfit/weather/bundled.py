@@ -68,14 +68,40 @@ def require_date(source: str | Path, date) -> None:
         )
 
 
+def _bundled_name(path: Path) -> str | None:
+    """The bundled name of ``path`` when it is one of the bundled files (by name or by path)."""
+    for name, (file, _, _) in BUNDLED.items():
+        if (DATA_DIR / "weather" / file).resolve() == path.resolve():
+            return name
+    return None
+
+
 def read_source(source: str | Path, *, date: str | None = None, **kwargs) -> pd.DataFrame:
     """Read a weather source (bundled name or file; :func:`source_path`) into the contract, without solar columns.
 
-    ``date`` places an undated file (CPlantBox day) on a calendar day; dated files ignore it
-    (the run's window selects the day). ``kwargs`` go to :func:`~lightfit.weather.read_weather`.
+    ``date`` places an undated file (CPlantBox day) on a calendar day; for dated files it is not
+    passed on (a run's window selects the day; ``lightfit weather show`` refuses it). A bundled
+    file, by name or by path, keeps its documented provenance (:data:`BUNDLED`, data/README.md);
+    a ``provenance`` that contradicts it is refused. ``kwargs`` go to
+    :func:`~lightfit.weather.read_weather`.
     """
     path = source_path(source)
-    bundled_date = BUNDLED[str(source)][1] if str(source) in BUNDLED else None
+    name = _bundled_name(path)
+    bundled_date = BUNDLED[name][1] if name else None
+    fmt = kwargs.get("format", "auto")
+    fmt = sniff_format(path) if fmt == "auto" else fmt
+    if fmt != "cplantbox":
+        date = bundled_date = None
+    if name and fmt != "lightfit":  # a lightfit CSV states its own provenance
+        documented = BUNDLED[name][2]
+        if kwargs.get("provenance") not in (None, documented):
+            raise InputError(
+                f"provenance={kwargs['provenance']!r} contradicts the bundled file's documented {documented!r}",
+                file=path,
+                column="provenance",
+                expected=f"no provenance or {documented!r} (data/README.md)",
+            )
+        kwargs["provenance"] = documented
     return read_weather(path, date=date or bundled_date, **kwargs)
 
 

@@ -16,8 +16,10 @@ from lightfit.figure import figure_format  # noqa: E402
 
 
 def provenance_label(df: pd.DataFrame) -> str:
-    """Upper-case provenance word for titles, so a reconstruction is never mistaken for data."""
-    return str(df.attrs.get("provenance", "unknown provenance")).upper()
+    """Upper-case provenance word for titles, so a reconstruction is never mistaken for data
+    (``UNSTATED-PROVENANCE`` where neither the file nor the user said what it is)."""
+    prov = str(df.attrs.get("provenance", "unstated"))
+    return "UNSTATED-PROVENANCE" if prov == "unstated" else prov.upper()
 
 
 def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None, tz: str = "Europe/Berlin") -> Path:

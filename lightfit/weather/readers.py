@@ -2,13 +2,25 @@
 
 Each reader returns a contract series (see :mod:`lightfit.weather.series`) with
 ``attrs``: ``source`` (path), ``format``, ``provenance`` (``"measured"``,
-``"reconstructed"`` or ``"synthetic"``), ``timezone_assumed``, ``columns_used`` (contract
-column → source column and unit), ``unused_columns`` and ``qc`` (repairs).
+``"reconstructed"``, ``"synthetic"``, or ``"unstated"`` where neither the file nor the caller
+says), ``timezone_assumed``, ``columns_used`` (contract column → source column and unit),
+``unused_columns`` and ``qc`` (repairs).
+
+Provenance. Only the file or the caller can say what a series is: a TERENO export's header
+block may state it (``provenance: synthetic``, or the words "synthetic" / "reconstructed", as
+the bundled fixture's does), a lightfit CSV states it in its ``# provenance:`` line, and the
+caller may declare it (``provenance=``, ``--provenance``) where the file says nothing; a
+declaration that contradicts the file is refused. Otherwise the series is ``"unstated"``, never
+``"measured"`` by default.
 
 Timezones. TERENO stations log in UTC+1 without daylight saving (CET); that is the
-default ``tz`` of :func:`read_tereno`. CPlantBox's undated day file is in local civil time
-(its PAR is symmetric about 13:45, i.e. solar noon at Selhausen in CEST), so its default is
-``Europe/Berlin``. Everything is converted to UTC.
+default ``tz`` of :func:`read_tereno` unless the export's header states its zone
+(``Time zone: UTC+1``), which is then used (a ``tz`` that disagrees with it is refused).
+CPlantBox's undated day file is in local civil time (its PAR is symmetric about 13:45, i.e.
+solar noon at Selhausen in CEST), so its default is ``Europe/Berlin``. Everything is converted
+to UTC. Timestamps must be ISO 8601 (``2016-04-20 12:10:00``, the TERENO export's own format,
+or with ``T`` and a UTC offset): day/month dates such as ``04/05/2016`` are refused, since
+which is the day cannot be told.
 
 Timestamps of means. Both formats hold interval means stamped at the interval's end, the
 loggers' convention (``time_label="end"`` to change; :mod:`lightfit.weather.timestamps`): the
@@ -19,8 +31,8 @@ means, and solar noon at Selhausen falls at 13:30–13:40 CEST. The series recor
 
 from __future__ import annotations
 
+import csv
 import datetime as dt
-import io
 import re
 from pathlib import Path
 from typing import Any
@@ -30,11 +42,15 @@ import pandas as pd
 
 from lightfit.errors import InputError, parse_date
 from lightfit.weather import timestamps, units
-from lightfit.weather.series import DEFAULT_MAX_GAP, check_and_repair, parse_numeric
+from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric
+from lightfit.weather.site import check_timezone
 from lightfit.weather.timestamps import Timestamps
 
 TERENO_TZ = "Etc/GMT-1"  # POSIX sign convention: Etc/GMT-1 is UTC+1
 CPLANTBOX_TZ = "Europe/Berlin"
+#: What a file may say it is (an observations file's ``# provenance:`` line, a TERENO header); a lightfit
+#: weather CSV may also say ``unstated`` (:data:`WEATHER_PROVENANCES`).
+PROVENANCES = ("measured", "reconstructed", "synthetic")
 
 
 def _norm_unit(u: str) -> str:
@@ -94,23 +110,239 @@ def _find_table(text_lines: list[str], file) -> tuple[int, str]:
     )
 
 
-def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -> pd.DatetimeIndex:
-    text = raw.astype("string").str.strip()
-    for kwargs in ({"format": "ISO8601"}, {"dayfirst": True, "format": "mixed"}):
-        try:
-            t = pd.to_datetime(text, **kwargs)
-            break
-        except (ValueError, TypeError):
-            continue
-    else:
-        t = pd.to_datetime(text, format="ISO8601", errors="coerce")
-        i = int(np.flatnonzero(t.isna().to_numpy())[0])
+def _read_text(path: Path) -> str:
+    """The file's text; a file that is not UTF-8 is refused naming the line of its first foreign byte."""
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
         raise InputError(
-            f"cannot parse time {text.iloc[i]!r}",
+            f"byte 0x{data[e.start]:02x} is not UTF-8 text (the file is in another encoding, e.g. Latin-1)",
+            file=path,
+            row=line,
+            expected="a UTF-8 file: save it as UTF-8",
+        ) from None
+
+
+def _table_rows(
+    text_lines: list[str], header: int, delim: str, file, *, short_rows: str = "error"
+) -> tuple[pd.DataFrame, pd.Series]:
+    """The table whose header is ``text_lines[header]``: its cells (strings) and each row's line
+    number in the file (1-based).
+
+    Blank lines (and rows of empty cells) are skipped; the line numbers stay the file's. A row
+    with more cells than the header is an error naming its line; so is one with fewer, unless
+    ``short_rows="pad"`` (then its missing cells are empty).
+    """
+    cols = [c.strip().strip('"') for c in next(csv.reader([text_lines[header]], delimiter=delim))]
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise InputError(
+            f"column(s) {dup} appear more than once in the header",
+            file=file,
+            row=header + 1,
+            expected="one column per name",
+        )
+    rows, numbers = [], []
+    for i in range(header + 1, len(text_lines)):
+        cells = next(csv.reader([text_lines[i]], delimiter=delim), [])
+        if not any(c.strip() for c in cells):
+            continue
+        if len(cells) > len(cols) or (len(cells) < len(cols) and short_rows != "pad"):
+            raise InputError(
+                f"{len(cells)} fields, the header (line {header + 1}) has {len(cols)}",
+                file=file,
+                row=i + 1,
+                expected=f"one value per column, separated by {delim!r} (a stray or missing separator?)",
+            )
+        rows.append(cells + [""] * (len(cols) - len(cells)))
+        numbers.append(i + 1)
+    table = pd.DataFrame(rows, columns=cols, dtype=str) if rows else pd.DataFrame(columns=cols, dtype=str)
+    return table, pd.Series(numbers, dtype=int)
+
+
+_UTC_OFFSET = re.compile(r"^(?:UTC|GMT)\s*(?:(?P<sign>[+-])\s*(?P<h>\d{1,2})(?::?(?P<m>\d{2}))?)?$", re.IGNORECASE)
+
+
+def zone(name: str, column: str = "tz") -> str:
+    """An IANA time zone for ``name``: an IANA name as it is, ``UTC±H`` (also ``GMT±H``, ``UTC±HH:00``)
+    as ``Etc/GMT∓H`` (whose POSIX sign is the other way round), else :class:`InputError`."""
+    text = str(name).strip()
+    m = _UTC_OFFSET.match(text)
+    if m:
+        if m["sign"] is None or (int(m["h"]) == 0 and not int(m["m"] or 0)):
+            return "UTC"
+        if int(m["m"] or 0) == 0 and int(m["h"]) <= 14:
+            return f"Etc/GMT{'-' if m['sign'] == '+' else '+'}{int(m['h'])}"
+        raise InputError(
+            f"{column}={name!r} is not a whole-hour offset",
+            column=column,
+            expected="UTC±H in whole hours (UTC+1 is Etc/GMT-1), or an IANA name such as Asia/Kolkata",
+        )
+    try:
+        return check_timezone(text, column)
+    except InputError as e:
+        raise InputError(
+            e.problem, column=column, expected="an IANA name such as Europe/Berlin or UTC, or UTC±H such as UTC+1"
+        ) from None
+
+
+def _preamble_line(text_lines: list[str], end: int, pattern: str) -> tuple[int, re.Match] | None:
+    """The first line before ``end`` matching ``pattern`` (its index and match)."""
+    rx = re.compile(pattern, re.IGNORECASE)
+    for i in range(end):
+        m = rx.search(text_lines[i])
+        if m:
+            return i, m
+    return None
+
+
+def _header_zone(text_lines: list[str], end: int, file, tz: str | None) -> str:
+    """The zone of a TERENO export's timestamps: its header's ``Time zone:`` line, ``tz`` where
+    the header says none (default UTC+1); a ``tz`` that disagrees with the header is refused."""
+    found = _preamble_line(text_lines, end, r"^\s*#?\s*(?:time\s*zone|timezone|zeitzone)\s*[:=]\s*(?P<v>\S.*?)\s*$")
+    given = None if tz is None else zone(tz)
+    if found is None:
+        return given or TERENO_TZ
+    i, m = found
+    raw = m["v"]
+    # "UTC+1", "UTC+1 (no daylight saving)", "Europe/Berlin": the leading offset or IANA name
+    lead = re.match(r"(?:UTC|GMT)(?:\s*[+-]\s*\d{1,2}(?::?\d{2})?)?(?![\w:+-])", raw, re.IGNORECASE)
+    name = lead.group(0) if lead else next((w for w in raw.split() if "/" in w), None)
+    stated = None
+    if name is not None:
+        try:
+            stated = zone(name)
+        except InputError:
+            stated = None
+    if stated is None:
+        if given is not None:
+            return given  # the caller says what the header means
+        raise InputError(
+            f"the header's time zone {raw!r} is not one lightfit can read unambiguously",
+            file=file,
+            row=i + 1,
+            expected="UTC, UTC±H or an IANA name in the header, or tz= / --tz naming the zone it means",
+        )
+    if given is not None and given != stated:
+        raise InputError(
+            f"tz={tz!r} disagrees with the header's 'Time zone: {raw}' ({stated})",
+            file=file,
+            row=i + 1,
+            column="tz",
+            expected=f"no tz (the header's zone is used) or tz={stated!r}",
+        )
+    return stated
+
+
+#: What a weather series can be (docs: data/README.md); ``"unstated"``: neither file nor caller said.
+WEATHER_PROVENANCES = ("measured", "reconstructed", "synthetic", "unstated")
+
+
+def _check_provenance(value: str | None, file=None) -> str | None:
+    if value is not None and value not in WEATHER_PROVENANCES:
+        raise InputError(
+            f"provenance={value!r}", file=file, column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
+        )
+    return value
+
+
+def _resolve_provenance(stated: str | None, where: str, given: str | None, file) -> str:
+    """The series' provenance: the file's (``stated``, from ``where``), else the caller's, else
+    ``"unstated"``; a caller's word that contradicts the file's is refused."""
+    _check_provenance(given, file)
+    if stated not in (None, "unstated") and given not in (None, stated):
+        raise InputError(
+            f"provenance={given!r} contradicts the file, which says {stated!r} ({where})",
+            file=file,
+            column="provenance",
+            expected=f"no provenance (the file's is used) or {stated!r}",
+        )
+    if stated not in (None, "unstated"):
+        return stated
+    return given or stated or "unstated"
+
+
+def _header_provenance(text_lines: list[str], end: int, file) -> tuple[str | None, str]:
+    """What a TERENO export's header block says it is: a ``provenance: …`` line, else the words
+    "synthetic" or "reconstructed/reconstruction" (as the bundled fixture's "SYNTHETIC FIXTURE");
+    None where it says nothing. Nothing in free text makes a file "measured"."""
+    found = _preamble_line(text_lines, end, r"^\s*#?\s*provenance\s*[:=]\s*(?P<v>\S+)")
+    if found is not None:
+        i, m = found
+        v = m["v"].strip().lower()
+        if v not in PROVENANCES:
+            raise InputError(
+                f"header line 'provenance: {m['v']}'", file=file, row=i + 1, expected=" / ".join(PROVENANCES)
+            )
+        return v, f"line {i + 1}"
+    words = {"synthetic": r"\bsynthetic\b", "reconstructed": r"\breconstruct(?:ed|ion)\b"}
+    hits = {k: f for k, pat in words.items() if (f := _preamble_line(text_lines, end, pat)) is not None}
+    if len(hits) > 1:
+        raise InputError(
+            "the header calls the file both synthetic (line {}) and reconstructed (line {})".format(
+                hits["synthetic"][0] + 1, hits["reconstructed"][0] + 1
+            ),
+            file=file,
+            expected="one header line 'provenance: measured|reconstructed|synthetic'",
+        )
+    for k, (i, _) in hits.items():
+        said = text_lines[i].strip()
+        return k, f"line {i + 1}: {said if len(said) <= 50 else said[:50] + ' …'!r}"
+    return None, ""
+
+
+_ISO = re.compile(r"\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?)?\s*(?P<offset>Z|[+-]\d{2}(?::?\d{2})?)?")
+_DAY_MONTH = re.compile(r"^\d{1,2}[./-]\d{1,2}[./-]\d{2,4}\b")
+
+
+def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -> pd.DatetimeIndex:
+    """ISO 8601 timestamps (naive ones in ``tz``; all or none with a UTC offset) → UTC."""
+    text = raw.astype("string").fillna("").str.strip().reset_index(drop=True)
+    lines = lines.reset_index(drop=True)
+    expected = "ISO 8601 timestamps such as 2016-04-20 12:10:00 (YYYY-MM-DD, optionally T and a UTC offset)"
+    empty = text == ""
+    if empty.any():
+        i = int(np.flatnonzero(empty.to_numpy())[0])
+        raise InputError(
+            f"empty time ({int(empty.sum())} row(s) without one)",
             file=file,
             row=int(lines.iloc[i]),
             column=column,
-            expected="timestamps like 2016-04-20 12:10:00",
+            expected="a timestamp on every data row",
+        )
+    parts = text.str.extract(f"^(?:{_ISO.pattern})$")
+    iso = text.str.fullmatch(_ISO.pattern).to_numpy(dtype=bool)
+    if not iso.all():
+        i = int(np.flatnonzero(~iso)[0])
+        s = text.iloc[i]
+        why = (
+            ": not ISO 8601 (a day.month or month/day date, whose order lightfit does not guess: "
+            "04/05/2016 is 4 May or 5 April)"
+            if _DAY_MONTH.match(s)
+            else ""
+        )
+        raise InputError(
+            f"cannot parse time {s!r}{why}", file=file, row=int(lines.iloc[i]), column=column, expected=expected
+        )
+    offset = parts["offset"].notna().to_numpy()
+    if offset.any() and not offset.all():
+        i = int(np.flatnonzero(offset != offset[0])[0])
+        raise InputError(
+            f"time {text.iloc[i]!r} {'has a UTC offset' if offset[i] else 'has no UTC offset'}, "
+            f"unlike line {int(lines.iloc[0])}'s {text.iloc[0]!r}",
+            file=file,
+            row=int(lines.iloc[i]),
+            column=column,
+            expected="all timestamps with a UTC offset, or none (then they are read in " + tz + ")",
+        )
+    t = pd.to_datetime(text, format="ISO8601", errors="coerce", utc=bool(offset.all()))
+    bad = t.isna().to_numpy()
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"cannot parse time {text.iloc[i]!r}", file=file, row=int(lines.iloc[i]), column=column, expected=expected
         )
     idx = pd.DatetimeIndex(t)
     if idx.tz is None:
@@ -127,13 +359,80 @@ def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -
     return idx.tz_convert("UTC")
 
 
+#: Quality flags of a TERENO export where its header does not list them (``Quality flags: …``).
+TERENO_FLAGS = ("ok", "doubtful", "bad", "unevaluated")
+_FLAG_COL = re.compile(r"^(?P<base>.*?)[\s_]*(?:quality[\s_]*flag|qualityflag|flag|qf)s?$", re.IGNORECASE)
+
+
+def _flag_vocabulary(text_lines: list[str], end: int) -> tuple[str, ...]:
+    found = _preamble_line(text_lines, end, r"^\s*#?\s*quality\s*flags?\s*:\s*(?P<v>\S.*?)\s*$")
+    if found is None:
+        return TERENO_FLAGS
+    return tuple(w.strip().lower() for w in re.split(r"[,;]", found[1]["v"]) if w.strip())
+
+
+def _quality_flags(table: pd.DataFrame, used: dict[str, str]) -> dict[str, str]:
+    """Quantity → the quality-flag column of its source column (``<name> QualityFlag``)."""
+    out = {}
+    for c in table.columns:
+        m = _FLAG_COL.match(c)
+        if not m or not re.search(r"(qual|flag)", c, re.IGNORECASE):
+            continue
+        base = m["base"].strip()
+        for qty, src in used.items():
+            if base and base in (src, _split_header(src)[0]):
+                out[qty] = c
+    return out
+
+
+def _mask_flagged_bad(
+    value: pd.Series, flags: pd.Series, lines: pd.Series, vocabulary, file, flag_col: str, qty: str, qc: list[dict]
+) -> pd.Series:
+    """``value`` with the cells its flag column marks ``bad`` made missing (then repaired or refused as
+    any gap), counted in ``qc``; a flag outside the export's vocabulary is an error."""
+    f = flags.astype("string").fillna("").str.strip().str.lower()
+    unknown = (f != "") & ~f.isin(vocabulary)
+    if unknown.any():
+        i = int(np.flatnonzero(unknown.to_numpy())[0])
+        raise InputError(
+            f"quality flag {flags.iloc[i]!r} not understood",
+            file=file,
+            row=int(lines.iloc[i]),
+            column=flag_col,
+            expected="one of " + ", ".join(vocabulary) + " (or an empty cell)",
+        )
+    bad = (f == "bad").to_numpy() & value.notna().to_numpy()
+    doubtful = int(((f == "doubtful").to_numpy() & value.notna().to_numpy()).sum())
+    if bad.any() or doubtful:
+        rows = lines[bad].tolist()
+        shown = ", ".join(map(str, rows[:5])) + (", …" if len(rows) > 5 else "")
+        where = f" (line{'s' if len(rows) > 1 else ''} {shown})" if rows else ""
+        kept = f"; {doubtful} value(s) flagged 'doubtful' kept" if doubtful else ""
+        qc.append(
+            {
+                "kind": "flagged bad",
+                "column": qty,
+                "count": int(bad.sum()),
+                "detail": f"{int(bad.sum())} value(s) flagged 'bad' in {flag_col!r} read as missing{where}{kept}",
+            }
+        )
+    return value.mask(bad)
+
+
+#: Relative humidity declared in % must reach this (as a fraction) somewhere in the series: RH
+#: below 5 % all day and night does not occur at a field site (even desert afternoons reach a few
+#: % only at their driest, and nights are moister), while RH written as a fraction (0.80) under a
+#: [%] header reads as 0.008.
+RH_PERCENT_MIN_PEAK = 0.05
+
+
 def read_tereno(
     path: str | Path,
     *,
-    tz: str = TERENO_TZ,
+    tz: str | None = None,
     columns: dict[str, str] | None = None,
     max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP,
-    provenance: str = "measured",
+    provenance: str | None = None,
     time_label: str = "end",
 ) -> pd.DataFrame:
     """Read a TERENO data-portal CSV export (e.g. station SE_EC_001) into a contract series.
@@ -142,16 +441,21 @@ def read_tereno(
     such as ``RadiationGlobal_Avg10min [W*m-2]``), not by line count; the delimiter (``,``,
     ``;`` or tab) is detected. Units in brackets are checked and converted: absolute humidity
     (g m⁻³) → relative humidity with air temperature; CO2 (mmol m⁻³) → ppm with air
-    temperature and pressure; mbar/hPa → kPa; K → °C.
+    temperature and pressure; mbar/hPa → kPa; K → °C. Values whose quality flag column
+    (``<column> QualityFlag``) says ``bad`` are read as missing (then interpolated or refused as
+    any gap, and counted in ``attrs["qc"]``). Timestamps must be ISO 8601.
 
     Args:
-        path: the export file.
-        tz: timezone of the timestamps (default UTC+1, the TERENO convention).
+        path: the export file (UTF-8).
+        tz: timezone of the timestamps; default the header's ``Time zone:`` line, else UTC+1 (the
+            TERENO convention). ``UTC+1`` is read as ``Etc/GMT-1``. A tz that disagrees with the
+            header is refused.
         columns: override which source column feeds a quantity, e.g.
             ``{"tair_c": "AirTemperature_2m_Avg10min_Sensor2 [°C]"}``. Keys: ``ghi_w_m2``,
             ``par_umol_m2_s``, ``tair_c``, ``humidity``, ``pair_kpa``, ``co2_ppm``.
         max_gap: longest gap that is interpolated (see :func:`~lightfit.weather.series.check_and_repair`).
-        provenance: what the file is; only a real export is ``"measured"``.
+        provenance: what the file is, where its header does not say (``"measured"`` only for a real
+            export); default the header's word, else ``"unstated"``.
         time_label: where the stamp of each mean lies in its interval (``"end"``, ``"start"``,
             ``"center"``); the interval is the radiation columns' (``Avg10min``: 10 min).
     """
@@ -159,19 +463,35 @@ def read_tereno(
     if not path.exists():
         raise InputError("file not found", file=path, expected="a TERENO CSV export")
     timestamps.check_mean_label(time_label)
-    text_lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
+    text_lines = _read_text(path).splitlines()
     hdr, delim = _find_table(text_lines, path)
-    table = pd.read_csv(
-        io.StringIO("\n".join(text_lines[hdr:])), sep=delim, dtype=str, keep_default_na=False, skip_blank_lines=False
-    )
-    table.columns = [c.strip().strip('"') for c in table.columns]
-    lines = pd.Series(np.arange(len(table)) + hdr + 2)  # 1-based; header is line hdr+1
-    keep = table.apply(lambda r: any(str(v).strip() for v in r), axis=1).to_numpy()
-    table, lines = table[keep].reset_index(drop=True), lines[keep].reset_index(drop=True)
+    try:
+        tz = _header_zone(text_lines, hdr, path, tz)
+    except InputError as e:
+        raise (e if e.file is not None else e.in_file(path)) from None
+    stated, where = _header_provenance(text_lines, hdr, path)
+    provenance = _resolve_provenance(stated, where, provenance, path)
+    table, lines = _table_rows(text_lines, hdr, delim, path)
 
     time_col = next(c for c in table.columns if _TIME_NAMES.match(c))
     times = _parse_times(table[time_col], lines, path, time_col, tz)
     qc: list[dict] = []
+    if not times.is_monotonic_increasing:
+        # Sorted before anything reads neighbouring rows (the 30-min CO2 below), not after.
+        order = np.argsort(times.asi8, kind="stable")
+        table, lines, times = (
+            table.iloc[order].reset_index(drop=True),
+            lines.iloc[order].reset_index(drop=True),
+            times[order],
+        )
+        qc.append(
+            {
+                "kind": "sorted",
+                "column": None,
+                "count": len(times),
+                "detail": "rows were not in time order and were sorted",
+            }
+        )
     used: dict[str, str] = {}
     raw: dict[str, pd.Series] = {}
     conv: dict[str, str] = {}
@@ -211,6 +531,13 @@ def read_tereno(
             )
         raw[qty] = parse_numeric(table[src].set_axis(times), lines.set_axis(times), path, src, qc)
         conv[qty], used[qty] = tag, f"{src}"
+    flag_cols = _quality_flags(table, used)
+    if flag_cols:
+        vocabulary = _flag_vocabulary(text_lines, hdr)
+        for qty, fc in flag_cols.items():
+            raw[qty] = _mask_flagged_bad(
+                raw[qty], table[fc].set_axis(times), lines.set_axis(times), vocabulary, path, fc, qty, qc
+            )
     if "tair_c" in raw and conv["tair_c"] == "kelvin":
         raw["tair_c"] = raw["tair_c"] - units.T0
     if "pair_kpa" in raw:
@@ -232,6 +559,16 @@ def read_tereno(
             out["rh"] = units.relative_humidity_from_absolute(raw["humidity"], out["tair_c"])
         else:
             out["rh"] = raw["humidity"] / 100.0
+            peak = out["rh"].max()
+            if pd.notna(peak) and peak < RH_PERCENT_MIN_PEAK:
+                raise InputError(
+                    f"relative humidity declared in % peaks at {peak * 100:.3g} %: the values look like a "
+                    "fraction (0–1) in a % column",
+                    file=path,
+                    row=hdr + 1,
+                    column=used["humidity"],
+                    expected="percent, 0–100 (e.g. 80 for 0.80)",
+                )
     if "co2_ppm" in raw:
         if conv["co2_ppm"] == "mmol_m3":
             if not {"tair_c", "pair_kpa"} <= set(out.columns):
@@ -276,7 +613,10 @@ def read_tereno(
         "provenance": provenance,
         "timezone_assumed": tz,
         "columns_used": used,
-        "unused_columns": [c for c in table.columns if c not in used.values() and c != time_col],
+        "unused_columns": [
+            c for c in table.columns if c not in used.values() and c != time_col and c not in flag_cols.values()
+        ],
+        "quality_flags": flag_cols,
         "qc": qc,
     }
     out = check_and_repair(out, lines.set_axis(times), path, max_gap=max_gap)
@@ -304,7 +644,7 @@ def read_cplantbox_day(
     *,
     tz: str = CPLANTBOX_TZ,
     max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP,
-    provenance: str = "measured",
+    provenance: str | None = None,
     time_label: str = "end",
 ) -> pd.DataFrame:
     """Read CPlantBox's one-day weather file (``climate/Selhausen_weather_data.txt`` format).
@@ -313,21 +653,35 @@ def read_cplantbox_day(
     HH:MM:SS, PAR in mol m⁻² s⁻¹, co2 in mol mol⁻¹, RH 0–1, Tair °C, Pair kPa. The file has
     no date: ``date`` supplies it. Extra columns (soil water potential ``ps``, ``nm``) are
     listed in ``attrs["unused_columns"]``. Its rows are means over the rows' step stamped at
-    ``time_label`` (the module's docstring says why the end).
+    ``time_label`` (the module's docstring says why the end). The file says nothing of its
+    provenance: ``provenance`` (default ``"unstated"``) is the caller's word (the bundled day's
+    is ``"measured"``, :data:`lightfit.weather.bundled.BUNDLED`).
     """
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a CPlantBox weather file")
     timestamps.check_mean_label(time_label)
     day = parse_date(date, "date")
-    table = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
-    table.columns = [c.strip().strip('"') for c in table.columns]
+    try:
+        tz = zone(tz)
+    except InputError as e:
+        raise e.in_file(path) from None
+    provenance = _resolve_provenance(None, "", provenance, path)
+    table, lines = _table_rows(_read_text(path).splitlines(), 0, "\t", path)
     need = {"time": None, "PAR": "par_umol_m2_s", "co2": "co2_ppm", "RH": "rh", "Tair": "tair_c", "Pair": "pair_kpa"}
     missing = [c for c in need if c not in table.columns]
     if missing:
         raise InputError(f"missing column(s) {missing}", file=path, row=1, expected=f"columns {list(need)}")
-    lines = pd.Series(np.arange(len(table)) + 2)
     clock = table["time"].str.strip().str.strip('"')
+    empty = (clock == "").to_numpy()
+    if empty.any():
+        raise InputError(
+            "empty time",
+            file=path,
+            row=int(lines.iloc[int(np.flatnonzero(empty)[0])]),
+            column="time",
+            expected="a clock time HH:MM:SS on every data row",
+        )
     stamps = pd.Series([f"{day.isoformat()} {c}" for c in clock])
     times = _parse_times(stamps, lines, path, "time", tz)
     qc: list[dict] = []
@@ -350,16 +704,19 @@ def read_cplantbox_day(
     return _with_means(check_and_repair(out, lt, path, max_gap=max_gap), time_label)
 
 
-PROVENANCES = ("measured", "reconstructed", "synthetic")
+def read_csv_with_metadata(
+    path: Path, *, provenances: tuple[str, ...] = PROVENANCES, short_rows: str = "pad"
+) -> tuple[dict[str, str], int, pd.DataFrame]:
+    """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required (one of
+    ``provenances``).
 
-
-def read_csv_with_metadata(path: Path) -> tuple[dict[str, str], int, pd.DataFrame]:
-    """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required.
-
-    Returns (metadata, number of metadata lines, table of strings). Shared by lightfit's own
-    weather files and the observations CSV.
+    Returns (metadata, number of metadata lines, table of strings); ``table.attrs["lines"]`` holds
+    each row's line number in the file (blank lines are skipped, the numbers stay the file's). A
+    file that is not UTF-8, or a row with more cells than the header (fewer: unless
+    ``short_rows="pad"``), is refused naming its line. Shared by lightfit's own weather files and
+    the observations CSV.
     """
-    text = path.read_text(encoding="utf-8").splitlines()
+    text = _read_text(path).splitlines()
     meta: dict[str, str] = {}
     n_meta = 0
     for line in text:
@@ -369,32 +726,50 @@ def read_csv_with_metadata(path: Path) -> tuple[dict[str, str], int, pd.DataFram
         if ":" in line:
             k, v = line[1:].split(":", 1)
             meta[k.strip()] = v.strip()
-    if meta.get("provenance") not in PROVENANCES:
+    if meta.get("provenance") not in provenances:
         raise InputError(
             f"metadata line '# provenance: ...' is {meta.get('provenance')!r}",
             file=path,
             row=1,
-            expected="'measured', 'reconstructed' or 'synthetic'",
+            expected=" / ".join(f"'{p}'" for p in provenances),
         )
-    table = pd.read_csv(io.StringIO("\n".join(text[n_meta:])), dtype=str, keep_default_na=False)
+    header = next((i for i in range(n_meta, len(text)) if text[i].strip()), None)  # blank lines may precede it
+    if header is None:
+        return meta, n_meta, pd.DataFrame()
+    table, lines = _table_rows(text, header, ",", path, short_rows=short_rows)
+    table.attrs["lines"] = lines
     return meta, n_meta, table
 
 
-def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP) -> pd.DataFrame:
+def read_lightfit_csv(
+    path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP, provenance: str | None = None
+) -> pd.DataFrame:
     """Read lightfit's own series CSV: ``# key: value`` metadata lines, then contract columns.
 
     The ``time_utc`` column holds ISO 8601 UTC timestamps. The ``provenance`` metadata key is
-    required: a file must say whether it is measured, reconstructed or synthetic. ``time_label``
-    and ``averaging_interval`` say what the stamps mean (:mod:`lightfit.weather.timestamps`;
-    without them, instants).
+    required: a file must say whether it is measured, reconstructed or synthetic (or
+    ``unstated``, as lightfit writes a series whose source did not say); ``provenance`` may
+    declare an unstated file's, never contradict a stated one. Every column must be a contract
+    column (:data:`~lightfit.weather.series.COLUMNS`): an unknown (e.g. misspelt) one is refused
+    rather than ignored. ``time_label`` and ``averaging_interval`` say what the stamps mean
+    (:mod:`lightfit.weather.timestamps`; without them, instants).
     """
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a lightfit weather CSV")
-    meta, n_meta, table = read_csv_with_metadata(path)
+    meta, n_meta, table = read_csv_with_metadata(path, provenances=WEATHER_PROVENANCES, short_rows="error")
     if "time_utc" not in table.columns:
         raise InputError("no time_utc column", file=path, row=n_meta + 1, expected="a header starting with time_utc")
-    lines = pd.Series(np.arange(len(table)) + n_meta + 2)
+    unknown = [c for c in table.columns if c != "time_utc" and c not in COLUMNS]
+    if unknown:
+        raise InputError(
+            f"unknown column(s) {unknown}",
+            file=path,
+            row=n_meta + 1,
+            expected="time_utc and columns among " + ", ".join(COLUMNS),
+        )
+    provenance = _resolve_provenance(meta["provenance"], f"line '# provenance: {meta['provenance']}'", provenance, path)
+    lines = table.attrs["lines"]
     times = _parse_times(table["time_utc"], lines, path, "time_utc", "UTC")
     lt = lines.set_axis(times)
     qc: list[dict] = []
@@ -405,7 +780,7 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
     out.attrs = {
         "source": str(path),
         "format": "lightfit",
-        "provenance": meta["provenance"],
+        "provenance": provenance,
         "timezone_assumed": "UTC",
         "timestamps": Timestamps.from_metadata(meta, path),
         "metadata": meta,
@@ -417,14 +792,15 @@ def read_lightfit_csv(path: str | Path, *, max_gap: str | pd.Timedelta = DEFAULT
 
 
 def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
-    """Write a contract series with ``# key: value`` metadata (must include ``provenance``).
+    """Write a contract series with ``# key: value`` metadata (must include ``provenance``, one of
+    :data:`WEATHER_PROVENANCES`: a series whose source did not say is written ``unstated``).
 
     The series' timestamps' meaning (``attrs["timestamps"]``) is written with it unless
     ``metadata`` states it.
     """
-    if metadata.get("provenance") not in ("measured", "reconstructed", "synthetic"):
+    if metadata.get("provenance") not in WEATHER_PROVENANCES:
         raise InputError(
-            "metadata must state provenance", column="provenance", expected="'measured', 'reconstructed' or 'synthetic'"
+            "metadata must state provenance", column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
         )
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()
@@ -466,9 +842,18 @@ def read_weather(
 ) -> pd.DataFrame:
     """Read any supported weather file; ``format`` ``"auto"`` sniffs it.
 
-    ``date`` is required for CPlantBox day files; ``tz`` overrides the format's default.
+    ``date`` is required for CPlantBox day files and refused for dated ones; ``tz`` overrides the
+    format's default zone (for a TERENO export, only where its header states none or the same) and
+    is refused for a lightfit CSV, whose times are UTC.
     """
     fmt = sniff_format(path) if format == "auto" else format
+    if fmt in ("tereno", "lightfit") and date is not None:
+        raise InputError(
+            f"date={date!s} given for a file whose timestamps carry their dates ({fmt})",
+            file=path,
+            column="date",
+            expected="no date (it places an undated CPlantBox day only)",
+        )
     if fmt == "tereno":
         return read_tereno(path, **({"tz": tz} if tz else {}), **kwargs)
     if fmt == "cplantbox":
@@ -484,6 +869,13 @@ def read_weather(
                 file=path,
                 column="time_label",
                 expected="no time_label for a lightfit CSV (edit its metadata instead)",
+            )
+        if tz:
+            raise InputError(
+                f"tz={tz!r} given for a lightfit CSV, whose times are UTC (column time_utc)",
+                file=path,
+                column="tz",
+                expected="no tz for a lightfit CSV",
             )
         return read_lightfit_csv(path, **kwargs)
     raise InputError(f"unknown weather format {fmt!r}", column="format", expected="auto, tereno, cplantbox or lightfit")

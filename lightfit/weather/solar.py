@@ -22,6 +22,16 @@ SPLIT_MODELS = ("erbs", "boland")
 #: unit or clock slip is likelier than the sky.
 PAR_PER_GHI_BOUNDS = (1.5, 3.0)
 RATIO_MIN_GHI_W_M2 = 50.0
+#: Measured radiation must reach this share of clear sky at some step with the sun above
+#: :data:`CLEAR_SKY_MIN_ELEVATION_DEG`, else its unit is wrong. A thick overcast lets through
+#: 10–20 % of clear-sky global radiation, rain under a storm deck ≈ 5 %; the threshold is the
+#: *largest* share over all such steps of a series, so a whole day would have to stay below 2 %,
+#: a factor ≥ 2.5 under the darkest sky, while a unit slip is off by ≈ 1000× (kW m⁻² written
+#: under W m⁻², mol for µmol: ≈ 0.1 %). Clear sky is Haurwitz's (1945; pvlib), which needs only
+#: the sun's zenith; its error against turbidity-based models (tens of percent at most) is far
+#: inside that margin.
+CLEAR_SKY_MIN_FRACTION = 0.02
+CLEAR_SKY_MIN_ELEVATION_DEG = 20.0
 
 
 def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFrame:
@@ -144,10 +154,23 @@ def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series, file=None) 
     :data:`RATIO_MIN_GHI_W_M2`; refused outside :data:`PAR_PER_GHI_BOUNDS` (NaN: too few such steps),
     naming ``file`` (the series' source) where given."""
     bright = (ghi_w_m2 > RATIO_MIN_GHI_W_M2) & par_umol_m2_s.notna()
+    lo, hi = PAR_PER_GHI_BOUNDS
     if not bright.any():
+        # No step to take the ratio at: fine at night or under a dark sky, not with bright PAR,
+        # where PAR / GHI would exceed its bound at the brightest step.
+        par_max = float(par_umol_m2_s.max())
+        if par_max > hi * RATIO_MIN_GHI_W_M2:
+            raise InputError(
+                f"PAR reaches {par_max:.4g} µmol m⁻² s⁻¹ while global radiation never exceeds "
+                f"{RATIO_MIN_GHI_W_M2:g} W m⁻² (at most {float(ghi_w_m2.max()):.3g}): PAR / global radiation "
+                f"is above {hi:g} µmol J⁻¹",
+                file=file,
+                column="par_umol_m2_s/ghi_w_m2",
+                expected="global radiation in W m⁻² (kW m⁻² reads 1000× too small) and PAR in µmol m⁻² s⁻¹, "
+                f"{lo:g}–{hi:g} µmol J⁻¹ apart",
+            )
         return float("nan")
     ratio = float((par_umol_m2_s[bright] / ghi_w_m2[bright]).median())
-    lo, hi = PAR_PER_GHI_BOUNDS
     if not lo <= ratio <= hi:
         raise InputError(
             f"PAR / global radiation is {ratio:.3g} µmol J⁻¹ "
@@ -160,6 +183,41 @@ def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series, file=None) 
     return ratio
 
 
+def check_radiation_scale(
+    df: pd.DataFrame, sun_elevation_deg: pd.Series, file=None, columns=("ghi_w_m2", "par_umol_m2_s")
+) -> None:
+    """Refuse radiation too small for its sun: ``columns`` of global radiation (W m⁻²) or PAR (µmol m⁻² s⁻¹,
+    clear sky × 0.50 × 4.57 µmol J⁻¹) whose largest share of clear sky over the steps with the sun
+    above :data:`CLEAR_SKY_MIN_ELEVATION_DEG` is below :data:`CLEAR_SKY_MIN_FRACTION` (a unit
+    slip, e.g. kW m⁻² under a W m⁻² header). Series without such steps are not judged. The error
+    names the source column (``attrs["columns_used"]``) and the unit expected."""
+    high = (sun_elevation_deg > CLEAR_SKY_MIN_ELEVATION_DEG).to_numpy()
+    if not high.any():
+        return
+    el = np.asarray(sun_elevation_deg, dtype=np.float64)[high]
+    clear_ghi = np.asarray(pvlib.clearsky.haurwitz(pd.Series(90.0 - el))["ghi"], dtype=np.float64)
+    used = df.attrs.get("columns_used", {})
+    for col, clear, what, unit in (
+        ("ghi_w_m2", clear_ghi, "global radiation", "W m⁻²"),
+        ("par_umol_m2_s", par_from_ghi(clear_ghi), "PAR", "µmol m⁻² s⁻¹"),
+    ):
+        if col not in columns or col not in df.columns:
+            continue
+        v = np.asarray(df[col], dtype=np.float64)[high]
+        if np.isnan(v).all():
+            continue
+        share = float(np.nanmax(v / clear))
+        if share < CLEAR_SKY_MIN_FRACTION:
+            raise InputError(
+                f"{what} reaches at most {share:.2%} of clear sky (largest value {np.nanmax(v):.3g}) over the "
+                f"{int(high.sum())} steps with the sun above {CLEAR_SKY_MIN_ELEVATION_DEG:g}°: the unit is wrong",
+                file=file,
+                column=used.get(col, col),
+                expected=f"{what} in {unit} (≥ {CLEAR_SKY_MIN_FRACTION:.0%} of clear sky somewhere in daylight; "
+                "a thick overcast gives 10–20 %)",
+            )
+
+
 def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "erbs") -> pd.DataFrame:
     """Add the derived contract columns: sun angles, DNI/DHI and (if absent) PAR from GHI.
 
@@ -167,6 +225,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     so that the split can run; either estimate is recorded in ``attrs["qc"]``. With both measured,
     their ratio is checked (:func:`check_par_per_ghi`) and recorded there: the light model takes
     the PAR from the PAR sensor and its diffuse fraction from the split's (:func:`par_direct_diffuse`).
+    Radiation in the series (global radiation, PAR) too small for its sun at the ``site`` is
+    refused as a unit slip (:func:`check_radiation_scale`).
 
     The sun's angles are those at the centre of what each timestamp labels
     (:mod:`lightfit.weather.timestamps`): the stamp itself for instants, five minutes before it
@@ -177,6 +237,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     out.attrs = dict(df.attrs)
     qc = list(out.attrs.get("qc", []))
     k = float(par_from_ghi(1.0))
+    measured = [c for c in ("ghi_w_m2", "par_umol_m2_s") if c in out.columns]
     if {"par_umol_m2_s", "ghi_w_m2"} <= set(out.columns):
         ratio = check_par_per_ghi(out["par_umol_m2_s"], out["ghi_w_m2"], out.attrs.get("source"))
         # The check describes this series: a resampled one replaces its source's.
@@ -214,6 +275,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     sp = solar_position(stamps.centres(out.index), site)
     out["sun_elevation_deg"] = sp["sun_elevation_deg"].to_numpy()
     out["sun_azimuth_deg"] = sp["sun_azimuth_deg"].to_numpy()
+    check_radiation_scale(out, out["sun_elevation_deg"], out.attrs.get("source"), measured)
     if stamps.centre_offset != pd.Timedelta(0):
         qc = [q for q in qc if q["kind"] != "sun at centres"]  # a resampled series replaces its source's
         qc.append(

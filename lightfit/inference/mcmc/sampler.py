@@ -9,9 +9,11 @@ walkers (one call of the log-probability per half-ensemble), storing every step 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import inspect
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,12 +79,20 @@ def sample(
     Args:
         log_prob: ``f(xs: (n, ndim)) -> (n,)`` (e.g. :class:`LogPosterior`).
         nwalkers: even, ≥ 2·ndim. ``seed``: seeds the sampler's RandomState (and the initial
-            positions when ``initial`` is None and ``log_prob`` has ``.initial``).
+            positions when ``initial`` is None and ``log_prob`` has ``.initial``); a resumed run
+            continues the generator state stored with its last step, so ``seed`` is not consulted
+            then (:func:`lightfit.inference.posterior.run` refuses another seed).
+        initial: (nwalkers, ndim) starting positions of a new run (their SHA-256 is stored as
+            ``initial_sha256``); a resumed run continues from its last stored step, and one given
+            other positions than it started from is refused.
         max_steps: total steps (including those already stored).
         resume: continue an existing run in ``path`` (same names/walkers required); False starts over.
         stop: :class:`StopRule` (None: run to ``max_steps``).
-        attrs: JSON-serialisable metadata stored with the run.
+        attrs: JSON-serialisable metadata stored with the run when it starts (not rewritten on resume).
         max_seconds: stop (resumably) after this much wall time in this call.
+        moves: emcee moves (None: emcee's default stretch move); described in the ``moves``
+            attribute (class, weight, parameters), and a resume with other moves is refused.
+            Callables inside a move are described by name only.
     """
     names = tuple(names)
     check_run_size(len(names), nwalkers, max_steps)
@@ -121,8 +131,9 @@ def _sample(
             expected=f"the same names {list(names)} and nwalkers={nwalkers}, or resume=False",
         )
     if stored is None:
-        state = _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs)
+        state = _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs, moves)
     else:
+        _check_resumed(path, group, initial, moves)
         state = backend.get_last_sample()
     refused_stored = 0  # refusals of the steps stored so far: a resumed run goes on counting
     if stored is not None:
@@ -245,15 +256,9 @@ class _Checks:
                 g[f"check_{k}"][...] = v
 
 
-def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs) -> emcee.State:
+def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs, moves) -> emcee.State:
     """Reset ``backend`` for a new run, store its metadata, return the initial state."""
-    backend.reset(nwalkers, len(names))
-    with open_h5(path, "a") as f:
-        g = f[group]
-        g.attrs["names"] = json.dumps(list(names))
-        g.attrs["seed"] = seed
-        for k, v in (attrs or {}).items():
-            g.attrs[k] = json.dumps(v)
+    # The positions are made and checked before the reset: a bad ``initial`` leaves the file as it was.
     if initial is None:
         if not hasattr(log_prob, "initial"):
             raise InputError("no initial positions", column="initial", expected="an (nwalkers, ndim) array")
@@ -261,7 +266,81 @@ def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs
     initial = np.asarray(initial, float)
     if initial.shape != (nwalkers, len(names)):
         raise InputError(f"initial shape {initial.shape}", column="initial", expected=f"({nwalkers}, {len(names)})")
+    backend.reset(nwalkers, len(names))
+    with open_h5(path, "a") as f:
+        g = f[group]
+        g.attrs["names"] = json.dumps(list(names))
+        g.attrs["seed"] = seed
+        g.attrs["initial_sha256"] = _digest(initial)
+        g.attrs["moves"] = json.dumps(describe_moves(moves))
+        for k, v in (attrs or {}).items():
+            g.attrs[k] = json.dumps(v)
     return emcee.State(initial, random_state=np.random.RandomState(seed).get_state())
 
 
-__all__ = ["SamplerResult", "check_run_size", "sample"]
+def _digest(initial: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(initial, np.float64).tobytes()).hexdigest()
+
+
+def _check_resumed(path: Path, group: str, initial, moves) -> None:
+    """Refuse to resume a run with other explicit starting positions or other moves than it was
+    started with (both would be silently ignored or mix two samplers in one chain). Runs stored
+    before these were recorded (no attribute) are resumed unchecked."""
+    with open_h5(path) as f:
+        a = f[group].attrs
+        stored_initial, stored_moves = a.get("initial_sha256"), a.get("moves")
+    if initial is not None and stored_initial is not None and _digest(np.asarray(initial, float)) != stored_initial:
+        raise InputError(
+            "the run there started from other initial positions; a resumed run continues from its last stored step",
+            file=path,
+            column="initial",
+            expected="the run's own initial positions (or none) to resume, or resume=False to start again",
+        )
+    if stored_moves is not None and json.loads(stored_moves) != describe_moves(moves):
+        raise InputError(
+            f"the run there was sampled with other moves ({json.loads(stored_moves)} → {describe_moves(moves)})",
+            file=path,
+            column="moves",
+            expected="the run's own moves to resume, or resume=False to start again",
+        )
+
+
+def describe_moves(moves) -> list[dict]:
+    """emcee ``moves`` (as :class:`emcee.EnsembleSampler` takes them: None, a move, a list of moves or
+    of (move, weight)) as JSON: per move its class, normalised weight and parameters (arrays as lists,
+    nested objects by class and parameters, callables by name)."""
+    if moves is None:
+        pairs = [(emcee.moves.StretchMove(), 1.0)]  # emcee's default
+    elif not isinstance(moves, Iterable):  # one move (emcee's own test)
+        pairs = [(moves, 1.0)]
+    else:
+        pairs = [tuple(m) if isinstance(m, (tuple, list)) else (m, 1.0) for m in moves]
+    total = float(sum(w for _, w in pairs))
+    return [{"move": _qualname(m), "weight": float(w) / total, **_params(m)} for m, w in pairs]
+
+
+def _qualname(obj) -> str:
+    return f"{type(obj).__module__}.{type(obj).__qualname__}"
+
+
+def _params(obj, depth: int = 0) -> dict:
+    return {k: _value(v, depth) for k, v in sorted(getattr(obj, "__dict__", {}).items())}
+
+
+def _value(v, depth: int):
+    """One parameter of a move as JSON: numbers and text as they are, arrays as lists, functions by
+    name (two lambdas look alike), other objects by class and (two levels deep) their parameters."""
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, (np.ndarray, np.generic)):
+        return v.tolist()
+    if isinstance(v, (list, tuple)):
+        return [_value(x, depth) for x in v]
+    if inspect.isroutine(v):
+        return f"{getattr(v, '__module__', '')}.{getattr(v, '__qualname__', repr(v))}"
+    if hasattr(v, "__dict__") and depth < 2:
+        return {"class": _qualname(v), **_params(v, depth + 1)}
+    return _qualname(v)
+
+
+__all__ = ["SamplerResult", "check_run_size", "describe_moves", "sample"]

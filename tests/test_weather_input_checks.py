@@ -1,0 +1,388 @@
+"""Bad weather input is refused with one line naming file, line and column, and nothing is called
+measured that does not say so: radiation and humidity in the wrong unit, provenance, quality flags,
+unknown columns, malformed rows, dates and zones (review of the weather readers)."""
+
+import re
+from pathlib import Path
+
+import pandas as pd
+import pvlib
+import pytest
+from typer.testing import CliRunner
+
+from lightfit.cli import app
+from lightfit.errors import InputError
+from lightfit.weather import add_solar, read_cplantbox_day, read_tereno, read_weather, solar_position
+from lightfit.weather.bundled import DATA_DIR, bundled_path
+
+FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
+CPB = DATA_DIR / "weather" / "selhausen_cplantbox_day.txt"
+RECON = bundled_path("2016-04-20")
+runner = CliRunner()
+
+# The fixture's table: 0 Timestamp, 1 global radiation, 2 its quality flag, 3 PAR, 4 air temperature,
+# 5 absolute humidity, 6 pressure, 7 CO2 (30 min).
+GHI, FLAG, PAR, TAIR, HUM = 1, 2, 3, 4, 5
+
+
+def _tereno(tmp_path: Path, edit=None, name="export.csv", header_edit=None) -> Path:
+    """A copy of the fixture: ``edit(rows)`` on its data rows (lists of cells), ``header_edit(lines)``
+    on the lines above them."""
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines()
+    hdr = next(i for i, ln in enumerate(lines) if ln.startswith("Timestamp"))
+    head, rows = lines[: hdr + 1], [ln.split(",") for ln in lines[hdr + 1 :]]
+    if header_edit:
+        head = header_edit(head) or head
+    if edit:
+        rows = edit(rows) or rows
+    p = tmp_path / name
+    p.write_text("\n".join(head + [",".join(r) for r in rows]) + "\n", encoding="utf-8")
+    return p
+
+
+def _line_of(path: Path, needle: str) -> int:
+    """The 1-based line of the first line containing ``needle``: found in the text, not by the reader."""
+    return next(i + 1 for i, ln in enumerate(path.read_text(encoding="utf-8").splitlines()) if needle in ln)
+
+
+def _cli_error(args, *words):
+    r = runner.invoke(app, args)
+    assert r.exit_code == 2, r.output
+    assert isinstance(r.exception, SystemExit), r.exception
+    err = " ".join(r.stderr.split())
+    assert err.startswith("error:") and "Traceback" not in r.output, err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+# 1. radiation in the wrong unit ------------------------------------------------------------------
+
+
+def test_global_radiation_in_kw_is_refused_naming_column_and_unit(tmp_path):
+    """kW m⁻² under a [W*m-2] header (values 1000× too small) passed; without a PAR column it is
+    refused by the clear-sky check, with one by the PAR / global radiation check."""
+
+    def kw(rows):
+        for r in rows:
+            r[GHI] = f"{float(r[GHI]) / 1000:.5f}"
+
+    def drop_par(rows):
+        kw(rows)
+        return [r[:PAR] + r[PAR + 1 :] for r in rows]
+
+    def drop_par_header(head):
+        cells = head[-1].split(",")
+        head[-1] = ",".join(cells[:PAR] + cells[PAR + 1 :])
+
+    alone = _tereno(tmp_path, drop_par, "alone.csv", drop_par_header)
+    with pytest.raises(InputError, match=r"column 'RadiationGlobal_Avg10min \[W\*m-2\]'.*clear sky.*W m⁻²"):
+        add_solar(read_tereno(alone))
+    _cli_error(["weather", "show", str(alone)], "alone.csv", "RadiationGlobal_Avg10min", "W m⁻²")
+    with pytest.raises(InputError, match=r"PAR reaches .* global radiation never exceeds 50 W m⁻²"):
+        add_solar(read_tereno(_tereno(tmp_path, kw)))
+
+
+def _clear_day(share: float, column: str = "ghi_w_m2") -> pd.DataFrame:
+    """20 April 2016 at Selhausen, ``share`` of pvlib's Ineichen–Perez clear sky (a model other than
+    the check's Haurwitz), 10-min steps; PAR (if asked) at 0.50 × 4.57 µmol J⁻¹."""
+    t = pd.date_range("2016-04-20 00:00", "2016-04-20 23:50", freq="10min", tz="UTC")
+    loc = pvlib.location.Location(50.865, 6.447, altitude=103)
+    ghi = share * loc.get_clearsky(t, model="ineichen")["ghi"].to_numpy()
+    value = ghi if column == "ghi_w_m2" else 2.285 * ghi
+    return pd.DataFrame({column: value, "tair_c": 15.0, "rh": 0.6, "pair_kpa": 100.0, "co2_ppm": 400.0}, index=t)
+
+
+@pytest.mark.parametrize("column", ["ghi_w_m2", "par_umol_m2_s"])
+def test_overcast_days_pass_and_unit_slips_do_not(column):
+    """A thick overcast (8 % of clear sky, below the 10–20 % such skies give) is weather; 1 % all day
+    with the sun above 20° is not (a unit slip is ≈ 0.1 %)."""
+    for share in (0.08, 0.2, 1.0):
+        assert len(add_solar(_clear_day(share, column))) == 144
+    for share in (0.01, 1e-3):
+        with pytest.raises(InputError, match=rf"column '{column}'.*clear sky"):
+            add_solar(_clear_day(share, column))
+
+
+def test_radiation_is_judged_only_with_the_sun_high():
+    """Night or a low sun only: no step to judge by, nothing refused (a winter morning stays readable)."""
+    night = _clear_day(1.0).iloc[:24]  # 00:00–03:50 UTC
+    assert (solar_position(night.index)["sun_elevation_deg"] < 20).all()
+    assert (add_solar(night.assign(ghi_w_m2=0.0))["ghi_w_m2"] == 0).all()
+
+
+# 2. humidity: a fraction in a % column -----------------------------------------------------------
+
+
+def test_relative_humidity_fraction_in_a_percent_column_is_refused(tmp_path):
+    def pct(value):
+        def edit(rows):
+            for r in rows:
+                r[HUM] = value
+
+        return edit
+
+    def header(head):
+        head[-1] = head[-1].replace("AirHumidity_2m_Avg10min [g*m-3]", "AirHumidity_2m_Avg10min [%]")
+
+    ok = read_tereno(_tereno(tmp_path, pct("80"), "ok.csv", header))
+    assert (ok["rh"] == 0.80).all()  # 80 % by hand
+    with pytest.raises(InputError, match=r"AirHumidity_2m_Avg10min \[%\].*peaks at 0\.8 %.*fraction"):
+        read_tereno(_tereno(tmp_path, pct("0.80"), "frac.csv", header))
+
+
+# 3. provenance -----------------------------------------------------------------------------------
+
+
+def test_provenance_comes_from_the_file_or_the_caller_never_a_default_measured(tmp_path):
+    """The fixture's header says "SYNTHETIC FIXTURE" (data/README.md: synthetic); it was read as
+    measured. A header that says nothing gives "unstated" unless the caller declares it; a caller
+    that contradicts the file is refused."""
+    assert "SYNTHETIC FIXTURE" in FIXTURE.read_text(encoding="utf-8").splitlines()[1]
+    assert read_tereno(FIXTURE).attrs["provenance"] == "synthetic"
+    with pytest.raises(InputError, match=r"provenance='measured' contradicts the file, which says 'synthetic'.*line 2"):
+        read_tereno(FIXTURE, provenance="measured")
+
+    def silent(head):
+        return [ln for ln in head if "SYNTHETIC" not in ln]
+
+    plain = _tereno(tmp_path, header_edit=silent)
+    assert read_tereno(plain).attrs["provenance"] == "unstated"
+    assert read_tereno(plain, provenance="measured").attrs["provenance"] == "measured"
+    with pytest.raises(InputError, match="provenance='real'"):
+        read_tereno(plain, provenance="real")
+    stated = _tereno(tmp_path, header_edit=lambda h: [*silent(h)[:1], "provenance: measured", *silent(h)[1:]])
+    assert read_tereno(stated).attrs["provenance"] == "measured"
+    # The CPlantBox format says nothing: unstated unless declared; the bundled day keeps its documented word.
+    assert read_cplantbox_day(CPB, "2016-04-27").attrs["provenance"] == "unstated"
+    assert read_weather(CPB, date="2016-04-27", provenance="measured").attrs["provenance"] == "measured"
+
+
+def test_weather_show_states_provenance_honestly(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    r = runner.invoke(app, ["weather", "show", str(FIXTURE)])
+    assert r.exit_code == 0, r.output
+    assert "SYNTHETIC weather" in r.stdout and "MEASURED" not in r.stdout
+    for source in ("selhausen-cplantbox-day", str(CPB)):  # bundled, by name or by path: its documented word
+        r = runner.invoke(app, ["weather", "show", source, "--date", "2016-04-27"])
+        assert r.exit_code == 0, r.output
+        assert "MEASURED weather" in r.stdout
+    copy = tmp_path / "day.txt"
+    copy.write_bytes(CPB.read_bytes())
+    out = tmp_path / "day.csv"
+    r = runner.invoke(app, ["weather", "show", str(copy), "--date", "2016-04-27", "--csv", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "UNSTATED-PROVENANCE weather" in r.stdout and "MEASURED" not in r.stdout
+    assert out.read_text(encoding="utf-8").splitlines()[0] == "# provenance: unstated"
+    assert read_weather(out).attrs["provenance"] == "unstated"
+    r = runner.invoke(app, ["weather", "show", str(copy), "--date", "2016-04-27", "--provenance", "measured"])
+    assert r.exit_code == 0 and "MEASURED weather" in r.stdout, r.output
+    _cli_error(["weather", "show", str(FIXTURE), "--provenance", "measured"], "contradicts", "synthetic")
+
+
+# 4. quality flags --------------------------------------------------------------------------------
+
+
+def test_values_flagged_bad_are_gaps(tmp_path):
+    """A spike flagged ``bad`` was read as a value; it is a gap now, interpolated from its neighbours
+    (the file's own values) and reported with its line."""
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines()
+    rows = [ln.split(",") for ln in lines[next(i for i, ln in enumerate(lines) if ln.startswith("Timestamp")) + 1 :]]
+    k = 60
+    before, after = float(rows[k - 1][GHI]), float(rows[k + 1][GHI])
+
+    def spike(rows):
+        rows[k][GHI], rows[k][FLAG] = "1350.00", "bad"
+
+    p = _tereno(tmp_path, spike)
+    df = read_tereno(p)
+    assert df["ghi_w_m2"].iloc[k] == pytest.approx((before + after) / 2)
+    (flagged,) = [q for q in df.attrs["qc"] if q["kind"] == "flagged bad"]
+    assert flagged["column"] == "ghi_w_m2" and flagged["count"] == 1
+    assert f"line {_line_of(p, '1350.00')}" in flagged["detail"]
+    assert ("interpolated", "ghi_w_m2") in [(q["kind"], q["column"]) for q in df.attrs["qc"]]
+
+    def unknown(rows):
+        rows[k][FLAG] = "suspect"
+
+    p = _tereno(tmp_path, unknown)
+    with pytest.raises(InputError, match=rf"line {_line_of(p, 'suspect')}, column '.*QualityFlag'.*'suspect'"):
+        read_tereno(p)
+
+
+# 5. unknown columns in a lightfit CSV ------------------------------------------------------------
+
+
+def test_unknown_lightfit_columns_are_refused(tmp_path):
+    text = RECON.read_text(encoding="utf-8")
+    typo = tmp_path / "typo.csv"
+    typo.write_text(text.replace("par_umol_m2_s", "par_umol_m2s"), encoding="utf-8")
+    header = _line_of(typo, "time_utc,")
+    with pytest.raises(InputError, match=rf"line {header}: unknown column\(s\) \['par_umol_m2s'\].*par_umol_m2_s"):
+        read_weather(typo)
+
+
+# 6. one-line errors, not tracebacks --------------------------------------------------------------
+
+
+def test_extra_field_and_mixed_offsets_name_their_lines(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+
+    def extra(rows):
+        rows[30].append("99")
+
+    p = _tereno(tmp_path, extra, "extra.csv")
+    with pytest.raises(InputError, match=rf"line {_line_of(p, ',99')}: 9 fields, the header .* has 8"):
+        read_tereno(p)
+
+    def offset(rows):
+        rows[30][0] += "+01:00"
+
+    p = _tereno(tmp_path, offset, "offset.csv")
+    n = _line_of(p, "+01:00")
+    with pytest.raises(InputError, match=rf"line {n}, column 'Timestamp'.*has a UTC offset"):
+        read_tereno(p)
+    _cli_error(["weather", "show", str(p)], "offset.csv", f"line {n}")
+    _cli_error(["replicate", "--quick", "--out", str(tmp_path / "o"), "--weather", str(p)], "offset.csv", f"line {n}")
+
+
+def test_time_zone_option_errors_and_utc_offsets(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    _cli_error(["weather", "show", str(FIXTURE), "--tz", "Foo/Bar"], "Foo/Bar", "not a time zone")
+    no_zone = _tereno(tmp_path, header_edit=lambda h: [ln for ln in h if not ln.startswith("Time zone")])
+    with pytest.raises(InputError, match="export.csv.*'Foo/Bar' is not a time zone"):
+        read_weather(no_zone, tz="Foo/Bar")
+    # UTC+2 is two hours ahead of UTC (pandas read the text "UTC+2" as a POSIX zone, two hours behind).
+    first = no_zone.read_text(encoding="utf-8").splitlines()[_line_of(no_zone, "Timestamp")].split(",")[0]
+    assert read_weather(no_zone, tz="UTC+2").index[0] == pd.Timestamp(first, tz="UTC") - pd.Timedelta("2h")
+    with pytest.raises(InputError, match="whole-hour"):
+        read_weather(no_zone, tz="UTC+5:30")
+
+
+def test_a_latin1_file_is_refused_naming_its_line(tmp_path):
+    text = RECON.read_text(encoding="utf-8") + "2016-04-21T00:00:00Z,0,0,10.8,0.85,100.1,400\n"
+    lines = text.splitlines()
+    lines.insert(3, "# note: temperatures in °C")
+    p = tmp_path / "latin1.csv"
+    p.write_bytes(("\n".join(lines) + "\n").encode("latin-1"))
+    with pytest.raises(InputError, match=r"latin1\.csv, line 4: byte 0xb0 is not UTF-8"):
+        read_weather(p)
+    _cli_error(["weather", "show", str(p)], "latin1.csv", "line 4", "UTF-8")
+
+
+# 8. day/month dates ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("date", ["04/05/2016", "04/20/2016", "20.04.2016"])
+def test_day_month_dates_are_refused(tmp_path, date):
+    """04/05/2016 was read as 4 May and 04/20/2016 as 20 April, silently; only ISO 8601 is read."""
+
+    def edit(rows):
+        for r in rows:
+            r[0] = f"{date} {r[0].split(' ')[1]}"
+
+    p = _tereno(tmp_path, edit)
+    with pytest.raises(InputError, match=rf"line {_line_of(p, date)}, column 'Timestamp'.*not ISO 8601"):
+        read_tereno(p)
+
+
+# 9. the header's time zone -----------------------------------------------------------------------
+
+
+def test_header_time_zone_is_read(tmp_path):
+    """``Time zone: UTC`` was read as UTC+1 (a one-hour shift)."""
+    p = _tereno(tmp_path, header_edit=lambda h: [("Time zone: UTC" if ln.startswith("Time zone") else ln) for ln in h])
+    first = FIXTURE.read_text(encoding="utf-8").splitlines()[_line_of(FIXTURE, "Timestamp")].split(",")[0]
+    df = read_tereno(p)
+    assert df.index[0] == pd.Timestamp(first, tz="UTC") and df.attrs["timezone_assumed"] == "UTC"
+    with pytest.raises(InputError, match=r"tz='Europe/Berlin' disagrees with the header's 'Time zone: UTC'"):
+        read_tereno(p, tz="Europe/Berlin")
+    cet = _tereno(
+        tmp_path, header_edit=lambda h: [("Time zone: CET" if ln.startswith("Time zone") else ln) for ln in h]
+    )
+    with pytest.raises(InputError, match=r"line 7: the header's time zone 'CET'"):
+        read_tereno(cet)
+    assert read_tereno(cet, tz="UTC+1").index.equals(read_tereno(FIXTURE).index)  # the caller says what it means
+    worded = _tereno(
+        tmp_path,
+        header_edit=lambda h: [("Time zone: UTC (no DST)" if ln.startswith("Time zone") else ln) for ln in h],
+        name="worded.csv",
+    )
+    assert read_tereno(worded).index.equals(df.index)
+
+
+# 10. options that do not apply -------------------------------------------------------------------
+
+
+def test_tz_and_date_that_do_not_apply_are_refused(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    with pytest.raises(InputError, match="tz='Europe/Berlin' given for a lightfit CSV"):
+        read_weather(RECON, tz="Europe/Berlin")
+    with pytest.raises(InputError, match="date=1999-01-01 given for a file whose timestamps carry their dates"):
+        read_weather(FIXTURE, date="1999-01-01")
+    _cli_error(["weather", "show", str(FIXTURE), "--date", "1999-01-01"], "--date 1999-01-01")
+    _cli_error(["weather", "show", "2016-04-20", "--tz", "UTC"], "lightfit CSV")
+
+
+# 11., 12. empty times, line numbers after blank lines --------------------------------------------
+
+
+def test_empty_time_names_its_line(tmp_path):
+    def edit(rows):
+        rows[30][0] = ""
+        rows[30][TAIR] = "12.345"
+
+    p = _tereno(tmp_path, edit)
+    with pytest.raises(InputError, match=rf"line {_line_of(p, '12.345')}, column 'Timestamp': empty time"):
+        read_tereno(p)
+
+
+def test_line_numbers_survive_blank_lines(tmp_path):
+    lines = RECON.read_text(encoding="utf-8").splitlines()
+    first = next(i for i, ln in enumerate(lines) if ln.startswith("time_utc"))
+    lines.insert(first + 3, "")
+    cells = lines[first + 20].split(",")
+    cells[3] = "abc"
+    lines[first + 20] = ",".join(cells)
+    p = tmp_path / "blank.csv"
+    p.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(InputError, match=rf"line {_line_of(p, ',abc,')}, column 'tair_c': value 'abc'"):
+        read_weather(p)
+
+
+# 13. sorting before the 30-min CO2 is spread -----------------------------------------------------
+
+
+def test_unsorted_rows_give_the_sorted_files_series(tmp_path):
+    """A row with a 30-min CO2 mean swapped with the row after it: the series equals the fixture's
+    (the CO2 was spread over the rows in file order, before sorting: the later row took the earlier
+    interval's mean)."""
+
+    def swap(rows):
+        assert rows[3][7] and not rows[4][7]
+        rows[3], rows[4] = rows[4], rows[3]
+
+    df, ref = read_tereno(_tereno(tmp_path, swap)), read_tereno(FIXTURE)
+    pd.testing.assert_frame_equal(df, ref)
+    assert any(q["kind"] == "sorted" for q in df.attrs["qc"])
+
+
+# 14., help ---------------------------------------------------------------------------------------
+
+
+def test_chamber_record_cites_a_section_in_the_repository():
+    record = DATA_DIR / "observations" / "chamber_2016-04-20_record.csv"
+    source = next(ln for ln in record.read_text(encoding="utf-8").splitlines() if ln.startswith("# source:"))
+    m = re.match(r"# source: (\S+) §(\d+)", source)
+    assert m, source
+    doc = (DATA_DIR.parent / m[1]).read_text(encoding="utf-8")
+    section = doc.split(f"\n## {m[2]}.")[1].split("\n## ")[0]
+    time, par = pd.read_csv(record, comment="#").iloc[0, :2]
+    assert f"{time}, PAR {par}" in section  # the section states the recorded point
+
+
+def test_weather_help_says_what_show_does():
+    r = runner.invoke(app, ["weather", "--help"], env={"COLUMNS": "200"})
+    assert r.exit_code == 0
+    text = " ".join(r.output.split())
+    assert "'show' reads one" in text and "--csv" in text and "--plot" in text
