@@ -166,6 +166,10 @@ def test_an_observations_file_with_inf_is_refused_with_its_line(tmp_path):
     )
     with pytest.raises(InputError, match="line 5.*not a finite number"):
         read_observations(f)
+    # After a blank line the line named is still the file's own (it was one short).
+    f.write_text(f.read_text().replace("2016-04-20 10:30,inf", "\n2016-04-20 10:30,inf"))
+    with pytest.raises(InputError, match="line 6.*not a finite number"):
+        read_observations(f)
 
 
 @pytest.mark.parametrize("correlated", [True, False])

@@ -253,6 +253,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         raise InputError("no data rows", file=path, row=n_meta + 2, expected="at least one row of observations")
     tz = meta.get("time_zone")
     stamps = Timestamps.from_metadata(meta, path)
+    line = df.attrs["lines"].to_numpy()  # each row's line in the file (blank lines skipped)
     out = pd.DataFrame(index=range(len(df)))
     for i, t in enumerate(df["time"]):
         try:
@@ -261,7 +262,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             raise InputError(
                 f"cannot parse time {t!r}",
                 file=path,
-                row=n_meta + 2 + i,
+                row=int(line[i]),
                 column="time",
                 expected="ISO 8601 such as 2016-04-20 12:13:48",
             ) from err
@@ -270,21 +271,20 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             raise InputError(
                 f"time {t.strip()!r} has no time zone and the file no '# time_zone:' line",
                 file=path,
-                row=n_meta + 2 + i,
+                row=int(line[i]),
                 column="time",
                 expected="a '# time_zone: Europe/Berlin' (or UTC) header line, or times with an offset "
                 "such as 2016-04-20T12:13:48+02:00",
             )
         ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
-    first = n_meta + 2  # file line of the first data row
     for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
         _first_bad(
             (vals.isna() & (text != "")) | np.isinf(vals),
             path,
-            first,
+            line,
             c,
             "a finite number or an empty cell (missing)",
             lambda i, text=text: f"value {text.iloc[i]!r} is not a finite number",
@@ -300,9 +300,9 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             t = given[given.duplicated()][0]
             i, j = np.flatnonzero((times == t) & has)[:2]
             raise InputError(
-                f"{c} at {df['time'].iloc[j].strip()!r} on line {first + j} repeats line {first + i}'s time",
+                f"{c} at {df['time'].iloc[j].strip()!r} on line {line[j]} repeats line {line[i]}'s time",
                 file=path,
-                row=first + j,
+                row=int(line[j]),
                 column=c,
                 expected="one value of a quantity per time (readings within a step are averaged, at distinct times)",
             )
@@ -310,20 +310,20 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         _first_bad(
             out[s.value].notna() & ~(out[s.sd] > 0),
             path,
-            first,
+            line,
             s.sd,
             "SD > 0 wherever the value is present",
             lambda i, s=s: f"{s.value} is given without a positive standard deviation",
         )
         if s.nonnegative:
             _first_bad(
-                out[s.value] < 0, path, first, s.value, "a value ≥ 0", lambda i, s=s: f"negative value of {s.value}"
+                out[s.value] < 0, path, line, s.value, "a value ≥ 0", lambda i, s=s: f"negative value of {s.value}"
             )
         if s.unit == "1":  # a fraction; 94 is a percentage (noise may take a fraction a little past 1)
             _first_bad(
                 out[s.value].abs() > MAX_FRACTION,
                 path,
-                first,
+                line,
                 s.value,
                 f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
                 lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
@@ -336,11 +336,12 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     return out
 
 
-def _first_bad(bad: pd.Series, path: Path, first: int, column: str, expected: str, problem) -> None:
-    """:class:`InputError` at the first data row where ``bad`` holds; ``problem(i)`` describes row i."""
+def _first_bad(bad: pd.Series, path: Path, line, column: str, expected: str, problem) -> None:
+    """:class:`InputError` at the first data row where ``bad`` holds (``line``: each row's line in
+    the file); ``problem(i)`` describes row i."""
     if bad.any():
         i = int(np.flatnonzero(bad.to_numpy())[0])
-        raise InputError(problem(i), file=path, row=first + i, column=column, expected=expected)
+        raise InputError(problem(i), file=path, row=int(line[i]), column=column, expected=expected)
 
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
