@@ -269,7 +269,8 @@ def test_non_finite_inputs_under_jit_are_not_converged(form):
     cases = {  # (PAR, T, CO2, Vcmax scale): converged?
         (1500.0, 25.0, 420.0, 1.0): True,
         (0.0, 10.0, 420.0, 1.0): True,
-        (1e7, 25.0, 420.0, 1.0): True,
+        (1e4, 25.0, 420.0, 1.0): True,
+        (1e7, 25.0, 420.0, 1.0): False,  # outside the eagerly checked [0, 1e4]
         (np.nan, 25.0, 420.0, 1.0): False,
         (np.inf, 25.0, 420.0, 1.0): False,
         (1500.0, np.nan, 420.0, 1.0): False,
@@ -728,3 +729,138 @@ def test_gamma_star_follows_o2_in_the_literature_sets():
     an = {o2: np.asarray(ps.solve(par, 25.0, 400.0, 0.6, P_KPA, at(o2)).an_umol_m2_s) for o2 in (210.0, 20.0)}
     ratio = an[20.0] / an[210.0]
     assert np.all((ratio > 1.2) & (ratio < 1.6)), ratio
+
+
+def test_float32_kink_below_gamma_star_is_not_a_false_convergence():
+    """At cs < Γ* the Tuzet conductance has a kink of huge slope: float32 stopped there on the
+    predicted correction |r/r'| (converged, An = +1.5e-4, gs = 0.394) with the CO2 balance off
+    by 8.8 µmol m-2 s-1. The residual itself must now be small too."""
+    f = np.float32
+    p = ps.parameter_set("giraud2023_coupled")
+    r32 = ps.solve(f(2500), f(25), f(50), f(0.5), f(101.325), p)
+    r64 = ps.solve(2500.0, 25.0, 50.0, 0.5, 101.325, p)
+    assert bool(r64.converged) and float(r64.gs_mol_m2_s) == pytest.approx(8e-3)
+    balance = float(r32.gs_mol_m2_s * (r32.cs_umol_mol - r32.ci_umol_mol) - r32.an_umol_m2_s)
+    if bool(r32.converged):
+        assert abs(balance) < 1e-2
+        assert float(r32.an_umol_m2_s) == pytest.approx(float(r64.an_umol_m2_s), abs=1e-3)
+        assert float(r32.gs_mol_m2_s) == pytest.approx(float(r64.gs_mol_m2_s), rel=1e-4)
+    # Ordinary conditions still converge in both precisions, for every closure.
+    par, t, co2, rh = np.array([0.0, 300.0, 1500.0]), np.array([5.0, 25.0, 35.0]), 420.0, 0.6
+    for name in ps.PARAMETER_SET_NAMES:
+        q = ps.parameter_set(name)
+        for dt in (np.float32, np.float64):
+            res = ps.solve(par.astype(dt), t.astype(dt), dt(co2), dt(rh), dt(P_KPA), q)
+            assert np.all(res.converged), (name, dt)
+
+
+def test_temperature_parameters_are_validated():
+    base = ps.parameter_set("winter_wheat")
+    cases = {
+        "kc_ref_umol_mol": -500.0,
+        "ko_ref_mmol_mol": 0.0,
+        "gamma_star_ref_umol_mol": -10.0,
+        "t_ref_k": np.inf,
+        "ea_kc_j_mol": np.nan,
+        "ea_ko_j_mol": np.inf,
+        "ea_gamma_star_j_mol": np.nan,
+        "ea_vcmax_j_mol": np.nan,
+        "ea_jmax_j_mol": np.nan,
+        "ea_rd_j_mol": -np.inf,
+        "hd_vcmax_j_mol": np.nan,
+        "hd_jmax_j_mol": np.nan,
+        "entropy_vcmax_j_mol_k": np.inf,
+        "entropy_jmax_j_mol_k": np.nan,
+    }
+    for field, value in cases.items():
+        bad = eqx.tree_at(lambda q, f=field: getattr(q.temperature, f), base, value)
+        with pytest.raises(ValueError, match=f"temperature.{field}"):
+            ps.solve(500.0, 20.0, 400.0, 0.5, P_KPA, bad)
+    # Γ* = 0 is allowed (no photorespiration).
+    ok = eqx.tree_at(lambda q: q.temperature.gamma_star_ref_umol_mol, base, 0.0)
+    assert bool(ps.solve(500.0, 20.0, 400.0, 0.5, P_KPA, ok).converged)
+
+
+@pytest.mark.parametrize("name", ["winter_wheat", "giraud2023", "giraud2023_coupled"])
+def test_out_of_range_inputs_under_jit_are_not_converged(name):
+    """The eager range checks cannot run on traced values: finite but impossible drivers came
+    back converged (T = -300 °C gave An = -3.5e98). They are flagged elementwise now."""
+    base = ps.parameter_set(name)
+    if base.stomata.model == "tuzet":
+        base = eqx.tree_at(lambda q: q.stomata, base, ps.StomataParams(8e-3, 2.5, 1.5, "leuning"))
+
+    @jax.jit
+    def run(par, t, co2, rh, pk, fw):
+        return ps.solve(par, t, co2, rh, pk, base, fw=fw).converged
+
+    ok = (1500.0, 25.0, 400.0, 0.5, P_KPA, 1.0)
+    bad = [
+        (-500.0, 25.0, 400.0, 0.5, P_KPA, 1.0),
+        (2e4, 25.0, 400.0, 0.5, P_KPA, 1.0),
+        (1500.0, -300.0, 400.0, 0.5, P_KPA, 1.0),
+        (1500.0, 200.0, 400.0, 0.5, P_KPA, 1.0),
+        (1500.0, 25.0, -100.0, 0.5, P_KPA, 1.0),
+        (1500.0, 25.0, 400.0, -1.0, P_KPA, 1.0),
+        (1500.0, 25.0, 400.0, 1.6, P_KPA, 1.0),
+        (1500.0, 25.0, 400.0, 0.5, 5.0, 1.0),
+        (1500.0, 25.0, 400.0, 0.5, P_KPA, 1.5),
+    ]
+    assert bool(run(*map(jnp.asarray, ok)))
+    for case in bad:
+        assert not bool(run(*map(jnp.asarray, case))), case
+    # Elementwise under vmap: only the bad element is flagged.
+    cols = [jnp.asarray([a, b]) for a, b in zip(ok, bad[2])]
+    assert np.asarray(jax.vmap(run)(*cols)).tolist() == [True, False]
+    # And under grad the flag is still computed (the gradient itself is of a flagged value).
+    jax.grad(lambda t: jnp.sum(ps.solve(1500.0, t, 400.0, 0.5, P_KPA, base).an_umol_m2_s))(jnp.asarray(-300.0))
+    assert not bool(jax.jit(lambda t: ps.solve(1500.0, t, 400.0, 0.5, P_KPA, base).converged)(-300.0))
+    # vpd_kpa given: its range is checked too.
+    vpd_run = jax.jit(lambda v: ps.solve(1500.0, 25.0, 400.0, None, P_KPA, base, vpd_kpa=v).converged)
+    assert bool(vpd_run(1.0)) and not bool(vpd_run(-1.0)) and not bool(vpd_run(25.0))
+
+
+@pytest.mark.parametrize("name", list(ps.PARAMETER_SET_NAMES))
+def test_gradient_at_zero_vcmax_is_the_one_sided_difference(name):
+    """At a Vcmax scale of 0 both rates are 0: jnp.minimum split the gradient 50/50 between Vc and
+    Vj (jacfwd 14.6 where the one-sided difference is -1.5 in the dark). The tie rule now takes
+    the branch that is smaller at a small positive scale."""
+    q = ps.parameter_set(name)
+    v0 = q.fvcb.vcmax_ref_umol_m2_s
+    par, t, c, rh = (
+        np.array(g).ravel() for g in np.meshgrid([0.0, 50.0, 2500.0], [-10.0, 25.0, 45.0], [50.0, 400.0, 2000.0], [0.5])
+    )
+
+    def an(s):
+        qq = eqx.tree_at(lambda x: x.fvcb.vcmax_ref_umol_m2_s, q, v0 * s)
+        return ps.solve(par, t, c, rh, P_KPA, qq).an_umol_m2_s
+
+    h = 1e-8
+    fd0 = (np.asarray(an(h)) - np.asarray(an(0.0))) / h
+    for jac in (jax.jacfwd, jax.jacrev):
+        np.testing.assert_allclose(np.asarray(jac(an)(0.0)), fd0, rtol=1e-3, atol=1e-4)
+    # Away from the tie nothing changes: central differences at 1e-6.
+    s, e = 1e-6, 1e-9
+    fd = (np.asarray(an(s + e)) - np.asarray(an(s - e))) / (2 * e)
+    np.testing.assert_allclose(np.asarray(jax.jacfwd(an)(s)), fd, rtol=1e-4, atol=1e-4)
+
+
+def test_cplantbox_compensation_point_is_inf_where_rd_exceeds_vcmax():
+    """CPlantBox's temperature forms reach Rd/Vcmax = 1 near 58.7 °C; Γ' was returned as 0 there,
+    so ci jumped from 3.2e5 to 320 µmol mol-1 between 58.6 and 58.7 °C, all "converged"."""
+    q = ps.parameter_set("cplantbox")
+    t = np.array([25.0, 58.6, 58.7, 60.0])
+    leaf = ps.leaf_capacities(1000.0, t, P_KPA, q.fvcb, q.temperature)
+    ratio = np.asarray(leaf.rd_umol_m2_s / leaf.vcmax_umol_m2_s)
+    g = np.asarray(leaf.gamma_rubisco_umol_mol)
+    assert np.all(np.isfinite(g[ratio < 1])) and np.all(np.isposinf(g[ratio >= 1]))
+    assert ratio[1] < 1 <= ratio[2]
+    res = ps.solve(1000.0, t, 400.0, 0.5, P_KPA, q)
+    assert np.asarray(res.converged).tolist() == [True, True, False, False]
+    # The coupled closures do not use Γ': they still converge there.
+    c = ps.solve(1000.0, t, 400.0, 0.5, P_KPA, ps.parameter_set("giraud2023_coupled"))
+    assert np.all(c.converged)
+    # No NaN gradient leaks from the unused branch into the valid elements.
+    g_t = jax.grad(
+        lambda x: jnp.sum(jnp.where(res.converged, ps.solve(1000.0, x, 400.0, 0.5, P_KPA, q).an_umol_m2_s, 0.0))
+    )(jnp.asarray(t))
+    assert np.all(np.isfinite(np.asarray(g_t)[:2]))

@@ -107,15 +107,35 @@ def electron_limited_rate(
     return jnp.where(c_umol_mol > gamma_star_umol_mol, vj, 0.0) if clip else vj
 
 
-def assimilation(c_umol_mol: ArrayLike, leaf: LeafCapacities, clip: bool) -> tuple[jax.Array, jax.Array, jax.Array]:
+def assimilation(
+    c_umol_mol: ArrayLike, leaf: LeafCapacities, clip: bool, tie_vc: ArrayLike | None = None
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Net assimilation An = min(Vc, Vj) − Rd and the two gross rates [µmol m⁻² s⁻¹].
+
+    The minimum is taken with a deterministic tie rule instead of ``jnp.minimum``, whose
+    derivative splits 50/50 where Vc = Vj. Ties that matter occur at zero capacity
+    (Vcmax = Jmax = 0, e.g. a Vcmax scale of 0, the lower bound of its domain), where both
+    rates are 0; the one-sided derivative into the domain is then the smaller of the two
+    rates' derivatives, which no rule on the two rates alone (both 0) can pick: in the dark
+    Vj stays 0 as capacity grows, in light it may grow faster or slower than Vc. ``tie_vc``
+    says which branch to take at a tie (the solver passes :func:`.model` ``_tie_takes_vc``:
+    the branch that is smaller at a small positive common scale of Vcmax_ref, i.e. the
+    one-sided derivative with respect to Vcmax_ref, which scales Vcmax, Jmax and Rd together);
+    by default ties take Vj, right in the dark.
+
+    Args:
+        c_umol_mol: CO2 at the carboxylation site [µmol mol⁻¹].
+        leaf: :class:`LeafCapacities`.
+        clip: clip the rates as CPlantBox (see :func:`rubisco_limited_rate`).
+        tie_vc: where Vc = Vj, take Vc where True (default: Vj everywhere).
 
     Returns:
         ``(an, vc, vj)``.
     """
     vc = rubisco_limited_rate(c_umol_mol, leaf.vcmax_umol_m2_s, leaf.gamma_star_umol_mol, leaf.km_umol_mol, clip)
     vj = electron_limited_rate(c_umol_mol, leaf.j_umol_m2_s, leaf.gamma_star_umol_mol, clip)
-    return jnp.minimum(vc, vj) - leaf.rd_umol_m2_s, vc, vj
+    take_vc = vc < vj if tie_vc is None else (vc < vj) | ((vc == vj) & tie_vc)
+    return jnp.where(take_vc, vc, vj) - leaf.rd_umol_m2_s, vc, vj
 
 
 def rubisco_compensation_point(
@@ -125,12 +145,42 @@ def rubisco_compensation_point(
 
     Solves :math:`V_c(\Gamma') = R_d`:
     :math:`\Gamma' = \max\left(0, (\Gamma^* + K_m R_d/V_{cmax}) / (1 - R_d/V_{cmax})\right)`,
-    taking the ratio Rd/Vcmax directly so that Vcmax → 0 stays finite.
+    taking the ratio Rd/Vcmax directly so that Vcmax → 0 stays finite. Where
+    :math:`R_d \ge V_{cmax}` (CPlantBox's temperature forms reach it at about 58.7 °C, inside
+    the accepted range) the Rubisco-limited rate never exceeds Rd and there is no compensation
+    point: Γ' = inf, so the ``"cplantbox"`` closure, which needs Γ', reports
+    ``converged = False`` there (Γ' grows without bound as Rd/Vcmax → 1; returning 0, as before,
+    made ci jump from 3.2e5 to 320 µmol mol⁻¹ between 58.6 and 58.7 °C).
 
     Reference: CPlantBox ``initVcVjRd`` (``deltagco2``), Giraud et al. (2023).
     """
-    raw = (gamma_star_umol_mol + km_umol_mol * rd_over_vcmax) / (1.0 - rd_over_vcmax)
-    return jnp.where(rd_over_vcmax < 1.0, jnp.maximum(raw, 0.0), 0.0)
+    below = rd_over_vcmax < 1.0
+    # Double where: the unused branch must not divide by zero (its gradient would be NaN).
+    raw = (gamma_star_umol_mol + km_umol_mol * rd_over_vcmax) / jnp.where(below, 1.0 - rd_over_vcmax, 1.0)
+    return jnp.where(below, jnp.maximum(raw, 0.0), jnp.inf)
+
+
+def capacity_temperature_factors(t_k: ArrayLike, temp: TemperatureParams) -> tuple[jax.Array, jax.Array]:
+    """Temperature factors of Vcmax and Jmax, ``(f_v, f_j)`` [-] (Vcmax = Vcmax_ref·f_v).
+
+    Args:
+        t_k: leaf temperature [K].
+        temp: :class:`TemperatureParams`.
+    """
+    t_ref = temp.t_ref_k
+    if temp.form == "cplantbox":
+        f_v = arrhenius(t_k, temp.ea_vcmax_j_mol, t_ref) * deactivation(
+            t_k, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k
+        )
+        f_j = arrhenius(t_k, temp.ea_jmax_j_mol, t_ref) * deactivation(
+            t_k, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k
+        )
+        # CPlantBox caps Jmax at its reference value (Photosynthesis.cpp, photoC3_init).
+        f_j = jnp.minimum(f_j, 1.0)
+    else:
+        f_v = peaked_arrhenius(t_k, temp.ea_vcmax_j_mol, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k, t_ref)
+        f_j = peaked_arrhenius(t_k, temp.ea_jmax_j_mol, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k, t_ref)
+    return f_v, f_j
 
 
 def leaf_capacities(
@@ -157,18 +207,7 @@ def leaf_capacities(
     vref = fvcb.vcmax_ref_umol_m2_s
     jref = fvcb.jmax_to_vcmax * vref
     f_rd = arrhenius(t_k, temp.ea_rd_j_mol, t_ref)
-    if temp.form == "cplantbox":
-        f_v = arrhenius(t_k, temp.ea_vcmax_j_mol, t_ref) * deactivation(
-            t_k, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k
-        )
-        f_j = arrhenius(t_k, temp.ea_jmax_j_mol, t_ref) * deactivation(
-            t_k, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k
-        )
-        # CPlantBox caps Jmax at its reference value (Photosynthesis.cpp, photoC3_init).
-        f_j = jnp.minimum(f_j, 1.0)
-    else:
-        f_v = peaked_arrhenius(t_k, temp.ea_vcmax_j_mol, temp.hd_vcmax_j_mol, temp.entropy_vcmax_j_mol_k, t_ref)
-        f_j = peaked_arrhenius(t_k, temp.ea_jmax_j_mol, temp.hd_jmax_j_mol, temp.entropy_jmax_j_mol_k, t_ref)
+    f_v, f_j = capacity_temperature_factors(t_k, temp)
     vcmax = vref * f_v
     jmax = jref * f_j
     rd = fvcb.rd_to_vcmax * vref * f_rd

@@ -40,7 +40,8 @@ import numpy as np
 import optimistix as optx
 from jax.typing import ArrayLike
 
-from .fvcb import LeafCapacities, assimilation, leaf_capacities
+from .constants import ZERO_CELSIUS_K
+from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities
 from .parameters import DEFAULT_PARAMETER_SET, PhotosynthesisParams, cast_params, check_params, parameter_set
 from .solver import SolverConfig, bracketed_newton, fixed_point_iteration
 from .stomata import (
@@ -69,6 +70,8 @@ class Environment(NamedTuple):
         pair_kpa: air pressure [kPa].
         gb_mol_m2_s: boundary-layer conductance to CO2 [mol m⁻² s⁻¹] (``inf`` = none).
         fw: water-stress factor [-].
+        rh: relative humidity as given [0–1], ``None`` where not given; kept only for the
+            range flag of :func:`solve` under ``jit`` (the model uses ``vpd_kpa``).
     """
 
     par_abs_umol_m2_s: jax.Array
@@ -78,6 +81,7 @@ class Environment(NamedTuple):
     pair_kpa: jax.Array
     gb_mol_m2_s: jax.Array
     fw: jax.Array
+    rh: jax.Array | None = None
 
 
 class PhotosynthesisResult(NamedTuple):
@@ -126,6 +130,19 @@ def _stomatal_conductance(an, cs, leaf: LeafCapacities, env: Environment, params
     raise ValueError(f"stomatal model {s.model!r} has no coupled form")
 
 
+def _tie_takes_vc(c, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams) -> jax.Array:
+    """Which rate to take where Vc = Vj (at zero capacity, both 0; see :func:`.fvcb.assimilation`).
+
+    At a small common scale s of Vcmax_ref, Vc ≈ s·Vcmax_ref·f_v·(c − Γ*)/(c + Km) and, in light
+    (alpha·Q > 0, where J ≈ Jmax as Jmax → 0), Vj ≈ s·a3·Vcmax_ref·f_j/4·(c − Γ*)/(c + 2Γ*); in
+    the dark Vj = 0. Take Vc where it is the smaller of the two.
+    """
+    f = params.fvcb
+    f_v, f_j = capacity_temperature_factors(env.tleaf_c + ZERO_CELSIUS_K, params.temperature)
+    lit = f.quantum_yield * env.par_abs_umol_m2_s > 0
+    return lit & (4.0 * f_v * (c + 2.0 * leaf.gamma_star_umol_mol) <= f.jmax_to_vcmax * f_j * (c + leaf.km_umol_mol))
+
+
 class _Fluxes(NamedTuple):
     an: jax.Array
     vc: jax.Array
@@ -137,7 +154,7 @@ class _Fluxes(NamedTuple):
 
 
 def _fluxes(cc, leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams) -> _Fluxes:
-    an, vc, vj = assimilation(cc, leaf, params.fvcb.clip_rates)
+    an, vc, vj = assimilation(cc, leaf, params.fvcb.clip_rates, _tie_takes_vc(cc, leaf, env, params))
     cs = env.co2_umol_mol - an / env.gb_mol_m2_s
     gs = _stomatal_conductance(an, cs, leaf, env, params)
     gtot = 1.0 / (1.0 / gs + 1.0 / env.gb_mol_m2_s + 1.0 / params.fvcb.gm_mol_m2_s)
@@ -156,6 +173,14 @@ def co2_balance_residual(
 def _residual_fn(cc, args):
     leaf, env, params = args
     return co2_balance_residual(cc, leaf, env, params)
+
+
+def _residual_scale(cc, args):
+    """Flux scale of the residual [µmol m⁻² s⁻¹]: |An| + Rd + |g_tot·(ca − cc)|, the size of
+    the terms whose difference is r (see :class:`.solver.SolverConfig`)."""
+    leaf, env, params = args
+    f = _fluxes(cc, leaf, env, params)
+    return jnp.abs(f.an) + jnp.abs(leaf.rd_umol_m2_s) + jnp.abs(f.gtot * (env.co2_umol_mol - cc))
 
 
 def _fixed_point_map(cc, args):
@@ -179,7 +204,7 @@ def _bracket(leaf: LeafCapacities, env: Environment, params: PhotosynthesisParam
 def _primal(inputs):
     leaf, env, params, config, _ = inputs
     lo, hi, x0 = _bracket(leaf, env, params)
-    res = bracketed_newton(_residual_fn, x0, lo, hi, (leaf, env, params), config)
+    res = bracketed_newton(_residual_fn, x0, lo, hi, (leaf, env, params), config, _residual_scale)
     return res.x, (res.converged, res.iterations)
 
 
@@ -190,16 +215,40 @@ def _rewrite(root, aux, inputs):
 
 
 def _broadcast_leaf(leaf: LeafCapacities, env: Environment) -> LeafCapacities:
-    shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in (*leaf, *env)))
+    shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in (*leaf, *env) if x is not None))
     return LeafCapacities(*(jnp.broadcast_to(x, shape) for x in leaf))
 
 
-def _finish(cc, f: _Fluxes, leaf: LeafCapacities, env: Environment, converged, iterations) -> PhotosynthesisResult:
+def _in_range(env: Environment) -> jax.Array:
+    """Elementwise: every driver inside the range :func:`prepare_environment` checks eagerly
+    (:data:`_INPUT_RANGES`); False for NaN. Under ``jit`` those checks cannot run."""
+    ok = [(getattr(env, name) >= lo) & (getattr(env, name) <= hi) for name, (lo, hi, _) in _INPUT_RANGES.items()]
+    if env.rh is not None:
+        lo, hi, _ = _RH_RANGE
+        ok.append((env.rh >= lo) & (env.rh <= hi))
+    return jnp.all(jnp.stack(jnp.broadcast_arrays(*ok)), axis=0)
+
+
+def _finish(
+    cc,
+    f: _Fluxes,
+    leaf: LeafCapacities,
+    env: Environment,
+    converged,
+    iterations,
+    check_gamma_rubisco: bool = True,
+) -> PhotosynthesisResult:
     # Inputs too: under jit the range checks are skipped, and a NaN light falls through the
-    # comparisons of the light response as darkness, giving a finite, "converged" An.
-    # (gb = inf means no boundary layer.)
-    checked = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, *leaf, *env._replace(gb_mol_m2_s=1.0 / env.gb_mol_m2_s))
+    # comparisons of the light response as darkness, giving a finite, "converged" An; a
+    # finite out-of-range input (T = -300 °C, PAR < 0, rh > 1) is flagged by _in_range.
+    # (gb = inf means no boundary layer; Γ' = inf where Rd ≥ Vcmax, which only the
+    # "cplantbox" closure uses.)
+    if not check_gamma_rubisco:
+        leaf = leaf._replace(gamma_rubisco_umol_mol=0.0)
+    drivers = env._replace(gb_mol_m2_s=1.0 / env.gb_mol_m2_s, rh=None)
+    checked = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, *leaf, *(d for d in drivers if d is not None))
     finite = jnp.all(jnp.stack([jnp.isfinite(o) for o in jnp.broadcast_arrays(*checked)]), axis=0)
+    finite = finite & _in_range(env)
     limitation = jnp.where(f.vj < f.vc, ELECTRON_TRANSPORT_LIMITED, RUBISCO_LIMITED).astype(jnp.int8)
     return PhotosynthesisResult(
         an_umol_m2_s=f.an,
@@ -219,7 +268,7 @@ def _finish(cc, f: _Fluxes, leaf: LeafCapacities, env: Environment, converged, i
 def _solve_cplantbox(leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams) -> PhotosynthesisResult:
     s = params.stomata
     ci = cplantbox_intercellular_co2(env.co2_umol_mol, leaf.gamma_rubisco_umol_mol, s.a1, env.fw)
-    an, vc, vj = assimilation(ci, leaf, params.fvcb.clip_rates)
+    an, vc, vj = assimilation(ci, leaf, params.fvcb.clip_rates, _tie_takes_vc(ci, leaf, env, params))
     gs = cplantbox_conductance(an, leaf.rd_umol_m2_s, ci, leaf.gamma_rubisco_umol_mol, s.g0_mol_m2_s, s.a1, env.fw)
     cs = env.co2_umol_mol + 0.0 * an
     f = _Fluxes(an, vc, vj, cs, gs, ci, gs)
@@ -236,7 +285,7 @@ def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
         _primal, _rewrite, (leaf, env, params, config), frozenset({lx.diagonal_tag})
     )
     f = _fluxes(cc, leaf, env, params)
-    return _finish(cc, f, leaf, env, converged, iterations)
+    return _finish(cc, f, leaf, env, converged, iterations, check_gamma_rubisco=False)
 
 
 def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
@@ -244,7 +293,7 @@ def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
     _, _, x0 = _bracket(leaf, env, params)
     res = fixed_point_iteration(_fixed_point_map, x0, (leaf, env, params), config)
     f = _fluxes(res.x, leaf, env, params)
-    return _finish(res.x, f, leaf, env, res.converged, res.iterations)
+    return _finish(res.x, f, leaf, env, res.converged, res.iterations, check_gamma_rubisco=False)
 
 
 def _capacities(par, env: Environment, params: PhotosynthesisParams) -> LeafCapacities:
@@ -293,6 +342,21 @@ _plain_jit = eqx.filter_jit(_plain_impl)
 # --------------------------------------------------------------------------- input handling
 
 
+#: Accepted range of each driver in :class:`Environment`: ``(lo, hi, description)``, checked
+#: eagerly by :func:`prepare_environment` and, elementwise into ``converged``, by :func:`solve`
+#: (so also under ``jit``, ``vmap`` and ``grad``).
+_INPUT_RANGES = {
+    "par_abs_umol_m2_s": (0.0, 1e4, "absorbed PAR in [0, 1e4] µmol m-2 s-1"),
+    "tleaf_c": (-50.0, 60.0, "leaf temperature in [-50, 60] °C"),
+    "co2_umol_mol": (1e-3, 1e5, "CO2 mole fraction in (0, 1e5] µmol mol-1 (ppm)"),
+    "vpd_kpa": (0.0, 20.0, "vapour pressure deficit in [0, 20] kPa"),
+    "pair_kpa": (10.0, 200.0, "air pressure in [10, 200] kPa"),
+    "gb_mol_m2_s": (1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1"),
+    "fw": (0.0, 1.0, "water-stress factor in [0, 1]"),
+}
+_RH_RANGE = (0.0, 1.0, "relative humidity in [0, 1] (a fraction, not %)")
+
+
 def _is_traced(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
@@ -325,7 +389,8 @@ def prepare_environment(
     """Validate, broadcast and cast the drivers of :func:`solve` (Python side, before jit).
 
     Value checks run only on concrete inputs; under ``jit``/``grad`` traced values are
-    passed through and only shapes are checked.
+    passed through and only shapes are checked; :func:`solve` then flags out-of-range
+    elements (the same ranges, :data:`_INPUT_RANGES`) with ``converged = False``.
     """
     if params is None:
         params = parameter_set(DEFAULT_PARAMETER_SET)
@@ -353,14 +418,15 @@ def prepare_environment(
     except ValueError:
         shapes = ", ".join(f"{k}{tuple(np.shape(v))}" for k, v in present.items())
         raise ValueError(f"input shapes do not broadcast together: {shapes}") from None
-    _check_range("par_abs_umol_m2_s", par_abs_umol_m2_s, 0.0, 1e4, "absorbed PAR in [0, 1e4] µmol m-2 s-1")
-    _check_range("tleaf_c", tleaf_c, -50.0, 60.0, "leaf temperature in [-50, 60] °C")
-    _check_range("co2_ppm", co2_ppm, 1e-3, 1e5, "CO2 mole fraction in (0, 1e5] µmol mol-1 (ppm)")
-    _check_range("rh", rh, 0.0, 1.0, "relative humidity in [0, 1] (a fraction, not %)")
-    _check_range("pair_kpa", pair_kpa, 10.0, 200.0, "air pressure in [10, 200] kPa")
-    _check_range("vpd_kpa", vpd_kpa, 0.0, 20.0, "vapour pressure deficit in [0, 20] kPa")
-    _check_range("gb_mol_m2_s", gb_mol_m2_s, 1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1")
-    _check_range("fw", fw, 0.0, 1.0, "water-stress factor in [0, 1]")
+    r = _INPUT_RANGES
+    _check_range("par_abs_umol_m2_s", par_abs_umol_m2_s, *r["par_abs_umol_m2_s"])
+    _check_range("tleaf_c", tleaf_c, *r["tleaf_c"])
+    _check_range("co2_ppm", co2_ppm, *r["co2_umol_mol"])
+    _check_range("rh", rh, *_RH_RANGE)
+    _check_range("pair_kpa", pair_kpa, *r["pair_kpa"])
+    _check_range("vpd_kpa", vpd_kpa, *r["vpd_kpa"])
+    _check_range("gb_mol_m2_s", gb_mol_m2_s, *r["gb_mol_m2_s"])
+    _check_range("fw", fw, *r["fw"])
     if params.stomata.model in ("leuning", "medlyn") and rh is None and vpd_kpa is None:
         raise ValueError(f"the {params.stomata.model.capitalize()} closure needs humidity: pass rh (0-1) or vpd_kpa")
     if params.stomata.model == "cplantbox" and gb_mol_m2_s is not None:
@@ -391,6 +457,7 @@ def prepare_environment(
         pair_kpa=arr(pair_kpa),
         gb_mol_m2_s=gb,
         fw=arr(fw),
+        rh=None if rh is None else arr(rh),
     )
     del shape
     return env, cast_params(params, dtype)
@@ -445,7 +512,9 @@ def solve(
 
     Raises:
         ValueError / TypeError: inputs of the wrong shape, type or range (checked before
-            jit on concrete values).
+            jit on concrete values). Traced values (under ``jit``, ``vmap``, ``grad``) cannot
+            be checked there: a NaN, infinite or out-of-range element gives
+            ``converged = False`` instead.
     """
     env, params, config = _prepared(
         config,

@@ -420,4 +420,26 @@ def check_params(params: PhotosynthesisParams) -> None:
             "stomata.g0_mol_m2_s",
             "finite and > 0 for the coupled closures",
         )
-    require(params.temperature.t_ref_k, lambda v: v > 0, "temperature.t_ref_k", "> 0 K")
+    t = params.temperature
+    require(t.t_ref_k, lambda v: (v > 0) & np.isfinite(v), "temperature.t_ref_k", "finite and > 0 K")
+    require(t.kc_ref_umol_mol, lambda v: (v > 0) & np.isfinite(v), "temperature.kc_ref_umol_mol", "finite and > 0")
+    require(t.ko_ref_mmol_mol, lambda v: (v > 0) & np.isfinite(v), "temperature.ko_ref_mmol_mol", "finite and > 0")
+    require(
+        t.gamma_star_ref_umol_mol,
+        lambda v: (v >= 0) & np.isfinite(v),
+        "temperature.gamma_star_ref_umol_mol",
+        "finite and >= 0",
+    )
+    for name in (
+        "ea_kc_j_mol",
+        "ea_ko_j_mol",
+        "ea_gamma_star_j_mol",
+        "ea_vcmax_j_mol",
+        "ea_jmax_j_mol",
+        "ea_rd_j_mol",
+        "hd_vcmax_j_mol",
+        "hd_jmax_j_mol",
+        "entropy_vcmax_j_mol_k",
+        "entropy_jmax_j_mol_k",
+    ):
+        require(getattr(t, name), np.isfinite, f"temperature.{name}", "finite")

@@ -5,6 +5,13 @@ by 1.6 and boundary-layer conductance by 1.37). Net assimilation enters the coup
 closures as :math:`A_n^+ = \max(A_n, 0)`, so that gs never falls below g0 when the leaf
 respires; the floor on :math:`c_s - \Gamma^*` only acts away from the solution (where
 :math:`A_n > 0` implies :math:`c_s > c_i > \Gamma^*`).
+
+:math:`A_n^+` is ``where(An > 0, An, 0)`` (:func:`positive_part`), not ``jnp.maximum``, whose
+derivative splits 50/50 at An = 0. An = 0 exactly happens at zero capacity (Vcmax scale 0,
+where Rd = 0 too); there the derivative of :math:`A_n^+` is taken as 0, the right one-sided
+value in the dark (An falls as capacity grows: Rd). In light An rises with capacity and the
+one-sided derivative of gs (and so of ci, cs) at exactly zero capacity is missed; that of An
+itself is right in both cases, since at zero capacity An does not depend on ci.
 """
 
 from __future__ import annotations
@@ -15,6 +22,11 @@ from jax.typing import ArrayLike
 
 #: Floor on cs − Γ* in the Tuzet / Leuning denominators [µmol mol⁻¹].
 _CS_GAMMA_FLOOR_UMOL_MOL = 1e-3
+
+
+def positive_part(an_umol_m2_s: ArrayLike) -> jax.Array:
+    """max(An, 0) with derivative 0 at An = 0 (see the module docstring)."""
+    return jnp.where(an_umol_m2_s > 0, an_umol_m2_s, 0.0)
 
 
 def saturation_vapour_pressure_kpa(t_c: ArrayLike) -> jax.Array:
@@ -90,7 +102,7 @@ def tuzet_conductance(
     Reference: Tuzet, Perrier & Leuning (2003), Plant Cell Environ. 26:1097, eq. 5.
     """
     denom = jnp.maximum(cs_umol_mol - gamma_umol_mol, _CS_GAMMA_FLOOR_UMOL_MOL)
-    return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
+    return g0_mol_m2_s + a1 * fw * positive_part(an_umol_m2_s) / denom
 
 
 def leuning_conductance(
@@ -116,7 +128,7 @@ def leuning_conductance(
     Reference: Leuning (1995), Plant Cell Environ. 18:339, eq. 11.
     """
     denom = jnp.maximum(cs_umol_mol - gamma_umol_mol, _CS_GAMMA_FLOOR_UMOL_MOL) * (1.0 + vpd_kpa / d0_kpa)
-    return g0_mol_m2_s + a1 * fw * jnp.maximum(an_umol_m2_s, 0.0) / denom
+    return g0_mol_m2_s + a1 * fw * positive_part(an_umol_m2_s) / denom
 
 
 #: Floor on the leaf-to-air VPD in the Medlyn closure [kPa] (CLM5 ``PhotosynthesisMod``
@@ -149,7 +161,7 @@ def medlyn_conductance(
     """
     d = jnp.maximum(vpd_kpa, MEDLYN_VPD_FLOOR_KPA)
     cs = jnp.maximum(cs_umol_mol, _CS_GAMMA_FLOOR_UMOL_MOL)
-    return g0_mol_m2_s + fw * (1.0 + g1_kpa05 / jnp.sqrt(d)) * jnp.maximum(an_umol_m2_s, 0.0) / cs
+    return g0_mol_m2_s + fw * (1.0 + g1_kpa05 / jnp.sqrt(d)) * positive_part(an_umol_m2_s) / cs
 
 
 def cplantbox_intercellular_co2(
