@@ -71,7 +71,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.weather import timestamps
-from lightfit.weather.readers import read_csv_with_metadata
+from lightfit.weather.readers import PROVENANCES, read_csv_with_metadata
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
@@ -347,7 +347,7 @@ def _first_bad(bad: pd.Series, path: Path, line, column: str, expected: str, pro
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
     """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance
     and the rows' time label (``attrs["timestamps"]``, instants where absent)."""
-    if metadata.get("provenance") not in ("measured", "synthetic", "reconstructed"):
+    if metadata.get("provenance") not in PROVENANCES:
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -48,7 +48,7 @@ from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lig
 from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model.coupled import CoupledModel
-from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, validate
+from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, in_box, validate
 from lightfit.weather.timestamps import Timestamps
 
 
@@ -270,17 +270,16 @@ def check_emulator_box(
     0.04–0.17). :class:`InputError` naming the parameter."""
     for i, n in enumerate(LEAF_PARAMETERS):
         low, high = float(lo[i]), float(hi[i])
-        tol = 1e-9 * (high - low)  # round-off, as the emulator's own check of concrete points allows
         box = f"[{low:.6g}, {high:.6g}]"
         if n in names:
             a, b = priors[n].support
-            if a < low - tol or b > high + tol:
+            if not in_box([a, b], low, high).all():
                 raise InputError(
                     f"the prior of {n} spans [{a:.6g}, {b:.6g}], beyond the emulator's box {box}",
                     column=n,
                     expected=f"an emulator fitted on a box that holds the prior of {n} (or a narrower prior)",
                 )
-        elif not low - tol <= fixed[n] <= high + tol:
+        elif not in_box(fixed[n], low, high):
             raise InputError(
                 f"{n} is not sampled and stays at {fixed[n]:.6g} (the run's leaf, or its fixed value), outside "
                 f"the emulator's box {box}, where the emulated light would be an extrapolation",

@@ -269,6 +269,15 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
     return np.stack(vals), np.stack(ses), seconds
 
 
+def in_box(x, lo, hi) -> np.ndarray:
+    """Elementwise: ``x`` inside [``lo``, ``hi``] up to round-off (10⁻⁹ of the box's width: a point
+    computed on a face may lie a hair outside). The one test of "may the emulator be evaluated
+    there" (:meth:`PartsEmulator.check_in_box`, the posterior's priors and fixed values)."""
+    x, lo, hi = (np.asarray(v, np.float64) for v in (x, lo, hi))
+    tol = 1e-9 * (hi - lo)
+    return (x >= lo - tol) & (x <= hi + tol)
+
+
 @dataclass
 class PartsEmulator:
     """Polynomial emulator of ``model.parts`` over the leaf-parameter box [lo, hi].
@@ -310,8 +319,7 @@ class PartsEmulator:
         if isinstance(leaf, jax.core.Tracer):
             return
         x = np.asarray(leaf, np.float64)
-        tol = 1e-9 * (self.hi - self.lo)
-        out = np.flatnonzero((x < self.lo - tol) | (x > self.hi + tol))
+        out = np.flatnonzero(~in_box(x, self.lo, self.hi))
         if len(out):
             i = int(out[0])
             raise InputError(
