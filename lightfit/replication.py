@@ -245,6 +245,7 @@ def forcing(
     dates: tuple[str, ...] | str | None = None,
     window: Window = Window(),
     site: Site = SELHAUSEN,
+    provenance: str | None = None,
 ) -> pd.DataFrame:
     """The run's steps, with solar columns for ``site``: the ``window`` (local time at the site) of each date.
 
@@ -252,8 +253,9 @@ def forcing(
     default the bundled reconstruction of 2016-04-20, the only day it covers. ``dates``: one or
     more dates (default 2016-04-20); an undated file (CPlantBox day) needs them given, and with
     several it is placed on each. Several dates give one series concatenated in time.
-    Errors name the file and the parameter (``date``, ``start/hours``) when the window is not
-    covered.
+    ``provenance``: what the file is where it does not say (:func:`lightfit.weather.read_weather`;
+    a contradiction is refused). Errors name the file and the parameter (``date``,
+    ``start/hours``) when the window is not covered.
     """
     given = dates is not None
     dates = as_dates(dates or DEFAULT_DATE)
@@ -269,7 +271,8 @@ def forcing(
     src = None
     for d in dates:
         if src is None or undated:
-            src = weather.add_solar(weather.read_source(source, date=d), site=site)
+            more = {} if provenance is None else {"provenance": provenance}
+            src = weather.add_solar(weather.read_source(source, date=d, **more), site=site)
         t0, t1 = window.bounds_utc(d, site.timezone)
         if t0 < src.index[0] or t1 > src.index[-1]:
             raise InputError(

@@ -12,6 +12,7 @@ import typer
 from typer.testing import CliRunner
 
 from lightfit.cli import COMMANDS, app
+from lightfit.errors import InputError
 from lightfit.weather import add_solar, read_weather
 from lightfit.weather.bundled import DATA_DIR
 
@@ -257,6 +258,32 @@ def test_replicate_with_a_tereno_export_and_a_few_steps(tmp_path):
     f = read_weather(tmp_path / "forcing.csv")
     # The fixture is a synthetic file in the export layout and says so in its header.
     assert len(f) == 2 and f.attrs["provenance"] == "synthetic"
+
+
+def test_weather_provenance_option_labels_a_file_that_does_not_say(tmp_path):
+    """--weather-provenance declares what an export without a provenance header is; a file that
+    says, or a bundled file, cannot be relabelled; an unknown word fails before any plant grows."""
+    from lightfit.cli.options import ModelOptions, resolve
+    from lightfit.cli.options import weather as run_weather
+
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines(keepends=True)
+    plain = tmp_path / "export.csv"  # the fixture without its "SYNTHETIC FIXTURE" line: a file that says nothing
+    plain.write_text("".join(line for line in lines if "SYNTHETIC" not in line), encoding="utf-8")
+
+    def provenance(path, word):
+        opts = ModelOptions(quick=True, weather_file=str(path), weather_provenance=word, steps="14:16")
+        return run_weather(resolve(opts)).attrs["provenance"]
+
+    assert provenance(plain, None) == "unstated"
+    assert provenance(plain, "measured") == "measured"
+    assert provenance(FIXTURE, "synthetic") == "synthetic"
+    with pytest.raises(InputError, match="contradicts"):
+        provenance(FIXTURE, "measured")
+    with pytest.raises(InputError, match="contradicts"):
+        run_weather(resolve(ModelOptions(quick=True, weather_provenance="measured")))  # the bundled reconstruction
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "r"), "--weather-provenance", "real"])
+    assert_user_error(r, "--weather-provenance real", "measured / reconstructed / synthetic")
+    assert not (tmp_path / "r").exists()
 
 
 @pytest.mark.parametrize(

@@ -78,6 +78,7 @@ class ModelOptions:
     optics: str | None = None
     chlorophyll_ug_cm2: float | None = None
     weather_file: str | None = None
+    weather_provenance: str | None = None
     how: str | None = None
     steps: str | None = None
     dates: list[str] | None = None
@@ -136,6 +137,7 @@ class ModelSettings:
     optics: str
     chlorophyll_ug_cm2: float | None
     weather_file: str | None
+    weather_provenance: str | None
     how: str
     steps: str | None
     dates: tuple[str, ...]
@@ -394,6 +396,16 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             rich_help_panel=_WEATHER,
         ),
     ),
+    "weather_provenance": (
+        str | None,
+        typer.Option(
+            "--weather-provenance",
+            help="What the --weather file is where it does not say: measured (a real sensor record), "
+            "reconstructed or synthetic. Default: the file's own word, else 'unstated'; contradicting "
+            "the file (or a bundled file's documented word) is refused.",
+            rich_help_panel=_WEATHER,
+        ),
+    ),
     "how": (
         str | None,
         typer.Option(
@@ -553,6 +565,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     )
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
+    from lightfit.weather.readers import WEATHER_PROVENANCES
 
     base = ReplicationConfig.quick() if opts.quick else ReplicationConfig()
     preset = "default" if opts.preset is None else opts.preset
@@ -588,6 +601,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         optics=given(opts.optics, base.optics),
         chlorophyll_ug_cm2=given(opts.chlorophyll_ug_cm2, base.chlorophyll_ug_cm2),
         weather_file=None if opts.weather_file is None else str(opts.weather_file),
+        weather_provenance=opts.weather_provenance,
         how=given(opts.how, base.how),
         steps=opts.steps,
         dates=_dates(opts, base.dates),
@@ -613,6 +627,12 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         check_bounces(s.bounces)
     if s.target_rse is not None:
         check_target_rse(s.target_rse)
+    if s.weather_provenance is not None and s.weather_provenance not in WEATHER_PROVENANCES:
+        raise InputError(
+            f"--weather-provenance {s.weather_provenance}",
+            column="weather_provenance",
+            expected=" / ".join(WEATHER_PROVENANCES),
+        )
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
     option_error(s.window, "--start-time, --hours or --step")
@@ -823,7 +843,7 @@ def weather(s: ModelSettings):
 
     from lightfit.replication import days, forcing
 
-    w = forcing(s.weather_file, s.how, dates=s.dates, window=s.window(), site=s.site)
+    w = forcing(s.weather_file, s.how, dates=s.dates, window=s.window(), site=s.site, provenance=s.weather_provenance)
     if not s.steps:
         return w
     parts = [wd.iloc[_steps(s.steps, len(wd))] for _, wd in days(s.replication_config(), w)]
