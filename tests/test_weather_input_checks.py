@@ -235,6 +235,17 @@ def test_extra_field_and_mixed_offsets_name_their_lines(tmp_path, monkeypatch):
     with pytest.raises(InputError, match=rf"line {_line_of(p, ',99')}: 9 fields, the header .* has 8"):
         read_tereno(p)
 
+    def decimal_commas(rows):
+        for r in rows:
+            r[TAIR] = r[TAIR].replace(".", ",")
+
+    p = _tereno(tmp_path, decimal_commas, "comma.csv")
+    with pytest.raises(InputError, match=r"9 fields, the header .* has 8; decimal commas\? \(e\.g\. '-?\d+,\d+'\)"):
+        read_tereno(p)
+    with pytest.raises(InputError) as plain:
+        read_tereno(_tereno(tmp_path, extra, "extra2.csv"))
+    assert "decimal" not in str(plain.value)  # an integer stray field is not called a decimal comma
+
     def offset(rows):
         rows[30][0] += "+01:00"
 

@@ -125,6 +125,9 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
+_DECIMAL_COMMA = re.compile(r"(?:^|,)(?P<n>-?\d+,\d+)(?:,|$)")
+
+
 def _table_rows(
     text_lines: list[str], header: int, delim: str, file, *, short_rows: str = "error"
 ) -> tuple[pd.DataFrame, pd.Series]:
@@ -150,11 +153,15 @@ def _table_rows(
         if not any(c.strip() for c in cells):
             continue
         if len(cells) > len(cols) or (len(cells) < len(cols) and short_rows != "pad"):
+            # A decimal comma in a comma-separated file splits every number in two.
+            comma = delim == "," and len(cells) > len(cols) and _DECIMAL_COMMA.search(text_lines[i])
             raise InputError(
-                f"{len(cells)} fields, the header (line {header + 1}) has {len(cols)}",
+                f"{len(cells)} fields, the header (line {header + 1}) has {len(cols)}"
+                + (f"; decimal commas? (e.g. '{comma['n']}')" if comma else ""),
                 file=file,
                 row=i + 1,
-                expected=f"one value per column, separated by {delim!r} (a stray or missing separator?)",
+                expected=f"one value per column, separated by {delim!r} (a stray or missing separator?)"
+                + ("; numbers with a decimal point (export with '.' as decimal separator)" if comma else ""),
             )
         rows.append(cells + [""] * (len(cols) - len(cells)))
         numbers.append(i + 1)
