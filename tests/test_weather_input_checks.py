@@ -397,3 +397,27 @@ def test_weather_help_says_what_show_does():
     assert r.exit_code == 0
     text = " ".join(r.output.split())
     assert "'show' reads one" in text and "--csv" in text and "--plot" in text
+
+
+def test_derived_columns_of_a_file_are_recomputed_and_differences_reported(tmp_path):
+    """A lightfit CSV carries sun angles and a DNI/DHI split; they are recomputed for the run's site
+    and split model, and where that changes them the series' QC says so (nothing replaced silently)."""
+    from lightfit.weather import write_lightfit_csv
+    from lightfit.weather.site import Site
+
+    series = add_solar(read_tereno(FIXTURE))
+    csv = write_lightfit_csv(series, tmp_path / "w.csv", {"provenance": "synthetic"})
+    back = read_weather(csv)
+    same = add_solar(back)
+    assert not [q for q in same.attrs["qc"] if q["kind"] == "recomputed"]
+    pd.testing.assert_series_equal(same["dni_w_m2"], series["dni_w_m2"], check_freq=False, atol=0.5)
+
+    other = add_solar(back, split_model="boland")
+    notes = {q["column"]: q for q in other.attrs["qc"] if q["kind"] == "recomputed"}
+    assert set(notes) == {"dni_w_m2", "dhi_w_m2"}
+    moved = (other["dni_w_m2"] - back["dni_w_m2"]).abs()
+    assert notes["dni_w_m2"]["count"] == int((moved > 0.5).sum()) > 0
+
+    elsewhere = Site(latitude_deg=40.0, name="south")
+    moved_sun = {q["column"] for q in add_solar(back, site=elsewhere).attrs["qc"] if q["kind"] == "recomputed"}
+    assert {"sun_elevation_deg", "sun_azimuth_deg"} <= moved_sun

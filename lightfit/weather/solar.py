@@ -218,6 +218,35 @@ def check_radiation_scale(
             )
 
 
+#: Derived columns a series may carry (a lightfit CSV written by ``lightfit weather show --csv``) and the
+#: difference from their recomputed values that is reported rather than round-off (W m⁻², degrees).
+_DERIVED_TOLERANCE = {"sun_elevation_deg": 0.01, "sun_azimuth_deg": 0.01, "dni_w_m2": 0.5, "dhi_w_m2": 0.5}
+
+
+def _recomputed(before: pd.DataFrame, after: pd.DataFrame) -> list[dict]:
+    """QC entries for derived columns that ``before`` carried and :func:`add_solar` replaced with
+    different values (another site, split model or time label than the file was written with), so
+    that no value of the file is replaced silently."""
+    out = []
+    for col, tol in _DERIVED_TOLERANCE.items():
+        if col not in before.columns:
+            continue
+        diff = (after[col] - before[col].astype(float)).abs()
+        differ = diff > tol
+        if differ.any():
+            unit = "°" if col.endswith("_deg") else " W m⁻²"
+            out.append(
+                {
+                    "kind": "recomputed",
+                    "column": col,
+                    "count": int(differ.sum()),
+                    "detail": f"the file's values replaced by those of this site and split model (up to "
+                    f"{diff.max():.3g}{unit} apart); derived columns are always recomputed",
+                }
+            )
+    return out
+
+
 def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "erbs") -> pd.DataFrame:
     """Add the derived contract columns: sun angles, DNI/DHI and (if absent) PAR from GHI.
 
@@ -289,6 +318,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
         )
     split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
     out["dni_w_m2"], out["dhi_w_m2"] = split["dni_w_m2"], split["dhi_w_m2"]
+    qc = [q for q in qc if q["kind"] != "recomputed"] + _recomputed(df, out)
     out.attrs["qc"] = qc
     out.attrs["site"] = site
     out.attrs["split_model"] = split_model
