@@ -403,6 +403,10 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     assert ply.stat().st_size > 0 and png.stat().st_size > 10_000
     seg = pd.read_csv(tmp_path / "seg.csv")
     assert seg["measured"].sum() > 0 and set(seg["organ_type"]) == {"leaf", "stem"}
+    # The plant height reported is the mean of each plant's top (not the field's single tallest tip).
+    tops = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
+    line = next(ln for ln in r.stdout.splitlines() if "plant height" in ln)
+    assert f"{tops.mean():.3f}" in line and tops.mean() < tops.max()
     assert_user_error(runner.invoke(app, ["field", "--row-spacing", "-1"]), "row_spacing_m")
     assert_user_error(
         runner.invoke(app, ["field", "--n-plants", "4", "--season-start", "2016-05-01"]), "not after season_start"

@@ -95,7 +95,10 @@ def field(
     t.add_row("one-sided leaf blade area per plant (m²)", f"{seg['blade_area_m2'].sum() / len(geom.plants):.4f}")
     if tile is None:
         t.add_row("leaf area index of the measurement area", f"{meas['blade_area_m2'].sum() / area_m2:.2f}")
-    t.add_row("canopy height (m)", f"{geom.mesh.vertices[:, 2].max():.3f}")
+    # A crew's canopy height is a typical plant's top, not the one tallest leaf tip of the field.
+    tops = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
+    t.add_row("plant height, mean of the plants' tops (m)", f"{tops.mean():.3f}")
+    t.add_row("highest point of the mesh (m)", f"{geom.mesh.vertices[:, 2].max():.3f}")
     if tiles > 1:
         sizes = [f"{len(p.measured)}+{len(p.buffer)}" for p in parts]
         t.add_row(
