@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from lightfit.inference.mcmc import flat_samples, load_run, summarize
+from lightfit.inference.observations import SERIES
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK = ROOT / "notebooks" / "posterior_analysis.ipynb"
@@ -85,6 +86,11 @@ def test_notebook_executes(tmp_path, monkeypatch):
         np.testing.assert_allclose(table[k], np.round(summ[k], 4), atol=5.1e-5, err_msg=k)
     fisher = _text(_cell(nb, 'fi = an["fisher"]'))
     assert f"stiffest: {an['fisher']['stiff']}" in fisher and f"sloppiest: {an['fisher']['sloppy']}" in fisher
+    # the predictive panels are the series the run observed (values present in its stored observations)
+    pred = an["predictive"]
+    seen = [k[4:] for k in pred if k.startswith("obs_") and not k.endswith(("_sd", "_sd_umol_m2_s"))]
+    observed = [s.name for s in SERIES if s.value in seen and np.isfinite(pred["obs_" + s.value]).any()]
+    assert observed and f"observed series: {', '.join(observed)}" in _text(_cell(nb, 'p = an["predictive"]'))
     ee = an["emulator_error"]
     assert f"max shift {ee['max_shift_over_sd']:.3g} posterior SD over {ee['n_test']} held-out renders" in _text(
         _cell(nb, 'ee = an.get("emulator_error")')
