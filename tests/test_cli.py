@@ -648,6 +648,27 @@ def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
 
 
+def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path):
+    """--compare-preset paper renders the paper's finite field with its own direct light (the
+    default's projection is refused there; the option failed after the main run), on the same steps."""
+    import xarray as xr
+
+    r = runner.invoke(
+        app, ["replicate", "--quick", "--compare-preset", "paper", "--steps", "14:16", "--out", str(tmp_path)]
+    )
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(tmp_path / "results.nc") as main, xr.open_dataset(tmp_path / "results_compare.nc") as cmp:
+        assert (main.attrs["preset"], main.attrs["boundary"], main.attrs["direct"]) == (
+            "default",
+            "periodic",
+            "projection",
+        )
+        assert (cmp.attrs["preset"], cmp.attrs["boundary"], cmp.attrs["direct"]) == ("paper", "finite", "paths")
+        assert cmp.attrs["photosynthesis"] == "giraud2023" and cmp.attrs["sheaths"] == "rods"
+        np.testing.assert_array_equal(main["time"].values, cmp["time"].values)
+    assert (tmp_path / "replication.png").stat().st_size > 10_000
+
+
 @pytest.mark.parametrize(
     "args, flag",
     [

@@ -3,6 +3,7 @@ and site with ``--date``, ``--start-time/--hours/--step`` and ``--site`` or coor
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -71,8 +72,7 @@ def replicate(
     cfg = s.replication_config()
     fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
-    # the name checked first; named as the option it came from (with_preset's error says "preset")
-    cmp = None if compare_preset is None else option_error(lambda: cfg.with_preset(compare_preset), "--compare-preset")
+    cmp = None if compare_preset is None else _comparison(model, compare_preset)
     w = weather(s)
     obs = rep.observations_for(w, observations or rep.OBSERVATIONS)  # read and placed before anything is written
     out = out or Path("results") / "+".join(s.dates)
@@ -158,3 +158,16 @@ def mc_bias_line(ds) -> str:
         f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
         f"response; not subtracted): {bias / an:+.2%} at {at}, {falls} (docs/model.md)"
     )
+
+
+def _comparison(model: ModelOptions, preset: str):
+    """The configuration of ``--compare-preset``: the run's own options resolved with that preset,
+    as ``--preset`` would resolve them (its field, direct light and K follow the preset's boundary),
+    checked before anything runs; errors are named as the option they came from."""
+
+    def make():
+        cfg = resolve(dataclasses.replace(model, preset=preset)).replication_config()
+        cfg.field()
+        return cfg
+
+    return option_error(make, "--compare-preset")
