@@ -35,13 +35,21 @@ def test_default_forcing_is_bitwise_the_replications():
     assert len(old) == 29
 
 
-def test_site_and_date_move_the_sun_as_pvlib_says():
+def test_site_and_date_move_the_sun_as_pvlib_says(tmp_path):
     """Another site (southern hemisphere, other time zone) and date: the window's steps start at the
     local clock time there and the sun angles are pvlib's for those coordinates (called directly),
-    at the centres of the file's 10-min means (stamped at their ends)."""
+    at the centres of the file's 10-min means (stamped at their ends). Selhausen's light does not
+    fit a Cape Town winter day (refused), so the geometry is checked on the day's weather under
+    Cape Town's clear-sky light."""
     site = Site(-34.0, 18.5, 40.0, "Cape Town", "Africa/Johannesburg")
     win = Window("10:00", 2.0, "1h")
-    w = rep.forcing(REAL_DAY, dates="2016-06-23", window=win, site=site)
+    with pytest.raises(InputError, match="more light than their sun can give"):
+        rep.forcing(REAL_DAY, dates="2016-06-23", window=win, site=site)
+    day = weather.read_cplantbox_day(REAL_DAY, "2016-06-23")
+    zen = pvlib.solarposition.get_solarposition(day.index - pd.Timedelta("5min"), -34.0, 18.5, altitude=40.0)
+    day["par_umol_m2_s"] = 2.285 * pvlib.clearsky.haurwitz(zen["apparent_zenith"])["ghi"].to_numpy()
+    path = weather.write_lightfit_csv(day, tmp_path / "cape_town.csv", {"provenance": "synthetic"})
+    w = rep.forcing(path, dates="2016-06-23", window=win, site=site)
     t = pd.date_range("2016-06-23 10:00", periods=3, freq="1h", tz="Africa/Johannesburg").tz_convert("UTC")
     assert w.index.equals(t)
     sp = pvlib.solarposition.get_solarposition(t - pd.Timedelta("5min"), -34.0, 18.5, altitude=40.0)

@@ -421,3 +421,30 @@ def test_derived_columns_of_a_file_are_recomputed_and_differences_reported(tmp_p
     elsewhere = Site(latitude_deg=40.0, name="south")
     moved_sun = {q["column"] for q in add_solar(back, site=elsewhere).attrs["qc"] if q["kind"] == "recomputed"}
     assert {"sun_elevation_deg", "sun_azimuth_deg"} <= moved_sun
+
+
+def test_light_that_its_sun_cannot_give_is_refused(tmp_path):
+    """An undated day placed on a date its light does not fit (daylight with the sun below the
+    horizon, Erbs DNI above the solar constant) is refused naming the file, the column and a step;
+    the dates the light fits (data/README.md) and every bundled series pass."""
+    with pytest.raises(InputError, match=r"column 'PAR'.*2016-03-25 .*sun at -?\d+\.\d°.*more light than their sun"):
+        add_solar(read_cplantbox_day(CPB, "2016-03-25"))
+    _cli_error(
+        ["weather", "show", "selhausen-cplantbox-day", "--date", "2016-12-23"], "selhausen_cplantbox_day.txt", "--date"
+    )
+    for date in ("2016-04-19", "2016-04-27", "2016-08-15"):
+        ok = add_solar(read_cplantbox_day(CPB, date))
+        assert ok["dni_w_m2"].max() < 1361.0  # below the solar constant
+    add_solar(read_weather(RECON))
+    add_solar(read_tereno(FIXTURE))
+
+    def one_glitch(rows):  # a single night spike is a glitch, left to the caller
+        rows[3][PAR] = "400"
+
+    add_solar(read_tereno(_tereno(tmp_path, one_glitch, "glitch.csv")))
+
+    def shifted(rows):  # each value three hours (18 ten-minute rows) early: noon light at a low sun
+        return [[r[0], *rows[(i + 18) % len(rows)][1:]] for i, r in enumerate(rows)]
+
+    with pytest.raises(InputError, match="more light than their sun can give"):
+        add_solar(read_tereno(_tereno(tmp_path, shifted, "shifted.csv")))

@@ -218,6 +218,47 @@ def check_radiation_scale(
             )
 
 
+#: Light a sun can give at most: clear sky (Haurwitz) × this factor + :data:`LIGHT_MARGIN_W_M2`. Broken
+#: clouds lift 10-minute global radiation to 1.3–1.4 × clear sky at most (cloud enhancement); the
+#: margin covers twilight and sensor offsets near sunrise and sunset.
+LIGHT_MAX_CLEAR_SKY_FACTOR = 1.5
+LIGHT_MARGIN_W_M2 = 50.0
+
+
+def check_light_fits_sun(
+    df: pd.DataFrame, sun_elevation_deg: pd.Series, file=None, columns=("ghi_w_m2", "par_umol_m2_s")
+) -> None:
+    """Refuse light that its sun cannot give: ``columns`` of global radiation (W m⁻²) or PAR
+    (µmol m⁻² s⁻¹, as global radiation × 0.50 × 4.57 µmol J⁻¹) above clear sky ×
+    :data:`LIGHT_MAX_CLEAR_SKY_FACTOR` + :data:`LIGHT_MARGIN_W_M2` at two or more steps: daylight with
+    the sun below the horizon, noon light at a low sun. That is a wrong date (an undated file placed
+    on a day its light does not fit), time zone or time label, which the Erbs split would turn into
+    direct beams above the solar constant. One step alone is left to the caller (a glitch)."""
+    el = np.asarray(sun_elevation_deg, dtype=np.float64)
+    clear = np.asarray(pvlib.clearsky.haurwitz(pd.Series(np.clip(90.0 - el, 0.0, 180.0)))["ghi"], dtype=np.float64)
+    bound = LIGHT_MAX_CLEAR_SKY_FACTOR * np.nan_to_num(clear) + LIGHT_MARGIN_W_M2
+    used = df.attrs.get("columns_used", {})
+    for col, scale, what, unit in (
+        ("ghi_w_m2", 1.0, "global radiation", "W m⁻²"),
+        ("par_umol_m2_s", float(par_from_ghi(1.0)), "PAR", "µmol m⁻² s⁻¹"),
+    ):
+        if col not in columns or col not in df.columns:
+            continue
+        v = np.asarray(df[col], dtype=np.float64)
+        over = np.flatnonzero(v > scale * bound)
+        if len(over) < 2:
+            continue
+        i = over[np.argmax(v[over] / (scale * bound[over]))]
+        raise InputError(
+            f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear sky "
+            f"{scale * clear[i]:.3g} {unit}): {len(over)} steps have more light than their sun can give",
+            file=file,
+            column=used.get(col, col),
+            expected="timestamps the light fits: the right date (--date places an undated file), time zone "
+            "(--tz) and time label (--time-label)",
+        )
+
+
 #: Derived columns a series may carry (a lightfit CSV written by ``lightfit weather show --csv``) and the
 #: difference from their recomputed values that is reported rather than round-off (W m⁻², degrees).
 _DERIVED_TOLERANCE = {"sun_elevation_deg": 0.01, "sun_azimuth_deg": 0.01, "dni_w_m2": 0.5, "dhi_w_m2": 0.5}
@@ -305,6 +346,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
     out["sun_elevation_deg"] = sp["sun_elevation_deg"].to_numpy()
     out["sun_azimuth_deg"] = sp["sun_azimuth_deg"].to_numpy()
     check_radiation_scale(out, out["sun_elevation_deg"], out.attrs.get("source"), measured)
+    check_light_fits_sun(out, out["sun_elevation_deg"], out.attrs.get("source"), measured)
     if stamps.centre_offset != pd.Timedelta(0):
         qc = [q for q in qc if q["kind"] != "sun at centres"]  # a resampled series replaces its source's
         qc.append(
