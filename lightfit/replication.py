@@ -351,15 +351,19 @@ def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -
     return CoupledModel(scenario_for(cfg, w), progress=progress)
 
 
-def observations_for(w: pd.DataFrame, observations=OBSERVATIONS) -> pd.DataFrame | None:
+def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool | None = None) -> pd.DataFrame | None:
     """Observations (a file, or a frame already read) checked against the forcing ``w``'s steps,
     before anything is rendered: a bad file or an observation outside the run fails in seconds,
-    not after the simulation. ``None`` without observations, and for the bundled chamber record
-    (:data:`OBSERVATIONS`, 20 April 2016 12:13 local) when the run's steps do not reach it; other
-    observations outside the run are an :class:`InputError`."""
+    not after the simulation. ``None`` without observations, and for ``optional`` ones when the
+    run's steps do not reach them (default: optional for the bundled chamber record,
+    :data:`OBSERVATIONS`, 20 April 2016 12:13 local, which a run uses where it can); observations
+    asked for (``optional=False``: the command line's ``--observations``, even the bundled file)
+    outside the run are an :class:`InputError`."""
     if observations is None or (not isinstance(observations, pd.DataFrame) and not observations):
         return None
-    bundled = isinstance(observations, (str, Path)) and Path(observations) == OBSERVATIONS
+    bundled = isinstance(observations, (str, Path)) and Path(observations).resolve() == OBSERVATIONS.resolve()
+    if optional is None:
+        optional = bundled
     obs = observations if isinstance(observations, pd.DataFrame) else read_observations(observations)
     missing = [k for k in ("source", "provenance") if k not in obs.attrs]
     if missing:  # the results record where the observations came from and what they are
@@ -371,7 +375,7 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS) -> pd.DataFrame
     try:
         align(obs, w.index.tz_convert("UTC"), timestamps.of(w))
     except InputError:
-        if not bundled:
+        if not optional:
             raise
         return None
     return obs

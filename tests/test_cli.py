@@ -648,6 +648,22 @@ def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
 
 
+def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_file(tmp_path):
+    """--observations names a file the user wants compared: outside the run's steps it is an error
+    (the bundled record's own path was dropped silently); only the default record is optional."""
+    from lightfit import replication as rep
+    from lightfit.weather import Window
+
+    args = ["replicate", "--quick", "--start-time", "06:00", "--hours", "1", "--out", str(tmp_path / "r")]
+    r = runner.invoke(app, [*args, "--observations", str(OBSERVATIONS)])
+    assert_user_error(r, "chamber_2016-04-20_record.csv")
+    assert not (tmp_path / "r").exists()
+    w = rep.forcing(window=Window("06:00", 1.0))
+    assert rep.observations_for(w) is None  # the default record, optional
+    with pytest.raises(InputError):
+        rep.observations_for(w, OBSERVATIONS, optional=False)
+
+
 def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path):
     """--compare-preset paper renders the paper's finite field with its own direct light (the
     default's projection is refused there; the option failed after the main run), on the same steps."""

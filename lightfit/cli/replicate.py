@@ -74,7 +74,8 @@ def replicate(
     th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
     cmp = None if compare_preset is None else _comparison(model, compare_preset)
     w = weather(s)
-    obs = rep.observations_for(w, observations or rep.OBSERVATIONS)  # read and placed before anything is written
+    # read and placed before anything is written; the bundled record by default, where the run reaches it
+    obs = rep.observations_for(w, observations or rep.OBSERVATIONS, optional=observations is None)
     out = out or Path("results") / "+".join(s.dates)
     if out.suffix.lower() == ".nc":  # field-run's --out is the file; here it is the folder of five files
         raise InputError(
