@@ -40,6 +40,8 @@ from lightfit.light.estimator import SegmentEstimator  # noqa: E402
 from lightfit.model import emulator as E  # noqa: E402
 from lightfit.replication import ReplicationConfig, forcing, model_for  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def per_point_geometry():
     """Patch: drop the kept geometry whenever the leaf parameters change (the previous cost)."""
@@ -59,7 +61,7 @@ def main(argv=None):
     ap.add_argument("--config", choices=("quick", "default"), default="quick")
     ap.add_argument("--n-design", type=int, default=20)
     ap.add_argument("--steps", default=None, help="slice of the daytime steps, e.g. 0:5 (default: all)")
-    ap.add_argument("--json", type=Path, default=Path("benchmarks/results/design.json"))
+    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "design.json")
     args = ap.parse_args(argv)
     cfg = ReplicationConfig.quick() if args.config == "quick" else ReplicationConfig()
     t = time.perf_counter()

@@ -40,18 +40,20 @@ from lightfit.model import emulator as E  # noqa: E402
 from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
 from lightfit.report import field_label  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
+
 NAMES = ("specular", "roughness", "subsurface", "light_factor")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("--renders", type=Path, default=Path("results/posterior/default_renders"))
+    ap.add_argument("--renders", type=Path, default=ROOT / "results" / "posterior" / "default_renders")
     ap.add_argument("--n-design", type=int, default=16)
     ap.add_argument("--n-test", type=int, default=2)
     ap.add_argument("--walkers", type=int, default=32)
     ap.add_argument("--max-steps", type=int, default=20000, help="emcee steps at most (the stop rule may end sooner)")
-    ap.add_argument("--out", type=Path, default=Path("results/posterior/bench_default.h5"))
-    ap.add_argument("--json", type=Path, default=Path("benchmarks/results/posterior.json"))
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "posterior" / "bench_default.h5")
+    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "posterior.json")
     args = ap.parse_args(argv)
     pri = P.PRIORS_INFORMED
     lo = [pri[n].support[0] for n in LEAF_PARAMETERS]

@@ -5,7 +5,8 @@
 Same measured plants (4 × 4 by default), same sun and weather (2016-04-20 10:00 UTC,
 reconstructed forcing), K samples, 3 bounces; canopy absorbed PAR of the measured segments for
 several (buffer_rows, buffer_along) against the widest field (10 rows, 40 plants along). Prints the
-"Field-edge bias" table in docs/light.md and writes results/buffer_edge_bias.json.
+"Field-edge bias" table in docs/light.md and writes ``--out`` (default
+experiments/results/buffer_edge_bias.json).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BUFFERS = [(2, 2), (6, 6), (2, 8), (3, 12), (6, 24), (10, 40)]
 
 
-def main(n_plants: int = 16, samples: int = 128) -> dict:
+def main(n_plants: int = 16, samples: int = 128, out: Path | None = None) -> dict:
     row = weather.load("2016-04-20").loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
     sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
     dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
@@ -56,7 +57,7 @@ def main(n_plants: int = 16, samples: int = 128) -> dict:
     for v in res.values():
         v["bias"] = v["canopy_absorbed"] / ref - 1
         print(f"| {v['buffer_rows']} | {v['buffer_along']} | {v['plants']} | {100 * v['bias']:+.1f} % |")
-    out = ROOT / "results" / "buffer_edge_bias.json"
+    out = ROOT / "experiments" / "results" / "buffer_edge_bias.json" if out is None else out
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"sun_deg": sun, "samples": samples, "n_plants": n_plants, "rows": res}, indent=2))
     return res
@@ -66,5 +67,6 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=16)
     ap.add_argument("--samples", type=int, default=128)
+    ap.add_argument("--out", type=Path, default=None, help="JSON to write (default experiments/results/)")
     a = ap.parse_args()
-    main(a.n_plants, a.samples)
+    main(a.n_plants, a.samples, a.out)

@@ -18,7 +18,7 @@
    highest sun: the share of Rubisco-limited leaf pixels in the labels of the gallery's images
    (both classes must show).
 
-Prints Markdown tables and writes results/defaults_check.json.
+Prints Markdown tables and writes ``--out`` (default experiments/results/defaults_check.json).
 """
 
 from __future__ import annotations
@@ -182,7 +182,7 @@ def gallery_fractions(cfg: ReplicationConfig) -> dict:
     return {"time_utc": meta["images"][0]["time_utc"], "images": rows}
 
 
-def main(full: bool = False, parts: str = "leaf,bounces,canopy,gallery") -> dict:
+def main(full: bool = False, parts: str = "leaf,bounces,canopy,gallery", out_path: Path | None = None) -> dict:
     todo = set(parts.split(","))
     quick = ReplicationConfig.quick()
     out: dict = {"ranges": {"leaf_absorptance": LEAF_RANGE, "night": NIGHT_RANGE, "noon": NOON_RANGE}}
@@ -235,7 +235,7 @@ def main(full: bool = False, parts: str = "leaf,bounces,canopy,gallery") -> dict
         print(f"\ngallery ({out['gallery']['time_utc']} UTC): Rubisco-limited share of leaf pixels")
         for r in out["gallery"]["images"]:
             print(f"  {r['image']}: {r['rubisco_limited_pixels']} of {r['leaf_pixels_with_values']} leaf pixels")
-    path = ROOT / "results" / "defaults_check.json"
+    path = ROOT / "experiments" / "results" / "defaults_check.json" if out_path is None else out_path
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.exists():  # keep the parts not rerun
         out = {**json.loads(path.read_text()), **out}
@@ -249,4 +249,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="also the main job's default field (slower)")
     ap.add_argument("--parts", default="leaf,bounces,canopy,gallery", help="comma-separated parts to run")
+    ap.add_argument(
+        "--out", dest="out_path", type=Path, default=None, help="JSON to write (default experiments/results/)"
+    )
     main(**vars(ap.parse_args()))

@@ -24,7 +24,7 @@ a field of all-different plants.
 Each is rendered with ``--seeds`` independent seeds; the canopy total's Monte Carlo SD comes from
 the per-segment standard errors (segments have independent random numbers). Growing the wide
 field's ≈ 1 900 plants takes minutes the first time (then they are cached). Prints a table and
-writes ``--out`` (default results/periodic_vs_wide.json).
+writes ``--out`` (default experiments/results/periodic_vs_wide.json).
 """
 
 from __future__ import annotations
@@ -155,7 +155,7 @@ def main(
     )
     res["periodic"]["vs_copies"], res["periodic"]["vs_copies_sd"] = wrap, wrap_sd
     print(f"periodic (ray wrapping) vs explicit copies: {100 * wrap:+.2f} % (MC SD {100 * wrap_sd:.2f} %)")
-    out = ROOT / "results" / "periodic_vs_wide.json" if out is None else Path(out)
+    out = ROOT / "experiments" / "results" / "periodic_vs_wide.json" if out is None else Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(
         json.dumps(

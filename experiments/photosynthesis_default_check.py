@@ -12,7 +12,8 @@
    (absorptance 0.90); the quick configuration is also run with the reference paper's grey 0.5
    leaf (``optics="paper"``, absorptance 0.49) to show what the leaf optics change.
 
-Prints a Markdown table and writes results/photosynthesis_default_check.json. Every number comes
+Prints a Markdown table and writes ``--out`` (default
+experiments/results/photosynthesis_default_check.json). Every number comes
 from the model run here.
 """
 
@@ -90,7 +91,7 @@ def canopy(cfg: ReplicationConfig, name: str, optics: str | None = None) -> dict
     }
 
 
-def main(full: bool = False) -> dict:
+def main(full: bool = False, out_path: Path | None = None) -> dict:
     configs = {
         "quick": (ReplicationConfig.quick(), None),
         "quick, paper leaf": (ReplicationConfig.quick(), "paper"),
@@ -115,7 +116,7 @@ def main(full: bool = False) -> dict:
                 f"| {k} | {name} | {r['night_mean_umol_m2_s']:.2f} | {r['noon_mean_umol_m2_s']:.1f} "
                 f"| {100 * r['noon_fraction_rubisco_limited_blades']:.0f} % |"
             )
-    path = ROOT / "results" / "photosynthesis_default_check.json"
+    path = ROOT / "experiments" / "results" / "photosynthesis_default_check.json" if out_path is None else out_path
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2))
     print(f"\nwrote {path}")
@@ -125,4 +126,7 @@ def main(full: bool = False) -> dict:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="also the main job's default configuration (slower)")
+    ap.add_argument(
+        "--out", dest="out_path", type=Path, default=None, help="JSON to write (default experiments/results/)"
+    )
     main(**vars(ap.parse_args()))

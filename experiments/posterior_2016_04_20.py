@@ -33,20 +33,26 @@ import numpy as np  # noqa: E402
 
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
+from lightfit.inference.multiday import with_lights  # noqa: E402
 from lightfit.inference.observations import read_observations, write_observations  # noqa: E402
 from lightfit.inference.twin import twin_observations  # noqa: E402
 from lightfit.model import emulator as E  # noqa: E402
 from lightfit.model.parameters import Theta  # noqa: E402
 from lightfit.replication import OBSERVATIONS, ReplicationConfig, forcing, model_for  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
+
 TRUTH = Theta(specular=0.6, roughness=0.6, subsurface=0.1, light_factor=1.0, vcmax_scale=1.0)
 NAMES = ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")
 WIDE_BOX = ([0.0, 0.3, 0.0], [1.0, 1.0, 1.0])
+#: The twin is rendered with another seed than the model: its Monte Carlo error is a second,
+#: independent copy of the model's (docs/posterior.md, "mc_scale"); sampled and re-evaluated alike.
+MC_SCALE = 2.0
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("--out", type=Path, default=Path("results/posterior"))
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "posterior")
     ap.add_argument("--n-design", type=int, default=64)
     ap.add_argument("--n-test", type=int, default=8)
     ap.add_argument("--walkers", type=int, default=32)
@@ -107,6 +113,7 @@ def main(argv=None):
             nwalkers=args.walkers,
             max_steps=args.max_steps,
             seed=0,
+            mc_scale=MC_SCALE,
             validation_renders=(leaf_test, full),
             progress=True,
             attrs={"experiment": f"twin, {label}"},
@@ -129,7 +136,17 @@ def main(argv=None):
     run = P.load_run(out / "twin_both.h5")
     s = P.flat_samples(run)
     fast = E.FastObservables(model, emu)
-    lp = P.LogPosterior(fast, model.times, obs, NAMES, wide, stamps=model.timestamps)
+    # the likelihood the 'both' run sampled (A.run's: the model's MC correlation, MC_SCALE)
+    lp = A.log_posterior(
+        model,
+        obs,
+        fast,
+        names=NAMES,
+        priors=wide,
+        use=("par", "an"),
+        mc_scale=MC_SCALE,
+        light_model=with_lights(model, [emu]),
+    )
     ll = lp.loglike_batch(s)
     good = s[ll >= ll.max() - 0.5]
     good = good[np.random.default_rng(0).permutation(len(good))[:2000]]
@@ -138,7 +155,16 @@ def main(argv=None):
     z = (good - lo) / (hi - lo)
     dist = np.linalg.norm(z[:, None] - z[None], axis=-1)
     i, j = np.unravel_index(np.argmax(dist), dist.shape)
-    exact = P.LogPosterior(model.observe, model.times, obs, NAMES, wide, stamps=model.timestamps)
+    exact = A.log_posterior(
+        model,
+        obs,
+        model.observe,
+        names=NAMES,
+        priors=wide,
+        use=("par", "an"),
+        mc_correlation=lp.likelihood.mc_correlation,
+        mc_scale=MC_SCALE,
+    )
     pairs = []
     for x in (good[i], good[j]):
         pairs.append(
@@ -182,6 +208,7 @@ def main(argv=None):
             nwalkers=12,
             max_steps=150,
             seed=0,
+            mc_scale=MC_SCALE,
             stop=None,
             resume=False,
             validation_renders=(leaf_test[:3], (full[0][:3], full[1][:3])),

@@ -39,6 +39,8 @@ from lightfit.model import emulator as E  # noqa: E402
 from lightfit.model.parameters import Theta  # noqa: E402
 from lightfit.replication import ReplicationConfig, forcing, model_for  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
+
 NAMES = ("specular", "roughness", "subsurface", "light_factor")
 #: Leaf-parameter points no test uses (inside the informed priors), and their twin render seeds.
 POINTS = (
@@ -79,7 +81,7 @@ def verdict(path: Path, truth: Theta) -> dict:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=Path("results/twin_seeds"))
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "twin_seeds")
     ap.add_argument("--n-design", type=int, default=32)
     ap.add_argument("--walkers", type=int, default=32)
     ap.add_argument("--max-steps", type=int, default=2000)
