@@ -448,3 +448,17 @@ def test_light_that_its_sun_cannot_give_is_refused(tmp_path):
 
     with pytest.raises(InputError, match="more light than their sun can give"):
         add_solar(read_tereno(_tereno(tmp_path, shifted, "shifted.csv")))
+
+
+def test_unrecognised_files_say_what_each_format_needs(tmp_path):
+    """A hand-made lightfit CSV without its metadata, or any other table, is told what is missing;
+    --format is honoured before the format is sniffed (it was guessed first and the reason lost)."""
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(ln for ln in RECON.read_text().splitlines() if not ln.startswith("#")) + "\n")
+    with pytest.raises(InputError, match=r"line 1: a lightfit CSV \(time_utc, …\) without its metadata lines"):
+        read_weather(plain)
+    junk = tmp_path / "junk.csv"
+    junk.write_text("a,b\n1,2\n")
+    with pytest.raises(InputError, match=r"unrecognised weather file format \(first line 'a,b'\).*time<TAB>PAR"):
+        read_weather(junk)
+    _cli_error(["weather", "show", str(plain), "--format", "lightfit"], "plain.csv", "no metadata line '# provenance")

@@ -76,8 +76,8 @@ def show(
     from lightfit.figure import figure_format
     from lightfit.weather.plot import plot_forcing, provenance_label
 
-    weather.require_date(source, date)  # an undated file: say --date, as the model commands do
-    if date is not None and not weather.is_undated(source):
+    weather.require_date(source, date, fmt)  # an undated file: say --date, as the model commands do
+    if date is not None and not weather.is_undated(source, fmt):
         raise InputError(
             f"--date {date} given for a file whose timestamps carry their dates",
             file=weather.source_path(source),

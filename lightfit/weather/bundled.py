@@ -53,14 +53,17 @@ def source_path(source: str | Path) -> Path:
     return path
 
 
-def is_undated(source: str | Path) -> bool:
-    """True when the source's timestamps carry no date (a CPlantBox day file): it needs one from the caller."""
+def is_undated(source: str | Path, format: str = "auto") -> bool:
+    """True when the source's timestamps carry no date (a CPlantBox day file): it needs one from the
+    caller. ``format``: the file's format where the caller states it (``"auto"``: sniffed)."""
+    if format != "auto":
+        return format == "cplantbox"
     return sniff_format(source_path(source)) == "cplantbox"
 
 
-def require_date(source: str | Path, date) -> None:
+def require_date(source: str | Path, date, format: str = "auto") -> None:
     """An undated source (CPlantBox day file) needs a date from the caller; lightfit never invents one."""
-    if date is None and is_undated(source):
+    if date is None and is_undated(source, format):
         raise InputError(
             "the file has no date (a CPlantBox day file) and no --date was given",
             file=source_path(source),

@@ -734,11 +734,14 @@ def read_csv_with_metadata(
             k, v = line[1:].split(":", 1)
             meta[k.strip()] = v.strip()
     if meta.get("provenance") not in provenances:
+        said = meta.get("provenance")
         raise InputError(
-            f"metadata line '# provenance: ...' is {meta.get('provenance')!r}",
+            "no metadata line '# provenance: …' at the top of the file"
+            if said is None
+            else f"metadata line '# provenance: {said}'",
             file=path,
             row=1,
-            expected=" / ".join(f"'{p}'" for p in provenances),
+            expected="'# provenance: X' with X one of " + " / ".join(f"'{p}'" for p in provenances),
         )
     header = next((i for i in range(n_meta, len(text)) if text[i].strip()), None)  # blank lines may precede it
     if header is None:
@@ -832,10 +835,20 @@ def sniff_format(path: str | Path) -> str:
         return "cplantbox"
     if any(re.search(pat.lstrip("^"), head) for pat, _, _ in TERENO_QUANTITIES.values()):
         return "tereno"
+    first = next((ln for ln in head.splitlines() if ln.strip()), "")
+    if first.split(",")[0].strip().strip('"') == "time_utc":
+        raise InputError(
+            "a lightfit CSV (time_utc, …) without its metadata lines",
+            file=path,
+            row=1,
+            expected="a first line '# provenance: measured' (or reconstructed, synthetic, unstated) above the header",
+        )
     raise InputError(
-        "unrecognised weather file format",
+        f"unrecognised weather file format (first line {first[:60]!r})",
         file=path,
-        expected="a TERENO CSV export, a CPlantBox weather file or a lightfit CSV",
+        expected="a TERENO CSV export (columns such as 'RadiationGlobal_Avg10min [W*m-2]'), a CPlantBox day "
+        "file (header 'time<TAB>PAR…') or a lightfit CSV ('# provenance: …' lines, then time_utc and "
+        "contract columns such as par_umol_m2_s, tair_c, rh)",
     )
 
 
