@@ -664,6 +664,22 @@ def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_
         rep.observations_for(w, OBSERVATIONS, optional=False)
 
 
+def test_errors_name_the_option_that_caused_them(tmp_path):
+    """An off-grid window start names --start-time (it blamed --step), an option applied to a file
+    names the option and the file (it said "column 'tz'"), and a file where an output folder should
+    be is refused by every command before any work (it failed after the run with "File exists")."""
+    r = runner.invoke(app, ["replicate", "--quick", "--start-time", "12:07", "--hours", "1", "--out", str(tmp_path)])
+    assert_user_error(r, "option --start-time:", "12:07", "rows every 10 min")
+    recon = str(DATA_DIR / "weather" / "selhausen_2016-04-20_reconstructed.csv")
+    assert_user_error(runner.invoke(app, ["weather", "show", recon, "--tz", "UTC"]), "reconstructed.csv: option --tz:")
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    for command in (["replicate", "--quick"], ["calibrate", str(OBSERVATIONS), "--quick"], ["posterior", "--quick"]):
+        assert_user_error(runner.invoke(app, [*command, "--out", str(a_file)]), "option --out:", "is a file")
+    r = runner.invoke(app, ["render-dataset", str(tmp_path / "results.nc"), "--out", str(a_file)])
+    assert_user_error(r, "option --out:", "is a file")
+
+
 def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path):
     """--compare-preset paper renders the paper's finite field with its own direct light (the
     default's projection is refused there; the option failed after the main run), on the same steps."""

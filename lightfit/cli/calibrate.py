@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import console, parse_names, parse_theta
+from lightfit.cli.common import console, output_folder, parse_names, parse_theta
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -90,6 +90,7 @@ def calibrate(
     from lightfit.precision import precision
 
     s = resolve(model)
+    output_folder(out)
     # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))

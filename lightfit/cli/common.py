@@ -124,6 +124,8 @@ OPTION_ALIASES = {
     "target_date": ("--date",),
     "soil_respiration_umol_m2_s": ("--soil-respiration",),
     "row_direction_deg": ("--row-direction",),
+    "start": ("--start-time",),
+    "provenance": ("--provenance", "--weather-provenance"),
 }
 
 
@@ -146,11 +148,13 @@ def option_flags(command) -> dict[str, str]:
 def error_message(err: BaseException, flags: dict[str, str] | None = None) -> str:
     """One line naming the file or parameter concerned (``InputError`` messages already do). An
     :class:`InputError` about a parameter that is an option of the invoked command (``flags``:
-    :func:`option_flags`; no file) names the option: ``option --preset: …``, not ``column 'preset'``."""
-    if isinstance(err, InputError) and err.file is None and err.column and flags:
+    :func:`option_flags`; no file, or a file but no line: the option as applied to that file) names
+    the option: ``option --preset: …``, not ``column 'preset'``."""
+    if isinstance(err, InputError) and err.column and flags and (err.file is None or err.row is None):
         flag = flags.get(err.column.lstrip("-").replace("-", "_"))
-        if flag is not None:
+        if flag is not None:  # a file's error without a line is about the option used on it (--tz on a CSV)
             where = f"option {flag}" + (f", line {err.row}" if err.row is not None else "")
+            where = where if err.file is None else f"{err.file}: {where}"
             return f"{where}: {err.problem}" + (f" (expected {err.expected})" if err.expected else "")
     if isinstance(err, TimeoutError):
         return f"timed out: {err}" if str(err) else "timed out"
@@ -169,6 +173,14 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         err_console.print(f"[bold yellow]warning:[/] {escape(str(message))}", soft_wrap=True, highlight=False)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)
+
+
+def output_folder(out: Path, option: str = "out") -> Path:
+    """``out`` as a command's output folder, checked before any work: an existing file there is an
+    error naming the option (``mkdir`` said only "File exists", after the run had begun)."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out} is a file", column=option, expected="a folder to write into (created if missing)")
+    return out
 
 
 def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:

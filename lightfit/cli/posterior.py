@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import console, interrupted, parse_names
+from lightfit.cli.common import console, interrupted, output_folder, parse_names
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -83,6 +83,7 @@ def posterior(
     from lightfit.model import emulator as E
 
     s = resolve(model)
+    output_folder(out)
     n_design = E.check_design_size(E.DESIGN_SIZE if n_design is None else n_design)  # before any render
     stop = P.StopRule(target_ess=target_ess)  # checked before any render
     if max_minutes is not None and not max_minutes > 0:

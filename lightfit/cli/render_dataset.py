@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import console
+from lightfit.cli.common import console, output_folder
 from lightfit.errors import InputError
 
 
@@ -53,6 +53,7 @@ def render_dataset(
 
     from lightfit.dataset import Camera, DatasetSpec, RenderSettings, Sweep, load_cameras, make_dataset
 
+    output_folder(out)
     if time and all_times:
         raise InputError("--time and --all-times both given", column="time", expected="one of them")
     cam_fields = {

@@ -11,7 +11,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from lightfit.cli.common import console, parse_theta, samples_label, weather_report, weather_table
+from lightfit.cli.common import console, output_folder, parse_theta, samples_label, weather_report, weather_table
 from lightfit.cli.options import ModelOptions, model_options, option_error, resolve, weather
 from lightfit.errors import InputError
 
@@ -77,6 +77,7 @@ def replicate(
     # read and placed before anything is written; the bundled record by default, where the run reaches it
     obs = rep.observations_for(w, observations or rep.OBSERVATIONS, optional=observations is None)
     out = out or Path("results") / "+".join(s.dates)
+    output_folder(out)
     if out.suffix.lower() == ".nc":  # field-run's --out is the file; here it is the folder of five files
         raise InputError(
             "--out is the folder for results.nc, summary.csv and the figures; this name is a netCDF file's",

@@ -435,6 +435,15 @@ def window(
             file=df.attrs.get("source"),
             expected="a series spanning the requested window",
         )
+    if how == "sample" and t0 not in df.index:  # sampling reads rows: the window must start on one
+        rows = df.index.to_series().diff().dropna()
+        every = f" (rows every {rows.median() / pd.Timedelta(minutes=1):g} min)" if len(rows) else ""
+        raise InputError(
+            f"the window starts at {t0.tz_convert(tz):%Y-%m-%d %H:%M} ({tz}), not a timestamp of the series{every}",
+            file=df.attrs.get("source"),
+            column="start",
+            expected="a start time on the series' rows, or averaging instead of sampling (how='mean', --how mean)",
+        )
     out = resample(df, step, how, origin=t0)  # the steps run through the window's start
     out = out.loc[t0:t1]
     if not len(out) or out.index[0] != t0 or out.index[-1] < t1 - pd.Timedelta(step):
