@@ -418,8 +418,9 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--steps",
-            help="Time steps of each day to run: a count from the window's start (e.g. 5) or positions a:b "
-            "(default: all, 29 for the 05:00–19:00 window in 30-min steps).",
+            help="Time steps of each day to run: a count from the window's start (e.g. 5) or positions a:b, "
+            "counted from 0 with b left out (14:16 is 12:00 and 12:30 of the default window; default: all, "
+            "29 for the 05:00–19:00 window in 30-min steps).",
             rich_help_panel=_WEATHER,
         ),
     ),

@@ -88,6 +88,10 @@ def replicate(
     weather_report(w)
     label = str(w.attrs.get("provenance", "")).upper()
     tz, when = s.site.timezone, "; ".join(s.window().describe(d, s.site.timezone) for d in s.dates)
+    if s.steps:  # the steps run, not only the window they were taken from
+        local = w.index.tz_convert(tz)
+        last = f"{local[-1]:%H:%M}" if local[-1].date() == local[0].date() else f"{local[-1]:%Y-%m-%d %H:%M}"
+        when = f"{local[0]:%Y-%m-%d %H:%M} … {last}, --steps {s.steps} of {when}"
     console.print(weather_table(w, f"{label} forcing of the diurnal run ({len(w)} steps: {when})", tz=tz))
     meta = {
         "provenance": w.attrs["provenance"],

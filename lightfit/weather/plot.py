@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from lightfit.figure import figure_format  # noqa: E402
+from lightfit.weather.solar import par_from_ghi  # noqa: E402
 
 
 def provenance_label(df: pd.DataFrame) -> str:
@@ -36,16 +37,20 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
     ax[0].plot([], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)")
     ax[0].set_ylabel("PAR\nµmol m⁻² s⁻¹")
+    ax[0].plot(t, local["par_umol_m2_s"], color="tab:orange", lw=2.5)
     if {"dni_w_m2", "dhi_w_m2"} <= set(local.columns):
         r = ax[0].twinx()
         r.plot(t, local["ghi_w_m2"], color="k", lw=0.8, label="GHI")
         r.plot(t, local["dhi_w_m2"], color="tab:blue", lw=0.8, ls="--", label="DHI")
         r.plot(t, local["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI")
-        r.set_ylabel("W m⁻²")
+        # One scale for both axes (PAR = 2.285 µmol J⁻¹ × GHI): the thin GHI line lies on the thick PAR
+        # line where the two sensors agree and shows where they do not (free scales hid it exactly).
+        k = float(par_from_ghi(1.0))
+        top = max(ax[0].get_ylim()[1], k * float(local[["ghi_w_m2", "dni_w_m2"]].max().max()) * 1.05)
+        ax[0].set_ylim(0, top)
+        r.set_ylim(0, top / k)
+        r.set_ylabel(f"W m⁻² (× {k:.3f} = PAR scale)")
         r.legend(loc="upper right", fontsize=8)
-        ax[0].set_zorder(r.get_zorder() + 1)  # keep PAR visible above the W m⁻² curves
-        ax[0].patch.set_visible(False)
-    ax[0].plot(t, local["par_umol_m2_s"], color="tab:orange", lw=2.5)
     anchor = df.attrs.get("metadata", {}).get("anchor") or df.attrs.get("anchor")
     if anchor:
         a = anchor if isinstance(anchor, dict) else ast.literal_eval(anchor)
@@ -61,7 +66,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     ax[2].plot(t, local["co2_ppm"], color="tab:green")
     ax[2].set_ylabel("CO2 (ppm)")
     p = ax[2].twinx()
-    p.plot(t, local["pair_kpa"], color="tab:gray")
+    p.plot(t, local["pair_kpa"], color="tab:gray", ls="--", lw=1.0)  # dashed: constant series overlap
     p.set_ylabel("p (kPa)", color="tab:gray")
     if "sun_elevation_deg" in local.columns:
         ax[3].plot(t, local["sun_elevation_deg"], color="goldenrod")
