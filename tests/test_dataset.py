@@ -565,3 +565,21 @@ def test_an_output_folder_holding_a_dataset_is_refused(mono_dataset, results_fil
         make_dataset(results_file, out, DatasetSpec(cameras=[CAM], quantities=("photons",)))
     assert e.value.file == out
     assert sorted(p.name for p in (out / "images").iterdir()) == before  # nothing written
+
+
+def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_file, monkeypatch):
+    """Each label panel's colour bar says its units (from the results schema, as the metadata does)."""
+    from matplotlib.figure import Figure
+
+    from lightfit.dataset.gallery import gallery
+
+    out, meta = mono_dataset
+    quantities = list(meta["quantities"])
+    units = {q: meta["quantities"][q]["units"] for q in quantities}
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
+    gallery(out, meta["images"][:1], quantities, units)
+    labels = {ax.get_ylabel() for ax in seen[0].axes}
+    shown = [q for q in quantities if any(q in ax.get_title() for ax in seen[0].axes)]
+    assert any(units[q] != "1" for q in shown)
+    assert all(units[q] in labels for q in shown if units[q] != "1")

@@ -118,7 +118,8 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     if spec.gallery_images and images:
         from lightfit.dataset.gallery import gallery
 
-        meta["gallery"] = gallery(out, images[: spec.gallery_images], quantities).name
+        units = {q: res.units(q) for q in quantities}
+        meta["gallery"] = gallery(out, images[: spec.gallery_images], quantities, units).name
     if spec.export != "none":
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
     (out / "metadata.json").write_text(json.dumps(meta, indent=2, default=_json_default), encoding="utf-8")

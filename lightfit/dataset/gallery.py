@@ -33,8 +33,10 @@ def _columns(quantities: list[str]) -> list[str]:
     return cols
 
 
-def gallery(out_dir: Path, images: list[dict], quantities: list[str]) -> Path:
-    """Write ``gallery.png`` in ``out_dir`` for the image entries of the metadata; return its path."""
+def gallery(out_dir: Path, images: list[dict], quantities: list[str], units: dict[str, str] | None = None) -> Path:
+    """Write ``gallery.png`` in ``out_dir`` for the image entries of the metadata; return its path.
+    ``units``: each quantity's units, written on its colour bar."""
+    units = units or {}
     # The object API needs no pyplot backend: safe in any process (tests, notebooks, servers).
     from matplotlib.colors import TwoSlopeNorm
     from matplotlib.figure import Figure
@@ -67,7 +69,9 @@ def gallery(out_dir: Path, images: list[dict], quantities: list[str]) -> Path:
                 im = a.imshow(v, cmap="viridis")
                 a.set_title(q, fontsize=8)
             a.set_facecolor("0.15")
-            fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
+            bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
+            if units.get(q):
+                bar.set_label(units[q], fontsize=7)
         for a in ax:
             a.set_xticks([])
             a.set_yticks([])
