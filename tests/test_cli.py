@@ -785,3 +785,16 @@ def test_field_run_records_where_and_when_as_replicate_does(tmp_path):
         where = (a["site"], a["site_timezone"], a["date"], a["preset"])
         assert where == ("Selhausen", "Europe/Berlin", "2016-04-20", "default")
         assert a["window"].startswith("2016-04-20 11:00 + 0.5 h") and '"n_plants"' in a["replication_config"]
+
+
+def test_edge_note_only_where_fapar_exceeds_one():
+    """replicate's table is flagged where canopy APAR exceeds the PAR above the canopy (a finite
+    field's edge; the paper preset's quick field reaches 1.4), and only there."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import edge_line
+
+    edge = xr.Dataset({"fapar": ("time", [0.0, 0.93, 1.2, 1.39])}, attrs={"boundary": "finite"})
+    line = edge_line(edge)
+    assert "fAPAR above 1 at 2 of 4 steps (up to 1.39)" in line and "finite field" in line
+    assert edge_line(xr.Dataset({"fapar": ("time", [0.0, 0.93, 1.0])})) == ""

@@ -134,9 +134,9 @@ def replicate(
     for _, r in table.iterrows():
         t.add_row(*(_cell(r[c], SUMMARY_HEADS.get(c, (c, 3))[1]) for c in table.columns))
     console.print(t)
-    line = mc_bias_line(ds)
-    if line:
-        console.print(line)
+    for line in (mc_bias_line(ds), edge_line(ds)):
+        if line:
+            console.print(line)
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
@@ -163,6 +163,21 @@ def mc_bias_line(ds) -> str:
     return (
         f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
         f"response; not subtracted): {bias / an:+.2%} at {at}, {falls} (docs/model.md)"
+    )
+
+
+def edge_line(ds) -> str:
+    """A note where canopy APAR exceeds the PAR above the canopy (fAPAR > 1: light entering a
+    finite field's measured area through its sides), so the table is not read as a canopy's
+    ("" when fAPAR stays at or below 1)."""
+    fapar = np.asarray(ds["fapar"].values, dtype=float)
+    over = fapar > 1.0
+    if not over.any():
+        return ""
+    return (
+        f"note: fAPAR above 1 at {int(over.sum())} of {fapar.size} steps (up to {np.nanmax(fapar):.2f}): the measured "
+        f"plants take light through the sides of the {ds.attrs.get('boundary', 'finite')} field, so APAR, PAR at "
+        "the plants and An are an edge's, not a canopy's (docs/model.md; the periodic default has no edge)"
     )
 
 
