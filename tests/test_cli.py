@@ -798,3 +798,13 @@ def test_edge_note_only_where_fapar_exceeds_one():
     line = edge_line(edge)
     assert "fAPAR above 1 at 2 of 4 steps (up to 1.39)" in line and "finite field" in line
     assert edge_line(xr.Dataset({"fapar": ("time", [0.0, 0.93, 1.0])})) == ""
+
+
+def test_offset_line_says_how_far_observations_are_from_their_steps():
+    """The bundled record (12:13:48 local) meets the 12:00 step of 30-min instants: 13.8 min."""
+    from lightfit import replication as rep
+    from lightfit.cli.replicate import offset_line
+    from lightfit.inference.observations import read_observations
+
+    w = rep.forcing().iloc[14:16]  # 12:00 and 12:30 local
+    assert "up to 13.8 min away" in offset_line(read_observations(OBSERVATIONS), w)

@@ -139,6 +139,7 @@ def replicate(
             console.print(line)
     if obs is not None:
         console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
+        console.print(offset_line(obs, w))
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")
@@ -163,6 +164,20 @@ def mc_bias_line(ds) -> str:
     return (
         f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
         f"response; not subtracted): {bias / an:+.2%} at {at}, {falls} (docs/model.md)"
+    )
+
+
+def offset_line(obs, w) -> str:
+    """How far the observations lie from the steps they are compared with (the model is not
+    interpolated in time: a spot reading 14 min after a step meets that step's light)."""
+    from lightfit.inference.observations import nearest_steps
+    from lightfit.weather import timestamps
+
+    _, dist = nearest_steps(obs, w.index, timestamps.of(w))
+    far = float(np.max(dist) / np.timedelta64(1, "s")) / 60.0 if len(dist) else 0.0
+    return (
+        f"  compared with the run's nearest steps, up to {far:.1f} min away (the model is not interpolated "
+        "in time; a finer --step brings them closer)"
     )
 
 
