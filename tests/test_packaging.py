@@ -70,10 +70,12 @@ def imports_of(path: Path, root: Path) -> set[str]:
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             if node.level == 0:
-                out.add(node.module)
+                base = node.module.split(".")
             else:
-                base = package[: len(package) - node.level + 1]
-                out.add(".".join(base + ([node.module] if node.module else [])))
+                base = package[: len(package) - node.level + 1] + ([node.module] if node.module else [])
+            out.add(".".join(base))
+            # ``from lightfit import inference`` imports the subpackage: each name may be a module
+            out.update(".".join(base + [a.name]) for a in node.names if a.name != "*")
         elif (
             isinstance(node, ast.Call)
             and isinstance(node.func, ast.Attribute)
@@ -156,6 +158,8 @@ RANK = {
     "cli": 7,
 }
 SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", ""}
+#: What the package root (``import lightfit``) may import: the Mitsuba backend it sets up.
+ROOT_IMPORTS = {"light"}
 
 
 def layer_violations(root: Path) -> list[str]:
@@ -170,7 +174,12 @@ def layer_violations(root: Path) -> list[str]:
             if parts[0] != own:
                 continue
             theirs = parts[1] if len(parts) > 1 else ""
-            if mine in SHARED or theirs in SHARED or mine == theirs:
+            if theirs and not ((root / theirs).is_dir() or (root / f"{theirs}.py").exists()):
+                continue  # a name from the root, not a module (``from lightfit import __version__``)
+            if theirs in SHARED or mine == theirs or (mine == "" and theirs in ROOT_IMPORTS):
+                continue
+            if mine in SHARED:  # a shared helper may be imported anywhere, so it imports shared helpers only
+                bad.append(f"{me} -> {name}")
                 continue
             assert mine in RANK and theirs in RANK, f"give {me} / {name} a rank in RANK"
             if RANK[theirs] > RANK[mine] or (RANK[theirs] == RANK[mine] and mine != theirs):
@@ -192,11 +201,20 @@ def test_layout_flows_one_way():
         ("dataset/x.py", "from lightfit.replication import run\n", False),
         ("model/x.py", "from lightfit.light.bridge import make_irradiance\nfrom lightfit.errors import E\n", True),
         ("cli/x.py", "from lightfit.inference import calibration\n", True),
+        ("light/x.py", "from lightfit import inference\n", False),  # the subpackage, by name
+        ("light/x.py", "from .. import model\n", False),
+        ("cache.py", "from lightfit.inference import likelihood\n", False),  # a shared helper, upward
+        ("cache.py", "from lightfit.errors import InputError\n", True),
+        ("model/x.py", "from lightfit import __version__\n", True),  # a name, not a module
+        ("__init__.py", "from lightfit.light import backend\n", True),  # the root sets up Mitsuba
     ],
 )
 def test_layout_check_catches_reversed_imports(tmp_path, importer, source, ok):
     pkg = tmp_path / "lightfit"
-    for rel in ("__init__.py", importer):
+    for part in RANK:  # the package's parts, as modules the check can see
+        (pkg / part).mkdir(parents=True, exist_ok=True)
+        (pkg / part / "__init__.py").write_text("")
+    for rel in ("__init__.py", importer, "errors.py"):
         (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
         (pkg / rel).write_text("")
     (pkg / Path(importer).parent / "__init__.py").write_text("")
