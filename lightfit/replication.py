@@ -314,15 +314,7 @@ def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None) -
 def when_attrs(cfg: ReplicationConfig, date: str) -> dict[str, str | float]:
     """netCDF attrs recording a run's day, window and site (the plants' ``target_date`` is the date)."""
     site = cfg.site
-    return {
-        "date": date,
-        "window": cfg.window.describe(date, site.timezone),
-        "site": site.name,
-        "site_latitude_deg": site.latitude_deg,
-        "site_longitude_deg": site.longitude_deg,
-        "site_altitude_m": site.altitude_m,
-        "site_timezone": site.timezone,
-    }
+    return {"date": date, "window": cfg.window.describe(date, site.timezone), **site.attrs()}
 
 
 def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:

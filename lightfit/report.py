@@ -46,7 +46,9 @@ def summary(ds) -> pd.DataFrame:
 
 def _tz(ds) -> str:
     """The run's local time zone (results attr ``site_timezone``; Selhausen's before sites were options)."""
-    return str(ds.attrs.get("site_timezone", "Europe/Berlin"))
+    from lightfit.weather.site import Site
+
+    return Site.from_attrs(ds.attrs).timezone
 
 
 def preset_name(attrs, other: str = "this run") -> str:

@@ -15,6 +15,7 @@ from typer.core import TyperGroup
 
 from lightfit.errors import InputError
 from lightfit.model.parameters import check_theta
+from lightfit.weather.site import SELHAUSEN
 
 #: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
 console = Console()
@@ -244,7 +245,7 @@ def samples_label(samples: int, target_rse: float | None) -> str:
     return f"target {target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
 
 
-def weather_table(df, title: str, max_rows: int = 40, tz: str = "Europe/Berlin") -> Table:
+def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezone) -> Table:
     """A weather series as a table (every k-th row so that at most ``max_rows`` are shown)."""
     t = Table(title=title, caption="PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm")
     t.add_column("UTC")

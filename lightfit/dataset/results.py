@@ -202,18 +202,9 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
 def _site(res: Results):
     """The run's site from its results attrs (:func:`lightfit.replication.when_attrs`); results
     written before sites were recorded are Selhausen runs."""
-    from lightfit.weather.site import SELHAUSEN, Site
+    from lightfit.weather.site import Site
 
-    a = res.ds.attrs
-    if "site_latitude_deg" not in a:
-        return SELHAUSEN
-    return Site(
-        latitude_deg=float(a["site_latitude_deg"]),
-        longitude_deg=float(a["site_longitude_deg"]),
-        altitude_m=float(a.get("site_altitude_m", SELHAUSEN.altitude_m)),
-        name=str(a.get("site", "site")),
-        timezone=str(a.get("site_timezone", "UTC")),
-    )
+    return Site.from_attrs(res.ds.attrs)
 
 
 def _sun(res: Results) -> pd.DataFrame:

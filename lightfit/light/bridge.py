@@ -31,7 +31,9 @@ from numpy.typing import ArrayLike
 from lightfit.errors import InputError, check_integer
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import (
+    CLEAR_DAY_DHI_PER_DNI,
     DARK_FLOOR,
+    MAX_ADAPTIVE_SAMPLES,
     PARTS,
     AdaptiveEstimator,
     SegmentEstimator,
@@ -62,7 +64,7 @@ def make_irradiance(
     sensor_samples: int = DEFAULT_SENSOR_SAMPLES,
     target_rse: float | None = None,
     allocate_at: tuple[ArrayLike, ArrayLike, float, float] | None = None,
-    max_samples: int = 8192,
+    max_samples: int = MAX_ADAPTIVE_SAMPLES,
     dark_floor: float = DARK_FLOOR,
     direct: str = "paths",
     direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
@@ -124,7 +126,7 @@ def make_irradiance(
         direct_kw = dict(direct=direct, direct_rays_per_m2=direct_rays_per_m2)
         if target_rse is None:
             return SegmentEstimator(field_scene, ids, samples=samples, bounces=bounces, seed=s, **direct_kw)
-        a_leaf, a_sun, dni, dhi = (leaf, sun_deg, 1.0, 0.3) if allocate_at is None else allocate_at
+        a_leaf, a_sun, dni, dhi = (leaf, sun_deg, 1.0, CLEAR_DAY_DHI_PER_DNI) if allocate_at is None else allocate_at
         set_state(np.asarray(a_leaf, np.float64), np.asarray(a_sun, np.float64))
         est = AdaptiveEstimator(
             field_scene,

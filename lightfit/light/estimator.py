@@ -73,6 +73,9 @@ from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
 from lightfit.light.scene import FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
+#: DHI / DNI of a clear day: how the sun and sky parts are weighted where a relative error is judged
+#: without the step's weather (the adaptive allocation's default, the SE reports).
+CLEAR_DAY_DHI_PER_DNI = 0.3
 #: Where a :class:`SegmentEstimator`'s unscattered light comes from (its ``direct`` argument).
 DIRECT_MODES = ("paths", "projection", "none")
 #: Version of the estimator's random numbers and sampling: bumped whenever a change moves rendered
@@ -164,14 +167,16 @@ class Irradiance:
     cov: dict = field(default_factory=dict)
 
     def total(self, part: str, dni: float, dhi: float) -> np.ndarray:
-        """``dni·<part>_sun + dhi·<part>_sky`` for ``part`` in {"incident", "absorbed"}."""
+        """``dni·<part>_sun + dhi·<part>_sky`` for ``part`` in {"incident", "absorbed"}: the parts are per
+        unit DNI and DHI, so the result is in the units of ``dni`` and ``dhi`` (e.g. µmol m⁻² s⁻¹ of
+        PAR) per one-sided segment area."""
         return dni * getattr(self, f"{part}_sun") + dhi * getattr(self, f"{part}_sky")
 
     def front(self, part: str) -> np.ndarray:
         """``part`` on the front side only (blades: the upper side; stems: the outer side)."""
         return self.meta["front"][part]
 
-    def relative_se(self, part: str = "absorbed", dni: float = 1.0, dhi: float = 0.3) -> np.ndarray:
+    def relative_se(self, part: str = "absorbed", dni: float = 1.0, dhi: float = CLEAR_DAY_DHI_PER_DNI) -> np.ndarray:
         """Relative standard error of ``total(part, dni, dhi)``, with the sun–sky covariance
         (:attr:`cov`; parts treated as independent where it is missing)."""
         v = self.total(part, dni, dhi)
@@ -191,6 +196,9 @@ def samples_used(samples: int) -> int:
 #: Fewest points per segment of adaptive sampling's first round (8 replicates, what its stopping
 #: rule needs): a smaller ``samples`` with a target is raised to it.
 MIN_PILOT = 32
+#: Most points per segment adaptive sampling spends; segments still above the target there are
+#: reported (``samples_per_segment`` = this, ``reached_rse``).
+MAX_ADAPTIVE_SAMPLES = 8192
 
 
 def adaptive_pilot(samples: int) -> int:
@@ -1054,10 +1062,10 @@ def samples_for_accuracy(
     *,
     bounces: int = 3,
     seed: int = 0,
-    pilot: int = 32,
+    pilot: int = MIN_PILOT,
     quantile: float = 0.5,
     dni: float = 1.0,
-    dhi: float = 0.3,
+    dhi: float = CLEAR_DAY_DHI_PER_DNI,
     max_samples: int = 1 << 16,
 ) -> int:
     """K needed for the ``quantile`` of per-segment relative SE of absorbed PAR to reach ``target_rse``.
@@ -1175,11 +1183,11 @@ def render_adaptive(
     *,
     bounces: int = 3,
     seed: int = 0,
-    pilot: int = 32,
+    pilot: int = MIN_PILOT,
     growth: int = 2,
-    max_samples: int = 8192,
+    max_samples: int = MAX_ADAPTIVE_SAMPLES,
     dni: float = 1.0,
-    dhi: float = 0.3,
+    dhi: float = CLEAR_DAY_DHI_PER_DNI,
     direct: str = "paths",
     direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
     dark_floor: float = DARK_FLOOR,

@@ -61,7 +61,8 @@ INACTIVE, RUNNING, LEAF, SOIL, SKY, CAPPED = range(6)
 
 
 def crossing_cap(cell: PeriodicCell, z_top: float, tolerance: float = DEFAULT_CROSSING_TOLERANCE) -> int:
-    """Crossing cap C for a cell and canopy top so that truncated light ≤ ``tolerance`` (module doc)."""
+    """Crossing cap C for a cell and canopy top ``z_top`` (m, the height rays start from) so that
+    truncated light ≤ ``tolerance`` (a fraction; module doc)."""
     if not 0 < tolerance < 1:
         raise InputError(
             f"crossing tolerance={tolerance!r}", column="crossing_tolerance", expected="a number in (0, 1)"

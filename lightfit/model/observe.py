@@ -107,7 +107,7 @@ def plant_par(par, par_mc_sd, area_m2) -> tuple:
     """Area-weighted mean, spread and Monte Carlo SD of PAR over the segments.
 
     Args:
-        par, par_mc_sd: (T, S) PAR of every measured segment and its Monte Carlo SD.
+        par, par_mc_sd: (T, S) PAR of every measured segment and its Monte Carlo SD, µmol m⁻² s⁻¹.
         area_m2: (S,) one-sided segment areas (the weights).
 
     Returns ``(mean, spread, mc_sd)``, each (T,), µmol m⁻² s⁻¹.
@@ -145,7 +145,7 @@ def canopy_an(an, an_mc_sd, blade_area_m2, denominator_m2) -> tuple:
         blade_area_m2: (B,) one-sided blade areas.
         denominator_m2: leaf area (Σ blade area) or ground area, m² (:func:`an_denominator`).
 
-    Returns ``(canopy_an, canopy_an_mc_sd)``, each (T,).
+    Returns ``(canopy_an, canopy_an_mc_sd)``, each (T,), µmol m⁻² s⁻¹ per m² of ``denominator_m2``.
     """
     return area_total(an, an_mc_sd, blade_area_m2, denominator_m2)
 
@@ -276,7 +276,9 @@ def observables(
     observables are NaN).
 
     ``par``/``par_mc_sd`` are the plant-PAR kind (incident or absorbed); canopy An is per
-    ``denominator_m2``, APAR and NEE per ``ground_area_m2``.
+    ``denominator_m2``, APAR and NEE per ``ground_area_m2``. Units: every PAR and An in
+    µmol m⁻² s⁻¹ (PAR per one-sided segment area, An per one-sided blade area), areas in m²; the
+    observables likewise (fractions dimensionless), as :data:`OBSERVABLES` names them.
     """
     xp = np if _numpy(par, an, above_par) else jnp
     mean, spread, par_sd = plant_par(par, par_mc_sd, area_m2)
@@ -343,7 +345,8 @@ def _solve_with_slope(q, forcing: Forcing, params: PhotosynthesisParams):
 
 
 def exact_leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
-    """The photosynthesis solved for every blade (with the full result)."""
+    """The photosynthesis solved for every blade at absorbed PAR ``q`` (µmol m⁻² s⁻¹, per blade), with
+    the full result (net assimilation µmol m⁻² s⁻¹ per one-sided leaf area)."""
     res, dan = _solve_with_slope(q, forcing, params)
     return LeafResponse(res.an_umol_m2_s, dan, res.converged, res)
 

@@ -19,6 +19,7 @@ import pandas as pd
 from lightfit.errors import InputError, is_real
 from lightfit.light.estimator import (
     DARK_FLOOR,
+    MAX_ADAPTIVE_SAMPLES,
     bounces_for_tolerance,
     check_bounces,
     check_run_samples,
@@ -120,9 +121,6 @@ def check_choice(name: str, value) -> str:
 
 #: Highest ceptometer a scenario accepts, m (well above any wheat canopy: a typo guard).
 MAX_CEPTOMETER_HEIGHT_M = 10.0
-#: Most points per segment adaptive sampling spends (:attr:`Scenario.target_rse`); segments still
-#: above the target there are reported (results ``samples_per_segment`` = this, ``reached_rse``).
-MAX_ADAPTIVE_SAMPLES = 8192
 
 
 def sun_positions_deg(weather: pd.DataFrame) -> np.ndarray:

@@ -19,8 +19,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .parameters import PhotosynthesisParams, TemperatureParams
+from .stomata import saturation_vapour_pressure_kpa
 
 _SECONDS_PER_DAY = 24 * 3600
+#: Air temperature of the CPlantBox run [°C]: its vapour pressures, and the leaves left without a point.
+_AIR_C = 20.0
 
 
 class PeerOutput(NamedTuple):
@@ -125,12 +128,14 @@ def run_cplantbox(
     slots = np.flatnonzero(blade)
     n_leaf, n_slot = len(leaf_ids), len(slots)
     out = {k: np.empty(par.size) for k in ("an", "vc", "vj", "gs", "ci", "fw")}
-    es = 0.61078 * np.exp(17.27 * 20.0 / (20.0 + 237.3))
+    # CPlantBox takes one air vapour pressure for the plant: air at 20 °C and ``rh``. It sets the
+    # transpiration, hence fw, which lightfit is given; the leaf's own VPD is not compared here.
+    es = float(saturation_vapour_pressure_kpa(_AIR_C))
     elapsed, n_solves = 0.0, 0
     for start in range(0, par.size, n_slot):
         idx = np.arange(start, min(start + n_slot, par.size))
         q = np.full(n_leaf, 0.0)
-        t = np.full(n_leaf, 20.0)
+        t = np.full(n_leaf, _AIR_C)
         c = np.full(n_leaf, 400.0)
         q[slots[: idx.size]] = par[idx]
         t[slots[: idx.size]] = tl[idx]

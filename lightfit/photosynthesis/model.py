@@ -40,7 +40,7 @@ import numpy as np
 import optimistix as optx
 from jax.typing import ArrayLike
 
-from .constants import ZERO_CELSIUS_K
+from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities
 from .parameters import DEFAULT_PARAMETER_SET, PhotosynthesisParams, cast_params, check_params, parameter_set
 from .solver import SolverConfig, bracketed_newton, fixed_point_iteration
@@ -379,7 +379,7 @@ def prepare_environment(
     tleaf_c: ArrayLike,
     co2_ppm: ArrayLike,
     rh: ArrayLike | None = None,
-    pair_kpa: ArrayLike = 101.325,
+    pair_kpa: ArrayLike = REFERENCE_PRESSURE_KPA,
     params: PhotosynthesisParams | None = None,
     *,
     vpd_kpa: ArrayLike | None = None,
@@ -475,7 +475,7 @@ def solve(
     tleaf_c: ArrayLike,
     co2_ppm: ArrayLike,
     rh: ArrayLike | None = None,
-    pair_kpa: ArrayLike = 101.325,
+    pair_kpa: ArrayLike = REFERENCE_PRESSURE_KPA,
     params: PhotosynthesisParams | None = None,
     *,
     vpd_kpa: ArrayLike | None = None,
@@ -536,7 +536,7 @@ def solve_with_par_slope(
     tleaf_c: ArrayLike,
     co2_ppm: ArrayLike,
     rh: ArrayLike | None = None,
-    pair_kpa: ArrayLike = 101.325,
+    pair_kpa: ArrayLike = REFERENCE_PRESSURE_KPA,
     params: PhotosynthesisParams | None = None,
     *,
     vpd_kpa: ArrayLike | None = None,
@@ -573,7 +573,7 @@ def solve_plain_iteration(
     tleaf_c: ArrayLike,
     co2_ppm: ArrayLike,
     rh: ArrayLike | None = None,
-    pair_kpa: ArrayLike = 101.325,
+    pair_kpa: ArrayLike = REFERENCE_PRESSURE_KPA,
     params: PhotosynthesisParams | None = None,
     *,
     vpd_kpa: ArrayLike | None = None,

@@ -64,6 +64,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike, DTypeLike
 
+from .constants import AIR_O2_MMOL_MOL
+
 TEMPERATURE_FORMS = ("cplantbox", "peaked")
 STOMATAL_MODELS = ("cplantbox", "tuzet", "leuning", "medlyn")
 
@@ -189,7 +191,7 @@ class FvCBParams(eqx.Module):
     rd_to_vcmax: jax.Array | float
     quantum_yield: jax.Array | float
     curvature: jax.Array | float
-    o2_mmol_mol: jax.Array | float = 210.0
+    o2_mmol_mol: jax.Array | float = AIR_O2_MMOL_MOL
     gm_mol_m2_s: jax.Array | float = float("inf")
     clip_rates: bool = eqx.field(static=True, default=True)
 
@@ -275,7 +277,7 @@ def _cplantbox() -> PhotosynthesisParams:
             rd_to_vcmax=0.015,
             quantum_yield=0.2,
             curvature=0.9,
-            o2_mmol_mol=210.0,
+            o2_mmol_mol=AIR_O2_MMOL_MOL,
             clip_rates=True,
         ),
         temperature=TemperatureParams.cplantbox(),
@@ -293,7 +295,7 @@ def _giraud_fvcb() -> FvCBParams:
         rd_to_vcmax=0.015,
         quantum_yield=0.4,
         curvature=0.6,
-        o2_mmol_mol=210.0,
+        o2_mmol_mol=AIR_O2_MMOL_MOL,
         clip_rates=True,
     )
 
@@ -336,7 +338,7 @@ def _winter_wheat() -> PhotosynthesisParams:
             rd_to_vcmax=0.015,
             quantum_yield=4 * 0.088,  # Evans (2013), C3 photon yield without photorespiration
             curvature=0.7,
-            o2_mmol_mol=210.0,
+            o2_mmol_mol=AIR_O2_MMOL_MOL,
             clip_rates=True,
         ),
         temperature=TemperatureParams.kattge_knorr2007(WINTER_WHEAT_GROWTH_TEMPERATURE_C),

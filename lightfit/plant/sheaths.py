@@ -92,7 +92,7 @@ class _Axis:
         self.first, self.last = self.units[valid[0]], self.units[valid[-1]]
 
     def locate(self, q: np.ndarray) -> tuple[float, float]:
-        """Arc length of the axis point nearest ``q`` and the distance to it."""
+        """Arc length (m) of the axis point nearest ``q`` (a point, m) and the distance (m) to it."""
         t = np.clip(np.einsum("ij,ij->i", q - self.points[:-1], self.units), 0.0, self.lengths)
         dist = np.linalg.norm(self.points[:-1] + t[:, None] * self.units - q, axis=1)
         i = int(np.argmin(dist))

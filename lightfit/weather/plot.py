@@ -13,7 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from lightfit.figure import figure_format  # noqa: E402
-from lightfit.weather.solar import par_from_ghi  # noqa: E402
+from lightfit.weather.site import SELHAUSEN  # noqa: E402
+from lightfit.weather.units import par_from_ghi  # noqa: E402
 
 
 def provenance_label(df: pd.DataFrame) -> str:
@@ -23,7 +24,7 @@ def provenance_label(df: pd.DataFrame) -> str:
     return "UNSTATED-PROVENANCE" if prov == "unstated" else prov.upper()
 
 
-def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None, tz: str = "Europe/Berlin") -> Path:
+def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None, tz: str = SELHAUSEN.timezone) -> Path:
     """Write a four-panel figure of a contract series; the title states its provenance. The
     format comes from the suffix of ``path`` (:func:`lightfit.figure.figure_format`).
 

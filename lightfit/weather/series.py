@@ -18,6 +18,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.weather import timestamps
+from lightfit.weather.site import SELHAUSEN
 from lightfit.weather.timestamps import Timestamps
 
 #: Contract columns and their units (also in the names).
@@ -417,7 +418,7 @@ def window(
     step: str = "30min",
     *,
     how: str = "sample",
-    tz: str = "Europe/Berlin",
+    tz: str = SELHAUSEN.timezone,
 ) -> pd.DataFrame:
     """Time steps ``start, start + step, …, start + hours`` (inclusive), e.g. a diurnal run.
 

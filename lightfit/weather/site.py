@@ -61,6 +61,29 @@ class Site:
                 raise InputError(f"{attr}={v!r}", column=attr, expected=what)
         check_timezone(self.timezone)
 
+    def attrs(self) -> dict[str, str | float]:
+        """The site as netCDF attributes (``site``, ``site_latitude_deg`` …): what :meth:`from_attrs` reads."""
+        return {
+            "site": self.name,
+            "site_latitude_deg": self.latitude_deg,
+            "site_longitude_deg": self.longitude_deg,
+            "site_altitude_m": self.altitude_m,
+            "site_timezone": self.timezone,
+        }
+
+    @staticmethod
+    def from_attrs(attrs) -> Site:
+        """The site a results file records (:meth:`attrs`); Selhausen's for files written before
+        sites were options (they all ran there), key by key."""
+        base = Site()
+        return Site(
+            latitude_deg=float(attrs.get("site_latitude_deg", base.latitude_deg)),
+            longitude_deg=float(attrs.get("site_longitude_deg", base.longitude_deg)),
+            altitude_m=float(attrs.get("site_altitude_m", base.altitude_m)),
+            name=str(attrs.get("site", base.name)),
+            timezone=str(attrs.get("site_timezone", base.timezone)),
+        )
+
 
 #: Selhausen field minirhizotron facility (TERENO Rur catchment), the reference paper's site:
 #: 50.865 N, 6.447 E (Baker et al. 2025, in silico Plants diaf018; Cai et al. 2016, Vadose Zone J.

@@ -13,7 +13,7 @@ import pvlib
 from lightfit.errors import InputError
 from lightfit.weather import timestamps
 from lightfit.weather.site import SELHAUSEN, Site
-from lightfit.weather.units import par_from_ghi
+from lightfit.weather.units import PAR_FRACTION, UMOL_PER_JOULE_PAR, par_from_ghi
 
 SPLIT_MODELS = ("erbs", "boland")
 #: Measured PAR ÷ global radiation a series may have, µmol J⁻¹ (median over steps with global
@@ -328,7 +328,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
                 "kind": "derived",
                 "column": "par_umol_m2_s",
                 "count": len(out),
-                "detail": f"PAR estimated from global radiation × {k:.3f} µmol J⁻¹ (0.50 × 4.57)",
+                "detail": f"PAR estimated from global radiation × {k:.3f} µmol J⁻¹ "
+                f"({PAR_FRACTION:.2f} × {UMOL_PER_JOULE_PAR:g})",
             }
         )
     if "ghi_w_m2" not in out.columns:
