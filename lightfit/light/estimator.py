@@ -1055,44 +1055,6 @@ class SegmentEstimator:
         return {k: grads[k] + g[k] for k in grads}
 
 
-def samples_for_accuracy(
-    field_scene: FieldScene,
-    segment_ids: ArrayLike,
-    target_rse: float,
-    *,
-    bounces: int = 3,
-    seed: int = 0,
-    pilot: int = MIN_PILOT,
-    quantile: float = 0.5,
-    dni: float = 1.0,
-    dhi: float = CLEAR_DAY_DHI_PER_DNI,
-    max_samples: int = 1 << 16,
-) -> int:
-    """K needed for the ``quantile`` of per-segment relative SE of absorbed PAR to reach ``target_rse``.
-
-    Runs a pilot with ``pilot`` samples and scales by the Monte Carlo rate K ∝ rse⁻²
-    (randomised QMC converges at least that fast). Weights ``dni``/``dhi`` set the mix of the sun
-    and sky parts (default: a clear day's DHI/DNI ≈ 0.3). Segments receiving nothing (zero
-    absorbed light) are ignored.
-
-    The pilot takes the direct light from the paths, where K is the only knob. With the
-    projected direct light (``direct="projection"``) K hardly moves the error (it carries only
-    light scattered twice and more): raise ``direct_rays_per_m2`` or use :func:`render_adaptive`.
-    """
-    check_target_rse(target_rse)
-    check_par_weights(dni, dhi)
-    if not (is_real(quantile) and 0 <= quantile <= 1):
-        raise InputError(f"quantile={quantile!r}", column="quantile", expected="a number in [0, 1]")
-    check_integer(max_samples, "max_samples", 2)
-    r = SegmentEstimator(field_scene, segment_ids, samples=pilot, bounces=bounces, seed=seed).render()
-    rse = r.relative_se("absorbed", dni, dhi)
-    rse = rse[np.isfinite(rse)]
-    if len(rse) == 0:
-        return pilot
-    k = math.ceil(r.samples * (np.quantile(rse, quantile) / target_rse) ** 2)
-    return int(min(max(k, 2 * replicates_for(k)), max_samples))
-
-
 def _trim_suns(proj: DirectProjection | None, fs: FieldScene) -> None:
     """Hold a projection's kept sun hits within its memory budget, the scene's sun's kept
     (:meth:`DirectProjection.trim_suns`): after a render, a reverse pass, and a ``render_many``,

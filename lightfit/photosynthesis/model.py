@@ -583,8 +583,8 @@ def solve_plain_iteration(
 ) -> PhotosynthesisResult:
     """Baseline: the same steady state by plain fixed-point iteration cc ← ca − An/g_tot.
 
-    Not robust (it oscillates or diverges where gs ≈ g0 and An ≈ 0); kept for the
-    benchmark and to test the robust solver against. Not differentiable by design.
+    Not robust (it oscillates or diverges where gs ≈ g0 and An ≈ 0); kept to test the robust
+    solver against (``benchmarks/bench_photosynthesis.py`` times its kernel). Not differentiable by design.
     Coupled closures only.
     """
     env, params, config = _prepared(
