@@ -120,34 +120,10 @@ def open_results(source) -> Results:
 def field_of(res: Results):
     """The :class:`lightfit.plant.Field` described by the results' attrs (``boundary`` included:
     a periodic run is rebuilt as its periodic cell, not as a finite block without buffers; so are
-    ``sheaths``: a file without them had CPlantBox's rods)."""
-    from lightfit.plant import Field, GrowthConfig
-    from lightfit.plant.field import BOUNDARIES
-    from lightfit.plant.sheaths import check_sheaths
+    ``sheaths``: a file without them had CPlantBox's rods): :meth:`Field.from_attrs`."""
+    from lightfit.plant import Field
 
-    a = res.ds.attrs
-    growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
-    kw = {k: float(a[k]) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
-    boundary = str(a.get("boundary", "finite"))
-    if boundary not in BOUNDARIES:
-        raise InputError(
-            f"boundary={boundary!r}", file=res.path or "results", expected=f"attr boundary {' or '.join(BOUNDARIES)}"
-        )
-    periodic = boundary == "periodic"
-    try:
-        sheaths = check_sheaths(str(a.get("sheaths", "rods")))
-    except InputError as e:
-        raise e.in_file(res.path or "results") from None
-    return Field(
-        n_plants=int(a["n_plants"]),
-        buffer_rows=None if periodic else int(a["buffer_rows"]),
-        seed=int(a["seed"]),
-        buffer_along=int(a["buffer_along"]) if "buffer_along" in a and not periodic else None,
-        growth=GrowthConfig(**growth),
-        boundary=boundary,
-        sheaths=sheaths,
-        **kw,
-    )
+    return Field.from_attrs(res.ds.attrs, file=res.path)
 
 
 def build_geometry(res: Results, cache_dir=None):

@@ -313,7 +313,7 @@ class CoupledModel:
             ds["time_bnds"] = (("time", "bound"), np.column_stack([b.values for b in bounds]))
         schema.annotate(ds)
         warn_unconverged(ds)
-        fld, g = sc.field, sc.field.growth
+        fld = sc.field
         ds.attrs = {
             "title": "lightfit coupled run",
             "conventions": "variable attributes: lightfit.model.schema (CF-style units, long_name)",
@@ -322,21 +322,10 @@ class CoupledModel:
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
             "weather_source": str(w.attrs.get("source", "")),
             "weather_timestamps": self.timestamps.describe(),
-            "n_plants": fld.n_plants,
-            "boundary": fld.boundary,
-            "buffer_rows": fld.buffer_rows,
-            "buffer_along": fld.b_along,
-            "sheaths": fld.sheaths,
-            "seed": fld.seed,
+            **fld.attrs(),
             "n_tiles": sc.n_tiles,
             "tile": -1 if sc.tile is None else sc.tile,
-            "row_spacing_m": fld.row_spacing_m,
-            "plant_spacing_m": fld.plant_spacing_m,
-            "row_direction_deg": fld.row_direction_deg,
             "ground_area_m2": self.ground_area_m2,
-            "parameter_file": g.parameter_file,
-            "season_start": g.season_start,
-            "target_date": g.target_date,
             "samples": sc.samples,
             **(
                 {}

@@ -30,6 +30,14 @@ from lightfit.plant.mesh import Mesh
 IMAGE_MARGIN_M = 1e-6
 
 
+def row_axes(row_direction_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors (x = east, y = north) along rows of compass azimuth ``row_direction_deg``
+    (degrees) and across them, 90° counter-clockwise: a field's and its cell's frame."""
+    az = math.radians(row_direction_deg)
+    along = np.array([math.sin(az), math.cos(az)])
+    return along, np.array([-along[1], along[0]])
+
+
 @dataclass(frozen=True)
 class PeriodicCell:
     """One cell of a rectangular lattice of identical copies of the field.
@@ -59,9 +67,7 @@ class PeriodicCell:
     @property
     def axes(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit vectors (x, y) of the cell frame: ê_a along the rows, ê_b across them."""
-        az = math.radians(self.row_direction_deg)
-        ea = np.array([math.sin(az), math.cos(az)])
-        return ea, np.array([-ea[1], ea[0]])
+        return row_axes(self.row_direction_deg)
 
     @property
     def size_m(self) -> np.ndarray:
