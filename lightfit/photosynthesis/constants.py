@@ -1,11 +1,15 @@
-"""Physical constants shared by the photosynthesis modules (SI units unless stated)."""
+"""Physical constants shared by the photosynthesis modules (SI units unless stated); the gas
+constant and the kelvin offset are lightfit's (:mod:`lightfit.constants`)."""
 
-#: Molar gas constant [J mol⁻¹ K⁻¹] (CODATA 2018). CPlantBox uses 8.3143; the difference
-#: changes Arrhenius factors by < 1e-5 relative over 5–35 °C.
-GAS_CONSTANT_J_MOL_K = 8.314462618
+from lightfit.constants import GAS_CONSTANT_J_MOL_K, ZERO_CELSIUS_K
 
-#: 0 °C in kelvin.
-ZERO_CELSIUS_K = 273.15
+__all__ = [
+    "AIR_O2_MMOL_MOL",
+    "GAMMA_STAR_REFERENCE_O2_MMOL_MOL",
+    "GAS_CONSTANT_J_MOL_K",
+    "REFERENCE_PRESSURE_KPA",
+    "ZERO_CELSIUS_K",
+]
 
 #: Pressure at which Michaelis constants are tabulated as mole fractions [kPa].
 REFERENCE_PRESSURE_KPA = 101.325

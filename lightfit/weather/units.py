@@ -8,12 +8,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightfit.constants import GAS_CONSTANT_J_MOL_K as R_GAS
+from lightfit.constants import ZERO_CELSIUS_K as T0
+
 #: Specific gas constant of water vapour, J kg⁻¹ K⁻¹ (e.g. Monteith & Unsworth 2013, App. 2).
 R_WATER_VAPOUR = 461.5
-#: Molar gas constant, J mol⁻¹ K⁻¹ (CODATA 2018, exact).
-R_GAS = 8.314462618
-#: Kelvin offset.
-T0 = 273.15
 #: Fraction of broadband global radiation that is PAR (400–700 nm), energy basis (≈0.45–0.50;
 #: McCree 1972; Meek et al. 1984). docs/design.md §6 uses 0.50.
 PAR_FRACTION = 0.50
