@@ -15,6 +15,7 @@ present), the forcing, and a summary table.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -464,12 +465,39 @@ def concat_days(parts: list) -> xr.Dataset:
     return schema.annotate(out)
 
 
+#: First bytes of the files a results name may already hold and be replaced: netCDF-4 (HDF5) and classic netCDF.
+_NETCDF_MAGIC = (b"\x89HDF\r\n\x1a\n", b"CDF\x01", b"CDF\x02", b"CDF\x05")
+
+
 def check_netcdf_name(path: str | Path) -> Path:
-    """``path`` if it names a netCDF file (``.nc``), else :class:`InputError` naming it: a results
-    file called ``r.csv`` would be netCDF under a name that every reader takes for text."""
+    """``path`` if it names a netCDF file (``.nc``) that can be written, else :class:`InputError`
+    naming it, before any work: a results file called ``r.csv`` would be netCDF under a name that
+    every reader takes for text; a folder of that name, a file where its folder should be, or an
+    existing file that is not netCDF (it would be overwritten) are refused too."""
     path = Path(path)
     if path.suffix.lower() != ".nc":
         raise InputError("results are written as netCDF", file=path, expected="a file name ending in .nc")
+    if path.is_dir():
+        raise InputError(
+            "is a folder", file=path, column="out", expected="a netCDF file name (the file is written there)"
+        )
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(
+                    f"{parent} is a file", file=path, column="out", expected="a path whose folders are folders"
+                )
+            break
+    if path.is_file():
+        with open(path, "rb") as f:
+            head = f.read(8)
+        if not head.startswith(_NETCDF_MAGIC):
+            raise InputError(
+                "exists and is not a netCDF file",
+                file=path,
+                column="out",
+                expected="a new name, or a results file to replace",
+            )
     return path
 
 
@@ -483,5 +511,11 @@ def write_netcdf(ds, path: Path) -> Path:
     if "time_bnds" in ds.variables:  # CF: a time and its bounds in one unit
         for v in ("time", "time_bnds"):
             ds[v].encoding.update(units="seconds since 1970-01-01 00:00:00", calendar="proleptic_gregorian")
-    ds.to_netcdf(path, engine="h5netcdf")
+    # Written beside and renamed into place: an interrupted write leaves the previous file whole.
+    tmp = path.with_name(f".{path.name}.partial")
+    try:
+        ds.to_netcdf(tmp, engine="h5netcdf")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path

@@ -329,6 +329,48 @@ def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypat
     assert not (tmp_path / "cache").exists() and not (tmp_path / "r.csv").exists()
 
 
+def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, monkeypatch):
+    """A folder named r.nc, a file where the folder should be, or an existing file that is not
+    netCDF (it was overwritten) are refused naming --out before any plant grows (a folder was
+    found only after every task had run)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "d.nc").mkdir()
+    (tmp_path / "text.nc").write_text("hello\n")
+    for out, words in (
+        ("d.nc", ["is a folder"]),
+        ("text.nc", ["exists and is not a netCDF file"]),
+        ("text.nc/r.nc", ["text.nc is a file"]),
+    ):
+        r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / out)])
+        assert_user_error(r, "option --out", *words)
+    assert not (tmp_path / "cache").exists() and (tmp_path / "text.nc").read_text() == "hello\n"
+
+
+def test_an_interrupted_results_write_leaves_the_previous_file_whole(tmp_path, monkeypatch):
+    """write_netcdf writes beside the file and renames: a write that fails half way (a kill) keeps
+    the previous results readable and leaves no partial file behind (it truncated them)."""
+    import xarray as xr
+
+    from lightfit import replication as rep
+
+    path = rep.write_netcdf(xr.Dataset({"a": ("x", np.arange(3.0))}), tmp_path / "r.nc")
+    real = xr.Dataset.to_netcdf
+
+    def dies_half_way(self, target, *a, **k):
+        real(self, target, *a, **k)
+        with open(target, "r+b") as f:
+            f.truncate(100)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        rep.write_netcdf(xr.Dataset({"a": ("x", np.arange(5.0))}), path)
+    monkeypatch.undo()
+    with xr.open_dataset(path, engine="h5netcdf") as back:
+        np.testing.assert_array_equal(back["a"].values, np.arange(3.0))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.nc"]
+
+
 @pytest.mark.parametrize("command, extra", [("replicate", []), ("posterior", []), ("posterior", ["--no-resume"])])
 def test_ctrl_c_exits_130_saying_what_was_kept(command, extra, tmp_path, monkeypatch):
     """A KeyboardInterrupt anywhere in a command: exit 130 (128 + SIGINT) and one line on stderr;
