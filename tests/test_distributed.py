@@ -8,6 +8,8 @@ import dataclasses
 import json
 import os
 import signal
+import socket
+import threading
 import time
 
 import numpy as np
@@ -205,6 +207,26 @@ def test_bad_input_names_the_parameter(weather):
         with connect("tcp://127.0.0.1:9", timeout_s=3):
             pass
     assert time.monotonic() - t0 < 30
+    # A port that accepts but never speaks Dask (the handshake hung forever), and one that answers
+    # in another protocol (a traceback from an absurd allocation): both refused within the timeout.
+    for reply in (None, b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n" * 3):
+        server = socket.create_server(("127.0.0.1", 0))
+        port = server.getsockname()[1]
+
+        def serve(server=server, reply=reply):
+            conn, _ = server.accept()
+            if reply:
+                conn.recv(100)
+                conn.sendall(reply)
+            time.sleep(10)
+
+        threading.Thread(target=serve, daemon=True).start()
+        t0 = time.monotonic()
+        with pytest.raises(InputError, match="scheduler"):
+            with connect(f"tcp://127.0.0.1:{port}", timeout_s=2):
+                pass
+        assert time.monotonic() - t0 < 15
+        server.close()
     n, t = default_workers()
     assert n >= 1 and t == 1
 

@@ -372,6 +372,26 @@ class PinGPU:
         os.environ["CUDA_VISIBLE_DEVICES"] = str(i % self.n_gpus)
 
 
+def _probe(address: str, timeout_s: float) -> None:
+    """Ask the scheduler at ``address`` who it is, giving up after ``timeout_s`` (TimeoutError):
+    a port that accepts but never speaks Dask would otherwise hang the handshake forever."""
+    import asyncio
+
+    from distributed.core import rpc
+
+    async def identity():
+        r = rpc(address, timeout=timeout_s)
+        try:
+            return await r.identity()
+        finally:
+            await r.close_rpc()
+
+    async def bounded():
+        return await asyncio.wait_for(identity(), timeout_s)
+
+    asyncio.run(bounded())
+
+
 @contextmanager
 def connect(
     scheduler: str | None = None,
@@ -393,12 +413,13 @@ def connect(
                 expected="no --workers when joining an existing cluster (its workers are given)",
             )
         try:
+            _probe(scheduler, timeout_s)  # Client's own timeout does not bound a handshake that never answers
             client = Client(scheduler, timeout=timeout_s)
-        except (OSError, TimeoutError, ValueError, TypeError) as err:
+        except Exception as err:  # noqa: BLE001 - whatever a wrong address does (bytes of another protocol: MemoryError)
             raise InputError(
-                f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {err})",
+                f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {str(err)[:200]})",
                 column="scheduler",
-                expected="the address of a running Dask scheduler, e.g. tcp://host:8786",
+                expected=f"the address of a running Dask scheduler answering within {timeout_s:g} s, e.g. tcp://host:8786",
             ) from None
         try:
             yield client
