@@ -583,3 +583,45 @@ def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_fi
     shown = [q for q in quantities if any(q in ax.get_title() for ax in seen[0].axes)]
     assert any(units[q] != "1" for q in shown)
     assert all(units[q] in labels for q in shown if units[q] != "1")
+
+
+def test_results_it_cannot_label_or_place_are_refused(results_file, tmp_path):
+    """Results with none of the label quantities (images with geometry labels only passed for a
+    labelled dataset, every buffer pixel 'valid'), results of several days (one field per day;
+    it failed on the joined date), a quantity the results lack (it was listed as valid), and a
+    time given twice (one image listed twice)."""
+    import xarray as xr
+
+    from lightfit.dataset.dataset import DEFAULT_QUANTITIES, resolve_quantities
+    from lightfit.dataset.results import QUANTITIES, field_of, select_times
+
+    with xr.open_dataset(results_file) as ds:
+        bare = ds.drop_vars([QUANTITIES[q] for q in DEFAULT_QUANTITIES if q in QUANTITIES]).load()
+        two_days = ds.load().assign_attrs(target_date="2016-04-20; 2016-04-27")
+    bare.to_netcdf(tmp_path / "bare.nc", engine="h5netcdf")
+    with pytest.raises(InputError, match="none of the label quantities"):
+        make_dataset(tmp_path / "bare.nc", tmp_path / "out", DatasetSpec(cameras=[CAM]))
+    with pytest.raises(InputError, match=r"quantity 'vc': the results have no variable leaf_vc_umol_m2_s"):
+        resolve_quantities(open_results(tmp_path / "bare.nc"), ["vc"])
+    two_days.to_netcdf(tmp_path / "days.nc", engine="h5netcdf")
+    with pytest.raises(InputError, match="several days"):
+        field_of(open_results(tmp_path / "days.nc"))
+    res = open_results(results_file)
+    assert select_times(res, [TIMES[1], TIMES[1]]) == select_times(res, [TIMES[1]])
+
+
+def test_field_export_keeps_stems_whose_leaf_quantities_are_nan(tmp_path):
+    """A stem has absorbed PAR but no An: its faces stay in field_values (every stem was left out);
+    a segment without any value (a buffer plant) does not."""
+    from lightfit.dataset.dataset import export_field
+    from lightfit.plant.mesh import Mesh
+
+    tri = np.array([[0, 1, 2]])
+    verts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    mesh = Mesh(verts, np.repeat(tri, 3, axis=0), np.array([1, 2, 3]), np.array([True, False, False]))
+    values = {
+        "absorbed_par": pd.Series({1: 100.0, 2: 40.0}),  # segment 3: a buffer plant, no results
+        "an": pd.Series({1: 12.0, 2: np.nan}),  # segment 2: a stem
+    }
+    meta = export_field(mesh, values, tmp_path / "f.ply")
+    assert (meta["faces"], meta["faces_left_out"]) == (2, 1)

@@ -136,6 +136,12 @@ def resolve_quantities(res: Results, requested) -> list[str]:
                 have.append(q)
             except InputError:
                 continue
+        if not have:  # images with no label but the geometry's would pass for a labelled dataset
+            raise InputError(
+                "the results hold none of the label quantities",
+                file=res.path or "results",
+                expected="a results file of the coupled model (absorbed PAR, leaf An, Vc, Vj, gs, limitation)",
+            )
         return have
     for q in requested:
         res.variable(q)
@@ -161,8 +167,6 @@ def _write_image(out: Path, cam: Camera, time, t: int, light, radiance: np.ndarr
         f, known = quantity_map(geo["segment_id"], v.astype(float))
         valid |= known
         labels[q] = class_map(f) if (q in CLASS_QUANTITIES or v.name in CLASS_QUANTITIES) else f
-    if not values:
-        valid = geo["segment_id"] >= 0
     labels["valid"] = valid
     leaf = geo["organ"] == ORGAN_CODES["leaf"]
     exp = meter(radiance, leaf, cam)
@@ -185,18 +189,19 @@ def _write_image(out: Path, cam: Camera, time, t: int, light, radiance: np.ndarr
 
 
 def export_field(mesh, values: dict[str, pd.Series], path: Path) -> dict:
-    """Write the faces of segments with finite values for every quantity, per-face values attached.
+    """Write the faces of segments with results (a finite value of some quantity), per-face values
+    attached (NaN where a quantity does not apply: leaf An on stems and sheaths).
 
-    Uses :func:`lightfit.plant.export` (PLY or VTK by suffix). Buffer plants (no results) and
-    segments with any NaN quantity are left out; the counts are returned for the metadata.
+    Uses :func:`lightfit.plant.export` (PLY or VTK by suffix). Buffer plants (no results) are left
+    out; the counts are returned for the metadata.
     """
     from lightfit.plant import export
     from lightfit.plant.mesh import Mesh
 
     numeric = {q: v.astype(float) for q, v in values.items()}
-    keep = np.ones(mesh.n_faces, dtype=bool)
-    for v in numeric.values():
-        keep &= np.isfinite(v.reindex(mesh.face_segment).to_numpy())
+    keep = np.zeros(mesh.n_faces, dtype=bool)
+    for v in numeric.values():  # a stem has PAR but no An: kept (every stem was left out)
+        keep |= np.isfinite(v.reindex(mesh.face_segment).to_numpy())
     if not keep.any():
         return {"file": None, "faces": 0, "faces_left_out": int(mesh.n_faces), "reason": "no segment has finite values"}
     sub = Mesh(mesh.vertices, mesh.faces[keep], mesh.face_segment[keep], mesh.face_is_blade[keep])

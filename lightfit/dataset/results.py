@@ -62,7 +62,15 @@ class Results:
         full = QUANTITIES.get(name, name)
         if full == MARGIN or (full in self.ds.data_vars and "segment" in self.ds[full].dims):
             return full
-        avail = sorted(set(QUANTITIES) | {v for v in self.ds.data_vars if "segment" in self.ds[v].dims} | {MARGIN})
+        per_segment = {v for v in self.ds.data_vars if "segment" in self.ds[v].dims}
+        avail = sorted({q for q, v in QUANTITIES.items() if v in per_segment} | per_segment | {MARGIN})
+        if name in QUANTITIES:  # a known quantity these results lack (not a typo)
+            raise InputError(
+                f"quantity {name!r}: the results have no variable {full}",
+                file=self.path or "results",
+                column="quantities",
+                expected=f"one of {', '.join(avail)}",
+            )
         raise InputError(f"unknown quantity {name!r}", column="quantities", expected=f"one of {', '.join(avail)}")
 
     def values(self, name: str, time_index: int) -> pd.Series:
@@ -123,6 +131,13 @@ def field_of(res: Results):
     ``sheaths``: a file without them had CPlantBox's rods): :meth:`Field.from_attrs`."""
     from lightfit.plant import Field
 
+    dates = str(res.ds.attrs.get("target_date", ""))
+    if ";" in dates:  # replicate's results of several --date: one field per day
+        raise InputError(
+            f"results of several days ({dates}): each day has its own plants",
+            file=res.path or "results",
+            expected="one day's results (run replicate once per --date)",
+        )
     return Field.from_attrs(res.ds.attrs, file=res.path)
 
 
@@ -172,7 +187,7 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
                 expected=f"one of {res.times[0]} … {res.times[-1]} ({len(res.times)} steps)",
             )
         out.append(int(hit[0]))
-    return out
+    return list(dict.fromkeys(out))  # a time given twice is one image (it was listed twice, written once)
 
 
 def _site(res: Results):

@@ -29,14 +29,16 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
                 column=name,
                 expected="letters, digits and underscores (it becomes a file attribute)",
             )
-        v = pd.Series(series).reindex(mesh.face_segment).to_numpy(dtype=float)
-        if np.isnan(v).any():
-            missing = np.unique(mesh.face_segment[np.isnan(v)])[:5]
+        series = pd.Series(series)
+        absent = ~np.isin(mesh.face_segment, series.index.to_numpy())
+        if absent.any():  # a NaN entry is a value (e.g. An of a stem); an absent one is a mistake
+            missing = np.unique(mesh.face_segment[absent])[:5]
             raise InputError(
                 f"value {name!r} has no entry for segment id(s) {missing.tolist()}",
                 column=name,
-                expected="a value for every segment in the mesh",
+                expected="a value (NaN allowed) for every segment in the mesh",
             )
+        v = series.reindex(mesh.face_segment).to_numpy(dtype=float)
         out[name] = v
     return out
 
