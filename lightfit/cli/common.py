@@ -126,6 +126,7 @@ OPTION_ALIASES = {
     "soil_respiration_umol_m2_s": ("--soil-respiration",),
     "row_direction_deg": ("--row-direction",),
     "start": ("--start-time",),
+    "date": ("--date",),
     "provenance": ("--provenance", "--weather-provenance"),
 }
 
