@@ -488,7 +488,7 @@ def check_netcdf_name(path: str | Path) -> Path:
                     f"{parent} is a file", file=path, column="out", expected="a path whose folders are folders"
                 )
             break
-    if path.is_file():
+    if path.is_file() and path.stat().st_size:  # an empty file (mktemp) is replaced freely
         with open(path, "rb") as f:
             head = f.read(8)
         if not head.startswith(_NETCDF_MAGIC):

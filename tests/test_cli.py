@@ -344,6 +344,10 @@ def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, mo
         r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / out)])
         assert_user_error(r, "option --out", *words)
     assert not (tmp_path / "cache").exists() and (tmp_path / "text.nc").read_text() == "hello\n"
+    from lightfit.replication import check_netcdf_name
+
+    (tmp_path / "empty.nc").touch()  # an empty file (mktemp) is replaced freely
+    assert check_netcdf_name(tmp_path / "empty.nc") == tmp_path / "empty.nc"
 
 
 def test_an_interrupted_results_write_leaves_the_previous_file_whole(tmp_path, monkeypatch):
@@ -712,6 +716,9 @@ def test_errors_name_the_option_that_caused_them(tmp_path):
     be is refused by every command before any work (it failed after the run with "File exists")."""
     r = runner.invoke(app, ["replicate", "--quick", "--start-time", "12:07", "--hours", "1", "--out", str(tmp_path)])
     assert_user_error(r, "option --start-time:", "12:07", "rows every 10 min")
+    # calibrate has its own --start (the starting leaf): the window's start is still --start-time
+    r = runner.invoke(app, ["calibrate", str(OBSERVATIONS), "--quick", "--start-time", "05:05", "--out", str(tmp_path)])
+    assert_user_error(r, "option --start-time:", "05:05")
     recon = str(DATA_DIR / "weather" / "selhausen_2016-04-20_reconstructed.csv")
     assert_user_error(runner.invoke(app, ["weather", "show", recon, "--tz", "UTC"]), "reconstructed.csv: option --tz:")
     a_file = tmp_path / "a_file"
@@ -741,6 +748,13 @@ def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path)
         assert cmp.attrs["photosynthesis"] == "giraud2023" and cmp.attrs["sheaths"] == "rods"
         np.testing.assert_array_equal(main["time"].values, cmp["time"].values)
     assert (tmp_path / "replication.png").stat().st_size > 10_000
+    # the run's own model choices do not leak into the comparison: it is the preset, not a hybrid
+    from lightfit.cli.options import ModelOptions
+    from lightfit.cli.replicate import _comparison
+
+    mixed = _comparison(ModelOptions(quick=True, boundary="periodic", photosynthesis="winter_wheat"), "paper")
+    got = (mixed.boundary, mixed.photosynthesis, mixed.optics, mixed.preset)
+    assert got == ("finite", "giraud2023", "paper", "paper")
 
 
 @pytest.mark.parametrize(

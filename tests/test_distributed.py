@@ -231,6 +231,18 @@ def test_bad_input_names_the_parameter(weather):
     assert n >= 1 and t == 1
 
 
+def test_joining_a_scheduler_from_inside_an_event_loop(client):
+    """The scheduler probe runs its own loop in a thread: connecting from async code (a notebook)
+    works as it did before the probe existed."""
+    import asyncio
+
+    async def main():
+        with connect(client.scheduler.address, timeout_s=20) as cl:
+            return cl.scheduler.address
+
+    assert asyncio.run(main()) == client.scheduler.address
+
+
 def test_cli_joins_existing_scheduler(client, tmp_path):
     import xarray as xr
     from typer.testing import CliRunner

@@ -10,9 +10,10 @@ import pvlib
 import pytest
 from typer.testing import CliRunner
 
+from lightfit import replication as rep
 from lightfit.cli import app
 from lightfit.errors import InputError
-from lightfit.weather import add_solar, read_cplantbox_day, read_tereno, read_weather, solar_position
+from lightfit.weather import Window, add_solar, read_cplantbox_day, read_tereno, read_weather, solar_position
 from lightfit.weather.bundled import DATA_DIR, bundled_path
 
 FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
@@ -421,6 +422,11 @@ def test_derived_columns_of_a_file_are_recomputed_and_differences_reported(tmp_p
     elsewhere = Site(latitude_deg=40.0, name="south")
     moved_sun = {q["column"] for q in add_solar(back, site=elsewhere).attrs["qc"] if q["kind"] == "recomputed"}
     assert {"sun_elevation_deg", "sun_azimuth_deg"} <= moved_sun
+    # and on the model commands' path (the run's window resamples and adds the sun again)
+    series_south = add_solar(read_tereno(FIXTURE), site=elsewhere)
+    south = write_lightfit_csv(series_south, tmp_path / "s.csv", {"provenance": "synthetic"})
+    run_qc = rep.forcing(south, dates="2016-04-20", window=Window("10:00", 2.0)).attrs["qc"]
+    assert {"sun_elevation_deg", "dni_w_m2"} <= {q["column"] for q in run_qc if q["kind"] == "recomputed"}
 
 
 def test_light_that_its_sun_cannot_give_is_refused(tmp_path):
@@ -462,3 +468,12 @@ def test_unrecognised_files_say_what_each_format_needs(tmp_path):
     with pytest.raises(InputError, match=r"unrecognised weather file format \(first line 'a,b'\).*time<TAB>PAR"):
         read_weather(junk)
     _cli_error(["weather", "show", str(plain), "--format", "lightfit"], "plain.csv", "no metadata line '# provenance")
+    # a metadata line's error is the file's, not an option's the user did not give
+    tl = tmp_path / "tl.csv"
+    tl.write_text(RECON.read_text().replace("# time_label: instant", "# time_label: bogus", 1))
+    err = _cli_error(["weather", "show", str(tl)], "tl.csv", "bogus")
+    assert "option --time-label" not in err
+    twice = tmp_path / "twice.csv"
+    twice.write_text(RECON.read_text().replace("# provenance:", "# time_label: end\n# provenance:", 1))
+    with pytest.raises(InputError, match=r"line \d+: metadata key 'time_label' given twice"):
+        read_weather(twice)

@@ -346,7 +346,9 @@ def test_window_steps_run_through_its_start_or_it_says_why_not():
     assert len(m) == 29 and m.index[0] == t0 and m.index[-1] == t0 + pd.Timedelta(hours=14)
     src = df["par_umol_m2_s"].loc[t0 - pd.Timedelta("15min") : t0 + pd.Timedelta("14min")]
     assert len(src) == 3 and m["par_umol_m2_s"].iloc[0] == pytest.approx(src.mean())
-    with pytest.raises(InputError, match=r"column 'start': the window starts at 2016-04-20 05:15 .*rows every 10 min"):
+    with pytest.raises(
+        InputError, match=r"column 'start_time': the window starts at 2016-04-20 05:15 .*rows every 10 min"
+    ):
         window(df, "2016-04-20 05:15", 14, "30min")
     s = window(df, "2016-04-20 05:10", 14, "30min")
     assert len(s) == 29 and s["par_umol_m2_s"].iloc[0] == df["par_umol_m2_s"].loc["2016-04-20 03:10+00:00"]

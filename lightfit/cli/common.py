@@ -125,10 +125,15 @@ OPTION_ALIASES = {
     "target_date": ("--date",),
     "soil_respiration_umol_m2_s": ("--soil-respiration",),
     "row_direction_deg": ("--row-direction",),
-    "start": ("--start-time",),
     "date": ("--date",),
     "provenance": ("--provenance", "--weather-provenance"),
 }
+
+
+#: Parameters that, named in an error about a file (without a line), are the option applied to it:
+#: ``--tz`` on a lightfit CSV, ``--provenance`` contradicting the file. Others (a ``time_label``
+#: metadata line) are the file's own.
+FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time"}
 
 
 def option_flags(command) -> dict[str, str]:
@@ -152,8 +157,9 @@ def error_message(err: BaseException, flags: dict[str, str] | None = None) -> st
     :class:`InputError` about a parameter that is an option of the invoked command (``flags``:
     :func:`option_flags`; no file, or a file but no line: the option as applied to that file) names
     the option: ``option --preset: …``, not ``column 'preset'``."""
-    if isinstance(err, InputError) and err.column and flags and (err.file is None or err.row is None):
-        flag = flags.get(err.column.lstrip("-").replace("-", "_"))
+    column = err.column.lstrip("-").replace("-", "_") if isinstance(err, InputError) and err.column else None
+    if column and flags and (err.file is None or (err.row is None and column in FILE_OPTIONS)):
+        flag = flags.get(column)
         if flag is not None:  # a file's error without a line is about the option used on it (--tz on a CSV)
             where = f"option {flag}" + (f", line {err.row}" if err.row is not None else "")
             where = where if err.file is None else f"{err.file}: {where}"

@@ -197,12 +197,16 @@ def edge_line(ds) -> str:
 
 
 def _comparison(model: ModelOptions, preset: str):
-    """The configuration of ``--compare-preset``: the run's own options resolved with that preset,
-    as ``--preset`` would resolve them (its field, direct light and K follow the preset's boundary),
-    checked before anything runs; errors are named as the option they came from."""
+    """The configuration of ``--compare-preset``: the run's size and forcing options with the
+    preset's model choices, as ``--preset`` resolves them (the run's own field, leaf, sheaths,
+    photosynthesis and direct-light options are the preset's, not the run's: the comparison is the
+    preset, not a hybrid), checked before anything runs; errors are named as the option."""
+    from lightfit.replication import PAPER_PRESET
+
+    choices = {k: None for k in (*PAPER_PRESET, "direct", "direct_rays_per_m2")}
 
     def make():
-        cfg = resolve(dataclasses.replace(model, preset=preset)).replication_config()
+        cfg = resolve(dataclasses.replace(model, preset=preset, **choices)).replication_config()
         cfg.field()
         return cfg
 

@@ -374,13 +374,17 @@ class PinGPU:
 
 def _probe(address: str, timeout_s: float) -> None:
     """Ask the scheduler at ``address`` who it is, giving up after ``timeout_s`` (TimeoutError):
-    a port that accepts but never speaks Dask would otherwise hang the handshake forever."""
+    a port that accepts but never speaks Dask would otherwise hang the handshake forever. Runs its
+    own event loop in a thread (the caller may be inside one: a notebook) and connects as a client
+    would (the dask configuration's TLS settings)."""
     import asyncio
+    from concurrent.futures import ThreadPoolExecutor
 
     from distributed.core import rpc
+    from distributed.security import Security
 
     async def identity():
-        r = rpc(address, timeout=timeout_s)
+        r = rpc(address, timeout=timeout_s, connection_args=Security().get_connection_args("client"))
         try:
             return await r.identity()
         finally:
@@ -389,7 +393,8 @@ def _probe(address: str, timeout_s: float) -> None:
     async def bounded():
         return await asyncio.wait_for(identity(), timeout_s)
 
-    asyncio.run(bounded())
+    with ThreadPoolExecutor(1) as pool:
+        pool.submit(asyncio.run, bounded()).result()
 
 
 @contextmanager

@@ -125,7 +125,19 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-_DECIMAL_COMMA = re.compile(r"(?:^|,)(?P<n>-?\d+,\d+)(?:,|$)")
+_DECIMAL_COMMA = re.compile(r"(?:^|,)(?P<n>-?\d+,\d+)(?=,|$)")
+
+
+def _decimal_commas(text_lines: list[str], first: int, n_columns: int):
+    """The first decimal comma of row ``first`` (a match with group ``n``) when it and the rows after
+    it (up to 5) all have their surplus of fields explained by numbers written with a decimal comma
+    (every data row of such an export has them); ``None`` for a stray field on one row."""
+    rows = [ln for ln in text_lines[first : first + 6] if ln.strip()]
+    for ln in rows:
+        surplus = len(next(csv.reader([ln]), [])) - n_columns
+        if surplus < 1 or len(_DECIMAL_COMMA.findall(ln)) < surplus:
+            return None
+    return _DECIMAL_COMMA.search(rows[0]) if len(rows) >= min(3, len(text_lines) - first) else None
 
 
 def _table_rows(
@@ -154,7 +166,7 @@ def _table_rows(
             continue
         if len(cells) > len(cols) or (len(cells) < len(cols) and short_rows != "pad"):
             # A decimal comma in a comma-separated file splits every number in two.
-            comma = delim == "," and len(cells) > len(cols) and _DECIMAL_COMMA.search(text_lines[i])
+            comma = delim == "," and len(cells) > len(cols) and _decimal_commas(text_lines, i, len(cols))
             raise InputError(
                 f"{len(cells)} fields, the header (line {header + 1}) has {len(cols)}"
                 + (f"; decimal commas? (e.g. '{comma['n']}')" if comma else ""),
@@ -732,6 +744,13 @@ def read_csv_with_metadata(
         n_meta += 1
         if ":" in line:
             k, v = line[1:].split(":", 1)
+            if k.strip() in meta:  # the later line would win silently
+                raise InputError(
+                    f"metadata key '{k.strip()}' given twice",
+                    file=path,
+                    row=n_meta,
+                    expected="each '# key: value' line once",
+                )
             meta[k.strip()] = v.strip()
     if meta.get("provenance") not in provenances:
         said = meta.get("provenance")

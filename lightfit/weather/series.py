@@ -442,7 +442,7 @@ def window(
         raise InputError(
             f"the window starts at {t0.tz_convert(tz):%Y-%m-%d %H:%M} ({tz}), not a timestamp of the series{every}",
             file=df.attrs.get("source"),
-            column="start",
+            column="start_time",
             expected="a start time on the series' rows, or averaging instead of sampling (how='mean', --how mean)",
         )
     out = resample(df, step, how, origin=t0)  # the steps run through the window's start

@@ -254,8 +254,9 @@ def check_light_fits_sun(
             f"{scale * clear[i]:.3g} {unit}): {len(over)} steps have more light than their sun can give",
             file=file,
             column=used.get(col, col),
-            expected="timestamps the light fits: the right date (--date places an undated file), time zone "
-            "(--tz) and time label (--time-label)",
+            expected="timestamps the light fits: the right date (--date places an undated file), and the "
+            "file's time zone and time label (`lightfit weather show FILE --tz … --time-label … --csv OUT.csv` "
+            "writes a series that states them)",
         )
 
 
@@ -361,7 +362,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
         )
     split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
     out["dni_w_m2"], out["dhi_w_m2"] = split["dni_w_m2"], split["dhi_w_m2"]
-    qc = [q for q in qc if q["kind"] != "recomputed"] + _recomputed(df, out)
+    if any(c in df.columns for c in _DERIVED_TOLERANCE):  # a resampled series has none: keep its source's notes
+        qc = [q for q in qc if q["kind"] != "recomputed"] + _recomputed(df, out)
     out.attrs["qc"] = qc
     out.attrs["site"] = site
     out.attrs["split_model"] = split_model
