@@ -281,6 +281,8 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         assert np.isfinite(ds["plant_par_umol_m2_s"].values).all()
     bad = CliRunner().invoke(app, args[:9] + ["--tiles", "9"] + args[11:])
     assert bad.exit_code == 2 and "tiles" in bad.stderr
+    late = CliRunner().invoke(app, [*args[:-3], "--timeout", "0.001", "--out", str(tmp_path / "late.nc")])
+    assert late.exit_code == 2 and "option --timeout" in late.stderr and not (tmp_path / "late.nc").exists()
     bad = CliRunner().invoke(
         app,
         [

@@ -11,6 +11,7 @@ import typer
 from lightfit.cli.common import console, samples_label
 from lightfit.cli.options import DASK_PANEL as _DASK
 from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
+from lightfit.errors import InputError
 
 
 @model_options
@@ -58,15 +59,22 @@ def field_run(
         f"chunk(s), {len(sc.weather)} steps, {samples_label(sc.samples, sc.target_rse)}, {sc.bounces} bounces, halo: "
         f"{'whole field' if halo_rows is None else f'{halo_rows} rows'}"
     )
-    ds = run_field(
-        run,
-        scheduler=scheduler,
-        workers=workers,
-        threads_per_worker=threads_per_worker,
-        progress=progress,
-        timeout_s=timeout,
-        connect_timeout_s=connect_timeout,
-    )
+    try:
+        ds = run_field(
+            run,
+            scheduler=scheduler,
+            workers=workers,
+            threads_per_worker=threads_per_worker,
+            progress=progress,
+            timeout_s=timeout,
+            connect_timeout_s=connect_timeout,
+        )
+    except TimeoutError:
+        raise InputError(
+            f"the tasks did not finish within {timeout:g} s (nothing written)",
+            column="timeout",
+            expected="a longer --timeout, or none",
+        ) from None
     cfg = s.replication_config()  # where and when, as replicate records them
     ds.attrs |= when_attrs(cfg, cfg.dates[0]) | {"preset": cfg.preset or "none"}
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
