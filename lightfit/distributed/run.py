@@ -97,9 +97,9 @@ class FieldRun:
         n_day = int(daytime(sc.weather).sum())
         if n_day == 0:
             raise InputError(
-                "weather has no daytime step",
-                column="weather",
-                expected="at least one step with sun elevation > -1° and DNI + DHI > 0",
+                f"all {len(sc.weather)} steps of the run are at night: nothing to distribute",
+                column="steps",
+                expected="at least one step with sun elevation > -1° and DNI + DHI > 0 (--steps, the window)",
             )
         if tc > n_day:
             raise InputError(
