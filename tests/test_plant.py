@@ -11,6 +11,7 @@ from lightfit.errors import InputError
 from lightfit.plant import (
     Field,
     GrowthConfig,
+    Mesh,
     MeshResolution,
     build,
     expected_area,
@@ -348,3 +349,20 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         Field(boundary="finite", n_plants=4).tiles(9)
     with pytest.raises(InputError, match="along"):
         MeshResolution(along=0)
+
+
+def test_blade_inclination_against_analytic_and_trimesh(plant_table):
+    """A flat and a 30°-tilted blade give 0° and 30°; on a grown plant the area-weighted mean equals
+    trimesh's face normals and areas (an independent geometry library)."""
+    verts = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    flat = Mesh(verts, quad, np.array([1, 1]), np.array([True, True]))
+    assert flat.blade_inclination_deg() == pytest.approx(0.0)
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    tilted = Mesh(verts @ np.array([[1, 0, 0], [0, c, s], [0, -s, c]]), quad, np.array([1, 1]), np.array([True, True]))
+    assert tilted.blade_inclination_deg() == pytest.approx(30.0)
+    m = shoot_mesh(plant_table, MeshResolution())
+    tm = m.to_trimesh()
+    blade = m.face_is_blade
+    tilt = np.degrees(np.arccos(np.abs(tm.face_normals[blade, 2])))
+    assert m.blade_inclination_deg() == pytest.approx(np.average(tilt, weights=tm.area_faces[blade]), rel=1e-9)

@@ -99,6 +99,7 @@ def field(
     tops = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
     t.add_row("plant height, mean of the plants' tops (m)", f"{tops.mean():.3f}")
     t.add_row("highest point of the mesh (m)", f"{geom.mesh.vertices[:, 2].max():.3f}")
+    t.add_row("blade inclination, mean (° from horizontal)", f"{geom.mesh.blade_inclination_deg():.1f}")
     if tiles > 1:
         sizes = [f"{len(p.measured)}+{len(p.buffer)}" for p in parts]
         t.add_row(

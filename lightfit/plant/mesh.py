@@ -88,6 +88,16 @@ class Mesh:
         norm = np.linalg.norm(n, axis=1, keepdims=True)
         return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
+    def blade_inclination_deg(self) -> float:
+        """Area-weighted mean inclination of the leaf blades from the horizontal, degrees (0: flat,
+        90: upright): the angle of each blade face's normal from the vertical. Wheat canopies lie
+        near 55–65° (erectophile to spherical; a spherical distribution has 57.3°)."""
+        blade = self.face_is_blade
+        if not blade.any():
+            return float("nan")
+        tilt = np.degrees(np.arccos(np.clip(np.abs(self.normals()[blade, 2]), 0.0, 1.0)))
+        return float(np.average(tilt, weights=self.face_areas()[blade]))
+
     def area_per_segment(self) -> pd.Series:
         """Mesh area per segment id, m²."""
         return pd.Series(self.face_areas()).groupby(self.face_segment).sum()
