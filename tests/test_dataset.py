@@ -625,3 +625,17 @@ def test_field_export_keeps_stems_whose_leaf_quantities_are_nan(tmp_path):
     }
     meta = export_field(mesh, values, tmp_path / "f.ply")
     assert (meta["faces"], meta["faces_left_out"]) == (2, 1)
+
+
+def test_results_of_another_field_size_are_refused(results_file, tmp_path):
+    """Attrs saying 9 plants on results of 4: every segment id exists in the 3 x 3 field, so only the
+    plant count tells (it rendered the other field silently)."""
+    import xarray as xr
+
+    from lightfit.dataset import build_geometry
+
+    with xr.open_dataset(results_file) as ds:
+        bigger = ds.load().assign_attrs(n_plants=9)
+    bigger.to_netcdf(tmp_path / "nine.nc", engine="h5netcdf")
+    with pytest.raises(InputError, match="the results hold 4 plants, the field rebuilt from its attrs measures 9"):
+        build_geometry(open_results(tmp_path / "nine.nc"))

@@ -158,6 +158,16 @@ def build_geometry(res: Results, cache_dir=None):
             file=res.path or "results",
             expected="the attrs of the field the results were computed on",
         )
+    whole = int(res.ds.attrs.get("tile", -1)) < 0  # a tile's results hold only its own plants
+    if whole and "plant_id" in res.ds.coords:
+        have = np.unique(res.ds["plant_id"].values.astype(np.int64))
+        want = np.sort(geom.plants.loc[geom.plants["measured"], "plant_id"].to_numpy(np.int64))
+        if not np.array_equal(have, want):  # e.g. n_plants edited: ids of a 2x2 field exist in a 3x3 one
+            raise InputError(
+                f"the results hold {len(have)} plants, the field rebuilt from its attrs measures {len(want)}",
+                file=res.path or "results",
+                expected="the attrs of the field the results were computed on (n_plants, buffers, seed)",
+            )
     return geom
 
 
