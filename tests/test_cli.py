@@ -864,3 +864,16 @@ def test_offset_line_says_how_far_observations_are_from_their_steps():
 
     w = rep.forcing().iloc[14:16]  # 12:00 and 12:30 local
     assert "up to 13.8 min away" in offset_line(read_observations(OBSERVATIONS), w)
+
+
+def test_calibrate_into_a_folder_of_another_calibration_is_refused(tmp_path, monkeypatch):
+    """A second calibrate of other parameters into the same --out replaced the first run's result and
+    history without a word; it is refused before any plant grows (--no-resume replaces it)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "cal"
+    out.mkdir()
+    (out / "calibration.json").write_text(json.dumps({"parameters": ["specular", "roughness", "subsurface"]}))
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--out", str(out)]
+    r = runner.invoke(app, args)
+    assert_user_error(r, "option --out", "holds a calibration of specular, roughness, subsurface", "--no-resume")
+    assert not (tmp_path / "cache").exists()

@@ -794,3 +794,17 @@ def test_predictive_draws_each_step_where_it_stands(label):
 
     PAR = "plant_par_umol_m2_s"
     assert {tuple(np.round(r, 9)) for r in p[PAR]} <= {par(*s) for s in samples}
+
+
+def test_summary_json_is_strict_json():
+    """An unbounded Fisher width (eigenvalue 0) was written as Infinity, which strict JSON parsers
+    (jq, JavaScript, json.loads with parse_constant) refuse; it is null now, finite numbers kept."""
+    import json
+
+    from lightfit.inference.mcmc.backend import jsonable
+
+    d = {"width": np.inf, "rows": [1.5, np.nan], "arr": np.array([np.inf, 2.0]), "n": np.int64(3)}
+    out = jsonable(d, strict=True)
+    assert out == {"width": None, "rows": [1.5, None], "arr": [None, 2.0], "n": 3}
+    json.dumps(out, allow_nan=False)
+    assert jsonable(d)["width"] == np.inf  # the default keeps what HDF5 attributes and resume keys store

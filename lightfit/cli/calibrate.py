@@ -27,7 +27,11 @@ from lightfit.errors import InputError
 @model_options
 def calibrate(
     observations: Path = typer.Argument(..., help="Observations CSV (time, PAR, net CO2 uptake and their SDs)."),
-    out: Path = typer.Option(Path("results/calibration"), help="Output directory (history, result JSON, plot)."),
+    out: Path = typer.Option(
+        Path("results/calibration"),
+        help="Output directory: calibration.json (the result), settings.json and the history (trust_region/ "
+        "with the surrogate, history.jsonl with --no-surrogate).",
+    ),
     parameters: str = typer.Option(
         "specular,roughness,subsurface",
         help="Parameters to calibrate, comma-separated (default: the three leaf parameters).",
@@ -128,8 +132,17 @@ def calibrate(
     # A history made with other model settings (e.g. the finite field, before periodic became the
     # default) must not be resumed into this run: checked before the plants are grown.
     settings = out / "settings.json"
-    if resume and (out / "history.jsonl").exists():
-        for f in (settings, out / "calibration.json"):
+    earlier = out / "calibration.json"
+    if resume and earlier.exists():  # another run's result and history would be replaced silently
+        before = json.loads(earlier.read_text()).get("parameters")
+        if before is not None and list(before) != list(names):
+            raise InputError(
+                f"{out} holds a calibration of {', '.join(before)}; this run calibrates {', '.join(names)}",
+                column="out",
+                expected="another --out, or --no-resume to replace it",
+            )
+    if resume and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
+        for f in (settings, earlier):
             if f.exists():
                 check_resumable(json.loads(f.read_text()).get("config"), s, f, "calibration history")
                 break

@@ -199,7 +199,8 @@ def posterior(
         mc_correlation=form["mc_correlation"],
         mc_scale=mc_scale,
     )
-    (out / "summary.json").write_text(json.dumps(P.jsonable(res), indent=2, default=str))
+    # strict JSON: an unbounded Fisher width (eigenvalue 0) is null, not Infinity
+    (out / "summary.json").write_text(json.dumps(P.jsonable(res, strict=True), indent=2, default=str, allow_nan=False))
     if res["stopped_by"] == "interrupted":  # Ctrl-C while sampling: every finished step is kept
         _print_status(P.backend.run_status(out / "run.h5"))
         interrupted(f"{out / 'run.h5'} keeps every finished step", started_over=not resume)

@@ -49,7 +49,12 @@ class FisherResult:
 
     def table(self) -> list[dict]:
         return [
-            {"eigenvalue": float(ev), "width_1sigma": float(w), "combination": combination(v, self.names, self.scale)}
+            {
+                "eigenvalue": float(ev),
+                "width_1sigma": float(w),  # inf where the data say nothing (eigenvalue 0)
+                "width_scale": self.scale,  # the width's units: log parameter, or the parameter's own
+                "combination": combination(v, self.names, self.scale),
+            }
             for ev, w, v in zip(self.eigenvalues, self.widths, self.eigenvectors.T)
         ]
 

@@ -133,16 +133,20 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
             return ("MT19937", np.asarray(g["rng_key"][i - 1], np.uint32), int(pos), int(has_gauss), float(cached))
 
 
-def jsonable(d: Any) -> Any:
-    """``d`` with numpy arrays and scalars turned into lists and Python numbers (for ``json.dumps``)."""
+def jsonable(d: Any, strict: bool = False) -> Any:
+    """``d`` with numpy arrays and scalars turned into lists and Python numbers (for ``json.dumps``);
+    ``strict``: non-finite numbers as ``None`` too (JSON has no Infinity or NaN: strict parsers,
+    jq and JavaScript, refuse them)."""
     if isinstance(d, dict):
-        return {k: jsonable(v) for k, v in d.items()}
+        return {k: jsonable(v, strict) for k, v in d.items()}
     if isinstance(d, (list, tuple)):
-        return [jsonable(v) for v in d]
+        return [jsonable(v, strict) for v in d]
     if isinstance(d, np.ndarray):
-        return d.tolist()
+        return jsonable(d.tolist(), strict) if strict else d.tolist()
     if isinstance(d, (np.floating, np.integer, np.bool_)):
-        return d.item()
+        d = d.item()
+    if strict and isinstance(d, float) and not np.isfinite(d):
+        return None
     return d
 
 
