@@ -48,6 +48,9 @@ def test_posterior_cli_quick(tmp_path):
     assert "emulator_error" not in s and "sloppy" in s
     assert "design: 0 new renders, 0 from the cache (0 sun positions" in r.output.replace("\n", "")
     run = load_run(out / "run.h5")
+    # 30 steps keep far fewer than 50 τ: the command's own table says so, as posterior-status does
+    assert not run["diagnostics"]["tau_reliable"] and s["tau_reliable"] is False
+    assert "τ is not reliable yet" in " ".join(r.output.split())
     assert run["chain"].shape == (30, 8, 2) and "analysis" in run
     # resuming to more steps appends
     r = CliRunner().invoke(app, args[:-6] + ["--max-steps", "40", "--n-design", "6", "--n-test", "1"])

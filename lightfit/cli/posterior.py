@@ -227,6 +227,11 @@ def posterior(
             f"{res['ess'][i]:.0f}",
         )
     console.print(t)
+    if not res.get("tau_reliable", True):  # what posterior-status reports, said where the numbers are
+        console.print(
+            "[yellow]caution[/]: τ is not reliable yet (fewer than 50 τ kept steps, emcee's rule of thumb): "
+            "the SDs, τ and ESS above are rough; resume with a larger --max-steps"
+        )
     console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
     if "emulator_error" in res:
         console.print(f"emulator error → max shift {res['emulator_error']['max_shift_over_sd']:.3g} posterior SD")

@@ -551,6 +551,7 @@ def run(
         "n_steps": int(res.diagnostics["n_steps"]),
         "tau": res.diagnostics["tau"].tolist(),
         "ess": res.diagnostics["ess"].tolist(),
+        "tau_reliable": bool(res.diagnostics.get("tau_reliable", False)),
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
         "refused": res.refused,
     }
