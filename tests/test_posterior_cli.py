@@ -51,6 +51,9 @@ def test_posterior_cli_quick(tmp_path):
     # 30 steps keep far fewer than 50 τ: the command's own table says so, as posterior-status does
     assert not run["diagnostics"]["tau_reliable"] and s["tau_reliable"] is False
     assert "τ is not reliable yet" in " ".join(r.output.split())
+    # the record observes above-canopy PAR only (nothing rendered): the other series are not predicted
+    pred = run["analysis"]["predictive"]
+    assert np.isfinite(pred["above_canopy_par_umol_m2_s"]).all() and np.isnan(pred["plant_par_umol_m2_s"]).all()
     assert run["chain"].shape == (30, 8, 2) and "analysis" in run
     # resuming to more steps appends
     r = CliRunner().invoke(app, args[:-6] + ["--max-steps", "40", "--n-design", "6", "--n-test", "1"])

@@ -397,7 +397,9 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
 
 def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, samples, n: int, seed: int) -> dict:
     """Observables (and their Monte Carlo SDs) at ``n`` random posterior samples, (n, T) each, with the
-    observations on the run's steps (``obs_<column>``). ``time_utc``: the steps' stamps;
+    observations on the run's steps (``obs_<column>``). Series the likelihood does not compare are
+    NaN: the run renders only what its observations need (a record of above-canopy PAR renders
+    nothing), so their draws would be zeros, not predictions. ``time_utc``: the steps' stamps;
     ``instant_utc``: the instants they stand for (a mean's interval centre, where its sun was taken
     and where a plot draws it; the stamps for instants)."""
     rng = np.random.default_rng(seed)
@@ -405,10 +407,15 @@ def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, sam
     pred = jax.jit(jax.vmap(lambda x: lp.observables(x)[0]))(jnp.asarray(draws))
     stamps = lp.likelihood.stamps
     utc = times.tz_convert("UTC")
+    used = set(lp.likelihood.use)
+
+    def drawn(s, k):  # a series the likelihood does not compare may not have been rendered: not shown
+        return np.asarray(pred[k]) if s.name in used else np.full(np.shape(pred[k]), np.nan)
+
     return {
         "time_utc": utc.strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
         "instant_utc": stamps.centres(utc).strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
-        **{k: np.asarray(pred[k]) for s in SERIES for k in (s.value, s.mc_sd)},
+        **{k: drawn(s, k) for s in SERIES for k in (s.value, s.mc_sd)},
         **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times, lp.likelihood.stamps).items()},
     }
 
