@@ -183,6 +183,14 @@ def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series, file=None) 
     return ratio
 
 
+def clear_sky_ghi_w_m2(sun_elevation_deg: np.ndarray) -> np.ndarray:
+    """Clear-sky global horizontal irradiance, W m⁻², of Haurwitz (1945; pvlib), which needs only the
+    sun's elevation (degrees); 0 with the sun below the horizon. The bound both radiation checks
+    judge a series against."""
+    zenith = np.clip(90.0 - np.asarray(sun_elevation_deg, dtype=np.float64), 0.0, 180.0)
+    return np.nan_to_num(np.asarray(pvlib.clearsky.haurwitz(pd.Series(zenith))["ghi"], dtype=np.float64))
+
+
 def check_radiation_scale(
     df: pd.DataFrame, sun_elevation_deg: pd.Series, file=None, columns=("ghi_w_m2", "par_umol_m2_s")
 ) -> None:
@@ -195,7 +203,7 @@ def check_radiation_scale(
     if not high.any():
         return
     el = np.asarray(sun_elevation_deg, dtype=np.float64)[high]
-    clear_ghi = np.asarray(pvlib.clearsky.haurwitz(pd.Series(90.0 - el))["ghi"], dtype=np.float64)
+    clear_ghi = clear_sky_ghi_w_m2(el)
     used = df.attrs.get("columns_used", {})
     for col, clear, what, unit in (
         ("ghi_w_m2", clear_ghi, "global radiation", "W m⁻²"),
@@ -235,8 +243,8 @@ def check_light_fits_sun(
     on a day its light does not fit), time zone or time label, which the Erbs split would turn into
     direct beams above the solar constant. One step alone is left to the caller (a glitch)."""
     el = np.asarray(sun_elevation_deg, dtype=np.float64)
-    clear = np.asarray(pvlib.clearsky.haurwitz(pd.Series(np.clip(90.0 - el, 0.0, 180.0)))["ghi"], dtype=np.float64)
-    bound = LIGHT_MAX_CLEAR_SKY_FACTOR * np.nan_to_num(clear) + LIGHT_MARGIN_W_M2
+    clear = clear_sky_ghi_w_m2(el)
+    bound = LIGHT_MAX_CLEAR_SKY_FACTOR * clear + LIGHT_MARGIN_W_M2
     used = df.attrs.get("columns_used", {})
     for col, scale, what, unit in (
         ("ghi_w_m2", 1.0, "global radiation", "W m⁻²"),
