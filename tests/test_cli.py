@@ -478,6 +478,7 @@ def test_calibrate_refuses_to_resume_a_history_of_other_settings(tmp_path):
     old |= {"an_per": "ground", "weather_file": None, "how": "sample", "steps": None}
     (out / "calibration.json").write_text(json.dumps({"config": old}))
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--photosynthesis", "giraud2023", "--out", str(out)]
+    args += ["--parameters", "light_factor"]  # what the chamber record informs
     r = runner.invoke(app, args)
     assert_user_error(
         r, "calibration history", "boundary: 'finite' → 'periodic'", "buffer_rows: 2 → None", "--no-resume"
@@ -640,7 +641,8 @@ def test_every_bad_option_value_exits_2_with_one_line(command, flag, value, tmp_
     """Issue 17 item 6: each model command, each checked option, bad values: exit 2, one line naming
     the option (or its parameter), no traceback, and nothing grown or rendered (an empty plant cache)."""
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
-    own = [str(OBSERVATIONS)] if command in ("calibrate",) else []
+    # The chamber record informs only light_factor (the leaf parameters are refused before the rest).
+    own = [str(OBSERVATIONS), "--parameters", "light_factor"] if command in ("calibrate",) else []
     out = tmp_path / ("out.nc" if command == "field-run" else "out")  # field-run writes one netCDF file
     r = runner.invoke(app, [command, *own, "--quick", "--out", str(out), flag, value, *WITH.get(flag, [])])
     assert_user_error(r)
@@ -717,7 +719,8 @@ def test_errors_name_the_option_that_caused_them(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--start-time", "12:07", "--hours", "1", "--out", str(tmp_path)])
     assert_user_error(r, "option --start-time:", "12:07", "rows every 10 min")
     # calibrate has its own --start (the starting leaf): the window's start is still --start-time
-    r = runner.invoke(app, ["calibrate", str(OBSERVATIONS), "--quick", "--start-time", "05:05", "--out", str(tmp_path)])
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--start-time", "05:05"]
+    r = runner.invoke(app, [*args, "--out", str(tmp_path)])
     assert_user_error(r, "option --start-time:", "05:05")
     recon = str(DATA_DIR / "weather" / "selhausen_2016-04-20_reconstructed.csv")
     assert_user_error(runner.invoke(app, ["weather", "show", recon, "--tz", "UTC"]), "reconstructed.csv: option --tz:")

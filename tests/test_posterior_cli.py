@@ -88,7 +88,8 @@ def test_posterior_cli_n_test_zero(tmp_path):
 def test_posterior_cli_refuses_a_leaf_parameter_outside_the_emulator_box(tmp_path):
     """--optics paper without subsurface among the parameters: the grey leaf's own subsurface (0.3)
     lies outside the box the emulator is built on (its informed prior, 0.04–0.17), where the emulated
-    light would be extrapolated; refused naming it, before any design render (it ran to the end)."""
+    light would be extrapolated; refused naming it, before any design render (it ran to the end).
+    Sampling specular against data that cannot inform it is said first."""
     before = dict(E.COUNTS)
     args = ["posterior", "--quick", "--steps", "12:15", "--optics", "paper", "--parameters", "specular,light_factor"]
     r = CliRunner().invoke(app, [*args, "--walkers", "4", "--max-steps", "5", "--n-test", "0", "--out", str(tmp_path)])
@@ -97,6 +98,10 @@ def test_posterior_cli_refuses_a_leaf_parameter_outside_the_emulator_box(tmp_pat
     assert "subsurface is not sampled and stays at 0.3" in said and "box [0.04, 0.17]" in said
     assert "add it to --parameters" in said and "--priors wide" in said
     assert E.COUNTS == before and not (tmp_path / "run.h5").exists()
+    # The chamber record (above-canopy PAR) does not depend on specular: said before anything runs.
+    out = " ".join(r.stdout.split())
+    assert "no observed series in the likelihood (above_canopy_par) depends on specular:" in out
+    assert "their posterior is their prior" in out and "light_factor" not in out.split("depends on")[1]
 
 
 OBS = (

@@ -85,7 +85,7 @@ def calibrate(
     from lightfit.inference import mcmc as P
     from lightfit.inference.calibration import METHODS, check_max_steps
     from lightfit.inference.calibration import calibrate as run_calibration
-    from lightfit.inference.likelihood import likelihood_form, resolve_use
+    from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
     from lightfit.inference.observations import read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
@@ -129,6 +129,7 @@ def calibrate(
                 )
     obs = read_observations(observations)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
+    check_informed(names, uses)  # before the plants grow (calibrate() checks again)
     # A history made with other model settings (e.g. the finite field, before periodic became the
     # default) must not be resumed into this run: checked before the plants are grown.
     settings = out / "settings.json"

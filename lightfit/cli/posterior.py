@@ -75,7 +75,7 @@ def posterior(
     from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
-    from lightfit.inference.likelihood import likelihood_form, resolve_use
+    from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
     from lightfit.inference.observations import read_observations
     from lightfit.inference.trust_region import observed_model
@@ -99,6 +99,12 @@ def posterior(
     P.check_run_size(len(names), walkers, max_steps)  # before the design is rendered
     obs = read_observations(observations or rep.OBSERVATIONS)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
+    flat = uninformed(names, uses)
+    if flat:  # sampled all the same: the posterior then shows it (identical to the prior)
+        console.print(
+            f"note: no observed series in the likelihood ({', '.join(uses)}) depends on {', '.join(flat)}: "
+            "the data cannot inform them, and their posterior is their prior"
+        )
     # A stored chain made with other model settings (e.g. the finite field, before periodic became
     # the default) or another likelihood must not be resumed: checked before the plants are grown.
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:

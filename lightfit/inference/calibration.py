@@ -57,7 +57,14 @@ import optimistix as optx
 import pandas as pd
 
 from lightfit.errors import InputError, check_integer, is_real
-from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, likelihood_form, observations_digest
+from lightfit.inference.likelihood import (
+    USES,
+    GaussianLikelihood,
+    MCCorrelation,
+    check_informed,
+    likelihood_form,
+    observations_digest,
+)
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.observations import matched_as_by_stamp, observation_matching
 from lightfit.killpoint import kill_point
@@ -194,6 +201,7 @@ def make_loss(
     names = check_names(names)
     base = model.theta(fixed)
     lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps)
+    check_informed(names, lik.use)  # before the "model" correlation renders
     if isinstance(mc_correlation, str) and likelihood_form(mc_correlation)["mc_correlation"] == "model":
         mc_correlation = mc_correlation_of(model, as_theta(at, base=base), lik.use)
     elif isinstance(mc_correlation, str):

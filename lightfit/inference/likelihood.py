@@ -79,7 +79,7 @@ import pandas as pd
 from lightfit.errors import InputError
 from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, check_sds, observed, series
 from lightfit.model.observe import mc_covariance, unconverged
-from lightfit.model.parameters import as_theta
+from lightfit.model.parameters import NAMES, as_theta
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 #: Short names of the series a likelihood can use, in order.
@@ -102,6 +102,33 @@ def resolve_use(use: Sequence[str] | None, obs: pd.DataFrame | None = None) -> t
             )
     names = {series(str(u)).name for u in use}
     return tuple(n for n in USES if n in names)
+
+
+def uninformed(names: Sequence[str], use: Sequence[str]) -> tuple[str, ...]:
+    """Those of the model parameters ``names`` on which no series of ``use`` depends
+    (:attr:`~lightfit.inference.observations.Series.depends_on`): a likelihood of those series is
+    flat along them, so an optimiser cannot move them and their posterior is their prior (e.g. the
+    leaf parameters against the above-canopy sensor alone, which sees the sky). Names that are
+    not model parameters (the noise scale) are not judged."""
+    seen = {p for n in resolve_use(tuple(use)) for p in BY_NAME[n].depends_on}
+    return tuple(n for n in names if n in NAMES and n not in seen)
+
+
+def check_informed(names: Sequence[str], use: Sequence[str]) -> None:
+    """:class:`InputError` naming the parameters of ``names`` that no series of ``use`` depends on
+    (:func:`uninformed`): a calibration of them would stop where it started and call it converged."""
+    flat = uninformed(names, use)
+    if flat:
+        use = resolve_use(tuple(use))
+        can = [n for n in NAMES if n not in flat and n not in uninformed([n], use)]
+        need = sorted({s for s in USES if set(flat) & set(BY_NAME[s].depends_on)}, key=USES.index)
+        raise InputError(
+            f"the observed series in the likelihood ({', '.join(use)}) do not depend on {', '.join(flat)}",
+            column="parameters",
+            expected=(f"parameters they inform ({', '.join(can)})" if can else "other parameters")
+            + f", or observations of a series that depends on {'them' if len(flat) > 1 else flat[0]} "
+            f"({', '.join(need)})",
+        )
 
 
 #: Shrinkage of a Monte Carlo correlation towards the identity, C ← (1 − ε) C + ε I: the sky
@@ -381,9 +408,11 @@ __all__ = [
     "USES",
     "GaussianLikelihood",
     "MCCorrelation",
+    "check_informed",
     "correlation_of",
     "likelihood_form",
     "mc_correlation",
     "observations_digest",
     "resolve_use",
+    "uninformed",
 ]

@@ -70,6 +70,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
 from lightfit.weather.readers import PROVENANCES, read_csv_with_metadata
 from lightfit.weather.timestamps import INSTANTS, Timestamps
@@ -78,8 +79,10 @@ from lightfit.weather.timestamps import INSTANTS, Timestamps
 @dataclass(frozen=True)
 class Series:
     """One observed quantity: its short name (``--use``), the column/observable key of its values,
-    the column of its measurement SD, the forward model's key of its Monte Carlo SD, its unit and
-    what it is."""
+    the column of its measurement SD, the forward model's key of its Monte Carlo SD, its unit, what
+    it is, and the model parameters its observable depends on (``depends_on``, names of
+    :data:`lightfit.model.parameters.NAMES`; ``tests/test_observations_depend.py`` checks them
+    against the gradients): a likelihood of other series is flat along the rest."""
 
     name: str
     value: str
@@ -88,7 +91,16 @@ class Series:
     unit: str = "umol m-2 s-1"
     meaning: str = ""
     nonnegative: bool = False
+    depends_on: tuple[str, ...] = ()
 
+
+# What each observable depends on (Series.depends_on). Light at the plants depends on the leaf and
+# scales with the forcing's light (light_factor); ratios of two lights do not (it cancels); only
+# CO2 fluxes see the photosynthetic capacity (vcmax_scale); the sensor above the canopy sees the
+# sky alone.
+_LIGHT = (*LEAF_PARAMETERS, "light_factor")
+_RATIO = LEAF_PARAMETERS
+_CO2 = (*LEAF_PARAMETERS, "light_factor", "vcmax_scale")
 
 #: The observable quantities, in likelihood order.
 SERIES = (
@@ -98,6 +110,7 @@ SERIES = (
         "plant_par_sd_umol_m2_s",
         "plant_par_mc_sd_umol_m2_s",
         meaning="area-mean incident or absorbed PAR at the measured plants",
+        depends_on=_LIGHT,
         nonnegative=True,
     ),
     Series(
@@ -106,6 +119,7 @@ SERIES = (
         "canopy_an_sd_umol_m2_s",
         "canopy_an_mc_sd_umol_m2_s",
         meaning="canopy net CO2 uptake of the measured leaf blades",
+        depends_on=_CO2,
     ),
     Series(
         "above_canopy_par",
@@ -113,6 +127,7 @@ SERIES = (
         "above_canopy_par_sd_umol_m2_s",
         "above_canopy_par_mc_sd_umol_m2_s",
         meaning="PAR on a horizontal quantum sensor above the canopy",
+        depends_on=("light_factor",),
         nonnegative=True,
     ),
     Series(
@@ -121,15 +136,26 @@ SERIES = (
         "canopy_apar_sd_umol_m2_s",
         "canopy_apar_mc_sd_umol_m2_s",
         meaning="PAR absorbed by the canopy per ground area",
+        depends_on=_LIGHT,
         nonnegative=True,
     ),
-    Series("fapar", "fapar", "fapar_sd", "fapar_mc_sd", unit="1", meaning="fraction of absorbed PAR", nonnegative=True),
+    Series(
+        "fapar",
+        "fapar",
+        "fapar_sd",
+        "fapar_mc_sd",
+        unit="1",
+        meaning="fraction of absorbed PAR",
+        nonnegative=True,
+        depends_on=_RATIO,
+    ),
     Series(
         "nee",
         "nee_umol_m2_s",
         "nee_sd_umol_m2_s",
         "nee_mc_sd_umol_m2_s",
         meaning="chamber net ecosystem CO2 exchange per ground area (positive: release)",
+        depends_on=_CO2,
     ),
     Series(
         "transmitted_par",
@@ -137,6 +163,7 @@ SERIES = (
         "transmitted_par_sd_umol_m2_s",
         "transmitted_par_mc_sd_umol_m2_s",
         meaning="PAR on a line quantum sensor (ceptometer) on the soil under the canopy",
+        depends_on=_LIGHT,
         nonnegative=True,
     ),
     Series(
@@ -146,6 +173,7 @@ SERIES = (
         "ceptometer_transmittance_mc_sd",
         unit="1",
         meaning="canopy PAR transmittance from a ceptometer (below / above the canopy)",
+        depends_on=_RATIO,
         nonnegative=True,
     ),
     Series(
@@ -155,6 +183,7 @@ SERIES = (
         "ceptometer_fapar_mc_sd",
         unit="1",
         meaning="fAPAR from a ceptometer, 1 - transmittance (one-sensor approximation)",
+        depends_on=_RATIO,
     ),
 )
 BY_NAME = {s.name: s for s in SERIES}
