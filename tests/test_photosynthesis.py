@@ -864,3 +864,50 @@ def test_cplantbox_compensation_point_is_inf_where_rd_exceeds_vcmax():
         lambda x: jnp.sum(jnp.where(res.converged, ps.solve(1000.0, x, 400.0, 0.5, P_KPA, q).an_umol_m2_s, 0.0))
     )(jnp.asarray(t))
     assert np.all(np.isfinite(np.asarray(g_t)[:2]))
+    # Nor into a parameter the elements share: the Vcmax scale's gradient over the valid elements is
+    # that of the valid elements alone (it was NaN: Γ' = inf made ci inf, and 0 × NaN stays NaN).
+    for form in ("cplantbox", "giraud2023"):
+        base = ps.parameter_set(form)
+
+        def total(scale, temps, base=base):
+            p = eqx.tree_at(lambda r: r.fvcb.vcmax_ref_umol_m2_s, base, base.fvcb.vcmax_ref_umol_m2_s * scale)
+            r = ps.solve(1000.0, temps, 400.0, 0.5, P_KPA, p)
+            return jnp.sum(jnp.where(r.converged, r.an_umol_m2_s, 0.0))
+
+        both, alone = (float(jax.grad(total)(1.0, jnp.asarray(x))) for x in ([25.0, 60.0], [25.0]))
+        assert np.isfinite(both) and both == pytest.approx(alone, rel=1e-12), form
+        r = ps.solve(1000.0, jnp.asarray([25.0, 60.0]), 400.0, 0.5, P_KPA, base)
+        assert np.asarray(r.converged).tolist() == [True, False] and np.isnan(np.asarray(r.an_umol_m2_s)[1])
+
+
+@pytest.mark.parametrize("form", ["winter_wheat", "cplantbox", "giraud2023"])
+def test_parameters_outside_their_domain_under_jit_are_not_converged(form):
+    """check_params refuses these eagerly; under jit it cannot, and a NaN quantum yield gave the dark
+    An (−Rd), a negative g0 a negative conductance, a curvature of 1.5 a normal An, all "converged".
+    The same domain rules flag them now; values inside still converge."""
+    base = ps.parameter_set(form)
+    fields = {
+        "quantum_yield": lambda r: r.fvcb.quantum_yield,
+        "curvature": lambda r: r.fvcb.curvature,
+        "g0": lambda r: r.stomata.g0_mol_m2_s,
+        "a1": lambda r: r.stomata.a1,
+        "gm": lambda r: r.fvcb.gm_mol_m2_s,
+        "kc": lambda r: r.temperature.kc_ref_umol_mol,
+        "vcmax": lambda r: r.fvcb.vcmax_ref_umol_m2_s,
+    }
+
+    def converged(field, value):
+        def run(v):
+            return ps.solve(1500.0, 25.0, 420.0, 0.5, P_KPA, eqx.tree_at(fields[field], base, v)).converged
+
+        return bool(jax.jit(run)(jnp.asarray(value, jnp.float64)))
+
+    for field in fields:
+        assert converged(field, float(fields[field](base))), field  # the set's own value
+    bad = {"quantum_yield": [np.nan, -0.1], "curvature": [np.nan, np.inf, 1.5, -0.5], "a1": [-1.0, np.nan]}
+    bad |= {"gm": [-1.0, np.nan], "kc": [-500.0, 0.0], "vcmax": [-10.0, np.inf], "g0": [-1e-3, np.nan]}
+    for field, values in bad.items():
+        for v in values:
+            assert not converged(field, v), (field, v)
+            with pytest.raises(ValueError, match=field if field not in ("g0", "kc", "vcmax") else "params"):
+                ps.solve(1500.0, 25.0, 420.0, 0.5, P_KPA, eqx.tree_at(fields[field], base, v))

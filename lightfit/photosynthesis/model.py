@@ -42,7 +42,14 @@ from jax.typing import ArrayLike
 
 from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities
-from .parameters import DEFAULT_PARAMETER_SET, PhotosynthesisParams, cast_params, check_params, parameter_set
+from .parameters import (
+    DEFAULT_PARAMETER_SET,
+    PhotosynthesisParams,
+    cast_params,
+    check_params,
+    parameter_set,
+    params_in_domain,
+)
 from .solver import SolverConfig, bracketed_newton, fixed_point_iteration
 from .stomata import (
     cplantbox_conductance,
@@ -234,13 +241,16 @@ def _finish(
     f: _Fluxes,
     leaf: LeafCapacities,
     env: Environment,
+    params: PhotosynthesisParams,
     converged,
     iterations,
     check_gamma_rubisco: bool = True,
 ) -> PhotosynthesisResult:
     # Inputs too: under jit the range checks are skipped, and a NaN light falls through the
     # comparisons of the light response as darkness, giving a finite, "converged" An; a
-    # finite out-of-range input (T = -300 °C, PAR < 0, rh > 1) is flagged by _in_range.
+    # finite out-of-range input (T = -300 °C, PAR < 0, rh > 1) is flagged by _in_range, and a
+    # parameter outside its domain (a NaN quantum yield gave the dark An, converged) by
+    # params_in_domain.
     # (gb = inf means no boundary layer; Γ' = inf where Rd ≥ Vcmax, which only the
     # "cplantbox" closure uses.)
     if not check_gamma_rubisco:
@@ -248,7 +258,7 @@ def _finish(
     drivers = env._replace(gb_mol_m2_s=1.0 / env.gb_mol_m2_s, rh=None)
     checked = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, *leaf, *(d for d in drivers if d is not None))
     finite = jnp.all(jnp.stack([jnp.isfinite(o) for o in jnp.broadcast_arrays(*checked)]), axis=0)
-    finite = finite & _in_range(env)
+    finite = finite & _in_range(env) & params_in_domain(params)
     limitation = jnp.where(f.vj < f.vc, ELECTRON_TRANSPORT_LIMITED, RUBISCO_LIMITED).astype(jnp.int8)
     return PhotosynthesisResult(
         an_umol_m2_s=f.an,
@@ -267,13 +277,19 @@ def _finish(
 
 def _solve_cplantbox(leaf: LeafCapacities, env: Environment, params: PhotosynthesisParams) -> PhotosynthesisResult:
     s = params.stomata
-    ci = cplantbox_intercellular_co2(env.co2_umol_mol, leaf.gamma_rubisco_umol_mol, s.a1, env.fw)
-    an, vc, vj = assimilation(ci, leaf, params.fvcb.clip_rates, _tie_takes_vc(ci, leaf, env, params))
-    gs = cplantbox_conductance(an, leaf.rd_umol_m2_s, ci, leaf.gamma_rubisco_umol_mol, s.g0_mol_m2_s, s.a1, env.fw)
+    # No compensation point where Rd >= Vcmax (Γ' = inf): those elements are NaN and flagged, and
+    # the arithmetic runs on a finite Γ' so that their zero cotangents stay zero (inf made the
+    # gradient of a parameter shared with other elements NaN, even with them masked out).
+    has = jnp.isfinite(leaf.gamma_rubisco_umol_mol)
+    safe = leaf._replace(gamma_rubisco_umol_mol=jnp.where(has, leaf.gamma_rubisco_umol_mol, 0.0))
+    ci = cplantbox_intercellular_co2(env.co2_umol_mol, safe.gamma_rubisco_umol_mol, s.a1, env.fw)
+    an, vc, vj = assimilation(ci, safe, params.fvcb.clip_rates, _tie_takes_vc(ci, safe, env, params))
+    gs = cplantbox_conductance(an, safe.rd_umol_m2_s, ci, safe.gamma_rubisco_umol_mol, s.g0_mol_m2_s, s.a1, env.fw)
+    an, vc, vj, gs, ci = (jnp.where(has, x, jnp.nan) for x in (an, vc, vj, gs, ci))
     cs = env.co2_umol_mol + 0.0 * an
     f = _Fluxes(an, vc, vj, cs, gs, ci, gs)
     zeros = jnp.zeros(jnp.shape(an), jnp.int32)
-    return _finish(ci, f, leaf, env, jnp.ones(jnp.shape(an), bool), zeros)
+    return _finish(ci, f, leaf, env, params, jnp.ones(jnp.shape(an), bool), zeros)
 
 
 def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
@@ -285,7 +301,7 @@ def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
         _primal, _rewrite, (leaf, env, params, config), frozenset({lx.diagonal_tag})
     )
     f = _fluxes(cc, leaf, env, params)
-    return _finish(cc, f, leaf, env, converged, iterations, check_gamma_rubisco=False)
+    return _finish(cc, f, leaf, env, params, converged, iterations, check_gamma_rubisco=False)
 
 
 def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
@@ -293,7 +309,7 @@ def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
     _, _, x0 = _bracket(leaf, env, params)
     res = fixed_point_iteration(_fixed_point_map, x0, (leaf, env, params), config)
     f = _fluxes(res.x, leaf, env, params)
-    return _finish(res.x, f, leaf, env, res.converged, res.iterations, check_gamma_rubisco=False)
+    return _finish(res.x, f, leaf, env, params, res.converged, res.iterations, check_gamma_rubisco=False)
 
 
 def _capacities(par, env: Environment, params: PhotosynthesisParams) -> LeafCapacities:

@@ -385,63 +385,84 @@ def cast_params(params: PhotosynthesisParams, dtype: DTypeLike) -> Photosynthesi
     return jax.tree.map(lambda leaf: jnp.asarray(leaf, dtype), params)
 
 
+def _finite_nonnegative(v, xp):
+    return (v >= 0) & xp.isfinite(v)
+
+
+def _finite_positive(v, xp):
+    return (v > 0) & xp.isfinite(v)
+
+
+#: Domains of the parameters: (field path, predicate(value, xp), expected, applies to the stomatal
+#: model or ``None`` for all). One table for the eager refusal (:func:`check_params`) and the traced
+#: mask (:func:`params_in_domain`), which under ``jit`` flags the results of values outside it.
+_DOMAINS: tuple[tuple[str, Callable, str, Callable[[str], bool] | None], ...] = (
+    ("fvcb.vcmax_ref_umol_m2_s", _finite_nonnegative, "finite and >= 0", None),
+    ("fvcb.jmax_to_vcmax", _finite_nonnegative, "finite and >= 0", None),
+    ("fvcb.rd_to_vcmax", _finite_nonnegative, "finite and >= 0", None),
+    ("fvcb.quantum_yield", _finite_nonnegative, "finite and >= 0", None),
+    ("fvcb.curvature", lambda v, xp: (v > 0) & (v <= 1), "in (0, 1]", None),
+    ("fvcb.o2_mmol_mol", _finite_nonnegative, "finite and >= 0", None),
+    ("fvcb.gm_mol_m2_s", lambda v, xp: v > 0, "> 0 (inf for no mesophyll limitation)", None),
+    ("stomata.a1", _finite_nonnegative, "finite and >= 0", None),
+    ("stomata.d0_kpa", _finite_positive, "finite and > 0", None),
+    ("stomata.g0_mol_m2_s", _finite_nonnegative, "finite and >= 0", lambda model: model == "cplantbox"),
+    (
+        "stomata.g0_mol_m2_s",
+        _finite_positive,
+        "finite and > 0 for the coupled closures",
+        lambda model: model != "cplantbox",
+    ),
+    ("temperature.t_ref_k", _finite_positive, "finite and > 0 K", None),
+    ("temperature.kc_ref_umol_mol", _finite_positive, "finite and > 0", None),
+    ("temperature.ko_ref_mmol_mol", _finite_positive, "finite and > 0", None),
+    ("temperature.gamma_star_ref_umol_mol", _finite_nonnegative, "finite and >= 0", None),
+    *(
+        (f"temperature.{name}", lambda v, xp: xp.isfinite(v), "finite", None)
+        for name in (
+            "ea_kc_j_mol",
+            "ea_ko_j_mol",
+            "ea_gamma_star_j_mol",
+            "ea_vcmax_j_mol",
+            "ea_jmax_j_mol",
+            "ea_rd_j_mol",
+            "hd_vcmax_j_mol",
+            "hd_jmax_j_mol",
+            "entropy_vcmax_j_mol_k",
+            "entropy_jmax_j_mol_k",
+        )
+    ),
+)
+
+
+def _domains(params: PhotosynthesisParams):
+    """(label, value, predicate, expected) of every domain rule that applies to ``params``."""
+    for label, ok, expected, applies in _DOMAINS:
+        if applies is None or applies(params.stomata.model):
+            group, field = label.split(".")
+            yield label, getattr(getattr(params, group), field), ok, expected
+
+
 def check_params(params: PhotosynthesisParams) -> None:
     """Raise ``ValueError`` for physically impossible parameter values.
 
-    Only concrete (non-traced) leaves are checked, so this is a no-op under ``jit``.
+    Only concrete (non-traced) leaves are checked; under ``jit`` :func:`params_in_domain` flags the
+    results instead (the solver's ``converged`` is False there).
     """
     if not isinstance(params, PhotosynthesisParams):
         raise TypeError(f"params must be a PhotosynthesisParams, got {type(params).__name__}")
-
-    def concrete(x):
-        if isinstance(x, jax.core.Tracer):
-            return None
-        return np.asarray(x, dtype=float)
-
-    def require(value, ok, label, expected):
-        v = concrete(value)
-        if v is not None and not np.all(ok(v)):
+    for label, value, ok, expected in _domains(params):
+        if isinstance(value, jax.core.Tracer):
+            continue
+        v = np.asarray(value, dtype=float)
+        if not np.all(ok(v, np)):
             raise ValueError(f"params.{label} must be {expected}, got {v!r}")
 
-    f, s = params.fvcb, params.stomata
-    require(f.vcmax_ref_umol_m2_s, lambda v: (v >= 0) & np.isfinite(v), "fvcb.vcmax_ref_umol_m2_s", "finite and >= 0")
-    require(f.jmax_to_vcmax, lambda v: (v >= 0) & np.isfinite(v), "fvcb.jmax_to_vcmax", "finite and >= 0")
-    require(f.rd_to_vcmax, lambda v: (v >= 0) & np.isfinite(v), "fvcb.rd_to_vcmax", "finite and >= 0")
-    require(f.quantum_yield, lambda v: (v >= 0) & np.isfinite(v), "fvcb.quantum_yield", "finite and >= 0")
-    require(f.curvature, lambda v: (v > 0) & (v <= 1), "fvcb.curvature", "in (0, 1]")
-    require(f.o2_mmol_mol, lambda v: (v >= 0) & np.isfinite(v), "fvcb.o2_mmol_mol", "finite and >= 0")
-    require(f.gm_mol_m2_s, lambda v: v > 0, "fvcb.gm_mol_m2_s", "> 0 (inf for no mesophyll limitation)")
-    require(s.a1, lambda v: (v >= 0) & np.isfinite(v), "stomata.a1", "finite and >= 0")
-    require(s.d0_kpa, lambda v: (v > 0) & np.isfinite(v), "stomata.d0_kpa", "finite and > 0")
-    if s.model == "cplantbox":
-        require(s.g0_mol_m2_s, lambda v: (v >= 0) & np.isfinite(v), "stomata.g0_mol_m2_s", "finite and >= 0")
-    else:
-        require(
-            s.g0_mol_m2_s,
-            lambda v: (v > 0) & np.isfinite(v),
-            "stomata.g0_mol_m2_s",
-            "finite and > 0 for the coupled closures",
-        )
-    t = params.temperature
-    require(t.t_ref_k, lambda v: (v > 0) & np.isfinite(v), "temperature.t_ref_k", "finite and > 0 K")
-    require(t.kc_ref_umol_mol, lambda v: (v > 0) & np.isfinite(v), "temperature.kc_ref_umol_mol", "finite and > 0")
-    require(t.ko_ref_mmol_mol, lambda v: (v > 0) & np.isfinite(v), "temperature.ko_ref_mmol_mol", "finite and > 0")
-    require(
-        t.gamma_star_ref_umol_mol,
-        lambda v: (v >= 0) & np.isfinite(v),
-        "temperature.gamma_star_ref_umol_mol",
-        "finite and >= 0",
-    )
-    for name in (
-        "ea_kc_j_mol",
-        "ea_ko_j_mol",
-        "ea_gamma_star_j_mol",
-        "ea_vcmax_j_mol",
-        "ea_jmax_j_mol",
-        "ea_rd_j_mol",
-        "hd_vcmax_j_mol",
-        "hd_jmax_j_mol",
-        "entropy_vcmax_j_mol_k",
-        "entropy_jmax_j_mol_k",
-    ):
-        require(getattr(t, name), np.isfinite, f"temperature.{name}", "finite")
+
+def params_in_domain(params: PhotosynthesisParams) -> jax.Array:
+    """True where every parameter lies in its domain (:func:`check_params`'s rules, traced or not;
+    False for NaN), broadcast over the parameters' shapes (a scalar for scalar parameters)."""
+    ok = jnp.asarray(True)
+    for _, value, rule, _ in _domains(params):
+        ok = ok & rule(jnp.asarray(value), jnp)
+    return ok
