@@ -502,6 +502,24 @@ def test_emulator_reproduces_polynomial_and_roundtrips(tmp_path):
     )
 
 
+def test_emulated_light_is_never_negative():
+    """A field that dips below 0 inside the box (light parts are irradiance ratios, ≥ 0; fitted
+    polynomials did dip near the corners for dim segments): emulated at 0 there, exactly the
+    polynomial elsewhere, with the polynomial's gradient where it is positive."""
+    lo, hi = np.zeros(3), np.ones(3)
+    design = E.sobol_design(16, lo, hi, seed=0)
+
+    def truth(x):  # (n, T=1, 4, S=1), negative where specular < 0.3
+        return (x[:, 0] - 0.3)[:, None, None, None] * np.ones((1, 1, 4, 1))
+
+    emu = E.fit_emulator(design, truth(design), np.full_like(truth(design), 0.01), lo, hi, degrees=(1,))
+    at = {"roughness": 0.5, "subsurface": 0.5}
+    assert np.all(np.asarray(emu({"specular": 0.1, **at})[0]) == 0.0)
+    np.testing.assert_allclose(np.asarray(emu({"specular": 0.8, **at})[0]), 0.5, atol=1e-9)
+    g = jax.grad(lambda s: emu({"specular": s, **at})[0].sum())
+    assert float(g(0.8)) == pytest.approx(4.0, rel=1e-9) and float(g(0.1)) == 0.0
+
+
 def test_fast_observables_match_observe_on_quick_field():
     """Emulated parts through FastObservables equal observe() on the same parts (exact photosynthesis),
     the tabulated photosynthesis is within 0.05 µmol m⁻² s⁻¹, and the emulator interpolates its design."""
