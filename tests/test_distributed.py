@@ -327,3 +327,72 @@ def test_adaptive_time_chunks_allocate_at_the_whole_runs_point(weather, monkeypa
     for v in ("samples_per_segment", "reached_rse", "stopped_on_floor", "absorbed_par_umol_m2_s"):
         np.testing.assert_array_equal(ds[v].values, ref[v].values)
     assert len(np.unique(ds["samples_per_segment"].values)) >= 2
+
+
+def test_finished_tasks_are_kept_and_taken_again_only_for_the_same_settings(client, weather, reference, tmp_path):
+    """A field-run keeps each finished task in its parts folder; a second run of the same settings
+    takes every task from there (no task runs: the tasks' timings are the first run's) and gives the
+    single process's values bitwise. A part missing, unreadable or made for another task is run again;
+    so is every part for another θ."""
+    from lightfit.distributed.run import task_key, task_specs
+
+    run = make_run(weather, tiles=2, time_chunks=2)
+    parts = tmp_path / "results.nc.parts"
+    first = run_field(run, client=client, timeout_s=240, parts=parts)
+    assert_same(first, reference)
+    files = sorted(p.name for p in parts.iterdir())
+    assert files == ["tile0-chunk0.pkl", "tile0-chunk1.pkl", "tile1-chunk0.pkl", "tile1-chunk1.pkl"]
+    assert first.attrs["tasks_resumed"] == 0
+    again = run_field(run, client=client, timeout_s=240, parts=parts)
+    assert again.attrs["tasks_resumed"] == 4 and again.attrs["tile_timing_json"] == first.attrs["tile_timing_json"]
+    assert_same(again, reference)
+    (parts / "tile0-chunk0.pkl").unlink()
+    (parts / "tile0-chunk1.pkl").write_bytes(b"not a pickle")
+    (parts / "tile1-chunk0.pkl").write_bytes((parts / "tile1-chunk1.pkl").read_bytes())  # another task's
+    mixed = run_field(run, client=client, timeout_s=240, parts=parts)
+    assert mixed.attrs["tasks_resumed"] == 1
+    assert_same(mixed, reference)
+    # Keys: per task, and they change with θ.
+    specs = task_specs(run)
+    assert len({task_key(s) for s in specs}) == 4
+    other = dataclasses.replace(run, theta={"light_factor": 1.1})
+    assert {task_key(s) for s in task_specs(other)}.isdisjoint({task_key(s) for s in specs})
+    other_ds = run_field(other, client=client, timeout_s=240, parts=parts)
+    assert other_ds.attrs["tasks_resumed"] == 0
+
+
+def test_cli_field_run_interrupted_resumes_to_the_same_results(client, tmp_path):
+    """Ctrl-C after the first finished task (a kill point in the client): exit 130 and a line saying
+    what was kept; the same command then runs only the other task, says so, writes the results of an
+    uninterrupted run (per-segment values bitwise) and removes the parts folder."""
+    import subprocess
+    import sys
+
+    import xarray as xr
+
+    args = ["field-run", "--scheduler", client.scheduler.address, "--n-plants", "4", "--boundary", "finite"]
+    args += ["--buffer-rows", "1", "--tiles", "2", "--samples", "8", "--bounces", "2", "--steps", "14:15"]
+    args += ["--no-progress"]
+
+    def lightfit(out, kill_after=None):
+        env = {**os.environ, "JAX_PLATFORMS": "cpu", "COLUMNS": "200"}
+        env.pop("LIGHTFIT_TEST_KILL_AFTER", None)
+        if kill_after:
+            env["LIGHTFIT_TEST_KILL_AFTER"] = kill_after
+        cmd = [sys.executable, "-m", "lightfit.cli", *args, "--out", str(out)]
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+        return p.returncode, p.stdout + p.stderr
+
+    rc, output = lightfit(tmp_path / "ref.nc")
+    assert rc == 0, output
+    out = tmp_path / "run.nc"
+    rc, output = lightfit(out, kill_after="field-task:1:INT")
+    assert rc == 130 and "every finished task is kept beside --out" in output, output
+    assert not out.exists() and len(list((tmp_path / "run.nc.parts").glob("*.pkl"))) == 1
+    rc, output = lightfit(out)
+    assert rc == 0 and "resumed: 1 of 2 tasks were kept from the run before" in output, output
+    assert not (tmp_path / "run.nc.parts").exists()
+    with xr.open_dataset(tmp_path / "ref.nc", engine="h5netcdf") as ref, xr.open_dataset(out, engine="h5netcdf") as ds:
+        for v in SEGMENT_VARS:
+            np.testing.assert_array_equal(ds[v].values, ref[v].values, err_msg=v)
+        assert ds.attrs["tasks_resumed"] == 1 and ref.attrs["tasks_resumed"] == 0

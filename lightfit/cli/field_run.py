@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import asdict
 from pathlib import Path
 
@@ -42,16 +43,29 @@ def field_run(
         30.0, help="Give up connecting to the scheduler after this many seconds.", rich_help_panel=_DASK
     ),
     progress: bool = typer.Option(True, help="Progress bar over tiles."),
+    resume: bool = typer.Option(
+        True,
+        help="Keep each finished task in OUT.parts/ until the results are written, and take those of the "
+        "same settings from there when a killed or timed-out run is started again (--no-resume: run all).",
+    ),
     *,
     model: ModelOptions,
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
-    from lightfit.distributed.run import FieldRun, run_field
+    from lightfit.distributed.run import PARTS_SUFFIX, FieldRun, run_field
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label
 
     s = resolve(model)
     check_netcdf_name(out)  # before any table is computed or plant grown
+    out = Path(out)
+    parts = out.with_name(out.name + PARTS_SUFFIX)
+    if parts.exists() and not parts.is_dir():
+        raise InputError(
+            f"{parts} is a file", column="out", expected=f"a folder or nothing at {parts} (the finished tasks)"
+        )
+    if not resume and parts.is_dir():
+        shutil.rmtree(parts)
     run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)
     sc = run.scenario
     console.print(
@@ -68,19 +82,25 @@ def field_run(
             progress=progress,
             timeout_s=timeout,
             connect_timeout_s=connect_timeout,
+            parts=parts if resume else None,
         )
     except TimeoutError:
+        kept = f"; the finished tasks are kept in {parts}: the same command resumes" if resume else ""
         raise InputError(
-            f"the tasks did not finish within {timeout:g} s (nothing written)",
+            f"the tasks did not finish within {timeout:g} s (no results written{kept})",
             column="timeout",
             expected="a longer --timeout, or none",
         ) from None
     cfg = s.replication_config()  # where and when, as replicate records them
     ds.attrs |= when_attrs(cfg, cfg.dates[0]) | {"preset": cfg.preset or "none"}
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
-    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_netcdf(ds, out)
+    if resume:
+        shutil.rmtree(parts, ignore_errors=True)  # everything is in the results now
+    if ds.attrs.get("tasks_resumed"):
+        n = ds.attrs["tasks_resumed"]
+        console.print(f"resumed: {n} of {ds.attrs['tasks']} tasks were kept from the run before")
     console.print(
         f"{ds.attrs['tasks']} tasks on {ds.attrs['distributed_workers']} worker(s) in "
         f"{ds.attrs['distributed_wall_s']:.1f} s; triangles rendered ÷ measured = "

@@ -21,6 +21,12 @@ Fault tolerance is Dask's: tasks are pure functions of their spec, so a task who
 is re-run elsewhere (up to ``distributed.scheduler.allowed-failures`` times, default 3) and
 gives the same values.
 
+Resume: with ``parts=`` (the command line's default, ``results.nc.parts`` beside the results) each
+finished task is kept on disk as it arrives, under a hash of everything its result depends on
+(:func:`task_key`: its scenario, θ, the code's versions). A run killed or timed out and started
+again with the same settings takes those tasks from disk and submits only the rest; a kept task
+of other settings is computed again. The command removes the folder once the results are written.
+
 Worker processes: the task function imports lightfit (which points Dr.Jit at libLLVM before
 Mitsuba loads), sets the Dr.Jit CPU thread count to ``LIGHTFIT_WORKER_THREADS`` (set by the
 embedded cluster) and applies lightfit's precision policy *in the worker process*
@@ -33,17 +39,20 @@ from __future__ import annotations
 import json
 import math
 import os
+import pickle
 import time
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError, check_integer
+from lightfit.killpoint import kill_point
 from lightfit.model import schema
-from lightfit.model.parameters import Theta
+from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, daytime, sun_positions_deg
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
@@ -461,15 +470,71 @@ def connect(
 # -- the run ---------------------------------------------------------------------------------
 
 
-def submit(client, run: FieldRun) -> list:
-    """Submit one task per (tile, time chunk); returns the futures."""
+def task_specs(run: FieldRun) -> list[TaskSpec]:
+    """One task per (tile, time chunk), chunk by chunk."""
+    return [
+        TaskSpec(run=run, tile=k, chunk=c, rows=rows)
+        for c, rows in enumerate(run.chunk_index())
+        for k in range(run.tiles)
+    ]
+
+
+def submit(client, run: FieldRun, specs: list[TaskSpec] | None = None) -> list:
+    """Submit ``specs`` (default: every task of ``run``); returns the futures."""
     token = uuid.uuid4().hex[:10]
-    futures = []
-    for c, rows in enumerate(run.chunk_index()):
-        for k in range(run.tiles):
-            spec = TaskSpec(run=run, tile=k, chunk=c, rows=rows)
-            futures.append(client.submit(run_task, spec, key=f"lightfit-tile{k}-chunk{c}-{token}", pure=False))
-    return futures
+    return [
+        client.submit(run_task, s, key=f"lightfit-tile{s.tile}-chunk{s.chunk}-{token}", pure=False)
+        for s in (task_specs(run) if specs is None else specs)
+    ]
+
+
+def task_key(spec: TaskSpec) -> str:
+    """Hash of everything the task's result depends on: its scenario (tile, time rows, field,
+    estimator, optics, photosynthesis, … : :meth:`~lightfit.model.scenario.Scenario.digest`), θ, and
+    the code's versions (:func:`~lightfit.model.emulator.code_versions`, the projection's)."""
+    import hashlib
+
+    from lightfit.light.projection import PROJECTION_VERSION
+    from lightfit.model.emulator import code_versions
+
+    what = {
+        "scenario": spec.run.task_scenario(spec.tile, spec.rows).digest(),
+        "theta": as_theta(spec.run.theta).to_dict(),
+        "versions": {**code_versions(), "projection": PROJECTION_VERSION},
+        "task": [spec.tile, spec.chunk],
+    }
+    return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
+
+
+#: Suffix of the folder beside a field-run's results where its finished tasks are kept
+#: (``results.nc`` → ``results.nc.parts``; module doc, "Resume").
+PARTS_SUFFIX = ".parts"
+
+
+def _part(parts: Path, tile: int, chunk: int) -> Path:
+    return parts / f"tile{tile}-chunk{chunk}.pkl"
+
+
+def _load_part(path: Path, key: str):
+    """A kept task's ``(Dataset, info)`` if ``path`` holds one made under ``key``, else None (absent,
+    other settings, or unreadable: computed again)."""
+    try:
+        with path.open("rb") as f:
+            kept_key, ds, info = pickle.load(f)  # noqa: S301 (the run's own folder, written below)
+    except Exception:  # noqa: BLE001 (any unreadable file is one more task to run, not an error)
+        return None
+    return (ds, info) if kept_key == key else None
+
+
+def _keep_part(path: Path, key: str, result) -> None:
+    """Written beside and renamed into place: a killed write leaves no half file."""
+    tmp = path.with_name(f".{path.name}.partial")
+    try:
+        with tmp.open("wb") as f:
+            pickle.dump((key, *result), f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def run_field(
@@ -482,12 +547,16 @@ def run_field(
     progress: bool = False,
     timeout_s: float | None = None,
     connect_timeout_s: float = 30.0,
+    parts: str | Path | None = None,
 ):
     """Run ``run`` on Dask and return the gathered Dataset (layout of a single-process run).
 
     Uses ``client`` if given, else joins ``scheduler``, else starts an embedded LocalCluster.
     ``timeout_s`` bounds the wait for all tasks (``None``: no bound); ``connect_timeout_s`` the
     wait for the scheduler; both must be > 0 (checked before a cluster is started or joined).
+    ``parts``: a folder where each finished task is kept, and from which the tasks of the same
+    settings are taken instead of run (module doc, "Resume"); the Dataset's ``tasks_resumed``
+    attribute counts them.
     """
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
         if value is not None and not value > 0:
@@ -496,12 +565,24 @@ def run_field(
         with connect(
             scheduler, workers=workers, threads_per_worker=threads_per_worker, timeout_s=connect_timeout_s
         ) as cl:
-            return run_field(run, client=cl, progress=progress, timeout_s=timeout_s)
+            return run_field(run, client=cl, progress=progress, timeout_s=timeout_s, parts=parts)
     from distributed import as_completed
 
     t0 = time.perf_counter()
-    futures = submit(client, run)
+    specs = task_specs(run)
+    keys = {}
     results = []
+    if parts is not None:
+        parts = Path(parts)
+        parts.mkdir(parents=True, exist_ok=True)
+        keys = {(s.tile, s.chunk): task_key(s) for s in specs}
+        for s in list(specs):
+            kept = _load_part(_part(parts, s.tile, s.chunk), keys[s.tile, s.chunk])
+            if kept is not None:
+                results.append(kept)
+                specs.remove(s)
+    resumed = len(results)
+    futures = submit(client, run, specs)
     bar = None
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -514,11 +595,14 @@ def run_field(
             TextColumn("{task.description}"),
         )
         bar.start()
-        task = bar.add_task("", total=len(futures))
+        task = bar.add_task("", total=len(futures) + resumed, completed=resumed)
     try:
-        for fut in as_completed(futures, timeout=timeout_s):
+        for n, fut in enumerate(as_completed(futures, timeout=timeout_s), 1):
             ds, info = fut.result()
             results.append((ds, info))
+            if parts is not None:
+                _keep_part(_part(parts, info["tile"], info["chunk"]), keys[info["tile"], info["chunk"]], (ds, info))
+                kill_point("field-task", n)
             if bar is not None:
                 bar.update(
                     task,
@@ -533,7 +617,8 @@ def run_field(
             f.release()
     wall = time.perf_counter() - t0
     n_workers = len(client.nthreads())
-    return gather(results, run, {"distributed_wall_s": wall, "distributed_workers": n_workers})
+    extra = {"distributed_wall_s": wall, "distributed_workers": n_workers, "tasks_resumed": resumed}
+    return gather(results, run, extra)
 
 
 def run_single(run: FieldRun):
@@ -545,6 +630,7 @@ def run_single(run: FieldRun):
 
 __all__ = [
     "AGGREGATES",
+    "PARTS_SUFFIX",
     "FieldRun",
     "PinGPU",
     "TaskSpec",
@@ -556,4 +642,6 @@ __all__ = [
     "run_single",
     "run_task",
     "submit",
+    "task_key",
+    "task_specs",
 ]

@@ -39,8 +39,6 @@ sentence ``reason``); the history ends with a record of the same.
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -70,6 +68,7 @@ from lightfit.inference.observations import matched_as_by_stamp, observation_mat
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
+from lightfit.model.scenario import Scenario
 from lightfit.progress import progress_bar
 
 #: Distance kept from finite bounds (see the module docstring).
@@ -406,36 +405,16 @@ def _check_start(th0: Theta, start, box: Mapping, narrowed: Mapping) -> None:
             )
 
 
-def _digest(*parts: bytes) -> str:
-    h = hashlib.sha256()
-    for b in parts:
-        h.update(len(b).to_bytes(8, "little") + b)  # lengths: parts cannot run into each other
-    return h.hexdigest()[:16]
-
-
 def _model_digest(model) -> dict[str, str] | None:
-    """Hash per setting of what the model's outputs depend on besides θ: each field of its
-    :class:`~lightfit.model.scenario.Scenario` (weather, field, estimator settings, optics,
-    photosynthesis set, observables' forms, …); a multi-day model's per day. Per setting, so that a
-    setting added to Scenario later (absent from a stored key) does not block a resume, and the
-    refusal can name what changed. ``None`` for a model without a Scenario dataclass (a test
-    double). Light injected into the model (``with_light``) or a ``forward`` are not covered: the
-    surrogate calibration that uses them does not resume."""
+    """:meth:`~lightfit.model.scenario.Scenario.digest` of the model's scenario (a multi-day
+    model's per day): what its outputs depend on besides θ. ``None`` for a model without a
+    Scenario dataclass (a test double). Light injected into the model (``with_light``) or a
+    ``forward`` are not covered: the surrogate calibration that uses them does not resume."""
     days = getattr(model, "day_models", None)
     if days is not None:
         return {f"{d}: {k}": v for d, m in days.items() for k, v in (_model_digest(m) or {}).items()}
     sc = getattr(model, "scenario", None)
-    if not dataclasses.is_dataclass(sc) or isinstance(sc, type):
-        return None
-    out = {}
-    for f in dataclasses.fields(sc):
-        v = getattr(sc, f.name)
-        if isinstance(v, pd.DataFrame):
-            rows = pd.util.hash_pandas_object(v, index=True).to_numpy()
-            out[f.name] = _digest(rows.tobytes(), json.dumps([str(c) for c in v.columns]).encode())
-        else:
-            out[f.name] = _digest(repr(v).encode())  # field, optics, numbers and names: repr is their value
-    return out
+    return sc.digest() if isinstance(sc, Scenario) else None
 
 
 def _check_same_data(saved: dict | None, data: dict, hist: Path, say: Callable[[str], None]) -> None:

@@ -104,6 +104,21 @@ def _digest(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
+def code_versions() -> dict[str, object]:
+    """The versions a render's values depend on: lightfit's, the estimator's
+    (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba's and Dr.Jit's (``None`` if
+    not installed as a distribution)."""
+    from lightfit import __version__
+
+    versions = {"lightfit": __version__, "estimator": ESTIMATOR_VERSION}
+    for pkg in ("mitsuba", "drjit"):
+        try:
+            versions[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            versions[pkg] = None
+    return versions
+
+
 def render_key(model: CoupledModel) -> dict:
     """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
     settings (samples, bounces, seed; when adaptive the target, the cap and the allocation point; the projection and its
@@ -113,17 +128,9 @@ def render_key(model: CoupledModel) -> dict:
     (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba and Dr.Jit versions. JSON-ready."""
     import pandas as pd
 
-    from lightfit import __version__
-
     sc = model.scenario
-    versions = {"lightfit": __version__, "estimator": ESTIMATOR_VERSION}
-    for pkg in ("mitsuba", "drjit"):
-        try:
-            versions[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            versions[pkg] = None
     return {
-        **versions,
+        **code_versions(),
         "samples": int(sc.samples),
         "bounces": int(sc.bounces),
         "render_seed": int(sc.seed),
@@ -742,6 +749,7 @@ __all__ = [
     "DESIGN_SIZE",
     "MIN_DESIGN_SIZE",
     "check_design_size",
+    "code_versions",
     "FastObservables",
     "PartsEmulator",
     "design_dir",

@@ -10,6 +10,9 @@ from global radiation's (Spitters et al. 1986).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 
@@ -349,6 +352,29 @@ class Scenario:
     def ground_area_m2(self) -> float:
         """Ground area of the measured plants, m² (the denominator of canopy An per ground)."""
         return self.field.measured_area_m2(self.measured_tile)
+
+    def digest(self) -> dict[str, str]:
+        """A hash per field of what a run of this scenario computes from (weather rows and
+        columns; field, optics, numbers and names by their repr, which is their value). Per field,
+        so that a field added later (absent from a stored digest) can be told apart and a refusal
+        can name what changed. Used to refuse resuming a calibration of other settings and to
+        reuse a field-run's finished tasks."""
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, pd.DataFrame):
+                rows = pd.util.hash_pandas_object(v, index=True).to_numpy()
+                out[f.name] = _sha(rows.tobytes(), json.dumps([str(c) for c in v.columns]).encode())
+            else:
+                out[f.name] = _sha(repr(v).encode())
+        return out
+
+
+def _sha(*parts: bytes) -> str:
+    h = hashlib.sha256()
+    for b in parts:
+        h.update(len(b).to_bytes(8, "little") + b)  # lengths: parts cannot run into each other
+    return h.hexdigest()[:16]
 
 
 __all__ = [
