@@ -420,8 +420,8 @@ def test_a_run_with_another_likelihood_form_is_not_resumed(tmp_path):
 
 def test_calibration_key_includes_the_likelihood_form(tmp_path):
     """A calibration history saved with independent steps is not resumed exactly with the Monte Carlo
-    correlation (one line says why and it continues from the history's best point); with the same form
-    it resumes exactly (no notice). The correlated loss equals ½ rᵀΣ⁻¹r computed by numpy."""
+    correlation (refused, naming the change: continuing from the history's best point mixed two runs);
+    with the same form it resumes exactly (no notice). The correlated loss equals ½ rᵀΣ⁻¹r computed by numpy."""
     from lightfit.inference.calibration import calibrate
     from lightfit.inference.likelihood import MCCorrelation, correlation_of
 
@@ -446,9 +446,10 @@ def test_calibration_key_includes_the_likelihood_form(tmp_path):
     calibrate(model, obs, max_steps=1, **kw)
     calibrate(model, obs, max_steps=2, **kw)
     assert said == []  # same form: exact resume
-    calibrate(model, obs, max_steps=3, mc_correlation=corr, **kw)
-    assert len(said) == 1 and "saved with other likelihood (mc_correlation: 'independent' → 'model')" in said[0]
-    assert "continuing from the history's best point" in said[0]
+    with pytest.raises(InputError, match=r"other likelihood \(mc_correlation: 'independent' → 'model'\)") as e:
+        calibrate(model, obs, max_steps=3, mc_correlation=corr, **kw)
+    assert "--no-resume" in str(e.value) and said == []
+    calibrate(model, obs, max_steps=3, mc_correlation=corr, resume=False, **kw)  # started again
 
 
 def test_bad_input_names_the_parameter(tmp_path):
@@ -762,7 +763,7 @@ def test_a_run_whose_observations_met_other_steps_is_not_resumed(tmp_path):
 
 def test_a_calibration_state_from_other_matching_is_not_resumed_exactly(tmp_path):
     """A calibration state records the matching where means are involved: the same run resumes
-    exactly, one whose steps label other intervals continues from the history's best point."""
+    exactly, one whose steps label other intervals is refused (it continued from the history's best point)."""
     from lightfit.inference.calibration import calibrate
     from lightfit.weather.timestamps import Timestamps
 
@@ -775,8 +776,9 @@ def test_a_calibration_state_from_other_matching_is_not_resumed_exactly(tmp_path
     calibrate(model, obs, max_steps=2, **kw)
     assert said == []  # same matching: exact resume
     model.timestamps = Timestamps("center", pd.Timedelta("10min"))
-    calibrate(model, obs, max_steps=3, **kw)
-    assert len(said) == 1 and "observation_matching" in said[0] and "best point" in said[0]
+    with pytest.raises(InputError, match="run with other observation_matching"):
+        calibrate(model, obs, max_steps=3, **kw)
+    assert said == []
 
 
 @pytest.mark.parametrize("label", ["instant", "end", "start"])

@@ -214,6 +214,12 @@ def test_calibrate_killed_and_rerun_reaches_the_same_optimum_and_history(tmp_pat
     for k in ("theta", "loss", "steps", "evaluations", "gradients", "stopped_by", "reason"):
         assert a[k] == b[k], k
     assert "accepted steps" in output and "stopped:" in output
+    # Another method (or start) into the finished --out: refused, the run's state kept (it continued
+    # from the best point, wrote the other method's counts and deleted the state).
+    state = (tmp_path / "killed" / "history.jsonl.state.npz").read_bytes()
+    rc, output = lightfit([*args[:-1], "lbfgsb"], tmp_path / "killed")
+    assert rc == 2 and "run with other method" in " ".join(output.split()) and "--no-resume" in output, output
+    assert (tmp_path / "killed" / "history.jsonl.state.npz").read_bytes() == state
 
 
 def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_run(tmp_path):

@@ -29,12 +29,14 @@ quasi-Newton matrix, line-search state, counters) is written atomically next to 
 (``<history>.state.npz``), so a calibration killed at any moment and rerun with the same
 arguments continues exactly: same steps, same history, same optimum as an uninterrupted run
 (history lines written after the last saved state are dropped and redone). Without a matching
-state (older histories, other method/start/tolerances/series) ``resume=True`` restarts from the
-best point of the history and says so; a history made with other observations or another model
-(the state records a hash of both) is refused with :class:`~lightfit.errors.InputError`, since its
-losses belong to another loss. The result counts accepted steps, loss evaluations and
-gradient evaluations separately, and says why the optimiser stopped (``stopped_by`` and the
-sentence ``reason``); the history ends with a record of the same.
+state (a history written before states were saved, or a state that cannot be read)
+``resume=True`` restarts from the best point of the history and says so; a state saved with other
+settings (method, start, fixed values, tolerances, series, likelihood form, observation matching)
+or a history made with other observations or another model (the state records a hash of both) is
+refused with :class:`~lightfit.errors.InputError`: its losses belong to another loss, and
+continuing would replace the state with which that run finishes exactly. The result counts
+accepted steps, loss evaluations and gradient evaluations separately, and says why the optimiser
+stopped (``stopped_by`` and the sentence ``reason``); the history ends with a record of the same.
 """
 
 from __future__ import annotations
@@ -566,8 +568,15 @@ def calibrate(
             else k
             for k in changed
         ]
-        say(f"{state_file}: saved with other {', '.join(what)}; continuing from the history's best point")
-        saved = None
+        # Refused, as other data are: continuing from the history's best point mixed two runs (a
+        # history and counts of one method, the optimum of another) and deleted the state with
+        # which the first command would have finished exactly.
+        raise InputError(
+            f"the calibration there was run with other {', '.join(what)}",
+            file=state_file,
+            expected="the same settings as that run, --no-resume (resume=False) to start again, or another --out "
+            "(history)",
+        )
     past: list[dict] = []
     if saved is None and hist and resume and hist.exists():
         past = _read_history(hist)
