@@ -15,7 +15,6 @@ present), the forcing, and a summary table.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import xarray as xr
 
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
+from lightfit.files import replaced
 from lightfit.inference.observations import SERIES, align, read_observations
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
@@ -511,11 +511,6 @@ def write_netcdf(ds, path: Path) -> Path:
     if "time_bnds" in ds.variables:  # CF: a time and its bounds in one unit
         for v in ("time", "time_bnds"):
             ds[v].encoding.update(units="seconds since 1970-01-01 00:00:00", calendar="proleptic_gregorian")
-    # Written beside and renamed into place: an interrupted write leaves the previous file whole.
-    tmp = path.with_name(f".{path.name}.partial")
-    try:
+    with replaced(path) as tmp:  # an interrupted write leaves the previous file whole
         ds.to_netcdf(tmp, engine="h5netcdf")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path

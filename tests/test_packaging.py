@@ -157,7 +157,7 @@ RANK = {
     "dataset": 6,
     "cli": 7,
 }
-SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", "constants", ""}
+SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", "constants", "files", ""}
 #: What the package root (``import lightfit``) may import: the Mitsuba backend it sets up.
 ROOT_IMPORTS = {"light"}
 

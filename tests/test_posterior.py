@@ -503,6 +503,31 @@ def test_emulator_reproduces_polynomial_and_roundtrips(tmp_path):
     )
 
 
+def test_a_cut_emulator_file_is_rebuilt_not_fatal(tmp_path):
+    """Emulators are written through lightfit.files.replaced (a kill leaves the old file or none);
+    one cut by an older lightfit's in-place write stopped every rerun with BadZipFile: it now reads
+    as absent, said in one line."""
+    from lightfit.files import replaced
+
+    lo, hi = np.zeros(3), np.ones(3)
+    design = E.sobol_design(8, lo, hi, seed=0)
+    y = np.ones((8, 1, 4, 1)) * design[:, :1, None, None]
+    emu = E.fit_emulator(design, y, 0.01 * y + 0.01, lo, hi, degrees=(1,))
+    path = emu.save(tmp_path / "emulator.npz")
+    whole = path.read_bytes()
+    path.write_bytes(whole[: len(whole) // 2])
+    said = []
+    assert E.PartsEmulator.readable(path, said.append) is None
+    assert len(said) == 1 and "cannot be read" in said[0] and "rebuilding" in said[0]
+    emu.save(path)
+    assert E.PartsEmulator.readable(path, said.append).key == emu.key and len(said) == 1
+    # A write that fails part-way leaves the previous file whole and no temporary beside it.
+    with pytest.raises(RuntimeError), replaced(path) as tmp:
+        tmp.write_bytes(b"half")
+        raise RuntimeError("killed")
+    assert path.read_bytes() == whole and sorted(p.name for p in tmp_path.iterdir()) == ["emulator.npz"]
+
+
 def test_emulated_light_is_never_negative():
     """A field that dips below 0 inside the box (light parts are irradiance ratios, ≥ 0; fitted
     polynomials did dip near the corners for dim segments): emulated at 0 there, exactly the

@@ -154,8 +154,9 @@ def posterior(
     with design_renderer(scheduler, workers) as render_points:
         for i, (d, key) in enumerate(zip(days, keys)):
             copy = out / ("emulator.npz" if dates is None else f"emulator-{dates[i]}.npz")
-            if copy.exists():  # the run's copy: say what changed since this run's last design
-                before = E.PartsEmulator.load(copy).key
+            stored = E.PartsEmulator.readable(copy, console.print) if copy.exists() else None
+            if stored is not None:  # the run's copy: say what changed since this run's last design
+                before = stored.key
                 if before != key:
                     changes = (
                         "; ".join(E.key_changes(before, key)) if before else "no key (written by an older lightfit)"

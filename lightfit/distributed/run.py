@@ -50,6 +50,7 @@ import numpy as np
 
 from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError, check_integer
+from lightfit.files import replaced
 from lightfit.killpoint import kill_point
 from lightfit.model import schema
 from lightfit.model.parameters import Theta, as_theta
@@ -527,14 +528,9 @@ def _load_part(path: Path, key: str):
 
 
 def _keep_part(path: Path, key: str, result) -> None:
-    """Written beside and renamed into place: a killed write leaves no half file."""
-    tmp = path.with_name(f".{path.name}.partial")
-    try:
-        with tmp.open("wb") as f:
-            pickle.dump((key, *result), f, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """Through :func:`lightfit.files.replaced`: a killed write leaves no half file."""
+    with replaced(path) as tmp, tmp.open("wb") as f:
+        pickle.dump((key, *result), f, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def run_field(

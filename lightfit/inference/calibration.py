@@ -41,9 +41,9 @@ stopped (``stopped_by`` and the sentence ``reason``); the history ends with a re
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
-import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -57,6 +57,7 @@ import optimistix as optx
 import pandas as pd
 
 from lightfit.errors import InputError, check_integer, is_real
+from lightfit.files import replace_text, replaced
 from lightfit.inference.likelihood import (
     USES,
     GaussianLikelihood,
@@ -70,7 +71,7 @@ from lightfit.inference.observations import matched_as_by_stamp, observation_mat
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
-from lightfit.model.scenario import Scenario
+from lightfit.model.scenario import settings_digest
 from lightfit.progress import progress_bar
 
 #: Distance kept from finite bounds (see the module docstring).
@@ -265,12 +266,11 @@ def _read_history(path: Path) -> list[dict]:
 
 
 def _save_state(path: Path, opt, counters: dict, key: dict) -> None:
-    """Write the optimiser's state pytree and the loop's counters atomically (tmp file + rename)."""
+    """Write the optimiser's state pytree and the loop's counters (:func:`lightfit.files.replaced`)."""
     leaves = jax.tree_util.tree_leaves(opt.state)
     arrays = {f"leaf{i}": np.asarray(v) for i, v in enumerate(leaves)}
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
-    np.savez(tmp, point=np.asarray(opt.current), meta=json.dumps({"key": key, **counters}), **arrays)
-    os.replace(tmp, path)
+    with replaced(path) as tmp:
+        np.savez(tmp, point=np.asarray(opt.current), meta=json.dumps({"key": key, **counters}), **arrays)
 
 
 def _load_state(path: Path) -> dict | None:
@@ -416,7 +416,7 @@ def _model_digest(model) -> dict[str, str] | None:
     if days is not None:
         return {f"{d}: {k}": v for d, m in days.items() for k, v in (_model_digest(m) or {}).items()}
     sc = getattr(model, "scenario", None)
-    return sc.digest() if isinstance(sc, Scenario) else None
+    return settings_digest(sc) if dataclasses.is_dataclass(sc) and not isinstance(sc, type) else None
 
 
 def _check_same_data(saved: dict | None, data: dict, hist: Path, say: Callable[[str], None]) -> None:
@@ -581,7 +581,7 @@ def calibrate(
     if saved is None and hist and resume and hist.exists():
         past = _read_history(hist)
         # drop a line cut by an interruption, so that the steps appended below stay readable
-        hist.write_text("".join(json.dumps(r) + "\n" for r in past), encoding="utf-8")
+        replace_text(hist, "".join(json.dumps(r) + "\n" for r in past))
         if past:
             best_past = min(past, key=lambda r: r["loss"])
             th0 = th0.replace(**{n: best_past["theta"][n] for n in names})
@@ -599,7 +599,7 @@ def calibrate(
         if c["stopped_by"] in ("max_steps", "stalled"):
             c["stopped_by"] = None  # limits, not the optimiser's verdict: a rerun with a larger max_steps goes on
         # lines appended after the saved state (a kill in between) are redone identically below
-        hist.write_text("".join(json.dumps(r) + "\n" for r in _read_history(hist)[: c["accepted"]]), encoding="utf-8")
+        replace_text(hist, "".join(json.dumps(r) + "\n" for r in _read_history(hist)[: c["accepted"]]))
     if past and best_past["loss"] < c["best_loss"]:
         c["best_loss"], c["best_x"] = best_past["loss"], [best_past["theta"][n] for n in names]
 
@@ -669,7 +669,7 @@ def calibrate(
             "evaluations": opt.evaluations,
             "gradients": opt.gradients,
         }
-        hist.write_text("".join(json.dumps(r) + "\n" for r in [*steps, final]), encoding="utf-8")
+        replace_text(hist, "".join(json.dumps(r) + "\n" for r in [*steps, final]))
     theta = loss.theta(jnp.asarray(c["best_x"]))
     return CalibrationResult(
         theta.to_dict(),

@@ -29,10 +29,9 @@ for light from ω_i is :math:`1 - F_0 E_{GGX}(\theta_i) - (1 - F_0)c`.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
+from lightfit.files import replaced
 from lightfit.light.backend import mitsuba
 
 ALPHA_MIN = 1e-2  # α floor (r ≈ 0.1): leaf cuticles are not mirrors, and it bounds the variance
@@ -319,9 +318,8 @@ def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
     table = _compute_table(n_samples, seed)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
-        np.save(tmp, table)
-        os.replace(tmp, path)  # atomic: another process reads the whole table or none
+        with replaced(path) as tmp:  # another process reads the whole table or none
+            np.save(tmp, table)
     except OSError:
         pass  # a read-only cache costs time, not results
     return table

@@ -42,8 +42,8 @@ import hashlib
 import importlib.metadata
 import itertools
 import json
-import os
 import time
+import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +54,7 @@ import numpy as np
 
 from lightfit.cache import cache_root
 from lightfit.errors import InputError, check_integer
+from lightfit.files import replace_text, replaced
 from lightfit.killpoint import kill_point
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import ESTIMATOR_VERSION, PARTS
@@ -255,9 +256,8 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
             file = files[i]
             if file is not None:
                 file.parent.mkdir(parents=True, exist_ok=True)
-                tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
-                np.savez(tmp, values=v, se=s, seconds=dt, leaf=leaf[i], key=rkey)
-                os.replace(tmp, file)  # atomic: a kill leaves the render either whole or absent
+                with replaced(file) as tmp:  # a kill leaves the render either whole or absent
+                    np.savez(tmp, values=v, se=s, seconds=dt, leaf=leaf[i], key=rkey)
             COUNTS["rendered"] += 1
             kill_point("render", fresh)
             vals[i], ses[i], secs[i] = v, s, dt
@@ -352,6 +352,11 @@ class PartsEmulator:
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        with replaced(path) as tmp:
+            self._write(tmp)
+        return path
+
+    def _write(self, path: Path) -> None:
         np.savez_compressed(
             path,
             lo=self.lo,
@@ -365,7 +370,17 @@ class PartsEmulator:
             loo_rms=json.dumps({str(k): v for k, v in self.loo_rms.items()}),
             key=json.dumps(self.key, sort_keys=True),
         )
-        return path
+
+    @staticmethod
+    def readable(path: str | Path, say: Callable[[str], None]) -> PartsEmulator | None:
+        """The emulator at ``path``, or None (said) if the file cannot be read: an older lightfit
+        wrote emulators in place, so a run killed while saving left a cut file that stopped every
+        rerun with a BadZipFile; such a file is rebuilt like one of other settings."""
+        try:
+            return PartsEmulator.load(path)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+            say(f"emulator {path} cannot be read ({type(err).__name__}: {err}): rebuilding")
+            return None
 
     @staticmethod
     def load(path: str | Path) -> PartsEmulator:
@@ -515,8 +530,8 @@ def cached_emulator(
     path = Path(path)
     rkey = render_key(model)
     key = emulator_key(rkey, lo, hi, n_design, seed, degrees, extra)
-    if path.exists():
-        old = PartsEmulator.load(path)
+    old = PartsEmulator.readable(path, say) if path.exists() else None
+    if old is not None:
         if old.key == key:
             return old
         changes = key_changes(old.key, key) if old.key else ["no key (written by an older lightfit)"]
@@ -558,9 +573,7 @@ def design_dir(model: CoupledModel, cache: str | Path | None = None, key: dict |
     d = cache_root(cache) / "designs" / _digest(text.encode())
     if not (d / "render_key.json").exists():
         d.mkdir(parents=True, exist_ok=True)
-        tmp = d / f"render_key.{os.getpid()}.tmp"
-        tmp.write_text(json.dumps(key, indent=2, sort_keys=True), encoding="utf-8")
-        os.replace(tmp, d / "render_key.json")
+        replace_text(d / "render_key.json", json.dumps(key, indent=2, sort_keys=True))
     return d
 
 

@@ -359,15 +359,20 @@ class Scenario:
         so that a field added later (absent from a stored digest) can be told apart and a refusal
         can name what changed. Used to refuse resuming a calibration of other settings and to
         reuse a field-run's finished tasks."""
-        out = {}
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, pd.DataFrame):
-                rows = pd.util.hash_pandas_object(v, index=True).to_numpy()
-                out[f.name] = _sha(rows.tobytes(), json.dumps([str(c) for c in v.columns]).encode())
-            else:
-                out[f.name] = _sha(repr(v).encode())
-        return out
+        return settings_digest(self)
+
+
+def settings_digest(settings) -> dict[str, str]:
+    """:meth:`Scenario.digest` of any dataclass of settings."""
+    out = {}
+    for f in dataclasses.fields(settings):
+        v = getattr(settings, f.name)
+        if isinstance(v, pd.DataFrame):
+            rows = pd.util.hash_pandas_object(v, index=True).to_numpy()
+            out[f.name] = _sha(rows.tobytes(), json.dumps([str(c) for c in v.columns]).encode())
+        else:
+            out[f.name] = _sha(repr(v).encode())
+    return out
 
 
 def _sha(*parts: bytes) -> str:

@@ -1,0 +1,33 @@
+"""Files that a killed process never leaves half written."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def replaced(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` (same folder, same suffix, so that numpy and netCDF writers
+    keep its name; per process) to write in the block; renamed onto ``path`` when the block ends, removed if it
+    raises. A process killed while writing leaves the previous file whole, or none: never a cut one
+    that the next run cannot read (a cut history lost its steps, a cut emulator stopped every rerun)."""
+    path = Path(path)
+    tmp = path.with_name(f".partial-{os.getpid()}-{path.name}")  # per process: two writers never share one
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def replace_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) at ``path`` through :func:`replaced`."""
+    with replaced(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+__all__ = ["replace_text", "replaced"]
