@@ -6,12 +6,20 @@ MCMC step or calibration step) is racy, so the runs call :func:`kill_point` at t
 testing; with ``LIGHTFIT_TEST_KILL_AFTER="<kind>:<n>"`` in the environment the process sends
 itself SIGKILL there — the same signal, without cleanup, as a user's ``kill -9``; with
 ``"<kind>:<n>:INT"`` it sends SIGINT, a user's Ctrl-C, which Python raises as KeyboardInterrupt.
+
+The same moments are where a Ctrl-C that CPython dropped is raised again (:func:`interrupts_kept`):
+a KeyboardInterrupt raised inside a garbage-collector or weakref callback (JAX registers both; the
+posterior's compile after its design runs them) is "ignored" by CPython, its traceback printed, and
+the run went on to exit 0 (jax-ml/jax#18246, python/cpython#95959).
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 #: ``"render:N"`` (after the N-th new design render is stored), ``"sample:N"`` (after MCMC step N
 #: is stored, before its stop-rule check), ``"calibrate:N"`` (after accepted step N is in the
@@ -19,9 +27,46 @@ import signal
 KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
 
 
+#: A KeyboardInterrupt that CPython reported as unraisable inside :func:`interrupts_kept`.
+_dropped = False
+
+
+@contextmanager
+def interrupts_kept() -> Iterator[None]:
+    """Within the block, a Ctrl-C that CPython would drop (raised inside a gc or weakref callback,
+    module doc) is kept, without its "Exception ignored" traceback, and raised again as
+    KeyboardInterrupt at the next :func:`kill_point` or when the block ends."""
+    global _dropped
+    previous = sys.unraisablehook
+
+    def hook(unraisable) -> None:
+        global _dropped
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            _dropped = True
+        else:
+            previous(unraisable)
+
+    sys.unraisablehook, _dropped = hook, False
+    try:
+        yield
+        raise_dropped_interrupt()
+    finally:
+        sys.unraisablehook = previous
+
+
+def raise_dropped_interrupt() -> None:
+    """Raise KeyboardInterrupt if :func:`interrupts_kept` kept one."""
+    global _dropped
+    if _dropped:
+        _dropped = False
+        raise KeyboardInterrupt
+
+
 def kill_point(kind: str, n: int) -> None:
-    """SIGKILL this process if :data:`KILL_HOOK` names this moment (``kind:n``), SIGINT if it
-    names it with ``:INT``; else nothing."""
+    """Raise a Ctrl-C that CPython dropped (:func:`interrupts_kept`); then SIGKILL this process if
+    :data:`KILL_HOOK` names this moment (``kind:n``), SIGINT if it names it with ``:INT``; else
+    nothing."""
+    raise_dropped_interrupt()
     hook = os.environ.get(KILL_HOOK, "")
     if hook == f"{kind}:{n}":
         os.kill(os.getpid(), signal.SIGKILL)

@@ -78,6 +78,11 @@ def test_resume_after_interruption_gives_identical_chain(tmp_path):
     assert done.steps_this_call == 43
     np.testing.assert_array_equal(done.chain, ref.chain)
     np.testing.assert_array_equal(done.log_prob, ref.log_prob)
+    # Interrupted in the first step (the posterior's compile): nothing stored to report, so the
+    # Ctrl-C goes on to the command (it ended in emcee's "You must run the sampler with store == True").
+    with pytest.raises(KeyboardInterrupt):
+        P.sample(Gauss(interrupt_after=1), NAMES, tmp_path / "first.h5", nwalkers=8, max_steps=60, seed=11,
+                 initial=_init(), progress=False)  # fmt: skip
     run = P.load_run(tmp_path / "run.h5")
     np.testing.assert_array_equal(run["accepted"], P.load_run(tmp_path / "ref.h5")["accepted"])
 

@@ -14,6 +14,7 @@ from rich.table import Table
 from typer.core import TyperGroup
 
 from lightfit.errors import InputError
+from lightfit.killpoint import interrupts_kept
 from lightfit.model.parameters import check_theta
 from lightfit.weather.site import SELHAUSEN
 
@@ -50,7 +51,7 @@ class LightfitGroup(TyperGroup):
     def invoke(self, ctx):
         command, args = invoked_command(self, ctx), invoked_args(ctx)  # click clears them when invoking
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), interrupts_kept():
                 warnings.showwarning = _show_warning
                 return super().invoke(ctx)
         except _user_errors() as err:
@@ -60,6 +61,12 @@ class LightfitGroup(TyperGroup):
             raise typer.Exit(2) from None
         except KeyboardInterrupt:  # Ctrl-C
             interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+        except Exception as err:
+            # Ctrl-C inside a JAX host callback (a render called from a traced loss) reaches here
+            # wrapped in XLA's runtime error, which printed some 60 lines of traceback.
+            if type(err).__name__ == "JaxRuntimeError" and "KeyboardInterrupt" in str(err):
+                interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+            raise
 
 
 def interrupted(kept: str | None, started_over: bool = False) -> NoReturn:

@@ -178,6 +178,8 @@ def _sample(
                     stopped_by = "max_seconds"
                     break
         except KeyboardInterrupt:
+            if backend.iteration == 0:  # nothing stored to report (Ctrl-C in the first step's compile)
+                raise
             stopped_by = "interrupted"
     chain = backend.get_chain()
     d = diagnostics(chain, backend.accepted, burn_fraction=(stop or StopRule()).burn_fraction, names=names)

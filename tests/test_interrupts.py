@@ -1,0 +1,74 @@
+"""Ctrl-C is never lost: one CPython drops (raised inside a gc or weakref callback) is raised again
+at the next kill point or when the command ends, and one wrapped by a JAX host callback is a Ctrl-C."""
+
+from __future__ import annotations
+
+import gc
+
+import jax
+import jax.numpy as jnp
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from lightfit.cli.common import LightfitGroup
+from lightfit.killpoint import interrupts_kept, kill_point
+
+
+class _InterruptedWhileCollected:
+    """Raises KeyboardInterrupt where CPython can only report it: in ``__del__`` (as in JAX's gc
+    callback, where a user's Ctrl-C was lost and the run exited 0)."""
+
+    def __del__(self):
+        raise KeyboardInterrupt
+
+
+def _drop_an_interrupt():
+    x = _InterruptedWhileCollected()
+    del x
+    gc.collect()
+
+
+def test_a_dropped_interrupt_is_raised_at_the_next_kill_point(capsys):
+    with pytest.raises(KeyboardInterrupt), interrupts_kept():
+        _drop_an_interrupt()  # CPython prints "Exception ignored" and goes on …
+        kill_point("render", 1)  # … here it is raised again
+    assert "Exception ignored" not in capsys.readouterr().err
+    with interrupts_kept():  # kept once: a later block starts clean
+        kill_point("render", 2)
+
+
+def _app():
+    app = typer.Typer(cls=LightfitGroup)
+
+    @app.command()
+    def dropped():
+        _drop_an_interrupt()  # and no kill point after it: the command's end raises it
+
+    @app.command()
+    def wrapped():
+        def render(x):
+            raise KeyboardInterrupt  # Ctrl-C inside a render called from a traced loss
+
+        f = jax.jit(lambda x: jax.pure_callback(render, jax.ShapeDtypeStruct((), jnp.float32), x))
+        f(jnp.float32(1.0)).block_until_ready()
+
+    @app.command()
+    def fails():
+        f = jax.jit(lambda x: jax.pure_callback(lambda _: 1 / 0, jax.ShapeDtypeStruct((), jnp.float32), x))
+        f(jnp.float32(1.0)).block_until_ready()
+
+    return app
+
+
+@pytest.mark.parametrize("command", ["dropped", "wrapped"])
+def test_commands_end_interrupted_with_status_130(command):
+    """Both exited as if nothing happened (0) or with ~60 lines of XLA traceback (1)."""
+    r = CliRunner().invoke(_app(), [command])
+    assert r.exit_code == 130, r.output
+    assert r.stderr.strip().startswith("interrupted:") and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_other_errors_in_a_callback_stay_errors():
+    r = CliRunner().invoke(_app(), ["fails"])
+    assert r.exit_code == 1 and "ZeroDivisionError" in str(r.exception)
