@@ -750,9 +750,15 @@ def test_a_posterior_run_resumes_only_with_its_own_settings(tmp_path):
     A.run(model, obs, emu, old, max_steps=6, **kw)
     assert "observations_sha256" not in P.load_run(old)["attrs"]
 
+    # An analysis stored with the run describes its chain: extending the chain drops it (an interrupted
+    # extension kept the analysis of the shorter chain, and posterior-status called it written).
+    P.backend.write_group(path, "analysis", {"of_steps": np.asarray([4])})
+    A.run(model, obs, emu, path, max_steps=4, **kw)  # nothing added: kept
+    assert "analysis" in P.load_run(path)
     # the same settings: the uninterrupted run's chain and attributes
     res = A.run(model, obs, emu, path, max_steps=8, **kw)
     assert res["n_steps"] == ref["n_steps"] == 8
+    assert "analysis" not in P.load_run(path)
     run, uninterrupted = P.load_run(path), P.load_run(tmp_path / "ref.h5")
     np.testing.assert_array_equal(run["chain"], uninterrupted["chain"])
     for k in A.RESUME_ENTRIES:

@@ -20,6 +20,7 @@ from lightfit.cli.options import (
     run_model,
 )
 from lightfit.errors import InputError
+from lightfit.files import replace_text
 
 
 @model_options
@@ -206,11 +207,12 @@ def posterior(
         mc_correlation=form["mc_correlation"],
         mc_scale=mc_scale,
     )
-    # strict JSON: an unbounded Fisher width (eigenvalue 0) is null, not Infinity
-    (out / "summary.json").write_text(json.dumps(P.jsonable(res, strict=True), indent=2, default=str, allow_nan=False))
     if res["stopped_by"] == "interrupted":  # Ctrl-C while sampling: every finished step is kept
         _print_status(P.backend.run_status(out / "run.h5"))
         interrupted(f"{out / 'run.h5'} keeps every finished step", started_over=not resume)
+    # strict JSON: an unbounded Fisher width (eigenvalue 0) is null, not Infinity. Not written when
+    # interrupted: it replaced the last finished run's summary with a part of a chain.
+    replace_text(out / "summary.json", json.dumps(P.jsonable(res, strict=True), indent=2, default=str, allow_nan=False))
     if not analysis:
         _print_status(P.backend.run_status(out / "run.h5"))
         console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")

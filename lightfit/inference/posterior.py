@@ -42,7 +42,7 @@ from lightfit.inference.mcmc import (
     summarize,
     write_group,
 )
-from lightfit.inference.mcmc.backend import run_attrs, stored_run
+from lightfit.inference.mcmc.backend import drop_group, run_attrs, stored_run
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
@@ -562,6 +562,8 @@ def run(
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
         "refused": res.refused,
     }
+    if res.steps_this_call > 0:  # an analysis stored with the run is of a shorter chain now
+        drop_group(path, "analysis")
     if not analysis or res.stopped_by == "interrupted":  # an interrupted chain is resumed, not analysed
         return out
     samples = flat_samples({"chain": res.chain})

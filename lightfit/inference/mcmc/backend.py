@@ -284,6 +284,13 @@ def write_group(path: str | Path, name: str, data: dict) -> None:
         _write(f.create_group(name), data)
 
 
+def drop_group(path: str | Path, name: str) -> None:
+    """Remove HDF5 group ``name`` if the file has it (e.g. an analysis of a chain since extended)."""
+    with open_h5(path, "a") as f:
+        if name in f:
+            del f[name]
+
+
 def _write(g, data: dict):
     for k, v in data.items():
         if isinstance(v, dict):
@@ -296,6 +303,7 @@ def _write(g, data: dict):
 
 __all__ = [
     "ResumableHDFBackend",
+    "drop_group",
     "jsonable",
     "load_run",
     "open_h5",
