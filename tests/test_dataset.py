@@ -567,6 +567,42 @@ def test_an_output_folder_holding_a_dataset_is_refused(mono_dataset, results_fil
     assert sorted(p.name for p in (out / "images").iterdir()) == before  # nothing written
 
 
+def test_an_interrupted_dataset_is_started_again(results_file, tmp_path, monkeypatch):
+    """Interrupted after its first image, a dataset's folder held images but no metadata.json, and
+    the same command was refused ("already holds a dataset") although the interrupt said "rerun the
+    command to start it again". The folder's marker tells an unfinished run's files apart: the rerun
+    replaces them and ends as an uninterrupted run; a finished dataset stays refused."""
+    import lightfit.dataset.dataset as D
+
+    spec = DatasetSpec(
+        cameras=[CAM], times=["all"], settings=RenderSettings(spp=1, colour="mono", seed=4), gallery_images=0
+    )
+    ref = make_dataset(results_file, tmp_path / "ref", spec)
+    write, calls = D._write_image, []
+
+    def interrupted_after_one(*args, **kw):
+        calls.append(1)
+        if len(calls) > 1:
+            raise KeyboardInterrupt
+        return write(*args, **kw)
+
+    out = tmp_path / "run"
+    monkeypatch.setattr(D, "_write_image", interrupted_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        make_dataset(results_file, out, spec)
+    monkeypatch.setattr(D, "_write_image", write)
+    assert (out / D.UNFINISHED).exists() and not (out / "metadata.json").exists() and any((out / "images").iterdir())
+    meta = make_dataset(results_file, out, spec)
+    assert not (out / D.UNFINISHED).exists() and len(meta["images"]) == len(ref["images"]) == 2
+    assert sorted(p.name for p in (out / "images").iterdir()) == sorted(
+        p.name for p in (tmp_path / "ref" / "images").iterdir()
+    )
+    for a, b in zip(ref["images"], meta["images"]):
+        assert (out / b["png"]).read_bytes() == (tmp_path / "ref" / a["png"]).read_bytes()
+    with pytest.raises(InputError, match="already holds a dataset"):
+        make_dataset(results_file, out, spec)
+
+
 def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_file, monkeypatch):
     """Each label panel's colour bar says its units (from the results schema, as the metadata does)."""
     from matplotlib.figure import Figure

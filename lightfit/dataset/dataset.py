@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -70,13 +71,25 @@ class DatasetSpec:
     cache_dir: str | None = None
 
 
+#: Marker file in an output folder while :func:`make_dataset` writes it: a folder holding it and
+#: images but no metadata.json is an interrupted run's, which the same command replaces.
+UNFINISHED = ".unfinished"
+
+
 def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()) -> dict:
     """Render ``spec``'s cameras at its times and write the dataset to ``out_dir``; return the metadata."""
     if spec.export not in EXPORT_FORMATS:
         raise InputError(f"export={spec.export!r}", column="export", expected=" or ".join(EXPORT_FORMATS))
     check_integer(spec.gallery_images, "gallery_images", 0)
     out = Path(out_dir)
+    unfinished = out / UNFINISHED
     earlier = [d for d in ("images", "labels") if (out / d).is_dir() and any((out / d).iterdir())]
+    if earlier and unfinished.exists() and not (out / "metadata.json").exists():
+        # An interrupted make_dataset's files (the marker says so): started again, as the
+        # interrupted command's line promises (it refused, "already holds a dataset").
+        for d in earlier:
+            shutil.rmtree(out / d)
+        earlier = []
     if earlier:  # their files would mix with this dataset's, while metadata.json lists only this one's
         raise InputError(
             f"the output folder already holds a dataset ({', '.join(f'{d}/' for d in earlier)} not empty)",
@@ -101,6 +114,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
 
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(exist_ok=True)
+    unfinished.write_text("written by lightfit render-dataset while it writes; removed when metadata.json is\n")
     per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
     images = []
     for c, cam in enumerate(cams):
@@ -123,6 +137,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     if spec.export != "none":
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
     (out / "metadata.json").write_text(json.dumps(meta, indent=2, default=_json_default), encoding="utf-8")
+    unfinished.unlink()
     return meta
 
 
