@@ -13,8 +13,12 @@ from lightfit.constants import ZERO_CELSIUS_K as T0
 
 #: Specific gas constant of water vapour, J kg⁻¹ K⁻¹ (e.g. Monteith & Unsworth 2013, App. 2).
 R_WATER_VAPOUR = 461.5
-#: Fraction of broadband global radiation that is PAR (400–700 nm), energy basis (≈0.45–0.50;
-#: McCree 1972; Meek et al. 1984). docs/design.md §6 uses 0.50.
+#: Fraction of broadband global radiation that is PAR (400–700 nm), energy basis. Published values
+#: span ≈ 0.43–0.50: 0.50 is the crop models' convention (Monteith 1973; Spitters et al. 1986) and
+#: docs/design.md §6's choice, at the top of the range; Meek et al. (1984, Agron. J. 76:939) measured
+#: 2.04 µmol J⁻¹ of global, i.e. 0.45 × 4.57; the ASTM G173 global spectrum gives 0.43. Only series
+#: without a PAR sensor depend on it for their light (10 % less PAR at 0.45), and the bundled
+#: reconstructed day through its direct/diffuse split (docs/weather.md).
 PAR_FRACTION = 0.50
 #: Photon-to-energy ratio of sunlight PAR, µmol J⁻¹ (McCree 1972: 4.57).
 UMOL_PER_JOULE_PAR = 4.57
