@@ -51,7 +51,8 @@ def interrupts_kept() -> Iterator[None]:
         yield
         raise_dropped_interrupt()
     finally:
-        sys.unraisablehook = previous
+        # Not left for a later kill point outside the block (another call in the same process)
+        sys.unraisablehook, _dropped = previous, False
 
 
 def raise_dropped_interrupt() -> None:

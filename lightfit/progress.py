@@ -49,7 +49,7 @@ def progress_bar(label: str, total: int, *, completed: int = 0, show: bool = Tru
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     console = get_console()
-    if not console.is_terminal:
+    if not (console.is_terminal or console.is_jupyter):
         line, t0 = _Line(completed), time.perf_counter()
         try:
             yield line

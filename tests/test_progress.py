@@ -5,9 +5,13 @@ from __future__ import annotations
 from lightfit.progress import progress_bar
 
 
-def test_off_a_terminal_the_progress_is_one_whole_line(capsys):
+def test_off_a_terminal_the_progress_is_one_whole_line(capsys, monkeypatch):
     """A log got rich's last live frame, cut at 80 columns ("cali… converged: projected gradient
     ∞-norm ≤ gtol 0.01; 1 steps, 3 evaluations,…"): the whole line now, with the count and info."""
+    from rich import get_console
+
+    # Off a terminal whatever the environment says (FORCE_COLOR / TTY_COMPATIBLE make rich claim one).
+    monkeypatch.setattr(get_console(), "_force_terminal", False)
     info = "converged: projected gradient ∞-norm ≤ gtol 0.01; 12 steps, 31 evaluations, 31 gradients [x]"
     with progress_bar("calibrating", 30, completed=2) as bar:
         bar.update(completed=12)

@@ -22,6 +22,7 @@ from lightfit.cli.options import (
     run_model,
 )
 from lightfit.errors import InputError
+from lightfit.files import replace_text
 
 
 @model_options
@@ -129,7 +130,9 @@ def calibrate(
                 )
     obs = read_observations(observations)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
-    check_informed(names, uses)  # before the plants grow (calibrate() checks again)
+    cfg = s.replication_config()
+    run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}
+    check_informed(names, uses, **run)  # before the plants grow (calibrate() checks again)
     # A history made with other model settings (e.g. the finite field, before periodic became the
     # default) must not be resumed into this run: checked before the plants are grown.
     settings = out / "settings.json"
@@ -149,7 +152,7 @@ def calibrate(
                 break
     m = run_model(s)  # several --date: one model per day
     out.mkdir(parents=True, exist_ok=True)
-    settings.write_text(json.dumps({"config": s.as_dict()}, indent=2))
+    replace_text(settings, json.dumps({"config": s.as_dict()}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
     tr = None
     if surrogate:
@@ -231,7 +234,7 @@ def calibrate(
             else str(tr.design_dir),
             "rounds": tr.rounds,
         }
-    (out / "calibration.json").write_text(json.dumps(record, indent=2))
+    replace_text(out / "calibration.json", json.dumps(record, indent=2))
     t = Table(
         title=f"calibration ({res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}: "
         f"{res.steps} accepted steps, {res.evaluations} loss and {res.gradients} gradient evaluations, "

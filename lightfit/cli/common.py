@@ -89,7 +89,7 @@ RESUMABLE = {
     "sampling step in --out's run.h5",
     "calibrate": "every finished design render is kept in the design cache and every accepted step "
     "in --out (history.jsonl, or trust_region/ with the surrogate)",
-    "field-run": "every finished task is kept beside --out (results.nc.parts/)",
+    "field-run": "every finished task is kept beside --out (OUT.parts/)",
 }
 
 

@@ -45,8 +45,8 @@ def field_run(
     progress: bool = typer.Option(True, help="Progress bar over tiles."),
     resume: bool = typer.Option(
         True,
-        help="Keep each finished task in OUT.parts/ until the results are written, and take those of the "
-        "same settings from there when a killed or timed-out run is started again (--no-resume: run all).",
+        help="Take the finished tasks of a killed or timed-out run of the same settings from OUT.parts/, where "
+        "every run keeps its finished tasks until the results are written (--no-resume: discard them first).",
     ),
     *,
     model: ModelOptions,
@@ -82,12 +82,13 @@ def field_run(
             progress=progress,
             timeout_s=timeout,
             connect_timeout_s=connect_timeout,
-            parts=parts if resume else None,
+            parts=parts,
         )
     except TimeoutError:
-        kept = f"; the finished tasks are kept in {parts}: the same command resumes" if resume else ""
+        again = "the same command" if resume else "the command without --no-resume"
         raise InputError(
-            f"the tasks did not finish within {timeout:g} s (no results written{kept})",
+            f"the tasks did not finish within {timeout:g} s (no results written; the finished tasks are kept in "
+            f"{parts}: {again} resumes)",
             column="timeout",
             expected="a longer --timeout, or none",
         ) from None
@@ -96,8 +97,7 @@ def field_run(
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     out.parent.mkdir(parents=True, exist_ok=True)
     write_netcdf(ds, out)
-    if resume:
-        shutil.rmtree(parts, ignore_errors=True)  # everything is in the results now
+    shutil.rmtree(parts, ignore_errors=True)  # everything is in the results now
     if ds.attrs.get("tasks_resumed"):
         n = ds.attrs["tasks_resumed"]
         console.print(f"resumed: {n} of {ds.attrs['tasks']} tasks were kept from the run before")

@@ -100,7 +100,8 @@ def posterior(
     P.check_run_size(len(names), walkers, max_steps)  # before the design is rendered
     obs = read_observations(observations or rep.OBSERVATIONS)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
-    flat = uninformed(names, uses)
+    cfg = s.replication_config()
+    flat = uninformed(names, uses, bounces=cfg.render_bounces(), par_kind=cfg.par_kind)
     if flat:  # sampled all the same: the posterior then shows it (identical to the prior)
         console.print(
             f"note: no observed series in the likelihood ({', '.join(uses)}) depends on {', '.join(flat)}: "
@@ -130,6 +131,8 @@ def posterior(
                 "resuming it without comparing them"
             )
     out.mkdir(parents=True, exist_ok=True)
+    if not resume:  # the run it starts again: its summary must not outlive it (an interrupted run writes none)
+        (out / "summary.json").unlink(missing_ok=True)
     days = days_of(m)
     dates = getattr(m, "dates", None)  # None: one day (files and keys as before several days existed)
     keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, 0, E.DEGREES) for d in days]

@@ -29,6 +29,7 @@ from lightfit.dataset.render import RenderSettings, render
 from lightfit.dataset.results import MARGIN, Results, build_geometry, lighting, open_results, select_times
 from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
 from lightfit.errors import InputError, check_integer
+from lightfit.files import replace_text
 
 DEFAULT_QUANTITIES = ("absorbed_par", "an", "vc", "vj", "gs", "limitation", MARGIN)
 EXPORT_FORMATS = ("ply", "vtk", "none")
@@ -136,7 +137,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
         meta["gallery"] = gallery(out, images[: spec.gallery_images], quantities, units).name
     if spec.export != "none":
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
-    (out / "metadata.json").write_text(json.dumps(meta, indent=2, default=_json_default), encoding="utf-8")
+    replace_text(out / "metadata.json", json.dumps(meta, indent=2, default=_json_default))
     unfinished.unlink()
     return meta
 

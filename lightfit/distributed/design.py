@@ -45,6 +45,7 @@ from lightfit.distributed.run import _worker_setup, connect
 from lightfit.errors import InputError
 from lightfit.model import emulator as E
 from lightfit.model.scenario import Scenario
+from lightfit.progress import progress_bar
 
 #: The worker's last model, keyed by its render key (JSON): chunks of one design that land on the
 #: same worker build the plants and the scene once.
@@ -186,37 +187,24 @@ def render_design(
         for i in range(0, len(todo), size)
     ]
     files = [E.render_file(cache, key, x) for x in todo]
-    bar = None
-    if progress:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        bar = Progress(
-            TextColumn(f"rendering design on {n_workers} worker(s)"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-        )
-        task = bar.add_task("r", total=len(files))
-        bar.start()
     t0 = time.perf_counter()
+    label = f"rendering design on {n_workers} worker(s)"
     try:
-        # Poll: a chunk's points land in the cache one by one, so the bar counts points, not tasks.
-        while True:
-            done = all(f.done() for f in futures)
-            for f in futures:
-                if f.done() and f.status != "finished":
-                    f.result()  # raises the task's error here
-            if bar is not None:
-                bar.update(task, completed=sum(p.exists() for p in files))
-            if done:
-                break
-            if timeout_s is not None and time.perf_counter() - t0 > timeout_s:
-                raise TimeoutError(f"design renders not finished after {timeout_s} s")
-            time.sleep(0.25)
+        with progress_bar(label, len(files), show=progress) as bar:
+            # Poll: a chunk's points land in the cache one by one, so the bar counts points, not tasks.
+            while True:
+                done = all(f.done() for f in futures)
+                for f in futures:
+                    if f.done() and f.status != "finished":
+                        f.result()  # raises the task's error here
+                bar.update(completed=sum(p.exists() for p in files))
+                if done:
+                    break
+                if timeout_s is not None and time.perf_counter() - t0 > timeout_s:
+                    raise TimeoutError(f"design renders not finished after {timeout_s} s")
+                time.sleep(0.25)
         info = [f.result() for f in futures]
     finally:
-        if bar is not None:
-            bar.stop()
         for f in futures:
             f.release()
     # The caller reads these points from the cache next (that is the hook's contract): count them as

@@ -55,6 +55,7 @@ from lightfit.killpoint import kill_point
 from lightfit.model import schema
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, daytime, sun_positions_deg
+from lightfit.progress import progress_bar
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
 #: Observables recomputed from the gathered segments. The virtual sensors' (ceptometer) are not
@@ -491,17 +492,27 @@ def submit(client, run: FieldRun, specs: list[TaskSpec] | None = None) -> list:
 
 def task_key(spec: TaskSpec) -> str:
     """Hash of everything the task's result depends on: its scenario (tile, time rows, field,
-    estimator, optics, photosynthesis, … : :meth:`~lightfit.model.scenario.Scenario.digest`), θ, and
-    the code's versions (:func:`~lightfit.model.emulator.code_versions`, the projection's)."""
+    estimator, optics, photosynthesis, … : :meth:`~lightfit.model.scenario.Scenario.digest`), the
+    growth parameter file's contents (the field's repr names it only), θ, and the code's versions
+    (:func:`~lightfit.model.emulator.code_versions`, the projection's, CPlantBox's and JAX's)."""
     import hashlib
+    import importlib.metadata
 
     from lightfit.light.projection import PROJECTION_VERSION
     from lightfit.model.emulator import code_versions
 
+    sc = spec.run.task_scenario(spec.tile, spec.rows)
+    versions = {**code_versions(), "projection": PROJECTION_VERSION}
+    for pkg in ("cplantbox", "jax", "jaxlib"):
+        try:
+            versions[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            versions[pkg] = None
     what = {
-        "scenario": spec.run.task_scenario(spec.tile, spec.rows).digest(),
+        "scenario": sc.digest(),
+        "growth": sc.field.growth.fingerprint(),
         "theta": as_theta(spec.run.theta).to_dict(),
-        "versions": {**code_versions(), "projection": PROJECTION_VERSION},
+        "versions": versions,
         "task": [spec.tile, spec.chunk],
     }
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
@@ -579,36 +590,20 @@ def run_field(
                 specs.remove(s)
     resumed = len(results)
     futures = submit(client, run, specs)
-    bar = None
-    if progress:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        bar = Progress(
-            TextColumn("[bold]tiles × time chunks"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TextColumn("{task.description}"),
-        )
-        bar.start()
-        task = bar.add_task("", total=len(futures) + resumed, completed=resumed)
+    total = len(futures) + resumed
     try:
-        for n, fut in enumerate(as_completed(futures, timeout=timeout_s), 1):
-            ds, info = fut.result()
-            results.append((ds, info))
-            if parts is not None:
-                _keep_part(_part(parts, info["tile"], info["chunk"]), keys[info["tile"], info["chunk"]], (ds, info))
-                kill_point("field-task", n)
-            if bar is not None:
+        with progress_bar("tiles × time chunks", total, completed=resumed, show=progress) as bar:
+            for n, fut in enumerate(as_completed(futures, timeout=timeout_s), 1):
+                ds, info = fut.result()
+                results.append((ds, info))
+                if parts is not None:
+                    _keep_part(_part(parts, info["tile"], info["chunk"]), keys[info["tile"], info["chunk"]], (ds, info))
+                    kill_point("field-task", n)
                 bar.update(
-                    task,
-                    advance=1,
-                    description=f"tile {info['tile']} chunk {info['chunk']}: "
-                    f"{info['total_s']:.1f} s on {info['worker']}",
+                    completed=resumed + n,
+                    info=f"tile {info['tile']} chunk {info['chunk']}: {info['total_s']:.1f} s on {info['worker']}",
                 )
     finally:
-        if bar is not None:
-            bar.stop()
         for f in futures:
             f.release()
     wall = time.perf_counter() - t0

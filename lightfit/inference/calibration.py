@@ -65,6 +65,7 @@ from lightfit.inference.likelihood import (
     check_informed,
     likelihood_form,
     observations_digest,
+    run_settings,
 )
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.observations import matched_as_by_stamp, observation_matching
@@ -203,7 +204,7 @@ def make_loss(
     names = check_names(names)
     base = model.theta(fixed)
     lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps)
-    check_informed(names, lik.use)  # before the "model" correlation renders
+    check_informed(names, lik.use, **run_settings(model))  # before the "model" correlation renders
     if isinstance(mc_correlation, str) and likelihood_form(mc_correlation)["mc_correlation"] == "model":
         mc_correlation = mc_correlation_of(model, as_theta(at, base=base), lik.use)
     elif isinstance(mc_correlation, str):
@@ -498,11 +499,12 @@ def calibrate(
             is kept next to it (``<history>.state.npz``).
         resume: continue exactly from the saved state (or from the best point in ``history``). The
             state records a hash of the aligned observations (values, SDs, mask, steps) and of the
-            model's scenario settings; a history made with other ones raises :class:`InputError`.
-        say: where a one-line notice goes (a resume that cannot be exact).
+            model's scenario settings; a history made with other ones, or a state saved with another
+            method, start, tolerances, series or likelihood form, raises :class:`InputError`.
+        say: where a one-line notice goes (a history without a readable state, resumed from its
+            best point).
         mc_correlation, mc_scale: the likelihood's Monte Carlo form (:func:`make_loss`; ``"model"``
-            computes the correlation at ``start``); both enter the resume key, so a history made
-            with another form is continued from its best point, not exactly, and the notice says so.
+            computes the correlation at ``start``); both enter the resume key.
     """
     if method not in METHODS:
         raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))

@@ -77,7 +77,16 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.inference.observations import ALIASES, BY_NAME, SERIES, align, check_sds, observed, series
+from lightfit.inference.observations import (
+    ALIASES,
+    BY_NAME,
+    SERIES,
+    align,
+    check_sds,
+    dependencies,
+    observed,
+    series,
+)
 from lightfit.model.observe import mc_covariance, unconverged
 from lightfit.model.parameters import NAMES, as_theta
 from lightfit.weather.timestamps import INSTANTS, Timestamps
@@ -104,30 +113,44 @@ def resolve_use(use: Sequence[str] | None, obs: pd.DataFrame | None = None) -> t
     return tuple(n for n in USES if n in names)
 
 
-def uninformed(names: Sequence[str], use: Sequence[str]) -> tuple[str, ...]:
-    """Those of the model parameters ``names`` on which no series of ``use`` depends
-    (:attr:`~lightfit.inference.observations.Series.depends_on`): a likelihood of those series is
-    flat along them, so an optimiser cannot move them and their posterior is their prior (e.g. the
-    leaf parameters against the above-canopy sensor alone, which sees the sky). Names that are
-    not model parameters (the noise scale) are not judged."""
-    seen = {p for n in resolve_use(tuple(use)) for p in BY_NAME[n].depends_on}
+def run_settings(model) -> dict:
+    """``bounces`` and ``par_kind`` of ``model``'s scenario (a multi-day model's first day; 1 and
+    "absorbed" for a model without them, e.g. a test double): what
+    :func:`~lightfit.inference.observations.dependencies` needs."""
+    days = getattr(model, "day_models", None)
+    sc = getattr(next(iter(days.values())) if days else model, "scenario", None)
+    return {"bounces": int(getattr(sc, "bounces", 1)), "par_kind": str(getattr(sc, "par_kind", "absorbed"))}
+
+
+def uninformed(
+    names: Sequence[str], use: Sequence[str], *, bounces: int = 1, par_kind: str = "absorbed"
+) -> tuple[str, ...]:
+    """Those of the model parameters ``names`` on which no series of ``use`` depends in a run with
+    ``bounces`` and ``par_kind`` (:func:`~lightfit.inference.observations.dependencies`): a
+    likelihood of those series is flat along them, so an optimiser cannot move them and their
+    posterior is their prior (e.g. the leaf parameters against the above-canopy sensor alone, which
+    sees the sky). Names that are not model parameters (the noise scale) are not judged."""
+    seen = {p for n in resolve_use(tuple(use)) for p in dependencies(BY_NAME[n], bounces=bounces, par_kind=par_kind)}
     return tuple(n for n in names if n in NAMES and n not in seen)
 
 
-def check_informed(names: Sequence[str], use: Sequence[str]) -> None:
+def check_informed(names: Sequence[str], use: Sequence[str], *, bounces: int = 1, par_kind: str = "absorbed") -> None:
     """:class:`InputError` naming the parameters of ``names`` that no series of ``use`` depends on
-    (:func:`uninformed`): a calibration of them would stop where it started and call it converged."""
-    flat = uninformed(names, use)
+    (:func:`uninformed`): a calibration of them would stop where it started and call it converged.
+    The message names, per such parameter, the series that would inform it."""
+    run = {"bounces": bounces, "par_kind": par_kind}
+    flat = uninformed(names, use, **run)
     if flat:
         use = resolve_use(tuple(use))
-        can = [n for n in NAMES if n not in flat and n not in uninformed([n], use)]
-        need = sorted({s for s in USES if set(flat) & set(BY_NAME[s].depends_on)}, key=USES.index)
+        can = [n for n in NAMES if not uninformed([n], use, **run)]
+        need = {p: [s for s in USES if p in dependencies(BY_NAME[s], **run)] for p in flat}
+        by = "; ".join(f"{p}: {', '.join(v) if v else 'none at bounces 0'}" for p, v in need.items())
         raise InputError(
-            f"the observed series in the likelihood ({', '.join(use)}) do not depend on {', '.join(flat)}",
+            f"the observed series in the likelihood ({', '.join(use)}) do not depend on {', '.join(flat)}"
+            + (" (no light is scattered: bounces 0)" if bounces < 1 else ""),
             column="parameters",
             expected=(f"parameters they inform ({', '.join(can)})" if can else "other parameters")
-            + f", or observations of a series that depends on {'them' if len(flat) > 1 else flat[0]} "
-            f"({', '.join(need)})",
+            + f", or --use / observations with a series that does ({by})",
         )
 
 
@@ -414,5 +437,6 @@ __all__ = [
     "mc_correlation",
     "observations_digest",
     "resolve_use",
+    "run_settings",
     "uninformed",
 ]

@@ -70,6 +70,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
 from lightfit.weather.readers import PROVENANCES, read_csv_with_metadata
@@ -92,6 +93,7 @@ class Series:
     meaning: str = ""
     nonnegative: bool = False
     depends_on: tuple[str, ...] = ()
+    incident: bool = False  # read from incident light (a ceptometer), not absorbed: see dependencies()
 
 
 # What each observable depends on (Series.depends_on). Light at the plants depends on the leaf and
@@ -164,6 +166,7 @@ SERIES = (
         "transmitted_par_mc_sd_umol_m2_s",
         meaning="PAR on a line quantum sensor (ceptometer) on the soil under the canopy",
         depends_on=_LIGHT,
+        incident=True,
         nonnegative=True,
     ),
     Series(
@@ -174,6 +177,7 @@ SERIES = (
         unit="1",
         meaning="canopy PAR transmittance from a ceptometer (below / above the canopy)",
         depends_on=_RATIO,
+        incident=True,
         nonnegative=True,
     ),
     Series(
@@ -184,9 +188,26 @@ SERIES = (
         unit="1",
         meaning="fAPAR from a ceptometer, 1 - transmittance (one-sensor approximation)",
         depends_on=_RATIO,
+        incident=True,
     ),
 )
 BY_NAME = {s.name: s for s in SERIES}
+
+
+def dependencies(series: Series, *, bounces: int = 1, par_kind: str = "absorbed") -> tuple[str, ...]:
+    """The model parameters ``series``' observable depends on in a run with ``bounces`` and
+    ``par_kind``: :attr:`Series.depends_on` when light is scattered (bounces ≥ 1). Without
+    scattering the leaf acts only through the share it absorbs (its albedo: specular and roughness;
+    subsurface only splits scattered light), so series of incident light (the ceptometer's, and
+    ``plant_par`` with ``par_kind="incident"``) depend on none of the leaf parameters, and no series on
+    subsurface (checked against the gradients in ``tests/test_observations_depend.py``)."""
+    if bounces >= 1:
+        return series.depends_on
+    incident = series.incident or (series.name == "plant_par" and par_kind == "incident")
+    drop = set(LEAF_PARAMETERS) if incident else {"subsurface"}
+    return tuple(p for p in series.depends_on if p not in drop)
+
+
 #: Largest |value| a fraction (unit "1": fAPAR, ceptometer transmittance) may have in an
 #: observations file: beyond 1 only by measurement noise; a percentage (e.g. 94) is refused.
 MAX_FRACTION = 1.5
@@ -384,7 +405,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
     meta = {**metadata, "time_zone": "UTC", **timestamps.of(df).metadata()}
     head = "".join(f"# {k}: {v}\n" for k, v in meta.items())
-    path.write_text(head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"), encoding="utf-8")
+    replace_text(path, head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"))
     return path
 
 

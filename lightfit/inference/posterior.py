@@ -538,6 +538,8 @@ def run(
         "observation_matching": observation_matching(obs, model.timestamps),
         **(attrs or {}),
     }
+    if not resume and Path(path).exists():  # a new chain: an analysis stored with the old one is not its
+        drop_group(path, "analysis")
     res = sample(
         lp,
         lp.names,

@@ -64,7 +64,14 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.inference.calibration import CalibrationResult, calibrate
-from lightfit.inference.likelihood import USES, GaussianLikelihood, check_informed, likelihood_form, resolve_use
+from lightfit.inference.likelihood import (
+    USES,
+    GaussianLikelihood,
+    check_informed,
+    likelihood_form,
+    resolve_use,
+    run_settings,
+)
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align
@@ -241,7 +248,7 @@ def surrogate_calibrate(
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)
-    check_informed(names, use)  # before the design renders
+    check_informed(names, use, **run_settings(model))  # before the design renders
     base = model.theta(fixed)
     x0 = as_theta(start, base=base)
     out = None if out is None else Path(out)

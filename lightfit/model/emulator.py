@@ -64,6 +64,7 @@ from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import CONVERGENCE_KEY, OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import adaptive_limits
+from lightfit.progress import progress_bar
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
 DEGREES = (1, 2, 3, 4, 5)
@@ -237,14 +238,8 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
         elif file is None or file not in first:
             todo.append(i)
             first[file] = i
-    bar = None
-    if progress:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        bar = Progress(TextColumn("rendering design"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-        task = bar.add_task("r", total=len(leaf), completed=len(leaf) - len(todo))
-        bar.start()
-    try:
+    done = len(leaf) - len(todo)
+    with progress_bar("rendering design", len(leaf), completed=done, show=progress) as bar:
         # All missing points in one batch (CoupledModel.render_many: the paths are traced once and
         # weighed at every point); each point is stored as soon as it is done, so a design killed
         # half-way keeps its finished renders. A point's seconds are the time since the previous
@@ -261,12 +256,8 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
             COUNTS["rendered"] += 1
             kill_point("render", fresh)
             vals[i], ses[i], secs[i] = v, s, dt
-            if bar:
-                bar.update(task, advance=1)
+            bar.update(completed=done + fresh)
             t0 = time.perf_counter()
-    finally:
-        if bar:
-            bar.stop()
     for i, file in enumerate(files):  # a point repeated in ``leaf``: its render, as if read from the cache
         if vals[i] is None:
             j = first[file]
@@ -350,7 +341,11 @@ class PartsEmulator:
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
+        """Write the emulator at ``path`` (``.npz`` added if the name lacks it, as numpy does);
+        return the path written."""
         path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
         path.parent.mkdir(parents=True, exist_ok=True)
         with replaced(path) as tmp:
             self._write(tmp)

@@ -11,14 +11,13 @@ from __future__ import annotations
 import hashlib
 import io
 import logging
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from lightfit.cache import cache_root
+from lightfit.files import replaced
 from lightfit.plant.growth import GrowthConfig, grow_plant
 
 log = logging.getLogger(__name__)
@@ -86,10 +85,8 @@ def load_or_grow(
     directory.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
     np.savez_compressed(buf, _key=key, _digest=_payload_digest(arrays), _columns=",".join(df.columns), **arrays)
-    fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
-        f.write(buf.getvalue())
-    os.replace(tmp, path)
+    with replaced(path) as tmp:  # per process: concurrent workers growing one plant never share a file
+        tmp.write_bytes(buf.getvalue())
     return _with_plant_id(df, plant_id), False
 
 
