@@ -56,7 +56,7 @@ def _init(nw=8, seed=3):
 NAMES = ("a", "b", "c")
 
 
-def test_resume_after_interruption_gives_identical_chain(tmp_path):
+def test_resume_after_interruption_gives_identical_chain(tmp_path, capsys):
     ref = P.sample(
         Gauss(), NAMES, tmp_path / "ref.h5", nwalkers=8, max_steps=60, seed=11, initial=_init(), progress=False
     )
@@ -73,6 +73,7 @@ def test_resume_after_interruption_gives_identical_chain(tmp_path):
         progress=False,
     )
     assert part.stopped_by == "interrupted" and len(part.chain) == 17
+    assert "emcee: Exception" not in capsys.readouterr().out  # emcee printed a traceback for the Ctrl-C
     # resuming with another seed argument must not matter: the stored generator state is used
     done = P.sample(Gauss(), NAMES, tmp_path / "run.h5", nwalkers=8, max_steps=60, seed=999, progress=False)
     assert done.steps_this_call == 43

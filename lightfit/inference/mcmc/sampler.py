@@ -142,6 +142,9 @@ def _sample(
     refused_before = getattr(log_prob, "refused", 0)
     backend.refused = lambda: refused_stored + getattr(log_prob, "refused", 0) - refused_before
     sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True, backend=backend, moves=moves)
+    # emcee's wrapper (for args/kwargs, which this call has none of) prints its own traceback for any
+    # exception, a user's Ctrl-C included, before lightfit's "interrupted" line: called directly.
+    sampler.log_prob_fn = log_prob
     sampler.random_state = np.random.RandomState(seed).get_state()  # overwritten by state.random_state
     done = backend.iteration
     with open_h5(path, "a") as f:  # what `lightfit posterior-status` shows while this call runs
