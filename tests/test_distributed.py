@@ -359,6 +359,16 @@ def test_finished_tasks_are_kept_and_taken_again_only_for_the_same_settings(clie
     assert {task_key(s) for s in task_specs(other)}.isdisjoint({task_key(s) for s in specs})
     other_ds = run_field(other, client=client, timeout_s=240, parts=parts)
     assert other_ds.attrs["tasks_resumed"] == 0
+    # The growth file's contents, not its name only: an edited XML is another field.
+    from lightfit.plant.growth import GrowthConfig
+
+    xml = tmp_path / "wheat.xml"
+    xml.write_bytes(run.scenario.field.growth.path.read_bytes())
+    same = dataclasses.replace(run.scenario.field, growth=GrowthConfig(parameter_file=str(xml)))
+    edited_run = dataclasses.replace(run, scenario=dataclasses.replace(run.scenario, field=same))
+    key = task_key(task_specs(edited_run)[0])
+    xml.write_bytes(xml.read_bytes() + b"<!-- edited -->")
+    assert task_key(task_specs(edited_run)[0]) != key
 
 
 def test_cli_field_run_interrupted_resumes_to_the_same_results(client, tmp_path):

@@ -491,9 +491,9 @@ def submit(client, run: FieldRun, specs: list[TaskSpec] | None = None) -> list:
 
 
 def task_key(spec: TaskSpec) -> str:
-    """Hash of everything the task's result depends on: its scenario (tile, time rows, field,
-    estimator, optics, photosynthesis, … : :meth:`~lightfit.model.scenario.Scenario.digest`), the
-    growth parameter file's contents (the field's repr names it only), θ, and the code's versions
+    """Hash of everything the task's result depends on: its scenario (tile, time rows, field and its
+    growth file's contents, estimator, optics, photosynthesis, … :
+    :meth:`~lightfit.model.scenario.Scenario.digest`), θ, and the code's versions
     (:func:`~lightfit.model.emulator.code_versions`, the projection's, CPlantBox's and JAX's)."""
     import hashlib
     import importlib.metadata
@@ -510,7 +510,6 @@ def task_key(spec: TaskSpec) -> str:
             versions[pkg] = None
     what = {
         "scenario": sc.digest(),
-        "growth": sc.field.growth.fingerprint(),
         "theta": as_theta(spec.run.theta).to_dict(),
         "versions": versions,
         "task": [spec.tile, spec.chunk],

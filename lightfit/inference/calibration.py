@@ -72,7 +72,7 @@ from lightfit.inference.observations import matched_as_by_stamp, observation_mat
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
-from lightfit.model.scenario import settings_digest
+from lightfit.model.scenario import Scenario, settings_digest
 from lightfit.progress import progress_bar
 
 #: Distance kept from finite bounds (see the module docstring).
@@ -417,6 +417,8 @@ def _model_digest(model) -> dict[str, str] | None:
     if days is not None:
         return {f"{d}: {k}": v for d, m in days.items() for k, v in (_model_digest(m) or {}).items()}
     sc = getattr(model, "scenario", None)
+    if isinstance(sc, Scenario):
+        return sc.digest()
     return settings_digest(sc) if dataclasses.is_dataclass(sc) and not isinstance(sc, type) else None
 
 

@@ -358,8 +358,11 @@ class Scenario:
         columns; field, optics, numbers and names by their repr, which is their value). Per field,
         so that a field added later (absent from a stored digest) can be told apart and a refusal
         can name what changed. Used to refuse resuming a calibration of other settings and to
-        reuse a field-run's finished tasks."""
-        return settings_digest(self)
+        reuse a field-run's finished tasks. ``growth``: the growth parameter file's contents and
+        CPlantBox's version (:meth:`~lightfit.plant.growth.GrowthConfig.fingerprint`; the field's
+        repr names the file only), absent from digests stored before it was added, which are then
+        compared without it."""
+        return settings_digest(self) | {"growth": self.field.growth.fingerprint()}
 
 
 def settings_digest(settings) -> dict[str, str]:
