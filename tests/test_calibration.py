@@ -410,14 +410,15 @@ def test_resume_with_other_observations_or_model_is_refused(tmp_path):
 
 def test_model_digest_names_each_scenario_setting():
     """The resume key's model part: one hash per Scenario field of a real scenario (no plants
-    grown), the same for an equal scenario, and changed only where a setting changed."""
+    grown) and one of its growth file's contents, the same for an equal scenario, and changed only
+    where a setting changed."""
     from lightfit.inference.calibration import _model_digest
 
     w = rep.forcing().loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"]
     sc = rep.scenario_for(rep.ReplicationConfig.quick(), w)
     m = lambda s: type("M", (), {"scenario": s})()  # noqa: E731
     a = _model_digest(m(sc))
-    assert set(a) == {f.name for f in dataclasses.fields(sc)}
+    assert set(a) == {f.name for f in dataclasses.fields(sc)} | {"growth"}
     assert _model_digest(m(dataclasses.replace(sc))) == a
     b = _model_digest(m(dataclasses.replace(sc, photosynthesis="giraud2023")))
     assert [k for k in a if a[k] != b[k]] == ["photosynthesis"]
