@@ -11,9 +11,10 @@ from pathlib import Path
 @contextmanager
 def replaced(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` (same folder, same suffix, so that numpy and netCDF writers
-    keep its name; per process) to write in the block; renamed onto ``path`` when the block ends, removed if it
-    raises. A process killed while writing leaves the previous file whole, or none: never a cut one
-    that the next run cannot read (a cut history lost its steps, a cut emulator stopped every rerun)."""
+    keep its name; one per process) to write in the block: renamed onto ``path`` when the block
+    ends, removed if it raises. A process killed while writing leaves the previous file whole, or
+    none: never a cut one that the next run cannot read (a cut history lost its steps, a cut
+    emulator stopped every rerun)."""
     path = Path(path)
     tmp = path.with_name(f".partial-{os.getpid()}-{path.name}")  # per process: two writers never share one
     try:

@@ -23,7 +23,7 @@ gives the same values.
 
 Resume: with ``parts=`` (the command line's default, ``results.nc.parts`` beside the results) each
 finished task is kept on disk as it arrives, under a hash of everything its result depends on
-(:func:`task_key`: its scenario, θ, the code's versions). A run killed or timed out and started
+(:func:`task_key`: its scenario and growth file, θ, the code's versions). A run killed or timed out and started
 again with the same settings takes those tasks from disk and submits only the rest; a kept task
 of other settings is computed again. The command removes the folder once the results are written.
 
@@ -582,11 +582,14 @@ def run_field(
         parts = Path(parts)
         parts.mkdir(parents=True, exist_ok=True)
         keys = {(s.tile, s.chunk): task_key(s) for s in specs}
-        for s in list(specs):
+        todo = []
+        for s in specs:
             kept = _load_part(_part(parts, s.tile, s.chunk), keys[s.tile, s.chunk])
-            if kept is not None:
+            if kept is None:
+                todo.append(s)
+            else:
                 results.append(kept)
-                specs.remove(s)
+        specs = todo
     resumed = len(results)
     futures = submit(client, run, specs)
     total = len(futures) + resumed
