@@ -177,6 +177,24 @@ def test_chamber_nee_adds_the_soils_respiration_at_each_steps_air_temperature(no
     assert ds.attrs["soil_respiration_umol_m2_s"] == 2.0 and ds.attrs["soil_respiration_q10"] == 2.5
 
 
+def test_a_light_factor_beyond_the_leaves_range_is_named(noon_model):
+    """`replicate --theta light_factor=9` ended in a traceback from the photosynthesis's range check
+    (absorbed PAR above 1e4): refused naming the light factor; traced (calibration, sampling) the
+    blades are flagged unconverged instead, which gives that point no likelihood."""
+    import jax
+
+    from lightfit.model.observe import CONVERGENCE_KEY
+
+    parts = noon_model.render(Theta())
+    m = noon_model.with_light(lambda theta: parts)
+    with pytest.raises(InputError, match="light_factor=9 gives the blades up to") as e:
+        m.observe(Theta(light_factor=9.0))
+    assert e.value.column == "theta"
+    flagged = jax.jit(lambda f: m.observe(Theta(light_factor=f))[CONVERGENCE_KEY])(9.0)
+    assert int(np.asarray(flagged).sum()) > 0
+    assert int(np.asarray(m.observe(Theta(light_factor=2.0))[CONVERGENCE_KEY]).sum()) == 0
+
+
 def test_light_factor_from_the_chamber_record_is_near_one(noon_model):
     """Issue 14's done-when: calibrated against the chamber's above-canopy PAR with the matching
     operator, the light factor is in 0.9–1.1 (it was ≈ 3.9 against absorbed PAR at the plants).

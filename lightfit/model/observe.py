@@ -86,11 +86,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from lightfit.errors import InputError
 from lightfit.light.estimator import PARTS
 from lightfit.model.parameters import Theta
 from lightfit.model.scenario import SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_T_REF_C, SOIL_RESPIRATION_UMOL_M2_S, Forcing
 from lightfit.model.schema import OBSERVABLES
-from lightfit.photosynthesis import PhotosynthesisParams, PhotosynthesisResult, solve_with_par_slope
+from lightfit.photosynthesis import (
+    MAX_PAR_ABS_UMOL_M2_S,
+    PhotosynthesisParams,
+    PhotosynthesisResult,
+    solve_with_par_slope,
+)
 from lightfit.weather.solar import horizontal_irradiance
 
 
@@ -521,6 +527,7 @@ class ObservationOperator:
             sensor = (jnp.zeros(len(self.forcing.day)),) * 2
         b = self.blades
         q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
+        _check_leaf_light(q, theta.light_factor)
         r = leaf(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
         an_sd = jax.lax.stop_gradient(jnp.abs(r.dan_dq)) * out["absorbed_par_mc_sd_umol_m2_s"][:, b]
         f = jnp.asarray(theta.light_factor, jnp.float64)
@@ -553,6 +560,22 @@ class ObservationOperator:
             "photosynthesis": r.result,
         }
         return out
+
+
+def _check_leaf_light(q, light_factor) -> None:
+    """Concrete blade light above what a leaf solve accepts (:data:`MAX_PAR_ABS_UMOL_M2_S`) is refused
+    naming the light factor, the run's one multiplier of light (``--theta light_factor=9`` ended in a
+    traceback from the photosynthesis's range check). Traced values (calibration, sampling) are
+    flagged unconverged there instead, which gives them no likelihood."""
+    if isinstance(q, jax.core.Tracer) or isinstance(light_factor, jax.core.Tracer) or not q.size:
+        return
+    top = float(jnp.max(q))
+    if top > MAX_PAR_ABS_UMOL_M2_S:
+        raise InputError(
+            f"light_factor={float(light_factor):g} gives the blades up to {top:.0f} µmol m-2 s-1 of absorbed PAR",
+            column="theta",
+            expected=f"at most {MAX_PAR_ABS_UMOL_M2_S:g} µmol m-2 s-1 (about 4x full sun): a smaller light_factor",
+        )
 
 
 def mc_covariance(

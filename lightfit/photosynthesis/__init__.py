@@ -20,6 +20,7 @@ from .fvcb import (
 )
 from .model import (
     ELECTRON_TRANSPORT_LIMITED,
+    MAX_PAR_ABS_UMOL_M2_S,
     RUBISCO_LIMITED,
     Environment,
     PhotosynthesisResult,
@@ -55,6 +56,7 @@ from .temperature import arrhenius, deactivation, peaked_arrhenius
 
 __all__ = [
     "ELECTRON_TRANSPORT_LIMITED",
+    "MAX_PAR_ABS_UMOL_M2_S",
     "RUBISCO_LIMITED",
     "DEFAULT_PARAMETER_SET",
     "PARAMETER_SET_NAMES",

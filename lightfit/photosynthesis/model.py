@@ -358,11 +358,14 @@ _plain_jit = eqx.filter_jit(_plain_impl)
 # --------------------------------------------------------------------------- input handling
 
 
+#: Most absorbed PAR a leaf solve accepts, µmol m⁻² s⁻¹ (≈ 4× full sun: beyond it a unit or scale slip).
+MAX_PAR_ABS_UMOL_M2_S = 1e4
+
 #: Accepted range of each driver in :class:`Environment`: ``(lo, hi, description)``, checked
 #: eagerly by :func:`prepare_environment` and, elementwise into ``converged``, by :func:`solve`
 #: (so also under ``jit``, ``vmap`` and ``grad``).
 _INPUT_RANGES = {
-    "par_abs_umol_m2_s": (0.0, 1e4, "absorbed PAR in [0, 1e4] µmol m-2 s-1"),
+    "par_abs_umol_m2_s": (0.0, MAX_PAR_ABS_UMOL_M2_S, "absorbed PAR in [0, 1e4] µmol m-2 s-1"),
     "tleaf_c": (-50.0, 60.0, "leaf temperature in [-50, 60] °C"),
     "co2_umol_mol": (1e-3, 1e5, "CO2 mole fraction in (0, 1e5] µmol mol-1 (ppm)"),
     "vpd_kpa": (0.0, 20.0, "vapour pressure deficit in [0, 20] kPa"),
