@@ -385,6 +385,30 @@ def test_cli_bad_input(results_file, tmp_path, args, text):
     assert text in " ".join(r.stderr.split())
 
 
+def test_cli_sweep_options_with_cameras_are_refused(results_file, tmp_path):
+    """--exposure-mode scene with --cameras was silently ignored (the JSON cameras keep their own
+    settings; the docs' own example did it): refused naming the options; --cameras alone renders."""
+    cams = tmp_path / "cams.json"
+    cams.write_text(
+        json.dumps(
+            [
+                {
+                    "name": "se",
+                    **{k: list(v) for k, v in (("position_m", CAM.position_m), ("look_at_m", CAM.look_at_m))},
+                    "width_px": 32,
+                    "height_px": 32,
+                }
+            ]
+        )
+    )
+    args = ["render-dataset", str(results_file), "--cameras", str(cams), "--spp", "1", "--colour", "mono"]
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "x"), "--exposure-mode", "scene", "--width", "64"])
+    assert r.exit_code == 2 and "--width, --exposure-mode with --cameras" in " ".join(r.stderr.split())
+    assert not (tmp_path / "x" / "images").exists()
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "y"), "--gallery", "0", "--export", "none"])
+    assert r.exit_code == 0, r.output
+
+
 def test_child_process_render_equals_in_process(geometry):
     """The rgb-in-a-child path gives the same arrays as rendering here, for one variant and seed."""
     from lightfit.dataset.render import _render_child, _variant_for, render_here

@@ -9,8 +9,23 @@ import typer
 from lightfit.cli.common import console, output_folder
 from lightfit.errors import InputError
 
+#: Options that describe the sweep's cameras: with --cameras (whose JSON carries each camera's own
+#: settings) they would be ignored, so naming one there is refused.
+SWEEP_OPTIONS = (
+    "sweep",
+    "sweep_distance_m",
+    "sweep_elevation_deg",
+    "width",
+    "height",
+    "fov_deg",
+    "exposure_mode",
+    "exposure_ev",
+    "meter_percentile",
+)
+
 
 def render_dataset(
+    ctx: typer.Context,
     results: Path = typer.Argument(..., help="Results netCDF of the coupled model (dims time × segment)."),
     out: Path = typer.Option(..., "--out", "-o", help="Dataset directory to write (created if missing)."),
     cameras: Path = typer.Option(None, "--cameras", help="JSON list of cameras (Camera fields); default: a sweep."),
@@ -54,6 +69,17 @@ def render_dataset(
     from lightfit.dataset import Camera, DatasetSpec, RenderSettings, Sweep, load_cameras, make_dataset
 
     output_folder(out)
+    if cameras:
+        # By name: typer vendors click, so click's own ParameterSource is another enum.
+        given = [n for n in SWEEP_OPTIONS if getattr(ctx.get_parameter_source(n), "name", "") == "COMMANDLINE"]
+        if given:  # the sweep's settings; the JSON cameras keep their own (e.g. exposure_mode) silently
+            flags = ", ".join("--" + n.replace("_", "-") for n in given)
+            raise InputError(
+                f"{flags} with --cameras",
+                column="cameras",
+                expected='each camera\'s settings in the --cameras JSON (e.g. "exposure_mode": "scene"); '
+                f"{flags} set the sweep's cameras only",
+            )
     if time and all_times:
         raise InputError("--time and --all-times both given", column="time", expected="one of them")
     cam_fields = {
