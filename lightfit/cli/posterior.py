@@ -147,7 +147,8 @@ def posterior(
             raise InputError(
                 f"the posterior run there was sampled on another emulator ({changes})",
                 file=out / "run.h5",
-                expected="the run's --n-design and model settings, --no-resume to start again, or another --out",
+                expected="the run's --n-design, --priors (they set the emulator's leaf box: lo, hi) and model "
+                "settings, --no-resume to start again, or another --out",
             )
     # Design and held-out renders are kept one by one in the shared design cache (an interrupted design
     # continues where it stopped, and lightfit calibrate's design of the same configuration is reused);
