@@ -172,6 +172,12 @@ def test_water_stress_factor_limits():
     assert float(ps.water_stress_factor(-7500.0)) == pytest.approx(0.09308 + 0.90692 * 0.529691, rel=1e-5)
     psi = np.linspace(0, -30000, 50)
     assert np.all(np.diff(np.asarray(ps.water_stress_factor(psi))) <= 0)
+    # Stable at the extremes: the exponential overflowed below ≈ −1.9e6 hPa (NaN gradient), and a
+    # positive ψ (not a leaf water potential) gave fw > 1.
+    for x in (-1e7, -1e12):
+        g = jax.grad(lambda v: ps.water_stress_factor(v))(x)
+        assert np.isfinite(float(g)) and float(ps.water_stress_factor(x)) == pytest.approx(0.09308)
+    assert float(ps.water_stress_factor(500.0)) == pytest.approx(1.0)
 
 
 def test_vapour_pressure():

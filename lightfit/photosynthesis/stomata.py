@@ -63,7 +63,10 @@ def water_stress_factor(
     .. math:: f_w = f_{wr} + \max\left(0, (1 - f_{wr})
               \frac{1 + e^{s_h p_{crit}}}{1 + e^{s_h (p_{crit} - \psi_l)}} - f_{cut}\right)
 
-    fw = 1 at ψ_l = 0 (no water limitation, the reference paper's assumption).
+    fw = 1 at ψ_l = 0 (no water limitation, the reference paper's assumption). A positive ψ_l (not
+    a leaf water potential) counts as 0, so fw ≤ 1; the logistic is taken in its stable form, so
+    that value and gradient stay finite at any ψ_l (the exponential overflowed below ≈ −1.9e6 hPa,
+    a NaN gradient).
 
     Args:
         psi_leaf_hpa: leaf (guard-cell) water potential [hPa], ≤ 0.
@@ -75,7 +78,9 @@ def water_stress_factor(
     Reference: Tuzet et al. (2003), Plant Cell Environ. 26:1097, eq. 6; parameters and
     residual term of CPlantBox ``loopCalcs``.
     """
-    shape = (1.0 + jnp.exp(sh_per_hpa * p_crit_hpa)) / (1.0 + jnp.exp(sh_per_hpa * (p_crit_hpa - psi_leaf_hpa)))
+    psi = jnp.minimum(psi_leaf_hpa, 0.0)
+    # 1 / (1 + e^{s(p_crit - ψ)}) = sigmoid(s(ψ - p_crit))
+    shape = (1.0 + jnp.exp(sh_per_hpa * p_crit_hpa)) * jax.nn.sigmoid(sh_per_hpa * (psi - p_crit_hpa))
     return fwr + jnp.maximum(0.0, (1.0 - fwr) * shape - cutoff)
 
 
