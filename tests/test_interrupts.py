@@ -74,3 +74,41 @@ def test_commands_end_interrupted_with_status_130(command):
 def test_other_errors_in_a_callback_stay_errors():
     r = CliRunner().invoke(_app(), ["fails"])
     assert r.exit_code == 1 and "ZeroDivisionError" in str(r.exception)
+
+
+def test_an_interrupted_command_ends_on_its_interrupt_line():
+    """Cleanup that fails at exit because the run was cut short (Dask's atexit close of a cluster
+    interrupted while it started: 30 lines of "AssertionError: Status.init" after the interrupt
+    line) is not reported; the interrupt line is the last thing on stderr."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        """
+        import atexit, logging, typer
+
+        def cleanup():  # registered at import, as distributed registers close_clusters
+            logging.getLogger("distributed").warning("worker exit status was already read")
+            raise AssertionError("Status.init")
+
+        atexit.register(cleanup)
+        from lightfit.cli.common import LightfitGroup
+
+        app = typer.Typer(cls=LightfitGroup)
+
+        @app.command()
+        def go():
+            raise KeyboardInterrupt
+
+        @app.command()
+        def other():
+            pass
+
+        app(["go"])
+        """
+    )
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    err = re.sub(r"\x1b\[[0-9;]*m", "", p.stderr).strip()
+    assert p.returncode == 130, err
+    assert err.splitlines()[-1].startswith("interrupted:") and "Status.init" not in err, err

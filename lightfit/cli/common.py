@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
 import json
+import logging
+import sys
 import warnings
 from pathlib import Path
 from typing import NoReturn
@@ -78,7 +81,19 @@ def interrupted(kept: str | None, started_over: bool = False) -> NoReturn:
     else:
         line = f"{kept}; rerun {'without --no-resume' if started_over else 'the same command'} to resume"
     err_console.print(f"[yellow]interrupted[/]: {line}", soft_wrap=True, highlight=False)
+    # The line above is the last word: cleanup at exit that fails or warns because the run was cut
+    # short (Dask's atexit close of a cluster interrupted while it started asserted "Status.init", 30
+    # lines of traceback after this line, or logged a worker's exit code) is not reported. Registered
+    # last, this runs before the other exit handlers; the process itself is not changed before exit
+    # (tests call commands in one process).
+    atexit.unregister(_quiet_exit)
+    atexit.register(_quiet_exit)
     raise typer.Exit(130)
+
+
+def _quiet_exit() -> None:
+    sys.unraisablehook = lambda unraisable: None
+    logging.disable(logging.CRITICAL)
 
 
 #: What a command interrupted anywhere keeps for its rerun (tests/test_resume.py kills them at
