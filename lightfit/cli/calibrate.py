@@ -135,21 +135,18 @@ def calibrate(
     check_informed(names, uses, **run)  # before the plants grow (calibrate() checks again)
     # A history made with other model settings (e.g. the finite field, before periodic became the
     # default) must not be resumed into this run: checked before the plants are grown.
-    settings = out / "settings.json"
-    earlier = out / "calibration.json"
-    if resume and earlier.exists():  # another run's result and history would be replaced silently
-        before = json.loads(earlier.read_text()).get("parameters")
-        if before is not None and list(before) != list(names):
-            raise InputError(
-                f"{out} holds a calibration of {', '.join(before)}; this run calibrates {', '.join(names)}",
-                column="out",
-                expected="another --out, or --no-resume to replace it",
-            )
-    if resume and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
-        for f in (settings, earlier):
-            if f.exists():
-                check_resumable(json.loads(f.read_text()).get("config"), s, f, "calibration history")
-                break
+    settings, earlier = out / "settings.json", out / "calibration.json"
+    stored = {f: json.loads(f.read_text()) for f in (settings, earlier) if resume and f.exists()}
+    before = stored.get(earlier, {}).get("parameters")
+    if before is not None and list(before) != list(names):  # another run's result would be replaced silently
+        raise InputError(
+            f"{out} holds a calibration of {', '.join(before)}; this run calibrates {', '.join(names)}",
+            column="out",
+            expected="another --out, or --no-resume to replace it",
+        )
+    if stored and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
+        f = next(iter(stored))  # settings.json if there, else calibration.json
+        check_resumable(stored[f].get("config"), s, f, "calibration history")
     m = run_model(s)  # several --date: one model per day
     out.mkdir(parents=True, exist_ok=True)
     replace_text(settings, json.dumps({"config": s.as_dict()}, indent=2))

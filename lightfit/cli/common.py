@@ -53,6 +53,10 @@ class LightfitGroup(TyperGroup):
 
     def invoke(self, ctx):
         command, args = invoked_command(self, ctx), invoked_args(ctx)  # click clears them when invoking
+
+        def stop() -> NoReturn:
+            interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+
         try:
             with warnings.catch_warnings(), interrupts_kept():
                 warnings.showwarning = _show_warning
@@ -63,12 +67,12 @@ class LightfitGroup(TyperGroup):
             err_console.print(f"[bold red]error:[/] {escape(msg)}", soft_wrap=True, highlight=False)
             raise typer.Exit(2) from None
         except KeyboardInterrupt:  # Ctrl-C
-            interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+            stop()
         except Exception as err:
             # Ctrl-C inside a JAX host callback (a render called from a traced loss) reaches here
             # wrapped in XLA's runtime error, which printed some 60 lines of traceback.
             if type(err).__name__ == "JaxRuntimeError" and "KeyboardInterrupt" in str(err):
-                interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+                stop()
             raise
 
 

@@ -493,23 +493,17 @@ def submit(client, run: FieldRun, specs: list[TaskSpec] | None = None) -> list:
 def task_key(spec: TaskSpec) -> str:
     """Hash of everything the task's result depends on: its scenario (tile, time rows, field and its
     growth file's contents, estimator, optics, photosynthesis, … :
-    :meth:`~lightfit.model.scenario.Scenario.digest`), θ, and the code's versions
-    (:func:`~lightfit.model.emulator.code_versions`, the projection's, CPlantBox's and JAX's)."""
+    :meth:`~lightfit.model.scenario.Scenario.digest`, whose growth entry holds CPlantBox's version),
+    θ, and the code's versions (:func:`~lightfit.model.emulator.code_versions`, the projection's and
+    JAX's)."""
     import hashlib
-    import importlib.metadata
 
     from lightfit.light.projection import PROJECTION_VERSION
-    from lightfit.model.emulator import code_versions
+    from lightfit.model.emulator import code_versions, package_versions
 
-    sc = spec.run.task_scenario(spec.tile, spec.rows)
-    versions = {**code_versions(), "projection": PROJECTION_VERSION}
-    for pkg in ("cplantbox", "jax", "jaxlib"):
-        try:
-            versions[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            versions[pkg] = None
+    versions = {**code_versions(), "projection": PROJECTION_VERSION, **package_versions("jax", "jaxlib")}
     what = {
-        "scenario": sc.digest(),
+        "scenario": spec.run.task_scenario(spec.tile, spec.rows).digest(),
         "theta": as_theta(spec.run.theta).to_dict(),
         "versions": versions,
         "task": [spec.tile, spec.chunk],

@@ -106,19 +106,24 @@ def _digest(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
+def package_versions(*packages: str) -> dict[str, str | None]:
+    """Installed version of each distribution in ``packages`` (``None`` if not installed as one)."""
+    out = {}
+    for pkg in packages:
+        try:
+            out[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
 def code_versions() -> dict[str, object]:
     """The versions a render's values depend on: lightfit's, the estimator's
-    (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba's and Dr.Jit's (``None`` if
-    not installed as a distribution)."""
+    (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba's and Dr.Jit's
+    (:func:`package_versions`)."""
     from lightfit import __version__
 
-    versions = {"lightfit": __version__, "estimator": ESTIMATOR_VERSION}
-    for pkg in ("mitsuba", "drjit"):
-        try:
-            versions[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            versions[pkg] = None
-    return versions
+    return {"lightfit": __version__, "estimator": ESTIMATOR_VERSION, **package_versions("mitsuba", "drjit")}
 
 
 def render_key(model: CoupledModel) -> dict:
@@ -758,6 +763,7 @@ __all__ = [
     "MIN_DESIGN_SIZE",
     "check_design_size",
     "code_versions",
+    "package_versions",
     "FastObservables",
     "PartsEmulator",
     "design_dir",
