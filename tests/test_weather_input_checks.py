@@ -354,7 +354,7 @@ def test_line_numbers_survive_blank_lines(tmp_path):
     first = next(i for i, ln in enumerate(lines) if ln.startswith("time_utc"))
     lines.insert(first + 3, "")
     cells = lines[first + 20].split(",")
-    cells[3] = "abc"
+    cells[lines[first].split(",").index("tair_c")] = "abc"
     lines[first + 20] = ",".join(cells)
     p = tmp_path / "blank.csv"
     p.write_text("\n".join(lines) + "\n", encoding="utf-8")

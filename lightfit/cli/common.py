@@ -314,5 +314,11 @@ def weather_report(df) -> None:
     if a.get("unused_columns"):
         console.print(f"  [dim]not used: {escape(', '.join(a['unused_columns']))}[/]")
     for q in a.get("qc", []):
-        label = "[green]check[/]" if q["kind"] in ("checked", "sun at centres") else f"[yellow]repair[/] {q['kind']}:"
+        label = (
+            "[green]check[/]"
+            if q["kind"] in ("checked", "sun at centres")
+            else "[cyan]split[/]"
+            if q["kind"] == "split"
+            else f"[yellow]repair[/] {q['kind']}:"
+        )
         console.print(f"  {label} {escape(q['detail'])}")

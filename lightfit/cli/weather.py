@@ -62,7 +62,11 @@ def show(
         "or center; the sun is taken at the interval's centre. --csv records it for every later command.",
     ),
     max_gap: str = typer.Option("30min", help="Longest gap to interpolate."),
-    split: str = typer.Option("erbs", help="Direct/diffuse split model: erbs or boland."),
+    split: str = typer.Option(
+        None,
+        help="Direct/diffuse split: erbs, boland or diffuse (the series' own diffuse_w_m2 column). Default: "
+        "diffuse where the series has that column, else erbs.",
+    ),
     resample: str = typer.Option(None, help="New time step, e.g. 30min."),
     how: str = typer.Option(
         "mean", help="Resampling: mean (whole intervals; a centred window for instants) or sample."

@@ -24,7 +24,7 @@ from lightfit.weather.readers import (
 from lightfit.weather.reconstruct import Anchor, DayAssumptions, reconstruct_day
 from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, resample, window
 from lightfit.weather.site import SELHAUSEN, SITES, Site, Window, site_named
-from lightfit.weather.solar import add_solar, solar_position, split_direct_diffuse
+from lightfit.weather.solar import add_solar, solar_position, split_direct_diffuse, split_from_diffuse
 
 __all__ = [
     "Anchor",
@@ -55,5 +55,6 @@ __all__ = [
     "window",
     "solar_position",
     "split_direct_diffuse",
+    "split_from_diffuse",
     "write_lightfit_csv",
 ]

@@ -65,6 +65,8 @@ TERENO_QUANTITIES: dict[str, tuple[str, str, dict[str, str]]] = {
         "RadiationPhotosyntheticActive_2m_Avg10min",
         {"umolm-2s-1": "same", "umol/m2/s": "same", "umol/(m2s)": "same"},
     ),
+    # TERENO's naming of its other radiation columns; no export seen here carries diffuse radiation.
+    "diffuse_w_m2": (r"^RadiationDiffuse", "RadiationDiffuse_Avg10min", {"wm-2": "same", "w/m2": "same"}),
     "tair_c": (r"^AirTemperature", "AirTemperature_2m_Avg10min_Sensor1", {"degc": "same", "c": "same", "k": "kelvin"}),
     "humidity": (r"^AirHumidity", "AirHumidity_2m_Avg10min", {"gm-3": "absolute", "g/m3": "absolute", "%": "percent"}),
     "pair_kpa": (
@@ -471,7 +473,7 @@ def read_tereno(
             header is refused.
         columns: override which source column feeds a quantity, e.g.
             ``{"tair_c": "AirTemperature_2m_Avg10min_Sensor2 [°C]"}``. Keys: ``ghi_w_m2``,
-            ``par_umol_m2_s``, ``tair_c``, ``humidity``, ``pair_kpa``, ``co2_ppm``.
+            ``par_umol_m2_s``, ``diffuse_w_m2``, ``tair_c``, ``humidity``, ``pair_kpa``, ``co2_ppm``.
         max_gap: longest gap that is interpolated (see :func:`~lightfit.weather.series.check_and_repair`).
         provenance: what the file is, where its header does not say (``"measured"`` only for a real
             export); default the header's word, else ``"unstated"``.
@@ -564,7 +566,7 @@ def read_tereno(
             conv["pair_kpa"]
         ](raw["pair_kpa"])
     out = pd.DataFrame(index=times)
-    for qty in ("ghi_w_m2", "par_umol_m2_s", "tair_c", "pair_kpa"):
+    for qty in ("ghi_w_m2", "par_umol_m2_s", "diffuse_w_m2", "tair_c", "pair_kpa"):
         if qty in raw:
             out[qty] = raw[qty]
     if "humidity" in raw:

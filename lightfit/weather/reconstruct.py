@@ -88,6 +88,11 @@ def reconstruct_day(
     - Global radiation: clear-sky GHI for the site and date scaled by one factor
       :math:`k = \mathrm{PAR}_{anchor} / (2.285\,\mathrm{GHI}_{cs}(t_{anchor}))`, i.e. a uniform
       attenuation through the day, so PAR equals the anchor exactly at the anchor time.
+    - Diffuse radiation: the clear-sky model's own diffuse part, scaled by the same k, so that the
+      light model splits this clear day as its clear-sky model does (:func:`add_solar` with the
+      split 'diffuse') rather than by a decomposition model fitted to all skies (Erbs, which at
+      this day's clearness index gives a PAR-weighted diffuse share of ≈ 0.40 against the
+      clear sky's ≈ 0.26; docs/weather.md).
     - PAR = 0.50 × 4.57 µmol J⁻¹ × GHI.
     - Air temperature: :math:`T(t) = \bar T + A\cos(2\pi (t - t_{peak})/24\,\mathrm h)` with
       :math:`\bar T` chosen so that :math:`T(t_{anchor}) = T_{anchor}`.
@@ -100,10 +105,9 @@ def reconstruct_day(
     times = pd.date_range(pd.Timestamp(date, tz="UTC"), periods=int(pd.Timedelta("1D") / pd.Timedelta(step)), freq=step)
     loc = pvlib.location.Location(site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
     t_anchor = anchor.time_utc
-    cs = loc.get_clearsky(times.append(pd.DatetimeIndex([t_anchor])), model=assumptions.clear_sky_model)["ghi"]
-    ghi_cs_anchor = float(cs.iloc[-1])
-    k = anchor.par_umol_m2_s / float(units.par_from_ghi(ghi_cs_anchor))
-    ghi = k * cs.iloc[:-1]
+    clear = loc.get_clearsky(times.append(pd.DatetimeIndex([t_anchor])), model=assumptions.clear_sky_model)
+    k = anchor.par_umol_m2_s / float(units.par_from_ghi(clear["ghi"].iloc[-1]))
+    ghi, diffuse = k * clear["ghi"].iloc[:-1], k * clear["dhi"].iloc[:-1]
 
     t_peak = solar_noon_utc(date, site) + pd.Timedelta(hours=assumptions.tair_peak_hours_after_noon)
     day_s = 86400.0
@@ -119,6 +123,7 @@ def reconstruct_day(
         {
             "ghi_w_m2": ghi.to_numpy(),
             "par_umol_m2_s": units.par_from_ghi(ghi.to_numpy()),
+            "diffuse_w_m2": diffuse.to_numpy(),
             "tair_c": np.asarray(tair, dtype=float),
             "rh": np.asarray(rh, dtype=float),
             "pair_kpa": np.full(len(times), p),

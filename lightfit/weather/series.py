@@ -25,6 +25,7 @@ from lightfit.weather.timestamps import Timestamps
 COLUMNS: dict[str, str] = {
     "ghi_w_m2": "global horizontal irradiance, W m⁻²",
     "par_umol_m2_s": "photosynthetically active photon flux density, µmol m⁻² s⁻¹",
+    "diffuse_w_m2": "diffuse horizontal irradiance (a shaded pyranometer's, an SPN1's), W m⁻²",
     "tair_c": "air temperature, °C",
     "rh": "relative humidity, 0–1",
     "pair_kpa": "air pressure, kPa",
@@ -56,6 +57,7 @@ class Bounds:
 BOUNDS: dict[str, Bounds] = {
     "ghi_w_m2": Bounds(0.0, 1400.0, clamp_below=-30.0),
     "par_umol_m2_s": Bounds(0.0, 3000.0, clamp_below=-30.0),
+    "diffuse_w_m2": Bounds(0.0, 1000.0, clamp_below=-30.0),
     "tair_c": Bounds(-45.0, 50.0),
     "rh": Bounds(0.0, 1.0, clamp_above=1.05),
     "pair_kpa": Bounds(80.0, 110.0),
@@ -407,7 +409,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     if "sun_elevation_deg" in df.columns:
         from lightfit.weather.solar import add_solar
 
-        out = add_solar(out, site=df.attrs.get("site"), split_model=df.attrs.get("split_model", "erbs"))
+        out = add_solar(out, site=df.attrs.get("site"), split_model=df.attrs.get("split_model"))
     return out
 
 

@@ -15,7 +15,20 @@ from lightfit.weather import timestamps
 from lightfit.weather.site import SELHAUSEN, Site
 from lightfit.weather.units import PAR_FRACTION, UMOL_PER_JOULE_PAR, par_from_ghi
 
-SPLIT_MODELS = ("erbs", "boland")
+#: How global radiation is split into its direct and diffuse parts: two decomposition models of the
+#: clearness index, or the series' own diffuse radiation (``diffuse_w_m2``: a shaded pyranometer's, an
+#: SPN1's, or a clear-sky reconstruction's).
+SPLIT_MODELS = ("erbs", "boland", "diffuse")
+#: A diffuse column may exceed global radiation by this factor plus
+#: :data:`DIFFUSE_OVER_GLOBAL_W_M2` (two instruments' calibrations, a shadow band's correction; under
+#: overcast both read the same sky) before a step counts as an error rather than a rounding.
+DIFFUSE_OVER_GLOBAL_FACTOR = 1.15
+DIFFUSE_OVER_GLOBAL_W_M2 = 10.0
+#: The diffuse share of global radiation that a diffuse column must reach at some step with
+#: global radiation above :data:`RATIO_MIN_GHI_W_M2`: the clearest skies keep ≈ 0.1 (Rayleigh
+#: scattering and aerosols; more at a low sun), so a column that never reaches 0.05 is in the wrong
+#: unit (kW m⁻²) or is not diffuse radiation.
+DIFFUSE_MIN_SHARE = 0.05
 #: Measured PAR ÷ global radiation a series may have, µmol J⁻¹ (median over steps with global
 #: radiation above :data:`RATIO_MIN_GHI_W_M2`). Sunlight gives ≈ 2.0–2.3 (Meek et al. 1984, Agron.
 #: J. 76, 939: 2.04; McCree 1972 with a PAR share of 0.45–0.50: 2.06–2.29); outside these bounds a
@@ -56,9 +69,11 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     Closure holds exactly: GHI = DNI·sin(elevation) + DHI. With the sun below the horizon all
     radiation is diffuse.
     """
-    if model not in SPLIT_MODELS:
+    if model not in SPLIT_MODELS[:2]:
         raise InputError(
-            f"unknown direct/diffuse split model {model!r}", column="split_model", expected=" or ".join(SPLIT_MODELS)
+            f"unknown direct/diffuse split model {model!r}",
+            column="split_model",
+            expected=" or ".join(SPLIT_MODELS[:2]),
         )
     zenith = 90.0 - sun_elevation_deg
     times = ghi_w_m2.index
@@ -80,6 +95,64 @@ def horizontal_irradiance(dni, dhi, sun_elevation_deg, xp=np):
     beam (below the horizon it counts 0; e.g. Duffie & Beckman 2013, *Solar Engineering of Thermal
     Processes*, eq. 2.15.1 with a horizontal surface). ``xp``: numpy or ``jax.numpy``."""
     return dni * xp.maximum(xp.sin(xp.deg2rad(sun_elevation_deg)), 0.0) + dhi
+
+
+def split_from_diffuse(
+    ghi_w_m2: pd.Series, diffuse_w_m2: pd.Series, sun_elevation_deg: pd.Series, file=None, column=None
+) -> tuple[pd.DataFrame, dict]:
+    r"""Direct normal and diffuse horizontal irradiance from a series' global and diffuse radiation.
+
+    DHI is the series' diffuse radiation, cut to [0, GHI], and DNI closes the balance,
+    :math:`\mathrm{DNI} = (\mathrm{GHI} - \mathrm{DHI}) / \sin\beta`; with the sun below the
+    horizon all radiation is diffuse. Near the horizon a small difference of two instruments
+    divided by a small sin β can exceed the extraterrestrial beam (Spencer 1971, pvlib): DNI is cut
+    there and the rest counted as diffuse, so the closure GHI = DNI sin β + DHI still holds exactly.
+
+    Returns the split and the counts of steps cut (``"diffuse_above_global"``,
+    ``"beam_above_extraterrestrial"``) for the series' quality record.
+
+    Raises:
+        InputError: diffuse radiation above global radiation × :data:`DIFFUSE_OVER_GLOBAL_FACTOR` +
+            :data:`DIFFUSE_OVER_GLOBAL_W_M2` at two or more steps (swapped columns, other units), or a
+            diffuse share that never reaches :data:`DIFFUSE_MIN_SHARE` where global radiation exceeds
+            :data:`RATIO_MIN_GHI_W_M2` (kW m⁻² under a W m⁻² header); the error names ``column``.
+    """
+    column = column or "diffuse_w_m2"
+    ghi = ghi_w_m2.astype(float)
+    diffuse = diffuse_w_m2.astype(float)
+    over = diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * ghi + DIFFUSE_OVER_GLOBAL_W_M2
+    if over.sum() >= 2:
+        i = int(np.argmax((diffuse - ghi).where(over, -np.inf).to_numpy()))
+        raise InputError(
+            f"diffuse radiation {diffuse.iloc[i]:.4g} W m⁻² at {ghi.index[i]:%Y-%m-%d %H:%M} UTC exceeds global "
+            f"radiation {ghi.iloc[i]:.4g} W m⁻²: {int(over.sum())} steps have more diffuse than global radiation",
+            file=file,
+            column=column,
+            expected=f"diffuse horizontal irradiance in W m⁻², at most global radiation (× "
+            f"{DIFFUSE_OVER_GLOBAL_FACTOR:g} + {DIFFUSE_OVER_GLOBAL_W_M2:g} W m⁻² for two instruments); "
+            "check the columns are not swapped",
+        )
+    bright = ghi > RATIO_MIN_GHI_W_M2
+    if bright.any() and float((diffuse[bright] / ghi[bright]).max()) < DIFFUSE_MIN_SHARE:
+        share = float((diffuse[bright] / ghi[bright]).max())
+        raise InputError(
+            f"diffuse radiation reaches at most {share:.2%} of global radiation over the {int(bright.sum())} "
+            f"steps with global radiation above {RATIO_MIN_GHI_W_M2:g} W m⁻²: the unit is wrong",
+            file=file,
+            column=column,
+            expected=f"diffuse horizontal irradiance in W m⁻² (≥ {DIFFUSE_MIN_SHARE:.0%} of global radiation "
+            "somewhere: the clearest sky keeps ≈ 10 %)",
+        )
+    sin_el = np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
+    up = sun_elevation_deg > 0.0
+    dhi = diffuse.clip(lower=0.0, upper=ghi).where(up, ghi)
+    beam_max = pd.Series(pvlib.irradiance.get_extra_radiation(ghi.index), index=ghi.index)
+    dni = ((ghi - dhi) / sin_el.where(up, np.inf)).fillna(0.0)
+    cut = dni > beam_max
+    dni = dni.where(~cut, beam_max)
+    dhi = dhi.where(~cut, ghi - dni * sin_el)
+    counts = {"diffuse_above_global": int((up & (diffuse > ghi)).sum()), "beam_above_extraterrestrial": int(cut.sum())}
+    return pd.DataFrame({"dni_w_m2": dni, "dhi_w_m2": dhi}, index=ghi.index), counts
 
 
 def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None) -> tuple[np.ndarray, np.ndarray]:
@@ -297,8 +370,12 @@ def _recomputed(before: pd.DataFrame, after: pd.DataFrame) -> list[dict]:
     return out
 
 
-def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "erbs") -> pd.DataFrame:
+def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | None = None) -> pd.DataFrame:
     """Add the derived contract columns: sun angles, DNI/DHI and (if absent) PAR from GHI.
+
+    ``split_model`` (:data:`SPLIT_MODELS`): ``None`` takes the series' own diffuse radiation
+    (``diffuse_w_m2``, :func:`split_from_diffuse`) where it has one, else Erbs. A decomposition model
+    asked for by name is used even where a diffuse column exists (recorded in ``qc``).
 
     If only PAR was measured, global radiation is estimated as PAR / (0.50 × 4.57 µmol J⁻¹)
     so that the split can run; either estimate is recorded in ``attrs["qc"]``. With both measured,
@@ -368,7 +445,48 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str = "er
                 f"centre ({stamps.centre_offset / pd.Timedelta(minutes=1):+g} min from its stamp)",
             }
         )
-    split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
+    has_diffuse = "diffuse_w_m2" in out.columns
+    split_model = ("diffuse" if has_diffuse else "erbs") if split_model is None else split_model
+    if split_model not in SPLIT_MODELS:
+        raise InputError(
+            f"unknown direct/diffuse split model {split_model!r}",
+            column="split_model",
+            expected=" or ".join(SPLIT_MODELS),
+        )
+    qc = [q for q in qc if q["kind"] != "split"]  # a resampled series replaces its source's
+    if split_model == "diffuse":
+        if not has_diffuse:
+            raise InputError(
+                "split 'diffuse' asked for a series without a diffuse radiation column",
+                file=out.attrs.get("source"),
+                column="diffuse_w_m2",
+                expected="a diffuse_w_m2 column (W m⁻²), or the split erbs or boland",
+            )
+        used = out.attrs.get("columns_used", {}).get("diffuse_w_m2")
+        split, cut = split_from_diffuse(
+            out["ghi_w_m2"], out["diffuse_w_m2"], out["sun_elevation_deg"], out.attrs.get("source"), used
+        )
+        detail = "DNI and DHI from the series' diffuse radiation (GHI = DNI sin β + DHI)"
+        if cut["diffuse_above_global"]:
+            detail += f"; diffuse cut to global radiation at {cut['diffuse_above_global']} step(s)"
+        if cut["beam_above_extraterrestrial"]:
+            detail += (
+                f"; DNI cut to the extraterrestrial beam at {cut['beam_above_extraterrestrial']} low-sun step(s), "
+                "the rest counted as diffuse"
+            )
+        qc.append({"kind": "split", "column": "diffuse_w_m2", "count": len(out), "detail": detail})
+    else:
+        split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
+        if has_diffuse:
+            qc.append(
+                {
+                    "kind": "split",
+                    "column": "diffuse_w_m2",
+                    "count": len(out),
+                    "detail": f"the series' diffuse radiation is not used: DNI and DHI split from global "
+                    f"radiation by {split_model} as asked",
+                }
+            )
     out["dni_w_m2"], out["dhi_w_m2"] = split["dni_w_m2"], split["dhi_w_m2"]
     if any(c in df.columns for c in _DERIVED_TOLERANCE):  # a resampled series has none: keep its source's notes
         qc = [q for q in qc if q["kind"] != "recomputed"] + _recomputed(df, out)
