@@ -22,7 +22,7 @@ use_float64()  # lightfit's precision policy (lightfit.precision), before any JA
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "data" / "weather" / "selhausen_2016-04-20_reconstructed.csv"
-MEASURED = ["ghi_w_m2", "par_umol_m2_s", "diffuse_w_m2", "tair_c", "rh", "pair_kpa", "co2_ppm"]
+WRITTEN = ["ghi_w_m2", "par_umol_m2_s", "diffuse_w_m2", "tair_c", "rh", "pair_kpa", "co2_ppm"]
 
 
 def main(out: Path = DEFAULT_OUT) -> Path:
@@ -37,10 +37,10 @@ def main(out: Path = DEFAULT_OUT) -> Path:
         "anchor": str(asdict(anchor)),
         "assumptions": str(asdict(assumptions)),
         "clear_sky_scale": f"{df.attrs['clear_sky_scale']:.6f}",
-        "columns": "time_utc (UTC), ghi_w_m2 (W m-2), par_umol_m2_s (umol m-2 s-1), diffuse_w_m2 (W m-2), "
-        "tair_c (degC), rh (0-1), pair_kpa (kPa), co2_ppm (ppm)",
+        "columns": "time_utc (UTC), ghi_w_m2 (W m-2), par_umol_m2_s (umol m-2 s-1), "
+        "diffuse_w_m2 (W m-2, the clear sky's diffuse part), tair_c (degC), rh (0-1), pair_kpa (kPa), co2_ppm (ppm)",
     }
-    return write_lightfit_csv(df[MEASURED], out, meta)
+    return write_lightfit_csv(df[WRITTEN], out, meta)
 
 
 if __name__ == "__main__":

@@ -23,9 +23,10 @@ def _day(diffuse_share: float = 0.2, **edits) -> pd.DataFrame:
     """The bundled day with its diffuse column replaced by ``diffuse_share`` × global radiation,
     then ``edits`` (column → function of the frame)."""
     df = read_weather(RECON).copy()
-    df["diffuse_w_m2"] = diffuse_share * df["ghi_w_m2"]
     for col, f in edits.items():
-        df[col] = f(df)
+        if col != "diffuse_w_m2":
+            df[col] = f(df)
+    df["diffuse_w_m2"] = edits.get("diffuse_w_m2", lambda d: diffuse_share * d["ghi_w_m2"])(df)
     return df
 
 
@@ -57,23 +58,27 @@ def _clear(times: pd.DatetimeIndex) -> pd.DataFrame:
 
 def test_split_closes_the_energy_balance_and_cuts_what_no_sun_gives():
     """GHI = DNI sin β + DHI at every step; diffuse a little above global (two instruments) is cut
-    to it, and a low-sun beam above the extraterrestrial one is cut with the rest counted diffuse,
-    both reported; at night all light is diffuse."""
+    to it; near the horizon the beam is cut as pvlib.irradiance.dni cuts it (none beyond 88°
+    zenith, ≤ 1.1 × clear sky beyond 80°), the rest counted diffuse, both reported; at night all
+    light is diffuse."""
     df = _day(0.2)
-    low = df.index[(df["ghi_w_m2"] > 0).to_numpy()][0]  # the first lit step, sun near the horizon
     noon = pd.Timestamp("2016-04-20 12:00", tz="UTC")
+    below_88 = pd.Timestamp("2016-04-20 04:40", tz="UTC")  # sun 1.2°: zenith 88.8°
+    low = pd.Timestamp("2016-04-20 04:50", tz="UTC")  # sun 2.6°
     df.loc[noon, "diffuse_w_m2"] = 1.05 * df.loc[noon, "ghi_w_m2"]
-    df.loc[low, "diffuse_w_m2"] = 0.0
+    df.loc[[below_88, low], "ghi_w_m2"] = [20.0, 50.0]  # two instruments' mismatch at dawn
+    df.loc[[below_88, low], "diffuse_w_m2"] = 0.0
     out = add_solar(df)
     sin_b = np.sin(np.radians(out["sun_elevation_deg"].clip(lower=0.0)))
     np.testing.assert_allclose(out["dni_w_m2"] * sin_b + out["dhi_w_m2"], out["ghi_w_m2"], rtol=1e-12, atol=1e-9)
     assert out.loc[noon, "dhi_w_m2"] == out.loc[noon, "ghi_w_m2"] and out.loc[noon, "dni_w_m2"] == 0
-    beam_max = pvlib.irradiance.get_extra_radiation(out.index)
-    assert (out["dni_w_m2"] <= beam_max + 1e-9).all() and (out["dhi_w_m2"] >= 0).all()
+    assert out.loc[below_88, "dni_w_m2"] == 0 and out.loc[below_88, "dhi_w_m2"] == 20.0
+    clear_dni = _clear(pd.DatetimeIndex([low]))["dni"].iloc[0]  # ≈ 10 W m⁻², where 50 / sin 2.6° = 1 100
+    assert out.loc[low, "dni_w_m2"] == pytest.approx(1.1 * clear_dni, rel=0.01)
+    assert 0 < out.loc[low, "dni_w_m2"] < 20
+    assert (out["dhi_w_m2"] >= 0).all()
     note = next(q["detail"] for q in out.attrs["qc"] if q["kind"] == "split")
-    assert "diffuse cut to global radiation at 1 step" in note
-    if out.loc[low, "ghi_w_m2"] / np.sin(np.radians(out.loc[low, "sun_elevation_deg"])) > beam_max[low]:
-        assert "extraterrestrial" in note and out.loc[low, "dni_w_m2"] == pytest.approx(beam_max[low])
+    assert "diffuse cut to global radiation at 1 step" in note and "beam cut near the horizon at" in note
     dark = (out["sun_elevation_deg"] <= 0).to_numpy()
     assert (out["dni_w_m2"].to_numpy()[dark] == 0).all()
     np.testing.assert_array_equal(out["dhi_w_m2"].to_numpy()[dark], out["ghi_w_m2"].to_numpy()[dark])
@@ -104,19 +109,20 @@ def test_resampling_keeps_the_diffuse_split():
     """The 30-minute means split their own mean diffuse radiation (sun angles recomputed)."""
     out = resample(add_solar(_day(0.3)), "30min", "mean")
     assert out.attrs["split_model"] == "diffuse"
-    lit = (out["sun_elevation_deg"] > 5).to_numpy()
+    lit = (out["sun_elevation_deg"] > 10).to_numpy()  # below, the beam may be cut (zenith > 80°)
     np.testing.assert_allclose((out["dhi_w_m2"] / out["ghi_w_m2"]).to_numpy()[lit], 0.3, rtol=1e-9)
 
 
-def _tereno_with_diffuse(tmp_path: Path, factor: float) -> Path:
-    """The TERENO fixture with a RadiationDiffuse column of ``factor`` × its global radiation."""
+def _tereno_with_diffuse(tmp_path: Path, factor: float, blank=()) -> Path:
+    """The TERENO fixture with a RadiationDiffuse column of ``factor`` × its global radiation,
+    empty in the data rows ``blank``."""
     lines = FIXTURE.read_text(encoding="utf-8").splitlines()
     hdr = next(i for i, ln in enumerate(lines) if ln.startswith("Timestamp"))
     ghi = lines[hdr].split(",").index("RadiationGlobal_Avg10min [W*m-2]")
     rows = [lines[hdr] + ",RadiationDiffuse_Avg10min [W*m-2]"]
-    for ln in lines[hdr + 1 :]:
+    for i, ln in enumerate(lines[hdr + 1 :]):
         cell = ln.split(",")[ghi]
-        rows.append(ln + "," + (f"{factor * float(cell):.4f}" if cell.strip() else ""))
+        rows.append(ln + "," + (f"{factor * float(cell):.4f}" if cell.strip() and i not in blank else ""))
     p = tmp_path / "with_diffuse.csv"
     p.write_text("\n".join(lines[:hdr] + rows) + "\n", encoding="utf-8")
     return p
@@ -125,7 +131,65 @@ def _tereno_with_diffuse(tmp_path: Path, factor: float) -> Path:
 def test_tereno_diffuse_column_is_read_and_used(tmp_path):
     df = add_solar(read_tereno(_tereno_with_diffuse(tmp_path, 0.25)))
     assert df.attrs["split_model"] == "diffuse"
-    lit = (df["sun_elevation_deg"] > 5).to_numpy()
+    lit = (df["sun_elevation_deg"] > 10).to_numpy()
     np.testing.assert_allclose((df["dhi_w_m2"] / df["ghi_w_m2"]).to_numpy()[lit], 0.25, rtol=1e-3)
     with pytest.raises(InputError, match=r"RadiationDiffuse_Avg10min \[W\*m-2\]"):
         add_solar(read_tereno(_tereno_with_diffuse(tmp_path, 1.35)))  # inside its bounds, above global
+
+
+def test_a_dark_days_diffuse_in_kw_is_refused_too():
+    """A dim overcast day never reaches 50 W m⁻²: the share over the whole lit day still catches
+    kW m⁻² (an overcast sky is all diffuse; in kW it would read as beam)."""
+    dim = lambda d: 0.05 * d["ghi_w_m2"]  # noqa: E731  peak ≈ 36 W m⁻²
+    with pytest.raises(InputError, match="the unit is wrong"):
+        add_solar(
+            _day(
+                1.0,
+                ghi_w_m2=dim,
+                par_umol_m2_s=lambda d: 2.285 * d["ghi_w_m2"],
+                diffuse_w_m2=lambda d: 1e-3 * d["ghi_w_m2"],
+            )
+        )
+    ok = add_solar(_day(1.0, ghi_w_m2=dim, par_umol_m2_s=lambda d: 2.285 * d["ghi_w_m2"]))
+    assert (ok["dni_w_m2"] == 0).all()
+
+
+def test_missing_values_through_the_api_are_refused_naming_the_column():
+    df = _day(0.2)
+    df.loc["2016-04-20 11:40", "diffuse_w_m2"] = np.nan
+    with pytest.raises(InputError, match=r"diffuse_w_m2.*lack global or diffuse radiation|lack global or diffuse"):
+        add_solar(df)
+
+
+def test_estimated_global_radiation_is_called_so():
+    """With PAR alone the diffuse check compares with PAR / 2.285 and says it is an estimate."""
+    df = _day(1.0).drop(columns="ghi_w_m2")
+    df["diffuse_w_m2"] = 1.4 * df["par_umol_m2_s"] / 2.285
+    with pytest.raises(InputError, match=r"global radiation \(estimated from PAR\)"):
+        add_solar(df)
+
+
+def test_a_diffuse_column_with_a_long_gap_is_dropped_not_the_series(tmp_path):
+    """The column is optional: a gap that cannot be interpolated drops it (recorded) and the
+    split falls back to Erbs; before, the whole file was refused, even for --split erbs."""
+    path = _tereno_with_diffuse(tmp_path, 0.25, blank=range(40, 60))
+    df = add_solar(read_tereno(path))
+    assert "diffuse_w_m2" not in df.columns and df.attrs["split_model"] == "erbs"
+    assert any(q["kind"] == "dropped" and "RadiationDiffuse" in q["detail"] for q in df.attrs["qc"])
+
+
+def test_the_split_a_csv_was_written_with_is_kept(tmp_path):
+    """`weather show --split erbs --csv` writes Erbs' DNI/DHI beside the diffuse column; reading
+    it back keeps Erbs (its `split_model` line) instead of splitting by the column again."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    out = tmp_path / "erbs.csv"
+    r = CliRunner().invoke(app, ["weather", "show", "2016-04-20", "--split", "erbs", "--csv", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "# split_model: erbs" in out.read_text()
+    back = add_solar(read_weather(out))
+    assert back.attrs["split_model"] == "erbs"
+    assert not any(q["kind"] == "recomputed" for q in back.attrs["qc"])
+    assert add_solar(read_weather(out), split_model="diffuse").attrs["split_model"] == "diffuse"

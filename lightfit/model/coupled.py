@@ -322,6 +322,7 @@ class CoupledModel:
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
             "weather_source": str(w.attrs.get("source", "")),
             "weather_timestamps": self.timestamps.describe(),
+            "weather_split_model": str(w.attrs.get("split_model", "unknown")),
             **fld.attrs(),
             "n_tiles": sc.n_tiles,
             "tile": -1 if sc.tile is None else sc.tile,

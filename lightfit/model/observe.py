@@ -36,8 +36,9 @@ own terms (:data:`OBSERVABLES`; the observations CSV names them, :mod:`lightfit.
 
 - :func:`above_canopy_par` — a horizontal quantum sensor above the canopy (a station's or a
   chamber's PAR sensor): :math:`f\,(\mathrm{DNI}^{PAR}_t \sin\beta_t + \mathrm{DHI}^{PAR}_t)`,
-  β the sun elevation. The weather contract's DNI and DHI are the split of the measured global
-  radiation (:func:`lightfit.weather.solar.split_direct_diffuse`, DNI sin β + DHI = GHI), so at
+  β the sun elevation. The weather contract's DNI and DHI split the series' global radiation
+  (by its own diffuse radiation or a decomposition model, :func:`lightfit.weather.add_solar`;
+  DNI sin β + DHI = GHI), so at
   f = 1 this is the global radiation in PAR units — the model's light field, analytic and exact
   (no Monte Carlo error).
 - :func:`canopy_apar` — PAR absorbed by all measured segments per unit ground area of the

@@ -44,6 +44,7 @@ from lightfit.errors import InputError, parse_date
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric
 from lightfit.weather.site import check_timezone
+from lightfit.weather.solar import SPLIT_MODELS
 from lightfit.weather.timestamps import Timestamps
 
 TERENO_TZ = "Etc/GMT-1"  # POSIX sign convention: Etc/GMT-1 is UTC+1
@@ -819,12 +820,22 @@ def read_lightfit_csv(
         "unused_columns": [],
         "qc": qc,
     }
+    if "split_model" in meta:  # the split the file was written with, kept unless a command asks for another
+        if meta["split_model"] not in SPLIT_MODELS:
+            raise InputError(
+                f"metadata line '# split_model: {meta['split_model']}'",
+                file=path,
+                expected="one of " + ", ".join(SPLIT_MODELS),
+            )
+        out.attrs["split_model"] = meta["split_model"]
     return check_and_repair(out, lt, path, max_gap=max_gap)
 
 
 def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
     """Write a contract series with ``# key: value`` metadata (must include ``provenance``, one of
     :data:`WEATHER_PROVENANCES`: a series whose source did not say is written ``unstated``).
+    A series with its DNI/DHI written says how they were split (``split_model``), which
+    :func:`read_lightfit_csv` keeps.
 
     The series' timestamps' meaning (``attrs["timestamps"]``) is written with it unless
     ``metadata`` states it.
@@ -835,6 +846,8 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
         )
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()
+    if "dhi_w_m2" in df.columns and df.attrs.get("split_model") and "split_model" not in metadata:
+        metadata = metadata | {"split_model": df.attrs["split_model"]}  # how its DNI/DHI were split
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     head = "".join(f"# {k}: {v}\n" for k, v in metadata.items())

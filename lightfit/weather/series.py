@@ -25,7 +25,7 @@ from lightfit.weather.timestamps import Timestamps
 COLUMNS: dict[str, str] = {
     "ghi_w_m2": "global horizontal irradiance, W m⁻²",
     "par_umol_m2_s": "photosynthetically active photon flux density, µmol m⁻² s⁻¹",
-    "diffuse_w_m2": "diffuse horizontal irradiance (a shaded pyranometer's, an SPN1's), W m⁻²",
+    "diffuse_w_m2": "diffuse horizontal irradiance, measured or a reconstruction's (optional), W m⁻²",
     "tair_c": "air temperature, °C",
     "rh": "relative humidity, 0–1",
     "pair_kpa": "air pressure, kPa",
@@ -63,6 +63,11 @@ BOUNDS: dict[str, Bounds] = {
     "pair_kpa": Bounds(80.0, 110.0),
     "co2_ppm": Bounds(200.0, 1500.0),
 }
+
+#: Columns a series may lack: one with a gap that cannot be interpolated is dropped (and the drop
+#: recorded) instead of refusing the series; what needs it falls back (the direct/diffuse split to
+#: a decomposition model, :func:`lightfit.weather.solar.add_solar`).
+OPTIONAL = ("diffuse_w_m2",)
 
 #: Numeric sentinels that loggers and data portals use for "no value".
 MISSING_SENTINELS = (-9999.0, -999.0, -99999.0)
@@ -249,7 +254,7 @@ def check_and_repair(
             qc, "missing_timestamps", None, n_new, f"{n_new} missing timestamp(s) of the {step} grid inserted as gaps"
         )
 
-    for col in df.columns:
+    for col in list(df.columns):
         na = df[col].isna()
         if not na.any():
             continue
@@ -265,6 +270,17 @@ def check_and_repair(
                     else f"longer than max_gap={max_gap}"
                 )
                 rows_missing = not present.isin(run.index).any()
+                if col in OPTIONAL and not rows_missing:
+                    _record(
+                        qc,
+                        "dropped",
+                        col,
+                        len(df),
+                        f"{attrs.get('columns_used', {}).get(col, col)} not used: {int(na.sum())} missing value(s), "
+                        f"a gap {why}; what needs it falls back (the split: Erbs)",
+                    )
+                    df = df.drop(columns=col)
+                    break
                 raise InputError(
                     _gap_problem(run, present, lines, attrs, col) + f", {why}",
                     file=file,
@@ -273,6 +289,8 @@ def check_and_repair(
                     column=None if rows_missing else attrs.get("columns_used", {}).get(col, col),
                     expected="complete data, or gaps short enough to interpolate (raise max_gap)",
                 )
+        if col not in df.columns:
+            continue
         df[col] = df[col].interpolate(method="time", limit_area="inside")
         _record(
             qc,

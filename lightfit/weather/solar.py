@@ -98,60 +98,92 @@ def horizontal_irradiance(dni, dhi, sun_elevation_deg, xp=np):
 
 
 def split_from_diffuse(
-    ghi_w_m2: pd.Series, diffuse_w_m2: pd.Series, sun_elevation_deg: pd.Series, file=None, column=None
+    ghi_w_m2: pd.Series,
+    diffuse_w_m2: pd.Series,
+    sun_elevation_deg: pd.Series,
+    site: Site = SELHAUSEN,
+    *,
+    file=None,
+    column: str | None = None,
+    ghi_estimated: bool = False,
 ) -> tuple[pd.DataFrame, dict]:
     r"""Direct normal and diffuse horizontal irradiance from a series' global and diffuse radiation.
 
     DHI is the series' diffuse radiation, cut to [0, GHI], and DNI closes the balance,
-    :math:`\mathrm{DNI} = (\mathrm{GHI} - \mathrm{DHI}) / \sin\beta`; with the sun below the
-    horizon all radiation is diffuse. Near the horizon a small difference of two instruments
-    divided by a small sin β can exceed the extraterrestrial beam (Spencer 1971, pvlib): DNI is cut
-    there and the rest counted as diffuse, so the closure GHI = DNI sin β + DHI still holds exactly.
+    :math:`\mathrm{DNI} = (\mathrm{GHI} - \mathrm{DHI}) / \sin\beta`, as
+    :func:`pvlib.irradiance.dni` takes it near the horizon, where a small difference of two
+    instruments over a small sin β would make a beam no sky gives: none beyond 88° zenith, at
+    most 1.1 × the clear-sky beam (Ineichen–Perez at ``site``) beyond 80°. What is cut from the beam
+    is counted as diffuse, so GHI = DNI sin β + DHI holds exactly. With the sun below the horizon
+    all radiation is diffuse.
 
-    Returns the split and the counts of steps cut (``"diffuse_above_global"``,
-    ``"beam_above_extraterrestrial"``) for the series' quality record.
+    Returns the split and the counts of steps cut (``"diffuse_above_global"``, ``"beam_cut"``) for
+    the series' quality record. ``ghi_estimated``: global radiation was estimated from PAR (the
+    messages say so).
 
     Raises:
-        InputError: diffuse radiation above global radiation × :data:`DIFFUSE_OVER_GLOBAL_FACTOR` +
-            :data:`DIFFUSE_OVER_GLOBAL_W_M2` at two or more steps (swapped columns, other units), or a
-            diffuse share that never reaches :data:`DIFFUSE_MIN_SHARE` where global radiation exceeds
-            :data:`RATIO_MIN_GHI_W_M2` (kW m⁻² under a W m⁻² header); the error names ``column``.
+        InputError, naming ``column`` (default ``diffuse_w_m2``): a missing value of either column
+        where the sun is up; diffuse radiation above global radiation × :data:`DIFFUSE_OVER_GLOBAL_FACTOR`
+        + :data:`DIFFUSE_OVER_GLOBAL_W_M2` at two or more steps (swapped columns, other units); a
+        diffuse share below :data:`DIFFUSE_MIN_SHARE` at every step with global radiation above
+        :data:`RATIO_MIN_GHI_W_M2`, or over the whole lit series (kW m⁻² under a W m⁻² header).
     """
     column = column or "diffuse_w_m2"
+    glob = "global radiation (estimated from PAR)" if ghi_estimated else "global radiation"
     ghi = ghi_w_m2.astype(float)
     diffuse = diffuse_w_m2.astype(float)
+    up = sun_elevation_deg > 0.0
+    gap = up & (ghi.isna() | diffuse.isna())
+    if gap.any():
+        raise InputError(
+            f"{int(gap.sum())} step(s) with the sun up lack global or diffuse radiation (first "
+            f"{ghi.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
+            file=file,
+            column=column,
+            expected="both values at every daylight step (fill the gaps, or drop the diffuse column)",
+        )
     over = diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * ghi + DIFFUSE_OVER_GLOBAL_W_M2
     if over.sum() >= 2:
         i = int(np.argmax((diffuse - ghi).where(over, -np.inf).to_numpy()))
         raise InputError(
-            f"diffuse radiation {diffuse.iloc[i]:.4g} W m⁻² at {ghi.index[i]:%Y-%m-%d %H:%M} UTC exceeds global "
-            f"radiation {ghi.iloc[i]:.4g} W m⁻²: {int(over.sum())} steps have more diffuse than global radiation",
+            f"diffuse radiation {diffuse.iloc[i]:.4g} W m⁻² at {ghi.index[i]:%Y-%m-%d %H:%M} UTC exceeds {glob} "
+            f"{ghi.iloc[i]:.4g} W m⁻²: {int(over.sum())} steps have more diffuse than global radiation",
             file=file,
             column=column,
             expected=f"diffuse horizontal irradiance in W m⁻², at most global radiation (× "
             f"{DIFFUSE_OVER_GLOBAL_FACTOR:g} + {DIFFUSE_OVER_GLOBAL_W_M2:g} W m⁻² for two instruments); "
-            "check the columns are not swapped",
+            "check the columns are not swapped"
+            + (" and the PAR per joule the estimate assumes (2.285 µmol J⁻¹)" if ghi_estimated else ""),
         )
-    bright = ghi > RATIO_MIN_GHI_W_M2
-    if bright.any() and float((diffuse[bright] / ghi[bright]).max()) < DIFFUSE_MIN_SHARE:
-        share = float((diffuse[bright] / ghi[bright]).max())
+    lit = up & (ghi > 0)
+    bright = lit & (ghi > RATIO_MIN_GHI_W_M2)
+    shares = [(diffuse[bright] / ghi[bright]).max()] if bright.any() else []
+    if lit.any():
+        shares.append(diffuse[lit].clip(lower=0).sum() / ghi[lit].sum())
+    if shares and max(shares) < DIFFUSE_MIN_SHARE:
         raise InputError(
-            f"diffuse radiation reaches at most {share:.2%} of global radiation over the {int(bright.sum())} "
-            f"steps with global radiation above {RATIO_MIN_GHI_W_M2:g} W m⁻²: the unit is wrong",
+            f"diffuse radiation reaches at most {max(shares):.2%} of {glob} over the {int(lit.sum())} lit "
+            "steps: the unit is wrong",
             file=file,
             column=column,
             expected=f"diffuse horizontal irradiance in W m⁻² (≥ {DIFFUSE_MIN_SHARE:.0%} of global radiation "
-            "somewhere: the clearest sky keeps ≈ 10 %)",
+            "somewhere: the clearest sky keeps ≈ 10 %, an overcast one all of it)",
         )
-    sin_el = np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
-    up = sun_elevation_deg > 0.0
     dhi = diffuse.clip(lower=0.0, upper=ghi).where(up, ghi)
-    beam_max = pd.Series(pvlib.irradiance.get_extra_radiation(ghi.index), index=ghi.index)
-    dni = ((ghi - dhi) / sin_el.where(up, np.inf)).fillna(0.0)
-    cut = dni > beam_max
-    dni = dni.where(~cut, beam_max)
-    dhi = dhi.where(~cut, ghi - dni * sin_el)
-    counts = {"diffuse_above_global": int((up & (diffuse > ghi)).sum()), "beam_above_extraterrestrial": int(cut.sum())}
+    zenith = 90.0 - sun_elevation_deg
+    loc = pvlib.location.Location(site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
+    clear = loc.get_clearsky(
+        ghi.index,
+        model="ineichen",
+        solar_position=pd.DataFrame({"apparent_zenith": zenith, "apparent_elevation": sun_elevation_deg}),
+    )
+    raw = (ghi - dhi) / np.sin(np.radians(sun_elevation_deg.where(up, 90.0)))
+    dni = pvlib.irradiance.dni(ghi, dhi, zenith, dni_clear=clear["dni"]).fillna(0.0).where(up, 0.0)
+    dhi = ghi - dni * np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
+    counts = {
+        "diffuse_above_global": int((up & (diffuse > ghi)).sum()),
+        "beam_cut": int((up & (dni < raw - 1e-9)).sum()),
+    }
     return pd.DataFrame({"dni_w_m2": dni, "dhi_w_m2": dhi}, index=ghi.index), counts
 
 
@@ -364,7 +396,12 @@ def _recomputed(before: pd.DataFrame, after: pd.DataFrame) -> list[dict]:
                     "column": col,
                     "count": int(differ.sum()),
                     "detail": f"the file's values replaced by those of this site and split model (up to "
-                    f"{diff.max():.3g}{unit} apart); derived columns are always recomputed",
+                    f"{diff.max():.3g}{unit} apart); derived columns are always recomputed"
+                    + (
+                        " (a measured diffuse radiation belongs in a diffuse_w_m2 column, which then splits the light)"
+                        if col == "dhi_w_m2" and "diffuse_w_m2" not in before.columns
+                        else ""
+                    ),
                 }
             )
     return out
@@ -373,9 +410,10 @@ def _recomputed(before: pd.DataFrame, after: pd.DataFrame) -> list[dict]:
 def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | None = None) -> pd.DataFrame:
     """Add the derived contract columns: sun angles, DNI/DHI and (if absent) PAR from GHI.
 
-    ``split_model`` (:data:`SPLIT_MODELS`): ``None`` takes the series' own diffuse radiation
-    (``diffuse_w_m2``, :func:`split_from_diffuse`) where it has one, else Erbs. A decomposition model
-    asked for by name is used even where a diffuse column exists (recorded in ``qc``).
+    ``split_model`` (:data:`SPLIT_MODELS`): ``None`` keeps the series' own (``attrs["split_model"]``,
+    e.g. from a lightfit CSV written with one), else takes its diffuse radiation (``diffuse_w_m2``,
+    :func:`split_from_diffuse`) where it has one, else Erbs. A decomposition model asked for by name
+    is used even where a diffuse column exists (recorded in ``qc``).
 
     If only PAR was measured, global radiation is estimated as PAR / (0.50 × 4.57 µmol J⁻¹)
     so that the split can run; either estimate is recorded in ``attrs["qc"]``. With both measured,
@@ -446,7 +484,9 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
             }
         )
     has_diffuse = "diffuse_w_m2" in out.columns
-    split_model = ("diffuse" if has_diffuse else "erbs") if split_model is None else split_model
+    # Unasked, a series keeps the split it was given (a lightfit CSV's `split_model` line), else the
+    # diffuse column decides.
+    split_model = split_model or out.attrs.get("split_model") or ("diffuse" if has_diffuse else "erbs")
     if split_model not in SPLIT_MODELS:
         raise InputError(
             f"unknown direct/diffuse split model {split_model!r}",
@@ -460,19 +500,25 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
                 "split 'diffuse' asked for a series without a diffuse radiation column",
                 file=out.attrs.get("source"),
                 column="diffuse_w_m2",
-                expected="a diffuse_w_m2 column (W m⁻²), or the split erbs or boland",
+                expected="a diffuse_w_m2 column (W m⁻²; in a TERENO export a RadiationDiffuse… column), or the "
+                "split erbs or boland",
             )
-        used = out.attrs.get("columns_used", {}).get("diffuse_w_m2")
         split, cut = split_from_diffuse(
-            out["ghi_w_m2"], out["diffuse_w_m2"], out["sun_elevation_deg"], out.attrs.get("source"), used
+            out["ghi_w_m2"],
+            out["diffuse_w_m2"],
+            out["sun_elevation_deg"],
+            site,
+            file=out.attrs.get("source"),
+            column=out.attrs.get("columns_used", {}).get("diffuse_w_m2"),
+            ghi_estimated=any(q["kind"] == "derived" and q["column"] == "ghi_w_m2" for q in qc),
         )
         detail = "DNI and DHI from the series' diffuse radiation (GHI = DNI sin β + DHI)"
         if cut["diffuse_above_global"]:
             detail += f"; diffuse cut to global radiation at {cut['diffuse_above_global']} step(s)"
-        if cut["beam_above_extraterrestrial"]:
+        if cut["beam_cut"]:
             detail += (
-                f"; DNI cut to the extraterrestrial beam at {cut['beam_above_extraterrestrial']} low-sun step(s), "
-                "the rest counted as diffuse"
+                f"; the beam cut near the horizon at {cut['beam_cut']} step(s) (none beyond 88° zenith, ≤ 1.1 × "
+                "clear sky beyond 80°), the rest counted as diffuse"
             )
         qc.append({"kind": "split", "column": "diffuse_w_m2", "count": len(out), "detail": detail})
     else:

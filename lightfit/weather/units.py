@@ -17,8 +17,9 @@ R_WATER_VAPOUR = 461.5
 #: span ≈ 0.43–0.50: 0.50 is the crop models' convention (Monteith 1973; Spitters et al. 1986) and
 #: docs/design.md §6's choice, at the top of the range; Meek et al. (1984, Agron. J. 76:939) measured
 #: 2.04 µmol J⁻¹ of global, i.e. 0.45 × 4.57; the ASTM G173 global spectrum gives 0.43. Only series
-#: without a PAR sensor depend on it for their light (10 % less PAR at 0.45), and the bundled
-#: reconstructed day through its direct/diffuse split (docs/weather.md).
+#: without a PAR sensor depend on it for their light (10 % less PAR at 0.45), and the split of a
+#: series whose global radiation it estimates from PAR (docs/weather.md). The bundled reconstructed
+#: day writes PAR = 0.50 × 4.57 × its global radiation and carries its own diffuse part.
 PAR_FRACTION = 0.50
 #: Photon-to-energy ratio of sunlight PAR, µmol J⁻¹ (McCree 1972: 4.57).
 UMOL_PER_JOULE_PAR = 4.57
