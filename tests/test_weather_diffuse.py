@@ -78,7 +78,7 @@ def test_split_closes_the_energy_balance_and_cuts_what_no_sun_gives():
     assert 0 < out.loc[low, "dni_w_m2"] < 20
     assert (out["dhi_w_m2"] >= 0).all()
     note = next(q["detail"] for q in out.attrs["qc"] if q["kind"] == "split")
-    assert "diffuse cut to global radiation at 1 step" in note and "beam cut near the horizon at" in note
+    assert "diffuse cut to its total at 1 step" in note and "beam cut near the horizon at" in note
     dark = (out["sun_elevation_deg"] <= 0).to_numpy()
     assert (out["dni_w_m2"].to_numpy()[dark] == 0).all()
     np.testing.assert_array_equal(out["dhi_w_m2"].to_numpy()[dark], out["ghi_w_m2"].to_numpy()[dark])
@@ -157,7 +157,7 @@ def test_a_dark_days_diffuse_in_kw_is_refused_too():
 def test_missing_values_through_the_api_are_refused_naming_the_column():
     df = _day(0.2)
     df.loc["2016-04-20 11:40", "diffuse_w_m2"] = np.nan
-    with pytest.raises(InputError, match=r"diffuse_w_m2.*lack global or diffuse radiation|lack global or diffuse"):
+    with pytest.raises(InputError, match=r"diffuse_w_m2.*lack global radiation or its diffuse part"):
         add_solar(df)
 
 
@@ -193,3 +193,28 @@ def test_the_split_a_csv_was_written_with_is_kept(tmp_path):
     assert back.attrs["split_model"] == "erbs"
     assert not any(q["kind"] == "recomputed" for q in back.attrs["qc"])
     assert add_solar(read_weather(out), split_model="diffuse").attrs["split_model"] == "diffuse"
+
+
+def test_measured_diffuse_par_is_the_canopys_diffuse_par():
+    """With a diffuse PAR column (a BF5's) the light model's diffuse PAR is that column (at steps
+    the horizon cut does not touch), whatever the global radiation's split would have been; it
+    goes through global radiation's diffuse fraction by the inverse of Spitters et al. (1986)."""
+    from lightfit.model.scenario import Forcing
+    from lightfit.weather.solar import global_diffuse_fraction, par_diffuse_fraction
+
+    k = np.linspace(0.0, 1.0, 101)
+    for el in (2.0, 20.0, 39.0, 60.0):
+        np.testing.assert_allclose(par_diffuse_fraction(global_diffuse_fraction(k, el), el), k, atol=1e-12)
+    df = _day(0.2)  # a diffuse_w_m2 column too: the PAR one wins
+    df["par_diffuse_umol_m2_s"] = 0.35 * df["par_umol_m2_s"]
+    out = add_solar(df)
+    assert out.attrs["split_model"] == "diffuse"
+    note = next(q["detail"] for q in out.attrs["qc"] if q["kind"] == "split")
+    assert "diffuse PAR" in note and "diffuse_w_m2 not used" in note
+    f = Forcing.of(out)
+    high = (out["sun_elevation_deg"] > 10).to_numpy()
+    np.testing.assert_allclose(f.dhi_par[high], out["par_diffuse_umol_m2_s"].to_numpy()[high], rtol=1e-9)
+    sin_b = np.sin(np.radians(out["sun_elevation_deg"].to_numpy()))
+    np.testing.assert_allclose((f.dni_par * sin_b + f.dhi_par)[high], out["par_umol_m2_s"].to_numpy()[high], rtol=1e-9)
+    with pytest.raises(InputError, match="par_diffuse_umol_m2_s"):
+        add_solar(df.assign(par_diffuse_umol_m2_s=3.0 * df["par_umol_m2_s"]))  # above PAR: swapped or in other units

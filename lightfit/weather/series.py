@@ -26,6 +26,7 @@ COLUMNS: dict[str, str] = {
     "ghi_w_m2": "global horizontal irradiance, W m⁻²",
     "par_umol_m2_s": "photosynthetically active photon flux density, µmol m⁻² s⁻¹",
     "diffuse_w_m2": "diffuse horizontal irradiance, measured or a reconstruction's (optional), W m⁻²",
+    "par_diffuse_umol_m2_s": "diffuse PAR photon flux density, measured (optional), µmol m⁻² s⁻¹",
     "tair_c": "air temperature, °C",
     "rh": "relative humidity, 0–1",
     "pair_kpa": "air pressure, kPa",
@@ -58,6 +59,7 @@ BOUNDS: dict[str, Bounds] = {
     "ghi_w_m2": Bounds(0.0, 1400.0, clamp_below=-30.0),
     "par_umol_m2_s": Bounds(0.0, 3000.0, clamp_below=-30.0),
     "diffuse_w_m2": Bounds(0.0, 1000.0, clamp_below=-30.0),
+    "par_diffuse_umol_m2_s": Bounds(0.0, 2300.0, clamp_below=-30.0),
     "tair_c": Bounds(-45.0, 50.0),
     "rh": Bounds(0.0, 1.0, clamp_above=1.05),
     "pair_kpa": Bounds(80.0, 110.0),
@@ -67,7 +69,7 @@ BOUNDS: dict[str, Bounds] = {
 #: Columns a series may lack: one with a gap that cannot be interpolated is dropped (and the drop
 #: recorded) instead of refusing the series; what needs it falls back (the direct/diffuse split to
 #: a decomposition model, :func:`lightfit.weather.solar.add_solar`).
-OPTIONAL = ("diffuse_w_m2",)
+OPTIONAL = ("diffuse_w_m2", "par_diffuse_umol_m2_s")
 
 #: Numeric sentinels that loggers and data portals use for "no value".
 MISSING_SENTINELS = (-9999.0, -999.0, -99999.0)
@@ -277,7 +279,7 @@ def check_and_repair(
                         col,
                         len(df),
                         f"{attrs.get('columns_used', {}).get(col, col)} not used: {int(na.sum())} missing value(s), "
-                        f"a gap {why}; what needs it falls back (the split: Erbs)",
+                        f"a gap {why}; the direct/diffuse split falls back to the other diffuse column, else Erbs",
                     )
                     df = df.drop(columns=col)
                     break

@@ -29,6 +29,9 @@ DIFFUSE_OVER_GLOBAL_W_M2 = 10.0
 #: scattering and aerosols; more at a low sun), so a column that never reaches 0.05 is in the wrong
 #: unit (kW m⁻²) or is not diffuse radiation.
 DIFFUSE_MIN_SHARE = 0.05
+#: A series' diffuse columns, in the order the split ``"diffuse"`` takes them: diffuse PAR (a BF5's,
+#: FLUXNET's PPFD_DIF), which is the canopy's own band, then diffuse global radiation.
+DIFFUSE_COLUMNS = ("par_diffuse_umol_m2_s", "diffuse_w_m2")
 #: Measured PAR ÷ global radiation a series may have, µmol J⁻¹ (median over steps with global
 #: radiation above :data:`RATIO_MIN_GHI_W_M2`). Sunlight gives ≈ 2.0–2.3 (Meek et al. 1984, Agron.
 #: J. 76, 939: 2.04; McCree 1972 with a PAR share of 0.45–0.50: 2.06–2.29); outside these bounds a
@@ -97,6 +100,65 @@ def horizontal_irradiance(dni, dhi, sun_elevation_deg, xp=np):
     return dni * xp.maximum(xp.sin(xp.deg2rad(sun_elevation_deg)), 0.0) + dhi
 
 
+def check_diffuse(
+    total: pd.Series,
+    diffuse: pd.Series,
+    sun_elevation_deg: pd.Series,
+    *,
+    what: str = "global radiation",
+    unit: str = "W m⁻²",
+    bright: float = RATIO_MIN_GHI_W_M2,
+    file=None,
+    column: str = "diffuse_w_m2",
+    hint: str = "",
+) -> None:
+    """Refuse a diffuse series that cannot be the diffuse part of ``total`` (``what``, in ``unit``),
+    naming ``column``: a missing value of either where the sun is up; diffuse above the total ×
+    :data:`DIFFUSE_OVER_GLOBAL_FACTOR` + :data:`DIFFUSE_OVER_GLOBAL_W_M2` (in W m⁻², scaled to ``unit`` by
+    ``bright`` ÷ :data:`RATIO_MIN_GHI_W_M2`) at two or more steps (swapped columns, other units); a
+    diffuse share below :data:`DIFFUSE_MIN_SHARE` at every step where the total exceeds ``bright``
+    and over the whole lit series (kW m⁻² under a W m⁻² header, mmol under µmol). ``hint`` ends the
+    expectation of the first two errors (e.g. where the total is an estimate)."""
+    scale = bright / RATIO_MIN_GHI_W_M2
+    total, diffuse = total.astype(float), diffuse.astype(float)
+    up = sun_elevation_deg > 0.0
+    gap = up & (total.isna() | diffuse.isna())
+    if gap.any():
+        raise InputError(
+            f"{int(gap.sum())} step(s) with the sun up lack {what} or its diffuse part (first "
+            f"{total.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
+            file=file,
+            column=column,
+            expected="both values at every daylight step (fill the gaps, or drop the diffuse column)",
+        )
+    over = diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * total + scale * DIFFUSE_OVER_GLOBAL_W_M2
+    if over.sum() >= 2:
+        i = int(np.argmax((diffuse - total).where(over, -np.inf).to_numpy()))
+        raise InputError(
+            f"diffuse {diffuse.iloc[i]:.4g} {unit} at {total.index[i]:%Y-%m-%d %H:%M} UTC exceeds {what} "
+            f"{total.iloc[i]:.4g} {unit}: {int(over.sum())} steps have more diffuse than {what}",
+            file=file,
+            column=column,
+            expected=f"the diffuse part in {unit}, at most {what} (× {DIFFUSE_OVER_GLOBAL_FACTOR:g} + "
+            f"{scale * DIFFUSE_OVER_GLOBAL_W_M2:g} {unit} for two instruments); check the columns are not swapped"
+            + hint,
+        )
+    lit = up & (total > 0)
+    high = lit & (total > bright)
+    shares = [(diffuse[high] / total[high]).max()] if high.any() else []
+    if lit.any():
+        shares.append(diffuse[lit].clip(lower=0).sum() / total[lit].sum())
+    if shares and max(shares) < DIFFUSE_MIN_SHARE:
+        raise InputError(
+            f"the diffuse part reaches at most {max(shares):.2%} of {what} over the {int(lit.sum())} lit "
+            "steps: the unit is wrong",
+            file=file,
+            column=column,
+            expected=f"the diffuse part in {unit} (≥ {DIFFUSE_MIN_SHARE:.0%} of {what} somewhere: the clearest "
+            "sky keeps ≈ 10 %, an overcast one all of it)",
+        )
+
+
 def split_from_diffuse(
     ghi_w_m2: pd.Series,
     diffuse_w_m2: pd.Series,
@@ -106,6 +168,7 @@ def split_from_diffuse(
     file=None,
     column: str | None = None,
     ghi_estimated: bool = False,
+    check: bool = True,
 ) -> tuple[pd.DataFrame, dict]:
     r"""Direct normal and diffuse horizontal irradiance from a series' global and diffuse radiation.
 
@@ -119,55 +182,21 @@ def split_from_diffuse(
 
     Returns the split and the counts of steps cut (``"diffuse_above_global"``, ``"beam_cut"``) for
     the series' quality record. ``ghi_estimated``: global radiation was estimated from PAR (the
-    messages say so).
-
-    Raises:
-        InputError, naming ``column`` (default ``diffuse_w_m2``): a missing value of either column
-        where the sun is up; diffuse radiation above global radiation × :data:`DIFFUSE_OVER_GLOBAL_FACTOR`
-        + :data:`DIFFUSE_OVER_GLOBAL_W_M2` at two or more steps (swapped columns, other units); a
-        diffuse share below :data:`DIFFUSE_MIN_SHARE` at every step with global radiation above
-        :data:`RATIO_MIN_GHI_W_M2`, or over the whole lit series (kW m⁻² under a W m⁻² header).
+    messages say so). ``check``: refuse what :func:`check_diffuse` refuses, naming ``column``
+    (default ``diffuse_w_m2``); ``False`` where the diffuse radiation was derived from a checked one.
     """
-    column = column or "diffuse_w_m2"
-    glob = "global radiation (estimated from PAR)" if ghi_estimated else "global radiation"
     ghi = ghi_w_m2.astype(float)
     diffuse = diffuse_w_m2.astype(float)
     up = sun_elevation_deg > 0.0
-    gap = up & (ghi.isna() | diffuse.isna())
-    if gap.any():
-        raise InputError(
-            f"{int(gap.sum())} step(s) with the sun up lack global or diffuse radiation (first "
-            f"{ghi.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
+    if check:
+        check_diffuse(
+            ghi,
+            diffuse,
+            sun_elevation_deg,
+            what="global radiation (estimated from PAR)" if ghi_estimated else "global radiation",
             file=file,
-            column=column,
-            expected="both values at every daylight step (fill the gaps, or drop the diffuse column)",
-        )
-    over = diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * ghi + DIFFUSE_OVER_GLOBAL_W_M2
-    if over.sum() >= 2:
-        i = int(np.argmax((diffuse - ghi).where(over, -np.inf).to_numpy()))
-        raise InputError(
-            f"diffuse radiation {diffuse.iloc[i]:.4g} W m⁻² at {ghi.index[i]:%Y-%m-%d %H:%M} UTC exceeds {glob} "
-            f"{ghi.iloc[i]:.4g} W m⁻²: {int(over.sum())} steps have more diffuse than global radiation",
-            file=file,
-            column=column,
-            expected=f"diffuse horizontal irradiance in W m⁻², at most global radiation (× "
-            f"{DIFFUSE_OVER_GLOBAL_FACTOR:g} + {DIFFUSE_OVER_GLOBAL_W_M2:g} W m⁻² for two instruments); "
-            "check the columns are not swapped"
-            + (" and the PAR per joule the estimate assumes (2.285 µmol J⁻¹)" if ghi_estimated else ""),
-        )
-    lit = up & (ghi > 0)
-    bright = lit & (ghi > RATIO_MIN_GHI_W_M2)
-    shares = [(diffuse[bright] / ghi[bright]).max()] if bright.any() else []
-    if lit.any():
-        shares.append(diffuse[lit].clip(lower=0).sum() / ghi[lit].sum())
-    if shares and max(shares) < DIFFUSE_MIN_SHARE:
-        raise InputError(
-            f"diffuse radiation reaches at most {max(shares):.2%} of {glob} over the {int(lit.sum())} lit "
-            "steps: the unit is wrong",
-            file=file,
-            column=column,
-            expected=f"diffuse horizontal irradiance in W m⁻² (≥ {DIFFUSE_MIN_SHARE:.0%} of global radiation "
-            "somewhere: the clearest sky keeps ≈ 10 %, an overcast one all of it)",
+            column=column or "diffuse_w_m2",
+            hint=" and the PAR per joule the estimate assumes (2.285 µmol J⁻¹)" if ghi_estimated else "",
         )
     dhi = diffuse.clip(lower=0.0, upper=ghi).where(up, ghi)
     zenith = 90.0 - sun_elevation_deg
@@ -252,6 +281,20 @@ def par_diffuse_fraction(global_diffuse_fraction, sun_elevation_deg) -> np.ndarr
     kd = np.clip(np.asarray(global_diffuse_fraction, dtype=np.float64), 0.0, 1.0)
     el = np.asarray(sun_elevation_deg, dtype=np.float64)
     return np.asarray(pvlib.irradiance.diffuse_par_spitters(90.0 - el, kd), dtype=np.float64)
+
+
+def global_diffuse_fraction(par_diffuse_fraction_, sun_elevation_deg) -> np.ndarray:
+    """The diffuse fraction of global radiation whose PAR fraction (:func:`par_diffuse_fraction`,
+    Spitters et al. 1986) is ``par_diffuse_fraction_`` at sun elevation β, degrees: its inverse,
+    by bisection (the relation rises monotonically from 0 to 1 on [0, 1]; 50 halvings, 1e-15)."""
+    target = np.clip(np.asarray(par_diffuse_fraction_, dtype=np.float64), 0.0, 1.0)
+    el = np.broadcast_to(np.asarray(sun_elevation_deg, dtype=np.float64), target.shape)
+    lo, hi = np.zeros_like(target), np.ones_like(target)
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        below = par_diffuse_fraction(mid, el) < target
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
 
 
 def check_par_per_ghi(par_umol_m2_s: pd.Series, ghi_w_m2: pd.Series, file=None) -> float:
@@ -407,6 +450,62 @@ def _recomputed(before: pd.DataFrame, after: pd.DataFrame) -> list[dict]:
     return out
 
 
+def _split_by_diffuse(out: pd.DataFrame, site: Site, qc: list[dict]) -> tuple[pd.DataFrame, str]:
+    """The split ``"diffuse"`` of a series with its solar angles (:func:`add_solar`) and its quality
+    note: by its diffuse PAR where it has one, else by its diffuse global radiation."""
+    used, src = out.attrs.get("columns_used", {}), out.attrs.get("source")
+    el = out["sun_elevation_deg"]
+    if not any(c in out.columns for c in DIFFUSE_COLUMNS):
+        raise InputError(
+            "split 'diffuse' asked for a series without a diffuse radiation column",
+            file=src,
+            column=" or ".join(DIFFUSE_COLUMNS),
+            expected="a diffuse_w_m2 (W m⁻²; in a TERENO export a RadiationDiffuse… column) or "
+            "par_diffuse_umol_m2_s column, or the split erbs or boland",
+        )
+    if "par_diffuse_umol_m2_s" in out.columns:
+        col = "par_diffuse_umol_m2_s"
+        check_diffuse(
+            out["par_umol_m2_s"],
+            out[col],
+            el,
+            what="PAR",
+            unit="µmol m⁻² s⁻¹",
+            bright=float(par_from_ghi(RATIO_MIN_GHI_W_M2)),
+            file=src,
+            column=used.get(col, col),
+        )
+        par = out["par_umol_m2_s"].astype(float)
+        kd_par = (out[col].astype(float) / par.where(par > 0)).clip(0.0, 1.0).fillna(1.0)
+        diffuse = pd.Series(global_diffuse_fraction(kd_par, el), index=out.index) * out["ghi_w_m2"]
+        split, cut = split_from_diffuse(out["ghi_w_m2"], diffuse, el, site, check=False)
+        cut["diffuse_above_global"] = int(((el > 0) & (out[col] > par)).sum())
+        detail = (
+            "DNI and DHI from the series' diffuse PAR: PAR's diffuse fraction as measured, global radiation's "
+            "by the inverse of Spitters et al. (1986)"
+            + ("; diffuse_w_m2 not used" if "diffuse_w_m2" in out.columns else "")
+        )
+    else:
+        split, cut = split_from_diffuse(
+            out["ghi_w_m2"],
+            out["diffuse_w_m2"],
+            el,
+            site,
+            file=src,
+            column=used.get("diffuse_w_m2"),
+            ghi_estimated=any(q["kind"] == "derived" and q["column"] == "ghi_w_m2" for q in qc),
+        )
+        detail = "DNI and DHI from the series' diffuse radiation (GHI = DNI sin β + DHI)"
+    if cut["diffuse_above_global"]:
+        detail += f"; diffuse cut to its total at {cut['diffuse_above_global']} step(s)"
+    if cut["beam_cut"]:
+        detail += (
+            f"; the beam cut near the horizon at {cut['beam_cut']} step(s) (none beyond 88° zenith, ≤ 1.1 × "
+            "clear sky beyond 80°), the rest counted as diffuse"
+        )
+    return split, detail
+
+
 def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | None = None) -> pd.DataFrame:
     """Add the derived contract columns: sun angles, DNI/DHI and (if absent) PAR from GHI.
 
@@ -483,8 +582,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
                 f"centre ({stamps.centre_offset / pd.Timedelta(minutes=1):+g} min from its stamp)",
             }
         )
-    has_diffuse = "diffuse_w_m2" in out.columns
-    # Unasked, a series keeps the split it was given (a lightfit CSV's `split_model` line), else the
+    has_diffuse = any(c in out.columns for c in DIFFUSE_COLUMNS)
+    # Unasked, a series keeps the split it was given (a lightfit CSV's `split_model` line), else a
     # diffuse column decides.
     split_model = split_model or out.attrs.get("split_model") or ("diffuse" if has_diffuse else "erbs")
     if split_model not in SPLIT_MODELS:
@@ -495,39 +594,15 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
         )
     qc = [q for q in qc if q["kind"] != "split"]  # a resampled series replaces its source's
     if split_model == "diffuse":
-        if not has_diffuse:
-            raise InputError(
-                "split 'diffuse' asked for a series without a diffuse radiation column",
-                file=out.attrs.get("source"),
-                column="diffuse_w_m2",
-                expected="a diffuse_w_m2 column (W m⁻²; in a TERENO export a RadiationDiffuse… column), or the "
-                "split erbs or boland",
-            )
-        split, cut = split_from_diffuse(
-            out["ghi_w_m2"],
-            out["diffuse_w_m2"],
-            out["sun_elevation_deg"],
-            site,
-            file=out.attrs.get("source"),
-            column=out.attrs.get("columns_used", {}).get("diffuse_w_m2"),
-            ghi_estimated=any(q["kind"] == "derived" and q["column"] == "ghi_w_m2" for q in qc),
-        )
-        detail = "DNI and DHI from the series' diffuse radiation (GHI = DNI sin β + DHI)"
-        if cut["diffuse_above_global"]:
-            detail += f"; diffuse cut to global radiation at {cut['diffuse_above_global']} step(s)"
-        if cut["beam_cut"]:
-            detail += (
-                f"; the beam cut near the horizon at {cut['beam_cut']} step(s) (none beyond 88° zenith, ≤ 1.1 × "
-                "clear sky beyond 80°), the rest counted as diffuse"
-            )
-        qc.append({"kind": "split", "column": "diffuse_w_m2", "count": len(out), "detail": detail})
+        split, detail = _split_by_diffuse(out, site, qc)
+        qc.append({"kind": "split", "column": None, "count": len(out), "detail": detail})
     else:
         split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
         if has_diffuse:
             qc.append(
                 {
                     "kind": "split",
-                    "column": "diffuse_w_m2",
+                    "column": None,
                     "count": len(out),
                     "detail": f"the series' diffuse radiation is not used: DNI and DHI split from global "
                     f"radiation by {split_model} as asked",
