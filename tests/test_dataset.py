@@ -699,3 +699,30 @@ def test_results_of_another_field_size_are_refused(results_file, tmp_path):
     bigger.to_netcdf(tmp_path / "nine.nc", engine="h5netcdf")
     with pytest.raises(InputError, match="the results hold 4 plants, the field rebuilt from its attrs measures 9"):
         build_geometry(open_results(tmp_path / "nine.nc"))
+
+
+def test_results_of_other_plants_are_refused(results_file, tmp_path):
+    """The same segment ids and plant count, other plants: an edited plant file or another CPlantBox
+    version (growth fingerprint), and for files without it, segment areas that differ."""
+    import xarray as xr
+
+    from lightfit.dataset import build_geometry
+
+    with xr.open_dataset(results_file) as ds:
+        ds = ds.load()
+    other = ds.assign_attrs(growth_fingerprint="0123456789abcdef")
+    other.to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
+    with pytest.raises(InputError, match="grown from another plant file or CPlantBox version"):
+        build_geometry(open_results(tmp_path / "other.nc"))
+    old = ds.copy()
+    del old.attrs["growth_fingerprint"]
+    area = old["area_m2"].values.copy()
+    area[3] *= 1.5
+    old = old.assign_coords(area_m2=("segment", area))
+    old.to_netcdf(tmp_path / "old.nc", engine="h5netcdf")
+    with pytest.raises(InputError, match=r"1 segment\(s\) have another area"):
+        build_geometry(open_results(tmp_path / "old.nc"))
+    same = ds.copy()
+    del same.attrs["growth_fingerprint"]
+    same.to_netcdf(tmp_path / "same.nc", engine="h5netcdf")
+    assert len(build_geometry(open_results(tmp_path / "same.nc")).segments)

@@ -144,11 +144,23 @@ def field_of(res: Results):
 def build_geometry(res: Results, cache_dir=None):
     """Rebuild the field geometry (plants are deterministic from the seeds; cached on disk).
 
-    Raises :class:`InputError` when the results' segment ids are not all in the rebuilt field.
+    Raises :class:`InputError` when the rebuilt field is not the one the results were computed on:
+    another growth fingerprint (an edited plant file, another CPlantBox version: the same segment ids,
+    other plants), segment ids or plants the rebuild lacks, or segment areas that differ (files
+    written before the fingerprint).
     """
-    from lightfit.plant import build
+    from lightfit.plant import build, one_sided_area_m2
 
-    geom = build(field_of(res), cache_dir=cache_dir)
+    fld = field_of(res)
+    stored = res.ds.attrs.get("growth_fingerprint")
+    if stored is not None and str(stored) != fld.growth.fingerprint():
+        raise InputError(
+            f"the results' plants were grown from another plant file or CPlantBox version (growth fingerprint "
+            f"{stored}, now {fld.growth.fingerprint()}): the field rebuilt from its attrs would be another",
+            file=res.path or "results",
+            expected="the plant parameter file and CPlantBox version of the run (or run the model again)",
+        )
+    geom = build(fld, cache_dir=cache_dir)
     ids = res.ds["segment"].values.astype(np.int64)
     unknown = np.setdiff1d(ids, geom.segments["segment_id"].to_numpy())
     if len(unknown):
@@ -167,6 +179,18 @@ def build_geometry(res: Results, cache_dir=None):
                 f"the results hold {len(have)} plants, the field rebuilt from its attrs measures {len(want)}",
                 file=res.path or "results",
                 expected="the attrs of the field the results were computed on (n_plants, buffers, seed)",
+            )
+    if "area_m2" in res.ds.coords:
+        rebuilt = one_sided_area_m2(geom.segments.set_index("segment_id").loc[ids].reset_index())
+        area = res.ds["area_m2"].values.astype(np.float64)
+        off = ~np.isclose(area, rebuilt, rtol=1e-6, atol=0.0)
+        if off.any():
+            i = int(np.flatnonzero(off)[0])
+            raise InputError(
+                f"{int(off.sum())} segment(s) have another area in the field rebuilt from the results' attrs "
+                f"(segment {ids[i]}: {area[i]:.6g} m² in the results, {rebuilt[i]:.6g} m² rebuilt)",
+                file=res.path or "results",
+                expected="the field the results were computed on (the same plant file, CPlantBox version and attrs)",
             )
     return geom
 

@@ -20,7 +20,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     import xarray as xr
 
     from lightfit import weather
-    from lightfit.plant import build
+    from lightfit.plant import build, one_sided_area_m2
 
     times = pd.DatetimeIndex(times)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
@@ -55,6 +55,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
             "time": times.tz_convert(None).to_numpy(),
             "segment": seg["segment_id"].to_numpy(np.int64),
             "plant_id": ("segment", seg["plant_id"].to_numpy(np.int64)),
+            "area_m2": ("segment", one_sided_area_m2(seg)),
         },
         attrs={
             **fld.attrs(),

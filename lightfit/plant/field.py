@@ -140,8 +140,11 @@ class Field:
         return self.boundary == "periodic"
 
     def attrs(self) -> dict:
-        """The field as netCDF attributes of a results file, what :meth:`from_attrs` rebuilds it from."""
+        """The field as netCDF attributes of a results file, what :meth:`from_attrs` rebuilds it from;
+        ``growth_fingerprint`` (:meth:`~lightfit.plant.growth.Growth.fingerprint`: the plant file's
+        contents, dates and CPlantBox version) tells whether a rebuild grows the same plants."""
         return {
+            "growth_fingerprint": self.growth.fingerprint(),
             "n_plants": self.n_plants,
             "boundary": self.boundary,
             "buffer_rows": self.buffer_rows,
