@@ -409,18 +409,21 @@ def test_cli_sweep_options_with_cameras_are_refused(results_file, tmp_path):
     assert r.exit_code == 0, r.output
 
 
-def test_child_process_render_equals_in_process(geometry):
+def test_child_process_render_equals_in_process(geometry, tmp_path):
     """The rgb-in-a-child path gives the same arrays as rendering here, for one variant and seed."""
-    from lightfit.dataset.render import _render_child, _variant_for, render_here
+    from lightfit.dataset.render import _render_child, load_camera, render_here, variant_for
     from lightfit.dataset.scene import VisualMaterials
 
     arrays = scene_arrays(geometry.mesh, geometry.segments)
     cam = Camera(name="c", position_m=CAM.position_m, look_at_m=CAM.look_at_m, width_px=24, height_px=16)
     settings, mats = RenderSettings(spp=2, colour="mono", seed=9), VisualMaterials()
-    variant, here = _variant_for("mono")
-    child = _render_child(arrays, [cam], [SUN], settings, mats, variant)
+    variant, here = variant_for("mono")
+    child = _render_child(arrays, [cam], [SUN], settings, mats, variant, [3], tmp_path)
+    saved = load_camera(tmp_path / "camera_3.npz", 1)  # kept by the child as soon as rendered (resume)
+    np.testing.assert_array_equal(saved[0][0], child.radiance[0][0])
+    np.testing.assert_array_equal(saved[1], child.face[0])
     if here:
-        rad, face, depth = render_here(arrays, [cam], [SUN], settings, mats, variant)
+        rad, face, depth = render_here(arrays, [cam], [SUN], settings, mats, variant, [3])
         np.testing.assert_array_equal(child.radiance[0][0], rad[0][0])
         np.testing.assert_array_equal(child.face[0], face[0])
         np.testing.assert_array_equal(child.depth_m[0], depth[0])
@@ -591,40 +594,65 @@ def test_an_output_folder_holding_a_dataset_is_refused(mono_dataset, results_fil
     assert sorted(p.name for p in (out / "images").iterdir()) == before  # nothing written
 
 
-def test_an_interrupted_dataset_is_started_again(results_file, tmp_path, monkeypatch):
-    """Interrupted after its first image, a dataset's folder held images but no metadata.json, and
-    the same command was refused ("already holds a dataset") although the interrupt said "rerun the
-    command to start it again". The folder's marker tells an unfinished run's files apart: the rerun
-    replaces them and ends as an uninterrupted run; a finished dataset stays refused."""
+def test_an_interrupted_dataset_resumes(results_file, tmp_path, monkeypatch):
+    """Interrupted in its second camera, a dataset keeps the first camera's render: the same call
+    takes it over, renders only the second camera, and ends bitwise as an uninterrupted run (each
+    image's random numbers follow its camera's and time's index). The marker of another job (here
+    another spp) starts the folder again; a finished dataset stays refused. Before, every image was
+    rendered again."""
+    import sys
+
     import lightfit.dataset.dataset as D
 
+    R = sys.modules["lightfit.dataset.render"]  # the package's `render` attribute is the function
+
+    cams = [CAM, Camera(name="nw", position_m=(-0.45, 0.45, 0.75), look_at_m=(0.0, 0.0, 0.2), fov_deg=50.0, **SMALL)]
     spec = DatasetSpec(
-        cameras=[CAM], times=["all"], settings=RenderSettings(spp=1, colour="mono", seed=4), gallery_images=0
+        cameras=cams, times=["all"], settings=RenderSettings(spp=1, colour="mono", seed=4), gallery_images=0
     )
     ref = make_dataset(results_file, tmp_path / "ref", spec)
-    write, calls = D._write_image, []
+    hits, calls = R._primary_hits, []
 
-    def interrupted_after_one(*args, **kw):
+    def interrupted_in_second_camera(*args, **kw):
         calls.append(1)
-        if len(calls) > 1:
+        if len(calls) == 2:
             raise KeyboardInterrupt
-        return write(*args, **kw)
+        return hits(*args, **kw)
+
+    def interrupt(out, spec):
+        calls.clear()
+        monkeypatch.setattr(R, "_primary_hits", interrupted_in_second_camera)
+        with pytest.raises(KeyboardInterrupt):
+            make_dataset(results_file, out, spec)
+        monkeypatch.setattr(R, "_primary_hits", hits)
+        assert (out / D.UNFINISHED / "camera_0.npz").exists() and not (out / "metadata.json").exists()
 
     out = tmp_path / "run"
-    monkeypatch.setattr(D, "_write_image", interrupted_after_one)
-    with pytest.raises(KeyboardInterrupt):
-        make_dataset(results_file, out, spec)
-    monkeypatch.setattr(D, "_write_image", write)
-    assert (out / D.UNFINISHED).exists() and not (out / "metadata.json").exists() and any((out / "images").iterdir())
+    interrupt(out, spec)
+    rendered = []
+    real_render = D.render
+
+    def counted(arrays, cams, *a, **kw):
+        rendered.extend(c.name for c in cams)
+        return real_render(arrays, cams, *a, **kw)
+
+    monkeypatch.setattr(D, "render", counted)
     meta = make_dataset(results_file, out, spec)
-    assert not (out / D.UNFINISHED).exists() and len(meta["images"]) == len(ref["images"]) == 2
-    assert sorted(p.name for p in (out / "images").iterdir()) == sorted(
-        p.name for p in (tmp_path / "ref" / "images").iterdir()
-    )
+    assert rendered == ["nw"] and meta["cameras_taken_over"] == 1
+    assert not (out / D.UNFINISHED).exists() and len(meta["images"]) == len(ref["images"]) == 4
     for a, b in zip(ref["images"], meta["images"]):
-        assert (out / b["png"]).read_bytes() == (tmp_path / "ref" / a["png"]).read_bytes()
+        assert a["name"] == b["name"] and a["exposure"] == b["exposure"]
+        for k in ("exr", "png", "labels"):
+            assert (out / b[k]).read_bytes() == (tmp_path / "ref" / a[k]).read_bytes(), (b["name"], k)
     with pytest.raises(InputError, match="already holds a dataset"):
         make_dataset(results_file, out, spec)
+    # Another job's unfinished folder: nothing is taken over.
+    other = tmp_path / "other"
+    interrupt(other, spec)
+    rendered.clear()
+    spp2 = DatasetSpec(**{**spec.__dict__, "settings": RenderSettings(spp=2, colour="mono", seed=4)})
+    again = make_dataset(results_file, other, spp2)
+    assert rendered == ["se", "nw"] and again["cameras_taken_over"] == 0
 
 
 def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_file, monkeypatch):

@@ -109,6 +109,7 @@ RESUMABLE = {
     "calibrate": "every finished design render is kept in the design cache and every accepted step "
     "in --out (history.jsonl, or trust_region/ with the surrogate)",
     "field-run": "every finished task is kept beside --out (OUT.parts/)",
+    "render-dataset": "every rendered camera is kept in --out (its .unfinished folder)",
 }
 
 

@@ -108,7 +108,9 @@ def render_dataset(
         clip = im["exposure"]["clipped_leaf_fraction"]
         clip_txt = "no leaf in view" if clip is None else f"clipped leaf pixels {clip:.1%}"
         console.print(f"{escape(im['name'])}: {im['pixels']['leaf']} leaf px, {clip_txt}")
+    n = meta["cameras_taken_over"]
+    taken = f", {n} camera(s) rendered by the interrupted run" if n else ""
     console.print(
         f"wrote {len(meta['images'])} image(s) with labels to {escape(str(out))} "
-        f"({meta['render']['variant']}, {meta['render']['spp']} spp)"
+        f"({meta['render']['variant']}, {meta['render']['spp']} spp{taken})"
     )

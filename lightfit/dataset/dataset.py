@@ -25,7 +25,7 @@ import lightfit
 from lightfit.dataset.camera import Camera, Sweep, camera_sweep, check_unique_names
 from lightfit.dataset.exposure import meter, tone_map, write_exr, write_png
 from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
-from lightfit.dataset.render import RenderSettings, render
+from lightfit.dataset.render import RenderSettings, load_camera, render, variant_for
 from lightfit.dataset.results import MARGIN, Results, build_geometry, lighting, open_results, select_times
 from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
 from lightfit.errors import InputError, check_integer
@@ -72,26 +72,67 @@ class DatasetSpec:
     cache_dir: str | None = None
 
 
-#: Marker file in an output folder while :func:`make_dataset` writes it: a folder holding it and
-#: images but no metadata.json is an interrupted run's, which the same command replaces.
+#: Folder in an output folder while :func:`make_dataset` writes it: ``job.json`` (:func:`_job_key`)
+#: and each camera's rendered arrays as soon as it is rendered (:func:`~lightfit.dataset.render.save_camera`).
+#: An output folder holding it and no metadata.json is an interrupted run's: the same command keeps
+#: the cameras rendered and renders the rest.
 UNFINISHED = ".unfinished"
 
 
+def _job_key(res: Results, spec: DatasetSpec, cams, tix, quantities) -> str | None:
+    """Hash of everything an image depends on (the results file's bytes, the spec, the cameras,
+    times and quantities, lightfit's version); ``None`` for results not read from a file, whose
+    renders are then never taken over."""
+    import hashlib
+
+    if res.path is None:
+        return None
+    h = hashlib.sha256(res.path.read_bytes())
+    job = {
+        "spec": asdict(spec) | {"cameras": [c.to_dict() for c in cams]},
+        "times": [int(t) for t in tix],
+        "quantities": list(quantities),
+        "lightfit": lightfit.__version__,
+    }
+    h.update(json.dumps(job, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:32]
+
+
+def _unfinished(out: Path, job: str | None, started: bool) -> Path:
+    """The marker folder of ``out``: kept with its rendered cameras when it is the same job's
+    (``started``: an interrupted run left files), else (re)made empty for this job."""
+    marker = out / UNFINISHED
+    if started and job is not None and marker.is_dir():
+        try:
+            if json.loads((marker / "job.json").read_text()).get("job") == job:
+                return marker
+        except (OSError, ValueError, AttributeError):
+            pass
+    if marker.is_dir():
+        shutil.rmtree(marker)
+    elif marker.exists():  # an older version's marker file
+        marker.unlink()
+    marker.mkdir(parents=True)
+    replace_text(marker / "job.json", json.dumps({"job": job}))
+    return marker
+
+
 def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()) -> dict:
-    """Render ``spec``'s cameras at its times and write the dataset to ``out_dir``; return the metadata."""
+    """Render ``spec``'s cameras at its times and write the dataset to ``out_dir``; return the metadata.
+
+    Each camera's render is kept in the folder's marker (:data:`UNFINISHED`) as soon as it is
+    done, so an interrupted run loses at most the camera it was rendering: the same call takes the
+    finished cameras over (their images bitwise those of an uninterrupted run: each image's random
+    numbers depend on its camera's and time's index only) and renders the rest in one batch;
+    ``meta["cameras_taken_over"]`` counts them.
+    """
     if spec.export not in EXPORT_FORMATS:
         raise InputError(f"export={spec.export!r}", column="export", expected=" or ".join(EXPORT_FORMATS))
     check_integer(spec.gallery_images, "gallery_images", 0)
     out = Path(out_dir)
-    unfinished = out / UNFINISHED
     earlier = [d for d in ("images", "labels") if (out / d).is_dir() and any((out / d).iterdir())]
-    if earlier and unfinished.exists() and not (out / "metadata.json").exists():
-        # An interrupted make_dataset's files (the marker says so): started again, as the
-        # interrupted command's line promises (it refused, "already holds a dataset").
-        for d in earlier:
-            shutil.rmtree(out / d)
-        earlier = []
-    if earlier:  # their files would mix with this dataset's, while metadata.json lists only this one's
+    started = (out / UNFINISHED).exists() and not (out / "metadata.json").exists()
+    if earlier and not started:  # their files would mix with this dataset's, while metadata.json lists only this one's
         raise InputError(
             f"the output folder already holds a dataset ({', '.join(f'{d}/' for d in earlier)} not empty)",
             file=out,
@@ -104,29 +145,37 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     geom = build_geometry(res, cache_dir=spec.cache_dir)
     cams = spec.cameras or camera_sweep(spec.sweep, canopy_height_m=_canopy_height(geom.segments))
     check_unique_names(cams)
+    marker = _unfinished(out, _job_key(res, spec, cams, tix, quantities), started)
+    for d in earlier:  # written again from the marker's cameras
+        shutil.rmtree(out / d)
     # A periodic field is one cell of an endless canopy: the scene repeats the cell as far as the
     # cameras see the ground (copies keep segment ids, so labels name the plant imaged).
     mesh, periodic = geom.mesh, None
     if geom.cell is not None:
         reach = view_reach_m(cams, geom.cell.center_xy, spec.materials.periodic_max_reach_m)
         mesh, periodic = periodic_canopy(geom.mesh, geom.cell, reach)
-    arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
-    rendered = render(arrays, cams, lights, spec.settings, spec.materials)
+    kept = {c: load_camera(marker / f"camera_{c}.npz", len(lights)) for c in range(len(cams))}
+    todo = [c for c, k in kept.items() if k is None]
+    rendered = None
+    if todo:
+        arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
+        rendered = render(arrays, [cams[c] for c in todo], lights, spec.settings, spec.materials, todo, marker)
+        for i, c in enumerate(todo):
+            kept[c] = (rendered.radiance[i], rendered.face[i], rendered.depth_m[i])
 
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(exist_ok=True)
-    unfinished.write_text("written by lightfit render-dataset while it writes; removed when metadata.json is\n")
     per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
     images = []
     for c, cam in enumerate(cams):
-        geo = geometric_labels(rendered.face[c], rendered.depth_m[c], mesh, geom.segments)
+        radiance, face, depth = kept[c]
+        geo = geometric_labels(face, depth, mesh, geom.segments)
         if not spec.depth:
             geo.pop("depth_m")
         for k, t in enumerate(tix):
-            images.append(
-                _write_image(out, cam, res.times[t], t, lights[k], rendered.radiance[c][k], geo, per_segment[t])
-            )
+            images.append(_write_image(out, cam, res.times[t], t, lights[k], radiance[k], geo, per_segment[t]))
     meta = _metadata(res, spec, quantities, cams, images, rendered)
+    meta["cameras_taken_over"] = len(cams) - len(todo)
     meta["field_boundary"] = "periodic" if periodic else "finite"
     if periodic:
         meta["periodic_canopy"] = periodic
@@ -138,7 +187,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     if spec.export != "none":
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
     replace_text(out / "metadata.json", json.dumps(meta, indent=2, default=_json_default))
-    unfinished.unlink()
+    shutil.rmtree(marker)
     return meta
 
 
@@ -231,7 +280,7 @@ def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendere
         "results_file": str(res.path) if res.path else None,
         "results_attrs": {k: res.ds.attrs[k] for k in res.ds.attrs},
         "synthetic_values": bool(str(res.ds.attrs.get("synthetic", "")).lower() in ("1", "true", "yes")),
-        "render": asdict(spec.settings) | {"variant": rendered.variant, "in_process": rendered.in_process},
+        "render": asdict(spec.settings) | _how_rendered(spec.settings, rendered),
         "materials": asdict(spec.materials),
         "cameras": [c.to_dict() for c in cams],
         "quantities": {q: {"variable": res.variable(q), "units": res.units(q)} for q in quantities},
@@ -252,6 +301,16 @@ def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendere
         "labels_sampling": "one ray through each pixel centre; images average spp jittered paths per pixel",
         "images": images,
     }
+
+
+def _how_rendered(settings: RenderSettings, rendered) -> dict:
+    """The variant that rendered and whether in this process (``rendered``: the last camera's
+    output; ``None`` when every image was taken over from an interrupted run: the variant chosen
+    now, which chose theirs)."""
+    if rendered is not None:
+        return {"variant": rendered.variant, "in_process": rendered.in_process}
+    variant, here = variant_for(settings.colour)
+    return {"variant": variant, "in_process": here}
 
 
 def _json_default(o):

@@ -89,7 +89,7 @@ class RenderOutput:
     in_process: bool
 
 
-def _variant_for(colour: str) -> tuple[str, bool]:
+def variant_for(colour: str) -> tuple[str, bool]:
     """(variant to render with, whether this process can use it without switching)."""
     from lightfit.light import backend
 
@@ -113,20 +113,50 @@ def render(
     lights: list[Lighting],
     settings: RenderSettings = RenderSettings(),
     materials: VisualMaterials = VisualMaterials(),
+    camera_index: list[int] | None = None,
+    save_dir: Path | None = None,
 ) -> RenderOutput:
-    """Render every camera under every lighting, in this process or a child (module docstring)."""
+    """Render every camera under every lighting, in this process or a child (module docstring).
+
+    ``camera_index``: each camera's index in the whole set (default 0, 1, …), which with the
+    lighting's index seeds each image, so that cameras rendered apart give the images of one call.
+    ``save_dir``: each camera's arrays are saved there as soon as it is rendered
+    (:func:`save_camera`), so that an interrupted render keeps its finished cameras."""
     if not cameras:
         raise InputError("no cameras", column="cameras", expected="at least one camera")
     if not lights:
         raise InputError("no time steps to render", column="times", expected="at least one time step")
-    variant, here = _variant_for(settings.colour)
+    variant, here = variant_for(settings.colour)
+    index = list(range(len(cameras))) if camera_index is None else [int(c) for c in camera_index]
     if here:
-        out = render_here(arrays, cameras, lights, settings, materials, variant)
+        out = render_here(arrays, cameras, lights, settings, materials, variant, index, save_dir)
         return RenderOutput(*out, variant=variant, in_process=True)
-    return _render_child(arrays, cameras, lights, settings, materials, variant)
+    return _render_child(arrays, cameras, lights, settings, materials, variant, index, save_dir)
 
 
-def render_here(arrays, cameras, lights, settings, materials, variant):
+def save_camera(save_dir: Path, index: int, radiance: list[np.ndarray], face: np.ndarray, depth: np.ndarray) -> Path:
+    """One rendered camera's arrays (its images under every lighting, the face and depth under
+    each pixel centre) as ``save_dir/camera_<index>.npz``, written whole or not at all."""
+    from lightfit.files import replaced
+
+    path = Path(save_dir) / f"camera_{int(index)}.npz"
+    with replaced(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, face=face, depth=depth, **{f"radiance_{t}": r for t, r in enumerate(radiance)})
+    return path
+
+
+def load_camera(path: Path, n_lights: int) -> tuple[list[np.ndarray], np.ndarray, np.ndarray] | None:
+    """A camera saved by :func:`save_camera` (``None``: missing, unreadable or of another count of
+    lightings)."""
+    try:
+        with np.load(path) as z:
+            return [z[f"radiance_{t}"] for t in range(n_lights)], z["face"], z["depth"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def render_here(arrays, cameras, lights, settings, materials, variant, camera_index=None, save_dir=None):
     """Render in this process with ``variant`` (must not switch an active variant)."""
     from lightfit.light.backend import mitsuba
 
@@ -135,6 +165,7 @@ def render_here(arrays, cameras, lights, settings, materials, variant):
 
     if settings.threads is not None:
         dr.set_thread_count(int(settings.threads))
+    index = list(range(len(cameras))) if camera_index is None else camera_index
     scene_of = _SceneBuilder(mi, dr, arrays, materials)
     radiance, faces, depths = [], [], []
     for ci, cam in enumerate(cameras):
@@ -143,10 +174,12 @@ def render_here(arrays, cameras, lights, settings, materials, variant):
         depths.append(depth)
         radiance.append(
             [
-                _radiance(mi, dr, scene_of.scene(light), cam, settings, ci * len(lights) + ti)
+                _radiance(mi, dr, scene_of.scene(light), cam, settings, index[ci] * len(lights) + ti)
                 for ti, light in enumerate(lights)
             ]
         )
+        if save_dir is not None:
+            save_camera(save_dir, index[ci], radiance[-1], face, depth)
     return radiance, faces, depths
 
 
@@ -238,7 +271,9 @@ def _radiance(mi, dr, scene, cam: Camera, settings: RenderSettings, image: int) 
     return np.nan_to_num(img, nan=0.0, posinf=0.0).astype(np.float32)
 
 
-def _render_child(arrays, cameras, lights, settings, materials, variant) -> RenderOutput:
+def _render_child(
+    arrays, cameras, lights, settings, materials, variant, camera_index=None, save_dir=None
+) -> RenderOutput:
     """Render in ``python -m lightfit.dataset.worker`` with ``variant``; arrays via a temp .npz."""
     with tempfile.TemporaryDirectory(prefix="lightfit-render-") as tmp:
         job, out = Path(tmp) / "job.npz", Path(tmp) / "out.npz"
@@ -248,6 +283,8 @@ def _render_child(arrays, cameras, lights, settings, materials, variant) -> Rend
             "settings": asdict(settings),
             "materials": asdict(materials),
             "variant": variant,
+            "camera_index": list(range(len(cameras))) if camera_index is None else [int(c) for c in camera_index],
+            "save_dir": None if save_dir is None else str(save_dir),
             "n_plant_faces": arrays.n_plant_faces,
         }
         np.savez(
@@ -293,7 +330,9 @@ def run_job(job: Path, out: Path) -> None:
     settings = RenderSettings(**spec["settings"])
     m = spec["materials"]
     materials = VisualMaterials(**{k: tuple(v) if isinstance(v, list) else v for k, v in m.items()})
-    radiance, faces, depths = render_here(arrays, cameras, lights, settings, materials, spec["variant"])
+    radiance, faces, depths = render_here(
+        arrays, cameras, lights, settings, materials, spec["variant"], spec["camera_index"], spec["save_dir"]
+    )
     arrays_out = {f"face_{c}": f for c, f in enumerate(faces)} | {f"depth_{c}": d for c, d in enumerate(depths)}
     arrays_out |= {f"radiance_{c}_{t}": r for c, row in enumerate(radiance) for t, r in enumerate(row)}
     np.savez(out, **arrays_out)
