@@ -35,14 +35,17 @@ def test_an_matches_cplantbox_on_grid(name):
     res = ps.solve(par, t, co2, 0.6, 101.325, params, fw=peer.fw)
     assert np.all(res.converged)
     an = np.asarray(res.an_umol_m2_s)
+    # Tolerances ≈ 4-6x what the two solvers' differences reach on this grid (a review measured
+    # max |ΔAn| 1.2e-4 / 1.2e-3 µmol m⁻² s⁻¹, ci 1.5e-6 / 3.3e-6 and gs 1.9e-5 / 9.9e-6 relative for
+    # cplantbox / giraud2023; the test allowed 1 % or 0.05 before, 50-400x looser).
     err = np.abs(an - peer.an_umol_m2_s)
-    ok = (err <= 0.01 * np.abs(peer.an_umol_m2_s)) | (err <= 0.05)
+    ok = err <= 5e-3
     assert ok.all(), list(zip(par[~ok], t[~ok], co2[~ok], an[~ok], peer.an_umol_m2_s[~ok]))
     # the intermediate quantities agree as well
-    np.testing.assert_allclose(res.ci_umol_mol, peer.ci_umol_mol, rtol=1e-4)
-    np.testing.assert_allclose(res.vc_umol_m2_s, peer.vc_umol_m2_s, rtol=1e-3, atol=1e-3)
-    np.testing.assert_allclose(res.vj_umol_m2_s, peer.vj_umol_m2_s, rtol=1e-3, atol=1e-3)
-    np.testing.assert_allclose(res.gs_mol_m2_s, peer.gs_mol_m2_s, rtol=1e-3)
+    np.testing.assert_allclose(res.ci_umol_mol, peer.ci_umol_mol, rtol=2e-5)
+    np.testing.assert_allclose(res.vc_umol_m2_s, peer.vc_umol_m2_s, rtol=1e-4, atol=5e-3)
+    np.testing.assert_allclose(res.vj_umol_m2_s, peer.vj_umol_m2_s, rtol=1e-4, atol=5e-3)
+    np.testing.assert_allclose(res.gs_mol_m2_s, peer.gs_mol_m2_s, rtol=1e-4)
 
 
 def test_cplantbox_questionable_cases_are_documented():

@@ -110,7 +110,9 @@ def electron_limited_rate(
 def assimilation(
     c_umol_mol: ArrayLike, leaf: LeafCapacities, clip: bool, tie_vc: ArrayLike | None = None
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Net assimilation An = min(Vc, Vj) − Rd and the two gross rates [µmol m⁻² s⁻¹].
+    """Net assimilation An = (1 − Γ*/c)·min(Wc, Wj) − Rd and the two gross rates Vc, Vj
+    [µmol m⁻² s⁻¹], Wc and Wj the carboxylation rates (Farquhar et al. 1980): min(Vc, Vj) above
+    Γ*, max(Vc, Vj) below it, where unclipped rates are negative (photorespiratory release).
 
     The minimum is taken with a deterministic tie rule instead of ``jnp.minimum``, whose
     derivative splits 50/50 where Vc = Vj. Ties that matter occur at zero capacity
@@ -134,7 +136,12 @@ def assimilation(
     """
     vc = rubisco_limited_rate(c_umol_mol, leaf.vcmax_umol_m2_s, leaf.gamma_star_umol_mol, leaf.km_umol_mol, clip)
     vj = electron_limited_rate(c_umol_mol, leaf.j_umol_m2_s, leaf.gamma_star_umol_mol, clip)
-    take_vc = vc < vj if tie_vc is None else (vc < vj) | ((vc == vj) & tie_vc)
+    # The limiting process is the slower carboxylation, W = min(Wc, Wj), and both rates are
+    # W·(1 − Γ*/c): below Γ* (unclipped rates) that factor is negative, so the limiting one is
+    # then the *larger* rate (the smaller release), not the smaller.
+    below = jnp.asarray(c_umol_mol) < leaf.gamma_star_umol_mol
+    limiting = jnp.where(below, vc > vj, vc < vj)
+    take_vc = limiting if tie_vc is None else limiting | ((vc == vj) & tie_vc)
     return jnp.where(take_vc, vc, vj) - leaf.rd_umol_m2_s, vc, vj
 
 

@@ -370,7 +370,7 @@ _INPUT_RANGES = {
     "co2_umol_mol": (1e-3, 1e5, "CO2 mole fraction in (0, 1e5] µmol mol-1 (ppm)"),
     "vpd_kpa": (0.0, 20.0, "vapour pressure deficit in [0, 20] kPa"),
     "pair_kpa": (10.0, 200.0, "air pressure in [10, 200] kPa"),
-    "gb_mol_m2_s": (1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1"),
+    "gb_mol_m2_s": (1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1 (inf: none)"),
     "fw": (0.0, 1.0, "water-stress factor in [0, 1]"),
 }
 _RH_RANGE = (0.0, 1.0, "relative humidity in [0, 1] (a fraction, not %)")
@@ -387,7 +387,7 @@ def _check_range(name, value, lo, hi, expected):
     if not np.issubdtype(v.dtype, np.number) or np.iscomplexobj(v):
         raise TypeError(f"{name} must be a real number or array, got dtype {v.dtype}")
     v = v.astype(float)
-    bad = ~(np.isfinite(v) & (v >= lo) & (v <= hi))
+    bad = ~(~np.isnan(v) & (v >= lo) & (v <= hi))  # as the traced check: inf passes only where hi is inf
     if np.any(bad):
         first = v[bad].ravel()[0] if v.ndim else float(v)
         raise ValueError(f"{name} must be {expected}; got {first!r} ({int(np.count_nonzero(bad))} bad value(s))")
