@@ -184,13 +184,18 @@ def test_observation_file_round_trip_and_alignment(tmp_path):
     a = align(back, times)
     assert a["plant_par_umol_m2_s"][0] == 100.0 and np.isnan(a["plant_par_umol_m2_s"][1])
     assert a["canopy_an_umol_m2_s"][1] == 2.0
-    # Two observations in one step are averaged; SD of the mean.
+    # Two observations in one step: their inverse-variance weighted mean (equal SDs: the plain mean).
     two = pd.concat([df.iloc[[2]], df.iloc[[2]].assign(plant_par_umol_m2_s=320.0)])
     two.index = [times[2], times[2] + pd.Timedelta("5min")]
     two.attrs = {"source": "x"}
     a2 = align(two, times)
     assert a2["plant_par_umol_m2_s"][2] == pytest.approx(310.0)
     assert a2["plant_par_sd_umol_m2_s"][2] == pytest.approx(5 / np.sqrt(2))
+    unequal = two.assign(plant_par_sd_umol_m2_s=[1.0, 10.0])  # 300 ± 1 and 320 ± 10
+    unequal.attrs = {"source": "x"}
+    a3 = align(unequal, times)
+    assert a3["plant_par_umol_m2_s"][2] == pytest.approx((300.0 + 320.0 / 100) / (1 + 1 / 100))
+    assert a3["plant_par_sd_umol_m2_s"][2] == pytest.approx((1 + 1 / 100) ** -0.5)
     late = df.iloc[[0]].copy()
     late.index = [times[-1] + pd.Timedelta("3h")]
     late.attrs = {"source": "late.csv"}

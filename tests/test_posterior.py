@@ -198,6 +198,77 @@ def test_sampler_on_gaussian_target_meets_stop_rule(tmp_path):
     np.testing.assert_allclose(np.cov(s.T), COV, atol=0.25)
 
 
+def test_split_rhat_sees_walkers_apart():
+    """Split-R̂ of walkers in one distribution is ≈ 1; of two groups of walkers centred at ±μ with unit
+    spread each, √(1 + μ²) (the variance of the chain means over the within-chain variance)."""
+    rng = np.random.default_rng(0)
+    n, w, mu = 4000, 32, 3.0
+    same = rng.standard_normal((n, w, 1))
+    apart = same + np.where(np.arange(w) < w // 2, -mu, mu)[None, :, None]
+    assert P.split_rhat(same)[0] == pytest.approx(1.0, abs=0.01)
+    assert P.split_rhat(apart)[0] == pytest.approx(np.sqrt(1 + mu**2), rel=0.03)
+
+
+class _TwoModes:
+    """0.9 N(−4, 0.3²) + 0.1 N(4, 0.3²) in a, N(0, 1) in b, walkers started uniform on [−6, 6]: the
+    stretch move leaves the walkers' split between the modes where it started (a review's case)."""
+
+    refused = 0
+
+    def __call__(self, xs):
+        from scipy.special import logsumexp
+
+        xs = np.atleast_2d(xs)
+        a, b = xs[:, 0], xs[:, 1]
+        la = logsumexp([np.log(0.9) - 0.5 * ((a + 4) / 0.3) ** 2, np.log(0.1) - 0.5 * ((a - 4) / 0.3) ** 2], axis=0)
+        return np.where((np.abs(a) <= 6) & (np.abs(b) <= 6), la - 0.5 * b**2, -np.inf)
+
+    def initial(self, n, seed):
+        return np.random.default_rng(seed).uniform(-6, 6, size=(n, 2))
+
+
+def test_the_stop_rule_does_not_stop_walkers_stuck_in_separate_modes(tmp_path):
+    """τ is per walker and was met at step ≈ 1 000 with half the walkers in the 10 % mode (P(a > 0)
+    0.50 sampled against 0.10): the rule stopped and called it converged. Split-R̂ ≈ 14 keeps it
+    running to max_steps, and the diagnostics and cautions say why; a unimodal target still stops."""
+    from lightfit.cli.posterior import _cautions
+
+    kw = dict(nwalkers=32, max_steps=1500, seed=3, stop=P.StopRule(), progress=False)
+    r = P.sample(_TwoModes(), ("a", "b"), tmp_path / "two.h5", **kw)
+    assert r.stopped_by == "max_steps" and not r.diagnostics["rule_met"]
+    assert r.diagnostics["rhat"][0] > 5 and r.diagnostics["rhat"][1] < 1.2
+    assert any("walkers disagree" in c and "for a" in c for c in _cautions(r.diagnostics))
+    status = P.backend.run_status(tmp_path / "two.h5")
+    assert status["diagnostics"]["rhat"][0] > 5 and status["diagnostics"]["tau_multiple"] == 20
+
+
+def test_a_run_the_rule_stopped_is_not_called_unreliable(tmp_path):
+    """The rule asks n_kept ≥ 20 τ and `tau_reliable` asked 50 τ: every rule stop between the two was
+    then told to resume with a larger --max-steps, which does nothing to a finished run. τ is now
+    judged by the rule's own multiple."""
+    r = P.sample(
+        Gauss(), NAMES, tmp_path / "g.h5", nwalkers=16, max_steps=5000, seed=1,
+        initial=np.random.default_rng(1).normal(size=(16, 3)), stop=P.StopRule(), progress=False,
+    )  # fmt: skip
+    assert r.stopped_by == "rule" and r.diagnostics["tau_reliable"] and r.diagnostics["tau_multiple"] == 20
+    assert P.backend.run_status(tmp_path / "g.h5")["diagnostics"]["tau_reliable"]
+
+
+def test_truncated_lognormal_prior_draws_follow_its_density():
+    """Starting walkers drawn from a truncated log-normal prior follow the truncated density (a
+    Kolmogorov–Smirnov test against scipy's truncated normal in log space) and none sit on the
+    bounds; clipped draws put ≈ 24 % on each bound of this prior before."""
+    from scipy.stats import kstest, truncnorm
+
+    prior = P.Prior("lognormal", 1.0, 0.7, "test", lo=0.6, hi=1.5)
+    x = prior.sample(np.random.default_rng(0), 20000)
+    lo, hi = (np.log(0.6) - 0.0) / 0.7, (np.log(1.5) - 0.0) / 0.7
+    assert kstest(np.log(x), truncnorm(lo, hi, loc=0.0, scale=0.7).cdf).pvalue > 0.01
+    assert np.mean((x == 0.6) | (x == 1.5)) == 0.0 and 0.6 <= x.min() and x.max() <= 1.5
+    one_sided = P.Prior("lognormal", 1.0, 0.5, "test", lo=0.0, hi=None).sample(np.random.default_rng(1), 1000)
+    assert np.all(np.isfinite(one_sided)) and np.all(one_sided > 0)
+
+
 def test_fisher_matches_analytic_toy_model():
     """Linear model y = A x: F = Aᵀ A / σ²; and a product model whose log-Fisher has a null direction."""
     A = np.array([[1.0, 2.0, 0.0], [0.0, 1.0, 1.0], [1.0, 0.0, 3.0], [2.0, 1.0, 1.0]])

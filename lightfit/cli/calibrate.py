@@ -201,7 +201,10 @@ def calibrate(
         "gradients": res.gradients,
         "stopped_by": res.stopped_by,
         "reason": res.reason,
-        "converged": bool(res.converged),
+        # Converged means the answer holds: with the surrogate, its optimiser converged *and* the
+        # full renders confirmed its loss at the optimum (surrogate.passed).
+        "converged": bool(res.converged) and (tr is None or bool(tr.passed)),
+        "optimizer_converged": bool(res.converged),
         "method": res.method,
         "use": list(uses),
         "dates": list(getattr(m, "dates", s.dates)),
@@ -242,7 +245,10 @@ def calibrate(
     t.add_column("value", justify="right")
     for k, v in res.theta.items():
         t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
-    t.add_row("loss (Gaussian NLL)", f"{res.loss:.4g}")
+    surrogate = tr is not None and tr.mode == "surrogate"
+    t.add_row("loss ½ rᵀΣ⁻¹r" + (" (emulator)" if surrogate else ""), f"{res.loss:.4g}")
+    if surrogate and tr.loss_full is not None:
+        t.add_row("loss ½ rᵀΣ⁻¹r (full renders)", f"{tr.loss_full:.4g}")
     console.print(t)
     if tr is not None:
         _print_check(tr)

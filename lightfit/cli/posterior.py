@@ -228,7 +228,7 @@ def posterior(
         + (f", {refused} proposals refused: {why}" if refused else "")
         + ")"
     )
-    for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS"):
+    for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS", "R̂"):
         t.add_column(c, justify="right")
     for i, n in enumerate(res["names"]):
         t.add_row(
@@ -238,13 +238,11 @@ def posterior(
             f"{res['x_map'][n]:.4g}",
             f"{res['tau'][i]:.1f}",
             f"{res['ess'][i]:.0f}",
+            f"{res['rhat'][i]:.3f}",
         )
     console.print(t)
-    if not res.get("tau_reliable", True):  # what posterior-status reports, said where the numbers are
-        console.print(
-            "[yellow]caution[/]: τ is not reliable yet (fewer than 50 τ kept steps, emcee's rule of thumb): "
-            "the SDs, τ and ESS above are rough; resume with a larger --max-steps"
-        )
+    for line in _cautions(res):  # what posterior-status reports, said where the numbers are
+        console.print(f"[yellow]caution[/]: {line}")
     console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
     if "emulator_error" in res:
         console.print(f"emulator error → max shift {res['emulator_error']['max_shift_over_sd']:.3g} posterior SD")
@@ -252,6 +250,35 @@ def posterior(
         f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
         f"with LIGHTFIT_POSTERIOR_RUN={out / 'run.h5'}"
     )
+
+
+def _cautions(d: dict) -> list[str]:
+    """What a posterior's diagnostics ``d`` (a run's summary or its stored diagnostics) warn of:
+    walkers that disagree (split-R̂, separate modes), τ not yet reliable by the stop rule's own
+    multiple, an acceptance outside 0.15–0.8, a MAP the optimiser did not reach."""
+    import numpy as np
+
+    out = []
+    names, rhat = list(d.get("names", [])), np.asarray(d.get("rhat", []), float)
+    limit = d.get("rhat_max", 1.2)
+    if rhat.size and np.nanmax(rhat) >= limit:
+        i = int(np.nanargmax(rhat))
+        out.append(
+            f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): they may sit in separate "
+            "modes, whose shares the ensemble cannot correct; the summary is not the posterior (the profile and "
+            "corner plot show where they are)"
+        )
+    if not d.get("tau_reliable", True):
+        m = d.get("tau_multiple") or 50
+        out.append(
+            f"τ is not reliable yet (fewer than {m:g} τ kept steps, the stop rule's length): the SDs, τ and ESS "
+            "are rough; resume with a larger --max-steps"
+        )
+    if not d.get("acceptance_ok", True):
+        out.append(f"acceptance {d.get('acceptance_mean', float('nan')):.2f} outside 0.15–0.8: the walkers move badly")
+    if d.get("map_converged") is False:
+        out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is its last point")
+    return out
 
 
 def posterior_status(
@@ -295,12 +322,16 @@ def _print_status(st: dict) -> None:
     acc = d.get("acceptance_mean", float("nan"))
     flag = "" if d.get("acceptance_ok", True) else " (outside 0.15–0.8)"
     check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
+    rhat = np.asarray(d["rhat"], float)
     console.print(
-        f"acceptance {acc:.2f}{flag}; τ reliable by emcee's rule of thumb (n_kept ≥ 50 τ; the stop rule asks "
-        f"20 τ): {bool(d['tau_reliable'])}; {check}; "
+        f"acceptance {acc:.2f}{flag}; τ reliable (n_kept ≥ {d['tau_multiple']:g} τ, the stop rule's length; "
+        f"emcee suggests 50): {bool(d['tau_reliable'])}; "
+        f"max split-R̂ {np.nanmax(rhat) if np.isfinite(rhat).any() else float('nan'):.3f}; {check}; "
         f"max τ {np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else float('nan'):.1f}; "
         f"analysis {'written' if st['analysis'] else 'not written'}"
     )
+    for line in _cautions({"names": st["names"], **d, "acceptance_ok": True}):  # acceptance said above
+        console.print(f"[yellow]caution[/]: {line}")
     if st["refused"]:
         console.print(
             f"{st['refused']} proposals refused (log-probability −inf): the leaf photosynthesis did not "

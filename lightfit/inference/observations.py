@@ -54,9 +54,10 @@ covariance system's 30-min NEE, a logger's 10-min PAR), in the same convention a
 series (:mod:`lightfit.weather.timestamps`). :func:`align` assigns each observation to the run's
 step whose *centre* is nearest the observation's centre, so a spot reading at 12:13:48 goes to the
 10-min mean stamped 12:20 (its interval holds 12:13:48), not to the one stamped 12:10; several in
-one step are averaged (their SD combined as the SD of a mean), which the reference paper also
-did. A mean over more than a step stands for is refused, and so is one that straddles two steps'
-intervals: run the model at the observation's interval instead (``--step``, ``--how mean``).
+one step are averaged (the reference paper averaged too), weighted by their inverse variances (the
+plain mean and sd/√n for equal SDs). A mean over more than a step stands for is refused, and so
+is one that straddles two steps' intervals: run the model at the observation's interval instead
+(``--step``, ``--how mean``).
 Files with the names before issue 12 (``par_umol_m2_s`` …) and unknown columns are refused with
 a message naming the known columns.
 """
@@ -426,7 +427,9 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
       on instants, the spacing): the model's value at one step is not their mean;
     * where the run's means tile time, a mean that straddles two of them.
 
-    Several in one step are averaged, SD of the mean = √(Σ sd²) / n.
+    Several in one step are combined as their inverse-variance weighted mean, SD (Σ sd⁻²)^(-1/2)
+    (equal SDs: the plain mean and sd/√n); the plain mean, SD √(Σ sd²)/n, kept 1/25 of the
+    information of readings 20 ± 1 and 30 ± 10 in one step.
     """
     one = max(pd.Timedelta("30min"), stamps.interval or pd.Timedelta(0))  # a one-step run's spacing
     spacing = (times[1] - times[0]) if len(times) > 1 else one
@@ -471,9 +474,10 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
             continue
         for k in np.unique(idx):
             sel = (idx == k) & obs[v].notna().to_numpy()
-            if sel.any():
-                val[k] = obs[v].to_numpy()[sel].mean()
-                err[k] = np.sqrt((obs[sd].to_numpy()[sel] ** 2).sum()) / sel.sum()
+            if sel.any():  # inverse-variance weighted: the mean that keeps all the readings' information
+                w = obs[sd].to_numpy()[sel] ** -2.0
+                val[k] = (w * obs[v].to_numpy()[sel]).sum() / w.sum()
+                err[k] = w.sum() ** -0.5
         out[v], out[sd] = val, err
     return out
 

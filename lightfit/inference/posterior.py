@@ -289,8 +289,10 @@ def check_emulator_box(
             )
 
 
-def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarray:
-    """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start``."""
+def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict | None = None) -> np.ndarray:
+    """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start`` (kept where
+    the optimiser ends no better). ``info``, if given, receives ``converged`` (the optimiser's own
+    success flag) and its ``message``, so that a MAP the optimiser did not reach is said so."""
     from scipy.optimize import minimize
 
     bounds = [lp.priors[n].support for n in lp.names]
@@ -303,6 +305,8 @@ def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200) -> np.ndarr
     r = minimize(
         fun, np.asarray(start, float), jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": maxiter}
     )
+    if info is not None:
+        info.update(converged=bool(r.success), message=str(r.message))
     return r.x if r.fun <= fun(start)[0] else np.asarray(start, float)
 
 
@@ -560,19 +564,25 @@ def run(
         "n_steps": int(res.diagnostics["n_steps"]),
         "tau": res.diagnostics["tau"].tolist(),
         "ess": res.diagnostics["ess"].tolist(),
+        "rhat": res.diagnostics["rhat"].tolist(),
+        "rhat_max": res.diagnostics["rhat_max"],
         "tau_reliable": bool(res.diagnostics.get("tau_reliable", False)),
+        "tau_multiple": res.diagnostics.get("tau_multiple"),
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
+        "acceptance_ok": res.diagnostics.get("acceptance_ok", True),
         "refused": res.refused,
     }
     if res.steps_this_call > 0:  # an analysis stored with the run is of a shorter chain now
         drop_group(path, "analysis")
     if not analysis or res.stopped_by == "interrupted":  # an interrupted chain is resumed, not analysed
         return out
-    samples = flat_samples({"chain": res.chain})
+    burn = (stop or StopRule()).burn_fraction  # the burn-in the diagnostics discarded
+    samples = flat_samples({"chain": res.chain}, burn)
     summ = summarize(samples, lp.names)
     cov = np.cov(samples.T).reshape(len(lp.names), len(lp.names))
-    flat_lp = res.log_prob[int(0.25 * len(res.log_prob)) :].reshape(-1)
-    x_map = optimum(lp, samples[np.argmax(flat_lp)])
+    flat_lp = res.log_prob[int(burn * len(res.log_prob)) :].reshape(-1)
+    map_info: dict = {}
+    x_map = optimum(lp, samples[np.argmax(flat_lp)], info=map_info)
     fisher, profile = identifiability(lp, x_map, n_profile)
     an: dict = {
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
@@ -597,6 +607,8 @@ def run(
     out.update(
         {
             "x_map": dict(zip(lp.names, x_map.tolist())),
+            "map_converged": map_info["converged"],
+            "map_message": map_info["message"],
             "mean": dict(zip(lp.names, summ["mean"].tolist())),
             "sd": dict(zip(lp.names, summ["sd"].tolist())),
             "corr": summ["corr"].tolist(),

@@ -5,7 +5,7 @@ One file per concept: :mod:`.priors`, :mod:`.log_posterior`, :mod:`.backend`, :m
 """
 
 from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, load_run, write_group
-from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics, flat_samples, summarize
+from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics, flat_samples, split_rhat, summarize
 from lightfit.inference.mcmc.log_posterior import LogPosterior
 from lightfit.inference.mcmc.priors import (
     NOISE_SCALE,
@@ -38,6 +38,7 @@ __all__ = [
     "load_run",
     "priors_table",
     "sample",
+    "split_rhat",
     "summarize",
     "write_group",
 ]

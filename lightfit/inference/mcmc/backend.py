@@ -19,6 +19,7 @@ fail and is simply retried, :func:`load_run` does so).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import os
@@ -32,7 +33,7 @@ import h5py
 import numpy as np
 
 from lightfit.errors import InputError
-from lightfit.inference.mcmc.diagnostics import diagnostics
+from lightfit.inference.mcmc.diagnostics import StopRule
 
 
 def open_h5(path: str | Path, mode: str = "r") -> h5py.File:
@@ -213,7 +214,11 @@ def _load_run(path: Path, group: str) -> dict:
         }
         if "analysis" in f:
             out["analysis"] = _read_group(f["analysis"])
-    out["diagnostics"] = diagnostics(out["chain"], out["accepted"], names=out["names"])
+    # With the run's own stop rule (its burn-in and τ multiple), as the sampler judged the run.
+    rule = out["attrs"].get("stop_rule")
+    known = {f.name for f in dataclasses.fields(StopRule)}
+    stop = StopRule(**{k: v for k, v in rule.items() if k in known}) if isinstance(rule, dict) else StopRule()
+    out["diagnostics"] = stop.diagnostics(out["chain"], out["accepted"], names=out["names"])
     return out
 
 

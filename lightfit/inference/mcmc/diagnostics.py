@@ -4,7 +4,15 @@ Stop rule (checked every ``check_every`` steps, on the chain after discarding th
 ``burn_fraction``): integrated autocorrelation time τ_j per parameter (emcee's estimator),
 effective sample size ESS_j = n_walkers · n_kept / τ_j, and the run stops when for every parameter
 n_kept ≥ ``tau_multiple`` · τ_j (τ reliable), τ changed by < ``tau_rtol`` since the last check,
-and ESS_j ≥ ``target_ess``. Acceptance fractions outside [0.15, 0.8] are flagged.
+ESS_j ≥ ``target_ess`` and the walkers agree, split-R̂_j < ``rhat_max``. Acceptance fractions
+outside [0.15, 0.8] are flagged.
+
+τ is estimated per walker about the walker's own mean, so it cannot see walkers that sit in
+separate modes: the stretch move rarely carries a walker from one well-separated mode to another,
+and the modes then keep the shares of walkers they started with. Split-R̂ (Gelman et al. 2013,
+BDA3 §11.4: each walker's kept half-chains as chains, √(var⁺/W)) compares the walkers with each
+other and is ≫ 1 then (≈ 14 for a two-mode target with walkers stuck apart, 1.07–1.10 for a
+unimodal one when the other criteria are met). It cannot see a mode that no walker found.
 """
 
 from __future__ import annotations
@@ -17,15 +25,36 @@ import numpy as np
 from lightfit.errors import InputError
 
 
+def split_rhat(kept: np.ndarray) -> np.ndarray:
+    """Split-R̂ per parameter of an ensemble's kept chain (n_kept, n_walkers, ndim): each walker's
+    two halves as chains, √(((n − 1)/n · W + B/n) / W) with W the mean within-chain variance and B
+    n times the variance of the chain means (Gelman et al. 2013, BDA3 §11.4); NaN below 4 steps."""
+    n = len(kept) // 2
+    if n < 2:
+        return np.full(kept.shape[-1], np.nan)
+    halves = np.concatenate([kept[:n], kept[n : 2 * n]], axis=1)
+    within = halves.var(axis=0, ddof=1).mean(axis=0)
+    between = n * halves.mean(axis=0).var(axis=0, ddof=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(((n - 1) / n * within + between / n) / within)
+
+
 def diagnostics(
-    chain: np.ndarray, accepted: np.ndarray | None = None, *, burn_fraction: float = 0.25, names=None, c: float = 5.0
+    chain: np.ndarray,
+    accepted: np.ndarray | None = None,
+    *,
+    burn_fraction: float = 0.25,
+    names=None,
+    c: float = 5.0,
+    tau_multiple: float = 50.0,
 ) -> dict:
     """Convergence diagnostics of an ensemble chain of shape (n_steps, n_walkers, ndim).
 
     Returns a dict: ``n_steps``, ``n_kept`` (after discarding ``burn_fraction``), ``tau`` (integrated
     autocorrelation time per parameter, in steps; emcee's estimator with window constant ``c``),
-    ``ess`` (n_walkers · n_kept / τ), ``acceptance`` (per walker, if given) with its mean,
-    ``tau_reliable`` (n_kept ≥ 50 τ, emcee's recommendation) and ``names``.
+    ``ess`` (n_walkers · n_kept / τ), ``rhat`` (:func:`split_rhat`), ``acceptance`` (per walker, if
+    given) with its mean, ``tau_reliable`` (n_kept ≥ ``tau_multiple`` τ: 50 is emcee's rule of
+    thumb; a run's stop rule passes its own, ``tau_multiple`` records which) and ``names``.
     """
     chain = np.asarray(chain)
     if chain.ndim != 3:
@@ -48,7 +77,9 @@ def diagnostics(
         "burn": burn,
         "tau": tau,
         "ess": ess,
-        "tau_reliable": bool(np.all(len(kept) >= 50 * tau)),
+        "rhat": split_rhat(kept),
+        "tau_multiple": float(tau_multiple),
+        "tau_reliable": bool(np.all(len(kept) >= tau_multiple * tau)),
     }
     if accepted is not None:
         acc = np.asarray(accepted, float) / max(n, 1)
@@ -60,7 +91,9 @@ def diagnostics(
 
 @dataclass
 class StopRule:
-    """When to stop: every parameter has n_kept ≥ tau_multiple·τ, |Δτ/τ| < tau_rtol and ESS ≥ target_ess."""
+    """When to stop: every parameter has n_kept ≥ tau_multiple·τ, |Δτ/τ| < tau_rtol, ESS ≥ target_ess
+    and split-R̂ < rhat_max (module docstring). Once n_kept ≥ tau_multiple·τ, ESS ≥ tau_multiple ·
+    n_walkers (640 with the defaults and 32 walkers), so ``target_ess`` binds only above that."""
 
     target_ess: float = 50.0
     tau_multiple: float = 20.0
@@ -68,6 +101,7 @@ class StopRule:
     check_every: int = 50
     burn_fraction: float = 0.25
     min_steps: int = 100
+    rhat_max: float = 1.2
 
     def __post_init__(self):
         if not self.target_ess > 0:  # 0 or less: the first check would stop any chain
@@ -79,7 +113,15 @@ class StopRule:
         if d["n_steps"] < self.min_steps or not np.all(np.isfinite(tau)) or tau_prev is None:
             return False
         stable = np.all(np.abs(tau - tau_prev) / tau < self.tau_rtol)
-        return bool(stable and np.all(d["n_kept"] >= self.tau_multiple * tau) and np.all(d["ess"] >= self.target_ess))
+        agree = np.all(np.asarray(d["rhat"]) < self.rhat_max)
+        return bool(
+            stable and agree and np.all(d["n_kept"] >= self.tau_multiple * tau) and np.all(d["ess"] >= self.target_ess)
+        )
+
+    def diagnostics(self, chain: np.ndarray, accepted: np.ndarray | None = None, names=None) -> dict:
+        """:func:`diagnostics` with this rule's burn-in and τ multiple (and its ``rhat_max``)."""
+        d = diagnostics(chain, accepted, burn_fraction=self.burn_fraction, names=names, tau_multiple=self.tau_multiple)
+        return d | {"rhat_max": self.rhat_max}
 
 
 def flat_samples(run, burn_fraction: float = 0.25, thin: int = 1) -> np.ndarray:
@@ -102,4 +144,4 @@ def summarize(samples: np.ndarray, names) -> dict:
     }
 
 
-__all__ = ["StopRule", "diagnostics", "flat_samples", "summarize"]
+__all__ = ["StopRule", "diagnostics", "flat_samples", "split_rhat", "summarize"]

@@ -74,8 +74,15 @@ class Prior:
             return rng.uniform(lo, hi, n)
         if self.kind == "loguniform":
             return np.exp(rng.uniform(math.log(lo), math.log(hi), n))
-        out = np.exp(math.log(self.a) + self.b * rng.standard_normal(n))
-        return np.clip(out, lo, hi)
+        # Truncated, not clipped: clipping piled the draws outside the support onto its bounds (a
+        # quarter of the walkers at each bound of a wide log-normal), which the density has not.
+        # Inverse CDF of the normal in log space between the bounds' quantiles.
+        from scipy.stats import norm
+
+        mu, sd = math.log(self.a), self.b
+        q = [norm.cdf((math.log(v) - mu) / sd) if 0 < v < math.inf else float(v > 0) for v in (lo, hi)]
+        u = rng.uniform(q[0], q[1], n)
+        return np.clip(np.exp(mu + sd * norm.ppf(u)), lo, hi)  # the clip only rounds the ends
 
 
 _F0 = "F0 = 0.08·specular (lightfit.light.bsdf)"

@@ -22,7 +22,7 @@ import numpy as np
 
 from lightfit.errors import InputError, check_integer
 from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, open_h5, stored_run, writer_lock
-from lightfit.inference.mcmc.diagnostics import StopRule, diagnostics
+from lightfit.inference.mcmc.diagnostics import StopRule
 from lightfit.killpoint import kill_point
 from lightfit.progress import progress_bar
 
@@ -185,7 +185,7 @@ def _sample(
                 raise
             stopped_by = "interrupted"
     chain = backend.get_chain()
-    d = diagnostics(chain, backend.accepted, burn_fraction=(stop or StopRule()).burn_fraction, names=names)
+    d = (stop or StopRule()).diagnostics(chain, backend.accepted, names=names)
     d["rule_met"] = stopped_by == "rule"
     with open_h5(path, "a") as f:
         f[group].attrs["diagnostics"] = json.dumps(jsonable(d))
@@ -235,7 +235,7 @@ class _Checks:
         return self.stop is not None and step > 0 and step % self.stop.check_every == 0
 
     def _diagnostics(self, chain, accepted) -> dict:
-        return diagnostics(chain, accepted, burn_fraction=self.stop.burn_fraction, names=self.names)
+        return self.stop.diagnostics(chain, accepted, names=self.names)
 
     def met(self, step: int) -> bool:
         """Check the rule at ``step`` (the last stored step), record τ and ESS, return whether it is met."""
