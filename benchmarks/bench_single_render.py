@@ -14,7 +14,10 @@ machine's speed can be checked against the goal in a few minutes. Times scale to
 
 ``--sheaths``: the leaf sheaths' layout (``Field.sheaths``, default the model's default); several,
 comma-separated, are measured one after the other in one process (a side-by-side ratio), and the
-JSON then holds one result per layout under ``runs``.
+JSON then holds one result per layout under ``runs``. ``--sky-continued-share``: the share q of the
+sky's rays continued after their first hit (``projection.CONTINUED_SHARE["sky"]``, 0.25 in the
+library: a day casts the sky once and its continuation serves every step); several values are
+measured in turn the same way. The value is set for this process only, as an experiment.
 
 Writes benchmarks/results/single_render.json and prints a table, with the commit and the load
 average (the 2 cores are shared: absolute times move with the machine, see docs/light.md).
@@ -45,7 +48,13 @@ OUT = Path(__file__).resolve().parent / "results" / "single_render.json"
 GOAL_S = 60.0
 
 
-def main(n_plants: int, samples: int, rays: tuple[float, float], sheaths: str = SHEATHS[0]) -> dict:
+def main(
+    n_plants: int, samples: int, rays: tuple[float, float], sheaths: str = SHEATHS[0], q_sky: float | None = None
+) -> dict:
+    from lightfit.light import projection
+
+    if q_sky is not None:
+        projection.CONTINUED_SHARE["sky"] = q_sky
     load_start = os.getloadavg()[0]
     t = time.perf_counter()
     geom, fs, ids, bounces = periodic_cell(n_plants, sheaths)
@@ -58,6 +67,7 @@ def main(n_plants: int, samples: int, rays: tuple[float, float], sheaths: str = 
         "cpu_cores": os.cpu_count(),
         "n_plants": n_plants,
         "sheaths": sheaths,
+        "sky_continued_share": projection.CONTINUED_SHARE["sky"],
         "segments": len(ids),
         "bounces": bounces,
         "build_s": t_build,
@@ -71,7 +81,7 @@ def main(n_plants: int, samples: int, rays: tuple[float, float], sheaths: str = 
 def table(res: dict) -> Table:
     t = Table(
         title=f"one render, {res['n_plants']} plants ({res['segments']} segments), K = {res['samples']}, "
-        f"{res['sheaths']} sheaths"
+        f"{res['sheaths']} sheaths, sky continued share {res['sky_continued_share']:g}"
     )
     t.add_column("median SE is", justify="left")
     t.add_column("median", justify="right")
@@ -95,13 +105,15 @@ if __name__ == "__main__":
     ap.add_argument(
         "--sheaths", default=SHEATHS[0], help="leaf sheath layout(s), comma-separated: " + ", ".join(SHEATHS)
     )
+    ap.add_argument("--sky-continued-share", default=None, help="q of the sky's continued rays, comma-separated")
     ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
     a = ap.parse_args()
     sun, sky = (float(x) for x in a.rays.split(","))
     layouts = a.sheaths.split(",")
     for x in layouts:
         check_sheaths(x)
-    runs = [main(a.n_plants, a.samples, (sun, sky), x) for x in layouts]
+    shares = [None] if a.sky_continued_share is None else [float(q) for q in a.sky_continued_share.split(",")]
+    runs = [main(a.n_plants, a.samples, (sun, sky), x, q) for x in layouts for q in shares]
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float))
     console = Console()
