@@ -264,9 +264,9 @@ def _cautions(d: dict) -> list[str]:
     if rhat.size and np.nanmax(rhat) >= limit:
         i = int(np.nanargmax(rhat))
         out.append(
-            f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): they may sit in separate "
-            "modes, whose shares the ensemble cannot correct; the summary is not the posterior (the profile and "
-            "corner plot show where they are)"
+            f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): the chain has not mixed "
+            "yet (resume with a larger --max-steps), or they sit in separate modes, whose shares the ensemble "
+            "cannot correct; either way the summary is not the posterior (the corner plot shows where they are)"
         )
     if not d.get("tau_reliable", True):
         m = d.get("tau_multiple") or 50
