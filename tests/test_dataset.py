@@ -653,6 +653,12 @@ def test_an_interrupted_dataset_resumes(results_file, tmp_path, monkeypatch):
     spp2 = DatasetSpec(**{**spec.__dict__, "settings": RenderSettings(spp=2, colour="mono", seed=4)})
     again = make_dataset(results_file, other, spp2)
     assert rendered == ["se", "nw"] and again["cameras_taken_over"] == 0
+    # Options that change only what is written from the renders do not discard them.
+    third = tmp_path / "third"
+    interrupt(third, spec)
+    rendered.clear()
+    written = DatasetSpec(**{**spec.__dict__, "export": "none", "gallery_images": 1, "depth": False})
+    assert make_dataset(results_file, third, written)["cameras_taken_over"] == 1 and rendered == ["nw"]
 
 
 def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_file, monkeypatch):

@@ -936,6 +936,11 @@ def test_unclipped_rates_below_the_compensation_point_follow_farquhar():
     assert (np.asarray(an)[c < gs] < -rd).all()  # a release beyond Rd below Γ*
     an_clip, _, _ = assimilation(jnp.asarray(c), leaf, clip=True)
     np.testing.assert_allclose(np.asarray(an_clip)[c < gs], -rd)
+    # The solve's limitation label names the rate An took (the same rule, fvcb.limits).
+    from lightfit.photosynthesis.fvcb import limits
+
+    took_vc = np.isclose(np.asarray(an) + rd, np.asarray(vc))
+    np.testing.assert_array_equal(np.asarray(limits(jnp.asarray(c), gs, vj, vc)), ~took_vc)
 
 
 def _winter_wheat_leaf_from_the_papers(q, t_c, ca, rh, p_kpa, gb):

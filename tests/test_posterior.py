@@ -936,3 +936,21 @@ def test_summary_json_is_strict_json():
     assert out == {"width": None, "rows": [1.5, None], "arr": [None, 2.0], "n": 3}
     json.dumps(out, allow_nan=False)
     assert jsonable(d)["width"] == np.inf  # the default keeps what HDF5 attributes and resume keys store
+
+
+def test_cautions_say_what_the_numbers_cannot():
+    """R̂ not computable (fewer than 4 kept steps) is said, not taken for agreement (it printed an
+    All-NaN warning and no caution); a MAP search that ended no better than its start says so."""
+    import warnings
+
+    from lightfit.cli.posterior import _cautions
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lines = _cautions({"names": ["a"], "rhat": [float("nan")], "tau_reliable": True})
+    assert any("cannot be computed yet" in x for x in lines)
+    lines = _cautions(
+        {"names": ["a"], "rhat": [1.01], "map_converged": False, "map_message": "ABNORMAL", "map_kept_start": True}
+    )
+    assert lines == ["the MAP search did not converge (ABNORMAL): MAP is the best sample it started from"]
+    assert _cautions({"names": ["a"], "rhat": [1.01], "tau_reliable": True, "acceptance_ok": True}) == []

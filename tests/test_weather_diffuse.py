@@ -157,7 +157,7 @@ def test_a_dark_days_diffuse_in_kw_is_refused_too():
 def test_missing_values_through_the_api_are_refused_naming_the_column():
     df = _day(0.2)
     df.loc["2016-04-20 11:40", "diffuse_w_m2"] = np.nan
-    with pytest.raises(InputError, match=r"diffuse_w_m2.*lack global radiation or its diffuse part"):
+    with pytest.raises(InputError, match=r"diffuse_w_m2.*lack its diffuse part"):
         add_solar(df)
 
 
@@ -218,3 +218,39 @@ def test_measured_diffuse_par_is_the_canopys_diffuse_par():
     np.testing.assert_allclose((f.dni_par * sin_b + f.dhi_par)[high], out["par_umol_m2_s"].to_numpy()[high], rtol=1e-9)
     with pytest.raises(InputError, match="par_diffuse_umol_m2_s"):
         add_solar(df.assign(par_diffuse_umol_m2_s=3.0 * df["par_umol_m2_s"]))  # above PAR: swapped or in other units
+
+
+def test_a_csv_whose_diffuse_column_is_dropped_falls_back_to_erbs(tmp_path):
+    """A lightfit CSV written with the split 'diffuse' (its split_model line) whose diffuse column has
+    a gap at its start: the column is dropped (recorded) and the split falls back to Erbs, where the
+    file was refused as asking for a split it no longer had the column for."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    out = tmp_path / "d.csv"
+    assert CliRunner().invoke(app, ["weather", "show", "2016-04-20", "--csv", str(out)]).exit_code == 0
+    lines = out.read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.startswith("time_utc"))
+    col = lines[head].split(",").index("diffuse_w_m2")
+    cells = lines[head + 1].split(",")
+    cells[col] = ""
+    lines[head + 1] = ",".join(cells)
+    out.write_text("\n".join(lines) + "\n")
+    df = add_solar(read_weather(out))
+    assert "diffuse_w_m2" not in df.columns and df.attrs["split_model"] == "erbs"
+    assert any(q["kind"] == "dropped" for q in df.attrs["qc"])
+
+
+def test_a_night_offset_or_a_missing_global_value_is_told_apart():
+    """Diffuse above global at night (sensor offsets, no light to split) is not refused; a missing
+    global radiation at a daylight step is named as such, not as a missing diffuse value."""
+    df = _day(0.2)
+    night = (df["ghi_w_m2"] == 0).to_numpy()
+    df.loc[night, "diffuse_w_m2"] = 15.0  # above 1.15 × 0 + 10 W m⁻² at every night step
+    assert add_solar(df).attrs["split_model"] == "diffuse"
+    df = _day(0.2)
+    df.loc["2016-04-20 11:40", "ghi_w_m2"] = np.nan
+    with pytest.raises(InputError, match=r"lack global radiation \(first") as e:
+        add_solar(df)
+    assert e.value.column is None

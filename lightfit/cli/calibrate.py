@@ -221,7 +221,7 @@ def calibrate(
             "passed": tr.passed,
             "criterion": f"|full-render loss - surrogate loss| <= {tr.z:g} sigma_L at the optimum "
             "(sigma_L: Monte Carlo SD of the loss, lightfit.inference.trust_region)",
-            "loss_full": tr.loss_full,
+            "loss_full": tr.loss_full if math.isfinite(tr.loss_full) else None,  # strict JSON
             "renders_new": tr.rendered,
             "renders_cached": tr.cached,
             "sun_positions_rendered": tr.steps_rendered,
@@ -247,7 +247,7 @@ def calibrate(
         t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
     surrogate = tr is not None and tr.mode == "surrogate"
     t.add_row("loss ½ rᵀΣ⁻¹r" + (" (emulator)" if surrogate else ""), f"{res.loss:.4g}")
-    if surrogate and tr.loss_full is not None:
+    if surrogate and tr.loss_full is not None and math.isfinite(tr.loss_full):
         t.add_row("loss ½ rᵀΣ⁻¹r (full renders)", f"{tr.loss_full:.4g}")
     console.print(t)
     if tr is not None:

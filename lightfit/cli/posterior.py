@@ -258,11 +258,15 @@ def _cautions(d: dict) -> list[str]:
     multiple, an acceptance outside 0.15–0.8, a MAP the optimiser did not reach."""
     import numpy as np
 
+    from lightfit.inference.mcmc.diagnostics import ACCEPTANCE_OK, StopRule
+
     out = []
     names, rhat = list(d.get("names", [])), np.asarray(d.get("rhat", []), float)
-    limit = d.get("rhat_max", 1.2)
-    if rhat.size and np.nanmax(rhat) >= limit:
-        i = int(np.nanargmax(rhat))
+    limit = d.get("rhat_max", StopRule().rhat_max)
+    if rhat.size and np.isnan(rhat).any():
+        out.append("split-R̂ cannot be computed yet (fewer than 4 kept steps): nothing says the walkers agree")
+    elif rhat.size and rhat.max() >= limit:
+        i = int(np.argmax(rhat))
         out.append(
             f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): the chain has not mixed "
             "yet (resume with a larger --max-steps), or they sit in separate modes, whose shares the ensemble "
@@ -275,9 +279,13 @@ def _cautions(d: dict) -> list[str]:
             "are rough; resume with a larger --max-steps"
         )
     if not d.get("acceptance_ok", True):
-        out.append(f"acceptance {d.get('acceptance_mean', float('nan')):.2f} outside 0.15–0.8: the walkers move badly")
+        lo, hi = ACCEPTANCE_OK
+        out.append(
+            f"acceptance {d.get('acceptance_mean', float('nan')):.2f} outside {lo:g}–{hi:g}: the walkers move badly"
+        )
     if d.get("map_converged") is False:
-        out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is its last point")
+        where = "the best sample it started from" if d.get("map_kept_start") else "the best point it reached"
+        out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is {where}")
     return out
 
 
@@ -330,7 +338,13 @@ def _print_status(st: dict) -> None:
         f"max τ {np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else float('nan'):.1f}; "
         f"analysis {'written' if st['analysis'] else 'not written'}"
     )
-    for line in _cautions({"names": st["names"], **d, "acceptance_ok": True}):  # acceptance said above
+    ms = st.get("map_search") or {}
+    map_info = {
+        "map_converged": ms.get("converged"),
+        "map_message": ms.get("message"),
+        "map_kept_start": ms.get("kept_start"),
+    }
+    for line in _cautions({"names": st["names"], **d, "acceptance_ok": True, **map_info}):  # acceptance said above
         console.print(f"[yellow]caution[/]: {line}")
     if st["refused"]:
         console.print(

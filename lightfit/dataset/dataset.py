@@ -79,30 +79,34 @@ class DatasetSpec:
 UNFINISHED = ".unfinished"
 
 
-def _job_key(res: Results, spec: DatasetSpec, cams, tix, quantities) -> str | None:
-    """Hash of everything an image depends on (the results file's bytes, the spec, the cameras,
-    times and quantities, lightfit's version); ``None`` for results not read from a file, whose
-    renders are then never taken over."""
+def _job_key(arrays, cams, lights, settings: RenderSettings, materials: VisualMaterials) -> str:
+    """Hash of everything a camera's render depends on: the scene's arrays (geometry, colours,
+    transmission), the cameras, the lighting of each time, the render settings but its thread count,
+    the materials, the variant that would render and lightfit's version. Options that change only
+    what is written from the renders (labels, export, gallery) are not in it: those files are
+    written again from the kept renders."""
     import hashlib
 
-    if res.path is None:
-        return None
-    h = hashlib.sha256(res.path.read_bytes())
+    h = hashlib.sha256()
+    for a in (arrays.vertices, arrays.faces, arrays.face_rgb, arrays.face_transmission):
+        h.update(np.ascontiguousarray(a).tobytes())
     job = {
-        "spec": asdict(spec) | {"cameras": [c.to_dict() for c in cams]},
-        "times": [int(t) for t in tix],
-        "quantities": list(quantities),
+        "cameras": [c.to_dict() for c in cams],
+        "lights": [lt.to_dict() for lt in lights],
+        "settings": {k: v for k, v in asdict(settings).items() if k != "threads"},
+        "materials": asdict(materials),
+        "variant": variant_for(settings.colour)[0],
         "lightfit": lightfit.__version__,
     }
     h.update(json.dumps(job, sort_keys=True, default=str).encode())
     return h.hexdigest()[:32]
 
 
-def _unfinished(out: Path, job: str | None, started: bool) -> Path:
+def _unfinished(out: Path, job: str, started: bool) -> Path:
     """The marker folder of ``out``: kept with its rendered cameras when it is the same job's
     (``started``: an interrupted run left files), else (re)made empty for this job."""
     marker = out / UNFINISHED
-    if started and job is not None and marker.is_dir():
+    if started and marker.is_dir():
         try:
             if json.loads((marker / "job.json").read_text()).get("job") == job:
                 return marker
@@ -145,20 +149,20 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     geom = build_geometry(res, cache_dir=spec.cache_dir)
     cams = spec.cameras or camera_sweep(spec.sweep, canopy_height_m=_canopy_height(geom.segments))
     check_unique_names(cams)
-    marker = _unfinished(out, _job_key(res, spec, cams, tix, quantities), started)
-    for d in earlier:  # written again from the marker's cameras
-        shutil.rmtree(out / d)
     # A periodic field is one cell of an endless canopy: the scene repeats the cell as far as the
     # cameras see the ground (copies keep segment ids, so labels name the plant imaged).
     mesh, periodic = geom.mesh, None
     if geom.cell is not None:
         reach = view_reach_m(cams, geom.cell.center_xy, spec.materials.periodic_max_reach_m)
         mesh, periodic = periodic_canopy(geom.mesh, geom.cell, reach)
+    arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
+    marker = _unfinished(out, _job_key(arrays, cams, lights, spec.settings, spec.materials), started)
+    for d in earlier:  # written again from the marker's cameras
+        shutil.rmtree(out / d)
     kept = {c: load_camera(marker / f"camera_{c}.npz", len(lights)) for c in range(len(cams))}
     todo = [c for c, k in kept.items() if k is None]
     rendered = None
     if todo:
-        arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
         rendered = render(arrays, [cams[c] for c in todo], lights, spec.settings, spec.materials, todo, marker)
         for i, c in enumerate(todo):
             kept[c] = (rendered.radiance[i], rendered.face[i], rendered.depth_m[i])

@@ -26,6 +26,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -152,7 +153,7 @@ def load_camera(path: Path, n_lights: int) -> tuple[list[np.ndarray], np.ndarray
     try:
         with np.load(path) as z:
             return [z[f"radiance_{t}"] for t in range(n_lights)], z["face"], z["depth"]
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # damaged: rendered again
         return None
 
 

@@ -43,6 +43,7 @@ from lightfit.inference.mcmc import (
     write_group,
 )
 from lightfit.inference.mcmc.backend import drop_group, run_attrs, stored_run
+from lightfit.inference.mcmc.diagnostics import burn_in
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
@@ -305,9 +306,10 @@ def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict 
     r = minimize(
         fun, np.asarray(start, float), jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": maxiter}
     )
+    improved = r.fun <= fun(start)[0]
     if info is not None:
-        info.update(converged=bool(r.success), message=str(r.message))
-    return r.x if r.fun <= fun(start)[0] else np.asarray(start, float)
+        info.update(converged=bool(r.success), message=str(r.message), kept_start=not improved)
+    return r.x if improved else np.asarray(start, float)
 
 
 def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray, validation: dict) -> dict:
@@ -580,7 +582,7 @@ def run(
     samples = flat_samples({"chain": res.chain}, burn)
     summ = summarize(samples, lp.names)
     cov = np.cov(samples.T).reshape(len(lp.names), len(lp.names))
-    flat_lp = res.log_prob[int(burn * len(res.log_prob)) :].reshape(-1)
+    flat_lp = res.log_prob[burn_in(len(res.log_prob), burn) :].reshape(-1)
     map_info: dict = {}
     x_map = optimum(lp, samples[np.argmax(flat_lp)], info=map_info)
     fisher, profile = identifiability(lp, x_map, n_profile)
@@ -588,6 +590,7 @@ def run(
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
         "x_map": x_map,
         "log_prob_map": float(lp(x_map[None])[0]),
+        "map_search": map_info,  # posterior-status reads it: whether L-BFGS-B converged
         "fisher": fisher,
         "profile": profile,
         "predictive": predictive(lp, obs, model.times, samples, n_predictive, seed + 1),
@@ -609,6 +612,7 @@ def run(
             "x_map": dict(zip(lp.names, x_map.tolist())),
             "map_converged": map_info["converged"],
             "map_message": map_info["message"],
+            "map_kept_start": map_info["kept_start"],
             "mean": dict(zip(lp.names, summ["mean"].tolist())),
             "sd": dict(zip(lp.names, summ["sd"].tolist())),
             "corr": summ["corr"].tolist(),

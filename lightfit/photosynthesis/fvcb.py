@@ -6,7 +6,7 @@ float32 arithmetic well scaled.
 .. math::
     V_c = V_{cmax}\frac{c - \Gamma^*}{c + K_c(1 + O/K_o)},\qquad
     V_j = \frac{J}{4}\frac{c - \Gamma^*}{c + 2\Gamma^*},\qquad
-    A_n = \min(V_c, V_j) - R_d
+    A_n = \min(V_c, V_j) - R_d \quad (c > \Gamma^*;\ \max \text{ below it, see } :func:`limits`)
 
 with :math:`c` the CO2 mole fraction at the carboxylation site (chloroplast; equal to the
 intercellular value without mesophyll resistance).
@@ -107,6 +107,16 @@ def electron_limited_rate(
     return jnp.where(c_umol_mol > gamma_star_umol_mol, vj, 0.0) if clip else vj
 
 
+def limits(c_umol_mol: ArrayLike, gamma_star_umol_mol: ArrayLike, rate: ArrayLike, other: ArrayLike) -> jax.Array:
+    """Whether ``rate`` (Vc or Vj) limits assimilation against ``other``, strictly (ties: False).
+
+    The limiting process is the slower carboxylation, W = min(Wc, Wj), and both rates are
+    W·(1 − Γ*/c): above Γ* the smaller rate limits; below Γ* (unclipped rates) that factor is
+    negative, so the limiting one is the *larger* rate (the smaller release).
+    """
+    return jnp.where(jnp.asarray(c_umol_mol) < gamma_star_umol_mol, rate > other, rate < other)
+
+
 def assimilation(
     c_umol_mol: ArrayLike, leaf: LeafCapacities, clip: bool, tie_vc: ArrayLike | None = None
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -136,11 +146,7 @@ def assimilation(
     """
     vc = rubisco_limited_rate(c_umol_mol, leaf.vcmax_umol_m2_s, leaf.gamma_star_umol_mol, leaf.km_umol_mol, clip)
     vj = electron_limited_rate(c_umol_mol, leaf.j_umol_m2_s, leaf.gamma_star_umol_mol, clip)
-    # The limiting process is the slower carboxylation, W = min(Wc, Wj), and both rates are
-    # W·(1 − Γ*/c): below Γ* (unclipped rates) that factor is negative, so the limiting one is
-    # then the *larger* rate (the smaller release), not the smaller.
-    below = jnp.asarray(c_umol_mol) < leaf.gamma_star_umol_mol
-    limiting = jnp.where(below, vc > vj, vc < vj)
+    limiting = limits(c_umol_mol, leaf.gamma_star_umol_mol, vc, vj)
     take_vc = limiting if tie_vc is None else limiting | ((vc == vj) & tie_vc)
     return jnp.where(take_vc, vc, vj) - leaf.rd_umol_m2_s, vc, vj
 

@@ -5,7 +5,7 @@ mole fraction :math:`c_c` (equal to :math:`c_i` without mesophyll resistance). G
 :math:`c_c` every other quantity is explicit:
 
 .. math::
-    A_n = \min(V_c(c_c), V_j(c_c)) - R_d,\quad
+    A_n = \min(V_c(c_c), V_j(c_c)) - R_d \ (\text{above } \Gamma^*),\quad
     c_s = c_a - A_n/g_b,\quad g_s = g_s(A_n, c_s, D),\quad c_i = c_c + A_n/g_m,
 
 and the segment is at steady state when the demand equals the diffusive supply through
@@ -41,7 +41,7 @@ import optimistix as optx
 from jax.typing import ArrayLike
 
 from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
-from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities
+from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities, limits
 from .parameters import (
     DEFAULT_PARAMETER_SET,
     PhotosynthesisParams,
@@ -259,7 +259,8 @@ def _finish(
     checked = (f.an, f.gs, f.ci, f.cs, cc, f.vc, f.vj, *leaf, *(d for d in drivers if d is not None))
     finite = jnp.all(jnp.stack([jnp.isfinite(o) for o in jnp.broadcast_arrays(*checked)]), axis=0)
     finite = finite & _in_range(env) & params_in_domain(params)
-    limitation = jnp.where(f.vj < f.vc, ELECTRON_TRANSPORT_LIMITED, RUBISCO_LIMITED).astype(jnp.int8)
+    vj_limits = limits(cc, leaf.gamma_star_umol_mol, f.vj, f.vc)  # ties: Rubisco, as always
+    limitation = jnp.where(vj_limits, ELECTRON_TRANSPORT_LIMITED, RUBISCO_LIMITED).astype(jnp.int8)
     return PhotosynthesisResult(
         an_umol_m2_s=f.an,
         gs_mol_m2_s=f.gs,

@@ -44,7 +44,7 @@ from lightfit.errors import InputError, parse_date
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric
 from lightfit.weather.site import check_timezone
-from lightfit.weather.solar import SPLIT_MODELS
+from lightfit.weather.solar import check_split_model
 from lightfit.weather.timestamps import Timestamps
 
 TERENO_TZ = "Etc/GMT-1"  # POSIX sign convention: Etc/GMT-1 is UTC+1
@@ -821,13 +821,10 @@ def read_lightfit_csv(
         "qc": qc,
     }
     if "split_model" in meta:  # the split the file was written with, kept unless a command asks for another
-        if meta["split_model"] not in SPLIT_MODELS:
-            raise InputError(
-                f"metadata line '# split_model: {meta['split_model']}'",
-                file=path,
-                expected="one of " + ", ".join(SPLIT_MODELS),
-            )
-        out.attrs["split_model"] = meta["split_model"]
+        try:
+            out.attrs["split_model"] = check_split_model(meta["split_model"], where="# split_model")
+        except InputError as e:
+            raise e.in_file(path) from None
     return check_and_repair(out, lt, path, max_gap=max_gap)
 
 

@@ -282,6 +282,8 @@ def check_and_repair(
                         f"a gap {why}; the direct/diffuse split falls back to the other diffuse column, else Erbs",
                     )
                     df = df.drop(columns=col)
+                    if attrs.get("split_model") == "diffuse" and not set(OPTIONAL) & set(df.columns):
+                        attrs.pop("split_model")  # the file's split needed the column: the default decides
                     break
                 raise InputError(
                     _gap_problem(run, present, lines, attrs, col) + f", {why}",

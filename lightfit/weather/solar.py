@@ -64,6 +64,14 @@ def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFr
     return pd.DataFrame({"sun_elevation_deg": sp["apparent_elevation"], "sun_azimuth_deg": sp["azimuth"]}, index=times)
 
 
+def check_split_model(model, models=SPLIT_MODELS, where: str = "split_model") -> str:
+    """``model`` if it is one of ``models`` (:data:`SPLIT_MODELS` or a part of it), else InputError
+    naming ``where`` (the option, or a file's metadata line)."""
+    if model not in models:
+        raise InputError(f"unknown direct/diffuse split model {model!r}", column=where, expected=" or ".join(models))
+    return model
+
+
 def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, model: str = "erbs") -> pd.DataFrame:
     r"""Split global horizontal irradiance into direct normal and diffuse horizontal parts.
 
@@ -72,12 +80,7 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     Closure holds exactly: GHI = DNI·sin(elevation) + DHI. With the sun below the horizon all
     radiation is diffuse.
     """
-    if model not in SPLIT_MODELS[:2]:
-        raise InputError(
-            f"unknown direct/diffuse split model {model!r}",
-            column="split_model",
-            expected=" or ".join(SPLIT_MODELS[:2]),
-        )
+    check_split_model(model, ("erbs", "boland"))
     zenith = 90.0 - sun_elevation_deg
     times = ghi_w_m2.index
     if model == "erbs":
@@ -122,16 +125,18 @@ def check_diffuse(
     scale = bright / RATIO_MIN_GHI_W_M2
     total, diffuse = total.astype(float), diffuse.astype(float)
     up = sun_elevation_deg > 0.0
-    gap = up & (total.isna() | diffuse.isna())
-    if gap.any():
-        raise InputError(
-            f"{int(gap.sum())} step(s) with the sun up lack {what} or its diffuse part (first "
-            f"{total.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
-            file=file,
-            column=column,
-            expected="both values at every daylight step (fill the gaps, or drop the diffuse column)",
-        )
-    over = diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * total + scale * DIFFUSE_OVER_GLOBAL_W_M2
+    for missing, name, col in ((diffuse, "its diffuse part", column), (total, what, None)):
+        gap = up & missing.isna()
+        if gap.any():
+            raise InputError(
+                f"{int(gap.sum())} step(s) with the sun up lack {name} (first "
+                f"{total.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
+                file=file,
+                column=col,
+                expected=f"{what} and its diffuse part at every daylight step (fill the gaps, or drop the diffuse "
+                "column)",
+            )
+    over = up & (diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * total + scale * DIFFUSE_OVER_GLOBAL_W_M2)
     if over.sum() >= 2:
         i = int(np.argmax((diffuse - total).where(over, -np.inf).to_numpy()))
         raise InputError(
@@ -585,13 +590,10 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     has_diffuse = any(c in out.columns for c in DIFFUSE_COLUMNS)
     # Unasked, a series keeps the split it was given (a lightfit CSV's `split_model` line), else a
     # diffuse column decides.
-    split_model = split_model or out.attrs.get("split_model") or ("diffuse" if has_diffuse else "erbs")
-    if split_model not in SPLIT_MODELS:
-        raise InputError(
-            f"unknown direct/diffuse split model {split_model!r}",
-            column="split_model",
-            expected=" or ".join(SPLIT_MODELS),
-        )
+    asked = split_model is not None
+    split_model = check_split_model(
+        split_model or out.attrs.get("split_model") or ("diffuse" if has_diffuse else "erbs")
+    )
     qc = [q for q in qc if q["kind"] != "split"]  # a resampled series replaces its source's
     if split_model == "diffuse":
         split, detail = _split_by_diffuse(out, site, qc)
@@ -605,7 +607,8 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
                     "column": None,
                     "count": len(out),
                     "detail": f"the series' diffuse radiation is not used: DNI and DHI split from global "
-                    f"radiation by {split_model} as asked",
+                    f"radiation by {split_model}"
+                    + (" as asked" if asked else ", the split the series was written with (its split_model line)"),
                 }
             )
     out["dni_w_m2"], out["dhi_w_m2"] = split["dni_w_m2"], split["dhi_w_m2"]

@@ -267,6 +267,7 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
         "diagnostics": run["diagnostics"],
         "last_check": last,
         "analysis": "analysis" in run,
+        "map_search": run.get("analysis", {}).get("map_search"),
         "refused": int(a.get("refused", 0)),
     }
 

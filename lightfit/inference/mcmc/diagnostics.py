@@ -24,6 +24,15 @@ import numpy as np
 
 from lightfit.errors import InputError
 
+#: Acceptance fractions of a well-tuned stretch move (Foreman-Mackey et al. 2013); outside, flagged.
+ACCEPTANCE_OK = (0.15, 0.8)
+
+
+def burn_in(n_steps: int, burn_fraction: float) -> int:
+    """Steps discarded from the start of a chain of ``n_steps``: the one rule for the diagnostics,
+    the stop rule and the samples an analysis uses."""
+    return int(burn_fraction * n_steps)
+
 
 def split_rhat(kept: np.ndarray) -> np.ndarray:
     """Split-R̂ per parameter of an ensemble's kept chain (n_kept, n_walkers, ndim): each walker's
@@ -60,7 +69,7 @@ def diagnostics(
     if chain.ndim != 3:
         raise InputError(f"chain shape {chain.shape}", column="chain", expected="(n_steps, n_walkers, ndim)")
     n, w, d = chain.shape
-    burn = int(burn_fraction * n)
+    burn = burn_in(n, burn_fraction)
     kept = chain[burn:]
     if len(kept) < 2:
         tau = np.full(d, np.nan)
@@ -85,7 +94,7 @@ def diagnostics(
         acc = np.asarray(accepted, float) / max(n, 1)
         out["acceptance"] = acc
         out["acceptance_mean"] = float(acc.mean())
-        out["acceptance_ok"] = bool(0.15 <= acc.mean() <= 0.8)
+        out["acceptance_ok"] = bool(ACCEPTANCE_OK[0] <= acc.mean() <= ACCEPTANCE_OK[1])
     return out
 
 
@@ -127,7 +136,7 @@ class StopRule:
 def flat_samples(run, burn_fraction: float = 0.25, thin: int = 1) -> np.ndarray:
     """Post-burn-in samples of a run (from ``load_run`` or a ``SamplerResult``), shape (n, ndim)."""
     chain = run["chain"] if isinstance(run, dict) else run.chain
-    return chain[int(burn_fraction * len(chain)) :: thin].reshape(-1, chain.shape[-1])
+    return chain[burn_in(len(chain), burn_fraction) :: thin].reshape(-1, chain.shape[-1])
 
 
 def summarize(samples: np.ndarray, names) -> dict:
@@ -144,4 +153,4 @@ def summarize(samples: np.ndarray, names) -> dict:
     }
 
 
-__all__ = ["StopRule", "diagnostics", "flat_samples", "split_rhat", "summarize"]
+__all__ = ["ACCEPTANCE_OK", "StopRule", "burn_in", "diagnostics", "flat_samples", "split_rhat", "summarize"]
