@@ -247,6 +247,7 @@ def forcing(
     window: Window = Window(),
     site: Site = SELHAUSEN,
     provenance: str | None = None,
+    split_model: str | None = None,
 ) -> pd.DataFrame:
     """The run's steps, with solar columns for ``site``: the ``window`` (local time at the site) of each date.
 
@@ -255,7 +256,9 @@ def forcing(
     more dates (default 2016-04-20); an undated file (CPlantBox day) needs them given, and with
     several it is placed on each. Several dates give one series concatenated in time.
     ``provenance``: what the file is where it does not say (:func:`lightfit.weather.read_weather`;
-    a contradiction is refused). Errors name the file and the parameter (``date``,
+    a contradiction is refused). ``split_model``: the direct/diffuse split
+    (:func:`lightfit.weather.add_solar`; default: the series' diffuse column where it has one, else
+    Erbs). Errors name the file and the parameter (``date``,
     ``start/hours``) when the window is not covered.
     """
     given = dates is not None
@@ -273,7 +276,7 @@ def forcing(
     for d in dates:
         if src is None or undated:
             more = {} if provenance is None else {"provenance": provenance}
-            src = weather.add_solar(weather.read_source(source, date=d, **more), site=site)
+            src = weather.add_solar(weather.read_source(source, date=d, **more), site=site, split_model=split_model)
         t0, t1 = window.bounds_utc(d, site.timezone)
         if t0 < src.index[0] or t1 > src.index[-1]:
             raise InputError(

@@ -254,3 +254,23 @@ def test_a_night_offset_or_a_missing_global_value_is_told_apart():
     with pytest.raises(InputError, match=r"lack global radiation \(first") as e:
         add_solar(df)
     assert e.value.column is None
+
+
+def test_model_commands_take_the_split(tmp_path):
+    """`replicate --split erbs` runs the bundled day split by Erbs instead of its own diffuse column:
+    results.nc records the split, and the sky's share differs (Erbs puts more light in the sky)."""
+    import xarray as xr
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    runs = {}
+    for split in (None, "erbs"):
+        out = tmp_path / str(split)
+        args = ["replicate", "--quick", "--start-time", "11:00", "--hours", "1", "--out", str(out)]
+        r = CliRunner().invoke(app, args + ([] if split is None else ["--split", split]))
+        assert r.exit_code == 0, r.output
+        with xr.open_dataset(out / "results.nc", engine="h5netcdf") as ds:
+            runs[split] = (ds.attrs["weather_split_model"], ds["dhi_w_m2"].values.copy(), ds["dni_w_m2"].values.copy())
+    assert runs[None][0] == "diffuse" and runs["erbs"][0] == "erbs"
+    assert (runs["erbs"][1] > 1.2 * runs[None][1]).all() and (runs["erbs"][2] < runs[None][2]).all()

@@ -79,6 +79,7 @@ class ModelOptions:
     chlorophyll_ug_cm2: float | None = None
     weather_file: str | None = None
     weather_provenance: str | None = None
+    split: str | None = None
     how: str | None = None
     steps: str | None = None
     dates: list[str] | None = None
@@ -138,6 +139,7 @@ class ModelSettings:
     chlorophyll_ug_cm2: float | None
     weather_file: str | None
     weather_provenance: str | None
+    split: str | None
     how: str
     steps: str | None
     dates: tuple[str, ...]
@@ -406,6 +408,16 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             rich_help_panel=_WEATHER,
         ),
     ),
+    "split": (
+        str | None,
+        typer.Option(
+            "--split",
+            help="How the weather's global radiation is split into beam and sky: erbs, boland (decomposition "
+            "models) or diffuse (the series' own diffuse_w_m2 / par_diffuse_umol_m2_s column). Default: diffuse "
+            "where the series has such a column, else erbs.",
+            rich_help_panel=_WEATHER,
+        ),
+    ),
     "how": (
         str | None,
         typer.Option(
@@ -567,6 +579,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     from lightfit.photosynthesis import PARAMETER_SET_NAMES
     from lightfit.replication import ReplicationConfig
     from lightfit.weather.readers import WEATHER_PROVENANCES
+    from lightfit.weather.solar import check_split_model
 
     base = ReplicationConfig.quick() if opts.quick else ReplicationConfig()
     preset = "default" if opts.preset is None else opts.preset
@@ -603,6 +616,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         chlorophyll_ug_cm2=given(opts.chlorophyll_ug_cm2, base.chlorophyll_ug_cm2),
         weather_file=None if opts.weather_file is None else str(opts.weather_file),
         weather_provenance=opts.weather_provenance,
+        split=opts.split,
         how=given(opts.how, base.how),
         steps=opts.steps,
         dates=_dates(opts, base.dates),
@@ -634,6 +648,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             column="weather_provenance",
             expected=" / ".join(WEATHER_PROVENANCES),
         )
+    if s.split is not None:
+        check_split_model(s.split)
     if s.how not in ("sample", "mean"):
         raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
     option_error(s.window, "--start-time, --hours or --step")
@@ -844,7 +860,15 @@ def weather(s: ModelSettings):
 
     from lightfit.replication import days, forcing
 
-    w = forcing(s.weather_file, s.how, dates=s.dates, window=s.window(), site=s.site, provenance=s.weather_provenance)
+    w = forcing(
+        s.weather_file,
+        s.how,
+        dates=s.dates,
+        window=s.window(),
+        site=s.site,
+        provenance=s.weather_provenance,
+        split_model=s.split,
+    )
     if not s.steps:
         return w
     parts = [wd.iloc[_steps(s.steps, len(wd))] for _, wd in days(s.replication_config(), w)]
