@@ -767,7 +767,15 @@ RENDER_SETTINGS = (
     "site",
 )
 #: Settings that change the model's outputs: a resumed calibration or posterior needs the same values.
-MODEL_SETTINGS = (*RENDER_SETTINGS, "par_kind", "photosynthesis", "an_per", "soil_respiration", "soil_respiration_q10")
+MODEL_SETTINGS = (
+    *RENDER_SETTINGS,
+    "par_kind",
+    "photosynthesis",
+    "an_per",
+    "soil_respiration",
+    "soil_respiration_q10",
+    "split",  # the weather's beam/sky split (renders do not depend on it; the light parts' weights do)
+)
 
 
 def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTINGS) -> list[str]:
