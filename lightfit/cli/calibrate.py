@@ -247,7 +247,7 @@ def calibrate(
         t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
     surrogate = tr is not None and tr.mode == "surrogate"
     t.add_row("loss ½ rᵀΣ⁻¹r" + (" (emulator)" if surrogate else ""), f"{res.loss:.4g}")
-    if surrogate and tr.loss_full is not None and math.isfinite(tr.loss_full):
+    if surrogate and math.isfinite(tr.loss_full):
         t.add_row("loss ½ rᵀΣ⁻¹r (full renders)", f"{tr.loss_full:.4g}")
     console.print(t)
     if tr is not None:

@@ -309,6 +309,8 @@ def _print_status(st: dict) -> None:
     """The table of :func:`lightfit.inference.mcmc.backend.run_status`."""
     import numpy as np
 
+    from lightfit.inference.mcmc.diagnostics import ACCEPTANCE_OK
+
     d = st["diagnostics"]
     state = {"running": "running", "killed": "ended without finishing (resumable)"}.get(
         st["state"], f"stopped: {st['stopped_by']}"
@@ -328,7 +330,7 @@ def _print_status(st: dict) -> None:
     console.print(t)
     console.print(f"{st['steps']}/{st['max_steps']} steps, {state}")
     acc = d.get("acceptance_mean", float("nan"))
-    flag = "" if d.get("acceptance_ok", True) else " (outside 0.15–0.8)"
+    flag = "" if d.get("acceptance_ok", True) else " (outside {:g}–{:g})".format(*ACCEPTANCE_OK)
     check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
     rhat = np.asarray(d["rhat"], float)
     console.print(

@@ -128,11 +128,15 @@ def render(
     if not lights:
         raise InputError("no time steps to render", column="times", expected="at least one time step")
     variant, here = variant_for(settings.colour)
-    index = list(range(len(cameras))) if camera_index is None else [int(c) for c in camera_index]
     if here:
-        out = render_here(arrays, cameras, lights, settings, materials, variant, index, save_dir)
+        out = render_here(arrays, cameras, lights, settings, materials, variant, camera_index, save_dir)
         return RenderOutput(*out, variant=variant, in_process=True)
-    return _render_child(arrays, cameras, lights, settings, materials, variant, index, save_dir)
+    return _render_child(arrays, cameras, lights, settings, materials, variant, camera_index, save_dir)
+
+
+def _camera_index(cameras, camera_index) -> list[int]:
+    """Each camera's index in the whole set (:func:`render`): 0, 1, … unless given."""
+    return list(range(len(cameras))) if camera_index is None else [int(c) for c in camera_index]
 
 
 def save_camera(save_dir: Path, index: int, radiance: list[np.ndarray], face: np.ndarray, depth: np.ndarray) -> Path:
@@ -166,7 +170,7 @@ def render_here(arrays, cameras, lights, settings, materials, variant, camera_in
 
     if settings.threads is not None:
         dr.set_thread_count(int(settings.threads))
-    index = list(range(len(cameras))) if camera_index is None else camera_index
+    index = _camera_index(cameras, camera_index)
     scene_of = _SceneBuilder(mi, dr, arrays, materials)
     radiance, faces, depths = [], [], []
     for ci, cam in enumerate(cameras):
@@ -284,7 +288,7 @@ def _render_child(
             "settings": asdict(settings),
             "materials": asdict(materials),
             "variant": variant,
-            "camera_index": list(range(len(cameras))) if camera_index is None else [int(c) for c in camera_index],
+            "camera_index": _camera_index(cameras, camera_index),
             "save_dir": None if save_dir is None else str(save_dir),
             "n_plant_faces": arrays.n_plant_faces,
         }

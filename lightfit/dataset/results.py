@@ -152,11 +152,11 @@ def build_geometry(res: Results, cache_dir=None):
     from lightfit.plant import build, one_sided_area_m2
 
     fld = field_of(res)
-    stored = res.ds.attrs.get("growth_fingerprint")
-    if stored is not None and str(stored) != fld.growth.fingerprint():
+    stored, now = res.ds.attrs.get("growth_fingerprint"), fld.growth.fingerprint()
+    if stored is not None and str(stored) != now:
         raise InputError(
             f"the results' plants were grown from another plant file or CPlantBox version (growth fingerprint "
-            f"{stored}, now {fld.growth.fingerprint()}): the field rebuilt from its attrs would be another",
+            f"{stored}, now {now}): the field rebuilt from its attrs would be another",
             file=res.path or "results",
             expected="the plant parameter file and CPlantBox version of the run (or run the model again)",
         )

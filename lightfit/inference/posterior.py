@@ -293,7 +293,8 @@ def check_emulator_box(
 def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict | None = None) -> np.ndarray:
     """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start`` (kept where
     the optimiser ends no better). ``info``, if given, receives ``converged`` (the optimiser's own
-    success flag) and its ``message``, so that a MAP the optimiser did not reach is said so."""
+    success flag), its ``message`` and ``kept_start``, so that a MAP the optimiser did not reach is
+    said so."""
     from scipy.optimize import minimize
 
     bounds = [lp.priors[n].support for n in lp.names]

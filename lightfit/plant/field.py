@@ -141,7 +141,7 @@ class Field:
 
     def attrs(self) -> dict:
         """The field as netCDF attributes of a results file, what :meth:`from_attrs` rebuilds it from;
-        ``growth_fingerprint`` (:meth:`~lightfit.plant.growth.Growth.fingerprint`: the plant file's
+        ``growth_fingerprint`` (:meth:`~lightfit.plant.growth.GrowthConfig.fingerprint`: the plant file's
         contents, dates and CPlantBox version) tells whether a rebuild grows the same plants."""
         return {
             "growth_fingerprint": self.growth.fingerprint(),
