@@ -85,6 +85,8 @@ class ReplicationConfig:
     (:attr:`lightfit.model.scenario.Scenario.target_rse`).
     ``direct``: ``"auto"`` (default) → the direct light by projection in a periodic field, from the
     paths in a finite one; ``"projection"`` or ``"paths"`` to choose (:attr:`Scenario.direct`).
+    ``vcmax_profile``: photosynthetic capacity through the canopy (:attr:`Scenario.vcmax_profile`;
+    ``"auto"``: the set's own, Lloyd et al.'s profile for ``winter_wheat``, uniform for the paper's).
     ``direct_rays_per_m2``: the projection's (sun, sky) rays per m² of ground
     (:attr:`Scenario.direct_rays_per_m2`; more rays, less per-segment noise, docs/light.md
     "Recommended settings").
@@ -109,6 +111,7 @@ class ReplicationConfig:
     soil_respiration_q10: float = Scenario.soil_respiration_q10
     how: str = "sample"
     photosynthesis: str = Scenario.photosynthesis
+    vcmax_profile: str | float = Scenario.vcmax_profile
     optics: str = DEFAULT_PRESET
     chlorophyll_ug_cm2: float | None = None
     dates: tuple[str, ...] = (DEFAULT_DATE,)
@@ -339,6 +342,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         soil_respiration_umol_m2_s=cfg.soil_respiration_umol_m2_s,
         soil_respiration_q10=cfg.soil_respiration_q10,
         photosynthesis=cfg.photosynthesis,
+        vcmax_profile=cfg.vcmax_profile,
         optics=optics,
     )
 

@@ -1,5 +1,6 @@
 """The coupled-model package: ground area, the one observation operator on every path, the results schema."""
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -103,7 +104,16 @@ def test_observables_against_an_independent_computation(model, full, weather):
     env = [
         np.broadcast_to(weather[c].to_numpy(float)[:, None], q.shape) for c in ("tair_c", "co2_ppm", "rh", "pair_kpa")
     ]
-    params = model.operator.photosynthesis_params(THETA.vcmax_scale)
+    # Each blade a leaf of its own capacity (the default profile): the set's Vcmax (so Jmax, Rd) and
+    # g0 times its factor, solved directly, not through the operator's scaling identity.
+    m = model.operator.capacity
+    assert m is not None and 0 < m.min() < 0.8 and m.max() <= 1.0  # the top blade may be a buffer plant's
+    p = model.operator.photosynthesis_params(THETA.vcmax_scale)
+    params = eqx.tree_at(
+        lambda x: (x.fvcb.vcmax_ref_umol_m2_s, x.stomata.g0_mol_m2_s),
+        p,
+        (p.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(m), p.stomata.g0_mol_m2_s * jnp.asarray(m)),
+    )
 
     def an(x):
         return np.asarray(solve(jnp.asarray(x), *env, params).an_umol_m2_s)

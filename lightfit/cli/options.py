@@ -71,6 +71,7 @@ class ModelOptions:
     render_seed: int | None = None
     par_kind: str | None = None
     photosynthesis: str | None = None
+    vcmax_profile: str | None = None
     an_per: str | None = None
     soil_respiration: float | None = None
     soil_respiration_q10: float | None = None
@@ -131,6 +132,7 @@ class ModelSettings:
     render_seed: int
     par_kind: str
     photosynthesis: str
+    vcmax_profile: str | float
     an_per: str
     soil_respiration: float
     soil_respiration_q10: float
@@ -179,6 +181,7 @@ class ModelSettings:
             soil_respiration_q10=self.soil_respiration_q10,
             how=self.how,
             photosynthesis=self.photosynthesis,
+            vcmax_profile=self.vcmax_profile,
             optics=self.optics,
             chlorophyll_ug_cm2=self.chlorophyll_ug_cm2,
             dates=self.dates,
@@ -331,6 +334,17 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "--photosynthesis",
             help="Photosynthesis parameter set: winter_wheat, cplantbox, giraud2023 or giraud2023_coupled "
             f"(default: the main job's, {Scenario.photosynthesis}; docs/photosynthesis.md).",
+            rich_help_panel=_PHOTO,
+        ),
+    ),
+    "vcmax_profile": (
+        str | None,
+        typer.Option(
+            "--vcmax-profile",
+            help="Photosynthetic capacity through the canopy: lloyd2010 (Vcmax, Jmax, Rd fall as exp(-kn L) "
+            "with the leaf area L above a blade, kn from the set's Vcmax25), uniform (every blade alike, as "
+            "the reference paper), kn itself (a number >= 0 per unit LAI), or auto (default: the set's own, "
+            "lloyd2010 for winter_wheat, uniform for the CPlantBox sets; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,
         ),
     ),
@@ -576,7 +590,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         main_job_samples,
         resolve_direct,
     )
-    from lightfit.photosynthesis import PARAMETER_SET_NAMES
+    from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
+    from lightfit.photosynthesis.canopy import profile_for, resolve_kn
     from lightfit.replication import ReplicationConfig
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
@@ -608,6 +623,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         render_seed=given(opts.render_seed, base.render_seed),
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
+        vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
         soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
@@ -630,6 +646,9 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         raise InputError(
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
+    profile = profile_for(s.vcmax_profile, s.photosynthesis)
+    resolve_kn(profile, parameter_set(s.photosynthesis))
+    s = dataclasses.replace(s, vcmax_profile=profile)  # stored resolved: what the run used
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
@@ -771,6 +790,7 @@ MODEL_SETTINGS = (
     *RENDER_SETTINGS,
     "par_kind",
     "photosynthesis",
+    "vcmax_profile",
     "an_per",
     "soil_respiration",
     "soil_respiration_q10",
@@ -793,6 +813,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     # Settings stored before a key existed ran with what is now its default.
     before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths", "sheaths": "rods"}
     before |= {"soil_respiration": SOIL_RESPIRATION_UMOL_M2_S, "soil_respiration_q10": SOIL_RESPIRATION_Q10}
+    before["vcmax_profile"] = "uniform"  # before capacity profiles every blade had the set's
     before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]

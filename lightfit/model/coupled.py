@@ -35,6 +35,7 @@ from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denomina
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
 from lightfit.photosynthesis import parameter_set
+from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, resolve_kn
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
 from lightfit.progress import progress_bar
@@ -106,6 +107,10 @@ class CoupledModel:
                 expected="plants grown long enough to have leaves",
             )
         self.ground_area_m2 = sc.ground_area_m2
+        params = parameter_set(sc.photosynthesis)
+        #: capacity profile's kn (per unit LAI) and each blade's LAI above it and capacity factor
+        self.kn = resolve_kn(sc.vcmax_profile, params)
+        self.lai_above = self._lai_above()
         w = sc.weather
         self.times = w.index
         #: what ``times`` label: the forcing's :class:`~lightfit.weather.timestamps.Timestamps`
@@ -119,14 +124,29 @@ class CoupledModel:
             is_blade=self.is_blade,
             par_kind=sc.par_kind,
             denominator_m2=an_denominator(self.area_m2[self.is_blade], sc.an_per, self.ground_area_m2),
-            params=parameter_set(sc.photosynthesis),
+            params=params,
             ground_area_m2=self.ground_area_m2,
             sun_elevation_deg=self.sun_deg[:, 0].copy(),
             soil_respiration_umol_m2_s=sc.soil_respiration_umol_m2_s,
             soil_respiration_q10=sc.soil_respiration_q10,
             sensors=tuple(s.name for s in self.sensors),
+            capacity=None if self.kn == 0 else capacity_factor(self.lai_above, self.kn),
         )
         self.light = self.render if light is None else light
+
+    def _lai_above(self) -> np.ndarray:
+        """(B,) each measured blade's cumulative LAI above its centre (m² m⁻²), from every blade the
+        geometry grew (measured and buffer plants) over the ground those plants stand on: a
+        horizontally uniform canopy, and the same for every tile of a distributed run that grows
+        the same plants."""
+        seg = self.geometry.segments
+        blade = organ_class(seg) == "blade"
+        z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())
+        ground = seg["plant_id"].nunique() * self.scenario.field.area_per_plant_m2
+        lai = pd.Series(
+            leaf_area_above(z[blade], one_sided_area_m2(seg)[blade], ground), index=seg["segment_id"].to_numpy()[blade]
+        )
+        return lai.loc[self.segment_id[self.is_blade]].to_numpy()
 
     @property
     def n_columns(self) -> int:
@@ -258,6 +278,7 @@ class CoupledModel:
             o["absorbed_par_mc_sd_umol_m2_s"][:, b],
             self.forcing,
             self.operator.photosynthesis_params(th.vcmax_scale),
+            leaf=self.operator.leaf(),
         )
         canopy_bias = area_total(an_bias, jnp.zeros_like(an_bias), self.area_m2[b], self.operator.denominator_m2)[0]
         T, S = len(self.times), len(self.segment_id)
@@ -302,6 +323,11 @@ class CoupledModel:
                 "is_blade": ("segment", self.is_blade),
             },
         )
+        ds["leaf_area_above"] = ("segment", np.where(self.is_blade, 0.0, np.nan))
+        ds["leaf_area_above"].values[b] = self.lai_above
+        ds["capacity_factor"] = ("segment", np.where(self.is_blade, 1.0, np.nan))
+        if self.operator.capacity is not None:
+            ds["capacity_factor"].values[b] = self.operator.capacity
         sc = self.scenario
         if sc.target_rse is not None:
             alloc = self.irradiance.allocation(sc.seed)
@@ -338,6 +364,8 @@ class CoupledModel:
             **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
+            "vcmax_profile": str(sc.vcmax_profile),
+            "kn_per_lai": self.kn,
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,
             "soil_respiration_umol_m2_s": self.operator.soil_respiration_umol_m2_s,

@@ -358,6 +358,44 @@ def exact_leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafRespons
     return LeafResponse(res.an_umol_m2_s, dan, res.converged, res)
 
 
+def with_capacity(leaf: LeafPhotosynthesis, capacity) -> LeafPhotosynthesis:
+    r"""``leaf`` for blades whose per-area capacity is ``capacity`` (B,) times the parameter set's
+    (:mod:`lightfit.photosynthesis.canopy`; ``None``: ``leaf`` itself).
+
+    A leaf with every per-area rate and conductance (Vcmax, Jmax, Rd, g0, gm) times r at absorbed
+    PAR q is that leaf at q/r with its fluxes times r: An = r·A(q/r), dAn/dq = A'(q/r); gs, Vc, Vj
+    and Rd times r, ci, cs, cc and the limitation unchanged (exact with cs = ca, the coupled
+    model's leaf without a boundary layer). The base leaf is the lowest capacity m₀ of the blades
+    (the set's parameters scaled once, shared by all, so a tabulated leaf still tabulates one leaf
+    per step) and r = m/m₀ ≥ 1, so q/r ≤ q stays within the range the solver accepts.
+    """
+    if capacity is None:
+        return leaf
+    m = np.asarray(capacity, np.float64)
+    m0 = float(m.min())
+    r = jnp.asarray(m / m0)
+
+    def profiled(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
+        base = eqx.tree_at(
+            lambda p: (p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.gm_mol_m2_s, p.stomata.g0_mol_m2_s),
+            params,
+            (params.fvcb.vcmax_ref_umol_m2_s * m0, params.fvcb.gm_mol_m2_s * m0, params.stomata.g0_mol_m2_s * m0),
+        )
+        out = leaf(q / r, forcing, base)
+        res = out.result
+        if res is not None:
+            res = res._replace(
+                an_umol_m2_s=r * res.an_umol_m2_s,
+                gs_mol_m2_s=r * res.gs_mol_m2_s,
+                vc_umol_m2_s=r * res.vc_umol_m2_s,
+                vj_umol_m2_s=r * res.vj_umol_m2_s,
+                rd_umol_m2_s=r * res.rd_umol_m2_s,
+            )
+        return LeafResponse(r * out.an, out.dan_dq, out.converged, res)
+
+    return profiled
+
+
 def an_noise_bias(
     q,
     q_mc_sd,
@@ -460,6 +498,9 @@ class ObservationOperator:
             S segments' as the last columns of the light parts (the first, a ceptometer on the
             soil, gives the ``transmitted_par`` and ``ceptometer_*`` observables). Parts without
             those columns (e.g. zero daytime steps) give NaN there (0 when no step is lit).
+        capacity: (B,) each blade's photosynthetic capacity per area relative to the parameter
+            set's (:mod:`lightfit.photosynthesis.canopy`, dimensionless); ``None``: every blade the
+            set's. Applied to whatever leaf evaluator the operator is called with (:meth:`leaf`).
     """
 
     forcing: Forcing
@@ -473,6 +514,7 @@ class ObservationOperator:
     soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S
     soil_respiration_q10: float = SOIL_RESPIRATION_Q10
     sensors: tuple[str, ...] = ()
+    capacity: np.ndarray | None = None
 
     @property
     def blades(self) -> np.ndarray:
@@ -494,6 +536,10 @@ class ObservationOperator:
         sd = jnp.sqrt((dni * se[:, sun]) ** 2 + (dhi * se[:, sky]) ** 2)
         zeros = jnp.zeros((len(fc.day), values.shape[-1]))
         return zeros.at[day].set(x), zeros.at[day].set(sd)
+
+    def leaf(self, leaf: LeafPhotosynthesis = exact_leaf) -> LeafPhotosynthesis:
+        """``leaf`` evaluated for these blades' capacities (:func:`with_capacity`)."""
+        return with_capacity(leaf, self.capacity)
 
     def photosynthesis_params(self, vcmax_scale) -> PhotosynthesisParams:
         p = self.params
@@ -529,7 +575,7 @@ class ObservationOperator:
         b = self.blades
         q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
         _check_leaf_light(q, theta.light_factor)
-        r = leaf(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
+        r = self.leaf(leaf)(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
         an_sd = jax.lax.stop_gradient(jnp.abs(r.dan_dq)) * out["absorbed_par_mc_sd_umol_m2_s"][:, b]
         f = jnp.asarray(theta.light_factor, jnp.float64)
         above = above_canopy_par(
@@ -660,6 +706,7 @@ __all__ = [
     "ceptometer_transmittance",
     "chamber_nee",
     "exact_leaf",
+    "with_capacity",
     "fapar",
     "mc_covariance",
     "observables",

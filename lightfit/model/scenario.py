@@ -32,6 +32,8 @@ from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
 from lightfit.model.parameters import Theta
+from lightfit.photosynthesis import parameter_set
+from lightfit.photosynthesis.canopy import profile_for, resolve_kn
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
 from lightfit.weather.solar import par_direct_diffuse
@@ -271,6 +273,14 @@ class Scenario:
             :func:`lightfit.light.sensors.default_sensors`) above the soil, m: 0 (default) reads
             the PAR transmitted to the soil, a height inside the canopy the PAR transmitted to it.
         photosynthesis: parameter-set name (``lightfit.photosynthesis.parameter_set``).
+        vcmax_profile: photosynthetic capacity through the canopy (:mod:`lightfit.photosynthesis.canopy`):
+            ``"lloyd2010"`` (Vcmax, Jmax, Rd fall as exp(−kn·L) with the leaf area L above a blade,
+            kn from the set's Vcmax25 after Lloyd et al. 2010: 0.23 for ``winter_wheat``),
+            ``"uniform"`` (every blade the set's capacity, as the reference paper), kn itself (a
+            number ≥ 0 per unit LAI), or ``"auto"`` (default): the set's own
+            (:data:`~lightfit.photosynthesis.canopy.SET_PROFILES`: Lloyd's for ``winter_wheat``,
+            uniform for the CPlantBox-derived sets). Resolved at construction (the attribute then
+            names the one used).
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
         an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area of the
             measured plants) for canopy net CO2 uptake.
@@ -300,6 +310,7 @@ class Scenario:
     direct_rays_per_m2: tuple[float, float] | float = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
     photosynthesis: str = "winter_wheat"
+    vcmax_profile: str | float = "auto"
     par_kind: str = "absorbed"
     an_per: str = "ground"
     optics: Optics = dc_field(default_factory=lambda: Optics.preset(DEFAULT_PRESET))
@@ -327,6 +338,8 @@ class Scenario:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         check_choice("par_kind", self.par_kind)
         check_choice("an_per", self.an_per)
+        self.vcmax_profile = profile_for(self.vcmax_profile, self.photosynthesis)
+        resolve_kn(self.vcmax_profile, parameter_set(self.photosynthesis))  # refused before plants grow
         self.soil_respiration_umol_m2_s, self.soil_respiration_q10 = check_soil_respiration(
             self.soil_respiration_umol_m2_s, self.soil_respiration_q10
         )

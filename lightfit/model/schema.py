@@ -118,6 +118,19 @@ VARIABLES: dict[str, Variable] = {
     "organ_type": Variable(S, None, "organ of the segment: leaf (blade or sheath) or stem"),
     "area_m2": Variable(S, "m2", "one-sided area of the segment", "blade area, or 2 pi r l for stems and sheaths"),
     "is_blade": Variable(S, "1", "segment is a leaf blade (has photosynthesis)", flags="0 no, 1 yes"),
+    "leaf_area_above": Variable(
+        S,
+        "m2 m-2",
+        "cumulative leaf area index above the blade's centre",
+        "one-sided blade area of the grown plants above it per their ground area; NaN for stems and sheaths",
+    ),
+    "capacity_factor": Variable(
+        S,
+        "1",
+        "photosynthetic capacity per area relative to the parameter set's (Vcmax, Jmax, Rd, g0)",
+        "exp(-kn * leaf_area_above), attributes vcmax_profile and kn_per_lai (docs/photosynthesis.md, "
+        "Capacity through the canopy); NaN for stems and sheaths",
+    ),
     # -- per segment: light -----------------------------------------------------------------
     "incident_par_umol_m2_s": Variable(TS, UMOL, "PAR incident on the segment", _SEGMENT_AREA),
     "absorbed_par_umol_m2_s": Variable(TS, UMOL, "PAR absorbed by the segment", _SEGMENT_AREA),

@@ -1,0 +1,150 @@
+"""Photosynthetic capacity through the canopy (lightfit.photosynthesis.canopy): the leaf area above a
+blade, Lloyd et al.'s kn, the scaling identity every leaf evaluator goes through, and the knob's
+path from the command line to results.nc."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from lightfit.errors import InputError
+from lightfit.model.observe import exact_leaf, tabulated_leaf, with_capacity
+from lightfit.model.scenario import Forcing, Scenario
+from lightfit.photosynthesis import parameter_set, solve
+from lightfit.photosynthesis.canopy import (
+    capacity_factor,
+    kn_lloyd2010,
+    leaf_area_above,
+    profile_for,
+    resolve_kn,
+    vcmax25,
+)
+from lightfit.precision import use_float64
+
+use_float64()
+
+
+def test_leaf_area_above_counts_the_higher_leaves_per_ground_area():
+    """Worked by hand: leaves at 0.5, 0.3, 0.3 and 0.1 m of 4, 2, 3 and 1 m² on 2 m² of ground."""
+    z = np.array([0.1, 0.3, 0.3, 0.5])
+    a = np.array([1.0, 2.0, 3.0, 4.0])
+    np.testing.assert_allclose(leaf_area_above(z, a, 2.0), [4.5, 2.0, 2.0, 0.0])
+    order = np.random.default_rng(3).permutation(4)  # the order of the rows does not matter
+    np.testing.assert_allclose(leaf_area_above(z[order], a[order], 2.0), np.array([4.5, 2.0, 2.0, 0.0])[order])
+    with pytest.raises(InputError, match="ground_area_m2"):
+        leaf_area_above(z, a, 0.0)
+
+
+def test_kn_of_lloyd_2010():
+    """ln kn = 0.00963·Vcmax25 − 2.43 (Lloyd et al. 2010, eq. A2): 0.2306 at 100, 0.1425 at 50."""
+    assert kn_lloyd2010(100.0) == pytest.approx(0.23062, abs=1e-5)
+    assert kn_lloyd2010(50.0) == pytest.approx(0.14249, abs=1e-5)
+    ww = parameter_set("winter_wheat")
+    assert vcmax25(ww) == pytest.approx(100.0)  # the set's reference temperature is 25 °C
+    assert resolve_kn("lloyd2010", ww) == pytest.approx(kn_lloyd2010(100.0))
+    assert resolve_kn("uniform", ww) == 0.0 and resolve_kn(0.4, ww) == 0.4 and resolve_kn("0.4", ww) == 0.4
+    np.testing.assert_allclose(capacity_factor([0.0, 1.0, 3.0], 0.5), np.exp([0.0, -0.5, -1.5]))
+
+
+def test_profiles_resolve_per_set_and_bad_ones_are_refused():
+    assert profile_for("auto", "winter_wheat") == "lloyd2010"
+    assert profile_for("auto", "giraud2023") == "uniform"  # the reference paper's set: none
+    assert profile_for("0.3", "winter_wheat") == 0.3
+    for bad in ("steep", -0.1, 2.5, float("nan"), None):
+        with pytest.raises(InputError, match="vcmax_profile"):
+            profile_for(bad, "winter_wheat")
+    # Lloyd's fit is not extrapolated to the paper's Vcmax (≈ 800 at 25 °C).
+    with pytest.raises(InputError, match="vcmax_profile.*Vcmax") as e:
+        resolve_kn("lloyd2010", parameter_set("giraud2023"))
+    assert "uniform" in e.value.expected
+
+
+@pytest.mark.parametrize("set_name", ["winter_wheat", "cplantbox", "giraud2023_coupled"])
+def test_profiled_leaf_is_a_leaf_with_every_capacity_scaled(set_name):
+    """with_capacity's identity A(q; m) = m·A(q/m) against the solver run on a leaf whose Vcmax (so
+    Jmax, Rd) and g0 are m times the set's (three closures: Medlyn, CPlantBox's, Tuzet); gs, ci and
+    dAn/dq too, from darkness to full sun, frost to heat."""
+    p = parameter_set(set_name)
+    m = jnp.array([1.0, 0.7, 0.35, 0.1])
+    q = jnp.array([[0.0, 40.0, 400.0, 1800.0], [2.0, 150.0, 900.0, 2500.0]])
+    t = np.array([-4.0, 33.0])
+    forcing = Forcing(
+        day=np.array([True, True]),
+        dni_par=np.zeros(2),
+        dhi_par=np.zeros(2),
+        tair_c=t,
+        co2_ppm=np.array([180.0, 800.0]),
+        rh=np.array([0.9, 0.3]),
+        pair_kpa=np.array([101.3, 96.0]),
+    )
+    r = with_capacity(exact_leaf, m)(q, forcing, p)
+    scaled = eqx.tree_at(
+        lambda x: (x.fvcb.vcmax_ref_umol_m2_s, x.stomata.g0_mol_m2_s),
+        p,
+        (p.fvcb.vcmax_ref_umol_m2_s * m, p.stomata.g0_mol_m2_s * m),
+    )
+    env = [
+        jnp.broadcast_to(jnp.asarray(x)[:, None], q.shape) for x in (t, forcing.co2_ppm, forcing.rh, forcing.pair_kpa)
+    ]
+    direct = solve(q, *env, scaled)
+    assert bool(jnp.all(direct.converged)) and bool(jnp.all(r.converged))
+    np.testing.assert_allclose(r.an, direct.an_umol_m2_s, rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(r.result.gs_mol_m2_s, direct.gs_mol_m2_s, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(r.result.ci_umol_mol, direct.ci_umol_mol, rtol=1e-9)
+    np.testing.assert_allclose(r.result.rd_umol_m2_s, direct.rd_umol_m2_s, rtol=1e-12)
+    h = 1e-3  # dAn/dq against central differences of the directly solved leaf
+    fd = (solve(q + h, *env, scaled).an_umol_m2_s - solve(jnp.maximum(q - h, 0.0), *env, scaled).an_umol_m2_s) / (
+        q + h - jnp.maximum(q - h, 0.0)
+    )
+    np.testing.assert_allclose(r.dan_dq, fd, rtol=1e-4, atol=1e-7)
+    # A tabulated leaf goes through the same identity (its own interpolation error aside).
+    tab = with_capacity(tabulated_leaf(256), m)(q, forcing, p)
+    np.testing.assert_allclose(tab.an, direct.an_umol_m2_s, rtol=2e-3, atol=2e-3)
+
+
+def test_uniform_profile_is_the_sets_leaf_everywhere(weather_quick):
+    sc = Scenario(weather=weather_quick, vcmax_profile="uniform")
+    assert sc.vcmax_profile == "uniform"
+    assert Scenario(weather=weather_quick).vcmax_profile == "lloyd2010"  # auto, winter_wheat
+    assert Scenario(weather=weather_quick, photosynthesis="giraud2023").vcmax_profile == "uniform"
+    with pytest.raises(InputError, match="vcmax_profile"):
+        Scenario(weather=weather_quick, photosynthesis="giraud2023", vcmax_profile="lloyd2010")
+
+
+def test_results_carry_the_profile_computed_from_the_grown_plants(weather_quick):
+    """results.nc's leaf_area_above against an independent count over the geometry's blades, the
+    capacity factor its exponential, the attributes naming the profile."""
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.plant import Field, one_sided_area_m2, organ_class
+
+    sc = Scenario(weather=weather_quick, field=Field(n_plants=4, seed=1, boundary="periodic"), samples=8, bounces=1)
+    model = CoupledModel(sc)
+    ds = model.simulate()
+    seg = model.geometry.segments
+    blade = organ_class(seg) == "blade"
+    z = 0.5 * (seg["z0"] + seg["z1"]).to_numpy()[blade]
+    a = one_sided_area_m2(seg)[blade]
+    ids = seg["segment_id"].to_numpy()[blade]
+    ground = sc.field.ground_area_m2  # a periodic cell: every plant measured
+    expect = {i: a[z > zi].sum() / ground for i, zi in zip(ids, z)}
+    got = ds["leaf_area_above"].values
+    is_blade = ds["is_blade"].values.astype(bool)
+    np.testing.assert_allclose(got[is_blade], [expect[i] for i in ds["segment"].values[is_blade]], rtol=1e-12)
+    assert np.isnan(got[~is_blade]).all()
+    assert ds.attrs["vcmax_profile"] == "lloyd2010" and ds.attrs["kn_per_lai"] == pytest.approx(kn_lloyd2010(100.0))
+    np.testing.assert_allclose(ds["capacity_factor"].values[is_blade], np.exp(-ds.attrs["kn_per_lai"] * got[is_blade]))
+    assert ds["capacity_factor"].attrs["units"] == "1" and ds["leaf_area_above"].attrs["units"] == "m2 m-2"
+    # Deeper blades have less capacity, so less dark respiration: the night's canopy loss shrinks.
+    uniform = CoupledModel(Scenario(**{**sc.__dict__, "vcmax_profile": "uniform"})).simulate()
+    night = ds["sun_elevation_deg"].values < 0
+    assert night.any()
+    ratio = ds["canopy_an_umol_m2_s"].values[night] / uniform["canopy_an_umol_m2_s"].values[night]
+    area = ds["area_m2"].values[is_blade]
+    np.testing.assert_allclose(ratio, (area * ds["capacity_factor"].values[is_blade]).sum() / area.sum(), rtol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def weather_quick():
+    from lightfit import replication as rep
+
+    return rep.forcing().iloc[[1, 14]]  # 05:30 local (night), 12:00
