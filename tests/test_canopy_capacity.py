@@ -2,6 +2,8 @@
 blade, Lloyd et al.'s kn, the scaling identity every leaf evaluator goes through, and the knob's
 path from the command line to results.nc."""
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -103,10 +105,12 @@ def test_profiled_leaf_is_a_leaf_with_every_capacity_scaled(set_name):
 
 
 def test_uniform_profile_is_the_sets_leaf_everywhere(weather_quick):
-    sc = Scenario(weather=weather_quick, vcmax_profile="uniform")
-    assert sc.vcmax_profile == "uniform"
-    assert Scenario(weather=weather_quick).vcmax_profile == "lloyd2010"  # auto, winter_wheat
-    assert Scenario(weather=weather_quick, photosynthesis="giraud2023").vcmax_profile == "uniform"
+    assert Scenario(weather=weather_quick, vcmax_profile="uniform").kn() == 0.0
+    sc = Scenario(weather=weather_quick)
+    assert sc.vcmax_profile == "auto" and sc.kn() == pytest.approx(kn_lloyd2010(100.0))  # winter_wheat's own
+    # "auto" is kept, so another set by dataclasses.replace takes its own profile.
+    assert dataclasses.replace(sc, photosynthesis="giraud2023").kn() == 0.0
+    assert Scenario(weather=weather_quick, vcmax_profile="0.5").kn() == 0.5
     with pytest.raises(InputError, match="vcmax_profile"):
         Scenario(weather=weather_quick, photosynthesis="giraud2023", vcmax_profile="lloyd2010")
 
@@ -134,13 +138,18 @@ def test_results_carry_the_profile_computed_from_the_grown_plants(weather_quick)
     assert ds.attrs["vcmax_profile"] == "lloyd2010" and ds.attrs["kn_per_lai"] == pytest.approx(kn_lloyd2010(100.0))
     np.testing.assert_allclose(ds["capacity_factor"].values[is_blade], np.exp(-ds.attrs["kn_per_lai"] * got[is_blade]))
     assert ds["capacity_factor"].attrs["units"] == "1" and ds["leaf_area_above"].attrs["units"] == "m2 m-2"
+    # Summed over the canopy (every blade measured in a periodic cell) the profile integrates
+    # analytically: mean capacity = (1 − e^(−kn·LAI)) / (kn·LAI), up to the blades' finite size.
+    kn, area = ds.attrs["kn_per_lai"], ds["area_m2"].values[is_blade]
+    lai = area.sum() / ground
+    mean = (area * ds["capacity_factor"].values[is_blade]).sum() / area.sum()
+    assert mean == pytest.approx((1 - np.exp(-kn * lai)) / (kn * lai), rel=5e-3)
     # Deeper blades have less capacity, so less dark respiration: the night's canopy loss shrinks.
     uniform = CoupledModel(Scenario(**{**sc.__dict__, "vcmax_profile": "uniform"})).simulate()
     night = ds["sun_elevation_deg"].values < 0
     assert night.any()
     ratio = ds["canopy_an_umol_m2_s"].values[night] / uniform["canopy_an_umol_m2_s"].values[night]
-    area = ds["area_m2"].values[is_blade]
-    np.testing.assert_allclose(ratio, (area * ds["capacity_factor"].values[is_blade]).sum() / area.sum(), rtol=1e-9)
+    np.testing.assert_allclose(ratio, mean, rtol=1e-9)
 
 
 @pytest.fixture(scope="module")

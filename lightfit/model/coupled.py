@@ -35,7 +35,7 @@ from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denomina
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
 from lightfit.photosynthesis import parameter_set
-from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, resolve_kn
+from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, profile_for
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
 from lightfit.progress import progress_bar
@@ -109,8 +109,8 @@ class CoupledModel:
         self.ground_area_m2 = sc.ground_area_m2
         params = parameter_set(sc.photosynthesis)
         #: capacity profile's kn (per unit LAI) and each blade's LAI above it and capacity factor
-        self.kn = resolve_kn(sc.vcmax_profile, params)
-        self.lai_above = self._lai_above()
+        self.kn = sc.kn()
+        self.lai_above, lai = self._lai_above()
         w = sc.weather
         self.times = w.index
         #: what ``times`` label: the forcing's :class:`~lightfit.weather.timestamps.Timestamps`
@@ -131,14 +131,15 @@ class CoupledModel:
             soil_respiration_q10=sc.soil_respiration_q10,
             sensors=tuple(s.name for s in self.sensors),
             capacity=None if self.kn == 0 else capacity_factor(self.lai_above, self.kn),
+            capacity_base=float(capacity_factor(lai, self.kn)),
         )
         self.light = self.render if light is None else light
 
-    def _lai_above(self) -> np.ndarray:
-        """(B,) each measured blade's cumulative LAI above its centre (m² m⁻²), from every blade the
-        geometry grew (measured and buffer plants) over the ground those plants stand on: a
-        horizontally uniform canopy, and the same for every tile of a distributed run that grows
-        the same plants."""
+    def _lai_above(self) -> tuple[np.ndarray, float]:
+        """(B,) each measured blade's cumulative LAI above its centre (m² m⁻²), and the LAI of the
+        whole canopy, from every blade the geometry grew (measured and buffer plants) over the ground
+        those plants stand on: a horizontally uniform canopy, and the same for every tile of a
+        distributed run that grows the same plants."""
         seg = self.geometry.segments
         blade = organ_class(seg) == "blade"
         z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())
@@ -146,7 +147,7 @@ class CoupledModel:
         lai = pd.Series(
             leaf_area_above(z[blade], one_sided_area_m2(seg)[blade], ground), index=seg["segment_id"].to_numpy()[blade]
         )
-        return lai.loc[self.segment_id[self.is_blade]].to_numpy()
+        return lai.loc[self.segment_id[self.is_blade]].to_numpy(), float(one_sided_area_m2(seg)[blade].sum() / ground)
 
     @property
     def n_columns(self) -> int:
@@ -364,7 +365,7 @@ class CoupledModel:
             **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
-            "vcmax_profile": str(sc.vcmax_profile),
+            "vcmax_profile": str(profile_for(sc.vcmax_profile, sc.photosynthesis)),
             "kn_per_lai": self.kn,
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,

@@ -358,21 +358,24 @@ def exact_leaf(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafRespons
     return LeafResponse(res.an_umol_m2_s, dan, res.converged, res)
 
 
-def with_capacity(leaf: LeafPhotosynthesis, capacity) -> LeafPhotosynthesis:
+def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None) -> LeafPhotosynthesis:
     r"""``leaf`` for blades whose per-area capacity is ``capacity`` (B,) times the parameter set's
     (:mod:`lightfit.photosynthesis.canopy`; ``None``: ``leaf`` itself).
 
     A leaf with every per-area rate and conductance (Vcmax, Jmax, Rd, g0, gm) times r at absorbed
     PAR q is that leaf at q/r with its fluxes times r: An = r·A(q/r), dAn/dq = A'(q/r); gs, Vc, Vj
     and Rd times r, ci, cs, cc and the limitation unchanged (exact with cs = ca, the coupled
-    model's leaf without a boundary layer). The base leaf is the lowest capacity m₀ of the blades
-    (the set's parameters scaled once, shared by all, so a tabulated leaf still tabulates one leaf
-    per step) and r = m/m₀ ≥ 1, so q/r ≤ q stays within the range the solver accepts.
+    model's leaf without a boundary layer). The base leaf has capacity m₀ = ``base`` (default the
+    blades' lowest; at most every blade's): the set's parameters scaled once, shared by all, so a
+    tabulated leaf still tabulates one leaf per step, and r = m/m₀ ≥ 1, so q/r ≤ q stays within
+    the range the solver accepts.
     """
     if capacity is None:
         return leaf
     m = np.asarray(capacity, np.float64)
-    m0 = float(m.min())
+    m0 = float(m.min()) if base is None else float(base)
+    if not 0 < m0 <= m.min():
+        raise InputError(f"capacity base {m0!r}", column="capacity_base", expected=f"in (0, {m.min():g}]")
     r = jnp.asarray(m / m0)
 
     def profiled(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
@@ -501,6 +504,8 @@ class ObservationOperator:
         capacity: (B,) each blade's photosynthetic capacity per area relative to the parameter
             set's (:mod:`lightfit.photosynthesis.canopy`, dimensionless); ``None``: every blade the
             set's. Applied to whatever leaf evaluator the operator is called with (:meth:`leaf`).
+        capacity_base: the base leaf's capacity of :func:`with_capacity` (≤ every blade's; the
+            whole canopy's bottom, so that tiles measuring other blades compute alike).
     """
 
     forcing: Forcing
@@ -515,6 +520,7 @@ class ObservationOperator:
     soil_respiration_q10: float = SOIL_RESPIRATION_Q10
     sensors: tuple[str, ...] = ()
     capacity: np.ndarray | None = None
+    capacity_base: float | None = None
 
     @property
     def blades(self) -> np.ndarray:
@@ -539,7 +545,7 @@ class ObservationOperator:
 
     def leaf(self, leaf: LeafPhotosynthesis = exact_leaf) -> LeafPhotosynthesis:
         """``leaf`` evaluated for these blades' capacities (:func:`with_capacity`)."""
-        return with_capacity(leaf, self.capacity)
+        return with_capacity(leaf, self.capacity, self.capacity_base)
 
     def photosynthesis_params(self, vcmax_scale) -> PhotosynthesisParams:
         p = self.params

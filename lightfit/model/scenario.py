@@ -33,7 +33,7 @@ from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
 from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import parameter_set
-from lightfit.photosynthesis.canopy import profile_for, resolve_kn
+from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
 from lightfit.weather.solar import par_direct_diffuse
@@ -279,8 +279,7 @@ class Scenario:
             ``"uniform"`` (every blade the set's capacity, as the reference paper), kn itself (a
             number ≥ 0 per unit LAI), or ``"auto"`` (default): the set's own
             (:data:`~lightfit.photosynthesis.canopy.SET_PROFILES`: Lloyd's for ``winter_wheat``,
-            uniform for the CPlantBox-derived sets). Resolved at construction (the attribute then
-            names the one used).
+            uniform for the CPlantBox-derived sets; :meth:`kn` resolves it).
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
         an_per: ``"leaf"`` (per one-sided leaf area) or ``"ground"`` (per ground area of the
             measured plants) for canopy net CO2 uptake.
@@ -338,8 +337,8 @@ class Scenario:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
         check_choice("par_kind", self.par_kind)
         check_choice("an_per", self.an_per)
-        self.vcmax_profile = profile_for(self.vcmax_profile, self.photosynthesis)
-        resolve_kn(self.vcmax_profile, parameter_set(self.photosynthesis))  # refused before plants grow
+        self.vcmax_profile = check_profile(self.vcmax_profile)
+        self.kn()  # refused before plants grow
         self.soil_respiration_umol_m2_s, self.soil_respiration_q10 = check_soil_respiration(
             self.soil_respiration_umol_m2_s, self.soil_respiration_q10
         )
@@ -355,6 +354,11 @@ class Scenario:
     def theta(self):
         """Default parameters of this scenario: the leaf parameters of its optics, the rest Theta's."""
         return Theta.for_optics(self.optics)
+
+    def kn(self) -> float:
+        """kn (per unit LAI) of :attr:`vcmax_profile` for :attr:`photosynthesis`
+        (:func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
+        return resolve_kn(profile_for(self.vcmax_profile, self.photosynthesis), parameter_set(self.photosynthesis))
 
     @property
     def measured_tile(self) -> Tile | None:
