@@ -140,7 +140,8 @@ class CoupledModel:
         whole canopy, from every blade the geometry grew (measured and buffer plants) over the ground
         those plants stand on: a horizontally uniform canopy, and the same for every tile of a
         distributed run that grows the same plants."""
-        seg = self.geometry.segments
+        # Sorted by id: the sums then run in one order whatever order a tile's geometry has.
+        seg = self.geometry.segments.sort_values("segment_id")
         blade = organ_class(seg) == "blade"
         z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())
         ground = seg["plant_id"].nunique() * self.scenario.field.area_per_plant_m2

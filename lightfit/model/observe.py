@@ -376,7 +376,10 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
     m0 = float(m.min()) if base is None else float(base)
     if not 0 < m0 <= m.min():
         raise InputError(f"capacity base {m0!r}", column="capacity_base", expected=f"in (0, {m.min():g}]")
-    r = jnp.asarray(m / m0)
+    # Two multiplications, no division: XLA may turn a division by a constant into a product with
+    # its reciprocal depending on the shapes it fuses, which would make tiles and time chunks of
+    # one run differ in the last bit.
+    r, shrink = jnp.asarray(m / m0), jnp.asarray(m0 / m)
 
     def profiled(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
         base = eqx.tree_at(
@@ -384,7 +387,7 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
             params,
             (params.fvcb.vcmax_ref_umol_m2_s * m0, params.fvcb.gm_mol_m2_s * m0, params.stomata.g0_mol_m2_s * m0),
         )
-        out = leaf(q / r, forcing, base)
+        out = leaf(q * shrink, forcing, base)
         res = out.result
         if res is not None:
             res = res._replace(
@@ -394,7 +397,11 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
                 vj_umol_m2_s=r * res.vj_umol_m2_s,
                 rd_umol_m2_s=r * res.rd_umol_m2_s,
             )
-        return LeafResponse(r * out.an, out.dan_dq, out.converged, res)
+        # The base leaf sees q/r ≤ q: the blade's own light is held to the solver's range here.
+        within = q <= MAX_PAR_ABS_UMOL_M2_S
+        if res is not None:
+            res = res._replace(converged=res.converged & within)
+        return LeafResponse(r * out.an, out.dan_dq, out.converged & within, res)
 
     return profiled
 
