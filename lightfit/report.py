@@ -65,7 +65,9 @@ def run_label(attrs) -> str:
     cfg = json.loads(attrs.get("replication_config", "{}") or "{}")
     optics = cfg.get("optics") or f"base colour {float(attrs.get('base_color', np.nan)):.3g}"
     sheaths = attrs.get("sheaths", "rods")  # results written before the setting had CPlantBox's rods
-    return f"leaf {optics}, {sheaths} sheaths, photosynthesis {attrs.get('photosynthesis')}, {field_label(attrs)}"
+    profile = attrs.get("vcmax_profile", "uniform")  # results written before profiles: every blade alike
+    ps = f"photosynthesis {attrs.get('photosynthesis')}" + ("" if profile == "uniform" else f" ({profile} profile)")
+    return f"leaf {optics}, {sheaths} sheaths, {ps}, {field_label(attrs)}"
 
 
 def field_label(attrs) -> str:

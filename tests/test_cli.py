@@ -421,6 +421,34 @@ def test_soil_respiration_options_reach_the_run_configuration():
     assert (default.soil_respiration_umol_m2_s, default.soil_respiration_q10) == (0.0, 2.0)
 
 
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--vcmax-profile", "steep"], ["vcmax_profile", "steep", "lloyd2010"]),
+        (["--vcmax-profile", "-0.2"], ["vcmax_profile", "-0.2"]),
+        (["--photosynthesis", "giraud2023", "--vcmax-profile", "lloyd2010"], ["vcmax_profile", "Vcmax", "uniform"]),
+    ],
+)
+def test_bad_vcmax_profile_names_the_option(tmp_path, args, words):
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "r"), *args])
+    assert_user_error(r, *words)
+    assert not (tmp_path / "r").exists()  # refused before anything grows
+
+
+def test_vcmax_profile_reaches_the_run_resolved():
+    """The settings record the profile the run used ("auto" resolved by the set), and a run stored
+    before profiles (no key: every blade alike) differs from today's default on resume."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+
+    s = resolve(ModelOptions(quick=True))
+    assert s.vcmax_profile == "lloyd2010" and s.replication_config().vcmax_profile == "lloyd2010"
+    assert resolve(ModelOptions(quick=True, preset="paper")).vcmax_profile == "uniform"
+    assert resolve(ModelOptions(quick=True, vcmax_profile="0.3")).vcmax_profile == 0.3
+    old = {k: v for k, v in s.as_dict().items() if k != "vcmax_profile"}
+    assert changed_settings(old, s) == ["vcmax_profile: 'uniform' → 'lloyd2010'"]
+    assert changed_settings(old, resolve(ModelOptions(quick=True, vcmax_profile="uniform"))) == []
+
+
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     ply, png = tmp_path / "f.ply", tmp_path / "f.png"
