@@ -35,6 +35,7 @@ from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples, resolve_direct
+from lightfit.photosynthesis.canopy import profile_for
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
 from lightfit.plant.sheaths import SHEATHS
@@ -151,7 +152,10 @@ class ReplicationConfig:
         for name in PRESETS:
             ref = ReplicationConfig().with_preset(name)
             choices = ("boundary", "sheaths", "optics", "photosynthesis", "par_kind")
-            if all(getattr(self, k) == getattr(ref, k) for k in choices):
+            same_profile = profile_for(self.vcmax_profile, self.photosynthesis) == profile_for(
+                ref.vcmax_profile, ref.photosynthesis
+            )
+            if same_profile and all(getattr(self, k) == getattr(ref, k) for k in choices):
                 return name
         return None
 
@@ -236,6 +240,7 @@ PAPER_PRESET = {
     "optics": "paper",
     "chlorophyll_ug_cm2": None,
     "photosynthesis": "giraud2023",
+    "vcmax_profile": "auto",  # the set's own: uniform for giraud2023
     "par_kind": "absorbed",
 }
 #: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.

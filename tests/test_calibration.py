@@ -426,11 +426,33 @@ def test_model_digest_names_each_scenario_setting():
     assert set(a) == {f.name for f in dataclasses.fields(sc)} | {"growth"}
     assert _model_digest(m(dataclasses.replace(sc))) == a
     b = _model_digest(m(dataclasses.replace(sc, photosynthesis="giraud2023")))
-    assert [k for k in a if a[k] != b[k]] == ["photosynthesis"]
+    # "auto" is hashed as the profile it gives: giraud2023's own is uniform
+    assert [k for k in a if a[k] != b[k]] == ["photosynthesis", "vcmax_profile"]
+    assert _model_digest(m(dataclasses.replace(sc, vcmax_profile="lloyd2010"))) == a
     warmer = w.copy()
     warmer.iloc[0, warmer.columns.get_loc("tair_c")] += 1.0
     c = _model_digest(m(dataclasses.replace(sc, weather=warmer)))
     assert [k for k in a if a[k] != c[k]] == ["weather"]
+
+
+def test_a_history_stored_before_capacity_profiles_was_a_uniform_canopy(tmp_path):
+    """A resume key saved before ``vcmax_profile`` existed (every blade the set's) does not match
+    today's profiled default, and does match an explicitly uniform run."""
+    from lightfit.inference.calibration import _check_same_data, _model_digest
+
+    w = rep.forcing().loc["2016-04-20 09:00+00:00":"2016-04-20 12:00+00:00"]
+    sc = rep.scenario_for(rep.ReplicationConfig.quick(), w)
+    m = lambda s: type("M", (), {"scenario": s})()  # noqa: E731
+
+    def saved(digest):
+        old = {k: v for k, v in digest.items() if k != "vcmax_profile"}
+        return {"key": {"data": {"observations": "o", "model": old}}}
+
+    now = _model_digest(m(sc))
+    with pytest.raises(InputError, match="vcmax_profile"):
+        _check_same_data(saved(now), {"observations": "o", "model": now}, tmp_path / "h.json", print)
+    uniform = _model_digest(m(dataclasses.replace(sc, vcmax_profile="uniform")))
+    _check_same_data(saved(uniform), {"observations": "o", "model": uniform}, tmp_path / "h.json", print)
 
 
 def test_cli_resume_with_an_edited_observations_file_is_refused(tmp_path):

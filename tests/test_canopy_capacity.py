@@ -52,10 +52,11 @@ def test_profiles_resolve_per_set_and_bad_ones_are_refused():
     assert profile_for("auto", "winter_wheat") == "lloyd2010"
     assert profile_for("auto", "giraud2023") == "uniform"  # the reference paper's set: none
     assert profile_for("0.3", "winter_wheat") == 0.3
+    assert profile_for(0, "winter_wheat") == "uniform"  # one name for one model
     for bad in ("steep", -0.1, 2.5, float("nan"), None):
         with pytest.raises(InputError, match="vcmax_profile"):
             profile_for(bad, "winter_wheat")
-    # Lloyd's fit is not extrapolated to the paper's Vcmax (≈ 800 at 25 °C).
+    # Lloyd's fit is not extrapolated to the paper's Vcmax (≈ 970 at 25 °C).
     with pytest.raises(InputError, match="vcmax_profile.*Vcmax") as e:
         resolve_kn("lloyd2010", parameter_set("giraud2023"))
     assert "uniform" in e.value.expected

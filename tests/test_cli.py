@@ -786,6 +786,14 @@ def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path)
     mixed = _comparison(ModelOptions(quick=True, boundary="periodic", photosynthesis="winter_wheat"), "paper")
     got = (mixed.boundary, mixed.photosynthesis, mixed.optics, mixed.preset)
     assert got == ("finite", "giraud2023", "paper", "paper")
+    own = _comparison(ModelOptions(quick=True, vcmax_profile="lloyd2010"), "paper")  # the run's, not the paper's
+    assert (own.vcmax_profile, own.preset) == ("uniform", "paper")
+    import dataclasses
+
+    from lightfit.replication import ReplicationConfig
+
+    assert dataclasses.replace(ReplicationConfig.paper(), vcmax_profile=0.5).preset is None
+    assert dataclasses.replace(ReplicationConfig.paper(), vcmax_profile="uniform").preset == "paper"
 
 
 @pytest.mark.parametrize(

@@ -72,7 +72,7 @@ from lightfit.inference.observations import matched_as_by_stamp, observation_mat
 from lightfit.killpoint import kill_point
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
-from lightfit.model.scenario import Scenario, settings_digest
+from lightfit.model.scenario import DIGEST_WHEN_ABSENT, Scenario, digest_of, settings_digest
 from lightfit.progress import progress_bar
 
 #: Distance kept from finite bounds (see the module docstring).
@@ -440,6 +440,11 @@ def _check_same_data(saved: dict | None, data: dict, hist: Path, say: Callable[[
     if (old is None) != (new is None):
         changed.append("model")
     elif old is not None:
+        old = dict(old)
+        for k in new:  # settings stored before they existed, where that meant another value
+            field = k.rsplit(": ", 1)[-1]  # a multi-day digest's keys are "day: field"
+            if k not in old and field in DIGEST_WHEN_ABSENT:
+                old[k] = digest_of(DIGEST_WHEN_ABSENT[field])
         settings = [k for k in old if k in new and old[k] != new[k]]
         if settings:
             changed.append(f"model settings ({', '.join(settings)})")

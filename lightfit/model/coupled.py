@@ -136,7 +136,7 @@ class CoupledModel:
         self.light = self.render if light is None else light
 
     def _lai_above(self) -> tuple[np.ndarray, float]:
-        """(B,) each measured blade's cumulative LAI above its centre (m² m⁻²), and the LAI of the
+        """(B,) each measured blade segment's cumulative LAI above its centre (m² m⁻²), and the LAI of the
         whole canopy, from every blade the geometry grew (measured and buffer plants) over the ground
         those plants stand on: a horizontally uniform canopy, and the same for every tile of a
         distributed run that grows the same plants."""
@@ -144,7 +144,7 @@ class CoupledModel:
         seg = self.geometry.segments.sort_values("segment_id")
         blade = organ_class(seg) == "blade"
         z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())
-        ground = seg["plant_id"].nunique() * self.scenario.field.area_per_plant_m2
+        ground = len(self.geometry.plants) * self.scenario.field.area_per_plant_m2
         lai = pd.Series(
             leaf_area_above(z[blade], one_sided_area_m2(seg)[blade], ground), index=seg["segment_id"].to_numpy()[blade]
         )

@@ -277,7 +277,7 @@ class Scenario:
             ``"lloyd2010"`` (Vcmax, Jmax, Rd fall as exp(−kn·L) with the leaf area L above a blade,
             kn from the set's Vcmax25 after Lloyd et al. 2010: 0.23 for ``winter_wheat``),
             ``"uniform"`` (every blade the set's capacity, as the reference paper), kn itself (a
-            number ≥ 0 per unit LAI), or ``"auto"`` (default): the set's own
+            number in [0, 2] per unit LAI; 0 is ``"uniform"``), or ``"auto"`` (default): the set's own
             (:data:`~lightfit.photosynthesis.canopy.SET_PROFILES`: Lloyd's for ``winter_wheat``,
             uniform for the CPlantBox-derived sets; :meth:`kn` resolves it).
         par_kind: ``"incident"`` or ``"absorbed"`` PAR for the plant-PAR observable.
@@ -379,7 +379,19 @@ class Scenario:
         CPlantBox's version (:meth:`~lightfit.plant.growth.GrowthConfig.fingerprint`; the field's
         repr names the file only), absent from digests stored before it was added, which are then
         compared without it."""
-        return settings_digest(self) | {"growth": self.field.growth.fingerprint()}
+        # The profile the run uses: "auto" means another profile for another set.
+        profile = digest_of(profile_for(self.vcmax_profile, self.photosynthesis))
+        return settings_digest(self) | {"growth": self.field.growth.fingerprint(), "vcmax_profile": profile}
+
+
+#: Scenario settings added after digests were first stored whose absence from a stored digest
+#: means a value other than today's default (before capacity profiles every blade was the set's).
+DIGEST_WHEN_ABSENT = {"vcmax_profile": "uniform"}
+
+
+def digest_of(value) -> str:
+    """One setting's digest, as :func:`settings_digest` hashes it (its repr, which is its value)."""
+    return _sha(repr(value).encode())
 
 
 def settings_digest(settings) -> dict[str, str]:
@@ -391,7 +403,7 @@ def settings_digest(settings) -> dict[str, str]:
             rows = pd.util.hash_pandas_object(v, index=True).to_numpy()
             out[f.name] = _sha(rows.tobytes(), json.dumps([str(c) for c in v.columns]).encode())
         else:
-            out[f.name] = _sha(repr(v).encode())
+            out[f.name] = digest_of(v)
     return out
 
 

@@ -121,7 +121,7 @@ VARIABLES: dict[str, Variable] = {
     "leaf_area_above": Variable(
         S,
         "m2 m-2",
-        "cumulative leaf area index above the blade's centre",
+        "cumulative leaf area index above the blade segment's centre",
         "one-sided blade area of the grown plants above it per their ground area; NaN for stems and sheaths",
     ),
     "capacity_factor": Variable(

@@ -53,7 +53,7 @@ PROFILES = ("auto", "lloyd2010", "uniform")
 SET_PROFILES = {"winter_wheat": "lloyd2010"}
 #: Vcmax25 above which Lloyd et al.'s fit is not extrapolated (kn would exceed 0.6: the lowest
 #: leaves of an LAI-4 canopy with a tenth of the top's capacity). The reference paper's
-#: ``giraud2023`` set (Vcmax ≈ 800 at 25 °C) lies far above it.
+#: ``giraud2023`` set (Vcmax ≈ 970 at 25 °C) lies far above it.
 LLOYD2010_MAX_VCMAX25 = 200.0
 T25_K = 298.15
 #: The steepest kn taken (per unit LAI): capacity falling e-fold within half a unit of leaf area,
@@ -87,7 +87,7 @@ def resolve_kn(profile: str | float, params: PhotosynthesisParams) -> float:
     """kn (per unit LAI) of a resolved capacity profile (:func:`profile_for`) for the parameter set
     ``params``: ``"uniform"`` → 0
     (every leaf the set's capacity, as the reference paper), ``"lloyd2010"`` → :func:`kn_lloyd2010`
-    of the set's Vcmax at 25 °C, a number ≥ 0 (or its text) → itself. :class:`InputError` naming
+    of the set's Vcmax at 25 °C, a number in [0, :data:`MAX_KN`] (or its text) → itself. :class:`InputError` naming
     ``vcmax_profile`` otherwise, and for Lloyd's fit beyond :data:`LLOYD2010_MAX_VCMAX25`."""
     if profile == "uniform":
         return 0.0
@@ -98,7 +98,7 @@ def resolve_kn(profile: str | float, params: PhotosynthesisParams) -> float:
                 f"vcmax_profile='lloyd2010' with a Vcmax of {v25:.0f} µmol m-2 s-1 at 25 °C",
                 column="vcmax_profile",
                 expected=f"Lloyd et al.'s fit within its leaves' range (Vcmax25 ≤ {LLOYD2010_MAX_VCMAX25:g}): "
-                "'uniform' or a kn of your own (a number ≥ 0)",
+                f"'uniform' or a kn of your own (a number in [0, {MAX_KN:g}])",
             )
         return kn_lloyd2010(v25)
     return _kn_number(profile)
@@ -119,16 +119,21 @@ def _kn_number(profile) -> float:
 
 
 def check_profile(profile: str | float) -> str | float:
-    """``profile`` as stored in settings: a name of :data:`PROFILES` or a float kn ≥ 0 (text taken as
-    its number); :class:`InputError` otherwise. The set-dependent check is :func:`resolve_kn`'s."""
-    return profile if profile in PROFILES else _kn_number(profile)
+    """``profile`` as stored in settings: a name of :data:`PROFILES` or a float kn in (0, MAX_KN]
+    (text taken as its number; kn = 0 is ``"uniform"``, one name for one model); :class:`InputError`
+    otherwise. The set-dependent check is :func:`resolve_kn`'s."""
+    if profile in PROFILES:
+        return profile
+    kn = _kn_number(profile)
+    return "uniform" if kn == 0 else kn
 
 
 def leaf_area_above(height_m, area_m2, ground_area_m2: float) -> np.ndarray:
-    """Cumulative leaf area index above each leaf, m² m⁻²: the one-sided area of the leaves whose
-    height is greater than its own, per ``ground_area_m2`` (leaves at one height do not shade each
-    other's count). ``height_m``, ``area_m2``: (B,) heights (m) and one-sided areas (m²) of the
-    canopy's leaves, all of those the ground area holds."""
+    """Cumulative leaf area index above each leaf element, m² m⁻²: the one-sided area of the
+    elements whose height is greater than its own, per ``ground_area_m2`` (elements at one height
+    do not count each other). ``height_m``, ``area_m2``: (B,) heights (m) and one-sided areas (m²)
+    of the canopy's leaf elements (lightfit: blade segments, so one leaf's base and tip differ), all
+    of those the ground area holds."""
     z = np.asarray(height_m, np.float64)
     a = np.asarray(area_m2, np.float64)
     if z.shape != a.shape or z.ndim != 1:
