@@ -88,6 +88,8 @@ class ReplicationConfig:
     paths in a finite one; ``"projection"`` or ``"paths"`` to choose (:attr:`Scenario.direct`).
     ``vcmax_profile``: photosynthetic capacity through the canopy (:attr:`Scenario.vcmax_profile`;
     ``"auto"``: the set's own, Lloyd et al.'s profile for ``winter_wheat``, uniform for the paper's).
+    ``growth_temperature_c``: Kattge & Knorr's growth temperature for sets that acclimate
+    (:attr:`Scenario.growth_temperature_c`; ``None``: the set's own, 15 °C for ``winter_wheat``).
     ``direct_rays_per_m2``: the projection's (sun, sky) rays per m² of ground
     (:attr:`Scenario.direct_rays_per_m2`; more rays, less per-segment noise, docs/light.md
     "Recommended settings").
@@ -113,6 +115,7 @@ class ReplicationConfig:
     how: str = "sample"
     photosynthesis: str = Scenario.photosynthesis
     vcmax_profile: str | float = Scenario.vcmax_profile
+    growth_temperature_c: float | None = Scenario.growth_temperature_c
     optics: str = DEFAULT_PRESET
     chlorophyll_ug_cm2: float | None = None
     dates: tuple[str, ...] = (DEFAULT_DATE,)
@@ -241,6 +244,7 @@ PAPER_PRESET = {
     "chlorophyll_ug_cm2": None,
     "photosynthesis": "giraud2023",
     "vcmax_profile": "auto",  # the set's own: uniform for giraud2023
+    "growth_temperature_c": None,  # giraud2023 does not acclimate
     "par_kind": "absorbed",
 }
 #: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.
@@ -348,6 +352,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         soil_respiration_q10=cfg.soil_respiration_q10,
         photosynthesis=cfg.photosynthesis,
         vcmax_profile=cfg.vcmax_profile,
+        growth_temperature_c=cfg.growth_temperature_c,
         optics=optics,
     )
 

@@ -427,6 +427,8 @@ def test_soil_respiration_options_reach_the_run_configuration():
         (["--vcmax-profile", "steep"], ["vcmax_profile", "steep", "lloyd2010"]),
         (["--vcmax-profile", "-0.2"], ["vcmax_profile", "-0.2"]),
         (["--photosynthesis", "giraud2023", "--vcmax-profile", "lloyd2010"], ["vcmax_profile", "Vcmax", "uniform"]),
+        (["--growth-temperature-c", "40"], ["growth_temperature_c", "40", "[0, 35]"]),
+        (["--photosynthesis", "giraud2023", "--growth-temperature-c", "9"], ["growth_temperature_c", "giraud2023"]),
     ],
 )
 def test_bad_vcmax_profile_names_the_option(tmp_path, args, words):
@@ -447,6 +449,11 @@ def test_vcmax_profile_reaches_the_run_resolved():
     old = {k: v for k, v in s.as_dict().items() if k != "vcmax_profile"}
     assert changed_settings(old, s) == ["vcmax_profile: 'uniform' → 'lloyd2010'"]
     assert changed_settings(old, resolve(ModelOptions(quick=True, vcmax_profile="uniform"))) == []
+    cfg = resolve(ModelOptions(quick=True, growth_temperature_c=9.0)).replication_config()
+    assert cfg.growth_temperature_c == 9.0 and s.growth_temperature_c is None  # None: the set's own 15 °C
+    # A run stored before the option had the set's own: no change to report.
+    before = {k: v for k, v in s.as_dict().items() if k != "growth_temperature_c"}
+    assert changed_settings(before, s) == []
 
 
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):

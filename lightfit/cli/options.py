@@ -72,6 +72,7 @@ class ModelOptions:
     par_kind: str | None = None
     photosynthesis: str | None = None
     vcmax_profile: str | None = None
+    growth_temperature_c: float | None = None
     an_per: str | None = None
     soil_respiration: float | None = None
     soil_respiration_q10: float | None = None
@@ -133,6 +134,7 @@ class ModelSettings:
     par_kind: str
     photosynthesis: str
     vcmax_profile: str | float
+    growth_temperature_c: float | None
     an_per: str
     soil_respiration: float
     soil_respiration_q10: float
@@ -182,6 +184,7 @@ class ModelSettings:
             how=self.how,
             photosynthesis=self.photosynthesis,
             vcmax_profile=self.vcmax_profile,
+            growth_temperature_c=self.growth_temperature_c,
             optics=self.optics,
             chlorophyll_ug_cm2=self.chlorophyll_ug_cm2,
             dates=self.dates,
@@ -345,6 +348,16 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "with the leaf area L above a blade, kn from the set's Vcmax25), uniform (every blade alike, as "
             "the reference paper), kn itself (a number in [0, 2] per unit LAI), or auto (default: the set's own, "
             "lloyd2010 for winter_wheat, uniform for the CPlantBox sets; docs/photosynthesis.md).",
+            rich_help_panel=_PHOTO,
+        ),
+    ),
+    "growth_temperature_c": (
+        float | None,
+        typer.Option(
+            "--growth-temperature-c",
+            help="Growth temperature of Kattge & Knorr (2007), the mean air temperature of the month "
+            "before the run, °C, in [0, 35]: sets Jmax/Vcmax and the optimum of their temperature "
+            "responses (winter_wheat; default its 15 °C; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,
         ),
     ),
@@ -624,6 +637,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
+        growth_temperature_c=given(opts.growth_temperature_c, base.growth_temperature_c),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
         soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
@@ -647,7 +661,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     profile = profile_for(s.vcmax_profile, s.photosynthesis)
-    resolve_kn(profile, parameter_set(s.photosynthesis))
+    resolve_kn(profile, parameter_set(s.photosynthesis, s.growth_temperature_c))
     s = dataclasses.replace(s, vcmax_profile=profile)  # stored resolved: what the run used
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
@@ -791,6 +805,7 @@ MODEL_SETTINGS = (
     "par_kind",
     "photosynthesis",
     "vcmax_profile",
+    "growth_temperature_c",
     "an_per",
     "soil_respiration",
     "soil_respiration_q10",

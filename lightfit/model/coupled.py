@@ -34,8 +34,8 @@ from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator, an_noise_bias, area_total
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
-from lightfit.photosynthesis import parameter_set
 from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, profile_for
+from lightfit.photosynthesis.parameters import growth_temperature
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
 from lightfit.progress import progress_bar
@@ -107,7 +107,7 @@ class CoupledModel:
                 expected="plants grown long enough to have leaves",
             )
         self.ground_area_m2 = sc.ground_area_m2
-        params = parameter_set(sc.photosynthesis)
+        params = sc.photosynthesis_params()
         #: capacity profile's kn (per unit LAI) and each blade's LAI above it and capacity factor
         self.kn = sc.kn()
         self.lai_above, lai = self._lai_above()
@@ -342,6 +342,7 @@ class CoupledModel:
         schema.annotate(ds)
         warn_unconverged(ds)
         fld = sc.field
+        t_g = growth_temperature(sc.photosynthesis, sc.growth_temperature_c)
         ds.attrs = {
             "title": "lightfit coupled run",
             "conventions": "variable attributes: lightfit.model.schema (CF-style units, long_name)",
@@ -367,6 +368,7 @@ class CoupledModel:
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
             "vcmax_profile": str(profile_for(sc.vcmax_profile, sc.photosynthesis)),
+            **({} if t_g is None else {"growth_temperature_c": t_g}),
             "kn_per_lai": self.kn,
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,

@@ -273,6 +273,10 @@ class Scenario:
             :func:`lightfit.light.sensors.default_sensors`) above the soil, m: 0 (default) reads
             the PAR transmitted to the soil, a height inside the canopy the PAR transmitted to it.
         photosynthesis: parameter-set name (``lightfit.photosynthesis.parameter_set``).
+        growth_temperature_c: Kattge & Knorr's (2007) growth temperature T_g, the mean air
+            temperature of the month before the run (°C), for sets that acclimate to it
+            (``winter_wheat``); ``None`` (default): the set's own, 15 °C
+            (:data:`~lightfit.photosynthesis.parameters.ACCLIMATING_SETS`).
         vcmax_profile: photosynthetic capacity through the canopy (:mod:`lightfit.photosynthesis.canopy`):
             ``"lloyd2010"`` (Vcmax, Jmax, Rd fall as exp(−kn·L) with the leaf area L above a blade,
             kn from the set's Vcmax25 after Lloyd et al. 2010: 0.23 for ``winter_wheat``),
@@ -309,6 +313,7 @@ class Scenario:
     direct_rays_per_m2: tuple[float, float] | float = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
     photosynthesis: str = "winter_wheat"
+    growth_temperature_c: float | None = None
     vcmax_profile: str | float = "auto"
     par_kind: str = "absorbed"
     an_per: str = "ground"
@@ -338,7 +343,7 @@ class Scenario:
         check_choice("par_kind", self.par_kind)
         check_choice("an_per", self.an_per)
         self.vcmax_profile = check_profile(self.vcmax_profile)
-        self.kn()  # refused before plants grow
+        self.kn()  # refused before plants grow, as is a growth temperature the set does not take
         self.soil_respiration_umol_m2_s, self.soil_respiration_q10 = check_soil_respiration(
             self.soil_respiration_umol_m2_s, self.soil_respiration_q10
         )
@@ -358,7 +363,12 @@ class Scenario:
     def kn(self) -> float:
         """kn (per unit LAI) of :attr:`vcmax_profile` for :attr:`photosynthesis`
         (:func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
-        return resolve_kn(profile_for(self.vcmax_profile, self.photosynthesis), parameter_set(self.photosynthesis))
+        return resolve_kn(profile_for(self.vcmax_profile, self.photosynthesis), self.photosynthesis_params())
+
+    def photosynthesis_params(self):
+        """The run's :class:`~lightfit.photosynthesis.PhotosynthesisParams`: the set at the growth
+        temperature (:attr:`growth_temperature_c`)."""
+        return parameter_set(self.photosynthesis, self.growth_temperature_c)
 
     @property
     def measured_tile(self) -> Tile | None:

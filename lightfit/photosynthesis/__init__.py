@@ -38,6 +38,7 @@ from .parameters import (
     StomataParams,
     TemperatureParams,
     chlorophyll_from_spad_qian2021,
+    growth_temperature,
     parameter_set,
     vcmax_ref_from_chlorophyll,
 )
@@ -82,6 +83,7 @@ __all__ = [
     "leaf_capacities",
     "leuning_conductance",
     "medlyn_conductance",
+    "growth_temperature",
     "parameter_set",
     "peaked_arrhenius",
     "prepare_environment",

@@ -64,6 +64,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike, DTypeLike
 
+from lightfit.errors import InputError, is_real
+
 from .constants import AIR_O2_MMOL_MOL
 
 TEMPERATURE_FORMS = ("cplantbox", "peaked")
@@ -330,24 +332,26 @@ WINTER_WHEAT_G1_KPA05 = 5.79
 WINTER_WHEAT_GROWTH_TEMPERATURE_C = 15.0
 
 
-def _winter_wheat() -> PhotosynthesisParams:
+def _winter_wheat(t_growth_c: float = WINTER_WHEAT_GROWTH_TEMPERATURE_C) -> PhotosynthesisParams:
     return PhotosynthesisParams(
         fvcb=FvCBParams(
             vcmax_ref_umol_m2_s=WINTER_WHEAT_VCMAX25_UMOL_M2_S,
-            jmax_to_vcmax=kattge_knorr_jmax_to_vcmax(WINTER_WHEAT_GROWTH_TEMPERATURE_C),
+            jmax_to_vcmax=kattge_knorr_jmax_to_vcmax(t_growth_c),
             rd_to_vcmax=0.015,
             quantum_yield=4 * 0.088,  # Evans (2013), C3 photon yield without photorespiration
             curvature=0.7,
             o2_mmol_mol=AIR_O2_MMOL_MOL,
             clip_rates=True,
         ),
-        temperature=TemperatureParams.kattge_knorr2007(WINTER_WHEAT_GROWTH_TEMPERATURE_C),
+        temperature=TemperatureParams.kattge_knorr2007(t_growth_c),
         stomata=StomataParams(g0_mol_m2_s=0.01 / 1.6, a1=WINTER_WHEAT_G1_KPA05, model="medlyn"),
         name="winter_wheat",
         source="Winter wheat from the literature at 25 °C: Vcmax25 100 (Silva-Pérez et al. 2017, 2020; "
-        "Theobald et al. 1998), Jmax25/Vcmax25 2.065 (Kattge & Knorr 2007 at 15 °C growth), "
+        f"Theobald et al. 1998), Jmax25/Vcmax25 {kattge_knorr_jmax_to_vcmax(t_growth_c):.4g} (Kattge & Knorr 2007 at "
+        f"{t_growth_c:g} °C growth), "
         "Rd25 0.015 Vcmax25 (Collatz et al. 1991), Bernacchi et al. (2001) kinetics and Rd(T), Kattge & "
-        "Knorr (2007) Vcmax(T), Jmax(T) at 15 °C growth, alpha 4 x 0.088 and theta 0.7 (Evans 2013, Fig. 2), "
+        f"Knorr (2007) Vcmax(T), Jmax(T) at {t_growth_c:g} °C growth, alpha 4 x 0.088 and theta 0.7 (Evans 2013, "
+        "Fig. 2), "
         "Medlyn et al. (2011) stomata with "
         "g1 5.79 kPa^0.5 (Lin et al. 2015, C3 crops) and g0 0.01 mol H2O m-2 s-1 (Caird et al. 2007)",
     )
@@ -367,17 +371,55 @@ PARAMETER_SET_NAMES = tuple(_SETS)
 DEFAULT_PARAMETER_SET = "winter_wheat"
 
 
-def parameter_set(name: str) -> PhotosynthesisParams:
+#: Sets whose Vcmax(T), Jmax(T) and Jmax/Vcmax acclimate to the growth temperature (Kattge & Knorr
+#: 2007), with the growth temperature they take where none is given, °C.
+ACCLIMATING_SETS = {"winter_wheat": WINTER_WHEAT_GROWTH_TEMPERATURE_C}
+#: Growth temperatures taken (°C): monthly mean air temperatures of a growing season; Kattge &
+#: Knorr's linear acclimation is not extrapolated beyond them.
+GROWTH_TEMPERATURE_RANGE_C = (0.0, 35.0)
+
+
+def growth_temperature(name: str, growth_temperature_c: float | None = None) -> float | None:
+    """The growth temperature (°C) the set ``name`` takes given ``growth_temperature_c``: that, or for
+    ``None`` the set's own; ``None`` for a set that does not acclimate."""
+    if name not in ACCLIMATING_SETS:
+        return None
+    return ACCLIMATING_SETS[name] if growth_temperature_c is None else float(growth_temperature_c)
+
+
+def parameter_set(name: str, growth_temperature_c: float | None = None) -> PhotosynthesisParams:
     """Return a named parameter set (see the module docstring for values and sources).
+
+    ``growth_temperature_c``: T_g of Kattge & Knorr (2007), the mean air temperature of the month
+    before (°C), for the sets in :data:`ACCLIMATING_SETS`; ``None``: the set's own (15 °C for
+    ``winter_wheat``). It sets Jmax25/Vcmax25 = 2.59 − 0.035·T_g and the entropy terms of Vcmax(T)
+    and Jmax(T).
 
     Raises:
         ValueError: ``name`` is not one of :data:`PARAMETER_SET_NAMES`.
+        InputError: a growth temperature for a set that does not acclimate, or outside
+            :data:`GROWTH_TEMPERATURE_RANGE_C`.
     """
     try:
         factory = _SETS[name]
     except (KeyError, TypeError):
         raise ValueError(f"parameter_set: unknown name {name!r}; expected one of {list(PARAMETER_SET_NAMES)}") from None
-    return factory()
+    if growth_temperature_c is None:
+        return factory()
+    if name not in ACCLIMATING_SETS:
+        raise InputError(
+            f"growth_temperature_c={growth_temperature_c!r} with the {name!r} set",
+            column="growth_temperature_c",
+            expected="a set whose temperature responses acclimate (" + ", ".join(ACCLIMATING_SETS) + "), or none",
+        )
+    lo, hi = GROWTH_TEMPERATURE_RANGE_C
+    if not (is_real(growth_temperature_c) and lo <= growth_temperature_c <= hi):
+        raise InputError(
+            f"growth_temperature_c={growth_temperature_c!r}",
+            column="growth_temperature_c",
+            expected=f"the mean air temperature of the month before, a number in [{lo:g}, {hi:g}] °C",
+        )
+    return factory(float(growth_temperature_c))
 
 
 def cast_params(params: PhotosynthesisParams, dtype: DTypeLike) -> PhotosynthesisParams:
