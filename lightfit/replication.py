@@ -15,6 +15,7 @@ present), the forcing, and a summary table.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -42,10 +43,13 @@ from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
+from lightfit.weather.series import MONTH_BEFORE_COVERAGE, MONTH_BEFORE_DAYS
 from lightfit.weather.site import SELHAUSEN, Site, Window
 
 #: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
 DEFAULT_DATE = "2016-04-20"
+#: ``growth_temperature_c`` that takes each date's month before from the weather series.
+GROWTH_FROM_SERIES = "series"
 
 
 def as_dates(value: str | tuple | list) -> tuple[str, ...]:
@@ -89,7 +93,9 @@ class ReplicationConfig:
     ``vcmax_profile``: photosynthetic capacity through the canopy (:attr:`Scenario.vcmax_profile`;
     ``"auto"``: the set's own, Lloyd et al.'s profile for ``winter_wheat``, uniform for the paper's).
     ``growth_temperature_c``: Kattge & Knorr's growth temperature for sets that acclimate
-    (:attr:`Scenario.growth_temperature_c`; ``None``: the set's own, 15 °C for ``winter_wheat``).
+    (:attr:`Scenario.growth_temperature_c`; ``None``: the set's own, 15 °C for ``winter_wheat``;
+    ``"series"``: each date's mean air temperature of the 30 days before in the weather series,
+    :func:`lightfit.weather.month_before_mean_tair_c`).
     ``direct_rays_per_m2``: the projection's (sun, sky) rays per m² of ground
     (:attr:`Scenario.direct_rays_per_m2`; more rays, less per-segment noise, docs/light.md
     "Recommended settings").
@@ -115,7 +121,7 @@ class ReplicationConfig:
     how: str = "sample"
     photosynthesis: str = Scenario.photosynthesis
     vcmax_profile: str | float = Scenario.vcmax_profile
-    growth_temperature_c: float | None = Scenario.growth_temperature_c
+    growth_temperature_c: float | str | None = Scenario.growth_temperature_c
     optics: str = DEFAULT_PRESET
     chlorophyll_ug_cm2: float | None = None
     dates: tuple[str, ...] = (DEFAULT_DATE,)
@@ -127,6 +133,7 @@ class ReplicationConfig:
         # One form whatever it came from (one number, a list read back from JSON): configurations
         # compare equal when they render the same rays.
         object.__setattr__(self, "direct_rays_per_m2", check_rays(self.direct_rays_per_m2))
+        object.__setattr__(self, "growth_temperature_c", check_growth_temperature(self.growth_temperature_c))
 
     @staticmethod
     def quick() -> ReplicationConfig:
@@ -297,11 +304,17 @@ def forcing(
                 file=src.attrs.get("source"),
                 expected="a --date inside the file's span and a --start-time/--hours window within it",
             )
-        days.append(weather.window(src, t0, window.hours, window.step, how=how))
+        day = weather.window(src, t0, window.hours, window.step, how=how)
+        # Each date's month before, for a growth temperature taken from the series (None: not covered).
+        day.attrs["month_before_tair_c"] = {
+            d: None if undated else weather.month_before_mean_tair_c(src, d, site.timezone)
+        }
+        days.append(day)
     if len(days) == 1:
         return days[0]
     out = pd.concat(days)
     out.attrs = dict(days[0].attrs)
+    out.attrs["month_before_tair_c"] = {k: v for day in days for k, v in day.attrs["month_before_tair_c"].items()}
     return out
 
 
@@ -352,9 +365,42 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         soil_respiration_q10=cfg.soil_respiration_q10,
         photosynthesis=cfg.photosynthesis,
         vcmax_profile=cfg.vcmax_profile,
-        growth_temperature_c=cfg.growth_temperature_c,
+        growth_temperature_c=_growth_temperature(cfg, w),
         optics=optics,
     )
+
+
+def check_growth_temperature(value) -> float | str | None:
+    """A configuration's growth temperature: ``None``, ``"series"`` or a number (text taken as its
+    number; its range is :func:`lightfit.photosynthesis.parameter_set`'s); :class:`InputError`
+    naming ``growth_temperature_c`` otherwise."""
+    if value is None or value == GROWTH_FROM_SERIES:
+        return value
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"growth_temperature_c={value!r}",
+            column="growth_temperature_c",
+            expected=f"a temperature in °C, or {GROWTH_FROM_SERIES!r} (the weather series' month before the run)",
+        ) from None
+
+
+def _growth_temperature(cfg: ReplicationConfig, w: pd.DataFrame) -> float | None:
+    """The configuration's growth temperature for the day ``w``: from the series where it says so."""
+    if cfg.growth_temperature_c != GROWTH_FROM_SERIES:
+        return cfg.growth_temperature_c
+    date = cfg.date_of(w)
+    t_g = (w.attrs.get("month_before_tair_c") or {}).get(date)
+    if t_g is None:
+        raise InputError(
+            f"growth_temperature_c='series': the weather series does not cover the month before {date}",
+            file=w.attrs.get("source"),
+            column="growth_temperature_c",
+            expected=f"air temperature on at least {math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS)} of the "
+            f"{MONTH_BEFORE_DAYS} days before the run, or a number (°C)",
+        )
+    return t_g
 
 
 def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:

@@ -137,3 +137,30 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     rep.write_netcdf(ds, tmp_path / "r.nc")  # the union is writable
     t = ds["time"].values
     np.testing.assert_array_equal(ds["time_bnds"].values[:, 1], t)  # both days' bounds, end-stamps
+
+
+def test_growth_temperature_from_the_series_month_before(tmp_path):
+    """--growth-temperature-c series: each date's mean air temperature of the 30 local days before,
+    each day weighted alike (one day keeps half its rows), from a 36-day synthetic series whose
+    local days have known temperatures; refused naming the option where the series does not cover
+    them (the bundled single day)."""
+    base = weather.read_cplantbox_day(REAL_DAY, "2016-04-20")
+    series = pd.concat([base.set_axis(base.index + pd.Timedelta(days=k - 35)) for k in range(36)])
+    local = pd.DatetimeIndex(series.index.tz_convert("Europe/Berlin").date)  # each row's local date
+    day = (local - pd.Timestamp("2016-03-16")).days.to_numpy()  # naive dates: whole days across DST
+    series["tair_c"] = 4.0 + 0.25 * day
+    series = series[(local != pd.Timestamp("2016-04-01")) | (np.arange(len(series)) % 2 == 0)]
+    expect = np.mean(4.0 + 0.25 * np.arange(5, 35))  # the local days 21 March … 19 April
+    assert weather.month_before_mean_tair_c(series, "2016-04-20") == pytest.approx(expect, abs=1e-12)
+    path = weather.write_lightfit_csv(series, tmp_path / "month.csv", {"provenance": "synthetic"})
+    w = rep.forcing(path, dates="2016-04-20", window=Window("12:00", 1.0))
+    # Read back, the half day's missing rows are filled by the reader's interpolation (its first
+    # row from the day before's last): 0.125 / 144 on that day, 3e-5 on the month.
+    assert w.attrs["month_before_tair_c"]["2016-04-20"] == pytest.approx(expect, abs=5e-5)
+    cfg = rep.ReplicationConfig(n_plants=1, growth_temperature_c="series", window=Window("12:00", 1.0))
+    assert rep.scenario_for(cfg, w).growth_temperature_c == w.attrs["month_before_tair_c"]["2016-04-20"]
+    short = rep.forcing(path, dates="2016-03-30", window=Window("12:00", 1.0))  # 14 days before it
+    with pytest.raises(InputError, match="growth_temperature_c='series'.*month before 2016-03-30"):
+        rep.scenario_for(replace(cfg, dates=("2016-03-30",)), short)
+    r = runner.invoke(app, ["replicate", "--quick", "--growth-temperature-c", "series", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "month before 2016-04-20" in " ".join(r.stderr.split())

@@ -72,7 +72,7 @@ class ModelOptions:
     par_kind: str | None = None
     photosynthesis: str | None = None
     vcmax_profile: str | None = None
-    growth_temperature_c: float | None = None
+    growth_temperature_c: str | None = None
     an_per: str | None = None
     soil_respiration: float | None = None
     soil_respiration_q10: float | None = None
@@ -134,7 +134,7 @@ class ModelSettings:
     par_kind: str
     photosynthesis: str
     vcmax_profile: str | float
-    growth_temperature_c: float | None
+    growth_temperature_c: float | str | None
     an_per: str
     soil_respiration: float
     soil_respiration_q10: float
@@ -352,12 +352,13 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         ),
     ),
     "growth_temperature_c": (
-        float | None,
+        str | None,
         typer.Option(
             "--growth-temperature-c",
             help="Growth temperature of Kattge & Knorr (2007), the mean air temperature of the month "
-            "before the run, °C, in [0, 35]: sets Jmax/Vcmax and the optimum of their temperature "
-            "responses (winter_wheat; default its 15 °C; docs/photosynthesis.md).",
+            "before the run, °C, in [0, 35], or 'series' (each date's 30 days before in the weather "
+            "series): sets Jmax/Vcmax and the optimum of their temperature responses (winter_wheat; "
+            "default its 15 °C; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,
         ),
     ),
@@ -605,7 +606,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     )
     from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
     from lightfit.photosynthesis.canopy import profile_for, resolve_kn
-    from lightfit.replication import ReplicationConfig
+    from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
+    from lightfit.replication import GROWTH_FROM_SERIES, ReplicationConfig, check_growth_temperature
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
 
@@ -637,7 +639,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
-        growth_temperature_c=given(opts.growth_temperature_c, base.growth_temperature_c),
+        growth_temperature_c=check_growth_temperature(given(opts.growth_temperature_c, base.growth_temperature_c)),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
         soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
@@ -661,7 +663,10 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     profile = profile_for(s.vcmax_profile, s.photosynthesis)
-    resolve_kn(profile, parameter_set(s.photosynthesis, s.growth_temperature_c))
+    t_g = s.growth_temperature_c
+    if t_g == GROWTH_FROM_SERIES:  # its value comes with the weather: here only whether the set takes one
+        t_g = ACCLIMATING_SETS.get(s.photosynthesis, t_g)
+    resolve_kn(profile, parameter_set(s.photosynthesis, t_g))
     s = dataclasses.replace(s, vcmax_profile=profile)  # stored resolved: what the run used
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)

@@ -22,7 +22,7 @@ from lightfit.weather.readers import (
     write_lightfit_csv,
 )
 from lightfit.weather.reconstruct import Anchor, DayAssumptions, reconstruct_day
-from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, resample, window
+from lightfit.weather.series import BOUNDS, COLUMNS, check_and_repair, month_before_mean_tair_c, resample, window
 from lightfit.weather.site import SELHAUSEN, SITES, Site, Window, site_named
 from lightfit.weather.solar import add_solar, solar_position, split_direct_diffuse, split_from_diffuse
 
@@ -41,6 +41,7 @@ __all__ = [
     "check_and_repair",
     "is_undated",
     "load",
+    "month_before_mean_tair_c",
     "read_cplantbox_day",
     "read_lightfit_csv",
     "read_source",

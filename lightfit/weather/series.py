@@ -10,6 +10,7 @@ dropped silently and no NaN leaves this module.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -479,3 +480,24 @@ def window(
             expected=f"a series whose whole {step} steps span the requested window",
         )
     return out
+
+
+#: Days before a run whose mean air temperature is Kattge & Knorr's (2007) growth temperature, and
+#: the share of them a series must have air temperature on.
+MONTH_BEFORE_DAYS = 30
+MONTH_BEFORE_COVERAGE = 0.9
+
+
+def month_before_mean_tair_c(df: pd.DataFrame, date: str, tz: str = SELHAUSEN.timezone) -> float | None:
+    """Mean air temperature (°C) of the :data:`MONTH_BEFORE_DAYS` days before ``date`` (local days in
+    ``tz``, each the mean of its rows, so that gaps and uneven steps do not weight them); ``None``
+    where the series has ``tair_c`` on fewer than :data:`MONTH_BEFORE_COVERAGE` of those days."""
+    day = pd.Timestamp(date).normalize()
+    # Local midnights, counted in calendar days: a daylight-saving change is not an hour of a day more.
+    end, start = day.tz_localize(tz), (day - pd.Timedelta(days=MONTH_BEFORE_DAYS)).tz_localize(tz)
+    t = df["tair_c"].dropna()
+    t = t[(t.index >= start) & (t.index < end)]
+    daily = t.groupby(t.index.tz_convert(tz).date).mean()
+    if len(daily) < math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS):
+        return None
+    return float(daily.mean())
