@@ -37,6 +37,11 @@ from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples, resolve_direct
 from lightfit.photosynthesis.canopy import profile_for
+from lightfit.photosynthesis.parameters import (
+    ACCLIMATING_SETS,
+    GROWTH_TEMPERATURE_RANGE_C,
+    growth_temperature_setting,
+)
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
 from lightfit.plant.sheaths import SHEATHS
@@ -133,7 +138,14 @@ class ReplicationConfig:
         # One form whatever it came from (one number, a list read back from JSON): configurations
         # compare equal when they render the same rays.
         object.__setattr__(self, "direct_rays_per_m2", check_rays(self.direct_rays_per_m2))
-        object.__setattr__(self, "growth_temperature_c", check_growth_temperature(self.growth_temperature_c))
+        t_g = growth_temperature_setting(self.photosynthesis, check_growth_temperature(self.growth_temperature_c))
+        if t_g is not None and self.photosynthesis not in ACCLIMATING_SETS:
+            raise InputError(
+                f"growth_temperature_c={t_g!r} with the {self.photosynthesis!r} set",
+                column="growth_temperature_c",
+                expected="a set whose temperature responses acclimate (" + ", ".join(ACCLIMATING_SETS) + "), or none",
+            )
+        object.__setattr__(self, "growth_temperature_c", t_g)
 
     @staticmethod
     def quick() -> ReplicationConfig:
@@ -161,7 +173,8 @@ class ReplicationConfig:
         """The named preset whose model choices this configuration has (``None``: neither)."""
         for name in PRESETS:
             ref = ReplicationConfig().with_preset(name)
-            choices = ("boundary", "sheaths", "optics", "photosynthesis", "par_kind")
+            # growth_temperature_c is normalised (None: the set's own), the profile compared as resolved
+            choices = ("boundary", "sheaths", "optics", "photosynthesis", "par_kind", "growth_temperature_c")
             same_profile = profile_for(self.vcmax_profile, self.photosynthesis) == profile_for(
                 ref.vcmax_profile, ref.photosynthesis
             )
@@ -267,6 +280,7 @@ def forcing(
     site: Site = SELHAUSEN,
     provenance: str | None = None,
     split_model: str | None = None,
+    month_before: bool = False,
 ) -> pd.DataFrame:
     """The run's steps, with solar columns for ``site``: the ``window`` (local time at the site) of each date.
 
@@ -278,7 +292,9 @@ def forcing(
     a contradiction is refused). ``split_model``: the direct/diffuse split
     (:func:`lightfit.weather.add_solar`; default: the series' diffuse column where it has one, else
     Erbs). Errors name the file and the parameter (``date``,
-    ``start/hours``) when the window is not covered.
+    ``start/hours``) when the window is not covered. ``month_before``: record each date's mean air
+    temperature of the month before in ``attrs["month_before_tair_c"]`` (``{date: °C or None}``, for
+    ``growth_temperature_c="series"``).
     """
     given = dates is not None
     dates = as_dates(dates or DEFAULT_DATE)
@@ -305,16 +321,17 @@ def forcing(
                 expected="a --date inside the file's span and a --start-time/--hours window within it",
             )
         day = weather.window(src, t0, window.hours, window.step, how=how)
-        # Each date's month before, for a growth temperature taken from the series (None: not covered).
-        day.attrs["month_before_tair_c"] = {
-            d: None if undated else weather.month_before_mean_tair_c(src, d, site.timezone)
-        }
+        if month_before:  # each date's month before, for a growth temperature from the series
+            day.attrs["month_before_tair_c"] = {
+                d: None if undated else weather.month_before_mean_tair_c(src, d, site.timezone)
+            }
         days.append(day)
     if len(days) == 1:
         return days[0]
     out = pd.concat(days)
     out.attrs = dict(days[0].attrs)
-    out.attrs["month_before_tair_c"] = {k: v for day in days for k, v in day.attrs["month_before_tair_c"].items()}
+    if month_before:
+        out.attrs["month_before_tair_c"] = {k: v for day in days for k, v in day.attrs["month_before_tair_c"].items()}
     return out
 
 
@@ -337,7 +354,14 @@ def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFram
 
 def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None) -> pd.DataFrame:
     """:func:`forcing` with the configuration's dates, window, site and resampling."""
-    return forcing(weather_file, cfg.how, dates=cfg.dates, window=cfg.window, site=cfg.site)
+    return forcing(
+        weather_file,
+        cfg.how,
+        dates=cfg.dates,
+        window=cfg.window,
+        site=cfg.site,
+        month_before=cfg.growth_temperature_c == GROWTH_FROM_SERIES,
+    )
 
 
 def when_attrs(cfg: ReplicationConfig, date: str) -> dict[str, str | float]:
@@ -376,6 +400,8 @@ def check_growth_temperature(value) -> float | str | None:
     naming ``growth_temperature_c`` otherwise."""
     if value is None or value == GROWTH_FROM_SERIES:
         return value
+    if isinstance(value, bool):
+        value = "a bool"  # refused below: True is not 1 °C
     try:
         return float(value)
     except (TypeError, ValueError):
@@ -400,7 +426,22 @@ def _growth_temperature(cfg: ReplicationConfig, w: pd.DataFrame) -> float | None
             expected=f"air temperature on at least {math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS)} of the "
             f"{MONTH_BEFORE_DAYS} days before the run, or a number (°C)",
         )
+    lo, hi = GROWTH_TEMPERATURE_RANGE_C
+    if not lo <= t_g <= hi:
+        raise InputError(
+            f"growth_temperature_c='series': the month before {date} averages {t_g:.2f} °C in the weather series",
+            file=w.attrs.get("source"),
+            column="growth_temperature_c",
+            expected=f"a growth temperature in [{lo:g}, {hi:g}] °C: give --growth-temperature-c a number",
+        )
     return t_g
+
+
+def check_growth_temperatures(cfg: ReplicationConfig, w: pd.DataFrame) -> None:
+    """Every date's growth temperature of ``w`` (:func:`_growth_temperature`), before anything runs:
+    a several-day run would otherwise grow and render its first days before refusing a later one."""
+    for _, wd in days(cfg, w):
+        _growth_temperature(cfg, wd)
 
 
 def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:
@@ -460,6 +501,7 @@ def run(
     steps do not reach it; other observations outside the run are an error).
     """
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
+    check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)
     parts = []
     for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
@@ -523,6 +565,9 @@ def concat_days(parts: list) -> xr.Dataset:
     out["converged"] = out["converged"].astype(bool)
     # Each day allocates adaptive sampling at its own highest sun: every day's point, in order.
     per_day = [k for k in parts[0].attrs if k.startswith("allocation_")]
+    t_g = {p.attrs.get("growth_temperature_c") for p in parts}
+    if len(t_g) > 1:  # "series": each day's own, listed like the dates
+        per_day.append("growth_temperature_c")
     for k in ("date", "window", "target_date", *per_day):
         out.attrs[k] = "; ".join(str(p.attrs[k]) for p in parts)
     return schema.annotate(out)

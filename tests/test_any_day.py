@@ -13,7 +13,7 @@ from lightfit import weather
 from lightfit.cli import app
 from lightfit.errors import InputError
 from lightfit.report import step_instants
-from lightfit.weather import Site, Window
+from lightfit.weather import Site, Window, timestamps
 from lightfit.weather.bundled import DATA_DIR
 
 runner = CliRunner()
@@ -146,21 +146,67 @@ def test_growth_temperature_from_the_series_month_before(tmp_path):
     them (the bundled single day)."""
     base = weather.read_cplantbox_day(REAL_DAY, "2016-04-20")
     series = pd.concat([base.set_axis(base.index + pd.Timedelta(days=k - 35)) for k in range(36)])
-    local = pd.DatetimeIndex(series.index.tz_convert("Europe/Berlin").date)  # each row's local date
+    centres = timestamps.of(series).centres(series.index)  # 10-min means stamped at their ends
+    local = pd.DatetimeIndex(centres.tz_convert("Europe/Berlin").date)  # each row's local date
     day = (local - pd.Timestamp("2016-03-16")).days.to_numpy()  # naive dates: whole days across DST
     series["tair_c"] = 4.0 + 0.25 * day
     series = series[(local != pd.Timestamp("2016-04-01")) | (np.arange(len(series)) % 2 == 0)]
     expect = np.mean(4.0 + 0.25 * np.arange(5, 35))  # the local days 21 March … 19 April
     assert weather.month_before_mean_tair_c(series, "2016-04-20") == pytest.approx(expect, abs=1e-12)
     path = weather.write_lightfit_csv(series, tmp_path / "month.csv", {"provenance": "synthetic"})
-    w = rep.forcing(path, dates="2016-04-20", window=Window("12:00", 1.0))
+    w = rep.forcing(path, dates="2016-04-20", window=Window("12:00", 1.0), month_before=True)
+    assert "month_before_tair_c" not in rep.forcing(path, dates="2016-04-20", window=Window("12:00", 1.0)).attrs
     # Read back, the half day's missing rows are filled by the reader's interpolation (its first
     # row from the day before's last): 0.125 / 144 on that day, 3e-5 on the month.
     assert w.attrs["month_before_tair_c"]["2016-04-20"] == pytest.approx(expect, abs=5e-5)
     cfg = rep.ReplicationConfig(n_plants=1, growth_temperature_c="series", window=Window("12:00", 1.0))
     assert rep.scenario_for(cfg, w).growth_temperature_c == w.attrs["month_before_tair_c"]["2016-04-20"]
-    short = rep.forcing(path, dates="2016-03-30", window=Window("12:00", 1.0))  # 14 days before it
+    short = rep.forcing(path, dates="2016-03-30", window=Window("12:00", 1.0), month_before=True)  # 14 days
     with pytest.raises(InputError, match="growth_temperature_c='series'.*month before 2016-03-30"):
         rep.scenario_for(replace(cfg, dates=("2016-03-30",)), short)
     r = runner.invoke(app, ["replicate", "--quick", "--growth-temperature-c", "series", "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "month before 2016-04-20" in " ".join(r.stderr.split())
+    assert not (tmp_path / "o").exists()  # refused before anything is written
+
+
+def test_month_before_across_a_daylight_saving_change_at_midnight():
+    """Santiago's clocks jumped from 00:00 to 01:00 on 14 August 2016: there is no local midnight
+    that day, and the month before 13 September is counted in calendar days all the same. A file's
+    first evening (two hours of a day) does not count as a day of the month."""
+    t = pd.date_range("2016-08-01", "2016-09-14", freq="1h", tz="UTC")
+    local = pd.DatetimeIndex(t.tz_convert("America/Santiago").date)
+    df = pd.DataFrame({"tair_c": (local - pd.Timestamp("2016-08-01")).days.to_numpy() * 0.1}, index=t)
+    got = weather.month_before_mean_tair_c(df, "2016-09-13", "America/Santiago")
+    assert got == pytest.approx(np.mean([0.1 * k for k in range(13, 43)]), abs=1e-12)  # 14 Aug … 12 Sep
+    late = df[df.index >= pd.Timestamp("2016-08-13 22:00", tz="America/Santiago")]  # from 22:00 on the 13th
+    assert weather.month_before_mean_tair_c(late, "2016-09-13", "America/Santiago") == pytest.approx(got)
+    assert weather.month_before_mean_tair_c(df[df.index >= "2016-08-20"], "2016-09-13", "America/Santiago") is None
+
+
+def test_growth_temperature_settings_are_one_per_model():
+    """An explicit 15 °C is winter_wheat's own (one setting, one digest); a history stored before the
+    option existed was the set's own, so it does not resume at another growth temperature; several
+    days of "series" list each day's value; the run's label names a growth temperature not the set's."""
+    from lightfit.inference.calibration import _check_same_data, _model_digest
+    from lightfit.report import run_label
+
+    w = rep.forcing().iloc[[14]]
+    assert rep.ReplicationConfig(growth_temperature_c=15.0).growth_temperature_c is None
+    assert rep.ReplicationConfig(growth_temperature_c="9").growth_temperature_c == 9.0
+    assert rep.ReplicationConfig(growth_temperature_c=9.0).preset is None
+    with pytest.raises(InputError, match="growth_temperature_c"):
+        rep.ReplicationConfig(growth_temperature_c=True)
+    with pytest.raises(InputError, match="growth_temperature_c='series' with the 'giraud2023' set"):
+        rep.ReplicationConfig(photosynthesis="giraud2023", growth_temperature_c="series")
+    m = lambda s: type("M", (), {"scenario": s})()  # noqa: E731
+    base = rep.scenario_for(rep.ReplicationConfig.quick(), w)
+    assert _model_digest(m(replace(base, growth_temperature_c=15.0))) == _model_digest(m(base))
+    warm = _model_digest(m(replace(base, growth_temperature_c=9.0)))
+    old = {k: v for k, v in _model_digest(m(base)).items() if k != "growth_temperature_c"}
+    with pytest.raises(InputError, match="growth_temperature_c"):
+        _check_same_data(
+            {"key": {"data": {"observations": "o", "model": old}}}, {"observations": "o", "model": warm}, None, print
+        )
+    assert "T_g 9 °C" in run_label({"photosynthesis": "winter_wheat", "growth_temperature_c": 9.0})
+    assert "T_g" not in run_label({"photosynthesis": "winter_wheat", "growth_temperature_c": 15.0})
+    assert "T_g 9.3; 13.1 °C" in run_label({"photosynthesis": "winter_wheat", "growth_temperature_c": "9.3; 13.1"})

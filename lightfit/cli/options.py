@@ -606,7 +606,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     )
     from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
     from lightfit.photosynthesis.canopy import profile_for, resolve_kn
-    from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
+    from lightfit.photosynthesis.parameters import ACCLIMATING_SETS, growth_temperature_setting
     from lightfit.replication import GROWTH_FROM_SERIES, ReplicationConfig, check_growth_temperature
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
@@ -639,7 +639,10 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
-        growth_temperature_c=check_growth_temperature(given(opts.growth_temperature_c, base.growth_temperature_c)),
+        growth_temperature_c=growth_temperature_setting(
+            given(opts.photosynthesis, base.photosynthesis),
+            check_growth_temperature(given(opts.growth_temperature_c, base.growth_temperature_c)),
+        ),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
         soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
@@ -907,8 +910,9 @@ def weather(s: ModelSettings):
     or the ``--steps`` of each day."""
     import pandas as pd
 
-    from lightfit.replication import days, forcing
+    from lightfit.replication import GROWTH_FROM_SERIES, check_growth_temperatures, days, forcing
 
+    cfg = s.replication_config()
     w = forcing(
         s.weather_file,
         s.how,
@@ -917,10 +921,12 @@ def weather(s: ModelSettings):
         site=s.site,
         provenance=s.weather_provenance,
         split_model=s.split,
+        month_before=s.growth_temperature_c == GROWTH_FROM_SERIES,
     )
+    check_growth_temperatures(cfg, w)  # every date's, before anything is grown or written
     if not s.steps:
         return w
-    parts = [wd.iloc[_steps(s.steps, len(wd))] for _, wd in days(s.replication_config(), w)]
+    parts = [wd.iloc[_steps(s.steps, len(wd))] for _, wd in days(cfg, w)]
     out = pd.concat(parts)
     out.attrs = dict(w.attrs)
     return out

@@ -34,6 +34,7 @@ from lightfit.light.scene import Optics
 from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
+from lightfit.photosynthesis.parameters import growth_temperature_setting
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
 from lightfit.weather.solar import par_direct_diffuse
@@ -343,6 +344,7 @@ class Scenario:
         check_choice("par_kind", self.par_kind)
         check_choice("an_per", self.an_per)
         self.vcmax_profile = check_profile(self.vcmax_profile)
+        self.growth_temperature_c = growth_temperature_setting(self.photosynthesis, self.growth_temperature_c)
         self.kn()  # refused before plants grow, as is a growth temperature the set does not take
         self.soil_respiration_umol_m2_s, self.soil_respiration_q10 = check_soil_respiration(
             self.soil_respiration_umol_m2_s, self.soil_respiration_q10
@@ -396,7 +398,7 @@ class Scenario:
 
 #: Scenario settings added after digests were first stored whose absence from a stored digest
 #: means a value other than today's default (before capacity profiles every blade was the set's).
-DIGEST_WHEN_ABSENT = {"vcmax_profile": "uniform"}
+DIGEST_WHEN_ABSENT = {"vcmax_profile": "uniform", "growth_temperature_c": None}
 
 
 def digest_of(value) -> str:

@@ -387,6 +387,15 @@ def growth_temperature(name: str, growth_temperature_c: float | None = None) -> 
     return ACCLIMATING_SETS[name] if growth_temperature_c is None else float(growth_temperature_c)
 
 
+def growth_temperature_setting(name: str, growth_temperature_c):
+    """``growth_temperature_c`` as settings keep it: ``None`` where it is the set ``name``'s own (one
+    model, one setting: an explicit 15 °C for ``winter_wheat`` is its default), else unchanged."""
+    own = ACCLIMATING_SETS.get(name)
+    if is_real(growth_temperature_c) and own is not None and float(growth_temperature_c) == own:
+        return None
+    return growth_temperature_c
+
+
 def parameter_set(name: str, growth_temperature_c: float | None = None) -> PhotosynthesisParams:
     """Return a named parameter set (see the module docstring for values and sources).
 

@@ -489,15 +489,25 @@ MONTH_BEFORE_COVERAGE = 0.9
 
 
 def month_before_mean_tair_c(df: pd.DataFrame, date: str, tz: str = SELHAUSEN.timezone) -> float | None:
-    """Mean air temperature (°C) of the :data:`MONTH_BEFORE_DAYS` days before ``date`` (local days in
-    ``tz``, each the mean of its rows, so that gaps and uneven steps do not weight them); ``None``
-    where the series has ``tair_c`` on fewer than :data:`MONTH_BEFORE_COVERAGE` of those days."""
-    day = pd.Timestamp(date).normalize()
-    # Local midnights, counted in calendar days: a daylight-saving change is not an hour of a day more.
-    end, start = day.tz_localize(tz), (day - pd.Timedelta(days=MONTH_BEFORE_DAYS)).tz_localize(tz)
+    """Mean air temperature (°C) of the :data:`MONTH_BEFORE_DAYS` local days before ``date`` (in
+    ``tz``; each day the mean of its rows, taken at the rows' centres, so that gaps and uneven steps
+    do not weight the days); ``None`` where fewer than :data:`MONTH_BEFORE_COVERAGE` of those days
+    are covered, a day counting when its rows times their spacing span that share of 24 h (a
+    file's first evening is not a day, a day of every other row is). Days are calendar dates: no
+    local midnight is constructed, so a daylight-saving change at midnight (Santiago, Beirut) is no
+    error."""
+    first = (pd.Timestamp(date) - pd.Timedelta(days=MONTH_BEFORE_DAYS)).date()
+    last = (pd.Timestamp(date) - pd.Timedelta(days=1)).date()
     t = df["tair_c"].dropna()
-    t = t[(t.index >= start) & (t.index < end)]
-    daily = t.groupby(t.index.tz_convert(tz).date).mean()
-    if len(daily) < math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS):
+    local_date = pd.Series(timestamps.of(df).centres(t.index).tz_convert(tz).date, index=t.index)
+    inside = (local_date >= first) & (local_date <= last)
+    t, local_date = t[inside], local_date[inside]
+    # A day's span: its rows times their usual spacing (every other row still spans the day; a
+    # file's first two hours do not).
+    hours = pd.Series((t.index - t.index[0]) / pd.Timedelta(hours=1) if len(t) else [], index=t.index, dtype=float)
+    spacing_h = hours.groupby(local_date).agg(lambda x: np.median(np.diff(x)) if len(x) > 1 else 0.0)
+    span_h = spacing_h * hours.groupby(local_date).size()
+    full = span_h >= MONTH_BEFORE_COVERAGE * 24
+    if full.sum() < math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS):
         return None
-    return float(daily.mean())
+    return float(t.groupby(local_date).mean()[full].mean())
