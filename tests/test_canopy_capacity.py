@@ -45,6 +45,7 @@ def test_kn_of_lloyd_2010():
     assert vcmax25(ww) == pytest.approx(100.0)  # the set's reference temperature is 25 °C
     assert resolve_kn("lloyd2010", ww) == pytest.approx(kn_lloyd2010(100.0))
     assert resolve_kn("uniform", ww) == 0.0 and resolve_kn(0.4, ww) == 0.4 and resolve_kn("0.4", ww) == 0.4
+    assert resolve_kn("depury1997", parameter_set("giraud2023")) == 0.713  # a crop's own kn, any set
     np.testing.assert_allclose(capacity_factor([0.0, 1.0, 3.0], 0.5), np.exp([0.0, -0.5, -1.5]))
 
 

@@ -56,8 +56,8 @@ def field_run(
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label
 
+    check_netcdf_name(out)  # before any table is computed or plant grown (or JAX compiles a check)
     s = resolve(model)
-    check_netcdf_name(out)  # before any table is computed or plant grown
     out = Path(out)
     parts = out.with_name(out.name + PARTS_SUFFIX)
     if parts.exists() and not parts.is_dir():

@@ -345,7 +345,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--vcmax-profile",
             help="Photosynthetic capacity through the canopy: lloyd2010 (Vcmax, Jmax, Rd fall as exp(-kn L) "
-            "with the leaf area L above a blade, kn from the set's Vcmax25), uniform (every blade alike, as "
+            "with the leaf area L above a blade, kn from the set's Vcmax25), depury1997 (kn 0.713, de Pury & "
+            "Farquhar's wheat canopy), uniform (every blade alike, as "
             "the reference paper), kn itself (a number in [0, 2] per unit LAI), or auto (default: the set's own, "
             "lloyd2010 for winter_wheat, uniform for the CPlantBox sets; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,

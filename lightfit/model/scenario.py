@@ -281,6 +281,7 @@ class Scenario:
         vcmax_profile: photosynthetic capacity through the canopy (:mod:`lightfit.photosynthesis.canopy`):
             ``"lloyd2010"`` (Vcmax, Jmax, Rd fall as exp(−kn·L) with the leaf area L above a blade,
             kn from the set's Vcmax25 after Lloyd et al. 2010: 0.23 for ``winter_wheat``),
+            ``"depury1997"`` (kn = 0.713 of de Pury & Farquhar's wheat canopy),
             ``"uniform"`` (every blade the set's capacity, as the reference paper), kn itself (a
             number in [0, 2] per unit LAI; 0 is ``"uniform"``), or ``"auto"`` (default): the set's own
             (:data:`~lightfit.photosynthesis.canopy.SET_PROFILES`: Lloyd's for ``winter_wheat``,

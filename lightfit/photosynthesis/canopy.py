@@ -47,7 +47,11 @@ LLOYD2010_SLOPE = 0.00963
 LLOYD2010_INTERCEPT = -2.43
 #: Named profiles (besides a number, kn itself): ``"auto"`` is each parameter set's own
 #: (:data:`SET_PROFILES`), resolved by :func:`profile_for`.
-PROFILES = ("auto", "lloyd2010", "uniform")
+PROFILES = ("auto", "lloyd2010", "depury1997", "uniform")
+#: kn of de Pury & Farquhar's (1997, Plant Cell Environ. 20:537) wheat canopy, per unit LAI: a
+#: crop's own value, three times as steep as Lloyd et al.'s at Vcmax25 = 100 (as the Daisy crop model
+#: takes it for its wheat).
+DEPURY1997_KN = 0.713
 #: The profile ``"auto"`` gives a set: Lloyd et al.'s for the literature set; the CPlantBox-derived
 #: sets (the reference paper's among them) model none, and their Vcmax lies outside Lloyd's fit.
 SET_PROFILES = {"winter_wheat": "lloyd2010"}
@@ -85,12 +89,14 @@ def profile_for(profile: str | float, set_name: str) -> str | float:
 
 def resolve_kn(profile: str | float, params: PhotosynthesisParams) -> float:
     """kn (per unit LAI) of a resolved capacity profile (:func:`profile_for`) for the parameter set
-    ``params``: ``"uniform"`` → 0
+    ``params``: ``"uniform"`` → 0, ``"depury1997"`` → :data:`DEPURY1997_KN`
     (every leaf the set's capacity, as the reference paper), ``"lloyd2010"`` → :func:`kn_lloyd2010`
     of the set's Vcmax at 25 °C, a number in [0, :data:`MAX_KN`] (or its text) → itself. :class:`InputError` naming
     ``vcmax_profile`` otherwise, and for Lloyd's fit beyond :data:`LLOYD2010_MAX_VCMAX25`."""
     if profile == "uniform":
         return 0.0
+    if profile == "depury1997":
+        return DEPURY1997_KN
     if profile == "lloyd2010":
         v25 = vcmax25(params)
         if not v25 <= LLOYD2010_MAX_VCMAX25:
@@ -156,6 +162,7 @@ def capacity_factor(lai_above, kn: float) -> np.ndarray:
 
 
 __all__ = [
+    "DEPURY1997_KN",
     "LLOYD2010_INTERCEPT",
     "LLOYD2010_MAX_VCMAX25",
     "LLOYD2010_SLOPE",
