@@ -15,7 +15,6 @@ present), the forcing, and a summary table.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -36,19 +35,15 @@ from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples, resolve_direct
-from lightfit.photosynthesis.canopy import profile_for
-from lightfit.photosynthesis.parameters import (
-    ACCLIMATING_SETS,
-    GROWTH_TEMPERATURE_RANGE_C,
-    growth_temperature_setting,
-)
+from lightfit.photosynthesis.canopy import check_profile, profile_for
+from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
 from lightfit.plant.growth import GrowthConfig
 from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
-from lightfit.weather.series import MONTH_BEFORE_COVERAGE, MONTH_BEFORE_DAYS
+from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS
 from lightfit.weather.site import SELHAUSEN, Site, Window
 
 #: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
@@ -138,14 +133,13 @@ class ReplicationConfig:
         # One form whatever it came from (one number, a list read back from JSON): configurations
         # compare equal when they render the same rays.
         object.__setattr__(self, "direct_rays_per_m2", check_rays(self.direct_rays_per_m2))
-        t_g = growth_temperature_setting(self.photosynthesis, check_growth_temperature(self.growth_temperature_c))
-        if t_g is not None and self.photosynthesis not in ACCLIMATING_SETS:
-            raise InputError(
-                f"growth_temperature_c={t_g!r} with the {self.photosynthesis!r} set",
-                column="growth_temperature_c",
-                expected="a set whose temperature responses acclimate (" + ", ".join(ACCLIMATING_SETS) + "), or none",
-            )
+        t_g = growth_temperature_setting(self.photosynthesis, parse_growth_temperature(self.growth_temperature_c))
+        if t_g == GROWTH_FROM_SERIES:  # read with the weather; whether the set takes one, now
+            check_acclimates(self.photosynthesis, t_g)
+        elif t_g is not None:
+            check_growth_temperature(self.photosynthesis, t_g)
         object.__setattr__(self, "growth_temperature_c", t_g)
+        object.__setattr__(self, "vcmax_profile", check_profile(self.vcmax_profile))
 
     @staticmethod
     def quick() -> ReplicationConfig:
@@ -167,6 +161,11 @@ class ReplicationConfig:
             base = ReplicationConfig()
             return replace(self, **{k: getattr(base, k) for k in PAPER_PRESET})
         raise InputError(f"preset={name!r}", column="preset", expected=" or ".join(PRESETS))
+
+    @property
+    def needs_month_before(self) -> bool:
+        """Whether the forcing must carry each date's month before (``growth_temperature_c="series"``)."""
+        return self.growth_temperature_c == GROWTH_FROM_SERIES
 
     @property
     def preset(self) -> str | None:
@@ -360,7 +359,7 @@ def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None) -
         dates=cfg.dates,
         window=cfg.window,
         site=cfg.site,
-        month_before=cfg.growth_temperature_c == GROWTH_FROM_SERIES,
+        month_before=cfg.needs_month_before,
     )
 
 
@@ -394,15 +393,15 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
     )
 
 
-def check_growth_temperature(value) -> float | str | None:
+def parse_growth_temperature(value) -> float | str | None:
     """A configuration's growth temperature: ``None``, ``"series"`` or a number (text taken as its
-    number; its range is :func:`lightfit.photosynthesis.parameter_set`'s); :class:`InputError`
-    naming ``growth_temperature_c`` otherwise."""
+    number; a bool is no temperature); :class:`InputError` naming ``growth_temperature_c``
+    otherwise. The set and the range are checked by :class:`ReplicationConfig`."""
     if value is None or value == GROWTH_FROM_SERIES:
         return value
-    if isinstance(value, bool):
-        value = "a bool"  # refused below: True is not 1 °C
     try:
+        if isinstance(value, bool):
+            raise TypeError
         return float(value)
     except (TypeError, ValueError):
         raise InputError(
@@ -417,24 +416,23 @@ def _growth_temperature(cfg: ReplicationConfig, w: pd.DataFrame) -> float | None
     if cfg.growth_temperature_c != GROWTH_FROM_SERIES:
         return cfg.growth_temperature_c
     date = cfg.date_of(w)
-    t_g = (w.attrs.get("month_before_tair_c") or {}).get(date)
+    if "month_before_tair_c" not in w.attrs:
+        raise InputError(
+            "growth_temperature_c='series' with a forcing read without its month before",
+            column="forcing_df",
+            expected="the forcing of forcing_of(cfg) (forcing(..., month_before=True))",
+        )
+    t_g = w.attrs["month_before_tair_c"].get(date)
     if t_g is None:
         raise InputError(
             f"growth_temperature_c='series': the weather series does not cover the month before {date}",
             file=w.attrs.get("source"),
             column="growth_temperature_c",
-            expected=f"air temperature on at least {math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS)} of the "
-            f"{MONTH_BEFORE_DAYS} days before the run, or a number (°C)",
+            expected=f"air temperature over at least {MONTH_BEFORE_MIN_DAYS} of the {MONTH_BEFORE_DAYS} days "
+            "before the run, or a number (°C)",
         )
-    lo, hi = GROWTH_TEMPERATURE_RANGE_C
-    if not lo <= t_g <= hi:
-        raise InputError(
-            f"growth_temperature_c='series': the month before {date} averages {t_g:.2f} °C in the weather series",
-            file=w.attrs.get("source"),
-            column="growth_temperature_c",
-            expected=f"a growth temperature in [{lo:g}, {hi:g}] °C: give --growth-temperature-c a number",
-        )
-    return t_g
+    problem = f"growth_temperature_c='series': the month before {date} averages {t_g:.2f} °C in the weather series"
+    return check_growth_temperature(cfg.photosynthesis, t_g, problem=problem, file=w.attrs.get("source"))
 
 
 def check_growth_temperatures(cfg: ReplicationConfig, w: pd.DataFrame) -> None:
@@ -552,15 +550,19 @@ def concat_days(parts: list) -> xr.Dataset:
     listing every day.
     """
     static = ["plant_id", "organ_type", "area_m2", "is_blade"]
-    days_, statics = [], []
+    # Per-segment data (leaf_area_above, capacity_factor, an adaptive run's samples): along segment too.
+    per_segment = [v for v in parts[0].data_vars if parts[0][v].dims == ("segment",)]
+    days_, statics, segments = [], [], []
     for k, p in enumerate(parts):
         p = p.assign_coords(segment=p["segment"].values + k * DAY_SEGMENT_STRIDE)
         statics.append(p[static].reset_coords()[static])
-        p = p.reset_coords(static, drop=True)
+        segments.append(p[per_segment])
+        p = p.reset_coords(static, drop=True).drop_vars(per_segment)
         days_.append(p.assign_coords(day=("time", [p.attrs["date"]] * p.sizes["time"])))
     fill = {"limitation": -1, "converged": True}
     out = xr.concat(days_, dim="time", data_vars="all", join="outer", combine_attrs="override", fill_value=fill)
     out = out.assign_coords(xr.concat(statics, dim="segment"))
+    out = out.assign(xr.concat(segments, dim="segment").data_vars)
     out["limitation"] = out["limitation"].astype(np.int8)
     out["converged"] = out["converged"].astype(bool)
     # Each day allocates adaptive sampling at its own highest sun: every day's point, in order.
@@ -569,7 +571,7 @@ def concat_days(parts: list) -> xr.Dataset:
     if len(t_g) > 1:  # "series": each day's own, listed like the dates
         per_day.append("growth_temperature_c")
     for k in ("date", "window", "target_date", *per_day):
-        out.attrs[k] = "; ".join(str(p.attrs[k]) for p in parts)
+        out.attrs[k] = "; ".join(f"{p.attrs[k]:.3g}" if k == "growth_temperature_c" else str(p.attrs[k]) for p in parts)
     return schema.annotate(out)
 
 

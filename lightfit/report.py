@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from lightfit.photosynthesis.canopy import PROFILES
 from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
 from lightfit.plant import Field
 
@@ -67,7 +68,7 @@ def run_label(attrs) -> str:
     optics = cfg.get("optics") or f"base colour {float(attrs.get('base_color', np.nan)):.3g}"
     sheaths = attrs.get("sheaths", "rods")  # results written before the setting had CPlantBox's rods
     profile = attrs.get("vcmax_profile", "uniform")  # results written before profiles: every blade alike
-    notes = [] if profile == "uniform" else [f"{profile} profile"]
+    notes = [] if profile == "uniform" else [f"{profile} profile" if profile in PROFILES else f"kn {profile}"]
     t_g, own = attrs.get("growth_temperature_c"), ACCLIMATING_SETS.get(attrs.get("photosynthesis"))
     if t_g is not None and own is not None:
         text = t_g if isinstance(t_g, str) else f"{float(t_g):.3g}"  # several days: "9.3; 13.1"

@@ -134,6 +134,9 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     alone, _ = rep.run(replace(cfg, dates=("2016-06-23",)), weather_file=REAL_DAY, observations=None)
     np.testing.assert_array_equal(ds["canopy_an_umol_m2_s"].values[2:], alone["canopy_an_umol_m2_s"].values)
     assert (ds["organ_type"].values[day_of_segment == 1] == alone["organ_type"].values).all()
+    for v in ("leaf_area_above", "capacity_factor"):  # per segment, each day's plants their own
+        assert ds[v].dims == ("segment",), v
+        np.testing.assert_array_equal(ds[v].values[day_of_segment == 1], alone[v].values)
     rep.write_netcdf(ds, tmp_path / "r.nc")  # the union is writable
     t = ds["time"].values
     np.testing.assert_array_equal(ds["time_bnds"].values[:, 1], t)  # both days' bounds, end-stamps
@@ -178,8 +181,10 @@ def test_month_before_across_a_daylight_saving_change_at_midnight():
     df = pd.DataFrame({"tair_c": (local - pd.Timestamp("2016-08-01")).days.to_numpy() * 0.1}, index=t)
     got = weather.month_before_mean_tair_c(df, "2016-09-13", "America/Santiago")
     assert got == pytest.approx(np.mean([0.1 * k for k in range(13, 43)]), abs=1e-12)  # 14 Aug … 12 Sep
-    late = df[df.index >= pd.Timestamp("2016-08-13 22:00", tz="America/Santiago")]  # from 22:00 on the 13th
-    assert weather.month_before_mean_tair_c(late, "2016-09-13", "America/Santiago") == pytest.approx(got)
+    # From 22:00 on the month's first day: that evening is not a day, the 29 after it are.
+    late = df[df.index >= pd.Timestamp("2016-08-14 22:00", tz="America/Santiago")]
+    after = np.mean([0.1 * k for k in range(14, 43)])
+    assert weather.month_before_mean_tair_c(late, "2016-09-13", "America/Santiago") == pytest.approx(after, abs=1e-12)
     assert weather.month_before_mean_tair_c(df[df.index >= "2016-08-20"], "2016-09-13", "America/Santiago") is None
 
 
@@ -210,3 +215,47 @@ def test_growth_temperature_settings_are_one_per_model():
     assert "T_g 9 °C" in run_label({"photosynthesis": "winter_wheat", "growth_temperature_c": 9.0})
     assert "T_g" not in run_label({"photosynthesis": "winter_wheat", "growth_temperature_c": 15.0})
     assert "T_g 9.3; 13.1 °C" in run_label({"photosynthesis": "winter_wheat", "growth_temperature_c": "9.3; 13.1"})
+
+
+def test_several_days_list_each_days_growth_temperature():
+    """Days of a "series" run with different growth temperatures: results list each, rounded as one
+    day's is, and the run's label names them; days alike keep the one value."""
+    import xarray as xr
+
+    from lightfit.report import run_label
+
+    def part(date, t_g):
+        t = pd.date_range(f"{date} 10:00", periods=2, freq="30min")
+        return xr.Dataset(
+            {
+                "limitation": (("time", "segment"), np.zeros((2, 2), np.int8)),
+                "converged": (("time", "segment"), np.ones((2, 2), bool)),
+            },
+            coords={
+                "time": t,
+                "segment": [1, 2],
+                "plant_id": ("segment", [0, 0]),
+                "organ_type": ("segment", ["leaf"] * 2),
+                "area_m2": ("segment", [1.0, 1.0]),
+                "is_blade": ("segment", [True, True]),
+            },
+            attrs={
+                "date": date,
+                "window": "w",
+                "target_date": date,
+                "growth_temperature_c": t_g,
+                "photosynthesis": "winter_wheat",
+            },
+        )
+
+    both = rep.concat_days([part("2016-04-20", 9.2875), part("2016-05-20", 13.104166666)])
+    assert both.attrs["growth_temperature_c"] == "9.29; 13.1"
+    assert "T_g 9.29; 13.1 °C" in run_label(both.attrs)
+    same = rep.concat_days([part("2016-04-20", 15.0), part("2016-05-20", 15.0)])
+    assert same.attrs["growth_temperature_c"] == 15.0 and "T_g" not in run_label(same.attrs)
+
+
+def test_series_growth_temperature_needs_the_forcing_read_with_its_month():
+    cfg = rep.ReplicationConfig(n_plants=1, growth_temperature_c="series")
+    with pytest.raises(InputError, match="read without its month before"):
+        rep.check_growth_temperatures(cfg, rep.forcing())

@@ -43,6 +43,9 @@ def test_kn_of_lloyd_2010():
     assert kn_lloyd2010(50.0) == pytest.approx(0.14249, abs=1e-5)
     ww = parameter_set("winter_wheat")
     assert vcmax25(ww) == pytest.approx(100.0)  # the set's reference temperature is 25 °C
+    # CPlantBox's sets refer to 20 °C (T_ref 293.2 K): 655 and 39.4 there, Arrhenius-deactivation to 25 °C.
+    assert vcmax25(parameter_set("giraud2023")) == pytest.approx(965.6, abs=0.1)
+    assert vcmax25(parameter_set("cplantbox")) == pytest.approx(58.0, abs=0.1)
     assert resolve_kn("lloyd2010", ww) == pytest.approx(kn_lloyd2010(100.0))
     assert resolve_kn("uniform", ww) == 0.0 and resolve_kn(0.4, ww) == 0.4 and resolve_kn("0.4", ww) == 0.4
     assert resolve_kn("depury1997", parameter_set("giraud2023")) == 0.713  # a crop's own kn, any set
@@ -63,12 +66,16 @@ def test_profiles_resolve_per_set_and_bad_ones_are_refused():
     assert "uniform" in e.value.expected
 
 
-@pytest.mark.parametrize("set_name", ["winter_wheat", "cplantbox", "giraud2023_coupled"])
-def test_profiled_leaf_is_a_leaf_with_every_capacity_scaled(set_name):
+@pytest.mark.parametrize(
+    "set_name, gm", [("winter_wheat", None), ("winter_wheat", 0.3), ("cplantbox", None), ("giraud2023_coupled", None)]
+)
+def test_profiled_leaf_is_a_leaf_with_every_capacity_scaled(set_name, gm):
     """with_capacity's identity A(q; m) = m·A(q/m) against the solver run on a leaf whose Vcmax (so
-    Jmax, Rd) and g0 are m times the set's (three closures: Medlyn, CPlantBox's, Tuzet); gs, ci and
-    dAn/dq too, from darkness to full sun, frost to heat."""
+    Jmax, Rd), g0 and a finite mesophyll conductance gm are m times the set's (three closures:
+    Medlyn, CPlantBox's, Tuzet); gs, ci and dAn/dq too, from darkness to full sun, frost to heat."""
     p = parameter_set(set_name)
+    if gm is not None:
+        p = eqx.tree_at(lambda x: x.fvcb.gm_mol_m2_s, p, gm)
     m = jnp.array([1.0, 0.7, 0.35, 0.1])
     q = jnp.array([[0.0, 40.0, 400.0, 1800.0], [2.0, 150.0, 900.0, 2500.0]])
     t = np.array([-4.0, 33.0])
@@ -83,9 +90,9 @@ def test_profiled_leaf_is_a_leaf_with_every_capacity_scaled(set_name):
     )
     r = with_capacity(exact_leaf, m)(q, forcing, p)
     scaled = eqx.tree_at(
-        lambda x: (x.fvcb.vcmax_ref_umol_m2_s, x.stomata.g0_mol_m2_s),
+        lambda x: (x.fvcb.vcmax_ref_umol_m2_s, x.stomata.g0_mol_m2_s, x.fvcb.gm_mol_m2_s),
         p,
-        (p.fvcb.vcmax_ref_umol_m2_s * m, p.stomata.g0_mol_m2_s * m),
+        (p.fvcb.vcmax_ref_umol_m2_s * m, p.stomata.g0_mol_m2_s * m, p.fvcb.gm_mol_m2_s * m),
     )
     env = [
         jnp.broadcast_to(jnp.asarray(x)[:, None], q.shape) for x in (t, forcing.co2_ppm, forcing.rh, forcing.pair_kpa)
@@ -106,7 +113,7 @@ def test_profiled_leaf_is_a_leaf_with_every_capacity_scaled(set_name):
     np.testing.assert_allclose(tab.an, direct.an_umol_m2_s, rtol=2e-3, atol=2e-3)
 
 
-def test_uniform_profile_is_the_sets_leaf_everywhere(weather_quick):
+def test_profiles_resolve_for_the_scenarios_set(weather_quick):
     assert Scenario(weather=weather_quick, vcmax_profile="uniform").kn() == 0.0
     sc = Scenario(weather=weather_quick)
     assert sc.vcmax_profile == "auto" and sc.kn() == pytest.approx(kn_lloyd2010(100.0))  # winter_wheat's own

@@ -431,7 +431,7 @@ def test_soil_respiration_options_reach_the_run_configuration():
         (["--photosynthesis", "giraud2023", "--growth-temperature-c", "9"], ["growth_temperature_c", "giraud2023"]),
     ],
 )
-def test_bad_vcmax_profile_names_the_option(tmp_path, args, words):
+def test_bad_photosynthesis_options_name_the_option(tmp_path, args, words):
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "r"), *args])
     assert_user_error(r, *words)
     assert not (tmp_path / "r").exists()  # refused before anything grows

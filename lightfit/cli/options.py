@@ -607,8 +607,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     )
     from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
     from lightfit.photosynthesis.canopy import profile_for, resolve_kn
-    from lightfit.photosynthesis.parameters import ACCLIMATING_SETS, growth_temperature_setting
-    from lightfit.replication import GROWTH_FROM_SERIES, ReplicationConfig, check_growth_temperature
+    from lightfit.photosynthesis.parameters import growth_temperature_setting
+    from lightfit.replication import ReplicationConfig, parse_growth_temperature
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
 
@@ -642,7 +642,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
         growth_temperature_c=growth_temperature_setting(
             given(opts.photosynthesis, base.photosynthesis),
-            check_growth_temperature(given(opts.growth_temperature_c, base.growth_temperature_c)),
+            parse_growth_temperature(given(opts.growth_temperature_c, base.growth_temperature_c)),
         ),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
@@ -667,10 +667,8 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     profile = profile_for(s.vcmax_profile, s.photosynthesis)
-    t_g = s.growth_temperature_c
-    if t_g == GROWTH_FROM_SERIES:  # its value comes with the weather: here only whether the set takes one
-        t_g = ACCLIMATING_SETS.get(s.photosynthesis, t_g)
-    resolve_kn(profile, parameter_set(s.photosynthesis, t_g))
+    s.replication_config()  # the growth temperature for the set (a 'series' one comes with the weather)
+    resolve_kn(profile, parameter_set(s.photosynthesis))  # Vcmax25 does not depend on T_g
     s = dataclasses.replace(s, vcmax_profile=profile)  # stored resolved: what the run used
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
@@ -911,7 +909,7 @@ def weather(s: ModelSettings):
     or the ``--steps`` of each day."""
     import pandas as pd
 
-    from lightfit.replication import GROWTH_FROM_SERIES, check_growth_temperatures, days, forcing
+    from lightfit.replication import check_growth_temperatures, days, forcing
 
     cfg = s.replication_config()
     w = forcing(
@@ -922,7 +920,7 @@ def weather(s: ModelSettings):
         site=s.site,
         provenance=s.weather_provenance,
         split_model=s.split,
-        month_before=s.growth_temperature_c == GROWTH_FROM_SERIES,
+        month_before=cfg.needs_month_before,
     )
     check_growth_temperatures(cfg, w)  # every date's, before anything is grown or written
     if not s.steps:

@@ -382,12 +382,12 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
     r, shrink = jnp.asarray(m / m0), jnp.asarray(m0 / m)
 
     def profiled(q, forcing: Forcing, params: PhotosynthesisParams) -> LeafResponse:
-        base = eqx.tree_at(
+        bottom = eqx.tree_at(
             lambda p: (p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.gm_mol_m2_s, p.stomata.g0_mol_m2_s),
             params,
             (params.fvcb.vcmax_ref_umol_m2_s * m0, params.fvcb.gm_mol_m2_s * m0, params.stomata.g0_mol_m2_s * m0),
         )
-        out = leaf(q * shrink, forcing, base)
+        out = leaf(q * shrink, forcing, bottom)
         res = out.result
         if res is not None:
             res = res._replace(

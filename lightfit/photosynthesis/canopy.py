@@ -53,7 +53,7 @@ PROFILES = ("auto", "lloyd2010", "depury1997", "uniform")
 #: takes it for its wheat).
 DEPURY1997_KN = 0.713
 #: The profile ``"auto"`` gives a set: Lloyd et al.'s for the literature set; the CPlantBox-derived
-#: sets (the reference paper's among them) model none, and their Vcmax lies outside Lloyd's fit.
+#: sets (the reference paper's among them) model none, and giraud2023's Vcmax lies far outside Lloyd's fit.
 SET_PROFILES = {"winter_wheat": "lloyd2010"}
 #: Vcmax25 above which Lloyd et al.'s fit is not extrapolated (kn would exceed 0.6: the lowest
 #: leaves of an LAI-4 canopy with a tenth of the top's capacity). The reference paper's
@@ -89,8 +89,8 @@ def profile_for(profile: str | float, set_name: str) -> str | float:
 
 def resolve_kn(profile: str | float, params: PhotosynthesisParams) -> float:
     """kn (per unit LAI) of a resolved capacity profile (:func:`profile_for`) for the parameter set
-    ``params``: ``"uniform"`` → 0, ``"depury1997"`` → :data:`DEPURY1997_KN`
-    (every leaf the set's capacity, as the reference paper), ``"lloyd2010"`` → :func:`kn_lloyd2010`
+    ``params``: ``"uniform"`` → 0 (every leaf the set's capacity, as the reference paper),
+    ``"depury1997"`` → :data:`DEPURY1997_KN`, ``"lloyd2010"`` → :func:`kn_lloyd2010`
     of the set's Vcmax at 25 °C, a number in [0, :data:`MAX_KN`] (or its text) → itself. :class:`InputError` naming
     ``vcmax_profile`` otherwise, and for Lloyd's fit beyond :data:`LLOYD2010_MAX_VCMAX25`."""
     if profile == "uniform":

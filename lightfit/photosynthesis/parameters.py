@@ -415,20 +415,35 @@ def parameter_set(name: str, growth_temperature_c: float | None = None) -> Photo
         raise ValueError(f"parameter_set: unknown name {name!r}; expected one of {list(PARAMETER_SET_NAMES)}") from None
     if growth_temperature_c is None:
         return factory()
-    if name not in ACCLIMATING_SETS:
+    return factory(check_growth_temperature(name, growth_temperature_c))
+
+
+def check_acclimates(name: str, growth_temperature_c) -> None:
+    """:class:`InputError` naming ``growth_temperature_c`` where one is given (any value, e.g. one
+    still to be read) for a set ``name`` that does not acclimate (:data:`ACCLIMATING_SETS`)."""
+    if growth_temperature_c is not None and name not in ACCLIMATING_SETS:
         raise InputError(
             f"growth_temperature_c={growth_temperature_c!r} with the {name!r} set",
             column="growth_temperature_c",
             expected="a set whose temperature responses acclimate (" + ", ".join(ACCLIMATING_SETS) + "), or none",
         )
+
+
+def check_growth_temperature(name: str, growth_temperature_c, *, problem: str | None = None, file=None) -> float:
+    """``growth_temperature_c`` (°C) for the set ``name`` as a float: refused (:class:`InputError`)
+    for a set that does not acclimate and outside :data:`GROWTH_TEMPERATURE_RANGE_C`; ``problem``
+    and ``file`` say where a value read from data came from."""
+    check_acclimates(name, growth_temperature_c)
     lo, hi = GROWTH_TEMPERATURE_RANGE_C
     if not (is_real(growth_temperature_c) and lo <= growth_temperature_c <= hi):
         raise InputError(
-            f"growth_temperature_c={growth_temperature_c!r}",
+            problem or f"growth_temperature_c={growth_temperature_c!r}",
+            file=file,
             column="growth_temperature_c",
-            expected=f"the mean air temperature of the month before, a number in [{lo:g}, {hi:g}] °C",
+            expected=f"the mean air temperature of the month before, a number in [{lo:g}, {hi:g}] °C"
+            + ("" if problem is None else ": give --growth-temperature-c a number"),
         )
-    return factory(float(growth_temperature_c))
+    return float(growth_temperature_c)
 
 
 def cast_params(params: PhotosynthesisParams, dtype: DTypeLike) -> PhotosynthesisParams:

@@ -486,6 +486,7 @@ def window(
 #: the share of them a series must have air temperature on.
 MONTH_BEFORE_DAYS = 30
 MONTH_BEFORE_COVERAGE = 0.9
+MONTH_BEFORE_MIN_DAYS = math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS)  # 27
 
 
 def month_before_mean_tair_c(df: pd.DataFrame, date: str, tz: str = SELHAUSEN.timezone) -> float | None:
@@ -505,9 +506,11 @@ def month_before_mean_tair_c(df: pd.DataFrame, date: str, tz: str = SELHAUSEN.ti
     # A day's span: its rows times their usual spacing (every other row still spans the day; a
     # file's first two hours do not).
     hours = pd.Series((t.index - t.index[0]) / pd.Timedelta(hours=1) if len(t) else [], index=t.index, dtype=float)
-    spacing_h = hours.groupby(local_date).agg(lambda x: np.median(np.diff(x)) if len(x) > 1 else 0.0)
+    # A day of one row (daily means) spans the series' usual spacing.
+    usual = float(np.median(np.diff(hours))) if len(hours) > 1 else 0.0
+    spacing_h = hours.groupby(local_date).agg(lambda x: np.median(np.diff(x)) if len(x) > 1 else usual)
     span_h = spacing_h * hours.groupby(local_date).size()
     full = span_h >= MONTH_BEFORE_COVERAGE * 24
-    if full.sum() < math.ceil(MONTH_BEFORE_COVERAGE * MONTH_BEFORE_DAYS):
+    if full.sum() < MONTH_BEFORE_MIN_DAYS:
         return None
     return float(t.groupby(local_date).mean()[full].mean())
