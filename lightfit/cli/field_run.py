@@ -56,13 +56,13 @@ def field_run(
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label
 
-    out = check_netcdf_name(out)  # before any table is computed or plant grown (or JAX compiles a check)
+    s = resolve(model)
+    out = check_netcdf_name(out)  # before any table is computed or plant grown
     parts = out.with_name(out.name + PARTS_SUFFIX)
     if parts.exists() and not parts.is_dir():
         raise InputError(
             f"{parts} is a file", column="out", expected=f"a folder or nothing at {parts} (the finished tasks)"
         )
-    s = resolve(model)  # before any finished task is discarded
     if not resume and parts.is_dir():
         shutil.rmtree(parts)
     run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)

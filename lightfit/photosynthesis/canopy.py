@@ -76,7 +76,12 @@ def kn_lloyd2010(vcmax25_top_umol_m2_s: float) -> float:
 def vcmax25(params: PhotosynthesisParams) -> float:
     """The set's Vcmax at 25 °C, µmol m⁻² s⁻¹ (its ``vcmax_ref`` holds at its own T_ref: 20 °C for
     CPlantBox's sets)."""
-    f_v, _ = capacity_temperature_factors(T25_K, params.temperature)
+    temp = params.temperature
+    if temp.form != "cplantbox" and float(temp.t_ref_k) == T25_K:
+        # The peaked form is 1 at its reference by construction: no JAX call (a command line checks
+        # its options with this before anything runs, and JAX would fill its compilation cache).
+        return float(params.fvcb.vcmax_ref_umol_m2_s)
+    f_v, _ = capacity_temperature_factors(T25_K, temp)
     return float(params.fvcb.vcmax_ref_umol_m2_s) * float(f_v)
 
 
