@@ -108,7 +108,7 @@ class CoupledModel:
             )
         self.ground_area_m2 = sc.ground_area_m2
         params = sc.photosynthesis_params()
-        #: capacity profile's kn (per unit LAI) and each blade's LAI above it and capacity factor
+        #: the capacity profile's kn (per unit LAI) and each measured blade's LAI above it (m² m⁻²)
         self.kn = sc.kn()
         self.lai_above, lai = self._lai_above()
         w = sc.weather
@@ -143,12 +143,11 @@ class CoupledModel:
         # Sorted by id: the sums then run in one order whatever order a tile's geometry has.
         seg = self.geometry.segments.sort_values("segment_id")
         blade = organ_class(seg) == "blade"
-        z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())
+        z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())[blade]
+        area = one_sided_area_m2(seg)[blade]
         ground = len(self.geometry.plants) * self.scenario.field.area_per_plant_m2
-        lai = pd.Series(
-            leaf_area_above(z[blade], one_sided_area_m2(seg)[blade], ground), index=seg["segment_id"].to_numpy()[blade]
-        )
-        return lai.loc[self.segment_id[self.is_blade]].to_numpy(), float(one_sided_area_m2(seg)[blade].sum() / ground)
+        lai = pd.Series(leaf_area_above(z, area, ground), index=seg["segment_id"].to_numpy()[blade])
+        return lai.loc[self.segment_id[self.is_blade]].to_numpy(), float(area.sum() / ground)
 
     @property
     def n_columns(self) -> int:
