@@ -306,6 +306,7 @@ def forcing(
     weather.require_date(source, dates if given else None)
     undated = weather.is_undated(source)
     days = []
+    month = {}  # each date's month before, for a growth temperature from the series
     src = None
     for d in dates:
         if src is None or undated:
@@ -319,18 +320,15 @@ def forcing(
                 file=src.attrs.get("source"),
                 expected="a --date inside the file's span and a --start-time/--hours window within it",
             )
-        day = weather.window(src, t0, window.hours, window.step, how=how)
-        if month_before:  # each date's month before, for a growth temperature from the series
-            day.attrs["month_before_tair_c"] = {
-                d: None if undated else weather.month_before_mean_tair_c(src, d, site.timezone)
-            }
-        days.append(day)
-    if len(days) == 1:
-        return days[0]
-    out = pd.concat(days)
-    out.attrs = dict(days[0].attrs)
+        days.append(weather.window(src, t0, window.hours, window.step, how=how))
+        if month_before:
+            month[d] = None if undated else weather.month_before_mean_tair_c(src, d, site.timezone)
+    out = days[0]
+    if len(days) > 1:
+        out = pd.concat(days)
+        out.attrs = dict(days[0].attrs)
     if month_before:
-        out.attrs["month_before_tair_c"] = {k: v for day in days for k, v in day.attrs["month_before_tair_c"].items()}
+        out.attrs["month_before_tair_c"] = month
     return out
 
 
@@ -351,8 +349,10 @@ def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFram
     return out
 
 
-def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None) -> pd.DataFrame:
-    """:func:`forcing` with the configuration's dates, window, site and resampling."""
+def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None, **kw) -> pd.DataFrame:
+    """:func:`forcing` with the configuration's dates, window, site and resampling (and the month
+    before where its growth temperature comes from the series); ``kw``: :func:`forcing`'s
+    ``provenance`` and ``split_model``."""
     return forcing(
         weather_file,
         cfg.how,
@@ -360,6 +360,7 @@ def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None) -
         window=cfg.window,
         site=cfg.site,
         month_before=cfg.needs_month_before,
+        **kw,
     )
 
 

@@ -607,8 +607,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
     )
     from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
     from lightfit.photosynthesis.canopy import profile_for, resolve_kn
-    from lightfit.photosynthesis.parameters import growth_temperature_setting
-    from lightfit.replication import ReplicationConfig, parse_growth_temperature
+    from lightfit.replication import ReplicationConfig
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
 
@@ -640,10 +639,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         par_kind=given(opts.par_kind, base.par_kind),
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
-        growth_temperature_c=growth_temperature_setting(
-            given(opts.photosynthesis, base.photosynthesis),
-            parse_growth_temperature(given(opts.growth_temperature_c, base.growth_temperature_c)),
-        ),
+        growth_temperature_c=given(opts.growth_temperature_c, base.growth_temperature_c),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
         soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
@@ -667,9 +663,11 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
         )
     profile = profile_for(s.vcmax_profile, s.photosynthesis)
-    s.replication_config()  # the growth temperature for the set (a 'series' one comes with the weather)
+    # The growth temperature parsed, normalised and checked for the set (a 'series' one comes with
+    # the weather) as the configuration keeps it.
+    t_g = s.replication_config().growth_temperature_c
     resolve_kn(profile, parameter_set(s.photosynthesis))  # Vcmax25 does not depend on T_g
-    s = dataclasses.replace(s, vcmax_profile=profile)  # stored resolved: what the run used
+    s = dataclasses.replace(s, vcmax_profile=profile, growth_temperature_c=t_g)  # stored as the run used them
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
@@ -909,19 +907,10 @@ def weather(s: ModelSettings):
     or the ``--steps`` of each day."""
     import pandas as pd
 
-    from lightfit.replication import check_growth_temperatures, days, forcing
+    from lightfit.replication import check_growth_temperatures, days, forcing_of
 
     cfg = s.replication_config()
-    w = forcing(
-        s.weather_file,
-        s.how,
-        dates=s.dates,
-        window=s.window(),
-        site=s.site,
-        provenance=s.weather_provenance,
-        split_model=s.split,
-        month_before=cfg.needs_month_before,
-    )
+    w = forcing_of(cfg, s.weather_file, provenance=s.weather_provenance, split_model=s.split)
     check_growth_temperatures(cfg, w)  # every date's, before anything is grown or written
     if not s.steps:
         return w

@@ -388,6 +388,8 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
             (params.fvcb.vcmax_ref_umol_m2_s * m0, params.fvcb.gm_mol_m2_s * m0, params.stomata.g0_mol_m2_s * m0),
         )
         out = leaf(q * shrink, forcing, bottom)
+        # The base leaf sees q/r ≤ q: the blade's own light is held to the solver's range here.
+        within = q <= MAX_PAR_ABS_UMOL_M2_S
         res = out.result
         if res is not None:
             res = res._replace(
@@ -396,11 +398,8 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
                 vc_umol_m2_s=r * res.vc_umol_m2_s,
                 vj_umol_m2_s=r * res.vj_umol_m2_s,
                 rd_umol_m2_s=r * res.rd_umol_m2_s,
+                converged=res.converged & within,
             )
-        # The base leaf sees q/r ≤ q: the blade's own light is held to the solver's range here.
-        within = q <= MAX_PAR_ABS_UMOL_M2_S
-        if res is not None:
-            res = res._replace(converged=res.converged & within)
         return LeafResponse(r * out.an, out.dan_dq, out.converged & within, res)
 
     return profiled
