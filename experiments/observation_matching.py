@@ -34,7 +34,7 @@ from rich.console import Console
 from rich.table import Table
 
 from lightfit import weather
-from lightfit.inference.observations import align
+from lightfit.inference.observations import align, interpolation, read_between
 from lightfit.precision import use_float64
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
@@ -51,6 +51,9 @@ CAMPAIGNS = {  # name: UTC hours [start, end)
 }
 EVERY_MIN = (1, 7)
 MATCHING = {"interval (now)": Timestamps("end", TEN), "stamp (before)": INSTANTS}
+#: runs on instants (the main job's 30-min steps, and 10-min): read between steps, or at the nearest
+INSTANT_RUNS = {"30 min": 30, "10 min": 10}
+INSTANT_MATCHING = {"interpolated (now)": True, "nearest step (before)": False}
 
 
 def spot_readings(fine: pd.DataFrame, hours: tuple[int, int], every: int) -> pd.DataFrame:
@@ -68,9 +71,15 @@ def spot_readings(fine: pd.DataFrame, hours: tuple[int, int], every: int) -> pd.
     return obs
 
 
-def light_factor(obs: pd.DataFrame, steps: pd.DatetimeIndex, model: np.ndarray, stamps: Timestamps) -> dict:
+def light_factor(
+    obs: pd.DataFrame, steps: pd.DatetimeIndex, model: np.ndarray, stamps: Timestamps, between: bool = True
+) -> dict:
+    """The analytic optimum f, the RMS relative residual and the steps used; ``between``: the model
+    read between two instants as the likelihood reads it (``interpolation``), else at the nearest step."""
     a = align(obs, steps, stamps)
     y, sd = a["above_canopy_par_umol_m2_s"], a["above_canopy_par_sd_umol_m2_s"]
+    if between:
+        model = read_between(model, *interpolation(obs, steps, stamps)["above_canopy_par_umol_m2_s"])
     ok = np.isfinite(y)
     w = 1.0 / sd[ok] ** 2
     f = float(np.sum(w * y[ok] * model[ok]) / np.sum(w * model[ok] ** 2))
@@ -91,14 +100,30 @@ def main(argv=None):
             obs = spot_readings(fine, hours, every)
             row = {"every_min": every, "campaign": name, "readings": len(obs)}
             rows[f"{name}, every {every} min"] = row | {
-                m: light_factor(obs, steps, model, s) for m, s in MATCHING.items()
+                m: light_factor(obs, steps, model, s, between=False) for m, s in MATCHING.items()
             }
+    instants = {}
+    for run, minutes in INSTANT_RUNS.items():  # the reconstruction's own instants as the run's steps
+        at = fine.iloc[::minutes]
+        for every in EVERY_MIN:
+            for name, hours in CAMPAIGNS.items():
+                obs = spot_readings(fine, hours, every)
+                row = {"run_step": run, "every_min": every, "campaign": name, "readings": len(obs)}
+                instants[f"{run} run, {name}, every {every} min"] = row | {
+                    m: light_factor(obs, at.index, at["par_umol_m2_s"].to_numpy(), INSTANTS, between=b)
+                    for m, b in INSTANT_MATCHING.items()
+                }
     out = {
         "date": DATE,
         "forcing": logger.attrs["source"] + " (synthetic)",
         "readings": "the reconstruction's 1-min PAR, one every 1 or 7 minutes, SD 5 %",
         "model": "the steps' horizontal PAR (the above-canopy sensor, light factor 1)",
         "campaigns": rows,
+        "instant_runs": {
+            "forcing": "20 April reconstruction at its own instants every 10 or 30 min (synthetic)",
+            "matching": "instants between two steps read by linear interpolation in time (now) or at the nearest step",
+            "campaigns": instants,
+        },
     }
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
@@ -116,6 +141,20 @@ def main(argv=None):
             for k in ("light_factor", "rms_relative_residual")
         ]
         t.add_row(r["campaign"], f"{r['every_min']} min", str(r["readings"]), *cells)
+    Console().print(t)
+    t = Table(title="the same readings against runs on instants: read between two steps, or at the nearest")
+    for c in ("run step", "campaign (UTC)", "every", "readings"):
+        t.add_column(c, justify="right")
+    for m in INSTANT_MATCHING:
+        t.add_column(f"f, {m}", justify="right")
+        t.add_column(f"RMS resid., {m}", justify="right")
+    for r in instants.values():
+        cells = [
+            f"{r[m][k]:.4f}" if k == "light_factor" else f"{100 * r[m][k]:.2f} %"
+            for m in INSTANT_MATCHING
+            for k in ("light_factor", "rms_relative_residual")
+        ]
+        t.add_row(r["run_step"], r["campaign"], f"{r['every_min']} min", str(r["readings"]), *cells)
     Console().print(t)
     print(f"wrote {a.out}")
 

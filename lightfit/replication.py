@@ -25,7 +25,7 @@ import xarray as xr
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
 from lightfit.files import replaced
-from lightfit.inference.observations import SERIES, align, read_observations
+from lightfit.inference.observations import SERIES, align, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
 from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
@@ -516,9 +516,11 @@ def run(
     times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     if obs is not None:
         a = align(obs, times, timestamps.of(w))
+        offsets = read_offsets_s(obs, times, timestamps.of(w))  # where the model is read for them
         for s in SERIES:  # the quantities the observations have, each beside its model observable
             if np.isfinite(a[s.value]).any():
                 ds[f"obs_{s.value}"], ds[f"obs_{s.sd}"] = ("time", a[s.value]), ("time", a[s.sd])
+                ds[f"obs_{s.name}_time_offset_s"] = ("time", offsets[s.name])
         schema.annotate(ds)
         ds.attrs["observations"] = f"{obs.attrs['source']} ({obs.attrs['provenance']})"
     if out is not None:

@@ -216,6 +216,9 @@ def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None
     s = BY_NAME[name]
     key = f"obs_{s.value}"
     if key in ds and np.isfinite(ds[key].values).any():
+        offset = f"obs_{name}_time_offset_s"
+        if offset in ds:  # drawn where the model is read for them (between two steps)
+            t = t + pd.to_timedelta(ds[offset].values, unit="s")
         ax.errorbar(
             t,
             ds[key].values,

@@ -902,14 +902,19 @@ def test_edge_note_only_where_fapar_exceeds_one():
     assert edge_line(xr.Dataset({"fapar": ("time", [0.0, 0.93, 1.0])})) == ""
 
 
-def test_offset_line_says_how_far_observations_are_from_their_steps():
-    """The bundled record (12:13:48 local) meets the 12:00 step of 30-min instants: 13.8 min."""
+def test_offset_line_says_how_observations_meet_the_steps():
+    """The bundled record (12:13:48 local) lies between the 12:00 and 12:30 steps of 30-min
+    instants, 13.8 min from the nearer: read between them. With 12:00 alone it meets that step."""
     from lightfit import replication as rep
     from lightfit.cli.replicate import offset_line
     from lightfit.inference.observations import read_observations
 
+    rec = read_observations(OBSERVATIONS)
     w = rep.forcing().iloc[14:16]  # 12:00 and 12:30 local
-    assert "up to 13.8 min away" in offset_line(read_observations(OBSERVATIONS), w)
+    line = " ".join(offset_line(rec, w).split())
+    assert "interpolated linearly in time" in line and "up to 13.8 min from a step" in line
+    w = rep.forcing().iloc[13:15]  # 11:30 and 12:00: the reading lies after the last step
+    assert "nearest steps, up to 13.8 min away (instants to instants" in " ".join(offset_line(rec, w).split())
 
 
 def test_calibrate_into_a_folder_of_another_calibration_is_refused(tmp_path, monkeypatch):

@@ -160,6 +160,11 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     # The bundled chamber record is an above-canopy quantum sensor: compared with that operator.
     obs_par = "obs_above_canopy_par_umol_m2_s"
     assert obs_par in ds and np.isfinite(ds[obs_par].values).sum() == 1
+    # read 13.8 min after the 12:00 local step (10:00 UTC), where the figure draws it
+    offset = ds["obs_above_canopy_par_time_offset_s"].values
+    k = int(np.flatnonzero(np.isfinite(ds[obs_par].values))[0])
+    assert str(ds["time"].values[k])[:16] == "2016-04-20T10:00" and offset[k] == pytest.approx(828.0)
+    assert ds["obs_above_canopy_par_time_offset_s"].attrs["units"] == "s" and np.count_nonzero(offset) == 1
     assert ds.attrs["preset"] == "default"
     ds.close()
     obs = tmp_path / "obs.csv"

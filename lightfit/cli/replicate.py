@@ -168,16 +168,23 @@ def mc_bias_line(ds) -> str:
 
 
 def offset_line(obs, w) -> str:
-    """How far the observations lie from the steps they are compared with (the model is not
-    interpolated in time: a spot reading 14 min after a step meets that step's light)."""
-    from lightfit.inference.observations import nearest_steps
+    """How the observations meet the run's steps: read between two steps (the model interpolated
+    linearly in time, :func:`lightfit.inference.observations.interpolation`), or at the nearest step
+    and how far from it."""
+    from lightfit.inference.observations import interpolated, nearest_steps
     from lightfit.weather import timestamps
 
-    _, dist = nearest_steps(obs, w.index, timestamps.of(w))
+    stamps = timestamps.of(w)
+    _, dist = nearest_steps(obs, w.index, stamps)
     far = float(np.max(dist) / np.timedelta64(1, "s")) / 60.0 if len(dist) else 0.0
+    if interpolated(obs, w.index, stamps):
+        return (
+            f"  compared with the model interpolated linearly in time between the steps around them "
+            f"(up to {far:.1f} min from a step)"
+        )
     return (
-        f"  compared with the run's nearest steps, up to {far:.1f} min away (the model is not interpolated "
-        "in time; a finer --step brings them closer)"
+        f"  compared with the run's nearest steps, up to {far:.1f} min away "
+        f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
     )
 
 

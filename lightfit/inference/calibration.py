@@ -558,8 +558,8 @@ def calibrate(
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
-    if not matched_as_by_stamp(obs, model.timestamps):  # else absent: states saved before still resume exactly
-        key["observation_matching"] = observation_matching(obs, model.timestamps)
+    if not matched_as_by_stamp(obs, model.timestamps, model.times):  # else absent: states saved before resume
+        key["observation_matching"] = observation_matching(obs, model.timestamps, model.times)
     if data is not None:
         key["data"] = data
     # states saved before the likelihood's form was recorded used independent steps

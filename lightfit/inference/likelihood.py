@@ -12,9 +12,13 @@ CO2 uptake; each compared with the observation operator of the same name in
 with the observation :math:`y_k` and its measurement SD :math:`\sigma_k` (µmol m⁻² s⁻¹, from the
 observations file, aligned to the run's steps by :func:`~lightfit.inference.observations.align`),
 the model's observable :math:`m_k` and Monte Carlo SD :math:`s_k` (keys ``SERIES[i].value`` and
-``SERIES[i].mc_sd`` of the forward dict), and the noise scale :math:`\lambda` (dimensionless,
-default 1; it multiplies the reported measurement SDs and is a parameter of inference only, never
-of the model). Steps without an observation, and series not in ``use``, do not enter. Then
+``SERIES[i].mc_sd`` of the forward dict) read where step k's observations are: instants between two
+instants meet the model interpolated linearly in time, :math:`(1 - w_k)\,m_k + w_k\,m_{n_k}`, with
+Monte Carlo variance :math:`(1 - w_k)^2 s_k^2 + w_k^2 s_{n_k}^2`
+(:func:`~lightfit.inference.observations.interpolation`; :math:`w_k = 0` on the steps), and the
+noise scale :math:`\lambda` (dimensionless, default 1; it multiplies the reported measurement SDs
+and is a parameter of inference only, never of the model). Steps without an observation, and
+series not in ``use``, do not enter. Then
 
 .. math::
 
@@ -45,7 +49,9 @@ order, steps in time order), the covariance is
         + c\,\mathrm{diag}(s(\theta))\, C\, \mathrm{diag}(s(\theta)),
 
 with the model's Monte Carlo SDs s(θ) as above, their correlation C (:class:`MCCorrelation`, from
-:func:`mc_correlation`: fixed, computed once at a reference θ), and ``mc_scale`` c (1 for measured
+:func:`mc_correlation`: fixed, computed once at a reference θ; where the model is read between
+steps, the second term is :math:`c\,A\,\mathrm{diag}(s)\,C\,\mathrm{diag}(s)\,A^\top` over all
+steps, A the interpolation), and ``mc_scale`` c (1 for measured
 data; 2 for twin observations that are themselves renders at the model's samples from another
 seed: their error adds a second, independent copy). With the Cholesky factor
 :math:`\Sigma = L L^\top`,
@@ -84,7 +90,9 @@ from lightfit.inference.observations import (
     align,
     check_sds,
     dependencies,
+    interpolation,
     observed,
+    read_between,
     series,
 )
 from lightfit.model.observe import mc_covariance, unconverged
@@ -300,6 +308,13 @@ class GaussianLikelihood:
         self.y = {s.name: jnp.asarray(np.nan_to_num(target[s.value])) for s in self.series}
         self.sd = {s.name: jnp.asarray(np.nan_to_num(target[s.sd], nan=1.0)) for s in self.series}
         self.mask = {s.name: jnp.asarray(~np.isnan(target[s.value])) for s in self.series}
+        lerp = interpolation(obs, times, stamps)
+        #: per used series: each step's neighbour and weight of the model read at its observations
+        #: (:func:`~lightfit.inference.observations.interpolation`; weight 0: the step's own value)
+        self.neighbour = {s.name: jnp.asarray(lerp[s.value][0]) for s in self.series}
+        self.weight = {s.name: jnp.asarray(lerp[s.value][1]) for s in self.series}
+        #: whether any observation lies between two steps (else the model is read at the steps)
+        self.interpolated = bool(any(np.asarray(w).any() for w in self.weight.values()))
         self.n_observations = int(sum(np.asarray(m).sum() for m in self.mask.values()))
         if self.n_observations == 0:
             raise InputError(
@@ -317,6 +332,9 @@ class GaussianLikelihood:
         #: the correlation given (None: independent steps); :attr:`correlation` is its observed part
         self.mc_correlation = mc_correlation
         self.correlation = None
+        # interpolated: the model's values at the observations are A·m over the stacked steps
+        self._interp = self._interpolation_matrix(T) if self.interpolated else None
+        self._full_correlation = None
         if mc_correlation is not None:
             if mc_correlation.n_steps != T:
                 raise InputError(
@@ -326,13 +344,44 @@ class GaussianLikelihood:
                 )
             c = mc_correlation.select(self.use)
             self.correlation = jnp.asarray(c[np.ix_(self.observed_index, self.observed_index)])
+            if self.interpolated:
+                self._full_correlation = jnp.asarray(c)
+
+    def _interpolation_matrix(self, T: int) -> jax.Array:
+        """A (n_observations, len(use)·T): row r reads the stacked steps at observed entry r,
+        (1 − w) at its step and w at its neighbour."""
+        a = np.zeros((len(self.observed_index), len(self.series) * T))
+        for r, g in enumerate(self.observed_index):
+            i, k = divmod(int(g), T)
+            name = self.series[i].name
+            w = float(self.weight[name][k])
+            a[r, g] += 1.0 - w
+            a[r, i * T + int(self.neighbour[name][k])] += w
+        return jnp.asarray(a)
+
+    def at_observations(self, name: str, x) -> jax.Array:
+        """A model quantity of series ``name`` (T,) read where its observations are: at each step,
+        (1 − w)·x_k + w·x_n (:attr:`weight`, :attr:`neighbour`), x_k itself at weight 0."""
+        return read_between(x, self.neighbour[name], self.weight[name], xp=jnp)
+
+    def _mc_variance(self, name: str, s) -> jax.Array:
+        """The Monte Carlo variance of the model read at the observations, s_k² or, between steps,
+        (1 − w)² s_k² + w² s_n² (the two steps' errors taken as independent, as this diagonal
+        form takes all steps)."""
+        s = jnp.asarray(s)
+        w = self.weight[name]
+        return jnp.where(w > 0, (1.0 - w) ** 2 * s**2 + w**2 * s[self.neighbour[name]] ** 2, s**2)
 
     def variances(self, m: Mapping, noise_scale=1.0) -> dict:
         """v_k = (λσ_k)² + c·s_k² per used series, 1 where there is no observation (µmol² m⁻⁴ s⁻²):
-        the diagonal of Σ."""
+        the diagonal of Σ (s_k²: :meth:`_mc_variance` where the model is read between steps)."""
         lam = jnp.asarray(noise_scale, jnp.float64)
         return {
-            s.name: jnp.where(self.mask[s.name], (lam * self.sd[s.name]) ** 2 + self.mc_scale * m[s.mc_sd] ** 2, 1.0)
+            s.name: jnp.where(
+                self.mask[s.name],
+                (lam * self.sd[s.name]) ** 2 + self.mc_scale * self._mc_variance(s.name, m[s.mc_sd]),
+                1.0,
+            )
             for s in self.series
         }
 
@@ -345,18 +394,24 @@ class GaussianLikelihood:
         only with ``mc_correlation``."""
         lam = jnp.asarray(noise_scale, jnp.float64)
         sd = lam * self._stack(self.sd)
-        s = jnp.sqrt(self.mc_scale) * self._stack({x.name: m[x.mc_sd] for x in self.series})
-        cov = jnp.diag(sd**2) + (s[:, None] * s[None, :]) * self.correlation
-        return jnp.linalg.cholesky(cov)
+        return jnp.linalg.cholesky(jnp.diag(sd**2) + self.mc_scale * self._correlated_mc(m))
+
+    def _correlated_mc(self, m: Mapping) -> jax.Array:
+        """diag(s) C diag(s) over the observed entries, or A diag(s) C diag(s) Aᵀ over the whole
+        steps where the model is read between steps (A: :meth:`_interpolation_matrix`)."""
+        if not self.interpolated:
+            s = self._stack({x.name: m[x.mc_sd] for x in self.series})
+            return (s[:, None] * s[None, :]) * self.correlation
+        b = self._interp * jnp.concatenate([jnp.asarray(m[x.mc_sd]) for x in self.series])[None, :]
+        return b @ self._full_correlation @ b.T
 
     def mc_covariance(self, m: Mapping) -> jax.Array:
         """The model's own Monte Carlo covariance over the observed entries, diag(s) C diag(s)
         (C = I without ``mc_correlation``; not multiplied by ``mc_scale``: the error one render of
         the model carries), (n_observations, n_observations), µmol² m⁻⁴ s⁻²."""
-        s = self._stack({x.name: m[x.mc_sd] for x in self.series})
         if self.correlation is None:
-            return jnp.diag(s**2)
-        return (s[:, None] * s[None, :]) * self.correlation
+            return jnp.diag(self._stack({x.name: self._mc_variance(x.name, m[x.mc_sd]) for x in self.series}))
+        return self._correlated_mc(m)
 
     def whitened_mc_covariance(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """W = L⁻¹ Σ_MC L⁻ᵀ (Σ = LLᵀ the likelihood's covariance at λ = ``noise_scale``, Σ_MC from
@@ -385,17 +440,20 @@ class GaussianLikelihood:
         return w, 2.0 * jnp.sum(jnp.log(jnp.diag(L)))
 
     def whiten(self, delta: Mapping, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """Whitened per-series differences ``delta[series name]`` (T,): w = L⁻¹δ over the observed
-        entries (δ_k/√v_k without ``mc_correlation``), placed in a (len(use)·T,) vector, series
-        blocks in order, zero where there is no observation; ‖w‖² = δᵀΣ⁻¹δ."""
-        return self._whiten(delta, m, noise_scale)[0]
+        """Whitened per-series differences of the model ``delta[series name]`` (T,), read at the
+        observations (:meth:`at_observations`): w = L⁻¹δ over the observed entries (δ_k/√v_k
+        without ``mc_correlation``), placed in a (len(use)·T,) vector, series blocks in order, zero
+        where there is no observation; ‖w‖² = δᵀΣ⁻¹δ."""
+        read = {s.name: self.at_observations(s.name, delta[s.name]) for s in self.series}
+        return self._whiten(read, m, noise_scale)[0]
 
     def whitened(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """Whitened residuals of y − m (see :meth:`whiten`)."""
-        return self.whiten(self._residuals(m), m, noise_scale)
+        return self._whiten(self._residuals(m), m, noise_scale)[0]
 
     def _residuals(self, m: Mapping) -> dict:
-        return {s.name: self.y[s.name] - m[s.value] for s in self.series}
+        """y − m read at the observations, per used series (T,)."""
+        return {s.name: self.y[s.name] - self.at_observations(s.name, m[s.value]) for s in self.series}
 
     def loss(self, m: Mapping) -> jax.Array:
         """Calibration loss ½ rᵀΣ⁻¹r at λ = 1 (no normalisation; see the module docstring); +inf where
@@ -412,7 +470,8 @@ class GaussianLikelihood:
 
 def observations_digest(lik: GaussianLikelihood, times: pd.DatetimeIndex) -> str:
     """SHA-256 of the observations as the likelihood sees them: per used series its values, SDs and
-    mask on the run's steps, and the steps' times. Two runs with the same digest fit the same data
+    mask on the run's steps (and the interpolation's weights and neighbours where a reading lies
+    between two steps), and the steps' times. Two runs with the same digest fit the same data
     (another file, column order or an unused series do not change it)."""
     h = hashlib.sha256(b"lightfit observations v1")
     h.update(np.asarray(pd.DatetimeIndex(times).asi8, np.int64).tobytes())
@@ -421,6 +480,9 @@ def observations_digest(lik: GaussianLikelihood, times: pd.DatetimeIndex) -> str
         h.update(np.ascontiguousarray(np.asarray(lik.y[s.name], np.float64)).tobytes())
         h.update(np.ascontiguousarray(np.asarray(lik.sd[s.name], np.float64)).tobytes())
         h.update(np.ascontiguousarray(np.asarray(lik.mask[s.name], np.uint8)).tobytes())
+        if lik.interpolated:  # else as before interpolation, so that digests stored then still match
+            h.update(np.ascontiguousarray(np.asarray(lik.weight[s.name], np.float64)).tobytes())
+            h.update(np.ascontiguousarray(np.asarray(lik.neighbour[s.name], np.int64)).tobytes())
     return h.hexdigest()
 
 

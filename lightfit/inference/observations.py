@@ -57,7 +57,8 @@ step whose *centre* is nearest the observation's centre, so a spot reading at 12
 one step are averaged (the reference paper averaged too), weighted by their inverse variances (the
 plain mean and sd/√n for equal SDs). A mean over more than a step stands for is refused, and so
 is one that straddles two steps' intervals: run the model at the observation's interval instead
-(``--step``, ``--how mean``).
+(``--step``, ``--how mean``). Against a run on instants, an instant between two steps meets the
+model interpolated linearly in time between them (:func:`interpolation`, :func:`read_between`).
 Files with the names before issue 12 (``par_umol_m2_s`` …) and unknown columns are refused with
 a message naming the known columns.
 """
@@ -419,7 +420,8 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     ``obs.attrs["timestamps"]`` what the observations' do (instants where absent). Each
     observation goes to the step whose centre is nearest its own centre (an instant on the border
     of two intervals goes to the interval that holds it: the later one for start-stamps, the
-    earlier otherwise). Raised as :class:`InputError`, naming the file:
+    earlier otherwise); where that is an instant between two instants, the model is read between
+    them (:func:`interpolation`). Raised as :class:`InputError`, naming the file:
 
     * an observation more than half a step (the steps' spacing; 30 min, or the averaging interval
       if longer, for a one-step run) from every step's centre;
@@ -466,33 +468,109 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
                 expected="means whose intervals lie within one step's interval",
             )
     out = {}
-    for v, sd in ((s.value, s.sd) for s in SERIES):
-        val = np.full(len(times), np.nan)
-        err = np.full(len(times), np.nan)
-        out[v], out[sd] = val, err
-        if v not in obs.columns:  # a quantity the observations do not have
-            continue
-        for k in np.unique(idx):
-            sel = (idx == k) & obs[v].notna().to_numpy()
-            if sel.any():  # inverse-variance weighted: the mean that keeps all the readings' information
-                w = obs[sd].to_numpy()[sel] ** -2.0
-                val[k] = (w * obs[v].to_numpy()[sel]).sum() / w.sum()
-                err[k] = w.sum() ** -0.5
-        out[v], out[sd] = val, err
+    for s in SERIES:
+        out[s.value], out[s.sd] = _per_step(obs, s, idx, len(times), obs.get(s.value))
     return out
 
 
-def observation_matching(obs: pd.DataFrame, stamps: Timestamps) -> str:
-    """How :func:`align` meets ``obs`` with a run's steps labelled by ``stamps`` (stored with
-    posterior runs and calibration states), e.g. ``"instants to ends of 10-min means, by interval
-    centre"``."""
-    return f"{timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre"
+def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:
+    """Per step (``idx``: each row's step): the inverse-variance weighted mean of ``x`` (a column
+    or array over the rows) over the rows with a value of series ``s``, weights ``obs[s.sd]⁻²``, and
+    (Σ sd⁻²)^(-1/2); NaN at steps without one (everywhere when ``obs`` lacks the series)."""
+    mean, err = np.full(n_steps, np.nan), np.full(n_steps, np.nan)
+    if s.value not in obs.columns:
+        return mean, err
+    x = np.asarray(x, dtype=float)
+    for k in np.unique(idx):
+        sel = (idx == k) & obs[s.value].notna().to_numpy()
+        if sel.any():  # inverse-variance weighted: the mean that keeps all the readings' information
+            w = obs[s.sd].to_numpy()[sel] ** -2.0
+            mean[k] = (w * x[sel]).sum() / w.sum()
+            err[k] = w.sum() ** -0.5
+    return mean, err
 
 
-def matched_as_by_stamp(obs: pd.DataFrame, stamps: Timestamps) -> bool:
+def interpolation(
+    obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    r"""Where between the run's steps each series' observations lie: per series (value column of
+    :data:`SERIES`) the neighbour step n_k and weight w_k ∈ [0, ½] of every step k, so that the model
+    read at step k's observations is
+
+    .. math:: \hat m_k = (1 - w_k)\, m_k + w_k\, m_{n_k},
+
+    linear interpolation in time to the observations' (inverse-variance weighted) mean time t̄_k:
+    w_k = |t̄_k − t_k| / |t_{n_k} − t_k|, n_k the step on t̄_k's side of t_k. A spot reading 14 min
+    after a step of a 30-min run meets the model 14 min after that step, not the step's light (the
+    sun moves ≈ 2 % in PAR in that time in the morning).
+
+    Only instants are interpolated, and only on instants: a run's mean over an interval holds an
+    instant observation in it, and means are matched to means (:func:`align`). No interpolation
+    (w_k = 0, n_k = k) where step k has no observation, where t̄_k is step k's time, or where the
+    neighbour is missing or further than the run's shortest step (the run's first and last steps
+    outwards, a night or another day between two steps): there the observation meets its nearest
+    step, as :func:`align` places it. Call after :func:`align`, which checks the times.
+    """
+    T = len(times)
+    out = {s.value: (np.arange(T), np.zeros(T)) for s in SERIES}
+    if T < 2 or timestamps.of(obs).interval is not None or stamps.interval is not None:
+        return out
+    idx, _ = nearest_steps(obs, times, stamps)
+    utc = times.tz_convert("UTC")
+    t_s = np.asarray((utc - utc[0]).total_seconds(), float)
+    step = np.diff(t_s).min()
+    offset_s = np.asarray((obs.index.tz_convert("UTC") - utc[idx]).total_seconds(), float)
+    for s in SERIES:
+        nb, w = out[s.value]
+        d, _ = _per_step(obs, s, idx, T, offset_s)
+        for k in np.flatnonzero(np.isfinite(d) & (np.nan_to_num(d) != 0.0)):
+            j = k + (1 if d[k] > 0 else -1)
+            if 0 <= j < T and abs(t_s[j] - t_s[k]) <= step * (1 + 1e-9):
+                nb[k], w[k] = j, abs(d[k]) / abs(t_s[j] - t_s[k])
+    return out
+
+
+def read_between(x, neighbour, weight, xp=np):
+    """A model quantity over the steps (T,) read where the observations are
+    (:func:`interpolation`'s ``neighbour`` and ``weight``): (1 − w_k)·x_k + w_k·x_{n_k}, and x_k
+    itself at weight 0, whatever x_{n_k} is. ``xp``: numpy or jax.numpy."""
+    x = xp.asarray(x)
+    return xp.where(weight > 0, (1.0 - weight) * x + weight * x[neighbour], x)
+
+
+def read_offsets_s(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> dict[str, np.ndarray]:
+    """Per series (short name): the time from each step to where the model is read for its
+    observations (:func:`interpolation`), s, signed; 0 at steps read at themselves. Results and
+    plots draw an observation at its step's time plus this."""
+    utc = times.tz_convert("UTC")
+    t_s = np.asarray((utc - utc[0]).total_seconds(), float)
+    read = interpolation(obs, times, stamps)
+    out = {}
+    for s in SERIES:
+        nb, w = read[s.value]
+        out[s.name] = np.where(w > 0, w * (t_s[nb] - t_s), 0.0)
+    return out
+
+
+def interpolated(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> bool:
+    """Whether any observation is read between two steps (:func:`interpolation`)."""
+    return any(w.any() for _, w in interpolation(obs, times, stamps).values())
+
+
+def observation_matching(obs: pd.DataFrame, stamps: Timestamps, times: pd.DatetimeIndex) -> str:
+    """How ``obs`` meet a run's steps ``times`` labelled by ``stamps`` (stored with posterior runs and
+    calibration states), e.g. ``"instants to ends of 10-min means, by interval centre"``, or, where
+    instants lie between instants, ``"instants to instants, interpolated linearly in time"``
+    (:func:`interpolation`; observations on the steps are matched as before it)."""
+    how = "interpolated linearly in time" if interpolated(obs, times, stamps) else "by interval centre"
+    return f"{timestamps.of(obs).describe()} to {stamps.describe()}, {how}"
+
+
+def matched_as_by_stamp(obs: pd.DataFrame, stamps: Timestamps, times: pd.DatetimeIndex) -> bool:
     """Whether matching by interval centre gives what matching by stamp (before it) gave: for
-    instants on instants, where centres are stamps. Runs stored before may resume only then."""
-    return timestamps.of(obs).interval is None and stamps.interval is None
+    instants on instants, where centres are stamps, none of them read between steps. Runs stored
+    before may resume only then."""
+    return timestamps.of(obs).interval is None and stamps.interval is None and not interpolated(obs, times, stamps)
 
 
 def nearest_steps(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps) -> tuple[np.ndarray, np.ndarray]:

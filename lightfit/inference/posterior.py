@@ -46,7 +46,7 @@ from lightfit.inference.mcmc.backend import drop_group, run_attrs, stored_run
 from lightfit.inference.mcmc.diagnostics import burn_in
 from lightfit.inference.mcmc.priors import informed_priors
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
-from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching
+from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching, read_offsets_s
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, in_box, validate
@@ -140,16 +140,16 @@ def check_likelihood(path: str | Path, form: dict) -> None:
         )
 
 
-def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps) -> None:
-    """Refuse to resume a posterior run in ``path`` whose observations met the steps otherwise
-    (:class:`InputError`). Runs stored before the matching was recorded matched by stamp, which is
-    the same only for instants on instants."""
+def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps, times: pd.DatetimeIndex) -> None:
+    """Refuse to resume a posterior run in ``path`` whose observations met the steps ``times``
+    otherwise (:class:`InputError`). Runs stored before the matching was recorded matched by stamp,
+    which is the same only for instants on instants, none between steps."""
     if stored_run(Path(path), "mcmc") is None:
         return
-    now = observation_matching(obs, stamps)
+    now = observation_matching(obs, stamps, times)
     before = run_attrs(path).get("observation_matching")
     if before is None:
-        if matched_as_by_stamp(obs, stamps):
+        if matched_as_by_stamp(obs, stamps, times):
             return
         before = "by stamp (before interval matching)"
     if before != now:
@@ -404,11 +404,12 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
 
 def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, samples, n: int, seed: int) -> dict:
     """Observables (and their Monte Carlo SDs) at ``n`` random posterior samples, (n, T) each, with the
-    observations on the run's steps (``obs_<column>``). Series the likelihood does not compare are
-    NaN: the run renders only what its observations need (a record of above-canopy PAR renders
-    nothing), so their draws would be zeros, not predictions. ``time_utc``: the steps' stamps;
-    ``instant_utc``: the instants they stand for (a mean's interval centre, where its sun was taken
-    and where a plot draws it; the stamps for instants)."""
+    observations on the run's steps (``obs_<column>``; ``obs_<series>_time_offset_s``: where the
+    model is read for them, s from the step, :func:`~lightfit.inference.observations.read_offsets_s`).
+    Series the likelihood does not compare are NaN: the run renders only what its observations need
+    (a record of above-canopy PAR renders nothing), so their draws would be zeros, not predictions.
+    ``time_utc``: the steps' stamps; ``instant_utc``: the instants they stand for (a mean's interval
+    centre, where its sun was taken and where a plot draws it; the stamps for instants)."""
     rng = np.random.default_rng(seed)
     draws = samples[rng.choice(len(samples), size=min(n, len(samples)), replace=False)]
     pred = jax.jit(jax.vmap(lambda x: lp.observables(x)[0]))(jnp.asarray(draws))
@@ -424,6 +425,7 @@ def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, sam
         "instant_utc": stamps.centres(utc).strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
         **{k: drawn(s, k) for s in SERIES for k in (s.value, s.mc_sd)},
         **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times, lp.likelihood.stamps).items()},
+        **{f"obs_{k}_time_offset_s": v for k, v in read_offsets_s(obs, times, lp.likelihood.stamps).items()},
     }
 
 
@@ -489,7 +491,7 @@ def run(
     form = likelihood_form(mc_correlation, mc_scale)
     if resume:
         check_likelihood(path, form)
-        check_matching(path, obs, model.timestamps)
+        check_matching(path, obs, model.timestamps, model.times)
     days = days_of(model)
     emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]
     priors = prior_set("informed", model.scenario.optics) if priors is None else priors
@@ -542,7 +544,7 @@ def run(
         },
         "emulator": emu_meta[0] if len(emu_meta) == 1 else emu_meta,
         "likelihood": {**form, "correlation_at": None if corr is None else corr.theta},
-        "observation_matching": observation_matching(obs, model.timestamps),
+        "observation_matching": observation_matching(obs, model.timestamps, model.times),
         **(attrs or {}),
     }
     if not resume and Path(path).exists():  # a new chain: an analysis stored with the old one is not its

@@ -74,7 +74,7 @@ from lightfit.inference.likelihood import (
 )
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
-from lightfit.inference.observations import SERIES, align
+from lightfit.inference.observations import SERIES, align, interpolation
 from lightfit.model import emulator as E
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta, check_names
@@ -89,8 +89,10 @@ def observed_model(
     """The model cut to the steps the observations need, the observations without empty rows, and
     the number of steps to render.
 
-    Kept: steps with any observed value (of any series, so that every row still aligns). Rendered:
-    kept daytime steps where a used series other than :data:`RENDER_FREE` has a value. See
+    Kept: steps with any observed value (of any series, so that every row still aligns), and the
+    neighbours that observations between two steps are interpolated from
+    (:func:`~lightfit.inference.observations.interpolation`). Rendered: kept daytime steps where a
+    used series other than :data:`RENDER_FREE` has a value or is interpolated from. See
     :func:`lightfit.model.emulator.restrict`. A :class:`~lightfit.inference.multiday.MultiDayModel`:
     each day cut to its own observations (a day without any is an error naming it); the count sums
     the days'.
@@ -116,6 +118,10 @@ def observed_model(
     o.attrs = dict(obs.attrs)
     target = align(o, model.times, model.timestamps)
     have = {s.name: ~np.isnan(target[s.value]) for s in SERIES}
+    lerp = interpolation(o, model.times, model.timestamps)
+    for s in SERIES:  # a step whose observations lie towards a neighbour needs the neighbour too
+        nb, w = lerp[s.value]
+        have[s.name][nb[w > 0]] = True
     keep = np.any(list(have.values()), axis=0)
     if not keep.any():  # nothing on the run's steps: the likelihood says so with the file's name
         GaussianLikelihood(o, model.times, use, stamps=model.timestamps)

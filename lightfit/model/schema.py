@@ -292,6 +292,27 @@ VARIABLES: dict[str, Variable] = {
     "obs_ceptometer_fapar": Variable(T, "1", "observed fAPAR from a ceptometer (1 - transmittance)"),
     "obs_ceptometer_fapar_sd": Variable(T, "1", "measurement standard deviation of observed ceptometer fAPAR"),
 }
+# Where the model is read for each series' observations (lightfit.inference.observations.interpolation;
+# one entry per name of its SERIES, which tests/test_observation_interpolation.py checks).
+VARIABLES |= {
+    f"obs_{name}_time_offset_s": Variable(
+        T,
+        "s",
+        f"time from the step to where the model is read for the {name} observations",
+        "linear interpolation in time between two instants; 0 at the step itself",
+    )
+    for name in (
+        "above_canopy_par",
+        "plant_par",
+        "canopy_apar",
+        "fapar",
+        "canopy_an",
+        "nee",
+        "transmitted_par",
+        "ceptometer_transmittance",
+        "ceptometer_fapar",
+    )
+}
 
 
 def variable(name: str) -> Variable:
