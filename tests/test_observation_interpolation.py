@@ -99,10 +99,12 @@ def test_a_model_linear_in_time_is_read_exactly_at_the_readings():
     assert lik.interpolated
     m = _linear_model(a, b, s)
     assert float(lik.loss(m)) == pytest.approx(0.0, abs=1e-20)
-    # log L against scipy: residuals 0, variances σ² + (1 − w)² s_k² + w² s_n² (independent steps)
+    # log L against scipy: residuals 0; Σ = diag(σ²) + A diag(s²) Aᵀ (independent steps, but the
+    # first two readings both read step 1)
     w0, w2 = 828 / 1800, 600 / 1800
-    v = [100 + (1 - w0) ** 2 * 9 + w0**2 * 16, 100 + (1 - w2) ** 2 * 25 + w2**2 * 16, 100 + 36]
-    want = multivariate_normal(np.zeros(3), np.diag(v)).logpdf(np.zeros(3))
+    a_read = np.array([[1 - w0, w0, 0, 0], [0, w2, 1 - w2, 0], [0, 0, 0, 1.0]])
+    cov = np.diag([100.0, 100.0, 100.0]) + a_read @ np.diag(s**2) @ a_read.T
+    want = multivariate_normal(np.zeros(3), cov).logpdf(np.zeros(3))
     for f in (lik.log_likelihood, jax.jit(lik.log_likelihood)):
         assert float(f(m, 1.0)) == pytest.approx(want, rel=1e-12)
     # read at the nearest steps instead, the morning's rise would be a residual of 828 s × b
@@ -199,7 +201,63 @@ def test_a_calibration_renders_the_neighbour_a_reading_is_interpolated_from():
     obs.attrs = {"source": "test", "provenance": "synthetic"}
     cut, _, n_rendered = observed_model(model, obs, ("plant_par", "above_canopy_par"))
     assert list(cut.times) == list(w.index[[0, 1, 3]])  # 13:00 dropped; 12:30 kept for the reading
+    assert cut.step == model.step == pd.Timedelta("30min")  # the cut run keeps the forcing's step
     assert n_rendered == 2 and list(np.asarray(cut.day, bool)) == [True, True, False]  # the sensor renders nothing
     lik = GaussianLikelihood(obs, cut.times, ("plant_par", "above_canopy_par"), stamps=cut.timestamps)
     assert int(lik.neighbour["plant_par"][0]) == 1 and float(lik.weight["plant_par"][0]) == pytest.approx(1 / 3)
     assert not np.asarray(lik.weight["above_canopy_par"]).any()
+
+
+def test_independent_steps_still_share_a_step_between_two_readings():
+    """Two readings read from the same two steps share their Monte Carlo errors even when the steps'
+    errors are independent: Σ_MC = A diag(s²) Aᵀ, the form with the identity as correlation
+    (a review's case: 10:10 and 10:20 against 30-min steps)."""
+    obs = _obs(["2016-04-20 10:10:00", "2016-04-20 10:20:00"], [1510.0, 1530.0], [8.0, 8.0])
+    s = np.array([5.0, 10.0, 3.0, 3.0])
+    m = _linear_model(1500.0, 0.02, s)
+    ind = GaussianLikelihood(obs, STEPS, ("above_canopy_par",))
+    eye = GaussianLikelihood(
+        obs, STEPS, ("above_canopy_par",), mc_correlation=MCCorrelation(("above_canopy_par",), 4, np.eye(4))
+    )
+    w = 1 / 3  # 10:10 → step 0, read towards 1; 10:20 → step 1 (10:30), read towards 0
+    a = np.array([[1 - w, w], [w, 1 - w]])  # rows: readings, columns: steps 0, 1
+    want = a @ np.diag(s[:2] ** 2) @ a.T
+    for lik in (ind, eye):
+        assert lik.dense
+        np.testing.assert_allclose(np.asarray(lik.mc_covariance(m)), want, rtol=1e-12)
+    assert float(ind.log_likelihood(m, 0.7)) == pytest.approx(float(eye.log_likelihood(m, 0.7)), rel=1e-12)
+
+
+def test_a_step_no_reading_needs_cannot_spoil_the_likelihood():
+    """A non-finite Monte Carlo SD at a step neither holding nor neighbouring a reading stays out."""
+    obs = _obs(["2016-04-20 10:10:00"], [1510.0], [8.0])
+    for bad in (np.inf, np.nan):
+        s = np.array([5.0, 10.0, 3.0, bad])
+        m = _linear_model(1500.0, 0.02, s)
+        for corr in (None, MCCorrelation(("above_canopy_par",), 4, np.eye(4))):
+            lik = GaussianLikelihood(obs, STEPS, ("above_canopy_par",), mc_correlation=corr)
+            assert np.isfinite(float(lik.log_likelihood(m, 1.0)))
+            g = jax.grad(lambda x: lik.log_likelihood({**m, PAR.value: m[PAR.value] + x}, 1.0))(jnp.zeros(4))
+            assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_only_the_used_series_decide_how_observations_meet_the_steps():
+    """A series left out of the likelihood (here above-canopy PAR between two steps) does not make the
+    run's matching 'interpolated' (a state stored before would be refused for nothing)."""
+    plant = BY_NAME["plant_par"]
+    obs = pd.concat(
+        [_obs(["2016-04-20 10:30:00"], [400.0], [20.0], s=plant), _obs(["2016-04-20 10:13:48"], [1.0], [1.0])]
+    )
+    assert interpolated(obs, STEPS) and not interpolated(obs, STEPS, use=("plant_par",))
+    assert matched_as_by_stamp(obs, INSTANTS, STEPS, use=("plant_par",))
+    assert observation_matching(obs, INSTANTS, STEPS, use=("plant_par",)).endswith("by interval centre")
+
+
+def test_a_cut_run_keeps_its_own_step():
+    """Two days cut to one step each (the gap between them a night): with the run's 30-min step a
+    reading after day 1's last step is not read towards day 2; the gap alone would have allowed it."""
+    cut = pd.DatetimeIndex(["2016-04-20 11:30", "2016-04-21 10:00"], tz="UTC")
+    late = _obs(["2016-04-20 11:40:00"], [1.0], [1.0])
+    assert interpolated(late, cut)  # the cut times alone: their shortest spacing is the night
+    assert not interpolated(late, cut, step=pd.Timedelta("30min"))
+    assert not GaussianLikelihood(late, cut, step=pd.Timedelta("30min")).interpolated

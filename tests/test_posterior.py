@@ -343,6 +343,7 @@ class FakeModel:
         self.scenario = _Scenario(Optics.preset(optics))
         self.times = pd.date_range("2016-04-20 04:00", periods=6, freq="30min", tz="UTC")
         self.timestamps = INSTANTS
+        self.step = pd.Timedelta("30min")
         self.shape = jnp.asarray([0.0, 0.3, 0.7, 1.0, 0.8, 0.4])
 
     def observe(self, th: Theta):

@@ -203,16 +203,15 @@ def make_loss(
     :class:`~lightfit.inference.multiday.MultiDayModel` (several days, one likelihood)."""
     names = check_names(names)
     base = model.theta(fixed)
-    lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps)
+    steps = {"stamps": model.timestamps, "step": model.step}
+    lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, **steps)
     check_informed(names, lik.use, **run_settings(model))  # before the "model" correlation renders
     if isinstance(mc_correlation, str) and likelihood_form(mc_correlation)["mc_correlation"] == "model":
         mc_correlation = mc_correlation_of(model, as_theta(at, base=base), lik.use)
     elif isinstance(mc_correlation, str):
         mc_correlation = None
     if mc_correlation is not None:
-        lik = GaussianLikelihood(
-            obs, model.times, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale, stamps=model.timestamps
-        )
+        lik = GaussianLikelihood(obs, model.times, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale, **steps)
     return Loss(forward or model.observe, lik, names, base, bounds)
 
 
@@ -531,7 +530,7 @@ def calibrate(
     if hist:
         # The observations as the loss sees them (cheap: no render), so that a history of other
         # data is refused before the "model" correlation below renders.
-        aligned = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps)
+        aligned = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps, step=model.step)
         data = {"observations": observations_digest(aligned, model.times), "model": _model_digest(model)}
         _check_same_data(saved, data, hist, say)
     loss = make_loss(
@@ -558,8 +557,9 @@ def calibrate(
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
-    if not matched_as_by_stamp(obs, model.timestamps, model.times):  # else absent: states saved before resume
-        key["observation_matching"] = observation_matching(obs, model.timestamps, model.times)
+    how = (model.timestamps, model.times, model.step, loss.likelihood.use)
+    if not matched_as_by_stamp(obs, *how):  # else absent: states saved before still resume exactly
+        key["observation_matching"] = observation_matching(obs, *how)
     if data is not None:
         key["data"] = data
     # states saved before the likelihood's form was recorded used independent steps

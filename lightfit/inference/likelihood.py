@@ -265,6 +265,10 @@ class GaussianLikelihood:
         stamps: what ``times`` label (``model.timestamps``: instants, or the start, centre or
             end of means); observations go to the step whose centre is nearest theirs
             (:func:`~lightfit.inference.observations.align`).
+        step: the run's forcing step (``model.step``; ``None``: the shortest spacing of ``times``,
+            right for a run that is not cut to its observed steps): readings between two steps
+            this far apart meet the model interpolated between them
+            (:func:`~lightfit.inference.observations.interpolation`).
 
     Raises :class:`InputError` when an observation lies outside the run or no observation of the
     used series falls on a simulated step.
@@ -279,6 +283,7 @@ class GaussianLikelihood:
         mc_correlation: MCCorrelation | None = None,
         mc_scale: float = 1.0,
         stamps: Timestamps = INSTANTS,
+        step: pd.Timedelta | None = None,
     ):
         if use is not None and (isinstance(use, str) or not tuple(use)):
             raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
@@ -297,6 +302,8 @@ class GaussianLikelihood:
                 )
         check_sds(obs)
         self.stamps = stamps
+        #: the run's forcing step that readings are interpolated within (None: the spacing of ``times``)
+        self.step = step
         target = align(obs, times, stamps)
         requested = tuple(s for s in SERIES if s.name in use)
         # A requested series without any observation on the run's steps adds nothing to the
@@ -308,7 +315,7 @@ class GaussianLikelihood:
         self.y = {s.name: jnp.asarray(np.nan_to_num(target[s.value])) for s in self.series}
         self.sd = {s.name: jnp.asarray(np.nan_to_num(target[s.sd], nan=1.0)) for s in self.series}
         self.mask = {s.name: jnp.asarray(~np.isnan(target[s.value])) for s in self.series}
-        lerp = interpolation(obs, times, stamps)
+        lerp = interpolation(obs, times, stamps, step)
         #: per used series: each step's neighbour and weight of the model read at its observations
         #: (:func:`~lightfit.inference.observations.interpolation`; weight 0: the step's own value)
         self.neighbour = {s.name: jnp.asarray(lerp[s.value][0]) for s in self.series}
@@ -332,9 +339,13 @@ class GaussianLikelihood:
         #: the correlation given (None: independent steps); :attr:`correlation` is its observed part
         self.mc_correlation = mc_correlation
         self.correlation = None
-        # interpolated: the model's values at the observations are A·m over the stacked steps
-        self._interp = self._interpolation_matrix(T) if self.interpolated else None
-        self._full_correlation = None
+        # Interpolated: the model at the observations is A·m over the stacked steps; only the
+        # steps A reads (columns ``_cols``) enter, so a step read by none cannot spoil Σ.
+        self._interp = self._cols = self._full_correlation = None
+        if self.interpolated:
+            a = self._interpolation_matrix(T)
+            cols = np.flatnonzero(np.abs(a).sum(0) > 0)
+            self._interp, self._cols = jnp.asarray(a[:, cols]), cols
         if mc_correlation is not None:
             if mc_correlation.n_steps != T:
                 raise InputError(
@@ -345,7 +356,10 @@ class GaussianLikelihood:
             c = mc_correlation.select(self.use)
             self.correlation = jnp.asarray(c[np.ix_(self.observed_index, self.observed_index)])
             if self.interpolated:
-                self._full_correlation = jnp.asarray(c)
+                self._full_correlation = jnp.asarray(c[np.ix_(self._cols, self._cols)])
+        #: whether Σ is a full matrix (a Cholesky factor): with the model's correlation, or where
+        #: readings between steps share a step's Monte Carlo error even with independent steps
+        self.dense = self.correlation is not None or self.interpolated
 
     def _interpolation_matrix(self, T: int) -> jax.Array:
         """A (n_observations, len(use)·T): row r reads the stacked steps at observed entry r,
@@ -357,14 +371,14 @@ class GaussianLikelihood:
             w = float(self.weight[name][k])
             a[r, g] += 1.0 - w
             a[r, i * T + int(self.neighbour[name][k])] += w
-        return jnp.asarray(a)
+        return a
 
     def at_observations(self, name: str, x) -> jax.Array:
         """A model quantity of series ``name`` (T,) read where its observations are: at each step,
         (1 − w)·x_k + w·x_n (:attr:`weight`, :attr:`neighbour`), x_k itself at weight 0."""
         return read_between(x, self.neighbour[name], self.weight[name], xp=jnp)
 
-    def _mc_variance(self, name: str, s) -> jax.Array:
+    def mc_variance(self, name: str, s) -> jax.Array:
         """The Monte Carlo variance of the model read at the observations, s_k² or, between steps,
         (1 − w)² s_k² + w² s_n² (the two steps' errors taken as independent, as this diagonal
         form takes all steps)."""
@@ -374,12 +388,12 @@ class GaussianLikelihood:
 
     def variances(self, m: Mapping, noise_scale=1.0) -> dict:
         """v_k = (λσ_k)² + c·s_k² per used series, 1 where there is no observation (µmol² m⁻⁴ s⁻²):
-        the diagonal of Σ (s_k²: :meth:`_mc_variance` where the model is read between steps)."""
+        the diagonal of Σ (s_k²: :meth:`mc_variance` where the model is read between steps)."""
         lam = jnp.asarray(noise_scale, jnp.float64)
         return {
             s.name: jnp.where(
                 self.mask[s.name],
-                (lam * self.sd[s.name]) ** 2 + self.mc_scale * self._mc_variance(s.name, m[s.mc_sd]),
+                (lam * self.sd[s.name]) ** 2 + self.mc_scale * self.mc_variance(s.name, m[s.mc_sd]),
                 1.0,
             )
             for s in self.series
@@ -391,34 +405,37 @@ class GaussianLikelihood:
 
     def cholesky(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """Lower Cholesky factor L of Σ over the observed entries, (n_observations, n_observations);
-        only with ``mc_correlation``."""
+        only where Σ is a full matrix (:attr:`dense`)."""
         lam = jnp.asarray(noise_scale, jnp.float64)
         sd = lam * self._stack(self.sd)
         return jnp.linalg.cholesky(jnp.diag(sd**2) + self.mc_scale * self._correlated_mc(m))
 
     def _correlated_mc(self, m: Mapping) -> jax.Array:
-        """diag(s) C diag(s) over the observed entries, or A diag(s) C diag(s) Aᵀ over the whole
-        steps where the model is read between steps (A: :meth:`_interpolation_matrix`)."""
+        """diag(s) C diag(s) over the observed entries, or, where the model is read between steps,
+        A diag(s) C diag(s) Aᵀ over the steps A reads (A: :meth:`_interpolation_matrix`; C = I
+        without ``mc_correlation``: independent steps, whose errors two readings still share)."""
         if not self.interpolated:
             s = self._stack({x.name: m[x.mc_sd] for x in self.series})
             return (s[:, None] * s[None, :]) * self.correlation
-        b = self._interp * jnp.concatenate([jnp.asarray(m[x.mc_sd]) for x in self.series])[None, :]
-        return b @ self._full_correlation @ b.T
+        s = jnp.concatenate([jnp.asarray(m[x.mc_sd]) for x in self.series])[self._cols]
+        b = self._interp * s[None, :]
+        return b @ b.T if self._full_correlation is None else b @ self._full_correlation @ b.T
 
     def mc_covariance(self, m: Mapping) -> jax.Array:
-        """The model's own Monte Carlo covariance over the observed entries, diag(s) C diag(s)
-        (C = I without ``mc_correlation``; not multiplied by ``mc_scale``: the error one render of
-        the model carries), (n_observations, n_observations), µmol² m⁻⁴ s⁻²."""
-        if self.correlation is None:
-            return jnp.diag(self._stack({x.name: self._mc_variance(x.name, m[x.mc_sd]) for x in self.series}))
+        """The model's own Monte Carlo covariance over the observed entries, diag(s) C diag(s), or
+        A diag(s) C diag(s) Aᵀ where the model is read between steps (C = I without
+        ``mc_correlation``; not multiplied by ``mc_scale``: the error one render of the model
+        carries), (n_observations, n_observations), µmol² m⁻⁴ s⁻²."""
+        if not self.dense:
+            return jnp.diag(self._stack({x.name: m[x.mc_sd] ** 2 for x in self.series}))
         return self._correlated_mc(m)
 
     def whitened_mc_covariance(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """W = L⁻¹ Σ_MC L⁻ᵀ (Σ = LLᵀ the likelihood's covariance at λ = ``noise_scale``, Σ_MC from
         :meth:`mc_covariance`): the model's Monte Carlo covariance in whitened coordinates
-        (dimensionless, over the observed entries); diag(s²/v) without ``mc_correlation``."""
+        (dimensionless, over the observed entries); diag(s²/v) where Σ is diagonal."""
         mc = self.mc_covariance(m)
-        if self.correlation is None:
+        if not self.dense:
             v = self._stack(self.variances(m, noise_scale))
             return mc / jnp.sqrt(v[:, None] * v[None, :])
         L = self.cholesky(m, noise_scale)
@@ -426,8 +443,9 @@ class GaussianLikelihood:
         return jax.scipy.linalg.solve_triangular(L, a.T, lower=True).T
 
     def _whiten(self, delta: Mapping, m: Mapping, noise_scale):
-        """(whitened vector in the (len(use)·T,) layout, log det Σ over the observed entries)."""
-        if self.correlation is None:
+        """(whitened vector in the (len(use)·T,) layout, log det Σ over the observed entries) of
+        differences ``delta`` already read at the observations."""
+        if not self.dense:
             v = self.variances(m, noise_scale)
             w = jnp.concatenate(
                 [jnp.where(self.mask[s.name], delta[s.name] / jnp.sqrt(v[s.name]), 0.0) for s in self.series]
@@ -440,15 +458,17 @@ class GaussianLikelihood:
         return w, 2.0 * jnp.sum(jnp.log(jnp.diag(L)))
 
     def whiten(self, delta: Mapping, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """Whitened per-series differences of the model ``delta[series name]`` (T,), read at the
-        observations (:meth:`at_observations`): w = L⁻¹δ over the observed entries (δ_k/√v_k
-        without ``mc_correlation``), placed in a (len(use)·T,) vector, series blocks in order, zero
-        where there is no observation; ‖w‖² = δᵀΣ⁻¹δ."""
+        """Whitened per-series differences of the model ``delta[series name]`` (T,) (e.g. an
+        emulator's error), read at the observations (:meth:`at_observations`, δ̂ = Aδ): w = L⁻¹δ̂
+        over the observed entries (δ̂_k/√v_k where Σ is diagonal), placed in a (len(use)·T,)
+        vector, series blocks in order, zero where there is no observation; ‖w‖² = δ̂ᵀΣ⁻¹δ̂. Linear
+        in δ: the whitened residuals of model outputs m and m + δ differ by −w."""
         read = {s.name: self.at_observations(s.name, delta[s.name]) for s in self.series}
         return self._whiten(read, m, noise_scale)[0]
 
     def whitened(self, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """Whitened residuals of y − m (see :meth:`whiten`)."""
+        """Whitened residuals r = y − m̂ (m̂: ``m`` read at the observations), in the layout of
+        :meth:`whiten`."""
         return self._whiten(self._residuals(m), m, noise_scale)[0]
 
     def _residuals(self, m: Mapping) -> dict:

@@ -66,7 +66,8 @@ class MultiDayModel:
     """Several days' :class:`~lightfit.model.coupled.CoupledModel` (one per date) as one model over
     their concatenated steps.
 
-    Provides what calibration and the posterior use of a model: ``times``, ``day`` (daytime mask),
+    Provides what calibration and the posterior use of a model: ``times``, ``timestamps``, ``step``
+    (the forcing's step, for readings between two steps), ``day`` (daytime mask),
     ``scenario`` (the first day's: optics, estimator settings — the same on every day), ``theta``,
     ``observe`` (concatenated observables) and, for the Monte Carlo correlation,
     :meth:`mc_correlation`. ``day_models``: ``{date: model}`` in date order.
@@ -107,6 +108,9 @@ class MultiDayModel:
         self.timestamps = stamps.pop()
         self.day = np.concatenate([np.asarray(m.day, bool) for m in self.day_models.values()])
         self.n_steps = [len(m.times) for m in self.day_models.values()]
+        #: the days' shortest forcing step (observations between two steps this far apart are read
+        #: between them; a night between days is longer)
+        self.step = min((m.step for m in self.day_models.values() if m.step is not None), default=None)
 
     @property
     def models(self) -> list[CoupledModel]:

@@ -65,6 +65,7 @@ a message naming the known columns.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -491,7 +492,7 @@ def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) ->
 
 
 def interpolation(
-    obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS
+    obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS, step: pd.Timedelta | None = None
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     r"""Where between the run's steps each series' observations lie: per series (value column of
     :data:`SERIES`) the neighbour step n_k and weight w_k ∈ [0, ½] of every step k, so that the model
@@ -507,9 +508,11 @@ def interpolation(
     Only instants are interpolated, and only on instants: a run's mean over an interval holds an
     instant observation in it, and means are matched to means (:func:`align`). No interpolation
     (w_k = 0, n_k = k) where step k has no observation, where t̄_k is step k's time, or where the
-    neighbour is missing or further than the run's shortest step (the run's first and last steps
+    neighbour is missing or further than the run's ``step`` (the run's first and last steps
     outwards, a night or another day between two steps): there the observation meets its nearest
-    step, as :func:`align` places it. Call after :func:`align`, which checks the times.
+    step, as :func:`align` places it. ``step``: the forcing's (``model.step``: a model cut to the
+    steps its observations need keeps it); ``None``: :func:`~lightfit.weather.timestamps.step_of` ``times``, right for a
+    run that is not cut. Call after :func:`align`, which checks the times.
     """
     T = len(times)
     out = {s.value: (np.arange(T), np.zeros(T)) for s in SERIES}
@@ -518,7 +521,7 @@ def interpolation(
     idx, _ = nearest_steps(obs, times, stamps)
     utc = times.tz_convert("UTC")
     t_s = np.asarray((utc - utc[0]).total_seconds(), float)
-    step = np.diff(t_s).min()
+    step = (timestamps.step_of(times) if step is None else pd.Timedelta(step)).total_seconds()
     offset_s = np.asarray((obs.index.tz_convert("UTC") - utc[idx]).total_seconds(), float)
     for s in SERIES:
         nb, w = out[s.value]
@@ -538,13 +541,15 @@ def read_between(x, neighbour, weight, xp=np):
     return xp.where(weight > 0, (1.0 - weight) * x + weight * x[neighbour], x)
 
 
-def read_offsets_s(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> dict[str, np.ndarray]:
+def read_offsets_s(
+    obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS, step: pd.Timedelta | None = None
+) -> dict[str, np.ndarray]:
     """Per series (short name): the time from each step to where the model is read for its
     observations (:func:`interpolation`), s, signed; 0 at steps read at themselves. Results and
     plots draw an observation at its step's time plus this."""
     utc = times.tz_convert("UTC")
     t_s = np.asarray((utc - utc[0]).total_seconds(), float)
-    read = interpolation(obs, times, stamps)
+    read = interpolation(obs, times, stamps, step)
     out = {}
     for s in SERIES:
         nb, w = read[s.value]
@@ -552,25 +557,47 @@ def read_offsets_s(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamp
     return out
 
 
-def interpolated(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> bool:
-    """Whether any observation is read between two steps (:func:`interpolation`)."""
-    return any(w.any() for _, w in interpolation(obs, times, stamps).values())
+def interpolated(
+    obs: pd.DataFrame,
+    times: pd.DatetimeIndex,
+    stamps: Timestamps = INSTANTS,
+    step: pd.Timedelta | None = None,
+    use: Sequence[str] | None = None,
+) -> bool:
+    """Whether any observation of the series ``use`` (short names; ``None``: all) is read between
+    two steps (:func:`interpolation`)."""
+    read = interpolation(obs, times, stamps, step)
+    return any(read[s.value][1].any() for s in SERIES if use is None or s.name in use)
 
 
-def observation_matching(obs: pd.DataFrame, stamps: Timestamps, times: pd.DatetimeIndex) -> str:
+def observation_matching(
+    obs: pd.DataFrame,
+    stamps: Timestamps,
+    times: pd.DatetimeIndex,
+    step: pd.Timedelta | None = None,
+    use: Sequence[str] | None = None,
+) -> str:
     """How ``obs`` meet a run's steps ``times`` labelled by ``stamps`` (stored with posterior runs and
     calibration states), e.g. ``"instants to ends of 10-min means, by interval centre"``, or, where
     instants lie between instants, ``"instants to instants, interpolated linearly in time"``
-    (:func:`interpolation`; observations on the steps are matched as before it)."""
-    how = "interpolated linearly in time" if interpolated(obs, times, stamps) else "by interval centre"
+    (:func:`interpolation` of the used series ``use``, with the run's ``step``; observations on the
+    steps are matched as before it)."""
+    how = "interpolated linearly in time" if interpolated(obs, times, stamps, step, use) else "by interval centre"
     return f"{timestamps.of(obs).describe()} to {stamps.describe()}, {how}"
 
 
-def matched_as_by_stamp(obs: pd.DataFrame, stamps: Timestamps, times: pd.DatetimeIndex) -> bool:
+def matched_as_by_stamp(
+    obs: pd.DataFrame,
+    stamps: Timestamps,
+    times: pd.DatetimeIndex,
+    step: pd.Timedelta | None = None,
+    use: Sequence[str] | None = None,
+) -> bool:
     """Whether matching by interval centre gives what matching by stamp (before it) gave: for
     instants on instants, where centres are stamps, none of them read between steps. Runs stored
     before may resume only then."""
-    return timestamps.of(obs).interval is None and stamps.interval is None and not interpolated(obs, times, stamps)
+    same = timestamps.of(obs).interval is None and stamps.interval is None
+    return same and not interpolated(obs, times, stamps, step, use)
 
 
 def nearest_steps(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps) -> tuple[np.ndarray, np.ndarray]:

@@ -93,15 +93,15 @@ def log_posterior(
     base = {**model.theta(fixed).to_dict(), **({} if lam is None else {NOISE_SCALE: lam})}
     for e in _emulators(forward):  # emulated forwards: inside their box only (no silent extrapolation)
         check_emulator_box(e.lo, e.hi, check_sampled(names, priors), priors, base)
-    stamps = model.timestamps
-    lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale, stamps=stamps)
+    steps = {"stamps": model.timestamps, "step": model.step}
+    lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale, **steps)
     if isinstance(mc_correlation, MCCorrelation) or form["mc_correlation"] == "independent":
         corr = mc_correlation if isinstance(mc_correlation, MCCorrelation) else None
     else:
         theta_c, _ = lp.split(jnp.asarray(lp.center()))
         corr = mc_correlation_of(light_model or model, theta_c, lp.use)
     return LogPosterior(
-        forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale, stamps=stamps
+        forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale, **steps
     )
 
 
@@ -140,16 +140,24 @@ def check_likelihood(path: str | Path, form: dict) -> None:
         )
 
 
-def check_matching(path: str | Path, obs: pd.DataFrame, stamps: Timestamps, times: pd.DatetimeIndex) -> None:
-    """Refuse to resume a posterior run in ``path`` whose observations met the steps ``times``
-    otherwise (:class:`InputError`). Runs stored before the matching was recorded matched by stamp,
-    which is the same only for instants on instants, none between steps."""
+def check_matching(
+    path: str | Path,
+    obs: pd.DataFrame,
+    stamps: Timestamps,
+    times: pd.DatetimeIndex,
+    step: pd.Timedelta | None = None,
+    use: Sequence[str] | None = None,
+) -> None:
+    """Refuse to resume a posterior run in ``path`` whose observations (of the used series ``use``)
+    met the steps ``times`` (of the run's ``step``) otherwise (:class:`InputError`). Runs stored
+    before the matching was recorded matched by stamp, which is the same only for instants on
+    instants, none between steps."""
     if stored_run(Path(path), "mcmc") is None:
         return
-    now = observation_matching(obs, stamps, times)
+    now = observation_matching(obs, stamps, times, step, use)
     before = run_attrs(path).get("observation_matching")
     if before is None:
-        if matched_as_by_stamp(obs, stamps, times):
+        if matched_as_by_stamp(obs, stamps, times, step, use):
             return
         before = "by stamp (before interval matching)"
     if before != now:
@@ -187,7 +195,7 @@ def resume_key(
     names = check_sampled(names, priors)
     fixed = dict(fixed or {})
     lam = float(fixed.pop(NOISE_SCALE, 1.0))
-    lik = GaussianLikelihood(obs, model.times, use, stamps=model.timestamps)
+    lik = GaussianLikelihood(obs, model.times, use, stamps=model.timestamps, step=model.step)
     return {
         "seed": seed,
         "use": list(lik.use),
@@ -425,7 +433,10 @@ def predictive(lp: LogPosterior, obs: pd.DataFrame, times: pd.DatetimeIndex, sam
         "instant_utc": stamps.centres(utc).strftime("%Y-%m-%dT%H:%M:%SZ").tolist(),
         **{k: drawn(s, k) for s in SERIES for k in (s.value, s.mc_sd)},
         **{f"obs_{k}": np.asarray(v) for k, v in align(obs, times, lp.likelihood.stamps).items()},
-        **{f"obs_{k}_time_offset_s": v for k, v in read_offsets_s(obs, times, lp.likelihood.stamps).items()},
+        **{
+            f"obs_{k}_time_offset_s": v
+            for k, v in read_offsets_s(obs, times, lp.likelihood.stamps, lp.likelihood.step).items()
+        },
     }
 
 
@@ -491,11 +502,13 @@ def run(
     form = likelihood_form(mc_correlation, mc_scale)
     if resume:
         check_likelihood(path, form)
-        check_matching(path, obs, model.timestamps, model.times)
     days = days_of(model)
     emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]
     priors = prior_set("informed", model.scenario.optics) if priors is None else priors
     key = resume_key(model, obs, names=names, priors=priors, fixed=fixed, use=use, seed=seed)
+    how = (model.timestamps, model.times, model.step, key["use"])  # how the observations meet the steps
+    if resume:
+        check_matching(path, obs, *how)
     for e in emus:  # before anything is computed on the emulators
         check_emulator_box(e.lo, e.hi, names, priors, key["fixed"])
     if resume:
@@ -544,7 +557,7 @@ def run(
         },
         "emulator": emu_meta[0] if len(emu_meta) == 1 else emu_meta,
         "likelihood": {**form, "correlation_at": None if corr is None else corr.theta},
-        "observation_matching": observation_matching(obs, model.timestamps, model.times),
+        "observation_matching": observation_matching(obs, *how),
         **(attrs or {}),
     }
     if not resume and Path(path).exists():  # a new chain: an analysis stored with the old one is not its

@@ -118,14 +118,15 @@ def observed_model(
     o.attrs = dict(obs.attrs)
     target = align(o, model.times, model.timestamps)
     have = {s.name: ~np.isnan(target[s.value]) for s in SERIES}
-    lerp = interpolation(o, model.times, model.timestamps)
-    for s in SERIES:  # a step whose observations lie towards a neighbour needs the neighbour too
+    used = resolve_use(use, o)
+    lerp = interpolation(o, model.times, model.timestamps, model.step)
+    for s in SERIES:  # a used series' reading between two steps needs both
         nb, w = lerp[s.value]
-        have[s.name][nb[w > 0]] = True
+        if s.name in used:
+            have[s.name][nb[w > 0]] = True
     keep = np.any(list(have.values()), axis=0)
     if not keep.any():  # nothing on the run's steps: the likelihood says so with the file's name
-        GaussianLikelihood(o, model.times, use, stamps=model.timestamps)
-    used = resolve_use(use, o)
+        GaussianLikelihood(o, model.times, use, stamps=model.timestamps, step=model.step)
     light = [have[n] for n in used if n not in RENDER_FREE]
     rendered = np.any(light, axis=0) & model.day if light else np.zeros_like(keep)
     return E.restrict(model, keep, rendered), o, int((rendered & keep).sum())
@@ -270,10 +271,11 @@ def surrogate_calibrate(
         """The run's likelihood; with the model's Monte Carlo correlation computed (once) from
         ``light_model`` at the start point."""
         nonlocal corr
-        lik = GaussianLikelihood(o, m.times, use, mc_scale=mc_scale, stamps=m.timestamps)
+        steps = {"mc_scale": mc_scale, "stamps": m.timestamps, "step": m.step}
+        lik = GaussianLikelihood(o, m.times, use, **steps)
         if form["mc_correlation"] == "model" and corr is None:
             corr = mc_correlation_of(light_model, x0, lik.use)
-        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, mc_scale=mc_scale, stamps=m.timestamps)
+        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, **steps)
 
     def done(res, rounds, passed, loss_full, mode, emus=None):
         return SurrogateCalibration(
@@ -379,9 +381,10 @@ def surrogate_calibrate(
         passed = bool(abs(l_full - l_sur) <= z * sd)
         err = {}
         for sr in lik.series:
-            mask = np.asarray(lik.mask[sr.name])
-            mc = np.asarray(full[sr.mc_sd])[mask]
-            diff = np.abs(np.asarray(sur[sr.value]) - np.asarray(full[sr.value]))[mask]
+            mask = np.asarray(lik.mask[sr.name])  # read where the observations are, as the loss reads them
+            mc = np.sqrt(np.asarray(lik.mc_variance(sr.name, full[sr.mc_sd])))[mask]
+            read = [np.asarray(lik.at_observations(sr.name, x[sr.value])) for x in (sur, full)]
+            diff = np.abs(read[0] - read[1])[mask]
             err[sr.name] = float(np.max(diff / np.where(mc > 0, mc, np.nan))) if mc.size and (mc > 0).any() else 0.0
         row = {
             "round": r,

@@ -117,3 +117,10 @@ def check_mean_label(label: str) -> str:
 def of(df: pd.DataFrame) -> Timestamps:
     """The series' :class:`Timestamps` (instants where it says nothing)."""
     return df.attrs.get("timestamps", INSTANTS)
+
+
+def step_of(index: pd.DatetimeIndex) -> pd.Timedelta | None:
+    """A series' step: the shortest spacing of its rows (None for fewer than two rows)."""
+    if len(index) < 2:
+        return None
+    return pd.Series(index).diff().min()

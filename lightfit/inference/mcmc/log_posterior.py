@@ -41,6 +41,7 @@ class LogPosterior:
         mc_correlation, mc_scale: the model's Monte Carlo correlation and variance factor
             (:class:`~lightfit.inference.likelihood.GaussianLikelihood`; default: independent steps).
         stamps: what ``times`` label (``model.timestamps``; default instants).
+        step: the run's forcing step (``model.step``; default the shortest spacing of ``times``).
     """
 
     def __init__(
@@ -56,6 +57,7 @@ class LogPosterior:
         mc_correlation: MCCorrelation | None = None,
         mc_scale: float = 1.0,
         stamps: Timestamps = INSTANTS,
+        step: pd.Timedelta | None = None,
     ):
         self.priors = dict(priors or PRIORS_INFORMED)
         self.names = check_sampled(names, self.priors)
@@ -64,7 +66,7 @@ class LogPosterior:
         self.base = as_theta(fixed)
         self.forward = forward
         self.likelihood = GaussianLikelihood(
-            obs, times, use, mc_correlation=mc_correlation, mc_scale=mc_scale, stamps=stamps
+            obs, times, use, mc_correlation=mc_correlation, mc_scale=mc_scale, stamps=stamps, step=step
         )
         self.use = self.likelihood.use
         self.n_observations = self.likelihood.n_observations
