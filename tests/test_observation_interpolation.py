@@ -138,6 +138,9 @@ def test_correlated_monte_carlo_error_is_carried_through_the_interpolation():
     )
     got = np.asarray(lik.mc_covariance(m))
     np.testing.assert_allclose(got, np.cov(read.T), rtol=0.02, atol=0.02 * got.max())
+    sd_read = np.asarray(lik.mc_sd_read(m)["above_canopy_par"])  # the readings sit at steps 0, 1, 3
+    np.testing.assert_allclose(sd_read[[0, 1, 3]], np.sqrt(np.diag(got)), rtol=1e-12)
+    assert sd_read[2] == 0.0
     # log L against scipy with the covariance from the definitions
     y = obs[PAR.value].to_numpy()
     t = np.asarray((pd.DatetimeIndex(times, tz="UTC") - STEPS[0]).total_seconds(), float)
@@ -203,7 +206,7 @@ def test_a_calibration_renders_the_neighbour_a_reading_is_interpolated_from():
     assert list(cut.times) == list(w.index[[0, 1, 3]])  # 13:00 dropped; 12:30 kept for the reading
     assert cut.step == model.step == pd.Timedelta("30min")  # the cut run keeps the forcing's step
     assert n_rendered == 2 and list(np.asarray(cut.day, bool)) == [True, True, False]  # the sensor renders nothing
-    lik = GaussianLikelihood(obs, cut.times, ("plant_par", "above_canopy_par"), stamps=cut.timestamps)
+    lik = GaussianLikelihood(obs, cut.times, ("plant_par", "above_canopy_par"), stamps=cut.timestamps, step=cut.step)
     assert int(lik.neighbour["plant_par"][0]) == 1 and float(lik.weight["plant_par"][0]) == pytest.approx(1 / 3)
     assert not np.asarray(lik.weight["above_canopy_par"]).any()
 
@@ -261,3 +264,6 @@ def test_a_cut_run_keeps_its_own_step():
     assert interpolated(late, cut)  # the cut times alone: their shortest spacing is the night
     assert not interpolated(late, cut, step=pd.Timedelta("30min"))
     assert not GaussianLikelihood(late, cut, step=pd.Timedelta("30min")).interpolated
+    # several days of one step each (step 0): nothing is read between them
+    one = _obs(["2016-04-20 11:50:00"], [1.0], [1.0])
+    assert not interpolated(one, cut, step=pd.Timedelta(0))

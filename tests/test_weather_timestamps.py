@@ -29,7 +29,7 @@ from lightfit.weather import (
     write_lightfit_csv,
 )
 from lightfit.weather.bundled import DATA_DIR
-from lightfit.weather.timestamps import Timestamps
+from lightfit.weather.timestamps import Timestamps, step_of
 
 FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
 
@@ -298,6 +298,7 @@ class _Day:
 
     def __init__(self, times, stamps):
         self.times, self.timestamps = times, stamps
+        self.step = step_of(times) or pd.Timedelta(0)
         self.day = np.ones(len(times), bool)
         self.scenario = type("S", (), {"theta": Theta()})()
 

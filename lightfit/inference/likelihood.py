@@ -378,22 +378,14 @@ class GaussianLikelihood:
         (1 − w)·x_k + w·x_n (:attr:`weight`, :attr:`neighbour`), x_k itself at weight 0."""
         return read_between(x, self.neighbour[name], self.weight[name], xp=jnp)
 
-    def mc_variance(self, name: str, s) -> jax.Array:
-        """The Monte Carlo variance of the model read at the observations, s_k² or, between steps,
-        (1 − w)² s_k² + w² s_n² (the two steps' errors taken as independent, as this diagonal
-        form takes all steps)."""
-        s = jnp.asarray(s)
-        w = self.weight[name]
-        return jnp.where(w > 0, (1.0 - w) ** 2 * s**2 + w**2 * s[self.neighbour[name]] ** 2, s**2)
-
     def variances(self, m: Mapping, noise_scale=1.0) -> dict:
         """v_k = (λσ_k)² + c·s_k² per used series, 1 where there is no observation (µmol² m⁻⁴ s⁻²):
-        the diagonal of Σ (s_k²: :meth:`mc_variance` where the model is read between steps)."""
+        the diagonal of Σ where Σ is diagonal (not :attr:`dense`: every reading on a step)."""
         lam = jnp.asarray(noise_scale, jnp.float64)
         return {
             s.name: jnp.where(
                 self.mask[s.name],
-                (lam * self.sd[s.name]) ** 2 + self.mc_scale * self.mc_variance(s.name, m[s.mc_sd]),
+                (lam * self.sd[s.name]) ** 2 + self.mc_scale * m[s.mc_sd] ** 2,
                 1.0,
             )
             for s in self.series
@@ -429,6 +421,14 @@ class GaussianLikelihood:
         if not self.dense:
             return jnp.diag(self._stack({x.name: m[x.mc_sd] ** 2 for x in self.series}))
         return self._correlated_mc(m)
+
+    def mc_sd_read(self, m: Mapping) -> dict:
+        """The model's Monte Carlo SD where each step's observations read it (the square root of
+        :meth:`mc_covariance`'s diagonal), per used series (T,), 0 at steps without an observation."""
+        d = jnp.sqrt(jnp.diag(self.mc_covariance(m)))
+        T = len(self.y[self.series[0].name])
+        full = jnp.zeros(len(self.series) * T).at[self.observed_index].set(d)
+        return {s.name: full[i * T : (i + 1) * T] for i, s in enumerate(self.series)}
 
     def whitened_mc_covariance(self, m: Mapping, noise_scale=1.0) -> jax.Array:
         """W = L⁻¹ Σ_MC L⁻ᵀ (Σ = LLᵀ the likelihood's covariance at λ = ``noise_scale``, Σ_MC from

@@ -108,9 +108,9 @@ class MultiDayModel:
         self.timestamps = stamps.pop()
         self.day = np.concatenate([np.asarray(m.day, bool) for m in self.day_models.values()])
         self.n_steps = [len(m.times) for m in self.day_models.values()]
-        #: the days' shortest forcing step (observations between two steps this far apart are read
-        #: between them; a night between days is longer)
-        self.step = min((m.step for m in self.day_models.values() if m.step is not None), default=None)
+        #: the days' longest forcing step (observations between two steps this far apart are read
+        #: between them; the night between two days is longer; 0 when every day has one step)
+        self.step = max(m.step for m in self.day_models.values())
 
     @property
     def models(self) -> list[CoupledModel]:

@@ -521,7 +521,7 @@ def interpolation(
     idx, _ = nearest_steps(obs, times, stamps)
     utc = times.tz_convert("UTC")
     t_s = np.asarray((utc - utc[0]).total_seconds(), float)
-    step = (timestamps.step_of(times) if step is None else pd.Timedelta(step)).total_seconds()
+    step = (timestamps.step_of(times) if step is None else pd.Timedelta(step)).total_seconds()  # 0: none
     offset_s = np.asarray((obs.index.tz_convert("UTC") - utc[idx]).total_seconds(), float)
     for s in SERIES:
         nb, w = out[s.value]

@@ -380,9 +380,10 @@ def surrogate_calibrate(
         sd = loss_sd(lik, full)
         passed = bool(abs(l_full - l_sur) <= z * sd)
         err = {}
+        mc_read = lik.mc_sd_read(full)
         for sr in lik.series:
             mask = np.asarray(lik.mask[sr.name])  # read where the observations are, as the loss reads them
-            mc = np.sqrt(np.asarray(lik.mc_variance(sr.name, full[sr.mc_sd])))[mask]
+            mc = np.asarray(mc_read[sr.name])[mask]
             read = [np.asarray(lik.at_observations(sr.name, x[sr.value])) for x in (sur, full)]
             diff = np.abs(read[0] - read[1])[mask]
             err[sr.name] = float(np.max(diff / np.where(mc > 0, mc, np.nan))) if mc.size and (mc > 0).any() else 0.0

@@ -115,10 +115,10 @@ class CoupledModel:
         self.times = w.index
         #: what ``times`` label: the forcing's :class:`~lightfit.weather.timestamps.Timestamps`
         self.timestamps = timestamps.of(w)
-        #: the forcing's step (its rows' shortest spacing; None for one row), kept by cut models
-        #: (:func:`~lightfit.model.emulator.restrict`): observations between two steps this far
-        #: apart are read between them (:func:`~lightfit.inference.observations.interpolation`)
-        self.step = timestamps.step_of(w.index)
+        #: the forcing's step (its rows' shortest spacing; 0 for one row: nothing to read between),
+        #: kept by cut models (:func:`~lightfit.model.emulator.restrict`): observations between two
+        #: steps this far apart are read between them (:func:`~lightfit.inference.observations.interpolation`)
+        self.step = timestamps.step_of(w.index) or pd.Timedelta(0)
         self.forcing = Forcing.of(w)
         self.day = self.forcing.day
         self.sun_deg = sun_positions_deg(w)
