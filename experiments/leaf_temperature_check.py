@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,7 @@ from rich.table import Table  # noqa: E402
 from lightfit import replication as rep  # noqa: E402
 from lightfit.light.leaf_optics import LeafTraits, par_optics, prospect_d  # noqa: E402
 from lightfit.photosynthesis import solve  # noqa: E402
+from lightfit.photosynthesis.canopy import vcmax25  # noqa: E402
 from lightfit.photosynthesis.stomata import saturation_vapour_pressure_kpa as _es_kpa  # noqa: E402
 from lightfit.weather.units import UMOL_PER_JOULE_PAR  # noqa: E402
 
@@ -161,29 +163,55 @@ def linearised_dt(s_w_m2, tair_c, e_kpa, p_kpa, gs, lai_above, u_m_s, eps_a):
     return gamma_star / (s_slope + gamma_star) * (r_ni / (CP * g_hr) - (es - e_kpa) / (p_kpa * gamma_star))
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="the quick configuration (default: the main job's)")
-    ap.add_argument("--out", type=Path, default=OUT)
-    a = ap.parse_args(argv)
-    cfg = rep.ReplicationConfig.quick() if a.quick else rep.ReplicationConfig()
+@dataclass
+class Blades:
+    """The main job's (or the quick configuration's) blades after one run: per step and blade
+    (T, B) absorbed PAR, per blade area, capacity factor and leaf area above, per step (T, 1) the
+    forcing, and their photosynthesis parameters (the set's, each blade's Vcmax, g0 and gm scaled
+    by its capacity, as the coupled model's profile does)."""
+
+    date: str
+    ds: object
+    q: np.ndarray
+    an_run: np.ndarray
+    area: np.ndarray
+    lai_above: np.ndarray
+    lai: float
+    tair: np.ndarray
+    e_a: np.ndarray
+    p_kpa: np.ndarray
+    co2: np.ndarray
+    params: object
+    vcmax25_top: float
+    capacity: np.ndarray
+
+    def solve(self, t_leaf, co2=None, vpd_kpa=None):
+        """Photosynthesis of every blade at leaf temperature ``t_leaf`` (°C) and CO2 (default the
+        run's), the vapour pressure deficit e_s(T_l) − e_a unless given; refuses non-convergence."""
+        vpd = np.maximum(saturation_vapour_pressure_kpa(t_leaf) - self.e_a, 0.0) if vpd_kpa is None else vpd_kpa
+        r = solve(
+            jnp.asarray(self.q),
+            jnp.asarray(t_leaf),
+            jnp.asarray(self.co2 if co2 is None else co2),
+            pair_kpa=jnp.asarray(self.p_kpa),
+            params=self.params,
+            vpd_kpa=jnp.asarray(vpd),
+        )
+        if not bool(np.all(np.asarray(r.converged))):
+            raise RuntimeError("a blade's photosynthesis did not converge")
+        return r
+
+
+def blades(quick: bool) -> Blades:
+    """Run the main job's configuration (``quick``: the 4-plant one) once and take its blades."""
+    cfg = rep.ReplicationConfig.quick() if quick else rep.ReplicationConfig()
     w = rep.forcing_of(cfg, None)
     model = rep.model_for(cfg, w, False)
     ds = model.simulate(model.scenario.theta)
     blade = ds["is_blade"].values.astype(bool)
-    q = ds["absorbed_par_umol_m2_s"].values[:, blade]  # (T, B) per one-sided leaf area
-    an_run = ds["leaf_an_umol_m2_s"].values[:, blade]
     area = ds["area_m2"].values[blade]
     m = ds["capacity_factor"].values[blade] if "capacity_factor" in ds else np.ones(blade.sum())
-    lai_above = ds["leaf_area_above"].values[blade] if "leaf_area_above" in ds else np.zeros(blade.sum())
-    lai = float(area.sum() / float(ds.attrs["ground_area_m2"]))
     tair = ds["tair_c"].values[:, None]
-    rh = ds["rh"].values[:, None]
-    p_kpa = ds["pair_kpa"].values[:, None]
-    co2 = ds["co2_ppm"].values[:, None]
-    e_a = rh * saturation_vapour_pressure_kpa(tair)
-    eps_a = sky_emissivity(tair, e_a)
-
     base = model.operator.params
     params = eqx.tree_at(
         lambda p: (p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.gm_mol_m2_s, p.stomata.g0_mol_m2_s),
@@ -194,24 +222,40 @@ def main(argv=None):
             base.stomata.g0_mol_m2_s * jnp.asarray(m),
         ),
     )
+    return Blades(
+        date=str(cfg.dates[0]),
+        ds=ds,
+        q=ds["absorbed_par_umol_m2_s"].values[:, blade],  # per one-sided leaf area
+        an_run=ds["leaf_an_umol_m2_s"].values[:, blade],
+        area=area,
+        lai_above=ds["leaf_area_above"].values[blade] if "leaf_area_above" in ds else np.zeros(blade.sum()),
+        lai=float(area.sum() / float(ds.attrs["ground_area_m2"])),
+        tair=tair,
+        e_a=ds["rh"].values[:, None] * saturation_vapour_pressure_kpa(tair),
+        p_kpa=ds["pair_kpa"].values[:, None],
+        co2=ds["co2_ppm"].values[:, None],
+        params=params,
+        vcmax25_top=vcmax25(base),
+        capacity=m,
+    )
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the quick configuration (default: the main job's)")
+    ap.add_argument("--out", type=Path, default=OUT)
+    a = ap.parse_args(argv)
+    b = blades(a.quick)
+    ds, q, area, lai_above, lai, tair, e_a, p_kpa = b.ds, b.q, b.area, b.lai_above, b.lai, b.tair, b.e_a, b.p_kpa
+    eps_a = sky_emissivity(tair, e_a)
 
     def leaf(t_leaf):
-        vpd = np.maximum(saturation_vapour_pressure_kpa(t_leaf) - e_a, 0.0)
-        r = solve(
-            jnp.asarray(q),
-            jnp.asarray(t_leaf),
-            jnp.asarray(co2),
-            pair_kpa=jnp.asarray(p_kpa),
-            params=params,
-            vpd_kpa=jnp.asarray(vpd),
-        )
-        if not bool(np.all(np.asarray(r.converged))):
-            raise RuntimeError("a blade's photosynthesis did not converge")
+        r = b.solve(t_leaf)
         return np.asarray(r.an_umol_m2_s), np.asarray(r.gs_mol_m2_s)
 
     t_same = np.broadcast_to(tair, q.shape)
     an0, gs0 = leaf(t_same)
-    agree = float(np.max(np.abs(an0 - an_run)))
+    agree = float(np.max(np.abs(an0 - b.an_run)))
     a_par = par_optics().A
     a_nir = nir_absorptance()
     par_w = q / UMOL_PER_JOULE_PAR
@@ -260,9 +304,9 @@ def main(argv=None):
             )
     out = {
         "config": "quick" if a.quick else "main job",
-        "date": str(cfg.dates[0]),
+        "date": b.date,
         "forcing": str(ds.attrs.get("weather_source", "")),
-        "blades": int(blade.sum()),
+        "blades": int(len(area)),
         "lai": lai,
         "leaf_par_absorptance": a_par,
         "leaf_nir_absorptance": a_nir,

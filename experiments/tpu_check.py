@@ -1,0 +1,111 @@
+"""Would triose-phosphate utilisation (TPU) limit the default canopy's photosynthesis?
+
+    python experiments/tpu_check.py [--quick] [--out experiments/results/tpu_check.json]
+
+lightfit's FvCB leaf takes the lesser of the Rubisco- and electron-transport-limited rates; it has
+no third, TPU-limited rate (docs/photosynthesis.md). CLM4.5/5 add one (Oleson et al. 2013, CLM4.5
+technical note, ch. 8; Collatz et al. 1991): A_p = 3 T_p, with T_p = 0.167 Vcmax25 at 25 °C and a
+peaked temperature response (ΔH_a 53.1 kJ mol⁻¹, ΔH_d 150.65 kJ mol⁻¹, ΔS 490 J mol⁻¹ K⁻¹, the
+technical note's table 8.2). TPU limits at high CO2 and at low temperature, where the Calvin cycle
+outruns the sugar synthesis that recycles its phosphate (Sharkey 1985).
+
+For every blade and daytime step of the main job (or ``--quick``) the blade's photosynthesis is
+solved (its capacity through the canopy scaling Vcmax25 and so T_p), and the gross rate
+min(A_c, A_j) is compared with A_p. Where A_p is lower, TPU would set the rate, and the net
+assimilation would be A_p − R_d whatever the CO2 inside the leaf (A_p does not depend on it; the
+stomata closing a little would not lift the other two rates below A_p), so the loss is exactly
+min(A_c, A_j) − A_p there. Four cases: the run's day; 10 K colder at the same relative humidity
+(a cold April day, 0–11 °C); 800 ppm CO2; both. Writes JSON and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from leaf_temperature_check import blades, saturation_vapour_pressure_kpa
+from rich.console import Console
+from rich.table import Table
+
+OUT = Path(__file__).resolve().parent / "results" / "tpu_check.json"
+R = 8.314  # J mol-1 K-1
+TPU25_PER_VCMAX25 = 0.167  # CLM4.5
+HA, HD, DS = 53_100.0, 150_650.0, 490.0  # CLM4.5 table 8.2, T_p
+
+
+def tpu_umol_m2_s(vcmax25, t_c):
+    """T_p (µmol m⁻² s⁻¹) at leaf temperature ``t_c`` (°C): CLM4.5's peaked Arrhenius form."""
+    tk = np.asarray(t_c, float) + 273.15
+    rise = np.exp(HA / (R * 298.15) * (1.0 - 298.15 / tk))
+    fall = (1.0 + np.exp((298.15 * DS - HD) / (R * 298.15))) / (1.0 + np.exp((DS * tk - HD) / (R * tk)))
+    return TPU25_PER_VCMAX25 * np.asarray(vcmax25) * rise * fall
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the quick configuration (default: the main job's)")
+    ap.add_argument("--out", type=Path, default=OUT)
+    a = ap.parse_args(argv)
+    b = blades(a.quick)
+    rh = b.e_a / saturation_vapour_pressure_kpa(b.tair)
+    lit = b.q > 0
+    cases = {
+        "the run (air T, 400 ppm)": (0.0, None),
+        "10 K colder": (-10.0, None),
+        "800 ppm": (0.0, 800.0),
+        "10 K colder, 800 ppm": (-10.0, 800.0),
+    }
+    rows = []
+    for name, (dt, co2) in cases.items():
+        t = np.broadcast_to(b.tair + dt, b.q.shape)
+        r = b.solve(
+            t,
+            co2=None if co2 is None else np.full_like(b.co2, co2),
+            vpd_kpa=saturation_vapour_pressure_kpa(t) * (1 - rh),
+        )
+        gross = np.minimum(np.asarray(r.vc_umol_m2_s), np.asarray(r.vj_umol_m2_s))
+        a_p = 3.0 * tpu_umol_m2_s(b.vcmax25_top * b.capacity, t)
+        loss = np.where(lit, np.maximum(gross - a_p, 0.0), 0.0)
+        an = np.asarray(r.an_umol_m2_s)
+        limited = lit & (a_p < gross)
+        day_an = float((an * b.area).sum())
+        per_step = (loss * b.area).sum(1) / np.maximum(np.abs((an * b.area).sum(1)), 1e-12)
+        rows.append(
+            {
+                "case": name,
+                "air_c_range": [float(t.min()), float(t.max())],
+                "co2_ppm": float(co2 or b.co2.mean()),
+                "tpu_limited_share_of_lit_blade_steps": float(limited.sum() / lit.sum()),
+                "tpu_limited_leaf_area_share_at_worst_step": float(
+                    max((limited[k] * b.area).sum() / b.area.sum() for k in range(len(t)))
+                ),
+                "min_ap_over_gross": float(
+                    np.min(np.where(lit & (gross > 0), a_p / np.where(gross > 0, gross, 1), np.inf))
+                ),
+                "day_an_loss": float((loss * b.area).sum()) / day_an,
+                "worst_step_an_loss": float(per_step.max()),
+            }
+        )
+    out = {"config": "quick" if a.quick else "main job", "date": b.date, "vcmax25_top": b.vcmax25_top, "rows": rows}
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+    t = Table(title=f"would TPU limit? {b.date} ({out['config']}; A_p = 3 T_p, CLM4.5)")
+    for c in ("case", "air", "lit blade-steps TPU-limited", "min A_p / min(A_c, A_j)", "day's An lost", "worst step"):
+        t.add_column(c, justify="right")
+    for r in rows:
+        t.add_row(
+            r["case"],
+            "{:.1f} … {:.1f} °C".format(*r["air_c_range"]),
+            f"{100 * r['tpu_limited_share_of_lit_blade_steps']:.2f} %",
+            f"{r['min_ap_over_gross']:.2f}",
+            f"{100 * r['day_an_loss']:.2f} %",
+            f"{100 * r['worst_step_an_loss']:.2f} %",
+        )
+    Console().print(t)
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()
