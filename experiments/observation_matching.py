@@ -87,6 +87,15 @@ def light_factor(
     return {"light_factor": f, "rms_relative_residual": float(np.sqrt(np.mean(rel**2))), "steps": int(ok.sum())}
 
 
+def cells(row: dict, matching) -> list[str]:
+    """A table row's f and RMS residual cells, one pair per matching."""
+    return [
+        f"{row[m][k]:.4f}" if k == "light_factor" else f"{100 * row[m][k]:.2f} %"
+        for m in matching
+        for k in ("light_factor", "rms_relative_residual")
+    ]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=OUT)
@@ -135,12 +144,7 @@ def main(argv=None):
         t.add_column(f"f, by {m}", justify="right")
         t.add_column(f"RMS resid., by {m}", justify="right")
     for r in rows.values():
-        cells = [
-            f"{r[m][k]:.4f}" if k == "light_factor" else f"{100 * r[m][k]:.2f} %"
-            for m in MATCHING
-            for k in ("light_factor", "rms_relative_residual")
-        ]
-        t.add_row(r["campaign"], f"{r['every_min']} min", str(r["readings"]), *cells)
+        t.add_row(r["campaign"], f"{r['every_min']} min", str(r["readings"]), *cells(r, MATCHING))
     Console().print(t)
     t = Table(title="the same readings against runs on instants: read between two steps, or at the nearest")
     for c in ("run step", "campaign (UTC)", "every", "readings"):
@@ -149,12 +153,8 @@ def main(argv=None):
         t.add_column(f"f, {m}", justify="right")
         t.add_column(f"RMS resid., {m}", justify="right")
     for r in instants.values():
-        cells = [
-            f"{r[m][k]:.4f}" if k == "light_factor" else f"{100 * r[m][k]:.2f} %"
-            for m in INSTANT_MATCHING
-            for k in ("light_factor", "rms_relative_residual")
-        ]
-        t.add_row(r["run_step"], r["campaign"], f"{r['every_min']} min", str(r["readings"]), *cells)
+        head = (r["run_step"], r["campaign"], f"{r['every_min']} min", str(r["readings"]))
+        t.add_row(*head, *cells(r, INSTANT_MATCHING))
     Console().print(t)
     print(f"wrote {a.out}")
 

@@ -511,8 +511,9 @@ def interpolation(
     neighbour is missing or further than the run's ``step`` (the run's first and last steps
     outwards, a night or another day between two steps): there the observation meets its nearest
     step, as :func:`align` places it. ``step``: the forcing's (``model.step``: a model cut to the
-    steps its observations need keeps it); ``None``: :func:`~lightfit.weather.timestamps.step_of` ``times``, right for a
-    run that is not cut. Call after :func:`align`, which checks the times.
+    steps its observations need keeps it; 0: none is read between steps); ``None``: the shortest
+    spacing of ``times`` (:func:`~lightfit.weather.timestamps.step_of`), right for a run that is not
+    cut. Call after :func:`align`, which checks the times.
     """
     T = len(times)
     out = {s.value: (np.arange(T), np.zeros(T)) for s in SERIES}
