@@ -45,6 +45,7 @@ change is the temperature's alone. Writes JSON and prints a table.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,6 +185,13 @@ class Blades:
     params: object
     vcmax25_top: float
     capacity: np.ndarray
+    scenario: object
+
+    def at_growth_temperature(self, growth_temperature_c: float) -> Blades:
+        """These blades with the run's parameter set at another growth temperature (°C), e.g.
+        leaves acclimated to a colder month."""
+        sc = dataclasses.replace(self.scenario, growth_temperature_c=growth_temperature_c)
+        return dataclasses.replace(self, params=scaled(sc.photosynthesis_params(), self.capacity), scenario=sc)
 
     def solve(self, t_leaf, co2=None, vpd_kpa=None):
         """Photosynthesis of every blade at leaf temperature ``t_leaf`` (°C) and CO2 (default the
@@ -213,15 +221,6 @@ def blades(quick: bool) -> Blades:
     m = ds["capacity_factor"].values[blade] if "capacity_factor" in ds else np.ones(blade.sum())
     tair = ds["tair_c"].values[:, None]
     base = model.operator.params
-    params = eqx.tree_at(
-        lambda p: (p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.gm_mol_m2_s, p.stomata.g0_mol_m2_s),
-        base,
-        (
-            base.fvcb.vcmax_ref_umol_m2_s * jnp.asarray(m),
-            base.fvcb.gm_mol_m2_s * jnp.asarray(m),
-            base.stomata.g0_mol_m2_s * jnp.asarray(m),
-        ),
-    )
     return Blades(
         date=str(cfg.dates[0]),
         ds=ds,
@@ -234,9 +233,21 @@ def blades(quick: bool) -> Blades:
         e_a=ds["rh"].values[:, None] * saturation_vapour_pressure_kpa(tair),
         p_kpa=ds["pair_kpa"].values[:, None],
         co2=ds["co2_ppm"].values[:, None],
-        params=params,
+        params=scaled(base, m),
         vcmax25_top=vcmax25(base),
         capacity=m,
+        scenario=model.scenario,
+    )
+
+
+def scaled(params, capacity):
+    """``params`` with each blade's Vcmax, gm and g0 times its capacity factor (B,), as the coupled
+    model's capacity profile scales them."""
+    m = jnp.asarray(capacity)
+    return eqx.tree_at(
+        lambda p: (p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.gm_mol_m2_s, p.stomata.g0_mol_m2_s),
+        params,
+        (params.fvcb.vcmax_ref_umol_m2_s * m, params.fvcb.gm_mol_m2_s * m, params.stomata.g0_mol_m2_s * m),
     )
 
 

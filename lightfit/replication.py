@@ -502,9 +502,10 @@ def run(
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
     check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)
-    parts = []
+    parts, steps = [], []
     for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
         model = model_for(cfg, wd, progress)
+        steps.append(model.step)
         d = model.simulate(as_theta(theta, model.scenario.theta))  # leaf defaults: the run's optics
         d.attrs |= when_attrs(cfg, date)
         parts.append(d)
@@ -516,7 +517,7 @@ def run(
     times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     if obs is not None:
         a = align(obs, times, timestamps.of(w))
-        offsets = read_offsets_s(obs, times, timestamps.of(w))  # where the model is read for them
+        offsets = read_offsets_s(obs, times, timestamps.of(w), max(steps))  # where the model is read for them
         for s in SERIES:  # the quantities the observations have, each beside its model observable
             if np.isfinite(a[s.value]).any():
                 ds[f"obs_{s.value}"], ds[f"obs_{s.sd}"] = ("time", a[s.value]), ("time", a[s.sd])

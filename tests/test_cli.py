@@ -912,9 +912,18 @@ def test_offset_line_says_how_observations_meet_the_steps():
     rec = read_observations(OBSERVATIONS)
     w = rep.forcing().iloc[14:16]  # 12:00 and 12:30 local
     line = " ".join(offset_line(rec, w).split())
-    assert "interpolated linearly in time" in line and "up to 13.8 min from a step" in line
+    assert line == "1 of 1 compared with the model interpolated linearly in time between the two steps around them"
     w = rep.forcing().iloc[13:15]  # 11:30 and 12:00: the reading lies after the last step
-    assert "nearest steps, up to 13.8 min away (instants to instants" in " ".join(offset_line(rec, w).split())
+    line = " ".join(offset_line(rec, w).split())
+    assert line == "1 of 1 with their nearest step, up to 13.8 min away (instants to instants, by interval centre)"
+    # one reading between two steps, one after the last: each said
+    two = pd.concat([rec, rec.set_axis(rec.index + pd.Timedelta("25min"))])
+    two.attrs = rec.attrs
+    line = " ".join(offset_line(two, rep.forcing().iloc[14:16]).split())
+    assert (
+        line.startswith("1 of 2 compared with the model interpolated")
+        and "; 1 of 2 with their nearest step, up to 8.8" in line
+    )
 
 
 def test_calibrate_into_a_folder_of_another_calibration_is_refused(tmp_path, monkeypatch):

@@ -168,24 +168,32 @@ def mc_bias_line(ds) -> str:
 
 
 def offset_line(obs, w) -> str:
-    """How the observations meet the run's steps: read between two steps (the model interpolated
-    linearly in time, :func:`lightfit.inference.observations.interpolation`), or at the nearest step
-    and how far from it."""
-    from lightfit.inference.observations import interpolated, nearest_steps
+    """How the observations meet the run's steps: how many are read between two steps (the model
+    interpolated linearly in time, :func:`lightfit.inference.observations.interpolation`), and how
+    many at their nearest step and how far from it."""
+    from lightfit.inference.observations import SERIES, interpolation, nearest_steps
     from lightfit.weather import timestamps
 
     stamps = timestamps.of(w)
-    _, dist = nearest_steps(obs, w.index, stamps)
-    far = float(np.max(dist) / np.timedelta64(1, "s")) / 60.0 if len(dist) else 0.0
-    if interpolated(obs, w.index, stamps):
-        return (
-            f"  compared with the model interpolated linearly in time between the steps around them "
-            f"(up to {far:.1f} min from a step)"
+    idx, dist = nearest_steps(obs, w.index, stamps)
+    read = interpolation(obs, w.index, stamps)
+    between = np.zeros(len(obs), bool)
+    for s in SERIES:
+        if s.value in obs.columns:
+            between |= obs[s.value].notna().to_numpy() & (read[s.value][1][idx] > 0)
+    parts = []
+    if between.any():
+        parts.append(
+            f"{int(between.sum())} of {len(obs)} compared with the model interpolated linearly in time "
+            "between the two steps around them"
         )
-    return (
-        f"  compared with the run's nearest steps, up to {far:.1f} min away "
-        f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
-    )
+    if (~between).any():
+        far = float(np.max(dist[~between]) / np.timedelta64(1, "s")) / 60.0
+        parts.append(
+            f"{int((~between).sum())} of {len(obs)} with their nearest step, up to {far:.1f} min away "
+            f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
+        )
+    return "  " + "; ".join(parts)
 
 
 def edge_line(ds) -> str:

@@ -63,8 +63,10 @@ seed: their error adds a second, independent copy). With the Cholesky factor
 
 :math:`\mathcal L_{cal} = \tfrac12\|w\|^2`, and :math:`w` takes the place of the whitened
 residuals (``‖w‖² = rᵀΣ⁻¹r``, so the Fisher information JᵀJ of :mod:`.identifiability` is
-unchanged in form). Without ``mc_correlation`` (C = I) this is the diagonal form above, computed
-without a factorisation.
+unchanged in form). Without ``mc_correlation`` (C = I) and with every reading on a step this is the
+diagonal form above, computed without a factorisation; a reading between two steps reads two
+steps' errors, Σ_MC = A diag(s) C diag(s) Aᵀ with C = I, and Σ is a full matrix again
+(:attr:`GaussianLikelihood.dense`).
 
 A model output whose leaf photosynthesis did not converge (a nonzero
 :data:`~lightfit.model.observe.CONVERGENCE_KEY` count) has no likelihood: the loss is +inf and
@@ -361,7 +363,7 @@ class GaussianLikelihood:
         #: readings between steps share a step's Monte Carlo error even with independent steps
         self.dense = self.correlation is not None or self.interpolated
 
-    def _interpolation_matrix(self, T: int) -> jax.Array:
+    def _interpolation_matrix(self, T: int) -> np.ndarray:
         """A (n_observations, len(use)·T): row r reads the stacked steps at observed entry r,
         (1 − w) at its step and w at its neighbour."""
         a = np.zeros((len(self.observed_index), len(self.series) * T))

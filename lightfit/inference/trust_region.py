@@ -21,13 +21,15 @@ spent only where they decide something:
    Gaussian Monte Carlo error :math:`e \sim N(0, \Sigma_{MC})` (:math:`r = y - m` the residual,
    :math:`\Sigma` the likelihood's covariance, :math:`\Sigma_{MC} = \mathrm{diag}(s)\,C\,
    \mathrm{diag}(s)` the model's own Monte Carlo covariance with the likelihood's correlation C,
-   identity for independent steps). For a Gaussian quadratic form, with
+   identity for independent steps; :math:`A\,\mathrm{diag}(s)\,C\,\mathrm{diag}(s)\,A^\top` where
+   readings lie between steps, :meth:`GaussianLikelihood.mc_covariance`). For a Gaussian quadratic form, with
    :math:`A = \Sigma^{-1}`: :math:`\tfrac12 (r+e)^\top A (r+e) = \tfrac12 r^\top A r + r^\top A e
    + \tfrac12 e^\top A e`; the linear term has variance :math:`r^\top A\Sigma_{MC}A r`, the
    quadratic one :math:`\tfrac12\operatorname{tr}((A\Sigma_{MC})^2)`, and they are uncorrelated
    (odd moments of e vanish). Computed in whitened coordinates, :math:`W = L^{-1}\Sigma_{MC}L^{-\top}`,
    :math:`w = L^{-1}r`: :math:`\sigma_{\mathcal L}^2 = w^\top W w + \tfrac12\|W\|_F^2`. With
-   independent steps this is :math:`\sum_k r_k^2 s_k^2/v_k^2 + \tfrac12\sum_k s_k^4/v_k^2`.
+   independent steps and every reading on a step this is
+   :math:`\sum_k r_k^2 s_k^2/v_k^2 + \tfrac12\sum_k s_k^4/v_k^2`.
    ``z = 2`` by default.
    Otherwise add :math:`x^*` to the design and go to 1.
 
@@ -271,11 +273,11 @@ def surrogate_calibrate(
         """The run's likelihood; with the model's Monte Carlo correlation computed (once) from
         ``light_model`` at the start point."""
         nonlocal corr
-        steps = {"mc_scale": mc_scale, "stamps": m.timestamps, "step": m.step}
-        lik = GaussianLikelihood(o, m.times, use, **steps)
+        kw = {"mc_scale": mc_scale, "stamps": m.timestamps, "step": m.step}
+        lik = GaussianLikelihood(o, m.times, use, **kw)
         if form["mc_correlation"] == "model" and corr is None:
             corr = mc_correlation_of(light_model, x0, lik.use)
-        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, **steps)
+        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, **kw)
 
     def done(res, rounds, passed, loss_full, mode, emus=None):
         return SurrogateCalibration(
