@@ -203,15 +203,14 @@ def make_loss(
     :class:`~lightfit.inference.multiday.MultiDayModel` (several days, one likelihood)."""
     names = check_names(names)
     base = model.theta(fixed)
-    steps = {"stamps": model.timestamps, "step": model.step}
-    lik = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, **steps)
+    lik = GaussianLikelihood.of_model(model, obs, use, mc_scale=mc_scale)
     check_informed(names, lik.use, **run_settings(model))  # before the "model" correlation renders
     if isinstance(mc_correlation, str) and likelihood_form(mc_correlation)["mc_correlation"] == "model":
         mc_correlation = mc_correlation_of(model, as_theta(at, base=base), lik.use)
     elif isinstance(mc_correlation, str):
         mc_correlation = None
     if mc_correlation is not None:
-        lik = GaussianLikelihood(obs, model.times, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale, **steps)
+        lik = GaussianLikelihood.of_model(model, obs, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale)
     return Loss(forward or model.observe, lik, names, base, bounds)
 
 
@@ -530,7 +529,7 @@ def calibrate(
     if hist:
         # The observations as the loss sees them (cheap: no render), so that a history of other
         # data is refused before the "model" correlation below renders.
-        aligned = GaussianLikelihood(obs, model.times, use, mc_scale=mc_scale, stamps=model.timestamps, step=model.step)
+        aligned = GaussianLikelihood.of_model(model, obs, use, mc_scale=mc_scale)
         data = {"observations": observations_digest(aligned, model.times), "model": _model_digest(model)}
         _check_same_data(saved, data, hist, say)
     loss = make_loss(

@@ -363,6 +363,13 @@ class GaussianLikelihood:
         #: readings between steps share a step's Monte Carlo error even with independent steps
         self.dense = self.correlation is not None or self.interpolated
 
+    @classmethod
+    def of_model(cls, model, obs: pd.DataFrame, use: Sequence[str] | None = None, **kw) -> GaussianLikelihood:
+        """The likelihood of ``obs`` on ``model``'s steps: its ``times``, ``timestamps`` and forcing
+        ``step`` (a :class:`~lightfit.model.coupled.CoupledModel`, one cut to its observed steps, or a
+        :class:`~lightfit.inference.multiday.MultiDayModel`); ``kw``: ``mc_correlation``, ``mc_scale``."""
+        return cls(obs, model.times, use, stamps=model.timestamps, step=model.step, **kw)
+
     def _interpolation_matrix(self, T: int) -> np.ndarray:
         """A (n_observations, len(use)·T): row r reads the stacked steps at observed entry r,
         (1 − w) at its step and w at its neighbour."""

@@ -195,7 +195,7 @@ def resume_key(
     names = check_sampled(names, priors)
     fixed = dict(fixed or {})
     lam = float(fixed.pop(NOISE_SCALE, 1.0))
-    lik = GaussianLikelihood(obs, model.times, use, stamps=model.timestamps, step=model.step)
+    lik = GaussianLikelihood.of_model(model, obs, use)
     return {
         "seed": seed,
         "use": list(lik.use),

@@ -128,7 +128,7 @@ def observed_model(
             have[s.name][nb[w > 0]] = True
     keep = np.any(list(have.values()), axis=0)
     if not keep.any():  # nothing on the run's steps: the likelihood says so with the file's name
-        GaussianLikelihood(o, model.times, use, stamps=model.timestamps, step=model.step)
+        GaussianLikelihood.of_model(model, o, use)
     light = [have[n] for n in used if n not in RENDER_FREE]
     rendered = np.any(light, axis=0) & model.day if light else np.zeros_like(keep)
     return E.restrict(model, keep, rendered), o, int((rendered & keep).sum())
@@ -273,11 +273,10 @@ def surrogate_calibrate(
         """The run's likelihood; with the model's Monte Carlo correlation computed (once) from
         ``light_model`` at the start point."""
         nonlocal corr
-        kw = {"mc_scale": mc_scale, "stamps": m.timestamps, "step": m.step}
-        lik = GaussianLikelihood(o, m.times, use, **kw)
+        lik = GaussianLikelihood.of_model(m, o, use, mc_scale=mc_scale)
         if form["mc_correlation"] == "model" and corr is None:
             corr = mc_correlation_of(light_model, x0, lik.use)
-        return GaussianLikelihood(o, m.times, lik.use, mc_correlation=corr, **kw)
+        return GaussianLikelihood.of_model(m, o, lik.use, mc_correlation=corr, mc_scale=mc_scale)
 
     def done(res, rounds, passed, loss_full, mode, emus=None):
         return SurrogateCalibration(
