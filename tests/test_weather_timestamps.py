@@ -314,3 +314,23 @@ def test_days_split_observations_by_interval():
     assert parts["2016-04-20b"].index.minute.tolist() == [31]
     with pytest.raises(InputError, match="stamps differ"):
         MultiDayModel({"a": _Day(d1, END10), "b": _Day(d2, Timestamps())})
+
+
+def test_several_days_interpolate_within_their_longest_step_and_never_across_a_night():
+    """MultiDayModel.step is the longest of its days' forcing steps (0 when every day has one step);
+    a reading after day one's last step is then not read towards day two's first."""
+    from lightfit.inference.observations import interpolated
+
+    d1 = pd.date_range("2016-04-20 10:00", periods=3, freq="30min", tz="UTC")
+    d2 = pd.date_range("2016-04-21 10:00", periods=4, freq="10min", tz="UTC")
+    m = MultiDayModel({"2016-04-20": _Day(d1, Timestamps()), "2016-04-21": _Day(d2, Timestamps())})
+    assert m.step == pd.Timedelta("30min")
+    late = pd.DataFrame(
+        {"above_canopy_par_umol_m2_s": [1500.0, 1500.0], "above_canopy_par_sd_umol_m2_s": [10.0, 10.0]},
+        index=pd.DatetimeIndex(["2016-04-20 11:10", "2016-04-20 10:40"], tz="UTC"),
+    )
+    assert interpolated(late.iloc[1:], m.times, Timestamps(), m.step)  # between 10:30 and 11:00
+    assert not interpolated(late.iloc[:1], m.times, Timestamps(), m.step)  # after 11:00: nearest
+    ones = MultiDayModel({"a": _Day(d1[:1], Timestamps()), "b": _Day(d2[:1], Timestamps())})
+    assert ones.step == pd.Timedelta(0)
+    assert not interpolated(late.iloc[:1], ones.times, Timestamps(), ones.step)
