@@ -48,6 +48,7 @@ import argparse
 import dataclasses
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -182,16 +183,31 @@ class Blades:
     e_a: np.ndarray
     p_kpa: np.ndarray
     co2: np.ndarray
-    params: object
-    vcmax25_top: float
     capacity: np.ndarray
     scenario: object
+
+    @cached_property
+    def params(self):
+        """The scenario's parameter set (at its growth temperature), each blade's Vcmax, g0 and gm
+        times its capacity factor, as the coupled model's profile scales them."""
+        p = self.scenario.photosynthesis_params()
+        m = jnp.asarray(self.capacity)
+        return eqx.tree_at(
+            lambda q: (q.fvcb.vcmax_ref_umol_m2_s, q.fvcb.gm_mol_m2_s, q.stomata.g0_mol_m2_s),
+            p,
+            (p.fvcb.vcmax_ref_umol_m2_s * m, p.fvcb.gm_mol_m2_s * m, p.stomata.g0_mol_m2_s * m),
+        )
+
+    @property
+    def vcmax25_top(self) -> float:
+        """Vcmax at 25 °C of the top of the canopy (capacity factor 1), µmol m⁻² s⁻¹."""
+        return vcmax25(self.scenario.photosynthesis_params())
 
     def at_growth_temperature(self, growth_temperature_c: float) -> Blades:
         """These blades with the run's parameter set at another growth temperature (°C), e.g.
         leaves acclimated to a colder month."""
         sc = dataclasses.replace(self.scenario, growth_temperature_c=growth_temperature_c)
-        return dataclasses.replace(self, params=scaled(sc.photosynthesis_params(), self.capacity), scenario=sc)
+        return dataclasses.replace(self, scenario=sc)
 
     def solve(self, t_leaf, co2=None, vpd_kpa=None):
         """Photosynthesis of every blade at leaf temperature ``t_leaf`` (°C) and CO2 (default the
@@ -220,7 +236,6 @@ def blades(quick: bool) -> Blades:
     area = ds["area_m2"].values[blade]
     m = ds["capacity_factor"].values[blade] if "capacity_factor" in ds else np.ones(blade.sum())
     tair = ds["tair_c"].values[:, None]
-    base = model.operator.params
     return Blades(
         date=str(cfg.dates[0]),
         ds=ds,
@@ -233,21 +248,8 @@ def blades(quick: bool) -> Blades:
         e_a=ds["rh"].values[:, None] * saturation_vapour_pressure_kpa(tair),
         p_kpa=ds["pair_kpa"].values[:, None],
         co2=ds["co2_ppm"].values[:, None],
-        params=scaled(base, m),
-        vcmax25_top=vcmax25(base),
         capacity=m,
         scenario=model.scenario,
-    )
-
-
-def scaled(params, capacity):
-    """``params`` with each blade's Vcmax, gm and g0 times its capacity factor (B,), as the coupled
-    model's capacity profile scales them."""
-    m = jnp.asarray(capacity)
-    return eqx.tree_at(
-        lambda p: (p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.gm_mol_m2_s, p.stomata.g0_mol_m2_s),
-        params,
-        (params.fvcb.vcmax_ref_umol_m2_s * m, params.fvcb.gm_mol_m2_s * m, params.stomata.g0_mol_m2_s * m),
     )
 
 
