@@ -70,10 +70,10 @@ def test_no_interpolation_for_means_on_steps_or_across_a_gap():
         assert not interpolated(obs, STEPS, stamps)
     on = _obs(["2016-04-20 10:30:00"], [1.0], [1.0])
     assert not interpolated(on, STEPS)
-    assert observation_matching(on, INSTANTS, STEPS) == "instants to instants, by interval centre"
-    assert matched_as_by_stamp(on, INSTANTS, STEPS)
-    assert observation_matching(spot, INSTANTS, STEPS) == "instants to instants, interpolated linearly in time"
-    assert not matched_as_by_stamp(spot, INSTANTS, STEPS)
+    assert observation_matching(on, STEPS, INSTANTS) == "instants to instants, by interval centre"
+    assert matched_as_by_stamp(on, STEPS, INSTANTS)
+    assert observation_matching(spot, STEPS, INSTANTS) == "instants to instants, interpolated linearly in time"
+    assert not matched_as_by_stamp(spot, STEPS, INSTANTS)
     # two days: the reading after day 1's last step is not read towards day 2's first
     two_days = STEPS.append(STEPS + pd.Timedelta("1D"))
     late = _obs(["2016-04-20 11:40:00"], [1.0], [1.0])
@@ -252,8 +252,8 @@ def test_only_the_used_series_decide_how_observations_meet_the_steps():
         [_obs(["2016-04-20 10:30:00"], [400.0], [20.0], s=plant), _obs(["2016-04-20 10:13:48"], [1.0], [1.0])]
     )
     assert interpolated(obs, STEPS) and not interpolated(obs, STEPS, use=("plant_par",))
-    assert matched_as_by_stamp(obs, INSTANTS, STEPS, use=("plant_par",))
-    assert observation_matching(obs, INSTANTS, STEPS, use=("plant_par",)).endswith("by interval centre")
+    assert matched_as_by_stamp(obs, STEPS, INSTANTS, use=("plant_par",))
+    assert observation_matching(obs, STEPS, INSTANTS, use=("plant_par",)).endswith("by interval centre")
 
 
 def test_a_cut_run_keeps_its_own_step():

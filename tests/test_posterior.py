@@ -858,24 +858,24 @@ def test_a_run_whose_observations_met_other_steps_is_not_resumed(tmp_path):
     end10 = Timestamps("end", pd.Timedelta("10min"))
     steps = pd.date_range("2016-04-20 12:00", periods=4, freq="10min", tz="UTC")
     spot = pd.DataFrame(index=pd.DatetimeIndex(["2016-04-20 12:13:48"], tz="UTC"))  # a time, no value
-    A.check_matching(tmp_path / "none.h5", spot, end10, steps)  # no run there: nothing to check
-    cases = {"new.h5": {"observation_matching": A.observation_matching(spot, end10, steps)}, "old.h5": {}}
+    A.check_matching(tmp_path / "none.h5", spot, steps, end10)  # no run there: nothing to check
+    cases = {"new.h5": {"observation_matching": A.observation_matching(spot, steps, end10)}, "old.h5": {}}
     for name, attrs in cases.items():
         P.sample(Gauss(), NAMES, tmp_path / name, nwalkers=8, max_steps=2, initial=_init(), progress=False, attrs=attrs)
-    A.check_matching(tmp_path / "new.h5", spot, end10, steps)
+    A.check_matching(tmp_path / "new.h5", spot, steps, end10)
     with pytest.raises(InputError, match="instants to ends of 10-min means, by interval centre, this run instants to"):
-        A.check_matching(tmp_path / "new.h5", spot, INSTANTS, steps)
-    A.check_matching(tmp_path / "old.h5", spot, INSTANTS, steps)  # instants on instants: stamp = interval
+        A.check_matching(tmp_path / "new.h5", spot, steps, INSTANTS)
+    A.check_matching(tmp_path / "old.h5", spot, steps, INSTANTS)  # instants on instants: stamp = interval
     with pytest.raises(InputError, match="by stamp") as e:
-        A.check_matching(tmp_path / "old.h5", spot, end10, steps)
+        A.check_matching(tmp_path / "old.h5", spot, steps, end10)
     assert "old.h5" in str(e.value.file)
     # a reading between two instants is read from both (interpolated): neither stored run matched so
     read = spot.assign(above_canopy_par_umol_m2_s=[1549.31], above_canopy_par_sd_umol_m2_s=[77.5])
     old = r"by stamp \(before interval matching\), this run instants to instants, interpolated"
     with pytest.raises(InputError, match=old):
-        A.check_matching(tmp_path / "old.h5", read, INSTANTS, steps)
+        A.check_matching(tmp_path / "old.h5", read, steps, INSTANTS)
     with pytest.raises(InputError, match="interpolated linearly in time"):
-        A.check_matching(tmp_path / "new.h5", read, INSTANTS, steps)
+        A.check_matching(tmp_path / "new.h5", read, steps, INSTANTS)
 
 
 def test_a_calibration_state_from_other_matching_is_not_resumed_exactly(tmp_path):

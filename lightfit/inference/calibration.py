@@ -556,7 +556,7 @@ def calibrate(
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
-    how = (model.timestamps, model.times, model.step, loss.likelihood.use)
+    how = (model.times, model.timestamps, model.step, loss.likelihood.use)
     if not matched_as_by_stamp(obs, *how):  # else absent: states saved before still resume exactly
         key["observation_matching"] = observation_matching(obs, *how)
     if data is not None:

@@ -573,8 +573,8 @@ def interpolated(
 
 def observation_matching(
     obs: pd.DataFrame,
-    stamps: Timestamps,
     times: pd.DatetimeIndex,
+    stamps: Timestamps,
     step: pd.Timedelta | None = None,
     use: Sequence[str] | None = None,
 ) -> str:
@@ -589,8 +589,8 @@ def observation_matching(
 
 def matched_as_by_stamp(
     obs: pd.DataFrame,
-    stamps: Timestamps,
     times: pd.DatetimeIndex,
+    stamps: Timestamps,
     step: pd.Timedelta | None = None,
     use: Sequence[str] | None = None,
 ) -> bool:

@@ -143,8 +143,8 @@ def check_likelihood(path: str | Path, form: dict) -> None:
 def check_matching(
     path: str | Path,
     obs: pd.DataFrame,
-    stamps: Timestamps,
     times: pd.DatetimeIndex,
+    stamps: Timestamps,
     step: pd.Timedelta | None = None,
     use: Sequence[str] | None = None,
 ) -> None:
@@ -154,10 +154,10 @@ def check_matching(
     instants, none between steps."""
     if stored_run(Path(path), "mcmc") is None:
         return
-    now = observation_matching(obs, stamps, times, step, use)
+    now = observation_matching(obs, times, stamps, step, use)
     before = run_attrs(path).get("observation_matching")
     if before is None:
-        if matched_as_by_stamp(obs, stamps, times, step, use):
+        if matched_as_by_stamp(obs, times, stamps, step, use):
             return
         before = "by stamp (before interval matching)"
     if before != now:
@@ -506,7 +506,7 @@ def run(
     emus = list(emulator) if isinstance(emulator, (list, tuple)) else [emulator]
     priors = prior_set("informed", model.scenario.optics) if priors is None else priors
     key = resume_key(model, obs, names=names, priors=priors, fixed=fixed, use=use, seed=seed)
-    how = (model.timestamps, model.times, model.step, key["use"])  # how the observations meet the steps
+    how = (model.times, model.timestamps, model.step, key["use"])  # how the observations meet the steps
     if resume:
         check_matching(path, obs, *how)
     for e in emus:  # before anything is computed on the emulators
