@@ -31,6 +31,7 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import numpy as np  # noqa: E402
+from bench_light import commit_state  # noqa: E402  (same script folder)
 
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
@@ -55,6 +56,7 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "posterior" / "bench_default.h5")
     ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "posterior.json")
     args = ap.parse_args(argv)
+    load_start = os.getloadavg()
     pri = P.PRIORS_INFORMED
     lo = [pri[n].support[0] for n in LEAF_PARAMETERS]
     hi = [pri[n].support[1] for n in LEAF_PARAMETERS]
@@ -121,6 +123,8 @@ def main(argv=None):
     out = {
         "command": "benchmarks/bench_posterior.py " + " ".join(argv or []),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor()},
+        **commit_state(),
+        "load_average_1min_start_end": [load_start[0], os.getloadavg()[0]],
         "config": f"ReplicationConfig() default: {cfg.n_plants} plants, {field_label(cfg.field())}, "
         f"K={model.scenario.samples}, {model.scenario.bounces} bounces, {cfg.par_kind} PAR; "
         "bundled chamber record; informed priors",
@@ -150,8 +154,8 @@ def main(argv=None):
         "emulator_error": res.get("emulator_error"),
         "posterior": {"mean": res["mean"], "sd": res["sd"], "stiff": res["stiff"], "sloppy": res["sloppy"]},
         "note": "The full render passes are counted separately from sampling: the emulator is built once per "
-        "configuration (and cached), then every posterior run (other data, priors, seeds) reuses it. "
-        "Render times were measured while other jobs shared the 2 cores.",
+        "configuration (and cached), then every posterior run (other data, priors, seeds) reuses it; "
+        "their times are those of the first run that rendered them (stored with each render in DIR).",
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(P.jsonable(out), indent=2, default=str))
