@@ -255,7 +255,7 @@ def posterior(
 def _cautions(d: dict) -> list[str]:
     """What a posterior's diagnostics ``d`` (a run's summary or its stored diagnostics) warn of:
     walkers that disagree (split-R̂, separate modes), τ not yet reliable by the stop rule's own
-    multiple, an acceptance outside 0.15–0.8, a MAP the optimiser did not reach."""
+    multiple, an acceptance outside 0.1–0.8, a MAP the optimiser did not reach."""
     import numpy as np
 
     from lightfit.inference.mcmc.diagnostics import ACCEPTANCE_OK, StopRule
