@@ -186,7 +186,7 @@ def test_runs_started_with_the_stretch_move_resume_with_it(tmp_path):
 def test_default_moves_sample_a_correlated_gaussian():
     """The default moves leave the target invariant: on the correlated 3-D Gaussian (ρ = 0.8) the
     sample's mean and covariance match the target's within 4 Monte Carlo SDs (≈ 2 % of each variance
-    at ≈ 9 000 effective samples; 8 % allowed). emcee 3.1.6's snooker move, 15–20 % low on the
+    at ≈ 9 000 effective samples; 8 % allowed). emcee 3.1.6's snooker move, 14–20 % low on the
     variances (experiments/mcmc_moves.py), would fail this."""
     import emcee
 
