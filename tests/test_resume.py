@@ -39,8 +39,8 @@ POSTERIOR = [
     "--n-test",
     "0",
     "--no-analysis",
-    "--target-ess",
-    "10",
+    "--target-ess",  # the rule stops at step 250 (τ ≈ 2–3 steps): checks at 50 … 200 to kill around
+    "300",
 ]
 # PAR at the plants on the three steps: the posterior renders them (the bundled chamber record alone
 # is the above-canopy sensor, which needs no render at all)

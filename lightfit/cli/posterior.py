@@ -37,7 +37,7 @@ def posterior(
     ),
     priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
     use: Use = "",
-    walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters)."),
+    walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters and ≥ 4)."),
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
     max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),

@@ -83,7 +83,7 @@ def sample(
 
     Args:
         log_prob: ``f(xs: (n, ndim)) -> (n,)`` (e.g. :class:`LogPosterior`).
-        nwalkers: even, ≥ 2·ndim. ``seed``: seeds the sampler's RandomState (and the initial
+        nwalkers: even, ≥ max(2·ndim, 4). ``seed``: seeds the sampler's RandomState (and the initial
             positions when ``initial`` is None and ``log_prob`` has ``.initial``); a resumed run
             continues the generator state stored with its last step, so ``seed`` is not consulted
             then (:func:`lightfit.inference.posterior.run` refuses another seed).
@@ -327,9 +327,9 @@ def default_moves() -> list:
     carries walkers between separated modes. Alone it leaves a walker that starts far out in a
     prior's tail there for hundreds of steps (its jumps are the ensemble's small differences); the
     stretch move's share pulls such walkers in. Measured (``experiments/mcmc_moves.py``,
-    docs/posterior.md "Moves"): 2–5× fewer steps to the stop rule, with posterior means at least as
-    close to the truth there. emcee's snooker move is not used: in emcee 3.1.6 it samples a
-    Gaussian's variances 14–20 % low (the same experiment). New objects each call: a move keeps the
+    docs/posterior.md "Moves"): 2–5× fewer steps to the stop rule, with posterior means about as close
+    to the truth there. emcee's snooker move is not used: in emcee 3.1.6 it samples a
+    Gaussian's variances 14–21 % low (the same experiment). New objects each call: a move keeps the
     dimension's γ once it has seen a run."""
     return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
 
@@ -365,7 +365,10 @@ def _qualname(obj) -> str:
 
 
 def _params(obj, depth: int = 0) -> dict:
-    return {k: _value(v, depth) for k, v in sorted(getattr(obj, "__dict__", {}).items())}
+    # emcee's DEMove.setup stores its γ (from gamma0 and the run's dimension) as g0 at the first step:
+    # a used move would describe otherwise than a new one with the same parameters.
+    skip = {"g0"} if isinstance(obj, emcee.moves.DEMove) else set()
+    return {k: _value(v, depth) for k, v in sorted(getattr(obj, "__dict__", {}).items()) if k not in skip}
 
 
 def _value(v, depth: int):
