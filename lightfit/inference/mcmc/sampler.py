@@ -329,8 +329,7 @@ def default_moves() -> list:
     stretch move's share pulls such walkers in. Measured (``experiments/mcmc_moves.py``,
     docs/posterior.md "Moves"): 2–5× fewer steps to the stop rule, with posterior means about as close
     to the truth there. emcee's snooker move is not used: in emcee 3.1.6 it samples a
-    Gaussian's variances 14–21 % low (the same experiment). New objects each call: a move keeps the
-    dimension's γ once it has seen a run."""
+    Gaussian's variances 14–21 % low (the same experiment). New objects each call."""
     return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
 
 
