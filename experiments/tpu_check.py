@@ -39,20 +39,20 @@ from leaf_temperature_check import blades, saturation_vapour_pressure_kpa  # noq
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
+from lightfit.constants import ZERO_CELSIUS_K  # noqa: E402
 from lightfit.photosynthesis.parameters import growth_temperature  # noqa: E402
+from lightfit.photosynthesis.temperature import peaked_arrhenius  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "tpu_check.json"
-R = 8.314  # J mol-1 K-1
 TPU25_PER_VCMAX25 = 0.167  # CLM4.5
 HA, HD, DS = 53_100.0, 150_650.0, 490.0  # CLM4.5 table 8.2, T_p
 
 
 def tpu_umol_m2_s(vcmax25, t_c):
-    """T_p (µmol m⁻² s⁻¹) at leaf temperature ``t_c`` (°C): CLM4.5's peaked Arrhenius form."""
-    tk = np.asarray(t_c, float) + 273.15
-    rise = np.exp(HA / (R * 298.15) * (1.0 - 298.15 / tk))
-    fall = (1.0 + np.exp((298.15 * DS - HD) / (R * 298.15))) / (1.0 + np.exp((DS * tk - HD) / (R * tk)))
-    return TPU25_PER_VCMAX25 * np.asarray(vcmax25) * rise * fall
+    """T_p (µmol m⁻² s⁻¹) at leaf temperature ``t_c`` (°C): CLM4.5's peaked Arrhenius form, which is
+    lightfit's own (Medlyn et al. 2002, eq. 18) with T_p's energies."""
+    tk = np.asarray(t_c, float) + ZERO_CELSIUS_K
+    return TPU25_PER_VCMAX25 * np.asarray(vcmax25) * np.asarray(peaked_arrhenius(tk, HA, HD, DS, 298.15))
 
 
 def main(argv=None):
