@@ -98,7 +98,7 @@ def main(argv=None):
     t_fit = time.perf_counter() - t
     obs = read_observations(OBSERVATIONS)
     fast = E.FastObservables(model, emu)
-    lp = P.LogPosterior(fast, model.times, obs, NAMES, pri, stamps=model.timestamps, step=model.step)
+    lp = P.LogPosterior.of_model(fast, model, obs, NAMES, pri)
     xs = lp.initial(args.walkers // 2, 0)
     lp(xs)
     t = time.perf_counter()

@@ -93,15 +93,14 @@ def log_posterior(
     base = {**model.theta(fixed).to_dict(), **({} if lam is None else {NOISE_SCALE: lam})}
     for e in _emulators(forward):  # emulated forwards: inside their box only (no silent extrapolation)
         check_emulator_box(e.lo, e.hi, check_sampled(names, priors), priors, base)
-    steps = {"stamps": model.timestamps, "step": model.step}
-    lp = LogPosterior(forward, model.times, obs, names, priors, base, use, mc_scale=mc_scale, **steps)
+    lp = LogPosterior.of_model(forward, model, obs, names, priors, base, use, mc_scale=mc_scale)
     if isinstance(mc_correlation, MCCorrelation) or form["mc_correlation"] == "independent":
         corr = mc_correlation if isinstance(mc_correlation, MCCorrelation) else None
     else:
         theta_c, _ = lp.split(jnp.asarray(lp.center()))
         corr = mc_correlation_of(light_model or model, theta_c, lp.use)
-    return LogPosterior(
-        forward, model.times, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale, **steps
+    return LogPosterior.of_model(
+        forward, model, obs, names, priors, base, lp.use, mc_correlation=corr, mc_scale=mc_scale
     )
 
 

@@ -75,6 +75,15 @@ class LogPosterior:
         self.refused = 0
         self._batch_ll = jax.jit(jax.vmap(self.log_likelihood))
 
+    @classmethod
+    def of_model(
+        cls, forward: Callable[[Theta], Mapping], model, obs: pd.DataFrame, names, *args, **kw
+    ) -> LogPosterior:
+        """The log-posterior of ``obs`` on ``model``'s steps: its ``times``, ``timestamps`` and forcing
+        ``step``, as :meth:`GaussianLikelihood.of_model` takes them; ``args``, ``kw``: the rest of
+        the constructor's (``priors``, ``fixed``, ``use``, ``mc_correlation``, ``mc_scale``)."""
+        return cls(forward, model.times, obs, names, *args, stamps=model.timestamps, step=model.step, **kw)
+
     def split(self, x) -> tuple[Theta, jax.Array]:
         """Model parameters θ(x) and noise scale λ(x) of a sampled vector ``x`` (JAX-traceable)."""
         model = [(i, n) for i, n in enumerate(self.names) if n != NOISE_SCALE]
