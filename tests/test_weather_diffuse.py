@@ -251,9 +251,9 @@ def test_a_night_offset_or_a_missing_global_value_is_told_apart():
     assert add_solar(df).attrs["split_model"] == "diffuse"
     df = _day(0.2)
     df.loc["2016-04-20 11:40", "ghi_w_m2"] = np.nan
-    with pytest.raises(InputError, match=r"lack global radiation \(first") as e:
+    with pytest.raises(InputError, match=r"1 missing value\(s\) \(first at 2016-04-20 11:40") as e:
         add_solar(df)
-    assert e.value.column is None
+    assert e.value.column == "ghi_w_m2"
 
 
 def test_model_commands_take_the_split(tmp_path):

@@ -15,6 +15,7 @@ from lightfit.cli import app
 from lightfit.errors import InputError
 from lightfit.weather import Window, add_solar, read_cplantbox_day, read_tereno, read_weather, solar_position
 from lightfit.weather.bundled import DATA_DIR, bundled_path
+from lightfit.weather.series import window as weather_window
 
 FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
 CPB = DATA_DIR / "weather" / "selhausen_cplantbox_day.txt"
@@ -477,3 +478,60 @@ def test_unrecognised_files_say_what_each_format_needs(tmp_path):
     twice.write_text(RECON.read_text().replace("# provenance:", "# time_label: end\n# provenance:", 1))
     with pytest.raises(InputError, match=r"line \d+: metadata key 'time_label' given twice"):
         read_weather(twice)
+
+
+def test_clock_change_times_are_refused_naming_the_option(tmp_path):
+    # 2016-03-27 02:30 does not exist in Europe/Berlin (clocks went 02:00 → 03:00); 2016-10-30 02:30
+    # happened twice. Both are inside a season lightfit grows wheat for.
+    for day in ("2016-03-27", "2016-10-30"):
+        with pytest.raises(InputError, match=r"column 'start_time'.*ambiguous or do not exist in Europe/Berlin"):
+            Window("02:30").bounds_utc(day, "Europe/Berlin")
+    df = read_weather(RECON)
+    with pytest.raises(InputError, match=r"column 'start_time'.*do not exist"):
+        weather_window(df, "2016-03-27 02:30", 1)
+
+
+@pytest.mark.parametrize("name", ["CET", "cet", "MET", "EET", "WET"])
+def test_zone_names_with_two_meanings_are_refused_as_options(tmp_path, name):
+    # tzdata's CET has summer time; a logger's "CET" means UTC+1 all year: --tz must say which.
+    no_zone = _tereno(tmp_path, header_edit=lambda h: [ln for ln in h if not ln.startswith("Time zone")])
+    with pytest.raises(InputError, match=rf"'{name}' could mean two things.*UTC\+\d.*Europe/Berlin"):
+        read_weather(no_zone, tz=name)
+
+
+def test_pressure_of_a_high_site_is_read(tmp_path):
+    # 2 500 m: ≈ 75 kPa (pvlib.atmosphere.alt2pres), a site Site accepts; hPa would still be refused.
+    assert 70.0 < pvlib.atmosphere.alt2pres(2500.0) / 1000 < 80.0
+    text = RECON.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    hdr = next(i for i, ln in enumerate(lines) if ln.startswith("time"))
+    cols = lines[hdr].split(",")
+    k = cols.index("pair_kpa")
+
+    def with_pressure(v):
+        rows = [ln.split(",") for ln in lines[hdr + 1 :]]
+        for r in rows:
+            r[k] = f"{v:g}"
+        return "\n".join(lines[: hdr + 1] + [",".join(r) for r in rows]) + "\n"
+
+    high = tmp_path / "high.csv"
+    high.write_text(with_pressure(75.0), encoding="utf-8")
+    assert (read_weather(high)["pair_kpa"] == 75.0).all()
+    hpa = tmp_path / "hpa.csv"
+    hpa.write_text(with_pressure(750.0), encoding="utf-8")
+    with pytest.raises(InputError, match=r"hpa.csv.*column 'pair_kpa'.*check the unit"):
+        read_weather(hpa)
+
+
+def test_a_chamber_time_inside_a_clock_change_names_its_line(tmp_path):
+    from lightfit.inference.observations import read_observations
+
+    p = tmp_path / "chamber.csv"
+    p.write_text(
+        "# provenance: measured\n# time_zone: Europe/Berlin\n"
+        "time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+        "2016-10-30 01:30:00,10.0,1.0\n2016-10-30 02:30:00,12.0,1.0\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(InputError, match=r"chamber.csv, line 5, column 'time'.*ambiguous or do not exist"):
+        read_observations(p)

@@ -4,10 +4,11 @@ import math
 
 import numpy as np
 import pandas as pd
+import pvlib
 import pytest
 
 from lightfit.errors import InputError
-from lightfit.weather import SELHAUSEN, resample, solar_position, split_direct_diffuse
+from lightfit.weather import SELHAUSEN, add_solar, resample, solar_position, split_direct_diffuse
 
 
 def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> float:
@@ -211,3 +212,23 @@ def test_missing_par_where_there_is_light_is_refused():
     # Missing at night is no light either way.
     dni, dhi = par_direct_diffuse([0.0, 500.0], [0.0, 100.0], [-5.0, 40.0], [np.nan, 800.0])
     assert dni[0] == dhi[0] == 0.0 and np.isfinite([dni, dhi]).all()
+
+
+@pytest.mark.parametrize(("freq", "a", "b"), [("10min", 8.645, 0.613), ("30min", 8.645, 0.613), ("1h", 7.997, 0.586)])
+def test_boland_takes_the_fit_of_the_series_interval(freq, a, b):
+    # Boland, Scott & Luther (2001), Environmetrics 12:103: the logistic diffuse fraction
+    # 1 / (1 + exp(a (k_t − b))) with (a, b) fitted per averaging interval (15 min, 1 h).
+    t = pd.date_range("2016-04-20 11:00", periods=3, freq=freq, tz="UTC")
+    el = solar_position(t)["sun_elevation_deg"]
+    ghi = pd.Series(600.0, index=t)
+    s = split_direct_diffuse(ghi, el, "boland")
+    extra = pvlib.irradiance.get_extra_radiation(t).to_numpy()
+    kt = ghi.to_numpy() / (extra * np.sin(np.radians(el.to_numpy())))
+    assert np.allclose(s["dhi_w_m2"] / ghi, 1.0 / (1.0 + np.exp(a * (kt - b))), rtol=1e-9)
+
+
+def test_missing_light_is_refused_not_taken_as_darkness():
+    t = pd.date_range("2016-04-20 10:00", periods=4, freq="30min", tz="UTC")
+    df = pd.DataFrame({"ghi_w_m2": [500.0, np.nan, 520.0, 510.0], "tair_c": 15.0}, index=t)
+    with pytest.raises(InputError, match=r"column 'ghi_w_m2'.*1 missing value.*2016-04-20 10:30"):
+        add_solar(df)

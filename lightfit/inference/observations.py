@@ -77,6 +77,7 @@ from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
 from lightfit.weather.readers import PROVENANCES, read_csv_with_metadata
+from lightfit.weather.site import localize
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
@@ -329,7 +330,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 expected="a '# time_zone: Europe/Berlin' (or UTC) header line, or times with an offset "
                 "such as 2016-04-20T12:13:48+02:00",
             )
-        ts = ts.tz_localize(tz) if ts.tzinfo is None else ts
+        ts = localize(ts, tz, file=path, row=int(line[i]), column="time") if ts.tzinfo is None else ts
         out.loc[i, "time"] = ts.tz_convert("UTC")
     for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()

@@ -43,7 +43,7 @@ import pandas as pd
 from lightfit.errors import InputError, parse_date
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric
-from lightfit.weather.site import check_timezone
+from lightfit.weather.site import check_timezone, localize
 from lightfit.weather.solar import check_split_model
 from lightfit.weather.timestamps import Timestamps
 
@@ -187,6 +187,10 @@ def _table_rows(
 _UTC_OFFSET = re.compile(r"^(?:UTC|GMT)\s*(?:(?P<sign>[+-])\s*(?P<h>\d{1,2})(?::?(?P<m>\d{2}))?)?$", re.IGNORECASE)
 
 
+#: tzdata zone names that loggers use for a fixed offset (their standard time) all year.
+_TWO_MEANINGS = {"WET": 0, "CET": 1, "MET": 1, "EET": 2}
+
+
 def zone(name: str, column: str = "tz") -> str:
     """An IANA time zone for ``name``: an IANA name as it is, ``UTC±H`` (also ``GMT±H``, ``UTC±HH:00``)
     as ``Etc/GMT∓H`` (whose POSIX sign is the other way round), else :class:`InputError`."""
@@ -201,6 +205,15 @@ def zone(name: str, column: str = "tz") -> str:
             f"{column}={name!r} is not a whole-hour offset",
             column=column,
             expected="UTC±H in whole hours (UTC+1 is Etc/GMT-1), or an IANA name such as Asia/Kolkata",
+        )
+    if text.upper() in _TWO_MEANINGS:
+        # tzdata's CET is the zone with summer time; a logger's "CET" usually means UTC+1 all year.
+        raise InputError(
+            f"{column}={name!r} could mean two things: UTC{_TWO_MEANINGS[text.upper()]:+d} all year, as "
+            f"loggers mean it, or tzdata's zone with summer time",
+            column=column,
+            expected=f"UTC{_TWO_MEANINGS[text.upper()]:+d} (no summer time; TERENO logs so) or an IANA city "
+            "name such as Europe/Berlin (with summer time)",
         )
     try:
         return check_timezone(text, column)
@@ -368,16 +381,7 @@ def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -
         )
     idx = pd.DatetimeIndex(t)
     if idx.tz is None:
-        try:
-            idx = idx.tz_localize(tz, ambiguous="raise", nonexistent="raise")
-        except ValueError as e:  # pandas' AmbiguousTimeError / NonExistentTimeError: a clock change
-            raise InputError(
-                f"local times that are ambiguous or do not exist in {tz} ({e})",
-                file=file,
-                column=column,
-                expected="times that exist once in that zone: a day without a daylight-saving change, "
-                "or times with a UTC offset",
-            ) from None
+        idx = localize(idx, tz, file=file, column=column)
     return idx.tz_convert("UTC")
 
 

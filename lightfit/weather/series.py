@@ -19,7 +19,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.weather import timestamps
-from lightfit.weather.site import SELHAUSEN
+from lightfit.weather.site import SELHAUSEN, localize
 from lightfit.weather.timestamps import Timestamps
 
 #: Contract columns and their units (also in the names).
@@ -63,7 +63,9 @@ BOUNDS: dict[str, Bounds] = {
     "par_diffuse_umol_m2_s": Bounds(0.0, 2300.0, clamp_below=-30.0),
     "tair_c": Bounds(-45.0, 50.0),
     "rh": Bounds(0.0, 1.0, clamp_above=1.05),
-    "pair_kpa": Bounds(80.0, 110.0),
+    # Down to ≈ 5 500 m (fields grow up to ≈ 4 500 m): hPa or Pa (≈ 10³, 10⁵) and atm (≈ 1)
+    # still fall outside. 80 kPa, the bound before, refused sites above ≈ 1 900 m that Site takes.
+    "pair_kpa": Bounds(50.0, 110.0),
     "co2_ppm": Bounds(200.0, 1500.0),
 }
 
@@ -452,7 +454,9 @@ def window(
     time unless it carries its own offset). ``how`` as in :func:`resample`.
     """
     t0 = pd.Timestamp(start)
-    t0 = (t0.tz_localize(tz) if t0.tzinfo is None else t0).tz_convert("UTC")
+    if t0.tzinfo is None:
+        t0 = localize(t0, tz, file=df.attrs.get("source"), column="start_time")
+    t0 = t0.tz_convert("UTC")
     t1 = t0 + pd.Timedelta(hours=hours)
     if t0 < df.index[0] or t1 > df.index[-1]:
         raise InputError(

@@ -29,6 +29,23 @@ def check_timezone(name: str, column: str = "timezone") -> str:
     return str(name)
 
 
+def localize(stamps, timezone: str, *, file=None, row=None, column: str = "time"):
+    """``stamps`` (a naive :class:`pandas.Timestamp` or ``DatetimeIndex``) read as local times in
+    ``timezone``; a time that a clock change skips or repeats there is an :class:`InputError`
+    naming ``file``/``row``/``column``, not pandas' traceback."""
+    try:
+        return stamps.tz_localize(timezone, ambiguous="raise", nonexistent="raise")
+    except ValueError as e:  # pandas' AmbiguousTimeError / NonExistentTimeError
+        raise InputError(
+            f"local time(s) that are ambiguous or do not exist in {timezone} ({e})",
+            file=file,
+            row=row,
+            column=column,
+            expected="times that exist once in that zone (not inside a daylight-saving change), "
+            "or times with a UTC offset",
+        ) from None
+
+
 @dataclass(frozen=True)
 class Site:
     """A field site.
@@ -142,7 +159,7 @@ class Window:
     def start_local(self, date: str | dt.date, timezone: str) -> pd.Timestamp:
         """The window's first step on ``date`` as a tz-aware timestamp in ``timezone``."""
         day = parse_date(date, "date")
-        return pd.Timestamp(f"{day.isoformat()} {self.start}").tz_localize(timezone)
+        return localize(pd.Timestamp(f"{day.isoformat()} {self.start}"), timezone, column="start_time")
 
     def bounds_utc(self, date: str | dt.date, timezone: str) -> tuple[pd.Timestamp, pd.Timestamp]:
         """First and last step on ``date`` (local ``start`` in ``timezone``), in UTC."""
@@ -154,4 +171,4 @@ class Window:
         return f"{parse_date(date, 'date')} {self.start} + {self.hours:g} h ({timezone}), {self.step} steps"
 
 
-__all__ = ["SELHAUSEN", "SITES", "Site", "Window", "check_timezone", "site_named"]
+__all__ = ["SELHAUSEN", "SITES", "Site", "Window", "check_timezone", "localize", "site_named"]

@@ -72,11 +72,25 @@ def check_split_model(model, models=SPLIT_MODELS, where: str = "split_model") ->
     return model
 
 
+#: Boland, Scott & Luther's (2001) logistic fits (a, b) by the series' averaging interval (minutes).
+BOLAND_COEFFS = {15: (8.645, 0.613), 60: (7.997, 0.586)}
+
+
+def boland_coeffs(times: pd.DatetimeIndex) -> tuple[float, float]:
+    """Boland's (a, b) for a series with timestamps ``times``: the 15-minute fit for steps up to
+    30 min (and a single step), the hourly fit for longer steps (:data:`BOLAND_COEFFS`)."""
+    step_min = pd.Series(times).diff().median() / pd.Timedelta(minutes=1) if len(times) > 1 else 15.0
+    return BOLAND_COEFFS[15 if step_min <= 30 else 60]
+
+
 def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, model: str = "erbs") -> pd.DataFrame:
     r"""Split global horizontal irradiance into direct normal and diffuse horizontal parts.
 
-    Models: ``"erbs"`` (Erbs, Klein & Duffie 1982, Solar Energy 28, 293) and ``"boland"``
-    (Boland, Ridley & Brown 2008, Renewable Energy 33, 575), both from the clearness index.
+    Models: ``"erbs"`` (Erbs, Klein & Duffie 1982, Solar Energy 28, 293; fitted to hourly data)
+    and ``"boland"`` (the logistic diffuse fraction 1 / (1 + exp(a (k_t − b))) of Boland, Scott &
+    Luther 2001, Environmetrics 12, 103), both from the clearness index k_t. Boland et al. fitted
+    (a, b) per averaging interval: (8.645, 0.613) for 15-minute and (7.997, 0.586) for hourly data;
+    series with steps up to 30 min take the first, longer steps the second (:data:`BOLAND_COEFFS`).
     Closure holds exactly: GHI = DNI·sin(elevation) + DHI. With the sun below the horizon all
     radiation is diffuse.
     """
@@ -86,7 +100,8 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     if model == "erbs":
         out = pvlib.irradiance.erbs(ghi_w_m2, zenith, times)
     else:
-        out = pvlib.irradiance.boland(ghi_w_m2, zenith, times)
+        a, b = boland_coeffs(times)
+        out = pvlib.irradiance.boland(ghi_w_m2, zenith, times, a_coeff=a, b_coeff=b)
     sin_el = np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
     dni = out["dni"].fillna(0.0).clip(lower=0.0).where(sun_elevation_deg > 0.0, 0.0)
     # pvlib caps zenith at 87° for the split; enforce closure so the light model sees exactly GHI.
@@ -116,7 +131,7 @@ def check_diffuse(
     hint: str = "",
 ) -> None:
     """Refuse a diffuse series that cannot be the diffuse part of ``total`` (``what``, in ``unit``),
-    naming ``column``: a missing value of either where the sun is up; diffuse above the total ×
+    naming ``column``: a missing diffuse value where the sun is up; diffuse above the total ×
     :data:`DIFFUSE_OVER_GLOBAL_FACTOR` + :data:`DIFFUSE_OVER_GLOBAL_W_M2` (in W m⁻², scaled to ``unit`` by
     ``bright`` ÷ :data:`RATIO_MIN_GHI_W_M2`) at two or more steps (swapped columns, other units); a
     diffuse share below :data:`DIFFUSE_MIN_SHARE` at every step where the total exceeds ``bright``
@@ -125,17 +140,15 @@ def check_diffuse(
     scale = bright / RATIO_MIN_GHI_W_M2
     total, diffuse = total.astype(float), diffuse.astype(float)
     up = sun_elevation_deg > 0.0
-    for missing, name, col in ((diffuse, "its diffuse part", column), (total, what, None)):
-        gap = up & missing.isna()
-        if gap.any():
-            raise InputError(
-                f"{int(gap.sum())} step(s) with the sun up lack {name} (first "
-                f"{total.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
-                file=file,
-                column=col,
-                expected=f"{what} and its diffuse part at every daylight step (fill the gaps, or drop the diffuse "
-                "column)",
-            )
+    gap = up & diffuse.isna()  # the totals' gaps are refused before (add_solar)
+    if gap.any():
+        raise InputError(
+            f"{int(gap.sum())} step(s) with the sun up lack its diffuse part (first "
+            f"{total.index[gap.to_numpy()][0]:%Y-%m-%d %H:%M} UTC)",
+            file=file,
+            column=column,
+            expected=f"{what} and its diffuse part at every daylight step (fill the gaps, or drop the diffuse column)",
+        )
     over = up & (diffuse > DIFFUSE_OVER_GLOBAL_FACTOR * total + scale * DIFFUSE_OVER_GLOBAL_W_M2)
     if over.sum() >= 2:
         i = int(np.argmax((diffuse - total).where(over, -np.inf).to_numpy()))
@@ -536,6 +549,15 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     qc = list(out.attrs.get("qc", []))
     k = float(par_from_ghi(1.0))
     measured = [c for c in ("ghi_w_m2", "par_umol_m2_s") if c in out.columns]
+    for c in measured:  # the split and PAR would turn a gap into no light at that step, silently
+        gap = out[c].isna().to_numpy()
+        if gap.any():
+            raise InputError(
+                f"{int(gap.sum())} missing value(s) (first at {out.index[np.flatnonzero(gap)[0]]})",
+                file=out.attrs.get("source"),
+                column=c,
+                expected="a value at every step (lightfit's readers fill short gaps and refuse long ones)",
+            )
     if {"par_umol_m2_s", "ghi_w_m2"} <= set(out.columns):
         ratio = check_par_per_ghi(out["par_umol_m2_s"], out["ghi_w_m2"], out.attrs.get("source"))
         # The check describes this series: a resampled one replaces its source's.
