@@ -184,6 +184,15 @@ def test_results_carry_the_schema(simulated, tmp_path):
     }
     for name, u in expect.items():
         assert ds[name].attrs["units"] == u, name
+    # The conductance stored is to CO2, as its name says: An = gs (ca − ci) without a boundary
+    # layer (a review found it labelled "to water vapour", 1.6× larger).
+    assert "CO2" in ds["leaf_gs_mol_m2_s"].attrs["long_name"]
+    lit = ds["absorbed_par_umol_m2_s"].values > 100.0
+    assert lit.sum() > 100
+    gs, ci = ds["leaf_gs_mol_m2_s"].values[lit], ds["leaf_ci_umol_mol"].values[lit]
+    ca = np.broadcast_to(ds["co2_ppm"].values[:, None], lit.shape)[lit]
+    np.testing.assert_allclose(gs * (ca - ci), ds["leaf_an_umol_m2_s"].values[lit], rtol=1e-6)
+    assert not np.allclose(1.6 * gs * (ca - ci), ds["leaf_an_umol_m2_s"].values[lit], rtol=0.1)
     assert not any("_se_" in v or "var" in v for v in ds.data_vars)  # Monte Carlo error only as SDs
     weather_par = rep.forcing().iloc[[1, 5, 14]]["par_umol_m2_s"].to_numpy()
     np.testing.assert_allclose(ds["weather_par_umol_m2_s"].values, weather_par)  # the weather's own PAR

@@ -180,10 +180,22 @@ VARIABLES: dict[str, Variable] = {
         "expected shift of leaf net CO2 assimilation caused by Monte Carlo noise in absorbed PAR",
         _LEAF_AREA + "; Jensen bias (negative where An saturates), not subtracted from leaf_an",
     ),
-    "leaf_gs_mol_m2_s": Variable(TS, "mol m-2 s-1", "stomatal conductance to water vapour", _LEAF_AREA),
+    "leaf_gs_mol_m2_s": Variable(
+        TS, "mol m-2 s-1", "stomatal conductance to CO2", _LEAF_AREA + "; x 1.6 for water vapour (Medlyn et al. 2011)"
+    ),
     "leaf_ci_umol_mol": Variable(TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only"),
-    "leaf_vc_umol_m2_s": Variable(TS, UMOL, "Rubisco-limited carboxylation rate", _LEAF_AREA),
-    "leaf_vj_umol_m2_s": Variable(TS, UMOL, "electron-transport-limited carboxylation rate", _LEAF_AREA),
+    "leaf_vc_umol_m2_s": Variable(
+        TS,
+        UMOL,
+        "Rubisco-limited gross CO2 assimilation rate",
+        _LEAF_AREA + "; carboxylation minus photorespiratory CO2 release, Vcmax (c - G*) / (c + Km)",
+    ),
+    "leaf_vj_umol_m2_s": Variable(
+        TS,
+        UMOL,
+        "electron-transport-limited gross CO2 assimilation rate",
+        _LEAF_AREA + "; carboxylation minus photorespiratory CO2 release, J (c - G*) / (4 c + 8 G*)",
+    ),
     "limitation": Variable(
         TS,
         "1",

@@ -143,10 +143,16 @@ class TemperatureParams(eqx.Module):
         energies, and Rd's (46.39 kJ mol⁻¹): Bernacchi et al. (2001). The pairing of land models
         such as CLM5 (Lawrence et al. 2019), which take K&K's Ha, Hd and ΔS with these kinetics.
 
+        T_g is taken within :data:`KATTGE_KNORR_RANGE_C` (11–35 °C), as CLM4.5 and CLM5 clamp it
+        (``PhotosynthesisMod``: ``min(max(T_g, 11), 35)`` in ΔS and in Jmax25/Vcmax25): a colder
+        month acts as 11 °C instead of extrapolating the linear fits (at T_g = 0 °C they would give
+        Jmax25/Vcmax25 2.59, beyond wheat's 1.6–2.1, and An at 20 °C 31 % above the 11 °C set's).
+
         Ha belongs with ΔS: the entropy terms were fitted with these Ha, and Bernacchi's Vcmax Ha
         (65.33 kJ mol⁻¹) with K&K's ΔS (this set until the change that introduced this method)
         gives +9 % Vcmax at 15 °C and −8 % at 35 °C against K&K's curve.
         """
+        t_growth_c = kattge_knorr_growth_temperature(t_growth_c)
         return cls(
             t_ref_k=298.15,
             kc_ref_umol_mol=404.9,
@@ -166,9 +172,22 @@ class TemperatureParams(eqx.Module):
         )
 
 
+#: Growth temperatures (°C) within which Kattge & Knorr's (2007) linear acclimation is applied; a
+#: T_g outside acts as the nearer end (CLM4.5 / CLM5's clamp, Oleson et al. 2013; Lawrence et al. 2019).
+KATTGE_KNORR_RANGE_C = (11.0, 35.0)
+
+
+def kattge_knorr_growth_temperature(t_growth_c: float) -> float:
+    """The growth temperature (°C) that Kattge & Knorr's fits take: ``t_growth_c`` clamped to
+    :data:`KATTGE_KNORR_RANGE_C`."""
+    low, high = KATTGE_KNORR_RANGE_C
+    return min(max(float(t_growth_c), low), high)
+
+
 def kattge_knorr_jmax_to_vcmax(t_growth_c: float) -> float:
-    """Jmax25 / Vcmax25 = 2.59 − 0.035·T_g (Kattge & Knorr 2007, T_g the growth temperature, °C)."""
-    return 2.59 - 0.035 * t_growth_c
+    """Jmax25 / Vcmax25 = 2.59 − 0.035·T_g (Kattge & Knorr 2007, T_g the growth temperature, °C,
+    within :data:`KATTGE_KNORR_RANGE_C`)."""
+    return 2.59 - 0.035 * kattge_knorr_growth_temperature(t_growth_c)
 
 
 class FvCBParams(eqx.Module):
@@ -333,6 +352,8 @@ WINTER_WHEAT_GROWTH_TEMPERATURE_C = 15.0
 
 
 def _winter_wheat(t_growth_c: float = WINTER_WHEAT_GROWTH_TEMPERATURE_C) -> PhotosynthesisParams:
+    t_g = kattge_knorr_growth_temperature(t_growth_c)
+    growth = f"{t_g:g} °C growth" + ("" if t_g == t_growth_c else f", {t_growth_c:g} °C given")
     return PhotosynthesisParams(
         fvcb=FvCBParams(
             vcmax_ref_umol_m2_s=WINTER_WHEAT_VCMAX25_UMOL_M2_S,
@@ -348,9 +369,9 @@ def _winter_wheat(t_growth_c: float = WINTER_WHEAT_GROWTH_TEMPERATURE_C) -> Phot
         name="winter_wheat",
         source="Winter wheat from the literature at 25 °C: Vcmax25 100 (Silva-Pérez et al. 2017, 2020; "
         f"Theobald et al. 1998), Jmax25/Vcmax25 {kattge_knorr_jmax_to_vcmax(t_growth_c):.4g} (Kattge & Knorr 2007 at "
-        f"{t_growth_c:g} °C growth), "
+        f"{growth}), "
         "Rd25 0.015 Vcmax25 (Collatz et al. 1991), Bernacchi et al. (2001) kinetics and Rd(T), Kattge & "
-        f"Knorr (2007) Vcmax(T), Jmax(T) at {t_growth_c:g} °C growth, alpha 4 x 0.088 and theta 0.7 (Evans 2013, "
+        f"Knorr (2007) Vcmax(T), Jmax(T) at {growth}, alpha 4 x 0.088 and theta 0.7 (Evans 2013, "
         "Fig. 2), "
         "Medlyn et al. (2011) stomata with "
         "g1 5.79 kPa^0.5 (Lin et al. 2015, C3 crops) and g0 0.01 mol H2O m-2 s-1 (Caird et al. 2007)",
@@ -374,8 +395,8 @@ DEFAULT_PARAMETER_SET = "winter_wheat"
 #: Sets whose Vcmax(T), Jmax(T) and Jmax/Vcmax acclimate to the growth temperature (Kattge & Knorr
 #: 2007), with the growth temperature they take where none is given, °C.
 ACCLIMATING_SETS = {"winter_wheat": WINTER_WHEAT_GROWTH_TEMPERATURE_C}
-#: Growth temperatures taken (°C): monthly mean air temperatures of a growing season; Kattge &
-#: Knorr's linear acclimation is not extrapolated beyond them.
+#: Growth temperatures taken (°C): monthly mean air temperatures of a growing season (below 11 °C
+#: they act as 11: :data:`KATTGE_KNORR_RANGE_C`).
 GROWTH_TEMPERATURE_RANGE_C = (0.0, 35.0)
 
 
