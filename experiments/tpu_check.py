@@ -18,8 +18,8 @@ min(A_c, A_j) − A_p there under lightfit's hard minimum of the rates (CLM's sm
 co-limitation would cost some 10–16 % even at margins of 1.06–1.30, not compared here). Cases: the
 run's day; 10 K colder at the same relative humidity (a cold April day, 0–12 °C); 800 ppm CO2;
 both; and the cold ones again with leaves acclimated to a colder month (Kattge & Knorr's growth
-temperature 11 °C, the coldest its fits are applied at, instead of the set's 15 °C: more Jmax per Vcmax, a different Vcmax(T)). Writes
-JSON and prints a table.
+temperature 11 °C, the coldest its fits are applied at, instead of the set's 15 °C: more Jmax per
+Vcmax, a different Vcmax(T)). Writes JSON and prints a table.
 """
 
 from __future__ import annotations
