@@ -471,6 +471,7 @@ def test_cli_resume_with_an_edited_observations_file_is_refused(tmp_path):
     args += ["--use", "above_canopy_par", "--no-surrogate", "--mc-correlation", "independent", "--out", str(tmp_path)]
     r = runner.invoke(app, args)
     assert r.exit_code == 0, r.output
+    assert "caution" not in r.stderr, r.stderr  # a plausible fit says nothing
     first = json.loads((tmp_path / "calibration.json").read_text())["theta"]["light_factor"]
     obs.write_text(src.replace("1549.31", "1400.00"))
     r = runner.invoke(app, args)
@@ -483,6 +484,49 @@ def test_cli_resume_with_an_edited_observations_file_is_refused(tmp_path):
     again = json.loads((tmp_path / "calibration.json").read_text())["theta"]["light_factor"]
     # light_factor scales the above-canopy PAR: the fit moves with the value
     assert again == pytest.approx(first * 1400.00 / 1549.31, rel=1e-3)
+
+
+def test_a_unit_slip_in_the_observations_gets_a_caution_not_a_quiet_fit(tmp_path):
+    """The record's PAR in mmol instead of µmol (÷ 1000): the fit converges to a light factor of
+    ≈ 0.001, far outside its prior's 0.25–4, and says so on stderr (a review found it silent)."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    src = rep.OBSERVATIONS.read_text()
+    obs = tmp_path / "mmol.csv"
+    obs.write_text(src.replace("1549.31,77.47", "1.54931,0.07747"))
+    args = ["calibrate", str(obs), "--quick", "--steps", "14:16", "--parameters", "light_factor", "--no-surrogate"]
+    r = CliRunner().invoke(app, [*args, "--use", "above_canopy_par", "--out", str(tmp_path / "cal")])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["theta"]["light_factor"] < 0.01
+    err = " ".join(r.stderr.split())
+    assert "caution: light_factor = 0.00" in err and "outside its prior's range [0.25, 4]" in err, err
+    assert "check the observations' units and SDs" in err and "caution" not in r.stdout
+
+
+def test_fit_cautions_against_the_chi_square_table():
+    """χ² of 45 degrees of freedom exceeds 80.08 with probability 0.001 (standard tables); values on
+    the edge of the searched range and outside the prior's are named."""
+    from lightfit.inference.calibration import fit_cautions
+
+    box, support = {"roughness": (0.3, 1.0)}, {"roughness": (0.3, 1.0)}
+    kw = dict(names=["roughness"], n_values=46, box=box, support=support)
+    assert fit_cautions({"roughness": 0.6}, loss=79.9 / 2, **kw) == []
+    (misfit, advice) = fit_cautions({"roughness": 0.6}, loss=80.3 / 2, **kw)
+    assert "χ² = 80.3 for 46 values and 1 parameters" in misfit and "check the observations" in advice
+    edge = fit_cautions({"roughness": 0.9995}, loss=1.0, **kw)
+    assert len(edge) == 2 and "roughness = 0.9995 is on the edge of its search range [0.3, 1]" in edge[0]
+    assert fit_cautions({"roughness": 0.99}, loss=1.0, **kw) == []
+    out = fit_cautions(
+        {"roughness": 0.6, "light_factor": 5.0},
+        ["roughness", "light_factor"],
+        1.0,
+        46,
+        {**box, "light_factor": (0.0, float("inf"))},
+        {**support, "light_factor": (0.25, 4.0)},
+    )
+    assert out[0] == "light_factor = 5 lies outside its prior's range [0.25, 4]"
 
 
 @pytest.mark.parametrize(

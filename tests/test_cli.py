@@ -937,3 +937,12 @@ def test_calibrate_into_a_folder_of_another_calibration_is_refused(tmp_path, mon
     r = runner.invoke(app, args)
     assert_user_error(r, "option --out", "holds a calibration of specular, roughness, subsurface", "--no-resume")
     assert not (tmp_path / "cache").exists()
+
+
+def test_use_help_names_every_observed_series():
+    from lightfit.inference.observations import SERIES
+
+    for command in ("calibrate", "posterior"):
+        opt = next(p for p in typer.main.get_command(app).commands[command].params if p.name == "use")
+        missing = [s.name for s in SERIES if s.name not in opt.help]
+        assert not missing, (command, missing)

@@ -535,3 +535,25 @@ def test_a_chamber_time_inside_a_clock_change_names_its_line(tmp_path):
     )
     with pytest.raises(InputError, match=r"chamber.csv, line 5, column 'time'.*ambiguous or do not exist"):
         read_observations(p)
+
+
+@pytest.mark.parametrize(
+    ("stamp", "why"),
+    [("20/04/2016 10:00", "not ISO 8601"), ("04/05/2016 10:00", "4 May or 5 April"), ("April 20 2016 10:00", "")],
+)
+def test_observation_times_are_iso_or_refused(tmp_path, stamp, why):
+    # The weather's reader of times reads the observations' too: a day/month date is never guessed
+    # (pandas took 05/04/2016 as 4 May and 20/04/2016 as 20 April, in one file).
+    from lightfit.inference.observations import read_observations
+
+    p = tmp_path / "obs.csv"
+    p.write_text(
+        "# provenance: measured\n# time_zone: UTC\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+        f"2016-04-20 09:00,10.0,1.0\n{stamp},12.0,1.0\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(InputError, match=rf"obs.csv, line 5, column 'time': cannot parse time.*{why}.*ISO 8601"):
+        read_observations(p)
+    p.write_text(p.read_text(encoding="utf-8").replace("# time_zone: UTC\n", "").replace(stamp, "2016-04-20 10:00"))
+    with pytest.raises(InputError, match=r"line 3, column 'time'.*no UTC offset and no time zone.*'# time_zone"):
+        read_observations(p)

@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import console, output_folder, parse_names, parse_theta
+from lightfit.cli.common import caution, console, output_folder, parse_names, parse_theta
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -84,14 +84,14 @@ def calibrate(
     --workers / --scheduler: the surrogate's design renders run on a Dask cluster (docs/posterior.md)."""
     from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
-    from lightfit.inference.calibration import METHODS, check_max_steps
+    from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import read_observations
+    from lightfit.inference.observations import BY_NAME, read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
-    from lightfit.model.parameters import check_names
+    from lightfit.model.parameters import BOUNDS, check_names
     from lightfit.precision import precision
 
     s = resolve(model)
@@ -148,6 +148,7 @@ def calibrate(
         f = next(iter(stored))  # settings.json if there, else calibration.json
         check_resumable(stored[f].get("config"), s, f, "calibration history")
     m = run_model(s)  # several --date: one model per day
+    observed_model(m, obs, uses)  # observations the run's steps cannot match fail before --out is written
     out.mkdir(parents=True, exist_ok=True)
     replace_text(settings, json.dumps({"config": s.as_dict()}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
@@ -252,6 +253,14 @@ def calibrate(
     console.print(t)
     if tr is not None:
         _print_check(tr)
+    # The range searched: the emulator's box (the priors' leaf support), else the parameters' domains.
+    search = {n: BOUNDS[n] for n in names}
+    if tr is not None:
+        search.update({n: (lo[i], hi[i]) for i, n in enumerate(E.LEAF_PARAMETERS) if n in names})
+    support = {n: p.support for n, p in prior_set(priors, m.scenario.optics).items()}
+    n_values = int(sum(obs[BY_NAME[u].value].notna().sum() for u in uses))
+    for line in fit_cautions(res.theta, names, res.loss, n_values, search, support):
+        caution(line)
     # The same model (field, days, window, light settings) and these observations, at the fit.
     again = ["lightfit", "replicate", *model.args(), "--theta", str(out / "calibration.json")]
     again += ["--observations", str(observations), "--out", str(out / "fit")]

@@ -199,6 +199,12 @@ def error_message(err: BaseException, flags: dict[str, str] | None = None) -> st
     return str(err)
 
 
+def caution(line: str) -> None:
+    """One ``caution: …`` line on stderr: a result to read with care (a fit on its bounds, walkers
+    that disagree), said where the numbers are printed but kept out of piped output."""
+    err_console.print(f"[yellow]caution[/]: {escape(line)}", soft_wrap=True, highlight=False)
+
+
 _python_showwarning = warnings.showwarning
 
 

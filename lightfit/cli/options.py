@@ -534,7 +534,8 @@ Use = Annotated[
     typer.Option(
         "--use",
         help="Observed series in the likelihood, comma-separated: above_canopy_par, plant_par (par), canopy_apar, "
-        "fapar, canopy_an (an), nee (docs/calibration.md). Default: every series the observations file has.",
+        "fapar, canopy_an (an), nee, transmitted_par, ceptometer_transmittance, ceptometer_fapar "
+        "(docs/calibration.md). Default: every series the observations file has.",
     ),
 ]
 
@@ -555,7 +556,10 @@ def workers_option(default: str) -> Any:
     """``--workers`` (worker processes of an embedded LocalCluster); ``default``: what the command does
     without it."""
     return Annotated[
-        int, typer.Option(help=f"Embedded cluster: worker processes (default: {default}).", rich_help_panel=DASK_PANEL)
+        int,
+        typer.Option(
+            min=1, help=f"Embedded cluster: worker processes (default: {default}).", rich_help_panel=DASK_PANEL
+        ),
     ]
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import console, interrupted, output_folder, parse_names
+from lightfit.cli.common import caution, console, interrupted, output_folder, parse_names
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -242,7 +242,7 @@ def posterior(
         )
     console.print(t)
     for line in _cautions(res):  # what posterior-status reports, said where the numbers are
-        console.print(f"[yellow]caution[/]: {line}")
+        caution(line)
     console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
     if "emulator_error" in res:
         console.print(f"emulator error → max shift {res['emulator_error']['max_shift_over_sd']:.3g} posterior SD")
@@ -347,7 +347,7 @@ def _print_status(st: dict) -> None:
         "map_kept_start": ms.get("kept_start"),
     }
     for line in _cautions({"names": st["names"], **d, "acceptance_ok": True, **map_info}):  # acceptance said above
-        console.print(f"[yellow]caution[/]: {line}")
+        caution(line)
     if st["refused"]:
         console.print(
             f"{st['refused']} proposals refused (log-probability −inf): the leaf photosynthesis did not "

@@ -730,12 +730,65 @@ def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, tria
     return stopped_by
 
 
+#: χ² tail probability below which a fit is said not to reproduce its data within their SDs.
+MISFIT_P = 1e-3
+#: Share of a finite search range within which a calibrated value counts as on its edge.
+EDGE_SHARE = 1e-3
+
+
+def fit_cautions(
+    theta: Mapping[str, float],
+    names: Sequence[str],
+    loss: float,
+    n_values: int,
+    box: Mapping[str, tuple[float, float]],
+    support: Mapping[str, tuple[float, float]],
+) -> list[str]:
+    r"""What a calibration's result ``theta`` (``names`` calibrated, ``loss`` = ½ rᵀΣ⁻¹r over
+    ``n_values`` observed values) warns of, as sentences:
+
+    * a value on the edge of its search ``box`` (within :data:`EDGE_SHARE` of a finite range): the
+      data pull it out of the box, so the optimum found is the box's, not the data's;
+    * a value outside ``support``, the range its prior gives (e.g. the light factor's 0.25–4): a
+      value no posterior would reach;
+    * a fit whose χ² = 2·loss exceeds the χ² distribution with n − k degrees of freedom (k = len
+      ``names``) at tail probability :data:`MISFIT_P`: the model does not reproduce the data within
+      their SDs.
+
+    Each is what a unit slip in the observations (PAR in mmol), SDs too small, or a process the
+    model leaves out produce; the numbers of a calibration with a caution are not a fit to trust.
+    """
+    from scipy.stats import chi2
+
+    out = []
+    for n in names:
+        v, (lo, hi) = float(theta[n]), box[n]
+        width = (hi - lo) if math.isfinite(hi) else max(abs(v), 1.0)
+        edge = next((e for e in (lo, hi) if math.isfinite(e) and abs(v - e) <= EDGE_SHARE * width), None)
+        if edge is not None:
+            out.append(f"{n} = {v:.4g} is on the edge of its search range [{lo:g}, {hi:g}]: the data pull it further")
+        if n in support and not support[n][0] <= v <= support[n][1]:
+            lo, hi = support[n]
+            out.append(f"{n} = {v:.4g} lies outside its prior's range [{lo:g}, {hi:g}]")
+    dof = n_values - len(names)
+    if dof > 0 and math.isfinite(loss) and chi2.sf(2.0 * loss, dof) < MISFIT_P:
+        out.append(
+            f"the fit leaves χ² = {2.0 * loss:.4g} for {n_values} values and {len(names)} parameters "
+            f"(χ²/(n − k) = {2.0 * loss / dof:.3g}, tail probability < {MISFIT_P:g}): the model does not reproduce "
+            "the data within their SDs"
+        )
+    if out:
+        out.append("check the observations' units and SDs, and what the model leaves out, before using these values")
+    return out
+
+
 __all__ = [
     "CalibrationResult",
     "Loss",
     "calibrate",
     "check_bounds",
     "check_max_steps",
+    "fit_cautions",
     "from_unconstrained",
     "make_loss",
     "to_unconstrained",

@@ -76,8 +76,7 @@ from lightfit.errors import InputError
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
-from lightfit.weather.readers import PROVENANCES, read_csv_with_metadata
-from lightfit.weather.site import localize
+from lightfit.weather.readers import PROVENANCES, parse_times, read_csv_with_metadata
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
@@ -309,29 +308,15 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     stamps = Timestamps.from_metadata(meta, path)
     line = df.attrs["lines"].to_numpy()  # each row's line in the file (blank lines skipped)
     out = pd.DataFrame(index=range(len(df)))
-    for i, t in enumerate(df["time"]):
-        try:
-            ts = pd.Timestamp(t.strip())
-        except ValueError as err:
-            raise InputError(
-                f"cannot parse time {t!r}",
-                file=path,
-                row=int(line[i]),
-                column="time",
-                expected="ISO 8601 such as 2016-04-20 12:13:48",
-            ) from err
-        if ts.tzinfo is None and tz is None:
-            # A chamber log in local time read as UTC would move every reading by hours, silently.
-            raise InputError(
-                f"time {t.strip()!r} has no time zone and the file no '# time_zone:' line",
-                file=path,
-                row=int(line[i]),
-                column="time",
-                expected="a '# time_zone: Europe/Berlin' (or UTC) header line, or times with an offset "
-                "such as 2016-04-20T12:13:48+02:00",
-            )
-        ts = localize(ts, tz, file=path, row=int(line[i]), column="time") if ts.tzinfo is None else ts
-        out.loc[i, "time"] = ts.tz_convert("UTC")
+    out["time"] = parse_times(
+        df["time"],
+        pd.Series(line),
+        path,
+        "time",
+        tz,
+        no_zone="a '# time_zone: Europe/Berlin' (or UTC) header line, or times with an offset such as "
+        "2016-04-20T12:13:48+02:00",
+    )
     for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")

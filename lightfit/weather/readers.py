@@ -332,8 +332,12 @@ _ISO = re.compile(r"\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?)?\s
 _DAY_MONTH = re.compile(r"^\d{1,2}[./-]\d{1,2}[./-]\d{2,4}\b")
 
 
-def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -> pd.DatetimeIndex:
-    """ISO 8601 timestamps (naive ones in ``tz``; all or none with a UTC offset) → UTC."""
+def parse_times(
+    raw: pd.Series, lines: pd.Series, file, column: str, tz: str | None, no_zone: str = ""
+) -> pd.DatetimeIndex:
+    """ISO 8601 timestamps (naive ones in ``tz``; all or none with a UTC offset) → UTC; the one
+    reader of a file's times (weather and observations). ``lines``: each row's line in the file,
+    for messages. ``tz`` ``None``: naive times are refused, ``no_zone`` saying what was expected."""
     text = raw.astype("string").fillna("").str.strip().reset_index(drop=True)
     lines = lines.reset_index(drop=True)
     expected = "ISO 8601 timestamps such as 2016-04-20 12:10:00 (YYYY-MM-DD, optionally T and a UTC offset)"
@@ -372,6 +376,15 @@ def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -
             column=column,
             expected="all timestamps with a UTC offset, or none (then they are read in " + tz + ")",
         )
+    if tz is None and not offset.all():
+        # Local times read as UTC would move every reading by hours, silently.
+        raise InputError(
+            f"time {text.iloc[0]!r} has no UTC offset and no time zone is given",
+            file=file,
+            row=int(lines.iloc[0]),
+            column=column,
+            expected=no_zone or "times with a UTC offset",
+        )
     t = pd.to_datetime(text, format="ISO8601", errors="coerce", utc=bool(offset.all()))
     bad = t.isna().to_numpy()
     if bad.any():
@@ -381,7 +394,12 @@ def _parse_times(raw: pd.Series, lines: pd.Series, file, column: str, tz: str) -
         )
     idx = pd.DatetimeIndex(t)
     if idx.tz is None:
-        idx = localize(idx, tz, file=file, column=column)
+        try:
+            idx = localize(idx, tz, file=file, column=column)
+        except InputError:
+            for t, n in zip(idx, lines):  # the first time a clock change skips or repeats, by its line
+                localize(t, tz, file=file, row=int(n), column=column)
+            raise
     return idx.tz_convert("UTC")
 
 
@@ -500,7 +518,7 @@ def read_tereno(
     table, lines = _table_rows(text_lines, hdr, delim, path)
 
     time_col = next(c for c in table.columns if _TIME_NAMES.match(c))
-    times = _parse_times(table[time_col], lines, path, time_col, tz)
+    times = parse_times(table[time_col], lines, path, time_col, tz)
     qc: list[dict] = []
     if not times.is_monotonic_increasing:
         # Sorted before anything reads neighbouring rows (the 30-min CO2 below), not after.
@@ -709,7 +727,7 @@ def read_cplantbox_day(
             expected="a clock time HH:MM:SS on every data row",
         )
     stamps = pd.Series([f"{day.isoformat()} {c}" for c in clock])
-    times = _parse_times(stamps, lines, path, "time", tz)
+    times = parse_times(stamps, lines, path, "time", tz)
     qc: list[dict] = []
     lt = lines.set_axis(times)
     out = pd.DataFrame(index=times)
@@ -806,7 +824,7 @@ def read_lightfit_csv(
         )
     provenance = _resolve_provenance(meta["provenance"], f"line '# provenance: {meta['provenance']}'", provenance, path)
     lines = table.attrs["lines"]
-    times = _parse_times(table["time_utc"], lines, path, "time_utc", "UTC")
+    times = parse_times(table["time_utc"], lines, path, "time_utc", "UTC")
     lt = lines.set_axis(times)
     qc: list[dict] = []
     out = pd.DataFrame(index=times)

@@ -175,6 +175,12 @@ def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column:
     return out
 
 
+def _minutes(span: pd.Timedelta) -> str:
+    """``30min``, ``3h``, ``90min``: a gap length as the options write it (not ``0 days 00:30:00``)."""
+    m = span / pd.Timedelta(minutes=1)
+    return f"{m / 60:g}h" if m % 60 == 0 else f"{m:g}min"
+
+
 def check_and_repair(
     df: pd.DataFrame,
     lines: pd.Series,
@@ -272,7 +278,7 @@ def check_and_repair(
                 why = (
                     "at the start or end of the series (cannot interpolate)"
                     if at_edge
-                    else f"longer than max_gap={max_gap}"
+                    else f"longer than max_gap={_minutes(max_gap)}"
                 )
                 rows_missing = not present.isin(run.index).any()
                 if col in OPTIONAL and not rows_missing:
@@ -294,7 +300,8 @@ def check_and_repair(
                     row=_line_of(lines, run.iloc[0]),
                     # Missing rows lack every column: name the column only for missing values.
                     column=None if rows_missing else attrs.get("columns_used", {}).get(col, col),
-                    expected="complete data, or gaps short enough to interpolate (raise max_gap)",
+                    expected="complete data, or gaps short enough to interpolate (max_gap: `lightfit weather show "
+                    "FILE --max-gap 3h --csv filled.csv` writes the series with longer gaps filled, for --weather)",
                 )
         if col not in df.columns:
             continue
