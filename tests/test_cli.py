@@ -946,3 +946,22 @@ def test_use_help_names_every_observed_series():
         opt = next(p for p in typer.main.get_command(app).commands[command].params if p.name == "use")
         missing = [s.name for s in SERIES if s.name not in opt.help]
         assert not missing, (command, missing)
+
+
+def test_fewer_bounces_than_the_leafs_default_get_a_caution(monkeypatch):
+    """--bounces below the leaf's 1 % order says what it leaves out (the bound of
+    lightfit.light.estimator.truncation_bound, written out here: ρ^(b+1) / (1 − ρ)); the default
+    and more orders say nothing."""
+    from lightfit.cli import common
+    from lightfit.cli.options import ModelOptions, resolve
+    from lightfit.light.bsdf import lobe_weights
+    from lightfit.replication import ReplicationConfig
+
+    optics = ReplicationConfig.quick().leaf_optics()
+    rho = max(sum(lobe_weights(optics.specular, optics.subsurface, optics.base_color)), optics.soil_albedo)
+    said = []
+    monkeypatch.setattr(common, "caution", said.append)
+    for bounces, expected in ((0, f"up to {rho / (1 - rho):.1%} of the first-order light"), (2, None), (None, None)):
+        said.clear()
+        resolve(ModelOptions(quick=True, bounces=bounces))
+        assert (len(said) == 1 and expected in said[0]) if expected else said == [], (bounces, said)

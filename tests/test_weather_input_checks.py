@@ -557,3 +557,31 @@ def test_observation_times_are_iso_or_refused(tmp_path, stamp, why):
     p.write_text(p.read_text(encoding="utf-8").replace("# time_zone: UTC\n", "").replace(stamp, "2016-04-20 10:00"))
     with pytest.raises(InputError, match=r"line 3, column 'time'.*no UTC offset and no time zone.*'# time_zone"):
         read_observations(p)
+
+
+@pytest.mark.parametrize(
+    ("right", "wrong", "quantity"),
+    [
+        ("RadiationPhotosyntheticActive", "RadiationPhotosynthticActive", "par_umol_m2_s"),
+        ("AirTemperature", "AirTemperatur", "tair_c"),
+    ],
+)
+def test_a_misspelt_tereno_column_is_named_not_replaced_by_an_estimate(tmp_path, right, wrong, quantity):
+    # Unread, a misspelt PAR column was replaced by PAR estimated from global radiation, said only on
+    # stdout; a misspelt air temperature failed later, naming humidity's need instead of the column.
+    def misspell(head):
+        return [ln.replace(right, wrong) if ln.startswith("Timestamp") else ln for ln in head]
+
+    p = _tereno(tmp_path, header_edit=misspell)
+    n = _line_of(p, "Timestamp")
+    with pytest.raises(InputError, match=rf"line {n}, column '{wrong}.*misspelt {right} \({quantity}\)"):
+        read_tereno(p)
+    # Other instruments' columns are not taken for misspellings of a quantity the table has.
+    extra = "SoilTemperature_5cm_Avg10min [°C]"
+    other = _tereno(
+        tmp_path,
+        name="soil.csv",
+        header_edit=lambda h: [ln + "," + extra if ln.startswith("Timestamp") else ln for ln in h],
+        edit=lambda rows: [[*r, "8.5"] for r in rows],
+    )
+    assert extra in read_tereno(other).attrs["unused_columns"]

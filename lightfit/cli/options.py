@@ -23,7 +23,15 @@ from typing import Annotated, Any
 import typer
 
 from lightfit.errors import InputError
-from lightfit.light.estimator import DARK_FLOOR, MIN_PILOT, check_bounces, check_run_samples, check_target_rse
+from lightfit.light.estimator import (
+    DARK_FLOOR,
+    MIN_PILOT,
+    bounces_for_tolerance,
+    check_bounces,
+    check_run_samples,
+    check_target_rse,
+    truncation_bound,
+)
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_UMOL_M2_S, Scenario
 from lightfit.plant.sheaths import check_sheaths
@@ -682,6 +690,16 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         check_ceptometer_height(s.ceptometer_height_m)
     if s.bounces is not None:  # None: chosen from the leaf
         check_bounces(s.bounces)
+    if opts.bounces is not None:  # asked for: say what fewer orders than the leaf's default leave out
+        optics = s.replication_config().leaf_optics()
+        if opts.bounces < bounces_for_tolerance(0.01, optics):
+            from lightfit.cli.common import caution
+
+            caution(
+                f"--bounces {opts.bounces} leaves out the light scattered more often, up to "
+                f"{truncation_bound(opts.bounces, optics):.1%} of the first-order light; this leaf's default, "
+                f"{bounces_for_tolerance(0.01, optics)}, keeps that bound under 1 %"
+            )
     if s.target_rse is not None:
         check_target_rse(s.target_rse)
     if s.weather_provenance is not None and s.weather_provenance not in WEATHER_PROVENANCES:

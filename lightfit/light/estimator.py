@@ -290,6 +290,18 @@ MAX_EPSILON_M = 1e-3
 MAX_BOUNCES_FOR_TOLERANCE = 64
 
 
+def _albedo_bound(optics: Optics) -> float:
+    """The larger of the leaf's albedo bound F_0 + (1 − F_0)c (its lobes' weights summed) and the soil's."""
+    return max(sum(lobe_weights(optics.specular, optics.subsurface, optics.base_color)), optics.soil_albedo, 1e-6)
+
+
+def truncation_bound(bounces: int, optics: Optics) -> float:
+    r"""Bound on the light that ``bounces`` scattering orders leave out, relative to the first-order
+    light: :math:`\rho^{b+1}/(1-\rho)` (:func:`bounces_for_tolerance`); ``inf`` for ρ ≥ 1."""
+    rho = _albedo_bound(optics)
+    return rho ** (bounces + 1) / (1 - rho) if rho < 1 else math.inf
+
+
 def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
 
@@ -301,7 +313,7 @@ def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     """
     if not (is_real(tolerance) and 0 < tolerance < 1):
         raise InputError(f"tolerance={tolerance!r}", column="tolerance", expected="a number in (0, 1)")
-    rho = max(sum(lobe_weights(optics.specular, optics.subsurface, optics.base_color)), optics.soil_albedo, 1e-6)
+    rho = _albedo_bound(optics)
     b = (
         max(0, math.ceil(math.log(tolerance * (1 - rho)) / math.log(rho)) - 1)
         if rho < 1

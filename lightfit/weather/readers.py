@@ -90,6 +90,38 @@ def _split_header(name: str) -> tuple[str, str | None]:
     return (m.group("name"), m.group("unit")) if m else (name.strip(), None)
 
 
+#: How alike (difflib's ratio) an unread column's first word must be to a quantity's TERENO word to
+#: be taken for a misspelling of it (AirTemperatur: 0.96, AirPresure: 0.95; SoilTemperature against
+#: AirTemperature: 0.83, RadiationNet against RadiationDiffuse: 0.71).
+NEAR_MISS_RATIO = 0.92
+
+
+def _check_near_misses(table: pd.DataFrame, used: dict[str, str], time_col: str, path, hdr: int) -> None:
+    """Refuse a column whose name is a near miss of a quantity the table lacks (``RadiationPhotosynth\
+    ticActive``): read as unknown, it would be replaced by an estimate (PAR from global radiation)
+    or fail later naming the quantity, not the column."""
+    import difflib
+
+    for c in table.columns:
+        if c == time_col or c in used.values() or re.search(r"(qual|flag)", c, re.IGNORECASE):
+            continue
+        name = _split_header(c)[0]
+        for qty, (_, preferred, _) in TERENO_QUANTITIES.items():
+            if qty in used:
+                continue
+            # the quantity's word (height, interval and sensor follow; AirConcentration_H2O is not a miss)
+            a, b = name.split("_")[0].lower(), preferred.split("_")[0].lower()
+            if a != b and difflib.SequenceMatcher(None, a, b).ratio() >= NEAR_MISS_RATIO:
+                raise InputError(
+                    f"column {c!r} looks like a misspelt {preferred.split('_')[0]} ({qty}), which lightfit reads "
+                    f"from names starting {TERENO_QUANTITIES[qty][0].lstrip('^')!r}",
+                    file=path,
+                    row=hdr + 1,
+                    column=c,
+                    expected=f"the TERENO name (e.g. {preferred}), or columns={{{qty!r}: {c!r}}}",
+                )
+
+
 def _find_table(text_lines: list[str], file) -> tuple[int, str]:
     """Index of the table's header line and its delimiter, found by content."""
     for i, line in enumerate(text_lines):
@@ -575,6 +607,7 @@ def read_tereno(
             )
         raw[qty] = parse_numeric(table[src].set_axis(times), lines.set_axis(times), path, src, qc)
         conv[qty], used[qty] = tag, f"{src}"
+    _check_near_misses(table, used, time_col, path, hdr)
     flag_cols = _quality_flags(table, used)
     if flag_cols:
         vocabulary = _flag_vocabulary(text_lines, hdr)
