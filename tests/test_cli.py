@@ -965,3 +965,22 @@ def test_fewer_bounces_than_the_leafs_default_get_a_caution(monkeypatch):
         said.clear()
         resolve(ModelOptions(quick=True, bounces=bounces))
         assert (len(said) == 1 and expected in said[0]) if expected else said == [], (bounces, said)
+
+
+def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):
+    """--theta takes a calibration's theta, a posterior summary's MAP (without its noise scale), or
+    key=value text; errors about the file name the option."""
+    from lightfit.cli.common import parse_theta
+
+    cal = tmp_path / "calibration.json"
+    cal.write_text(json.dumps({"theta": {"specular": 0.5, "light_factor": 1.2}, "loss": 3.0}))
+    assert parse_theta(str(cal)) == {"specular": 0.5, "light_factor": 1.2}
+    post = tmp_path / "summary.json"
+    x_map = {"specular": 0.46, "roughness": 1.0, "light_factor": 1.04, "noise_scale": 1.3}
+    post.write_text(json.dumps({"names": list(x_map), "x_map": x_map, "mean": {"specular": 0.6}}))
+    assert parse_theta(str(post)) == {"specular": 0.46, "roughness": 1.0, "light_factor": 1.04}
+    assert parse_theta("roughness=0.7,vcmax_scale=1.1") == {"roughness": 0.7, "vcmax_scale": 1.1}
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"names": ["a"]}))
+    r = runner.invoke(app, ["replicate", "--quick", "--theta", str(other), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "other.json: option --theta: unknown parameter(s) ['names']" in _flat(r.stderr)

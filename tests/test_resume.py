@@ -146,6 +146,7 @@ def test_posterior_killed_three_times_ends_as_the_uninterrupted_run(reference, t
     assert iteration(out / "run.h5") == n_kill
     rc, output = lightfit(POSTERIOR, out)
     assert rc == 0, output
+    assert f"resuming {out / 'run.h5'}: {n_kill} steps kept" in " ".join(output.split()), output
     a, b = h5_contents(ref / "run.h5"), h5_contents(out / "run.h5")
     assert a.keys() == b.keys()
     for k in a:
@@ -209,6 +210,7 @@ def test_calibrate_killed_and_rerun_reaches_the_same_optimum_and_history(tmp_pat
     assert rc == KILLED, output
     rc, output = lightfit(args, tmp_path / "killed")
     assert rc == 0, output
+    assert "accepted steps kept, continued exactly from the saved state" in " ".join(output.split()), output
     assert _history(tmp_path / "killed") == _history(tmp_path / "ref")
     a, b = (json.loads((tmp_path / d / "calibration.json").read_text()) for d in ("ref", "killed"))
     for k in ("theta", "loss", "steps", "evaluations", "gradients", "stopped_by", "reason"):

@@ -18,7 +18,7 @@ from typer.core import TyperGroup
 
 from lightfit.errors import InputError
 from lightfit.killpoint import interrupts_kept
-from lightfit.model.parameters import check_theta
+from lightfit.model.parameters import BOUNDS, check_theta
 from lightfit.weather.site import SELHAUSEN
 
 #: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
@@ -155,13 +155,14 @@ OPTION_ALIASES = {
     "row_direction_deg": ("--row-direction",),
     "date": ("--date",),
     "provenance": ("--provenance", "--weather-provenance"),
+    "start": ("--start-time",),
 }
 
 
 #: Parameters that, named in an error about a file (without a line), are the option applied to it:
 #: ``--tz`` on a lightfit CSV, ``--provenance`` contradicting the file. Others (a ``time_label``
 #: metadata line) are the file's own.
-FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time"}
+FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time", "use", "theta"}
 
 
 def option_flags(command) -> dict[str, str]:
@@ -226,8 +227,10 @@ def output_folder(out: Path, option: str = "out") -> Path:
 
 
 def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
-    """Parameters from a JSON file (a calibration's output) or ``key=value,key=value`` text, each
-    checked against its domain (:func:`~lightfit.model.parameters.check_theta`; errors name ``option``)."""
+    """Parameters from a JSON file (a calibration's ``calibration.json``: its ``theta``; a posterior's
+    ``summary.json``: its MAP, ``x_map``, without the noise scale, which is no model parameter) or
+    ``key=value,key=value`` text, each checked against its domain
+    (:func:`~lightfit.model.parameters.check_theta`; errors name ``option``)."""
     if not theta:
         return {}
     p = Path(theta)
@@ -237,6 +240,8 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
         except json.JSONDecodeError as err:
             raise InputError(f"not JSON: {err}", file=p, expected="a calibration.json") from None
         values = data.get("theta", data)
+        if "x_map" in data:  # a posterior's summary: its MAP (the sampled model parameters)
+            values = {k: v for k, v in data["x_map"].items() if k in BOUNDS}
         try:
             return check_theta(values, what="theta")
         except InputError as err:

@@ -130,6 +130,9 @@ def posterior(
                 f"{out / 'run.h5'} was written before lightfit recorded its {', '.join(unchecked)}: "
                 "resuming it without comparing them"
             )
+        if P.backend.stored_run(out / "run.h5", "mcmc") is not None:
+            done = P.backend.run_status(out / "run.h5")["steps"]
+            console.print(f"resuming {out / 'run.h5'}: {done} steps kept, the chain continues from its last step")
     out.mkdir(parents=True, exist_ok=True)
     if not resume:  # the run it starts again: its summary must not outlive it (an interrupted run writes none)
         (out / "summary.json").unlink(missing_ok=True)

@@ -48,7 +48,7 @@ def replicate(
     ),
     theta: str = typer.Option(
         None,
-        help="Leaf/light parameters: a calibration JSON or key=value,... "
+        help="Leaf/light parameters: a calibration.json, a posterior's summary.json (its MAP) or key=value,... "
         "(specular, roughness, subsurface, light_factor, vcmax_scale).",
     ),
     compare_preset: str = typer.Option(

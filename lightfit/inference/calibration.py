@@ -593,6 +593,7 @@ def calibrate(
         if past:
             best_past = min(past, key=lambda r: r["loss"])
             th0 = th0.replace(**{n: best_past["theta"][n] for n in names})
+            say(f"resuming {hist} without a saved state: {len(past)} steps kept, restarted from their best point")
     elif saved is None and hist:
         hist.unlink(missing_ok=True)
     if saved is None and state_file is not None:
@@ -608,6 +609,7 @@ def calibrate(
             c["stopped_by"] = None  # limits, not the optimiser's verdict: a rerun with a larger max_steps goes on
         # lines appended after the saved state (a kill in between) are redone identically below
         replace_text(hist, "".join(json.dumps(r) + "\n" for r in _read_history(hist)[: c["accepted"]]))
+        say(f"resuming {hist}: {c['accepted']} accepted steps kept, continued exactly from the saved state")
     if past and best_past["loss"] < c["best_loss"]:
         c["best_loss"], c["best_x"] = best_past["loss"], [best_past["theta"][n] for n in names]
 
