@@ -38,6 +38,7 @@ from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples
 from lightfit.photosynthesis.canopy import check_profile, profile_for
 from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
+from lightfit.plant.field import HEADINGS
 from lightfit.plant.growth import GrowthConfig
 from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
@@ -74,6 +75,9 @@ class ReplicationConfig:
     non-zero buffers with a periodic boundary are refused (:class:`lightfit.plant.Field`).
     ``sheaths``: ``"wrapped"`` (default: each leaf's sheath a tube around the stem up to the collar)
     or ``"rods"`` (CPlantBox's thin rods, the reference paper's geometry; :attr:`Field.sheaths`).
+    ``headings``: ``"random"`` (default: each plant turned about its base by its own angle) or
+    ``"aligned"`` (every plant as CPlantBox grows it, facing the same way; the reference paper's
+    field; :attr:`Field.headings`).
 
     ``optics``: leaf optics preset, ``"prospect"`` (default: PROSPECT-D wheat leaf, PAR absorptance
     0.90) or ``"paper"`` (the reference paper's grey 0.5 leaf); ``chlorophyll_ug_cm2``: leaf
@@ -106,6 +110,7 @@ class ReplicationConfig:
     buffer_rows: int | None = None
     buffer_along: int | None = None
     sheaths: str = SHEATHS[0]
+    headings: str = HEADINGS[0]
     seed: int = 1
     samples: int | None = None
     bounces: int | None = None
@@ -173,7 +178,15 @@ class ReplicationConfig:
         for name in PRESETS:
             ref = ReplicationConfig().with_preset(name)
             # growth_temperature_c is normalised (None: the set's own), the profile compared as resolved
-            choices = ("boundary", "sheaths", "optics", "photosynthesis", "par_kind", "growth_temperature_c")
+            choices = (
+                "boundary",
+                "sheaths",
+                "headings",
+                "optics",
+                "photosynthesis",
+                "par_kind",
+                "growth_temperature_c",
+            )
             same_profile = profile_for(self.vcmax_profile, self.photosynthesis) == profile_for(
                 ref.vcmax_profile, ref.photosynthesis
             )
@@ -229,6 +242,7 @@ class ReplicationConfig:
             buffer_along=self.buffer_along,
             boundary=self.boundary,
             sheaths=self.sheaths,
+            headings=self.headings,
             growth=GrowthConfig(target_date=self.dates[0] if date is None else str(parse_date(date, "date"))),
         )
 
@@ -251,14 +265,15 @@ class ReplicationConfig:
 
 
 #: The reference paper's setup (Baker et al. 2025): a finite field with 2 buffer rows on bare soil,
-#: CPlantBox's rod-like leaf sheaths, the grey 0.5 leaf, the giraud2023 photosynthesis set and, as
-#: PAR at the plants, the area-mean absorbed PAR of all leaf segments.
+#: CPlantBox's rod-like leaf sheaths, every plant facing the same way, the grey 0.5 leaf, the
+#: giraud2023 photosynthesis set and, as PAR at the plants, the area-mean absorbed PAR of all leaf segments.
 #: ``replication_quick_finite.json`` is its regression curve.
 PAPER_PRESET = {
     "boundary": "finite",
     "buffer_rows": 2,
     "buffer_along": None,
     "sheaths": "rods",
+    "headings": "aligned",
     "optics": "paper",
     "chlorophyll_ug_cm2": None,
     "photosynthesis": "giraud2023",
@@ -524,6 +539,7 @@ def run(
                 ds[f"obs_{s.name}_time_offset_s"] = ("time", offsets[s.name])
         schema.annotate(ds)
         ds.attrs["observations"] = f"{obs.attrs['source']} ({obs.attrs['provenance']})"
+        ds.attrs["observations_provenance"] = obs.attrs["provenance"]
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)

@@ -75,7 +75,9 @@ def run_label(attrs) -> str:
         if text != f"{own:.3g}":
             notes.append(f"T_g {text} °C")
     ps = f"photosynthesis {attrs.get('photosynthesis')}" + (f" ({', '.join(notes)})" if notes else "")
-    return f"leaf {optics}, {sheaths} sheaths, {ps}, {field_label(attrs)}"
+    # results written before the setting had CPlantBox's plants, all facing the same way
+    aligned = ", aligned plants" if attrs.get("headings", "aligned") == "aligned" else ""
+    return f"leaf {optics}, {sheaths} sheaths{aligned}, {ps}, {field_label(attrs)}"
 
 
 def field_label(attrs) -> str:
@@ -97,6 +99,16 @@ def step_instants(ds) -> pd.DatetimeIndex:
 
 
 def plot(ds, path: Path, compare=None) -> Path:
+    """:func:`figure` written to ``path`` (the format from its suffix)."""
+    import matplotlib.pyplot as plt
+
+    fig = figure(ds, compare)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def figure(ds, compare=None):
     """The replication figure: like with like, one panel per kind of quantity.
 
     (a) PAR on a horizontal quantum sensor above the canopy — the model's sensor
@@ -106,6 +118,7 @@ def plot(ds, path: Path, compare=None) -> Path:
     observations of these; (c) canopy net CO2 uptake per ground (or leaf) area ± 2 Monte Carlo
     SD, with observed uptake. ``compare``: a second run's results (e.g. the ``paper`` preset,
     :meth:`lightfit.replication.ReplicationConfig.paper`) drawn dashed beside this one's.
+    Observations are labelled with their provenance (legends and title), as the forcing is.
     """
     import matplotlib
 
@@ -137,9 +150,7 @@ def plot(ds, path: Path, compare=None) -> Path:
             )
     if "weather_par_umol_m2_s" in ds:
         ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="grey", lw=1, ls=":", label="weather series' PAR")
-    _observed(
-        ax_a, ds, t, "above_canopy_par", "s", "navy", "observed (chamber quantum sensor, horizontal, above the canopy)"
-    )
+    _observed(ax_a, ds, t, "above_canopy_par", "s", "navy", "PAR above the canopy")
     ax_a.set_ylabel("PAR above the canopy\n(µmol m⁻² s⁻¹, horizontal)")
     ax_a.set_title("(a) horizontal quantum sensor above the canopy", loc="left", fontsize=10)
 
@@ -169,8 +180,8 @@ def plot(ds, path: Path, compare=None) -> Path:
                 ls=ls,
                 label=f"canopy APAR per ground area ({lab.split(':')[0]})",
             )
-    _observed(ax_b, ds, t, "plant_par", "s", "navy", "observed PAR at the plants")
-    _observed(ax_b, ds, t, "canopy_apar", "D", "darkgreen", "observed canopy APAR")
+    _observed(ax_b, ds, t, "plant_par", "s", "navy", "PAR at the plants")
+    _observed(ax_b, ds, t, "canopy_apar", "D", "darkgreen", "canopy APAR")
     ax_b.set_ylabel("PAR at the plants\n(µmol m⁻² s⁻¹)")
     ax_b.set_title("(b) PAR at the plants", loc="left", fontsize=10)
 
@@ -181,7 +192,7 @@ def plot(ds, path: Path, compare=None) -> Path:
         if i == 0:
             ax_c.fill_between(t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2, label="± 2 Monte Carlo SD")
         ax_c.plot(local(d), an, color="tab:red", lw=2, ls=ls, label=f"model ({lab.split(':')[0]})")
-    _observed(ax_c, ds, t, "canopy_an", "o", "darkred", "observed net CO2 uptake")
+    _observed(ax_c, ds, t, "canopy_an", "o", "darkred", "net CO2 uptake")
     ax_c.axhline(0, color="k", lw=0.5)
     ax_c.set_ylabel(f"canopy net CO2 uptake\n(µmol m⁻² {per} s⁻¹)")
     ax_c.set_title(
@@ -194,23 +205,37 @@ def plot(ds, path: Path, compare=None) -> Path:
     for ax in (ax_a, ax_b, ax_c):
         ax.grid(alpha=0.3)
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
-    prov = ds.attrs.get("weather_provenance", "unknown").upper()
+    from lightfit.weather.plot import provenance_label
+
+    prov = provenance_label(ds.attrs, "weather_provenance", "weather_date_given")
     src = Path(str(ds.attrs.get("weather_source", ""))).name
+    observed = ""
+    if "observations" in ds.attrs:
+        name = Path(str(ds.attrs["observations"]).rsplit(" (", 1)[0]).name
+        observed = f"; {_observations_word(ds).upper()} observations ({name})"
     lines = [
-        f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
+        f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}){observed}; "
         f"{ds.attrs.get('n_plants')} plants, K={ds.attrs.get('samples')}",
         runs[0][2],
     ]
     if compare is not None:
         lines.append(runs[1][2] + " (dashed)")
     fig.suptitle("\n".join(lines), fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
+
+
+def _observations_word(ds) -> str:
+    """The observations' provenance (measured, reconstructed, synthetic): the results' own attribute,
+    else the word in ``attrs["observations"]`` (files written before the attribute), else "unstated"."""
+    word = ds.attrs.get("observations_provenance")
+    if word is None and str(ds.attrs.get("observations", "")).endswith(")"):
+        word = str(ds.attrs["observations"]).rsplit("(", 1)[-1].rstrip(")")
+    return word or "unstated"
 
 
 def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None:
-    """Observations of series ``name`` (:data:`lightfit.inference.observations.SERIES`) with their SDs, if any."""
+    """Observations of series ``name`` (:data:`lightfit.inference.observations.SERIES`) with their SDs, if
+    any, labelled with their provenance: ``measured PAR above the canopy``, ``synthetic …``."""
     from lightfit.inference.observations import BY_NAME
 
     s = BY_NAME[name]
@@ -227,6 +252,6 @@ def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None
             color=color,
             ms=7,
             capsize=3,
-            label=label,
+            label=f"{_observations_word(ds)} {label}",
             zorder=5,
         )

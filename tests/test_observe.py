@@ -287,3 +287,32 @@ def test_figure_with_a_compared_preset(noon_model, tmp_path):
     )
     assert (preset_name(a.attrs), preset_name(b.attrs), preset_name({}, "x")) == ("default", "paper", "x")
     assert plot(a, tmp_path / "f.png", compare=b).stat().st_size > 10_000
+
+
+def test_figure_names_the_observations_provenance(noon_model):
+    """Synthetic observations are drawn as synthetic, in the legend and the title (a review found
+    every observation labelled "observed (chamber quantum sensor …)", whatever its file said)."""
+    import matplotlib.pyplot as plt
+
+    from lightfit.report import figure
+
+    ds = noon_model.simulate(Theta())
+    par = np.full(ds.sizes["time"], np.nan)
+    par[0] = 1500.0
+    ds["obs_above_canopy_par_umol_m2_s"] = ("time", par)
+    ds["obs_above_canopy_par_sd_umol_m2_s"] = ("time", par * 0.05)
+    ds.attrs.update(observations="/x/twin.csv (synthetic)", observations_provenance="synthetic")
+    fig = figure(ds)
+    try:
+        labels = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
+        assert "synthetic PAR above the canopy" in labels, labels
+        assert not any(lab.startswith("measured") or "chamber" in lab for lab in labels), labels
+        assert "SYNTHETIC observations (twin.csv)" in fig._suptitle.get_text()
+    finally:
+        plt.close(fig)
+    del ds.attrs["observations_provenance"]  # files written before the attribute: the word in "observations"
+    fig = figure(ds)
+    try:
+        assert "synthetic PAR above the canopy" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    finally:
+        plt.close(fig)

@@ -585,3 +585,15 @@ def test_a_misspelt_tereno_column_is_named_not_replaced_by_an_estimate(tmp_path,
         edit=lambda rows: [[*r, "8.5"] for r in rows],
     )
     assert extra in read_tereno(other).attrs["unused_columns"]
+
+
+def test_an_undated_file_placed_on_a_date_says_so_where_its_provenance_is_shown(tmp_path):
+    # The CPlantBox day is a measurement of an unknown day: on a date the caller gives, titles say both.
+    from lightfit.weather.plot import provenance_label
+
+    df = read_cplantbox_day(CPB, "2016-04-27", provenance="measured")
+    assert df.attrs["date_given"] == "2016-04-27"
+    assert provenance_label(df.attrs) == "MEASURED (undated file placed on 2016-04-27)"
+    assert provenance_label(read_weather(RECON).attrs) == "RECONSTRUCTED"
+    r = runner.invoke(app, ["weather", "show", "selhausen-cplantbox-day", "--date", "2016-04-27"])
+    assert r.exit_code == 0 and "MEASURED (undated file placed on 2016-04-27) weather" in " ".join(r.stdout.split())

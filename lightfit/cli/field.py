@@ -8,8 +8,16 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import console
-from lightfit.cli.options import BOUNDARY_HELP, BUFFER_ALONG_HELP, BUFFER_ROWS_HELP, SHEATHS_HELP, check_boundary
+from lightfit.cli.options import (
+    BOUNDARY_HELP,
+    BUFFER_ALONG_HELP,
+    BUFFER_ROWS_HELP,
+    HEADINGS_HELP,
+    SHEATHS_HELP,
+    check_boundary,
+)
 from lightfit.errors import InputError
+from lightfit.plant.field import HEADINGS
 from lightfit.plant.sheaths import SHEATHS
 
 
@@ -27,6 +35,7 @@ def field(
     buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
     sheaths: str = typer.Option(SHEATHS[0], help=SHEATHS_HELP),
+    headings: str = typer.Option(HEADINGS[0], help=HEADINGS_HELP),
     row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
@@ -64,7 +73,17 @@ def field(
         figure_format(preview)
     g = plant.GrowthConfig(parameter_file, season_start, date)
     fld = plant.Field(
-        n_plants, row_spacing, plant_spacing, buffer_rows, row_direction, field_seed, g, buffer_along, boundary, sheaths
+        n_plants,
+        row_spacing,
+        plant_spacing,
+        buffer_rows,
+        row_direction,
+        field_seed,
+        g,
+        buffer_along,
+        boundary,
+        sheaths,
+        headings,
     )
     parts = fld.tiles(tiles)
     if tile is not None and not 0 <= tile < len(parts):
@@ -90,6 +109,7 @@ def field(
     )
     t.add_row("measured segments", str(len(meas)))
     t.add_row("leaf sheaths", fld.sheaths)
+    t.add_row("plant headings", fld.headings)
     t.add_row("triangles", str(geom.mesh.n_faces))
     t.add_row("triangles per plant", f"{geom.mesh.n_faces / len(geom.plants):.0f}")
     t.add_row("one-sided leaf blade area per plant (m²)", f"{seg['blade_area_m2'].sum() / len(geom.plants):.4f}")

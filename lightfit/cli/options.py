@@ -34,6 +34,7 @@ from lightfit.light.estimator import (
 )
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
 from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_UMOL_M2_S, Scenario
+from lightfit.plant.field import check_headings
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -53,6 +54,10 @@ SHEATHS_HELP = (
     "Leaf sheaths: wrapped (default: each a tube around the stem up to the collar, where the blade "
     "starts) or rods (CPlantBox's thin rods at the leaf's insertion angle, the reference paper's)."
 )
+HEADINGS_HELP = (
+    "Plant headings: random (default: each plant turned about its base by its own angle, as in a "
+    "field) or aligned (every plant as CPlantBox grows it, facing the same way, the reference paper's)."
+)
 BUFFER_ALONG_HELP = (
     "Finite fields only: buffer plants along each row end (default: = buffer rows; "
     "≈ 4× buffer rows makes the buffer as wide in metres both ways)."
@@ -69,6 +74,7 @@ class ModelOptions:
     buffer_rows: int | None = None
     buffer_along: int | None = None
     sheaths: str | None = None
+    headings: str | None = None
     field_seed: int | None = None
     samples: int | None = None
     bounces: int | None = None
@@ -131,6 +137,7 @@ class ModelSettings:
     buffer_rows: int | None
     buffer_along: int | None
     sheaths: str
+    headings: str
     field_seed: int
     samples: int
     bounces: int
@@ -177,6 +184,7 @@ class ModelSettings:
             buffer_rows=self.buffer_rows,
             buffer_along=self.buffer_along,
             sheaths=self.sheaths,
+            headings=self.headings,
             seed=self.field_seed,
             samples=self.samples,
             bounces=self.bounces,
@@ -248,6 +256,14 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--sheaths",
             help=SHEATHS_HELP,
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "headings": (
+        str | None,
+        typer.Option(
+            "--headings",
+            help=HEADINGS_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -640,6 +656,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         buffer_rows=buffers[0],
         buffer_along=buffers[1],
         sheaths=check_sheaths(given(opts.sheaths, base.sheaths)),
+        headings=check_headings(given(opts.headings, base.headings)),
         field_seed=given(opts.field_seed, base.seed),
         samples=given(opts.samples, main_job_samples(direct) if base.samples is None else base.samples),
         bounces=given(opts.bounces, base.bounces),
@@ -807,6 +824,7 @@ RENDER_SETTINGS = (
     "buffer_rows",
     "buffer_along",
     "sheaths",
+    "headings",
     "field_seed",
     "samples",
     "bounces",
@@ -845,7 +863,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     (its ``config``) and ``s``. Settings written before the periodic boundary have no
     ``boundary``: they were finite fields; settings written before leaf optics have no
     ``optics``: they had the grey leaf (``paper``); settings written before ``sheaths`` had
-    CPlantBox's rods; settings written before the projected direct
+    CPlantBox's rods, before ``headings`` aligned plants; settings written before the projected direct
     light have no ``direct``: their paths carried it; settings written before
     ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
     """
@@ -854,6 +872,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     now = s.as_dict()
     # Settings stored before a key existed ran with what is now its default.
     before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths", "sheaths": "rods"}
+    before["headings"] = "aligned"  # before headings, every plant faced CPlantBox's way
     before |= {"soil_respiration": SOIL_RESPIRATION_UMOL_M2_S, "soil_respiration_q10": SOIL_RESPIRATION_Q10}
     before["vcmax_profile"] = "uniform"  # before capacity profiles every blade had the set's
     before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)

@@ -66,7 +66,7 @@ def replicate(
     from lightfit import replication as rep
     from lightfit import weather as wx
     from lightfit.report import field_label, summary
-    from lightfit.weather.plot import plot_forcing
+    from lightfit.weather.plot import plot_forcing, provenance_label
 
     s = resolve(model)
     cfg = s.replication_config()
@@ -86,7 +86,7 @@ def replicate(
         )
     out.mkdir(parents=True, exist_ok=True)
     weather_report(w)
-    label = str(w.attrs.get("provenance", "")).upper()
+    label = provenance_label(w.attrs)
     tz, when = s.site.timezone, "; ".join(s.window().describe(d, s.site.timezone) for d in s.dates)
     if s.steps:  # the steps run, not only the window they were taken from
         local = w.index.tz_convert(tz)
@@ -104,7 +104,8 @@ def replicate(
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
     k = samples_label(k, cfg.target_rse)
     console.print(
-        f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {k}, {n_b} bounces{rays} …"
+        f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {fld.headings} headings, {k}, "
+        f"{n_b} bounces{rays} …"
     )
     ds, obs = rep.run(
         cfg,

@@ -94,7 +94,7 @@ def show(
         df = weather.resample(df, resample, how)
     weather_report(df)
     name = Path(str(df.attrs.get("source"))).name
-    console.print(weather_table(df, f"{provenance_label(df)} weather: {name}"))
+    console.print(weather_table(df, f"{provenance_label(df.attrs)} weather: {name}"))
     if plot:
         console.print(f"plot → {plot_forcing(df, plot)}")
     if csv:

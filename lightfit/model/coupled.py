@@ -352,6 +352,7 @@ class CoupledModel:
             "precision": precision(),
             "time_zone": "UTC",
             "weather_provenance": str(w.attrs.get("provenance", "unknown")),
+            **({"weather_date_given": w.attrs["date_given"]} if w.attrs.get("date_given") else {}),
             "weather_source": str(w.attrs.get("source", "")),
             "weather_timestamps": self.timestamps.describe(),
             "weather_split_model": str(w.attrs.get("split_model", "unknown")),

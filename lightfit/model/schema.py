@@ -280,29 +280,27 @@ VARIABLES: dict[str, Variable] = {
     "sun_azimuth_deg": Variable(T, "degree", "solar azimuth angle (clockwise from north)"),
     # -- per time: observations added by the replication (lightfit.inference.observations) ----
     "obs_plant_par_umol_m2_s": Variable(T, UMOL, "observed mean PAR at the plants (chamber)", _PLANT_PAR),
-    "obs_plant_par_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed PAR at the plants"),
+    "obs_plant_par_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed PAR at the plants"),
     "obs_canopy_an_umol_m2_s": Variable(T, UMOL, "observed canopy net CO2 uptake (chamber)", _CANOPY_AREA),
-    "obs_canopy_an_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed canopy net CO2 uptake"),
+    "obs_canopy_an_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed canopy net CO2 uptake"),
     "obs_above_canopy_par_umol_m2_s": Variable(
         T, UMOL, "observed PAR on a horizontal quantum sensor above the canopy", "per unit horizontal area"
     ),
-    "obs_above_canopy_par_sd_umol_m2_s": Variable(
-        T, UMOL, "measurement standard deviation of observed above-canopy PAR"
-    ),
+    "obs_above_canopy_par_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed above-canopy PAR"),
     "obs_canopy_apar_umol_m2_s": Variable(T, UMOL, "observed canopy APAR", "per unit ground area"),
-    "obs_canopy_apar_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed canopy APAR"),
+    "obs_canopy_apar_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed canopy APAR"),
     "obs_fapar": Variable(T, "1", "observed fraction of absorbed PAR"),
-    "obs_fapar_sd": Variable(T, "1", "measurement standard deviation of observed fAPAR"),
+    "obs_fapar_sd": Variable(T, "1", "SD stated with the observed fAPAR"),
     "obs_nee_umol_m2_s": Variable(T, UMOL, "observed chamber net ecosystem CO2 exchange", _NEE),
-    "obs_nee_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed NEE"),
+    "obs_nee_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed NEE"),
     "obs_transmitted_par_umol_m2_s": Variable(
         T, UMOL, "observed PAR on a line quantum sensor on the soil", _CEPTOMETER
     ),
-    "obs_transmitted_par_sd_umol_m2_s": Variable(T, UMOL, "measurement standard deviation of observed transmitted PAR"),
+    "obs_transmitted_par_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed transmitted PAR"),
     "obs_ceptometer_transmittance": Variable(T, "1", "observed canopy PAR transmittance (ceptometer)"),
-    "obs_ceptometer_transmittance_sd": Variable(T, "1", "measurement standard deviation of observed transmittance"),
+    "obs_ceptometer_transmittance_sd": Variable(T, "1", "SD stated with the observed transmittance"),
     "obs_ceptometer_fapar": Variable(T, "1", "observed fAPAR from a ceptometer (1 - transmittance)"),
-    "obs_ceptometer_fapar_sd": Variable(T, "1", "measurement standard deviation of observed ceptometer fAPAR"),
+    "obs_ceptometer_fapar_sd": Variable(T, "1", "SD stated with the observed ceptometer fAPAR"),
 }
 # Where the model is read for each series' observations (lightfit.inference.observations.interpolation;
 # one entry per name of its SERIES, which tests/test_observation_interpolation.py checks).

@@ -9,7 +9,7 @@ plant.export(geom.mesh, "field.ply")
 
 from lightfit.plant.cache import cache_dir, load_or_grow
 from lightfit.plant.export import export
-from lightfit.plant.field import Field, FieldGeometry, Tile, build
+from lightfit.plant.field import HEADINGS, Field, FieldGeometry, Tile, build
 from lightfit.plant.growth import (
     GrowthConfig,
     grow_plant,
@@ -26,6 +26,7 @@ from lightfit.plant.sheaths import SHEATHS
 __all__ = [
     "Field",
     "FieldGeometry",
+    "HEADINGS",
     "GrowthConfig",
     "Mesh",
     "MeshResolution",

@@ -15,8 +15,9 @@ partition the measurement area into W contiguous blocks, each carrying its own B
 Two boundaries (``Field.boundary``):
 
 - ``"finite"``: the measurement area plus its buffer rows, on bare soil (the reference paper's
-  setup). Light leaks in through the edges: +48 % canopy absorbed PAR for the default 10 × 10
-  plants with 2 buffer rows (docs/light.md, "Field-edge bias").
+  setup). Light leaks in through the edges: +53 % canopy absorbed PAR for the default 10 × 10
+  plants with 2 buffer rows (+49 % with the reference paper's grey leaf; docs/light.md,
+  "Field-edge bias").
 - ``"periodic"``: the measurement area is one cell of an infinite field
   (:class:`~lightfit.plant.periodic.PeriodicCell`: N plants × plant spacing along the rows by
   N rows × row spacing across them, so both spacings continue across the seam), and the light
@@ -60,6 +61,37 @@ def plant_id(r: ArrayLike, c: ArrayLike) -> np.ndarray:
     return (np.asarray(r) + ID_OFFSET) * 10_000 + (np.asarray(c) + ID_OFFSET)
 
 
+#: Plant headings (:attr:`Field.headings`): the default first.
+HEADINGS = ("random", "aligned")
+
+
+def check_headings(headings) -> str:
+    """``headings`` if it is one of :data:`HEADINGS`, else :class:`InputError` naming it."""
+    if headings not in HEADINGS:
+        raise InputError(f"headings={headings!r}", column="headings", expected=" or ".join(HEADINGS))
+    return headings
+
+
+def plant_heading_deg(seed: int) -> float:
+    """A plant's heading, degrees in [0, 360): uniform, from the plant's own seed (so a plant faces
+    the same way whichever tile builds it), on a stream apart from CPlantBox's use of the seed."""
+    return float(np.random.default_rng([int(seed), 0x4EAD]).uniform(0.0, 360.0))
+
+
+def turned(seg: pd.DataFrame, heading_deg: float) -> pd.DataFrame:
+    """A copy of a plant's segment table (base at the origin) turned by ``heading_deg`` about the
+    vertical through its base (counter-clockwise seen from above): end points and branching
+    directions; z, lengths, radii and areas are unchanged."""
+    seg = seg.copy()
+    if heading_deg == 0.0:
+        return seg
+    c, s = math.cos(math.radians(heading_deg)), math.sin(math.radians(heading_deg))
+    for x, y in (("x0", "y0"), ("x1", "y1"), ("bx", "by")):
+        if x in seg:
+            seg[x], seg[y] = c * seg[x] - s * seg[y], s * seg[x] + c * seg[y]
+    return seg
+
+
 @dataclass(frozen=True)
 class Field:
     """Layout of a field.
@@ -90,6 +122,12 @@ class Field:
             stem up to the collar, the blade starting there, or ``"rods"``, CPlantBox's thin rods
             at the leaf's insertion angle (the reference paper's geometry;
             :mod:`lightfit.plant.sheaths`, docs/plant.md "Leaf sheaths").
+        headings: which way each plant faces: ``"random"`` (default) turns each plant about its base
+            by its own angle (:meth:`plants`' ``heading_deg``, drawn from its seed: uniform in 0–360°),
+            as plants in a field stand; ``"aligned"`` keeps CPlantBox's orientation, the same for every
+            plant (its first leaf at the same azimuth; the reference paper's field): the canopy then has
+            a preferred leaf azimuth, and a morning sun meets other leaf angles than an afternoon sun
+            at the same elevation (docs/plant.md "Plant headings").
     """
 
     n_plants: int = 25
@@ -102,9 +140,11 @@ class Field:
     buffer_along: int | None = None
     boundary: str = "periodic"
     sheaths: str = SHEATHS[0]
+    headings: str = HEADINGS[0]
 
     def __post_init__(self):
         check_sheaths(self.sheaths)
+        check_headings(self.headings)
         if self.boundary not in BOUNDARIES:
             raise InputError(f"boundary={self.boundary!r}", column="boundary", expected=" or ".join(BOUNDARIES))
         if self.boundary == "periodic":
@@ -150,6 +190,7 @@ class Field:
             "buffer_rows": self.buffer_rows,
             "buffer_along": self.b_along,
             "sheaths": self.sheaths,
+            "headings": self.headings,
             "seed": self.seed,
             "parameter_file": self.growth.parameter_file,
             "season_start": self.growth.season_start,
@@ -163,7 +204,8 @@ class Field:
     def from_attrs(attrs, file=None) -> Field:
         """The field a results file describes (:meth:`attrs`); ``file`` names it in errors. Files
         written before a key existed ran with what it was then: a finite field (``boundary``),
-        CPlantBox's rod sheaths (``sheaths``), the layout and growth defaults."""
+        CPlantBox's rod sheaths (``sheaths``), aligned plants (``headings``), the layout and growth
+        defaults."""
         a = attrs
         growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
         kw = {k: float(a[k]) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
@@ -175,6 +217,7 @@ class Field:
         periodic = boundary == "periodic"
         try:
             sheaths = check_sheaths(str(a.get("sheaths", "rods")))
+            headings = check_headings(str(a.get("headings", "aligned")))
         except InputError as e:
             raise e.in_file(file or "results") from None
         return Field(
@@ -185,6 +228,7 @@ class Field:
             growth=GrowthConfig(**growth),
             boundary=boundary,
             sheaths=sheaths,
+            headings=headings,
             **kw,
         )
 
@@ -240,7 +284,8 @@ class Field:
         return self.ground_area_m2 if tile is None else len(tile.measured) * self.area_per_plant_m2
 
     def plants(self) -> pd.DataFrame:
-        """One row per plant of the whole grid: ids, grid position, seed, position (m), measured flag.
+        """One row per plant of the whole grid: ids, grid position, seed, position (m), heading
+        (degrees, counter-clockwise seen from above; 0 for ``headings="aligned"``), measured flag.
 
         ``row``/``col`` index the grid (rows 0 … M−1, plants along a row 0 … M_along−1);
         ``r``/``c`` are relative to the measurement area (0 … N−1 inside it).
@@ -254,6 +299,7 @@ class Field:
         x = along * d[0] + across * p[0]
         y = along * d[1] + across * p[1]
         measured = (r >= 0) & (r < self.n) & (c >= 0) & (c < self.n)
+        seeds = [plant_seed(self.seed, int(i) + ID_OFFSET, int(j) + ID_OFFSET) for i, j in zip(r, c)]
         return pd.DataFrame(
             {
                 "plant_id": plant_id(r, c),
@@ -261,9 +307,10 @@ class Field:
                 "col": col,
                 "r": r,
                 "c": c,
-                "seed": [plant_seed(self.seed, int(i) + ID_OFFSET, int(j) + ID_OFFSET) for i, j in zip(r, c)],
+                "seed": seeds,
                 "x_m": x,
                 "y_m": y,
+                "heading_deg": [plant_heading_deg(s) if self.headings == "random" else 0.0 for s in seeds],
                 "measured": measured,
             }
         ).set_index("plant_id", drop=False)
@@ -374,7 +421,7 @@ def build(
     for p in it:
         seg, hit = load_or_grow(fld.growth, p.seed, int(p.plant_id), directory=cache_dir)
         hits += hit
-        seg = seg.copy()
+        seg = turned(seg, p.heading_deg)
         for c0, c1, off in (("x0", "x1", p.x_m), ("y0", "y1", p.y_m)):
             seg[c0] += off
             seg[c1] += off

@@ -17,11 +17,15 @@ from lightfit.weather.site import SELHAUSEN  # noqa: E402
 from lightfit.weather.units import par_from_ghi  # noqa: E402
 
 
-def provenance_label(df: pd.DataFrame) -> str:
+def provenance_label(attrs: dict, key: str = "provenance", date_key: str = "date_given") -> str:
     """Upper-case provenance word for titles, so a reconstruction is never mistaken for data
-    (``UNSTATED-PROVENANCE`` where neither the file nor the user said what it is)."""
-    prov = str(df.attrs.get("provenance", "unstated"))
-    return "UNSTATED-PROVENANCE" if prov == "unstated" else prov.upper()
+    (``UNSTATED-PROVENANCE`` where neither the file nor the user said what it is); an undated
+    file placed on a date by the caller says so (``MEASURED (undated file placed on 2016-04-27)``).
+    ``attrs``: a series' (``provenance``, ``date_given``) or results' (``weather_provenance``,
+    ``weather_date_given``)."""
+    prov = str(attrs.get(key, "unstated"))
+    word = "UNSTATED-PROVENANCE" if prov == "unstated" else prov.upper()
+    return word + (f" (undated file placed on {attrs[date_key]})" if attrs.get(date_key) else "")
 
 
 def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None, tz: str = SELHAUSEN.timezone) -> Path:
@@ -36,14 +40,27 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     local = df.tz_convert(tz)
     t = local.index.tz_localize(None)
     fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
-    ax[0].plot([], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)")
+    estimated = any(q.get("kind") == "derived" and q.get("column") == "par_umol_m2_s" for q in df.attrs.get("qc", []))
+    ax[0].plot(
+        [], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)" + (", estimated from GHI" if estimated else "")
+    )
     ax[0].set_ylabel("PAR\nµmol m⁻² s⁻¹")
     ax[0].plot(t, local["par_umol_m2_s"], color="tab:orange", lw=2.5)
     if {"dni_w_m2", "dhi_w_m2"} <= set(local.columns):
         r = ax[0].twinx()
-        r.plot(t, local["ghi_w_m2"], color="k", lw=0.8, label="GHI")
-        r.plot(t, local["dhi_w_m2"], color="tab:blue", lw=0.8, ls="--", label="DHI")
-        r.plot(t, local["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI")
+        # Estimated parts say so under a MEASURED title: GHI from PAR, DNI and DHI from a split model.
+        derived = {q["column"] for q in df.attrs.get("qc", []) if q.get("kind") == "derived"}
+        split = df.attrs.get("split_model")
+        parts = "" if split == "diffuse" else f", estimated ({split or 'split'} split)"
+        r.plot(
+            t,
+            local["ghi_w_m2"],
+            color="k",
+            lw=0.8,
+            label="GHI" + (", estimated from PAR" if "ghi_w_m2" in derived else ""),
+        )
+        r.plot(t, local["dhi_w_m2"], color="tab:blue", lw=0.8, ls="--", label="DHI" + parts)
+        r.plot(t, local["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI" + parts)
         # One scale for both axes (PAR = 2.285 µmol J⁻¹ × GHI): the thin GHI line lies on the thick PAR
         # line where the two sensors agree and shows where they do not (free scales hid it exactly).
         k = float(par_from_ghi(1.0))
@@ -76,7 +93,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     ax[3].set_xlabel(f"time ({tz})")
     ax[3].xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
     src = Path(str(df.attrs.get("source", ""))).name
-    fig.suptitle(title or f"{provenance_label(df)} forcing — {src}", fontsize=11)
+    fig.suptitle(title or f"{provenance_label(df.attrs)} forcing — {src}", fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -773,6 +773,7 @@ def read_cplantbox_day(
         "source": str(path),
         "format": "cplantbox",
         "provenance": provenance,
+        "date_given": day.isoformat(),  # the file has none: the caller placed it on this date
         "timezone_assumed": tz,
         "columns_used": {v: k for k, v in need.items() if v},
         "unused_columns": [c for c in table.columns if c not in need],
