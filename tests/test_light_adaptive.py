@@ -120,12 +120,17 @@ def test_light_floor_stops_dark_segments_on_an_absolute_error(scene):
 
 def test_adaptive_estimator_gradient_matches_common_random_number_differences(scene):
     fs, ids = scene
+    # Roughness mid-way between two nodes of the GGX albedo table (bsdf.TABLE_R, 1/32 apart) and
+    # differences inside that cell: the table is bilinear in roughness, so a difference across a
+    # node measures the mean of two cells' slopes, not the derivative (5.4 % off at roughness
+    # 0.5 ± 0.05 once the plants faced their own ways; 3.7 % before).
+    fs.set_optics(roughness=0.515)
     est = AdaptiveEstimator(fs, ids, 0.1, bounces=2, seed=5, max_samples=256)
     r = est.render()
     np.testing.assert_allclose(r.absorbed_sun, est.allocation.absorbed_sun, rtol=1e-10)
     ct = {"absorbed_sun": np.ones(len(ids)), "absorbed_sky": np.full(len(ids), 0.3)}
     grad = est.vjp(ct)
-    h = 0.05
+    h = 0.01
     for k in ("specular", "roughness", "subsurface"):
         base = getattr(fs.optics, k)
         vals = []
@@ -135,9 +140,9 @@ def test_adaptive_estimator_gradient_matches_common_random_number_differences(sc
             vals.append(sum(np.sum(ct[p] * getattr(q, p)) for p in ct))
         fs.set_optics(**{k: base})
         fd = (vals[0] - vals[1]) / (2 * h)
-        # Frozen sampling: AD and CRN differences see the same smooth function; 5 % covers O(h²) and
-        # the bilinear albedo table in roughness (3.7 % at this seed).
-        assert grad[k] == pytest.approx(fd, rel=0.05, abs=0.01), (k, grad[k], fd)
+        # Frozen sampling: AD and CRN differences see the same smooth function (O(h²) apart: 2e-5 here).
+        assert grad[k] == pytest.approx(fd, rel=1e-3, abs=1e-4), (k, grad[k], fd)
+    fs.set_optics(roughness=0.5)
 
 
 def test_bad_adaptive_inputs(scene):

@@ -168,17 +168,18 @@ def test_weather_show_states_provenance_honestly(tmp_path, monkeypatch):
     for source in ("selhausen-cplantbox-day", str(CPB)):  # bundled, by name or by path: its documented word
         r = runner.invoke(app, ["weather", "show", source, "--date", "2016-04-27"])
         assert r.exit_code == 0, r.output
-        assert "MEASURED weather" in r.stdout
+        assert "MEASURED (undated file placed on 2016-04-27) weather" in " ".join(r.stdout.split())
     copy = tmp_path / "day.txt"
     copy.write_bytes(CPB.read_bytes())
     out = tmp_path / "day.csv"
     r = runner.invoke(app, ["weather", "show", str(copy), "--date", "2016-04-27", "--csv", str(out)])
     assert r.exit_code == 0, r.output
-    assert "UNSTATED-PROVENANCE weather" in r.stdout and "MEASURED" not in r.stdout
+    said = " ".join(r.stdout.split())
+    assert "UNSTATED-PROVENANCE (undated file placed on 2016-04-27) weather" in said and "MEASURED" not in said
     assert out.read_text(encoding="utf-8").splitlines()[0] == "# provenance: unstated"
     assert read_weather(out).attrs["provenance"] == "unstated"
     r = runner.invoke(app, ["weather", "show", str(copy), "--date", "2016-04-27", "--provenance", "measured"])
-    assert r.exit_code == 0 and "MEASURED weather" in r.stdout, r.output
+    assert r.exit_code == 0 and "MEASURED (undated file placed on 2016-04-27) weather" in " ".join(r.stdout.split())
     _cli_error(["weather", "show", str(FIXTURE), "--provenance", "measured"], "contradicts", "synthetic")
 
 
