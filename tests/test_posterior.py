@@ -576,6 +576,7 @@ def test_calibration_key_includes_the_likelihood_form(tmp_path):
     calibrate(model, obs, max_steps=1, **kw)
     calibrate(model, obs, max_steps=2, **kw)
     assert len(said) == 1 and "continued exactly from the saved state" in said[0], said  # same form: exact resume
+    said.clear()
     with pytest.raises(InputError, match=r"other likelihood \(mc_correlation: 'independent' → 'model'\)") as e:
         calibrate(model, obs, max_steps=3, mc_correlation=corr, **kw)
     assert "--no-resume" in str(e.value) and said == []
@@ -944,6 +945,7 @@ def test_a_calibration_state_from_other_matching_is_not_resumed_exactly(tmp_path
     calibrate(model, obs, max_steps=1, **kw)
     calibrate(model, obs, max_steps=2, **kw)
     assert len(said) == 1 and "continued exactly from the saved state" in said[0], said  # same matching: exact resume
+    said.clear()
     model.timestamps = Timestamps("center", pd.Timedelta("10min"))
     with pytest.raises(InputError, match="run with other observation_matching"):
         calibrate(model, obs, max_steps=3, **kw)
