@@ -49,7 +49,7 @@ import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.plant import SHEATHS, Field, build, organ_class
+from lightfit.plant import HEADINGS, SHEATHS, Field, build, organ_class
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
@@ -61,13 +61,14 @@ OUT = Path(__file__).resolve().parent / "results" / "light.json"
 BENCH_SUN_DEG = (50.0, 180.0)
 
 
-def periodic_cell(n_plants: int, sheaths: str = SHEATHS[0]):
+def periodic_cell(n_plants: int, sheaths: str = SHEATHS[0], headings: str = HEADINGS[0]):
     """The light benchmarks' scene: ``n_plants`` (seed 1) as one periodic cell with the default
-    (or ``sheaths``) layout of the leaf sheaths, the default PROSPECT-D leaf, the sun at
-    :data:`BENCH_SUN_DEG`. Returns ``(geometry, scene, measured segment ids, bounces for 1 %
-    truncation)``."""
+    (or ``sheaths``) layout of the leaf sheaths and plant ``headings``, the default PROSPECT-D
+    leaf, the sun at :data:`BENCH_SUN_DEG`. Returns ``(geometry, scene, measured segment ids,
+    bounces for 1 % truncation)``."""
     optics = Optics.preset("prospect")
-    geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)
+    fld = Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths, headings=headings)
+    geom = build(fld, progress=True)
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     fs.set_sun(*BENCH_SUN_DEG)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()

@@ -1,7 +1,7 @@
 """Benchmark: issue 16's single-render goal alone, at the recommended setting.
 
     python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16] [--rays 1.5e7,2e7]
-        [--sheaths wrapped[,rods]] [--out JSON]
+        [--sheaths wrapped[,rods]] [--headings random[,aligned]] [--out JSON]
 
 The goal: on the defaults' periodic cell of ``--n-plants`` plants (PROSPECT-D leaf, the bounces
 for 1 % truncation, sun 50° / 180°), a median per-segment relative SE of absorbed PAR (sun +
@@ -14,7 +14,8 @@ machine's speed can be checked against the goal in a few minutes. Times scale to
 
 ``--sheaths``: the leaf sheaths' layout (``Field.sheaths``, default the model's default); several,
 comma-separated, are measured one after the other in one process (a side-by-side ratio), and the
-JSON then holds one result per layout under ``runs``. ``--sky-continued-share``: the share q of the
+JSON then holds one result per layout under ``runs``; ``--headings`` (``Field.headings``) the
+same. ``--sky-continued-share``: the share q of the
 sky's rays continued after their first hit (``projection.CONTINUED_SHARE["sky"]``, 0.25 in the
 library: a day casts the sky once and its continuation serves every step); several values are
 measured in turn the same way. The value is set for this process only, as an experiment.
@@ -38,6 +39,7 @@ from rich.table import Table
 import lightfit  # noqa: F401
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.plant import SHEATHS, organ_class
+from lightfit.plant.field import HEADINGS, check_headings
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.precision import use_float64
 
@@ -49,7 +51,12 @@ GOAL_S = 60.0
 
 
 def main(
-    n_plants: int, samples: int, rays: tuple[float, float], sheaths: str = SHEATHS[0], q_sky: float | None = None
+    n_plants: int,
+    samples: int,
+    rays: tuple[float, float],
+    sheaths: str = SHEATHS[0],
+    q_sky: float | None = None,
+    headings: str = HEADINGS[0],
 ) -> dict:
     from lightfit.light import projection
 
@@ -57,7 +64,7 @@ def main(
         projection.CONTINUED_SHARE["sky"] = q_sky
     load_start = os.getloadavg()[0]
     t = time.perf_counter()
-    geom, fs, ids, bounces = periodic_cell(n_plants, sheaths)
+    geom, fs, ids, bounces = periodic_cell(n_plants, sheaths, headings)
     t_build = time.perf_counter() - t
     SegmentEstimator(fs, ids[:2000], samples=samples, bounces=bounces, seed=0).render()  # compile kernels
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
@@ -67,6 +74,7 @@ def main(
         "cpu_cores": os.cpu_count(),
         "n_plants": n_plants,
         "sheaths": sheaths,
+        "headings": headings,
         "sky_continued_share": projection.CONTINUED_SHARE["sky"],
         "segments": len(ids),
         "bounces": bounces,
@@ -81,7 +89,8 @@ def main(
 def table(res: dict) -> Table:
     t = Table(
         title=f"one render, {res['n_plants']} plants ({res['segments']} segments), K = {res['samples']}, "
-        f"{res['sheaths']} sheaths, sky continued share {res['sky_continued_share']:g}"
+        f"{res['sheaths']} sheaths, {res.get('headings', 'aligned')} headings, sky continued share "
+        f"{res['sky_continued_share']:g}"
     )
     t.add_column("median SE is", justify="left")
     t.add_column("median", justify="right")
@@ -105,6 +114,7 @@ if __name__ == "__main__":
     ap.add_argument(
         "--sheaths", default=SHEATHS[0], help="leaf sheath layout(s), comma-separated: " + ", ".join(SHEATHS)
     )
+    ap.add_argument("--headings", default=HEADINGS[0], help="plant headings, comma-separated: " + ", ".join(HEADINGS))
     ap.add_argument("--sky-continued-share", default=None, help="q of the sky's continued rays, comma-separated")
     ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
     a = ap.parse_args()
@@ -113,7 +123,10 @@ if __name__ == "__main__":
     for x in layouts:
         check_sheaths(x)
     shares = [None] if a.sky_continued_share is None else [float(q) for q in a.sky_continued_share.split(",")]
-    runs = [main(a.n_plants, a.samples, (sun, sky), x, q) for x in layouts for q in shares]
+    headings = a.headings.split(",")
+    for h in headings:
+        check_headings(h)
+    runs = [main(a.n_plants, a.samples, (sun, sky), x, q, h) for x in layouts for q in shares for h in headings]
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float))
     console = Console()
