@@ -209,15 +209,14 @@ def figure(ds, compare=None):
 
     prov = provenance_label(ds.attrs, "weather_provenance", "weather_date_given")
     src = Path(str(ds.attrs.get("weather_source", ""))).name
-    observed = ""
-    if "observations" in ds.attrs:
-        name = Path(str(ds.attrs["observations"]).rsplit(" (", 1)[0]).name
-        observed = f"; {_observations_word(ds).upper()} observations ({name})"
     lines = [
-        f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}){observed}; "
+        f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
         f"{ds.attrs.get('n_plants')} plants, K={ds.attrs.get('samples')}",
         runs[0][2],
     ]
+    if "observations" in ds.attrs:  # a line of its own: the title must fit the figure's width
+        name = Path(str(ds.attrs["observations"]).rsplit(" (", 1)[0]).name
+        lines.insert(1, f"{_observations_word(ds).upper()} observations ({name})")
     if compare is not None:
         lines.append(runs[1][2] + " (dashed)")
     fig.suptitle("\n".join(lines), fontsize=10)
