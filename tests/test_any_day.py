@@ -55,14 +55,14 @@ def test_site_and_date_move_the_sun_as_pvlib_says(tmp_path):
     sp = pvlib.solarposition.get_solarposition(t - pd.Timedelta("5min"), -34.0, 18.5, altitude=40.0)
     np.testing.assert_allclose(w["sun_elevation_deg"], sp["apparent_elevation"], atol=1e-9)
     np.testing.assert_allclose(w["sun_azimuth_deg"], sp["azimuth"], atol=1e-9)
-    # Winter noon at 34 °S is lower than summer noon at Selhausen (50.9 °N): about 32.5° vs 62.6°.
-    sel = rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("13:30", 0.5), site=weather.SELHAUSEN)
-    assert w["sun_elevation_deg"].max() < 33 < 62 < sel["sun_elevation_deg"].max()
+    # Winter noon at 34 °S is lower than spring noon at Selhausen (50.9 °N, 27 April): about 32.5° vs 53°.
+    sel = rep.forcing(REAL_DAY, dates="2016-04-27", window=Window("13:30", 0.5), site=weather.SELHAUSEN)
+    assert w["sun_elevation_deg"].max() < 33 < 52 < sel["sun_elevation_deg"].max() < 54
 
 
 def test_bundled_real_day_by_name_and_by_path_is_the_same_forcing():
-    by_name = rep.forcing("selhausen-cplantbox-day", dates="2016-06-23", window=Window("12:00", 1.0))
-    by_path = rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("12:00", 1.0))
+    by_name = rep.forcing("selhausen-cplantbox-day", dates="2016-04-27", window=Window("12:00", 1.0))
+    by_path = rep.forcing(REAL_DAY, dates="2016-04-27", window=Window("12:00", 1.0))
     pd.testing.assert_frame_equal(by_name, by_path, check_exact=True)
     assert by_name.attrs["provenance"] == "measured"
 
@@ -70,8 +70,11 @@ def test_bundled_real_day_by_name_and_by_path_is_the_same_forcing():
 def test_undated_file_needs_a_date_and_the_window_must_be_in_the_file():
     with pytest.raises(InputError, match="no date.*--date"):
         rep.forcing(REAL_DAY)
-    with pytest.raises(InputError, match=r"selhausen_cplantbox_day.txt.*--date 2016-06-23.*--start-time 20:00"):
-        rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("20:00", 6.0))
+    with pytest.raises(InputError, match=r"selhausen_cplantbox_day.txt.*--date 2016-04-27.*--start-time 20:00"):
+        rep.forcing(REAL_DAY, dates="2016-04-27", window=Window("20:00", 6.0))
+    # A date the file's light does not fit: dark with the sun up (data/README.md)
+    with pytest.raises(InputError, match=r"PAR .* with the sun at 10.4°.*darker than any sky"):
+        rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("12:00", 1.0))
     with pytest.raises(InputError, match="--date 2016-06-23: no bundled forcing"):
         rep.forcing(dates="2016-06-23")
 
@@ -90,17 +93,17 @@ def test_plants_are_grown_to_the_run_date_within_the_growth_models_range():
 def test_bundled_real_day_runs_from_the_cli(tmp_path, monkeypatch):
     """The real TERENO day (undated) with --date, by bundled name, on a 2-step window, quick field."""
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
-    args = ["replicate", "--quick", "--weather", "selhausen-cplantbox-day", "--date", "2016-06-23"]
+    args = ["replicate", "--quick", "--weather", "selhausen-cplantbox-day", "--date", "2016-04-27"]
     r = runner.invoke(app, [*args, "--start-time", "13:00", "--hours", "0.5", "--out", str(tmp_path / "o")])
     assert r.exit_code == 0, r.output
     import xarray as xr
 
     with xr.open_dataset(tmp_path / "o" / "results.nc") as ds:
         assert ds.sizes["time"] == 2
-        assert ds.attrs["date"] == ds.attrs["target_date"] == "2016-06-23"
+        assert ds.attrs["date"] == ds.attrs["target_date"] == "2016-04-27"
         assert ds.attrs["site"] == "Selhausen" and ds.attrs["site_timezone"] == "Europe/Berlin"
         assert ds.attrs["weather_provenance"] == "measured"
-        assert (ds["canopy_an_umol_m2_s"].values > 0).all()  # around noon in June: net uptake
+        assert (ds["canopy_an_umol_m2_s"].values > 0).all()  # around noon: net uptake
         assert not [v for v in ds.data_vars if v.startswith("obs_")]  # the 20 April record is not of this day
         # The day's rows are 10-min means stamped at their ends: CF bounds (t − 10 min, t).
         assert ds.attrs["weather_timestamps"] == "ends of 10-min means"
@@ -117,13 +120,13 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     (more leaf area on the later one), segments the union of both days'."""
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     cfg = rep.ReplicationConfig(
-        n_plants=1, samples=4, bounces=1, dates=("2016-04-20", "2016-06-23"), window=Window("12:00", 0.5)
+        n_plants=1, samples=4, bounces=1, dates=("2016-04-20", "2016-04-27"), window=Window("12:00", 0.5)
     )
     ds, obs = rep.run(cfg, weather_file=REAL_DAY)  # the bundled record (20 April, 12:13 local) falls in it
-    assert list(ds["day"].values) == ["2016-04-20"] * 2 + ["2016-06-23"] * 2
+    assert list(ds["day"].values) == ["2016-04-20"] * 2 + ["2016-04-27"] * 2
     assert obs is not None and np.isfinite(ds["obs_above_canopy_par_umol_m2_s"].values).sum() == 1
     assert ds["day"].attrs["long_name"].startswith("date of the step's day")  # from the schema
-    assert ds.attrs["target_date"] == "2016-04-20; 2016-06-23"
+    assert ds.attrs["target_date"] == "2016-04-20; 2016-04-27"
     # Each day's plants are its own (CPlantBox renumbers segments as a plant grows): segments of
     # one day are NaN on the other's steps, and each day's canopy values are its own run's.
     day_of_segment = ds["segment"].values // rep.DAY_SEGMENT_STRIDE
@@ -131,7 +134,7 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     for k, steps in enumerate((slice(0, 2), slice(2, 4))):
         assert np.isfinite(par[steps][:, day_of_segment == k]).all()
         assert np.isnan(par[steps][:, day_of_segment != k]).all()
-    alone, _ = rep.run(replace(cfg, dates=("2016-06-23",)), weather_file=REAL_DAY, observations=None)
+    alone, _ = rep.run(replace(cfg, dates=("2016-04-27",)), weather_file=REAL_DAY, observations=None)
     np.testing.assert_array_equal(ds["canopy_an_umol_m2_s"].values[2:], alone["canopy_an_umol_m2_s"].values)
     assert (ds["organ_type"].values[day_of_segment == 1] == alone["organ_type"].values).all()
     for v in ("leaf_area_above", "capacity_factor"):  # per segment, each day's plants their own

@@ -697,16 +697,16 @@ def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_pa
         assert_user_error(r, "selhausen_cplantbox_day.txt", "no date", "--date")
     r = runner.invoke(
         app,
-        ["replicate", "--quick", "--out", str(tmp_path), "--weather", "selhausen-cplantbox-day", "--date", "2016-06-23"]
+        ["replicate", "--quick", "--out", str(tmp_path), "--weather", "selhausen-cplantbox-day", "--date", "2016-04-27"]
         + ["--start-time", "20:00", "--hours", "6"],
     )
-    assert_user_error(r, "selhausen_cplantbox_day.txt", "--date 2016-06-23", "--start-time 20:00", "--hours 6")
+    assert_user_error(r, "selhausen_cplantbox_day.txt", "--date 2016-04-27", "--start-time 20:00", "--hours 6")
     two = ["--date", "2016-04-20", "--date", "2016-04-21"]
     assert_user_error(runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / "r.nc"), *two]), "one --date")
     bad = tmp_path / "renamed.txt"
     bad.write_text((DATA_DIR / "weather" / "selhausen_cplantbox_day.txt").read_text().replace('"Tair"', '"Temp"'))
     r = runner.invoke(
-        app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(bad), "--date", "2016-06-23"]
+        app, ["replicate", "--quick", "--out", str(tmp_path), "--weather", str(bad), "--date", "2016-04-27"]
     )
     assert_user_error(r, "renamed.txt", "Tair")
 

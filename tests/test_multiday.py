@@ -32,7 +32,7 @@ from lightfit.model.parameters import Theta
 from lightfit.weather.site import Window
 
 REAL_DAY = "selhausen-cplantbox-day"
-DATES = ("2016-05-10", "2016-06-23")
+DATES = ("2016-04-21", "2016-04-27")  # dates the undated CPlantBox day's light fits (data/README.md)
 WINDOW = Window("11:00", 1.0)
 USE = ("plant_par", "canopy_an")
 TRUTH = Theta(specular=0.55, roughness=0.5, subsurface=0.7, light_factor=1.1)

@@ -74,7 +74,7 @@ def test_load_bundled_names():
     assert set(BUNDLED) == {"2016-04-20", "selhausen-cplantbox-day"}
     df = load("2016-04-20")
     assert {"dni_w_m2", "dhi_w_m2", "sun_elevation_deg", "sun_azimuth_deg"} <= set(df.columns)
-    real = load("selhausen-cplantbox-day", date="2016-06-23")
+    real = load("selhausen-cplantbox-day", date="2016-04-27")
     assert real.attrs["provenance"] == "measured"
     with pytest.raises(InputError, match="date"):
         load("selhausen-cplantbox-day")

@@ -397,6 +397,10 @@ def check_radiation_scale(
 #: margin covers twilight and sensor offsets near sunrise and sunset.
 LIGHT_MAX_CLEAR_SKY_FACTOR = 1.5
 LIGHT_MARGIN_W_M2 = 50.0
+#: Darkness its sun cannot give: global radiation below DARK_MAX_W_M2 with the sun at least
+#: DARK_SUN_MIN_DEG up. The darkest overcast still lets through ≈ 10 % of clear sky (≈ 4 W m⁻² at 5°).
+DARK_SUN_MIN_DEG = 5.0
+DARK_MAX_W_M2 = 1.0
 
 
 def check_light_fits_sun(
@@ -405,12 +409,20 @@ def check_light_fits_sun(
     """Refuse light that its sun cannot give: ``columns`` of global radiation (W m⁻²) or PAR
     (µmol m⁻² s⁻¹, as global radiation × 0.50 × 4.57 µmol J⁻¹) above clear sky ×
     :data:`LIGHT_MAX_CLEAR_SKY_FACTOR` + :data:`LIGHT_MARGIN_W_M2` at two or more steps: daylight with
-    the sun below the horizon, noon light at a low sun. That is a wrong date (an undated file placed
-    on a day its light does not fit), time zone or time label, which the Erbs split would turn into
-    direct beams above the solar constant. One step alone is left to the caller (a glitch)."""
+    the sun below the horizon, noon light at a low sun; or below :data:`DARK_MAX_W_M2` at two or
+    more steps with the sun :data:`DARK_SUN_MIN_DEG` or more up: night with the sun up (the CPlantBox
+    April day placed on 23 June is dark at 06:50 with the sun 10° up). That is a wrong date (an
+    undated file placed on a day its light does not fit), time zone or time label, which the Erbs
+    split would turn into direct beams above the solar constant. One step alone is left to the
+    caller (a glitch)."""
     el = np.asarray(sun_elevation_deg, dtype=np.float64)
     clear = clear_sky_ghi_w_m2(el)
     bound = LIGHT_MAX_CLEAR_SKY_FACTOR * clear + LIGHT_MARGIN_W_M2
+    expected = (
+        "timestamps the light fits: the right date (--date places an undated file), and the "
+        "file's time zone and time label (`lightfit weather show FILE --tz … --time-label … --csv OUT.csv` "
+        "writes a series that states them)"
+    )
     used = df.attrs.get("columns_used", {})
     for col, scale, what, unit in (
         ("ghi_w_m2", 1.0, "global radiation", "W m⁻²"),
@@ -420,18 +432,26 @@ def check_light_fits_sun(
             continue
         v = np.asarray(df[col], dtype=np.float64)
         over = np.flatnonzero(v > scale * bound)
-        if len(over) < 2:
-            continue
-        i = over[np.argmax(v[over] / (scale * bound[over]))]
-        raise InputError(
-            f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear sky "
-            f"{scale * clear[i]:.3g} {unit}): {len(over)} steps have more light than their sun can give",
-            file=file,
-            column=used.get(col, col),
-            expected="timestamps the light fits: the right date (--date places an undated file), and the "
-            "file's time zone and time label (`lightfit weather show FILE --tz … --time-label … --csv OUT.csv` "
-            "writes a series that states them)",
-        )
+        dark = np.flatnonzero((el >= DARK_SUN_MIN_DEG) & (v < scale * DARK_MAX_W_M2))
+        if len(over) >= 2:
+            i = over[np.argmax(v[over] / (scale * bound[over]))]
+            raise InputError(
+                f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear "
+                f"sky {scale * clear[i]:.3g} {unit}): {len(over)} steps have more light than their sun can give",
+                file=file,
+                column=used.get(col, col),
+                expected=expected,
+            )
+        if len(dark) >= 2:
+            i = dark[np.argmax(el[dark])]
+            raise InputError(
+                f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear "
+                f"sky {scale * clear[i]:.3g} {unit}): {len(dark)} steps are darker than any sky with their sun "
+                f"{DARK_SUN_MIN_DEG:g}° or more up",
+                file=file,
+                column=used.get(col, col),
+                expected=expected,
+            )
 
 
 #: Derived columns a series may carry (a lightfit CSV written by ``lightfit weather show --csv``) and the
