@@ -477,10 +477,28 @@ def test_periodic_results_rebuild_the_periodic_cell(periodic_results_file, resul
     ds.attrs["boundary"] = "toroidal"
     with pytest.raises(InputError, match="toroidal"):
         field_of(open_results(ds))
+    # Attributes that are not the field's values name the file and the attribute (a review found a
+    # ValueError traceback, and seed=-3 blamed on render-dataset's own --seed).
+    ds.attrs["boundary"] = "finite"
+    for key, bad, match in (
+        ("n_plants", "abc", r"results, column 'n_plants': n_plants='abc' \(expected an integer\)"),
+        ("row_spacing_m", "x", r"results, column 'row_spacing_m': row_spacing_m='x' \(expected a number\)"),
+        ("seed", -3, r"results, column 'seed': seed=-3 \(expected an integer ≥ 0\)"),
+        ("n_plants", 0, r"results, column 'n_plants': n_plants=0"),
+    ):
+        edited = ds.copy()
+        edited.attrs[key] = bad
+        with pytest.raises(InputError, match=match):
+            field_of(open_results(edited))
+    # Without 'headings' (written before plants faced their own ways): aligned plants.
+    del ds.attrs["headings"]
+    assert field_of(open_results(ds)).headings == "aligned"
 
 
 def test_periodic_field_images_show_an_endless_canopy(periodic_results_file, results_file, tmp_path):
     """Near the image edges an oblique view of a periodic field sees canopy, where the finite block shows soil."""
+    from lightfit.dataset.results import field_of
+
     cam = Camera(
         name="obl", position_m=(0.35, -0.35, 0.7), look_at_m=(0.0, 0.0, 0.0), fov_deg=50.0, width_px=48, height_px=48
     )
@@ -500,6 +518,7 @@ def test_periodic_field_images_show_an_endless_canopy(periodic_results_file, res
         edge = np.concatenate([o[0], o[-1], o[:, 0], o[:, -1]])
         border[name] = np.isin(edge, [ORGAN_CODES["leaf"], ORGAN_CODES["stem"]]).mean()
         assert meta["field_boundary"] == name
+        assert meta["field_headings"] == field_of(open_results(path)).headings
         if name == "periodic":
             pc = meta["periodic_canopy"]
             assert pc["copies"] > 100 and not pc["capped_by_max_faces"] and 0.5 < pc["reach_m"] <= 1.0

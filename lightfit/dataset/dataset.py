@@ -26,7 +26,7 @@ from lightfit.dataset.camera import Camera, Sweep, camera_sweep, check_unique_na
 from lightfit.dataset.exposure import meter, tone_map, write_exr, write_png
 from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
 from lightfit.dataset.render import RenderSettings, load_camera, render, variant_for
-from lightfit.dataset.results import MARGIN, Results, build_geometry, lighting, open_results, select_times
+from lightfit.dataset.results import MARGIN, Results, build_geometry, field_of, lighting, open_results, select_times
 from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
 from lightfit.errors import InputError, check_integer
 from lightfit.files import replace_text
@@ -181,6 +181,9 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     meta = _metadata(res, spec, quantities, cams, images, rendered)
     meta["cameras_taken_over"] = len(cams) - len(todo)
     meta["field_boundary"] = "periodic" if periodic else "finite"
+    # What the rebuild used, including the defaults of files written before a setting existed.
+    fld = field_of(res)
+    meta["field_sheaths"], meta["field_headings"] = fld.sheaths, fld.headings
     if periodic:
         meta["periodic_canopy"] = periodic
     if spec.gallery_images and images:

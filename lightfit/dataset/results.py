@@ -8,8 +8,10 @@ schema (:mod:`lightfit.model.schema`, which gives their units and meaning) such 
 limited); attrs describing the field (``n_plants``, ``buffer_rows``, ``seed``,
 ``parameter_file``, ``season_start``, ``target_date``, ``row_spacing_m``, ``plant_spacing_m``,
 optionally ``row_direction_deg``, ``buffer_along``, ``boundary``: ``"finite"`` when absent,
-as files written before the periodic boundary are, and ``sheaths``: ``"rods"`` when absent, as
-files written before wrapped sheaths are). Optional time series ``sun_elevation_deg``,
+as files written before the periodic boundary are, ``sheaths``: ``"rods"`` when absent, as
+files written before wrapped sheaths are, and ``headings``: ``"aligned"`` when absent, as files
+written before plants faced their own ways are; a value that is not a valid setting is an error
+naming the file and the attribute). Optional time series ``sun_elevation_deg``,
 ``sun_azimuth_deg``, ``dni_w_m2``, ``dhi_w_m2`` set the light of the data scene; without them it
 comes from a weather series (the bundled one for the target date by default).
 """

@@ -206,31 +206,37 @@ class Field:
         written before a key existed ran with what it was then: a finite field (``boundary``),
         CPlantBox's rod sheaths (``sheaths``), aligned plants (``headings``), the layout and growth
         defaults."""
-        a = attrs
+        a, where = attrs, file or "results"
+
+        def number(key: str, kind=float):
+            if key not in a:
+                raise InputError(f"no attribute {key}", file=where, column=key, expected="the field's attributes")
+            try:
+                return kind(a[key])
+            except (TypeError, ValueError):
+                what = "an integer" if kind is int else "a number"
+                raise InputError(f"{key}={a[key]!r}", file=where, column=key, expected=what) from None
+
         growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
-        kw = {k: float(a[k]) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
+        kw = {k: number(k) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
         boundary = str(a.get("boundary", "finite"))
         if boundary not in BOUNDARIES:
-            raise InputError(
-                f"boundary={boundary!r}", file=file or "results", expected=f"attr boundary {' or '.join(BOUNDARIES)}"
-            )
+            raise InputError(f"boundary={boundary!r}", file=where, expected=f"attr boundary {' or '.join(BOUNDARIES)}")
         periodic = boundary == "periodic"
-        try:
-            sheaths = check_sheaths(str(a.get("sheaths", "rods")))
-            headings = check_headings(str(a.get("headings", "aligned")))
+        try:  # the attributes' values checked as the field checks them, errors naming the file
+            return Field(
+                n_plants=number("n_plants", int),
+                buffer_rows=None if periodic else number("buffer_rows", int),
+                seed=number("seed", int),
+                buffer_along=number("buffer_along", int) if "buffer_along" in a and not periodic else None,
+                growth=GrowthConfig(**growth),
+                boundary=boundary,
+                sheaths=check_sheaths(str(a.get("sheaths", "rods"))),
+                headings=check_headings(str(a.get("headings", "aligned"))),
+                **kw,
+            )
         except InputError as e:
-            raise e.in_file(file or "results") from None
-        return Field(
-            n_plants=int(a["n_plants"]),
-            buffer_rows=None if periodic else int(a["buffer_rows"]),
-            seed=int(a["seed"]),
-            buffer_along=int(a["buffer_along"]) if "buffer_along" in a and not periodic else None,
-            growth=GrowthConfig(**growth),
-            boundary=boundary,
-            sheaths=sheaths,
-            headings=headings,
-            **kw,
-        )
+            raise (e if e.file is not None else e.in_file(where)) from None
 
     @property
     def cell(self) -> PeriodicCell | None:
