@@ -598,3 +598,19 @@ def test_an_undated_file_placed_on_a_date_says_so_where_its_provenance_is_shown(
     assert provenance_label(read_weather(RECON).attrs) == "RECONSTRUCTED"
     r = runner.invoke(app, ["weather", "show", "selhausen-cplantbox-day", "--date", "2016-04-27"])
     assert r.exit_code == 0 and "MEASURED (undated file placed on 2016-04-27) weather" in " ".join(r.stdout.split())
+
+
+def test_observation_times_mixing_offsets_without_a_zone_name_the_line(tmp_path):
+    # Read by the weather's reader of times, which built its message with the zone: None was a TypeError.
+    from lightfit.inference.observations import read_observations
+
+    p = tmp_path / "mixed.csv"
+    p.write_text(
+        "# provenance: measured\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+        "2016-04-20T10:00:00+02:00,10,1\n2016-04-20 11:00:00,12,1\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(
+        InputError, match=r"mixed.csv, line 4, column 'time'.*has no UTC offset.*the time zone the file"
+    ):
+        read_observations(p)

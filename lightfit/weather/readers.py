@@ -406,7 +406,8 @@ def parse_times(
             file=file,
             row=int(lines.iloc[i]),
             column=column,
-            expected="all timestamps with a UTC offset, or none (then they are read in " + tz + ")",
+            expected="all timestamps with a UTC offset, or none (then they are read in "
+            f"{tz or 'the time zone the file states'})",
         )
     if tz is None and not offset.all():
         # Local times read as UTC would move every reading by hours, silently.
