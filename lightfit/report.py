@@ -215,21 +215,22 @@ def figure(ds, compare=None):
         runs[0][2],
     ]
     if "observations" in ds.attrs:  # a line of its own: the title must fit the figure's width
-        name = Path(str(ds.attrs["observations"]).rsplit(" (", 1)[0]).name
-        lines.insert(1, f"{_observations_word(ds).upper()} observations ({name})")
+        source, word = _observations_source(ds)
+        lines.insert(1, f"{word.upper()} observations ({Path(source).name})")
     if compare is not None:
         lines.append(runs[1][2] + " (dashed)")
     fig.suptitle("\n".join(lines), fontsize=10)
     return fig
 
 
-def _observations_word(ds) -> str:
-    """The observations' provenance (measured, reconstructed, synthetic): the results' own attribute,
-    else the word in ``attrs["observations"]`` (files written before the attribute), else "unstated"."""
-    word = ds.attrs.get("observations_provenance")
-    if word is None and str(ds.attrs.get("observations", "")).endswith(")"):
-        word = str(ds.attrs["observations"]).rsplit("(", 1)[-1].rstrip(")")
-    return word or "unstated"
+def _observations_source(ds) -> tuple[str, str]:
+    """The observations' file and provenance (measured, reconstructed, synthetic) from
+    ``attrs["observations"]`` (``"path (provenance)"``); the provenance from the results' own
+    ``observations_provenance`` where present (files written before it: the word in brackets, else
+    "unstated")."""
+    text = str(ds.attrs.get("observations", ""))
+    source, _, said = text.rpartition(" (") if text.endswith(")") else (text, "", "")
+    return source, ds.attrs.get("observations_provenance") or said.rstrip(")") or "unstated"
 
 
 def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None:
@@ -251,6 +252,6 @@ def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None
             color=color,
             ms=7,
             capsize=3,
-            label=f"{_observations_word(ds)} {label}",
+            label=f"{_observations_source(ds)[1]} {label}",
             zorder=5,
         )

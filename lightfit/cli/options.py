@@ -33,7 +33,13 @@ from lightfit.light.estimator import (
     truncation_bound,
 )
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
-from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES, SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_UMOL_M2_S, Scenario
+from lightfit.model.scenario import (
+    BOUNCE_TOLERANCE,
+    MAX_ADAPTIVE_SAMPLES,
+    SOIL_RESPIRATION_Q10,
+    SOIL_RESPIRATION_UMOL_M2_S,
+    Scenario,
+)
 from lightfit.plant.field import check_headings
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
@@ -709,13 +715,14 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         check_bounces(s.bounces)
     if opts.bounces is not None:  # asked for: say what fewer orders than the leaf's default leave out
         optics = s.replication_config().leaf_optics()
-        if opts.bounces < bounces_for_tolerance(0.01, optics):
+        own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
+        if opts.bounces < own:
             from lightfit.cli.common import caution
 
             caution(
                 f"--bounces {opts.bounces} leaves out the light scattered more often, up to "
                 f"{truncation_bound(opts.bounces, optics):.1%} of the first-order light; this leaf's default, "
-                f"{bounces_for_tolerance(0.01, optics)}, keeps that bound under 1 %"
+                f"{own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"
             )
     if s.target_rse is not None:
         check_target_rse(s.target_rse)

@@ -40,16 +40,14 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     local = df.tz_convert(tz)
     t = local.index.tz_localize(None)
     fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
-    estimated = any(q.get("kind") == "derived" and q.get("column") == "par_umol_m2_s" for q in df.attrs.get("qc", []))
-    ax[0].plot(
-        [], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)" + (", estimated from GHI" if estimated else "")
-    )
+    # Estimated series say so under a MEASURED title: PAR from GHI or GHI from PAR, DNI and DHI from a split.
+    derived = {q.get("column") for q in df.attrs.get("qc", []) if q.get("kind") == "derived"}
+    estimated = ", estimated from GHI" if "par_umol_m2_s" in derived else ""
+    ax[0].plot([], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)" + estimated)
     ax[0].set_ylabel("PAR\nµmol m⁻² s⁻¹")
     ax[0].plot(t, local["par_umol_m2_s"], color="tab:orange", lw=2.5)
     if {"dni_w_m2", "dhi_w_m2"} <= set(local.columns):
         r = ax[0].twinx()
-        # Estimated parts say so under a MEASURED title: GHI from PAR, DNI and DHI from a split model.
-        derived = {q["column"] for q in df.attrs.get("qc", []) if q.get("kind") == "derived"}
         split = df.attrs.get("split_model")
         parts = "" if split == "diffuse" else f", estimated ({split or 'split'} split)"
         r.plot(

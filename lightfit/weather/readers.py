@@ -106,7 +106,7 @@ def _check_near_misses(table: pd.DataFrame, used: dict[str, str], time_col: str,
         if c == time_col or c in used.values() or re.search(r"(qual|flag)", c, re.IGNORECASE):
             continue
         name = _split_header(c)[0]
-        for qty, (_, preferred, _) in TERENO_QUANTITIES.items():
+        for qty, (pattern, preferred, _) in TERENO_QUANTITIES.items():
             if qty in used:
                 continue
             # the quantity's word (height, interval and sensor follow; AirConcentration_H2O is not a miss)
@@ -114,7 +114,7 @@ def _check_near_misses(table: pd.DataFrame, used: dict[str, str], time_col: str,
             if a != b and difflib.SequenceMatcher(None, a, b).ratio() >= NEAR_MISS_RATIO:
                 raise InputError(
                     f"column {c!r} looks like a misspelt {preferred.split('_')[0]} ({qty}), which lightfit reads "
-                    f"from names starting {TERENO_QUANTITIES[qty][0].lstrip('^')!r}",
+                    f"from names starting {pattern.lstrip('^')!r}",
                     file=path,
                     row=hdr + 1,
                     column=c,

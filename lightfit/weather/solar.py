@@ -433,21 +433,16 @@ def check_light_fits_sun(
         v = np.asarray(df[col], dtype=np.float64)
         over = np.flatnonzero(v > scale * bound)
         dark = np.flatnonzero((el >= DARK_SUN_MIN_DEG) & (v < scale * DARK_MAX_W_M2))
-        if len(over) >= 2:
-            i = over[np.argmax(v[over] / (scale * bound[over]))]
+        for steps, worst, said in (  # the worst step named: the brightest against its bound, the highest sun
+            (over, v[over] / (scale * bound[over]), "have more light than their sun can give"),
+            (dark, el[dark], f"are darker than any sky with their sun {DARK_SUN_MIN_DEG:g}° or more up"),
+        ):
+            if len(steps) < 2:
+                continue
+            i = steps[np.argmax(worst)]
             raise InputError(
                 f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear "
-                f"sky {scale * clear[i]:.3g} {unit}): {len(over)} steps have more light than their sun can give",
-                file=file,
-                column=used.get(col, col),
-                expected=expected,
-            )
-        if len(dark) >= 2:
-            i = dark[np.argmax(el[dark])]
-            raise InputError(
-                f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear "
-                f"sky {scale * clear[i]:.3g} {unit}): {len(dark)} steps are darker than any sky with their sun "
-                f"{DARK_SUN_MIN_DEG:g}° or more up",
+                f"sky {scale * clear[i]:.3g} {unit}): {len(steps)} steps {said}",
                 file=file,
                 column=used.get(col, col),
                 expected=expected,
