@@ -130,8 +130,8 @@ def posterior(
                 f"{out / 'run.h5'} was written before lightfit recorded its {', '.join(unchecked)}: "
                 "resuming it without comparing them"
             )
-        if P.backend.stored_run(out / "run.h5", "mcmc") is not None:
-            done = P.backend.run_status(out / "run.h5")["steps"]
+        if P.backend.stored_run(out / "run.h5", "mcmc") is not None:  # its attributes only, not the chain
+            done = P.backend.run_attrs(out / "run.h5")["iteration"]
             console.print(f"resuming {out / 'run.h5'}: {done} steps kept, the chain continues from its last step")
     out.mkdir(parents=True, exist_ok=True)
     if not resume:  # the run it starts again: its summary must not outlive it (an interrupted run writes none)
