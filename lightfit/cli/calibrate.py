@@ -153,8 +153,8 @@ def calibrate(
     replace_text(settings, json.dumps({"config": s.as_dict()}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
     tr = None
+    box = prior_set(priors, m.scenario.optics)  # the run leaf's priors: the emulator's box, the cautions' ranges
     if surrogate:
-        box = prior_set(priors, m.scenario.optics)  # the run leaf's informed priors
         lo = [box[n].support[0] for n in E.LEAF_PARAMETERS]
         hi = [box[n].support[1] for n in E.LEAF_PARAMETERS]
         with design_renderer(scheduler, workers) as render_points:
@@ -257,7 +257,7 @@ def calibrate(
     search = {n: BOUNDS[n] for n in names}
     if tr is not None:
         search.update({n: (lo[i], hi[i]) for i, n in enumerate(E.LEAF_PARAMETERS) if n in names})
-    support = {n: p.support for n, p in prior_set(priors, m.scenario.optics).items()}
+    support = {n: p.support for n, p in box.items()}
     n_values = int(sum(obs[BY_NAME[u].value].notna().sum() for u in uses))
     for line in fit_cautions(res.theta, names, res.loss, n_values, search, support):
         caution(line)
