@@ -259,7 +259,7 @@ def direct_projection_comparison(
         v = [x.total("absorbed", 1.0, 0.3) for x in renders]
         dof = 2 * (R - 1)
         with np.errstate(divide="ignore", invalid="ignore"):  # segments without light: nan, left out
-            se = [x.relative_se() * np.abs(m) for x, m in zip(renders, v)]
+            se = [x.total_se() for x in renders]
             pooled = np.sqrt((se[0] ** 2 + se[1] ** 2) / 2) / np.abs((v[0] + v[1]) / 2)
             z = np.abs(v[0] - v[1]) / np.sqrt(se[0] ** 2 + se[1] ** 2)
         med_p = finite_median(pooled) / median_se_factor(pooled, dof)

@@ -66,8 +66,7 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
         r = est.render()
         times.append(time.perf_counter() - t)
         v = r.total("absorbed", 1.0, 0.3)
-        with np.errstate(invalid="ignore"):  # unlit segments: nan relative SE, left out below
-            se2.append((r.relative_se() * v) ** 2)
+        se2.append(r.total_se() ** 2)  # unlit segments: 0, left out below
         values.append(v)
         R, blade = est.replicates, np.asarray(r.meta["is_blade"], bool)
         del est

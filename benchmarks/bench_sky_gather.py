@@ -93,7 +93,7 @@ def main(n_plants: int, samples: int) -> dict:
     r = est.render()
     T = time.perf_counter() - t
     x = r.total("absorbed", 1.0, DHI)
-    var = (r.relative_se("absorbed", 1.0, DHI) * x) ** 2
+    var = r.total_se("absorbed", 1.0, DHI) ** 2
     sky_p = SegmentEstimator(fs, ids, samples=16, bounces=0, **kw).render()  # the sky seen directly
     var_sky = (DHI * sky_p.se["absorbed_sky"]) ** 2
 

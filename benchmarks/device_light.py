@@ -114,7 +114,7 @@ def _render(fs, ids, seed: int):
     kw = dict(direct="projection", direct_rays_per_m2=rays)
     r = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=seed, **kw).render()
     v = r.total("absorbed", 1.0, 0.3)
-    return v, r.relative_se() * np.abs(v)
+    return v, r.total_se()
 
 
 def _cotangent(n: int) -> dict:

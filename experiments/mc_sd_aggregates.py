@@ -92,7 +92,7 @@ def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
         x = r.total("absorbed", dni, dhi)
         sd_without = np.hypot(dni * r.se["absorbed_sun"], dhi * r.se["absorbed_sky"])
         with np.errstate(divide="ignore", invalid="ignore"):  # segments without light: SD 0, ratio NaN
-            sd_with = np.where(x != 0, r.relative_se("absorbed", dni, dhi) * np.abs(x), 0.0)
+            sd_with = r.total_se("absorbed", dni, dhi)
             ratio = sd_without / sd_with
         x_rep = dni * reps["absorbed_sun"] + dhi * reps["absorbed_sky"]  # (S, R)
 

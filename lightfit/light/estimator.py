@@ -176,14 +176,16 @@ class Irradiance:
         """``part`` on the front side only (blades: the upper side; stems: the outer side)."""
         return self.meta["front"][part]
 
-    def relative_se(self, part: str = "absorbed", dni: float = 1.0, dhi: float = CLEAR_DAY_DHI_PER_DNI) -> np.ndarray:
-        """Relative standard error of ``total(part, dni, dhi)``, with the sun–sky covariance
+    def total_se(self, part: str = "absorbed", dni: float = 1.0, dhi: float = CLEAR_DAY_DHI_PER_DNI) -> np.ndarray:
+        """Standard error of ``total(part, dni, dhi)``, in its units, with the sun–sky covariance
         (:attr:`cov`; parts treated as independent where it is missing)."""
-        v = self.total(part, dni, dhi)
         var = (dni * self.se[f"{part}_sun"]) ** 2 + (dhi * self.se[f"{part}_sky"]) ** 2
-        var = var + 2 * dni * dhi * self.cov.get(part, 0.0)
-        se = np.sqrt(np.maximum(var, 0.0))
-        return np.divide(se, np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
+        return np.sqrt(np.maximum(var + 2 * dni * dhi * self.cov.get(part, 0.0), 0.0))
+
+    def relative_se(self, part: str = "absorbed", dni: float = 1.0, dhi: float = CLEAR_DAY_DHI_PER_DNI) -> np.ndarray:
+        """:meth:`total_se` ÷ |``total(part, dni, dhi)``| (inf where the total is 0)."""
+        v = self.total(part, dni, dhi)
+        return np.divide(self.total_se(part, dni, dhi), np.abs(v), out=np.full_like(v, np.inf), where=v != 0)
 
 
 def samples_used(samples: int) -> int:
