@@ -587,11 +587,11 @@ def concat_days(parts: list) -> xr.Dataset:
     out["converged"] = out["converged"].astype(bool)
     # Each day allocates adaptive sampling at its own highest sun: every day's point, in order.
     per_day = [k for k in parts[0].attrs if k.startswith("allocation_")]
-    t_g = {p.attrs.get("growth_temperature_c") for p in parts}
-    if len(t_g) > 1:  # "series": each day's own, listed like the dates
-        per_day.append("growth_temperature_c")
+    temperatures = ("growth_temperature_c", "growth_temperature_applied_c")
+    # "series": each day's own, listed like the dates
+    per_day += [k for k in temperatures if len({p.attrs.get(k) for p in parts}) > 1]
     for k in ("date", "window", "target_date", *per_day):
-        out.attrs[k] = "; ".join(f"{p.attrs[k]:.3g}" if k == "growth_temperature_c" else str(p.attrs[k]) for p in parts)
+        out.attrs[k] = "; ".join(f"{p.attrs[k]:.3g}" if k in temperatures else str(p.attrs[k]) for p in parts)
     return schema.annotate(out)
 
 

@@ -71,9 +71,12 @@ def run_label(attrs) -> str:
     notes = [] if profile == "uniform" else [f"{profile} profile" if profile in PROFILES else f"kn {profile}"]
     t_g, own = attrs.get("growth_temperature_c"), ACCLIMATING_SETS.get(attrs.get("photosynthesis"))
     if t_g is not None and own is not None:
-        text = t_g if isinstance(t_g, str) else f"{float(t_g):.3g}"  # several days: "9.3; 13.1"
+        text, applied = (
+            v if isinstance(v, str) else f"{float(v):.3g}"
+            for v in (t_g, attrs.get("growth_temperature_applied_c", t_g))
+        )  # several days: "9.3; 13.1"
         if text != f"{own:.3g}":
-            notes.append(f"T_g {text} °C")
+            notes.append(f"T_g {text} °C" + ("" if applied == text else f", acting as {applied} °C"))
     ps = f"photosynthesis {attrs.get('photosynthesis')}" + (f" ({', '.join(notes)})" if notes else "")
     # results written before the setting had CPlantBox's plants, all facing the same way
     aligned = ", aligned plants" if attrs.get("headings", "aligned") == "aligned" else ""

@@ -254,6 +254,13 @@ def test_several_days_list_each_days_growth_temperature():
     both = rep.concat_days([part("2016-04-20", 9.2875), part("2016-05-20", 13.104166666)])
     assert both.attrs["growth_temperature_c"] == "9.29; 13.1"
     assert "T_g 9.29; 13.1 °C" in run_label(both.attrs)
+    # The fits clamp T_g to 11–35 °C (KATTGE_KNORR_RANGE_C): the value applied is listed and named too.
+    applied = [part("2016-04-20", 9.2875), part("2016-05-20", 13.104166666)]
+    for p, t in zip(applied, (11.0, 13.104166666)):
+        p.attrs["growth_temperature_applied_c"] = t
+    both = rep.concat_days(applied)
+    assert both.attrs["growth_temperature_applied_c"] == "11; 13.1"
+    assert "T_g 9.29; 13.1 °C, acting as 11; 13.1 °C" in run_label(both.attrs)
     same = rep.concat_days([part("2016-04-20", 15.0), part("2016-05-20", 15.0)])
     assert same.attrs["growth_temperature_c"] == 15.0 and "T_g" not in run_label(same.attrs)
 

@@ -145,7 +145,7 @@ def test_results_carry_the_profile_computed_from_the_grown_plants(weather_quick)
     np.testing.assert_allclose(got[is_blade], [expect[i] for i in ds["segment"].values[is_blade]], rtol=1e-12)
     assert np.isnan(got[~is_blade]).all()
     assert ds.attrs["vcmax_profile"] == "lloyd2010" and ds.attrs["kn_per_lai"] == pytest.approx(kn_lloyd2010(100.0))
-    assert ds.attrs["growth_temperature_c"] == 15.0  # winter_wheat's own
+    assert ds.attrs["growth_temperature_c"] == ds.attrs["growth_temperature_applied_c"] == 15.0  # winter_wheat's own
     np.testing.assert_allclose(ds["capacity_factor"].values[is_blade], np.exp(-ds.attrs["kn_per_lai"] * got[is_blade]))
     assert ds["capacity_factor"].attrs["units"] == "1" and ds["leaf_area_above"].attrs["units"] == "m2 m-2"
     # Summed over the canopy (every blade measured in a periodic cell) the profile integrates

@@ -35,7 +35,7 @@ from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denomina
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
 from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, profile_for
-from lightfit.photosynthesis.parameters import growth_temperature
+from lightfit.photosynthesis.parameters import growth_temperature, kattge_knorr_growth_temperature
 from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
 from lightfit.progress import progress_bar
@@ -372,7 +372,11 @@ class CoupledModel:
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
             "vcmax_profile": str(profile_for(sc.vcmax_profile, sc.photosynthesis)),
-            **({} if t_g is None else {"growth_temperature_c": t_g}),
+            **(
+                {}
+                if t_g is None
+                else {"growth_temperature_c": t_g, "growth_temperature_applied_c": kattge_knorr_growth_temperature(t_g)}
+            ),
             "kn_per_lai": self.kn,
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,
