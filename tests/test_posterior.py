@@ -140,6 +140,7 @@ def test_a_resume_with_other_initial_positions_or_moves_is_refused(tmp_path):
     with pytest.raises(InputError, match="other initial positions") as e:
         P.sample(Gauss(), NAMES, tmp_path / "run.h5", max_steps=10, initial=_init(seed=4), **kw)
     assert e.value.column == "initial" and e.value.file == tmp_path / "run.h5"
+    assert "--no-resume" in str(e.value)  # the command line's way to start again, beside the library's
     with pytest.raises(InputError, match=r"other moves .*StretchMove") as e:
         P.sample(Gauss(), NAMES, tmp_path / "run.h5", max_steps=10, moves=emcee.moves.StretchMove(), **kw)
     assert e.value.column == "moves"

@@ -134,7 +134,9 @@ def _sample(
             f"{path} holds a run over {list(stored[0])} with {stored[1]} walkers",
             file=path,
             column="names",
-            expected=f"the same names {list(names)} and nwalkers={nwalkers}, or resume=False",
+            expected=(
+                f"the same names {list(names)} and nwalkers={nwalkers}, or --no-resume (resume=False) to start again"
+            ),
         )
     if moves is None:
         moves = default_moves() if stored is None else _own_moves(path, group)
@@ -307,14 +309,14 @@ def _check_resumed(path: Path, group: str, initial, moves) -> None:
             "the run there started from other initial positions; a resumed run continues from its last stored step",
             file=path,
             column="initial",
-            expected="the run's own initial positions (or none) to resume, or resume=False to start again",
+            expected="the run's own initial positions (or none), or --no-resume (resume=False) to start again",
         )
     if stored_moves is not None and json.loads(stored_moves) != describe_moves(moves):
         raise InputError(
             f"the run there was sampled with other moves ({json.loads(stored_moves)} → {describe_moves(moves)})",
             file=path,
             column="moves",
-            expected="the run's own moves to resume, or resume=False to start again",
+            expected="the run's own moves to resume, or --no-resume (resume=False) to start again",
         )
 
 
