@@ -54,7 +54,9 @@ def test_cplantbox_questionable_cases_are_documented():
     1. Leaf segments without blade area (the sheath part of each leaf) return An = gs = ci
        = 0 whatever the light, e.g. PAR 2000, 20 °C, 400 ppm: no assimilation and no
        respiration. 2. Where cs ≤ Γ' (e.g. 45 °C, 250 ppm with the giraud2023 set) its
-       gs = g0 + a1·fw·(An + Rd)/(ci − Γ') divides by zero and is inf.
+       gs = g0 + a1·fw·(An + Rd)/(ci − Γ') divides by zero and is inf. 3. That gs is a diagnostic
+       of the gross rate: gs·(cs − ci) is An + Rd, not An (a review's finding), in CPlantBox and
+       in lightfit alike, so it is not the conductance that carries the net CO2 flux.
     """
     import plantbox as pb
     from plantbox.functional.Photosynthesis import PhotosynthesisPython
@@ -92,6 +94,15 @@ def test_cplantbox_questionable_cases_are_documented():
     mine = ps.solve(2000.0, 45.0, 250.0, 0.6, 101.325, g, fw=peer.fw[0])
     assert float(mine.an_umol_m2_s) == pytest.approx(peer.an_umol_m2_s[0], rel=1e-3)
     assert float(mine.gs_mol_m2_s) == pytest.approx(float(g.stomata.g0_mol_m2_s))
+
+    for name in ("cplantbox", "giraud2023"):  # PAR 1 500, 25 °C, 80 ppm, no boundary layer: cs = ca
+        g = ps.parameter_set(name)
+        peer = run_cplantbox([1500.0], [25.0], [80.0], g)
+        mine = ps.solve(1500.0, 25.0, 80.0, 0.6, 101.325, g, fw=peer.fw[0])
+        flux = float(mine.gs_mol_m2_s) * (80.0 - float(mine.ci_umol_mol))
+        assert flux == pytest.approx(float(mine.an_umol_m2_s + mine.rd_umol_m2_s), rel=0.01)
+        assert abs(flux - float(mine.an_umol_m2_s)) > 0.8  # Rd: 0.85 and 14.1 µmol m⁻² s⁻¹
+        assert peer.gs_mol_m2_s[0] * (80.0 - peer.ci_umol_mol[0]) == pytest.approx(flux, rel=1e-3)
 
 
 @pytest.mark.parametrize("o2", [20.0, 105.0])

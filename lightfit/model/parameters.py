@@ -15,7 +15,9 @@ name                      domain       default  meaning
 
 ``vcmax_scale`` scales the leaf's photosynthetic capacity: every photosynthesis set gives Jmax_ref
 and Rd_ref as ratios to Vcmax_ref (``jmax_to_vcmax``, ``rd_to_vcmax``), so all three move together
-(at night An moves through Rd alone; in low light through Jmax).
+(at night and in low light, below ≈ 150 µmol m⁻² s⁻¹ absorbed, An moves mainly through Rd and falls
+as the scale rises, since J ≈ αQ there whatever Jmax is; in stronger light it rises through Jmax and
+Vcmax).
 
 The leaf names come from :data:`lightfit.light.bsdf.LEAF_PARAMETERS` (the leaf model owns
 them). The leaf defaults are the default leaf optics' (``Optics.preset("prospect")``: the

@@ -181,7 +181,11 @@ VARIABLES: dict[str, Variable] = {
         _LEAF_AREA + "; Jensen bias (negative where An saturates), not subtracted from leaf_an",
     ),
     "leaf_gs_mol_m2_s": Variable(
-        TS, "mol m-2 s-1", "stomatal conductance to CO2", _LEAF_AREA + "; x 1.6 for water vapour (Medlyn et al. 2011)"
+        TS,
+        "mol m-2 s-1",
+        "stomatal conductance to CO2",
+        _LEAF_AREA + "; x 1.6 for water vapour (Medlyn et al. 2011); with the cplantbox and giraud2023 sets CPlantBox's"
+        " diagnostic from the gross rate (gs (cs - ci) = An + Rd, docs/photosynthesis.md)",
     ),
     "leaf_ci_umol_mol": Variable(TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only"),
     "leaf_vc_umol_m2_s": Variable(

@@ -368,7 +368,7 @@ MAX_PAR_ABS_UMOL_M2_S = 1e4
 _INPUT_RANGES = {
     "par_abs_umol_m2_s": (0.0, MAX_PAR_ABS_UMOL_M2_S, "absorbed PAR in [0, 1e4] µmol m-2 s-1"),
     "tleaf_c": (-50.0, 60.0, "leaf temperature in [-50, 60] °C"),
-    "co2_umol_mol": (1e-3, 1e5, "CO2 mole fraction in (0, 1e5] µmol mol-1 (ppm)"),
+    "co2_umol_mol": (1e-3, 1e5, "CO2 mole fraction in [1e-3, 1e5] µmol mol-1 (ppm)"),
     "vpd_kpa": (0.0, 20.0, "vapour pressure deficit in [0, 20] kPa"),
     "pair_kpa": (10.0, 200.0, "air pressure in [10, 200] kPa"),
     "gb_mol_m2_s": (1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1 (inf: none)"),

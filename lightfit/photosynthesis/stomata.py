@@ -52,10 +52,10 @@ def vapour_pressure_deficit_kpa(t_c: ArrayLike, rh: ArrayLike) -> jax.Array:
 
 
 def water_stress_factor(
-    psi_leaf_hpa: ArrayLike,
+    psi_leaf_cm: ArrayLike,
     fwr: ArrayLike = 9.308e-2,
-    sh_per_hpa: ArrayLike = 3.765e-4,
-    p_crit_hpa: ArrayLike = -7500.0,
+    sh_per_cm: ArrayLike = 3.765e-4,
+    p_crit_cm: ArrayLike = -7500.0,
     cutoff: ArrayLike = 0.0,
 ) -> jax.Array:
     r"""Stomatal water-stress factor fw [-] from leaf water potential.
@@ -65,22 +65,23 @@ def water_stress_factor(
 
     fw = 1 at ψ_l = 0 (no water limitation, the reference paper's assumption). A positive ψ_l (not
     a leaf water potential) counts as 0, so fw ≤ 1; the logistic is taken in its stable form, so
-    that value and gradient stay finite at any ψ_l (the exponential overflowed below ≈ −1.9e6 hPa,
+    that value and gradient stay finite at any ψ_l (the exponential overflowed below ≈ −1.9e6 cm,
     a NaN gradient).
 
     Args:
-        psi_leaf_hpa: leaf (guard-cell) water potential [hPa], ≤ 0.
+        psi_leaf_cm: leaf (guard-cell) water potential as pressure head [cm of water], ≤ 0, as
+            CPlantBox gives it (1 cm ≈ 0.981 hPa).
         fwr: residual opening under water stress [-] (Corso et al. 2020 fit).
-        sh_per_hpa: sensitivity s_h [hPa⁻¹].
-        p_crit_hpa: water potential of half closure p_crit [hPa].
+        sh_per_cm: sensitivity s_h [cm⁻¹].
+        p_crit_cm: water potential of half closure p_crit [cm of water].
         cutoff: f_cut [-].
 
     Reference: Tuzet et al. (2003), Plant Cell Environ. 26:1097, eq. 6; parameters and
     residual term of CPlantBox ``loopCalcs``.
     """
-    psi = jnp.minimum(psi_leaf_hpa, 0.0)
+    psi = jnp.minimum(psi_leaf_cm, 0.0)
     # 1 / (1 + e^{s(p_crit - ψ)}) = sigmoid(s(ψ - p_crit))
-    shape = (1.0 + jnp.exp(sh_per_hpa * p_crit_hpa)) * jax.nn.sigmoid(sh_per_hpa * (psi - p_crit_hpa))
+    shape = (1.0 + jnp.exp(sh_per_cm * p_crit_cm)) * jax.nn.sigmoid(sh_per_cm * (psi - p_crit_cm))
     return fwr + jnp.maximum(0.0, (1.0 - fwr) * shape - cutoff)
 
 
