@@ -15,6 +15,7 @@ the run went on to exit 0 (jax-ml/jax#18246, python/cpython#95959).
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import sys
@@ -47,12 +48,25 @@ def interrupts_kept() -> Iterator[None]:
             previous(unraisable)
 
     sys.unraisablehook, _dropped = hook, False
+    callback_log = logging.getLogger(JAX_CALLBACK_LOGGER)
+    callback_log.addFilter(_not_an_interrupt)
     try:
         yield
         raise_dropped_interrupt()
     finally:
         # Not left for a later kill point outside the block (another call in the same process)
         sys.unraisablehook, _dropped = previous, False
+        callback_log.removeFilter(_not_an_interrupt)
+
+
+#: The logger on which JAX reports a host callback's exception, with its traceback, before it
+#: raises it again to the caller ("jax.pure_callback failed"; jax/_src/callback.py).
+JAX_CALLBACK_LOGGER = "jax._src.callback"
+
+
+def _not_an_interrupt(record: logging.LogRecord) -> bool:
+    """False for a log record of a KeyboardInterrupt: the Ctrl-C is the caller's to report, once."""
+    return not (record.exc_info and isinstance(record.exc_info[1], KeyboardInterrupt))
 
 
 def raise_dropped_interrupt() -> None:

@@ -984,3 +984,20 @@ def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):
     other.write_text(json.dumps({"names": ["a"]}))
     r = runner.invoke(app, ["replicate", "--quick", "--theta", str(other), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "other.json: option --theta: unknown parameter(s) ['names']" in _flat(r.stderr)
+
+
+def test_ctrl_c_inside_a_render_exits_130_on_one_line(tmp_path, monkeypatch, caplog):
+    """Ctrl-C while Mitsuba renders (inside the JAX host callback of lightfit.light.bridge): exit
+    130 and the interrupt line, without the traceback JAX logs for the callback's exception
+    ("jax.pure_callback failed", ≈ 40 lines on stderr before the interrupt line; pytest captures
+    logs, hence caplog) and without the re-raised error's (tests/test_interrupts.py)."""
+    from lightfit.light.estimator import SegmentEstimator
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(SegmentEstimator, "render", interrupted)
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 130, r.output
+    assert " ".join(r.stderr.split()) == "interrupted: rerun the command to start it again", r.stderr
+    assert "pure_callback failed" not in caplog.text and "KeyboardInterrupt" not in caplog.text

@@ -55,6 +55,12 @@ def _app():
         f(jnp.float32(1.0)).block_until_ready()
 
     @app.command()
+    def wrapped_as_value_error():
+        # What `lightfit replicate` raised at a real Ctrl-C during a render (jax 0.10's eager
+        # pure_callback; a SIGINT's timing is not reproducible in a test): its text, as a ValueError.
+        raise ValueError("INTERNAL: CpuCallback error calling callback: Traceback …\nKeyboardInterrupt: ")
+
+    @app.command()
     def fails():
         f = jax.jit(lambda x: jax.pure_callback(lambda _: 1 / 0, jax.ShapeDtypeStruct((), jnp.float32), x))
         f(jnp.float32(1.0)).block_until_ready()
@@ -62,7 +68,7 @@ def _app():
     return app
 
 
-@pytest.mark.parametrize("command", ["dropped", "wrapped"])
+@pytest.mark.parametrize("command", ["dropped", "wrapped", "wrapped-as-value-error"])
 def test_commands_end_interrupted_with_status_130(command):
     """Both exited as if nothing happened (0) or with ~60 lines of XLA traceback (1)."""
     r = CliRunner().invoke(_app(), [command])

@@ -69,9 +69,11 @@ class LightfitGroup(TyperGroup):
         except KeyboardInterrupt:  # Ctrl-C
             stop()
         except Exception as err:
-            # Ctrl-C inside a JAX host callback (a render called from a traced loss) reaches here
-            # wrapped in XLA's runtime error, which printed some 60 lines of traceback.
-            if type(err).__name__ == "JaxRuntimeError" and "KeyboardInterrupt" in str(err):
+            # Ctrl-C inside a JAX host callback (a render) reaches here as the callback's error,
+            # which printed some 60 lines of traceback: a JaxRuntimeError from a traced loss, a
+            # ValueError of the same text from `replicate`'s eager call (a real SIGINT, jax 0.10).
+            text = str(err)
+            if isinstance(err, (RuntimeError, ValueError)) and "CpuCallback" in text and "KeyboardInterrupt" in text:
                 stop()
             raise
 
