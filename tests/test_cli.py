@@ -299,6 +299,8 @@ def test_weather_provenance_option_labels_a_file_that_does_not_say(tmp_path):
         ("calibrate", ["OBS", "--method", "newton"], ["method", "newton", "lbfgsb"]),
         ("calibrate", ["OBS", "--use", "co2"], ["use", "co2"]),
         ("calibrate", ["OBS", "--parameters", "shininess"], ["unknown parameter", "shininess"]),
+        ("calibrate", ["OBS", "--parameters", "specular,specular"], ["['specular'] given more than once"]),
+        ("calibrate", ["OBS", "--start", "specular=0.4,specular=0.6"], ["--start", "specular given more than once"]),
         ("calibrate", ["OBS", "--start", "glossiness=1"], ["start", "glossiness"]),
         ("replicate", ["--theta", "glossiness=1"], ["theta", "glossiness"]),
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
@@ -984,6 +986,23 @@ def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):
     other.write_text(json.dumps({"names": ["a"]}))
     r = runner.invoke(app, ["replicate", "--quick", "--theta", str(other), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "other.json: option --theta: unknown parameter(s) ['names']" in _flat(r.stderr)
+    # Files that hold no parameters, and repeated names, are refused naming the file or option (a
+    # list gave an AttributeError traceback, Latin-1 bytes a UnicodeDecodeError, a folder "Is a
+    # directory"; a repeated name took its last value).
+    (tmp_path / "list.json").write_text("[0.5, 0.4]")
+    (tmp_path / "latin1.json").write_bytes(b'{"specular": 0.5, "caf\xe9": 1}')
+    (tmp_path / "theta_list.json").write_text(json.dumps({"theta": [0.5]}))
+    (tmp_path / "folder").mkdir()
+    for value, words in (
+        (str(tmp_path / "list.json"), ["list.json", "--theta", "holds a JSON list"]),
+        (str(tmp_path / "latin1.json"), ["latin1.json", "--theta", "not JSON"]),
+        (str(tmp_path / "theta_list.json"), ["theta_list.json", "its theta is a JSON list"]),
+        (str(tmp_path / "folder"), ["folder", "--theta", "cannot be read"]),
+        (str(tmp_path / "missing.json"), ["--theta", "no file", "missing.json"]),
+        ("specular=0.5,specular=0.6", ["--theta", "specular given more than once"]),
+    ):
+        r = runner.invoke(app, ["replicate", "--quick", "--theta", value, "--out", str(tmp_path / "o")])
+        assert_user_error(r, *words)
 
 
 def test_ctrl_c_inside_a_render_exits_130_on_one_line(tmp_path, monkeypatch, caplog):

@@ -236,29 +236,45 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     if not theta:
         return {}
     p = Path(theta)
+    expected = "a calibration.json, a posterior's summary.json or a JSON object of parameter values"
     if p.exists():
         try:
             data = json.loads(p.read_text())
-        except json.JSONDecodeError as err:
-            raise InputError(f"not JSON: {err}", file=p, expected="a calibration.json") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise InputError(f"not JSON: {err}", file=p, column=option, expected=expected) from None
+        except OSError as err:  # a folder, an unreadable file
+            raise InputError(f"cannot be read ({err.strerror})", file=p, column=option, expected=expected) from None
+        if not isinstance(data, dict):
+            raise InputError(f"holds a JSON {type(data).__name__}", file=p, column=option, expected=expected)
         values = data.get("theta", data)
         if "x_map" in data:  # a posterior's summary: its MAP (the sampled model parameters)
             values = {k: v for k, v in data["x_map"].items() if k in BOUNDS}
+        if not isinstance(values, dict):
+            raise InputError(f"its theta is a JSON {type(values).__name__}", file=p, column=option, expected=expected)
         try:
             return check_theta(values, what="theta")
         except InputError as err:
             raise err.in_file(p) from None  # check_theta names column 'theta'
+    if "=" not in theta:  # neither pairs nor an existing file
+        raise InputError(
+            f"no file {theta!r}",
+            column=option,
+            expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
+        )
     out = {}
     for item in theta.split(","):
         k, _, v = item.partition("=")
         try:
-            out[k.strip()] = float(v)
+            value = float(v)
         except ValueError:
             raise InputError(
                 f"cannot read parameter {item!r}",
                 column=option,
                 expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
             ) from None
+        if k.strip() in out:
+            raise InputError(f"{k.strip()} given more than once", column=option, expected="each parameter once")
+        out[k.strip()] = value
     return check_theta(out, what=option)
 
 

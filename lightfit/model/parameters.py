@@ -104,11 +104,14 @@ class Theta(eqx.Module):
 
 
 def check_names(names, *, what: str = "parameters") -> tuple[str, ...]:
-    """``names`` as a tuple, or :class:`InputError` naming the unknown ones."""
+    """``names`` as a tuple, or :class:`InputError` naming the unknown or repeated ones."""
     names = tuple(names)
     unknown = [n for n in names if n not in BOUNDS]
     if unknown:
         raise InputError(f"unknown parameter(s) {unknown}", column=what, expected=", ".join(NAMES))
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise InputError(f"parameter(s) {repeated} given more than once", column=what, expected="each name once")
     return names
 
 
