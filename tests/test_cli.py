@@ -305,6 +305,8 @@ def test_weather_provenance_option_labels_a_file_that_does_not_say(tmp_path):
         ("replicate", ["--theta", "glossiness=1"], ["theta", "glossiness"]),
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
         ("posterior", ["--samples", "0"], ["samples"]),
+        ("posterior", ["--parameters", "noise_scale"], ["no model parameter", "specular"]),  # crashed after sampling
+        ("posterior", ["--sampler-seed", "-1"], ["--sampler-seed", "greater than or equal"]),  # numpy: ValueError
         ("replicate", ["--samples", "50"], ["samples=50", "48 or 56"]),  # 8 replicates × 7 = 56 would run
         ("replicate", ["--out", "run/results.nc"], ["--out is the folder", "field-run"]),
         ("field-run", ["--steps", "0"], ["steps"]),

@@ -41,7 +41,7 @@ def posterior(
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
     max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),
-    sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
+    sampler_seed: int = typer.Option(0, "--sampler-seed", min=0, help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(
         None,
         # 20: lightfit.model.emulator.DESIGN_SIZE, not imported here (JAX); tests/test_cli.py checks it

@@ -185,6 +185,12 @@ def check_sampled(names, priors: dict[str, Prior]) -> tuple[str, ...]:
         raise InputError(f"unknown parameter(s) {unknown}", column="parameters", expected=", ".join(SAMPLED))
     if len(set(names)) != len(names):
         raise InputError(f"duplicate parameter names {list(names)}", column="parameters", expected="each name once")
+    if not set(names) - {NOISE_SCALE}:  # a posterior of the noise alone answers no question about the model
+        raise InputError(
+            f"no model parameter among {list(names)}",
+            column="parameters",
+            expected=f"one or more of {', '.join(NAMES)}",
+        )
     missing = [n for n in names if n not in priors]
     if missing:
         raise InputError(f"no prior for {missing}", column="priors", expected="a Prior for every sampled parameter")

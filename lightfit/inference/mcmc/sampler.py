@@ -47,7 +47,7 @@ class SamplerResult:
     refused: int = 0
 
 
-def check_run_size(ndim: int, nwalkers: int, max_steps: int) -> None:
+def check_run_size(ndim: int, nwalkers: int, max_steps: int, seed: int = 0) -> None:
     """emcee's red-blue moves (stretch, differential evolution) need an even number of walkers, at
     least two per parameter, and differential evolution a pair of walkers in the other half (four
     at least); a run needs a step. :class:`InputError` naming the value otherwise (before anything is
@@ -60,6 +60,7 @@ def check_run_size(ndim: int, nwalkers: int, max_steps: int) -> None:
             f"nwalkers={nwalkers}", column="nwalkers", expected=f"an even number ≥ max(2·ndim, 4) = {least}"
         )
     check_integer(max_steps, "max_steps", 1)
+    check_integer(seed, "seed", 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
 
 
 def sample(
@@ -101,7 +102,7 @@ def sample(
             refused. Callables inside a move are described by name only.
     """
     names = tuple(names)
-    check_run_size(len(names), nwalkers, max_steps)
+    check_run_size(len(names), nwalkers, max_steps, seed)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with writer_lock(path):
