@@ -87,7 +87,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import BY_NAME, read_observations
+    from lightfit.inference.observations import read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -258,8 +258,7 @@ def calibrate(
     if tr is not None:
         search.update({n: (lo[i], hi[i]) for i, n in enumerate(E.LEAF_PARAMETERS) if n in names})
     support = {n: p.support for n, p in box.items()}
-    n_values = int(sum(obs[BY_NAME[u].value].notna().sum() for u in uses))
-    for line in fit_cautions(res.theta, names, res.loss, n_values, search, support):
+    for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):
         caution(line)
     # The same model (field, days, window, light settings) and these observations, at the fit.
     again = ["lightfit", "replicate", *model.args(), "--theta", str(out / "calibration.json")]

@@ -231,6 +231,8 @@ class CalibrationResult:
             (the leaf photosynthesis did not converge at the start) or ``"against unconverged: θ"``
             (BFGS's steps shrank against a region where it does not converge, the gradient not small).
         reason: the same as a sentence with the numbers (tolerances, counts).
+        n_observations: the likelihood's entries (readings in one model step are one entry, their
+            inverse-variance mean): the n of χ²/(n − k).
     """
 
     theta: dict[str, float]
@@ -243,6 +245,7 @@ class CalibrationResult:
     history: Path | None
     seconds: float
     reason: str = ""
+    n_observations: int = 0
 
     @property
     def converged(self) -> bool:
@@ -692,6 +695,7 @@ def calibrate(
         hist,
         time.perf_counter() - t0,
         why,
+        loss.n_observations,
     )
 
 
