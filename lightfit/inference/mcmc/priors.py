@@ -59,6 +59,8 @@ class Prior:
         """Log density (up to a constant) at x; −inf outside the support. JAX-traceable."""
         lo, hi = self.support
         inside = (x >= lo) & (x <= hi)
+        if self.kind != "uniform":  # densities in log x: 0 itself is outside (the log-normal gave NaN there)
+            inside = inside & (x > 0)
         if self.kind == "uniform":
             val = jnp.zeros_like(x)
         elif self.kind == "loguniform":
