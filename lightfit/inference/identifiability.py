@@ -103,8 +103,9 @@ def profile_likelihood(
     and w (orthogonal to d) is optimised (scipy BFGS with JAX gradients, warm-started from the
     neighbouring t). ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points
     where ``nll`` may be evaluated, e.g. an emulator's box: outside it the objective is +∞, so the
-    line search steps back (the slice itself is evaluated wherever the line goes). Returns ``(ts,
-    profile, slice)``: the profiled and the plain-slice nll.
+    line search steps back; the profile is +∞ at an offset with no allowed point (the slice itself
+    is evaluated wherever the line goes, and counts for the profile only where allowed). Returns
+    ``(ts, profile, slice)``: the profiled and the plain-slice nll.
     """
     from scipy.optimize import minimize
 
@@ -133,9 +134,14 @@ def profile_likelihood(
     order = np.argsort(np.abs(ts))
     w = np.zeros(basis.shape[1])
     last = {}
+
+    def slice_allowed(t) -> bool:
+        return allowed is None or bool(allowed(to_x(jnp.asarray(u0 + t * d))))
+
     for i in order:
         t = ts[i]
         slc[i] = float(f_j(jnp.zeros(basis.shape[1]), t))
+        on_slice = slc[i] if slice_allowed(t) else np.inf  # an extrapolation is no profile value
         # warm start from the nearest already-solved offset on the same side
         near = [j for j in last if np.sign(ts[j]) == np.sign(t) or ts[j] == 0]
         w0 = last[min(near, key=lambda j: abs(ts[j] - t))] if near else w
@@ -148,9 +154,9 @@ def profile_likelihood(
         if basis.shape[1]:
             r = minimize(fun, w0, jac=True, method="BFGS", options={"maxiter": maxiter, "gtol": 1e-6})
             last[i] = r.x
-            prof[i] = min(r.fun, slc[i]) if r.fun < 1e30 else slc[i]  # 1e30: nowhere finite
+            prof[i] = min(r.fun, on_slice) if r.fun < 1e30 else on_slice  # 1e30: nowhere finite
         else:
-            prof[i] = slc[i]
+            prof[i] = on_slice
     return ts, prof, slc
 
 
