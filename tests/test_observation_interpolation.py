@@ -114,6 +114,27 @@ def test_a_model_linear_in_time_is_read_exactly_at_the_readings():
     assert float(off.loss(m)) == pytest.approx(0.5 * ((828 * b) ** 2 / 109 + (600 * b) ** 2 / 125), rel=1e-12)
 
 
+def test_means_on_a_run_of_instants_are_read_at_their_centres():
+    """A mean over (10:00, 10:30] against instants at 10:00 and 10:30 meets their average, the
+    trapezoid rule's mean over its interval, exact for a model linear in time; it met the earlier
+    step, the model 15 min before the mean's centre (an inference review: on a morning's rise,
+    200 against a true mean of 300). A 10-min mean ending 10:50 is read at 10:45."""
+    end30, end10 = Timestamps("end", pd.Timedelta("30min")), Timestamps("end", pd.Timedelta("10min"))
+    a, b = 1500.0, 0.05
+    s = np.array([3.0, 4.0, 5.0, 6.0])
+    for stamps, times, centres_s in (
+        (end30, ["2016-04-20 10:30:00", "2016-04-20 11:00:00"], [900.0, 2700.0]),
+        (end10, ["2016-04-20 10:50:00"], [2700.0]),
+    ):
+        obs = _obs(times, a + b * np.array(centres_s), [10.0] * len(times))
+        obs.attrs["timestamps"] = stamps
+        nb, w = interpolation(obs, STEPS)[PAR.value]
+        assert np.count_nonzero(w) == len(times) and np.all(w[w > 0] == 0.5)
+        lik = GaussianLikelihood(obs, STEPS, ("above_canopy_par",))
+        assert lik.interpolated and "interpolated linearly in time" in observation_matching(obs, STEPS, INSTANTS)
+        assert float(lik.loss(_linear_model(a, b, s))) == pytest.approx(0.0, abs=1e-20)
+
+
 def test_correlated_monte_carlo_error_is_carried_through_the_interpolation():
     """Σ_MC of the readings = A diag(s) C diag(s) Aᵀ, checked against a draw of the steps' errors;
     log L against scipy on that covariance; gradients finite with and without jit."""

@@ -491,8 +491,11 @@ def interpolation(
     after a step of a 30-min run meets the model 14 min after that step, not the step's light (the
     sun moves ≈ 2 % in PAR in that time in the morning).
 
-    Only instants are interpolated, and only on instants: a run's mean over an interval holds an
-    instant observation in it, and means are matched to means (:func:`align`). No interpolation
+    Only on a run of instants, where means are read at their intervals' centres too: a 30-min mean
+    ending at a step of a 30-min run lies halfway between two steps and meets their average (the
+    trapezoid rule's mean over its interval; it met the earlier step, the model 15 min before the
+    mean's centre). A run's mean over an interval holds an instant observation in it, and means
+    are matched to means (:func:`align`): nothing is interpolated there. No interpolation
     (w_k = 0, n_k = k) where step k has no observation, where t̄_k is step k's time, or where the
     neighbour is missing or further than the run's ``step`` (the run's first and last steps
     outwards, a night or another day between two steps): there the observation meets its nearest
@@ -503,13 +506,14 @@ def interpolation(
     """
     T = len(times)
     out = {s.value: (np.arange(T), np.zeros(T)) for s in SERIES}
-    if T < 2 or timestamps.of(obs).interval is not None or stamps.interval is not None:
+    if T < 2 or stamps.interval is not None:
         return out
     idx, _ = nearest_steps(obs, times, stamps)
     utc = times.tz_convert("UTC")
     t_s = np.asarray((utc - utc[0]).total_seconds(), float)
     step = (timestamps.step_of(times) if step is None else pd.Timedelta(step)).total_seconds()  # 0: none
-    offset_s = np.asarray((obs.index.tz_convert("UTC") - utc[idx]).total_seconds(), float)
+    centres = timestamps.of(obs).centres(obs.index.tz_convert("UTC"))  # instants: their own times
+    offset_s = np.asarray((centres - utc[idx]).total_seconds(), float)
     for s in SERIES:
         nb, w = out[s.value]
         d, _ = _per_step(obs, s, idx, T, offset_s)
