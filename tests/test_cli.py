@@ -735,6 +735,26 @@ def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
 
 
+@pytest.mark.parametrize("command", ["replicate", "calibrate", "posterior"])
+def test_observed_light_off_the_forcings_scale_is_refused_before_running(command, tmp_path):
+    """The chamber record's PAR in mmol m⁻² s⁻¹ (1.549 at 12:13 with the sun at 47°: 10⁻³ of the
+    forcing's ≈ 1 500) was accepted, and calibrate fitted a light factor of 0.001 with a caution (a
+    CLI review); the weather reader refuses the same slip in the forcing. The record as it is, at
+    1.0 × the forcing's PAR, passes (the main job's own run)."""
+    f = tmp_path / "obs_mmol.csv"
+    record = OBSERVATIONS.read_text()
+    f.write_text(record.replace("1549.31,77.47", "1.54931,0.07747"))
+    args = [command, "--quick", "--out", str(tmp_path / "out")]
+    args += ["--observations", str(f)] if command == "replicate" else [str(f)]
+    r = runner.invoke(app, args)
+    assert_user_error(r, "obs_mmol.csv", "above_canopy_par_umol_m2_s", "0.00102 × the forcing's PAR", "mmol")
+    assert not (tmp_path / "out" / "forcing.csv").exists()
+    from lightfit import replication as rep
+    from lightfit.inference.observations import check_light_scale, read_observations
+
+    check_light_scale(read_observations(OBSERVATIONS), rep.forcing())  # the record itself: no error
+
+
 def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_file(tmp_path):
     """--observations names a file the user wants compared: outside the run's steps it is an error
     (the bundled record's own path was dropped silently); only the default record is optional."""

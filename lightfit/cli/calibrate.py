@@ -20,6 +20,7 @@ from lightfit.cli.options import (
     model_options,
     resolve,
     run_model,
+    weather,
 )
 from lightfit.errors import InputError
 from lightfit.files import replace_text
@@ -87,7 +88,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import read_observations
+    from lightfit.inference.observations import check_light_scale, read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -129,6 +130,7 @@ def calibrate(
                     "or --no-surrogate (full renders, the whole domain)",
                 )
     obs = read_observations(observations)
+    check_light_scale(obs, weather(s))  # a unit slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}

@@ -18,6 +18,7 @@ from lightfit.cli.options import (
     model_options,
     resolve,
     run_model,
+    weather,
 )
 from lightfit.errors import InputError
 from lightfit.files import replace_text
@@ -78,7 +79,7 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
-    from lightfit.inference.observations import read_observations
+    from lightfit.inference.observations import check_light_scale, read_observations
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -99,6 +100,7 @@ def posterior(
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     P.check_run_size(len(names), walkers, max_steps)  # before the design is rendered
     obs = read_observations(observations or rep.OBSERVATIONS)
+    check_light_scale(obs, weather(s))  # a unit slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     flat = uninformed(names, uses, bounces=cfg.render_bounces(), par_kind=cfg.par_kind)

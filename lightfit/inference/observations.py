@@ -460,6 +460,46 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     return out
 
 
+#: Observed light series whose daytime values stand in a known proportion to the forcing's PAR
+#: above the canopy: the light above it, at the plants, absorbed by the canopy.
+LIGHT_SERIES = ("above_canopy_par", "plant_par", "canopy_apar")
+#: The range of an observed light series ÷ the forcing's PAR, median over daylight steps, that is
+#: taken for the same unit: below it a value in mmol m⁻² s⁻¹ (10⁻³), above it no PAR of this sky.
+LIGHT_RATIO_RANGE = (0.01, 3.0)
+#: Forcing PAR (µmol m⁻² s⁻¹) from which a step counts as daylight for :func:`check_light_scale`.
+DAYLIGHT_PAR_UMOL_M2_S = 200.0
+
+
+def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
+    """:class:`InputError` naming the observations' file and column where an observed light series
+    (:data:`LIGHT_SERIES`) is not on the forcing's scale: the median, over observations whose
+    nearest step of ``forcing`` (a weather frame with ``par_umol_m2_s``) is daylight, of value ÷
+    forcing PAR outside :data:`LIGHT_RATIO_RANGE`. A file in mmol m⁻² s⁻¹ (a unit slip the weather
+    reader refuses in the forcing) otherwise calibrated a light factor of 0.001 with a caution."""
+    if "par_umol_m2_s" not in forcing.columns or not len(obs):
+        return
+    idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
+    par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
+    near = dist <= np.timedelta64(3600, "s")
+    lo, hi = LIGHT_RATIO_RANGE
+    for name in LIGHT_SERIES:
+        col = BY_NAME[name].value
+        if col not in obs.columns:
+            continue
+        sel = near & (par >= DAYLIGHT_PAR_UMOL_M2_S) & obs[col].notna().to_numpy()
+        if not sel.any():
+            continue
+        ratio = float(np.median(obs[col].to_numpy(float)[sel] / par[sel]))
+        if not lo <= ratio <= hi:
+            raise InputError(
+                f"{name} is {ratio:.3g} × the forcing's PAR above the canopy at the {int(sel.sum())} daylight "
+                f"observation(s) (median)",
+                file=obs.attrs.get("source"),
+                column=col,
+                expected=f"µmol m-2 s-1, {lo:g}–{hi:g} × the forcing's PAR (a value in mmol m-2 s-1 is 10⁻³ of it)",
+            )
+
+
 def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:
     """Per step (``idx``: each row's step): the inverse-variance weighted mean of ``x`` (a column
     or array over the rows) over the rows with a value of series ``s``, weights ``obs[s.sd]⁻²``, and
