@@ -550,7 +550,10 @@ def run(
             other, _ = run(compare, weather_file=weather_file, observations=None, progress=progress, forcing_df=w)
             write_netcdf(other, out / "results_compare.nc")
         plot(ds, out / "replication.png", compare=other)
-        summary(ds).to_csv(out / "summary.csv", float_format="%.4g")
+        table = summary(ds)
+        if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does
+            table = table.rename(columns=lambda c: c.replace("canopy_an_", "canopy_an_per_leaf_area_"))
+        table.to_csv(out / "summary.csv", float_format="%.4g")
     return ds, obs
 
 

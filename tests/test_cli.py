@@ -1042,3 +1042,17 @@ def test_ctrl_c_inside_a_render_exits_130_on_one_line(tmp_path, monkeypatch, cap
     assert r.exit_code == 130, r.output
     assert " ".join(r.stderr.split()) == "interrupted: rerun the command to start it again", r.stderr
     assert "pure_callback failed" not in caplog.text and "KeyboardInterrupt" not in caplog.text
+
+
+def test_an_per_leaf_is_named_in_the_caption_and_the_summary_file(tmp_path):
+    """--an-per leaf: the printed caption said "APAR, An: per ground area" and summary.csv's
+    canopy_an_umol_m2_s could not tell per what (a CLI review); results.nc says it in an_per."""
+    import pandas as pd
+
+    out = tmp_path / "o"
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--an-per", "leaf", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "An: per leaf area" in _flat(r.stdout) and "An: per ground" not in _flat(r.stdout)
+    cols = pd.read_csv(out / "summary.csv").columns
+    assert "canopy_an_per_leaf_area_umol_m2_s" in cols and "canopy_an_umol_m2_s" not in cols
+    assert "canopy_apar_umol_m2_s" in cols  # APAR stays per ground area

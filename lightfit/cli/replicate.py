@@ -122,8 +122,8 @@ def replicate(
         title=f"replication summary ({label} forcing; {field_label(ds.attrs)}; "
         f"model PAR = {s.par_kind}, An per {s.an_per} area)",
         caption="PAR↑: the above-canopy sensor; PARpl: PAR at the plants (± its spread across "
-        "segments); APAR, An: per ground area; ±MC: Monte Carlo SD; light: share of light-limited "
-        "blades; nc: blades whose leaf solve did not converge. µmol m⁻² s⁻¹ unless a share.",
+        f"segments); APAR: per ground area; An: per {s.an_per} area; ±MC: Monte Carlo SD; light: share of "
+        "light-limited blades; nc: blades whose leaf solve did not converge. µmol m⁻² s⁻¹ unless a share.",
         box=box.SIMPLE_HEAD,
         padding=(0, 1),
         pad_edge=False,
