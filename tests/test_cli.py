@@ -306,7 +306,7 @@ def test_weather_provenance_option_labels_a_file_that_does_not_say(tmp_path):
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
         ("posterior", ["--samples", "0"], ["samples"]),
         ("posterior", ["--parameters", "noise_scale"], ["no model parameter", "specular"]),  # crashed after sampling
-        ("posterior", ["--sampler-seed", "-1"], ["--sampler-seed", "greater than or equal"]),  # numpy: ValueError
+        ("posterior", ["--sampler-seed", "-1"], ["--sampler-seed", "-1", "≥ 0"]),  # numpy: ValueError
         ("replicate", ["--samples", "50"], ["samples=50", "48 or 56"]),  # 8 replicates × 7 = 56 would run
         ("replicate", ["--out", "run/results.nc"], ["--out is the folder", "field-run"]),
         ("field-run", ["--steps", "0"], ["steps"]),
@@ -989,6 +989,13 @@ def test_fewer_bounces_than_the_leafs_default_get_a_caution(monkeypatch):
         said.clear()
         resolve(ModelOptions(quick=True, bounces=bounces))
         assert (len(said) == 1 and expected in said[0]) if expected else said == [], (bounces, said)
+    # --quick's 2 bounces under the paper's grey leaf (8 for 1 %) truncate too: said (it was silent)
+    grey = ReplicationConfig.quick().with_preset("paper").leaf_optics()
+    rho = max(sum(lobe_weights(grey.specular, grey.subsurface, grey.base_color)), grey.soil_albedo)
+    said.clear()
+    resolve(ModelOptions(quick=True, preset="paper"))
+    assert len(said) == 1 and said[0].startswith("--quick's 2 bounces") and "(--bounces 8)" in said[0], said
+    assert f"up to {rho**3 / (1 - rho):.1%} of the first-order light" in said[0], said
 
 
 def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):

@@ -713,16 +713,18 @@ def resolve(opts: ModelOptions) -> ModelSettings:
         check_ceptometer_height(s.ceptometer_height_m)
     if s.bounces is not None:  # None: chosen from the leaf
         check_bounces(s.bounces)
-    if opts.bounces is not None:  # asked for: say what fewer orders than the leaf's default leave out
+    if s.bounces is not None:  # asked for, or --quick's: say what fewer orders than the leaf's own leave out
         optics = s.replication_config().leaf_optics()
         own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
-        if opts.bounces < own:
+        if s.bounces < own:
             from lightfit.cli.common import caution
 
+            source = f"--bounces {s.bounces}" if opts.bounces is not None else f"--quick's {s.bounces} bounces"
             caution(
-                f"--bounces {opts.bounces} leaves out the light scattered more often, up to "
-                f"{truncation_bound(opts.bounces, optics):.1%} of the first-order light; this leaf's default, "
+                f"{source} leaves out the light scattered more often, up to "
+                f"{truncation_bound(s.bounces, optics):.1%} of the first-order light; this leaf's default, "
                 f"{own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"
+                + ("" if opts.bounces is not None else f" (--bounces {own})")
             )
     if s.target_rse is not None:
         check_target_rse(s.target_rse)

@@ -20,7 +20,7 @@ from lightfit.cli.options import (
     run_model,
     weather,
 )
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer
 from lightfit.files import replace_text
 
 
@@ -42,7 +42,7 @@ def posterior(
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
     max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),
-    sampler_seed: int = typer.Option(0, "--sampler-seed", min=0, help="Sampler seed (initial walkers and moves)."),
+    sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(
         None,
         # 20: lightfit.model.emulator.DESIGN_SIZE, not imported here (JAX); tests/test_cli.py checks it
@@ -99,6 +99,7 @@ def posterior(
         raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     P.check_run_size(len(names), walkers, max_steps)  # before the design is rendered
+    check_integer(sampler_seed, "sampler_seed", 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
     obs = read_observations(observations or rep.OBSERVATIONS)
     check_light_scale(obs, weather(s))  # a unit slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
