@@ -20,10 +20,21 @@ def test_user_llvm_path_wins_and_is_checked(monkeypatch, tmp_path):
     fake = tmp_path / "libLLVM.so.99"
     fake.write_bytes(b"")
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(fake))
+    monkeypatch.delitem(backend._STATE, "llvm", raising=False)  # as in a fresh process
     assert backend.configure_libllvm() == (str(fake), "user")
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "missing.so"))
+    monkeypatch.delitem(backend._STATE, "llvm", raising=False)
     with pytest.raises(backend.BackendError, match="does not exist"):
         backend.configure_libllvm()
+
+
+def test_the_libllvm_lightfit_found_is_not_reported_as_the_users(monkeypatch):
+    """Importing lightfit sets DRJIT_LIBLLVM_PATH to the libLLVM it found; a later call read that
+    variable back and `lightfit info` said "(user)" (a CLI review). A fresh process, no variable set."""
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    code = "import lightfit; from lightfit.light import backend; print(backend.configure_libllvm()[1])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "lightfit", out
 
 
 def test_variant_precedence(monkeypatch):

@@ -91,8 +91,11 @@ def configure_libllvm() -> tuple[str | None, str | None]:
     """Set ``DRJIT_LIBLLVM_PATH`` unless the user did; return (path, source).
 
     Dr.Jit reads the variable when it is imported: if ``drjit`` was imported before lightfit
-    configured it, a warning says so (the system's libLLVM may then be too old).
+    configured it, a warning says so (the system's libLLVM may then be too old). The first answer
+    is kept: a second call would take the variable lightfit set for the user's own.
     """
+    if "llvm" in _STATE:
+        return _STATE["llvm"]  # type: ignore[return-value]
     user = os.environ.get(ENV_LLVM)
     if "drjit" in sys.modules and not user:
         import warnings
@@ -108,12 +111,13 @@ def configure_libllvm() -> tuple[str | None, str | None]:
             raise BackendError(
                 f"{ENV_LLVM}={user!r} does not exist; unset it or point it at libLLVM >= {MIN_LLVM_MAJOR}"
             )
-        return user, "user"
-    path = find_libllvm()
-    if path is not None:
-        os.environ[ENV_LLVM] = path
-        return path, "lightfit"
-    return None, None
+        _STATE["llvm"] = (user, "user")
+    else:
+        path = find_libllvm()
+        if path is not None:
+            os.environ[ENV_LLVM] = path
+        _STATE["llvm"] = (path, None if path is None else "lightfit")
+    return _STATE["llvm"]  # type: ignore[return-value]
 
 
 def configure_jax_memory() -> None:
@@ -170,8 +174,7 @@ def mitsuba(variant: str | None = None) -> ModuleType:
     """
     if "mi" in _STATE and variant in (None, _STATE["info"].variant):  # type: ignore[union-attr]
         return _STATE["mi"]
-    libllvm, llvm_source = _STATE.get("llvm") or configure_libllvm()  # type: ignore[misc]
-    _STATE["llvm"] = (libllvm, llvm_source)
+    libllvm, llvm_source = configure_libllvm()
     chosen, source = choose_variant(variant)
     if chosen.startswith("llvm") and libllvm is None:
         raise BackendError(
