@@ -263,6 +263,9 @@ def test_camera_sweep_and_file(tmp_path):
     p.write_text(json.dumps([{"positon_m": [1, 1, 1]}]))
     with pytest.raises(InputError, match="unknown key"):
         load_cameras(p)
+    p.write_text(json.dumps({"name": "c"}))  # rendered from the default position before (a CLI review)
+    with pytest.raises(InputError, match="camera #0 has no position_m"):
+        load_cameras(p)
     p.write_text(json.dumps([CAM.to_dict(), CAM.to_dict()]))
     with pytest.raises(InputError, match="duplicate camera name") as err:
         load_cameras(p)

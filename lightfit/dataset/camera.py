@@ -229,7 +229,9 @@ def camera_sweep(sweep: Sweep, centre_m=(0.0, 0.0), canopy_height_m: float = 0.5
 
 
 def load_cameras(path: str | Path) -> list[Camera]:
-    """Read a camera list: a JSON list of :class:`Camera` field dicts (unknown keys are errors)."""
+    """Read a camera list: a JSON list of :class:`Camera` field dicts (or one such dict); each needs
+    ``position_m``, the others default to :class:`Camera`'s (``look_at_m`` the field's centre at
+    0.25 m); unknown keys are errors."""
     path = Path(path)
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
@@ -249,6 +251,10 @@ def load_cameras(path: str | Path) -> list[Camera]:
         if bad:
             raise InputError(
                 f"camera #{i}: unknown key(s) {sorted(bad)}", file=path, expected=f"keys among {sorted(known)}"
+            )
+        if "position_m" not in c:  # where the camera is: no default stands in for it
+            raise InputError(
+                f"camera #{i} has no position_m", file=path, column="position_m", expected="[x, y, z] in metres"
             )
     try:
         cams = [Camera(**{"name": f"cam{i:03d}", **c}) for i, c in enumerate(raw)]
