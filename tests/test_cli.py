@@ -833,6 +833,8 @@ def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path)
         (["replicate", "--quick", "--field-seed", "-1"], "option --field-seed:"),
         (["replicate", "--quick", "--preset", "foo"], "option --preset:"),
         (["replicate", "--quick", "--compare-preset", "foo"], "--compare-preset:"),
+        (["replicate", "--quick", "--compare-preset", "default"], "--compare-preset default is this run's own"),
+        (["replicate", "--quick", "--preset", "paper", "--bounces", "8", "--compare-preset", "paper"], "paper is this"),
         (["weather", "show", "--resample", "7min", "--how", "sample"], "option --resample:"),
         (["weather", "show", "--resample", "bogus"], "option --resample:"),
         (["weather", "show", "--max-gap", "foo"], "option --max-gap:"),

@@ -629,8 +629,9 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return command
 
 
-def resolve(opts: ModelOptions) -> ModelSettings:
-    """Fill the options not given from the main job's configuration (or its ``--quick`` size)."""
+def resolve(opts: ModelOptions, say=None) -> ModelSettings:
+    """Fill the options not given from the main job's configuration (or its ``--quick`` size).
+    ``say``: where cautions about the settings go (default :func:`lightfit.cli.common.caution`)."""
     from lightfit.model.scenario import (
         check_ceptometer_height,
         check_choice,
@@ -720,7 +721,7 @@ def resolve(opts: ModelOptions) -> ModelSettings:
             from lightfit.cli.common import caution
 
             source = f"--bounces {s.bounces}" if opts.bounces is not None else f"--quick's {s.bounces} bounces"
-            caution(
+            (say or caution)(
                 f"{source} leaves out the light scattered more often, up to "
                 f"{truncation_bound(s.bounces, optics):.1%} of the first-order light; this leaf's default, "
                 f"{own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"

@@ -73,6 +73,12 @@ def replicate(
     fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
     cmp = None if compare_preset is None else _comparison(model, compare_preset)
+    if cmp is not None and cmp == cfg:  # a second run of this very configuration: twice the time, one answer
+        raise InputError(
+            f"--compare-preset {compare_preset} is this run's own configuration",
+            column="compare_preset",
+            expected="the other preset (--compare-preset paper for the default run, default for --preset paper)",
+        )
     w = weather(s)
     # read and placed before anything is written; the bundled record by default, where the run reaches it
     obs = rep.observations_for(w, observations or rep.OBSERVATIONS, optional=observations is None)
@@ -222,7 +228,12 @@ def _comparison(model: ModelOptions, preset: str):
     choices = {k: None for k in (*PAPER_PRESET, "direct", "direct_rays_per_m2")}
 
     def make():
-        cfg = resolve(dataclasses.replace(model, preset=preset, **choices)).replication_config()
+        from lightfit.cli.common import caution
+
+        def say(line: str) -> None:  # a caution about the comparison's settings, labelled as its
+            caution(f"--compare-preset {preset}: {line}")
+
+        cfg = resolve(dataclasses.replace(model, preset=preset, **choices), say).replication_config()
         cfg.field()
         return cfg
 
