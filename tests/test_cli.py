@@ -1065,3 +1065,18 @@ def test_an_per_leaf_is_named_in_the_caption_and_the_summary_file(tmp_path):
     cols = pd.read_csv(out / "summary.csv").columns
     assert "canopy_an_per_leaf_area_umol_m2_s" in cols and "canopy_an_umol_m2_s" not in cols
     assert "canopy_apar_umol_m2_s" in cols  # APAR stays per ground area
+
+
+def test_a_thinned_weather_table_says_so():
+    """`weather show` prints every k-th row of a long file: the caption says so (10-minute rows
+    looked like 30-minute data; a CLI review)."""
+    import pandas as pd
+
+    from lightfit.cli.common import weather_table
+
+    t = pd.date_range("2016-04-20", periods=144, freq="10min", tz="UTC")
+    df = pd.DataFrame({"par_umol_m2_s": np.arange(144.0), "tair_c": 10.0}, index=t)
+    thinned = weather_table(df, "w", max_rows=40)
+    assert thinned.row_count == 48 and "1 row in 3 of 144 shown" in str(thinned.caption)
+    whole = weather_table(df.iloc[:30], "w", max_rows=40)
+    assert whole.row_count == 30 and "shown" not in str(whole.caption)

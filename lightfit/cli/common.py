@@ -310,14 +310,16 @@ def samples_label(samples: int, target_rse: float | None) -> str:
 
 
 def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezone) -> Table:
-    """A weather series as a table (every k-th row so that at most ``max_rows`` are shown)."""
-    t = Table(title=title, caption="PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm")
+    """A weather series as a table (every k-th row so that at most ``max_rows`` are shown, which
+    the caption then says)."""
+    step = max(1, len(df) // max_rows)
+    shown = "" if step == 1 else f"; 1 row in {step} of {len(df)} shown"
+    t = Table(title=title, caption=f"PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm{shown}")
     t.add_column("UTC")
     t.add_column(tz.split("/")[-1])
     cols = [c for c in _SHORT if c in df.columns]
     for c in cols:
         t.add_column(_SHORT[c], justify="right")
-    step = max(1, len(df) // max_rows)
     for ts, row in df.iloc[::step].iterrows():
         t.add_row(
             ts.strftime("%m-%d %H:%M"),
