@@ -24,7 +24,7 @@ import xarray as xr
 
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
-from lightfit.files import replaced
+from lightfit.files import is_netcdf, replaced
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
@@ -599,10 +599,6 @@ def concat_days(parts: list) -> xr.Dataset:
     return schema.annotate(out)
 
 
-#: First bytes of the files a results name may already hold and be replaced: netCDF-4 (HDF5) and classic netCDF.
-_NETCDF_MAGIC = (b"\x89HDF\r\n\x1a\n", b"CDF\x01", b"CDF\x02", b"CDF\x05")
-
-
 def check_netcdf_name(path: str | Path) -> Path:
     """``path`` if it names a netCDF file (``.nc``) that can be written, else :class:`InputError`
     naming it, before any work: a results file called ``r.csv`` would be netCDF under a name that
@@ -623,9 +619,7 @@ def check_netcdf_name(path: str | Path) -> Path:
                 )
             break
     if path.is_file() and path.stat().st_size:  # an empty file (mktemp) is replaced freely
-        with open(path, "rb") as f:
-            head = f.read(8)
-        if not head.startswith(_NETCDF_MAGIC):
+        if not is_netcdf(path):
             raise InputError(
                 "exists and is not a netCDF file",
                 file=path,

@@ -26,6 +26,7 @@ import pandas as pd
 
 from lightfit.dataset.scene import Lighting
 from lightfit.errors import InputError
+from lightfit.files import is_netcdf
 from lightfit.model import schema
 
 #: Short quantity names → results variables (units: :mod:`lightfit.model.schema`).
@@ -100,8 +101,10 @@ def open_results(source) -> Results:
     path = None
     if isinstance(source, (str, Path)):
         path = Path(source)
-        if not path.exists():
+        if not path.is_file():
             raise InputError("results file not found", file=path, expected="a netCDF written by the coupled model")
+        if not is_netcdf(path):  # xarray's own message lists backends and their web pages
+            raise InputError("not a netCDF file", file=path, expected="a results.nc written by the coupled model")
         try:
             ds = xr.load_dataset(path)
         except Exception as err:  # noqa: BLE001 - any reader failure is a bad input file
