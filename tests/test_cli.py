@@ -1080,3 +1080,18 @@ def test_a_thinned_weather_table_says_so():
     assert thinned.row_count == 48 and "1 row in 3 of 144 shown" in str(thinned.caption)
     whole = weather_table(df.iloc[:30], "w", max_rows=40)
     assert whole.row_count == 30 and "shown" not in str(whole.caption)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["field", "--quick", "--segments", "DIR"], ["option --segments", "is a folder"]),
+        (["field", "--quick", "--preview", "DIR"], ["option --preview", "is a folder"]),
+        (["weather", "show", "DIR"], ["is a folder", "bundled names"]),
+    ],
+)
+def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path):
+    """A folder given for a file: "Is a directory" after the plants grew, or "no such weather file"
+    (a CLI review); now refused first, naming the option."""
+    r = runner.invoke(app, [str(tmp_path) if a == "DIR" else a for a in args])
+    assert_user_error(r, *words)

@@ -228,6 +228,14 @@ def output_folder(out: Path, option: str = "out") -> Path:
     return out
 
 
+def output_file(path: Path, option: str) -> Path:
+    """``path`` as a file a command will write, checked before any work: a folder there is an error
+    naming the option (writing said only "Is a directory", after the plants had grown)."""
+    if path.is_dir():
+        raise InputError(f"{path} is a folder", column=option, expected="a file name to write")
+    return path
+
+
 def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     """Parameters from a JSON file (a calibration's ``calibration.json``: its ``theta``; a posterior's
     ``summary.json``: its MAP, ``x_map``, without the noise scale, which is no model parameter) or

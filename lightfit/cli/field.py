@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import console
+from lightfit.cli.common import console, output_file
 from lightfit.cli.options import (
     BOUNDARY_HELP,
     BUFFER_ALONG_HELP,
@@ -68,9 +68,11 @@ def field(
         n_plants = (ReplicationConfig.quick() if quick else ReplicationConfig()).n_plants
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
     for path in export or []:  # before minutes of plant growth
-        mesh_format(path)
+        mesh_format(output_file(path, "export"))
     if preview:
-        figure_format(preview)
+        figure_format(output_file(preview, "preview"))
+    if segments_csv:
+        output_file(segments_csv, "segments_csv")
     g = plant.GrowthConfig(parameter_file, season_start, date)
     fld = plant.Field(
         n_plants,
