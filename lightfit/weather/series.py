@@ -177,7 +177,7 @@ def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column:
 
 def _minutes(span: pd.Timedelta) -> str:
     """``30min``, ``3h``, ``90min``: a gap length as the options write it (not ``0 days 00:30:00``)."""
-    m = span / pd.Timedelta(minutes=1)
+    m = pd.Timedelta(span) / pd.Timedelta(minutes=1)
     return f"{m / 60:g}h" if m % 60 == 0 else f"{m:g}min"
 
 
@@ -251,19 +251,18 @@ def check_and_repair(
     if off_grid.any():
         bad = df.index[off_grid][0]
         raise InputError(
-            f"timestamp {bad.isoformat()} is off the regular {step} grid starting {df.index[0].isoformat()}",
+            f"timestamp {bad.isoformat()} is off the regular {_minutes(step)} grid starting {df.index[0].isoformat()}",
             file=file,
             row=_line_of(lines, bad),
-            expected=f"a regular time step of {step}",
+            expected=f"a regular time step of {_minutes(step)}",
         )
     full = pd.date_range(df.index[0], df.index[-1], freq=step)
     present = df.index  # rows the file has (the rest of ``full`` are missing rows)
     if len(full) != len(df):
         n_new = len(full) - len(df)
         df = df.reindex(full)
-        _record(
-            qc, "missing_timestamps", None, n_new, f"{n_new} missing timestamp(s) of the {step} grid inserted as gaps"
-        )
+        inserted = f"{n_new} missing timestamp(s) of the {_minutes(step)} grid inserted as gaps"
+        _record(qc, "missing_timestamps", None, n_new, inserted)
 
     for col in list(df.columns):
         na = df[col].isna()
@@ -311,7 +310,7 @@ def check_and_repair(
             "interpolated",
             col,
             na.sum(),
-            f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {max_gap})",
+            f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {_minutes(max_gap)})",
         )
 
     for col, b in BOUNDS.items():
@@ -486,9 +485,9 @@ def window(
     if not len(out) or out.index[0] != t0 or out.index[-1] < t1 - pd.Timedelta(step):
         raise InputError(
             f"window {t0.isoformat()} … {t1.isoformat()}: the series' {timestamps.of(df).describe()} cover "
-            f"only {out.index[0].isoformat() if len(out) else 'none'} … of its {step} steps",
+            f"only {out.index[0].isoformat() if len(out) else 'none'} … of its {_minutes(step)} steps",
             file=df.attrs.get("source"),
-            expected=f"a series whose whole {step} steps span the requested window",
+            expected=f"a series whose whole {_minutes(step)} steps span the requested window",
         )
     return out
 
