@@ -236,6 +236,16 @@ def test_unit_mismatch(tmp_path):
     with pytest.raises(InputError, match="pair_kpa.*check the unit"):
         read_tereno(_variant(tmp_path, pascal_labelled_mbar))
 
+    def celsius_labelled_kelvin(lines, hdr):
+        assert "AirTemperature_2m_Avg10min_Sensor1 [°C]" in lines[hdr]
+        lines[hdr] = lines[hdr].replace(
+            "AirTemperature_2m_Avg10min_Sensor1 [°C]", "AirTemperature_2m_Avg10min_Sensor1 [K]"
+        )
+
+    # The value is the converted one (−263 °C): the message names the file's column it came from.
+    with pytest.raises(InputError, match=r"value -26\d\.\d+ \(read from AirTemperature_2m_Avg10min_Sensor1 \[K\], in"):
+        read_tereno(_variant(tmp_path, celsius_labelled_kelvin))
+
 
 def test_off_grid_timestamp(tmp_path):
     def edit(lines, hdr):

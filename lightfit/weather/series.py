@@ -324,8 +324,11 @@ def check_and_repair(
         out = ((v < b.low) & ~low_band) | ((v > b.high) & ~high_band)
         if out.any():
             ts = v.index[out][0]
+            src = attrs.get("columns_used", {}).get(col, col)
+            read = "" if src == col else f" (read from {src}, in {COLUMNS[col]})"  # a converted value: say from what
             raise InputError(
-                f"value {v[ts]:g} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); check the unit",
+                f"value {v[ts]:g}{read} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); "
+                "check the unit",
                 file=file,
                 row=_line_of(lines, ts),
                 column=col,
