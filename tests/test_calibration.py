@@ -38,8 +38,13 @@ def test_end_to_end_gradient_matches_central_differences(short_model):
     h = 1e-3
     fd = [(float(loss(z.at[i].add(h))[0]) - float(loss(z.at[i].add(-h))[0])) / (2 * h) for i in range(len(names))]
     # Fixed seed + frozen sampling: the loss is smooth in θ and reverse-mode is its exact gradient
-    # (up to the bilinear albedo table and float32 rendering).
-    assert np.allclose(g, fd, rtol=0.03, atol=0.05 * np.abs(fd).max()), (g, fd)
+    # (up to the bilinear albedo table and float32 rendering). Each component gets its own relative
+    # tolerance: the components span two orders of magnitude (light_factor ≈ 760, subsurface ≈ 1.7),
+    # so a tolerance scaled by the largest one would leave the small leaf-optics gradients unchecked.
+    # Measured agreement ≈ 3e-4 relative per component; 1e-2 leaves a 30-fold margin.
+    for n, gi, fi in zip(names, g, fd):
+        assert abs(fi) > 0.5, (n, fi)  # every component is a real, non-zero derivative
+        assert gi == pytest.approx(fi, rel=1e-2), (n, gi, fi)
 
 
 @pytest.fixture(scope="module")
@@ -487,21 +492,23 @@ def test_cli_resume_with_an_edited_observations_file_is_refused(tmp_path):
 
 
 def test_a_unit_slip_in_the_observations_gets_a_caution_not_a_quiet_fit(tmp_path):
-    """The record's PAR in mmol instead of µmol (÷ 1000): the fit converges to a light factor of
-    ≈ 0.001, far outside its prior's 0.25–4, and says so on stderr (a review found it silent)."""
+    """The record's PAR a tenth of what it was (a slip the forcing check lets through: 0.1 × the
+    forcing's PAR; ÷ 1000, mmol, is refused before the run, tests/test_cli.py): the fit converges
+    to a light factor of ≈ 0.1, outside its prior's 0.25–4, and says so on stderr (a review found
+    it silent)."""
     from typer.testing import CliRunner
 
     from lightfit.cli import app
 
     src = rep.OBSERVATIONS.read_text()
     obs = tmp_path / "mmol.csv"
-    obs.write_text(src.replace("1549.31,77.47", "1.54931,0.07747"))
+    obs.write_text(src.replace("1549.31,77.47", "154.931,7.747"))
     args = ["calibrate", str(obs), "--quick", "--steps", "14:16", "--parameters", "light_factor", "--no-surrogate"]
     r = CliRunner().invoke(app, [*args, "--use", "above_canopy_par", "--out", str(tmp_path / "cal")])
     assert r.exit_code == 0, r.output
-    assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["theta"]["light_factor"] < 0.01
+    assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["theta"]["light_factor"] < 0.12
     err = " ".join(r.stderr.split())
-    assert "caution: light_factor = 0.00" in err and "outside its prior's range [0.25, 4]" in err, err
+    assert "caution: light_factor = 0.1" in err and "outside its prior's range [0.25, 4]" in err, err
     assert "check the observations' units and SDs" in err and "caution" not in r.stdout
 
 
@@ -622,3 +629,17 @@ def test_cli_start_outside_the_emulator_box_is_refused_before_the_plants_grow(tm
     err = " ".join(r.stderr.split())
     assert "--start specular=0.9" in err and "[0.4625, 0.7375]" in err and "--no-surrogate" in err
     assert not (tmp_path / "settings.json").exists()  # refused before anything was built or written
+
+
+def test_the_result_counts_the_likelihoods_entries_not_the_files_rows():
+    """Readings that fall in one model step are one likelihood entry (their inverse-variance mean):
+    χ²/(n − k) in the command line's misfit caution takes n from the result (it counted the file's
+    values, 22 here against 11 entries, so a misfit at 11 passed as a fit at 22)."""
+    import pandas as pd
+
+    model, obs = _fake()
+    twice = pd.concat([obs, obs.set_axis(obs.index + pd.Timedelta("1min"))]).sort_index()
+    twice.attrs = obs.attrs
+    res = calibrate(model, twice, names=("light_factor",), max_steps=1, progress=False, say=lambda _: None)
+    assert int(twice[["plant_par_umol_m2_s", "canopy_an_umol_m2_s"]].notna().sum().sum()) == 22
+    assert res.n_observations == 6 + 5  # PAR at 6 steps, An at 5

@@ -217,7 +217,10 @@ def _small_field():
 
 def test_gradients_match_central_differences_with_common_random_numbers():
     g, ids = _small_field()
-    fs = FieldScene(g.mesh, Optics.preset("paper"))
+    # The albedo is bilinear in a roughness table with nodes every 1/32: roughness 0.515 ± 0.01 stays
+    # inside one cell [0.5, 0.53125], where the estimate is smooth (a ±0.1 step across the node at 0.5
+    # is off by a systematic 1–5 % from the kinks of the table, not from the gradient).
+    fs = FieldScene(g.mesh, Optics.preset("paper", roughness=0.515))
     fs.set_sun(45, 180)
     ct = {
         "absorbed_sun": np.ones(len(ids)),
@@ -228,7 +231,8 @@ def test_gradients_match_central_differences_with_common_random_numbers():
     def J(r):
         return sum(np.sum(ct[p] * getattr(r, p)) for p in ct)
 
-    names = ["specular", "roughness", "subsurface"]
+    h = {"specular": 0.1, "roughness": 0.01, "subsurface": 0.1}
+    names = list(h)
     G, F = [], []
     for seed in range(8):
         est = SegmentEstimator(fs, ids, samples=32, bounces=2, seed=seed)
@@ -236,20 +240,23 @@ def test_gradients_match_central_differences_with_common_random_numbers():
         fd = []
         for k in names:
             base = getattr(fs.optics, k)
-            fs.set_optics(**{k: base + 0.1})
+            fs.set_optics(**{k: base + h[k]})
             jp = J(est.render())
-            fs.set_optics(**{k: base - 0.1})
+            fs.set_optics(**{k: base - h[k]})
             jm = J(est.render())
             fs.set_optics(**{k: base})
-            fd.append((jp - jm) / 0.2)
+            fd.append((jp - jm) / (2 * h[k]))
         G.append([grad[k] for k in names])
         F.append(fd)
     G, F = np.array(G), np.array(F)
-    se = np.sqrt(G.var(0, ddof=1) / len(G) + F.var(0, ddof=1) / len(F))
-    # Frozen sampling makes AD and CRN differences estimate the same smooth function, so their
-    # spread is tiny; 3 % covers the O(h²) difference error and the bilinear albedo table in r.
-    assert (np.abs(G.mean(0) - F.mean(0)) <= 3 * se + 0.03 * np.abs(F.mean(0))).all(), (G.mean(0), F.mean(0), se)
-    assert (np.abs(G.mean(0)) > 0).all()
+    # G and F of one seed share their random numbers: the SE of their mean difference is the paired
+    # one, std(G − F)/√n (measured ≤ 2e-5 relative; the unpaired SE would be 1–8 %, hiding a 25 % error).
+    se = np.std(G - F, axis=0, ddof=1) / np.sqrt(len(G))
+    # Frozen sampling makes AD and CRN differences estimate the same smooth function: in specular and
+    # subsurface the render is a polynomial of degree ≤ bounces + 1 (O(h²) difference error), in
+    # roughness smooth inside a table cell. Measured |mean(G − F)| ≤ 2e-6 relative; 1e-3 allows float32.
+    assert (np.abs(G.mean(0) - F.mean(0)) <= 3 * se + 1e-3 * np.abs(F.mean(0))).all(), (G.mean(0), F.mean(0), se)
+    assert (np.abs(F.mean(0)) > 1.0).all(), F.mean(0)  # each derivative is far from 0 (−6.6, 6.2, 4.3)
 
 
 @pytest.mark.parametrize("name", ["specular", "subsurface"])

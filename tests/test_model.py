@@ -236,7 +236,9 @@ def test_tabulated_leaf_gradient_is_finite_with_dark_blades(weather, set_name):
     g_tab = float(jax.jit(jax.grad(lambda s: total(tabulated_leaf(64), s)))(1.0))
     g_exact = float(jax.jit(jax.grad(lambda s: total(exact_leaf, s)))(1.0))
     assert np.isfinite(g_tab)
-    assert g_tab == pytest.approx(g_exact, rel=0.02)
+    # The table's error falls as 1/n² (winter_wheat: 2.6e-2 at 8 nodes, 1.4e-3 at 32, 3.4e-4 at 64;
+    # giraud2023 3.3e-5 at 64): 2e-3 holds 64 nodes with a 6-fold margin and fails 8 or 16 nodes.
+    assert g_tab == pytest.approx(g_exact, rel=2e-3)
 
 
 def test_forced_non_convergence_is_warned_and_counted(model, monkeypatch):
