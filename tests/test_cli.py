@@ -987,7 +987,7 @@ def test_fewer_bounces_than_the_leafs_default_get_a_caution(monkeypatch):
     rho = max(sum(lobe_weights(optics.specular, optics.subsurface, optics.base_color)), optics.soil_albedo)
     said = []
     monkeypatch.setattr(common, "caution", said.append)
-    for bounces, expected in ((0, f"up to {rho / (1 - rho):.1%} of the first-order light"), (2, None), (None, None)):
+    for bounces, expected in ((0, f"up to {rho / (1 - rho):.1%} of the unscattered light"), (2, None), (None, None)):
         said.clear()
         resolve(ModelOptions(quick=True, bounces=bounces))
         assert (len(said) == 1 and expected in said[0]) if expected else said == [], (bounces, said)
@@ -997,7 +997,7 @@ def test_fewer_bounces_than_the_leafs_default_get_a_caution(monkeypatch):
     said.clear()
     resolve(ModelOptions(quick=True, preset="paper"))
     assert len(said) == 1 and said[0].startswith("--quick's 2 bounces") and "(--bounces 8)" in said[0], said
-    assert f"up to {rho**3 / (1 - rho):.1%} of the first-order light" in said[0], said
+    assert f"up to {rho**3 / (1 - rho):.1%} of the unscattered light" in said[0], said
 
 
 def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):

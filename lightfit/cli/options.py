@@ -723,7 +723,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
             source = f"--bounces {s.bounces}" if opts.bounces is not None else f"--quick's {s.bounces} bounces"
             (say or caution)(
                 f"{source} leaves out the light scattered more often, up to "
-                f"{truncation_bound(s.bounces, optics):.1%} of the first-order light; this leaf's default, "
+                f"{truncation_bound(s.bounces, optics):.1%} of the unscattered light; this leaf's default, "
                 f"{own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"
                 + ("" if opts.bounces is not None else f" (--bounces {own})")
             )

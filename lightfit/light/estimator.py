@@ -298,8 +298,8 @@ def _albedo_bound(optics: Optics) -> float:
 
 
 def truncation_bound(bounces: int, optics: Optics) -> float:
-    r"""Bound on the light that ``bounces`` scattering orders leave out, relative to the first-order
-    light: :math:`\rho^{b+1}/(1-\rho)` (:func:`bounces_for_tolerance`); ``inf`` for ρ ≥ 1."""
+    r"""Bound on the light that ``bounces`` scattering orders leave out, relative to the unscattered
+    light (order 0): :math:`\rho^{b+1}/(1-\rho)` (:func:`bounces_for_tolerance`); ``inf`` for ρ ≥ 1."""
     rho = _albedo_bound(optics)
     return rho ** (bounces + 1) / (1 - rho) if rho < 1 else math.inf
 
@@ -308,7 +308,7 @@ def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     r"""Scattering orders needed so that the truncated light is below ``tolerance`` (relative).
 
     With leaf albedo ρ ≤ F_0 + (1 − F_0)c per scattering (the lobes' weights summed), the light
-    left after b orders is at most :math:`\rho^{b+1}/(1-\rho)` of the first-order light; a
+    left after b orders is at most :math:`\rho^{b+1}/(1-\rho)` of the unscattered light; a
     conservative bound (light escaping the canopy only shortens the series). More than
     :data:`MAX_BOUNCES_FOR_TOLERANCE` orders (ρ near 1, where the series barely converges, or ρ ≥ 1,
     where it does not) is refused: give ``bounces`` yourself.
@@ -344,7 +344,8 @@ class SegmentEstimator:
             shift Δ keyed by (seed, segment id, r), the scattering dimensions uniforms hashed from
             Δ and j; replicates are independent, and the standard error comes from the spread of
             the R replicate means.
-        bounces: scattering orders after the first (0: direct sun and directly visible sky only).
+        bounces: the most scattering events a path includes (0: unscattered light only, the direct
+            sun and the directly visible sky).
         seed: random seed; same seed, same result.
         epsilon_m: ray origin offset along the side normal, m.
         first: index of the first point taken from each replicate's sequence (default 0): an
