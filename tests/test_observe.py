@@ -44,8 +44,12 @@ def test_fapar_is_zero_at_night_with_finite_gradients():
     f, f_sd = O.fapar(apar, sd, above)
     np.testing.assert_allclose(np.asarray(f), [0.0, 0.5, 0.9])
     np.testing.assert_allclose(np.asarray(f_sd), [0.0, 0.01, 0.009])
+    # d(a/P)/da = 1/P and d(a/P)/dP = −a/P², 0 at night (no NaN from 0/0); it checked finiteness
+    # and the night's 0 only, which a ratio that blocked the gradient (all zeros) passed
     g = jax.grad(lambda a: O.fapar(a, sd, above)[0].sum())(apar)
-    assert np.isfinite(np.asarray(g)).all() and float(g[0]) == 0.0
+    np.testing.assert_allclose(np.asarray(g), [0.0, 1 / 100, 1 / 1000], rtol=1e-12)
+    gp = jax.grad(lambda p: O.fapar(apar, sd, p)[0].sum())(above)
+    np.testing.assert_allclose(np.asarray(gp), [0.0, -50 / 100**2, -900 / 1000**2], rtol=1e-12)
 
 
 def test_plant_par_spread_has_finite_gradients_when_every_segment_has_the_same_par():

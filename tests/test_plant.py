@@ -253,10 +253,14 @@ def test_build_whole_field(small_field):
     assert g.segments["segment_id"].is_unique
     assert set(np.unique(g.mesh.face_segment)) <= set(g.segments["segment_id"])
     assert g.segments.loc[g.segments.measured, "plant_id"].nunique() == 9
-    # Plants sit at their grid positions: each plant's stem base is at its (x, y).
-    base = g.segments[g.segments.organ_type == "stem"].groupby("plant_id")[["x0", "y0"]].first()
+    # Plants sit at their grid positions: each plant's stem base (its lowest stem point) is at its
+    # (x, y). Measured: exactly (CPlantBox grows each plant at the origin; turning about the origin
+    # keeps it there); 1 cm before, a third of the 3 cm spacing along the row, passed a plant 5 mm off.
+    stem = g.segments[g.segments.organ_type == "stem"]
+    base = stem.loc[stem.groupby("plant_id")["z0"].idxmin()].set_index("plant_id")[["x0", "y0"]]
     pos = g.plants.set_index("plant_id").loc[base.index, ["x_m", "y_m"]]
-    assert np.allclose(base.to_numpy(), pos.to_numpy(), atol=0.01)
+    assert len(base) == len(g.plants)
+    np.testing.assert_allclose(base.to_numpy(), pos.to_numpy(), rtol=0, atol=1e-12)
 
 
 def test_cache_hit_corrupt_and_stale_entries(tmp_path, caplog):
