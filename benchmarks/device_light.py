@@ -78,7 +78,7 @@ SUN_DEG = (50.0, 180.0)
 #: The gradient check's leaf parameters and central-difference steps: tests/test_light_projection.py's,
 #: where the albedo's roughness table (nodes every 1/32) is smooth across the steps.
 GRADIENT_AT = {"specular": 0.5, "roughness": 0.515, "subsurface": 0.45}
-FD_STEP = {"specular": 0.1, "roughness": 0.01, "subsurface": 0.1}
+FD_STEP = {"specular": 0.1, "roughness": 0.002, "subsurface": 0.1}
 
 
 def _strip_wheel(src: Path, dst: Path) -> None:

@@ -38,7 +38,7 @@ def test_end_to_end_gradient_matches_central_differences(short_model):
     h = 1e-3
     fd = [(float(loss(z.at[i].add(h))[0]) - float(loss(z.at[i].add(-h))[0])) / (2 * h) for i in range(len(names))]
     # Fixed seed + frozen sampling: the loss is smooth in θ and reverse-mode is its exact gradient
-    # (up to the bilinear albedo table and float32 rendering). Each component gets its own relative
+    # (up to float32 rendering). Each component gets its own relative
     # tolerance: the components span two orders of magnitude (light_factor ≈ 760, subsurface ≈ 1.7),
     # so a tolerance scaled by the largest one would leave the small leaf-optics gradients unchecked.
     # Measured agreement ≈ 3e-4 relative per component; 1e-2 leaves a 30-fold margin.

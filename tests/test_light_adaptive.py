@@ -121,9 +121,8 @@ def test_light_floor_stops_dark_segments_on_an_absolute_error(scene):
 def test_adaptive_estimator_gradient_matches_common_random_number_differences(scene):
     fs, ids = scene
     # Roughness mid-way between two nodes of the GGX albedo table (bsdf.TABLE_R, 1/32 apart) and
-    # differences inside that cell: the table is bilinear in roughness, so a difference across a
-    # node measures the mean of two cells' slopes, not the derivative (5.4 % off at roughness
-    # 0.5 ± 0.05 once the plants faced their own ways; 3.7 % before).
+    # differences inside that cell (the table is cubic in roughness there; while it was linear, a
+    # difference across a node measured the mean of two cells' slopes, 5.4 % off at 0.5 ± 0.05).
     fs.set_optics(roughness=0.515)
     est = AdaptiveEstimator(fs, ids, 0.1, bounces=2, seed=5, max_samples=256)
     r = est.render()

@@ -140,12 +140,47 @@ def test_albedo_table_is_kept_on_disk_bitwise(tmp_path, monkeypatch):
 @pytest.mark.parametrize("cos_i", [1.0, 0.5, 0.1, 0.02, -0.7])
 def test_tabulated_albedo_matches_the_sampled_bsdf(params, cos_i):
     """``leaf_albedo`` (the tabulated GGX albedo the projection and the paths take absorptance
-    from) against the leaf BSDF plugin's own sampled albedo (N samples: SE ≤ 8e-4). Its bilinear
-    table is within 3e-4 above cos 0.1; at cos 0.02 a smooth (roughness ≤ 0.1) specular lobe
-    changes faster than the table's steps (measured 2.4e-3)."""
+    from) against the leaf BSDF plugin's own sampled albedo (N samples: SE ≤ 8e-4). Its table
+    (linear in μ, Catmull–Rom in roughness) is within 3e-4 above cos 0.1; at cos 0.02 a smooth
+    (roughness ≤ 0.1) specular lobe changes faster than the table's steps (measured 2.4e-3)."""
     from lightfit.light.bsdf import leaf_albedo
 
     b = mi.load_dict(leaf_bsdf_dict(*params))
     tabulated = float(leaf_albedo(b, mi.Float(cos_i))[0])
     tol = 4e-3 if abs(cos_i) < 0.1 else 1e-3
     assert tabulated == pytest.approx(_albedo(params, cos_i, seed=5), abs=tol)
+
+
+def test_tabulated_albedo_is_smooth_in_roughness_across_the_tables_nodes():
+    """At a node of the roughness axis (the default leaf's 0.5 is one) the albedo's reverse-mode
+    derivative is the central difference (linear interpolation gave the right-hand slope there,
+    4 % off the central one), and the one-sided differences meet it as the step shrinks; between
+    nodes too. Nodes are reproduced exactly (:func:`lightfit.light.bsdf.catmull_rom_weights`):
+    the table's own value at r = 0.5."""
+    import drjit as dr
+
+    from lightfit.light.bsdf import TABLE_MU, TABLE_R, ggx_albedo_table, leaf_albedo
+
+    def albedo(r, cos_i=0.6, grad=False):
+        b = mi.load_dict(leaf_bsdf_dict(1.0, r, 0.3, 0.2))
+        params = mi.traverse(b)
+        if grad:
+            dr.enable_grad(params["roughness"])
+        params.update()
+        v = leaf_albedo(b, mi.Float(cos_i))
+        if not grad:
+            return float(v[0])
+        dr.backward(v)
+        return float(dr.grad(params["roughness"])[0])
+
+    j = int(np.flatnonzero(TABLE_R == 0.5)[0])
+    i = int(np.flatnonzero(np.isclose(TABLE_MU, 0.625))[0])  # cos 0.625: a node of μ too
+    f0 = 0.08
+    assert albedo(0.5, 0.625) == pytest.approx(f0 * ggx_albedo_table()[i, j] + (1 - f0) * 0.2, rel=1e-6)
+    for r in (0.5, 0.515):
+        g, h = albedo(r, grad=True), 1e-3
+        left, right = (albedo(r) - albedo(r - h)) / h, (albedo(r + h) - albedo(r)) / h
+        central = (albedo(r + 2 * h) - albedo(r - 2 * h)) / (4 * h)
+        assert abs(g) > 1e-3, (r, g)  # a real slope (F0 = 0.08 of E's)
+        assert g == pytest.approx(central, rel=2e-2), (r, g, central)
+        assert left == pytest.approx(right, rel=5e-2), (r, left, right)  # no kink

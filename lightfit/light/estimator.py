@@ -82,7 +82,9 @@ DIRECT_MODES = ("paths", "projection", "none")
 #: values (not only their rounding), so that renders kept on disk (emulator designs, keyed by
 #: :func:`lightfit.model.emulator.render_key`) from before the change are not reused with renders
 #: from after it. 2: low-dimensional Kronecker sequences for the point and first directions.
-ESTIMATOR_VERSION = 2
+#: 3: the albedo table Catmull–Rom in roughness (:func:`~lightfit.light.bsdf.leaf_albedo`; values
+#: between the table's nodes move by at most F0 × 2.5e-3 ≤ 2e-4 of the albedo).
+ESTIMATOR_VERSION = 3
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
 # first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
 # albedo (kept in the numbering, never generated); then 3 per scattering order and side.
