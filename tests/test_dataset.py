@@ -207,6 +207,12 @@ def test_metering_on_known_arrays():
         np.full((4, 4, 1), 2.0), np.zeros((4, 4), bool), Camera(exposure_mode="scene", width_px=4, height_px=4)
     )
     assert scene.gain == pytest.approx(0.18 / 2.0) and np.isnan(scene.clipped_leaf_fraction)
+    # Leaf metering without a leaf in view (a camera on bare soil or the sky) meters the scene's
+    # mean: it took a gain of 1 per W m⁻² sr⁻¹, a white image called dark (a review).
+    soil = meter(np.full((4, 4, 3), 30.0), np.zeros((4, 4), bool), Camera(width_px=4, height_px=4))
+    assert soil.metering == "scene (no leaf in view)" and not soil.dark
+    assert soil.gain == pytest.approx(0.18 / 30.0) and np.isnan(soil.clipped_leaf_fraction)
+    assert e.metering == "leaf" and scene.metering == "scene"
 
 
 @pytest.mark.parametrize(
@@ -310,6 +316,17 @@ def test_field_export_ply_has_per_face_values(mono_dataset, geometry):
     measured = geometry.segments.loc[geometry.segments["measured"], "segment_id"]
     assert info["faces"] == np.isin(geometry.mesh.face_segment, measured).sum()
     assert info["faces"] + info["faces_left_out"] == geometry.mesh.n_faces
+    assert info["time_utc"] == meta["images"][0]["time_utc"]  # the first selected step's values
+    assert meta["lighting"]["from"] in ("results", "weather")
+
+
+def test_image_stems_keep_seconds_where_steps_have_them():
+    """Steps less than a minute apart wrote one file (stems to the minute; a review)."""
+    from lightfit.dataset.dataset import _stem
+
+    cam = Camera(name="se")
+    stems = [_stem(cam, pd.Timestamp(t)) for t in ("2016-04-20 10:00:00", "2016-04-20 10:00:30")]
+    assert stems == ["se_20160420T1000Z", "se_20160420T100030Z"]
 
 
 def test_metadata_contents(mono_dataset):
@@ -597,6 +614,14 @@ def test_results_with_their_own_sun_and_sky_refuse_another_weather(results_file,
     path = tmp_path / "lit.nc"
     lit.to_netcdf(path, engine="h5netcdf")
     assert lighting(open_results(path), [0])[0] == Lighting(*own.values())
+    from lightfit.dataset.results import lighting_provenance
+
+    assert lighting_provenance(open_results(path)) == {"from": "results", "variables": list(LIGHT_VARS)}
+    # Results without sun and sky are lit by a weather series: the metadata names it (it named only
+    # the model run's weather); bundled here, with its documented provenance.
+    told = lighting_provenance(open_results(results_file), "selhausen-cplantbox-day")
+    assert told["from"] == "weather" and told["source"].endswith("selhausen_cplantbox_day.txt")
+    assert told["provenance"] == "measured"
     with pytest.raises(InputError, match="carry their own sun and sky") as e:
         lighting(open_results(path), [0], "2016-04-20")
     assert e.value.column == "weather"

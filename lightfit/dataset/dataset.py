@@ -26,7 +26,16 @@ from lightfit.dataset.camera import Camera, Sweep, camera_sweep, check_unique_na
 from lightfit.dataset.exposure import meter, tone_map, write_exr, write_png
 from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
 from lightfit.dataset.render import RenderSettings, load_camera, render, variant_for
-from lightfit.dataset.results import MARGIN, Results, build_geometry, field_of, lighting, open_results, select_times
+from lightfit.dataset.results import (
+    MARGIN,
+    Results,
+    build_geometry,
+    field_of,
+    lighting,
+    lighting_provenance,
+    open_results,
+    select_times,
+)
 from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
 from lightfit.errors import InputError, check_integer
 from lightfit.files import replace_text
@@ -191,8 +200,10 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
 
         units = {q: res.units(q) for q in quantities}
         meta["gallery"] = gallery(out, images[: spec.gallery_images], quantities, units).name
+    meta["lighting"] = lighting_provenance(res, spec.weather)
     if spec.export != "none":
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
+        meta["field_export"]["time_utc"] = res.times[tix[0]].isoformat()  # the first selected step
     replace_text(out / "metadata.json", json.dumps(meta, indent=2, default=_json_default))
     shutil.rmtree(marker)
     return meta
@@ -227,7 +238,9 @@ def _canopy_height(segments: pd.DataFrame) -> float:
 
 
 def _stem(cam: Camera, time: pd.Timestamp) -> str:
-    return f"{cam.name}_{time.strftime('%Y%m%dT%H%MZ')}"
+    """``<camera>_<UTC time>``, to the minute, with seconds where the time has them: steps less
+    than a minute apart wrote one file (a review)."""
+    return f"{cam.name}_{time.strftime('%Y%m%dT%H%M')}{time.strftime('%S') if time.second else ''}Z"
 
 
 def _write_image(out: Path, cam: Camera, time, t: int, light, radiance: np.ndarray, geo: dict, values: dict) -> dict:

@@ -34,6 +34,8 @@ class Exposure:
             NaN when the image shows no leaf.
         leaf_pixels: number of leaf pixels.
         dark: True when the metered region was black (night): the gain then falls back to 1.
+        metering: what the gain was set from: ``"leaf"``, ``"scene"``, ``"fixed"``, or ``"scene (no
+            leaf in view)"`` where ``leaf`` mode had no leaf pixel to meter.
     """
 
     gain: float
@@ -41,6 +43,7 @@ class Exposure:
     clipped_leaf_fraction: float
     leaf_pixels: int
     dark: bool
+    metering: str
 
     def to_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
@@ -57,20 +60,25 @@ def meter(radiance: np.ndarray, leaf_mask: np.ndarray, cam: Camera) -> Exposure:
     """Set the gain of ``cam``'s exposure mode on this image and measure clipping on leaves."""
     y = luminance(radiance).astype(np.float64)
     comp = 2.0**cam.exposure_ev
-    if cam.exposure_mode == "fixed":
+    metering = cam.exposure_mode
+    if metering == "leaf" and not leaf_mask.any():
+        # Nothing to meter on: the scene's average, not a gain of 1 per W m⁻² sr⁻¹, which left an
+        # image of sunlit soil or sky white and called it dark (a review).
+        metering = "scene (no leaf in view)"
+    if metering == "fixed":
         metered, base = float("nan"), 1.0
-    elif cam.exposure_mode == "scene":
+    elif metering != "leaf":  # "scene", or leaf mode without leaves
         metered = float(y.mean())
         base = MIDDLE_GREY / metered if metered > 0 else None
     else:  # "leaf": highlight-preserving metering on leaf pixels only
         # Meter the brightest channel, the one that clips first (green, for leaves): then
         # about (100 − percentile) % of leaf pixels clip at 0 EV.
         peak = radiance.max(axis=-1).astype(np.float64)
-        metered = float(np.percentile(peak[leaf_mask], cam.meter_percentile)) if leaf_mask.any() else float("nan")
+        metered = float(np.percentile(peak[leaf_mask], cam.meter_percentile))
         base = 1.0 / metered if metered > 0 else None
     dark = base is None
     gain = comp * (1.0 if dark else base)
-    return Exposure(gain, metered, clipped_fraction(radiance, leaf_mask, gain), int(leaf_mask.sum()), dark)
+    return Exposure(gain, metered, clipped_fraction(radiance, leaf_mask, gain), int(leaf_mask.sum()), dark, metering)
 
 
 def clipped_fraction(radiance: np.ndarray, mask: np.ndarray, gain: float) -> float:

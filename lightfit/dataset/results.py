@@ -285,6 +285,16 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
     return [Lighting(*(float(cols[v][i]) for v in LIGHT_VARS)) for i in range(len(time_indices))]
 
 
+def lighting_provenance(res: Results, weather_source: str | None = None) -> dict:
+    """Where :func:`lighting`'s sun and sky come from, for a dataset's metadata: the results' own
+    variables, or the weather series (its file and provenance) that lit results without them (the
+    metadata named only the model run's weather, which had not lit the images; a review)."""
+    if all(v in res.ds for v in LIGHT_VARS):
+        return {"from": "results", "variables": list(LIGHT_VARS)}
+    wx = _weather(res, weather_source)
+    return {"from": "weather", "source": str(wx.attrs.get("source")), "provenance": str(wx.attrs.get("provenance"))}
+
+
 def _weather(res: Results, source: str | None) -> pd.DataFrame:
     from lightfit import weather
 
