@@ -297,7 +297,11 @@ def test_exports_read_back_with_segment_ids(small_field, tmp_path):
     # PLY through trimesh, an independent reader.
     ply = trimesh.load(export(m, tmp_path / "f.ply", values), process=False)
     raw = ply.metadata["_ply_raw"]["face"]["data"]
-    assert np.array_equal(raw["segment_id"].ravel(), m.face_segment)
+    assert np.array_equal(raw["segment_id"].ravel(), m.face_segment)  # exact as doubles
+    # Only types of the PLY format (VTK's reader, ParaView's, knows no int64; a review).
+    head = (tmp_path / "f.ply").read_bytes().split(b"end_header")[0].decode()
+    types = {line.split()[1] for line in head.splitlines() if line.startswith("property") and "list" not in line}
+    assert types <= {"char", "uchar", "short", "ushort", "int", "uint", "float", "double"}, types
     assert np.allclose(raw["blade_area_m2"].ravel(), seg.loc[m.face_segment, "blade_area_m2"])
     assert np.allclose(ply.vertices, m.vertices) and np.array_equal(ply.faces, m.faces)
     # VTK legacy: parse the cell data back.

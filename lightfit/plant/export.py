@@ -77,7 +77,9 @@ def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
 
 
 def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
-    """Binary PLY with face properties ``segment_id`` (int64) and float64 values."""
+    """Binary PLY with face properties ``segment_id`` and the values, all ``double``: the PLY format
+    has no 64-bit integer (``int64`` was written, which VTK's reader and so ParaView do not know),
+    and segment ids (plant id · 10⁶ + index) are exact in a double below 2⁵³."""
     path = Path(path)
     fv = _face_values(mesh, values)
     header = [
@@ -90,12 +92,12 @@ def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
         "property double z",
         f"element face {mesh.n_faces}",
         "property list uchar int vertex_indices",
-        "property int64 segment_id",
+        "property double segment_id",
     ]
     header += [f"property double {k}" for k in fv]
     header.append("end_header")
     vdt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
-    fdt = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("segment_id", "<i8")] + [(k, "<f8") for k in fv])
+    fdt = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("segment_id", "<f8")] + [(k, "<f8") for k in fv])
     verts = np.empty(len(mesh.vertices), vdt)
     verts["x"], verts["y"], verts["z"] = mesh.vertices.T
     faces = np.empty(mesh.n_faces, fdt)
