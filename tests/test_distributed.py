@@ -300,6 +300,15 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
         ],
     )
     assert bad.exit_code == 2 and "scheduler" in bad.stderr
+    # The embedded cluster too: a client that cannot reach it in time is the option's error (a raw
+    # OSError traceback of ~90 lines before; a review).
+    slow = CliRunner().invoke(
+        app,
+        ["field-run", "--n-plants", "4", "--steps", "14:15", "--workers", "1", "--connect-timeout", "0.001"]
+        + ["--out", str(tmp_path / "slow.nc")],
+    )
+    assert slow.exit_code == 2 and "option --connect-timeout" in " ".join(slow.stderr.split()), slow.output
+    assert not (tmp_path / "slow.nc").exists()
 
 
 def test_adaptive_time_chunks_allocate_at_the_whole_runs_point(weather, monkeypatch):

@@ -84,6 +84,8 @@ def field_run(
             parts=parts,
         )
     except TimeoutError:
+        if timeout is None:  # not --timeout's: the message below would misname it (and format None)
+            raise
         again = "the same command" if resume else "the command without --no-resume"
         raise InputError(
             f"the tasks did not finish within {timeout:g} s (no results written; the finished tasks are kept in "

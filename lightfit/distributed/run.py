@@ -455,9 +455,25 @@ def connect(
         ).strip()
     # dashboard_address ":0": a free port. None does not disable the scheduler's HTTP server: it
     # takes port 8787 and warns when another cluster (another lightfit run) holds it.
-    cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
     try:
-        client = Client(cluster, timeout=timeout_s)
+        cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
+    except Exception as err:  # noqa: BLE001 - whatever stops the workers starting (a ~90-line traceback)
+        raise InputError(
+            f"a local Dask cluster of {n} worker(s) × {t} thread(s) did not start ({type(err).__name__}: "
+            f"{str(err)[:200]})",
+            column="connect_timeout",
+            expected=f"workers that start within --connect-timeout ({timeout_s:g} s): a longer one, or fewer --workers",
+        ) from None
+    try:
+        try:
+            client = Client(cluster, timeout=timeout_s)
+        except (OSError, TimeoutError) as err:  # distributed's "Timed out trying to connect"
+            raise InputError(
+                f"the local Dask cluster did not answer within {timeout_s:g} s "
+                f"({type(err).__name__}: {str(err)[:200]})",
+                column="connect_timeout",
+                expected="a longer --connect-timeout",
+            ) from None
         try:
             g = gpu_count()
             if g:
