@@ -489,6 +489,17 @@ def test_periodic_results_rebuild_the_periodic_cell(periodic_results_file, resul
     fld = field_of(open_results(periodic_results_file))
     assert fld.boundary == "periodic" and fld.buffer_rows == 0 and fld.cell is not None
     assert build_geometry(open_results(periodic_results_file)).cell == fld.cell
+    # Another seed turns the plants other ways with the same segment areas: the layout fingerprint
+    # tells (a review's results file with seed edited passed the area check by rounding luck).
+    turned = open_results(periodic_results_file).ds.copy()
+    turned.attrs["seed"] = 2
+    with pytest.raises(InputError, match="stood or faced otherwise") as e:
+        build_geometry(open_results(turned))
+    assert e.value.column == "layout_fingerprint"
+    assert Field(n_plants=4, seed=2, boundary="periodic").layout_fingerprint() != fld.layout_fingerprint()
+    assert Field(n_plants=4, seed=2, headings="aligned").layout_fingerprint() == (
+        Field(n_plants=4, seed=1, headings="aligned").layout_fingerprint()
+    )  # aligned plants do not depend on the seed's headings
     assert field_of(open_results(results_file)).boundary == "finite"
     # Files written before the periodic boundary carry no 'boundary' attr: they are finite fields.
     ds = open_results(results_file).ds.copy()
@@ -777,6 +788,9 @@ def test_results_of_another_field_size_are_refused(results_file, tmp_path):
 
     with xr.open_dataset(results_file) as ds:
         bigger = ds.load().assign_attrs(n_plants=9)
+    with pytest.raises(InputError, match="stood or faced otherwise"):  # the layout fingerprint tells first
+        build_geometry(open_results(bigger))
+    del bigger.attrs["layout_fingerprint"]  # files written before it: the plant count
     bigger.to_netcdf(tmp_path / "nine.nc", engine="h5netcdf")
     with pytest.raises(InputError, match="the results hold 4 plants, the field rebuilt from its attrs measures 9"):
         build_geometry(open_results(tmp_path / "nine.nc"))

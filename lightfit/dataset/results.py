@@ -165,6 +165,15 @@ def build_geometry(res: Results, cache_dir=None):
             file=res.path or "results",
             expected="the plant parameter file and CPlantBox version of the run (or run the model again)",
         )
+    stored, now = res.ds.attrs.get("layout_fingerprint"), fld.layout_fingerprint()
+    if stored is not None and str(stored) != now:  # files written before it: the areas below only
+        raise InputError(
+            f"the results' plants stood or faced otherwise than in the field rebuilt from their attrs "
+            f"(layout fingerprint {stored}, rebuilt {now})",
+            file=res.path or "results",
+            column="layout_fingerprint",
+            expected="the attrs of the field the results were computed on (seed, headings, spacings, direction)",
+        )
     geom = build(fld, cache_dir=cache_dir)
     ids = res.ds["segment"].values.astype(np.int64)
     unknown = np.setdiff1d(ids, geom.segments["segment_id"].to_numpy())

@@ -182,9 +182,11 @@ class Field:
     def attrs(self) -> dict:
         """The field as netCDF attributes of a results file, what :meth:`from_attrs` rebuilds it from;
         ``growth_fingerprint`` (:meth:`~lightfit.plant.growth.GrowthConfig.fingerprint`: the plant file's
-        contents, dates and CPlantBox version) tells whether a rebuild grows the same plants."""
+        contents, dates and CPlantBox version) tells whether a rebuild grows the same plants, and
+        ``layout_fingerprint`` (:meth:`layout_fingerprint`) whether it places them alike."""
         return {
             "growth_fingerprint": self.growth.fingerprint(),
+            "layout_fingerprint": self.layout_fingerprint(),
             "n_plants": self.n_plants,
             "boundary": self.boundary,
             "buffer_rows": self.buffer_rows,
@@ -199,6 +201,16 @@ class Field:
             "plant_spacing_m": self.plant_spacing_m,
             "row_direction_deg": self.row_direction_deg,
         }
+
+    def layout_fingerprint(self) -> str:
+        """SHA-256 (first 16 hex digits) of every plant's id, position and heading (:meth:`plants`, to
+        a nanometre and a nanodegree): two fields with the same attributes but plants placed or turned
+        otherwise (another ``seed``: other headings) differ here, where their segment areas agree."""
+        import hashlib
+
+        p = self.plants()
+        table = np.column_stack([p["plant_id"], p["x_m"], p["y_m"], p["heading_deg"]]).round(9)
+        return hashlib.sha256(np.ascontiguousarray(table, dtype=np.float64).tobytes()).hexdigest()[:16]
 
     @staticmethod
     def from_attrs(attrs, file=None) -> Field:
