@@ -130,7 +130,8 @@ def calibrate(
                     "or --no-surrogate (full renders, the whole domain)",
                 )
     obs = read_observations(observations)
-    check_light_scale(obs, weather(s))  # a unit slip, before the plants grow
+    w = weather(s)
+    check_light_scale(obs, w)  # a unit slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}
@@ -149,8 +150,8 @@ def calibrate(
     if stored and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
         f = next(iter(stored))  # settings.json if there, else calibration.json
         check_resumable(stored[f].get("config"), s, f, "calibration history")
-    m = run_model(s)  # several --date: one model per day
-    observed_model(m, obs, uses)  # observations the run's steps cannot match fail before --out is written
+    m = run_model(s, w)  # several --date: one model per day
+    cut = observed_model(m, obs, uses)  # observations the run's steps cannot match fail before --out is written
     out.mkdir(parents=True, exist_ok=True)
     replace_text(settings, json.dumps({"config": s.as_dict()}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
@@ -181,7 +182,7 @@ def calibrate(
             )
         res = tr.result
     else:
-        m, obs, _ = observed_model(m, obs, uses)  # render only the steps the observations need
+        m, obs, _ = cut  # render only the steps the observations need
         res = run_calibration(
             m,
             obs,

@@ -712,9 +712,8 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     check_seed(s.render_seed)
     if s.ceptometer_height_m is not None:
         check_ceptometer_height(s.ceptometer_height_m)
-    if s.bounces is not None:  # None: chosen from the leaf
+    if s.bounces is not None:  # None: chosen from the leaf; given (or --quick's): say what it leaves out
         check_bounces(s.bounces)
-    if s.bounces is not None:  # asked for, or --quick's: say what fewer orders than the leaf's own leave out
         optics = s.replication_config().leaf_optics()
         own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
         if s.bounces < own:
@@ -991,16 +990,17 @@ def coupled_model(s: ModelSettings, w=None, progress: bool = True):
     return CoupledModel(scenario(s, w), progress=progress)
 
 
-def run_model(s: ModelSettings, progress: bool = True):
+def run_model(s: ModelSettings, w=None, progress: bool = True):
     """The model of a calibration or posterior: one :class:`~lightfit.model.coupled.CoupledModel` for
     one date; for several ``--date`` a :class:`~lightfit.inference.multiday.MultiDayModel` of one model
-    per date (plants grown to it, that day's forcing and window)."""
+    per date (plants grown to it, that day's forcing and window). ``w``: the run's forcing if already
+    read (:func:`weather`)."""
+    w = weather(s) if w is None else w
     if len(s.dates) <= 1:
-        return coupled_model(s, weather(s), progress)
+        return coupled_model(s, w, progress)
     from lightfit.inference.multiday import MultiDayModel
     from lightfit.replication import days
 
-    w = weather(s)
     return MultiDayModel(
         {
             d: coupled_model(dataclasses.replace(s, dates=(d,)), wd, progress)

@@ -20,7 +20,7 @@ from lightfit.cli.options import (
     run_model,
     weather,
 )
-from lightfit.errors import InputError, check_integer
+from lightfit.errors import InputError
 from lightfit.files import replace_text
 
 
@@ -98,10 +98,10 @@ def posterior(
     if not (mc_scale >= 0 and mc_scale < float("inf")):
         raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
-    P.check_run_size(len(names), walkers, max_steps)  # before the design is rendered
-    check_integer(sampler_seed, "sampler_seed", 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
+    P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     obs = read_observations(observations or rep.OBSERVATIONS)
-    check_light_scale(obs, weather(s))  # a unit slip, before the plants grow
+    w = weather(s)
+    check_light_scale(obs, w)  # a unit slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     flat = uninformed(names, uses, bounces=cfg.render_bounces(), par_kind=cfg.par_kind)
@@ -112,11 +112,13 @@ def posterior(
         )
     # A stored chain made with other model settings (e.g. the finite field, before periodic became
     # the default) or another likelihood must not be resumed: checked before the plants are grown.
-    if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
-        check_resumable(P.backend.run_attrs(out / "run.h5").get("config"), s, out / "run.h5", "posterior run")
-        A.check_likelihood(out / "run.h5", form)
-        A.check_resume(out / "run.h5", {"seed": sampler_seed})
-    m = run_model(s)  # several --date: one model per day
+    run_h5 = out / "run.h5"
+    stored = P.backend.run_attrs(run_h5) if resume and P.backend.stored_run(run_h5, "mcmc") is not None else None
+    if stored is not None:  # its attributes only, not the chain
+        check_resumable(stored.get("config"), s, run_h5, "posterior run")
+        A.check_likelihood(run_h5, form)
+        A.check_resume(run_h5, {"seed": sampler_seed})
+    m = run_model(s, w)  # several --date: one model per day
     # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
     m, obs, n_rendered = observed_model(m, obs, uses)
     prior_set = A.prior_set(priors, m.scenario.optics)  # informed: the priors of the run's leaf
@@ -133,9 +135,10 @@ def posterior(
                 f"{out / 'run.h5'} was written before lightfit recorded its {', '.join(unchecked)}: "
                 "resuming it without comparing them"
             )
-        if P.backend.stored_run(out / "run.h5", "mcmc") is not None:  # its attributes only, not the chain
-            done = P.backend.run_attrs(out / "run.h5")["iteration"]
-            console.print(f"resuming {out / 'run.h5'}: {done} steps kept, the chain continues from its last step")
+        if stored is not None:
+            console.print(
+                f"resuming {out / 'run.h5'}: {stored['iteration']} steps kept, the chain continues from its last step"
+            )
     out.mkdir(parents=True, exist_ok=True)
     if not resume:  # the run it starts again: its summary must not outlive it (an interrupted run writes none)
         (out / "summary.json").unlink(missing_ok=True)

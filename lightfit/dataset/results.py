@@ -262,7 +262,7 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
     their own sun and sky is refused: the images would be lit by another sky than the labels.
     """
     ds = res.ds
-    own = all(v in ds for v in LIGHT_VARS)
+    own = _carries_light(res)
     if own and weather_source is not None:
         raise InputError(
             f"weather {weather_source!r} given, but the results carry their own sun and sky "
@@ -294,11 +294,16 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
     return [Lighting(*(float(cols[v][i]) for v in LIGHT_VARS)) for i in range(len(time_indices))]
 
 
+def _carries_light(res: Results) -> bool:
+    """Whether the results carry their own sun and sky (:data:`LIGHT_VARS`)."""
+    return all(v in res.ds for v in LIGHT_VARS)
+
+
 def lighting_provenance(res: Results, weather_source: str | None = None) -> dict:
     """Where :func:`lighting`'s sun and sky come from, for a dataset's metadata: the results' own
     variables, or the weather series (its file and provenance) that lit results without them (the
     metadata named only the model run's weather, which had not lit the images; a review)."""
-    if all(v in res.ds for v in LIGHT_VARS):
+    if _carries_light(res):
         return {"from": "results", "variables": list(LIGHT_VARS)}
     wx = _weather(res, weather_source)
     return {"from": "weather", "source": str(wx.attrs.get("source")), "provenance": str(wx.attrs.get("provenance"))}

@@ -47,11 +47,11 @@ class SamplerResult:
     refused: int = 0
 
 
-def check_run_size(ndim: int, nwalkers: int, max_steps: int, seed: int = 0) -> None:
+def check_run_size(ndim: int, nwalkers: int, max_steps: int, seed: int = 0, seed_name: str = "seed") -> None:
     """emcee's red-blue moves (stretch, differential evolution) need an even number of walkers, at
     least two per parameter, and differential evolution a pair of walkers in the other half (four
-    at least); a run needs a step. :class:`InputError` naming the value otherwise (before anything is
-    rendered)."""
+    at least); a run needs a step, and numpy's RandomState a ``seed`` ≥ 0 (``seed_name``: how the
+    caller names it). :class:`InputError` naming the value otherwise (before anything is rendered)."""
     if ndim == 0:
         raise InputError("no parameters to sample", column="names", expected="at least one parameter")
     least = max(2 * ndim, 4)
@@ -60,7 +60,7 @@ def check_run_size(ndim: int, nwalkers: int, max_steps: int, seed: int = 0) -> N
             f"nwalkers={nwalkers}", column="nwalkers", expected=f"an even number ≥ max(2·ndim, 4) = {least}"
         )
     check_integer(max_steps, "max_steps", 1)
-    check_integer(seed, "seed", 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
+    check_integer(seed, seed_name, 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
 
 
 def sample(
