@@ -643,3 +643,68 @@ def test_the_result_counts_the_likelihoods_entries_not_the_files_rows():
     res = calibrate(model, twice, names=("light_factor",), max_steps=1, progress=False, say=lambda _: None)
     assert int(twice[["plant_par_umol_m2_s", "canopy_an_umol_m2_s"]].notna().sum().sum()) == 22
     assert res.n_observations == 6 + 5  # PAR at 6 steps, An at 5
+
+
+def _weighted_least_squares(model, obs, f0: float) -> float:
+    """The light factor minimising ½Σ (y − f·a)²/v with v = σ² + s(f0)², in numpy (PAR is f·a)."""
+    ok = obs["plant_par_umol_m2_s"].notna().to_numpy()
+    a = (400 + 100 * model.theta().specular) * np.asarray(model.shape)
+    v = obs["plant_par_sd_umol_m2_s"].to_numpy() ** 2 + (30.0 * f0) ** 2 * np.asarray(model.shape)
+    y = obs["plant_par_umol_m2_s"].to_numpy()
+    return float(np.sum((y * a / v)[ok]) / np.sum((a * a / v)[ok]))
+
+
+def test_the_loss_holds_its_monte_carlo_sds_so_its_gradient_is_its_derivative():
+    """Where the Monte Carlo SD moves with θ and its gradient is stopped, the loss's value and
+    gradient were two functions: a line search met a slope it was not given (L-BFGS-B stopped on a
+    failed line search on this model, BFGS short of the minimum). The loss holds the SDs of its
+    start (a plug-in, as the correlation is held): the gradient equals central differences, and
+    both optimisers converge to the weighted least-squares light factor, solved here in numpy."""
+    from test_posterior import NoisyModel, _fake_obs
+
+    model = NoisyModel()
+    obs = _fake_obs(model)
+    loss = make_loss(model, obs, ("light_factor",), {"light_factor": 1.0})
+    for x in (0.8, 1.3):
+        g = float(jax.grad(lambda z: loss.natural(z))(jnp.asarray([x]))[0])
+        h = 1e-5
+        fd = (float(loss.natural(jnp.asarray([x + h]))) - float(loss.natural(jnp.asarray([x - h])))) / (2 * h)
+        assert g == pytest.approx(fd, rel=1e-6), (x, g, fd)
+    want = _weighted_least_squares(model, obs, 1.0)
+    for method in ("lbfgsb", "bfgs"):
+        res = calibrate(
+            model,
+            obs,
+            names=("light_factor",),
+            start={"light_factor": 1.0},
+            method=method,
+            progress=False,
+            say=lambda _: None,
+        )
+        assert res.stopped_by == "converged", (method, res.reason)
+        assert res.theta["light_factor"] == pytest.approx(want, rel=1e-4), method
+    # the held SDs are the start's: another start, another weighting (each a weighted least squares)
+    res = calibrate(model, obs, names=("light_factor",), start={"light_factor": 2.0}, progress=False)
+    assert res.theta["light_factor"] == pytest.approx(_weighted_least_squares(model, obs, 2.0), rel=1e-4)
+    assert abs(_weighted_least_squares(model, obs, 2.0) - want) > 4e-4 * want  # 4× the tolerance above
+
+
+def test_a_state_saved_with_each_points_own_sds_is_refused_on_resume(tmp_path):
+    """A state saved before the loss held its start's Monte Carlo SDs optimised another function:
+    its resume is refused, naming the likelihood's mc_sd_at and the way out, not continued with a
+    quasi-Newton matrix of the other loss."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=2, **kw)
+    state = tmp_path / "h.jsonl.state.npz"
+    with np.load(state) as z:
+        saved = dict(z)
+    meta = json.loads(str(saved["meta"]))
+    assert meta["key"]["likelihood"]["mc_sd_at"] == "start"
+    del meta["key"]["likelihood"]["mc_sd_at"]  # as written before the plug-in
+    np.savez(state, **{**saved, "meta": json.dumps(meta)})
+    with pytest.raises(InputError, match=r"other likelihood \(mc_sd_at: None → 'start'\)") as e:
+        calibrate(model, obs, history=h, max_steps=4, **kw)
+    assert "--no-resume" in str(e.value)
+    assert calibrate(model, obs, history=h, max_steps=4, resume=False, **kw).steps > 0

@@ -20,7 +20,7 @@ from lightfit.cli import app
 from lightfit.errors import InputError
 from lightfit.inference import posterior as A
 from lightfit.inference.calibration import make_loss
-from lightfit.inference.likelihood import GaussianLikelihood, mc_correlation
+from lightfit.inference.likelihood import GaussianLikelihood, mc_correlation, plug_in
 from lightfit.inference.mcmc import load_run
 from lightfit.inference.multiday import MultiDayModel, joined, with_lights
 from lightfit.inference.observations import BY_NAME, write_observations
@@ -92,10 +92,12 @@ def test_multiday_likelihood_is_the_sum_of_the_days(days):
     w = np.asarray(lik.whitened(m_all)).reshape(2, 6)
     w_days = np.concatenate([np.asarray(own[d].whitened(m_day[d])).reshape(2, 3) for d in DATES], axis=1)
     np.testing.assert_allclose(w, w_days, rtol=1e-9, atol=1e-12)
-    # make_loss computes the same correlation itself ("model") from the days' models
+    # make_loss computes the same correlation itself ("model") from the days' models, and holds the
+    # Monte Carlo SDs of its reference point (the fixed values, TRUTH)
     loss = make_loss(multi, obs, ("light_factor",), TRUTH, use=USE, mc_correlation="model", mc_scale=2.0)
+    held = plug_in(lik, multi.observe(TRUTH))
     assert float(loss.natural(jnp.asarray([1.04]))) == pytest.approx(
-        float(lik.loss(multi.observe(TRUTH.replace(light_factor=1.04))))
+        float(lik.loss(multi.observe(TRUTH.replace(light_factor=1.04)), held)), rel=1e-10
     )
     # one leaf describes every day only if it is the same leaf
     grey = fixed[DATES[1]].with_light(None)  # a copy; its scenario replaced by the grey leaf's

@@ -416,6 +416,15 @@ class FakeModel:
         }
 
 
+class NoisyModel(FakeModel):
+    """FakeModel with a PAR Monte Carlo SD that moves with the light factor, as the real observation
+    operator's does (gradient stopped), and dominates the measurement SD: 30·f·√shape against 10."""
+
+    def observe(self, th: Theta):
+        sd = jax.lax.stop_gradient(30.0 * th.light_factor * jnp.sqrt(self.shape))
+        return {**super().observe(th), "plant_par_mc_sd_umol_m2_s": sd}
+
+
 TRUE = Theta(specular=0.5, light_factor=1.1, vcmax_scale=0.9)
 
 
@@ -1039,3 +1048,36 @@ def test_cautions_say_what_the_numbers_cannot():
     )
     assert lines == ["the MAP search did not converge (ABNORMAL): MAP is the best sample it started from"]
     assert _cautions({"names": ["a"], "rhat": [1.01], "tau_reliable": True, "acceptance_ok": True}) == []
+
+
+def test_the_map_search_holds_the_monte_carlo_sds_of_its_start():
+    """The MAP search's objective takes the Monte Carlo SDs at its start and holds them (their
+    gradient is stopped, their values moved with θ: the objective's slope was not its derivative and
+    L-BFGS-B could end "ABNORMAL"). On a model whose PAR SD ∝ light factor it converges to the
+    maximum of the log prior plus the Gaussian terms with those SDs, found here by a bounded scalar
+    search over a numpy objective; the profile's objective holds the MAP's SDs the same way."""
+    from scipy.optimize import minimize_scalar
+
+    from lightfit.inference.posterior import identifiability, optimum
+
+    model = NoisyModel()
+    obs = _fake_obs(model)
+    lp = P.LogPosterior(model.observe, model.times, obs, ("light_factor",), P.PRIORS_INFORMED)
+    info: dict = {}
+    x = optimum(lp, np.array([1.0]), info=info)
+    assert info["converged"] and not info["kept_start"], info
+    ok = obs["plant_par_umol_m2_s"].notna().to_numpy()
+    a = (400 + 100 * model.theta().specular) * np.asarray(model.shape)[ok]
+    v = 10.0**2 + 30.0**2 * np.asarray(model.shape)[ok]  # s at the start, f = 1
+    y = obs["plant_par_umol_m2_s"].to_numpy()[ok]
+    prior = lp.priors["light_factor"]
+
+    def nlp(f):
+        return 0.5 * np.sum((y - f * a) ** 2 / v) - float(prior.logpdf(jnp.asarray(f)))
+
+    want = minimize_scalar(nlp, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-10}).x
+    assert float(x[0]) == pytest.approx(want, rel=1e-5)
+    # the profile through the MAP (one parameter: the slice) is the held objective, minimal at t = 0
+    _, profile = identifiability(lp, x, n_profile=5)
+    mid = int(np.argmin(np.abs(profile["t"])))
+    assert profile["t"][mid] == 0.0 and np.argmin(profile["slice_nll"]) == mid

@@ -4,7 +4,9 @@ Loss: the calibration loss of :class:`~lightfit.inference.likelihood.GaussianLik
 
 .. math:: \mathcal L(\theta) = \tfrac12 \sum_{k \in obs} \frac{(y_k - m_k(\theta))^2}{\sigma_k^2 + s_k^2}
 
-(measurement SD σ_k, the model's Monte Carlo SD s_k, treated as a constant in the gradient), or
+(measurement SD σ_k, the model's Monte Carlo SD s_k taken at the start θ₀ and held: a plug-in, so that
+the optimisers' gradient is the derivative of the loss they evaluate; see
+:mod:`lightfit.inference.likelihood`, "Plug-in Monte Carlo variance"), or
 with ``mc_correlation`` the correlated form ½ rᵀΣ⁻¹r with the model's Monte Carlo correlation
 across steps and series (:mod:`lightfit.inference.likelihood`; ``lightfit calibrate``'s default).
 Gradients by reverse mode through the Mitsuba bridge and the implicit photosynthesis solve. Two
@@ -65,6 +67,7 @@ from lightfit.inference.likelihood import (
     check_informed,
     likelihood_form,
     observations_digest,
+    plug_in,
     run_settings,
 )
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
@@ -143,7 +146,9 @@ class Loss:
     ``loss(z)`` → ``(value, None)`` over unconstrained z (optimistix's signature);
     ``loss.natural(x)`` → value over the natural parameters; ``loss.theta(x)`` the model parameters.
     ``bounds``: (lo, hi) per name narrowing :data:`BOUNDS` (both optimisers stay inside), checked by
-    :func:`check_bounds`.
+    :func:`check_bounds`. ``mc``: the plug-in Monte Carlo SDs that build Σ at every θ
+    (:func:`~lightfit.inference.likelihood.plug_in` at a reference θ; ``None``: each point's own,
+    whose gradient is stopped, so that value and gradient then disagree where they matter).
     """
 
     def __init__(
@@ -153,10 +158,12 @@ class Loss:
         names,
         base: Theta,
         bounds: Mapping[str, tuple[float, float]] | None = None,
+        mc: Mapping | None = None,
     ):
         self.forward, self.likelihood, self.names, self.base = forward, likelihood, tuple(names), base
         self.n_observations = likelihood.n_observations
         self.bounds = check_bounds(bounds, self.names)
+        self.mc = mc
 
     def theta(self, x) -> Theta:
         return self.base.with_vector(self.names, x)
@@ -164,7 +171,7 @@ class Loss:
     def natural(self, x) -> jax.Array:
         """The loss at natural parameters ``x``; +inf where a blade's photosynthesis did not converge
         (:meth:`GaussianLikelihood.loss`: the line searches reject the trial)."""
-        return self.likelihood.loss(self.forward(self.theta(x)))
+        return self.likelihood.loss(self.forward(self.theta(x)), self.mc)
 
     def to_natural(self, z) -> jax.Array:
         return jnp.stack([from_unconstrained(z[i], n, self.bounds) for i, n in enumerate(self.names)])
@@ -200,7 +207,10 @@ def make_loss(
     (default: the fixed values; one render and one reverse pass per series unless the model's light
     is injected, e.g. ``model.with_light(emulator)``). ``mc_scale``: c of the likelihood (1 for
     measured data, 2 for twins rendered at the model's samples). ``model`` may be a
-    :class:`~lightfit.inference.multiday.MultiDayModel` (several days, one likelihood)."""
+    :class:`~lightfit.inference.multiday.MultiDayModel` (several days, one likelihood).
+
+    The loss's Monte Carlo SDs are taken at ``at`` too and held (:attr:`Loss.mc`; one evaluation of
+    ``forward`` here, a render on full renders): the loss's gradient is then its derivative."""
     names = check_names(names)
     base = model.theta(fixed)
     lik = GaussianLikelihood.of_model(model, obs, use, mc_scale=mc_scale)
@@ -211,7 +221,13 @@ def make_loss(
         mc_correlation = None
     if mc_correlation is not None:
         lik = GaussianLikelihood.of_model(model, obs, lik.use, mc_correlation=mc_correlation, mc_scale=mc_scale)
-    return Loss(forward or model.observe, lik, names, base, bounds)
+    check_bounds(bounds, names)  # before the plug-in's evaluation (a render on full renders)
+    forward = forward or model.observe
+    mc = plug_in(lik, forward(as_theta(at, base=base)))
+    # non-finite SDs (a start whose photosynthesis did not converge): the point's own, whose loss is
+    # +inf there, so that the optimisers report the start as unconverged rather than a NaN loss
+    finite = all(np.isfinite(v).all() for v in mc.values())
+    return Loss(forward, lik, names, base, bounds, mc if finite else None)
 
 
 @dataclass
@@ -555,7 +571,8 @@ def calibrate(
         "base": loss.base.to_dict(),
         "tolerances": [rtol, atol, gtol],
         "use": list(loss.likelihood.use),
-        "likelihood": form,
+        # the plug-in SDs' point enters the form: a state saved with moving SDs optimised another loss
+        "likelihood": {**form, "mc_sd_at": "start"},
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
         key["bounds"] = {n: list(loss.bounds[n]) for n in names}
@@ -573,7 +590,7 @@ def calibrate(
         before = old["likelihood"]
         what = [
             "likelihood ("
-            + "; ".join(f"{k}: {before.get(k)!r} → {v!r}" for k, v in form.items() if before.get(k) != v)
+            + "; ".join(f"{k}: {before.get(k)!r} → {v!r}" for k, v in key["likelihood"].items() if before.get(k) != v)
             + ")"
             if k == "likelihood"
             else k

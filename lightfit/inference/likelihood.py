@@ -37,6 +37,18 @@ for parameters that merely make the renders noisier). So
 :math:`\mathcal L_{cal} = -\log L - \tfrac12\sum_k \log(2\pi v_k)` at λ = 1, and the gradient of
 both is the same. The posterior samples λ and therefore needs the normalisation.
 
+**Plug-in Monte Carlo variance** (``mc=`` of :meth:`GaussianLikelihood.loss` and
+:meth:`~GaussianLikelihood.log_likelihood`, :func:`plug_in`). The SDs' *values* still move with θ
+(the PAR SD scales with the light factor, the An SD with dAn/dPAR, a render's SE with the leaf)
+while their gradient is stopped, so the gradient of :math:`r^2/v(\theta)` is not the derivative
+of its value: where s² is a large share of v, a line search meets a function whose slope it is
+not given (on a closed-form model with s ∝ light factor, L-BFGS-B stopped on a failed line
+search). The optimisers therefore take s at a reference θ₀ and hold it,
+:math:`v_k = (\lambda\sigma_k)^2 + c\,s_k(\theta_0)^2`, as C is held: value and gradient are then
+one function. :func:`~lightfit.inference.calibration.calibrate` takes θ₀ = its start (the
+surrogate's rounds: each round's start, so s follows the optimum round by round), the posterior's
+MAP search the best sample. emcee needs no gradient and samples the likelihood with s(θ).
+
 **Correlated Monte Carlo error** (``mc_correlation``, docs/posterior.md "Monte Carlo covariance").
 The renderer reuses a segment's random numbers at every time step, so its error is shared across
 steps (the sky part's exactly) and across series: the steps are not independent. With the
@@ -484,17 +496,27 @@ class GaussianLikelihood:
         """y − m read at the observations, per used series (T,)."""
         return {s.name: self.y[s.name] - self.at_observations(s.name, m[s.value]) for s in self.series}
 
-    def loss(self, m: Mapping) -> jax.Array:
+    def loss(self, m: Mapping, mc: Mapping | None = None) -> jax.Array:
         """Calibration loss ½ rᵀΣ⁻¹r at λ = 1 (no normalisation; see the module docstring); +inf where
-        ``m``'s photosynthesis did not converge."""
-        return jnp.where(unconverged(m) > 0, jnp.inf, 0.5 * jnp.sum(self.whitened(m) ** 2))
+        ``m``'s photosynthesis did not converge. ``mc``: outputs whose Monte Carlo SDs build Σ (a
+        plug-in, e.g. :func:`plug_in` at a reference θ; default ``m``'s own)."""
+        w = self._whiten(self._residuals(m), m if mc is None else mc, 1.0)[0]
+        return jnp.where(unconverged(m) > 0, jnp.inf, 0.5 * jnp.sum(w**2))
 
-    def log_likelihood(self, m: Mapping, noise_scale=1.0) -> jax.Array:
+    def log_likelihood(self, m: Mapping, noise_scale=1.0, mc: Mapping | None = None) -> jax.Array:
         """log L = −½ [rᵀΣ⁻¹r + n log 2π + log det Σ] over the observed steps of the used series;
-        −inf where ``m``'s photosynthesis did not converge."""
-        w, logdet = self._whiten(self._residuals(m), m, noise_scale)
+        −inf where ``m``'s photosynthesis did not converge. ``mc`` as in :meth:`loss`."""
+        w, logdet = self._whiten(self._residuals(m), m if mc is None else mc, noise_scale)
         ll = -0.5 * (jnp.sum(w**2) + self.n_observations * jnp.log(2 * jnp.pi) + logdet)
         return jnp.where(unconverged(m) > 0, -jnp.inf, ll)
+
+
+def plug_in(lik: GaussianLikelihood, m: Mapping) -> dict:
+    """The Monte Carlo SDs of model outputs ``m`` that :class:`GaussianLikelihood` reads (each used
+    series' ``mc_sd`` key), as concrete numpy arrays: the plug-in variance of a loss optimised by
+    gradient (``mc=`` of :meth:`GaussianLikelihood.loss`), taken once at a reference θ, as the
+    correlation C is (see the module docstring, "Plug-in Monte Carlo variance")."""
+    return {s.mc_sd: np.asarray(m[s.mc_sd], np.float64) for s in lik.series}
 
 
 def observations_digest(lik: GaussianLikelihood, times: pd.DatetimeIndex) -> str:
@@ -527,6 +549,7 @@ __all__ = [
     "likelihood_form",
     "mc_correlation",
     "observations_digest",
+    "plug_in",
     "resolve_use",
     "run_settings",
     "uninformed",

@@ -299,13 +299,15 @@ def check_emulator_box(
 
 def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict | None = None) -> np.ndarray:
     """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start`` (kept where
-    the optimiser ends no better). ``info``, if given, receives ``converged`` (the optimiser's own
-    success flag), its ``message`` and ``kept_start``, so that a MAP the optimiser did not reach is
-    said so."""
+    the optimiser ends no better), the Monte Carlo SDs held at ``start`` (a plug-in: the objective's
+    gradient is its derivative; :mod:`lightfit.inference.likelihood`). ``info``, if given, receives
+    ``converged`` (the optimiser's own success flag), its ``message`` and ``kept_start``, so that a
+    MAP the optimiser did not reach is said so."""
     from scipy.optimize import minimize
 
     bounds = [lp.priors[n].support for n in lp.names]
-    vg = jax.jit(jax.value_and_grad(lambda x: -(lp.log_prior(x) + lp.log_likelihood(x))))
+    mc = lp.plug_in(start)
+    vg = jax.jit(jax.value_and_grad(lambda x: -(lp.log_prior(x) + lp.log_likelihood(x, mc))))
 
     def fun(x):
         v, g = vg(jnp.asarray(x))
@@ -362,8 +364,9 @@ def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray
 
 def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) -> tuple[dict, dict]:
     """Fisher information of the model parameters at ``x_map`` (noise scale held there) and the profile
-    likelihood along the sloppiest direction, ±2 widths; in log-parameters (relative changes) unless the
-    optimum sits on a zero bound."""
+    likelihood along the sloppiest direction, ±2 widths, the Monte Carlo SDs held at ``x_map`` (as the
+    MAP search holds them at its start); in log-parameters (relative changes) unless the optimum sits on
+    a zero bound."""
     model_names = tuple(n for n in lp.names if n != NOISE_SCALE)
     idx = [lp.names.index(n) for n in model_names]
 
@@ -371,6 +374,7 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
         return jnp.asarray(x_map).at[jnp.asarray(idx)].set(xm)
 
     scale = "log" if np.all(x_map[idx] > 1e-6) else "natural"
+    mc = lp.plug_in(x_map)
     fi = fisher_information(lambda xm: lp.residuals(at(xm)), x_map[idx], model_names, scale=scale)
     fisher = {
         "names": list(model_names),
@@ -388,7 +392,7 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
     # The other directions are optimised inside the priors' support (the emulator's box): outside
     # it the emulator would extrapolate (a review found the optimiser at specular 60).
     ts, prof, slc = profile_likelihood(
-        lambda xm: -lp.log_likelihood(at(xm)),
+        lambda xm: -lp.log_likelihood(at(xm), mc),
         x_map[idx],
         d,
         ts,

@@ -72,7 +72,8 @@ Absorbed PAR per segment stays an output (``absorbed_par_umol_m2_s``, results.nc
 compare leaf by leaf.
 
 Monte Carlo SDs carry no gradient (``jax.lax.stop_gradient``): they weight the likelihood, they
-are not fitted. The aggregate functions accept numpy arrays (computed in numpy, float64) or JAX
+are not fitted; the optimisers hold them at a reference θ (:func:`lightfit.inference.likelihood.plug_in`),
+since their values still move with θ. The aggregate functions accept numpy arrays (computed in numpy, float64) or JAX
 arrays (computed in JAX, differentiable).
 """
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation
+from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, plug_in
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
 from lightfit.model.coupled import NonConvergenceWarning
 from lightfit.model.parameters import Theta, as_theta
@@ -99,13 +99,20 @@ class LogPosterior:
     def log_prior(self, x) -> jax.Array:
         return sum(self.priors[n].logpdf(x[i]) for i, n in enumerate(self.names))
 
-    def log_likelihood(self, x) -> jax.Array:
-        """log L at ``x``; −inf where it was refused (:meth:`log_prob_refused`)."""
-        return self._log_likelihood_refused(x)[0]
+    def log_likelihood(self, x, mc: Mapping | None = None) -> jax.Array:
+        """log L at ``x``; −inf where it was refused (:meth:`log_prob_refused`). ``mc``: plug-in
+        Monte Carlo SDs (:meth:`plug_in`) for an optimiser's objective; default ``x``'s own."""
+        return self._log_likelihood_refused(x, mc)[0]
 
-    def _log_likelihood_refused(self, x) -> tuple[jax.Array, jax.Array]:
+    def plug_in(self, x) -> dict:
+        """The Monte Carlo SDs of the outputs at ``x``, held by a gradient optimiser's objective
+        (:func:`lightfit.inference.likelihood.plug_in`: value and gradient one function)."""
+        return plug_in(self.likelihood, self.observables(jnp.asarray(x, jnp.float64))[0])
+
+    def _log_likelihood_refused(self, x, mc: Mapping | None = None) -> tuple[jax.Array, jax.Array]:
         # −inf already where the photosynthesis did not converge (GaussianLikelihood); NaN too here
-        ll = self.likelihood.log_likelihood(*self.observables(x))
+        m, lam = self.observables(x)
+        ll = self.likelihood.log_likelihood(m, lam, mc)
         refused = ~jnp.isfinite(ll)
         return jnp.where(refused, -jnp.inf, ll), refused
 
