@@ -91,6 +91,31 @@ def test_split_closure_and_night(model):
     assert dull.loc[noon, "dhi_w_m2"] > 0.9 * 0.2 * ghi[noon]
 
 
+@pytest.mark.parametrize("model", ["erbs", "boland"])
+def test_the_split_takes_the_true_zenith_and_the_beam_the_apparent_sun(model):
+    """Erbs and Boland were fitted with the true (unrefracted) zenith, which pvlib asks for: the
+    split's DHI is pvlib's at the true zenith (the apparent one gave more diffuse light at a low
+    sun), and the rest of GHI comes as beam from the apparent sun, closing exactly on it. The
+    reference is pvlib called directly on SPA's true zenith."""
+    t = pd.date_range("2016-04-20 03:30", "2016-04-20 19:30", freq="10min", tz="UTC")
+    sp = pvlib.solarposition.get_solarposition(t, SELHAUSEN.latitude_deg, SELHAUSEN.longitude_deg, SELHAUSEN.altitude_m)
+    ghi = pd.Series(np.clip(0.6 * 1361 * np.sin(np.radians(sp["elevation"])), 0, None) + 20.0, index=t)
+    df = add_solar(pd.DataFrame({"ghi_w_m2": ghi}, index=t).assign(air_temperature_c=10.0), split_model=model)
+    if model == "erbs":
+        want = pvlib.irradiance.erbs(ghi, sp["zenith"], t)["dhi"]
+    else:
+        want = pvlib.irradiance.boland(ghi, sp["zenith"], t, a_coeff=8.645, b_coeff=0.613)["dhi"]
+    day = sp["apparent_elevation"] > 0
+    np.testing.assert_allclose(df["dhi_w_m2"][day], want[day], rtol=1e-12)
+    np.testing.assert_allclose(df["dhi_w_m2"][~day], ghi[~day], rtol=1e-12)
+    sin_app = np.sin(np.radians(sp["apparent_elevation"].clip(lower=0)))
+    np.testing.assert_allclose(df["dni_w_m2"] * sin_app + df["dhi_w_m2"], ghi, rtol=1e-12)
+    # at a low sun the true zenith matters: the apparent one's DHI is larger, far beyond the tolerance
+    low = day & (sp["elevation"] > 3) & (sp["elevation"] < 8)
+    apparent = split_direct_diffuse(ghi, sp["apparent_elevation"], model)["dhi_w_m2"]
+    assert low.any() and (apparent[low] >= want[low]).all() and (apparent[low] / want[low] - 1).max() > 0.01
+
+
 def test_unknown_split_model():
     t = pd.DatetimeIndex([pd.Timestamp("2016-04-20 12:00", tz="UTC")])
     with pytest.raises(InputError, match="split model"):

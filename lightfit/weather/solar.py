@@ -51,7 +51,9 @@ CLEAR_SKY_MIN_ELEVATION_DEG = 20.0
 
 
 def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFrame:
-    """Apparent solar elevation and azimuth (degrees) at tz-aware ``times``.
+    """Apparent solar elevation and azimuth (degrees) at tz-aware ``times``, and the true (geometric,
+    unrefracted) elevation ``sun_true_elevation_deg`` that decomposition models take
+    (:func:`split_direct_diffuse`).
 
     Uses pvlib's NREL SPA (Reda & Andreas 2004, Solar Energy 76, 577), with refraction.
     Azimuth is clockwise from north.
@@ -61,7 +63,14 @@ def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFr
             "timestamps are timezone-naive", column="time", expected="tz-aware timestamps (lightfit uses UTC)"
         )
     sp = pvlib.solarposition.get_solarposition(times, site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
-    return pd.DataFrame({"sun_elevation_deg": sp["apparent_elevation"], "sun_azimuth_deg": sp["azimuth"]}, index=times)
+    return pd.DataFrame(
+        {
+            "sun_elevation_deg": sp["apparent_elevation"],
+            "sun_azimuth_deg": sp["azimuth"],
+            "sun_true_elevation_deg": sp["elevation"],
+        },
+        index=times,
+    )
 
 
 def check_split_model(model, models=SPLIT_MODELS, where: str = "split_model") -> str:
@@ -83,7 +92,9 @@ def boland_coeffs(times: pd.DatetimeIndex) -> tuple[float, float]:
     return BOLAND_COEFFS[15 if step_min <= 30 else 60]
 
 
-def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, model: str = "erbs") -> pd.DataFrame:
+def split_direct_diffuse(
+    ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, model: str = "erbs", true_elevation_deg: pd.Series | None = None
+) -> pd.DataFrame:
     r"""Split global horizontal irradiance into direct normal and diffuse horizontal parts.
 
     Models: ``"erbs"`` (Erbs, Klein & Duffie 1982, Solar Energy 28, 293; fitted to hourly data)
@@ -91,11 +102,16 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
     Luther 2001, Environmetrics 12, 103), both from the clearness index k_t. Boland et al. fitted
     (a, b) per averaging interval: (8.645, 0.613) for 15-minute and (7.997, 0.586) for hourly data;
     series with steps up to 30 min take the first, longer steps the second (:data:`BOLAND_COEFFS`).
-    Closure holds exactly: GHI = DNI·sin(elevation) + DHI. With the sun below the horizon all
-    radiation is diffuse.
+    The models take the clearness index from the extraterrestrial irradiance on a horizontal plane
+    at the true (unrefracted) solar zenith, as they were fitted (pvlib's ``zenith``):
+    ``true_elevation_deg`` (:func:`solar_position`'s ``sun_true_elevation_deg``; default
+    ``sun_elevation_deg``). Their DHI is kept and the beam comes from the apparent sun
+    ``sun_elevation_deg``, where the canopy sees it: DNI = (GHI − DHI) / sin(elevation), so closure
+    holds exactly, GHI = DNI·sin(elevation) + DHI. With the sun below the horizon all radiation is
+    diffuse.
     """
     check_split_model(model, ("erbs", "boland"))
-    zenith = 90.0 - sun_elevation_deg
+    zenith = 90.0 - (sun_elevation_deg if true_elevation_deg is None else true_elevation_deg)
     times = ghi_w_m2.index
     if model == "erbs":
         out = pvlib.irradiance.erbs(ghi_w_m2, zenith, times)
@@ -103,10 +119,11 @@ def split_direct_diffuse(ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, mode
         a, b = boland_coeffs(times)
         out = pvlib.irradiance.boland(ghi_w_m2, zenith, times, a_coeff=a, b_coeff=b)
     sin_el = np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
-    dni = out["dni"].fillna(0.0).clip(lower=0.0).where(sun_elevation_deg > 0.0, 0.0)
-    # pvlib caps zenith at 87° for the split; enforce closure so the light model sees exactly GHI.
-    dhi = (ghi_w_m2 - dni * sin_el).clip(lower=0.0)
-    dni = dni.where(dhi > 0.0, ghi_w_m2 / sin_el.where(sin_el > 0, np.inf))
+    # pvlib's DHI closes with its own (true) zenith and is all of GHI beyond 87°; the rest is the
+    # beam, along the apparent sun, so that the light model sees exactly GHI.
+    dhi = np.minimum(pd.Series(np.asarray(out["dhi"], float), index=times).fillna(ghi_w_m2), ghi_w_m2).clip(lower=0.0)
+    dhi = dhi.where(sun_elevation_deg > 0.0, ghi_w_m2)
+    dni = (ghi_w_m2 - dhi) / sin_el.where(sin_el > 0, np.inf)
     return pd.DataFrame({"dni_w_m2": dni, "dhi_w_m2": dhi}, index=times)
 
 
@@ -636,7 +653,9 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
         split, detail = _split_by_diffuse(out, site, qc)
         qc.append({"kind": "split", "column": None, "count": len(out), "detail": detail})
     else:
-        split = split_direct_diffuse(out["ghi_w_m2"], out["sun_elevation_deg"], split_model)
+        split = split_direct_diffuse(
+            out["ghi_w_m2"], out["sun_elevation_deg"], split_model, sp["sun_true_elevation_deg"].set_axis(out.index)
+        )
         if has_diffuse:
             qc.append(
                 {
