@@ -7,6 +7,11 @@ use them and nothing below imports them (docs/architecture.md).
 
 __version__ = "0.1.0"
 
+# First, in a worker process of lightfit's own Dask cluster: its parent handles Ctrl-C.
+from lightfit.killpoint import ignore_interrupt_in_workers as _ignore_interrupt_in_workers  # noqa: E402
+
+_ignore_interrupt_in_workers()
+
 # Dr.Jit reads DRJIT_LIBLLVM_PATH when it is first imported, so point it at libLLVM >= 16 as
 # early as possible: importing lightfit before drjit/mitsuba is enough. JAX reads
 # XLA_PYTHON_CLIENT_PREALLOCATE when it first uses a GPU: set before then too.

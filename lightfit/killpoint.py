@@ -5,7 +5,8 @@ the uninterrupted run's result. Killing from outside at a precise moment (after 
 MCMC step or calibration step) is racy, so the runs call :func:`kill_point` at the moments worth
 testing; with ``LIGHTFIT_TEST_KILL_AFTER="<kind>:<n>"`` in the environment the process sends
 itself SIGKILL there — the same signal, without cleanup, as a user's ``kill -9``; with
-``"<kind>:<n>:INT"`` it sends SIGINT, a user's Ctrl-C, which Python raises as KeyboardInterrupt.
+``"<kind>:<n>:INT"`` it sends SIGINT, a user's Ctrl-C, which Python raises as KeyboardInterrupt;
+with ``"<kind>:<n>:INT-GROUP"`` to its whole process group, as a terminal does (its workers too).
 
 The same moments are where a Ctrl-C that CPython dropped is raised again (:func:`interrupts_kept`):
 a KeyboardInterrupt raised inside a garbage-collector or weakref callback (JAX registers both; the
@@ -24,8 +25,26 @@ from contextlib import contextmanager
 
 #: ``"render:N"`` (after the N-th new design render is stored), ``"sample:N"`` (after MCMC step N
 #: is stored, before its stop-rule check), ``"calibrate:N"`` (after accepted step N is in the
-#: history, before the optimiser state is saved).
+#: history, before the optimiser state is saved), ``"field-task:N"`` (after field-run's N-th task
+#: is kept beside --out).
 KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
+
+
+#: Set by a process that starts its own worker processes and handles Ctrl-C for them (the embedded
+#: Dask cluster of ``lightfit.distributed``): its pid. Its children ignore SIGINT.
+INTERRUPT_HANDLED_BY = "LIGHTFIT_INTERRUPT_HANDLED_BY"
+
+
+def ignore_interrupt_in_workers() -> None:
+    """In a child of a process that handles Ctrl-C for it (its pid in :data:`INTERRUPT_HANDLED_BY`),
+    ignore SIGINT. A terminal's Ctrl-C reaches every process of the foreground group: the embedded
+    cluster's workers printed 30–70 lines of tracebacks (interrupted imports, cancelled event loops,
+    broken pipes) while the parent closed them anyway and said so in one line."""
+    if os.environ.get(INTERRUPT_HANDLED_BY) == str(os.getppid()):
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the main thread: nothing to ignore there
+            pass
 
 
 #: A KeyboardInterrupt that CPython reported as unraisable inside :func:`interrupts_kept`.
@@ -85,7 +104,7 @@ def kill_point(kind: str, n: int) -> None:
     hook = os.environ.get(KILL_HOOK, "")
     if hook == f"{kind}:{n}":
         os.kill(os.getpid(), signal.SIGKILL)
-    elif hook == f"{kind}:{n}:INT":
+    elif hook in (f"{kind}:{n}:INT", f"{kind}:{n}:INT-GROUP"):
         # A process started by a parent that ignores SIGINT inherits SIG_IGN, and Python then
         # installs no KeyboardInterrupt handler: the simulated Ctrl-C would be lost (it was, in
         # a full pytest -n 2 run, where a worker had come to ignore SIGINT). A user's terminal
@@ -94,4 +113,11 @@ def kill_point(kind: str, n: int) -> None:
             signal.signal(signal.SIGINT, signal.default_int_handler)
         except ValueError:  # not the main thread: the handler stays as it is
             pass
-        signal.raise_signal(signal.SIGINT)
+        if hook.endswith("GROUP"):
+            # A terminal's Ctrl-C: to the whole process group, worker processes too. Only as the
+            # leader of its own group (a test's start_new_session), never its caller's group.
+            if os.getpgrp() != os.getpid():
+                raise RuntimeError(f"{KILL_HOOK}={hook} needs a process that leads its own process group")
+            os.killpg(os.getpgrp(), signal.SIGINT)
+        else:
+            signal.raise_signal(signal.SIGINT)

@@ -438,3 +438,60 @@ def test_cli_field_run_interrupted_resumes_to_the_same_results(client, tmp_path)
         for v in SEGMENT_VARS:
             np.testing.assert_array_equal(ds[v].values, ref[v].values, err_msg=v)
         assert ds.attrs["tasks_resumed"] == 1 and ref.attrs["tasks_resumed"] == 0
+
+
+def test_a_terminal_ctrl_c_reaches_the_embedded_workers_and_prints_one_line(tmp_path):
+    """A terminal's Ctrl-C goes to the whole process group, the embedded cluster's worker processes
+    too: they printed 30–70 lines of tracebacks (an interrupted import, a cancelled event loop, a
+    broken pipe) above lightfit's one line. The workers leave Ctrl-C to the command, which closes
+    them: exit 130, one line on stderr, no worker left running. The SIGINT goes to the group after
+    the first of two tasks is kept (a kill point), while the worker runs the second."""
+    import subprocess
+    import sys
+
+    args = ["field-run", "--workers", "1", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1"]
+    args += ["--tiles", "2", "--samples", "8", "--bounces", "2", "--steps", "14:15", "--no-progress"]
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "COLUMNS": "200", "LIGHTFIT_TEST_KILL_AFTER": "field-task:1:INT-GROUP"}
+    cmd = [sys.executable, "-m", "lightfit.cli", *args, "--out", str(tmp_path / "r.nc")]
+    p = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        _, err = p.communicate(timeout=600)
+        for _ in range(100):  # the workers and multiprocessing's resource tracker exit after the command
+            try:
+                os.killpg(p.pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+    finally:
+        try:
+            os.killpg(p.pid, signal.SIGKILL)  # nothing may be left of the group
+            left = True
+        except ProcessLookupError:
+            left = False
+    assert p.returncode == 130, err
+    assert err.splitlines() == [
+        "interrupted: every finished task is kept beside --out (OUT.parts/); rerun the same command to resume"
+    ], err
+    assert not left
+
+
+def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
+    """On --timeout or Ctrl-C lightfit cancels its tasks and says so in one line; a worker logged
+    "Async instruction … ended with CancelledError" above it. Worker setup drops that record, and
+    only that one."""
+    import logging
+
+    from lightfit.distributed.run import _worker_setup
+
+    _worker_setup()
+    _worker_setup()  # a second task on the worker: one filter, not two
+    log = logging.getLogger("distributed.worker.state_machine")
+    assert sum(type(f).__name__ == "_QuietCancel" for f in log.filters) == 1
+    with caplog.at_level(logging.WARNING, logger="distributed.worker.state_machine"):
+        log.warning("Async instruction for <Task cancelled name='execute(x)'> ended with CancelledError")
+        log.warning("Async instruction for <Task name='execute(x)'> ended with OSError")
+    assert [r.getMessage() for r in caplog.records] == [
+        "Async instruction for <Task name='execute(x)'> ended with OSError"
+    ]

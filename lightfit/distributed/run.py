@@ -37,6 +37,7 @@ single-process run. Library imports never change JAX's configuration.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import pickle
@@ -51,7 +52,7 @@ import numpy as np
 from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError, check_integer
 from lightfit.files import replaced
-from lightfit.killpoint import kill_point
+from lightfit.killpoint import INTERRUPT_HANDLED_BY, ignore_interrupt_in_workers, kill_point
 from lightfit.model import schema
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, daytime, sun_positions_deg
@@ -160,10 +161,25 @@ class TaskSpec:
     rows: np.ndarray
 
 
+class _QuietCancel(logging.Filter):
+    """Drops a worker's warning that a task ended with ``CancelledError``: lightfit cancels its
+    tasks itself on --timeout or Ctrl-C and says so in one line (the warning came first, a line of
+    Dask internals; a review)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "ended with CancelledError" not in record.getMessage()
+
+
 def _worker_setup() -> None:
-    """Prepare a worker process: libLLVM for Dr.Jit, its CPU threads, and lightfit's float64 policy."""
+    """Prepare a worker process: libLLVM for Dr.Jit, its CPU threads, lightfit's float64 policy, and
+    no warning for the tasks lightfit cancels (:class:`_QuietCancel`)."""
     import lightfit  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before Mitsuba loads)
     from lightfit.precision import use_compilation_cache, use_float64
+
+    ignore_interrupt_in_workers()  # where the process's main module did not import lightfit first
+    log = logging.getLogger("distributed.worker.state_machine")
+    if not any(isinstance(f, _QuietCancel) for f in log.filters):
+        log.addFilter(_QuietCancel())
 
     # Workers are separate processes: the client's JAX configuration does not reach them.
     use_float64()
@@ -455,34 +471,51 @@ def connect(
         ).strip()
     # dashboard_address ":0": a free port. None does not disable the scheduler's HTTP server: it
     # takes port 8787 and warns when another cluster (another lightfit run) holds it.
-    try:
-        cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
-    except Exception as err:  # noqa: BLE001 - whatever stops the workers starting (a ~90-line traceback)
-        raise InputError(
-            f"a local Dask cluster of {n} worker(s) × {t} thread(s) did not start ({type(err).__name__}: "
-            f"{str(err)[:200]})",
-            column="connect_timeout",
-            expected=f"workers that start within --connect-timeout ({timeout_s:g} s): a longer one, or fewer --workers",
-        ) from None
-    try:
+    with _interrupts_handled_here():
         try:
-            client = Client(cluster, timeout=timeout_s)
-        except (OSError, TimeoutError) as err:  # distributed's "Timed out trying to connect"
+            cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
+        except Exception as err:  # noqa: BLE001 - whatever stops the workers starting (a ~90-line traceback)
             raise InputError(
-                f"the local Dask cluster did not answer within {timeout_s:g} s "
-                f"({type(err).__name__}: {str(err)[:200]})",
+                f"a local Dask cluster of {n} worker(s) × {t} thread(s) did not start ({type(err).__name__}: "
+                f"{str(err)[:200]})",
                 column="connect_timeout",
-                expected="a longer --connect-timeout",
+                expected=f"workers that start within --connect-timeout ({timeout_s:g} s): a longer one, "
+                "or fewer --workers",
             ) from None
         try:
-            g = gpu_count()
-            if g:
-                client.register_plugin(PinGPU(g))
-            yield client
+            try:
+                client = Client(cluster, timeout=timeout_s)
+            except (OSError, TimeoutError) as err:  # distributed's "Timed out trying to connect"
+                raise InputError(
+                    f"the local Dask cluster did not answer within {timeout_s:g} s "
+                    f"({type(err).__name__}: {str(err)[:200]})",
+                    column="connect_timeout",
+                    expected="a longer --connect-timeout",
+                ) from None
+            try:
+                g = gpu_count()
+                if g:
+                    client.register_plugin(PinGPU(g))
+                yield client
+            finally:
+                client.close()
         finally:
-            client.close()
+            cluster.close()
+
+
+@contextmanager
+def _interrupts_handled_here():
+    """Within the block, worker processes this process starts ignore Ctrl-C and leave it to it
+    (:func:`lightfit.killpoint.ignore_interrupt_in_workers`): it closes them and says so once."""
+    before = os.environ.get(INTERRUPT_HANDLED_BY)
+    os.environ[INTERRUPT_HANDLED_BY] = str(os.getpid())
+    try:
+        yield
     finally:
-        cluster.close()
+        if before is None:
+            os.environ.pop(INTERRUPT_HANDLED_BY, None)
+        else:
+            os.environ[INTERRUPT_HANDLED_BY] = before
 
 
 # -- the run ---------------------------------------------------------------------------------
