@@ -63,7 +63,7 @@ def main(quick: bool = False, out: Path = ROOT / "results" / "twin", write_data:
     )
     obs = read_observations(path)
     names_all = ("specular", "roughness", "subsurface")
-    loss_all = make_loss(model, obs, names_all)
+    loss_all = make_loss(model, obs, names_all, at=TRUTH)  # the SDs held there: truth's own
     at_truth = float(loss_all.natural(jnp.asarray([TRUTH[n] for n in names_all])))
     one = calibrate(
         model,

@@ -708,3 +708,53 @@ def test_a_state_saved_with_each_points_own_sds_is_refused_on_resume(tmp_path):
         calibrate(model, obs, history=h, max_steps=4, **kw)
     assert "--no-resume" in str(e.value)
     assert calibrate(model, obs, history=h, max_steps=4, resume=False, **kw).steps > 0
+
+
+def test_the_reported_loss_is_the_answers_own_whatever_the_start():
+    """The optimiser holds its start's Monte Carlo SDs, but the result's loss (and with it the χ²
+    caution) is the loss at the answer with the answer's own SDs, computed here in numpy: from
+    starts 0.3 and 3 the two answers differ slightly, their held losses by a factor of two, their
+    reported losses not beyond what their own SDs give (a review: 15.2 from 0.3, 6.5 from 3)."""
+    from test_posterior import NoisyModel, _fake_obs
+
+    model = NoisyModel()
+    obs = _fake_obs(model)
+
+    def own_loss(f):
+        total = 0.0
+        for v, sd, pred, mc in (
+            ("plant_par_umol_m2_s", "plant_par_sd_umol_m2_s", f * (400 + 100 * model.theta().specular), 30.0 * f),
+            ("canopy_an_umol_m2_s", "canopy_an_sd_umol_m2_s", 20.0, 0.1),
+        ):
+            ok = obs[v].notna().to_numpy()
+            shape = np.asarray(model.shape)[ok]
+            m = pred * shape - (2.0 if v.startswith("canopy_an") else 0.0)
+            var = obs[sd].to_numpy()[ok] ** 2 + mc**2 * shape
+            total += 0.5 * np.sum((obs[v].to_numpy()[ok] - m) ** 2 / var)
+        return total
+
+    for f0 in (0.3, 3.0):
+        res = calibrate(model, obs, names=("light_factor",), start={"light_factor": f0}, progress=False)
+        assert res.converged
+        assert res.loss == pytest.approx(own_loss(res.theta["light_factor"]), rel=1e-9), f0
+
+
+def test_a_history_written_before_the_held_sds_is_refused_without_its_state(tmp_path):
+    """Without a state, a resume restarts from the history's best point, comparing its losses with
+    the new ones: a history written before the loss held its start's SDs has losses of another
+    function, and is refused, naming it and the way out."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=2, **kw)
+    (tmp_path / "h.jsonl.state.npz").unlink()
+    lines = [json.loads(x) for x in h.read_text().splitlines()]
+    assert all(r.get("mc_sd_at") == "start" for r in lines if "loss" in r)
+    h.write_text("".join(json.dumps({k: v for k, v in r.items() if k != "mc_sd_at"}) + "\n" for r in lines))
+    with pytest.raises(InputError, match="written before the loss held its start's Monte Carlo SDs") as e:
+        calibrate(model, obs, history=h, max_steps=4, **kw)
+    assert e.value.file == h and "--no-resume" in str(e.value)
+    h.write_text("".join(json.dumps(r) + "\n" for r in lines))  # with the mark: resumed from its best point
+    said = []
+    calibrate(model, obs, history=h, max_steps=4, **{**kw, "say": said.append})
+    assert len(said) == 1 and "without a saved state" in said[0], said

@@ -125,3 +125,19 @@ def test_posterior_cli_workers_renders_the_design_on_the_cluster(tmp_path, monke
     files = sorted((d / "renders").glob("*.npz"))
     assert len(files) == 6
     assert E.COUNTS["rendered"] - before["rendered"] == 6
+
+
+def test_the_render_key_names_only_the_rendered_steps(model):
+    """A step kept but not rendered (night, or one observed only by the above-canopy sensor) is in
+    no render: the same rendered steps with or without it are one design (a CO2 record with night
+    readings made a second design of the same renders; a review). Their renders are bitwise equal;
+    another rendered step is another key."""
+    base = CoupledModel(model.scenario)
+    with_night = E.restrict(base, [True, True, True], [False, False, True])
+    alone = E.restrict(base, [False, False, True])
+    assert E.render_key(with_night) == E.render_key(alone) == E.render_key(model)
+    assert E.design_dir(with_night) == E.design_dir(alone)
+    leaf = {"specular": 0.5, "roughness": 0.5, "subsurface": 0.5}
+    for x, y in zip(with_night.render(leaf), alone.render(leaf)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert E.render_key(E.restrict(base, [False, True, True])) != E.render_key(model)

@@ -5,6 +5,7 @@ observations are rendered at another seed) is in ``test_twin_light_factor_is_cov
 """
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -267,3 +268,41 @@ def test_twin_light_factor_is_covered_only_with_the_monte_carlo_covariance(twin)
     # The independent-steps interval is too narrow whatever the draw: it ignores the Monte Carlo
     # error shared across steps (both the model's and the twin's copy).
     assert (hi - lo) > 1.5 * (hi_old - lo_old), ((lo, hi), (lo_old, hi_old))
+
+
+def test_the_trust_region_checks_its_box_and_threshold_first():
+    """A reversed box was reported as every start lying outside it; a start a hair past the box's
+    face (round-off) was refused where the emulator allows it; z ≤ 0 can never pass and rendered a
+    new point every round (a review)."""
+    from lightfit.inference.trust_region import check_in_box, surrogate_calibrate
+
+    th = Theta(specular=0.5, roughness=0.5, subsurface=0.3)
+    with pytest.raises(InputError, match=r"emulator box of specular: \[0.7, 0.2\].*0 ≤ lo < hi ≤ 1"):
+        check_in_box(th, ("specular",), (0.7, 0.0, 0.0), (0.2, 1.0, 1.0))
+    check_in_box(
+        Theta(specular=0.7375 + 1e-12, roughness=0.5, subsurface=0.3), ("specular",), (0.4, 0, 0), (0.7375, 1, 1)
+    )
+    with pytest.raises(InputError, match=r"specular=0.7376 \(start\)"):
+        check_in_box(Theta(specular=0.7376, roughness=0.5, subsurface=0.3), ("specular",), (0.4, 0, 0), (0.7375, 1, 1))
+    for z in (0.0, -1.0, float("nan")):
+        with pytest.raises(InputError, match=r"z=.*positive acceptance threshold"):
+            surrogate_calibrate(None, None, z=z)
+
+
+def test_the_emulator_check_leaves_out_readings_without_monte_carlo_error():
+    """The surrogate's check reports the emulator's largest error in Monte Carlo SDs per series; a
+    reading where the model has none (night: no light) made it NaN, written as NaN into
+    calibration.json (no JSON; a review). The closed-form model's first step has SD 0."""
+    from test_posterior import FakeModel, _fake_obs
+
+    from lightfit.inference.trust_region import emulator_error_over_mc_sd
+
+    model = FakeModel()
+    obs = _fake_obs(model)
+    lik = GaussianLikelihood(obs, model.times, ("par", "an"))
+    full = model.observe(Theta(specular=0.5))
+    sur = {**full, "plant_par_umol_m2_s": full["plant_par_umol_m2_s"].at[3].add(0.5)}
+    assert float(full["plant_par_mc_sd_umol_m2_s"][0]) == 0.0 and bool(lik.mask["plant_par"][0])
+    err = emulator_error_over_mc_sd(lik, sur, full)
+    assert err == {"plant_par": pytest.approx(0.5 / 2.0), "canopy_an": 0.0}  # SD 2·√shape, shape 1 at step 3
+    json.dumps(err, allow_nan=False)

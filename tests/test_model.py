@@ -379,3 +379,20 @@ def test_a_run_shows_its_renders_progress_only_when_eager(weather, capsys):
 
     g = jax.grad(loss)(jnp.asarray(THETA.leaf))
     assert np.isfinite(np.asarray(g)).all() and "rendering steps" not in capsys.readouterr().out
+
+
+def test_fast_observables_cut_emulated_parts_at_zero_as_the_emulator_does(model):
+    """Irradiance ratios are ≥ 0: the polynomial can dip below 0 near the box's corners, and the
+    emulator cuts it there; the calibration's and the sampler's FastObservables did not (parts down
+    to −0.003 per unit DNI on the quick field; a review). An emulator whose every part is −0.05
+    (degree 0) gives 0 through both, and the observables of zero light."""
+    n_day = int(np.asarray(model.day).sum())
+    v = np.full((2, n_day, 4, model.n_columns), -0.05)
+    s = np.full_like(v, 0.01)
+    emu = E.fit_emulator(np.array([[0.2, 0.2, 0.2], [0.8, 0.8, 0.8]]), v, s, [0, 0, 0], [1, 1, 1], degrees=(0,))
+    fast = E.FastObservables(model, emu, n_grid=None)
+    values, _ = fast.parts(THETA)
+    assert values.shape[0] == n_day and float(jnp.min(values)) == 0.0 and float(jnp.max(values)) == 0.0
+    assert float(jnp.min(emu(THETA)[0])) == 0.0
+    dark = fast(THETA)
+    assert float(jnp.max(jnp.abs(dark["plant_par_umol_m2_s"]))) == 0.0

@@ -1077,6 +1077,17 @@ def test_the_map_search_holds_the_monte_carlo_sds_of_its_start():
 
     want = minimize_scalar(nlp, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-10}).x
     assert float(x[0]) == pytest.approx(want, rel=1e-5)
+    # the sampled posterior's own maximum (each point's own SDs, log det included), in numpy: a
+    # start there is kept, the held search's end has a lower sampled log posterior (a review)
+    shape = np.asarray(model.shape)[ok]
+
+    def nlp_own(f):
+        v = 10.0**2 + (30.0 * f) ** 2 * shape
+        return 0.5 * np.sum((y - f * a) ** 2 / v + np.log(v)) - float(prior.logpdf(jnp.asarray(f)))
+
+    best = minimize_scalar(nlp_own, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-10}).x
+    info = {}
+    assert optimum(lp, np.array([best]), info=info)[0] == best and info["kept_start"], info
     # the profile through the MAP (one parameter: the slice) is the held objective, minimal at t = 0
     _, profile = identifiability(lp, x, n_profile=5)
     mid = int(np.argmin(np.abs(profile["t"])))

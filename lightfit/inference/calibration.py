@@ -236,7 +236,9 @@ class CalibrationResult:
 
     Attributes:
         theta: all model parameters at the best point (plain floats).
-        loss: calibration loss there.
+        loss: calibration loss there, with that point's own Monte Carlo SDs (the optimiser held
+            its start's, and the history's losses are those: the answer's loss and χ² do not
+            depend on where the search began).
         steps: accepted optimiser steps (L-BFGS-B: iterations, the last one possibly a failed line
             search), including those of a resumed history.
         evaluations, gradients: loss and gradient evaluations (line-search trials included; BFGS
@@ -571,7 +573,8 @@ def calibrate(
         "base": loss.base.to_dict(),
         "tolerances": [rtol, atol, gtol],
         "use": list(loss.likelihood.use),
-        # the plug-in SDs' point enters the form: a state saved with moving SDs optimised another loss
+        # the plug-in SDs' point enters the form: a state saved with each point's own SDs optimised
+        # another loss (refused as "likelihood (mc_sd_at: None → 'start')")
         "likelihood": {**form, "mc_sd_at": "start"},
     }
     if bounds:  # absent without: states saved before bounds existed still resume exactly
@@ -608,6 +611,13 @@ def calibrate(
     past: list[dict] = []
     if saved is None and hist and resume and hist.exists():
         past = _read_history(hist)
+        if any("mc_sd_at" not in r for r in past):
+            raise InputError(
+                "the history there was written before the loss held its start's Monte Carlo SDs: its losses "
+                "are of another function",
+                file=hist,
+                expected="--no-resume (resume=False) to start again, or another --out (history)",
+            )
         # drop a line cut by an interruption, so that the steps appended below stay readable
         replace_text(hist, "".join(json.dumps(r) + "\n" for r in past))
         if past:
@@ -665,6 +675,7 @@ def calibrate(
                     record = {
                         "step": c["accepted"],
                         "loss": f,
+                        "mc_sd_at": "start",  # the loss held its start's SDs (a history without it did not)
                         "theta": values,
                         "grad": [float(v) for v in g],
                         "coordinates": opt.coordinates,
@@ -701,9 +712,12 @@ def calibrate(
         }
         replace_text(hist, "".join(json.dumps(r) + "\n" for r in [*steps, final]))
     theta = loss.theta(jnp.asarray(c["best_x"]))
+    # The answer's loss with its own SDs: one more evaluation (a render on full renders), so that
+    # the reported loss and the χ² caution do not move with the start.
+    own = float(loss.likelihood.loss(loss.forward(theta))) if math.isfinite(c["best_loss"]) else c["best_loss"]
     return CalibrationResult(
         theta.to_dict(),
-        c["best_loss"],
+        own,
         c["accepted"],
         opt.evaluations,
         opt.gradients,

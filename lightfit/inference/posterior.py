@@ -298,11 +298,12 @@ def check_emulator_box(
 
 
 def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict | None = None) -> np.ndarray:
-    """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start`` (kept where
-    the optimiser ends no better), the Monte Carlo SDs held at ``start`` (a plug-in: the objective's
-    gradient is its derivative; :mod:`lightfit.inference.likelihood`). ``info``, if given, receives
-    ``converged`` (the optimiser's own success flag), its ``message`` and ``kept_start``, so that a
-    MAP the optimiser did not reach is said so."""
+    """MAP estimate: L-BFGS-B on −log posterior within the prior support, from ``start``, the Monte
+    Carlo SDs held at ``start`` (a plug-in: the objective's gradient is its derivative;
+    :mod:`lightfit.inference.likelihood`); ``start`` is kept where the sampled log posterior (each
+    point's own SDs, as emcee evaluates it) is no lower than at the optimiser's end. ``info``, if
+    given, receives ``converged`` (the optimiser's own success flag), its ``message`` and
+    ``kept_start``, so that a MAP the optimiser did not reach is said so."""
     from scipy.optimize import minimize
 
     bounds = [lp.priors[n].support for n in lp.names]
@@ -316,7 +317,7 @@ def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict 
     r = minimize(
         fun, np.asarray(start, float), jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": maxiter}
     )
-    improved = r.fun <= fun(start)[0]
+    improved = float(lp.log_prob(jnp.asarray(r.x))) > float(lp.log_prob(jnp.asarray(start, jnp.float64)))
     if info is not None:
         info.update(converged=bool(r.success), message=str(r.message), kept_start=not improved)
     return r.x if improved else np.asarray(start, float)

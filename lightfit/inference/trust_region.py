@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, is_real
 from lightfit.inference.calibration import CalibrationResult, calibrate
 from lightfit.inference.likelihood import (
     USES,
@@ -177,14 +177,38 @@ class SurrogateCalibration:
         return self.rounds
 
 
+def emulator_error_over_mc_sd(lik: GaussianLikelihood, sur: Mapping, full: Mapping) -> dict[str, float]:
+    """Per used series, the largest |surrogate − full render| read where the observations are, in
+    units of the full render's Monte Carlo SD there (dimensionless); readings without Monte Carlo
+    error (night: no light, the same An) do not enter (a NaN there made the whole entry NaN, which
+    is no JSON; a review), 0 where none has any."""
+    err = {}
+    mc_read = lik.mc_sd_read(full)
+    for sr in lik.series:
+        mask = np.asarray(lik.mask[sr.name])  # read where the observations are, as the loss reads them
+        mc = np.asarray(mc_read[sr.name])[mask]
+        read = [np.asarray(lik.at_observations(sr.name, x[sr.value])) for x in (sur, full)]
+        diff = np.abs(read[0] - read[1])[mask]
+        noisy = mc > 0
+        err[sr.name] = float(np.max(diff[noisy] / mc[noisy])) if noisy.any() else 0.0
+    return err
+
+
 def check_in_box(theta: Theta, calibrated: Sequence[str], lo, hi) -> None:
     """Refuse a start or a fixed leaf value outside the emulator's box [lo, hi], before any design
     render: the optimiser stays in the box, but the emulator would be evaluated there at the start
     and at every fixed value, extrapolating silently."""
     leaf = np.asarray(theta.leaf, np.float64)
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    for i, n in enumerate(E.LEAF_PARAMETERS):  # the box first: a reversed one made every start "outside" it
+        if not (0.0 <= lo[i] < hi[i] <= 1.0):
+            raise InputError(
+                f"emulator box of {n}: [{lo[i]:.6g}, {hi[i]:.6g}]",
+                column="lo, hi",
+                expected=f"0 ≤ lo < hi ≤ 1 for {n}",
+            )
     for i, n in enumerate(E.LEAF_PARAMETERS):
-        if not lo[i] <= leaf[i] <= hi[i]:
+        if not E.in_box(leaf[i], lo[i], hi[i]):  # round-off as the emulator allows it
             what, fix = (
                 ("start", "a start inside the box")
                 if n in calibrated
@@ -254,6 +278,8 @@ def surrogate_calibrate(
     t0 = time.perf_counter()
     names = check_names(names)
     form = likelihood_form(mc_correlation, mc_scale)
+    if not (is_real(z) and math.isfinite(z) and z > 0):  # z ≤ 0 never passes: a render every round
+        raise InputError(f"z={z!r}", column="z", expected="a positive acceptance threshold in σ_L, e.g. 2")
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)
@@ -380,14 +406,7 @@ def surrogate_calibrate(
         l_full, l_sur = float(lik.loss(full)), float(lik.loss(sur))
         sd = loss_sd(lik, full)
         passed = bool(abs(l_full - l_sur) <= z * sd)
-        err = {}
-        mc_read = lik.mc_sd_read(full)
-        for sr in lik.series:
-            mask = np.asarray(lik.mask[sr.name])  # read where the observations are, as the loss reads them
-            mc = np.asarray(mc_read[sr.name])[mask]
-            read = [np.asarray(lik.at_observations(sr.name, x[sr.value])) for x in (sur, full)]
-            diff = np.abs(read[0] - read[1])[mask]
-            err[sr.name] = float(np.max(diff / np.where(mc > 0, mc, np.nan))) if mc.size and (mc > 0).any() else 0.0
+        err = emulator_error_over_mc_sd(lik, sur, full)
         row = {
             "round": r,
             "design": int(len(emus[0].design)),
@@ -418,4 +437,11 @@ def surrogate_calibrate(
     return done(res, rounds, False, rounds[-1]["loss_full"], "surrogate", emus)
 
 
-__all__ = ["RENDER_FREE", "SurrogateCalibration", "loss_sd", "observed_model", "surrogate_calibrate"]
+__all__ = [
+    "RENDER_FREE",
+    "SurrogateCalibration",
+    "emulator_error_over_mc_sd",
+    "loss_sd",
+    "observed_model",
+    "surrogate_calibrate",
+]

@@ -131,11 +131,12 @@ def render_key(model: CoupledModel) -> dict:
     settings (samples, bounces, seed; when adaptive the target, the cap and the allocation point; the projection and its
     rays when the direct light is projected), sky, optics, the field
     (plants, growth parameter file, boundary) and its geometry (hash of the segment table), the
-    measured segments, times, sun positions and the daytime mask, and the lightfit, estimator
+    measured segments, the rendered (daytime) steps' times and sun positions, and the lightfit, estimator
     (:data:`~lightfit.light.estimator.ESTIMATOR_VERSION`), Mitsuba and Dr.Jit versions. JSON-ready."""
     import pandas as pd
 
     sc = model.scenario
+    day = np.asarray(model.day, bool)
     return {
         **code_versions(),
         "samples": int(sc.samples),
@@ -151,9 +152,11 @@ def render_key(model: CoupledModel) -> dict:
         "segments": _digest(np.asarray(model.segment_id, np.int64)),
         "sensors": [[x.name, _digest(np.concatenate(x.lines()))] for x in model.sensors],
         "sensor_samples": DEFAULT_SENSOR_SAMPLES,
-        "times_utc": [str(x) for x in model.times.tz_convert("UTC")],
-        "sun": _digest(np.asarray(model.sun_deg, np.float64)),
-        "day": _digest(np.asarray(model.day, bool)),
+        # The rendered steps only: a render is one array per daytime step, each a function of its
+        # sun alone; steps kept but not rendered (night, or the above-canopy sensor's) made a
+        # second design of the same renders (a review).
+        "times_utc": [str(x) for x in model.times.tz_convert("UTC")[day]],
+        "sun": _digest(np.asarray(model.sun_deg, np.float64)[day]),
         # Adaptive sampling only: absent at a fixed K, so the keys of fixed-K caches stay as they were.
         **({} if sc.target_rse is None else _allocation_key(model)),
         # Projected direct light only: absent with the paths' (the keys of earlier caches); the
@@ -693,7 +696,7 @@ class FastObservables:
     def parts(self, theta: Theta | Mapping[str, float]):
         """Emulated parts of :attr:`rows` only: values and SE, each (T_day, len(rows), S)."""
         b = self.emulator.basis(as_theta(theta).leaf)
-        v = (b @ self._cv).reshape(self._shape)
+        v = jnp.maximum((b @ self._cv).reshape(self._shape), 0.0)  # ratios ≥ 0, as PartsEmulator's
         s = jax.lax.stop_gradient(jnp.maximum((b @ self._cs).reshape(self._shape), 0.0))
         return v, s
 
