@@ -306,7 +306,7 @@ def test_exports_read_back_with_segment_ids(small_field, tmp_path):
     assert np.allclose(ply.vertices, m.vertices) and np.array_equal(ply.faces, m.faces)
     # VTK legacy: parse the cell data back.
     text = export(m, tmp_path / "f.vtk", values).read_text().splitlines()
-    i = text.index("SCALARS segment_id long 1") + 2
+    i = text.index("SCALARS segment_id double 1") + 2  # double, as in the PLY (VTK long: 32 bits on Windows)
     assert np.array_equal(np.array(text[i : i + m.n_faces], dtype=np.int64), m.face_segment)
     # OBJ: groups name the segments; face count per group matches.
     obj = export(m, tmp_path / "f.obj", values).read_text().splitlines()
@@ -413,3 +413,41 @@ def test_plants_face_their_own_ways_unless_aligned():
     np.testing.assert_allclose(np.hypot(t["bx"], t["by"]), np.hypot(seg["bx"], seg["by"]), atol=1e-15)
     for c in ("z0", "z1", "length_m", "blade_area_m2", "radius_m"):
         assert (t[c] == seg[c]).all(), c
+
+
+def test_a_broken_parameter_file_is_named_not_a_cplantbox_traceback(tmp_path):
+    """A parameter file cut short (well-formed up to a point) made CPlantBox say it could not open
+    the file and then fail on a missing root parameter: a ValueError traceback, exit 1. A folder,
+    a file that is not XML and a plant CPlantBox cannot grow are refused naming the file; plants
+    without a leaf blade (CPlantBox's bundled 0.xml: every leaf a sheath, LAI 0) are refused
+    before anything is rendered (a review)."""
+    from lightfit.plant.growth import parameter_dir
+
+    default = GrowthConfig().path
+    cut = tmp_path / "cut.xml"
+    cut.write_bytes(default.read_bytes()[:3000])
+    with pytest.raises(InputError, match="not well-formed XML") as e:
+        GrowthConfig(parameter_file=str(cut))
+    assert e.value.file == cut
+    with pytest.raises(InputError, match="a folder, not a file"):
+        GrowthConfig(parameter_file=str(tmp_path))
+    empty = tmp_path / "empty.xml"
+    empty.write_text("<plant></plant>")
+    with pytest.raises(InputError, match="CPlantBox cannot grow a plant from it") as e:
+        grow_plant(GrowthConfig(parameter_file=str(empty)), seed=1)
+    assert e.value.file == empty
+    assert (parameter_dir() / "0.xml").is_file()
+    no_blades = Field(n_plants=1, growth=GrowthConfig(parameter_file="0.xml"))
+    with pytest.raises(InputError, match="no leaf blade") as e:
+        build(no_blades, cache_dir=tmp_path / "cache")
+    assert e.value.file == parameter_dir() / "0.xml"
+
+
+def test_growth_dates_and_spacings_are_read_as_values():
+    """A date typed another way grows the same plants under the same key; spacings are numbers,
+    numpy's too, and not booleans (True was taken as 1 m)."""
+    assert GrowthConfig(target_date="20160420").fingerprint() == GrowthConfig().fingerprint()
+    f = Field(boundary="finite", row_spacing_m=np.float32(0.125), plant_spacing_m=np.int64(1))
+    assert f.plant_spacing_m == 1
+    with pytest.raises(InputError, match="row_spacing_m=True"):
+        Field(boundary="finite", row_spacing_m=True)

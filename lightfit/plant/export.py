@@ -126,7 +126,8 @@ def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     out.append(f"POLYGONS {mesh.n_faces} {4 * mesh.n_faces}")
     out += [f"3 {a} {b} {c}" for a, b, c in mesh.faces]
     out.append(f"CELL_DATA {mesh.n_faces}")
-    out += ["SCALARS segment_id long 1", "LOOKUP_TABLE default"] + [str(i) for i in mesh.face_segment]
+    # double, as the PLY export: exact below 2⁵³ (ids < 10¹³), where VTK's long is 32 bits on Windows
+    out += ["SCALARS segment_id double 1", "LOOKUP_TABLE default"] + [str(i) for i in mesh.face_segment]
     for k, v in fv.items():
         out += [f"SCALARS {k} double 1", "LOOKUP_TABLE default"] + [f"{x:.9g}" for x in v]
     path.write_text("\n".join(out) + "\n", encoding="ascii")

@@ -166,7 +166,7 @@ class Field:
         check_integer(self.n_plants, "n_plants", 1)
         for name in ("row_spacing_m", "plant_spacing_m"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not (is_real(v) and math.isfinite(v) and v > 0):  # True was 1 m; numpy numbers were refused
                 raise InputError(f"{name}={v!r}", column=name, expected="a positive distance in metres")
         d = self.row_direction_deg
         if not (is_real(d) and math.isfinite(d)):  # NaN built a mesh of NaN, inf a math domain error
@@ -447,5 +447,12 @@ def build(
         parts.append(seg)
     segments = pd.concat(parts, ignore_index=True)
     segments = segments[segments["organ_type"].isin(["stem", "leaf"])].reset_index(drop=True)
+    if not (segments["blade_area_m2"] > 0).any():  # every leaf a sheath: nothing would photosynthesise
+        raise InputError(
+            f"the plants grown to {fld.growth.target_date} have no leaf blade (every leaf segment is sheath)",
+            file=fld.growth.path,
+            column="parameter_file",
+            expected="a wheat parameter file whose leaves have blades (lmaxb, Width_blade), or a later target date",
+        )
     segments = lay_sheaths(segments, fld.sheaths)
     return FieldGeometry(segments, shoot_mesh(segments, resolution), chosen, hits, fld.cell)

@@ -92,8 +92,17 @@ def resolve_parameter_file(name: str | os.PathLike) -> Path:
             column="parameter_file",
             expected=f"a path or one of CPlantBox's wheat files: {', '.join(wheat)}",
         )
-    head = p.read_text(encoding="utf-8", errors="replace")[:4000]
-    if "<plant" not in head:
+    if not p.is_file():
+        raise InputError("a folder, not a file", file=p, column="parameter_file", expected="a plant parameter XML file")
+    import xml.etree.ElementTree as ET
+
+    try:  # CPlantBox reads a broken file in part and fails later, far from the file (a review)
+        root = ET.parse(p).getroot()
+    except (ET.ParseError, UnicodeDecodeError) as err:
+        raise InputError(
+            f"not well-formed XML ({err})", file=p, expected="an XML file such as Triticum_aestivum_adapted_2023.xml"
+        ) from None
+    if root.tag != "plant" and root.find(".//plant") is None:
         raise InputError(
             "not a CPlantBox plant parameter file (no <plant> element)",
             file=p,
@@ -156,7 +165,10 @@ class GrowthConfig:
 
         h = hashlib.sha256()
         h.update(self.path.read_bytes())
-        key = f"{self.season_start}|{self.target_date}|roots={self.include_roots}|cplantbox {md.version('cplantbox')}"
+        # the dates as dates: "20160420" and "2016-04-20" grow the same plants
+        start = parse_date(self.season_start, "season_start").isoformat()
+        end = parse_date(self.target_date, "target_date").isoformat()
+        key = f"{start}|{end}|roots={self.include_roots}|cplantbox {md.version('cplantbox')}"
         h.update(key.encode())
         return h.hexdigest()[:16]
 
@@ -185,9 +197,17 @@ def grow_plant(config: GrowthConfig, seed: int, plant_id: int = 0) -> pd.DataFra
     import plantbox as pb
 
     plant = pb.MappedPlant(int(seed))
-    plant.readParameters(str(config.path))
-    plant.initialize(False)
-    plant.simulate(config.days, False)
+    try:  # CPlantBox's own errors name an organ type, not the file that lacks it
+        plant.readParameters(str(config.path))
+        plant.initialize(False)
+        plant.simulate(config.days, False)
+    except (ValueError, RuntimeError) as err:
+        raise InputError(
+            f"CPlantBox cannot grow a plant from it ({err})",
+            file=config.path,
+            column="parameter_file",
+            expected="a complete CPlantBox plant parameter file (seed, root, stem and leaf parameters)",
+        ) from None
     table = segment_table(plant, plant_id, include_roots=config.include_roots)
     if not config.include_roots:
         table = table[table["organ_type"] != "root"].reset_index(drop=True)
