@@ -1,6 +1,6 @@
 """The main job: a diurnal run of CPlantBox wheat at a site, by default the 20 April 2016 Selhausen replication.
 
-CPlantBox wheat grown from 2016-03-05 to the run's date (default 2016-04-20), a 10 × 10-plant
+CPlantBox wheat grown from 5 March (2016-03-05) to the run's date (default 2016-04-20), a 10 × 10-plant
 measurement area as one cell of an infinite periodic field (default; ``boundary="finite"`` with
 two buffer rows is the reference paper's setup), the day's forcing (bundled reconstruction of
 20 April 2016 unless a weather file or bundled name is given), a window of local time at the

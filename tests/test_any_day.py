@@ -12,6 +12,7 @@ from lightfit import replication as rep
 from lightfit import weather
 from lightfit.cli import app
 from lightfit.errors import InputError
+from lightfit.plant import GrowthConfig
 from lightfit.report import step_instants
 from lightfit.weather import Site, Window, timestamps
 from lightfit.weather.bundled import DATA_DIR
@@ -88,6 +89,13 @@ def test_plants_are_grown_to_the_run_date_within_the_growth_models_range():
     for bad in ("2016-03-01", "2016-11-30"):
         with pytest.raises(InputError, match="target_date"):
             rep.ReplicationConfig(dates=(bad,)).field()
+    # another year's spring starts on its own 5 March (it was refused: 418 days after 2016-03-05)
+    later = rep.ReplicationConfig(dates=("2017-04-27",)).field().growth
+    assert later.season_start == "2017-03-05" and later.days == 53
+    with pytest.raises(InputError, match=r"not after season_start 2017-03-05 \(the default: 5 March of its year"):
+        rep.ReplicationConfig(dates=("2017-02-01",)).field()
+    # given, it is kept: a field grown from the autumn's sowing is the user's call
+    assert GrowthConfig(season_start="2016-01-10").season_start == "2016-01-10"
 
 
 def test_bundled_real_day_runs_from_the_cli(tmp_path, monkeypatch):
@@ -113,6 +121,20 @@ def test_bundled_real_day_runs_from_the_cli(tmp_path, monkeypatch):
         # and the figure draws each step at its interval's centre, where its sun was taken
         drawn = step_instants(ds).tz_localize(None).values
         np.testing.assert_array_equal(drawn, t - np.timedelta64(5, "m"))
+
+
+def test_a_day_of_another_year_runs_from_the_cli(tmp_path, monkeypatch):
+    """A newcomer's run of the bundled real day on a 2017 date was refused (its plants were grown
+    from 2016-03-05, 418 days before); they now start on 5 March 2017."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    args = ["replicate", "--quick", "--weather", "selhausen-cplantbox-day", "--date", "2017-04-27", "--steps", "14:15"]
+    r = runner.invoke(app, [*args, "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    import xarray as xr
+
+    with xr.open_dataset(tmp_path / "o" / "results.nc") as ds:
+        assert (ds.attrs["season_start"], ds.attrs["target_date"]) == ("2017-03-05", "2017-04-27")
+        assert str(ds["time"].values[0]).startswith("2017-04-27")
 
 
 def test_several_days_in_one_results_set(tmp_path, monkeypatch):

@@ -43,7 +43,7 @@ def field(
     parameter_file: str = typer.Option(
         "Triticum_aestivum_adapted_2023.xml", help="CPlantBox plant XML (path or bundled name)."
     ),
-    season_start: str = typer.Option("2016-03-05", help="First day of growth."),
+    season_start: str = typer.Option(None, help="First day of growth (default: 5 March of the date's year)."),
     date: str = typer.Option("2016-04-20", help="Date the plants are grown to."),
     tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),
     tile: int = typer.Option(None, help="Build only this tile (0-based) with its buffer ring."),

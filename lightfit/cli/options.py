@@ -499,7 +499,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         list[str] | None,
         typer.Option(
             "--date",
-            help="Day of the run, YYYY-MM-DD (default 2016-04-20); plants are grown to it from 2016-03-05. "
+            help="Day of the run, YYYY-MM-DD (default 2016-04-20); plants are grown to it from 5 March of its year. "
             "Repeat for several days in one results set (replicate) or one calibration / posterior. "
             "Needed with an undated weather file.",
             rich_help_panel=_WHEN,

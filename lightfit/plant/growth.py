@@ -22,6 +22,7 @@ in cm and days. The segment table converts to metres; its columns (docs/design.m
 
 from __future__ import annotations
 
+import datetime as dt
 import hashlib
 import os
 from dataclasses import dataclass, field
@@ -37,6 +38,10 @@ from lightfit.errors import InputError, parse_date
 ORGAN_NAMES = {2: "root", 3: "stem", 4: "leaf"}
 #: Organs that enter the light model.
 SHOOT_ORGANS = ("stem", "leaf")
+#: Month and day growth starts on unless ``season_start`` is given: the reference paper's 5 March
+#: (2016-03-05; the crop was sown in October, and the wheat parameter sets do not describe growth
+#: over winter), in the target date's year, so that another year's spring runs as 2016's did.
+SEASON_START_MONTH_DAY = (3, 5)
 #: Segment ids are ``plant_id * SEGMENT_ID_STRIDE + segment_index``: stable across tiles.
 SEGMENT_ID_STRIDE = 1_000_000
 DEFAULT_PARAMETER_FILE = "Triticum_aestivum_adapted_2023.xml"
@@ -119,7 +124,8 @@ class GrowthConfig:
         parameter_file: CPlantBox plant XML (path or bundled name). Default
             ``Triticum_aestivum_adapted_2023.xml``: the winter wheat set adapted for the
             Selhausen experiments (Giraud et al. 2023), one main stem, no tillers.
-        season_start: first day of simulated growth (the reference paper: 2016-03-05; the crop was
+        season_start: first day of simulated growth; default ``None``: 5 March of ``target_date``'s
+            year (:data:`SEASON_START_MONTH_DAY`; the reference paper's 2016-03-05: the crop was
             sown 2015-10-26, growth over winter is not simulated).
         target_date: date the plants are grown to (the measurement day, 2016-04-20): after
             ``season_start`` and at most :data:`MAX_GROWTH_DAYS` days after it.
@@ -128,18 +134,23 @@ class GrowthConfig:
     """
 
     parameter_file: str = DEFAULT_PARAMETER_FILE
-    season_start: str = "2016-03-05"
+    season_start: str | None = None
     target_date: str = "2016-04-20"
     include_roots: bool = False
     _path: Path = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        start, end = parse_date(self.season_start, "season_start"), parse_date(self.target_date, "target_date")
+        end = parse_date(self.target_date, "target_date")
+        default = self.season_start is None
+        if default:  # frozen: set once; recorded as a date, so that repr, attrs and keys name it
+            object.__setattr__(self, "season_start", dt.date(end.year, *SEASON_START_MONTH_DAY).isoformat())
+        start = parse_date(self.season_start, "season_start")
         if end <= start:
             raise InputError(
-                f"target_date {end} is not after season_start {start}",
+                f"target_date {end} is not after season_start {start}"
+                + (" (the default: 5 March of its year; growth over winter is not simulated)" if default else ""),
                 column="target_date",
-                expected="season_start < target_date",
+                expected="season_start < target_date" + (", a date after 5 March" if default else ""),
             )
         if (end - start).days > MAX_GROWTH_DAYS:
             raise InputError(
