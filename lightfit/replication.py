@@ -530,6 +530,9 @@ def run(
     ds = parts[0] if len(parts) == 1 else concat_days(parts)
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     ds.attrs["preset"] = cfg.preset or "none"
+    if theta:  # the values given, as given (the figure's title names them: not the preset's defaults)
+        given = theta.to_dict() if isinstance(theta, Theta) else dict(theta)
+        ds.attrs["theta_given"] = json.dumps({k: float(v) for k, v in given.items()})
     times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
     if obs is not None:
         a = align(obs, times, timestamps.of(w))

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -62,8 +63,6 @@ def preset_name(attrs, other: str = "this run") -> str:
 
 def run_label(attrs) -> str:
     """The model choices of a run in words (leaf optics, sheaths, photosynthesis set, field), from results attrs."""
-    import json
-
     cfg = json.loads(attrs.get("replication_config", "{}") or "{}")
     optics = cfg.get("optics") or f"base colour {float(attrs.get('base_color', np.nan)):.3g}"
     sheaths = attrs.get("sheaths", "rods")  # results written before the setting had CPlantBox's rods
@@ -151,8 +150,8 @@ def figure(ds, compare=None):
                 ls=ls,
                 label=f"model sensor ({lab.split(':')[0]}, light factor {d.attrs.get('theta_light_factor', 1):.3g})",
             )
-    if "weather_par_umol_m2_s" in ds:
-        ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="grey", lw=1, ls=":", label="weather series' PAR")
+    if "weather_par_umol_m2_s" in ds:  # drawn over the model's sensor, which it equals at light factor 1
+        ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="k", lw=1, ls=":", label="weather series' PAR", zorder=3)
     _observed(ax_a, ds, t, "above_canopy_par", "s", "navy", "PAR above the canopy")
     ax_a.set_ylabel("PAR above the canopy\n(µmol m⁻² s⁻¹, horizontal)")
     ax_a.set_title("(a) horizontal quantum sensor above the canopy", loc="left", fontsize=10)
@@ -161,11 +160,15 @@ def figure(ds, compare=None):
     kind = ds.attrs.get("par_kind", "absorbed")
     for i, (d, ls, lab) in enumerate(runs):
         par, sd = d["plant_par_umol_m2_s"].values, d["plant_par_spread_umol_m2_s"].values
-        if i == 0:
-            ax_b.fill_between(
-                t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD across segments"
-            )
         k = d.attrs.get("par_kind", kind)
+        if i == 0 and f"{k}_par_umol_m2_s" in d and "area_m2" in d.coords:
+            # the segments' range, area-weighted: PAR ≥ 0 is skewed, and mean ± SD was cut at 0
+            lo, hi = area_quantiles(d[f"{k}_par_umol_m2_s"].values, d["area_m2"].values, (0.1, 0.9))
+            ax_b.fill_between(t, lo, hi, color="tab:blue", alpha=0.2, label="10–90 % of the segments' area")
+        elif i == 0:
+            ax_b.fill_between(
+                t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD of segments, cut at 0"
+            )
         ax_b.plot(
             local(d),
             par,
@@ -185,15 +188,18 @@ def figure(ds, compare=None):
             )
     _observed(ax_b, ds, t, "plant_par", "s", "navy", "PAR at the plants")
     _observed(ax_b, ds, t, "canopy_apar", "D", "darkgreen", "canopy APAR")
-    ax_b.set_ylabel("PAR at the plants\n(µmol m⁻² s⁻¹)")
+    ax_b.set_ylabel("PAR at the plants\n(µmol m⁻² s⁻¹ of leaf/stem\nor ground area: legend)")
     ax_b.set_title("(b) PAR at the plants", loc="left", fontsize=10)
 
     # (c) net CO2 uptake
     per = ds.attrs.get("an_per", "ground")
     for i, (d, ls, lab) in enumerate(runs):
         an, an_sd = d["canopy_an_umol_m2_s"].values, d["canopy_an_mc_sd_umol_m2_s"].values
-        if i == 0:
-            ax_c.fill_between(t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2, label="± 2 Monte Carlo SD")
+        if i == 0:  # its width in the label: often narrower than the line
+            width = f" (at most ± {2 * np.nanmax(an_sd):.2g})" if np.isfinite(an_sd).any() else ""
+            ax_c.fill_between(
+                t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2, label=f"± 2 Monte Carlo SD{width}"
+            )
         ax_c.plot(local(d), an, color="tab:red", lw=2, ls=ls, label=f"model ({lab.split(':')[0]})")
     _observed(ax_c, ds, t, "canopy_an", "o", "darkred", "net CO2 uptake")
     ax_c.axhline(0, color="k", lw=0.5)
@@ -220,10 +226,25 @@ def figure(ds, compare=None):
     if "observations" in ds.attrs:  # a line of its own: the title must fit the figure's width
         source, word = _observations_source(ds)
         lines.insert(1, f"{word.upper()} observations ({Path(source).name})")
+    if ds.attrs.get("theta_given"):  # the leaf and scales given (--theta), not the preset's defaults
+        given = json.loads(ds.attrs["theta_given"])
+        lines.append("θ given: " + ", ".join(f"{k} {float(v):.4g}" for k, v in given.items()))
     if compare is not None:
         lines.append(runs[1][2] + " (dashed)")
     fig.suptitle("\n".join(lines), fontsize=10)
     return fig
+
+
+def area_quantiles(values: np.ndarray, area_m2: np.ndarray, qs) -> np.ndarray:
+    """Area-weighted quantiles ``qs`` (fractions) of ``values`` (T, S) over the segments of one-sided
+    areas ``area_m2`` (S,), per row: (len(qs), T), in the values' unit. The q-quantile is the
+    smallest value below which (inclusive) at least q of the area lies."""
+    values, area = np.asarray(values, float), np.asarray(area_m2, float)
+    order = np.argsort(values, axis=1)
+    sorted_v = np.take_along_axis(values, order, axis=1)
+    cum = np.cumsum(area[order], axis=1) / area.sum()
+    idx = np.stack([np.minimum((cum < q).sum(axis=1), values.shape[1] - 1) for q in qs])
+    return np.take_along_axis(sorted_v, idx.T, axis=1).T
 
 
 def _observations_source(ds) -> tuple[str, str]:
@@ -255,6 +276,6 @@ def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None
             color=color,
             ms=7,
             capsize=3,
-            label=f"{_observations_source(ds)[1]} {label}",
+            label=f"{_observations_source(ds)[1]} {label} (± its SD)",
             zorder=5,
         )

@@ -309,7 +309,7 @@ def test_figure_names_the_observations_provenance(noon_model):
     fig = figure(ds)
     try:
         labels = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
-        assert "synthetic PAR above the canopy" in labels, labels
+        assert "synthetic PAR above the canopy (± its SD)" in labels, labels
         assert not any(lab.startswith("measured") or "chamber" in lab for lab in labels), labels
         assert "SYNTHETIC observations (twin.csv)" in fig._suptitle.get_text()
     finally:
@@ -317,6 +317,46 @@ def test_figure_names_the_observations_provenance(noon_model):
     del ds.attrs["observations_provenance"]  # files written before the attribute: the word in "observations"
     fig = figure(ds)
     try:
-        assert "synthetic PAR above the canopy" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        assert "synthetic PAR above the canopy (± its SD)" in labels
+    finally:
+        plt.close(fig)
+
+
+def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_theta(noon_model):
+    """Panel (b)'s band is the 10–90 % range of the segments' area (area-weighted quantiles, checked
+    against numpy's on area-repeated values): mean ± SD was cut at 0, lopsided for a skewed PAR. A
+    run with --theta says so in the title (it said "default" only). The results name the software
+    and the Mitsuba variant that made them."""
+    import json
+
+    import matplotlib.pyplot as plt
+
+    from lightfit.report import area_quantiles, figure
+
+    ds = noon_model.simulate(Theta())
+    v = ds["absorbed_par_umol_m2_s"].values
+    area = ds["area_m2"].values
+    lo, hi = area_quantiles(v, area, (0.1, 0.9))
+    units = np.maximum(np.round(area / area.min()).astype(int), 1)  # integer weights: repeat each value
+    for k in range(v.shape[0]):
+        rep_k = np.repeat(v[k], units)
+        q = np.quantile(rep_k, [0.1, 0.9], method="inverted_cdf")
+        w_lo, w_hi = area_quantiles(v[k : k + 1], units.astype(float), (0.1, 0.9))
+        assert (w_lo[0], w_hi[0]) == (q[0], q[1])
+    assert (lo <= hi).all() and (hi > lo).any()
+    versions = json.loads(ds.attrs["software_versions"])
+    assert set(versions) >= {"lightfit", "estimator", "mitsuba", "drjit", "jax", "cplantbox"}
+    assert ds.attrs["mitsuba_variant"].startswith("llvm_ad_")
+    ds.attrs["theta_given"] = json.dumps({"specular": 0.7375, "light_factor": 1.1})
+    fig = figure(ds)
+    try:
+        b = fig.axes[1]
+        labels = [t.get_text() for t in b.get_legend().get_texts()]
+        assert "10–90 % of the segments' area" in labels, labels
+        band = next(c for c in b.collections if c.get_label() == "10–90 % of the segments' area")
+        path = band.get_paths()[0].vertices[:, 1]
+        np.testing.assert_allclose(np.unique(path), np.unique(np.r_[lo, hi]), rtol=1e-12)
+        assert "θ given: specular 0.7375, light_factor 1.1" in fig._suptitle.get_text()
     finally:
         plt.close(fig)

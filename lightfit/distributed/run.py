@@ -547,8 +547,9 @@ def task_key(spec: TaskSpec) -> str:
     JAX's)."""
     import hashlib
 
+    from lightfit.light.backend import package_versions
     from lightfit.light.projection import PROJECTION_VERSION
-    from lightfit.model.emulator import code_versions, package_versions
+    from lightfit.model.emulator import code_versions
 
     versions = {**code_versions(), "projection": PROJECTION_VERSION, **package_versions("jax", "jaxlib")}
     what = {

@@ -17,6 +17,7 @@ from __future__ import annotations
 import ctypes.util
 import glob
 import importlib
+import importlib.metadata
 import os
 import re
 import sys
@@ -202,6 +203,23 @@ def mitsuba(variant: str | None = None) -> ModuleType:
     _STATE["mi"] = mi
     _STATE["info"] = BackendInfo(chosen, libllvm, llvm_source, source)
     return mi
+
+
+def package_versions(*packages: str) -> dict[str, str | None]:
+    """Installed version of each distribution in ``packages`` (``None`` if not installed as one)."""
+    out = {}
+    for pkg in packages:
+        try:
+            out[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def variant_in_use() -> str | None:
+    """The Mitsuba variant this process renders with, or ``None`` where it has not loaded Mitsuba
+    (light injected or read from a file): for results' provenance, without importing Mitsuba."""
+    return _STATE["info"].variant if "info" in _STATE else None  # type: ignore[union-attr]
 
 
 def info() -> BackendInfo:

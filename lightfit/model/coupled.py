@@ -389,8 +389,29 @@ class CoupledModel:
             **{f"theta_{k}": v for k, v in th.to_dict().items()},
             "leaf_temperature": "air temperature (assumption)",
             "co2_at_leaf_surface": "air CO2 (assumption)",
+            **software_attrs(),
         }
         return ds
+
+
+def software_attrs() -> dict:
+    """What made a results file, as netCDF attributes: ``software_versions`` (JSON: lightfit, its
+    estimator and projection, Mitsuba, Dr.Jit, JAX, CPlantBox) and ``mitsuba_variant`` (the one this
+    process rendered with; results are reproducible on it, other variants round otherwise)."""
+    import json
+
+    from lightfit import __version__
+    from lightfit.light.backend import package_versions, variant_in_use
+    from lightfit.light.estimator import ESTIMATOR_VERSION
+    from lightfit.light.projection import PROJECTION_VERSION
+
+    versions = {"lightfit": __version__, "estimator": ESTIMATOR_VERSION, "projection": PROJECTION_VERSION}
+    versions |= package_versions("mitsuba", "drjit", "jax", "cplantbox")
+    variant = variant_in_use()
+    return {
+        "software_versions": json.dumps(versions),
+        "mitsuba_variant": variant or "none: the light was not rendered in this process",
+    }
 
 
 def describe_sensors(sensors) -> str:

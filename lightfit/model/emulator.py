@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib.metadata
 import itertools
 import json
 import time
@@ -56,6 +55,7 @@ from lightfit.cache import cache_root
 from lightfit.errors import InputError, check_integer
 from lightfit.files import replace_text, replaced
 from lightfit.killpoint import kill_point
+from lightfit.light.backend import package_versions
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import ESTIMATOR_VERSION, PARTS
 from lightfit.light.projection import PROJECTION_VERSION
@@ -104,17 +104,6 @@ def _digest(*arrays) -> str:
     for a in arrays:
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()[:16]
-
-
-def package_versions(*packages: str) -> dict[str, str | None]:
-    """Installed version of each distribution in ``packages`` (``None`` if not installed as one)."""
-    out = {}
-    for pkg in packages:
-        try:
-            out[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            out[pkg] = None
-    return out
 
 
 def code_versions() -> dict[str, object]:
@@ -766,7 +755,6 @@ __all__ = [
     "MIN_DESIGN_SIZE",
     "check_design_size",
     "code_versions",
-    "package_versions",
     "FastObservables",
     "PartsEmulator",
     "design_dir",

@@ -75,15 +75,22 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[1].plot([ta], [a["tair_c"]], "k*", ms=12)
     ax[0].legend(loc="upper left", fontsize=8)
     ax[1].plot(t, local["tair_c"], color="tab:red")
-    ax[1].set_ylabel("T air (°C)")
+    ax[1].set_ylabel("T air (°C)", color="tab:red")
     h = ax[1].twinx()
     h.plot(t, 100 * local["rh"], color="tab:blue")
     h.set_ylabel("RH (%)", color="tab:blue")
-    ax[2].plot(t, local["co2_ppm"], color="tab:green")
-    ax[2].set_ylabel("CO2 (ppm)")
+
+    def named(what: str, x: pd.Series, unit: str, fmt: str) -> str:
+        # a constant series says so: two flat lines on twin axes meet and cannot be told apart
+        return f"{what}, constant {x.iloc[0]:{fmt}} {unit}" if len(x) and (x == x.iloc[0]).all() else f"{what} ({unit})"
+
+    co2 = ax[2].plot(t, local["co2_ppm"], color="tab:green", label=named("CO2", local["co2_ppm"], "ppm", ".0f"))
+    ax[2].set_ylabel("CO2 (ppm)", color="tab:green")
     p = ax[2].twinx()
-    p.plot(t, local["pair_kpa"], color="tab:gray", ls="--", lw=1.0)  # dashed: constant series overlap
+    pair = named("air pressure", local["pair_kpa"], "kPa", ".1f")
+    kpa = p.plot(t, local["pair_kpa"], color="tab:gray", ls="--", lw=1.0, label=pair)
     p.set_ylabel("p (kPa)", color="tab:gray")
+    ax[2].legend(handles=co2 + kpa, loc="upper left", fontsize=8)
     if "sun_elevation_deg" in local.columns:
         ax[3].plot(t, local["sun_elevation_deg"], color="goldenrod")
         ax[3].axhline(0, color="k", lw=0.5)
