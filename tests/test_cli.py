@@ -1095,3 +1095,20 @@ def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path
     (a CLI review); now refused first, naming the option."""
     r = runner.invoke(app, [str(tmp_path) if a == "DIR" else a for a in args])
     assert_user_error(r, *words)
+
+
+def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_path):
+    """A quick test run into the main job's folder replaced its 100-plant results unsaid (a
+    newcomer's review); now one line names what differs. The same command again says nothing."""
+    out = ["--out", str(tmp_path / "r")]
+    first = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", *out])
+    assert first.exit_code == 0 and "replacing" not in first.output, first.output
+    again = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", *out])
+    assert again.exit_code == 0 and "replacing" not in again.output, again.output
+    other = runner.invoke(app, ["replicate", "--quick", "--steps", "14:15", "--theta", "specular=0.6", *out])
+    assert other.exit_code == 0, other.output
+    text = " ".join(other.output.split())
+    assert "note: replacing the results in" in text and "(2 steps → 1, --theta)" in text, text
+    bigger = runner.invoke(app, ["replicate", "--quick", "--steps", "14:15", "--samples", "8", *out])
+    text = " ".join(bigger.output.split())
+    assert "samples 16 → 8" in text and "--theta" in text, text

@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import typer
 from rich import box
 from rich.table import Table
@@ -91,6 +92,9 @@ def replicate(
             expected="a folder name (e.g. results/run1; field-run's --out is the .nc file itself)",
         )
     out.mkdir(parents=True, exist_ok=True)
+    changed = replaced_settings(out / "results.nc", cfg, th, w.index)
+    if changed:  # a quick test run into the default folder replaced the main job's results unsaid
+        console.print(f"note: replacing the results in {out}, made with other settings ({changed}); --out keeps both")
     weather_report(w)
     label = provenance_label(w.attrs)
     tz, when = s.site.timezone, "; ".join(s.window().describe(d, s.site.timezone) for d in s.dates)
@@ -150,6 +154,39 @@ def replicate(
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")
+
+
+def replaced_settings(path: Path, cfg, theta, times) -> str | None:
+    """What differs between the run in ``path`` (a results.nc) and this one (``cfg``, the ``theta``
+    given, the forcing's ``times``): the configuration's changed entries, the steps and θ, e.g.
+    ``"n_plants 100 → 4, 29 steps → 2"``; ``None`` when there is no file or it was made with these
+    settings."""
+    import json
+
+    if not path.is_file():
+        return None
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            attrs, before = dict(ds.attrs), ds["time"].values
+    except Exception:  # noqa: BLE001 - any unreadable file is replaced, and said so
+        return "a file lightfit cannot read"
+    old = json.loads(attrs.get("replication_config", "{}") or "{}")
+    new = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    diffs = [f"{k} {_short(old.get(k))} → {_short(new.get(k))}" for k in new if old.get(k) != new.get(k)]
+    now = np.asarray(pd.DatetimeIndex(times).tz_convert("UTC").tz_localize(None), "datetime64[ns]")
+    if len(before) != len(now) or (np.asarray(before, "datetime64[ns]") != now).any():
+        diffs.append(f"{len(before)} steps → {len(now)}" if len(before) != len(now) else "other steps")
+    given = {k: float(v) for k, v in (theta or {}).items()}
+    if json.loads(attrs.get("theta_given", "{}") or "{}") != given:
+        diffs.append("--theta")
+    return ", ".join(diffs) or None
+
+
+def _short(v) -> str:
+    text = str(v)
+    return text if len(text) <= 30 else text[:29] + "…"
 
 
 def mc_bias_line(ds) -> str:
