@@ -5,10 +5,9 @@
 1. Synthetic observations (PAR at the plants and canopy net CO2 uptake at every daytime step)
    from the model at known leaf parameters, rendered with another random seed, plus noise;
    written to OUT/twin_observations.csv (labelled synthetic). The bundled
-   data/observations/twin_2016-04-20_synthetic.csv was made by this script at commit e71f197,
-   with that day's defaults (finite field, 2 buffer rows, the grey leaf, 3 bounces: its header);
-   today's defaults render another canopy, so the bundled file is replaced only with
-   ``--write-data``.
+   data/observations/twin_2016-04-20_synthetic.csv was made by this script with ``--write-data``
+   on 2026-12-05 (today's defaults, a 9-plant cell: its header); it is replaced only with
+   ``--write-data``, so that a later change of the defaults does not move it unsaid.
 2. Calibrate specular alone (the others at their true values) from a different start: recovery.
 3. Calibrate specular, roughness and subsurface together: the fit is as good, the parameters are
    not recovered — the non-identifiability the reference paper warned about (see issue 7 for the

@@ -64,7 +64,11 @@ def calibrate(
         help="Emulator design renders (default 20, the size lightfit posterior uses, so both share one design).",
     ),
     max_rounds: int = typer.Option(6, help="Surrogate rounds at most (each adds one render at its optimum)."),
-    priors: str = typer.Option("informed", help="Prior set whose leaf-parameter support is the emulator's box."),
+    priors: str = typer.Option(
+        "informed",
+        help="Prior set whose leaf-parameter support is the emulator's box: 'informed' (docs/design.md §6 leaf "
+        "optics; specular 0.4625–0.7375) or 'wide' (specular and subsurface 0–1).",
+    ),
     cache: Path = typer.Option(None, help="Design cache (default: $LIGHTFIT_CACHE or ~/.cache/lightfit)."),
     mc_correlation: str = typer.Option(
         "model",
@@ -261,7 +265,11 @@ def calibrate(
     if tr is not None:
         search.update({n: (lo[i], hi[i]) for i, n in enumerate(E.LEAF_PARAMETERS) if n in names})
     support = {n: p.support for n, p in box.items()}
+    others = " or ".join(f"--priors {p}" for p in P.PRIOR_SETS if p != priors)
     for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):
+        leaf = tr is not None and tr.mode == "surrogate" and line.split(" ", 1)[0] in E.LEAF_PARAMETERS
+        if leaf and "on the edge of its search range" in line:  # where that range comes from, and the way out
+            line += f" (the emulator's box, the {priors} priors' support; {others} or --no-surrogate searches further)"
         caution(line)
     # The same model (field, days, window, light settings) and these observations, at the fit.
     again = ["lightfit", "replicate", *model.args(), "--theta", str(out / "calibration.json")]
