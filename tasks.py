@@ -3,6 +3,8 @@
 
     python3 tasks.py run     # set up, then run the main job (20 April 2016, bundled data, CPU)
     python3 tasks.py test    # set up, then lint (ruff) and run the test suite
+    python3 tasks.py setup   # set up only (.venv)
+    python3 tasks.py bench   # set up, then every benchmarks/bench_*.py (long: see docs/benchmarks.md)
 
 Setup is idempotent: the virtual environment ``.venv`` is (re)installed only when
 ``requirements.lock`` or ``pyproject.toml`` changed since the last install. A Makefile
@@ -78,7 +80,9 @@ def setup() -> None:
 
 def main(argv: list[str]) -> None:
     task, *rest = argv or ["help"]
-    if task == "setup":
+    if task in ("help", "-h", "--help"):  # asked for: the usage on stdout, exit 0
+        print(__doc__)
+    elif task == "setup":
         setup()
     elif task == "run":
         setup()
@@ -93,7 +97,7 @@ def main(argv: list[str]) -> None:
         for script in sorted((ROOT / "benchmarks").glob("bench_*.py")):
             _sh(BIN / "python", script, *rest)
     else:
-        sys.exit(__doc__)
+        sys.exit(f"tasks.py: unknown task {task!r}\n{__doc__}")
 
 
 if __name__ == "__main__":

@@ -220,3 +220,18 @@ def test_layout_check_catches_reversed_imports(tmp_path, importer, source, ok):
     (pkg / Path(importer).parent / "__init__.py").write_text("")
     (pkg / importer).write_text(source)
     assert (layer_violations(pkg) == []) == ok
+
+
+def test_tasks_py_says_its_tasks():
+    """`python3 tasks.py --help` printed the usage on stderr and exited 1, without bench and setup (a
+    newcomer's review): asked, it prints every task and exits 0; an unknown task is named, exit 1.
+    Neither sets anything up."""
+    import subprocess
+
+    tasks = ROOT / "tasks.py"
+    ok = subprocess.run([sys.executable, str(tasks), "--help"], capture_output=True, text=True, timeout=60)
+    assert ok.returncode == 0 and ok.stderr == "", ok.stderr
+    for task in ("run", "test", "setup", "bench"):
+        assert f"python3 tasks.py {task}" in ok.stdout
+    bad = subprocess.run([sys.executable, str(tasks), "nope"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 1 and bad.stderr.startswith("tasks.py: unknown task 'nope'"), bad.stderr
