@@ -370,8 +370,11 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     for c in COLUMNS:  # absent quantities: all missing, so every reader sees the same columns
         if c not in out:
             out[c] = np.nan
-    out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index()
+    out["_line"] = line
+    out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index(kind="stable")
+    lines = out.pop("_line").to_numpy()
     out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta, "timestamps": stamps}
+    out.attrs["lines"] = lines  # each row's line in the file, for errors found later (align)
     return out
 
 
@@ -436,10 +439,18 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     idx, dist = nearest_steps(obs, times, stamps)
     far = dist > spacing.to_timedelta64() / 2
     if far.any():
+        k = int(np.flatnonzero(far)[0])
+        lines = obs.attrs.get("lines")
+        tz = obs.attrs.get("metadata", {}).get("time_zone")
+
+        def told(t):  # in the file's own zone, as its reader wrote it (UTC said the same in another clock)
+            return t.tz_convert(tz).isoformat() if tz and tz != "UTC" else t.isoformat()
+
         raise InputError(
-            f"observation at {obs.index[far][0].isoformat()} lies outside the run "
-            f"({times[0].isoformat()} … {times[-1].isoformat()}, {stamps.describe()})",
+            f"observation at {told(obs.index[k])} lies outside the run "
+            f"({told(times[0])} … {told(times[-1])}, {stamps.describe()})",
             file=source,
+            row=int(lines[k]) if lines is not None and len(lines) == len(obs) else None,
             column="time",
             expected="observation times within the simulated window",
         )
