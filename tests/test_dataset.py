@@ -610,7 +610,7 @@ def test_sun_of_results_from_another_site(results_file):
     assert np.abs(got["sun_azimuth_deg"].to_numpy() - here).min() > 60
 
 
-def test_results_with_their_own_sun_and_sky_refuse_another_weather(results_file, tmp_path):
+def test_results_with_their_own_sun_and_sky_refuse_another_weather(results_file, tmp_path, monkeypatch):
     """Results that carry the sun and sky that lit their labels are imaged under that sky; a
     --weather for them used to be ignored without a word, and is now refused."""
     import xarray as xr
@@ -630,9 +630,17 @@ def test_results_with_their_own_sun_and_sky_refuse_another_weather(results_file,
     assert lighting_provenance(open_results(path)) == {"from": "results", "variables": list(LIGHT_VARS)}
     # Results without sun and sky are lit by a weather series: the metadata names it (it named only
     # the model run's weather); bundled here, with its documented provenance.
-    told = lighting_provenance(open_results(results_file), "selhausen-cplantbox-day")
+    from lightfit import weather
+
+    reads, read_source = [], weather.read_source
+    monkeypatch.setattr(weather, "read_source", lambda *a, **k: reads.append(a) or read_source(*a, **k))
+    unlit = open_results(results_file)
+    told = lighting_provenance(unlit, "selhausen-cplantbox-day")
+    lighting(unlit, [0], "selhausen-cplantbox-day")
+    monkeypatch.undo()
     assert told["from"] == "weather" and told["source"].endswith("selhausen_cplantbox_day.txt")
     assert told["provenance"] == "measured"
+    assert len(reads) == 1  # one read for both (it was read twice per dataset)
     with pytest.raises(InputError, match="carry their own sun and sky") as e:
         lighting(open_results(path), [0], "2016-04-20")
     assert e.value.column == "weather"

@@ -310,6 +310,16 @@ def lighting_provenance(res: Results, weather_source: str | None = None) -> dict
 
 
 def _weather(res: Results, source: str | None) -> pd.DataFrame:
+    """The weather that lights ``res`` (``source`` or its target date's bundled series), read and
+    given its solar columns once per results object and source: :func:`lighting` and
+    :func:`lighting_provenance` both ask (it was read, and the sun computed, twice per dataset)."""
+    read = res.__dict__.setdefault("_weather_read", {})
+    if source not in read:
+        read[source] = _read_weather(res, source)
+    return read[source]
+
+
+def _read_weather(res: Results, source: str | None) -> pd.DataFrame:
     from lightfit import weather
 
     date = str(res.ds.attrs.get("target_date", ""))
