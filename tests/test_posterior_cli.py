@@ -177,3 +177,22 @@ def test_posterior_cli_interrupted_while_sampling_says_how_to_resume(tmp_path, m
     assert r.exit_code == 0, r.output
     run = load_run(out / "run.h5")
     assert run["chain"].shape == (30, 8, 2) and "analysis" in run
+
+
+def test_the_emulator_is_checked_at_the_maps_own_leaf(tmp_path):
+    """The held-out renders lie inside the emulator's box, where it is best; the MAP may sit on the
+    box's edge, where a review measured 1.5–2 Monte Carlo SDs of emulator error. The analysis renders
+    the MAP's leaf too and reports the shift there, the last held-out point."""
+    obs = tmp_path / "obs.csv"
+    obs.write_text(OBS)
+    out = tmp_path / "post"
+    args = ["posterior", str(obs), "--quick", "--out", str(out), "--parameters", "specular,light_factor"]
+    r = CliRunner().invoke(app, [*args, "--walkers", "8", "--max-steps", "20", "--n-design", "6", "--n-test", "1"])
+    assert r.exit_code == 0, r.output
+    run = load_run(out / "run.h5")
+    ee, x_map = run["analysis"]["emulator_error"], np.asarray(run["analysis"]["x_map"])
+    assert int(ee["n_test"]) == 2  # the Sobol point and the MAP's leaf
+    leaf = np.asarray(ee["at_map_leaf"])
+    assert leaf[0] == pytest.approx(x_map[0], abs=0, rel=1e-12)  # specular from the MAP; the rest the leaf's own
+    assert float(ee["at_map_shift_over_sd"]) == pytest.approx(float(np.asarray(ee["shift_over_sd_per_point"])[-1]))
+    assert "at the MAP's leaf:" in " ".join(r.output.split())

@@ -214,6 +214,8 @@ def posterior(
         resume=resume,
         stop=stop,
         validation_renders=(val[0] if dates is None else val) if val else None,
+        # the MAP's leaf rendered into the design's cache, as the held-out points are
+        render_at=lambda d, leaf: E.render_parts(d, leaf, progress=False, cache=E.design_dir(d, cache) / "renders"),
         analysis=analysis,
         max_seconds=None if max_minutes is None else 60 * max_minutes,
         attrs={"config": s.as_dict(), "priors_set": priors, "emulator_key": emu_key},
@@ -254,7 +256,12 @@ def posterior(
         caution(line)
     console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
     if "emulator_error" in res:
-        console.print(f"emulator error → max shift {res['emulator_error']['max_shift_over_sd']:.3g} posterior SD")
+        ee = res["emulator_error"]
+        at_map = ee.get("at_map_shift_over_sd")
+        console.print(
+            f"emulator error → max shift {ee['max_shift_over_sd']:.3g} posterior SD"
+            + ("" if at_map is None else f" (at the MAP's leaf: {at_map:.3g})")
+        )
     console.print(
         f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
         f"with LIGHTFIT_POSTERIOR_RUN={out / 'run.h5'}"

@@ -343,6 +343,7 @@ def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray
         shifts.append(np.abs(cov @ J.T @ dr) / sd)
         norms.append(float(np.linalg.norm(dr)))
     shifts = np.asarray(shifts)
+    per_point = shifts.max(axis=1)
     rows = [
         {
             "parameter": n,
@@ -356,6 +357,8 @@ def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray
         "per_parameter": rows,
         "max_shift_over_sd": float(shifts.max()),
         "max_whitened_error_norm": max(norms),
+        #: per held-out point (rows of ``validation["leaf_test"]``), the largest shift over posterior SD
+        "shift_over_sd_per_point": per_point.tolist(),
         **{f"max_abs_error_{s.value}": float(np.abs(validation[f"err_{s.value}"]).max()) for s in SERIES},
         "parts_rms": validation["parts_rms"],
         "parts_max": validation["parts_max"],
@@ -473,6 +476,7 @@ def run(
     resume: bool = True,
     progress: bool = True,
     validation_renders=None,
+    render_at=None,
     n_predictive: int = 64,
     n_profile: int = 15,
     analysis: bool = True,
@@ -487,6 +491,9 @@ def run(
     The log-posterior is :func:`log_posterior` (priors default: the informed priors of the run's leaf;
     unsampled parameters: the run's leaf defaults). ``validation_renders``: ``(leaf_test, (values,
     se))`` full renders at held-out points for the emulator-error report (skipped when None).
+    ``render_at(day_model, leaf (n, 3)) -> (values, se)``: full renders elsewhere; given with
+    ``validation_renders``, the MAP's own leaf is rendered and checked too (``at_map_*``): the
+    held-out points are inside the box, where the emulator is best, and the MAP may sit on its edge.
     ``mc_correlation``: ``"model"`` (default) — the likelihood covers the renderer's Monte Carlo error
     with its correlation across steps and series, computed once from the emulated parts at the centre
     of the priors (:func:`~lightfit.inference.likelihood.mc_correlation`); ``None`` — independent
@@ -619,12 +626,22 @@ def run(
         per_day = validation_renders if isinstance(model, MultiDayModel) else [validation_renders]
         th_map, _ = lp.split(jnp.asarray(x_map))
         extra = {k: float(getattr(th_map, k)) for k in ("light_factor", "vcmax_scale")}
+        if render_at is not None:  # the MAP's leaf, the last held-out point of every day
+            leaf_map = np.asarray(th_map.leaf, np.float64)[None]
+            per_day = [
+                (np.vstack([lt, leaf_map]), tuple(np.concatenate([a, b]) for a, b in zip(full, render_at(d, leaf_map))))
+                for d, (lt, full) in zip(days, per_day)
+            ]
         vals = [
             validate(d, f, leaf_test, theta_extra=extra, full=full)
             for d, f, (leaf_test, full) in zip(days, fasts, per_day)
         ]
         val = _join_validations(vals)
         an["emulator_error"] = emulator_error_vs_width(lp, x_map, cov, val)
+        if render_at is not None:
+            err = an["emulator_error"]
+            err["at_map_shift_over_sd"] = err["shift_over_sd_per_point"][-1]
+            err["at_map_leaf"] = leaf_map[0].tolist()
         out["emulator_error"] = an["emulator_error"]
     write_group(path, "analysis", an)
     out.update(
