@@ -731,6 +731,14 @@ def test_fast_observables_match_observe_on_quick_field():
     lit = val["full_plant_par_umol_m2_s"][0] > 0
     assert lit.sum() > 10 and (mc_sd[lit] > 0).all() and (err[~lit] == 0).all()
     assert (err[lit] <= 0.5 * mc_sd[lit]).all(), (err[lit] / mc_sd[lit]).max()
+    # its SE ratio: emulated ÷ rendered SE of the parts, median over those with Monte Carlo error,
+    # here from the emulator and the design's own render (design point 0), by hand
+    v, se = E.render_parts(model, emu.design[:1])
+    es = np.asarray(emu(Theta(**x0))[1])
+    noisy = se[0] > 0
+    assert val["se_ratio"].shape == (1,)
+    assert val["se_ratio"][0] == pytest.approx(float(np.median(es[noisy] / se[0][noisy])), rel=1e-12)
+    assert 0.8 < val["se_ratio"][0] < 1.25  # a least-squares fit of the SEs, at a point it was fitted to
 
 
 class FailsAbove(FakeModel):

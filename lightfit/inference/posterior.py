@@ -362,6 +362,8 @@ def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray
         **{f"max_abs_error_{s.value}": float(np.abs(validation[f"err_{s.value}"]).max()) for s in SERIES},
         "parts_rms": validation["parts_rms"],
         "parts_max": validation["parts_max"],
+        #: per held-out point, the median emulated ÷ rendered Monte Carlo SE of the parts
+        "se_ratio_per_point": np.asarray(validation["se_ratio"]).tolist(),
         "n_test": int(n_test),
     }
 
@@ -455,6 +457,7 @@ def _join_validations(vals: list[dict]) -> dict:
     out = {k: np.concatenate([v[k] for v in vals], axis=1) for o in VALIDATED for k in (f"err_{o}", f"full_{o}")}
     out["parts_rms"] = float(np.sqrt(np.mean([v["parts_rms"] ** 2 for v in vals])))
     out["parts_max"] = float(max(v["parts_max"] for v in vals))
+    out["se_ratio"] = np.min([v["se_ratio"] for v in vals], axis=0)  # per point, the day furthest below 1
     out["leaf_test"] = vals[0]["leaf_test"]
     return out
 
