@@ -116,7 +116,8 @@ def figure(ds, compare=None):
     (a) PAR on a horizontal quantum sensor above the canopy — the model's sensor
     (``above_canopy_par_umol_m2_s``) with the observed above-canopy PAR (the chamber's record) on
     the same axis, and the weather series' own PAR; (b) PAR absorbed (or incident) at the plants,
-    mean ± spread over segments per one-sided area, and canopy APAR per ground area, with any
+    the area-weighted mean over segments per one-sided area with the band of the segments' 10–90 %
+    of area, and canopy APAR per ground area, with any
     observations of these; (c) canopy net CO2 uptake per ground (or leaf) area ± 2 Monte Carlo
     SD, with observed uptake. ``compare``: a second run's results (e.g. the ``paper`` preset,
     :meth:`lightfit.replication.ReplicationConfig.paper`) drawn dashed beside this one's.
@@ -238,13 +239,21 @@ def figure(ds, compare=None):
 def area_quantiles(values: np.ndarray, area_m2: np.ndarray, qs) -> np.ndarray:
     """Area-weighted quantiles ``qs`` (fractions) of ``values`` (T, S) over the segments of one-sided
     areas ``area_m2`` (S,), per row: (len(qs), T), in the values' unit. The q-quantile is the
-    smallest value below which (inclusive) at least q of the area lies."""
-    values, area = np.asarray(values, float), np.asarray(area_m2, float)
-    order = np.argsort(values, axis=1)
+    smallest value below which (inclusive) at least q of the area lies. NaN values (a segment of
+    another day in several days' results) weigh nothing; a row without any value is NaN."""
+    values, area = np.atleast_2d(np.asarray(values, float)), np.asarray(area_m2, float)
+    out = np.full((len(qs), values.shape[0]), np.nan)
+    if values.shape[1] == 0:
+        return out
+    weight = np.where(np.isnan(values), 0.0, area[None, :])
+    order = np.argsort(values, axis=1)  # NaN last
     sorted_v = np.take_along_axis(values, order, axis=1)
-    cum = np.cumsum(area[order], axis=1) / area.sum()
-    idx = np.stack([np.minimum((cum < q).sum(axis=1), values.shape[1] - 1) for q in qs])
-    return np.take_along_axis(sorted_v, idx.T, axis=1).T
+    total = weight.sum(axis=1)
+    cum = np.cumsum(np.take_along_axis(weight, order, axis=1), axis=1) / np.where(total > 0, total, 1.0)[:, None]
+    for j, q in enumerate(qs):
+        idx = np.minimum((cum < q).sum(axis=1), values.shape[1] - 1)
+        out[j] = np.where(total > 0, np.take_along_axis(sorted_v, idx[:, None], axis=1)[:, 0], np.nan)
+    return out
 
 
 def _observations_source(ds) -> tuple[str, str]:

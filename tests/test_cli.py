@@ -765,6 +765,11 @@ def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_
     r = runner.invoke(app, [*args, "--observations", str(OBSERVATIONS)])
     # its line, and its time in the file's own zone (it said 10:13:48+00:00 for a Berlin record)
     assert_user_error(r, "chamber_2016-04-20_record.csv", "line 8", "observation at 2016-04-20T12:13:48+02:00")
+    # the lines it keeps for that leave the frame one pandas can concatenate (attrs compared with ==)
+    from lightfit.inference.observations import read_observations
+
+    a, b = read_observations(OBSERVATIONS), read_observations(OBSERVATIONS)
+    assert a.attrs == b.attrs and len(pd.concat([a, b.set_axis(b.index + pd.Timedelta("1min"))])) == 2
     assert not (tmp_path / "r").exists()
     w = rep.forcing(window=Window("06:00", 1.0))
     assert rep.observations_for(w) is None  # the default record, optional

@@ -345,6 +345,14 @@ def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_thet
         w_lo, w_hi = area_quantiles(v[k : k + 1], units.astype(float), (0.1, 0.9))
         assert (w_lo[0], w_hi[0]) == (q[0], q[1])
     assert (lo <= hi).all() and (hi > lo).any()
+    # several days' results: a segment is NaN on the other day and weighs nothing there (the band's
+    # top was NaN and its bottom too high); each day's band is its own
+    two = np.full((2, 2 * v.shape[1]), np.nan)
+    two[0, : v.shape[1]], two[1, v.shape[1] :] = v[0], v[-1]
+    both = area_quantiles(two, np.r_[area, area], (0.1, 0.9))
+    np.testing.assert_array_equal(both[:, 0], area_quantiles(v[:1], area, (0.1, 0.9))[:, 0])
+    np.testing.assert_array_equal(both[:, 1], area_quantiles(v[-1:], area, (0.1, 0.9))[:, 0])
+    assert np.isnan(area_quantiles(np.full((1, 3), np.nan), np.ones(3), (0.5,))).all()
     versions = json.loads(ds.attrs["software_versions"])
     assert set(versions) >= {"lightfit", "estimator", "mitsuba", "drjit", "jax", "cplantbox"}
     assert ds.attrs["mitsuba_variant"].startswith("llvm_ad_")

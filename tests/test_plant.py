@@ -448,6 +448,7 @@ def test_growth_dates_and_spacings_are_read_as_values():
     numpy's too, and not booleans (True was taken as 1 m)."""
     assert GrowthConfig(target_date="20160420").fingerprint() == GrowthConfig().fingerprint()
     f = Field(boundary="finite", row_spacing_m=np.float32(0.125), plant_spacing_m=np.int64(1))
-    assert f.plant_spacing_m == 1
+    assert f.plant_spacing_m == 1 and type(f.row_spacing_m) is float and f.row_spacing_m == 0.125
+    assert repr(f) == repr(Field(boundary="finite", row_spacing_m=0.125, plant_spacing_m=1.0))  # one key
     with pytest.raises(InputError, match="row_spacing_m=True"):
         Field(boundary="finite", row_spacing_m=True)

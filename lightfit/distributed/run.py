@@ -41,6 +41,8 @@ import logging
 import math
 import os
 import pickle
+import signal
+import threading
 import time
 import uuid
 from contextlib import contextmanager
@@ -52,7 +54,7 @@ import numpy as np
 from lightfit.distributed.tiles import HaloField, check_tiles
 from lightfit.errors import InputError, check_integer
 from lightfit.files import replaced
-from lightfit.killpoint import INTERRUPT_HANDLED_BY, ignore_interrupt_in_workers, kill_point
+from lightfit.killpoint import INTERRUPT_HANDLED_BY, kill_point
 from lightfit.model import schema
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, daytime, sun_positions_deg
@@ -176,7 +178,6 @@ def _worker_setup() -> None:
     import lightfit  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before Mitsuba loads)
     from lightfit.precision import use_compilation_cache, use_float64
 
-    ignore_interrupt_in_workers()  # where the process's main module did not import lightfit first
     log = logging.getLogger("distributed.worker.state_machine")
     if not any(isinstance(f, _QuietCancel) for f in log.filters):
         log.addFilter(_QuietCancel())
@@ -471,10 +472,11 @@ def connect(
         ).strip()
     # dashboard_address ":0": a free port. None does not disable the scheduler's HTTP server: it
     # takes port 8787 and warns when another cluster (another lightfit run) holds it.
-    with _interrupts_handled_here():
+    with _interrupts_handled_here(), _interrupt_deferred() as interrupted:
         try:
             cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
         except Exception as err:  # noqa: BLE001 - whatever stops the workers starting (a ~90-line traceback)
+            interrupted.restore()
             raise InputError(
                 f"a local Dask cluster of {n} worker(s) × {t} thread(s) did not start ({type(err).__name__}: "
                 f"{str(err)[:200]})",
@@ -483,6 +485,7 @@ def connect(
                 "or fewer --workers",
             ) from None
         try:
+            interrupted.restore()  # a Ctrl-C while the cluster started is raised here, where it is closed
             try:
                 client = Client(cluster, timeout=timeout_s)
             except (OSError, TimeoutError) as err:  # distributed's "Timed out trying to connect"
@@ -501,6 +504,39 @@ def connect(
                 client.close()
         finally:
             cluster.close()
+
+
+class _Deferred:
+    """A Ctrl-C held while a cluster starts (:func:`_interrupt_deferred`)."""
+
+    def __init__(self):
+        self.previous, self.got = None, False
+
+    def restore(self) -> None:
+        """Put the previous SIGINT handler back and raise the held Ctrl-C, if one came."""
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+            self.previous = None
+            if self.got:
+                raise KeyboardInterrupt
+
+
+@contextmanager
+def _interrupt_deferred():
+    """Hold a Ctrl-C until :meth:`_Deferred.restore`: one during LocalCluster's start left a cluster
+    no one closed, and distributed's own close at exit printed ≈ 28 lines (a review). Only in the
+    main thread (elsewhere Python takes no handler and nothing is held)."""
+    held = _Deferred()
+    if threading.current_thread() is threading.main_thread():
+
+        def hold(*_):
+            held.got = True
+
+        held.previous = signal.signal(signal.SIGINT, hold)
+    try:
+        yield held
+    finally:
+        held.restore()
 
 
 @contextmanager

@@ -374,7 +374,9 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index(kind="stable")
     lines = out.pop("_line").to_numpy()
     out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta, "timestamps": stamps}
-    out.attrs["lines"] = lines  # each row's line in the file, for errors found later (align)
+    # each row's line in the file, for errors found later (align); a tuple, as pandas compares attrs
+    # with == (concat), which an array cannot answer
+    out.attrs["lines"] = tuple(int(x) for x in lines)
     return out
 
 

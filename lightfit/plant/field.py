@@ -168,6 +168,7 @@ class Field:
             v = getattr(self, name)
             if not (is_real(v) and math.isfinite(v) and v > 0):  # True was 1 m; numpy numbers were refused
                 raise InputError(f"{name}={v!r}", column=name, expected="a positive distance in metres")
+            object.__setattr__(self, name, float(v))  # np.float32(0.125) hashed otherwise than 0.125
         d = self.row_direction_deg
         if not (is_real(d) and math.isfinite(d)):  # NaN built a mesh of NaN, inf a math domain error
             raise InputError(f"row_direction_deg={d!r}", column="row_direction_deg", expected="an azimuth in degrees")

@@ -126,7 +126,9 @@ class GrowthConfig:
             Selhausen experiments (Giraud et al. 2023), one main stem, no tillers.
         season_start: first day of simulated growth; default ``None``: 5 March of ``target_date``'s
             year (:data:`SEASON_START_MONTH_DAY`; the reference paper's 2016-03-05: the crop was
-            sown 2015-10-26, growth over winter is not simulated).
+            sown 2015-10-26, growth over winter is not simulated). Resolved when the config is
+            made: ``dataclasses.replace(config, target_date=...)`` keeps the resolved date (pass
+            ``season_start=None`` with it to take the new year's).
         target_date: date the plants are grown to (the measurement day, 2016-04-20): after
             ``season_start`` and at most :data:`MAX_GROWTH_DAYS` days after it.
         include_roots: keep root segments in the table. Off by default: roots are ~98 % of a
