@@ -1105,7 +1105,9 @@ def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path
 
 def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_path):
     """A quick test run into the main job's folder replaced its 100-plant results unsaid (a
-    newcomer's review); now one line names what differs. The same command again says nothing."""
+    newcomer's review); now one line names what differs, as the results record the settings
+    (resolved: a library run's "auto" is the command's resolved value). The same command again says
+    nothing."""
     out = ["--out", str(tmp_path / "r")]
     first = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", *out])
     assert first.exit_code == 0 and "replacing" not in first.output, first.output
@@ -1114,7 +1116,20 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
     other = runner.invoke(app, ["replicate", "--quick", "--steps", "14:15", "--theta", "specular=0.6", *out])
     assert other.exit_code == 0, other.output
     text = " ".join(other.output.split())
-    assert "note: replacing the results in" in text and "(2 steps → 1, --theta)" in text, text
+    assert "note: replaced the results in" in text and "(theta_specular 0.5 → 0.6, 2 steps → 1)" in text, text
     bigger = runner.invoke(app, ["replicate", "--quick", "--steps", "14:15", "--samples", "8", *out])
     text = " ".join(bigger.output.split())
-    assert "samples 16 → 8" in text and "--theta" in text, text
+    assert "(samples 16 → 8, theta_specular 0.6 → 0.5)" in text, text
+    # settings as resolved: the library's run of the same model (its config says "auto") is no change
+    from lightfit import replication as rep
+
+    w = rep.forcing()
+    rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "lib")
+    same = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(tmp_path / "lib")])
+    assert same.exit_code == 0 and "replaced" not in same.output, same.output
+    # the weather is a setting: another file is said
+    dim = tmp_path / "dim.csv"
+    dim.write_text((tmp_path / "lib" / "forcing.csv").read_text())
+    args = ["replicate", "--quick", "--weather", str(dim), "--start-time", "12:00", "--hours", "0.5"]
+    moved = runner.invoke(app, [*args, "--out", str(tmp_path / "lib")])
+    assert "weather_source" in " ".join(moved.output.split()), moved.output

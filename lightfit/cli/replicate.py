@@ -7,7 +7,6 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import typer
 from rich import box
 from rich.table import Table
@@ -92,9 +91,7 @@ def replicate(
             expected="a folder name (e.g. results/run1; field-run's --out is the .nc file itself)",
         )
     out.mkdir(parents=True, exist_ok=True)
-    changed = replaced_settings(out / "results.nc", cfg, th, w.index)
-    if changed:  # a quick test run into the default folder replaced the main job's results unsaid
-        console.print(f"note: replacing the results in {out}, made with other settings ({changed}); --out keeps both")
+    before = stored_settings(out / "results.nc")  # compared with the run's own once it has run
     weather_report(w)
     label = provenance_label(w.attrs)
     tz, when = s.site.timezone, "; ".join(s.window().describe(d, s.site.timezone) for d in s.dates)
@@ -127,6 +124,9 @@ def replicate(
         progress=True,
         compare=cmp,
     )
+    changed = replaced_settings(before, ds)
+    if changed:  # a quick test run into the default folder replaced the main job's results unsaid
+        console.print(f"note: replaced the results in {out}, made with other settings ({changed}); --out keeps both")
     table = summary(ds)
     t = Table(
         title=f"replication summary ({label} forcing; {field_label(ds.attrs)}; "
@@ -156,36 +156,63 @@ def replicate(
         console.print(f"[green]wrote[/] {out / f}")
 
 
-def replaced_settings(path: Path, cfg, theta, times) -> str | None:
-    """What differs between the run in ``path`` (a results.nc) and this one (``cfg``, the ``theta``
-    given, the forcing's ``times``): the configuration's changed entries, the steps and θ, e.g.
-    ``"n_plants 100 → 4, 29 steps → 2"``; ``None`` when there is no file or it was made with these
-    settings."""
-    import json
+#: Results attributes that say nothing about the settings (or repeat one another's): not compared.
+NOT_SETTINGS = {
+    "software_versions",
+    "mitsuba_variant",
+    "replication_config",
+    "theta_given",
+    "title",
+    "conventions",
+    "layout_fingerprint",
+    "observations_provenance",
+    "growth_temperature_applied_c",
+    "kn_per_lai",
+    "ground_area_m2",
+}
 
+
+def stored_settings(path: Path):
+    """``(attrs, times)`` of the results in ``path``, ``None`` where there are none, or the string
+    ``"unreadable"``; read before a run replaces them (:func:`replaced_settings`)."""
     if not path.is_file():
         return None
     try:
         import xarray as xr
 
         with xr.open_dataset(path, engine="h5netcdf") as ds:
-            attrs, before = dict(ds.attrs), ds["time"].values
-    except Exception:  # noqa: BLE001 - any unreadable file is replaced, and said so
+            return dict(ds.attrs), np.asarray(ds["time"].values, "datetime64[ns]")
+    except Exception:  # noqa: BLE001 - any file lightfit cannot read is replaced, and said so
+        return "unreadable"
+
+
+def replaced_settings(before, ds) -> str | None:
+    """What differs between the results a run replaced (``before``: :func:`stored_settings`) and its
+    own ``ds``, as resolved settings (the results' attributes: ``samples 32 → 16``, the weather file,
+    θ) and steps; ``None`` where nothing does or nothing was there."""
+    if before is None:
+        return None
+    if isinstance(before, str):
         return "a file lightfit cannot read"
-    old = json.loads(attrs.get("replication_config", "{}") or "{}")
-    new = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    diffs = [f"{k} {_short(old.get(k))} → {_short(new.get(k))}" for k in new if old.get(k) != new.get(k)]
-    now = np.asarray(pd.DatetimeIndex(times).tz_convert("UTC").tz_localize(None), "datetime64[ns]")
-    if len(before) != len(now) or (np.asarray(before, "datetime64[ns]") != now).any():
-        diffs.append(f"{len(before)} steps → {len(now)}" if len(before) != len(now) else "other steps")
-    given = {k: float(v) for k, v in (theta or {}).items()}
-    if json.loads(attrs.get("theta_given", "{}") or "{}") != given:
-        diffs.append("--theta")
+    old, times = before
+    new = dict(ds.attrs)
+
+    def same(a, b) -> bool:
+        return np.array_equal(np.asarray(a), np.asarray(b)) if a is not None and b is not None else a is b
+
+    diffs = [
+        f"{k} {_short(old.get(k))} → {_short(new.get(k))}"
+        for k in sorted(set(old) | set(new))
+        if k not in NOT_SETTINGS and not same(old.get(k), new.get(k))
+    ]
+    now = np.asarray(ds["time"].values, "datetime64[ns]")
+    if len(times) != len(now) or (times != now).any():
+        diffs.append(f"{len(times)} steps → {len(now)}" if len(times) != len(now) else "other steps")
     return ", ".join(diffs) or None
 
 
 def _short(v) -> str:
-    text = str(v)
+    text = "–" if v is None else (Path(v).name if isinstance(v, str) and "/" in v else str(v))
     return text if len(text) <= 30 else text[:29] + "…"
 
 
