@@ -579,15 +579,12 @@ def task_key(spec: TaskSpec) -> str:
     """Hash of everything the task's result depends on: its scenario (tile, time rows, field and its
     growth file's contents, estimator, optics, photosynthesis, … :
     :meth:`~lightfit.model.scenario.Scenario.digest`, whose growth entry holds CPlantBox's version),
-    θ, and the code's versions (:func:`~lightfit.model.emulator.code_versions`, the projection's and
-    JAX's)."""
+    θ, and the versions of the code it ran (:func:`~lightfit.model.emulator.run_versions`)."""
     import hashlib
 
-    from lightfit.light.backend import package_versions
-    from lightfit.light.projection import PROJECTION_VERSION
-    from lightfit.model.emulator import code_versions
+    from lightfit.model.emulator import run_versions
 
-    versions = {**code_versions(), "projection": PROJECTION_VERSION, **package_versions("jax", "jaxlib")}
+    versions = run_versions()
     what = {
         "scenario": spec.run.task_scenario(spec.tile, spec.rows).digest(),
         "theta": as_theta(spec.run.theta).to_dict(),

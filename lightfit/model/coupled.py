@@ -400,16 +400,12 @@ def software_attrs() -> dict:
     process rendered with; results are reproducible on it, other variants round otherwise)."""
     import json
 
-    from lightfit import __version__
-    from lightfit.light.backend import package_versions, variant_in_use
-    from lightfit.light.estimator import ESTIMATOR_VERSION
-    from lightfit.light.projection import PROJECTION_VERSION
+    from lightfit.light.backend import variant_in_use
+    from lightfit.model.emulator import run_versions  # emulator imports this module: here, not at the top
 
-    versions = {"lightfit": __version__, "estimator": ESTIMATOR_VERSION, "projection": PROJECTION_VERSION}
-    versions |= package_versions("mitsuba", "drjit", "jax", "cplantbox")
     variant = variant_in_use()
     return {
-        "software_versions": json.dumps(versions),
+        "software_versions": json.dumps(run_versions()),
         "mitsuba_variant": variant or "none: the light was not rendered in this process",
     }
 

@@ -115,6 +115,18 @@ def code_versions() -> dict[str, object]:
     return {"lightfit": __version__, "estimator": ESTIMATOR_VERSION, **package_versions("mitsuba", "drjit")}
 
 
+def run_versions() -> dict[str, object]:
+    """The versions a run's results depend on: :func:`code_versions`, the projection's
+    (:data:`~lightfit.light.projection.PROJECTION_VERSION`), JAX's and jaxlib's, CPlantBox's (the
+    plants) and pvlib's (the sun and the direct/diffuse split). Results record them
+    (``software_versions``), field-run's kept tasks are keyed by them."""
+    return {
+        **code_versions(),
+        "projection": PROJECTION_VERSION,
+        **package_versions("jax", "jaxlib", "cplantbox", "pvlib"),
+    }
+
+
 def render_key(model: CoupledModel) -> dict:
     """Everything a full render of ``model`` depends on besides the three leaf parameters: estimator
     settings (samples, bounces, seed; when adaptive the target, the cap and the allocation point; the projection and its
@@ -759,6 +771,7 @@ __all__ = [
     "MIN_DESIGN_SIZE",
     "check_design_size",
     "code_versions",
+    "run_versions",
     "FastObservables",
     "PartsEmulator",
     "design_dir",
