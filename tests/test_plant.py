@@ -452,3 +452,27 @@ def test_growth_dates_and_spacings_are_read_as_values():
     assert repr(f) == repr(Field(boundary="finite", row_spacing_m=0.125, plant_spacing_m=1.0))  # one key
     with pytest.raises(InputError, match="row_spacing_m=True"):
         Field(boundary="finite", row_spacing_m=True)
+
+
+def test_the_preview_says_what_it_draws(tmp_path, monkeypatch):
+    """The top view said "pale: buffer plants" on a periodic field, which has none, and did not draw
+    its cell (a newcomer's review): a periodic field's cell is drawn dashed and named, buffer plants
+    are named only where there are some."""
+    import matplotlib.figure
+
+    from lightfit.plant.preview import plot_field
+
+    seen = []
+    save = matplotlib.figure.Figure.savefig
+    monkeypatch.setattr(
+        matplotlib.figure.Figure,
+        "savefig",
+        lambda fig, *a, **k: seen.append((fig.axes[0].get_title(), len(fig.axes[0].lines))) or save(fig, *a, **k),
+    )
+    cache = tmp_path / "cache"
+    plot_field(build(Field(n_plants=4), cache_dir=cache), tmp_path / "p.png")
+    plot_field(build(Field(n_plants=4, boundary="finite", buffer_rows=1), cache_dir=cache), tmp_path / "f.png")
+    assert seen == [
+        ("top view (dashed: the periodic cell, repeated without end)", 1),
+        ("top view (pale: buffer plants)", 0),
+    ]

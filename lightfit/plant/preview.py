@@ -24,7 +24,8 @@ COLOURS = {
 
 
 def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
-    """Top view (x–y) and side view (x–z) of the mesh; buffer plants drawn pale. The format
+    """Top view (x–y) and side view (x–z) of the mesh; buffer plants drawn pale, a periodic field's
+    cell dashed. The format
     comes from the suffix of ``path`` (:func:`lightfit.figure.figure_format`)."""
     path = Path(path)
     figure_format(path)
@@ -50,7 +51,18 @@ def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
         a.set_aspect("equal")
         a.set_xlabel(lab[0])
         a.set_ylabel(lab[1])
-    ax[0].set_title("top view (pale: buffer plants)")
+    notes = ["pale: buffer plants"] if not measured.all() else []
+    if geom.cell is not None:  # a periodic field: its cell, the plants repeated around it (none drawn)
+        ea, eb = geom.cell.axes
+        c = np.asarray(geom.cell.center_xy, float)
+        corners = [
+            c + sa * 0.5 * geom.cell.along_m * ea + sb * 0.5 * geom.cell.across_m * eb
+            for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1), (-1, -1))
+        ]
+        xy = np.asarray(corners)
+        ax[0].plot(xy[:, 0], xy[:, 1], "k--", lw=1)
+        notes.append("dashed: the periodic cell, repeated without end")
+    ax[0].set_title("top view" + (f" ({'; '.join(notes)})" if notes else ""))
     ax[1].set_title("side view from the south")
     fig.suptitle(title or f"{len(geom.plants)} plants, {len(geom.segments)} shoot segments, {m.n_faces} triangles")
     fig.savefig(path, dpi=110)
