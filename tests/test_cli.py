@@ -1132,4 +1132,6 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
     dim.write_text((tmp_path / "lib" / "forcing.csv").read_text())
     args = ["replicate", "--quick", "--weather", str(dim), "--start-time", "12:00", "--hours", "0.5"]
     moved = runner.invoke(app, [*args, "--out", str(tmp_path / "lib")])
-    assert "weather_source" in " ".join(moved.output.split()), moved.output
+    text = " ".join(moved.output.split())
+    assert "weather_source" in text and "dim.csv" in text, text  # a file by its name
+    assert "window 2016-04-20 05:00 + 14 h (Euro" in text, text  # not cut at the zone's "/" as a path

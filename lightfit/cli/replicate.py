@@ -201,7 +201,7 @@ def replaced_settings(before, ds) -> str | None:
         return np.array_equal(np.asarray(a), np.asarray(b)) if a is not None and b is not None else a is b
 
     diffs = [
-        f"{k} {_short(old.get(k))} → {_short(new.get(k))}"
+        f"{k} {_short(k, old.get(k))} → {_short(k, new.get(k))}"
         for k in sorted(set(old) | set(new))
         if k not in NOT_SETTINGS and not same(old.get(k), new.get(k))
     ]
@@ -211,8 +211,12 @@ def replaced_settings(before, ds) -> str | None:
     return ", ".join(diffs) or None
 
 
-def _short(v) -> str:
-    text = "–" if v is None else (Path(v).name if isinstance(v, str) and "/" in v else str(v))
+#: Results attributes that name a file: shown by its name (any "/" elsewhere is not a path: Europe/Berlin).
+FILE_ATTRS = {"weather_source", "observations", "parameter_file"}
+
+
+def _short(key: str, v) -> str:
+    text = "–" if v is None else (Path(str(v)).name if key in FILE_ATTRS else str(v))
     return text if len(text) <= 30 else text[:29] + "…"
 
 
