@@ -31,9 +31,6 @@ def replace_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
-__all__ = ["replace_text", "replaced"]
-
-
 #: First bytes of a netCDF file: netCDF-4 (HDF5) and classic netCDF (32-bit, 64-bit offsets, CDF-5).
 NETCDF_MAGIC = (b"\x89HDF\r\n\x1a\n", b"CDF\x01", b"CDF\x02", b"CDF\x05")
 
@@ -42,3 +39,6 @@ def is_netcdf(path: str | Path) -> bool:
     """Whether the file at ``path`` starts as a netCDF file does (:data:`NETCDF_MAGIC`)."""
     with open(path, "rb") as f:
         return f.read(8).startswith(NETCDF_MAGIC)
+
+
+__all__ = ["NETCDF_MAGIC", "is_netcdf", "replace_text", "replaced"]

@@ -28,18 +28,13 @@ _PACKAGES = (
 
 def info() -> None:
     """Print versions, the Mitsuba variant in use, the libLLVM path and the JAX precision."""
-    import importlib.metadata as md
-
     from lightfit.light import backend
     from lightfit.precision import precision
 
     t = Table(title="lightfit environment", show_header=False)
     t.add_row("python", sys.version.split()[0])
-    for pkg in _PACKAGES:
-        try:
-            t.add_row(pkg, md.version(pkg))
-        except md.PackageNotFoundError:
-            t.add_row(pkg, "[red]not installed[/]")
+    for pkg, version in backend.package_versions(*_PACKAGES).items():
+        t.add_row(pkg, version or "[red]not installed[/]")
     t.add_row("JAX precision", precision())
     try:
         b = backend.info()  # the variant of --variant (applied by the app callback), LIGHTFIT_VARIANT or auto
