@@ -142,6 +142,19 @@ def test_observations_built_in_code_are_checked_and_an_asked_series_must_be_ther
         bad.iloc[2, bad.columns.get_loc(col)] = value
         with pytest.raises(InputError, match=col):
             GaussianLikelihood(bad, TIMES, ("par", "an"))
+    # The file's rules hold too (read_observations refuses both): PAR cannot be negative, a fraction
+    # is no percentage; a negative An is respiration and stays.
+    bad = obs.copy()
+    bad.iloc[2, bad.columns.get_loc(PAR.value)] = -5.0
+    with pytest.raises(InputError, match=rf"{PAR.value}.*a value ≥ 0"):
+        GaussianLikelihood(bad, TIMES, ("par", "an"))
+    fapar = BY_NAME["fapar"]
+    pct = obs.assign(**{fapar.value: 94.0, fapar.sd: 2.0})
+    with pytest.raises(InputError, match=rf"{fapar.value}.*not a percentage"):
+        GaussianLikelihood(pct, TIMES, ("par", "an"))
+    neg_an = obs.copy()
+    neg_an.iloc[2, neg_an.columns.get_loc(AN.value)] = -3.0
+    GaussianLikelihood(neg_an, TIMES, ("par", "an"))
 
 
 def test_the_trust_region_refuses_a_start_or_fixed_leaf_outside_its_box():

@@ -1,6 +1,7 @@
 """Observation operators that measure what the instruments measure (issue 14) and the observations
 CSV that names them; the light factor calibrated from the chamber's above-canopy PAR record."""
 
+import re
 import warnings
 
 import jax
@@ -98,6 +99,35 @@ def test_scenario_refuses_bad_soil_respiration(kw, name):
 
     with pytest.raises(InputError, match=name):
         Scenario(weather=rep.forcing().iloc[[14]], **kw)
+
+
+@pytest.mark.parametrize(
+    "col, value, expected",
+    [
+        ("dni_w_m2", np.nan, "≥ 0"),
+        ("dhi_w_m2", -100.0, "≥ 0"),
+        ("sun_elevation_deg", np.nan, "sun elevation"),
+        ("sun_azimuth_deg", np.nan, "azimuth"),
+        ("tair_c", np.nan, r"\[-50, 60\] °C"),
+        ("rh", 55.0, "not %"),
+        ("pair_kpa", 0.0, "air pressure"),
+        ("co2_ppm", np.nan, "CO2"),
+    ],
+)
+def test_scenario_refuses_weather_values_a_file_would_not_pass(col, value, expected):
+    """A series built in code meets the file readers' kind of check (a review: a NaN DNI made a midday
+    step night with its respiration reported as the result, DHI −100 dimmed it silently, a NaN air
+    temperature failed in the leaf solve as ``tleaf_c`` after the plants grew, a NaN azimuth as a JAX
+    callback error). The error names the column and the step."""
+    from lightfit.model.scenario import Scenario
+
+    w = rep.forcing().iloc[[13, 14]].copy()
+    Scenario(weather=w)
+    w.iloc[0, w.columns.get_loc(col)] = value
+    with pytest.raises(
+        InputError, match=rf"column '{col}': weather value .* at {re.escape(str(w.index[0]))} \(1 such step\(s\)\).*{expected}"
+    ):
+        Scenario(weather=w)
 
 
 def test_every_series_has_an_observable_and_schema_entries():

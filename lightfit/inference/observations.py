@@ -241,8 +241,9 @@ def observed(obs: pd.DataFrame) -> tuple[str, ...]:
 
 def check_sds(obs: pd.DataFrame) -> None:
     """Observations built in code (not read from a file, which :func:`read_observations` checks
-    line by line): every present value finite, with a finite SD > 0 (an SD of 0 makes the
-    likelihood infinite, a negative one is no SD). :class:`InputError` naming the column and time."""
+    line by line), by the file's rules: every present value finite, ≥ 0 for a quantity that cannot be
+    negative, a fraction not a percentage, with a finite SD > 0 (an SD of 0 makes the likelihood
+    infinite, a negative one is no SD). :class:`InputError` naming the column and time."""
     for s in SERIES:
         if s.value not in obs.columns:
             continue
@@ -255,6 +256,12 @@ def check_sds(obs: pd.DataFrame) -> None:
         present = ~np.isnan(v)
         for bad, col, what in (
             (present & ~np.isfinite(v), s.value, "a finite value"),
+            (present & s.nonnegative & (v < 0), s.value, "a value ≥ 0"),
+            (
+                present & (s.unit == "1") & (np.abs(v) > MAX_FRACTION),
+                s.value,
+                f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
+            ),
             (present & ~(np.isfinite(sd) & (sd > 0)), s.sd, "a finite SD > 0 wherever the value is present"),
         ):
             if bad.any():

@@ -34,6 +34,7 @@ from lightfit.light.scene import Optics
 from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
+from lightfit.photosynthesis.model import INPUT_RANGES, RH_RANGE
 from lightfit.photosynthesis.parameters import growth_temperature_setting
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
@@ -50,6 +51,42 @@ WEATHER_COLUMNS = (
     "pair_kpa",
     "co2_ppm",
 )
+
+
+#: The range of each weather column a run takes, (lo, hi, what): the drivers' ranges are those the leaf
+#: solve accepts (:data:`~lightfit.photosynthesis.model.INPUT_RANGES`; leaf temperature = air
+#: temperature); light and the sun's position as a contract series has them.
+WEATHER_RANGES = {
+    "sun_elevation_deg": (-90.0, 90.0, "a sun elevation in [−90, 90]°"),
+    "sun_azimuth_deg": (-np.inf, np.inf, "a finite sun azimuth, degrees"),
+    "dni_w_m2": (0.0, np.inf, "a direct normal irradiance ≥ 0 W m⁻²"),
+    "dhi_w_m2": (0.0, np.inf, "a diffuse horizontal irradiance ≥ 0 W m⁻²"),
+    "tair_c": (
+        *INPUT_RANGES["tleaf_c"][:2],
+        "an air temperature in [{lo:g}, {hi:g}] °C (the leaves' too, as modelled)",
+    ),
+    "rh": RH_RANGE,
+    "pair_kpa": INPUT_RANGES["pair_kpa"],
+    "co2_ppm": INPUT_RANGES["co2_umol_mol"],
+}
+
+
+def check_weather_values(weather: pd.DataFrame) -> None:
+    """Every value of :data:`WEATHER_COLUMNS` finite and in :data:`WEATHER_RANGES`, else
+    :class:`InputError` naming the column, the first bad step and how many there are. The readers
+    check files (:func:`lightfit.weather.read_weather`); a series built in code meets this instead,
+    where a NaN DNI would have made a midday step night and a NaN air temperature an error of the
+    leaf solve's ``tleaf_c`` after the plants grew."""
+    for col, (lo, hi, what) in WEATHER_RANGES.items():
+        v = pd.to_numeric(weather[col], errors="coerce").to_numpy(np.float64)
+        bad = ~(np.isfinite(v) & (v >= lo) & (v <= hi))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(
+                f"weather value {v[i]:g} at {weather.index[i]} ({int(bad.sum())} such step(s))",
+                column=col,
+                expected=what.format(lo=lo, hi=hi),
+            )
 
 
 def daytime(weather: pd.DataFrame) -> np.ndarray:
@@ -357,6 +394,7 @@ class Scenario:
                 column="weather",
                 expected="a contract series with solar columns (lightfit.weather.add_solar)",
             )
+        check_weather_values(self.weather)
 
     @property
     def theta(self):

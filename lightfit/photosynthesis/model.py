@@ -228,10 +228,10 @@ def _broadcast_leaf(leaf: LeafCapacities, env: Environment) -> LeafCapacities:
 
 def _in_range(env: Environment) -> jax.Array:
     """Elementwise: every driver inside the range :func:`prepare_environment` checks eagerly
-    (:data:`_INPUT_RANGES`); False for NaN. Under ``jit`` those checks cannot run."""
-    ok = [(getattr(env, name) >= lo) & (getattr(env, name) <= hi) for name, (lo, hi, _) in _INPUT_RANGES.items()]
+    (:data:`INPUT_RANGES`); False for NaN. Under ``jit`` those checks cannot run."""
+    ok = [(getattr(env, name) >= lo) & (getattr(env, name) <= hi) for name, (lo, hi, _) in INPUT_RANGES.items()]
     if env.rh is not None:
-        lo, hi, _ = _RH_RANGE
+        lo, hi, _ = RH_RANGE
         ok.append((env.rh >= lo) & (env.rh <= hi))
     return jnp.all(jnp.stack(jnp.broadcast_arrays(*ok)), axis=0)
 
@@ -365,7 +365,7 @@ MAX_PAR_ABS_UMOL_M2_S = 1e4
 #: Accepted range of each driver in :class:`Environment`: ``(lo, hi, description)``, checked
 #: eagerly by :func:`prepare_environment` and, elementwise into ``converged``, by :func:`solve`
 #: (so also under ``jit``, ``vmap`` and ``grad``).
-_INPUT_RANGES = {
+INPUT_RANGES = {
     "par_abs_umol_m2_s": (0.0, MAX_PAR_ABS_UMOL_M2_S, "absorbed PAR in [0, 1e4] µmol m-2 s-1"),
     "tleaf_c": (-50.0, 60.0, "leaf temperature in [-50, 60] °C"),
     "co2_umol_mol": (1e-3, 1e5, "CO2 mole fraction in [1e-3, 1e5] µmol mol-1 (ppm)"),
@@ -374,7 +374,7 @@ _INPUT_RANGES = {
     "gb_mol_m2_s": (1e-9, np.inf, "boundary-layer conductance > 0 mol m-2 s-1 (inf: none)"),
     "fw": (0.0, 1.0, "water-stress factor in [0, 1]"),
 }
-_RH_RANGE = (0.0, 1.0, "relative humidity in [0, 1] (a fraction, not %)")
+RH_RANGE = (0.0, 1.0, "relative humidity in [0, 1] (a fraction, not %)")
 
 
 def _is_traced(x) -> bool:
@@ -410,7 +410,7 @@ def prepare_environment(
 
     Value checks run only on concrete inputs; under ``jit``/``grad`` traced values are
     passed through and only shapes are checked; :func:`solve` then flags out-of-range
-    elements (the same ranges, :data:`_INPUT_RANGES`) with ``converged = False``.
+    elements (the same ranges, :data:`INPUT_RANGES`) with ``converged = False``.
     """
     if params is None:
         params = parameter_set(DEFAULT_PARAMETER_SET)
@@ -438,11 +438,11 @@ def prepare_environment(
     except ValueError:
         shapes = ", ".join(f"{k}{tuple(np.shape(v))}" for k, v in present.items())
         raise ValueError(f"input shapes do not broadcast together: {shapes}") from None
-    r = _INPUT_RANGES
+    r = INPUT_RANGES
     _check_range("par_abs_umol_m2_s", par_abs_umol_m2_s, *r["par_abs_umol_m2_s"])
     _check_range("tleaf_c", tleaf_c, *r["tleaf_c"])
     _check_range("co2_ppm", co2_ppm, *r["co2_umol_mol"])
-    _check_range("rh", rh, *_RH_RANGE)
+    _check_range("rh", rh, *RH_RANGE)
     _check_range("pair_kpa", pair_kpa, *r["pair_kpa"])
     _check_range("vpd_kpa", vpd_kpa, *r["vpd_kpa"])
     _check_range("gb_mol_m2_s", gb_mol_m2_s, *r["gb_mol_m2_s"])
