@@ -27,8 +27,7 @@ from lightfit.errors import InputError, parse_date
 from lightfit.files import is_netcdf, replaced
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
-from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits
-from lightfit.light.leaf_optics import PRESETS as LEAF_PRESETS
+from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import Optics
 from lightfit.model import schema
@@ -38,7 +37,7 @@ from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples
 from lightfit.photosynthesis.canopy import check_profile, profile_for
 from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
-from lightfit.plant.field import HEADINGS
+from lightfit.plant.field import DEFAULT_BUFFER_ROWS, HEADINGS
 from lightfit.plant.growth import GrowthConfig
 from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
@@ -211,24 +210,12 @@ class ReplicationConfig:
 
     def leaf_optics(self) -> Optics:
         """The run's :class:`~lightfit.light.scene.Optics` (checks the preset and the chlorophyll)."""
-        if self.optics not in LEAF_PRESETS:
-            raise InputError(f"optics={self.optics!r}", column="optics", expected=" or ".join(LEAF_PRESETS))
+        check_leaf(self.optics, self.chlorophyll_ug_cm2)
         if self.chlorophyll_ug_cm2 is None:
             return Optics.preset(self.optics)
-        if self.optics != "prospect":
-            raise InputError(
-                f"chlorophyll_ug_cm2={self.chlorophyll_ug_cm2!r} with optics {self.optics!r}",
-                column="chlorophyll_ug_cm2",
-                expected="optics 'prospect' (the paper's grey leaf is not made from leaf traits)",
-            )
-        try:
-            return Optics.from_traits(LeafTraits(Cab=self.chlorophyll_ug_cm2))
-        except InputError as e:
-            raise InputError(
-                f"chlorophyll_ug_cm2={self.chlorophyll_ug_cm2!r}", column="chlorophyll_ug_cm2", expected=e.expected
-            ) from None
+        return Optics.from_traits(LeafTraits(Cab=self.chlorophyll_ug_cm2))
 
-    def finite(self, buffer_rows: int = 2, buffer_along: int | None = None) -> ReplicationConfig:
+    def finite(self, buffer_rows: int = DEFAULT_BUFFER_ROWS, buffer_along: int | None = None) -> ReplicationConfig:
         """The same run on a finite field; the defaults are the reference paper's 2 buffer rows."""
         return replace(self, boundary="finite", buffer_rows=buffer_rows, buffer_along=buffer_along)
 

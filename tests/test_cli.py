@@ -111,6 +111,56 @@ def test_model_commands_share_their_options():
     assert all(n in help_text for n in PARAMETER_SET_NAMES)  # the help lists the sets that exist
 
 
+def test_option_defaults_are_the_librarys():
+    """Options whose default is a library default spelled as a literal (the command modules import no
+    JAX or Mitsuba at import time) must stay equal to it: a changed library default would otherwise
+    leave the command running another setting."""
+    import dataclasses
+    import inspect
+
+    from lightfit.dataset import Camera, DatasetSpec, RenderSettings, Sweep
+    from lightfit.inference import posterior
+    from lightfit.inference.mcmc import StopRule
+    from lightfit.weather.series import DEFAULT_MAX_GAP
+
+    group = typer.main.get_command(app)
+
+    def default(command, name, sub=None):
+        cmd = group.commands[command] if sub is None else group.commands[command].commands[sub]
+        (param,) = [p for p in cmd.params if p.name == name]
+        return param.default
+
+    def field_default(cls, name):
+        f = {f.name: f for f in dataclasses.fields(cls)}[name]
+        return f.default_factory() if f.default is dataclasses.MISSING else f.default
+
+    run = inspect.signature(posterior.run).parameters
+    pairs = {
+        ("posterior", "walkers"): run["nwalkers"].default,
+        ("posterior", "max_steps"): run["max_steps"].default,
+        ("posterior", "target_ess"): StopRule().target_ess,
+        ("render-dataset", "sweep"): Sweep().n,
+        ("render-dataset", "sweep_distance_m"): Sweep().distance_m,
+        ("render-dataset", "sweep_elevation_deg"): Sweep().elevation_deg,
+        ("render-dataset", "width"): Camera().width_px,
+        ("render-dataset", "height"): Camera().height_px,
+        ("render-dataset", "fov_deg"): Camera().fov_deg,
+        ("render-dataset", "exposure_mode"): Camera().exposure_mode,
+        ("render-dataset", "exposure_ev"): Camera().exposure_ev,
+        ("render-dataset", "meter_percentile"): Camera().meter_percentile,
+        ("render-dataset", "spp"): RenderSettings().spp,
+        ("render-dataset", "max_depth"): RenderSettings().max_depth,
+        ("render-dataset", "colour"): RenderSettings().colour,
+        ("render-dataset", "seed"): RenderSettings().seed,
+        ("render-dataset", "gallery"): field_default(DatasetSpec, "gallery_images"),
+        ("render-dataset", "export"): field_default(DatasetSpec, "export"),
+        ("render-dataset", "depth"): field_default(DatasetSpec, "depth"),
+    }
+    for (command, name), want in pairs.items():
+        assert default(command, name) == want, (command, name, default(command, name), want)
+    assert pd.Timedelta(default("weather", "max_gap", "show")) == DEFAULT_MAX_GAP
+
+
 def test_n_design_help_states_the_design_size():
     """calibrate and posterior share one emulator design; their --n-design help states its size (the
     literal, since the command modules do not import JAX at import time, must match DESIGN_SIZE)."""

@@ -110,9 +110,19 @@ def test_subsurface_gradient_of_each_side_matches_finite_differences_and_the_spl
 
 def test_parameters_outside_unit_interval_rejected():
     with pytest.raises(InputError, match="roughness"):
-        leaf_bsdf_dict(roughness=1.5)
+        leaf_bsdf_dict(0.5, 1.5, 0.3, 0.5)
     with pytest.raises(InputError, match="specular"):
-        leaf_bsdf_dict(specular=-0.1)
+        leaf_bsdf_dict(-0.1, 0.5, 0.3, 0.5)
+
+
+def test_a_leaf_without_all_four_values_is_refused():
+    """The plugin has no defaults of its own (they disagreed with every leaf lightfit uses: Optics is
+    the one home of a leaf's values): a scene dict missing one fails to load."""
+    full = leaf_bsdf_dict(0.5, 0.5, 0.3, 0.5)
+    mi.load_dict(full)
+    for k in ("specular", "roughness", "subsurface", "base_color"):
+        with pytest.raises(Exception, match=k):
+            mi.load_dict({n: v for n, v in full.items() if n != k})
 
 
 def test_albedo_table_is_kept_on_disk_bitwise(tmp_path, monkeypatch):

@@ -17,7 +17,9 @@ from lightfit.cli.options import (
     check_boundary,
 )
 from lightfit.errors import InputError
-from lightfit.plant.field import HEADINGS
+from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS, Field
+from lightfit.plant.growth import GrowthConfig
+from lightfit.plant.mesh import MeshResolution
 from lightfit.plant.sheaths import SHEATHS
 
 
@@ -29,27 +31,27 @@ def field(
         show_default=False,
     ),
     quick: bool = typer.Option(False, "--quick", help="The small field of replicate --quick and field-run --quick."),
-    row_spacing: float = typer.Option(0.125, help="Distance between wheat rows, m."),
-    plant_spacing: float = typer.Option(0.03, help="Distance between plants in a row, m."),
+    row_spacing: float = typer.Option(DEFAULT_ROW_SPACING_M, help="Distance between wheat rows, m."),
+    plant_spacing: float = typer.Option(DEFAULT_PLANT_SPACING_M, help="Distance between plants in a row, m."),
     boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
     buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
     sheaths: str = typer.Option(SHEATHS[0], help=SHEATHS_HELP),
     headings: str = typer.Option(HEADINGS[0], help=HEADINGS_HELP),
-    row_direction: float = typer.Option(90.0, help="Compass azimuth of the rows, degrees (90 = east–west)."),
+    row_direction: float = typer.Option(
+        Field.row_direction_deg, help="Compass azimuth of the rows, degrees (90 = east–west)."
+    ),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
     ),
-    parameter_file: str = typer.Option(
-        "Triticum_aestivum_adapted_2023.xml", help="CPlantBox plant XML (path or bundled name)."
-    ),
+    parameter_file: str = typer.Option(GrowthConfig.parameter_file, help="CPlantBox plant XML (path or bundled name)."),
     season_start: str = typer.Option(None, help="First day of growth (default: 5 March of the date's year)."),
-    date: str = typer.Option("2016-04-20", help="Date the plants are grown to."),
+    date: str = typer.Option(GrowthConfig.target_date, help="Date the plants are grown to."),
     tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),
     tile: int = typer.Option(None, help="Build only this tile (0-based) with its buffer ring."),
-    along: int = typer.Option(1, help="Mesh subdivisions along each segment."),
-    across: int = typer.Option(1, help="Mesh subdivisions across each leaf blade."),
-    around: int = typer.Option(6, help="Sides of stem/sheath prisms."),
+    along: int = typer.Option(MeshResolution.along, help="Mesh subdivisions along each segment."),
+    across: int = typer.Option(MeshResolution.across, help="Mesh subdivisions across each leaf blade."),
+    around: int = typer.Option(MeshResolution.around, help="Sides of stem/sheath prisms."),
     export: list[Path] = typer.Option(None, help="Write the mesh: .obj, .ply or .vtk (repeatable)."),
     preview: Path = typer.Option(
         None, help="Write an image with top and side views; the suffix gives the format (.png, .pdf, .svg, …)."
@@ -94,7 +96,7 @@ def field(
     geom = plant.build(fld, tile=parts[tile] if tile is not None else None, resolution=res, progress=True)
     seg = geom.segments
     meas = seg[seg["measured"]]
-    area_m2 = fld.n * fld.plant_spacing_m * fld.n * fld.row_spacing_m
+    area_m2 = fld.ground_area_m2
     t = Table(
         title=f"field {fld.n}×{fld.n} measured, "
         f"{field_label(fld)}, grown "

@@ -32,6 +32,7 @@ from lightfit.light.estimator import (
     check_target_rse,
     truncation_bound,
 )
+from lightfit.light.leaf_optics import check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
 from lightfit.model.scenario import (
     BOUNCE_TOLERANCE,
@@ -903,29 +904,6 @@ def check_resumable(previous: dict | None, s: ModelSettings, file, what: str) ->
             file=file,
             expected="the same settings as that run, --no-resume to start again, or another --out",
         )
-
-
-def check_leaf(optics: str, chlorophyll_ug_cm2: float | None) -> None:
-    """``--optics`` and ``--chlorophyll-ug-cm2``: a known leaf preset, and chlorophyll only for the
-    prospect leaf, in PROSPECT-D's range (checked before plants grow; cheap, no spectra computed)."""
-    from lightfit.light.leaf_optics import PRESETS, LeafTraits
-
-    if optics not in PRESETS:
-        raise InputError(f"optics={optics!r}", column="optics", expected=" or ".join(PRESETS))
-    if chlorophyll_ug_cm2 is None:
-        return
-    if optics != "prospect":
-        raise InputError(
-            f"--chlorophyll-ug-cm2 given with --optics {optics}",
-            column="chlorophyll_ug_cm2",
-            expected="--optics prospect (the paper's grey leaf is not made from leaf traits)",
-        )
-    try:
-        LeafTraits(Cab=chlorophyll_ug_cm2)
-    except InputError as e:
-        raise InputError(
-            f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r}", column="chlorophyll_ug_cm2", expected=e.expected
-        ) from None
 
 
 def check_boundary(boundary: str, buffer_rows: int | None, buffer_along: int | None) -> tuple[int | None, int | None]:

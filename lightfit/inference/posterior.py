@@ -45,6 +45,7 @@ from lightfit.inference.mcmc import (
 from lightfit.inference.mcmc.backend import drop_group, run_attrs, stored_run
 from lightfit.inference.mcmc.diagnostics import burn_in
 from lightfit.inference.mcmc.priors import informed_priors
+from lightfit.inference.mcmc.sampler import MAX_STEPS, WALKERS
 from lightfit.inference.multiday import MultiDayModel, days_of, joined, with_lights
 from lightfit.inference.observations import SERIES, align, matched_as_by_stamp, observation_matching, read_offsets_s
 from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -472,8 +473,8 @@ def run(
     priors=None,
     fixed=None,
     use=USES,
-    nwalkers: int = 32,
-    max_steps: int = 4000,
+    nwalkers: int = WALKERS,
+    max_steps: int = MAX_STEPS,
     seed: int = 0,
     stop: StopRule | None = StopRule(),
     resume: bool = True,

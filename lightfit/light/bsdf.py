@@ -69,10 +69,10 @@ def _classes():
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
-            self.specular = mi.Float(props.get("specular", 0.5))
-            self.roughness = mi.Float(props.get("roughness", 0.5))
-            self.subsurface = mi.Float(props.get("subsurface", 0.0))
-            self.base_color = mi.Float(props.get("base_color", 0.5))
+            # No defaults: a leaf is the four values of an Optics (lightfit.light.scene), its one home.
+            self.specular, self.roughness, self.subsurface, self.base_color = (
+                mi.Float(props[k]) for k in ("specular", "roughness", "subsurface", "base_color")
+            )
             flags = (
                 mi.BSDFFlags.GlossyReflection
                 | mi.BSDFFlags.DiffuseReflection
@@ -250,9 +250,7 @@ def register() -> None:
     _REGISTERED.add(mi.variant())
 
 
-def leaf_bsdf_dict(
-    specular: float = 0.5, roughness: float = 0.5, subsurface: float = 0.0, base_color: float = 0.5
-) -> dict:
+def leaf_bsdf_dict(specular: float, roughness: float, subsurface: float, base_color: float) -> dict:
     """Mitsuba scene-dict entry of a leaf material; raises on parameters outside [0, 1]."""
     from lightfit.errors import InputError
 

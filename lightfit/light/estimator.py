@@ -70,7 +70,7 @@ from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo, lobe_weights
 from lightfit.light.keyed_random import check_seed, hash32, keyed_uniforms
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
-from lightfit.light.scene import FieldScene, Optics
+from lightfit.light.scene import RAY_OFFSET_M, FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
 #: DHI / DNI of a clear day: how the sun and sky parts are weighted where a relative error is judged
@@ -349,7 +349,8 @@ class SegmentEstimator:
         bounces: the most scattering events a path includes (0: unscattered light only, the direct
             sun and the directly visible sky).
         seed: random seed; same seed, same result.
-        epsilon_m: ray origin offset along the side normal, m.
+        epsilon_m: ray origin offset along the side normal at the paths' points and vertices, m (the
+            projection's continued rays keep :data:`~lightfit.light.scene.RAY_OFFSET_M`).
         first: index of the first point taken from each replicate's sequence (default 0): an
             estimator with ``first = M`` continues one with M points per replicate
             (:func:`render_adaptive` adds samples in rounds this way).
@@ -372,7 +373,7 @@ class SegmentEstimator:
         samples: int = 64,
         bounces: int = 3,
         seed: int = 0,
-        epsilon_m: float = 1e-5,
+        epsilon_m: float = RAY_OFFSET_M,
         first: int = 0,
         direct: str = "paths",
         direct_rays_per_m2: float | tuple[float, float] = DEFAULT_RAYS_PER_M2,
@@ -656,7 +657,7 @@ class SegmentEstimator:
                 ok=ok,
             )
             active = (hit_leaf & ok) | hit_soil
-            o, d = fs.scattered_ray(si, hit_leaf, p_soil, s, wo, mi.Point2f(ub[1], ub[2]))
+            o, d = fs.scattered_ray(si, hit_leaf, p_soil, s, wo, mi.Point2f(ub[1], ub[2]), self.epsilon_m)
         return orders
 
     def _geometry(self):
@@ -742,7 +743,7 @@ class SegmentEstimator:
         else:
             blocked = self._occluded("sun", o, sun, cos_s > 0)
             e_dir = dr.select((cos_s > 0) & ~blocked, cos_s, 0.0)
-        eps = 1e-5
+        eps = self.epsilon_m
         visible = []
         for depth, g in enumerate(geo[: self.bounces]):
             (hit_leaf, hit_soil), p, n = self._nee_vertices(g, depth), g["p"], g["n"]

@@ -142,6 +142,27 @@ def band_average(wavelength_nm: np.ndarray, values: np.ndarray, band=PAR_BAND_NM
     return float(np.trapezoid(values[m] * w, wavelength_nm[m]) / np.trapezoid(w, wavelength_nm[m]))
 
 
+def check_leaf(optics: str, chlorophyll_ug_cm2: float | None = None) -> None:
+    """A known leaf preset (:data:`PRESETS`), and chlorophyll only for the ``prospect`` leaf, in
+    PROSPECT-D's range; cheap (no spectra computed), so commands check it before plants grow."""
+    if optics not in PRESETS:
+        raise InputError(f"optics={optics!r}", column="optics", expected=" or ".join(PRESETS))
+    if chlorophyll_ug_cm2 is None:
+        return
+    if optics != "prospect":
+        raise InputError(
+            f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r} with optics {optics!r}",
+            column="chlorophyll_ug_cm2",
+            expected="optics 'prospect' (the paper's grey leaf is not made from leaf traits)",
+        )
+    try:
+        LeafTraits(Cab=chlorophyll_ug_cm2)
+    except InputError as e:
+        raise InputError(
+            f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r}", column="chlorophyll_ug_cm2", expected=e.expected
+        ) from None
+
+
 @lru_cache(maxsize=256)
 def par_optics(traits: LeafTraits = LeafTraits()) -> LeafPAR:
     """The leaf's PAR reflectance and transmittance from its traits (PROSPECT-D)."""
@@ -149,7 +170,16 @@ def par_optics(traits: LeafTraits = LeafTraits()) -> LeafPAR:
     return LeafPAR(band_average(wl, r), band_average(wl, t))
 
 
-def leaf_bsdf_parameters(traits: LeafTraits = LeafTraits(), *, specular: float = 0.5, roughness: float = 0.5) -> dict:
+#: The glossy lobe of lightfit's leaves unless given: Unreal Engine's defaults, as the reference paper's
+#: material had them; F0 = 0.08 × 0.5 = 4 %, within the measured 3.7–5.9 % upper-surface reflection
+#: (docs/light.md, "Leaf optics"), and GGX α = 0.25.
+DEFAULT_SPECULAR = 0.5
+DEFAULT_ROUGHNESS = 0.5
+
+
+def leaf_bsdf_parameters(
+    traits: LeafTraits = LeafTraits(), *, specular: float = DEFAULT_SPECULAR, roughness: float = DEFAULT_ROUGHNESS
+) -> dict:
     """BSDF parameters (specular, roughness, subsurface, base_color) that reproduce the traits' R and T.
 
     The glossy lobe (``specular``, ``roughness``) is given; base colour c and subsurface ss

@@ -21,7 +21,14 @@ from lightfit.errors import InputError
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.face_sampling import FaceSampler
-from lightfit.light.leaf_optics import LeafTraits, default_leaf_parameters, leaf_bsdf_parameters, preset_parameters
+from lightfit.light.leaf_optics import (
+    DEFAULT_ROUGHNESS,
+    DEFAULT_SPECULAR,
+    LeafTraits,
+    default_leaf_parameters,
+    leaf_bsdf_parameters,
+    preset_parameters,
+)
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
@@ -30,6 +37,13 @@ if TYPE_CHECKING:
     from lightfit.plant.field import FieldGeometry
 
 SKY_MODELS = ("isotropic", "overcast")
+
+
+#: Lambertian PAR albedo of the soil: moist loam, 0.1–0.15 (docs/model.md, "Presets").
+SOIL_ALBEDO = 0.12
+#: How far a ray's origin leaves the surface it starts from, along the surface normal, m: far below
+#: a culm's 1.5 mm radius and the 0.3–0.9 mm between a sheath and its culm.
+RAY_OFFSET_M = 1e-5
 
 
 @dataclass(frozen=True)
@@ -51,11 +65,11 @@ class Optics:
     ``Optics.from_traits(LeafTraits(Cab=40))``.
     """
 
-    specular: float = 0.5
-    roughness: float = 0.5
+    specular: float = DEFAULT_SPECULAR
+    roughness: float = DEFAULT_ROUGHNESS
     subsurface: float = field(default_factory=lambda: default_leaf_parameters()["subsurface"])
     base_color: float = field(default_factory=lambda: default_leaf_parameters()["base_color"])
-    soil_albedo: float = 0.12
+    soil_albedo: float = SOIL_ALBEDO
 
     def __post_init__(self):
         for k, v in asdict(self).items():
@@ -67,9 +81,9 @@ class Optics:
         cls,
         traits: LeafTraits | None = None,
         *,
-        specular: float = 0.5,
-        roughness: float = 0.5,
-        soil_albedo: float = 0.12,
+        specular: float = DEFAULT_SPECULAR,
+        roughness: float = DEFAULT_ROUGHNESS,
+        soil_albedo: float = SOIL_ALBEDO,
     ) -> Optics:
         """Leaf optics whose PAR R and T are PROSPECT-D's for ``traits`` (default: the wheat leaf)."""
         leaf = leaf_bsdf_parameters(LeafTraits() if traits is None else traits, specular=specular, roughness=roughness)
@@ -79,7 +93,7 @@ class Optics:
     def preset(cls, name: str, **overrides: float) -> Optics:
         """Named optics: ``prospect`` (PROSPECT-D wheat leaf) or ``paper`` (the reference paper's grey
         0.5 leaf); ``overrides`` replace single fields (e.g. ``soil_albedo``)."""
-        return cls(**{**preset_parameters(name), "soil_albedo": 0.12, **overrides})
+        return cls(**{**preset_parameters(name), "soil_albedo": SOIL_ALBEDO, **overrides})
 
 
 def sun_vector(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
@@ -204,17 +218,17 @@ class FieldScene:
             return dr.select(cos_zenith > 0, mitsuba().Float(1.0 / math.pi), 0.0)
         return dr.select(cos_zenith > 0, 9.0 / (7.0 * math.pi) * (1.0 + 2.0 * cos_zenith) / 3.0, 0.0)
 
-    def scattered_ray(self, si, hit_leaf, p_soil, side, wo, sample2):
+    def scattered_ray(self, si, hit_leaf, p_soil, side, wo, sample2, eps: float = RAY_OFFSET_M):
         """The ray leaving a leaf or soil vertex: ``(origin, direction)``, detached.
 
         At a leaf (``hit_leaf``) the direction is the leaf's sample ``wo``
         (:meth:`LeafBSDF.sample_direction`, local to the side ``side`` of ``si``); elsewhere, at
         the soil point ``p_soil``, a cosine-weighted direction from ``sample2`` (a Lambertian
-        soil). The origin is moved 10⁻⁵ m off the surface, to the side the ray leaves.
+        soil). The origin is moved ``eps`` m off the surface, to the side the ray leaves.
         """
         import drjit as dr
 
-        mi, eps = self.mi, 1e-5
+        mi = self.mi
         d_leaf = si.to_world(self.bsdf._flip(wo, side))
         side_out = dr.sign(dr.dot(si.n, d_leaf))
         d_soil = mi.Frame3f(mi.Vector3f(0, 0, 1)).to_world(mi.warp.square_to_cosine_hemisphere(sample2))

@@ -40,8 +40,8 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
-from lightfit.light.estimator import Irradiance, SegmentEstimator
-from lightfit.light.scene import FieldScene
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.scene import RAY_OFFSET_M, FieldScene
 from lightfit.plant.periodic import PeriodicCell
 
 #: Random-stream key of sensor 0 (sensor i: SENSOR_KEY0 + i), above every segment id.
@@ -179,7 +179,7 @@ class SensorEstimator(SegmentEstimator):
         samples: int = DEFAULT_SENSOR_SAMPLES,
         bounces: int = 3,
         seed: int = 0,
-        epsilon_m: float = 1e-5,
+        epsilon_m: float = RAY_OFFSET_M,
     ):
         self.sensors = tuple(sensors)
         if not self.sensors or not all(isinstance(s, Sensor) for s in self.sensors):
@@ -230,18 +230,6 @@ class SensorEstimator(SegmentEstimator):
         return x, [zero, zero, zero + 1.0], dr.zeros(mi.Bool, dr.width(t))
 
 
-def render_sensors(
-    field_scene: FieldScene,
-    sensors: Sequence[Sensor],
-    *,
-    samples: int = DEFAULT_SENSOR_SAMPLES,
-    bounces: int = 3,
-    seed: int = 0,
-) -> Irradiance:
-    """One render of :class:`SensorEstimator` at the scene's current sun and leaf parameters."""
-    return SensorEstimator(field_scene, sensors, samples=samples, bounces=bounces, seed=seed).render()
-
-
 def horizontal_points(name: str, points_m: ArrayLike) -> Sensor:
     """A sensor averaging point sensors at ``points_m`` (P, 3), m (e.g. a grid at one height)."""
     p = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
@@ -259,5 +247,4 @@ __all__ = [
     "default_sensors",
     "horizontal_points",
     "measured_area",
-    "render_sensors",
 ]

@@ -28,6 +28,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.light.bridge import make_irradiance
+from lightfit.light.estimator import CLEAR_DAY_DHI_PER_DNI
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
@@ -58,7 +59,7 @@ def allocation_point(
     i = steps[np.argmax(sun_deg[steps, 0])] if len(steps) else int(np.argmax(sun_deg[:, 0]))
     dni, dhi = float(forcing.dni_par[i]), float(forcing.dhi_par[i])
     if dni + dhi <= 0:
-        dni, dhi = 1.0, 0.3
+        dni, dhi = 1.0, CLEAR_DAY_DHI_PER_DNI
     return np.asarray(leaf, np.float64), np.asarray(sun_deg[i], np.float64).copy(), dni, dhi
 
 

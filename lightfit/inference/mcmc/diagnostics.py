@@ -32,6 +32,10 @@ from lightfit.errors import InputError
 ACCEPTANCE_OK = (0.1, 0.8)
 
 
+#: Share of a chain's first steps discarded as burn-in, unless a rule says otherwise.
+BURN_FRACTION = 0.25
+
+
 def burn_in(n_steps: int, burn_fraction: float) -> int:
     """Steps discarded from the start of a chain of ``n_steps``: the one rule for the diagnostics,
     the stop rule and the samples an analysis uses."""
@@ -56,7 +60,7 @@ def diagnostics(
     chain: np.ndarray,
     accepted: np.ndarray | None = None,
     *,
-    burn_fraction: float = 0.25,
+    burn_fraction: float = BURN_FRACTION,
     names=None,
     c: float = 5.0,
     tau_multiple: float = 50.0,
@@ -112,7 +116,7 @@ class StopRule:
     tau_multiple: float = 20.0
     tau_rtol: float = 0.05
     check_every: int = 50
-    burn_fraction: float = 0.25
+    burn_fraction: float = BURN_FRACTION
     min_steps: int = 100
     rhat_max: float = 1.2
 
@@ -137,7 +141,7 @@ class StopRule:
         return d | {"rhat_max": self.rhat_max}
 
 
-def flat_samples(run, burn_fraction: float = 0.25, thin: int = 1) -> np.ndarray:
+def flat_samples(run, burn_fraction: float = BURN_FRACTION, thin: int = 1) -> np.ndarray:
     """Post-burn-in samples of a run (from ``load_run`` or a ``SamplerResult``), shape (n, ndim)."""
     chain = run["chain"] if isinstance(run, dict) else run.chain
     return chain[burn_in(len(chain), burn_fraction) :: thin].reshape(-1, chain.shape[-1])

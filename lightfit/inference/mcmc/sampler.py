@@ -26,6 +26,10 @@ from lightfit.inference.mcmc.diagnostics import StopRule
 from lightfit.killpoint import kill_point
 from lightfit.progress import progress_bar
 
+#: Walkers and total steps of a run unless given (the stop rule usually ends a run earlier).
+WALKERS = 32
+MAX_STEPS = 4000
+
 
 @dataclass
 class SamplerResult:
@@ -68,8 +72,8 @@ def sample(
     names: Sequence[str],
     path: str | Path,
     *,
-    nwalkers: int = 32,
-    max_steps: int = 5000,
+    nwalkers: int = WALKERS,
+    max_steps: int = MAX_STEPS,
     seed: int = 0,
     initial: np.ndarray | None = None,
     resume: bool = True,
