@@ -258,9 +258,11 @@ def posterior(
     if "emulator_error" in res:
         ee = res["emulator_error"]
         at_map = ee.get("at_map_shift_over_sd")
+        held = int(ee["n_test"]) - (at_map is not None)
         console.print(
-            f"emulator error → max shift {ee['max_shift_over_sd']:.3g} posterior SD"
-            + ("" if at_map is None else f" (at the MAP's leaf: {at_map:.3g})")
+            f"emulator error → max shift {ee['max_shift_over_sd']:.3g} posterior SD over {held} held-out "
+            + ("render" if held == 1 else "renders")
+            + ("" if at_map is None else f" and the MAP's leaf ({at_map:.3g} there)")
         )
     console.print(
         f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "

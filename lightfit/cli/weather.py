@@ -64,8 +64,8 @@ def show(
     max_gap: str = typer.Option("30min", help="Longest gap to interpolate."),
     split: str = typer.Option(
         None,
-        help="Direct/diffuse split: erbs, boland or diffuse (the series' own diffuse_w_m2 column). Default: "
-        "diffuse where the series has that column, else erbs.",
+        help="Direct/diffuse split: erbs, boland (decomposition models) or diffuse (the series' own "
+        "diffuse_w_m2 / par_diffuse_umol_m2_s column). Default: diffuse where the series has such a column, else erbs.",
     ),
     resample: str = typer.Option(None, help="New time step, e.g. 30min."),
     how: str = typer.Option(
