@@ -124,8 +124,9 @@ def test_scenario_refuses_weather_values_a_file_would_not_pass(col, value, expec
     w = rep.forcing().iloc[[13, 14]].copy()
     Scenario(weather=w)
     w.iloc[0, w.columns.get_loc(col)] = value
+    when = re.escape(str(w.index[0]))
     with pytest.raises(
-        InputError, match=rf"column '{col}': weather value .* at {re.escape(str(w.index[0]))} \(1 such step\(s\)\).*{expected}"
+        InputError, match=rf"column '{col}': weather value .* at {when} \(1 such step\(s\)\).*{expected}"
     ):
         Scenario(weather=w)
 
