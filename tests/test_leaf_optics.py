@@ -161,7 +161,8 @@ def test_default_leaf_is_prospect_everywhere():
     from lightfit.model.scenario import WEATHER_COLUMNS, Scenario
 
     assert DEFAULT_PRESET == "prospect"
-    sc = Scenario(weather=pd.DataFrame({c: [0.0] for c in WEATHER_COLUMNS}))
+    night = {c: 0.0 for c in WEATHER_COLUMNS} | {"tair_c": 10.0, "rh": 0.8, "pair_kpa": 100.0, "co2_ppm": 400.0}
+    sc = Scenario(weather=pd.DataFrame({c: [v] for c, v in night.items()}))
     assert sc.optics == Optics.preset("prospect")
     th = Theta()
     assert (th.specular, th.roughness, th.subsurface) == (sc.optics.specular, sc.optics.roughness, sc.optics.subsurface)
