@@ -29,7 +29,7 @@ from lightfit.inference.observations import SERIES, align, check_light_scale, re
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import Optics
+from lightfit.light.scene import SOIL_ALBEDO, Optics, check_sky
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
@@ -37,7 +37,7 @@ from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples
 from lightfit.photosynthesis.canopy import check_profile, profile_for
 from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
-from lightfit.plant.field import DEFAULT_BUFFER_ROWS, HEADINGS
+from lightfit.plant.field import DEFAULT_BUFFER_ROWS, DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS
 from lightfit.plant.growth import GrowthConfig
 from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
@@ -77,6 +77,13 @@ class ReplicationConfig:
     ``headings``: ``"random"`` (default: each plant turned about its base by its own angle) or
     ``"aligned"`` (every plant as CPlantBox grows it, facing the same way; the reference paper's
     field; :attr:`Field.headings`).
+    ``row_spacing_m``, ``plant_spacing_m`` (Selhausen's 0.125 m and 0.03 m: 267 plants m⁻²),
+    ``row_direction_deg`` (compass azimuth of the rows, 90 = east–west) and ``parameter_file``
+    (the CPlantBox plant XML, a path or a bundled name): the field's layout and its plants
+    (:class:`~lightfit.plant.Field`, :class:`~lightfit.plant.growth.GrowthConfig`).
+    ``soil_albedo``: the soil's Lambertian PAR albedo (:data:`~lightfit.light.scene.SOIL_ALBEDO`,
+    moist loam); ``sky``: the diffuse light's angular distribution, ``"isotropic"`` (default) or
+    ``"overcast"`` (CIE standard overcast; :data:`~lightfit.light.scene.SKY_MODELS`).
 
     ``optics``: leaf optics preset, ``"prospect"`` (default: PROSPECT-D wheat leaf, PAR absorptance
     0.90) or ``"paper"`` (the reference paper's grey 0.5 leaf); ``chlorophyll_ug_cm2``: leaf
@@ -110,6 +117,10 @@ class ReplicationConfig:
     buffer_along: int | None = None
     sheaths: str = SHEATHS[0]
     headings: str = HEADINGS[0]
+    row_spacing_m: float = DEFAULT_ROW_SPACING_M
+    plant_spacing_m: float = DEFAULT_PLANT_SPACING_M
+    row_direction_deg: float = Field.row_direction_deg
+    parameter_file: str = GrowthConfig.parameter_file
     seed: int = 1
     samples: int | None = None
     bounces: int | None = None
@@ -128,6 +139,8 @@ class ReplicationConfig:
     growth_temperature_c: float | str | None = Scenario.growth_temperature_c
     optics: str = DEFAULT_PRESET
     chlorophyll_ug_cm2: float | None = None
+    soil_albedo: float = SOIL_ALBEDO
+    sky: str = Scenario.sky
     dates: tuple[str, ...] = (DEFAULT_DATE,)
     window: Window = Window()
     site: Site = SELHAUSEN
@@ -144,6 +157,7 @@ class ReplicationConfig:
             check_growth_temperature(self.photosynthesis, t_g)
         object.__setattr__(self, "growth_temperature_c", t_g)
         object.__setattr__(self, "vcmax_profile", check_profile(self.vcmax_profile))
+        check_sky(self.sky)
 
     @staticmethod
     def quick() -> ReplicationConfig:
@@ -212,8 +226,8 @@ class ReplicationConfig:
         """The run's :class:`~lightfit.light.scene.Optics` (checks the preset and the chlorophyll)."""
         check_leaf(self.optics, self.chlorophyll_ug_cm2)
         if self.chlorophyll_ug_cm2 is None:
-            return Optics.preset(self.optics)
-        return Optics.from_traits(LeafTraits(Cab=self.chlorophyll_ug_cm2))
+            return Optics.preset(self.optics, soil_albedo=self.soil_albedo)
+        return Optics.from_traits(LeafTraits(Cab=self.chlorophyll_ug_cm2), soil_albedo=self.soil_albedo)
 
     def finite(self, buffer_rows: int = DEFAULT_BUFFER_ROWS, buffer_along: int | None = None) -> ReplicationConfig:
         """The same run on a finite field; the defaults are the reference paper's 2 buffer rows."""
@@ -230,7 +244,13 @@ class ReplicationConfig:
             boundary=self.boundary,
             sheaths=self.sheaths,
             headings=self.headings,
-            growth=GrowthConfig(target_date=self.dates[0] if date is None else str(parse_date(date, "date"))),
+            row_spacing_m=self.row_spacing_m,
+            plant_spacing_m=self.plant_spacing_m,
+            row_direction_deg=self.row_direction_deg,
+            growth=GrowthConfig(
+                parameter_file=self.parameter_file,
+                target_date=self.dates[0] if date is None else str(parse_date(date, "date")),
+            ),
         )
 
     def window_utc(self, date: str) -> tuple[pd.Timestamp, pd.Timestamp]:
@@ -393,6 +413,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         vcmax_profile=cfg.vcmax_profile,
         growth_temperature_c=_growth_temperature(cfg, w),
         optics=optics,
+        sky=cfg.sky,
     )
 
 

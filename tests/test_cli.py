@@ -265,6 +265,72 @@ def test_replicate_names_the_bounces_and_samples_it_renders(tmp_path, monkeypatc
     assert f"{said}, {bounces} bounces" in out and "None bounces" not in out
 
 
+def test_field_soil_and_sky_options_reach_the_run(tmp_path):
+    """--row-spacing, --plant-spacing, --row-direction, --parameter-file, --soil-albedo and --sky (a field
+    scientist's own field; before, only the library could set them) reach the results' attributes, and
+    the soil albedo acts as physics says: under common random numbers the canopy absorbs more with a
+    brighter soil, and no more than the soil can send back up, ρ/(1 − ρ) × (PAR above − APAR at ρ = 0)
+    (the light reaching the soil is at most what the canopy did not absorb; the 1/(1 − ρ) bounds the
+    soil–canopy round trips)."""
+    import xarray as xr
+
+    from lightfit.light.scene import SOIL_ALBEDO
+
+    layout = ["--row-spacing", "0.15", "--plant-spacing", "0.025", "--row-direction", "0", "--sky", "overcast"]
+    layout += ["--parameter-file", "Triticum_aestivum_adapted_2021.xml"]
+    apar, above = {}, None
+    for rho in (0.0, 0.3):
+        out = tmp_path / f"rho{rho}"
+        args = ["replicate", "--quick", "--steps", "14:16", "--soil-albedo", str(rho), *layout, "--out", str(out)]
+        r = runner.invoke(app, args)
+        assert r.exit_code == 0, r.output
+        with xr.open_dataset(out / "results.nc") as ds:
+            a = ds.attrs
+            assert (a["row_spacing_m"], a["plant_spacing_m"], a["row_direction_deg"]) == (0.15, 0.025, 0.0)
+            assert (a["soil_albedo"], a["sky"], a["parameter_file"]) == (rho, "overcast", layout[-1])
+            assert a["ground_area_m2"] == pytest.approx(4 * 0.15 * 0.025)
+            apar[rho] = ds["canopy_apar_umol_m2_s"].values
+            above = ds["above_canopy_par_umol_m2_s"].values
+    gain = apar[0.3] - apar[0.0]
+    assert (gain > 0).all(), gain
+    assert (gain <= 0.3 / 0.7 * (above - apar[0.0])).all(), (gain, above - apar[0.0])
+    assert SOIL_ALBEDO not in (0.0, 0.3)  # both runs differ from the default
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--row-spacing", "-1"], ["--row-spacing", "positive distance"]),
+        (["--plant-spacing", "0"], ["--plant-spacing", "positive distance"]),
+        (["--row-direction", "nan"], ["--row-direction", "azimuth"]),
+        (["--parameter-file", "nope.xml"], ["--parameter-file", "not found"]),
+        (["--soil-albedo", "1.5"], ["--soil-albedo", "[0, 1]"]),
+        (["--sky", "cloudy"], ["--sky", "isotropic or overcast"]),
+    ],
+)
+def test_field_soil_and_sky_options_are_checked_before_plants_grow(tmp_path, monkeypatch, args, words):
+    from lightfit import replication
+
+    def never(*a, **k):
+        raise AssertionError("ran")
+
+    monkeypatch.setattr(replication, "run", never)
+    assert_user_error(runner.invoke(app, ["replicate", "--quick", *args, "--out", str(tmp_path)]), *words)
+
+
+def test_runs_stored_before_the_field_soil_and_sky_options_compare_as_their_defaults():
+    """Calibrations and posteriors stored before these options existed ran with the library's values:
+    they resume; another value is named."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+
+    default = resolve(ModelOptions(quick=True))
+    new = ("row_spacing_m", "plant_spacing_m", "row_direction_deg", "parameter_file", "soil_albedo", "sky")
+    stored_before = {k: v for k, v in default.as_dict().items() if k not in new}
+    assert changed_settings(stored_before, default) == []
+    brighter = resolve(ModelOptions(quick=True, soil_albedo=0.2))
+    assert changed_settings(stored_before, brighter) == ["soil_albedo: 0.12 → 0.2"]
+
+
 def test_direct_rays_option_reaches_the_scenario_and_is_a_render_setting(tmp_path, monkeypatch):
     """--direct-rays-per-m2 SUN,SKY (or one number for both) sets the projection's rays of the run's
     scenario and is named on the "running:" line; with the paths' direct light it is refused; a run

@@ -34,6 +34,7 @@ from lightfit.light.estimator import (
 )
 from lightfit.light.leaf_optics import check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
+from lightfit.light.scene import SKY_MODELS, SOIL_ALBEDO
 from lightfit.model.scenario import (
     BOUNCE_TOLERANCE,
     MAX_ADAPTIVE_SAMPLES,
@@ -41,7 +42,8 @@ from lightfit.model.scenario import (
     SOIL_RESPIRATION_UMOL_M2_S,
     Scenario,
 )
-from lightfit.plant.field import check_headings
+from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, Field, check_headings
+from lightfit.plant.growth import DEFAULT_PARAMETER_FILE
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -82,6 +84,10 @@ class ModelOptions:
     buffer_along: int | None = None
     sheaths: str | None = None
     headings: str | None = None
+    row_spacing_m: float | None = None
+    plant_spacing_m: float | None = None
+    row_direction_deg: float | None = None
+    parameter_file: str | None = None
     field_seed: int | None = None
     samples: int | None = None
     bounces: int | None = None
@@ -100,6 +106,8 @@ class ModelOptions:
     preset: str | None = None
     optics: str | None = None
     chlorophyll_ug_cm2: float | None = None
+    soil_albedo: float | None = None
+    sky: str | None = None
     weather_file: str | None = None
     weather_provenance: str | None = None
     split: str | None = None
@@ -145,6 +153,10 @@ class ModelSettings:
     buffer_along: int | None
     sheaths: str
     headings: str
+    row_spacing_m: float
+    plant_spacing_m: float
+    row_direction_deg: float
+    parameter_file: str
     field_seed: int
     samples: int
     bounces: int
@@ -163,6 +175,8 @@ class ModelSettings:
     preset: str
     optics: str
     chlorophyll_ug_cm2: float | None
+    soil_albedo: float
+    sky: str
     weather_file: str | None
     weather_provenance: str | None
     split: str | None
@@ -192,6 +206,10 @@ class ModelSettings:
             buffer_along=self.buffer_along,
             sheaths=self.sheaths,
             headings=self.headings,
+            row_spacing_m=self.row_spacing_m,
+            plant_spacing_m=self.plant_spacing_m,
+            row_direction_deg=self.row_direction_deg,
+            parameter_file=self.parameter_file,
             seed=self.field_seed,
             samples=self.samples,
             bounces=self.bounces,
@@ -210,6 +228,8 @@ class ModelSettings:
             growth_temperature_c=self.growth_temperature_c,
             optics=self.optics,
             chlorophyll_ug_cm2=self.chlorophyll_ug_cm2,
+            soil_albedo=self.soil_albedo,
+            sky=self.sky,
             dates=self.dates,
             window=self.window(),
             site=self.site,
@@ -271,6 +291,39 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--headings",
             help=HEADINGS_HELP,
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "row_spacing_m": (
+        float | None,
+        typer.Option(
+            "--row-spacing",
+            help=f"Distance between wheat rows, m (default {DEFAULT_ROW_SPACING_M:g}, Selhausen's).",
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "plant_spacing_m": (
+        float | None,
+        typer.Option(
+            "--plant-spacing",
+            help=f"Distance between plants in a row, m (default {DEFAULT_PLANT_SPACING_M:g}: with the default rows "
+            f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²).",
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "row_direction_deg": (
+        float | None,
+        typer.Option(
+            "--row-direction",
+            help=f"Compass azimuth of the rows, degrees (default {Field.row_direction_deg:g} = east–west).",
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "parameter_file": (
+        str | None,
+        typer.Option(
+            "--parameter-file",
+            help=f"CPlantBox plant XML, a path or a bundled name (default {DEFAULT_PARAMETER_FILE}).",
             rich_help_panel=_FIELD,
         ),
     ),
@@ -419,6 +472,23 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "--chlorophyll-ug-cm2",
             help="Leaf chlorophyll a+b of the prospect leaf, µg cm⁻² (default 50.5 = SPAD 41; "
             "prior range 36.4–70.3 = SPAD 32–52 of wheat; changes leaf optics only).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "soil_albedo": (
+        float | None,
+        typer.Option(
+            "--soil-albedo",
+            help=f"Soil PAR albedo, Lambertian (default {SOIL_ALBEDO:g}, moist loam; docs/model.md, Presets).",
+            rich_help_panel=_LIGHT,
+        ),
+    ),
+    "sky": (
+        str | None,
+        typer.Option(
+            "--sky",
+            help=f"Angular distribution of the diffuse light: {' or '.join(SKY_MODELS)} (default {SKY_MODELS[0]}; "
+            "overcast: CIE standard overcast, 3× brighter at the zenith than at the horizon).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -665,6 +735,10 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         buffer_along=buffers[1],
         sheaths=check_sheaths(given(opts.sheaths, base.sheaths)),
         headings=check_headings(given(opts.headings, base.headings)),
+        row_spacing_m=given(opts.row_spacing_m, base.row_spacing_m),
+        plant_spacing_m=given(opts.plant_spacing_m, base.plant_spacing_m),
+        row_direction_deg=given(opts.row_direction_deg, base.row_direction_deg),
+        parameter_file=given(opts.parameter_file, base.parameter_file),
         field_seed=given(opts.field_seed, base.seed),
         samples=given(opts.samples, main_job_samples(direct) if base.samples is None else base.samples),
         bounces=given(opts.bounces, base.bounces),
@@ -683,6 +757,8 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         preset=preset,
         optics=given(opts.optics, base.optics),
         chlorophyll_ug_cm2=given(opts.chlorophyll_ug_cm2, base.chlorophyll_ug_cm2),
+        soil_albedo=given(opts.soil_albedo, base.soil_albedo),
+        sky=given(opts.sky, base.sky),
         weather_file=None if opts.weather_file is None else str(opts.weather_file),
         weather_provenance=opts.weather_provenance,
         split=opts.split,
@@ -706,6 +782,8 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     resolve_kn(profile, parameter_set(s.photosynthesis))  # Vcmax25 does not depend on T_g
     s = dataclasses.replace(s, vcmax_profile=profile, growth_temperature_c=t_g)  # stored as the run used them
     check_leaf(s.optics, s.chlorophyll_ug_cm2)
+    s.replication_config().leaf_optics()  # the soil albedo's range, as Optics checks it
+    s.replication_config().field()  # spacings, row direction and the plant file, before plants grow
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
     check_soil_respiration(s.soil_respiration, s.soil_respiration_q10)
@@ -835,6 +913,10 @@ RENDER_SETTINGS = (
     "buffer_along",
     "sheaths",
     "headings",
+    "row_spacing_m",
+    "plant_spacing_m",
+    "row_direction_deg",
+    "parameter_file",
     "field_seed",
     "samples",
     "bounces",
@@ -845,6 +927,8 @@ RENDER_SETTINGS = (
     "render_seed",
     "optics",
     "chlorophyll_ug_cm2",
+    "soil_albedo",
+    "sky",
     "weather_file",
     "how",
     "steps",
@@ -886,6 +970,10 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before |= {"soil_respiration": SOIL_RESPIRATION_UMOL_M2_S, "soil_respiration_q10": SOIL_RESPIRATION_Q10}
     before["vcmax_profile"] = "uniform"  # before capacity profiles every blade had the set's
     before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)
+    # before they were options, every run had the library's field layout, plant file, soil and sky
+    before |= {"row_spacing_m": DEFAULT_ROW_SPACING_M, "plant_spacing_m": DEFAULT_PLANT_SPACING_M}
+    before |= {"row_direction_deg": Field.row_direction_deg, "parameter_file": DEFAULT_PARAMETER_FILE}
+    before |= {"soil_albedo": SOIL_ALBEDO, "sky": SKY_MODELS[0]}
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 

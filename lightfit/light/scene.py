@@ -39,6 +39,13 @@ if TYPE_CHECKING:
 SKY_MODELS = ("isotropic", "overcast")
 
 
+def check_sky(sky) -> str:
+    """``sky`` if it names a sky model (:data:`SKY_MODELS`), else :class:`InputError` naming ``sky``."""
+    if sky not in SKY_MODELS:
+        raise InputError(f"unknown sky model {sky!r}", column="sky", expected=" or ".join(SKY_MODELS))
+    return sky
+
+
 #: Lambertian PAR albedo of the soil: moist loam, 0.1–0.15 (docs/model.md, "Presets").
 SOIL_ALBEDO = 0.12
 #: How far a ray's origin leaves the surface it starts from, along the surface normal, m: far below
@@ -146,8 +153,7 @@ class FieldScene:
     ):
         if not isinstance(mesh, Mesh) and hasattr(mesh, "mesh"):  # a FieldGeometry
             mesh, cell = mesh.mesh, mesh.cell if cell is None else cell
-        if sky not in SKY_MODELS:
-            raise InputError(f"unknown sky model {sky!r}", column="sky", expected=" or ".join(SKY_MODELS))
+        check_sky(sky)
         if mesh.n_faces == 0:
             raise InputError("the mesh has no faces", column="mesh", expected="a field with at least one plant segment")
         mi = mitsuba()

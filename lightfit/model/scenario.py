@@ -30,7 +30,7 @@ from lightfit.light.estimator import (
 )
 from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import Optics
+from lightfit.light.scene import Optics, check_sky
 from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
@@ -376,6 +376,7 @@ class Scenario:
         self.direct = resolve_direct(self.direct, self.field.boundary)
         self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
         check_ceptometer_height(self.ceptometer_height_m)
+        check_sky(self.sky)
         check_seed(self.seed)
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
