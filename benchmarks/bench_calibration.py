@@ -1,7 +1,9 @@
 """Benchmark: the two calibration optimisers side by side; loss-and-gradient cost, AD vs finite differences.
 
-    python benchmarks/bench_calibration.py                      # optimisers (1.5–2.5 min on 2 cores)
-    python benchmarks/bench_calibration.py --gradients quick,default [--calibrate quick]
+    python benchmarks/bench_calibration.py [--json JSON]        # optimisers (1.5–2.5 min on 2 cores)
+    python benchmarks/bench_calibration.py --gradients quick,default [--calibrate quick] [--json JSON]
+
+Every mode writes its tracked file under benchmarks/results/ (named below), or ``--json``.
 
 **Optimisers** (default; writes benchmarks/results/calibration_optimisers.json): optimistix BFGS
 on logit/log-transformed parameters (``method="bfgs"``) against jaxopt's box-constrained L-BFGS-B
@@ -20,7 +22,8 @@ evaluation on 2 shared cores:
 Reported per run: loss reached, accepted steps, loss and gradient evaluations, why it stopped,
 wall time (including JIT compilation), and per problem the time ratio L-BFGS-B / BFGS.
 
-**Gradients** (``--gradients``; writes benchmarks/results/calibration.json): for each configuration
+**Gradients** (``--gradients``; writes benchmarks/results/calibration.json, the configurations under
+``rows``): for each configuration
 of the 20 April replication (quick: 4 plants, K=16, 2 bounces;
 default: 100 plants, K=64, 3 bounces) on twin observations: time of one jitted loss evaluation,
 of one loss + reverse-mode gradient over the three leaf parameters, and of a central
@@ -56,6 +59,7 @@ import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
+from provenance import write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -189,7 +193,6 @@ def optimisers(n_design: int = 24) -> dict:
     fixed = {k: TRUTH[k] for k in ("roughness", "subsurface")}
     rows += compare("renders", short, obs_short, ("specular",), {"specular": 0.3}, fixed, max_steps=30)
     return {
-        "command": "python benchmarks/bench_calibration.py",
         "machine": "2 CPU cores shared with other jobs; one run",
         "problems": {
             "emulated": f"quick field (4 plants, K=16, 2 bounces), 25 daytime steps; emulator degree {emu.degree} "
@@ -220,15 +223,14 @@ def print_optimisers(res: dict) -> None:
     Console(width=200).print(t)
 
 
-def main(configs=("quick", "default"), calibrate_in=("quick",)) -> list[dict]:
+def main(configs=("quick", "default"), calibrate_in=("quick",), out: Path | None = None) -> list[dict]:
     cfgs = {"quick": rep.ReplicationConfig.quick(), "default": rep.ReplicationConfig()}
     rows = []
     for name in configs:
         evals = rows[0].get("calibration_steps") if rows else None
         rows.append(bench(name, cfgs[name], name in calibrate_in, evals))
         Console().print(rows[-1])
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(rows, indent=2))
+    write_result(out or OUT, {"rows": rows}, indent=2)
     t = Table(title="calibration cost (2 CPU cores, one run)")
     columns = (
         "config",
@@ -394,7 +396,7 @@ def cli(
         res[key] |= {k: sm.get(k) for k in ("names", "stopped_by", "n_steps", "ess", "tau", "seconds_sampling")}
         res[key]["min_ess"] = float(np.min(sm["ess"]))
     out = out or OUT.with_name(f"calibration_cli_{config}.json")
-    out.write_text(json.dumps(res, indent=2, default=str))
+    write_result(out, res, indent=2, default=str)
     print_cli(res)
     shutil.rmtree(work)  # caches and outputs: ≈ 4 GB on the default configuration, summarised in the JSON
     return res
@@ -445,14 +447,19 @@ if __name__ == "__main__":
     ap.add_argument("--posterior-after", action="store_true", help="with --cli: also the posterior after calibrate")
     ap.add_argument("--no-posterior", action="store_true", help="with --cli: calibrate cold and cached only")
     ap.add_argument("--no-calibrate", action="store_true", help="with --cli: the cold posterior only")
-    ap.add_argument("--json", type=Path, default=None, help="with --cli: output (default calibration_cli_<config>)")
+    ap.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="JSON to write (default the mode's tracked result the docs cite, in benchmarks/results/: "
+        "calibration_optimisers.json, with --gradients calibration.json, with --cli calibration_cli_<config>.json)",
+    )
     a = ap.parse_args()
     if a.cli:
         cli(a.cli, a.design, a.max_minutes, a.posterior_after, not a.no_posterior, a.json, not a.no_calibrate)
     elif a.gradients:
-        main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x))
+        main(tuple(a.gradients.split(",")), tuple(x for x in a.calibrate.split(",") if x), a.json)
     else:
         res = optimisers(a.n_design)
-        OUT_OPTIMISERS.parent.mkdir(parents=True, exist_ok=True)
-        OUT_OPTIMISERS.write_text(json.dumps(res, indent=2))
+        write_result(a.json or OUT_OPTIMISERS, res, indent=2)
         print_optimisers(res)

@@ -1,7 +1,7 @@
 """Benchmark: adaptive sampling with and without its light floor (``render_adaptive(dark_floor=)``).
 
     python benchmarks/bench_dark_floor.py [--n-plants 100] [--targets 0.1 0.05] [--floors 0 0.005]
-        [--out benchmarks/results/dark_floor.json]
+        [--out JSON]
 
 The default field (periodic cell, wrapped sheaths, PROSPECT-D leaf, its 2 bounces; the light
 benchmarks' ``periodic_cell``), the sun at 50° elevation, absorbed PAR at
@@ -20,14 +20,14 @@ Writes benchmarks/results/dark_floor.json (or ``--out``) and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state, periodic_cell
+from bench_light import periodic_cell
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -88,13 +88,12 @@ def main(n_plants: int, targets: list[float], floors: list[float], out: Path) ->
     console = Console()
     g, fs, ids, bounces = periodic_cell(n_plants)
     res = {
-        **commit_state(),
         "n_plants": n_plants,
         "segments": len(ids),
         "sheaths": SHEATHS[0],
         "bounces": bounces,
         "max_samples": MAX_ADAPTIVE_SAMPLES,
-        "load_average_start": os.getloadavg()[0],
+        "load_average_start": os.getloadavg()[0],  # the field built: the start of the timed renders
         "runs": [],
     }
     SegmentEstimator(fs, ids[:200], samples=32, bounces=bounces, seed=9, direct="projection").render()  # warm-up
@@ -108,9 +107,7 @@ def main(n_plants: int, targets: list[float], floors: list[float], out: Path) ->
             row["time_over_first"] = row["time_s"] / first["time_s"]
             res["runs"].append(row)
             console.print(f"target {target:.0%}, floor {floor:g}: {row['time_s']:.1f} s")
-    res["load_average_end"] = os.getloadavg()[0]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
+    write_result(out, res, indent=1)
     t = Table(title=f"adaptive sampling, {n_plants}-plant cell, {len(ids)} segments, cap {MAX_ADAPTIVE_SAMPLES}")
     for c in (
         "target",
@@ -145,6 +142,6 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=100)
     ap.add_argument("--targets", type=float, nargs="+", default=[0.1, 0.05])
     ap.add_argument("--floors", type=float, nargs="+", default=[0.0, DARK_FLOOR])
-    ap.add_argument("--out", type=Path, default=OUT)
+    out_option(ap, OUT)
     a = ap.parse_args()
     main(a.n_plants, a.targets, a.floors, a.out)

@@ -1,6 +1,6 @@
 """Benchmark: labelled images per second at 512² and 1024² on 2 CPU cores.
 
-    python benchmarks/bench_dataset.py [--spp 16] [--images 2] [--n-plants 25] [--buffer-rows 2]
+    python benchmarks/bench_dataset.py [--spp 16] [--images 2] [--n-plants 25] [--buffer-rows 2] [--out JSON]
 
 A 5×5-plant field with 2 buffer rows (81 plants) and *synthetic* results; cameras from a sweep
 around it. Per resolution it times (after one warm-up image that compiles the kernels):
@@ -10,18 +10,19 @@ around it. Per resolution it times (after one warm-up image that compiles the ke
 - ``end_to_end``: :func:`lightfit.dataset.make_dataset` without gallery/export — results
   read, geometry rebuilt from the cache, render, labels, metering, EXR + PNG + npz written.
 
-Writes benchmarks/results/dataset.json and prints a table.
+Writes benchmarks/results/dataset.json (or ``--out``) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
 import time
 from pathlib import Path
+
+from provenance import out_option, write_result
 
 import lightfit  # noqa: F401 - libLLVM before Dr.Jit
 from lightfit.light.backend import mitsuba
@@ -105,13 +106,11 @@ def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int 
         "max_depth": settings.max_depth,
         "results": "synthetic",
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-        "cpu_count": os.cpu_count(),
         "rows": rows,
         "command": f"python benchmarks/bench_dataset.py --spp {spp} --images {n_images} --n-plants {n_plants} "
         f"--buffer-rows {buffer_rows}",
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(out, indent=2))
+    write_result(OUT, out, indent=2)
     t = Table(
         title=f"data scene on {CORES} cores: {out['field']['plants_built']} plants, "
         f"{out['field']['triangles']} triangles, {spp} spp, rgb"
@@ -136,5 +135,7 @@ if __name__ == "__main__":
     ap.add_argument("--images", type=int, default=2)
     ap.add_argument("--n-plants", type=int, default=25)
     ap.add_argument("--buffer-rows", type=int, default=2)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.spp, a.images, a.n_plants, a.buffer_rows)

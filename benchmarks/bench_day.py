@@ -30,13 +30,13 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state, finite_median, median_se_factor  # same script folder
+from bench_light import finite_median, median_se_factor  # same script folder
 from bench_variance import _stats
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -104,7 +104,6 @@ def day(fs: FieldScene, ids: np.ndarray, bounces: int, samples: int, rays, steps
 
 def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: Path = OUT) -> dict:
     console = Console()
-    load_start = os.getloadavg()[0]
     optics = Optics.preset("prospect")
     bounces = bounces_for_tolerance(0.01, optics)
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)
@@ -125,8 +124,6 @@ def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: P
             f"step {np.mean(q['step_s']):.1f} s, ≈ {q['day_s_at_2pct'] / 60:.1f} min a day at 2 %"
         )
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         "mitsuba_variant": backend.info().variant,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "sheaths": sheaths,
@@ -136,11 +133,8 @@ def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: P
         "first_sun_deg": FIRST_SUN_DEG,
         "step_suns_deg": STEP_SUNS_DEG,
         "settings": rows,
-        "load_average_start": load_start,
-        "load_average_end": os.getloadavg()[0],
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    res = json.loads(write_result(out, res, indent=2).read_text())  # with the provenance, for the table
     t = Table(title=f"a day at a 2 % median per step: {len(ids)} segments, {steps} steps, 2 CPU cores")
     for c in (
         "K, sun / sky rays per m²",
@@ -161,7 +155,9 @@ def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: P
             f"{q['day_s_at_2pct'] / 60:.1f} min",
         )
     console.print(t)
-    console.print(f"commit {res['lightfit_commit']}, load {load_start:.1f} → {res['load_average_end']:.1f}")
+    console.print(
+        f"commit {res['lightfit_commit']}, load {res['load_average_start']:.1f} → {res['load_average_end']:.1f}"
+    )
     return res
 
 
@@ -170,6 +166,6 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--steps", type=int, default=29, help="steps in the day (the main job's 20 April: 29)")
     ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
-    ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
+    out_option(ap, OUT)
     a = ap.parse_args()
     main(a.n_plants, a.steps, a.sheaths, a.out)

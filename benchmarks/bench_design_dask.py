@@ -1,7 +1,8 @@
 """Emulator design renders in this process vs on an embedded Dask cluster (issue 15 item 2).
 
-Run:  .venv/bin/python benchmarks/bench_design_dask.py [--points 8] [--workers 2]
-Writes benchmarks/results/design_dask.json (``--samples K``: design_dask_k<K>.json) and prints a table.
+Run:  .venv/bin/python benchmarks/bench_design_dask.py [--points 8] [--workers 2] [--out JSON]
+Writes benchmarks/results/design_dask.json (``--samples K``: design_dask_k<K>.json; or ``--out``) and prints a
+table.
 
 The quick configuration's whole 20 April day (4 plants, K=16, 2 bounces, periodic, 25 daytime
 steps), ``--points`` Sobol design points over the informed prior box, each into its own empty render
@@ -20,7 +21,6 @@ All in one run, alternated ``--repeats`` times (medians), with the load average 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import tempfile
 import time
@@ -34,6 +34,7 @@ from lightfit.precision import use_float64  # noqa: E402
 use_float64()  # lightfit's precision policy, as the command line and the workers
 
 import numpy as np  # noqa: E402
+from provenance import write_result  # noqa: E402  (same script folder)
 
 from lightfit import replication as rep  # noqa: E402
 from lightfit.distributed import connect  # noqa: E402
@@ -53,7 +54,9 @@ def _same(a: Path, b: Path, key: dict, pts) -> bool:
     return True
 
 
-def main(points: int = 8, workers: int = 2, repeats: int = 2, samples: int | None = None) -> dict:
+def main(
+    points: int = 8, workers: int = 2, repeats: int = 2, samples: int | None = None, out: Path | None = None
+) -> dict:
     import drjit as dr
 
     cfg = rep.ReplicationConfig.quick()
@@ -90,7 +93,8 @@ def main(points: int = 8, workers: int = 2, repeats: int = 2, samples: int | Non
     med = {k: float(np.median(v)) for k, v in rows.items()}
     res = {
         "command": f"python benchmarks/bench_design_dask.py --points {points} --workers {workers} --repeats {repeats}"
-        + ("" if samples is None else f" --samples {samples}"),
+        + ("" if samples is None else f" --samples {samples}")
+        + ("" if out is None else f" --out {out}"),
         "configuration": f"quick field ({cfg.n_plants} plants, K={model.scenario.samples}, {model.scenario.bounces} "
         f"bounces, {cfg.boundary}), {int(np.asarray(model.day).sum())} daytime steps, {points} design points",
         "machine": f"{os.cpu_count()} CPU cores shared with other jobs; {repeats} alternated repeats, medians",
@@ -104,9 +108,8 @@ def main(points: int = 8, workers: int = 2, repeats: int = 2, samples: int | Non
         "worker_tasks": infos,
         "bitwise_equal": same,
     }
-    out = RESULTS / ("design_dask.json" if samples is None else f"design_dask_k{samples}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    out = out or RESULTS / ("design_dask.json" if samples is None else f"design_dask_k{samples}.json")
+    write_result(out, res, indent=2)
     print(f"{res['configuration']}; load average (1 min) {', '.join(f'{x[0]:.1f}' for x in load)}")
     print(f"{'':36s}{'median s':>10s}{'local ÷ this':>14s}")
     labels = {
@@ -130,5 +133,12 @@ if __name__ == "__main__":
     ap.add_argument("--workers", type=int, default=2, help="Dask worker processes")
     ap.add_argument("--repeats", type=int, default=2, help="alternated repeats (medians reported)")
     ap.add_argument("--samples", type=int, default=None, help="samples per segment K (default: the quick size's)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="JSON to write (default benchmarks/results/design_dask.json, with --samples K design_dask_k<K>.json: "
+        "the tracked results the docs cite)",
+    )
     a = ap.parse_args()
-    main(a.points, a.workers, a.repeats, a.samples)
+    main(a.points, a.workers, a.repeats, a.samples, a.out)

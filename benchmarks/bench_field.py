@@ -1,16 +1,15 @@
 """Benchmark: build a 500-plant field (the reference paper's per-node size) at default resolution.
 
-    python benchmarks/bench_field.py [--n-plants 500] [--buffer-rows 2]
+    python benchmarks/bench_field.py [--n-plants 500] [--buffer-rows 2] [--out JSON]
 
 Measures, in one run: growing every plant with CPlantBox (empty cache), building again from
 a warm cache, meshing alone; peak traced memory of the build; segments and triangles per plant.
-Writes benchmarks/results/field.json and prints a table.
+Writes benchmarks/results/field.json (or ``--out``) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import resource
 import tempfile
@@ -18,6 +17,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -65,8 +65,7 @@ def main(n_plants: int = 500, buffer_rows: int = 2) -> dict:
         "mesh_vertices": len(mesh.vertices),
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    write_result(OUT, res, indent=2)
     t = Table(title=f"field build: {fld.n}×{fld.n} measured + {buffer_rows} buffer rows = {n_built} plants")
     t.add_column("quantity")
     t.add_column("value", justify="right")
@@ -80,5 +79,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--buffer-rows", type=int, default=2)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, a.buffer_rows)

@@ -1,6 +1,6 @@
 """Benchmark: reverse-mode gradient (three leaf parameters) against the primal render it follows.
 
-    python benchmarks/bench_gradient.py [--n-plants 36] [--samples 64] [--bounces 3] [--repeats 3]
+    python benchmarks/bench_gradient.py [--n-plants 36] [--samples 64] [--bounces 3] [--repeats 3] [--out JSON]
 
 Finite field with 2 buffer rows, sun 50°, every measured segment. In one process, taking turns,
 CPU time (all threads) per call, medians of ``repeats``:
@@ -12,20 +12,18 @@ CPU time (all threads) per call, medians of ``repeats``:
   it: backward after forward), reusing that render's shadow rays;
 - ``vjp_alone``: ``vjp()`` with no render's shadow rays to reuse.
 
-Issue 16's goal: gradient ≤ 2.5 × the primal. Writes benchmarks/results/gradient.json and prints
-a table.
+Issue 16's goal: gradient ≤ 2.5 × the primal. Writes benchmarks/results/gradient.json (or
+``--out``) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -46,7 +44,6 @@ def _cpu(f) -> float:
 
 
 def main(n_plants: int = 36, samples: int = 64, bounces: int = 3, repeats: int = 3) -> dict:
-    load = os.getloadavg()[0]
     g = build(Field(boundary="finite", n_plants=n_plants, buffer_rows=2, seed=1))
     fs = FieldScene(g.mesh, Optics.preset("paper"))
     fs.set_sun(50.0, 180.0)
@@ -67,13 +64,9 @@ def main(n_plants: int = 36, samples: int = 64, bounces: int = 3, repeats: int =
         est._suns_kept.clear()  # nothing to reuse
         runs["vjp_alone"].append(_cpu(lambda: est.vjp(ct)))
     med = {k: float(np.median(v)) for k, v in runs.items()}
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     res = {
         "command": f"python benchmarks/bench_gradient.py --n-plants {n_plants} --samples {samples} "
         f"--bounces {bounces} --repeats {repeats}",
-        "commit": commit,
-        "cores": os.cpu_count(),
-        "load_average": [load, os.getloadavg()[0]],
         "segments": int(len(ids)),
         "evaluations": int(est.n_evaluations),
         "cpu_s": runs,
@@ -82,7 +75,7 @@ def main(n_plants: int = 36, samples: int = 64, bounces: int = 3, repeats: int =
         "vjp_after_render_over_traced_primal": med["vjp_after_render"] / med["traced_primal"],
         "vjp_alone_over_primal": med["vjp_alone"] / med["primal"],
     }
-    OUT.write_text(json.dumps(res, indent=1))
+    write_result(OUT, res, indent=1)
     t = Table(title=f"gradient vs primal ({len(ids)} segments, K = {samples}, {bounces} bounces; CPU s, medians)")
     for c in ("call", "CPU s", "÷ primal (kept paths)"):
         t.add_column(c)
@@ -99,5 +92,7 @@ if __name__ == "__main__":
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--bounces", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, a.samples, a.bounces, a.repeats)

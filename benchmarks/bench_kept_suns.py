@@ -1,6 +1,6 @@
 """Benchmark: a full-render calibration loss and its gradient with each sun's rays kept.
 
-    python benchmarks/bench_kept_suns.py [--start 09:00] [--end 11:00] [--repeat 3]
+    python benchmarks/bench_kept_suns.py [--start 09:00] [--end 11:00] [--repeat 3] [--out JSON]
 
 The main job's default model (the measured plants as one periodic cell, the PROSPECT-D leaf, the
 direct light projected, K = 32) on a window of 20 April 2016 (reconstructed forcing; 09:00–11:00
@@ -15,21 +15,19 @@ point): the median time of a loss evaluation and of a loss-and-gradient evaluati
 (``jax.jit(jax.grad)``), at points moved slightly each time, that the values are bitwise the
 same, and the bytes of sun hits and shadow rays kept after the loss evaluations.
 
-Writes benchmarks/results/kept_suns.json and prints a table, with the commit and load average.
+Writes benchmarks/results/kept_suns.json (or ``--out``; with the commit and load average) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from bench_light import commit_state  # same script folder
+from provenance import out_option, write_result  # same script folder
 from rich.console import Console
 from rich.table import Table
 
@@ -47,7 +45,6 @@ NAMES = ("specular", "subsurface")
 
 
 def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
-    load_start = os.getloadavg()[0]
     w = rep.forcing().loc[f"2016-04-20 {start}+00:00" : f"2016-04-20 {end}+00:00"]
     model = rep.model_for(rep.ReplicationConfig(), w)
     obs = twin_observations(model, Theta().replace(subsurface=0.5), render_seed=3, noise_seed=1)
@@ -81,9 +78,6 @@ def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
         }
     a, b = rows.values()
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
-        "load_average_start": load_start,
         "window_utc": [start, end],
         "steps": len(w),
         "calibrated": list(NAMES),
@@ -91,10 +85,8 @@ def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
         "loss_speedup": a["loss_s"] / b["loss_s"],
         "loss_and_gradient_speedup": a["loss_and_gradient_s"] / b["loss_and_gradient_s"],
         "values_bitwise_equal": values[next(iter(values))] == values[list(values)[1]],
-        "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    write_result(OUT, res, indent=2)
     t = Table(title=f"full-render calibration loss, default model, {len(w)} steps, 2 CPU cores")
     for c in ("each sun's rays", "loss", "loss + gradient", "kept after the losses"):
         t.add_column(c, justify="right")
@@ -129,5 +121,7 @@ if __name__ == "__main__":
     ap.add_argument("--start", default="09:00", help="window start, UTC")
     ap.add_argument("--end", default="11:00", help="window end, UTC")
     ap.add_argument("--repeat", type=int, default=3)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.start, a.end, a.repeat)

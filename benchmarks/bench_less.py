@@ -1,7 +1,7 @@
 """Benchmark: per-segment absorbed PAR, lightfit against LESS 3 on the same mesh, optics, sun and sky.
 
     python benchmarks/bench_less.py [--plants 16] [--boundary finite periodic]
-        [--less-samples 16 64] [--lightfit-samples 64 256] [--replicates 4] [--target 0.02]
+        [--less-samples 16 64] [--lightfit-samples 64 256] [--replicates 4] [--target 0.02] [--out JSON]
 
 LESS 3 (PyPI ``less3d``; Qi et al. 2019, Remote Sens. Environ. 221:695) is an independent ray
 tracer used here as a peer only: its licence (LESS Academic and Non-Commercial Research
@@ -48,7 +48,7 @@ same cores), reads back LESS's absorbed irradiance per triangle side and compare
   the sky part is about three times lightfit's (stems far more), and with a larger cap
   (``LIGHTFIT_LESS_WRAP_CAP=1000``) the sun part vanishes (docs/light.md, "Peer: LESS 3").
 
-Writes benchmarks/results/less.json (a boundary not run this time keeps its last run under
+Writes benchmarks/results/less.json (or ``--out``; a boundary not run this time keeps its last run under
 ``earlier_runs``, with that run's conditions) and prints a table.
 """
 
@@ -65,12 +65,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
 from lightfit.light.estimator import SegmentEstimator
-from lightfit.light.scene import FieldScene, Optics
+from lightfit.light.scene import SOIL_ALBEDO, FieldScene, Optics
 from lightfit.plant import Field, build
 from lightfit.plant.growth import organ_class
 from lightfit.plant.sheaths import SHEATHS
@@ -84,7 +85,6 @@ RUNNER = ROOT / "benchmarks" / "less_runner.py"
 LESS_PYTHON = Path(os.environ.get("LIGHTFIT_LESS_PYTHON", ROOT / ".venv-less" / "bin" / "python"))
 #: Lambertian leaf in PAR, per side (Caribu's green leaf; docs/design.md §7).
 LEAF_R, LEAF_T = 0.0825, 0.0675
-SOIL_ALBEDO = 0.12
 #: 2016-04-20 10:00 UTC at Selhausen (lightfit.weather.solar.solar_position).
 SUN_ELEVATION_DEG, SUN_AZIMUTH_DEG = 46.521508, 145.817464
 BOUNCES = 3
@@ -498,18 +498,8 @@ def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None, sheath
         capture_output=True,
         text=True,
     ).stdout.strip()
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-    ).stdout.strip()
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "lightfit"], cwd=ROOT, capture_output=True, text=True
-    ).stdout
     res = {
         "less3d": version,
-        "lightfit_commit": commit,
-        "lightfit_uncommitted_changes": bool(dirty.strip()),
-        "cpu_cores": os.cpu_count(),
-        "load_average_start": os.getloadavg()[0],
         "settings": {
             "leaf_reflectance": LEAF_R,
             "leaf_transmittance": LEAF_T,
@@ -531,7 +521,6 @@ def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None, sheath
     }
     for b in boundaries:
         res["results"][b] = run_boundary(b, n_plants, less_n, lf_k, reps, target, console, lf_alloc, sheaths)
-    res["load_average_end"] = os.getloadavg()[0]
     if out.exists():  # keep the last run of a boundary not run now, with its own conditions
         old = json.loads(out.read_text())
         earlier = {b: r for b, r in old.get("earlier_runs", {}).items() if b not in boundaries}
@@ -540,8 +529,7 @@ def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None, sheath
                 earlier[b] = {**{k: v for k, v in old.items() if k not in ("results", "earlier_runs")}, "result": r}
         if earlier:
             res["earlier_runs"] = earlier
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    write_result(out, res, indent=2)
     print_tables(res, console)
     return res
 
@@ -650,7 +638,7 @@ if __name__ == "__main__":
         "from a previous run's fits) and compare with LESS at the error reached",
     )
     ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
-    ap.add_argument("--out", type=Path, default=OUT, help="JSON written (default: benchmarks/results/less.json)")
+    out_option(ap, OUT)
     a = ap.parse_args()
     args = (a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target, a.allocated_samples)
     if main(*args, sheaths=a.sheaths, out=a.out) is None:

@@ -36,19 +36,19 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 from bench_variance import _stats  # per-class median / p90 (same script folder)
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
 import lightfit  # noqa: F401
 from lightfit.light import backend
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
-from lightfit.light.scene import FieldScene, Optics
+from lightfit.light.scene import SOIL_ALBEDO, FieldScene, Optics
 from lightfit.plant import HEADINGS, SHEATHS, Field, build, organ_class
 from lightfit.precision import use_float64
 
@@ -73,19 +73,6 @@ def periodic_cell(n_plants: int, sheaths: str = SHEATHS[0], headings: str = HEAD
     fs.set_sun(*BENCH_SUN_DEG)
     ids = geom.segments.loc[geom.segments["measured"], "segment_id"].to_numpy()
     return geom, fs, ids, bounces_for_tolerance(0.01, optics)
-
-
-def commit_state() -> dict:
-    """The commit measured and whether lightfit/ had uncommitted changes (what every result records)."""
-    root = Path(__file__).resolve().parents[1]
-
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True).stdout.strip()
-
-    return {
-        "lightfit_commit": git("rev-parse", "--short", "HEAD"),
-        "lightfit_uncommitted_changes": bool(git("status", "--porcelain", "lightfit")),
-    }
 
 
 def _timed(f, repeat=2):
@@ -363,7 +350,7 @@ def irradiancemeter_comparison(n_segments: int = 6, bounces: int = 3, sheaths: s
                 "ground": {
                     "type": "rectangle",
                     "to_world": mi.ScalarTransform4f.scale([300, 300, 1]),
-                    "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.12] * 3}},
+                    "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [SOIL_ALBEDO] * 3}},
                 },
                 "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1 / math.pi] * 3}},
             }
@@ -406,7 +393,6 @@ def main(
     out: Path = OUT,
 ) -> dict:
     console = Console()
-    load_start = os.getloadavg()[0]
     optics = Optics.preset(optics_name)
     if bounces is None:
         bounces = bounces_for_tolerance(0.01, optics)
@@ -439,11 +425,8 @@ def main(
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     direct = direct_projection_comparison(fs, ids, bounces, settings, organ) if fs.tracer is not None else None
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         # cuda_ad_mono where a CUDA device is usable (issue 16 item 4), else llvm_ad_mono.
         "mitsuba_variant": backend.info().variant,
-        "load_average_start": load_start,
         "boundary": boundary,
         "optics": optics_name,
         "sheaths": sheaths,
@@ -472,7 +455,6 @@ def main(
         "irradiancemeter_median_speedup_equal_se": meter["median_speedup"],
         "irradiancemeter": meter["segments"],
         "direct_projection": direct,
-        "load_average_end": os.getloadavg()[0],
     }
     if out.exists():  # keep the last run of every other setup, with its own conditions
         old = json.loads(out.read_text())
@@ -481,8 +463,7 @@ def main(
         earlier.pop(_setup_key(res), None)
         if earlier:
             res["earlier_runs"] = earlier
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    res = json.loads(write_result(out, res, indent=2).read_text())  # with the provenance, for the table
     t = Table(
         title=f"irradiance benchmark: {res['segments']} segments, K={est.samples}, {bounces} bounces, 2 CPU cores"
     )
@@ -548,6 +529,6 @@ if __name__ == "__main__":
     ap.add_argument("--boundary", default="periodic", choices=["periodic", "finite"])
     ap.add_argument("--optics", default="prospect", choices=["prospect", "paper"], help="leaf optics preset")
     ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
-    ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
+    out_option(ap, OUT)
     a = ap.parse_args()
     main(a.n_plants, a.samples, a.bounces, a.boundary, a.optics, a.sheaths, a.out)

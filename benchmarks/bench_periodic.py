@@ -1,7 +1,7 @@
 """Benchmark: periodic boundary vs a wide finite field and vs the 2-buffer-row default (issue 13).
 
     python benchmarks/bench_periodic.py [--sizes 4,10,23] [--wide-sizes 4,10,23] [--samples 64]
-        [--seeds 2] [--main-job | --no-main-job] [--main-job-options "--quick"] [--no-equal-cost]
+        [--seeds 2] [--main-job | --no-main-job] [--main-job-options "--quick"] [--no-equal-cost] [--out JSON]
 
 Part 1, edge bias and cost, at 2016-04-20 10:00 UTC (reconstructed forcing; the sun and weather
 of ``experiments/periodic_vs_wide.py``, whose field setups this imports), K samples, 3 bounces,
@@ -44,7 +44,8 @@ traced and kept) and the later ones split into the sun's shadow rays, the path w
 values and the per-segment summary (each evaluated and synchronised on its own), with the rays
 each step casts per kind. Written to the results' ``step_costs`` section.
 
-Writes benchmarks/results/periodic.json and prints a table (Markdown, as in docs/light.md).
+Writes benchmarks/results/periodic.json (or ``--out``; ``--step-costs`` and ``--main-job-only`` update a
+section of it, which records its own run) and prints a table (Markdown, as in docs/light.md).
 """
 
 from __future__ import annotations
@@ -64,7 +65,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lightfit.precision import use_float64
+if str(Path(__file__).resolve().parent) not in sys.path:  # the --case children run with -P: no script folder
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import out_option, record, write_result  # noqa: E402  (same script folder)
+
+from lightfit.precision import use_float64  # noqa: E402
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
@@ -434,6 +439,16 @@ def _code_state() -> dict:
     return {"commit": git("rev-parse", "HEAD"), "lightfit_uncommitted": None if status is None else status.splitlines()}
 
 
+def _write_section(name: str, section: dict) -> None:
+    """Write ``section`` (with its own run's record) into the results at OUT, keeping the rest. The
+    file's top-level record is its main run's: fields that run did not record are left unknown (None)."""
+    res = json.loads(OUT.read_text()) if OUT.exists() else {}
+    if res:
+        res = {**dict.fromkeys(record()), **res}
+    res[name] = {**record(), **section}
+    write_result(OUT, res, indent=1, default=float)
+
+
 def table(res: dict) -> str:
     lines = [
         "| N × N | field | K | plants grown | triangles | render (s) | peak RSS (MB) | canopy absorbed PAR (µmol s⁻¹) "
@@ -515,8 +530,7 @@ def main(
         "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
         "code": _code_state(),
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=1, default=float))
+    write_result(OUT, res, indent=1, default=float)
     print(table(res))
     print(f"wrote {OUT}")
     return res
@@ -552,19 +566,21 @@ if __name__ == "__main__":
         help="only the CPU cost per render step of the default and old default main jobs (module doc, part 3), "
         "written to the results' step_costs section",
     )
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     if a.step_costs:
         sc = step_costs()
-        res = json.loads(OUT.read_text()) if OUT.exists() else {}
-        res["step_costs"] = {
-            "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
-            "note": "CPU s (user + system) per step; later steps averaged over 2 rounds; parts evaluated apart",
-            "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
-            "load_average_end": os.getloadavg()[0],
-            "code": _code_state(),
-            **sc,
-        }
-        OUT.write_text(json.dumps(res, indent=1, default=float))
+        _write_section(
+            "step_costs",
+            {
+                "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
+                "note": "CPU s (user + system) per step; later steps averaged over 2 rounds; parts evaluated apart",
+                "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
+                "code": _code_state(),
+                **sc,
+            },
+        )
         print(
             "| job | boundary | bounces | evaluations | first step s | later step s | sun rays | weights | values "
             "| summary | shadow rays / step | shadow rays per CPU s |"
@@ -598,15 +614,16 @@ if __name__ == "__main__":
             finally:
                 if a.baseline_commit:
                     subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False)
-        res = json.loads(OUT.read_text()) if OUT.exists() else {}
-        res["main_job_rerun"] = {
-            "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
-            "note": "cold once, then warm rounds taking turns; warm = mean of warm_runs; cpu_s = user + system",
-            "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
-            "code": _code_state(),
-            "jobs": mj,
-        }
-        OUT.write_text(json.dumps(res, indent=1, default=float))
+        _write_section(
+            "main_job_rerun",
+            {
+                "command": "python benchmarks/bench_periodic.py " + " ".join(sys.argv[1:]),
+                "note": "cold once, then warm rounds taking turns; warm = mean of warm_runs; cpu_s = user + system",
+                "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared; timings are indicative)",
+                "code": _code_state(),
+                "jobs": mj,
+            },
+        )
         for name, r in mj.items():
             c, w = r["cold"], r["warm"]
             nan = float("nan")

@@ -1,6 +1,7 @@
 """Benchmark: render time of the periodic cell vs the finite 2-buffer-row field (issue 13).
 
     python benchmarks/bench_periodic_render.py [--plants 16 100] [--samples 64] [--repeat 2] [--day] [--walk]
+        [--out JSON]
 
 Side by side in one run, for the same measured plants (N × N, seed 1) at two sun positions
 (the 2016-04-20 10:00 UTC sun of the main job, and a low sun at 15° elevation, same azimuth),
@@ -26,13 +27,12 @@ disabled, ``cap=0``), the full walk, the walk through a super-cell of (r_a, r_b)
 held as geometry (explicit copies in the BVH: fewer crossings, a larger BVH), and a plain
 intersection of the same rays in the finite 2-buffer-row field.
 
-Writes benchmarks/results/periodic_render.json and prints a table.
+Writes benchmarks/results/periodic_render.json (or ``--out``) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from collections import defaultdict
@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from provenance import out_option, write_result
 
 import lightfit  # noqa: F401
 from lightfit import weather
@@ -189,8 +190,7 @@ def main(
         res["day"] = main_job_day(samples, bounces)
     if walk:
         res["walk"] = walk_costs()
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2, default=float))
+    write_result(OUT, res, indent=2, default=float)
     print()
     print(f"K = {samples}, {bounces} bounces, best of {repeat}; ratio = periodic ÷ finite (2 buffer rows)")
     print(_header())
@@ -345,5 +345,7 @@ if __name__ == "__main__":
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--day", action="store_true", help="also time the main job's day end to end")
     ap.add_argument("--walk", action="store_true", help="also time the walk alone, and rings of copies")
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(tuple(a.plants), a.samples, a.bounces, a.repeat, a.day, a.walk)

@@ -2,15 +2,14 @@
 cost of the robust solver over plain fixed-point iteration, and speed against CPlantBox's
 C++ photosynthesis at matched accuracy. All ratios come from one run of this script.
 
-    python benchmarks/bench_photosynthesis.py [--max-segments 1000000] [--repeats 3]
+    python benchmarks/bench_photosynthesis.py [--max-segments 1000000] [--repeats 3] [--out JSON]
 
-Writes benchmarks/results/photosynthesis.json and prints a Markdown table.
+Writes benchmarks/results/photosynthesis.json (or ``--out``) and prints a Markdown table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -29,6 +28,7 @@ use_float64()  # lightfit's precision policy (lightfit.precision), before any JA
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from provenance import out_option, write_result  # noqa: E402  (same script folder)
 
 import lightfit.photosynthesis as ps  # noqa: E402
 from lightfit.photosynthesis import model as psm  # noqa: E402
@@ -173,6 +173,7 @@ def main(argv=None):
     ap.add_argument("--max-segments", type=int, default=1_000_000)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--peer-points", type=int, default=2200)
+    out_option(ap, RESULTS)
     args = ap.parse_args(argv)
 
     sizes = [n for n in (1_000, 10_000, 100_000, 1_000_000) if n <= args.max_segments]
@@ -199,8 +200,7 @@ def main(argv=None):
         "rows": rows,
         "peer": peer,
     }
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2))
+    write_result(args.out, result, indent=2)
     print(table(rows, peer))
 
 

@@ -1,7 +1,7 @@
 """Benchmark: posterior sampling of the default 20 April 2016 configuration on the available cores.
 
     .venv/bin/python benchmarks/bench_posterior.py [--renders DIR] [--n-design 16] [--n-test 2]
-        [--walkers 32] [--max-steps 20000]
+        [--walkers 32] [--max-steps 20000] [--out H5] [--json JSON]
 
 The main job's configuration (``ReplicationConfig()``: its field, K, bounces and observable; the
 JSON's ``config`` records them), bundled chamber record, informed priors, sampled: specular,
@@ -14,15 +14,15 @@ roughness, subsurface, light_factor. Steps and what is timed:
 3. emcee (32 walkers) until the stop rule (ESS ≥ 50 per parameter, n_kept ≥ 20 τ, stable τ);
 4. the analysis (optimum, Fisher, profile, predictive, emulator error vs posterior width).
 
-Writes benchmarks/results/posterior.json.
+Writes benchmarks/results/posterior.json (or ``--json``; the chain goes to ``--out``).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -31,7 +31,7 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 import numpy as np  # noqa: E402
-from bench_light import commit_state  # noqa: E402  (same script folder)
+from provenance import write_result  # noqa: E402  (same script folder)
 
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
@@ -53,10 +53,16 @@ def main(argv=None):
     ap.add_argument("--n-test", type=int, default=2)
     ap.add_argument("--walkers", type=int, default=32)
     ap.add_argument("--max-steps", type=int, default=20000, help="emcee steps at most (the stop rule may end sooner)")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "posterior" / "bench_default.h5")
-    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "posterior.json")
+    ap.add_argument(
+        "--out", type=Path, default=ROOT / "results" / "posterior" / "bench_default.h5", help="the chain (HDF5)"
+    )
+    ap.add_argument(
+        "--json",
+        type=Path,
+        default=ROOT / "benchmarks" / "results" / "posterior.json",
+        help="JSON to write (default benchmarks/results/posterior.json, the tracked result the docs cite)",
+    )
     args = ap.parse_args(argv)
-    load_start = os.getloadavg()
     pri = P.PRIORS_INFORMED
     lo = [pri[n].support[0] for n in LEAF_PARAMETERS]
     hi = [pri[n].support[1] for n in LEAF_PARAMETERS]
@@ -121,10 +127,8 @@ def main(argv=None):
         validation_renders=(test[: args.n_test], (np.stack([v for v, _ in tv]), np.stack([s for _, s in tv]))),
     )
     out = {
-        "command": "benchmarks/bench_posterior.py " + " ".join(argv or []),
+        "command": " ".join(["bench_posterior.py", *(sys.argv[1:] if argv is None else argv)]),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor()},
-        **commit_state(),
-        "load_average_1min_start_end": [load_start[0], os.getloadavg()[0]],
         "config": f"ReplicationConfig() default: {cfg.n_plants} plants, {field_label(cfg.field())}, "
         f"K={model.scenario.samples}, {model.scenario.bounces} bounces, {cfg.par_kind} PAR; "
         "bundled chamber record; informed priors",
@@ -157,9 +161,7 @@ def main(argv=None):
         "configuration (and cached), then every posterior run (other data, priors, seeds) reuses it; "
         "their times are those of the first run that rendered them (stored with each render in DIR).",
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(P.jsonable(out), indent=2, default=str))
-    print(json.dumps(P.jsonable(out), indent=2, default=str))
+    print(write_result(args.json, P.jsonable(out), indent=2, default=str).read_text())
 
 
 if __name__ == "__main__":

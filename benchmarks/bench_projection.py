@@ -1,6 +1,6 @@
 """Benchmark: the projected direct light's rays against its error and a time step's cost (issue 16).
 
-    python benchmarks/bench_projection.py [--n-plants 100] [--samples 64]
+    python benchmarks/bench_projection.py [--n-plants 100] [--samples 64] [--out JSON]
 
 The defaults' field (the measured plants as one periodic cell, the PROSPECT-D leaf, the bounces
 that leaf needs for 1 % truncation) at the sun of bench_light (50°), K samples per segment. For
@@ -17,22 +17,20 @@ estimator each, in turn:
 * the reverse-mode gradient of absorbed PAR (DNI 1, DHI 0.3) with respect to the three leaf
   parameters at the last sun, and its time ÷ a step's (issue 16: ≤ 2.5× the primal).
 
-Writes benchmarks/results/projection.json and prints a table, with the commit and load average
-(2 shared cores: compare the settings of one run, not absolute times across runs).
+Writes benchmarks/results/projection.json (or ``--out``; with the commit and load average) and prints a
+table (2 shared cores: compare the settings of one run, not absolute times across runs).
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
-import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
 from bench_variance import _stats  # per-class median / p90 (same script folder)
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -52,7 +50,6 @@ STEP_SUNS = ((30.0, 170.0), (40.0, 170.0), (45.0, 170.0), (55.0, 170.0))
 
 def main(n_plants: int = 100, samples: int = 64) -> dict:
     console = Console()
-    load_start = os.getloadavg()[0]
     optics = Optics.preset("prospect")
     bounces = bounces_for_tolerance(0.01, optics)
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
@@ -100,19 +97,14 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
             q["rse_absorbed"]["all"]["median"] ** 2 * q["step_s"]
         )
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
-        "load_average_start": load_start,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "samples": samples,
         "bounces": bounces,
         "step_suns_deg": STEP_SUNS,
         "rows": rows,
-        "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    write_result(OUT, res, indent=2)
     t = Table(title=f"projected direct light: {len(ids)} segments, K={samples}, {bounces} bounces, 2 CPU cores")
     heads = ("direct light", "first render", "time step", "gradient", "median / p90", "blades / stems", "efficiency")
     for c in heads:
@@ -138,5 +130,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=100)
     ap.add_argument("--samples", type=int, default=64)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, a.samples)

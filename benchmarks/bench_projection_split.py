@@ -1,6 +1,6 @@
 """Benchmark: where the projection's time and variance go (issue 16).
 
-    python benchmarks/bench_projection_split.py [--n-plants 500] [--samples 32] [--rays 2e7]
+    python benchmarks/bench_projection_split.py [--n-plants 500] [--samples 32] [--rays 2e7] [--out JSON]
 
 The defaults' field (the measured plants as one periodic cell, the PROSPECT-D leaf, the bounces
 that leaf needs for 1 % truncation) at the sun of bench_light (50°), one estimator with the
@@ -15,20 +15,19 @@ that compiles the kernels:
   the replicate values of each part's hits (direct, scattered once by a leaf or by the soil, per
   kind) taken apart, the paths as the rest; shares of the variance ignore the parts' covariances.
 
-Writes benchmarks/results/projection_split.json and prints a table, with the commit and load
-average (2 shared cores: compare parts of one run, not absolute times across runs).
+Writes benchmarks/results/projection_split.json (or ``--out``; with the commit and load average) and
+prints a table (2 shared cores: compare parts of one run, not absolute times across runs).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state, periodic_cell  # same script folder
+from bench_light import periodic_cell  # same script folder
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -46,7 +45,6 @@ SKY_WEIGHT = 0.3  # DHI per unit DNI in the relative SE, as bench_light
 def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
     import drjit as dr
 
-    load_start = os.getloadavg()[0]
     geom, fs, ids, bounces = periodic_cell(n_plants)
     kw = dict(samples=samples, bounces=bounces, direct="projection", direct_rays_per_m2=rays)
     SegmentEstimator(fs, ids[:2000], seed=0, **kw).render()  # compile kernels
@@ -93,9 +91,6 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
         for name, v in parts.items()
     }
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
-        "load_average_start": load_start,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "samples": est.samples,
@@ -105,10 +100,8 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
         "median_rse_absorbed": float(np.nanmedian(rse)),
         **times,
         "near_median_split": split,
-        "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    write_result(OUT, res, indent=2)
     t = Table(title=f"projection split: {len(ids)} segments, K={est.samples}, {rays:.1e} rays/m², 2 CPU cores")
     t.add_column("quantity")
     t.add_column("value", justify="right")
@@ -127,5 +120,7 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--rays", type=float, default=2e7)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, a.samples, a.rays)

@@ -1,7 +1,7 @@
 """Benchmark: what a projected sky ray costs and how its layout moves the per-segment noise (issue 16).
 
     python benchmarks/bench_ray_layouts.py [--n-plants 500] [--rays 2e7] [--replicates 8]
-        [--vector-width 8]
+        [--vector-width 8] [--out JSON]
 
 The sky seen directly is ≈ 0.56 of a median segment's variance in the projection
 (bench_projection_split.py); this measures, outside the estimator, whether another layout of the
@@ -29,22 +29,21 @@ Dr.Jit's LLVM packet width before anything is compiled (default: the CPU's, 16 w
 drjit-core's ``jit_llvm_set_target`` (a C++ symbol of the library, not Python API), to measure
 whether narrower packets trace incoherent rays faster.
 
-Writes benchmarks/results/ray_layouts.json (or ray_layouts_width<W>.json) and prints a table,
-with the commit and the load average (2 shared cores: compare rows of one run).
+Writes benchmarks/results/ray_layouts.json (or ray_layouts_width<W>.json, or ``--out``; with the commit
+and the load average) and prints a table (2 shared cores: compare rows of one run).
 """
 
 from __future__ import annotations
 
 import argparse
 import ctypes
-import json
 import math
 import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from provenance import write_result  # same script folder
 from rich.console import Console
 from rich.table import Table
 
@@ -121,12 +120,17 @@ def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
     return a, b, w
 
 
-def main(n_plants: int = 500, rays: float = 2e7, replicates: int = 8, vector_width: int | None = None) -> dict:
+def main(
+    n_plants: int = 500,
+    rays: float = 2e7,
+    replicates: int = 8,
+    vector_width: int | None = None,
+    out: Path | None = None,
+) -> dict:
     mi = backend.mitsuba()  # the LLVM backend first: its target is then set before any kernel exists
     width = set_vector_width(vector_width) if vector_width else None
     import drjit as dr
 
-    load_start = os.getloadavg()[0]
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
     fs = FieldScene(geom.mesh, Optics.preset("prospect"), cell=geom.cell)
     fs.set_sun(50.0, 180.0)
@@ -179,21 +183,16 @@ def main(n_plants: int = 500, rays: float = 2e7, replicates: int = 8, vector_wid
             base["median_rse_blades"] ** 2 * base["walk_s_per_replicate"]
         )
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         "llvm_vector_width": width,
-        "load_average_start": load_start,
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments_in_cell": len(seg_id),
         "rays_per_m2": rays,
         "replicates": replicates,
         "rays_per_replicate": m,
         "layouts": rows,
-        "load_average_end": os.getloadavg()[0],
     }
-    out = RESULTS / ("ray_layouts.json" if width is None else f"ray_layouts_width{width}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    out = out or RESULTS / ("ray_layouts.json" if width is None else f"ray_layouts_width{width}.json")
+    write_result(out, res, indent=2)
     t = Table(
         title=f"sky ray layouts: {n_plants} plants, {rays:.1e} rays/m², R={replicates}, 2 CPU cores"
         + ("" if width is None else f", LLVM width {width}")
@@ -218,5 +217,12 @@ if __name__ == "__main__":
     ap.add_argument("--rays", type=float, default=2e7, help="sky rays per m² of ground, all replicates")
     ap.add_argument("--replicates", type=int, default=8)
     ap.add_argument("--vector-width", type=int, default=None, help="Dr.Jit LLVM packet width (default: the CPU's)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="JSON to write (default benchmarks/results/ray_layouts.json, with --vector-width W "
+        "ray_layouts_width<W>.json: the tracked results the docs cite)",
+    )
     a = ap.parse_args()
-    main(a.n_plants, a.rays, a.replicates, a.vector_width)
+    main(a.n_plants, a.rays, a.replicates, a.vector_width, a.out)

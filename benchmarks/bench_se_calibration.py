@@ -1,7 +1,7 @@
 """Benchmark: are the reported per-segment standard errors right? Seed-to-seed spread against them (issue 16).
 
     python benchmarks/bench_se_calibration.py [--n-plants 100] [--seeds 12] [--samples 16]
-        [--rays 1.5e7 2e7] [--tea-rounds 16 4]
+        [--rays 1.5e7 2e7] [--tea-rounds 16 4] [--out JSON]
 
 Every render reports a standard error per segment from its R replicates. Here N renders with seeds
 1 … N of the defaults' periodic cell (PROSPECT-D leaf, the bounces for 1 % truncation, the
@@ -16,19 +16,19 @@ same by quartile of relative SE and for blades and stems. Each ``--tea-rounds`` 
 (:data:`lightfit.light.keyed_random.TEA_ROUNDS`, the hash behind the projection's random numbers; 4
 was the value before: Mitsuba's default) is measured in turn in the same process, with its mean
 render time. Writes
-benchmarks/results/se_calibration.json and prints a table, with the commit and the load average.
+benchmarks/results/se_calibration.json (or ``--out``) and prints a table, with the commit and the load average.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state, periodic_cell  # same script folder
+from bench_light import periodic_cell  # same script folder
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.progress import track
 from rich.table import Table
@@ -96,7 +96,6 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
 
 def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2e7), rounds=(16, 4)) -> dict:
     console = Console()
-    load_start = os.getloadavg()[0]
     geom, fs, ids, bounces = periodic_cell(n_plants)
     runs = []
     default = keyed_random.TEA_ROUNDS
@@ -107,8 +106,6 @@ def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2
     finally:
         keyed_random.TEA_ROUNDS = default
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "segments": len(ids),
         "samples": samples,
@@ -116,11 +113,8 @@ def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2
         "bounces": bounces,
         "seeds": seeds,
         "runs": runs,
-        "load_average_start": load_start,
-        "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    res = json.loads(write_result(OUT, res, indent=2).read_text())  # with the provenance, for the table
     for run in runs:
         t = Table(
             title=f"seeds' spread ÷ reported SE², TEA {run['tea_rounds']} rounds ({seeds} seeds, K = {samples}, "
@@ -135,7 +129,9 @@ def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2
         for k, q in run["groups"].items():
             t.add_row(k, str(q["n"]), f"{q['mean']:.3f}", f"{q['median']:.3f}", f"{q['ratio_of_sums']:.3f}")
         console.print(t)
-    console.print(f"commit {res['lightfit_commit']}, load {load_start:.1f} → {res['load_average_end']:.1f}")
+    console.print(
+        f"commit {res['lightfit_commit']}, load {res['load_average_start']:.1f} → {res['load_average_end']:.1f}"
+    )
     return res
 
 
@@ -146,5 +142,7 @@ if __name__ == "__main__":
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--rays", type=float, nargs=2, default=(1.5e7, 2e7), metavar=("SUN", "SKY"))
     ap.add_argument("--tea-rounds", type=int, nargs="+", default=(16, 4), help="TEA rounds measured in turn")
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, a.seeds, a.samples, tuple(a.rays), tuple(a.tea_rounds))

@@ -20,8 +20,8 @@ sky's rays continued after their first hit (``projection.CONTINUED_SHARE["sky"]`
 library: a day casts the sky once and its continuation serves every step); several values are
 measured in turn the same way. The value is set for this process only, as an experiment.
 
-Writes benchmarks/results/single_render.json and prints a table, with the commit and the load
-average (the 2 cores are shared: absolute times move with the machine, see docs/light.md).
+Writes benchmarks/results/single_render.json (or ``--out``) and prints a table, with the commit and
+the load average (the 2 cores are shared: absolute times move with the machine, see docs/light.md).
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ import os
 import time
 from pathlib import Path
 
-from bench_light import commit_state, direct_projection_comparison, periodic_cell  # same script folder
+from bench_light import direct_projection_comparison, periodic_cell  # same script folder
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -62,7 +63,7 @@ def main(
 
     if q_sky is not None:
         projection.CONTINUED_SHARE["sky"] = q_sky
-    load_start = os.getloadavg()[0]
+    load_start = os.getloadavg()[0]  # this run's (several are measured in turn)
     t = time.perf_counter()
     geom, fs, ids, bounces = periodic_cell(n_plants, sheaths, headings)
     t_build = time.perf_counter() - t
@@ -70,8 +71,6 @@ def main(
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     row = direct_projection_comparison(fs, ids, bounces, [(samples, rays)], organ)["settings"][0]
     return {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         "n_plants": n_plants,
         "sheaths": sheaths,
         "headings": headings,
@@ -116,7 +115,7 @@ if __name__ == "__main__":
     )
     ap.add_argument("--headings", default=HEADINGS[0], help="plant headings, comma-separated: " + ", ".join(HEADINGS))
     ap.add_argument("--sky-continued-share", default=None, help="q of the sky's continued rays, comma-separated")
-    ap.add_argument("--out", type=Path, default=OUT, help=f"JSON to write (default {OUT.name} in results/)")
+    out_option(ap, OUT)
     a = ap.parse_args()
     sun, sky = (float(x) for x in a.rays.split(","))
     layouts = a.sheaths.split(",")
@@ -127,8 +126,8 @@ if __name__ == "__main__":
     for h in headings:
         check_headings(h)
     runs = [main(a.n_plants, a.samples, (sun, sky), x, q, h) for x in layouts for q in shares for h in headings]
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float))
+    written = write_result(a.out, runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float)
+    commit = json.loads(written.read_text())["lightfit_commit"]
     console = Console()
     for res in runs:
         console.print(table(res))
@@ -137,6 +136,6 @@ if __name__ == "__main__":
             f"render {res['render_s']:.1f} s (first {res['first_render_s']:.1f} s); "
             f"p90 {100 * by['all']['p90']:.1f} %; "
             f"blades {100 * by['blades']['median']:.2f} %, stems and sheaths {100 * by['stems']['median']:.2f} %; "
-            f"load {res['load_average_start']:.1f}–{res['load_average_end']:.1f}; commit {res.get('lightfit_commit')}"
+            f"load {res['load_average_start']:.1f}–{res['load_average_end']:.1f}; commit {commit}"
         )
     console.print(f"wrote {a.out}")

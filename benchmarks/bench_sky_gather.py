@@ -1,7 +1,7 @@
 """Benchmark: the sky seen directly, gathered from the segments that set the median, on top of the
 projection (issue 16).
 
-    python benchmarks/bench_sky_gather.py [--n-plants 500] [--samples 128]
+    python benchmarks/bench_sky_gather.py [--n-plants 500] [--samples 128] [--out JSON]
 
 The sky seen directly is ≈ 0.55 of a median segment's variance in the projection and is
 Poisson-limited there (docs/light.md, "Why the sky seen directly stays Poisson-limited"). Its rays
@@ -32,19 +32,20 @@ segments that were lucky), and the projection alone is evaluated the same way, s
 compares like with like. k is continuous (``best_s``) or rounded up to 8 × a power of 2 (as
 rounds of adaptive sampling would give, ``best_rounded_s``).
 
-Writes benchmarks/results/sky_gather.json and prints a table, with the commit and the load average.
+Writes benchmarks/results/sky_gather.json (or ``--out``) and prints a table, with the commit and the load
+average.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import BENCH_SUN_DEG, commit_state, periodic_cell  # same script folder
+from bench_light import BENCH_SUN_DEG, periodic_cell  # same script folder
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -83,7 +84,6 @@ def hybrid_time(a, T, var, var_sky, c_blade, t_point, x, blade, rounded):
 
 
 def main(n_plants: int, samples: int) -> dict:
-    load_start = os.getloadavg()[0]
     geom, fs, ids, bounces = periodic_cell(n_plants)
     blade = np.asarray(organ_class(geom.segments.set_index("segment_id").loc[ids])) == "blade"
     kw = dict(direct="projection", direct_rays_per_m2=RAYS, seed=1)
@@ -127,8 +127,6 @@ def main(n_plants: int, samples: int) -> dict:
         )
         res[name] = {"s": best[0], "gathered_blades": best[1], "projection_scale": best[2]}
     return {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         "n_plants": n_plants,
         "segments": len(ids),
         "blades": len(bl),
@@ -147,8 +145,6 @@ def main(n_plants: int, samples: int) -> dict:
         "hybrid": res,
         "gain": alone / res["best"]["s"],
         "gain_rounded": alone / res["best_rounded"]["s"],
-        "load_average_start": load_start,
-        "load_average_end": os.getloadavg()[0],
     }
 
 
@@ -156,10 +152,11 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--samples", type=int, default=128, help="gathered points per blade")
+    out_option(ap, OUT)
     args = ap.parse_args()
+    OUT = args.out
     res = main(args.n_plants, args.samples)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    res = json.loads(write_result(OUT, res, indent=2).read_text())  # with the provenance, for the summary
     t = Table(title=f"the sky gathered on top of the projection, {res['n_plants']} plants")
     t.add_column("to a 2 % median (binned variances)")
     t.add_column("time", justify="right")

@@ -1,6 +1,6 @@
 """Benchmark: could the projected sky's rays be importance-sampled over ray space from a pilot? (issue 16)
 
-    python benchmarks/bench_sky_importance.py [--n-plants 500] [--rays 2e7]
+    python benchmarks/bench_sky_importance.py [--n-plants 500] [--rays 2e7] [--out JSON]
 
 The sky seen directly is ≈ 0.6 of a median segment's variance in the projection
 (bench_projection_split.py), and its rays land on segments in proportion to their visible area:
@@ -30,22 +30,20 @@ that knows where B's rays landed. Reported: median V over all segments and over 
 uniform ÷ designed (above 1: the design pays), and the all-segment median's gain with the other
 parts' variance held at 0.4 / 0.6 of the sky's (the measured split).
 
-Writes benchmarks/results/sky_importance.json and prints a table, with the commit and the load
-average (2 shared cores).
+Writes benchmarks/results/sky_importance.json (or ``--out``; with the commit and the load average) and
+prints a table (2 shared cores).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
-from bench_ray_layouts import cosine_directions, jittered_grid, r2_point
+from bench_ray_layouts import cosine_directions, jittered_grid, r2_point  # same script folder
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -138,7 +136,6 @@ def gains(v_uniform, v_q, blade) -> dict[str, float]:
 
 
 def main(n_plants: int = 500, rays: float = 2e7) -> dict:
-    load_start = os.getloadavg()[0]
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
     fs = FieldScene(geom.mesh, Optics.preset("prospect"), cell=geom.cell)
     seg_id = np.unique(fs.scene_mesh.face_segment)
@@ -168,9 +165,6 @@ def main(n_plants: int = 500, rays: float = 2e7) -> dict:
                 }
             )
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
-        "load_average_start": load_start,
         "segments_in_cell": S,
         "sky_rays_per_m2": rays,
         "rays_per_set": m,
@@ -178,10 +172,8 @@ def main(n_plants: int = 500, rays: float = 2e7) -> dict:
         "band_percentiles": BAND,
         "sky_share_of_variance": SKY_SHARE,
         "rows": rows,
-        "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    write_result(OUT, res, indent=2)
     table = Table(title=f"sky rays importance-sampled from a pilot: {n_plants} plants, {rays:.0e} rays/m² per set")
     for c in ("tile", "bins", "rays/cell", "α", "pilot: sky all", "blades", "all-seg. median", "in-sample: sky all"):
         table.add_column(c, justify="right")
@@ -204,5 +196,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--rays", type=float, default=2e7, help="sky rays per m² of ground in each of the two sets")
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, a.rays)

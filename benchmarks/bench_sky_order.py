@@ -1,6 +1,6 @@
 """Benchmark: the order in which the sky's rays take their directions, over a scan of ray densities (issue 16).
 
-    python benchmarks/bench_sky_order.py [--n-plants 100 500] [--rays 1e7 2e7 5e7 8e7 1e8]
+    python benchmarks/bench_sky_order.py [--n-plants 100 500] [--rays 1e7 2e7 5e7 8e7 1e8] [--out JSON]
 
 The projection's sky rays take consecutive points of an R₂ sequence as their directions, in an
 order over the grid cells (:data:`lightfit.light.projection.SKY_TILE`): tiles of 16 × 16 cells in
@@ -10,20 +10,18 @@ per m², ``bounces=0``: the sky part is then the sky seen directly), each order 
 density, one render at K = 16 gives the blades' median relative SE of the sky part times
 √(rays / 10⁷ per m²): constant when the SE falls as 1/√rays, so a row that rises marks an order
 whose directions cluster on the rays that meet a segment at that grid. Writes
-benchmarks/results/sky_order.json and prints a table, with the commit and the load average.
+benchmarks/results/sky_order.json (or ``--out``) and prints a table, with the commit and the load average.
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
-import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from provenance import out_option, write_result  # same script folder
 from rich.console import Console
 from rich.table import Table
 
@@ -41,7 +39,6 @@ ORDERS = {"tiled Z-order (16)": 16, "row-major (before)": 0}
 
 
 def main(n_plants=(100, 500), rays=(1e7, 2e7, 5e7, 8e7, 1e8)) -> dict:
-    load_start = os.getloadavg()[0]
     rows = []
     default = projection.SKY_TILE
     try:
@@ -74,9 +71,8 @@ def main(n_plants=(100, 500), rays=(1e7, 2e7, 5e7, 8e7, 1e8)) -> dict:
                     gc.collect()
     finally:
         projection.SKY_TILE = default
-    res = {**commit_state(), "load_average_start": load_start, "load_average_end": os.getloadavg()[0], "rows": rows}
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    res = {"rows": rows}
+    write_result(OUT, res, indent=2)
     t = Table(title="Sky directions' order: blades' median relative SE of the sky part × √(rays / 10⁷ per m²)")
     t.add_column("plants")
     t.add_column("sky rays per m²")
@@ -98,5 +94,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, nargs="+", default=[100, 500])
     ap.add_argument("--rays", type=float, nargs="+", default=[1e7, 2e7, 5e7, 8e7, 1e8])
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(tuple(a.n_plants), tuple(a.rays))

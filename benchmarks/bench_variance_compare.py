@@ -25,6 +25,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from provenance import out_option, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -104,8 +105,7 @@ def main(
             )
         console.print(tab)
     res["load_average_end"] = os.getloadavg()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
+    write_result(out, res, indent=1)
     return res
 
 
@@ -117,6 +117,6 @@ if __name__ == "__main__":
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=3, help="fixed-K renders timed per round")
     ap.add_argument("--adaptive", action="store_true", help="also compare the adaptive render")
-    ap.add_argument("--out", type=Path, default=OUT)
+    out_option(ap, OUT)
     a = ap.parse_args()
     main(a.base_commit, a.n_plants, a.target, a.rounds, a.repeat, a.adaptive, a.out)

@@ -1,6 +1,6 @@
 """Benchmark: what one projected sky ray costs, and how much of it is the periodic walk (issue 16).
 
-    python benchmarks/bench_walk.py [--n-plants 500] [--rays 4e6] [--rounds 5]
+    python benchmarks/bench_walk.py [--n-plants 500] [--rays 4e6] [--rounds 5] [--out JSON]
 
 The sky's first walk is the largest part of a render of the 500-plant cell (docs/light.md, "Where
 the time goes"). This bench takes ``--rays`` rays as the sky's first walk casts them (origins
@@ -21,20 +21,19 @@ seed 1) and times, alternating round by round in one process (the median of ``--
 It also counts the walk's side crossings and, for Dr.Jit's 16-wide packets of consecutive rays,
 the loop's iterations per packet (a symbolic loop runs a packet until its last lane is done).
 
-Writes benchmarks/results/walk.json and prints a table with the commit and load average (2 shared
-cores: compare the rows of one run, not absolute times across runs).
+Writes benchmarks/results/walk.json (or ``--out``) and prints a table with the commit and load average
+(2 shared cores: compare the rows of one run, not absolute times across runs).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_light import commit_state  # same script folder
+from provenance import out_option, write_result  # same script folder
 from rich.console import Console
 from rich.table import Table
 
@@ -81,7 +80,6 @@ def tiled(mesh: Mesh, cell) -> Mesh:
 def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
     import drjit as dr
 
-    load_start = os.getloadavg()[0]
     optics = Optics.preset("prospect")
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)
     cell = geom.cell
@@ -153,8 +151,6 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
         for name, ts in times.items()
     ]
     res = {
-        **commit_state(),
-        "cpu_cores": os.cpu_count(),
         "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
         "cell_m": list(cell.size_m),
         "z_top_m": float(tracer.z_top),
@@ -167,11 +163,8 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
         "packet_iterations_mean": float(packets.max(axis=1).mean() + 1),
         "status_share": {name: float(np.mean(status == v)) for name, v in (("leaf", LEAF), ("soil", SOIL))},
         "rows": rows,
-        "load_average_start": load_start,
-        "load_average_end": os.getloadavg()[0],
     }
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=2))
+    res = json.loads(write_result(OUT, res, indent=2).read_text())  # with the provenance, for the summary
     console = Console()
     t = Table(title=f"sky rays' first walk: {n_rays:.0e} rays, {res['n_plants_measured']} plants, 2 CPU cores")
     for c in ("case", "faces", "time", "M rays/s", "÷ walk"):
@@ -190,7 +183,9 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
         f"loop iterations per ray {res['lane_iterations_mean']:.2f}, per {PACKET}-wide packet "
         f"{res['packet_iterations_mean']:.2f}"
     )
-    console.print(f"commit {res['lightfit_commit']}, load {load_start:.1f} → {res['load_average_end']:.1f}")
+    console.print(
+        f"commit {res['lightfit_commit']}, load {res['load_average_start']:.1f} → {res['load_average_end']:.1f}"
+    )
     return res
 
 
@@ -199,5 +194,7 @@ if __name__ == "__main__":
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--rays", type=float, default=4e6)
     ap.add_argument("--rounds", type=int, default=5)
+    out_option(ap, OUT)
     a = ap.parse_args()
+    OUT = a.out
     main(a.n_plants, int(a.rays), a.rounds)

@@ -162,7 +162,7 @@ def _reference_render(geom, ids) -> dict:
 
 
 def prepare(n_plants: int, python_version: str, sheaths: str) -> None:
-    from bench_light import commit_state
+    from provenance import commit_state
 
     from lightfit.light.scene import Optics
     from lightfit.plant import Field, build, organ_class
@@ -227,6 +227,7 @@ def source_digest() -> str:
 
 def run(out: Path, budget_s: float, settings) -> dict:
     from bench_light import direct_projection_comparison
+    from provenance import write_result
 
     from lightfit.light import backend
     from lightfit.light.estimator import bounces_for_tolerance
@@ -261,7 +262,7 @@ def run(out: Path, budget_s: float, settings) -> dict:
     out.mkdir(parents=True, exist_ok=True)
 
     def save():  # after every stage: a run stopped by the device's time limit keeps what it measured
-        (out / "device_light.json").write_text(json.dumps(res, indent=2))
+        write_result(out / "device_light.json", res, indent=2)  # no git there: the code is source_digest
 
     res["agreement"] = _agreement(fs, ids, g)
     print(

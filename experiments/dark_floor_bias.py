@@ -34,7 +34,8 @@ from rich.table import Table
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_light import commit_state, periodic_cell  # noqa: E402
+from bench_light import periodic_cell  # noqa: E402
+from provenance import commit_state  # noqa: E402
 
 from lightfit.light.estimator import DARK_FLOOR, SegmentEstimator, render_adaptive  # noqa: E402
 from lightfit.plant.sheaths import SHEATHS  # noqa: E402

@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
-from bench_light import commit_state  # noqa: E402
+from provenance import commit_state  # noqa: E402
 
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402

@@ -59,7 +59,7 @@ def _total_ratio(w: np.ndarray, sd: np.ndarray, x_rep: np.ndarray) -> tuple[floa
 
 
 def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
-    from bench_light import commit_state
+    from provenance import commit_state
 
     from lightfit import replication as rep
     from lightfit.light.estimator import SegmentEstimator

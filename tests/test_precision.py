@@ -12,8 +12,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: Scripts that never import lightfit or JAX: the LESS runner runs in LESS's own environment
 #: (benchmarks/bench_less.py calls it with that interpreter); bench_variance_compare.py only runs
-#: bench_variance.py (which applies the policy) in subprocesses on two source trees.
-FOREIGN = {"less_runner.py", "bench_variance_compare.py"}
+#: bench_variance.py (which applies the policy) in subprocesses on two source trees; provenance.py is
+#: the scripts' record of commit, cores and load, imported by them after they apply it.
+FOREIGN = {"less_runner.py", "bench_variance_compare.py", "provenance.py"}
 SCRIPTS = [
     p
     for p in sorted((ROOT / "experiments").glob("*.py")) + sorted((ROOT / "benchmarks").glob("*.py"))

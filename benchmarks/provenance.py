@@ -1,0 +1,71 @@
+"""What every benchmark result records, so that a number can be traced, and where it is written.
+
+A script under benchmarks/ writes its JSON through :func:`write_result` to ``--out``
+(:func:`out_option`; default: its tracked file under benchmarks/results/, which the docs cite, so
+a rerun for a look elsewhere passes ``--out /tmp/x.json``). The record adds, unless the script set
+them itself: the commit, whether lightfit/ or benchmarks/ had uncommitted changes, the cores, the
+load average at the start (this module's import, before the script's work) and the end, and the
+command line. Absolute times on a shared machine move with its load: compare settings measured side
+by side in one run (docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The 1-minute load average when the script started (imported before its work begins).
+LOAD_AT_START = os.getloadavg()[0]
+
+
+def commit_state() -> dict:
+    """The commit measured, and whether lightfit/ or benchmarks/ had uncommitted changes; ``None``
+    for each where the tree is no git checkout (the device machine's copy: device_light.py names
+    its code by a digest of the sources instead) or git is missing."""
+    keys = ("lightfit_commit", "lightfit_uncommitted_changes", "benchmarks_uncommitted_changes")
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+
+    try:
+        commit = git("rev-parse", "--short", "HEAD")
+    except FileNotFoundError:
+        commit = ""
+    if not commit:
+        return dict.fromkeys(keys)
+    lightfit = bool(git("status", "--porcelain", "lightfit"))
+    benchmarks = bool(git("status", "--porcelain", "benchmarks", ":!benchmarks/results"))
+    return dict(zip(keys, (commit, lightfit, benchmarks)))
+
+
+def out_option(parser: argparse.ArgumentParser, default: Path) -> None:
+    """``--out``: the JSON to write (default ``default``, the tracked result)."""
+    rel = default.resolve().relative_to(ROOT) if default.resolve().is_relative_to(ROOT) else default
+    parser.add_argument(
+        "--out", type=Path, default=default, help=f"JSON to write (default {rel}, the tracked result the docs cite)"
+    )
+
+
+def record() -> dict:
+    """The provenance fields :func:`write_result` adds."""
+    return {
+        **commit_state(),
+        "cpu_cores": os.cpu_count(),
+        "load_average_start": LOAD_AT_START,
+        "load_average_end": os.getloadavg()[0],
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+    }
+
+
+def write_result(path: Path, result: dict, **dump) -> Path:
+    """``result`` with :func:`record`'s fields first (the script's own values win) as JSON at ``path``."""
+    full = {k: v for k, v in record().items() if k not in result} | result
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(full, **({"indent": 2} | dump)) + "\n")
+    return path
