@@ -1056,6 +1056,14 @@ def test_cautions_say_what_the_numbers_cannot():
     )
     assert lines == ["the MAP search did not converge (ABNORMAL): MAP is the best sample it started from"]
     assert _cautions({"names": ["a"], "rhat": [1.01], "tau_reliable": True, "acceptance_ok": True}) == []
+    # An emulator whose measured error moves the posterior by more than EMULATOR_SHIFT_CAUTION_SD is named.
+    from lightfit.inference.posterior import EMULATOR_SHIFT_CAUTION_SD as lim
+
+    ok = {"names": ["a"], "rhat": [1.01], "emulator_error": {"max_shift_over_sd": 0.9 * lim}}
+    assert _cautions(ok) == []
+    bad = {"names": ["a"], "rhat": [1.01], "emulator_error": {"max_shift_over_sd": 1.6, "at_map_shift_over_sd": 1.6}}
+    (line,) = _cautions(bad)
+    assert "up to 1.6 posterior SD" in line and "1.6 at the MAP's leaf" in line and "--n-design 40" in line
 
 
 def test_the_map_search_holds_the_monte_carlo_sds_of_its_start():

@@ -273,10 +273,12 @@ def posterior(
 def _cautions(d: dict) -> list[str]:
     """What a posterior's diagnostics ``d`` (a run's summary or its stored diagnostics) warn of:
     walkers that disagree (split-R̂, separate modes), τ not yet reliable by the stop rule's own
-    multiple, an acceptance outside 0.1–0.8, a MAP the optimiser did not reach."""
+    multiple, an acceptance outside 0.1–0.8, a MAP the optimiser did not reach, an emulator whose
+    measured error moves the posterior by more than ``EMULATOR_SHIFT_CAUTION_SD``."""
     import numpy as np
 
     from lightfit.inference.mcmc.diagnostics import ACCEPTANCE_OK, StopRule
+    from lightfit.inference.posterior import EMULATOR_SHIFT_CAUTION_SD
 
     out = []
     names, rhat = list(d.get("names", [])), np.asarray(d.get("rhat", []), float)
@@ -304,6 +306,17 @@ def _cautions(d: dict) -> list[str]:
     if d.get("map_converged") is False:
         where = "the best sample it started from" if d.get("map_kept_start") else "the best point it reached"
         out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is {where}")
+    ee = d.get("emulator_error") or {}
+    shift = ee.get("max_shift_over_sd")
+    if shift is not None and float(shift) > EMULATOR_SHIFT_CAUTION_SD:
+        at_map = ee.get("at_map_shift_over_sd")
+        where = "" if at_map is None else f"; {float(at_map):.2g} at the MAP's leaf"
+        out.append(
+            f"the emulator's measured error moves the posterior mean by up to {float(shift):.2g} posterior SD "
+            f"(above {EMULATOR_SHIFT_CAUTION_SD:g}{where}): the intervals are off by that much; a larger design "
+            "(--n-design 40 allows a cubic emulator where 20 caps it at quadratic) lowers it, most near the box's "
+            "corners"
+        )
     return out
 
 
@@ -364,7 +377,8 @@ def _print_status(st: dict) -> None:
         "map_message": ms.get("message"),
         "map_kept_start": ms.get("kept_start"),
     }
-    for line in _cautions({"names": st["names"], **d, "acceptance_ok": True, **map_info}):  # acceptance said above
+    said = {"names": st["names"], **d, "acceptance_ok": True, **map_info, "emulator_error": st.get("emulator_error")}
+    for line in _cautions(said):  # acceptance said above
         caution(line)
     if st["refused"]:
         console.print(

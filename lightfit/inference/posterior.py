@@ -171,6 +171,10 @@ def check_matching(
 #: What a resumed posterior run must share with the stored one, besides the checks above (names and
 #: walkers: the sampler; model settings and emulator: the command line), as :func:`resume_key` gives it.
 RESUME_ENTRIES = ("seed", "use", "priors", "fixed", "observations_sha256")
+#: Largest linearised shift of the posterior mean, in posterior SDs, that the emulator's measured error
+#: (:func:`emulator_error_vs_width`) may cause before a run is cautioned: a Gaussian 90 % interval
+#: moved by 0.5 of its SD covers 86 % (by 1: 74 %).
+EMULATOR_SHIFT_CAUTION_SD = 0.5
 _EXPECTED_RESUME = "the run's own settings to resume it, --no-resume to start again, or another --out"
 _STORED_AS = {"seed": int, "use": list, "priors": list, "fixed": dict, "observations_sha256": str}
 

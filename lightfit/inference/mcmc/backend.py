@@ -268,6 +268,7 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
         "last_check": last,
         "analysis": "analysis" in run,
         "map_search": run.get("analysis", {}).get("map_search"),
+        "emulator_error": run.get("analysis", {}).get("emulator_error"),
         "refused": int(a.get("refused", 0)),
     }
 
