@@ -38,7 +38,7 @@ from lightfit.photosynthesis.canopy import check_profile, profile_for
 from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
 from lightfit.plant.field import DEFAULT_BUFFER_ROWS, DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS
-from lightfit.plant.growth import GrowthConfig
+from lightfit.plant.growth import GrowthConfig, parameter_file_setting
 from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
 from lightfit.weather import timestamps
@@ -77,7 +77,8 @@ class ReplicationConfig:
     ``headings``: ``"random"`` (default: each plant turned about its base by its own angle) or
     ``"aligned"`` (every plant as CPlantBox grows it, facing the same way; the reference paper's
     field; :attr:`Field.headings`).
-    ``row_spacing_m``, ``plant_spacing_m`` (Selhausen's 0.125 m and 0.03 m: 267 plants m⁻²),
+    ``row_spacing_m``, ``plant_spacing_m`` (0.125 m drill rows, common German practice, and 0.03 m: 267
+    plants m⁻²; :data:`~lightfit.plant.field.DEFAULT_ROW_SPACING_M`),
     ``row_direction_deg`` (compass azimuth of the rows, 90 = east–west) and ``parameter_file``
     (the CPlantBox plant XML, a path or a bundled name): the field's layout and its plants
     (:class:`~lightfit.plant.Field`, :class:`~lightfit.plant.growth.GrowthConfig`).
@@ -157,6 +158,7 @@ class ReplicationConfig:
             check_growth_temperature(self.photosynthesis, t_g)
         object.__setattr__(self, "growth_temperature_c", t_g)
         object.__setattr__(self, "vcmax_profile", check_profile(self.vcmax_profile))
+        object.__setattr__(self, "parameter_file", parameter_file_setting(self.parameter_file))
         check_sky(self.sky)
 
     @staticmethod
@@ -199,6 +201,9 @@ class ReplicationConfig:
                 "photosynthesis",
                 "par_kind",
                 "growth_temperature_c",
+                "parameter_file",
+                "soil_albedo",
+                "sky",
             )
             same_profile = profile_for(self.vcmax_profile, self.photosynthesis) == profile_for(
                 ref.vcmax_profile, ref.photosynthesis
@@ -287,6 +292,11 @@ PAPER_PRESET = {
     "vcmax_profile": "auto",  # the set's own: uniform for giraud2023
     "growth_temperature_c": None,  # giraud2023 does not acclimate
     "par_kind": "absorbed",
+    # the paper's plants, soil and sky are lightfit's own; listed so that a preset resets them
+    # (--compare-preset runs the preset, not a hybrid with the run's soil) and names only its runs
+    "parameter_file": GrowthConfig.parameter_file,
+    "soil_albedo": SOIL_ALBEDO,
+    "sky": Scenario.sky,
 }
 #: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.
 PRESETS = ("default", "paper")

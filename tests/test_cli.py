@@ -308,14 +308,62 @@ def test_field_soil_and_sky_options_reach_the_run(tmp_path):
         (["--sky", "cloudy"], ["--sky", "isotropic or overcast"]),
     ],
 )
-def test_field_soil_and_sky_options_are_checked_before_plants_grow(tmp_path, monkeypatch, args, words):
-    from lightfit import replication
+def test_field_soil_and_sky_options_are_checked_before_plants_grow(tmp_path, args, words):
+    """Refused before anything is grown or written (the forcing is the first file a run writes)."""
+    out = tmp_path / "out"
+    assert_user_error(runner.invoke(app, ["replicate", "--quick", *args, "--out", str(out)]), *words)
+    assert not out.exists()
 
-    def never(*a, **k):
-        raise AssertionError("ran")
 
-    monkeypatch.setattr(replication, "run", never)
-    assert_user_error(runner.invoke(app, ["replicate", "--quick", *args, "--out", str(tmp_path)]), *words)
+def test_a_soil_too_bright_for_the_bounce_rule_is_refused_before_the_run_unless_bounces_are_given(tmp_path):
+    """The bounces are chosen from leaf and soil when not given; for an albedo no number of them brings
+    under 1 % the run is refused before anything is written (it was, after the forcing); given bounces
+    (or --quick's) run, with a caution saying what they leave out."""
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["replicate", "--soil-albedo", "0.99", "--out", str(out)])
+    assert_user_error(r, "--bounces", "an albedo of 0.99", "given explicitly")
+    assert not out.exists()
+    r = runner.invoke(app, ["replicate", "--quick", "--soil-albedo", "0.99", "--steps", "14:15", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "no number of bounces the rule hands out keeps it under 1 %" in _flat(r.stderr)
+
+
+def test_a_relative_parameter_file_is_recorded_absolute(tmp_path, monkeypatch):
+    """A parameter file given by a relative path is recorded as its absolute path (results, resumed
+    settings): read back from another folder, the relative one named no file (a review); a bundled
+    name stays a name."""
+    from lightfit.cli.options import ModelOptions, resolve
+    from lightfit.plant.growth import resolve_parameter_file
+    from lightfit.replication import ReplicationConfig
+
+    own = tmp_path / "mine" / "wheat.xml"
+    own.parent.mkdir()
+    own.write_bytes(resolve_parameter_file("Triticum_aestivum_adapted_2021.xml").read_bytes())
+    monkeypatch.chdir(own.parent)
+    s = resolve(ModelOptions(quick=True, parameter_file="wheat.xml"))
+    assert s.parameter_file == str(own) and s.replication_config().parameter_file == str(own)
+    assert ReplicationConfig(parameter_file="wheat.xml").parameter_file == str(own)
+    bundled = "Triticum_aestivum_adapted_2021.xml"
+    assert resolve(ModelOptions(quick=True, parameter_file=bundled)).parameter_file == bundled
+
+
+def test_a_run_with_its_own_soil_sky_or_plants_is_neither_preset_and_a_preset_resets_them():
+    """A preset names a run only where its plants, soil and sky are the preset's too (the figure and
+    results said 'default' for an overcast run on a bright soil); a preset applied (--compare-preset)
+    resets them, so the comparison is the preset, not a hybrid; explicit options still win over it."""
+    from lightfit.cli.options import ModelOptions, resolve
+    from lightfit.light.scene import SOIL_ALBEDO
+    from lightfit.replication import ReplicationConfig
+
+    assert ReplicationConfig().preset == "default" and ReplicationConfig.paper().preset == "paper"
+    for own in ({"soil_albedo": 0.3}, {"sky": "overcast"}, {"parameter_file": "Triticum_aestivum_adapted_2021.xml"}):
+        cfg = ReplicationConfig(**own)
+        assert cfg.preset is None, own
+        for name in ("default", "paper"):
+            assert cfg.with_preset(name).preset == name, (own, name)
+    assert ReplicationConfig(soil_albedo=0.3).with_preset("paper").soil_albedo == SOIL_ALBEDO
+    s = resolve(ModelOptions(quick=True, preset="paper", soil_albedo=0.3))
+    assert s.soil_albedo == 0.3 and s.replication_config().preset is None
 
 
 def test_runs_stored_before_the_field_soil_and_sky_options_compare_as_their_defaults():

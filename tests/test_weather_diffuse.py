@@ -84,6 +84,24 @@ def test_split_closes_the_energy_balance_and_cuts_what_no_sun_gives():
     np.testing.assert_array_equal(out["dhi_w_m2"].to_numpy()[dark], out["ghi_w_m2"].to_numpy()[dark])
 
 
+def test_a_diffuse_reading_of_zero_gives_no_negative_sky_and_the_model_takes_it():
+    """A lit step whose diffuse reads 0 (a dark offset the reader clamps) and whose beam is not cut:
+    the closure DHI = GHI − DNI sin β left ≈ −1e-13 W m⁻² on about a fifth of such steps, which the
+    scenario's weather check then refused as a negative sky (a review). Now exactly ≥ 0, closure kept."""
+    from lightfit.model.scenario import Scenario
+
+    df = _day(0.2)
+    zero = (df.index.hour >= 7) & (df.index.hour < 16)  # sun above ≈ 20°: no beam cut
+    df.loc[zero, "diffuse_w_m2"] = 0.0
+    out = add_solar(df)
+    lit = zero & (out["sun_elevation_deg"] > 10).to_numpy()
+    assert lit.sum() > 40
+    assert (out["dhi_w_m2"] >= 0).all() and (out["dhi_w_m2"].to_numpy()[lit] < 1e-9).all()
+    sin_b = np.sin(np.radians(out["sun_elevation_deg"].clip(lower=0.0)))
+    np.testing.assert_allclose(out["dni_w_m2"] * sin_b + out["dhi_w_m2"], out["ghi_w_m2"], rtol=1e-12, atol=1e-9)
+    Scenario(weather=out)
+
+
 @pytest.mark.parametrize(
     "edit, words",
     [

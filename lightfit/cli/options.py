@@ -43,7 +43,7 @@ from lightfit.model.scenario import (
     Scenario,
 )
 from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, Field, check_headings
-from lightfit.plant.growth import DEFAULT_PARAMETER_FILE
+from lightfit.plant.growth import DEFAULT_PARAMETER_FILE, parameter_file_setting
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
 
@@ -298,7 +298,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--row-spacing",
-            help=f"Distance between wheat rows, m (default {DEFAULT_ROW_SPACING_M:g}, Selhausen's).",
+            help=f"Distance between wheat rows, m (default {DEFAULT_ROW_SPACING_M:g}: drill rows, common German "
+            "practice).",
             rich_help_panel=_FIELD,
         ),
     ),
@@ -738,7 +739,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         row_spacing_m=given(opts.row_spacing_m, base.row_spacing_m),
         plant_spacing_m=given(opts.plant_spacing_m, base.plant_spacing_m),
         row_direction_deg=given(opts.row_direction_deg, base.row_direction_deg),
-        parameter_file=given(opts.parameter_file, base.parameter_file),
+        parameter_file=parameter_file_setting(given(opts.parameter_file, base.parameter_file)),
         field_seed=given(opts.field_seed, base.seed),
         samples=given(opts.samples, main_job_samples(direct) if base.samples is None else base.samples),
         bounces=given(opts.bounces, base.bounces),
@@ -791,19 +792,29 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     check_seed(s.render_seed)
     if s.ceptometer_height_m is not None:
         check_ceptometer_height(s.ceptometer_height_m)
-    if s.bounces is not None:  # None: chosen from the leaf; given (or --quick's): say what it leaves out
+    if s.bounces is None:  # chosen from the leaf and soil: one too bright for any number is refused now
+        s.replication_config().render_bounces()
+    else:  # given (or --quick's): say what it leaves out
         check_bounces(s.bounces)
         optics = s.replication_config().leaf_optics()
-        own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
-        if s.bounces < own:
+        try:
+            own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
+        except InputError:  # a leaf or soil too bright for any number the rule hands out: given, taken
+            own = None
+        if own is None or s.bounces < own:
             from lightfit.cli.common import caution
 
             source = f"--bounces {s.bounces}" if opts.bounces is not None else f"--quick's {s.bounces} bounces"
+            default = (
+                "no number of bounces the rule hands out keeps it under "
+                f"{100 * BOUNCE_TOLERANCE:g} % for this leaf and soil"
+                if own is None
+                else f"this leaf's default, {own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"
+                + ("" if opts.bounces is not None else f" (--bounces {own})")
+            )
             (say or caution)(
                 f"{source} leaves out the light scattered more often, up to "
-                f"{truncation_bound(s.bounces, optics):.1%} of the unscattered light; this leaf's default, "
-                f"{own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"
-                + ("" if opts.bounces is not None else f" (--bounces {own})")
+                f"{truncation_bound(s.bounces, optics):.1%} of the unscattered light; {default}"
             )
     if s.target_rse is not None:
         check_target_rse(s.target_rse)

@@ -147,7 +147,7 @@ class FieldScene:
         mesh: Mesh | FieldGeometry,
         optics: Optics | None = None,
         *,
-        sky: str = "isotropic",
+        sky: str = SKY_MODELS[0],
         cell: PeriodicCell | None = None,
         crossing_tolerance: float = DEFAULT_CROSSING_TOLERANCE,
     ):

@@ -30,7 +30,7 @@ from lightfit.light.estimator import (
 )
 from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import Optics, check_sky
+from lightfit.light.scene import SKY_MODELS, Optics, check_sky
 from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
@@ -357,7 +357,7 @@ class Scenario:
     par_kind: str = "absorbed"
     an_per: str = "ground"
     optics: Optics = dc_field(default_factory=lambda: Optics.preset(DEFAULT_PRESET))
-    sky: str = "isotropic"
+    sky: str = SKY_MODELS[0]
     soil_respiration_umol_m2_s: float = SOIL_RESPIRATION_UMOL_M2_S
     soil_respiration_q10: float = SOIL_RESPIRATION_Q10
     n_tiles: int = 1

@@ -39,7 +39,7 @@ from lightfit.errors import InputError, check_integer, is_real
 from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
-from lightfit.plant.periodic import PeriodicCell, row_axes
+from lightfit.plant.periodic import DEFAULT_ROW_DIRECTION_DEG, PeriodicCell, row_axes
 from lightfit.plant.sheaths import SHEATHS, check_sheaths, lay_sheaths
 
 #: Winter wheat at ~270 plants m⁻²: 12.5 cm drill rows (common German practice) and 3 cm
@@ -134,7 +134,7 @@ class Field:
     row_spacing_m: float = DEFAULT_ROW_SPACING_M
     plant_spacing_m: float = DEFAULT_PLANT_SPACING_M
     buffer_rows: int | None = None
-    row_direction_deg: float = 90.0
+    row_direction_deg: float = DEFAULT_ROW_DIRECTION_DEG
     seed: int = 0
     growth: GrowthConfig = field(default_factory=GrowthConfig)
     buffer_along: int | None = None

@@ -81,6 +81,14 @@ def parameter_dir() -> Path:
     return Path(plantbox.__file__).resolve().parent / "modelparameter" / "structural" / "plant"
 
 
+def parameter_file_setting(name: str | os.PathLike) -> str:
+    """A parameter file as a run records it: an existing path made absolute (a relative one names
+    another file, or none, from another folder: a results file read back there, a resumed run),
+    a bundled name as given. Looked up as :func:`resolve_parameter_file` does, path first."""
+    p = Path(name)
+    return str(p.resolve()) if p.exists() else str(name)
+
+
 def resolve_parameter_file(name: str | os.PathLike) -> Path:
     """A plant parameter XML: a path, or a file name in CPlantBox's bundled set.
 

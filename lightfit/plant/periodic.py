@@ -38,6 +38,10 @@ def row_axes(row_direction_deg: float) -> tuple[np.ndarray, np.ndarray]:
     return along, np.array([-along[1], along[0]])
 
 
+#: Compass azimuth of the rows unless given, degrees: east–west (the rows along x).
+DEFAULT_ROW_DIRECTION_DEG = 90.0
+
+
 @dataclass(frozen=True)
 class PeriodicCell:
     """One cell of a rectangular lattice of identical copies of the field.
@@ -51,7 +55,7 @@ class PeriodicCell:
 
     along_m: float
     across_m: float
-    row_direction_deg: float = 90.0
+    row_direction_deg: float = DEFAULT_ROW_DIRECTION_DEG
     center_xy: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):

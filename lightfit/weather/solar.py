@@ -243,7 +243,9 @@ def split_from_diffuse(
     )
     raw = (ghi - dhi) / np.sin(np.radians(sun_elevation_deg.where(up, 90.0)))
     dni = pvlib.irradiance.dni(ghi, dhi, zenith, dni_clear=clear["dni"]).fillna(0.0).where(up, 0.0)
-    dhi = ghi - dni * np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
+    # The closure GHI = DNI sin β + DHI; clipped at 0 and GHI: where the file's diffuse is 0 (a clamped
+    # dark offset) and the beam is not cut, rounding leaves ≈ −1e-13 W m⁻², which is no irradiance.
+    dhi = (ghi - dni * np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))).clip(lower=0.0, upper=ghi)
     counts = {
         "diffuse_above_global": int((up & (diffuse > ghi)).sum()),
         "beam_cut": int((up & (dni < raw - 1e-9)).sum()),
