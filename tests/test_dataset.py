@@ -840,3 +840,47 @@ def test_cli_a_results_file_that_is_not_netcdf_is_refused_by_name(tmp_path):
         r = CliRunner().invoke(app, ["render-dataset", str(source), "--out", str(tmp_path / "x")])
         err = " ".join(r.stderr.split())
         assert r.exit_code == 2 and err.startswith(f"error: {source}: {text}") and "http" not in err, err
+
+
+@pytest.mark.parametrize("sky", ["isotropic", "overcast"])
+def test_the_images_sky_is_the_runs_own(sky, results_file):
+    """render-dataset lit every image with an isotropic sky, also for a run rendered under the CIE
+    overcast one (a review): its sky is now the results'. Peer: Mitsuba's irradiancemeter under the
+    data scene's sky emitter, on a horizontal plane (DHI) and on a vertical one above a black ground
+    (the closed forms the light model is tested against in test_light_irradiance.py: 0.5 DHI under the
+    isotropic sky, 9/(7π)·(π/2 + 4/3)/3 ≈ 0.396 DHI under the overcast one)."""
+    import math
+
+    import xarray as xr
+
+    from lightfit.dataset.render import _emitters
+    from lightfit.dataset.results import lighting
+    from lightfit.light import backend
+
+    mi = backend.mitsuba()
+    dhi = 100.0
+    light = Lighting(30.0, 180.0, 0.0, dhi, sky=sky)
+    wall = 0.5 if sky == "isotropic" else 9 / (7 * math.pi) * (math.pi / 2 + 4 / 3) / 3
+    ground = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, -0.02]).scale(1000)}
+    ground["bsdf"] = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}
+    for turn, expected in ((0, dhi), (90, wall * dhi)):
+        meter = {
+            "type": "rectangle",
+            "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], turn).scale(0.01),
+            "sensor": {
+                "type": "irradiancemeter",
+                "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"}},
+                "sampler": {"type": "independent", "sample_count": 2**18},
+            },
+        }
+        scene = mi.load_dict(
+            {"type": "scene", **_emitters(light), "ground": ground, "meter": meter, "integrator": {"type": "direct"}}
+        )
+        e = float(np.mean(np.asarray(mi.render(scene, seed=1))))
+        assert e == pytest.approx(expected, rel=0.005), (sky, turn, e, expected)
+    # The results' sky reaches the lights a dataset renders with.
+    with xr.open_dataset(results_file) as ds:
+        path = results_file.parent / f"{sky}.nc"
+        ds.assign_attrs(sky=sky).to_netcdf(path)
+    (lt,) = lighting(open_results(path), [1])
+    assert lt.sky == sky and ("sky" in lt.to_dict()) == (sky == "overcast")

@@ -13,6 +13,10 @@ from lightfit.cli.options import (
     BUFFER_ALONG_HELP,
     BUFFER_ROWS_HELP,
     HEADINGS_HELP,
+    PARAMETER_FILE_HELP,
+    PLANT_SPACING_HELP,
+    ROW_DIRECTION_HELP,
+    ROW_SPACING_HELP,
     SHEATHS_HELP,
     check_boundary,
 )
@@ -31,20 +35,18 @@ def field(
         show_default=False,
     ),
     quick: bool = typer.Option(False, "--quick", help="The small field of replicate --quick and field-run --quick."),
-    row_spacing: float = typer.Option(DEFAULT_ROW_SPACING_M, help="Distance between wheat rows, m."),
-    plant_spacing: float = typer.Option(DEFAULT_PLANT_SPACING_M, help="Distance between plants in a row, m."),
+    row_spacing: float = typer.Option(DEFAULT_ROW_SPACING_M, help=ROW_SPACING_HELP),
+    plant_spacing: float = typer.Option(DEFAULT_PLANT_SPACING_M, help=PLANT_SPACING_HELP),
     boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
     buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
     sheaths: str = typer.Option(SHEATHS[0], help=SHEATHS_HELP),
     headings: str = typer.Option(HEADINGS[0], help=HEADINGS_HELP),
-    row_direction: float = typer.Option(
-        Field.row_direction_deg, help="Compass azimuth of the rows, degrees (90 = east–west)."
-    ),
+    row_direction: float = typer.Option(Field.row_direction_deg, help=ROW_DIRECTION_HELP),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
     ),
-    parameter_file: str = typer.Option(GrowthConfig.parameter_file, help="CPlantBox plant XML (path or bundled name)."),
+    parameter_file: str = typer.Option(GrowthConfig.parameter_file, help=PARAMETER_FILE_HELP),
     season_start: str = typer.Option(None, help="First day of growth (default: 5 March of the date's year)."),
     date: str = typer.Option(GrowthConfig.target_date, help="Date the plants are grown to."),
     tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),

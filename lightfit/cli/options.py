@@ -49,7 +49,16 @@ from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
 
-#: Help of the field-boundary options (shared with the ``field`` command).
+#: Help of the field options (shared with the ``field`` command).
+ROW_SPACING_HELP = (
+    f"Distance between wheat rows, m (default {DEFAULT_ROW_SPACING_M:g}: drill rows, common German practice)."
+)
+PLANT_SPACING_HELP = (
+    f"Distance between plants in a row, m (default {DEFAULT_PLANT_SPACING_M:g}: with the default rows "
+    f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²)."
+)
+ROW_DIRECTION_HELP = f"Compass azimuth of the rows, degrees (default {Field.row_direction_deg:g} = east–west)."
+PARAMETER_FILE_HELP = f"CPlantBox plant XML, a path or a bundled name (default {DEFAULT_PARAMETER_FILE})."
 BOUNDARY_HELP = (
     "Field boundary: periodic (default: the measurement area is one cell of an infinite field, "
     "no buffer plants) or finite (buffer rows on bare soil; --boundary finite with its default "
@@ -298,8 +307,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--row-spacing",
-            help=f"Distance between wheat rows, m (default {DEFAULT_ROW_SPACING_M:g}: drill rows, common German "
-            "practice).",
+            help=ROW_SPACING_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -307,8 +315,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--plant-spacing",
-            help=f"Distance between plants in a row, m (default {DEFAULT_PLANT_SPACING_M:g}: with the default rows "
-            f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²).",
+            help=PLANT_SPACING_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -316,7 +323,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--row-direction",
-            help=f"Compass azimuth of the rows, degrees (default {Field.row_direction_deg:g} = east–west).",
+            help=ROW_DIRECTION_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -324,7 +331,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--parameter-file",
-            help=f"CPlantBox plant XML, a path or a bundled name (default {DEFAULT_PARAMETER_FILE}).",
+            help=PARAMETER_FILE_HELP,
             rich_help_panel=_FIELD,
         ),
     ),

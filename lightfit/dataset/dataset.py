@@ -317,7 +317,12 @@ def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendere
             "depth_m": "distance along the optical axis, m; NaN = sky",
             MARGIN: "(Vj - Vc)/(Vj + Vc): > 0 Fj > Fc (red), < 0 Fj < Fc (blue)",
         },
-        "image_units": "HDR radiance W m-2 sr-1 per channel under a white sun (DNI) and isotropic white sky (DHI/pi)",
+        "image_units": "HDR radiance W m-2 sr-1 per channel under a white sun (DNI) and "
+        + (
+            "a white CIE standard overcast sky of horizontal irradiance DHI (the run's sky)"
+            if res.ds.attrs.get("sky") == "overcast"
+            else "isotropic white sky (DHI/pi)"
+        ),
         "labels_sampling": "one ray through each pixel centre; images average spp jittered paths per pixel",
         "images": images,
     }

@@ -36,7 +36,7 @@ from lightfit.dataset.camera import Camera
 from lightfit.dataset.scene import Lighting, SceneArrays, VisualMaterials
 from lightfit.errors import InputError, check_integer
 from lightfit.light.keyed_random import check_seed
-from lightfit.light.scene import sun_vector
+from lightfit.light.scene import overcast_radiance_per_dhi, sun_vector
 
 COLOURS = ("rgb", "mono")
 
@@ -226,7 +226,8 @@ class _SceneBuilder:
 
 
 def _emitters(light: Lighting) -> dict:
-    """Sun (directional, DNI) above the horizon and an isotropic sky of radiance DHI/π."""
+    """Sun (directional, DNI) above the horizon and the sky: isotropic, radiance DHI/π, or the CIE
+    overcast sky with the same DHI (:func:`_overcast_sky`)."""
     out = {}
     if light.sun_elevation_deg > 0 and light.dni_w_m2 > 0:
         s = sun_vector(light.sun_elevation_deg, light.sun_azimuth_deg)
@@ -236,8 +237,34 @@ def _emitters(light: Lighting) -> dict:
             "irradiance": {"type": "rgb", "value": float(light.dni_w_m2)},
         }
     if light.dhi_w_m2 > 0:
-        out["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": float(light.dhi_w_m2 / np.pi)}}
+        if light.sky == "overcast":
+            out["sky"] = _overcast_sky(light.dhi_w_m2)
+        else:
+            out["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": float(light.dhi_w_m2 / np.pi)}}
     return out
+
+
+#: Rows of the overcast sky's latitude–longitude map (zenith angle 0–180° in 0.7° rows; the
+#: horizon on a row boundary). Its horizontal irradiance is DHI to 0.1 % (tests/test_dataset.py).
+OVERCAST_ROWS = 256
+
+
+def _overcast_sky(dhi_w_m2: float) -> dict:
+    """Mitsuba ``envmap`` of the CIE standard overcast sky whose horizontal irradiance is ``dhi_w_m2``:
+    radiance by zenith angle from :func:`lightfit.light.scene.overcast_radiance_per_dhi`, 0 below the
+    horizon, the map's up axis (+Y) turned to the scene's +Z."""
+    from lightfit.light.backend import mitsuba
+
+    mi = mitsuba()
+    theta = (np.arange(OVERCAST_ROWS) + 0.5) / OVERCAST_ROWS * np.pi
+    cos_z = np.cos(theta)
+    row = np.where(cos_z > 0, dhi_w_m2 * overcast_radiance_per_dhi(cos_z), 0.0).astype(np.float32)
+    img = np.repeat(np.repeat(row[:, None, None], 2 * OVERCAST_ROWS, axis=1), 3, axis=2)
+    return {
+        "type": "envmap",
+        "bitmap": mi.Bitmap(np.ascontiguousarray(img)),
+        "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90),
+    }
 
 
 def _rays(mi, cam: Camera, dirs: np.ndarray):

@@ -27,6 +27,7 @@ import pandas as pd
 from lightfit.dataset.scene import Lighting
 from lightfit.errors import InputError
 from lightfit.files import is_netcdf
+from lightfit.light.scene import SKY_MODELS
 from lightfit.model import schema
 
 #: Short quantity names → results variables (units: :mod:`lightfit.model.schema`).
@@ -291,7 +292,8 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
                 column="weather",
                 expected="a series spanning the results' times",
             )
-    return [Lighting(*(float(cols[v][i]) for v in LIGHT_VARS)) for i in range(len(time_indices))]
+    sky = str(ds.attrs.get("sky", SKY_MODELS[0]))  # the run's sky lit its labels: the images take it too
+    return [Lighting(*(float(cols[v][i]) for v in LIGHT_VARS), sky=sky) for i in range(len(time_indices))]
 
 
 def _carries_light(res: Results) -> bool:

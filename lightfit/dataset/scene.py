@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.light.scene import SKY_MODELS, check_sky
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
 
@@ -83,19 +84,23 @@ class Lighting:
     Attributes:
         sun_elevation_deg, sun_azimuth_deg: sun position (azimuth clockwise from north), degrees.
         dni_w_m2: direct normal irradiance, W m⁻² (0 below the horizon).
-        dhi_w_m2: diffuse horizontal irradiance, W m⁻²; the sky is isotropic with radiance
-            DHI/π W m⁻² sr⁻¹. Sun and sky are white: each image channel carries the broadband
-            radiance times the surface's channel reflectance.
+        dhi_w_m2: diffuse horizontal irradiance, W m⁻²; the sky's radiance is DHI/π W m⁻² sr⁻¹
+            everywhere (``sky="isotropic"``) or the CIE standard overcast sky's with the same DHI
+            (``"overcast"``; :func:`~lightfit.light.scene.overcast_radiance_per_dhi`), the run's own.
+            Sun and sky are white: each image channel carries the broadband radiance times the
+            surface's channel reflectance.
     """
 
     sun_elevation_deg: float
     sun_azimuth_deg: float
     dni_w_m2: float
     dhi_w_m2: float
+    sky: str = SKY_MODELS[0]
 
     def __post_init__(self):
+        check_sky(self.sky)
         for k, v in asdict(self).items():
-            if not math.isfinite(v):
+            if k != "sky" and not math.isfinite(v):
                 raise InputError(f"{k}={v!r}", column=k, expected="a finite number")
         if self.dni_w_m2 < 0 or self.dhi_w_m2 < 0:
             raise InputError(
@@ -105,7 +110,8 @@ class Lighting:
             )
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        return d if self.sky != SKY_MODELS[0] else {k: v for k, v in d.items() if k != "sky"}  # keys as before
 
 
 @dataclass

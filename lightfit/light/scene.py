@@ -39,6 +39,15 @@ if TYPE_CHECKING:
 SKY_MODELS = ("isotropic", "overcast")
 
 
+def overcast_radiance_per_dhi(cos_zenith):
+    r"""Radiance of the CIE standard overcast sky (Moon & Spencer 1942) per unit horizontal diffuse
+    irradiance, sr⁻¹, above the horizon: :math:`L = \frac{9}{7\pi}\,\frac{1 + 2\cos\theta_z}{3}`,
+    three times brighter at the zenith than at the horizon and normalised so that
+    :math:`\int L \cos\theta_z\,d\omega = 1` over the upper hemisphere. Arithmetic only: numpy
+    or Dr.Jit arrays (the caller sets 0 below the horizon)."""
+    return 9.0 / (7.0 * math.pi) * (1.0 + 2.0 * cos_zenith) / 3.0
+
+
 def check_sky(sky) -> str:
     """``sky`` if it names a sky model (:data:`SKY_MODELS`), else :class:`InputError` naming ``sky``."""
     if sky not in SKY_MODELS:
@@ -222,7 +231,7 @@ class FieldScene:
 
         if self.sky == "isotropic":
             return dr.select(cos_zenith > 0, mitsuba().Float(1.0 / math.pi), 0.0)
-        return dr.select(cos_zenith > 0, 9.0 / (7.0 * math.pi) * (1.0 + 2.0 * cos_zenith) / 3.0, 0.0)
+        return dr.select(cos_zenith > 0, overcast_radiance_per_dhi(cos_zenith), 0.0)
 
     def scattered_ray(self, si, hit_leaf, p_soil, side, wo, sample2, eps: float = RAY_OFFSET_M):
         """The ray leaving a leaf or soil vertex: ``(origin, direction)``, detached.
