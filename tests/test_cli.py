@@ -321,7 +321,7 @@ def test_a_soil_too_bright_for_the_bounce_rule_is_refused_before_the_run_unless_
     (or --quick's) run, with a caution saying what they leave out."""
     out = tmp_path / "out"
     r = runner.invoke(app, ["replicate", "--soil-albedo", "0.99", "--out", str(out)])
-    assert_user_error(r, "--bounces", "an albedo of 0.99", "given explicitly")
+    assert_user_error(r, "--soil-albedo", "an albedo of 0.99", "soil albedo 0.99", "--bounces given")
     assert not out.exists()
     r = runner.invoke(app, ["replicate", "--quick", "--soil-albedo", "0.99", "--steps", "14:15", "--out", str(out)])
     assert r.exit_code == 0, r.output

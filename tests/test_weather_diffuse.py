@@ -84,6 +84,16 @@ def test_split_closes_the_energy_balance_and_cuts_what_no_sun_gives():
     np.testing.assert_array_equal(out["dhi_w_m2"].to_numpy()[dark], out["ghi_w_m2"].to_numpy()[dark])
 
 
+def test_a_negative_global_radiation_built_in_code_is_no_light():
+    """The readers clamp a dark offset to 0; a series built in code may keep a negative total, which the
+    split now takes as 0 (no beam, no sky), as a negative PAR is: the closure clipped DHI alone before."""
+    df = _day(0.2)
+    noon = pd.Timestamp("2016-04-20 11:00", tz="UTC")
+    df.loc[noon, "ghi_w_m2"] = -5.0
+    out = add_solar(df)
+    assert out.loc[noon, "dni_w_m2"] == 0.0 and out.loc[noon, "dhi_w_m2"] == 0.0
+
+
 def test_a_diffuse_reading_of_zero_gives_no_negative_sky_and_the_model_takes_it():
     """A lit step whose diffuse reads 0 (a dark offset the reader clamps) and whose beam is not cut:
     the closure DHI = GHI − DNI sin β left ≈ −1e-13 W m⁻² on about a fifth of such steps, which the

@@ -800,7 +800,14 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     if s.ceptometer_height_m is not None:
         check_ceptometer_height(s.ceptometer_height_m)
     if s.bounces is None:  # chosen from the leaf and soil: one too bright for any number is refused now
-        s.replication_config().render_bounces()
+        try:
+            s.replication_config().render_bounces()
+        except InputError as e:  # the albedo is what was given (the leaf's stays below 1): say so
+            raise InputError(
+                f"{e.problem} (soil albedo {s.soil_albedo:g})",
+                column="soil_albedo",
+                expected=f"a soil albedo well below 1, or --bounces given ({e.expected})",
+            ) from None
     else:  # given (or --quick's): say what it leaves out
         check_bounces(s.bounces)
         optics = s.replication_config().leaf_optics()
@@ -819,9 +826,11 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
                 else f"this leaf's default, {own}, keeps that bound under {100 * BOUNCE_TOLERANCE:g} %"
                 + ("" if opts.bounces is not None else f" (--bounces {own})")
             )
+            bound = truncation_bound(s.bounces, optics)
             (say or caution)(
-                f"{source} leaves out the light scattered more often, up to "
-                f"{truncation_bound(s.bounces, optics):.1%} of the unscattered light; {default}"
+                f"{source} leaves out the light scattered more often, "
+                + (f"up to {bound:.1%} of the unscattered light" if bound < 1 else "an amount with no useful bound")
+                + f"; {default}"
             )
     if s.target_rse is not None:
         check_target_rse(s.target_rse)

@@ -307,8 +307,11 @@ def _cautions(d: dict) -> list[str]:
         where = "the best sample it started from" if d.get("map_kept_start") else "the best point it reached"
         out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is {where}")
     ee = d.get("emulator_error") or {}
-    shift = ee.get("max_shift_over_sd")
-    if shift is not None and float(shift) > EMULATOR_SHIFT_CAUTION_SD:
+    shift, norm = ee.get("max_shift_over_sd"), ee.get("max_whitened_error_norm")
+    # With the sampled covariance the posterior's, (JᵀJ + prior precision)⁻¹, the shift is at most the
+    # whitened error's norm (Cauchy–Schwarz); a chain not yet mixed samples wider and inflates the shift,
+    # which the R-hat and tau cautions then name: the emulator is called out only where its error is that large.
+    if shift is not None and float(shift) > EMULATOR_SHIFT_CAUTION_SD and float(norm or 0) > EMULATOR_SHIFT_CAUTION_SD:
         at_map = ee.get("at_map_shift_over_sd")
         where = "" if at_map is None else f"; {float(at_map):.2g} at the MAP's leaf"
         out.append(

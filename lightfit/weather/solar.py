@@ -220,7 +220,9 @@ def split_from_diffuse(
     messages say so). ``check``: refuse what :func:`check_diffuse` refuses, naming ``column``
     (default ``diffuse_w_m2``); ``False`` where the diffuse radiation was derived from a checked one.
     """
-    ghi = ghi_w_m2.astype(float)
+    # A negative total (a dark offset the readers clamp; a series built in code may keep it) is no
+    # light, as a negative PAR is (par_direct_diffuse): the closure below holds for it as 0.
+    ghi = ghi_w_m2.astype(float).clip(lower=0.0)
     diffuse = diffuse_w_m2.astype(float)
     up = sun_elevation_deg > 0.0
     if check:
