@@ -58,7 +58,10 @@ PLANT_SPACING_HELP = (
     f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²)."
 )
 ROW_DIRECTION_HELP = f"Compass azimuth of the rows, degrees (default {Field.row_direction_deg:g} = east–west)."
-PARAMETER_FILE_HELP = f"CPlantBox plant XML, a path or a bundled name (default {DEFAULT_PARAMETER_FILE})."
+PARAMETER_FILE_HELP = (
+    f"CPlantBox plant XML: a bundled name (default {DEFAULT_PARAMETER_FILE}) or a path (./NAME for an edited "
+    "copy under a bundled name)."
+)
 BOUNDARY_HELP = (
     "Field boundary: periodic (default: the measurement area is one cell of an infinite field, "
     "no buffer plants) or finite (buffer rows on bare soil; --boundary finite with its default "

@@ -81,21 +81,31 @@ def parameter_dir() -> Path:
     return Path(plantbox.__file__).resolve().parent / "modelparameter" / "structural" / "plant"
 
 
+def _bundled(name: str | os.PathLike) -> Path | None:
+    """CPlantBox's bundled file of that bare name (no folder in it), if there is one."""
+    if isinstance(name, str) and name and Path(name).name == name:
+        p = parameter_dir() / name
+        return p if p.is_file() else None
+    return None
+
+
 def parameter_file_setting(name: str | os.PathLike) -> str:
-    """A parameter file as a run records it: an existing path made absolute (a relative one names
-    another file, or none, from another folder: a results file read back there, a resumed run),
-    a bundled name as given. Looked up as :func:`resolve_parameter_file` does, path first."""
+    """A parameter file as a run records it: a bundled file's bare name as given, another existing
+    path made absolute (a relative one names another file, or none, from another folder: a results
+    file read back there, a resumed run). Looked up as :func:`resolve_parameter_file` does."""
     p = Path(name)
-    return str(p.resolve()) if p.exists() else str(name)
+    return str(name) if _bundled(name) is not None or not p.exists() else str(p.resolve())
 
 
 def resolve_parameter_file(name: str | os.PathLike) -> Path:
-    """A plant parameter XML: a path, or a file name in CPlantBox's bundled set.
+    """A plant parameter XML: a bare file name in CPlantBox's bundled set is that file; anything else
+    a path (an edited copy in the working folder under a bundled name is read as ``./NAME``: the
+    default run, which names its file bare, never picks up a local copy unsaid).
 
     Raises :class:`InputError` listing the bundled wheat files when it does not exist or is not
     a CPlantBox ``<plant>`` XML.
     """
-    p = Path(name)
+    p = _bundled(name) or Path(name)
     if not p.exists():
         p = parameter_dir() / str(name)
     if not p.exists():
