@@ -32,7 +32,6 @@ from lightfit.light.estimator import (
     check_target_rse,
     truncation_bound,
 )
-from lightfit.light.leaf_optics import check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
 from lightfit.light.scene import SKY_MODELS, SOIL_ALBEDO
 from lightfit.model.scenario import (
@@ -61,6 +60,12 @@ ROW_DIRECTION_HELP = f"Compass azimuth of the rows, degrees (default {Field.row_
 PARAMETER_FILE_HELP = (
     f"CPlantBox plant XML: a bundled name (default {DEFAULT_PARAMETER_FILE}) or a path (./NAME for an edited "
     "copy under a bundled name)."
+)
+#: Help of --split (shared with ``weather show``).
+SPLIT_HELP = (
+    "How the weather's global radiation is split into beam and sky: erbs, boland (decomposition "
+    "models) or diffuse (the series' own diffuse_w_m2 / par_diffuse_umol_m2_s column). Default: diffuse "
+    "where the series has such a column, else erbs."
 )
 BOUNDARY_HELP = (
     "Field boundary: periodic (default: the measurement area is one cell of an infinite field, "
@@ -553,9 +558,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--split",
-            help="How the weather's global radiation is split into beam and sky: erbs, boland (decomposition "
-            "models) or diffuse (the series' own diffuse_w_m2 / par_diffuse_umol_m2_s column). Default: diffuse "
-            "where the series has such a column, else erbs.",
+            help=SPLIT_HELP,
             rich_help_panel=_WEATHER,
         ),
     ),
@@ -792,9 +795,9 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     t_g = s.replication_config().growth_temperature_c
     resolve_kn(profile, parameter_set(s.photosynthesis))  # Vcmax25 does not depend on T_g
     s = dataclasses.replace(s, vcmax_profile=profile, growth_temperature_c=t_g)  # stored as the run used them
-    check_leaf(s.optics, s.chlorophyll_ug_cm2)
-    s.replication_config().leaf_optics()  # the soil albedo's range, as Optics checks it
-    s.replication_config().field()  # spacings, row direction and the plant file, before plants grow
+    cfg = s.replication_config()
+    optics = cfg.leaf_optics()  # the leaf (check_leaf) and the soil albedo's range, as Optics checks it
+    cfg.field()  # spacings, row direction and the plant file, before plants grow
     check_choice("par_kind", s.par_kind)
     check_choice("an_per", s.an_per)
     check_soil_respiration(s.soil_respiration, s.soil_respiration_q10)
@@ -804,7 +807,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         check_ceptometer_height(s.ceptometer_height_m)
     if s.bounces is None:  # chosen from the leaf and soil: one too bright for any number is refused now
         try:
-            s.replication_config().render_bounces()
+            cfg.render_bounces()
         except InputError as e:  # the albedo is what was given (the leaf's stays below 1): say so
             raise InputError(
                 f"{e.problem} (soil albedo {s.soil_albedo:g})",
@@ -813,7 +816,6 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
             ) from None
     else:  # given (or --quick's): say what it leaves out
         check_bounces(s.bounces)
-        optics = s.replication_config().leaf_optics()
         try:
             own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
         except InputError:  # a leaf or soil too bright for any number the rule hands out: given, taken

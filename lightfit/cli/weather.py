@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from lightfit.cli.common import console, weather_report, weather_table
+from lightfit.cli.options import SPLIT_HELP
 
 app = typer.Typer(
     help="Weather series: 'show' reads one (a bundled name or a file), reports its checks and repairs and "
@@ -62,11 +63,7 @@ def show(
         "or center; the sun is taken at the interval's centre. --csv records it for every later command.",
     ),
     max_gap: str = typer.Option("30min", help="Longest gap to interpolate."),
-    split: str = typer.Option(
-        None,
-        help="Direct/diffuse split: erbs, boland (decomposition models) or diffuse (the series' own "
-        "diffuse_w_m2 / par_diffuse_umol_m2_s column). Default: diffuse where the series has such a column, else erbs.",
-    ),
+    split: str = typer.Option(None, help=SPLIT_HELP),
     resample: str = typer.Option(None, help="New time step, e.g. 30min."),
     how: str = typer.Option(
         "mean", help="Resampling: mean (whole intervals; a centred window for instants) or sample."

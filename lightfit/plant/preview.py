@@ -53,13 +53,7 @@ def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
         a.set_ylabel(lab[1])
     notes = ["pale: buffer plants"] if not measured.all() else []
     if geom.cell is not None:  # a periodic field: its cell, the plants repeated around it (none drawn)
-        ea, eb = geom.cell.axes
-        c = np.asarray(geom.cell.center_xy, float)
-        corners = [
-            c + sa * 0.5 * geom.cell.along_m * ea + sb * 0.5 * geom.cell.across_m * eb
-            for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1), (-1, -1))
-        ]
-        xy = np.asarray(corners)
+        xy = np.vstack([geom.cell.corners_xy, geom.cell.corners_xy[:1]])  # closed
         ax[0].plot(xy[:, 0], xy[:, 1], "k--", lw=1)
         notes.append("dashed: the periodic cell, repeated without end")
     ax[0].set_title("top view" + (f" ({'; '.join(notes)})" if notes else ""))
