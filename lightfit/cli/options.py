@@ -37,8 +37,6 @@ from lightfit.light.scene import SKY_MODELS, SOIL_ALBEDO
 from lightfit.model.scenario import (
     BOUNCE_TOLERANCE,
     MAX_ADAPTIVE_SAMPLES,
-    SOIL_RESPIRATION_Q10,
-    SOIL_RESPIRATION_UMOL_M2_S,
     Scenario,
 )
 from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, Field, check_headings
@@ -999,13 +997,13 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     # Settings stored before a key existed ran with what is now its default.
     before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths", "sheaths": "rods"}
     before["headings"] = "aligned"  # before headings, every plant faced CPlantBox's way
-    before |= {"soil_respiration": SOIL_RESPIRATION_UMOL_M2_S, "soil_respiration_q10": SOIL_RESPIRATION_Q10}
+    # Literals, not today's constants: they say what those runs ran with, whatever a default becomes.
+    before |= {"soil_respiration": 0.0, "soil_respiration_q10": 2.0}
     before["vcmax_profile"] = "uniform"  # before capacity profiles every blade had the set's
-    before["direct_rays_per_m2"] = list(DEFAULT_RAYS_PER_M2)
+    before["direct_rays_per_m2"] = [2.5e6, 1e7]
     # before they were options, every run had the library's field layout, plant file, soil and sky
-    before |= {"row_spacing_m": DEFAULT_ROW_SPACING_M, "plant_spacing_m": DEFAULT_PLANT_SPACING_M}
-    before |= {"row_direction_deg": Field.row_direction_deg, "parameter_file": DEFAULT_PARAMETER_FILE}
-    before |= {"soil_albedo": SOIL_ALBEDO, "sky": SKY_MODELS[0]}
+    before |= {"row_spacing_m": 0.125, "plant_spacing_m": 0.03, "row_direction_deg": 90.0}
+    before |= {"parameter_file": "Triticum_aestivum_adapted_2023.xml", "soil_albedo": 0.12, "sky": "isotropic"}
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 
