@@ -85,6 +85,9 @@ class ReplicationConfig:
     ``soil_albedo``: the soil's Lambertian PAR albedo (:data:`~lightfit.light.scene.SOIL_ALBEDO`,
     moist loam); ``sky``: the diffuse light's angular distribution, ``"isotropic"`` (default) or
     ``"overcast"`` (CIE standard overcast; :data:`~lightfit.light.scene.SKY_MODELS`).
+    ``season_start``: the day growth starts on, YYYY-MM-DD, for every date (``None``: 5 March of each
+    date's year, :class:`~lightfit.plant.growth.GrowthConfig`'s default, a northern spring; a southern
+    site needs one, :func:`check_season_start`).
 
     ``optics``: leaf optics preset, ``"prospect"`` (default: PROSPECT-D wheat leaf, PAR absorptance
     0.90) or ``"paper"`` (the reference paper's grey 0.5 leaf); ``chlorophyll_ug_cm2``: leaf
@@ -143,11 +146,13 @@ class ReplicationConfig:
     soil_albedo: float = SOIL_ALBEDO
     sky: str = Scenario.sky
     dates: tuple[str, ...] = (DEFAULT_DATE,)
+    season_start: str | None = None
     window: Window = Window()
     site: Site = SELHAUSEN
 
     def __post_init__(self):
         object.__setattr__(self, "dates", as_dates(self.dates))
+        object.__setattr__(self, "season_start", check_season_start(self.season_start, self.site))
         # One form whatever it came from (one number, a list read back from JSON): configurations
         # compare equal when they render the same rays.
         object.__setattr__(self, "direct_rays_per_m2", check_rays(self.direct_rays_per_m2))
@@ -254,6 +259,7 @@ class ReplicationConfig:
             row_direction_deg=self.row_direction_deg,
             growth=GrowthConfig(
                 parameter_file=self.parameter_file,
+                season_start=self.season_start,
                 target_date=self.dates[0] if date is None else str(parse_date(date, "date")),
             ),
         )
@@ -298,6 +304,25 @@ PAPER_PRESET = {
     "soil_albedo": SOIL_ALBEDO,
     "sky": Scenario.sky,
 }
+
+
+def check_season_start(season_start, site: Site) -> str | None:
+    """``season_start`` as ``YYYY-MM-DD`` (``None`` kept: the growth model's 5 March of each date's
+    year), else :class:`InputError` naming it; ``None`` at a site south of the equator is refused too:
+    5 March is a northern spring date (there it is autumn, before sowing), so plants grown from it
+    would stand full-grown in the southern winter."""
+    if season_start is not None:
+        return parse_date(season_start, "season_start").isoformat()
+    if site.latitude_deg < 0:
+        raise InputError(
+            f"the default season start, 5 March, is a northern spring date; {site.name} lies at "
+            f"{site.latitude_deg:g}° (south of the equator), where wheat is sown in autumn, from April to June",
+            column="season_start",
+            expected="the day growth starts on at this site, e.g. its sowing date (YYYY-MM-DD)",
+        )
+    return None
+
+
 #: Named presets of :meth:`ReplicationConfig.with_preset`; ``default`` is the class defaults.
 PRESETS = ("default", "paper")
 

@@ -46,10 +46,7 @@ def test_site_and_date_move_the_sun_as_pvlib_says(tmp_path):
     win = Window("10:00", 2.0, "1h")
     with pytest.raises(InputError, match="more light than their sun can give"):
         rep.forcing(REAL_DAY, dates="2016-06-23", window=win, site=site)
-    day = weather.read_cplantbox_day(REAL_DAY, "2016-06-23")
-    zen = pvlib.solarposition.get_solarposition(day.index - pd.Timedelta("5min"), -34.0, 18.5, altitude=40.0)
-    day["par_umol_m2_s"] = 2.285 * pvlib.clearsky.haurwitz(zen["apparent_zenith"])["ghi"].to_numpy()
-    path = weather.write_lightfit_csv(day, tmp_path / "cape_town.csv", {"provenance": "synthetic"})
+    path = _clear_sky_csv(tmp_path / "cape_town.csv", site, "2016-06-23")
     w = rep.forcing(path, dates="2016-06-23", window=win, site=site)
     t = pd.date_range("2016-06-23 10:00", periods=3, freq="1h", tz="Africa/Johannesburg").tz_convert("UTC")
     assert w.index.equals(t)
@@ -59,6 +56,64 @@ def test_site_and_date_move_the_sun_as_pvlib_says(tmp_path):
     # Winter noon at 34 °S is lower than spring noon at Selhausen (50.9 °N, 27 April): about 32.5° vs 53°.
     sel = rep.forcing(REAL_DAY, dates="2016-04-27", window=Window("13:30", 0.5), site=weather.SELHAUSEN)
     assert w["sun_elevation_deg"].max() < 33 < 52 < sel["sun_elevation_deg"].max() < 54
+
+
+def _clear_sky_csv(path, site: Site, date: str):
+    """The bundled TERENO day's weather under ``site``'s clear sky (Haurwitz) on ``date``, as a lightfit CSV."""
+    day = weather.read_cplantbox_day(REAL_DAY, date)
+    zen = pvlib.solarposition.get_solarposition(
+        day.index - pd.Timedelta("5min"), site.latitude_deg, site.longitude_deg, altitude=site.altitude_m
+    )
+    day["par_umol_m2_s"] = 2.285 * pvlib.clearsky.haurwitz(zen["apparent_zenith"])["ghi"].to_numpy()
+    return weather.write_lightfit_csv(day, path, {"provenance": "synthetic"})
+
+
+def test_a_southern_site_grows_its_plants_from_its_own_season_start():
+    """5 March is a northern spring: south of the equator the default would grow a full canopy for a
+    winter's day (or refuse a spring one as 199 days on), so the run asks for the season's start and
+    grows every date from it (a review: only `lightfit field` took one)."""
+    from lightfit.cli.options import ModelOptions, resolve
+
+    site = Site(-35.1, 147.4, 200.0, "Wagga Wagga", "Australia/Sydney")
+    with pytest.raises(InputError, match=r"5 March, is a northern spring date.*-35.1° \(south"):
+        rep.ReplicationConfig(site=site, dates=("2016-09-20",))
+    cfg = rep.ReplicationConfig(site=site, dates=("2016-09-20",), season_start="2016-05-15")
+    g = cfg.field().growth
+    assert (g.season_start, g.target_date, g.days) == ("2016-05-15", "2016-09-20", 128)
+    assert g == GrowthConfig(season_start="2016-05-15", target_date="2016-09-20")
+    # a northern run keeps 5 March of its year unless told otherwise
+    assert rep.ReplicationConfig().field().growth.season_start == "2016-03-05"
+    assert rep.ReplicationConfig(season_start="2015-10-20", dates=("2016-03-01",)).field().growth.days == 133
+
+    where = {"latitude": -35.1, "longitude": 147.4, "timezone": "UTC+10", "dates": ["2016-09-20"]}
+    with pytest.raises(InputError, match=r"--season-start: the default season start, 5 March"):
+        resolve(ModelOptions(quick=True, **where))
+    with pytest.raises(InputError, match=r"--date 2016-09-20: target_date 2016-09-20 is not after season_start"):
+        resolve(ModelOptions(quick=True, season_start="2016-10-01", **where))
+    s = resolve(ModelOptions(quick=True, season_start="2016-05-15", **where))
+    assert s.season_start == "2016-05-15" and s.replication_config().field().growth.days == 128
+    # the coordinates' label says S and W, and --timezone takes UTC±H as --tz does
+    assert (s.site.name, s.site.timezone) == ("35.1° S, 147.4° E", "Etc/GMT-10")
+    west = resolve(ModelOptions(quick=True, latitude=38.0, longitude=-98.0, timezone="America/Chicago"))
+    assert west.site.name == "38° N, 98° W"
+
+
+def test_weather_show_takes_the_site(tmp_path):
+    """`weather show` took the sun at Selhausen whatever the file: a clear day at another site was
+    refused as light its sun cannot give (a review). With the site's options its sun is pvlib's there,
+    the table's local time is the site's, and the converted CSV carries that sun."""
+    site = Site(-34.0, 18.5, 40.0, "Cape Town", "Africa/Johannesburg")
+    path = _clear_sky_csv(tmp_path / "cape_town.csv", site, "2016-06-23")
+    r = runner.invoke(app, ["weather", "show", str(path)])
+    assert r.exit_code == 2 and "at Selhausen" in r.output, r.output
+    where = ["--latitude", "-34", "--longitude", "18.5", "--altitude-m", "40", "--timezone", "Africa/Johannesburg"]
+    out = tmp_path / "converted.csv"
+    r = runner.invoke(app, ["weather", "show", str(path), *where, "--csv", str(out)], env={"COLUMNS": "200"})
+    assert r.exit_code == 0, r.output
+    assert "34° S, 18.5° E" in r.output and "Johannesburg" in r.output
+    w = weather.read_weather(out)
+    sp = pvlib.solarposition.get_solarposition(w.index - pd.Timedelta("5min"), -34.0, 18.5, altitude=40.0)
+    np.testing.assert_allclose(w["sun_elevation_deg"], sp["apparent_elevation"], atol=1e-6)
 
 
 def test_bundled_real_day_by_name_and_by_path_is_the_same_forcing():

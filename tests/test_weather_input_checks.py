@@ -614,3 +614,13 @@ def test_observation_times_mixing_offsets_without_a_zone_name_the_line(tmp_path)
         InputError, match=r"mixed.csv, line 4, column 'time'.*has no UTC offset.*the time zone the file"
     ):
         read_observations(p)
+
+
+def test_daylight_at_night_is_a_timing_error_not_a_unit_slip():
+    """A clear day whose clock is 12 h off (a file read in the wrong zone, or at the wrong site) has
+    its light at night and little at the high sun: that is the timestamps' fault, and the error says
+    so and names the site the sun was taken at, instead of calling the unit wrong."""
+    day = _clear_day(1.0)
+    shifted = day.set_axis(day.index + pd.Timedelta("12h"))
+    with pytest.raises(InputError, match=r"with the sun at -?[\d.]+° at Selhausen.*more light than their sun.*site"):
+        add_solar(shifted)

@@ -155,6 +155,7 @@ OPTION_ALIASES = {
     "target_date": ("--date",),
     "soil_respiration_umol_m2_s": ("--soil-respiration",),
     "row_direction_deg": ("--row-direction",),
+    "season_start": ("--season-start",),
     "date": ("--date",),
     "provenance": ("--provenance", "--weather-provenance"),
     "start": ("--start-time",),

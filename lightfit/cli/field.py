@@ -22,7 +22,7 @@ from lightfit.cli.options import (
 )
 from lightfit.errors import InputError
 from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS, Field
-from lightfit.plant.growth import GrowthConfig
+from lightfit.plant.growth import SEASON_START_HELP, GrowthConfig
 from lightfit.plant.mesh import MeshResolution
 from lightfit.plant.sheaths import SHEATHS
 
@@ -47,7 +47,7 @@ def field(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
     ),
     parameter_file: str = typer.Option(GrowthConfig.parameter_file, help=PARAMETER_FILE_HELP),
-    season_start: str = typer.Option(None, help="First day of growth (default: 5 March of the date's year)."),
+    season_start: str = typer.Option(None, help=SEASON_START_HELP),
     date: str = typer.Option(GrowthConfig.target_date, help="Date the plants are grown to."),
     tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),
     tile: int = typer.Option(None, help="Build only this tile (0-based) with its buffer ring."),

@@ -40,9 +40,9 @@ from lightfit.model.scenario import (
     Scenario,
 )
 from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, Field, check_headings
-from lightfit.plant.growth import DEFAULT_PARAMETER_FILE, parameter_file_setting
+from lightfit.plant.growth import DEFAULT_PARAMETER_FILE, SEASON_START_HELP, parameter_file_setting
 from lightfit.plant.sheaths import check_sheaths
-from lightfit.weather.site import SELHAUSEN, Site, Window, check_timezone, site_named
+from lightfit.weather.site import SELHAUSEN, Site, Window, site_named
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
 
@@ -129,6 +129,7 @@ class ModelOptions:
     how: str | None = None
     steps: str | None = None
     dates: list[str] | None = None
+    season_start: str | None = None
     start_time: str | None = None
     hours: float | None = None
     step: str | None = None
@@ -198,6 +199,7 @@ class ModelSettings:
     how: str
     steps: str | None
     dates: tuple[str, ...]
+    season_start: str | None
     start_time: str
     hours: float
     step: str
@@ -246,6 +248,7 @@ class ModelSettings:
             soil_albedo=self.soil_albedo,
             sky=self.sky,
             dates=self.dates,
+            season_start=self.season_start,
             window=self.window(),
             site=self.site,
         )
@@ -582,11 +585,15 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         list[str] | None,
         typer.Option(
             "--date",
-            help="Day of the run, YYYY-MM-DD (default 2016-04-20); plants are grown to it from 5 March of its year. "
+            help="Day of the run, YYYY-MM-DD (default 2016-04-20); plants are grown to it from --season-start. "
             "Repeat for several days in one results set (replicate) or one calibration / posterior. "
             "Needed with an undated weather file.",
             rich_help_panel=_WHEN,
         ),
+    ),
+    "season_start": (
+        str | None,
+        typer.Option("--season-start", help=SEASON_START_HELP, rich_help_panel=_WHEN),
     ),
     "start_time": (
         str | None,
@@ -633,12 +640,18 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--timezone",
-            help="Site time zone, IANA name such as Europe/Berlin (with --latitude): the window's local time.",
+            help="Site time zone, IANA name such as Europe/Berlin or UTC±H (with --latitude): the window's local time.",
             rich_help_panel=_WHEN,
         ),
     ),
 }
 assert set(_OPTIONS) == {f.name for f in dataclasses.fields(ModelOptions)}
+
+
+def option(name: str):
+    """The shared option ``name`` as an annotation, for a command that takes it alone (same flag and help)."""
+    typ, opt = _OPTIONS[name]
+    return Annotated[typ, opt]
 
 
 #: ``--use`` of the commands that compare the model with observations (calibrate, posterior).
@@ -739,6 +752,8 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     boundary = given(opts.boundary, base.boundary)
     buffers = check_boundary(boundary, opts.buffer_rows, opts.buffer_along)
     direct = resolve_direct(given(opts.direct, base.direct), boundary)
+    site = site_of(opts)
+    season_start = _season_start(opts, site)
     s = ModelSettings(
         quick=opts.quick,
         n_plants=given(opts.n_plants, base.n_plants),
@@ -776,11 +791,12 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         split=opts.split,
         how=given(opts.how, base.how),
         steps=opts.steps,
-        dates=_dates(opts, base.dates),
+        dates=_dates(opts, base.dates, season_start),
+        season_start=season_start,
         start_time=given(opts.start_time, base.window.start),
         hours=given(opts.hours, base.window.hours),
         step=given(opts.step, base.window.step),
-        site=_site(opts),
+        site=site,
     )
     # Checked here (not only deep inside the run) so that a typo fails before minutes of plant growth.
     if s.photosynthesis not in PARAMETER_SET_NAMES:
@@ -872,20 +888,26 @@ def _n_steps(window: Window) -> int:
     return int(pd.Timedelta(hours=window.hours) // pd.Timedelta(window.step)) + 1
 
 
-def _dates(opts: ModelOptions, default: tuple[str, ...]) -> tuple[str, ...]:
-    """``--date`` values checked: real dates, no repeats, inside the wheat growth model's range."""
+def _season_start(opts: ModelOptions, site: Site) -> str | None:
+    """``--season-start`` checked; required at a southern site (:func:`~lightfit.replication.check_season_start`)."""
+    from lightfit.replication import check_season_start
+
+    return option_error(lambda: check_season_start(opts.season_start, site), "--season-start")
+
+
+def _dates(opts: ModelOptions, default: tuple[str, ...], season_start: str | None) -> tuple[str, ...]:
+    """``--date`` values checked: real dates, no repeats, inside the wheat growth model's range from
+    ``season_start``."""
     from lightfit.plant.growth import GrowthConfig
     from lightfit.replication import as_dates
 
-    if not opts.dates:
-        return default
-    dates = option_error(lambda: as_dates(opts.dates), "--date")
+    dates = option_error(lambda: as_dates(opts.dates), "--date") if opts.dates else default
     for d in dates:
-        option_error(lambda d=d: GrowthConfig(target_date=d), f"--date {d}")
+        option_error(lambda d=d: GrowthConfig(season_start=season_start, target_date=d), f"--date {d}")
     return dates
 
 
-def _site(opts: ModelOptions) -> Site:
+def site_of(opts: ModelOptions) -> Site:
     """``--site NAME`` or ``--latitude/--longitude/--timezone`` (``--altitude-m``, default 0): not both."""
     coords = {"--latitude": opts.latitude, "--longitude": opts.longitude, "--altitude-m": opts.altitude_m}
     coords["--timezone"] = opts.timezone
@@ -906,12 +928,13 @@ def _site(opts: ModelOptions) -> Site:
             f"{', '.join(given)} given without {', '.join(missing)}",
             expected="--latitude, --longitude and --timezone together (--altitude-m optional, default 0)",
         )
-    option_error(lambda: check_timezone(opts.timezone), "--timezone")
-    name = f"{opts.latitude:g} N, {opts.longitude:g} E"
+    from lightfit.weather.readers import zone
+
+    timezone = option_error(lambda: zone(opts.timezone, "timezone"), "--timezone")  # UTC+10 as --tz takes it
+    lat, lon = opts.latitude, opts.longitude
+    name = f"{abs(lat):g}° {'N' if lat >= 0 else 'S'}, {abs(lon):g}° {'E' if lon >= 0 else 'W'}"
     alt = 0.0 if opts.altitude_m is None else opts.altitude_m
-    return option_error(
-        lambda: Site(opts.latitude, opts.longitude, alt, name, opts.timezone), "--latitude/--longitude/--altitude-m"
-    )
+    return option_error(lambda: Site(lat, lon, alt, name, timezone), "--latitude/--longitude/--altitude-m")
 
 
 def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[float, float]:
@@ -963,6 +986,7 @@ RENDER_SETTINGS = (
     "how",
     "steps",
     "dates",
+    "season_start",
     "start_time",
     "hours",
     "step",
@@ -1004,6 +1028,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     # before they were options, every run had the library's field layout, plant file, soil and sky
     before |= {"row_spacing_m": 0.125, "plant_spacing_m": 0.03, "row_direction_deg": 90.0}
     before |= {"parameter_file": "Triticum_aestivum_adapted_2023.xml", "soil_albedo": 0.12, "sky": "isotropic"}
+    before["season_start"] = None  # before --season-start: 5 March of each date's year
     before = before | _WHEN_DEFAULTS | dict(previous)
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 

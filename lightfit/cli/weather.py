@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from lightfit.cli.common import console, weather_report, weather_table
-from lightfit.cli.options import SPLIT_HELP
+from lightfit.cli.options import SPLIT_HELP, ModelOptions, option, site_of
 
 app = typer.Typer(
     help="Weather series: 'show' reads one (a bundled name or a file), reports its checks and repairs and "
@@ -27,15 +27,17 @@ def load(
     split: str,
     time_label=None,
     provenance: str | None = None,
+    site=None,
 ):
-    """A bundled series (by name) or a file, in the weather contract with solar columns."""
+    """A bundled series (by name) or a file, in the weather contract with solar columns (the sun at
+    ``site``, default Selhausen)."""
     from lightfit import weather
 
     more = {} if time_label is None else {"time_label": time_label}
     if provenance is not None:
         more["provenance"] = provenance
     df = weather.read_source(source, format=fmt, date=date, tz=tz, max_gap=max_gap, **more)
-    return weather.add_solar(df, split_model=split)
+    return weather.add_solar(df, site=site, split_model=split)
 
 
 @app.command("show")
@@ -70,6 +72,11 @@ def show(
     ),
     plot: Path = typer.Option(None, help="Write a plot here; the suffix gives the format (.png, .pdf, .svg, …)."),
     csv: Path = typer.Option(None, help="Write the contract series as CSV here."),
+    site: option("site") = None,
+    latitude: option("latitude") = None,
+    longitude: option("longitude") = None,
+    altitude_m: option("altitude_m") = None,
+    timezone: option("timezone") = None,
 ) -> None:
     """Read a weather series, report its checks and repairs and print it; --csv converts it, --plot plots it."""
     from lightfit import weather
@@ -86,14 +93,16 @@ def show(
         )
     if plot:
         figure_format(plot)
-    df = load(source, fmt, date, tz, max_gap, split, time_label, provenance)
+    coords = {"latitude": latitude, "longitude": longitude, "altitude_m": altitude_m, "timezone": timezone}
+    where = site_of(ModelOptions(site=site, **coords))
+    df = load(source, fmt, date, tz, max_gap, split, time_label, provenance, where)
     if resample:
         df = weather.resample(df, resample, how)
     weather_report(df)
     name = Path(str(df.attrs.get("source"))).name
-    console.print(weather_table(df, f"{provenance_label(df.attrs)} weather: {name}"))
+    console.print(weather_table(df, f"{provenance_label(df.attrs)} weather: {name} at {where.name}", tz=where.timezone))
     if plot:
-        console.print(f"plot → {plot_forcing(df, plot)}")
+        console.print(f"plot → {plot_forcing(df, plot, tz=where.timezone)}")
     if csv:
         meta = {
             "provenance": df.attrs["provenance"],

@@ -42,6 +42,10 @@ SHOOT_ORGANS = ("stem", "leaf")
 #: (2016-03-05; the crop was sown in October, and the wheat parameter sets do not describe growth
 #: over winter), in the target date's year, so that another year's spring runs as 2016's did.
 SEASON_START_MONTH_DAY = (3, 5)
+SEASON_START_HELP = (
+    "First day of growth, YYYY-MM-DD: sowing, or spring regrowth of a winter wheat (default: 5 March of "
+    "the date's year, a northern spring; needed south of the equator)."
+)
 #: Segment ids are ``plant_id * SEGMENT_ID_STRIDE + segment_index``: stable across tiles.
 SEGMENT_ID_STRIDE = 1_000_000
 DEFAULT_PARAMETER_FILE = "Triticum_aestivum_adapted_2023.xml"

@@ -384,11 +384,14 @@ def check_radiation_scale(
     """Refuse radiation too small for its sun: ``columns`` of global radiation (W m⁻²) or PAR (µmol m⁻² s⁻¹,
     clear sky × 0.50 × 4.57 µmol J⁻¹) whose largest share of clear sky over the steps with the sun
     above :data:`CLEAR_SKY_MIN_ELEVATION_DEG` is below :data:`CLEAR_SKY_MIN_FRACTION` (a unit
-    slip, e.g. kW m⁻² under a W m⁻² header). Series without such steps are not judged. The error
-    names the source column (``attrs["columns_used"]``) and the unit expected."""
+    slip, e.g. kW m⁻² under a W m⁻² header). Series without such steps are not judged, nor series
+    with daylight at two or more steps with the sun below the horizon: their timestamps are wrong, not
+    their unit (:func:`check_light_fits_sun` says so). The error names the source column
+    (``attrs["columns_used"]``) and the unit expected."""
     high = (sun_elevation_deg > CLEAR_SKY_MIN_ELEVATION_DEG).to_numpy()
     if not high.any():
         return
+    night = (sun_elevation_deg < 0).to_numpy()
     el = np.asarray(sun_elevation_deg, dtype=np.float64)[high]
     clear_ghi = clear_sky_ghi_w_m2(el)
     used = df.attrs.get("columns_used", {})
@@ -397,6 +400,9 @@ def check_radiation_scale(
         ("par_umol_m2_s", par_from_ghi(clear_ghi), "PAR", "µmol m⁻² s⁻¹"),
     ):
         if col not in columns or col not in df.columns:
+            continue
+        margin = LIGHT_MARGIN_W_M2 * (1.0 if col == "ghi_w_m2" else float(par_from_ghi(1.0)))
+        if (np.asarray(df[col], dtype=np.float64)[night] > margin).sum() >= 2:
             continue
         v = np.asarray(df[col], dtype=np.float64)[high]
         if np.isnan(v).all():
@@ -425,7 +431,11 @@ DARK_MAX_W_M2 = 1.0
 
 
 def check_light_fits_sun(
-    df: pd.DataFrame, sun_elevation_deg: pd.Series, file=None, columns=("ghi_w_m2", "par_umol_m2_s")
+    df: pd.DataFrame,
+    sun_elevation_deg: pd.Series,
+    file=None,
+    columns=("ghi_w_m2", "par_umol_m2_s"),
+    site: Site | None = None,
 ) -> None:
     """Refuse light that its sun cannot give: ``columns`` of global radiation (W m⁻²) or PAR
     (µmol m⁻² s⁻¹, as global radiation × 0.50 × 4.57 µmol J⁻¹) above clear sky ×
@@ -434,15 +444,22 @@ def check_light_fits_sun(
     more steps with the sun :data:`DARK_SUN_MIN_DEG` or more up: night with the sun up (the CPlantBox
     April day placed on 23 June is dark at 06:50 with the sun 10° up). That is a wrong date (an
     undated file placed on a day its light does not fit), time zone or time label, which the Erbs
-    split would turn into direct beams above the solar constant. One step alone is left to the
-    caller (a glitch)."""
+    split would turn into direct beams above the solar constant, or the wrong site (``site``, whose
+    sun ``sun_elevation_deg`` is; named in the error). One step alone is left to the caller (a glitch)."""
     el = np.asarray(sun_elevation_deg, dtype=np.float64)
     clear = clear_sky_ghi_w_m2(el)
     bound = LIGHT_MAX_CLEAR_SKY_FACTOR * clear + LIGHT_MARGIN_W_M2
+    at = "" if site is None else f" at {site.name}"
+    if df.attrs.get("format") == "lightfit":  # UTC by definition: --tz is refused for it
+        timing = "the file's UTC times (time_utc holds UTC, not local time)"
+    else:
+        timing = (
+            "the file's time zone and time label (`lightfit weather show FILE --tz … --time-label … "
+            "--csv OUT.csv` writes a series that states them)"
+        )
     expected = (
-        "timestamps the light fits: the right date (--date places an undated file), and the "
-        "file's time zone and time label (`lightfit weather show FILE --tz … --time-label … --csv OUT.csv` "
-        "writes a series that states them)"
+        f"timestamps the light fits: the right date (--date places an undated file), {timing}, and the "
+        f"site (--site, or --latitude, --longitude and --timezone; the sun was taken{at or ' at the site given'})"
     )
     used = df.attrs.get("columns_used", {})
     for col, scale, what, unit in (
@@ -462,7 +479,7 @@ def check_light_fits_sun(
                 continue
             i = steps[np.argmax(worst)]
             raise InputError(
-                f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}° (clear "
+                f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}°{at} (clear "
                 f"sky {scale * clear[i]:.3g} {unit}): {len(steps)} steps {said}",
                 file=file,
                 column=used.get(col, col),
@@ -633,7 +650,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     out["sun_elevation_deg"] = sp["sun_elevation_deg"].to_numpy()
     out["sun_azimuth_deg"] = sp["sun_azimuth_deg"].to_numpy()
     check_radiation_scale(out, out["sun_elevation_deg"], out.attrs.get("source"), measured)
-    check_light_fits_sun(out, out["sun_elevation_deg"], out.attrs.get("source"), measured)
+    check_light_fits_sun(out, out["sun_elevation_deg"], out.attrs.get("source"), measured, site or SELHAUSEN)
     if stamps.centre_offset != pd.Timedelta(0):
         qc = [q for q in qc if q["kind"] != "sun at centres"]  # a resampled series replaces its source's
         qc.append(
