@@ -12,7 +12,7 @@ import pytest
 
 from lightfit import replication as rep
 from lightfit.errors import InputError
-from lightfit.inference.calibration import calibrate, make_loss, to_unconstrained
+from lightfit.inference.calibration import calibrate, from_unconstrained, make_loss, to_unconstrained
 from lightfit.inference.observations import COLUMNS, align, read_observations, write_observations
 from lightfit.inference.twin import par_sd_relative, twin_observations
 from lightfit.model.parameters import Theta
@@ -116,6 +116,24 @@ def _specular_sd(model, obs) -> float:
         var_noise += np.sum(w**2 * sig**2)
         mc_shift += np.sum(np.abs(w) * np.sqrt(2) * s)
     return float(np.hypot(np.sqrt(var_noise), mc_shift) / den)
+
+
+@pytest.mark.parametrize("box", [(0.6, 0.9), (0.2, 1.0), (0.0, 1.0), (0.5, math.inf), (0.0, math.inf)])
+def test_the_unconstrained_coordinates_invert_inside_any_box(box):
+    """z ↔ x for a box with lo ≠ 0 too (an emulator's or the user's; every default box starts at 0,
+    where a transform that dropped lo still inverted: a mutation audit): x comes back to 1e-12, and
+    every z, however large, maps inside the box, so a search cannot leave it."""
+    lo, hi = box
+    name = "light_factor" if math.isinf(hi) else "specular"
+    bounds = {name: box}
+    xs = [lo + 0.01, lo + 0.3 * (min(hi, lo + 2) - lo), min(hi, lo + 2) - 0.01]
+    for x in xs:
+        z = to_unconstrained(x, name, bounds)
+        assert float(from_unconstrained(z, name, bounds)) == pytest.approx(x, abs=1e-12)
+    ends = [float(from_unconstrained(z, name, bounds)) for z in (-30.0, 0.0, 30.0)]
+    assert lo <= ends[0] < ends[1] < ends[2] <= hi
+    if not math.isinf(hi):
+        assert ends[1] == pytest.approx((lo + hi) / 2, abs=1e-15)
 
 
 def test_twin_calibration_recovers_specular(twin_model, twin_fits):

@@ -123,6 +123,15 @@ def test_observables_against_an_independent_computation(model, full, weather):
     dan = (an(q + h) - an(np.maximum(q - h, 0.0))) / (q + h - np.maximum(q - h, 0.0))
     mc_an = np.sqrt(((a[b] / ground) ** 2 * (dan * sd[:, b]) ** 2).sum(axis=1))
     np.testing.assert_allclose(np.asarray(full["canopy_an_mc_sd_umol_m2_s"]), mc_an, rtol=1e-3, atol=1e-9)
+    # Canopy APAR: every measured segment's absorbed PAR over its one-sided area, per ground area;
+    # fAPAR against the above-canopy sensor (0 at night).
+    apar = absorbed @ a / ground
+    np.testing.assert_allclose(np.asarray(full["canopy_apar_umol_m2_s"]), apar, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(full["canopy_apar_mc_sd_umol_m2_s"]), np.sqrt(sd**2 @ (a / ground) ** 2))
+    above = np.asarray(full["above_canopy_par_umol_m2_s"])
+    assert above[0] == 0 and (above[1:] > 0).all()
+    np.testing.assert_allclose(np.asarray(full["fapar"])[1:], apar[1:] / above[1:], rtol=1e-12)
+    # (fAPAR may exceed 1 here: a 4-plant patch with one buffer row is lit from its sides at a low sun)
 
 
 def test_every_path_gives_the_same_observables(model, full, run, simulated):

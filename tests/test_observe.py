@@ -399,3 +399,34 @@ def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_thet
         assert "θ given: specular 0.7375, light_factor 1.1" in fig._suptitle.get_text()
     finally:
         plt.close(fig)
+
+
+def test_an_per_leaf_changes_canopy_an_only():
+    """``an_per="leaf"`` divides canopy An by the blade area instead of the ground; NEE (a chamber's
+    flux per ground area) and APAR must not move. Plain numpy on random per-segment fields (a mutation
+    audit: NEE built from the per-leaf An, off by the LAI, passed every test)."""
+    rng = np.random.default_rng(3)
+    t, s = 4, 9
+    blade = np.array([True, True, False, True, True, False, True, True, True])
+    area = rng.uniform(1e-4, 3e-4, s)
+    absorbed, absorbed_sd = rng.uniform(0, 900, (t, s)), rng.uniform(1, 20, (t, s))
+    an, an_sd = rng.uniform(-2, 30, (t, blade.sum())), rng.uniform(0.1, 1, (t, blade.sum()))
+    above = rng.uniform(100, 2000, t)
+    ground = 0.45 * area[blade].sum()  # LAI ≈ 2.2
+    out = {}
+    for per in ("ground", "leaf"):
+        den = O.an_denominator(area[blade], per, ground)
+        out[per] = O.observables(
+            absorbed, absorbed_sd, area, an, an_sd, area[blade], den,
+            absorbed=absorbed, absorbed_mc_sd=absorbed_sd, ground_area_m2=ground, above_par=above,
+            soil_respiration_umol_m2_s=1.5,
+        )  # fmt: skip
+    an_ground = an @ area[blade] / ground
+    np.testing.assert_allclose(out["ground"]["canopy_an_umol_m2_s"], an_ground, rtol=1e-12)
+    np.testing.assert_allclose(out["leaf"]["canopy_an_umol_m2_s"], an @ area[blade] / area[blade].sum(), rtol=1e-12)
+    for per in ("ground", "leaf"):
+        o = out[per]
+        np.testing.assert_allclose(o["nee_umol_m2_s"], 1.5 - an_ground, rtol=1e-12)
+        np.testing.assert_allclose(o["nee_mc_sd_umol_m2_s"], np.sqrt(an_sd**2 @ (area[blade] / ground) ** 2))
+        np.testing.assert_allclose(o["canopy_apar_umol_m2_s"], absorbed @ area / ground, rtol=1e-12)
+        np.testing.assert_allclose(o["fapar"], absorbed @ area / ground / above, rtol=1e-12)
