@@ -1,5 +1,6 @@
-"""The one check of a figure's file name that a user chooses (``field --preview``,
-``weather show --plot``): the format comes from the suffix, as matplotlib reads it."""
+"""What lightfit's figures share: the check of a figure's file name that a user chooses (``field
+--preview``, ``weather show --plot``; the format comes from the suffix, as matplotlib reads it) and
+the local-time axis."""
 
 from __future__ import annotations
 
@@ -24,3 +25,11 @@ def figure_format(path: str | Path) -> str:
             expected="a file name ending in " + ", ".join(f".{k}" for k in FORMATS),
         )
     return fmt
+
+
+def clock_axis(ax, tz: str) -> None:
+    """Ticks of a time axis drawn with aware instants, placed and labelled ``HH:MM`` in ``tz``."""
+    import matplotlib.dates as mdates
+
+    ax.xaxis.set_major_locator(mdates.AutoDateLocator(tz=tz))
+    ax.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M", tz=tz))

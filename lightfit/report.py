@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from lightfit.figure import clock_axis
 from lightfit.photosynthesis.canopy import PROFILES
 from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
 from lightfit.plant import Field
+from lightfit.weather.site import local_clock
 
 #: Per-time variables of the summary table (those a results file has), after local time and sun.
 SUMMARY_COLUMNS = (
@@ -37,7 +39,7 @@ def summary(ds) -> pd.DataFrame:
     light_limited = np.where((lim >= 0).any(1), (lim == 1).sum(1) / np.maximum((lim >= 0).sum(1), 1), np.nan)
     return pd.DataFrame(
         {
-            "local_time": t.tz_convert(_tz(ds)).strftime("%H:%M"),
+            "local_time": local_clock(t, _tz(ds)),
             "sun_elevation_deg": ds["sun_elevation_deg"].values,
             **{k: ds[k].values for k in SUMMARY_COLUMNS if k in ds},
             "frac_light_limited": light_limited,
@@ -126,13 +128,12 @@ def figure(ds, compare=None):
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.dates as mdates
     import matplotlib.pyplot as plt
 
     tz = _tz(ds)
 
-    def local(d):
-        return step_instants(d).tz_convert(tz).tz_localize(None)
+    def local(d):  # aware: drawn at their instants, so a clock change neither folds nor gaps the axis
+        return step_instants(d).tz_convert(tz)
 
     t = local(ds)
     fig, (ax_a, ax_b, ax_c) = plt.subplots(3, 1, figsize=(10, 11), sharex=True, constrained_layout=True)
@@ -210,7 +211,7 @@ def figure(ds, compare=None):
     )
 
     day = pd.Timestamp(t[0]).strftime("%Y-%m-%d") if len(t) else ""
-    ax_c.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
+    clock_axis(ax_c, tz)
     ax_c.set_xlabel(f"local time ({tz}), {day}")
     for ax in (ax_a, ax_b, ax_c):
         ax.grid(alpha=0.3)

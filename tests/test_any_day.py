@@ -101,16 +101,15 @@ def test_a_southern_site_grows_its_plants_from_its_own_season_start():
 def test_weather_show_takes_the_site(tmp_path):
     """`weather show` took the sun at Selhausen whatever the file: a clear day at another site was
     refused as light its sun cannot give (a review). With the site's options its sun is pvlib's there,
-    the table's local time is the site's, and the converted CSV carries that sun."""
+    and the converted CSV carries that sun."""
     site = Site(-34.0, 18.5, 40.0, "Cape Town", "Africa/Johannesburg")
     path = _clear_sky_csv(tmp_path / "cape_town.csv", site, "2016-06-23")
     r = runner.invoke(app, ["weather", "show", str(path)])
     assert r.exit_code == 2 and "at Selhausen" in r.output, r.output
     where = ["--latitude", "-34", "--longitude", "18.5", "--altitude-m", "40", "--timezone", "Africa/Johannesburg"]
     out = tmp_path / "converted.csv"
-    r = runner.invoke(app, ["weather", "show", str(path), *where, "--csv", str(out)], env={"COLUMNS": "200"})
+    r = runner.invoke(app, ["weather", "show", str(path), *where, "--csv", str(out)])
     assert r.exit_code == 0, r.output
-    assert "34° S, 18.5° E" in r.output and "Johannesburg" in r.output
     w = weather.read_weather(out)
     sp = pvlib.solarposition.get_solarposition(w.index - pd.Timedelta("5min"), -34.0, 18.5, altitude=40.0)
     np.testing.assert_allclose(w["sun_elevation_deg"], sp["apparent_elevation"], atol=1e-6)
@@ -346,3 +345,31 @@ def test_series_growth_temperature_needs_the_forcing_read_with_its_month():
     cfg = rep.ReplicationConfig(n_plants=1, growth_temperature_c="series")
     with pytest.raises(InputError, match="read without its month before"):
         rep.check_growth_temperatures(cfg, rep.forcing())
+
+
+def test_a_clock_change_inside_a_run_neither_repeats_nor_folds_local_time(tmp_path, monkeypatch):
+    """Sydney falls back from UTC+11 to UTC+10 at 03:00 on 3 April 2016: 02:00–02:59 happen twice.
+    Local labels carry their offset where it changes within the run (summary.csv, the tables), and
+    the figures draw each step at its instant, so the time axis runs forward (it folded back over the
+    repeated hour: a review). One offset, plain HH:MM as before."""
+    import matplotlib.dates as mdates
+    import matplotlib.figure
+
+    from lightfit.weather.plot import plot_forcing
+    from lightfit.weather.site import local_clock
+
+    t = pd.date_range("2016-04-02 15:00", periods=4, freq="30min", tz="UTC")
+    assert list(local_clock(t, "Australia/Sydney")) == ["02:00 UTC+11", "02:30 UTC+11", "02:00 UTC+10", "02:30 UTC+10"]
+    assert list(local_clock(t[:2], "Australia/Sydney")) == ["02:00", "02:30"]
+    assert list(local_clock(t[:1], "Asia/Kolkata")) == ["20:30"]
+    assert list(local_clock(pd.DatetimeIndex([t[0], t[0] + pd.Timedelta("200D")]), "Asia/Kolkata")) == ["20:30"] * 2
+
+    site = Site(-35.1, 147.4, 200.0, "Wagga Wagga", "Australia/Sydney")
+    day = weather.add_solar(weather.read_weather(_clear_sky_csv(tmp_path / "w.csv", site, "2016-04-02")), site=site)
+    night = day.loc["2016-04-02 13:00":"2016-04-02 18:00"]
+    drawn = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: drawn.append(fig))
+    plot_forcing(night, tmp_path / "f.png", tz=site.timezone)
+    x = mdates.date2num(drawn[0].axes[0].lines[1].get_xdata())  # the PAR line
+    assert (np.diff(x) > 0).all()
+    np.testing.assert_allclose(x[-1] - x[0], (night.index[-1] - night.index[0]) / pd.Timedelta("1D"), rtol=1e-9)

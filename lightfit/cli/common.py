@@ -19,7 +19,7 @@ from typer.core import TyperGroup
 from lightfit.errors import InputError
 from lightfit.killpoint import interrupts_kept
 from lightfit.model.parameters import BOUNDS, check_theta
-from lightfit.weather.site import SELHAUSEN
+from lightfit.weather.site import SELHAUSEN, local_clock
 
 #: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
 console = Console()
@@ -329,10 +329,11 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezo
     cols = [c for c in _SHORT if c in df.columns]
     for c in cols:
         t.add_column(_SHORT[c], justify="right")
-    for ts, row in df.iloc[::step].iterrows():
+    shown_rows = df.iloc[::step]
+    for (ts, row), clock in zip(shown_rows.iterrows(), local_clock(shown_rows.index, tz), strict=True):
         t.add_row(
             ts.strftime("%m-%d %H:%M"),
-            ts.tz_convert(tz).strftime("%H:%M"),
+            clock,
             *(f"{row[c]:.{_DIGITS.get(c, 0)}f}" for c in cols),
         )
     return t

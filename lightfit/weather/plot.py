@@ -8,11 +8,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.dates as mdates  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from lightfit.figure import figure_format  # noqa: E402
+from lightfit.figure import clock_axis, figure_format  # noqa: E402
 from lightfit.weather.site import SELHAUSEN  # noqa: E402
 from lightfit.weather.units import par_from_ghi  # noqa: E402
 
@@ -38,7 +37,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     figure_format(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     local = df.tz_convert(tz)
-    t = local.index.tz_localize(None)
+    t = local.index  # aware: drawn at their instants, so a clock change neither folds nor gaps the axis
     fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
     # Estimated series say so under a MEASURED title: PAR from GHI or GHI from PAR, DNI and DHI from a split.
     derived = {q.get("column") for q in df.attrs.get("qc", []) if q.get("kind") == "derived"}
@@ -70,7 +69,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     anchor = df.attrs.get("metadata", {}).get("anchor") or df.attrs.get("anchor")
     if anchor:
         a = anchor if isinstance(anchor, dict) else ast.literal_eval(anchor)
-        ta = pd.Timestamp(a["time_local"], tz=a["tz"]).tz_convert(tz).tz_localize(None)
+        ta = pd.Timestamp(a["time_local"], tz=a["tz"]).tz_convert(tz)
         ax[0].plot([ta], [a["par_umol_m2_s"]], "k*", ms=12, label="recorded chamber point (anchor)")
         ax[1].plot([ta], [a["tair_c"]], "k*", ms=12)
     ax[0].legend(loc="upper left", fontsize=8)
@@ -96,7 +95,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[3].axhline(0, color="k", lw=0.5)
     ax[3].set_ylabel("sun elevation (°)")
     ax[3].set_xlabel(f"time ({tz})")
-    ax[3].xaxis.set_major_formatter(mdates.DateFormatter("%H:%M"))
+    clock_axis(ax[3], tz)
     src = Path(str(df.attrs.get("source", ""))).name
     fig.suptitle(title or f"{provenance_label(df.attrs)} forcing — {src}", fontsize=11)
     fig.savefig(path, dpi=110)

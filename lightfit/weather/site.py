@@ -111,6 +111,24 @@ SELHAUSEN = Site()
 SITES: dict[str, Site] = {"selhausen": SELHAUSEN}
 
 
+def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
+    """``HH:MM`` in ``tz`` for the aware instants ``t``; where the UTC offset changes among them (a
+    clock change inside the run) each with its offset, ``HH:MM UTC+11``, so that a repeated hour
+    is told apart."""
+    local = t.tz_convert(tz)
+    clock = local.strftime("%H:%M")
+    offsets = local.map(lambda x: x.utcoffset())
+    if len(set(offsets)) <= 1:
+        return clock
+    return pd.Index([f"{c} UTC{_offset(o)}" for c, o in zip(clock, offsets, strict=True)])
+
+
+def _offset(o: pd.Timedelta) -> str:
+    minutes = int(o.total_seconds() // 60)
+    sign, minutes = ("+" if minutes >= 0 else "−"), abs(minutes)
+    return f"{sign}{minutes // 60}" + (f":{minutes % 60:02d}" if minutes % 60 else "")
+
+
 def site_named(name: str) -> Site:
     """The named site (case-insensitive), else :class:`InputError` listing :data:`SITES`."""
     key = str(name).strip().lower()
@@ -171,4 +189,4 @@ class Window:
         return f"{parse_date(date, 'date')} {self.start} + {self.hours:g} h ({timezone}), {self.step} steps"
 
 
-__all__ = ["SELHAUSEN", "SITES", "Site", "Window", "check_timezone", "localize", "site_named"]
+__all__ = ["SELHAUSEN", "SITES", "Site", "Window", "check_timezone", "local_clock", "localize", "site_named"]
