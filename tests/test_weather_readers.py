@@ -363,8 +363,12 @@ def test_window_steps_run_through_its_start_or_it_says_why_not():
         window(df, "2016-04-20 05:15", 14, "30min")
     s = window(df, "2016-04-20 05:10", 14, "30min")
     assert len(s) == 29 and s["par_umol_m2_s"].iloc[0] == df["par_umol_m2_s"].loc["2016-04-20 03:10+00:00"]
-    with pytest.raises(InputError, match="cannot average at 5min"):
+    # the source's own step named, with a step that works (a review: "or how='mean'" led to the next refusal)
+    with pytest.raises(InputError, match=r"cannot average at 5min.*rows are 10min apart.*e\.g\. 10min"):
         resample(df, "5min", "mean")
+    hourly = df.iloc[::6]
+    with pytest.raises(InputError, match=r"selhausen.*cannot sample at 30min: the source, rows 1h apart.*e\.g\. 1h"):
+        resample(hourly, "30min", "sample")
     boland = add_solar(df, split_model="boland")
     assert resample(boland, "30min", "mean").attrs["split_model"] == "boland"
 

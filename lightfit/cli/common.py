@@ -165,7 +165,7 @@ OPTION_ALIASES = {
 #: Parameters that, named in an error about a file (without a line), are the option applied to it:
 #: ``--tz`` on a lightfit CSV, ``--provenance`` contradicting the file. Others (a ``time_label``
 #: metadata line) are the file's own.
-FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time", "use", "theta"}
+FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time", "use", "theta", "freq"}
 
 
 def option_flags(command) -> dict[str, str]:

@@ -380,6 +380,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     measured = [c for c in df.columns if c in BOUNDS]
     step = duration(freq, "freq")
     source = timestamps.of(df)
+    gaps = df.index.to_series().diff().dropna()
+    spacing = _minutes(gaps.median()) if len(gaps) else "?"  # the source step, as the options write it
     stamps, dropped = source, []  # sampling keeps the rows and their meaning
     if how == "sample":
         origin = df.index[0] if origin is None else origin
@@ -387,9 +389,10 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
         out = df[measured].reindex(pd.date_range(first, df.index[-1], freq=step))
         if out.isna().any().any():
             raise InputError(
-                f"cannot sample at {freq}: the source has no value at some new timestamps",
+                f"cannot sample at {freq}: the source, rows {spacing} apart, has no value at some new timestamps",
+                file=df.attrs.get("source"),
                 column="freq",
-                expected="a step that is a multiple of the source step (and starts on it), or how='mean'",
+                expected=f"a step that is a multiple of the source's {spacing} (and starts on it), e.g. {spacing}",
             )
     elif how == "mean":
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
@@ -426,9 +429,11 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             stamps = Timestamps("center", step)
         if out.isna().all(axis=1).any():
             raise InputError(
-                f"cannot average at {freq}: some new steps have no source value in their window",
+                f"cannot average at {freq}: some new steps have no source value in their window (the source's "
+                f"rows are {spacing} apart)",
+                file=df.attrs.get("source"),
                 column="freq",
-                expected="a step at least as long as the source step",
+                expected=f"a step at least as long as the source's {spacing}, e.g. {spacing}",
             )
     else:
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
