@@ -294,6 +294,18 @@ def test_cplantbox_real_day():
     assert abs(centre - noon_utc) < 3600
 
 
+def test_a_cplantbox_unit_slip_is_reported_as_the_file_holds_it(tmp_path):
+    """PAR written in µmol under CPlantBox's mol m⁻² s⁻¹ is refused with the value as the file holds
+    it and the format's unit (it showed only the converted 2.6e+11; a review)."""
+    raw = pd.read_csv(CPB, sep="\t")
+    raw["PAR"] = raw["PAR"] * 1e6  # µmol m⁻² s⁻¹ under a mol m⁻² s⁻¹ column
+    bad = tmp_path / "umol.txt"
+    raw.to_csv(bad, sep="\t", index=False)
+    first = raw["PAR"][raw["PAR"] * 1e6 > 3000].iloc[0]  # the first implausible reading, as written
+    with pytest.raises(InputError, match=rf"umol.txt.*\({first:g} mol m⁻² s⁻¹ in the file's PAR, the format's unit"):
+        read_cplantbox_day(bad, "2016-04-27")
+
+
 def test_the_undated_day_fits_the_example_date_and_not_23_june():
     """The CPlantBox day's last dark readings before and after its light (06:30 and 21:00 local)
     must have the sun near or below the horizon on the date the docs give it (data/README.md):

@@ -765,11 +765,14 @@ def read_cplantbox_day(
     qc: list[dict] = []
     lt = lines.set_axis(times)
     out = pd.DataFrame(index=times)
-    out["par_umol_m2_s"] = parse_numeric(table["PAR"].set_axis(times), lt, path, "PAR", qc) * 1e6
+    # CPlantBox's units: PAR in mol m⁻² s⁻¹ and CO2 as a mole fraction (the bundled day's 0.000393)
+    file_units = {"par_umol_m2_s": ("mol m⁻² s⁻¹", 1e6), "co2_ppm": ("mol mol⁻¹", 1e6)}
+    scale = {col: factor for col, (_, factor) in file_units.items()}
+    out["par_umol_m2_s"] = parse_numeric(table["PAR"].set_axis(times), lt, path, "PAR", qc) * scale["par_umol_m2_s"]
     out["tair_c"] = parse_numeric(table["Tair"].set_axis(times), lt, path, "Tair", qc)
     out["rh"] = parse_numeric(table["RH"].set_axis(times), lt, path, "RH", qc)
     out["pair_kpa"] = parse_numeric(table["Pair"].set_axis(times), lt, path, "Pair", qc)
-    out["co2_ppm"] = parse_numeric(table["co2"].set_axis(times), lt, path, "co2", qc) * 1e6
+    out["co2_ppm"] = parse_numeric(table["co2"].set_axis(times), lt, path, "co2", qc) * scale["co2_ppm"]
     out.attrs = {
         "source": str(path),
         "format": "cplantbox",
@@ -777,6 +780,7 @@ def read_cplantbox_day(
         "date_given": day.isoformat(),  # the file has none: the caller placed it on this date
         "timezone_assumed": tz,
         "columns_used": {v: k for k, v in need.items() if v},
+        "file_units": file_units,
         "unused_columns": [c for c in table.columns if c not in need],
         "qc": qc,
     }

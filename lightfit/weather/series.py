@@ -326,6 +326,9 @@ def check_and_repair(
             ts = v.index[out][0]
             src = attrs.get("columns_used", {}).get(col, col)
             read = "" if src == col else f" (read from {src}, in {COLUMNS[col]})"  # a converted value: say from what
+            if col in attrs.get("file_units", {}):  # a fixed unit of the format: the value as the file holds it
+                unit, factor = attrs["file_units"][col]
+                read = f" ({v[ts] / factor:g} {unit} in the file's {src}, the format's unit)"
             raise InputError(
                 f"value {v[ts]:g}{read} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); "
                 "check the unit",
