@@ -13,7 +13,15 @@ from typer.testing import CliRunner
 from lightfit import replication as rep
 from lightfit.cli import app
 from lightfit.errors import InputError
-from lightfit.weather import Window, add_solar, read_cplantbox_day, read_tereno, read_weather, solar_position
+from lightfit.weather import (
+    Window,
+    add_solar,
+    read_cplantbox_day,
+    read_tereno,
+    read_weather,
+    solar_position,
+    write_lightfit_csv,
+)
 from lightfit.weather.bundled import DATA_DIR, bundled_path
 from lightfit.weather.series import window as weather_window
 
@@ -624,3 +632,24 @@ def test_daylight_at_night_is_a_timing_error_not_a_unit_slip():
     shifted = day.set_axis(day.index + pd.Timedelta("12h"))
     with pytest.raises(InputError, match=r"with the sun at -?[\d.]+° at Selhausen.*more light than their sun.*site"):
         add_solar(shifted)
+
+
+def test_a_missing_quantity_is_named_as_the_files_format_names_it(tmp_path):
+    """A TERENO export without CO2 is told the header lightfit reads CO2 from, with its units (it said
+    'expected columns for co2_ppm', the contract's name, which a TERENO file never has; a review)."""
+
+    def drop_co2(rows):
+        return [r[:7] for r in rows]
+
+    def drop_co2_header(head):
+        head[-1] = ",".join(head[-1].split(",")[:7])
+
+    path = _tereno(tmp_path, drop_co2, "no_co2.csv", drop_co2_header)
+    with pytest.raises(InputError, match=r"no_co2.csv: missing column\(s\) co2_ppm .*AirConcentration_CO2_2m_"):
+        read_tereno(path)
+    _cli_error(["weather", "show", str(path)], "no_co2.csv", "[ppm or mmol*m-3]", "CO2 mole fraction")
+    # a lightfit CSV names its columns as the contract does
+    df = read_weather(RECON).drop(columns=["co2_ppm"])
+    lf = write_lightfit_csv(df, tmp_path / "lf.csv", {"provenance": "synthetic"})
+    with pytest.raises(InputError, match=r"missing column\(s\) co2_ppm \(expected co2_ppm \(CO2 mole fraction in air"):
+        read_weather(lf)

@@ -81,6 +81,21 @@ TERENO_QUANTITIES: dict[str, tuple[str, str, dict[str, str]]] = {
         {"mmolm-3": "mmol_m3", "mmol/m3": "mmol_m3", "ppm": "same", "umolmol-1": "same", "umol/mol": "same"},
     ),
 }
+#: How a TERENO export names each contract column (missing-column errors): the preferred header
+#: with a unit it may carry.
+_TERENO_UNIT_EXAMPLES = {
+    "ghi_w_m2": "W*m-2",
+    "par_umol_m2_s": "umol*m-2*s-1",
+    "diffuse_w_m2": "W*m-2",
+    "tair_c": "°C",
+    "humidity": "% or g*m-3",
+    "pair_kpa": "hPa",
+    "co2_ppm": "ppm or mmol*m-3",
+}
+TERENO_NAMES = {
+    ("rh" if qty == "humidity" else qty): f"a header like {preferred} [{_TERENO_UNIT_EXAMPLES[qty]}]"
+    for qty, (_, preferred, _) in TERENO_QUANTITIES.items()
+}
 _TIME_NAMES = re.compile(r"^(timestamp|time|date|datetime|date_time|zeitstempel)\b", re.IGNORECASE)
 _COL = re.compile(r"^\s*(?P<name>[^\[]+?)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 
@@ -691,6 +706,7 @@ def read_tereno(
         "provenance": provenance,
         "timezone_assumed": tz,
         "columns_used": used,
+        "column_names": TERENO_NAMES,
         "unused_columns": [
             c for c in table.columns if c not in used.values() and c != time_col and c not in flag_cols.values()
         ],

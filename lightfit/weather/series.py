@@ -216,10 +216,18 @@ def check_and_repair(
     if not ({"ghi_w_m2", "par_umol_m2_s"} & set(df.columns)):
         missing.append("ghi_w_m2 or par_umol_m2_s")
     if missing:
+        named = attrs.get("column_names", {})  # how the file's format names a quantity, where it is not the key
+
+        def wanted(col: str) -> str:
+            here = {c: f"; here {n}" for c, n in named.items()}
+            return " or ".join(f"{c} ({COLUMNS[c]}{here.get(c, '')})" for c in col.split(" or "))
+
         raise InputError(
             f"missing column(s) {', '.join(missing)}",
             file=file,
-            expected=f"columns for {', '.join(missing)}; found {', '.join(df.columns) or 'none'}",
+            expected=f"{'; '.join(wanted(c) for c in missing)}; found {', '.join(df.columns) or 'none'}. A quantity "
+            "the station did not record goes into the file as a column of its own, named so (e.g. a constant "
+            "CO2, with the file's provenance saying it)",
         )
     if len(df) < 2:
         raise InputError(f"only {len(df)} data row(s)", file=file, expected="a time series of at least 2 rows")
