@@ -232,6 +232,19 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
     rc, output = lightfit(args, tmp_path / "ref")
     assert rc == 0, output
     assert "full-render check" in output and "passed" in output
+    # A rerun with other observations or priors into the finished --out is refused, naming what changed:
+    # it re-optimised from the cached renders and replaced the result unsaid (a review).
+    edited = tmp_path / "edited.csv"
+    edited.write_text((tmp_path / "obs.csv").read_text().replace(OBS_ROWS, OBS_ROWS.replace(",300,", ",310,")))
+    assert edited.read_text() != (tmp_path / "obs.csv").read_text()
+    before = (tmp_path / "ref" / "calibration.json").read_text()
+    for other, said in (
+        ([*args[:1], str(edited), *args[2:]], "observations_sha256"),
+        ([*args, "--priors", "wide"], "priors ('informed' → 'wide')"),
+    ):
+        rc, output = lightfit(other, tmp_path / "ref")
+        assert rc == 2 and "the calibration there was run with other" in output and said in output, output
+    assert (tmp_path / "ref" / "calibration.json").read_text() == before
     rc, output = lightfit(args, tmp_path / "killed", kill_after="render:3")
     assert rc == KILLED and len(renders(tmp_path / "killed")) == 3, output
     rc, output = lightfit(args, tmp_path / "killed")

@@ -92,7 +92,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import check_light_scale, read_observations
+    from lightfit.inference.observations import check_light_scale, observations_file_digest, read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -151,13 +151,35 @@ def calibrate(
             column="out",
             expected="another --out, or --no-resume to replace it",
         )
+    # What the answer depends on besides the model: a surrogate rerun re-optimises from the cached
+    # renders, so without this it replaced the result of other observations or priors unsaid.
+    this_run = {
+        "parameters": list(names),
+        "surrogate": surrogate,
+        "start": dict(th0),
+        "method": method,
+        "use": list(uses),
+        "likelihood": form,
+        "observations_sha256": observations_file_digest(obs),
+    }
+    if surrogate:
+        this_run |= {"priors": priors, "n_design": n_design}
     if stored and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
         f = next(iter(stored))  # settings.json if there, else calibration.json
         check_resumable(stored[f].get("config"), s, f, "calibration history")
+        was = stored.get(settings, {}).get("calibration")  # absent in settings written before it was recorded
+        changed = [k for k in this_run if was is not None and was.get(k) != this_run[k]]
+        if changed:
+            said = [k if k == "observations_sha256" else f"{k} ({was.get(k)!r} → {this_run[k]!r})" for k in changed]
+            raise InputError(
+                f"the calibration there was run with other {'; '.join(said)}",
+                file=settings,
+                expected="the same settings as that run, --no-resume to start again, or another --out",
+            )
     m = run_model(s, w)  # several --date: one model per day
     cut = observed_model(m, obs, uses)  # observations the run's steps cannot match fail before --out is written
     out.mkdir(parents=True, exist_ok=True)
-    replace_text(settings, json.dumps({"config": s.as_dict()}, indent=2))
+    replace_text(settings, json.dumps({"config": s.as_dict(), "calibration": this_run}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
     tr = None
     box = prior_set(priors, m.scenario.optics)  # the run leaf's priors: the emulator's box, the cautions' ranges

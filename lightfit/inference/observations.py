@@ -65,6 +65,7 @@ a message naming the known columns.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -490,6 +491,15 @@ LIGHT_SERIES = ("above_canopy_par", "plant_par", "canopy_apar")
 LIGHT_RATIO_RANGE = (0.01, 20.0)
 #: Forcing PAR (µmol m⁻² s⁻¹) from which a step counts as daylight for :func:`check_light_scale`.
 DAYLIGHT_PAR_UMOL_M2_S = 200.0
+
+
+def observations_file_digest(obs: pd.DataFrame) -> str:
+    """SHA-256 of an observation table as read (:func:`read_observations`): times, series, values and
+    SDs. Two runs with the same digest were given the same readings; an edited value changes it."""
+    h = hashlib.sha256(b"lightfit observation table v1")
+    h.update(np.asarray(pd.util.hash_pandas_object(obs, index=True), np.uint64).tobytes())
+    h.update(",".join(map(str, obs.columns)).encode())
+    return h.hexdigest()
 
 
 def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
