@@ -25,7 +25,7 @@ import xarray as xr
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
 from lightfit.files import is_netcdf, replaced
-from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
+from lightfit.inference.observations import SERIES, align, check_against_forcing, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
@@ -532,7 +532,7 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool 
         if not optional:
             raise
         return None
-    check_light_scale(obs, w)
+    check_against_forcing(obs, w)
     return obs
 
 

@@ -927,6 +927,29 @@ def test_observed_light_off_the_forcings_scale_is_refused_before_running(command
     check_light_scale(read_observations(OBSERVATIONS), rep.forcing())  # the record itself: no error
 
 
+@pytest.mark.parametrize("command", ["replicate", "calibrate", "posterior"])
+def test_nee_with_uptake_counted_positive_is_refused_before_running(command, tmp_path):
+    """Chamber NEE with the wrong sign convention (uptake positive) was fitted: vcmax_scale went to 0
+    with generic cautions (a review). Positive NEE at every reading in strong light is refused naming
+    the file, the column and the convention; the same readings with uptake negative pass."""
+    from lightfit import replication as rep
+    from lightfit.inference.observations import check_against_forcing, read_observations
+
+    head = "# provenance: synthetic\n# time_zone: UTC\ntime,nee_umol_m2_s,nee_sd_umol_m2_s\n"
+    rows = "".join(f"2016-04-20T{h}:00:00Z,{{sign}}{v},1.5\n" for h, v in (("09", 25), ("10", 28), ("11", 30)))
+    wrong, right = tmp_path / "nee_wrong.csv", tmp_path / "nee.csv"
+    wrong.write_text(head + rows.format(sign=""))
+    right.write_text(head + rows.format(sign="-"))
+    args = [command, "--quick", "--out", str(tmp_path / "out")]
+    args += ["--observations", str(wrong)] if command == "replicate" else [str(wrong)]
+    if command != "replicate":
+        args += ["--parameters", "vcmax_scale"]
+    r = runner.invoke(app, args)
+    assert_user_error(r, "nee_wrong.csv", "nee_umol_m2_s", "positive (a release) at all 3 readings", "negate")
+    assert not (tmp_path / "out" / "forcing.csv").exists()
+    check_against_forcing(read_observations(right), rep.forcing())  # uptake negative: no error
+
+
 def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_file(tmp_path):
     """--observations names a file the user wants compared: outside the run's steps it is an error
     (the bundled record's own path was dropped silently); only the default record is optional."""

@@ -92,7 +92,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import check_light_scale, observations_file_digest, read_observations
+    from lightfit.inference.observations import check_against_forcing, observations_file_digest, read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -135,7 +135,7 @@ def calibrate(
                 )
     obs = read_observations(observations)
     w = weather(s)
-    check_light_scale(obs, w)  # a unit slip, before the plants grow
+    check_against_forcing(obs, w)  # a unit or sign slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}

@@ -79,7 +79,7 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
-    from lightfit.inference.observations import check_light_scale, read_observations
+    from lightfit.inference.observations import check_against_forcing, read_observations
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -101,7 +101,7 @@ def posterior(
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     obs = read_observations(observations or rep.OBSERVATIONS)
     w = weather(s)
-    check_light_scale(obs, w)  # a unit slip, before the plants grow
+    check_against_forcing(obs, w)  # a unit or sign slip, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     flat = uninformed(names, uses, bounces=cfg.render_bounces(), par_kind=cfg.par_kind)

@@ -532,6 +532,42 @@ def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
             )
 
 
+#: Forcing PAR (µmol m⁻² s⁻¹) above which a green wheat canopy takes up CO2 (:func:`check_nee_sign`):
+#: its light compensation lies near 100–200 at the canopy's respiration (docs/photosynthesis.md).
+UPTAKE_PAR_UMOL_M2_S = 800.0
+
+
+def check_nee_sign(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
+    """:class:`InputError` naming the file and column where every chamber NEE reading (two or more) at
+    a step of ``forcing`` with PAR above :data:`UPTAKE_PAR_UMOL_M2_S` is positive: NEE is
+    micrometeorological, negative for uptake (Baldocchi 2003), and a canopy the model grows takes up
+    CO2 in such light, so all-positive readings there are uptake counted positive. Fitted as they
+    are, they drove vcmax_scale to 0 with only generic cautions (a review)."""
+    col = BY_NAME["nee"].value
+    if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
+        return
+    idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
+    par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
+    value = obs[col].to_numpy(float)
+    sel = (dist <= np.timedelta64(3600, "s")) & (par >= UPTAKE_PAR_UMOL_M2_S) & np.isfinite(value)
+    if sel.sum() >= 2 and (value[sel] > 0).all():
+        raise InputError(
+            f"nee is positive (a release) at all {int(sel.sum())} readings in strong light (forcing PAR ≥ "
+            f"{UPTAKE_PAR_UMOL_M2_S:g} µmol m⁻² s⁻¹; smallest {value[sel].min():.3g})",
+            file=obs.attrs.get("source"),
+            column=col,
+            expected="NEE negative for uptake (micrometeorological sign: a sunlit wheat canopy's NEE is negative); "
+            "negate the column if the file counts uptake as positive",
+        )
+
+
+def check_against_forcing(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
+    """The checks of observations against the run's forcing, before any plant grows: the light
+    series' scale (:func:`check_light_scale`) and NEE's sign (:func:`check_nee_sign`)."""
+    check_light_scale(obs, forcing)
+    check_nee_sign(obs, forcing)
+
+
 def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:
     """Per step (``idx``: each row's step): the inverse-variance weighted mean of ``x`` (a column
     or array over the rows) over the rows with a value of series ``s``, weights ``obs[s.sd]⁻²``, and
