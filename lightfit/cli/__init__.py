@@ -23,6 +23,10 @@ function, so that ``lightfit --help`` stays fast.
 
 from __future__ import annotations
 
+import atexit
+import os
+import sys
+
 import typer
 
 from lightfit.cli import weather
@@ -86,3 +90,20 @@ COMMANDS = (
     "field-run",
     "render-dataset",
 )
+
+
+def main() -> None:
+    """The ``lightfit`` console script (and ``python -m lightfit.cli``): :data:`app`, except that an
+    interrupted run (exit 130) runs the exit handlers and then leaves without the interpreter's
+    teardown, where Dr.Jit's worker threads stopped by Ctrl-C mid-kernel could crash it (exit 139
+    after the interrupted line; a review). What a rerun resumes from is on disk already: every
+    command survives ``kill -9``. Tests call :data:`app` in their own process, which this leaves alone."""
+    try:
+        app(prog_name="lightfit")
+    except SystemExit as e:
+        if e.code != 130:
+            raise
+        atexit._run_exitfuncs()  # a cluster's close and the quiet exit (common.interrupted) still run
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)

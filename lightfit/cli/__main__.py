@@ -1,5 +1,5 @@
 """``python -m lightfit.cli`` = ``lightfit`` (for environments without the console script)."""
 
-from lightfit.cli import app
+from lightfit.cli import main
 
-app(prog_name="lightfit")
+main()

@@ -55,7 +55,9 @@ class LightfitGroup(TyperGroup):
         command, args = invoked_command(self, ctx), invoked_args(ctx)  # click clears them when invoking
 
         def stop() -> NoReturn:
-            interrupted(RESUMABLE.get(getattr(command, "name", None)), "--no-resume" in args)
+            name = getattr(command, "name", None)
+            kept = RESUMABLE.get(f"{name} --no-surrogate" if "--no-surrogate" in args else name, RESUMABLE.get(name))
+            interrupted(kept, "--no-resume" in args)
 
         try:
             with warnings.catch_warnings(), interrupts_kept():
@@ -110,6 +112,7 @@ RESUMABLE = {
     "sampling step in --out's run.h5",
     "calibrate": "every finished design render is kept in the design cache and every accepted step "
     "in --out (history.jsonl, or trust_region/ with the surrogate)",
+    "calibrate --no-surrogate": "every accepted step is kept in --out's history.jsonl",
     "field-run": "every finished task is kept beside --out (OUT.parts/)",
     "render-dataset": "every rendered camera is kept in --out (its .unfinished folder)",
 }
