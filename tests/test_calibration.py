@@ -500,7 +500,7 @@ def test_cli_resume_with_an_edited_observations_file_is_refused(tmp_path):
     r = runner.invoke(app, args)
     assert r.exit_code == 2, r.output
     err = " ".join(r.stderr.split())
-    assert "history.jsonl: the calibration history there was made with other observations" in err
+    assert "settings.json: the calibration there was run with other observations (another table" in err
     assert "--no-resume" in err
     r = runner.invoke(app, [*args, "--no-resume"])
     assert r.exit_code == 0, r.output
@@ -539,7 +539,7 @@ def test_fit_cautions_against_the_chi_square_table():
     kw = dict(names=["roughness"], n_values=46, box=box, support=support)
     assert fit_cautions({"roughness": 0.6}, loss=79.9 / 2, **kw) == []
     (misfit, advice) = fit_cautions({"roughness": 0.6}, loss=80.3 / 2, **kw)
-    assert "χ² = 80.3 for 46 values and 1 parameters" in misfit and "check the observations" in advice
+    assert "χ² = 80.3 for 46 values and 1 parameter (" in misfit and "check the observations" in advice
     edge = fit_cautions({"roughness": 0.9995}, loss=1.0, **kw)
     assert len(edge) == 2 and "roughness = 0.9995 is on the edge of its search range [0.3, 1]" in edge[0]
     assert fit_cautions({"roughness": 0.99}, loss=1.0, **kw) == []

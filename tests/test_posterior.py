@@ -1079,6 +1079,26 @@ def test_cautions_say_what_the_numbers_cannot():
     assert "up to 1.6 posterior SD" in line and "1.6 at the MAP's leaf" in line and "--n-design 40" in line
 
 
+def test_cautions_name_a_rejected_fit_an_edge_map_and_an_uninformed_parameter():
+    """A review: the posterior of data the model cannot fit (χ² at the MAP far above n − k), a MAP on
+    its prior's edge and a parameter whose posterior is its prior were reported without a word, where
+    calibrate cautions. The χ² test is calibrate's (misfit: scipy's χ² tail at 1e-3)."""
+    from scipy.stats import chi2
+
+    from lightfit.cli.posterior import _cautions
+
+    base = {"names": ["specular", "light_factor"], "rhat": [1.01, 1.01], "n_observations": 32}
+    fine = chi2.ppf(0.5, 30)
+    assert _cautions({**base, "chi2_map": fine}) == []
+    (line,) = _cautions({**base, "chi2_map": 63.6})  # the review's run: χ²/(n − k) = 2.12
+    assert "χ² = 63.6 for 32 values and 2 parameters" in line and "a model the data reject" in line
+    edge = {**base, "x_map": {"specular": 0.4625, "light_factor": 1.1}, "prior_support": {"specular": [0.4625, 0.7375]}}
+    (line,) = _cautions(edge)
+    assert line.startswith("specular's MAP = 0.4625 is on the edge of its prior's range [0.4625, 0.7375]")
+    (line,) = _cautions({**base, "sd_over_prior_sd": {"specular": 0.99, "light_factor": 0.05}})
+    assert line.startswith("the data hardly inform specular: its posterior SD is 0.99 × its prior's")
+
+
 def test_the_map_search_holds_the_monte_carlo_sds_of_its_start():
     """The MAP search's objective takes the Monte Carlo SDs at its start and holds them (their
     gradient is stopped, their values moved with θ: the objective's slope was not its derivative and

@@ -47,6 +47,20 @@ def test_posterior_cli_quick(tmp_path):
     assert s["names"] == ["specular", "light_factor"] and s["n_steps"] == 30
     assert "emulator_error" not in s and "sloppy" in s
     assert "design: 0 new renders, 0 from the cache (0 sun positions" in r.output.replace("\n", "")
+    # The MAP's χ², by hand: the one reading against the light factor × the forcing's PAR read linearly
+    # between the steps around it; specular, which above-canopy PAR cannot inform, keeps its prior's SD.
+    from lightfit import replication as rep
+    from lightfit.inference.observations import read_observations
+
+    obs, par = read_observations(rep.OBSERVATIONS), rep.forcing()["par_umol_m2_s"]
+    t = obs.index[0]
+    a, b = par.index[par.index <= t][-1], par.index[par.index > t][0]
+    at = par[a] + (t - a) / (b - a) * (par[b] - par[a])
+    y, sd = obs["above_canopy_par_umol_m2_s"].iloc[0], obs["above_canopy_par_sd_umol_m2_s"].iloc[0]
+    assert s["n_observations"] == 1
+    assert s["chi2_map"] == pytest.approx(((y - s["x_map"]["light_factor"] * at) / sd) ** 2, rel=1e-6, abs=1e-9)
+    assert s["sd_over_prior_sd"]["specular"] > 0.9 > s["sd_over_prior_sd"]["light_factor"]
+    assert "the data hardly inform specular" in " ".join(r.output.split())
     run = load_run(out / "run.h5")
     # 30 steps keep far fewer than 50 τ: the command's own table says so, as posterior-status does
     assert not run["diagnostics"]["tau_reliable"] and s["tau_reliable"] is False

@@ -239,7 +239,7 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
     assert edited.read_text() != (tmp_path / "obs.csv").read_text()
     before = (tmp_path / "ref" / "calibration.json").read_text()
     for other, said in (
-        ([*args[:1], str(edited), *args[2:]], "observations_sha256"),
+        ([*args[:1], str(edited), *args[2:]], "observations (another table"),
         ([*args, "--priors", "wide"], "priors ('informed' → 'wide')"),
     ):
         rc, output = lightfit(other, tmp_path / "ref")

@@ -170,7 +170,12 @@ def calibrate(
         was = stored.get(settings, {}).get("calibration")  # absent in settings written before it was recorded
         changed = [k for k in this_run if was is not None and was.get(k) != this_run[k]]
         if changed:
-            said = [k if k == "observations_sha256" else f"{k} ({was.get(k)!r} → {this_run[k]!r})" for k in changed]
+            said = [
+                "observations (another table: its SHA-256 differs)"
+                if k == "observations_sha256"
+                else f"{k} ({was.get(k)!r} → {this_run[k]!r})"
+                for k in changed
+            ]
             raise InputError(
                 f"the calibration there was run with other {'; '.join(said)}",
                 file=settings,

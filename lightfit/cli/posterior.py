@@ -273,12 +273,15 @@ def posterior(
 def _cautions(d: dict) -> list[str]:
     """What a posterior's diagnostics ``d`` (a run's summary or its stored diagnostics) warn of:
     walkers that disagree (split-R̂, separate modes), τ not yet reliable by the stop rule's own
-    multiple, an acceptance outside 0.1–0.8, a MAP the optimiser did not reach, an emulator whose
-    measured error moves the posterior by more than ``EMULATOR_SHIFT_CAUTION_SD``."""
+    multiple, an acceptance outside 0.1–0.8, a MAP the optimiser did not reach, a MAP whose χ² the
+    data reject or that sits on its prior's edge, a parameter the data hardly narrowed (posterior SD
+    ≥ ``UNINFORMED_SD_RATIO`` of its prior's), an emulator whose measured error moves the posterior
+    by more than ``EMULATOR_SHIFT_CAUTION_SD``."""
     import numpy as np
 
+    from lightfit.inference.calibration import misfit, on_edge
     from lightfit.inference.mcmc.diagnostics import ACCEPTANCE_OK, StopRule
-    from lightfit.inference.posterior import EMULATOR_SHIFT_CAUTION_SD
+    from lightfit.inference.posterior import EMULATOR_SHIFT_CAUTION_SD, UNINFORMED_SD_RATIO
 
     out = []
     names, rhat = list(d.get("names", [])), np.asarray(d.get("rhat", []), float)
@@ -303,6 +306,17 @@ def _cautions(d: dict) -> list[str]:
         out.append(
             f"acceptance {d.get('acceptance_mean', float('nan')):.2f} outside {lo:g}–{hi:g}: the walkers move badly"
         )
+    if "chi2_map" in d:  # the posterior of a model the data reject describes that model, not the leaf
+        rejected = ": the posterior SDs are those of a model the data reject"
+        lines = misfit(d["chi2_map"], d["n_observations"], len(names))
+        out += [s.replace("the fit leaves", "the MAP leaves") + rejected for s in lines]
+    for n, (lo, hi) in (d.get("prior_support") or {}).items():
+        v = (d.get("x_map") or {}).get(n)
+        if v is not None and on_edge(v, lo, hi):
+            out.append(f"{n}'s MAP = {v:.4g} is on the edge of its prior's range [{lo:g}, {hi:g}]: the data pull it on")
+    for n, r in (d.get("sd_over_prior_sd") or {}).items():
+        if r >= UNINFORMED_SD_RATIO:
+            out.append(f"the data hardly inform {n}: its posterior SD is {r:.2f} × its prior's (the prior speaks)")
     if d.get("map_converged") is False:
         where = "the best sample it started from" if d.get("map_kept_start") else "the best point it reached"
         out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is {where}")

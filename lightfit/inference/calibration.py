@@ -773,6 +773,29 @@ MISFIT_P = 1e-3
 EDGE_SHARE = 1e-3
 
 
+def on_edge(v: float, lo: float, hi: float) -> bool:
+    """Whether ``v`` lies within :data:`EDGE_SHARE` of a finite end of [lo, hi] (of the range's width,
+    or of max(|v|, 1) where it is unbounded above)."""
+    width = (hi - lo) if math.isfinite(hi) else max(abs(v), 1.0)
+    return any(math.isfinite(e) and abs(v - e) <= EDGE_SHARE * width for e in (lo, hi))
+
+
+def misfit(chi2_value: float, n_values: int, k: int) -> list[str]:
+    """A sentence where χ² over ``n_values`` observed values and ``k`` fitted parameters exceeds the χ²
+    distribution with n − k degrees of freedom at tail probability :data:`MISFIT_P` (the model does
+    not reproduce the data within their SDs), else nothing."""
+    from scipy.stats import chi2
+
+    dof = n_values - k
+    if dof > 0 and math.isfinite(chi2_value) and chi2.sf(chi2_value, dof) < MISFIT_P:
+        return [
+            f"the fit leaves χ² = {chi2_value:.4g} for {n_values} values and {k} parameter{'s' * (k != 1)} "
+            f"(χ²/(n − k) = {chi2_value / dof:.3g}, tail probability < {MISFIT_P:g}): the model does not "
+            "reproduce the data within their SDs"
+        ]
+    return []
+
+
 def fit_cautions(
     theta: Mapping[str, float],
     names: Sequence[str],
@@ -795,25 +818,15 @@ def fit_cautions(
     Each is what a unit slip in the observations (PAR in mmol), SDs too small, or a process the
     model leaves out produce; the numbers of a calibration with a caution are not a fit to trust.
     """
-    from scipy.stats import chi2
-
     out = []
     for n in names:
         v, (lo, hi) = float(theta[n]), box[n]
-        width = (hi - lo) if math.isfinite(hi) else max(abs(v), 1.0)
-        edge = next((e for e in (lo, hi) if math.isfinite(e) and abs(v - e) <= EDGE_SHARE * width), None)
-        if edge is not None:
+        if on_edge(v, lo, hi):
             out.append(f"{n} = {v:.4g} is on the edge of its search range [{lo:g}, {hi:g}]: the data pull it further")
         if n in support and not support[n][0] <= v <= support[n][1]:
             lo, hi = support[n]
             out.append(f"{n} = {v:.4g} lies outside its prior's range [{lo:g}, {hi:g}]")
-    dof = n_values - len(names)
-    if dof > 0 and math.isfinite(loss) and chi2.sf(2.0 * loss, dof) < MISFIT_P:
-        out.append(
-            f"the fit leaves χ² = {2.0 * loss:.4g} for {n_values} values and {len(names)} parameters "
-            f"(χ²/(n − k) = {2.0 * loss / dof:.3g}, tail probability < {MISFIT_P:g}): the model does not reproduce "
-            "the data within their SDs"
-        )
+    out += misfit(2.0 * loss, n_values, len(names))
     if out:
         out.append("check the observations' units and SDs, and what the model leaves out, before using these values")
     return out
@@ -828,5 +841,7 @@ __all__ = [
     "fit_cautions",
     "from_unconstrained",
     "make_loss",
+    "misfit",
+    "on_edge",
     "to_unconstrained",
 ]

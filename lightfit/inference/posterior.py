@@ -175,6 +175,11 @@ RESUME_ENTRIES = ("seed", "use", "priors", "fixed", "observations_sha256")
 #: (:func:`emulator_error_vs_width`) may cause before a run is cautioned: a Gaussian 90 % interval
 #: moved by 0.5 of its SD covers 86 % (by 1: 74 %).
 EMULATOR_SHIFT_CAUTION_SD = 0.5
+#: Draws (seed 0) from which a prior's SD is taken for ``sd_over_prior_sd``: its SE ≈ 0.5 %.
+PRIOR_SD_DRAWS = 20_000
+#: A parameter whose posterior SD is at least this share of its prior's is called barely informed
+#: (``lightfit posterior``'s caution): the data narrowed it by less than a tenth.
+UNINFORMED_SD_RATIO = 0.9
 _EXPECTED_RESUME = "the run's own settings to resume it, --no-resume to start again, or another --out"
 _STORED_AS = {"seed": int, "use": list, "priors": list, "fixed": dict, "observations_sha256": str}
 
@@ -620,6 +625,10 @@ def run(
     flat_lp = res.log_prob[burn_in(len(res.log_prob), burn) :].reshape(-1)
     map_info: dict = {}
     x_map = optimum(lp, samples[np.argmax(flat_lp)], info=map_info)
+    # How well the MAP fits (χ² of the whitened residuals) and how much the data narrowed each prior:
+    # the posterior's SDs describe the model, and mean little where it does not fit or the prior stays.
+    chi2_map = float(jnp.sum(lp.residuals(jnp.asarray(x_map, jnp.float64)) ** 2))
+    prior_sd = {n: float(np.std(lp.priors[n].sample(np.random.default_rng(0), PRIOR_SD_DRAWS))) for n in lp.names}
     fisher, profile = identifiability(lp, x_map, n_profile)
     an: dict = {
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
@@ -660,6 +669,10 @@ def run(
             "map_kept_start": map_info["kept_start"],
             "mean": dict(zip(lp.names, summ["mean"].tolist())),
             "sd": dict(zip(lp.names, summ["sd"].tolist())),
+            "sd_over_prior_sd": {n: float(v) / prior_sd[n] for n, v in zip(lp.names, summ["sd"].tolist())},
+            "prior_support": {n: list(lp.priors[n].support) for n in lp.names},
+            "chi2_map": chi2_map,
+            "n_observations": int(lp.n_observations),
             "corr": summ["corr"].tolist(),
             "fisher": fisher["table"],
             "stiff": fisher["stiff"],
