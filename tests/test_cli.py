@@ -1133,7 +1133,7 @@ def test_offset_line_says_how_observations_meet_the_steps():
     """The bundled record (12:13:48 local) lies between the 12:00 and 12:30 steps of 30-min
     instants, 13.8 min from the nearer: read between them. With 12:00 alone it meets that step."""
     from lightfit import replication as rep
-    from lightfit.cli.replicate import offset_line
+    from lightfit.cli.common import offset_line
     from lightfit.inference.observations import read_observations
 
     rec = read_observations(OBSERVATIONS)

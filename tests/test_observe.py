@@ -430,3 +430,16 @@ def test_an_per_leaf_changes_canopy_an_only():
         np.testing.assert_allclose(o["nee_mc_sd_umol_m2_s"], np.sqrt(an_sd**2 @ (area[blade] / ground) ** 2))
         np.testing.assert_allclose(o["canopy_apar_umol_m2_s"], absorbed @ area / ground, rtol=1e-12)
         np.testing.assert_allclose(o["fapar"], absorbed @ area / ground / above, rtol=1e-12)
+
+
+@pytest.mark.parametrize(("sd", "said"), [("-20", "(SD -20)"), ("0", "(SD 0)"), ("", "(SD missing)")])
+def test_a_value_without_a_positive_sd_is_refused_with_its_sd(tmp_path, sd, said):
+    """A negative, zero or missing SD is refused at its line and column, saying which (a review: the
+    message was the same for all three and did not show the value)."""
+    f = tmp_path / "obs.csv"
+    rows = f"2016-04-20T10:00:00Z,1500,75\n2016-04-20T10:30:00Z,1600,{sd}\n"
+    head = "# provenance: synthetic\n# time_zone: UTC\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+    f.write_text(head + rows)
+    where = "obs.csv, line 5, column 'above_canopy_par_sd_umol_m2_s'"
+    with pytest.raises(InputError, match=rf"{where}: .*{re.escape(said)}"):
+        read_observations(f)

@@ -10,7 +10,15 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import caution, console, output_folder, parse_names, parse_theta
+from lightfit.cli.common import (
+    caution,
+    console,
+    observations_lines,
+    output_folder,
+    parse_names,
+    parse_theta,
+    soil_respiration_note,
+)
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -183,6 +191,8 @@ def calibrate(
             )
     m = run_model(s, w)  # several --date: one model per day
     cut = observed_model(m, obs, uses)  # observations the run's steps cannot match fail before --out is written
+    observations_lines(obs, w)  # what is compared, and how it meets the steps: nothing dropped unsaid
+    soil_respiration_note(uses, s.soil_respiration)
     out.mkdir(parents=True, exist_ok=True)
     replace_text(settings, json.dumps({"config": s.as_dict(), "calibration": this_run}, indent=2))
     say = lambda x: console.print(x)  # noqa: E731
@@ -245,7 +255,8 @@ def calibrate(
         "dates": list(getattr(m, "dates", s.dates)),
         "likelihood": form,
         "seconds": res.seconds if tr is None else tr.seconds,
-        "observations": str(observations),
+        "observations": str(Path(observations).resolve()),  # read back from elsewhere it still names the file
+        "n_observations": int(res.n_observations),
         "parameters": list(names),
         "config": s.as_dict(),
         "precision": precision(),

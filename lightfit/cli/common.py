@@ -367,3 +367,53 @@ def weather_report(df) -> None:
             else f"[yellow]repair[/] {q['kind']}:"
         )
         console.print(f"  {label} {escape(q['detail'])}")
+
+
+def offset_line(obs, w) -> str:
+    """How the observations meet the run's steps: how many are read between two steps (the model
+    interpolated linearly in time, :func:`lightfit.inference.observations.interpolation`), and how
+    many at their nearest step and how far from it."""
+    import numpy as np
+
+    from lightfit.inference.observations import SERIES, interpolation, nearest_steps
+    from lightfit.weather import timestamps
+
+    stamps = timestamps.of(w)
+    idx, dist = nearest_steps(obs, w.index, stamps)
+    read = interpolation(obs, w.index, stamps)
+    between = np.zeros(len(obs), bool)
+    for s in SERIES:
+        if s.value in obs.columns:
+            between |= obs[s.value].notna().to_numpy() & (read[s.value][1][idx] > 0)
+    parts = []
+    if between.any():
+        parts.append(
+            f"{int(between.sum())} of {len(obs)} compared with the model interpolated linearly in time "
+            "between the two steps around them"
+        )
+    if (~between).any():
+        far = float(np.max(dist[~between]) / np.timedelta64(1, "s")) / 60.0
+        parts.append(
+            f"{int((~between).sum())} of {len(obs)} with their nearest step, up to {far:.1f} min away "
+            f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
+        )
+    return "  " + "; ".join(parts)
+
+
+def observations_lines(obs, w) -> None:
+    """Print which observations a command compares with the model and how they meet its steps (what
+    replicate, calibrate and posterior read: nothing is dropped or merged unsaid)."""
+    console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
+    console.print(offset_line(obs, w))
+
+
+def soil_respiration_note(uses, soil_respiration: float) -> None:
+    """A note where chamber NEE is fitted with no soil respiration (``--soil-respiration 0``, the
+    default): a chamber's NEE holds it (night readings most), and without it a fit pushes the leaves'
+    respiration, tied to vcmax_scale, to stand in for it (a review: two night readings moved
+    vcmax_scale from 0.80 to 0.84)."""
+    if "nee" in uses and soil_respiration == 0:
+        console.print(
+            "note: NEE is modelled without soil and root respiration (--soil-respiration 0, the default); a "
+            "chamber's NEE contains it, night readings most: give --soil-respiration, or fit daytime NEE"
+        )

@@ -8,7 +8,15 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from lightfit.cli.common import caution, console, interrupted, output_folder, parse_names
+from lightfit.cli.common import (
+    caution,
+    console,
+    interrupted,
+    observations_lines,
+    output_folder,
+    parse_names,
+    soil_respiration_note,
+)
 from lightfit.cli.options import (
     DesignWorkers,
     ModelOptions,
@@ -121,6 +129,8 @@ def posterior(
     m = run_model(s, w)  # several --date: one model per day
     # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
     m, obs, n_rendered = observed_model(m, obs, uses)
+    observations_lines(obs, w)  # what is compared, and how it meets the steps: nothing dropped unsaid
+    soil_respiration_note(uses, s.soil_respiration)
     prior_set = A.prior_set(priors, m.scenario.optics)  # informed: the priors of the run's leaf
     lo = [prior_set[n].support[0] for n in LEAF_PARAMETERS]
     hi = [prior_set[n].support[1] for n in LEAF_PARAMETERS]

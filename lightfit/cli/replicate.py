@@ -11,7 +11,15 @@ import typer
 from rich import box
 from rich.table import Table
 
-from lightfit.cli.common import console, output_folder, parse_theta, samples_label, weather_report, weather_table
+from lightfit.cli.common import (
+    console,
+    observations_lines,
+    output_folder,
+    parse_theta,
+    samples_label,
+    weather_report,
+    weather_table,
+)
 from lightfit.cli.options import ModelOptions, model_options, option_error, resolve, weather
 from lightfit.errors import InputError
 
@@ -149,8 +157,7 @@ def replicate(
         if line:
             console.print(line)
     if obs is not None:
-        console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
-        console.print(offset_line(obs, w))
+        observations_lines(obs, w)
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")
@@ -240,35 +247,6 @@ def mc_bias_line(ds) -> str:
         f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
         f"response; not subtracted): {bias / an:+.2%} at {at}, {falls} (docs/model.md)"
     )
-
-
-def offset_line(obs, w) -> str:
-    """How the observations meet the run's steps: how many are read between two steps (the model
-    interpolated linearly in time, :func:`lightfit.inference.observations.interpolation`), and how
-    many at their nearest step and how far from it."""
-    from lightfit.inference.observations import SERIES, interpolation, nearest_steps
-    from lightfit.weather import timestamps
-
-    stamps = timestamps.of(w)
-    idx, dist = nearest_steps(obs, w.index, stamps)
-    read = interpolation(obs, w.index, stamps)
-    between = np.zeros(len(obs), bool)
-    for s in SERIES:
-        if s.value in obs.columns:
-            between |= obs[s.value].notna().to_numpy() & (read[s.value][1][idx] > 0)
-    parts = []
-    if between.any():
-        parts.append(
-            f"{int(between.sum())} of {len(obs)} compared with the model interpolated linearly in time "
-            "between the two steps around them"
-        )
-    if (~between).any():
-        far = float(np.max(dist[~between]) / np.timedelta64(1, "s")) / 60.0
-        parts.append(
-            f"{int((~between).sum())} of {len(obs)} with their nearest step, up to {far:.1f} min away "
-            f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
-        )
-    return "  " + "; ".join(parts)
 
 
 def edge_line(ds) -> str:

@@ -360,7 +360,10 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             line,
             s.sd,
             "SD > 0 wherever the value is present",
-            lambda i, s=s: f"{s.value} is given without a positive standard deviation",
+            lambda i, s=s: (
+                f"{s.value} is given without a positive standard deviation (SD "
+                + ("missing)" if pd.isna(out[s.sd].iloc[i]) else f"{out[s.sd].iloc[i]:g})")
+            ),
         )
         if s.nonnegative:
             _first_bad(
