@@ -210,4 +210,7 @@ def test_the_emulator_is_checked_at_the_maps_own_leaf(tmp_path):
     assert leaf[0] == pytest.approx(x_map[0], abs=0, rel=1e-12)  # specular from the MAP; the rest the leaf's own
     assert float(ee["at_map_shift_over_sd"]) == pytest.approx(float(np.asarray(ee["shift_over_sd_per_point"])[-1]))
     assert "over 1 held-out render and the MAP's leaf (" in " ".join(r.output.split())
+    # the held-out render is counted apart from the design's six (a review: one line counted both)
+    assert "design: 6 new renders, 0 from the cache" in r.output.replace("\n", "")
+    assert "; held-out check: 1 new, 0 from the cache" in r.output.replace("\n", "")
     assert np.asarray(ee["se_ratio_per_point"]).shape == (2,) and (np.asarray(ee["se_ratio_per_point"]) > 0).all()

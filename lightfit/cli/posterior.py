@@ -173,7 +173,7 @@ def posterior(
     # continues where it stopped, and lightfit calibrate's design of the same configuration is reused);
     # the emulator is refitted whenever its key (design, box, scene) changed. OUT/emulator.npz is the run's
     # copy (several days: OUT/emulator-<date>.npz, one per day, each day in its own design directory).
-    counts = dict(E.COUNTS)
+    counts, held = dict(E.COUNTS), {"rendered": 0, "cached": 0}  # held: the held-out renders' share
     emus, val = [], []
     with design_renderer(scheduler, workers) as render_points:
         for i, (d, key) in enumerate(zip(days, keys)):
@@ -202,14 +202,16 @@ def posterior(
             if n_test > 0 and analysis and n_rendered > 0:
                 leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
                 renders = E.design_dir(d, cache) / "renders"
+                start = dict(E.COUNTS)
                 if render_points is not None:
                     render_points(d, leaf_test, renders, E.render_key(d))
                 val.append((leaf_test, E.render_parts(d, leaf_test, progress=True, cache=renders)))
+                held = {k: held[k] + E.COUNTS[k] - start[k] for k in held}
     where = ", ".join(str(E.design_dir(d, cache)) for d in days)
-    console.print(
-        f"design: {E.COUNTS['rendered'] - counts['rendered']} new renders, {E.COUNTS['cached'] - counts['cached']} "
-        f"from the cache ({n_rendered} sun positions each; {where})"
-    )
+    new, cached = (E.COUNTS[k] - counts[k] - held[k] for k in ("rendered", "cached"))
+    checked = f"; held-out check: {held['rendered']} new, {held['cached']} from the cache" if val else ""
+    each = f"{n_rendered} sun positions each; {where}"
+    console.print(f"design: {new} new renders, {cached} from the cache ({each}){checked}")
     res = A.run(
         m,
         obs,
