@@ -14,6 +14,7 @@ present), the forcing, and a summary table.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -25,7 +26,7 @@ import xarray as xr
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
 from lightfit.files import is_netcdf, replaced
-from lightfit.inference.observations import SERIES, align, check_against_forcing, read_observations, read_offsets_s
+from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
@@ -38,7 +39,7 @@ from lightfit.photosynthesis.canopy import check_profile, profile_for
 from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
 from lightfit.plant.field import DEFAULT_BUFFER_ROWS, DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS
-from lightfit.plant.growth import GrowthConfig, parameter_file_setting
+from lightfit.plant.growth import SEASON_START_MONTH_DAY, GrowthConfig, parameter_file_setting
 from lightfit.plant.sheaths import SHEATHS
 from lightfit.report import plot, summary
 from lightfit.weather import timestamps
@@ -314,11 +315,13 @@ def check_season_start(season_start, site: Site) -> str | None:
     if season_start is not None:
         return parse_date(season_start, "season_start").isoformat()
     if site.latitude_deg < 0:
+        default = dt.date(2016, *SEASON_START_MONTH_DAY)
         raise InputError(
-            f"the default season start, 5 March, is a northern spring date; {site.name} lies at "
+            f"the default season start, {default:%-d %B}, is a northern spring date; {site.name} lies at "
             f"{site.latitude_deg:g}° (south of the equator), where wheat is sown in autumn, from April to June",
             column="season_start",
-            expected="the day growth starts on at this site, e.g. its sowing date (YYYY-MM-DD)",
+            expected="the day growth starts on at this site (YYYY-MM-DD): the sowing date where the crop grows "
+            "on through a mild winter, the end of dormancy after a cold one",
         )
     return None
 
@@ -532,7 +535,7 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool 
         if not optional:
             raise
         return None
-    check_against_forcing(obs, w)
+    check_light_scale(obs, w)
     return obs
 
 

@@ -13,7 +13,7 @@ from lightfit.figure import clock_axis
 from lightfit.photosynthesis.canopy import PROFILES
 from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
 from lightfit.plant import Field
-from lightfit.weather.site import local_clock
+from lightfit.weather.site import local_clock, zone_label
 
 #: Per-time variables of the summary table (those a results file has), after local time and sun.
 SUMMARY_COLUMNS = (
@@ -212,7 +212,7 @@ def figure(ds, compare=None):
 
     day = pd.Timestamp(t[0]).strftime("%Y-%m-%d") if len(t) else ""
     clock_axis(ax_c, tz)
-    ax_c.set_xlabel(f"local time ({tz}), {day}")
+    ax_c.set_xlabel(f"local time ({zone_label(tz)}), {day}")
     for ax in (ax_a, ax_b, ax_c):
         ax.grid(alpha=0.3)
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)

@@ -94,6 +94,20 @@ def test_a_southern_site_grows_its_plants_from_its_own_season_start():
     assert s.season_start == "2016-05-15" and s.replication_config().field().growth.days == 128
     # the coordinates' label says S and W, and --timezone takes UTC±H as --tz does
     assert (s.site.name, s.site.timezone) == ("35.1° S, 147.4° E", "Etc/GMT-10")
+    from lightfit.weather.site import zone_label
+
+    assert zone_label(s.site.timezone) == "UTC+10"  # as tables and figures write it (not Etc/GMT-10's sign)
+    # the option given is the one named (it blamed the default --date), and the default's own date given
+    # explicitly is the same run (a resume was refused as 'None → 2016-03-05')
+    from lightfit.cli.options import changed_settings
+
+    with pytest.raises(InputError, match=r"--season-start 2016-05-01 \(the default --date 2016-04-20\)"):
+        resolve(ModelOptions(quick=True, season_start="2016-05-01"))
+    plain = resolve(ModelOptions(quick=True))
+    assert changed_settings(plain.as_dict(), resolve(ModelOptions(quick=True, season_start="2016-03-05"))) == []
+    assert changed_settings(plain.as_dict(), resolve(ModelOptions(quick=True, season_start="2016-03-01"))) == [
+        "season_start: None → '2016-03-01'"
+    ]
     west = resolve(ModelOptions(quick=True, latitude=38.0, longitude=-98.0, timezone="America/Chicago"))
     assert west.site.name == "38° N, 98° W"
 
@@ -363,6 +377,8 @@ def test_a_clock_change_inside_a_run_neither_repeats_nor_folds_local_time(tmp_pa
     assert list(local_clock(t[:2], "Australia/Sydney")) == ["02:00", "02:30"]
     assert list(local_clock(t[:1], "Asia/Kolkata")) == ["20:30"]
     assert list(local_clock(pd.DatetimeIndex([t[0], t[0] + pd.Timedelta("200D")]), "Asia/Kolkata")) == ["20:30"] * 2
+    days = pd.DatetimeIndex(["2016-03-20 11:00", "2016-04-20 10:00"], tz="UTC")  # two dates across a change
+    assert list(local_clock(days, "Europe/Berlin")) == ["12:00", "12:00"]
 
     site = Site(-35.1, 147.4, 200.0, "Wagga Wagga", "Australia/Sydney")
     day = weather.add_solar(weather.read_weather(_clear_sky_csv(tmp_path / "w.csv", site, "2016-04-02")), site=site)

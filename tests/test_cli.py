@@ -927,27 +927,33 @@ def test_observed_light_off_the_forcings_scale_is_refused_before_running(command
     check_light_scale(read_observations(OBSERVATIONS), rep.forcing())  # the record itself: no error
 
 
-@pytest.mark.parametrize("command", ["replicate", "calibrate", "posterior"])
-def test_nee_with_uptake_counted_positive_is_refused_before_running(command, tmp_path):
+def test_nee_with_uptake_counted_positive_gets_a_caution_before_the_plants_grow(tmp_path):
     """Chamber NEE with the wrong sign convention (uptake positive) was fitted: vcmax_scale went to 0
-    with generic cautions (a review). Positive NEE at every reading in strong light is refused naming
-    the file, the column and the convention; the same readings with uptake negative pass."""
+    with generic cautions (a review). Positive NEE at every reading in strong light is named, with the
+    file, the column and the convention, before the plants grow; a caution, not a refusal, because a
+    sparse canopy over a respiring soil can release CO2 by day. Uptake negative: nothing said."""
     from lightfit import replication as rep
-    from lightfit.inference.observations import check_against_forcing, read_observations
+    from lightfit.inference.observations import nee_sign_caution, read_observations
 
     head = "# provenance: synthetic\n# time_zone: UTC\ntime,nee_umol_m2_s,nee_sd_umol_m2_s\n"
-    rows = "".join(f"2016-04-20T{h}:00:00Z,{{sign}}{v},1.5\n" for h, v in (("09", 25), ("10", 28), ("11", 30)))
+    rows = "".join(f"2016-04-20T{h}:00:00Z,{{sign}}{v},1.5\n" for h, v in (("10", 25), ("10:30", 28), ("11", 30)))
+    rows = rows.replace("10:30:00:00", "10:30:00")
     wrong, right = tmp_path / "nee_wrong.csv", tmp_path / "nee.csv"
     wrong.write_text(head + rows.format(sign=""))
     right.write_text(head + rows.format(sign="-"))
-    args = [command, "--quick", "--out", str(tmp_path / "out")]
-    args += ["--observations", str(wrong)] if command == "replicate" else [str(wrong)]
-    if command != "replicate":
-        args += ["--parameters", "vcmax_scale"]
-    r = runner.invoke(app, args)
-    assert_user_error(r, "nee_wrong.csv", "nee_umol_m2_s", "positive (a release) at all 3 readings", "negate")
-    assert not (tmp_path / "out" / "forcing.csv").exists()
-    check_against_forcing(read_observations(right), rep.forcing())  # uptake negative: no error
+    w = rep.forcing()
+    said = nee_sign_caution(read_observations(wrong), w)
+    assert "nee_wrong.csv, column 'nee_umol_m2_s'" in said and "positive (a release) at all 3 readings" in said
+    assert "negate the column" in said and nee_sign_caution(read_observations(right), w) is None
+    # A NaN reading is not counted, and one reading alone is not judged.
+    one = tmp_path / "one.csv"
+    one.write_text(head + "2016-04-20T10:00:00Z,25,1.5\n")
+    assert nee_sign_caution(read_observations(one), w) is None
+    args = ["calibrate", str(wrong), "--quick", "--steps", "14:17", "--parameters", "vcmax_scale", "--no-surrogate"]
+    r = runner.invoke(app, [*args, "--max-steps", "1", "--out", str(tmp_path / "out")])
+    text = " ".join(r.output.split())
+    assert "caution" in text and "NEE is positive (a release) at all 3 readings" in text, text
+    assert r.exit_code == 0 and text.index("NEE is positive") < text.index("observations:"), text  # before growing
 
 
 def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_file(tmp_path):
@@ -1163,7 +1169,35 @@ def test_calibrate_into_a_folder_of_another_calibration_is_refused(tmp_path, mon
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--out", str(out)]
     r = runner.invoke(app, args)
     assert_user_error(r, "option --out", "holds a calibration of specular, roughness, subsurface", "--no-resume")
-    assert not (tmp_path / "cache").exists()
+    # nothing grown or rendered (a first import in a fresh process may make the folder for its kernels)
+    assert not any((tmp_path / "cache").rglob("*.npz"))
+
+
+def test_calibrate_rerun_over_a_result_written_before_the_record_compares_what_it_kept(tmp_path, monkeypatch):
+    """An --out from before calibrate recorded its observations and start (settings.json without
+    'calibration') was replaced without any comparison (a review): its calibration.json's series,
+    method and likelihood are compared instead, and the rest is said to be unchecked."""
+    from lightfit.cli.options import ModelOptions, resolve
+    from lightfit.inference.likelihood import likelihood_form
+
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "cal"
+    out.mkdir()
+    config = resolve(ModelOptions(quick=True)).as_dict()
+    (out / "settings.json").write_text(json.dumps({"config": config}))
+    (out / "history.jsonl").write_text("")
+    old = {
+        "parameters": ["light_factor"],
+        "method": "lbfgsb",
+        "use": ["plant_par"],
+        "likelihood": likelihood_form("model", 1.0),
+    }
+    (out / "calibration.json").write_text(json.dumps(old))
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--no-surrogate"]
+    r = runner.invoke(app, [*args, "--out", str(out)])
+    assert_user_error(r, "settings.json", "other use (['plant_par'] → ['above_canopy_par'])", "--no-resume")
+    assert "resuming without comparing them (the rest compared with" in " ".join(r.output.split())
+    assert not any((tmp_path / "cache").rglob("*.npz"))  # refused before anything grew or rendered
 
 
 def test_use_help_names_every_observed_series():

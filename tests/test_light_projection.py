@@ -512,7 +512,7 @@ def test_light_floor_leaves_the_other_segments_as_they_were():
 
 @pytest.mark.parametrize("direct", ["paths", "projection"])
 def test_light_transmitted_by_a_layer_is_absorbed_as_white_sky_light(direct):
-    """Two horizontal leaf layers covering a periodic cell, the sun at 10°, black soil, one bounce.
+    """Two horizontal leaf layers covering a periodic cell, the sun at 5°, black soil, one bounce.
     The lower layer is in full shade: all its sunlight is the upper layer's diffuse transmission, exactly
     Lambertian in this BSDF (w_t/π), so it receives w_t·sin β of the sun and absorbs it with the
     white-sky absorptance ∫(1 − ρ(μ)) 2μ dμ, not the absorptance at the sun's grazing

@@ -61,6 +61,8 @@ def test_posterior_cli_quick(tmp_path):
     assert s["chi2_map"] == pytest.approx(((y - s["x_map"]["light_factor"] * at) / sd) ** 2, rel=1e-6, abs=1e-9)
     assert s["sd_over_prior_sd"]["specular"] > 0.9 > s["sd_over_prior_sd"]["light_factor"]
     assert "the data hardly inform specular" in " ".join(r.output.split())
+    status = CliRunner().invoke(app, ["posterior-status", str(out)])  # from run.h5's analysis, as said there
+    assert status.exit_code == 0 and "the data hardly inform specular" in " ".join(status.output.split())
     run = load_run(out / "run.h5")
     # 30 steps keep far fewer than 50 τ: the command's own table says so, as posterior-status does
     assert not run["diagnostics"]["tau_reliable"] and s["tau_reliable"] is False

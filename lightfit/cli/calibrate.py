@@ -100,7 +100,12 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import check_against_forcing, observations_file_digest, read_observations
+    from lightfit.inference.observations import (
+        check_light_scale,
+        nee_sign_caution,
+        observation_table_digest,
+        read_observations,
+    )
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -143,7 +148,9 @@ def calibrate(
                 )
     obs = read_observations(observations)
     w = weather(s)
-    check_against_forcing(obs, w)  # a unit or sign slip, before the plants grow
+    check_light_scale(obs, w)  # a unit slip, before the plants grow
+    if sign := nee_sign_caution(obs, w):
+        caution(sign)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}
@@ -168,19 +175,30 @@ def calibrate(
         "method": method,
         "use": list(uses),
         "likelihood": form,
-        "observations_sha256": observations_file_digest(obs),
+        "observation_table_sha256": observation_table_digest(obs),
     }
     if surrogate:
         this_run |= {"priors": priors, "n_design": n_design}
     if stored and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
         f = next(iter(stored))  # settings.json if there, else calibration.json
         check_resumable(stored[f].get("config"), s, f, "calibration history")
-        was = stored.get(settings, {}).get("calibration")  # absent in settings written before it was recorded
-        changed = [k for k in this_run if was is not None and was.get(k) != this_run[k]]
+        was = stored.get(settings, {}).get("calibration")
+        if was is None:  # settings written before the record: what the earlier result keeps of it
+            r = stored.get(earlier, {})
+            box = (r.get("surrogate") or {}).get("box") or {}
+            kept = {k: r.get(k) for k in ("parameters", "method", "use", "likelihood")}
+            if surrogate:
+                kept |= {"priors": box.get("priors"), "n_design": (r.get("surrogate") or {}).get("n_design")}
+            was = {k: v for k, v in kept.items() if v is not None}
+            console.print(
+                f"{settings} was written before lightfit recorded a calibration's observations and start: "
+                f"resuming without comparing them{' (the rest compared with ' + str(earlier) + ')' if was else ''}"
+            )
+        changed = [k for k in this_run if k in was and was[k] != this_run[k]]  # keys a record lacks: not known
         if changed:
             said = [
                 "observations (another table: its SHA-256 differs)"
-                if k == "observations_sha256"
+                if k == "observation_table_sha256"
                 else f"{k} ({was.get(k)!r} → {this_run[k]!r})"
                 for k in changed
             ]

@@ -19,7 +19,7 @@ from typer.core import TyperGroup
 from lightfit.errors import InputError
 from lightfit.killpoint import interrupts_kept
 from lightfit.model.parameters import BOUNDS, check_theta
-from lightfit.weather.site import SELHAUSEN, local_clock
+from lightfit.weather.site import SELHAUSEN, local_clock, zone_label
 
 #: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
 console = Console()
@@ -328,7 +328,7 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezo
     shown = "" if step == 1 else f"; 1 row in {step} of {len(df)} shown"
     t = Table(title=title, caption=f"PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm{shown}")
     t.add_column("UTC")
-    t.add_column(tz.split("/")[-1])
+    t.add_column(zone_label(tz).split("/")[-1])
     cols = [c for c in _SHORT if c in df.columns]
     for c in cols:
         t.add_column(_SHORT[c], justify="right")

@@ -40,7 +40,12 @@ from lightfit.model.scenario import (
     Scenario,
 )
 from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, Field, check_headings
-from lightfit.plant.growth import DEFAULT_PARAMETER_FILE, SEASON_START_HELP, parameter_file_setting
+from lightfit.plant.growth import (
+    DEFAULT_PARAMETER_FILE,
+    SEASON_START_HELP,
+    default_season_start,
+    parameter_file_setting,
+)
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.weather.site import SELHAUSEN, Site, Window, site_named
 
@@ -617,7 +622,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         str | None,
         typer.Option(
             "--site",
-            help="Named site: selhausen (default; 50.865 N, 6.447 E, 103 m, Europe/Berlin). "
+            help="Named site: selhausen (default; 50.865° N, 6.447° E, 103 m, Europe/Berlin). "
             "Or give --latitude, --longitude and --timezone instead.",
             rich_help_panel=_WHEN,
         ),
@@ -903,7 +908,9 @@ def _dates(opts: ModelOptions, default: tuple[str, ...], season_start: str | Non
 
     dates = option_error(lambda: as_dates(opts.dates), "--date") if opts.dates else default
     for d in dates:
-        option_error(lambda d=d: GrowthConfig(season_start=season_start, target_date=d), f"--date {d}")
+        # the option the user gave is the one to name: the default date against their --season-start
+        flags = f"--season-start {season_start} (the default --date {d})" if season_start and not opts.dates else None
+        option_error(lambda d=d: GrowthConfig(season_start=season_start, target_date=d), flags or f"--date {d}")
     return dates
 
 
@@ -1030,6 +1037,10 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before |= {"parameter_file": "Triticum_aestivum_adapted_2023.xml", "soil_albedo": 0.12, "sky": "isotropic"}
     before["season_start"] = None  # before --season-start: 5 March of each date's year
     before = before | _WHEN_DEFAULTS | dict(previous)
+    # a season start given as the default's own date (5 March of the first date's year) grows the same plants
+    for d in (before, now):
+        if d.get("season_start") == default_season_start(d.get("dates") or ["2016-04-20"]):
+            d["season_start"] = None
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 
 

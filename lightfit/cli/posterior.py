@@ -87,7 +87,7 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
-    from lightfit.inference.observations import check_against_forcing, read_observations
+    from lightfit.inference.observations import check_light_scale, nee_sign_caution, read_observations
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -109,7 +109,9 @@ def posterior(
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     obs = read_observations(observations or rep.OBSERVATIONS)
     w = weather(s)
-    check_against_forcing(obs, w)  # a unit or sign slip, before the plants grow
+    check_light_scale(obs, w)  # a unit slip, before the plants grow
+    if sign := nee_sign_caution(obs, w):
+        caution(sign)
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     flat = uninformed(names, uses, bounces=cfg.render_bounces(), par_kind=cfg.par_kind)
@@ -407,6 +409,7 @@ def _print_status(st: dict) -> None:
         "map_kept_start": ms.get("kept_start"),
     }
     said = {"names": st["names"], **d, "acceptance_ok": True, **map_info, "emulator_error": st.get("emulator_error")}
+    said |= st.get("fit") or {}  # the MAP's χ², its place in the prior, the priors' say
     for line in _cautions(said):  # acceptance said above
         caution(line)
     if st["refused"]:

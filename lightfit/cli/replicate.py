@@ -12,6 +12,7 @@ from rich import box
 from rich.table import Table
 
 from lightfit.cli.common import (
+    caution,
     console,
     observations_lines,
     output_folder,
@@ -73,6 +74,7 @@ def replicate(
     """
     from lightfit import replication as rep
     from lightfit import weather as wx
+    from lightfit.inference.observations import nee_sign_caution
     from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing, provenance_label
 
@@ -158,6 +160,8 @@ def replicate(
             console.print(line)
     if obs is not None:
         observations_lines(obs, w)
+        if sign := nee_sign_caution(obs, w):
+            caution(sign)
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")

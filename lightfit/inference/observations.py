@@ -496,13 +496,15 @@ LIGHT_RATIO_RANGE = (0.01, 20.0)
 DAYLIGHT_PAR_UMOL_M2_S = 200.0
 
 
-def observations_file_digest(obs: pd.DataFrame) -> str:
-    """SHA-256 of an observation table as read (:func:`read_observations`): times, series, values and
-    SDs. Two runs with the same digest were given the same readings; an edited value changes it."""
-    h = hashlib.sha256(b"lightfit observation table v1")
-    h.update(np.asarray(pd.util.hash_pandas_object(obs, index=True), np.uint64).tobytes())
-    h.update(",".join(map(str, obs.columns)).encode())
-    return h.hexdigest()
+def observation_table_digest(obs: pd.DataFrame) -> str:
+    """SHA-256 of a whole observation table as read (:func:`read_observations`): times, every series'
+    values and SDs (used or not: a run is refused another table even where it fits only some series).
+    The likelihood's :func:`~lightfit.inference.likelihood.observations_digest` covers the used
+    series on the run's steps only, and needs the model's steps; this one is known before the plants
+    grow."""
+    # CSV text at full precision, not pandas' object hash (whose values may change between versions)
+    text = pd.DataFrame(obs).to_csv(float_format="%.17g", date_format="%Y-%m-%dT%H:%M:%S.%f%z")
+    return hashlib.sha256(b"lightfit observation table v1\n" + text.encode()).hexdigest()
 
 
 def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
@@ -540,35 +542,28 @@ def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
 UPTAKE_PAR_UMOL_M2_S = 800.0
 
 
-def check_nee_sign(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
-    """:class:`InputError` naming the file and column where every chamber NEE reading (two or more) at
-    a step of ``forcing`` with PAR above :data:`UPTAKE_PAR_UMOL_M2_S` is positive: NEE is
-    micrometeorological, negative for uptake (Baldocchi 2003), and a canopy the model grows takes up
-    CO2 in such light, so all-positive readings there are uptake counted positive. Fitted as they
-    are, they drove vcmax_scale to 0 with only generic cautions (a review)."""
+def nee_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame) -> str | None:
+    """A caution naming the file and column where every chamber NEE reading (two or more) at a step
+    of ``forcing`` with PAR above :data:`UPTAKE_PAR_UMOL_M2_S` is positive, else ``None``. NEE is
+    micrometeorological, negative for uptake (Baldocchi 2003), and a green canopy takes up CO2 in
+    such light, so all-positive readings there are most likely uptake counted positive: fitted as
+    they were, they drove vcmax_scale to 0 with only generic cautions (a review). A caution, not a
+    refusal: a sparse canopy over a respiring soil (``--soil-respiration``) can release CO2 by day."""
     col = BY_NAME["nee"].value
     if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
-        return
+        return None
     idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
     par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
     value = obs[col].to_numpy(float)
     sel = (dist <= np.timedelta64(3600, "s")) & (par >= UPTAKE_PAR_UMOL_M2_S) & np.isfinite(value)
     if sel.sum() >= 2 and (value[sel] > 0).all():
-        raise InputError(
-            f"nee is positive (a release) at all {int(sel.sum())} readings in strong light (forcing PAR ≥ "
-            f"{UPTAKE_PAR_UMOL_M2_S:g} µmol m⁻² s⁻¹; smallest {value[sel].min():.3g})",
-            file=obs.attrs.get("source"),
-            column=col,
-            expected="NEE negative for uptake (micrometeorological sign: a sunlit wheat canopy's NEE is negative); "
-            "negate the column if the file counts uptake as positive",
+        return (
+            f"{obs.attrs.get('source', 'the observations')}, column {col!r}: NEE is positive (a release) at all "
+            f"{int(sel.sum())} readings in strong light (forcing PAR ≥ {UPTAKE_PAR_UMOL_M2_S:g} µmol m⁻² s⁻¹; "
+            f"smallest {value[sel].min():.3g}); lightfit's NEE is negative for uptake (micrometeorological sign): "
+            "negate the column if the file counts uptake as positive"
         )
-
-
-def check_against_forcing(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
-    """The checks of observations against the run's forcing, before any plant grows: the light
-    series' scale (:func:`check_light_scale`) and NEE's sign (:func:`check_nee_sign`)."""
-    check_light_scale(obs, forcing)
-    check_nee_sign(obs, forcing)
+    return None
 
 
 def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:

@@ -627,10 +627,21 @@ def run(
     x_map = optimum(lp, samples[np.argmax(flat_lp)], info=map_info)
     # How well the MAP fits (χ² of the whitened residuals) and how much the data narrowed each prior:
     # the posterior's SDs describe the model, and mean little where it does not fit or the prior stays.
-    chi2_map = float(jnp.sum(lp.residuals(jnp.asarray(x_map, jnp.float64)) ** 2))
+    # (λ = 1: against the SDs as given; a sampled noise scale would absorb the misfit into λ)
+    m_map, _ = lp.observables(jnp.asarray(x_map, jnp.float64))
+    chi2_map = float(jnp.sum(lp.likelihood.whitened(m_map, 1.0) ** 2))
     prior_sd = {n: float(np.std(lp.priors[n].sample(np.random.default_rng(0), PRIOR_SD_DRAWS))) for n in lp.names}
     fisher, profile = identifiability(lp, x_map, n_profile)
+    # what lightfit posterior and posterior-status caution from (the MAP's fit, the priors' say)
+    fit = {
+        "chi2_map": chi2_map,
+        "n_observations": int(lp.n_observations),
+        "x_map": dict(zip(lp.names, np.asarray(x_map, float).tolist())),
+        "sd_over_prior_sd": {n: float(v) / prior_sd[n] for n, v in zip(lp.names, summ["sd"].tolist())},
+        "prior_support": {n: [float(b) for b in lp.priors[n].support] for n in lp.names},
+    }
     an: dict = {
+        "fit": fit,
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
         "x_map": x_map,
         "log_prob_map": float(lp(x_map[None])[0]),
@@ -669,10 +680,7 @@ def run(
             "map_kept_start": map_info["kept_start"],
             "mean": dict(zip(lp.names, summ["mean"].tolist())),
             "sd": dict(zip(lp.names, summ["sd"].tolist())),
-            "sd_over_prior_sd": {n: float(v) / prior_sd[n] for n, v in zip(lp.names, summ["sd"].tolist())},
-            "prior_support": {n: list(lp.priors[n].support) for n in lp.names},
-            "chi2_map": chi2_map,
-            "n_observations": int(lp.n_observations),
+            **{k: fit[k] for k in ("sd_over_prior_sd", "prior_support", "chi2_map", "n_observations")},
             "corr": summ["corr"].tolist(),
             "fisher": fisher["table"],
             "stiff": fisher["stiff"],

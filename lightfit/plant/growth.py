@@ -43,9 +43,20 @@ SHOOT_ORGANS = ("stem", "leaf")
 #: over winter), in the target date's year, so that another year's spring runs as 2016's did.
 SEASON_START_MONTH_DAY = (3, 5)
 SEASON_START_HELP = (
-    "First day of growth, YYYY-MM-DD: sowing, or spring regrowth of a winter wheat (default: 5 March of "
-    "the date's year, a northern spring; needed south of the equator)."
+    "First day of growth, YYYY-MM-DD: sowing, or spring regrowth after a dormant winter (default: "
+    f"{dt.date(2016, *SEASON_START_MONTH_DAY):%-d %B} of the date's year, a northern spring; needed south of the "
+    "equator)."
 )
+
+
+def default_season_start(dates) -> str | None:
+    """The season start growth takes when none is given for ``dates`` (YYYY-MM-DD each):
+    :data:`SEASON_START_MONTH_DAY` of their year, or ``None`` where they span several years (each
+    then has its own)."""
+    years = {parse_date(d, "date").year for d in dates}
+    return dt.date(years.pop(), *SEASON_START_MONTH_DAY).isoformat() if len(years) == 1 else None
+
+
 #: Segment ids are ``plant_id * SEGMENT_ID_STRIDE + segment_index``: stable across tiles.
 SEGMENT_ID_STRIDE = 1_000_000
 DEFAULT_PARAMETER_FILE = "Triticum_aestivum_adapted_2023.xml"

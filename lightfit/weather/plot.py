@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from lightfit.figure import clock_axis, figure_format  # noqa: E402
-from lightfit.weather.site import SELHAUSEN  # noqa: E402
+from lightfit.weather.site import SELHAUSEN, zone_label  # noqa: E402
 from lightfit.weather.units import par_from_ghi  # noqa: E402
 
 
@@ -94,7 +94,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[3].plot(t, local["sun_elevation_deg"], color="goldenrod")
         ax[3].axhline(0, color="k", lw=0.5)
     ax[3].set_ylabel("sun elevation (°)")
-    ax[3].set_xlabel(f"time ({tz})")
+    ax[3].set_xlabel(f"time ({zone_label(tz)})")
     clock_axis(ax[3], tz)
     src = Path(str(df.attrs.get("source", ""))).name
     fig.suptitle(title or f"{provenance_label(df.attrs)} forcing — {src}", fontsize=11)

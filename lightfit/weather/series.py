@@ -393,6 +393,10 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     source = timestamps.of(df)
     gaps = df.index.to_series().diff().dropna()
     spacing = _minutes(gaps.median()) if len(gaps) else "?"  # the source step, as the options write it
+    # a step the source's cannot give is the cause (say one that works); else rows are missing
+    off_grid = bool(len(gaps)) and step % gaps.median() != pd.Timedelta(0)
+    shorter = bool(len(gaps)) and step < gaps.median()
+    gap_note = "; rows are missing there (fill or cut them: `lightfit weather show FILE --max-gap …`)"
     stamps, dropped = source, []  # sampling keeps the rows and their meaning
     if how == "sample":
         origin = df.index[0] if origin is None else origin
@@ -403,7 +407,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 f"cannot sample at {freq}: the source, rows {spacing} apart, has no value at some new timestamps",
                 file=df.attrs.get("source"),
                 column="freq",
-                expected=f"a step that is a multiple of the source's {spacing} (and starts on it), e.g. {spacing}",
+                expected=f"a step that is a multiple of the source's {spacing} (and starts on it)"
+                + (f", e.g. {spacing}" if off_grid else gap_note),
             )
     elif how == "mean":
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
@@ -444,7 +449,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 f"rows are {spacing} apart)",
                 file=df.attrs.get("source"),
                 column="freq",
-                expected=f"a step at least as long as the source's {spacing}, e.g. {spacing}",
+                expected=f"a step at least as long as the source's {spacing}"
+                + (f", e.g. {spacing}" if shorter else gap_note),
             )
     else:
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")

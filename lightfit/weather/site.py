@@ -111,14 +111,22 @@ SELHAUSEN = Site()
 SITES: dict[str, Site] = {"selhausen": SELHAUSEN}
 
 
+def zone_label(tz: str) -> str:
+    """A time zone as people write it: ``Etc/GMT-10`` (POSIX signs, what ``UTC+10`` is stored as) as
+    ``UTC+10``; an IANA city name as it is."""
+    m = re.fullmatch(r"Etc/GMT([+-])(\d+)", tz)
+    return tz if m is None else f"UTC{'+' if m[1] == '-' else '−'}{m[2]}"
+
+
 def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
-    """``HH:MM`` in ``tz`` for the aware instants ``t``; where the UTC offset changes among them (a
-    clock change inside the run) each with its offset, ``HH:MM UTC+11``, so that a repeated hour
-    is told apart."""
+    """``HH:MM`` in ``tz`` for the aware instants ``t`` (in time order); where a local time repeats
+    (the clock falls back inside the run) each with its offset, ``HH:MM UTC+11``, so that the repeated
+    hour is told apart. Days on either side of a change, or a clock springing forward, keep ``HH:MM``."""
     local = t.tz_convert(tz)
     clock = local.strftime("%H:%M")
     offsets = local.map(lambda x: x.utcoffset())
-    if len(set(offsets)) <= 1:
+    wall = local.tz_localize(None)
+    if wall.is_monotonic_increasing and wall.is_unique:  # no hour repeated (days across a change are fine)
         return clock
     return pd.Index([f"{c} UTC{_offset(o)}" for c, o in zip(clock, offsets, strict=True)])
 
@@ -189,4 +197,14 @@ class Window:
         return f"{parse_date(date, 'date')} {self.start} + {self.hours:g} h ({timezone}), {self.step} steps"
 
 
-__all__ = ["SELHAUSEN", "SITES", "Site", "Window", "check_timezone", "local_clock", "localize", "site_named"]
+__all__ = [
+    "SELHAUSEN",
+    "SITES",
+    "Site",
+    "Window",
+    "check_timezone",
+    "local_clock",
+    "localize",
+    "site_named",
+    "zone_label",
+]

@@ -269,6 +269,7 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
         "analysis": "analysis" in run,
         "map_search": run.get("analysis", {}).get("map_search"),
         "emulator_error": run.get("analysis", {}).get("emulator_error"),
+        "fit": run.get("analysis", {}).get("fit"),  # the MAP's χ² and the priors' say (absent in older runs)
         "refused": int(a.get("refused", 0)),
     }
 
