@@ -1141,3 +1141,38 @@ def test_the_map_search_holds_the_monte_carlo_sds_of_its_start():
     _, profile = identifiability(lp, x, n_profile=5)
     mid = int(np.argmin(np.abs(profile["t"])))
     assert profile["t"][mid] == 0.0 and np.argmin(profile["slice_nll"]) == mid
+
+
+def test_the_maps_chi_square_is_taken_against_the_sds_as_given():
+    """With noise_scale sampled, the MAP's λ absorbs the misfit: the whitened χ² at the MAP is ≈ n for
+    any data, and the caution could never fire (a review). chi2_as_given takes λ = 1: Σ((y − m)/sd)²
+    by numpy whatever λ is, scattering 2.5 × the stated SDs fails calibrate's χ² test."""
+    from lightfit.inference.calibration import misfit
+    from lightfit.inference.observations import read_observations, write_observations
+    from lightfit.inference.posterior import chi2_as_given
+
+    times = pd.date_range("2016-04-20 08:00", periods=32, freq="30min", tz="UTC")
+    par = 1500.0 + 300 * np.sin(np.arange(32))
+
+    def fwd(theta):
+        return {
+            "above_canopy_par_umol_m2_s": theta.light_factor * jnp.asarray(par),
+            "above_canopy_par_mc_sd_umol_m2_s": jnp.zeros(32),
+        }
+
+    y = par + np.random.default_rng(1).normal(0, 2.5 * 75.0, 32)
+    df = pd.DataFrame({"above_canopy_par_umol_m2_s": y, "above_canopy_par_sd_umol_m2_s": 75.0}, index=times)
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        obs = read_observations(write_observations(df, Path(d) / "obs.csv", {"provenance": "synthetic"}))
+    names = ["light_factor", "noise_scale"]
+    lp = P.LogPosterior(fwd, times, obs, names, use=["above_canopy_par"])
+    y, sd = (obs[c].to_numpy() for c in ("above_canopy_par_umol_m2_s", "above_canopy_par_sd_umol_m2_s"))  # as read
+    for lam in (1.0, 2.2):
+        x = np.array([1.01, lam])
+        expected = float(np.sum(((y - 1.01 * par) / sd) ** 2))
+        assert chi2_as_given(lp, x) == pytest.approx(expected, rel=1e-10)
+        assert float(jnp.sum(lp.residuals(jnp.asarray(x)) ** 2)) == pytest.approx(expected / lam**2, rel=1e-10)
+    assert misfit(chi2_as_given(lp, np.array([1.01, 2.2])), lp.n_observations, 2)  # the data reject the fit

@@ -333,6 +333,14 @@ def optimum(lp: LogPosterior, start: np.ndarray, maxiter: int = 200, info: dict 
     return r.x if improved else np.asarray(start, float)
 
 
+def chi2_as_given(lp, x) -> float:
+    """χ² = rᵀΣ⁻¹r of the whitened residuals at ``x`` with the observations' SDs as given (noise scale
+    λ = 1): where λ is sampled, the MAP's λ absorbs the misfit and the whitened χ² is ≈ n whatever
+    the data (a review), so the fit is judged against the SDs the file states."""
+    m, _ = lp.observables(jnp.asarray(x, jnp.float64))
+    return float(jnp.sum(lp.likelihood.whitened(m, 1.0) ** 2))
+
+
 def emulator_error_vs_width(lp: LogPosterior, x_map: np.ndarray, cov: np.ndarray, validation: dict) -> dict:
     """Translate the emulator's observable errors at held-out renders into parameter shifts.
 
@@ -627,9 +635,7 @@ def run(
     x_map = optimum(lp, samples[np.argmax(flat_lp)], info=map_info)
     # How well the MAP fits (χ² of the whitened residuals) and how much the data narrowed each prior:
     # the posterior's SDs describe the model, and mean little where it does not fit or the prior stays.
-    # (λ = 1: against the SDs as given; a sampled noise scale would absorb the misfit into λ)
-    m_map, _ = lp.observables(jnp.asarray(x_map, jnp.float64))
-    chi2_map = float(jnp.sum(lp.likelihood.whitened(m_map, 1.0) ** 2))
+    chi2_map = chi2_as_given(lp, x_map)
     prior_sd = {n: float(np.std(lp.priors[n].sample(np.random.default_rng(0), PRIOR_SD_DRAWS))) for n in lp.names}
     fisher, profile = identifiability(lp, x_map, n_profile)
     # what lightfit posterior and posterior-status caution from (the MAP's fit, the priors' say)
