@@ -389,3 +389,33 @@ def test_a_clock_change_inside_a_run_neither_repeats_nor_folds_local_time(tmp_pa
     x = mdates.date2num(drawn[0].axes[0].lines[1].get_xdata())  # the PAR line
     assert (np.diff(x) > 0).all()
     np.testing.assert_allclose(x[-1] - x[0], (night.index[-1] - night.index[0]) / pd.Timedelta("1D"), rtol=1e-9)
+
+
+def test_a_window_that_leaves_much_of_the_days_light_out_is_said(tmp_path, monkeypatch):
+    """The default window, 05:00–19:00, is Selhausen's spring day: at 60° N on 21 June it leaves 5 % of
+    the day's light out, unsaid (a review). The share, from Haurwitz's clear sky, agrees with pvlib's
+    Ineichen–Perez clear sky computed here to 1 % (absolute); above 2 % the command line cautions, and
+    the main job (1.3 %) says nothing."""
+    from lightfit.cli import common
+    from lightfit.cli.options import ModelOptions, resolve, weather
+
+    site = Site(60.0, 10.0, 0.0, "60° N", "Europe/Oslo")
+    cfg = rep.ReplicationConfig(site=site, dates=("2016-06-21",))
+    share = rep.light_outside_window(cfg, "2016-06-21")
+    t = pd.date_range("2016-06-21", periods=24 * 60, freq="1min", tz="Europe/Oslo")
+    ghi = pvlib.location.Location(60.0, 10.0, altitude=0.0).get_clearsky(t, model="ineichen")["ghi"]
+    lo, hi = (pd.Timestamp(f"2016-06-21 {h}", tz="Europe/Oslo") for h in ("04:45", "19:15"))
+    inside = (t >= lo) & (t <= hi)
+    # two clear-sky models: Ineichen–Perez 4.4 %, Haurwitz 5.3 % (more low-sun light)
+    assert share == pytest.approx(float(ghi[~inside].sum() / ghi.sum()), abs=0.01)
+    assert 0.04 < share < 0.07 and rep.light_outside_window(rep.ReplicationConfig(), "2016-04-20") < 0.02
+
+    said = []
+    monkeypatch.setattr(common, "caution", said.append)
+    weather(resolve(ModelOptions(quick=True)))
+    assert said == []  # the main job's window
+    path = _clear_sky_csv(tmp_path / "n60.csv", site, "2016-06-21")
+    where = {"latitude": 60.0, "longitude": 10.0, "altitude_m": 0.0, "timezone": "Europe/Oslo"}
+    weather(resolve(ModelOptions(quick=True, weather_file=str(path), dates=["2016-06-21"], **where)))
+    (line,) = said
+    assert f"leaves {share:.1%} of 2016-06-21's clear-sky light" in line and "--start-time and --hours" in line
