@@ -419,3 +419,6 @@ def test_a_window_that_leaves_much_of_the_days_light_out_is_said(tmp_path, monke
     weather(resolve(ModelOptions(quick=True, weather_file=str(path), dates=["2016-06-21"], **where)))
     (line,) = said
     assert f"leaves {share:.1%} of 2016-06-21's clear-sky light" in line and "--start-time and --hours" in line
+    # a window the user chose is theirs: nothing said
+    weather(resolve(ModelOptions(quick=True, weather_file=str(path), dates=["2016-06-21"], hours=10.0, **where)))
+    assert len(said) == 1

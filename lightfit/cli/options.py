@@ -1101,14 +1101,15 @@ def weather(s: ModelSettings):
     cfg = s.replication_config()
     w = forcing_of(cfg, s.weather_file, provenance=s.weather_provenance, split_model=s.split)
     check_growth_temperatures(cfg, w)  # every date's, before anything is grown or written
-    if not s.steps:  # (--steps cuts the window on purpose)
-        for d in s.dates:
-            share = light_outside_window(cfg, d)
-            if share > WINDOW_LIGHT_CAUTION:
-                caution(
-                    f"the window ({cfg.window.describe(d, s.site.timezone)}) leaves {share:.1%} of {d}'s clear-sky "
-                    "light at the site out: --start-time and --hours widen it"
-                )
+    if not s.steps:
+        if (s.start_time, s.hours) == (Window().start, Window().hours):  # a window the user chose is theirs
+            for d in s.dates:
+                share = light_outside_window(cfg, d)
+                if share > WINDOW_LIGHT_CAUTION:
+                    caution(
+                        f"the window ({cfg.window.describe(d, s.site.timezone)}) leaves {share:.1%} of {d}'s "
+                        "clear-sky light at the site out: --start-time and --hours widen it"
+                    )
         return w
     parts = [wd.iloc[_steps(s.steps, len(wd))] for _, wd in days(cfg, w)]
     out = pd.concat(parts)
