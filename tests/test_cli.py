@@ -1195,8 +1195,9 @@ def test_calibrate_rerun_over_a_result_written_before_the_record_compares_what_i
     (out / "calibration.json").write_text(json.dumps(old))
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--no-surrogate"]
     r = runner.invoke(app, [*args, "--out", str(out)])
-    assert_user_error(r, "settings.json", "other use (['plant_par'] → ['above_canopy_par'])", "--no-resume")
-    assert "resuming without comparing them (the rest compared with" in " ".join(r.output.split())
+    assert_user_error(r, "calibration.json", "other use (['plant_par'] → ['above_canopy_par'])", "--no-resume")
+    assert "calibration.json was written before lightfit recorded" in " ".join(r.output.split())
+    assert "resuming without comparing them (the rest compared)" in " ".join(r.output.split())
     assert not any((tmp_path / "cache").rglob("*.npz"))  # refused before anything grew or rendered
 
 

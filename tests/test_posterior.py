@@ -1095,6 +1095,10 @@ def test_cautions_name_a_rejected_fit_an_edge_map_and_an_uninformed_parameter():
     edge = {**base, "x_map": {"specular": 0.4625, "light_factor": 1.1}, "prior_support": {"specular": [0.4625, 0.7375]}}
     (line,) = _cautions(edge)
     assert line.startswith("specular's MAP = 0.4625 is on the edge of its prior's range [0.4625, 0.7375]")
+    # a sampled noise scale took the misfit up: said as the scatter it is, with k not counting λ
+    ns = {**base, "names": ["light_factor", "noise_scale"], "chi2_map": 296.3, "n_observations": 22}
+    (line,) = _cautions({**ns, "x_map": {"light_factor": 1.0, "noise_scale": 3.0}})
+    assert "for 22 values and 1 parameter (" in line and "the data scatter 3 × them at the MAP (noise_scale)" in line
     (line,) = _cautions({**base, "sd_over_prior_sd": {"specular": 0.99, "light_factor": 0.05}})
     assert line.startswith("the data hardly inform specular: its posterior SD is 0.99 × its prior's")
 

@@ -182,17 +182,21 @@ def calibrate(
     if stored and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
         f = next(iter(stored))  # settings.json if there, else calibration.json
         check_resumable(stored[f].get("config"), s, f, "calibration history")
-        was = stored.get(settings, {}).get("calibration")
+        was, read = stored.get(settings, {}).get("calibration"), settings
         if was is None:  # settings written before the record: what the earlier result keeps of it
-            r = stored.get(earlier, {})
+            r, read = stored.get(earlier, {}), earlier
             box = (r.get("surrogate") or {}).get("box") or {}
             kept = {k: r.get(k) for k in ("parameters", "method", "use", "likelihood")}
+            if r:  # a result of the surrogate has its record, one of full renders none
+                kept["surrogate"] = "surrogate" in r
             if surrogate:
                 kept |= {"priors": box.get("priors"), "n_design": (r.get("surrogate") or {}).get("n_design")}
             was = {k: v for k, v in kept.items() if v is not None}
+        if "observation_table_sha256" not in was:
             console.print(
-                f"{settings} was written before lightfit recorded a calibration's observations and start: "
-                f"resuming without comparing them{' (the rest compared with ' + str(earlier) + ')' if was else ''}"
+                f"{read} was written before lightfit recorded a calibration's observations and start: "
+                f"resuming without comparing them{' (the rest compared)' if was else ''}",
+                soft_wrap=True,  # a path stays on one line
             )
         changed = [k for k in this_run if k in was and was[k] != this_run[k]]  # keys a record lacks: not known
         if changed:
@@ -204,7 +208,7 @@ def calibrate(
             ]
             raise InputError(
                 f"the calibration there was run with other {'; '.join(said)}",
-                file=settings,
+                file=read,
                 expected="the same settings as that run, --no-resume to start again, or another --out",
             )
     m = run_model(s, w)  # several --date: one model per day

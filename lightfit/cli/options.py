@@ -909,8 +909,9 @@ def _dates(opts: ModelOptions, default: tuple[str, ...], season_start: str | Non
     dates = option_error(lambda: as_dates(opts.dates), "--date") if opts.dates else default
     for d in dates:
         # the option the user gave is the one to name: the default date against their --season-start
-        flags = f"--season-start {season_start} (the default --date {d})" if season_start and not opts.dates else None
-        option_error(lambda d=d: GrowthConfig(season_start=season_start, target_date=d), flags or f"--date {d}")
+        flags = f"--date {d}" if opts.dates else f"the default --date {d}"
+        flags = f"--season-start {season_start} ({flags})" if season_start else flags
+        option_error(lambda d=d: GrowthConfig(season_start=season_start, target_date=d), flags)
     return dates
 
 

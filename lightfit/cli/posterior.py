@@ -321,9 +321,17 @@ def _cautions(d: dict) -> list[str]:
             f"acceptance {d.get('acceptance_mean', float('nan')):.2f} outside {lo:g}–{hi:g}: the walkers move badly"
         )
     if "chi2_map" in d:  # the posterior of a model the data reject describes that model, not the leaf
-        rejected = ": the posterior SDs are those of a model the data reject"
-        lines = misfit(d["chi2_map"], d["n_observations"], len(names))
-        out += [s.replace("the fit leaves", "the MAP leaves") + rejected for s in lines]
+        lam = (d.get("x_map") or {}).get("noise_scale")
+        if lam is None:
+            why = ": the posterior SDs are those of a model the data reject"
+        else:  # the sampled noise scale took the misfit up: the SDs are widened by it, not wrong
+            why = (
+                f" against the stated SDs: the data scatter {lam:.3g} × them at the MAP (noise_scale), which "
+                "widens the posterior"
+            )
+        k = len([n for n in names if n != "noise_scale"])  # λ does not enter χ² taken at λ = 1
+        lines = misfit(d["chi2_map"], d["n_observations"], k)
+        out += [s.replace("the fit leaves", "the MAP leaves") + why for s in lines]
     for n, (lo, hi) in (d.get("prior_support") or {}).items():
         v = (d.get("x_map") or {}).get(n)
         if v is not None and on_edge(v, lo, hi):

@@ -504,6 +504,8 @@ def observation_table_digest(obs: pd.DataFrame) -> str:
     grow."""
     # CSV text at full precision, not pandas' object hash (whose values may change between versions)
     text = pd.DataFrame(obs).to_csv(float_format="%.17g", date_format="%Y-%m-%dT%H:%M:%S.%f%z")
+    stamps = timestamps.of(obs)  # how the readings meet the steps: instants, or means stamped where
+    text += f"\ntime label: {stamps.label}, interval: {stamps.interval}"
     return hashlib.sha256(b"lightfit observation table v1\n" + text.encode()).hexdigest()
 
 

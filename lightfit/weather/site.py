@@ -115,7 +115,9 @@ def zone_label(tz: str) -> str:
     """A time zone as people write it: ``Etc/GMT-10`` (POSIX signs, what ``UTC+10`` is stored as) as
     ``UTC+10``; an IANA city name as it is."""
     m = re.fullmatch(r"Etc/GMT([+-])(\d+)", tz)
-    return tz if m is None else f"UTC{'+' if m[1] == '-' else '−'}{m[2]}"
+    if m is None:
+        return tz
+    return "UTC" if int(m[2]) == 0 else f"UTC{'+' if m[1] == '-' else '-'}{int(m[2])}"  # as --timezone takes it
 
 
 def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
@@ -126,7 +128,9 @@ def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
     clock = local.strftime("%H:%M")
     offsets = local.map(lambda x: x.utcoffset())
     wall = local.tz_localize(None)
-    if wall.is_monotonic_increasing and wall.is_unique:  # no hour repeated (days across a change are fine)
+    if not (wall.duplicated(keep=False) & ~t.duplicated(keep=False)).any() and (
+        wall.is_monotonic_increasing or not t.is_monotonic_increasing
+    ):  # no local time repeated by distinct instants, none out of order (days across a change are fine)
         return clock
     return pd.Index([f"{c} UTC{_offset(o)}" for c, o in zip(clock, offsets, strict=True)])
 
