@@ -1198,6 +1198,10 @@ def test_calibrate_rerun_over_a_result_written_before_the_record_compares_what_i
     assert_user_error(r, "calibration.json", "other use (['plant_par'] → ['above_canopy_par'])", "--no-resume")
     assert "calibration.json was written before lightfit recorded" in " ".join(r.output.split())
     assert "resuming without comparing them (the rest compared)" in " ".join(r.output.split())
+    # a result of the surrogate (it has a surrogate record) is not resumed by full renders
+    (out / "calibration.json").write_text(json.dumps({**old, "use": ["above_canopy_par"], "surrogate": {}}))
+    r = runner.invoke(app, [*args, "--out", str(out)])
+    assert_user_error(r, "calibration.json", "other surrogate (True → False)")
     assert not any((tmp_path / "cache").rglob("*.npz"))  # refused before anything grew or rendered
 
 

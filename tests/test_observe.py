@@ -432,6 +432,29 @@ def test_an_per_leaf_changes_canopy_an_only():
         np.testing.assert_allclose(o["fapar"], absorbed @ area / ground / above, rtol=1e-12)
 
 
+def test_the_observation_tables_digest_changes_with_a_value_or_the_time_label_only(tmp_path):
+    """calibrate refuses a rerun on another observation table by this digest: the same readings read
+    twice or written in another row order agree; an edited value or another time label (readings
+    as interval means, which meet the steps otherwise) does not."""
+    from lightfit.inference.observations import observation_table_digest
+
+    columns = "time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+    head = "# provenance: synthetic\n# time_zone: UTC\n{label}" + columns
+    rows = ["2016-04-20T10:00:00Z,1500,75\n", "2016-04-20T10:30:00Z,1600,80\n"]
+    files = {}
+    for name, label, body in (
+        ("a", "", rows),
+        ("b", "", rows[::-1]),
+        ("edited", "", [rows[0], rows[1].replace("1600", "1601")]),
+        ("means", "# time_label: end\n# averaging_interval: 30min\n", rows),
+    ):
+        files[name] = tmp_path / f"{name}.csv"
+        files[name].write_text(head.format(label=label) + "".join(body))
+    d = {k: observation_table_digest(read_observations(f)) for k, f in files.items()}
+    assert d["a"] == d["b"] == observation_table_digest(read_observations(files["a"]))
+    assert len({d["a"], d["edited"], d["means"]}) == 3
+
+
 @pytest.mark.parametrize(("sd", "said"), [("-20", "(SD -20)"), ("0", "(SD 0)"), ("", "(SD missing)")])
 def test_a_value_without_a_positive_sd_is_refused_with_its_sd(tmp_path, sd, said):
     """A negative, zero or missing SD is refused at its line and column, saying which (a review: the
