@@ -1180,3 +1180,31 @@ def test_the_maps_chi_square_is_taken_against_the_sds_as_given():
         assert chi2_as_given(lp, x) == pytest.approx(expected, rel=1e-10)
         assert float(jnp.sum(lp.residuals(jnp.asarray(x)) ** 2)) == pytest.approx(expected / lam**2, rel=1e-10)
     assert misfit(chi2_as_given(lp, np.array([1.01, 2.2])), lp.n_observations, 2)  # the data reject the fit
+
+
+def test_a_run_with_noise_scale_sampled_reports_the_chi_square_against_the_stated_sds(tmp_path):
+    """posterior.run's chi2_map, with noise_scale sampled, is Σ (y − m)² / (sd² + mc²) at the MAP with the
+    observations' SDs as given (λ = 1), computed here from the emulated observables by numpy; the whitened
+    χ² at the MAP's λ is smaller by about λ², which the caution would otherwise have read (a review)."""
+    from lightfit import replication as rep
+    from lightfit.inference import posterior as A
+
+    weather = rep.forcing().loc["2016-04-20 10:00+00:00":"2016-04-20 11:00+00:00"]
+    model = rep.model_for(rep.ReplicationConfig.quick(), weather)
+    priors = A.prior_set("informed", model.scenario.optics)
+    lo, hi = ([priors[n].support[k] for n in LEAF_PARAMETERS] for k in (0, 1))
+    emu = E.build_emulator(model, lo, hi, n_design=6, degrees=(1,), seed=0)
+    fast = E.FastObservables(model, emu, n_grid=None)
+    m0 = fast(Theta())
+    n = len(model.times)
+    y = np.asarray(m0["plant_par_umol_m2_s"]) * np.linspace(0.8, 1.25, n)  # off the model by up to 25 %
+    obs = pd.DataFrame({"plant_par_umol_m2_s": y, "plant_par_sd_umol_m2_s": 2.0}, index=model.times)
+    obs.attrs = {"source": "synthetic test", "provenance": "synthetic"}
+    kw = dict(names=("light_factor", "noise_scale"), nwalkers=8, stop=None, progress=False, n_profile=3)
+    res = A.run(model, obs, emu, tmp_path / "r.h5", max_steps=12, mc_correlation=None, seed=0, n_predictive=4, **kw)
+    x = res["x_map"]
+    m = fast(Theta(light_factor=x["light_factor"]))
+    mp, mc = (np.asarray(m[k]) for k in ("plant_par_umol_m2_s", "plant_par_mc_sd_umol_m2_s"))
+    expected = float(np.sum((y - mp) ** 2 / (2.0**2 + mc**2)))
+    assert res["chi2_map"] == pytest.approx(expected, rel=1e-6)
+    assert x["noise_scale"] > 2 and res["chi2_map"] > 3 * n  # the whitened χ² at λ would look fine
