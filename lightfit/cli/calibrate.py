@@ -12,6 +12,7 @@ from rich.table import Table
 
 from lightfit.cli.common import (
     caution,
+    check_observations,
     console,
     observations_lines,
     output_folder,
@@ -100,12 +101,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import (
-        check_light_scale,
-        nee_sign_caution,
-        observation_table_digest,
-        read_observations,
-    )
+    from lightfit.inference.observations import observation_table_digest, read_observations
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -148,9 +144,7 @@ def calibrate(
                 )
     obs = read_observations(observations)
     w = weather(s)
-    check_light_scale(obs, w)  # a unit slip, before the plants grow
-    if sign := nee_sign_caution(obs, w):
-        caution(sign)
+    check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}
@@ -185,12 +179,12 @@ def calibrate(
         was, read = stored.get(settings, {}).get("calibration"), settings
         if was is None:  # settings written before the record: what the earlier result keeps of it
             r, read = stored.get(earlier, {}), earlier
-            box = (r.get("surrogate") or {}).get("box") or {}
+            sur = r.get("surrogate") or {}
             kept = {k: r.get(k) for k in ("parameters", "method", "use", "likelihood")}
             if r:  # a result of the surrogate has its record, one of full renders none
                 kept["surrogate"] = "surrogate" in r
             if surrogate:
-                kept |= {"priors": box.get("priors"), "n_design": (r.get("surrogate") or {}).get("n_design")}
+                kept |= {"priors": (sur.get("box") or {}).get("priors"), "n_design": sur.get("n_design")}
             was = {k: v for k, v in kept.items() if v is not None}
         if "observation_table_sha256" not in was:
             console.print(

@@ -400,6 +400,17 @@ def offset_line(obs, w) -> str:
     return "  " + "; ".join(parts)
 
 
+def check_observations(obs, w) -> None:
+    """Observations against the run's forcing, before the plants grow: a light unit slip refused
+    (:func:`~lightfit.inference.observations.check_light_scale`), NEE with uptake counted positive
+    cautioned (:func:`~lightfit.inference.observations.nee_sign_caution`)."""
+    from lightfit.inference.observations import check_light_scale, nee_sign_caution
+
+    check_light_scale(obs, w)
+    if sign := nee_sign_caution(obs, w):
+        caution(sign)
+
+
 def observations_lines(obs, w) -> None:
     """Print which observations a command compares with the model and how they meet its steps (what
     replicate, calibrate and posterior read: nothing is dropped or merged unsaid)."""

@@ -1040,7 +1040,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before = before | _WHEN_DEFAULTS | dict(previous)
     # a season start given as the default's own date (5 March of the first date's year) grows the same plants
     for d in (before, now):
-        if d.get("season_start") == default_season_start(d.get("dates") or ["2016-04-20"]):
+        if d.get("season_start") == default_season_start(d["dates"]):
             d["season_start"] = None
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
 

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from lightfit.cli.common import (
     caution,
+    check_observations,
     console,
     interrupted,
     observations_lines,
@@ -87,7 +88,7 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
-    from lightfit.inference.observations import check_light_scale, nee_sign_caution, read_observations
+    from lightfit.inference.observations import read_observations
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -109,9 +110,7 @@ def posterior(
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     obs = read_observations(observations or rep.OBSERVATIONS)
     w = weather(s)
-    check_light_scale(obs, w)  # a unit slip, before the plants grow
-    if sign := nee_sign_caution(obs, w):
-        caution(sign)
+    check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     flat = uninformed(names, uses, bounces=cfg.render_bounces(), par_kind=cfg.par_kind)
@@ -330,8 +329,7 @@ def _cautions(d: dict) -> list[str]:
                 "widens the posterior"
             )
         k = len([n for n in names if n != "noise_scale"])  # λ does not enter χ² taken at λ = 1
-        lines = misfit(d["chi2_map"], d["n_observations"], k)
-        out += [s.replace("the fit leaves", "the MAP leaves") + why for s in lines]
+        out += [line + why for line in misfit(d["chi2_map"], d["n_observations"], k, what="the MAP")]
     for n, (lo, hi) in (d.get("prior_support") or {}).items():
         v = (d.get("x_map") or {}).get(n)
         if v is not None and on_edge(v, lo, hi):

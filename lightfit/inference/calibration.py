@@ -780,16 +780,17 @@ def on_edge(v: float, lo: float, hi: float) -> bool:
     return any(math.isfinite(e) and abs(v - e) <= EDGE_SHARE * width for e in (lo, hi))
 
 
-def misfit(chi2_value: float, n_values: int, k: int) -> list[str]:
+def misfit(chi2_value: float, n_values: int, k: int, what: str = "the fit") -> list[str]:
     """A sentence where χ² over ``n_values`` observed values and ``k`` fitted parameters exceeds the χ²
     distribution with n − k degrees of freedom at tail probability :data:`MISFIT_P` (the model does
-    not reproduce the data within their SDs), else nothing."""
+    not reproduce the data within their SDs), else nothing. ``what`` left that χ² (a calibration's
+    fit, a posterior's MAP)."""
     from scipy.stats import chi2
 
     dof = n_values - k
     if dof > 0 and math.isfinite(chi2_value) and chi2.sf(chi2_value, dof) < MISFIT_P:
         return [
-            f"the fit leaves χ² = {chi2_value:.4g} for {n_values} values and {k} parameter{'s' * (k != 1)} "
+            f"{what} leaves χ² = {chi2_value:.4g} for {n_values} values and {k} parameter{'s' * (k != 1)} "
             f"(χ²/(n − k) = {chi2_value / dof:.3g}, tail probability < {MISFIT_P:g}): the model does not "
             "reproduce the data within their SDs"
         ]

@@ -680,7 +680,7 @@ def run(
     write_group(path, "analysis", an)
     out.update(
         {
-            "x_map": dict(zip(lp.names, x_map.tolist())),
+            "x_map": fit["x_map"],
             "map_converged": map_info["converged"],
             "map_message": map_info["message"],
             "map_kept_start": map_info["kept_start"],

@@ -178,7 +178,7 @@ class GrowthConfig:
         end = parse_date(self.target_date, "target_date")
         default = self.season_start is None
         if default:  # frozen: set once; recorded as a date, so that repr, attrs and keys name it
-            object.__setattr__(self, "season_start", dt.date(end.year, *SEASON_START_MONTH_DAY).isoformat())
+            object.__setattr__(self, "season_start", default_season_start([end.isoformat()]))
         start = parse_date(self.season_start, "season_start")
         if end <= start:
             raise InputError(

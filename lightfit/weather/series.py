@@ -216,10 +216,10 @@ def check_and_repair(
     if not ({"ghi_w_m2", "par_umol_m2_s"} & set(df.columns)):
         missing.append("ghi_w_m2 or par_umol_m2_s")
     if missing:
-        named = attrs.get("column_names", {})  # how the file's format names a quantity, where it is not the key
+        # how the file's format names a quantity, where it is not the key
+        here = {c: f"; here {n}" for c, n in attrs.get("column_names", {}).items()}
 
         def wanted(col: str) -> str:
-            here = {c: f"; here {n}" for c, n in named.items()}
             return " or ".join(f"{c} ({COLUMNS[c]}{here.get(c, '')})" for c in col.split(" or "))
 
         raise InputError(

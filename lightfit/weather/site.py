@@ -126,13 +126,12 @@ def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
     hour is told apart. Days on either side of a change, or a clock springing forward, keep ``HH:MM``."""
     local = t.tz_convert(tz)
     clock = local.strftime("%H:%M")
-    offsets = local.map(lambda x: x.utcoffset())
     wall = local.tz_localize(None)
     if not (wall.duplicated(keep=False) & ~t.duplicated(keep=False)).any() and (
         wall.is_monotonic_increasing or not t.is_monotonic_increasing
     ):  # no local time repeated by distinct instants, none out of order (days across a change are fine)
         return clock
-    return pd.Index([f"{c} UTC{_offset(o)}" for c, o in zip(clock, offsets, strict=True)])
+    return pd.Index([f"{c} UTC{_offset(x.utcoffset())}" for c, x in zip(clock, local, strict=True)])
 
 
 def _offset(o: pd.Timedelta) -> str:
