@@ -380,6 +380,11 @@ def test_a_clock_change_inside_a_run_neither_repeats_nor_folds_local_time(tmp_pa
     days = pd.DatetimeIndex(["2016-03-20 11:00", "2016-04-20 10:00"], tz="UTC")  # two dates across a change
     assert list(local_clock(days, "Europe/Berlin")) == ["12:00", "12:00"]
     assert list(local_clock(t[[2, 0]], "Australia/Sydney")) == ["02:00 UTC+10", "02:00 UTC+11"]  # out of order
+    # West of Greenwich and at UTC itself the offset is written as --timezone takes it (one formatter, zone_label's)
+    ny = pd.date_range("2016-11-06 05:00", periods=4, freq="30min", tz="UTC")
+    assert list(local_clock(ny, "America/New_York")) == ["01:00 UTC-4", "01:30 UTC-4", "01:00 UTC-5", "01:30 UTC-5"]
+    uk = pd.date_range("2016-10-30 00:00", periods=4, freq="30min", tz="UTC")
+    assert list(local_clock(uk, "Europe/London")) == ["01:00 UTC+1", "01:30 UTC+1", "01:00 UTC", "01:30 UTC"]
 
     site = Site(-35.1, 147.4, 200.0, "Wagga Wagga", "Australia/Sydney")
     day = weather.add_solar(weather.read_weather(_clear_sky_csv(tmp_path / "w.csv", site, "2016-04-02")), site=site)

@@ -117,7 +117,7 @@ def zone_label(tz: str) -> str:
     m = re.fullmatch(r"Etc/GMT([+-])(\d+)", tz)
     if m is None:
         return tz
-    return "UTC" if int(m[2]) == 0 else f"UTC{'+' if m[1] == '-' else '-'}{int(m[2])}"  # as --timezone takes it
+    return offset_label(pd.Timedelta(hours=int(m[2]) * (1 if m[1] == "-" else -1)))
 
 
 def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
@@ -131,13 +131,16 @@ def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
         wall.is_monotonic_increasing or not t.is_monotonic_increasing
     ):  # no local time repeated by distinct instants, none out of order (days across a change are fine)
         return clock
-    return pd.Index([f"{c} UTC{_offset(x.utcoffset())}" for c, x in zip(clock, local, strict=True)])
+    return pd.Index([f"{c} {offset_label(x.utcoffset())}" for c, x in zip(clock, local, strict=True)])
 
 
-def _offset(o: pd.Timedelta) -> str:
-    minutes = int(o.total_seconds() // 60)
-    sign, minutes = ("+" if minutes >= 0 else "−"), abs(minutes)
-    return f"{sign}{minutes // 60}" + (f":{minutes % 60:02d}" if minutes % 60 else "")
+def offset_label(offset: pd.Timedelta) -> str:
+    """A UTC offset as ``--timezone`` takes it: ``UTC+10``, ``UTC-3:30`` (ASCII minus), ``UTC`` for none."""
+    minutes = round(offset.total_seconds() / 60)
+    if minutes == 0:
+        return "UTC"
+    sign, minutes = ("+" if minutes > 0 else "-"), abs(minutes)
+    return f"UTC{sign}{minutes // 60}" + (f":{minutes % 60:02d}" if minutes % 60 else "")
 
 
 def site_named(name: str) -> Site:
@@ -207,6 +210,7 @@ __all__ = [
     "Window",
     "check_timezone",
     "local_clock",
+    "offset_label",
     "localize",
     "site_named",
     "zone_label",
