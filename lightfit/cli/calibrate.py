@@ -303,10 +303,16 @@ def calibrate(
         f"{record['seconds']:.0f} s)",
         caption=f"stopped: {res.reason}",
     )
+    # The range searched: the emulator's box (the priors' leaf support), else the parameters' domains.
+    search = {n: BOUNDS[n] for n in names}
+    if tr is not None:
+        search.update({n: (lo[i], hi[i]) for i, n in enumerate(E.LEAF_PARAMETERS) if n in names})
     t.add_column("parameter")
     t.add_column("value", justify="right")
+    t.add_column("searched in", justify="right")
     for k, v in res.theta.items():
-        t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}")
+        where = "fixed" if k not in search else "[{:g}, {:g}]".format(*search[k]).replace("inf", "∞")
+        t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}", where)
     surrogate = tr is not None and tr.mode == "surrogate"
     t.add_row("loss ½ rᵀΣ⁻¹r" + (" (emulator)" if surrogate else ""), f"{res.loss:.4g}")
     if surrogate and math.isfinite(tr.loss_full):
@@ -314,10 +320,6 @@ def calibrate(
     console.print(t)
     if tr is not None:
         _print_check(tr)
-    # The range searched: the emulator's box (the priors' leaf support), else the parameters' domains.
-    search = {n: BOUNDS[n] for n in names}
-    if tr is not None:
-        search.update({n: (lo[i], hi[i]) for i, n in enumerate(E.LEAF_PARAMETERS) if n in names})
     support = {n: p.support for n, p in box.items()}
     others = " or ".join(f"--priors {p}" for p in P.PRIOR_SETS if p != priors)
     for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):

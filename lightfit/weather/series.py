@@ -393,22 +393,30 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     source = timestamps.of(df)
     gaps = df.index.to_series().diff().dropna()
     spacing = _minutes(gaps.median()) if len(gaps) else "?"  # the source step, as the options write it
-    # a step the source's cannot give is the cause (say one that works); else rows are missing
+    # a step the source's cannot give is the cause (say one that works); else values are missing there
     off_grid = bool(len(gaps)) and step % gaps.median() != pd.Timedelta(0)
     shorter = bool(len(gaps)) and step < gaps.median()
-    gap_note = "; rows are missing there (fill or cut them: `lightfit weather show FILE --max-gap …`)"
+
+    def gap_note(missing: pd.DatetimeIndex) -> str:  # rows absent or values NaN there: name where it starts
+        first = missing[0].tz_convert("UTC").strftime("%Y-%m-%d %H:%M UTC")
+        return (
+            f"; the source has no value at {len(missing)} of them, the first {first} (fill or cut the gap: "
+            "`lightfit weather show FILE --max-gap …`)"
+        )
+
     stamps, dropped = source, []  # sampling keeps the rows and their meaning
     if how == "sample":
         origin = df.index[0] if origin is None else origin
         first = origin - step * ((origin - df.index[0]) // step)  # the first new step in the series
         out = df[measured].reindex(pd.date_range(first, df.index[-1], freq=step))
-        if out.isna().any().any():
+        missing = out.index[out.isna().any(axis=1)]
+        if len(missing):
             raise InputError(
                 f"cannot sample at {freq}: the source, rows {spacing} apart, has no value at some new timestamps",
                 file=df.attrs.get("source"),
                 column="freq",
                 expected=f"a step that is a multiple of the source's {spacing} (and starts on it)"
-                + (f", e.g. {spacing}" if off_grid else gap_note),
+                + (f", e.g. {spacing}" if off_grid else gap_note(missing)),
             )
     elif how == "mean":
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
@@ -443,14 +451,15 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             shifted.index = shifted.index + step / 2
             out = shifted.resample(freq, origin="start_day" if origin is None else origin).mean()
             stamps = Timestamps("center", step)
-        if out.isna().all(axis=1).any():
+        missing = out.index[out.isna().all(axis=1)]
+        if len(missing):
             raise InputError(
                 f"cannot average at {freq}: some new steps have no source value in their window (the source's "
                 f"rows are {spacing} apart)",
                 file=df.attrs.get("source"),
                 column="freq",
                 expected=f"a step at least as long as the source's {spacing}"
-                + (f", e.g. {spacing}" if shorter else gap_note),
+                + (f", e.g. {spacing}" if shorter else gap_note(missing)),
             )
     else:
         raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
