@@ -361,6 +361,8 @@ def forcing(
     provenance: str | None = None,
     split_model: str | None = None,
     month_before: bool = False,
+    tz: str | None = None,
+    time_label: str | None = None,
 ) -> pd.DataFrame:
     """The run's steps, with solar columns for ``site``: the ``window`` (local time at the site) of each date.
 
@@ -374,7 +376,9 @@ def forcing(
     Erbs). Errors name the file and the parameter (``date``,
     ``start/hours``) when the window is not covered. ``month_before``: record each date's mean air
     temperature of the month before in ``attrs["month_before_tair_c"]`` (``{date: °C or None}``, for
-    ``growth_temperature_c="series"``).
+    ``growth_temperature_c="series"``). ``tz``, ``time_label``: the zone of a TERENO or CPlantBox
+    file's timestamps and where they sit in each mean's interval, where the file does not say
+    (:func:`lightfit.weather.read_weather`; refused for a lightfit CSV).
     """
     given = dates is not None
     dates = as_dates(dates or DEFAULT_DATE)
@@ -391,8 +395,10 @@ def forcing(
     src = None
     for d in dates:
         if src is None or undated:
-            more = {} if provenance is None else {"provenance": provenance}
-            src = weather.add_solar(weather.read_source(source, date=d, **more), site=site, split_model=split_model)
+            more = {k: v for k, v in (("provenance", provenance), ("time_label", time_label)) if v is not None}
+            src = weather.add_solar(
+                weather.read_source(source, date=d, tz=tz, **more), site=site, split_model=split_model
+            )
         t0, t1 = window.bounds_utc(d, site.timezone)
         if t0 < src.index[0] or t1 > src.index[-1]:
             raise InputError(
@@ -433,7 +439,7 @@ def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFram
 def forcing_of(cfg: ReplicationConfig, weather_file: str | Path | None = None, **kw) -> pd.DataFrame:
     """:func:`forcing` with the configuration's dates, window, site and resampling (and the month
     before where its growth temperature comes from the series); ``kw``: :func:`forcing`'s
-    ``provenance`` and ``split_model``."""
+    ``provenance``, ``split_model``, ``tz`` and ``time_label``."""
     return forcing(
         weather_file,
         cfg.how,

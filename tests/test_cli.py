@@ -458,6 +458,60 @@ def test_weather_provenance_option_labels_a_file_that_does_not_say(tmp_path):
     assert not (tmp_path / "r").exists()
 
 
+def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_path):
+    """--weather-tz / --weather-time-label on the model commands (only `weather show` had --tz and
+    --time-label, so an export on another clock, or stamped at its intervals' starts, had to be
+    converted first). The fixture rewritten on a UTC+2 clock without its zone line: read by the
+    TERENO convention (UTC+1) its light comes an hour late for its sun and is refused; with
+    --weather-tz UTC+2 the run's forcing is the original fixture's, as its own header reads it. Bad
+    values, and either option with a lightfit CSV (the bundled default among them), fail before any
+    plant grows."""
+    from lightfit import weather as wx
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+    from lightfit.cli.options import weather as run_weather
+    from lightfit.weather import timestamps
+
+    def later(line: str) -> str:  # a data row's stamp one hour on; header lines as they are
+        stamp = line.split(",", 1)[0]
+        if not stamp[:4].isdigit():
+            return line
+        return f"{pd.Timestamp(stamp) + pd.Timedelta('1h'):%Y-%m-%d %H:%M:%S}," + line.split(",", 1)[1]
+
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines(keepends=True)
+    east = tmp_path / "export.csv"
+    east.write_text("".join(later(x) for x in lines if not x.startswith("Time zone")), encoding="utf-8")
+
+    def forcing(path=east, **kw):
+        return run_weather(resolve(ModelOptions(quick=True, weather_file=str(path), steps="12:18", **kw)))
+
+    with pytest.raises(InputError, match="more light than their sun can give.*--weather-tz and --weather-time-label"):
+        forcing()
+    read = forcing(weather_tz="UTC+2")
+    own = forcing(FIXTURE)
+    assert len(read) == 6 and read.index.equals(own.index)
+    for col in ("par_umol_m2_s", "ghi_w_m2", "tair_c", "co2_ppm", "sun_elevation_deg"):
+        assert np.array_equal(read[col].to_numpy(), own[col].to_numpy()), col
+
+    start = forcing(FIXTURE, weather_time_label="start")
+    assert timestamps.of(start).label == "start" and timestamps.of(own).label == "end"
+    same = wx.add_solar(wx.read_source(FIXTURE, time_label="start"))  # as `weather show --time-label start`
+    assert np.array_equal(start["sun_elevation_deg"], same["sun_elevation_deg"].loc[start.index])
+    assert not np.array_equal(start["sun_elevation_deg"], own["sun_elevation_deg"])  # 10 min apart
+
+    s = resolve(ModelOptions(quick=True, weather_file=str(east), weather_tz="UTC+2"))
+    assert changed_settings(resolve(ModelOptions(quick=True, weather_file=str(east))).as_dict(), s) == [
+        "weather_tz: None → 'UTC+2'"
+    ]  # a resumed run that read the file another way: refused
+    for args, words in (
+        (["--weather", str(east), "--weather-tz", "Mars/Olympus"], ["--weather-tz: ", "Mars/Olympus", "UTC±H"]),
+        (["--weather", str(east), "--weather-time-label", "middle"], ["--weather-time-label", "'start', 'center'"]),
+        (["--weather-tz", "UTC+1"], ["--weather-tz given for a lightfit CSV", "2016-04-20"]),
+    ):
+        r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "r"), *args])
+        assert_user_error(r, *words)
+        assert not (tmp_path / "r").exists()
+
+
 @pytest.mark.parametrize(
     "command, args, words",
     [

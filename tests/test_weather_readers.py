@@ -385,7 +385,7 @@ def test_window_steps_run_through_its_start_or_it_says_why_not():
     assert resample(boland, "30min", "mean").attrs["split_model"] == "boland"
     # a hole, not the step: the first new timestamp without a value is named (rows absent, or a value NaN)
     holed = df.drop(df.loc["2016-04-20 09:55+00:00":"2016-04-20 11:05+00:00"].index)
-    holed.loc["2016-04-20 14:00+00:00", "temperature_c"] = np.nan
+    holed.loc["2016-04-20 14:00+00:00", "tair_c"] = np.nan
     msg = r"cannot sample at 30min.*no value at 4 of them, the first 2016-04-20 10:00 UTC \(fill or cut the gap"
     with pytest.raises(InputError, match=msg):
         resample(holed, "30min", "sample")

@@ -130,6 +130,8 @@ class ModelOptions:
     sky: str | None = None
     weather_file: str | None = None
     weather_provenance: str | None = None
+    weather_tz: str | None = None
+    weather_time_label: str | None = None
     split: str | None = None
     how: str | None = None
     steps: str | None = None
@@ -200,6 +202,8 @@ class ModelSettings:
     sky: str
     weather_file: str | None
     weather_provenance: str | None
+    weather_tz: str | None
+    weather_time_label: str | None
     split: str | None
     how: str
     steps: str | None
@@ -560,6 +564,25 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             rich_help_panel=_WEATHER,
         ),
     ),
+    "weather_tz": (
+        str | None,
+        typer.Option(
+            "--weather-tz",
+            help="Time zone of a TERENO or CPlantBox --weather file's timestamps, an IANA name or UTC±H (default: "
+            "the TERENO header's 'Time zone:', else the format's convention; as `weather show --tz`); refused "
+            "for a lightfit CSV (UTC).",
+            rich_help_panel=_WEATHER,
+        ),
+    ),
+    "weather_time_label": (
+        str | None,
+        typer.Option(
+            "--weather-time-label",
+            help="Where a TERENO or CPlantBox --weather file stamps each mean in its interval: end (the default), "
+            "start or center (as `weather show --time-label`); the sun is taken at the interval's centre.",
+            rich_help_panel=_WEATHER,
+        ),
+    ),
     "split": (
         str | None,
         typer.Option(
@@ -793,6 +816,8 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         sky=given(opts.sky, base.sky),
         weather_file=None if opts.weather_file is None else str(opts.weather_file),
         weather_provenance=opts.weather_provenance,
+        weather_tz=opts.weather_tz,
+        weather_time_label=opts.weather_time_label,
         split=opts.split,
         how=given(opts.how, base.how),
         steps=opts.steps,
@@ -864,6 +889,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
             column="weather_provenance",
             expected=" / ".join(WEATHER_PROVENANCES),
         )
+    _check_file_timing(s)
     if s.split is not None:
         check_split_model(s.split)
     if s.how not in ("sample", "mean"):
@@ -877,6 +903,29 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         # The one resolver of weather sources (bundled name or file), before any plant grows.
         wx.require_date(s.weather_file, opts.dates or None)
     return s
+
+
+def _check_file_timing(s: ModelSettings) -> None:
+    """``--weather-tz`` and ``--weather-time-label``: values the readers take, for a file whose
+    timestamps they describe (a lightfit CSV, the default forcing among them, states its own)."""
+    from lightfit.weather.readers import sniff_format, zone
+    from lightfit.weather.timestamps import check_mean_label
+
+    if s.weather_tz is not None:
+        option_error(lambda: zone(s.weather_tz, "weather_tz"), "--weather-tz")
+    if s.weather_time_label is not None:
+        option_error(lambda: check_mean_label(s.weather_time_label), "--weather-time-label")
+    given = [f for f, v in (("--weather-tz", s.weather_tz), ("--weather-time-label", s.weather_time_label)) if v]
+    if given:
+        from lightfit import weather as wx
+
+        path = wx.source_path(s.weather_file or "2016-04-20")
+        if sniff_format(path) == "lightfit":
+            raise InputError(
+                f"{' and '.join(given)} given for a lightfit CSV ({path.name}), whose times are UTC and whose "
+                "'# time_label:' line says what its stamps mean",
+                expected=f"{' and '.join(given)} only with a TERENO or CPlantBox --weather file",
+            )
 
 
 def option_error(make, flags: str):
@@ -991,6 +1040,8 @@ RENDER_SETTINGS = (
     "soil_albedo",
     "sky",
     "weather_file",
+    "weather_tz",
+    "weather_time_label",
     "how",
     "steps",
     "dates",
@@ -1037,6 +1088,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before |= {"row_spacing_m": 0.125, "plant_spacing_m": 0.03, "row_direction_deg": 90.0}
     before |= {"parameter_file": "Triticum_aestivum_adapted_2023.xml", "soil_albedo": 0.12, "sky": "isotropic"}
     before["season_start"] = None  # before --season-start: 5 March of each date's year
+    before |= {"weather_tz": None, "weather_time_label": None}  # before they were options: the file's own
     before = before | _WHEN_DEFAULTS | dict(previous)
     # a season start given as the default's own date (5 March of the first date's year) grows the same plants
     for d in (before, now):
@@ -1100,7 +1152,8 @@ def weather(s: ModelSettings):
     )
 
     cfg = s.replication_config()
-    w = forcing_of(cfg, s.weather_file, provenance=s.weather_provenance, split_model=s.split)
+    timing = {"tz": s.weather_tz, "time_label": s.weather_time_label}
+    w = forcing_of(cfg, s.weather_file, provenance=s.weather_provenance, split_model=s.split, **timing)
     check_growth_temperatures(cfg, w)  # every date's, before anything is grown or written
     if not s.steps:
         if (s.start_time, s.hours) == (Window().start, Window().hours):  # a window the user chose is theirs

@@ -454,8 +454,8 @@ def check_light_fits_sun(
         timing = "the file's UTC times (time_utc holds UTC, not local time)"
     else:
         timing = (
-            "the file's time zone and time label (`lightfit weather show FILE --tz … --time-label … "
-            "--csv OUT.csv` writes a series that states them)"
+            "the file's time zone and time label (--weather-tz and --weather-time-label of a model command, "
+            "--tz and --time-label of `lightfit weather show`)"
         )
     expected = (
         f"timestamps the light fits: the right date (--date places an undated file), {timing}, and the "
