@@ -505,7 +505,7 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
     for args, words in (
         (["--weather", str(east), "--weather-tz", "Mars/Olympus"], ["--weather-tz: ", "Mars/Olympus", "UTC±H"]),
         (["--weather", str(east), "--weather-time-label", "middle"], ["--weather-time-label", "'start', 'center'"]),
-        (["--weather-tz", "UTC+1"], ["--weather-tz given for a lightfit CSV", "2016-04-20"]),
+        (["--weather-tz", "UTC+1"], ["--weather-tz given for a lightfit CSV (the default forcing, ", "2016-04-20"]),
     ):
         r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "r"), *args])
         assert_user_error(r, *words)

@@ -922,8 +922,9 @@ def _check_file_timing(s: ModelSettings) -> None:
         path = wx.source_path(s.weather_file or "2016-04-20")
         if sniff_format(path) == "lightfit":
             raise InputError(
-                f"{' and '.join(given)} given for a lightfit CSV ({path.name}), whose times are UTC and whose "
-                "'# time_label:' line says what its stamps mean",
+                f"{' and '.join(given)} given for a lightfit CSV ("
+                + (path.name if s.weather_file else f"the default forcing, {path.name}")
+                + "), whose times are UTC and whose '# time_label:' line says what its stamps mean",
                 expected=f"{' and '.join(given)} only with a TERENO or CPlantBox --weather file",
             )
 
