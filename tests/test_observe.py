@@ -466,3 +466,29 @@ def test_a_value_without_a_positive_sd_is_refused_with_its_sd(tmp_path, sd, said
     where = "obs.csv, line 5, column 'above_canopy_par_sd_umol_m2_s'"
     with pytest.raises(InputError, match=rf"{where}: .*{re.escape(said)}"):
         read_observations(f)
+
+
+@pytest.mark.parametrize("sd", ["1e200", "1e-200"])
+def test_an_sd_whose_weight_leaves_float64_is_refused(tmp_path, sd):
+    """An SD of 1e200 (or 1e-200) has an inverse square of 0 (inf): the step's inverse-variance
+    mean was 0/0, the reading NaN, dropped from the comparison and the fit with a RuntimeWarning
+    only (a review). Refused at its line, in the file and in a table built in code."""
+    from lightfit.inference.observations import SD_RANGE, check_sds
+
+    f = tmp_path / "obs.csv"
+    rows = f"2016-04-20T10:00:00Z,1500,{sd}\n2016-04-20T10:30:00Z,1600,80\n"
+    head = "# provenance: synthetic\n# time_zone: UTC\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+    f.write_text(head + rows)
+    assert not SD_RANGE[0] <= float(sd) <= SD_RANGE[1]
+    said = re.escape(f"{float(sd):g}")  # 1e+200
+    with pytest.raises(InputError, match=rf"line 4, column 'above_canopy_par_sd_umol_m2_s': .*is {said}.*an SD in"):
+        read_observations(f)
+    table = pd.DataFrame(
+        {"above_canopy_par_umol_m2_s": [1500.0, 1600.0], "above_canopy_par_sd_umol_m2_s": [float(sd), 80.0]},
+        index=pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-20T10:30Z"]),
+    )
+    with pytest.raises(InputError, match="an SD in"):
+        check_sds(table)
+    # the edges are numbers still: the weights and a χ² of a 10⁴ residual stay finite
+    w = np.array(SD_RANGE) ** -2.0
+    assert np.isfinite(w).all() and (w > 0).all() and np.isfinite((1e4 / SD_RANGE[0]) ** 2)

@@ -215,6 +215,11 @@ def dependencies(series: Series, *, bounces: int = 1, par_kind: str = "absorbed"
 #: Largest |value| a fraction (unit "1": fAPAR, ceptometer transmittance) may have in an
 #: observations file: beyond 1 only by measurement noise; a percentage (e.g. 94) is refused.
 MAX_FRACTION = 1.5
+
+#: SDs an observation may have, in its value's units: beyond them its inverse-variance weight
+#: (SD⁻², :func:`_per_step`) or a residual over it squared (the likelihood's χ²) leaves float64, and
+#: the reading became NaN and dropped out of the fit unsaid (a review: SD 1e200).
+SD_RANGE = (1e-100, 1e100)
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
@@ -264,6 +269,7 @@ def check_sds(obs: pd.DataFrame) -> None:
                 f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
             ),
             (present & ~(np.isfinite(sd) & (sd > 0)), s.sd, "a finite SD > 0 wherever the value is present"),
+            (present & ((sd < SD_RANGE[0]) | (sd > SD_RANGE[1])), s.sd, "an SD in [{:g}, {:g}]".format(*SD_RANGE)),
         ):
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
@@ -364,6 +370,14 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 f"{s.value} is given without a positive standard deviation (SD "
                 + ("missing)" if pd.isna(out[s.sd].iloc[i]) else f"{out[s.sd].iloc[i]:g})")
             ),
+        )
+        _first_bad(
+            out[s.value].notna() & ((out[s.sd] < SD_RANGE[0]) | (out[s.sd] > SD_RANGE[1])),
+            path,
+            line,
+            s.sd,
+            "an SD in [{:g}, {:g}] (its inverse square, the reading's weight, stays a number)".format(*SD_RANGE),
+            lambda i, s=s: f"{s.value}'s standard deviation is {out[s.sd].iloc[i]:g}",
         )
         if s.nonnegative:
             _first_bad(
