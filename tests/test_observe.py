@@ -492,3 +492,16 @@ def test_an_sd_whose_weight_leaves_float64_is_refused(tmp_path, sd):
     # the edges are numbers still: the weights and a χ² of a 10⁴ residual stay finite
     w = np.array(SD_RANGE) ** -2.0
     assert np.isfinite(w).all() and (w > 0).all() and np.isfinite((1e4 / SD_RANGE[0]) ** 2)
+
+
+def test_a_file_without_a_single_reading_is_refused(tmp_path):
+    """Value columns empty in every row: `replicate --observations` reported '2 of 2 with their
+    nearest step' and compared nothing (a review); calibrate refused it only later, as a likelihood
+    without data. Refused where it is read, naming the file and the empty series."""
+    f = tmp_path / "empty.csv"
+    head = "# provenance: measured\n# time_zone: UTC\ntime,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+    f.write_text(head + "2016-04-20T10:00:00Z,,5\n2016-04-20T10:30:00Z,,\n")
+    with pytest.raises(InputError, match=r"empty\.csv: no reading: above_canopy_par_umol_m2_s empty in every row"):
+        read_observations(f)
+    f.write_text(head + "2016-04-20T10:00:00Z,,5\n2016-04-20T10:30:00Z,1500,75\n")
+    assert read_observations(f)["above_canopy_par_umol_m2_s"].notna().sum() == 1  # one reading is a comparison

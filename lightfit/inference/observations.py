@@ -392,6 +392,12 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
                 lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
             )
+    if not any(out[s.value].notna().any() for s in present):  # a comparison with nothing in it is a slip
+        raise InputError(
+            f"no reading: {', '.join(s.value for s in present)} empty in every row",
+            file=path,
+            expected="at least one value to compare with (an empty cell is a missing reading)",
+        )
     for c in COLUMNS:  # absent quantities: all missing, so every reader sees the same columns
         if c not in out:
             out[c] = np.nan
