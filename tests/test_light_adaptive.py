@@ -377,6 +377,32 @@ def test_the_bias_line_names_the_target_of_an_adaptive_run():
     assert mc_bias_line(run(-1.0)) == ""
 
 
+def test_segments_left_above_the_target_are_cautioned():
+    """A target below what the cap of points can reach (--target-rse 1e-9: every segment at 8192
+    points, reached SEs 2.6e-4–0.42) said only 'at a target of 1e-09' (a review). Segments above the
+    target and not done by the light floor are counted, with how far they got; none: no line."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import target_shortfall
+
+    def run(reached, floor, target=0.05):
+        return xr.Dataset(
+            {
+                "reached_rse": ("segment", np.array(reached, float)),
+                "stopped_on_floor": ("segment", np.array(floor, np.int8)),
+                "samples_per_segment": ("segment", np.where(np.array(reached) > (target or 0), 8192, 64)),
+            },
+            attrs={"target_rse": target} if target is not None else {},
+        )
+
+    line = target_shortfall(run([0.04, 0.09, 0.2, np.inf, 0.3], [0, 0, 0, 1, 1]))
+    # 0.09 and 0.2 missed it; inf (no light) and 0.3 were done by the floor's rule
+    assert line.startswith("2 of 5 segments did not reach --target-rse 0.05: they stopped at 8192 points")
+    assert "relative SEs of 0.145 (median) up to 0.2" in line and "reached_rse" in line
+    assert target_shortfall(run([0.04, 0.05, np.inf], [0, 0, 1])) == ""
+    assert target_shortfall(run([0.04, 0.09], [0, 0], target=None)) == ""
+
+
 def test_several_days_of_an_adaptive_run_keep_each_days_allocation():
     """`replicate` with several dates concatenates the days (replication.concat_days): each day
     allocated at its own highest sun, so the allocation_* attributes list every day's in order,

@@ -158,6 +158,8 @@ def replicate(
     for line in (mc_bias_line(ds), edge_line(ds)):
         if line:
             console.print(line)
+    if short := target_shortfall(ds):
+        caution(short)
     if obs is not None:
         observations_lines(obs, w)
         if sign := nee_sign_caution(obs, w):
@@ -250,6 +252,27 @@ def mc_bias_line(ds) -> str:
     return (
         f"Monte Carlo bias of the day's canopy An (noise in the blades' PAR through the concave light "
         f"response; not subtracted): {bias / an:+.2%} at {at}, {falls} (docs/model.md)"
+    )
+
+
+def target_shortfall(ds) -> str:
+    """Where adaptive sampling left segments above its ``--target-rse`` (they reached the cap of
+    points, :data:`~lightfit.light.estimator.MAX_ADAPTIVE_SAMPLES`; those done by the light floor
+    met their rule): how many, and how far they got ("" when every segment met the target, or
+    without a target)."""
+    if "target_rse" not in ds.attrs or "reached_rse" not in ds:
+        return ""
+    target = float(ds.attrs["target_rse"])
+    reached = np.asarray(ds["reached_rse"].values, dtype=float)
+    missed = (reached > target) & (np.asarray(ds["stopped_on_floor"].values) == 0) & np.isfinite(reached)
+    if not missed.any():
+        return ""
+    k = np.asarray(ds["samples_per_segment"].values, dtype=float)[missed]
+    n = int((~np.isnan(reached)).sum())  # several days: NaN where a day lacks the segment, each day's counted
+    return (
+        f"{int(missed.sum())} of {n} segments did not reach --target-rse {target:.3g}: they stopped "
+        f"at {np.nanmax(k):.0f} points, the cap, with relative SEs of {np.median(reached[missed]):.3g} (median) "
+        f"up to {reached[missed].max():.3g}; each segment's is in results.nc (reached_rse)"
     )
 
 
