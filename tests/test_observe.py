@@ -230,6 +230,41 @@ def test_a_light_factor_beyond_the_leaves_range_is_named(noon_model):
     assert int(np.asarray(m.observe(Theta(light_factor=2.0))[CONVERGENCE_KEY]).sum()) == 0
 
 
+@pytest.mark.parametrize(
+    "name, value",
+    [("light_factor", -1.0), ("light_factor", 0.0), ("vcmax_scale", 0.0), ("specular", 1.5), ("roughness", -0.1)]
+    + [("subsurface", float("nan"))],
+)
+def test_a_traced_theta_outside_its_domain_has_no_likelihood(noon_model, name, value):
+    """Under jax.jit a light factor of -1 gave negative PAR that the leaves took as dark, finite and
+    'converged', and a specular of 1.5 the specular-1 leaf with a zero gradient (an adversarial
+    review; eagerly both are refused). Traced, every blade is flagged unconverged, so the loss is
+    inf and the log-likelihood -inf; at the domains' edges (specular 0 and 1) the point stands."""
+    import jax
+
+    from lightfit.inference.likelihood import GaussianLikelihood
+    from lightfit.model.observe import CONVERGENCE_KEY
+    from lightfit.model.parameters import NAMES, outside_domain
+
+    parts = noon_model.render(Theta())
+    m = noon_model.with_light(lambda theta: parts)
+    with pytest.raises(InputError, match=name):
+        m.observe(Theta().replace(**{name: value}))  # eagerly: refused, as before
+    flag = jax.jit(lambda x: m.observe(Theta().replace(**{name: x}))[CONVERGENCE_KEY])(value)
+    assert (np.asarray(flag) >= len(m.operator.blades)).all()
+    t = m.times[[2]]
+    obs = pd.DataFrame({"plant_par_umol_m2_s": [900.0], "plant_par_sd_umol_m2_s": [50.0]}, index=t)
+    lik = GaussianLikelihood(obs, m.times, ["plant_par"])
+    x = jnp.array([float(getattr(Theta(), n)) for n in NAMES]).at[NAMES.index(name)].set(value)
+    loss = jax.jit(lambda v: lik.loss(m.observe(Theta().with_vector(NAMES, v))))
+    assert float(loss(x)) == np.inf
+    assert np.isfinite(float(loss(x.at[NAMES.index(name)].set(float(getattr(Theta(), name))))))
+    for edge in (0.0, 1.0):
+        assert not bool(outside_domain(Theta(specular=edge)))
+        ok = jax.jit(lambda s: m.observe(Theta(specular=s))[CONVERGENCE_KEY])(edge)
+        assert int(np.asarray(ok).sum()) == 0
+
+
 def test_light_factor_from_the_chamber_record_is_near_one(noon_model):
     """Issue 14's done-when: calibrated against the chamber's above-canopy PAR with the matching
     operator, the light factor is in 0.9–1.1 (it was ≈ 3.9 against absorbed PAR at the plants).

@@ -90,7 +90,7 @@ import numpy as np
 
 from lightfit.errors import InputError
 from lightfit.light.estimator import PARTS
-from lightfit.model.parameters import Theta
+from lightfit.model.parameters import Theta, outside_domain
 from lightfit.model.scenario import SOIL_RESPIRATION_Q10, SOIL_RESPIRATION_T_REF_C, SOIL_RESPIRATION_UMOL_M2_S, Forcing
 from lightfit.model.schema import OBSERVABLES
 from lightfit.photosynthesis import (
@@ -570,7 +570,8 @@ class ObservationOperator:
         ``<kind>_par_mc_sd_umol_m2_s`` for each kind whose parts are in ``rows``, per blade (T, B)
         ``leaf_an_umol_m2_s`` and ``leaf_an_mc_sd_umol_m2_s``, ``blade_index`` (B,),
         ``unconverged_blades`` (T,) int, the blades whose photosynthesis did not converge
-        (:data:`CONVERGENCE_KEY`; nonzero: never trust that step's An), and ``photosynthesis``
+        (:data:`CONVERGENCE_KEY`; nonzero: never trust that step's An; every blade where a traced
+        ``theta`` lies outside its domain, :func:`~lightfit.model.parameters.outside_domain`), and ``photosynthesis``
         (the full result on the blades, or None for a tabulated ``leaf``).
         """
         kinds = [k for k in ("incident", "absorbed") if f"{k}_sun" in rows and f"{k}_sky" in rows]
@@ -618,7 +619,8 @@ class ObservationOperator:
             "leaf_an_umol_m2_s": r.an,
             "leaf_an_mc_sd_umol_m2_s": an_sd,
             "blade_index": b,
-            CONVERGENCE_KEY: jnp.sum(~r.converged, axis=1),
+            # a traced θ outside its domain (concrete ones are refused): no blade's value holds
+            CONVERGENCE_KEY: jnp.sum(~r.converged, axis=1) + jnp.where(outside_domain(theta), max(len(b), 1), 0),
             "photosynthesis": r.result,
         }
         return out

@@ -161,6 +161,21 @@ def check_concrete(theta: Theta, *, what: str = "theta") -> Theta:
     return theta
 
 
+def outside_domain(theta: Theta) -> jax.Array:
+    """True where any value of ``theta`` is NaN or lies outside its domain (:data:`BOUNDS`; the
+    unbounded factors strictly positive), as a JAX bool that traced values give too
+    (:func:`check_concrete` refuses concrete ones but cannot read traced ones). The observation
+    operator flags every blade of such a point unconverged, so that it has no likelihood: under
+    ``jax.jit`` a light factor of −1 rendered negative PAR that the leaves took as dark, and a
+    specular of 1.5 the leaf of specular 1 with a zero gradient, both finite and unflagged."""
+    bad = jnp.asarray(False)
+    for name in NAMES:
+        v = jnp.asarray(getattr(theta, name))
+        lo, hi = BOUNDS[name]
+        bad = bad | jnp.any(~jnp.isfinite(v) | ((v <= lo) if math.isinf(hi) else (v < lo) | (v > hi)))
+    return bad
+
+
 def as_theta(
     value: Theta | Mapping[str, float] | None = None, base: Theta | None = None, *, what: str = "theta"
 ) -> Theta:
@@ -180,4 +195,4 @@ def as_theta(
     return check_concrete((base or Theta()).replace(**{**value, **numbers}), what=what)
 
 
-__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_concrete", "check_names", "check_theta"]
+__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_concrete", "check_names", "check_theta", "outside_domain"]
