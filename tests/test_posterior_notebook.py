@@ -95,3 +95,27 @@ def test_notebook_executes(tmp_path, monkeypatch):
     assert f"max shift {ee['max_shift_over_sd']:.3g} posterior SD over {ee['n_test']} held-out renders" in _text(
         _cell(nb, 'ee = an.get("emulator_error")')
     )
+
+
+def test_a_run_path_given_from_the_repository_root_is_found(monkeypatch):
+    """`LIGHTFIT_POSTERIOR_RUN=results/…/run.h5 jupyter execute notebooks/…`, as docs/posterior.md
+    and `lightfit posterior` wrote it: Jupyter runs the kernel in notebooks/, so the relative path
+    was 'file not found' (a review). The notebook's loading cell now takes a relative path that is
+    not there from the repository root; executed alone in notebooks/ it loads the fixture."""
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    from jupyter_client.kernelspec import KernelSpecManager, NoSuchKernel
+
+    try:
+        KernelSpecManager().get_kernel_spec("python3")
+    except NoSuchKernel:
+        pytest.skip("no python3 kernel spec (install ipykernel)")
+    monkeypatch.setenv("LIGHTFIT_POSTERIOR_RUN", str(FIXTURE.relative_to(ROOT)))
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    nb.cells = [c for c in nb.cells if c.cell_type == "code" and "load_run(path)" in c.source]
+    nbclient.NotebookClient(
+        nb, kernel_name="python3", timeout=120, resources={"metadata": {"path": str(NOTEBOOK.parent)}}
+    ).execute()
+    head = _text(_cell(nb, "load_run(path)"))
+    assert str(FIXTURE) in head and "tiny twin run (notebook fixture)" in head

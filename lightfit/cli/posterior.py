@@ -212,6 +212,11 @@ def posterior(
     new, cached = (E.COUNTS[k] - counts[k] - held[k] for k in ("rendered", "cached"))
     checked = f"; held-out check: {held['rendered']} new, {held['cached']} from the cache" if val else ""
     each = f"{n_rendered} sun positions each; {where}"
+    reused = E.COUNTS["reused"] - counts["reused"]
+    if reused:  # nothing rendered or read because the fitted emulator was stored: not "no design"
+        checked += f"; the stored emulator{'s' if reused > 1 else ''} of {n_design} design points reused" + (
+            f" for {reused} of {len(days)} days" if 1 < len(days) != reused else ""
+        )
     console.print(f"design: {new} new renders, {cached} from the cache ({each}){checked}")
     res = A.run(
         m,
@@ -279,7 +284,7 @@ def posterior(
         )
     console.print(
         f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
-        f"with LIGHTFIT_POSTERIOR_RUN={out / 'run.h5'}"
+        f"with LIGHTFIT_POSTERIOR_RUN={(out / 'run.h5').resolve()}"  # Jupyter runs it in notebooks/
     )
 
 

@@ -194,8 +194,9 @@ def _allocation_key(model: CoupledModel) -> dict:
 
 
 #: Renders done by this process (``"rendered"``: new full renders; ``"cached"``: read from a render
-#: cache instead). Counted, so that tests and the command line can say what a design cost.
-COUNTS = {"rendered": 0, "cached": 0}
+#: cache instead) and fitted emulators loaded whole (``"reused"``: :func:`cached_emulator` found one
+#: of the same key). Counted, so that tests and the command line can say what a design cost.
+COUNTS = {"rendered": 0, "cached": 0, "reused": 0}
 
 
 def render_file(cache: str | Path, key: dict, leaf) -> Path:
@@ -540,6 +541,7 @@ def cached_emulator(
     old = PartsEmulator.readable(path, say) if path.exists() else None
     if old is not None:
         if old.key == key:
+            COUNTS["reused"] += 1  # fitted before: neither rendered nor read, said by the caller
             return old
         changes = key_changes(old.key, key) if old.key else ["no key (written by an older lightfit)"]
         say(f"emulator {path} was built for other settings ({'; '.join(changes)}): rebuilding")
