@@ -174,6 +174,11 @@ def test_bridge_refuses_bad_settings_and_shapes_and_is_flat_outside_the_box():
             jax.jit(f)(bad, sun, 1)
     with pytest.raises(InputError, match="sun_deg of shape"):
         f(jnp.array([0.5, 0.5, 0.5]), jnp.array([40.0, 170.0, 1.0]), 1)
+    # NaN eagerly: the InputError itself, not 'INTERNAL: CpuCallback error' around it (a review)
+    with pytest.raises(InputError, match=r"leaf=\[nan, 0.5, 0.5\]"):
+        f(jnp.array([np.nan, 0.5, 0.5]), sun, 1)
+    with pytest.raises(InputError, match=r"sun_deg=\[nan, 170.0\].*finite \(elevation, azimuth\)"):
+        f(jnp.array([0.5, 0.5, 0.5]), jnp.array([np.nan, 170.0]), 1)
 
     def loss(leaf):
         return jnp.sum(f(leaf, sun, 1)[0][PARTS.index("absorbed_sun")])

@@ -214,9 +214,21 @@ def make_irradiance(
             if jnp.shape(a) != shape:
                 raise InputError(f"{name} of shape {jnp.shape(a)}", column=name, expected=f"shape {shape}: {what}")
 
+    def check_finite(leaf, sun_deg):
+        """Concrete (eager) values that are not finite, refused here: raised inside the callback the
+        error reached the caller as 'INTERNAL: CpuCallback error' (a review). Traced ones cannot be
+        read; the model flags those (:func:`lightfit.model.parameters.outside_domain`)."""
+        for name, a, what in (
+            ("leaf", leaf, "finite (specular, roughness, subsurface)"),
+            ("sun_deg", sun_deg, "a finite (elevation, azimuth) in degrees"),
+        ):
+            if not isinstance(a, jax.core.Tracer) and not np.isfinite(np.asarray(a, dtype=np.float64)).all():
+                raise InputError(f"{name}={np.asarray(a).tolist()}", column=name, expected=what)
+
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
         check_shapes(leaf, sun_deg, seed)
+        check_finite(leaf, sun_deg)
         leaf = jnp.asarray(leaf)
         out = jax.ShapeDtypeStruct((len(PARTS), n_out), leaf.dtype)
         return jax.pure_callback(
