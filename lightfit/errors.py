@@ -10,7 +10,9 @@ class InputError(ValueError):
 
     The message always starts with the file (or parameter) it concerns, then the row
     and column where known, then what was found and what was expected, so that a user can
-    fix the input without reading lightfit's source.
+    fix the input without reading lightfit's source. ``column`` names a column (or metadata
+    key) of a file or table, ``parameter`` a function's argument or an option; either is
+    :attr:`column` to code that maps errors to command-line options (:mod:`lightfit.cli.common`).
     """
 
     def __init__(
@@ -21,14 +23,19 @@ class InputError(ValueError):
         row: int | None = None,
         column: str | None = None,
         expected: str | None = None,
+        parameter: str | None = None,
     ):
-        self.problem, self.file, self.row, self.column, self.expected = problem, file, row, column, expected
+        self.problem, self.file, self.row, self.expected = problem, file, row, expected
+        self.parameter = parameter
+        self.column = column if parameter is None else parameter
         where = []
         if file is not None:
             where.append(str(file))
         if row is not None:
             where.append(f"line {row}")
-        if column is not None:
+        if parameter is not None:
+            where.append(f"parameter {parameter!r}")
+        elif column is not None:
             where.append(f"column {column!r}")
         msg = (", ".join(where) + ": " if where else "") + problem
         if expected:
@@ -38,7 +45,8 @@ class InputError(ValueError):
     def in_file(self, file: str | Path) -> InputError:
         """This error restated for the file its value came from (raised by a check that saw
         only the value, e.g. a camera's or a parameter's own)."""
-        return InputError(self.problem, file=file, row=self.row, column=self.column, expected=self.expected)
+        which = {"parameter": self.parameter} if self.parameter is not None else {"column": self.column}
+        return InputError(self.problem, file=file, row=self.row, expected=self.expected, **which)
 
 
 def is_real(value) -> bool:
@@ -56,7 +64,7 @@ def check_integer(value, name: str, low: int, *, column: str | None = None, why:
 
     if isinstance(value, bool) or not isinstance(value, Integral) or value < low:
         expected = f"an integer ≥ {low}" + (f" ({why})" if why else "")
-        raise InputError(f"{name}={value!r}", column=column or name, expected=expected)
+        raise InputError(f"{name}={value!r}", parameter=column or name, expected=expected)
     return int(value)
 
 
@@ -74,4 +82,4 @@ def parse_date(value, name: str):
     try:
         return dt.date.fromisoformat(str(value).strip())
     except ValueError as err:
-        raise InputError(f"{name} {value!r} is not a date", column=name, expected="YYYY-MM-DD") from err
+        raise InputError(f"{name} {value!r} is not a date", parameter=name, expected="YYYY-MM-DD") from err

@@ -57,7 +57,7 @@ def as_dates(value: str | tuple | list) -> tuple[str, ...]:
     """One date or several as sorted ``YYYY-MM-DD`` strings; empty or repeated dates are an error."""
     dates = tuple(str(parse_date(d, "date")) for d in ((value,) if isinstance(value, str) else value))
     if not dates or len(set(dates)) != len(dates):
-        raise InputError(f"dates={value!r}", column="date", expected="one or more different dates YYYY-MM-DD")
+        raise InputError(f"dates={value!r}", parameter="date", expected="one or more different dates YYYY-MM-DD")
     return tuple(sorted(dates))
 
 
@@ -186,7 +186,7 @@ class ReplicationConfig:
         if name == "default":
             base = ReplicationConfig()
             return replace(self, **{k: getattr(base, k) for k in PAPER_PRESET})
-        raise InputError(f"preset={name!r}", column="preset", expected=" or ".join(PRESETS))
+        raise InputError(f"preset={name!r}", parameter="preset", expected=" or ".join(PRESETS))
 
     @property
     def needs_month_before(self) -> bool:
@@ -278,7 +278,7 @@ class ReplicationConfig:
         raise InputError(
             f"the forcing's steps {w.index[0] if len(w) else '–'} … {w.index[-1] if len(w) else '–'} are not "
             f"inside one day's window of {', '.join(self.dates)}",
-            column="date",
+            parameter="date",
             expected="one day's forcing per scenario (replication.days splits a several-day forcing)",
         )
 
@@ -340,7 +340,7 @@ def check_season_start(season_start, site: Site) -> str | None:
         raise InputError(
             f"the default season start, {default:%-d %B}, is a northern spring date; {site.name} lies at "
             f"{site.latitude_deg:g}° (south of the equator), where wheat is sown in autumn, from April to June",
-            column="season_start",
+            parameter="season_start",
             expected="the day growth starts on at this site (YYYY-MM-DD): the sowing date where the crop grows "
             "on through a mild winter, the end of dormancy after a cold one",
         )
@@ -495,7 +495,7 @@ def parse_growth_temperature(value) -> float | str | None:
     except (TypeError, ValueError):
         raise InputError(
             f"growth_temperature_c={value!r}",
-            column="growth_temperature_c",
+            parameter="growth_temperature_c",
             expected=f"a temperature in °C, or {GROWTH_FROM_SERIES!r} (the weather series' month before the run)",
         ) from None
 
@@ -508,7 +508,7 @@ def _growth_temperature(cfg: ReplicationConfig, w: pd.DataFrame) -> float | None
     if "month_before_tair_c" not in w.attrs:
         raise InputError(
             "growth_temperature_c='series' with a forcing read without its month before",
-            column="forcing_df",
+            parameter="forcing_df",
             expected="the forcing of forcing_of(cfg) (forcing(..., month_before=True))",
         )
     t_g = w.attrs["month_before_tair_c"].get(date)
@@ -516,7 +516,7 @@ def _growth_temperature(cfg: ReplicationConfig, w: pd.DataFrame) -> float | None
         raise InputError(
             f"growth_temperature_c='series': the weather series does not cover the month before {date}",
             file=w.attrs.get("source"),
-            column="growth_temperature_c",
+            parameter="growth_temperature_c",
             expected=f"air temperature over at least {MONTH_BEFORE_MIN_DAYS} of the {MONTH_BEFORE_DAYS} days "
             "before the run, or a number (°C)",
         )
@@ -553,7 +553,7 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool 
     if missing:  # the results record where the observations came from and what they are
         raise InputError(
             f"an observations frame without attrs {missing}",
-            column="observations",
+            parameter="observations",
             expected="a frame from lightfit.inference.observations.read_observations (attrs source and provenance)",
         )
     try:
@@ -599,7 +599,9 @@ def run(
         d.attrs |= when_attrs(cfg, date)
         parts.append(d)
     if not parts:
-        raise InputError("the forcing has no step in the run's windows", column="date", expected=", ".join(cfg.dates))
+        raise InputError(
+            "the forcing has no step in the run's windows", parameter="date", expected=", ".join(cfg.dates)
+        )
     ds = parts[0] if len(parts) == 1 else concat_days(parts)
     ds.attrs["replication_config"] = json.dumps(asdict(cfg))
     ds.attrs["preset"] = cfg.preset or "none"
@@ -685,13 +687,13 @@ def check_netcdf_name(path: str | Path) -> Path:
         raise InputError("results are written as netCDF", file=path, expected="a file name ending in .nc")
     if path.is_dir():
         raise InputError(
-            "is a folder", file=path, column="out", expected="a netCDF file name (the file is written there)"
+            "is a folder", file=path, parameter="out", expected="a netCDF file name (the file is written there)"
         )
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
                 raise InputError(
-                    f"{parent} is a file", file=path, column="out", expected="a path whose folders are folders"
+                    f"{parent} is a file", file=path, parameter="out", expected="a path whose folders are folders"
                 )
             break
     if path.is_file() and path.stat().st_size:  # an empty file (mktemp) is replaced freely
@@ -699,7 +701,7 @@ def check_netcdf_name(path: str | Path) -> Path:
             raise InputError(
                 "exists and is not a netCDF file",
                 file=path,
-                column="out",
+                parameter="out",
                 expected="a new name, or a results file to replace",
             )
     return path

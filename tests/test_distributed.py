@@ -197,7 +197,7 @@ def test_bad_input_names_the_parameter(weather):
         make_run(weather, halo_rows=-1)
     with pytest.raises(InputError, match="samples"):
         make_run(weather, samples=0)
-    with pytest.raises(InputError, match="column 'steps': all 1 steps of the run are at night"):
+    with pytest.raises(InputError, match="parameter 'steps': all 1 steps of the run are at night"):
         make_run(weather.iloc[[0]])  # 05:30 local
     with pytest.raises(InputError, match="scenario"):  # FieldRun makes the tiles
         FieldRun(dataclasses.replace(make_run(weather).scenario, n_tiles=2, tile=0))

@@ -493,10 +493,10 @@ def test_clock_change_times_are_refused_naming_the_option(tmp_path):
     # 2016-03-27 02:30 does not exist in Europe/Berlin (clocks went 02:00 → 03:00); 2016-10-30 02:30
     # happened twice. Both are inside a season lightfit grows wheat for.
     for day in ("2016-03-27", "2016-10-30"):
-        with pytest.raises(InputError, match=r"column 'start_time'.*ambiguous or do not exist in Europe/Berlin"):
+        with pytest.raises(InputError, match=r"parameter 'start_time'.*ambiguous or do not exist in Europe/Berlin"):
             Window("02:30").bounds_utc(day, "Europe/Berlin")
     df = read_weather(RECON)
-    with pytest.raises(InputError, match=r"column 'start_time'.*do not exist"):
+    with pytest.raises(InputError, match=r"parameter 'start_time'.*do not exist"):
         weather_window(df, "2016-03-27 02:30", 1)
 
 

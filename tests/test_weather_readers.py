@@ -94,7 +94,7 @@ def test_timezone_is_a_parameter(tmp_path):
     assert (b.index - a.index == pd.Timedelta("1h")).all()
     assert read_tereno(FIXTURE, tz="UTC+1").index.equals(a.index)
     with pytest.raises(
-        InputError, match=r"line 7, column 'tz': tz='UTC' disagrees with the header's 'Time zone: UTC\+1'"
+        InputError, match=r"line 7, parameter 'tz': tz='UTC' disagrees with the header's 'Time zone: UTC\+1'"
     ):
         read_tereno(FIXTURE, tz="UTC")
 
@@ -370,7 +370,7 @@ def test_window_steps_run_through_its_start_or_it_says_why_not():
     src = df["par_umol_m2_s"].loc[t0 - pd.Timedelta("15min") : t0 + pd.Timedelta("14min")]
     assert len(src) == 3 and m["par_umol_m2_s"].iloc[0] == pytest.approx(src.mean())
     with pytest.raises(
-        InputError, match=r"column 'start_time': the window starts at 2016-04-20 05:15 .*rows every 10 min"
+        InputError, match=r"parameter 'start_time': the window starts at 2016-04-20 05:15 .*rows every 10 min"
     ):
         window(df, "2016-04-20 05:15", 14, "30min")
     s = window(df, "2016-04-20 05:10", 14, "30min")

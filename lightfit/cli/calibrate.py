@@ -112,17 +112,17 @@ def calibrate(
     output_folder(out)
     # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
     if method not in METHODS:
-        raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
+        raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
     if priors not in P.PRIOR_SETS:
-        raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
+        raise InputError(f"priors={priors!r}", parameter="priors", expected=" or ".join(P.PRIOR_SETS))
     n_design = E.DESIGN_SIZE if n_design is None else n_design
     if surrogate:
         E.check_design_size(n_design)  # before any render
     form = likelihood_form(mc_correlation, mc_scale)
     if not (mc_scale >= 0 and mc_scale < float("inf")):
-        raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
+        raise InputError(f"mc_scale={mc_scale!r}", parameter="mc-scale", expected="a finite number ≥ 0")
     if max_rounds < 1:
-        raise InputError(f"max_rounds={max_rounds}", column="max-rounds", expected="at least 1")
+        raise InputError(f"max_rounds={max_rounds}", parameter="max-rounds", expected="at least 1")
     check_max_steps(max_steps)  # before any render (the surrogate's optimiser runs after the design)
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters))
@@ -138,7 +138,7 @@ def calibrate(
             if not lo <= th0[n] <= hi:
                 raise InputError(
                     f"--start {n}={th0[n]:g}",
-                    column="start",
+                    parameter="start",
                     expected=f"{n} in [{lo:g}, {hi:g}], the emulator's box (the {priors} priors' support), "
                     "or --no-surrogate (full renders, the whole domain)",
                 )
@@ -157,7 +157,7 @@ def calibrate(
     if before is not None and list(before) != list(names):  # another run's result would be replaced silently
         raise InputError(
             f"{out} holds a calibration of {', '.join(before)}; this run calibrates {', '.join(names)}",
-            column="out",
+            parameter="out",
             expected="another --out, or --no-resume to replace it",
         )
     # What the answer depends on besides the model: a surrogate rerun re-optimises from the cached

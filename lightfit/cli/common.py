@@ -228,7 +228,7 @@ def output_folder(out: Path, option: str = "out") -> Path:
     """``out`` as a command's output folder, checked before any work: an existing file there is an
     error naming the option (``mkdir`` said only "File exists", after the run had begun)."""
     if out.exists() and not out.is_dir():
-        raise InputError(f"{out} is a file", column=option, expected="a folder to write into (created if missing)")
+        raise InputError(f"{out} is a file", parameter=option, expected="a folder to write into (created if missing)")
     return out
 
 
@@ -236,7 +236,7 @@ def output_file(path: Path, option: str) -> Path:
     """``path`` as a file a command will write, checked before any work: a folder there is an error
     naming the option (writing said only "Is a directory", after the plants had grown)."""
     if path.is_dir():
-        raise InputError(f"{path} is a folder", column=option, expected="a file name to write")
+        raise InputError(f"{path} is a folder", parameter=option, expected="a file name to write")
     return path
 
 
@@ -253,16 +253,18 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
         try:
             data = json.loads(p.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise InputError(f"not JSON: {err}", file=p, column=option, expected=expected) from None
+            raise InputError(f"not JSON: {err}", file=p, parameter=option, expected=expected) from None
         except OSError as err:  # a folder, an unreadable file
-            raise InputError(f"cannot be read ({err.strerror})", file=p, column=option, expected=expected) from None
+            raise InputError(f"cannot be read ({err.strerror})", file=p, parameter=option, expected=expected) from None
         if not isinstance(data, dict):
-            raise InputError(f"holds a JSON {type(data).__name__}", file=p, column=option, expected=expected)
+            raise InputError(f"holds a JSON {type(data).__name__}", file=p, parameter=option, expected=expected)
         values = data.get("theta", data)
         if "x_map" in data:  # a posterior's summary: its MAP (the sampled model parameters)
             values = {k: v for k, v in data["x_map"].items() if k in BOUNDS}
         if not isinstance(values, dict):
-            raise InputError(f"its theta is a JSON {type(values).__name__}", file=p, column=option, expected=expected)
+            raise InputError(
+                f"its theta is a JSON {type(values).__name__}", file=p, parameter=option, expected=expected
+            )
         try:
             return check_theta(values, what="theta")
         except InputError as err:
@@ -270,7 +272,7 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     if "=" not in theta:  # neither pairs nor an existing file
         raise InputError(
             f"no file {theta!r}",
-            column=option,
+            parameter=option,
             expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
         )
     out = {}
@@ -281,11 +283,11 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
         except ValueError:
             raise InputError(
                 f"cannot read parameter {item!r}",
-                column=option,
+                parameter=option,
                 expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
             ) from None
         if k.strip() in out:
-            raise InputError(f"{k.strip()} given more than once", column=option, expected="each parameter once")
+            raise InputError(f"{k.strip()} given more than once", parameter=option, expected="each parameter once")
         out[k.strip()] = value
     return check_theta(out, what=option)
 

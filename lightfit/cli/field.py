@@ -93,7 +93,7 @@ def field(
     )
     parts = fld.tiles(tiles)
     if tile is not None and not 0 <= tile < len(parts):
-        raise InputError(f"tile {tile} does not exist", column="tile", expected=f"0 … {len(parts) - 1}")
+        raise InputError(f"tile {tile} does not exist", parameter="tile", expected=f"0 … {len(parts) - 1}")
     res = plant.MeshResolution(along, across, around)
     geom = plant.build(fld, tile=parts[tile] if tile is not None else None, resolution=res, progress=True)
     seg = geom.segments

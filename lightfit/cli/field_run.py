@@ -61,7 +61,7 @@ def field_run(
     parts = out.with_name(out.name + PARTS_SUFFIX)
     if parts.exists() and not parts.is_dir():
         raise InputError(
-            f"{parts} is a file", column="out", expected=f"a folder or nothing at {parts} (the finished tasks)"
+            f"{parts} is a file", parameter="out", expected=f"a folder or nothing at {parts} (the finished tasks)"
         )
     if not resume and parts.is_dir():
         shutil.rmtree(parts)
@@ -90,7 +90,7 @@ def field_run(
         raise InputError(
             f"the tasks did not finish within {timeout:g} s (no results written; the finished tasks are kept in "
             f"{parts}: {again} resumes)",
-            column="timeout",
+            parameter="timeout",
             expected="a longer --timeout, or none",
         ) from None
     cfg = s.replication_config()  # where and when, as replicate records them

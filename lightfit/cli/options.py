@@ -831,7 +831,9 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     # Checked here (not only deep inside the run) so that a typo fails before minutes of plant growth.
     if s.photosynthesis not in PARAMETER_SET_NAMES:
         raise InputError(
-            f"photosynthesis={s.photosynthesis!r}", column="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
+            f"photosynthesis={s.photosynthesis!r}",
+            parameter="photosynthesis",
+            expected=" or ".join(PARAMETER_SET_NAMES),
         )
     profile = profile_for(s.vcmax_profile, s.photosynthesis)
     # The growth temperature parsed, normalised and checked for the set (a 'series' one comes with
@@ -855,7 +857,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         except InputError as e:  # the albedo is what was given (the leaf's stays below 1): say so
             raise InputError(
                 f"{e.problem} (soil albedo {s.soil_albedo:g})",
-                column="soil_albedo",
+                parameter="soil_albedo",
                 expected=f"a soil albedo well below 1, or --bounces given ({e.expected})",
             ) from None
     else:  # given (or --quick's): say what it leaves out
@@ -886,14 +888,14 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     if s.weather_provenance is not None and s.weather_provenance not in WEATHER_PROVENANCES:
         raise InputError(
             f"--weather-provenance {s.weather_provenance}",
-            column="weather_provenance",
+            parameter="weather_provenance",
             expected=" / ".join(WEATHER_PROVENANCES),
         )
     _check_file_timing(s)
     if s.split is not None:
         check_split_model(s.split)
     if s.how not in ("sample", "mean"):
-        raise InputError(f"how={s.how!r}", column="how", expected="'sample' or 'mean'")
+        raise InputError(f"how={s.how!r}", parameter="how", expected="'sample' or 'mean'")
     option_error(s.window, "--start-time, --hours or --step")
     if s.steps:
         _steps(s.steps, _n_steps(s.window()))
@@ -973,7 +975,7 @@ def site_of(opts: ModelOptions) -> Site:
     if opts.site is not None and given:
         raise InputError(
             f"--site {opts.site} given with {', '.join(given)}",
-            column="site",
+            parameter="site",
             expected="either a named --site or --latitude, --longitude and --timezone",
         )
     if opts.site is not None:
@@ -1002,7 +1004,7 @@ def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[
     if direct != "projection":
         raise InputError(
             f"--direct-rays-per-m2 {text} with the direct light from the paths",
-            column="direct_rays_per_m2",
+            parameter="direct_rays_per_m2",
             expected="the projected direct light (--direct projection or auto, a periodic field)",
         )
     try:
@@ -1011,7 +1013,7 @@ def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[
     except (ValueError, InputError):
         raise InputError(
             f"--direct-rays-per-m2 {text}",
-            column="direct_rays_per_m2",
+            parameter="direct_rays_per_m2",
             expected=f"rays per m² of ground in (0, {MAX_RAYS_PER_M2:.0e}]: one number, or SUN,SKY (e.g. 1e7,6e7)",
         ) from None
 
@@ -1124,13 +1126,13 @@ def check_boundary(boundary: str, buffer_rows: int | None, buffer_along: int | N
     from lightfit.plant.field import BOUNDARIES, DEFAULT_BUFFER_ROWS
 
     if boundary not in BOUNDARIES:
-        raise InputError(f"boundary={boundary!r}", column="boundary", expected=" or ".join(BOUNDARIES))
+        raise InputError(f"boundary={boundary!r}", parameter="boundary", expected=" or ".join(BOUNDARIES))
     if boundary == "periodic":
         given = [f"--{n}" for n, v in (("buffer-rows", buffer_rows), ("buffer-along", buffer_along)) if v is not None]
         if given:
             raise InputError(
                 f"{' and '.join(given)} given with --boundary periodic",
-                column="boundary",
+                parameter="boundary",
                 expected="no buffer options with a periodic field (its neighbours are its own copies), "
                 "or --boundary finite",
             )
@@ -1179,7 +1181,7 @@ def scenario(s: ModelSettings, w=None):
     if len(s.dates) > 1:  # one scenario is one day's plants; replicate concatenates several runs
         raise InputError(
             f"--date given {len(s.dates)} times ({', '.join(s.dates)})",
-            column="date",
+            parameter="date",
             expected="one --date for this command (replicate takes several)",
         )
     return scenario_for(s.replication_config(), weather(s) if w is None else w)
@@ -1225,4 +1227,4 @@ def _steps(text: str, n: int) -> slice:
             raise ValueError
         return slice(0, k)
     except ValueError:
-        raise InputError(f"steps={text!r}", column="steps", expected=f"a count 1…{n} or positions a:b") from None
+        raise InputError(f"steps={text!r}", parameter="steps", expected=f"a count 1…{n} or positions a:b") from None

@@ -98,14 +98,16 @@ def posterior(
     n_design = E.check_design_size(E.DESIGN_SIZE if n_design is None else n_design)  # before any render
     stop = P.StopRule(target_ess=target_ess)  # checked before any render
     if max_minutes is not None and not max_minutes > 0:
-        raise InputError(f"max_minutes={max_minutes!r}", column="max_minutes", expected="> 0 minutes (resumable)")
+        raise InputError(f"max_minutes={max_minutes!r}", parameter="max_minutes", expected="> 0 minutes (resumable)")
     if n_test < 0:
-        raise InputError(f"n_test={n_test}", column="n-test", expected="0 (no emulator check) or more held-out renders")
+        raise InputError(
+            f"n_test={n_test}", parameter="n-test", expected="0 (no emulator check) or more held-out renders"
+        )
     if priors not in P.PRIOR_SETS:
-        raise InputError(f"priors={priors!r}", column="priors", expected=" or ".join(P.PRIOR_SETS))
+        raise InputError(f"priors={priors!r}", parameter="priors", expected=" or ".join(P.PRIOR_SETS))
     form = likelihood_form(mc_correlation, mc_scale)
     if not (mc_scale >= 0 and mc_scale < float("inf")):
-        raise InputError(f"mc_scale={mc_scale!r}", column="mc-scale", expected="a finite number ≥ 0")
+        raise InputError(f"mc_scale={mc_scale!r}", parameter="mc-scale", expected="a finite number ≥ 0")
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     obs = read_observations(observations or rep.OBSERVATIONS)

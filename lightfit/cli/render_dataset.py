@@ -76,12 +76,12 @@ def render_dataset(
             flags = ", ".join("--" + n.replace("_", "-") for n in given)
             raise InputError(
                 f"{flags} with --cameras",
-                column="cameras",
+                parameter="cameras",
                 expected='each camera\'s settings in the --cameras JSON (e.g. "exposure_mode": "scene"); '
                 f"{flags} set the sweep's cameras only",
             )
     if time and all_times:
-        raise InputError("--time and --all-times both given", column="time", expected="one of them")
+        raise InputError("--time and --all-times both given", parameter="time", expected="one of them")
     cam_fields = {
         "width_px": width,
         "height_px": height,

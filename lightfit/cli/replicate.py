@@ -86,7 +86,7 @@ def replicate(
     if cmp is not None and cmp == cfg:  # a second run of this very configuration: twice the time, one answer
         raise InputError(
             f"--compare-preset {compare_preset} is this run's own configuration",
-            column="compare_preset",
+            parameter="compare_preset",
             expected="the other preset (--compare-preset paper for the default run, default for --preset paper)",
         )
     w = weather(s)

@@ -63,26 +63,26 @@ class Camera:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SIDE_PX:
                 raise InputError(
                     f"camera {self.name!r}: {name}={v!r}",
-                    column=name,
+                    parameter=name,
                     expected=f"an integer number of pixels in [1, {MAX_SIDE_PX}]",
                 )
         if not (_finite_number(self.fov_deg) and 0.0 < self.fov_deg < 180.0):
             raise InputError(
                 f"camera {self.name!r}: fov_deg={self.fov_deg!r}",
-                column="fov_deg",
+                parameter="fov_deg",
                 expected="a horizontal field of view in degrees, strictly between 0 and 180",
             )
         if self.position_m[2] <= 0.0:
             raise InputError(
                 f"camera {self.name!r}: position_m={self.position_m} is not above the soil",
-                column="position_m",
+                parameter="position_m",
                 expected="z > 0 m (the soil is the plane z = 0; from below it the camera sees nothing)",
             )
         view = np.subtract(self.look_at_m, self.position_m)
         if np.linalg.norm(view) < 1e-9:
             raise InputError(
                 f"camera {self.name!r}: look_at_m equals position_m {self.position_m}",
-                column="look_at_m",
+                parameter="look_at_m",
                 expected="a point different from the camera position",
             )
         if (
@@ -91,25 +91,25 @@ class Camera:
         ):
             raise InputError(
                 f"camera {self.name!r}: up={self.up} is zero or parallel to the view direction",
-                column="up",
+                parameter="up",
                 expected="a direction not parallel to look_at_m − position_m (tilt it slightly for a nadir view)",
             )
         if self.exposure_mode not in EXPOSURE_MODES:
             raise InputError(
                 f"camera {self.name!r}: unknown exposure_mode {self.exposure_mode!r}",
-                column="exposure_mode",
+                parameter="exposure_mode",
                 expected=" or ".join(EXPOSURE_MODES),
             )
         if not _finite_number(self.exposure_ev):
             raise InputError(
                 f"camera {self.name!r}: exposure_ev={self.exposure_ev!r}",
-                column="exposure_ev",
+                parameter="exposure_ev",
                 expected="a finite number of stops",
             )
         if not (_finite_number(self.meter_percentile) and 0.0 < self.meter_percentile <= 100.0):
             raise InputError(
                 f"camera {self.name!r}: meter_percentile={self.meter_percentile!r}",
-                column="meter_percentile",
+                parameter="meter_percentile",
                 expected="a percentile in (0, 100]",
             )
 
@@ -152,9 +152,9 @@ def _vec3(v, name: str) -> tuple[float, float, float]:
     try:
         a = np.asarray(v, dtype=float)
     except (TypeError, ValueError) as err:
-        raise InputError(f"{name}={v!r} is not three numbers", column=name, expected="(x, y, z) in metres") from err
+        raise InputError(f"{name}={v!r} is not three numbers", parameter=name, expected="(x, y, z) in metres") from err
     if a.shape != (3,) or not np.isfinite(a).all():
-        raise InputError(f"{name}={v!r}", column=name, expected="three finite numbers (x, y, z), metres")
+        raise InputError(f"{name}={v!r}", parameter=name, expected="three finite numbers (x, y, z), metres")
     return tuple(float(x) for x in a)
 
 
@@ -162,7 +162,7 @@ def _check_name(name) -> None:
     ok = isinstance(name, str) and name != "" and all(c.isalnum() or c in "-_" for c in name)
     if not ok:
         raise InputError(
-            f"camera name {name!r}", column="name", expected="a non-empty name of letters, digits, '-' and '_'"
+            f"camera name {name!r}", parameter="name", expected="a non-empty name of letters, digits, '-' and '_'"
         )
 
 
@@ -187,15 +187,17 @@ class Sweep:
 
     def __post_init__(self):
         if isinstance(self.n, bool) or not isinstance(self.n, (int, np.integer)) or self.n < 1:
-            raise InputError(f"sweep n={self.n!r}", column="n", expected="an integer number of cameras ≥ 1")
+            raise InputError(f"sweep n={self.n!r}", parameter="n", expected="an integer number of cameras ≥ 1")
         if not (_finite_number(self.distance_m) and self.distance_m > 0):
             raise InputError(
-                f"sweep distance_m={self.distance_m!r}", column="distance_m", expected="a positive distance in metres"
+                f"sweep distance_m={self.distance_m!r}",
+                parameter="distance_m",
+                expected="a positive distance in metres",
             )
         if not (_finite_number(self.elevation_deg) and 0.0 < self.elevation_deg < 90.0):
             raise InputError(
                 f"sweep elevation_deg={self.elevation_deg!r}",
-                column="elevation_deg",
+                parameter="elevation_deg",
                 expected="degrees strictly between 0 and 90",
             )
 
@@ -254,7 +256,7 @@ def load_cameras(path: str | Path) -> list[Camera]:
             )
         if "position_m" not in c:  # where the camera is: no default stands in for it
             raise InputError(
-                f"camera #{i} has no position_m", file=path, column="position_m", expected="[x, y, z] in metres"
+                f"camera #{i} has no position_m", file=path, parameter="position_m", expected="[x, y, z] in metres"
             )
     try:
         cams = [Camera(**{"name": f"cam{i:03d}", **c}) for i, c in enumerate(raw)]
@@ -269,4 +271,4 @@ def check_unique_names(cams: list[Camera]) -> None:
     names = [c.name for c in cams]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise InputError(f"duplicate camera name(s) {dup}", column="name", expected="a unique name per camera")
+        raise InputError(f"duplicate camera name(s) {dup}", parameter="name", expected="a unique name per camera")

@@ -140,7 +140,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     ``meta["cameras_taken_over"]`` counts them.
     """
     if spec.export not in EXPORT_FORMATS:
-        raise InputError(f"export={spec.export!r}", column="export", expected=" or ".join(EXPORT_FORMATS))
+        raise InputError(f"export={spec.export!r}", parameter="export", expected=" or ".join(EXPORT_FORMATS))
     check_integer(spec.gallery_images, "gallery_images", 0)
     out = Path(out_dir)
     earlier = [d for d in ("images", "labels") if (out / d).is_dir() and any((out / d).iterdir())]

@@ -64,10 +64,10 @@ class RenderSettings:
         for k, lo in (("spp", 1), ("max_depth", 2)):
             check_integer(getattr(self, k), k, lo)
         if self.colour not in COLOURS:
-            raise InputError(f"colour={self.colour!r}", column="colour", expected=" or ".join(COLOURS))
+            raise InputError(f"colour={self.colour!r}", parameter="colour", expected=" or ".join(COLOURS))
         check_seed(self.seed)
         if self.threads is not None and (not isinstance(self.threads, (int, np.integer)) or self.threads < 1):
-            raise InputError(f"threads={self.threads!r}", column="threads", expected="an integer ≥ 1 or None")
+            raise InputError(f"threads={self.threads!r}", parameter="threads", expected="an integer ≥ 1 or None")
 
 
 @dataclass
@@ -124,9 +124,9 @@ def render(
     ``save_dir``: each camera's arrays are saved there as soon as it is rendered
     (:func:`save_camera`), so that an interrupted render keeps its finished cameras."""
     if not cameras:
-        raise InputError("no cameras", column="cameras", expected="at least one camera")
+        raise InputError("no cameras", parameter="cameras", expected="at least one camera")
     if not lights:
-        raise InputError("no time steps to render", column="times", expected="at least one time step")
+        raise InputError("no time steps to render", parameter="times", expected="at least one time step")
     variant, here = variant_for(settings.colour)
     if here:
         out = render_here(arrays, cameras, lights, settings, materials, variant, camera_index, save_dir)

@@ -72,10 +72,10 @@ class Results:
             raise InputError(
                 f"quantity {name!r}: the results have no variable {full}",
                 file=self.path or "results",
-                column="quantities",
+                parameter="quantities",
                 expected=f"one of {', '.join(avail)}",
             )
-        raise InputError(f"unknown quantity {name!r}", column="quantities", expected=f"one of {', '.join(avail)}")
+        raise InputError(f"unknown quantity {name!r}", parameter="quantities", expected=f"one of {', '.join(avail)}")
 
     def values(self, name: str, time_index: int) -> pd.Series:
         """Per-segment values of a quantity at one time step, indexed by segment id (:meth:`units`)."""
@@ -172,7 +172,7 @@ def build_geometry(res: Results, cache_dir=None):
             f"the results' plants stood or faced otherwise than in the field rebuilt from their attrs "
             f"(layout fingerprint {stored}, rebuilt {now})",
             file=res.path or "results",
-            column="layout_fingerprint",
+            parameter="layout_fingerprint",
             expected="the attrs of the field the results were computed on (seed, headings, spacings, direction)",
         )
     geom = build(fld, cache_dir=cache_dir)
@@ -225,14 +225,14 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
             ts = pd.Timestamp(t)
         except ValueError as err:
             raise InputError(
-                f"time {t!r} is not a timestamp", column="times", expected="ISO 8601, e.g. 2016-04-20T10:00"
+                f"time {t!r} is not a timestamp", parameter="times", expected="ISO 8601, e.g. 2016-04-20T10:00"
             ) from err
         ts = ts.tz_localize("UTC") if ts.tz is None else ts.tz_convert("UTC")
         hit = np.flatnonzero(res.times == ts)
         if not len(hit):
             raise InputError(
                 f"time {ts} is not a step of the results",
-                column="times",
+                parameter="times",
                 expected=f"one of {res.times[0]} … {res.times[-1]} ({len(res.times)} steps)",
             )
         out.append(int(hit[0]))
@@ -268,7 +268,7 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
         raise InputError(
             f"weather {weather_source!r} given, but the results carry their own sun and sky "
             f"({', '.join(LIGHT_VARS)}), which lit the labels",
-            column="weather",
+            parameter="weather",
             expected="no weather for these results (it is used only for results without them)",
         )
     if own:
@@ -289,7 +289,7 @@ def lighting(res: Results, time_indices: list[int], weather_source: str | None =
             raise InputError(
                 f"weather {wx.attrs.get('source', weather_source)!r} does not cover the selected times "
                 f"{list(t.astype(str))}",
-                column="weather",
+                parameter="weather",
                 expected="a series spanning the results' times",
             )
     sky = str(ds.attrs.get("sky", SKY_MODELS[0]))  # the run's sky lit its labels: the images take it too
@@ -328,7 +328,7 @@ def _read_weather(res: Results, source: str | None) -> pd.DataFrame:
     if source is None and date not in weather.BUNDLED:
         raise InputError(
             f"the results carry no {', '.join(LIGHT_VARS)} and no weather is bundled for target_date {date!r}",
-            column="weather",
+            parameter="weather",
             expected=f"a weather file or bundled name ({', '.join(weather.BUNDLED)})",
         )
     # The one resolver of weather sources (bundled names and files alike), placed on the run's

@@ -66,15 +66,15 @@ class VisualMaterials:
         for k in ("leaf_rgb", "stem_rgb", "soil_rgb"):
             a = np.asarray(getattr(self, k), dtype=float)
             if a.shape != (3,) or not np.isfinite(a).all() or (a < 0).any() or (a > 1).any():
-                raise InputError(f"{k}={getattr(self, k)!r}", column=k, expected="three reflectances in [0, 1]")
+                raise InputError(f"{k}={getattr(self, k)!r}", parameter=k, expected="three reflectances in [0, 1]")
         for k in ("leaf_transmission", "roughness", "colour_variation"):
             v = getattr(self, k)
             if not (math.isfinite(v) and 0.0 <= v <= 1.0):
-                raise InputError(f"{k}={v!r}", column=k, expected="a number in [0, 1]")
+                raise InputError(f"{k}={v!r}", parameter=k, expected="a number in [0, 1]")
         for k in ("soil_half_size_m", "periodic_max_reach_m"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InputError(f"{k}={v!r}", column=k, expected="a positive distance in metres")
+                raise InputError(f"{k}={v!r}", parameter=k, expected="a positive distance in metres")
 
 
 @dataclass(frozen=True)
@@ -101,11 +101,11 @@ class Lighting:
         check_sky(self.sky)
         for k, v in asdict(self).items():
             if k != "sky" and not math.isfinite(v):
-                raise InputError(f"{k}={v!r}", column=k, expected="a finite number")
+                raise InputError(f"{k}={v!r}", parameter=k, expected="a finite number")
         if self.dni_w_m2 < 0 or self.dhi_w_m2 < 0:
             raise InputError(
                 f"irradiance DNI={self.dni_w_m2}, DHI={self.dhi_w_m2}",
-                column="dni_w_m2/dhi_w_m2",
+                parameter="dni_w_m2/dhi_w_m2",
                 expected="non-negative W m⁻²",
             )
 

@@ -25,7 +25,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     times = pd.DatetimeIndex(times)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
     if len(times) == 0:
-        raise InputError("no times", column="times", expected="at least one UTC timestamp")
+        raise InputError("no times", parameter="times", expected="at least one UTC timestamp")
     seg = build(fld, cache_dir=cache_dir).segments
     if measured_only:
         seg = seg[seg["measured"]]

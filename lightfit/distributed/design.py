@@ -82,7 +82,7 @@ def step_masks(model) -> tuple[np.ndarray, np.ndarray]:
     if int(keep.sum()) != len(model.times):
         raise InputError(
             f"{len(model.times)} model steps, {int(keep.sum())} of them in its scenario's weather",
-            column="model",
+            parameter="model",
             expected="a CoupledModel whose steps are rows of its scenario's weather (restrict() of one)",
         )
     return keep, rendered
@@ -104,7 +104,7 @@ def render_chunk(chunk: DesignChunk) -> dict:
                 "the worker's model is not the client's ("
                 + "; ".join(E.key_changes(chunk.key, mine))
                 + f") on {os.uname().nodename}, pid {os.getpid()}",
-                column="render_key",
+                parameter="render_key",
                 expected="workers with the client's lightfit, Mitsuba and Dr.Jit versions and plant growth",
             )
         _MODEL.clear()
@@ -174,7 +174,7 @@ def render_design(
     n_workers = max(1, len(client.nthreads()))
     size = math.ceil(len(todo) / n_workers) if chunk is None else int(chunk)
     if size < 1:
-        raise InputError(f"chunk={chunk!r}", column="chunk", expected="an integer ≥ 1 (points per task)")
+        raise InputError(f"chunk={chunk!r}", parameter="chunk", expected="an integer ≥ 1 (points per task)")
     keep, rendered = step_masks(model)
     token = uuid.uuid4().hex[:10]
     futures = [

@@ -102,7 +102,7 @@ class FieldRun:
         if sc.tile is not None:
             raise InputError(
                 f"scenario.tile={sc.tile!r}",
-                column="scenario",
+                parameter="scenario",
                 expected="the whole field (tile=None): FieldRun makes the tiles",
             )
         self.halo_field = HaloField.of(sc.field, self.halo_rows)  # validates halo_rows
@@ -112,13 +112,13 @@ class FieldRun:
         if n_day == 0:
             raise InputError(
                 f"all {len(sc.weather)} steps of the run are at night: nothing to distribute",
-                column="steps",
+                parameter="steps",
                 expected="at least one step with sun elevation > -1° and DNI + DHI > 0 (--steps, the window)",
             )
         if tc > n_day:
             raise InputError(
                 f"time_chunks={tc} > {n_day} daytime steps",
-                column="time_chunks",
+                parameter="time_chunks",
                 expected=f"at most {n_day} (every chunk needs a daytime step)",
             )
 
@@ -296,12 +296,14 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     import xarray as xr
 
     if not results:
-        raise InputError("no task results to gather", column="results", expected="one result per task")
+        raise InputError("no task results to gather", parameter="results", expected="one result per task")
     infos = [i for _, i in results]
     expected = {(t, c) for t in range(run.tiles) for c in range(run.time_chunks)}
     got = {(i["tile"], i["chunk"]) for i in infos}
     if got != expected:
-        raise InputError(f"task results cover {sorted(got)}", column="results", expected=f"all of {sorted(expected)}")
+        raise InputError(
+            f"task results cover {sorted(got)}", parameter="results", expected=f"all of {sorted(expected)}"
+        )
     ds0 = results[0][0]
     seg_vars = [v for v in ds0.data_vars if "segment" in schema.variable(v).dims]
     time_vars = [v for v in ds0.data_vars if "segment" not in schema.variable(v).dims and v not in RECOMPUTED]
@@ -319,7 +321,7 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     )
     out = out.sortby("time")
     if len(np.unique(out["segment"].values)) != out.sizes["segment"]:
-        raise InputError("a segment id occurs in two tiles", column="results", expected="disjoint tiles")
+        raise InputError("a segment id occurs in two tiles", parameter="results", expected="disjoint tiles")
     out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.scenario.ground_area_m2}
     for k, v in _aggregates(out).items():
         if k in RECOMPUTED:
@@ -442,7 +444,7 @@ def connect(
         if workers is not None:
             raise InputError(
                 f"workers={workers} with scheduler={scheduler!r}",
-                column="workers",
+                parameter="workers",
                 expected="no --workers when joining an existing cluster (its workers are given)",
             )
         try:
@@ -451,7 +453,7 @@ def connect(
         except Exception as err:  # noqa: BLE001 - whatever a wrong address does (bytes of another protocol: MemoryError)
             raise InputError(
                 f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {str(err)[:200]})",
-                column="scheduler",
+                parameter="scheduler",
                 expected=f"the address of a running Dask scheduler answering within {timeout_s:g} s, e.g. tcp://host:8786",
             ) from None
         try:
@@ -480,7 +482,7 @@ def connect(
             raise InputError(
                 f"a local Dask cluster of {n} worker(s) × {t} thread(s) did not start ({type(err).__name__}: "
                 f"{str(err)[:200]})",
-                column="connect_timeout",
+                parameter="connect_timeout",
                 expected=f"workers that start within --connect-timeout ({timeout_s:g} s): a longer one, "
                 "or fewer --workers",
             ) from None
@@ -492,7 +494,7 @@ def connect(
                 raise InputError(
                     f"the local Dask cluster did not answer within {timeout_s:g} s "
                     f"({type(err).__name__}: {str(err)[:200]})",
-                    column="connect_timeout",
+                    parameter="connect_timeout",
                     expected="a longer --connect-timeout",
                 ) from None
             try:
@@ -643,7 +645,7 @@ def run_field(
     """
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
         if value is not None and not value > 0:
-            raise InputError(f"{name}={value!r}", column=name, expected="> 0 seconds")
+            raise InputError(f"{name}={value!r}", parameter=name, expected="> 0 seconds")
     if client is None:
         with connect(
             scheduler, workers=workers, threads_per_worker=threads_per_worker, timeout_s=connect_timeout_s

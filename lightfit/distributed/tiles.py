@@ -58,13 +58,13 @@ class HaloField(Field):
         if self.halo_rows is not None and (not isinstance(self.halo_rows, (int, np.integer)) or self.halo_rows < 0):
             raise InputError(
                 f"halo_rows={self.halo_rows!r}",
-                column="halo_rows",
+                parameter="halo_rows",
                 expected="an integer ≥ 0, or None for the whole field (exact)",
             )
         if self.periodic and self.halo_rows is not None:
             raise InputError(
                 f"halo_rows={self.halo_rows!r} with boundary='periodic'",
-                column="halo_rows",
+                parameter="halo_rows",
                 expected="None: light wraps through the whole periodic cell, so every tile renders all of it",
             )
 
@@ -104,7 +104,7 @@ def check_tiles(fld: Field, n_tiles) -> list[Tile]:
     try:
         return fld.tiles(n_tiles)
     except InputError as err:
-        raise InputError(f"tiles={n_tiles}: {err.problem}", column="tiles", expected=err.expected) from None
+        raise InputError(f"tiles={n_tiles}: {err.problem}", parameter="tiles", expected=err.expected) from None
 
 
 __all__ = ["HaloField", "check_tiles", "plant_rc"]

@@ -115,7 +115,7 @@ def check_bounds(
     if extra:
         raise InputError(
             f"bounds for {', '.join(extra)}, which {'is' if len(extra) == 1 else 'are'} not calibrated",
-            column="bounds",
+            parameter="bounds",
             expected=f"bounds only for the calibrated parameters ({', '.join(names)})",
         )
     out = {}
@@ -133,7 +133,7 @@ def check_bounds(
         if not (ok and lo_d <= lo < hi <= hi_d):
             raise InputError(
                 f"bounds {n}={pair!r}",
-                column="bounds",
+                parameter="bounds",
                 expected=f"(lo, hi) with {lo_d:g} ≤ lo < hi ≤ {hi_d:g} ({n}'s domain), lo finite",
             )
         out[n] = (float(lo), float(hi))
@@ -422,7 +422,7 @@ def _check_start(th0: Theta, start, box: Mapping, narrowed: Mapping) -> None:
             source = "" if named else " (fixed or default, no start given)"
             raise InputError(
                 f"{n}={v!r}{source} outside its bounds [{lo:g}, {hi:g}]",
-                column="start",
+                parameter="start",
                 expected=f"a start inside the bounds ({lo:g} ≤ {n} ≤ {hi:g}), or bounds that hold it",
             )
 
@@ -533,7 +533,7 @@ def calibrate(
             computes the correlation at ``start``); both enter the resume key.
     """
     if method not in METHODS:
-        raise InputError(f"method={method!r}", column="method", expected=" or ".join(METHODS))
+        raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
     check_max_steps(max_steps)
     form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
     for what, given in (("fixed", fixed), ("start", start)):

@@ -77,7 +77,7 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     x0 = np.asarray(x0, float)
     names = tuple(names)
     if x0.shape != (len(names),):
-        raise InputError(f"x0 shape {x0.shape}", column="x0", expected=f"({len(names)},) — one value per name")
+        raise InputError(f"x0 shape {x0.shape}", parameter="x0", expected=f"({len(names)},) — one value per name")
     if scale == "log":
         if np.any(x0 <= 0):
             bad = [n for n, v in zip(names, x0) if v <= 0]
@@ -86,7 +86,7 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     elif scale == "natural":
         jac = jax.jacrev(residuals)(jnp.asarray(x0))
     else:
-        raise InputError(f"scale={scale!r}", column="scale", expected="'log' or 'natural'")
+        raise InputError(f"scale={scale!r}", parameter="scale", expected="'log' or 'natural'")
     J = np.asarray(jac, float)
     F = J.T @ J
     lam, vec = np.linalg.eigh(F)

@@ -170,7 +170,7 @@ def check_informed(names: Sequence[str], use: Sequence[str], *, bounces: int = 1
         raise InputError(
             f"the observed series in the likelihood ({', '.join(use)}) do not depend on {', '.join(flat)}"
             + (" (no light is scattered: bounces 0)" if bounces < 1 else ""),
-            column="parameters",
+            parameter="parameters",
             expected=(f"parameters they inform ({', '.join(can)})" if can else "other parameters")
             + f", or --use / observations with a series that does ({by})",
         )
@@ -201,7 +201,7 @@ class MCCorrelation:
         if missing:
             raise InputError(
                 f"Monte Carlo correlation lacks series {missing}",
-                column="mc_correlation",
+                parameter="mc_correlation",
                 expected="a correlation computed for the used series " + ", ".join(names),
             )
         T = self.n_steps
@@ -259,7 +259,7 @@ def likelihood_form(mc_correlation, mc_scale: float = 1.0) -> dict:
         mode = "model"
     else:
         raise InputError(
-            f"mc_correlation={mc_correlation!r}", column="mc_correlation", expected="'model' or 'independent'"
+            f"mc_correlation={mc_correlation!r}", parameter="mc_correlation", expected="'model' or 'independent'"
         )
     return {"mc_correlation": mode, "mc_scale": float(mc_scale)}
 
@@ -300,9 +300,9 @@ class GaussianLikelihood:
         step: pd.Timedelta | None = None,
     ):
         if use is not None and (isinstance(use, str) or not tuple(use)):
-            raise InputError(f"use={use!r}", column="use", expected="a non-empty sequence of " + ", ".join(USES))
+            raise InputError(f"use={use!r}", parameter="use", expected="a non-empty sequence of " + ", ".join(USES))
         if not (np.isfinite(mc_scale) and mc_scale >= 0):
-            raise InputError(f"mc_scale={mc_scale!r}", column="mc_scale", expected="a finite number ≥ 0")
+            raise InputError(f"mc_scale={mc_scale!r}", parameter="mc_scale", expected="a finite number ≥ 0")
         explicit = use is not None and tuple(use) != USES  # USES: callers' "whatever the file has"
         use = resolve_use(use, obs)
         if explicit:
@@ -311,7 +311,7 @@ class GaussianLikelihood:
                 raise InputError(
                     f"use names {', '.join(absent)}, which the observations have no value of",
                     file=obs.attrs.get("source"),
-                    column="use",
+                    parameter="use",
                     expected="series the observations have: " + (", ".join(observed(obs)) or "none"),
                 )
         check_sds(obs)
@@ -341,7 +341,7 @@ class GaussianLikelihood:
             raise InputError(
                 f"no observation of {' or '.join(s.value for s in requested)} falls on a simulated step",
                 file=obs.attrs.get("source"),
-                column="use",
+                parameter="use",
                 expected="observations of the used series within the run",
             )
         self.mc_scale = float(mc_scale)
@@ -364,7 +364,7 @@ class GaussianLikelihood:
             if mc_correlation.n_steps != T:
                 raise InputError(
                     f"Monte Carlo correlation over {mc_correlation.n_steps} steps",
-                    column="mc_correlation",
+                    parameter="mc_correlation",
                     expected=f"one computed for this run's {T} steps",
                 )
             c = mc_correlation.select(self.use)

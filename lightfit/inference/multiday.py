@@ -78,7 +78,7 @@ class MultiDayModel:
 
     def __init__(self, models: Mapping[str, CoupledModel]):
         if not models:
-            raise InputError("no day", column="date", expected="at least one date")
+            raise InputError("no day", parameter="date", expected="at least one date")
         self.day_models = dict(sorted(models.items()))
         self.dates = tuple(self.day_models)
         first = next(iter(self.day_models.values()))
@@ -87,14 +87,14 @@ class MultiDayModel:
             if m.scenario.theta.to_dict() != first.scenario.theta.to_dict():
                 raise InputError(
                     f"leaf optics of {d} differ from {self.dates[0]}'s",
-                    column="optics",
+                    parameter="optics",
                     expected="the same leaf on every day",
                 )
         self.times = pd.DatetimeIndex(np.concatenate([m.times.tz_convert("UTC") for m in self.day_models.values()]))
         if not self.times.is_monotonic_increasing or self.times.has_duplicates:
             raise InputError(
                 f"the days' steps overlap ({', '.join(self.dates)})",
-                column="date",
+                parameter="date",
                 expected="days whose windows do not overlap",
             )
         stamps = {m.timestamps for m in self.day_models.values()}
@@ -123,7 +123,9 @@ class MultiDayModel:
     def compose(self, forwards: Sequence[Callable]) -> DaysForward:
         """One forward of the days' ``forwards`` (in date order)."""
         if len(forwards) != len(self.dates):
-            raise InputError(f"{len(forwards)} forwards", column="forward", expected=f"one per day ({len(self.dates)})")
+            raise InputError(
+                f"{len(forwards)} forwards", parameter="forward", expected=f"one per day ({len(self.dates)})"
+            )
         return DaysForward(self.dates, forwards)
 
     def observe(self, theta) -> dict:
@@ -134,7 +136,7 @@ class MultiDayModel:
         """The days' models with other light sources (one per day, e.g. their emulators)."""
         if len(lights) != len(self.dates):
             raise InputError(
-                f"{len(lights)} light sources", column="light", expected=f"one per day ({len(self.dates)})"
+                f"{len(lights)} light sources", parameter="light", expected=f"one per day ({len(self.dates)})"
             )
         return MultiDayModel({d: m.with_light(x) for (d, m), x in zip(self.day_models.items(), lights)})
 
@@ -182,7 +184,7 @@ def block_correlation(corrs: Sequence):
 
     names = corrs[0].names
     if any(c.names != names for c in corrs):
-        raise InputError("days' correlations over different series", column="mc_correlation", expected=str(names))
+        raise InputError("days' correlations over different series", parameter="mc_correlation", expected=str(names))
     T = sum(c.n_steps for c in corrs)
     out = np.zeros((len(names) * T, len(names) * T))
     off = 0

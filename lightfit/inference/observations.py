@@ -236,7 +236,7 @@ def series(name: str) -> Series:
     """The :class:`Series` of a short name (or its alias ``par``/``an``); :class:`InputError` otherwise."""
     s = BY_NAME.get(ALIASES.get(name, name))
     if s is None:
-        raise InputError(f"use={name!r}", column="use", expected="series names " + ", ".join([*BY_NAME, *ALIASES]))
+        raise InputError(f"use={name!r}", parameter="use", expected="series names " + ", ".join([*BY_NAME, *ALIASES]))
     return s
 
 
@@ -423,7 +423,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance
     and the rows' time label (``attrs["timestamps"]``, instants where absent)."""
     if metadata.get("provenance") not in PROVENANCES:
-        raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
+        raise InputError("metadata must state provenance", parameter="provenance", expected="measured or synthetic")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()

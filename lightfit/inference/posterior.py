@@ -60,7 +60,7 @@ def prior_set(name: str, optics=None) -> dict[str, Prior]:
     (its subsurface prior spans PROSPECT-D's transmittance for the leaf's base colour: 0.31–1 for the
     default leaf, 0.04–0.17 for the reference paper's grey leaf); ``"wide"`` is the same for any leaf."""
     if name not in PRIOR_SETS:
-        raise InputError(f"priors={name!r}", column="priors", expected=" or ".join(PRIOR_SETS))
+        raise InputError(f"priors={name!r}", parameter="priors", expected=" or ".join(PRIOR_SETS))
     return informed_priors(optics) if name == "informed" else dict(PRIOR_SETS[name])
 
 
@@ -294,14 +294,14 @@ def check_emulator_box(
             if not in_box([a, b], low, high).all():
                 raise InputError(
                     f"the prior of {n} spans [{a:.6g}, {b:.6g}], beyond the emulator's box {box}",
-                    column=n,
+                    parameter=n,
                     expected=f"an emulator fitted on a box that holds the prior of {n} (or a narrower prior)",
                 )
         elif not in_box(fixed[n], low, high):
             raise InputError(
                 f"{n} is not sampled and stays at {fixed[n]:.6g} (the run's leaf, or its fixed value), outside "
                 f"the emulator's box {box}, where the emulated light would be an extrapolation",
-                column=n,
+                parameter=n,
                 expected=f"{n} sampled (add it to --parameters), or fixed inside the box; lightfit posterior "
                 f"builds the box from the priors, so priors whose {n} support holds {fixed[n]:.6g} (--priors wide)",
             )

@@ -204,7 +204,7 @@ def check_in_box(theta: Theta, calibrated: Sequence[str], lo, hi) -> None:
         if not (0.0 <= lo[i] < hi[i] <= 1.0):
             raise InputError(
                 f"emulator box of {n}: [{lo[i]:.6g}, {hi[i]:.6g}]",
-                column="lo, hi",
+                parameter="lo, hi",
                 expected=f"0 ≤ lo < hi ≤ 1 for {n}",
             )
     for i, n in enumerate(E.LEAF_PARAMETERS):
@@ -216,7 +216,7 @@ def check_in_box(theta: Theta, calibrated: Sequence[str], lo, hi) -> None:
             )
             raise InputError(
                 f"{n}={leaf[i]:.6g} ({what}) outside the emulator's box [{lo[i]:.6g}, {hi[i]:.6g}] (the priors)",
-                column=n,
+                parameter=n,
                 expected=fix,
             )
 
@@ -279,7 +279,7 @@ def surrogate_calibrate(
     names = check_names(names)
     form = likelihood_form(mc_correlation, mc_scale)
     if not (is_real(z) and math.isfinite(z) and z > 0):  # z ≤ 0 never passes: a render every round
-        raise InputError(f"z={z!r}", column="z", expected="a positive acceptance threshold in σ_L, e.g. 2")
+        raise InputError(f"z={z!r}", parameter="z", expected="a positive acceptance threshold in σ_L, e.g. 2")
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)

@@ -52,7 +52,7 @@ def twin_observations(
         raise InputError(
             f"the leaf photosynthesis did not converge for {n} blade-step(s) at the twin's θ "
             f"{as_theta(theta).to_dict()}: observations built on it would be the solver's last iterate",
-            column="theta",
+            parameter="theta",
             expected="parameters inside the model's range (or a SolverConfig with more steps)",
         )
     rng = np.random.default_rng(noise_seed)

@@ -100,7 +100,7 @@ def make_irradiance(
     """
     ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
     if len(ids) == 0:
-        raise InputError("no segments to render", column="segment_ids", expected="at least one segment id")
+        raise InputError("no segments to render", parameter="segment_ids", expected="at least one segment id")
     # Checked here, once: inside the callbacks an error reaches the caller wrapped in JAX's.
     check_samples(samples)
     check_bounces(bounces)
@@ -212,7 +212,7 @@ def make_irradiance(
             ("seed", seed, (), "one integer"),
         ):
             if jnp.shape(a) != shape:
-                raise InputError(f"{name} of shape {jnp.shape(a)}", column=name, expected=f"shape {shape}: {what}")
+                raise InputError(f"{name} of shape {jnp.shape(a)}", parameter=name, expected=f"shape {shape}: {what}")
 
     def check_finite(leaf, sun_deg):
         """Concrete (eager) values that are not finite, refused here: raised inside the callback the
@@ -223,7 +223,7 @@ def make_irradiance(
             ("sun_deg", sun_deg, "a finite (elevation, azimuth) in degrees"),
         ):
             if not isinstance(a, jax.core.Tracer) and not np.isfinite(np.asarray(a, dtype=np.float64)).all():
-                raise InputError(f"{name}={np.asarray(a).tolist()}", column=name, expected=what)
+                raise InputError(f"{name}={np.asarray(a).tolist()}", parameter=name, expected=what)
 
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
@@ -262,7 +262,7 @@ def make_irradiance(
                 if leaf is None:
                     raise InputError(
                         "the adaptive allocation is made on the first call",
-                        column="allocate_at",
+                        parameter="allocate_at",
                         expected="a call of the irradiance function first, or allocate_at",
                     )
                 estimators(np.asarray(leaf, np.float64), np.asarray(sun, np.float64), np.asarray(seed))

@@ -261,7 +261,7 @@ def leaf_bsdf_dict(specular: float, roughness: float, subsurface: float, base_co
         ("base_color", base_color),
     ):
         if not (0.0 <= float(v) <= 1.0):
-            raise InputError(f"leaf {name}={v!r}", column=name, expected="a value in [0, 1]")
+            raise InputError(f"leaf {name}={v!r}", parameter=name, expected="a value in [0, 1]")
     register()
     return {
         "type": "leaf",

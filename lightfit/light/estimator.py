@@ -219,7 +219,7 @@ def check_samples(value, *, exact: bool = False) -> int:
         below = k // 8 * 8 if k >= 40 else max(j for j in range(2, k) if samples_used(j) == j)
         raise InputError(
             f"samples={k}",
-            column="samples",
+            parameter="samples",
             expected=f"a K of {replicates_for(k)} replicates × equal points, which {k} is not: e.g. {below} or "
             f"{samples_used(k)} (8, 16, 32, 64, … always are)",
         )
@@ -242,7 +242,9 @@ def check_bounces(value) -> int:
 def check_target_rse(value) -> float:
     """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1)."""
     if not (is_real(value) and 0 < value < 1):
-        raise InputError(f"target_rse={value!r}", column="target_rse", expected="a relative standard error in (0, 1)")
+        raise InputError(
+            f"target_rse={value!r}", parameter="target_rse", expected="a relative standard error in (0, 1)"
+        )
     return float(value)
 
 
@@ -251,7 +253,7 @@ def check_direct_light(field_scene: FieldScene, direct: str, rays_per_m2) -> Non
     periodic scene with valid rays per m² (:func:`~lightfit.light.projection.check_rays`); checked
     before anything renders."""
     if direct not in DIRECT_MODES[:2]:
-        raise InputError(f"direct={direct!r}", column="direct", expected="'paths' or 'projection'")
+        raise InputError(f"direct={direct!r}", parameter="direct", expected="'paths' or 'projection'")
     if direct == "projection":
         projection.check_periodic(field_scene)
         projection.check_rays(rays_per_m2)
@@ -261,9 +263,9 @@ def check_par_weights(dni, dhi) -> tuple[float, float]:
     """The weights of the sun and sky parts in an absorbed PAR whose error is judged (DNI and DHI,
     any one unit): finite, ≥ 0 and not both 0 (nothing to judge)."""
     if not (is_real(dni) and is_real(dhi) and math.isfinite(dni) and math.isfinite(dhi) and dni >= 0 and dhi >= 0):
-        raise InputError(f"dni={dni!r}, dhi={dhi!r}", column="dni, dhi", expected="finite numbers ≥ 0")
+        raise InputError(f"dni={dni!r}, dhi={dhi!r}", parameter="dni, dhi", expected="finite numbers ≥ 0")
     if dni + dhi == 0:
-        raise InputError("dni=0 and dhi=0", column="dni, dhi", expected="some light to weigh the error by")
+        raise InputError("dni=0 and dhi=0", parameter="dni, dhi", expected="some light to weigh the error by")
     return float(dni), float(dhi)
 
 
@@ -279,7 +281,7 @@ def check_dark_floor(value) -> float:
     """Adaptive sampling's light floor: a fraction of the PAR above the canopy in [0, 1)."""
     if not (is_real(value) and 0 <= value < 1):
         raise InputError(
-            f"dark_floor={value!r}", column="dark_floor", expected="a fraction of the PAR above the canopy in [0, 1)"
+            f"dark_floor={value!r}", parameter="dark_floor", expected="a fraction of the PAR above the canopy in [0, 1)"
         )
     return float(value)
 
@@ -316,7 +318,7 @@ def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     where it does not) is refused: give ``bounces`` yourself.
     """
     if not (is_real(tolerance) and 0 < tolerance < 1):
-        raise InputError(f"tolerance={tolerance!r}", column="tolerance", expected="a number in (0, 1)")
+        raise InputError(f"tolerance={tolerance!r}", parameter="tolerance", expected="a number in (0, 1)")
     rho = _albedo_bound(optics)
     b = (
         max(0, math.ceil(math.log(tolerance * (1 - rho)) / math.log(rho)) - 1)
@@ -327,7 +329,7 @@ def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
         raise InputError(
             f"an albedo of {rho:.4g} (leaf or soil) needs more than {MAX_BOUNCES_FOR_TOLERANCE} scattering orders for "
             f"tolerance={tolerance!r}",
-            column="bounces",
+            parameter="bounces",
             expected="bounces given explicitly, or leaf and soil albedos below 1",
         )
     return b
@@ -384,15 +386,15 @@ class SegmentEstimator:
         if not (is_real(epsilon_m) and 0 < epsilon_m <= MAX_EPSILON_M):
             raise InputError(
                 f"epsilon_m={epsilon_m!r}",
-                column="epsilon_m",
+                parameter="epsilon_m",
                 expected=f"a ray offset in metres in (0, {MAX_EPSILON_M:g}]: organs are millimetres thick",
             )
         if direct not in DIRECT_MODES:
-            raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
+            raise InputError(f"direct={direct!r}", parameter="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
         if direct == "projection" and first != 0:  # render_adaptive: rounds with "none", one projection
             raise InputError(
                 f"first={first!r} with direct='projection'",
-                column="first",
+                parameter="first",
                 expected="first=0: the projection is the whole of the direct light, not a continuation",
             )
         self.fs, self.bounces, self.seed = field_scene, int(bounces), int(seed)
@@ -401,7 +403,7 @@ class SegmentEstimator:
         self.per_replicate = self.samples // self.replicates
         seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
         if len(seg) == 0:
-            raise InputError("no segments to render", column="segment_ids", expected="at least one segment id")
+            raise InputError("no segments to render", parameter="segment_ids", expected="at least one segment id")
         self.segment_id = seg
         K, R = self.samples, self.replicates
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
@@ -414,7 +416,7 @@ class SegmentEstimator:
         # j = first + point index within a replicate is exact in float32 (the sequences' columns).
         if not isinstance(first, (int, np.integer)) or not 0 <= first <= 2**24 - self.per_replicate:
             raise InputError(
-                f"first={first!r}", column="first", expected=f"an integer in [0, {2**24 - self.per_replicate}]"
+                f"first={first!r}", parameter="first", expected=f"an integer in [0, {2**24 - self.per_replicate}]"
             )
         self.first = int(first)
         self.epsilon_m = float(epsilon_m)
@@ -872,13 +874,13 @@ class SegmentEstimator:
         if leaf.ndim != 2 or leaf.shape[1] != len(LEAF_PARAMETERS) or not np.all((leaf >= 0) & (leaf <= 1)):
             raise InputError(
                 f"leaf points of shape {leaf.shape}",
-                column="leaf",
+                parameter="leaf",
                 expected="(N, 3) specular, roughness, subsurface, each in [0, 1]",
             )
         fs = self.fs
         suns = None if suns_deg is None else np.atleast_2d(np.asarray(suns_deg, dtype=np.float64))
         if suns is not None and (suns.ndim != 2 or suns.shape[1] != 2):
-            raise InputError(f"suns of shape {suns.shape}", column="suns_deg", expected="(T, 2) elevation, azimuth")
+            raise InputError(f"suns of shape {suns.shape}", parameter="suns_deg", expected="(T, 2) elevation, azimuth")
 
         def scene_state():
             return fs.optics, fs.sun.copy()
@@ -1046,7 +1048,7 @@ class SegmentEstimator:
         S, K = len(self.segment_id), self.samples
         unknown = set(cotangent) - set(PARTS)
         if unknown:
-            raise InputError(f"unknown output(s) {sorted(unknown)}", column="cotangent", expected=", ".join(PARTS))
+            raise InputError(f"unknown output(s) {sorted(unknown)}", parameter="cotangent", expected=", ".join(PARTS))
         c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
         si = self._evaluations()[0] // dr.opaque(mi.UInt32, K)
         w = {p: dr.gather(mi.Float, owned(c[p] / K, mi.Float), si) for p in PARTS}
@@ -1224,11 +1226,13 @@ def render_adaptive(
     check_dark_floor(dark_floor)
     check_par_weights(dni, dhi)
     if not isinstance(pilot, (int, np.integer)) or pilot < MIN_PILOT:
-        raise InputError(f"pilot={pilot!r}", column="pilot", expected=f"an integer ≥ {MIN_PILOT} (8 replicates)")
+        raise InputError(f"pilot={pilot!r}", parameter="pilot", expected=f"an integer ≥ {MIN_PILOT} (8 replicates)")
     if not isinstance(growth, (int, np.integer)) or growth < 2:
-        raise InputError(f"growth={growth!r}", column="growth", expected="an integer ≥ 2")
+        raise InputError(f"growth={growth!r}", parameter="growth", expected="an integer ≥ 2")
     if not isinstance(max_samples, (int, np.integer)) or max_samples < pilot:
-        raise InputError(f"max_samples={max_samples!r}", column="max_samples", expected=f"an integer ≥ pilot ({pilot})")
+        raise InputError(
+            f"max_samples={max_samples!r}", parameter="max_samples", expected=f"an integer ≥ pilot ({pilot})"
+        )
     check_direct_light(field_scene, direct, direct_rays_per_m2)
     check_bounces(bounces)
     check_seed(seed)

@@ -67,7 +67,7 @@ class FaceSampler:
         if (start == end).any():
             raise InputError(
                 f"segment id(s) {seg[start == end][:5].tolist()} have no faces in the mesh",
-                column="segment_ids",
+                parameter="segment_ids",
                 expected="ids of stem or leaf segments with non-zero length",
             )
         seg_area = self._cum_np[end - 1] - self._cum0_np[start]

@@ -49,7 +49,7 @@ def check_seed(seed, column: str = "seed") -> int:
     from numbers import Integral
 
     if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed < SEED_LIMIT:
-        raise InputError(f"seed={seed!r}", column=column, expected="an integer in [0, 2³²)")
+        raise InputError(f"seed={seed!r}", parameter=column, expected="an integer in [0, 2³²)")
     return int(seed)
 
 

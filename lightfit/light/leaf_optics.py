@@ -93,7 +93,7 @@ class LeafTraits:
             lo, hi, what = _TRAIT_RANGES[name]
             ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
             if not ok:
-                raise InputError(f"leaf trait {name}={v!r}", column=name, expected=what)
+                raise InputError(f"leaf trait {name}={v!r}", parameter=name, expected=what)
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,7 @@ def prospect_d(traits: LeafTraits = LeafTraits()) -> tuple[np.ndarray, np.ndarra
     import xleaf
 
     if not isinstance(traits, LeafTraits):
-        raise InputError(f"leaf traits {traits!r}", column="traits", expected="a LeafTraits")
+        raise InputError(f"leaf traits {traits!r}", parameter="traits", expected="a LeafTraits")
     t = traits
     r, tr = xleaf.simulate_leaf(
         chl=float(t.Cab),
@@ -146,20 +146,20 @@ def check_leaf(optics: str, chlorophyll_ug_cm2: float | None = None) -> None:
     """A known leaf preset (:data:`PRESETS`), and chlorophyll only for the ``prospect`` leaf, in
     PROSPECT-D's range; cheap (no spectra computed), so commands check it before plants grow."""
     if optics not in PRESETS:
-        raise InputError(f"optics={optics!r}", column="optics", expected=" or ".join(PRESETS))
+        raise InputError(f"optics={optics!r}", parameter="optics", expected=" or ".join(PRESETS))
     if chlorophyll_ug_cm2 is None:
         return
     if optics != "prospect":
         raise InputError(
             f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r} with optics {optics!r}",
-            column="chlorophyll_ug_cm2",
+            parameter="chlorophyll_ug_cm2",
             expected="optics 'prospect' (the paper's grey leaf is not made from leaf traits)",
         )
     try:
         LeafTraits(Cab=chlorophyll_ug_cm2)
     except InputError as e:
         raise InputError(
-            f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r}", column="chlorophyll_ug_cm2", expected=e.expected
+            f"chlorophyll_ug_cm2={chlorophyll_ug_cm2!r}", parameter="chlorophyll_ug_cm2", expected=e.expected
         ) from None
 
 
@@ -190,14 +190,14 @@ def leaf_bsdf_parameters(
 
     for name, v in (("specular", specular), ("roughness", roughness)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
-            raise InputError(f"leaf {name}={v!r}", column=name, expected="a number in [0, 1]")
+            raise InputError(f"leaf {name}={v!r}", parameter=name, expected="a number in [0, 1]")
     par = par_optics(traits)
     f0 = SPECULAR_F0_SCALE * float(specular)
     diffuse = par.R + par.T - f0 * ggx_white_sky_albedo(float(roughness))
     if diffuse <= 0 or par.R < f0 * ggx_white_sky_albedo(float(roughness)):
         raise InputError(
             f"leaf specular={specular!r}: the glossy lobe alone reflects more than PROSPECT-D's R = {par.R:.4f}",
-            column="specular",
+            parameter="specular",
             expected="a smaller specular for these traits",
         )
     return {
@@ -214,7 +214,7 @@ def preset_parameters(name: str) -> dict:
         return dict(PAPER_LEAF)
     if name == "prospect":
         return leaf_bsdf_parameters(LeafTraits())
-    raise InputError(f"unknown leaf optics preset {name!r}", column="preset", expected=" or ".join(PRESETS))
+    raise InputError(f"unknown leaf optics preset {name!r}", parameter="preset", expected=" or ".join(PRESETS))
 
 
 @lru_cache(maxsize=1)

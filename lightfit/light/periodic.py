@@ -65,7 +65,7 @@ def crossing_cap(cell: PeriodicCell, z_top: float, tolerance: float = DEFAULT_CR
     truncated light ≤ ``tolerance`` (a fraction; module doc)."""
     if not 0 < tolerance < 1:
         raise InputError(
-            f"crossing tolerance={tolerance!r}", column="crossing_tolerance", expected="a number in (0, 1)"
+            f"crossing tolerance={tolerance!r}", parameter="crossing_tolerance", expected="a number in (0, 1)"
         )
     a, b = cell.size_m
     return 2 + math.ceil(4 / math.pi * max(z_top, 0.0) * math.sqrt(a**-2 + b**-2) / tolerance)

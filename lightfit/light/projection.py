@@ -89,7 +89,7 @@ def check_periodic(field_scene) -> None:
     if field_scene.tracer is None:
         raise InputError(
             "direct='projection' on a finite field",
-            column="direct",
+            parameter="direct",
             expected="a periodic scene (FieldScene(..., cell=field.cell)); finite fields use direct='paths'",
         )
 
@@ -109,7 +109,7 @@ def check_rays(rays_per_m2) -> tuple[float, float]:
     ):
         raise InputError(
             f"direct_rays_per_m2={rays_per_m2!r}",
-            column="direct_rays_per_m2",
+            parameter="direct_rays_per_m2",
             expected=f"rays per m² of ground in (0, {MAX_RAYS_PER_M2:.0e}]: one number, or (sun, sky)",
         )
     return out

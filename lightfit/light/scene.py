@@ -51,7 +51,7 @@ def overcast_radiance_per_dhi(cos_zenith):
 def check_sky(sky) -> str:
     """``sky`` if it names a sky model (:data:`SKY_MODELS`), else :class:`InputError` naming ``sky``."""
     if sky not in SKY_MODELS:
-        raise InputError(f"unknown sky model {sky!r}", column="sky", expected=" or ".join(SKY_MODELS))
+        raise InputError(f"unknown sky model {sky!r}", parameter="sky", expected=" or ".join(SKY_MODELS))
     return sky
 
 
@@ -90,7 +90,7 @@ class Optics:
     def __post_init__(self):
         for k, v in asdict(self).items():
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
-                raise InputError(f"{k}={v!r}", column=k, expected="a number in [0, 1]")
+                raise InputError(f"{k}={v!r}", parameter=k, expected="a number in [0, 1]")
 
     @classmethod
     def from_traits(
@@ -164,7 +164,9 @@ class FieldScene:
             mesh, cell = mesh.mesh, mesh.cell if cell is None else cell
         check_sky(sky)
         if mesh.n_faces == 0:
-            raise InputError("the mesh has no faces", column="mesh", expected="a field with at least one plant segment")
+            raise InputError(
+                "the mesh has no faces", parameter="mesh", expected="a field with at least one plant segment"
+            )
         mi = mitsuba()
         import drjit as dr
 
@@ -220,7 +222,7 @@ class FieldScene:
         if not (ok and math.isfinite(elevation_deg) and math.isfinite(azimuth_deg) and abs(elevation_deg) <= 90):
             raise InputError(
                 f"sun position ({elevation_deg!r}, {azimuth_deg!r})",
-                column="sun",
+                parameter="sun",
                 expected="finite numbers of degrees: elevation in [−90, 90] (above 90 is a mirrored sun), azimuth",
             )
         self.sun = sun_vector(elevation_deg, azimuth_deg)
@@ -254,9 +256,11 @@ class FieldScene:
         """Change leaf parameters (``specular``, ``roughness``, ``subsurface``) in place, no rebuild."""
         for name, v in leaf.items():
             if name not in LEAF_PARAMETERS:
-                raise InputError(f"unknown leaf parameter {name!r}", column=name, expected=", ".join(LEAF_PARAMETERS))
+                raise InputError(
+                    f"unknown leaf parameter {name!r}", parameter=name, expected=", ".join(LEAF_PARAMETERS)
+                )
             if not (0.0 <= float(v) <= 1.0):
-                raise InputError(f"{name}={v!r}", column=name, expected="a value in [0, 1]")
+                raise InputError(f"{name}={v!r}", parameter=name, expected="a value in [0, 1]")
             self.params[f"plants.bsdf.{name}"] = self.mi.Float(float(v))
         self.params.update()
         self.optics = Optics(**{**asdict(self.optics), **{k: float(v) for k, v in leaf.items()}})

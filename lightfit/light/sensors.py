@@ -77,15 +77,15 @@ class Sensor:
         if a.ndim != 2 or a.shape[1] != 3 or a.shape != b.shape or len(a) == 0:
             raise InputError(
                 f"sensor {self.name!r}: end points of shape {a.shape} and {b.shape}",
-                column="sensors",
+                parameter="sensors",
                 expected="(P, 3) start and end points, P ≥ 1",
             )
         if not (np.isfinite(a).all() and np.isfinite(b).all()):
-            raise InputError(f"sensor {self.name!r}: non-finite end points", column="sensors", expected="metres")
+            raise InputError(f"sensor {self.name!r}: non-finite end points", parameter="sensors", expected="metres")
         if (a[:, 2] < 0).any() or not np.allclose(a[:, 2], b[:, 2], atol=1e-9):
             raise InputError(
                 f"sensor {self.name!r}: heights {a[:, 2].tolist()} … {b[:, 2].tolist()}",
-                column="sensors",
+                parameter="sensors",
                 expected="horizontal lines at heights ≥ 0 m",
             )
 
@@ -127,9 +127,9 @@ def ceptometer(
         name: the sensor's name.
     """
     if not (isinstance(placements, (int, np.integer)) and placements >= 1):
-        raise InputError(f"placements={placements!r}", column="placements", expected="an integer ≥ 1")
+        raise InputError(f"placements={placements!r}", parameter="placements", expected="an integer ≥ 1")
     if not (math.isfinite(length_m) and length_m >= 0):
-        raise InputError(f"length_m={length_m!r}", column="length_m", expected="a bar length ≥ 0 m")
+        raise InputError(f"length_m={length_m!r}", parameter="length_m", expected="a bar length ≥ 0 m")
     A, B = area.size_m
     half = 0.5 * (min(length_m, B) if clip else length_m)
     k = np.arange(placements)
@@ -183,7 +183,7 @@ class SensorEstimator(SegmentEstimator):
     ):
         self.sensors = tuple(sensors)
         if not self.sensors or not all(isinstance(s, Sensor) for s in self.sensors):
-            raise InputError(f"sensors={sensors!r}", column="sensors", expected="one or more Sensor")
+            raise InputError(f"sensors={sensors!r}", parameter="sensors", expected="one or more Sensor")
         super().__init__(
             field_scene,
             SENSOR_KEY0 + np.arange(len(self.sensors)),

@@ -87,7 +87,7 @@ class CoupledModel:
         if precision() != PRECISION:  # JAX would truncate every float64 array, with a warning each
             raise InputError(
                 f"JAX computes in {precision()}",
-                column="precision",
+                parameter="precision",
                 expected=f"{PRECISION}: call lightfit.precision.use_float64() before building a CoupledModel "
                 "(lightfit has no float32 mode; importing it does not change JAX's configuration)",
             )
@@ -104,7 +104,7 @@ class CoupledModel:
         if not self.is_blade.any():
             raise InputError(
                 "no leaf blades in the measurement area",
-                column="field",
+                parameter="field",
                 expected="plants grown long enough to have leaves",
             )
         self.ground_area_m2 = sc.ground_area_m2

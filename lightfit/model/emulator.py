@@ -232,7 +232,7 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
     leaf = np.atleast_2d(np.asarray(leaf, float))
     if len(leaf) == 0:
         raise InputError(
-            "no points to render", column="leaf", expected="at least one (specular, roughness, subsurface)"
+            "no points to render", parameter="leaf", expected="at least one (specular, roughness, subsurface)"
         )
     if not np.asarray(model.day).any():  # no step needs the light at the plants (see restrict): nothing to render
         empty = np.zeros((len(leaf), 0, len(PARTS), model.n_columns))
@@ -335,7 +335,7 @@ class PartsEmulator:
             i = int(out[0])
             raise InputError(
                 f"{LEAF_PARAMETERS[i]}={x[i]:.6g} outside the emulator's box [{self.lo[i]:.6g}, {self.hi[i]:.6g}]",
-                column=LEAF_PARAMETERS[i],
+                parameter=LEAF_PARAMETERS[i],
                 expected="leaf parameters inside the box the emulator was fitted on (or an emulator fitted on a "
                 "box that holds them)",
             )
@@ -430,7 +430,9 @@ def fit_emulator(
             best = d
     if best is None:
         check_design_size(n)  # too few for any degree
-        raise InputError(f"n_design={n}: no polynomial degree fits", column="n_design", expected="more design points")
+        raise InputError(
+            f"n_design={n}: no polynomial degree fits", parameter="n_design", expected="more design points"
+        )
     phi = np.asarray(legendre_basis(u, exponents(best)))
     pinv = np.linalg.pinv(phi)
     shape = np.asarray(values).shape[1:]
@@ -463,7 +465,7 @@ def build_emulator(
     if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo) or np.any(lo < 0) or np.any(hi > 1):
         raise InputError(
             f"emulator box lo={lo.tolist()}, hi={hi.tolist()}",
-            column="specular, roughness, subsurface",
+            parameter="specular, roughness, subsurface",
             expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters",
         )
     design = sobol_design(n_design, lo, hi, seed)
@@ -473,7 +475,7 @@ def build_emulator(
     if render_points is not None:
         if cache is None:
             raise InputError(
-                "render_points without a cache", column="cache", expected="the render directory the hook fills"
+                "render_points without a cache", parameter="cache", expected="the render directory the hook fills"
             )
         render_points(model, design, Path(cache), rkey)
     v, s, seconds = _render_parts(model, design, progress, cache, rkey)
@@ -636,7 +638,7 @@ def restrict(model: CoupledModel, keep, rendered=None) -> CoupledModel:
     if keep.shape != model.day.shape or not keep.any():
         raise InputError(
             f"steps to keep: {int(keep.sum())} of shape {keep.shape}",
-            column="steps",
+            parameter="steps",
             expected=f"a boolean mask over the run's {len(model.day)} steps with at least one step",
         )
     rendered = keep if rendered is None else np.asarray(rendered, bool) & keep
@@ -685,7 +687,7 @@ class FastObservables:
             raise InputError(
                 f"emulator shape {e.coef_values.shape[1:]} does not match the model "
                 f"({n_day} daytime steps, {n_seg} segments)",
-                column="emulator",
+                parameter="emulator",
                 expected="an emulator built for this model",
             )
         kinds = {model.scenario.par_kind, "absorbed"} | ({"incident"} if model.sensors else set())

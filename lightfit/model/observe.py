@@ -376,7 +376,7 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
     m = np.asarray(capacity, np.float64)
     m0 = float(m.min()) if base is None else float(base)
     if not 0 < m0 <= m.min():
-        raise InputError(f"capacity base {m0!r}", column="capacity_base", expected=f"in (0, {m.min():g}]")
+        raise InputError(f"capacity base {m0!r}", parameter="capacity_base", expected=f"in (0, {m.min():g}]")
     # Two multiplications, no division: XLA may turn a division by a constant into a product with
     # its reciprocal depending on the shapes it fuses, which would make tiles and time chunks of
     # one run differ in the last bit.
@@ -637,7 +637,7 @@ def _check_leaf_light(q, light_factor) -> None:
     if top > MAX_PAR_ABS_UMOL_M2_S:
         raise InputError(
             f"light_factor={float(light_factor):g} gives the blades up to {top:.0f} µmol m-2 s-1 of absorbed PAR",
-            column="theta",
+            parameter="theta",
             expected=f"at most {MAX_PAR_ABS_UMOL_M2_S:g} µmol m-2 s-1 (about 4x full sun): a smaller light_factor",
         )
 

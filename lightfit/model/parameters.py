@@ -108,10 +108,10 @@ def check_names(names, *, what: str = "parameters") -> tuple[str, ...]:
     names = tuple(names)
     unknown = [n for n in names if n not in BOUNDS]
     if unknown:
-        raise InputError(f"unknown parameter(s) {unknown}", column=what, expected=", ".join(NAMES))
+        raise InputError(f"unknown parameter(s) {unknown}", parameter=what, expected=", ".join(NAMES))
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
-        raise InputError(f"parameter(s) {repeated} given more than once", column=what, expected="each name once")
+        raise InputError(f"parameter(s) {repeated} given more than once", parameter=what, expected="each name once")
     return names
 
 
@@ -132,7 +132,7 @@ def check_theta(values: Mapping[str, float], *, what: str = "theta") -> dict[str
         ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
         ok = ok and (lo < v if math.isinf(hi) else lo <= v <= hi)
         if not ok:
-            raise InputError(f"{k}={v!r}", column=what, expected=_domain(k))
+            raise InputError(f"{k}={v!r}", parameter=what, expected=_domain(k))
         out[k] = float(v)
     return out
 
@@ -153,11 +153,11 @@ def check_concrete(theta: Theta, *, what: str = "theta") -> Theta:
         except (TypeError, ValueError):
             a = np.asarray(None)  # not a number at all: refused below
         if a.dtype.kind not in "iuf":  # bools, strings, objects
-            raise InputError(f"{name}={v!r}", column=what, expected=_domain(name))
+            raise InputError(f"{name}={v!r}", parameter=what, expected=_domain(name))
         bad = ~np.isfinite(a) | ((a <= lo) if math.isinf(hi) else (a < lo) | (a > hi))
         if bad.any():
             first = a if a.ndim == 0 else a.reshape(-1)[int(np.argmax(bad.reshape(-1)))]
-            raise InputError(f"{name}={float(first)!r}", column=what, expected=_domain(name))
+            raise InputError(f"{name}={float(first)!r}", parameter=what, expected=_domain(name))
     return theta
 
 

@@ -138,7 +138,7 @@ def check_ceptometer_height(h) -> float:
     if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0 <= h <= MAX_CEPTOMETER_HEIGHT_M:
         raise InputError(
             f"ceptometer_height_m={h!r}",
-            column="ceptometer_height_m",
+            parameter="ceptometer_height_m",
             expected=f"a height above the soil in metres, 0 … {MAX_CEPTOMETER_HEIGHT_M}",
         )
     return float(h)
@@ -158,7 +158,7 @@ CHOICES = {"par_kind": ("incident", "absorbed"), "an_per": ("leaf", "ground")}
 def check_choice(name: str, value) -> str:
     """``value`` if it is one of :data:`CHOICES` ``[name]``, else :class:`InputError` naming it."""
     if value not in CHOICES[name]:
-        raise InputError(f"{name}={value!r}", column=name, expected=" or ".join(repr(c) for c in CHOICES[name]))
+        raise InputError(f"{name}={value!r}", parameter=name, expected=" or ".join(repr(c) for c in CHOICES[name]))
     return value
 
 
@@ -190,10 +190,10 @@ def check_allocate_at(value) -> tuple:
         sun = tuple(float(x) for x in np.asarray(sun, np.float64).reshape(2))
         dni, dhi = float(dni), float(dhi)
     except (TypeError, ValueError) as e:
-        raise InputError(f"allocate_at={value!r}", column="allocate_at", expected=expected) from e
+        raise InputError(f"allocate_at={value!r}", parameter="allocate_at", expected=expected) from e
     ok = all(0 <= x <= 1 for x in leaf) and all(np.isfinite(sun)) and dni >= 0 and dhi >= 0 and dni + dhi > 0
     if not (ok and np.isfinite(dni) and np.isfinite(dhi)):
-        raise InputError(f"allocate_at={value!r}", column="allocate_at", expected=expected)
+        raise InputError(f"allocate_at={value!r}", parameter="allocate_at", expected=expected)
     return leaf, sun, dni, dhi
 
 
@@ -217,14 +217,14 @@ def check_soil_respiration(r10, q10) -> tuple[float, float]:
     if not (is_real(r10) and np.isfinite(r10) and r10 >= 0):
         raise InputError(
             f"soil_respiration_umol_m2_s={r10!r}",
-            column="soil_respiration_umol_m2_s",
+            parameter="soil_respiration_umol_m2_s",
             expected="soil respiration at 10 °C in µmol m⁻² s⁻¹, a finite number ≥ 0 (CO2 released)",
         )
     lo, hi = SOIL_RESPIRATION_Q10_RANGE
     if not (is_real(q10) and lo <= q10 <= hi):
         raise InputError(
             f"soil_respiration_q10={q10!r}",
-            column="soil_respiration_q10",
+            parameter="soil_respiration_q10",
             expected=f"a factor per 10 K in [{lo:g}, {hi:g}] (1: constant)",
         )
     return float(r10), float(q10)
@@ -238,13 +238,13 @@ def resolve_direct(direct: str, boundary: str) -> str:
     """``direct`` (:data:`DIRECT_CHOICES`) for a field with ``boundary``: ``"auto"`` → projection in
     a periodic field, paths in a finite one; projection in a finite field is refused."""
     if direct not in DIRECT_CHOICES:
-        raise InputError(f"direct={direct!r}", column="direct", expected=" or ".join(map(repr, DIRECT_CHOICES)))
+        raise InputError(f"direct={direct!r}", parameter="direct", expected=" or ".join(map(repr, DIRECT_CHOICES)))
     if direct == "auto":
         return "projection" if boundary == "periodic" else "paths"
     if direct == "projection" and boundary != "periodic":
         raise InputError(
             f"direct='projection' with a {boundary} field",
-            column="direct",
+            parameter="direct",
             expected="a periodic field (boundary 'periodic'), or direct 'paths' (or 'auto')",
         )
     return direct
@@ -379,7 +379,7 @@ class Scenario:
         check_sky(self.sky)
         check_seed(self.seed)
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
-            raise InputError(f"tile={self.tile!r}", column="tile", expected=f"0 … {self.n_tiles - 1} or None")
+            raise InputError(f"tile={self.tile!r}", parameter="tile", expected=f"0 … {self.n_tiles - 1} or None")
         check_choice("par_kind", self.par_kind)
         check_choice("an_per", self.an_per)
         self.vcmax_profile = check_profile(self.vcmax_profile)
@@ -392,7 +392,7 @@ class Scenario:
         if missing:
             raise InputError(
                 f"weather lacks {sorted(missing)}",
-                column="weather",
+                parameter="weather",
                 expected="a contract series with solar columns (lightfit.weather.add_solar)",
             )
         check_weather_values(self.weather)

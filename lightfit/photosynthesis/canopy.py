@@ -108,7 +108,7 @@ def resolve_kn(profile: str | float, params: PhotosynthesisParams) -> float:
         if not v25 <= LLOYD2010_MAX_VCMAX25:
             raise InputError(
                 f"vcmax_profile='lloyd2010' with a Vcmax of {v25:.0f} µmol m-2 s-1 at 25 °C",
-                column="vcmax_profile",
+                parameter="vcmax_profile",
                 expected=f"Lloyd et al.'s fit within its leaves' range (Vcmax25 ≤ {LLOYD2010_MAX_VCMAX25:g}): "
                 f"'uniform' or a kn of your own (a number in [0, {MAX_KN:g}])",
             )
@@ -124,7 +124,7 @@ def _kn_number(profile) -> float:
     if not 0 <= kn <= MAX_KN:  # NaN fails too
         raise InputError(
             f"vcmax_profile={profile!r}",
-            column="vcmax_profile",
+            parameter="vcmax_profile",
             expected=" or ".join(map(repr, PROFILES)) + f", or kn itself: a number in [0, {MAX_KN:g}] per unit LAI",
         )
     return kn
@@ -149,9 +149,9 @@ def leaf_area_above(height_m, area_m2, ground_area_m2: float) -> np.ndarray:
     z = np.asarray(height_m, np.float64)
     a = np.asarray(area_m2, np.float64)
     if z.shape != a.shape or z.ndim != 1:
-        raise InputError(f"heights {z.shape} and areas {a.shape}", column="area_m2", expected="two (B,) arrays")
+        raise InputError(f"heights {z.shape} and areas {a.shape}", parameter="area_m2", expected="two (B,) arrays")
     if not (np.isfinite(ground_area_m2) and ground_area_m2 > 0):
-        raise InputError(f"ground_area_m2={ground_area_m2!r}", column="ground_area_m2", expected="a finite area > 0")
+        raise InputError(f"ground_area_m2={ground_area_m2!r}", parameter="ground_area_m2", expected="a finite area > 0")
     order = np.argsort(-z, kind="stable")
     zs, cum = z[order], np.cumsum(a[order])
     # Leaves strictly higher: the cumulative area before the first leaf at each one's height.

@@ -445,7 +445,7 @@ def check_acclimates(name: str, growth_temperature_c) -> None:
     if growth_temperature_c is not None and name not in ACCLIMATING_SETS:
         raise InputError(
             f"growth_temperature_c={growth_temperature_c!r} with the {name!r} set",
-            column="growth_temperature_c",
+            parameter="growth_temperature_c",
             expected="a set whose temperature responses acclimate (" + ", ".join(ACCLIMATING_SETS) + "), or none",
         )
 
@@ -460,7 +460,7 @@ def check_growth_temperature(name: str, growth_temperature_c, *, problem: str | 
         raise InputError(
             problem or f"growth_temperature_c={growth_temperature_c!r}",
             file=file,
-            column="growth_temperature_c",
+            parameter="growth_temperature_c",
             expected=f"the mean air temperature of the month before, a number in [{lo:g}, {hi:g}] °C"
             + ("" if problem is None else ": give --growth-temperature-c a number"),
         )

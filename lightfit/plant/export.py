@@ -26,7 +26,7 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
         if not name.isidentifier():
             raise InputError(
                 f"value name {name!r} is not a plain identifier",
-                column=name,
+                parameter=name,
                 expected="letters, digits and underscores (it becomes a file attribute)",
             )
         series = pd.Series(series)
@@ -35,7 +35,7 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
             missing = np.unique(mesh.face_segment[absent])[:5]
             raise InputError(
                 f"value {name!r} has no entry for segment id(s) {missing.tolist()}",
-                column=name,
+                parameter=name,
                 expected="a value (NaN allowed) for every segment in the mesh",
             )
         v = series.reindex(mesh.face_segment).to_numpy(dtype=float)

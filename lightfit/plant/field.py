@@ -68,7 +68,7 @@ HEADINGS = ("random", "aligned")
 def check_headings(headings) -> str:
     """``headings`` if it is one of :data:`HEADINGS`, else :class:`InputError` naming it."""
     if headings not in HEADINGS:
-        raise InputError(f"headings={headings!r}", column="headings", expected=" or ".join(HEADINGS))
+        raise InputError(f"headings={headings!r}", parameter="headings", expected=" or ".join(HEADINGS))
     return headings
 
 
@@ -146,14 +146,14 @@ class Field:
         check_sheaths(self.sheaths)
         check_headings(self.headings)
         if self.boundary not in BOUNDARIES:
-            raise InputError(f"boundary={self.boundary!r}", column="boundary", expected=" or ".join(BOUNDARIES))
+            raise InputError(f"boundary={self.boundary!r}", parameter="boundary", expected=" or ".join(BOUNDARIES))
         if self.boundary == "periodic":
             # Buffer plants would double the field inside the cell: refuse rather than ignore.
             for name in ("buffer_rows", "buffer_along"):
                 if getattr(self, name) not in (None, 0):
                     raise InputError(
                         f"{name}={getattr(self, name)!r} with boundary='periodic'",
-                        column=name,
+                        parameter=name,
                         expected=(
                             "0 or None: a periodic field (the default) has no buffer plants, its neighbours"
                             " are its own copies; boundary='finite' for buffer rows on bare soil"
@@ -167,11 +167,13 @@ class Field:
         for name in ("row_spacing_m", "plant_spacing_m"):
             v = getattr(self, name)
             if not (is_real(v) and math.isfinite(v) and v > 0):  # True was 1 m; numpy numbers were refused
-                raise InputError(f"{name}={v!r}", column=name, expected="a positive distance in metres")
+                raise InputError(f"{name}={v!r}", parameter=name, expected="a positive distance in metres")
             object.__setattr__(self, name, float(v))  # np.float32(0.125) hashed otherwise than 0.125
         d = self.row_direction_deg
         if not (is_real(d) and math.isfinite(d)):  # NaN built a mesh of NaN, inf a math domain error
-            raise InputError(f"row_direction_deg={d!r}", column="row_direction_deg", expected="an azimuth in degrees")
+            raise InputError(
+                f"row_direction_deg={d!r}", parameter="row_direction_deg", expected="an azimuth in degrees"
+            )
         check_integer(self.buffer_rows, "buffer_rows", 0)
         check_integer(self.seed, "seed", 0)
 
@@ -223,12 +225,12 @@ class Field:
 
         def number(key: str, kind=float):
             if key not in a:
-                raise InputError(f"no attribute {key}", file=where, column=key, expected="the field's attributes")
+                raise InputError(f"no attribute {key}", file=where, parameter=key, expected="the field's attributes")
             try:
                 return kind(a[key])
             except (TypeError, ValueError):
                 what = "an integer" if kind is int else "a number"
-                raise InputError(f"{key}={a[key]!r}", file=where, column=key, expected=what) from None
+                raise InputError(f"{key}={a[key]!r}", file=where, parameter=key, expected=what) from None
 
         growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
         kw = {k: number(k) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}
@@ -342,13 +344,13 @@ class Field:
         rest of the cell: light wraps through the whole cell, so every tile needs all of it.
         """
         if not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
-            raise InputError(f"n_tiles={n_tiles!r}", column="n_tiles", expected="an integer ≥ 1")
+            raise InputError(f"n_tiles={n_tiles!r}", parameter="n_tiles", expected="an integer ≥ 1")
         a = max(d for d in range(1, math.isqrt(n_tiles) + 1) if n_tiles % d == 0)
         bcount = n_tiles // a
         if a > self.n or bcount > self.n:
             raise InputError(
                 f"{n_tiles} tiles ({a}×{bcount}) do not fit a {self.n}×{self.n} measurement area",
-                column="n_tiles",
+                parameter="n_tiles",
                 expected=f"at most {self.n} tiles per side",
             )
         B, m, Ba, ma = self.buffer_rows, self.m, self.b_along, self.m_along
@@ -452,7 +454,7 @@ def build(
         raise InputError(
             f"the plants grown to {fld.growth.target_date} have no leaf blade (every leaf segment is sheath)",
             file=fld.growth.path,
-            column="parameter_file",
+            parameter="parameter_file",
             expected="a wheat parameter file whose leaves have blades (lmaxb, Width_blade), or a later target date",
         )
     segments = lay_sheaths(segments, fld.sheaths)

@@ -127,11 +127,13 @@ def resolve_parameter_file(name: str | os.PathLike) -> Path:
         wheat = sorted(f.name for f in parameter_dir().glob("Triticum_aestivum_*.xml"))
         raise InputError(
             f"plant parameter file {str(name)!r} not found",
-            column="parameter_file",
+            parameter="parameter_file",
             expected=f"a path or one of CPlantBox's wheat files: {', '.join(wheat)}",
         )
     if not p.is_file():
-        raise InputError("a folder, not a file", file=p, column="parameter_file", expected="a plant parameter XML file")
+        raise InputError(
+            "a folder, not a file", file=p, parameter="parameter_file", expected="a plant parameter XML file"
+        )
     import xml.etree.ElementTree as ET
 
     try:  # CPlantBox reads a broken file in part and fails later, far from the file (a review)
@@ -184,14 +186,14 @@ class GrowthConfig:
             raise InputError(
                 f"target_date {end} is not after season_start {start}"
                 + (" (the default: 5 March of its year; growth over winter is not simulated)" if default else ""),
-                column="target_date",
+                parameter="target_date",
                 expected="season_start < target_date" + (", a date after 5 March" if default else ""),
             )
         if (end - start).days > MAX_GROWTH_DAYS:
             raise InputError(
                 f"target_date {end} is {(end - start).days} days after season_start {start}, beyond the "
                 f"wheat growth model's range (no senescence or ripening; harvest is in July)",
-                column="target_date",
+                parameter="target_date",
                 expected=f"a date at most {MAX_GROWTH_DAYS} days after season_start",
             )
         object.__setattr__(self, "_path", resolve_parameter_file(self.parameter_file))
@@ -229,7 +231,7 @@ def plant_seed(global_seed: int, row: int, col: int) -> int:
     if min(global_seed, row, col) < 0:
         raise InputError(
             "seeds and grid positions must be non-negative",
-            column="seed",
+            parameter="seed",
             expected=f"global_seed ≥ 0, row ≥ 0, col ≥ 0; got {global_seed}, {row}, {col}",
         )
     return int(np.random.SeedSequence([int(global_seed), int(row), int(col)]).generate_state(1)[0] >> 1)
@@ -251,7 +253,7 @@ def grow_plant(config: GrowthConfig, seed: int, plant_id: int = 0) -> pd.DataFra
         raise InputError(
             f"CPlantBox cannot grow a plant from it ({err})",
             file=config.path,
-            column="parameter_file",
+            parameter="parameter_file",
             expected="a complete CPlantBox plant parameter file (seed, root, stem and leaf parameters)",
         ) from None
     table = segment_table(plant, plant_id, include_roots=config.include_roots)

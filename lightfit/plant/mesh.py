@@ -52,7 +52,7 @@ class MeshResolution:
         for name, lo in (("along", 1), ("across", 1), ("around", 3)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < lo:
-                raise InputError(f"mesh resolution {name}={v!r}", column=name, expected=f"an integer ≥ {lo}")
+                raise InputError(f"mesh resolution {name}={v!r}", parameter=name, expected=f"an integer ≥ {lo}")
 
 
 @dataclass

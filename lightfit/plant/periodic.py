@@ -62,10 +62,10 @@ class PeriodicCell:
         for name in ("along_m", "across_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.floating)) and math.isfinite(v) and v > 0):
-                raise InputError(f"{name}={v!r}", column=name, expected="a positive cell size in metres")
+                raise InputError(f"{name}={v!r}", parameter=name, expected="a positive cell size in metres")
         if not math.isfinite(self.row_direction_deg):
             raise InputError(
-                f"row_direction_deg={self.row_direction_deg!r}", column="row_direction_deg", expected="degrees"
+                f"row_direction_deg={self.row_direction_deg!r}", parameter="row_direction_deg", expected="degrees"
             )
 
     @property

@@ -45,7 +45,7 @@ _P0, _P1 = ["x0", "y0", "z0"], ["x1", "y1", "z1"]
 def check_sheaths(value) -> str:
     """A sheath layout of :data:`SHEATHS`, else :class:`InputError` naming ``sheaths``."""
     if value not in SHEATHS:
-        raise InputError(f"sheaths={value!r}", column="sheaths", expected=" or ".join(map(repr, SHEATHS)))
+        raise InputError(f"sheaths={value!r}", parameter="sheaths", expected=" or ".join(map(repr, SHEATHS)))
     return value
 
 

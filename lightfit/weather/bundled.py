@@ -24,7 +24,7 @@ BUNDLED: dict[str, tuple[str, str | None, str]] = {
 def bundled_path(name: str) -> Path:
     """Path of a bundled weather file by name (see :data:`BUNDLED`)."""
     if name not in BUNDLED:
-        raise InputError(f"no bundled weather named {name!r}", column="name", expected=" or ".join(BUNDLED))
+        raise InputError(f"no bundled weather named {name!r}", parameter="name", expected=" or ".join(BUNDLED))
     path = DATA_DIR / "weather" / BUNDLED[name][0]
     if not path.exists():
         raise InputError(
@@ -101,7 +101,7 @@ def read_source(source: str | Path, *, date: str | None = None, **kwargs) -> pd.
             raise InputError(
                 f"provenance={kwargs['provenance']!r} contradicts the bundled file's documented {documented!r}",
                 file=path,
-                column="provenance",
+                parameter="provenance",
                 expected=f"no provenance or {documented!r} (data/README.md)",
             )
         kwargs["provenance"] = documented

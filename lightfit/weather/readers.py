@@ -250,7 +250,7 @@ def zone(name: str, column: str = "tz") -> str:
             return f"Etc/GMT{'-' if m['sign'] == '+' else '+'}{int(m['h'])}"
         raise InputError(
             f"{column}={name!r} is not a whole-hour offset",
-            column=column,
+            parameter=column,
             expected="UTC±H in whole hours (UTC+1 is Etc/GMT-1), or an IANA name such as Asia/Kolkata",
         )
     if text.upper() in _TWO_MEANINGS:
@@ -258,7 +258,7 @@ def zone(name: str, column: str = "tz") -> str:
         raise InputError(
             f"{column}={name!r} could mean two things: UTC{_TWO_MEANINGS[text.upper()]:+d} all year, as "
             f"loggers mean it, or tzdata's zone with summer time",
-            column=column,
+            parameter=column,
             expected=f"UTC{_TWO_MEANINGS[text.upper()]:+d} (no summer time; TERENO logs so) or an IANA city "
             "name such as Europe/Berlin (with summer time)",
         )
@@ -266,7 +266,7 @@ def zone(name: str, column: str = "tz") -> str:
         return check_timezone(text, column)
     except InputError as e:
         raise InputError(
-            e.problem, column=column, expected="an IANA name such as Europe/Berlin or UTC, or UTC±H such as UTC+1"
+            e.problem, parameter=column, expected="an IANA name such as Europe/Berlin or UTC, or UTC±H such as UTC+1"
         ) from None
 
 
@@ -312,7 +312,7 @@ def _header_zone(text_lines: list[str], end: int, file, tz: str | None) -> str:
             f"tz={tz!r} disagrees with the header's 'Time zone: {raw}' ({stated})",
             file=file,
             row=i + 1,
-            column="tz",
+            parameter="tz",
             expected=f"no tz (the header's zone is used) or tz={stated!r}",
         )
     return stated
@@ -325,7 +325,7 @@ WEATHER_PROVENANCES = ("measured", "reconstructed", "synthetic", "unstated")
 def _check_provenance(value: str | None, file=None) -> str | None:
     if value is not None and value not in WEATHER_PROVENANCES:
         raise InputError(
-            f"provenance={value!r}", file=file, column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
+            f"provenance={value!r}", file=file, parameter="provenance", expected=" / ".join(WEATHER_PROVENANCES)
         )
     return value
 
@@ -338,7 +338,7 @@ def _resolve_provenance(stated: str | None, where: str, given: str | None, file)
         raise InputError(
             f"provenance={given!r} contradicts the file, which says {stated!r} ({where})",
             file=file,
-            column="provenance",
+            parameter="provenance",
             expected=f"no provenance (the file's is used) or {stated!r}",
         )
     if stated not in (None, "unstated"):
@@ -916,7 +916,7 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     """
     if metadata.get("provenance") not in WEATHER_PROVENANCES:
         raise InputError(
-            "metadata must state provenance", column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
+            "metadata must state provenance", parameter="provenance", expected=" / ".join(WEATHER_PROVENANCES)
         )
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()
@@ -979,7 +979,7 @@ def read_weather(
         raise InputError(
             f"date={date!s} given for a file whose timestamps carry their dates ({fmt})",
             file=path,
-            column="date",
+            parameter="date",
             expected="no date (it places an undated CPlantBox day only)",
         )
     if fmt == "tereno":
@@ -987,7 +987,7 @@ def read_weather(
     if fmt == "cplantbox":
         if date is None:
             raise InputError(
-                "a CPlantBox weather file has no date", file=path, column="date", expected="date=YYYY-MM-DD"
+                "a CPlantBox weather file has no date", file=path, parameter="date", expected="date=YYYY-MM-DD"
             )
         return read_cplantbox_day(path, date, **({"tz": tz} if tz else {}), **kwargs)
     if fmt == "lightfit":
@@ -995,15 +995,17 @@ def read_weather(
             raise InputError(
                 "a lightfit CSV states what its stamps mean in its own '# time_label:' line",
                 file=path,
-                column="time_label",
+                parameter="time_label",
                 expected="no time_label for a lightfit CSV (edit its metadata instead)",
             )
         if tz:
             raise InputError(
                 f"tz={tz!r} given for a lightfit CSV, whose times are UTC (column time_utc)",
                 file=path,
-                column="tz",
+                parameter="tz",
                 expected="no tz for a lightfit CSV",
             )
         return read_lightfit_csv(path, **kwargs)
-    raise InputError(f"unknown weather format {fmt!r}", column="format", expected="auto, tereno, cplantbox or lightfit")
+    raise InputError(
+        f"unknown weather format {fmt!r}", parameter="format", expected="auto, tereno, cplantbox or lightfit"
+    )

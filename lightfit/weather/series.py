@@ -101,7 +101,7 @@ def duration(value, name: str, *, zero: bool = False) -> pd.Timedelta:
     if d is None or pd.isna(d) or d < pd.Timedelta(0) or (d == pd.Timedelta(0) and not zero):
         raise InputError(
             f"{name}={value!r}",
-            column=name,
+            parameter=name,
             expected="a time span such as 30min or 1h" + (", ≥ 0" if zero else ", > 0"),
         )
     return d
@@ -414,7 +414,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             raise InputError(
                 f"cannot sample at {freq}: the source, rows {spacing} apart, has no value at some new timestamps",
                 file=df.attrs.get("source"),
-                column="freq",
+                parameter="freq",
                 expected=f"a step that is a multiple of the source's {spacing} (and starts on it)"
                 + (f", e.g. {spacing}" if off_grid else gap_note(missing)),
             )
@@ -425,7 +425,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 raise InputError(
                     f"cannot average {source.describe()} at {freq} (rows {rows.min()} – {rows.max()} apart)",
                     file=df.attrs.get("source"),
-                    column="freq",
+                    parameter="freq",
                     expected=f"rows every {source.interval} and a step that is a multiple of it",
                 )
             side = "right" if source.label == "end" else "left"
@@ -457,12 +457,12 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 f"cannot average at {freq}: some new steps have no source value in their window (the source's "
                 f"rows are {spacing} apart)",
                 file=df.attrs.get("source"),
-                column="freq",
+                parameter="freq",
                 expected=f"a step at least as long as the source's {spacing}"
                 + (f", e.g. {spacing}" if shorter else gap_note(missing)),
             )
     else:
-        raise InputError(f"unknown resampling method {how!r}", column="how", expected="'mean' or 'sample'")
+        raise InputError(f"unknown resampling method {how!r}", parameter="how", expected="'mean' or 'sample'")
     out.attrs = dict(df.attrs)
     out.attrs["timestamps"] = stamps
     out.attrs["qc"] = [
@@ -495,7 +495,7 @@ def window(
     """
     t0 = pd.Timestamp(start)
     if t0.tzinfo is None:
-        t0 = localize(t0, tz, file=df.attrs.get("source"), column="start_time")
+        t0 = localize(t0, tz, file=df.attrs.get("source"), parameter="start_time")
     t0 = t0.tz_convert("UTC")
     t1 = t0 + pd.Timedelta(hours=hours)
     if t0 < df.index[0] or t1 > df.index[-1]:
@@ -511,7 +511,7 @@ def window(
         raise InputError(
             f"the window starts at {t0.tz_convert(tz):%Y-%m-%d %H:%M} ({tz}), not a timestamp of the series{every}",
             file=df.attrs.get("source"),
-            column="start_time",
+            parameter="start_time",
             expected="a start time on the series' rows, or averaging instead of sampling (how='mean', --how mean)",
         )
     out = resample(df, step, how, origin=t0)  # the steps run through the window's start

@@ -24,15 +24,17 @@ def check_timezone(name: str, column: str = "timezone") -> str:
         ZoneInfo(str(name))
     except (ZoneInfoNotFoundError, ValueError):
         raise InputError(
-            f"{column}={name!r} is not a time zone", column=column, expected="an IANA name such as Europe/Berlin or UTC"
+            f"{column}={name!r} is not a time zone",
+            parameter=column,
+            expected="an IANA name such as Europe/Berlin or UTC",
         ) from None
     return str(name)
 
 
-def localize(stamps, timezone: str, *, file=None, row=None, column: str = "time"):
+def localize(stamps, timezone: str, *, file=None, row=None, column: str = "time", parameter: str | None = None):
     """``stamps`` (a naive :class:`pandas.Timestamp` or ``DatetimeIndex``) read as local times in
     ``timezone``; a time that a clock change skips or repeats there is an :class:`InputError`
-    naming ``file``/``row``/``column``, not pandas' traceback."""
+    naming ``file``/``row``/``column`` (or the ``parameter`` the times came from), not pandas' traceback."""
     try:
         return stamps.tz_localize(timezone, ambiguous="raise", nonexistent="raise")
     except ValueError as e:  # pandas' AmbiguousTimeError / NonExistentTimeError
@@ -40,7 +42,7 @@ def localize(stamps, timezone: str, *, file=None, row=None, column: str = "time"
             f"local time(s) that are ambiguous or do not exist in {timezone} ({e})",
             file=file,
             row=row,
-            column=column,
+            **({"column": column} if parameter is None else {"parameter": parameter}),
             expected="times that exist once in that zone (not inside a daylight-saving change), "
             "or times with a UTC offset",
         ) from None
@@ -75,7 +77,7 @@ class Site:
         ):
             v = getattr(self, attr)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not low <= v <= high:
-                raise InputError(f"{attr}={v!r}", column=attr, expected=what)
+                raise InputError(f"{attr}={v!r}", parameter=attr, expected=what)
         check_timezone(self.timezone)
 
     def attrs(self) -> dict[str, str | float]:
@@ -147,7 +149,7 @@ def site_named(name: str) -> Site:
     """The named site (case-insensitive), else :class:`InputError` listing :data:`SITES`."""
     key = str(name).strip().lower()
     if key not in SITES:
-        raise InputError(f"no site named {name!r}", column="site", expected=" or ".join(SITES))
+        raise InputError(f"no site named {name!r}", parameter="site", expected=" or ".join(SITES))
     return SITES[key]
 
 
@@ -173,10 +175,12 @@ class Window:
 
     def __post_init__(self):
         if not _HHMM.match(str(self.start)):
-            raise InputError(f"start={self.start!r}", column="start", expected="a local clock time HH:MM, e.g. 05:00")
+            raise InputError(
+                f"start={self.start!r}", parameter="start", expected="a local clock time HH:MM, e.g. 05:00"
+            )
         h = self.hours
         if isinstance(h, bool) or not isinstance(h, (int, float)) or not math.isfinite(h) or not 0 < h <= 24:
-            raise InputError(f"hours={h!r}", column="hours", expected="a window length in hours, 0 < hours ≤ 24")
+            raise InputError(f"hours={h!r}", parameter="hours", expected="a window length in hours, 0 < hours ≤ 24")
         try:
             step = pd.Timedelta(self.step)
         except (ValueError, TypeError):
@@ -184,14 +188,14 @@ class Window:
         if step is None or step <= pd.Timedelta(0) or step > pd.Timedelta(hours=h):
             raise InputError(
                 f"step={self.step!r}",
-                column="step",
+                parameter="step",
                 expected=f"a positive time step ≤ the window ({h:g} h), e.g. 30min",
             )
 
     def start_local(self, date: str | dt.date, timezone: str) -> pd.Timestamp:
         """The window's first step on ``date`` as a tz-aware timestamp in ``timezone``."""
         day = parse_date(date, "date")
-        return localize(pd.Timestamp(f"{day.isoformat()} {self.start}"), timezone, column="start_time")
+        return localize(pd.Timestamp(f"{day.isoformat()} {self.start}"), timezone, parameter="start_time")
 
     def bounds_utc(self, date: str | dt.date, timezone: str) -> tuple[pd.Timestamp, pd.Timestamp]:
         """First and last step on ``date`` (local ``start`` in ``timezone``), in UTC."""

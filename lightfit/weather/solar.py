@@ -77,7 +77,7 @@ def check_split_model(model, models=SPLIT_MODELS, where: str = "split_model") ->
     """``model`` if it is one of ``models`` (:data:`SPLIT_MODELS` or a part of it), else InputError
     naming ``where`` (the option, or a file's metadata line)."""
     if model not in models:
-        raise InputError(f"unknown direct/diffuse split model {model!r}", column=where, expected=" or ".join(models))
+        raise InputError(f"unknown direct/diffuse split model {model!r}", parameter=where, expected=" or ".join(models))
     return model
 
 

@@ -110,7 +110,7 @@ INSTANTS = Timestamps()
 def check_mean_label(label: str) -> str:
     """``label`` if it places a mean's stamp in its interval (a reader's ``time_label``), else an error."""
     if label not in LABELS[1:]:
-        raise InputError(f"time_label={label!r}", column="time_label", expected="'start', 'center' or 'end'")
+        raise InputError(f"time_label={label!r}", parameter="time_label", expected="'start', 'center' or 'end'")
     return label
 
 

@@ -75,7 +75,7 @@ def diagnostics(
     """
     chain = np.asarray(chain)
     if chain.ndim != 3:
-        raise InputError(f"chain shape {chain.shape}", column="chain", expected="(n_steps, n_walkers, ndim)")
+        raise InputError(f"chain shape {chain.shape}", parameter="chain", expected="(n_steps, n_walkers, ndim)")
     n, w, d = chain.shape
     burn = burn_in(n, burn_fraction)
     kept = chain[burn:]
@@ -122,7 +122,9 @@ class StopRule:
 
     def __post_init__(self):
         if not self.target_ess > 0:  # 0 or less: the first check would stop any chain
-            raise InputError(f"target_ess={self.target_ess!r}", column="target_ess", expected="> 0 effective samples")
+            raise InputError(
+                f"target_ess={self.target_ess!r}", parameter="target_ess", expected="> 0 effective samples"
+            )
 
     def check(self, d: dict, tau_prev) -> bool:
         """Whether diagnostics ``d`` (and τ at the previous check, None at the first) meet the rule."""

@@ -36,11 +36,13 @@ class Prior:
 
     def __post_init__(self):
         if self.kind not in ("uniform", "loguniform", "lognormal"):
-            raise InputError(f"prior kind {self.kind!r}", column="prior", expected="uniform, loguniform or lognormal")
+            raise InputError(
+                f"prior kind {self.kind!r}", parameter="prior", expected="uniform, loguniform or lognormal"
+            )
         if self.kind in ("uniform", "loguniform") and not self.a < self.b:
-            raise InputError(f"prior bounds a={self.a}, b={self.b}", column="prior", expected="a < b")
+            raise InputError(f"prior bounds a={self.a}, b={self.b}", parameter="prior", expected="a < b")
         if self.kind in ("loguniform", "lognormal") and not (self.a > 0 and self.b > 0):
-            raise InputError(f"prior a={self.a}, b={self.b}", column="prior", expected="a > 0 and b > 0")
+            raise InputError(f"prior a={self.a}, b={self.b}", parameter="prior", expected="a > 0 and b > 0")
 
     @property
     def support(self) -> tuple[float, float]:
@@ -168,7 +170,7 @@ def informed_priors(optics=None) -> dict[str, Prior]:
     if lo >= 1.0:
         raise InputError(
             f"base_color={optics.base_color!r}",
-            column="base_color",
+            parameter="base_color",
             expected="a leaf that can transmit PROSPECT-D's 2–8 % of PAR (subsurface ≤ 1)",
         )
     note = (
@@ -184,25 +186,25 @@ def check_sampled(names, priors: dict[str, Prior]) -> tuple[str, ...]:
     names = tuple(names)
     unknown = [n for n in names if n not in SAMPLED]
     if unknown:
-        raise InputError(f"unknown parameter(s) {unknown}", column="parameters", expected=", ".join(SAMPLED))
+        raise InputError(f"unknown parameter(s) {unknown}", parameter="parameters", expected=", ".join(SAMPLED))
     if len(set(names)) != len(names):
-        raise InputError(f"duplicate parameter names {list(names)}", column="parameters", expected="each name once")
+        raise InputError(f"duplicate parameter names {list(names)}", parameter="parameters", expected="each name once")
     if not set(names) - {NOISE_SCALE}:  # a posterior of the noise alone answers no question about the model
         raise InputError(
             f"no model parameter among {list(names)}",
-            column="parameters",
+            parameter="parameters",
             expected=f"one or more of {', '.join(NAMES)}",
         )
     missing = [n for n in names if n not in priors]
     if missing:
-        raise InputError(f"no prior for {missing}", column="priors", expected="a Prior for every sampled parameter")
+        raise InputError(f"no prior for {missing}", parameter="priors", expected="a Prior for every sampled parameter")
     for n in names:
         if n in BOUNDS:
             (lo, hi), (plo, phi) = priors[n].support, BOUNDS[n]
             if lo < plo or hi > phi:
                 raise InputError(
                     f"prior support of {n} is [{lo}, {hi}]",
-                    column=n,
+                    parameter=n,
                     expected=f"within the parameter's domain [{plo}, {phi}]",
                 )
     return names

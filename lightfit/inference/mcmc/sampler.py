@@ -57,11 +57,11 @@ def check_run_size(ndim: int, nwalkers: int, max_steps: int, seed: int = 0, seed
     at least); a run needs a step, and numpy's RandomState a ``seed`` ≥ 0 (``seed_name``: how the
     caller names it). :class:`InputError` naming the value otherwise (before anything is rendered)."""
     if ndim == 0:
-        raise InputError("no parameters to sample", column="names", expected="at least one parameter")
+        raise InputError("no parameters to sample", parameter="names", expected="at least one parameter")
     least = max(2 * ndim, 4)
     if nwalkers < least or nwalkers % 2:
         raise InputError(
-            f"nwalkers={nwalkers}", column="nwalkers", expected=f"an even number ≥ max(2·ndim, 4) = {least}"
+            f"nwalkers={nwalkers}", parameter="nwalkers", expected=f"an even number ≥ max(2·ndim, 4) = {least}"
         )
     check_integer(max_steps, "max_steps", 1)
     check_integer(seed, seed_name, 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
@@ -138,7 +138,7 @@ def _sample(
         raise InputError(
             f"{path} holds a run over {list(stored[0])} with {stored[1]} walkers",
             file=path,
-            column="names",
+            parameter="names",
             expected=(
                 f"the same names {list(names)} and nwalkers={nwalkers}, or --no-resume (resume=False) to start again"
             ),
@@ -281,11 +281,11 @@ def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs
     # The positions are made and checked before the reset: a bad ``initial`` leaves the file as it was.
     if initial is None:
         if not hasattr(log_prob, "initial"):
-            raise InputError("no initial positions", column="initial", expected="an (nwalkers, ndim) array")
+            raise InputError("no initial positions", parameter="initial", expected="an (nwalkers, ndim) array")
         initial = log_prob.initial(nwalkers, seed)
     initial = np.asarray(initial, float)
     if initial.shape != (nwalkers, len(names)):
-        raise InputError(f"initial shape {initial.shape}", column="initial", expected=f"({nwalkers}, {len(names)})")
+        raise InputError(f"initial shape {initial.shape}", parameter="initial", expected=f"({nwalkers}, {len(names)})")
     backend.reset(nwalkers, len(names))
     with open_h5(path, "a") as f:
         g = f[group]
@@ -313,14 +313,14 @@ def _check_resumed(path: Path, group: str, initial, moves) -> None:
         raise InputError(
             "the run there started from other initial positions; a resumed run continues from its last stored step",
             file=path,
-            column="initial",
+            parameter="initial",
             expected="the run's own initial positions (or none), or --no-resume (resume=False) to start again",
         )
     if stored_moves is not None and json.loads(stored_moves) != describe_moves(moves):
         raise InputError(
             f"the run there was sampled with other moves ({json.loads(stored_moves)} → {describe_moves(moves)})",
             file=path,
-            column="moves",
+            parameter="moves",
             expected="the run's own moves to resume, or --no-resume (resume=False) to start again",
         )
 
