@@ -218,6 +218,8 @@ def direct_projection_comparison(
 
     from scipy.stats import t as student_t
 
+    if seeds < 2:
+        raise ValueError(f"seeds={seeds}: at least 2 (the steady state is the second estimator's render)")
     out = []
     sun = fs.sun.copy()
     for samples, rays in settings:

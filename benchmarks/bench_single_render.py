@@ -63,7 +63,7 @@ def main(
     sheaths: str = SHEATHS[0],
     q_sky: float | None = None,
     headings: str = HEADINGS[0],
-    seeds: int = 2,
+    seeds: int = 4,
 ) -> dict:
     from lightfit.light import projection
 

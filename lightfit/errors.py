@@ -44,9 +44,9 @@ class InputError(ValueError):
 
     def in_file(self, file: str | Path) -> InputError:
         """This error restated for the file its value came from (raised by a check that saw
-        only the value, e.g. a camera's or a parameter's own)."""
-        which = {"parameter": self.parameter} if self.parameter is not None else {"column": self.column}
-        return InputError(self.problem, file=file, row=self.row, expected=self.expected, **which)
+        only the value, e.g. a camera's or a parameter's own): the name is then the file's
+        (a column, attribute or key), so it is said as a column."""
+        return InputError(self.problem, file=file, row=self.row, column=self.column, expected=self.expected)
 
 
 def is_real(value) -> bool:

@@ -280,7 +280,7 @@ def test_camera_sweep_and_file(tmp_path):
     p.write_text(json.dumps([{"name": "low", "position_m": [1, 1, -0.2]}]))
     with pytest.raises(InputError, match="position_m") as err:
         load_cameras(p)
-    assert str(err.value).startswith(f"{p}, parameter 'position_m': camera 'low'")
+    assert str(err.value).startswith(f"{p}, column 'position_m': camera 'low'")
 
 
 def test_unknown_quantity_and_time(results_file, tmp_path):
@@ -512,10 +512,10 @@ def test_periodic_results_rebuild_the_periodic_cell(periodic_results_file, resul
     # ValueError traceback, and seed=-3 blamed on render-dataset's own --seed).
     ds.attrs["boundary"] = "finite"
     for key, bad, match in (
-        ("n_plants", "abc", r"results, parameter 'n_plants': n_plants='abc' \(expected an integer\)"),
-        ("row_spacing_m", "x", r"results, parameter 'row_spacing_m': row_spacing_m='x' \(expected a number\)"),
-        ("seed", -3, r"results, parameter 'seed': seed=-3 \(expected an integer ≥ 0\)"),
-        ("n_plants", 0, r"results, parameter 'n_plants': n_plants=0"),
+        ("n_plants", "abc", r"results, column 'n_plants': n_plants='abc' \(expected an integer\)"),
+        ("row_spacing_m", "x", r"results, column 'row_spacing_m': row_spacing_m='x' \(expected a number\)"),
+        ("seed", -3, r"results, column 'seed': seed=-3 \(expected an integer ≥ 0\)"),
+        ("n_plants", 0, r"results, column 'n_plants': n_plants=0"),
     ):
         edited = ds.copy()
         edited.attrs[key] = bad

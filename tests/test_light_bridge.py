@@ -179,6 +179,11 @@ def test_bridge_refuses_bad_settings_and_shapes_and_is_flat_outside_the_box():
         f(jnp.array([np.nan, 0.5, 0.5]), sun, 1)
     with pytest.raises(InputError, match=r"sun_deg=\[nan, 170.0\].*finite \(elevation, azimuth\)"):
         f(jnp.array([0.5, 0.5, 0.5]), jnp.array([np.nan, 170.0]), 1)
+    # traced, it cannot be refused: NaN out, and a NaN gradient, not a crash inside the callback (a review)
+    nan_leaf = jnp.array([np.nan, 0.5, 0.5])
+    values, se = jax.jit(f)(nan_leaf, sun, 1)
+    assert np.isnan(np.asarray(values)).all() and np.isnan(np.asarray(se)).all()
+    assert np.isnan(np.asarray(jax.jit(jax.grad(lambda x: jnp.sum(f(x, sun, 1)[0])))(nan_leaf))).all()
 
     def loss(leaf):
         return jnp.sum(f(leaf, sun, 1)[0][PARTS.index("absorbed_sun")])

@@ -105,7 +105,7 @@ def calibrate(
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
-    from lightfit.model.parameters import BOUNDS, check_names
+    from lightfit.model.parameters import BOUNDS, check_names, interval
     from lightfit.precision import precision
 
     s = resolve(model)
@@ -311,7 +311,7 @@ def calibrate(
     t.add_column("value", justify="right")
     t.add_column("searched in", justify="right")
     for k, v in res.theta.items():
-        where = "fixed" if k not in search else "[{:g}, {:g}]".format(*search[k]).replace("inf", "∞")
+        where = "fixed" if k not in search else interval(*search[k])
         t.add_row(k + (" (calibrated)" if k in names else ""), f"{v:.4g}", where)
     surrogate = tr is not None and tr.mode == "surrogate"
     t.add_row("loss ½ rᵀΣ⁻¹r" + (" (emulator)" if surrogate else ""), f"{res.loss:.4g}")

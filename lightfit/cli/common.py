@@ -268,7 +268,7 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
         try:
             return check_theta(values, what="theta")
         except InputError as err:
-            raise err.in_file(p) from None  # check_theta names column 'theta'
+            raise err.in_file(p) from None  # check_theta names the parameter 'theta'
     if "=" not in theta:  # neither pairs nor an existing file
         raise InputError(
             f"no file {theta!r}",

@@ -920,8 +920,9 @@ def _check_file_timing(s: ModelSettings) -> None:
     given = [f for f, v in (("--weather-tz", s.weather_tz), ("--weather-time-label", s.weather_time_label)) if v]
     if given:
         from lightfit import weather as wx
+        from lightfit.replication import DEFAULT_DATE
 
-        path = wx.source_path(s.weather_file or "2016-04-20")
+        path = wx.source_path(s.weather_file or DEFAULT_DATE)
         if sniff_format(path) == "lightfit":
             raise InputError(
                 f"{' and '.join(given)} given for a lightfit CSV ("

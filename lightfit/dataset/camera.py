@@ -256,7 +256,7 @@ def load_cameras(path: str | Path) -> list[Camera]:
             )
         if "position_m" not in c:  # where the camera is: no default stands in for it
             raise InputError(
-                f"camera #{i} has no position_m", file=path, parameter="position_m", expected="[x, y, z] in metres"
+                f"camera #{i} has no position_m", file=path, column="position_m", expected="[x, y, z] in metres"
             )
     try:
         cams = [Camera(**{"name": f"cam{i:03d}", **c}) for i, c in enumerate(raw)]

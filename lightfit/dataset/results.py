@@ -172,7 +172,7 @@ def build_geometry(res: Results, cache_dir=None):
             f"the results' plants stood or faced otherwise than in the field rebuilt from their attrs "
             f"(layout fingerprint {stored}, rebuilt {now})",
             file=res.path or "results",
-            parameter="layout_fingerprint",
+            column="layout_fingerprint",
             expected="the attrs of the field the results were computed on (seed, headings, spacings, direction)",
         )
     geom = build(fld, cache_dir=cache_dir)

@@ -81,7 +81,7 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     if scale == "log":
         if np.any(x0 <= 0):
             bad = [n for n, v in zip(names, x0) if v <= 0]
-            raise InputError(f"non-positive value(s) of {bad}", column=", ".join(bad), expected="> 0 for scale='log'")
+            raise InputError(f"non-positive value(s) of {bad}", parameter="x0", expected="> 0 for scale='log'")
         jac = jax.jacrev(lambda lx: residuals(jnp.exp(lx)))(jnp.log(jnp.asarray(x0)))
     elif scale == "natural":
         jac = jax.jacrev(residuals)(jnp.asarray(x0))

@@ -423,7 +423,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance
     and the rows' time label (``attrs["timestamps"]``, instants where absent)."""
     if metadata.get("provenance") not in PROVENANCES:
-        raise InputError("metadata must state provenance", parameter="provenance", expected="measured or synthetic")
+        raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()

@@ -165,6 +165,9 @@ def make_irradiance(
 
     def forward_cb(leaf, sun_deg, seed):
         leaf, sun_deg, seed = _host(leaf, sun_deg, seed)
+        if not (np.isfinite(leaf).all() and np.isfinite(sun_deg).all()):  # traced NaN (eager ones are refused)
+            nan = np.full((len(PARTS), n_out), np.nan, leaf.dtype)
+            return nan, nan
         with lock:
             rs = [e.render() for e in estimators(leaf, sun_deg, seed)]
         return stacked(rs, leaf.dtype)
@@ -193,6 +196,8 @@ def make_irradiance(
 
     def backward_cb(leaf, sun_deg, seed, ct):
         leaf, sun_deg, seed, ct = _host(leaf, sun_deg, seed, ct)
+        if not (np.isfinite(leaf).all() and np.isfinite(sun_deg).all()):
+            return np.full(leaf.shape, np.nan, leaf.dtype)
         g = dict.fromkeys(LEAF_PARAMETERS, 0.0)
         with lock:
             for e, cols in zip(estimators(leaf, sun_deg, seed), (slice(0, n_seg), slice(n_seg, n_out))):
@@ -217,7 +222,7 @@ def make_irradiance(
     def check_finite(leaf, sun_deg):
         """Concrete (eager) values that are not finite, refused here: raised inside the callback the
         error reached the caller as 'INTERNAL: CpuCallback error' (a review). Traced ones cannot be
-        read; the model flags those (:func:`lightfit.model.parameters.outside_domain`)."""
+        read: their render is NaN, and the model flags them (:func:`lightfit.model.parameters.outside_domain`)."""
         for name, a, what in (
             ("leaf", leaf, "finite (specular, roughness, subsurface)"),
             ("sun_deg", sun_deg, "a finite (elevation, azimuth) in degrees"),

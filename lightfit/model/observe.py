@@ -620,7 +620,7 @@ class ObservationOperator:
             "leaf_an_mc_sd_umol_m2_s": an_sd,
             "blade_index": b,
             # a traced θ outside its domain (concrete ones are refused): no blade's value holds
-            CONVERGENCE_KEY: jnp.sum(~r.converged, axis=1) + jnp.where(outside_domain(theta), max(len(b), 1), 0),
+            CONVERGENCE_KEY: jnp.where(outside_domain(theta), max(len(b), 1), jnp.sum(~r.converged, axis=1)),
             "photosynthesis": r.result,
         }
         return out

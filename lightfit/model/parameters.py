@@ -117,7 +117,19 @@ def check_names(names, *, what: str = "parameters") -> tuple[str, ...]:
 
 def _domain(name: str) -> str:
     lo, hi = BOUNDS[name]
-    return f"{name} in [{lo:g}, {hi:g}]" if math.isfinite(hi) else f"{name} > {lo:g}"
+    return f"{name} {'in ' if math.isfinite(hi) else ''}{interval(lo, hi)}"
+
+
+def interval(lo: float, hi: float) -> str:
+    """A parameter's range as its checks take it: ``[lo, hi]`` (both ends in), or ``> lo`` where
+    ``hi`` is infinite (the unbounded factors are strictly positive)."""
+    return f"[{lo:g}, {hi:g}]" if math.isfinite(hi) else f"> {lo:g}"
+
+
+def _outside(a, lo: float, hi: float, xp=np):
+    """Where ``a`` (numpy or JAX, ``xp``) is NaN or outside the range :func:`interval` states: the one
+    test behind :func:`check_theta`, :func:`check_concrete` and :func:`outside_domain`."""
+    return ~xp.isfinite(a) | ((a <= lo) if math.isinf(hi) else (a < lo) | (a > hi))
 
 
 def check_theta(values: Mapping[str, float], *, what: str = "theta") -> dict[str, float]:
@@ -128,9 +140,7 @@ def check_theta(values: Mapping[str, float], *, what: str = "theta") -> dict[str
     check_names(values, what=what)
     out = {}
     for k, v in values.items():
-        lo, hi = BOUNDS[k]
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        ok = ok and (lo < v if math.isinf(hi) else lo <= v <= hi)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and not _outside(np.float64(v), *BOUNDS[k])
         if not ok:
             raise InputError(f"{k}={v!r}", parameter=what, expected=_domain(k))
         out[k] = float(v)
@@ -154,7 +164,7 @@ def check_concrete(theta: Theta, *, what: str = "theta") -> Theta:
             a = np.asarray(None)  # not a number at all: refused below
         if a.dtype.kind not in "iuf":  # bools, strings, objects
             raise InputError(f"{name}={v!r}", parameter=what, expected=_domain(name))
-        bad = ~np.isfinite(a) | ((a <= lo) if math.isinf(hi) else (a < lo) | (a > hi))
+        bad = _outside(a, lo, hi)
         if bad.any():
             first = a if a.ndim == 0 else a.reshape(-1)[int(np.argmax(bad.reshape(-1)))]
             raise InputError(f"{name}={float(first)!r}", parameter=what, expected=_domain(name))
@@ -170,9 +180,7 @@ def outside_domain(theta: Theta) -> jax.Array:
     specular of 1.5 the leaf of specular 1 with a zero gradient, both finite and unflagged."""
     bad = jnp.asarray(False)
     for name in NAMES:
-        v = jnp.asarray(getattr(theta, name))
-        lo, hi = BOUNDS[name]
-        bad = bad | jnp.any(~jnp.isfinite(v) | ((v <= lo) if math.isinf(hi) else (v < lo) | (v > hi)))
+        bad = bad | jnp.any(_outside(jnp.asarray(getattr(theta, name)), *BOUNDS[name], xp=jnp))
     return bad
 
 
@@ -195,4 +203,14 @@ def as_theta(
     return check_concrete((base or Theta()).replace(**{**value, **numbers}), what=what)
 
 
-__all__ = ["BOUNDS", "NAMES", "Theta", "as_theta", "check_concrete", "check_names", "check_theta", "outside_domain"]
+__all__ = [
+    "BOUNDS",
+    "NAMES",
+    "Theta",
+    "as_theta",
+    "check_concrete",
+    "check_names",
+    "check_theta",
+    "interval",
+    "outside_domain",
+]

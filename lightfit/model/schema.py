@@ -336,7 +336,7 @@ def variable(name: str) -> Variable:
     except KeyError:
         raise InputError(
             f"results variable {name!r} is not in the schema",
-            parameter=name,
+            column=name,
             expected="a name of lightfit.model.schema.VARIABLES",
         ) from None
 

@@ -225,12 +225,12 @@ class Field:
 
         def number(key: str, kind=float):
             if key not in a:
-                raise InputError(f"no attribute {key}", file=where, parameter=key, expected="the field's attributes")
+                raise InputError(f"no attribute {key}", file=where, column=key, expected="the field's attributes")
             try:
                 return kind(a[key])
             except (TypeError, ValueError):
                 what = "an integer" if kind is int else "a number"
-                raise InputError(f"{key}={a[key]!r}", file=where, parameter=key, expected=what) from None
+                raise InputError(f"{key}={a[key]!r}", file=where, column=key, expected=what) from None
 
         growth = {k: str(a[k]) for k in ("parameter_file", "season_start", "target_date") if k in a}
         kw = {k: number(k) for k in ("row_spacing_m", "plant_spacing_m", "row_direction_deg") if k in a}

@@ -916,7 +916,7 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     """
     if metadata.get("provenance") not in WEATHER_PROVENANCES:
         raise InputError(
-            "metadata must state provenance", parameter="provenance", expected=" / ".join(WEATHER_PROVENANCES)
+            "metadata must state provenance", column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
         )
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()

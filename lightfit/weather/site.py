@@ -137,7 +137,9 @@ def local_clock(t: pd.DatetimeIndex, tz: str) -> pd.Index:
 
 
 def offset_label(offset: pd.Timedelta) -> str:
-    """A UTC offset as ``--timezone`` takes it: ``UTC+10``, ``UTC-3:30`` (ASCII minus), ``UTC`` for none."""
+    """A UTC offset as ``--timezone`` writes it: ``UTC+10``, ``UTC-5`` (ASCII minus), ``UTC`` for none;
+    a zone's part-hour offset as ``UTC+10:30``, which ``--timezone`` does not take (whole hours only:
+    give such a site its IANA name, e.g. Australia/Adelaide)."""
     minutes = round(offset.total_seconds() / 60)
     if minutes == 0:
         return "UTC"
