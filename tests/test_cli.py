@@ -1423,3 +1423,31 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
     text = " ".join(moved.output.split())
     assert "weather_source" in text and "dim.csv" in text, text  # a file by its name
     assert "window 2016-04-20 05:00 + 14 h (Euro" in text, text  # not cut at the zone's "/" as a path
+
+
+def test_every_model_setting_is_compared_on_resume_and_old_records_read_as_they_ran():
+    """A mutation audit: `split` dropped from MODEL_SETTINGS, and wrong 'before' literals for the
+    soil respiration's Q10 or the window's start, all survived. Every ModelSettings field is a
+    compared setting but the labels that change no number (listed here); a record written before
+    the later options existed compares equal to the same run today, and a real change against the
+    literal it ran with (Q10 2, 05:00, …, the 20 April 2016 day) is named."""
+    import dataclasses
+
+    from lightfit.cli.options import MODEL_SETTINGS, ModelOptions, ModelSettings, changed_settings, resolve
+
+    labels = {"preset", "quick", "weather_provenance"}  # what a run is called or where its weather came from
+    fields = {f.name for f in dataclasses.fields(ModelSettings)}
+    assert fields - set(MODEL_SETTINGS) == labels, fields - set(MODEL_SETTINGS)
+    erbs = resolve(ModelOptions(quick=True, split="erbs"))
+    assert changed_settings(erbs.as_dict(), resolve(ModelOptions(quick=True, split="boland"))) == [
+        "split: 'erbs' → 'boland'"
+    ]
+    now = resolve(ModelOptions(quick=True))
+    old = now.as_dict()
+    for key in ("soil_respiration", "soil_respiration_q10", "dates", "start_time", "hours", "step", "site"):
+        old.pop(key)  # a record from before these were options
+    assert changed_settings(old, now) == []
+    q10 = resolve(ModelOptions(quick=True, soil_respiration_q10=2.3))
+    assert changed_settings(old, q10) == ["soil_respiration_q10: 2.0 → 2.3"]
+    later = resolve(ModelOptions(quick=True, start_time="06:00"))
+    assert changed_settings(old, later) == ["start_time: '05:00' → '06:00'"]

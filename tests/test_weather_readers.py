@@ -404,3 +404,66 @@ def test_missing_rows_are_named_in_the_files_terms(tmp_path):
     assert "12 row(s) missing" in msg and "2016-04-20 11:00 … 2016-04-20 12:50 (Etc/GMT-1)" in msg
     assert f"line {i} (2016-04-20 10:50) and line {i + 1} (2016-04-20 13:00)" in msg
     assert "column" not in msg  # every column is missing there: none is singled out
+
+
+def _series(n=12):
+    """A plain 10-min contract series and its source lines (for check_and_repair)."""
+    t = pd.date_range("2016-04-20 10:00", periods=n, freq="10min", tz="UTC")
+    df = pd.DataFrame(
+        {"ghi_w_m2": 500.0, "tair_c": np.linspace(10, 12, n), "rh": 0.6, "pair_kpa": 100.0, "co2_ppm": 400.0}, index=t
+    )
+    return df, pd.Series(np.arange(n) + 2, index=t)
+
+
+@pytest.mark.parametrize("missing, filled", [(3, True), (4, False)])
+def test_max_gap_is_the_span_of_the_missing_rows(missing, filled):
+    """max_gap=30min on 10-min rows: 3 missing rows (a 30-min hole) are interpolated, 4 (40 min)
+    refused, as docs/weather.md states (a mutation audit: the span without its one step survived)."""
+    from lightfit.weather.series import check_and_repair
+
+    df, lines = _series()
+    df.iloc[4 : 4 + missing, df.columns.get_loc("tair_c")] = np.nan
+    if filled:
+        out = check_and_repair(df, lines, "w.csv", max_gap="30min")
+        np.testing.assert_allclose(out["tair_c"], np.linspace(10, 12, 12))  # linear: the line itself
+    else:
+        with pytest.raises(InputError, match="longer than max_gap=30min"):
+            check_and_repair(df, lines, "w.csv", max_gap="30min")
+
+
+def test_relative_humidity_up_to_its_clamp_is_clamped_and_counted():
+    """RH up to 1.05 (a sensor's overshoot) is set to 1 and counted in qc; above it refused
+    (docs/weather.md; a mutation audit: '<' for '<=' at the clamp survived)."""
+    from lightfit.weather.series import check_and_repair
+
+    df, lines = _series()
+    df.iloc[3, df.columns.get_loc("rh")] = 1.05
+    out = check_and_repair(df, lines, "w.csv")
+    assert out["rh"].iloc[3] == 1.0 and any(q["column"] == "rh" for q in out.attrs["qc"])
+    df.iloc[3, df.columns.get_loc("rh")] = 1.06
+    with pytest.raises(InputError, match="rh"):
+        check_and_repair(df, lines, "w.csv")
+
+
+def test_a_pressure_column_in_pascal_reads_as_kilopascal(tmp_path):
+    """A TERENO pressure in [Pa] (101 325) is read as kPa (101.325): the fixture's mbar column
+    rewritten in Pa gives the same series (a mutation audit: ×1e-2 for ×1e-3 survived, no test
+    read Pa)."""
+    text = FIXTURE.read_text(encoding="utf-8")
+    lines = text.splitlines(keepends=True)
+    head = next(i for i, x in enumerate(lines) if x.startswith("Timestamp,"))
+    cols = lines[head].rstrip("\n").split(",")
+    j = next(k for k, c in enumerate(cols) if c.startswith("AirPressure"))
+    assert cols[j].endswith("[mbar]")
+    cols[j] = cols[j].replace("[mbar]", "[Pa]")
+    out = ["".join(lines[:head]).replace("[mbar]", "[Pa]"), ",".join(cols) + "\n"]
+    for x in lines[head + 1 :]:
+        f = x.rstrip("\n").split(",")
+        if len(f) > j and f[j]:
+            f[j] = f"{float(f[j]) * 100:.2f}"
+        out.append(",".join(f) + "\n")
+    pa = tmp_path / "pa.csv"
+    pa.write_text("".join(out), encoding="utf-8")
+    a, b = read_weather(FIXTURE), read_weather(pa)
+    np.testing.assert_allclose(b["pair_kpa"], a["pair_kpa"], rtol=1e-12)
+    assert 95 < b["pair_kpa"].median() < 105

@@ -334,3 +334,37 @@ def test_several_days_interpolate_within_their_longest_step_and_never_across_a_n
     ones = MultiDayModel({"a": _Day(d1[:1], Timestamps()), "b": _Day(d2[:1], Timestamps())})
     assert ones.step == pd.Timedelta(0)
     assert not interpolated(late.iloc[:1], ones.times, Timestamps(), ones.step)
+
+
+@pytest.mark.parametrize(
+    "label, before, after",
+    [("end", "10min", "0min"), ("start", "0min", "10min"), ("center", "5min", "5min")],
+)
+def test_time_bounds_cover_each_stamps_own_interval(label, before, after):
+    """CF time_bnds by hand: an end-stamped 10-min mean covers (t − 10 min, t), a start-stamped one
+    (t, t + 10 min), a centred one (t − 5 min, t + 5 min); instants have none. A mutation audit
+    found only end stamps tested (bounds that assumed end stamps survived)."""
+    t = pd.date_range("2016-04-20 10:00", periods=3, freq="10min", tz="UTC")
+    lo, hi = Timestamps(label, pd.Timedelta("10min")).bounds(t)
+    assert lo.equals(t - pd.Timedelta(before)) and hi.equals(t + pd.Timedelta(after))
+    assert Timestamps().bounds(t) is None
+
+
+def test_a_one_step_run_of_hourly_means_takes_a_reading_within_its_half_hour():
+    """One step, an end-stamped 60-min mean (centre 10:30): a reading at 10:50, 20 min from the
+    centre, is inside what the step stands for (half the averaging interval), 31 min is not. A
+    mutation audit: the one-step spacing without the averaging interval (15 min) survived."""
+    times = pd.DatetimeIndex(["2016-04-20 11:00"], tz="UTC")
+    hourly = Timestamps("end", pd.Timedelta("60min"))
+
+    def reading(at):
+        obs = pd.DataFrame(
+            {"above_canopy_par_umol_m2_s": [1500.0], "above_canopy_par_sd_umol_m2_s": [75.0]},
+            index=pd.DatetimeIndex([at], tz="UTC"),
+        )
+        return align(obs, times, hourly)["above_canopy_par_umol_m2_s"]
+
+    assert reading("2016-04-20 10:50")[0] == 1500.0
+    assert reading("2016-04-20 10:10")[0] == 1500.0
+    with pytest.raises(InputError, match="lies outside the run"):
+        reading("2016-04-20 11:01")
