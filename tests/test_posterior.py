@@ -1208,3 +1208,60 @@ def test_a_run_with_noise_scale_sampled_reports_the_chi_square_against_the_state
     expected = float(np.sum((y - mp) ** 2 / (2.0**2 + mc**2)))
     assert res["chi2_map"] == pytest.approx(expected, rel=1e-6)
     assert x["noise_scale"] > 2 and res["chi2_map"] > 3 * n  # the whitened χ² at λ would look fine
+
+
+def test_split_rhat_on_a_short_chain_is_bda3s_by_hand():
+    """Split-R̂ of a 10-step, 4-walker chain against BDA3 §11.4 written out chain by chain (the only
+    test used 4 000 steps, where ddof = 0 or a dropped (n − 1)/n changes R̂ by < 0.01: a mutation
+    audit)."""
+    from lightfit.inference.mcmc.diagnostics import split_rhat
+
+    x = np.random.default_rng(3).normal(size=(10, 4, 2)) + np.array([0.0, 0.5, 1.0, 1.5])[None, :, None]
+    n = 5
+    for p in range(2):
+        chains = [x[:n, k, p] for k in range(4)] + [x[n:, k, p] for k in range(4)]  # 8 half-chains
+        means = [sum(c) / n for c in chains]
+        var = [sum((v - m) ** 2 for v in c) / (n - 1) for c, m in zip(chains, means, strict=True)]
+        w = sum(var) / len(var)
+        grand = sum(means) / len(means)
+        b = n * sum((m - grand) ** 2 for m in means) / (len(means) - 1)
+        assert split_rhat(x)[p] == pytest.approx((((n - 1) / n * w + b / n) / w) ** 0.5, rel=1e-12)
+
+
+def test_the_burn_in_is_left_out_of_the_diagnostics_and_the_samples():
+    """A chain whose first quarter sits at 100 and the rest is white noise: the diagnostics discard
+    exactly int(0.25 n) steps and see the clean part (R̂ ≈ 1, τ ≈ 1, the same as the clean part
+    alone), and the samples an analysis uses are the clean ones (a mutation audit: burn-in not
+    applied, halved, or kept in the samples all survived)."""
+    from lightfit.inference.mcmc.diagnostics import diagnostics, flat_samples
+
+    rng = np.random.default_rng(5)
+    n, w = 400, 8
+    chain = rng.normal(size=(n, w, 1))
+    chain[: n // 4] = 100.0
+    d = diagnostics(chain)
+    clean = diagnostics(chain[n // 4 :], burn_fraction=0.0)
+    assert d["burn"] == 100 and d["n_kept"] == 300
+    np.testing.assert_allclose(d["rhat"], clean["rhat"], rtol=1e-12)
+    np.testing.assert_allclose(d["tau"], clean["tau"], rtol=1e-12)
+    assert d["rhat"][0] < 1.05 and d["tau"][0] < 2.0
+    s = flat_samples({"chain": chain})
+    assert s.shape == (300 * w, 1) and abs(s.mean()) < 0.1
+
+
+def test_the_stop_rule_waits_for_enough_stable_taus():
+    """StopRule.check on diagnostics made by hand: it stops only when every parameter has n_kept ≥
+    20 τ, τ moved less than 5 % since the last check, ESS ≥ the target and R̂ < 1.2; one parameter
+    short of any of these keeps it going (a mutation audit: 'all' for 'any' and a tolerance ×10
+    survived)."""
+    rule = P.StopRule()
+    ok = {"n_steps": 1000, "n_kept": 750, "tau": np.array([10.0, 20.0]), "ess": np.array([600.0, 300.0])}
+    ok["rhat"] = np.array([1.01, 1.02])
+    prev = np.array([10.2, 20.4])
+    assert rule.check(ok, prev)
+    assert not rule.check(ok, None)  # the first check has nothing to compare with
+    assert not rule.check(ok | {"tau": np.array([10.0, 40.0])}, np.array([10.2, 40.4]))  # 750 < 20 · 40
+    assert not rule.check(ok, np.array([10.2, 26.0]))  # the second τ moved 23 %
+    assert not rule.check(ok, np.array([10.2, 21.2]))  # 5.7 %, just over the 5 %
+    assert not rule.check(ok | {"rhat": np.array([1.01, 1.25])}, prev)
+    assert not rule.check(ok | {"ess": np.array([600.0, 40.0])}, prev)
