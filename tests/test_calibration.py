@@ -779,3 +779,14 @@ def test_a_history_written_before_the_held_sds_is_refused_without_its_state(tmp_
     said = []
     calibrate(model, obs, history=h, max_steps=4, **{**kw, "say": said.append})
     assert len(said) == 1 and "without a saved state" in said[0], said
+
+
+def test_the_surrogates_check_fails_on_either_side():
+    """|full − surrogate| ≤ z·σ_L at the optimum: a surrogate 3.1 σ above the full renders' loss fails
+    as one 3.1 σ below does, 2 σ either way passes, an unconverged full render (+inf) fails (a
+    mutation audit: the check without abs() survived)."""
+    from lightfit.inference.trust_region import agrees
+
+    assert agrees(10.0, 12.0, 1.0, 3.0) and agrees(10.0, 8.0, 1.0, 3.0)
+    assert not agrees(10.0, 13.1, 1.0, 3.0) and not agrees(10.0, 6.9, 1.0, 3.0)
+    assert not agrees(float("inf"), 10.0, 1.0, 3.0)

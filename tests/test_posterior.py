@@ -738,6 +738,11 @@ def test_fast_observables_match_observe_on_quick_field():
     noisy = se[0] > 0
     assert val["se_ratio"].shape == (1,)
     assert val["se_ratio"][0] == pytest.approx(float(np.median(es[noisy] / se[0][noisy])), rel=1e-12)
+    # the parts' error it reports: the RMS and the largest of emulated − rendered, by hand (a mean
+    # |error| in place of the RMS survived a mutation audit)
+    d = np.asarray(emu(Theta(**x0))[0]) - v[0]
+    assert val["parts_rms"] == pytest.approx(float(np.sqrt(np.mean(d**2))), rel=1e-9)
+    assert val["parts_max"] == pytest.approx(float(np.abs(d).max()), rel=1e-9)
     assert 0.8 < val["se_ratio"][0] < 1.25  # a least-squares fit of the SEs, at a point it was fitted to
 
 

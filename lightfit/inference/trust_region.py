@@ -85,6 +85,13 @@ from lightfit.model.parameters import Theta, as_theta, check_names
 RENDER_FREE = ("above_canopy_par",)
 
 
+def agrees(loss_full: float, loss_surrogate: float, sd: float, z: float) -> bool:
+    """The surrogate's check at its optimum: its loss within ``z`` Monte Carlo SDs ``sd`` of the full
+    renders' loss, on either side (a surrogate that overestimates the loss is as wrong as one that
+    underestimates it); a full loss of +inf (photosynthesis not converged) fails."""
+    return bool(abs(loss_full - loss_surrogate) <= z * sd)
+
+
 def observed_model(
     model: CoupledModel, obs: pd.DataFrame, use: Sequence[str] | None = None
 ) -> tuple[CoupledModel, pd.DataFrame, int]:
@@ -409,7 +416,7 @@ def surrogate_calibrate(
         # a full render whose photosynthesis did not converge has loss +inf: the check fails, refining
         l_full, l_sur = float(lik.loss(full)), float(lik.loss(sur))
         sd = loss_sd(lik, full)
-        passed = bool(abs(l_full - l_sur) <= z * sd)
+        passed = agrees(l_full, l_sur, sd, z)
         err = emulator_error_over_mc_sd(lik, sur, full)
         row = {
             "round": r,
