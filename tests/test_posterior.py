@@ -272,6 +272,26 @@ class _TwoModes:
         return np.random.default_rng(seed).uniform(-6, 6, size=(n, 2))
 
 
+def test_the_sampler_compares_tau_with_the_previous_checks(tmp_path):
+    """The run's stop rule compares τ with the previous check's: with a tolerance no estimate meets
+    (1e-12) it runs to max_steps, and with the default it stops at the first check where the rule,
+    recomputed from the stored chain and the τ stored one check before, holds (a mutation audit: τ
+    compared with itself, always 'stable', survived)."""
+    kw = dict(nwalkers=16, max_steps=600, seed=1, initial=np.random.default_rng(1).normal(size=(16, 3)), progress=False)
+    strict = P.StopRule(target_ess=50, tau_multiple=5, tau_rtol=1e-12, check_every=100, min_steps=100)
+    assert P.sample(Gauss(), NAMES, tmp_path / "strict.h5", stop=strict, **kw).stopped_by == "max_steps"
+    rule = P.StopRule(target_ess=50, tau_multiple=5, check_every=100, min_steps=100)
+    r = P.sample(Gauss(), NAMES, tmp_path / "rule.h5", stop=rule, **(kw | {"max_steps": 5000}))
+    assert r.stopped_by == "rule"
+    chain, stop_at = P.load_run(tmp_path / "rule.h5")["chain"], len(r.chain)
+    met = [
+        s
+        for s in range(2 * rule.check_every, stop_at + 1, rule.check_every)
+        if rule.check(rule.diagnostics(chain[:s]), rule.diagnostics(chain[: s - rule.check_every])["tau"])
+    ]
+    assert met and met[0] == stop_at
+
+
 def test_the_stop_rule_does_not_stop_walkers_stuck_in_separate_modes(tmp_path):
     """τ is per walker and was met at step ≈ 1 000 with half the walkers in the 10 % mode (P(a > 0)
     0.50 sampled against 0.10): the rule stopped and called it converged. Split-R̂ ≈ 14 keeps it
