@@ -167,3 +167,27 @@ def weather_quick():
     from lightfit import replication as rep
 
     return rep.forcing().iloc[[1, 14]]  # 05:30 local (night), 12:00
+
+
+def test_a_finite_fields_lai_is_over_the_ground_of_all_its_plants():
+    """The same plants' canopy, periodic (4 plants) and finite with a buffer row (16 plants, 4
+    measured): LAI is every grown blade's one-sided area over the ground all the grown plants stand
+    on, so both give the wheat's LAI within the plants' spread (a mutation audit: the finite field's
+    ground as the measured plants' alone, LAI × 4, survived), and so does each measured blade's LAI
+    above at the bottom of the canopy."""
+    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.scenario import Scenario
+    from lightfit.plant import Field, one_sided_area_m2, organ_class
+    from lightfit.replication import forcing
+
+    w = forcing().iloc[[14]]
+    lai = {}
+    for kw in (dict(boundary="periodic"), dict(boundary="finite", buffer_rows=1)):
+        m = CoupledModel(Scenario(weather=w, field=Field(n_plants=4, seed=1, **kw), samples=4, bounces=1))
+        seg = m.geometry.segments
+        blade = organ_class(seg) == "blade"
+        by_hand = one_sided_area_m2(seg)[blade].sum() / (len(m.geometry.plants) * 0.125 * 0.03)
+        above, lai[kw["boundary"]] = m._lai_above()
+        assert lai[kw["boundary"]] == pytest.approx(by_hand, rel=1e-12)
+        assert above.max() <= lai[kw["boundary"]] + 1e-12
+    assert lai["finite"] == pytest.approx(lai["periodic"], rel=0.3)
