@@ -413,6 +413,19 @@ def test_plants_face_their_own_ways_unless_aligned():
     np.testing.assert_allclose(np.hypot(t["bx"], t["by"]), np.hypot(seg["bx"], seg["by"]), atol=1e-15)
     for c in ("z0", "z1", "length_m", "blade_area_m2", "radius_m"):
         assert (t[c] == seg[c]).all(), c
+    # the whole plant turns, blades with it: the mesh of the turned table is the mesh turned by the
+    # same angle about the base, vertex for vertex (a blade's width follows its branching direction;
+    # leaving that direction unturned twisted every blade and survived a mutation audit)
+    from lightfit.plant.mesh import shoot_mesh
+
+    c, s37 = np.cos(np.radians(37.0)), np.sin(np.radians(37.0))
+    m0, m1 = shoot_mesh(seg), shoot_mesh(turned(seg, 37.0))
+    on_blade = np.unique(m0.faces[np.asarray(m0.face_is_blade)])  # (the prisms' hexagons keep their own twist)
+    v0, v1 = m0.vertices[on_blade], m1.vertices[on_blade]
+    assert len(v0) > 100
+    np.testing.assert_allclose(v1[:, 0], c * v0[:, 0] - s37 * v0[:, 1], atol=1e-12)
+    np.testing.assert_allclose(v1[:, 1], s37 * v0[:, 0] + c * v0[:, 1], atol=1e-12)
+    np.testing.assert_allclose(v1[:, 2], v0[:, 2], atol=1e-12)
 
 
 def test_a_broken_parameter_file_is_named_not_a_cplantbox_traceback(tmp_path):
