@@ -1290,3 +1290,26 @@ def test_the_stop_rule_waits_for_enough_stable_taus():
     assert not rule.check(ok, np.array([10.2, 21.2]))  # 5.7 %, just over the 5 %
     assert not rule.check(ok | {"rhat": np.array([1.01, 1.25])}, prev)
     assert not rule.check(ok | {"ess": np.array([600.0, 40.0])}, prev)
+
+
+def test_the_emulators_degree_is_chosen_by_true_leave_one_out_errors():
+    """fit_emulator's leave-one-out RMS per degree equals explicit refits without each design point
+    (the hat-matrix shortcut residual / (1 − h)); on a quadratic plus noise it picks degree 2, where
+    the plain training residual would always favour the highest degree (a mutation audit: the
+    criterion without / (1 − h) survived)."""
+    rng = np.random.default_rng(7)
+    lo, hi = np.zeros(3), np.ones(3)
+    x = rng.uniform(size=(20, 3))
+    truth = 1.0 + 2.0 * x[:, 0] - 3.0 * x[:, 1] * x[:, 2] + x[:, 2] ** 2
+    y = (truth + 0.01 * rng.normal(size=20))[:, None]
+    emu = E.fit_emulator(x, y, np.zeros_like(y), lo, hi, degrees=(1, 2))
+    for d in (1, 2):
+        expo = E.exponents(d)
+        u = 2.0 * x - 1.0
+        err = []
+        for i in range(20):
+            keep = np.arange(20) != i
+            coef, *_ = np.linalg.lstsq(np.asarray(E.legendre_basis(u[keep], expo)), y[keep, 0], rcond=None)
+            err.append(float((np.asarray(E.legendre_basis(u[i : i + 1], expo)) @ coef)[0] - y[i, 0]))
+        assert emu.loo_rms[d] == pytest.approx(float(np.sqrt(np.mean(np.square(err)))), rel=1e-8)
+    assert emu.degree == 2 and emu.loo_rms[2] < 0.1 * emu.loo_rms[1]
