@@ -163,9 +163,12 @@ def make_irradiance(
             np.concatenate([np.stack([r.se[p] for p in PARTS]) for r in rs], axis=1).astype(dtype),
         )
 
+    def finite(leaf, sun_deg) -> bool:  # host arrays in a callback: a traced NaN (eager ones are refused)
+        return bool(np.isfinite(leaf).all() and np.isfinite(sun_deg).all())
+
     def forward_cb(leaf, sun_deg, seed):
         leaf, sun_deg, seed = _host(leaf, sun_deg, seed)
-        if not (np.isfinite(leaf).all() and np.isfinite(sun_deg).all()):  # traced NaN (eager ones are refused)
+        if not finite(leaf, sun_deg):
             nan = np.full((len(PARTS), n_out), np.nan, leaf.dtype)
             return nan, nan
         with lock:
@@ -196,7 +199,7 @@ def make_irradiance(
 
     def backward_cb(leaf, sun_deg, seed, ct):
         leaf, sun_deg, seed, ct = _host(leaf, sun_deg, seed, ct)
-        if not (np.isfinite(leaf).all() and np.isfinite(sun_deg).all()):
+        if not finite(leaf, sun_deg):
             return np.full(leaf.shape, np.nan, leaf.dtype)
         g = dict.fromkeys(LEAF_PARAMETERS, 0.0)
         with lock:
