@@ -91,7 +91,8 @@ def field_label(attrs) -> str:
     if attrs.get("boundary", "finite") == "periodic":
         return "periodic boundary (one cell of an infinite field)"
     rows, along = attrs.get("buffer_rows"), attrs.get("buffer_along", attrs.get("buffer_rows"))
-    return f"finite field, {rows} buffer rows" + ("" if along == rows else f" and {along} plants along")
+    label = f"finite field, {rows} buffer row{'' if rows == 1 else 's'}"
+    return label + ("" if along == rows else f" and {along} plant{'' if along == 1 else 's'} along")
 
 
 def step_instants(ds) -> pd.DatetimeIndex:

@@ -884,3 +884,305 @@ def test_the_images_sky_is_the_runs_own(sky, results_file):
         ds.assign_attrs(sky=sky).to_netcdf(path)
     (lt,) = lighting(open_results(path), [1])
     assert lt.sky == sky and ("sky" in lt.to_dict()) == (sky == "overcast")
+
+
+# --- Mutation audit of lightfit.dataset: behaviour the tests above left open. ---
+
+
+def test_pixel_rays_follow_the_pinhole_geometry():
+    """A camera at (0, −2, 1) looking north along the horizontal, fov 90°, 4 × 2 px: the right edge of
+    the image is 45° east of north (tan 45° = 1), the top edge atan(0.5) up (the aspect ratio 2 / 4),
+    pixel (0, 0) top-left. Hand-worked rays of the pinhole: x right = east, y up = z."""
+    cam = Camera(
+        name="n", position_m=(0.0, -2.0, 1.0), look_at_m=(0.0, 0.0, 1.0), fov_deg=90.0, width_px=4, height_px=2
+    )
+    corner = np.zeros((2, 4, 2))
+    corner[0, 3] = (1.0, 0.0)  # top-right pixel, its top-right corner
+    corner[1, 0] = (0.0, 1.0)  # bottom-left pixel, its bottom-left corner
+    d = cam.directions(corner).reshape(2, 4, 3)
+    np.testing.assert_allclose(d[0, 3], np.array([1.0, 1.0, 0.5]) / 1.5, atol=1e-12)
+    np.testing.assert_allclose(d[1, 0], np.array([-1.0, 1.0, -0.5]) / 1.5, atol=1e-12)
+    # Pixel centres: x = ±0.25, ±0.75 (tan of the angle from the axis), y = ±0.25.
+    c = cam.directions().reshape(2, 4, 3)
+    np.testing.assert_allclose(c[..., 0] / c[..., 1], [[-0.75, -0.25, 0.25, 0.75]] * 2, atol=1e-12)
+    np.testing.assert_allclose(c[..., 2] / c[..., 1], [[0.25] * 4, [-0.25] * 4], atol=1e-12)
+
+
+def test_sweep_places_cameras_by_compass_azimuth_and_elevation():
+    """Azimuth clockwise from north starting at 180° (south), n evenly spaced; the line of sight to
+    the target (half the canopy height) rises at elevation_deg: z = target + d·tan(elevation)."""
+    cams = camera_sweep(Sweep(n=4, distance_m=2.0, elevation_deg=30.0, camera=SMALL), canopy_height_m=0.6)
+    z = 0.3 + 2.0 * np.tan(np.radians(30.0))
+    want = [(0.0, -2.0), (-2.0, 0.0), (0.0, 2.0), (2.0, 0.0)]  # south, west, north, east
+    for c, (x, y) in zip(cams, want, strict=True):
+        np.testing.assert_allclose(c.position_m, (x, y, z), atol=1e-12)
+        view = np.subtract(c.look_at_m, c.position_m)
+        assert np.degrees(np.arctan2(-view[2], np.hypot(view[0], view[1]))) == pytest.approx(30.0)
+    east = camera_sweep(Sweep(n=1, distance_m=1.0, start_azimuth_deg=90.0), centre_m=(5.0, 7.0))[0]
+    np.testing.assert_allclose(east.position_m[:2], (6.0, 7.0), atol=1e-12)
+
+
+def test_camera_bounds_are_as_documented():
+    """z > 0 (a pinhole on the soil plane is refused) and meter_percentile in (0, 100]: 100 meters
+    the brightest leaf pixel, so exactly that one pixel reaches white."""
+    with pytest.raises(InputError) as err:
+        Camera(position_m=(1.0, 0.0, 0.0))
+    assert err.value.column == "position_m"
+    rad = np.zeros((10, 10, 3))
+    rad[..., 1] = np.arange(100).reshape(10, 10) + 1.0
+    leaf = np.zeros((10, 10), bool)
+    leaf[:5] = True  # green 1 … 50
+    e = meter(rad, leaf, Camera(meter_percentile=100.0, width_px=10, height_px=10))
+    assert e.metered_luminance == 50.0 and e.gain == pytest.approx(1 / 50) and e.clipped_leaf_fraction == 1 / 50
+
+
+def test_exposure_gain_and_srgb_encoding_against_hand_values():
+    """Gain per stop is 2^EV; scene metering maps the mean Rec. 709 luminance to 0.18; the sRGB curve
+    of IEC 61966-2-1 puts linear 0.5 at 188, 18 % grey at 118, 0.002 (linear segment, 12.92·x) at 7."""
+    from lightfit.dataset.exposure import srgb_encode
+
+    px = {"width_px": 2, "height_px": 2}
+    red = np.zeros((2, 2, 3))
+    red[..., 0] = 1.0
+    none = np.zeros((2, 2), bool)
+    assert meter(red, none, Camera(exposure_mode="fixed", exposure_ev=1.0, **px)).gain == 2.0
+    assert meter(red, none, Camera(exposure_mode="fixed", exposure_ev=-3.0, **px)).gain == 0.125
+    assert meter(red, none, Camera(exposure_mode="scene", **px)).gain == pytest.approx(0.18 / 0.2126)
+    blue = red[..., ::-1]
+    assert meter(blue, none, Camera(exposure_mode="scene", exposure_ev=1.0, **px)).gain == pytest.approx(0.36 / 0.0722)
+    grey = np.array([1.0, 1.0, 1.0, 5.0]).reshape(2, 2, 1)  # mean 2 (the median would be 1)
+    assert meter(grey, none, Camera(exposure_mode="scene", **px)).metered_luminance == pytest.approx(2.0)
+    leaf = np.ones((2, 2), bool)
+    assert meter(red * 4.0, leaf, Camera(exposure_ev=-1.0, **px)).gain == pytest.approx(0.5 / 4.0)
+    lin = np.array([0.5, 0.18, 0.002, 0.0, 1.0, 1.5, -0.1]).reshape(1, 7, 1)
+    assert tone_map(lin, 1.0).ravel().tolist() == [188, 118, 7, 0, 255, 255, 0]
+    assert srgb_encode(np.array([0.0031308]))[0] == pytest.approx(12.92 * 0.0031308, abs=1e-9)
+
+
+def test_scene_arrays_colour_each_organ_and_the_soil():
+    """Leaf faces get leaf_rgb and leaf_transmission, stems stem_rgb and no transmission, the two
+    soil triangles soil_rgb at z = 0; with colour_variation s each organ's factor lies in [1 − s, 1 + s]
+    and spans it (uniform draws), the same for every face of one organ."""
+    from lightfit.plant.mesh import Mesh
+
+    n = 200  # one face per organ: 100 leaves then 100 stems
+    verts = np.array([[0.0, 0.0, 0.1], [0.1, 0.0, 0.1], [0.0, 0.1, 0.2]])
+    mesh = Mesh(verts, np.zeros((n + 2, 3), int) + [0, 1, 2], np.r_[np.arange(n), 0, 100], np.zeros(n + 2, bool))
+    segments = pd.DataFrame(
+        {
+            "segment_id": np.arange(n),
+            "plant_id": np.zeros(n, int),
+            "organ_id": np.arange(n),
+            "organ_type": ["leaf"] * (n // 2) + ["stem"] * (n // 2),
+        }
+    )
+    mats = VisualMaterials(colour_variation=0.0, leaf_transmission=0.3)
+    a = scene_arrays(mesh, segments, mats)
+    leaf, stem = np.r_[np.arange(n) < n // 2, True, False], np.r_[np.arange(n) >= n // 2, False, True]
+    np.testing.assert_allclose(a.face_rgb[: n + 2][leaf], np.tile(mats.leaf_rgb, (leaf.sum(), 1)), rtol=1e-6)
+    np.testing.assert_allclose(a.face_rgb[: n + 2][stem], np.tile(mats.stem_rgb, (stem.sum(), 1)), rtol=1e-6)
+    np.testing.assert_allclose(a.face_rgb[-2:], [mats.soil_rgb] * 2, rtol=1e-6)
+    np.testing.assert_allclose(a.face_transmission, np.r_[np.where(leaf, 0.3, 0.0), 0.0, 0.0], rtol=1e-6)
+    assert a.n_plant_faces == n + 2 and (a.vertices[a.faces[-2:]][..., 2] == 0).all()
+    s = 0.2
+    v = scene_arrays(mesh, segments, VisualMaterials(colour_variation=s), seed=3)
+    f = v.face_rgb[:n, 1] / np.where(np.arange(n) < n // 2, mats.leaf_rgb[1], mats.stem_rgb[1])
+    assert (f >= 1 - s - 1e-6).all() and (f <= 1 + s + 1e-6).all()
+    assert f.min() < 1 - 0.8 * s and f.max() > 1 + 0.8 * s
+    assert v.face_rgb[n, 1] == v.face_rgb[0, 1] and v.face_rgb[n + 1, 1] == v.face_rgb[100, 1]  # per organ
+
+
+def test_periodic_copies_cover_every_point_within_the_reach():
+    """Every ground point within reach_m of the centre lies in a kept copy's cell: the nearest point
+    of the (whole) lattice to it, whose cell is the rectangle around it, is one of the copies."""
+    from lightfit.dataset import periodic_canopy
+    from lightfit.plant import Mesh
+    from lightfit.plant.periodic import PeriodicCell
+
+    cell = PeriodicCell(along_m=0.3, across_m=0.5)
+    marker = Mesh(
+        np.array([[0.0, 0, 0], [0.01, 0, 0], [0, 0.01, 0]]), np.array([[0, 1, 2]]), np.array([1]), np.array([1])
+    )
+    m, info = periodic_canopy(marker, cell, reach_m=1.0)
+    kept = m.vertices[::3, :2]
+    i, j = np.meshgrid(np.arange(-12, 13), np.arange(-12, 13), indexing="ij")
+    lattice = cell.lattice_shift(i.ravel(), j.ravel())
+    ang = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+    r = np.r_[0.0, 0.25, 0.5, 0.75, 0.9, 0.999]
+    pts = (r[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)[None]).reshape(-1, 2)
+    nearest = lattice[np.argmin(np.linalg.norm(pts[:, None] - lattice[None], axis=-1), axis=1)]
+    dist_to_kept = np.linalg.norm(nearest[:, None] - kept[None], axis=-1).min(axis=1)
+    assert dist_to_kept.max() < 1e-9 and info["reach_m"] == 1.0
+
+
+def test_the_sun_lights_the_scene_from_its_position():
+    """Peer: Mitsuba's own direct integrator under the data scene's sun alone (DNI 100 W m⁻², elevation
+    30°, azimuth 180° = south), seen on a white Lambertian square (radiance ρE/π): irradiance
+    DNI·sin 30° = 50 W m⁻² on a horizontal square, DNI·cos 30° on one facing south, 0 facing north."""
+    from lightfit.dataset.render import _emitters
+    from lightfit.light import backend
+
+    mi = backend.mitsuba()
+    light = Lighting(30.0, 180.0, 100.0, 0.0)
+    rho = 0.5
+    for turn, normal, expected in (
+        (0, (0, 0, 1), 50.0),
+        (90, (0, -1, 0), 100.0 * np.cos(np.radians(30.0))),  # rotating +z by 90° about x gives −y
+        (-90, (0, 1, 0), 0.0),
+    ):
+        square = {
+            "type": "rectangle",
+            "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], turn),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": rho}},
+        }
+        eye = [2.0 * c for c in normal]
+        sensor = {
+            "type": "perspective",
+            "fov": 2.0,
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=eye, target=[0, 0, 0], up=[0, 1, 0] if turn == 0 else [0, 0, 1]
+            ),
+            "film": {"type": "hdrfilm", "width": 2, "height": 2, "rfilter": {"type": "box"}},
+            "sampler": {"type": "independent", "sample_count": 4},
+        }
+        scene = mi.load_dict(
+            {"type": "scene", **_emitters(light), "square": square, "sensor": sensor, "integrator": {"type": "direct"}}
+        )
+        radiance = float(np.mean(np.asarray(mi.render(scene, seed=1))))
+        assert radiance * np.pi / rho == pytest.approx(expected, rel=1e-3, abs=1e-3), (turn, radiance, expected)
+
+
+def test_an_image_is_the_mean_of_its_passes_and_each_image_has_its_own_noise(geometry):
+    """A camera outside the field looking up sees only the isotropic sky: DHI/π in every pixel, at any
+    spp (a sum of the passes would show spp × it). Two cameras at the same place under two equal
+    lightings give four images whose noise differs pairwise: each (camera, time) has its own random
+    numbers."""
+    up = Camera(
+        name="up", position_m=(0.0, -3.0, 0.3), look_at_m=(0.0, -3.0, 2.0), up=(0, 1, 0), width_px=8, height_px=8
+    )
+    cam = Camera(name="h", position_m=(0.0, -1.5, 0.3), look_at_m=(0.0, 0.0, 0.3), width_px=16, height_px=16)
+    twin = Camera(**{**cam.to_dict(), "name": "h2"})
+    sky = Lighting(sun_elevation_deg=-10.0, sun_azimuth_deg=0.0, dni_w_m2=0.0, dhi_w_m2=100.0)
+    arrays = scene_arrays(geometry.mesh, geometry.segments)
+    out = render(arrays, [up, cam, twin], [sky, sky], RenderSettings(spp=3, colour="mono"))
+    assert (out.face[0] == -1).all()
+    np.testing.assert_allclose(out.radiance[0][0], 100.0 / np.pi, rtol=1e-5)
+    imgs = [out.radiance[c][t] for c in (1, 2) for t in (0, 1)]
+    for a in range(4):
+        for b in range(a + 1, 4):
+            assert not np.array_equal(imgs[a], imgs[b]), (a, b)
+
+
+def test_limitation_margin_is_vj_minus_vc_over_their_sum(results_file):
+    """(Vj − Vc)/(Vj + Vc) from the file's own variables, and its sign is the limitation's: < 0 where
+    Fj < Fc (limitation 1, electron-transport limited)."""
+    import xarray as xr
+
+    res = open_results(results_file)
+    with xr.open_dataset(results_file) as ds:
+        for t in range(ds.sizes["time"]):
+            vc, vj = (ds[v].values[t].astype(float) for v in ("leaf_vc_umol_m2_s", "leaf_vj_umol_m2_s"))
+            lim = ds["limitation"].values[t]
+            got = res.values(MARGIN, t).reindex(ds["segment"].values).to_numpy()
+            np.testing.assert_allclose(got, (vj - vc) / (vj + vc), rtol=1e-12)
+            np.testing.assert_array_equal(got < 0, lim == 1)
+            assert (lim == 1).any() or (lim == 0).any()
+
+
+def test_default_time_is_the_highest_sun(results_file):
+    """Without --time: the step with the highest sun. At Selhausen (50.9° N, 6.4° E) on 20 April the sun
+    stands higher at 11:00 UTC (near solar noon) than at 08:00; results that carry their own
+    sun_elevation_deg are taken at their word."""
+    from lightfit.dataset.results import select_times
+
+    res = open_results(results_file)
+    assert select_times(res, None) == [1]
+    own = open_results(res.ds.assign(sun_elevation_deg=("time", [60.0, 20.0])))
+    assert select_times(own, None) == [0]
+
+
+def test_weather_irradiance_is_interpolated_linearly_between_records(results_file):
+    """Results without their own sun and sky at 08:05 UTC, halfway between two 10-min records of the
+    bundled 2016-04-20 series: DNI and DHI are the records' mean."""
+    from lightfit import weather
+    from lightfit.dataset.results import lighting
+
+    ds = open_results(results_file).ds
+    shifted = ds.assign_coords(time=pd.to_datetime(["2016-04-20T08:05", "2016-04-20T11:00"]).to_numpy())
+    (lt,) = lighting(open_results(shifted), [0])
+    wx = weather.load("2016-04-20")
+    rec = wx.loc[pd.Timestamp("2016-04-20T08:00", tz="UTC") : pd.Timestamp("2016-04-20T08:10", tz="UTC")]
+    assert len(rec) == 2 and rec["dni_w_m2"].iloc[0] != rec["dni_w_m2"].iloc[1]
+    assert lt.dni_w_m2 == pytest.approx(rec["dni_w_m2"].mean(), rel=1e-9)
+    assert lt.dhi_w_m2 == pytest.approx(rec["dhi_w_m2"].mean(), rel=1e-9)
+
+
+def test_job_key_changes_with_what_renders_and_not_with_threads(geometry):
+    """An interrupted run's cameras are taken over only by the same job: another seed, spp, path depth,
+    colour, camera, lighting or material renders other images; the thread count does not."""
+    from dataclasses import replace
+
+    from lightfit.dataset.dataset import _job_key
+
+    arrays = scene_arrays(geometry.mesh, geometry.segments)
+    base = dict(
+        cams=[CAM], lights=[SUN], settings=RenderSettings(spp=2, colour="mono", seed=4), materials=VisualMaterials()
+    )
+
+    def key(**kw):
+        a = {**base, **kw}
+        return _job_key(arrays, a["cams"], a["lights"], a["settings"], a["materials"])
+
+    k0 = key()
+    assert key(settings=replace(base["settings"], threads=3)) == k0
+    others = [
+        key(settings=replace(base["settings"], seed=5)),
+        key(settings=replace(base["settings"], spp=3)),
+        key(settings=replace(base["settings"], max_depth=3)),
+        key(settings=replace(base["settings"], colour="rgb")),
+        key(cams=[replace(CAM, fov_deg=40.0)]),
+        key(lights=[replace(SUN, dhi_w_m2=121.0)]),
+        key(materials=VisualMaterials(roughness=0.4)),
+    ]
+    assert k0 not in others and len(set(others)) == len(others)
+
+
+def _read_binary_ply(path):
+    """Vertices and face records of a binary little-endian PLY (the format's header, read by hand)."""
+    raw = path.read_bytes()
+    head, body = raw.split(b"end_header\n", 1)
+    lines = head.decode("ascii").splitlines()
+    assert "format binary_little_endian 1.0" in lines
+    counts, props, element = {}, {"vertex": [], "face": []}, None
+    for ln in lines:
+        w = ln.split()
+        if w[0] == "element":
+            element, counts[w[1]] = w[1], int(w[2])
+        elif w[0] == "property" and w[1] != "list":
+            props[element].append((w[2], "<f8"))
+    assert props["vertex"] == [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    nv = counts["vertex"]
+    face_dt = np.dtype([("n", "u1"), ("v", "<i4", 3), *props["face"]])
+    faces = np.frombuffer(body[nv * 24 :], dtype=face_dt, count=counts["face"])
+    return np.frombuffer(body[: nv * 24], "<f8").reshape(nv, 3), faces
+
+
+def test_field_export_carries_the_first_selected_steps_values(mono_dataset, results_file):
+    """field_values.ply's per-face values are those of the first selected step (the metadata says so),
+    each face's value its segment's in the results."""
+    out, meta = mono_dataset
+    res = open_results(results_file)
+    _, faces = _read_binary_ply(out / meta["field_export"]["file"])
+    seg = faces["segment_id"].astype(np.int64)
+    first = res.values("absorbed_par", meta["images"][0]["time_index"]).reindex(seg).to_numpy(float)
+    last = res.values("absorbed_par", 1).reindex(seg).to_numpy(float)
+    assert meta["images"][0]["time_index"] == 0 and not np.allclose(first, last)
+    np.testing.assert_allclose(faces["absorbed_par"], first, rtol=1e-6)
+
+
+def test_gallery_columns_absorbed_par_and_margin_or_the_next_quantity():
+    from lightfit.dataset.gallery import _columns
+
+    assert _columns(["an", "absorbed_par", MARGIN]) == ["absorbed_par", MARGIN]
+    assert _columns(["absorbed_par", "an", "gs"]) == ["absorbed_par", "an"]
+    assert _columns(["an", "gs", "vc"]) == ["an", "gs"]

@@ -540,3 +540,40 @@ def test_a_file_without_a_single_reading_is_refused(tmp_path):
         read_observations(f)
     f.write_text(head + "2016-04-20T10:00:00Z,,5\n2016-04-20T10:30:00Z,1500,75\n")
     assert read_observations(f)["above_canopy_par_umol_m2_s"].notna().sum() == 1  # one reading is a comparison
+
+
+def test_summary_light_limited_share_counts_blades_with_a_value():
+    """frac_light_limited: of the blades with a limitation (−1 = none), the share electron-transport
+    limited (1); NaN where no blade has one; a stem (not a blade) never counts."""
+    ds = _unconverged_ds()
+    lim = np.array([[1, 0, -1, 1], [-1, -1, -1, 1], [1, 1, 0, 0]], np.int8)
+    got = summary(ds.assign(limitation=(("time", "segment"), lim)))["frac_light_limited"].to_numpy()
+    np.testing.assert_allclose(got, [1 / 2, np.nan, 2 / 3])
+
+
+def test_area_quantiles_take_the_smallest_value_reaching_the_share():
+    """The q-quantile is the smallest value at or below which at least q of the area lies: with cumulative
+    shares landing exactly on q, that value itself (numpy's inverted_cdf), not the next one."""
+    from lightfit.report import area_quantiles
+
+    np.testing.assert_array_equal(
+        area_quantiles([[4.0, 1.0, 3.0, 2.0]], np.ones(4), (0.25, 0.5, 0.75, 1.0)).ravel(), [1, 2, 3, 4]
+    )
+    # areas 1, 1, 2 on values 5, 1, 3: shares 0.25 (1), 0.75 (3), 1.0 (5)
+    np.testing.assert_array_equal(
+        area_quantiles([[5.0, 1.0, 3.0]], [1.0, 1.0, 2.0], (0.25, 0.26, 0.75, 0.76)).ravel(), [1, 3, 3, 5]
+    )
+
+
+def test_field_label_names_the_buffers():
+    """In words, one row or plant singular; results written before buffer_along had as many buffer plants
+    along the rows as buffer rows."""
+    from lightfit.report import field_label
+
+    assert field_label({"boundary": "finite", "buffer_rows": 1}) == "finite field, 1 buffer row"
+    assert field_label({"buffer_rows": 2, "buffer_along": 2}) == "finite field, 2 buffer rows"
+    assert field_label({"buffer_rows": 1, "buffer_along": 3}) == "finite field, 1 buffer row and 3 plants along"
+    assert field_label({"buffer_rows": 3, "buffer_along": 1}) == "finite field, 3 buffer rows and 1 plant along"
+    assert (
+        field_label({"boundary": "periodic", "buffer_rows": 0}) == "periodic boundary (one cell of an infinite field)"
+    )
