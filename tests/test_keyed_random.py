@@ -91,3 +91,55 @@ def test_random_bits_of_consecutive_indices_and_replicates_are_independent(monke
     assert max(stats()) < BOUND, stats()
     monkeypatch.setattr(keyed_random, "TEA_ROUNDS", 4)
     assert min(stats()) > 10 * BOUND
+
+
+def test_random_bits_of_each_kind_and_dimension_at_one_index_are_independent():
+    """The projection draws, for one ray index, words of both kinds (sun, sky) and of its dimensions
+    (0: jitter, 1: replicate shift, 2–3: scattering, 4: roulette) side by side: pairs across kinds,
+    across dimensions and the two words of one draw must be independent."""
+    mi = mitsuba()
+    idx = mi.UInt32(np.arange(100_000, dtype=np.uint32))
+
+    def u(kind, dim, word=0):
+        return np.asarray(keyed_random.random_bits(mi, idx, 7, kind, dim)[word], np.float64) / 2**32
+
+    pairs = [
+        (u("sun", 0), u("sky", 0)),
+        (u("sun", 0), u("sun", 1)),
+        (u("sky", 2), u("sky", 4)),
+        (u("sky", 3), u("sun", 2)),
+        (u("sun", 0), u("sun", 0, 1)),
+    ]
+    stats = [_pair_chi2(a, b) for a, b in pairs]
+    assert max(stats) < BOUND, stats
+
+
+def _tea_decrypt(w0: np.ndarray, w1: np.ndarray, rounds: int):
+    """Inverse of Mitsuba's ``sample_tea_32``: TEA (Wheeler & Needham 1994) with the key words of
+    Zafar, Olano & Curtis (2010), run backwards, in numpy uint32 arithmetic."""
+    k0, k1, k2, k3 = (np.uint32(x) for x in (0xA341316C, 0xC8013EA4, 0xAD90777D, 0x7E95761E))
+    four, five = np.uint32(4), np.uint32(5)
+    v0, v1 = w0.astype(np.uint32), w1.astype(np.uint32)
+    for r in range(rounds, 0, -1):
+        s = np.uint32(r * 0x9E3779B9 % 2**32)
+        v1 = v1 - (((v0 << four) + k2) ^ (v0 + s) ^ ((v0 >> five) + k3))
+        v0 = v0 - (((v1 << four) + k0) ^ (v1 + s) ^ ((v1 >> five) + k1))
+    return v0, v1
+
+
+def test_random_bits_are_sixteen_rounds_of_tea_of_the_index_under_one_key_per_stream():
+    """Decrypting a stream's words with 16 rounds of TEA gives back the ray index and one constant
+    word: the 16 rounds the independence checks were made at (TEA_ROUNDS), and a key of its own for
+    every seed, kind and dimension (words of two streams never coincide)."""
+    mi = mitsuba()
+    idx = np.arange(0, 2**32 - 1, 858_993, dtype=np.uint32)  # ≈ 5 000 indices over the whole range
+    keys = {}
+    for seed in (7, 8):
+        for kind in ("sun", "sky"):
+            for dim in range(5):
+                words = keyed_random.random_bits(mi, mi.UInt32(idx), seed, kind, dim)
+                v0, v1 = _tea_decrypt(*(np.asarray(w, dtype=np.uint32) for w in words), 16)
+                np.testing.assert_array_equal(v0, idx)
+                assert (v1 == v1[0]).all(), (seed, kind, dim)
+                keys[seed, kind, dim] = int(v1[0])
+    assert len(set(keys.values())) == len(keys), keys

@@ -430,3 +430,99 @@ def test_coupled_model_renders_a_periodic_field_periodically(monkeypatch):
     vals, _ = model.render(Theta())
     assert scenes[0].cell == fld.cell and scenes[0].tracer is not None
     assert np.isfinite(np.asarray(vals)).all() and (np.asarray(vals) >= 0).all()
+
+
+# -- the ray walk, ray by ray -------------------------------------------------------------------
+def _walk_lanes(tracer, o, d, **kw):
+    """``tracer.intersect`` of rays from numpy origins/directions (N, 3): status arrays and points."""
+    mi = tracer.mi
+    o = mi.Point3f(*(np.ascontiguousarray(o[:, c], dtype=np.float32) for c in range(3)))
+    d = mi.Vector3f(*(np.ascontiguousarray(d[:, c], dtype=np.float32) for c in range(3)))
+    hit_leaf, si, hit_soil, p_soil, escaped, capped, k = tracer.intersect(o, d, mi.Bool(True), **kw)
+    as_np = lambda v: np.stack([np.asarray(v.x), np.asarray(v.y), np.asarray(v.z)], -1)  # noqa: E731
+    prim = np.asarray(si.prim_index)
+    return dict(
+        leaf=np.asarray(hit_leaf),
+        soil=np.asarray(hit_soil),
+        sky=np.asarray(escaped),
+        capped=np.asarray(capped),
+        k=np.asarray(k),
+        p=as_np(si.p),
+        p_soil=as_np(p_soil),
+        prim=prim,
+    )
+
+
+def _ray(phi_deg, elevation_deg):
+    """Unit direction of horizontal compass angle ``phi`` (counter-clockwise from +x) and ``elevation``."""
+    p, e = math.radians(phi_deg), math.radians(elevation_deg)
+    return np.array([math.cos(p) * math.cos(e), math.sin(p) * math.cos(e), math.sin(e)])
+
+
+def test_walk_counts_the_side_faces_a_ray_crosses_before_it_leaves_above_the_canopy():
+    """Rays going up from mid-height in a 1 × 0.5 m cell whose canopy top is 1 m: a ray whose horizontal
+    run to the top is L crosses the faces at 0.5, 1.5, 2.5 … m (x) or 0.25, 0.75, … m (y), then leaves to
+    the sky; with a cap of C crossings, a ray needing more is stopped after the C-th, as capped."""
+    cell = PeriodicCell(1.0, 0.5)  # rows east–west: a along x, b along y
+    top = square([0.3, 0.2, 1.0], [0, 0, 1], 0.02, 1)  # the canopy top, off every ray's line (y = 0 or x = 0)
+    tracer = FieldScene(top, BLACK, cell=cell).tracer
+    # (azimuth of the ray, its horizontal run L to z = 1 from z = 0.5, faces crossed)
+    lanes = [(0.0, 0.3, 0), (0.0, 1.2, 1), (0.0, 3.2, 3), (180.0, 3.2, 3), (90.0, 1.3, 3), (270.0, 0.6, 1)]
+    d = np.array([_ray(phi, math.degrees(math.atan2(0.5, run))) for phi, run, _ in lanes])
+    o = np.tile([0.0, 0.0, 0.5], (len(lanes), 1))
+    crossings = np.array([n for *_, n in lanes])
+    r = _walk_lanes(tracer, o, d)
+    assert r["sky"].all() and not (r["leaf"] | r["soil"] | r["capped"]).any()
+    np.testing.assert_array_equal(r["k"], crossings)
+    r = _walk_lanes(tracer, o, d, cap=2)
+    np.testing.assert_array_equal(r["capped"], crossings > 2)
+    np.testing.assert_array_equal(r["sky"], crossings <= 2)
+    np.testing.assert_array_equal(r["k"], np.minimum(crossings, 2))
+
+
+def test_walk_finds_leaves_and_soil_through_the_sides_of_a_rotated_cell():
+    """In a rotated, off-centre cell, a ray from anywhere meets the leaf of the infinite field that lies
+    on its line: the hand-traced point o + t·d wrapped into the cell (numpy), after crossing as many side
+    faces as whole periods separate them; rays going down (also from above the canopy top) reach the soil
+    plane at its wrapped point. The same ray started a lattice vector away finds the same."""
+    cell = PeriodicCell(0.4, 0.3, row_direction_deg=30.0, center_xy=(0.1, -0.2))
+    rng = np.random.default_rng(12)
+    # Leaves: one per upward ray, at its own height, centred where that ray reaches the height.
+    up = [(20.0, 25.0, 0.6), (110.0, 30.0, 0.7), (200.0, 20.0, 0.8), (290.0, 35.0, 0.9)]
+    o_up = np.column_stack([cell.to_world(rng.uniform(-0.4, 0.4, (len(up), 2)) * cell.size_m), np.full(len(up), 0.1)])
+    d_up = np.array([_ray(phi, e) for phi, e, _ in up])
+    z_leaf = np.array([z for *_, z in up])
+    at_leaf = o_up + d_up * ((z_leaf - 0.1) / d_up[:, 2])[:, None]
+    leaves = [square(c, [0, 0, 1], 0.03, k + 1) for k, c in enumerate(cell.wrap(at_leaf))]
+    fs = FieldScene(Mesh.concatenate(leaves), BLACK, cell=cell)
+    # Soil: rays going down from below the leaves, and one from above the canopy top (0.9 m).
+    down = [(45.0, -20.0, 0.3), (160.0, -35.0, 0.5), (300.0, -60.0, 1.4)]
+    o_down = np.column_stack([cell.to_world(rng.uniform(-0.4, 0.4, (3, 2)) * cell.size_m), [z for *_, z in down]])
+    d_down = np.array([_ray(phi, e) for phi, e, _ in down])
+    at_soil = o_down + d_down * (-o_down[:, 2] / d_down[:, 2])[:, None]
+    o, d = np.concatenate([o_up, o_down]), np.concatenate([d_up, d_down])
+    end = np.concatenate([at_leaf, at_soil])
+    lattice = np.rint((cell.to_local(end) - cell.to_local(cell.wrap(end))) / cell.size_m)
+    faces = np.abs(lattice).sum(1)  # side faces between the (inside) origin and the end point
+    assert faces.min() >= 1 and faces[:4].max() >= 4  # every ray wraps; some several times
+    far = o.copy()
+    far[:, :2] += cell.lattice_shift(3, -2)  # the same rays of the infinite field, from another cell
+    for origin in (o, far):
+        r = _walk_lanes(fs.tracer, origin, d)
+        assert r["leaf"][:4].all() and r["soil"][4:].all() and not (r["sky"] | r["capped"]).any()
+        np.testing.assert_array_equal(fs.scene_mesh.face_segment[r["prim"][:4]], [1, 2, 3, 4])
+        np.testing.assert_allclose(r["p"][:4], cell.wrap(at_leaf), atol=2e-5)
+        np.testing.assert_allclose(r["p_soil"][4:], cell.wrap(at_soil), atol=2e-5)
+        np.testing.assert_array_equal(r["k"], faces)
+
+
+def test_walk_through_a_corner_shifts_both_axes_at_once():
+    """A ray through the corner of a square cell re-enters through the diagonally opposite corner, in one
+    crossing, and meets the leaf at the wrapped point of its line."""
+    cell = PeriodicCell(0.5, 0.5, row_direction_deg=0.0)  # axes exactly ±x, ±y
+    d = np.array([1.0, 1.0, 0.5]) / 1.5  # through (0.25, 0.25) from the centre, exactly diagonal
+    leaf_at = np.array([0.35, 0.35, 0.2 + 0.35 * 0.5])  # where the ray is 0.1 m past the corner, each way
+    fs = FieldScene(square(cell.wrap(leaf_at[None])[0], [0, 0, 1], 0.04, 1), BLACK, cell=cell)
+    r = _walk_lanes(fs.tracer, np.array([[0.0, 0.0, 0.2]]), d[None])
+    assert r["leaf"][0] and r["k"][0] == 1
+    np.testing.assert_allclose(r["p"][0], [-0.15, -0.15, leaf_at[2]], atol=1e-5)

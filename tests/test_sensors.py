@@ -240,3 +240,27 @@ def test_ceptometer_height_is_a_scenario_knob():
     for bad in (-0.1, 11.0, True, "1"):
         with pytest.raises(InputError, match="ceptometer_height_m"):
             Scenario(weather=weather, field=fld, ceptometer_height_m=bad)
+
+
+def test_each_placement_is_sampled_along_its_whole_length_and_each_sensor_reads_its_own_lines():
+    """Zenith sun over a black 20 cm square leaf 0.3 m up (finite field): a sensor of two 40 cm bars,
+    one half under the leaf and one in the open, reads (½ + 1)/2 = 0.75 of the sun; a second sensor,
+    a point under the leaf, reads 0 (hand-traced shadows)."""
+    leaf = square([-0.1, 0.0, 0.3], [0, 0, 1], 0.2, 1)  # covers x ∈ [−0.2, 0], y ∈ [−0.1, 0.1]
+    fs = FieldScene(leaf, BLACK)
+    fs.set_sun(90.0, 0.0)
+    bars = Sensor("bars", ((-0.2, 0.0, 0.0), (-0.2, 0.5, 0.0)), ((0.2, 0.0, 0.0), (0.2, 0.5, 0.0)))
+    under = horizontal_points("under", [[-0.1, 0.0, 0.0]])
+    r = SensorEstimator(fs, [bars, under], samples=1024, bounces=0, seed=6).render()
+    assert r.incident_sun == pytest.approx([0.75, 0.0], abs=max(4 * r.se["incident_sun"].max(), 0.02))
+
+
+def test_ceptometer_bars_are_centred_on_equal_strips_along_the_rows():
+    """Bar k of P lies across the rows, its centre at ((k + ½)/P − ½)·A along them (the docstring's
+    stratified placements), in a rotated, off-centre area."""
+    area = PeriodicCell(1.2, 0.5, row_direction_deg=30.0, center_xy=(2.0, -1.0))
+    for placements in (1, 3, 8):
+        a, b = ceptometer(area, placements=placements).lines()
+        mid = area.to_local((a + b) / 2)
+        np.testing.assert_allclose(mid[:, 0], ((np.arange(placements) + 0.5) / placements - 0.5) * 1.2, atol=1e-12)
+        np.testing.assert_allclose(area.to_local(b) - area.to_local(a), [[0.0, 0.8]] * placements, atol=1e-12)
