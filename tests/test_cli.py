@@ -1451,3 +1451,78 @@ def test_every_model_setting_is_compared_on_resume_and_old_records_read_as_they_
     assert changed_settings(old, q10) == ["soil_respiration_q10: 2.0 → 2.3"]
     later = resolve(ModelOptions(quick=True, start_time="06:00"))
     assert changed_settings(old, later) == ["start_time: '05:00' → '06:00'"]
+
+
+def test_field_tile_past_the_last_is_refused_before_growing(tmp_path, monkeypatch):
+    """--tiles 2 makes tiles 0 and 1: --tile 2 (one past the last) and --tile -1 are refused naming
+    --tile and the range, before any plant grows (one past the last would reach an IndexError)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    for tile in ("2", "-1"):
+        r = runner.invoke(app, ["field", "--n-plants", "4", "--tiles", "2", "--tile", tile])
+        assert_user_error(r, "--tile", f"tile {tile} does not exist", "0 … 1")
+    assert not (tmp_path / "cache").exists()
+
+
+def test_field_reports_each_tiles_plants_and_the_overhead(tmp_path, monkeypatch):
+    """2×2 measured plants, one buffer row (a 4×4 grid), 2 tiles: each tile measures one column of 2
+    plants and renders 4 rows × 3 columns = 12, so 2+10 each and 24 rendered ÷ 4 measured = ×6.00
+    (by hand, as Field.tiles defines the ring)."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1", "--tiles", "2"])
+    assert r.exit_code == 0, r.output
+    out = _flat(r.stdout)
+    assert "tiles (measured+buffer plants), overhead ×6.00" in out and "2+10, 2+10" in out, out
+
+
+def test_info_lists_the_installed_versions():
+    """Each package's row holds the version importlib.metadata reports; the CUDA row says True or False."""
+    import importlib.metadata
+
+    r = runner.invoke(app, ["info"])
+    assert r.exit_code == 0, r.output
+    rows = {}
+    for line in r.stdout.splitlines():
+        cells = [c.strip() for c in line.split("│")[1:-1]]
+        if len(cells) == 2:
+            rows[cells[0]] = cells[1]
+    for pkg in ("mitsuba", "drjit", "jax", "jaxlib", "numpy", "pandas", "xarray", "pvlib", "emcee", "trimesh"):
+        assert rows.get(pkg) == importlib.metadata.version(pkg), (pkg, rows.get(pkg))
+    assert rows["python"] == sys.version.split()[0]
+    assert rows["CUDA usable"] in ("True", "False")
+
+
+def test_render_dataset_options_reach_the_dataset_spec(tmp_path, monkeypatch):
+    """Each render-dataset option lands in its DatasetSpec field (make_dataset is stood in for): the
+    sweep's distance and elevation not swapped, --seed the render's seed, --no-depth off, and so on."""
+    import lightfit.dataset
+
+    specs = []
+
+    def fake_make_dataset(results, out, spec):
+        specs.append((results, out, spec))
+        return {"images": [], "cameras_taken_over": 0, "render": {"variant": "v", "spp": spec.settings.spp}}
+
+    monkeypatch.setattr(lightfit.dataset, "make_dataset", fake_make_dataset)
+    results, out = tmp_path / "results.nc", tmp_path / "ds"
+    args = ["render-dataset", str(results), "--out", str(out), "--sweep", "3", "--sweep-distance-m", "2.5"]
+    args += ["--sweep-elevation-deg", "20", "--width", "40", "--height", "30", "--fov-deg", "50"]
+    args += ["--exposure-mode", "scene", "--exposure-ev", "-1", "--meter-percentile", "90"]
+    args += ["--time", "2016-04-20T11:00", "--time", "2016-04-20T12:00", "-q", "an", "-q", "vc", "--spp", "3"]
+    args += ["--max-depth", "5", "--colour", "mono", "--seed", "7", "--threads", "2", "--weather", "2016-04-20"]
+    args += ["--no-depth", "--gallery", "1", "--export", "vtk", "--cache-dir", str(tmp_path / "plants")]
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0, r.output
+    ((res, where, spec),) = specs
+    assert (res, where) == (results, out)
+    assert (spec.sweep.n, spec.sweep.distance_m, spec.sweep.elevation_deg) == (3, 2.5, 20.0)
+    cam = spec.sweep.camera
+    assert (cam["width_px"], cam["height_px"], cam["fov_deg"]) == (40, 30, 50.0)
+    assert (cam["exposure_mode"], cam["exposure_ev"], cam["meter_percentile"]) == ("scene", -1.0, 90.0)
+    assert spec.times == ["2016-04-20T11:00", "2016-04-20T12:00"] and spec.quantities == ("an", "vc")
+    s = spec.settings
+    assert (s.spp, s.max_depth, s.colour, s.seed, s.threads) == (3, 5, "mono", 7, 2)
+    assert (spec.weather, spec.depth, spec.gallery_images, spec.export) == ("2016-04-20", False, 1, "vtk")
+    assert spec.cache_dir == str(tmp_path / "plants") and spec.cameras == []
+    specs.clear()
+    assert runner.invoke(app, ["render-dataset", str(results), "--out", str(out), "--all-times"]).exit_code == 0
+    assert specs[0][2].times == ["all"] and specs[0][2].quantities is None and specs[0][2].depth is True

@@ -495,3 +495,189 @@ def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
     assert [r.getMessage() for r in caplog.records] == [
         "Async instruction for <Task name='execute(x)'> ended with OSError"
     ]
+
+
+def test_plant_rc_inverts_plant_id():
+    """plant_rc is the inverse of plant_id: rows and columns not swapped, buffer plants (negative r, c) too."""
+    from lightfit.distributed.tiles import plant_rc
+    from lightfit.plant.field import plant_id
+
+    assert int(plant_id(2, -1)) == 10020999  # (2 + 1000) × 10 000 + (−1 + 1000)
+    r, c = plant_rc([10020999, 9991003, 10001000])
+    assert r.tolist() == [2, -1, 0] and c.tolist() == [-1, 3, 0]
+
+
+def test_halo_of_zero_rows_renders_only_the_block_and_one_row_its_ring():
+    """halo_rows=0 is allowed (an integer ≥ 0) and a tile's scene is then its own block; halo_rows=1 adds
+    the ring one plant deep, clipped to the field. 4×4 area, 2 buffer rows, 4 tiles of 2×2 (by hand)."""
+    from lightfit.plant.field import plant_id
+
+    fld = Field(boundary="finite", n_plants=16, buffer_rows=2, seed=0)
+    for t, ref in zip(HaloField.of(fld, 0).tiles(4), fld.tiles(4)):
+        np.testing.assert_array_equal(t.measured, ref.measured)
+        assert t.buffer.size == 0
+    t0 = HaloField.of(fld, 1).tiles(4)[0]  # measures r, c ∈ {0, 1}; ring r, c ∈ {−1 … 2}
+    R, C = np.meshgrid(np.arange(-1, 3), np.arange(-1, 3), indexing="ij")
+    np.testing.assert_array_equal(t0.plant_ids, np.sort(plant_id(R, C).ravel()))
+    assert len(t0.measured) == 4 and len(t0.buffer) == 12
+
+
+def test_impossible_tiling_is_the_error_of_fieldrun_tiles(weather):
+    """FieldRun's attribute is ``tiles``: the error names that parameter, not Field.tiles' ``n_tiles``."""
+    for bad in (0, 9):
+        with pytest.raises(InputError) as err:
+            make_run(weather, tiles=bad)
+        assert err.value.parameter == "tiles", (bad, err.value.parameter)
+
+
+def test_time_chunks_deal_daytime_and_night_steps_in_turn_in_time_order(weather):
+    """Rows 03:00–04:30 UTC are night, 05:00, 07:30 and 10:00 UTC day (05:00–12:00 local). Two chunks:
+    day rows 4, 6 and night rows 0, 2 to the first; day 5, night 1, 3 to the second; each in time
+    order (the task's weather rows as in the run)."""
+    from lightfit.model.scenario import daytime
+
+    w = forcing().iloc[[0, 1, 2, 3, 4, 9, 14]]
+    assert daytime(w).tolist() == [False] * 4 + [True] * 3
+    run = make_run(w, time_chunks=2)
+    assert [c.tolist() for c in run.chunk_index()] == [[0, 2, 4, 6], [1, 3, 5]]
+    for rows in run.chunk_index():
+        assert run.task_scenario(0, rows).weather.index.is_monotonic_increasing
+    assert [c.tolist() for c in make_run(w, time_chunks=3).chunk_index()] == [[0, 3, 4], [1, 5], [2, 6]]
+
+
+def test_gather_refuses_a_missing_or_repeated_task_and_records_the_split(weather):
+    """Two tiles with a one-row halo, run here (no cluster). A result set without tile 1 is refused (it
+    would have half the segments); tile 0 given twice is refused (its segments twice). The merged
+    Dataset has each tile's segments once and records the split it was made with."""
+    from lightfit.distributed.run import run_task, task_specs
+
+    run = make_run(weather.iloc[[2]], tiles=2, halo_rows=1)
+    results = [run_task(s) for s in task_specs(run)]
+    with pytest.raises(InputError, match="task results cover"):
+        gather(results[:1], run)
+    with pytest.raises(InputError, match="segment id occurs in two tiles"):
+        gather([*results, results[0]], run)
+    ds = gather(results, run)
+    seg = np.concatenate([d["segment"].values for d, _ in results])
+    np.testing.assert_array_equal(ds["segment"].values, np.sort(seg))
+    assert len(np.unique(seg)) == len(seg)
+    a = ds.attrs
+    assert (a["n_tiles"], a["time_chunks"], a["tasks"], a["halo_rows"]) == (2, 1, 2, 1)
+    assert a["halo"] == "1 plant rows/columns around each tile"
+    tri = sum(i["triangles"] for _, i in results)
+    assert a["triangles_rendered"] == tri and a["buffer_overhead"] == tri / a["triangles_measured"]
+
+
+@pytest.mark.parametrize("name, value", [("timeout_s", 0), ("timeout_s", float("nan")), ("connect_timeout_s", 0.0)])
+def test_run_field_refuses_a_timeout_not_above_zero_before_any_cluster(weather, monkeypatch, name, value):
+    """--timeout / --connect-timeout must be > 0 (0 timed out at once, NaN never), refused before a cluster starts."""
+    import lightfit.distributed.run as R
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a cluster was started")
+
+    monkeypatch.setattr(R, "connect", no_cluster)
+    with pytest.raises(InputError) as err:
+        run_field(make_run(weather), **{name: value})
+    assert err.value.parameter == name.removesuffix("_s")
+
+
+def test_default_workers_gpu_count_and_gpu_pinning(monkeypatch):
+    """By hand: 64 cores and 8 GiB → 4 workers (one per 2 GiB); 3 cores and 64 GiB → 3; GPUs visible
+    → one worker per GPU. CUDA_VISIBLE_DEVICES counts listed devices ("-1" and blanks are none);
+    worker i of an embedded cluster is pinned to GPU i mod n."""
+    import types
+
+    import lightfit.distributed.run as R
+
+    def machine(cores, gib):
+        monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
+        pages = {"SC_PAGE_SIZE": 4096, "SC_PHYS_PAGES": gib * 2**30 // 4096}
+        monkeypatch.setattr(os, "sysconf", lambda name: pages[name])
+
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "")
+    machine(64, 8)
+    assert default_workers() == (4, 1)
+    machine(3, 64)
+    assert default_workers() == (3, 1)
+    machine(64, 1)
+    assert default_workers() == (1, 1)  # at least one
+    for vis, n in (("0,1", 2), ("-1", 0), ("", 0), ("2, 3,", 2)):
+        monkeypatch.setenv("CUDA_VISIBLE_DEVICES", vis)
+        assert R.gpu_count() == n, vis
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0,1,2")
+    assert default_workers() == (3, 1)
+    pin = R.PinGPU(3)
+    for name, want in ((4, "1"), ("2", "2"), ("tcp://127.0.0.1:1", "2")):  # a name that is no index: left alone
+        pin.setup(types.SimpleNamespace(name=name))
+        assert os.environ["CUDA_VISIBLE_DEVICES"] == want, name
+
+
+def test_cli_embedded_cluster_gets_the_workers_and_threads_asked_for(tmp_path, monkeypatch):
+    """--workers and --threads-per-worker size the embedded LocalCluster (not each other), the workers'
+    Dr.Jit/OpenMP threads follow --threads-per-worker, and XLA's own threading is turned off only for
+    single-threaded workers. The cluster is stood in for; the client then fails to connect."""
+    import distributed
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    made = []
+
+    class Recorder:
+        def __init__(self, **kw):
+            made.append(kw)
+
+        def close(self):
+            pass
+
+    def unreachable(*a, **k):
+        raise OSError("Timed out trying to connect")
+
+    monkeypatch.setattr(distributed, "LocalCluster", Recorder)
+    monkeypatch.setattr(distributed, "Client", unreachable)
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    base = ["field-run", "--n-plants", "4", "--steps", "14:15", "--out", str(tmp_path / "r.nc")]
+    for workers, threads in ((3, 2), (2, 1)):
+        r = CliRunner().invoke(app, [*base, "--workers", str(workers), "--threads-per-worker", str(threads)])
+        assert r.exit_code == 2 and "option --connect-timeout" in " ".join(r.stderr.split()), r.output
+        kw = made.pop()
+        assert (kw["n_workers"], kw["threads_per_worker"], kw["processes"]) == (workers, threads, True)
+        assert kw["env"]["LIGHTFIT_WORKER_THREADS"] == kw["env"]["OMP_NUM_THREADS"] == str(threads)
+        assert ("--xla_cpu_multi_thread_eigen=false" in kw["env"].get("XLA_FLAGS", "")) == (threads == 1)
+
+
+def test_cli_field_run_options_reach_the_run(tmp_path, monkeypatch):
+    """Each field-run option reaches its FieldRun / run_field parameter, and the parts folder is
+    OUT.parts: kept by default, emptied first with --no-resume. run_field is stood in for (it times out)."""
+    from typer.testing import CliRunner
+
+    import lightfit.distributed.run as R
+    from lightfit.cli import app
+
+    seen = []
+
+    def fake_run_field(run, **kw):
+        parts = kw["parts"]
+        seen.append((run, kw, sorted(p.name for p in parts.iterdir()) if parts.exists() else None))
+        raise TimeoutError
+
+    monkeypatch.setattr(R, "run_field", fake_run_field)
+    out = tmp_path / "r.nc"
+    parts = tmp_path / "r.nc.parts"
+    parts.mkdir()
+    (parts / "tile0-chunk0.pkl").write_bytes(b"kept")
+    args = ["field-run", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1", "--steps", "12:15"]
+    args += ["--tiles", "2", "--halo-rows", "1", "--time-chunks", "3", "--workers", "3", "--threads-per-worker", "2"]
+    args += ["--timeout", "5", "--connect-timeout", "7", "--out", str(out)]
+    for extra, kept, again in (([], ["tile0-chunk0.pkl"], "the same command"), (["--no-resume"], None, "without")):
+        r = CliRunner().invoke(app, [*args, *extra])
+        err = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and "option --timeout" in err and "within 5 s" in err, r.output
+        assert str(parts) in err and again in err, err
+        run, kw, listing = seen.pop()
+        assert (run.tiles, run.halo_rows, run.time_chunks) == (2, 1, 3)
+        assert (kw["scheduler"], kw["workers"], kw["threads_per_worker"]) == (None, 3, 2)
+        assert (kw["timeout_s"], kw["connect_timeout_s"], kw["parts"]) == (5, 7, parts)
+        assert listing == kept
+    assert not out.exists()

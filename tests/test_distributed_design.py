@@ -141,3 +141,103 @@ def test_the_render_key_names_only_the_rendered_steps(model):
     for x, y in zip(with_night.render(leaf), alone.render(leaf)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert E.render_key(E.restrict(base, [False, True, True])) != E.render_key(model)
+
+
+class _Done:
+    """A finished future of :class:`_Client` (the task is not run: its result says how many points it had)."""
+
+    status = "finished"
+
+    def __init__(self, n):
+        self.n = n
+
+    def done(self):
+        return True
+
+    def result(self):
+        return {"points": self.n, "rendered": self.n}
+
+    def release(self):
+        pass
+
+
+class _Client:
+    """Two workers; records the points of each submitted chunk."""
+
+    def __init__(self):
+        self.chunks = []
+
+    def nthreads(self):
+        return {"tcp://w1": 1, "tcp://w2": 1}
+
+    def submit(self, fn, chunk, key, pure):
+        self.chunks.append(chunk.leaf)
+        return _Done(len(chunk.leaf))
+
+
+def _fake_model():
+    """What render_design reads of a model: its steps (one, daytime) and its scenario's weather."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    times = pd.date_range("2016-04-20 10:00", periods=2, freq="30min", tz="UTC")
+    return SimpleNamespace(
+        day=np.array([True]), times=times[1:], scenario=SimpleNamespace(weather=pd.DataFrame(index=times))
+    )
+
+
+def test_missing_points_lists_a_repeated_point_once(tmp_path):
+    """A point given twice is rendered once; a point whose render file exists is not missing."""
+    key = {"design": "test"}
+    a, b = [0.1, 0.2, 0.3], [0.4, 0.5, 0.6]
+    np.testing.assert_array_equal(missing_points([a, a, b, a], tmp_path, key), [a, b])
+    E.render_file(tmp_path, key, a).touch()
+    np.testing.assert_array_equal(missing_points([a, b, b], tmp_path, key), [b])
+    assert missing_points([a], tmp_path, key).shape == (0, 3)
+
+
+def test_render_design_shares_the_missing_points_over_the_workers(tmp_path, monkeypatch):
+    """Default chunk: the missing points shared evenly, rounded up (3 points on 2 workers: 2 + 1, in
+    order); chunk=n: n per task; chunk=0 refused. The new renders count as this process's (3 rendered,
+    3 fewer cache hits)."""
+    monkeypatch.setattr(E, "COUNTS", {"rendered": 0, "cached": 10})
+    pts = np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3]])
+    model, key = _fake_model(), {"design": "test"}
+    client = _Client()
+    info = render_design(client, model, pts, tmp_path, key, progress=False)
+    assert [len(c) for c in client.chunks] == [2, 1] and [i["points"] for i in info] == [2, 1]
+    np.testing.assert_array_equal(np.concatenate(client.chunks), pts)
+    assert E.COUNTS == {"rendered": 3, "cached": 7}
+    client = _Client()
+    render_design(client, model, pts, tmp_path, key, chunk=3, progress=False)
+    assert [len(c) for c in client.chunks] == [3]
+    with pytest.raises(InputError, match="chunk"):
+        render_design(_Client(), model, pts, tmp_path, key, chunk=0, progress=False)
+
+
+def test_design_renderer_joins_the_scheduler_only_when_a_point_is_missing(tmp_path, monkeypatch):
+    """A design already in the cache starts or joins no cluster; the first missing point joins the
+    given --scheduler (once, reused for the next call)."""
+    from contextlib import contextmanager
+
+    import lightfit.distributed.design as D
+
+    calls = []
+
+    @contextmanager
+    def fake_connect(scheduler=None, *, workers=None):
+        calls.append((scheduler, workers))
+        yield _Client()
+
+    monkeypatch.setattr(D, "connect", fake_connect)
+    monkeypatch.setattr(E, "COUNTS", {"rendered": 0, "cached": 0})
+    model, key = _fake_model(), {"design": "test"}
+    done, todo = [0.1, 0.2, 0.3], [0.4, 0.5, 0.6]
+    E.render_file(tmp_path, key, done).touch()
+    with design_renderer("tcp://scheduler:8786") as hook:
+        assert hook(model, [done], tmp_path, key) == []
+        assert calls == []
+        assert len(hook(model, [done, todo], tmp_path, key, progress=False)) == 1
+        hook(model, [todo], tmp_path, key, progress=False)
+    assert calls == [("tcp://scheduler:8786", None)]

@@ -12,7 +12,8 @@ A tile *measures* its block of the measurement area (:meth:`lightfit.plant.Field
 
 ``halo_rows=H`` (the reference paper's approach)
     A tile's scene is its block plus the plants within H rows/columns of it, clipped to the
-    field (H = ``field.buffer_rows`` reproduces ``Field.tiles``). Scenes are smaller (fewer
+    field (H = ``field.buffer_rows`` reproduces ``Field.tiles`` where the field has as many buffer
+    plants along the rows as buffer rows, the default). Scenes are smaller (fewer
     triangles render faster, less memory per worker), but a segment near a tile boundary no
     longer sees the far geometry beyond H rows, so its value differs from the single-process
     run by a *bias* (light leaking in through the missing plants), not by Monte Carlo noise.
@@ -43,7 +44,8 @@ class HaloField(Field):
     Plants, ids, seeds and positions are those of :class:`Field` (a plant is the same whatever
     the tiling). Only :meth:`tiles` differs: the buffer of a tile is the whole rest of the field
     (``halo_rows=None``: exact) or the plants within ``halo_rows`` rows and columns of its block,
-    clipped to the field's M×M grid (``halo_rows=buffer_rows`` gives ``Field.tiles``). A periodic
+    clipped to the field's M×M grid (``halo_rows=buffer_rows`` gives ``Field.tiles`` when
+    ``buffer_along == buffer_rows``: ``Field.tiles`` pads the columns by ``buffer_along``). A periodic
     field (``boundary="periodic"``) takes only ``halo_rows=None``: its tiles render the whole cell.
 
     Attributes:
