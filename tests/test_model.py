@@ -405,3 +405,86 @@ def test_fast_observables_cut_emulated_parts_at_zero_as_the_emulator_does(model)
     assert float(jnp.min(emu(THETA)[0])) == 0.0
     dark = fast(THETA)
     assert float(jnp.max(jnp.abs(dark["plant_par_umol_m2_s"]))) == 0.0
+
+
+def test_every_variables_units_are_the_unit_its_name_carries():
+    """A variable's name ends in its unit (``_umol_m2_s`` …), written out here as UDUNITS strings; the
+    fractions and their SDs are dimensionless. The results' own check compares attributes with the
+    schema itself, so a wrong unit in the schema (a mutation audit: canopy APAR's SD as "1") passed."""
+    suffixes = (  # longest first: "_umol_m2_s" before "_s"
+        ("_umol_m2_s", "umol m-2 s-1"),
+        ("_mol_m2_s", "mol m-2 s-1"),
+        ("_umol_mol", "umol mol-1"),
+        ("_w_m2", "W m-2"),
+        ("_kpa", "kPa"),
+        ("_deg", "degree"),
+        ("_ppm", "ppm"),
+        ("_m2", "m2"),
+        ("_offset_s", "s"),
+        ("tair_c", "degC"),
+    )
+    dimensionless = ("fapar", "transmittance", "fapar_sd", "transmittance_sd", "fapar_mc_sd", "transmittance_mc_sd")
+    checked = 0
+    for name, v in schema.VARIABLES.items():
+        unit = next((u for s, u in suffixes if name.endswith(s)), None)
+        if unit is None and name.endswith(dimensionless):
+            unit = "1"
+        if unit is not None:
+            assert v.units == unit, name
+            checked += 1
+    assert checked > 60
+
+
+def test_flags_are_cf_blank_separated_lists():
+    """CF flag_values and flag_meanings are blank-separated lists, one word per meaning (CF 1.x §3.5)."""
+    assert schema.variable("is_blade").attrs()["flag_values"] == "0 1"
+    assert schema.variable("is_blade").attrs()["flag_meanings"] == "no yes"
+    a = schema.variable("limitation").attrs()
+    assert a["flag_values"] == "-1 0 1"
+    assert a["flag_meanings"] == "not_a_blade Rubisco_limited electron_transport_limited"
+
+
+def test_nee_is_described_in_the_micrometeorological_sign_convention():
+    """NEE positive = CO2 released to the air (Baldocchi 2003): a canopy taking up 10 with no soil
+    respiration has NEE −10, and the results say so on NEE, its SD and its observations."""
+    from lightfit.model import observe
+
+    assert float(observe.chamber_nee(np.array([10.0]), np.array([0.0]), 0.0)[0][0]) == -10.0
+    for name in ("nee_umol_m2_s", "nee_mc_sd_umol_m2_s", "obs_nee_umol_m2_s"):
+        comment = schema.variable(name).comment
+        assert "positive = CO2 released to the air" in comment and "per unit ground area" in comment, name
+
+
+def test_a_finite_field_cannot_take_projected_direct_light():
+    """Projection casts rays over the periodic cell: a finite field is refused when the scenario is made
+    (before plants grow), and ``auto`` means projection only where the field is periodic."""
+    from lightfit.model.scenario import resolve_direct
+
+    assert resolve_direct("auto", "periodic") == "projection" and resolve_direct("auto", "finite") == "paths"
+    with pytest.raises(InputError, match="direct"):
+        resolve_direct("projection", "finite")
+    w = rep.forcing().iloc[[14]]
+    with pytest.raises(InputError, match="direct='projection' with a finite field"):
+        Scenario(weather=w, field=FIELD, direct="projection")
+    assert Scenario(weather=w, field=FIELD, direct="paths").direct == "paths"
+
+
+def test_forcing_lights_the_canopy_with_the_series_measured_par():
+    """Forcing.of takes the horizontal PAR of the light model from the series' PAR column wherever it has
+    one: DNI^PAR sin β + DHI^PAR equals that column at every step with light, also where it is not the
+    fixed 2.285 µmol J⁻¹ × GHI of a series without one (the bundled day's PAR is that constant, so only
+    a column of other values can show it is read)."""
+    from lightfit.model.scenario import Forcing
+    from lightfit.weather.units import par_from_ghi
+
+    el = np.array([-5.0, 10.0, 30.0, 55.0])
+    dni, dhi = np.array([0.0, 200.0, 600.0, 800.0]), np.array([0.0, 50.0, 100.0, 120.0])
+    ghi = dni * np.sin(np.radians(el)) * (el > 0) + dhi
+    measured = np.array([0.0, 1.7, 2.6, 1.9]) * ghi  # µmol m⁻² s⁻¹, any ratio to GHI
+    base = dict(dni_w_m2=dni, dhi_w_m2=dhi, sun_elevation_deg=el, tair_c=10.0, co2_ppm=400.0, rh=0.6, pair_kpa=100.0)
+    for par, want in ((measured, measured), (None, float(par_from_ghi(1.0)) * ghi)):
+        w = pd.DataFrame({**base, **({} if par is None else {"par_umol_m2_s": par})})
+        f = Forcing.of(w)
+        horizontal = np.asarray(f.dni_par) * np.sin(np.radians(el)) + np.asarray(f.dhi_par)
+        np.testing.assert_allclose(horizontal[1:], want[1:], rtol=1e-12)
+        assert np.asarray(f.day).tolist() == [False, True, True, True]

@@ -577,3 +577,80 @@ def test_field_label_names_the_buffers():
     assert (
         field_label({"boundary": "periodic", "buffer_rows": 0}) == "periodic boundary (one cell of an infinite field)"
     )
+
+
+def test_canopy_apar_and_fapar_are_absorbed_par_whatever_the_plant_par_kind():
+    """APAR and fAPAR are the canopy's *absorbed* PAR even where plant PAR is the incident kind (a
+    mutation audit: APAR built from the plant-PAR kind passed every test, all of which ran absorbed).
+    By hand: areas 0.1 and 0.3 m² on 0.2 m² of ground; absorbed 900 and 400 give
+    (90 + 120) / 0.2 = 1050 µmol m⁻² s⁻¹, SD √((10·0.5)² + (20·1.5)²) = √925; over 1500 above, 0.7."""
+    area = np.array([0.1, 0.3])
+    incident, incident_sd = np.array([[1000.0, 500.0]]), np.array([[30.0, 40.0]])
+    absorbed, absorbed_sd = np.array([[900.0, 400.0]]), np.array([[10.0, 20.0]])
+    o = O.observables(
+        incident, incident_sd, area, np.array([[10.0, 5.0]]), np.array([[0.1, 0.1]]), area, 0.2,
+        absorbed=absorbed, absorbed_mc_sd=absorbed_sd, ground_area_m2=0.2, above_par=np.array([1500.0]),
+    )  # fmt: skip
+    np.testing.assert_allclose(o["plant_par_umol_m2_s"], [(1000 * 0.1 + 500 * 0.3) / 0.4], rtol=1e-12)
+    np.testing.assert_allclose(o["canopy_apar_umol_m2_s"], [1050.0], rtol=1e-12)
+    np.testing.assert_allclose(o["canopy_apar_mc_sd_umol_m2_s"], [925.0**0.5], rtol=1e-12)
+    np.testing.assert_allclose(o["fapar"], [0.7], rtol=1e-12)
+    np.testing.assert_allclose(o["fapar_mc_sd"], [925.0**0.5 / 1500.0], rtol=1e-12)
+
+
+def test_daytime_is_light_with_the_sun_above_minus_one_degree():
+    """The rendered steps: DNI + DHI > 0 and the sun above −1° (the documented rule, which keeps the
+    twilight steps where refraction already shows the sun's disc and the sky is lit)."""
+    from lightfit.model.scenario import daytime
+
+    w = pd.DataFrame(
+        {
+            "sun_elevation_deg": [-3.0, -1.0, -0.5, 0.5, 30.0, 30.0],
+            "dni_w_m2": [0.0, 0.0, 0.0, 5.0, 0.0, 0.0],
+            "dhi_w_m2": [2.0, 3.0, 4.0, 8.0, 100.0, 0.0],
+        }
+    )
+    np.testing.assert_array_equal(daytime(w), [False, False, True, True, True, False])
+
+
+def test_soil_respiration_q10_takes_the_ends_of_its_range():
+    """Q₁₀ = 1 (a constant respiration, the documented 'no temperature dependence') and 5 are accepted;
+    just outside them is refused."""
+    from lightfit.model.scenario import Scenario
+
+    w = rep.forcing().iloc[[14]]
+    for q10 in (1.0, 5.0):
+        assert Scenario(weather=w, soil_respiration_q10=q10).soil_respiration_q10 == q10
+    for q10 in (0.99, 5.01):
+        with pytest.raises(InputError, match="soil_respiration_q10"):
+            Scenario(weather=w, soil_respiration_q10=q10)
+
+
+def test_mc_covariance_shares_each_segments_sky_error_across_steps_and_not_its_sun_error():
+    """Plant PAR is linear in the parts, so its covariance is written out by hand: with weights
+    w_s = a_s / Σa, step t's sky loading w_s·DHI_t·se_sky and sun loading w_s·DNI_t·se_sun;
+    Cov(t, t') = Σ_s sky_t·sky_t' + δ_tt' Σ_s sun_t² (module docstring; a mutation audit: sun and sky
+    rows swapped passed every test)."""
+    from lightfit.model.scenario import Forcing
+    from lightfit.photosynthesis import parameter_set
+
+    two = np.ones(2)
+    fc = Forcing(
+        day=np.array([True, True]), dni_par=np.array([800.0, 400.0]), dhi_par=np.array([200.0, 300.0]),
+        tair_c=20 * two, co2_ppm=400 * two, rh=0.6 * two, pair_kpa=100 * two,
+    )  # fmt: skip
+    area = np.array([1.0, 3.0])
+    op = O.ObservationOperator(
+        forcing=fc, area_m2=area, is_blade=np.array([True, True]), par_kind="absorbed", denominator_m2=1.0,
+        params=parameter_set("winter_wheat"), ground_area_m2=1.0, sun_elevation_deg=np.array([40.0, 20.0]),
+    )  # fmt: skip
+    values = np.full((2, 4, 2), 0.3)  # (T_day, PARTS, S)
+    se = np.zeros((2, 4, 2))
+    se[:, 2] = [[0.01, 0.02], [0.03, 0.04]]  # absorbed_sun
+    se[:, 3] = [[0.05, 0.06], [0.05, 0.06]]  # absorbed_sky: one error per segment for the day
+    cov = O.mc_covariance(op, values, se, Theta(), ["plant_par_umol_m2_s"])
+    w = area / area.sum()
+    sky = w * fc.dhi_par[:, None] * se[:, 3]
+    sun = w * fc.dni_par[:, None] * se[:, 2]
+    want = sky @ sky.T + np.diag((sun**2).sum(1))
+    np.testing.assert_allclose(cov, want, rtol=1e-10)

@@ -208,3 +208,25 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     assert res["precision"] == "float64" and res["method"] == "lbfgsb"  # the command line's default
     r = runner.invoke(app, ["calibrate", str(obs), "--quick", "--parameters", "shininess"])
     assert r.exit_code == 2 and "unknown parameter" in r.stderr and "shininess" in r.stderr
+
+
+def test_dates_are_sorted_and_a_repeated_date_is_refused():
+    """Several dates run in calendar order; the same date twice would run (and concatenate) one day twice."""
+    from lightfit.errors import InputError
+
+    assert rep.as_dates(("2016-04-27", "2016-04-20")) == ("2016-04-20", "2016-04-27")
+    for dates in (("2016-04-20", "2016-04-20"), ()):
+        with pytest.raises(InputError, match="date"):
+            rep.as_dates(dates)
+    with pytest.raises(InputError, match="date"):
+        rep.ReplicationConfig(dates=("2016-04-20", "2016-04-20"))
+
+
+def test_only_a_site_south_of_the_equator_needs_its_season_start():
+    """5 March is refused as a default only south of the equator (latitude < 0); the equator keeps it."""
+    from lightfit.errors import InputError
+    from lightfit.weather.site import Site
+
+    assert rep.check_season_start(None, Site(0.0, 10.0, 0.0, "equator", "UTC")) is None
+    with pytest.raises(InputError, match="season_start"):
+        rep.check_season_start(None, Site(-0.5, 10.0, 0.0, "just south", "UTC"))
