@@ -790,3 +790,85 @@ def test_the_surrogates_check_fails_on_either_side():
     assert agrees(10.0, 12.0, 1.0, 3.0) and agrees(10.0, 8.0, 1.0, 3.0)
     assert not agrees(10.0, 13.1, 1.0, 3.0) and not agrees(10.0, 6.9, 1.0, 3.0)
     assert not agrees(float("inf"), 10.0, 1.0, 3.0)
+
+
+def test_bounds_may_reach_the_domains_own_ends():
+    """check_bounds takes lo_d ≤ lo < hi ≤ hi_d (its docstring and its message): a pair on the
+    domain's own ends, [0, 1] for specular or [0, ∞) for the light factor, is valid and kept (a
+    mutation audit: refusing lo = the domain's lower end survived)."""
+    from lightfit.inference.calibration import check_bounds
+
+    got = check_bounds({"specular": (0.0, 1.0), "light_factor": (0.0, math.inf)}, ("specular", "light_factor"))
+    assert got == {"specular": (0.0, 1.0), "light_factor": (0.0, math.inf)}
+    assert check_bounds({"specular": (0.0, 0.4)}, ("specular", "roughness")) == {
+        "specular": (0.0, 0.4),
+        "roughness": (0.0, 1.0),
+    }
+
+
+def test_on_edge_by_its_docstring():
+    """Within EDGE_SHARE (inclusive) of a finite end, of the range's width, or of max(|v|, 1) where the
+    range is unbounded above: hand values (a mutation audit: '<' for '≤' and the width |v| instead
+    of max(|v|, 1) survived; no test called on_edge directly)."""
+    from lightfit.inference.calibration import EDGE_SHARE, on_edge
+
+    assert on_edge(EDGE_SHARE * 2.0, 0.0, 2.0)  # exactly at the share: on the edge
+    assert not on_edge(2.5 * EDGE_SHARE * 2.0, 0.0, 2.0)
+    assert on_edge(2.0 - EDGE_SHARE, 0.0, 2.0) and not on_edge(1.0, 0.0, 2.0)
+    # unbounded above: a light factor of 5e-4 is within 1e-3 · max(5e-4, 1) = 1e-3 of its lower end 0
+    assert on_edge(5e-4, 0.0, math.inf)
+    assert not on_edge(2e-3, 0.0, math.inf)
+    assert not on_edge(1e6, 0.0, math.inf)  # the infinite end is no edge
+
+
+def test_a_value_on_its_priors_bound_is_not_outside_it():
+    """The prior's range is closed (its density is finite on the bounds): a calibrated light factor of
+    exactly 4 or 0.25 gets no 'outside its prior's range' caution (a mutation audit: an open range
+    survived)."""
+    from lightfit.inference.calibration import fit_cautions
+
+    box, support = {"light_factor": (0.0, math.inf)}, {"light_factor": (0.25, 4.0)}
+    for v in (0.25, 4.0):
+        assert fit_cautions({"light_factor": v}, ["light_factor"], 1.0, 46, box, support) == [], v
+    assert fit_cautions({"light_factor": 4.01}, ["light_factor"], 1.0, 46, box, support)[0].endswith(
+        "lies outside its prior's range [0.25, 4]"
+    )
+
+
+def test_a_history_without_its_state_restarts_from_its_lowest_loss(tmp_path):
+    """Without a saved state a resume restarts from the history's best point (the module docstring):
+    the step with the lowest loss, whichever line it is on. With the history's last line made the
+    worst, a rerun with max_steps = the steps already taken answers the second line's θ (a mutation
+    audit: restarting from the last line survived)."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=3, start={"light_factor": 0.6, "vcmax_scale": 0.6}, **kw)
+    (tmp_path / "h.jsonl.state.npz").unlink()
+    steps = [json.loads(x) for x in h.read_text().splitlines() if "loss" in json.loads(x)]
+    assert len(steps) == 3
+    steps[-1]["loss"] = 10 * max(r["loss"] for r in steps)  # the last line is now the worst
+    h.write_text("".join(json.dumps(r) + "\n" for r in steps))
+    best = min(steps, key=lambda r: r["loss"])
+    assert best is steps[1]
+    res = calibrate(model, obs, history=h, max_steps=3, start={"light_factor": 0.6, "vcmax_scale": 0.6}, **kw)
+    assert res.stopped_by == "max_steps"
+    assert res.theta["light_factor"] == pytest.approx(best["theta"]["light_factor"], rel=1e-12)
+    assert res.theta["vcmax_scale"] == pytest.approx(best["theta"]["vcmax_scale"], rel=1e-12)
+
+
+def test_an_exact_resume_drops_history_lines_written_after_its_state(tmp_path):
+    """A kill between a step's history line and the state saved after it leaves a line the state does
+    not know: the exact resume drops it and redoes the step, so the steps are 1, 2, 3 once each
+    (a mutation audit: keeping every line survived, giving step 3 twice)."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=2, **kw)
+    lines = [json.loads(x) for x in h.read_text().splitlines()]
+    orphan = {**lines[1], "step": 3, "loss": lines[1]["loss"] / 2}  # written, then killed before the state
+    h.write_text("".join(json.dumps(r) + "\n" for r in [*lines, orphan]))
+    res = calibrate(model, obs, history=h, max_steps=3, **kw)
+    *steps, final = [json.loads(x) for x in h.read_text().splitlines()]
+    assert [r["step"] for r in steps] == [1, 2, 3] and final["steps"] == res.steps == 3
+    assert steps[2]["loss"] != orphan["loss"]

@@ -319,3 +319,96 @@ def test_the_emulator_check_leaves_out_readings_without_monte_carlo_error():
     err = emulator_error_over_mc_sd(lik, sur, full)
     assert err == {"plant_par": pytest.approx(0.5 / 2.0), "canopy_an": 0.0}  # SD 2·√shape, shape 1 at step 3
     json.dumps(err, allow_nan=False)
+
+
+def test_the_diagonal_likelihood_scales_the_monte_carlo_variance_by_mc_scale():
+    """Independent steps (no correlation, every reading on a step) with mc_scale c = 2: log L is
+    Σ log N(y | m, (λσ)² + c·s²) as scipy.stats.norm computes it, and the loss ½ Σ r²/((σ)² + c·s²);
+    the model's own Monte Carlo covariance is diag(s²), not scaled by c, and in whitened coordinates
+    diag(s²/v) (a mutation audit: c dropped from the diagonal variance, or applied to the model's own
+    covariance, survived: every diagonal test used c = 1)."""
+    from scipy.stats import norm
+
+    obs, m, _ = _problem(4)
+    lik = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), mc_scale=2.0)
+    assert not lik.dense
+    y, mu, sd, s = [], [], [], []
+    for ser in (PAR, AN):
+        ok = ~np.isnan(obs[ser.value].to_numpy())
+        y += list(obs[ser.value].to_numpy()[ok])
+        mu += list(np.asarray(m[ser.value])[ok])
+        sd += list(obs[ser.sd].to_numpy()[ok])
+        s += list(np.asarray(m[ser.mc_sd])[ok])
+    y, mu, sd, s = (np.asarray(a) for a in (y, mu, sd, s))
+    for lam in (1.0, 0.7):
+        v = (lam * sd) ** 2 + 2.0 * s**2
+        assert float(lik.log_likelihood(m, lam)) == pytest.approx(norm.logpdf(y, mu, np.sqrt(v)).sum(), rel=1e-12)
+        if lam == 1.0:
+            assert float(lik.loss(m)) == pytest.approx(0.5 * np.sum((y - mu) ** 2 / v), rel=1e-12)
+        np.testing.assert_allclose(np.asarray(lik.mc_covariance(m)), np.diag(s**2), rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(lik.whitened_mc_covariance(m, lam)), np.diag(s**2 / v), rtol=1e-12)
+
+
+def test_a_single_unconverged_blade_has_no_likelihood():
+    """One blade whose photosynthesis did not converge, at one step, is enough: log L = −inf and the
+    loss +inf (the module's rule: a nonzero count), with and without the Monte Carlo correlation
+    (a mutation audit: a threshold of more than one blade survived; the only test double reports 2)."""
+    from lightfit.model.observe import CONVERGENCE_KEY
+
+    obs, m, corr = _problem()
+    for kw in ({}, {"mc_correlation": corr}):
+        lik = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), **kw)
+        ok = {**m, CONVERGENCE_KEY: jnp.zeros(T, jnp.int32)}
+        assert np.isfinite(float(lik.log_likelihood(ok))) and np.isfinite(float(lik.loss(ok)))
+        one = {**m, CONVERGENCE_KEY: jnp.zeros(T, jnp.int32).at[4].set(1)}
+        assert float(lik.log_likelihood(one)) == -np.inf
+        assert float(lik.loss(one)) == np.inf
+
+
+def test_correlation_of_by_hand():
+    """cov = [[4, 2, 0], [2, 9, 0], [0, 0, 0]]: correlation 2/(2·3) = 1/3 between the first two, and
+    the row without variance 1 on the diagonal and 0 off it (the docstring's rule), all shrunk by ε
+    towards the identity: (1 − ε)·C + ε·I (a mutation audit: without the explicit diagonal the
+    zero-variance row's diagonal was ε, not 1, and nothing noticed)."""
+    from lightfit.inference.likelihood import MC_CORRELATION_JITTER as eps
+
+    c = correlation_of(np.array([[4.0, 2.0, 0.0], [2.0, 9.0, 0.0], [0.0, 0.0, 0.0]]))
+    want = (1 - eps) * np.array([[1.0, 1 / 3, 0.0], [1 / 3, 1.0, 0.0], [0.0, 0.0, 1.0]]) + eps * np.eye(3)
+    np.testing.assert_allclose(c, want, rtol=1e-15, atol=0)
+    np.testing.assert_array_equal(np.diag(c), 1.0)
+
+
+def test_the_likelihood_forms_names():
+    """likelihood_form: "model" and an MCCorrelation are the model's form; None, "independent" and
+    "none" independent steps (the docstring's list); anything else is refused."""
+    from lightfit.inference.likelihood import likelihood_form
+
+    _, _, corr = _problem()
+    for given in (None, "independent", "none"):
+        assert likelihood_form(given) == {"mc_correlation": "independent", "mc_scale": 1.0}, given
+    for given in ("model", corr):
+        assert likelihood_form(given, 2) == {"mc_correlation": "model", "mc_scale": 2.0}
+    with pytest.raises(InputError, match="mc_correlation"):
+        likelihood_form("full")
+
+
+def test_the_observations_digest_sees_values_sds_and_gaps_but_not_the_files_layout():
+    """observations_digest (the resume key of a posterior or calibration): one changed SD, one changed
+    value or one more missing entry of a used series changes it; the column order or an unused series
+    does not (its docstring; a mutation audit: a digest without the SDs survived every fast test)."""
+    from lightfit.inference.likelihood import observations_digest
+
+    obs, _, _ = _problem()
+
+    def digest(o, use=("plant_par", "an")):
+        return observations_digest(GaussianLikelihood(o, TIMES, use), TIMES)
+
+    base = digest(obs)
+    for col, row, value in ((AN.sd, 2, 1.9), (AN.value, 2, 25.0), (PAR.value, 1, np.nan)):
+        other = obs.copy()
+        other.iloc[row, other.columns.get_loc(col)] = value
+        if col == PAR.value:
+            other.iloc[row, other.columns.get_loc(PAR.sd)] = np.nan
+        assert digest(other) != base, col
+    assert digest(obs[obs.columns[::-1]]) == base
+    assert digest(obs.assign(above_canopy_par_umol_m2_s=1500.0, above_canopy_par_sd_umol_m2_s=50.0)) == base

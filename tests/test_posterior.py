@@ -1334,3 +1334,110 @@ def test_the_emulators_degree_is_chosen_by_true_leave_one_out_errors():
             err.append(float((np.asarray(E.legendre_basis(u[i : i + 1], expo)) @ coef)[0] - y[i, 0]))
         assert emu.loo_rms[d] == pytest.approx(float(np.sqrt(np.mean(np.square(err)))), rel=1e-8)
     assert emu.degree == 2 and emu.loo_rms[2] < 0.1 * emu.loo_rms[1]
+
+
+def test_the_emulator_error_shift_is_the_linearised_posterior_mean_shift_by_hand():
+    """emulator_error_vs_width on the closed-form model, everything written out in numpy: whitened
+    residuals r = (y − m)/√v with v = (λσ)² + s², their Jacobian J in (light factor, Vcmax scale, λ)
+    by hand (∂r/∂λ = −r·λσ²/v), the emulator's error δm whitened as δr = −δm/√v at the observed
+    entries only (the missing An step left out), and the shift |Σ_post Jᵀ δr| / SD per parameter.
+    λ = 1.5 ≠ 1, so whitening at the wrong noise scale shows (a mutation audit: the report had no
+    test; dividing by the variance instead of the SD, or whitening at λ = 1, survived)."""
+    from lightfit.inference.observations import SERIES
+    from lightfit.inference.posterior import emulator_error_vs_width
+
+    model = FakeModel()
+    obs = _fake_obs(model)
+    names = ("light_factor", "vcmax_scale", "noise_scale")
+    lp = P.LogPosterior(model.observe, model.times, obs, names, P.PRIORS_INFORMED)
+    f, vc, lam = 1.05, 0.95, 1.5
+    x = np.array([f, vc, lam])
+    spec = float(lp.split(jnp.asarray(x))[0].specular)
+    shape = np.asarray(model.shape)
+    y_par, y_an = obs["plant_par_umol_m2_s"].to_numpy(), obs["canopy_an_umol_m2_s"].to_numpy()
+    v_par, v_an = (lam * 10.0) ** 2 + 4.0 * shape, lam**2 + 0.01 * shape
+    r_par = (y_par - f * (400 + 100 * spec) * shape) / np.sqrt(v_par)
+    r_an = (y_an - (vc * 20 * shape - 2.0)) / np.sqrt(v_an)
+    ok_an = ~np.isnan(y_an)
+    J = np.zeros((12, 3))
+    J[:6, 0] = -(400 + 100 * spec) * shape / np.sqrt(v_par)
+    J[:6, 2] = -r_par * lam * 100.0 / v_par
+    J[6:, 1] = np.where(ok_an, -20 * shape / np.sqrt(v_an), 0.0)
+    J[6:, 2] = np.where(ok_an, -np.nan_to_num(r_an) * lam / v_an, 0.0)
+    cov = np.array([[4e-4, 1e-4, 0.0], [1e-4, 9e-4, 2e-4], [0.0, 2e-4, 0.04]])
+    rng = np.random.default_rng(11)
+    err = {s.value: np.zeros((2, 6)) for s in SERIES}
+    err["plant_par_umol_m2_s"] = rng.normal(0, 5.0, (2, 6))
+    err["canopy_an_umol_m2_s"] = rng.normal(0, 0.5, (2, 6))
+    validation = {f"err_{k}": v for k, v in err.items()}
+    validation |= {"parts_rms": 0.1, "parts_max": 0.3, "se_ratio": np.array([1.0, 0.9])}
+    out = emulator_error_vs_width(lp, x, cov, validation)
+    sd = np.sqrt(np.diag(cov))
+    shifts, norms = [], []
+    for i in range(2):
+        dr_par = -err["plant_par_umol_m2_s"][i] / np.sqrt(v_par)
+        dr_an = np.where(ok_an, -err["canopy_an_umol_m2_s"][i], 0.0) / np.sqrt(v_an)
+        dr = np.concatenate([dr_par, dr_an])
+        shifts.append(np.abs(cov @ J.T @ dr) / sd)
+        norms.append(np.linalg.norm(dr))
+    shifts = np.asarray(shifts)
+    assert out["n_test"] == 2
+    assert out["max_whitened_error_norm"] == pytest.approx(max(norms), rel=1e-10)
+    assert out["max_shift_over_sd"] == pytest.approx(shifts.max(), rel=1e-8)
+    np.testing.assert_allclose(out["shift_over_sd_per_point"], shifts.max(axis=1), rtol=1e-8)
+    for j, row in enumerate(out["per_parameter"]):
+        assert row["parameter"] == names[j] and row["posterior_sd"] == pytest.approx(sd[j], rel=1e-12)
+        assert row["max_shift_over_sd"] == pytest.approx(shifts[:, j].max(), rel=1e-8)
+        assert row["rms_shift_over_sd"] == pytest.approx(np.sqrt(np.mean(shifts[:, j] ** 2)), rel=1e-8)
+    assert out["max_abs_error_plant_par_umol_m2_s"] == pytest.approx(np.abs(err["plant_par_umol_m2_s"]).max())
+
+
+def test_several_days_validations_join_by_hand():
+    """Two days' emulator validations as one: errors side by side in time, the parts' RMS the root of
+    the mean square of the days' RMS, the largest part error the larger, per held-out point the
+    smaller emulated ÷ rendered SE ratio (the day furthest below 1), the first day's test points
+    (a mutation audit: a mean of RMS values and a mean SE ratio survived; no test)."""
+    from lightfit.inference.posterior import _join_validations
+    from lightfit.model.emulator import VALIDATED
+
+    def day(n_steps, offset, rms, mx, ratio):
+        block = offset + np.arange(2 * n_steps, dtype=float).reshape(2, n_steps)
+        d = {f"{p}_{o}": block for o in VALIDATED for p in ("err", "full")}
+        return d | {
+            "parts_rms": rms,
+            "parts_max": mx,
+            "se_ratio": np.asarray(ratio),
+            "leaf_test": np.full((2, 3), offset),
+        }
+
+    a, b = day(3, 0.0, 3.0, 5.0, [0.9, 1.2]), day(2, 100.0, 4.0, 2.0, [1.1, 0.8])
+    out = _join_validations([a, b])
+    o = VALIDATED[0]
+    np.testing.assert_array_equal(out[f"err_{o}"], [[0, 1, 2, 100, 101], [3, 4, 5, 102, 103]])
+    assert out["parts_rms"] == pytest.approx(np.sqrt((9.0 + 16.0) / 2), rel=1e-15)
+    assert out["parts_max"] == 5.0
+    np.testing.assert_array_equal(out["se_ratio"], [0.9, 0.8])
+    np.testing.assert_array_equal(out["leaf_test"], np.zeros((2, 3)))
+    assert _join_validations([a]) is a
+
+
+def test_the_predictive_draws_samples_without_replacement():
+    """Asked for as many draws as there are samples, the predictive shows every sample once (draws
+    without replacement), read back from the closed-form PAR = f·(400 + 100·specular)·shape (a
+    mutation audit: drawing with replacement survived)."""
+    from lightfit.inference.observations import SERIES
+    from lightfit.inference.posterior import predictive
+
+    model = FakeModel()
+    obs = _fake_obs(model)
+
+    def observe(th):
+        out = model.observe(th)
+        return {k: out.get(k, jnp.zeros(6)) for s in SERIES for k in (s.value, s.mc_sd)}
+
+    lp = P.LogPosterior(observe, model.times, obs, ("light_factor",), P.PRIORS_INFORMED)
+    samples = np.linspace(0.8, 1.2, 20)[:, None]
+    p = predictive(lp, obs, model.times, samples, 20, seed=3)
+    spec = float(lp.split(jnp.asarray([1.0]))[0].specular)
+    f = np.asarray(p["plant_par_umol_m2_s"])[:, 3] / (400 + 100 * spec)  # shape 1 at step 3
+    np.testing.assert_allclose(np.sort(f), samples[:, 0], rtol=1e-12)
