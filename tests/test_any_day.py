@@ -428,3 +428,47 @@ def test_a_window_that_leaves_much_of_the_days_light_out_is_said(tmp_path, monke
     # a window the user chose is theirs: nothing said
     weather(resolve(ModelOptions(quick=True, weather_file=str(path), dates=["2016-06-21"], hours=10.0, **where)))
     assert len(said) == 1
+
+
+@pytest.mark.parametrize(
+    "where",
+    [{"latitude_deg": 90.0}, {"latitude_deg": -90.0}, {"longitude_deg": 180.0}, {"longitude_deg": -180.0}],
+)
+def test_a_site_at_the_ends_of_the_coordinate_ranges_is_taken(where):
+    """Latitude −90 … 90 and longitude −180 … 180 include their ends (a pole, the antimeridian), as
+    Site's docstring states (a mutation audit: the ends refused survived)."""
+    site = Site(**where)
+    assert getattr(site, next(iter(where))) == next(iter(where.values()))
+
+
+@pytest.mark.parametrize("attr", ["latitude_deg", "longitude_deg", "altitude_m"])
+def test_a_site_coordinate_given_as_a_bool_is_refused(attr):
+    """True is an int to Python (1°N, 1 m) but never a coordinate: refused naming the parameter (a
+    mutation audit: the bool check dropped survived)."""
+    with pytest.raises(InputError, match=attr):
+        Site(**{attr: True})
+
+
+def test_part_hour_offsets_are_written_with_their_minutes():
+    """India (UTC+05:30, Asia/Kolkata), Newfoundland (UTC−03:30 in winter, America/St_Johns) and Nepal
+    (UTC+05:45) as tables write them, by hand (a mutation audit: the minutes dropped, UTC+5 for India,
+    survived)."""
+    from lightfit.weather.site import local_clock, offset_label
+
+    assert offset_label(pd.Timedelta(hours=5, minutes=30)) == "UTC+5:30"
+    assert offset_label(-pd.Timedelta(hours=3, minutes=30)) == "UTC-3:30"
+    assert offset_label(pd.Timedelta(hours=5, minutes=45)) == "UTC+5:45"
+    assert offset_label(pd.Timedelta(0)) == "UTC" and offset_label(pd.Timedelta(hours=-5)) == "UTC-5"
+    # a repeated local hour in a part-hour zone: Lord Howe Island falls back by 30 min (02:00 → 01:30)
+    t = pd.DatetimeIndex(["2016-04-02 14:30", "2016-04-02 15:00"], tz="UTC")
+    assert list(local_clock(t, "Australia/Lord_Howe")) == ["01:30 UTC+11", "01:30 UTC+10:30"]
+
+
+def test_a_results_file_missing_some_site_keys_takes_selhausens_for_them():
+    """Site.from_attrs reads key by key: a file recording only its latitude keeps Selhausen's longitude
+    6.447° E, altitude 103 m and time zone (the reference paper's site, 50.865 N 6.447 E; a mutation
+    audit: the latitude taken as the missing longitude's default survived)."""
+    site = Site.from_attrs({"site": "south", "site_latitude_deg": -33.92})
+    assert (site.latitude_deg, site.longitude_deg, site.altitude_m) == (-33.92, 6.447, 103.0)
+    assert site.name == "south" and site.timezone == "Europe/Berlin"
+    assert Site.from_attrs({}) == Site(50.865, 6.447, 103.0, "Selhausen", "Europe/Berlin")

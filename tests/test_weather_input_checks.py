@@ -653,3 +653,48 @@ def test_a_missing_quantity_is_named_as_the_files_format_names_it(tmp_path):
     lf = write_lightfit_csv(df, tmp_path / "lf.csv", {"provenance": "synthetic"})
     with pytest.raises(InputError, match=r"missing column\(s\) co2_ppm \(expected co2_ppm \(CO2 mole fraction in air"):
         read_weather(lf)
+
+
+def test_daylight_with_the_sun_just_below_the_horizon_is_left_to_the_timing_check():
+    """Light at two steps with the sun below the horizon (here in civil twilight, −3° and −1°) and
+    little at the high sun is a timing error, which check_light_fits_sun names: the unit check does not
+    judge such a series (its docstring; a mutation audit: 'below the horizon' taken as below −6°
+    survived, the 12 h shift above putting the light far below it)."""
+    from lightfit.weather.solar import check_light_fits_sun, check_radiation_scale
+
+    t = pd.date_range("2016-04-20 10:00", periods=4, freq="10min", tz="UTC")
+    df = pd.DataFrame({"ghi_w_m2": [300.0, 300.0, 1.0, 1.0]}, index=t)
+    el = pd.Series([-3.0, -1.0, 30.0, 40.0], index=t)
+    check_radiation_scale(df, el)  # 1 W m⁻² is 0.1 % of clear sky at 30–40°, but the timestamps are at fault
+    with pytest.raises(InputError, match="more light than their sun can give"):
+        check_light_fits_sun(df, el)
+
+
+@pytest.mark.parametrize(("kpa", "ok"), [(108.33, True), (110.0, True), (112.0, False), (50.0, True), (49.0, False)])
+def test_air_pressure_outside_what_a_field_can_have_is_refused(kpa, ok):
+    """Station pressure 50–110 kPa (series.BOUNDS): the highest sea-level pressure on record is
+    ≈ 108.3 kPa (Agata, Siberia, 31 Dec 1968; WMO archive of weather and climate extremes), so 112 kPa
+    is a unit or offset slip; 50 kPa is ≈ 5 500 m (a mutation audit: the upper bound raised to 120 kPa survived)."""
+    from lightfit.weather.series import check_and_repair
+
+    t = pd.date_range("2016-04-20 10:00", periods=4, freq="10min", tz="UTC")
+    df = pd.DataFrame({"ghi_w_m2": 500.0, "tair_c": 15.0, "rh": 0.6, "pair_kpa": 100.0, "co2_ppm": 400.0}, index=t)
+    df.iloc[2, df.columns.get_loc("pair_kpa")] = kpa
+    lines = pd.Series(range(2, 6), index=t)
+    if ok:
+        assert check_and_repair(df, lines, "w.csv")["pair_kpa"].iloc[2] == kpa
+    else:
+        with pytest.raises(InputError, match=r"w\.csv.*pair_kpa.*50 … 110"):
+            check_and_repair(df, lines, "w.csv")
+
+
+def test_a_window_may_end_on_the_series_last_row():
+    """A window inside the series' span is taken, its end included: the bundled day's instants run
+    00:00–23:50 UTC, so 20:50 + 3 h ends on its last row and gives 7 half-hourly steps (a mutation
+    audit: the window refused when it ended on the last row survived)."""
+    df = read_weather(RECON)
+    assert df.index[-1] == pd.Timestamp("2016-04-20 23:50", tz="UTC")
+    w = weather_window(df, "2016-04-20 20:50+00:00", 3.0)
+    assert list(w.index) == list(pd.date_range("2016-04-20 20:50", "2016-04-20 23:50", freq="30min", tz="UTC"))
+    with pytest.raises(InputError, match="not covered by the series"):
+        weather_window(df, "2016-04-20 21:00+00:00", 3.0)

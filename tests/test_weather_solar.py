@@ -8,7 +8,7 @@ import pvlib
 import pytest
 
 from lightfit.errors import InputError
-from lightfit.weather import SELHAUSEN, add_solar, resample, solar_position, split_direct_diffuse
+from lightfit.weather import SELHAUSEN, Site, add_solar, resample, solar_position, split_direct_diffuse
 
 
 def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> float:
@@ -257,3 +257,62 @@ def test_missing_light_is_refused_not_taken_as_darkness():
     df = pd.DataFrame({"ghi_w_m2": [500.0, np.nan, 520.0, 510.0], "tair_c": 15.0}, index=t)
     with pytest.raises(InputError, match=r"column 'ghi_w_m2'.*1 missing value.*2016-04-20 10:30"):
         add_solar(df)
+
+
+def test_horizontal_irradiance_is_the_cosine_law_with_no_beam_below_the_horizon():
+    """DNI sin⁺β + DHI (Duffie & Beckman 2013, eq. 2.15.1 for a horizontal surface), by hand: 700 W m⁻²
+    of beam at β = 30° adds 350 to the 100 of sky; at β = −10° the beam is behind the horizon and adds
+    nothing, not |sin β| × 700 = 121.6 (a mutation audit: the absolute value for the cut at 0 survived,
+    every caller's beam being 0 there)."""
+    from lightfit.weather.solar import horizontal_irradiance
+
+    got = horizontal_irradiance(np.array([700.0, 700.0, 700.0]), np.array([100.0] * 3), np.array([30.0, -10.0, 0.0]))
+    np.testing.assert_allclose(got, [450.0, 100.0, 100.0], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(("excess", "refused"), [(20.0, False), (25.0, True)])
+def test_diffuse_par_may_exceed_par_by_the_two_instrument_margin_in_photons(excess, refused):
+    """The margin of a diffuse column over its total is 1.15 × total + 10 W m⁻²; for diffuse PAR the
+    10 W m⁻² is in photons, 10 × 0.50 × 4.57 = 22.85 µmol m⁻² s⁻¹ (McCree 1972). Two dawn steps whose
+    diffuse PAR is 1.15 × PAR + 20 µmol m⁻² s⁻¹ are two instruments' rounding (cut to PAR); + 25 is
+    refused (a mutation audit: the margin left at 10 µmol m⁻² s⁻¹, unscaled, survived)."""
+    df = _two_sensor_day(0.5 * 4.57)
+    df["par_diffuse_umol_m2_s"] = 0.3 * df["par_umol_m2_s"]
+    el = solar_position(df.index)["sun_elevation_deg"]
+    dawn = df.index[(el > 2.0) & (el < 20.0)][:2]
+    df.loc[dawn, "par_diffuse_umol_m2_s"] = 1.15 * df.loc[dawn, "par_umol_m2_s"] + excess
+    if refused:
+        with pytest.raises(InputError, match=r"par_diffuse_umol_m2_s.*2 steps have more diffuse than PAR"):
+            add_solar(df)
+    else:
+        out = add_solar(df)
+        assert out.attrs["split_model"] == "diffuse"
+        note = next(q["detail"] for q in out.attrs["qc"] if q["kind"] == "split")
+        assert "diffuse cut to its total at 2 step(s)" in note
+        np.testing.assert_allclose(out.loc[dawn, "dhi_w_m2"], out.loc[dawn, "ghi_w_m2"], rtol=1e-12)
+
+
+def test_a_single_step_takes_bolands_15_minute_fit():
+    """A one-row series has no step to choose Boland's fit by: it takes the 15-minute fit
+    (a, b) = (8.645, 0.613) of Boland, Scott & Luther (2001), as boland_coeffs says, with k_t by hand
+    from pvlib's extraterrestrial irradiance (a mutation audit: the hourly fit for one row survived)."""
+    t = pd.DatetimeIndex([pd.Timestamp("2016-04-20 11:00", tz="UTC")])
+    el = solar_position(t)["sun_elevation_deg"]
+    ghi = pd.Series([600.0], index=t)
+    kt = 600.0 / (pvlib.irradiance.get_extra_radiation(t).to_numpy() * np.sin(np.radians(el.to_numpy())))
+    got = split_direct_diffuse(ghi, el, "boland")["dhi_w_m2"] / ghi
+    np.testing.assert_allclose(got, 1.0 / (1.0 + np.exp(8.645 * (kt - 0.613))), rtol=1e-9)
+
+
+def test_a_site_given_to_add_solar_overrides_the_series_own():
+    """The site asked for places the sun, not the one a series carries in its attrs: pvlib called
+    directly at Cape Town's coordinates (a mutation audit: the series' own site preferred survived)."""
+    t = pd.date_range("2016-04-20 00:00", periods=4, freq="10min", tz="UTC")  # night at both sites
+    df = pd.DataFrame({"ghi_w_m2": 0.0, "tair_c": 10.0}, index=t)
+    df.attrs["site"] = SELHAUSEN
+    cape = Site(-34.0, 18.5, 40.0, "Cape Town", "Africa/Johannesburg")
+    out = add_solar(df, site=cape)
+    sp = pvlib.solarposition.get_solarposition(t, -34.0, 18.5, altitude=40.0)
+    np.testing.assert_allclose(out["sun_elevation_deg"], sp["apparent_elevation"], atol=1e-9)
+    np.testing.assert_allclose(out["sun_azimuth_deg"], sp["azimuth"], atol=1e-9)
+    assert out.attrs["site"] == cape

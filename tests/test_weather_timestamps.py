@@ -368,3 +368,18 @@ def test_a_one_step_run_of_hourly_means_takes_a_reading_within_its_half_hour():
     assert reading("2016-04-20 10:10")[0] == 1500.0
     with pytest.raises(InputError, match="lies outside the run"):
         reading("2016-04-20 11:01")
+
+
+def test_sampled_steps_pass_through_the_origin_from_the_series_start():
+    """Sampling at 30 min through an origin inside the series (12:10 UTC) takes every row on that
+    grid, from the first one in the series (00:10) to the last (23:40), not only those from the origin
+    on (resample's docstring: the new steps pass through ``origin``; a mutation audit: the steps
+    started at the origin itself survived, window() cutting there anyway)."""
+    from lightfit.weather.bundled import bundled_path
+
+    df = read_lightfit_csv(bundled_path("2016-04-20"))
+    origin = pd.Timestamp("2016-04-20 12:10", tz="UTC")
+    out = resample(df, "30min", "sample", origin=origin)
+    want = pd.date_range("2016-04-20 00:10", "2016-04-20 23:40", freq="30min", tz="UTC")
+    assert list(out.index) == list(want) and origin in out.index
+    np.testing.assert_array_equal(out["tair_c"].to_numpy(), df.loc[want, "tair_c"].to_numpy())
