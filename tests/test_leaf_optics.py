@@ -211,3 +211,24 @@ def test_informed_priors_follow_the_run_leaf():
     assert {k: v for k, v in grey.items() if k != "subsurface"} == {
         k: v for k, v in PRIORS_INFORMED.items() if k != "subsurface"
     }
+
+
+def test_a_glossy_lobe_brighter_than_prospects_reflectance_is_refused_even_with_transmittance_left():
+    """With PROSPECT-D's R (xleaf called directly, photon-weighted over 400–700 nm) below the glossy
+    lobe's white-sky reflectance F0·Ē but R + T above it, a leaf would need a negative diffuse
+    reflection (subsurface T/(R + T − F0·Ē) > 1): refused. The default wheat leaf has R ≈ 0.061,
+    T ≈ 0.038, and specular 1 at roughness 0.5 reflects 0.08·Ē ≈ 0.070."""
+    from lightfit.light.bsdf import ggx_white_sky_albedo
+
+    t = LeafTraits()
+    r, _ = xleaf.simulate_leaf(chl=t.Cab, car=t.Car, antho=t.Anth, ewt=t.Cw, lma=t.Cm, N=t.N, transmittance=True)
+    lam = np.asarray(xleaf.wavelengths) * 1000.0
+    par = (lam > 399.5) & (lam < 700.5)
+    w = _planck_photons(lam[par])
+    r_par = np.sum(r[par] * w) / np.sum(w)
+    glossy = 0.08 * ggx_white_sky_albedo(0.5)
+    assert r_par < glossy < r_par + par_optics(t).T  # the case: transmittance would absorb the excess
+    with pytest.raises(InputError, match="specular"):
+        leaf_bsdf_parameters(t, specular=1.0, roughness=0.5)
+    ok = leaf_bsdf_parameters(t, specular=0.5, roughness=0.5)
+    assert 0 <= ok["subsurface"] <= 1 and 0 <= ok["base_color"] <= 1

@@ -194,3 +194,24 @@ def test_tabulated_albedo_is_smooth_in_roughness_across_the_tables_nodes():
         assert abs(g) > 1e-3, (r, g)  # a real slope (F0 = 0.08 of E's)
         assert g == pytest.approx(central, rel=2e-2), (r, g, central)
         assert left == pytest.approx(right, rel=5e-2), (r, left, right)  # no kink
+
+
+@pytest.mark.parametrize("rough", [0.1, 0.5, 0.9])
+def test_white_sky_albedo_is_the_cosine_weighted_sampled_albedo(rough):
+    """ggx_white_sky_albedo(r) = 2∫E(μ)μ dμ (the tabulated, trapezoid-integrated GGX albedo under a
+    uniform sky) against the plugin's own sampled albedo of a glossy-only leaf (specular 1, base 0:
+    albedo 0.08·E(μ)) with incidence drawn cosine-weighted (μ = √u, seed 11), which is the same
+    integral by Monte Carlo through the plugin's sample/eval (measured within 1.1e-3 at seeds 11 and
+    12). A hemispherical mean without the cosine, ∫E dμ, is 0.004–0.04 off at these roughnesses."""
+    from lightfit.light.bsdf import ggx_white_sky_albedo
+
+    b = mi.load_dict(leaf_bsdf_dict(1.0, rough, 0.0, 0.0))
+    rng = np.random.default_rng(11)
+    mu = np.sqrt(rng.uniform(size=N)).astype(np.float32)
+    si = dr.zeros(mi.SurfaceInteraction3f, N)
+    si.wi = mi.Vector3f(mi.Float(np.sqrt(1 - mu**2)), 0.0, mi.Float(mu))
+    s = mi.load_dict({"type": "independent"})
+    s.seed(11, N)
+    _, w = b.sample(mi.BSDFContext(), si, s.next_1d(), s.next_2d())
+    sampled = float(dr.mean(w[0])[0]) / 0.08
+    assert ggx_white_sky_albedo(rough) == pytest.approx(sampled, abs=2e-3)

@@ -1053,3 +1053,92 @@ def test_winter_wheat_solve_equals_an_independent_solver():
     assert np.all(res.converged)
     np.testing.assert_allclose(np.asarray(res.an_umol_m2_s), ref[:, 0], rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(res.ci_umol_mol), ref[:, 1], rtol=0, atol=1e-5)
+
+
+# ----------------------------------------------------------------------------- mutation-audit additions
+
+
+def test_leuning_ci_follows_its_closed_form_with_vpd():
+    """Leuning (1995, Plant Cell Environ. 18:339, eq. 11) with g0 → 0 and no boundary layer:
+    An = gs·(cs − ci) and gs = a1·fw·An/((cs − Γ*)(1 + D/D0)) give, worked by hand,
+    ci = cs − (cs − Γ*)(1 + D/D0)/(a1·fw). At 25 °C on Bernacchi et al. (2001) kinetics Γ* = 42.75
+    µmol mol⁻¹. The other Leuning test only checks that gs falls with D (a D in Pa passed it)."""
+    a1, d0, fw, cs = 8.0, 1.5, 0.9, 400.0
+    p = tuzet_leaf(g0=1e-12, a1=a1, model="leuning", temperature=ps.TemperatureParams.kattge_knorr2007())
+    p = eqx.tree_at(lambda q: q.stomata.d0_kpa, p, d0)
+    vpd = np.array([0.0, 0.5, 1.0, 2.0, 3.0])
+    res = ps.solve(np.full(5, 1200.0), 25.0, cs, None, P_KPA, p, vpd_kpa=vpd, fw=fw)
+    assert np.all(res.converged) and np.all(np.asarray(res.an_umol_m2_s) > 0)
+    want = cs - (cs - 42.75) * (1.0 + vpd / d0) / (a1 * fw)
+    np.testing.assert_allclose(np.asarray(res.ci_umol_mol), want, rtol=1e-8)
+
+
+def test_water_stress_factor_cutoff_is_subtracted():
+    """Tuzet et al. (2003) eq. 6 with CPlantBox's residual and cut-off terms, worked by hand:
+    fw = f_wr + max(0, (1 − f_wr)·shape − f_cut). Unstressed (ψ = 0, shape 1): 1 − f_cut; at
+    half closure (shape 0.529691 for s_h 3.765e-4, p_crit −7 500) f_wr + (1 − f_wr)·0.529691 −
+    f_cut; very dry (shape → 0): the floor f_wr, not f_wr − f_cut."""
+    fwr, cut = 9.308e-2, 0.1
+    assert float(ps.water_stress_factor(0.0, cutoff=cut)) == pytest.approx(1.0 - cut, rel=1e-12)
+    assert float(ps.water_stress_factor(-7500.0, cutoff=cut)) == pytest.approx(
+        fwr + (1 - fwr) * 0.529691 - cut, rel=1e-5
+    )
+    assert float(ps.water_stress_factor(-1e6, cutoff=cut)) == pytest.approx(fwr, rel=1e-12)
+    # Another residual and half-closure point, by hand: shape(ψ = p_crit) = (1 + e^{s p})/2.
+    s, pc = 1e-3, -2000.0
+    want = 0.2 + (1 - 0.2) * (1 + np.exp(s * pc)) / 2
+    assert float(ps.water_stress_factor(pc, fwr=0.2, sh_per_cm=s, p_crit_cm=pc)) == pytest.approx(want, rel=1e-12)
+
+
+def test_blackman_curvature_one_is_accepted_and_gives_the_min_response():
+    """θ = 1 lies in the documented domain (0, 1] of the curvature: the non-rectangular hyperbola
+    becomes Blackman's J = min(αQ, Jmax) (von Caemmerer 2000, eq. 2.14 at θ = 1). The solve accepts
+    it eagerly and under jit, and at low light An = αQ/4·(ci − Γ*)/(ci + 2Γ*) − Rd at 25 °C
+    (Γ* = 42.75, Rd25 = 1.5 in the winter_wheat set), written out here."""
+    p = eqx.tree_at(lambda q: q.fvcb.curvature, ps.parameter_set("winter_wheat"), 1.0)
+    q = 100.0
+    res = ps.solve(q, 25.0, 400.0, 0.6, P_KPA, p)
+    assert bool(res.converged) and int(res.limitation) == ps.ELECTRON_TRANSPORT_LIMITED
+    c = float(res.ci_umol_mol)
+    assert float(res.an_umol_m2_s) == pytest.approx(0.352 * q / 4 * (c - 42.75) / (c + 2 * 42.75) - 1.5, rel=1e-9)
+    run = jax.jit(lambda th: ps.solve(q, 25.0, 400.0, 0.6, P_KPA, eqx.tree_at(lambda r: r.fvcb.curvature, p, th)))
+    assert bool(run(jnp.asarray(1.0)).converged)
+
+
+def test_medlyn_water_stress_scales_the_whole_slope():
+    """The Medlyn closure as documented (stomata.medlyn_conductance; Medlyn et al. 2011, eq. 11,
+    conductance to CO2, with the water-stress factor on the slope as in Tuzet's and Leuning's):
+    gs = g0 + fw·(1 + g1/√D)·An/cs. With g0 → 0 and no boundary layer, An = gs·(cs − ci) gives,
+    worked by hand, ci/cs = 1 − 1/(fw·(1 + g1/√D)); every other Medlyn test runs at fw = 1."""
+    p = eqx.tree_at(lambda q: q.stomata.g0_mol_m2_s, ps.parameter_set("winter_wheat"), 1e-12)
+    vpd, fw = np.array([0.5, 1.0, 2.0, 2.0]), np.array([0.8, 0.6, 0.9, 0.5])
+    res = ps.solve(np.full(4, 1200.0), 22.0, 400.0, None, P_KPA, p, vpd_kpa=vpd, fw=fw)
+    assert np.all(res.converged) and np.all(np.asarray(res.an_umol_m2_s) > 0)
+    want = 1.0 - 1.0 / (fw * (1.0 + 5.79 / np.sqrt(vpd)))
+    np.testing.assert_allclose(np.asarray(res.ci_umol_mol) / 400.0, want, rtol=1e-9)
+
+
+def test_leuning_d0_must_be_positive():
+    """D0 divides the deficit in Leuning's (1995) eq. 11: 0 is outside its domain, refused eagerly
+    and flagged under jit."""
+    bad = eqx.tree_at(lambda q: q.stomata.d0_kpa, tuzet_leaf(model="leuning"), 0.0)
+    with pytest.raises(ValueError, match="d0_kpa"):
+        ps.solve(500.0, 20.0, 400.0, 0.5, P_KPA, bad)
+    base = tuzet_leaf(model="leuning")
+    run = jax.jit(lambda d: ps.solve(500.0, 20.0, 400.0, 0.5, P_KPA, eqx.tree_at(lambda q: q.stomata.d0_kpa, base, d)))
+    assert bool(run(jnp.asarray(1.5)).converged) and not bool(run(jnp.asarray(0.0)).converged)
+
+
+def test_rubisco_compensation_point_solves_vc_equals_rd():
+    """Γ' of CPlantBox's closure is where the Rubisco-limited rate balances day respiration,
+    Vcmax·(Γ' − Γ*)/(Γ' + Km) = Rd (Farquhar et al. 1980): found here by bisection (scipy's brentq)
+    on that equation, for several Rd/Vcmax; the property test of the closure takes Γ' from the
+    code itself."""
+    from scipy.optimize import brentq
+
+    gamma, km, vcmax = 42.75, 700.0, 50.0
+    for rd in (0.0, 0.75, 5.0, 20.0):
+        want = brentq(lambda c: vcmax * (c - gamma) / (c + km) - rd, gamma, 1e6, xtol=1e-12, rtol=1e-14)
+        got = float(ps.rubisco_compensation_point(gamma, km, rd / vcmax))
+        assert got == pytest.approx(want, rel=1e-10), rd
+    assert np.isposinf(float(ps.rubisco_compensation_point(gamma, km, 1.0)))  # Rd ≥ Vcmax: none
