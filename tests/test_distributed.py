@@ -302,19 +302,15 @@ def test_cli_joins_existing_scheduler(client, tmp_path):
     assert bad.exit_code == 2 and "scheduler" in bad.stderr
 
 
-def test_cli_embedded_cluster_that_does_not_answer_is_the_options_error(tmp_path, monkeypatch):
-    """A client that cannot reach the embedded cluster in time (distributed's "Timed out trying to
-    connect", an OSError; seen with --connect-timeout 0.001, which a fast machine may still meet, so
-    the cluster is stood in for here) is --connect-timeout's error, not ~90 lines of traceback (a
-    review); nothing is written."""
+def _unreachable_cluster(monkeypatch, made: list | None = None) -> None:
+    """Stand in for dask's LocalCluster (its keywords appended to ``made``) and a Client that cannot
+    reach it (distributed's "Timed out trying to connect", an OSError)."""
     import distributed
-    from typer.testing import CliRunner
 
-    from lightfit.cli import app
-
-    class NoCluster:
+    class Cluster:
         def __init__(self, **kw):
-            pass
+            if made is not None:
+                made.append(kw)
 
         def close(self):
             pass
@@ -322,8 +318,20 @@ def test_cli_embedded_cluster_that_does_not_answer_is_the_options_error(tmp_path
     def unreachable(*a, **k):
         raise OSError("Timed out trying to connect to tcp://127.0.0.1:1 after 0.001 s")
 
-    monkeypatch.setattr(distributed, "LocalCluster", NoCluster)
+    monkeypatch.setattr(distributed, "LocalCluster", Cluster)
     monkeypatch.setattr(distributed, "Client", unreachable)
+
+
+def test_cli_embedded_cluster_that_does_not_answer_is_the_options_error(tmp_path, monkeypatch):
+    """A client that cannot reach the embedded cluster in time (distributed's "Timed out trying to
+    connect", an OSError; seen with --connect-timeout 0.001, which a fast machine may still meet, so
+    the cluster is stood in for here) is --connect-timeout's error, not ~90 lines of traceback (a
+    review); nothing is written."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    _unreachable_cluster(monkeypatch)
     slow = CliRunner().invoke(
         app,
         ["field-run", "--n-plants", "4", "--steps", "14:15", "--workers", "1", "--connect-timeout", "0.001"]
@@ -617,25 +625,12 @@ def test_cli_embedded_cluster_gets_the_workers_and_threads_asked_for(tmp_path, m
     """--workers and --threads-per-worker size the embedded LocalCluster (not each other), the workers'
     Dr.Jit/OpenMP threads follow --threads-per-worker, and XLA's own threading is turned off only for
     single-threaded workers. The cluster is stood in for; the client then fails to connect."""
-    import distributed
     from typer.testing import CliRunner
 
     from lightfit.cli import app
 
     made = []
-
-    class Recorder:
-        def __init__(self, **kw):
-            made.append(kw)
-
-        def close(self):
-            pass
-
-    def unreachable(*a, **k):
-        raise OSError("Timed out trying to connect")
-
-    monkeypatch.setattr(distributed, "LocalCluster", Recorder)
-    monkeypatch.setattr(distributed, "Client", unreachable)
+    _unreachable_cluster(monkeypatch, made)
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     base = ["field-run", "--n-plants", "4", "--steps", "14:15", "--out", str(tmp_path / "r.nc")]
     for workers, threads in ((3, 2), (2, 1)):
