@@ -149,3 +149,37 @@ def test_a_sun_rendered_before_reuses_its_shadow_rays(quick, monkeypatch):
     fs.set_sun(*SUNS[0])
     est.render()  # dropped above: cast again, and kept alone even with no budget
     assert len(cast) == 3 and list(est._suns_kept) == [est._sun_key()]
+
+
+def test_shadow_rays_past_the_budget_drop_the_least_recently_rendered_sun(monkeypatch):
+    """A budget for two suns' shadow rays; suns rendered A, B, A, C: B is the least recently
+    rendered (A was rendered again after it), so C's rays push out B's, and a render at A then
+    casts no new ray while one at B does. Counted by the rays cast per sun, on a small
+    periodic canopy."""
+    from test_periodic import canopy, leaf_ids
+
+    from lightfit.light import projection
+    from lightfit.light.scene import Optics
+    from lightfit.plant.periodic import PeriodicCell
+
+    cell = PeriodicCell(0.3, 0.3, row_direction_deg=90.0)
+    mesh, _ = canopy(cell, 2.0, "spherical", np.random.default_rng(5), leaf=0.03, z=(0.05, 0.5), sensors=2)
+    fs = FieldScene(mesh, Optics.preset("prospect"), cell=cell)
+    est = SegmentEstimator(fs, leaf_ids(mesh), samples=8, bounces=1, seed=3)
+    monkeypatch.setattr(projection, "SUN_HITS_BUDGET_BYTES", 2.5 * est.n_evaluations * (4 + est.bounces))
+    cast = []
+    sun_rays = est._sun_rays
+    monkeypatch.setattr(est, "_sun_rays", lambda geo: cast.append(tuple(fs.sun)) or sun_rays(geo))
+    a, b, c = (40.0, 150.0), (20.0, 100.0), (60.0, 250.0)
+    first = {}
+    for sun in (a, b, a, c):
+        fs.set_sun(*sun)
+        first.setdefault(sun, est.render())
+    assert len(cast) == 3  # A's second render weighed its kept rays
+    fs.set_sun(*a)
+    again = est.render()
+    assert len(cast) == 3  # A kept: rendered more recently than B
+    np.testing.assert_array_equal(again.absorbed_sun, first[a].absorbed_sun)
+    fs.set_sun(*b)
+    est.render()
+    assert len(cast) == 4  # B dropped when C came

@@ -66,15 +66,20 @@ def field():
     return fs, leaf_ids(mesh)
 
 
-@pytest.mark.parametrize(("bounces", "soil_albedo"), [(0, None), (2, None), (1, 0.6)])
-def test_projection_estimates_what_the_paths_estimate(field, bounces, soil_albedo):
+@pytest.mark.parametrize(
+    ("bounces", "soil_albedo", "sky"),
+    [(0, None, "isotropic"), (2, None, "isotropic"), (1, 0.6, "isotropic"), (0, None, "overcast")],
+)
+def test_projection_estimates_what_the_paths_estimate(field, bounces, soil_albedo, sky):
     """Same expectation, independent random numbers (0 bounces: the direct light; 2: also the
     light scattered once by a leaf or the soil, forward, and the rest by the paths; 1 over a
-    bright soil: the soil's share large): canopy totals within 4 combined SE and per-segment
-    z-scores centred on 0 with unit spread."""
+    bright soil: the soil's share large; the CIE overcast sky, whose radiance the projection's sky
+    rays weigh by their own direction and the paths by theirs): canopy totals within 4 combined SE
+    and per-segment z-scores centred on 0 with unit spread."""
     fs, ids = field
-    if soil_albedo is not None:
-        fs = FieldScene(fs.mesh, Optics.preset("prospect", soil_albedo=soil_albedo), cell=fs.cell)
+    if soil_albedo is not None or sky != "isotropic":
+        optics = OPTICS if soil_albedo is None else Optics.preset("prospect", soil_albedo=soil_albedo)
+        fs = FieldScene(fs.mesh, optics, cell=fs.cell, sky=sky)
         fs.set_sun(40.0, 150.0)
     z_all = {}
     for seed in (1, 2):
@@ -545,3 +550,86 @@ def test_light_transmitted_by_a_layer_is_absorbed_as_white_sky_light(direct):
     assert r.incident_sun[lower] == pytest.approx(w_t * s, abs=4 * r.se["incident_sun"][lower] + 1e-6 * s)
     ratio = r.absorbed_sun[lower] / r.incident_sun[lower]
     assert ratio == pytest.approx(white, abs=4 * r.se["absorbed_sun"][lower] / r.incident_sun[lower] + 1e-3)
+
+
+def test_standard_errors_and_covariance_are_those_of_the_replicate_means(field):
+    """The value is the mean of the R replicate means, its SE their sample standard deviation
+    (ddof 1) ÷ √R, the sun–sky covariance their sample covariance ÷ R, and the SE of a total
+    dni·sun + dhi·sky that of the replicate totals — computed here by hand from the replicates,
+    for a plain render (paths and projection) and an adaptive one (rows at several K)."""
+    from lightfit.light.estimator import PARTS, render_adaptive
+
+    fs, ids = field
+    runs = [
+        SegmentEstimator(fs, ids, samples=16, bounces=1, seed=8).render(),
+        SegmentEstimator(fs, ids, samples=16, bounces=1, seed=8, direct="projection", direct_rays_per_m2=1e6).render(),
+        render_adaptive(fs, ids, 0.1, bounces=1, seed=8, max_samples=128),
+    ]
+    assert len(np.unique(runs[2].meta["samples_per_segment"])) >= 2
+    for r in runs:
+        reps = r.meta["replicate_means"]
+        R = reps["incident_sun"].shape[1]
+        assert R in (4, 8)
+        for p in PARTS:
+            x = reps[p]
+            np.testing.assert_allclose(getattr(r, p), x.mean(1), rtol=1e-12, atol=1e-15, err_msg=p)
+            d = x - x.mean(1, keepdims=True)
+            se = np.sqrt((d**2).sum(1) / (R - 1) / R)
+            np.testing.assert_allclose(r.se[p], se, rtol=1e-10, atol=1e-15, err_msg=p)
+        for part, (dni, dhi) in (("absorbed", (1.0, 0.3)), ("incident", (0.7, 1.8))):
+            a, b = reps[f"{part}_sun"], reps[f"{part}_sky"]
+            da, db = a - a.mean(1, keepdims=True), b - b.mean(1, keepdims=True)
+            np.testing.assert_allclose(r.cov[part], (da * db).sum(1) / (R - 1) / R, rtol=1e-10, atol=1e-15)
+            t = dni * a + dhi * b  # the total of each replicate
+            dt = t - t.mean(1, keepdims=True)
+            se_t = np.sqrt((dt**2).sum(1) / (R - 1) / R)
+            assert (se_t > 0).sum() > 0.5 * len(ids)
+            np.testing.assert_allclose(r.total_se(part, dni, dhi), se_t, rtol=1e-6, atol=1e-12, err_msg=part)
+
+
+@pytest.mark.parametrize("direct", ["paths", "projection"])
+def test_sky_transmitted_by_a_layer_reaches_the_layer_below(direct):
+    """The two layers of the test above, under the sky: the upper layer intercepts all of it
+    (1 per unit DHI) and transmits w_t of it, Lambertian, to the lower layer (black soil, one
+    bounce), which therefore receives w_t per unit DHI and absorbs it with the white-sky
+    absorptance. With the projection this light is carried by the continued sky rays (Russian
+    roulette, share 1/4, each carrying 4× the flux), so their weight is checked too."""
+    from lightfit.light.bsdf import lobe_weights
+    from lightfit.plant.mesh import Mesh
+
+    cell = PeriodicCell(0.2, 0.3, row_direction_deg=90.0)
+    layers = []
+    for z, seg in ((0.4, 1), (0.2, 2)):
+        m = square([0.0, 0.0, z], [0, 0, 1], 1.0, seg)
+        m.vertices[:, :2] = cell.corners_xy
+        layers.append(m)
+    optics = Optics(specular=0.5, roughness=0.6, subsurface=0.5, base_color=0.6, soil_albedo=0.0)
+    fs = FieldScene(Mesh.concatenate(layers), optics, cell=cell)
+    fs.set_sun(40.0, 200.0)
+    r = SegmentEstimator(
+        fs, [1, 2], samples=256, bounces=1, seed=4, direct=direct, direct_rays_per_m2=(2e6, 2e6)
+    ).render()
+    w_t = lobe_weights(optics.specular, optics.subsurface, optics.base_color)[2]
+    upper, lower = 0, 1
+    assert r.incident_sky[upper] == pytest.approx(1.0, abs=4 * r.se["incident_sky"][upper] + 1e-6)
+    assert 0 < r.se["incident_sky"][lower] < 0.1 * w_t  # an estimate fine enough to tell w_t from w_t / 2
+    assert r.incident_sky[lower] == pytest.approx(w_t, abs=4 * r.se["incident_sky"][lower] + 1e-6)
+    mu = (np.arange(20000) + 0.5) / 20000
+    white = float(np.sum((1 - _albedo(fs, mu)) * 2 * mu) / len(mu))
+    ratio = r.absorbed_sky[lower] / r.incident_sky[lower]
+    assert ratio == pytest.approx(white, abs=4 * r.se["absorbed_sky"][lower] / r.incident_sky[lower] + 1e-3)
+
+
+def test_rays_cast_are_the_requested_density_over_all_replicates(field):
+    """``direct_rays_per_m2`` counts the rays of all replicates together: a render casts that many
+    rays per m² of the cell (to the rounding of the grid), not that many per replicate."""
+    fs, ids = field
+    for samples in (8, 64):  # R = 2 and R = 8
+        est = SegmentEstimator(
+            fs, ids, samples=samples, bounces=0, seed=1, direct="projection", direct_rays_per_m2=(1e6, 2e6)
+        )
+        s = est.render().meta["direct_projection"]
+        area = fs.cell.area_m2
+        for kind, rho in (("sun", 1e6), ("sky", 2e6)):
+            assert s[kind]["rays"] == pytest.approx(rho * area, rel=0.02), (samples, kind)
+            assert s[kind]["rays_per_m2"] == pytest.approx(rho, rel=0.02), (samples, kind)
