@@ -872,3 +872,81 @@ def test_an_exact_resume_drops_history_lines_written_after_its_state(tmp_path):
     *steps, final = [json.loads(x) for x in h.read_text().splitlines()]
     assert [r["step"] for r in steps] == [1, 2, 3] and final["steps"] == res.steps == 3
     assert steps[2]["loss"] != orphan["loss"]
+
+
+def test_cli_start_on_the_emulator_boxs_edge_is_inside_it(tmp_path, monkeypatch):
+    """The box is closed, [lo, hi] as its error says: --start specular=0.4625 (the informed priors'
+    lower end for the default leaf) passes the check (a mutation audit: the check made strict
+    survived). The run is stopped at the next step, reading the observations."""
+    from typer.testing import CliRunner
+
+    import lightfit.inference.observations as observations
+    from lightfit.cli import app
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(observations, "read_observations", stop)
+    args = ["calibrate", str(rep.OBSERVATIONS), "--quick", "--parameters", "specular", "--out", str(tmp_path)]
+    for value in ("0.4625", "0.7375"):
+        r = CliRunner().invoke(app, [*args, "--start", f"specular={value}"])
+        assert r.exit_code == 130, r.output  # reached the observations: the start was accepted
+    r = CliRunner().invoke(app, [*args, "--start", "specular=0.46"])
+    assert r.exit_code == 2 and "[0.4625, 0.7375]" in " ".join(r.stderr.split()), r.output
+
+
+def test_a_mapping_takes_the_rest_from_its_base():
+    """as_theta of some names: the rest from ``base`` (docstring), e.g. the paper leaf's subsurface 0.3
+    where a run gives only a light factor; the defaults only without a base (a mutation audit: the
+    base ignored survived, so a paper-preset run given --theta light_factor=… took the default leaf)."""
+    from lightfit.light.scene import Optics
+    from lightfit.model.parameters import as_theta
+
+    base = Theta(specular=0.2, roughness=0.3, subsurface=0.4, light_factor=1.1, vcmax_scale=0.9)
+    th = as_theta({"light_factor": 2.0, "roughness": np.float64(0.7)}, base=base)
+    want = {"specular": 0.2, "roughness": 0.7, "subsurface": 0.4, "light_factor": 2.0, "vcmax_scale": 0.9}
+    assert th.to_dict() == want
+    assert as_theta({"vcmax_scale": 1.2}, base=Theta.for_optics(Optics.preset("paper"))).subsurface == 0.3
+    assert as_theta(None, base=base) == base
+    assert as_theta({"light_factor": 2.0}).subsurface == Theta().subsurface  # no base: the defaults
+
+
+def test_cli_calibrate_records_the_observations_absolute_and_hints_a_fit_folder_of_its_own(tmp_path, monkeypatch):
+    """Run from another folder with relative names: calibration.json names the observations by their
+    absolute path (read back from elsewhere it still finds them), and the hint's replicate writes into
+    OUT/fit, not over the calibration in OUT (a mutation audit: both survived)."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    shutil.copy(rep.OBSERVATIONS, tmp_path / "obs.csv")
+    monkeypatch.chdir(tmp_path)
+    args = ["calibrate", "obs.csv", "--quick", "--steps", "14:16", "--parameters", "light_factor"]
+    r = CliRunner().invoke(app, [*args, "--use", "above_canopy_par", "--max-steps", "2", "--out", "cal"])
+    assert r.exit_code == 0, r.output
+    res = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    assert res["observations"] == str((tmp_path / "obs.csv").resolve())
+    hint = " ".join(r.stdout.split()).split("to see the fit: ")[1]
+    assert hint.endswith("--theta cal/calibration.json --observations obs.csv --out cal/fit"), hint
+
+
+@pytest.mark.parametrize("name, text", [("settings.json", "{"), ("calibration.json", "[1, 2]")])
+def test_cli_calibrate_refuses_an_earlier_record_that_is_not_a_json_object(tmp_path, name, text):
+    """A settings.json or calibration.json in --out that is cut short or hand-edited into something
+    else is --out's error, naming the file, before any plant grows (it was a JSONDecodeError
+    traceback, exit 1; a mutation audit's probe)."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    out = tmp_path / "cal"
+    out.mkdir()
+    (out / name).write_text(text)
+    args = ["calibrate", str(rep.OBSERVATIONS), "--quick", "--parameters", "light_factor", "--out", str(out)]
+    r = CliRunner().invoke(app, args)
+    err = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and isinstance(r.exception, SystemExit), r.output
+    assert err.startswith("error:") and "--out" in err and name in err and "--no-resume" in err, err
+    assert "Traceback" not in r.output

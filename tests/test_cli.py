@@ -883,7 +883,8 @@ BAD_VALUES = {
     "--ceptometer-height-m": ["-1"],
     "--n-design": ["0", "1"],
     "--target-ess": ["0"],
-    "--max-minutes": ["-1"],
+    "--max-minutes": ["-1", "0"],
+    "--max-rounds": ["0"],
     "--timeout": ["-5"],
     "--connect-timeout": ["0"],
 }
@@ -1350,6 +1351,8 @@ def test_ctrl_c_inside_a_render_exits_130_on_one_line(tmp_path, monkeypatch, cap
 def test_an_per_leaf_is_named_in_the_caption_and_the_summary_file(tmp_path):
     """--an-per leaf: the printed caption said "APAR, An: per ground area" and summary.csv's
     canopy_an_umol_m2_s could not tell per what (a CLI review); results.nc says it in an_per."""
+    import re
+
     import pandas as pd
 
     out = tmp_path / "o"
@@ -1359,6 +1362,15 @@ def test_an_per_leaf_is_named_in_the_caption_and_the_summary_file(tmp_path):
     cols = pd.read_csv(out / "summary.csv").columns
     assert "canopy_an_per_leaf_area_umol_m2_s" in cols and "canopy_an_umol_m2_s" not in cols
     assert "canopy_apar_umol_m2_s" in cols  # APAR stays per ground area
+    # The printed table: each row's fAPAR and An are summary.csv's, with 2 and 1 decimals (SUMMARY_HEADS,
+    # written out; a mutation audit: fAPAR printed with no decimals, 0 or 1, survived).
+    table = pd.read_csv(out / "summary.csv")
+    rows = {x.split()[0]: x.split() for x in r.stdout.splitlines() if x.split()[:1] in (["12:00"], ["12:30"])}
+    assert list(rows) == list(table["local_time"]), r.stdout
+    for _, row in table.iterrows():  # local sun° PAR↑ PARpl ± APAR fAPAR An ...
+        fapar, an = rows[row["local_time"]][6:8]
+        assert re.fullmatch(r"\d\.\d\d", fapar) and abs(float(fapar) - row["fapar"]) <= 0.0051, (fapar, row)
+        assert re.fullmatch(r"-?\d+\.\d", an) and abs(float(an) - row["canopy_an_per_leaf_area_umol_m2_s"]) <= 0.051, an
 
 
 def test_a_thinned_weather_table_says_so():
@@ -1526,3 +1538,147 @@ def test_render_dataset_options_reach_the_dataset_spec(tmp_path, monkeypatch):
     specs.clear()
     assert runner.invoke(app, ["render-dataset", str(results), "--out", str(out), "--all-times"]).exit_code == 0
     assert specs[0][2].times == ["all"] and specs[0][2].quantities is None and specs[0][2].depth is True
+
+
+def test_a_run_over_other_steps_of_the_same_count_is_said_to_replace_them():
+    """replaced_settings against the steps and settings written out by hand (a mutation audit: the
+    steps compared only by their number survived): same count, other times → "other steps"; what
+    says nothing about the settings (software versions) is not compared; nothing stored → None."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import replaced_settings
+
+    times = np.array(["2016-04-20T10:00", "2016-04-20T10:30"], "datetime64[ns]")
+    before = ({"samples": 16, "software_versions": "{}"}, times)
+
+    def ds(t, **attrs):
+        return xr.Dataset(coords={"time": t}, attrs={"samples": 16, "software_versions": '{"jax": "x"}', **attrs})
+
+    assert replaced_settings(before, ds(times)) is None
+    assert replaced_settings(before, ds(times + np.timedelta64(10, "m"))) == "other steps"
+    assert replaced_settings(before, ds(times[:1], samples=8)) == "samples 16 → 8, 2 steps → 1"
+    assert replaced_settings(None, ds(times)) is None
+    assert replaced_settings("unreadable", ds(times)) == "a file lightfit cannot read"
+
+
+def test_calibrate_ctrl_c_says_what_each_mode_keeps(tmp_path, monkeypatch):
+    """Ctrl-C in calibrate: the surrogate keeps design renders and trust-region steps, --no-surrogate
+    only its history.jsonl (RESUMABLE; a mutation audit: the --no-surrogate line never said survived)."""
+    import importlib
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module("lightfit.cli.calibrate"), "resolve", interrupted)
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--out", str(tmp_path)]
+    r = runner.invoke(app, [*args, "--no-surrogate"])
+    assert r.exit_code == 130, r.output
+    assert " ".join(r.stderr.split()) == (
+        "interrupted: every accepted step is kept in --out's history.jsonl; rerun the same command to resume"
+    )
+    r = runner.invoke(app, args)
+    assert r.exit_code == 130 and "design cache" in " ".join(r.stderr.split()), r.output
+
+
+def test_option_named_only_for_a_files_error_without_a_line_about_an_option():
+    """error_message (FILE_OPTIONS, written out by hand; a mutation audit: "and" taken for "or"
+    survived): --tz on a CSV with no line is the option's error; a line of the file, or a metadata
+    key of the file that is no option applied to it (time_label), stays the file's."""
+    from lightfit.cli.common import error_message
+
+    flags = {"tz": "--tz", "time_label": "--time-label"}
+    tz = InputError("UTC+2 given for a lightfit CSV", file="w.csv", parameter="tz", expected="no --tz")
+    assert error_message(tz, flags) == "w.csv: option --tz: UTC+2 given for a lightfit CSV (expected no --tz)"
+    line = InputError("'Mars'", file="w.csv", row=5, column="tz")
+    assert error_message(line, flags) == "w.csv, line 5, column 'tz': 'Mars'"
+    own = InputError("'middle'", file="w.csv", column="time_label", expected="start, end or center")
+    assert error_message(own, flags) == "w.csv, column 'time_label': 'middle' (expected start, end or center)"
+
+
+def test_soil_respiration_note_only_for_nee_without_soil_respiration(capsys):
+    """The note (docstring): NEE fitted with --soil-respiration 0; not for other series, nor with a
+    soil respiration given (a mutation audit: either condition alone survived)."""
+    from lightfit.cli.common import soil_respiration_note
+
+    soil_respiration_note(("canopy_an", "plant_par"), 0.0)
+    soil_respiration_note(("nee",), 1.5)
+    assert capsys.readouterr().out == ""
+    soil_respiration_note(("plant_par", "nee"), 0.0)
+    assert "note: NEE is modelled without soil and root respiration" in " ".join(capsys.readouterr().out.split())
+
+
+def test_weather_show_prints_the_local_clock_of_the_site_given():
+    """--timezone UTC+3 (with coordinates): the table's local column is that zone's clock, UTC + 3 h
+    on every row (a mutation audit: the table kept Selhausen's zone and this survived)."""
+    import re
+
+    args = ["weather", "show", str(FIXTURE), "--latitude", "50.87", "--longitude", "6.45", "--timezone", "UTC+3"]
+    r = runner.invoke(app, args, env={"COLUMNS": "200"})
+    assert r.exit_code == 0, r.output
+    assert "UTC+3" in r.stdout
+    rows = re.findall(r"│ (\d\d-\d\d) (\d\d):(\d\d) │ (\d\d):(\d\d) ", r.stdout)
+    assert len(rows) > 20
+    for _, h, m, lh, lm in rows:
+        assert (int(lh), lm) == ((int(h) + 3) % 24, m), (h, m, lh, lm)
+
+
+def test_weather_show_how_sample_keeps_the_values_at_the_new_stamps(tmp_path):
+    """--resample 30min --how sample (documented: the value at each new timestamp) against the file's
+    own 10-min values at those stamps; --how mean averages them (a mutation audit: --how not reaching
+    the resampling survived)."""
+    csv, mean = tmp_path / "s.csv", tmp_path / "m.csv"
+    base = ["weather", "show", str(FIXTURE), "--resample", "30min"]
+    assert runner.invoke(app, [*base, "--how", "sample", "--csv", str(csv)]).exit_code == 0
+    assert runner.invoke(app, [*base, "--csv", str(mean)]).exit_code == 0
+    tenmin, sampled, averaged = read_weather(FIXTURE), read_weather(csv), read_weather(mean)
+    assert (sampled.index[1:] - sampled.index[:-1] == pd.Timedelta("30min")).all()
+    par = tenmin["par_umol_m2_s"]
+    np.testing.assert_allclose(sampled["par_umol_m2_s"], par.loc[sampled.index], rtol=1e-6)
+    assert not np.allclose(averaged["par_umol_m2_s"], par.reindex(averaged.index), rtol=1e-3, equal_nan=True)
+
+
+def _calibration_out(tmp_path, record: dict, history: str):
+    """An --out holding a calibration of the quick model with ``record`` as its settings.json's
+    calibration, and its history (``history.jsonl`` or the surrogate's ``trust_region/``)."""
+    from lightfit.cli.options import ModelOptions, resolve
+
+    out = tmp_path / "cal"
+    out.mkdir()
+    config = resolve(ModelOptions(quick=True)).as_dict()
+    (out / "settings.json").write_text(json.dumps({"config": config, "calibration": record}))
+    if history == "trust_region":
+        (out / history).mkdir()
+    else:
+        (out / history).write_text("")
+    return out
+
+
+def test_calibrate_compares_a_surrogate_runs_record_before_resuming_it(tmp_path, monkeypatch):
+    """A surrogate calibration keeps trust_region/, not history.jsonl: its record is compared all the
+    same, so other observations are refused (a mutation audit: only history.jsonl looked for survived);
+    the model is never built here (run_model stops the run: exit 130 had the check been skipped)."""
+    import importlib
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module("lightfit.cli.calibrate"), "run_model", stop)
+    out = _calibration_out(tmp_path, {"observation_table_sha256": "0" * 64}, "trust_region")
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--out", str(out)]
+    assert_user_error(runner.invoke(app, args), "settings.json", "observations (another table: its SHA-256 differs)")
+
+
+def test_calibrate_without_the_surrogate_does_not_compare_the_surrogates_settings(tmp_path, monkeypatch):
+    """--priors and --n-design shape only the surrogate's emulator: a --no-surrogate history is
+    resumed whatever they were (a mutation audit: recording them for every run, which then refused
+    a rerun for a setting it does not use, survived). Stopped where the model would be built."""
+    import importlib
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module("lightfit.cli.calibrate"), "run_model", stop)
+    out = _calibration_out(tmp_path, {"surrogate": False, "priors": "wide", "n_design": 7}, "history.jsonl")
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--no-surrogate"]
+    r = runner.invoke(app, [*args, "--out", str(out)])
+    assert r.exit_code == 130, r.output  # passed the comparison, stopped at the model

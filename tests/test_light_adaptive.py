@@ -440,3 +440,39 @@ def test_several_days_of_an_adaptive_run_keep_each_days_allocation():
     out = concat_days([day("2016-04-20", [32, 64], 46.0), day("2016-06-23", [32, 128], 61.0)])
     assert out.attrs["allocation_sun_elevation_deg"] == "46.0; 61.0"
     assert "at a target of 0.05 (K 32–128 per segment)" in mc_bias_line(out)
+
+
+def test_the_shortfall_line_gives_the_median_and_counts_only_the_segments_there():
+    """target_shortfall against a hand count (a mutation audit: the median taken as the mean, and
+    NaN segments, absent on a day of several, counted, both survived): missed 0.09, 0.1 and 0.5 of
+    target 0.05 → median 0.1 (mean 0.23); 4 segments there (the NaN one is not)."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import target_shortfall
+
+    reached = np.array([0.09, 0.1, 0.5, np.nan, 0.04])
+    ds = xr.Dataset(
+        {
+            "reached_rse": ("segment", reached),
+            "stopped_on_floor": ("segment", np.zeros(5, np.int8)),
+            "samples_per_segment": ("segment", np.array([8192, 8192, 8192, np.nan, 64])),
+        },
+        attrs={"target_rse": 0.05},
+    )
+    line = target_shortfall(ds)
+    assert line.startswith("3 of 4 segments did not reach --target-rse 0.05: they stopped at 8192 points"), line
+    assert "relative SEs of 0.1 (median) up to 0.5" in line, line
+
+
+def test_no_bias_line_for_a_canopy_that_took_up_nothing():
+    """A run of night steps only: canopy An sums to ≤ 0, exactly 0 with no respiration at all, and the
+    bias line is empty, not a division by zero (a mutation audit: "an <= 0" as "an < 0" survived)."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import mc_bias_line
+
+    zero = xr.Dataset(
+        {"canopy_an_umol_m2_s": ("time", np.zeros(3)), "canopy_an_mc_bias_umol_m2_s": ("time", np.zeros(3))},
+        attrs={"samples": 32, "direct": "projection"},
+    )
+    assert mc_bias_line(zero) == ""

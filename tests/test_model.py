@@ -488,3 +488,62 @@ def test_forcing_lights_the_canopy_with_the_series_measured_par():
         horizontal = np.asarray(f.dni_par) * np.sin(np.radians(el)) + np.asarray(f.dhi_par)
         np.testing.assert_allclose(horizontal[1:], want[1:], rtol=1e-12)
         assert np.asarray(f.day).tolist() == [False, True, True, True]
+
+
+def test_adaptive_sampling_allocates_at_the_highest_daytime_sun_or_a_clear_days_mix():
+    """allocation_point (a mutation audit: the daytime filter dropped, and the clear-day fallback
+    taken only for negative PAR, both survived): the highest sun among the *daytime* steps, its own
+    DNI / DHI PAR; a night-only run: the highest sun, weighted 1 : 0.3 (docstring), not 0 : 0."""
+    from types import SimpleNamespace
+
+    from lightfit.model.coupled import allocation_point
+
+    sun = np.array([[60.0, 10.0], [20.0, 90.0], [40.0, 180.0], [-3.0, 270.0]])
+    leaf = np.array([0.5, 0.5, 0.3])
+    # step 0 has the highest sun but is no daytime step (e.g. dark in the forcing): step 2 is taken
+    day = SimpleNamespace(
+        day=np.array([False, True, True, False]), dni_par=np.array([9.0, 300.0, 800.0, 0.0]), dhi_par=[1.0, 50, 120, 0]
+    )
+    lf, at, dni, dhi = allocation_point(day, sun, leaf)
+    assert list(at) == [40.0, 180.0] and (dni, dhi) == (800.0, 120.0) and list(lf) == [0.5, 0.5, 0.3]
+    night = SimpleNamespace(day=np.zeros(3, bool), dni_par=np.zeros(3), dhi_par=np.zeros(3))
+    _, at, dni, dhi = allocation_point(night, np.array([[-10.0, 0.0], [-2.0, 45.0], [-20.0, 90.0]]), leaf)
+    assert list(at) == [-2.0, 45.0] and (dni, dhi) == (1.0, 0.3)
+    # a daytime step whose PAR is zero weighs the parts the clear-day way too
+    dim = SimpleNamespace(day=np.array([True]), dni_par=np.zeros(1), dhi_par=np.zeros(1))
+    assert allocation_point(dim, np.array([[5.0, 100.0]]), leaf)[2:] == (1.0, 0.3)
+
+
+def test_results_carry_the_forcings_weather_and_the_theta_run(simulated):
+    """Each weather variable in the results is the forcing's own column at the run's steps, and the
+    theta_* attributes are the θ run (THETA, not the scenario's defaults): a mutation audit swapped
+    DNI and DHI in the results, and wrote the defaults' θ, and both survived."""
+    w = rep.forcing().iloc[[1, 5, 14]]
+    for name in ("dni_w_m2", "dhi_w_m2", "tair_c", "co2_ppm", "rh", "pair_kpa", "sun_elevation_deg", "sun_azimuth_deg"):
+        if name in w:
+            np.testing.assert_array_equal(simulated[name].values, w[name].to_numpy(np.float64), err_msg=name)
+    assert not np.allclose(w["dni_w_m2"], w["dhi_w_m2"])  # a swap would show
+    given = {"specular": 0.6, "roughness": 0.4, "subsurface": 0.2, "light_factor": 1.3, "vcmax_scale": 0.8}
+    assert {k: simulated.attrs[f"theta_{k}"] for k in given} == given
+
+
+def test_results_bias_is_the_documented_quadrature_at_the_blades_own_light_and_capacity(model, simulated):
+    """leaf_an_mc_bias (an_noise_bias's docstring: b = Σ wᵢ A(max(q̂ + xᵢσ, 0)) − A(q̂), nine
+    probabilists' Gauss–Hermite nodes) at each blade's stored absorbed PAR and its Monte Carlo SD,
+    with the leaf function that reproduces the stored leaf An (so θ's vcmax_scale and the blade's
+    capacity): a mutation audit fed the bias the defaults' vcmax_scale, or the light factor twice,
+    and both survived."""
+    ds = simulated
+    b = np.flatnonzero(ds["is_blade"].values)
+    q = ds["absorbed_par_umol_m2_s"].values[:, b]
+    sd = ds["absorbed_par_mc_sd_umol_m2_s"].values[:, b]
+    leaf, params = model.operator.leaf(), model.operator.photosynthesis_params(0.8)  # THETA.vcmax_scale
+
+    def an(x):
+        return np.asarray(leaf(jnp.asarray(np.maximum(x, 0.0)), model.forcing, params).an)
+
+    np.testing.assert_allclose(an(q), ds["leaf_an_umol_m2_s"].values[:, b], rtol=1e-9, atol=1e-9)  # this A is the run's
+    x, w = np.polynomial.hermite_e.hermegauss(9)
+    want = sum(wi / w.sum() * an(q + xi * sd) for xi, wi in zip(x, w)) - an(q)
+    assert np.abs(want).max() > 1e-4  # a bias to tell apart
+    np.testing.assert_allclose(ds["leaf_an_mc_bias_umol_m2_s"].values[:, b], want, rtol=1e-6, atol=1e-9)

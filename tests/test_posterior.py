@@ -1441,3 +1441,20 @@ def test_the_predictive_draws_samples_without_replacement():
     spec = float(lp.split(jnp.asarray([1.0]))[0].specular)
     f = np.asarray(p["plant_par_umol_m2_s"])[:, 3] / (400 + 100 * spec)  # shape 1 at step 3
     np.testing.assert_allclose(np.sort(f), samples[:, 0], rtol=1e-12)
+
+
+def test_cautions_at_their_thresholds():
+    """The walkers agree only below the stop rule's rhat_max (StopRule: split-R̂ < rhat_max), so R̂
+    equal to it is cautioned; a posterior SD ratio equal to UNINFORMED_SD_RATIO is "≥" it (docstring)
+    and cautioned too (a mutation audit: both comparisons made strict survived)."""
+    from lightfit.cli.posterior import _cautions
+    from lightfit.inference.mcmc.diagnostics import StopRule
+    from lightfit.inference.posterior import UNINFORMED_SD_RATIO
+
+    limit = StopRule().rhat_max
+    assert limit == 1.2 and UNINFORMED_SD_RATIO == 0.9  # the documented values
+    (line,) = _cautions({"names": ["a", "b"], "rhat": [1.01, 1.2]})
+    assert line.startswith("the walkers disagree (split-R̂ 1.2 for b, ≥ 1.2)"), line
+    assert _cautions({"names": ["a"], "rhat": [1.19]}) == []
+    (line,) = _cautions({"names": ["a"], "rhat": [1.01], "sd_over_prior_sd": {"a": 0.9, "b": 0.89}})
+    assert line.startswith("the data hardly inform a: its posterior SD is 0.90 × its prior's"), line

@@ -324,8 +324,8 @@ def samples_label(samples: int, target_rse: float | None) -> str:
 
 
 def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezone) -> Table:
-    """A weather series as a table (every k-th row so that at most ``max_rows`` are shown, which
-    the caption then says)."""
+    """A weather series as a table: every k-th row, k = ⌊n / ``max_rows``⌋, so fewer than 2 × ``max_rows``
+    rows (the bundled day's 144 ten-minute rows as 48, every 30 min), which the caption then says."""
     step = max(1, len(df) // max_rows)
     shown = "" if step == 1 else f"; 1 row in {step} of {len(df)} shown"
     t = Table(title=title, caption=f"PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm{shown}")
