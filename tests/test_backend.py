@@ -120,3 +120,25 @@ def test_missing_llvm_message(monkeypatch):
     monkeypatch.delitem(backend._STATE, "mi", raising=False)
     with pytest.raises(backend.BackendError, match="karellen-llvm-core"):
         backend.mitsuba("llvm_ad_rgb")
+
+
+def test_libllvm_major_is_read_from_each_naming():
+    assert backend._llvm_major("/usr/lib/x86_64-linux-gnu/libLLVM-17.so") == 17
+    assert backend._llvm_major("/env/lib/libLLVM.so.18.1") == 18
+    assert backend._llvm_major("/usr/lib/llvm-15/lib/libLLVM-15.so.1") == 15
+    assert backend._llvm_major("libLLVM.so") is None
+
+
+def test_find_libllvm_takes_16_and_newer_newest_major_first(monkeypatch):
+    """MIN_LLVM_MAJOR = 16 is allowed (15 is not); the newest major wins over a longer file name; within a
+    major the fully versioned file wins. Candidates stand in for the folders' contents."""
+
+    def pick(names):
+        monkeypatch.setattr(backend.glob, "glob", lambda pattern: list(names))
+        monkeypatch.setattr(backend.ctypes.util, "find_library", lambda name: None)
+        return backend.find_libllvm()
+
+    assert pick(["/l/libLLVM-15.so", "/l/libLLVM-14.so.1"]) is None
+    assert pick(["/l/libLLVM-15.so", "/l/libLLVM-16.so"]) == "/l/libLLVM-16.so"
+    assert pick(["/l/libLLVM.so.16.0.6", "/l/libLLVM-17.so"]) == "/l/libLLVM-17.so"
+    assert pick(["/l/libLLVM-18.so", "/l/libLLVM.so.18.1"]) == "/l/libLLVM.so.18.1"

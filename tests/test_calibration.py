@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -950,3 +951,51 @@ def test_cli_calibrate_refuses_an_earlier_record_that_is_not_a_json_object(tmp_p
     assert r.exit_code == 2 and isinstance(r.exception, SystemExit), r.output
     assert err.startswith("error:") and "--out" in err and name in err and "--no-resume" in err, err
     assert "Traceback" not in r.output
+
+
+def test_twin_noise_is_the_documented_draws_on_a_stand_in_model(monkeypatch):
+    """twin_observations on a stand-in for the coupled model (known PAR and An, no render), against its
+    docstring written out: rendered at ``render_seed``; from default_rng(noise_seed) one standard-normal
+    draw per step for PAR (SD max(3 % PAR, 1)), clipped at 0, then one per step for An (SD
+    an_sd_umol_m2_s); night steps missing, An kept at night only with an_at_night; SDs written."""
+    import dataclasses
+
+    import lightfit.inference.twin as twin
+
+    @dataclasses.dataclass(frozen=True)
+    class Scenario:
+        seed: int = 0
+
+    par = np.array([0.0, 0.2, 800.0, 1500.0, 0.0])
+    an = np.array([-2.0, 5.0, 20.0, 25.0, -1.5])
+    day = np.array([False, True, True, True, False])
+    rendered = []
+
+    class StandIn:
+        def __init__(self, scenario):
+            self.scenario = scenario
+
+        def observe(self, theta):
+            rendered.append(self.scenario.seed)
+            return {"plant_par_umol_m2_s": par, "canopy_an_umol_m2_s": an}
+
+    monkeypatch.setattr(twin, "CoupledModel", StandIn)
+    times = pd.date_range("2016-06-01 00:00", periods=5, freq="6h", tz="UTC")
+    model = SimpleNamespace(scenario=Scenario(seed=11), day=day, times=times, timestamps="instant")
+    z = np.random.default_rng(2).standard_normal(10)  # PAR's five draws, then An's five
+    assert par[1] + z[1] < 0  # this seed puts a PAR value below zero: the clip is exercised
+    sd = np.array([1.0, 1.0, 24.0, 45.0, 1.0])
+    want_par = np.clip(par + sd * z[:5], 0.0, None)
+    want_an = an + 0.7 * z[5:]
+    for at_night in (False, True):
+        df = twin.twin_observations(
+            model, {"specular": 0.7}, render_seed=5, noise_seed=2, an_sd_umol_m2_s=0.7, an_at_night=at_night
+        )
+        assert rendered[-1] == 5
+        np.testing.assert_allclose(df["plant_par_umol_m2_s"], np.where(day, want_par, np.nan), rtol=1e-12)
+        np.testing.assert_allclose(df["plant_par_sd_umol_m2_s"], np.where(day, sd, np.nan), rtol=1e-12)
+        an_steps = np.ones(5, bool) if at_night else day
+        np.testing.assert_allclose(df["canopy_an_umol_m2_s"], np.where(an_steps, want_an, np.nan), rtol=1e-12)
+        np.testing.assert_allclose(df["canopy_an_sd_umol_m2_s"], np.where(an_steps, 0.7, np.nan), rtol=1e-12)
+        assert df.attrs["provenance"] == "synthetic" and df.index.equals(times)
+    assert df.loc[times[1], "plant_par_umol_m2_s"] == 0.0

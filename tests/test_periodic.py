@@ -526,3 +526,53 @@ def test_walk_through_a_corner_shifts_both_axes_at_once():
     r = _walk_lanes(fs.tracer, np.array([[0.0, 0.0, 0.2]]), d[None])
     assert r["leaf"][0] and r["k"][0] == 1
     np.testing.assert_allclose(r["p"][0], [-0.15, -0.15, leaf_at[2]], atol=1e-5)
+
+
+def _lattice_shifts(cell, img, original, seg_id):
+    """The lattice vectors (i, j) by which the images of segment ``seg_id`` sit from its original
+    (both faces of a square share their first vertex)."""
+    v0 = original.vertices[original.faces[original.face_segment == seg_id][0, 0]]
+    got = img.vertices[img.faces[img.face_segment == seg_id][:, 0]]
+    k = (cell.to_local(got) - cell.to_local(v0)) / cell.size_m
+    assert np.allclose(k, np.round(k), atol=1e-9)
+    return sorted({(int(i), int(j)) for i, j in np.round(k)})
+
+
+def test_faces_within_the_margin_outside_the_cell_keep_their_own_image_on_every_side():
+    """Squares just outside the 1 m × 2 m cell: 0.5 µm outside (within IMAGE_MARGIN_M = 1 µm) they
+    are kept where they are and shifted back in over that side; 2 µm outside only the shifted copy
+    reaches the cell. Expected lattice vectors by hand, on each of the four sides."""
+    cell = PeriodicCell(1.0, 2.0, row_direction_deg=90.0)  # along = x (A = 1 m), across = y (B = 2 m)
+    h, near, far = 0.05, 5e-7, 2e-6  # half side of a 10 cm square, gaps outside the cell
+    cases = {  # segment id: (centre x, centre y), expected (i, j)
+        1: ((0.5 + near + h, 0.0), [(-1, 0), (0, 0)]),
+        2: ((-0.5 - near - h, 0.0), [(0, 0), (1, 0)]),
+        3: ((0.0, 1.0 + near + h), [(0, -1), (0, 0)]),
+        4: ((0.0, -1.0 - near - h), [(0, 0), (0, 1)]),
+        5: ((0.5 + far + h, 0.0), [(-1, 0)]),
+        6: ((0.0, -1.0 - far - h), [(0, 1)]),
+    }
+    mesh = Mesh.concatenate([square([x, y, 0.3], [0, 0, 1], 2 * h, k) for k, ((x, y), _) in cases.items()])
+    img = cell.images(mesh)
+    for k, (_, expected) in cases.items():
+        assert _lattice_shifts(cell, img, mesh, k) == expected, k
+
+
+def test_every_image_keeps_its_faces_segment_id_and_blade_flag():
+    """Faces of segments 9 (blade, inside), 3 (a prism face, over the +x side) and 7 (blade, over the
+    +x, +y corner), given in that order at heights 0.1, 0.2, 0.3 m (a lattice shift never changes
+    height): every image face carries the id and flag of the face at its height."""
+    cell = PeriodicCell(1.0, 2.0, row_direction_deg=90.0)
+    parts = [
+        square([0.0, 0.0, 0.1], [0, 0, 1], 0.2, 9),
+        square([0.5, 0.0, 0.2], [0, 0, 1], 0.2, 3),
+        square([0.5, 1.0, 0.3], [0, 0, 1], 0.2, 7),
+    ]
+    parts[1] = Mesh(parts[1].vertices, parts[1].faces, parts[1].face_segment, np.array([False, False]))
+    img = cell.images(Mesh.concatenate(parts))
+    z = img.vertices[img.faces][:, :, 2]
+    assert np.ptp(z, axis=1).max() == 0.0
+    by_height = {0.1: (9, True), 0.2: (3, False), 0.3: (7, True)}
+    got = [(int(s), bool(b)) for s, b in zip(img.face_segment, img.face_is_blade)]
+    assert got == [by_height[round(float(h), 6)] for h in z[:, 0]]
+    assert sorted(np.bincount(img.face_segment)[[9, 3, 7]]) == [2, 4, 8]  # 1, 2 and 4 images × 2 triangles

@@ -489,3 +489,118 @@ def test_the_preview_says_what_it_draws(tmp_path, monkeypatch):
         ("top view (dashed: the periodic cell, repeated without end)", 1),
         ("top view (pale: buffer plants)", 0),
     ]
+
+
+def test_a_valid_archive_whose_payload_does_not_match_its_checksum_is_rebuilt(tmp_path, monkeypatch):
+    """An entry that unzips cleanly under the right key but with an altered segment table (bit rot
+    inside an array, not in the zip framing) fails its SHA-256 and is regrown, never used. A stand-in
+    grower keeps it fast; the entry is rewritten with numpy's own writer, its metadata untouched."""
+    import lightfit.plant.cache as pc
+
+    table = pd.DataFrame(
+        {
+            "segment_index": np.arange(3, dtype=np.int64),
+            "organ_type": pd.Categorical(["stem", "leaf", "leaf"], categories=["root", "stem", "leaf", "other"]),
+            "length_m": np.array([0.1, 0.2, 0.3]),
+        }
+    )
+    grown = []
+    monkeypatch.setattr(pc, "grow_plant", lambda config, seed, plant_id=0: grown.append(seed) or table.copy())
+    g = GrowthConfig()
+    first, hit = pc.load_or_grow(g, 5, directory=tmp_path)
+    assert not hit and grown == [5]
+    path = tmp_path / f"{cache_key(g, 5)}.npz"
+    with np.load(path) as z:
+        entry = {k: z[k] for k in z.files}
+    entry["length_m"] = entry["length_m"] * 2  # same key, digest and columns: only the payload differs
+    np.savez(path, **entry)
+    again, hit = pc.load_or_grow(g, 5, directory=tmp_path)
+    assert not hit and grown == [5, 5]
+    np.testing.assert_array_equal(again["length_m"], [0.1, 0.2, 0.3])
+    third, hit = pc.load_or_grow(g, 5, directory=tmp_path)  # the rebuilt entry is good
+    assert hit and third.equals(first)
+
+
+def test_a_schema_bump_makes_every_entry_stale(monkeypatch):
+    """Documented: bump SCHEMA when the segment table's layout changes and older entries become stale."""
+    import lightfit.plant.cache as pc
+
+    g = GrowthConfig()
+    before = cache_key(g, 42)
+    monkeypatch.setattr(pc, "SCHEMA", pc.SCHEMA + 1)
+    assert cache_key(g, 42) != before
+
+
+def test_exports_of_a_hand_built_mesh_read_back_by_face(tmp_path):
+    """Two triangles of segments 7 and 3 (given in that order), a value per segment: the OBJ's faces
+    read back by trimesh (1-based indices in the file) and the VTK cell values in face order."""
+    mesh = Mesh(
+        vertices=np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.5]]),
+        faces=np.array([[0, 1, 2], [1, 3, 2]]),
+        face_segment=np.array([7, 3]),
+        face_is_blade=np.array([True, True]),
+    )
+    values = {"an": pd.Series({3: -1.25, 7: 4.5})}
+    obj = export(mesh, tmp_path / "m.obj", values)
+    text = obj.read_text().splitlines()
+    faces = [tuple(int(i) for i in line.split()[1:]) for line in text if line.startswith("f ")]
+    assert sorted(faces) == sorted([(1, 2, 3), (2, 4, 3)])  # OBJ indices count from 1
+    tm = trimesh.load(obj, process=False, force="mesh")
+    assert np.allclose(tm.vertices, mesh.vertices)
+    assert {tuple(f) for f in tm.faces} == {(0, 1, 2), (1, 3, 2)}
+    vtk = export(mesh, tmp_path / "m.vtk", values).read_text().splitlines()
+    i = vtk.index("SCALARS an double 1") + 2
+    assert [float(x) for x in vtk[i : i + 2]] == [4.5, -1.25]  # face 0 is segment 7, face 1 segment 3
+    assert vtk[vtk.index("POLYGONS 2 8") + 1 :][:2] == ["3 0 1 2", "3 1 3 2"]
+
+
+def test_a_blade_along_its_branching_direction_lies_across_horizontally():
+    """Where a blade segment runs along its branching direction (t × s = 0) the width falls back to
+    the horizontal direction square to the segment (mesh module): a segment rising at 45° towards +y
+    gives a ribbon across x, its upper side up, normal (0, −1, 1)/√2, area w·L (by hand)."""
+    a = np.array([0.0, 0.0, 0.1])
+    t = np.array([0.0, 1.0, 1.0]) / np.sqrt(2)
+    b = a + 0.1 * t
+    seg = pd.DataFrame(
+        {
+            "plant_id": [0],
+            "segment_index": [0],
+            "segment_id": [7],
+            "organ_type": pd.Categorical(["leaf"], categories=["root", "stem", "leaf", "other"]),
+            "organ_id": [2],
+            "x0": [a[0]],
+            "y0": [a[1]],
+            "z0": [a[2]],
+            "x1": [b[0]],
+            "y1": [b[1]],
+            "z1": [b[2]],
+            "length_m": [0.1],
+            "radius_m": [0.0003],
+            "blade_width_m": [0.01],
+            "blade_area_m2": [0.001],
+            "creation_time_d": [1.0],
+            "bx": [t[0]],
+            "by": [t[1]],
+            "bz": [t[2]],
+        }
+    )
+    m = shoot_mesh(seg)
+    assert m.face_is_blade.all() and (m.face_segment == 7).all()
+    np.testing.assert_allclose(m.normals(), np.tile([0.0, -1.0, 1.0], (m.n_faces, 1)) / np.sqrt(2), atol=1e-12)
+    assert m.face_areas().sum() == pytest.approx(0.01 * 0.1, rel=1e-12)
+    half = np.array([0.005, 0.0, 0.0])  # half the width, along x
+    corners = np.array(sorted(map(tuple, [a - half, a + half, b - half, b + half])))
+    used = np.array(sorted(map(tuple, m.vertices[np.unique(m.faces)])))
+    np.testing.assert_allclose(used, corners, atol=1e-15)
+
+
+def test_growth_runs_from_after_its_season_start_to_at_most_the_models_range():
+    """The target date must come after the season start (the same day is no growth) and at most
+    MAX_GROWTH_DAYS = 150 days after it: 5 March + 150 days is 2 August 2016 (26 + 30 + 31 + 30 + 31
+    + 2 days, by hand), taken; 3 August is refused."""
+    with pytest.raises(InputError, match="not after season_start"):
+        GrowthConfig(season_start="2016-04-20", target_date="2016-04-20")
+    assert GrowthConfig(season_start="2016-04-20", target_date="2016-04-21").days == 1.0
+    assert GrowthConfig(season_start="2016-03-05", target_date="2016-08-02").days == 150.0
+    with pytest.raises(InputError, match="151 days after season_start"):
+        GrowthConfig(season_start="2016-03-05", target_date="2016-08-03")

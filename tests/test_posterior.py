@@ -1458,3 +1458,36 @@ def test_cautions_at_their_thresholds():
     assert _cautions({"names": ["a"], "rhat": [1.19]}) == []
     (line,) = _cautions({"names": ["a"], "rhat": [1.01], "sd_over_prior_sd": {"a": 0.9, "b": 0.89}})
     assert line.startswith("the data hardly inform a: its posterior SD is 0.90 × its prior's"), line
+
+
+def test_the_run_file_holds_each_walkers_density_and_acceptances_by_hand(tmp_path):
+    """A run stored in two calls (7 steps, then 8 more): every stored log-probability is the target's
+    density at that walker's stored position, and each walker's acceptances, in the file and in the
+    result's diagnostics, are the steps where it moved (a continuous proposal never lands where the
+    walker stands), counted by hand from the chain and the initial positions."""
+    path, init = tmp_path / "run.h5", _init()
+    kw = dict(nwalkers=8, seed=11, progress=False)
+    P.sample(Gauss(), NAMES, path, max_steps=7, initial=init, **kw)
+    res = P.sample(Gauss(), NAMES, path, max_steps=15, **kw)
+    run = P.load_run(path)
+    chain = run["chain"]
+    assert chain.shape == (15, 8, 3) and run["log_prob"].shape == (15, 8)
+    np.testing.assert_allclose(run["log_prob"], Gauss()(chain.reshape(-1, 3)).reshape(15, 8), rtol=1e-12, atol=1e-12)
+    moved = (chain != np.concatenate([init[None], chain[:-1]])).any(axis=2).sum(axis=0)
+    assert 0 < moved.sum() < 15 * 8
+    np.testing.assert_array_equal(run["accepted"], moved)
+    np.testing.assert_allclose(res.diagnostics["acceptance"] * 15, moved, rtol=1e-12)
+    np.testing.assert_array_equal(res.chain, chain)
+    np.testing.assert_array_equal(res.log_prob, run["log_prob"])
+
+
+def test_a_run_interrupted_before_its_first_step_is_stored_starts_afresh(tmp_path):
+    """A Ctrl-C in the first step leaves the run's group with no step: the next call starts the run
+    anew from its initial positions, the chain of a run never interrupted."""
+    kw = dict(nwalkers=8, max_steps=6, seed=11, initial=_init(), progress=False)
+    ref = P.sample(Gauss(), NAMES, tmp_path / "ref.h5", **kw)
+    with pytest.raises(KeyboardInterrupt):
+        P.sample(Gauss(interrupt_after=1), NAMES, tmp_path / "run.h5", **kw)
+    done = P.sample(Gauss(), NAMES, tmp_path / "run.h5", **kw)
+    assert done.steps_this_call == 6
+    np.testing.assert_array_equal(done.chain, ref.chain)

@@ -99,3 +99,24 @@ def test_compilation_cache_keeps_programs_for_the_next_process(tmp_path):
         [sys.executable, "-c", code], capture_output=True, text=True, env={**env, "JAX_COMPILATION_CACHE_DIR": mine}
     )
     assert out.stdout.split()[0] == mine and any((tmp_path / "mine").iterdir())
+
+
+def test_compilation_cache_takes_the_folder_given_and_keeps_every_program(tmp_path):
+    """A folder passed in wins over the cache root, and both of JAX's thresholds (compile time, entry
+    size) are zero so that lightfit's small programs are kept (a fresh process: the setting is global)."""
+    code = textwrap.dedent(
+        f"""
+        import jax
+        from lightfit.precision import use_compilation_cache
+        use_compilation_cache({str(tmp_path / "given")!r})
+        print(jax.config.jax_compilation_cache_dir)
+        c = jax.config
+        print(c.jax_persistent_cache_min_compile_time_secs, c.jax_persistent_cache_min_entry_size_bytes)
+        """
+    )
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["LIGHTFIT_CACHE"] = str(tmp_path / "root")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    lines = out.stdout.splitlines()
+    assert lines[0] == str(tmp_path / "given")
+    assert [float(v) for v in lines[1].split()] == [0.0, 0.0]

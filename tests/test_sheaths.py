@@ -276,3 +276,80 @@ def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
     # By node: organ 2 (z = 0) is the oldest, then organs 1 and 3 at z = 0.02 in organ-id order.
     np.testing.assert_allclose(wrapped.loc[[2, 1, 3], "radius_m"], [1e-3 + 3 * 2e-4, 1e-3 + 2 * 2e-4, 1e-3 + 2e-4])
     np.testing.assert_allclose(wrapped.loc[[1, 2, 3], ["x0", "x1"]].to_numpy(), 0.0, atol=1e-15)  # on the stem axis
+
+
+def _made_up(segments):
+    """A segment table from ``(plant, organ id, kind, start, end, radius, branching)`` rows (m; kind
+    "stem" or "leaf", leaves without blade width: all sheath)."""
+    recs = []
+    for i, (plant, oid, kind, p0, p1, r, branch) in enumerate(segments):
+        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+        recs.append(
+            {
+                "plant_id": plant,
+                "segment_index": i,
+                "segment_id": plant * 1_000_000 + i,
+                "organ_type": kind,
+                "organ_id": oid,
+                **dict(zip(P0, p0)),
+                **dict(zip(P1, p1)),
+                "length_m": float(np.linalg.norm(p1 - p0)),
+                "radius_m": r,
+                "blade_width_m": 0.0,
+                "blade_area_m2": 0.0,
+                "creation_time_d": 1.0,
+                **dict(zip(["bx", "by", "bz"], branch)),
+            }
+        )
+    return pd.DataFrame(recs)
+
+
+def test_a_sheath_encloses_every_younger_sheath_starting_within_its_whole_length():
+    """A vertical culm (radius 1 mm) and four sheaths (wall 0.2 mm) by node height: A from 0 m, two
+    segments of 5 cm (to 0.10 m); B 0.01–0.02; C 0.07–0.17; D 0.08–0.10. By hand, youngest first:
+    D = 1 + 0.2 = 1.2 mm; C encloses D: 1.4 mm; B encloses none (C and D start above its top):
+    1.2 mm; A encloses B, C (starting at 0.07 m, within its second segment) and D: 1.4 + 0.2 = 1.6 mm,
+    not the 1.4 mm of its next-younger sheath B alone."""
+    up = (0.0, 0.0, 1.0)
+    rod = lambda z0, z1: ((0.005, 0.0, z0), (0.005, 0.0, z1))  # noqa: E731  CPlantBox's rod, off the axis
+    rows = [(1, 9, "stem", (0, 0, 0.0), (0, 0, 0.15), 1e-3, up), (1, 9, "stem", (0, 0, 0.15), (0, 0, 0.3), 1e-3, up)]
+    rows += [
+        (1, 1, "leaf", *rod(0.0, 0.05), 2e-4, up),
+        (1, 1, "leaf", *rod(0.05, 0.10), 2e-4, up),
+        (1, 2, "leaf", *rod(0.01, 0.02), 2e-4, up),
+        (1, 3, "leaf", *rod(0.07, 0.17), 2e-4, up),
+        (1, 4, "leaf", *rod(0.08, 0.10), 2e-4, up),
+    ]
+    wrapped = wrap_sheaths(_made_up(rows))
+    radius = wrapped[wrapped["organ_type"] == "leaf"].groupby("organ_id")["radius_m"]
+    assert (radius.nunique() == 1).all()
+    np.testing.assert_allclose(radius.first().loc[[1, 2, 3, 4]], [1.6e-3, 1.2e-3, 1.4e-3, 1.2e-3], rtol=1e-12)
+
+
+def test_a_leaf_wraps_the_nearest_stem_or_without_one_goes_along_its_branching_direction():
+    """Plant 1 has two culms, at x = 0 (organ 1, radius 1 mm) and x = 5 cm (organ 2, 1.5 mm); a leaf
+    whose node is 2 mm from the second is wrapped on it, from the node's height with its length.
+    Plant 2 has no stem: its two-segment sheath goes straight from its node along the branching
+    direction (0, 0.6, 0.8), not along CPlantBox's tilted rod (module doc); its radius is its wall."""
+    up, b = (0.0, 0.0, 1.0), np.array([0.0, 0.6, 0.8])
+    rows = [
+        (1, 1, "stem", (0, 0, 0.0), (0, 0, 0.2), 1e-3, up),
+        (1, 2, "stem", (0.05, 0, 0.0), (0.05, 0, 0.2), 1.5e-3, up),
+        (1, 3, "leaf", (0.052, 0, 0.03), (0.06, 0, 0.08), 2e-4, up),
+        (2, 1, "leaf", (0.3, 0, 0.01), (0.32, 0, 0.05), 3e-4, tuple(b)),
+        (2, 1, "leaf", (0.32, 0, 0.05), (0.34, 0, 0.09), 3e-4, tuple(b)),
+    ]
+    table = _made_up(rows)
+    wrapped = wrap_sheaths(table)
+    leaf = wrapped.iloc[2]
+    L = np.hypot(0.008, 0.05)
+    np.testing.assert_allclose(leaf[P0].to_numpy(float), [0.05, 0.0, 0.03], atol=1e-15)
+    np.testing.assert_allclose(leaf[P1].to_numpy(float), [0.05, 0.0, 0.03 + L], atol=1e-15)
+    assert leaf["radius_m"] == pytest.approx(1.5e-3 + 2e-4, rel=1e-12)
+    lone = wrapped.iloc[3:]
+    L = np.hypot(0.02, 0.04)
+    node = np.array([0.3, 0.0, 0.01])
+    np.testing.assert_allclose(lone[P0].to_numpy(float), [node, node + L * b], atol=1e-15)
+    np.testing.assert_allclose(lone[P1].to_numpy(float), [node + L * b, node + 2 * L * b], atol=1e-15)
+    np.testing.assert_allclose(lone["length_m"], [L, L], rtol=1e-12)
+    np.testing.assert_allclose(lone["radius_m"], [3e-4, 3e-4], rtol=1e-12)

@@ -99,9 +99,9 @@ def profile_likelihood(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Profile of ``nll(x)`` along ``direction`` through ``x_hat``.
 
-    At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x),
-    and w (orthogonal to d) is optimised (scipy BFGS with JAX gradients, warm-started from the
-    neighbouring t). ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points
+    At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x;
+    d the unit vector along ``direction``, so t is a distance in u), and w (orthogonal to d) is
+    optimised (scipy BFGS with JAX gradients, warm-started from the neighbouring t). ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points
     where ``nll`` may be evaluated, e.g. an emulator's box: outside it the objective is +∞, so the
     line search steps back; the profile is +∞ at an offset with no allowed point (the slice itself
     is evaluated wherever the line goes, and counts for the profile only where allowed). Returns

@@ -1,0 +1,103 @@
+"""Atomic writes and file kinds (lightfit.files), the cache root (lightfit.cache), figure file names
+and the local-time axis (lightfit.figure)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from lightfit.cache import cache_root
+from lightfit.errors import InputError
+from lightfit.figure import clock_axis, figure_format
+from lightfit.files import is_netcdf, replace_text, replaced
+
+
+def test_replaced_swaps_the_whole_file_in_and_leaves_the_old_one_on_error(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text("old\n", encoding="utf-8")
+    with replaced(path) as tmp:
+        assert tmp.parent == tmp_path and tmp.suffix == ".csv" and tmp != path
+        tmp.write_text("new\n", encoding="utf-8")
+        assert path.read_text(encoding="utf-8") == "old\n"  # not touched before the block ends
+    assert path.read_text(encoding="utf-8") == "new\n"
+    with pytest.raises(RuntimeError, match="killed"):
+        with replaced(path) as tmp:
+            tmp.write_text("half a li", encoding="utf-8")
+            raise RuntimeError("killed while writing")
+    assert path.read_text(encoding="utf-8") == "new\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.csv"]  # no partial file left beside it
+    with pytest.raises(RuntimeError):
+        with replaced(tmp_path / "fresh.txt") as tmp:
+            tmp.write_text("cut", encoding="utf-8")
+            raise RuntimeError
+    assert not (tmp_path / "fresh.txt").exists()
+    assert replace_text(tmp_path / "u.txt", "µmol m⁻² s⁻¹") == tmp_path / "u.txt"
+    assert (tmp_path / "u.txt").read_bytes() == "µmol m⁻² s⁻¹".encode()
+
+
+def test_netcdf_is_known_by_its_first_bytes(tmp_path):
+    """netCDF-4 (an HDF5 file written by h5py), classic netCDF versions 1 and 2 (scipy's writer) and
+    CDF-5 (its 4 magic bytes) are netCDF; a CSV and a short file are not."""
+    from scipy.io import netcdf_file
+
+    h5 = tmp_path / "a.nc"
+    with h5py.File(h5, "w") as f:
+        f["x"] = np.arange(3.0)
+    assert is_netcdf(h5)
+    for version in (1, 2):
+        p = tmp_path / f"classic{version}.nc"
+        with netcdf_file(p, "w", version=version) as f:
+            f.createDimension("t", 2)
+            f.createVariable("x", "d", ("t",))[:] = [1.0, 2.0]
+        assert is_netcdf(p), version
+    cdf5 = tmp_path / "cdf5.nc"
+    cdf5.write_bytes(b"CDF\x05" + bytes(60))
+    assert is_netcdf(cdf5)
+    csv = tmp_path / "a.csv"
+    csv.write_text("time,x\n", encoding="utf-8")
+    short = tmp_path / "short.nc"
+    short.write_bytes(b"CD")
+    assert not is_netcdf(csv) and not is_netcdf(short)
+
+
+def test_cache_root_argument_then_environment_then_home(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "env"))
+    assert cache_root(tmp_path / "arg") == tmp_path / "arg"
+    assert cache_root() == tmp_path / "env"
+    monkeypatch.setenv("LIGHTFIT_CACHE", "")  # set but empty: as unset
+    assert cache_root() == tmp_path / "home" / ".cache" / "lightfit"
+    monkeypatch.delenv("LIGHTFIT_CACHE")
+    assert cache_root() == tmp_path / "home" / ".cache" / "lightfit"
+
+
+def test_figure_format_reads_the_suffix_in_any_case():
+    assert figure_format("preview.PNG") == "png"
+    assert figure_format(Path("out/weather.v2.Pdf")) == "pdf"
+    assert figure_format("a.jpeg") == "jpeg"
+    with pytest.raises(InputError, match=r"unknown image format '\.pgf'"):
+        figure_format("a.pgf")
+    with pytest.raises(InputError, match="no image format"):
+        figure_format("preview")
+
+
+def test_clock_axis_labels_the_local_time_of_the_zone():
+    """12:00 UTC on 1 June 2016 is 14:00 in Berlin (CEST, UTC+2) and 08:00 in New York (EDT, UTC−4)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.dates as mdates
+    import matplotlib.pyplot as plt
+
+    noon_utc = mdates.date2num(datetime(2016, 6, 1, 12, tzinfo=UTC))
+    fig, ax = plt.subplots()
+    try:
+        for tz, want in (("Europe/Berlin", "14:00"), ("America/New_York", "08:00")):
+            clock_axis(ax, tz)
+            assert ax.xaxis.get_major_formatter()(noon_utc) == want, tz
+    finally:
+        plt.close(fig)
