@@ -101,10 +101,11 @@ def profile_likelihood(
 
     At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x;
     d the unit vector along ``direction``, so t is a distance in u), and w (orthogonal to d) is
-    optimised (scipy BFGS with JAX gradients, warm-started from the neighbouring t). ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points
-    where ``nll`` may be evaluated, e.g. an emulator's box: outside it the objective is +∞, so the
-    line search steps back; the profile is +∞ at an offset with no allowed point (the slice itself
-    is evaluated wherever the line goes, and counts for the profile only where allowed). Returns
+    optimised (scipy BFGS with JAX gradients, warm-started from the neighbouring t).
+    ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points where ``nll`` may be
+    evaluated, e.g. an emulator's box: outside it the objective is +∞, so the line search steps
+    back; the profile is +∞ at an offset with no allowed point (the slice itself is evaluated
+    wherever the line goes, and counts for the profile only where allowed). Returns
     ``(ts, profile, slice)``: the profiled and the plain-slice nll.
     """
     from scipy.optimize import minimize
