@@ -552,11 +552,13 @@ def test_model_commands_reject_bad_input_before_running(command, args, words, tm
 
 
 def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypatch):
-    """`field-run --out r.csv` wrote netCDF under a text file's name; now refused before any plant grows."""
+    """`field-run --out r.csv` wrote netCDF under a text file's name; now refused before any plant grows
+    (the model options are resolved first, which may build the leaf's albedo table in the cache: a
+    process that had not built it yet did, so the whole cache folder is no measure)."""
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / "r.csv")])
     assert_user_error(r, str(tmp_path / "r.csv"), "netCDF", ".nc")
-    assert not (tmp_path / "cache").exists() and not (tmp_path / "r.csv").exists()
+    assert not (tmp_path / "cache" / "plants").exists() and not (tmp_path / "r.csv").exists()
 
 
 def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, monkeypatch):
@@ -573,7 +575,7 @@ def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, mo
     ):
         r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / out)])
         assert_user_error(r, "option --out", *words)
-    assert not (tmp_path / "cache").exists() and (tmp_path / "text.nc").read_text() == "hello\n"
+    assert not (tmp_path / "cache" / "plants").exists() and (tmp_path / "text.nc").read_text() == "hello\n"
     from lightfit.replication import check_netcdf_name
 
     (tmp_path / "empty.nc").touch()  # an empty file (mktemp) is replaced freely

@@ -56,8 +56,8 @@ def field_run(
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label
 
-    out = check_netcdf_name(out)  # before any table is computed (resolving the leaf builds one) or plant grown
-    s = resolve(model)
+    s = resolve(model)  # the model options' errors first (resolving the leaf may build its albedo table)
+    out = check_netcdf_name(out)  # before any plant grows
     parts = out.with_name(out.name + PARTS_SUFFIX)
     if parts.exists() and not parts.is_dir():
         raise InputError(
