@@ -183,3 +183,19 @@ def test_shadow_rays_past_the_budget_drop_the_least_recently_rendered_sun(monkey
     fs.set_sun(*b)
     est.render()
     assert len(cast) == 4  # B dropped when C came
+
+
+def test_bridge_render_many_renders_a_leaf_outside_the_box_as_the_clamped_leaf(quick):
+    """The light bridge renders a leaf outside [0, 1] as the clamped leaf (its forward rule: the render
+    is flat outside the box), in render_many as in the callback: the values at (1.3, 0.5, −0.1) are
+    bitwise those at (1, 0.5, 0) (a mutation audit: render_many without the clamp survived)."""
+    m, _ = quick
+    days = np.flatnonzero(m.day)[:2]
+    suns = np.stack([np.asarray(m.sun_deg[i], np.float64) for i in days])
+    outside, clamped = np.array([[1.3, 0.5, -0.1]]), np.array([[1.0, 0.5, 0.0]])
+    (v_out, s_out), (v_in, s_in) = (
+        next(m.irradiance.render_many(x, suns, m.scenario.seed)) for x in (outside, clamped)
+    )
+    assert v_out.shape == (len(days), len(PARTS), m.n_columns) and np.isfinite(v_out).all()
+    np.testing.assert_array_equal(v_out, v_in)
+    np.testing.assert_array_equal(s_out, s_in)
