@@ -14,6 +14,7 @@ from lightfit.cli.common import (
     caution,
     check_observations,
     console,
+    json_object,
     observations_lines,
     output_folder,
     parse_names,
@@ -152,7 +153,8 @@ def calibrate(
     # A history made with other model settings (e.g. the finite field, before periodic became the
     # default) must not be resumed into this run: checked before the plants are grown.
     settings, earlier = out / "settings.json", out / "calibration.json"
-    stored = {f: _record(f) for f in (settings, earlier) if resume and f.exists()}
+    record = "the JSON object an earlier calibrate wrote there, or --no-resume to start afresh"
+    stored = {f: json_object(f, "out", record) for f in (settings, earlier) if resume and f.exists()}
     before = stored.get(earlier, {}).get("parameters")
     if before is not None and list(before) != list(names):  # another run's result would be replaced silently
         raise InputError(
@@ -362,16 +364,3 @@ def _print_check(tr) -> None:
             "passed" if r["passed"] else "refine",
         )
     console.print(t)
-
-
-def _record(f: Path) -> dict:
-    """A record an earlier run wrote in ``--out`` (settings.json, calibration.json), read to compare
-    with this run; a file that is not a JSON object is the option's error, not a traceback."""
-    expected = "the JSON object an earlier calibrate wrote there, or --no-resume to start afresh"
-    try:
-        data = json.loads(f.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"not JSON: {err}", file=f, parameter="out", expected=expected) from None
-    if not isinstance(data, dict):
-        raise InputError(f"holds a JSON {type(data).__name__}", file=f, parameter="out", expected=expected)
-    return data

@@ -240,6 +240,21 @@ def output_file(path: Path, option: str) -> Path:
     return path
 
 
+def json_object(path: Path, option: str, expected: str) -> dict:
+    """The JSON object in ``path``, a file an option names or a command reads for it: a file that is
+    not JSON, cannot be read (a folder) or holds something else is that option's error, naming the
+    file, not a traceback."""
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"not JSON: {err}", file=path, parameter=option, expected=expected) from None
+    except OSError as err:
+        raise InputError(f"cannot be read ({err.strerror})", file=path, parameter=option, expected=expected) from None
+    if not isinstance(data, dict):
+        raise InputError(f"holds a JSON {type(data).__name__}", file=path, parameter=option, expected=expected)
+    return data
+
+
 def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     """Parameters from a JSON file (a calibration's ``calibration.json``: its ``theta``; a posterior's
     ``summary.json``: its MAP, ``x_map``, without the noise scale, which is no model parameter) or
@@ -250,14 +265,7 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     p = Path(theta)
     expected = "a calibration.json, a posterior's summary.json or a JSON object of parameter values"
     if p.exists():
-        try:
-            data = json.loads(p.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise InputError(f"not JSON: {err}", file=p, parameter=option, expected=expected) from None
-        except OSError as err:  # a folder, an unreadable file
-            raise InputError(f"cannot be read ({err.strerror})", file=p, parameter=option, expected=expected) from None
-        if not isinstance(data, dict):
-            raise InputError(f"holds a JSON {type(data).__name__}", file=p, parameter=option, expected=expected)
+        data = json_object(p, option, expected)
         values = data.get("theta", data)
         if "x_map" in data:  # a posterior's summary: its MAP (the sampled model parameters)
             values = {k: v for k, v in data["x_map"].items() if k in BOUNDS}
