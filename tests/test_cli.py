@@ -1644,11 +1644,18 @@ def test_weather_show_how_sample_keeps_the_values_at_the_new_stamps(tmp_path):
     assert not np.allclose(averaged["par_umol_m2_s"], par.reindex(averaged.index), rtol=1e-3, equal_nan=True)
 
 
-def _calibration_out(tmp_path, record: dict, history: str):
+def _calibration_out(tmp_path, monkeypatch, record: dict, history: str):
     """An --out holding a calibration of the quick model with ``record`` as its settings.json's
-    calibration, and its history (``history.jsonl`` or the surrogate's ``trust_region/``)."""
+    calibration, and its history (``history.jsonl`` or the surrogate's ``trust_region/``); calibrate
+    is stopped (Ctrl-C, exit 130) where it would build the model, after comparing the record."""
+    import importlib
+
     from lightfit.cli.options import ModelOptions, resolve
 
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module("lightfit.cli.calibrate"), "run_model", stop)
     out = tmp_path / "cal"
     out.mkdir()
     config = resolve(ModelOptions(quick=True)).as_dict()
@@ -1664,13 +1671,7 @@ def test_calibrate_compares_a_surrogate_runs_record_before_resuming_it(tmp_path,
     """A surrogate calibration keeps trust_region/, not history.jsonl: its record is compared all the
     same, so other observations are refused (a mutation audit: only history.jsonl looked for survived);
     the model is never built here (run_model stops the run: exit 130 had the check been skipped)."""
-    import importlib
-
-    def stop(*a, **k):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(importlib.import_module("lightfit.cli.calibrate"), "run_model", stop)
-    out = _calibration_out(tmp_path, {"observation_table_sha256": "0" * 64}, "trust_region")
+    out = _calibration_out(tmp_path, monkeypatch, {"observation_table_sha256": "0" * 64}, "trust_region")
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--out", str(out)]
     assert_user_error(runner.invoke(app, args), "settings.json", "observations (another table: its SHA-256 differs)")
 
@@ -1679,13 +1680,9 @@ def test_calibrate_without_the_surrogate_does_not_compare_the_surrogates_setting
     """--priors and --n-design shape only the surrogate's emulator: a --no-surrogate history is
     resumed whatever they were (a mutation audit: recording them for every run, which then refused
     a rerun for a setting it does not use, survived). Stopped where the model would be built."""
-    import importlib
-
-    def stop(*a, **k):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(importlib.import_module("lightfit.cli.calibrate"), "run_model", stop)
-    out = _calibration_out(tmp_path, {"surrogate": False, "priors": "wide", "n_design": 7}, "history.jsonl")
+    out = _calibration_out(
+        tmp_path, monkeypatch, {"surrogate": False, "priors": "wide", "n_design": 7}, "history.jsonl"
+    )
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--no-surrogate"]
     r = runner.invoke(app, [*args, "--out", str(out)])
     assert r.exit_code == 130, r.output  # passed the comparison, stopped at the model
