@@ -1147,37 +1147,19 @@ def test_job_key_changes_with_what_renders_and_not_with_threads(geometry):
     assert k0 not in others and len(set(others)) == len(others)
 
 
-def _read_binary_ply(path):
-    """Vertices and face records of a binary little-endian PLY (the format's header, read by hand)."""
-    raw = path.read_bytes()
-    head, body = raw.split(b"end_header\n", 1)
-    lines = head.decode("ascii").splitlines()
-    assert "format binary_little_endian 1.0" in lines
-    counts, props, element = {}, {"vertex": [], "face": []}, None
-    for ln in lines:
-        w = ln.split()
-        if w[0] == "element":
-            element, counts[w[1]] = w[1], int(w[2])
-        elif w[0] == "property" and w[1] != "list":
-            props[element].append((w[2], "<f8"))
-    assert props["vertex"] == [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
-    nv = counts["vertex"]
-    face_dt = np.dtype([("n", "u1"), ("v", "<i4", 3), *props["face"]])
-    faces = np.frombuffer(body[nv * 24 :], dtype=face_dt, count=counts["face"])
-    return np.frombuffer(body[: nv * 24], "<f8").reshape(nv, 3), faces
-
-
 def test_field_export_carries_the_first_selected_steps_values(mono_dataset, results_file):
     """field_values.ply's per-face values are those of the first selected step (the metadata says so),
-    each face's value its segment's in the results."""
+    each face's value its segment's in the results (the PLY read by trimesh, an independent reader)."""
+    import trimesh
+
     out, meta = mono_dataset
     res = open_results(results_file)
-    _, faces = _read_binary_ply(out / meta["field_export"]["file"])
-    seg = faces["segment_id"].astype(np.int64)
+    raw = trimesh.load(out / meta["field_export"]["file"], process=False).metadata["_ply_raw"]["face"]["data"]
+    seg = raw["segment_id"].ravel().astype(np.int64)
     first = res.values("absorbed_par", meta["images"][0]["time_index"]).reindex(seg).to_numpy(float)
     last = res.values("absorbed_par", 1).reindex(seg).to_numpy(float)
     assert meta["images"][0]["time_index"] == 0 and not np.allclose(first, last)
-    np.testing.assert_allclose(faces["absorbed_par"], first, rtol=1e-6)
+    np.testing.assert_allclose(raw["absorbed_par"].ravel(), first, rtol=1e-6)
 
 
 def test_gallery_columns_absorbed_par_and_margin_or_the_next_quantity():
