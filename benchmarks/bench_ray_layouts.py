@@ -26,7 +26,7 @@ directly of an isotropic sky, unit weights; the spread of the R replicates / √
 blades and over all segments. ``variance × time`` is the blades' median relative SE squared times
 the walk time, relative to ``per-ray R2`` (below 1: the layout pays). ``--vector-width`` sets
 Dr.Jit's LLVM packet width before anything is compiled (default: the CPU's, 16 with AVX-512) through
-drjit-core's ``jit_llvm_set_target`` (a C++ symbol of the library, not Python API), to measure
+``backend.set_llvm_target`` (drjit-core's ``jit_llvm_set_target``), to measure
 whether narrower packets trace incoherent rays faster.
 
 Writes benchmarks/results/ray_layouts.json (or ray_layouts_width<W>.json, or ``--out``; with the commit
@@ -36,9 +36,7 @@ and the load average) and prints a table (2 shared cores: compare rows of one ru
 from __future__ import annotations
 
 import argparse
-import ctypes
 import math
-import os
 import time
 from pathlib import Path
 
@@ -61,15 +59,11 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def set_vector_width(width: int) -> int:
-    """Dr.Jit's LLVM packet width for every kernel compiled from now on; returns the width in force."""
-    import drjit as dr
-
-    lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
-    get = ctypes.CFUNCTYPE(ctypes.c_char_p)
-    cpu, features = get(("_Z19jit_llvm_target_cpuv", lib))(), get(("_Z24jit_llvm_target_featuresv", lib))()
-    setter = ctypes.CFUNCTYPE(None, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32)
-    setter(("_Z19jit_llvm_set_targetPKcS0_j", lib))(cpu, features, int(width))
-    return ctypes.CFUNCTYPE(ctypes.c_uint32)(("_Z21jit_llvm_vector_widthv", lib))()
+    """Dr.Jit's LLVM packet width for every kernel compiled from now on (this CPU and its features
+    kept); returns the width in force."""
+    cpu, features, _ = backend.llvm_target()
+    backend.set_llvm_target(cpu, features, width)
+    return backend.llvm_target()[2]
 
 
 def cosine_directions(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:

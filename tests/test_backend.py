@@ -1,5 +1,7 @@
 """Backend choice: libLLVM discovery, variant selection, clear errors."""
 
+import json
+import math
 import os
 import subprocess
 import sys
@@ -142,3 +144,70 @@ def test_find_libllvm_takes_16_and_newer_newest_major_first(monkeypatch):
     assert pick(["/l/libLLVM-15.so", "/l/libLLVM-16.so"]) == "/l/libLLVM-16.so"
     assert pick(["/l/libLLVM.so.16.0.6", "/l/libLLVM-17.so"]) == "/l/libLLVM-17.so"
     assert pick(["/l/libLLVM-18.so", "/l/libLLVM.so.18.1"]) == "/l/libLLVM.so.18.1"
+
+
+# A leaf spanning the periodic cell: every projected ray lands on it, so its direct sun is sin β per
+# unit DNI exactly on its upper side (as in test_light_projection.py); two bounces add BSDF sampling
+# and the soil's light on its underside.
+_LEAF_RENDER = """
+import json, math, sys
+sys.path.insert(0, {tests!r})
+from test_periodic import square
+from lightfit.light import backend
+from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.scene import FieldScene, Optics
+from lightfit.plant.periodic import PeriodicCell
+cell = PeriodicCell(0.2, 0.3, row_direction_deg=70.0)
+mesh = square([0.0, 0.0, 0.4], [0, 0, 1], 1.0, 1)
+mesh.vertices[:, :2] = cell.corners_xy
+fs = FieldScene(mesh, Optics.preset("prospect"), cell=cell)
+fs.set_sun(35.0, 120.0)
+est = SegmentEstimator(fs, [1], samples=8, bounces=2, seed=3, direct="projection", direct_rays_per_m2=2e6)
+r = est.render()
+names = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
+print(json.dumps({{"info": backend.info().llvm_target, "drjit": backend.llvm_target(),
+                  "front_sun": float(r.front("incident_sun")[0]), "values": [float(getattr(r, n)[0]) for n in names]}}))
+"""
+
+
+def _leaf_render(target: str | None) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != backend.ENV_LLVM_TARGET}
+    if target is not None:
+        env[backend.ENV_LLVM_TARGET] = target
+    code = _LEAF_RENDER.format(tests=os.path.dirname(__file__))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.splitlines()[-1])
+
+
+def test_llvm_target_env_compiles_every_kernel_for_the_named_cpu_and_renders_the_same_light():
+    """LIGHTFIT_LLVM_TARGET=avx2 (the target of an AVX2 machine, which this one may emulate: it has AVX2)
+    sets drjit-core's CPU, features and 8 lanes, says so in BackendInfo, and renders the analytic direct
+    sun and, to float32 rounding, the light of this CPU's own kernels (not bitwise: other code)."""
+    native = _leaf_render(None)
+    if "+avx2" not in native["drjit"][1].split(","):
+        pytest.skip("this CPU lacks AVX2")
+    avx2 = _leaf_render("avx2")
+    cpu, features, lanes = backend.LLVM_TARGETS["avx2"]
+    assert avx2["drjit"] == [cpu, features, lanes]
+    assert avx2["info"] == f"{cpu}, 8 lanes (LIGHTFIT_LLVM_TARGET=avx2)"
+    assert native["info"] == f"{native['drjit'][0]}, {native['drjit'][2]} lanes (auto)"
+    assert avx2["front_sun"] == pytest.approx(math.sin(math.radians(35.0)), rel=1e-6)  # the upper side
+    assert avx2["values"][0] > avx2["front_sun"]  # the soil's light reaches the underside
+    np.testing.assert_allclose(avx2["values"], native["values"], rtol=2e-6)
+
+
+def test_llvm_target_refuses_unknown_names_and_features_this_cpu_lacks(monkeypatch):
+    """Refused before anything is set: an unknown name lists the known ones; a target needing a feature
+    the CPU lacks (its kernels would stop on an illegal instruction) names the feature."""
+    monkeypatch.delitem(backend._STATE, "llvm_target", raising=False)  # as in a fresh process
+    monkeypatch.setattr(backend, "set_llvm_target", lambda *a: pytest.fail("a target was set"))
+    monkeypatch.setenv(backend.ENV_LLVM_TARGET, "sse9")
+    with pytest.raises(backend.BackendError, match=r"LIGHTFIT_LLVM_TARGET='sse9' .*avx2, avx512"):
+        backend.configure_llvm_target()
+    cpu, features, _ = backend.LLVM_TARGETS["avx2"]
+    monkeypatch.setattr(backend, "llvm_target", lambda: ("haswell", features, 8))  # an AVX2-only CPU
+    monkeypatch.setenv(backend.ENV_LLVM_TARGET, " AVX512 ")
+    with pytest.raises(backend.BackendError, match=r"=avx512 needs .*\(\+avx512f, \+avx512bw, .*avx2"):
+        backend.configure_llvm_target()
+    assert "llvm_target" not in backend._STATE

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from lightfit.cli import COMMANDS, app
 from lightfit.errors import InputError
+from lightfit.light import backend
 from lightfit.weather import add_solar, read_weather
 from lightfit.weather.bundled import DATA_DIR
 
@@ -179,6 +180,9 @@ def test_info_names_variant_llvm_and_precision():
     assert "mitsuba variant" in r.stdout and "_ad_mono" in r.stdout
     assert "libLLVM" in r.stdout
     assert "float64" in r.stdout
+    if "llvm_ad_" in r.stdout:  # the CPU Dr.Jit compiles for, as drjit-core reports it
+        cpu, _, lanes = backend.llvm_target()
+        assert f"{cpu}, {lanes} lanes (" in r.stdout
 
 
 def test_info_bad_variant_exits_2():

@@ -17,6 +17,7 @@ from lightfit.errors import InputError
 from lightfit.inference.calibration import calibrate
 from lightfit.inference.likelihood import GaussianLikelihood, resolve_use
 from lightfit.inference.observations import COLUMNS, SERIES, read_observations
+from lightfit.light import backend
 from lightfit.model import observe as O
 from lightfit.model import schema
 from lightfit.model.coupled import NonConvergenceWarning, warn_unconverged
@@ -422,6 +423,8 @@ def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_thet
     versions = json.loads(ds.attrs["software_versions"])
     assert set(versions) >= {"lightfit", "estimator", "mitsuba", "drjit", "jax", "cplantbox"}
     assert ds.attrs["mitsuba_variant"].startswith("llvm_ad_")
+    cpu, _, lanes = backend.llvm_target()  # what drjit-core compiled the renders for
+    assert ds.attrs["llvm_target"].startswith(f"{cpu}, {lanes} lanes (")
     ds.attrs["theta_given"] = json.dumps({"specular": 0.7375, "light_factor": 1.1})
     fig = figure(ds)
     try:

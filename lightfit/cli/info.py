@@ -1,4 +1,4 @@
-"""``lightfit info``: versions, the Mitsuba variant in use and the libLLVM path."""
+"""``lightfit info``: versions, the Mitsuba variant in use, the libLLVM path and the CPU target."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ _PACKAGES = (
 
 
 def info() -> None:
-    """Print versions, the Mitsuba variant in use, the libLLVM path and the JAX precision."""
+    """Print versions, the Mitsuba variant in use, the libLLVM path, the CPU target and the JAX precision."""
     from lightfit.light import backend
     from lightfit.precision import precision
 
@@ -43,5 +43,6 @@ def info() -> None:
         raise
     t.add_row("mitsuba variant", f"{b.variant} ({b.variant_source})")
     t.add_row("libLLVM", f"{b.libllvm} ({b.libllvm_source})")
+    t.add_row("LLVM target", b.llvm_target or "none (CUDA)")
     t.add_row("CUDA usable", str(backend.cuda_usable()))
     console.print(t)

@@ -173,6 +173,7 @@ def replicate(
 NOT_SETTINGS = {
     "software_versions",
     "mitsuba_variant",
+    "llvm_target",
     "replication_config",
     "theta_given",
     "title",

@@ -10,6 +10,11 @@ already set that variable, which always wins.
 Variant choice: ``cuda_ad_<mode>`` when a CUDA device is usable, else ``llvm_ad_<mode>``.
 Override with the environment variable ``LIGHTFIT_VARIANT`` (e.g. ``llvm_ad_mono``) or the
 CLI flag ``lightfit --variant``. Every other module gets Mitsuba through :func:`mitsuba`.
+
+CPU kernels: Dr.Jit compiles them for the CPU it runs on (16 lanes with AVX-512, 8 with AVX2),
+and different code rounds differently in float32's last digits. ``LIGHTFIT_LLVM_TARGET`` names one
+of :data:`LLVM_TARGETS` for every machine of a heterogeneous cluster, so that their renders are the
+same to the bit (docs/light.md, "CPU targets").
 """
 
 from __future__ import annotations
@@ -32,6 +37,17 @@ DEFAULT_MODE = "mono"
 MIN_LLVM_MAJOR = 16
 ENV_VARIANT = "LIGHTFIT_VARIANT"
 ENV_LLVM = "DRJIT_LIBLLVM_PATH"
+ENV_LLVM_TARGET = "LIGHTFIT_LLVM_TARGET"
+
+_X86_64_V3 = (
+    "+64bit,+sse,+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+cx16,+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+movbe"
+)
+#: Named CPU targets for ``LIGHTFIT_LLVM_TARGET``: (LLVM CPU, LLVM features, lanes per packet). The
+#: x86-64 micro-architecture levels v3 (AVX2: Haswell, Zen 1 and later) and v4 (AVX-512).
+LLVM_TARGETS: dict[str, tuple[str, str, int]] = {
+    "avx2": ("x86-64-v3", _X86_64_V3, 8),
+    "avx512": ("x86-64-v4", _X86_64_V3 + ",+avx512f,+avx512bw,+avx512cd,+avx512dq,+avx512vl", 16),
+}
 
 
 class BackendError(RuntimeError):
@@ -48,12 +64,15 @@ class BackendInfo:
         libllvm_source: ``"user"`` if ``DRJIT_LIBLLVM_PATH`` was set before lightfit,
             ``"lightfit"`` if lightfit found it, ``None`` if not found.
         variant_source: ``"argument"``, ``"env"`` or ``"auto"``.
+        llvm_target: what Dr.Jit compiles CPU kernels for, e.g. ``znver5, 16 lanes (auto)`` or
+            ``x86-64-v3, 8 lanes (LIGHTFIT_LLVM_TARGET=avx2)``; ``None`` for CUDA variants.
     """
 
     variant: str
     libllvm: str | None
     libllvm_source: str | None
     variant_source: str
+    llvm_target: str | None = None
 
 
 _STATE: dict[str, object] = {}
@@ -200,9 +219,65 @@ def mitsuba(variant: str | None = None) -> ModuleType:
             f"(llvm_ad_* or cuda_ad_*, not polarised), here: {', '.join(usable)}"
         )
     mi.set_variant(chosen)
+    target = configure_llvm_target() if chosen.startswith("llvm") else None
     _STATE["mi"] = mi
-    _STATE["info"] = BackendInfo(chosen, libllvm, llvm_source, source)
+    _STATE["info"] = BackendInfo(chosen, libllvm, llvm_source, source, target)
     return mi
+
+
+def _drjit_core():
+    """Dr.Jit's core library, for the LLVM target calls its Python API does not expose."""
+    import drjit as dr
+
+    return ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+
+
+def llvm_target() -> tuple[str, str, int]:
+    """(LLVM CPU, LLVM features, lanes) that Dr.Jit compiles CPU kernels for now."""
+    lib, text = _drjit_core(), ctypes.CFUNCTYPE(ctypes.c_char_p)
+    cpu = text(("_Z19jit_llvm_target_cpuv", lib))().decode()
+    features = text(("_Z24jit_llvm_target_featuresv", lib))().decode()
+    return cpu, features, ctypes.CFUNCTYPE(ctypes.c_uint32)(("_Z21jit_llvm_vector_widthv", lib))()
+
+
+def set_llvm_target(cpu: str, features: str, lanes: int) -> None:
+    """Compile every later CPU kernel for ``cpu`` with ``features`` (LLVM's names, comma-separated
+    ``+feature``) and ``lanes`` per packet. Call it after the LLVM variant is set and before any
+    kernel compiles (:func:`mitsuba` does, for ``LIGHTFIT_LLVM_TARGET``); the benchmarks call it to
+    time other packet widths."""
+    set_target = ctypes.CFUNCTYPE(None, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32)
+    set_target(("_Z19jit_llvm_set_targetPKcS0_j", _drjit_core()))(cpu.encode(), features.encode(), int(lanes))
+
+
+def configure_llvm_target() -> str:
+    """Apply ``LIGHTFIT_LLVM_TARGET`` (once per process: the first LLVM variant's kernels fix it) and
+    describe the target in force, for :class:`BackendInfo`.
+
+    Raises:
+        BackendError: the name is not in :data:`LLVM_TARGETS`, or the CPU here lacks a feature the
+            target needs (its kernels would stop on an illegal instruction).
+    """
+    if "llvm_target" not in _STATE:
+        name = os.environ.get(ENV_LLVM_TARGET, "").strip().lower()
+        source = "auto"
+        if name:
+            if name not in LLVM_TARGETS:
+                raise BackendError(
+                    f"{ENV_LLVM_TARGET}={os.environ[ENV_LLVM_TARGET]!r} is not a CPU target lightfit knows; "
+                    f"expected one of {', '.join(LLVM_TARGETS)} (or unset, for this CPU's own)"
+                )
+            cpu, features, lanes = LLVM_TARGETS[name]
+            here = set(llvm_target()[1].split(","))
+            if missing := [f for f in features.split(",") if f not in here]:
+                raise BackendError(
+                    f"{ENV_LLVM_TARGET}={name} needs CPU features this machine lacks ({', '.join(missing)}); "
+                    f"use a target all your machines have, e.g. {ENV_LLVM_TARGET}=avx2, or unset it"
+                )
+            set_llvm_target(cpu, features, lanes)
+            source = f"{ENV_LLVM_TARGET}={name}"
+        cpu, _, lanes = llvm_target()
+        _STATE["llvm_target"] = f"{cpu}, {lanes} lanes ({source})"
+    return _STATE["llvm_target"]  # type: ignore[return-value]
 
 
 def package_versions(*packages: str) -> dict[str, str | None]:
@@ -220,6 +295,12 @@ def variant_in_use() -> str | None:
     """The Mitsuba variant this process renders with, or ``None`` where it has not loaded Mitsuba
     (light injected or read from a file): for results' provenance, without importing Mitsuba."""
     return _STATE["info"].variant if "info" in _STATE else None  # type: ignore[union-attr]
+
+
+def llvm_target_in_use() -> str | None:
+    """The CPU target of this process's renders (:attr:`BackendInfo.llvm_target`), or ``None`` where
+    it has not loaded Mitsuba or renders with CUDA: for results' provenance."""
+    return _STATE["info"].llvm_target if "info" in _STATE else None  # type: ignore[union-attr]
 
 
 def info() -> BackendInfo:

@@ -397,17 +397,19 @@ class CoupledModel:
 
 def software_attrs() -> dict:
     """What made a results file, as netCDF attributes: ``software_versions`` (JSON: lightfit, its
-    estimator and projection, Mitsuba, Dr.Jit, JAX, CPlantBox) and ``mitsuba_variant`` (the one this
-    process rendered with; results are reproducible on it, other variants round otherwise)."""
+    estimator and projection, Mitsuba, Dr.Jit, JAX, CPlantBox), ``mitsuba_variant`` (the one this
+    process rendered with) and ``llvm_target`` (the CPU its kernels were compiled for): results are
+    reproducible to the bit on both, others round otherwise (``LIGHTFIT_LLVM_TARGET`` fixes the CPU's)."""
     import json
 
-    from lightfit.light.backend import variant_in_use
+    from lightfit.light.backend import llvm_target_in_use, variant_in_use
     from lightfit.model.emulator import run_versions  # emulator imports this module: here, not at the top
 
     variant = variant_in_use()
     return {
         "software_versions": json.dumps(run_versions()),
         "mitsuba_variant": variant or "none: the light was not rendered in this process",
+        "llvm_target": llvm_target_in_use() or "none: the light was not rendered on the CPU in this process",
     }
 
 
