@@ -565,6 +565,22 @@ def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypat
     assert not (tmp_path / "cache" / "plants").exists() and not (tmp_path / "r.csv").exists()
 
 
+def test_a_cache_that_cannot_be_written_is_an_error_naming_lightfit_cache(tmp_path, monkeypatch):
+    """A cache root below a file (or otherwise unwritable) stopped the run with the path and the OS's
+    reason only; the message now says it is lightfit's cache and which variable moves it. A file
+    error elsewhere gets no such hint."""
+    import errno
+
+    from lightfit.cli.common import error_message
+
+    (tmp_path / "afile").write_text("")
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "afile" / "cache"))
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "out")])
+    assert_user_error(r, str(tmp_path / "afile" / "cache" / "plants"), "Not a directory", "set LIGHTFIT_CACHE to")
+    elsewhere = OSError(errno.ENOTDIR, "Not a directory", str(tmp_path / "afile" / "x.csv"))
+    assert error_message(elsewhere) == f"{tmp_path / 'afile' / 'x.csv'}: Not a directory"
+
+
 def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, monkeypatch):
     """A folder named r.nc, a file where the folder should be, or an existing file that is not
     netCDF (it was overwritten) are refused naming --out before any plant grows (a folder was

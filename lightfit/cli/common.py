@@ -5,6 +5,7 @@ from __future__ import annotations
 import atexit
 import json
 import logging
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -16,6 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 from typer.core import TyperGroup
 
+from lightfit.cache import ENV_CACHE, cache_root
 from lightfit.errors import InputError
 from lightfit.killpoint import interrupts_kept
 from lightfit.model.parameters import BOUNDS, check_theta
@@ -202,8 +204,19 @@ def error_message(err: BaseException, flags: dict[str, str] | None = None) -> st
     if isinstance(err, TimeoutError):
         return f"timed out: {err}" if str(err) else "timed out"
     if isinstance(err, OSError) and err.filename is not None:
-        return f"{err.filename}: {err.strerror or err}"
+        return f"{err.filename}: {err.strerror or err}" + _cache_hint(err.filename)
     return str(err)
+
+
+def _cache_hint(filename) -> str:
+    """Where a file error is inside lightfit's cache (a root that is a file, or not writable), the
+    variable that moves it; the path alone did not say the user had a say."""
+    root = cache_root()
+    try:
+        inside = Path(os.fsdecode(filename)).absolute().is_relative_to(root.absolute())
+    except (TypeError, ValueError):
+        return ""
+    return f" (lightfit's cache, {root}: set {ENV_CACHE} to a folder it can write)" if inside else ""
 
 
 def caution(line: str) -> None:
