@@ -55,6 +55,28 @@ def test_segment_table_contract(plant_table):
     assert np.allclose(np.linalg.norm(b, axis=1), 1.0)
 
 
+def test_creation_times_are_cplantbox_own_node_times_of_each_segment_end(plant_table):
+    """creation_time_d of a segment is when its end node formed: CPlantBox's per-organ node time
+    (``Organ.getNodeCT``, a second route to the times than the plant's ``nodeCTs`` the table reads),
+    for every stem and leaf segment of the same plant grown again."""
+    import plantbox as pb
+
+    cfg = GrowthConfig()
+    plant = pb.MappedPlant(int(plant_seed(7, 3, 4)))
+    plant.readParameters(str(cfg.path))
+    plant.initialize(False)
+    plant.simulate(cfg.days, False)
+    got = plant_table.set_index("segment_index")["creation_time_d"]
+    seen = 0
+    for organ_type in (3, 4):  # stems, leaves
+        for organ in plant.getOrgans(organ_type):
+            ids = list(organ.getNodeIds())
+            for i in range(1, len(ids)):  # segment ids[i] - 1 ends at node ids[i]
+                assert got[ids[i] - 1] == pytest.approx(organ.getNodeCT(i), abs=1e-12), (organ.getId(), i)
+                seen += 1
+    assert seen == len(plant_table)
+
+
 def test_roots_kept_available():
     full = grow_plant(GrowthConfig(include_roots=True), 5)
     shoot_only = grow_plant(GrowthConfig(), 5)
