@@ -200,7 +200,8 @@ def test_llvm_target_env_compiles_every_kernel_for_the_named_cpu_and_renders_the
 def test_llvm_target_refuses_unknown_names_and_features_this_cpu_lacks(monkeypatch):
     """Refused before anything is set: an unknown name lists the known ones; a target needing a feature
     the CPU lacks (its kernels would stop on an illegal instruction) names the feature."""
-    monkeypatch.delitem(backend._STATE, "llvm_target", raising=False)  # as in a fresh process
+    monkeypatch.setitem(backend._STATE, "llvm_target", "restored after the test, present or not")
+    monkeypatch.delitem(backend._STATE, "llvm_target")  # as in a fresh process
     monkeypatch.setattr(backend, "set_llvm_target", lambda *a: pytest.fail("a target was set"))
     monkeypatch.setenv(backend.ENV_LLVM_TARGET, "sse9")
     with pytest.raises(backend.BackendError, match=r"LIGHTFIT_LLVM_TARGET='sse9' .*avx2, avx512"):
@@ -211,3 +212,12 @@ def test_llvm_target_refuses_unknown_names_and_features_this_cpu_lacks(monkeypat
     with pytest.raises(backend.BackendError, match=r"=avx512 needs .*\(\+avx512f, \+avx512bw, .*avx2"):
         backend.configure_llvm_target()
     assert "llvm_target" not in backend._STATE
+
+    def no_symbol():  # a Dr.Jit whose core does not export the calls (ctypes' AttributeError)
+        raise AttributeError("undefined symbol: _Z24jit_llvm_target_featuresv")
+
+    monkeypatch.setattr(backend, "llvm_target", no_symbol)
+    with pytest.raises(backend.BackendError, match="does not let lightfit set its CPU target; unset"):
+        backend.configure_llvm_target()
+    monkeypatch.delenv(backend.ENV_LLVM_TARGET)  # unset: renders on, saying it cannot tell
+    assert backend.configure_llvm_target() == "unknown: this Dr.Jit does not say"

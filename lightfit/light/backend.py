@@ -267,7 +267,12 @@ def configure_llvm_target() -> str:
                     f"expected one of {', '.join(LLVM_TARGETS)} (or unset, for this CPU's own)"
                 )
             cpu, features, lanes = LLVM_TARGETS[name]
-            here = set(llvm_target()[1].split(","))
+            try:
+                here = set(llvm_target()[1].split(","))
+            except (OSError, AttributeError):
+                raise BackendError(
+                    f"this Dr.Jit does not let lightfit set its CPU target; unset {ENV_LLVM_TARGET}"
+                ) from None
             if missing := [f for f in features.split(",") if f not in here]:
                 raise BackendError(
                     f"{ENV_LLVM_TARGET}={name} needs CPU features this machine lacks ({', '.join(missing)}); "
@@ -275,8 +280,11 @@ def configure_llvm_target() -> str:
                 )
             set_llvm_target(cpu, features, lanes)
             source = f"{ENV_LLVM_TARGET}={name}"
-        cpu, _, lanes = llvm_target()
-        _STATE["llvm_target"] = f"{cpu}, {lanes} lanes ({source})"
+        try:
+            cpu, _, lanes = llvm_target()
+            _STATE["llvm_target"] = f"{cpu}, {lanes} lanes ({source})"
+        except (OSError, AttributeError):  # a Dr.Jit that does not export the calls: say so, render on
+            _STATE["llvm_target"] = "unknown: this Dr.Jit does not say"
     return _STATE["llvm_target"]  # type: ignore[return-value]
 
 
