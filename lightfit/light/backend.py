@@ -43,7 +43,7 @@ _X86_64_V3 = (
     "+64bit,+sse,+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+cx16,+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+movbe"
 )
 #: Named CPU targets for ``LIGHTFIT_LLVM_TARGET``: (LLVM CPU, LLVM features, lanes per packet). The
-#: x86-64 micro-architecture levels v3 (AVX2: Haswell, Zen 1 and later) and v4 (AVX-512).
+#: x86-64 micro-architecture levels v3 (AVX2, FMA, BMI2: Intel since Haswell, AMD since Zen) and v4 (AVX-512).
 LLVM_TARGETS: dict[str, tuple[str, str, int]] = {
     "avx2": ("x86-64-v3", _X86_64_V3, 8),
     "avx512": ("x86-64-v4", _X86_64_V3 + ",+avx512f,+avx512bw,+avx512cd,+avx512dq,+avx512vl", 16),
