@@ -152,6 +152,42 @@ def test_blade_perpendicular_to_branching_and_segment(plant_table):
     assert (np.einsum("ij,ij->i", m.normals()[tube], radial) > 0).all()
 
 
+def test_stems_and_sheaths_seen_from_the_side_are_cylinders_from_every_azimuth(small_field):
+    """Reference: a cylinder of radius r and length L seen along d has the projected area
+    2rL·√(1 − (t·d)²), the same from every azimuth. Each prism has the cylinder's lateral area, but a
+    hexagon's width depends on the azimuth (√3 R to 2R); with every organ's prisms turned alike the
+    field's stems and sheaths showed −9.3 % to +4.7 % of the cylinders' area with a 60° period (a
+    shared pattern in their direct sun). Turned by their own angles they match the cylinders to 1 %
+    at every azimuth (≤ 0.1 % measured on this field's 150 organs)."""
+    _, g = small_field
+    seg = g.segments.set_index("segment_id")
+    tube = ~np.asarray(g.mesh.face_is_blade)
+    v = g.mesh.vertices[g.mesh.faces[tube]]
+    area_normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]) / 2
+    st = seg.loc[np.unique(g.mesh.face_segment[tube])]
+    t = st[["x1", "y1", "z1"]].to_numpy() - st[["x0", "y0", "z0"]].to_numpy()
+    length = np.linalg.norm(t, axis=1)
+    t /= length[:, None]
+    for phi in np.radians(np.arange(0.0, 60.0, 7.5)):
+        d = np.array([np.cos(phi), np.sin(phi), 0.0])
+        prisms = 0.5 * np.abs(area_normals @ d).sum()  # a closed convex solid's shadow: half Σ|n·d|A
+        cylinders = (2 * st["radius_m"].to_numpy() * length * np.sqrt(1 - (t @ d) ** 2)).sum()
+        assert prisms == pytest.approx(cylinders, rel=0.01), np.degrees(phi)
+
+
+def test_prism_turns_spread_over_one_sector():
+    """prism_turn depends on the plant and organ ids alone and spreads the organs over [0, 2π/n): a
+    prism repeats itself every 2π/n, so that sector is every orientation."""
+    from lightfit.plant.mesh import prism_turn
+
+    plants, organs = np.meshgrid(np.arange(40), np.arange(25))
+    turn = prism_turn(plants.ravel(), organs.ravel(), 6)
+    assert ((turn >= 0) & (turn < np.pi / 3)).all()
+    counts, _ = np.histogram(turn, bins=12, range=(0, np.pi / 3))
+    assert counts.min() >= 0.8 * counts.mean() and counts.max() <= 1.2 * counts.mean(), counts
+    np.testing.assert_array_equal(turn, prism_turn(plants.ravel(), organs.ravel(), 6))
+
+
 def test_hand_built_leaf_lies_flat():
     # A leaf leaving a vertical stem horizontally along +x: blade horizontal, normal +z, area w·L.
     t = pd.DataFrame(
@@ -442,7 +478,7 @@ def test_plants_face_their_own_ways_unless_aligned():
 
     c, s37 = np.cos(np.radians(37.0)), np.sin(np.radians(37.0))
     m0, m1 = shoot_mesh(seg), shoot_mesh(turned(seg, 37.0))
-    on_blade = np.unique(m0.faces[np.asarray(m0.face_is_blade)])  # (the prisms' hexagons keep their own twist)
+    on_blade = np.unique(m0.faces[np.asarray(m0.face_is_blade)])  # (prisms turn by their organs' own angles)
     v0, v1 = m0.vertices[on_blade], m1.vertices[on_blade]
     assert len(v0) > 100
     np.testing.assert_allclose(v1[:, 0], c * v0[:, 0] - s37 * v0[:, 1], atol=1e-12)
