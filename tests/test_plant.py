@@ -157,8 +157,8 @@ def test_stems_and_sheaths_seen_from_the_side_are_cylinders_from_every_azimuth(s
     2rL·√(1 − (t·d)²), the same from every azimuth. Each prism has the cylinder's lateral area, but a
     hexagon's width depends on the azimuth (√3 R to 2R); with every organ's prisms turned alike the
     field's stems and sheaths showed −9.3 % to +4.7 % of the cylinders' area with a 60° period (a
-    shared pattern in their direct sun). Turned by their own angles they match the cylinders to 1 %
-    at every azimuth (≤ 0.1 % measured on this field's 150 organs)."""
+    shared pattern in their direct sun). Each plant's turned by its own angle, they match the
+    cylinders to 1 % at every azimuth (≤ 0.23 % measured on this field)."""
     _, g = small_field
     seg = g.segments.set_index("segment_id")
     tube = ~np.asarray(g.mesh.face_is_blade)
@@ -176,16 +176,19 @@ def test_stems_and_sheaths_seen_from_the_side_are_cylinders_from_every_azimuth(s
 
 
 def test_prism_turns_spread_over_one_sector():
-    """prism_turn depends on the plant and organ ids alone and spreads the organs over [0, 2π/n): a
-    prism repeats itself every 2π/n, so that sector is every orientation."""
+    """prism_turn depends on the plant id alone and spreads the plants over [0, 2π/n): a prism
+    repeats itself every 2π/n, so that sector is every orientation (the ids of a 26 × 26 field with
+    its buffer rows)."""
+    from lightfit.plant.field import plant_id
     from lightfit.plant.mesh import prism_turn
 
-    plants, organs = np.meshgrid(np.arange(40), np.arange(25))
-    turn = prism_turn(plants.ravel(), organs.ravel(), 6)
+    rows, cols = np.meshgrid(np.arange(-2, 24), np.arange(-2, 24))
+    plants = plant_id(rows.ravel(), cols.ravel())
+    turn = prism_turn(plants, 6)
     assert ((turn >= 0) & (turn < np.pi / 3)).all()
     counts, _ = np.histogram(turn, bins=12, range=(0, np.pi / 3))
     assert counts.min() >= 0.8 * counts.mean() and counts.max() <= 1.2 * counts.mean(), counts
-    np.testing.assert_array_equal(turn, prism_turn(plants.ravel(), organs.ravel(), 6))
+    np.testing.assert_array_equal(turn, prism_turn(plants, 6))
 
 
 def test_hand_built_leaf_lies_flat():
@@ -478,7 +481,7 @@ def test_plants_face_their_own_ways_unless_aligned():
 
     c, s37 = np.cos(np.radians(37.0)), np.sin(np.radians(37.0))
     m0, m1 = shoot_mesh(seg), shoot_mesh(turned(seg, 37.0))
-    on_blade = np.unique(m0.faces[np.asarray(m0.face_is_blade)])  # (prisms turn by their organs' own angles)
+    on_blade = np.unique(m0.faces[np.asarray(m0.face_is_blade)])  # (prisms turn by their plant's own angle)
     v0, v1 = m0.vertices[on_blade], m1.vertices[on_blade]
     assert len(v0) > 100
     np.testing.assert_allclose(v1[:, 0], c * v0[:, 0] - s37 * v0[:, 1], atol=1e-12)

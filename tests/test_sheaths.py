@@ -278,6 +278,61 @@ def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
     np.testing.assert_allclose(wrapped.loc[[1, 2, 3], ["x0", "x1"]].to_numpy(), 0.0, atol=1e-15)  # on the stem axis
 
 
+def test_nested_prisms_stay_inside_one_another():
+    """The wrapped tubes' hexagons: the culm inside the youngest sheath, each sheath inside the next
+    older one, for every vertex where their spans overlap (on the made-up plant of the test above,
+    radii 1.0, 1.2, 1.4, 1.6 mm). Reference: a point is inside a convex prism when it lies behind
+    each face's plane. A hexagon of circumradius R holds another of R' turned against it only if R' ≤
+    R·cos 30°, and 1.4 / 1.6 = 0.875 is more: prisms turned organ by organ pushed the middle sheath's
+    edges through the oldest one's faces. One turn per plant keeps each nest's hexagons aligned."""
+    from lightfit.plant.mesh import shoot_mesh
+
+    recs = [
+        {"organ_id": oid, "organ_type": kind, "z0": z, "z1": 0.1 if kind == "stem" else z + 0.05}
+        for oid, kind, z in ((9, "stem", 0.0), (3, "leaf", 0.02), (1, "leaf", 0.02), (2, "leaf", 0.0))
+    ]
+    table = pd.DataFrame(
+        [
+            {
+                "plant_id": 1,
+                "segment_index": i,
+                "segment_id": 1_000_000 + i,
+                **r,
+                "x0": 0.0,
+                "y0": 0.0,
+                "x1": 0.0,
+                "y1": 0.0,
+                "length_m": r["z1"] - r["z0"],
+                "radius_m": 1e-3 if r["organ_type"] == "stem" else 2e-4,
+                "blade_width_m": 0.0,
+                "blade_area_m2": 0.0,
+                "creation_time_d": 1.0,
+                "bx": 0.0,
+                "by": 0.0,
+                "bz": 1.0,
+            }
+            for i, r in enumerate(recs)
+        ]
+    )
+    wrapped = wrap_sheaths(table)
+    mesh = shoot_mesh(wrapped)
+    by_segment = wrapped.set_index("segment_id")
+    normals = mesh.normals()
+    checked = 0
+    for outer, o in by_segment.iterrows():
+        for inner, i in by_segment.iterrows():
+            if i["radius_m"] >= o["radius_m"]:
+                continue
+            faces = mesh.face_segment == outer
+            p, n = mesh.vertices[mesh.faces[faces, 0]], normals[faces]
+            v = mesh.vertices[np.unique(mesh.faces[mesh.face_segment == inner])]
+            v = v[(v[:, 2] >= o["z0"]) & (v[:, 2] <= o["z1"])]
+            # behind every face plane of the outer prism (outward normals)
+            assert (np.einsum("vk,fk->vf", v, n) - np.einsum("fk,fk->f", p, n) <= 1e-12).all(), (inner, outer)
+            checked += len(v)
+    assert checked > 0
+
+
 def _made_up(segments):
     """A segment table from ``(plant, organ id, kind, start, end, radius, branching)`` rows (m; kind
     "stem" or "leaf", leaves without blade width: all sheath)."""

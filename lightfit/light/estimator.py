@@ -83,7 +83,7 @@ DIRECT_MODES = ("paths", "projection", "none")
 #: :func:`lightfit.model.emulator.render_key`) from before the change are not reused with renders
 #: from after it. 2: low-dimensional Kronecker sequences for the point and first directions.
 #: 3: the albedo table Catmull–Rom in roughness (:func:`~lightfit.light.bsdf.leaf_albedo`; values
-#: between the table's nodes move by at most F0 × 2.5e-3 ≤ 2e-4 of the albedo). 4: each organ's
+#: between the table's nodes move by at most F0 × 2.5e-3 ≤ 2e-4 of the albedo). 4: each plant's
 #: stem and sheath prisms turned about their axes by its own angle (:func:`lightfit.plant.mesh.prism_turn`;
 #: the mesh, not the sampling, but the segment table that keys the geometry is unchanged).
 ESTIMATOR_VERSION = 4

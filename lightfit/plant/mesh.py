@@ -14,10 +14,12 @@ planar, so a segment's mesh area equals its one-sided blade area w·L exactly (t
 Stems and leaf sheaths (leaf segments with no blade area) are open n-sided prisms whose
 circumradius is enlarged to r·π / (n·sin(π/n)) so that the prism's lateral area equals the
 cylinder's 2πrL exactly. A prism's width seen from the side depends on where one looks from
-(a hexagon's from √3 R to 2R, −9 % to +5 % of the cylinder's 2r), so each organ's prisms are turned
-about their axes by their own angle (:func:`prism_turn`): a common angle gave every upright stem
-and sheath of the field the same facets, and their direct sun a shared pattern in the sun's
-azimuth with a period of 2π/n.
+(a hexagon's from √3 R to 2R, −9 % to +5 % of the cylinder's 2r), so each plant's prisms are turned
+about their axes by the plant's own angle (:func:`prism_turn`): a common angle gave every upright
+stem and sheath of the field the same facets, and their direct sun a shared pattern in the sun's
+azimuth with a period of 2π/n. One angle per plant, not per organ, keeps the hexagons of a stem and
+the sheaths wrapped round it aligned, so that each stays inside the next (a hexagon of circumradius
+R holds one turned against it only if that one's is at most R·cos(π/n)).
 
 Normals of blade faces point to the upper (adaxial) side: the side whose normal has a
 non-negative vertical component; prism normals point outwards.
@@ -171,22 +173,21 @@ def blade_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
     return Mesh(pts.reshape(-1, 3), faces, ids, np.ones(len(faces), bool))
 
 
-#: Generators of :func:`prism_turn` (1/g and 1/g², g the plastic number: the R₂ sequence's pair,
-#: which spreads the integer pairs (plant, organ) evenly over the unit interval).
-_TURN = (0.7548776662466927, 0.5698402909980532)
+#: Generator of :func:`prism_turn`: 1/g, g the plastic number (the R₂ sequence's first), whose
+#: multiples spread the plant ids evenly over the unit interval.
+_TURN = 0.7548776662466927
 
 
-def prism_turn(plant_id, organ_id, around: int) -> np.ndarray:
-    """Angle (radians, in [0, 2π/n)) by which an organ's n-sided prisms are turned about their
-    axes, from its plant and organ ids alone: {plant·a + organ·b} · 2π/n with (a, b) :data:`_TURN`.
-    The organs' facets then face every way in equal measure (a prism repeats itself every 2π/n)."""
-    u = (np.asarray(plant_id, dtype=float) * _TURN[0] + np.asarray(organ_id, dtype=float) * _TURN[1]) % 1.0
-    return u * (2 * np.pi / around)
+def prism_turn(plant_id, around: int) -> np.ndarray:
+    """Angle (radians, in [0, 2π/n)) by which a plant's n-sided prisms are turned about their axes,
+    from its id alone: {plant_id · a} · 2π/n with a :data:`_TURN`. The plants' facets then face every
+    way in equal measure (a prism repeats itself every 2π/n)."""
+    return (np.asarray(plant_id, dtype=float) * _TURN % 1.0) * (2 * np.pi / around)
 
 
 def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
-    """Open n-sided prisms for stems and sheaths, lateral area equal to 2πrL, each organ's turned
-    about its axis by :func:`prism_turn`."""
+    """Open n-sided prisms for stems and sheaths, lateral area equal to 2πrL, each plant's turned
+    about their axes by :func:`prism_turn`."""
     a = seg[["x0", "y0", "z0"]].to_numpy()
     b = seg[["x1", "y1", "z1"]].to_numpy()
     t, _ = _unit(b - a)
@@ -196,7 +197,7 @@ def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
     n = res.around
     r = seg["radius_m"].to_numpy() * np.pi / (n * np.sin(np.pi / n))
     # closing column repeats the first angle
-    theta = prism_turn(seg["plant_id"], seg["organ_id"], n)[:, None] + np.linspace(0.0, 2 * np.pi, n + 1)
+    theta = prism_turn(seg["plant_id"], n)[:, None] + np.linspace(0.0, 2 * np.pi, n + 1)
     ring = np.cos(theta)[:, :, None] * e1[:, None, :] + np.sin(theta)[:, :, None] * e2[:, None, :]
     u = np.linspace(0.0, 1.0, res.along + 1)
     pts = (
