@@ -237,15 +237,11 @@ def test_young_leaves_without_blades_are_wrapped_too():
     assert np.isfinite(wrapped[[*P0, *P1, "radius_m", "length_m"]].to_numpy()).all()
 
 
-def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
-    """Leaves are ranked by their node on the stem whatever CPlantBox numbered them; two leaves at
-    one node are ranked by organ id. A made-up plant: a vertical stem, three one-sheath leaves."""
-    rows = [  # organ id, organ, node height (m); stem radius 1 mm, sheath wall 0.2 mm
-        (9, "stem", 0.0),
-        (3, "leaf", 0.02),
-        (1, "leaf", 0.02),
-        (2, "leaf", 0.0),
-    ]
+def _three_sheath_plant() -> pd.DataFrame:
+    """A made-up plant, sheaths wrapped: a vertical stem (organ 9, radius 1 mm) and three one-sheath
+    leaves (organs 3 and 1 at 2 cm, organ 2 at the base; wall 0.2 mm) whose rods start off the axis,
+    as CPlantBox's do (wrapping moves them)."""
+    rows = [(9, "stem", 0.0), (3, "leaf", 0.02), (1, "leaf", 0.02), (2, "leaf", 0.0)]  # organ id, organ, node (m)
     recs = []
     for i, (oid, kind, z) in enumerate(rows):
         top = 0.1 if kind == "stem" else z + 0.05
@@ -256,7 +252,7 @@ def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
                 "segment_id": 1_000_000 + i,
                 "organ_type": kind,
                 "organ_id": oid,
-                "x0": 0.01 * (kind == "leaf"),  # CPlantBox's rod starts off the axis here: wrapping moves it
+                "x0": 0.01 * (kind == "leaf"),
                 "y0": 0.0,
                 "z0": z,
                 "x1": 0.03 * (kind == "leaf"),
@@ -272,7 +268,13 @@ def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
                 "bz": 1.0,
             }
         )
-    wrapped = wrap_sheaths(pd.DataFrame(recs)).set_index("organ_id")
+    return wrap_sheaths(pd.DataFrame(recs))
+
+
+def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
+    """Leaves are ranked by their node on the stem whatever CPlantBox numbered them; two leaves at
+    one node are ranked by organ id (the made-up plant of _three_sheath_plant)."""
+    wrapped = _three_sheath_plant().set_index("organ_id")
     # By node: organ 2 (z = 0) is the oldest, then organs 1 and 3 at z = 0.02 in organ-id order.
     np.testing.assert_allclose(wrapped.loc[[2, 1, 3], "radius_m"], [1e-3 + 3 * 2e-4, 1e-3 + 2 * 2e-4, 1e-3 + 2e-4])
     np.testing.assert_allclose(wrapped.loc[[1, 2, 3], ["x0", "x1"]].to_numpy(), 0.0, atol=1e-15)  # on the stem axis
@@ -280,41 +282,14 @@ def test_ties_and_order_of_organ_ids_do_not_change_the_nesting():
 
 def test_nested_prisms_stay_inside_one_another():
     """The wrapped tubes' hexagons: the culm inside the youngest sheath, each sheath inside the next
-    older one, for every vertex where their spans overlap (on the made-up plant of the test above,
+    older one, for every vertex where their spans overlap (the made-up plant of _three_sheath_plant:
     radii 1.0, 1.2, 1.4, 1.6 mm). Reference: a point is inside a convex prism when it lies behind
     each face's plane. A hexagon of circumradius R holds another of R' turned against it only if R' ≤
     R·cos 30°, and 1.4 / 1.6 = 0.875 is more: prisms turned organ by organ pushed the middle sheath's
     edges through the oldest one's faces. One turn per plant keeps each nest's hexagons aligned."""
     from lightfit.plant.mesh import shoot_mesh
 
-    recs = [
-        {"organ_id": oid, "organ_type": kind, "z0": z, "z1": 0.1 if kind == "stem" else z + 0.05}
-        for oid, kind, z in ((9, "stem", 0.0), (3, "leaf", 0.02), (1, "leaf", 0.02), (2, "leaf", 0.0))
-    ]
-    table = pd.DataFrame(
-        [
-            {
-                "plant_id": 1,
-                "segment_index": i,
-                "segment_id": 1_000_000 + i,
-                **r,
-                "x0": 0.0,
-                "y0": 0.0,
-                "x1": 0.0,
-                "y1": 0.0,
-                "length_m": r["z1"] - r["z0"],
-                "radius_m": 1e-3 if r["organ_type"] == "stem" else 2e-4,
-                "blade_width_m": 0.0,
-                "blade_area_m2": 0.0,
-                "creation_time_d": 1.0,
-                "bx": 0.0,
-                "by": 0.0,
-                "bz": 1.0,
-            }
-            for i, r in enumerate(recs)
-        ]
-    )
-    wrapped = wrap_sheaths(table)
+    wrapped = _three_sheath_plant()
     mesh = shoot_mesh(wrapped)
     by_segment = wrapped.set_index("segment_id")
     normals = mesh.normals()
