@@ -221,3 +221,9 @@ def test_llvm_target_refuses_unknown_names_and_features_this_cpu_lacks(monkeypat
         backend.configure_llvm_target()
     monkeypatch.delenv(backend.ENV_LLVM_TARGET)  # unset: renders on, saying it cannot tell
     assert backend.configure_llvm_target() == "unknown: this Dr.Jit does not say"
+    del backend._STATE["llvm_target"]
+    monkeypatch.setattr(backend, "llvm_target", lambda: ("haswell", features, 8))
+    monkeypatch.setattr(backend, "set_llvm_target", lambda *a: no_symbol())  # getters but no setter
+    monkeypatch.setenv(backend.ENV_LLVM_TARGET, "avx2")
+    with pytest.raises(backend.BackendError, match="does not let lightfit set its CPU target; unset"):
+        backend.configure_llvm_target()

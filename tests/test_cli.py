@@ -580,6 +580,12 @@ def test_a_cache_that_cannot_be_written_is_an_error_naming_lightfit_cache(tmp_pa
     elsewhere = OSError(errno.ENOTDIR, "Not a directory", str(tmp_path / "afile" / "x.csv"))
     assert error_message(elsewhere) == f"{tmp_path / 'afile' / 'x.csv'}: Not a directory"
 
+    def no_home():  # Path.home() with HOME unset and no passwd entry (a review: a traceback in the handler)
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr("lightfit.cli.common.cache_root", no_home)
+    assert error_message(elsewhere) == f"{tmp_path / 'afile' / 'x.csv'}: Not a directory"
+
 
 def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, monkeypatch):
     """A folder named r.nc, a file where the folder should be, or an existing file that is not

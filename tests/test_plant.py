@@ -158,7 +158,7 @@ def test_stems_and_sheaths_seen_from_the_side_are_cylinders_from_every_azimuth(s
     hexagon's width depends on the azimuth (√3 R to 2R); with every organ's prisms turned alike the
     field's stems and sheaths showed −9.3 % to +4.7 % of the cylinders' area with a 60° period (a
     shared pattern in their direct sun). Each plant's turned by its own angle, they match the
-    cylinders to 1 % at every azimuth (≤ 0.23 % measured on this field)."""
+    cylinders to 1 % at every azimuth (≤ 0.4 % measured on this field at 0.25° steps)."""
     _, g = small_field
     seg = g.segments.set_index("segment_id")
     tube = ~np.asarray(g.mesh.face_is_blade)
@@ -188,7 +188,6 @@ def test_prism_turns_spread_over_one_sector():
     assert ((turn >= 0) & (turn < np.pi / 3)).all()
     counts, _ = np.histogram(turn, bins=12, range=(0, np.pi / 3))
     assert counts.min() >= 0.8 * counts.mean() and counts.max() <= 1.2 * counts.mean(), counts
-    np.testing.assert_array_equal(turn, prism_turn(plants, 6))
 
 
 def test_hand_built_leaf_lies_flat():

@@ -211,10 +211,10 @@ def error_message(err: BaseException, flags: dict[str, str] | None = None) -> st
 def _cache_hint(filename) -> str:
     """Where a file error is inside lightfit's cache (a root that is a file, or not writable), the
     variable that moves it; the path alone did not say the user had a say."""
-    root = cache_root()
-    try:
+    try:  # no home folder to find (HOME unset, no passwd entry): no hint, the error itself stands
+        root = cache_root()
         inside = Path(os.fsdecode(filename)).absolute().is_relative_to(root.absolute())
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, RuntimeError):
         return ""
     return f" (lightfit's cache, {root}: set {ENV_CACHE} to a folder it can write)" if inside else ""
 

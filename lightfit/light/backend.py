@@ -278,7 +278,12 @@ def configure_llvm_target() -> str:
                     f"{ENV_LLVM_TARGET}={name} needs CPU features this machine lacks ({', '.join(missing)}); "
                     f"use a target all your machines have, e.g. {ENV_LLVM_TARGET}=avx2, or unset it"
                 )
-            set_llvm_target(cpu, features, lanes)
+            try:
+                set_llvm_target(cpu, features, lanes)
+            except (OSError, AttributeError):
+                raise BackendError(
+                    f"this Dr.Jit does not let lightfit set its CPU target; unset {ENV_LLVM_TARGET}"
+                ) from None
             source = f"{ENV_LLVM_TARGET}={name}"
         try:
             cpu, _, lanes = llvm_target()

@@ -187,7 +187,7 @@ def prism_turn(plant_id, around: int) -> np.ndarray:
 
 def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
     """Open n-sided prisms for stems and sheaths, lateral area equal to 2πrL, each plant's turned
-    about their axes by :func:`prism_turn`."""
+    about their axes by :func:`prism_turn` (so ``seg`` needs its ``plant_id`` column)."""
     a = seg[["x0", "y0", "z0"]].to_numpy()
     b = seg[["x1", "y1", "z1"]].to_numpy()
     t, _ = _unit(b - a)
