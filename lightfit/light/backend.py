@@ -249,6 +249,27 @@ def set_llvm_target(cpu: str, features: str, lanes: int) -> None:
     set_target(("_Z19jit_llvm_set_targetPKcS0_j", _drjit_core()))(cpu.encode(), features.encode(), int(lanes))
 
 
+def _set_named_target(name: str) -> None:
+    """Compile later kernels for :data:`LLVM_TARGETS` ``[name]``, or :class:`BackendError` before
+    anything is set: an unknown name, a feature this CPU lacks, a Dr.Jit without the calls."""
+    if name not in LLVM_TARGETS:
+        raise BackendError(
+            f"{ENV_LLVM_TARGET}={os.environ[ENV_LLVM_TARGET]!r} is not a CPU target lightfit knows; "
+            f"expected one of {', '.join(LLVM_TARGETS)} (or unset, for this CPU's own)"
+        )
+    cpu, features, lanes = LLVM_TARGETS[name]
+    try:
+        here = set(llvm_target()[1].split(","))
+        if missing := [f for f in features.split(",") if f not in here]:
+            raise BackendError(
+                f"{ENV_LLVM_TARGET}={name} needs CPU features this machine lacks ({', '.join(missing)}); "
+                f"use a target all your machines have, e.g. {ENV_LLVM_TARGET}=avx2, or unset it"
+            )
+        set_llvm_target(cpu, features, lanes)
+    except (OSError, AttributeError):  # drjit-core without the library calls (ctypes' errors)
+        raise BackendError(f"this Dr.Jit does not let lightfit set its CPU target; unset {ENV_LLVM_TARGET}") from None
+
+
 def configure_llvm_target() -> str:
     """Apply ``LIGHTFIT_LLVM_TARGET`` (once per process: the first LLVM variant's kernels fix it) and
     describe the target in force, for :class:`BackendInfo`.
@@ -259,32 +280,9 @@ def configure_llvm_target() -> str:
     """
     if "llvm_target" not in _STATE:
         name = os.environ.get(ENV_LLVM_TARGET, "").strip().lower()
-        source = "auto"
         if name:
-            if name not in LLVM_TARGETS:
-                raise BackendError(
-                    f"{ENV_LLVM_TARGET}={os.environ[ENV_LLVM_TARGET]!r} is not a CPU target lightfit knows; "
-                    f"expected one of {', '.join(LLVM_TARGETS)} (or unset, for this CPU's own)"
-                )
-            cpu, features, lanes = LLVM_TARGETS[name]
-            try:
-                here = set(llvm_target()[1].split(","))
-            except (OSError, AttributeError):
-                raise BackendError(
-                    f"this Dr.Jit does not let lightfit set its CPU target; unset {ENV_LLVM_TARGET}"
-                ) from None
-            if missing := [f for f in features.split(",") if f not in here]:
-                raise BackendError(
-                    f"{ENV_LLVM_TARGET}={name} needs CPU features this machine lacks ({', '.join(missing)}); "
-                    f"use a target all your machines have, e.g. {ENV_LLVM_TARGET}=avx2, or unset it"
-                )
-            try:
-                set_llvm_target(cpu, features, lanes)
-            except (OSError, AttributeError):
-                raise BackendError(
-                    f"this Dr.Jit does not let lightfit set its CPU target; unset {ENV_LLVM_TARGET}"
-                ) from None
-            source = f"{ENV_LLVM_TARGET}={name}"
+            _set_named_target(name)
+        source = f"{ENV_LLVM_TARGET}={name}" if name else "auto"
         try:
             cpu, _, lanes = llvm_target()
             _STATE["llvm_target"] = f"{cpu}, {lanes} lanes ({source})"
