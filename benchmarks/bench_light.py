@@ -36,6 +36,7 @@ import argparse
 import json
 import math
 import os
+import resource
 import time
 from pathlib import Path
 
@@ -105,6 +106,16 @@ def raw_ray_rate(fs: FieldScene, n: int) -> float:
 
     t, _ = _timed(run, 3)
     return n / t
+
+
+def _cpu_s() -> tuple[float, float]:
+    """This process's CPU time so far, (user, system) s. A process's first render takes longer
+    than the next in system time: memory it touches for the first time is mapped by the kernel,
+    which costs ≈ 4–6 s per GiB in this machine's virtual machine (a Firecracker guest whose freed
+    memory goes back to the host within seconds) against ≈ 0.07 s per GiB for memory mapped
+    before; docs/light.md, "A process's first render"."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime, r.ru_stime
 
 
 def median_se_factor(se: np.ndarray, dof: int, *, seed: int = 0, draws: int = 16) -> float:
@@ -224,12 +235,13 @@ def direct_projection_comparison(
     sun = fs.sun.copy()
     for samples, rays in settings:
         kw = dict(direct="projection", direct_rays_per_m2=rays) if rays else {}
-        times, renders = [], []
+        times, cpu, renders = [], [], []
         for seed in range(1, seeds + 1):
             est = SegmentEstimator(fs, ids, samples=samples, bounces=bounces, seed=seed, **kw)
-            t = time.perf_counter()
+            t, c = time.perf_counter(), _cpu_s()
             r = est.render()
             times.append(time.perf_counter() - t)
+            cpu.append(tuple(b - a for a, b in zip(c, _cpu_s())))
             renders.append(r)
             R = est.replicates
             if seed == 2:  # a later step of a day: another sun, the same estimator
@@ -265,6 +277,9 @@ def direct_projection_comparison(
                 "rays_per_m2": rays or None,
                 "first_render_s": times[0],
                 "render_s": times[1],
+                # Process CPU seconds (user, system) of each seed's render: the first render's
+                # system time is the kernel mapping fresh memory (see _cpu_s).
+                "render_cpu_user_sys_s": cpu,
                 "seeds": seeds,
                 **({"later_renders_s": times[2:]} if seeds > 2 else {}),
                 "rse_absorbed": _stats(rse, np.asarray(r.meta["is_blade"], bool)),

@@ -150,7 +150,8 @@ if __name__ == "__main__":
         console.print(table(res))
         by = res["rse_absorbed"]
         console.print(
-            f"render {res['render_s']:.1f} s (first {res['first_render_s']:.1f} s); "
+            f"render {res['render_s']:.1f} s (first {res['first_render_s']:.1f} s; system CPU "
+            f"{res['render_cpu_user_sys_s'][1][1]:.1f} s, first {res['render_cpu_user_sys_s'][0][1]:.1f} s); "
             f"p90 {100 * by['all']['p90']:.1f} %; "
             f"blades {100 * by['blades']['median']:.2f} %, stems and sheaths {100 * by['stems']['median']:.2f} %; "
             f"load {res['load_average_start']:.1f}–{res['load_average_end']:.1f}; commit {commit}"
