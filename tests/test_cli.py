@@ -528,6 +528,10 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
         ("calibrate", ["OBS", "--how", "median"], ["how", "median"]),
         ("calibrate", ["OBS", "--method", "newton"], ["method", "newton", "lbfgsb"]),
         ("calibrate", ["OBS", "--use", "co2"], ["use", "co2"]),
+        # A series the file lacks was refused by the likelihood, after --out/settings.json was written,
+        # which then refused the corrected rerun as "run with other use" (a newcomer review).
+        ("calibrate", ["OBS", "--use", "fapar"], ["use names fapar", "no value of", "above_canopy_par"]),
+        ("calibrate", ["OBS", "--use", "fapar", "--no-surrogate"], ["use names fapar"]),
         ("calibrate", ["OBS", "--parameters", "shininess"], ["unknown parameter", "shininess"]),
         ("calibrate", ["OBS", "--parameters", "specular,specular"], ["['specular'] given more than once"]),
         ("calibrate", ["OBS", "--start", "specular=0.4,specular=0.6"], ["--start", "specular given more than once"]),
@@ -549,10 +553,12 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
     ],
 )
 def test_model_commands_reject_bad_input_before_running(command, args, words, tmp_path):
-    """Bad options of the shared group are caught before any plant is grown: exit 2, message naming them."""
+    """Bad options of the shared group are caught before any plant is grown or anything written: exit
+    2, message naming them, no --out."""
     args = [str(OBSERVATIONS) if a == "OBS" else a for a in args]
     r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path / "out"), *args])
     assert_user_error(r, *words)
+    assert not (tmp_path / "out").exists()
 
 
 def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypatch):

@@ -698,3 +698,32 @@ def test_a_window_may_end_on_the_series_last_row():
     assert list(w.index) == list(pd.date_range("2016-04-20 20:50", "2016-04-20 23:50", freq="30min", tz="UTC"))
     with pytest.raises(InputError, match="not covered by the series"):
         weather_window(df, "2016-04-20 21:00+00:00", 3.0)
+
+
+@pytest.mark.parametrize(
+    ("zone_line", "stamp", "expected"),
+    [
+        # An unknown zone was zoneinfo's traceback (exit 1); UTC±H, which --timezone and TERENO headers
+        # take, was refused as "ambiguous or does not exist" (a helper's newcomer review).
+        ("Mars/Base", "2016-04-20 12:13:48", r"obs.csv, column 'time_zone': time_zone='Mars/Base' is not a time zone"),
+        ("UTC+2", "2016-04-20 12:13:48", "2016-04-20 10:13:48+00:00"),
+        ("Europe/Berlin", "2016-04-20T12:13:48+02:00", "2016-04-20 10:13:48+00:00"),
+        # A zone line and offsets that contradict each other: which is meant cannot be told.
+        ("UTC", "2016-04-20T12:13:48+02:00", r"line 4, column 'time'.*is in UTC\+2, but the stated time zone UTC"),
+        ("Europe/Berlin", "2016-01-20T12:13:48+02:00", r"stated time zone Europe/Berlin was at UTC\+1 then"),
+    ],
+)
+def test_an_observation_files_zone_is_read_as_the_timezone_option_reads_it(tmp_path, zone_line, stamp, expected):
+    from lightfit.inference.observations import read_observations
+
+    p = tmp_path / "obs.csv"
+    p.write_text(
+        f"# provenance: measured\n# time_zone: {zone_line}\n"
+        f"time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n{stamp},1549.31,77\n",
+        encoding="utf-8",
+    )
+    if expected.startswith("2016"):
+        assert str(read_observations(p).index[0]) == expected
+    else:
+        with pytest.raises(InputError, match=expected):
+            read_observations(p)

@@ -120,7 +120,8 @@ USES = tuple(s.name for s in SERIES)
 def resolve_use(use: Sequence[str] | None, obs: pd.DataFrame | None = None) -> tuple[str, ...]:
     """Series names of ``use`` (aliases ``par``/``an`` resolved, order of :data:`SERIES`, no
     duplicates); ``None`` or empty: every series with a value in ``obs``. :class:`InputError` for
-    an unknown name."""
+    an unknown name, and for a name of which ``obs`` (where given) has no value, unless ``use`` is
+    :data:`USES` (callers' "whatever the file has")."""
     if not use:
         if obs is None:
             return USES
@@ -132,7 +133,17 @@ def resolve_use(use: Sequence[str] | None, obs: pd.DataFrame | None = None) -> t
                 expected="at least one value of " + ", ".join(s.value for s in SERIES),
             )
     names = {series(str(u)).name for u in use}
-    return tuple(n for n in USES if n in names)
+    chosen = tuple(n for n in USES if n in names)
+    if obs is not None and tuple(use) != USES:
+        absent = [n for n in chosen if n not in observed(obs)]
+        if absent:
+            raise InputError(
+                f"use names {', '.join(absent)}, which the observations have no value of",
+                file=obs.attrs.get("source"),
+                parameter="use",
+                expected="series the observations have: " + (", ".join(observed(obs)) or "none"),
+            )
+    return chosen
 
 
 def run_settings(model) -> dict:
@@ -303,17 +314,7 @@ class GaussianLikelihood:
             raise InputError(f"use={use!r}", parameter="use", expected="a non-empty sequence of " + ", ".join(USES))
         if not (np.isfinite(mc_scale) and mc_scale >= 0):
             raise InputError(f"mc_scale={mc_scale!r}", parameter="mc_scale", expected="a finite number ≥ 0")
-        explicit = use is not None and tuple(use) != USES  # USES: callers' "whatever the file has"
-        use = resolve_use(use, obs)
-        if explicit:
-            absent = [n for n in use if n not in observed(obs)]
-            if absent:
-                raise InputError(
-                    f"use names {', '.join(absent)}, which the observations have no value of",
-                    file=obs.attrs.get("source"),
-                    parameter="use",
-                    expected="series the observations have: " + (", ".join(observed(obs)) or "none"),
-                )
+        use = resolve_use(use, obs)  # a series the observations lack refused
         check_sds(obs)
         self.stamps = stamps
         #: the run's forcing step that readings are interpolated within (None: the spacing of ``times``)

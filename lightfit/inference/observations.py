@@ -3,7 +3,8 @@
 Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
 
     # provenance: measured            (or synthetic, reconstructed)
-    # time_zone: Europe/Berlin        (zone of naive timestamps; required when a time has no offset)
+    # time_zone: Europe/Berlin        (zone of the times: an IANA name, UTC or UTC±H; required when a
+                                      time has no offset, and a time's offset must agree with it)
     # time_label: instant             (optional; or start / center / end of means)
     # averaging_interval: 30min       (with start / center / end: the means' interval)
     time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s
@@ -77,7 +78,7 @@ from lightfit.errors import InputError
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
-from lightfit.weather.readers import PROVENANCES, parse_times, read_csv_with_metadata
+from lightfit.weather.readers import PROVENANCES, parse_times, read_csv_with_metadata, zone
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
@@ -318,6 +319,11 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         )
     if df.empty:
         raise InputError("no data rows", file=path, row=n_meta + 2, expected="at least one row of observations")
+    if "time_zone" in meta:  # read as --timezone reads it: an IANA name, UTC or UTC±H
+        try:
+            meta["time_zone"] = zone(meta["time_zone"], "time_zone")
+        except InputError as e:
+            raise InputError(e.problem, file=path, column="time_zone", expected=e.expected) from None
     tz = meta.get("time_zone")
     stamps = Timestamps.from_metadata(meta, path)
     line = df.attrs["lines"].to_numpy()  # each row's line in the file (blank lines skipped)

@@ -43,7 +43,7 @@ import pandas as pd
 from lightfit.errors import InputError, parse_date
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric
-from lightfit.weather.site import check_timezone, localize
+from lightfit.weather.site import check_timezone, localize, offset_label, zone_label
 from lightfit.weather.solar import check_split_model
 from lightfit.weather.timestamps import Timestamps
 
@@ -448,7 +448,39 @@ def parse_times(
             for t, n in zip(idx, lines):  # the first time a clock change skips or repeats, by its line
                 localize(t, tz, file=file, row=int(n), column=column)
             raise
+    elif tz is not None:
+        _offsets_agree(idx, parts["offset"], text, lines, tz, file, column)
     return idx.tz_convert("UTC")
+
+
+_OFFSET = re.compile(r"(?P<sign>[+-])(?P<h>\d{2}):?(?P<m>\d{2})?")
+
+
+def _offsets_agree(t: pd.DatetimeIndex, offsets: pd.Series, text: pd.Series, lines: pd.Series, tz, file, column):
+    """Times written with a UTC offset in a file that also states its zone ``tz``: each offset must be
+    the zone's at that instant, else :class:`InputError` at the first that is not (a ``UTC`` zone line
+    over ``+02:00`` times contradicts itself, and which of the two is meant cannot be told)."""
+
+    def parse(o: str) -> pd.Timedelta:
+        m = _OFFSET.fullmatch(o)
+        if m is None:  # "Z"
+            return pd.Timedelta(0)
+        return (1 if m["sign"] == "+" else -1) * pd.Timedelta(hours=int(m["h"]), minutes=int(m["m"] or 0))
+
+    stated = offsets.reset_index(drop=True).map({o: parse(o) for o in offsets.unique()}).to_numpy("m8[ns]")
+    utc = t.tz_convert("UTC").tz_localize(None)
+    zoned = (t.tz_convert(tz).tz_localize(None) - utc).to_numpy("m8[ns]")
+    bad = stated != zoned
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"time {text.iloc[i]!r} is in {offset_label(pd.Timedelta(stated[i]))}, but the stated time zone "
+            f"{zone_label(tz)} was at {offset_label(pd.Timedelta(zoned[i]))} then",
+            file=file,
+            row=int(lines.iloc[i]),
+            column=column,
+            expected="offsets that are the stated zone's, or the zone stated as the times are written",
+        )
 
 
 #: Quality flags of a TERENO export where its header does not list them (``Quality flags: …``).
