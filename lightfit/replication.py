@@ -627,6 +627,8 @@ def run(
         if compare is not None:
             other, _ = run(compare, weather_file=weather_file, observations=None, progress=progress, forcing_df=w)
             write_netcdf(other, out / "results_compare.nc")
+        else:  # an earlier run's comparison would sit beside results it does not belong to
+            (out / "results_compare.nc").unlink(missing_ok=True)
         plot(ds, out / "replication.png", compare=other)
         table = summary(ds)
         if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does

@@ -307,6 +307,8 @@ def test_field_soil_and_sky_options_reach_the_run(tmp_path):
         (["--row-spacing", "-1"], ["--row-spacing", "positive distance"]),
         (["--plant-spacing", "0"], ["--plant-spacing", "positive distance"]),
         (["--row-direction", "nan"], ["--row-direction", "azimuth"]),
+        (["--row-direction", "400"], ["--row-direction", "0 ≤ azimuth < 360"]),  # was kept as 400
+        (["--row-direction", "-90"], ["--row-direction", "0 ≤ azimuth < 360"]),
         (["--parameter-file", "nope.xml"], ["--parameter-file", "not found"]),
         (["--soil-albedo", "1.5"], ["--soil-albedo", "[0, 1]"]),
         (["--sky", "cloudy"], ["--sky", "isotropic or overcast"]),
@@ -1106,6 +1108,11 @@ def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path)
         assert cmp.attrs["photosynthesis"] == "giraud2023" and cmp.attrs["sheaths"] == "rods"
         np.testing.assert_array_equal(main["time"].values, cmp["time"].values)
     assert (tmp_path / "replication.png").stat().st_size > 10_000
+    # Rerun into the same folder without the option: the earlier comparison does not stay beside
+    # results it does not belong to (a newcomer review).
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "results.nc").exists() and not (tmp_path / "results_compare.nc").exists()
     # the run's own model choices do not leak into the comparison: it is the preset, not a hybrid
     from lightfit.cli.options import ModelOptions
     from lightfit.cli.replicate import _comparison
@@ -1337,6 +1344,10 @@ def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):
     cal = tmp_path / "calibration.json"
     cal.write_text(json.dumps({"theta": {"specular": 0.5, "light_factor": 1.2}, "loss": 3.0}))
     assert parse_theta(str(cal)) == {"specular": 0.5, "light_factor": 1.2}
+    # the run says which values it used, and from where (only the figure and results.nc said it)
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--theta", str(cal), "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert f"parameters (--theta): specular=0.5, light_factor=1.2 (from {cal})" in _flat(r.stdout)
     post = tmp_path / "summary.json"
     x_map = {"specular": 0.46, "roughness": 1.0, "light_factor": 1.04, "noise_scale": 1.3}
     post.write_text(json.dumps({"names": list(x_map), "x_map": x_map, "mean": {"specular": 0.6}}))

@@ -727,3 +727,56 @@ def test_an_observation_files_zone_is_read_as_the_timezone_option_reads_it(tmp_p
     else:
         with pytest.raises(InputError, match=expected):
             read_observations(p)
+
+
+@pytest.mark.parametrize(
+    ("column", "value"), [("canopy_an_umol_m2_s", 1200.0), ("nee_umol_m2_s", -20000.0), ("canopy_an_umol_m2_s", 101.0)]
+)
+def test_a_co2_flux_in_another_unit_is_refused_naming_the_units(tmp_path, column, value):
+    """CO2 fluxes beyond 100 µmol m⁻² s⁻¹ (no crop canopy comes near it; observations.MAX_CO2_FLUX)
+    are another unit, e.g. mg CO2 m⁻² h⁻¹ (158 ×): they were fitted as given, driving vcmax_scale to
+    5.6 with generic cautions only (a newcomer review). 99 passes; the rule holds for tables built
+    in code too (check_sds)."""
+    from lightfit.inference.observations import check_sds, read_observations
+
+    sd = column.replace("_umol", "_sd_umol")
+    p = tmp_path / "obs.csv"
+    p.write_text(
+        f"# provenance: measured\n# time_zone: UTC\ntime,{column},{sd}\n"
+        f"2016-04-20 10:00,-5.0,1.0\n2016-04-20 11:00,{value},2.0\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(
+        InputError, match=rf"obs.csv, line 5, column '{column}'.*\|value\| ≤ 100.*mg CO2 m-2 h-1 is 158"
+    ):
+        read_observations(p)
+    p.write_text(p.read_text(encoding="utf-8").replace(f",{value},", ",99.0,"), encoding="utf-8")
+    obs = read_observations(p)
+    check_sds(obs)
+    obs.loc[obs.index[1], column] = value
+    with pytest.raises(InputError, match=rf"column '{column}'.*\|value\| ≤ 100"):
+        check_sds(obs)
+
+
+def test_repairs_say_which_column_and_line(tmp_path):
+    """`weather show` printed seven identical "1 missing value(s) linearly interpolated" lines for one
+    empty row, and "sorted" without where (a newcomer review): each repair now names the file's column
+    and the first line concerned, found here in the text, not by the reader."""
+    rows_box = {}
+
+    def blank_and_swap(rows):
+        rows[10][TAIR] = ""  # one air temperature missing
+        rows[20], rows[21] = rows[21], rows[20]  # two rows out of order
+        rows_box["blank"], rows_box["late"] = rows[10][0], rows[21][0]
+
+    p = _tereno(tmp_path, edit=blank_and_swap)
+    r = runner.invoke(app, ["weather", "show", str(p)])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.stdout.split())
+    tair = next(c for c in FIXTURE.read_text(encoding="utf-8").splitlines() if c.startswith("Timestamp")).split(",")[
+        TAIR
+    ]
+    blank, swapped = _line_of(p, rows_box["blank"]), _line_of(p, rows_box["late"])
+    assert f"repair interpolated: {tair}: 1 missing value(s)" in out
+    assert f"line {blank})" in out
+    assert f"the first out of order: line {swapped}," in out and f"before line {swapped - 1}'s time" in out

@@ -38,7 +38,12 @@ from lightfit.files import replace_text
 
 @model_options
 def calibrate(
-    observations: Path = typer.Argument(..., help="Observations CSV (time, PAR, net CO2 uptake and their SDs)."),
+    observations: Path = typer.Argument(
+        ...,
+        help="Observations CSV: a time column and a value and SD column for each observed quantity (PAR "
+        "above the canopy or at the plants, APAR, fAPAR, canopy net CO2 uptake, NEE, ceptometer series; "
+        "the format: data/README.md, Observations).",
+    ),
     out: Path = typer.Option(
         Path("results/calibration"),
         help="Output directory: calibration.json (the result), settings.json and the history (trust_region/ "

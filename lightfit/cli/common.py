@@ -389,7 +389,9 @@ def weather_report(df) -> None:
             if q["kind"] == "split"
             else f"[yellow]repair[/] {q['kind']}:"
         )
-        console.print(f"  {label} {escape(q['detail'])}")
+        col = q.get("column")  # the file's own name of the column repaired, where one was
+        named = f"{escape(str(a.get('columns_used', {}).get(col, col)))}: " if col else ""
+        console.print(f"  {label} {named}{escape(q['detail'])}")
 
 
 def offset_line(obs, w) -> str:

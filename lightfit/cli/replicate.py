@@ -124,6 +124,10 @@ def replicate(
         f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {fld.headings} headings, {k}, "
         f"{n_b} bounces{rays} …"
     )
+    if th:  # said only in the figure's title and the netCDF attributes before (a newcomer review)
+        source = f" (from {theta})" if Path(theta).exists() else ""
+        said = "parameters (--theta): " + ", ".join(f"{k}={v:.4g}" for k, v in th.items()) + source
+        console.print(said, soft_wrap=True)  # a path stays on one line
     ds, obs = rep.run(
         cfg,
         weather_file=s.weather_file,

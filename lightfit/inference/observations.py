@@ -99,6 +99,19 @@ class Series:
     nonnegative: bool = False
     depends_on: tuple[str, ...] = ()
     incident: bool = False  # read from incident light (a ceptometer), not absorbed: see dependencies()
+    #: Largest |value| a reading may have in ``unit``: finite for the CO2 fluxes only (beyond it the
+    #: file is in another unit, :data:`MAX_CO2_FLUX`; the message says which).
+    max_abs: float = float("inf")
+
+
+#: Largest |CO2 flux| an observations file may give, µmol m⁻² s⁻¹ (canopy net uptake, NEE). No crop
+#: canopy comes near it: irrigated maize, a C4 crop among the most productive, peaks at ≈ 50–60
+#: µmol m⁻² s⁻¹ of net uptake (eddy covariance, Suyker et al. 2004, Agric. For. Meteorol. 124, 1–13),
+#: C3 wheat lower (this model's default field: ≈ 40 at noon). Beyond it a file is in another unit:
+#: mg CO2 m⁻² h⁻¹ is 158 × µmol m⁻² s⁻¹ (44.01 µg µmol⁻¹ × 3 600 s), nmol 1 000 ×; fitted as given,
+#: such readings drove vcmax_scale to 5.6 with only generic cautions (a newcomer review).
+MAX_CO2_FLUX = 100.0
+_CO2_UNIT = "a CO2 flux in umol m-2 s-1 (mg CO2 m-2 h-1 is 158 x that, nmol 1000 x)"
 
 
 # What each observable depends on (Series.depends_on). Light at the plants depends on the leaf and
@@ -127,6 +140,7 @@ SERIES = (
         "canopy_an_mc_sd_umol_m2_s",
         meaning="canopy net CO2 uptake of the measured leaf blades",
         depends_on=_CO2,
+        max_abs=MAX_CO2_FLUX,
     ),
     Series(
         "above_canopy_par",
@@ -163,6 +177,7 @@ SERIES = (
         "nee_mc_sd_umol_m2_s",
         meaning="chamber net ecosystem CO2 exchange per ground area (positive: release)",
         depends_on=_CO2,
+        max_abs=MAX_CO2_FLUX,
     ),
     Series(
         "transmitted_par",
@@ -269,6 +284,7 @@ def check_sds(obs: pd.DataFrame) -> None:
                 s.value,
                 f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
             ),
+            (present & (np.abs(v) > s.max_abs), s.value, f"|value| ≤ {s.max_abs:g}: {_CO2_UNIT}"),
             (present & ~(np.isfinite(sd) & (sd > 0)), s.sd, "a finite SD > 0 wherever the value is present"),
             (present & ((sd < SD_RANGE[0]) | (sd > SD_RANGE[1])), s.sd, "an SD in [{:g}, {:g}]".format(*SD_RANGE)),
         ):
@@ -398,6 +414,14 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
                 lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
             )
+        _first_bad(
+            out[s.value].abs() > s.max_abs,
+            path,
+            line,
+            s.value,
+            f"|value| ≤ {s.max_abs:g}: {_CO2_UNIT}",
+            lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
+        )
     if not any(out[s.value].notna().any() for s in present):  # a comparison with nothing in it is a slip
         raise InputError(
             f"no reading: {', '.join(s.value for s in present)} empty in every row",

@@ -170,9 +170,13 @@ class Field:
                 raise InputError(f"{name}={v!r}", parameter=name, expected="a positive distance in metres")
             object.__setattr__(self, name, float(v))  # np.float32(0.125) hashed otherwise than 0.125
         d = self.row_direction_deg
-        if not (is_real(d) and math.isfinite(d)):  # NaN built a mesh of NaN, inf a math domain error
+        # NaN built a mesh of NaN, inf a math domain error; 400 was kept as 400 (the field of 40°
+        # under another name and cache key)
+        if not (is_real(d) and math.isfinite(d) and 0 <= d < 360):
             raise InputError(
-                f"row_direction_deg={d!r}", parameter="row_direction_deg", expected="an azimuth in degrees"
+                f"row_direction_deg={d!r}",
+                parameter="row_direction_deg",
+                expected="a compass azimuth in degrees, 0 ≤ azimuth < 360 (rows at 270 run as at 90)",
             )
         check_integer(self.buffer_rows, "buffer_rows", 0)
         check_integer(self.seed, "seed", 0)

@@ -42,7 +42,7 @@ import pandas as pd
 
 from lightfit.errors import InputError, parse_date
 from lightfit.weather import timestamps, units
-from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric
+from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric, record_sorted
 from lightfit.weather.site import check_timezone, localize, offset_label, zone_label
 from lightfit.weather.solar import check_split_model
 from lightfit.weather.timestamps import Timestamps
@@ -133,7 +133,8 @@ def _check_near_misses(table: pd.DataFrame, used: dict[str, str], time_col: str,
                     file=path,
                     row=hdr + 1,
                     column=c,
-                    expected=f"the TERENO name (e.g. {preferred}), or columns={{{qty!r}: {c!r}}}",
+                    expected=f"the TERENO name (e.g. {preferred}): rename the column in the file, or in Python "
+                    f"read_tereno(..., columns={{{qty!r}: {c!r}}})",
                 )
 
 
@@ -602,19 +603,12 @@ def read_tereno(
     qc: list[dict] = []
     if not times.is_monotonic_increasing:
         # Sorted before anything reads neighbouring rows (the 30-min CO2 below), not after.
+        record_sorted(qc, times, lines, tz)
         order = np.argsort(times.asi8, kind="stable")
         table, lines, times = (
             table.iloc[order].reset_index(drop=True),
             lines.iloc[order].reset_index(drop=True),
             times[order],
-        )
-        qc.append(
-            {
-                "kind": "sorted",
-                "column": None,
-                "count": len(times),
-                "detail": "rows were not in time order and were sorted",
-            }
         )
     used: dict[str, str] = {}
     raw: dict[str, pd.Series] = {}
@@ -651,7 +645,8 @@ def read_tereno(
                 file=path,
                 row=hdr + 1,
                 column=src,
-                expected="one of " + ", ".join(f"[{u}]" for u in unit_map),
+                expected="one of " + ", ".join(f"[{u}]" for u in unit_map) + ", compared in lower case without "
+                "spaces, '*', '·' or '^' (e.g. [W*m-2] reads as [wm-2])",
             )
         raw[qty] = parse_numeric(table[src].set_axis(times), lines.set_axis(times), path, src, qc)
         conv[qty], used[qty] = tag, f"{src}"

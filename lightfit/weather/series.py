@@ -84,6 +84,21 @@ def _record(qc: list[dict], kind: str, column: str | None, count: int, detail: s
     qc.append({"kind": kind, "column": column, "count": int(count), "detail": detail})
 
 
+def record_sorted(qc: list[dict], times: pd.DatetimeIndex, lines: pd.Series, zone: str) -> None:
+    """Record in ``qc`` that rows out of time order (``times``, each row's file ``lines``, read in
+    ``zone``) are sorted, naming the first row earlier than the one before it."""
+    back = int(np.flatnonzero(np.diff(times.asi8) < 0)[0]) + 1
+    at = _in_file_zone({"timezone_assumed": zone})(times[back])
+    _record(
+        qc,
+        "sorted",
+        None,
+        len(times),
+        f"rows were not in time order and were sorted (the first out of order: line {int(lines.iloc[back])}, "
+        f"{at}, before line {int(lines.iloc[back - 1])}'s time)",
+    )
+
+
 def _line_of(lines: pd.Series, ts) -> int | None:
     try:
         return int(lines.loc[ts])
@@ -245,7 +260,7 @@ def check_and_repair(
             expected="one row per timestamp",
         )
     if not df.index.is_monotonic_increasing:
-        _record(qc, "sorted", None, len(df), "rows were not in time order and were sorted")
+        record_sorted(qc, df.index, lines, _file_zone(attrs))
         order = np.argsort(df.index.asi8, kind="stable")
         df, lines = df.iloc[order], lines.iloc[order]
 
@@ -313,12 +328,15 @@ def check_and_repair(
         if col not in df.columns:
             continue
         df[col] = df[col].interpolate(method="time", limit_area="inside")
+        first = df.index[na][0]
+        line = _line_of(lines, first)  # none where the whole row was missing (a timestamp inserted)
         _record(
             qc,
             "interpolated",
             col,
             na.sum(),
-            f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {_minutes(max_gap)})",
+            f"{int(na.sum())} missing value(s) linearly interpolated (gaps ≤ {_minutes(max_gap)}; the first at "
+            f"{_in_file_zone(attrs)(first)}{f', line {line}' if line else ''})",
         )
 
     for col, b in BOUNDS.items():
