@@ -48,6 +48,17 @@ def test_help_texts_are_not_cut_at_80_columns(command):
     assert "…" not in r.output, [line for line in r.output.splitlines() if "…" in line]
 
 
+@pytest.mark.parametrize("args", [[], *([c] for c in COMMANDS), ["weather", "show"]])
+def test_flags_are_shown_without_a_value_type(args):
+    """Typer 0.29's help showed every flag as `--quick <bool>` (also --help, --resume --no-resume),
+    which reads as an option taking a value: `--quick true` is a usage error (a newcomer review).
+    Options with values keep their type."""
+    r = runner.invoke(app, [*args, "--help"], env={"COLUMNS": "200"})
+    assert r.exit_code == 0, r.output
+    assert "<bool>" not in r.output and "--help " in r.output, r.output
+    assert args != ["replicate"] or "<int>" in r.output
+
+
 def test_help_lists_every_command():
     r = runner.invoke(app, ["--help"])
     assert r.exit_code == 0, r.output

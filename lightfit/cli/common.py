@@ -45,6 +45,22 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     )
 
 
+def _flags_without_type(command, ctx) -> None:
+    """Typer 0.29's help shows a flag as ``--quick <bool>``, which reads as an option taking a value
+    (``--quick true`` is then a usage error): a flag's type column is left empty, in ``command`` and the
+    commands of a group below it."""
+    sub = type(command).context_class(command, info_name=command.name, parent=ctx)
+    _no_type_for_flags(command.get_params(sub))
+    for name in getattr(command, "commands", {}):
+        _flags_without_type(command.commands[name], sub)
+
+
+def _no_type_for_flags(params) -> None:
+    for p in params:
+        if getattr(p, "is_flag", False) and p.metavar is None:
+            p.metavar = ""
+
+
 class LightfitGroup(TyperGroup):
     """The app's command group, with the one error handler of the command line.
 
@@ -52,6 +68,17 @@ class LightfitGroup(TyperGroup):
     callback) print ``error: <message>`` on stderr and exit with status 2 — no traceback.
     Usage errors (unknown option, missing argument) are typer's, also on stderr with status 2.
     """
+
+    def get_params(self, ctx):
+        params = super().get_params(ctx)
+        _no_type_for_flags(params)
+        return params
+
+    def get_command(self, ctx, cmd_name):
+        command = super().get_command(ctx, cmd_name)
+        if command is not None:
+            _flags_without_type(command, ctx)
+        return command
 
     def invoke(self, ctx):
         command, args = invoked_command(self, ctx), invoked_args(ctx)  # click clears them when invoking
