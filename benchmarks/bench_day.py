@@ -20,8 +20,8 @@ day's sum does not average them down. The per-step median is what each step's ph
 sees.
 
 Before the settings, one render of the first setting at another seed compiles the kernels and
-lets Dr.Jit's allocator hold the memory the renders reuse (first-touch memory costs ≈ 10 s per
-GiB here). Writes benchmarks/results/day.json (or ``--out``) and prints a table, with the commit
+lets Dr.Jit's allocator hold the memory the renders reuse (memory touched for the first time costs
+4–6 s per GiB here: docs/light.md, "A process's first render"). Writes benchmarks/results/day.json (or ``--out``) and prints a table, with the commit
 and the load average (the 2 cores are shared).
 """
 
