@@ -203,8 +203,9 @@ def direct_projection_comparison(
     Each setting ``(samples, rays_per_m2)`` (``rays_per_m2`` 0: ``direct="paths"``) renders all
     ``ids`` with two fresh estimators in turn; the second's time is the steady state (Dr.Jit
     reuses the first's memory: on this machine memory touched for the first time costs 4–6 s per
-    GiB of system time, which the first render pays; :func:`_cpu_s`). The time for a 2 % median scales K and the projection's rays together by
-    (median / 2 %)²: both parts' variances fall as 1/K and 1/rays.
+    GiB of system time, which the first render pays; :func:`_cpu_s`). The time for a 2 % median
+    scales K and the projection's rays together by (median / 2 %)²: both parts' variances fall as
+    1/K and 1/rays.
 
     Settings with different replicate counts R (K < 32: R = K/4) are compared by the median SE
     divided by :func:`median_se_factor` too (``*_r_corrected``): the replicates' SE estimate is

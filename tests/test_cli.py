@@ -1663,6 +1663,24 @@ def test_soil_respiration_note_only_for_nee_without_soil_respiration(capsys):
     assert "note: NEE is modelled without soil and root respiration" in " ".join(capsys.readouterr().out.split())
 
 
+def test_replicate_notes_nee_compared_without_soil_respiration(tmp_path):
+    """replicate compares chamber NEE with the model's, which leaves out soil and root respiration
+    by default: it says so, as calibrate and posterior do (a plant physiologist's review: the
+    default `nee` is minus the blades' net uptake)."""
+    obs = tmp_path / "nee.csv"
+    obs.write_text(
+        "# provenance: synthetic\n# time_zone: Europe/Berlin\n"
+        "time,nee_umol_m2_s,nee_sd_umol_m2_s\n2016-04-20 12:00,-20,2\n",
+        encoding="utf-8",
+    )
+    note = "note: NEE is modelled without soil and root respiration"
+    args = ["replicate", "--quick", "--steps", "14:16", "--observations", str(obs), "--out", str(tmp_path / "r")]
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0 and note in _flat(r.stdout), r.output
+    r = runner.invoke(app, [*args, "--soil-respiration", "1.5"])
+    assert r.exit_code == 0 and note not in _flat(r.stdout), r.output
+
+
 def test_weather_show_prints_the_local_clock_of_the_site_given(monkeypatch):
     """--timezone UTC+3 (with coordinates): the table's local column is that zone's clock, UTC + 3 h
     on every row (a mutation audit: the table kept Selhausen's zone and this survived)."""

@@ -18,6 +18,7 @@ from lightfit.cli.common import (
     output_folder,
     parse_theta,
     samples_label,
+    soil_respiration_note,
     weather_report,
     weather_table,
 )
@@ -74,7 +75,7 @@ def replicate(
     """
     from lightfit import replication as rep
     from lightfit import weather as wx
-    from lightfit.inference.observations import nee_sign_caution
+    from lightfit.inference.observations import nee_sign_caution, observed
     from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing, provenance_label
 
@@ -166,6 +167,7 @@ def replicate(
         caution(short)
     if obs is not None:
         observations_lines(obs, w)
+        soil_respiration_note(observed(obs), s.soil_respiration)  # as calibrate and posterior say it
         if sign := nee_sign_caution(obs, w):
             caution(sign)
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
