@@ -25,7 +25,7 @@ import xarray as xr
 
 from lightfit import weather
 from lightfit.errors import InputError, parse_date
-from lightfit.files import is_netcdf, replaced
+from lightfit.files import is_netcdf, replace_text, replaced
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
@@ -41,9 +41,10 @@ from lightfit.plant import Field
 from lightfit.plant.field import DEFAULT_BUFFER_ROWS, DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS
 from lightfit.plant.growth import SEASON_START_MONTH_DAY, GrowthConfig, parameter_file_setting
 from lightfit.plant.sheaths import SHEATHS
-from lightfit.report import plot, summary
+from lightfit.report import plot, summary, summary_metadata
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
+from lightfit.weather.readers import metadata_lines
 from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS
 from lightfit.weather.site import SELHAUSEN, Site, Window
 
@@ -633,7 +634,7 @@ def run(
         table = summary(ds)
         if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does
             table = table.rename(columns=lambda c: c.replace("canopy_an_", "canopy_an_per_leaf_area_"))
-        table.to_csv(out / "summary.csv", float_format="%.4g")
+        replace_text(out / "summary.csv", metadata_lines(summary_metadata(ds)) + table.to_csv(float_format="%.4g"))
     return ds, obs
 
 

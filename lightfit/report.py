@@ -49,6 +49,29 @@ def summary(ds) -> pd.DataFrame:
     )
 
 
+def summary_metadata(ds) -> dict[str, str]:
+    """The ``# key: value`` header of a results folder's summary.csv: that it is model output, the
+    forcing's and the observations' provenance and files, the preset, site, window and field, and
+    lightfit's versions; every setting is in results.nc's attributes. Without it the table could
+    pass for numbers from measured weather (data honesty: a reconstructed forcing says so here)."""
+    a = ds.attrs
+    field = f"{a.get('n_plants')} plants, {a.get('boundary')} boundary"
+    field += f", K = {a.get('samples')}, {a.get('bounces')} bounces"
+    meta = {
+        "content": "lightfit model output, one row per time step (units in the column names)",
+        "forcing_provenance": a.get("weather_provenance", "unstated"),
+        "forcing_source": a.get("weather_source"),
+        "observations": a.get("observations"),
+        "preset": a.get("preset"),
+        "site": a.get("site"),
+        "window": a.get("window"),
+        "field": field,
+        "software_versions": a.get("software_versions"),
+        "settings": "every setting is an attribute of results.nc beside this file",
+    }
+    return {k: v for k, v in meta.items() if v is not None}
+
+
 def _tz(ds) -> str:
     """The run's local time zone (results attr ``site_timezone``; Selhausen's before sites were options)."""
     from lightfit.weather.site import Site

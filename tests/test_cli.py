@@ -1415,12 +1415,12 @@ def test_an_per_leaf_is_named_in_the_caption_and_the_summary_file(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--an-per", "leaf", "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert "An: per leaf area" in _flat(r.stdout) and "An: per ground" not in _flat(r.stdout)
-    cols = pd.read_csv(out / "summary.csv").columns
+    cols = pd.read_csv(out / "summary.csv", comment="#").columns
     assert "canopy_an_per_leaf_area_umol_m2_s" in cols and "canopy_an_umol_m2_s" not in cols
     assert "canopy_apar_umol_m2_s" in cols  # APAR stays per ground area
     # The printed table: each row's fAPAR and An are summary.csv's, with 2 and 1 decimals (SUMMARY_HEADS,
     # written out; a mutation audit: fAPAR printed with no decimals, 0 or 1, survived).
-    table = pd.read_csv(out / "summary.csv")
+    table = pd.read_csv(out / "summary.csv", comment="#")
     rows = {x.split()[0]: x.split() for x in r.stdout.splitlines() if x.split()[:1] in (["12:00"], ["12:30"])}
     assert list(rows) == list(table["local_time"]), r.stdout
     for _, row in table.iterrows():  # local sun° PAR↑ PARpl ± APAR fAPAR An ...

@@ -157,6 +157,18 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     assert set(ds.dims) == {"time", "segment"} and ds.sizes["time"] == 29
     assert ds.attrs["boundary"] == "periodic" and ds.attrs["buffer_rows"] == 0  # the default field
     assert "periodic boundary" in " ".join(r.stdout.split())
+    # summary.csv says what it stands on (a reconstructed forcing must not pass for measured weather)
+    # in lightfit's `# key: value` lines, and is the summary of results.nc below them.
+    import pandas as pd
+
+    from lightfit.report import summary
+
+    text = (tmp_path / "rep" / "summary.csv").read_text(encoding="utf-8").splitlines()
+    head = dict(line[2:].split(": ", 1) for line in text if line.startswith("# "))
+    assert head["forcing_provenance"] == ds.attrs["weather_provenance"] == "reconstructed"
+    assert head["observations"] == ds.attrs["observations"] and head["preset"] == "default"
+    table = pd.read_csv(tmp_path / "rep" / "summary.csv", comment="#", index_col=0)
+    np.testing.assert_allclose(table["canopy_an_umol_m2_s"], summary(ds)["canopy_an_umol_m2_s"], rtol=1e-3)
     # The bundled chamber record is an above-canopy quantum sensor: compared with that operator.
     obs_par = "obs_above_canopy_par_umol_m2_s"
     assert obs_par in ds and np.isfinite(ds[obs_par].values).sum() == 1

@@ -78,7 +78,7 @@ from lightfit.errors import InputError
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
-from lightfit.weather.readers import PROVENANCES, parse_times, read_csv_with_metadata, zone
+from lightfit.weather.readers import PROVENANCES, metadata_lines, parse_times, read_csv_with_metadata, zone
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
@@ -459,7 +459,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
     body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
     meta = {**metadata, "time_zone": "UTC", **timestamps.of(df).metadata()}
-    head = "".join(f"# {k}: {v}\n" for k, v in meta.items())
+    head = metadata_lines(meta)
     replace_text(path, head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"))
     return path
 

@@ -830,6 +830,12 @@ def read_cplantbox_day(
     return _with_means(check_and_repair(out, lt, path, max_gap=max_gap), time_label)
 
 
+def metadata_lines(metadata: dict) -> str:
+    """``# key: value`` lines, one per item: the header of lightfit's CSV files, which
+    :func:`read_csv_with_metadata` reads (and ``pandas.read_csv(path, comment="#")`` skips)."""
+    return "".join(f"# {k}: {v}\n" for k, v in metadata.items())
+
+
 def read_csv_with_metadata(
     path: Path, *, provenances: tuple[str, ...] = PROVENANCES, short_rows: str = "pad"
 ) -> tuple[dict[str, str], int, pd.DataFrame]:
@@ -951,7 +957,7 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
         metadata = metadata | {"split_model": df.attrs["split_model"]}  # how its DNI/DHI were split
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    head = "".join(f"# {k}: {v}\n" for k, v in metadata.items())
+    head = metadata_lines(metadata)
     body = df.rename_axis("time_utc").reset_index()
     body["time_utc"] = body["time_utc"].dt.strftime("%Y-%m-%dT%H:%M:%SZ")
     path.write_text(head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n"), encoding="utf-8")
