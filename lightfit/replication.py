@@ -589,6 +589,12 @@ def run(
     (:func:`observations_for`: the bundled chamber record, the default, is left out when the run's
     steps do not reach it; other observations outside the run are an error).
     """
+    if not isinstance(cfg, ReplicationConfig):  # e.g. "quick": an AttributeError further in
+        raise InputError(
+            f"cfg of type {type(cfg).__name__}",
+            parameter="cfg",
+            expected="a ReplicationConfig, e.g. ReplicationConfig() or ReplicationConfig.quick()",
+        )
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
     check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)

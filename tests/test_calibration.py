@@ -323,6 +323,18 @@ def test_bundled_record_is_real_and_par_only():
 
 def test_unknown_parameter_and_no_overlap(short_model):
     record = read_observations(rep.OBSERVATIONS)  # one PAR value at 10:13:48 UTC, inside the window
+    # Before any render (a review of the Python API): a NaN tolerance never stops, a negative one
+    # means nothing; a file name or an empty table for the observations was an AttributeError; one
+    # name as a string was taken letter by letter.
+    for name, tol in (("rtol", float("nan")), ("atol", 0.0), ("gtol", -1.0), ("rtol", "1e-4")):
+        with pytest.raises(InputError, match=rf"parameter '{name}'.*a finite tolerance > 0"):
+            calibrate(short_model, record, names=("specular",), progress=False, **{name: tol})
+    for obs in ("obs.csv", pd.DataFrame()):
+        with pytest.raises(InputError, match=r"parameter 'obs'.*an observations table indexed by aware times"):
+            calibrate(short_model, obs, names=("specular",), progress=False)
+    from lightfit.model.parameters import check_names
+
+    assert check_names("specular") == ("specular",)
     with pytest.raises(InputError, match="unknown parameter"):
         make_loss(short_model, record, ("glossiness",))
     # the same record a day later falls on no simulated step

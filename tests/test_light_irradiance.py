@@ -8,7 +8,7 @@ import pytest
 import lightfit  # noqa: F401
 from lightfit.errors import InputError
 from lightfit.light import backend
-from lightfit.light.estimator import PARTS, SegmentEstimator, bounces_for_tolerance
+from lightfit.light.estimator import PARTS, SegmentEstimator, bounces_for_tolerance, render_adaptive
 from lightfit.light.scene import FieldScene, Optics, sun_vector
 from lightfit.plant import Field, build
 from lightfit.plant.mesh import Mesh
@@ -393,12 +393,42 @@ def test_bad_inputs():
         FieldScene(g.mesh, sky="cloudy")
     with pytest.raises(InputError, match="soil_albedo"):
         Optics(soil_albedo=1.2)
+    # numpy's reals are numbers (float32 was refused as "not a number"), a bool is not (True was 1.0);
+    # stored as Python floats, so that equal leaves compare and print alike
+    with pytest.raises(InputError, match="specular=True"):
+        Optics(specular=True)
+    leaf = Optics(specular=np.float32(0.5), roughness=np.float64(0.25))
+    assert leaf == Optics(specular=0.5, roughness=0.25) and type(leaf.specular) is float
     with pytest.raises(InputError, match="subsurface"):
         fs.set_optics(subsurface=2.0)
     with pytest.raises(InputError, match="unknown output"):
         SegmentEstimator(fs, ids[:3], samples=4).vjp({"absorbed": np.ones(3)})
+    # The wrong length, a preset's name for the optics, a name for the field: numpy's broadcast error
+    # and AttributeErrors before (a review of the Python API)
+    with pytest.raises(InputError, match=r"cotangent\['absorbed_sun'\] of shape \(4,\).*shape \(3,\)"):
+        SegmentEstimator(fs, ids[:3], samples=4).vjp({"absorbed_sun": np.ones(4)})
+    with pytest.raises(InputError, match=r"optics of type str.*Optics.preset"):
+        FieldScene(g.mesh, "paper")
+    from lightfit.plant import build
+
+    with pytest.raises(InputError, match=r"fld of type str.*a Field"):
+        build("x")
     with pytest.raises(InputError, match="segment_ids"):
         SegmentEstimator(fs, ids[:0], samples=8)
+    # Ids out of order, repeated or not integers were sorted, merged or truncated unsaid, so results
+    # came in another order or length than asked (a review of the Python API): refused, in
+    # render_adaptive too; whole numbers as floats are ids.
+    for bad, words in (
+        (ids[:5][::-1], "comes after"),
+        (np.r_[ids[:3], ids[2:4]], "repeats"),
+        (ids[:3] + 0.4, "dtype float64"),
+        (ids[:3].astype(bool), "dtype bool"),
+    ):
+        with pytest.raises(InputError, match=rf"segment_ids.*{words}.*(increasing order|integer)"):
+            SegmentEstimator(fs, bad, samples=8)
+        with pytest.raises(InputError, match=rf"segment_ids.*{words}"):
+            render_adaptive(fs, bad, 0.1)
+    assert np.array_equal(SegmentEstimator(fs, ids[:3].astype(float), samples=8).segment_id, ids[:3])
     # A float seed would be rounded, a seed ≥ 2³² would repeat a smaller one's random numbers.
     for seed in (1.5, -1, 2**32, True):
         with pytest.raises(InputError, match="seed"):

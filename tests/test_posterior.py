@@ -657,6 +657,17 @@ def test_bad_input_names_the_parameter(tmp_path):
         P.LogPosterior(model.observe, model.times, obs, ("specular",), use=("co2",))
     with pytest.raises(InputError, match="prior bounds"):
         P.Prior("uniform", 1.0, 0.0, "test")
+    # A fixed noise scale ≤ 0 or not a number gave finite log-probabilities; a vector of the wrong
+    # length was read with JAX's clamped indices (a review of the Python API), jitted or not.
+    for lam in (-1.0, 0.0, float("nan"), "big", True):
+        with pytest.raises(InputError, match="fixed noise_scale"):
+            P.LogPosterior(model.observe, model.times, obs, ("specular",), fixed={"noise_scale": lam})
+    lp = P.LogPosterior(model.observe, model.times, obs, ("specular", "roughness"))
+    for f in (lp.log_prob, jax.jit(lp.log_prob), lp.log_prior):
+        for x in ([0.5], [0.5, 0.5, 0.5], [[0.5, 0.5]]):
+            with pytest.raises(InputError, match=r"x of shape .*a vector of 2 values, in order specular, roughness"):
+                f(jnp.asarray(x))
+    assert np.isfinite(float(lp.log_prob(jnp.asarray([0.5, 0.5]))))
     P.sample(Gauss(), NAMES, tmp_path / "y.h5", nwalkers=8, max_steps=3, initial=_init(), progress=False)
     with pytest.raises(InputError, match="names"):
         P.sample(Gauss(), ("a", "b", "d"), tmp_path / "y.h5", nwalkers=8, max_steps=5, progress=False)

@@ -242,3 +242,12 @@ def test_only_a_site_south_of_the_equator_needs_its_season_start():
     assert rep.check_season_start(None, Site(0.0, 10.0, 0.0, "equator", "UTC")) is None
     with pytest.raises(InputError, match="season_start"):
         rep.check_season_start(None, Site(-0.5, 10.0, 0.0, "just south", "UTC"))
+
+
+def test_run_refuses_what_is_not_a_configuration():
+    """replication.run("quick") was an AttributeError ('str' object has no attribute 'how'; a review
+    of the Python API)."""
+    from lightfit.errors import InputError
+
+    with pytest.raises(InputError, match=r"cfg of type str.*ReplicationConfig.quick\(\)"):
+        rep.run("quick")

@@ -535,6 +535,9 @@ def calibrate(
     if method not in METHODS:
         raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
     check_max_steps(max_steps)
+    for name, tol in (("rtol", rtol), ("atol", atol), ("gtol", gtol)):  # NaN never stops, < 0 means nothing
+        if not (is_real(tol) and math.isfinite(tol) and tol > 0):
+            raise InputError(f"{name}={tol!r}", parameter=name, expected="a finite tolerance > 0")
     form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
     for what, given in (("fixed", fixed), ("start", start)):
         if given is not None:

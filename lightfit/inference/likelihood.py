@@ -310,6 +310,13 @@ class GaussianLikelihood:
         stamps: Timestamps = INSTANTS,
         step: pd.Timedelta | None = None,
     ):
+        if not (isinstance(obs, pd.DataFrame) and isinstance(obs.index, pd.DatetimeIndex) and obs.index.tz):
+            index = f" indexed by {type(obs.index).__name__}" if hasattr(obs, "index") else ""
+            raise InputError(  # a file name or an empty table was an AttributeError further in
+                f"obs of type {type(obs).__name__}{index}",
+                parameter="obs",
+                expected="an observations table indexed by aware times (observations.read_observations reads one)",
+            )
         if use is not None and (isinstance(use, str) or not tuple(use)):
             raise InputError(f"use={use!r}", parameter="use", expected="a non-empty sequence of " + ", ".join(USES))
         if not (np.isfinite(mc_scale) and mc_scale >= 0):

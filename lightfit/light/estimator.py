@@ -142,6 +142,31 @@ def kronecker_alpha(n_dims: int) -> np.ndarray:
     return np.mod(phi ** -np.arange(1.0, n_dims + 1.0), 1.0)
 
 
+def checked_segment_ids(segment_ids: ArrayLike) -> np.ndarray:
+    """``segment_ids`` as int64, or :class:`InputError` unless they are integers, at least one, each
+    once and in increasing order: results come one per segment in that order, and ids sorted or
+    merged unsaid (as they were) would misalign a caller's own arrays (weights, cotangents) with them."""
+    a = np.asarray(segment_ids)
+    if a.ndim != 1 or a.size == 0:
+        raise InputError(
+            f"no segments to render (segment_ids of shape {a.shape})",
+            parameter="segment_ids",
+            expected="a 1-D array of at least one segment id",
+        )
+    if a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(np.isfinite(a) & (a == np.round(a)))):
+        raise InputError(f"segment_ids of dtype {a.dtype}", parameter="segment_ids", expected="integer segment ids")
+    seg = a.astype(np.int64)
+    step = np.diff(seg)
+    if (step <= 0).any():
+        i = int(np.flatnonzero(step <= 0)[0]) + 1
+        raise InputError(
+            f"segment_ids[{i}] = {seg[i]} {'repeats' if step[i - 1] == 0 else 'comes after'} {seg[i - 1]}",
+            parameter="segment_ids",
+            expected="each id once, in increasing order (results come in that order: np.unique(ids) sorts them)",
+        )
+    return seg
+
+
 @dataclass
 class Irradiance:
     """Per-segment irradiance, per unit DNI (sun parts) and per unit DHI (sky parts).
@@ -403,9 +428,7 @@ class SegmentEstimator:
         self.samples = samples_used(samples)  # K rounded up to R·M
         self.replicates = replicates_for(int(samples))
         self.per_replicate = self.samples // self.replicates
-        seg = np.unique(np.asarray(segment_ids, dtype=np.int64))
-        if len(seg) == 0:
-            raise InputError("no segments to render", parameter="segment_ids", expected="at least one segment id")
+        seg = checked_segment_ids(segment_ids)
         self.segment_id = seg
         K, R = self.samples, self.replicates
         self._n_dims = _N_FIXED_DIMS + 2 * _DIMS_PER_BOUNCE * self.bounces
@@ -1051,7 +1074,14 @@ class SegmentEstimator:
         unknown = set(cotangent) - set(PARTS)
         if unknown:
             raise InputError(f"unknown output(s) {sorted(unknown)}", parameter="cotangent", expected=", ".join(PARTS))
-        c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
+        c = {}
+        for p in PARTS:
+            v = np.asarray(cotangent.get(p, 0.0), dtype=np.float64)
+            if v.shape not in ((), (S,)):  # numpy's broadcast error named no output
+                raise InputError(
+                    f"cotangent[{p!r}] of shape {v.shape}", parameter="cotangent", expected=f"a scalar or shape ({S},)"
+                )
+            c[p] = np.broadcast_to(v, (S,))
         si = self._evaluations()[0] // dr.opaque(mi.UInt32, K)
         w = {p: dr.gather(mi.Float, owned(c[p] / K, mi.Float), si) for p in PARTS}
         # Differentiate with respect to per-lane copies of the parameters: the backward pass is
@@ -1238,7 +1268,7 @@ def render_adaptive(
     check_direct_light(field_scene, direct, direct_rays_per_m2)
     check_bounces(bounces)
     check_seed(seed)
-    ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
+    ids = checked_segment_ids(segment_ids)
     S, R = len(ids), replicates_for(int(pilot))
     J, J_max = -(-int(pilot) // R), max(-(-int(pilot) // R), int(max_samples) // R)
     projected = np.full(S, direct == "projection")  # per segment: its direct light projected

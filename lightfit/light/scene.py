@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, is_real
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.face_sampling import FaceSampler
@@ -89,8 +89,10 @@ class Optics:
 
     def __post_init__(self):
         for k, v in asdict(self).items():
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
-                raise InputError(f"{k}={v!r}", parameter=k, expected="a number in [0, 1]")
+            # True was 1.0; numpy's float32 was refused as "not a number in [0, 1]" (a review)
+            if not (is_real(v) and math.isfinite(v) and 0.0 <= v <= 1.0):
+                raise InputError(f"{k}={v!r}", parameter=k, expected="a real number in [0, 1] (Python or numpy)")
+            object.__setattr__(self, k, float(v))  # np.float32(0.5) would name the same leaf otherwise
 
     @classmethod
     def from_traits(
@@ -171,6 +173,12 @@ class FieldScene:
         import drjit as dr
 
         optics = Optics() if optics is None else optics
+        if not isinstance(optics, Optics):  # e.g. the name of a preset: an AttributeError further in
+            raise InputError(
+                f"optics of type {type(optics).__name__}",
+                parameter="optics",
+                expected='an Optics, e.g. Optics() or Optics.preset("paper")',
+            )
         self.mi, self.mesh, self.optics, self.sky, self.cell = mi, mesh, optics, sky, cell
         geometry = mesh if cell is None else cell.images(mesh)
         props = mi.Properties()

@@ -104,8 +104,9 @@ class Theta(eqx.Module):
 
 
 def check_names(names, *, what: str = "parameters") -> tuple[str, ...]:
-    """``names`` as a tuple, or :class:`InputError` naming the unknown or repeated ones."""
-    names = tuple(names)
+    """``names`` as a tuple, or :class:`InputError` naming the unknown or repeated ones (one name
+    as a string is one name, not its letters)."""
+    names = (names,) if isinstance(names, str) else tuple(names)
     unknown = [n for n in names if n not in BOUNDS]
     if unknown:
         raise InputError(f"unknown parameter(s) {unknown}", parameter=what, expected=", ".join(NAMES))

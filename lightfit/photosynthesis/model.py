@@ -40,6 +40,8 @@ import numpy as np
 import optimistix as optx
 from jax.typing import ArrayLike
 
+from lightfit.errors import InputError
+
 from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities, limits
 from .parameters import (
@@ -391,7 +393,8 @@ def _check_range(name, value, lo, hi, expected):
     bad = ~(~np.isnan(v) & (v >= lo) & (v <= hi))  # as the traced check: inf passes only where hi is inf
     if np.any(bad):
         first = v[bad].ravel()[0] if v.ndim else float(v)
-        raise ValueError(f"{name} must be {expected}; got {first!r} ({int(np.count_nonzero(bad))} bad value(s))")
+        n = int(np.count_nonzero(bad))
+        raise InputError(f"{name}={first!r} ({n} bad value(s))", parameter=name, expected=expected)
 
 
 def prepare_environment(
@@ -437,7 +440,9 @@ def prepare_environment(
         shape = np.broadcast_shapes(*(np.shape(v) for v in present.values()))
     except ValueError:
         shapes = ", ".join(f"{k}{tuple(np.shape(v))}" for k, v in present.items())
-        raise ValueError(f"input shapes do not broadcast together: {shapes}") from None
+        raise InputError(
+            f"input shapes do not broadcast together: {shapes}", expected="shapes that broadcast (numpy's rules)"
+        ) from None
     r = INPUT_RANGES
     _check_range("par_abs_umol_m2_s", par_abs_umol_m2_s, *r["par_abs_umol_m2_s"])
     _check_range("tleaf_c", tleaf_c, *r["tleaf_c"])
@@ -448,11 +453,16 @@ def prepare_environment(
     _check_range("gb_mol_m2_s", gb_mol_m2_s, *r["gb_mol_m2_s"])
     _check_range("fw", fw, *r["fw"])
     if params.stomata.model in ("leuning", "medlyn") and rh is None and vpd_kpa is None:
-        raise ValueError(f"the {params.stomata.model.capitalize()} closure needs humidity: pass rh (0-1) or vpd_kpa")
+        raise InputError(
+            f"the {params.stomata.model.capitalize()} closure needs humidity",
+            parameter="rh",
+            expected="rh (0-1) or vpd_kpa",
+        )
     if params.stomata.model == "cplantbox" and gb_mol_m2_s is not None:
-        raise ValueError(
-            "gb_mol_m2_s: the 'cplantbox' closure takes co2_ppm at the leaf surface (as CPlantBox "
-            "does); use the 'tuzet', 'leuning' or 'medlyn' closure for a boundary layer"
+        raise InputError(
+            "the 'cplantbox' closure takes co2_ppm at the leaf surface (as CPlantBox does)",
+            parameter="gb_mol_m2_s",
+            expected="no gb_mol_m2_s, or the 'tuzet', 'leuning' or 'medlyn' closure for a boundary layer",
         )
 
     floats = [v for v in present.values() if hasattr(v, "dtype") and jnp.issubdtype(v.dtype, jnp.floating)]
@@ -531,7 +541,7 @@ def solve(
         :class:`PhotosynthesisResult`.
 
     Raises:
-        ValueError / TypeError: inputs of the wrong shape, type or range (checked before
+        InputError (a ValueError) / TypeError: inputs of the wrong shape or range / type (checked before
             jit on concrete values). Traced values (under ``jit``, ``vmap``, ``grad``) cannot
             be checked there: a NaN, infinite or out-of-range element gives
             ``converged = False`` instead.

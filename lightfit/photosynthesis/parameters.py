@@ -426,14 +426,16 @@ def parameter_set(name: str, growth_temperature_c: float | None = None) -> Photo
     and Jmax(T).
 
     Raises:
-        ValueError: ``name`` is not one of :data:`PARAMETER_SET_NAMES`.
+        InputError: ``name`` is not one of :data:`PARAMETER_SET_NAMES` (a ValueError, as before).
         InputError: a growth temperature for a set that does not acclimate, or outside
             :data:`GROWTH_TEMPERATURE_RANGE_C`.
     """
     try:
         factory = _SETS[name]
     except (KeyError, TypeError):
-        raise ValueError(f"parameter_set: unknown name {name!r}; expected one of {list(PARAMETER_SET_NAMES)}") from None
+        raise InputError(
+            f"parameter_set: unknown name {name!r}", parameter="name", expected=f"one of {list(PARAMETER_SET_NAMES)}"
+        ) from None
     if growth_temperature_c is None:
         return factory()
     return factory(check_growth_temperature(name, growth_temperature_c))
@@ -543,7 +545,7 @@ def check_params(params: PhotosynthesisParams) -> None:
             continue
         v = np.asarray(value, dtype=float)
         if not np.all(ok(v, np)):
-            raise ValueError(f"params.{label} must be {expected}, got {v!r}")
+            raise InputError(f"params.{label}={v!r}", parameter=f"params.{label}", expected=str(expected))
 
 
 def params_in_domain(params: PhotosynthesisParams) -> jax.Array:

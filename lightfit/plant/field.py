@@ -430,6 +430,8 @@ def build(
     plants and its buffer ring, measured = the tile's own plants (periodic: the whole cell is
     built, measured = the tile's plants).
     """
+    if not isinstance(fld, Field):  # an AttributeError further in
+        raise InputError(f"fld of type {type(fld).__name__}", parameter="fld", expected="a Field (Field(n_plants=16))")
     table = fld.plants()
     if tile is None:
         ids, measured_ids = table.index.to_numpy(), table.index[table["measured"]].to_numpy()

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from lightfit.errors import InputError
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, plug_in
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
 from lightfit.model.coupled import NonConvergenceWarning
@@ -62,7 +63,13 @@ class LogPosterior:
         self.priors = dict(priors or PRIORS_INFORMED)
         self.names = check_sampled(names, self.priors)
         fixed = dict(fixed or {})
-        self.noise_scale = float(fixed.pop(NOISE_SCALE, 1.0))
+        lam = fixed.pop(NOISE_SCALE, 1.0)
+        try:
+            self.noise_scale = np.nan if isinstance(lam, bool) else float(lam)
+        except (TypeError, ValueError):
+            self.noise_scale = np.nan
+        if not (np.isfinite(self.noise_scale) and self.noise_scale > 0):  # a finite log-probability otherwise
+            raise InputError(f"fixed {NOISE_SCALE}={lam!r}", parameter="fixed", expected=f"{NOISE_SCALE} finite, > 0")
         self.base = as_theta(fixed)
         self.forward = forward
         self.likelihood = GaussianLikelihood(
@@ -84,8 +91,22 @@ class LogPosterior:
         the constructor's (``priors``, ``fixed``, ``use``, ``mc_correlation``, ``mc_scale``)."""
         return cls(forward, model.times, obs, names, *args, stamps=model.timestamps, step=model.step, **kw)
 
+    def vector(self, x) -> jax.Array:
+        """``x`` as a float64 vector of the sampled parameters, or :class:`InputError` for another
+        length: JAX clamps an index past the end, so a short vector gave a finite log-probability
+        built on repeated values (JAX-traceable: the shape is static)."""
+        x = jnp.asarray(x, jnp.float64)
+        if x.shape != (len(self.names),):
+            raise InputError(
+                f"x of shape {x.shape}",
+                parameter="x",
+                expected=f"a vector of {len(self.names)} values, in order {', '.join(self.names)}",
+            )
+        return x
+
     def split(self, x) -> tuple[Theta, jax.Array]:
         """Model parameters θ(x) and noise scale λ(x) of a sampled vector ``x`` (JAX-traceable)."""
+        x = self.vector(x)
         model = [(i, n) for i, n in enumerate(self.names) if n != NOISE_SCALE]
         theta = self.base.replace(**{n: x[i] for i, n in model})
         lam = x[self.names.index(NOISE_SCALE)] if NOISE_SCALE in self.names else self.noise_scale
@@ -97,6 +118,7 @@ class LogPosterior:
         return self.forward(theta), lam
 
     def log_prior(self, x) -> jax.Array:
+        x = self.vector(x)
         return sum(self.priors[n].logpdf(x[i]) for i, n in enumerate(self.names))
 
     def log_likelihood(self, x, mc: Mapping | None = None) -> jax.Array:
