@@ -79,6 +79,16 @@ def test_notebook_executes(tmp_path, monkeypatch):
     ) in _text(_cell(nb, 'd = run["diagnostics"]'))
     diag = _table(_cell(nb, 'd = run["diagnostics"]'))
     np.testing.assert_allclose(diag["tau_steps"], np.round(d["tau"], 1), atol=0.051)
+    # each parameter judged against the stop rule, which this tiny run does not meet (its numbers were
+    # shown without saying so; a review): by the rule's own check of these diagnostics
+    from lightfit.inference.mcmc import StopRule
+
+    rule = StopRule()
+    met = (d["n_kept"] >= rule.tau_multiple * d["tau"]) & (d["ess"] >= rule.target_ess) & (d["rhat"] < rule.rhat_max)
+    assert not met.all() and not rule.check(d, d["tau"])
+    assert f"met by {int(met.sum())} of {len(run['names'])} parameters: not converged" in _text(
+        _cell(nb, 'd = run["diagnostics"]')
+    )
     summ = summarize(flat_samples(run), run["names"])
     table = _table(_cell(nb, "summ = summarize"))
     assert list(table.index) == list(run["names"])
