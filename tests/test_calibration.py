@@ -326,9 +326,13 @@ def test_unknown_parameter_and_no_overlap(short_model):
     # Before any render (a review of the Python API): a NaN tolerance never stops, a negative one
     # means nothing; a file name or an empty table for the observations was an AttributeError; one
     # name as a string was taken letter by letter.
-    for name, tol in (("rtol", float("nan")), ("atol", 0.0), ("gtol", -1.0), ("rtol", "1e-4")):
-        with pytest.raises(InputError, match=rf"parameter '{name}'.*a finite tolerance > 0"):
+    for name, tol in (("rtol", float("nan")), ("atol", -1e-6), ("gtol", -1.0), ("rtol", "1e-4")):
+        with pytest.raises(InputError, match=rf"parameter '{name}'.*a finite tolerance ≥ 0"):
             calibrate(short_model, record, names=("specular",), progress=False, **{name: tol})
+    with pytest.raises(InputError, match=r"rtol=0 and atol=0.*rtol > 0 or atol > 0"):  # atol=0 alone: relative
+        calibrate(short_model, record, names=("specular",), progress=False, rtol=0.0, atol=0.0)
+    with pytest.raises(InputError, match=r"gtol=0.*for method lbfgsb"):
+        calibrate(short_model, record, names=("specular",), progress=False, method="lbfgsb", gtol=0.0)
     for obs in ("obs.csv", pd.DataFrame()):
         with pytest.raises(InputError, match=r"parameter 'obs'.*an observations table indexed by aware times"):
             calibrate(short_model, obs, names=("specular",), progress=False)

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import lightfit  # noqa: F401
@@ -407,6 +408,9 @@ def test_bad_inputs():
     # and AttributeErrors before (a review of the Python API)
     with pytest.raises(InputError, match=r"cotangent\['absorbed_sun'\] of shape \(4,\).*shape \(3,\)"):
         SegmentEstimator(fs, ids[:3], samples=4).vjp({"absorbed_sun": np.ones(4)})
+    est = SegmentEstimator(fs, ids[:3], samples=4)
+    one = est.vjp({"absorbed_sun": np.ones(1)})  # a length-1 cotangent broadcasts, as numpy's would
+    assert all(np.array_equal(one[k], v) for k, v in est.vjp({"absorbed_sun": 1.0}).items())
     with pytest.raises(InputError, match=r"optics of type str.*Optics.preset"):
         FieldScene(g.mesh, "paper")
     from lightfit.plant import build
@@ -429,6 +433,10 @@ def test_bad_inputs():
         with pytest.raises(InputError, match=rf"segment_ids.*{words}"):
             render_adaptive(fs, bad, 0.1)
     assert np.array_equal(SegmentEstimator(fs, ids[:3].astype(float), samples=8).segment_id, ids[:3])
+    assert np.array_equal(SegmentEstimator(fs, pd.array(ids[:3], dtype="Int64"), samples=8).segment_id, ids[:3])
+    # float32 holds ids of 10⁶·plant + index only rounded (20 000 005 → 20 000 004, another segment)
+    with pytest.raises(InputError, match="segment_ids of dtype float32"):
+        SegmentEstimator(fs, ids[:3].astype(np.float32), samples=8)
     # A float seed would be rounded, a seed ≥ 2³² would repeat a smaller one's random numbers.
     for seed in (1.5, -1, 2**32, True):
         with pytest.raises(InputError, match="seed"):

@@ -708,6 +708,7 @@ def test_a_window_may_end_on_the_series_last_row():
         ("Mars/Base", "2016-04-20 12:13:48", r"obs.csv, column 'time_zone': time_zone='Mars/Base' is not a time zone"),
         ("UTC+2", "2016-04-20 12:13:48", "2016-04-20 10:13:48+00:00"),
         ("Europe/Berlin", "2016-04-20T12:13:48+02:00", "2016-04-20 10:13:48+00:00"),
+        ("Europe/Berlin", "2016-04-20T10:13:48Z", "2016-04-20 10:13:48+00:00"),  # ISO's UTC, whatever the zone
         # A zone line and offsets that contradict each other: which is meant cannot be told.
         ("UTC", "2016-04-20T12:13:48+02:00", r"line 4, column 'time'.*is in UTC\+2, but the stated time zone UTC"),
         ("Europe/Berlin", "2016-01-20T12:13:48+02:00", r"stated time zone Europe/Berlin was at UTC\+1 then"),
@@ -780,3 +781,24 @@ def test_repairs_say_which_column_and_line(tmp_path):
     assert f"repair interpolated: {tair}: 1 missing value(s)" in out
     assert f"line {blank})" in out
     assert f"the first out of order: line {swapped}," in out and f"before line {swapped - 1}'s time" in out
+
+
+def test_a_tereno_file_without_a_zone_line_reads_times_with_offsets_by_them(tmp_path):
+    """Only a zone the file or the caller states is held against offsets in the times: the format's
+    default (UTC+1) is not (a review: `...Z` times without a `Time zone:` line were refused as
+    contradicting a zone nobody stated). Stated, a contradicting offset is refused."""
+
+    def utc(rows):
+        for r in rows:  # the fixture's UTC+1 clock written as UTC instants
+            r[0] = (pd.Timestamp(r[0]) - pd.Timedelta("1h")).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+    def offset_2h(rows):
+        for r in rows:
+            r[0] = (pd.Timestamp(r[0]) + pd.Timedelta("1h")).strftime("%Y-%m-%dT%H:%M:%S+02:00")
+
+    no_zone = lambda head: [ln for ln in head if not ln.startswith("Time zone")]  # noqa: E731
+    expected = read_tereno(FIXTURE).index
+    assert read_tereno(_tereno(tmp_path, edit=utc, header_edit=no_zone)).index.equals(expected)
+    assert read_tereno(_tereno(tmp_path, edit=offset_2h, header_edit=no_zone, name="b.csv")).index.equals(expected)
+    with pytest.raises(InputError, match=r"is in UTC\+2, but the stated time zone UTC\+1 was at UTC\+1 then"):
+        read_tereno(_tereno(tmp_path, edit=offset_2h, name="c.csv"))

@@ -536,8 +536,12 @@ def calibrate(
         raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
     check_max_steps(max_steps)
     for name, tol in (("rtol", rtol), ("atol", atol), ("gtol", gtol)):  # NaN never stops, < 0 means nothing
-        if not (is_real(tol) and math.isfinite(tol) and tol > 0):
-            raise InputError(f"{name}={tol!r}", parameter=name, expected="a finite tolerance > 0")
+        if not (is_real(tol) and math.isfinite(tol) and tol >= 0):
+            raise InputError(f"{name}={tol!r}", parameter=name, expected="a finite tolerance ≥ 0")
+    if method == "bfgs" and rtol == atol == 0:  # the Cauchy test needs one of them (atol=0: relative only)
+        raise InputError("rtol=0 and atol=0", parameter="rtol", expected="rtol > 0 or atol > 0 for method bfgs")
+    if method == "lbfgsb" and gtol == 0:
+        raise InputError("gtol=0", parameter="gtol", expected="gtol > 0 for method lbfgsb")
     form = likelihood_form(mc_correlation, mc_scale)  # checked before any render
     for what, given in (("fixed", fixed), ("start", start)):
         if given is not None:

@@ -43,6 +43,7 @@ from lightfit.light.estimator import (
     check_direct_light,
     check_samples,
     check_target_rse,
+    checked_segment_ids,
 )
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene
@@ -73,7 +74,7 @@ def make_irradiance(
 
     Args:
         field_scene: scene whose leaf parameters and sun the function sets on every call.
-        segment_ids: segments measured (their order is ``np.unique(segment_ids)``).
+        segment_ids: segments measured, in increasing order, each once (:func:`checked_segment_ids`).
         samples, bounces: estimator settings (see :class:`SegmentEstimator`).
         sensors: P virtual horizontal sensors (:mod:`lightfit.light.sensors`), rendered with the
             same scene, bounces and seed, ``sensor_samples`` points each; their parts are the
@@ -98,9 +99,7 @@ def make_irradiance(
     ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer in [0, 2³²).
     Gradients flow to ``leaf`` only. Wrong shapes are refused when the function is traced.
     """
-    ids = np.unique(np.asarray(segment_ids, dtype=np.int64))
-    if len(ids) == 0:
-        raise InputError("no segments to render", parameter="segment_ids", expected="at least one segment id")
+    ids = checked_segment_ids(segment_ids)
     # Checked here, once: inside the callbacks an error reaches the caller wrapped in JAX's.
     check_samples(samples)
     check_bounces(bounces)

@@ -59,6 +59,7 @@ variance (docs/light.md, "Direct light by projection").
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -147,13 +148,20 @@ def checked_segment_ids(segment_ids: ArrayLike) -> np.ndarray:
     once and in increasing order: results come one per segment in that order, and ids sorted or
     merged unsaid (as they were) would misalign a caller's own arrays (weights, cotangents) with them."""
     a = np.asarray(segment_ids)
+    if a.dtype == object:  # e.g. pandas' nullable Int64: whole Python ints, or refused below
+        try:
+            a = np.array([operator.index(v) for v in a.ravel()], dtype=np.int64).reshape(a.shape)
+        except TypeError:
+            pass
     if a.ndim != 1 or a.size == 0:
         raise InputError(
             f"no segments to render (segment_ids of shape {a.shape})",
             parameter="segment_ids",
             expected="a 1-D array of at least one segment id",
         )
-    if a.dtype.kind not in "iu" and not (a.dtype.kind == "f" and np.all(np.isfinite(a) & (a == np.round(a)))):
+    # whole floats only in float64 below 2⁵³ (float32 holds ids as large as 10⁶·plant only rounded)
+    whole = a.dtype == np.float64 and np.all(np.isfinite(a) & (a == np.round(a)) & (np.abs(a) < 2.0**53))
+    if a.dtype.kind not in "iu" and not whole:
         raise InputError(f"segment_ids of dtype {a.dtype}", parameter="segment_ids", expected="integer segment ids")
     seg = a.astype(np.int64)
     step = np.diff(seg)
@@ -367,7 +375,9 @@ class SegmentEstimator:
 
     Args:
         field_scene: the scene (mesh, optics, sun).
-        segment_ids: segments to measure (e.g. the measurement area's); each must have faces.
+        segment_ids: segments to measure (e.g. the measurement area's), integers in increasing
+            order, each once (:func:`checked_segment_ids`: results come in that order); each must
+            have faces.
         samples: K, points per segment (blades: each point on both sides), rounded up to a
             multiple of the replicate count R (:func:`replicates_for`); points are randomised
             quasi-Monte Carlo: in replicate r of a segment, the point and the first direction of
@@ -1077,7 +1087,7 @@ class SegmentEstimator:
         c = {}
         for p in PARTS:
             v = np.asarray(cotangent.get(p, 0.0), dtype=np.float64)
-            if v.shape not in ((), (S,)):  # numpy's broadcast error named no output
+            if v.shape not in ((), (1,), (S,)):  # numpy's broadcast error named no output
                 raise InputError(
                     f"cotangent[{p!r}] of shape {v.shape}", parameter="cotangent", expected=f"a scalar or shape ({S},)"
                 )

@@ -281,13 +281,14 @@ def _preamble_line(text_lines: list[str], end: int, pattern: str) -> tuple[int, 
     return None
 
 
-def _header_zone(text_lines: list[str], end: int, file, tz: str | None) -> str:
+def _header_zone(text_lines: list[str], end: int, file, tz: str | None) -> tuple[str, bool]:
     """The zone of a TERENO export's timestamps: its header's ``Time zone:`` line, ``tz`` where
-    the header says none (default UTC+1); a ``tz`` that disagrees with the header is refused."""
+    the header says none (default UTC+1); a ``tz`` that disagrees with the header is refused. With
+    whether the zone was stated (by the header or ``tz``) rather than the format's default."""
     found = _preamble_line(text_lines, end, r"^\s*#?\s*(?:time\s*zone|timezone|zeitzone)\s*[:=]\s*(?P<v>\S.*?)\s*$")
     given = None if tz is None else zone(tz)
     if found is None:
-        return given or TERENO_TZ
+        return given or TERENO_TZ, given is not None
     i, m = found
     raw = m["v"]
     # "UTC+1", "UTC+1 (no daylight saving)", "Europe/Berlin": the leading offset or IANA name
@@ -301,7 +302,7 @@ def _header_zone(text_lines: list[str], end: int, file, tz: str | None) -> str:
             stated = None
     if stated is None:
         if given is not None:
-            return given  # the caller says what the header means
+            return given, True  # the caller says what the header means
         raise InputError(
             f"the header's time zone {raw!r} is not one lightfit can read unambiguously",
             file=file,
@@ -316,7 +317,7 @@ def _header_zone(text_lines: list[str], end: int, file, tz: str | None) -> str:
             parameter="tz",
             expected=f"no tz (the header's zone is used) or tz={stated!r}",
         )
-    return stated
+    return stated, True
 
 
 #: What a weather series can be (docs: data/README.md); ``"unstated"``: neither file nor caller said.
@@ -381,11 +382,13 @@ _DAY_MONTH = re.compile(r"^\d{1,2}[./-]\d{1,2}[./-]\d{2,4}\b")
 
 
 def parse_times(
-    raw: pd.Series, lines: pd.Series, file, column: str, tz: str | None, no_zone: str = ""
+    raw: pd.Series, lines: pd.Series, file, column: str, tz: str | None, no_zone: str = "", *, stated: bool = True
 ) -> pd.DatetimeIndex:
     """ISO 8601 timestamps (naive ones in ``tz``; all or none with a UTC offset) → UTC; the one
     reader of a file's times (weather and observations). ``lines``: each row's line in the file,
-    for messages. ``tz`` ``None``: naive times are refused, ``no_zone`` saying what was expected."""
+    for messages. ``tz`` ``None``: naive times are refused, ``no_zone`` saying what was expected.
+    Offsets written in the times must be ``tz``'s where the zone was ``stated`` (by the file or the
+    caller, not a format's default), UTC itself (``Z``, ``+00:00``) always allowed."""
     text = raw.astype("string").fillna("").str.strip().reset_index(drop=True)
     lines = lines.reset_index(drop=True)
     expected = "ISO 8601 timestamps such as 2016-04-20 12:10:00 (YYYY-MM-DD, optionally T and a UTC offset)"
@@ -449,7 +452,7 @@ def parse_times(
             for t, n in zip(idx, lines):  # the first time a clock change skips or repeats, by its line
                 localize(t, tz, file=file, row=int(n), column=column)
             raise
-    elif tz is not None:
+    elif tz is not None and stated:
         _offsets_agree(idx, parts["offset"], text, lines, tz, file, column)
     return idx.tz_convert("UTC")
 
@@ -458,9 +461,10 @@ _OFFSET = re.compile(r"(?P<sign>[+-])(?P<h>\d{2}):?(?P<m>\d{2})?")
 
 
 def _offsets_agree(t: pd.DatetimeIndex, offsets: pd.Series, text: pd.Series, lines: pd.Series, tz, file, column):
-    """Times written with a UTC offset in a file that also states its zone ``tz``: each offset must be
-    the zone's at that instant, else :class:`InputError` at the first that is not (a ``UTC`` zone line
-    over ``+02:00`` times contradicts itself, and which of the two is meant cannot be told)."""
+    """Times written with a UTC offset in a file that also states its zone ``tz``: each offset other
+    than UTC's must be the zone's at that instant, else :class:`InputError` at the first that is not
+    (a ``UTC`` zone line over ``+02:00`` times contradicts itself, and which of the two is meant
+    cannot be told; ``Z`` is ISO's UTC whatever the file's zone)."""
 
     def parse(o: str) -> pd.Timedelta:
         m = _OFFSET.fullmatch(o)
@@ -471,7 +475,7 @@ def _offsets_agree(t: pd.DatetimeIndex, offsets: pd.Series, text: pd.Series, lin
     stated = offsets.reset_index(drop=True).map({o: parse(o) for o in offsets.unique()}).to_numpy("m8[ns]")
     utc = t.tz_convert("UTC").tz_localize(None)
     zoned = (t.tz_convert(tz).tz_localize(None) - utc).to_numpy("m8[ns]")
-    bad = stated != zoned
+    bad = (stated != zoned) & (stated != np.timedelta64(0, "ns"))  # Z and +00:00 say UTC outright
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise InputError(
@@ -591,7 +595,7 @@ def read_tereno(
     text_lines = _read_text(path).splitlines()
     hdr, delim = _find_table(text_lines, path)
     try:
-        tz = _header_zone(text_lines, hdr, path, tz)
+        tz, zone_stated = _header_zone(text_lines, hdr, path, tz)
     except InputError as e:
         raise (e if e.file is not None else e.in_file(path)) from None
     stated, where = _header_provenance(text_lines, hdr, path)
@@ -599,7 +603,7 @@ def read_tereno(
     table, lines = _table_rows(text_lines, hdr, delim, path)
 
     time_col = next(c for c in table.columns if _TIME_NAMES.match(c))
-    times = parse_times(table[time_col], lines, path, time_col, tz)
+    times = parse_times(table[time_col], lines, path, time_col, tz, stated=zone_stated)
     qc: list[dict] = []
     if not times.is_monotonic_increasing:
         # Sorted before anything reads neighbouring rows (the 30-min CO2 below), not after.

@@ -164,8 +164,9 @@ def stored_run(path: Path, group: str) -> tuple[tuple[str, ...], int] | None:
 
 def load_run(path: str | Path, group: str = "mcmc") -> dict:
     """Read a stored run: ``names``, ``chain`` (n, walkers, ndim), ``log_prob``, ``accepted``, ``attrs``
-    (JSON-decoded), ``diagnostics`` (recomputed), the stop rule's ``checks`` (step, τ, ESS per check)
-    and any analysis groups written next to it. Safe while the run is being written (see the module doc)."""
+    (JSON-decoded), ``diagnostics`` (recomputed with the run's own ``stop_rule``, a
+    :class:`~lightfit.inference.mcmc.diagnostics.StopRule`), the stop rule's ``checks`` (step, τ, ESS
+    per check) and any analysis groups written next to it. Safe while the run is being written (see the module doc)."""
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="an HDF5 file written by lightfit.inference.mcmc")
@@ -219,6 +220,7 @@ def _load_run(path: Path, group: str) -> dict:
     known = {f.name for f in dataclasses.fields(StopRule)}
     stop = StopRule(**{k: v for k, v in rule.items() if k in known}) if isinstance(rule, dict) else StopRule()
     out["diagnostics"] = stop.diagnostics(out["chain"], out["accepted"], names=out["names"])
+    out["stop_rule"] = stop  # the rule the run was sampled under (thresholds to judge it by)
     return out
 
 
