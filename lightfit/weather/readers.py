@@ -472,14 +472,14 @@ def _offsets_agree(t: pd.DatetimeIndex, offsets: pd.Series, text: pd.Series, lin
             return pd.Timedelta(0)
         return (1 if m["sign"] == "+" else -1) * pd.Timedelta(hours=int(m["h"]), minutes=int(m["m"] or 0))
 
-    stated = offsets.reset_index(drop=True).map({o: parse(o) for o in offsets.unique()}).to_numpy("m8[ns]")
+    written = offsets.reset_index(drop=True).map({o: parse(o) for o in offsets.unique()}).to_numpy("m8[ns]")
     utc = t.tz_convert("UTC").tz_localize(None)
     zoned = (t.tz_convert(tz).tz_localize(None) - utc).to_numpy("m8[ns]")
-    bad = (stated != zoned) & (stated != np.timedelta64(0, "ns"))  # Z and +00:00 say UTC outright
+    bad = (written != zoned) & (written != np.timedelta64(0, "ns"))  # Z and +00:00 say UTC outright
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise InputError(
-            f"time {text.iloc[i]!r} is in {offset_label(pd.Timedelta(stated[i]))}, but the stated time zone "
+            f"time {text.iloc[i]!r} is in {offset_label(pd.Timedelta(written[i]))}, but the stated time zone "
             f"{zone_label(tz)} was at {offset_label(pd.Timedelta(zoned[i]))} then",
             file=file,
             row=int(lines.iloc[i]),

@@ -88,7 +88,7 @@ def record_sorted(qc: list[dict], times: pd.DatetimeIndex, lines: pd.Series, zon
     """Record in ``qc`` that rows out of time order (``times``, each row's file ``lines``, read in
     ``zone``) are sorted, naming the first row earlier than the one before it."""
     back = int(np.flatnonzero(np.diff(times.asi8) < 0)[0]) + 1
-    at = _in_file_zone({"timezone_assumed": zone})(times[back])
+    at = _clock(times[back], zone)
     _record(
         qc,
         "sorted",
@@ -127,10 +127,15 @@ def _file_zone(attrs: dict) -> str:
     return attrs.get("timezone_assumed") or "UTC"
 
 
+def _clock(ts: pd.Timestamp, zone: str) -> str:
+    """``"YYYY-MM-DD HH:MM"`` of the instant ``ts`` in ``zone``, as a file's lines read."""
+    return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M")
+
+
 def _in_file_zone(attrs: dict):
     """``ts → "YYYY-MM-DD HH:MM"`` in the file's own time zone, as its lines read."""
     tz = _file_zone(attrs)
-    return lambda ts: ts.tz_convert(tz).strftime("%Y-%m-%d %H:%M")
+    return lambda ts: _clock(ts, tz)
 
 
 def _gap_problem(run: pd.Series, present: pd.DatetimeIndex, lines: pd.Series, attrs: dict, col: str) -> str:
