@@ -317,6 +317,9 @@ class DirectProjection:
             w = mi.Vector3f(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u1, u2)))
             cap = tracer.cap
             weight, w0 = math.pi * fs.sky_radiance(w.z), 1.0
+            # Evaluated here, once: left lazy, every later kernel that reads a direction (the
+            # deposit, the continuation's gathers) recomputed its TEA words, seven times a pass.
+            dr.eval(w, weight)
         status, o_last, maxt, _, pi = tracer.walk(o, -w, mi.Bool(True), cap=cap, soil=True, test=False)
         hit, on_soil = status == LEAF, status == SOIL
         flux_ref = fs.cell.area_m2 / m
@@ -330,7 +333,9 @@ class DirectProjection:
         # sampling and the second walk cost nothing for the others.
         q = CONTINUED_SHARE[kind]
         go_on = mi.Float(random_bits(mi, idx, self.seed, kind, 4)[0] >> 8) * to_unit < q
-        sel = dr.compress((hit | on_soil) & go_on)
+        keep = (hit | on_soil) & go_on
+        dr.eval(keep, idx, rep, hit, on_soil)  # one kernel for the mask and the gathers' sources
+        sel = dr.compress(keep)
         if dr.width(sel) == 0:  # no ray of this pass goes on (a short last pass may have none)
             return [direct, *(self._no_hits(kind, part, n, flux_ref) for part in ("via_leaf", "via_soil"))]
         idx, rep, hit, on_soil, o_last, maxt, pi = (
@@ -380,15 +385,19 @@ class DirectProjection:
         cos_n = dr.dot(dr.gather(mi.Vector3f, self._normal, face, hit), w)
         front = cos_n > 0
         ok = hit & (row != _NONE) & (front | dr.gather(mi.Bool, self._blade, face, hit))
+        index, mu = row * self.R + rep, dr.abs(cos_n)
+        # One kernel for what is gathered below: a gather's source is evaluated first, each in a
+        # kernel of its own when left lazy.
+        dr.eval(ok, index, mu, front)
         sel = dr.compress(ok)
 
         def take(x):
             return None if x is None else dr.gather(type(x), x, sel)
 
         out = Hits(
-            index=dr.gather(mi.UInt32, row * self.R + rep, sel),
-            mu=dr.gather(mi.Float, dr.abs(cos_n), sel),
-            front=dr.gather(mi.Bool, front, sel),
+            index=take(index),
+            mu=take(mu),
+            front=take(front),
             weight=take(weight),
             w0=w0,
             rays=n,
