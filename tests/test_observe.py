@@ -657,3 +657,35 @@ def test_mc_covariance_shares_each_segments_sky_error_across_steps_and_not_its_s
     sun = w * fc.dni_par[:, None] * se[:, 2]
     want = sky @ sky.T + np.diag((sun**2).sum(1))
     np.testing.assert_allclose(cov, want, rtol=1e-10)
+
+
+@pytest.mark.parametrize("series", [s.name for s in SERIES])
+def test_files_and_tables_refuse_a_reading_by_the_same_rule(tmp_path, series):
+    """One rule table (observations.reading_rules) serves files and tables built in code: for each
+    series, a zero SD, an SD beyond float64's weights, a negative value, a percentage and a CO2 flux
+    in another unit are refused by both with the same column and the same expectation (the two
+    paths were parallel lists, and the CO2 message was built twice)."""
+    from lightfit.inference.observations import BY_NAME, check_sds, read_observations, reading_rules
+
+    s = BY_NAME[series]
+    times = ["2016-04-20T10:00:00Z", "2016-04-20T10:30:00Z"]
+    checked = set()
+    for v, sd in [(0.5, 0.0), (0.5, 1e200), (-1.0, 0.1), (94.0, 0.1), (1000.0, 0.1)]:
+        flagged = [r for r in reading_rules(s) if r[1](np.array([v]), np.array([sd]))[0]]
+        if not flagged:
+            continue
+        col, _, expected, _ = flagged[0]
+        f = tmp_path / "obs.csv"
+        f.write_text(
+            f"# provenance: synthetic\n# time_zone: UTC\ntime,{s.value},{s.sd}\n"
+            f"{times[0]},0.5,0.1\n{times[1]},{v!r},{sd!r}\n"
+        )
+        with pytest.raises(InputError, match=rf"obs.csv, line 5, column '{col}'.*{re.escape(expected)}"):
+            read_observations(f)
+        table = pd.DataFrame({s.value: [0.5, v], s.sd: [0.1, sd]}, index=pd.DatetimeIndex(times))
+        with pytest.raises(InputError, match=rf"column '{col}'.*{re.escape(expected)}"):
+            check_sds(table)
+        checked.add(expected)
+    # every rule of the series was met: the two SD rules, and the value rules its kind has
+    assert checked == {r[2] for r in reading_rules(s)}
+    assert len(checked) == 2 + s.nonnegative + (s.unit == "1") + bool(np.isfinite(s.max_abs))

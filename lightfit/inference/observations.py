@@ -261,11 +261,56 @@ def observed(obs: pd.DataFrame) -> tuple[str, ...]:
     return tuple(s.name for s in SERIES if s.value in obs.columns and obs[s.value].notna().any())
 
 
+def reading_rules(s: Series) -> list[tuple[str, object, str, object]]:
+    """The rules every present reading of ``s`` obeys, in files (:func:`read_observations`) and in
+    tables built in code (:func:`check_sds`) alike: ``(column, bad, expected, problem)``, where
+    ``bad(v, sd)`` marks the offending rows of the value and SD arrays (float, NaN where missing;
+    only rows with a value are judged) and ``problem(v, sd, i)`` says what row i holds."""
+
+    def sd_given(v, sd, i):
+        return "missing" if np.isnan(sd[i]) else f"{sd[i]:g}"
+
+    rules = [
+        (
+            s.sd,
+            lambda v, sd: ~(np.isfinite(sd) & (sd > 0)),
+            "a finite SD > 0 wherever the value is present",
+            lambda v, sd, i: f"{s.value} is given without a positive standard deviation (SD {sd_given(v, sd, i)})",
+        ),
+        (
+            s.sd,
+            lambda v, sd: (sd < SD_RANGE[0]) | (sd > SD_RANGE[1]),
+            "an SD in [{:g}, {:g}] (its inverse square, the reading's weight, stays a number)".format(*SD_RANGE),
+            lambda v, sd, i: f"{s.value}'s standard deviation is {sd[i]:g}",
+        ),
+    ]
+    if s.nonnegative:
+        rules.append((s.value, lambda v, sd: v < 0, "a value ≥ 0", lambda v, sd, i: f"negative value of {s.value}"))
+    if s.unit == "1":  # a fraction; 94 is a percentage (noise may take a fraction a little past 1)
+        rules.append(
+            (
+                s.value,
+                lambda v, sd: np.abs(v) > MAX_FRACTION,
+                f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
+                lambda v, sd, i: f"{s.value} = {v[i]:g}",
+            )
+        )
+    if np.isfinite(s.max_abs):
+        rules.append(
+            (
+                s.value,
+                lambda v, sd: np.abs(v) > s.max_abs,
+                f"|value| ≤ {s.max_abs:g}: {_CO2_UNIT}",
+                lambda v, sd, i: f"{s.value} = {v[i]:g}",
+            )
+        )
+    return rules
+
+
 def check_sds(obs: pd.DataFrame) -> None:
     """Observations built in code (not read from a file, which :func:`read_observations` checks
-    line by line), by the file's rules: every present value finite, ≥ 0 for a quantity that cannot be
-    negative, a fraction not a percentage, with a finite SD > 0 (an SD of 0 makes the likelihood
-    infinite, a negative one is no SD). :class:`InputError` naming the column and time."""
+    line by line): every present value finite, then :func:`reading_rules` (an SD of 0 makes the
+    likelihood infinite, a negative one is no SD). :class:`InputError` naming the column and time."""
     for s in SERIES:
         if s.value not in obs.columns:
             continue
@@ -276,25 +321,17 @@ def check_sds(obs: pd.DataFrame) -> None:
             else np.full(len(v), np.nan)
         )
         present = ~np.isnan(v)
-        for bad, col, what in (
-            (present & ~np.isfinite(v), s.value, "a finite value"),
-            (present & s.nonnegative & (v < 0), s.value, "a value ≥ 0"),
-            (
-                present & (s.unit == "1") & (np.abs(v) > MAX_FRACTION),
-                s.value,
-                f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
-            ),
-            (present & (np.abs(v) > s.max_abs), s.value, f"|value| ≤ {s.max_abs:g}: {_CO2_UNIT}"),
-            (present & ~(np.isfinite(sd) & (sd > 0)), s.sd, "a finite SD > 0 wherever the value is present"),
-            (present & ((sd < SD_RANGE[0]) | (sd > SD_RANGE[1])), s.sd, "an SD in [{:g}, {:g}]".format(*SD_RANGE)),
-        ):
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
+        rules = [(s.value, lambda v, sd: ~np.isfinite(v), "a finite value", None), *reading_rules(s)]
+        for col, bad, expected, _ in rules:
+            with np.errstate(invalid="ignore"):
+                hit = present & bad(v, sd)
+            if hit.any():
+                i = int(np.flatnonzero(hit)[0])
                 raise InputError(
                     f"{col} at {obs.index[i]}: {obs[col].iloc[i] if col in obs.columns else 'missing'}",
                     file=obs.attrs.get("source"),
                     column=col,
-                    expected=what,
+                    expected=expected,
                 )
 
 
@@ -382,46 +419,11 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 expected="one value of a quantity per time (readings within a step are averaged, at distinct times)",
             )
     for s in present:
-        _first_bad(
-            out[s.value].notna() & ~(out[s.sd] > 0),
-            path,
-            line,
-            s.sd,
-            "SD > 0 wherever the value is present",
-            lambda i, s=s: (
-                f"{s.value} is given without a positive standard deviation (SD "
-                + ("missing)" if pd.isna(out[s.sd].iloc[i]) else f"{out[s.sd].iloc[i]:g})")
-            ),
-        )
-        _first_bad(
-            out[s.value].notna() & ((out[s.sd] < SD_RANGE[0]) | (out[s.sd] > SD_RANGE[1])),
-            path,
-            line,
-            s.sd,
-            "an SD in [{:g}, {:g}] (its inverse square, the reading's weight, stays a number)".format(*SD_RANGE),
-            lambda i, s=s: f"{s.value}'s standard deviation is {out[s.sd].iloc[i]:g}",
-        )
-        if s.nonnegative:
-            _first_bad(
-                out[s.value] < 0, path, line, s.value, "a value ≥ 0", lambda i, s=s: f"negative value of {s.value}"
-            )
-        if s.unit == "1":  # a fraction; 94 is a percentage (noise may take a fraction a little past 1)
-            _first_bad(
-                out[s.value].abs() > MAX_FRACTION,
-                path,
-                line,
-                s.value,
-                f"a fraction (|value| ≤ {MAX_FRACTION:g}), not a percentage",
-                lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
-            )
-        _first_bad(
-            out[s.value].abs() > s.max_abs,
-            path,
-            line,
-            s.value,
-            f"|value| ≤ {s.max_abs:g}: {_CO2_UNIT}",
-            lambda i, s=s: f"{s.value} = {out[s.value].iloc[i]:g}",
-        )
+        v, sd = out[s.value].to_numpy(float), out[s.sd].to_numpy(float)
+        for col, bad, expected, problem in reading_rules(s):
+            with np.errstate(invalid="ignore"):
+                hit = ~np.isnan(v) & bad(v, sd)
+            _first_bad(pd.Series(hit), path, line, col, expected, lambda i, v=v, sd=sd, p=problem: p(v, sd, i))
     if not any(out[s.value].notna().any() for s in present):  # a comparison with nothing in it is a slip
         raise InputError(
             f"no reading: {', '.join(s.value for s in present)} empty in every row",
