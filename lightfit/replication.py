@@ -30,11 +30,18 @@ from lightfit.inference.observations import SERIES, align, check_light_scale, re
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import SOIL_ALBEDO, Optics, check_sky
+from lightfit.light.scene import SOIL_ALBEDO, Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import BOUNCE_TOLERANCE, Scenario, main_job_samples, resolve_direct
+from lightfit.model.scenario import (
+    BOUNCE_TOLERANCE,
+    SETTINGS,
+    Scenario,
+    check_settings,
+    main_job_samples,
+    resolve_direct,
+)
 from lightfit.photosynthesis.canopy import check_profile, profile_for
 from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
 from lightfit.plant import Field
@@ -45,7 +52,7 @@ from lightfit.report import plot, summary, summary_metadata
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.readers import metadata_lines
-from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS
+from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS, check_how
 from lightfit.weather.site import SELHAUSEN, Site, Window
 
 #: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
@@ -166,7 +173,24 @@ class ReplicationConfig:
         object.__setattr__(self, "growth_temperature_c", t_g)
         object.__setattr__(self, "vcmax_profile", check_profile(self.vcmax_profile))
         object.__setattr__(self, "parameter_file", parameter_file_setting(self.parameter_file))
-        check_sky(self.sky)
+        self.check()
+
+    def check(self) -> None:
+        """Refuse, naming it, any setting the run would refuse, when the configuration is made (it
+        runs this) rather than minutes into a run: the field (:meth:`field`: layout, spacings, row
+        direction, sheaths, headings, plant file, the first date's growth range), the leaf and
+        soil (:meth:`leaf_optics`), ``how`` the weather is windowed
+        (:func:`~lightfit.weather.series.check_how`) and the scenario's settings
+        (:func:`~lightfit.model.scenario.check_settings`; ``bounces=None`` is the leaf's rule's,
+        applied at the run)."""
+        self.field()
+        self.leaf_optics()
+        check_how(self.how)
+        settings = {k: getattr(self, k) for k in SETTINGS}
+        settings |= {"samples": self.render_samples(), "seed": self.render_seed}  # `seed` here grows the plants
+        if self.growth_temperature_c == GROWTH_FROM_SERIES:  # checked above; its value comes with the weather
+            settings["growth_temperature_c"] = None
+        check_settings(boundary=self.boundary, **settings)
 
     @staticmethod
     def quick() -> ReplicationConfig:

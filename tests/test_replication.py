@@ -103,13 +103,13 @@ def test_presets_and_leaf_options():
     assert rep.ReplicationConfig().leaf_optics() == Optics.preset("prospect")
     lo = rep.ReplicationConfig(chlorophyll_ug_cm2=36.4).leaf_optics()
     assert lo.base_color > Optics.preset("prospect").base_color  # less chlorophyll: a paler leaf
-    for cfg, column in (
-        (rep.ReplicationConfig(optics="grey"), "optics"),
-        (paper.__class__(optics="paper", chlorophyll_ug_cm2=40.0), "chlorophyll_ug_cm2"),
-        (rep.ReplicationConfig(chlorophyll_ug_cm2=-3.0), "chlorophyll_ug_cm2"),
+    for settings, column in (
+        ({"optics": "grey"}, "optics"),
+        ({"optics": "paper", "chlorophyll_ug_cm2": 40.0}, "chlorophyll_ug_cm2"),
+        ({"chlorophyll_ug_cm2": -3.0}, "chlorophyll_ug_cm2"),
     ):
-        with pytest.raises(InputError) as err:
-            cfg.leaf_optics()
+        with pytest.raises(InputError) as err:  # when the configuration is made (ReplicationConfig.check)
+            rep.ReplicationConfig(**settings)
         assert err.value.column == column
     with pytest.raises(InputError, match="preset"):
         rep.ReplicationConfig().with_preset("unreal")
@@ -251,3 +251,47 @@ def test_run_refuses_what_is_not_a_configuration():
 
     with pytest.raises(InputError, match=r"cfg of type str.*ReplicationConfig.quick\(\)"):
         rep.run("quick")
+
+
+@pytest.mark.parametrize(
+    ("setting", "value", "named"),
+    [
+        ("n_plants", 0, "n_plants"),
+        ("samples", 1, "samples"),
+        ("bounces", -1, "bounces"),
+        ("target_rse", 1.5, "target_rse"),
+        ("direct", "rays", "direct"),
+        ("optics", "green", "optics"),
+        ("soil_albedo", 1.2, "soil_albedo"),
+        ("how", "median", "how"),
+        ("par_kind", "reflected", "par_kind"),
+        ("an_per", "plant", "an_per"),
+        ("photosynthesis", "maize", "photosynthesis"),
+        ("ceptometer_height_m", -0.1, "ceptometer_height_m"),
+        ("render_seed", "a", "render_seed"),
+        ("row_spacing_m", 0.0, "row_spacing_m"),
+        ("row_direction_deg", 360.0, "row_direction_deg"),
+        ("sheaths", "tubes", "sheaths"),
+        ("headings", "north", "headings"),
+        ("chlorophyll_ug_cm2", -5.0, "chlorophyll_ug_cm2"),
+        ("soil_respiration_q10", 0.5, "soil_respiration_q10"),
+        ("parameter_file", "no_such_plant.xml", "parameter_file"),
+    ],
+)
+def test_a_configuration_refuses_a_bad_setting_when_it_is_made(setting, value, named):
+    """ReplicationConfig took these as given and the run refused them (a review): now the
+    configuration checks every setting when it is made, with the run's own checks
+    (ReplicationConfig.check; Scenario's list is model.scenario.check_settings), naming the setting."""
+    with pytest.raises(rep.InputError, match=rf"parameter '{named}'"):
+        rep.ReplicationConfig(**{setting: value})
+
+
+def test_a_valid_configuration_is_what_the_scenario_takes():
+    """The settings a configuration checks are the ones its scenario is built from: the main job's,
+    the quick one and the paper preset pass both, and the configuration's normalised values are the
+    scenario's (checked once, in one place)."""
+    for cfg in (rep.ReplicationConfig(), rep.ReplicationConfig.quick(), rep.ReplicationConfig.paper()):
+        sc = rep.scenario_for(cfg, rep.forcing_of(cfg))
+        assert sc.direct == rep.resolve_direct(cfg.direct, cfg.boundary)
+        assert sc.samples == cfg.render_samples() and sc.seed == cfg.render_seed
+        assert sc.photosynthesis == cfg.photosynthesis and sc.par_kind == cfg.par_kind

@@ -341,7 +341,7 @@ def test_resample_mean_and_sample():
     t = pd.Timestamp("2016-04-20 11:00", tz="UTC")
     win = df["par_umol_m2_s"].loc[t - pd.Timedelta("15min") : t + pd.Timedelta("14min")]
     assert m["par_umol_m2_s"].loc[t] == pytest.approx(win.mean())
-    with pytest.raises(InputError, match="resampling method"):
+    with pytest.raises(InputError, match="parameter 'how'.*expected 'mean' or 'sample'"):
         resample(df, "30min", "median")
 
 

@@ -28,7 +28,6 @@ from lightfit.light.estimator import (
     MIN_PILOT,
     bounces_for_tolerance,
     check_bounces,
-    check_run_samples,
     check_target_rse,
     truncation_bound,
 )
@@ -757,15 +756,10 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size).
     ``say``: where cautions about the settings go (default :func:`lightfit.cli.common.caution`)."""
     from lightfit.model.scenario import (
-        check_ceptometer_height,
-        check_choice,
-        check_seed,
-        check_soil_respiration,
         main_job_samples,
         resolve_direct,
     )
-    from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
-    from lightfit.photosynthesis.canopy import profile_for, resolve_kn
+    from lightfit.photosynthesis.canopy import profile_for
     from lightfit.replication import ReplicationConfig
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
@@ -828,29 +822,15 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         step=given(opts.step, base.window.step),
         site=site,
     )
-    # Checked here (not only deep inside the run) so that a typo fails before minutes of plant growth.
-    if s.photosynthesis not in PARAMETER_SET_NAMES:
-        raise InputError(
-            f"photosynthesis={s.photosynthesis!r}",
-            parameter="photosynthesis",
-            expected=" or ".join(PARAMETER_SET_NAMES),
-        )
-    profile = profile_for(s.vcmax_profile, s.photosynthesis)
-    # The growth temperature parsed, normalised and checked for the set (a 'series' one comes with
-    # the weather) as the configuration keeps it.
-    t_g = s.replication_config().growth_temperature_c
-    resolve_kn(profile, parameter_set(s.photosynthesis))  # Vcmax25 does not depend on T_g
-    s = dataclasses.replace(s, vcmax_profile=profile, growth_temperature_c=t_g)  # stored as the run used them
+    # Every setting is checked when the configuration is made (ReplicationConfig.check), so that a
+    # typo fails before minutes of plant growth; the profile and the growth temperature (a 'series'
+    # one comes with the weather) are then stored as the run uses them.
     cfg = s.replication_config()
-    optics = cfg.leaf_optics()  # the leaf (check_leaf) and the soil albedo's range, as Optics checks it
-    cfg.field()  # spacings, row direction and the plant file, before plants grow
-    check_choice("par_kind", s.par_kind)
-    check_choice("an_per", s.an_per)
-    check_soil_respiration(s.soil_respiration, s.soil_respiration_q10)
-    check_run_samples(s.samples, s.target_rse)
-    check_seed(s.render_seed)
-    if s.ceptometer_height_m is not None:
-        check_ceptometer_height(s.ceptometer_height_m)
+    s = dataclasses.replace(
+        s, vcmax_profile=profile_for(s.vcmax_profile, s.photosynthesis), growth_temperature_c=cfg.growth_temperature_c
+    )
+    cfg = s.replication_config()
+    optics = cfg.leaf_optics()
     if s.bounces is None:  # chosen from the leaf and soil: one too bright for any number is refused now
         try:
             cfg.render_bounces()
@@ -894,8 +874,6 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     _check_file_timing(s)
     if s.split is not None:
         check_split_model(s.split)
-    if s.how not in ("sample", "mean"):
-        raise InputError(f"how={s.how!r}", parameter="how", expected="'sample' or 'mean'")
     option_error(s.window, "--start-time, --hours or --step")
     if s.steps:
         _steps(s.steps, _n_steps(s.window()))

@@ -32,7 +32,7 @@ from lightfit.light.leaf_optics import DEFAULT_PRESET
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import SKY_MODELS, Optics, check_sky
 from lightfit.model.parameters import Theta
-from lightfit.photosynthesis import parameter_set
+from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
 from lightfit.photosynthesis.model import INPUT_RANGES, RH_RANGE
 from lightfit.photosynthesis.parameters import growth_temperature_setting
@@ -270,6 +270,60 @@ def main_job_samples(direct: str) -> int:
 BOUNCE_TOLERANCE = 0.01
 
 
+#: The run settings :func:`check_settings` checks: a :class:`Scenario`'s, and under the same names a
+#: :class:`lightfit.replication.ReplicationConfig`'s (which checks them when it is made).
+SETTINGS = (
+    "samples",
+    "bounces",
+    "seed",
+    "target_rse",
+    "direct",
+    "direct_rays_per_m2",
+    "ceptometer_height_m",
+    "photosynthesis",
+    "growth_temperature_c",
+    "vcmax_profile",
+    "par_kind",
+    "an_per",
+    "sky",
+    "soil_respiration_umol_m2_s",
+    "soil_respiration_q10",
+)
+
+
+def check_settings(*, boundary: str, **settings) -> dict:
+    """The :data:`SETTINGS` checked and normalised (``direct`` resolved for ``boundary``; ``bounces``
+    ``None`` left to the leaf's rule): :class:`InputError` naming the first one a run would refuse,
+    before any plant grows. The one list of these checks, for :class:`Scenario` and for
+    :class:`lightfit.replication.ReplicationConfig`."""
+    out = dict(settings)
+    out["samples"] = check_run_samples(settings["samples"], settings["target_rse"])
+    if settings["bounces"] is not None:
+        out["bounces"] = check_bounces(settings["bounces"])
+    if settings["target_rse"] is not None:
+        out["target_rse"] = check_target_rse(settings["target_rse"])
+    out["direct"] = resolve_direct(settings["direct"], boundary)
+    out["direct_rays_per_m2"] = check_rays(settings["direct_rays_per_m2"])
+    check_ceptometer_height(settings["ceptometer_height_m"])
+    check_sky(settings["sky"])
+    check_seed(settings["seed"])
+    check_choice("par_kind", settings["par_kind"])
+    check_choice("an_per", settings["an_per"])
+    out["vcmax_profile"] = check_profile(settings["vcmax_profile"])
+    name = settings["photosynthesis"]
+    if name not in PARAMETER_SET_NAMES:
+        raise InputError(
+            f"photosynthesis={name!r}", parameter="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
+        )
+    t_g = out["growth_temperature_c"] = growth_temperature_setting(name, settings["growth_temperature_c"])
+    # refused before plants grow, as is a growth temperature the set does not take
+    resolve_kn(profile_for(out["vcmax_profile"], name), parameter_set(name, t_g))
+    out["soil_respiration_umol_m2_s"], out["soil_respiration_q10"] = check_soil_respiration(
+        settings["soil_respiration_umol_m2_s"], settings["soil_respiration_q10"]
+    )
+    return out
+
+
 @dataclass
 class Scenario:
     """Everything a forward run needs besides the calibrated parameters.
@@ -367,27 +421,12 @@ class Scenario:
         if self.bounces is None:
             self.bounces = bounces_for_tolerance(BOUNCE_TOLERANCE, self.optics)
         # The estimator's own checks, here before plants grow.
-        self.samples = check_run_samples(self.samples, self.target_rse)
-        self.bounces = check_bounces(self.bounces)
-        if self.target_rse is not None:
-            self.target_rse = check_target_rse(self.target_rse)
+        for k, v in check_settings(**{k: getattr(self, k) for k in SETTINGS}, boundary=self.field.boundary).items():
+            setattr(self, k, v)
         if self.allocate_at is not None:
             self.allocate_at = check_allocate_at(self.allocate_at)
-        self.direct = resolve_direct(self.direct, self.field.boundary)
-        self.direct_rays_per_m2 = check_rays(self.direct_rays_per_m2)
-        check_ceptometer_height(self.ceptometer_height_m)
-        check_sky(self.sky)
-        check_seed(self.seed)
         if self.tile is not None and not 0 <= self.tile < self.n_tiles:
             raise InputError(f"tile={self.tile!r}", parameter="tile", expected=f"0 … {self.n_tiles - 1} or None")
-        check_choice("par_kind", self.par_kind)
-        check_choice("an_per", self.an_per)
-        self.vcmax_profile = check_profile(self.vcmax_profile)
-        self.growth_temperature_c = growth_temperature_setting(self.photosynthesis, self.growth_temperature_c)
-        self.kn()  # refused before plants grow, as is a growth temperature the set does not take
-        self.soil_respiration_umol_m2_s, self.soil_respiration_q10 = check_soil_respiration(
-            self.soil_respiration_umol_m2_s, self.soil_respiration_q10
-        )
         missing = set(WEATHER_COLUMNS) - set(self.weather.columns)
         if missing:
             raise InputError(

@@ -391,6 +391,17 @@ def check_and_repair(
     return df
 
 
+#: How :func:`resample` changes a series' step: averaging, or taking the value at each new step.
+RESAMPLE_HOW = ("mean", "sample")
+
+
+def check_how(how) -> str:
+    """A resampling method of :data:`RESAMPLE_HOW`, else :class:`InputError` naming ``how``."""
+    if how not in RESAMPLE_HOW:
+        raise InputError(f"how={how!r}", parameter="how", expected=" or ".join(map(repr, RESAMPLE_HOW)))
+    return how
+
+
 def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=None) -> pd.DataFrame:
     """Change the time step of a contract series.
 
@@ -411,6 +422,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     Solar geometry is recomputed at the new timestamps by :func:`lightfit.weather.add_solar`
     (with the input's split model) when the input had it; averaging sun angles would be wrong.
     """
+    check_how(how)
     measured = [c for c in df.columns if c in BOUNDS]
     step = duration(freq, "freq")
     source = timestamps.of(df)
@@ -441,7 +453,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 expected=f"a step that is a multiple of the source's {spacing} (and starts on it)"
                 + (f", e.g. {spacing}" if off_grid else gap_note(missing)),
             )
-    elif how == "mean":
+    else:  # "mean"
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
             rows = df.index.to_series().diff().dropna()
             if step % source.interval or (len(rows) and (rows != source.interval).any()):
@@ -484,8 +496,6 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                 expected=f"a step at least as long as the source's {spacing}"
                 + (f", e.g. {spacing}" if shorter else gap_note(missing)),
             )
-    else:
-        raise InputError(f"unknown resampling method {how!r}", parameter="how", expected="'mean' or 'sample'")
     out.attrs = dict(df.attrs)
     out.attrs["timestamps"] = stamps
     out.attrs["qc"] = [
