@@ -1080,6 +1080,26 @@ def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_
         rep.observations_for(w, OBSERVATIONS, optional=False)
 
 
+def test_steps_compare_the_observations_within_them(tmp_path):
+    """--steps runs some of the window's steps: a day's observations file was refused because its
+    other rows (and its empty 03:00 rows) lay outside those steps (a review). The rows within the
+    steps are compared, the others left out with a line saying how many; a row without any value is
+    never an observation outside the run; without a reading in the steps it is still an error."""
+    import xarray as xr
+
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    out = tmp_path / "r"
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--observations", str(twin), "--out", str(out)])
+    text = " ".join(r.output.split())
+    assert r.exit_code == 0, text
+    assert "27 of 29 row(s) outside --steps 14:16 left out" in text and "2 of 2 with their nearest step" in text
+    with xr.open_dataset(out / "results.nc") as ds:
+        assert np.isfinite(ds["obs_plant_par_umol_m2_s"].values).all() and ds.sizes["time"] == 2
+    # no reading within the steps: refused, naming the first reading outside (not an empty row)
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "0:2", "--observations", str(twin), "--out", str(out)])
+    assert_user_error(r, "twin_2016-04-20_synthetic.csv", "line 15", "lies outside the run")
+
+
 def test_errors_name_the_option_that_caused_them(tmp_path):
     """An off-grid window start names --start-time (it blamed --step), an option applied to a file
     names the option and the file (it said "column 'tz'"), and a file where an output folder should

@@ -16,6 +16,7 @@ from lightfit.cli.common import (
     console,
     json_object,
     observations_lines,
+    observations_within_steps,
     output_folder,
     parse_names,
     parse_theta,
@@ -148,8 +149,8 @@ def calibrate(
                     expected=f"{n} in [{lo:g}, {hi:g}], the emulator's box (the {priors} priors' support), "
                     "or --no-surrogate (full renders, the whole domain)",
                 )
-    obs = read_observations(observations)
     w = weather(s)
+    obs = observations_within_steps(read_observations(observations), w, s.steps)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()

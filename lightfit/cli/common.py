@@ -427,7 +427,7 @@ def offset_line(obs, w) -> str:
     many at their nearest step and how far from it."""
     import numpy as np
 
-    from lightfit.inference.observations import SERIES, interpolation, nearest_steps
+    from lightfit.inference.observations import SERIES, interpolation, nearest_steps, with_reading
     from lightfit.weather import timestamps
 
     stamps = timestamps.of(w)
@@ -437,19 +437,48 @@ def offset_line(obs, w) -> str:
     for s in SERIES:
         if s.value in obs.columns:
             between |= obs[s.value].notna().to_numpy() & (read[s.value][1][idx] > 0)
+    has = with_reading(obs)  # a row of empty cells is compared with nothing
+    at_step, n = has & ~between, int(has.sum())
     parts = []
     if between.any():
         parts.append(
-            f"{int(between.sum())} of {len(obs)} compared with the model interpolated linearly in time "
+            f"{int(between.sum())} of {n} compared with the model interpolated linearly in time "
             "between the two steps around them"
         )
-    if (~between).any():
-        far = float(np.max(dist[~between]) / np.timedelta64(1, "s")) / 60.0
+    if at_step.any():
+        far = float(np.max(dist[at_step]) / np.timedelta64(1, "s")) / 60.0
         parts.append(
-            f"{int((~between).sum())} of {len(obs)} with their nearest step, up to {far:.1f} min away "
+            f"{int(at_step.sum())} of {n} with their nearest step, up to {far:.1f} min away "
             f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
         )
     return "  " + "; ".join(parts)
+
+
+def observations_within_steps(obs, w, steps: str | None):
+    """With ``--steps`` (some of each day's steps run), the rows of ``obs`` within those steps, and a
+    line saying how many were left out: the rest of a day's file lies outside on purpose. Without
+    ``--steps``, or where no reading falls within them, ``obs`` as it is (every observation outside
+    the run is then refused by :func:`~lightfit.inference.observations.align`, naming the first)."""
+    import numpy as np
+
+    from lightfit.inference.observations import far_from_steps, with_reading
+    from lightfit.weather import timestamps
+
+    if not steps:
+        return obs
+    out = far_from_steps(obs, w.index, timestamps.of(w))  # empty rows too: they are no part of these steps
+    if not out.any() or not (with_reading(obs) & ~out).any():
+        return obs
+    kept = obs[~out].copy()
+    kept.attrs = dict(obs.attrs)
+    if len(obs.attrs.get("lines", ())) == len(obs):  # each row's line in the file, for later errors
+        kept.attrs["lines"] = tuple(np.asarray(obs.attrs["lines"])[~out].tolist())
+    console.print(
+        f"observations: {int(out.sum())} of {len(obs)} row(s) outside --steps {steps} left out "
+        f"({obs.attrs.get('source', 'the table')})",
+        soft_wrap=True,
+    )
+    return kept
 
 
 def check_observations(obs, w) -> None:

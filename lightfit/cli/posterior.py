@@ -14,6 +14,7 @@ from lightfit.cli.common import (
     console,
     interrupted,
     observations_lines,
+    observations_within_steps,
     output_folder,
     parse_names,
     soil_respiration_note,
@@ -110,8 +111,8 @@ def posterior(
         raise InputError(f"mc_scale={mc_scale!r}", parameter="mc-scale", expected="a finite number ≥ 0")
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
-    obs = read_observations(observations or rep.OBSERVATIONS)
     w = weather(s)
+    obs = observations_within_steps(read_observations(observations or rep.OBSERVATIONS), w, s.steps)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()

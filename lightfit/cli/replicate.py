@@ -15,6 +15,7 @@ from lightfit.cli.common import (
     caution,
     console,
     observations_lines,
+    observations_within_steps,
     output_folder,
     parse_theta,
     samples_label,
@@ -75,7 +76,7 @@ def replicate(
     """
     from lightfit import replication as rep
     from lightfit import weather as wx
-    from lightfit.inference.observations import nee_sign_caution, observed
+    from lightfit.inference.observations import nee_sign_caution, observed, read_observations
     from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing, provenance_label
 
@@ -92,7 +93,8 @@ def replicate(
         )
     w = weather(s)
     # read and placed before anything is written; the bundled record by default, where the run reaches it
-    obs = rep.observations_for(w, observations or rep.OBSERVATIONS, optional=observations is None)
+    given = None if observations is None else observations_within_steps(read_observations(observations), w, s.steps)
+    obs = rep.observations_for(w, rep.OBSERVATIONS if given is None else given, optional=given is None)
     out = out or Path("results") / "+".join(s.dates)
     output_folder(out)
     if out.suffix.lower() == ".nc":  # field-run's --out is the file; here it is the folder of five files

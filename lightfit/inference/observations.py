@@ -466,6 +466,30 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     return path
 
 
+def _spacing(times: pd.DatetimeIndex, stamps: Timestamps) -> pd.Timedelta:
+    """The run's steps' spacing: 30 min, or the averaging interval if longer, for a one-step run."""
+    one = max(pd.Timedelta("30min"), stamps.interval or pd.Timedelta(0))
+    return (times[1] - times[0]) if len(times) > 1 else one
+
+
+def with_reading(obs: pd.DataFrame) -> np.ndarray:
+    """Rows of ``obs`` with at least one value (a row of empty cells is no observation)."""
+    values = [s.value for s in SERIES if s.value in obs.columns]
+    return obs[values].notna().any(axis=1).to_numpy() if values else np.zeros(len(obs), bool)
+
+
+def far_from_steps(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> np.ndarray:
+    """Rows of ``obs`` more than half a step (:func:`align`'s spacing) from the centre of every one of
+    the run's steps ``times`` (labelled as ``stamps`` says), whether or not they hold a value."""
+    _, dist = nearest_steps(obs, times, stamps)
+    return dist > _spacing(times, stamps).to_timedelta64() / 2
+
+
+def outside_run(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> np.ndarray:
+    """Rows of ``obs`` with a value that are :func:`far_from_steps`: what :func:`align` refuses."""
+    return with_reading(obs) & far_from_steps(obs, times, stamps)
+
+
 def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> dict[str, np.ndarray]:
     """Observations on the run's time steps: values and SDs (NaN where missing) per step, for
     every column of :data:`COLUMNS` (all NaN for a quantity ``obs`` does not have).
@@ -479,7 +503,8 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     them (:func:`interpolation`). Raised as :class:`InputError`, naming the file:
 
     * an observation more than half a step (the steps' spacing; 30 min, or the averaging interval
-      if longer, for a one-step run) from every step's centre;
+      if longer, for a one-step run) from every step's centre (:func:`outside_run`; a row without
+      any value is no observation);
     * means over a longer interval than what a step stands for (its averaging interval; for a run
       on instants, the spacing): the model's value at one step is not their mean;
     * where the run's means tile time, a mean that straddles two of them.
@@ -488,8 +513,7 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     (equal SDs: the plain mean and sd/√n); the plain mean, SD √(Σ sd²)/n, kept 1/25 of the
     information of readings 20 ± 1 and 30 ± 10 in one step.
     """
-    one = max(pd.Timedelta("30min"), stamps.interval or pd.Timedelta(0))  # a one-step run's spacing
-    spacing = (times[1] - times[0]) if len(times) > 1 else one
+    spacing = _spacing(times, stamps)
     span = stamps.interval if stamps.interval is not None else spacing
     own = timestamps.of(obs)
     source = obs.attrs.get("source")
@@ -502,7 +526,7 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
             expected="means over at most what one step stands for (run the model at theirs: --step, --how mean)",
         )
     idx, dist = nearest_steps(obs, times, stamps)
-    far = dist > spacing.to_timedelta64() / 2
+    far = outside_run(obs, times, stamps)
     if far.any():
         k = int(np.flatnonzero(far)[0])
         lines = obs.attrs.get("lines")
@@ -520,7 +544,7 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
             expected="observation times within the simulated window",
         )
     if own.interval is not None and stamps.interval is not None and spacing == stamps.interval:
-        straddle = dist > ((stamps.interval - own.interval) / 2).to_timedelta64()
+        straddle = with_reading(obs) & (dist > ((stamps.interval - own.interval) / 2).to_timedelta64())
         if straddle.any():
             k = int(np.flatnonzero(straddle)[0])
             raise InputError(
