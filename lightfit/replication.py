@@ -30,7 +30,7 @@ from lightfit.inference.observations import SERIES, align, check_light_scale, re
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import SOIL_ALBEDO, Optics
+from lightfit.light.scene import SOIL_ALBEDO, Optics, check_unit
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
@@ -38,6 +38,7 @@ from lightfit.model.scenario import (
     BOUNCE_TOLERANCE,
     SETTINGS,
     Scenario,
+    check_set_name,
     check_settings,
     main_job_samples,
     resolve_direct,
@@ -165,6 +166,7 @@ class ReplicationConfig:
         # One form whatever it came from (one number, a list read back from JSON): configurations
         # compare equal when they render the same rays.
         object.__setattr__(self, "direct_rays_per_m2", check_rays(self.direct_rays_per_m2))
+        check_set_name(self.photosynthesis)  # before the growth temperature it decides
         t_g = growth_temperature_setting(self.photosynthesis, parse_growth_temperature(self.growth_temperature_c))
         if t_g == GROWTH_FROM_SERIES:  # read with the weather; whether the set takes one, now
             check_acclimates(self.photosynthesis, t_g)
@@ -182,9 +184,12 @@ class ReplicationConfig:
         soil (:meth:`leaf_optics`), ``how`` the weather is windowed
         (:func:`~lightfit.weather.series.check_how`) and the scenario's settings
         (:func:`~lightfit.model.scenario.check_settings`; ``bounces=None`` is the leaf's rule's,
-        applied at the run)."""
-        self.field()
-        self.leaf_optics()
+        applied at the run). The dates' growth range is left to :meth:`field` at the run, so that a
+        configuration may be changed a field at a time (``replace(cfg, season_start=…)``, then its
+        dates); the leaf's spectra are not computed (no renderer needed to make a configuration)."""
+        self._layout(GrowthConfig(parameter_file=self.parameter_file))
+        check_leaf(self.optics, self.chlorophyll_ug_cm2)
+        check_unit("soil_albedo", self.soil_albedo)
         check_how(self.how)
         settings = {k: getattr(self, k) for k in SETTINGS}
         settings |= {"samples": self.render_samples(), "seed": self.render_seed}  # `seed` here grows the plants
@@ -272,6 +277,16 @@ class ReplicationConfig:
     def field(self, date: str | None = None) -> Field:
         """The run's :class:`~lightfit.plant.Field` with plants grown to ``date`` (default: the
         first of :attr:`dates`); checks boundary, buffers and the growth range."""
+        return self._layout(
+            GrowthConfig(
+                parameter_file=self.parameter_file,
+                season_start=self.season_start,
+                target_date=self.dates[0] if date is None else str(parse_date(date, "date")),
+            )
+        )
+
+    def _layout(self, growth: GrowthConfig) -> Field:
+        """The run's :class:`~lightfit.plant.Field` with plants grown as ``growth`` says."""
         return Field(
             n_plants=self.n_plants,
             buffer_rows=self.buffer_rows,
@@ -283,11 +298,7 @@ class ReplicationConfig:
             row_spacing_m=self.row_spacing_m,
             plant_spacing_m=self.plant_spacing_m,
             row_direction_deg=self.row_direction_deg,
-            growth=GrowthConfig(
-                parameter_file=self.parameter_file,
-                season_start=self.season_start,
-                target_date=self.dates[0] if date is None else str(parse_date(date, "date")),
-            ),
+            growth=growth,
         )
 
     def window_utc(self, date: str) -> tuple[pd.Timestamp, pd.Timestamp]:

@@ -1098,6 +1098,17 @@ def test_steps_compare_the_observations_within_them(tmp_path):
     # no reading within the steps: refused, naming the first reading outside (not an empty row)
     r = runner.invoke(app, ["replicate", "--quick", "--steps", "0:2", "--observations", str(twin), "--out", str(out)])
     assert_user_error(r, "twin_2016-04-20_synthetic.csv", "line 15", "lies outside the run")
+    # readings beyond the day's window are still refused with --steps (a clock slip is not cut away)
+    obs = pd.read_csv(twin, comment="#")
+    obs["time"] = (pd.to_datetime(obs["time"]) + pd.Timedelta("2h")).dt.strftime("%Y-%m-%dT%H:%M:%SZ")
+    shifted = tmp_path / "shifted.csv"
+    head = "".join(line for line in twin.read_text().splitlines(keepends=True) if line.startswith("#"))
+    shifted.write_text(head + obs.to_csv(index=False))
+    for steps in ("0:29", "14:16"):
+        r = runner.invoke(
+            app, ["replicate", "--quick", "--steps", steps, "--observations", str(shifted), "--out", str(out)]
+        )
+        assert_user_error(r, "shifted.csv", "line 36", "2016-04-20T17:30:00+00:00 lies outside the run")
 
 
 def test_errors_name_the_option_that_caused_them(tmp_path):

@@ -286,6 +286,21 @@ def test_a_configuration_refuses_a_bad_setting_when_it_is_made(setting, value, n
         rep.ReplicationConfig(**{setting: value})
 
 
+def test_a_configuration_can_be_changed_a_setting_at_a_time():
+    """The dates' growth range is checked at the run, not when a configuration is made: a season
+    start moved before the dates that fit it passes (a review found such chains refused, naming a
+    target_date never set); a misspelt set is named before the growth temperature it decides; and
+    making one computes no leaf spectra (no renderer needed)."""
+    from dataclasses import replace
+
+    cfg = replace(replace(rep.ReplicationConfig(), season_start="2016-05-01"), dates=("2016-06-01",))
+    assert cfg.field().growth.target_date == "2016-06-01"
+    with pytest.raises(rep.InputError, match="target_date"):  # the run's field still checks the range
+        replace(rep.ReplicationConfig(), season_start="2016-05-01").field()
+    with pytest.raises(rep.InputError, match="parameter 'photosynthesis'"):
+        rep.ReplicationConfig(photosynthesis="foo", growth_temperature_c=20.0)
+
+
 def test_a_valid_configuration_is_what_the_scenario_takes():
     """The settings a configuration checks are the ones its scenario is built from: the main job's,
     the quick one and the paper preset pass both, and the configuration's normalised values are the

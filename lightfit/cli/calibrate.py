@@ -150,7 +150,7 @@ def calibrate(
                     "or --no-surrogate (full renders, the whole domain)",
                 )
     w = weather(s)
-    obs = observations_within_steps(read_observations(observations), w, s.steps)
+    obs = observations_within_steps(read_observations(observations), w, s)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()

@@ -454,28 +454,38 @@ def offset_line(obs, w) -> str:
     return "  " + "; ".join(parts)
 
 
-def observations_within_steps(obs, w, steps: str | None):
-    """With ``--steps`` (some of each day's steps run), the rows of ``obs`` within those steps, and a
-    line saying how many were left out: the rest of a day's file lies outside on purpose. Without
-    ``--steps``, or where no reading falls within them, ``obs`` as it is (every observation outside
-    the run is then refused by :func:`~lightfit.inference.observations.align`, naming the first)."""
+def observations_within_steps(obs, w, s):
+    """With ``--steps`` (some of each day's steps run), ``obs`` without its rows that lie within the
+    days' windows but outside those steps, and a line saying how many were left out: the rest of a
+    day's file lies outside on purpose. Rows outside the windows themselves are kept, to be refused
+    by :func:`~lightfit.inference.observations.align` (a file of another day or clock), as is
+    ``obs`` where no reading falls within the steps. ``w``: the steps' forcing; ``s``: the
+    command's :class:`~lightfit.cli.options.ModelSettings`."""
     import numpy as np
+    import pandas as pd
 
-    from lightfit.inference.observations import far_from_steps, with_reading
+    from lightfit.inference.observations import SERIES, far_from_steps, with_reading
     from lightfit.weather import timestamps
 
-    if not steps:
+    if not s.steps:
         return obs
-    out = far_from_steps(obs, w.index, timestamps.of(w))  # empty rows too: they are no part of these steps
+    cfg, half = s.replication_config(), pd.Timedelta(s.step) / 2
+    in_windows = np.zeros(len(obs), bool)
+    for d in s.dates:
+        first, last = cfg.window_utc(d)
+        in_windows |= np.asarray((obs.index >= first - half) & (obs.index <= last + half))
+    out = in_windows & far_from_steps(obs, w.index, timestamps.of(w))  # empty rows too: no part of the steps
     if not out.any() or not (with_reading(obs) & ~out).any():
         return obs
     kept = obs[~out].copy()
     kept.attrs = dict(obs.attrs)
     if len(obs.attrs.get("lines", ())) == len(obs):  # each row's line in the file, for later errors
         kept.attrs["lines"] = tuple(np.asarray(obs.attrs["lines"])[~out].tolist())
+    gone = [x.name for x in SERIES if x.value in obs and obs[x.value].notna().any() and kept[x.value].isna().all()]
     console.print(
-        f"observations: {int(out.sum())} of {len(obs)} row(s) outside --steps {steps} left out "
-        f"({obs.attrs.get('source', 'the table')})",
+        f"observations: {int(out.sum())} of {len(obs)} row(s) outside --steps {s.steps} left out "
+        f"({obs.attrs.get('source', 'the table')})"
+        + (f"; none of the readings of {', '.join(gone)} is within these steps" if gone else ""),
         soft_wrap=True,
     )
     return kept

@@ -112,7 +112,7 @@ def posterior(
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     w = weather(s)
-    obs = observations_within_steps(read_observations(observations or rep.OBSERVATIONS), w, s.steps)
+    obs = observations_within_steps(read_observations(observations or rep.OBSERVATIONS), w, s)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()

@@ -93,7 +93,7 @@ def replicate(
         )
     w = weather(s)
     # read and placed before anything is written; the bundled record by default, where the run reaches it
-    given = None if observations is None else observations_within_steps(read_observations(observations), w, s.steps)
+    given = None if observations is None else observations_within_steps(read_observations(observations), w, s)
     obs = rep.observations_for(w, rep.OBSERVATIONS if given is None else given, optional=given is None)
     out = out or Path("results") / "+".join(s.dates)
     output_folder(out)

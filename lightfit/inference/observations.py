@@ -573,8 +573,9 @@ DAYLIGHT_PAR_UMOL_M2_S = 200.0
 
 
 def observation_table_digest(obs: pd.DataFrame) -> str:
-    """SHA-256 of a whole observation table as read (:func:`read_observations`): times, every series'
-    values and SDs (used or not: a run is refused another table even where it fits only some series).
+    """SHA-256 of a whole observation table as the run compares it (:func:`read_observations`, less
+    the rows ``--steps`` leaves out): times, every series' values and SDs (used or not: a run is
+    refused another table even where it fits only some series).
     The likelihood's :func:`~lightfit.inference.likelihood.observations_digest` covers the used
     series on the run's steps only, and needs the model's steps; this one is known before the plants
     grow."""

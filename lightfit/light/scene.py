@@ -62,6 +62,15 @@ SOIL_ALBEDO = 0.12
 RAY_OFFSET_M = 1e-5
 
 
+def check_unit(name: str, value) -> float:
+    """``value`` as a float in [0, 1] (a real number, Python or numpy), else :class:`InputError`
+    naming ``name``: an albedo or a leaf parameter. True was taken as 1.0, numpy's float32 refused
+    (a review)."""
+    if not (is_real(value) and math.isfinite(value) and 0.0 <= value <= 1.0):
+        raise InputError(f"{name}={value!r}", parameter=name, expected="a real number in [0, 1] (Python or numpy)")
+    return float(value)
+
+
 @dataclass(frozen=True)
 class Optics:
     """Optical parameters of the scene, all in [0, 1].
@@ -89,10 +98,7 @@ class Optics:
 
     def __post_init__(self):
         for k, v in asdict(self).items():
-            # True was 1.0; numpy's float32 was refused as "not a number in [0, 1]" (a review)
-            if not (is_real(v) and math.isfinite(v) and 0.0 <= v <= 1.0):
-                raise InputError(f"{k}={v!r}", parameter=k, expected="a real number in [0, 1] (Python or numpy)")
-            object.__setattr__(self, k, float(v))  # np.float32(0.5) would name the same leaf otherwise
+            object.__setattr__(self, k, check_unit(k, v))  # np.float32(0.5) would name the same leaf otherwise
 
     @classmethod
     def from_traits(

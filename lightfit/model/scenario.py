@@ -291,6 +291,16 @@ SETTINGS = (
 )
 
 
+def check_set_name(name) -> str:
+    """A photosynthesis parameter set's name (:data:`~lightfit.photosynthesis.PARAMETER_SET_NAMES`),
+    else :class:`InputError` naming ``photosynthesis``."""
+    if name not in PARAMETER_SET_NAMES:
+        raise InputError(
+            f"photosynthesis={name!r}", parameter="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
+        )
+    return name
+
+
 def check_settings(*, boundary: str, **settings) -> dict:
     """The :data:`SETTINGS` checked and normalised (``direct`` resolved for ``boundary``; ``bounces``
     ``None`` left to the leaf's rule): :class:`InputError` naming the first one a run would refuse,
@@ -310,11 +320,7 @@ def check_settings(*, boundary: str, **settings) -> dict:
     check_choice("par_kind", settings["par_kind"])
     check_choice("an_per", settings["an_per"])
     out["vcmax_profile"] = check_profile(settings["vcmax_profile"])
-    name = settings["photosynthesis"]
-    if name not in PARAMETER_SET_NAMES:
-        raise InputError(
-            f"photosynthesis={name!r}", parameter="photosynthesis", expected=" or ".join(PARAMETER_SET_NAMES)
-        )
+    name = check_set_name(settings["photosynthesis"])
     t_g = out["growth_temperature_c"] = growth_temperature_setting(name, settings["growth_temperature_c"])
     # refused before plants grow, as is a growth temperature the set does not take
     resolve_kn(profile_for(out["vcmax_profile"], name), parameter_set(name, t_g))
