@@ -689,3 +689,24 @@ def test_files_and_tables_refuse_a_reading_by_the_same_rule(tmp_path, series):
     # every rule of the series was met: the two SD rules, and the value rules its kind has
     assert checked == {r[2] for r in reading_rules(s)}
     assert len(checked) == 2 + s.nonnegative + (s.unit == "1") + bool(np.isfinite(s.max_abs))
+
+
+def test_a_run_of_one_step_a_day_takes_only_readings_near_its_steps():
+    """Two dates cut to one step each (``--steps 14:15``): the steps' spacing was taken from the first
+    two steps, a day apart, so readings from 14 hours around a step were all that step's (a review).
+    A step a day from the next stands alone, as a one-step run's does (30 min)."""
+    from lightfit.inference.observations import align, outside_run
+
+    times = pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-21T10:00Z"])
+    obs = pd.DataFrame(
+        {"plant_par_umol_m2_s": [300.0, 310.0], "plant_par_sd_umol_m2_s": [10.0, 10.0]},
+        index=pd.DatetimeIndex(["2016-04-20T10:10Z", "2016-04-20T14:00Z"]),
+    )
+    obs.attrs = {"source": "test.csv"}
+    assert outside_run(obs, times).tolist() == [False, True]
+    with pytest.raises(InputError, match="test.csv.*2016-04-20T14:00:00\\+00:00 lies outside the run"):
+        align(obs, times)
+    assert align(obs.iloc[:1], times)["plant_par_umol_m2_s"].tolist()[0] == 300.0
+    # steps 30 min apart on each of two days: the spacing is the steps', not the night's gap
+    two = pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-20T10:30Z", "2016-04-21T10:00Z", "2016-04-21T10:30Z"])
+    assert outside_run(obs, two).tolist() == [False, True]

@@ -467,9 +467,14 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
 
 
 def _spacing(times: pd.DatetimeIndex, stamps: Timestamps) -> pd.Timedelta:
-    """The run's steps' spacing: 30 min, or the averaging interval if longer, for a one-step run."""
+    """The run's steps' spacing: the shortest gap between two steps, or for a run of one step a day
+    (its steps a day or more apart: several dates cut to one step each) 30 min, or the averaging
+    interval if longer, as for a one-step run. A run's steps lie within a day's window, so two steps
+    a day apart are never neighbours (the first two steps' gap made readings from 14 hours around
+    a one-step day all that step's)."""
     one = max(pd.Timedelta("30min"), stamps.interval or pd.Timedelta(0))
-    return (times[1] - times[0]) if len(times) > 1 else one
+    gap = pd.Series(times).diff().min() if len(times) > 1 else None
+    return one if gap is None or gap >= pd.Timedelta("1D") else gap
 
 
 def with_reading(obs: pd.DataFrame) -> np.ndarray:
