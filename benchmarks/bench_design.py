@@ -57,7 +57,7 @@ def per_point_geometry():
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", choices=("quick", "default"), default="quick")
     ap.add_argument("--n-design", type=int, default=E.DESIGN_SIZE)
     ap.add_argument("--steps", default=None, help="slice of the daytime steps, e.g. 0:5 (default: all)")

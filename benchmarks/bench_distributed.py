@@ -206,7 +206,7 @@ def plot(res, path):
 
 
 def main():
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small field, few samples (a smoke run)")
     ap.add_argument(
         "--out-dir",

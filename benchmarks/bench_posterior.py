@@ -47,7 +47,7 @@ NAMES = ("specular", "roughness", "subsurface", "light_factor")
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--renders", type=Path, default=ROOT / "results" / "posterior" / "default_renders")
     ap.add_argument("--n-design", type=int, default=16)
     ap.add_argument("--n-test", type=int, default=2)

@@ -1,7 +1,7 @@
 """Benchmark: what a projected sky ray costs and how its layout moves the per-segment noise (issue 16).
 
     python benchmarks/bench_ray_layouts.py [--n-plants 500] [--rays 2e7] [--replicates 8]
-        [--vector-width 8] [--out JSON]
+        [--vector-width N] [--out JSON]
 
 The sky seen directly is ≈ 0.56 of a median segment's variance in the projection
 (bench_projection_split.py); this measures, outside the estimator, whether another layout of the

@@ -1,7 +1,7 @@
 """Benchmark: per-segment relative SE of absorbed PAR against time, fixed K vs adaptive sampling.
 
     python benchmarks/bench_variance.py [--n-plants 500] [--target 0.02] [--bounces 3]
-        [--no-adaptive] [--repeat 1] [--out results/variance.json]
+        [--no-adaptive] [--repeat 1] [--out benchmarks/results/variance.json]
 
 Periodic field of ``n_plants`` measured plants (every segment measured), sun 50° elevation,
 absorbed PAR at DNI 1 and DHI 0.3. In one run, side by side on the same machine:
@@ -176,7 +176,7 @@ def main(
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
     ap.add_argument("--target", type=float, default=0.02)
     ap.add_argument("--bounces", type=int, default=3)

@@ -2,7 +2,7 @@
 side by side in one session (issue 16: keep a variance reduction only if it wins).
 
     python benchmarks/bench_variance_compare.py [--base-commit f8e2a52] [--n-plants 16]
-        [--target 0.05] [--rounds 2] [--repeat 3] [--adaptive] [--out results/variance_compare.json]
+        [--target 0.05] [--rounds 2] [--repeat 3] [--adaptive] [--out benchmarks/results/variance_compare.json]
 
 Each variant runs ``benchmarks/bench_variance.py`` (this tree's script) in its own process with
 ``PYTHONPATH`` at its package: ``base`` is ``lightfit/`` of ``--base-commit`` (``git archive``),
@@ -110,7 +110,7 @@ def main(
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base-commit", default="f8e2a52")
     ap.add_argument("--n-plants", type=int, default=16)
     ap.add_argument("--target", type=float, default=0.05)

@@ -67,6 +67,8 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=16)
     ap.add_argument("--samples", type=int, default=128)
-    ap.add_argument("--out", type=Path, default=None, help="JSON to write (default experiments/results/)")
+    ap.add_argument(
+        "--out", type=Path, default=None, help="JSON to write (default experiments/results/buffer_edge_bias.json)"
+    )
     a = ap.parse_args()
     main(a.n_plants, a.samples, a.out)

@@ -250,6 +250,10 @@ if __name__ == "__main__":
     ap.add_argument("--full", action="store_true", help="also the main job's default field (slower)")
     ap.add_argument("--parts", default="leaf,bounces,canopy,gallery", help="comma-separated parts to run")
     ap.add_argument(
-        "--out", dest="out_path", type=Path, default=None, help="JSON to write (default experiments/results/)"
+        "--out",
+        dest="out_path",
+        type=Path,
+        default=None,
+        help="JSON to write (default experiments/results/defaults_check.json)",
     )
     main(**vars(ap.parse_args()))

@@ -127,6 +127,10 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="also the main job's default configuration (slower)")
     ap.add_argument(
-        "--out", dest="out_path", type=Path, default=None, help="JSON to write (default experiments/results/)"
+        "--out",
+        dest="out_path",
+        type=Path,
+        default=None,
+        help="JSON to write (default experiments/results/photosynthesis_default_check.json)",
     )
     main(**vars(ap.parse_args()))

@@ -51,7 +51,7 @@ MC_SCALE = 2.0
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "posterior")
     ap.add_argument("--n-design", type=int, default=64)
     ap.add_argument("--n-test", type=int, default=8)
