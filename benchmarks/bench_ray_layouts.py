@@ -1,7 +1,7 @@
 """Benchmark: what a projected sky ray costs and how its layout moves the per-segment noise (issue 16).
 
     python benchmarks/bench_ray_layouts.py [--n-plants 500] [--rays 2e7] [--replicates 8]
-        [--vector-width N] [--out JSON]
+        [--vector-width N] [--layouts NAME,NAME] [--out JSON]
 
 The sky seen directly is ≈ 0.56 of a median segment's variance in the projection
 (bench_projection_split.py); this measures, outside the estimator, whether another layout of the
@@ -18,7 +18,15 @@ through the cell (:meth:`PeriodicTracer.walk`, as the projection's first rays), 
 * ``D directions``: each replicate D directions (R₂ over the direction index, shifted per
   replicate), each lighting the whole cell from its own jittered grid of m/D rays: parallel,
   sun-like rays, coherent for the tracer, but only R·D directions in all;
-* ``sun``: one direction (the sun's layout, for the rate it reaches).
+* ``sun``: one direction (the sun's layout, for the rate it reaches);
+* ``strata``: directions stratified per 16 × 16-cell block of the grid instead of the R₂
+  sequence: the direction square cut into 16 × 16 strata, each block's cells taking every stratum
+  once (cell (x, y) of a block the stratum :data:`STRATA_MAP` · (x, y) mod 16, so that neighbouring
+  cells take distant strata), jittered within the stratum and shifted per replicate; traced in
+  the order a projection could draw them without a sort: 64 × 64-cell tiles, and within a tile
+  stratum by stratum, each stratum's 16 rays (one per block) a packet;
+* ``strata rows``: the same rays traced row by row (its rate against ``strata`` is what the
+  drawing order buys; its SE is the layout's, the same rays).
 
 Per layout: rays per second of the walk (the median over the R replicates' walks, after a
 warm-up), and the relative standard error of each segment's count of first hits (the sky seen
@@ -90,8 +98,36 @@ def jittered_grid(rng, cell, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return (ia + rng.random(c.size)) * A / nx - A / 2, (ib + rng.random(c.size)) * B / ny - B / 2, j
 
 
+#: Stratum (s_x, s_y) = M · (x, y) mod 16 of cell (x, y) in its 16 × 16 block (``strata`` layouts):
+#: odd determinant, so a bijection of the block's cells onto the strata; neighbours along x and y
+#: differ by (7, 3) and (4, 9) sixteenths of the direction square.
+STRATA_MAP = np.array([[7, 4], [3, 9]])
+
+
+def strata_layout(rng, cell, m: int, shift: np.ndarray, coherent: bool):
+    """One replicate's ``strata`` rays (module doc): cell-frame origins and directions."""
+    A, B = (float(v) for v in cell.size_m)
+    nx = max(1, round(math.sqrt(m * A / B)))
+    ny = max(1, -(-m // nx))
+    c = np.arange(nx * ny)
+    ia, ib = c % nx, c // nx
+    s = (STRATA_MAP @ np.stack([ia % 16, ib % 16])) % 16
+    u1 = (shift[0] + (s[0] + rng.random(c.size)) / 16) % 1
+    u2 = (shift[1] + (s[1] + rng.random(c.size)) / 16) % 1
+    a, b = (ia + rng.random(c.size)) * A / nx - A / 2, (ib + rng.random(c.size)) * B / ny - B / 2
+    w = cosine_directions(u1, u2)
+    if coherent:  # tiles of 64 × 64 cells, then stratum (the shifted one), then block
+        tile = (ib // 64) * (nx // 64 + 1) + ia // 64
+        su = np.floor(u1 * 16) * 16 + np.floor(u2 * 16)
+        order = np.lexsort(((ib // 16) * (nx // 16 + 1) + ia // 16, su, tile))
+        a, b, w = a[order], b[order], w[order]
+    return a, b, w
+
+
 def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
     """One replicate's rays of a layout: cell-frame origins (a, b) and directions towards the sky."""
+    if name.startswith("strata"):
+        return strata_layout(rng, cell, m, shift, coherent=name == "strata")
     if name.startswith("D="):
         d = int(name[2:])
         parts = [jittered_grid(rng, cell, -(-m // d)) for _ in range(d)]
@@ -114,12 +150,17 @@ def layout(name: str, rng, cell, m: int, shift: np.ndarray, sun: np.ndarray):
     return a, b, w
 
 
+#: The layouts measured (the first is the reference of ``variance × time``).
+LAYOUTS = ("per-ray R2", "tiles x bins", "D=16", "D=64", "D=256", "D=1024", "sun", "strata", "strata rows")
+
+
 def main(
     n_plants: int = 500,
     rays: float = 2e7,
     replicates: int = 8,
     vector_width: int | None = None,
     out: Path | None = None,
+    layouts: tuple[str, ...] | None = None,
 ) -> dict:
     mi = backend.mitsuba()  # the LLVM backend first: its target is then set before any kernel exists
     width = set_vector_width(vector_width) if vector_width else None
@@ -147,10 +188,10 @@ def main(
         dr.sync_thread()
         return time.perf_counter() - t, np.asarray(status), np.asarray(pi.prim_index)
 
-    names = ["per-ray R2", "tiles x bins", "D=16", "D=64", "D=256", "D=1024", "sun"]
+    names = list(layouts or LAYOUTS)
     rng = np.random.default_rng(12345)
     shifts = rng.random((replicates, 2))
-    walk(*layout("per-ray R2", rng, cell, m, shifts[0], fs.sun))  # compile the walk
+    walk(*layout(names[0], rng, cell, m, shifts[0], fs.sun))  # compile the walk
     rows = {}
     for name in names:
         counts = np.zeros((len(seg_id), replicates))
@@ -171,7 +212,7 @@ def main(
             "median_rse_all": float(np.nanmedian(rse)),
             "mean_hits_per_segment": float(mean.mean()),
         }
-    base = rows["per-ray R2"]
+    base = rows[names[0]]
     for row in rows.values():
         row["variance_x_time_blades"] = (row["median_rse_blades"] ** 2 * row["walk_s_per_replicate"]) / (
             base["median_rse_blades"] ** 2 * base["walk_s_per_replicate"]
@@ -218,5 +259,12 @@ if __name__ == "__main__":
         help="JSON to write (default benchmarks/results/ray_layouts.json, with --vector-width W "
         "ray_layouts_width<W>.json: the tracked results the docs cite)",
     )
+    ap.add_argument(
+        "--layouts", default=None, help="layouts to measure, comma-separated (default all; the first is the reference)"
+    )
     a = ap.parse_args()
-    main(a.n_plants, a.rays, a.replicates, a.vector_width, a.out)
+    chosen = None if a.layouts is None else tuple(x.strip() for x in a.layouts.split(","))
+    unknown = [x for x in chosen or () if x not in LAYOUTS]
+    if unknown:
+        ap.error(f"--layouts {unknown}: not among {', '.join(LAYOUTS)}")
+    main(a.n_plants, a.rays, a.replicates, a.vector_width, a.out, chosen)
