@@ -78,7 +78,14 @@ from lightfit.errors import InputError
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
-from lightfit.weather.readers import PROVENANCES, metadata_lines, parse_times, read_csv_with_metadata, zone
+from lightfit.weather.readers import (
+    PROVENANCES,
+    first_bad_row,
+    metadata_lines,
+    parse_times,
+    read_csv_with_metadata,
+    zone,
+)
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 
@@ -267,7 +274,7 @@ def reading_rules(s: Series) -> list[tuple[str, object, str, object]]:
     ``bad(v, sd)`` marks the offending rows of the value and SD arrays (float, NaN where missing;
     only rows with a value are judged) and ``problem(v, sd, i)`` says what row i holds."""
 
-    def sd_given(v, sd, i):
+    def sd_given(sd, i):
         return "missing" if np.isnan(sd[i]) else f"{sd[i]:g}"
 
     rules = [
@@ -275,7 +282,7 @@ def reading_rules(s: Series) -> list[tuple[str, object, str, object]]:
             s.sd,
             lambda v, sd: ~(np.isfinite(sd) & (sd > 0)),
             "a finite SD > 0 wherever the value is present",
-            lambda v, sd, i: f"{s.value} is given without a positive standard deviation (SD {sd_given(v, sd, i)})",
+            lambda v, sd, i: f"{s.value} is given without a positive standard deviation (SD {sd_given(sd, i)})",
         ),
         (
             s.sd,
@@ -393,10 +400,10 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     for c in (c for s in present for c in (s.value, s.sd)):
         text = df[c].str.strip()
         vals = pd.to_numeric(text.where(text != ""), errors="coerce")
-        _first_bad(
+        first_bad_row(
             (vals.isna() & (text != "")) | np.isinf(vals),
-            path,
             line,
+            path,
             c,
             "a finite number or an empty cell (missing)",
             lambda i, text=text: f"value {text.iloc[i]!r} is not a finite number",
@@ -423,7 +430,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         for col, bad, expected, problem in reading_rules(s):
             with np.errstate(invalid="ignore"):
                 hit = ~np.isnan(v) & bad(v, sd)
-            _first_bad(pd.Series(hit), path, line, col, expected, lambda i, v=v, sd=sd, p=problem: p(v, sd, i))
+            first_bad_row(hit, line, path, col, expected, lambda i, v=v, sd=sd, p=problem: p(v, sd, i))
     if not any(out[s.value].notna().any() for s in present):  # a comparison with nothing in it is a slip
         raise InputError(
             f"no reading: {', '.join(s.value for s in present)} empty in every row",
@@ -441,14 +448,6 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     # with == (concat), which an array cannot answer
     out.attrs["lines"] = tuple(int(x) for x in lines)
     return out
-
-
-def _first_bad(bad: pd.Series, path: Path, line, column: str, expected: str, problem) -> None:
-    """:class:`InputError` at the first data row where ``bad`` holds (``line``: each row's line in
-    the file); ``problem(i)`` describes row i."""
-    if bad.any():
-        i = int(np.flatnonzero(bad.to_numpy())[0])
-        raise InputError(problem(i), file=path, row=int(line[i]), column=column, expected=expected)
 
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:

@@ -301,6 +301,12 @@ def check_set_name(name) -> str:
     return name
 
 
+def kn_of(vcmax_profile, photosynthesis: str, growth_temperature_c: float | None) -> float:
+    """kn (per unit LAI) of ``vcmax_profile`` for the set ``photosynthesis`` at its growth temperature
+    (:func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
+    return resolve_kn(profile_for(vcmax_profile, photosynthesis), parameter_set(photosynthesis, growth_temperature_c))
+
+
 def check_settings(*, boundary: str, **settings) -> dict:
     """The :data:`SETTINGS` checked and normalised (``direct`` resolved for ``boundary``; ``bounces``
     ``None`` left to the leaf's rule): :class:`InputError` naming the first one a run would refuse,
@@ -323,7 +329,7 @@ def check_settings(*, boundary: str, **settings) -> dict:
     name = check_set_name(settings["photosynthesis"])
     t_g = out["growth_temperature_c"] = growth_temperature_setting(name, settings["growth_temperature_c"])
     # refused before plants grow, as is a growth temperature the set does not take
-    resolve_kn(profile_for(out["vcmax_profile"], name), parameter_set(name, t_g))
+    kn_of(out["vcmax_profile"], name, t_g)
     out["soil_respiration_umol_m2_s"], out["soil_respiration_q10"] = check_soil_respiration(
         settings["soil_respiration_umol_m2_s"], settings["soil_respiration_q10"]
     )
@@ -450,7 +456,7 @@ class Scenario:
     def kn(self) -> float:
         """kn (per unit LAI) of :attr:`vcmax_profile` for :attr:`photosynthesis`
         (:func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
-        return resolve_kn(profile_for(self.vcmax_profile, self.photosynthesis), self.photosynthesis_params())
+        return kn_of(self.vcmax_profile, self.photosynthesis, self.growth_temperature_c)
 
     def photosynthesis_params(self):
         """The run's :class:`~lightfit.photosynthesis.PhotosynthesisParams`: the set at the growth

@@ -417,17 +417,17 @@ def parse_times(
             f"cannot parse time {s!r}{why}", file=file, row=int(lines.iloc[i]), column=column, expected=expected
         )
     offset = parts["offset"].notna().to_numpy()
-    if offset.any() and not offset.all():
-        i = int(np.flatnonzero(offset != offset[0])[0])
-        raise InputError(
+    first_bad_row(
+        offset != offset[:1],  # none: no row differs
+        lines,
+        file,
+        column,
+        f"all timestamps with a UTC offset, or none (then they are read in {tz or 'the time zone the file states'})",
+        lambda i: (
             f"time {text.iloc[i]!r} {'has a UTC offset' if offset[i] else 'has no UTC offset'}, "
-            f"unlike line {int(lines.iloc[0])}'s {text.iloc[0]!r}",
-            file=file,
-            row=int(lines.iloc[i]),
-            column=column,
-            expected="all timestamps with a UTC offset, or none (then they are read in "
-            f"{tz or 'the time zone the file states'})",
-        )
+            f"unlike line {int(lines.iloc[0])}'s {text.iloc[0]!r}"
+        ),
+    )
     if tz is None and not offset.all():
         # Local times read as UTC would move every reading by hours, silently.
         raise InputError(
@@ -475,17 +475,27 @@ def _offsets_agree(t: pd.DatetimeIndex, offsets: pd.Series, text: pd.Series, lin
     written = offsets.reset_index(drop=True).map({o: parse(o) for o in offsets.unique()}).to_numpy("m8[ns]")
     utc = t.tz_convert("UTC").tz_localize(None)
     zoned = (t.tz_convert(tz).tz_localize(None) - utc).to_numpy("m8[ns]")
-    bad = (written != zoned) & (written != np.timedelta64(0, "ns"))  # Z and +00:00 say UTC outright
+    first_bad_row(
+        (written != zoned) & (written != np.timedelta64(0, "ns")),  # Z and +00:00 say UTC outright
+        lines,
+        file,
+        column,
+        "offsets that are the stated zone's, or the zone stated as the times are written",
+        lambda i: (
+            f"time {text.iloc[i]!r} is in {offset_label(pd.Timedelta(written[i]))}, but the stated time "
+            f"zone {zone_label(tz)} was at {offset_label(pd.Timedelta(zoned[i]))} then"
+        ),
+    )
+
+
+def first_bad_row(bad, lines, file, column: str, expected: str, problem) -> None:
+    """:class:`InputError` at the first data row where ``bad`` (a boolean array over the rows) holds,
+    naming its line (``lines``: each row's line in the file) and column; ``problem(i)`` describes
+    row i. The one first-bad-row check of lightfit's file readers (weather and observations)."""
+    bad = np.asarray(bad)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"time {text.iloc[i]!r} is in {offset_label(pd.Timedelta(written[i]))}, but the stated time zone "
-            f"{zone_label(tz)} was at {offset_label(pd.Timedelta(zoned[i]))} then",
-            file=file,
-            row=int(lines.iloc[i]),
-            column=column,
-            expected="offsets that are the stated zone's, or the zone stated as the times are written",
-        )
+        raise InputError(problem(i), file=file, row=int(np.asarray(lines)[i]), column=column, expected=expected)
 
 
 #: Quality flags of a TERENO export where its header does not list them (``Quality flags: …``).
