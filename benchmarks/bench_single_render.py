@@ -1,6 +1,6 @@
 """Benchmark: issue 16's single-render goal alone, at the recommended setting.
 
-    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16] [--rays 1.5e7,2e7]
+    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16[,32]] [--rays 1.5e7,2e7]
         [--sheaths wrapped[,rods]] [--headings random[,aligned]] [--seeds 4] [--out JSON]
 
 The goal: on the defaults' periodic cell of ``--n-plants`` plants (PROSPECT-D leaf, the bounces
@@ -12,11 +12,12 @@ steady state, the median raw, corrected for R's downward bias, and pooled over t
 machine's speed can be checked against the goal in a few minutes. Times scale to a 2 % median by
 (median / 2 %)²: every part's variance falls as 1/rays and 1/K.
 
-``--sheaths``: the leaf sheaths' layout (``Field.sheaths``, default the model's default); several,
-comma-separated, are measured one after the other in one process (a side-by-side ratio), and the
-JSON then holds one result per layout under ``runs``; ``--headings`` (``Field.headings``) the
-same. ``--sky-continued-share``: the share q of the
-sky's rays continued after their first hit (``projection.CONTINUED_SHARE["sky"]``, 0.25 in the
+``--samples``: the paths per segment K (which also sets the replicates R, 8 from K = 32 on);
+``--sheaths``: the leaf sheaths' layout (``Field.sheaths``, default the model's default). Several
+values of either, comma-separated, are measured one after the other in one process (a
+side-by-side ratio), and the JSON then holds one result per setting under ``runs``;
+``--headings`` (``Field.headings``) the same. ``--sky-continued-share``: the share q of the sky's
+rays continued after their first hit (``projection.CONTINUED_SHARE["sky"]``, 0.25 in the
 library: a day casts the sky once and its continuation serves every step); several values are
 measured in turn the same way. The value is set for this process only, as an experiment.
 ``--seeds N`` (default 4) pools N fresh estimators' SEs (N·(R − 1) degrees of freedom) for the
@@ -126,7 +127,7 @@ def table(res: dict) -> Table:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
-    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--samples", default="16", help="paths per segment K, comma-separated")
     ap.add_argument("--rays", default="1.5e7,2e7", help="projection rays per m², sun,sky")
     ap.add_argument(
         "--sheaths", default=SHEATHS[0], help="leaf sheath layout(s), comma-separated: " + ", ".join(SHEATHS)
@@ -148,8 +149,13 @@ if __name__ == "__main__":
     headings = a.headings.split(",")
     for h in headings:
         check_headings(h)
+    samples = [int(k) for k in a.samples.split(",")]
     runs = [
-        main(a.n_plants, a.samples, (sun, sky), x, q, h, a.seeds) for x in layouts for q in shares for h in headings
+        main(a.n_plants, k, (sun, sky), x, q, h, a.seeds)
+        for k in samples
+        for x in layouts
+        for q in shares
+        for h in headings
     ]
     written = write_result(a.out, runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float)
     commit = json.loads(written.read_text())["lightfit_commit"]
