@@ -16,6 +16,9 @@ fixed point need float64 to converge to the tolerances they are checked against.
 The command line also keeps JAX's compiled programs on disk (:func:`use_compilation_cache`): the
 photosynthesis and observation operator compile ~64 small XLA programs, several seconds of every
 run that a second run of the same configuration need not repeat.
+
+:func:`sqrt_or_zero` is the one guard for a square root whose argument can be exactly 0 in a
+differentiated computation (a standard deviation at night, a discriminant that vanishes).
 """
 
 from __future__ import annotations
@@ -61,3 +64,19 @@ def precision() -> str:
     import jax
 
     return jax.dtypes.canonicalize_dtype(float).name
+
+
+def sqrt_or_zero(x, xp=None):
+    r"""√x where x > 0, else 0, with derivative 0 there instead of √'s infinite one.
+
+    ``d√x/dx = 1/(2√x)`` is infinite at 0, and the chain rule's ``0 · ∞`` makes a gradient NaN
+    even where the result does not depend on the input (a standard deviation that is 0 at night
+    or for a segment without Monte Carlo error, times a factor being differentiated). The inner
+    ``where`` keeps the non-taken branch's √ away from 0 (the "double where": JAX differentiates
+    both branches). For a sum of squares, 0 is the subgradient of least norm at the origin.
+    ``xp``: the array namespace (default :mod:`jax.numpy`; :mod:`numpy` for plain arrays).
+    """
+    if xp is None:
+        import jax.numpy as xp
+    positive = x > 0
+    return xp.where(positive, xp.sqrt(xp.where(positive, x, 1.0)), 0.0)

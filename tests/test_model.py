@@ -250,6 +250,28 @@ def test_tabulated_leaf_gradient_is_finite_with_dark_blades(weather, set_name):
     assert g_tab == pytest.approx(g_exact, rel=2e-3)
 
 
+def test_tabulated_leaf_at_the_solvers_light_limit(weather):
+    """A blade at exactly MAX_PAR_ABS_UMOL_M2_S (1e4, which the solver and with_capacity accept) put
+    the table's top node 1e-9 beyond it: refused eagerly, every blade of the step unconverged under
+    jit. Now the step converges and matches the exact leaf, eagerly and under jit; a blade beyond
+    the limit is flagged, the others of its step not."""
+    import jax
+
+    from lightfit.model.observe import exact_leaf, tabulated_leaf
+    from lightfit.model.scenario import Forcing
+    from lightfit.photosynthesis import MAX_PAR_ABS_UMOL_M2_S, parameter_set
+
+    f, p = Forcing.of(weather), parameter_set("winter_wheat")
+    q = jnp.tile(jnp.asarray([10.0, 500.0, MAX_PAR_ABS_UMOL_M2_S]), (len(f.day), 1))
+    exact = exact_leaf(q, f, p)
+    for out in (tabulated_leaf(64)(q, f, p), jax.jit(lambda x: tabulated_leaf(64)(x, f, p))(q)):
+        assert np.asarray(out.converged).all()
+        np.testing.assert_allclose(np.asarray(out.an), np.asarray(exact.an), rtol=2e-3, atol=1e-2)
+    beyond = q.at[:, 2].set(MAX_PAR_ABS_UMOL_M2_S * 1.001)
+    flagged = np.asarray(jax.jit(lambda x: tabulated_leaf(64)(x, f, p).converged)(beyond))
+    assert not flagged[:, 2].any() and flagged[:, :2].all()
+
+
 def test_forced_non_convergence_is_warned_and_counted(model, monkeypatch):
     """A solver capped at one iteration leaves blades unconverged: simulate warns naming the steps
     and blades, and the summary table counts them per step (issue 17)."""

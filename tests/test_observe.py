@@ -213,6 +213,36 @@ def test_chamber_nee_adds_the_soils_respiration_at_each_steps_air_temperature(no
     assert ds.attrs["soil_respiration_umol_m2_s"] == 2.0 and ds.attrs["soil_respiration_q10"] == 2.5
 
 
+def test_segments_without_monte_carlo_error_keep_the_sds_gradient_finite():
+    """The per-segment SD f·√((DNI σ_sun)² + (DHI σ_sky)²) is linear in the light factor f, so
+    d ΣSD/df = ΣSD/f, also where a segment's SEs are 0 (a shaded blade, a sensor, an emulated
+    source), where √'s infinite slope at 0 made it NaN (grad and jvp, with and without jit)."""
+    from lightfit.light.estimator import PARTS
+    from lightfit.model.scenario import Forcing
+
+    T, S = 2, 3
+    fc = Forcing(
+        day=np.array([True, True]),
+        dni_par=np.array([1500.0, 0.0]),
+        dhi_par=np.array([300.0, 200.0]),
+        tair_c=np.full(T, 20.0),
+        co2_ppm=np.full(T, 410.0),
+        rh=np.full(T, 0.5),
+        pair_kpa=np.full(T, 101.325),
+    )
+    op = type("Op", (), {"forcing": fc})()
+    values = jnp.full((T, len(PARTS), S), 0.3)
+    se = jnp.asarray(np.random.default_rng(0).uniform(0.001, 0.01, (T, len(PARTS), S))).at[:, :, 1].set(0.0)
+
+    def total_sd(f):
+        return jnp.sum(O.ObservationOperator.light(op, values, se, "absorbed", f)[1])
+
+    expected = float(total_sd(1.3)) / 1.3
+    for fn in (total_sd, jax.jit(total_sd)):
+        assert float(jax.grad(fn)(1.3)) == pytest.approx(expected, rel=1e-12)
+        assert float(jax.jvp(fn, (1.3,), (1.0,))[1]) == pytest.approx(expected, rel=1e-12)
+
+
 def test_a_light_factor_beyond_the_leaves_range_is_named(noon_model):
     """`replicate --theta light_factor=9` ended in a traceback from the photosynthesis's range check
     (absorbed PAR above 1e4): refused naming the light factor; traced (calibration, sampling) the

@@ -4,6 +4,7 @@ differences, float32, input validation and property-based tests.
 Peer validation against CPlantBox's C++ solver is in test_photosynthesis_peer.py.
 """
 
+import itertools
 import os
 import subprocess
 import sys
@@ -711,6 +712,47 @@ def test_winter_wheat_extremes_without_jit():
     assert np.all(res.converged)
     assert np.all(np.isfinite(np.asarray(g)))
     np.testing.assert_allclose(res.an_umol_m2_s, ps.solve(par, t, c, rh, P_KPA, p).an_umol_m2_s, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["winter_wheat", "cplantbox", "giraud2023", "giraud2023_coupled"])
+def test_named_sets_at_the_documented_input_limits(name):
+    """Every named set on a grid through the ends of INPUT_RANGES (PAR 0 and 1e4, leaf temperature
+    −50 and 60 °C, CO2 1e-3 and 1e5 ppm, VPD 0 and 20 kPa, pressure 10 and 200 kPa) and points
+    inside them, with no boundary layer and an almost closed one where the set takes one: converged
+    and finite with finite gradients, the same with and without jit. The CPlantBox-form closures
+    have no steady state at 60 °C (their Rd outgrows Vcmax; docs/photosynthesis.md): flagged there,
+    and only there."""
+    lim = psm.INPUT_RANGES
+    axes = [
+        [lim["par_abs_umol_m2_s"][0], 1e-6, 2000.0, lim["par_abs_umol_m2_s"][1]],
+        [lim["tleaf_c"][0], -5.0, 45.0, 58.0, lim["tleaf_c"][1]],
+        [lim["co2_umol_mol"][0], 0.5, 50.0, 2000.0, lim["co2_umol_mol"][1]],
+        [lim["vpd_kpa"][0], lim["vpd_kpa"][1]],
+        [lim["pair_kpa"][0], lim["pair_kpa"][1]],
+    ]
+    par, t, c, vpd, pk = (np.asarray(a, float) for a in np.array(list(itertools.product(*axes))).T)
+    p = ps.parameter_set(name)
+    cplantbox_form = p.stomata.model == "cplantbox"
+    for gb in [None] if cplantbox_form else [None, lim["gb_mol_m2_s"][0]]:
+        kw = {} if gb is None else {"gb_mol_m2_s": gb}
+        res = ps.solve(par, t, c, None, pk, p, vpd_kpa=vpd, **kw)
+        ok = np.asarray(res.converged)
+        np.testing.assert_array_equal(ok, ~(cplantbox_form & (t >= 59.0)), err_msg=f"{name} gb={gb}")
+        for field, value in res._asdict().items():
+            assert np.all(np.isfinite(np.asarray(value, float))[ok]), (name, gb, field)
+
+        def total(q, tl, co2):
+            r = ps.solve(q, tl, co2, None, pk, p, vpd_kpa=vpd, **kw)  # noqa: B023 (used at once)
+            return jnp.sum(jnp.where(r.converged, r.an_umol_m2_s + r.gs_mol_m2_s + r.ci_umol_mol, 0.0))
+
+        for g in jax.grad(total, argnums=(0, 1, 2))(*(jnp.asarray(x) for x in (par, t, c))):
+            assert np.all(np.isfinite(np.asarray(g))), (name, gb)
+        with jax.disable_jit():
+            eager = ps.solve(par, t, c, None, pk, p, vpd_kpa=vpd, **kw)
+        np.testing.assert_array_equal(np.asarray(eager.converged), ok)
+        np.testing.assert_allclose(
+            np.asarray(eager.an_umol_m2_s)[ok], np.asarray(res.an_umol_m2_s)[ok], rtol=1e-8, atol=1e-12
+        )
 
 
 SLOPE_VARIANTS = [v for v in _variants() if v[0] in ("winter_wheat", "giraud2023", "leuning+gb+gm")]

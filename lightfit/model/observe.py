@@ -99,6 +99,7 @@ from lightfit.photosynthesis import (
     PhotosynthesisResult,
     solve_with_par_slope,
 )
+from lightfit.precision import sqrt_or_zero
 from lightfit.weather.solar import horizontal_irradiance
 
 
@@ -124,10 +125,7 @@ def plant_par(par, par_mc_sd, area_m2) -> tuple:
     w = area_m2 / area_m2.sum()
     mean = par @ w
     var = (par - mean[:, None]) ** 2 @ w
-    # Double where: √ at 0 (equal PAR everywhere, e.g. at night) has an infinite derivative, and
-    # 0 · ∞ would make the spread's gradient NaN.
-    positive = var > 0
-    spread = xp.where(positive, xp.sqrt(xp.where(positive, var, 1.0)), 0.0)
+    spread = sqrt_or_zero(var, xp)  # 0 with PAR equal everywhere, e.g. at night: a finite gradient
     mc_sd = xp.sqrt(_no_grad((par_mc_sd**2) @ (w**2)))
     return mean, spread, mc_sd
 
@@ -466,13 +464,15 @@ def tabulated_leaf(n_grid: int = 64) -> LeafPhotosynthesis:
         G = n_grid
         qmax = jnp.maximum(jnp.max(q, axis=1), 1e-6) * (1.0 + 1e-9)  # (T,)
         g = jnp.linspace(0.0, 1.0, G)
-        res, dan_g = _solve_with_slope(qmax[:, None] * g[None, :] ** 2, forcing, params)
+        # The top point stays in the solver's range when the brightest blade is at its limit (the
+        # factor above would put it 1e-9 beyond); blades beyond the limit are not converged.
+        q_grid = jnp.minimum(qmax[:, None] * g[None, :] ** 2, MAX_PAR_ABS_UMOL_M2_S)
+        res, dan_g = _solve_with_slope(q_grid, forcing, params)
         r = jnp.clip(q / qmax[:, None], 0.0, 1.0)
         # sqrt has an infinite slope at 0: dark blades (night steps, q = 0) would send inf·0 = NaN
         # into the cotangent of qmax and from there into the implicit solve. Their interpolation
-        # coordinate is constant 0, so give it a zero derivative (double-where keeps it finite).
-        lit = r > 0
-        x = jnp.where(lit, jnp.sqrt(jnp.where(lit, r, 1.0)), 0.0) * (G - 1)
+        # coordinate is constant 0, so it gets a zero derivative.
+        x = sqrt_or_zero(r) * (G - 1)
         i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, G - 2)
         frac = x - i
         take = jax.vmap(lambda a, j: a[j])
@@ -481,7 +481,8 @@ def tabulated_leaf(n_grid: int = 64) -> LeafPhotosynthesis:
             return (1 - frac) * take(table, i) + frac * take(table, i + 1)
 
         step_converged = jnp.all(res.converged, axis=1, keepdims=True)  # (T, 1)
-        return LeafResponse(interp(res.an_umol_m2_s), interp(dan_g), step_converged & jnp.isfinite(q))
+        within = jnp.isfinite(q) & (q <= MAX_PAR_ABS_UMOL_M2_S)
+        return LeafResponse(interp(res.an_umol_m2_s), interp(dan_g), step_converged & within)
 
     return leaf
 
@@ -548,7 +549,7 @@ class ObservationOperator:
         # The parts' errors taken as independent: with the direct light projected (the default) sun and
         # sky come from separate rays, and their replicate correlation has median 0.000 over segments
         # (25-plant cell, K = 32, suns at 50° and 15°); the estimated covariance would add only its noise.
-        sd = jnp.sqrt((dni * se[:, sun]) ** 2 + (dhi * se[:, sky]) ** 2)
+        sd = sqrt_or_zero((dni * se[:, sun]) ** 2 + (dhi * se[:, sky]) ** 2)  # 0: a segment without error
         zeros = jnp.zeros((len(fc.day), values.shape[-1]))
         return zeros.at[day].set(x), zeros.at[day].set(sd)
 

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
+from ..precision import sqrt_or_zero
 from .constants import GAMMA_STAR_REFERENCE_O2_MMOL_MOL, REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .parameters import FvCBParams, TemperatureParams
 from .temperature import arrhenius, deactivation, peaked_arrhenius
@@ -69,9 +70,8 @@ def electron_transport_rate(
     """
     aq = quantum_yield * par_abs_umol_m2_s
     disc = (aq - jmax_umol_m2_s) ** 2 + 4.0 * (1.0 - curvature) * aq * jmax_umol_m2_s
-    # Double-where keeps sqrt and the division differentiable where they degenerate.
-    pos = disc > 0
-    root = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)
+    # Double-where keeps the division differentiable where it degenerates (sqrt_or_zero: the root).
+    root = sqrt_or_zero(disc)
     den = aq + jmax_umol_m2_s + root
     ok = den > 0
     return jnp.where(ok, 2.0 * aq * jmax_umol_m2_s / jnp.where(ok, den, 1.0), 0.0)
