@@ -964,6 +964,8 @@ def test_every_bad_option_value_exits_2_with_one_line(command, flag, value, tmp_
         assert len(err.splitlines()) == 1, err
         words = {flag.lstrip("-"), flag.lstrip("-").replace("-", "_"), value}
         assert any(w in err for w in words) or flag in err, err
+        if err.startswith("error: option "):  # the option named is the one given (not calibrate's --start),
+            assert err.startswith(f"error: option {flag}") or flag in err, err  # or one it conflicts with
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.npz"))
     assert not (tmp_path / "out" / "forcing.csv").exists()  # nothing written either
 
@@ -1649,8 +1651,9 @@ def test_a_run_over_other_steps_of_the_same_count_is_said_to_replace_them():
 
 
 def test_calibrate_ctrl_c_says_what_each_mode_keeps(tmp_path, monkeypatch):
-    """Ctrl-C in calibrate: the surrogate keeps design renders and trust-region steps, --no-surrogate
-    only its history.jsonl (RESUMABLE; a mutation audit: the --no-surrogate line never said survived)."""
+    """Ctrl-C in calibrate: the surrogate keeps design renders (its trust-region rounds are redone
+    from them, not kept: a review found the line claiming so), --no-surrogate its history.jsonl
+    (RESUMABLE; a mutation audit: the --no-surrogate line never said survived)."""
     import importlib
 
     def interrupted(*a, **k):
@@ -1664,7 +1667,9 @@ def test_calibrate_ctrl_c_says_what_each_mode_keeps(tmp_path, monkeypatch):
         "interrupted: every accepted step is kept in --out's history.jsonl; rerun the same command to resume"
     )
     r = runner.invoke(app, args)
-    assert r.exit_code == 130 and "design cache" in " ".join(r.stderr.split()), r.output
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 130 and "design cache" in said and "without rendering again" in said, r.output
+    assert "trust_region" not in said
 
 
 def test_option_named_only_for_a_files_error_without_a_line_about_an_option():
@@ -1789,3 +1794,10 @@ def test_calibrate_without_the_surrogate_does_not_compare_the_surrogates_setting
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--parameters", "light_factor", "--no-surrogate"]
     r = runner.invoke(app, [*args, "--out", str(out)])
     assert r.exit_code == 130, r.output  # passed the comparison, stopped at the model
+
+
+def test_python_dash_m_lightfit_runs_the_command_line():
+    """`python -m lightfit` (as `python -m lightfit.cli`) for environments without the console script."""
+    p = subprocess.run([sys.executable, "-m", "lightfit", "--help"], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert "replicate" in p.stdout and "calibrate" in p.stdout

@@ -73,6 +73,16 @@ def test_cluster_renders_equal_local_renders_and_only_missing_points_are_sent(mo
             np.testing.assert_array_equal(z["leaf"], x)
 
 
+def test_a_design_resumed_from_the_cache_says_so(model, tmp_path, capsys):
+    """A rerun after an interruption rendered the rest and said only "rendering design: 3/3" (a
+    review): the line now counts the renders read from the cache, and a fresh design says nothing."""
+    key, pts = E.render_key(model), E.sobol_design(3, LO, HI, seed=1)
+    E.render_parts(model, pts[:1], cache=tmp_path, key=key, progress=True)
+    assert "rendering design: 1/1" in capsys.readouterr().out
+    E.render_parts(model, pts, cache=tmp_path, key=key, progress=True)
+    assert "rendering design (1 of 3 from the cache): 3/3" in capsys.readouterr().out
+
+
 def test_build_emulator_with_the_hook_renders_nothing_locally(model, client, tmp_path):
     """build_emulator(render_points=...) sends the design to the cluster and fits from the cache: the
     same emulator as a local build of the same design."""

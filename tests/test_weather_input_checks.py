@@ -17,6 +17,7 @@ from lightfit.weather import (
     Window,
     add_solar,
     read_cplantbox_day,
+    read_lightfit_csv,
     read_tereno,
     read_weather,
     solar_position,
@@ -234,6 +235,24 @@ def test_unknown_lightfit_columns_are_refused(tmp_path):
 
 
 # 6. one-line errors, not tracebacks --------------------------------------------------------------
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_a_file_separated_by_semicolons_or_tabs_is_named_so(tmp_path, sep):
+    """Weather and observations files alike (one reader): a header without commas but with ';' or a
+    tab says so, naming its line, instead of 'no time column' (the whole line read as one name)."""
+    from lightfit.inference.observations import read_observations
+
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    weather = bundled_path("2016-04-20")
+    for path, read in ((twin, read_observations), (weather, read_lightfit_csv)):
+        lines = path.read_text().splitlines()
+        out = tmp_path / path.name
+        out.write_text("\n".join(x if x.startswith("#") else x.replace(",", sep) for x in lines) + "\n")
+        header = next(i for i, x in enumerate(lines) if not x.startswith("#")) + 1
+        with pytest.raises(InputError, match=rf"line {header}: the header line separates its columns by") as e:
+            read(out)
+        assert e.value.file is not None and "comma-separated" in e.value.expected
 
 
 def test_extra_field_and_mixed_offsets_name_their_lines(tmp_path, monkeypatch):

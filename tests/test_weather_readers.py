@@ -170,6 +170,37 @@ def test_short_gap_interpolated_long_gap_rejected(tmp_path):
     assert len(read_tereno(_variant(tmp_path, long), max_gap="2h")) == len(ref)
 
 
+def test_rows_at_the_ends_without_a_value_are_cut_and_said(tmp_path):
+    """Missing values in the first or last rows cannot be interpolated (nothing on one side): they
+    were refused, with a --max-gap hint that could not help, even hours before any run's window.
+    Now the series is cut to the rows between, recorded with their times and lines; inside gaps
+    are interpolated as before; a column without any complete row is still refused, naming it."""
+    ref = read_tereno(FIXTURE)
+
+    def blank(rows_from_header, col):
+        def edit(lines, hdr):
+            for k in rows_from_header:
+                cells = lines[hdr + k].split(",")
+                cells[col] = ""
+                lines[hdr + k] = ",".join(cells)
+
+        return edit
+
+    _, hdr = _table_lines(FIXTURE)
+    n = len(ref)
+    df = read_tereno(_variant(tmp_path, blank([1, 2, 3, n, 30], 4)))  # 3 first rows, the last, one inside
+    assert df.index[0] == ref.index[3] and df.index[-1] == ref.index[-2] and len(df) == n - 4
+    (cut,) = [q for q in df.attrs["qc"] if q["kind"] == "trimmed"]
+    assert cut["count"] == 4
+    assert "3 row(s)" in cut["detail"] and f"lines {hdr + 2}–{hdr + 4}" in cut["detail"]
+    assert "1 row(s)" in cut["detail"] and f"lines {hdr + n + 1}–{hdr + n + 1}" in cut["detail"]
+    assert "AirTemperature" in cut["detail"]
+    assert ("interpolated", "tair_c") in [(q["kind"], q["column"]) for q in df.attrs["qc"]]
+    pd.testing.assert_frame_equal(df.drop(index=ref.index[29]), ref.iloc[3:-1].drop(index=ref.index[29]))
+    with pytest.raises(InputError, match=r"at the start or end of the series.*every column present"):
+        read_tereno(_variant(tmp_path, blank(range(1, n + 1), 4)))
+
+
 def test_empty_cell_and_sentinel_are_gaps(tmp_path):
     def edit(lines, hdr):
         cells = lines[hdr + 30].split(",")

@@ -1,4 +1,4 @@
-"""``python -m lightfit.cli`` = ``lightfit`` (for environments without the console script)."""
+"""``python -m lightfit.cli`` = ``python -m lightfit`` = ``lightfit`` (for environments without the console script)."""
 
 from lightfit.cli import main
 

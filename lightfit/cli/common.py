@@ -139,8 +139,8 @@ def _quiet_exit() -> None:
 RESUMABLE = {
     "posterior": "every finished design render is kept in the design cache and every finished "
     "sampling step in --out's run.h5",
-    "calibrate": "every finished design render is kept in the design cache and every accepted step "
-    "in --out (history.jsonl, or trust_region/ with the surrogate)",
+    "calibrate": "every finished design render is kept in the design cache; a rerun redoes the fits "
+    "and optimisations on the surrogate from them (seconds) without rendering again",
     "calibrate --no-surrogate": "every accepted step is kept in --out's history.jsonl",
     "field-run": "every finished task is kept beside --out (OUT.parts/)",
     "render-dataset": "every rendered camera is kept in --out (its .unfinished folder)",
@@ -190,7 +190,7 @@ OPTION_ALIASES = {
     "season_start": ("--season-start",),
     "date": ("--date",),
     "provenance": ("--provenance", "--weather-provenance"),
-    "start": ("--start-time",),
+    "window.start": ("--start-time",),  # not "start": calibrate's --start is its first θ
 }
 
 

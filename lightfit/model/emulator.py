@@ -252,7 +252,8 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
             todo.append(i)
             first[file] = i
     done = len(leaf) - len(todo)
-    with progress_bar("rendering design", len(leaf), completed=done, show=progress) as bar:
+    label = "rendering design" + (f" ({done} of {len(leaf)} from the cache)" if done else "")  # a rerun says it resumed
+    with progress_bar(label, len(leaf), completed=done, show=progress) as bar:
         # All missing points in one batch (CoupledModel.render_many: the paths are traced once and
         # weighed at every point); each point is stored as soon as it is done, so a design killed
         # half-way keeps its finished renders. A point's seconds are the time since the previous

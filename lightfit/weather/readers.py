@@ -892,6 +892,14 @@ def read_csv_with_metadata(
     header = next((i for i in range(n_meta, len(text)) if text[i].strip()), None)  # blank lines may precede it
     if header is None:
         return meta, n_meta, pd.DataFrame()
+    other = [sep for sep in (";", "\t") if sep in text[header]]
+    if "," not in text[header] and other:  # else one column named 'time;par…', refused as no 'time' column
+        raise InputError(
+            f"the header line separates its columns by {other[0]!r}",
+            file=path,
+            row=header + 1,
+            expected="comma-separated columns (and '.' as the decimal separator)",
+        )
     table, lines = _table_rows(text, header, ",", path, short_rows=short_rows)
     table.attrs["lines"] = lines
     return meta, n_meta, table

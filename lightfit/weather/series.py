@@ -220,7 +220,8 @@ def check_and_repair(
         required: columns that must be present; at least one of ``ghi_w_m2`` and
             ``par_umol_m2_s`` is always required.
 
-    Repairs (each recorded in ``attrs["qc"]``): rows sorted by time; missing values
+    Repairs (each recorded in ``attrs["qc"]``): rows sorted by time; rows at either end without a
+    value of a column other than :data:`OPTIONAL` cut off (they cannot be interpolated); missing values
     (empty cells, NaN or sentinels :data:`MISSING_SENTINELS`) and missing timestamps of a
     regular series interpolated over gaps up to ``max_gap``; values in a column's clamp band
     clamped to the range (e.g. night-time negative PAR set to 0).
@@ -292,6 +293,29 @@ def check_and_repair(
         inserted = f"{n_new} missing timestamp(s) of the {_minutes(step)} grid inserted as gaps"
         _record(qc, "missing_timestamps", None, n_new, inserted)
 
+    # Rows at either end without a value of a column that is not optional cannot be filled (nothing
+    # on one side to interpolate from): the series is cut to the rows between, and the cut recorded.
+    needed = [c for c in df.columns if c not in OPTIONAL]
+    complete = df[needed].notna().all(axis=1).to_numpy()
+    if complete.any() and not (complete[0] and complete[-1]):
+        i, j = int(np.argmax(complete)), len(df) - 1 - int(np.argmax(complete[::-1]))
+        at, said = _in_file_zone(attrs), []
+        for part in (df.index[:i], df.index[j + 1 :]):
+            if len(part):
+                lacking = [c for c in needed if df.loc[part, c].isna().any()]
+                rows = [_line_of(lines, t) for t in (part[0], part[-1])]
+                said.append(
+                    f"{len(part)} row(s) {at(part[0])} … {at(part[-1])} ({_file_zone(attrs)}"
+                    + (f", lines {rows[0]}–{rows[1]}" if None not in rows else "")
+                    + f") without {', '.join(attrs.get('columns_used', {}).get(c, c) for c in lacking)}"
+                )
+        _record(qc, "trimmed", None, len(df) - (j + 1 - i), "series cut at its ends: " + "; ".join(said))
+        df = df.iloc[i : j + 1]
+        if len(df) < 2:
+            raise InputError(
+                f"only {len(df)} row(s) with every column present", file=file, expected="a time series of at least 2"
+            )
+
     for col in list(df.columns):
         na = df[col].isna()
         if not na.any():
@@ -327,7 +351,9 @@ def check_and_repair(
                     row=_line_of(lines, run.iloc[0]),
                     # Missing rows lack every column: name the column only for missing values.
                     column=None if rows_missing else attrs.get("columns_used", {}).get(col, col),
-                    expected="complete data, or gaps short enough to interpolate (max_gap: `lightfit weather show "
+                    expected="rows with every column present (the series is cut to them at its ends; here none)"
+                    if at_edge
+                    else "complete data, or gaps short enough to interpolate (max_gap: `lightfit weather show "
                     "FILE --max-gap 3h --csv filled.csv` writes the series with longer gaps filled, for --weather)",
                 )
         if col not in df.columns:

@@ -178,7 +178,7 @@ class Window:
     def __post_init__(self):
         if not _HHMM.match(str(self.start)):
             raise InputError(
-                f"start={self.start!r}", parameter="start", expected="a local clock time HH:MM, e.g. 05:00"
+                f"start={self.start!r}", parameter="window.start", expected="a local clock time HH:MM, e.g. 05:00"
             )
         h = self.hours
         if isinstance(h, bool) or not isinstance(h, (int, float)) or not math.isfinite(h) or not 0 < h <= 24:

@@ -1,0 +1,5 @@
+"""``python -m lightfit`` = ``lightfit`` (the command line, for environments without the console script)."""
+
+from lightfit.cli import main
+
+main()
