@@ -37,15 +37,25 @@ def localize(stamps, timezone: str, *, file=None, row=None, column: str = "time"
     naming ``file``/``row``/``column`` (or the ``parameter`` the times came from), not pandas' traceback."""
     try:
         return stamps.tz_localize(timezone, ambiguous="raise", nonexistent="raise")
-    except ValueError as e:  # pandas' AmbiguousTimeError / NonExistentTimeError
-        raise InputError(
-            f"local time(s) that are ambiguous or do not exist in {timezone} ({e})",
-            file=file,
-            row=row,
-            **({"column": column} if parameter is None else {"parameter": parameter}),
-            expected="times that exist once in that zone (not inside a daylight-saving change), "
-            "or times with a UTC offset",
-        ) from None
+    except ValueError as e:  # pandas' AmbiguousTimeError / NonExistentTimeError, whose advice is for coders
+        error = e
+    naive = pd.DatetimeIndex([stamps] if isinstance(stamps, pd.Timestamp) else stamps)
+    bad = naive[naive.tz_localize(timezone, ambiguous="NaT", nonexistent="NaT").isna() & naive.notna()]
+    if not len(bad):  # not a clock change
+        raise error
+    first = bad[0].to_pydatetime()
+    zone = ZoneInfo(timezone)
+    twice = first.replace(tzinfo=zone).astimezone(dt.UTC).astimezone(zone).replace(tzinfo=None) == first
+    raise InputError(
+        f"local time {first:%Y-%m-%d %H:%M} "
+        + ("happens twice (the clocks go back)" if twice else "does not exist (the clocks go forward)")
+        + f" in {timezone}"
+        + (f"; {len(bad)} such times" if len(bad) > 1 else ""),
+        file=file,
+        row=row,
+        **({"column": column} if parameter is None else {"parameter": parameter}),
+        expected="times that exist once in that zone (not inside a daylight-saving change), or times with a UTC offset",
+    )
 
 
 @dataclass(frozen=True)
