@@ -1401,6 +1401,10 @@ def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):
     other.write_text(json.dumps({"names": ["a"]}))
     r = runner.invoke(app, ["replicate", "--quick", "--theta", str(other), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "other.json: option --theta: unknown parameter(s) ['names']" in _flat(r.stderr)
+    # calibrate's --start takes the same files; its errors named "column 'theta'" (a review)
+    obs = ["calibrate", str(OBSERVATIONS), "--quick", "--out", str(tmp_path / "c"), "--start", str(other)]
+    r = runner.invoke(app, obs)
+    assert r.exit_code == 2 and "other.json: option --start: unknown parameter(s) ['names']" in _flat(r.stderr)
     # Files that hold no parameters, and repeated names, are refused naming the file or option (a
     # list gave an AttributeError traceback, Latin-1 bytes a UnicodeDecodeError, a folder "Is a
     # directory"; a repeated name took its last value).

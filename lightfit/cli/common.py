@@ -197,7 +197,7 @@ OPTION_ALIASES = {
 #: Parameters that, named in an error about a file (without a line), are the option applied to it:
 #: ``--tz`` on a lightfit CSV, ``--provenance`` contradicting the file. Others (a ``time_label``
 #: metadata line) are the file's own.
-FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time", "use", "theta", "freq"}
+FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time", "use", "theta", "start", "freq"}
 
 
 def option_flags(command) -> dict[str, str]:
@@ -314,9 +314,9 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
                 f"its theta is a JSON {type(values).__name__}", file=p, parameter=option, expected=expected
             )
         try:
-            return check_theta(values, what="theta")
+            return check_theta(values, what=option)
         except InputError as err:
-            raise err.in_file(p) from None  # check_theta names the parameter 'theta'
+            raise err.in_file(p) from None  # the option applied to the file (FILE_OPTIONS)
     if "=" not in theta:  # neither pairs nor an existing file
         raise InputError(
             f"no file {theta!r}",
