@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+import textwrap
 
 import numpy as np
 import pandas as pd
@@ -1805,3 +1806,27 @@ def test_python_dash_m_lightfit_runs_the_command_line():
     p = subprocess.run([sys.executable, "-m", "lightfit", "--help"], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert "replicate" in p.stdout and "calibrate" in p.stdout
+
+
+def test_ctrl_c_after_a_command_finished_keeps_its_exit_status():
+    """A Ctrl-C in the second or so of teardown after a command wrote its results gave exit 130 and
+    no message, as if the run had failed (a review): main() now leaves with the command's status."""
+    code = textwrap.dedent(
+        """
+        import os, signal, time
+        import lightfit.cli as cli
+
+        def finished(**kw):
+            raise SystemExit(0)
+
+        cli.app = finished
+        try:
+            cli.main()
+        except SystemExit:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the interpreter winds down
+            time.sleep(30)
+        print("teardown went on")
+        """
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and "teardown went on" not in p.stdout and "KeyboardInterrupt" not in p.stderr, p
