@@ -95,6 +95,11 @@ def main(
     }
 
 
+def int_list(text: str) -> list[int]:
+    """``"16,64"`` → ``[16, 64]`` (argparse names the option when this raises)."""
+    return [int(k) for k in text.split(",")]
+
+
 def table(res: dict) -> Table:
     t = Table(
         title=f"one render, {res['n_plants']} plants ({res['segments']} segments), K = {res['samples']}, "
@@ -127,7 +132,7 @@ def table(res: dict) -> Table:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
-    ap.add_argument("--samples", default="16", help="paths per segment K, comma-separated")
+    ap.add_argument("--samples", default="16", type=int_list, help="paths per segment K, comma-separated")
     ap.add_argument("--rays", default="1.5e7,2e7", help="projection rays per m², sun,sky")
     ap.add_argument(
         "--sheaths", default=SHEATHS[0], help="leaf sheath layout(s), comma-separated: " + ", ".join(SHEATHS)
@@ -149,10 +154,9 @@ if __name__ == "__main__":
     headings = a.headings.split(",")
     for h in headings:
         check_headings(h)
-    samples = [int(k) for k in a.samples.split(",")]
     runs = [
         main(a.n_plants, k, (sun, sky), x, q, h, a.seeds)
-        for k in samples
+        for k in a.samples
         for x in layouts
         for q in shares
         for h in headings

@@ -67,7 +67,8 @@ def precision() -> str:
 
 
 def sqrt_or_zero(x, xp=None):
-    r"""√x where x > 0, else 0, with derivative 0 there instead of √'s infinite one.
+    r"""√x where x > 0, 0 where x ≤ 0, with derivative 0 there instead of √'s infinite one; NaN
+    stays NaN (a missing or broken input must not read as an exact 0).
 
     ``d√x/dx = 1/(2√x)`` is infinite at 0, and the chain rule's ``0 · ∞`` makes a gradient NaN
     even where the result does not depend on the input (a standard deviation that is 0 at night
@@ -79,4 +80,4 @@ def sqrt_or_zero(x, xp=None):
     if xp is None:
         import jax.numpy as xp
     positive = x > 0
-    return xp.where(positive, xp.sqrt(xp.where(positive, x, 1.0)), 0.0)
+    return xp.where(positive, xp.sqrt(xp.where(positive, x, 1.0)), xp.where(x <= 0, 0.0, xp.nan))

@@ -53,7 +53,7 @@ from lightfit.report import plot, summary, summary_metadata
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.readers import metadata_lines
-from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS, check_how
+from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS, check_how, cut_at_ends
 from lightfit.weather.site import SELHAUSEN, Site, Window
 
 #: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
@@ -457,7 +457,7 @@ def forcing(
 
 def _span(df: pd.DataFrame, tz: str) -> str:
     a, b = (t.tz_convert(tz).strftime("%Y-%m-%d %H:%M") for t in (df.index[0], df.index[-1]))
-    return f"{a} … {b} ({tz})"
+    return f"{a} … {b} ({tz}){cut_at_ends(df)}"
 
 
 def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
@@ -550,7 +550,8 @@ def _growth_temperature(cfg: ReplicationConfig, w: pd.DataFrame) -> float | None
     t_g = w.attrs["month_before_tair_c"].get(date)
     if t_g is None:
         raise InputError(
-            f"growth_temperature_c='series': the weather series does not cover the month before {date}",
+            f"growth_temperature_c='series': the weather series does not cover the month before {date}"
+            + cut_at_ends(w),
             file=w.attrs.get("source"),
             parameter="growth_temperature_c",
             expected=f"air temperature over at least {MONTH_BEFORE_MIN_DAYS} of the {MONTH_BEFORE_DAYS} days "

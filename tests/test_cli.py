@@ -1810,23 +1810,40 @@ def test_python_dash_m_lightfit_runs_the_command_line():
 
 def test_ctrl_c_after_a_command_finished_keeps_its_exit_status():
     """A Ctrl-C in the second or so of teardown after a command wrote its results gave exit 130 and
-    no message, as if the run had failed (a review): main() now leaves with the command's status."""
-    code = textwrap.dedent(
+    no message, as if the run had failed (a review): from the first exit handler on, one Ctrl-C is
+    ignored (the handlers and teardown finish, status 0), a second leaves at once with the command's
+    status; a process that calls main() and goes on keeps its own Ctrl-C."""
+    script = textwrap.dedent(
         """
-        import os, signal, time
+        import atexit, os, signal, sys, time
         import lightfit.cli as cli
 
+        presses = int(sys.argv[1])
+
+        def later_exit_handler():  # registered first: runs after main()'s own
+            for _ in range(presses):
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.2)
+            print("teardown went on", flush=True)
+
+        atexit.register(later_exit_handler)
+
         def finished(**kw):
-            raise SystemExit(0)
+            raise SystemExit(3)
 
         cli.app = finished
         try:
             cli.main()
-        except SystemExit:
-            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the interpreter winds down
-            time.sleep(30)
-        print("teardown went on")
+        except SystemExit as e:
+            try:
+                os.kill(os.getpid(), signal.SIGINT)  # before exit: still the process's own Ctrl-C
+                time.sleep(5)
+            except KeyboardInterrupt:
+                print("own ctrl-c", flush=True)
+            raise
         """
     )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert p.returncode == 0 and "teardown went on" not in p.stdout and "KeyboardInterrupt" not in p.stderr, p
+    for presses, went_on in ((1, True), (2, False)):
+        p = subprocess.run([sys.executable, "-c", script, str(presses)], capture_output=True, text=True, timeout=120)
+        assert p.returncode == 3 and "KeyboardInterrupt" not in p.stderr, p
+        assert "own ctrl-c" in p.stdout and ("teardown went on" in p.stdout) == went_on, p

@@ -81,6 +81,9 @@ def test_a_design_resumed_from_the_cache_says_so(model, tmp_path, capsys):
     assert "rendering design: 1/1" in capsys.readouterr().out
     E.render_parts(model, pts, cache=tmp_path, key=key, progress=True)
     assert "rendering design (1 of 3 from the cache): 3/3" in capsys.readouterr().out
+    # a point repeated in a fresh design is rendered once, not "from the cache"
+    E.render_parts(model, np.concatenate([pts[2:], pts[2:]]), cache=tmp_path / "new", key=key, progress=True)
+    assert "rendering design: 2/2" in capsys.readouterr().out
 
 
 def test_build_emulator_with_the_hook_renders_nothing_locally(model, client, tmp_path):

@@ -156,6 +156,7 @@ RANK = {
     "distributed": 6,
     "dataset": 6,
     "cli": 7,
+    "__main__": 8,  # python -m lightfit: the command line
 }
 SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", "constants", "files", ""}
 #: What the package root (``import lightfit``) may import: the Mitsuba backend it sets up.

@@ -199,6 +199,18 @@ def test_rows_at_the_ends_without_a_value_are_cut_and_said(tmp_path):
     pd.testing.assert_frame_equal(df.drop(index=ref.index[29]), ref.iloc[3:-1].drop(index=ref.index[29]))
     with pytest.raises(InputError, match=r"at the start or end of the series.*every column present"):
         read_tereno(_variant(tmp_path, blank(range(1, n + 1), 4)))
+    # a window that needs the cut rows names the cut (it gave the shorter span alone: a review)
+    with pytest.raises(InputError, match=r"not covered by the series .*; its ends were cut: 3 row\(s\)"):
+        window(df, ref.index[0], 1)
+
+    def blank_then_missing(lines, hdr):  # the first row lacks tair, the second row is gone
+        blank([1], 4)(lines, hdr)
+        del lines[hdr + 2]
+
+    df = read_tereno(_variant(tmp_path, blank_then_missing))
+    (cut,) = [q["detail"] for q in df.attrs["qc"] if q["kind"] == "trimmed"]
+    assert df.index[0] == ref.index[2] and "1 row(s)" in cut and f"lines {hdr + 2}–{hdr + 2})" in cut, cut
+    assert "without AirTemperature" in cut and "RelativeHumidity" not in cut and "1 inserted timestamp(s)" in cut
 
 
 def test_empty_cell_and_sentinel_are_gaps(tmp_path):

@@ -27,6 +27,7 @@ import atexit
 import os
 import signal
 import sys
+import threading
 
 import typer
 
@@ -103,14 +104,29 @@ def main() -> None:
         app(prog_name="lightfit")
     except SystemExit as e:
         if e.code != 130:
-            # The command has finished and written what it writes: a Ctrl-C during the interpreter's
-            # teardown (≈ 1 s) now hurries it out with the command's own status instead of exit 130
-            # without a word (a review).
             code = e.code if isinstance(e.code, int) else int(e.code is not None)
-            signal.signal(signal.SIGINT, lambda signum, frame: _leave(code))
+            atexit.register(_teardown_ignores_one_ctrl_c, code)  # registered last: runs first at exit
             raise
         atexit._run_exitfuncs()  # a cluster's close and the quiet exit (common.interrupted) still run
         _leave(130)
+
+
+def _teardown_ignores_one_ctrl_c(code: int) -> None:
+    """From the first exit handler on (the command has finished and written what it writes), a
+    Ctrl-C no longer turns the run into exit 130 without a word (a review): the first is ignored so
+    that the exit handlers (a cluster's close) and the interpreter's teardown finish, a second leaves
+    at once with the command's status. Only at exit, so a process that called :func:`main` and goes
+    on keeps its own Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    pressed = []
+
+    def handler(signum, frame):
+        pressed.append(signum)
+        if len(pressed) > 1:
+            _leave(code)
+
+    signal.signal(signal.SIGINT, handler)
 
 
 def _leave(code: int) -> None:

@@ -243,16 +243,18 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
     files = [None if cache is None else render_file(cache, key, x) for x in leaf]
     vals, ses, secs = [None] * len(leaf), [None] * len(leaf), [0.0] * len(leaf)
     todo, first = [], {}  # points to render; the first index of each cache file among them
+    cached = 0
     for i, file in enumerate(files):
         if file is not None and file.exists():
             with np.load(file) as z:
                 vals[i], ses[i], secs[i] = z["values"], z["se"], float(z["seconds"])
             COUNTS["cached"] += 1
+            cached += 1
         elif file is None or file not in first:
             todo.append(i)
             first[file] = i
-    done = len(leaf) - len(todo)
-    label = "rendering design" + (f" ({done} of {len(leaf)} from the cache)" if done else "")  # a rerun says it resumed
+    done = len(leaf) - len(todo)  # a point repeated in ``leaf`` is done with its first
+    label = "rendering design" + (f" ({cached} of {len(leaf)} from the cache)" if cached else "")  # a rerun says so
     with progress_bar(label, len(leaf), completed=done, show=progress) as bar:
         # All missing points in one batch (CoupledModel.render_many: the paths are traced once and
         # weighed at every point); each point is stored as soon as it is done, so a design killed
@@ -478,8 +480,8 @@ def build_emulator(
             raise InputError(
                 "render_points without a cache", parameter="cache", expected="the render directory the hook fills"
             )
-        render_points(model, design, Path(cache), rkey)
-    v, s, seconds = _render_parts(model, design, progress, cache, rkey)
+        render_points(model, design, Path(cache), rkey)  # with its own progress: reading them back is not news
+    v, s, seconds = _render_parts(model, design, progress and render_points is None, cache, rkey)
     if v.shape[1] == 0:  # nothing rendered (no step needs it): the constant zero, exact
         z = np.zeros((1, *v.shape[1:]))
         emu = PartsEmulator(lo, hi, 0, z, z.copy(), design, {}, 0.0, model.scenario.seed)

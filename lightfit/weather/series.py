@@ -195,6 +195,13 @@ def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column:
     return out
 
 
+def cut_at_ends(df: pd.DataFrame) -> str:
+    """``"; its ends were cut: …"`` when :func:`check_and_repair` cut rows off the series' ends (the
+    ``trimmed`` repair), else ``""``: errors about the series' span name the cut, which changed it."""
+    cut = [q["detail"] for q in df.attrs.get("qc", []) if q["kind"] == "trimmed"]
+    return f"; {cut[0].replace('series cut at its ends', 'its ends were cut')}" if cut else ""
+
+
 def _minutes(span: pd.Timedelta) -> str:
     """``30min``, ``3h``, ``90min``: a gap length as the options write it (not ``0 days 00:30:00``)."""
     m = pd.Timedelta(span) / pd.Timedelta(minutes=1)
@@ -299,21 +306,24 @@ def check_and_repair(
     complete = df[needed].notna().all(axis=1).to_numpy()
     if complete.any() and not (complete[0] and complete[-1]):
         i, j = int(np.argmax(complete)), len(df) - 1 - int(np.argmax(complete[::-1]))
-        at, said = _in_file_zone(attrs), []
+        at, said, named = _in_file_zone(attrs), [], attrs.get("columns_used", {})
         for part in (df.index[:i], df.index[j + 1 :]):
-            if len(part):
-                lacking = [c for c in needed if df.loc[part, c].isna().any()]
-                rows = [_line_of(lines, t) for t in (part[0], part[-1])]
+            own = part[part.isin(present)]  # the file's rows; the rest are timestamps inserted above
+            if len(own):
+                lacking = [named.get(c, c) for c in needed if df.loc[own, c].isna().any()]
+                rows = [_line_of(lines, t) for t in (own[0], own[-1])]
                 said.append(
-                    f"{len(part)} row(s) {at(part[0])} … {at(part[-1])} ({_file_zone(attrs)}"
-                    + (f", lines {rows[0]}–{rows[1]}" if None not in rows else "")
-                    + f") without {', '.join(attrs.get('columns_used', {}).get(c, c) for c in lacking)}"
+                    f"{len(own)} row(s) {at(own[0])} … {at(own[-1])} ({_file_zone(attrs)}, lines {rows[0]}–{rows[1]})"
+                    f" without {', '.join(lacking)}"
+                    + (f", and {len(part) - len(own)} inserted timestamp(s)" if len(part) > len(own) else "")
                 )
         _record(qc, "trimmed", None, len(df) - (j + 1 - i), "series cut at its ends: " + "; ".join(said))
         df = df.iloc[i : j + 1]
         if len(df) < 2:
             raise InputError(
-                f"only {len(df)} row(s) with every column present", file=file, expected="a time series of at least 2"
+                f"only {len(df)} row(s) with every column present, after cutting " + "; ".join(said),
+                file=file,
+                expected="a time series of at least 2",
             )
 
     for col in list(df.columns):
@@ -560,7 +570,7 @@ def window(
     if t0 < df.index[0] or t1 > df.index[-1]:
         raise InputError(
             f"window {t0.isoformat()} … {t1.isoformat()} is not covered by the series "
-            f"({df.index[0].isoformat()} … {df.index[-1].isoformat()})",
+            f"({df.index[0].isoformat()} … {df.index[-1].isoformat()}{cut_at_ends(df)})",
             file=df.attrs.get("source"),
             expected="a series spanning the requested window",
         )
