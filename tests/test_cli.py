@@ -1847,3 +1847,28 @@ def test_ctrl_c_after_a_command_finished_keeps_its_exit_status():
         p = subprocess.run([sys.executable, "-c", script, str(presses)], capture_output=True, text=True, timeout=120)
         assert p.returncode == 3 and "KeyboardInterrupt" not in p.stderr, p
         assert "own ctrl-c" in p.stdout and ("teardown went on" in p.stdout) == went_on, p
+
+
+def test_an_sd_without_its_value_is_said_not_dropped_unsaid(tmp_path):
+    """A row with an SD but an empty value was accepted and the SD ignored without a word (a
+    review): perhaps a value forgotten. It is no reading, so it is still ignored, but every command
+    that reads observations cautions, naming the file, the column and the lines."""
+    from lightfit.inference.observations import read_observations, sd_without_value
+
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    lines = twin.read_text().splitlines()
+    header = next(i for i, x in enumerate(lines) if not x.startswith("#"))
+    k = next(i for i in range(header + 1, len(lines)) if lines[i].split(",")[1])  # the first row with a reading
+    cells = lines[k].split(",")
+    cells[1] = ""  # plant PAR's value gone, its SD kept
+    lines[k] = ",".join(cells)
+    path = tmp_path / "forgot.csv"
+    path.write_text("\n".join(lines) + "\n")
+    said = sd_without_value(read_observations(path))
+    column = "plant_par_sd_umol_m2_s"
+    assert said == f"{path}: an SD without its value, ignored (no reading): {column} on 1 line(s) ({k + 1})"
+    assert sd_without_value(read_observations(twin)) is None
+    out = tmp_path / "r"
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--observations", str(path), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "caution: " + said in " ".join(r.stderr.split())

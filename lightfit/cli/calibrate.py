@@ -15,8 +15,8 @@ from lightfit.cli.common import (
     check_observations,
     console,
     json_object,
+    observations_for_run,
     observations_lines,
-    observations_within_steps,
     output_folder,
     parse_names,
     parse_theta,
@@ -108,7 +108,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import observation_table_digest, read_observations
+    from lightfit.inference.observations import observation_table_digest
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -150,7 +150,7 @@ def calibrate(
                     "or --no-surrogate (full renders, the whole domain)",
                 )
     w = weather(s)
-    obs = observations_within_steps(read_observations(observations), w, s)
+    obs = observations_for_run(observations, w, s)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()

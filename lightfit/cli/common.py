@@ -454,6 +454,18 @@ def offset_line(obs, w) -> str:
     return "  " + "; ".join(parts)
 
 
+def observations_for_run(path, w, s):
+    """The observations file at ``path`` read for a run of forcing ``w`` and settings ``s``: an SD
+    given without its value cautioned (:func:`~lightfit.inference.observations.sd_without_value`),
+    then :func:`observations_within_steps`."""
+    from lightfit.inference.observations import read_observations, sd_without_value
+
+    obs = read_observations(path)
+    if alone := sd_without_value(obs):
+        caution(alone)
+    return observations_within_steps(obs, w, s)
+
+
 def observations_within_steps(obs, w, s):
     """With ``--steps`` (some of each day's steps run), ``obs`` without its rows that lie within the
     days' windows but outside those steps, and a line saying how many were left out: the rest of a

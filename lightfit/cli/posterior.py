@@ -13,8 +13,8 @@ from lightfit.cli.common import (
     check_observations,
     console,
     interrupted,
+    observations_for_run,
     observations_lines,
-    observations_within_steps,
     output_folder,
     parse_names,
     soil_respiration_note,
@@ -89,7 +89,6 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
-    from lightfit.inference.observations import read_observations
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -112,7 +111,7 @@ def posterior(
     names = P.check_sampled(list(parse_names(parameters)), P.PRIOR_SETS[priors])
     P.check_run_size(len(names), walkers, max_steps, sampler_seed, seed_name="sampler_seed")  # before the design
     w = weather(s)
-    obs = observations_within_steps(read_observations(observations or rep.OBSERVATIONS), w, s)
+    obs = observations_for_run(observations or rep.OBSERVATIONS, w, s)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()

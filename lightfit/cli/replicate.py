@@ -14,8 +14,8 @@ from rich.table import Table
 from lightfit.cli.common import (
     caution,
     console,
+    observations_for_run,
     observations_lines,
-    observations_within_steps,
     output_folder,
     parse_theta,
     samples_label,
@@ -76,7 +76,7 @@ def replicate(
     """
     from lightfit import replication as rep
     from lightfit import weather as wx
-    from lightfit.inference.observations import nee_sign_caution, observed, read_observations
+    from lightfit.inference.observations import nee_sign_caution, observed
     from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing, provenance_label
 
@@ -93,7 +93,7 @@ def replicate(
         )
     w = weather(s)
     # read and placed before anything is written; the bundled record by default, where the run reaches it
-    given = None if observations is None else observations_within_steps(read_observations(observations), w, s)
+    given = None if observations is None else observations_for_run(observations, w, s)
     obs = rep.observations_for(w, rep.OBSERVATIONS if given is None else given, optional=given is None)
     out = out or Path("results") / "+".join(s.dates)
     output_folder(out)

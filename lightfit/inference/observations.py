@@ -425,6 +425,9 @@ def read_observations(path: str | Path) -> pd.DataFrame:
                 column=c,
                 expected="one value of a quantity per time (readings within a step are averaged, at distinct times)",
             )
+    # An SD without its value is no reading and is ignored; said (sd_without_value), as it may be a
+    # value forgotten (a constant SD column over rows without readings is common, so not refused).
+    alone = {s.sd: tuple(int(x) for x in line[out[s.value].isna() & out[s.sd].notna()]) for s in present}
     for s in present:
         v, sd = out[s.value].to_numpy(float), out[s.sd].to_numpy(float)
         for col, bad, expected, problem in reading_rules(s):
@@ -447,7 +450,21 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     # each row's line in the file, for errors found later (align); a tuple, as pandas compares attrs
     # with == (concat), which an array cannot answer
     out.attrs["lines"] = tuple(int(x) for x in lines)
+    out.attrs["sd_without_value"] = tuple((c, rows) for c, rows in alone.items() if rows)
     return out
+
+
+def sd_without_value(obs: pd.DataFrame) -> str | None:
+    """A caution naming the file, columns and lines where :func:`read_observations` found an SD
+    without its value (ignored: no reading), else ``None``."""
+    found = obs.attrs.get("sd_without_value", ())
+    if not found:
+        return None
+    said = "; ".join(
+        f"{c} on {len(rows)} line(s) ({', '.join(map(str, rows[:5]))}{', …' if len(rows) > 5 else ''})"
+        for c, rows in found
+    )
+    return f"{obs.attrs.get('source', 'observations')}: an SD without its value, ignored (no reading): {said}"
 
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
