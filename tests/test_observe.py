@@ -725,7 +725,7 @@ def test_a_run_of_one_step_a_day_takes_only_readings_near_its_steps():
     """Two dates cut to one step each (``--steps 14:15``): the steps' spacing was taken from the first
     two steps, a day apart, so readings from 14 hours around a step were all that step's (a review).
     A step a day from the next stands alone, as a one-step run's does (30 min)."""
-    from lightfit.inference.observations import align, outside_run
+    from lightfit.inference.observations import align, far_from_steps
 
     times = pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-21T10:00Z"])
     obs = pd.DataFrame(
@@ -733,10 +733,10 @@ def test_a_run_of_one_step_a_day_takes_only_readings_near_its_steps():
         index=pd.DatetimeIndex(["2016-04-20T10:10Z", "2016-04-20T14:00Z"]),
     )
     obs.attrs = {"source": "test.csv"}
-    assert outside_run(obs, times).tolist() == [False, True]
+    assert far_from_steps(obs, times).tolist() == [False, True]
     with pytest.raises(InputError, match="test.csv.*2016-04-20T14:00:00\\+00:00 lies outside the run"):
         align(obs, times)
     assert align(obs.iloc[:1], times)["plant_par_umol_m2_s"].tolist()[0] == 300.0
     # steps 30 min apart on each of two days: the spacing is the steps', not the night's gap
     two = pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-20T10:30Z", "2016-04-21T10:00Z", "2016-04-21T10:30Z"])
-    assert outside_run(obs, two).tolist() == [False, True]
+    assert far_from_steps(obs, two).tolist() == [False, True]

@@ -27,8 +27,6 @@ from lightfit.light.estimator import (
     DARK_FLOOR,
     MIN_PILOT,
     bounces_for_tolerance,
-    check_bounces,
-    check_target_rse,
     truncation_bound,
 )
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
@@ -822,14 +820,14 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         step=given(opts.step, base.window.step),
         site=site,
     )
-    # Every setting is checked when the configuration is made (ReplicationConfig.check), so that a
-    # typo fails before minutes of plant growth; the profile and the growth temperature (a 'series'
-    # one comes with the weather) are then stored as the run uses them.
+    # Every setting is checked when the configuration is made (ReplicationConfig.check: bounces and
+    # target_rse too), so that a typo fails before minutes of plant growth; the profile and the growth
+    # temperature (a 'series' one comes with the weather) are then stored as the run uses them (the
+    # leaf and bounces below do not depend on either).
     cfg = s.replication_config()
     s = dataclasses.replace(
         s, vcmax_profile=profile_for(s.vcmax_profile, s.photosynthesis), growth_temperature_c=cfg.growth_temperature_c
     )
-    cfg = s.replication_config()
     optics = cfg.leaf_optics()
     if s.bounces is None:  # chosen from the leaf and soil: one too bright for any number is refused now
         try:
@@ -841,7 +839,6 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
                 expected=f"a soil albedo well below 1, or --bounces given ({e.expected})",
             ) from None
     else:  # given (or --quick's): say what it leaves out
-        check_bounces(s.bounces)
         try:
             own = bounces_for_tolerance(BOUNCE_TOLERANCE, optics)
         except InputError:  # a leaf or soil too bright for any number the rule hands out: given, taken
@@ -863,8 +860,6 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
                 + (f"up to {bound:.1%} of the unscattered light" if bound < 1 else "an amount with no useful bound")
                 + f"; {default}"
             )
-    if s.target_rse is not None:
-        check_target_rse(s.target_rse)
     if s.weather_provenance is not None and s.weather_provenance not in WEATHER_PROVENANCES:
         raise InputError(
             f"--weather-provenance {s.weather_provenance}",

@@ -501,14 +501,14 @@ def with_reading(obs: pd.DataFrame) -> np.ndarray:
 
 def far_from_steps(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> np.ndarray:
     """Rows of ``obs`` more than half a step (:func:`align`'s spacing) from the centre of every one of
-    the run's steps ``times`` (labelled as ``stamps`` says), whether or not they hold a value."""
+    the run's steps ``times`` (labelled as ``stamps`` says), whether or not they hold a value; those
+    with a value are what :func:`align` refuses."""
     _, dist = nearest_steps(obs, times, stamps)
-    return dist > _spacing(times, stamps).to_timedelta64() / 2
+    return _beyond_half_step(dist, _spacing(times, stamps))
 
 
-def outside_run(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> np.ndarray:
-    """Rows of ``obs`` with a value that are :func:`far_from_steps`: what :func:`align` refuses."""
-    return with_reading(obs) & far_from_steps(obs, times, stamps)
+def _beyond_half_step(dist: np.ndarray, spacing: pd.Timedelta) -> np.ndarray:
+    return dist > spacing.to_timedelta64() / 2
 
 
 def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTANTS) -> dict[str, np.ndarray]:
@@ -524,8 +524,8 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
     them (:func:`interpolation`). Raised as :class:`InputError`, naming the file:
 
     * an observation more than half a step (the steps' spacing; 30 min, or the averaging interval
-      if longer, for a one-step run) from every step's centre (:func:`outside_run`; a row without
-      any value is no observation);
+      if longer, for a one-step run) from every step's centre (:func:`far_from_steps`; a row
+      without any value is no observation);
     * means over a longer interval than what a step stands for (its averaging interval; for a run
       on instants, the spacing): the model's value at one step is not their mean;
     * where the run's means tile time, a mean that straddles two of them.
@@ -547,7 +547,8 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
             expected="means over at most what one step stands for (run the model at theirs: --step, --how mean)",
         )
     idx, dist = nearest_steps(obs, times, stamps)
-    far = outside_run(obs, times, stamps)
+    has = with_reading(obs)
+    far = has & _beyond_half_step(dist, spacing)
     if far.any():
         k = int(np.flatnonzero(far)[0])
         lines = obs.attrs.get("lines")
@@ -565,7 +566,7 @@ def align(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps: Timestamps = INSTA
             expected="observation times within the simulated window",
         )
     if own.interval is not None and stamps.interval is not None and spacing == stamps.interval:
-        straddle = with_reading(obs) & (dist > ((stamps.interval - own.interval) / 2).to_timedelta64())
+        straddle = has & (dist > ((stamps.interval - own.interval) / 2).to_timedelta64())
         if straddle.any():
             k = int(np.flatnonzero(straddle)[0])
             raise InputError(
