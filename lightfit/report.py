@@ -161,9 +161,13 @@ def figure(ds, compare=None):
 
     t = local(ds)
     fig, (ax_a, ax_b, ax_c) = plt.subplots(3, 1, figsize=(10, 11), sharex=True, constrained_layout=True)
-    runs = [(ds, "-", f"{preset_name(ds.attrs)}: {run_label(ds.attrs)}")]
+
+    def name(d, other="this run"):  # a given θ is not the preset's leaf: the legends say so too
+        return preset_name(d.attrs, other) + (", θ given" if d.attrs.get("theta_given") else "")
+
+    runs = [(ds, "-", f"{name(ds)}: {run_label(ds.attrs)}")]
     if compare is not None:
-        runs.append((compare, "--", f"{preset_name(compare.attrs, 'compared')}: {run_label(compare.attrs)}"))
+        runs.append((compare, "--", f"{name(compare, 'compared')}: {run_label(compare.attrs)}"))
 
     # (a) above the canopy
     for d, ls, lab in runs:
@@ -309,7 +313,18 @@ def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None
             fmt=marker,
             color=color,
             ms=7,
+            mfc="none",  # hollow: a model line under the readings stays visible (filled ones hid it)
+            mew=1.5,
             capsize=3,
-            label=f"{_observations_source(ds)[1]} {label} (± its SD)",
+            label=f"{_observations_source(ds)[1]} {label} (± its SD){_anchored(ds, name, ds[key].values)}",
             zorder=5,
         )
+
+
+def _anchored(ds, name: str, values: np.ndarray) -> str:
+    """``"; the forcing is scaled to it"`` where a reconstructed forcing was anchored on one of these
+    above-canopy PAR readings (model and reading then agree by construction, not as a check)."""
+    anchor = json.loads(ds.attrs.get("weather_anchor", "null"))
+    if name != "above_canopy_par" or anchor is None:
+        return ""
+    return "; the forcing is scaled to it" if np.isclose(values, anchor["par_umol_m2_s"], atol=0.01).any() else ""

@@ -562,6 +562,10 @@ def test_fit_cautions_against_the_chi_square_table():
     assert "χ² = 80.3 for 46 values and 1 parameter (" in misfit and "check the observations" in advice
     edge = fit_cautions({"roughness": 0.9995}, loss=1.0, **kw)
     assert len(edge) == 2 and "roughness = 0.9995 is on the edge of its search range [0.3, 1]" in edge[0]
+    # a good fit with a parameter on its edge is not blamed on units alone (a flat direction does that)
+    assert edge[1].startswith("the fit is good: an edge can mean the data barely inform")
+    (_, misfit, advice) = fit_cautions({"roughness": 0.9995}, loss=80.3 / 2, **kw)
+    assert "χ² = 80.3" in misfit and advice.startswith("check the observations' units")
     assert fit_cautions({"roughness": 0.99}, loss=1.0, **kw) == []
     out = fit_cautions(
         {"roughness": 0.6, "light_factor": 5.0},

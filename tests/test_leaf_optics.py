@@ -9,6 +9,7 @@ import xleaf
 
 import lightfit  # noqa: F401
 from lightfit.errors import InputError
+from lightfit.light.backend import mitsuba
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.leaf_optics import (
     PAPER_LEAF,
@@ -122,6 +123,31 @@ def test_isolated_leaf_absorptance_under_a_uniform_sky(preset):
         p = par_optics()
         assert 0.83 <= leaf_abs <= 0.92
         assert leaf_abs == pytest.approx(p.A, abs=0.005)
+
+
+def test_direct_sun_is_absorbed_with_the_leafs_absorptance_at_the_suns_angle():
+    """The path estimator's direct beam on an unshaded horizontal leaf (black soil, no scattering):
+    absorbed / incident = 1 − ρ(μ_sun), the leaf's directional albedo at the sun's cosine
+    (``leaf_albedo``, itself checked against the BSDF plugin's sampled albedo in
+    tests/test_light_bsdf.py). A glossy leaf (F0 = 0.08, smooth) makes ρ depend on the angle: a
+    mutation audit took the absorptance at the scattered sample's direction instead, off by
+    F0·(E(μ_sun) − E(μ_d)), which the isolated-leaf tests' 0.005 tolerance did not see. (Measured:
+    0.864 at 15°, 0.859 at 75°: GGX's shadowing and masking lower the glossy albedo at grazing.)"""
+    from lightfit.light.bsdf import leaf_albedo
+
+    mi = mitsuba()
+    optics = Optics.preset("prospect", soil_albedo=0.0, specular=1.0, roughness=0.3)
+    fs = FieldScene(_leaf_and_sensor(), optics, sky="isotropic")
+    ratios = []
+    for el in (15.0, 75.0):
+        fs.set_sun(el, 180.0)
+        r = SegmentEstimator(fs, [7], samples=64, bounces=0, seed=0, direct="paths").render()
+        mu = math.sin(math.radians(el))
+        assert r.incident_sun[0] == pytest.approx(mu, rel=1e-5)  # unshaded: the beam's cosine, no noise
+        expected = 1.0 - float(leaf_albedo(fs.bsdf, mi.Float(mu))[0])
+        ratios.append(r.absorbed_sun[0] / r.incident_sun[0])
+        assert ratios[-1] == pytest.approx(expected, abs=1e-4), el
+    assert abs(ratios[0] - ratios[1]) > 0.003  # ρ depends on the angle enough for the test to tell them apart
 
 
 @pytest.mark.parametrize(

@@ -393,6 +393,8 @@ def test_figure_with_a_compared_preset(noon_model, tmp_path):
 def test_figure_names_the_observations_provenance(noon_model):
     """Synthetic observations are drawn as synthetic, in the legend and the title (a review found
     every observation labelled "observed (chamber quantum sensor …)", whatever its file said)."""
+    import json
+
     import matplotlib.pyplot as plt
 
     from lightfit.report import figure
@@ -416,6 +418,16 @@ def test_figure_names_the_observations_provenance(noon_model):
     try:
         labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
         assert "synthetic PAR above the canopy (± its SD)" in labels
+    finally:
+        plt.close(fig)
+    # The chamber point the bundled forcing was scaled to agrees by construction, and the legend says
+    # so (a newcomer review read panel (a) as a validation); the anchor comes from the forcing's header.
+    assert json.loads(ds.attrs["weather_anchor"])["par_umol_m2_s"] == 1549.31
+    ds["obs_above_canopy_par_umol_m2_s"] = ("time", np.where(np.isnan(par), np.nan, 1549.31))
+    fig = figure(ds)
+    try:
+        labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        assert "synthetic PAR above the canopy (± its SD); the forcing is scaled to it" in labels, labels
     finally:
         plt.close(fig)
 
@@ -465,6 +477,8 @@ def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_thet
         path = band.get_paths()[0].vertices[:, 1]
         np.testing.assert_allclose(np.unique(path), np.unique(np.r_[lo, hi]), rtol=1e-12)
         assert "θ given: specular 0.7375, light_factor 1.1" in fig._suptitle.get_text()
+        # the legends too: "model (default)" beside a given θ read as the preset's leaf
+        assert any(lab.startswith("absorbed PAR") and lab.endswith(", θ given)") for lab in labels), labels
     finally:
         plt.close(fig)
 

@@ -194,6 +194,11 @@ def test_ceptometer_observables_are_the_sensor_render_scaled_by_the_weather(smal
     assert np.asarray(o["ceptometer_fapar"]) == pytest.approx([0.0, 1 - tau[1]])
     sd = 1.2 * math.hypot(fc.dni_par[1] * r.se["incident_sun"][0], fc.dhi_par[1] * r.se["incident_sky"][0])
     assert float(o["transmitted_par_mc_sd_umol_m2_s"][1]) == pytest.approx(sd, rel=1e-4)
+    # The above-canopy PAR is exact, so SD(τ) = SD(transmitted) / above, and 1 − τ has τ's SD (a
+    # mutation audit set the fAPAR's SD to 0 and no test saw it; the likelihood weighs by it).
+    tau_sd = np.asarray(o["ceptometer_transmittance_mc_sd"])
+    assert tau_sd[1] == pytest.approx(sd / above[1], rel=1e-4) and tau_sd[1] > 0
+    np.testing.assert_allclose(np.asarray(o["ceptometer_fapar_mc_sd"]), tau_sd, rtol=1e-12)
     parts = m.render(th)
     assert parts[0].shape[-1] == len(m.segment_id) + 1 == m.n_columns
     bare = m.with_light(lambda _: tuple(x[..., :-1] for x in parts))

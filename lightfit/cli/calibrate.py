@@ -351,7 +351,8 @@ def _print_check(tr) -> None:
         console.print(f"full-render check: not needed ({tr.mode}; the loss was exact); renders: {tr.rendered} new")
         return
     t = Table(
-        title=f"full-render check at the optimum ({tr.rendered} new renders, {tr.cached} from the cache, "
+        title=f"full-render check at the optimum (renders for the design and the checks: {tr.rendered} new, "
+        f"{tr.cached} from the cache, "
         f"{tr.steps_rendered} sun positions each)",
         caption=f"passes when |full − surrogate| ≤ {tr.z:g} σ_L (σ_L: Monte Carlo SD of the loss); "
         + ("[green]passed[/]" if tr.passed else "[red]not passed within --max-rounds[/]"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import atexit
 import json
 import logging
+import math
 import os
 import sys
 import warnings
@@ -371,14 +372,24 @@ def samples_label(samples: int, target_rse: float | None) -> str:
     return f"target {target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
 
 
+def fixed(value: float, decimals: int) -> str:
+    """``value`` with ``decimals`` decimals, "–" where not finite, and no minus sign on a zero
+    (a sun 0.4° below the horizon reads 0, not −0)."""
+    v = float(value)
+    if not math.isfinite(v):
+        return "–"
+    text = f"{v:.{decimals}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text
+
+
 def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezone) -> Table:
     """A weather series as a table: every k-th row, k = ⌊n / ``max_rows``⌋, so fewer than 2 × ``max_rows``
     rows (the bundled day's 144 ten-minute rows as 48, every 30 min), which the caption then says."""
     step = max(1, len(df) // max_rows)
     shown = "" if step == 1 else f"; 1 row in {step} of {len(df)} shown"
     t = Table(title=title, caption=f"PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm{shown}")
-    t.add_column("UTC")
-    t.add_column(zone_label(tz).split("/")[-1])
+    t.add_column("UTC", no_wrap=True)  # "04-20 03:00" on one line in an 80-column pipe too
+    t.add_column(zone_label(tz).split("/")[-1], no_wrap=True)
     cols = [c for c in _SHORT if c in df.columns]
     for c in cols:
         t.add_column(_SHORT[c], justify="right")
@@ -387,7 +398,7 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezo
         t.add_row(
             ts.strftime("%m-%d %H:%M"),
             clock,
-            *(f"{row[c]:.{_DIGITS.get(c, 0)}f}" for c in cols),
+            *(fixed(row[c], _DIGITS.get(c, 0)) for c in cols),
         )
     return t
 
@@ -517,7 +528,11 @@ def check_observations(obs, w) -> None:
 def observations_lines(obs, w) -> None:
     """Print which observations a command compares with the model and how they meet its steps (what
     replicate, calibrate and posterior read: nothing is dropped or merged unsaid)."""
-    console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {len(obs)} row(s))")
+    from lightfit.inference.observations import with_reading
+
+    # Rows with a reading, as every command counts them (posterior keeps only those before this line).
+    n = int(with_reading(obs).sum())
+    console.print(f"observations: {obs.attrs['source']} ({obs.attrs['provenance']}, {n} row(s) with a reading)")
     console.print(offset_line(obs, w))
 
 

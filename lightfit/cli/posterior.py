@@ -219,7 +219,8 @@ def posterior(
         checked += f"; the stored emulator{'s' if reused > 1 else ''} of {n_design} design points reused" + (
             f" for {reused} of {len(days)} days" if 1 < len(days) != reused else ""
         )
-    console.print(f"design: {new} new renders, {cached} from the cache ({each}){checked}")
+    renders = f"{new} new renders, {cached} from the cache" if new or cached or not reused else "no renders"
+    console.print(f"design: {renders} ({each}){checked}")
     res = A.run(
         m,
         obs,

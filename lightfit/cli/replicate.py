@@ -14,6 +14,7 @@ from rich.table import Table
 from lightfit.cli.common import (
     caution,
     console,
+    fixed,
     observations_for_run,
     observations_lines,
     output_folder,
@@ -45,8 +46,7 @@ SUMMARY_HEADS = {
 def _cell(value, decimals: int | None) -> str:
     if decimals is None:
         return str(value)
-    v = float(value)
-    return f"{v:.{decimals}f}" if np.isfinite(v) else "–"
+    return fixed(value, decimals)
 
 
 @model_options
@@ -125,7 +125,8 @@ def replicate(
     k = samples_label(k, cfg.target_rse)
     console.print(
         f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {fld.headings} headings, {k}, "
-        f"{n_b} bounces{rays} …"
+        f"{n_b} bounces{rays} …",
+        soft_wrap=True,  # one line, not a lone "…" in an 80-column pipe
     )
     if th:  # said only in the figure's title and the netCDF attributes before (a newcomer review)
         source = f" (from {theta})" if Path(theta).exists() else ""

@@ -804,6 +804,15 @@ def misfit(chi2_value: float, n_values: int, k: int, what: str = "the fit") -> l
     return []
 
 
+#: The closing line of fit cautions that a unit slip, SDs too small or a missing process explain.
+CHECK_UNITS = "check the observations' units and SDs, and what the model leaves out, before using these values"
+#: The closing line where the only caution is a parameter on its box's edge and the fit is good.
+EDGE_WITH_GOOD_FIT = (
+    "the fit is good: an edge can mean the data barely inform that parameter (lightfit posterior shows its "
+    "spread) as well as that they pull it beyond (then check the observations' units and SDs)"
+)
+
+
 def fit_cautions(
     theta: Mapping[str, float],
     names: Sequence[str],
@@ -826,18 +835,20 @@ def fit_cautions(
     Each is what a unit slip in the observations (PAR in mmol), SDs too small, or a process the
     model leaves out produce; the numbers of a calibration with a caution are not a fit to trust.
     """
-    out = []
+    edges, others = [], []
     for n in names:
         v, (lo, hi) = float(theta[n]), box[n]
         if on_edge(v, lo, hi):
-            out.append(f"{n} = {v:.4g} is on the edge of its search range [{lo:g}, {hi:g}]: the data pull it further")
+            edges.append(f"{n} = {v:.4g} is on the edge of its search range [{lo:g}, {hi:g}]: the data pull it further")
         if n in support and not support[n][0] <= v <= support[n][1]:
             lo, hi = support[n]
-            out.append(f"{n} = {v:.4g} lies outside its prior's range [{lo:g}, {hi:g}]")
-    out += misfit(2.0 * loss, n_values, len(names))
-    if out:
-        out.append("check the observations' units and SDs, and what the model leaves out, before using these values")
-    return out
+            others.append(f"{n} = {v:.4g} lies outside its prior's range [{lo:g}, {hi:g}]")
+    others += misfit(2.0 * loss, n_values, len(names))
+    if others:
+        return [*edges, *others, CHECK_UNITS]
+    if edges:  # a good fit: a flat direction lets the optimum wander to the box's edge too
+        return [*edges, EDGE_WITH_GOOD_FIT]
+    return []
 
 
 __all__ = [

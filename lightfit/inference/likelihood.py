@@ -183,7 +183,7 @@ def check_informed(names: Sequence[str], use: Sequence[str], *, bounces: int = 1
             + (" (no light is scattered: bounces 0)" if bounces < 1 else ""),
             parameter="parameters",
             expected=(f"parameters they inform ({', '.join(can)})" if can else "other parameters")
-            + f", or --use / observations with a series that does ({by})",
+            + f", or observed series that do (use= / --use, or another observations file: {by})",
         )
 
 

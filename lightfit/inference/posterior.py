@@ -226,6 +226,11 @@ def _stored_use(use) -> tuple:
         return tuple(use)
 
 
+def _absolute(source) -> str:
+    """A file's path made absolute (as given where it names no file here, e.g. a table built in memory)."""
+    return str(Path(source).resolve()) if source and Path(str(source)).exists() else str(source)
+
+
 def check_resume(path: str | Path, key: Mapping) -> tuple[str, ...]:
     """Refuse to resume the posterior run in ``path`` with other settings than it was started with:
     an :class:`InputError` naming the file and the first entry of ``key`` (:func:`resume_key`, or
@@ -575,7 +580,11 @@ def run(
     # What check_resume compares on resume: stored once, when the run starts (the sampler stores the seed).
     meta = {
         **{k: v for k, v in key.items() if k != "seed"},
-        "observations": {"source": str(obs.attrs.get("source", "")), "provenance": obs.attrs.get("provenance", "")},
+        # absolute, as calibration.json stores it: the notebook may read the run from another folder
+        "observations": {
+            "source": _absolute(obs.attrs.get("source", "")),
+            "provenance": obs.attrs.get("provenance", ""),
+        },
         "scenario": {
             "n_segments": int(sum(len(d.segment_id) for d in days)),
             "samples": sc.samples,

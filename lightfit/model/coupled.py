@@ -18,7 +18,9 @@ through the photosynthesis fixed point).
 from __future__ import annotations
 
 import copy
+import json
 from collections.abc import Callable, Mapping
+from dataclasses import asdict
 from functools import cached_property
 
 import jax
@@ -41,6 +43,7 @@ from lightfit.plant import build, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
 from lightfit.progress import progress_bar
 from lightfit.weather import timestamps
+from lightfit.weather.reconstruct import Anchor
 
 #: A source of light parts: ``light(theta) -> (values, se)``, each (T_day, 4, S + P) in
 #: :data:`~lightfit.light.estimator.PARTS` order, per unit DNI / DHI: S measured segments, then
@@ -357,6 +360,7 @@ class CoupledModel:
             "weather_source": str(w.attrs.get("source", "")),
             "weather_timestamps": self.timestamps.describe(),
             "weather_split_model": str(w.attrs.get("split_model", "unknown")),
+            **({"weather_anchor": json.dumps(asdict(a))} if (a := Anchor.of(w.attrs)) else {}),
             **fld.attrs(),
             "n_tiles": sc.n_tiles,
             "tile": -1 if sc.tile is None else sc.tile,

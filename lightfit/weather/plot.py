@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
 import matplotlib
@@ -12,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from lightfit.figure import clock_axis, figure_format  # noqa: E402
+from lightfit.weather.reconstruct import Anchor  # noqa: E402
 from lightfit.weather.site import SELHAUSEN, zone_label  # noqa: E402
 from lightfit.weather.units import par_from_ghi  # noqa: E402
 
@@ -66,12 +66,10 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         r.set_ylim(0, top / k)
         r.set_ylabel(f"W m⁻² (× {k:.3f} = PAR scale)")
         r.legend(loc="upper right", fontsize=8)
-    anchor = df.attrs.get("metadata", {}).get("anchor") or df.attrs.get("anchor")
-    if anchor:
-        a = anchor if isinstance(anchor, dict) else ast.literal_eval(anchor)
-        ta = pd.Timestamp(a["time_local"], tz=a["tz"]).tz_convert(tz)
-        ax[0].plot([ta], [a["par_umol_m2_s"]], "k*", ms=12, label="recorded chamber point (anchor)")
-        ax[1].plot([ta], [a["tair_c"]], "k*", ms=12)
+    if a := Anchor.of(df.attrs):
+        ta = a.time_utc.tz_convert(tz)
+        ax[0].plot([ta], [a.par_umol_m2_s], "k*", ms=12, label="recorded chamber point (anchor)")
+        ax[1].plot([ta], [a.tair_c], "k*", ms=12)
     ax[0].legend(loc="upper left", fontsize=8)
     ax[1].plot(t, local["tair_c"], color="tab:red")
     ax[1].set_ylabel("T air (°C)", color="tab:red")

@@ -8,6 +8,7 @@ is labelled ``provenance = "reconstructed"`` and must never be called measured.
 
 from __future__ import annotations
 
+import ast
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -38,6 +39,16 @@ class Anchor:
     @property
     def time_utc(self) -> pd.Timestamp:
         return pd.Timestamp(self.time_local, tz=self.tz).tz_convert("UTC")
+
+    @classmethod
+    def of(cls, attrs: dict) -> Anchor | None:
+        """The anchor a reconstructed series was scaled to, from its attributes (``metadata``'s
+        ``anchor`` line as the reader gives it, a dict or its text), or ``None``."""
+        meta = attrs.get("metadata")
+        a = (meta.get("anchor") if isinstance(meta, dict) else None) or attrs.get("anchor")
+        if not a:
+            return None
+        return cls(**(a if isinstance(a, dict) else ast.literal_eval(str(a))))
 
 
 @dataclass(frozen=True)
