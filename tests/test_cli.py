@@ -1872,3 +1872,21 @@ def test_an_sd_without_its_value_is_said_not_dropped_unsaid(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--observations", str(path), "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert "caution: " + said in " ".join(r.stderr.split())
+
+
+def test_priors_help_states_the_prior_sets_leaf_ranges():
+    """calibrate's and posterior's --priors help give the ranges (a newcomer review found posterior's
+    without any): the informed set's for the default leaf and the wide set's, as the priors module
+    defines them."""
+    from lightfit.cli.common import PRIORS_HELP
+    from lightfit.inference.mcmc.priors import PRIORS_WIDE, informed_priors
+
+    informed = informed_priors()
+    for n in ("specular", "roughness", "subsurface"):
+        lo, hi = informed[n].support
+        assert f"{n} {lo:g}–{hi:g}" in PRIORS_HELP, n
+    assert all(PRIORS_WIDE[n].support == (0.0, 1.0) for n in ("specular", "subsurface"))
+    assert "'wide' (specular and subsurface 0–1)" in PRIORS_HELP
+    for command in ("calibrate", "posterior"):
+        text = " ".join(CliRunner().invoke(app, [command, "--help"], env={"COLUMNS": "200"}).output.split())
+        assert "specular 0.4625–0.7375, roughness 0.3–1, subsurface 0.31–1" in text.replace("│", "").replace("  ", " ")

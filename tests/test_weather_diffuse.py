@@ -49,6 +49,14 @@ def test_reconstruction_is_split_as_its_clear_sky_model_splits_it():
     erbs = add_solar(read_weather(RECON), split_model="erbs")
     assert 0.24 < share(df) < 0.27 and 0.38 < share(erbs) < 0.41
     assert any(q["kind"] == "split" and "not used" in q["detail"] for q in erbs.attrs["qc"])
+    # without a diffuse column the split is named too, with why it is that one (a review: a run on the
+    # CPlantBox day printed no split at all)
+    bare = read_weather(RECON).drop(columns=["diffuse_w_m2"])
+    for given, why in ((None, "the default"), ("boland", "as asked")):
+        out = add_solar(bare.copy(), split_model=given)
+        (note,) = (q["detail"] for q in out.attrs["qc"] if q["kind"] == "split")
+        said = f"DNI and DHI split from global radiation by {out.attrs['split_model']} ({why}; the series has no"
+        assert note == said + " diffuse radiation)", note
 
 
 def _clear(times: pd.DatetimeIndex) -> pd.DataFrame:

@@ -11,6 +11,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import (
+    PRIORS_HELP,
     caution,
     check_observations,
     console,
@@ -82,8 +83,7 @@ def calibrate(
     max_rounds: int = typer.Option(6, help="Surrogate rounds at most (each adds one render at its optimum)."),
     priors: str = typer.Option(
         "informed",
-        help="Prior set whose leaf-parameter support is the emulator's box: 'informed' (docs/design.md §6 leaf "
-        "optics; specular 0.4625–0.7375) or 'wide' (specular and subsurface 0–1).",
+        help=PRIORS_HELP + " Its leaf-parameter support is the emulator's box.",
     ),
     cache: Path = typer.Option(None, help="Design cache (default: $LIGHTFIT_CACHE or ~/.cache/lightfit)."),
     mc_correlation: str = typer.Option(

@@ -372,6 +372,15 @@ def samples_label(samples: int, target_rse: float | None) -> str:
     return f"target {target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
 
 
+#: ``--priors``' help, shared by calibrate and posterior (the ranges: lightfit.inference.mcmc.priors,
+#: checked against it in tests/test_cli.py).
+PRIORS_HELP = (
+    "Prior set: 'informed' (for the default leaf specular 0.4625–0.7375, roughness 0.3–1, subsurface "
+    "0.31–1; light factor and vcmax scale log-normal around 1; docs/posterior.md) or 'wide' (specular and "
+    "subsurface 0–1)."
+)
+
+
 def fixed(value: float, decimals: int) -> str:
     """``value`` with ``decimals`` decimals, "–" where not finite, and no minus sign on a zero
     (a sun 0.4° below the horizon reads 0, not −0)."""

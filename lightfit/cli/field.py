@@ -35,8 +35,9 @@ def field(
         show_default=False,
     ),
     quick: bool = typer.Option(False, "--quick", help="The small field of replicate --quick and field-run --quick."),
-    row_spacing: float = typer.Option(DEFAULT_ROW_SPACING_M, help=ROW_SPACING_HELP),
-    plant_spacing: float = typer.Option(DEFAULT_PLANT_SPACING_M, help=PLANT_SPACING_HELP),
+    # the help texts say the defaults with their reasons (shared with the model commands' options)
+    row_spacing: float = typer.Option(DEFAULT_ROW_SPACING_M, help=ROW_SPACING_HELP, show_default=False),
+    plant_spacing: float = typer.Option(DEFAULT_PLANT_SPACING_M, help=PLANT_SPACING_HELP, show_default=False),
     boundary: str = typer.Option("periodic", help=BOUNDARY_HELP),
     buffer_rows: int = typer.Option(None, help=BUFFER_ROWS_HELP),
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),

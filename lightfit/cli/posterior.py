@@ -9,6 +9,7 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import (
+    PRIORS_HELP,
     caution,
     check_observations,
     console,
@@ -46,12 +47,14 @@ def posterior(
         "also vcmax_scale, noise_scale).",
         show_default=False,
     ),
-    priors: str = typer.Option("informed", help="Prior set: 'informed' (docs/design.md §6 leaf optics) or 'wide'."),
+    priors: str = typer.Option("informed", help=PRIORS_HELP),
     use: Use = "",
     walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters and ≥ 4)."),
     max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
-    max_minutes: float = typer.Option(None, help="Stop sampling after this many minutes (resumable)."),
+    max_minutes: float = typer.Option(
+        None, help="Stop sampling after this many minutes (resumable; default: no limit, the stop rule or --max-steps)."
+    ),
     sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(
         None,

@@ -68,7 +68,9 @@ def show(
     split: str = typer.Option(None, help=SPLIT_HELP),
     resample: str = typer.Option(None, help="New time step, e.g. 30min."),
     how: str = typer.Option(
-        "mean", help="Resampling: mean (whole intervals; a centred window for instants) or sample."
+        "mean",
+        help="Resampling: mean (whole intervals; a centred window for instants) or sample. The model commands' "
+        "--how defaults to sample (each step's instant, where its sun is taken).",
     ),
     plot: Path = typer.Option(None, help="Write a plot here; the suffix gives the format (.png, .pdf, .svg, …)."),
     csv: Path = typer.Option(None, help="Write the contract series as CSV here."),

@@ -688,6 +688,17 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
                     + (" as asked" if asked else ", the split the series was written with (its split_model line)"),
                 }
             )
+        else:  # said as the diffuse column's split is (a review: a run on the CPlantBox day never named it)
+            why = "as asked" if asked else ("its split_model line" if out.attrs.get("split_model") else "the default")
+            qc.append(
+                {
+                    "kind": "split",
+                    "column": None,
+                    "count": len(out),
+                    "detail": f"DNI and DHI split from global radiation by {split_model} ({why}; the series has no "
+                    "diffuse radiation)",
+                }
+            )
     out["dni_w_m2"], out["dhi_w_m2"] = split["dni_w_m2"], split["dhi_w_m2"]
     if any(c in df.columns for c in _DERIVED_TOLERANCE):  # a resampled series has none: keep its source's notes
         qc = [q for q in qc if q["kind"] != "recomputed"] + _recomputed(df, out)
