@@ -305,6 +305,13 @@ class ReplicationConfig:
         """First and last step of ``date``'s window, UTC."""
         return self.window.bounds_utc(date, self.site.timezone)
 
+    def span_utc(self, date: str) -> tuple[pd.Timestamp, pd.Timestamp]:
+        """The time ``date``'s window stands for, UTC: its first and last step ± half a step (each
+        step stands for the half steps around it)."""
+        t0, t1 = self.window_utc(date)
+        half = pd.Timedelta(self.window.step) / 2
+        return t0 - half, t1 + half
+
     def date_of(self, w: pd.DataFrame) -> str:
         """The date of :attr:`dates` whose window holds every step of the forcing ``w``."""
         for d in self.dates:
@@ -358,9 +365,8 @@ def light_outside_window(cfg: ReplicationConfig, date: str) -> float:
     midnight = pd.Timestamp(str(parse_date(date, "date")), tz=cfg.site.timezone)
     t = pd.date_range(midnight, midnight + pd.Timedelta(days=1), freq="5min", inclusive="left").tz_convert("UTC")
     ghi = clear_sky_ghi_w_m2(solar_position(t, cfg.site)["sun_elevation_deg"].to_numpy())
-    t0, t1 = cfg.window_utc(date)
-    half = pd.Timedelta(cfg.window.step) / 2
-    inside = np.asarray((t >= t0 - half) & (t <= t1 + half))
+    t0, t1 = cfg.span_utc(date)
+    inside = np.asarray((t >= t0) & (t <= t1))
     return float(ghi[~inside].sum() / ghi.sum()) if ghi.sum() > 0 else 0.0
 
 

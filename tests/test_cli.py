@@ -133,7 +133,9 @@ def test_option_defaults_are_the_librarys():
 
     from lightfit.dataset import Camera, DatasetSpec, RenderSettings, Sweep
     from lightfit.inference import posterior
+    from lightfit.inference.calibration import calibrate
     from lightfit.inference.mcmc import StopRule
+    from lightfit.inference.trust_region import surrogate_calibrate
     from lightfit.weather.series import DEFAULT_MAX_GAP
 
     group = typer.main.get_command(app)
@@ -148,7 +150,14 @@ def test_option_defaults_are_the_librarys():
         return f.default_factory() if f.default is dataclasses.MISSING else f.default
 
     run = inspect.signature(posterior.run).parameters
+    cal = inspect.signature(calibrate).parameters
+    sur = inspect.signature(surrogate_calibrate).parameters
+    assert sur["max_steps"].default == cal["max_steps"].default  # the command passes one --max-steps to both
     pairs = {
+        ("calibrate", "max_steps"): cal["max_steps"].default,
+        ("calibrate", "max_rounds"): sur["max_rounds"].default,
+        ("calibrate", "parameters"): ",".join(cal["names"].default),
+        ("posterior", "parameters"): ",".join(posterior.SAMPLED_BY_DEFAULT),
         ("posterior", "walkers"): run["nwalkers"].default,
         ("posterior", "max_steps"): run["max_steps"].default,
         ("posterior", "target_ess"): StopRule().target_ess,

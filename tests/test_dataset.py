@@ -640,6 +640,9 @@ def test_results_with_their_own_sun_and_sky_refuse_another_weather(results_file,
     monkeypatch.undo()
     assert told["from"] == "weather" and told["source"].endswith("selhausen_cplantbox_day.txt")
     assert told["provenance"] == "measured"
+    # the undated day file is placed on the results' target date, and the metadata says on which
+    assert told["placed_on_date"] == str(unlit.ds.attrs["target_date"])
+    assert "placed_on_date" not in lighting_provenance(unlit, "2016-04-20")  # a dated series is not placed
     assert len(reads) == 1  # one read for both (it was read twice per dataset)
     with pytest.raises(InputError, match="carry their own sun and sky") as e:
         lighting(open_results(path), [0], "2016-04-20")

@@ -676,3 +676,18 @@ def test_cli_field_run_options_reach_the_run(tmp_path, monkeypatch):
         assert (kw["timeout_s"], kw["connect_timeout_s"], kw["parts"]) == (5, 7, parts)
         assert listing == kept
     assert not out.exists()
+
+
+@pytest.mark.parametrize("fld", [FIELD, Field(boundary="finite", n_plants=9, buffer_rows=1, buffer_along=3, seed=1)])
+def test_exact_halo_rows_is_the_fewest_that_give_every_tile_the_whole_field(fld):
+    """At ``exact_halo_rows`` every tile's scene holds every plant of the field, so it renders what one
+    process renders; one row fewer leaves some tile without some plant (field-run cautions below it).
+    Counted on the tiles' plant sets, no render; never more than the docs' bound, side + buffer."""
+    all_plants = set(fld.plants().index)
+    for tiles in (2, 4) if fld.n % 2 == 0 else (3,):
+        h = HaloField.of(fld).exact_halo_rows(tiles)
+        assert 0 < h <= fld.n + max(fld.buffer_rows, fld.buffer_along or 0)
+        full = HaloField.of(fld, halo_rows=h).tiles(tiles)
+        assert all(set(t.measured) | set(t.buffer) == all_plants for t in full)
+        short = HaloField.of(fld, halo_rows=h - 1).tiles(tiles)
+        assert any(set(t.measured) | set(t.buffer) != all_plants for t in short)

@@ -57,6 +57,49 @@ def test_tereno_fixture_night_offsets_clamped_and_counted():
     assert (df["par_umol_m2_s"] >= 0).all()
 
 
+def test_a_missing_temperature_does_not_lose_the_co2_and_humidity_it_converts(tmp_path):
+    """CO2 in mmol m⁻³ and absolute humidity convert with the row's air temperature: where only the
+    temperature is missing they are converted with it interpolated in time, and the checks say so (a
+    review: the file's CO2 was lost there and then reported as "missing, interpolated")."""
+    text = FIXTURE.read_text(encoding="utf-8").splitlines(True)
+    gap = ("2016-04-20 04:30:00,", "2016-04-20 04:40:00,")
+    blanked = []
+    for ln in text:
+        if ln.startswith(gap):
+            cells = ln.split(",")
+            cells[4] = ""  # AirTemperature
+            ln = ",".join(cells)
+        blanked.append(ln)
+    f = tmp_path / "no_t.csv"
+    f.write_text("".join(blanked), encoding="utf-8")
+    ref, df = read_tereno(FIXTURE), read_tereno(f)
+    at = pd.Timestamp("2016-04-20 04:30", tz="Etc/GMT-1")
+    # the temperature's own gap is filled (and said) as before; CO2 and RH keep the file's readings,
+    # converted at the interpolated 10.393 °C instead of the file's 10.39 °C
+    assert df.loc[at, "co2_ppm"] == pytest.approx(ref.loc[at, "co2_ppm"], rel=1e-4)
+    assert df.loc[at, "rh"] == pytest.approx(ref.loc[at, "rh"], rel=1e-3)
+    notes = {q["column"]: q["detail"] for q in df.attrs["qc"] if q["kind"] == "converted across a gap"}
+    assert notes["co2_ppm"].startswith("1 value(s) converted with the air temperature interpolated in time")
+    assert notes["rh"].startswith("2 value(s) converted with the air temperature interpolated in time")
+    assert not any(q["kind"] == "converted across a gap" for q in ref.attrs["qc"])
+    assert not any(q["column"] == "co2_ppm" and q["kind"] == "interpolated" for q in df.attrs["qc"])
+
+
+def test_tereno_zone_by_convention_is_said(tmp_path):
+    """A TERENO export without a 'Time zone:' line is read in UTC+1, the convention, and its checks say
+    so (a review found it assumed without a word); the header's line, where present, says nothing."""
+    said = [q["detail"] for q in read_tereno(FIXTURE).attrs["qc"] if "Time zone" in q["detail"]]
+    assert said == []
+    bare = tmp_path / "no_zone.csv"
+    text = FIXTURE.read_text(encoding="utf-8")
+    bare.write_text("".join(ln for ln in text.splitlines(True) if not ln.startswith("Time zone:")), encoding="utf-8")
+    df = read_tereno(bare)
+    (note,) = [q["detail"] for q in df.attrs["qc"] if "Time zone" in q["detail"]]
+    assert note.startswith("no 'Time zone:' line in the header: the timestamps are read as UTC+1")
+    assert df.attrs["timezone_assumed"] == "Etc/GMT-1"
+    assert df.index.equals(read_tereno(FIXTURE).index)  # the header said UTC+1: the same instants
+
+
 def test_tereno_co2_30min_held_and_reported():
     df = read_tereno(FIXTURE)
     held = [q for q in df.attrs["qc"] if q["kind"] == "held"]

@@ -396,16 +396,22 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezo
     rows (the bundled day's 144 ten-minute rows as 48, every 30 min), which the caption then says."""
     step = max(1, len(df) // max_rows)
     shown = "" if step == 1 else f"; 1 row in {step} of {len(df)} shown"
+    shown_rows = df.iloc[::step]
+    # One UTC date: its clock alone (the date in the caption), so that the table fits 80 columns
+    # (a piped run cut the numbers to "16…" beside "04-20 03:00").
+    one_day = len(shown_rows) > 0 and len(set(shown_rows.index.date)) == 1
+    stamp = "%H:%M" if one_day else "%m-%d %H:%M"
+    if one_day:
+        shown += f"; UTC date {shown_rows.index[0]:%Y-%m-%d}"
     t = Table(title=title, caption=f"PAR µmol m⁻² s⁻¹; GHI/DNI/DHI W m⁻²; sun° elevation; RH 0–1; CO2 ppm{shown}")
-    t.add_column("UTC", no_wrap=True)  # "04-20 03:00" on one line in an 80-column pipe too
+    t.add_column("UTC", no_wrap=True)
     t.add_column(zone_label(tz).split("/")[-1], no_wrap=True)
     cols = [c for c in _SHORT if c in df.columns]
     for c in cols:
         t.add_column(_SHORT[c], justify="right")
-    shown_rows = df.iloc[::step]
     for (ts, row), clock in zip(shown_rows.iterrows(), local_clock(shown_rows.index, tz), strict=True):
         t.add_row(
-            ts.strftime("%m-%d %H:%M"),
+            ts.strftime(stamp),
             clock,
             *(fixed(row[c], _DIGITS.get(c, 0)) for c in cols),
         )
@@ -420,7 +426,7 @@ def weather_report(df) -> None:
     console.print(
         f"[bold]source[/] {escape(str(a.get('source')))}  [bold]format[/] {a.get('format')}  "
         f"[bold]provenance[/] [magenta]{a.get('provenance')}[/]  "
-        f"[bold]timestamps assumed in[/] {a.get('timezone_assumed')}, as the "
+        f"[bold]timestamps assumed in[/] {zone_label(str(a.get('timezone_assumed')))}, as the "
         f"{timestamps.of(df).describe()}"
     )
     for k, v in a.get("columns_used", {}).items():
@@ -494,18 +500,17 @@ def observations_within_steps(obs, w, s):
     ``obs`` where no reading falls within the steps. ``w``: the steps' forcing; ``s``: the
     command's :class:`~lightfit.cli.options.ModelSettings`."""
     import numpy as np
-    import pandas as pd
 
     from lightfit.inference.observations import SERIES, far_from_steps, with_reading
     from lightfit.weather import timestamps
 
     if not s.steps:
         return obs
-    cfg, half = s.replication_config(), pd.Timedelta(s.step) / 2
+    cfg = s.replication_config()
     in_windows = np.zeros(len(obs), bool)
     for d in s.dates:
-        first, last = cfg.window_utc(d)
-        in_windows |= np.asarray((obs.index >= first - half) & (obs.index <= last + half))
+        first, last = cfg.span_utc(d)
+        in_windows |= np.asarray((obs.index >= first) & (obs.index <= last))
     out = in_windows & far_from_steps(obs, w.index, timestamps.of(w))  # empty rows too: no part of the steps
     if not out.any() or not (with_reading(obs) & ~out).any():
         return obs

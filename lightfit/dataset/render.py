@@ -36,7 +36,7 @@ from lightfit.dataset.camera import Camera
 from lightfit.dataset.scene import Lighting, SceneArrays, VisualMaterials
 from lightfit.errors import InputError, check_integer
 from lightfit.light.keyed_random import check_seed
-from lightfit.light.scene import overcast_radiance_per_dhi, sun_vector
+from lightfit.light.scene import ISOTROPIC_RADIANCE_PER_DHI, overcast_radiance_per_dhi, sun_vector
 
 COLOURS = ("rgb", "mono")
 
@@ -240,7 +240,8 @@ def _emitters(light: Lighting) -> dict:
         if light.sky == "overcast":
             out["sky"] = _overcast_sky(light.dhi_w_m2)
         else:
-            out["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": float(light.dhi_w_m2 / np.pi)}}
+            radiance = float(light.dhi_w_m2) * ISOTROPIC_RADIANCE_PER_DHI
+            out["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": radiance}}
     return out
 
 

@@ -308,7 +308,10 @@ def lighting_provenance(res: Results, weather_source: str | None = None) -> dict
     if _carries_light(res):
         return {"from": "results", "variables": list(LIGHT_VARS)}
     wx = _weather(res, weather_source)
-    return {"from": "weather", "source": str(wx.attrs.get("source")), "provenance": str(wx.attrs.get("provenance"))}
+    out = {"from": "weather", "source": str(wx.attrs.get("source")), "provenance": str(wx.attrs.get("provenance"))}
+    if wx.attrs.get("date_given"):  # an undated file (a CPlantBox day), placed on the results' target date
+        out["placed_on_date"] = str(wx.attrs["date_given"])
+    return out
 
 
 def _weather(res: Results, source: str | None) -> pd.DataFrame:

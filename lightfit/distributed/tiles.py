@@ -75,6 +75,17 @@ class HaloField(Field):
         """The same field with a tile halo."""
         return cls(**_field_values(fld), halo_rows=halo_rows)
 
+    def exact_halo_rows(self, n_tiles: int) -> int:
+        """The fewest ``halo_rows`` with which each of ``n_tiles`` tiles holds every plant of the field
+        (its renders are then those of one process): the farthest any plant lies from a tile, in rows
+        or plants along them."""
+        r_all, c_all = plant_rc(self.plants().index.to_numpy())
+        far = 0
+        for t in Field.tiles(self, n_tiles):
+            r, c = plant_rc(t.measured)
+            far = max(far, r.min() - r_all.min(), r_all.max() - r.max(), c.min() - c_all.min(), c_all.max() - c.max())
+        return int(far)
+
     def base(self) -> Field:
         """The plain :class:`Field` (for single-process runs)."""
         return Field(**_field_values(self))

@@ -73,6 +73,7 @@ from lightfit.inference.likelihood import (
 from lightfit.inference.likelihood import mc_correlation as mc_correlation_of
 from lightfit.inference.observations import matched_as_by_stamp, observation_matching
 from lightfit.killpoint import kill_point
+from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import BOUNDS, Theta, as_theta, check_names
 from lightfit.model.scenario import DIGEST_WHEN_ABSENT, Scenario, digest_of, settings_digest
@@ -404,6 +405,11 @@ def _unflatten(template, leaves):
     return jax.tree_util.tree_unflatten(tree, new)
 
 
+#: Most accepted optimiser steps of a calibration by default (on full renders or on the surrogate,
+#: whose optimiser stopped at 200 while the command line passed 30).
+MAX_STEPS = 30
+
+
 def check_max_steps(max_steps) -> int:
     """The optimiser's accepted steps at most: an integer ≥ 1 (with 0 the start would be returned
     as if it were a calibration)."""
@@ -480,11 +486,11 @@ def calibrate(
     model: CoupledModel,
     obs: pd.DataFrame,
     *,
-    names: Sequence[str] = ("specular", "roughness", "subsurface"),
+    names: Sequence[str] = LEAF_PARAMETERS,
     start: Theta | Mapping[str, float] | None = None,
     fixed: Theta | Mapping[str, float] | None = None,
     method: str = "bfgs",
-    max_steps: int = 30,
+    max_steps: int = MAX_STEPS,
     rtol: float = 1e-4,
     atol: float = 1e-4,
     gtol: float = 1e-2,
@@ -852,6 +858,9 @@ def fit_cautions(
 
 
 __all__ = [
+    "CHECK_UNITS",
+    "EDGE_WITH_GOOD_FIT",
+    "MAX_STEPS",
     "CalibrationResult",
     "Loss",
     "calibrate",

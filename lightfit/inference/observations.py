@@ -608,6 +608,11 @@ def observation_table_digest(obs: pd.DataFrame) -> str:
     return hashlib.sha256(b"lightfit observation table v1\n" + text.encode()).hexdigest()
 
 
+#: How near a step of the forcing a reading must lie for the plausibility checks below to compare it
+#: with that step's PAR (the comparisons themselves, :func:`align`, take each step's half step).
+NEAR_STEP = np.timedelta64(3600, "s")
+
+
 def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     """:class:`InputError` naming the observations' file and column where an observed light series
     (:data:`LIGHT_SERIES`) is not on the forcing's scale: the median, over observations whose
@@ -618,7 +623,7 @@ def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
         return
     idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
     par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
-    near = dist <= np.timedelta64(3600, "s")
+    near = dist <= NEAR_STEP
     lo, hi = LIGHT_RATIO_RANGE
     for name in LIGHT_SERIES:
         col = BY_NAME[name].value
@@ -656,7 +661,7 @@ def nee_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame) -> str | None:
     idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
     par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
     value = obs[col].to_numpy(float)
-    sel = (dist <= np.timedelta64(3600, "s")) & (par >= UPTAKE_PAR_UMOL_M2_S) & np.isfinite(value)
+    sel = (dist <= NEAR_STEP) & (par >= UPTAKE_PAR_UMOL_M2_S) & np.isfinite(value)
     if sel.sum() >= 2 and (value[sel] > 0).all():
         return (
             f"{obs.attrs.get('source', 'the observations')}, column {col!r}: NEE is positive (a release) at all "

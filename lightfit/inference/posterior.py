@@ -53,6 +53,9 @@ from lightfit.model.coupled import CoupledModel
 from lightfit.model.emulator import VALIDATED, FastObservables, PartsEmulator, in_box, validate
 from lightfit.weather.timestamps import Timestamps
 
+#: What a posterior samples unless told: the leaf's three surface parameters and the light factor.
+SAMPLED_BY_DEFAULT = (*LEAF_PARAMETERS, "light_factor")
+
 
 def prior_set(name: str, optics=None) -> dict[str, Prior]:
     """The prior set ``name`` of :data:`~lightfit.inference.mcmc.priors.PRIOR_SETS` for a run's leaf
@@ -69,7 +72,7 @@ def log_posterior(
     obs: pd.DataFrame,
     forward,
     *,
-    names=("specular", "roughness", "subsurface", "light_factor"),
+    names=SAMPLED_BY_DEFAULT,
     priors=None,
     fixed=None,
     use=USES,
@@ -188,7 +191,7 @@ def resume_key(
     model,
     obs: pd.DataFrame,
     *,
-    names=("specular", "roughness", "subsurface", "light_factor"),
+    names=SAMPLED_BY_DEFAULT,
     priors=None,
     fixed=None,
     use=USES,
@@ -491,7 +494,7 @@ def run(
     emulator: PartsEmulator | list[PartsEmulator],
     path: str | Path,
     *,
-    names=("specular", "roughness", "subsurface", "light_factor"),
+    names=SAMPLED_BY_DEFAULT,
     priors=None,
     fixed=None,
     use=USES,

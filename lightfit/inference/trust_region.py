@@ -65,7 +65,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, is_real
-from lightfit.inference.calibration import CalibrationResult, calibrate
+from lightfit.inference.calibration import MAX_STEPS, CalibrationResult, calibrate
 from lightfit.inference.likelihood import (
     USES,
     GaussianLikelihood,
@@ -232,7 +232,7 @@ def surrogate_calibrate(
     model: CoupledModel,
     obs: pd.DataFrame,
     *,
-    names: Sequence[str] = ("specular", "roughness", "subsurface"),
+    names: Sequence[str] = E.LEAF_PARAMETERS,
     start: Theta | Mapping[str, float] | None = None,
     fixed: Theta | Mapping[str, float] | None = None,
     use: Sequence[str] | None = USES,
@@ -245,7 +245,7 @@ def surrogate_calibrate(
     max_rounds: int = 6,
     z: float = 2.0,
     method: str = "lbfgsb",
-    max_steps: int = 200,
+    max_steps: int = MAX_STEPS,
     n_grid: int | None = 64,
     progress: bool = True,
     say: Callable[[str], None] = print,

@@ -232,6 +232,12 @@ def samples_used(samples: int) -> int:
     return r * -(-int(samples) // r)
 
 
+#: The light library's defaults for a scene that says nothing: K points per segment and scattering
+#: orders (3 serve a finite field's bright soil and any leaf; the coupled model resolves its own from
+#: the leaf, docs/light.md "Recommended settings").
+DEFAULT_SAMPLES = 64
+DEFAULT_BOUNCES = 3
+
 #: Fewest points per segment of adaptive sampling's first round (8 replicates, what its stopping
 #: rule needs): a smaller ``samples`` with a target is raised to it.
 MIN_PILOT = 32
@@ -409,8 +415,8 @@ class SegmentEstimator:
         field_scene: FieldScene,
         segment_ids: ArrayLike,
         *,
-        samples: int = 64,
-        bounces: int = 3,
+        samples: int = DEFAULT_SAMPLES,
+        bounces: int = DEFAULT_BOUNCES,
         seed: int = 0,
         epsilon_m: float = RAY_OFFSET_M,
         first: int = 0,
@@ -1205,7 +1211,7 @@ def render_adaptive(
     segment_ids: ArrayLike,
     target_rse: float,
     *,
-    bounces: int = 3,
+    bounces: int = DEFAULT_BOUNCES,
     seed: int = 0,
     pilot: int = MIN_PILOT,
     growth: int = 2,

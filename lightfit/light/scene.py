@@ -39,6 +39,11 @@ if TYPE_CHECKING:
 SKY_MODELS = ("isotropic", "overcast")
 
 
+#: Radiance of an isotropic (uniform) sky per unit horizontal diffuse irradiance, sr⁻¹: ∫ L cos θ dω = πL
+#: over the upper hemisphere.
+ISOTROPIC_RADIANCE_PER_DHI = 1.0 / math.pi
+
+
 def overcast_radiance_per_dhi(cos_zenith):
     r"""Radiance of the CIE standard overcast sky (Moon & Spencer 1942) per unit horizontal diffuse
     irradiance, sr⁻¹, above the horizon: :math:`L = \frac{9}{7\pi}\,\frac{1 + 2\cos\theta_z}{3}`,
@@ -246,7 +251,7 @@ class FieldScene:
         import drjit as dr
 
         if self.sky == "isotropic":
-            return dr.select(cos_zenith > 0, mitsuba().Float(1.0 / math.pi), 0.0)
+            return dr.select(cos_zenith > 0, mitsuba().Float(ISOTROPIC_RADIANCE_PER_DHI), 0.0)
         return dr.select(cos_zenith > 0, overcast_radiance_per_dhi(cos_zenith), 0.0)
 
     def scattered_ray(self, si, hit_leaf, p_soil, side, wo, sample2, eps: float = RAY_OFFSET_M):

@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
-from lightfit.light.estimator import SegmentEstimator
+from lightfit.light.estimator import DEFAULT_BOUNCES, SegmentEstimator
 from lightfit.light.scene import RAY_OFFSET_M, FieldScene
 from lightfit.plant.periodic import PeriodicCell
 
@@ -177,7 +177,7 @@ class SensorEstimator(SegmentEstimator):
         sensors: Sequence[Sensor],
         *,
         samples: int = DEFAULT_SENSOR_SAMPLES,
-        bounces: int = 3,
+        bounces: int = DEFAULT_BOUNCES,
         seed: int = 0,
         epsilon_m: float = RAY_OFFSET_M,
     ):

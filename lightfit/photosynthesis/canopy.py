@@ -38,7 +38,7 @@ import numpy as np
 
 from lightfit.errors import InputError
 
-from .constants import ZERO_CELSIUS_K
+from .constants import T25_K
 from .fvcb import capacity_temperature_factors
 from .parameters import PhotosynthesisParams
 
@@ -60,7 +60,6 @@ SET_PROFILES = {"winter_wheat": "lloyd2010"}
 #: leaves of an LAI-4 canopy with a tenth of the top's capacity). The reference paper's
 #: ``giraud2023`` set (Vcmax ≈ 970 at 25 °C) lies far above it.
 LLOYD2010_MAX_VCMAX25 = 200.0
-T25_K = ZERO_CELSIUS_K + 25.0
 #: The steepest kn taken (per unit LAI): capacity falling e-fold within half a unit of leaf area,
 #: beyond the profiles of crop and forest canopies in the sources above; the lowest blades of an
 #: LAI-4 canopy would keep e⁻⁸ = 3·10⁻⁴ of the top's, near where the solver's tolerances act.

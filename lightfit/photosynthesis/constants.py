@@ -8,8 +8,12 @@ __all__ = [
     "GAMMA_STAR_REFERENCE_O2_MMOL_MOL",
     "GAS_CONSTANT_J_MOL_K",
     "REFERENCE_PRESSURE_KPA",
+    "T25_K",
     "ZERO_CELSIUS_K",
 ]
+
+#: 25 °C, the temperature rates are most often tabulated at [K].
+T25_K = ZERO_CELSIUS_K + 25.0
 
 #: Pressure at which Michaelis constants are tabulated as mole fractions [kPa].
 REFERENCE_PRESSURE_KPA = 101.325

@@ -66,7 +66,7 @@ from jax.typing import ArrayLike, DTypeLike
 
 from lightfit.errors import InputError, is_real
 
-from .constants import AIR_O2_MMOL_MOL
+from .constants import AIR_O2_MMOL_MOL, T25_K
 
 TEMPERATURE_FORMS = ("cplantbox", "peaked")
 STOMATAL_MODELS = ("cplantbox", "tuzet", "leuning", "medlyn")
@@ -132,7 +132,7 @@ class TemperatureParams(eqx.Module):
         )
 
     @classmethod
-    def kattge_knorr2007(cls, t_growth_c: float = 15.0) -> TemperatureParams:
+    def kattge_knorr2007(cls, t_growth_c: float | None = None) -> TemperatureParams:
         r"""Vcmax and Jmax as Kattge & Knorr (2007, Plant Cell Environ. 30, 1176) fitted them, on
         Bernacchi et al. (2001, Plant Cell Environ. 24, 253) kinetics and Rd.
 
@@ -151,10 +151,14 @@ class TemperatureParams(eqx.Module):
         Ha belongs with ΔS: the entropy terms were fitted with these Ha, and Bernacchi's Vcmax Ha
         (65.33 kJ mol⁻¹) with K&K's ΔS (this set until the change that introduced this method)
         gives +9 % Vcmax at 15 °C and −8 % at 35 °C against K&K's curve.
+
+        ``t_growth_c`` ``None``: the ``winter_wheat`` set's :data:`WINTER_WHEAT_GROWTH_TEMPERATURE_C`.
         """
-        t_growth_c = kattge_knorr_growth_temperature(t_growth_c)
+        t_growth_c = kattge_knorr_growth_temperature(
+            WINTER_WHEAT_GROWTH_TEMPERATURE_C if t_growth_c is None else t_growth_c
+        )
         return cls(
-            t_ref_k=298.15,
+            t_ref_k=T25_K,
             kc_ref_umol_mol=404.9,
             ko_ref_mmol_mol=278.4,
             gamma_star_ref_umol_mol=42.75,

@@ -13,11 +13,11 @@ from lightfit.plant.field import HEADINGS, Field, FieldGeometry, Tile, build
 from lightfit.plant.growth import (
     GrowthConfig,
     grow_plant,
+    is_shoot,
     one_sided_area_m2,
     organ_class,
     plant_seed,
     resolve_parameter_file,
-    shoot,
 )
 from lightfit.plant.mesh import Mesh, MeshResolution, expected_area, shoot_mesh
 from lightfit.plant.periodic import PeriodicCell
@@ -43,6 +43,6 @@ __all__ = [
     "organ_class",
     "plant_seed",
     "resolve_parameter_file",
-    "shoot",
+    "is_shoot",
     "shoot_mesh",
 ]

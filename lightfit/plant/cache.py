@@ -18,7 +18,7 @@ import pandas as pd
 
 from lightfit.cache import cache_root
 from lightfit.files import replaced
-from lightfit.plant.growth import GrowthConfig, grow_plant
+from lightfit.plant.growth import ORGAN_CATEGORIES, GrowthConfig, grow_plant
 
 log = logging.getLogger(__name__)
 #: Bump when the segment table layout changes: older entries become stale.
@@ -54,7 +54,7 @@ def _to_arrays(df: pd.DataFrame) -> dict[str, np.ndarray]:
 
 def _from_arrays(arrays: dict[str, np.ndarray], columns: list[str]) -> pd.DataFrame:
     df = pd.DataFrame({c: arrays[c] for c in columns})
-    df["organ_type"] = pd.Categorical(df["organ_type"], categories=["root", "stem", "leaf", "other"])
+    df["organ_type"] = pd.Categorical(df["organ_type"], categories=ORGAN_CATEGORIES)
     return df
 
 

@@ -37,7 +37,7 @@ from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError, check_integer, is_real
 from lightfit.plant.cache import load_or_grow
-from lightfit.plant.growth import GrowthConfig, plant_seed
+from lightfit.plant.growth import GrowthConfig, is_shoot, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
 from lightfit.plant.periodic import DEFAULT_ROW_DIRECTION_DEG, PeriodicCell, row_axes
 from lightfit.plant.sheaths import SHEATHS, check_sheaths, lay_sheaths
@@ -455,7 +455,7 @@ def build(
         seg["measured"] = int(p.plant_id) in measured_set
         parts.append(seg)
     segments = pd.concat(parts, ignore_index=True)
-    segments = segments[segments["organ_type"].isin(["stem", "leaf"])].reset_index(drop=True)
+    segments = segments[is_shoot(segments)].reset_index(drop=True)
     if not (segments["blade_area_m2"] > 0).any():  # every leaf a sheath: nothing would photosynthesise
         raise InputError(
             f"the plants grown to {fld.growth.target_date} have no leaf blade (every leaf segment is sheath)",

@@ -38,6 +38,8 @@ from lightfit.errors import InputError, parse_date
 ORGAN_NAMES = {2: "root", 3: "stem", 4: "leaf"}
 #: Organs that enter the light model.
 SHOOT_ORGANS = ("stem", "leaf")
+#: The categories of a segment table's ``organ_type`` (:data:`ORGAN_NAMES`' and what CPlantBox may add).
+ORGAN_CATEGORIES = ["root", "stem", "leaf", "other"]
 #: Month and day growth starts on unless ``season_start`` is given: the reference paper's 5 March
 #: (2016-03-05; the crop was sown in October, and the wheat parameter sets do not describe growth
 #: over winter), in the target date's year, so that another year's spring runs as 2016's did.
@@ -308,9 +310,7 @@ def segment_table(plant: Any, plant_id: int = 0, include_roots: bool = True) -> 
             "plant_id": np.full(n, plant_id, dtype=np.int64),
             "segment_index": np.arange(n, dtype=np.int64),
             "segment_id": plant_id * SEGMENT_ID_STRIDE + np.arange(n, dtype=np.int64),
-            "organ_type": pd.Categorical(
-                [ORGAN_NAMES.get(int(t), "other") for t in ot], categories=["root", "stem", "leaf", "other"]
-            ),
+            "organ_type": pd.Categorical([ORGAN_NAMES.get(int(t), "other") for t in ot], categories=ORGAN_CATEGORIES),
             "organ_id": organ_id,
             "x0": nodes[segs[:, 0], 0],
             "y0": nodes[segs[:, 0], 1],
@@ -330,6 +330,6 @@ def segment_table(plant: Any, plant_id: int = 0, include_roots: bool = True) -> 
     )
 
 
-def shoot(segments: pd.DataFrame) -> pd.DataFrame:
-    """The segments that enter the light model: stems and leaves (roots are kept elsewhere)."""
-    return segments[segments["organ_type"].isin(SHOOT_ORGANS)]
+def is_shoot(segments: pd.DataFrame) -> np.ndarray:
+    """Which segments enter the light model: stems and leaves (:data:`SHOOT_ORGANS`), not roots."""
+    return segments["organ_type"].isin(SHOOT_ORGANS).to_numpy()

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
-from lightfit.plant.growth import one_sided_area_m2, organ_class
+from lightfit.plant.growth import is_shoot, one_sided_area_m2, organ_class
 
 if TYPE_CHECKING:
     import trimesh
@@ -213,7 +213,7 @@ def prism_mesh(seg: pd.DataFrame, res: MeshResolution) -> Mesh:
 
 def shoot_mesh(segments: pd.DataFrame, res: MeshResolution = MeshResolution()) -> Mesh:
     """Mesh of the stems and leaves in a segment table (roots and zero-length segments skipped)."""
-    seg = segments[segments["organ_type"].isin(["stem", "leaf"]) & (segments["length_m"] > 0)]
+    seg = segments[is_shoot(segments) & (segments["length_m"] > 0).to_numpy()]
     blade = organ_class(seg) == "blade"
     tube = ~blade & (seg["radius_m"].to_numpy() > 0)
     return Mesh.concatenate([blade_mesh(seg[blade], res), prism_mesh(seg[tube], res)])
@@ -222,5 +222,5 @@ def shoot_mesh(segments: pd.DataFrame, res: MeshResolution = MeshResolution()) -
 def expected_area(segments: pd.DataFrame) -> pd.Series:
     """Area each segment's mesh should have, m²: blade area (one side) or 2πrL, by segment id."""
     area = one_sided_area_m2(segments)
-    keep = segments["organ_type"].isin(["stem", "leaf"]).to_numpy()
+    keep = is_shoot(segments)
     return pd.Series(area[keep], index=segments["segment_id"].to_numpy()[keep])

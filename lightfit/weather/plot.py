@@ -83,6 +83,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
 
     co2 = ax[2].plot(t, local["co2_ppm"], color="tab:green", label=named("CO2", local["co2_ppm"], "ppm", ".0f"))
     ax[2].set_ylabel("CO2 (ppm)", color="tab:green")
+    ax[2].ticklabel_format(axis="y", useOffset=False)  # ppm as read: an offset made 0.01 ppm look like a signal
     p = ax[2].twinx()
     pair = named("air pressure", local["pair_kpa"], "kPa", ".1f")
     kpa = p.plot(t, local["pair_kpa"], color="tab:gray", ls="--", lw=1.0, label=pair)

@@ -565,6 +565,25 @@ def _mask_flagged_bad(
 RH_PERCENT_MIN_PEAK = 0.05
 
 
+def _across_gaps(x: pd.Series, values: pd.Series, column: str, what: str, qc: list[dict]) -> pd.Series:
+    """``x`` (air temperature or pressure) interpolated linearly in time over its gaps inside the series,
+    for converting ``values`` of another quantity: a reading kept where only ``x`` is missing (it was
+    lost, and then reported as a missing value of its own). The rows converted so are recorded in ``qc``."""
+    filled = x.interpolate(method="time", limit_area="inside")
+    has = ~np.isnan(np.asarray(values, dtype=float))
+    n = int((x.isna().to_numpy() & filled.notna().to_numpy() & has).sum())
+    if n:
+        qc.append(
+            {
+                "kind": "converted across a gap",
+                "column": column,
+                "count": n,
+                "detail": f"{n} value(s) converted with the {what} interpolated in time (missing at their rows)",
+            }
+        )
+    return filled
+
+
 def read_tereno(
     path: str | Path,
     *,
@@ -615,6 +634,16 @@ def read_tereno(
     time_col = next(c for c in table.columns if _TIME_NAMES.match(c))
     times = parse_times(table[time_col], lines, path, time_col, tz, stated=zone_stated)
     qc: list[dict] = []
+    if not zone_stated:  # said, as every other assumption is (a review: read as UTC+1 without a word)
+        qc.append(
+            {
+                "kind": "checked",
+                "column": None,
+                "count": len(times),
+                "detail": "no 'Time zone:' line in the header: the timestamps are read as UTC+1, the TERENO "
+                "convention (--tz / tz= names another zone)",
+            }
+        )
     if not times.is_monotonic_increasing:
         # Sorted before anything reads neighbouring rows (the 30-min CO2 below), not after.
         record_sorted(qc, times, lines, tz)
@@ -675,9 +704,9 @@ def read_tereno(
     if "tair_c" in raw and conv["tair_c"] == "kelvin":
         raw["tair_c"] = raw["tair_c"] - units.T0
     if "pair_kpa" in raw:
-        raw["pair_kpa"] = {"mbar": units.kpa_from_mbar, "pa": lambda p: p * 1e-3, "same": lambda p: p}[
-            conv["pair_kpa"]
-        ](raw["pair_kpa"])
+        raw["pair_kpa"] = {"mbar": units.kpa_from_mbar, "pa": units.kpa_from_pa, "same": lambda p: p}[conv["pair_kpa"]](
+            raw["pair_kpa"]
+        )
     out = pd.DataFrame(index=times)
     for qty in ("ghi_w_m2", "par_umol_m2_s", "diffuse_w_m2", "tair_c", "pair_kpa"):
         if qty in raw:
@@ -690,7 +719,8 @@ def read_tereno(
                     file=path,
                     expected="an AirTemperature column",
                 )
-            out["rh"] = units.relative_humidity_from_absolute(raw["humidity"], out["tair_c"])
+            t = _across_gaps(out["tair_c"], raw["humidity"], "rh", "air temperature", qc)
+            out["rh"] = units.relative_humidity_from_absolute(raw["humidity"], t)
         else:
             out["rh"] = raw["humidity"] / 100.0
             peak = out["rh"].max()
@@ -711,7 +741,9 @@ def read_tereno(
                     file=path,
                     expected="AirTemperature and AirPressure columns",
                 )
-            out["co2_ppm"] = units.co2_ppm_from_mmol_m3(raw["co2_ppm"], out["tair_c"], out["pair_kpa"])
+            t = _across_gaps(out["tair_c"], raw["co2_ppm"], "co2_ppm", "air temperature", qc)
+            p = _across_gaps(out["pair_kpa"], raw["co2_ppm"], "co2_ppm", "air pressure", qc)
+            out["co2_ppm"] = units.co2_ppm_from_mmol_m3(raw["co2_ppm"], t, p)
         else:
             out["co2_ppm"] = raw["co2_ppm"]
     # Slower quantities (CO2 at 30 min) arrive as empty cells between their timestamps: each

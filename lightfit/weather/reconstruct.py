@@ -128,7 +128,7 @@ def reconstruct_day(
     tair = t_mean + a * np.cos(phase(times))
     e = assumptions.dawn_rh * units.saturation_vapour_pressure_kpa(t_mean - a)
     rh = e / units.saturation_vapour_pressure_kpa(tair)
-    p = assumptions.pressure_kpa or pvlib.atmosphere.alt2pres(site.altitude_m) / 1000.0
+    p = assumptions.pressure_kpa or float(units.kpa_from_pa(pvlib.atmosphere.alt2pres(site.altitude_m)))
 
     df = pd.DataFrame(
         {

@@ -254,8 +254,8 @@ def check_and_repair(
             f"missing column(s) {', '.join(missing)}",
             file=file,
             expected=f"{'; '.join(wanted(c) for c in missing)}; found {', '.join(df.columns) or 'none'}. A quantity "
-            "the station did not record goes into the file as a column of its own, named so (e.g. a constant "
-            "CO2, with the file's provenance saying it)",
+            "the station did not record goes into the file as a column of its own, with the header given above "
+            "for it in this format (e.g. a constant CO2, with the file's provenance saying it)",
         )
     if len(df) < 2:
         raise InputError(f"only {len(df)} data row(s)", file=file, expected="a time series of at least 2 rows")
@@ -493,11 +493,12 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
         if source.label in ("start", "end"):  # whole source intervals, stamped as the source's are
             rows = df.index.to_series().diff().dropna()
             if step % source.interval or (len(rows) and (rows != source.interval).any()):
+                lo, hi = (_minutes(x) for x in (rows.min(), rows.max())) if len(rows) else ("–", "–")
                 raise InputError(
-                    f"cannot average {source.describe()} at {freq} (rows {rows.min()} – {rows.max()} apart)",
+                    f"cannot average {source.describe()} at {freq} (rows {lo if lo == hi else f'{lo} – {hi}'} apart)",
                     file=df.attrs.get("source"),
                     parameter="freq",
-                    expected=f"rows every {source.interval} and a step that is a multiple of it",
+                    expected=f"rows every {_minutes(source.interval)} and a step that is a multiple of it",
                 )
             side = "right" if source.label == "end" else "left"
             bins = df[measured].resample(

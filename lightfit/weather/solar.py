@@ -233,7 +233,9 @@ def split_from_diffuse(
             what="global radiation (estimated from PAR)" if ghi_estimated else "global radiation",
             file=file,
             column=column or "diffuse_w_m2",
-            hint=" and the PAR per joule the estimate assumes (2.285 µmol J⁻¹)" if ghi_estimated else "",
+            hint=f" and the PAR per joule the estimate assumes ({float(par_from_ghi(1.0)):.4g} µmol J⁻¹)"
+            if ghi_estimated
+            else "",
         )
     dhi = diffuse.clip(lower=0.0, upper=ghi).where(up, ghi)
     zenith = 90.0 - sun_elevation_deg

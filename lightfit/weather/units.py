@@ -71,6 +71,11 @@ def kpa_from_mbar(p_mbar: ArrayLike) -> np.ndarray:
     return np.asarray(p_mbar, dtype=float) * 0.1
 
 
+def kpa_from_pa(p_pa: ArrayLike) -> np.ndarray:
+    """Pressure in kPa from Pa."""
+    return np.asarray(p_pa, dtype=float) / 1000.0
+
+
 def par_from_ghi(
     ghi_w_m2: ArrayLike, par_fraction: float = PAR_FRACTION, umol_per_joule: float = UMOL_PER_JOULE_PAR
 ) -> np.ndarray:
