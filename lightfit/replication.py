@@ -54,7 +54,7 @@ from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.readers import metadata_lines
 from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS, check_how, cut_at_ends
-from lightfit.weather.site import SELHAUSEN, Site, Window
+from lightfit.weather.site import SELHAUSEN, Site, Window, zone_label
 
 #: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
 DEFAULT_DATE = "2016-04-20"
@@ -463,7 +463,7 @@ def forcing(
 
 def _span(df: pd.DataFrame, tz: str) -> str:
     a, b = (t.tz_convert(tz).strftime("%Y-%m-%d %H:%M") for t in (df.index[0], df.index[-1]))
-    return f"{a} … {b} ({tz}){cut_at_ends(df)}"
+    return f"{a} … {b} ({zone_label(tz)}){cut_at_ends(df)}"
 
 
 def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:

@@ -90,3 +90,13 @@ def test_write_requires_provenance(tmp_path):
     back = read_weather(p)
     assert back.attrs["provenance"] == "synthetic"
     assert np.allclose(back.to_numpy(), df.to_numpy(), rtol=1e-5)
+    # every column's meaning and unit in the header (a review: weather show --csv wrote none), and the
+    # site a series' sun columns were computed for
+    from lightfit.weather import add_solar
+    from lightfit.weather.series import COLUMNS
+
+    p = write_lightfit_csv(add_solar(df), tmp_path / "sun.csv", {"provenance": "synthetic"})
+    meta = read_weather(p).attrs["metadata"]
+    for c in add_solar(df).columns:
+        assert f"{c}: {COLUMNS[c]}" in meta["columns"], c
+    assert meta["sun_site"] == "Selhausen, 50.865 N, 6.447 E"

@@ -341,6 +341,10 @@ def test_off_grid_timestamp(tmp_path):
     with pytest.raises(InputError, match="off the regular 10min grid") as e:  # "0 days 00:10:00" before
         read_tereno(_variant(tmp_path, edit))
     assert "days" not in str(e.value)
+    # in the file's terms (its UTC+1 clock, as its line reads), not UTC (a review)
+    assert "timestamp 2016-04-20 04:23:00 (UTC+1) is off the regular 10min grid starting 2016-04-20 04:00:00" in str(
+        e.value
+    )
 
 
 def test_unsorted_rows_are_sorted_and_reported(tmp_path):
@@ -487,7 +491,7 @@ def test_missing_rows_are_named_in_the_files_terms(tmp_path):
     with pytest.raises(InputError) as e:
         read_weather(bad)
     msg = str(e.value)
-    assert "12 row(s) missing" in msg and "2016-04-20 11:00 … 2016-04-20 12:50 (Etc/GMT-1)" in msg
+    assert "12 row(s) missing" in msg and "2016-04-20 11:00 … 2016-04-20 12:50 (UTC+1)" in msg
     assert f"line {i} (2016-04-20 10:50) and line {i + 1} (2016-04-20 13:00)" in msg
     assert "column" not in msg  # every column is missing there: none is singled out
 

@@ -59,7 +59,13 @@ def field(
     preview: Path = typer.Option(
         None, help="Write an image with top and side views; the suffix gives the format (.png, .pdf, .svg, …)."
     ),
-    segments_csv: Path = typer.Option(None, "--segments", help="Write the segment table (G1) as CSV."),
+    segments_csv: Path = typer.Option(
+        None,
+        "--segments",
+        help="Write the segment table (G1) as CSV: coordinates x0…z1 in m (field coordinates, z up), "
+        "length_m, radius_m, blade_width_m in m, blade_area_m2 in m², creation_time_d in days after "
+        "the season start (lightfit.plant.growth's table).",
+    ),
 ) -> None:
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
     from lightfit import plant

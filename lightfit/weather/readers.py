@@ -998,8 +998,9 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     A series with its DNI/DHI written says how they were split (``split_model``), which
     :func:`read_lightfit_csv` keeps.
 
-    The series' timestamps' meaning (``attrs["timestamps"]``) is written with it unless
-    ``metadata`` states it.
+    The series' timestamps' meaning (``attrs["timestamps"]``), its columns' meanings and units
+    (:data:`~lightfit.weather.series.COLUMNS`) and the site its sun columns are for are written with
+    it unless ``metadata`` states them.
     """
     if metadata.get("provenance") not in WEATHER_PROVENANCES:
         raise InputError(
@@ -1009,6 +1010,12 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
         metadata = metadata | timestamps.of(df).metadata()
     if "dhi_w_m2" in df.columns and df.attrs.get("split_model") and "split_model" not in metadata:
         metadata = metadata | {"split_model": df.attrs["split_model"]}  # how its DNI/DHI were split
+    if "columns" not in metadata:  # each column's meaning and unit, as the bundled files say them
+        said = [f"{c}: {COLUMNS[c]}" for c in df.columns if c in COLUMNS]
+        metadata = metadata | {"columns": "time_utc: UTC; " + "; ".join(said)}
+    site = df.attrs.get("site")
+    if "sun_elevation_deg" in df.columns and site is not None and "sun_site" not in metadata:
+        metadata = metadata | {"sun_site": f"{site.name}, {site.latitude_deg:g} N, {site.longitude_deg:g} E"}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     head = metadata_lines(metadata)

@@ -19,7 +19,7 @@ import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.weather import timestamps
-from lightfit.weather.site import SELHAUSEN, localize
+from lightfit.weather.site import SELHAUSEN, localize, zone_label
 from lightfit.weather.timestamps import Timestamps
 
 #: Contract columns and their units (also in the names).
@@ -132,6 +132,11 @@ def _clock(ts: pd.Timestamp, zone: str) -> str:
     return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M")
 
 
+def _zone_said(attrs: dict) -> str:
+    """The file's zone as people write it (``UTC+1``, not tzdata's ``Etc/GMT-1``)."""
+    return zone_label(_file_zone(attrs))
+
+
 def _in_file_zone(attrs: dict):
     """``ts → "YYYY-MM-DD HH:MM"`` in the file's own time zone, as its lines read."""
     tz = _file_zone(attrs)
@@ -144,7 +149,7 @@ def _gap_problem(run: pd.Series, present: pd.DatetimeIndex, lines: pd.Series, at
     Missing *rows* (timestamps absent from the file) are named by the lines around them; missing
     *values* (empty cells, sentinels) by their own lines.
     """
-    tz = _file_zone(attrs)
+    tz = _zone_said(attrs)
     at = _in_file_zone(attrs)
     first, last = run.iloc[0], run.iloc[-1]
     times = f"{at(first)} … {at(last)} ({tz})"
@@ -266,7 +271,7 @@ def check_and_repair(
         rows = [int(x) for x in lines[df.index == first].tolist()[:6]]
         at = _in_file_zone(attrs)
         raise InputError(
-            f"duplicated timestamp {at(first)} ({_file_zone(attrs)}) on lines {rows} "
+            f"duplicated timestamp {at(first)} ({_zone_said(attrs)}) on lines {rows} "
             f"({int(dup.sum())} rows share a timestamp)",
             file=file,
             row=rows[0],
@@ -285,9 +290,14 @@ def check_and_repair(
     step = steps.mode().iloc[0]
     off_grid = ((df.index - df.index[0]) % step) != pd.Timedelta(0)
     if off_grid.any():
-        bad = df.index[off_grid][0]
+        bad, zone = df.index[off_grid][0], _file_zone(attrs)
+
+        def at(ts):  # in the file's terms, as its lines read (seconds too: an off-grid stamp may differ by them)
+            return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M:%S")
+
         raise InputError(
-            f"timestamp {bad.isoformat()} is off the regular {_minutes(step)} grid starting {df.index[0].isoformat()}",
+            f"timestamp {at(bad)} ({_zone_said(attrs)}) is off the regular {_minutes(step)} grid starting "
+            f"{at(df.index[0])}",
             file=file,
             row=_line_of(lines, bad),
             expected=f"a regular time step of {_minutes(step)}",
@@ -313,7 +323,7 @@ def check_and_repair(
                 lacking = [named.get(c, c) for c in needed if df.loc[own, c].isna().any()]
                 rows = [_line_of(lines, t) for t in (own[0], own[-1])]
                 said.append(
-                    f"{len(own)} row(s) {at(own[0])} … {at(own[-1])} ({_file_zone(attrs)}, lines {rows[0]}–{rows[1]})"
+                    f"{len(own)} row(s) {at(own[0])} … {at(own[-1])} ({_zone_said(attrs)}, lines {rows[0]}–{rows[1]})"
                     f" without {', '.join(lacking)}"
                     + (f", and {len(part) - len(own)} inserted timestamp(s)" if len(part) > len(own) else "")
                 )
