@@ -85,6 +85,23 @@ def test_a_missing_temperature_does_not_lose_the_co2_and_humidity_it_converts(tm
     assert not any(q["column"] == "co2_ppm" and q["kind"] == "interpolated" for q in df.attrs["qc"])
 
 
+def test_global_radiation_in_kw_is_converted(tmp_path):
+    """A global-radiation column labelled kW m⁻² (values a thousandth) reads as the W m⁻² one (a
+    review found the unit refused)."""
+
+    def edit(lines, hdr):
+        lines[hdr] = lines[hdr].replace("RadiationGlobal_Avg10min [W*m-2]", "RadiationGlobal_Avg10min [kW*m-2]", 1)
+        for i in range(hdr + 1, len(lines)):
+            cells = lines[i].split(",")
+            if len(cells) > 1 and cells[1]:
+                cells[1] = repr(float(cells[1]) / 1000.0)
+            lines[i] = ",".join(cells)
+
+    ref, df = read_tereno(FIXTURE), read_tereno(_variant(tmp_path, edit))
+    np.testing.assert_allclose(df["ghi_w_m2"].to_numpy(), ref["ghi_w_m2"].to_numpy(), rtol=1e-12, atol=1e-9)
+    assert "kW" in df.attrs["columns_used"]["ghi_w_m2"]
+
+
 def test_tereno_zone_by_convention_is_said(tmp_path):
     """A TERENO export without a 'Time zone:' line is read in UTC+1, the convention, and its checks say
     so (a review found it assumed without a word); the header's line, where present, says nothing."""

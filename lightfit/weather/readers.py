@@ -60,14 +60,18 @@ def _norm_unit(u: str) -> str:
 
 # quantity -> (column-name pattern, preferred exact name, {normalised unit: converter tag})
 TERENO_QUANTITIES: dict[str, tuple[str, str, dict[str, str]]] = {
-    "ghi_w_m2": (r"^RadiationGlobal", "RadiationGlobal_Avg10min", {"wm-2": "same", "w/m2": "same"}),
+    "ghi_w_m2": (r"^RadiationGlobal", "RadiationGlobal_Avg10min", {"wm-2": "same", "w/m2": "same", "kwm-2": "kilo"}),
     "par_umol_m2_s": (
         r"^RadiationPhotosyntheticActive",
         "RadiationPhotosyntheticActive_2m_Avg10min",
         {"umolm-2s-1": "same", "umol/m2/s": "same", "umol/(m2s)": "same"},
     ),
     # TERENO's naming of its other radiation columns; no export seen here carries diffuse radiation.
-    "diffuse_w_m2": (r"^RadiationDiffuse", "RadiationDiffuse_Avg10min", {"wm-2": "same", "w/m2": "same"}),
+    "diffuse_w_m2": (
+        r"^RadiationDiffuse",
+        "RadiationDiffuse_Avg10min",
+        {"wm-2": "same", "w/m2": "same", "kwm-2": "kilo"},
+    ),
     "tair_c": (r"^AirTemperature", "AirTemperature_2m_Avg10min_Sensor1", {"degc": "same", "c": "same", "k": "kelvin"}),
     "humidity": (r"^AirHumidity", "AirHumidity_2m_Avg10min", {"gm-3": "absolute", "g/m3": "absolute", "%": "percent"}),
     "pair_kpa": (
@@ -701,6 +705,9 @@ def read_tereno(
             raw[qty] = _mask_flagged_bad(
                 raw[qty], table[fc].set_axis(times), lines.set_axis(times), vocabulary, path, fc, qty, qc
             )
+    for qty in ("ghi_w_m2", "diffuse_w_m2"):
+        if conv.get(qty) == "kilo":  # kW m-2, as some loggers export
+            raw[qty] = raw[qty] * 1000.0
     if "tair_c" in raw and conv["tair_c"] == "kelvin":
         raw["tair_c"] = raw["tair_c"] - units.T0
     if "pair_kpa" in raw:
