@@ -409,8 +409,13 @@ def test_a_cplantbox_unit_slip_is_reported_as_the_file_holds_it(tmp_path):
     bad = tmp_path / "umol.txt"
     raw.to_csv(bad, sep="\t", index=False)
     first = raw["PAR"][raw["PAR"] * 1e6 > 3000].iloc[0]  # the first implausible reading, as written
-    with pytest.raises(InputError, match=rf"umol.txt.*\({first:g} mol m⁻² s⁻¹ in the file's PAR, the format's unit"):
+    with pytest.raises(
+        InputError, match=rf"umol.txt.*\({first:g} mol m⁻² s⁻¹ in the file's PAR, the format's unit"
+    ) as e:
         read_cplantbox_day(bad, "2016-04-27")
+    # at the file's own clock (its local time, as its rows read), not UTC (a review)
+    clock = raw["time"][raw["PAR"] * 1e6 > 3000].iloc[0][:5]
+    assert f"at 2016-04-27 {clock} (Europe/Berlin) is implausible" in str(e.value), str(e.value)
 
 
 def test_the_undated_day_fits_the_example_date_and_not_23_june():

@@ -926,7 +926,9 @@ def read_csv_with_metadata(
             else f"metadata line '# provenance: {said}'",
             file=path,
             row=1,
-            expected="'# provenance: X' with X one of " + " / ".join(f"'{p}'" for p in provenances),
+            expected="'# provenance: X' with X one of "
+            + " / ".join(f"'{p}'" for p in provenances)
+            + " as a first line: lightfit's own CSV files carry it (--provenance speaks for other formats)",
         )
     header = next((i for i in range(n_meta, len(text)) if text[i].strip()), None)  # blank lines may precede it
     if header is None:

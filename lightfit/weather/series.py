@@ -407,7 +407,8 @@ def check_and_repair(
                 unit, factor = attrs["file_units"][col]
                 read = f" ({v[ts] / factor:g} {unit} in the file's {src}, the format's unit)"
             raise InputError(
-                f"value {v[ts]:g}{read} at {ts.isoformat()} is implausible ({int(out.sum())} such value(s)); "
+                f"value {v[ts]:g}{read} at {_in_file_zone(attrs)(ts)} ({_zone_said(attrs)}) is implausible "
+                f"({int(out.sum())} such value(s)); "
                 "check the unit",
                 file=file,
                 row=_line_of(lines, ts),
@@ -523,7 +524,9 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                         "column": None,
                         "count": int((~whole).sum()),
                         "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers only "
-                        "in part (a mean needs every source interval inside it)",
+                        "in part (a mean needs every source interval inside it): "
+                        + ", ".join(_in_file_zone(df.attrs)(t) for t in out.index[~whole.to_numpy()])
+                        + f" ({_zone_said(df.attrs)}, stamped at each mean's {source.label})",
                     }
                 )
                 out = out[whole]
