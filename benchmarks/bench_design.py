@@ -62,7 +62,9 @@ def main(argv=None):
     ap.add_argument("--n-design", type=int, default=E.DESIGN_SIZE)
     ap.add_argument("--steps", default=None, help="slice of the daytime steps, e.g. 0:5 (default: all)")
     ap.add_argument(
+        "--out",
         "--json",
+        dest="json",
         type=Path,
         default=ROOT / "benchmarks" / "results" / "design.json",
         help="JSON to write/update (default benchmarks/results/design.json, the tracked result the docs cite)",
