@@ -566,6 +566,10 @@ def test_fit_cautions_against_the_chi_square_table():
     assert edge[1].startswith("the fit is good: an edge can mean the data barely inform")
     (_, misfit, advice) = fit_cautions({"roughness": 0.9995}, loss=80.3 / 2, **kw)
     assert "χ² = 80.3" in misfit and advice.startswith("check the observations' units")
+    # no χ² to call the fit good: an infinite or NaN loss, or no more values than parameters (a review)
+    for loss, n in ((math.inf, 46), (math.nan, 46), (1e9, 1)):
+        said = fit_cautions({"roughness": 0.9995}, loss=loss, **{**kw, "n_values": n})
+        assert said[-1].startswith("check the observations' units") and "fit is good" not in " ".join(said)
     assert fit_cautions({"roughness": 0.99}, loss=1.0, **kw) == []
     out = fit_cautions(
         {"roughness": 0.6, "light_factor": 5.0},

@@ -1900,3 +1900,13 @@ def test_priors_help_states_the_prior_sets_leaf_ranges():
     for command in ("calibrate", "posterior"):
         text = " ".join(CliRunner().invoke(app, [command, "--help"], env={"COLUMNS": "200"}).output.split())
         assert "specular 0.4625–0.7375, roughness 0.3–1, subsurface 0.31–1" in text.replace("│", "").replace("  ", " ")
+
+
+def test_fixed_prints_no_negative_zero_and_a_dash_for_no_number():
+    """Table cells: a value that rounds to zero prints without its sign (a sun 0.4° below the horizon
+    read "-0" in the forcing table, a review); NaN and inf print "–"; other values as formatted."""
+    from lightfit.cli.common import fixed
+
+    assert [fixed(v, 1) for v in (-0.04, -0.06, 0.04, -12.345)] == ["0.0", "-0.1", "0.0", "-12.3"]
+    assert fixed(-0.4, 0) == "0" and fixed(-0.6, 0) == "-1"
+    assert fixed(float("nan"), 2) == fixed(float("inf"), 0) == "–"

@@ -399,7 +399,7 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezo
     shown_rows = df.iloc[::step]
     # One UTC date: its clock alone (the date in the caption), so that the table fits 80 columns
     # (a piped run cut the numbers to "16…" beside "04-20 03:00").
-    one_day = len(shown_rows) > 0 and len(set(shown_rows.index.date)) == 1
+    one_day = len(df) > 0 and len(set(df.index.date)) == 1  # the whole series' dates, not only the rows shown
     stamp = "%H:%M" if one_day else "%m-%d %H:%M"
     if one_day:
         shown += f"; UTC date {shown_rows.index[0]:%Y-%m-%d}"

@@ -845,12 +845,14 @@ def fit_cautions(
     for n in names:
         v, (lo, hi) = float(theta[n]), box[n]
         if on_edge(v, lo, hi):
-            edges.append(f"{n} = {v:.4g} is on the edge of its search range [{lo:g}, {hi:g}]: the data pull it further")
+            edges.append(f"{n} = {v:.4g} is on the edge of its search range [{lo:g}, {hi:g}]")
         if n in support and not support[n][0] <= v <= support[n][1]:
             lo, hi = support[n]
             others.append(f"{n} = {v:.4g} lies outside its prior's range [{lo:g}, {hi:g}]")
     others += misfit(2.0 * loss, n_values, len(names))
-    if others:
+    # "good" only where χ² could say otherwise: a finite loss and more values than parameters
+    judged = math.isfinite(loss) and n_values > len(names)
+    if others or (edges and not judged):
         return [*edges, *others, CHECK_UNITS]
     if edges:  # a good fit: a flat direction lets the optimum wander to the box's edge too
         return [*edges, EDGE_WITH_GOOD_FIT]

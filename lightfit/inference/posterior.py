@@ -711,6 +711,7 @@ def run(
 
 __all__ = [
     "RESUME_ENTRIES",
+    "SAMPLED_BY_DEFAULT",
     "check_emulator_box",
     "check_likelihood",
     "check_resume",

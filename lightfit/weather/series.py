@@ -557,7 +557,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     if "sun_elevation_deg" in df.columns:
         from lightfit.weather.solar import add_solar
 
-        out = add_solar(out, site=df.attrs.get("site"), split_model=df.attrs.get("split_model"))
+        # the source's split and its reason come with its attrs (split_model, split_why): not "asked" again
+        out = add_solar(out, site=df.attrs.get("site"))
     return out
 
 

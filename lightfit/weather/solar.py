@@ -667,7 +667,12 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     has_diffuse = any(c in out.columns for c in DIFFUSE_COLUMNS)
     # Unasked, a series keeps the split it was given (a lightfit CSV's `split_model` line), else a
     # diffuse column decides.
-    asked = split_model is not None
+    # Why this split, said in the checks; a resampled series keeps its source's reason (split_why).
+    why = (
+        "as asked"
+        if split_model is not None
+        else out.attrs.get("split_why") or ("its split_model line" if out.attrs.get("split_model") else "the default")
+    )
     split_model = check_split_model(
         split_model or out.attrs.get("split_model") or ("diffuse" if has_diffuse else "erbs")
     )
@@ -686,12 +691,10 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
                     "column": None,
                     "count": len(out),
                     "detail": f"the series' diffuse radiation is not used: DNI and DHI split from global "
-                    f"radiation by {split_model}"
-                    + (" as asked" if asked else ", the split the series was written with (its split_model line)"),
+                    f"radiation by {split_model} ({why})",
                 }
             )
         else:  # said as the diffuse column's split is (a review: a run on the CPlantBox day never named it)
-            why = "as asked" if asked else ("its split_model line" if out.attrs.get("split_model") else "the default")
             qc.append(
                 {
                     "kind": "split",
@@ -707,4 +710,5 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     out.attrs["qc"] = qc
     out.attrs["site"] = site
     out.attrs["split_model"] = split_model
+    out.attrs["split_why"] = why
     return out
