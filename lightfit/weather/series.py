@@ -127,9 +127,10 @@ def _file_zone(attrs: dict) -> str:
     return attrs.get("timezone_assumed") or "UTC"
 
 
-def _clock(ts: pd.Timestamp, zone: str) -> str:
-    """``"YYYY-MM-DD HH:MM"`` of the instant ``ts`` in ``zone``, as a file's lines read."""
-    return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M")
+def _clock(ts: pd.Timestamp, zone: str, seconds: bool = False) -> str:
+    """``"YYYY-MM-DD HH:MM"`` (``:SS`` with ``seconds``) of the instant ``ts`` in ``zone``, as a file's
+    lines read."""
+    return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M:%S" if seconds else "%Y-%m-%d %H:%M")
 
 
 def _zone_said(attrs: dict) -> str:
@@ -137,10 +138,10 @@ def _zone_said(attrs: dict) -> str:
     return zone_label(_file_zone(attrs))
 
 
-def _in_file_zone(attrs: dict):
-    """``ts → "YYYY-MM-DD HH:MM"`` in the file's own time zone, as its lines read."""
+def _in_file_zone(attrs: dict, seconds: bool = False):
+    """``ts → "YYYY-MM-DD HH:MM"`` (``:SS`` with ``seconds``) in the file's own time zone, as its lines read."""
     tz = _file_zone(attrs)
-    return lambda ts: _clock(ts, tz)
+    return lambda ts: _clock(ts, tz, seconds)
 
 
 def _gap_problem(run: pd.Series, present: pd.DatetimeIndex, lines: pd.Series, attrs: dict, col: str) -> str:
@@ -290,11 +291,7 @@ def check_and_repair(
     step = steps.mode().iloc[0]
     off_grid = ((df.index - df.index[0]) % step) != pd.Timedelta(0)
     if off_grid.any():
-        bad, zone = df.index[off_grid][0], _file_zone(attrs)
-
-        def at(ts):  # in the file's terms, as its lines read (seconds too: an off-grid stamp may differ by them)
-            return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M:%S")
-
+        bad, at = df.index[off_grid][0], _in_file_zone(attrs, seconds=True)  # an off-grid stamp may be off by seconds
         raise InputError(
             f"timestamp {at(bad)} ({_zone_said(attrs)}) is off the regular {_minutes(step)} grid starting "
             f"{at(df.index[0])}",
