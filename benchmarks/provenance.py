@@ -1,12 +1,12 @@
 """What every benchmark result records, so that a number can be traced, and where it is written.
 
-A script under benchmarks/ writes its JSON through :func:`write_result` to ``--out``
-(:func:`out_option`; default: its tracked file under benchmarks/results/, which the docs cite, so
-a rerun for a look elsewhere passes ``--out /tmp/x.json``). The record adds, unless the script set
-them itself: the commit, whether lightfit/ or benchmarks/ had uncommitted changes, the cores, the
-load average at the start (this module's import, before the script's work) and the end, and the
-command line. Absolute times on a shared machine move with its load: compare settings measured side
-by side in one run (docs/benchmarks.md).
+A script under benchmarks/ or experiments/ writes its JSON through :func:`write_result` to ``--out``
+(:func:`out_option`; default: its tracked file under benchmarks/results/ or experiments/results/,
+which the docs cite, so a rerun for a look elsewhere passes ``--out /tmp/x.json``). The record
+adds, unless the script set them itself: the commit, whether lightfit/, benchmarks/ or experiments/
+had uncommitted changes, the cores, the load average at the start (this module's import, before
+the script's work) and the end, and the command line. Absolute times on a shared machine move with
+its load: compare settings measured side by side in one run (docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -24,10 +24,15 @@ LOAD_AT_START = os.getloadavg()[0]
 
 
 def commit_state() -> dict:
-    """The commit measured, and whether lightfit/ or benchmarks/ had uncommitted changes; ``None``
+    """The commit measured, and whether lightfit/, benchmarks/ or experiments/ had uncommitted changes; ``None``
     for each where the tree is no git checkout (the device machine's copy: device_light.py names
     its code by a digest of the sources instead) or git is missing."""
-    keys = ("lightfit_commit", "lightfit_uncommitted_changes", "benchmarks_uncommitted_changes")
+    keys = (
+        "lightfit_commit",
+        "lightfit_uncommitted_changes",
+        "benchmarks_uncommitted_changes",
+        "experiments_uncommitted_changes",
+    )
 
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
@@ -39,8 +44,8 @@ def commit_state() -> dict:
     if not commit:
         return dict.fromkeys(keys)
     lightfit = bool(git("status", "--porcelain", "lightfit"))
-    benchmarks = bool(git("status", "--porcelain", "benchmarks", ":!benchmarks/results"))
-    return dict(zip(keys, (commit, lightfit, benchmarks)))
+    scripts = [bool(git("status", "--porcelain", d, f":!{d}/results")) for d in ("benchmarks", "experiments")]
+    return dict(zip(keys, (commit, lightfit, *scripts)))
 
 
 def out_option(parser: argparse.ArgumentParser, default: Path) -> None:

@@ -22,7 +22,6 @@ user's caches.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -38,6 +37,9 @@ from rich.table import Table
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision); the main jobs run in subprocesses
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,7 +119,7 @@ def main(samples: list[int], seeds: int, out: Path) -> dict:
                 for k in samples
             }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
+    write_result(out, res, indent=1)
     t = Table(
         title=f"daily sums of daytime canopy An and APAR, mean of {seeds} render seeds, against An(K) = An∞ + c/K"
     )

@@ -12,7 +12,7 @@ experiments/results/buffer_edge_bias.json).
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from pathlib import Path
 
@@ -27,6 +27,9 @@ from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 BUFFERS = [(2, 2), (6, 6), (2, 8), (3, 12), (6, 24), (10, 40)]
@@ -59,7 +62,7 @@ def main(n_plants: int = 16, samples: int = 128, out: Path | None = None) -> dic
         print(f"| {v['buffer_rows']} | {v['buffer_along']} | {v['plants']} | {100 * v['bias']:+.1f} % |")
     out = ROOT / "experiments" / "results" / "buffer_edge_bias.json" if out is None else out
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"sun_deg": sun, "samples": samples, "n_plants": n_plants, "rows": res}, indent=2))
+    write_result(out, {"sun_deg": sun, "samples": samples, "n_plants": n_plants, "rows": res})
     return res
 
 

@@ -24,7 +24,7 @@ Writes JSON and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,9 @@ from lightfit.plant.sheaths import SHEATHS
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "canopy_structure.json"
 #: Noon sun of the ceptometer check (20 April 2016, 13:00 CEST: elevation 50.3°) at two azimuths.
@@ -151,7 +154,7 @@ def main(n_plants: int = 100, out: Path = OUT, sheaths: str = SHEATHS[0]) -> dic
         "beer_lambert": beer_lambert(geom),
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    write_result(out, res)
     t = Table(title=f"canopy structure: {n_plants}-plant periodic cell, {len(ids)} segments")
     for c in ("organ", "segments", "area", "absorbed PAR, sun / sky"):
         t.add_column(c, justify="right")

@@ -22,7 +22,6 @@ Writes experiments/results/dark_floor_bias.json and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -35,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_light import periodic_cell  # noqa: E402
-from provenance import commit_state  # noqa: E402
+from provenance import write_result  # noqa: E402
 
 from lightfit.light.estimator import DARK_FLOOR, SegmentEstimator, render_adaptive  # noqa: E402
 from lightfit.plant.sheaths import SHEATHS  # noqa: E402
@@ -92,7 +91,6 @@ def main(seeds: int, floors: list[float], target: float, out: Path) -> dict:
             rows.append(row)
             console.print(f"{direct}, floor {f:g} done")
     res = {
-        **commit_state(),
         "n_plants": 16,
         "sheaths": SHEATHS[0],
         "target_rse": target,
@@ -106,7 +104,7 @@ def main(seeds: int, floors: list[float], target: float, out: Path) -> dict:
         "rows": rows,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
+    write_result(out, res, indent=1)
     t = Table(title=f"adaptive sampling to {target:.0%}: class totals ÷ the reference − 1 ({seeds} seeds)")
     for c in ("direct", "floor", "evaluations", "segments done by the floor", *classes):
         t.add_column(c, justify="right")

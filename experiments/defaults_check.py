@@ -37,6 +37,9 @@ from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+
 import lightfit.photosynthesis as ps  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance  # noqa: E402
 from lightfit.light.leaf_optics import par_optics  # noqa: E402
@@ -240,7 +243,7 @@ def main(full: bool = False, parts: str = "leaf,bounces,canopy,gallery", out_pat
     if path.exists():  # keep the parts not rerun
         out = {**json.loads(path.read_text()), **out}
     out["made_by"] = "python experiments/defaults_check.py" + (" --full" if full else "") + f" --parts {parts}"
-    path.write_text(json.dumps(out, indent=2, default=float))
+    write_result(path, out, default=float)
     print(f"\nwrote {path}")
     return out
 

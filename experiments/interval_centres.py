@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +40,9 @@ from lightfit.weather.site import Window
 from lightfit.weather.timestamps import Timestamps
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "interval_centres.json"
 DAYS = {  # name: (date, window)
@@ -134,7 +137,7 @@ def main(argv=None):
                 f"{day}: day's sum of {k}: {v['end']:.1f} against {v['instant']:.1f} ({v['change'] * 100:+.2f} %)"
             )
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    write_result(a.out, out, indent=1)
     console.print(f"→ {a.out}")
 
 

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
+import sys
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -58,8 +58,10 @@ from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy, before any JAX array exists
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 from pvlib.spectrum import get_reference_spectra  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
@@ -331,7 +333,7 @@ def main(argv=None):
         "rows": rows,
     }
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+    write_result(a.out, out)
     t = Table(title=f"leaf − air temperature and canopy An, {out['date']} ({out['config']}, LAI {lai:.2f})")
     for c in (
         "wind at top",

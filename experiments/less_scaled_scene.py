@@ -23,7 +23,6 @@ Settings are bench_less.py's. Writes experiments/results/less_scaled_scene.json 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import types
 from pathlib import Path
@@ -35,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
-from provenance import commit_state  # noqa: E402
+from provenance import write_result  # noqa: E402
 
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
@@ -71,7 +70,6 @@ def main(scales: list[float], ground_half_m: float, reps: int, out: Path) -> dic
         rows.append(row)
         console.print(f"scale {s:g} done")
     res = {
-        **commit_state(),
         "plants_measured": 16,
         "sheaths": fld.sheaths,
         "less_samples": LESS_N,
@@ -81,7 +79,7 @@ def main(scales: list[float], ground_half_m: float, reps: int, out: Path) -> dic
         "rows": rows,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    write_result(out, res)
     t = Table(title="canopy total, LESS (scene × S) ÷ lightfit (scale 1) − 1, and median |z| per segment")
     t.add_column("S (soil half-width, unscaled)")
     keys = [f"{p}_{c}" for p in ("sun", "sky") for c in CLASSES]

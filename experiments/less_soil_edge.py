@@ -26,7 +26,6 @@ Writes experiments/results/less_soil_edge.json and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -39,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
-from provenance import commit_state  # noqa: E402
+from provenance import write_result  # noqa: E402
 
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
@@ -92,7 +91,6 @@ def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Pa
             "chi2_per_dof": float(np.sum(((X @ coef) - y / s) ** 2) / max(len(y) - 2, 1)),
         }
     res = {
-        **commit_state(),
         "plants_measured": 16,
         "sheaths": sheaths,
         "segments": n_seg,
@@ -103,7 +101,7 @@ def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Pa
         "fits_c0_plus_c1_over_w": fits,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    write_result(out, res)
     t = Table(title="canopy total, LESS ÷ lightfit − 1, by the half-width W of LESS's soil quad")
     t.add_column("W")
     for k in keys:

@@ -27,6 +27,7 @@ import argparse
 import ast
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -50,6 +51,9 @@ from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi  # noqa: E402
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = dict(
@@ -286,25 +290,21 @@ def main(
         console.print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in rows[-1].items()})
     df = pd.DataFrame(rows)
     df.to_csv(out_dir / "sweep.csv", index=False)
-    (out_dir / "sweep.json").write_text(
-        json.dumps(
-            {
-                "reference": REFERENCE,
-                "reference_seeds": list(REFERENCE_SEEDS),
-                "reference_time_s": t_ref,
-                "reference_median_rse": ref_rse,
-                "default": default,
-                "optics": optics_name,
-                "cpu_cores": os.cpu_count(),
-                "load_average_end": os.getloadavg()[0],
-                "sun_deg": sun,
-                "dni_par": dni,
-                "dhi_par": dhi,
-                "n_plants": n_plants,
-                "rows": rows,
-            },
-            indent=2,
-        )
+    write_result(
+        out_dir / "sweep.json",
+        {
+            "reference": REFERENCE,
+            "reference_seeds": list(REFERENCE_SEEDS),
+            "reference_time_s": t_ref,
+            "reference_median_rse": ref_rse,
+            "default": default,
+            "optics": optics_name,
+            "sun_deg": sun,
+            "dni_par": dni,
+            "dhi_par": dhi,
+            "n_plants": n_plants,
+            "rows": rows,
+        },
     )
     pareto(df, n_plants, optics_name, out_dir / "pareto.png")
     t = Table(title="speed/accuracy (absorbed PAR, vs reference)")

@@ -27,7 +27,6 @@ Writes JSON and prints a table. Values are ratios of SDs; > 1 means the model's 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -59,7 +58,7 @@ def _total_ratio(w: np.ndarray, sd: np.ndarray, x_rep: np.ndarray) -> tuple[floa
 
 
 def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
-    from provenance import commit_state
+    from provenance import write_result
 
     from lightfit import replication as rep
     from lightfit.light.estimator import SegmentEstimator
@@ -124,7 +123,6 @@ def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
             }
         )
     res = {
-        **commit_state(),
         "configuration": {
             "field": repr(sc.field),
             "samples": int(sc.samples),
@@ -144,7 +142,7 @@ def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
         ),
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    write_result(out, res)
     t = Table(title=f"Monte Carlo SDs: model's ÷ estimator's replicates ({res['configuration']['time_utc']})")
     for c in ("seed", "segment SD w/o cov ÷ with (blades median, p90)", "canopy APAR SD", "blade-mean PAR SD"):
         t.add_column(c, justify="right")

@@ -32,7 +32,7 @@ which shows why emcee's snooker move (``DESnookerMove``) is not offered.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -41,8 +41,10 @@ from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import emcee  # noqa: E402
 import numpy as np  # noqa: E402
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 from lightfit.inference.mcmc import PRIORS_INFORMED, StopRule, sample  # noqa: E402
 from lightfit.inference.mcmc.sampler import describe_moves  # noqa: E402
@@ -202,7 +204,7 @@ def main(argv=None) -> None:
     for label, v in out["variance_over_truth_4d_gaussian"].items():
         print(f"4-D Gaussian, {label:26s} sample variance / truth {' '.join(f'{x:.3f}' for x in v)}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=2))
+    write_result(args.out, out)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ the difference between a 10-minute mean and its minutes. Writes JSON and prints 
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,9 @@ from lightfit.precision import use_float64
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "observation_matching.json"
 DATE = "2016-04-20"
@@ -135,7 +138,7 @@ def main(argv=None):
         },
     }
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+    write_result(a.out, out)
     t = Table(title=f"light factor fitted to spot PAR readings, {DATE} (clear, synthetic logger day)")
     t.add_column("campaign (UTC)")
     t.add_column("every", justify="right")

@@ -30,8 +30,8 @@ writes ``--out`` (default experiments/results/periodic_vs_wide.json).
 from __future__ import annotations
 
 import argparse
-import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -48,6 +48,9 @@ from lightfit.precision import use_float64
 from lightfit.weather.units import par_from_ghi
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 SETUPS = {
@@ -157,21 +160,19 @@ def main(
     print(f"periodic (ray wrapping) vs explicit copies: {100 * wrap:+.2f} % (MC SD {100 * wrap_sd:.2f} %)")
     out = ROOT / "experiments" / "results" / "periodic_vs_wide.json" if out is None else Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(
-        json.dumps(
-            {
-                "sun_deg": sun,
-                "dni_par": dni,
-                "dhi_par": dhi,
-                "samples": samples,
-                "bounces": bounces,
-                "optics": optics,
-                "sheaths": Field().sheaths,
-                "n_plants": n_plants,
-                "fields": res,
-            },
-            indent=2,
-        )
+    write_result(
+        out,
+        {
+            "sun_deg": sun,
+            "dni_par": dni,
+            "dhi_par": dhi,
+            "samples": samples,
+            "bounces": bounces,
+            "optics": optics,
+            "sheaths": Field().sheaths,
+            "n_plants": n_plants,
+            "fields": res,
+        },
     )
     return res
 

@@ -20,7 +20,7 @@ from the model run here.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -31,6 +31,9 @@ import pandas as pd
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 import lightfit.photosynthesis as ps  # noqa: E402
 from lightfit.replication import ReplicationConfig, run  # noqa: E402
@@ -118,7 +121,7 @@ def main(full: bool = False, out_path: Path | None = None) -> dict:
             )
     path = ROOT / "experiments" / "results" / "photosynthesis_default_check.json" if out_path is None else out_path
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2))
+    write_result(path, out)
     print(f"\nwrote {path}")
     return out
 

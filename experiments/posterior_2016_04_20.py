@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -29,7 +30,9 @@ from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import numpy as np  # noqa: E402
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
@@ -194,7 +197,7 @@ def main(argv=None):
         attrs={"experiment": "real single PAR record"},
     )
     summary["record_informed"] = r
-    (out / "summary.json").write_text(json.dumps(P.jsonable(summary), indent=2, default=str))
+    write_result(out / "summary.json", P.jsonable(summary), default=str)
     if args.tiny:
         args.tiny.parent.mkdir(parents=True, exist_ok=True)
         tmp = out / "tiny.h5"

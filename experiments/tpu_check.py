@@ -25,7 +25,7 @@ Vcmax, a different Vcmax(T)). Writes JSON and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +35,9 @@ from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy, before any JAX array exists
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from leaf_temperature_check import blades, saturation_vapour_pressure_kpa  # noqa: E402
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
@@ -107,7 +109,7 @@ def main(argv=None):
         )
     out = {"config": "quick" if a.quick else "main job", "date": b.date, "vcmax25_top": b.vcmax25_top, "rows": rows}
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+    write_result(a.out, out)
     t = Table(title=f"would TPU limit? {b.date} ({out['config']}; A_p = 3 T_p, CLM4.5)")
     for c in ("case", "air", "lit blade-steps TPU-limited", "min A_p / min(A_c, A_j)", "day's An lost", "worst step"):
         t.add_column(c, justify="right")

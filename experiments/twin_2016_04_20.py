@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -34,6 +35,9 @@ from lightfit.inference.twin import twin_observations
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}
@@ -92,7 +96,7 @@ def main(quick: bool = False, out: Path = ROOT / "results" / "twin", write_data:
         "all_three": _summary(three),
         "config": dataclasses.asdict(cfg),
     }
-    (out / "twin.json").write_text(json.dumps(res, indent=2))
+    write_result(out / "twin.json", res)
     print(json.dumps(res, indent=2))
     return res
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -28,8 +29,10 @@ from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy, before any JAX array exists
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 from scipy.stats import chi2  # noqa: E402
 
 from lightfit.inference import mcmc as P  # noqa: E402
@@ -114,7 +117,7 @@ def main(argv=None) -> dict:
             )
             row[label] = {**verdict(path, truth), "seconds": time.perf_counter() - t, "sloppy": r["sloppy"]}
         res["points"].append(row)
-        (a.out / "twin_seeds.json").write_text(json.dumps(res, indent=2))
+        write_result(a.out / "twin_seeds.json", res)
     print(f"{'seed':>5} {'likelihood':>14} " + " ".join(f"{n[:10]:>18}" for n in NAMES) + "  δᵀFδ  stiff z  pass")
     for row in res["points"]:
         for label in ("independent", "mc_covariance"):

@@ -21,7 +21,7 @@ Writes experiments/results/wrapped_sheaths.json (or ``--out``) and prints a tabl
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,9 @@ from rich.table import Table
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "wrapped_sheaths.json"
 SUN_DEG = (50.0, 180.0)
@@ -89,7 +92,7 @@ def main(n_plants: int = 100, out: Path = OUT) -> dict:
         geom = build(fld)
         res[name] = render(geom, fld)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    write_result(out, res)
     t = Table(title=f"sheaths as rods or as tubes around the stem: {res['n_plants']} plants, periodic cell")
     t.add_column("quantity")
     names = (ROD, WRAPPED)
