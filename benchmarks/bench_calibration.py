@@ -59,8 +59,7 @@ import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
-from provenance import write_result
-from rich.console import Console
+from provenance import wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -168,7 +167,7 @@ def compare(label: str, model, obs, names, start: dict, fixed: dict, forward=Non
                 "seconds": r.seconds,
             }
         )
-        Console().print(rows[-1])
+        wide_console().print(rows[-1])
     rows[1]["time_ratio_vs_bfgs"] = rows[1]["seconds"] / rows[0]["seconds"]
     rows[1]["loss_minus_bfgs"] = rows[1]["loss"] - rows[0]["loss"]
     return rows
@@ -220,7 +219,7 @@ def print_optimisers(res: dict) -> None:
             f"{r['time_ratio_vs_bfgs']:.2f}" if "time_ratio_vs_bfgs" in r else "–",
             " ".join(f"{k[:4]}={v:.4f}" for k, v in r["theta"].items()),
         )
-    Console(width=200).print(t)
+    wide_console().print(t)
 
 
 def main(configs=("quick", "default"), calibrate_in=("quick",), out: Path | None = None) -> list[dict]:
@@ -229,7 +228,7 @@ def main(configs=("quick", "default"), calibrate_in=("quick",), out: Path | None
     for name in configs:
         evals = rows[0].get("calibration_steps") if rows else None
         rows.append(bench(name, cfgs[name], name in calibrate_in, evals))
-        Console().print(rows[-1])
+        wide_console().print(rows[-1])
     write_result(out or OUT, {"rows": rows}, indent=2)
     t = Table(title="calibration cost (2 CPU cores, one run)")
     columns = (
@@ -247,7 +246,7 @@ def main(configs=("quick", "default"), calibrate_in=("quick",), out: Path | None
         t.add_column(c, justify="right")
     for r in rows:
         t.add_row(*(f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "–")) for c in columns))
-    Console().print(t)
+    wide_console().print(t)
     return rows
 
 
@@ -336,7 +335,7 @@ def cli(
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         if p.returncode != 0:
             raise RuntimeError(out[-3000:] + err[-3000:])
-        Console(width=200).print(out[-2500:])
+        wide_console().print(out[-2500:])
         cpu = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
         rec = {"wall_s": dt, "cpu_s": cpu, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
         if watch is not None:  # the posterior prints "design: N new renders, M from the cache (...)"
@@ -433,7 +432,7 @@ def print_cli(res: dict) -> None:
             note += f"{r['n_steps']}, ESS " + ", ".join(f"{n[:4]} {e:.0f}" for n, e in zip(r["names"], r["ess"]))
         load = f"{r['loadavg_before'][0]:.1f}→{r['loadavg_after'][0]:.1f}"
         t.add_row(label, f"{r['wall_s'] / 60:.1f}", f"{r['cpu_s'] / 60:.1f}", load, note)
-    Console(width=200).print(t)
+    wide_console().print(t)
 
 
 if __name__ == "__main__":

@@ -27,8 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_light import periodic_cell
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -85,7 +84,7 @@ def run(fs, ids, target: float, floor: float, compare_floor: float, bounces: int
 
 
 def main(n_plants: int, targets: list[float], floors: list[float], out: Path) -> dict:
-    console = Console()
+    console = wide_console()
     g, fs, ids, bounces = periodic_cell(n_plants)
     res = {
         "n_plants": n_plants,

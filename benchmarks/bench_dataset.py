@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from provenance import out_option, write_result
+from provenance import out_option, wide_console, write_result
 
 import lightfit  # noqa: F401 - libLLVM before Dr.Jit
 from lightfit.light.backend import mitsuba
@@ -46,7 +46,6 @@ def _pin_cores() -> None:
 def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int = 2, sizes=(512, 1024)) -> dict:
     mitsuba("llvm_ad_rgb")
     _pin_cores()
-    from rich.console import Console
     from rich.table import Table
 
     from lightfit.dataset import (
@@ -125,7 +124,7 @@ def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int 
             f"{r['render_s_per_image']:.2f}",
             f"{r['paths_per_s'] / 1e6:.2f}",
         )
-    Console().print(t)
+    wide_console().print(t)
     return out
 
 

@@ -36,8 +36,7 @@ from pathlib import Path
 import numpy as np
 from bench_light import finite_median, median_se_factor  # same script folder
 from bench_variance import _stats
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -103,7 +102,7 @@ def day(fs: FieldScene, ids: np.ndarray, bounces: int, samples: int, rays, steps
 
 
 def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: Path = OUT) -> dict:
-    console = Console()
+    console = wide_console()
     optics = Optics.preset("prospect")
     bounces = bounces_for_tolerance(0.01, optics)
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths), progress=True)

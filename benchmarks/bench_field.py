@@ -17,8 +17,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 from lightfit.plant import Field, MeshResolution, build, shoot_mesh
@@ -71,7 +70,7 @@ def main(n_plants: int = 500, buffer_rows: int = 2) -> dict:
     t.add_column("value", justify="right")
     for k, v in res.items():
         t.add_row(k, f"{v:.3g}" if isinstance(v, float) else str(v))
-    Console().print(t)
+    wide_console().print(t)
     return res
 
 

@@ -23,8 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -81,7 +80,7 @@ def main(n_plants: int = 36, samples: int = 64, bounces: int = 3, repeats: int =
         t.add_column(c)
     for k, v in med.items():
         t.add_row(k, f"{v:.2f}", f"{v / med['primal']:.2f}")
-    Console().print(t)
+    wide_console().print(t)
     print(f"wrote {OUT}")
     return res
 

@@ -27,8 +27,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from provenance import out_option, write_result  # same script folder
-from rich.console import Console
+from provenance import out_option, wide_console, write_result  # same script folder
 from rich.table import Table
 
 from lightfit import replication as rep
@@ -93,8 +92,8 @@ def main(start: str = "09:00", end: str = "11:00", repeat: int = 3) -> dict:
     for label, r in rows.items():
         mib = r["kept_sun_bytes"] / 2**20
         t.add_row(label, f"{r['loss_s']:.2f} s", f"{r['loss_and_gradient_s']:.2f} s", f"{mib:.0f} MiB")
-    Console().print(t)
-    Console().print(
+    wide_console().print(t)
+    wide_console().print(
         f"speed-up: loss {res['loss_speedup']:.2f}×, loss + gradient {res['loss_and_gradient_speedup']:.2f}×; "
         f"values bitwise equal: {res['values_bitwise_equal']}"
     )

@@ -65,7 +65,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from provenance import out_option, write_result
+from provenance import out_option, wide_console, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -486,7 +486,7 @@ def allocated(lf_class: dict, less_noise: dict) -> dict:
 
 
 def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None, sheaths=SHEATHS[0], out=OUT) -> dict | None:
-    console = Console()
+    console = wide_console()
     if not LESS_PYTHON.exists():
         console.print(
             f"LESS 3 is not installed ({LESS_PYTHON} missing): skipping. "

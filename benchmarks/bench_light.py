@@ -42,8 +42,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_variance import _stats  # per-class median / p90 (same script folder)
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -416,7 +415,7 @@ def main(
     sheaths: str = SHEATHS[0],
     out: Path = OUT,
 ) -> dict:
-    console = Console()
+    console = wide_console()
     optics = Optics.preset(optics_name)
     if bounces is None:
         bounces = bounces_for_tolerance(0.01, optics)

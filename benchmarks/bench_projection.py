@@ -30,8 +30,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_variance import _stats  # per-class median / p90 (same script folder)
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -49,7 +48,7 @@ STEP_SUNS = ((30.0, 170.0), (40.0, 170.0), (45.0, 170.0), (55.0, 170.0))
 
 
 def main(n_plants: int = 100, samples: int = 64) -> dict:
-    console = Console()
+    console = wide_console()
     optics = Optics.preset("prospect")
     bounces = bounces_for_tolerance(0.01, optics)
     geom = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=True)

@@ -27,8 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_light import periodic_cell  # same script folder
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -111,7 +110,7 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
     for name, q in split.items():
         shares = f"{q['light_share']:.3f} / {q['median_variance_share']:.3f}"
         t.add_row(f"{name}: light / median variance share", shares)
-    Console().print(t)
+    wide_console().print(t)
     return res
 
 

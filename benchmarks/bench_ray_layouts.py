@@ -49,8 +49,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from provenance import write_result  # same script folder
-from rich.console import Console
+from provenance import wide_console, write_result  # same script folder
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -242,7 +241,7 @@ def main(
             f"{r['median_rse_all']:.2%}",
             f"{r['variance_x_time_blades']:.2f}",
         )
-    Console().print(t)
+    wide_console().print(t)
     return res
 
 

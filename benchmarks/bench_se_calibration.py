@@ -28,8 +28,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_light import periodic_cell  # same script folder
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.progress import track
 from rich.table import Table
 from scipy.stats import f as fisher
@@ -95,7 +94,7 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
 
 
 def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2e7), rounds=(16, 4)) -> dict:
-    console = Console()
+    console = wide_console()
     geom, fs, ids, bounces = periodic_cell(n_plants)
     runs = []
     default = keyed_random.TEA_ROUNDS

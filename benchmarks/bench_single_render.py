@@ -42,8 +42,7 @@ import time
 from pathlib import Path
 
 from bench_light import direct_projection_comparison, periodic_cell  # same script folder
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -163,7 +162,7 @@ if __name__ == "__main__":
     ]
     written = write_result(a.out, runs[0] if len(runs) == 1 else {"runs": runs}, indent=1, default=float)
     commit = json.loads(written.read_text())["lightfit_commit"]
-    console = Console()
+    console = wide_console()
     for res in runs:
         console.print(table(res))
         by = res["rse_absorbed"]

@@ -45,8 +45,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_light import BENCH_SUN_DEG, periodic_cell  # same script folder
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -169,7 +168,7 @@ if __name__ == "__main__":
     ):
         extra = "" if h is None else f" ({h['gathered_blades']} blades, projection × {h['projection_scale']:.2f})"
         t.add_row(label + extra, f"{v:.0f} s", f"{v / alone:.2f}")
-    Console().print(t)
+    wide_console().print(t)
     print(
         f"render {res['render_s']:.1f} s; gathering {res['gather_s']:.1f} s for {res['blades']} blades × "
         f"{res['gather_samples']} points; gathered ÷ projected sky {res['gather_over_projection_sky_mean']:.4f}, "

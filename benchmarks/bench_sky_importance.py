@@ -43,8 +43,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_ray_layouts import cosine_directions, jittered_grid, r2_point  # same script folder
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -188,7 +187,7 @@ def main(n_plants: int = 500, rays: float = 2e7) -> dict:
             f"{r['pilot']['all_segment_median']:.2f}×",
             f"{r['in_sample']['sky_median_all']:.2f}×",
         )
-    Console().print(table)
+    wide_console().print(table)
     return res
 
 

@@ -21,8 +21,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from provenance import out_option, write_result  # same script folder
-from rich.console import Console
+from provenance import out_option, wide_console, write_result  # same script folder
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -86,7 +85,7 @@ def main(n_plants=(100, 500), rays=(1e7, 2e7, 5e7, 8e7, 1e8)) -> dict:
                 if q["n_plants"] == n and q["sky_rays_per_m2"] == rho
             }
             t.add_row(str(n), f"{rho:.1e}", *(f"{vals[k]:.2%}" for k in ORDERS))
-    Console().print(t)
+    wide_console().print(t)
     return res
 
 

@@ -33,8 +33,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
@@ -66,7 +65,7 @@ def main(
     out: Path = OUT,
     repeat: int = 1,
 ) -> dict:
-    console = Console()
+    console = wide_console()
     g = build(Field(n_plants=n_plants, seed=1, boundary="periodic"), progress=False)
     fs = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
     fs.set_sun(50.0, 180.0)

@@ -25,8 +25,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from provenance import out_option, write_result
-from rich.console import Console
+from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,7 +44,7 @@ def _run(tree: Path, args: list[str], out: Path) -> dict:
 def main(
     base_commit: str, n_plants: int, target: float, rounds: int, repeat: int, adaptive: bool, out: Path = OUT
 ) -> dict:
-    console = Console()
+    console = wide_console()
     tmp = Path(tempfile.mkdtemp(prefix="bench_variance_compare_"))
     base_tree = tmp / "base"
     base_tree.mkdir()

@@ -33,8 +33,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from provenance import out_option, write_result  # same script folder
-from rich.console import Console
+from provenance import out_option, wide_console, write_result  # same script folder
 from rich.table import Table
 
 import lightfit  # noqa: F401  (sets Dr.Jit's libLLVM before drjit is imported)
@@ -165,7 +164,7 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
         "rows": rows,
     }
     res = json.loads(write_result(OUT, res, indent=2).read_text())  # with the provenance, for the summary
-    console = Console()
+    console = wide_console()
     t = Table(title=f"sky rays' first walk: {n_rays:.0e} rays, {res['n_plants_measured']} plants, 2 CPU cores")
     for c in ("case", "faces", "time", "M rays/s", "÷ walk"):
         t.add_column(c, justify="right")

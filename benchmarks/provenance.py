@@ -67,6 +67,15 @@ def record() -> dict:
     }
 
 
+def wide_console():
+    """A rich console for a script's tables: as wide as the terminal, or 200 columns off one (a log,
+    a pipe, ``tee``), where rich would cut them to 80."""
+    from rich.console import Console
+
+    console = Console()
+    return console if console.is_terminal else Console(width=200)
+
+
 def write_result(path: Path, result: dict, **dump) -> Path:
     """``result`` with :func:`record`'s fields first (the script's own values win) as JSON at ``path``."""
     full = {k: v for k, v in record().items() if k not in result} | result

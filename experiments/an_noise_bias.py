@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 import xarray as xr
-from rich.console import Console
 from rich.table import Table
 
 from lightfit.precision import use_float64
@@ -39,7 +38,7 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision); the main jobs run in subprocesses
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -83,7 +82,7 @@ def run(samples: int, seed: int, out: Path) -> dict:
 
 
 def main(samples: list[int], seeds: int, out: Path) -> dict:
-    console = Console()
+    console = wide_console()
     runs = []
     with tempfile.TemporaryDirectory(prefix="lightfit-an-bias-") as d:
         for k in samples:

@@ -28,7 +28,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from lightfit.plant.sheaths import SHEATHS
@@ -37,7 +36,7 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "canopy_structure.json"
 #: Noon sun of the ceptometer check (20 April 2016, 13:00 CEST: elevation 50.3°) at two azimuths.
@@ -160,7 +159,7 @@ def main(n_plants: int = 100, out: Path = OUT, sheaths: str = SHEATHS[0]) -> dic
         t.add_column(c, justify="right")
     for o, q in res["organs"].items():
         t.add_row(o, f"{q['segments']:.1%}", f"{q['area']:.1%}", f"{q['absorbed_sun']:.2%} / {q['absorbed_sky']:.2%}")
-    console = Console()
+    console = wide_console()
     console.print(t)
     sh, bl = res["sheaths"], res["beer_lambert"]
 

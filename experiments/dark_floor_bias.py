@@ -27,14 +27,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_light import periodic_cell  # noqa: E402
-from provenance import write_result  # noqa: E402
+from provenance import wide_console, write_result  # noqa: E402
 
 from lightfit.light.estimator import DARK_FLOOR, SegmentEstimator, render_adaptive  # noqa: E402
 from lightfit.plant.sheaths import SHEATHS  # noqa: E402
@@ -50,7 +49,7 @@ MAX_SAMPLES = 4096
 
 
 def main(seeds: int, floors: list[float], target: float, out: Path) -> dict:
-    console = Console()
+    console = wide_console()
     g, fs, ids, bounces = periodic_cell(16)
     refs = [
         SegmentEstimator(fs, ids, samples=REF_K, bounces=bounces, seed=s).render().total("absorbed", DNI, DHI)

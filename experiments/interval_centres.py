@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from rich.console import Console
 from rich.table import Table
 
 from lightfit import replication as rep
@@ -42,7 +41,7 @@ from lightfit.weather.timestamps import Timestamps
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "interval_centres.json"
 DAYS = {  # name: (date, window)
@@ -88,7 +87,7 @@ def main(argv=None):
         "config": "full" if a.full else "quick",
         "days": {},
     }
-    console = Console()
+    console = wide_console()
     for day, (date, win) in DAYS.items():
         cfg = dataclasses.replace(base, dates=(date,), window=win)
         runs = {}

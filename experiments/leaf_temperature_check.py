@@ -61,9 +61,8 @@ use_float64()  # lightfit's precision policy, before any JAX array exists
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 from pvlib.spectrum import get_reference_spectra  # noqa: E402
-from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 from lightfit import replication as rep  # noqa: E402
@@ -357,7 +356,7 @@ def main(argv=None):
             f"{100 * r['day_an_change']:+.1f} %",
             f"{100 * r['noon_an_change']:+.1f} %",
         )
-    Console().print(t)
+    wide_console().print(t)
     lin = max(r["linearised_dT_max_abs_difference_K_where_below_1K"] for r in rows)
     print(f"run's per-blade An reproduced at T_l = T_a to {agree:.1e} µmol m⁻² s⁻¹; the linearised balance")
     print(f"(Campbell & Norman eq. 14.6) within {lin:.3f} K of the bisection where |ΔT| < 1 K; wrote {a.out}")

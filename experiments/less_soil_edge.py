@@ -31,14 +31,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
-from provenance import write_result  # noqa: E402
+from provenance import wide_console, write_result  # noqa: E402
 
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
@@ -56,7 +55,7 @@ CLASSES = ("blades", "stems", "sheaths", "culms")
 
 
 def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Path = OUT) -> dict | None:
-    console = Console()
+    console = wide_console()
     if not bl.LESS_PYTHON.exists():
         console.print(f"LESS not installed ({bl.LESS_PYTHON}): see README 'Optional: LESS 3 peer'. Nothing run.")
         return None

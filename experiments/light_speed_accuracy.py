@@ -37,7 +37,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 import lightfit  # noqa: E402,F401
@@ -53,7 +52,7 @@ from lightfit.weather.units import par_from_ghi  # noqa: E402
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = dict(
@@ -233,7 +232,7 @@ def main(
     row = w.loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
     sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
     dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
-    console = Console()
+    console = wide_console()
     console.print(
         f"sun {sun[0]:.1f}° / {sun[1]:.1f}°, PAR DNI {dni:.0f}, DHI {dhi:.0f} µmol m⁻² s⁻¹ (RECONSTRUCTED forcing); "
         f"leaf {optics_name}, default bounces {default['bounces']}"

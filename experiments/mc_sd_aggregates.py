@@ -32,7 +32,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from lightfit.precision import use_float64
@@ -58,7 +57,7 @@ def _total_ratio(w: np.ndarray, sd: np.ndarray, x_rep: np.ndarray) -> tuple[floa
 
 
 def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
-    from provenance import write_result
+    from provenance import wide_console, write_result
 
     from lightfit import replication as rep
     from lightfit.light.estimator import SegmentEstimator
@@ -155,12 +154,12 @@ def main(seeds=tuple(range(1, 9)), out: Path = OUT) -> dict:
             f"{c['model_umol_m2_s']:.3f} vs {c['replicates_umol_m2_s']:.3f} ({c['model_over_replicates']:.2f}×)",
             f"{b['model_umol_m2_s']:.3f} vs {b['replicates_umol_m2_s']:.3f} ({b['model_over_replicates']:.2f}×)",
         )
-    Console().print(t)
+    wide_console().print(t)
     spread = res["canopy_total_spread_over_seeds_umol_m2_s"]
     if spread is not None:
         rms = res["canopy_total_replicate_se_rms_over_seeds_umol_m2_s"]
         model_sd = np.mean([x["canopy_absorbed_par_sd"]["model_umol_m2_s"] for x in runs])
-        Console().print(
+        wide_console().print(
             f"canopy absorbed PAR over {len(seeds)} seeds: {np.mean(totals):.3f} µmol m⁻² s⁻¹, spread {spread:.3f}"
             f" (SD); the replicates' SE {rms:.3f} (RMS over seeds); the model's SD {model_sd:.3f}"
         )

@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from interval_centres import TEN, clear_logger_day
-from rich.console import Console
 from rich.table import Table
 
 from lightfit import weather
@@ -41,7 +40,7 @@ from lightfit.weather.timestamps import INSTANTS, Timestamps
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "observation_matching.json"
 DATE = "2016-04-20"
@@ -148,7 +147,7 @@ def main(argv=None):
         t.add_column(f"RMS resid., by {m}", justify="right")
     for r in rows.values():
         t.add_row(r["campaign"], f"{r['every_min']} min", str(r["readings"]), *cells(r, MATCHING))
-    Console().print(t)
+    wide_console().print(t)
     t = Table(title="the same readings against runs on instants: read between two steps, or at the nearest")
     for c in ("run step", "campaign (UTC)", "every", "readings"):
         t.add_column(c, justify="right")
@@ -158,7 +157,7 @@ def main(argv=None):
     for r in instants.values():
         head = (r["run_step"], r["campaign"], f"{r['every_min']} min", str(r["readings"]))
         t.add_row(*head, *cells(r, INSTANT_MATCHING))
-    Console().print(t)
+    wide_console().print(t)
     print(f"wrote {a.out}")
 
 

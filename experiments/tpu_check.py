@@ -37,8 +37,7 @@ use_float64()  # lightfit's precision policy, before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from leaf_temperature_check import blades, saturation_vapour_pressure_kpa  # noqa: E402
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
-from rich.console import Console  # noqa: E402
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 from rich.table import Table  # noqa: E402
 
 from lightfit.constants import ZERO_CELSIUS_K  # noqa: E402
@@ -122,7 +121,7 @@ def main(argv=None):
             f"{100 * r['day_an_loss']:.2f} %",
             f"{100 * r['worst_step_an_loss']:.2f} %",
         )
-    Console().print(t)
+    wide_console().print(t)
     print(f"wrote {a.out}")
 
 

@@ -25,7 +25,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from lightfit.precision import use_float64
@@ -33,7 +32,7 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 OUT = Path(__file__).resolve().parent / "results" / "wrapped_sheaths.json"
 SUN_DEG = (50.0, 180.0)
@@ -112,7 +111,7 @@ def main(n_plants: int = 100, out: Path = OUT) -> dict:
         t.add_row(f"{o}s: median relative SE", *(f"{res[n]['organs'][o]['median_rse']:.2%}" for n in names))
     t.add_row("all segments: median relative SE", *(f"{res[n]['median_rse_all']:.2%}" for n in names))
     t.add_row("segments without light", *(str(res[n]["segments_without_light"]) for n in names))
-    Console().print(t)
+    wide_console().print(t)
     return res
 
 
