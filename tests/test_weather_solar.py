@@ -270,6 +270,22 @@ def test_horizontal_irradiance_is_the_cosine_law_with_no_beam_below_the_horizon(
     np.testing.assert_allclose(got, [450.0, 100.0, 100.0], rtol=1e-12, atol=1e-12)
 
 
+def test_beam_normal_inverts_the_cosine_law_and_is_dark_with_the_sun_down():
+    """350 W m⁻² of beam on the ground at β = 30° is 700 along the sun (by hand, sin 30° = ½); the
+    cosine law gives the 350 back at any elevation above the horizon; at or below it there is no
+    beam (0, not ±∞ or 350 / |sin β|), and a missing value stays missing rather than turning dark."""
+    from lightfit.weather.solar import beam_normal, horizontal_irradiance
+
+    np.testing.assert_allclose(beam_normal(np.array([350.0]), np.array([30.0])), [700.0], rtol=1e-12)
+    el = np.array([0.05, 1.0, 30.0, 89.9])
+    np.testing.assert_allclose(horizontal_irradiance(beam_normal(350.0, el), 0.0, el), 350.0, rtol=1e-12)
+    got = beam_normal(np.array([0.0, 5.0, np.nan, np.nan]), np.array([0.0, -10.0, -10.0, 20.0]))
+    np.testing.assert_array_equal(got[:2], [0.0, 0.0])
+    assert np.isnan(got[2:]).all()
+    series = beam_normal(pd.Series([350.0]), pd.Series([30.0]))
+    assert isinstance(series, pd.Series)
+
+
 @pytest.mark.parametrize(("excess", "refused"), [(20.0, False), (25.0, True)])
 def test_diffuse_par_may_exceed_par_by_the_two_instrument_margin_in_photons(excess, refused):
     """The margin of a diffuse column over its total is 1.15 × total + 10 W m⁻²; for diffuse PAR the

@@ -118,12 +118,11 @@ def split_direct_diffuse(
     else:
         a, b = boland_coeffs(times)
         out = pvlib.irradiance.boland(ghi_w_m2, zenith, times, a_coeff=a, b_coeff=b)
-    sin_el = np.sin(np.radians(sun_elevation_deg.clip(lower=0.0)))
     # pvlib's DHI closes with its own (true) zenith and is all of GHI beyond 87°; the rest is the
     # beam, along the apparent sun, so that the light model sees exactly GHI.
     dhi = np.minimum(pd.Series(np.asarray(out["dhi"], float), index=times).fillna(ghi_w_m2), ghi_w_m2).clip(lower=0.0)
     dhi = dhi.where(sun_elevation_deg > 0.0, ghi_w_m2)
-    dni = (ghi_w_m2 - dhi) / sin_el.where(sin_el > 0, np.inf)
+    dni = beam_normal(ghi_w_m2 - dhi, sun_elevation_deg)
     return pd.DataFrame({"dni_w_m2": dni, "dhi_w_m2": dhi}, index=times)
 
 
@@ -133,6 +132,14 @@ def horizontal_irradiance(dni, dhi, sun_elevation_deg, xp=np):
     beam (below the horizon it counts 0; e.g. Duffie & Beckman 2013, *Solar Engineering of Thermal
     Processes*, eq. 2.15.1 with a horizontal surface). ``xp``: numpy or ``jax.numpy``."""
     return dni * xp.maximum(xp.sin(xp.deg2rad(sun_elevation_deg)), 0.0) + dhi
+
+
+def beam_normal(beam_horizontal, sun_elevation_deg):
+    r"""Direct-normal irradiance (or photon flux) from the beam on a horizontal plane, in its unit:
+    :math:`B / \sin\beta`, the inverse of :func:`horizontal_irradiance`'s cosine law; 0 with the sun
+    at or below the horizon (a NaN stays NaN). Series in, Series out."""
+    sin_b = np.sin(np.radians(sun_elevation_deg))
+    return beam_horizontal / np.where(sin_b > 0, sin_b, np.inf)
 
 
 def check_diffuse(
@@ -245,7 +252,7 @@ def split_from_diffuse(
         model="ineichen",
         solar_position=pd.DataFrame({"apparent_zenith": zenith, "apparent_elevation": sun_elevation_deg}),
     )
-    raw = (ghi - dhi) / np.sin(np.radians(sun_elevation_deg.where(up, 90.0)))
+    raw = beam_normal(ghi - dhi, sun_elevation_deg)
     dni = pvlib.irradiance.dni(ghi, dhi, zenith, dni_clear=clear["dni"]).fillna(0.0).where(up, 0.0)
     # The closure GHI = DNI sin β + DHI; clipped at 0 and GHI: where the file's diffuse is 0 (a clamped
     # dark offset) and the beam is not cut, rounding leaves ≈ −1e-13 W m⁻², which is no irradiance.
@@ -299,9 +306,7 @@ def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None
         np.divide(np.maximum(par, 0.0), ghi, out=k, where=lit)
     par_h = np.where(lit, k * ghi, 0.0)
     kd_par = par_diffuse_fraction(np.divide(dhi, ghi, out=np.ones_like(ghi), where=lit), el)
-    sin_b = np.maximum(np.sin(np.radians(el)), 0.0)
-    dni_par = np.divide((1.0 - kd_par) * par_h, sin_b, out=np.zeros_like(ghi), where=sin_b > 0)
-    return dni_par, kd_par * par_h
+    return beam_normal((1.0 - kd_par) * par_h, el), kd_par * par_h
 
 
 def par_diffuse_fraction(global_diffuse_fraction, sun_elevation_deg) -> np.ndarray:
