@@ -292,6 +292,37 @@ def test_non_finite_inputs_under_jit_are_not_converged(form):
     assert got == cases
 
 
+@pytest.mark.parametrize("form", ["winter_wheat", "cplantbox"])
+@pytest.mark.parametrize("jit", [False, True])
+def test_gradients_beside_non_finite_inputs_are_the_clean_inputs_own(form, jit):
+    """An element whose light or temperature is NaN, infinite or out of range is flagged with NaN
+    outputs; a gradient through the run (the flagged elements masked, as a likelihood masks them)
+    is 0 there and, elsewhere, the gradient of the same run without them. Before, a NaN or
+    infinite light made ``jax.grad`` raise inside the implicit adjoint's linear solve (lineax's
+    non-finite check), and a NaN temperature gave a NaN gradient through the deficit."""
+    p = ps.parameter_set(form)
+
+    def masked_sum(par, t):
+        r = ps.solve(par, t, 420.0, 0.6, P_KPA, p)
+        return jnp.sum(jnp.where(r.converged, r.an_umol_m2_s, 0.0)), r
+
+    grad = jax.grad(lambda par, t: masked_sum(par, t)[0], argnums=(0, 1))
+    grad = jax.jit(grad) if jit else grad
+    par = jnp.array([800.0, np.nan, np.inf, 1e7, 1500.0, 300.0, 900.0])
+    t = jnp.array([20.0, 20.0, 20.0, 20.0, np.nan, -300.0, 28.0])
+    good = np.array([True, False, False, False, False, False, True])
+    g_par, g_t = grad(par, t)
+    np.testing.assert_array_equal(np.asarray(g_par)[~good], 0.0)
+    np.testing.assert_array_equal(np.asarray(g_t)[~good], 0.0)
+    clean_par, clean_t = grad(par[good], t[good])  # the clean elements alone, checked eagerly
+    np.testing.assert_allclose(np.asarray(g_par)[good], clean_par, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(g_t)[good], clean_t, rtol=1e-12)
+    assert np.all(np.asarray(clean_t) != 0.0)
+    r = jax.jit(lambda a, b: masked_sum(a, b)[1])(par, t)
+    assert np.array_equal(np.asarray(r.converged), good)
+    assert np.isnan(np.asarray(r.an_umol_m2_s)[~good]).all() and np.isfinite(np.asarray(r.an_umol_m2_s)[good]).all()
+
+
 def test_jit_vmap_and_broadcast_agree():
     p = ps.parameter_set("giraud2023_coupled")
     par = np.linspace(0, 2000, 12).reshape(3, 4)  # (time, segment)

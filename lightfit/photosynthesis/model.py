@@ -295,7 +295,43 @@ def _solve_cplantbox(leaf: LeafCapacities, env: Environment, params: Photosynthe
     return _finish(ci, f, leaf, env, params, jnp.ones(jnp.shape(an), bool), zeros)
 
 
+#: The driver an element's solve runs on where its own is NaN, infinite or out of range
+#: (:func:`_guarded`): inside every range of :data:`INPUT_RANGES`.
+_STAND_IN = {
+    "par_abs_umol_m2_s": 0.0,
+    "tleaf_c": 25.0,
+    "co2_umol_mol": 400.0,
+    "vpd_kpa": 1.0,
+    "pair_kpa": REFERENCE_PRESSURE_KPA,
+    "gb_mol_m2_s": np.inf,
+    "fw": 1.0,
+}
+
+
+def _guarded(env: Environment) -> tuple[Environment, jax.Array]:
+    """The drivers with a stand-in wherever an element's own is NaN, infinite or out of range, and
+    where they were in range (:func:`_in_range`). Those elements are solved at the stand-in and
+    their outputs masked (:func:`_masked`): the double ``where`` keeps their arithmetic, and so the
+    implicit adjoint's linear solve, finite (a NaN or infinite light made ``jax.grad`` raise in
+    lineax's check, though the value was flagged), and their cotangents 0."""
+    ok = _in_range(env)
+    safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
+    return env._replace(**safe), ok
+
+
+def _masked(res: PhotosynthesisResult, ok: jax.Array) -> PhotosynthesisResult:
+    """``res`` with NaN fluxes and ``converged = False`` where the drivers were not in range."""
+    nan = lambda x: jnp.where(ok, x, jnp.nan)  # noqa: E731
+    floats = [k for k in res._fields if k not in ("limitation", "converged", "iterations")]
+    return res._replace(**{k: nan(getattr(res, k)) for k in floats}, converged=res.converged & ok)
+
+
 def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
+    env, ok = _guarded(env)
+    return _masked(_solve_in_range(env, params, config), ok)
+
+
+def _solve_in_range(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
     leaf = _capacities(env.par_abs_umol_m2_s, env, params)
     if params.stomata.model == "cplantbox":
         return _solve_cplantbox(leaf, env, params)
@@ -308,11 +344,12 @@ def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverCo
 
 
 def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
+    env, ok = _guarded(env)
     leaf = _capacities(env.par_abs_umol_m2_s, env, params)
     _, _, x0 = _bracket(leaf, env, params)
     res = fixed_point_iteration(_fixed_point_map, x0, (leaf, env, params), config)
     f = _fluxes(res.x, leaf, env, params)
-    return _finish(res.x, f, leaf, env, params, res.converged, res.iterations, check_gamma_rubisco=False)
+    return _masked(_finish(res.x, f, leaf, env, params, res.converged, res.iterations, check_gamma_rubisco=False), ok)
 
 
 def _capacities(par, env: Environment, params: PhotosynthesisParams) -> LeafCapacities:
@@ -349,8 +386,9 @@ def _par_slope(res: PhotosynthesisResult, env: Environment, params: Photosynthes
 
 
 def _solve_slope_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig):
-    res = _solve_impl(env, params, config)
-    return res, _par_slope(res, env, params)
+    env, ok = _guarded(env)
+    res = _solve_in_range(env, params, config)
+    return _masked(res, ok), jnp.where(ok, _par_slope(res, env, params), jnp.nan)
 
 
 _solve_jit = eqx.filter_jit(_solve_impl)
@@ -475,7 +513,12 @@ def prepare_environment(
     if vpd_kpa is not None:
         vpd = arr(vpd_kpa)
     elif rh is not None:
-        vpd = vapour_pressure_deficit_kpa(tleaf, arr(rh))
+        # From stand-ins where T or rh is out of range (those elements are flagged, _guarded), so
+        # that a NaN temperature's cotangent stays 0 rather than 0 × NaN.
+        lo, hi, _ = INPUT_RANGES["tleaf_c"]
+        t_in = jnp.where((tleaf >= lo) & (tleaf <= hi), tleaf, _STAND_IN["tleaf_c"])
+        rh_in = jnp.where((arr(rh) >= RH_RANGE[0]) & (arr(rh) <= RH_RANGE[1]), arr(rh), 0.5)
+        vpd = vapour_pressure_deficit_kpa(t_in, rh_in)
     else:
         vpd = jnp.zeros((), dtype)
     gb = jnp.asarray(jnp.inf, dtype) if gb_mol_m2_s is None else arr(gb_mol_m2_s)
@@ -544,7 +587,10 @@ def solve(
         InputError (a ValueError) / TypeError: inputs of the wrong shape or range / type (checked before
             jit on concrete values). Traced values (under ``jit``, ``vmap``, ``grad``) cannot
             be checked there: a NaN, infinite or out-of-range element gives
-            ``converged = False`` instead.
+            ``converged = False`` and NaN outputs instead, and its gradients are 0 (the other
+            elements' are unaffected). A NaN or infinite *parameter* (shared by all elements)
+            flags every element; a gradient through it, or through an infinite cotangent, raises
+            lineax's "non-finite input" error from the implicit adjoint's linear solve.
     """
     env, params, config = _prepared(
         config,
