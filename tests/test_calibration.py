@@ -341,6 +341,8 @@ def test_unknown_parameter_and_no_overlap(short_model):
     assert check_names("specular") == ("specular",)
     with pytest.raises(InputError, match="unknown parameter"):
         make_loss(short_model, record, ("glossiness",))
+    with pytest.raises(InputError, match="parameter 'parameters'.*no parameter to fit"):
+        make_loss(short_model, record, ())
     # the same record a day later falls on no simulated step
     next_day = record.copy()
     next_day.index = record.index + pd.Timedelta("1D")

@@ -557,6 +557,10 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
         ("calibrate", ["OBS", "--use", "fapar", "--no-surrogate"], ["use names fapar"]),
         ("calibrate", ["OBS", "--parameters", "shininess"], ["unknown parameter", "shininess"]),
         ("calibrate", ["OBS", "--parameters", "specular,specular"], ["['specular'] given more than once"]),
+        # crashed after the design renders ("Need at least one array to stack"), leaving a settings.json
+        # that refused every later run into the same --out (a review of bad input)
+        ("calibrate", ["OBS", "--parameters", ""], ["--parameters", "no parameter to fit", "specular"]),
+        ("calibrate", ["OBS", "--parameters", ","], ["--parameters", "no parameter to fit"]),
         ("calibrate", ["OBS", "--start", "specular=0.4,specular=0.6"], ["--start", "specular given more than once"]),
         ("calibrate", ["OBS", "--start", "glossiness=1"], ["start", "glossiness"]),
         ("replicate", ["--theta", "glossiness=1"], ["theta", "glossiness"]),

@@ -132,7 +132,7 @@ def calibrate(
         raise InputError(f"max_rounds={max_rounds}", parameter="max-rounds", expected="at least 1")
     check_max_steps(max_steps)  # before any render (the surrogate's optimiser runs after the design)
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
-    names = check_names(parse_names(parameters))
+    names = check_names(parse_names(parameters), fitted=True)
     th0 = parse_theta(start, "start")
     given = [n for n in names if n in th0 and n in E.LEAF_PARAMETERS]
     if surrogate and given:

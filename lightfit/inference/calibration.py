@@ -212,7 +212,7 @@ def make_loss(
 
     The loss's Monte Carlo SDs are taken at ``at`` too and held (:attr:`Loss.mc`; one evaluation of
     ``forward`` here, a render on full renders): the loss's gradient is then its derivative."""
-    names = check_names(names)
+    names = check_names(names, fitted=True)
     base = model.theta(fixed)
     lik = GaussianLikelihood.of_model(model, obs, use, mc_scale=mc_scale)
     check_informed(names, lik.use, **run_settings(model))  # before the "model" correlation renders
@@ -554,7 +554,7 @@ def calibrate(
             as_theta(given, what=what)  # domains, named; a Theta is built unchecked
     base = model.theta(fixed)
     th0 = as_theta(start, base=base, what="start")
-    names = check_names(names)
+    names = check_names(names, fitted=True)
     _check_start(th0, start, check_bounds(bounds, names), bounds or {})
     hist = Path(history) if history else None
     state_file = hist.with_name(hist.name + ".state.npz") if hist else None

@@ -283,7 +283,7 @@ def surrogate_calibrate(
     each day at the candidate optimum, and the check compares the days' summed losses.
     """
     t0 = time.perf_counter()
-    names = check_names(names)
+    names = check_names(names, fitted=True)
     form = likelihood_form(mc_correlation, mc_scale)
     if not (is_real(z) and math.isfinite(z) and z > 0):  # z ≤ 0 never passes: a render every round
         raise InputError(f"z={z!r}", parameter="z", expected="a positive acceptance threshold in σ_L, e.g. 2")

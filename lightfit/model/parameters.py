@@ -103,10 +103,12 @@ class Theta(eqx.Module):
         return {n: float(getattr(self, n)) for n in NAMES}
 
 
-def check_names(names, *, what: str = "parameters") -> tuple[str, ...]:
+def check_names(names, *, what: str = "parameters", fitted: bool = False) -> tuple[str, ...]:
     """``names`` as a tuple, or :class:`InputError` naming the unknown or repeated ones (one name
-    as a string is one name, not its letters)."""
+    as a string is one name, not its letters); ``fitted``: names to fit, so at least one."""
     names = (names,) if isinstance(names, str) else tuple(names)
+    if fitted and not names:
+        raise InputError("no parameter to fit", parameter=what, expected=f"one or more of {', '.join(NAMES)}")
     unknown = [n for n in names if n not in BOUNDS]
     if unknown:
         raise InputError(f"unknown parameter(s) {unknown}", parameter=what, expected=", ".join(NAMES))
