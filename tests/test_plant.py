@@ -389,6 +389,36 @@ def test_exports_read_back_with_segment_ids(small_field, tmp_path):
         export(m, tmp_path / "g.ply", {"x": seg["measured"].iloc[:3]})
 
 
+def test_a_plant_file_s_misspelled_name_or_word_for_a_number_is_named(tmp_path):
+    """CPlantBox reads an unknown parameter name and a word where a number belongs without a word:
+    a misspelled ``lmax`` ended in a C++ ``vector::_M_range_check`` traceback, ``theta="abc"`` grew
+    a different plant (blades at 15° instead of 45°), ``lmax="nan"`` said the plant had no blade.
+    Each is now refused naming the file, the organ and the parameter, with the closest known name;
+    every plant file CPlantBox ships (112, wheat and others) still passes."""
+    from lightfit.plant.growth import parameter_dir, resolve_parameter_file
+
+    text = GrowthConfig().path.read_text()
+    cases = {
+        (
+            'name="lmax" value="43"',
+            'name="lmaxx" value="43"',
+        ): r"<leaf subType=1>: CPlantBox knows no parameter 'lmaxx' \(did you mean 'lmax'\?\)",
+        ('name="theta" value="0.2"', 'name="theta" value="abc"'): r"<leaf subType=1> parameter 'theta': value='abc'",
+        ('name="lmax" value="43"', 'name="lmax" value="nan"'): r"parameter 'lmax': value='nan'.*a finite number",
+    }
+    for (old, new), message in cases.items():
+        assert text.count(old) == 1
+        bad = tmp_path / "bad.xml"
+        bad.write_text(text.replace(old, new))
+        with pytest.raises(InputError, match=message) as e:
+            GrowthConfig(parameter_file=str(bad))
+        assert e.value.file == bad
+    shipped = sorted(parameter_dir().glob("*.xml"))
+    assert len(shipped) > 100
+    for f in shipped:
+        resolve_parameter_file(f)
+
+
 def test_bad_inputs_are_clear_errors(tmp_path):
     with pytest.raises(InputError, match="not found.*Triticum_aestivum"):
         GrowthConfig(parameter_file="Triticum_nonexistent.xml")

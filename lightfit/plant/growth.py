@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -150,7 +151,70 @@ def resolve_parameter_file(name: str | os.PathLike) -> Path:
             file=p,
             expected="an XML file such as Triticum_aestivum_adapted_2023.xml",
         )
+    _check_parameters(root, p)
     return p
+
+
+#: ``<parameter>`` attributes that hold numbers (CPlantBox reads a word in them as 0, unsaid); a
+#: successor's may hold a comma-separated list of them.
+_NUMERIC_ATTRIBUTES = ("value", "dev", "phi", "x", "percentage", "numLat", "subType", "organType", "ruleId")
+#: Parameters CPlantBox reads by their own structure, not by name lookup.
+_STRUCTURAL = {"successor", "leafGeometry"}
+
+
+def _check_parameters(root, path: Path) -> None:
+    """Every ``<parameter>`` of an organ holds finite numbers and names a parameter CPlantBox knows
+    for some organ: CPlantBox reads a word as a value and an unknown name without a word (a typo gave
+    a traceback from deep in the growth, or a different plant; a review of bad input). A name of
+    another organ's is let through, as CPlantBox's own example files hold some (a root's ``lnk`` on
+    a stem), which it ignores."""
+    import difflib
+
+    import plantbox as pb
+
+    classes = {
+        "seed": pb.SeedRandomParameter,
+        "root": pb.RootRandomParameter,
+        "stem": pb.StemRandomParameter,
+        "leaf": pb.LeafRandomParameter,
+    }
+    plant = pb.MappedPlant(0)
+    organs = {tag: cls(plant) for tag, cls in classes.items()}
+    for organ in root.iter():
+        if organ.tag not in classes:
+            continue
+        where = f"<{organ.tag} subType={organ.get('subType', '?')}>"
+        for par in organ.iter("parameter"):
+            name = par.get("name", "")
+            for attr in _NUMERIC_ATTRIBUTES:
+                text = par.get(attr)
+                try:
+                    ok = text is None or all(math.isfinite(float(v)) for v in text.split(","))
+                except ValueError:
+                    ok = False
+                if not ok:
+                    raise InputError(
+                        f"{where} parameter {name!r}: {attr}={text!r}",
+                        file=path,
+                        parameter="parameter_file",
+                        expected=f"a finite number in {attr}=",
+                    )
+            if name not in _STRUCTURAL and all(math.isnan(o.getParameter(name)) for o in organs.values()):
+                close = difflib.get_close_matches(name, _known_names(organs[organ.tag]), n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise InputError(
+                    f"{where}: CPlantBox knows no parameter {name!r}{hint}",
+                    file=path,
+                    parameter="parameter_file",
+                    expected=f"a {organ.tag} parameter of CPlantBox's (its bundled files show them)",
+                )
+
+
+def _known_names(organ_parameters) -> list[str]:
+    """The parameter names CPlantBox lists for an organ (the first word of each line of its own
+    description, which tabulates them), for a suggestion."""
+    lines = str(organ_parameters).splitlines()
+    return [w for line in lines if (w := (line.split() or [""])[0]) and w[0].isalpha()]
 
 
 @dataclass(frozen=True)
@@ -251,7 +315,7 @@ def grow_plant(config: GrowthConfig, seed: int, plant_id: int = 0) -> pd.DataFra
         plant.readParameters(str(config.path))
         plant.initialize(False)
         plant.simulate(config.days, False)
-    except (ValueError, RuntimeError) as err:
+    except (ValueError, RuntimeError, IndexError) as err:  # IndexError: C++'s std::out_of_range
         raise InputError(
             f"CPlantBox cannot grow a plant from it ({err})",
             file=config.path,
