@@ -248,6 +248,9 @@ def test_weather_show_bad_input_exits_2_with_message(tmp_path):
     assert_user_error(runner.invoke(app, ["weather", "show", str(bad)]), "bad.csv", "psi")
     assert_user_error(runner.invoke(app, ["weather", "show", "selhausen-cplantbox-day"]), "date")
     assert_user_error(runner.invoke(app, ["weather", "show", str(tmp_path / "missing.csv")]), "missing.csv")
+    # --how was checked only with --resample: a misspelled one, or one without --resample, passed unsaid
+    assert_user_error(runner.invoke(app, ["weather", "show", str(FIXTURE), "--how", "foo"]), "--how", "'foo'", "sample")
+    assert_user_error(runner.invoke(app, ["weather", "show", str(FIXTURE), "--how", "sample"]), "without --resample")
 
 
 def test_replicate_writes_labelled_forcing(tmp_path):

@@ -68,9 +68,9 @@ def show(
     split: str = typer.Option(None, help=SPLIT_HELP),
     resample: str = typer.Option(None, help="New time step, e.g. 30min."),
     how: str = typer.Option(
-        "mean",
-        help="Resampling: mean (whole intervals; a centred window for instants) or sample. The model commands' "
-        "--how defaults to sample (each step's instant, where its sun is taken).",
+        None,
+        help="Resampling (with --resample): mean (whole intervals; a centred window for instants; the default) or "
+        "sample. The model commands' --how defaults to sample (each step's instant, where its sun is taken).",
     ),
     plot: Path = typer.Option(None, help="Write a plot here; the suffix gives the format (.png, .pdf, .svg, …)."),
     csv: Path = typer.Option(None, help="Write the contract series as CSV here."),
@@ -95,11 +95,17 @@ def show(
         )
     if plot:
         figure_format(plot)
+    if how is not None:  # it was checked only with --resample: --how foo alone passed unsaid
+        weather.series.check_how(how)
+        if not resample:
+            raise InputError(
+                f"--how {how} given without --resample", parameter="how", expected="--resample STEP with it"
+            )
     coords = {"latitude": latitude, "longitude": longitude, "altitude_m": altitude_m, "timezone": timezone}
     where = site_of(ModelOptions(site=site, **coords))
     df = load(source, fmt, date, tz, max_gap, split, time_label, provenance, where)
     if resample:
-        df = weather.resample(df, resample, how)
+        df = weather.resample(df, resample, how or "mean")
     weather_report(df)
     name = Path(str(df.attrs.get("source"))).name
     console.print(weather_table(df, f"{provenance_label(df.attrs)} weather: {name} at {where.name}", tz=where.timezone))
