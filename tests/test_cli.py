@@ -589,6 +589,25 @@ def test_model_commands_reject_bad_input_before_running(command, args, words, tm
     r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path / "out"), *args])
     assert_user_error(r, *words)
     assert not (tmp_path / "out").exists()
+    assert "plants" not in r.stdout  # field-run's banner comes after the plants have grown
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--timeout", "0"], ["--timeout", "> 0 seconds"]),
+        (["--connect-timeout", "nan"], ["--connect-timeout", "> 0 seconds"]),
+        (["--threads-per-worker", "0"], ["--threads-per-worker", "≥ 1"]),
+        (["--scheduler", "foo"], ["--scheduler", "'foo'", "tcp://host:8786"]),
+        (["--scheduler", "tcp://host:8786", "--workers", "2"], ["--workers", "joining an existing cluster"]),
+    ],
+)
+def test_field_run_checks_the_cluster_options_before_the_plants_grow(tmp_path, args, words):
+    """The cluster's options were checked when the cluster was started, after the plants had grown and
+    the banner was printed (a review of bad input); now before anything is built or written."""
+    r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / "r.nc"), *args])
+    assert_user_error(r, *words)
+    assert "plants" not in r.stdout and not list(tmp_path.iterdir())
 
 
 def test_field_run_refuses_a_results_name_that_is_not_netcdf(tmp_path, monkeypatch):

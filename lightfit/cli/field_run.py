@@ -52,13 +52,20 @@ def field_run(
     model: ModelOptions,
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
-    from lightfit.distributed.run import PARTS_SUFFIX, FieldRun, run_field
+    from lightfit.distributed.run import PARTS_SUFFIX, FieldRun, check_cluster_options, run_field
     from lightfit.distributed.tiles import HaloField
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label
 
     s = resolve(model)  # the model options' errors first (resolving the leaf may build its albedo table)
     out = check_netcdf_name(out)  # before any plant grows
+    check_cluster_options(
+        scheduler,
+        workers=workers,
+        threads_per_worker=threads_per_worker,
+        timeout_s=timeout,
+        connect_timeout_s=connect_timeout,
+    )
     parts = out.with_name(out.name + PARTS_SUFFIX)
     if parts.exists() and not parts.is_dir():
         raise InputError(

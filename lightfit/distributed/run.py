@@ -427,6 +427,43 @@ def _probe(address: str, timeout_s: float) -> None:
         pool.submit(asyncio.run, bounded()).result()
 
 
+def check_cluster_options(
+    scheduler: str | None = None,
+    *,
+    workers: int | None = None,
+    threads_per_worker: int | None = None,
+    timeout_s: float | None = None,
+    connect_timeout_s: float = 30.0,
+) -> None:
+    """What can be told of the cluster options without a cluster, as :class:`InputError` naming the
+    option: both timeouts > 0 s, workers and threads ≥ 1, no workers with a scheduler, a scheduler
+    address that parses (host and port for TCP/TLS). ``field-run`` checks them before any plant
+    grows; :func:`run_field` and :func:`connect` again."""
+    for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
+        if value is not None and not value > 0:
+            raise InputError(f"{name}={value!r}", parameter=name, expected="> 0 seconds")
+    for name, v in (("workers", workers), ("threads_per_worker", threads_per_worker)):
+        if v is not None:
+            check_integer(v, name, 1)
+    if scheduler:
+        if workers is not None:
+            raise InputError(
+                f"workers={workers} with scheduler={scheduler!r}",
+                parameter="workers",
+                expected="no --workers when joining an existing cluster (its workers are given)",
+            )
+        from distributed.comm.addressing import parse_address, parse_host_port
+
+        try:
+            protocol, location = parse_address(scheduler)
+            if protocol in ("tcp", "tls"):
+                parse_host_port(location)
+        except ValueError as err:
+            raise InputError(
+                f"scheduler={scheduler!r}: {err}", parameter="scheduler", expected="an address such as tcp://host:8786"
+            ) from None
+
+
 @contextmanager
 def connect(
     scheduler: str | None = None,
@@ -440,13 +477,10 @@ def connect(
     the machine, :func:`default_workers`). Closes what it started."""
     from distributed import Client, LocalCluster
 
+    check_cluster_options(
+        scheduler, workers=workers, threads_per_worker=threads_per_worker, connect_timeout_s=timeout_s
+    )
     if scheduler:
-        if workers is not None:
-            raise InputError(
-                f"workers={workers} with scheduler={scheduler!r}",
-                parameter="workers",
-                expected="no --workers when joining an existing cluster (its workers are given)",
-            )
         try:
             _probe(scheduler, timeout_s)  # Client's own timeout does not bound a handshake that never answers
             client = Client(scheduler, timeout=timeout_s)
@@ -643,9 +677,7 @@ def run_field(
     settings are taken instead of run (module doc, "Resume"); the Dataset's ``tasks_resumed``
     attribute counts them.
     """
-    for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
-        if value is not None and not value > 0:
-            raise InputError(f"{name}={value!r}", parameter=name, expected="> 0 seconds")
+    check_cluster_options(timeout_s=timeout_s, connect_timeout_s=connect_timeout_s)
     if client is None:
         with connect(
             scheduler, workers=workers, threads_per_worker=threads_per_worker, timeout_s=connect_timeout_s
