@@ -550,6 +550,8 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
         ("replicate", ["--photosynthesis", "c3-magic"], ["photosynthesis", "c3-magic", "giraud2023"]),
         ("replicate", ["--theta", "specular=shiny"], ["theta", "specular=shiny"]),
         ("calibrate", ["no-such-obs.csv"], ["no-such-obs.csv"]),
+        ("calibrate", ["ADIR"], ["a folder, not a file", "an observations CSV"]),  # was the OS's "Is a directory"
+        ("replicate", ["--observations", "ADIR"], ["a folder, not a file"]),
         ("calibrate", ["OBS", "--steps", "40"], ["steps", "40"]),
         ("calibrate", ["OBS", "--how", "median"], ["how", "median"]),
         ("calibrate", ["OBS", "--method", "newton"], ["method", "newton", "lbfgsb"]),
@@ -585,7 +587,7 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
 def test_model_commands_reject_bad_input_before_running(command, args, words, tmp_path):
     """Bad options of the shared group are caught before any plant is grown or anything written: exit
     2, message naming them, no --out."""
-    args = [str(OBSERVATIONS) if a == "OBS" else a for a in args]
+    args = [str(OBSERVATIONS) if a == "OBS" else str(tmp_path) if a == "ADIR" else a for a in args]
     r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path / "out"), *args])
     assert_user_error(r, *words)
     assert not (tmp_path / "out").exists()

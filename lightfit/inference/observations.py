@@ -349,6 +349,8 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="an observations CSV")
+    if not path.is_file():
+        raise InputError("a folder, not a file", file=path, expected="an observations CSV")
     meta, n_meta, df = read_csv_with_metadata(path)
     if "time" not in df.columns:
         raise InputError("no 'time' column", file=path, row=n_meta + 1, expected="columns time, " + ", ".join(COLUMNS))
