@@ -45,6 +45,9 @@ def test_posterior_cli_quick(tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((out / "summary.json").read_text())
     assert s["names"] == ["specular", "light_factor"] and s["n_steps"] == 30
+    # every seed the run used is in the summary (the design's and the predictive draws' were nowhere)
+    assert s["seeds"] == {"sampler": 0, "render": s["seeds"]["render"], "emulator_design": [0], "predictive_draws": 1}
+    assert s["seeds"]["render"] == load_run(out / "run.h5")["attrs"]["scenario"]["render_seed"]
     assert "emulator_error" not in s and "sloppy" in s
     assert "design: 0 new renders, 0 from the cache (0 sun positions" in r.output.replace("\n", "")
     # The MAP's χ², by hand: the one reading against the light factor × the forcing's PAR read linearly

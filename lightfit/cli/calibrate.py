@@ -296,6 +296,7 @@ def calibrate(
             "renders_cached": tr.cached,
             "sun_positions_rendered": tr.steps_rendered,
             "n_design": n_design,
+            "design_seed": E.DESIGN_SEED,
             "box": {"lo": lo, "hi": hi, "priors": priors},
             "design_dir": None
             if tr.design_dir is None

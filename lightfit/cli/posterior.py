@@ -160,7 +160,7 @@ def posterior(
         (out / "summary.json").unlink(missing_ok=True)
     days = days_of(m)
     dates = getattr(m, "dates", None)  # None: one day (files and keys as before several days existed)
-    keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, 0, E.DEGREES) for d in days]
+    keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, E.DESIGN_SEED, E.DEGREES) for d in days]
     emu_key = keys[0] if dates is None else dict(zip(dates, keys))
     if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
         before = P.backend.run_attrs(out / "run.h5").get("emulator_key")
@@ -197,7 +197,7 @@ def posterior(
                 lo,
                 hi,
                 n_design=n_design,
-                seed=0,
+                seed=E.DESIGN_SEED,
                 cache=cache,
                 progress=True,
                 say=lambda x: console.print(x),
@@ -206,7 +206,7 @@ def posterior(
             emu.save(copy)
             emus.append(emu)
             if n_test > 0 and analysis and n_rendered > 0:
-                leaf_test = E.sobol_design(n_test, lo, hi, seed=1)
+                leaf_test = E.sobol_design(n_test, lo, hi, seed=E.HELD_OUT_SEED)
                 renders = E.design_dir(d, cache) / "renders"
                 start = dict(E.COUNTS)
                 if render_points is not None:
@@ -246,6 +246,8 @@ def posterior(
         mc_correlation=form["mc_correlation"],
         mc_scale=mc_scale,
     )
+    if val:
+        res["seeds"]["held_out_design"] = E.HELD_OUT_SEED
     if res["stopped_by"] == "interrupted":  # Ctrl-C while sampling: every finished step is kept
         _print_status(P.backend.run_status(out / "run.h5"))
         interrupted(f"{out / 'run.h5'} keeps every finished step", started_over=not resume)

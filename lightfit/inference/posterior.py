@@ -633,6 +633,12 @@ def run(
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
         "acceptance_ok": res.diagnostics.get("acceptance_ok", True),
         "refused": res.refused,
+        # every seed the run used: the sampler's, the renders' and the emulator designs' (None: not keyed)
+        "seeds": {
+            "sampler": int(seed),
+            "render": int(sc.seed),
+            "emulator_design": [e.key.get("design_seed") for e in emus],
+        },
     }
     if res.steps_this_call > 0:  # an analysis stored with the run is of a shorter chain now
         drop_group(path, "analysis")
@@ -668,6 +674,7 @@ def run(
         "profile": profile,
         "predictive": predictive(lp, obs, model.times, samples, n_predictive, seed + 1),
     }
+    out["seeds"]["predictive_draws"] = seed + 1
     if validation_renders is not None:
         per_day = validation_renders if isinstance(model, MultiDayModel) else [validation_renders]
         th_map, _ = lp.split(jnp.asarray(x_map))

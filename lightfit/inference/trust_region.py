@@ -239,7 +239,7 @@ def surrogate_calibrate(
     lo=(0.0, 0.0, 0.0),
     hi=(1.0, 1.0, 1.0),
     n_design: int = E.DESIGN_SIZE,
-    design_seed: int = 0,
+    design_seed: int = E.DESIGN_SEED,
     cache: str | Path | None = None,
     out: str | Path | None = None,
     max_rounds: int = 6,

@@ -71,6 +71,9 @@ DEGREES = (1, 2, 3, 4, 5)
 #: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
 #: emulator, so one command's design serves the other).
 DESIGN_SIZE = 20
+#: Scramble seed of the design's Sobol points, and of the posterior's held-out check points (another
+#: scramble, so that they fall between the design's).
+DESIGN_SEED, HELD_OUT_SEED = 0, 1
 
 
 def exponents(degree: int) -> np.ndarray:
@@ -451,7 +454,7 @@ def build_emulator(
     *,
     n_design: int = DESIGN_SIZE,
     degrees=DEGREES,
-    seed: int = 0,
+    seed: int = DESIGN_SEED,
     progress: bool = False,
     cache: str | Path | None = None,
     extra=None,
@@ -528,7 +531,7 @@ def cached_emulator(
     *,
     n_design: int = DESIGN_SIZE,
     degrees=DEGREES,
-    seed: int = 0,
+    seed: int = DESIGN_SEED,
     progress: bool = False,
     say: Callable[[str], None] = print,
     renders: str | Path | None = None,
@@ -595,7 +598,7 @@ def shared_emulator(
     *,
     n_design: int = DESIGN_SIZE,
     degrees=DEGREES,
-    seed: int = 0,
+    seed: int = DESIGN_SEED,
     extra=None,
     cache: str | Path | None = None,
     progress: bool = False,
