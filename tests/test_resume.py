@@ -222,6 +222,14 @@ def test_calibrate_killed_and_rerun_reaches_the_same_optimum_and_history(tmp_pat
     rc, output = lightfit([*args[:-1], "lbfgsb"], tmp_path / "killed")
     assert rc == 2 and "run with other method" in " ".join(output.split()) and "--no-resume" in output, output
     assert (tmp_path / "killed" / "history.jsonl.state.npz").read_bytes() == state
+    # --no-resume with other parameters, killed after its first step: the finished run's result went
+    # with it (it stayed, a result of roughness beside this run's history), so the rerun the message
+    # asks for (without --no-resume) resumes this run's steps instead of being refused by it.
+    other = [*args[:6], "specular,roughness", *args[7:]]
+    rc, output = lightfit([*other, "--no-resume"], tmp_path / "killed", kill_after="calibrate:1")
+    assert rc == KILLED and not (tmp_path / "killed" / "calibration.json").exists(), output
+    rc, output = lightfit(other, tmp_path / "killed")
+    assert rc == 0 and "resuming" in output and "steps kept" in " ".join(output.split()), output
 
 
 def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_run(tmp_path):

@@ -219,6 +219,8 @@ def calibrate(
     soil_respiration_note(uses, s.soil_respiration)
     out.mkdir(parents=True, exist_ok=True)
     replace_text(settings, json.dumps({"config": s.as_dict(), "calibration": this_run}, indent=2))
+    if not resume:  # the run it starts again: its result must not outlive it beside this run's history
+        earlier.unlink(missing_ok=True)
     say = lambda x: console.print(x)  # noqa: E731
     tr = None
     box = prior_set(priors, m.scenario.optics)  # the run leaf's priors: the emulator's box, the cautions' ranges
