@@ -220,3 +220,22 @@ def test_the_emulator_is_checked_at_the_maps_own_leaf(tmp_path):
     assert "design: 6 new renders, 0 from the cache" in r.output.replace("\n", "")
     assert "; held-out check: 1 new, 0 from the cache" in r.output.replace("\n", "")
     assert np.asarray(ee["se_ratio_per_point"]).shape == (2,) and (np.asarray(ee["se_ratio_per_point"]) > 0).all()
+
+
+def test_posterior_cli_damaged_run_file_is_named_or_replaced(tmp_path):
+    """A run.h5 HDF5 cannot open (a kill inside HDF5's own write; a review of resumed runs truncated
+    one) ended in h5py's traceback, with --no-resume too (after the plants and the design). Now a
+    resume is refused naming the file and the way on, and --no-resume removes it and starts again."""
+    out = tmp_path / "post"
+    out.mkdir()
+    (out / "run.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(300))
+    args = ["posterior", "--quick", "--steps", "12:15", "--out", str(out), "--parameters", "light_factor"]
+    args += ["--walkers", "4", "--max-steps", "10", "--n-design", "6", "--n-test", "0", "--no-analysis"]
+    r = CliRunner().invoke(app, args)
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "run.h5" in said and "not readable as a posterior run" in said
+    assert "--no-resume" in said and (out / "run.h5").stat().st_size == 308
+    r = CliRunner().invoke(app, [*args, "--no-resume"])
+    assert r.exit_code == 0, r.output
+    assert "not readable as a posterior run" in " ".join(r.output.split())
+    assert load_run(out / "run.h5")["chain"].shape == (10, 4, 1)

@@ -127,6 +127,7 @@ def posterior(
     # A stored chain made with other model settings (e.g. the finite field, before periodic became
     # the default) or another likelihood must not be resumed: checked before the plants are grown.
     run_h5 = out / "run.h5"
+    _readable_run(run_h5, resume)
     stored = P.backend.run_attrs(run_h5) if resume and P.backend.stored_run(run_h5, "mcmc") is not None else None
     if stored is not None:  # its attributes only, not the chain
         check_resumable(stored.get("config"), s, run_h5, "posterior run")
@@ -384,6 +385,27 @@ def posterior_status(
     except (OSError, KeyError) as e:
         raise InputError(f"not readable as a posterior run ({e})", file=path, expected="an HDF5 run file") from None
     _print_status(status)
+
+
+def _readable_run(path: Path, resume: bool) -> None:
+    """A run file HDF5 cannot open (a kill inside its write; the writes are not atomic): refused naming
+    it, or with ``--no-resume``, which starts the run again, removed (it ended in h5py's traceback)."""
+    from lightfit.inference.mcmc.backend import open_h5
+
+    if not path.exists():
+        return
+    try:
+        with open_h5(path):
+            pass
+    except OSError as e:
+        if resume:
+            raise InputError(
+                f"not readable as a posterior run ({e})",
+                file=path,
+                expected="a run file written by lightfit posterior, or --no-resume to start the run again",
+            ) from None
+        path.unlink()
+        console.print(f"{path} was not readable as a posterior run ({e}): removed, the run starts again")
 
 
 def _print_status(st: dict) -> None:
