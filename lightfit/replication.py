@@ -670,11 +670,14 @@ def run(
         ds.attrs["observations_provenance"] = obs.attrs["provenance"]
     if out is not None:
         out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        write_netcdf(ds, out / "results.nc")
+        # Everything is computed before the first file is replaced: a run interrupted in its compared
+        # run left its own results.nc beside the last run's comparison, figure and summary.
         other = None
         if compare is not None:
             other, _ = run(compare, weather_file=weather_file, observations=None, progress=progress, forcing_df=w)
+        out.mkdir(parents=True, exist_ok=True)
+        write_netcdf(ds, out / "results.nc")
+        if other is not None:
             write_netcdf(other, out / "results_compare.nc")
         else:  # an earlier run's comparison would sit beside results it does not belong to
             (out / "results_compare.nc").unlink(missing_ok=True)

@@ -253,6 +253,30 @@ def test_weather_show_bad_input_exits_2_with_message(tmp_path):
     assert_user_error(runner.invoke(app, ["weather", "show", str(FIXTURE), "--how", "sample"]), "without --resample")
 
 
+def test_replicate_interrupted_leaves_the_last_run_s_files_whole(tmp_path, monkeypatch):
+    """A rerun into the same folder interrupted in its compared run (the second of two) had already
+    replaced results.nc and the forcing files, beside the last run's comparison, figure and summary,
+    with nothing to tell the halves apart (a review of interrupted runs). Every file is now written
+    after everything is computed: interrupted there, the folder is the last run's, byte for byte."""
+    from lightfit import replication as rep
+
+    args = ["replicate", "--quick", "--steps", "12:14", "--compare-preset", "paper", "--out", str(tmp_path)]
+    assert runner.invoke(app, args).exit_code == 0
+    before = {f.name: f.read_bytes() for f in tmp_path.iterdir() if f.is_file()}
+    assert {"results.nc", "results_compare.nc", "forcing.csv", "summary.csv"} <= set(before)
+    main_run = rep.run
+
+    def interrupted_in_the_compared_run(cfg, *a, **k):
+        if k.get("out") is None:  # the compared run writes nothing itself
+            raise KeyboardInterrupt
+        return main_run(cfg, *a, **k)
+
+    monkeypatch.setattr(rep, "run", interrupted_in_the_compared_run)
+    r = runner.invoke(app, [*args[:3], "12:15", *args[4:]])  # another run: one step more
+    assert r.exit_code == 130, r.output
+    assert {f.name: f.read_bytes() for f in tmp_path.iterdir() if f.is_file()} == before
+
+
 def test_replicate_writes_labelled_forcing(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output

@@ -118,8 +118,6 @@ def replicate(
         "source": str(w.attrs.get("source")),
         "note": f"{len(w)} steps, {when}, {s.site.name} ({s.how})",
     }
-    wx.write_lightfit_csv(w, out / "forcing.csv", meta)
-    plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
     k = samples_label(k, cfg.target_rse)
@@ -142,6 +140,10 @@ def replicate(
         progress=True,
         compare=cmp,
     )
+    # Written with the results, not before the run: interrupted, a run left its forcing beside the
+    # last run's results (a review of interrupted runs).
+    wx.write_lightfit_csv(w, out / "forcing.csv", meta)
+    plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
     changed = replaced_settings(before, ds)
     if changed:  # a quick test run into the default folder replaced the main job's results unsaid
         console.print(f"note: replaced the results in {out}, made with other settings ({changed}); --out keeps both")
