@@ -485,6 +485,32 @@ def test_a_terminal_ctrl_c_reaches_the_embedded_workers_and_prints_one_line(tmp_
     assert not left
 
 
+def test_an_interrupt_while_a_worker_is_busy_stops_it_at_once_and_quietly(capfd):
+    """A worker busy in a task that holds the interpreter (a render in C) cannot answer the cluster's
+    close: on Ctrl-C the nanny waited 4 s to kill it and both logged heartbeat tracebacks (30–60
+    lines, a review of interrupted runs). The embedded cluster's workers are now killed at once."""
+    from lightfit.distributed.run import connect
+
+    def busy(seconds):  # holds the GIL, as Dr.Jit's and JAX's C calls do: the worker's event loop stalls
+        import sys
+        import time
+
+        sys.setswitchinterval(60.0)
+        end = time.time() + seconds
+        while time.time() < end:
+            pass
+
+    with pytest.raises(KeyboardInterrupt):
+        with connect(workers=1, threads_per_worker=1) as client:
+            client.submit(busy, 30.0, pure=False)
+            time.sleep(2.0)  # the task is running
+            t0 = time.perf_counter()
+            raise KeyboardInterrupt
+    closed_in = time.perf_counter() - t0
+    err = capfd.readouterr().err
+    assert closed_in < 4.0 and "still alive" not in err and "Traceback" not in err, (closed_in, err)
+
+
 def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
     """On --timeout or Ctrl-C lightfit cancels its tasks and says so in one line; a worker logged
     "Async instruction … ended with CancelledError" above it. Worker setup drops that record, and

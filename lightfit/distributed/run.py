@@ -36,6 +36,7 @@ single-process run. Library imports never change JAX's configuration.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -536,10 +537,26 @@ def connect(
                 if g:
                     client.register_plugin(PinGPU(g))
                 yield client
+            except KeyboardInterrupt:
+                _stop_workers(cluster)
+                raise
             finally:
                 client.close()
         finally:
             cluster.close()
+
+
+def _stop_workers(cluster) -> None:
+    """Kill the embedded cluster's worker processes and mute Dask's loggers for the close: a worker
+    busy in a task cannot answer the close, and printed 30–60 lines of heartbeat tracebacks while
+    the nanny waited 4 s to kill it (a review of interrupted runs). The finished tasks are kept by
+    this process (``parts``); a task in a worker is lost either way."""
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(getattr(nanny, "process", None), "pid", None)
+        if pid:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
 
 
 class _Deferred:
