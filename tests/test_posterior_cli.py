@@ -88,6 +88,16 @@ def test_posterior_cli_quick(tmp_path):
     said = " ".join(r.stderr.split())
     assert r.exit_code == 2 and "sampled with seed 0 (--sampler-seed), this run asks for seed 3" in said
     assert "--no-resume" in said and load_run(out / "run.h5")["chain"].shape == (40, 8, 2)
+    # Other walkers or parameters: refused before the plants grow (the sampler refused them after the
+    # design, below a line that said the chain was being resumed)
+    for other, words in (
+        (["--walkers", "6"], "with 8 walkers; this run asks for specular, light_factor with 6"),
+        (["--parameters", "light_factor"], "samples specular, light_factor with 8 walkers"),
+    ):
+        r = CliRunner().invoke(app, [*args[:4], *args[6:], *other] if other[0] == "--parameters" else [*args, *other])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and words in said and "--no-resume" in said, said
+        assert "resuming" not in r.output and "plants" not in r.stdout
 
 
 def test_posterior_cli_bad_parameter(tmp_path):

@@ -130,6 +130,14 @@ def posterior(
     _readable_run(run_h5, resume)
     stored = P.backend.run_attrs(run_h5) if resume and P.backend.stored_run(run_h5, "mcmc") is not None else None
     if stored is not None:  # its attributes only, not the chain
+        held = P.backend.stored_run(run_h5, "mcmc")  # the sampler refused these after the plants and design
+        if held != (tuple(names), walkers):
+            raise InputError(
+                f"the posterior run there samples {', '.join(held[0])} with {held[1]} walkers; this run asks "
+                f"for {', '.join(names)} with {walkers}",
+                file=run_h5,
+                expected="the run's --parameters and --walkers, --no-resume to start again, or another --out",
+            )
         check_resumable(stored.get("config"), s, run_h5, "posterior run")
         A.check_likelihood(run_h5, form)
         A.check_resume(run_h5, {"seed": sampler_seed})
@@ -152,10 +160,6 @@ def posterior(
                 f"{out / 'run.h5'} was written before lightfit recorded its {', '.join(unchecked)}: "
                 "resuming it without comparing them"
             )
-        if stored is not None:
-            console.print(
-                f"resuming {out / 'run.h5'}: {stored['iteration']} steps kept, the chain continues from its last step"
-            )
     out.mkdir(parents=True, exist_ok=True)
     if not resume:  # the run it starts again: its summary must not outlive it (an interrupted run writes none)
         (out / "summary.json").unlink(missing_ok=True)
@@ -176,6 +180,10 @@ def posterior(
                 expected="the run's --n-design, --priors (they set the emulator's leaf box: lo, hi) and model "
                 "settings, --no-resume to start again, or another --out",
             )
+    if stored is not None:  # said once everything the chain was sampled on has been compared
+        console.print(
+            f"resuming {out / 'run.h5'}: {stored['iteration']} steps kept, the chain continues from its last step"
+        )
     # Design and held-out renders are kept one by one in the shared design cache (an interrupted design
     # continues where it stopped, and lightfit calibrate's design of the same configuration is reused);
     # the emulator is refitted whenever its key (design, box, scene) changed. OUT/emulator.npz is the run's
