@@ -382,7 +382,7 @@ def test_finished_tasks_are_kept_and_taken_again_only_for_the_same_settings(clie
     assert_same(first, reference)
     files = sorted(p.name for p in parts.iterdir())
     assert files == ["tile0-chunk0.pkl", "tile0-chunk1.pkl", "tile1-chunk0.pkl", "tile1-chunk1.pkl"]
-    assert first.attrs["tasks_resumed"] == 0
+    assert first.attrs["tasks_resumed"] == 0 and first.attrs["tasks_discarded"] == 0
     again = run_field(run, client=client, timeout_s=240, parts=parts)
     assert again.attrs["tasks_resumed"] == 4 and again.attrs["tile_timing_json"] == first.attrs["tile_timing_json"]
     assert_same(again, reference)
@@ -391,6 +391,7 @@ def test_finished_tasks_are_kept_and_taken_again_only_for_the_same_settings(clie
     (parts / "tile1-chunk0.pkl").write_bytes((parts / "tile1-chunk1.pkl").read_bytes())  # another task's
     mixed = run_field(run, client=client, timeout_s=240, parts=parts)
     assert mixed.attrs["tasks_resumed"] == 1
+    assert mixed.attrs["tasks_discarded"] == 2  # the unreadable and the other task's: counted, not silent
     assert_same(mixed, reference)
     # Keys: per task, and they change with θ.
     specs = task_specs(run)
@@ -398,7 +399,7 @@ def test_finished_tasks_are_kept_and_taken_again_only_for_the_same_settings(clie
     other = dataclasses.replace(run, theta={"light_factor": 1.1})
     assert {task_key(s) for s in task_specs(other)}.isdisjoint({task_key(s) for s in specs})
     other_ds = run_field(other, client=client, timeout_s=240, parts=parts)
-    assert other_ds.attrs["tasks_resumed"] == 0
+    assert other_ds.attrs["tasks_resumed"] == 0 and other_ds.attrs["tasks_discarded"] == 4
     # The growth file's contents, not its name only: an edited XML is another field.
     from lightfit.plant.growth import GrowthConfig
 

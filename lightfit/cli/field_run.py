@@ -116,6 +116,9 @@ def field_run(
     if ds.attrs.get("tasks_resumed"):
         n = ds.attrs["tasks_resumed"]
         console.print(f"resumed: {n} of {ds.attrs['tasks']} tasks were kept from the run before")
+    if ds.attrs.get("tasks_discarded"):
+        n = ds.attrs["tasks_discarded"]
+        console.print(f"run again: {n} task(s) kept by a run of other settings (or unreadable) in {parts}")
     console.print(
         f"{ds.attrs['tasks']} tasks on {ds.attrs['distributed_workers']} worker(s) in "
         f"{ds.attrs['distributed_wall_s']:.1f} s; triangles rendered ÷ measured = "

@@ -692,7 +692,8 @@ def run_field(
     wait for the scheduler; both must be > 0 (checked before a cluster is started or joined).
     ``parts``: a folder where each finished task is kept, and from which the tasks of the same
     settings are taken instead of run (module doc, "Resume"); the Dataset's ``tasks_resumed``
-    attribute counts them.
+    attribute counts them, ``tasks_discarded`` the parts found there of other settings or unreadable
+    (run again).
     """
     check_cluster_options(timeout_s=timeout_s, connect_timeout_s=connect_timeout_s)
     if client is None:
@@ -706,15 +707,18 @@ def run_field(
     specs = task_specs(run)
     keys = {}
     results = []
+    discarded = 0
     if parts is not None:
         parts = Path(parts)
         parts.mkdir(parents=True, exist_ok=True)
         keys = {(s.tile, s.chunk): task_key(s) for s in specs}
         todo = []
         for s in specs:
-            kept = _load_part(_part(parts, s.tile, s.chunk), keys[s.tile, s.chunk])
+            path = _part(parts, s.tile, s.chunk)
+            kept = _load_part(path, keys[s.tile, s.chunk])
             if kept is None:
                 todo.append(s)
+                discarded += path.exists()  # another run's (other settings) or unreadable: said, not silent
             else:
                 results.append(kept)
         specs = todo
@@ -738,7 +742,12 @@ def run_field(
             f.release()
     wall = time.perf_counter() - t0
     n_workers = len(client.nthreads())
-    extra = {"distributed_wall_s": wall, "distributed_workers": n_workers, "tasks_resumed": resumed}
+    extra = {
+        "distributed_wall_s": wall,
+        "distributed_workers": n_workers,
+        "tasks_resumed": resumed,
+        "tasks_discarded": discarded,
+    }
     return gather(results, run, extra)
 
 
