@@ -1667,7 +1667,12 @@ def test_render_dataset_options_reach_the_dataset_spec(tmp_path, monkeypatch):
 
     def fake_make_dataset(results, out, spec):
         specs.append((results, out, spec))
-        return {"images": [], "cameras_taken_over": 0, "render": {"variant": "v", "spp": spec.settings.spp}}
+        return {
+            "images": [],
+            "cameras_taken_over": 0,
+            "cameras_discarded": 0,
+            "render": {"variant": "v", "spp": spec.settings.spp},
+        }
 
     monkeypatch.setattr(lightfit.dataset, "make_dataset", fake_make_dataset)
     results, out = tmp_path / "results.nc", tmp_path / "ds"

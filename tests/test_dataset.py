@@ -707,7 +707,7 @@ def test_an_interrupted_dataset_resumes(results_file, tmp_path, monkeypatch):
 
     monkeypatch.setattr(D, "render", counted)
     meta = make_dataset(results_file, out, spec)
-    assert rendered == ["nw"] and meta["cameras_taken_over"] == 1
+    assert rendered == ["nw"] and meta["cameras_taken_over"] == 1 and meta["cameras_discarded"] == 0
     assert not (out / D.UNFINISHED).exists() and len(meta["images"]) == len(ref["images"]) == 4
     for a, b in zip(ref["images"], meta["images"]):
         assert a["name"] == b["name"] and a["exposure"] == b["exposure"]
@@ -722,6 +722,7 @@ def test_an_interrupted_dataset_resumes(results_file, tmp_path, monkeypatch):
     spp2 = DatasetSpec(**{**spec.__dict__, "settings": RenderSettings(spp=2, colour="mono", seed=4)})
     again = make_dataset(results_file, other, spp2)
     assert rendered == ["se", "nw"] and again["cameras_taken_over"] == 0
+    assert again["cameras_discarded"] == 1  # said (it was dropped without a word; a review)
     # Options that change only what is written from the renders do not discard them.
     third = tmp_path / "third"
     interrupt(third, spec)

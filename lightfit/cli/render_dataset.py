@@ -110,6 +110,8 @@ def render_dataset(
         console.print(f"{escape(im['name'])}: {im['pixels']['leaf']} leaf px, {clip_txt}")
     n = meta["cameras_taken_over"]
     taken = f", {n} camera(s) rendered by the interrupted run" if n else ""
+    if meta["cameras_discarded"]:
+        taken += f", {meta['cameras_discarded']} camera(s) of an interrupted run of other settings rendered again"
     console.print(
         f"wrote {len(meta['images'])} image(s) with labels to {escape(str(out))} "
         f"({meta['render']['variant']}, {meta['render']['spp']} spp{taken})"

@@ -111,23 +111,26 @@ def _job_key(arrays, cams, lights, settings: RenderSettings, materials: VisualMa
     return h.hexdigest()[:32]
 
 
-def _unfinished(out: Path, job: str, started: bool) -> Path:
+def _unfinished(out: Path, job: str, started: bool) -> tuple[Path, int]:
     """The marker folder of ``out``: kept with its rendered cameras when it is the same job's
-    (``started``: an interrupted run left files), else (re)made empty for this job."""
+    (``started``: an interrupted run left files), else (re)made empty for this job; and how many
+    cameras an interrupted run of another job had rendered there (discarded, to be said)."""
     marker = out / UNFINISHED
     if started and marker.is_dir():
         try:
             if json.loads((marker / "job.json").read_text()).get("job") == job:
-                return marker
+                return marker, 0
         except (OSError, ValueError, AttributeError):
             pass
+    discarded = 0
     if marker.is_dir():
+        discarded = len(list(marker.glob("camera_*.npz")))
         shutil.rmtree(marker)
     elif marker.exists():  # an older version's marker file
         marker.unlink()
     marker.mkdir(parents=True)
     replace_text(marker / "job.json", json.dumps({"job": job}))
-    return marker
+    return marker, discarded
 
 
 def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()) -> dict:
@@ -137,7 +140,8 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     done, so an interrupted run loses at most the camera it was rendering: the same call takes the
     finished cameras over (their images bitwise those of an uninterrupted run: each image's random
     numbers depend on its camera's and time's index only) and renders the rest in one batch;
-    ``meta["cameras_taken_over"]`` counts them.
+    ``meta["cameras_taken_over"]`` counts them; ``meta["cameras_discarded"]`` those an interrupted
+    run of other settings (cameras, lights, render settings, materials, scene) had rendered.
     """
     if spec.export not in EXPORT_FORMATS:
         raise InputError(f"export={spec.export!r}", parameter="export", expected=" or ".join(EXPORT_FORMATS))
@@ -165,7 +169,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
         reach = view_reach_m(cams, geom.cell.center_xy, spec.materials.periodic_max_reach_m)
         mesh, periodic = periodic_canopy(geom.mesh, geom.cell, reach)
     arrays = scene_arrays(mesh, geom.segments, spec.materials, seed=spec.settings.seed)
-    marker = _unfinished(out, _job_key(arrays, cams, lights, spec.settings, spec.materials), started)
+    marker, discarded = _unfinished(out, _job_key(arrays, cams, lights, spec.settings, spec.materials), started)
     for d in earlier:  # written again from the marker's cameras
         shutil.rmtree(out / d)
     kept = {c: load_camera(marker / f"camera_{c}.npz", len(lights)) for c in range(len(cams))}
@@ -189,6 +193,7 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
             images.append(_write_image(out, cam, res.times[t], t, lights[k], radiance[k], geo, per_segment[t]))
     meta = _metadata(res, spec, quantities, cams, images, rendered)
     meta["cameras_taken_over"] = len(cams) - len(todo)
+    meta["cameras_discarded"] = discarded  # an interrupted run's of other settings: rendered again
     meta["field_boundary"] = "periodic" if periodic else "finite"
     # What the rebuild used, including the defaults of files written before a setting existed.
     fld = field_of(res)
