@@ -1671,6 +1671,7 @@ def test_render_dataset_options_reach_the_dataset_spec(tmp_path, monkeypatch):
             "images": [],
             "cameras_taken_over": 0,
             "cameras_discarded": 0,
+            "quantities": {},
             "render": {"variant": "v", "spp": spec.settings.spp},
         }
 

@@ -1172,3 +1172,26 @@ def test_gallery_columns_absorbed_par_and_margin_or_the_next_quantity():
     assert _columns(["an", "absorbed_par", MARGIN]) == ["absorbed_par", MARGIN]
     assert _columns(["absorbed_par", "an", "gs"]) == ["absorbed_par", "an"]
     assert _columns(["an", "gs", "vc"]) == ["an", "gs"]
+
+
+def test_results_in_other_units_or_without_values_are_refused(results_file, tmp_path):
+    """The labels take their units from the schema: a results file saying W m-2 for absorbed PAR was
+    labelled µmol m-2 s-1 all the same, and a quantity of NaN alone gave images whose labels were all
+    NaN (a review of bad input). Both are refused naming the variable and what was expected."""
+    import xarray as xr
+
+    ds = xr.load_dataset(results_file)
+    var = "absorbed_par_umol_m2_s"
+    assert ds[var].attrs["units"] == "umol m-2 s-1"
+    other = ds.copy()
+    other[var].attrs["units"] = "W m-2"
+    other.to_netcdf(tmp_path / "wm2.nc", engine="h5netcdf")
+    with pytest.raises(InputError, match=r"variable absorbed_par_umol_m2_s in units 'W m-2'.*'umol m-2 s-1'"):
+        open_results(tmp_path / "wm2.nc")
+    empty = ds.copy()
+    empty[var] = empty[var] * np.nan
+    empty[var].attrs = ds[var].attrs
+    empty.to_netcdf(tmp_path / "nan.nc", engine="h5netcdf")
+    spec = DatasetSpec(quantities=("absorbed_par",), gallery_images=0, export="none")
+    with pytest.raises(InputError, match="quantity absorbed_par has no finite value at"):
+        make_dataset(tmp_path / "nan.nc", tmp_path / "out", spec)

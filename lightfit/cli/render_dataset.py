@@ -108,6 +108,12 @@ def render_dataset(
         clip = im["exposure"]["clipped_leaf_fraction"]
         clip_txt = "no leaf in view" if clip is None else f"clipped leaf pixels {clip:.1%}"
         console.print(f"{escape(im['name'])}: {im['pixels']['leaf']} leaf px, {clip_txt}")
+    if not quantity:  # the default set keeps what the results have: say what it left out
+        from lightfit.dataset import DEFAULT_QUANTITIES
+
+        left = [q for q in DEFAULT_QUANTITIES if q not in meta["quantities"]]
+        if left:
+            console.print(f"labels: {', '.join(meta['quantities'])}; not in the results: {', '.join(left)}")
     n = meta["cameras_taken_over"]
     taken = f", {n} camera(s) rendered by the interrupted run" if n else ""
     if meta["cameras_discarded"]:

@@ -158,6 +158,16 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     res = results if isinstance(results, Results) else open_results(results)
     quantities = resolve_quantities(res, spec.quantities)
     tix = select_times(res, spec.times)
+    per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
+    for t in tix:  # labels of NaN alone would pass for a labelled image: before anything renders
+        for q, v in per_segment[t].items():
+            if not np.isfinite(v.to_numpy(dtype=float)).any():
+                raise InputError(
+                    f"quantity {q} has no finite value at {res.times[t]:%Y-%m-%d %H:%M} UTC",
+                    file=res.path or "results",
+                    parameter="quantities",
+                    expected="a step with values (--time), or another quantity",
+                )
     lights = lighting(res, tix, spec.weather)
     geom = build_geometry(res, cache_dir=spec.cache_dir)
     cams = spec.cameras or camera_sweep(spec.sweep, canopy_height_m=_canopy_height(geom.segments))
@@ -182,7 +192,6 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
 
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(exist_ok=True)
-    per_segment = {t: {q: res.values(q, t) for q in quantities} for t in tix}
     images = []
     for c, cam in enumerate(cams):
         radiance, face, depth = kept[c]

@@ -126,6 +126,15 @@ def open_results(source) -> Results:
             file=where,
             expected="attrs n_plants, buffer_rows, seed (and growth settings) describing the field",
         )
+    # The labels take their units from the schema: a file saying other units would be labelled wrongly.
+    for v in ds.data_vars:
+        given = ds[v].attrs.get("units")
+        if given is not None and str(v) in schema.VARIABLES and str(given) != schema.units(str(v)):
+            raise InputError(
+                f"variable {v} in units {given!r}",
+                file=where,
+                expected=f"{schema.units(str(v))!r}, as lightfit writes it (the labels are in those units)",
+            )
     times = pd.DatetimeIndex(ds["time"].values)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
     return Results(ds, path, times)
