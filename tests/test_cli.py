@@ -821,8 +821,11 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     assert r.exit_code == 0, r.output
     assert "triangles" in r.stdout and "16 (4 / 12)" in r.stdout
     assert ply.stat().st_size > 0 and png.stat().st_size > 10_000
-    seg = pd.read_csv(tmp_path / "seg.csv")
+    seg = pd.read_csv(tmp_path / "seg.csv", comment="#")
     assert seg["measured"].sum() > 0 and set(seg["organ_type"]) == {"leaf", "stem"}
+    head = [ln for ln in (tmp_path / "seg.csv").read_text().splitlines() if ln.startswith("#")]
+    assert "# provenance: synthetic" in head[0] and "# seed: 1" in head and "# n_plants: 4" in head
+    assert any(ln.startswith("# columns: x0 y0 z0 x1 y1 z1 in m") for ln in head)
     # The plant height reported is the mean of each plant's top (not the field's single tallest tip).
     tops = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
     line = next(ln for ln in r.stdout.splitlines() if "plant height" in ln)

@@ -64,7 +64,8 @@ def field(
         "--segments",
         help="Write the segment table (G1) as CSV: coordinates x0…z1 in m (field coordinates, z up), "
         "length_m, radius_m, blade_width_m in m, blade_area_m2 in m², creation_time_d in days after "
-        "the season start (lightfit.plant.growth's table).",
+        "the season start, bx by bz the branching direction (lightfit.plant.growth's table); '# key: value' lines "
+        "above it say the field and the units (read it with pandas.read_csv(path, comment='#')).",
     ),
 ) -> None:
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
@@ -150,8 +151,19 @@ def field(
             side = sidecar_path(path)
             console.print(f"[green]wrote[/] {side} (measured and plant_id per segment: OBJ has no face values)")
     if segments_csv:
+        from lightfit.files import replace_text
+        from lightfit.weather.readers import metadata_lines
+
         segments_csv.parent.mkdir(parents=True, exist_ok=True)
-        seg.to_csv(segments_csv, index=False, float_format="%.8g")
+        head = {  # what the table is and stands on, as lightfit's other CSVs say it (read with comment="#")
+            "provenance": "synthetic (CPlantBox plants grown and placed by lightfit, not measured)",
+            **fld.attrs(),
+            "columns": "x0 y0 z0 x1 y1 z1 in m (field coordinates, z up); bx by bz a unit vector (the parent "
+            "organ's axis where the organ branches off); length_m, radius_m, blade_width_m in m; blade_area_m2 "
+            "in m2 (one side); creation_time_d in days after season_start; measured 1 for a measured plant's "
+            "segment, 0 for a buffer plant's; docs/plant.md",
+        }
+        replace_text(segments_csv, metadata_lines(head) + seg.to_csv(index=False, float_format="%.8g"))
         console.print(f"[green]wrote[/] {segments_csv}")
     if preview:
         console.print(f"[green]wrote[/] {plot_field(geom, preview)}")
