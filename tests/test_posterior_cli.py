@@ -74,6 +74,20 @@ def test_posterior_cli_quick(tmp_path):
     pred = run["analysis"]["predictive"]
     assert np.isfinite(pred["above_canopy_par_umol_m2_s"]).all() and np.isnan(pred["plant_par_umol_m2_s"]).all()
     assert run["chain"].shape == (30, 8, 2) and "analysis" in run
+    # every dataset of the run file says its units and what it is (none did; a review of the outputs)
+    import h5py
+
+    described = []
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            described.append((name, "units" in obj.attrs and "long_name" in obj.attrs))
+
+    with h5py.File(out / "run.h5", "r") as f:
+        f.visititems(visit)
+        assert f["analysis/predictive/above_canopy_par_umol_m2_s"].attrs["units"] == "umol m-2 s-1"
+        assert "log-parameter space" in f["analysis/fisher/matrix"].attrs["long_name"]
+    assert len(described) > 40 and all(ok for _, ok in described), [n for n, ok in described if not ok]
     # resuming to more steps appends
     r = CliRunner().invoke(app, args[:-6] + ["--max-steps", "40", "--n-design", "6", "--n-test", "1"])
     assert r.exit_code == 0, r.output

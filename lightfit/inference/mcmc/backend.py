@@ -74,6 +74,51 @@ def _retry(read, attempts: int = 20, wait_s: float = 0.1):
             time.sleep(wait_s)
 
 
+#: ``units`` and ``long_name`` of a run file's datasets, by their name in their group; datasets named
+#: as a results variable (the predictive group's observables) take the results schema's instead. The
+#: sampled parameters are all dimensionless (lightfit.model.parameters).
+DESCRIPTIONS = {
+    "chain": ("1", "walker positions (step, walker, parameter); the parameters are the group's 'names'"),
+    "log_prob": ("1", "natural log of the unnormalised posterior density (step, walker)"),
+    "accepted": ("1", "accepted moves per walker over the run"),
+    "accepted_step": ("1", "whether each walker's move was accepted (step, walker)"),
+    "rng_key": ("1", "the sampler's Mersenne Twister state after each step (resume)"),
+    "rng_meta": ("1", "the sampler's generator position, has-Gaussian flag and cached Gaussian (resume)"),
+    "check_step": ("1", "steps at which the stop rule checked"),
+    "check_tau": ("1", "integrated autocorrelation time per parameter at each check, in steps"),
+    "check_ess": ("1", "effective sample size per parameter at each check"),
+    "matrix": ("1", "Fisher information of the log-likelihood in log-parameter space (d log theta)"),
+    "eigenvalues": ("1", "the Fisher matrix's eigenvalues (stiff: large; sloppy: small)"),
+    "eigenvectors": ("1", "the Fisher matrix's eigenvectors (columns), in log-parameter space"),
+    "direction": ("1", "the profiled combination's direction in log-parameter space"),
+    "t": ("1", "distance along the profiled direction in log-parameter space"),
+    "profile_nll": ("1", "negative log-likelihood minimised over the other parameters at each t"),
+    "slice_nll": ("1", "negative log-likelihood with the other parameters held at the MAP at each t"),
+    "in_prior_box": ("1", "whether the point at t lies inside the priors' supports"),
+    "x_map": ("1", "maximum a posteriori parameters (the run's 'names')"),
+    "mean": ("1", "posterior mean per parameter"),
+    "sd": ("1", "posterior standard deviation per parameter"),
+    "q05": ("1", "posterior 5 % quantile per parameter"),
+    "q50": ("1", "posterior median per parameter"),
+    "q95": ("1", "posterior 95 % quantile per parameter"),
+    "corr": ("1", "posterior correlation matrix of the parameters"),
+}
+
+
+def describe(dataset) -> None:
+    """Set a dataset's ``units`` and ``long_name`` from :data:`DESCRIPTIONS` or the results schema."""
+    from lightfit.model import schema
+
+    name = dataset.name.rsplit("/", 1)[-1]
+    if name in schema.VARIABLES:
+        units, long_name = schema.units(name), schema.variable(name).attrs().get("long_name", name)
+    elif name in DESCRIPTIONS:
+        units, long_name = DESCRIPTIONS[name]
+    else:
+        return
+    dataset.attrs["units"], dataset.attrs["long_name"] = units, long_name
+
+
 class ResumableHDFBackend(emcee.backends.HDFBackend):
     """HDFBackend whose generator state and acceptance flags are stored per step (see module doc),
     opened without HDF5's file lock (readers never disturb it). ``refused``: a callable giving the
@@ -96,6 +141,9 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
             g.create_dataset("rng_key", (0, 624), maxshape=(None, 624), dtype=np.uint32)
             g.create_dataset("rng_meta", (0, 3), maxshape=(None, 3), dtype=np.float64)
             g.create_dataset("accepted_step", (0, nwalkers), maxshape=(None, nwalkers), dtype=bool)
+            for d in g.values():
+                if isinstance(d, h5py.Dataset):
+                    describe(d)
 
     def grow(self, ngrow, blobs):
         super().grow(ngrow, blobs)
@@ -306,13 +354,15 @@ def _write(g, data: dict):
         if isinstance(v, dict):
             _write(g.create_group(k), v)
         elif isinstance(v, np.ndarray) and v.dtype.kind in "fiub":
-            g.create_dataset(k, data=v)
+            describe(g.create_dataset(k, data=v))
         else:
             g.attrs[k] = json.dumps(jsonable(v))
 
 
 __all__ = [
+    "DESCRIPTIONS",
     "ResumableHDFBackend",
+    "describe",
     "drop_group",
     "jsonable",
     "load_run",

@@ -21,7 +21,7 @@ import emcee
 import numpy as np
 
 from lightfit.errors import InputError, check_integer
-from lightfit.inference.mcmc.backend import ResumableHDFBackend, jsonable, open_h5, stored_run, writer_lock
+from lightfit.inference.mcmc.backend import ResumableHDFBackend, describe, jsonable, open_h5, stored_run, writer_lock
 from lightfit.inference.mcmc.diagnostics import StopRule
 from lightfit.killpoint import kill_point
 from lightfit.progress import progress_bar
@@ -232,7 +232,7 @@ class _Checks:
             for k in ("step", "tau", "ess"):
                 if f"check_{k}" not in g:
                     shape = (0,) if k == "step" else (0, len(names))
-                    g.create_dataset(f"check_{k}", shape, maxshape=(None, *shape[1:]), dtype=float)
+                    describe(g.create_dataset(f"check_{k}", shape, maxshape=(None, *shape[1:]), dtype=float))
             if g.attrs.get("stop_rule") == rule:
                 for s, tau, ess in zip(g["check_step"][:], g["check_tau"][:], g["check_ess"][:]):
                     if s <= done:
