@@ -72,7 +72,7 @@ def check_unit(name: str, value) -> float:
     naming ``name``: an albedo or a leaf parameter. True was taken as 1.0, numpy's float32 refused
     (a review)."""
     if not (is_real(value) and math.isfinite(value) and 0.0 <= value <= 1.0):
-        raise InputError(f"{name}={value!r}", parameter=name, expected="a real number in [0, 1] (Python or numpy)")
+        raise InputError(f"{name}={value!r}", parameter=name, expected="a number in [0, 1]")
     return float(value)
 
 
