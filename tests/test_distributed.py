@@ -490,6 +490,8 @@ def test_an_interrupt_while_a_worker_is_busy_stops_it_at_once_and_quietly(capfd)
     """A worker busy in a task that holds the interpreter (a render in C) cannot answer the cluster's
     close: on Ctrl-C the nanny waited 4 s to kill it and both logged heartbeat tracebacks (30–60
     lines, a review of interrupted runs). The embedded cluster's workers are now killed at once."""
+    import logging
+
     from lightfit.distributed.run import connect
 
     def busy(seconds):  # holds the GIL, as Dr.Jit's and JAX's C calls do: the worker's event loop stalls
@@ -509,7 +511,9 @@ def test_an_interrupt_while_a_worker_is_busy_stops_it_at_once_and_quietly(capfd)
             raise KeyboardInterrupt
     closed_in = time.perf_counter() - t0
     err = capfd.readouterr().err
-    assert closed_in < 4.0 and "still alive" not in err and "Traceback" not in err, (closed_in, err)
+    # the nanny's own wait is 4 s; killed at once, the close takes ≈ 0.01 s
+    assert closed_in < 2.0 and "still alive" not in err and "Traceback" not in err, (closed_in, err)
+    assert logging.getLogger("distributed").level != logging.CRITICAL  # muted for the close only
 
 
 def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):

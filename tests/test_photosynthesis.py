@@ -295,11 +295,14 @@ def test_non_finite_inputs_under_jit_are_not_converged(form):
 @pytest.mark.parametrize("form", ["winter_wheat", "cplantbox"])
 @pytest.mark.parametrize("jit", [False, True])
 def test_gradients_beside_non_finite_inputs_are_the_clean_inputs_own(form, jit):
-    """An element whose light or temperature is NaN, infinite or out of range is flagged with NaN
-    outputs; a gradient through the run (the flagged elements masked, as a likelihood masks them)
-    is 0 there and, elsewhere, the gradient of the same run without them. Before, a NaN or
-    infinite light made ``jax.grad`` raise inside the implicit adjoint's linear solve (lineax's
-    non-finite check), and a NaN temperature gave a NaN gradient through the deficit."""
+    """An element whose light or temperature is NaN, infinite or out of range is flagged, its outputs
+    finite (an in-range stand-in's); a gradient through the run (the flagged elements masked) is 0
+    there and, elsewhere, the gradient of the same run without them. Before, a NaN or infinite
+    light made ``jax.grad`` raise inside the implicit adjoint's linear solve (lineax's non-finite
+    check), and a NaN temperature gave a NaN gradient through the deficit. And as the likelihood
+    does it, summing the elements first and then making a step with a flagged element infinite:
+    the value is inf and the gradient 0 (NaN outputs, a review found, made that sum NaN and lineax
+    raise again, where the old code gave inf and 0 for finite out-of-range light)."""
     p = ps.parameter_set(form)
 
     def masked_sum(par, t):
@@ -320,7 +323,18 @@ def test_gradients_beside_non_finite_inputs_are_the_clean_inputs_own(form, jit):
     assert np.all(np.asarray(clean_t) != 0.0)
     r = jax.jit(lambda a, b: masked_sum(a, b)[1])(par, t)
     assert np.array_equal(np.asarray(r.converged), good)
-    assert np.isnan(np.asarray(r.an_umol_m2_s)[~good]).all() and np.isfinite(np.asarray(r.an_umol_m2_s)[good]).all()
+    assert np.isfinite(np.asarray(r.an_umol_m2_s)).all() and np.isfinite(np.asarray(r.gs_mol_m2_s)).all()
+
+    def loss(scale):  # a light factor under a line search: 2e4 absorbed is beyond the leaf's range
+        r = ps.solve(jnp.array([800.0, 1.0e4]) * scale, 20.0, 420.0, 0.6, P_KPA, p)
+        return jnp.where(jnp.any(~r.converged), jnp.inf, 0.5 * (jnp.sum(r.an_umol_m2_s) - 30.0) ** 2)
+
+    vg = jax.value_and_grad(loss)
+    vg = jax.jit(vg) if jit else vg
+    value, slope = vg(2.0)
+    assert value == np.inf and slope == 0.0
+    value, slope = vg(0.5)
+    assert np.isfinite(value) and np.isfinite(slope) and slope != 0.0
 
 
 def test_jit_vmap_and_broadcast_agree():

@@ -160,8 +160,8 @@ def field(
             **fld.attrs(),
             "columns": "x0 y0 z0 x1 y1 z1 in m (field coordinates, z up); bx by bz a unit vector (the parent "
             "organ's axis where the organ branches off); length_m, radius_m, blade_width_m in m; blade_area_m2 "
-            "in m2 (one side); creation_time_d in days after season_start; measured 1 for a measured plant's "
-            "segment, 0 for a buffer plant's; docs/plant.md",
+            "in m2 (one side); creation_time_d in days after season_start; measured True for a measured plant's "
+            "segment, False for a buffer plant's; docs/plant.md",
         }
         replace_text(segments_csv, metadata_lines(head) + seg.to_csv(index=False, float_format="%.8g"))
         console.print(f"[green]wrote[/] {segments_csv}")

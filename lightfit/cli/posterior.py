@@ -402,6 +402,8 @@ def _readable_run(path: Path, resume: bool) -> None:
 
     if not path.exists():
         return
+    if path.is_dir():
+        raise InputError("a folder, not a run file", file=path, expected="a run.h5 file, or another --out")
     try:
         with open_h5(path):
             pass

@@ -509,6 +509,7 @@ def connect(
         ).strip()
     # dashboard_address ":0": a free port. None does not disable the scheduler's HTTP server: it
     # takes port 8787 and warns when another cluster (another lightfit run) holds it.
+    muted = None  # the Dask logger's level while the cluster closes after a Ctrl-C (_stop_workers)
     with _interrupts_handled_here(), _interrupt_deferred() as interrupted:
         try:
             cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
@@ -538,25 +539,30 @@ def connect(
                     client.register_plugin(PinGPU(g))
                 yield client
             except KeyboardInterrupt:
-                _stop_workers(cluster)
+                muted = _stop_workers(cluster)
                 raise
             finally:
                 client.close()
         finally:
             cluster.close()
+            if muted is not None:  # a library caller's process goes on: its Dask logging as it was
+                logging.getLogger("distributed").setLevel(muted)
 
 
-def _stop_workers(cluster) -> None:
+def _stop_workers(cluster) -> int:
     """Kill the embedded cluster's worker processes and mute Dask's loggers for the close: a worker
     busy in a task cannot answer the close, and printed 30–60 lines of heartbeat tracebacks while
     the nanny waited 4 s to kill it (a review of interrupted runs). The finished tasks are kept by
-    this process (``parts``); a task in a worker is lost either way."""
+    this process (``parts``); a task in a worker is lost either way. Returns the logger's level before."""
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(getattr(nanny, "process", None), "pid", None)
         if pid:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
+    return level
 
 
 class _Deferred:

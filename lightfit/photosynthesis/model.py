@@ -311,19 +311,20 @@ _STAND_IN = {
 def _guarded(env: Environment) -> tuple[Environment, jax.Array]:
     """The drivers with a stand-in wherever an element's own is NaN, infinite or out of range, and
     where they were in range (:func:`_in_range`). Those elements are solved at the stand-in and
-    their outputs masked (:func:`_masked`): the double ``where`` keeps their arithmetic, and so the
-    implicit adjoint's linear solve, finite (a NaN or infinite light made ``jax.grad`` raise in
-    lineax's check, though the value was flagged), and their cotangents 0."""
+    flagged (:func:`_masked`): the ``where`` keeps their arithmetic, and so the implicit adjoint's
+    linear solve, finite (a NaN or infinite light made ``jax.grad`` raise in lineax's check, though
+    the value was flagged), and their cotangents 0. Their outputs stay the stand-in's, finite: a
+    NaN output would poison the sums the likelihood takes before it masks unconverged steps
+    (0 × NaN in the reverse pass, and lineax raised again)."""
     ok = _in_range(env)
     safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
     return env._replace(**safe), ok
 
 
 def _masked(res: PhotosynthesisResult, ok: jax.Array) -> PhotosynthesisResult:
-    """``res`` with NaN fluxes and ``converged = False`` where the drivers were not in range."""
-    nan = lambda x: jnp.where(ok, x, jnp.nan)  # noqa: E731
-    floats = [k for k in res._fields if k not in ("limitation", "converged", "iterations")]
-    return res._replace(**{k: nan(getattr(res, k)) for k in floats}, converged=res.converged & ok)
+    """``res`` with ``converged = False`` where the drivers were not in range (their values are the
+    stand-in's, :func:`_guarded`: finite and meaningless)."""
+    return res._replace(converged=res.converged & ok)
 
 
 def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
@@ -388,7 +389,7 @@ def _par_slope(res: PhotosynthesisResult, env: Environment, params: Photosynthes
 def _solve_slope_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig):
     env, ok = _guarded(env)
     res = _solve_in_range(env, params, config)
-    return _masked(res, ok), jnp.where(ok, _par_slope(res, env, params), jnp.nan)
+    return _masked(res, ok), _par_slope(res, env, params)
 
 
 _solve_jit = eqx.filter_jit(_solve_impl)
@@ -587,8 +588,9 @@ def solve(
         InputError (a ValueError) / TypeError: inputs of the wrong shape or range / type (checked before
             jit on concrete values). Traced values (under ``jit``, ``vmap``, ``grad``) cannot
             be checked there: a NaN, infinite or out-of-range element gives
-            ``converged = False`` and NaN outputs instead, and its gradients are 0 (the other
-            elements' are unaffected). A NaN or infinite *parameter* (shared by all elements)
+            ``converged = False`` instead (its outputs those of in-range stand-in drivers, finite
+            and meaningless) and gradients of 0 (the other elements' are unaffected). A NaN or
+            infinite *parameter* (shared by all elements)
             flags every element; a gradient through it, or through an infinite cotangent, raises
             lineax's "non-finite input" error from the implicit adjoint's linear solve.
     """
