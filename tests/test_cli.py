@@ -1945,6 +1945,33 @@ def test_an_sd_without_its_value_is_said_not_dropped_unsaid(tmp_path):
     assert "caution: " + said in " ".join(r.stderr.split())
 
 
+def test_a_row_with_fewer_cells_than_the_header_is_said(tmp_path):
+    """A row cut short (its last cells missing) was read as readings missing from those columns
+    without a word (a review of bad input); sparse hand-written files rely on it, so it is still read
+    so, and every command that reads observations says so, naming the file and the lines."""
+    from lightfit.inference.observations import read_observations, short_rows
+
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    assert short_rows(read_observations(twin)) is None
+    lines = twin.read_text().splitlines()
+    header = next(i for i, x in enumerate(lines) if not x.startswith("#"))
+    k = next(i for i in range(header + 1, len(lines)) if lines[i].split(",")[1])  # the first row with a reading
+    cells = lines[k].split(",")
+    lines[k] = ",".join(cells[:3])  # time, plant PAR and its SD: the later columns cut off
+    path = tmp_path / "cut.csv"
+    path.write_text("\n".join(lines) + "\n")
+    obs = read_observations(path)
+    said = short_rows(obs)
+    told = "their last columns are read as no reading"
+    assert said == f"{path}: 1 row(s) with fewer cells than the header (line(s) {k + 1}): {told}"
+    row = obs.iloc[[i for i, n in enumerate(obs.attrs["lines"]) if n == k + 1][0]]
+    assert np.isfinite(row["plant_par_umol_m2_s"]) and np.isnan(row["canopy_an_umol_m2_s"])
+    out = tmp_path / "r"
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--observations", str(path), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "note: " + said in " ".join(r.stdout.split())
+
+
 def test_priors_help_states_the_prior_sets_leaf_ranges():
     """calibrate's and posterior's --priors help give the ranges (a newcomer review found posterior's
     without any): the informed set's for the default leaf and the wide set's, as the priors module

@@ -484,11 +484,13 @@ def observations_for_run(path, w, s):
     """The observations file at ``path`` read for a run of forcing ``w`` and settings ``s``: an SD
     given without its value cautioned (:func:`~lightfit.inference.observations.sd_without_value`),
     then :func:`observations_within_steps`."""
-    from lightfit.inference.observations import read_observations, sd_without_value
+    from lightfit.inference.observations import read_observations, sd_without_value, short_rows
 
     obs = read_observations(path)
     if alone := sd_without_value(obs):
         caution(alone)
+    if short := short_rows(obs):
+        console.print(f"note: {short}", soft_wrap=True)
     return observations_within_steps(obs, w, s)
 
 

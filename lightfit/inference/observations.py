@@ -453,6 +453,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     # with == (concat), which an array cannot answer
     out.attrs["lines"] = tuple(int(x) for x in lines)
     out.attrs["sd_without_value"] = tuple((c, rows) for c, rows in alone.items() if rows)
+    out.attrs["short_rows"] = df.attrs.get("short_rows", ())
     return out
 
 
@@ -467,6 +468,20 @@ def sd_without_value(obs: pd.DataFrame) -> str | None:
         for c, rows in found
     )
     return f"{obs.attrs.get('source', 'observations')}: an SD without its value, ignored (no reading): {said}"
+
+
+def short_rows(obs: pd.DataFrame) -> str | None:
+    """A note naming the file and lines where :func:`read_observations` read a row with fewer cells
+    than the header (its last columns: no reading, as a sparse hand-written file means them; a cut
+    row means the same unsaid), else ``None``."""
+    lines = obs.attrs.get("short_rows", ())
+    if not lines:
+        return None
+    shown = ", ".join(map(str, lines[:5])) + (", …" if len(lines) > 5 else "")
+    return (
+        f"{obs.attrs.get('source', 'observations')}: {len(lines)} row(s) with fewer cells than the header "
+        f"(line(s) {shown}): their last columns are read as no reading"
+    )
 
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:

@@ -203,7 +203,8 @@ def _table_rows(
 
     Blank lines (and rows of empty cells) are skipped; the line numbers stay the file's. A row
     with more cells than the header is an error naming its line; so is one with fewer, unless
-    ``short_rows="pad"`` (then its missing cells are empty).
+    ``short_rows="pad"`` (then its missing cells are empty, and its line is in the table's
+    ``attrs["short_rows"]``, to be said).
     """
     cols = [c.strip().strip('"') for c in next(csv.reader([text_lines[header]], delimiter=delim))]
     dup = sorted({c for c in cols if cols.count(c) > 1})
@@ -214,7 +215,7 @@ def _table_rows(
             row=header + 1,
             expected="one column per name",
         )
-    rows, numbers = [], []
+    rows, numbers, short = [], [], []
     for i in range(header + 1, len(text_lines)):
         cells = next(csv.reader([text_lines[i]], delimiter=delim), [])
         if not any(c.strip() for c in cells):
@@ -230,9 +231,12 @@ def _table_rows(
                 expected=f"one value per column, separated by {delim!r} (a stray or missing separator?)"
                 + ("; numbers with a decimal point (export with '.' as decimal separator)" if comma else ""),
             )
+        if len(cells) < len(cols):
+            short.append(i + 1)
         rows.append(cells + [""] * (len(cols) - len(cells)))
         numbers.append(i + 1)
     table = pd.DataFrame(rows, columns=cols, dtype=str) if rows else pd.DataFrame(columns=cols, dtype=str)
+    table.attrs["short_rows"] = tuple(short)
     return table, pd.Series(numbers, dtype=int)
 
 
