@@ -65,6 +65,7 @@ def summary_metadata(ds) -> dict[str, str]:
         "preset": a.get("preset"),
         "site": a.get("site"),
         "window": a.get("window"),
+        "local_time": f"the site's clock, HH:MM in {_tz(ds)} (time_utc is UTC)",
         "field": field,
         "software_versions": a.get("software_versions"),
         "settings": "every setting is an attribute of results.nc beside this file",

@@ -167,6 +167,7 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     head = dict(line[2:].split(": ", 1) for line in text if line.startswith("# "))
     assert head["forcing_provenance"] == ds.attrs["weather_provenance"] == "reconstructed"
     assert head["observations"] == ds.attrs["observations"] and head["preset"] == "default"
+    assert head["local_time"] == "the site's clock, HH:MM in Europe/Berlin (time_utc is UTC)"  # its column's zone
     table = pd.read_csv(tmp_path / "rep" / "summary.csv", comment="#", index_col=0)
     np.testing.assert_allclose(table["canopy_an_umol_m2_s"], summary(ds)["canopy_an_umol_m2_s"], rtol=1e-3)
     # The bundled chamber record is an above-canopy quantum sensor: compared with that operator.

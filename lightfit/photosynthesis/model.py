@@ -590,9 +590,9 @@ def solve(
             be checked there: a NaN, infinite or out-of-range element gives
             ``converged = False`` instead (its outputs those of in-range stand-in drivers, finite
             and meaningless) and gradients of 0 (the other elements' are unaffected). A NaN or
-            infinite *parameter* (shared by all elements)
-            flags every element; a gradient through it, or through an infinite cotangent, raises
-            lineax's "non-finite input" error from the implicit adjoint's linear solve.
+            infinite *parameter* (shared by all elements) flags every element; a gradient through
+            it, or through an infinite cotangent, raises lineax's "non-finite input" error from the
+            implicit adjoint's linear solve.
     """
     env, params, config = _prepared(
         config,
