@@ -49,6 +49,12 @@ class InputError(ValueError):
         return InputError(self.problem, file=file, row=self.row, column=self.column, expected=self.expected)
 
 
+def listed(items, n: int = 5) -> str:
+    """The first ``n`` of ``items`` for a message, comma-separated, with "…" where there are more."""
+    items = list(items)
+    return ", ".join(map(str, items[:n])) + (", …" if len(items) > n else "")
+
+
 def is_real(value) -> bool:
     """A real number (Python or numpy), not a bool."""
     from numbers import Real

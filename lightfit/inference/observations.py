@@ -74,7 +74,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, listed
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.weather import timestamps
@@ -463,10 +463,7 @@ def sd_without_value(obs: pd.DataFrame) -> str | None:
     found = obs.attrs.get("sd_without_value", ())
     if not found:
         return None
-    said = "; ".join(
-        f"{c} on {len(rows)} line(s) ({', '.join(map(str, rows[:5]))}{', …' if len(rows) > 5 else ''})"
-        for c, rows in found
-    )
+    said = "; ".join(f"{c} on {len(rows)} line(s) ({listed(rows)})" for c, rows in found)
     return f"{obs.attrs.get('source', 'observations')}: an SD without its value, ignored (no reading): {said}"
 
 
@@ -477,10 +474,9 @@ def short_rows(obs: pd.DataFrame) -> str | None:
     lines = obs.attrs.get("short_rows", ())
     if not lines:
         return None
-    shown = ", ".join(map(str, lines[:5])) + (", …" if len(lines) > 5 else "")
     return (
         f"{obs.attrs.get('source', 'observations')}: {len(lines)} row(s) with fewer cells than the header "
-        f"(line(s) {shown}): their last columns are read as no reading"
+        f"(line(s) {listed(lines)}): their last columns are read as no reading"
     )
 
 

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError, parse_date
+from lightfit.errors import InputError, listed, parse_date
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric, record_sorted
 from lightfit.weather.site import check_timezone, localize, offset_label, zone_label
@@ -552,8 +552,7 @@ def _mask_flagged_bad(
     doubtful = int(((f == "doubtful").to_numpy() & value.notna().to_numpy()).sum())
     if bad.any() or doubtful:
         rows = lines[bad].tolist()
-        shown = ", ".join(map(str, rows[:5])) + (", …" if len(rows) > 5 else "")
-        where = f" (line{'s' if len(rows) > 1 else ''} {shown})" if rows else ""
+        where = f" (line{'s' if len(rows) > 1 else ''} {listed(rows)})" if rows else ""
         kept = f"; {doubtful} value(s) flagged 'doubtful' kept" if doubtful else ""
         qc.append(
             {
