@@ -128,10 +128,10 @@ def posterior(
     # the default) or another likelihood must not be resumed: checked before the plants are grown.
     run_h5 = out / "run.h5"
     _readable_run(run_h5, resume)
-    stored = P.backend.run_attrs(run_h5) if resume and P.backend.stored_run(run_h5, "mcmc") is not None else None
-    if stored is not None:  # its attributes only, not the chain
-        held = P.backend.stored_run(run_h5, "mcmc")  # the sampler refused these after the plants and design
-        if held != (tuple(names), walkers):
+    held = P.backend.stored_run(run_h5, "mcmc") if resume else None  # a stored chain's (names, walkers)
+    stored = P.backend.run_attrs(run_h5) if held is not None else None  # its attributes only, not the chain
+    if stored is not None:
+        if held != (tuple(names), walkers):  # the sampler refused these after the plants and design
             raise InputError(
                 f"the posterior run there samples {', '.join(held[0])} with {held[1]} walkers; this run asks "
                 f"for {', '.join(names)} with {walkers}",
@@ -167,8 +167,8 @@ def posterior(
     dates = getattr(m, "dates", None)  # None: one day (files and keys as before several days existed)
     keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, E.DESIGN_SEED, E.DEGREES) for d in days]
     emu_key = keys[0] if dates is None else dict(zip(dates, keys))
-    if resume and P.backend.stored_run(out / "run.h5", "mcmc") is not None:
-        before = P.backend.run_attrs(out / "run.h5").get("emulator_key")
+    if stored is not None:  # read above; nothing has written the run file since
+        before = stored.get("emulator_key")
         if before is not None and before != emu_key:
             if dates is None or not isinstance(before, dict) or set(before) != set(emu_key):
                 changes = "; ".join(E.key_changes(before, emu_key)) if dates is None else "other dates"

@@ -664,6 +664,7 @@ def run(
         "sd_over_prior_sd": {n: float(v) / prior_sd[n] for n, v in zip(lp.names, summ["sd"].tolist())},
         "prior_support": {n: [float(b) for b in lp.priors[n].support] for n in lp.names},
     }
+    draws_seed = seed + 1  # the predictive draws' generator, recorded with the run's other seeds
     an: dict = {
         "fit": fit,
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
@@ -672,9 +673,9 @@ def run(
         "map_search": map_info,  # posterior-status reads it: whether L-BFGS-B converged
         "fisher": fisher,
         "profile": profile,
-        "predictive": predictive(lp, obs, model.times, samples, n_predictive, seed + 1),
+        "predictive": predictive(lp, obs, model.times, samples, n_predictive, draws_seed),
     }
-    out["seeds"]["predictive_draws"] = seed + 1
+    out["seeds"]["predictive_draws"] = draws_seed
     if validation_renders is not None:
         per_day = validation_renders if isinstance(model, MultiDayModel) else [validation_renders]
         th_map, _ = lp.split(jnp.asarray(x_map))
