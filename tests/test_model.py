@@ -128,8 +128,12 @@ def test_observables_against_an_independent_computation(model, full, weather):
     apar = absorbed @ a / ground
     np.testing.assert_allclose(np.asarray(full["canopy_apar_umol_m2_s"]), apar, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(full["canopy_apar_mc_sd_umol_m2_s"]), np.sqrt(sd**2 @ (a / ground) ** 2))
+    # The sensor above the canopy reads the weather series' own global PAR times the light factor
+    # (a mutation audit: the sensor without the light factor passed this test when fAPAR was only
+    # compared with the model's own reading).
     above = np.asarray(full["above_canopy_par_umol_m2_s"])
-    assert above[0] == 0 and (above[1:] > 0).all()
+    assert above[0] == 0
+    np.testing.assert_allclose(above, THETA.light_factor * weather["par_umol_m2_s"].to_numpy(), rtol=1e-9)
     np.testing.assert_allclose(np.asarray(full["fapar"])[1:], apar[1:] / above[1:], rtol=1e-12)
     # (fAPAR may exceed 1 here: a 4-plant patch with one buffer row is lit from its sides at a low sun)
 

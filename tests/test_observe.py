@@ -639,6 +639,9 @@ def test_canopy_apar_and_fapar_are_absorbed_par_whatever_the_plant_par_kind():
         absorbed=absorbed, absorbed_mc_sd=absorbed_sd, ground_area_m2=0.2, above_par=np.array([1500.0]),
     )  # fmt: skip
     np.testing.assert_allclose(o["plant_par_umol_m2_s"], [(1000 * 0.1 + 500 * 0.3) / 0.4], rtol=1e-12)
+    # the area-weighted mean's SD: weights ¼ and ¾ squared (a mutation audit: weights not squared
+    # were caught only by a slow module fixture in test_model)
+    np.testing.assert_allclose(o["plant_par_mc_sd_umol_m2_s"], [((30 / 4) ** 2 + (40 * 3 / 4) ** 2) ** 0.5], rtol=1e-12)
     np.testing.assert_allclose(o["canopy_apar_umol_m2_s"], [1050.0], rtol=1e-12)
     np.testing.assert_allclose(o["canopy_apar_mc_sd_umol_m2_s"], [925.0**0.5], rtol=1e-12)
     np.testing.assert_allclose(o["fapar"], [0.7], rtol=1e-12)

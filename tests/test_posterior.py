@@ -261,7 +261,11 @@ def test_sampler_on_gaussian_target_meets_stop_rule(tmp_path):
     s = P.flat_samples({"chain": r.chain})
     se = np.sqrt(np.diag(COV) / d["ess"])
     assert np.all(np.abs(s.mean(0) - MU) < 5 * se)
-    np.testing.assert_allclose(np.cov(s.T), COV, atol=0.25)
+    # each entry within 3 SE of a Gaussian sample covariance, √((Σᵢᵢ Σⱼⱼ + Σᵢⱼ²) / n) at the least ESS
+    # (1.5 SE at most here); a fixed atol of 0.25 allowed 31 % on the 0.8 variance, whatever the ESS
+    v = np.diag(COV)
+    se_cov = np.sqrt((np.outer(v, v) + COV**2) / d["ess"].min())
+    assert np.all(np.abs(np.cov(s.T) - COV) < 3 * se_cov), (np.cov(s.T) - COV) / se_cov
 
 
 def test_split_rhat_sees_walkers_apart():
