@@ -1489,6 +1489,38 @@ def test_theta_from_a_calibration_a_posterior_summary_or_text(tmp_path):
         assert_user_error(r, *words)
 
 
+def test_theta_from_a_file_is_cautioned_where_it_may_not_hold(tmp_path):
+    """replicate --theta said nothing of a calibration that stopped at its step limit, a posterior whose
+    walkers disagree, or a fit made with another leaf or photosynthesis set (a newcomer's audit); a
+    posterior summary written by --no-analysis has no MAP and is refused saying so (its keys were
+    reported as unknown parameters)."""
+    from lightfit.cli.common import parse_theta, theta_cautions
+
+    run = {"optics": "prospect", "photosynthesis": "winter_wheat", "chlorophyll_ug_cm2": None, "sky": "isotropic"}
+    cal = tmp_path / "calibration.json"
+    fit = {"theta": {"specular": 0.5}, "converged": True, "config": dict(run, chlorophyll_ug_cm2=40.0)}
+    cal.write_text(json.dumps(fit))
+    assert theta_cautions(str(cal), run) == []  # a setting left at its default (None) is not compared
+    assert theta_cautions("specular=0.5", run) == [] and theta_cautions(None, run) == []
+    fit |= {"converged": False, "stopped_by": "max_steps", "reason": "step limit: 2 accepted steps"}
+    fit["config"] |= {"optics": "paper", "photosynthesis": "giraud2023"}
+    cal.write_text(json.dumps(fit))
+    said = theta_cautions(str(cal), run)
+    assert len(said) == 2, said
+    assert "did not converge (max_steps: step limit: 2 accepted steps)" in said[0]
+    assert "fitted with optics paper, photosynthesis giraud2023; this run has optics prospect, " in said[1]
+    post = tmp_path / "post"
+    post.mkdir()
+    summary = {"names": ["specular", "roughness"], "stopped_by": "max_steps", "rhat": [1.01, 7.7], "tau": [1, 1]}
+    (post / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(InputError, match=r"without its analysis \(written by --no-analysis\): it has no MAP"):
+        parse_theta(str(post / "summary.json"))
+    summary["x_map"] = {"specular": 0.5, "roughness": 0.6}
+    (post / "summary.json").write_text(json.dumps(summary))
+    (said,) = theta_cautions(str(post / "summary.json"), run)
+    assert "the walkers disagree (split-R̂ 7.7 for roughness" in said, said
+
+
 def test_ctrl_c_inside_a_render_exits_130_on_one_line(tmp_path, monkeypatch, caplog):
     """Ctrl-C while Mitsuba renders (inside the JAX host callback of lightfit.light.bridge): exit
     130 and the interrupt line, without the traceback JAX logs for the callback's exception

@@ -308,6 +308,14 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     if p.exists():
         data = json_object(p, option, expected)
         values = data.get("theta", data)
+        if "x_map" not in data and {"names", "stopped_by", "rhat"} <= set(data):  # --no-analysis wrote it
+            raise InputError(
+                "a posterior's summary without its analysis (written by --no-analysis): it has no MAP",
+                file=p,
+                parameter=option,
+                expected=f"a summary with the analysis: rerun `lightfit posterior` into {p.parent} with --analysis "
+                "(the default; the chain is resumed, not sampled again)",
+            )
         if "x_map" in data:  # a posterior's summary: its MAP (the sampled model parameters)
             values = {k: v for k, v in data["x_map"].items() if k in BOUNDS}
         if not isinstance(values, dict):
@@ -339,6 +347,64 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
             raise InputError(f"{k.strip()} given more than once", parameter=option, expected="each parameter once")
         out[k.strip()] = value
     return check_theta(out, what=option)
+
+
+#: Settings that give fitted parameters their meaning: a leaf's specular, roughness and subsurface act
+#: on its optics and sky, the light factor on its weather, vcmax_scale on its photosynthesis set.
+THETA_CONTEXT = (
+    "optics",
+    "chlorophyll_ug_cm2",
+    "sky",
+    "soil_albedo",
+    "par_kind",
+    "photosynthesis",
+    "vcmax_profile",
+    "growth_temperature_c",
+    "weather_file",
+)
+
+
+def theta_cautions(theta: str | None, config: dict) -> list[str]:
+    """What to say of parameters taken from a file (:func:`parse_theta`) before they are used in a run of
+    settings ``config`` (:meth:`~lightfit.cli.options.Settings.as_dict`): a calibration that did not
+    converge, a posterior whose diagnostics caution (``lightfit posterior``'s own cautions), and a fit
+    made with other :data:`THETA_CONTEXT` settings (a calibration's ``config``, a posterior's run.h5
+    beside its summary). Settings a file leaves unset (``None``: the defaults) are not compared."""
+    if not theta or not Path(theta).exists():
+        return []
+    p = Path(theta)
+    data = json_object(p, "theta", "a calibration.json or a posterior's summary.json")
+    out, fitted = [], data.get("config")
+    if data.get("converged") is False:
+        out.append(
+            f"{p} is a calibration that did not converge ({data.get('stopped_by')}: {data.get('reason')}): "
+            "its theta is where the optimiser stopped, not an optimum"
+        )
+    if "x_map" in data:
+        from lightfit.cli.posterior import _cautions
+
+        said = _cautions(data)
+        if said:  # the first in full; `lightfit posterior` printed them all where the numbers were
+            more = f" (and {len(said) - 1} more cautions its run printed)" if len(said) > 1 else ""
+            out.append(f"the posterior of {p}: {said[0]}{more}")
+        if fitted is None and (p.parent / "run.h5").exists():
+            from lightfit.inference.mcmc.backend import run_attrs
+
+            try:
+                fitted = run_attrs(p.parent / "run.h5").get("config")
+            except (InputError, OSError, KeyError):
+                fitted = None  # no run file to compare with: nothing said of the settings
+    if isinstance(fitted, dict):
+        differ = [
+            k
+            for k in THETA_CONTEXT
+            if fitted.get(k) is not None and config.get(k) is not None and fitted[k] != config[k]
+        ]
+        if differ:
+            then = ", ".join(f"{k} {fitted[k]}" for k in differ)
+            now = ", ".join(f"{k} {config[k]}" for k in differ)
+            out.append(f"{p} was fitted with {then}; this run has {now}: its parameters may not mean the same here")
+    return out
 
 
 def parse_names(text: str) -> tuple[str, ...]:

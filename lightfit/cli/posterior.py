@@ -328,7 +328,8 @@ def _cautions(d: dict) -> list[str]:
         out.append(
             f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): the chain has not mixed "
             "yet (resume with a larger --max-steps), or they sit in separate modes, whose shares the ensemble "
-            "cannot correct; either way the summary is not the posterior (the corner plot shows where they are)"
+            "cannot correct; either way the summary is not the posterior (the corner plot of "
+            "notebooks/posterior_analysis.ipynb shows where they are)"
         )
     if not d.get("tau_reliable", True):
         m = d.get("tau_multiple") or 50

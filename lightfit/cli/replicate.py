@@ -21,6 +21,7 @@ from lightfit.cli.common import (
     parse_theta,
     samples_label,
     soil_respiration_note,
+    theta_cautions,
     weather_report,
     weather_table,
 )
@@ -84,6 +85,8 @@ def replicate(
     cfg = s.replication_config()
     fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
+    for line in theta_cautions(theta, s.as_dict()):  # said before the run; they do not stop it
+        caution(line)
     cmp = None if compare_preset is None else _comparison(model, compare_preset)
     if cmp is not None and cmp == cfg:  # a second run of this very configuration: twice the time, one answer
         raise InputError(
