@@ -772,6 +772,17 @@ def test_results_it_cannot_label_or_place_are_refused(results_file, tmp_path):
         field_of(open_results(tmp_path / "days.nc"))
     res = open_results(results_file)
     assert select_times(res, [TIMES[1], TIMES[1]]) == select_times(res, [TIMES[1]])
+    # A bare clock time is the site's local time on the results' day (CEST, UTC+2, on 20 April), as the
+    # tables and figures label the steps; pandas had read it as today's date in UTC (a newcomer's audit).
+    assert select_times(res, ["10:00", "13:00"]) == select_times(res, TIMES)
+    assert select_times(res, ["2016-04-20T10:00+02:00"]) == select_times(res, [TIMES[0]])
+    with pytest.raises(InputError, match=r"is not a step of the results \(expected one of .* 10:00 … 13:00 local"):
+        select_times(res, ["08:00"])
+    with xr.open_dataset(results_file) as ds:
+        t = ds["time"].values
+        ds.load().assign_coords(time=[t[0], t[1] + np.timedelta64(1, "D")]).to_netcdf(tmp_path / "2d.nc")
+    with pytest.raises(InputError, match="has no date and the results span 2 days"):
+        select_times(open_results(tmp_path / "2d.nc"), ["10:00"])
 
 
 def test_field_export_keeps_stems_whose_leaf_quantities_are_nan(tmp_path):

@@ -39,7 +39,10 @@ def render_dataset(
     exposure_ev: float = typer.Option(0.0, help="Exposure compensation of sweep cameras, stops."),
     meter_percentile: float = typer.Option(99.0, help="Leaf metering: percentile of leaf pixels mapped to white."),
     time: list[str] = typer.Option(
-        None, "--time", help="Results time step(s), ISO UTC (repeatable); default: highest sun."
+        None,
+        "--time",
+        help="Results time step(s) (repeatable): HH:MM local site time on the results' day, or ISO 8601 "
+        "(UTC unless zoned, e.g. 2016-04-20T10:00 or 2016-04-20T12:00+02:00); default: highest sun.",
     ),
     all_times: bool = typer.Option(False, "--all-times", help="Render every time step of the results."),
     quantity: list[str] = typer.Option(

@@ -18,6 +18,7 @@ comes from a weather series (the bundled one for the target date by default).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from lightfit.errors import InputError
 from lightfit.files import is_netcdf
 from lightfit.light.scene import SKY_MODELS
 from lightfit.model import schema
+from lightfit.weather.site import localize
 
 #: Short quantity names → results variables (units: :mod:`lightfit.model.schema`).
 QUANTITIES = {
@@ -220,29 +222,46 @@ def build_geometry(res: Results, cache_dir=None):
 
 
 def select_times(res: Results, times: list[str] | None) -> list[int]:
-    """Indices of the requested time steps: ISO timestamps (UTC unless zoned), ``"all"``, or
-    ``None`` = the step with the highest sun (or the first step when the sun is unknown)."""
+    """Indices of the requested time steps: ISO timestamps (UTC unless zoned), a bare ``HH:MM`` (the
+    site's local time on the results' one day, as the tables and figures label the steps), ``"all"``,
+    or ``None`` = the step with the highest sun (or the first step when the sun is unknown)."""
     if not times:
         if "sun_elevation_deg" in res.ds:
             return [int(np.nanargmax(res.ds["sun_elevation_deg"].values))]
         return [int(np.argmax(_sun(res).sun_elevation_deg.to_numpy()))]
     if list(times) == ["all"]:
         return list(range(len(res.times)))
-    out = []
+    out, tz = [], _site(res).timezone
+    local = res.times.tz_convert(tz)
     for t in times:
+        clock = re.fullmatch(r"\s*(\d{1,2}):(\d{2})\s*", str(t))
+        if clock is not None:  # pandas read a bare clock time as today's date, in UTC
+            days = sorted(set(local.date))
+            if len(days) != 1:
+                raise InputError(
+                    f"time {t!r} has no date and the results span {len(days)} days",
+                    parameter="times",
+                    expected="a date with it, e.g. 2016-04-20T10:00 (UTC) or 2016-04-20T12:00+02:00",
+                )
+            t = f"{days[0]} {t.strip()}"
         try:
             ts = pd.Timestamp(t)
         except ValueError as err:
             raise InputError(
-                f"time {t!r} is not a timestamp", parameter="times", expected="ISO 8601, e.g. 2016-04-20T10:00"
+                f"time {t!r} is not a timestamp",
+                parameter="times",
+                expected=f"ISO 8601, e.g. 2016-04-20T10:00 (UTC unless zoned), or HH:MM local time ({tz})",
             ) from err
+        if clock is not None:
+            ts = localize(ts, tz, parameter="times")
         ts = ts.tz_localize("UTC") if ts.tz is None else ts.tz_convert("UTC")
         hit = np.flatnonzero(res.times == ts)
         if not len(hit):
             raise InputError(
                 f"time {ts} is not a step of the results",
                 parameter="times",
-                expected=f"one of {res.times[0]} … {res.times[-1]} ({len(res.times)} steps)",
+                expected=f"one of {res.times[0]:%Y-%m-%d %H:%M} … {res.times[-1]:%H:%M} UTC, "
+                f"{local[0]:%H:%M} … {local[-1]:%H:%M} local time ({tz}) ({len(res.times)} steps)",
             )
         out.append(int(hit[0]))
     return list(dict.fromkeys(out))  # a time given twice is one image (it was listed twice, written once)
