@@ -66,6 +66,8 @@ def test_posterior_cli_quick(tmp_path):
     assert "the data hardly inform specular" in " ".join(r.output.split())
     status = CliRunner().invoke(app, ["posterior-status", str(out)])  # from run.h5's analysis, as said there
     assert status.exit_code == 0 and "the data hardly inform specular" in " ".join(status.output.split())
+    # numbers not yet estimable show "–", the flag yes/no (they printed "nan" and Python's False)
+    assert "nan" not in status.output + r.output and "emcee suggests 50): no;" in " ".join(status.output.split())
     run = load_run(out / "run.h5")
     # 30 steps keep far fewer than 50 τ: the command's own table says so, as posterior-status does
     assert not run["diagnostics"]["tau_reliable"] and s["tau_reliable"] is False

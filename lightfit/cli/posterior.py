@@ -282,9 +282,9 @@ def posterior(
             f"{res['mean'][n]:.4g}",
             f"{res['sd'][n]:.3g}",
             f"{res['x_map'][n]:.4g}",
-            f"{res['tau'][i]:.1f}",
-            f"{res['ess'][i]:.0f}",
-            f"{res['rhat'][i]:.3f}",
+            _shown(res["tau"][i], ".1f"),
+            _shown(res["ess"][i], ".0f"),
+            _shown(res["rhat"][i], ".3f"),
         )
     console.print(t)
     for line in _cautions(res):  # what posterior-status reports, said where the numbers are
@@ -419,6 +419,14 @@ def _readable_run(path: Path, resume: bool) -> None:
         console.print(f"{path} was not readable as a posterior run ({e}): removed, the run starts again")
 
 
+def _shown(x, spec: str) -> str:
+    """``x`` formatted by ``spec``, or "–" where it is not a finite number yet (τ, ESS and R̂ of a chain
+    too short to estimate them printed as "nan")."""
+    import math
+
+    return format(x, spec) if x is not None and math.isfinite(x) else "–"
+
+
 def _print_status(st: dict) -> None:
     """The table of :func:`lightfit.inference.mcmc.backend.run_status`."""
     import numpy as np
@@ -436,10 +444,10 @@ def _print_status(st: dict) -> None:
     for i, n in enumerate(st["names"]):
         t.add_row(
             n,
-            f"{d['tau'][i]:.1f}",
-            f"{d['ess'][i]:.0f}",
-            "–" if last is None else f"{last['tau'][i]:.1f}",
-            "–" if last is None else f"{last['ess'][i]:.0f}",
+            _shown(d["tau"][i], ".1f"),
+            _shown(d["ess"][i], ".0f"),
+            "–" if last is None else _shown(last["tau"][i], ".1f"),
+            "–" if last is None else _shown(last["ess"][i], ".0f"),
         )
     console.print(t)
     console.print(f"{st['steps']}/{st['max_steps']} steps, {state}")
@@ -449,9 +457,9 @@ def _print_status(st: dict) -> None:
     rhat = np.asarray(d["rhat"], float)
     console.print(
         f"acceptance {acc:.2f}{flag}; τ reliable (n_kept ≥ {d['tau_multiple']:g} τ, the stop rule's length; "
-        f"emcee suggests 50): {bool(d['tau_reliable'])}; "
-        f"max split-R̂ {np.nanmax(rhat) if np.isfinite(rhat).any() else float('nan'):.3f}; {check}; "
-        f"max τ {np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else float('nan'):.1f}; "
+        f"emcee suggests 50): {'yes' if d['tau_reliable'] else 'no'}; "
+        f"max split-R̂ {_shown(np.nanmax(rhat) if np.isfinite(rhat).any() else None, '.3f')}; {check}; "
+        f"max τ {_shown(np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else None, '.1f')}; "
         f"analysis {'written' if st['analysis'] else 'not written'}"
     )
     ms = st.get("map_search") or {}

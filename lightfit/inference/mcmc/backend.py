@@ -46,7 +46,8 @@ def open_h5(path: str | Path, mode: str = "r") -> h5py.File:
 def writer_lock(path: str | Path) -> Iterator[None]:
     """Hold an exclusive lock on ``<path>.lock`` while a run is written: a second writer of the same
     run file gets an :class:`InputError` instead of interleaving its steps (the HDF5 file itself is
-    opened unlocked, :func:`open_h5`). The lock dies with its process (SIGKILL included)."""
+    opened unlocked, :func:`open_h5`). The lock dies with its process (SIGKILL included). The empty
+    lock file is left in place: unlinking it would race a writer that has it open but not yet locked."""
     lock = Path(f"{path}.lock")
     lock.parent.mkdir(parents=True, exist_ok=True)
     fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
