@@ -565,7 +565,7 @@ def test_fit_cautions_against_the_chi_square_table():
     edge = fit_cautions({"roughness": 0.9995}, loss=1.0, **kw)
     assert len(edge) == 2 and "roughness = 0.9995 is on the edge of its search range [0.3, 1]" in edge[0]
     # a good fit with a parameter on its edge is not blamed on units alone (a flat direction does that)
-    assert edge[1].startswith("the fit is good: an edge can mean the data barely inform")
+    assert edge[1].startswith("the fit is good (χ² within the data's SDs): an edge can mean the data barely")
     (_, misfit, advice) = fit_cautions({"roughness": 0.9995}, loss=80.3 / 2, **kw)
     assert "χ² = 80.3" in misfit and advice.startswith("check the observations' units")
     # no χ² to call the fit good: an infinite or NaN loss, or no more values than parameters (a review)

@@ -917,6 +917,9 @@ def test_calibrate_bounded_method_on_two_steps(tmp_path):
     res = json.loads((tmp_path / "calibration.json").read_text())
     assert res["method"] == "lbfgsb" and res["use"] == ["above_canopy_par"] and res["steps"] >= 1
     assert "lbfgsb" in r.stdout
+    # an unconverged optimiser is said as such (a newcomer read "the fit is good" as the verdict)
+    assert ("caution: the optimiser did not converge (" in _flat(r.output)) == (not res["optimizer_converged"])
+    assert f"wrote {tmp_path / 'calibration.json'}, {tmp_path / 'settings.json'}, " in _flat(r.stdout)
     # the hint reruns the same model (quick field, the two steps) against the same observations
     hint = _flat(r.stdout).split("to see the fit: ")[1]
     assert hint.startswith("lightfit replicate --quick --steps 14:16 --theta ")
@@ -1123,6 +1126,8 @@ def test_nee_with_uptake_counted_positive_gets_a_caution_before_the_plants_grow(
     text = " ".join(r.output.split())
     assert "caution" in text and "NEE is positive (a release) at all 3 readings" in text, text
     assert r.exit_code == 0 and text.index("NEE is positive") < text.index("observations:"), text  # before growing
+    if not json.loads((tmp_path / "out" / "calibration.json").read_text())["optimizer_converged"]:
+        assert "the optimiser did not converge (step limit: 1 accepted step" in text, text
 
 
 def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_file(tmp_path):

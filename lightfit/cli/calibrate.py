@@ -332,6 +332,11 @@ def calibrate(
     if tr is not None:
         _print_check(tr)
     support = {n: p.support for n, p in box.items()}
+    if not res.converged:  # said before the fit's cautions, whose "the fit is good" reads as a verdict
+        caution(
+            f"the optimiser did not converge ({res.reason}): the values are where it stopped, not an optimum; "
+            "rerun with a larger --max-steps (the run continues from its history)"
+        )
     others = " or ".join(f"--priors {p}" for p in P.PRIOR_SETS if p != priors)
     for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):
         leaf = tr is not None and tr.mode == "surrogate" and line.split(" ", 1)[0] in E.LEAF_PARAMETERS
@@ -342,7 +347,8 @@ def calibrate(
     again = ["lightfit", "replicate", *model.args(), "--theta", str(out / "calibration.json")]
     again += ["--observations", str(observations), "--out", str(out / "fit")]
     console.print(
-        f"[green]wrote[/] {out / 'calibration.json'}, {out / ('trust_region' if tr else 'history.jsonl')}; "
+        f"[green]wrote[/] {out / 'calibration.json'}, {out / 'settings.json'}, "
+        f"{out / ('trust_region' if tr else 'history.jsonl')}; "
         f"to see the fit: {shlex.join(again)}",
         soft_wrap=True,
     )

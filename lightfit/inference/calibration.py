@@ -814,7 +814,8 @@ def misfit(chi2_value: float, n_values: int, k: int, what: str = "the fit") -> l
 CHECK_UNITS = "check the observations' units and SDs, and what the model leaves out, before using these values"
 #: The closing line where the only caution is a parameter on its box's edge and the fit is good.
 EDGE_WITH_GOOD_FIT = (
-    "the fit is good: an edge can mean the data barely inform that parameter (lightfit posterior shows its "
+    "the fit is good (χ² within the data's SDs): an edge can mean the data barely inform that parameter "
+    "(lightfit posterior shows its "
     "spread) as well as that they pull it beyond (then check the observations' units and SDs)"
 )
 
