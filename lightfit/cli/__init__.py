@@ -55,7 +55,8 @@ def _main(
         None,
         "--variant",
         envvar="LIGHTFIT_VARIANT",
-        help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: auto).",
+        help="Mitsuba variant, e.g. llvm_ad_mono or cuda_ad_mono (default: auto); given before the command: "
+        "lightfit --variant llvm_ad_mono replicate …",
     ),
 ) -> None:
     """Runs before every command: the precision policy, and the Mitsuba variant if one is asked for."""

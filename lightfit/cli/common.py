@@ -518,9 +518,11 @@ def offset_line(obs, w) -> str:
     interpolated linearly in time, :func:`lightfit.inference.observations.interpolation`), and how
     many at their nearest step and how far from it."""
     import numpy as np
+    import pandas as pd
 
     from lightfit.inference.observations import SERIES, interpolation, nearest_steps, with_reading
     from lightfit.weather import timestamps
+    from lightfit.weather.reconstruct import Anchor
 
     stamps = timestamps.of(w)
     idx, dist = nearest_steps(obs, w.index, stamps)
@@ -543,6 +545,15 @@ def offset_line(obs, w) -> str:
             f"{int(at_step.sum())} of {n} with their nearest step, up to {far:.1f} min away "
             f"({timestamps.of(obs).describe()} to {stamps.describe()}, by interval centre)"
         )
+    anchor = Anchor.of(w.attrs)
+    par = obs["above_canopy_par_umol_m2_s"] if "above_canopy_par_umol_m2_s" in obs.columns else None
+    if anchor is not None and par is not None:  # a match by construction read as a validation (an audit)
+        at = abs(obs.index - anchor.time_utc) <= pd.Timedelta("1min")
+        if (at & par.notna().to_numpy()).any():
+            parts.append(
+                f"the PAR reading at {anchor.time_local} {anchor.tz} is the point the reconstructed forcing "
+                "was scaled to: it agrees by construction and validates nothing"
+            )
     return "  " + "; ".join(parts)
 
 

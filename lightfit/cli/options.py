@@ -266,7 +266,9 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         bool,
         typer.Option(
             "--quick",
-            help="First look in under a minute (the CI size): 4 plants, K=16, 2 bounces; explicit options still win.",
+            help="The model at the CI size: 4 plants, K=16, 2 bounces (replicate in under a minute; calibrate "
+            "and posterior still render their design and sample: add --steps, --n-design, --max-steps to shrink "
+            "them); explicit options still win.",
             rich_help_panel=_FIELD,
         ),
     ),
