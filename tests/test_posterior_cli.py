@@ -64,6 +64,10 @@ def test_posterior_cli_quick(tmp_path):
     assert s["chi2_map"] == pytest.approx(((y - s["x_map"]["light_factor"] * at) / sd) ** 2, rel=1e-6, abs=1e-9)
     assert s["sd_over_prior_sd"]["specular"] > 0.9 > s["sd_over_prior_sd"]["light_factor"]
     assert "the data hardly inform specular" in " ".join(r.output.split())
+    # each stage of the analysis is said as it starts (≈ 30 s of silence after the sampling's bar)
+    stages = ["analysis: the MAP", "analysis: Fisher information", "analysis: posterior predictive", "posterior ("]
+    at = [r.output.find(x) for x in stages]
+    assert min(at) >= 0 and at == sorted(at), at
     status = CliRunner().invoke(app, ["posterior-status", str(out)])  # from run.h5's analysis, as said there
     assert status.exit_code == 0 and "the data hardly inform specular" in " ".join(status.output.split())
     # numbers not yet estimable show "–", the flag yes/no (they printed "nan" and Python's False)

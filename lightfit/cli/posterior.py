@@ -254,6 +254,7 @@ def posterior(
         attrs={"config": s.as_dict(), "priors_set": priors, "emulator_key": emu_key},
         mc_correlation=form["mc_correlation"],
         mc_scale=mc_scale,
+        say=lambda line: console.print(line),
     )
     if val:
         res["seeds"]["held_out_design"] = E.HELD_OUT_SEED

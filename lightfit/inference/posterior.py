@@ -514,6 +514,7 @@ def run(
     attrs: dict | None = None,
     mc_correlation="model",
     mc_scale: float = 1.0,
+    say=None,
 ) -> dict:
     """Sample the posterior into ``path`` and (``analysis=True``) write the analysis group.
 
@@ -527,7 +528,9 @@ def run(
     with its correlation across steps and series, computed once from the emulated parts at the centre
     of the priors (:func:`~lightfit.inference.likelihood.mc_correlation`); ``None`` — independent
     steps (the diagonal form before issue 15); or an
-    :class:`~lightfit.inference.likelihood.MCCorrelation`. ``mc_scale``: 1 for measured observations,
+    :class:`~lightfit.inference.likelihood.MCCorrelation`. ``say(line)``: told as each stage of the
+    analysis starts (tens of seconds after the sampling's progress bar; ``None``: nothing said).
+    ``mc_scale``: 1 for measured observations,
     2 for twins rendered at the model's samples. Both are stored with the run, and a run stored with
     another form is not resumed (:func:`check_likelihood`); nor is one started with another ``seed``,
     ``use``, ``priors``, ``fixed`` values or observations (:func:`check_resume`). Leaf parameters the
@@ -649,12 +652,15 @@ def run(
     summ = summarize(samples, lp.names)
     cov = np.cov(samples.T).reshape(len(lp.names), len(lp.names))
     flat_lp = res.log_prob[burn_in(len(res.log_prob), burn) :].reshape(-1)
+    say = say or (lambda line: None)
+    say("analysis: the MAP (L-BFGS-B from the best sample) …")
     map_info: dict = {}
     x_map = optimum(lp, samples[np.argmax(flat_lp)], info=map_info)
     # How well the MAP fits (χ² of the whitened residuals) and how much the data narrowed each prior:
     # the posterior's SDs describe the model, and mean little where it does not fit or the prior stays.
     chi2_map = chi2_as_given(lp, x_map)
     prior_sd = {n: float(np.std(lp.priors[n].sample(np.random.default_rng(0), PRIOR_SD_DRAWS))) for n in lp.names}
+    say(f"analysis: Fisher information and profile likelihoods ({n_profile} points each) …")
     fisher, profile = identifiability(lp, x_map, n_profile)
     # what lightfit posterior and posterior-status caution from (the MAP's fit, the priors' say)
     fit = {
@@ -665,6 +671,7 @@ def run(
         "prior_support": {n: [float(b) for b in lp.priors[n].support] for n in lp.names},
     }
     draws_seed = seed + 1  # the predictive draws' generator, recorded with the run's other seeds
+    say(f"analysis: posterior predictive ({n_predictive} draws) …")
     an: dict = {
         "fit": fit,
         "summary": {k: np.asarray(v) for k, v in summ.items() if k != "names"},
@@ -678,6 +685,9 @@ def run(
     out["seeds"]["predictive_draws"] = draws_seed
     if validation_renders is not None:
         per_day = validation_renders if isinstance(model, MultiDayModel) else [validation_renders]
+        n_held = sum(len(lt) for lt, _ in per_day)
+        at_map = " and a render at the MAP's leaf" if render_at is not None else ""
+        say(f"analysis: the emulator's error at {n_held} held-out full renders{at_map} …")
         th_map, _ = lp.split(jnp.asarray(x_map))
         extra = {k: float(getattr(th_map, k)) for k in ("light_factor", "vcmax_scale")}
         if render_at is not None:  # the MAP's leaf, the last held-out point of every day
