@@ -483,6 +483,21 @@ def periodic_results_file(tmp_path_factory):
     return path
 
 
+def test_cli_cautions_when_the_periodic_canopy_is_cut(periodic_results_file, tmp_path, monkeypatch):
+    """A face budget that cuts the periodic canopy short of what the cameras see was said only in
+    metadata.json (a newcomer's audit): the command cautions, naming the reach it covers."""
+    import lightfit.dataset.dataset as D
+
+    cut = D.periodic_canopy
+    monkeypatch.setattr(D, "periodic_canopy", lambda mesh, cell, reach: cut(mesh, cell, reach, max_faces=mesh.n_faces))
+    args = ["render-dataset", str(periodic_results_file), "-o", str(tmp_path / "x"), "--sweep", "1", "--width", "16"]
+    r = CliRunner().invoke(app, [*args, "--height", "16", "--spp", "1", "--gallery", "0", "--export", "none"])
+    assert r.exit_code == 0, r.output
+    meta = json.loads((tmp_path / "x" / "metadata.json").read_text())["periodic_canopy"]
+    said = " ".join(r.output.split())
+    assert meta["copies"] == 1 and f"covers {meta['reach_m']:.2f} m of the {meta['requested_reach_m']:.2f} m" in said
+
+
 def test_periodic_results_rebuild_the_periodic_cell(periodic_results_file, results_file):
     from lightfit.dataset.results import field_of
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import console, output_folder
+from lightfit.cli.common import caution, console, output_folder
 from lightfit.errors import InputError
 
 #: Options that describe the sweep's cameras: with --cameras (whose JSON carries each camera's own
@@ -66,7 +66,12 @@ def render_dataset(
     export: str = typer.Option("ply", help="Coloured field geometry: ply, vtk or none."),
     cache_dir: Path = typer.Option(None, help="Plant cache directory (default: lightfit's)."),
 ) -> None:
-    """Render synthetic images with dense functional labels (absorbed PAR, An, Fj/Fc limitation) from a run."""
+    """Render synthetic images with dense functional labels (absorbed PAR, An, Fj/Fc limitation) from a run.
+
+    The labels are the run's values per segment; the images' colours are visible-band materials of
+    the data scene (lightfit.dataset.VisualMaterials: green leaves, loam soil), not the run's PAR
+    leaf optics or fitted leaf parameters, which describe another waveband.
+    """
     from rich.markup import escape
 
     from lightfit.dataset import Camera, DatasetSpec, RenderSettings, Sweep, load_cameras, make_dataset
@@ -117,6 +122,13 @@ def render_dataset(
         left = [q for q in DEFAULT_QUANTITIES if q not in meta["quantities"]]
         if left:
             console.print(f"labels: {', '.join(meta['quantities'])}; not in the results: {', '.join(left)}")
+    pc = meta.get("periodic_canopy") or {}
+    if pc.get("capped_by_max_faces"):  # only metadata.json said it (a newcomer's audit)
+        caution(
+            f"the periodic canopy was cut at {pc['copies']} copies of the cell ({pc['plant_faces']:,} faces): it "
+            f"covers {pc['reach_m']:.2f} m of the {pc['requested_reach_m']:.2f} m the cameras see, bare soil beyond; "
+            "closer or steeper cameras see none of it"
+        )
     n = meta["cameras_taken_over"]
     taken = f", {n} camera(s) rendered by the interrupted run" if n else ""
     if meta["cameras_discarded"]:
