@@ -56,7 +56,9 @@ PLANT_SPACING_HELP = (
     f"Distance between plants in a row, m (default {DEFAULT_PLANT_SPACING_M:g}: with the default rows "
     f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²)."
 )
-ROW_DIRECTION_HELP = f"Compass azimuth of the rows, degrees (default {Field.row_direction_deg:g} = east–west)."
+ROW_DIRECTION_HELP = (
+    f"Compass azimuth of the rows, degrees in [0, 360) (default {Field.row_direction_deg:g} = east–west)."
+)
 PARAMETER_FILE_HELP = (
     f"CPlantBox plant XML: a bundled name (default {DEFAULT_PARAMETER_FILE}) or a path (./NAME for an edited "
     "copy under a bundled name)."
@@ -364,8 +366,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         int | None,
         typer.Option(
             "--samples",
-            help="Irradiance samples per segment K (default 32 with the projected direct light, 64 with the "
-            "paths; --quick: 16).",
+            help="Irradiance samples per segment K, ≥ 2 (default 32 with the projected direct light, 64 with "
+            "the paths; --quick: 16).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -373,7 +375,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         int | None,
         typer.Option(
             "--bounces",
-            help="Scattering orders (default: as many as keep the truncated light under 1 % for the leaf, "
+            help="Scattering orders, 0 = unscattered light only (default: as many as keep the truncated light "
+            "under 1 % for the leaf, "
             "2 for the default leaf, 8 for --optics paper; --quick: 2; docs/light.md, Recommended settings).",
             rich_help_panel=_LIGHT,
         ),
@@ -430,7 +433,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         int | None,
         typer.Option(
             "--render-seed",
-            help="Seed of the irradiance sample streams (common random numbers; default 0).",
+            help="Seed of the irradiance sample streams, an integer in [0, 2³²) (common random numbers; default 0).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -495,7 +498,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--chlorophyll-ug-cm2",
-            help="Leaf chlorophyll a+b of the prospect leaf, µg cm⁻² (default 50.5 = SPAD 41; "
+            help="Leaf chlorophyll a+b of the prospect leaf, µg cm⁻², 0–200 (default 50.5 = SPAD 41; "
             "prior range 36.4–70.3 = SPAD 32–52 of wheat; changes leaf optics only).",
             rich_help_panel=_LIGHT,
         ),
@@ -504,7 +507,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--soil-albedo",
-            help=f"Soil PAR albedo, Lambertian (default {SOIL_ALBEDO:g}, moist loam; docs/model.md, Presets).",
+            help=f"Soil PAR albedo, Lambertian, in [0, 1] (default {SOIL_ALBEDO:g}, moist loam; docs/model.md, "
+            "Presets).",
             rich_help_panel=_LIGHT,
         ),
     ),
@@ -632,7 +636,9 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
     ),
     "hours": (
         float | None,
-        typer.Option("--hours", help="Length of each day's window, hours (default 14).", rich_help_panel=_WHEN),
+        typer.Option(
+            "--hours", help="Length of each day's window, hours, 0 < hours ≤ 24 (default 14).", rich_help_panel=_WHEN
+        ),
     ),
     "step": (
         str | None,
