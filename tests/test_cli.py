@@ -1330,6 +1330,14 @@ def test_field_run_records_where_and_when_as_replicate_does(tmp_path):
         where = (a["site"], a["site_timezone"], a["date"], a["preset"])
         assert where == ("Selhausen", "Europe/Berlin", "2016-04-20", "default")
         assert a["window"].startswith("2016-04-20 11:00 + 0.5 h") and '"n_plants"' in a["replication_config"]
+        above = ds["above_canopy_par_umol_m2_s"].values
+    # --theta runs the field at given parameters, as replicate does (field-run had no way to take a
+    # calibration's; a newcomer's audit): the sensor above the canopy scales with the light factor alone
+    r = runner.invoke(app, [*args, "--theta", "light_factor=1.25,specular=0.4", "--out", str(tmp_path / "t.nc")])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(tmp_path / "t.nc") as ds:
+        assert (ds.attrs["theta_light_factor"], ds.attrs["theta_specular"]) == (1.25, 0.4)
+        np.testing.assert_allclose(ds["above_canopy_par_umol_m2_s"].values, 1.25 * above, rtol=1e-12)
 
 
 def test_edge_note_only_where_fapar_exceeds_one():

@@ -296,6 +296,13 @@ def json_object(path: Path, option: str, expected: str) -> dict:
     return data
 
 
+#: ``--theta``'s help, for every command that runs the model at given parameters.
+THETA_HELP = (
+    "Leaf/light parameters: a calibration.json, a posterior's summary.json (its MAP) or key=value,... "
+    "(specular, roughness, subsurface, light_factor, vcmax_scale)."
+)
+
+
 def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     """Parameters from a JSON file (a calibration's ``calibration.json``: its ``theta``; a posterior's
     ``summary.json``: its MAP, ``x_map``, without the noise scale, which is no model parameter) or

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import caution, console, samples_label
+from lightfit.cli.common import THETA_HELP, caution, console, parse_theta, samples_label, theta_cautions
 from lightfit.cli.options import DASK_PANEL as _DASK
 from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
 from lightfit.errors import InputError
@@ -42,6 +42,7 @@ def field_run(
     connect_timeout: float = typer.Option(
         30.0, help="Give up connecting to the scheduler after this many seconds.", rich_help_panel=_DASK
     ),
+    theta: str = typer.Option(None, help=THETA_HELP),
     progress: bool = typer.Option(True, help="Progress bar over tiles."),
     resume: bool = typer.Option(
         True,
@@ -73,7 +74,10 @@ def field_run(
         )
     if not resume and parts.is_dir():
         shutil.rmtree(parts)
-    run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks)
+    th = parse_theta(theta)
+    for line in theta_cautions(theta, s.as_dict()):
+        caution(line)
+    run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks, theta=th)
     sc = run.scenario
     console.print(
         f"{sc.field.n}² plants, {field_label(sc.field)}, {tiles} tile(s) × {time_chunks} time "

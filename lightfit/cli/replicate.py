@@ -12,6 +12,7 @@ from rich import box
 from rich.table import Table
 
 from lightfit.cli.common import (
+    THETA_HELP,
     caution,
     console,
     fixed,
@@ -58,11 +59,7 @@ def replicate(
         help="Chamber observations CSV (default: the bundled record of 20 April 2016, "
         "used when the run's steps reach it).",
     ),
-    theta: str = typer.Option(
-        None,
-        help="Leaf/light parameters: a calibration.json, a posterior's summary.json (its MAP) or key=value,... "
-        "(specular, roughness, subsurface, light_factor, vcmax_scale).",
-    ),
+    theta: str = typer.Option(None, help=THETA_HELP),
     compare_preset: str = typer.Option(
         None,
         help="Also run this preset (default or paper) on the same forcing and draw it dashed in the figure "
