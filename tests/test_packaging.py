@@ -33,7 +33,6 @@ NOT_IMPORTED = {
     "jaxlib": "JAX's compiled backend; jax imports it",
     "karellen-llvm-core": "ships libLLVM for Dr.Jit's CPU backend; light/backend.py finds it by path",
     "h5netcdf": "xarray's netCDF engine, named as engine='h5netcdf'",
-    "corner": "posterior corner plots in notebooks/posterior_analysis.ipynb, not in the package",
 }
 
 

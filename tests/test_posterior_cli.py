@@ -68,6 +68,12 @@ def test_posterior_cli_quick(tmp_path):
     stages = ["analysis: the MAP", "analysis: Fisher information", "analysis: posterior predictive", "posterior ("]
     at = [r.output.find(x) for x in stages]
     assert min(at) >= 0 and at == sorted(at), at
+    # the corner plot is written with the analysis (only the notebook drew one): a PNG of a figure
+    # with one panel per pair of the sampled parameters
+    from PIL import Image
+
+    with Image.open(out / "corner.png") as im:
+        assert im.format == "PNG" and min(im.size) > 400
     status = CliRunner().invoke(app, ["posterior-status", str(out)])  # from run.h5's analysis, as said there
     assert status.exit_code == 0 and "the data hardly inform specular" in " ".join(status.output.split())
     # numbers not yet estimable show "–", the flag yes/no (they printed "nan" and Python's False)

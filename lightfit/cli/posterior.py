@@ -163,6 +163,7 @@ def posterior(
     out.mkdir(parents=True, exist_ok=True)
     if not resume:  # the run it starts again: its summary must not outlive it (an interrupted run writes none)
         (out / "summary.json").unlink(missing_ok=True)
+        (out / "corner.png").unlink(missing_ok=True)
     days = days_of(m)
     dates = getattr(m, "dates", None)  # None: one day (files and keys as before several days existed)
     keys = [E.emulator_key(E.render_key(d), lo, hi, n_design, E.DESIGN_SEED, E.DEGREES) for d in days]
@@ -265,6 +266,7 @@ def posterior(
     # interrupted: it replaced the last finished run's summary with a part of a chain.
     replace_text(out / "summary.json", json.dumps(P.jsonable(res, strict=True), indent=2, default=str, allow_nan=False))
     if not analysis:
+        (out / "corner.png").unlink(missing_ok=True)  # drawn from a shorter chain, if from this run at all
         _print_status(P.backend.run_status(out / "run.h5"))
         console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")
         return
@@ -291,6 +293,12 @@ def posterior(
     for line in _cautions(res):  # what posterior-status reports, said where the numbers are
         caution(line)
     console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
+    from lightfit.inference.plots import corner_figure
+
+    samples = P.flat_samples(P.backend.load_run(out / "run.h5"), stop.burn_fraction)
+    said = f"{res['stopped_by']} after {res['n_steps']} steps × {walkers} walkers"
+    source = Path(observations or rep.OBSERVATIONS).name
+    corner_figure(samples, res["names"], res["x_map"], out / "corner.png", title=f"posterior, {source}: {said}")
     if "emulator_error" in res:
         ee = res["emulator_error"]
         at_map = ee.get("at_map_shift_over_sd")
@@ -301,7 +309,8 @@ def posterior(
             + ("" if at_map is None else f" and the MAP's leaf ({at_map:.3g} there)")
         )
     console.print(
-        f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}; open notebooks/posterior_analysis.ipynb "
+        f"[green]wrote[/] {out / 'run.h5'}, {out / 'summary.json'}, {out / 'corner.png'}; for chains, profiles and "
+        "the predictive curves open notebooks/posterior_analysis.ipynb "
         f"with LIGHTFIT_POSTERIOR_RUN={(out / 'run.h5').resolve()}"  # Jupyter runs it in notebooks/
     )
 
@@ -329,8 +338,8 @@ def _cautions(d: dict) -> list[str]:
         out.append(
             f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): the chain has not mixed "
             "yet (resume with a larger --max-steps), or they sit in separate modes, whose shares the ensemble "
-            "cannot correct; either way the summary is not the posterior (the corner plot of "
-            "notebooks/posterior_analysis.ipynb shows where they are)"
+            "cannot correct; either way the summary is not the posterior (the run's corner.png shows where they "
+            "are)"
         )
     if not d.get("tau_reliable", True):
         m = d.get("tau_multiple") or 50

@@ -1,0 +1,41 @@
+"""Figures of a posterior run that a user looks at rather than reads."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def corner_figure(samples: np.ndarray, names, x_map: dict, path: str | Path, *, title: str = "") -> Path:
+    """A corner plot (corner, Foreman-Mackey 2016, JOSS 1:24) of ``samples`` (n, len(names)) with the
+    MAP ``x_map`` (name → value) drawn as lines, written to ``path`` (PNG). The parameters are all
+    dimensionless (leaf surface parameters and scale factors). Ridges and bananas in the 2-D panels
+    are the non-identifiable combinations: the data fix where along them the walkers sit, not where
+    each parameter alone does."""
+    import corner
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(names)
+    fig = corner.corner(
+        np.asarray(samples, float),
+        labels=names,
+        show_titles=True,
+        title_fmt=".3g",
+        quantiles=(0.05, 0.5, 0.95),
+        truths=[x_map.get(n) for n in names],
+        truth_color="tab:red",
+    )
+    fig.suptitle(
+        (title + "\n" if title else "") + f"{len(samples):,} samples after burn-in; red lines: the MAP; "
+        "dashed: 5, 50, 95 %; all parameters dimensionless",
+        y=1.02,
+        fontsize=10,
+    )
+    path = Path(path)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
