@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 
@@ -62,14 +63,55 @@ def is_real(value) -> bool:
     return isinstance(value, Real) and not isinstance(value, bool)
 
 
-def check_integer(value, name: str, low: int, *, column: str | None = None, why: str = "") -> int:
-    """``value`` as an ``int`` if it is an integer (Python or numpy; not a bool) ≥ ``low``, else
-    :class:`InputError` ``name=value`` naming ``column`` (default ``name``); ``why`` is added to
-    what was expected."""
+def check_real(
+    value,
+    name: str,
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    *,
+    expected: str,
+    parameter: str | None = None,
+    open_lo: bool = False,
+    open_hi: bool = False,
+) -> float:
+    """``value`` as a float if it is a finite real number (:func:`is_real`: numpy's float32 too,
+    not a bool) in [``lo``, ``hi``] (without ``lo`` where ``open_lo``, ``hi`` where ``open_hi``),
+    else :class:`InputError` ``name=value`` naming ``parameter`` (default ``name``) and saying
+    ``expected``. The one check of a number's type and range: copies of it testing
+    ``isinstance(v, (int, float))`` refused numpy's float32."""
+    try:
+        ok = is_real(value) and math.isfinite(value)
+    except OverflowError:  # an int beyond a float's range
+        ok = False
+    ok = ok and (lo < value if open_lo else lo <= value) and (value < hi if open_hi else value <= hi)
+    if not ok:
+        raise InputError(f"{name}={value!r}", parameter=parameter or name, expected=expected)
+    return float(value)
+
+
+def check_integer(
+    value,
+    name: str,
+    low: int,
+    *,
+    high: int | None = None,
+    column: str | None = None,
+    why: str = "",
+    expected: str | None = None,
+) -> int:
+    """``value`` as an ``int`` if it is an integer (Python or numpy; not a bool) ≥ ``low`` (and
+    < ``high`` where given), else :class:`InputError` ``name=value`` naming ``column`` (default
+    ``name``) and saying ``expected`` (default the range, with ``why`` added)."""
     from numbers import Integral
 
-    if isinstance(value, bool) or not isinstance(value, Integral) or value < low:
-        expected = f"an integer ≥ {low}" + (f" ({why})" if why else "")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, Integral)
+        or value < low
+        or (high is not None and value >= high)
+    ):
+        rng = f"≥ {low}" if high is None else f"in [{low}, {high})"
+        expected = expected or f"an integer {rng}" + (f" ({why})" if why else "")
         raise InputError(f"{name}={value!r}", parameter=column or name, expected=expected)
     return int(value)
 

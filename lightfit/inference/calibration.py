@@ -58,7 +58,7 @@ import numpy as np
 import optimistix as optx
 import pandas as pd
 
-from lightfit.errors import InputError, check_integer, is_real
+from lightfit.errors import InputError, check_integer, check_real, is_real
 from lightfit.files import replace_text, replaced
 from lightfit.inference.likelihood import (
     USES,
@@ -542,8 +542,7 @@ def calibrate(
         raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
     check_max_steps(max_steps)
     for name, tol in (("rtol", rtol), ("atol", atol), ("gtol", gtol)):  # NaN never stops, < 0 means nothing
-        if not (is_real(tol) and math.isfinite(tol) and tol >= 0):
-            raise InputError(f"{name}={tol!r}", parameter=name, expected="a finite tolerance ≥ 0")
+        check_real(tol, name, 0, expected="a finite tolerance ≥ 0")
     if method == "bfgs" and rtol == atol == 0:  # the Cauchy test needs one of them (atol=0: relative only)
         raise InputError("rtol=0 and atol=0", parameter="rtol", expected="rtol > 0 or atol > 0 for method bfgs")
     if method == "lbfgsb" and gtol == 0:

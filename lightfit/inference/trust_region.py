@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError, is_real
+from lightfit.errors import InputError, check_real
 from lightfit.inference.calibration import MAX_STEPS, CalibrationResult, calibrate
 from lightfit.inference.likelihood import (
     USES,
@@ -285,8 +285,8 @@ def surrogate_calibrate(
     t0 = time.perf_counter()
     names = check_names(names, fitted=True)
     form = likelihood_form(mc_correlation, mc_scale)
-    if not (is_real(z) and math.isfinite(z) and z > 0):  # z ≤ 0 never passes: a render every round
-        raise InputError(f"z={z!r}", parameter="z", expected="a positive acceptance threshold in σ_L, e.g. 2")
+    # z ≤ 0 never passes: a render every round
+    check_real(z, "z", 0, open_lo=True, expected="a positive acceptance threshold in σ_L, e.g. 2")
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)

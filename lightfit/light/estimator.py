@@ -65,7 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError, check_integer, is_real
+from lightfit.errors import InputError, check_integer, check_real, is_real
 from lightfit.light import projection
 from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo, lobe_weights
@@ -282,11 +282,9 @@ def check_bounces(value) -> int:
 
 def check_target_rse(value) -> float:
     """A per-segment relative standard error to reach (adaptive sampling): a number in (0, 1)."""
-    if not (is_real(value) and 0 < value < 1):
-        raise InputError(
-            f"target_rse={value!r}", parameter="target_rse", expected="a relative standard error in (0, 1)"
-        )
-    return float(value)
+    return check_real(
+        value, "target_rse", 0, 1, open_lo=True, open_hi=True, expected="a relative standard error in (0, 1)"
+    )
 
 
 def check_direct_light(field_scene: FieldScene, direct: str, rays_per_m2) -> None:
@@ -320,11 +318,9 @@ DARK_FLOOR = 0.005
 
 def check_dark_floor(value) -> float:
     """Adaptive sampling's light floor: a fraction of the PAR above the canopy in [0, 1)."""
-    if not (is_real(value) and 0 <= value < 1):
-        raise InputError(
-            f"dark_floor={value!r}", parameter="dark_floor", expected="a fraction of the PAR above the canopy in [0, 1)"
-        )
-    return float(value)
+    return check_real(
+        value, "dark_floor", 0, 1, open_hi=True, expected="a fraction of the PAR above the canopy in [0, 1)"
+    )
 
 
 #: Largest ray origin offset ``epsilon_m`` (m) a render accepts: stems are 1.5 mm in radius and a
@@ -358,8 +354,7 @@ def bounces_for_tolerance(tolerance: float, optics: Optics) -> int:
     :data:`MAX_BOUNCES_FOR_TOLERANCE` orders (ρ near 1, where the series barely converges, or ρ ≥ 1,
     where it does not) is refused: give ``bounces`` yourself.
     """
-    if not (is_real(tolerance) and 0 < tolerance < 1):
-        raise InputError(f"tolerance={tolerance!r}", parameter="tolerance", expected="a number in (0, 1)")
+    check_real(tolerance, "tolerance", 0, 1, open_lo=True, open_hi=True, expected="a number in (0, 1)")
     rho = _albedo_bound(optics)
     b = (
         max(0, math.ceil(math.log(tolerance * (1 - rho)) / math.log(rho)) - 1)
@@ -426,12 +421,14 @@ class SegmentEstimator:
         check_samples(samples)
         check_bounces(bounces)
         check_seed(seed)
-        if not (is_real(epsilon_m) and 0 < epsilon_m <= MAX_EPSILON_M):
-            raise InputError(
-                f"epsilon_m={epsilon_m!r}",
-                parameter="epsilon_m",
-                expected=f"a ray offset in metres in (0, {MAX_EPSILON_M:g}]: organs are millimetres thick",
-            )
+        check_real(
+            epsilon_m,
+            "epsilon_m",
+            0,
+            MAX_EPSILON_M,
+            open_lo=True,
+            expected=f"a ray offset in metres in (0, {MAX_EPSILON_M:g}]: organs are millimetres thick",
+        )
         if direct not in DIRECT_MODES:
             raise InputError(f"direct={direct!r}", parameter="direct", expected=" or ".join(map(repr, DIRECT_MODES)))
         if direct == "projection" and first != 0:  # render_adaptive: rounds with "none", one projection

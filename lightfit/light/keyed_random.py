@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError
+from lightfit.errors import check_integer
 
 #: Rounds of the TEA hash that turn a ray's or replicate's index and a key into its random bits
 #: (:func:`random_bits`). Mitsuba's default of 4 does not mix consecutive indices: the per-replicate
@@ -46,11 +46,7 @@ def check_seed(seed, column: str = "seed") -> int:
     """A render's seed: an integer in [0, 2³²) (Python or numpy, not a bool). Larger seeds would
     repeat smaller ones' random numbers (the hashes take the seed modulo 2³² or 2⁶⁴), and a float
     seed would be rounded."""
-    from numbers import Integral
-
-    if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed < SEED_LIMIT:
-        raise InputError(f"seed={seed!r}", parameter=column, expected="an integer in [0, 2³²)")
-    return int(seed)
+    return check_integer(seed, "seed", 0, high=SEED_LIMIT, column=column, expected="an integer in [0, 2³²)")
 
 
 def keyed_uniforms(seed: int, keys: np.ndarray, dims: ArrayLike) -> np.ndarray:

@@ -30,13 +30,12 @@ colour 0.5, specular 0.5, roughness 0.5, subsurface 0.3).
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_real
 
 PAR_BAND_NM = (400.0, 700.0)
 #: Temperature of the blackbody whose photon spectrum weights the PAR band (the solar disc).
@@ -91,9 +90,7 @@ class LeafTraits:
     def __post_init__(self):
         for name, v in asdict(self).items():
             lo, hi, what = _TRAIT_RANGES[name]
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
-            if not ok:
-                raise InputError(f"leaf trait {name}={v!r}", parameter=name, expected=what)
+            check_real(v, f"leaf trait {name}", lo, hi, parameter=name, expected=what)
 
 
 @dataclass(frozen=True)
@@ -189,8 +186,7 @@ def leaf_bsdf_parameters(
     from lightfit.light.bsdf import SPECULAR_F0_SCALE, ggx_white_sky_albedo
 
     for name, v in (("specular", specular), ("roughness", roughness)):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
-            raise InputError(f"leaf {name}={v!r}", parameter=name, expected="a number in [0, 1]")
+        check_real(v, f"leaf {name}", 0.0, 1.0, parameter=name, expected="a number in [0, 1]")
     par = par_optics(traits)
     f0 = SPECULAR_F0_SCALE * float(specular)
     diffuse = par.R + par.T - f0 * ggx_white_sky_albedo(float(roughness))

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import functools
 import math
-import numbers
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lightfit.errors import InputError, is_real
+from lightfit.errors import InputError, check_real, is_real
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.face_sampling import FaceSampler
@@ -67,15 +66,6 @@ SOIL_ALBEDO = 0.12
 RAY_OFFSET_M = 1e-5
 
 
-def check_unit(name: str, value) -> float:
-    """``value`` as a float in [0, 1] (a real number, Python or numpy), else :class:`InputError`
-    naming ``name``: an albedo or a leaf parameter. True was taken as 1.0, numpy's float32 refused
-    (a review)."""
-    if not (is_real(value) and math.isfinite(value) and 0.0 <= value <= 1.0):
-        raise InputError(f"{name}={value!r}", parameter=name, expected="a number in [0, 1]")
-    return float(value)
-
-
 @dataclass(frozen=True)
 class Optics:
     """Optical parameters of the scene, all in [0, 1].
@@ -103,7 +93,8 @@ class Optics:
 
     def __post_init__(self):
         for k, v in asdict(self).items():
-            object.__setattr__(self, k, check_unit(k, v))  # np.float32(0.5) would name the same leaf otherwise
+            # as a float: np.float32(0.5) would name the same leaf otherwise
+            object.__setattr__(self, k, check_real(v, k, 0.0, 1.0, expected="a number in [0, 1]"))
 
     @classmethod
     def from_traits(
@@ -237,7 +228,7 @@ class FieldScene:
     def set_sun(self, elevation_deg: float, azimuth_deg: float) -> None:
         """Point the sun (elevation in [−90, 90] and azimuth in degrees); below the horizon its
         part is 0."""
-        ok = all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in (elevation_deg, azimuth_deg))
+        ok = is_real(elevation_deg) and is_real(azimuth_deg)
         if not (ok and math.isfinite(elevation_deg) and math.isfinite(azimuth_deg) and abs(elevation_deg) <= 90):
             raise InputError(
                 f"sun position ({elevation_deg!r}, {azimuth_deg!r})",

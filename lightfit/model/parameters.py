@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, is_real
 from lightfit.light.bsdf import LEAF_PARAMETERS
 
 #: Domain (lower, upper) of every model parameter; ``math.inf``: unbounded above.
@@ -143,7 +143,7 @@ def check_theta(values: Mapping[str, float], *, what: str = "theta") -> dict[str
     check_names(values, what=what)
     out = {}
     for k, v in values.items():
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and not _outside(np.float64(v), *BOUNDS[k])
+        ok = is_real(v) and not _outside(np.float64(v), *BOUNDS[k])
         if not ok:
             raise InputError(f"{k}={v!r}", parameter=what, expected=_domain(k))
         out[k] = float(v)

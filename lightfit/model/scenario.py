@@ -19,7 +19,7 @@ from dataclasses import field as dc_field
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError, is_real
+from lightfit.errors import InputError, check_real
 from lightfit.light.estimator import (
     DARK_FLOOR,
     MAX_ADAPTIVE_SAMPLES,
@@ -135,13 +135,8 @@ class Forcing:
 
 def check_ceptometer_height(h) -> float:
     """The ceptometer's height above the soil, m: 0 … :data:`MAX_CEPTOMETER_HEIGHT_M`."""
-    if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0 <= h <= MAX_CEPTOMETER_HEIGHT_M:
-        raise InputError(
-            f"ceptometer_height_m={h!r}",
-            parameter="ceptometer_height_m",
-            expected=f"a height above the soil in metres, 0 … {MAX_CEPTOMETER_HEIGHT_M}",
-        )
-    return float(h)
+    expected = f"a height above the soil in metres, 0 … {MAX_CEPTOMETER_HEIGHT_M}"
+    return check_real(h, "ceptometer_height_m", 0, MAX_CEPTOMETER_HEIGHT_M, expected=expected)
 
 
 def check_seed(seed) -> int:
@@ -214,20 +209,16 @@ SOIL_RESPIRATION_Q10_RANGE = (1.0, 5.0)
 def check_soil_respiration(r10, q10) -> tuple[float, float]:
     """``(R₁₀ ≥ 0 finite, Q₁₀ in :data:`SOIL_RESPIRATION_Q10_RANGE`)`` as floats, else
     :class:`InputError` naming the parameter."""
-    if not (is_real(r10) and np.isfinite(r10) and r10 >= 0):
-        raise InputError(
-            f"soil_respiration_umol_m2_s={r10!r}",
-            parameter="soil_respiration_umol_m2_s",
-            expected="soil respiration at 10 °C in µmol m⁻² s⁻¹, a finite number ≥ 0 (CO2 released)",
-        )
+    r10 = check_real(
+        r10,
+        "soil_respiration_umol_m2_s",
+        0,
+        expected="soil respiration at 10 °C in µmol m⁻² s⁻¹, a finite number ≥ 0 (CO2 released)",
+    )
     lo, hi = SOIL_RESPIRATION_Q10_RANGE
-    if not (is_real(q10) and lo <= q10 <= hi):
-        raise InputError(
-            f"soil_respiration_q10={q10!r}",
-            parameter="soil_respiration_q10",
-            expected=f"a factor per 10 K in [{lo:g}, {hi:g}] (1: constant)",
-        )
-    return float(r10), float(q10)
+    return r10, check_real(
+        q10, "soil_respiration_q10", lo, hi, expected=f"a factor per 10 K in [{lo:g}, {hi:g}] (1: constant)"
+    )
 
 
 #: Values of :attr:`Scenario.direct` (``"auto"`` resolves by the field's boundary).

@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from lightfit.errors import InputError, check_integer, is_real
+from lightfit.errors import InputError, check_integer, check_real
 from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, is_shoot, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
@@ -165,19 +165,18 @@ class Field:
             check_integer(self.buffer_along, "buffer_along", 0, why="or None for buffer_rows")
         check_integer(self.n_plants, "n_plants", 1)
         for name in ("row_spacing_m", "plant_spacing_m"):
-            v = getattr(self, name)
-            if not (is_real(v) and math.isfinite(v) and v > 0):  # True was 1 m; numpy numbers were refused
-                raise InputError(f"{name}={v!r}", parameter=name, expected="a positive distance in metres")
-            object.__setattr__(self, name, float(v))  # np.float32(0.125) hashed otherwise than 0.125
-        d = self.row_direction_deg
+            v = check_real(getattr(self, name), name, 0, open_lo=True, expected="a positive distance in metres")
+            object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
         # NaN built a mesh of NaN, inf a math domain error; 400 was kept as 400 (the field of 40°
         # under another name and cache key)
-        if not (is_real(d) and math.isfinite(d) and 0 <= d < 360):
-            raise InputError(
-                f"row_direction_deg={d!r}",
-                parameter="row_direction_deg",
-                expected="a compass azimuth in degrees, 0 ≤ azimuth < 360 (rows at 270 run as at 90)",
-            )
+        check_real(
+            self.row_direction_deg,
+            "row_direction_deg",
+            0,
+            360,
+            open_hi=True,
+            expected="a compass azimuth in degrees, 0 ≤ azimuth < 360 (rows at 270 run as at 90)",
+        )
         check_integer(self.buffer_rows, "buffer_rows", 0)
         check_integer(self.seed, "seed", 0)
 

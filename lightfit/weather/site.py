@@ -8,14 +8,13 @@ site's coordinates, and a run's window reads its start in the site's local time 
 from __future__ import annotations
 
 import datetime as dt
-import math
 import re
 from dataclasses import dataclass
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import pandas as pd
 
-from lightfit.errors import InputError, parse_date
+from lightfit.errors import InputError, check_real, parse_date
 
 
 def check_timezone(name: str, column: str = "timezone") -> str:
@@ -85,9 +84,7 @@ class Site:
             # Dead Sea shore to above the highest fields (pvlib's pressure model needs a sane value).
             ("altitude_m", -500.0, 9000.0, "metres above sea level, −500 … 9000"),
         ):
-            v = getattr(self, attr)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not low <= v <= high:
-                raise InputError(f"{attr}={v!r}", parameter=attr, expected=what)
+            check_real(getattr(self, attr), attr, low, high, expected=what)
         check_timezone(self.timezone)
 
     def attrs(self) -> dict[str, str | float]:
@@ -191,8 +188,7 @@ class Window:
                 f"start={self.start!r}", parameter="window.start", expected="a local clock time HH:MM, e.g. 05:00"
             )
         h = self.hours
-        if isinstance(h, bool) or not isinstance(h, (int, float)) or not math.isfinite(h) or not 0 < h <= 24:
-            raise InputError(f"hours={h!r}", parameter="hours", expected="a window length in hours, 0 < hours ≤ 24")
+        check_real(h, "hours", 0, 24, open_lo=True, expected="a window length in hours, 0 < hours ≤ 24")
         try:
             step = pd.Timedelta(self.step)
         except (ValueError, TypeError):
