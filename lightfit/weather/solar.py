@@ -13,7 +13,7 @@ import pvlib
 from lightfit.errors import InputError
 from lightfit.weather import timestamps
 from lightfit.weather.site import SELHAUSEN, Site
-from lightfit.weather.units import PAR_FRACTION, UMOL_PER_JOULE_PAR, par_from_ghi
+from lightfit.weather.units import PAR_FRACTION, PAR_PER_GHI_UMOL_J, UMOL_PER_JOULE_PAR, par_from_ghi
 
 #: How global radiation is split into its direct and diffuse parts: two decomposition models of the
 #: clearness index, or the series' own diffuse radiation (``diffuse_w_m2``: a shaded pyranometer's, an
@@ -240,7 +240,7 @@ def split_from_diffuse(
             what="global radiation (estimated from PAR)" if ghi_estimated else "global radiation",
             file=file,
             column=column or "diffuse_w_m2",
-            hint=f" and the PAR per joule the estimate assumes ({float(par_from_ghi(1.0)):.4g} µmol J⁻¹)"
+            hint=f" and the PAR per joule the estimate assumes ({PAR_PER_GHI_UMOL_J:.4g} µmol J⁻¹)"
             if ghi_estimated
             else "",
         )
@@ -293,7 +293,7 @@ def par_direct_diffuse(dni_w_m2, dhi_w_m2, sun_elevation_deg, par_umol_m2_s=None
     el = np.asarray(sun_elevation_deg, dtype=np.float64)
     ghi = horizontal_irradiance(dni, dhi, el)
     lit = ghi > 0
-    k = np.full_like(ghi, float(par_from_ghi(1.0)))
+    k = np.full_like(ghi, PAR_PER_GHI_UMOL_J)
     if par_umol_m2_s is not None:
         par = np.asarray(par_umol_m2_s, dtype=np.float64)
         if np.isnan(par[lit]).any():
@@ -408,7 +408,7 @@ def check_radiation_scale(
     ):
         if col not in columns or col not in df.columns:
             continue
-        margin = LIGHT_MARGIN_W_M2 * (1.0 if col == "ghi_w_m2" else float(par_from_ghi(1.0)))
+        margin = LIGHT_MARGIN_W_M2 * (1.0 if col == "ghi_w_m2" else PAR_PER_GHI_UMOL_J)
         if (np.asarray(df[col], dtype=np.float64)[night] > margin).sum() >= 2:
             continue
         v = np.asarray(df[col], dtype=np.float64)[high]
@@ -471,7 +471,7 @@ def check_light_fits_sun(
     used = df.attrs.get("columns_used", {})
     for col, scale, what, unit in (
         ("ghi_w_m2", 1.0, "global radiation", "W m⁻²"),
-        ("par_umol_m2_s", float(par_from_ghi(1.0)), "PAR", "µmol m⁻² s⁻¹"),
+        ("par_umol_m2_s", PAR_PER_GHI_UMOL_J, "PAR", "µmol m⁻² s⁻¹"),
     ):
         if col not in columns or col not in df.columns:
             continue
@@ -607,7 +607,7 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     out = df.copy()
     out.attrs = dict(df.attrs)
     qc = list(out.attrs.get("qc", []))
-    k = float(par_from_ghi(1.0))
+    k = PAR_PER_GHI_UMOL_J
     measured = [c for c in ("ghi_w_m2", "par_umol_m2_s") if c in out.columns]
     for c in measured:  # the split and PAR would turn a gap into no light at that step, silently
         gap = out[c].isna().to_numpy()

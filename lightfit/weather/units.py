@@ -23,6 +23,9 @@ R_WATER_VAPOUR = 461.5
 PAR_FRACTION = 0.50
 #: Photon-to-energy ratio of sunlight PAR, µmol J⁻¹ (McCree 1972: 4.57).
 UMOL_PER_JOULE_PAR = 4.57
+#: PAR photons per joule of global radiation, µmol J⁻¹: :data:`PAR_FRACTION` × :data:`UMOL_PER_JOULE_PAR`
+#: (≈ 2.29; Meek et al. 1984 measured 2.04), the factor :func:`par_from_ghi` applies.
+PAR_PER_GHI_UMOL_J = PAR_FRACTION * UMOL_PER_JOULE_PAR
 
 
 def saturation_vapour_pressure_kpa(tair_c: ArrayLike) -> np.ndarray:
@@ -76,12 +79,10 @@ def kpa_from_pa(p_pa: ArrayLike) -> np.ndarray:
     return np.asarray(p_pa, dtype=float) / 1000.0
 
 
-def par_from_ghi(
-    ghi_w_m2: ArrayLike, par_fraction: float = PAR_FRACTION, umol_per_joule: float = UMOL_PER_JOULE_PAR
-) -> np.ndarray:
+def par_from_ghi(ghi_w_m2: ArrayLike) -> np.ndarray:
     """PAR photon flux density (µmol m⁻² s⁻¹) from global radiation (W m⁻²).
 
     PAR = f_PAR · k · GHI with f_PAR ≈ 0.50 (energy share of 400–700 nm) and
-    k = 4.57 µmol J⁻¹ (McCree 1972), i.e. ≈ 2.29 µmol J⁻¹ of global radiation.
+    k = 4.57 µmol J⁻¹ (McCree 1972), i.e. :data:`PAR_PER_GHI_UMOL_J` ≈ 2.29 µmol J⁻¹ of global radiation.
     """
-    return np.asarray(ghi_w_m2, dtype=float) * par_fraction * umol_per_joule
+    return np.asarray(ghi_w_m2, dtype=float) * PAR_PER_GHI_UMOL_J
