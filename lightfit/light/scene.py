@@ -30,7 +30,7 @@ from lightfit.light.leaf_optics import (
 )
 from lightfit.light.periodic import DEFAULT_CROSSING_TOLERANCE, PeriodicTracer
 from lightfit.plant.mesh import Mesh
-from lightfit.plant.periodic import PeriodicCell
+from lightfit.plant.periodic import PeriodicCell, compass_vector
 
 if TYPE_CHECKING:
     from lightfit.plant.field import FieldGeometry
@@ -121,8 +121,8 @@ def sun_vector(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
 
     Azimuth is clockwise from north (pvlib convention).
     """
-    el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
-    return np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    el = math.radians(elevation_deg)
+    return np.append(compass_vector(azimuth_deg) * math.cos(el), math.sin(el))
 
 
 class FieldScene:

@@ -30,11 +30,17 @@ from lightfit.plant.mesh import Mesh
 IMAGE_MARGIN_M = 1e-6
 
 
+def compass_vector(azimuth_deg: float) -> np.ndarray:
+    """The horizontal unit vector (x = east, y = north) of a compass azimuth in degrees (clockwise
+    from north, pvlib's convention): the rows' direction and the sun's bearing."""
+    az = math.radians(azimuth_deg)
+    return np.array([math.sin(az), math.cos(az)])
+
+
 def row_axes(row_direction_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Unit vectors (x = east, y = north) along rows of compass azimuth ``row_direction_deg``
     (degrees) and across them, 90° counter-clockwise: a field's and its cell's frame."""
-    az = math.radians(row_direction_deg)
-    along = np.array([math.sin(az), math.cos(az)])
+    along = compass_vector(row_direction_deg)
     return along, np.array([-along[1], along[0]])
 
 
