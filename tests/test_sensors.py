@@ -23,7 +23,6 @@ from lightfit.light.sensors import (
     SensorEstimator,
     ceptometer,
     default_sensors,
-    horizontal_points,
     measured_area,
 )
 from lightfit.plant import Field
@@ -153,7 +152,7 @@ def test_sensor_layouts_and_bad_input():
         ceptometer(area, placements=0)
     with pytest.raises(InputError, match="sensors"):
         SensorEstimator(FieldScene(square([0, 0, 0.5], [0, 0, 1], 0.1, 1), GREY), [])
-    pt = horizontal_points("grid", [[0.0, 0.0, 0.3], [0.1, 0.0, 0.3]])
+    pt = Sensor("grid", ((0.0, 0.0, 0.3), (0.1, 0.0, 0.3)), ((0.0, 0.0, 0.3), (0.1, 0.0, 0.3)))  # two points
     assert pt.height_m == pytest.approx(0.3)
 
 
@@ -255,7 +254,7 @@ def test_each_placement_is_sampled_along_its_whole_length_and_each_sensor_reads_
     fs = FieldScene(leaf, BLACK)
     fs.set_sun(90.0, 0.0)
     bars = Sensor("bars", ((-0.2, 0.0, 0.0), (-0.2, 0.5, 0.0)), ((0.2, 0.0, 0.0), (0.2, 0.5, 0.0)))
-    under = horizontal_points("under", [[-0.1, 0.0, 0.0]])
+    under = Sensor("under", ((-0.1, 0.0, 0.0),), ((-0.1, 0.0, 0.0),))  # a point: a bar of length 0
     r = SensorEstimator(fs, [bars, under], samples=1024, bounces=0, seed=6).render()
     assert r.incident_sun == pytest.approx([0.75, 0.0], abs=max(4 * r.se["incident_sun"].max(), 0.02))
 

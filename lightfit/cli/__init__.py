@@ -81,19 +81,6 @@ app.command("posterior-status")(posterior_status)
 app.command("field-run")(field_run)
 app.command("render-dataset")(render_dataset)
 
-#: The commands, in the order of ``lightfit --help``.
-COMMANDS = (
-    "info",
-    "weather",
-    "field",
-    "replicate",
-    "calibrate",
-    "posterior",
-    "posterior-status",
-    "field-run",
-    "render-dataset",
-)
-
 
 def main() -> None:
     """The ``lightfit`` console script (and ``python -m lightfit.cli``): :data:`app`, except that an

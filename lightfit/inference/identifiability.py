@@ -31,7 +31,6 @@ class FisherResult:
     fisher: np.ndarray
     eigenvalues: np.ndarray
     eigenvectors: np.ndarray
-    jacobian: np.ndarray
 
     @property
     def stiff(self) -> str:
@@ -59,12 +58,12 @@ class FisherResult:
         ]
 
 
-def combination(vec, names, scale: str = "log", tol: float = 0.1) -> str:
-    """Human-readable combination, e.g. ``+0.71 log specular −0.70 log subsurface`` (|entry| ≥ tol)."""
+def combination(vec, names, scale: str = "log") -> str:
+    """Human-readable combination, e.g. ``+0.71 log specular −0.70 log subsurface`` (|entry| ≥ 0.1)."""
     vec = np.asarray(vec, float)
     vec = vec * np.sign(vec[np.argmax(np.abs(vec))])
     pre = "log " if scale == "log" else ""
-    terms = [f"{v:+.2f} {pre}{n}" for v, n in sorted(zip(vec, names), key=lambda t: -abs(t[0])) if abs(v) >= tol]
+    terms = [f"{v:+.2f} {pre}{n}" for v, n in sorted(zip(vec, names), key=lambda t: -abs(t[0])) if abs(v) >= 0.1]
     return " ".join(terms)
 
 
@@ -91,11 +90,11 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     F = J.T @ J
     lam, vec = np.linalg.eigh(F)
     order = np.argsort(lam)[::-1]
-    return FisherResult(names, x0, scale, F, lam[order], vec[:, order], J)
+    return FisherResult(names, x0, scale, F, lam[order], vec[:, order])
 
 
 def profile_likelihood(
-    nll, x_hat, direction, ts, *, scale: str = "log", maxiter: int = 200, allowed=None
+    nll, x_hat, direction, ts, *, scale: str = "log", allowed=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Profile of ``nll(x)`` along ``direction`` through ``x_hat``.
 
@@ -153,7 +152,7 @@ def profile_likelihood(
             return (v, g) if np.isfinite(v) else (1e30, np.zeros_like(g))
 
         if basis.shape[1]:
-            r = minimize(fun, w0, jac=True, method="BFGS", options={"maxiter": maxiter, "gtol": 1e-6})
+            r = minimize(fun, w0, jac=True, method="BFGS", options={"maxiter": 200, "gtol": 1e-6})
             last[i] = r.x
             prof[i] = min(r.fun, on_slice) if r.fun < 1e30 else on_slice  # 1e30: nowhere finite
         else:

@@ -220,16 +220,16 @@ class MCCorrelation:
         return self.matrix[np.ix_(idx, idx)]
 
 
-def correlation_of(cov: np.ndarray, jitter: float = MC_CORRELATION_JITTER) -> np.ndarray:
+def correlation_of(cov: np.ndarray) -> np.ndarray:
     """Correlation matrix of a covariance; rows with zero variance get 1 on the diagonal, 0 off it;
-    shrunk by ``jitter`` towards the identity (:data:`MC_CORRELATION_JITTER`)."""
+    shrunk by :data:`MC_CORRELATION_JITTER` towards the identity."""
     cov = np.asarray(cov, np.float64)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     pos = sd > 0
     inv = np.where(pos, 1.0 / np.where(pos, sd, 1.0), 0.0)
     c = cov * inv[:, None] * inv[None, :]
     np.fill_diagonal(c, 1.0)
-    return (1.0 - jitter) * c + jitter * np.eye(len(c))
+    return (1.0 - MC_CORRELATION_JITTER) * c + MC_CORRELATION_JITTER * np.eye(len(c))
 
 
 def mc_correlation(model, theta=None, names: Sequence[str] | None = None, parts=None) -> MCCorrelation:

@@ -21,9 +21,9 @@ from lightfit.model.observe import unconverged
 from lightfit.model.parameters import Theta, as_theta
 
 
-def par_sd_relative(rel: float = 0.03, floor: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
-    """PAR measurement SD ``max(rel·PAR, floor)`` (µmol m⁻² s⁻¹)."""
-    return lambda par: np.maximum(rel * par, floor)
+def par_sd_relative(rel: float = 0.03) -> Callable[[np.ndarray], np.ndarray]:
+    """PAR measurement SD ``max(rel·PAR, 1)`` (µmol m⁻² s⁻¹)."""
+    return lambda par: np.maximum(rel * par, 1.0)
 
 
 def twin_observations(

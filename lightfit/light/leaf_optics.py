@@ -125,16 +125,17 @@ def prospect_d(traits: LeafTraits = LeafTraits()) -> tuple[np.ndarray, np.ndarra
     return np.asarray(xleaf.wavelengths, float) * 1000.0, np.asarray(r, float), np.asarray(tr, float)
 
 
-def par_photon_weights(wavelength_nm: np.ndarray, temperature_k: float = PAR_BLACKBODY_K) -> np.ndarray:
+def par_photon_weights(wavelength_nm: np.ndarray) -> np.ndarray:
     """Photon spectral flux of a blackbody (relative), ∝ λ⁻⁴ / (exp(hc/λkT) − 1)."""
     hc_over_k = 1.438776877e7  # nm K (second radiation constant c2)
     lam = np.asarray(wavelength_nm, float)
-    return lam**-4 / np.expm1(hc_over_k / (lam * temperature_k))
+    return lam**-4 / np.expm1(hc_over_k / (lam * PAR_BLACKBODY_K))
 
 
-def band_average(wavelength_nm: np.ndarray, values: np.ndarray, band=PAR_BAND_NM) -> float:
-    """Photon-weighted mean of ``values`` over ``band`` (trapezoid rule on the given grid)."""
-    m = (wavelength_nm >= band[0]) & (wavelength_nm <= band[1])
+def band_average(wavelength_nm: np.ndarray, values: np.ndarray) -> float:
+    """Photon-weighted mean of ``values`` over the PAR band (:data:`PAR_BAND_NM`; trapezoid rule on
+    the given grid)."""
+    m = (wavelength_nm >= PAR_BAND_NM[0]) & (wavelength_nm <= PAR_BAND_NM[1])
     w = par_photon_weights(wavelength_nm[m])
     return float(np.trapezoid(values[m] * w, wavelength_nm[m]) / np.trapezoid(w, wavelength_nm[m]))
 

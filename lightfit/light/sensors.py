@@ -36,7 +36,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from lightfit.errors import InputError
 from lightfit.light.backend import owned
@@ -230,12 +229,6 @@ class SensorEstimator(SegmentEstimator):
         return x, [zero, zero, zero + 1.0], dr.zeros(mi.Bool, dr.width(t))
 
 
-def horizontal_points(name: str, points_m: ArrayLike) -> Sensor:
-    """A sensor averaging point sensors at ``points_m`` (P, 3), m (e.g. a grid at one height)."""
-    p = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
-    return Sensor(name, tuple(map(tuple, p)), tuple(map(tuple, p)))
-
-
 __all__ = [
     "CEPTOMETER_LENGTH_M",
     "CEPTOMETER_PLACEMENTS",
@@ -245,6 +238,5 @@ __all__ = [
     "SensorEstimator",
     "ceptometer",
     "default_sensors",
-    "horizontal_points",
     "measured_area",
 ]

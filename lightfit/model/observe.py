@@ -649,9 +649,6 @@ def mc_covariance(
     se,
     theta: Theta,
     keys: Sequence[str],
-    *,
-    rows: Sequence[str] = PARTS,
-    leaf: LeafPhotosynthesis = exact_leaf,
 ) -> np.ndarray:
     r"""Monte Carlo covariance of the observables ``keys`` across time steps and across each other.
 
@@ -678,20 +675,21 @@ def mc_covariance(
             + \delta_{tt'} \sum_s H_{k,t,s} H_{l,t,s}.
 
     Its diagonal is the square of the observables' ``*_mc_sd_*`` (same linearisation of the leaf
-    photosynthesis). Args: the operator, light parts ``values``/``se`` (T_day, len(rows), S) named by
-    ``rows``, θ, observable names ``keys`` (e.g. ``"plant_par_umol_m2_s"``). Returns a numpy array
+    photosynthesis, the exact leaf's). Args: the operator, light parts ``values``/``se``
+    (T_day, len(PARTS), S) in the order of :data:`PARTS`, θ, observable names ``keys`` (e.g.
+    ``"plant_par_umol_m2_s"``). Returns a numpy array
     (len(keys)·T, len(keys)·T), blocks of T steps in the order of ``keys`` (night rows zero).
     """
     se = np.asarray(se, np.float64)
     sej = jnp.asarray(se)
 
     def f(v):
-        o = operator(v, sej, theta, rows=rows, leaf=leaf)
+        o = operator(v, sej, theta)
         return jnp.stack([jnp.asarray(o[k], jnp.float64) for k in keys])
 
     out, pullback = jax.vjp(f, jnp.asarray(values, jnp.float64))
-    sky = [i for i, r in enumerate(rows) if r.endswith("_sky")]
-    sun = [i for i, r in enumerate(rows) if r.endswith("_sun")]
+    sky = [i for i, r in enumerate(PARTS) if r.endswith("_sky")]
+    sun = [i for i, r in enumerate(PARTS) if r.endswith("_sun")]
     day = np.flatnonzero(operator.forcing.day)
     n, T, S = len(keys), len(operator.forcing.day), se.shape[-1]
     G, H = np.zeros((n, T, S)), np.zeros((n, T, S))

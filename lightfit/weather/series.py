@@ -73,6 +73,8 @@ BOUNDS: dict[str, Bounds] = {
 #: recorded) instead of refusing the series; what needs it falls back (the direct/diffuse split to
 #: a decomposition model, :func:`lightfit.weather.solar.add_solar`).
 OPTIONAL = ("diffuse_w_m2", "par_diffuse_umol_m2_s")
+#: Columns every series must have, with at least one of ``ghi_w_m2`` and ``par_umol_m2_s``.
+REQUIRED = ("tair_c", "rh", "pair_kpa", "co2_ppm")
 
 #: Numeric sentinels that loggers and data portals use for "no value".
 MISSING_SENTINELS = (-9999.0, -999.0, -99999.0)
@@ -220,7 +222,6 @@ def check_and_repair(
     file: str | Path,
     *,
     max_gap: str | pd.Timedelta = DEFAULT_MAX_GAP,
-    required: tuple[str, ...] = ("tair_c", "rh", "pair_kpa", "co2_ppm"),
 ) -> pd.DataFrame:
     """Validate a freshly read series and apply the documented repairs.
 
@@ -230,8 +231,6 @@ def check_and_repair(
         file: source name for messages.
         max_gap: longest run of missing values (or missing timestamps) that is linearly
             interpolated; longer gaps raise. ``"0min"`` turns interpolation off.
-        required: columns that must be present; at least one of ``ghi_w_m2`` and
-            ``par_umol_m2_s`` is always required.
 
     Repairs (each recorded in ``attrs["qc"]``): rows sorted by time; rows at either end without a
     value of a column other than :data:`OPTIONAL` cut off (they cannot be interpolated); missing values
@@ -239,14 +238,14 @@ def check_and_repair(
     regular series interpolated over gaps up to ``max_gap``; values in a column's clamp band
     clamped to the range (e.g. night-time negative PAR set to 0).
 
-    Errors: missing required columns, duplicated timestamps, an irregular time step, gaps
+    Errors: missing required columns (:data:`REQUIRED`), duplicated timestamps, an irregular time step, gaps
     longer than ``max_gap``, values outside the plausible range (:data:`BOUNDS`).
     """
     max_gap = duration(max_gap, "max_gap", zero=True)
     attrs = dict(df.attrs)
     qc: list[dict] = list(attrs.get("qc", []))
     df = df.copy()
-    missing = [c for c in required if c not in df.columns]
+    missing = [c for c in REQUIRED if c not in df.columns]
     if not ({"ghi_w_m2", "par_umol_m2_s"} & set(df.columns)):
         missing.append("ghi_w_m2 or par_umol_m2_s")
     if missing:

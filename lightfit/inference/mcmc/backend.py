@@ -63,16 +63,16 @@ def writer_lock(path: str | Path) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
-def _retry(read, attempts: int = 20, wait_s: float = 0.1):
-    """``read()``, retried when it coincides with the writer's step (OSError/KeyError from a half-written
-    file, seen by a reader that opened it mid-step)."""
-    for i in range(attempts):
+def _retry(read):
+    """``read()``, retried (20 times, 0.1 s apart) when it coincides with the writer's step
+    (OSError/KeyError from a half-written file, seen by a reader that opened it mid-step)."""
+    for i in range(20):
         try:
             return read()
         except (OSError, KeyError):
-            if i == attempts - 1:
+            if i == 19:
                 raise
-            time.sleep(wait_s)
+            time.sleep(0.1)
 
 
 #: ``units`` and ``long_name`` of a run file's datasets, by their name in their group; datasets named

@@ -143,10 +143,10 @@ class StopRule:
         return d | {"rhat_max": self.rhat_max}
 
 
-def flat_samples(run, burn_fraction: float = BURN_FRACTION, thin: int = 1) -> np.ndarray:
+def flat_samples(run, burn_fraction: float = BURN_FRACTION) -> np.ndarray:
     """Post-burn-in samples of a run (from ``load_run`` or a ``SamplerResult``), shape (n, ndim)."""
     chain = run["chain"] if isinstance(run, dict) else run.chain
-    return chain[burn_in(len(chain), burn_fraction) :: thin].reshape(-1, chain.shape[-1])
+    return chain[burn_in(len(chain), burn_fraction) :].reshape(-1, chain.shape[-1])
 
 
 def summarize(samples: np.ndarray, names) -> dict:
