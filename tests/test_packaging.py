@@ -139,23 +139,27 @@ def test_dependency_check_catches_both_directions(tmp_path):
 
 # -- layout: the pipeline flows one way ---------------------------------------------------------
 
-#: Rank of each subpackage / top-level module along the pipeline (``report`` draws what
-#: ``replication`` runs, below it). A module may import its own
-#: rank or lower ranks, never a higher one. ``errors``, ``precision``, ``progress`` … are shared helpers, and
-#: the package root (``import lightfit``) sets up the Mitsuba backend; all may be imported anywhere.
+#: Rank of each subpackage / top-level module along the pipeline, as tight as the code allows (parts
+#: of one rank may not import each other): weather and plant need no other part; the light needs the
+#: plants; photosynthesis stands beside the light (neither imports the other); the model couples
+#: them; inference, distributed runs and datasets use the model (none imports another); ``report``
+#: draws what inference and the model give and ``replication`` runs, below it. A module may import
+#: its own part and lower ranks, never another part of its rank or a higher one. ``errors``,
+#: ``precision``, ``progress`` … are shared helpers, and the package root (``import lightfit``) sets
+#: up the Mitsuba backend; all may be imported anywhere.
 RANK = {
     "weather": 0,
-    "plant": 1,
-    "light": 2,
-    "photosynthesis": 3,
-    "model": 4,
-    "inference": 5,
-    "replication": 6,
-    "report": 5.5,
-    "distributed": 6,
-    "dataset": 6,
-    "cli": 7,
-    "__main__": 8,  # python -m lightfit: the command line
+    "plant": 0,
+    "light": 1,
+    "photosynthesis": 1,
+    "model": 2,
+    "inference": 3,
+    "distributed": 3,
+    "dataset": 3,
+    "report": 4,
+    "replication": 5,
+    "cli": 6,
+    "__main__": 7,  # python -m lightfit: the command line
 }
 SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", "constants", "files", ""}
 #: What the package root (``import lightfit``) may import: the Mitsuba backend it sets up.
@@ -196,6 +200,13 @@ def test_layout_flows_one_way():
     [
         ("light/x.py", "from lightfit.model.coupled import CoupledModel\n", False),
         ("photosynthesis/x.py", "def f():\n    import lightfit.inference\n", False),
+        ("photosynthesis/x.py", "from lightfit.light import scene\n", False),  # beside the light
+        ("light/x.py", "from lightfit.photosynthesis import farquhar\n", False),
+        ("plant/x.py", "from lightfit.weather import units\n", False),
+        ("weather/x.py", "from lightfit.plant.field import Field\n", False),
+        ("light/x.py", "from lightfit.plant.mesh import Mesh\n", True),
+        ("distributed/x.py", "from lightfit.inference import calibration\n", False),
+        ("report/x.py", "from lightfit.inference import posterior\n", True),
         ("model/x.py", "from lightfit.cli import app\n", False),
         ("model/x.py", "from ..inference import likelihood\n", False),
         ("dataset/x.py", "from lightfit.replication import run\n", False),
