@@ -209,8 +209,7 @@ def test_informed_subsurface_prior_spans_prospect_transmittance():
     assert SUBSURFACE_INFORMED == pytest.approx((lo, hi), abs=0.005)
     assert PRIORS_INFORMED["subsurface"].support == SUBSURFACE_INFORMED
     assert lo < o.subsurface < hi  # the default lies inside its prior
-    # specular's bounds: the upper surface's reflection 3.7–5.9 % over the F0 scale (literals in the
-    # priors module, which imports nothing of the light at import time)
+    # specular's bounds: the upper surface's reflection 3.7–5.9 % over the F0 scale
     assert PRIORS_INFORMED["specular"].support == pytest.approx((0.037 / SPECULAR_F0_SCALE, 0.059 / SPECULAR_F0_SCALE))
 
 

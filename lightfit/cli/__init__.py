@@ -33,7 +33,7 @@ import typer
 
 from lightfit.cli import weather
 from lightfit.cli.calibrate import calibrate
-from lightfit.cli.common import LightfitGroup
+from lightfit.cli.common import INTERRUPTED, LightfitGroup
 from lightfit.cli.field import field
 from lightfit.cli.field_run import field_run
 from lightfit.cli.info import info
@@ -91,12 +91,12 @@ def main() -> None:
     try:
         app(prog_name="lightfit")
     except SystemExit as e:
-        if e.code != 130:
+        if e.code != INTERRUPTED:
             code = e.code if isinstance(e.code, int) else int(e.code is not None)
             atexit.register(_teardown_ignores_one_ctrl_c, code)  # registered last: runs first at exit
             raise
         atexit._run_exitfuncs()  # a cluster's close and the quiet exit (common.interrupted) still run
-        _leave(130)
+        _leave(INTERRUPTED)
 
 
 def _teardown_ignores_one_ctrl_c(code: int) -> None:

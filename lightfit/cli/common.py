@@ -110,9 +110,13 @@ class LightfitGroup(TyperGroup):
             raise
 
 
+#: Exit status of an interrupted command: 128 + SIGINT, as shells report it.
+INTERRUPTED = 130
+
+
 def interrupted(kept: str | None, started_over: bool = False) -> NoReturn:
     """Ctrl-C's one line on stderr — what was kept (``None``: nothing to resume from) and how to
-    go on — and exit status 130 (128 + SIGINT, as shells report it). ``started_over``: the run
+    go on — and exit status :data:`INTERRUPTED`. ``started_over``: the run
     was started with ``--no-resume``, which its rerun would repeat."""
     if kept is None:
         line = "rerun the command to start it again"
@@ -126,7 +130,7 @@ def interrupted(kept: str | None, started_over: bool = False) -> NoReturn:
     # (tests call commands in one process).
     atexit.unregister(_quiet_exit)
     atexit.register(_quiet_exit)
-    raise typer.Exit(130)
+    raise typer.Exit(INTERRUPTED)
 
 
 def _quiet_exit() -> None:

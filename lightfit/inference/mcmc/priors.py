@@ -10,6 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.light.bsdf import SPECULAR_F0_SCALE, lobe_weights
+from lightfit.light.scene import Optics
 from lightfit.model.parameters import BOUNDS, NAMES
 
 #: The inference-only parameter: factor λ on the reported measurement SDs (see
@@ -94,17 +96,32 @@ _T = (
     "leaf transmittance T = (1 − F0)·subsurface·base_color with the default (PROSPECT-D) leaf's "
     "base_color 0.0667 and F0 0.04: subsurface = T / 0.0640"
 )
-#: Subsurface range of the default leaf (``Optics.preset("prospect")``) that spans PROSPECT-D's
-#: wheat PAR transmittance 0.02–0.08 (docs/design.md §6): 0.02/0.0640 = 0.31 … 0.08/0.0640 = 1.25,
-#: capped at the domain's 1 (T ≤ 0.064). tests/test_leaf_optics.py recomputes it from the preset.
-#: (The reference paper's grey leaf, base colour 0.5, would need 0.04–0.17.)
-SUBSURFACE_INFORMED = (0.31, 1.0)
+#: PROSPECT-D's wheat leaf PAR transmittance range (docs/design.md §6) that the informed
+#: subsurface prior spans, whatever the leaf's base colour.
+TRANSMITTANCE_RANGE = (0.02, 0.08)
+#: Reflection of the upper leaf surface (docs/design.md §6) that the informed specular prior spans.
+SURFACE_REFLECTION_RANGE = (0.037, 0.059)
+
+
+def subsurface_range(optics: Optics) -> tuple[float, float]:
+    r"""Subsurface range (2 decimals, capped at the domain's 1) over which leaves of ``optics``
+    transmit :data:`TRANSMITTANCE_RANGE`: :math:`T = (1 - F_0)\,s\,c` (base colour :math:`c`,
+    :math:`F_0` at the optics' specular)."""
+    per_unit = lobe_weights(optics.specular, 1.0, optics.base_color)[2]  # T per unit subsurface
+    lo, hi = (round(min(1.0, t / per_unit), 2) for t in TRANSMITTANCE_RANGE)
+    return lo, hi
+
+
+#: Subsurface range of the default leaf (``Optics.preset("prospect")``): 0.02/0.0640 = 0.31 …
+#: 0.08/0.0640 = 1.25, capped at 1 (T ≤ 0.064). (The reference paper's grey leaf, base colour 0.5,
+#: would need 0.04–0.17.)
+SUBSURFACE_INFORMED = subsurface_range(Optics.preset("prospect"))
 #: Priors informed by leaf optics (docs/design.md §6) for the default leaf optics — the default.
 PRIORS_INFORMED: dict[str, Prior] = {
     "specular": Prior(
         "uniform",
-        0.4625,
-        0.7375,
+        # 4 decimals, the bounds' own (0.037/0.08 is 0.46249999999999997 in floating point)
+        *(round(r / SPECULAR_F0_SCALE, 4) for r in SURFACE_REFLECTION_RANGE),
         f"upper leaf surface reflection 3.7–5.9 % (docs/design.md §6), {_F0}: 0.037/0.08 … 0.059/0.08",
     ),
     "roughness": Prior(
@@ -148,11 +165,6 @@ PRIORS_WIDE: dict[str, Prior] = {
 PRIOR_SETS = {"informed": PRIORS_INFORMED, "wide": PRIORS_WIDE}
 
 
-#: PROSPECT-D's wheat leaf PAR transmittance range (docs/design.md §6) that the informed
-#: subsurface prior spans, whatever the leaf's base colour.
-TRANSMITTANCE_RANGE = (0.02, 0.08)
-
-
 def informed_priors(optics=None) -> dict[str, Prior]:
     r""":data:`PRIORS_INFORMED` for a run's leaf optics (``None``: the default PROSPECT-D leaf).
 
@@ -163,10 +175,7 @@ def informed_priors(optics=None) -> dict[str, Prior]:
     """
     if optics is None:
         return dict(PRIORS_INFORMED)
-    from lightfit.light.bsdf import lobe_weights
-
-    per_unit = lobe_weights(optics.specular, 1.0, optics.base_color)[2]  # T per unit subsurface
-    lo, hi = (round(min(1.0, t / per_unit), 2) for t in TRANSMITTANCE_RANGE)
+    lo, hi = subsurface_range(optics)
     if lo >= 1.0:
         raise InputError(
             f"base_color={optics.base_color!r}",
