@@ -86,14 +86,9 @@ def _experiment():
 
 
 def _sun():
-    import pandas as pd
-
-    from lightfit import weather
-    from lightfit.weather.units import par_from_ghi
-
-    row = weather.load("2016-04-20").loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
-    sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
-    return sun, float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
+    """The sun and the direct-normal and diffuse PAR of experiments/periodic_vs_wide.py (the coupled
+    model's: :meth:`lightfit.model.scenario.Forcing.of`)."""
+    return _experiment().light()
 
 
 def case(n: int, setup: str, samples: int, seeds: int, out: Path) -> None:

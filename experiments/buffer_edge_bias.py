@@ -22,9 +22,9 @@ import lightfit  # noqa: F401
 from lightfit import weather
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.scene import FieldScene, Optics
+from lightfit.model.scenario import Forcing
 from lightfit.plant import Field, build
 from lightfit.precision import use_float64
-from lightfit.weather.units import par_from_ghi
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
@@ -36,9 +36,10 @@ BUFFERS = [(2, 2), (6, 6), (2, 8), (3, 12), (6, 24), (10, 40)]
 
 
 def main(n_plants: int = 16, samples: int = 128, out: Path | None = None) -> dict:
-    row = weather.load("2016-04-20").loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
-    sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
-    dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
+    step = weather.load("2016-04-20").loc[[pd.Timestamp("2016-04-20 10:00", tz="UTC")]]
+    sun = (float(step["sun_elevation_deg"].iloc[0]), float(step["sun_azimuth_deg"].iloc[0]))
+    par = Forcing.of(step)  # the coupled model's PAR: the measured PAR, Spitters' diffuse share
+    dni, dhi = float(par.dni_par[0]), float(par.dhi_par[0])
     res = {}
     for rows, along in BUFFERS:
         g = build(Field(boundary="finite", n_plants=n_plants, buffer_rows=rows, buffer_along=along, seed=1))
@@ -62,7 +63,9 @@ def main(n_plants: int = 16, samples: int = 128, out: Path | None = None) -> dic
         print(f"| {v['buffer_rows']} | {v['buffer_along']} | {v['plants']} | {100 * v['bias']:+.1f} % |")
     out = ROOT / "experiments" / "results" / "buffer_edge_bias.json" if out is None else out
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_result(out, {"sun_deg": sun, "samples": samples, "n_plants": n_plants, "rows": res})
+    write_result(
+        out, {"sun_deg": sun, "dni_par": dni, "dhi_par": dhi, "samples": samples, "n_plants": n_plants, "rows": res}
+    )
     return res
 
 

@@ -16,8 +16,9 @@ total are compared with one reference: the mean of 8 seeds at K = 1024 (8 192 sa
 segment), 4 bounces, periodic, the direct light from the paths (an estimator independent of the
 projection's rays; segments matched by plant
 position and segment index, which do not depend on the boundary). Absorbed PAR uses that
-moment's DNI and DHI in PAR units. Time is the wall time of the estimator (set-up and render) on
-this machine's cores. Writes a CSV, a JSON and a Pareto plot (error against time), and prints a
+moment's direct-normal and diffuse PAR as the coupled model takes them (``Forcing.of``: the
+measured PAR, Spitters' diffuse share). Time is the wall time of the estimator (set-up and
+render) on this machine's cores. Writes a CSV, a JSON and a Pareto plot (error against time), and prints a
 table.
 """
 
@@ -44,10 +45,9 @@ from lightfit import weather  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance, render_adaptive  # noqa: E402
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2  # noqa: E402
 from lightfit.light.scene import FieldScene, Optics  # noqa: E402
-from lightfit.model.scenario import main_job_samples, resolve_direct  # noqa: E402
+from lightfit.model.scenario import Forcing, main_job_samples, resolve_direct  # noqa: E402
 from lightfit.plant import Field, MeshResolution, build  # noqa: E402
 from lightfit.precision import use_float64
-from lightfit.weather.units import par_from_ghi  # noqa: E402
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
@@ -228,10 +228,10 @@ def main(
     out_dir.mkdir(parents=True, exist_ok=True)
     optics = Optics.preset(optics_name)
     default, sweep = settings(optics)
-    w = weather.load("2016-04-20")
-    row = w.loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
-    sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
-    dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
+    step = weather.load("2016-04-20").loc[[pd.Timestamp("2016-04-20 10:00", tz="UTC")]]
+    sun = (float(step["sun_elevation_deg"].iloc[0]), float(step["sun_azimuth_deg"].iloc[0]))
+    par = Forcing.of(step)  # the coupled model's PAR: the measured PAR, Spitters' diffuse share
+    dni, dhi = float(par.dni_par[0]), float(par.dhi_par[0])
     console = wide_console()
     console.print(
         f"sun {sun[0]:.1f}° / {sun[1]:.1f}°, PAR DNI {dni:.0f}, DHI {dhi:.0f} µmol m⁻² s⁻¹ (RECONSTRUCTED forcing); "

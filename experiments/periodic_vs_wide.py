@@ -43,9 +43,9 @@ from lightfit import weather
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, PRESETS
 from lightfit.light.scene import FieldScene, Optics
+from lightfit.model.scenario import Forcing
 from lightfit.plant import Field, Mesh, build
 from lightfit.precision import use_float64
-from lightfit.weather.units import par_from_ghi
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
@@ -83,6 +83,16 @@ def copies(mesh: Mesh, cell) -> tuple[Mesh, int]:
     return Mesh.concatenate(parts), stride
 
 
+def light(when: str = "2016-04-20 10:00") -> tuple[tuple[float, float], float, float]:
+    """The sun (elevation, azimuth, degrees) and the direct-normal and diffuse-horizontal PAR
+    (µmol m⁻² s⁻¹) at ``when`` (UTC) of the reconstructed 2016-04-20 forcing, as the coupled model
+    takes them (:meth:`lightfit.model.scenario.Forcing.of`: the measured PAR, Spitters' diffuse share)."""
+    step = weather.load("2016-04-20").loc[[pd.Timestamp(when, tz="UTC")]]
+    par = Forcing.of(step)
+    sun = (float(step["sun_elevation_deg"].iloc[0]), float(step["sun_azimuth_deg"].iloc[0]))
+    return sun, float(par.dni_par[0]), float(par.dhi_par[0])
+
+
 def math_ceil(x: float) -> int:
     return int(math.ceil(x - 1e-9))
 
@@ -95,9 +105,7 @@ def main(
     bounces: int | None = None,
     out: Path | None = None,
 ) -> dict:
-    row = weather.load("2016-04-20").loc[pd.Timestamp("2016-04-20 10:00", tz="UTC")]
-    sun = (float(row["sun_elevation_deg"]), float(row["sun_azimuth_deg"]))
-    dni, dhi = float(par_from_ghi(row["dni_w_m2"])), float(par_from_ghi(row["dhi_w_m2"]))
+    sun, dni, dhi = light()
     leaf = Optics.preset(optics)
     bounces = bounces_for_tolerance(0.01, leaf) if bounces is None else bounces
     res = {}
