@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.plant.periodic import compass_vector
 
 EXPOSURE_MODES = ("leaf", "scene", "fixed")
 #: Largest image side accepted, pixels: 16 k × 16 k already needs ~3 GB per float RGB image.
@@ -211,10 +212,10 @@ def camera_sweep(sweep: Sweep, centre_m=(0.0, 0.0), canopy_height_m: float = 0.5
     el = math.radians(sweep.elevation_deg)
     cams = []
     for k in range(sweep.n):
-        az = math.radians(sweep.start_azimuth_deg + 360.0 * k / sweep.n)
+        east, north = compass_vector(sweep.start_azimuth_deg + 360.0 * k / sweep.n)
         pos = (
-            centre_m[0] + sweep.distance_m * math.sin(az),
-            centre_m[1] + sweep.distance_m * math.cos(az),
+            centre_m[0] + sweep.distance_m * east,
+            centre_m[1] + sweep.distance_m * north,
             tz + sweep.distance_m * math.tan(el),
         )
         cams.append(

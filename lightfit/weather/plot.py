@@ -13,7 +13,7 @@ import pandas as pd  # noqa: E402
 from lightfit.figure import clock_axis, figure_format  # noqa: E402
 from lightfit.weather.reconstruct import Anchor  # noqa: E402
 from lightfit.weather.site import SELHAUSEN, zone_label  # noqa: E402
-from lightfit.weather.units import par_from_ghi  # noqa: E402
+from lightfit.weather.units import PAR_PER_GHI_UMOL_J  # noqa: E402
 
 
 def provenance_label(attrs: dict, key: str = "provenance", date_key: str = "date_given") -> str:
@@ -60,7 +60,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         r.plot(t, local["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI" + parts)
         # One scale for both axes (PAR = 2.285 µmol J⁻¹ × GHI): the thin GHI line lies on the thick PAR
         # line where the two sensors agree and shows where they do not (free scales hid it exactly).
-        k = float(par_from_ghi(1.0))
+        k = PAR_PER_GHI_UMOL_J
         top = max(ax[0].get_ylim()[1], k * float(local[["ghi_w_m2", "dni_w_m2"]].max().max()) * 1.05)
         ax[0].set_ylim(0, top)
         r.set_ylim(0, top / k)
