@@ -69,7 +69,7 @@ from lightfit import replication as rep  # noqa: E402
 from lightfit.light.leaf_optics import LeafTraits, par_optics, prospect_d  # noqa: E402
 from lightfit.photosynthesis import solve  # noqa: E402
 from lightfit.photosynthesis.canopy import vcmax25  # noqa: E402
-from lightfit.photosynthesis.stomata import saturation_vapour_pressure_kpa as _es_kpa  # noqa: E402
+from lightfit.photosynthesis.stomata import saturation_vapour_pressure_tetens_kpa as _es_kpa  # noqa: E402
 from lightfit.weather.units import UMOL_PER_JOULE_PAR  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "leaf_temperature_check.json"

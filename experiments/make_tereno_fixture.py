@@ -56,7 +56,7 @@ def main() -> Path:
     df = load("2016-04-20", solar=False)
     local = df.tz_convert("Etc/GMT-1")
     local = local[(local.index.hour >= 4) & (local.index.hour < 20)]
-    e = units.saturation_vapour_pressure_kpa(local["tair_c"]) * local["rh"]
+    e = units.saturation_vapour_pressure_alduchov_kpa(local["tair_c"]) * local["rh"]
     ah = e * 1e3 / (units.R_WATER_VAPOUR * (local["tair_c"] + units.T0)) * 1e3
     co2 = local["co2_ppm"] * 1e-6 * local["pair_kpa"] * 1e3 / (units.R_GAS * (local["tair_c"] + units.T0)) * 1e3
     par = local["par_umol_m2_s"].to_numpy().copy()

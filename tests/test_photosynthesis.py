@@ -187,7 +187,7 @@ def test_water_stress_factor_limits():
 
 def test_vapour_pressure():
     # FAO-56 table: e_s(20 °C) = 2.338 kPa
-    assert float(ps.saturation_vapour_pressure_kpa(20.0)) == pytest.approx(2.338, abs=1e-3)
+    assert float(ps.saturation_vapour_pressure_tetens_kpa(20.0)) == pytest.approx(2.338, abs=1e-3)
     assert float(ps.vapour_pressure_deficit_kpa(20.0, 1.0)) == 0.0
 
 

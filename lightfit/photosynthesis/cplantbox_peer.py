@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .parameters import PhotosynthesisParams, TemperatureParams
-from .stomata import saturation_vapour_pressure_kpa
+from .stomata import saturation_vapour_pressure_tetens_kpa
 
 _SECONDS_PER_DAY = 24 * 3600
 #: Air temperature of the CPlantBox run [°C]: its vapour pressures, and the leaves left without a point.
@@ -130,7 +130,7 @@ def run_cplantbox(
     out = {k: np.empty(par.size) for k in ("an", "vc", "vj", "gs", "ci", "fw")}
     # CPlantBox takes one air vapour pressure for the plant: air at 20 °C and ``rh``. It sets the
     # transpiration, hence fw, which lightfit is given; the leaf's own VPD is not compared here.
-    es = float(saturation_vapour_pressure_kpa(_AIR_C))
+    es = float(saturation_vapour_pressure_tetens_kpa(_AIR_C))
     elapsed, n_solves = 0.0, 0
     for start in range(0, par.size, n_slot):
         idx = np.arange(start, min(start + n_slot, par.size))

@@ -29,7 +29,7 @@ def positive_part(an_umol_m2_s: ArrayLike) -> jax.Array:
     return jnp.where(an_umol_m2_s > 0, an_umol_m2_s, 0.0)
 
 
-def saturation_vapour_pressure_kpa(t_c: ArrayLike) -> jax.Array:
+def saturation_vapour_pressure_tetens_kpa(t_c: ArrayLike) -> jax.Array:
     r"""Saturation vapour pressure over water [kPa], Tetens form of FAO-56 (eq. 11).
 
     .. math:: e_s(T) = 0.61078 \exp\left(\frac{17.27\,T}{T + 237.3}\right)
@@ -39,7 +39,7 @@ def saturation_vapour_pressure_kpa(t_c: ArrayLike) -> jax.Array:
 
     Reference: Allen et al. (1998), FAO Irrigation and Drainage Paper 56; CPlantBox ``get_es``.
     The weather's humidity conversions take Alduchov & Eskridge's Magnus form
-    (:func:`lightfit.weather.units.saturation_vapour_pressure_kpa`), at most 0.21 % apart from 0 to 40 °C;
+    (:func:`lightfit.weather.units.saturation_vapour_pressure_alduchov_kpa`), at most 0.21 % apart from 0 to 40 °C;
     this one is kept here so that the leaf's VPD is CPlantBox's (tests/test_photosynthesis_peer.py).
     """
     return 0.61078 * jnp.exp(17.27 * t_c / (t_c + 237.3))
@@ -48,7 +48,7 @@ def saturation_vapour_pressure_kpa(t_c: ArrayLike) -> jax.Array:
 def vapour_pressure_deficit_kpa(t_c: ArrayLike, rh: ArrayLike) -> jax.Array:
     """Vapour pressure deficit [kPa] of air at temperature ``t_c`` [°C] and relative
     humidity ``rh`` [0–1]: e_s(T)·(1 − RH)."""
-    return saturation_vapour_pressure_kpa(t_c) * (1.0 - rh)
+    return saturation_vapour_pressure_tetens_kpa(t_c) * (1.0 - rh)
 
 
 def water_stress_factor(

@@ -126,8 +126,8 @@ def reconstruct_day(
     a = assumptions.tair_amplitude_k
     t_mean = anchor.tair_c - a * np.cos(phase(t_anchor))
     tair = t_mean + a * np.cos(phase(times))
-    e = assumptions.dawn_rh * units.saturation_vapour_pressure_kpa(t_mean - a)
-    rh = e / units.saturation_vapour_pressure_kpa(tair)
+    e = assumptions.dawn_rh * units.saturation_vapour_pressure_alduchov_kpa(t_mean - a)
+    rh = e / units.saturation_vapour_pressure_alduchov_kpa(tair)
     p = assumptions.pressure_kpa or float(units.kpa_from_pa(pvlib.atmosphere.alt2pres(site.altitude_m)))
 
     df = pd.DataFrame(

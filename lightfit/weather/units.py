@@ -28,7 +28,7 @@ UMOL_PER_JOULE_PAR = 4.57
 PAR_PER_GHI_UMOL_J = PAR_FRACTION * UMOL_PER_JOULE_PAR
 
 
-def saturation_vapour_pressure_kpa(tair_c: ArrayLike) -> np.ndarray:
+def saturation_vapour_pressure_alduchov_kpa(tair_c: ArrayLike) -> np.ndarray:
     r"""Saturation vapour pressure over water, kPa.
 
     Magnus form with the Alduchov & Eskridge (1996, J. Appl. Meteor. 35, 601) coefficients:
@@ -37,7 +37,7 @@ def saturation_vapour_pressure_kpa(tair_c: ArrayLike) -> np.ndarray:
 
     with T in °C; better than 0.4 % from −40 to 50 °C. Used to convert the weather's humidity; the
     leaf's vapour pressure deficit takes FAO-56's Tetens form instead
-    (:func:`lightfit.photosynthesis.stomata.saturation_vapour_pressure_kpa`, as CPlantBox does, for
+    (:func:`lightfit.photosynthesis.stomata.saturation_vapour_pressure_tetens_kpa`, as CPlantBox does, for
     the peer comparison), at most 0.21 % apart from 0 to 40 °C.
     """
     t = np.asarray(tair_c, dtype=float)
@@ -54,7 +54,7 @@ def vapour_pressure_from_absolute_humidity_kpa(ah_g_m3: ArrayLike, tair_c: Array
 
 def relative_humidity_from_absolute(ah_g_m3: ArrayLike, tair_c: ArrayLike) -> np.ndarray:
     """Relative humidity (0–1) from absolute humidity (g m⁻³) and air temperature (°C)."""
-    return vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c) / saturation_vapour_pressure_kpa(tair_c)
+    return vapour_pressure_from_absolute_humidity_kpa(ah_g_m3, tair_c) / saturation_vapour_pressure_alduchov_kpa(tair_c)
 
 
 def co2_ppm_from_mmol_m3(c_mmol_m3: ArrayLike, tair_c: ArrayLike, pair_kpa: ArrayLike) -> np.ndarray:
