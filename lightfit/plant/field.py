@@ -15,8 +15,8 @@ partition the measurement area into W contiguous blocks, each carrying its own B
 Two boundaries (``Field.boundary``):
 
 - ``"finite"``: the measurement area plus its buffer rows, on bare soil (the reference paper's
-  setup). Light leaks in through the edges: +52 % canopy absorbed PAR for the default 10 × 10
-  plants with 2 buffer rows (+49 % with the reference paper's grey leaf; docs/light.md,
+  setup). Light leaks in through the edges: +53 % canopy absorbed PAR for the default 10 × 10
+  plants with 2 buffer rows (+42 % with the reference paper's grey leaf; docs/light.md,
   "Field-edge bias").
 - ``"periodic"``: the measurement area is one cell of an infinite field
   (:class:`~lightfit.plant.periodic.PeriodicCell`: N plants × plant spacing along the rows by
