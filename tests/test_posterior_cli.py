@@ -138,6 +138,7 @@ def test_posterior_cli_n_test_zero(tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["n_steps"] == 20 and "emulator_error" not in s
+    assert (tmp_path / "corner.png").stat().st_size > 10_000  # one parameter: a histogram, not corner's grid
 
 
 def test_posterior_cli_refuses_a_leaf_parameter_outside_the_emulator_box(tmp_path):

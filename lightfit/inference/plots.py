@@ -19,16 +19,25 @@ def corner_figure(samples: np.ndarray, names, x_map: dict, path: str | Path, *, 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = list(names)
-    fig = corner.corner(
-        np.asarray(samples, float),
-        labels=names,
-        show_titles=True,
-        title_fmt=".3g",
-        quantiles=(0.05, 0.5, 0.95),
-        truths=[x_map.get(n) for n in names],
-        truth_color="tab:red",
-    )
+    names, x = list(names), np.asarray(samples, float).reshape(len(samples), -1)
+    if len(names) == 1:  # corner indexes a grid of axes, which one parameter does not make
+        fig, ax = plt.subplots(figsize=(4.5, 4))
+        ax.hist(x[:, 0], bins=40, histtype="step", color="k")
+        for q in np.percentile(x[:, 0], (5, 50, 95)):
+            ax.axvline(q, color="k", ls="--", lw=0.8)
+        ax.axvline(x_map.get(names[0], np.nan), color="tab:red")
+        ax.set_xlabel(names[0])
+        ax.set_yticks([])
+    else:
+        fig = corner.corner(
+            x,
+            labels=names,
+            show_titles=True,
+            title_fmt=".3g",
+            quantiles=(0.05, 0.5, 0.95),
+            truths=[x_map.get(n) for n in names],
+            truth_color="tab:red",
+        )
     fig.suptitle(
         (title + "\n" if title else "") + f"{len(samples):,} samples after burn-in; red lines: the MAP; "
         "dashed: 5, 50, 95 %; all parameters dimensionless",
