@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -165,6 +165,9 @@ class ReplicationConfig:
     site: Site = SELHAUSEN
 
     def __post_init__(self):
+        for f in fields(self):  # numpy's scalars as Python's: the configuration is stored as JSON
+            if isinstance(v := getattr(self, f.name), np.generic):
+                object.__setattr__(self, f.name, v.item())
         object.__setattr__(self, "dates", as_dates(self.dates))
         object.__setattr__(self, "season_start", check_season_start(self.season_start, self.site))
         # One form whatever it came from (one number, a list read back from JSON): configurations

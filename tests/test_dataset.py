@@ -495,7 +495,8 @@ def test_cli_cautions_when_the_periodic_canopy_is_cut(periodic_results_file, tmp
     assert r.exit_code == 0, r.output
     meta = json.loads((tmp_path / "x" / "metadata.json").read_text())["periodic_canopy"]
     said = " ".join(r.output.split())
-    assert meta["copies"] == 1 and f"covers {meta['reach_m']:.2f} m of the {meta['requested_reach_m']:.2f} m" in said
+    assert meta["copies"] == 1 and meta["reach_m"] >= 0  # the cell alone covers no distance beyond itself
+    assert f"covers {meta['reach_m']:.2f} m of the {meta['requested_reach_m']:.2f} m" in said
 
 
 def test_periodic_results_rebuild_the_periodic_cell(periodic_results_file, results_file):
@@ -789,7 +790,10 @@ def test_results_it_cannot_label_or_place_are_refused(results_file, tmp_path):
     assert select_times(res, [TIMES[1], TIMES[1]]) == select_times(res, [TIMES[1]])
     # A bare clock time is the site's local time on the results' day (CEST, UTC+2, on 20 April), as the
     # tables and figures label the steps; pandas had read it as today's date in UTC (a newcomer's audit).
-    assert select_times(res, ["10:00", "13:00"]) == select_times(res, TIMES)
+    assert select_times(res, ["10:00", "13:00:00"]) == select_times(res, TIMES)
+    for bad in ("9:5", "10:00+02:00", "noon"):  # no date and not HH:MM: pandas would date them today
+        with pytest.raises(InputError, match="has no date and is not HH:MM"):
+            select_times(res, [bad])
     assert select_times(res, ["2016-04-20T10:00+02:00"]) == select_times(res, [TIMES[0]])
     with pytest.raises(InputError, match=r"is not a step of the results \(expected one of .* 10:00 … 13:00 local"):
         select_times(res, ["08:00"])
@@ -798,6 +802,13 @@ def test_results_it_cannot_label_or_place_are_refused(results_file, tmp_path):
         ds.load().assign_coords(time=[t[0], t[1] + np.timedelta64(1, "D")]).to_netcdf(tmp_path / "2d.nc")
     with pytest.raises(InputError, match="has no date and the results span 2 days"):
         select_times(open_results(tmp_path / "2d.nc"), ["10:00"])
+    # a step without a time (NaT) is left out of the clock's day and of the message (raw errors)
+    with xr.open_dataset(results_file) as ds:
+        ds.load().assign_coords(time=[t[0], np.datetime64("NaT")]).to_netcdf(tmp_path / "nat.nc")
+    nat = open_results(tmp_path / "nat.nc")
+    assert select_times(nat, ["10:00"]) == [0]
+    with pytest.raises(InputError, match=r"not a step of the results \(expected one of .* \(1 steps\)"):
+        select_times(nat, ["2016-04-20T11:00"])
 
 
 def test_field_export_keeps_stems_whose_leaf_quantities_are_nan(tmp_path):

@@ -722,3 +722,21 @@ def test_exact_halo_rows_is_the_fewest_that_give_every_tile_the_whole_field(fld)
         assert all(set(t.measured) | set(t.buffer) == all_plants for t in full)
         short = HaloField.of(fld, halo_rows=h - 1).tiles(tiles)
         assert any(set(t.measured) | set(t.buffer) != all_plants for t in short)
+
+
+def test_a_field_run_without_theta_takes_its_scenarios_own_leaf(weather):
+    """FieldRun's default theta was Theta(), the default leaf's values: a field-run with the paper's
+    grey leaf rendered it with the PROSPECT leaf's subsurface (0.596 against its own 0.3), unlike
+    replicate. Now {} (the scenario's own leaf), and the tasks' key hashes the values a task runs
+    with, so a task kept by the old default is not taken for one of the new (a review)."""
+    from lightfit.distributed.run import task_key, task_specs
+    from lightfit.light.scene import Optics
+    from lightfit.model.parameters import Theta
+
+    grey = Optics.preset("paper")
+    sc = Scenario(weather=weather.iloc[[2]], field=FIELD, samples=8, bounces=2, optics=grey)
+    ds = run_single(FieldRun(sc))
+    assert ds.attrs["theta_subsurface"] == grey.subsurface == sc.theta.subsurface != Theta().subsurface
+    (own,), (old,) = (task_specs(FieldRun(sc, theta=t)) for t in ({}, Theta()))
+    assert task_key(own) != task_key(old)
+    assert task_key(own) == task_key(task_specs(FieldRun(sc, theta=sc.theta))[0])  # the same values, one key

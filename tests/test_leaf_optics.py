@@ -200,7 +200,7 @@ def test_default_leaf_is_prospect_everywhere():
 
 def test_informed_subsurface_prior_spans_prospect_transmittance():
     """The prior's stated bounds follow from the default leaf and PROSPECT-D's wheat T range 0.02–0.08."""
-    from lightfit.inference.mcmc.priors import PRIORS_INFORMED, SUBSURFACE_INFORMED
+    from lightfit.inference.mcmc.priors import PRIORS_INFORMED, SUBSURFACE_INFORMED, subsurface_range
     from lightfit.light.bsdf import SPECULAR_F0_SCALE
 
     o = Optics.preset("prospect")
@@ -209,7 +209,10 @@ def test_informed_subsurface_prior_spans_prospect_transmittance():
     assert SUBSURFACE_INFORMED == pytest.approx((lo, hi), abs=0.005)
     assert PRIORS_INFORMED["subsurface"].support == SUBSURFACE_INFORMED
     assert lo < o.subsurface < hi  # the default lies inside its prior
-    # specular's bounds: the upper surface's reflection 3.7–5.9 % over the F0 scale
+    # subsurface's literal is the default leaf's computed range (a literal, so that importing the
+    # priors starts no renderer); specular's bounds the upper surface's reflection 3.7–5.9 % over
+    # the F0 scale
+    assert SUBSURFACE_INFORMED == subsurface_range(Optics.preset("prospect"))
     assert PRIORS_INFORMED["specular"].support == pytest.approx((0.037 / SPECULAR_F0_SCALE, 0.059 / SPECULAR_F0_SCALE))
 
 

@@ -52,3 +52,22 @@ def test_seed_takes_numpy_integers_below_2_to_32():
     for bad in (True, "3", 1.5, np.float32(3), -1, 2**32):
         with pytest.raises(InputError, match=r"seed=.*expected an integer in \[0, 2³²\)"):
             check_seed(bad)
+
+
+def test_a_configuration_given_numpy_scalars_is_stored_as_json():
+    """numpy's scalars pass the checks, and the configuration that holds them is written into every
+    results file as JSON: stored as they came, json.dumps raised TypeError at the end of a run (a
+    review of the change that let them through)."""
+    import json
+    from dataclasses import asdict
+
+    cfg = replace(
+        ReplicationConfig.quick(),
+        window=Window(hours=np.float32(10.5)),
+        site=Site(latitude_deg=np.float64(50.5), altitude_m=np.int64(103)),
+        soil_albedo=np.float32(0.25),
+        n_plants=np.int64(9),
+    )
+    back = json.loads(json.dumps(asdict(cfg)))
+    assert back["window"]["hours"] == 10.5 and back["site"]["altitude_m"] == 103.0 and back["n_plants"] == 9
+    assert back["soil_albedo"] == pytest.approx(0.25) and type(LeafTraits(N=np.float32(1.5)).N) is float

@@ -276,3 +276,23 @@ def test_posterior_cli_damaged_run_file_is_named_or_replaced(tmp_path):
     assert r.exit_code == 0, r.output
     assert "not readable as a posterior run" in " ".join(r.output.split())
     assert load_run(out / "run.h5")["chain"].shape == (10, 4, 1)
+
+
+def test_status_of_a_chain_too_short_for_its_diagnostics_prints_dashes_not_nan():
+    """τ, ESS and split-R̂ are NaN until a chain is long enough; the tables printed "nan" and the
+    reliability flag Python's False (a newcomer's audit). The stored tiny run with its τ, ESS and
+    R̂ made NaN, as a 3-step chain has them."""
+    from pathlib import Path
+
+    from lightfit.cli.common import console
+    from lightfit.cli.posterior import _print_status
+    from lightfit.inference.mcmc.backend import run_status
+
+    st = run_status(Path(__file__).parent / "fixtures" / "posterior_tiny.h5")
+    for k in ("tau", "ess", "rhat"):
+        st["diagnostics"][k] = np.full_like(st["diagnostics"][k], np.nan)
+    with console.capture() as cap:
+        _print_status(st)
+    text = " ".join(cap.get().split())
+    assert "nan" not in text.lower() and "False" not in text, text
+    assert "emcee suggests 50): no; max split-R̂ –;" in text and "max τ –;" in text and "│ specular │ – │ – │" in text

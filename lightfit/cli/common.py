@@ -380,7 +380,7 @@ def theta_cautions(theta: str | None, config: dict) -> list[str]:
     settings ``config`` (:meth:`~lightfit.cli.options.Settings.as_dict`): a calibration that did not
     converge, a posterior whose diagnostics caution (``lightfit posterior``'s own cautions), and a fit
     made with other :data:`THETA_CONTEXT` settings (a calibration's ``config``, a posterior's run.h5
-    beside its summary). Settings a file leaves unset (``None``: the defaults) are not compared."""
+    beside its summary), unset settings taken as their defaults (:func:`_effective`)."""
     if not theta or not Path(theta).exists():
         return []
     p = Path(theta)
@@ -394,7 +394,10 @@ def theta_cautions(theta: str | None, config: dict) -> list[str]:
     if "x_map" in data:
         from lightfit.cli.posterior import _cautions
 
-        said = _cautions(data)
+        try:
+            said = _cautions(data)
+        except (KeyError, IndexError, TypeError, ValueError):  # a summary edited or written elsewhere
+            said = ["its diagnostics (names, rhat, tau, χ², priors) are not those lightfit posterior writes"]
         if said:  # the first in full; `lightfit posterior` printed them all where the numbers were
             more = f" (and {len(said) - 1} more cautions its run printed)" if len(said) > 1 else ""
             out.append(f"the posterior of {p}: {said[0]}{more}")
@@ -406,15 +409,29 @@ def theta_cautions(theta: str | None, config: dict) -> list[str]:
             except (InputError, OSError, KeyError):
                 fitted = None  # no run file to compare with: nothing said of the settings
     if isinstance(fitted, dict):
-        differ = [
-            k
-            for k in THETA_CONTEXT
-            if fitted.get(k) is not None and config.get(k) is not None and fitted[k] != config[k]
-        ]
+        then, now = _effective(fitted), _effective(config)
+        differ = [k for k in THETA_CONTEXT if k in fitted and k in config and then[k] != now[k]]
         if differ:
-            then = ", ".join(f"{k} {fitted[k]}" for k in differ)
-            now = ", ".join(f"{k} {config[k]}" for k in differ)
+            then = ", ".join(f"{k} {then[k]}" for k in differ)
+            now = ", ".join(f"{k} {now[k]}" for k in differ)
             out.append(f"{p} was fitted with {then}; this run has {now}: its parameters may not mean the same here")
+    return out
+
+
+def _effective(config: dict) -> dict:
+    """The :data:`THETA_CONTEXT` settings of ``config`` as the run takes them: a setting left unset
+    (``None``) its default (the prospect leaf's chlorophyll, the set's own growth temperature, the
+    bundled weather), a weather file by its name (the same file given by another path is the same)."""
+    from lightfit.light.leaf_optics import LeafTraits
+
+    out = {k: config.get(k) for k in THETA_CONTEXT}
+    if out["optics"] not in (None, "prospect"):  # a leaf without traits
+        out["chlorophyll_ug_cm2"] = "not used"
+    elif out["chlorophyll_ug_cm2"] is None:
+        out["chlorophyll_ug_cm2"] = LeafTraits().Cab
+    if out["growth_temperature_c"] is None:
+        out["growth_temperature_c"] = "the set's own"
+    out["weather_file"] = "the bundled series" if out["weather_file"] is None else Path(out["weather_file"]).name
     return out
 
 

@@ -232,10 +232,14 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
     if list(times) == ["all"]:
         return list(range(len(res.times)))
     out, tz = [], _site(res).timezone
-    local = res.times.tz_convert(tz)
+    steps = res.times[~res.times.isna()]  # a step without a time can be asked for by no time
+    local = steps.tz_convert(tz)
+    expected = f"ISO 8601 with its date, e.g. 2016-04-20T10:00 (UTC unless zoned), or HH:MM local time ({tz})"
     for t in times:
-        clock = re.fullmatch(r"\s*(\d{1,2}):(\d{2})\s*", str(t))
-        if clock is not None:  # pandas read a bare clock time as today's date, in UTC
+        clock = re.fullmatch(r"\s*\d{1,2}:\d{2}(:\d{2})?\s*", str(t))
+        if clock is None and not re.match(r"\s*\d{4}-?\d{2}-?\d{2}", str(t)):  # pandas dates a bare time today
+            raise InputError(f"time {t!r} has no date and is not HH:MM", parameter="times", expected=expected)
+        if clock is not None:  # the site's clock on the results' one day
             days = sorted(set(local.date))
             if len(days) != 1:
                 raise InputError(
@@ -247,22 +251,19 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
         try:
             ts = pd.Timestamp(t)
         except ValueError as err:
-            raise InputError(
-                f"time {t!r} is not a timestamp",
-                parameter="times",
-                expected=f"ISO 8601, e.g. 2016-04-20T10:00 (UTC unless zoned), or HH:MM local time ({tz})",
-            ) from err
+            raise InputError(f"time {t!r} is not a timestamp", parameter="times", expected=expected) from err
         if clock is not None:
             ts = localize(ts, tz, parameter="times")
         ts = ts.tz_localize("UTC") if ts.tz is None else ts.tz_convert("UTC")
         hit = np.flatnonzero(res.times == ts)
         if not len(hit):
-            raise InputError(
-                f"time {ts} is not a step of the results",
-                parameter="times",
-                expected=f"one of {res.times[0]:%Y-%m-%d %H:%M} … {res.times[-1]:%H:%M} UTC, "
-                f"{local[0]:%H:%M} … {local[-1]:%H:%M} local time ({tz}) ({len(res.times)} steps)",
+            steps_are = (
+                f"one of {steps[0]:%Y-%m-%d %H:%M} … {steps[-1]:%H:%M} UTC, {local[0]:%H:%M} … {local[-1]:%H:%M} "
+                f"local time ({tz}) ({len(steps)} steps)"
+                if len(steps)
+                else "a step with a time (the results have none)"
             )
+            raise InputError(f"time {ts} is not a step of the results", parameter="times", expected=steps_are)
         out.append(int(hit[0]))
     return list(dict.fromkeys(out))  # a time given twice is one image (it was listed twice, written once)
 

@@ -228,7 +228,7 @@ def periodic_canopy(
     n_max = max(1, int(max_faces // max(mesh.n_faces, 1)))
     capped = len(order) > n_max
     # Fully covered out to the nearest copy left out (less its half-diagonal).
-    covered = float(dist[order[n_max]] - half_diag) if capped else float(reach_m)
+    covered = max(0.0, float(dist[order[n_max]] - half_diag)) if capped else float(reach_m)  # ≥ 0: the cell itself
     order = order[:n_max]
     parts = []
     for k in order:

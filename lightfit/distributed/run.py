@@ -89,14 +89,14 @@ class FieldRun:
         time_chunks: split the time steps into this many tasks per tile (strided, so each
             chunk gets a similar share of daytime steps).
         theta: model parameters (a :class:`~lightfit.model.parameters.Theta`, or a mapping of
-            some names; defaults for the rest).
+            some names; the rest the scenario's own, :attr:`Scenario.theta`: its leaf's defaults).
     """
 
     scenario: Scenario
     tiles: int = 1
     halo_rows: int | None = None
     time_chunks: int = 1
-    theta: Theta | dict = field(default_factory=Theta)
+    theta: Theta | dict = field(default_factory=dict)  # {}: the scenario's own leaf (the grey leaf's subsurface 0.3)
 
     def __post_init__(self):
         sc = self.scenario
@@ -646,7 +646,7 @@ def task_key(spec: TaskSpec) -> str:
     versions = run_versions()
     what = {
         "scenario": spec.run.task_scenario(spec.tile, spec.rows).digest(),
-        "theta": as_theta(spec.run.theta).to_dict(),
+        "theta": as_theta(spec.run.theta, spec.run.scenario.theta).to_dict(),  # as the task runs it
         "versions": versions,
         "task": [spec.tile, spec.chunk],
     }

@@ -763,7 +763,7 @@ def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, tria
             return f"converged: parameter and loss changes within rtol {rtol:g}, atol {atol:g}"
         return f"converged: projected gradient ∞-norm ≤ gtol {gtol:g}"
     if stopped_by == "max_steps":
-        return f"step limit: {max_steps} accepted steps"
+        return f"step limit: {max_steps} accepted step{'s' * (max_steps != 1)}"
     if stopped_by == "stalled":
         return f"stalled: {trials} trials (limit 10 × max_steps) without reaching {max_steps} accepted steps"
     if stopped_by.startswith("unconverged: "):

@@ -90,7 +90,7 @@ class LeafTraits:
     def __post_init__(self):
         for name, v in asdict(self).items():
             lo, hi, what = _TRAIT_RANGES[name]
-            check_real(v, f"leaf trait {name}", lo, hi, parameter=name, expected=what)
+            object.__setattr__(self, name, check_real(v, f"leaf trait {name}", lo, hi, parameter=name, expected=what))
 
 
 @dataclass(frozen=True)

@@ -84,7 +84,8 @@ class Site:
             # Dead Sea shore to above the highest fields (pvlib's pressure model needs a sane value).
             ("altitude_m", -500.0, 9000.0, "metres above sea level, −500 … 9000"),
         ):
-            check_real(getattr(self, attr), attr, low, high, expected=what)
+            # stored as a float: numpy's scalars pass the check but not json.dumps of a run's settings
+            object.__setattr__(self, attr, check_real(getattr(self, attr), attr, low, high, expected=what))
         check_timezone(self.timezone)
 
     def attrs(self) -> dict[str, str | float]:
@@ -187,8 +188,8 @@ class Window:
             raise InputError(
                 f"start={self.start!r}", parameter="window.start", expected="a local clock time HH:MM, e.g. 05:00"
             )
-        h = self.hours
-        check_real(h, "hours", 0, 24, open_lo=True, expected="a window length in hours, 0 < hours ≤ 24")
+        h = check_real(self.hours, "hours", 0, 24, open_lo=True, expected="a window length in hours, 0 < hours ≤ 24")
+        object.__setattr__(self, "hours", h)
         try:
             step = pd.Timedelta(self.step)
         except (ValueError, TypeError):

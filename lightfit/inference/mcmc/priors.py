@@ -114,8 +114,10 @@ def subsurface_range(optics: Optics) -> tuple[float, float]:
 
 #: Subsurface range of the default leaf (``Optics.preset("prospect")``): 0.02/0.0640 = 0.31 …
 #: 0.08/0.0640 = 1.25, capped at 1 (T ≤ 0.064). (The reference paper's grey leaf, base colour 0.5,
-#: would need 0.04–0.17.)
-SUBSURFACE_INFORMED = subsurface_range(Optics.preset("prospect"))
+#: would need 0.04–0.17.) A literal, equal to ``subsurface_range`` of that leaf
+#: (tests/test_leaf_optics.py): computing it here started the renderer whenever the posterior's
+#: modules were imported, also to read a stored run where no renderer can start.
+SUBSURFACE_INFORMED = (0.31, 1.0)
 #: Priors informed by leaf optics (docs/design.md §6) for the default leaf optics — the default.
 PRIORS_INFORMED: dict[str, Prior] = {
     "specular": Prior(
