@@ -233,7 +233,10 @@ def posterior(
             f" for {reused} of {len(days)} days" if 1 < len(days) != reused else ""
         )
     renders = f"{new} new renders, {cached} from the cache" if new or cached or not reused else "no renders"
-    console.print(f"design: {renders} ({each}){checked}")
+    if n_rendered == 0:  # "no renders (0 sun positions each; …)" read as a design that failed (an audit)
+        console.print("design: none needed (the observed series depend on no rendered light)")
+    else:
+        console.print(f"design: {renders} ({each}){checked}")
     res = A.run(
         m,
         obs,
