@@ -89,6 +89,12 @@ def check_real(
     return float(value)
 
 
+def check_fraction(value, name: str, *, parameter: str | None = None) -> float:
+    """``value`` as a float in [0, 1] (:func:`check_real`): an albedo, a reflectance or
+    transmittance, a leaf surface parameter."""
+    return check_real(value, name, 0.0, 1.0, parameter=parameter, expected="a number in [0, 1]")
+
+
 def check_integer(
     value,
     name: str,

@@ -24,7 +24,7 @@ import pandas as pd
 import xarray as xr
 
 from lightfit import weather
-from lightfit.errors import InputError, check_real, parse_date
+from lightfit.errors import InputError, check_fraction, parse_date
 from lightfit.files import is_netcdf, replace_text, replaced
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
@@ -196,7 +196,7 @@ class ReplicationConfig:
         dates); the leaf's spectra are not computed (no renderer needed to make a configuration)."""
         self._layout(GrowthConfig(parameter_file=self.parameter_file))
         check_leaf(self.optics, self.chlorophyll_ug_cm2)
-        check_real(self.soil_albedo, "soil_albedo", 0.0, 1.0, expected="a number in [0, 1]")
+        check_fraction(self.soil_albedo, "soil_albedo")
         check_how(self.how)
         settings = {k: getattr(self, k) for k in SETTINGS}
         settings |= {"samples": self.render_samples(), "seed": self.render_seed}  # `seed` here grows the plants

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_fraction
 from lightfit.light.scene import SKY_MODELS, check_sky
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
@@ -68,9 +68,7 @@ class VisualMaterials:
             if a.shape != (3,) or not np.isfinite(a).all() or (a < 0).any() or (a > 1).any():
                 raise InputError(f"{k}={getattr(self, k)!r}", parameter=k, expected="three reflectances in [0, 1]")
         for k in ("leaf_transmission", "roughness", "colour_variation"):
-            v = getattr(self, k)
-            if not (math.isfinite(v) and 0.0 <= v <= 1.0):
-                raise InputError(f"{k}={v!r}", parameter=k, expected="a number in [0, 1]")
+            check_fraction(getattr(self, k), k)
         for k in ("soil_half_size_m", "periodic_max_reach_m"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

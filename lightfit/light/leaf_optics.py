@@ -35,7 +35,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from lightfit.errors import InputError, check_real
+from lightfit.errors import InputError, check_fraction, check_real
 
 PAR_BAND_NM = (400.0, 700.0)
 #: Temperature of the blackbody whose photon spectrum weights the PAR band (the solar disc).
@@ -187,7 +187,7 @@ def leaf_bsdf_parameters(
     from lightfit.light.bsdf import SPECULAR_F0_SCALE, ggx_white_sky_albedo
 
     for name, v in (("specular", specular), ("roughness", roughness)):
-        check_real(v, f"leaf {name}", 0.0, 1.0, parameter=name, expected="a number in [0, 1]")
+        check_fraction(v, f"leaf {name}", parameter=name)
     par = par_optics(traits)
     f0 = SPECULAR_F0_SCALE * float(specular)
     diffuse = par.R + par.T - f0 * ggx_white_sky_albedo(float(roughness))

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lightfit.errors import InputError, check_real, is_real
+from lightfit.errors import InputError, check_fraction, is_real
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
 from lightfit.light.face_sampling import FaceSampler
@@ -94,7 +94,7 @@ class Optics:
     def __post_init__(self):
         for k, v in asdict(self).items():
             # as a float: np.float32(0.5) would name the same leaf otherwise
-            object.__setattr__(self, k, check_real(v, k, 0.0, 1.0, expected="a number in [0, 1]"))
+            object.__setattr__(self, k, check_fraction(v, k))
 
     @classmethod
     def from_traits(
