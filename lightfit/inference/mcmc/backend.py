@@ -63,16 +63,21 @@ def writer_lock(path: str | Path) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
+#: Reads of a run file :func:`_retry` makes, and the wait between them (s).
+_READ_ATTEMPTS, _READ_WAIT_S = 20, 0.1
+
+
 def _retry(read):
-    """``read()``, retried (20 times, 0.1 s apart) when it coincides with the writer's step
-    (OSError/KeyError from a half-written file, seen by a reader that opened it mid-step)."""
-    for i in range(20):
+    """``read()``, retried (:data:`_READ_ATTEMPTS` times, :data:`_READ_WAIT_S` apart) when it
+    coincides with the writer's step (OSError/KeyError from a half-written file, seen by a reader
+    that opened it mid-step)."""
+    for i in range(_READ_ATTEMPTS):
         try:
             return read()
         except (OSError, KeyError):
-            if i == 19:
+            if i == _READ_ATTEMPTS - 1:
                 raise
-            time.sleep(0.1)
+            time.sleep(_READ_WAIT_S)
 
 
 #: ``units`` and ``long_name`` of a run file's datasets, by their name in their group; datasets named
