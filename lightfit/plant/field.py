@@ -169,7 +169,7 @@ class Field:
             object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
         # NaN built a mesh of NaN, inf a math domain error; 400 was kept as 400 (the field of 40°
         # under another name and cache key)
-        check_real(
+        d = check_real(
             self.row_direction_deg,
             "row_direction_deg",
             0,
@@ -177,6 +177,7 @@ class Field:
             open_hi=True,
             expected="a compass azimuth in degrees, 0 ≤ azimuth < 360 (rows at 270 run as at 90)",
         )
+        object.__setattr__(self, "row_direction_deg", d)  # a float, as the spacings above
         check_integer(self.buffer_rows, "buffer_rows", 0)
         check_integer(self.seed, "seed", 0)
 
