@@ -16,19 +16,16 @@ import sys
 import time
 from pathlib import Path
 
-import pandas as pd
-
 import lightfit  # noqa: F401
-from lightfit import weather
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.light.scene import FieldScene, Optics
-from lightfit.model.scenario import Forcing
 from lightfit.plant import Field, build
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from periodic_vs_wide import light  # noqa: E402  (the moment and its PAR, one home for these experiments)
 from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,10 +33,7 @@ BUFFERS = [(2, 2), (6, 6), (2, 8), (3, 12), (6, 24), (10, 40)]
 
 
 def main(n_plants: int = 16, samples: int = 128, out: Path | None = None) -> dict:
-    step = weather.load("2016-04-20").loc[[pd.Timestamp("2016-04-20 10:00", tz="UTC")]]
-    sun = (float(step["sun_elevation_deg"].iloc[0]), float(step["sun_azimuth_deg"].iloc[0]))
-    par = Forcing.of(step)  # the coupled model's PAR: the measured PAR, Spitters' diffuse share
-    dni, dhi = float(par.dni_par[0]), float(par.dhi_par[0])
+    sun, dni, dhi = light()  # the coupled model's PAR: the measured PAR, Spitters' diffuse share
     res = {}
     for rows, along in BUFFERS:
         g = build(Field(boundary="finite", n_plants=n_plants, buffer_rows=rows, buffer_along=along, seed=1))

@@ -41,17 +41,17 @@ import pandas as pd  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 import lightfit  # noqa: E402,F401
-from lightfit import weather  # noqa: E402
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance, render_adaptive  # noqa: E402
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2  # noqa: E402
 from lightfit.light.scene import FieldScene, Optics  # noqa: E402
-from lightfit.model.scenario import Forcing, main_job_samples, resolve_direct  # noqa: E402
+from lightfit.model.scenario import main_job_samples, resolve_direct  # noqa: E402
 from lightfit.plant import Field, MeshResolution, build  # noqa: E402
 from lightfit.precision import use_float64
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from periodic_vs_wide import light  # noqa: E402  (the moment and its PAR, one home for these experiments)
 from provenance import wide_console, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -228,10 +228,7 @@ def main(
     out_dir.mkdir(parents=True, exist_ok=True)
     optics = Optics.preset(optics_name)
     default, sweep = settings(optics)
-    step = weather.load("2016-04-20").loc[[pd.Timestamp("2016-04-20 10:00", tz="UTC")]]
-    sun = (float(step["sun_elevation_deg"].iloc[0]), float(step["sun_azimuth_deg"].iloc[0]))
-    par = Forcing.of(step)  # the coupled model's PAR: the measured PAR, Spitters' diffuse share
-    dni, dhi = float(par.dni_par[0]), float(par.dhi_par[0])
+    sun, dni, dhi = light()  # the coupled model's PAR: the measured PAR, Spitters' diffuse share
     console = wide_console()
     console.print(
         f"sun {sun[0]:.1f}° / {sun[1]:.1f}°, PAR DNI {dni:.0f}, DHI {dhi:.0f} µmol m⁻² s⁻¹ (RECONSTRUCTED forcing); "
