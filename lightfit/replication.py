@@ -44,7 +44,12 @@ from lightfit.model.scenario import (
     resolve_direct,
 )
 from lightfit.photosynthesis.canopy import check_profile, profile_for
-from lightfit.photosynthesis.parameters import check_acclimates, check_growth_temperature, growth_temperature_setting
+from lightfit.photosynthesis.parameters import (
+    check_acclimates,
+    check_growth_temperature,
+    check_overrides,
+    growth_temperature_setting,
+)
 from lightfit.plant import Field
 from lightfit.plant.field import DEFAULT_BUFFER_ROWS, DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS
 from lightfit.plant.growth import SEASON_START_MONTH_DAY, GrowthConfig, parameter_file_setting
@@ -120,6 +125,8 @@ class ReplicationConfig:
     (:attr:`Scenario.growth_temperature_c`; ``None``: the set's own, 15 °C for ``winter_wheat``;
     ``"series"``: each date's mean air temperature of the 30 days before in the weather series,
     :func:`lightfit.weather.month_before_mean_tair_c`).
+    ``photosynthesis_overrides``: numbers of the set replaced, name → value
+    (:attr:`Scenario.photosynthesis_overrides`; default none).
     ``direct_rays_per_m2``: the projection's (sun, sky) rays per m² of ground
     (:attr:`Scenario.direct_rays_per_m2`; more rays, less per-segment noise, docs/light.md
     "Recommended settings").
@@ -155,6 +162,7 @@ class ReplicationConfig:
     photosynthesis: str = Scenario.photosynthesis
     vcmax_profile: str | float = Scenario.vcmax_profile
     growth_temperature_c: float | str | None = Scenario.growth_temperature_c
+    photosynthesis_overrides: tuple[tuple[str, float], ...] = Scenario.photosynthesis_overrides
     optics: str = DEFAULT_PRESET
     chlorophyll_ug_cm2: float | None = None
     soil_albedo: float = SOIL_ALBEDO
@@ -180,6 +188,8 @@ class ReplicationConfig:
         elif t_g is not None:
             check_growth_temperature(self.photosynthesis, t_g)
         object.__setattr__(self, "growth_temperature_c", t_g)
+        # one form (sorted pairs) whatever it came from: a mapping, or lists read back from JSON
+        object.__setattr__(self, "photosynthesis_overrides", check_overrides(self.photosynthesis_overrides))
         object.__setattr__(self, "vcmax_profile", check_profile(self.vcmax_profile))
         object.__setattr__(self, "parameter_file", parameter_file_setting(self.parameter_file))
         self.check()
@@ -244,6 +254,7 @@ class ReplicationConfig:
                 "photosynthesis",
                 "par_kind",
                 "growth_temperature_c",
+                "photosynthesis_overrides",
                 "parameter_file",
                 "soil_albedo",
                 "sky",
@@ -526,6 +537,7 @@ def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
         photosynthesis=cfg.photosynthesis,
         vcmax_profile=cfg.vcmax_profile,
         growth_temperature_c=_growth_temperature(cfg, w),
+        photosynthesis_overrides=cfg.photosynthesis_overrides,
         optics=optics,
         sky=cfg.sky,
     )

@@ -102,6 +102,8 @@ def run_label(attrs) -> str:
         )  # several days: "9.3; 13.1"
         if text != f"{own:.3g}":
             notes.append(f"T_g {text} °C" + ("" if applied == text else f", acting as {applied} °C"))
+    # results written before overrides have none
+    notes += [f"{k} {v:g}" for k, v in json.loads(attrs.get("photosynthesis_overrides", "{}")).items()]
     ps = f"photosynthesis {attrs.get('photosynthesis')}" + (f" ({', '.join(notes)})" if notes else "")
     # results written before the setting had CPlantBox's plants, all facing the same way
     aligned = ", aligned plants" if attrs.get("headings", "aligned") == "aligned" else ""

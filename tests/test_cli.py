@@ -795,6 +795,29 @@ def test_vcmax_profile_reaches_the_run_resolved():
     assert changed_settings(before, s) == []
 
 
+def test_photosynthesis_override_options_reach_the_configuration():
+    """--photosynthesis-override NAME=VALUE (repeatable) is stored sorted by name as a mapping in the
+    run's settings and as pairs in its configuration, which then matches no preset; text that is not
+    NAME=number is refused naming the option; settings stored before the option had none."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+
+    s = resolve(ModelOptions(quick=True, photosynthesis_override=["vcmax_ref_umol_m2_s=85", " a1 = 4.5"]))
+    assert s.as_dict()["photosynthesis_overrides"] == {"a1": 4.5, "vcmax_ref_umol_m2_s": 85.0}
+    cfg = s.replication_config()
+    assert cfg.photosynthesis_overrides == (("a1", 4.5), ("vcmax_ref_umol_m2_s", 85.0)) and cfg.preset is None
+    plain = resolve(ModelOptions(quick=True))
+    assert plain.photosynthesis_overrides == {} and plain.replication_config().preset == "default"
+    old = {k: v for k, v in plain.as_dict().items() if k != "photosynthesis_overrides"}
+    assert changed_settings(old, plain) == []
+    assert changed_settings(old, s) == ["photosynthesis_overrides: {} → {'a1': 4.5, 'vcmax_ref_umol_m2_s': 85.0}"]
+    for text, match in [("a1", "'a1'.*NAME=VALUE"), ("a1=x", "'a1=x'.*NAME=VALUE"), ("g1=4", "unknown parameter 'g1'")]:
+        with pytest.raises(InputError, match=match) as e:
+            resolve(ModelOptions(quick=True, photosynthesis_override=[text]))
+        assert e.value.parameter == "photosynthesis_override"
+    r = runner.invoke(app, ["replicate", "--quick", "--photosynthesis-override", "curvature=2"])
+    assert r.exit_code == 2 and "curvature=2.0" in r.output and "in (0, 1]" in r.output, r.output
+
+
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     ply, png = tmp_path / "f.ply", tmp_path / "f.png"

@@ -573,3 +573,36 @@ def test_results_bias_is_the_documented_quadrature_at_the_blades_own_light_and_c
     want = sum(wi / w.sum() * an(q + xi * sd) for xi, wi in zip(x, w)) - an(q)
     assert np.abs(want).max() > 1e-4  # a bias to tell apart
     np.testing.assert_allclose(ds["leaf_an_mc_bias_umol_m2_s"].values[:, b], want, rtol=1e-6, atol=1e-9)
+
+
+def test_photosynthesis_overrides_reach_the_model_and_its_results(model):
+    """A user's Vcmax (photosynthesis_overrides) is the set's Vcmax scaled: at the same capacity
+    profile, Vcmax_ref 80 gives the canopy An of the set's 100 × vcmax_scale 0.8 (θ scales Vcmax and,
+    through the set's ratios, Jmax and Rd). Lloyd's profile follows the user's Vcmax, and the results
+    record the overrides in their attributes and run label."""
+    import dataclasses
+    import json
+
+    from lightfit.photosynthesis.canopy import kn_lloyd2010
+    from lightfit.report import run_label
+
+    sc = dataclasses.replace(
+        model.scenario, photosynthesis_overrides={"vcmax_ref_umol_m2_s": 80.0}, vcmax_profile=model.kn
+    )
+    own = CoupledModel(sc, light=model.light)  # the same renders: only the photosynthesis differs
+    np.testing.assert_allclose(
+        own.observe(THETA.replace(vcmax_scale=1.0))["canopy_an_umol_m2_s"],
+        model.observe(THETA)["canopy_an_umol_m2_s"],
+        rtol=1e-10,
+    )
+    assert own.operator.params.fvcb.vcmax_ref_umol_m2_s == 80.0 and own.scenario.photosynthesis_overrides == (
+        ("vcmax_ref_umol_m2_s", 80.0),
+    )
+    auto = dataclasses.replace(sc, vcmax_profile="auto")
+    assert auto.kn() == pytest.approx(kn_lloyd2010(80.0)) and model.kn == pytest.approx(kn_lloyd2010(100.0))
+    attrs = own.simulate(THETA).attrs
+    assert json.loads(attrs["photosynthesis_overrides"]) == {"vcmax_ref_umol_m2_s": 80.0}
+    assert "vcmax_ref_umol_m2_s 80" in run_label(attrs)
+    assert json.loads(model.simulate(THETA).attrs["photosynthesis_overrides"]) == {}
+    with pytest.raises(InputError, match="photosynthesis_overrides.*a1=-1"):
+        dataclasses.replace(sc, photosynthesis_overrides={"a1": -1.0})

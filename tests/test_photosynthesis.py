@@ -583,6 +583,46 @@ def test_bad_parameters_and_names():
         ps.solve(100.0, 20.0, 400.0, 0.5, P_KPA, {"g0": 0.01})
 
 
+def test_overrides_replace_the_sets_numbers_and_refuse_bad_ones():
+    """A user's own numbers (with_overrides, the coupled model's photosynthesis_overrides): the set
+    with those fields replaced by hand, whatever form they come in; an override of Jmax/Vcmax wins
+    over the growth temperature's; each refusal names the parameter, and the domains follow the
+    set's stomatal model (g0 = 0 is a CPlantBox closure's, not a coupled one's)."""
+    from lightfit.photosynthesis.parameters import OVERRIDABLE, check_overrides, with_overrides
+
+    base = ps.parameter_set("winter_wheat", 9.0)
+    got = with_overrides(base, {"a1": 4.0, "vcmax_ref_umol_m2_s": 80.0, "jmax_to_vcmax": 1.8})
+    want = eqx.tree_at(
+        lambda p: (p.stomata.a1, p.fvcb.vcmax_ref_umol_m2_s, p.fvcb.jmax_to_vcmax), base, (4.0, 80.0, 1.8)
+    )
+    assert jax.tree.leaves(got) == jax.tree.leaves(want)  # the numbers; the source (static) says more
+    assert float(base.fvcb.jmax_to_vcmax) == pytest.approx(2.59 - 0.035 * 11.0)  # T_g 9 acts as 11
+    assert got.name == "winter_wheat" and got.source.endswith(
+        "set by the run: a1=4, jmax_to_vcmax=1.8, vcmax_ref_umol_m2_s=80"
+    )
+    a, b = (ps.solve(np.array([50.0, 1500.0]), 25.0, 400.0, 0.6, P_KPA, p) for p in (got, want))
+    np.testing.assert_array_equal(a.an_umol_m2_s, b.an_umol_m2_s)
+    assert with_overrides(base, None) is base and with_overrides(base, []) is base
+    assert check_overrides([["a1", 4], ["d0_kpa", np.float32(1.5)]]) == (("a1", 4.0), ("d0_kpa", 1.5))
+    assert set(OVERRIDABLE) >= {"vcmax_ref_umol_m2_s", "a1", "g0_mol_m2_s", "ea_vcmax_j_mol"}
+    assert with_overrides(ps.parameter_set("cplantbox"), {"g0_mol_m2_s": 0.0}).stomata.g0_mol_m2_s == 0.0
+    bad = [
+        ({"g1": 4.0}, "unknown parameter 'g1'.*Medlyn's g1"),
+        ([("a1", 4.0), ("a1", 5.0)], "'a1' given more than once"),
+        ({"a1": "4"}, "a1='4'.*a number"),
+        ({"a1": True}, "a1=True"),
+        ({"curvature": 1.5}, r"curvature=1.5.*in \(0, 1\]"),
+        ({"vcmax_ref_umol_m2_s": float("nan")}, "vcmax_ref_umol_m2_s=nan.*finite"),
+        ({"g0_mol_m2_s": 0.0}, "g0_mol_m2_s.*> 0 for the coupled"),
+        (5, "photosynthesis_overrides=5"),
+        ([("a1",)], r"\('a1',\)"),
+    ]
+    for overrides, match in bad:
+        with pytest.raises(InputError, match=match) as e:
+            with_overrides(base, overrides)
+        assert e.value.parameter == "photosynthesis_overrides"
+
+
 def test_parameter_sets_have_sources_and_values():
     for name in ps.PARAMETER_SET_NAMES:
         p = ps.parameter_set(name)

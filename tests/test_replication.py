@@ -268,6 +268,8 @@ def test_run_refuses_what_is_not_a_configuration():
         ("par_kind", "reflected", "par_kind"),
         ("an_per", "plant", "an_per"),
         ("photosynthesis", "maize", "photosynthesis"),
+        ("photosynthesis_overrides", {"curvature": 1.5}, "photosynthesis_overrides"),
+        ("photosynthesis_overrides", {"g1": 4.0}, "photosynthesis_overrides"),
         ("ceptometer_height_m", -0.1, "ceptometer_height_m"),
         ("render_seed", "a", "render_seed"),
         ("row_spacing_m", 0.0, "row_spacing_m"),
@@ -285,6 +287,18 @@ def test_a_configuration_refuses_a_bad_setting_when_it_is_made(setting, value, n
     (ReplicationConfig.check; Scenario's list is model.scenario.check_settings), naming the setting."""
     with pytest.raises(rep.InputError, match=rf"parameter '{named}'"):
         rep.ReplicationConfig(**{setting: value})
+
+
+def test_overrides_are_stored_in_one_form_and_read_back_equal():
+    """A configuration's photosynthesis_overrides from a mapping or from the lists its JSON gives
+    back are the same sorted pairs: the configuration read back compares equal."""
+    from dataclasses import asdict, replace
+
+    cfg = replace(rep.ReplicationConfig.quick(), photosynthesis_overrides={"vcmax_ref_umol_m2_s": 85, "a1": 4.5})
+    assert cfg.photosynthesis_overrides == (("a1", 4.5), ("vcmax_ref_umol_m2_s", 85.0))
+    stored = json.loads(json.dumps(asdict(cfg)))
+    assert stored["photosynthesis_overrides"] == [["a1", 4.5], ["vcmax_ref_umol_m2_s", 85.0]]
+    assert replace(cfg, photosynthesis_overrides=stored["photosynthesis_overrides"]) == cfg
 
 
 def test_a_configuration_can_be_changed_a_setting_at_a_time():

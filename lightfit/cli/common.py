@@ -369,6 +369,7 @@ THETA_CONTEXT = (
     "soil_albedo",
     "par_kind",
     "photosynthesis",
+    "photosynthesis_overrides",
     "vcmax_profile",
     "growth_temperature_c",
     "weather_file",

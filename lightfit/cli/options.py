@@ -119,6 +119,7 @@ class ModelOptions:
     photosynthesis: str | None = None
     vcmax_profile: str | None = None
     growth_temperature_c: str | None = None
+    photosynthesis_override: list[str] | None = None
     an_per: str | None = None
     soil_respiration: float | None = None
     soil_respiration_q10: float | None = None
@@ -191,6 +192,7 @@ class ModelSettings:
     photosynthesis: str
     vcmax_profile: str | float
     growth_temperature_c: float | str | None
+    photosynthesis_overrides: dict[str, float]
     an_per: str
     soil_respiration: float
     soil_respiration_q10: float
@@ -251,6 +253,7 @@ class ModelSettings:
             photosynthesis=self.photosynthesis,
             vcmax_profile=self.vcmax_profile,
             growth_temperature_c=self.growth_temperature_c,
+            photosynthesis_overrides=self.photosynthesis_overrides,
             optics=self.optics,
             chlorophyll_ug_cm2=self.chlorophyll_ug_cm2,
             soil_albedo=self.soil_albedo,
@@ -472,6 +475,18 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "before the run, °C, in [0, 35], or 'series' (each date's 30 days before in the weather "
             "series): sets Jmax/Vcmax and the optimum of their temperature responses (winter_wheat; "
             "default its 15 °C; docs/photosynthesis.md).",
+            rich_help_panel=_PHOTO,
+        ),
+    ),
+    "photosynthesis_override": (
+        list[str] | None,
+        typer.Option(
+            "--photosynthesis-override",
+            metavar="NAME=VALUE",
+            help="Set one number of the photosynthesis set, e.g. vcmax_ref_umol_m2_s=85 (Vcmax at the set's "
+            "reference temperature, 25 °C for winter_wheat) or a1=4.5 (Medlyn's g1, kPa^0.5, for winter_wheat); "
+            "repeat for more. Applied after the growth temperature. Names and units: docs/photosynthesis.md, "
+            "'Your own values'.",
             rich_help_panel=_PHOTO,
         ),
     ),
@@ -758,6 +773,29 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return command
 
 
+def _overrides(given: list[str] | None, base) -> dict[str, float]:
+    """``--photosynthesis-override NAME=VALUE`` options as a mapping name → value (checked,
+    sorted by name: :func:`~lightfit.photosynthesis.parameters.check_overrides`); none given: ``base``'s."""
+    from lightfit.photosynthesis.parameters import check_overrides
+
+    if not given:
+        return dict(base)
+    pairs = []
+    for text in given:
+        name, eq, value = text.partition("=")
+        try:
+            pairs.append((name.strip(), float(value)))
+        except ValueError:
+            eq = ""
+        if not eq:
+            raise InputError(
+                repr(text),
+                parameter="photosynthesis_override",
+                expected="NAME=VALUE with a number, e.g. a1=4.5",
+            )
+    return dict(check_overrides(pairs, parameter="photosynthesis_override"))
+
+
 def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size).
     ``say``: where cautions about the settings go (default :func:`lightfit.cli.common.caution`)."""
@@ -806,6 +844,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         photosynthesis=given(opts.photosynthesis, base.photosynthesis),
         vcmax_profile=given(opts.vcmax_profile, base.vcmax_profile),
         growth_temperature_c=given(opts.growth_temperature_c, base.growth_temperature_c),
+        photosynthesis_overrides=_overrides(opts.photosynthesis_override, base.photosynthesis_overrides),
         an_per=given(opts.an_per, base.an_per),
         soil_respiration=given(opts.soil_respiration, base.soil_respiration_umol_m2_s),
         soil_respiration_q10=given(opts.soil_respiration_q10, base.soil_respiration_q10),
@@ -1043,6 +1082,7 @@ MODEL_SETTINGS = (
     "photosynthesis",
     "vcmax_profile",
     "growth_temperature_c",
+    "photosynthesis_overrides",
     "an_per",
     "soil_respiration",
     "soil_respiration_q10",
@@ -1068,6 +1108,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     # Literals, not today's constants: they say what those runs ran with, whatever a default becomes.
     before |= {"soil_respiration": 0.0, "soil_respiration_q10": 2.0}
     before["vcmax_profile"] = "uniform"  # before capacity profiles every blade had the set's
+    before["photosynthesis_overrides"] = {}  # before they were options, every set was as named
     before["direct_rays_per_m2"] = [2.5e6, 1e7]
     # before they were options, every run had the library's field layout, plant file, soil and sky
     before |= {"row_spacing_m": 0.125, "plant_spacing_m": 0.03, "row_direction_deg": 90.0}

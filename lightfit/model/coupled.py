@@ -376,6 +376,8 @@ class CoupledModel:
             **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
+            # a JSON object (netCDF attributes hold no mappings): "{}" where the set is as named
+            "photosynthesis_overrides": json.dumps(dict(sc.photosynthesis_overrides)),
             "vcmax_profile": str(profile_for(sc.vcmax_profile, sc.photosynthesis)),
             **(
                 {}

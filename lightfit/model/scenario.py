@@ -35,7 +35,7 @@ from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
 from lightfit.photosynthesis.model import INPUT_RANGES, RH_RANGE
-from lightfit.photosynthesis.parameters import growth_temperature_setting
+from lightfit.photosynthesis.parameters import check_overrides, growth_temperature_setting, with_overrides
 from lightfit.plant import Field
 from lightfit.plant.field import Tile
 from lightfit.weather.solar import par_direct_diffuse
@@ -273,6 +273,7 @@ SETTINGS = (
     "ceptometer_height_m",
     "photosynthesis",
     "growth_temperature_c",
+    "photosynthesis_overrides",
     "vcmax_profile",
     "par_kind",
     "an_per",
@@ -292,10 +293,19 @@ def check_set_name(name) -> str:
     return name
 
 
-def kn_of(vcmax_profile, photosynthesis: str, growth_temperature_c: float | None) -> float:
+def run_params(photosynthesis: str, growth_temperature_c: float | None, overrides=()):
+    """The :class:`~lightfit.photosynthesis.PhotosynthesisParams` a run takes: the set
+    ``photosynthesis`` at its growth temperature, with the run's ``overrides``
+    (:func:`~lightfit.photosynthesis.parameters.with_overrides`)."""
+    return with_overrides(parameter_set(photosynthesis, growth_temperature_c), overrides)
+
+
+def kn_of(vcmax_profile, photosynthesis: str, growth_temperature_c: float | None, overrides=()) -> float:
     """kn (per unit LAI) of ``vcmax_profile`` for the set ``photosynthesis`` at its growth temperature
-    (:func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
-    return resolve_kn(profile_for(vcmax_profile, photosynthesis), parameter_set(photosynthesis, growth_temperature_c))
+    with ``overrides`` (:func:`run_params`; :func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
+    return resolve_kn(
+        profile_for(vcmax_profile, photosynthesis), run_params(photosynthesis, growth_temperature_c, overrides)
+    )
 
 
 def check_settings(*, boundary: str, **settings) -> dict:
@@ -319,8 +329,10 @@ def check_settings(*, boundary: str, **settings) -> dict:
     out["vcmax_profile"] = check_profile(settings["vcmax_profile"])
     name = check_set_name(settings["photosynthesis"])
     t_g = out["growth_temperature_c"] = growth_temperature_setting(name, settings["growth_temperature_c"])
-    # refused before plants grow, as is a growth temperature the set does not take
-    kn_of(out["vcmax_profile"], name, t_g)
+    overrides = out["photosynthesis_overrides"] = check_overrides(settings["photosynthesis_overrides"])
+    # refused before plants grow, as is a growth temperature the set does not take or a value outside
+    # its parameter's domain
+    kn_of(out["vcmax_profile"], name, t_g, overrides)
     out["soil_respiration_umol_m2_s"], out["soil_respiration_q10"] = check_soil_respiration(
         settings["soil_respiration_umol_m2_s"], settings["soil_respiration_q10"]
     )
@@ -372,6 +384,11 @@ class Scenario:
             temperature of the month before the run (°C), for sets that acclimate to it
             (``winter_wheat``); ``None`` (default): the set's own, 15 °C
             (:data:`~lightfit.photosynthesis.parameters.ACCLIMATING_SETS`).
+        photosynthesis_overrides: numbers of the set replaced, a mapping name → value (e.g.
+            ``{"vcmax_ref_umol_m2_s": 85, "a1": 4.5}``: a measured Vcmax at the set's reference
+            temperature and Medlyn's g1), names from
+            :data:`~lightfit.photosynthesis.parameters.OVERRIDABLE`; stored as sorted (name, value)
+            pairs. Applied after the growth temperature (:func:`run_params`). Default none.
         vcmax_profile: photosynthetic capacity through the canopy (:mod:`lightfit.photosynthesis.canopy`):
             ``"lloyd2010"`` (Vcmax, Jmax, Rd fall as exp(−kn·L) with the leaf area L above a blade,
             kn from the set's Vcmax25 after Lloyd et al. 2010: 0.23 for ``winter_wheat``),
@@ -410,6 +427,7 @@ class Scenario:
     ceptometer_height_m: float = 0.0
     photosynthesis: str = "winter_wheat"
     growth_temperature_c: float | None = None
+    photosynthesis_overrides: tuple[tuple[str, float], ...] = ()
     vcmax_profile: str | float = "auto"
     par_kind: str = "absorbed"
     an_per: str = "ground"
@@ -447,12 +465,12 @@ class Scenario:
     def kn(self) -> float:
         """kn (per unit LAI) of :attr:`vcmax_profile` for :attr:`photosynthesis`
         (:func:`~lightfit.photosynthesis.canopy.resolve_kn`; 0: uniform)."""
-        return kn_of(self.vcmax_profile, self.photosynthesis, self.growth_temperature_c)
+        return kn_of(self.vcmax_profile, self.photosynthesis, self.growth_temperature_c, self.photosynthesis_overrides)
 
     def photosynthesis_params(self):
         """The run's :class:`~lightfit.photosynthesis.PhotosynthesisParams`: the set at the growth
-        temperature (:attr:`growth_temperature_c`)."""
-        return parameter_set(self.photosynthesis, self.growth_temperature_c)
+        temperature (:attr:`growth_temperature_c`) with :attr:`photosynthesis_overrides`."""
+        return run_params(self.photosynthesis, self.growth_temperature_c, self.photosynthesis_overrides)
 
     @property
     def measured_tile(self) -> Tile | None:

@@ -56,7 +56,8 @@ Named sets (:func:`parameter_set`; :data:`DEFAULT_PARAMETER_SET` = ``"winter_whe
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Mapping
 
 import equinox as eqx
 import jax
@@ -559,3 +560,68 @@ def params_in_domain(params: PhotosynthesisParams) -> jax.Array:
     for _, value, rule, _ in _domains(params):
         ok = ok & rule(jnp.asarray(value), jnp)
     return ok
+
+
+#: The parameters a run may set over its named set (:func:`with_overrides`), by their field name →
+#: ``"group.field"``: every number with a domain rule. Each field name is unique across the groups.
+OVERRIDABLE: dict[str, str] = {label.split(".")[1]: label for label, *_ in _DOMAINS}
+
+
+def check_overrides(overrides, *, parameter: str = "photosynthesis_overrides") -> tuple[tuple[str, float], ...]:
+    """``overrides`` (a mapping name → value, or (name, value) pairs as read back from JSON; ``None``:
+    none) as (name, float) pairs sorted by name, one form whatever it came from. :class:`InputError`
+    naming ``parameter`` for a name not in :data:`OVERRIDABLE`, a name given twice or a value that is
+    not a real number; the domains, some of which depend on the set's stomatal model, are
+    :func:`with_overrides`'s."""
+    if overrides is None:
+        return ()
+    expected = (
+        "(name, value) pairs with names from: "
+        + ", ".join(OVERRIDABLE)
+        + " (a1: the stomatal slope, Medlyn's g1 in kPa^0.5 for winter_wheat)"
+    )
+    try:
+        pairs = [tuple(p) for p in (overrides.items() if isinstance(overrides, Mapping) else overrides)]
+    except TypeError:
+        raise InputError(f"{parameter}={overrides!r}", parameter=parameter, expected=expected) from None
+    out: dict[str, float] = {}
+    for pair in pairs:
+        if len(pair) != 2 or not isinstance(pair[0], str):
+            raise InputError(repr(pair), parameter=parameter, expected=expected)
+        name, value = pair
+        if name not in OVERRIDABLE:
+            raise InputError(f"unknown parameter {name!r}", parameter=parameter, expected=expected)
+        if name in out:
+            raise InputError(f"{name!r} given more than once", parameter=parameter, expected="each once")
+        if not is_real(value):
+            raise InputError(f"{name}={value!r}", parameter=parameter, expected=f"{name} a number")
+        out[name] = float(value)
+    return tuple(sorted(out.items()))
+
+
+def with_overrides(
+    params: PhotosynthesisParams, overrides, *, parameter: str = "photosynthesis_overrides"
+) -> PhotosynthesisParams:
+    """``params`` with some of its numbers replaced (``overrides``: :func:`check_overrides`), e.g.
+    ``with_overrides(parameter_set("winter_wheat"), {"a1": 4.5, "vcmax_ref_umol_m2_s": 85})`` for a
+    leaf's own measured Vcmax at the set's reference temperature and Medlyn's g1. They are applied
+    last: an override of ``jmax_to_vcmax`` wins over the growth temperature's. The set keeps its
+    name; its ``source`` lists what was set. :class:`InputError` naming ``parameter`` where a value
+    lies outside its domain (:func:`check_params`'s rules for the set's stomatal model)."""
+    pairs = check_overrides(overrides, parameter=parameter)
+    if not pairs:
+        return params
+    groups: dict[str, dict[str, float]] = {}
+    for name, value in pairs:
+        groups.setdefault(OVERRIDABLE[name].split(".")[0], {})[name] = value
+    said = ", ".join(f"{n}={v:g}" for n, v in pairs)
+    out = dataclasses.replace(
+        params,
+        **{g: dataclasses.replace(getattr(params, g), **kw) for g, kw in groups.items()},
+        source=f"{params.source}; set by the run: {said}",
+    )
+    for label, value, ok, expected in _domains(out):
+        name = label.split(".")[1]
+        if name in groups.get(label.split(".")[0], {}) and not np.all(ok(np.asarray(value, float), np)):
+            raise InputError(f"{name}={value!r}", parameter=parameter, expected=f"{name} {expected}")
+    return out
