@@ -337,6 +337,38 @@ def test_gradients_beside_non_finite_inputs_are_the_clean_inputs_own(form, jit):
     assert np.isfinite(value) and np.isfinite(slope) and slope != 0.0
 
 
+@pytest.mark.parametrize("form", ["winter_wheat", "cplantbox", "giraud2023_coupled"])
+@pytest.mark.parametrize("jit", [False, True])
+def test_a_traced_parameter_outside_its_domain_flags_every_element_with_zero_gradient(form, jit):
+    """A Vcmax scale or curvature a line search or sampler makes NaN, infinite or negative cannot be
+    refused eagerly (it is traced): every element is flagged, its outputs finite, and the gradient
+    0. Before, ``jax.grad`` through a NaN Vcmax raised lineax's non-finite-input error from the
+    implicit adjoint's linear solve (its host callback's traceback, not a flag)."""
+    base = ps.parameter_set(form)
+
+    def run(scale, curvature):
+        p = eqx.tree_at(
+            lambda q: (q.fvcb.vcmax_ref_umol_m2_s, q.fvcb.curvature),
+            base,
+            (base.fvcb.vcmax_ref_umol_m2_s * scale, curvature),
+        )
+        r = ps.solve(jnp.array([900.0, 5.0]), 22.0, 420.0, 0.6, P_KPA, p)
+        return jnp.sum(jnp.where(r.converged, r.an_umol_m2_s, 0.0)), r
+
+    grad = jax.grad(lambda a, c: run(a, c)[0], argnums=(0, 1))
+    res = jax.jit(lambda a, c: run(a, c)[1]) if jit else (lambda a, c: run(a, c)[1])
+    grad = jax.jit(grad) if jit else grad
+    good = jnp.asarray(float(base.fvcb.curvature))
+    g_scale, g_curv = grad(jnp.asarray(1.0), good)
+    assert g_scale != 0.0 and np.isfinite(float(g_curv))
+    for scale, curvature in [(np.nan, good), (np.inf, good), (-1.0, good), (1.0, jnp.asarray(1.5))]:
+        g = grad(jnp.asarray(scale), curvature)
+        assert (float(g[0]), float(g[1])) == (0.0, 0.0), (scale, curvature)
+        if jit:  # eagerly the same values are refused before any solve (check_params)
+            r = res(jnp.asarray(scale), curvature)
+            assert not np.asarray(r.converged).any() and np.isfinite(np.asarray(r.an_umol_m2_s)).all()
+
+
 def test_jit_vmap_and_broadcast_agree():
     p = ps.parameter_set("giraud2023_coupled")
     par = np.linspace(0, 2000, 12).reshape(3, 4)  # (time, segment)

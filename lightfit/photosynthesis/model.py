@@ -30,6 +30,8 @@ iteration.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from typing import NamedTuple
 
 import equinox as eqx
@@ -46,6 +48,7 @@ from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities, limits
 from .parameters import (
     DEFAULT_PARAMETER_SET,
+    OVERRIDABLE,
     PhotosynthesisParams,
     cast_params,
     check_params,
@@ -308,17 +311,36 @@ _STAND_IN = {
 }
 
 
-def _guarded(env: Environment) -> tuple[Environment, jax.Array]:
-    """The drivers with a stand-in wherever an element's own is NaN, infinite or out of range, and
-    where they were in range (:func:`_in_range`). Those elements are solved at the stand-in and
+@functools.cache
+def _stand_in_values() -> dict[str, float]:
+    """The numbers a parameter set's solve runs on where its own are outside their domain
+    (:func:`_guarded`): the default set's, inside every domain whatever the closure."""
+    ref = parameter_set(DEFAULT_PARAMETER_SET)
+    return {n: float(getattr(getattr(ref, label.split(".")[0]), n)) for n, label in OVERRIDABLE.items()}
+
+
+def _guarded(env: Environment, params: PhotosynthesisParams) -> tuple[Environment, PhotosynthesisParams, jax.Array]:
+    """The drivers with a stand-in wherever an element's own is NaN, infinite or out of range, the
+    parameters with the default set's numbers where any of theirs is outside its domain
+    (:func:`~.parameters.params_in_domain`, traced values that :func:`~.parameters.check_params`
+    could not refuse), and where both were in range. Those elements are solved at the stand-ins and
     flagged (:func:`_masked`): the ``where`` keeps their arithmetic, and so the implicit adjoint's
-    linear solve, finite (a NaN or infinite light made ``jax.grad`` raise in lineax's check, though
-    the value was flagged), and their cotangents 0. Their outputs stay the stand-in's, finite: a
-    NaN output would poison the sums the likelihood takes before it masks unconverged steps
-    (0 × NaN in the reverse pass, and lineax raised again)."""
+    linear solve, finite (a NaN or infinite light, or a NaN Vcmax, made ``jax.grad`` raise in
+    lineax's check, though the value was flagged), and their cotangents 0. Their outputs stay the
+    stand-in's, finite: a NaN output would poison the sums the likelihood takes before it masks
+    unconverged steps (0 × NaN in the reverse pass, and lineax raised again)."""
     ok = _in_range(env)
     safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
-    return env._replace(**safe), ok
+    keep = params_in_domain(params)
+    groups: dict[str, dict] = {}
+    for name, v in _stand_in_values().items():
+        group = OVERRIDABLE[name].split(".")[0]
+        mine = jnp.asarray(getattr(getattr(params, group), name))
+        groups.setdefault(group, {})[name] = jnp.where(keep, mine, jnp.asarray(v, mine.dtype))
+    params = dataclasses.replace(
+        params, **{g: dataclasses.replace(getattr(params, g), **kw) for g, kw in groups.items()}
+    )
+    return env._replace(**safe), params, ok & keep
 
 
 def _masked(res: PhotosynthesisResult, ok: jax.Array) -> PhotosynthesisResult:
@@ -328,7 +350,7 @@ def _masked(res: PhotosynthesisResult, ok: jax.Array) -> PhotosynthesisResult:
 
 
 def _solve_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
-    env, ok = _guarded(env)
+    env, params, ok = _guarded(env, params)
     return _masked(_solve_in_range(env, params, config), ok)
 
 
@@ -345,7 +367,7 @@ def _solve_in_range(env: Environment, params: PhotosynthesisParams, config: Solv
 
 
 def _plain_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig) -> PhotosynthesisResult:
-    env, ok = _guarded(env)
+    env, params, ok = _guarded(env, params)
     leaf = _capacities(env.par_abs_umol_m2_s, env, params)
     _, _, x0 = _bracket(leaf, env, params)
     res = fixed_point_iteration(_fixed_point_map, x0, (leaf, env, params), config)
@@ -387,7 +409,7 @@ def _par_slope(res: PhotosynthesisResult, env: Environment, params: Photosynthes
 
 
 def _solve_slope_impl(env: Environment, params: PhotosynthesisParams, config: SolverConfig):
-    env, ok = _guarded(env)
+    env, params, ok = _guarded(env, params)
     res = _solve_in_range(env, params, config)
     return _masked(res, ok), _par_slope(res, env, params)
 
@@ -589,10 +611,11 @@ def solve(
             jit on concrete values). Traced values (under ``jit``, ``vmap``, ``grad``) cannot
             be checked there: a NaN, infinite or out-of-range element gives
             ``converged = False`` instead (its outputs those of in-range stand-in drivers, finite
-            and meaningless) and gradients of 0 (the other elements' are unaffected). A NaN or
-            infinite *parameter* (shared by all elements) flags every element; a gradient through
-            it, or through an infinite cotangent, raises lineax's "non-finite input" error from the
-            implicit adjoint's linear solve.
+            and meaningless) and gradients of 0 (the other elements' are unaffected). A traced
+            parameter outside its domain (NaN, infinite, a curvature of 1.5; shared by all
+            elements) flags every element, solved at the default set's numbers, with gradients of
+            0. A gradient through an infinite cotangent still raises lineax's "non-finite input"
+            error from the implicit adjoint's linear solve.
     """
     env, params, config = _prepared(
         config,
