@@ -1154,6 +1154,32 @@ def test_nee_with_uptake_counted_positive_gets_a_caution_before_the_plants_grow(
     assert r.exit_code == 0 and text.index("NEE is positive") < text.index("observations:"), text  # before growing
 
 
+def test_above_canopy_par_in_w_m2_gets_a_caution_before_the_plants_grow(tmp_path):
+    """The chamber record's PAR in W m⁻² (1549.31 / 4.57 = 339: 0.22 × the forcing's PAR) passed the
+    unit check, whose range is wide enough for a spot reading against a mean under broken cloud, and
+    would have calibrated a light factor of 0.22 without a word. It is now named, with the file, the
+    column and the factor, before the plants grow; the record as it is (1.0 ×) and a reading under
+    a cloud's shadow at 0.4 × say nothing."""
+    from lightfit import replication as rep
+    from lightfit.inference.observations import observation_cautions, par_unit_caution, read_observations
+
+    record, w = OBSERVATIONS.read_text(), rep.forcing()
+    cases = {"w_m2": ("339.02,16.95", True), "shade": ("620.0,31.0", False), "record": ("1549.31,77.47", False)}
+    for name, (row, said) in cases.items():
+        f = tmp_path / f"obs_{name}.csv"
+        f.write_text(record.replace("1549.31,77.47", row))
+        got = par_unit_caution(read_observations(f), w)
+        assert (got is not None) == said, (name, got)
+    obs = read_observations(tmp_path / "obs_w_m2.csv")
+    (got,) = observation_cautions(obs, w)
+    assert "obs_w_m2.csv, column 'above_canopy_par_umol_m2_s'" in got and "0.224 × the forcing's PAR" in got
+    assert "multiply it by 4.57" in got
+    args = ["calibrate", str(tmp_path / "obs_w_m2.csv"), "--quick", "--parameters", "light_factor", "--no-surrogate"]
+    r = runner.invoke(app, [*args, "--max-steps", "1", "--out", str(tmp_path / "out")])
+    text = " ".join(r.output.split())
+    assert r.exit_code == 0 and "caution" in text and text.index("multiply it by 4.57") < text.index("observations:")
+
+
 def test_observations_asked_for_outside_the_window_are_refused_even_the_bundled_file(tmp_path):
     """--observations names a file the user wants compared: outside the run's steps it is an error
     (the bundled record's own path was dropped silently); only the default record is optional."""

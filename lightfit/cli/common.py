@@ -639,12 +639,12 @@ def observations_within_steps(obs, w, s):
 def check_observations(obs, w) -> None:
     """Observations against the run's forcing, before the plants grow: a light unit slip refused
     (:func:`~lightfit.inference.observations.check_light_scale`), NEE with uptake counted positive
-    cautioned (:func:`~lightfit.inference.observations.nee_sign_caution`)."""
-    from lightfit.inference.observations import check_light_scale, nee_sign_caution
+    or PAR that reads as W m⁻² cautioned (:func:`~lightfit.inference.observations.observation_cautions`)."""
+    from lightfit.inference.observations import check_light_scale, observation_cautions
 
     check_light_scale(obs, w)
-    if sign := nee_sign_caution(obs, w):
-        caution(sign)
+    for said in observation_cautions(obs, w):
+        caution(said)
 
 
 def observations_lines(obs, w) -> None:

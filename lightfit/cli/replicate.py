@@ -74,7 +74,7 @@ def replicate(
     """
     from lightfit import replication as rep
     from lightfit import weather as wx
-    from lightfit.inference.observations import nee_sign_caution, observed
+    from lightfit.inference.observations import observation_cautions, observed
     from lightfit.report import field_label, summary
     from lightfit.weather.plot import plot_forcing, provenance_label
 
@@ -173,8 +173,8 @@ def replicate(
     if obs is not None:
         observations_lines(obs, w)
         soil_respiration_note(observed(obs), s.soil_respiration)  # as calibrate and posterior say it
-        if sign := nee_sign_caution(obs, w):
-            caution(sign)
+        for said in observation_cautions(obs, w):
+            caution(said)
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")

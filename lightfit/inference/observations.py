@@ -87,6 +87,7 @@ from lightfit.weather.readers import (
     zone,
 )
 from lightfit.weather.timestamps import INSTANTS, Timestamps
+from lightfit.weather.units import UMOL_PER_JOULE_PAR
 
 
 @dataclass(frozen=True)
@@ -632,31 +633,65 @@ def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     nearest step of ``forcing`` (a weather frame with ``par_umol_m2_s``) is daylight, of value ÷
     forcing PAR outside :data:`LIGHT_RATIO_RANGE`. A file in mmol m⁻² s⁻¹ (a unit slip the weather
     reader refuses in the forcing) otherwise calibrated a light factor of 0.001 with a caution."""
+    lo, hi = LIGHT_RATIO_RANGE
+    for name, (ratio, n) in _light_ratios(obs, forcing).items():
+        if not lo <= ratio <= hi:
+            raise InputError(
+                f"{name} is {ratio:.3g} × the forcing's PAR above the canopy at the {n} daylight "
+                "observation(s) (median)",
+                file=obs.attrs.get("source"),
+                column=BY_NAME[name].value,
+                expected=f"µmol m-2 s-1, {lo:g}–{hi:g} × the forcing's PAR (a value in mmol m-2 s-1 is 10⁻³ of it)",
+            )
+
+
+def _light_ratios(obs: pd.DataFrame, forcing: pd.DataFrame) -> dict[str, tuple[float, int]]:
+    """Per observed light series (:data:`LIGHT_SERIES`) with a reading near a daylight step of
+    ``forcing``: (median of value ÷ the step's forcing PAR, number of readings)."""
     if "par_umol_m2_s" not in forcing.columns or not len(obs):
-        return
+        return {}
     idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
     par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
     near = dist <= NEAR_STEP
-    lo, hi = LIGHT_RATIO_RANGE
+    out = {}
     for name in LIGHT_SERIES:
         col = BY_NAME[name].value
         if col not in obs.columns:
             continue
         sel = near & (par >= DAYLIGHT_PAR_UMOL_M2_S) & obs[col].notna().to_numpy()
-        if not sel.any():
-            continue
-        ratio = float(np.median(obs[col].to_numpy(float)[sel] / par[sel]))
-        if not lo <= ratio <= hi:
-            raise InputError(
-                f"{name} is {ratio:.3g} × the forcing's PAR above the canopy at the {int(sel.sum())} daylight "
-                f"observation(s) (median)",
-                file=obs.attrs.get("source"),
-                column=col,
-                expected=f"µmol m-2 s-1, {lo:g}–{hi:g} × the forcing's PAR (a value in mmol m-2 s-1 is 10⁻³ of it)",
-            )
+        if sel.any():
+            out[name] = (float(np.median(obs[col].to_numpy(float)[sel] / par[sel])), int(sel.sum()))
+    return out
 
 
-#: Forcing PAR (µmol m⁻² s⁻¹) above which a green wheat canopy takes up CO2 (:func:`check_nee_sign`):
+#: The range of an above-canopy PAR record ÷ the forcing's PAR, median over daylight steps, that
+#: reads as PAR in W m⁻² (:func:`par_unit_caution`): 1 / 4.57 = 0.22 (McCree 1972's µmol J⁻¹,
+#: :data:`~lightfit.weather.units.UMOL_PER_JOULE_PAR`), ± the 30 % by which a sensor and a
+#: forcing can differ under broken cloud. Inside :data:`LIGHT_RATIO_RANGE`: a caution, not a refusal.
+PAR_IN_W_M2_RATIO_RANGE = (0.15, 0.3)
+
+
+def par_unit_caution(obs: pd.DataFrame, forcing: pd.DataFrame) -> str | None:
+    """A caution naming the file and column where an above-canopy PAR record, which a horizontal
+    sensor over the canopy should read at about the forcing's PAR, is
+    :data:`PAR_IN_W_M2_RATIO_RANGE` × it (median over its daylight readings, as
+    :func:`check_light_scale` takes it): PAR in W m⁻², a unit the file's column name does not
+    allow but a logger may have written; else ``None``. Fitted as they were, such readings give a
+    light factor near 0.22 with nothing else said."""
+    ratio = _light_ratios(obs, forcing).get("above_canopy_par")
+    lo, hi = PAR_IN_W_M2_RATIO_RANGE
+    if ratio is None or not lo <= ratio[0] <= hi:
+        return None
+    col = BY_NAME["above_canopy_par"].value
+    return (
+        f"{obs.attrs.get('source', 'the observations')}, column {col!r}: above-canopy PAR is {ratio[0]:.3g} × the "
+        f"forcing's PAR at the {ratio[1]} daylight reading(s) (median), where a sensor above the canopy reads "
+        f"about 1 ×; PAR in W m⁻² reads {1 / UMOL_PER_JOULE_PAR:.2f} ×: if the column is in W m⁻², multiply it "
+        f"by {UMOL_PER_JOULE_PAR:g} (µmol J⁻¹, McCree 1972)"
+    )
+
+
+#: Forcing PAR (µmol m⁻² s⁻¹) above which a green wheat canopy takes up CO2 (:func:`nee_sign_caution`):
 #: its light compensation lies near 100–200 at the canopy's respiration (docs/photosynthesis.md).
 UPTAKE_PAR_UMOL_M2_S = 800.0
 
@@ -683,6 +718,13 @@ def nee_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame) -> str | None:
             "negate the column if the file counts uptake as positive"
         )
     return None
+
+
+def observation_cautions(obs: pd.DataFrame, forcing: pd.DataFrame) -> list[str]:
+    """What to say of observations read against the run's forcing before they are fitted or
+    compared: a sign slip in NEE (:func:`nee_sign_caution`), above-canopy PAR in W m⁻²
+    (:func:`par_unit_caution`). A unit slip past doubt is refused instead (:func:`check_light_scale`)."""
+    return [c for c in (nee_sign_caution(obs, forcing), par_unit_caution(obs, forcing)) if c]
 
 
 def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:
