@@ -28,7 +28,7 @@ from lightfit.errors import InputError, check_fraction, parse_date
 from lightfit.files import is_netcdf, replace_text, replaced
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
-from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf
+from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf, leaf_traits
 from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
 from lightfit.light.scene import SOIL_ALBEDO, Optics
 from lightfit.model import schema
@@ -48,6 +48,7 @@ from lightfit.photosynthesis.parameters import (
     check_acclimates,
     check_growth_temperature,
     check_overrides,
+    growth_temperature,
     growth_temperature_setting,
 )
 from lightfit.plant import Field
@@ -65,6 +66,12 @@ from lightfit.weather.site import SELHAUSEN, Site, Window, zone_label
 DEFAULT_DATE = "2016-04-20"
 #: ``growth_temperature_c`` that takes each date's month before from the weather series.
 GROWTH_FROM_SERIES = "series"
+
+
+def weather_source(weather_file: str | Path | None) -> str | Path:
+    """The weather a run reads: ``weather_file``, or without one the bundled forcing of
+    :data:`DEFAULT_DATE` (a bundled name, as ``--weather`` takes it)."""
+    return weather_file if weather_file else DEFAULT_DATE
 
 
 def as_dates(value: str | tuple | list) -> tuple[str, ...]:
@@ -266,6 +273,37 @@ class ReplicationConfig:
                 return name
         return None
 
+    def effective(self, w: pd.DataFrame | None = None) -> dict:
+        """This configuration as its run takes it, JSON-ready (a results file's ``replication_config``,
+        the ``config`` a calibration or posterior records): every setting left to a rule (``None``,
+        ``"auto"``) is the value the run uses, from the objects the run is made of: K and bounces
+        (:meth:`render_samples`, :meth:`render_bounces`), the direct light, the capacity profile,
+        the leaf's chlorophyll (``None`` for a leaf not made from traits), the field's buffers and
+        each date's season start (:meth:`field`), and the growth temperature the set takes (``None``
+        for a set that does not acclimate). ``w``: the run's forcing, for a growth temperature from
+        the series (without it ``"series"`` is kept). A setting that differs between the dates is
+        ``{date: value}``."""
+        traits = leaf_traits(self.optics, self.chlorophyll_ug_cm2)
+        fields_ = {d: self.field(d) for d in self.dates}
+        first = fields_[self.dates[0]]
+        t_g = dict.fromkeys(self.dates, self.growth_temperature_c)
+        if self.needs_month_before and w is not None:  # each day's, as scenario_for gives its Scenario
+            t_g |= {d: _growth_temperature(self, wd) for d, wd in days(self, w)}
+        t_g = {d: t if t == GROWTH_FROM_SERIES else growth_temperature(self.photosynthesis, t) for d, t in t_g.items()}
+        out = json.loads(json.dumps(asdict(self)))
+        out |= {
+            "samples": self.render_samples(),
+            "bounces": self.render_bounces(),
+            "direct": resolve_direct(self.direct, self.boundary),
+            "vcmax_profile": profile_for(self.vcmax_profile, self.photosynthesis),
+            "chlorophyll_ug_cm2": None if traits is None else traits.Cab,
+            "buffer_rows": first.buffer_rows,
+            "buffer_along": first.b_along,
+            "season_start": _one_or_each({d: f.growth.season_start for d, f in fields_.items()}),
+            "growth_temperature_c": _one_or_each(t_g),
+        }
+        return out
+
     def render_samples(self) -> int:
         """Samples per segment K the run renders: ``samples``, or for ``None`` the main job's K for
         its direct light (:func:`~lightfit.model.scenario.main_job_samples`: 32 with the
@@ -342,6 +380,12 @@ class ReplicationConfig:
             parameter="date",
             expected="one day's forcing per scenario (replication.days splits a several-day forcing)",
         )
+
+
+def _one_or_each(values: dict):
+    """The value every key shares, else ``values`` itself (a setting per date)."""
+    distinct = {json.dumps(v) for v in values.values()}
+    return next(iter(values.values())) if len(distinct) == 1 else values
 
 
 #: The reference paper's setup (Baker et al. 2025): a finite field with 2 buffer rows on bare soil,
@@ -442,7 +486,7 @@ def forcing(
     """
     given = dates is not None
     dates = as_dates(dates or DEFAULT_DATE)
-    source = weather_file if weather_file else DEFAULT_DATE
+    source = weather_source(weather_file)
     if not weather_file and set(dates) != {DEFAULT_DATE}:
         raise InputError(
             f"--date {', '.join(d for d in dates if d != DEFAULT_DATE)}: no bundled forcing for that day",
@@ -671,7 +715,7 @@ def run(
             "the forcing has no step in the run's windows", parameter="date", expected=", ".join(cfg.dates)
         )
     ds = parts[0] if len(parts) == 1 else concat_days(parts)
-    ds.attrs["replication_config"] = json.dumps(asdict(cfg))
+    ds.attrs["replication_config"] = json.dumps(cfg.effective(w))  # what ran, not None for "the default"
     ds.attrs["preset"] = cfg.preset or "none"
     if theta:  # the values given, as given (the figure's title names them: not the preset's defaults)
         given = theta.to_dict() if isinstance(theta, Theta) else dict(theta)

@@ -257,6 +257,9 @@ def test_growth_temperature_from_the_series_month_before(tmp_path):
     assert w.attrs["month_before_tair_c"]["2016-04-20"] == pytest.approx(expect, abs=5e-5)
     cfg = rep.ReplicationConfig(n_plants=1, growth_temperature_c="series", window=Window("12:00", 1.0))
     assert rep.scenario_for(cfg, w).growth_temperature_c == w.attrs["month_before_tair_c"]["2016-04-20"]
+    # recorded as the run takes it (the number), "series" only where the forcing is not at hand
+    assert cfg.effective(w)["growth_temperature_c"] == rep.scenario_for(cfg, w).growth_temperature_c
+    assert cfg.effective()["growth_temperature_c"] == "series"
     short = rep.forcing(path, dates="2016-03-30", window=Window("12:00", 1.0), month_before=True)  # 14 days
     with pytest.raises(InputError, match="growth_temperature_c='series'.*month before 2016-03-30"):
         rep.scenario_for(replace(cfg, dates=("2016-03-30",)), short)

@@ -284,6 +284,12 @@ def test_replicate_writes_labelled_forcing(tmp_path):
     f = read_weather(tmp_path / "forcing.csv")
     assert len(f) == 29 and f.attrs["provenance"] == "reconstructed"
     assert (tmp_path / "forcing.png").stat().st_size > 10_000
+    import xarray as xr
+
+    with xr.open_dataset(tmp_path / "results.nc", engine="h5netcdf") as ds:
+        ran = json.loads(ds.attrs["replication_config"])  # the configuration as it ran, not as given
+    assert (ran["chlorophyll_ug_cm2"], ran["growth_temperature_c"], ran["vcmax_profile"]) == (50.5, 15.0, "lloyd2010")
+    assert (ran["bounces"], ran["buffer_rows"], ran["season_start"]) == (2, 0, "2016-03-05")
 
 
 @pytest.mark.parametrize(
@@ -880,9 +886,8 @@ def test_calibrate_refuses_to_resume_a_history_of_other_settings(tmp_path):
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--photosynthesis", "giraud2023", "--out", str(out)]
     args += ["--parameters", "light_factor"]  # what the chamber record informs
     r = runner.invoke(app, args)
-    assert_user_error(
-        r, "calibration history", "boundary: 'finite' → 'periodic'", "buffer_rows: 2 → None", "--no-resume"
-    )
+    # the periodic field's buffers as it has them (0), not the option left unset (None)
+    assert_user_error(r, "calibration history", "boundary: 'finite' → 'periodic'", "buffer_rows: 2 → 0", "--no-resume")
     r = runner.invoke(app, [*args, "--boundary", "finite", "--samples", "8"])
     assert_user_error(r, "samples: 16 → 8")  # the same field now; only K differs
 
@@ -946,6 +951,15 @@ def test_calibrate_bounded_method_on_two_steps(tmp_path):
     assert not res["optimizer_converged"] and res["stopped_by"] == "max_steps"
     assert "caution: the optimiser did not converge (step limit: 1 accepted step" in _flat(r.output)
     assert f"wrote {tmp_path / 'calibration.json'}, {tmp_path / 'settings.json'}, " in _flat(r.stdout)
+    # The settings the run took, not the options left unset (null for the leaf's 50.5 µg cm⁻², the set's
+    # 15 °C, the bundled weather, …: a review); null only where nothing is taken. What was asked is beside.
+    config = res["config"]
+    took = {"chlorophyll_ug_cm2": 50.5, "growth_temperature_c": 15.0, "bounces": 2, "samples": 16, "buffer_rows": 0}
+    took |= {"weather_file": "2016-04-20", "split": "diffuse", "season_start": "2016-03-05", "steps": "14:16"}
+    assert {k: config[k] for k in took} == took, config
+    assert [k for k, v in config.items() if v is None] == ["target_rse", "weather_time_label"], config
+    assert json.loads((tmp_path / "settings.json").read_text())["config"] == config
+    assert res["options_given"] == ["--quick", "--steps", "14:16"] and config["preset"] == "default"
     # the hint reruns the same model (quick field, the two steps) against the same observations
     hint = _flat(r.stdout).split("to see the fit: ")[1]
     assert hint.startswith("lightfit replicate --quick --steps 14:16 --theta ")
@@ -1380,6 +1394,8 @@ def test_field_run_records_where_and_when_as_replicate_does(tmp_path):
         where = (a["site"], a["site_timezone"], a["date"], a["preset"])
         assert where == ("Selhausen", "Europe/Berlin", "2016-04-20", "default")
         assert a["window"].startswith("2016-04-20 11:00 + 0.5 h") and '"n_plants"' in a["replication_config"]
+        ran = json.loads(a["replication_config"])  # what ran: null for bounces and chlorophyll before
+        assert (ran["bounces"], ran["samples"], ran["direct"], ran["chlorophyll_ug_cm2"]) == (2, 16, "projection", 50.5)
         above = ds["above_canopy_par_umol_m2_s"].values
     # --theta runs the field at given parameters, as replicate does (field-run had no way to take a
     # calibration's; a newcomer's audit): the sensor above the canopy scales with the light factor alone
@@ -1575,6 +1591,19 @@ def test_theta_from_a_file_is_cautioned_where_it_may_not_hold(tmp_path):
     assert theta_cautions(str(cal), run | {"weather_file": "../SE_EC_001.csv"}) == []
     (said,) = theta_cautions(str(cal), run | {"chlorophyll_ug_cm2": 40.0, "weather_file": "../SE_EC_001.csv"})
     assert "fitted with chlorophyll_ug_cm2 50.5; this run has chlorophyll_ug_cm2 40.0" in said, said
+    # A run's settings as it takes them (ModelSettings.effective) against a fit recorded so, or
+    # recorded as given by an older lightfit (null for the defaults, "auto"): the same settings, no
+    # caution (the set's 15 °C against null, the bundled weather by name against null, said before).
+    from lightfit.cli.options import ModelOptions, resolve
+
+    taken = resolve(ModelOptions(quick=True)).effective()
+    older = resolve(ModelOptions(quick=True)).as_dict() | {"vcmax_profile": "auto"}
+    for config in (taken, older):
+        cal.write_text(json.dumps({"theta": {"specular": 0.5}, "config": config}))
+        assert theta_cautions(str(cal), taken) == [], config
+    warm = resolve(ModelOptions(quick=True, growth_temperature_c="9")).effective()
+    (said,) = theta_cautions(str(cal), warm)
+    assert "fitted with growth_temperature_c 15.0; this run has growth_temperature_c 9.0" in said, said
     fit["config"] = dict(run)
     assert theta_cautions("specular=0.5", run) == [] and theta_cautions(None, run) == []
     fit |= {"converged": False, "stopped_by": "max_steps", "reason": "step limit: 2 accepted steps"}
@@ -1734,6 +1763,44 @@ def test_every_model_setting_is_compared_on_resume_and_old_records_read_as_they_
     assert changed_settings(old, q10) == ["soil_respiration_q10: 2.0 → 2.3"]
     later = resolve(ModelOptions(quick=True, start_time="06:00"))
     assert changed_settings(old, later) == ["start_time: '05:00' → '06:00'"]
+
+
+def test_runs_record_the_settings_they_take_and_older_records_still_compare():
+    """A run's record (calibration.json, settings.json, run.h5) held the options as given: null where
+    the run took the leaf's 50.5 µg cm⁻² of chlorophyll, the leaf's bounces, the set's growth
+    temperature, the bundled weather, … (a review). ModelSettings.effective holds what the run takes,
+    from the objects it is made of; a record written before (nulls, --steps 5) still compares equal to
+    the same run, and a change is named with the value taken."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve, weather
+    from lightfit.light.leaf_optics import LeafTraits
+
+    main = resolve(ModelOptions())  # the main job: bounces left to the leaf's rule
+    took = main.effective()
+    expect = {"chlorophyll_ug_cm2": LeafTraits().Cab, "bounces": 2, "growth_temperature_c": 15.0, "samples": 32}
+    expect |= {"direct": "projection", "vcmax_profile": "lloyd2010", "buffer_rows": 0, "buffer_along": 0}
+    expect |= {"weather_file": "2016-04-20", "season_start": "2016-03-05", "steps": "0:29"}
+    assert {k: took[k] for k in expect} == expect
+    paper = resolve(ModelOptions(preset="paper")).effective()  # the grey leaf has no chlorophyll, giraud2023 no T_g
+    expect = {"chlorophyll_ug_cm2": None, "bounces": 8, "growth_temperature_c": None, "samples": 64}
+    expect |= {"direct": "paths", "vcmax_profile": "uniform", "buffer_rows": 2, "buffer_along": 2, "preset": "paper"}
+    assert {k: paper[k] for k in expect} == expect
+    # the forcing says how its file was read
+    five = resolve(ModelOptions(quick=True, steps="5"))
+    w = weather(five)
+    read = five.effective(w)
+    assert (read["weather_provenance"], read["weather_tz"], read["split"], read["steps"]) == (
+        "reconstructed",
+        "UTC",
+        "diffuse",
+        "0:5",
+    )
+    # an older record (as given) and a new one both resume the same run; a change is named as taken
+    for record in (five.as_dict(), read):
+        assert changed_settings(record, five, w=w) == [], record
+    assert changed_settings(main.as_dict(), resolve(ModelOptions(bounces=3))) == ["bounces: None → 3"]
+    assert changed_settings(took, resolve(ModelOptions(bounces=3))) == ["bounces: 2 → 3"]
+    assert changed_settings(took, resolve(ModelOptions(chlorophyll_ug_cm2=40.0))) == ["chlorophyll_ug_cm2: 50.5 → 40.0"]
+    assert changed_settings(took, resolve(ModelOptions(chlorophyll_ug_cm2=50.5))) == []  # the default, given
 
 
 def test_field_tile_past_the_last_is_refused_before_growing(tmp_path, monkeypatch):

@@ -48,6 +48,13 @@ def test_posterior_cli_quick(tmp_path):
     # every seed the run used is in the summary (the design's and the predictive draws' were nowhere)
     assert s["seeds"] == {"sampler": 0, "render": s["seeds"]["render"], "emulator_design": [0], "predictive_draws": 1}
     assert s["seeds"]["render"] == load_run(out / "run.h5")["attrs"]["scenario"]["render_seed"]
+    # the settings the run took (null for the leaf's chlorophyll, the set's growth temperature and the
+    # bundled weather before: a review), beside the options asked for
+    attrs = load_run(out / "run.h5")["attrs"]
+    took = attrs["config"]
+    assert (took["chlorophyll_ug_cm2"], took["growth_temperature_c"], took["bounces"]) == (50.5, 15.0, 2)
+    assert (took["weather_file"], took["buffer_rows"], took["steps"]) == ("2016-04-20", 0, "0:29")
+    assert attrs["options_given"] == ["--quick"]
     assert "emulator_error" not in s and "sloppy" in s
     assert "design: none needed (the observed series depend on no rendered light)" in " ".join(r.output.split())
     # The MAP's χ², by hand: the one reading against the light factor × the forcing's PAR read linearly

@@ -325,3 +325,29 @@ def test_a_valid_configuration_is_what_the_scenario_takes():
         assert sc.direct == rep.resolve_direct(cfg.direct, cfg.boundary)
         assert sc.samples == cfg.render_samples() and sc.seed == cfg.render_seed
         assert sc.photosynthesis == cfg.photosynthesis and sc.par_kind == cfg.par_kind
+
+
+def test_a_configuration_records_what_its_scenario_takes():
+    """results.nc's replication_config held the configuration as given: null bounces, chlorophyll,
+    buffers and season start, "auto" direct light and profile where the run took numbers and names (a
+    review). ReplicationConfig.effective records what the run's Scenario is made with."""
+    from lightfit.light.leaf_optics import LeafTraits
+    from lightfit.light.scene import Optics
+    from lightfit.photosynthesis.canopy import profile_for
+    from lightfit.photosynthesis.parameters import growth_temperature
+
+    for cfg in (rep.ReplicationConfig(), rep.ReplicationConfig.quick(), rep.ReplicationConfig.paper()):
+        w = rep.forcing_of(cfg)
+        sc, took = rep.scenario_for(cfg, w), cfg.effective(w)
+        assert (took["samples"], took["bounces"], took["direct"]) == (sc.samples, sc.bounces, sc.direct)
+        assert took["vcmax_profile"] == profile_for(sc.vcmax_profile, sc.photosynthesis)
+        assert took["growth_temperature_c"] == growth_temperature(sc.photosynthesis, sc.growth_temperature_c)
+        assert (took["buffer_rows"], took["buffer_along"]) == (sc.field.buffer_rows, sc.field.b_along)
+        assert took["season_start"] == sc.field.growth.season_start
+        chl = took["chlorophyll_ug_cm2"]
+        leaf = Optics.preset("paper") if chl is None else Optics.from_traits(LeafTraits(Cab=chl))
+        assert leaf == sc.optics
+        assert json.loads(json.dumps(took)) == took and None not in (took["bounces"], took["samples"])
+    # dates in two years: each its own 5 March
+    two = rep.ReplicationConfig(dates=("2016-04-20", "2017-04-20")).effective()
+    assert two["season_start"] == {"2016-04-20": "2016-03-05", "2017-04-20": "2017-03-05"}

@@ -154,6 +154,7 @@ def calibrate(
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
+    config = s.effective(w)  # what the run takes, recorded below (not None for "the default")
     run = {"bounces": cfg.render_bounces(), "par_kind": cfg.par_kind}
     check_informed(names, uses, **run)  # before the plants grow (calibrate() checks again)
     # A history made with other model settings (e.g. the finite field, before periodic became the
@@ -183,7 +184,7 @@ def calibrate(
         this_run |= {"priors": priors, "n_design": n_design}
     if stored and ((out / "history.jsonl").exists() or (out / "trust_region").is_dir()):
         f = next(iter(stored))  # settings.json if there, else calibration.json
-        check_resumable(stored[f].get("config"), s, f, "calibration history")
+        check_resumable(stored[f].get("config"), s, f, "calibration history", w)
         was, read = stored.get(settings, {}).get("calibration"), settings
         if was is None:  # settings written before the record: what the earlier result keeps of it
             r, read = stored.get(earlier, {}), earlier
@@ -218,7 +219,7 @@ def calibrate(
     observations_lines(obs, w)  # what is compared, and how it meets the steps: nothing dropped unsaid
     soil_respiration_note(uses, s.soil_respiration)
     out.mkdir(parents=True, exist_ok=True)
-    replace_text(settings, json.dumps({"config": s.as_dict(), "calibration": this_run}, indent=2))
+    replace_text(settings, json.dumps({"config": config, "calibration": this_run}, indent=2))
     if not resume:  # the run it starts again: its result must not outlive it beside this run's history
         earlier.unlink(missing_ok=True)
     say = lambda x: console.print(x)  # noqa: E731
@@ -284,7 +285,8 @@ def calibrate(
         "observations": str(Path(observations).resolve()),  # read back from elsewhere it still names the file
         "n_observations": int(res.n_observations),
         "parameters": list(names),
-        "config": s.as_dict(),
+        "config": config,
+        "options_given": model.args(),  # what was asked, where config has what it came to ("series" → 9.3 °C)
         "precision": precision(),
     }
     if tr is not None:

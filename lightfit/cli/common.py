@@ -378,10 +378,10 @@ THETA_CONTEXT = (
 
 def theta_cautions(theta: str | None, config: dict) -> list[str]:
     """What to say of parameters taken from a file (:func:`parse_theta`) before they are used in a run of
-    settings ``config`` (:meth:`~lightfit.cli.options.Settings.as_dict`): a calibration that did not
-    converge, a posterior whose diagnostics caution (``lightfit posterior``'s own cautions), and a fit
-    made with other :data:`THETA_CONTEXT` settings (a calibration's ``config``, a posterior's run.h5
-    beside its summary), unset settings taken as their defaults (:func:`_effective`)."""
+    settings ``config`` (:meth:`~lightfit.cli.options.ModelSettings.effective`): a calibration that did
+    not converge, a posterior whose diagnostics caution (``lightfit posterior``'s own cautions), and a
+    fit made with other :data:`THETA_CONTEXT` settings (a calibration's ``config``, a posterior's run.h5
+    beside its summary), unset settings of older records taken as their defaults (:func:`_effective`)."""
     if not theta or not Path(theta).exists():
         return []
     p = Path(theta)
@@ -420,19 +420,27 @@ def theta_cautions(theta: str | None, config: dict) -> list[str]:
 
 
 def _effective(config: dict) -> dict:
-    """The :data:`THETA_CONTEXT` settings of ``config`` as the run takes them: a setting left unset
-    (``None``) its default (the prospect leaf's chlorophyll, the set's own growth temperature, the
-    bundled weather), a weather file by its name (the same file given by another path is the same)."""
-    from lightfit.light.leaf_optics import LeafTraits
+    """The :data:`THETA_CONTEXT` settings of ``config`` as the run takes them, a weather file by its
+    name (the same file given by another path is the same). Runs record them so
+    (:meth:`~lightfit.cli.options.ModelSettings.effective`); a record written before holds a default
+    as ``None`` (or ``"auto"``), taken here as the library resolves it: the prospect leaf's
+    chlorophyll, the set's growth temperature and capacity profile, the bundled weather."""
+    from lightfit.light.leaf_optics import leaf_traits
+    from lightfit.photosynthesis.canopy import profile_for
+    from lightfit.photosynthesis.parameters import growth_temperature
+    from lightfit.replication import weather_source
 
     out = {k: config.get(k) for k in THETA_CONTEXT}
     if out["optics"] not in (None, "prospect"):  # a leaf without traits
         out["chlorophyll_ug_cm2"] = "not used"
     elif out["chlorophyll_ug_cm2"] is None:
-        out["chlorophyll_ug_cm2"] = LeafTraits().Cab
+        out["chlorophyll_ug_cm2"] = leaf_traits("prospect").Cab
     if out["growth_temperature_c"] is None:
-        out["growth_temperature_c"] = "the set's own"
-    out["weather_file"] = "the bundled series" if out["weather_file"] is None else Path(out["weather_file"]).name
+        own = growth_temperature(out["photosynthesis"])  # None: a set that does not acclimate
+        out["growth_temperature_c"] = "not used" if own is None else own
+    if out["vcmax_profile"] == "auto":
+        out["vcmax_profile"] = profile_for("auto", out["photosynthesis"])
+    out["weather_file"] = Path(weather_source(out["weather_file"])).name
     return out
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import asdict
 from pathlib import Path
 
 import typer
@@ -75,9 +74,11 @@ def field_run(
     if not resume and parts.is_dir():
         shutil.rmtree(parts)
     th = parse_theta(theta)
-    for line in theta_cautions(theta, s.as_dict()):
+    sc = scenario(s)  # one date; its forcing read
+    w = sc.weather
+    for line in theta_cautions(theta, s.effective(w)):
         caution(line)
-    run = FieldRun(scenario(s), tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks, theta=th)
+    run = FieldRun(sc, tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks, theta=th)
     sc = run.scenario
     console.print(
         f"{sc.field.n}² plants, {field_label(sc.field)}, {tiles} tile(s) × {time_chunks} time "
@@ -113,7 +114,7 @@ def field_run(
         ) from None
     cfg = s.replication_config()  # where and when, as replicate records them
     ds.attrs |= when_attrs(cfg, cfg.dates[0]) | {"preset": cfg.preset or "none"}
-    ds.attrs["replication_config"] = json.dumps(asdict(cfg))
+    ds.attrs["replication_config"] = json.dumps(cfg.effective(w))  # as replicate records it
     out.parent.mkdir(parents=True, exist_ok=True)
     write_netcdf(ds, out)
     shutil.rmtree(parts, ignore_errors=True)  # everything is in the results now

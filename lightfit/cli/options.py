@@ -167,7 +167,9 @@ class ModelOptions:
 
 @dataclass(frozen=True)
 class ModelSettings:
-    """The resolved model options of a run: what it ran with, recorded in its outputs."""
+    """The model options of a run with the defaults of its size and preset filled in; ``None`` (and a
+    few names such as ``bounces``) still leave a setting to a rule the run applies. What a run
+    records is :meth:`effective`."""
 
     quick: bool
     n_plants: int
@@ -216,8 +218,34 @@ class ModelSettings:
     site: Site
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-ready (the site as a dict, dates as a list), as stored in a run's settings."""
+        """JSON-ready (the site as a dict, dates as a list), as given: what runs recorded before they
+        recorded :meth:`effective`, and what a record of theirs is compared with."""
         return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    def effective(self, w=None) -> dict[str, Any]:
+        """The settings a run records (``config`` in calibration.json, settings.json and a posterior's
+        run.h5), JSON-ready: :meth:`as_dict` with every setting left to a rule or a default taken from
+        what the run is made of (:meth:`lightfit.replication.ReplicationConfig.effective`: K, bounces,
+        direct light, capacity profile, chlorophyll, buffers, season start, growth temperature), the
+        weather by its bundled name or absolute path, ``steps`` as the positions ``a:b`` each day
+        runs, and from the run's forcing ``w``, where given, its provenance, the time zone its file
+        was read in and its beam/sky split. ``quick`` and ``preset`` stay what was asked."""
+        from lightfit.replication import weather_source
+        from lightfit.weather.bundled import source_setting
+
+        out = self.as_dict()
+        cfg = self.replication_config().effective(w)
+        out |= {k: cfg[k] for k in _FROM_CONFIG}
+        out["weather_file"] = source_setting(weather_source(self.weather_file))
+        n = _n_steps(self.window())
+        first, last, _ = _steps(self.steps or ":", n).indices(n)
+        out["steps"] = f"{first}:{last}"
+        if w is not None:
+            # The file's time label is left as given (None: the file's own): the forcing's stamps are
+            # the run's steps, which averaging (--how mean) labels anew; results.nc records them.
+            read = {"weather_provenance": "provenance", "weather_tz": "timezone_assumed", "split": "split_model"}
+            out |= {k: w.attrs[a] for k, a in read.items() if a in w.attrs}
+        return out
 
     def window(self) -> Window:
         return Window(self.start_time, self.hours, self.step)
@@ -264,6 +292,20 @@ class ModelSettings:
             site=self.site,
         )
 
+
+#: The settings :meth:`ModelSettings.effective` takes from
+#: :meth:`lightfit.replication.ReplicationConfig.effective`.
+_FROM_CONFIG = (
+    "samples",
+    "bounces",
+    "direct",
+    "vcmax_profile",
+    "chlorophyll_ug_cm2",
+    "growth_temperature_c",
+    "buffer_rows",
+    "buffer_along",
+    "season_start",
+)
 
 # name → (type, typer option). One table, so every model command has the same options and help.
 _OPTIONS: dict[str, tuple[Any, Any]] = {
@@ -940,9 +982,9 @@ def _check_file_timing(s: ModelSettings) -> None:
     given = [f for f, v in (("--weather-tz", s.weather_tz), ("--weather-time-label", s.weather_time_label)) if v]
     if given:
         from lightfit import weather as wx
-        from lightfit.replication import DEFAULT_DATE
+        from lightfit.replication import weather_source
 
-        path = wx.source_path(s.weather_file or DEFAULT_DATE)
+        path = wx.source_path(weather_source(s.weather_file))
         if sniff_format(path) == "lightfit":
             raise InputError(
                 f"{' and '.join(given)} given for a lightfit CSV ("
@@ -1090,18 +1132,21 @@ MODEL_SETTINGS = (
 )
 
 
-def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTINGS) -> list[str]:
+def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTINGS, w=None) -> list[str]:
     """``"key: before → now"`` for each of ``keys`` that differs between a stored run's settings
-    (its ``config``) and ``s``. Settings written before the periodic boundary have no
-    ``boundary``: they were finite fields; settings written before leaf optics have no
-    ``optics``: they had the grey leaf (``paper``); settings written before ``sheaths`` had
-    CPlantBox's rods, before ``headings`` aligned plants; settings written before the projected direct
-    light have no ``direct``: their paths carried it; settings written before
-    ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
+    (its ``config``) and ``s`` as the run takes them (:meth:`ModelSettings.effective`; ``w``: its
+    forcing, where read). Records written before runs recorded what they took hold settings as
+    given (``None`` for a default, a relative path, ``--steps 5``): a stored value equal to this
+    run's as given is the same (a default then is taken as today's, as it always was). Settings
+    written before the periodic boundary have no ``boundary``: they were finite fields; settings
+    written before leaf optics have no ``optics``: they had the grey leaf (``paper``); settings
+    written before ``sheaths`` had CPlantBox's rods, before ``headings`` aligned plants; settings
+    written before the projected direct light have no ``direct``: their paths carried it; settings
+    written before ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
     """
     if previous is None:
         return []
-    now = s.as_dict()
+    now, given = s.effective(w), s.as_dict()
     # Settings stored before a key existed ran with what is now its default.
     before = {"boundary": "finite", "optics": "paper", "chlorophyll_ug_cm2": None, "direct": "paths", "sheaths": "rods"}
     before["headings"] = "aligned"  # before headings, every plant faced CPlantBox's way
@@ -1117,10 +1162,10 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before |= {"weather_tz": None, "weather_time_label": None}  # before they were options: the file's own
     before = before | _WHEN_DEFAULTS | dict(previous)
     # a season start given as the default's own date (5 March of the first date's year) grows the same plants
-    for d in (before, now):
+    for d in (before, now, given):
         if d.get("season_start") == default_season_start(d["dates"]):
             d["season_start"] = None
-    return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) != now[k]]
+    return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) not in (now[k], given[k])]
 
 
 #: The day-and-site settings every run had before they were options (the 20 April 2016 replication).
@@ -1128,9 +1173,10 @@ _WHEN_DEFAULTS = {"dates": ["2016-04-20"], "start_time": "05:00", "hours": 14.0,
 _WHEN_DEFAULTS["site"] = dataclasses.asdict(SELHAUSEN)
 
 
-def check_resumable(previous: dict | None, s: ModelSettings, file, what: str) -> None:
-    """Refuse to resume a run stored with other model settings (it would mix two models)."""
-    diff = changed_settings(previous, s)
+def check_resumable(previous: dict | None, s: ModelSettings, file, what: str, w=None) -> None:
+    """Refuse to resume a run stored with other model settings (it would mix two models); ``w``: the
+    run's forcing (:func:`changed_settings`)."""
+    diff = changed_settings(previous, s, w=w)
     if diff:
         raise InputError(
             f"the {what} there was made with other model settings ({'; '.join(diff)})",

@@ -138,7 +138,7 @@ def posterior(
                 file=run_h5,
                 expected="the run's --parameters and --walkers, --no-resume to start again, or another --out",
             )
-        check_resumable(stored.get("config"), s, run_h5, "posterior run")
+        check_resumable(stored.get("config"), s, run_h5, "posterior run", w)
         A.check_likelihood(run_h5, form)
         A.check_resume(run_h5, {"seed": sampler_seed})
     m = run_model(s, w)  # several --date: one model per day
@@ -255,7 +255,8 @@ def posterior(
         render_at=lambda d, leaf: E.render_parts(d, leaf, progress=False, cache=E.design_dir(d, cache) / "renders"),
         analysis=analysis,
         max_seconds=None if max_minutes is None else 60 * max_minutes,
-        attrs={"config": s.as_dict(), "priors_set": priors, "emulator_key": emu_key},
+        # config: what the run takes; options_given: what was asked ("series", bounces left to the rule)
+        attrs={"config": s.effective(w), "options_given": model.args(), "priors_set": priors, "emulator_key": emu_key},
         mc_correlation=form["mc_correlation"],
         mc_scale=mc_scale,
         say=lambda line: console.print(line),

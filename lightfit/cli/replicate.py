@@ -82,8 +82,6 @@ def replicate(
     cfg = s.replication_config()
     fld = cfg.field()  # checks boundary and buffers before anything is written
     th = parse_theta(theta)  # names and domains, before minutes of plant growth, not after
-    for line in theta_cautions(theta, s.as_dict()):  # said before the run; they do not stop it
-        caution(line)
     cmp = None if compare_preset is None else _comparison(model, compare_preset)
     if cmp is not None and cmp == cfg:  # a second run of this very configuration: twice the time, one answer
         raise InputError(
@@ -92,6 +90,9 @@ def replicate(
             expected="the other preset (--compare-preset paper for the default run, default for --preset paper)",
         )
     w = weather(s)
+    # the fit's settings against what this run takes (the forcing's growth temperature among them)
+    for line in theta_cautions(theta, s.effective(w)):  # said before the run; they do not stop it
+        caution(line)
     # read and placed before anything is written; the bundled record by default, where the run reaches it
     given = None if observations is None else observations_for_run(observations, w, s)
     obs = rep.observations_for(w, rep.OBSERVATIONS if given is None else given, optional=given is None)

@@ -161,6 +161,16 @@ def check_leaf(optics: str, chlorophyll_ug_cm2: float | None = None) -> None:
         ) from None
 
 
+def leaf_traits(optics: str, chlorophyll_ug_cm2: float | None = None) -> LeafTraits | None:
+    """The traits a leaf preset is made from: the ``prospect`` leaf's, with ``chlorophyll_ug_cm2``
+    where given, else :class:`LeafTraits`' defaults; ``None`` for a leaf not made from traits (the
+    paper's grey leaf). Checked as :func:`check_leaf`."""
+    check_leaf(optics, chlorophyll_ug_cm2)
+    if optics != "prospect":
+        return None
+    return LeafTraits() if chlorophyll_ug_cm2 is None else LeafTraits(Cab=chlorophyll_ug_cm2)
+
+
 @lru_cache(maxsize=256)
 def par_optics(traits: LeafTraits = LeafTraits()) -> LeafPAR:
     """The leaf's PAR reflectance and transmittance from its traits (PROSPECT-D)."""
@@ -210,7 +220,7 @@ def preset_parameters(name: str) -> dict:
     if name == "paper":
         return dict(PAPER_LEAF)
     if name == "prospect":
-        return leaf_bsdf_parameters(LeafTraits())
+        return leaf_bsdf_parameters(leaf_traits(name))
     raise InputError(f"unknown leaf optics preset {name!r}", parameter="preset", expected=" or ".join(PRESETS))
 
 

@@ -53,6 +53,13 @@ def source_path(source: str | Path) -> Path:
     return path
 
 
+def source_setting(source: str | Path) -> str:
+    """A weather source as a run records it: a bundled name as given, a file by its absolute path (a
+    relative one names another file, or none, from another folder), as
+    :func:`~lightfit.plant.growth.parameter_file_setting` records a plant file."""
+    return str(source) if str(source) in BUNDLED else str(source_path(source).resolve())
+
+
 def is_undated(source: str | Path, format: str = "auto") -> bool:
     """True when the source's timestamps carry no date (a CPlantBox day file): it needs one from the
     caller. ``format``: the file's format where the caller states it (``"auto"``: sniffed)."""
