@@ -301,6 +301,7 @@ class ReplicationConfig:
             "buffer_along": first.b_along,
             "season_start": _one_or_each({d: f.growth.season_start for d, f in fields_.items()}),
             "growth_temperature_c": _one_or_each(t_g),
+            "photosynthesis_overrides": dict(self.photosynthesis_overrides),  # a mapping, as the settings hold it
         }
         return out
 

@@ -1,5 +1,6 @@
 """The coupled model and the 20 April 2016 regression curve (observations and calibration: test_calibration.py)."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -348,6 +349,9 @@ def test_a_configuration_records_what_its_scenario_takes():
         leaf = Optics.preset("paper") if chl is None else Optics.from_traits(LeafTraits(Cab=chl))
         assert leaf == sc.optics
         assert json.loads(json.dumps(took)) == took and None not in (took["bounces"], took["samples"])
+        assert took["photosynthesis_overrides"] == dict(sc.photosynthesis_overrides) == {}
+    own = dataclasses.replace(rep.ReplicationConfig.quick(), photosynthesis_overrides={"a1": 4.5})
+    assert own.effective()["photosynthesis_overrides"] == {"a1": 4.5}
     # dates in two years: each its own 5 March
     two = rep.ReplicationConfig(dates=("2016-04-20", "2017-04-20")).effective()
     assert two["season_start"] == {"2016-04-20": "2016-03-05", "2017-04-20": "2017-03-05"}
