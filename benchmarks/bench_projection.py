@@ -34,8 +34,8 @@ from provenance import out_option, wide_console, write_result
 from rich.table import Table
 
 import lightfit  # noqa: F401
+from lightfit.defaults import DEFAULT_RAYS_PER_M2
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene, Optics
 from lightfit.plant import Field, build
 from lightfit.precision import use_float64

@@ -41,8 +41,8 @@ import pandas as pd  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 import lightfit  # noqa: E402,F401
+from lightfit.defaults import DEFAULT_RAYS_PER_M2
 from lightfit.light.estimator import SegmentEstimator, bounces_for_tolerance, render_adaptive  # noqa: E402
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2  # noqa: E402
 from lightfit.light.scene import FieldScene, Optics  # noqa: E402
 from lightfit.model.scenario import main_job_samples, resolve_direct  # noqa: E402
 from lightfit.plant import Field, MeshResolution, build  # noqa: E402

@@ -6,7 +6,7 @@ with a warning). Importing lightfit never changes JAX's configuration (a library
 change its host's global state); the entry points do, by calling :func:`use_float64` before
 any computation:
 
-- the ``lightfit`` command line (its app callback),
+- the ``lightfit`` command line (each command, once it has read its arguments),
 - every script in ``experiments/`` and ``benchmarks/``,
 - Dask worker processes (:func:`lightfit.distributed.run._worker_setup`).
 

@@ -24,13 +24,23 @@ import pandas as pd
 import xarray as xr
 
 from lightfit import weather
+from lightfit.defaults import (
+    DEFAULT_DATE,
+    DEFAULT_PLANT_SPACING_M,
+    DEFAULT_RAYS_PER_M2,
+    DEFAULT_ROW_SPACING_M,
+    HEADINGS,
+    SEASON_START_MONTH_DAY,
+    SHEATHS,
+    SOIL_ALBEDO,
+)
 from lightfit.errors import InputError, check_fraction, parse_date
 from lightfit.files import is_netcdf, replace_text, replaced
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf, leaf_traits
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import SOIL_ALBEDO, Optics
+from lightfit.light.projection import check_rays
+from lightfit.light.scene import Optics
 from lightfit.model import schema
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.parameters import Theta, as_theta
@@ -52,9 +62,8 @@ from lightfit.photosynthesis.parameters import (
     growth_temperature_setting,
 )
 from lightfit.plant import Field
-from lightfit.plant.field import DEFAULT_BUFFER_ROWS, DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS
-from lightfit.plant.growth import SEASON_START_MONTH_DAY, GrowthConfig, parameter_file_setting
-from lightfit.plant.sheaths import SHEATHS
+from lightfit.plant.field import DEFAULT_BUFFER_ROWS
+from lightfit.plant.growth import GrowthConfig, parameter_file_setting
 from lightfit.report import plot, summary, summary_metadata
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
@@ -62,8 +71,6 @@ from lightfit.weather.readers import metadata_lines
 from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS, check_how, cut_at_ends
 from lightfit.weather.site import SELHAUSEN, Site, Window, zone_label
 
-#: The replication's day; the only day with a bundled forcing (``weather.BUNDLED["2016-04-20"]``).
-DEFAULT_DATE = "2016-04-20"
 #: ``growth_temperature_c`` that takes each date's month before from the weather series.
 GROWTH_FROM_SERIES = "series"
 
@@ -100,13 +107,13 @@ class ReplicationConfig:
     ``"aligned"`` (every plant as CPlantBox grows it, facing the same way; the reference paper's
     field; :attr:`Field.headings`).
     ``row_spacing_m``, ``plant_spacing_m`` (0.125 m drill rows, common German practice, and 0.03 m: 267
-    plants m⁻²; :data:`~lightfit.plant.field.DEFAULT_ROW_SPACING_M`),
+    plants m⁻²; :data:`~lightfit.defaults.DEFAULT_ROW_SPACING_M`),
     ``row_direction_deg`` (compass azimuth of the rows, 90 = east–west) and ``parameter_file``
     (the CPlantBox plant XML, a path or a bundled name): the field's layout and its plants
     (:class:`~lightfit.plant.Field`, :class:`~lightfit.plant.growth.GrowthConfig`).
-    ``soil_albedo``: the soil's Lambertian PAR albedo (:data:`~lightfit.light.scene.SOIL_ALBEDO`,
+    ``soil_albedo``: the soil's Lambertian PAR albedo (:data:`~lightfit.defaults.SOIL_ALBEDO`,
     moist loam); ``sky``: the diffuse light's angular distribution, ``"isotropic"`` (default) or
-    ``"overcast"`` (CIE standard overcast; :data:`~lightfit.light.scene.SKY_MODELS`).
+    ``"overcast"`` (CIE standard overcast; :data:`~lightfit.defaults.SKY_MODELS`).
     ``season_start``: the day growth starts on, YYYY-MM-DD, for every date (``None``: 5 March of each
     date's year, :class:`~lightfit.plant.growth.GrowthConfig`'s default, a northern spring; a southern
     site needs one, :func:`check_season_start`).

@@ -453,8 +453,8 @@ def test_direct_rays_option_reaches_the_scenario_and_is_a_render_setting(tmp_pat
     stored before the option existed compares as the default."""
     from lightfit import replication
     from lightfit.cli.options import ModelOptions, changed_settings, resolve
+    from lightfit.defaults import DEFAULT_RAYS_PER_M2
     from lightfit.errors import InputError
-    from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 
     seen = []
 
@@ -2057,6 +2057,62 @@ def test_python_dash_m_lightfit_runs_the_command_line():
     p = subprocess.run([sys.executable, "-m", "lightfit", "--help"], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert "replicate" in p.stdout and "calibrate" in p.stdout
+
+
+#: What help and usage errors must not import: seconds of JAX, pvlib, Mitsuba, pandas … before any text.
+HEAVY_MODULES = (
+    "jax",
+    "jaxlib",
+    "equinox",
+    "optimistix",
+    "lineax",
+    "jaxopt",
+    "emcee",
+    "pvlib",
+    "mitsuba",
+    "drjit",
+    "plantbox",
+    "trimesh",
+    "xarray",
+    "h5py",
+    "pandas",
+    "scipy",
+    "matplotlib",
+    "PIL",
+    "dask",
+    "distributed",
+    "xleaf",
+)
+
+
+def test_help_and_usage_errors_import_no_heavy_library():
+    """`lightfit --help` took 2 s: the command modules imported JAX, pvlib and pandas at import time (the
+    defaults their help states, read from the library), and the app callback imported JAX for the
+    precision policy before the command read its arguments. Every help and a usage error import none
+    of them (in a fresh process); a command that runs still computes in float64."""
+    script = textwrap.dedent(
+        f"""
+        import sys
+        import typer
+        from typer.testing import CliRunner
+        from lightfit.cli import app
+
+        runner = CliRunner()
+        commands = [[name] for name in typer.main.get_command(app).commands] + [["weather", "show"]]
+        cases = [([], 2), *(([*c, "--help"], 0) for c in commands), (["replicate", "--nope"], 2)]
+        cases += [(["field", "--along", "x"], 2), (["calibrate"], 2), (["nope"], 2)]
+        for args, code in cases:
+            r = runner.invoke(app, args)
+            assert r.exit_code == code, (args, r.output)
+        print(sorted({{m.split(".")[0] for m in sys.modules}} & set({HEAVY_MODULES!r})))
+        r = runner.invoke(app, ["weather", "show", "--how", "nope"])  # runs the command, then refuses --how
+        assert r.exit_code == 2 and "--how" in r.stderr, r.output
+        print(sys.modules["jax"].config.jax_enable_x64)
+        """
+    )
+    p = subprocess.run([sys.executable, "-c", script], env=_child_env(), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines() == ["[]", "True"], p.stdout
 
 
 def test_ctrl_c_after_a_command_finished_keeps_its_exit_status():

@@ -161,7 +161,7 @@ RANK = {
     "cli": 6,
     "__main__": 7,  # python -m lightfit: the command line
 }
-SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", "constants", "files", ""}
+SHARED = {"errors", "precision", "progress", "killpoint", "cache", "figure", "constants", "defaults", "files", ""}
 #: What the package root (``import lightfit``) may import: the Mitsuba backend it sets up.
 ROOT_IMPORTS = {"light"}
 

@@ -14,11 +14,13 @@
 
 The commands that run the coupled model share their field / light / photosynthesis / weather
 options (:mod:`.options`). Expected user errors print ``error: …`` on stderr and exit with
-status 2 (:class:`.common.LightfitGroup`). The app callback makes JAX compute in float64
-(:func:`lightfit.precision.use_float64`) before any command runs.
+status 2 (:class:`.common.LightfitGroup`). Every command makes JAX compute in float64
+(:func:`lightfit.precision.use_float64`) before it runs (:class:`.common.LightfitCommand`).
 
-Command modules import their heavy dependencies (JAX, Mitsuba, CPlantBox) inside the command
-function, so that ``lightfit --help`` stays fast.
+Command modules import their heavy dependencies (JAX, Mitsuba, CPlantBox, pvlib, pandas) inside
+the command function, and the defaults their help states from :mod:`lightfit.defaults`, so that
+``lightfit --help``, a command's ``--help`` and a usage error stay fast (tests/test_cli.py checks
+what they import).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import typer
 
 from lightfit.cli import weather
 from lightfit.cli.calibrate import calibrate
-from lightfit.cli.common import INTERRUPTED, LightfitGroup
+from lightfit.cli.common import INTERRUPTED, LightfitCommand, LightfitGroup
 from lightfit.cli.field import field
 from lightfit.cli.field_run import field_run
 from lightfit.cli.info import info
@@ -59,27 +61,23 @@ def _main(
         "lightfit --variant llvm_ad_mono replicate …",
     ),
 ) -> None:
-    """Runs before every command: the precision policy, and the Mitsuba variant if one is asked for."""
-    from lightfit.precision import use_compilation_cache, use_float64
-
-    # Before any command creates a JAX array: lightfit computes in float64 only (lightfit.precision).
-    use_float64()
-    use_compilation_cache()
+    """Runs before every command (and before it reads its arguments): the Mitsuba variant if one is
+    asked for. The precision policy is the command's own (:class:`.common.LightfitCommand`)."""
     if variant:
         from lightfit.light import backend
 
         backend.mitsuba(variant)  # a bad variant is a user error (BackendError → exit 2) before any work
 
 
-app.command("info")(info)
+app.command("info", cls=LightfitCommand)(info)
 app.add_typer(weather.app, name="weather")
-app.command("field")(field)
-app.command("replicate")(replicate)
-app.command("calibrate")(calibrate)
-app.command("posterior")(posterior)
-app.command("posterior-status")(posterior_status)
-app.command("field-run")(field_run)
-app.command("render-dataset")(render_dataset)
+app.command("field", cls=LightfitCommand)(field)
+app.command("replicate", cls=LightfitCommand)(replicate)
+app.command("calibrate", cls=LightfitCommand)(calibrate)
+app.command("posterior", cls=LightfitCommand)(posterior)
+app.command("posterior-status", cls=LightfitCommand)(posterior_status)
+app.command("field-run", cls=LightfitCommand)(field_run)
+app.command("render-dataset", cls=LightfitCommand)(render_dataset)
 
 
 def main() -> None:

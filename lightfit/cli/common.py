@@ -16,13 +16,11 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
 
 from lightfit.cache import ENV_CACHE, cache_root
 from lightfit.errors import InputError
 from lightfit.killpoint import interrupts_kept
-from lightfit.model.parameters import BOUNDS, check_theta
-from lightfit.weather.site import SELHAUSEN, local_clock, zone_label
 
 #: Results and tables go to stdout; errors go to stderr (so that piped output stays clean).
 console = Console()
@@ -108,6 +106,20 @@ class LightfitGroup(TyperGroup):
             if isinstance(err, (RuntimeError, ValueError)) and "CpuCallback" in text and "KeyboardInterrupt" in text:
                 stop()
             raise
+
+
+class LightfitCommand(TyperCommand):
+    """A command of the app, which sets lightfit's JAX policy (:mod:`lightfit.precision`) just
+    before it runs. Not in the app's callback: click runs that before the command reads its
+    arguments, so ``--help`` and a usage error waited for JAX to import."""
+
+    def invoke(self, ctx):
+        from lightfit.precision import use_compilation_cache, use_float64
+
+        # Before the command creates a JAX array: lightfit computes in float64 only (lightfit.precision).
+        use_float64()
+        use_compilation_cache()
+        return super().invoke(ctx)
 
 
 #: Exit status of an interrupted command: 128 + SIGINT, as shells report it.
@@ -312,6 +324,8 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
     ``summary.json``: its MAP, ``x_map``, without the noise scale, which is no model parameter) or
     ``key=value,key=value`` text, each checked against its domain
     (:func:`~lightfit.model.parameters.check_theta`; errors name ``option``)."""
+    from lightfit.model.parameters import BOUNDS, check_theta
+
     if not theta:
         return {}
     p = Path(theta)
@@ -466,8 +480,8 @@ _DIGITS = {"rh": 2, "tair_c": 1, "pair_kpa": 1}
 def samples_label(samples: int, target_rse: float | None) -> str:
     """What a run's banner says about its samples: ``K=32``, or an adaptive run's target and the
     range of K per segment (its pilot and the cap, as ``make_irradiance`` takes them)."""
+    from lightfit.defaults import MAX_ADAPTIVE_SAMPLES
     from lightfit.light.estimator import adaptive_pilot
-    from lightfit.model.scenario import MAX_ADAPTIVE_SAMPLES
 
     if target_rse is None:
         return f"K={samples}"
@@ -494,9 +508,13 @@ def fixed(value: float, decimals: int) -> str:
     return text[1:] if text.startswith("-") and float(text) == 0 else text
 
 
-def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezone) -> Table:
+def weather_table(df, title: str, max_rows: int = 40, tz: str | None = None) -> Table:
     """A weather series as a table: every k-th row, k = ⌊n / ``max_rows``⌋, so fewer than 2 × ``max_rows``
-    rows (the bundled day's 144 ten-minute rows as 48, every 30 min), which the caption then says."""
+    rows (the bundled day's 144 ten-minute rows as 48, every 30 min), which the caption then says. Local
+    times in ``tz`` (default: Selhausen's)."""
+    from lightfit.weather.site import SELHAUSEN, local_clock, zone_label
+
+    tz = SELHAUSEN.timezone if tz is None else tz
     step = max(1, len(df) // max_rows)
     shown = "" if step == 1 else f"; 1 row in {step} of {len(df)} shown"
     shown_rows = df.iloc[::step]
@@ -524,6 +542,7 @@ def weather_table(df, title: str, max_rows: int = 40, tz: str = SELHAUSEN.timezo
 def weather_report(df) -> None:
     """Print where a weather series came from, which columns were used and what was repaired."""
     from lightfit.weather import timestamps
+    from lightfit.weather.site import zone_label
 
     a = df.attrs
     console.print(

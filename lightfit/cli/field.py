@@ -17,14 +17,23 @@ from lightfit.cli.options import (
     PLANT_SPACING_HELP,
     ROW_DIRECTION_HELP,
     ROW_SPACING_HELP,
+    SEASON_START_HELP,
     SHEATHS_HELP,
     check_boundary,
 )
+from lightfit.defaults import (
+    DEFAULT_DATE,
+    DEFAULT_PARAMETER_FILE,
+    DEFAULT_PLANT_SPACING_M,
+    DEFAULT_ROW_DIRECTION_DEG,
+    DEFAULT_ROW_SPACING_M,
+    HEADINGS,
+    MESH_ACROSS,
+    MESH_ALONG,
+    MESH_AROUND,
+    SHEATHS,
+)
 from lightfit.errors import InputError
-from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, HEADINGS, Field
-from lightfit.plant.growth import SEASON_START_HELP, GrowthConfig
-from lightfit.plant.mesh import MeshResolution
-from lightfit.plant.sheaths import SHEATHS
 
 
 def field(
@@ -43,18 +52,18 @@ def field(
     buffer_along: int = typer.Option(None, help=BUFFER_ALONG_HELP),
     sheaths: str = typer.Option(SHEATHS[0], help=SHEATHS_HELP),
     headings: str = typer.Option(HEADINGS[0], help=HEADINGS_HELP),
-    row_direction: float = typer.Option(Field.row_direction_deg, help=ROW_DIRECTION_HELP),
+    row_direction: float = typer.Option(DEFAULT_ROW_DIRECTION_DEG, help=ROW_DIRECTION_HELP),
     field_seed: int = typer.Option(
         1, "--field-seed", help="Field seed: plant seeds derive from it and each plant's grid position."
     ),
-    parameter_file: str = typer.Option(GrowthConfig.parameter_file, help=PARAMETER_FILE_HELP),
+    parameter_file: str = typer.Option(DEFAULT_PARAMETER_FILE, help=PARAMETER_FILE_HELP),
     season_start: str = typer.Option(None, help=SEASON_START_HELP),
-    date: str = typer.Option(GrowthConfig.target_date, help="Date the plants are grown to."),
+    date: str = typer.Option(DEFAULT_DATE, help="Date the plants are grown to."),
     tiles: int = typer.Option(1, help="Partition the measurement area into this many tiles (each with its buffer)."),
     tile: int = typer.Option(None, help="Build only this tile (0-based) with its buffer ring."),
-    along: int = typer.Option(MeshResolution.along, help="Mesh subdivisions along each segment."),
-    across: int = typer.Option(MeshResolution.across, help="Mesh subdivisions across each leaf blade."),
-    around: int = typer.Option(MeshResolution.around, help="Sides of stem/sheath prisms."),
+    along: int = typer.Option(MESH_ALONG, help="Mesh subdivisions along each segment."),
+    across: int = typer.Option(MESH_ACROSS, help="Mesh subdivisions across each leaf blade."),
+    around: int = typer.Option(MESH_AROUND, help="Sides of stem/sheath prisms."),
     export: list[Path] = typer.Option(None, help="Write the mesh: .obj, .ply or .vtk (repeatable)."),
     preview: Path = typer.Option(
         None, help="Write an image with top and side views; the suffix gives the format (.png, .pdf, .svg, …)."

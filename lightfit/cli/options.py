@@ -14,37 +14,35 @@ explicit option still wins, e.g. ``--quick --samples 32``.
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import inspect
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from lightfit.errors import InputError
-from lightfit.light.estimator import (
+# The help texts' values, from the module that imports nothing: the library modules that use them
+# import JAX, pvlib and pandas, which the commands import when they run, not for --help.
+from lightfit.defaults import (
     DARK_FLOOR,
-    MIN_PILOT,
-    bounces_for_tolerance,
-    truncation_bound,
-)
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2, MAX_RAYS_PER_M2, check_rays
-from lightfit.light.scene import SKY_MODELS, SOIL_ALBEDO
-from lightfit.model.scenario import (
-    BOUNCE_TOLERANCE,
-    MAX_ADAPTIVE_SAMPLES,
-    Scenario,
-)
-from lightfit.plant.field import DEFAULT_PLANT_SPACING_M, DEFAULT_ROW_SPACING_M, Field, check_headings
-from lightfit.plant.growth import (
     DEFAULT_PARAMETER_FILE,
-    SEASON_START_HELP,
-    default_season_start,
-    parameter_file_setting,
+    DEFAULT_PARAMETER_SET,
+    DEFAULT_PLANT_SPACING_M,
+    DEFAULT_RAYS_PER_M2,
+    DEFAULT_ROW_DIRECTION_DEG,
+    DEFAULT_ROW_SPACING_M,
+    MAX_ADAPTIVE_SAMPLES,
+    MIN_PILOT,
+    SEASON_START_MONTH_DAY,
+    SKY_MODELS,
+    SOIL_ALBEDO,
 )
-from lightfit.plant.sheaths import check_sheaths
-from lightfit.weather.site import SELHAUSEN, Site, Window, site_named
+from lightfit.errors import InputError
+
+if TYPE_CHECKING:
+    from lightfit.weather.site import Site, Window
 
 _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "Weather", "Day and site"
 
@@ -57,11 +55,16 @@ PLANT_SPACING_HELP = (
     f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²)."
 )
 ROW_DIRECTION_HELP = (
-    f"Compass azimuth of the rows, degrees in [0, 360) (default {Field.row_direction_deg:g} = east–west)."
+    f"Compass azimuth of the rows, degrees in [0, 360) (default {DEFAULT_ROW_DIRECTION_DEG:g} = east–west)."
 )
 PARAMETER_FILE_HELP = (
     f"CPlantBox plant XML: a bundled name (default {DEFAULT_PARAMETER_FILE}) or a path (./NAME for an edited "
     "copy under a bundled name)."
+)
+SEASON_START_HELP = (
+    "First day of growth, YYYY-MM-DD: sowing, or spring regrowth after a dormant winter (default: "
+    f"{dt.date(2016, *SEASON_START_MONTH_DAY):%-d %B} of the date's year, a northern spring; needed south of the "
+    "equator)."
 )
 #: Help of --split (shared with ``weather show``).
 SPLIT_HELP = (
@@ -248,6 +251,8 @@ class ModelSettings:
         return out
 
     def window(self) -> Window:
+        from lightfit.weather.site import Window
+
         return Window(self.start_time, self.hours, self.step)
 
     def replication_config(self):
@@ -493,7 +498,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         typer.Option(
             "--photosynthesis",
             help="Photosynthesis parameter set: winter_wheat, cplantbox, giraud2023 or giraud2023_coupled "
-            f"(default: the main job's, {Scenario.photosynthesis}; docs/photosynthesis.md).",
+            f"(default: the main job's, {DEFAULT_PARAMETER_SET}; docs/photosynthesis.md).",
             rich_help_panel=_PHOTO,
         ),
     ),
@@ -841,11 +846,16 @@ def _overrides(given: list[str] | None, base) -> dict[str, float]:
 def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     """Fill the options not given from the main job's configuration (or its ``--quick`` size).
     ``say``: where cautions about the settings go (default :func:`lightfit.cli.common.caution`)."""
+    from lightfit.light.estimator import bounces_for_tolerance, truncation_bound
     from lightfit.model.scenario import (
+        BOUNCE_TOLERANCE,
         main_job_samples,
         resolve_direct,
     )
     from lightfit.photosynthesis.canopy import profile_for
+    from lightfit.plant.field import check_headings
+    from lightfit.plant.growth import parameter_file_setting
+    from lightfit.plant.sheaths import check_sheaths
     from lightfit.replication import ReplicationConfig
     from lightfit.weather.readers import WEATHER_PROVENANCES
     from lightfit.weather.solar import check_split_model
@@ -1032,6 +1042,8 @@ def _dates(opts: ModelOptions, default: tuple[str, ...], season_start: str | Non
 
 def site_of(opts: ModelOptions) -> Site:
     """``--site NAME`` or ``--latitude/--longitude/--timezone`` (``--altitude-m``, default 0): not both."""
+    from lightfit.weather.site import SELHAUSEN, Site, site_named
+
     coords = {"--latitude": opts.latitude, "--longitude": opts.longitude, "--altitude-m": opts.altitude_m}
     coords["--timezone"] = opts.timezone
     given = [k for k, v in coords.items() if v is not None]
@@ -1062,6 +1074,8 @@ def site_of(opts: ModelOptions) -> Site:
 
 def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[float, float]:
     """``--direct-rays-per-m2``: one number or ``SUN,SKY``, only with the projected direct light."""
+    from lightfit.light.projection import MAX_RAYS_PER_M2, check_rays
+
     if text is None:
         return tuple(default)
     if direct != "projection":
@@ -1144,6 +1158,9 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     written before the projected direct light have no ``direct``: their paths carried it; settings
     written before ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
     """
+    from lightfit.plant.growth import default_season_start
+    from lightfit.weather.site import SELHAUSEN
+
     if previous is None:
         return []
     now, given = s.effective(w), s.as_dict()
@@ -1160,7 +1177,7 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before |= {"parameter_file": "Triticum_aestivum_adapted_2023.xml", "soil_albedo": 0.12, "sky": "isotropic"}
     before["season_start"] = None  # before --season-start: 5 March of each date's year
     before |= {"weather_tz": None, "weather_time_label": None}  # before they were options: the file's own
-    before = before | _WHEN_DEFAULTS | dict(previous)
+    before = before | _WHEN_DEFAULTS | {"site": dataclasses.asdict(SELHAUSEN)} | dict(previous)
     # a season start given as the default's own date (5 March of the first date's year) grows the same plants
     for d in (before, now, given):
         if d.get("season_start") == default_season_start(d["dates"]):
@@ -1168,9 +1185,9 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) not in (now[k], given[k])]
 
 
-#: The day-and-site settings every run had before they were options (the 20 April 2016 replication).
+#: The day-and-site settings every run had before they were options (the 20 April 2016 replication;
+#: at Selhausen, which :func:`changed_settings` adds).
 _WHEN_DEFAULTS = {"dates": ["2016-04-20"], "start_time": "05:00", "hours": 14.0, "step": "30min"}
-_WHEN_DEFAULTS["site"] = dataclasses.asdict(SELHAUSEN)
 
 
 def check_resumable(previous: dict | None, s: ModelSettings, file, what: str, w=None) -> None:
@@ -1222,6 +1239,7 @@ def weather(s: ModelSettings):
         forcing_of,
         light_outside_window,
     )
+    from lightfit.weather.site import Window
 
     cfg = s.replication_config()
     timing = {"tz": s.weather_tz, "time_label": s.weather_time_label}

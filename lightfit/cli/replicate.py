@@ -270,7 +270,7 @@ def mc_bias_line(ds) -> str:
 
 def target_shortfall(ds) -> str:
     """Where adaptive sampling left segments above its ``--target-rse`` (they reached the cap of
-    points, :data:`~lightfit.light.estimator.MAX_ADAPTIVE_SAMPLES`; those done by the light floor
+    points, :data:`~lightfit.defaults.MAX_ADAPTIVE_SAMPLES`; those done by the light floor
     met their rule): how many, and how far they got ("" when every segment met the target, or
     without a target)."""
     if "target_rse" not in ds.attrs or "reached_rse" not in ds:

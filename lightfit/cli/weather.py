@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import console, weather_report, weather_table
+from lightfit.cli.common import LightfitCommand, console, weather_report, weather_table
 from lightfit.cli.options import SPLIT_HELP, ModelOptions, option, site_of
 
 app = typer.Typer(
@@ -40,7 +40,7 @@ def load(
     return weather.add_solar(df, site=site, split_model=split)
 
 
-@app.command("show")
+@app.command("show", cls=LightfitCommand)
 def show(
     source: str = typer.Argument(
         "2016-04-20", help="A bundled series name (2016-04-20, selhausen-cplantbox-day) or a file."

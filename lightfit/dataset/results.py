@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 
 from lightfit.dataset.scene import Lighting
+from lightfit.defaults import SKY_MODELS
 from lightfit.errors import InputError
 from lightfit.files import is_netcdf
-from lightfit.light.scene import SKY_MODELS
 from lightfit.model import schema
 from lightfit.weather.site import localize
 

@@ -24,8 +24,9 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import pandas as pd
 
+from lightfit.defaults import SKY_MODELS
 from lightfit.errors import InputError, check_fraction
-from lightfit.light.scene import SKY_MODELS, check_sky
+from lightfit.light.scene import check_sky
 from lightfit.plant.mesh import Mesh
 from lightfit.plant.periodic import PeriodicCell
 

@@ -28,14 +28,13 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightfit.defaults import DARK_FLOOR, DEFAULT_RAYS_PER_M2, MAX_ADAPTIVE_SAMPLES
 from lightfit.errors import InputError, check_integer
 from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.light.estimator import (
     CLEAR_DAY_DHI_PER_DNI,
-    DARK_FLOOR,
     DEFAULT_BOUNCES,
     DEFAULT_SAMPLES,
-    MAX_ADAPTIVE_SAMPLES,
     PARTS,
     AdaptiveEstimator,
     SegmentEstimator,
@@ -47,7 +46,6 @@ from lightfit.light.estimator import (
     check_target_rse,
     checked_segment_ids,
 )
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
 

@@ -65,12 +65,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightfit.defaults import DARK_FLOOR, DEFAULT_RAYS_PER_M2, MAX_ADAPTIVE_SAMPLES, MIN_PILOT
 from lightfit.errors import InputError, check_integer, check_real, is_real
 from lightfit.light import projection
 from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo, lobe_weights
 from lightfit.light.keyed_random import check_seed, hash32, keyed_uniforms
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2, DirectProjection
+from lightfit.light.projection import DirectProjection
 from lightfit.light.scene import RAY_OFFSET_M, FieldScene, Optics
 
 PARTS = ("incident_sun", "incident_sky", "absorbed_sun", "absorbed_sky")
@@ -238,13 +239,6 @@ def samples_used(samples: int) -> int:
 DEFAULT_SAMPLES = 64
 DEFAULT_BOUNCES = 3
 
-#: Fewest points per segment of adaptive sampling's first round (8 replicates, what its stopping
-#: rule needs): a smaller ``samples`` with a target is raised to it.
-MIN_PILOT = 32
-#: Most points per segment adaptive sampling spends; segments still above the target there are
-#: reported (``samples_per_segment`` = this, ``reached_rse``).
-MAX_ADAPTIVE_SAMPLES = 8192
-
 
 def adaptive_pilot(samples: int) -> int:
     """Points per segment of adaptive sampling's first round for a run's ``samples``."""
@@ -306,14 +300,6 @@ def check_par_weights(dni, dhi) -> tuple[float, float]:
     if dni + dhi == 0:
         raise InputError("dni=0 and dhi=0", parameter="dni, dhi", expected="some light to weigh the error by")
     return float(dni), float(dhi)
-
-
-#: Adaptive sampling's light floor (:func:`render_adaptive`'s ``dark_floor``), a fraction of the
-#: PAR on a horizontal surface above the canopy: a segment absorbing less than that stops once its
-#: *absolute* SE is below ``target_rse`` × that light, instead of chasing a relative error on
-#: almost nothing (a culm inside its sheaths, a stem base under the canopy). 0.5 % of full sun
-#: (≈ 2 000 µmol m⁻² s⁻¹) is 10 µmol m⁻² s⁻¹, near a wheat leaf's light compensation point.
-DARK_FLOOR = 0.005
 
 
 def check_dark_floor(value) -> float:

@@ -76,8 +76,6 @@ from lightfit.light.periodic import CAPPED, LEAF, SOIL
 #: over the grid cells in tiled Z-order (:data:`SKY_TILE`); 4: random bits from
 #: :data:`~lightfit.light.keyed_random.TEA_ROUNDS` rounds of TEA instead of 4 (independent replicates).
 PROJECTION_VERSION = 4
-#: Default rays per m² of ground (all replicates) for the sun and for the sky; see :func:`check_rays`.
-DEFAULT_RAYS_PER_M2 = (2.5e6, 1.0e7)
 #: Most rays per m² a render accepts: 4 × 10⁸ / 5 × 10⁸ already give a 0.85 % median per-segment
 #: error on 500 plants (docs/benchmarks.md, GPU), and 10¹⁰ per m² is about an hour of casting per
 #: m² of cell on 2 CPU cores; more is taken for a typo (10¹² for 10⁷) rather than run for days.

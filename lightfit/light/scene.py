@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lightfit.defaults import SKY_MODELS, SOIL_ALBEDO
 from lightfit.errors import InputError, check_fraction, is_real
 from lightfit.light.backend import mitsuba
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_bsdf_dict
@@ -34,8 +35,6 @@ from lightfit.plant.periodic import PeriodicCell, compass_vector
 
 if TYPE_CHECKING:
     from lightfit.plant.field import FieldGeometry
-
-SKY_MODELS = ("isotropic", "overcast")
 
 
 #: Radiance of an isotropic (uniform) sky per unit horizontal diffuse irradiance, sr⁻¹: ∫ L cos θ dω = πL
@@ -59,8 +58,6 @@ def check_sky(sky) -> str:
     return sky
 
 
-#: Lambertian PAR albedo of the soil: moist loam, 0.1–0.15 (docs/model.md, "Presets").
-SOIL_ALBEDO = 0.12
 #: How far a ray's origin leaves the surface it starts from, along the surface normal, m: far below
 #: a culm's 1.5 mm radius and the 0.3–0.9 mm between a sheath and its culm.
 RAY_OFFSET_M = 1e-5

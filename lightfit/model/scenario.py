@@ -19,18 +19,12 @@ from dataclasses import field as dc_field
 import numpy as np
 import pandas as pd
 
+from lightfit.defaults import DARK_FLOOR, DEFAULT_PARAMETER_SET, DEFAULT_RAYS_PER_M2, MAX_ADAPTIVE_SAMPLES, SKY_MODELS
 from lightfit.errors import InputError, check_real
-from lightfit.light.estimator import (
-    DARK_FLOOR,
-    MAX_ADAPTIVE_SAMPLES,
-    bounces_for_tolerance,
-    check_bounces,
-    check_run_samples,
-    check_target_rse,
-)
+from lightfit.light.estimator import bounces_for_tolerance, check_bounces, check_run_samples, check_target_rse
 from lightfit.light.leaf_optics import DEFAULT_PRESET
-from lightfit.light.projection import DEFAULT_RAYS_PER_M2, check_rays
-from lightfit.light.scene import SKY_MODELS, Optics, check_sky
+from lightfit.light.projection import check_rays
+from lightfit.light.scene import Optics, check_sky
 from lightfit.model.parameters import Theta
 from lightfit.photosynthesis import PARAMETER_SET_NAMES, parameter_set
 from lightfit.photosynthesis.canopy import check_profile, profile_for, resolve_kn
@@ -169,7 +163,7 @@ def sun_positions_deg(weather: pd.DataFrame) -> np.ndarray:
 def adaptive_limits() -> dict:
     """What bounds adaptive sampling besides its target (results attributes, the render cache
     key): the cap :data:`MAX_ADAPTIVE_SAMPLES` and the light floor
-    :data:`~lightfit.light.estimator.DARK_FLOOR`."""
+    :data:`~lightfit.defaults.DARK_FLOOR`."""
     return {"max_samples": MAX_ADAPTIVE_SAMPLES, "dark_floor": DARK_FLOOR}
 
 
@@ -375,7 +369,7 @@ class Scenario:
             (default): projection where the field is periodic, paths where it is finite.
             Resolved at construction (the attribute then names the one used).
         direct_rays_per_m2: ``direct="projection"``: its rays per m² of ground, ``(sun, sky)``
-            or one number for both (default :data:`lightfit.light.projection.DEFAULT_RAYS_PER_M2`).
+            or one number for both (default :data:`lightfit.defaults.DEFAULT_RAYS_PER_M2`).
         ceptometer_height_m: height of the default virtual line quantum sensor (ceptometer,
             :func:`lightfit.light.sensors.default_sensors`) above the soil, m: 0 (default) reads
             the PAR transmitted to the soil, a height inside the canopy the PAR transmitted to it.
@@ -425,7 +419,7 @@ class Scenario:
     direct: str = "auto"
     direct_rays_per_m2: tuple[float, float] | float = DEFAULT_RAYS_PER_M2
     ceptometer_height_m: float = 0.0
-    photosynthesis: str = "winter_wheat"
+    photosynthesis: str = DEFAULT_PARAMETER_SET
     growth_temperature_c: float | None = None
     photosynthesis_overrides: tuple[tuple[str, float], ...] = ()
     vcmax_profile: str | float = "auto"

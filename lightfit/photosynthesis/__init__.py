@@ -9,6 +9,8 @@ Public API::
 See ``docs/photosynthesis.md`` for the model, solver, parameter sets and validation.
 """
 
+from lightfit.defaults import DEFAULT_PARAMETER_SET
+
 from .fvcb import (
     LeafCapacities,
     assimilation,
@@ -31,7 +33,6 @@ from .model import (
     solve_with_par_slope,
 )
 from .parameters import (
-    DEFAULT_PARAMETER_SET,
     PARAMETER_SET_NAMES,
     FvCBParams,
     PhotosynthesisParams,

@@ -42,12 +42,12 @@ import numpy as np
 import optimistix as optx
 from jax.typing import ArrayLike
 
+from lightfit.defaults import DEFAULT_PARAMETER_SET
 from lightfit.errors import InputError
 
 from .constants import REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .fvcb import LeafCapacities, assimilation, capacity_temperature_factors, leaf_capacities, limits
 from .parameters import (
-    DEFAULT_PARAMETER_SET,
     OVERRIDABLE,
     PhotosynthesisParams,
     cast_params,

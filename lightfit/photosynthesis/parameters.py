@@ -4,7 +4,7 @@ All parameters are :class:`equinox.Module` PyTrees: float fields are leaves (dif
 may be arrays broadcastable to the segment shape, e.g. a per-segment ``vcmax``); model
 choices are static fields. Units are in the field names.
 
-Named sets (:func:`parameter_set`; :data:`DEFAULT_PARAMETER_SET` = ``"winter_wheat"``):
+Named sets (:func:`parameter_set`; :data:`~lightfit.defaults.DEFAULT_PARAMETER_SET` = ``"winter_wheat"``):
 
 ``"winter_wheat"`` (default)
     Winter wheat upper/flag leaves from the literature (values at 25 °C; docs/photosynthesis.md,
@@ -392,9 +392,6 @@ _SETS: dict[str, Callable[[], PhotosynthesisParams]] = {
 
 #: Names accepted by :func:`parameter_set`.
 PARAMETER_SET_NAMES = tuple(_SETS)
-
-#: The set used where none is named (``solve``, the coupled model's ``Scenario``).
-DEFAULT_PARAMETER_SET = "winter_wheat"
 
 
 #: Sets whose Vcmax(T), Jmax(T) and Jmax/Vcmax acclimate to the growth temperature (Kattge & Knorr

@@ -35,17 +35,20 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
+from lightfit.defaults import (
+    DEFAULT_PLANT_SPACING_M,
+    DEFAULT_ROW_DIRECTION_DEG,
+    DEFAULT_ROW_SPACING_M,
+    HEADINGS,
+    SHEATHS,
+)
 from lightfit.errors import InputError, check_integer, check_real
 from lightfit.plant.cache import load_or_grow
 from lightfit.plant.growth import GrowthConfig, is_shoot, plant_seed
 from lightfit.plant.mesh import Mesh, MeshResolution, shoot_mesh
-from lightfit.plant.periodic import DEFAULT_ROW_DIRECTION_DEG, PeriodicCell, row_axes
-from lightfit.plant.sheaths import SHEATHS, check_sheaths, lay_sheaths
+from lightfit.plant.periodic import PeriodicCell, row_axes
+from lightfit.plant.sheaths import check_sheaths, lay_sheaths
 
-#: Winter wheat at ~270 plants m⁻²: 12.5 cm drill rows (common German practice) and 3 cm
-#: within the row (≈ 330 seeds m⁻² sown at ~80 % establishment).
-DEFAULT_ROW_SPACING_M = 0.125
-DEFAULT_PLANT_SPACING_M = 0.03
 #: The reference paper found two rows of buffer plants around the measurement area sufficient.
 DEFAULT_BUFFER_ROWS = 2
 #: Field boundaries: buffer rows on bare soil, or one cell of an infinite periodic field.
@@ -59,10 +62,6 @@ ID_OFFSET = 1000
 def plant_id(r: ArrayLike, c: ArrayLike) -> np.ndarray:
     """Stable plant id of the plant at (r, c) relative to the measurement area."""
     return (np.asarray(r) + ID_OFFSET) * 10_000 + (np.asarray(c) + ID_OFFSET)
-
-
-#: Plant headings (:attr:`Field.headings`): the default first.
-HEADINGS = ("random", "aligned")
 
 
 def check_headings(headings) -> str:

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from lightfit.defaults import DEFAULT_DATE, DEFAULT_PARAMETER_FILE, SEASON_START_MONTH_DAY
 from lightfit.errors import InputError, parse_date
 
 #: Organ type numbers of CPlantBox (``pb.OrganTypes``).
@@ -41,15 +42,6 @@ ORGAN_NAMES = {2: "root", 3: "stem", 4: "leaf"}
 SHOOT_ORGANS = ("stem", "leaf")
 #: The categories of a segment table's ``organ_type`` (:data:`ORGAN_NAMES`' and what CPlantBox may add).
 ORGAN_CATEGORIES = ["root", "stem", "leaf", "other"]
-#: Month and day growth starts on unless ``season_start`` is given: the reference paper's 5 March
-#: (2016-03-05; the crop was sown in October, and the wheat parameter sets do not describe growth
-#: over winter), in the target date's year, so that another year's spring runs as 2016's did.
-SEASON_START_MONTH_DAY = (3, 5)
-SEASON_START_HELP = (
-    "First day of growth, YYYY-MM-DD: sowing, or spring regrowth after a dormant winter (default: "
-    f"{dt.date(2016, *SEASON_START_MONTH_DAY):%-d %B} of the date's year, a northern spring; needed south of the "
-    "equator)."
-)
 
 
 def default_season_start(dates) -> str | None:
@@ -62,7 +54,6 @@ def default_season_start(dates) -> str | None:
 
 #: Segment ids are ``plant_id * SEGMENT_ID_STRIDE + segment_index``: stable across tiles.
 SEGMENT_ID_STRIDE = 1_000_000
-DEFAULT_PARAMETER_FILE = "Triticum_aestivum_adapted_2023.xml"
 CM = 0.01
 #: Longest growth the wheat parameter sets describe, days after ``season_start``. CPlantBox's wheat
 #: has no senescence or ripening: organs reach their maximum length (``lmax``) and stay green. With
@@ -238,7 +229,7 @@ class GrowthConfig:
 
     parameter_file: str = DEFAULT_PARAMETER_FILE
     season_start: str | None = None
-    target_date: str = "2016-04-20"
+    target_date: str = DEFAULT_DATE
     include_roots: bool = False
     _path: Path = field(init=False, repr=False, compare=False)
 

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from lightfit.defaults import MESH_ACROSS, MESH_ALONG, MESH_AROUND
 from lightfit.errors import InputError
 from lightfit.plant.growth import is_shoot, one_sided_area_m2, organ_class
 
@@ -50,9 +51,9 @@ class MeshResolution:
         around: sides of the prism for stems and sheaths (≥ 3).
     """
 
-    along: int = 1
-    across: int = 1
-    around: int = 6
+    along: int = MESH_ALONG
+    across: int = MESH_ACROSS
+    around: int = MESH_AROUND
 
     def __post_init__(self):
         for name, lo in (("along", 1), ("across", 1), ("around", 3)):

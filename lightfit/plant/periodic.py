@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightfit.defaults import DEFAULT_ROW_DIRECTION_DEG
 from lightfit.errors import InputError
 from lightfit.plant.mesh import Mesh
 
@@ -42,10 +43,6 @@ def row_axes(row_direction_deg: float) -> tuple[np.ndarray, np.ndarray]:
     (degrees) and across them, 90° counter-clockwise: a field's and its cell's frame."""
     along = compass_vector(row_direction_deg)
     return along, np.array([-along[1], along[0]])
-
-
-#: Compass azimuth of the rows unless given, degrees: east–west (the rows along x).
-DEFAULT_ROW_DIRECTION_DEG = 90.0
 
 
 @dataclass(frozen=True)

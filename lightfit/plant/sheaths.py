@@ -33,11 +33,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from lightfit.defaults import SHEATHS
 from lightfit.errors import InputError
 from lightfit.plant.growth import organ_class
-
-#: Sheath layouts of :attr:`lightfit.plant.Field.sheaths`; the first is the default.
-SHEATHS = ("wrapped", "rods")
 
 _P0, _P1 = ["x0", "y0", "z0"], ["x1", "y1", "z1"]
 
