@@ -983,10 +983,15 @@ def test_model_options_as_arguments_parse_back_to_themselves():
         hours=14.0,
         step="10min",
         latitude=50.9,
+        photosynthesis_override=["a1=4.5", "vcmax_ref_umol_m2_s=85"],
     )
     cmd = typer.main.get_command(app).commands["replicate"]
     ctx = cmd.make_context("replicate", [*opts.args(), "--out", "x"])
     assert ModelOptions(**{k: ctx.params[k] for k in ModelOptions.__dataclass_fields__}) == opts
+    # repeatable options not given come as empty tuples: not given (args() wrote "--date ()")
+    ctx = cmd.make_context("replicate", ["--quick", "--out", "x"])
+    bare = ModelOptions(**{k: ctx.params[k] for k in ModelOptions.__dataclass_fields__})
+    assert bare == ModelOptions(quick=True) and bare.args() == ["--quick"]
 
 
 @pytest.mark.slow

@@ -149,6 +149,14 @@ class ModelOptions:
     altitude_m: float | None = None
     timezone: str | None = None
 
+    def __post_init__(self):
+        # A repeatable option given no times reaches the command as an empty tuple: not given, as
+        # any other option (args() wrote it back as the flag "--date ()").
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, tuple | list):
+                object.__setattr__(self, f.name, list(value) or None)
+
     def args(self) -> list[str]:
         """These options as command-line arguments (the given ones only), e.g. ``["--quick",
         "--date", "2016-04-20"]``: what another command needs to run the same model."""
