@@ -6,19 +6,8 @@ explicitly. lightfit itself never changes JAX's global configuration on import.
 """
 
 import os
-import shutil
-import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# One persistent JAX compilation cache for the whole run, its xdist workers (they inherit the
-# controller's environment) and the command lines the tests start: the tests give lightfit a cache
-# root each, and every command-line subprocess compiled the same programs again (a large share of
-# the resume tests' time, a run-time audit). With a size limit JAX locks the folder around each read
-# and write, so that parallel processes never read an entry half written. A folder the user set wins.
-_OWN_JAX_CACHE = None
-if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-    _OWN_JAX_CACHE = os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="lightfit-tests-jax-")
-    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(2**31))
 
 import jax  # noqa: E402
 
@@ -37,8 +26,3 @@ def pytest_collection_modifyitems(config, items):
         return _LONGEST_FIRST.index(name) if name in _LONGEST_FIRST else len(_LONGEST_FIRST)
 
     items.sort(key=rank)  # stable: the order within each module is kept
-
-
-def pytest_unconfigure(config):
-    if _OWN_JAX_CACHE is not None:  # the process that made it (xdist's controller) removes it
-        shutil.rmtree(_OWN_JAX_CACHE, ignore_errors=True)
