@@ -59,3 +59,9 @@ DARK_FLOOR = 0.005
 
 #: The set used where none is named (``solve``, the coupled model's ``Scenario``).
 DEFAULT_PARAMETER_SET = "winter_wheat"
+
+# -- inference --------------------------------------------------------------------------------
+
+#: Emulator design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default,
+#: same emulator, so one command's design serves the other; :mod:`lightfit.model.emulator`).
+DESIGN_SIZE = 20

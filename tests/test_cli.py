@@ -184,8 +184,8 @@ def test_option_defaults_are_the_librarys():
 
 
 def test_n_design_help_states_the_design_size():
-    """calibrate and posterior share one emulator design; their --n-design help states its size (the
-    literal, since the command modules do not import JAX at import time, must match DESIGN_SIZE)."""
+    """calibrate and posterior share one emulator design; their --n-design help states the size the
+    emulator takes (lightfit.defaults.DESIGN_SIZE: the help once held a literal 20 beside it)."""
     from lightfit.model.emulator import DESIGN_SIZE
 
     group = typer.main.get_command(app)

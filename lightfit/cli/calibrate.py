@@ -34,6 +34,7 @@ from lightfit.cli.options import (
     run_model,
     weather,
 )
+from lightfit.defaults import DESIGN_SIZE
 from lightfit.errors import InputError
 from lightfit.files import replace_text
 
@@ -77,8 +78,8 @@ def calibrate(
     ),
     n_design: int = typer.Option(
         None,
-        # 20: lightfit.model.emulator.DESIGN_SIZE, not imported here (JAX); tests/test_cli.py checks it
-        help="Emulator design renders (default 20, the size lightfit posterior uses, so both share one design).",
+        help=f"Emulator design renders (default {DESIGN_SIZE}, the size lightfit posterior uses, so both share one "
+        "design).",
     ),
     max_rounds: int = typer.Option(6, help="Surrogate rounds at most (each adds one render at its optimum)."),
     priors: str = typer.Option(
@@ -122,7 +123,7 @@ def calibrate(
         raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
     if priors not in P.PRIOR_SETS:
         raise InputError(f"priors={priors!r}", parameter="priors", expected=" or ".join(P.PRIOR_SETS))
-    n_design = E.DESIGN_SIZE if n_design is None else n_design
+    n_design = DESIGN_SIZE if n_design is None else n_design
     if surrogate:
         E.check_design_size(n_design)  # before any render
     form = likelihood_form(mc_correlation, mc_scale)

@@ -31,6 +31,7 @@ from lightfit.cli.options import (
     run_model,
     weather,
 )
+from lightfit.defaults import DESIGN_SIZE
 from lightfit.errors import InputError
 from lightfit.files import replace_text
 
@@ -58,9 +59,8 @@ def posterior(
     sampler_seed: int = typer.Option(0, "--sampler-seed", help="Sampler seed (initial walkers and moves)."),
     n_design: int = typer.Option(
         None,
-        # 20: lightfit.model.emulator.DESIGN_SIZE, not imported here (JAX); tests/test_cli.py checks it
-        help="Full renders for the emulator design (default 20, the size lightfit calibrate uses; kept in the "
-        "shared design cache, so a calibration's design serves the posterior).",
+        help=f"Full renders for the emulator design (default {DESIGN_SIZE}, the size lightfit calibrate uses; kept "
+        "in the shared design cache, so a calibration's design serves the posterior).",
     ),
     n_test: int = typer.Option(4, help="Held-out full renders measuring the emulator error (0: no check)."),
     resume: bool = typer.Option(True, help="Continue the run in OUT/run.h5 if present."),
@@ -98,7 +98,7 @@ def posterior(
 
     s = resolve(model)
     output_folder(out)
-    n_design = E.check_design_size(E.DESIGN_SIZE if n_design is None else n_design)  # before any render
+    n_design = E.check_design_size(DESIGN_SIZE if n_design is None else n_design)  # before any render
     stop = P.StopRule(target_ess=target_ess)  # checked before any render
     if max_minutes is not None and not max_minutes > 0:
         raise InputError(f"max_minutes={max_minutes!r}", parameter="max_minutes", expected="> 0 minutes (resumable)")

@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from lightfit.cache import cache_root
+from lightfit.defaults import DESIGN_SIZE
 from lightfit.errors import InputError, check_integer
 from lightfit.files import replace_text, replaced
 from lightfit.killpoint import kill_point
@@ -68,9 +69,6 @@ from lightfit.progress import progress_bar
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
 DEGREES = (1, 2, 3, 4, 5)
-#: Design size shared by ``lightfit calibrate`` and ``lightfit posterior`` (same default, same
-#: emulator, so one command's design serves the other).
-DESIGN_SIZE = 20
 #: Scramble seed of the design's Sobol points, and of the posterior's held-out check points (another
 #: scramble, so that they fall between the design's).
 DESIGN_SEED, HELD_OUT_SEED = 0, 1
