@@ -564,6 +564,17 @@ def params_in_domain(params: PhotosynthesisParams) -> jax.Array:
 OVERRIDABLE: dict[str, str] = {label.split(".")[1]: label for label, *_ in _DOMAINS}
 
 
+def replaced(params: PhotosynthesisParams, values: Mapping, **fields) -> PhotosynthesisParams:
+    """``params`` with the numbers ``values`` (field name → value, names from :data:`OVERRIDABLE`)
+    put in their groups, and its own ``fields`` (e.g. ``source``) replaced. Works on traced values."""
+    groups: dict[str, dict] = {}
+    for name, value in values.items():
+        groups.setdefault(OVERRIDABLE[name].split(".")[0], {})[name] = value
+    return dataclasses.replace(
+        params, **{g: dataclasses.replace(getattr(params, g), **kw) for g, kw in groups.items()}, **fields
+    )
+
+
 def check_overrides(overrides, *, parameter: str = "photosynthesis_overrides") -> tuple[tuple[str, float], ...]:
     """``overrides`` (a mapping name → value, or (name, value) pairs as read back from JSON; ``None``:
     none) as (name, float) pairs sorted by name, one form whatever it came from. :class:`InputError`
@@ -605,20 +616,13 @@ def with_overrides(
     last: an override of ``jmax_to_vcmax`` wins over the growth temperature's. The set keeps its
     name; its ``source`` lists what was set. :class:`InputError` naming ``parameter`` where a value
     lies outside its domain (:func:`check_params`'s rules for the set's stomatal model)."""
-    pairs = check_overrides(overrides, parameter=parameter)
-    if not pairs:
+    given = dict(check_overrides(overrides, parameter=parameter))
+    if not given:
         return params
-    groups: dict[str, dict[str, float]] = {}
-    for name, value in pairs:
-        groups.setdefault(OVERRIDABLE[name].split(".")[0], {})[name] = value
-    said = ", ".join(f"{n}={v:g}" for n, v in pairs)
-    out = dataclasses.replace(
-        params,
-        **{g: dataclasses.replace(getattr(params, g), **kw) for g, kw in groups.items()},
-        source=f"{params.source}; set by the run: {said}",
-    )
+    said = ", ".join(f"{n}={v:g}" for n, v in given.items())
+    out = replaced(params, given, source=f"{params.source}; set by the run: {said}")
     for label, value, ok, expected in _domains(out):
         name = label.split(".")[1]
-        if name in groups.get(label.split(".")[0], {}) and not np.all(ok(np.asarray(value, float), np)):
+        if name in given and not np.all(ok(np.asarray(value, float), np)):
             raise InputError(f"{name}={value!r}", parameter=parameter, expected=f"{name} {expected}")
     return out
