@@ -359,19 +359,20 @@ def parse_theta(theta: str | None, option: str = "theta") -> dict[str, float]:
         )
     out = {}
     for item in theta.split(","):
-        k, _, v = item.partition("=")
-        try:
-            value = float(v)
-        except ValueError:
-            raise InputError(
-                f"cannot read parameter {item!r}",
-                parameter=option,
-                expected="a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6",
-            ) from None
-        if k.strip() in out:
-            raise InputError(f"{k.strip()} given more than once", parameter=option, expected="each parameter once")
-        out[k.strip()] = value
+        k, value = name_value(item, option, "a JSON file or key=value pairs, e.g. specular=0.4,roughness=0.6")
+        if k in out:
+            raise InputError(f"{k} given more than once", parameter=option, expected="each parameter once")
+        out[k] = value
     return check_theta(out, what=option)
+
+
+def name_value(item: str, option: str, expected: str) -> tuple[str, float]:
+    """``"name=number"`` text as (name, number), else :class:`InputError` naming ``option``."""
+    k, _, v = item.partition("=")
+    try:
+        return k.strip(), float(v)
+    except ValueError:
+        raise InputError(f"cannot read parameter {item!r}", parameter=option, expected=expected) from None
 
 
 #: Settings that give fitted parameters their meaning: a leaf's specular, roughness and subsurface act

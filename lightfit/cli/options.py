@@ -831,24 +831,13 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 def _overrides(given: list[str] | None, base) -> dict[str, float]:
     """``--photosynthesis-override NAME=VALUE`` options as a mapping name → value (checked,
     sorted by name: :func:`~lightfit.photosynthesis.parameters.check_overrides`); none given: ``base``'s."""
+    from lightfit.cli.common import name_value
     from lightfit.photosynthesis.parameters import check_overrides
 
     if not given:
         return dict(base)
-    pairs = []
-    for text in given:
-        name, eq, value = text.partition("=")
-        try:
-            pairs.append((name.strip(), float(value)))
-        except ValueError:
-            eq = ""
-        if not eq:
-            raise InputError(
-                repr(text),
-                parameter="photosynthesis_override",
-                expected="NAME=VALUE with a number, e.g. a1=4.5",
-            )
-    return dict(check_overrides(pairs, parameter="photosynthesis_override"))
+    option, expected = "photosynthesis_override", "NAME=VALUE with a number, e.g. a1=4.5"
+    return dict(check_overrides([name_value(t, option, expected) for t in given], parameter=option))
 
 
 def resolve(opts: ModelOptions, say=None) -> ModelSettings:
