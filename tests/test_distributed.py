@@ -4,6 +4,7 @@ Tiny fields (2×2 measured plants, one buffer row, K=8, 2 bounces, 2 time steps)
 LocalCluster of 2 single-threaded worker processes.
 """
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -449,23 +450,38 @@ def test_cli_field_run_interrupted_resumes_to_the_same_results(client, tmp_path)
         assert ds.attrs["tasks_resumed"] == 1 and ref.attrs["tasks_resumed"] == 0
 
 
-def test_a_terminal_ctrl_c_reaches_the_embedded_workers_and_prints_one_line(tmp_path):
-    """A terminal's Ctrl-C goes to the whole process group, the embedded cluster's worker processes
-    too: they printed 30–70 lines of tracebacks (an interrupted import, a cancelled event loop, a
-    broken pipe) above lightfit's one line. The workers leave Ctrl-C to the command, which closes
-    them: exit 130, one line on stderr, no worker left running. The SIGINT goes to the group after
-    the first of two tasks is kept (a kill point), while the worker runs the second."""
+def _ctrl_c_in_a_terminal(tmp_path, kill_after=None):
+    """Run an embedded-cluster field-run in its own process group and send SIGINT to the whole group,
+    as a terminal's Ctrl-C does: at the kill point ``kill_after``, or (None) as soon as the worker
+    process exists, while it still imports Dask. Returns (exit status, stderr, whether any process of
+    the group was left running)."""
     import subprocess
     import sys
 
+    import psutil
+
     args = ["field-run", "--workers", "1", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1"]
     args += ["--tiles", "2", "--samples", "8", "--bounces", "2", "--steps", "14:15", "--no-progress"]
-    env = {**os.environ, "JAX_PLATFORMS": "cpu", "COLUMNS": "200", "LIGHTFIT_TEST_KILL_AFTER": "field-task:1:INT-GROUP"}
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "COLUMNS": "200"}
+    env.pop("LIGHTFIT_TEST_KILL_AFTER", None)
+    if kill_after:
+        env["LIGHTFIT_TEST_KILL_AFTER"] = kill_after
     cmd = [sys.executable, "-m", "lightfit.cli", *args, "--out", str(tmp_path / "r.nc")]
     p = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
     )
     try:
+        if kill_after is None:
+            waited, worker = 0.0, False
+            while not worker and p.poll() is None and waited < 300:
+                for child in psutil.Process(p.pid).children(recursive=True):
+                    with contextlib.suppress(psutil.Error):  # a child that ended meanwhile
+                        line = " ".join(child.cmdline())
+                        worker = worker or ("spawn_main" in line and "resource_tracker" not in line)
+                time.sleep(0.02)
+                waited += 0.02
+            assert worker, "no worker process started"
+            os.killpg(p.pid, signal.SIGINT)
         _, err = p.communicate(timeout=600)
         for _ in range(100):  # the workers and multiprocessing's resource tracker exit after the command
             try:
@@ -479,10 +495,33 @@ def test_a_terminal_ctrl_c_reaches_the_embedded_workers_and_prints_one_line(tmp_
             left = True
         except ProcessLookupError:
             left = False
-    assert p.returncode == 130, err
-    assert err.splitlines() == [
-        "interrupted: every finished task is kept beside --out (OUT.parts/); rerun the same command to resume"
-    ], err
+    return p.returncode, err, left
+
+
+INTERRUPTED_LINE = (
+    "interrupted: every finished task is kept beside --out (OUT.parts/); rerun the same command to resume"
+)
+
+
+def test_a_terminal_ctrl_c_reaches_the_embedded_workers_and_prints_one_line(tmp_path):
+    """A terminal's Ctrl-C goes to the whole process group, the embedded cluster's worker processes
+    too: they printed 30–70 lines of tracebacks (an interrupted import, a cancelled event loop, a
+    broken pipe) above lightfit's one line. The workers leave Ctrl-C to the command, which closes
+    them: exit 130, one line on stderr, no worker left running. The SIGINT goes to the group after
+    the first of two tasks is kept (a kill point), while the worker runs the second."""
+    rc, err, left = _ctrl_c_in_a_terminal(tmp_path, kill_after="field-task:1:INT-GROUP")
+    assert rc == 130, err
+    assert err.splitlines() == [INTERRUPTED_LINE], err
+    assert not left
+
+
+def test_a_terminal_ctrl_c_while_the_workers_start_prints_one_line(tmp_path):
+    """The same Ctrl-C in the first second of the worker's life, while it still imports Dask and
+    before lightfit's import there ignores SIGINT: the worker printed a 33–36-line traceback of the
+    interrupted import. Workers now start with SIGINT blocked (``_interrupt_deferred``)."""
+    rc, err, left = _ctrl_c_in_a_terminal(tmp_path)
+    assert rc == 130, err
+    assert err.splitlines() == [INTERRUPTED_LINE], err
     assert not left
 
 

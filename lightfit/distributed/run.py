@@ -40,6 +40,7 @@ import contextlib
 import json
 import logging
 import math
+import multiprocessing.resource_tracker
 import os
 import pickle
 import signal
@@ -569,10 +570,13 @@ class _Deferred:
     """A Ctrl-C held while a cluster starts (:func:`_interrupt_deferred`)."""
 
     def __init__(self):
-        self.previous, self.got = None, False
+        self.previous, self.got, self.mask = None, False, None
 
     def restore(self) -> None:
-        """Put the previous SIGINT handler back and raise the held Ctrl-C, if one came."""
+        """Unblock SIGINT, put the previous handler back and raise the held Ctrl-C, if one came."""
+        if self.mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self.mask)  # a pending Ctrl-C reaches `hold` here
+            self.mask = None
         if self.previous is not None:
             signal.signal(signal.SIGINT, self.previous)
             self.previous = None
@@ -584,7 +588,16 @@ class _Deferred:
 def _interrupt_deferred():
     """Hold a Ctrl-C until :meth:`_Deferred.restore`: one during LocalCluster's start left a cluster
     no one closed, and distributed's own close at exit printed ≈ 28 lines (a review). Only in the
-    main thread (elsewhere Python takes no handler and nothing is held)."""
+    main thread (elsewhere Python takes no handler and nothing is held).
+
+    SIGINT is also blocked in this thread meanwhile. The threads Dask starts here inherit that mask,
+    and so do the worker processes they spawn (a signal mask survives fork and exec, and Python
+    leaves it as it finds it): a terminal's Ctrl-C while a worker still imports Dask waits in it
+    unseen, where it printed a 36-line traceback of the interrupted import, until lightfit's import
+    there sets SIGINT ignored (:func:`lightfit.killpoint.ignore_interrupt_in_workers`), which drops it.
+    multiprocessing's resource tracker is started before the mask is set: its first start unblocks
+    SIGINT in the thread that starts it (CPython's ``ResourceTracker.ensure_running``), which would
+    otherwise be Dask's event loop, the parent of every worker."""
     held = _Deferred()
     if threading.current_thread() is threading.main_thread():
 
@@ -592,6 +605,9 @@ def _interrupt_deferred():
             held.got = True
 
         held.previous = signal.signal(signal.SIGINT, hold)
+        # Started first: starting it unblocks SIGINT in the starting thread, whatever the mask was.
+        multiprocessing.resource_tracker.ensure_running()
+        held.mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield held
     finally:
