@@ -312,10 +312,10 @@ def calibrate(
         }
     replace_text(out / "calibration.json", json.dumps(record, indent=2))
     t = Table(
-        title=f"calibration ({res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}: "
-        f"{res.steps} accepted steps, {res.evaluations} loss and {res.gradients} gradient evaluations, "
-        f"{record['seconds']:.0f} s)",
-        caption=f"stopped: {res.reason}",
+        # The counts go below: a title is wrapped to the table's width, and a long one read badly.
+        title=f"calibration: {res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}",
+        caption=f"{res.steps} accepted steps, {res.evaluations} loss and {res.gradients} gradient evaluations, "
+        f"{record['seconds']:.0f} s; stopped: {res.reason}",
     )
     # The range searched: the emulator's box (the priors' leaf support), else the parameters' domains.
     search = {n: BOUNDS[n] for n in names}
