@@ -21,7 +21,7 @@ sees.
 
 Before the settings, one render of the first setting at another seed compiles the kernels and
 lets Dr.Jit's allocator hold the memory the renders reuse (memory touched for the first time costs
-4–6 s per GiB here: docs/light.md, "A process's first render"). Writes benchmarks/results/day.json
+4–6 s per GiB here: docs/light-sampling.md, "A process's first render"). Writes benchmarks/results/day.json
 (or ``--out``) and prints a table, with the commit and the load average (the 2 cores are shared).
 """
 

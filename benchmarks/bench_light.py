@@ -112,7 +112,7 @@ def _cpu_s() -> tuple[float, float]:
     than the next in system time: memory it touches for the first time is mapped by the kernel,
     which costs ≈ 4–6 s per GiB in this machine's virtual machine (a Firecracker guest whose freed
     memory goes back to the host within seconds) against ≈ 0.07 s per GiB for memory mapped
-    before; docs/light.md, "A process's first render"."""
+    before; docs/light-sampling.md, "A process's first render"."""
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime, r.ru_stime
 
@@ -443,7 +443,7 @@ def main(
     rays_per_sample = 1 + 3 * (bounces + 1)
     meter = irradiancemeter_comparison(sheaths=sheaths)
     # (K, projection rays per m² (sun, sky) or one for both; 0: paths). The last: the cost model's
-    # reallocation (docs/light.md, "Where the time goes, and casting in passes").
+    # reallocation (docs/light-sampling.md, "Where the time goes, and casting in passes").
     settings = [(64, 0), (64, 1e7), (32, 2e7), (16, (1.5e7, 2e7))]
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     direct = direct_projection_comparison(fs, ids, bounces, settings, organ) if fs.tracer is not None else None

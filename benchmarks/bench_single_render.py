@@ -25,11 +25,11 @@ pooled median, whose correction for the few degrees of freedom then shrinks (≈
 R = 4): the goal is judged on that row. Its time is the second estimator's render; the last row
 takes the median of the N − 1 steady renders instead (one render moves by ± 5 % on this
 machine). At the 2 % setting one render's R-corrected median (3 degrees of freedom) read 2.02 %
-where 4 seeds pooled read 2.15 %, 13 % less time to a 2 % median (docs/light.md, "The single
+where 4 seeds pooled read 2.15 %, 13 % less time to a 2 % median (docs/light-sampling.md, "The single
 render judged on four seeds").
 
 Writes benchmarks/results/single_render.json (or ``--out``) and prints a table, with the commit and
-the load average (the 2 cores are shared: absolute times move with the machine, see docs/light.md).
+the load average (the 2 cores are shared: absolute times move with the machine, see docs/light-sampling.md).
 """
 
 from __future__ import annotations

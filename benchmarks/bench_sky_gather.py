@@ -4,7 +4,7 @@ projection (issue 16).
     python benchmarks/bench_sky_gather.py [--n-plants 500] [--samples 128] [--out JSON]
 
 The sky seen directly is ≈ 0.55 of a median segment's variance in the projection and is
-Poisson-limited there (docs/light.md, "Why the sky seen directly stays Poisson-limited"). Its rays
+Poisson-limited there (docs/light-sampling.md, "Why the sky seen directly stays Poisson-limited"). Its rays
 are shared by all segments, most of them landing on sunlit upper blades that need none. Rays
 *gathered* from a segment's own points (cosine-weighted directions, a hit on the sky or not: the
 paths' first rays with ``direct="paths"``, 0 bounces, the sun below the horizon) could be spent

@@ -5,7 +5,7 @@
 The sky seen directly is ≈ 0.6 of a median segment's variance in the projection
 (bench_projection_split.py), and its rays land on segments in proportion to their visible area:
 most of them on the sunlit upper blades, which need few, few on the shaded blades that set the
-all-segment median (docs/light.md, "Which blades"). This measures the best that moving rays
+all-segment median (docs/light-sampling.md, "Which blades"). This measures the best that moving rays
 towards the median's segments could buy, before anything is built into the estimator.
 
 Ray space (the cell's ground × the unit square of cosine-weighted directions, measure 1) is cut

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_walk.py [--n-plants 500] [--rays 4e6] [--rounds 5] [--out JSON]
 
-The sky's first walk is the largest part of a render of the 500-plant cell (docs/light.md, "Where
+The sky's first walk is the largest part of a render of the 500-plant cell (docs/light-sampling.md, "Where
 the time goes"). This bench takes ``--rays`` rays as the sky's first walk casts them (origins
 uniform over the cell just above the canopy top, cosine-weighted downward directions; numpy,
 seed 1) and times, alternating round by round in one process (the median of ``--rounds``):

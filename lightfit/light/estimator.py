@@ -53,7 +53,7 @@ from rays cast down over the whole cell instead (:mod:`lightfit.light.projection
 then carry only the rest, light scattered twice and more (no direct-sun shadow ray at the point,
 no sky where the first ray escapes, no sun or sky through their first vertex), and the two
 independent estimates are added replicate by replicate. Same expectation, a fraction of the
-variance (docs/light.md, "Direct light by projection").
+variance (docs/light-sampling.md, "Direct light by projection").
 """
 
 from __future__ import annotations

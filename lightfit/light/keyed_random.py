@@ -33,7 +33,7 @@ from lightfit.errors import check_integer
 #: independent (χ² of 200 000 consecutive pairs 2.7 × 10⁵ for 99 degrees of freedom), so the
 #: replicates were not independent and the sky's reported SE fell short of the seeds' spread (≈ 3 %
 #: in variance over the 100-plant cell's segments, ``benchmarks/bench_se_calibration.py``; 5–9 % for
-#: the sky part on a small cell). 16 rounds pass the same checks (docs/light.md, "Are the reported
+#: the sky part on a small cell). 16 rounds pass the same checks (docs/light-sampling.md, "Are the reported
 #: standard errors right?").
 TEA_ROUNDS = 16
 

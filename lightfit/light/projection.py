@@ -44,7 +44,7 @@ with a black soil the paths' share of a segment's variance has median ≈ 0).
 leaves — and the rays are stratified over the cell. On the 100-plant cell (PROSPECT leaf, sun at
 50°) the projection needs ≈ 11× fewer rays than the paths' shadow rays for the same median
 per-segment error of the direct sun, and ≈ 9× fewer first rays for the directly visible sky
-(docs/light.md, "Direct light by projection"). Its cost does not depend on how many segments are
+(docs/light-sampling.md, "Direct light by projection"). Its cost does not depend on how many segments are
 requested: the whole cell is lit.
 
 **Determinism.** Positions and directions are keyed by (seed, kind, ray index) (TEA hashing), and
@@ -118,19 +118,19 @@ def check_rays(rays_per_m2) -> tuple[float, float]:
 #: direction, so they trace ≈ 3× slower than the parallel first rays, while they carried ≈ 5 %
 #: (sun) and ≈ 1 % (sky) of a segment's variance near the median (500-plant cell, K = 32,
 #: 2 × 10⁷ rays per m²): an in-process split of the variance and a cost model put the optimum of
-#: variance × time near these values (docs/light.md, "The soil's light, and fewer continued rays").
+#: variance × time near these values (docs/light-sampling.md, "The soil's light, and fewer continued rays").
 CONTINUED_SHARE = {"sun": 0.5, "sky": 0.25}
 #: Most rays cast in one pass (one walk, one continuation, one deposit): the rays of a kind are cast
 #: in passes of this many (the same rays, keyed by their index, so the same values to the bit), so
 #: that a pass's working arrays stay small: on the 500-plant cell at 2 × 10⁷ rays per m², 4.7
-#: instead of 9.8 GB peak memory, at the same render time (docs/light.md, "Where the time goes,
+#: instead of 9.8 GB peak memory, at the same render time (docs/light-sampling.md, "Where the time goes,
 #: and casting in passes").
 CAST_CHUNK = 2**22
 #: Most bytes of projected sun hits an estimator keeps across suns (2 GiB; the paths' shadow rays
 #: have a budget of the same size). They depend on the sun and the seed only, not on the leaf
 #: parameters, so a calibration that renders a day's steps at every loss evaluation casts each
 #: sun once while they fit (5 steps of the default field, hits and shadow rays kept: a loss 4.6×,
-#: a loss and its gradient 4.3× faster; docs/light.md, "Suns kept within a memory budget"); past
+#: a loss and its gradient 4.3× faster; docs/light-sampling.md, "Suns kept within a memory budget"); past
 #: the budget the least recently used sun is dropped and cast again when needed.
 SUN_HITS_BUDGET_BYTES = 2 * 2**30
 _FIXED = 2.0**32  # fixed-point scale of the sums
@@ -141,7 +141,7 @@ _R2 = 1.32471795724474602596  # plastic number: R₂ generators 1/g, 1/g²
 #: patch of cells, get directions spread over the sky whatever the grid. Over the whole grid in
 #: row-major order (``0``, before) the spread depended on the row length: at some ray densities the
 #: sky part had up to 2.8× the variance (500-plant cell, 10⁸ rays per m²); in Z-order alone, ≈ 8 %
-#: more SE where row-major did well (docs/light.md, "The sky's directions and the grid";
+#: more SE where row-major did well (docs/light-sampling.md, "The sky's directions and the grid";
 #: ``benchmarks/bench_sky_order.py``). Each ray's direction stays uniform (the per-replicate shift),
 #: so any order is unbiased.
 SKY_TILE = 16

@@ -243,7 +243,7 @@ def main_job_samples(direct: str) -> int:
     """Samples per segment K of the main job (``ReplicationConfig(samples=None)``) for a resolved
     ``direct``: 32 with the projection, which leaves the paths only light scattered twice and more
     (K = 64 gave the 20 April run's plant-PAR and canopy-An Monte Carlo SD within 0.2 % of K = 32's,
-    for ≈ 1.3× the time: docs/light.md, "The soil's light, and fewer continued rays"); 64 with the
+    for ≈ 1.3× the time: docs/light-sampling.md, "The soil's light, and fewer continued rays"); 64 with the
     paths, which carry all the light."""
     return MAIN_JOB_SAMPLES[direct]
 
@@ -364,7 +364,7 @@ class Scenario:
         direct: where the renders' unscattered light (direct sun, directly seen sky) comes from:
             ``"projection"`` (periodic fields: rays cast down over the cell,
             :mod:`lightfit.light.projection`; same expectation as the paths, a fraction of their
-            variance: docs/light.md, "Direct light by projection"), ``"paths"`` (each sample
+            variance: docs/light-sampling.md, "Direct light by projection"), ``"paths"`` (each sample
             point's own shadow ray and first ray; what finite fields need), or ``"auto"``
             (default): projection where the field is periodic, paths where it is finite.
             Resolved at construction (the attribute then names the one used).
