@@ -285,11 +285,12 @@ class ReplicationConfig:
         the ``config`` a calibration or posterior records): every setting left to a rule (``None``,
         ``"auto"``) is the value the run uses, from the objects the run is made of: K and bounces
         (:meth:`render_samples`, :meth:`render_bounces`), the direct light, the capacity profile,
-        the leaf's chlorophyll (``None`` for a leaf not made from traits), the field's buffers and
-        each date's season start (:meth:`field`), and the growth temperature the set takes (``None``
-        for a set that does not acclimate). ``w``: the run's forcing, for a growth temperature from
-        the series (without it ``"series"`` is kept). A setting that differs between the dates is
-        ``{date: value}``."""
+        the leaf's chlorophyll (``None`` for a leaf not made from traits), the field's plants (its
+        measurement area's, :attr:`~lightfit.plant.Field.n_measured`: ``n_plants=5`` builds 3 × 3),
+        buffers and each date's season start (:meth:`field`), and the growth temperature the set
+        takes (``None`` for a set that does not acclimate). ``w``: the run's forcing, for a growth
+        temperature from the series (without it ``"series"`` is kept). A setting that differs
+        between the dates is ``{date: value}``."""
         traits = leaf_traits(self.optics, self.chlorophyll_ug_cm2)
         fields_ = {d: self.field(d) for d in self.dates}
         first = fields_[self.dates[0]]
@@ -297,11 +298,13 @@ class ReplicationConfig:
         if self.needs_month_before and w is not None:  # each day's, as scenario_for gives its Scenario
             t_g |= {d: _growth_temperature(self, wd) for d, wd in days(self, w)}
         t_g = {d: t if t == GROWTH_FROM_SERIES else growth_temperature(self.photosynthesis, t) for d, t in t_g.items()}
+        direct = resolve_direct(self.direct, self.boundary)
         out = json.loads(json.dumps(asdict(self)))
         out |= {
+            "n_plants": first.n_measured,
             "samples": self.render_samples(),
             "bounces": self.render_bounces(),
-            "direct": resolve_direct(self.direct, self.boundary),
+            "direct": direct,
             "vcmax_profile": profile_for(self.vcmax_profile, self.photosynthesis),
             "chlorophyll_ug_cm2": None if traits is None else traits.Cab,
             "buffer_rows": first.buffer_rows,

@@ -1808,6 +1808,24 @@ def test_runs_record_the_settings_they_take_and_older_records_still_compare():
     assert changed_settings(took, resolve(ModelOptions(chlorophyll_ug_cm2=50.5))) == []  # the default, given
 
 
+def test_runs_record_the_plants_the_field_builds():
+    """config recorded n_plants as asked: 5, where the field builds 3 × 3 (a review). The record holds
+    the plants the field builds, the number asked stays in options_given, and records written before
+    and new ones resume the same run."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+
+    opts = ModelOptions(quick=True, n_plants=5)
+    five = resolve(opts)
+    took = five.effective()
+    built = int(five.replication_config().field().plants()["measured"].sum())
+    assert took["n_plants"] == built != 5 and opts.args() == ["--quick", "--n-plants", "5"]
+    for record in (five.as_dict(), took):
+        assert changed_settings(record, five) == [], record
+    assert changed_settings(took, resolve(ModelOptions(quick=True, n_plants=built))) == []  # the same field
+    (said,) = changed_settings(took, resolve(ModelOptions(quick=True, n_plants=built + 1)))
+    assert said.startswith(f"n_plants: {built} → "), said
+
+
 def test_field_tile_past_the_last_is_refused_before_growing(tmp_path, monkeypatch):
     """--tiles 2 makes tiles 0 and 1: --tile 2 (one past the last) and --tile -1 are refused naming
     --tile and the range, before any plant grows (one past the last would reach an IndexError)."""

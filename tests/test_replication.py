@@ -350,6 +350,13 @@ def test_a_configuration_records_what_its_scenario_takes():
         assert leaf == sc.optics
         assert json.loads(json.dumps(took)) == took and None not in (took["bounces"], took["samples"])
         assert took["photosynthesis_overrides"] == dict(sc.photosynthesis_overrides) == {}
+        assert took["n_plants"] == int(sc.field.plants()["measured"].sum())
+    # 5 plants asked for build the 3 × 3 measurement area: its 9 recorded, not 5 (a review)
+    for boundary in ("periodic", "finite"):
+        five = dataclasses.replace(rep.ReplicationConfig.quick(), n_plants=5, boundary=boundary)
+        w = rep.forcing_of(five)
+        built = rep.scenario_for(five, w).field.plants()
+        assert five.effective(w)["n_plants"] == int(built["measured"].sum()) != five.n_plants
     own = dataclasses.replace(rep.ReplicationConfig.quick(), photosynthesis_overrides={"a1": 4.5})
     assert own.effective()["photosynthesis_overrides"] == {"a1": 4.5}
     # dates in two years: each its own 5 March

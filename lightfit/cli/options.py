@@ -236,11 +236,12 @@ class ModelSettings:
     def effective(self, w=None) -> dict[str, Any]:
         """The settings a run records (``config`` in calibration.json, settings.json and a posterior's
         run.h5), JSON-ready: :meth:`as_dict` with every setting left to a rule or a default taken from
-        what the run is made of (:meth:`lightfit.replication.ReplicationConfig.effective`: K, bounces,
-        direct light, capacity profile, chlorophyll, buffers, season start, growth temperature), the
-        weather by its bundled name or absolute path, ``steps`` as the positions ``a:b`` each day
-        runs, and from the run's forcing ``w``, where given, its provenance, the time zone its file
-        was read in and its beam/sky split. ``quick`` and ``preset`` stay what was asked."""
+        what the run is made of (:meth:`lightfit.replication.ReplicationConfig.effective`: the plants
+        built, K, bounces, direct light, capacity profile, chlorophyll, buffers, season start, growth
+        temperature), the weather by its bundled name or absolute path, ``steps`` as the positions
+        ``a:b`` each day runs, and from the run's forcing ``w``, where given, its provenance, the
+        time zone its file was read in and its beam/sky split. ``quick`` and ``preset`` stay what
+        was asked."""
         from lightfit.replication import weather_source
         from lightfit.weather.bundled import source_setting
 
@@ -309,6 +310,7 @@ class ModelSettings:
 #: The settings :meth:`ModelSettings.effective` takes from
 #: :meth:`lightfit.replication.ReplicationConfig.effective`.
 _FROM_CONFIG = (
+    "n_plants",
     "samples",
     "bounces",
     "direct",

@@ -279,6 +279,11 @@ class Field:
         return math.isqrt(self.n_plants - 1) + 1
 
     @property
+    def n_measured(self) -> int:
+        """Plants of the measurement area the field builds, N²: ``n_plants`` rounded up to a square."""
+        return self.n**2
+
+    @property
     def b_along(self) -> int:
         """Buffer plants along each row at either end."""
         return self.buffer_rows if self.buffer_along is None else int(self.buffer_along)
@@ -301,7 +306,7 @@ class Field:
     @property
     def ground_area_m2(self) -> float:
         """Ground area of the measurement area, m²: N² plants × plant spacing × row spacing."""
-        return self.n**2 * self.area_per_plant_m2
+        return self.n_measured * self.area_per_plant_m2
 
     def measured_area_m2(self, tile: Tile | None = None) -> float:
         """Ground area of the plants a tile measures, m² (``None``: the whole measurement area)."""
@@ -372,7 +377,7 @@ class Field:
                 ids = plant_id(R - B, C - Ba)
                 measured = np.sort(ids[inside])
                 if self.periodic:
-                    everyone = plant_id(*np.divmod(np.arange(self.n**2), self.n))
+                    everyone = plant_id(*np.divmod(np.arange(self.n_measured), self.n))
                     buffer = np.sort(np.setdiff1d(everyone, measured))
                 else:
                     buffer = np.sort(ids[~inside])
