@@ -288,7 +288,9 @@ class ReplicationConfig:
         the leaf's chlorophyll (``None`` for a leaf not made from traits), the field's plants (its
         measurement area's, :attr:`~lightfit.plant.Field.n_measured`: ``n_plants=5`` builds 3 × 3),
         buffers and each date's season start (:meth:`field`), and the growth temperature the set
-        takes (``None`` for a set that does not acclimate). ``w``: the run's forcing, for a growth
+        takes (``None`` for a set that does not acclimate). ``direct_rays_per_m2`` is ``None`` where
+        the direct light comes from the paths: they cast no projected rays, and results and the
+        emulator's key leave the rays out there too. ``w``: the run's forcing, for a growth
         temperature from the series (without it ``"series"`` is kept). A setting that differs
         between the dates is ``{date: value}``."""
         traits = leaf_traits(self.optics, self.chlorophyll_ug_cm2)
@@ -305,6 +307,7 @@ class ReplicationConfig:
             "samples": self.render_samples(),
             "bounces": self.render_bounces(),
             "direct": direct,
+            "direct_rays_per_m2": None if direct == "paths" else out["direct_rays_per_m2"],
             "vcmax_profile": profile_for(self.vcmax_profile, self.photosynthesis),
             "chlorophyll_ug_cm2": None if traits is None else traits.Cab,
             "buffer_rows": first.buffer_rows,

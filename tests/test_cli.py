@@ -1826,6 +1826,24 @@ def test_runs_record_the_plants_the_field_builds():
     assert said.startswith(f"n_plants: {built} → "), said
 
 
+def test_runs_record_no_rays_where_the_paths_carry_the_direct_light():
+    """config recorded the projection's rays per m² where the direct light came from the paths, which
+    cast none (a review): null there now. Records written before (the default's rays, or no key) and
+    new ones resume the same run; a change of direct light names the rays it brings."""
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve
+
+    finite = resolve(ModelOptions(quick=True, boundary="finite"))  # direct light from the paths
+    took = finite.effective()
+    assert took["direct"] == "paths" and took["direct_rays_per_m2"] is None
+    assert finite.as_dict()["direct_rays_per_m2"] is not None  # what records held before
+    for record in (finite.as_dict(), took, {k: v for k, v in took.items() if k != "direct_rays_per_m2"}):
+        assert changed_settings(record, finite) == [], record
+    periodic = resolve(ModelOptions(quick=True))
+    rays = list(periodic.direct_rays_per_m2)
+    assert periodic.effective()["direct_rays_per_m2"] == rays
+    assert f"direct_rays_per_m2: None → {rays!r}" in changed_settings(took, periodic)
+
+
 def test_field_tile_past_the_last_is_refused_before_growing(tmp_path, monkeypatch):
     """--tiles 2 makes tiles 0 and 1: --tile 2 (one past the last) and --tile -1 are refused naming
     --tile and the range, before any plant grows (one past the last would reach an IndexError)."""

@@ -351,6 +351,8 @@ def test_a_configuration_records_what_its_scenario_takes():
         assert json.loads(json.dumps(took)) == took and None not in (took["bounces"], took["samples"])
         assert took["photosynthesis_overrides"] == dict(sc.photosynthesis_overrides) == {}
         assert took["n_plants"] == int(sc.field.plants()["measured"].sum())
+        # the paths cast no projected rays: none recorded there (the default's were, a review)
+        assert took["direct_rays_per_m2"] == (None if sc.direct == "paths" else list(sc.direct_rays_per_m2))
     # 5 plants asked for build the 3 × 3 measurement area: its 9 recorded, not 5 (a review)
     for boundary in ("periodic", "finite"):
         five = dataclasses.replace(rep.ReplicationConfig.quick(), n_plants=5, boundary=boundary)

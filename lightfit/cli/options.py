@@ -237,11 +237,11 @@ class ModelSettings:
         """The settings a run records (``config`` in calibration.json, settings.json and a posterior's
         run.h5), JSON-ready: :meth:`as_dict` with every setting left to a rule or a default taken from
         what the run is made of (:meth:`lightfit.replication.ReplicationConfig.effective`: the plants
-        built, K, bounces, direct light, capacity profile, chlorophyll, buffers, season start, growth
-        temperature), the weather by its bundled name or absolute path, ``steps`` as the positions
-        ``a:b`` each day runs, and from the run's forcing ``w``, where given, its provenance, the
-        time zone its file was read in and its beam/sky split. ``quick`` and ``preset`` stay what
-        was asked."""
+        built, K, bounces, direct light and its rays (``None`` with the paths'), capacity profile,
+        chlorophyll, buffers, season start, growth temperature), the weather by its bundled name or
+        absolute path, ``steps`` as the positions ``a:b`` each day runs, and from the run's forcing
+        ``w``, where given, its provenance, the time zone its file was read in and its beam/sky
+        split. ``quick`` and ``preset`` stay what was asked."""
         from lightfit.replication import weather_source
         from lightfit.weather.bundled import source_setting
 
@@ -314,6 +314,7 @@ _FROM_CONFIG = (
     "samples",
     "bounces",
     "direct",
+    "direct_rays_per_m2",
     "vcmax_profile",
     "chlorophyll_ug_cm2",
     "growth_temperature_c",
@@ -1155,7 +1156,9 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     written before leaf optics have no ``optics``: they had the grey leaf (``paper``); settings
     written before ``sheaths`` had CPlantBox's rods, before ``headings`` aligned plants; settings
     written before the projected direct light have no ``direct``: their paths carried it; settings
-    written before ``--direct-rays-per-m2`` ran with its default. ``previous=None`` (nothing stored): no difference.
+    written before ``--direct-rays-per-m2`` ran with its default. A run whose direct light comes
+    from the paths records no rays (``None``); records written before hold the default's there,
+    which this run has as given. ``previous=None`` (nothing stored): no difference.
     """
     from lightfit.plant.growth import default_season_start
     from lightfit.weather.site import SELHAUSEN
