@@ -496,7 +496,8 @@ def forcing(
     temperature of the month before in ``attrs["month_before_tair_c"]`` (``{date: °C or None}``, for
     ``growth_temperature_c="series"``). ``tz``, ``time_label``: the zone of a TERENO or CPlantBox
     file's timestamps and where they sit in each mean's interval, where the file does not say
-    (:func:`lightfit.weather.read_weather`; refused for a lightfit CSV).
+    (:func:`lightfit.weather.read_weather`; refused for a lightfit CSV); what the file's stamps were
+    read as is ``attrs["file_time_label"]`` (``attrs["timestamps"]`` is the run's steps').
     """
     given = dates is not None
     dates = as_dates(dates or DEFAULT_DATE)
@@ -517,6 +518,9 @@ def forcing(
             src = weather.add_solar(
                 weather.read_source(source, date=d, tz=tz, **more), site=site, split_model=split_model
             )
+            # the window relabels the stamps as the run's steps (--how mean: centred means); a run's
+            # record says what the file's were read as (its own line, the reader's convention, time_label)
+            src.attrs["file_time_label"] = timestamps.of(src).label
         t0, t1 = window.bounds_utc(d, site.timezone)
         if t0 < src.index[0] or t1 > src.index[-1]:
             raise InputError(

@@ -957,7 +957,7 @@ def test_calibrate_bounded_method_on_two_steps(tmp_path):
     took = {"chlorophyll_ug_cm2": 50.5, "growth_temperature_c": 15.0, "bounces": 2, "samples": 16, "buffer_rows": 0}
     took |= {"weather_file": "2016-04-20", "split": "diffuse", "season_start": "2016-03-05", "steps": "14:16"}
     assert {k: config[k] for k in took} == took, config
-    assert [k for k, v in config.items() if v is None] == ["target_rse", "weather_time_label"], config
+    assert [k for k, v in config.items() if v is None] == ["target_rse"], config
     assert json.loads((tmp_path / "settings.json").read_text())["config"] == config
     assert res["options_given"] == ["--quick", "--steps", "14:16"] and config["preset"] == "default"
     # the hint reruns the same model (quick field, the two steps) against the same observations
@@ -1842,6 +1842,32 @@ def test_runs_record_no_rays_where_the_paths_carry_the_direct_light():
     rays = list(periodic.direct_rays_per_m2)
     assert periodic.effective()["direct_rays_per_m2"] == rays
     assert f"direct_rays_per_m2: None → {rays!r}" in changed_settings(took, periodic)
+
+
+def test_runs_record_the_time_label_their_weather_was_read_with():
+    """config recorded weather_time_label null where the file's own '# time_label:' line or the
+    reader's convention (a TERENO export's stamps at the ends of its means) was applied (a review):
+    the label applied is recorded, also where averaging relabels the run's steps; a record as given
+    (null) and one as taken resume the same run."""
+    from lightfit import weather as wx
+    from lightfit.cli.options import ModelOptions, changed_settings, resolve, weather
+    from lightfit.weather import timestamps
+    from lightfit.weather.bundled import source_path
+
+    lines = source_path("2016-04-20").read_text(encoding="utf-8").splitlines()
+    (own,) = [x.split(":", 1)[1].strip() for x in lines if x.startswith("# time_label:")]
+    runs = [(resolve(ModelOptions(quick=True, how=how, steps="14:16")), own) for how in ("sample", "mean")]
+    for given in (None, "start"):  # the fixture says nothing: the reader's convention, or the option
+        read = wx.read_source(FIXTURE, **({} if given is None else {"time_label": given}))
+        opts = ModelOptions(quick=True, weather_file=str(FIXTURE), steps="12:18", weather_time_label=given)
+        runs.append((resolve(opts), timestamps.of(read).label))
+    for s, label in runs:
+        w = weather(s)
+        took = s.effective(w)
+        assert took["weather_time_label"] == label is not None, (s.how, s.weather_file)
+        for record in (s.as_dict(), took):
+            assert changed_settings(record, s, w=w) == [], record
+    assert timestamps.of(weather(runs[1][0])).label != own  # the mean's steps: labelled anew
 
 
 def test_field_tile_past_the_last_is_refused_before_growing(tmp_path, monkeypatch):

@@ -240,8 +240,9 @@ class ModelSettings:
         built, K, bounces, direct light and its rays (``None`` with the paths'), capacity profile,
         chlorophyll, buffers, season start, growth temperature), the weather by its bundled name or
         absolute path, ``steps`` as the positions ``a:b`` each day runs, and from the run's forcing
-        ``w``, where given, its provenance, the time zone its file was read in and its beam/sky
-        split. ``quick`` and ``preset`` stay what was asked."""
+        ``w``, where given, its provenance, the time zone its file was read in and what its stamps
+        were read as (``weather_time_label``: the file's own, e.g. ``"instant"``, where not given),
+        and its beam/sky split. ``quick`` and ``preset`` stay what was asked."""
         from lightfit.replication import weather_source
         from lightfit.weather.bundled import source_setting
 
@@ -253,9 +254,8 @@ class ModelSettings:
         first, last, _ = _steps(self.steps or ":", n).indices(n)
         out["steps"] = f"{first}:{last}"
         if w is not None:
-            # The file's time label is left as given (None: the file's own): the forcing's stamps are
-            # the run's steps, which averaging (--how mean) labels anew; results.nc records them.
             read = {"weather_provenance": "provenance", "weather_tz": "timezone_assumed", "split": "split_model"}
+            read["weather_time_label"] = "file_time_label"  # the file's stamps; results.nc has the steps'
             out |= {k: w.attrs[a] for k, a in read.items() if a in w.attrs}
         return out
 
