@@ -55,6 +55,17 @@ def test_posterior_cli_quick(tmp_path):
     assert (took["chlorophyll_ug_cm2"], took["growth_temperature_c"], took["bounces"]) == (50.5, 15.0, 2)
     assert (took["weather_file"], took["buffer_rows"], took["steps"]) == ("2016-04-20", 0, "0:29")
     assert attrs["options_given"] == ["--quick"]
+    # The summary has them too (only run.h5 had: a summary read alone, as --theta may, said nothing of
+    # the settings its MAP was fitted with), and is still read as a theta source (its MAP).
+    from lightfit.cli.common import parse_theta, theta_cautions
+
+    assert (s["config"], s["options_given"]) == (took, attrs["options_given"])
+    alone = tmp_path / "elsewhere" / "summary.json"  # no run.h5 beside it
+    alone.parent.mkdir()
+    alone.write_text((out / "summary.json").read_text())
+    assert parse_theta(str(alone)) == {k: pytest.approx(v) for k, v in s["x_map"].items()}
+    said = [x for x in theta_cautions(str(alone), took | {"chlorophyll_ug_cm2": 40.0}) if "fitted with" in x]
+    assert len(said) == 1 and "chlorophyll_ug_cm2 50.5; this run has chlorophyll_ug_cm2 40.0" in said[0], said
     assert "emulator_error" not in s and "sloppy" in s
     assert "design: none needed (the observed series depend on no rendered light)" in " ".join(r.output.split())
     # The MAP's χ², by hand: the one reading against the light factor × the forcing's PAR read linearly

@@ -395,8 +395,9 @@ def theta_cautions(theta: str | None, config: dict) -> list[str]:
     """What to say of parameters taken from a file (:func:`parse_theta`) before they are used in a run of
     settings ``config`` (:meth:`~lightfit.cli.options.ModelSettings.effective`): a calibration that did
     not converge, a posterior whose diagnostics caution (``lightfit posterior``'s own cautions), and a
-    fit made with other :data:`THETA_CONTEXT` settings (a calibration's ``config``, a posterior's run.h5
-    beside its summary), unset settings of older records taken as their defaults (:func:`_effective`)."""
+    fit made with other :data:`THETA_CONTEXT` settings (a calibration's or posterior summary's ``config``;
+    for a summary written before it held one, the run.h5 beside it), unset settings of older records taken
+    as their defaults (:func:`_effective`)."""
     if not theta or not Path(theta).exists():
         return []
     p = Path(theta)

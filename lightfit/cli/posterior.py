@@ -237,6 +237,9 @@ def posterior(
         console.print("design: none needed (the observed series depend on no rendered light)")
     else:
         console.print(f"design: {renders} ({each}){checked}")
+    # config: what the run takes; options_given: what was asked ("series", bounces left to the rule).
+    # In the summary too: it is what `--theta OUT/summary.json` and readers take, without run.h5.
+    settings = {"config": s.effective(w), "options_given": model.args()}
     res = A.run(
         m,
         obs,
@@ -255,8 +258,7 @@ def posterior(
         render_at=lambda d, leaf: E.render_parts(d, leaf, progress=False, cache=E.design_dir(d, cache) / "renders"),
         analysis=analysis,
         max_seconds=None if max_minutes is None else 60 * max_minutes,
-        # config: what the run takes; options_given: what was asked ("series", bounces left to the rule)
-        attrs={"config": s.effective(w), "options_given": model.args(), "priors_set": priors, "emulator_key": emu_key},
+        attrs={**settings, "priors_set": priors, "emulator_key": emu_key},
         mc_correlation=form["mc_correlation"],
         mc_scale=mc_scale,
         say=lambda line: console.print(line),
@@ -268,7 +270,8 @@ def posterior(
         interrupted(f"{out / 'run.h5'} keeps every finished step", started_over=not resume)
     # strict JSON: an unbounded Fisher width (eigenvalue 0) is null, not Infinity. Not written when
     # interrupted: it replaced the last finished run's summary with a part of a chain.
-    replace_text(out / "summary.json", json.dumps(P.jsonable(res, strict=True), indent=2, default=str, allow_nan=False))
+    summary = P.jsonable(res | settings, strict=True)
+    replace_text(out / "summary.json", json.dumps(summary, indent=2, default=str, allow_nan=False))
     if not analysis:
         (out / "corner.png").unlink(missing_ok=True)  # drawn from a shorter chain, if from this run at all
         _print_status(P.backend.run_status(out / "run.h5"))
