@@ -49,13 +49,20 @@ def summary(ds) -> pd.DataFrame:
     )
 
 
+def _plants(attrs) -> int | None:
+    """The plants a results file's field measures: its ``n_plants`` attribute is the field's setting,
+    which the field rounds up to a square (5 builds 3 × 3)."""
+    n = attrs.get("n_plants")
+    return None if n is None else Field(n_plants=int(n)).n_measured
+
+
 def summary_metadata(ds) -> dict[str, str]:
     """The ``# key: value`` header of a results folder's summary.csv: that it is model output, the
     forcing's and the observations' provenance and files, the preset, site, window and field, and
     lightfit's versions; every setting is in results.nc's attributes. Without it the table could
     pass for numbers from measured weather (data honesty: a reconstructed forcing says so here)."""
     a = ds.attrs
-    field = f"{a.get('n_plants')} plants, {a.get('boundary')} boundary"
+    field = f"{_plants(a)} plants, {a.get('boundary')} boundary"
     field += f", K = {a.get('samples')}, {a.get('bounces')} bounces"
     meta = {
         "content": "lightfit model output, one row per time step (units in the column names)",
@@ -253,7 +260,7 @@ def figure(ds, compare=None):
     src = Path(str(ds.attrs.get("weather_source", ""))).name
     lines = [
         f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
-        f"{ds.attrs.get('n_plants')} plants, K={ds.attrs.get('samples')}",
+        f"{_plants(ds.attrs)} plants, K={ds.attrs.get('samples')}",
         runs[0][2],
     ]
     if "observations" in ds.attrs:  # a line of its own: the title must fit the figure's width

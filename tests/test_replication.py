@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import xarray as xr
 from typer.testing import CliRunner
 
 import lightfit  # noqa: F401
@@ -359,6 +360,11 @@ def test_a_configuration_records_what_its_scenario_takes():
         w = rep.forcing_of(five)
         built = rep.scenario_for(five, w).field.plants()
         assert five.effective(w)["n_plants"] == int(built["measured"].sum()) != five.n_plants
+        # the summary header and the figure's title say so too (they said "5 plants")
+        from lightfit.report import summary_metadata
+
+        attrs = rep.scenario_for(five, w).field.attrs() | {"samples": 16, "bounces": 2}
+        assert summary_metadata(xr.Dataset(attrs=attrs))["field"].startswith(f"{int(built['measured'].sum())} plants")
     own = dataclasses.replace(rep.ReplicationConfig.quick(), photosynthesis_overrides={"a1": 4.5})
     assert own.effective()["photosynthesis_overrides"] == {"a1": 4.5}
     # dates in two years: each its own 5 March
