@@ -365,6 +365,39 @@ def test_a_single_unconverged_blade_has_no_likelihood():
         assert float(lik.loss(one)) == np.inf
 
 
+@pytest.mark.parametrize("jit", [False, True])
+def test_a_refused_point_with_nan_outputs_has_a_zero_gradient(jit):
+    """Where the leaf solve has no steady state (the CPlantBox-form sets' Rd outgrows Vcmax from
+    ≈ 58.7 °C, docs/photosynthesis.md) the model's An is NaN and the step is unconverged: log L is
+    −inf and the loss +inf, constants, so their gradient is 0. The NaN residual used to reach the
+    gradient through the discarded branch (0·NaN): d log L/dλ was NaN, which a MAP search's
+    quasi-Newton update takes in, with and without the Monte Carlo correlation."""
+    from lightfit.model.observe import CONVERGENCE_KEY
+
+    obs, m, corr = _problem(2)
+    bad = {
+        **m,
+        AN.value: m[AN.value].at[4].set(jnp.nan),
+        AN.mc_sd: m[AN.mc_sd].at[4].set(jnp.nan),
+        CONVERGENCE_KEY: jnp.zeros(T, jnp.int32).at[4].set(3),
+    }
+    for kw in ({}, {"mc_correlation": corr}):
+        lik = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), **kw)
+
+        def ll(lam, shift, lik=lik):
+            return lik.log_likelihood({**bad, AN.value: bad[AN.value] + shift}, lam)
+
+        def loss(shift, lik=lik):
+            return lik.loss({**bad, PAR.value: bad[PAR.value] + shift})
+
+        grad_ll, grad_loss = jax.grad(ll, argnums=(0, 1)), jax.grad(loss)
+        if jit:
+            ll, loss, grad_ll, grad_loss = (jax.jit(f) for f in (ll, loss, grad_ll, grad_loss))
+        assert float(ll(0.8, 1.0)) == -np.inf and float(loss(1.0)) == np.inf
+        assert [float(g) for g in grad_ll(0.8, 1.0)] == [0.0, 0.0], kw
+        assert float(grad_loss(1.0)) == 0.0, kw
+
+
 def test_correlation_of_by_hand():
     """cov = [[4, 2, 0], [2, 9, 0], [0, 0, 0]]: correlation 2/(2·3) = 1/3 between the first two, and
     the row without variance 1 on the diagonal and 0 off it (the docstring's rule), all shrunk by ε

@@ -508,15 +508,28 @@ class GaussianLikelihood:
         """Calibration loss ½ rᵀΣ⁻¹r at λ = 1 (no normalisation; see the module docstring); +inf where
         ``m``'s photosynthesis did not converge. ``mc``: outputs whose Monte Carlo SDs build Σ (a
         plug-in, e.g. :func:`plug_in` at a reference θ; default ``m``'s own)."""
-        w = self._whiten(self._residuals(m), m if mc is None else mc, 1.0)[0]
-        return jnp.where(unconverged(m) > 0, jnp.inf, 0.5 * jnp.sum(w**2))
+        refused, m, mc = self._refusable(m, mc)
+        w = self._whiten(self._residuals(m), mc, 1.0)[0]
+        return jnp.where(refused, jnp.inf, 0.5 * jnp.sum(w**2))
 
     def log_likelihood(self, m: Mapping, noise_scale=1.0, mc: Mapping | None = None) -> jax.Array:
         """log L = −½ [rᵀΣ⁻¹r + n log 2π + log det Σ] over the observed steps of the used series;
         −inf where ``m``'s photosynthesis did not converge. ``mc`` as in :meth:`loss`."""
-        w, logdet = self._whiten(self._residuals(m), m if mc is None else mc, noise_scale)
+        refused, m, mc = self._refusable(m, mc)
+        w, logdet = self._whiten(self._residuals(m), mc, noise_scale)
         ll = -0.5 * (jnp.sum(w**2) + self.n_observations * jnp.log(2 * jnp.pi) + logdet)
-        return jnp.where(unconverged(m) > 0, -jnp.inf, ll)
+        return jnp.where(refused, -jnp.inf, ll)
+
+    def _refusable(self, m: Mapping, mc: Mapping | None) -> tuple[jax.Array, dict, Mapping]:
+        """(refused, m, mc): whether ``m`` has no likelihood (:func:`unconverged`), ``m`` with the used
+        series' values and Monte Carlo SDs 0 where it has none, and the SDs that build Σ (``mc``, or
+        that ``m``). The value there is a constant (±inf), but an unconverged solve may leave NaN
+        outputs (no steady state, docs/photosynthesis.md), and a NaN in the discarded branch of the
+        final ``where`` still reached the gradient as 0·NaN (d log L/dλ was NaN)."""
+        refused = unconverged(m) > 0
+        used = [k for s in self.series for k in (s.value, s.mc_sd) if k in m]
+        m = {**m, **{k: jnp.where(refused, 0.0, m[k]) for k in used}}
+        return refused, m, m if mc is None else mc
 
 
 def plug_in(lik: GaussianLikelihood, m: Mapping) -> dict:
