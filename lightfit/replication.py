@@ -51,6 +51,7 @@ from lightfit.model.scenario import (
     check_set_name,
     check_settings,
     main_job_samples,
+    projected_rays,
     resolve_direct,
 )
 from lightfit.photosynthesis.canopy import check_profile, profile_for
@@ -307,7 +308,7 @@ class ReplicationConfig:
             "samples": self.render_samples(),
             "bounces": self.render_bounces(),
             "direct": direct,
-            "direct_rays_per_m2": None if direct == "paths" else out["direct_rays_per_m2"],
+            "direct_rays_per_m2": projected_rays(direct, self.direct_rays_per_m2),
             "vcmax_profile": profile_for(self.vcmax_profile, self.photosynthesis),
             "chlorophyll_ug_cm2": None if traits is None else traits.Cab,
             "buffer_rows": first.buffer_rows,

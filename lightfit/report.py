@@ -49,11 +49,15 @@ def summary(ds) -> pd.DataFrame:
     )
 
 
-def _plants(attrs) -> int | None:
+def _plants(attrs):
     """The plants a results file's field measures: its ``n_plants`` attribute is the field's setting,
-    which the field rounds up to a square (5 builds 3 × 3)."""
+    which the field rounds up to a square (5 builds 3 × 3). An attribute that is no plant count (a
+    file written elsewhere) is shown as it stands: a header or title is no place to refuse it."""
     n = attrs.get("n_plants")
-    return None if n is None else Field(n_plants=int(n)).n_measured
+    try:
+        return Field(n_plants=n).n_measured
+    except (TypeError, ValueError):  # InputError is a ValueError
+        return n
 
 
 def summary_metadata(ds) -> dict[str, str]:

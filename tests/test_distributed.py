@@ -525,6 +525,35 @@ def test_a_terminal_ctrl_c_while_the_workers_start_prints_one_line(tmp_path):
     assert not left
 
 
+def test_holding_ctrl_c_while_a_cluster_starts_leaves_the_callers_signal_state_as_it_was(monkeypatch):
+    """``_interrupt_deferred`` blocks SIGINT while a cluster starts and starts multiprocessing's
+    resource tracker first, whose first start unblocks SIGINT in the calling thread: a caller that
+    had SIGINT blocked got it back unblocked, and a setup that failed left lightfit's holding handler
+    installed for good, every later Ctrl-C swallowed (a review)."""
+    from lightfit.distributed import run
+
+    handler = signal.getsignal(signal.SIGINT)
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        with run._interrupt_deferred():
+            assert signal.getsignal(signal.SIGINT) is not handler
+        assert signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    assert signal.getsignal(signal.SIGINT) is handler
+
+    def fails(*_):
+        raise OSError("no more processes")
+
+    monkeypatch.setattr(signal, "pthread_sigmask", fails)
+    with pytest.raises(OSError, match="no more processes"):
+        with run._interrupt_deferred():
+            pass
+    monkeypatch.undo()
+    assert signal.getsignal(signal.SIGINT) is handler
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+
+
 def test_an_interrupt_while_a_worker_is_busy_stops_it_at_once_and_quietly(capfd):
     """A worker busy in a task that holds the interpreter (a render in C) cannot answer the cluster's
     close: on Ctrl-C the nanny waited 4 s to kill it and both logged heartbeat tracebacks (30–60

@@ -82,7 +82,7 @@ def _rd(t_c, scale):
 def test_the_operator_is_finite_physical_and_differentiable_at_the_extremes(operator):
     """Night frost, grazing and set sun, full sun in heat and very dry air, CO2 below Γ* and at
     2 000 ppm, saturated air, each at the informed priors' bounds of the light factor and the Vcmax
-    scale: every observable finite and converged, equal with and without jit, and physical:
+    scale: every observable finite and converged (with and without jit at the default θ, equal), and physical:
 
     * above-canopy PAR is f·(DNI sin⁺β + DHI) (no beam with the sun below the horizon);
     * at night canopy An per leaf area is −Rd(T), Bernacchi's Arrhenius, and NEE its negative per
@@ -90,7 +90,7 @@ def test_the_operator_is_finite_physical_and_differentiable_at_the_extremes(oper
     * below Γ* (20 ppm at 25 °C, Γ* = 42.75) every blade releases CO2 in full sun;
     * at 2 000 ppm every blade's An + Rd lies between 0.85 and 1 × J/4, J from the non-rectangular
       hyperbola with Jmax25 = 206.5 × scale (electron transport limits, nearly saturated in CO2);
-    * the gradient in (light factor, Vcmax scale) equals central differences, jit and eager."""
+    * the gradient in (light factor, Vcmax scale) equals central differences (jit; eager at the default θ)."""
     op, values, se = operator
     area_b = AREA[IS_BLADE]
     keys = ("canopy_an_umol_m2_s", "nee_umol_m2_s", "plant_par_umol_m2_s", "above_canopy_par_umol_m2_s", "fapar")

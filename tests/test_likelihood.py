@@ -16,7 +16,7 @@ from scipy.stats import multivariate_normal
 
 from lightfit import replication as rep
 from lightfit.errors import InputError
-from lightfit.inference.likelihood import GaussianLikelihood, MCCorrelation, correlation_of, mc_correlation
+from lightfit.inference.likelihood import GaussianLikelihood, MCCorrelation, correlation_of, mc_correlation, plug_in
 from lightfit.inference.observations import BY_NAME
 from lightfit.inference.twin import twin_observations
 from lightfit.model.parameters import Theta
@@ -370,8 +370,8 @@ def test_a_refused_point_with_nan_outputs_has_a_zero_gradient(jit):
     """Where the leaf solve has no steady state (the CPlantBox-form sets' Rd outgrows Vcmax from
     ≈ 58.7 °C, docs/photosynthesis.md) the model's An is NaN and the step is unconverged: log L is
     −inf and the loss +inf, constants, so their gradient is 0. The NaN residual used to reach the
-    gradient through the discarded branch (0·NaN): d log L/dλ was NaN, which a MAP search's
-    quasi-Newton update takes in, with and without the Monte Carlo correlation."""
+    gradient through the discarded branch (0·NaN): d log L/dλ was NaN, with and without the Monte
+    Carlo correlation, and with a plug-in SD taken at that point."""
     from lightfit.model.observe import CONVERGENCE_KEY
 
     obs, m, corr = _problem(2)
@@ -396,6 +396,9 @@ def test_a_refused_point_with_nan_outputs_has_a_zero_gradient(jit):
         assert float(ll(0.8, 1.0)) == -np.inf and float(loss(1.0)) == np.inf
         assert [float(g) for g in grad_ll(0.8, 1.0)] == [0.0, 0.0], kw
         assert float(grad_loss(1.0)) == 0.0, kw
+        mc = plug_in(lik, bad)  # Σ's SDs from the refused point itself (NaN there)
+        grad_mc = jax.grad(lambda lam, lik=lik: lik.log_likelihood(bad, lam, mc=mc))
+        assert float((jax.jit(grad_mc) if jit else grad_mc)(0.8)) == 0.0, kw
 
 
 def test_correlation_of_by_hand():

@@ -599,16 +599,19 @@ def _interrupt_deferred():
     SIGINT in the thread that starts it (CPython's ``ResourceTracker.ensure_running``), which would
     otherwise be Dask's event loop, the parent of every worker."""
     held = _Deferred()
-    if threading.current_thread() is threading.main_thread():
-
-        def hold(*_):
-            held.got = True
-
-        held.previous = signal.signal(signal.SIGINT, hold)
-        # Started first: starting it unblocks SIGINT in the starting thread, whatever the mask was.
-        multiprocessing.resource_tracker.ensure_running()
-        held.mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
+        if threading.current_thread() is threading.main_thread():
+
+            def hold(*_):
+                held.got = True
+
+            held.previous = signal.signal(signal.SIGINT, hold)
+            if hasattr(signal, "pthread_sigmask"):  # POSIX; elsewhere the workers' imports stay interruptible
+                # The caller's mask, read before the tracker's first start unblocks SIGINT in this thread.
+                held.mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+                with contextlib.suppress(OSError):  # a tracker that cannot start: Dask's own start says so
+                    multiprocessing.resource_tracker.ensure_running()
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         yield held
     finally:
         held.restore()

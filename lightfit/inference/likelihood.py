@@ -523,13 +523,18 @@ class GaussianLikelihood:
     def _refusable(self, m: Mapping, mc: Mapping | None) -> tuple[jax.Array, dict, Mapping]:
         """(refused, m, mc): whether ``m`` has no likelihood (:func:`unconverged`), ``m`` with the used
         series' values and Monte Carlo SDs 0 where it has none, and the SDs that build Σ (``mc``, or
-        that ``m``). The value there is a constant (±inf), but an unconverged solve may leave NaN
-        outputs (no steady state, docs/photosynthesis.md), and a NaN in the discarded branch of the
-        final ``where`` still reached the gradient as 0·NaN (d log L/dλ was NaN)."""
+        that ``m``; a given ``mc`` zeroed alike). The value there is a constant (±inf), but an
+        unconverged solve may leave NaN outputs (no steady state, docs/photosynthesis.md), and a NaN
+        in the discarded branch of the final ``where`` still reached the gradient as 0·NaN (d log L/dλ
+        was NaN)."""
         refused = unconverged(m) > 0
-        used = [k for s in self.series for k in (s.value, s.mc_sd) if k in m]
-        m = {**m, **{k: jnp.where(refused, 0.0, m[k]) for k in used}}
-        return refused, m, m if mc is None else mc
+
+        def zeroed(d: Mapping) -> dict:
+            used = [k for s in self.series for k in (s.value, s.mc_sd) if k in d]
+            return {**d, **{k: jnp.where(refused, 0.0, d[k]) for k in used}}
+
+        m = zeroed(m)
+        return refused, m, m if mc is None else zeroed(mc)
 
 
 def plug_in(lik: GaussianLikelihood, m: Mapping) -> dict:

@@ -36,7 +36,7 @@ from lightfit.light.sensors import Sensor, default_sensors
 from lightfit.model import schema
 from lightfit.model.observe import OBSERVABLES, ObservationOperator, an_denominator, an_noise_bias, area_total
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, sun_positions_deg
+from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, projected_rays, sun_positions_deg
 from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, profile_for
 from lightfit.photosynthesis.parameters import growth_temperature, kattge_knorr_growth_temperature
 from lightfit.plant import build, one_sided_area_m2, organ_class
@@ -350,6 +350,7 @@ class CoupledModel:
         warn_unconverged(ds)
         fld = sc.field
         t_g = growth_temperature(sc.photosynthesis, sc.growth_temperature_c)
+        rays = projected_rays(sc.direct, sc.direct_rays_per_m2)
         ds.attrs = {
             "title": "lightfit coupled run",
             "conventions": "variable attributes: lightfit.model.schema (CF-style units, long_name)",
@@ -373,7 +374,7 @@ class CoupledModel:
             ),
             "bounces": sc.bounces,
             "direct": sc.direct,
-            **({} if sc.direct != "projection" else {"direct_rays_per_m2": list(sc.direct_rays_per_m2)}),
+            **({} if rays is None else {"direct_rays_per_m2": rays}),
             "render_seed": sc.seed,
             "photosynthesis": sc.photosynthesis,
             # a JSON object (netCDF attributes hold no mappings): "{}" where the set is as named

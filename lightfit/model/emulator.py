@@ -64,7 +64,7 @@ from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES
 from lightfit.model.coupled import CoupledModel
 from lightfit.model.observe import CONVERGENCE_KEY, OBSERVABLES, exact_leaf, tabulated_leaf
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import adaptive_limits
+from lightfit.model.scenario import adaptive_limits, projected_rays
 from lightfit.progress import progress_bar
 
 #: Polynomial degrees tried by leave-one-out cross-validation (those with ≤ 0.8 n_design terms).
@@ -168,12 +168,8 @@ def render_key(model: CoupledModel) -> dict:
         # projection's version from its second on (keys made with the first lack it).
         **(
             {}
-            if sc.direct == "paths"
-            else {
-                "direct": sc.direct,
-                "direct_rays_per_m2": list(sc.direct_rays_per_m2),
-                "projection_version": PROJECTION_VERSION,
-            }
+            if (rays := projected_rays(sc.direct, sc.direct_rays_per_m2)) is None
+            else {"direct": sc.direct, "direct_rays_per_m2": rays, "projection_version": PROJECTION_VERSION}
         ),
     }
 

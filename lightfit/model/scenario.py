@@ -219,6 +219,13 @@ def check_soil_respiration(r10, q10) -> tuple[float, float]:
 DIRECT_CHOICES = ("auto", "projection", "paths")
 
 
+def projected_rays(direct: str, rays_per_m2) -> list[float] | None:
+    """The projection's (sun, sky) rays per m² of ground as a record states them (a JSON list), for
+    a resolved ``direct`` (:func:`resolve_direct`); ``None`` where the paths carry the direct light:
+    they cast no projected rays, and results, cache keys and recorded settings leave them out."""
+    return list(rays_per_m2) if direct == "projection" else None
+
+
 def resolve_direct(direct: str, boundary: str) -> str:
     """``direct`` (:data:`DIRECT_CHOICES`) for a field with ``boundary``: ``"auto"`` → projection in
     a periodic field, paths in a finite one; projection in a finite field is refused."""
