@@ -195,6 +195,20 @@ def test_n_design_help_states_the_design_size():
         assert f"(default {DESIGN_SIZE}, the size lightfit " in param.help, (name, param.help)
 
 
+def test_calibrates_first_try_names_a_bundled_synthetic_file():
+    """calibrate needs an observations file and its help names one to try: it must exist, be the
+    bundled twin, and be called synthetic there (data honesty: nothing synthetic called measured)."""
+    import re
+
+    from lightfit.inference.observations import read_observations
+
+    help_text = typer.main.get_command(app).commands["calibrate"].help
+    (named,) = re.findall(r"data/observations/\S+\.csv", help_text)
+    path = DATA_DIR.parent / named
+    assert path.is_file(), named
+    assert "SYNTHETIC" in help_text and read_observations(path).attrs["provenance"] == "synthetic"
+
+
 def test_info_names_variant_llvm_and_precision():
     r = runner.invoke(app, ["info"])
     assert r.exit_code == 0, r.output

@@ -103,7 +103,9 @@ def calibrate(
     """Calibrate leaf surface (and optionally light_factor, vcmax_scale) parameters by gradients (float64).
 
     Several --date: one calibration against the observations of every day (each day's plants and forcing).
-    --workers / --scheduler: the surrogate's design renders run on a Dask cluster (docs/posterior.md)."""
+    --workers / --scheduler: the surrogate's design renders run on a Dask cluster (docs/posterior.md).
+    A first try (≈ 1 min): lightfit calibrate data/observations/twin_2016-04-20_synthetic.csv --quick
+    --n-plants 9 (a SYNTHETIC twin series made by the model on that 9-plant cell; not a measurement)."""
     from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
     from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
