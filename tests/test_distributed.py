@@ -652,6 +652,39 @@ def test_time_chunks_deal_daytime_and_night_steps_in_turn_in_time_order(weather)
     assert [c.tolist() for c in make_run(w, time_chunks=3).chunk_index()] == [[0, 3, 4], [1, 5], [2, 6]]
 
 
+def test_time_chunks_dealt_out_of_time_order_gather_in_time_order():
+    """A mutation audit: gather concatenates the chunks in chunk order, which is time order only where
+    each chunk's steps follow the previous chunk's. Three daytime steps in two chunks are dealt as
+    rows 0, 2 and row 1: concatenated, the times read 0, 2, 1 (the other tests' chunks, night rows
+    first, happened to be in time order, so dropping gather's sort by time passed them). Tasks run
+    here (no cluster); the reference is the untiled single-process run of the same scenario."""
+    from lightfit.distributed.run import run_task, task_specs
+
+    w = forcing().iloc[[4, 9, 14]]
+    run = make_run(w, time_chunks=2, samples=4)
+    assert [c.tolist() for c in run.chunk_index()] == [[0, 2], [1]]  # chunk order ≠ time order
+    ds = gather([run_task(s) for s in task_specs(run)], run)
+    np.testing.assert_array_equal(ds["time"].values, w.index.tz_convert(None).to_numpy())
+    assert_same(ds, run_single(run))
+
+
+def test_task_keys_tell_the_splits_apart():
+    """A mutation audit: a kept task is taken again only for the same task (module doc, "Resume"). Keyed
+    by the whole run's scenario and (tile, chunk) alone, tile 0 of a 2-tile run had the key of tile 0 of
+    a 4-tile run, and of a run with another halo or other time chunks: a run resumed with another
+    --tiles, --halo-rows or --time-chunks took parts measuring other plants or other steps (a segment
+    twice, or silently missing plants). Every task of every split has its own key; the same run, the
+    same keys."""
+    from lightfit.distributed.run import task_key, task_specs
+
+    w = forcing().iloc[[1, 5, 14]]
+    splits = [{}, {"tiles": 2}, {"tiles": 4}, {"tiles": 2, "halo_rows": 1}, {"tiles": 2, "time_chunks": 2}]
+    keys = [[task_key(s) for s in task_specs(make_run(w, **kw))] for kw in splits]
+    flat = [k for ks in keys for k in ks]
+    assert len(flat) == 1 + 2 + 4 + 2 + 4 and len(set(flat)) == len(flat)
+    assert [task_key(s) for s in task_specs(make_run(w, tiles=2, time_chunks=2))] == keys[-1]
+
+
 def test_gather_refuses_a_missing_or_repeated_task_and_records_the_split(weather):
     """Two tiles with a one-row halo, run here (no cluster). A result set without tile 1 is refused (it
     would have half the segments); tile 0 given twice is refused (its segments twice). The merged
