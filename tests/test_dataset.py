@@ -110,6 +110,57 @@ def test_background_sentinels(mono_dataset):
     assert np.isfinite(lab["depth_m"][lab["organ"] != ORGAN_CODES["sky"]]).all()
 
 
+def test_labels_and_leaf_metering_of_a_hand_made_image(tmp_path):
+    """A mutation audit: labels of a hand-made 2 × 4 image whose every pixel's class is known by
+    construction. Faces 0–2 are plants (0: leaf segment 10 and 1: stem segment 11 of measured plant
+    7, 2: leaf segment 12 of buffer plant 8, which has no results), faces 3–4 soil, −1 sky. The
+    rendered tests' cameras never showed face 0 nor the sky together with soil, so labelling face 0
+    soil, or sky and soil with each other's code, passed them; and their images' metering was not
+    checked against the organ labels: metering on stems too passed. Here segment 10 is electron-
+    transport limited (1), segment 11 Rubisco limited (0); the leaves are lit 2, 4 and 8 W m⁻² sr⁻¹
+    in their brightest channel, the stem 100, the soil 1000: leaf metering at the 100th percentile
+    gives the gain 1/8 and clips one leaf pixel of three."""
+    from lightfit.dataset import geometric_labels
+    from lightfit.dataset.dataset import _write_image
+    from lightfit.plant.mesh import Mesh
+
+    mesh = Mesh(
+        vertices=np.zeros((3, 3)),
+        faces=np.zeros((3, 3), np.int64),
+        face_segment=np.array([10, 11, 12]),
+        face_is_blade=np.array([True, False, True]),
+    )
+    segments = pd.DataFrame({"segment_id": [10, 11, 12], "plant_id": [7, 7, 8], "organ_type": ["leaf", "stem", "leaf"]})
+    face = np.array([[-1, 0, 1, 3], [2, 4, 0, -1]])
+    depth = np.where(face < 0, np.nan, 1.0)
+    geo = geometric_labels(face, depth, mesh, segments)
+    np.testing.assert_array_equal(geo["segment_id"], [[-1, 10, 11, -1], [12, -1, 10, -1]])
+    np.testing.assert_array_equal(geo["plant_id"], [[-1, 7, 7, -1], [8, -1, 7, -1]])
+    sky, soil, stem, leaf = (ORGAN_CODES[k] for k in ("sky", "soil", "stem", "leaf"))
+    np.testing.assert_array_equal(geo["organ"], [[sky, leaf, stem, soil], [leaf, soil, leaf, sky]])
+
+    values = {
+        "limitation": pd.Series([1, 0], index=[10, 11], name="limitation"),
+        "an": pd.Series([5.0, np.nan], index=[10, 11], name="leaf_an_umol_m2_s"),
+    }
+    radiance = np.zeros((2, 4, 3), np.float32)
+    radiance[..., 1] = [[0.0, 2.0, 100.0, 1000.0], [4.0, 1000.0, 8.0, 0.0]]  # the brightest channel: green
+    cam = Camera(name="hand", exposure_mode="leaf", meter_percentile=100.0, width_px=4, height_px=2)
+    for d in ("images", "labels"):
+        (tmp_path / d).mkdir()
+    entry = _write_image(tmp_path, cam, pd.Timestamp("2016-04-20T11:00", tz="UTC"), 0, SUN, radiance, geo, values)
+    lab = _labels(tmp_path, entry)
+    valid = np.array([[0, 1, 1, 0], [0, 0, 1, 0]], bool)  # segments with results: not the buffer plant's 12
+    np.testing.assert_array_equal(lab["valid"], valid)
+    assert lab["limitation"].dtype == np.int8
+    np.testing.assert_array_equal(lab["limitation"], [[-1, 1, 0, -1], [-1, -1, 1, -1]])
+    np.testing.assert_array_equal(lab["an"], np.where([[0, 1, 0, 0], [0, 0, 1, 0]], 5.0, np.nan).astype(np.float32))
+    e = entry["exposure"]
+    assert (e["metering"], e["leaf_pixels"], e["gain"], e["metered_luminance"]) == ("leaf", 3, 1 / 8, 8.0)
+    assert e["clipped_leaf_fraction"] == pytest.approx(1 / 3)
+    assert entry["pixels"] == {"sky": 2, "soil": 2, "stem": 1, "leaf": 3, "valid": 3}
+
+
 def test_sky_pixels_have_no_depth(geometry):
     """A camera looking at the horizon sees sky above it: organ 0 and depth NaN, exactly together."""
     cam = Camera(name="horizon", position_m=(0.0, -1.5, 0.3), look_at_m=(0.0, 0.0, 0.3), **SMALL)
