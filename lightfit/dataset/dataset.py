@@ -323,8 +323,8 @@ def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendere
             "segment_id_background": -1,
             "plant_id_background": -1,
             "limitation": {
-                "1": "electron-transport limited (Fj < Fc)",
-                "0": "Rubisco limited (Fj > Fc)",
+                "1": "electron-transport limited (Fj < Fc; below the CO2 compensation point the larger rate limits)",
+                "0": "Rubisco limited (Fc <= Fj, ties included; reversed below the CO2 compensation point)",
                 "-1": "no value",
             },
             "float_no_value": "NaN (see 'valid')",
