@@ -140,6 +140,21 @@ def test_a_periodic_tile_builds_the_whole_cell_and_measures_its_block():
     assert len(measured) == 2 and part.segments["measured"].sum() < len(part.segments)
 
 
+def test_periodic_tiles_of_a_count_rounded_up_to_a_square_carry_the_whole_cell():
+    """n_plants = 7 grows a 3 × 3 cell (the next larger square): every tile's geometry is all 9 plants,
+    whatever the tiling (a mutation audit: the cell's plants counted to n_plants, not N², survived on
+    the square counts the tests used; the last two plants were then missing from other tiles' cells,
+    a hole repeated through the periodic field)."""
+    fld = Field(n_plants=7, boundary="periodic")
+    every = np.sort(fld.plants().index.to_numpy())
+    assert len(every) == 9
+    for n_tiles in (1, 2, 3, 4):
+        tiles = fld.tiles(n_tiles)
+        np.testing.assert_array_equal(np.sort(np.concatenate([t.measured for t in tiles])), every)
+        for t in tiles:
+            np.testing.assert_array_equal(t.plant_ids, every)
+
+
 # -- Beer–Lambert -------------------------------------------------------------------------------
 @pytest.fixture(scope="module", params=["spherical", "horizontal"])
 def random_canopy(request):

@@ -77,6 +77,43 @@ def test_creation_times_are_cplantbox_own_node_times_of_each_segment_end(plant_t
     assert seen == len(plant_table)
 
 
+def test_radii_and_branching_directions_are_cplantbox_own_organ_data(plant_table):
+    """Each segment's radius is its organ's radius parameter (``Organ.getParameter("a")``, cm), and each
+    organ's branching direction is the axis of its parent's segment ending at the branch node, found
+    through the parent's own node list (or its first segment where the organ starts at the parent's
+    first node): second routes to what the table reads from the plant's ``radii`` and segment order,
+    for every stem and leaf of the same plant grown again. A mutation audit: radii halved, the leaf's
+    own first segment as its branching direction, and the parent's first segment for every leaf all
+    survived (the blade's width direction follows the branching direction)."""
+    import plantbox as pb
+
+    cfg = GrowthConfig()
+    plant = pb.MappedPlant(int(plant_seed(7, 3, 4)))
+    plant.readParameters(str(cfg.path))
+    plant.initialize(False)
+    plant.simulate(cfg.days, False)
+    nodes = np.asarray(plant.getNodes(), dtype=float) * 0.01
+    t = plant_table.set_index("segment_index")
+    branched = 0
+    for organ_type in (3, 4):  # stems, leaves
+        for organ in plant.getOrgans(organ_type):
+            ids = list(organ.getNodeIds())
+            rows = t.loc[[i - 1 for i in ids[1:]]]  # segment i - 1 ends at node i
+            np.testing.assert_allclose(rows["radius_m"], organ.getParameter("a") * 0.01, rtol=1e-12)
+            parent = organ.getParent()
+            if parent.organType() < 2:  # the main stem grows from the seed: vertical
+                np.testing.assert_array_equal(rows[["bx", "by", "bz"]].to_numpy(), [[0.0, 0.0, 1.0]] * len(rows))
+                continue
+            pids = list(parent.getNodeIds())
+            k = max(pids.index(ids[0]), 1)
+            axis = nodes[pids[k]] - nodes[pids[k - 1]]
+            np.testing.assert_allclose(
+                rows[["bx", "by", "bz"]].to_numpy(), np.tile(axis / np.linalg.norm(axis), (len(rows), 1)), atol=1e-12
+            )
+            branched += 1
+    assert branched >= 5
+
+
 def test_roots_kept_available():
     full = grow_plant(GrowthConfig(include_roots=True), 5)
     shoot_only = grow_plant(GrowthConfig(), 5)
@@ -241,6 +278,13 @@ def test_field_grid_and_ids():
     meas = p[p["measured"]]
     assert meas["r"].min() == 0 and meas["r"].max() == fld.n - 1
     assert meas["x_m"].mean() == pytest.approx(0.0, abs=1e-12) and meas["y_m"].mean() == pytest.approx(0.0, abs=1e-12)
+    # The plant at (r, c) is named and seeded as the field module says, by hand: id (r + 1000)·10⁴ +
+    # (c + 1000), seed plant_seed(seed, r + 1000, c + 1000) (a mutation audit: seeds drawn with r and c
+    # swapped survived; every plant then stood where its transpose should, another layout of the
+    # same seed than the one results files and caches were made with).
+    for q in p.itertuples():
+        assert q.plant_id == (q.r + 1000) * 10_000 + (q.c + 1000)
+        assert q.seed == plant_seed(fld.seed, q.r + 1000, q.c + 1000)
 
 
 @pytest.mark.parametrize("n_tiles", [1, 2, 3, 4, 6])
@@ -279,6 +323,17 @@ def test_buffer_along_rows_widens_only_the_row_ends():
     meas = p[p["measured"]]
     assert p["x_m"].max() - meas["x_m"].max() == pytest.approx(4 * 0.03)
     assert p["y_m"].max() - meas["y_m"].max() == pytest.approx(1 * 0.125)
+    # Each tile's plants are, by brute force, every plant within 1 row and 4 plants along of its block
+    # (a mutation audit: tiles padded along the rows by buffer_rows, not buffer_along, survived; their
+    # rows' ends then let in the edge light buffer_along is there to keep out).
+    for n_tiles in (2, 3):
+        for t in wide.tiles(n_tiles):
+            own = p.loc[t.measured]
+            near = p[
+                p["r"].between(own["r"].min() - 1, own["r"].max() + 1)
+                & p["c"].between(own["c"].min() - 4, own["c"].max() + 4)
+            ]
+            np.testing.assert_array_equal(t.plant_ids, np.sort(near.index))
     for t in wide.tiles(2):
         ring = p.loc[t.buffer]
         own = p.loc[t.measured]
@@ -490,12 +545,34 @@ def test_plants_face_their_own_ways_unless_aligned():
     assert (aligned.plants()["heading_deg"] == 0).all() and h.min() >= 0 and h.max() < 360
     assert np.abs(np.exp(1j * np.radians(h)).mean()) < 0.2  # no preferred heading
     assert plant_heading_deg(123) == plant_heading_deg(123) != plant_heading_deg(124)
-    spread = {}
+    spread, built = {}, {}
     for name, fld in (("random", random), ("aligned", aligned)):
-        g = build(fld)
+        g = built[name] = build(fld)
         share = [_projected_blade_share(g, 57.5, az) for az in (0, 90, 180, 270)]
         spread[name] = (max(share) - min(share)) / np.mean(share)
     assert spread["aligned"] > 0.2 and spread["random"] < 0.08, spread
+    # Each built plant is the aligned one turned about its base by the heading the plants table
+    # records, counter-clockwise (a rotation written out here; a mutation audit: building every plant
+    # turned by minus its heading survived, the geometry then disagreeing with the recorded headings
+    # and the layout fingerprint made of them): every segment's vector, and the stems' and sheaths'
+    # points. (A blade's start is left out: a collar on a joint of the stem's polyline takes either
+    # segment's tangent by round-off, which turn and placement change, and the blade then leaves its
+    # tube up to some 30 µm round from where the other build puts it.)
+    ra, al = built["random"].segments, built["aligned"].segments
+    np.testing.assert_array_equal(ra["segment_id"], al["segment_id"])
+    at = built["random"].plants.set_index("plant_id").loc[ra["plant_id"]]
+    h, x, y = np.radians(at["heading_deg"].to_numpy()), at["x_m"].to_numpy(), at["y_m"].to_numpy()
+    c, s = np.cos(h), np.sin(h)
+    dx, dy = al["x1"] - al["x0"], al["y1"] - al["y0"]
+    np.testing.assert_allclose(ra["x1"] - ra["x0"], c * dx - s * dy, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ra["y1"] - ra["y0"], s * dx + c * dy, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ra["z1"] - ra["z0"], al["z1"] - al["z0"], rtol=0, atol=1e-12)
+    tube = organ_class(ra) != "blade"
+    assert tube.sum() > 1000
+    for end in "01":
+        dx, dy = al[f"x{end}"] - x, al[f"y{end}"] - y
+        np.testing.assert_allclose(ra[f"x{end}"][tube], (x + c * dx - s * dy)[tube], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ra[f"y{end}"][tube], (y + s * dx + c * dy)[tube], rtol=0, atol=1e-12)
     seg = build(Field(n_plants=1, headings="aligned")).segments
     t = turned(seg, 90.0)  # a quarter turn counter-clockwise: (x, y) → (−y, x)
     np.testing.assert_allclose(t["x1"], -seg["y1"], atol=1e-15)
@@ -555,6 +632,30 @@ def test_growth_dates_and_spacings_are_read_as_values():
     assert repr(f) == repr(Field(boundary="finite", row_spacing_m=0.125, plant_spacing_m=1.0))  # one key
     with pytest.raises(InputError, match="row_spacing_m=True"):
         Field(boundary="finite", row_spacing_m=True)
+
+
+def test_a_field_is_rebuilt_from_its_attributes():
+    """Field.from_attrs(field.attrs()) is the field a results file was made with: every layout setting
+    off its default (buffer rows and plants along apart, spacings, row direction, seed, sheaths,
+    headings) and the periodic default, compared setting by setting and by the layout fingerprint of
+    every plant's id, position and heading. A mutation audit: buffer_along dropped on the way back
+    survived (a rebuilt 1-row, 3-along field got 1 buffer plant along the rows, not 3)."""
+    finite = Field(
+        boundary="finite",
+        n_plants=7,
+        buffer_rows=1,
+        buffer_along=3,
+        row_spacing_m=0.2,
+        plant_spacing_m=0.05,
+        row_direction_deg=30.0,
+        seed=5,
+        sheaths="rods",
+        headings="aligned",
+    )
+    for fld in (finite, Field(n_plants=5, seed=2)):
+        back = Field.from_attrs(fld.attrs())
+        assert back == fld and back.attrs() == fld.attrs()
+        assert (back.m, back.m_along) == (fld.m, fld.m_along)
 
 
 def test_the_preview_says_what_it_draws(tmp_path, monkeypatch):
