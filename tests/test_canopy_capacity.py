@@ -52,6 +52,14 @@ def test_kn_of_lloyd_2010():
     np.testing.assert_allclose(capacity_factor([0.0, 1.0, 3.0], 0.5), np.exp([0.0, -0.5, -1.5]))
 
 
+def test_lloyds_kn_takes_the_sets_vcmax_at_25_c_not_at_its_own_reference():
+    """Lloyd et al.'s fit is in Vcmax at 25 °C: CPlantBox's set has 39.4 at its own 20 °C and 58.0 at
+    25 °C, so kn = exp(0.00963·58.0 − 2.43) = 0.154, not exp(0.00963·39.4 − 2.43) = 0.129 (a mutation
+    audit: the set's ``vcmax_ref`` at its own reference passed every test, which resolved
+    ``lloyd2010`` only for winter_wheat, whose reference is 25 °C)."""
+    assert resolve_kn("lloyd2010", parameter_set("cplantbox")) == pytest.approx(np.exp(0.00963 * 58.0 - 2.43), rel=2e-3)
+
+
 def test_profiles_resolve_per_set_and_bad_ones_are_refused():
     assert profile_for("auto", "winter_wheat") == "lloyd2010"
     assert profile_for("auto", "giraud2023") == "uniform"  # the reference paper's set: none

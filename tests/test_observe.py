@@ -41,6 +41,16 @@ def test_above_canopy_sensor_matches_pvlib_on_a_horizontal_plane():
     assert float(g) == pytest.approx(got.sum(), rel=1e-12)
 
 
+def test_above_canopy_sensor_takes_no_beam_from_a_sun_below_the_horizon():
+    """Steps with the sun just below the horizon are rendered (above −1°,
+    test_daytime_is_light_with_the_sun_above_minus_one_degree) and a series may carry a beam there:
+    the horizontal sensor takes DNI·sin⁺β, so at β = −0.5° it reads the DHI alone, at +0.5°
+    8 + 40·sin 0.5° (a mutation audit: sin β without its clip, a negative beam, passed every test,
+    whose steps below the horizon all had DNI = 0)."""
+    got = O.above_canopy_par(np.array([40.0, 40.0]), np.array([8.0, 8.0]), np.array([-0.5, 0.5]), 1.0)
+    np.testing.assert_allclose(got, [8.0, 8.0 + 40.0 * np.sin(np.radians(0.5))], rtol=1e-12)
+
+
 def test_fapar_is_zero_at_night_with_finite_gradients():
     apar, sd, above = jnp.array([0.0, 50.0, 900.0]), jnp.array([0.0, 1.0, 9.0]), jnp.array([0.0, 100.0, 1000.0])
     f, f_sd = O.fapar(apar, sd, above)
@@ -646,6 +656,77 @@ def test_canopy_apar_and_fapar_are_absorbed_par_whatever_the_plant_par_kind():
     np.testing.assert_allclose(o["canopy_apar_mc_sd_umol_m2_s"], [925.0**0.5], rtol=1e-12)
     np.testing.assert_allclose(o["fapar"], [0.7], rtol=1e-12)
     np.testing.assert_allclose(o["fapar_mc_sd"], [925.0**0.5 / 1500.0], rtol=1e-12)
+
+
+def test_the_operator_on_a_two_segment_canopy_worked_by_hand():
+    """The whole operator on hand-made light parts of one blade (0.1 m²) and one stem (0.3 m²) on
+    0.4 m² of ground, with a linear leaf An = 0.02·q − 1.5 (dAn/dq = 0.02), so every observable is a
+    line of arithmetic (a mutation audit: the plant PAR taken from the absorbed parts whatever
+    ``par_kind`` and a segment's sun and sky errors summed instead of in quadrature, or each
+    weighted by the other's weather, passed every test).
+
+    Light factor 1.5; a night step (5 °C) and a day step (DNI 1000, DHI 200 µmol m⁻² s⁻¹, sun at
+    30°, 25 °C). Incident PAR: blade 1.5·(1000·0.8 + 200·0.5) = 1350, stem 1.5·(300 + 40) = 510;
+    SDs 1.5·√(30² + 4²) and 1.5·√(10² + 8²). Absorbed: blade 1.5·(700 + 80) = 1170, stem
+    1.5·(250 + 30) = 420, SDs 1.5·√(20² + 2²) and 1.5·√(10² + 4²)."""
+    from lightfit.light.estimator import PARTS
+    from lightfit.model.scenario import Forcing
+    from lightfit.photosynthesis import parameter_set
+
+    fc = Forcing(
+        day=np.array([False, True]), dni_par=np.array([0.0, 1000.0]), dhi_par=np.array([0.0, 200.0]),
+        tair_c=np.array([5.0, 25.0]), co2_ppm=np.full(2, 400.0), rh=np.full(2, 0.6), pair_kpa=np.full(2, 100.0),
+    )  # fmt: skip
+    area = np.array([0.1, 0.3])
+    op = O.ObservationOperator(
+        forcing=fc, area_m2=area, is_blade=np.array([True, False]), par_kind="incident", denominator_m2=0.4,
+        params=parameter_set("winter_wheat"), ground_area_m2=0.4, sun_elevation_deg=np.array([-20.0, 30.0]),
+        soil_respiration_umol_m2_s=2.0, soil_respiration_q10=2.0,
+    )  # fmt: skip
+    parts = {
+        "incident_sun": ([0.8, 0.3], [0.03, 0.01]),
+        "incident_sky": ([0.5, 0.2], [0.02, 0.04]),
+        "absorbed_sun": ([0.7, 0.25], [0.02, 0.01]),
+        "absorbed_sky": ([0.4, 0.15], [0.01, 0.02]),
+    }
+    values = jnp.asarray([[parts[p][0] for p in PARTS]])  # (T_day, PARTS, S)
+    se = jnp.asarray([[parts[p][1] for p in PARTS]])
+
+    def linear_leaf(q, forcing, params):
+        return O.LeafResponse(0.02 * q - 1.5, jnp.full_like(q, 0.02), jnp.ones(q.shape, bool))
+
+    o = {
+        k: np.asarray(v)
+        for k, v in op(values, se, Theta(light_factor=1.5), leaf=linear_leaf).items()
+        if k != "photosynthesis"
+    }
+    # Per segment: 0 at night; the parts' errors in quadrature, each with its own part's weather.
+    np.testing.assert_allclose(o["incident_par_umol_m2_s"], [[0, 0], [1350, 510]], rtol=1e-12)
+    inc_sd = 1.5 * np.sqrt([30.0**2 + 4.0**2, 10.0**2 + 8.0**2])
+    np.testing.assert_allclose(o["incident_par_mc_sd_umol_m2_s"], [[0, 0], inc_sd], rtol=1e-12)
+    np.testing.assert_allclose(o["absorbed_par_umol_m2_s"], [[0, 0], [1170, 420]], rtol=1e-12)
+    abs_sd = 1.5 * np.sqrt(20.0**2 + 2.0**2)
+    # Plant PAR is the incident kind here: weights ¼ and ¾, the SD in quadrature with them.
+    np.testing.assert_allclose(o["plant_par_umol_m2_s"], [0, (1350 * 0.1 + 510 * 0.3) / 0.4], rtol=1e-12)
+    np.testing.assert_allclose(
+        o["plant_par_mc_sd_umol_m2_s"], [0, np.hypot(inc_sd[0] / 4, 3 * inc_sd[1] / 4)], rtol=1e-12
+    )
+    # The blade's An from its absorbed PAR (night: −1.5, its dark respiration), per ground area.
+    an = np.array([-1.5, 0.02 * 1170 - 1.5])
+    np.testing.assert_allclose(o["leaf_an_umol_m2_s"][:, 0], an, rtol=1e-12)
+    np.testing.assert_allclose(o["canopy_an_umol_m2_s"], an * 0.1 / 0.4, rtol=1e-12)
+    np.testing.assert_allclose(o["canopy_an_mc_sd_umol_m2_s"], [0, 0.02 * abs_sd * 0.1 / 0.4], rtol=1e-12)
+    # NEE: R₁₀ Q₁₀^((T − 10)/10) at each step's air temperature minus the canopy's uptake.
+    soil = 2.0 * 2.0 ** (np.array([5.0 - 10.0, 25.0 - 10.0]) / 10.0)  # 2/√2 and 2·2^1.5
+    np.testing.assert_allclose(o["nee_umol_m2_s"], soil - an * 0.1 / 0.4, rtol=1e-12)
+    # The sensor above: 1.5·(1000·sin 30° + 200) = 1050; APAR (117 + 126)/0.4 = 607.5, fAPAR its share.
+    np.testing.assert_allclose(o["above_canopy_par_umol_m2_s"], [0, 1050], rtol=1e-12)
+    np.testing.assert_allclose(o["canopy_apar_umol_m2_s"], [0, 607.5], rtol=1e-12)
+    stem_sd = 1.5 * np.sqrt(10.0**2 + 4.0**2)  # independent segments: in quadrature, each by its area
+    np.testing.assert_allclose(
+        o["canopy_apar_mc_sd_umol_m2_s"], [0, np.hypot(abs_sd * 0.1, stem_sd * 0.3) / 0.4], rtol=1e-12
+    )
+    np.testing.assert_allclose(o["fapar"], [0, 607.5 / 1050], rtol=1e-12)
 
 
 def test_daytime_is_light_with_the_sun_above_minus_one_degree():
