@@ -355,15 +355,16 @@ def test_a_configuration_records_what_its_scenario_takes():
         # the paths cast no projected rays: none recorded there (the default's were, a review)
         assert took["direct_rays_per_m2"] == (None if sc.direct == "paths" else list(sc.direct_rays_per_m2))
     # 5 plants asked for build the 3 × 3 measurement area: its 9 recorded, not 5 (a review)
+    from lightfit.report import summary_metadata
+
     for boundary in ("periodic", "finite"):
         five = dataclasses.replace(rep.ReplicationConfig.quick(), n_plants=5, boundary=boundary)
         w = rep.forcing_of(five)
-        built = rep.scenario_for(five, w).field.plants()
+        fld = rep.scenario_for(five, w).field
+        built = fld.plants()
         assert five.effective(w)["n_plants"] == int(built["measured"].sum()) != five.n_plants
         # the summary header and the figure's title say so too (they said "5 plants")
-        from lightfit.report import summary_metadata
-
-        attrs = rep.scenario_for(five, w).field.attrs() | {"samples": 16, "bounces": 2}
+        attrs = fld.attrs() | {"samples": 16, "bounces": 2}
         assert summary_metadata(xr.Dataset(attrs=attrs))["field"].startswith(f"{int(built['measured'].sum())} plants")
     own = dataclasses.replace(rep.ReplicationConfig.quick(), photosynthesis_overrides={"a1": 4.5})
     assert own.effective()["photosynthesis_overrides"] == {"a1": 4.5}

@@ -54,6 +54,7 @@ from .parameters import (
     parameter_set,
     params_in_domain,
     replaced,
+    value_of,
 )
 from .solver import SolverConfig, bracketed_newton, fixed_point_iteration
 from .stomata import (
@@ -311,17 +312,12 @@ _STAND_IN = {
 }
 
 
-def _number(params: PhotosynthesisParams, name: str):
-    """The parameter ``name`` (:data:`~.parameters.OVERRIDABLE`) of ``params``, as it is stored."""
-    return getattr(getattr(params, OVERRIDABLE[name].split(".")[0]), name)
-
-
 @functools.cache
 def _stand_in_values() -> dict[str, float]:
     """The numbers a parameter set's solve runs on where its own are outside their domain
     (:func:`_guarded`): the default set's, inside every domain whatever the closure."""
     ref = parameter_set(DEFAULT_PARAMETER_SET)
-    return {n: float(_number(ref, n)) for n in OVERRIDABLE}
+    return {n: float(value_of(ref, n)) for n in OVERRIDABLE}
 
 
 def _guarded(env: Environment, params: PhotosynthesisParams) -> tuple[Environment, PhotosynthesisParams, jax.Array]:
@@ -337,7 +333,7 @@ def _guarded(env: Environment, params: PhotosynthesisParams) -> tuple[Environmen
     ok = _in_range(env)
     safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
     keep = params_in_domain(params)
-    mine = {name: jnp.asarray(_number(params, name)) for name in OVERRIDABLE}
+    mine = {name: jnp.asarray(value_of(params, name)) for name in OVERRIDABLE}
     stand_in = _stand_in_values()
     params = replaced(params, {n: jnp.where(keep, v, jnp.asarray(stand_in[n], v.dtype)) for n, v in mine.items()})
     return env._replace(**safe), params, ok & keep

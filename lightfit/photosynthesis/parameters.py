@@ -564,12 +564,22 @@ def params_in_domain(params: PhotosynthesisParams) -> jax.Array:
 OVERRIDABLE: dict[str, str] = {label.split(".")[1]: label for label, *_ in _DOMAINS}
 
 
+def _group(name: str) -> str:
+    """The parameter group (``fvcb``, ``stomata``, …) holding the number ``name`` (:data:`OVERRIDABLE`)."""
+    return OVERRIDABLE[name].split(".")[0]
+
+
+def value_of(params: PhotosynthesisParams, name: str):
+    """The number ``name`` (:data:`OVERRIDABLE`) of ``params``, as it is stored (traced or not)."""
+    return getattr(getattr(params, _group(name)), name)
+
+
 def replaced(params: PhotosynthesisParams, values: Mapping, **fields) -> PhotosynthesisParams:
     """``params`` with the numbers ``values`` (field name → value, names from :data:`OVERRIDABLE`)
     put in their groups, and its own ``fields`` (e.g. ``source``) replaced. Works on traced values."""
     groups: dict[str, dict] = {}
     for name, value in values.items():
-        groups.setdefault(OVERRIDABLE[name].split(".")[0], {})[name] = value
+        groups.setdefault(_group(name), {})[name] = value
     return dataclasses.replace(
         params, **{g: dataclasses.replace(getattr(params, g), **kw) for g, kw in groups.items()}, **fields
     )
