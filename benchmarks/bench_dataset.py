@@ -99,7 +99,11 @@ def main(spp: int = 16, n_images: int = 2, n_plants: int = 25, buffer_rows: int 
             }
         )
     out = {
-        "field": {"n_plants_measured": fld.n**2, "plants_built": len(geom.plants), "triangles": int(geom.mesh.n_faces)},
+        "field": {
+            "n_plants_measured": fld.n_measured,
+            "plants_built": len(geom.plants),
+            "triangles": int(geom.mesh.n_faces),
+        },
         "cores": CORES,
         "variant": "llvm_ad_rgb",
         "max_depth": settings.max_depth,

@@ -124,7 +124,7 @@ def main(n_plants: int = 500, steps: int = 29, sheaths: str = SHEATHS[0], out: P
         )
     res = {
         "mitsuba_variant": backend.info().variant,
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "sheaths": sheaths,
         "segments": len(ids),
         "bounces": bounces,

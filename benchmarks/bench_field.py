@@ -47,7 +47,7 @@ def main(n_plants: int = 500, buffer_rows: int = 2) -> dict:
     t_mesh = time.perf_counter() - t0
     n_built = len(cold.plants)
     res = {
-        "n_plants_measured": int(fld.n**2),
+        "n_plants_measured": int(fld.n_measured),
         "n_plants_built": n_built,
         "buffer_rows": buffer_rows,
         "segments": len(cold.segments),
@@ -65,7 +65,7 @@ def main(n_plants: int = 500, buffer_rows: int = 2) -> dict:
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
     }
     write_result(OUT, res, indent=2)
-    t = Table(title=f"field build: {fld.n}×{fld.n} measured + {buffer_rows} buffer rows = {n_built} plants")
+    t = Table(title=f"field build: {fld.area_label} measured + {buffer_rows} buffer rows = {n_built} plants")
     t.add_column("quantity")
     t.add_column("value", justify="right")
     for k, v in res.items():

@@ -61,13 +61,23 @@ OUT = Path(__file__).resolve().parent / "results" / "light.json"
 BENCH_SUN_DEG = (50.0, 180.0)
 
 
-def periodic_cell(n_plants: int, sheaths: str = SHEATHS[0], headings: str = HEADINGS[0]):
+def periodic_cell(
+    n_plants: int, sheaths: str = SHEATHS[0], headings: str = HEADINGS[0], plants_per_row: int | None = None
+):
     """The light benchmarks' scene: ``n_plants`` (seed 1) as one periodic cell with the default
     (or ``sheaths``) layout of the leaf sheaths and plant ``headings``, the default PROSPECT-D
-    leaf, the sun at :data:`BENCH_SUN_DEG`. Returns ``(geometry, scene, measured segment ids,
-    bounces for 1 % truncation)``."""
+    leaf, the sun at :data:`BENCH_SUN_DEG`; a square of N² plants (N = ⌈√n_plants⌉: 500 builds
+    23² = 529) or whole rows of ``plants_per_row``. Returns ``(geometry, scene, measured segment
+    ids, bounces for 1 % truncation)``."""
     optics = Optics.preset("prospect")
-    fld = Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths, headings=headings)
+    fld = Field(
+        n_plants=n_plants,
+        seed=1,
+        boundary="periodic",
+        sheaths=sheaths,
+        headings=headings,
+        plants_per_row=plants_per_row,
+    )
     geom = build(fld, progress=True)
     fs = FieldScene(geom.mesh, optics, cell=geom.cell)
     fs.set_sun(*BENCH_SUN_DEG)
@@ -453,7 +463,7 @@ def main(
         "boundary": boundary,
         "optics": optics_name,
         "sheaths": sheaths,
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "segments": len(ids),
         "triangles": int(geom.mesh.n_faces),
         "samples": est.samples,

@@ -96,7 +96,7 @@ def main(n_plants: int = 100, samples: int = 64) -> dict:
             q["rse_absorbed"]["all"]["median"] ** 2 * q["step_s"]
         )
     res = {
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "segments": len(ids),
         "samples": samples,
         "bounces": bounces,

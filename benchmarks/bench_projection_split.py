@@ -90,7 +90,7 @@ def main(n_plants: int = 500, samples: int = 32, rays: float = 2e7) -> dict:
         for name, v in parts.items()
     }
     res = {
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "segments": len(ids),
         "samples": est.samples,
         "bounces": bounces,

@@ -218,7 +218,7 @@ def main(
         )
     res = {
         "llvm_vector_width": width,
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "segments_in_cell": len(seg_id),
         "rays_per_m2": rays,
         "replicates": replicates,

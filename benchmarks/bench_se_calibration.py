@@ -105,7 +105,7 @@ def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2
     finally:
         keyed_random.TEA_ROUNDS = default
     res = {
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "segments": len(ids),
         "samples": samples,
         "rays_per_m2": list(rays),

@@ -1,7 +1,8 @@
 """Benchmark: issue 16's single-render goal alone, at the recommended setting.
 
-    python benchmarks/bench_single_render.py [--n-plants 500] [--samples 16[,32]] [--rays 1.5e7,2e7]
-        [--sheaths wrapped[,rods]] [--headings random[,aligned]] [--seeds 4] [--out JSON]
+    python benchmarks/bench_single_render.py [--n-plants 500] [--plants-per-row square[,25]]
+        [--samples 16[,32]] [--rays 1.5e7,2e7] [--sheaths wrapped[,rods]] [--headings random[,aligned]]
+        [--seeds 4] [--out JSON]
 
 The goal: on the defaults' periodic cell of ``--n-plants`` plants (PROSPECT-D leaf, the bounces
 for 1 % truncation, sun 50° / 180°), a median per-segment relative SE of absorbed PAR (sun +
@@ -16,7 +17,9 @@ machine's speed can be checked against the goal in a few minutes. Times scale to
 ``--sheaths``: the leaf sheaths' layout (``Field.sheaths``, default the model's default). Several
 values of either, comma-separated, are measured one after the other in one process (a
 side-by-side ratio), and the JSON then holds one result per setting under ``runs``;
-``--headings`` (``Field.headings``) the same. ``--sky-continued-share``: the share q of the sky's
+``--headings`` (``Field.headings``) and ``--plants-per-row`` (``Field.plants_per_row``; ``square``:
+N × N, N = ⌈√n_plants⌉, so that 500 builds 23² = 529 plants; ``25``: 20 rows × 25, exactly 500) the
+same. ``--sky-continued-share``: the share q of the sky's
 rays continued after their first hit (``projection.CONTINUED_SHARE["sky"]``, 0.25 in the
 library: a day casts the sky once and its continuation serves every step); several values are
 measured in turn the same way. The value is set for this process only, as an experiment.
@@ -48,7 +51,7 @@ from rich.table import Table
 import lightfit  # noqa: F401
 from lightfit.light.estimator import SegmentEstimator
 from lightfit.plant import SHEATHS, organ_class
-from lightfit.plant.field import HEADINGS, check_headings
+from lightfit.plant.field import HEADINGS, Field, check_headings
 from lightfit.plant.sheaths import check_sheaths
 from lightfit.precision import use_float64
 
@@ -67,6 +70,7 @@ def main(
     q_sky: float | None = None,
     headings: str = HEADINGS[0],
     seeds: int = 4,
+    plants_per_row: int | None = None,
 ) -> dict:
     from lightfit.light import projection
 
@@ -74,13 +78,18 @@ def main(
         projection.CONTINUED_SHARE["sky"] = q_sky
     load_start = os.getloadavg()[0]  # this run's (several are measured in turn)
     t = time.perf_counter()
-    geom, fs, ids, bounces = periodic_cell(n_plants, sheaths, headings)
+    geom, fs, ids, bounces = periodic_cell(n_plants, sheaths, headings, plants_per_row)
+    area = Field(n_plants=n_plants, plants_per_row=plants_per_row)  # the cell's layout, as built
     t_build = time.perf_counter() - t
     SegmentEstimator(fs, ids[:2000], samples=samples, bounces=bounces, seed=0).render()  # compile kernels
     organ = organ_class(geom.segments.set_index("segment_id").loc[ids])
     row = direct_projection_comparison(fs, ids, bounces, [(samples, rays)], organ, seeds)["settings"][0]
     return {
         "n_plants": n_plants,
+        "plants_per_row": plants_per_row,
+        "n_plants_measured": area.n_measured,
+        "measurement_area": area.area_label,
+        "cell_m": [geom.cell.along_m, geom.cell.across_m],
         "sheaths": sheaths,
         "headings": headings,
         "sky_continued_share": projection.CONTINUED_SHARE["sky"],
@@ -101,7 +110,9 @@ def int_list(text: str) -> list[int]:
 
 def table(res: dict) -> Table:
     t = Table(
-        title=f"one render, {res['n_plants']} plants ({res['segments']} segments), K = {res['samples']}, "
+        title=f"one render, {res.get('measurement_area', str(res['n_plants']) + ' plants')} "
+        f"({res['segments']} segments), "
+        f"K = {res['samples']}, "
         f"{res['sheaths']} sheaths, {res.get('headings', 'aligned')} headings, sky continued share "
         f"{res['sky_continued_share']:g}"
     )
@@ -131,6 +142,11 @@ def table(res: dict) -> Table:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-plants", type=int, default=500)
+    ap.add_argument(
+        "--plants-per-row",
+        default="square",
+        help="plants per row of the cell, comma-separated; square: N × N (500 builds 23² = 529)",
+    )
     ap.add_argument("--samples", default="16", type=int_list, help="paths per segment K, comma-separated")
     ap.add_argument("--rays", default="1.5e7,2e7", help="projection rays per m², sun,sky")
     ap.add_argument(
@@ -153,8 +169,10 @@ if __name__ == "__main__":
     headings = a.headings.split(",")
     for h in headings:
         check_headings(h)
+    per_row = [None if v == "square" else int(v) for v in a.plants_per_row.split(",")]
     runs = [
-        main(a.n_plants, k, (sun, sky), x, q, h, a.seeds)
+        main(a.n_plants, k, (sun, sky), x, q, h, a.seeds, r)
+        for r in per_row
         for k in a.samples
         for x in layouts
         for q in shares

@@ -150,7 +150,7 @@ def main(n_plants: int = 500, n_rays: int = 4_000_000, rounds: int = 5) -> dict:
         for name, ts in times.items()
     ]
     res = {
-        "n_plants_measured": int(Field(n_plants=n_plants).n ** 2),
+        "n_plants_measured": int(Field(n_plants=n_plants).n_measured),
         "cell_m": list(cell.size_m),
         "z_top_m": float(tracer.z_top),
         "rays": n_rays,

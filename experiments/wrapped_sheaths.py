@@ -85,7 +85,7 @@ def render(geom, fld) -> dict:
 def main(n_plants: int = 100, out: Path = OUT) -> dict:
     from lightfit.plant import Field, build
 
-    res = {"n_plants": int(Field(n_plants=n_plants).n ** 2), "sun_deg": SUN_DEG, "dhi_per_dni": DHI_PER_DNI}
+    res = {"n_plants": int(Field(n_plants=n_plants).n_measured), "sun_deg": SUN_DEG, "dhi_per_dni": DHI_PER_DNI}
     for name, sheaths in ((ROD, "rods"), (WRAPPED, "wrapped")):
         fld = Field(n_plants=n_plants, seed=1, boundary="periodic", sheaths=sheaths)
         geom = build(fld)

@@ -97,6 +97,8 @@ OBSERVATIONS = DATA_DIR / "observations" / "chamber_2016-04-20_record.csv"
 class ReplicationConfig:
     """Knobs of the replication; ``quick()`` is the under-a-minute first look (and the CI size).
 
+    ``n_plants``: plants in the measurement area, a square N × N (rounded up) unless
+    ``plants_per_row`` is given, then whole rows of that many plants (:attr:`Field.plants_per_row`).
     ``boundary``: ``"periodic"`` (default: the measurement area is one cell of an infinite field,
     no buffer plants; docs/light.md, "Periodic boundary") or ``"finite"`` (buffer rows on bare
     soil; with ``buffer_rows=None`` → 2, the reference paper's setup). ``buffer_rows`` /
@@ -152,6 +154,7 @@ class ReplicationConfig:
     """
 
     n_plants: int = 100
+    plants_per_row: int | None = None
     boundary: str = "periodic"
     buffer_rows: int | None = None
     buffer_along: int | None = None
@@ -287,7 +290,8 @@ class ReplicationConfig:
         ``"auto"``) is the value the run uses, from the objects the run is made of: K and bounces
         (:meth:`render_samples`, :meth:`render_bounces`), the direct light, the capacity profile,
         the leaf's chlorophyll (``None`` for a leaf not made from traits), the field's plants (its
-        measurement area's, :attr:`~lightfit.plant.Field.n_measured`: ``n_plants=5`` builds 3 × 3),
+        measurement area's, :attr:`~lightfit.plant.Field.n_measured`: ``n_plants=5`` builds 3 × 3, and
+        its plants per row, :attr:`~lightfit.plant.Field.n_along`),
         buffers and each date's season start (:meth:`field`), and the growth temperature the set
         takes (``None`` for a set that does not acclimate). ``direct_rays_per_m2`` is ``None`` where
         the direct light comes from the paths: they cast no projected rays, and results and the
@@ -305,6 +309,7 @@ class ReplicationConfig:
         out = json.loads(json.dumps(asdict(self)))
         out |= {
             "n_plants": first.n_measured,
+            "plants_per_row": first.n_along,
             "samples": self.render_samples(),
             "bounces": self.render_bounces(),
             "direct": direct,
@@ -360,6 +365,7 @@ class ReplicationConfig:
         """The run's :class:`~lightfit.plant.Field` with plants grown as ``growth`` says."""
         return Field(
             n_plants=self.n_plants,
+            plants_per_row=self.plants_per_row,
             buffer_rows=self.buffer_rows,
             seed=self.seed,
             buffer_along=self.buffer_along,

@@ -51,11 +51,12 @@ def summary(ds) -> pd.DataFrame:
 
 def _plants(attrs):
     """The plants a results file's field measures: its ``n_plants`` attribute is the field's setting,
-    which the field rounds up to a square (5 builds 3 × 3). An attribute that is no plant count (a
-    file written elsewhere) is shown as it stands: a header or title is no place to refuse it."""
+    which the field rounds up to a square (5 builds 3 × 3) or to whole rows (``plants_per_row``). An
+    attribute that is no plant count (a file written elsewhere) is shown as it stands: a header or
+    title is no place to refuse it."""
     n = attrs.get("n_plants")
     try:
-        return Field(n_plants=n).n_measured
+        return Field(n_plants=n, plants_per_row=attrs.get("plants_per_row")).n_measured
     except (TypeError, ValueError):  # InputError is a ValueError
         return n
 

@@ -885,6 +885,29 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
         assert r.exit_code == 0, r.output
         assert "4 (4 / 0)" in r.stdout and "periodic boundary" in _flat(r.stdout)
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--buffer-rows", "2"]), "--buffer-rows")
+    # whole rows: 4 plants in one row of 4, said in the title and written in the segments' header
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--plants-per-row", "4", "--segments", str(tmp_path / "r.csv")])
+    assert r.exit_code == 0, r.output
+    assert "4 (4 / 0)" in r.stdout and "field 1 row × 4 plants measured" in _flat(r.stdout)
+    assert "# plants_per_row: 4" in (tmp_path / "r.csv").read_text().splitlines()
+    assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--plants-per-row", "0"]), "plants_per_row")
+
+
+def test_plants_per_row_reaches_the_field_and_is_a_render_setting():
+    """--plants-per-row makes the run's field whole rows; a run stored before the option (no key: a
+    square) compares as a square, and rows of the square's own side are the same measurement area."""
+    from lightfit.cli.options import RENDER_SETTINGS, ModelOptions, changed_settings, resolve
+
+    s = resolve(ModelOptions(quick=True, n_plants=6, plants_per_row=3))
+    fld = s.replication_config().field()
+    assert (fld.n_rows, fld.n_along, fld.n_measured) == (2, 3, 6) and "plants_per_row" in RENDER_SETTINGS
+    square = resolve(ModelOptions(quick=True))
+    stored_before = {k: v for k, v in square.as_dict().items() if k != "plants_per_row"}
+    assert changed_settings(stored_before, square) == []
+    assert changed_settings(stored_before, resolve(ModelOptions(quick=True, plants_per_row=2))) == []  # 2 × 2 again
+    assert changed_settings(stored_before, resolve(ModelOptions(quick=True, plants_per_row=4))) == [
+        "plants_per_row: 2 → 4"
+    ]
 
 
 def test_calibrate_refuses_to_resume_a_history_of_other_settings(tmp_path):

@@ -149,13 +149,14 @@ def test_halo_tiles_match_field_tiles_and_cover_field():
     for fld in (
         Field(boundary="finite", n_plants=16, buffer_rows=2, seed=0),
         Field(boundary="finite", n_plants=25, buffer_rows=1, seed=3),
+        Field(boundary="finite", n_plants=12, plants_per_row=6, buffer_rows=1, seed=4),
     ):
         for w in (1, 2, 4, 6):
             for a, b in zip(HaloField.of(fld, fld.buffer_rows).tiles(w), fld.tiles(w)):
                 np.testing.assert_array_equal(a.measured, b.measured)
                 np.testing.assert_array_equal(a.buffer, b.buffer)
             every = np.sort(fld.plants().index.to_numpy())
-            for big in (None, fld.n + fld.buffer_rows):  # halo covering the field = whole field
+            for big in (None, max(fld.m, fld.m_along)):  # halo covering the field = whole field
                 for t in HaloField.of(fld, big).tiles(w):
                     np.testing.assert_array_equal(t.plant_ids, every)
             measured = np.sort(np.concatenate([t.measured for t in fld.tiles(w)]))
@@ -810,15 +811,22 @@ def test_cli_field_run_options_reach_the_run(tmp_path, monkeypatch):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("fld", [FIELD, Field(boundary="finite", n_plants=9, buffer_rows=1, buffer_along=3, seed=1)])
+@pytest.mark.parametrize(
+    "fld",
+    [
+        FIELD,
+        Field(boundary="finite", n_plants=9, buffer_rows=1, buffer_along=3, seed=1),
+        Field(boundary="finite", n_plants=8, plants_per_row=4, buffer_rows=1, seed=1),
+    ],
+)
 def test_exact_halo_rows_is_the_fewest_that_give_every_tile_the_whole_field(fld):
     """At ``exact_halo_rows`` every tile's scene holds every plant of the field, so it renders what one
     process renders; one row fewer leaves some tile without some plant (field-run cautions below it).
     Counted on the tiles' plant sets, no render; never more than the docs' bound, side + buffer."""
     all_plants = set(fld.plants().index)
-    for tiles in (2, 4) if fld.n % 2 == 0 else (3,):
+    for tiles in (2, 4) if fld.n_along % 2 == 0 else (3,):
         h = HaloField.of(fld).exact_halo_rows(tiles)
-        assert 0 < h <= fld.n + max(fld.buffer_rows, fld.buffer_along or 0)
+        assert 0 < h <= max(fld.n_rows, fld.n_along) + max(fld.buffer_rows, fld.buffer_along or 0)
         full = HaloField.of(fld, halo_rows=h).tiles(tiles)
         assert all(set(t.measured) | set(t.buffer) == all_plants for t in full)
         short = HaloField.of(fld, halo_rows=h - 1).tiles(tiles)

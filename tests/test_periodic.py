@@ -401,13 +401,16 @@ def test_crossing_cap_bounds_truncation_and_is_reported():
 
 
 # -- real plants --------------------------------------------------------------------------------
-def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies():
-    fld = Field(n_plants=4, seed=1, boundary="periodic")
+@pytest.mark.parametrize("plants_per_row", [None, 4], ids=["2x2", "1x4"])
+def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies(plants_per_row):
+    """The same plants as one periodic cell and alone on bare soil: a 2 × 2 square and one row of 4
+    (``plants_per_row``, a cell 4 plant spacings long by one row spacing wide)."""
+    fld = Field(n_plants=4, seed=1, boundary="periodic", plants_per_row=plants_per_row)
     g = build(fld)
     assert g.cell == fld.cell and g.segments["measured"].all()
     ids = g.segments["segment_id"].to_numpy()
     fs_p = FieldScene(g.mesh, Optics.preset("paper"), cell=g.cell)
-    fs_f = FieldScene(g.mesh, Optics.preset("paper"))  # the same 2 × 2 plants alone on bare soil
+    fs_f = FieldScene(g.mesh, Optics.preset("paper"))  # the same plants alone on bare soil
     totals = []
     for fs in (fs_p, fs_f):
         fs.set_sun(30.0, 150.0)
@@ -415,7 +418,7 @@ def test_periodic_cell_of_real_plants_is_sheltered_by_its_copies():
         for p in PARTS:
             assert np.isfinite(getattr(r, p)).all() and (getattr(r, p) >= 0).all()
         totals.append(r.total("absorbed", 1.0, 0.3) @ r.meta["area_m2"])
-    # An endless canopy shades itself: much less light per plant than an isolated 2 × 2 block.
+    # An endless canopy shades itself: much less light per plant than an isolated block of 4.
     assert totals[0] < 0.8 * totals[1]
     # A scene of the geometry itself takes its cell: the periodic render, bitwise.
     fs_g = FieldScene(g, Optics.preset("paper"))

@@ -266,7 +266,7 @@ def test_field_grid_and_ids():
     fld = Field(
         boundary="finite", n_plants=10, buffer_rows=2, row_spacing_m=0.2, plant_spacing_m=0.05, row_direction_deg=90
     )
-    assert fld.n == 4 and fld.m == 8  # next larger square
+    assert fld.n_rows == fld.n_along == 4 and fld.m == fld.m_along == 8  # next larger square
     p = fld.plants()
     assert len(p) == 64 and p["measured"].sum() == 16
     assert p["plant_id"].is_unique and p["seed"].is_unique
@@ -276,7 +276,7 @@ def test_field_grid_and_ids():
     assert b.x_m - a.x_m == pytest.approx(0.05) and b.y_m == pytest.approx(a.y_m)
     assert c.y_m - a.y_m == pytest.approx(0.2)
     meas = p[p["measured"]]
-    assert meas["r"].min() == 0 and meas["r"].max() == fld.n - 1
+    assert meas["r"].min() == 0 and meas["r"].max() == fld.n_rows - 1
     assert meas["x_m"].mean() == pytest.approx(0.0, abs=1e-12) and meas["y_m"].mean() == pytest.approx(0.0, abs=1e-12)
     # The plant at (r, c) is named and seeded as the field module says, by hand: id (r + 1000)·10⁴ +
     # (c + 1000), seed plant_seed(seed, r + 1000, c + 1000) (a mutation audit: seeds drawn with r and c
@@ -652,10 +652,73 @@ def test_a_field_is_rebuilt_from_its_attributes():
         sheaths="rods",
         headings="aligned",
     )
-    for fld in (finite, Field(n_plants=5, seed=2)):
+    rows = Field(n_plants=7, plants_per_row=4, seed=3)
+    for fld in (finite, Field(n_plants=5, seed=2), rows):
         back = Field.from_attrs(fld.attrs())
         assert back == fld and back.attrs() == fld.attrs()
         assert (back.m, back.m_along) == (fld.m, fld.m_along)
+    # a square area writes no plants_per_row (files written before it existed read the same)
+    assert "plants_per_row" not in finite.attrs() and rows.attrs()["plants_per_row"] == 4
+
+
+def test_a_measurement_area_of_whole_rows():
+    """``plants_per_row`` makes the measurement area ⌈n_plants / plants_per_row⌉ rows of that many
+    plants (500 as 20 × 25, which no square holds), counted and placed by hand: plants a plant spacing
+    apart along a row, rows a row spacing apart, the area centred on the origin; a periodic cell
+    exactly that area (its copies repeat at N_along × plant spacing along the rows and N_rows × row
+    spacing across); buffers around it as around a square."""
+    fld = Field(n_plants=500, plants_per_row=25)
+    assert (fld.n_rows, fld.n_along, fld.n_measured) == (20, 25, 500) and fld.area_label == "20 rows × 25 plants"
+    assert Field(n_plants=501, plants_per_row=25).n_measured == 525  # rounded up to whole rows
+    assert Field(n_plants=3, plants_per_row=5).area_label == "1 row × 5 plants"
+    small = Field(n_plants=6, plants_per_row=3, row_spacing_m=0.2, plant_spacing_m=0.05, row_direction_deg=90)
+    p = small.plants()
+    assert len(p) == 6 and p["measured"].all()
+    assert sorted(p["r"].unique()) == [0, 1] and sorted(p["c"].unique()) == [0, 1, 2]
+    # rows east–west (90°): along a row x grows by the plant spacing, across the rows y by the row spacing
+    assert sorted(np.round(p["x_m"], 12).unique()) == pytest.approx([-0.05, 0.0, 0.05])
+    assert sorted(np.round(p["y_m"], 12).unique()) == pytest.approx([-0.1, 0.1])
+    cell = small.cell
+    assert (cell.along_m, cell.across_m) == pytest.approx((0.15, 0.4))
+    assert cell.area_m2 == pytest.approx(small.ground_area_m2)
+    # each plant in the middle of its own spacing × spacing patch: the spacings continue across the seam
+    assert np.abs(p["x_m"]).max() == pytest.approx(cell.along_m / 2 - 0.025)
+    assert np.abs(p["y_m"]).max() == pytest.approx(cell.across_m / 2 - 0.1)
+    finite = Field(boundary="finite", n_plants=6, plants_per_row=3, buffer_rows=1, buffer_along=2)
+    q = finite.plants()
+    assert (finite.m, finite.m_along, len(q), int(q["measured"].sum())) == (4, 7, 28, 6)
+    assert q.loc[q["measured"], "r"].max() == 1 and q.loc[q["measured"], "c"].max() == 2
+    # A square given as rows is the square: the same plants, ids, seeds, places and headings.
+    sq, as_rows = Field(n_plants=9, seed=4), Field(n_plants=9, plants_per_row=3, seed=4)
+    pd.testing.assert_frame_equal(sq.plants(), as_rows.plants())
+    assert sq.layout_fingerprint() == as_rows.layout_fingerprint() and sq.cell == as_rows.cell
+
+
+def test_tiles_of_a_measurement_area_of_whole_rows():
+    """Tiles partition a rectangular area: every measured plant in exactly one tile, the larger count of
+    blocks along the longer side (2 rows × 6 plants in 3 tiles: three blocks of 2 × 2 along the rows;
+    6 rows × 2 plants: three blocks across them); too many tiles for a side is refused, naming both sides."""
+    for fld, blocks in (
+        (Field(boundary="finite", n_plants=12, plants_per_row=6, buffer_rows=1), (2, 2)),
+        (Field(boundary="finite", n_plants=12, plants_per_row=2, buffer_rows=1), (2, 2)),
+    ):
+        tiles = fld.tiles(3)
+        measured = np.concatenate([t.measured for t in tiles])
+        assert len(measured) == len(np.unique(measured)) == 12
+        np.testing.assert_array_equal(np.sort(measured), np.sort(fld.plants().query("measured").index.to_numpy()))
+        for t in tiles:
+            rc = fld.plants().loc[t.measured]
+            assert (rc["r"].nunique(), rc["c"].nunique()) == blocks
+    with pytest.raises(InputError, match="do not fit a 2×6 measurement area"):
+        Field(n_plants=12, plants_per_row=6).tiles(9)
+
+
+@pytest.mark.parametrize("bad", [0, -2, True, 2.5, "25"])
+def test_plants_per_row_must_be_a_whole_number_of_plants(bad):
+    with pytest.raises(InputError, match="plants_per_row") as err:
+        Field(n_plants=10, plants_per_row=bad)
+    assert err.value.parameter == "plants_per_row"
+    assert Field(n_plants=10, plants_per_row=np.int64(5)).plants_per_row.__class__ is int
 
 
 def test_the_preview_says_what_it_draws(tmp_path, monkeypatch):

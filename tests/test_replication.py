@@ -366,6 +366,14 @@ def test_a_configuration_records_what_its_scenario_takes():
         # the summary header and the figure's title say so too (they said "5 plants")
         attrs = fld.attrs() | {"samples": 16, "bounces": 2}
         assert summary_metadata(xr.Dataset(attrs=attrs))["field"].startswith(f"{int(built['measured'].sum())} plants")
+        assert five.effective(w)["plants_per_row"] == 3  # the square's side: the record rebuilds the same area
+    # whole rows (plants_per_row): 5 plants in rows of 3 build 2 × 3, recorded and said as 6
+    rows = dataclasses.replace(rep.ReplicationConfig.quick(), n_plants=5, plants_per_row=3)
+    fld = rows.field()
+    assert (fld.n_rows, fld.n_along) == (2, 3) and fld.plants()["measured"].sum() == 6
+    assert {k: rows.effective()[k] for k in ("n_plants", "plants_per_row")} == {"n_plants": 6, "plants_per_row": 3}
+    header = summary_metadata(xr.Dataset(attrs=fld.attrs() | {"samples": 16, "bounces": 2}))
+    assert header["field"].startswith("6 plants")
     own = dataclasses.replace(rep.ReplicationConfig.quick(), photosynthesis_overrides={"a1": 4.5})
     assert own.effective()["photosynthesis_overrides"] == {"a1": 4.5}
     # dates in two years: each its own 5 March

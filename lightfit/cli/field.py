@@ -15,6 +15,7 @@ from lightfit.cli.options import (
     HEADINGS_HELP,
     PARAMETER_FILE_HELP,
     PLANT_SPACING_HELP,
+    PLANTS_PER_ROW_HELP,
     ROW_DIRECTION_HELP,
     ROW_SPACING_HELP,
     SEASON_START_HELP,
@@ -39,10 +40,11 @@ from lightfit.errors import InputError
 def field(
     n_plants: int = typer.Option(
         None,
-        help="Plants in the measurement area, rounded up to a square N×N (default: the main job's, "
-        "as replicate and field-run build; --quick: theirs).",
+        help="Plants in the measurement area, rounded up to a square N×N or to whole rows with "
+        "--plants-per-row (default: the main job's, as replicate and field-run build; --quick: theirs).",
         show_default=False,
     ),
+    plants_per_row: int = typer.Option(None, help=PLANTS_PER_ROW_HELP, show_default=False),
     quick: bool = typer.Option(False, "--quick", help="The small field of replicate --quick and field-run --quick."),
     # the help texts say the defaults with their reasons (shared with the model commands' options)
     row_spacing: float = typer.Option(DEFAULT_ROW_SPACING_M, help=ROW_SPACING_HELP, show_default=False),
@@ -107,6 +109,7 @@ def field(
         boundary,
         sheaths,
         headings,
+        plants_per_row,
     )
     parts = fld.tiles(tiles)
     if tile is not None and not 0 <= tile < len(parts):
@@ -117,7 +120,7 @@ def field(
     meas = seg[seg["measured"]]
     area_m2 = fld.ground_area_m2
     t = Table(
-        title=f"field {fld.n}×{fld.n} measured, "
+        title=f"field {fld.area_label} measured, "
         f"{field_label(fld)}, grown "
         f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}"
     )
@@ -146,7 +149,7 @@ def field(
     if tiles > 1:
         sizes = [f"{len(p.measured)}+{len(p.buffer)}" for p in parts]
         t.add_row(
-            f"tiles (measured+buffer plants), overhead ×{sum(len(p.plant_ids) for p in parts) / (fld.n**2):.2f}",
+            f"tiles (measured+buffer plants), overhead ×{sum(len(p.plant_ids) for p in parts) / fld.n_measured:.2f}",
             ", ".join(sizes),
         )
     console.print(t)

@@ -81,7 +81,7 @@ def field_run(
     run = FieldRun(sc, tiles=tiles, halo_rows=halo_rows, time_chunks=time_chunks, theta=th)
     sc = run.scenario
     console.print(
-        f"{sc.field.n}² plants, {field_label(sc.field)}, {tiles} tile(s) × {time_chunks} time "
+        f"{sc.field.area_label}, {field_label(sc.field)}, {tiles} tile(s) × {time_chunks} time "
         f"chunk(s), {len(sc.weather)} steps, {samples_label(sc.samples, sc.target_rse)}, {sc.bounces} bounces, halo: "
         f"{'whole field' if halo_rows is None else f'{halo_rows} rows'}"
     )

@@ -89,6 +89,11 @@ HEADINGS_HELP = (
     "Plant headings: random (default: each plant turned about its base by its own angle, as in a "
     "field) or aligned (every plant as CPlantBox grows it, facing the same way, the reference paper's)."
 )
+PLANTS_PER_ROW_HELP = (
+    "Plants along each row of the measurement area, which is then whole rows of them (--n-plants 500 "
+    "--plants-per-row 25: 20 rows × 25). Default: a square N×N, ≈ 4× longer across the rows than "
+    "along them in metres; ≈ 4× as many plants per row as rows makes it as wide as long."
+)
 BUFFER_ALONG_HELP = (
     "Finite fields only: buffer plants along each row end (default: = buffer rows; "
     "≈ 4× buffer rows makes the buffer as wide in metres both ways)."
@@ -101,6 +106,7 @@ class ModelOptions:
 
     quick: bool = False
     n_plants: int | None = None
+    plants_per_row: int | None = None
     boundary: str | None = None
     buffer_rows: int | None = None
     buffer_along: int | None = None
@@ -184,6 +190,7 @@ class ModelSettings:
 
     quick: bool
     n_plants: int
+    plants_per_row: int | None
     boundary: str
     buffer_rows: int | None
     buffer_along: int | None
@@ -270,6 +277,7 @@ class ModelSettings:
 
         return ReplicationConfig(
             n_plants=self.n_plants,
+            plants_per_row=self.plants_per_row,
             boundary=self.boundary,
             buffer_rows=self.buffer_rows,
             buffer_along=self.buffer_along,
@@ -311,6 +319,7 @@ class ModelSettings:
 #: :meth:`lightfit.replication.ReplicationConfig.effective`.
 _FROM_CONFIG = (
     "n_plants",
+    "plants_per_row",
     "samples",
     "bounces",
     "direct",
@@ -339,7 +348,16 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         int | None,
         typer.Option(
             "--n-plants",
-            help="Plants in the measurement area, rounded up to a square N×N (default 100; --quick: 4).",
+            help="Plants in the measurement area, rounded up to a square N×N, or to whole rows with "
+            "--plants-per-row (default 100; --quick: 4).",
+            rich_help_panel=_FIELD,
+        ),
+    ),
+    "plants_per_row": (
+        int | None,
+        typer.Option(
+            "--plants-per-row",
+            help=PLANTS_PER_ROW_HELP,
             rich_help_panel=_FIELD,
         ),
     ),
@@ -875,6 +893,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
     s = ModelSettings(
         quick=opts.quick,
         n_plants=given(opts.n_plants, base.n_plants),
+        plants_per_row=given(opts.plants_per_row, base.plants_per_row),
         boundary=boundary,
         buffer_rows=buffers[0],
         buffer_along=buffers[1],
@@ -1098,6 +1117,7 @@ def _rays(text: str | None, direct: str, default: tuple[float, float]) -> tuple[
 #: Settings that change what the model renders: a cached emulator is valid only for the same values.
 RENDER_SETTINGS = (
     "n_plants",
+    "plants_per_row",
     "boundary",
     "buffer_rows",
     "buffer_along",
@@ -1156,10 +1176,12 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     written before leaf optics have no ``optics``: they had the grey leaf (``paper``); settings
     written before ``sheaths`` had CPlantBox's rods, before ``headings`` aligned plants; settings
     written before the projected direct light have no ``direct``: their paths carried it; settings
-    written before ``--direct-rays-per-m2`` ran with its default. A run whose direct light comes
+    written before ``--direct-rays-per-m2`` ran with its default, before ``--plants-per-row`` a square
+    (rows of its side). A run whose direct light comes
     from the paths records no rays (``None``); records written before hold the default's there,
     which this run has as given. ``previous=None`` (nothing stored): no difference.
     """
+    from lightfit.plant.field import Field
     from lightfit.plant.growth import default_season_start
     from lightfit.weather.site import SELHAUSEN
 
@@ -1180,6 +1202,8 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before["season_start"] = None  # before --season-start: 5 March of each date's year
     before |= {"weather_tz": None, "weather_time_label": None}  # before they were options: the file's own
     before = before | _WHEN_DEFAULTS | {"site": dataclasses.asdict(SELHAUSEN)} | dict(previous)
+    if "plants_per_row" not in previous and isinstance(n := previous.get("n_plants"), int) and n >= 1:
+        before["plants_per_row"] = Field(n_plants=n).n_along  # before whole rows, the square's side
     # a season start given as the default's own date (5 March of the first date's year) grows the same plants
     for d in (before, now, given):
         if d.get("season_start") == default_season_start(d["dates"]):

@@ -123,7 +123,7 @@ def replicate(
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
     k = samples_label(k, cfg.target_rse)
     console.print(
-        f"running: {fld.n}×{fld.n} plants, {field_label(fld)}, {fld.sheaths} sheaths, {fld.headings} headings, {k}, "
+        f"running: {fld.area_label}, {field_label(fld)}, {fld.sheaths} sheaths, {fld.headings} headings, {k}, "
         f"{n_b} bounces{rays} …",
         soft_wrap=True,  # one line, not a lone "…" in an 80-column pipe
     )

@@ -598,6 +598,7 @@ def run(
             "direct": sc.direct,
             "render_seed": sc.seed,
             "n_plants": sc.field.n_plants,
+            **({} if sc.field.plants_per_row is None else {"plants_per_row": sc.field.plants_per_row}),
             "par_kind": sc.par_kind,
             "an_per": sc.an_per,
             **({"dates": list(model.dates)} if isinstance(model, MultiDayModel) else {}),

@@ -4,8 +4,11 @@ Coordinates: x east, y north, z up, metres; the measurement area is centred on t
 Wheat rows run along ``row_direction_deg`` (compass azimuth, default 90° = east–west); within
 a row plants are ``plant_spacing_m`` apart, rows are ``row_spacing_m`` apart.
 
-The field is an M×M grid with M = N + 2B: the N×N measurement area (N = ⌈√n_plants⌉, the
-next larger square, as the reference paper does) surrounded by B buffer rows on every side.
+The measurement area is N_rows rows of N_along plants: a square N × N (N = ⌈√n_plants⌉, the
+next larger square, as the reference paper does) unless ``plants_per_row`` is given, then
+⌈n_plants / plants_per_row⌉ rows of ``plants_per_row`` plants (500 plants as 20 × 25). Around it
+stand B buffer rows across the rows and B_along buffer plants at either end of each row: the
+whole grid is M = N_rows + 2B rows of M_along = N_along + 2B_along plants.
 A plant is named by its position (r, c) relative to the measurement area's first plant
 (buffer plants have r or c < 0 or ≥ N). That position fixes its id,
 ``plant_id = (r + 1000)·10⁴ + (c + 1000)``, its seed (:func:`plant_seed`) and its location, so
@@ -19,8 +22,8 @@ Two boundaries (``Field.boundary``):
   plants with 2 buffer rows (+42 % with the reference paper's grey leaf; docs/light.md,
   "Field-edge bias").
 - ``"periodic"``: the measurement area is one cell of an infinite field
-  (:class:`~lightfit.plant.periodic.PeriodicCell`: N plants × plant spacing along the rows by
-  N rows × row spacing across them, so both spacings continue across the seam), and the light
+  (:class:`~lightfit.plant.periodic.PeriodicCell`: N_along plants × plant spacing along the rows
+  by N_rows rows × row spacing across them, so both spacings continue across the seam), and the light
   estimator wraps rays through it (docs/light.md, "Periodic boundary"). No buffer plants are
   grown; a tile's geometry is the whole cell.
 """
@@ -96,7 +99,8 @@ class Field:
     """Layout of a field.
 
     Attributes:
-        n_plants: plants in the measurement area; rounded up to the next square N².
+        n_plants: plants in the measurement area; rounded up to the next square N² (or, with
+            ``plants_per_row``, to whole rows).
         row_spacing_m: distance between wheat rows, m.
         plant_spacing_m: distance between plants within a row, m.
         buffer_rows: rows of unmeasured neighbour plants around the measurement area (and
@@ -127,6 +131,12 @@ class Field:
             plant (its first leaf at the same azimuth; the reference paper's field): the canopy then has
             a preferred leaf azimuth, and a morning sun meets other leaf angles than an afternoon sun
             at the same elevation (docs/plant.md "Plant headings").
+        plants_per_row: plants along each row of the measurement area; the area is then
+            ⌈n_plants / plants_per_row⌉ rows of them (``n_plants=500, plants_per_row=25``: 20 rows × 25,
+            exactly 500). ``None`` (default): a square N × N. Plants stand ≈ 4× closer within a row
+            than rows do, so a square area is ≈ 4× longer across the rows than along them; about
+            4× as many plants per row as rows makes it as long as wide in metres (a periodic cell
+            whose copies repeat at the same distance both ways).
     """
 
     n_plants: int = 25
@@ -140,6 +150,7 @@ class Field:
     boundary: str = "periodic"
     sheaths: str = SHEATHS[0]
     headings: str = HEADINGS[0]
+    plants_per_row: int | None = None
 
     def __post_init__(self):
         check_sheaths(self.sheaths)
@@ -163,6 +174,9 @@ class Field:
         if self.buffer_along is not None:
             check_integer(self.buffer_along, "buffer_along", 0, why="or None for buffer_rows")
         check_integer(self.n_plants, "n_plants", 1)
+        if self.plants_per_row is not None:
+            ppr = check_integer(self.plants_per_row, "plants_per_row", 1, why="or None for a square measurement area")
+            object.__setattr__(self, "plants_per_row", ppr)  # numpy's integers as Python's: repr and JSON
         for name in ("row_spacing_m", "plant_spacing_m"):
             v = check_real(getattr(self, name), name, 0, open_lo=True, expected="a positive distance in metres")
             object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
@@ -206,7 +220,7 @@ class Field:
             "row_spacing_m": self.row_spacing_m,
             "plant_spacing_m": self.plant_spacing_m,
             "row_direction_deg": self.row_direction_deg,
-        }
+        } | ({} if self.plants_per_row is None else {"plants_per_row": self.plants_per_row})
 
     def layout_fingerprint(self) -> str:
         """SHA-256 (first 16 hex digits) of every plant's id, position and heading (:meth:`plants`, to
@@ -223,7 +237,7 @@ class Field:
         """The field a results file describes (:meth:`attrs`); ``file`` names it in errors. Files
         written before a key existed ran with what it was then: a finite field (``boundary``),
         CPlantBox's rod sheaths (``sheaths``), aligned plants (``headings``), the layout and growth
-        defaults."""
+        defaults, a square measurement area (``plants_per_row``)."""
         a, where = attrs, file or "results"
 
         def number(key: str, kind=float):
@@ -251,6 +265,7 @@ class Field:
                 boundary=boundary,
                 sheaths=check_sheaths(str(a.get("sheaths", "rods"))),
                 headings=check_headings(str(a.get("headings", "aligned"))),
+                plants_per_row=number("plants_per_row", int) if "plants_per_row" in a else None,
                 **kw,
             )
         except InputError as e:
@@ -261,27 +276,41 @@ class Field:
         """The periodic cell (bounds in metres: ``cell.bounds_m`` in the row frame,
         ``cell.corners_xy`` in x, y), centred on the origin; ``None`` for a finite field.
 
-        N plants × plant spacing along the rows by N rows × row spacing across them: every
+        N_along plants × plant spacing along the rows by N_rows rows × row spacing across them: every
         plant of the measurement area sits in the middle of its own spacing × spacing patch, so
         the spacings continue across the seam.
         """
         if not self.periodic:
             return None
         return PeriodicCell(
-            along_m=self.n * float(self.plant_spacing_m),
-            across_m=self.n * float(self.row_spacing_m),
+            along_m=self.n_along * float(self.plant_spacing_m),
+            across_m=self.n_rows * float(self.row_spacing_m),
             row_direction_deg=float(self.row_direction_deg),
         )
 
     @property
-    def n(self) -> int:
-        """Side of the measurement area, plants."""
-        return math.isqrt(self.n_plants - 1) + 1
+    def n_along(self) -> int:
+        """Plants along each row of the measurement area: ``plants_per_row``, or the square's side
+        N = ⌈√n_plants⌉."""
+        return math.isqrt(self.n_plants - 1) + 1 if self.plants_per_row is None else int(self.plants_per_row)
+
+    @property
+    def n_rows(self) -> int:
+        """Rows of the measurement area: ⌈n_plants / plants per row⌉ (the square's side N without
+        ``plants_per_row``)."""
+        return self.n_along if self.plants_per_row is None else -(-self.n_plants // self.n_along)
 
     @property
     def n_measured(self) -> int:
-        """Plants of the measurement area the field builds, N²: ``n_plants`` rounded up to a square."""
-        return self.n**2
+        """Plants of the measurement area the field builds, rows × plants per row: ``n_plants``
+        rounded up to a square N² (or to whole rows with ``plants_per_row``)."""
+        return self.n_rows * self.n_along
+
+    @property
+    def area_label(self) -> str:
+        """The measurement area in words: ``"10 rows × 10 plants"``."""
+        rows, along = self.n_rows, self.n_along
+        return f"{rows} row{'' if rows == 1 else 's'} × {along} plant{'' if along == 1 else 's'}"
 
     @property
     def b_along(self) -> int:
@@ -291,12 +320,12 @@ class Field:
     @property
     def m(self) -> int:
         """Rows of the whole grid including buffers."""
-        return self.n + 2 * self.buffer_rows
+        return self.n_rows + 2 * self.buffer_rows
 
     @property
     def m_along(self) -> int:
         """Plants per row of the whole grid including buffers."""
-        return self.n + 2 * self.b_along
+        return self.n_along + 2 * self.b_along
 
     @property
     def area_per_plant_m2(self) -> float:
@@ -305,7 +334,7 @@ class Field:
 
     @property
     def ground_area_m2(self) -> float:
-        """Ground area of the measurement area, m²: N² plants × plant spacing × row spacing."""
+        """Ground area of the measurement area, m²: its plants × plant spacing × row spacing."""
         return self.n_measured * self.area_per_plant_m2
 
     def measured_area_m2(self, tile: Tile | None = None) -> float:
@@ -317,7 +346,7 @@ class Field:
         (degrees, counter-clockwise seen from above; 0 for ``headings="aligned"``), measured flag.
 
         ``row``/``col`` index the grid (rows 0 … M−1, plants along a row 0 … M_along−1);
-        ``r``/``c`` are relative to the measurement area (0 … N−1 inside it).
+        ``r``/``c`` are relative to the measurement area (0 … N_rows − 1 and 0 … N_along − 1 inside it).
         """
         m, b, ma, ba = self.m, self.buffer_rows, self.m_along, self.b_along
         row, col = np.divmod(np.arange(m * ma), ma)
@@ -327,7 +356,7 @@ class Field:
         d, p = row_axes(self.row_direction_deg)
         x = along * d[0] + across * p[0]
         y = along * d[1] + across * p[1]
-        measured = (r >= 0) & (r < self.n) & (c >= 0) & (c < self.n)
+        measured = (r >= 0) & (r < self.n_rows) & (c >= 0) & (c < self.n_along)
         seeds = [plant_seed(self.seed, int(i) + ID_OFFSET, int(j) + ID_OFFSET) for i, j in zip(r, c)]
         return pd.DataFrame(
             {
@@ -347,23 +376,26 @@ class Field:
     def tiles(self, n_tiles: int = 1) -> list[Tile]:
         """Partition the measurement area into ``n_tiles`` blocks, each with its buffer ring.
 
-        The block grid is the most nearly square factorisation a × b = n_tiles; rows and
-        columns are split as evenly as possible. In a periodic field a tile's buffer is the
+        The block grid is the most nearly square factorisation a × b = n_tiles (a ≤ b): a blocks
+        across the rows and b along them, swapped where the area has more rows than plants per
+        row; rows and columns are split as evenly as possible. In a periodic field a tile's buffer is the
         rest of the cell: light wraps through the whole cell, so every tile needs all of it.
         """
         if not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
             raise InputError(f"n_tiles={n_tiles!r}", parameter="n_tiles", expected="an integer ≥ 1")
         a = max(d for d in range(1, math.isqrt(n_tiles) + 1) if n_tiles % d == 0)
         bcount = n_tiles // a
-        if a > self.n or bcount > self.n:
+        if self.n_rows > self.n_along:  # more blocks across the rows where there are more of them
+            a, bcount = bcount, a
+        if a > self.n_rows or bcount > self.n_along:
             raise InputError(
-                f"{n_tiles} tiles ({a}×{bcount}) do not fit a {self.n}×{self.n} measurement area",
+                f"{n_tiles} tiles ({a}×{bcount}) do not fit a {self.n_rows}×{self.n_along} measurement area",
                 parameter="n_tiles",
-                expected=f"at most {self.n} tiles per side",
+                expected=f"at most {self.n_rows} tiles across the rows and {self.n_along} along them",
             )
         B, m, Ba, ma = self.buffer_rows, self.m, self.b_along, self.m_along
-        rows = np.array_split(np.arange(B, B + self.n), a)
-        cols = np.array_split(np.arange(Ba, Ba + self.n), bcount)
+        rows = np.array_split(np.arange(B, B + self.n_rows), a)
+        cols = np.array_split(np.arange(Ba, Ba + self.n_along), bcount)
         out = []
         for rr in rows:
             for cc in cols:
@@ -377,7 +409,7 @@ class Field:
                 ids = plant_id(R - B, C - Ba)
                 measured = np.sort(ids[inside])
                 if self.periodic:
-                    everyone = plant_id(*np.divmod(np.arange(self.n_measured), self.n))
+                    everyone = plant_id(*np.divmod(np.arange(self.n_measured), self.n_along))
                     buffer = np.sort(np.setdiff1d(everyone, measured))
                 else:
                     buffer = np.sort(ids[~inside])
