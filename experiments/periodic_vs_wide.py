@@ -1,9 +1,11 @@
 """Periodic cell vs the same plants in the middle of a wide finite field (issue 13's 2 % check).
 
-    python experiments/periodic_vs_wide.py [--n-plants 100] [--samples 64] [--seeds 2]
-        [--optics prospect|paper] [--bounces B] [--out PATH]
+    python experiments/periodic_vs_wide.py [--n-plants 100] [--plants-per-row P] [--field-seed 1]
+        [--samples 64] [--seeds 2] [--optics prospect|paper] [--bounces B] [--out PATH]
 
-Same measured plants (N × N, default 10 × 10, the default wrapped sheaths), same sun and weather
+Same measured plants (N × N, default 10 × 10, or whole rows of ``--plants-per-row``: 100 plants as
+5 rows × 20 make a cell as wide as long in metres; the default wrapped sheaths; ``--field-seed``:
+other plants), same sun and weather
 (2016-04-20 10:00 UTC, reconstructed forcing), K samples, the leaf of ``--optics`` (default the
 default PROSPECT-D leaf; the first runs used the paper's grey leaf) with its bounces for 1 %
 truncation (or ``--bounces``). Canopy absorbed PAR (µmol s⁻¹ over the measured
@@ -104,6 +106,8 @@ def main(
     optics: str = DEFAULT_PRESET,
     bounces: int | None = None,
     out: Path | None = None,
+    plants_per_row: int | None = None,
+    field_seed: int = 1,
 ) -> dict:
     sun, dni, dhi = light()
     leaf = Optics.preset(optics)
@@ -111,7 +115,7 @@ def main(
     res = {}
     for name, kw in SETUPS.items():
         t = time.perf_counter()
-        g = build(Field(n_plants=n_plants, seed=1, **kw), progress=True)
+        g = build(Field(n_plants=n_plants, seed=field_seed, plants_per_row=plants_per_row, **kw), progress=True)
         grow_s = time.perf_counter() - t
         if name == "copies":
             fs = FieldScene(copies(g.mesh, g.cell)[0], leaf)
@@ -143,9 +147,10 @@ def main(
             "periodic": meta,
         }
     ref = res["wide"]
+    area = Field(n_plants=n_plants, plants_per_row=plants_per_row)
     print(
-        f"{n_plants} plants, leaf {optics}, K = {samples}, {bounces} bounces, {seeds} seed(s), "
-        f"sun {sun[0]:.1f}° / {sun[1]:.1f}°"
+        f"{area.area_label} (field seed {field_seed}), leaf {optics}, K = {samples}, {bounces} bounces, "
+        f"{seeds} seed(s), sun {sun[0]:.1f}° / {sun[1]:.1f}°"
     )
     print("| field | plants built | render (s) | canopy absorbed PAR vs wide field | MC SD of that |")
     for name, v in res.items():
@@ -179,6 +184,10 @@ def main(
             "optics": optics,
             "sheaths": Field().sheaths,
             "n_plants": n_plants,
+            "plants_per_row": plants_per_row,
+            "field_seed": field_seed,
+            "measurement_area": area.area_label,
+            "cell_m": [area.cell.along_m, area.cell.across_m],
             "fields": res,
         },
     )
@@ -192,6 +201,8 @@ if __name__ == "__main__":
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--optics", choices=PRESETS, default=DEFAULT_PRESET)
     ap.add_argument("--bounces", type=int, default=None, help="default: the leaf's for 1 %% truncation")
+    ap.add_argument("--plants-per-row", type=int, default=None, help="default: a square N × N")
+    ap.add_argument("--field-seed", type=int, default=1, help="the field's seed (its plants)")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
-    main(a.n_plants, a.samples, a.seeds, a.optics, a.bounces, a.out)
+    main(a.n_plants, a.samples, a.seeds, a.optics, a.bounces, a.out, a.plants_per_row, a.field_seed)
