@@ -1859,8 +1859,9 @@ def test_runs_record_the_plants_the_field_builds():
     for record in (five.as_dict(), took):
         assert changed_settings(record, five) == [], record
     assert changed_settings(took, resolve(ModelOptions(quick=True, n_plants=built))) == []  # the same field
-    (said,) = changed_settings(took, resolve(ModelOptions(quick=True, n_plants=built + 1)))
-    assert said.startswith(f"n_plants: {built} → "), said
+    # one plant more builds the next square, 4 × 4: both the plants and the rows' length change
+    said = changed_settings(took, resolve(ModelOptions(quick=True, n_plants=built + 1)))
+    assert said == [f"n_plants: {built} → 16", "plants_per_row: 3 → 4"], said
 
 
 def test_runs_record_no_rays_where_the_paths_carry_the_direct_light():
