@@ -908,6 +908,15 @@ def test_plants_per_row_reaches_the_field_and_is_a_render_setting():
     assert changed_settings(stored_before, resolve(ModelOptions(quick=True, plants_per_row=4))) == [
         "plants_per_row: 2 → 4"
     ]
+    # the area is compared as built, its two settings together (a review: each passed as given alone)
+    nine_rows = resolve(ModelOptions(n_plants=90, plants_per_row=10))
+    assert changed_settings(nine_rows.effective(), resolve(ModelOptions(n_plants=90))) == ["n_plants: 90 → 100"]
+    assert changed_settings(nine_rows.as_dict(), resolve(ModelOptions(n_plants=90))) == ["n_plants: 90 → 100"]
+    five = resolve(ModelOptions(quick=True, n_plants=5)).as_dict()
+    old_five = {k: v for k, v in five.items() if k != "plants_per_row"}
+    assert changed_settings(old_five, resolve(ModelOptions(quick=True, n_plants=5, plants_per_row=3))) == [
+        "n_plants: 9 → 6"
+    ]
 
 
 def test_calibrate_refuses_to_resume_a_history_of_other_settings(tmp_path):

@@ -711,6 +711,38 @@ def test_tiles_of_a_measurement_area_of_whole_rows():
             assert (rc["r"].nunique(), rc["c"].nunique()) == blocks
     with pytest.raises(InputError, match="do not fit a 2×6 measurement area"):
         Field(n_plants=12, plants_per_row=6).tiles(9)
+    # the most nearly square tiling that fits, not only the most nearly square one (a review: refused)
+    for fld, n_tiles, blocks in (
+        (Field(n_plants=4, plants_per_row=4, boundary="finite"), 4, (1, 4)),
+        (Field(n_plants=20, plants_per_row=1), 4, (4, 1)),
+        (Field(n_plants=300, plants_per_row=100), 16, (2, 8)),
+    ):
+        r, c = (fld.plants().loc[np.concatenate([t.measured for t in fld.tiles(n_tiles)])][k] for k in ("r", "c"))
+        firsts = {(r[t.measured].min(), c[t.measured].min()) for t in fld.tiles(n_tiles)}
+        assert (len({a for a, _ in firsts}), len({b for _, b in firsts})) == blocks
+
+
+def test_a_square_keeps_its_key_and_ids_their_room():
+    """The repr keys caches and resumes (Scenario.digest, the emulator, field-run's tasks): a square's is
+    what it was before whole rows existed, and a square given as rows is the square (a review: both
+    changed, so a stored calibration refused to resume with the same settings). Plant ids hold
+    c + 1000 < 10⁴: a longer row is refused, not given ids that collide (a review: 10 001 per row did)."""
+    square = Field(n_plants=9, seed=2)
+    assert "plants_per_row" not in repr(square) and repr(square).startswith("Field(n_plants=9, row_spacing_m=0.125")
+    as_rows = Field(n_plants=9, plants_per_row=3, seed=2)
+    assert as_rows == square and repr(as_rows) == repr(square) and as_rows.plants_per_row is None
+    assert repr(Field(n_plants=6, plants_per_row=3)).endswith("headings='random', plants_per_row=3)")
+    from lightfit.distributed.tiles import HaloField
+
+    assert repr(HaloField.of(square)).endswith("headings='random', halo_rows=None)")
+    assert Field(n_plants=9000, plants_per_row=9000).plants()["plant_id"].is_unique
+    with pytest.raises(InputError, match="plants per row") as err:
+        Field(n_plants=9001, plants_per_row=9001)
+    assert err.value.parameter == "plants_per_row"
+    with pytest.raises(InputError, match="buffer"):
+        Field(n_plants=4, boundary="finite", buffer_rows=1, buffer_along=1001)
+    with pytest.raises(InputError, match="buffer_rows"):
+        Field(n_plants=4, boundary="finite", buffer_rows=1001)
 
 
 @pytest.mark.parametrize("bad", [0, -2, True, 2.5, "25"])

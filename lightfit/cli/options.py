@@ -1176,12 +1176,11 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     written before leaf optics have no ``optics``: they had the grey leaf (``paper``); settings
     written before ``sheaths`` had CPlantBox's rods, before ``headings`` aligned plants; settings
     written before the projected direct light have no ``direct``: their paths carried it; settings
-    written before ``--direct-rays-per-m2`` ran with its default, before ``--plants-per-row`` a square
-    (rows of its side). A run whose direct light comes
-    from the paths records no rays (``None``); records written before hold the default's there,
-    which this run has as given. ``previous=None`` (nothing stored): no difference.
+    written before ``--direct-rays-per-m2`` ran with its default, before ``--plants-per-row`` a
+    square. The measurement area is compared as built (``n_plants`` and ``plants_per_row`` together).
+    A run whose direct light comes from the paths records no rays (``None``); records written before
+    hold the default's there, which this run has as given. ``previous=None`` (nothing stored): no difference.
     """
-    from lightfit.plant.field import Field
     from lightfit.plant.growth import default_season_start
     from lightfit.weather.site import SELHAUSEN
 
@@ -1202,13 +1201,32 @@ def changed_settings(previous: dict | None, s: ModelSettings, keys=MODEL_SETTING
     before["season_start"] = None  # before --season-start: 5 March of each date's year
     before |= {"weather_tz": None, "weather_time_label": None}  # before they were options: the file's own
     before = before | _WHEN_DEFAULTS | {"site": dataclasses.asdict(SELHAUSEN)} | dict(previous)
-    if "plants_per_row" not in previous and isinstance(n := previous.get("n_plants"), int) and n >= 1:
-        before["plants_per_row"] = Field(n_plants=n).n_along  # before whole rows, the square's side
+    # The measurement area is compared as built, its two settings together (each alone could pass as
+    # given while the area changed: 90 plants in rows of 10 against 90 as a square, 10 × 10).
+    area = _area_built(previous.get("n_plants"), previous.get("plants_per_row"))
+    before |= area
     # a season start given as the default's own date (5 March of the first date's year) grows the same plants
     for d in (before, now, given):
         if d.get("season_start") == default_season_start(d["dates"]):
             d["season_start"] = None
-    return [f"{k}: {before.get(k)!r} → {now[k]!r}" for k in keys if before.get(k) not in (now[k], given[k])]
+    return [
+        f"{k}: {before.get(k)!r} → {now[k]!r}"
+        for k in keys
+        if before.get(k) != now[k] and (k in area or before.get(k) != given[k])
+    ]
+
+
+def _area_built(n_plants, plants_per_row) -> dict:
+    """The plants and plants per row a stored record's field builds (a record holds them as built,
+    or, written before, ``n_plants`` as given and no ``plants_per_row``: a square); ``{}`` where the
+    record holds no valid count."""
+    from lightfit.plant.field import Field
+
+    try:
+        f = Field(n_plants=n_plants, plants_per_row=plants_per_row)
+    except (InputError, TypeError):
+        return {}
+    return {"n_plants": f.n_measured, "plants_per_row": f.n_along}
 
 
 #: The day-and-site settings every run had before they were options (the 20 April 2016 replication;

@@ -28,23 +28,23 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from lightfit.errors import InputError, check_integer
-from lightfit.plant.field import ID_OFFSET, Field, Tile
+from lightfit.plant.field import ID_COLUMNS, ID_OFFSET, Field, Tile
 
 
 def plant_rc(ids) -> tuple[np.ndarray, np.ndarray]:
     """Grid position (r, c) relative to the measurement area of plant ids (inverse of ``plant_id``)."""
     ids = np.asarray(ids, dtype=np.int64)
-    return ids // 10_000 - ID_OFFSET, ids % 10_000 - ID_OFFSET
+    return ids // ID_COLUMNS - ID_OFFSET, ids % ID_COLUMNS - ID_OFFSET
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)  # Field's repr, which leaves out an unset plants_per_row
 class HaloField(Field):
     """A :class:`~lightfit.plant.Field` whose tiles carry a geometry halo of ``halo_rows`` plants.
 
     Plants, ids, seeds and positions are those of :class:`Field` (a plant is the same whatever
     the tiling). Only :meth:`tiles` differs: the buffer of a tile is the whole rest of the field
     (``halo_rows=None``: exact) or the plants within ``halo_rows`` rows and columns of its block,
-    clipped to the field's M×M grid (``halo_rows=buffer_rows`` gives ``Field.tiles`` when
+    clipped to the field's grid of M rows × M_along plants (``halo_rows=buffer_rows`` gives ``Field.tiles`` when
     ``buffer_along == buffer_rows``: ``Field.tiles`` pads the columns by ``buffer_along``). A periodic
     field (``boundary="periodic"``) takes only ``halo_rows=None``: its tiles render the whole cell.
 

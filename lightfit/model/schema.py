@@ -7,8 +7,8 @@ deviation (``*_mc_sd_*``), in the unit of the quantity.
 
 Area bases: PAR at a segment is per unit *one-sided* area of that segment (a leaf blade's area,
 or the lateral surface of a stem or sheath); leaf photosynthesis is per one-sided leaf area;
-canopy net CO2 uptake is per ground area of the measured plants (N² × plant spacing × row
-spacing) or per one-sided leaf area of the measured blades (results attribute ``an_per``);
+canopy net CO2 uptake is per ground area of the measured plants (their number × plant spacing ×
+row spacing) or per one-sided leaf area of the measured blades (results attribute ``an_per``);
 canopy APAR and chamber NEE are always per ground area of the measured plants; above-canopy PAR
 is per unit horizontal area.
 

@@ -10,8 +10,9 @@ next larger square, as the reference paper does) unless ``plants_per_row`` is gi
 stand B buffer rows across the rows and B_along buffer plants at either end of each row: the
 whole grid is M = N_rows + 2B rows of M_along = N_along + 2B_along plants.
 A plant is named by its position (r, c) relative to the measurement area's first plant
-(buffer plants have r or c < 0 or ≥ N). That position fixes its id,
-``plant_id = (r + 1000)·10⁴ + (c + 1000)``, its seed (:func:`plant_seed`) and its location, so
+(buffer plants have r < 0 or ≥ N_rows, or c < 0 or ≥ N_along). That position fixes its id,
+``plant_id = (r + 1000)·10⁴ + (c + 1000)`` (hence at most 1 000 buffer rows or plants along, and
+N_along + B_along ≤ 9 000), its seed (:func:`plant_seed`) and its location, so
 a plant is the same whichever tile builds it and however many buffer rows surround it. Tiles
 partition the measurement area into W contiguous blocks, each carrying its own B buffer rows.
 
@@ -31,7 +32,7 @@ Two boundaries (``Field.boundary``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -60,11 +61,13 @@ BOUNDARIES = ("finite", "periodic")
 
 #: Offset making relative plant coordinates non-negative in ids and seeds.
 ID_OFFSET = 1000
+#: Columns a plant id holds: c + ID_OFFSET < ID_COLUMNS (:func:`plant_id`).
+ID_COLUMNS = 10_000
 
 
 def plant_id(r: ArrayLike, c: ArrayLike) -> np.ndarray:
     """Stable plant id of the plant at (r, c) relative to the measurement area."""
-    return (np.asarray(r) + ID_OFFSET) * 10_000 + (np.asarray(c) + ID_OFFSET)
+    return (np.asarray(r) + ID_OFFSET) * ID_COLUMNS + (np.asarray(c) + ID_OFFSET)
 
 
 def check_headings(headings) -> str:
@@ -176,7 +179,10 @@ class Field:
         check_integer(self.n_plants, "n_plants", 1)
         if self.plants_per_row is not None:
             ppr = check_integer(self.plants_per_row, "plants_per_row", 1, why="or None for a square measurement area")
-            object.__setattr__(self, "plants_per_row", ppr)  # numpy's integers as Python's: repr and JSON
+            square = math.isqrt(self.n_plants - 1) + 1
+            # A square given as rows is the square, under one name: the repr is a cache and resume key.
+            same = ppr == square and -(-self.n_plants // ppr) == square
+            object.__setattr__(self, "plants_per_row", None if same else ppr)  # numpy's integers as Python's
         for name in ("row_spacing_m", "plant_spacing_m"):
             v = check_real(getattr(self, name), name, 0, open_lo=True, expected="a positive distance in metres")
             object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
@@ -191,8 +197,21 @@ class Field:
             expected="a compass azimuth in degrees, 0 ≤ azimuth < 360 (rows at 270 run as at 90)",
         )
         object.__setattr__(self, "row_direction_deg", d)  # a float, as the spacings above
-        check_integer(self.buffer_rows, "buffer_rows", 0)
+        check_integer(self.buffer_rows, "buffer_rows", 0, high=ID_OFFSET + 1, why="plant ids hold 1 000 rows")
         check_integer(self.seed, "seed", 0)
+        if self.b_along > ID_OFFSET or self.n_along + self.b_along > ID_COLUMNS - ID_OFFSET:
+            raise InputError(
+                f"{self.n_along} plants per row and {self.b_along} buffer plants along them",
+                parameter="plants_per_row" if self.plants_per_row is not None else "n_plants",
+                expected=f"at most {ID_OFFSET} buffer plants along and {ID_COLUMNS - ID_OFFSET} plants per row with"
+                " them (a plant id's columns)",
+            )
+
+    def __repr__(self) -> str:
+        # ``plants_per_row`` only where set: the repr keys caches and resumes (Scenario.digest, the
+        # emulator, field-run's tasks), and a square's must stay what it was before rows existed.
+        shown = (f for f in fields(self) if f.repr and (f.name != "plants_per_row" or self.plants_per_row is not None))
+        return f"{type(self).__qualname__}(" + ", ".join(f"{f.name}={getattr(self, f.name)!r}" for f in shown) + ")"
 
     @property
     def periodic(self) -> bool:
@@ -376,23 +395,27 @@ class Field:
     def tiles(self, n_tiles: int = 1) -> list[Tile]:
         """Partition the measurement area into ``n_tiles`` blocks, each with its buffer ring.
 
-        The block grid is the most nearly square factorisation a × b = n_tiles (a ≤ b): a blocks
-        across the rows and b along them, swapped where the area has more rows than plants per
-        row; rows and columns are split as evenly as possible. In a periodic field a tile's buffer is the
-        rest of the cell: light wraps through the whole cell, so every tile needs all of it.
+        The block grid is a blocks across the rows by b along them, a × b = n_tiles: the most nearly
+        square factorisation that fits the area, the larger count along the rows unless the area
+        has more rows than plants per row (6 tiles of a square: 2 × 3); rows and columns are split
+        as evenly as possible. In a periodic field a tile's buffer is the rest of the cell: light
+        wraps through the whole cell, so every tile needs all of it.
         """
         if not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
             raise InputError(f"n_tiles={n_tiles!r}", parameter="n_tiles", expected="an integer ≥ 1")
-        a = max(d for d in range(1, math.isqrt(n_tiles) + 1) if n_tiles % d == 0)
-        bcount = n_tiles // a
-        if self.n_rows > self.n_along:  # more blocks across the rows where there are more of them
-            a, bcount = bcount, a
-        if a > self.n_rows or bcount > self.n_along:
+        more_rows = self.n_rows > self.n_along
+        pairs = sorted(
+            ((d, n_tiles // d) for d in range(1, n_tiles + 1) if n_tiles % d == 0),
+            key=lambda ab: (abs(ab[0] - ab[1]), (ab[0] > ab[1]) != more_rows),
+        )
+        fit = [(a, b) for a, b in pairs if a <= self.n_rows and b <= self.n_along]
+        if not fit:
             raise InputError(
-                f"{n_tiles} tiles ({a}×{bcount}) do not fit a {self.n_rows}×{self.n_along} measurement area",
+                f"{n_tiles} tiles do not fit a {self.n_rows}×{self.n_along} measurement area",
                 parameter="n_tiles",
-                expected=f"at most {self.n_rows} tiles across the rows and {self.n_along} along them",
+                expected=f"a × b tiles with a ≤ {self.n_rows} across the rows and b ≤ {self.n_along} along them",
             )
+        a, bcount = fit[0]
         B, m, Ba, ma = self.buffer_rows, self.m, self.b_along, self.m_along
         rows = np.array_split(np.arange(B, B + self.n_rows), a)
         cols = np.array_split(np.arange(Ba, Ba + self.n_along), bcount)
