@@ -92,7 +92,8 @@ HEADINGS_HELP = (
 PLANTS_PER_ROW_HELP = (
     "Plants along each row of the measurement area, which is then whole rows of them (--n-plants 500 "
     "--plants-per-row 25: 20 rows × 25). Default: a square N×N, ≈ 4× longer across the rows than "
-    "along them in metres; ≈ 4× as many plants per row as rows makes it as wide as long."
+    "along them in metres; ≈ 4× as many plants per row as rows makes it as wide as long, which cuts "
+    "a finite field's edge light (+52 % → +30 % with 2 buffer rows on 100 plants)."
 )
 BUFFER_ALONG_HELP = (
     "Finite fields only: buffer plants along each row end (default: = buffer rows; "

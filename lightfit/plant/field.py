@@ -138,8 +138,10 @@ class Field:
             ⌈n_plants / plants_per_row⌉ rows of them (``n_plants=500, plants_per_row=25``: 20 rows × 25,
             exactly 500). ``None`` (default): a square N × N. Plants stand ≈ 4× closer within a row
             than rows do, so a square area is ≈ 4× longer across the rows than along them; about
-            4× as many plants per row as rows makes it as long as wide in metres (a periodic cell
-            whose copies repeat at the same distance both ways).
+            4× as many plants per row as rows makes it as long as wide in metres. That cuts a
+            finite field's edge light (2 buffer rows: +52 % on 10 × 10, +30 % on 5 × 20) and leaves a
+            periodic cell's canopy total as it is (docs/light.md, "Five draws of plants"). A square
+            given as rows is the square (``plants_per_row`` becomes ``None``).
     """
 
     n_plants: int = 25
