@@ -268,3 +268,79 @@ def test_ceptometer_bars_are_centred_on_equal_strips_along_the_rows():
         mid = area.to_local((a + b) / 2)
         np.testing.assert_allclose(mid[:, 0], ((np.arange(placements) + 0.5) / placements - 0.5) * 1.2, atol=1e-12)
         np.testing.assert_allclose(area.to_local(b) - area.to_local(a), [[0.0, 0.8]] * placements, atol=1e-12)
+
+
+def test_measured_area_is_the_measured_plants_own_patches_in_a_rotated_oblong_field():
+    """The measured area of a finite field of 2 rows × 5 plants (not a square: rows and plants per
+    row told apart; 3 cm within a row, 12.5 cm between rows) whose rows run 30° east of north is
+    found again from the plants alone: each measured plant stands in the middle of its own plant
+    spacing × row spacing patch, so the area is their extent plus one spacing each way, 10 × 0.03 ×
+    0.125 m² in all, centred on them. The row frame is worked by hand from the compass azimuth
+    (along = (sin 30°, cos 30°), across = (−cos 30°, sin 30°)), and the default ceptometer's 8 bars
+    lie across these rows (⊥ to the along vector), clipped to the 0.25 m width, inside the patches,
+    centred on equal strips along the rows. A mutation audit: the area with rows and plants per row
+    swapped, with the two spacings swapped, or without the row direction, passed every test (the
+    tests' square, east–west fields could not tell)."""
+    fld = Field(boundary="finite", n_plants=10, plants_per_row=5, buffer_rows=1, row_direction_deg=30.0)
+    area = measured_area(fld)
+    plants = fld.plants()
+    xy = plants.loc[plants["measured"], ["x_m", "y_m"]].to_numpy()
+    assert len(xy) == 10
+    s, c = math.sin(math.radians(30.0)), math.cos(math.radians(30.0))
+    along_hat, across_hat = np.array([s, c]), np.array([-c, s])
+    centre = xy.mean(axis=0)
+    a, b = (xy - centre) @ along_hat, (xy - centre) @ across_hat
+    length = np.ptp(a) + 0.03  # 4 spacings between 5 plants, and half a spacing beyond each end
+    width = np.ptp(b) + 0.125
+    assert (length, width) == pytest.approx((5 * 0.03, 2 * 0.125), abs=1e-12)
+    np.testing.assert_allclose(area.size_m, [length, width], atol=1e-12)
+    np.testing.assert_allclose(area.center_xy, centre, atol=1e-12)
+    assert area.area_m2 == pytest.approx(10 * 0.03 * 0.125, rel=1e-12)
+    np.testing.assert_allclose(area.axes[0], along_hat, atol=1e-12)
+    (cep,) = default_sensors(fld)
+    p, q = cep.lines()
+    d = (q - p)[:, :2]
+    np.testing.assert_allclose(d @ along_hat, 0.0, atol=1e-12)  # across the rows
+    np.testing.assert_allclose(np.abs(d @ across_hat), 0.25, atol=1e-12)  # clipped to the 2 rows' width
+    for end in (p, q):
+        ea, eb = (end[:, :2] - centre) @ along_hat, (end[:, :2] - centre) @ across_hat
+        assert (np.abs(ea) <= length / 2 + 1e-12).all() and (np.abs(eb) <= width / 2 + 1e-12).all()
+    mid = ((p + q)[:, :2] / 2 - centre) @ along_hat
+    np.testing.assert_allclose(mid, (np.arange(8) + 0.5) / 8 * length - length / 2, atol=1e-12)
+    # A periodic field's measured area is its cell, one spacing × spacing patch per plant too.
+    per = Field(n_plants=10, plants_per_row=5, row_direction_deg=30.0)
+    assert measured_area(per) == per.cell and per.cell.area_m2 == pytest.approx(10 * 0.03 * 0.125, rel=1e-12)
+
+
+@pytest.mark.parametrize("placements", [3, 8, 20])
+def test_clipped_bars_in_a_wide_area_stay_in_it_and_spread_across_the_rows(placements):
+    """A finite area 2 m across the rows (16 rows of 12.5 cm) is wider than the 0.8 m bar: the bars'
+    centres move across the rows over the free 1.2 m (2 − 0.8) so that every bar lies wholly in the
+    area, and the placements measure different positions across the rows: P different centres,
+    no stretch of the free width longer than 2/P of it left between two centres or at either end (a
+    stratified spread; the golden-ratio Kronecker steps leave at most 1.8/P for P ≤ 30). Worked in
+    the area's frame: rows running north (x across, y along), centre (1, −2). A mutation audit: the
+    centres taken from 0 to the free width (not centred: bars 0.6 m beyond the area, over the
+    buffer rows) and a Kronecker step of ½ (two positions only) passed every test, whose finite
+    areas were narrower than a bar."""
+    area = PeriodicCell(0.6, 2.0, row_direction_deg=0.0, center_xy=(1.0, -2.0))
+    p, q = ceptometer(area, placements=placements, clip=True).lines()
+    # Rows run north: along = y, across = −x (90° counter-clockwise from along), from the centre.
+    for end in (p, q):
+        assert (np.abs(end[:, 1] + 2.0) <= 0.3 + 1e-12).all()
+        assert (np.abs(end[:, 0] - 1.0) <= 1.0 + 1e-12).all(), end[:, 0]
+    np.testing.assert_allclose(np.abs(q[:, 0] - p[:, 0]), 0.8, atol=1e-12)
+    centres = np.sort((p[:, 0] + q[:, 0]) / 2 - 1.0)
+    assert len(np.unique(np.round(centres, 9))) == placements
+    gaps = np.diff(np.concatenate([[-0.6], centres, [0.6]]))
+    assert gaps.max() <= 2.0 / placements * 1.2 + 1e-12, gaps
+
+
+def test_sensor_heights_are_refused_below_the_soil_and_averaged_over_placements():
+    """A sensor below the soil surface would read light through the ground: refused, as a tilted bar
+    is; a sensor with placements at 0.2 m and 0.4 m has the mean height 0.3 m (the attribute's
+    docstring; a mutation audit: negative heights accepted, and the highest placement taken, passed)."""
+    with pytest.raises(InputError, match="heights"):
+        Sensor("buried", ((0.0, 0.0, -0.05),), ((0.8, 0.0, -0.05),))
+    two = Sensor("two", ((0.0, 0.0, 0.2), (0.0, 1.0, 0.4)), ((0.8, 0.0, 0.2), (0.8, 1.0, 0.4)))
+    assert two.height_m == pytest.approx(0.3, abs=1e-12)
