@@ -313,3 +313,44 @@ def test_model_commands_take_the_split(tmp_path):
             runs[split] = (ds.attrs["weather_split_model"], ds["dhi_w_m2"].values.copy(), ds["dni_w_m2"].values.copy())
     assert runs[None][0] == "diffuse" and runs["erbs"][0] == "erbs"
     assert (runs["erbs"][1] > 1.2 * runs[None][1]).all() and (runs["erbs"][2] < runs[None][2]).all()
+
+
+@pytest.mark.parametrize("model", ["erbs", "boland"])
+def test_a_negative_global_radiation_is_no_light_for_erbs_and_boland_too(model):
+    """A series built in code with a dark offset left in its global radiation (−5 W m⁻² at 11:00 with
+    the sun 50° up, −2 at 01:00 in the night) and no diffuse column: split by Erbs or Boland, those
+    steps have no light, DNI = DHI = 0, as the split by a diffuse column gives (the test above) and as
+    a negative PAR is; a negative irradiance is no physical sky. A mutation audit found it: Erbs and
+    Boland gave a beam of −5 / sin 50° = −6.5 W m⁻² at noon and a sky of −2 W m⁻² at night, and the
+    scenario then refused the series as a negative DNI or DHI."""
+    from lightfit.model.scenario import Scenario
+
+    df = read_weather(RECON).drop(columns="diffuse_w_m2")
+    steps = pd.DatetimeIndex(["2016-04-20 11:00", "2016-04-20 01:00"], tz="UTC")
+    df.loc[steps, "ghi_w_m2"] = [-5.0, -2.0]
+    out = add_solar(df, split_model=model)
+    assert out.attrs["split_model"] == model
+    np.testing.assert_array_equal(out.loc[steps, ["dni_w_m2", "dhi_w_m2"]].to_numpy(), 0.0)
+    assert (out["dni_w_m2"] >= 0).all() and (out["dhi_w_m2"] >= 0).all()
+    Scenario(weather=out)
+
+
+def test_the_measured_split_worked_by_hand_with_its_counts():
+    """split_from_diffuse on three steps of 20 April 2016 worked by hand: at 11:30 (sun 50.9°) 600 W m⁻²
+    with 150 diffuse leave a beam of 450 / sin β along the sun (below the 775 W m⁻² clear-sky beam, the
+    zenith below 80°: not cut); at 12:00 a diffuse reading 5 % above global radiation is cut to it, all
+    diffuse and no beam; at 04:40 (sun 1.2°: zenith 88.8°, beyond the 88° where pvlib.irradiance.dni
+    allows no beam) 20 W m⁻² with no diffuse reading give no beam, all 20 diffuse. The counts record
+    one step of each cut (a mutation audit: a beam_cut that counted every lit step passed, as the tests
+    read only the note's words)."""
+    from lightfit.weather.solar import split_from_diffuse
+
+    t = pd.DatetimeIndex(["2016-04-20 11:30", "2016-04-20 12:00", "2016-04-20 04:40"], tz="UTC")
+    el = pd.Series([50.896809, 50.522423, 1.217998], index=t)  # SPA's apparent sun at Selhausen
+    ghi = pd.Series([600.0, 600.0, 20.0], index=t)
+    diffuse = pd.Series([150.0, 630.0, 0.0], index=t)
+    split, counts = split_from_diffuse(ghi, diffuse, el, check=False)
+    beam = 450.0 / np.sin(np.radians(50.896809))
+    np.testing.assert_allclose(split["dni_w_m2"], [beam, 0.0, 0.0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(split["dhi_w_m2"], [150.0, 600.0, 20.0], rtol=1e-12)
+    assert counts == {"diffuse_above_global": 1, "beam_cut": 1}

@@ -332,3 +332,17 @@ def test_a_site_given_to_add_solar_overrides_the_series_own():
     np.testing.assert_allclose(out["sun_elevation_deg"], sp["apparent_elevation"], atol=1e-9)
     np.testing.assert_allclose(out["sun_azimuth_deg"], sp["azimuth"], atol=1e-9)
     assert out.attrs["site"] == cape
+
+
+def test_a_diffuse_fraction_above_one_gives_no_negative_direct_par():
+    """Spitters' PAR fraction lies in [0, 1] (its docstring): k_d is cut to [0, 1] first, and at k_d = 1
+    eq. 9 is 1 by hand, at k_d = 0 it is 0. Unclipped, k_d = 1.2 at β = 39.2° would give
+    1.0416 / (1 − 0.44 × 0.186) = 1.13. The case that reaches it: a hand-built forcing with DHI
+    300 W m⁻² and a beam of −10 W m⁻² at β = 30° (horizontal total 295, k_d = 300/295 > 1) and 590 µmol
+    of PAR gets all 590 as diffuse PAR and no beam, not a negative direct PAR of −14 µmol m⁻² s⁻¹
+    (a mutation audit: the clip on k_d dropped passed every test)."""
+    from lightfit.weather.solar import par_diffuse_fraction, par_direct_diffuse
+
+    np.testing.assert_allclose(par_diffuse_fraction([1.2, 1.0, -0.1, 0.0], 39.2), [1.0, 1.0, 0.0, 0.0], atol=1e-15)
+    dni_par, dhi_par = par_direct_diffuse([-10.0], [300.0], [30.0], [590.0])
+    assert dni_par[0] == pytest.approx(0.0, abs=1e-12) and dhi_par[0] == pytest.approx(590.0, rel=1e-12)

@@ -108,9 +108,11 @@ def split_direct_diffuse(
     ``sun_elevation_deg``). Their DHI is kept and the beam comes from the apparent sun
     ``sun_elevation_deg``, where the canopy sees it: DNI = (GHI − DHI) / sin(elevation), so closure
     holds exactly, GHI = DNI·sin(elevation) + DHI. With the sun below the horizon all radiation is
-    diffuse.
+    diffuse. A negative GHI (a dark offset, which the readers clamp but a series built in code may
+    keep) is no light, as in :func:`split_from_diffuse`: DNI = DHI = 0, not a negative beam or sky.
     """
     check_split_model(model, ("erbs", "boland"))
+    ghi_w_m2 = ghi_w_m2.astype(float).clip(lower=0.0)
     zenith = 90.0 - (sun_elevation_deg if true_elevation_deg is None else true_elevation_deg)
     times = ghi_w_m2.index
     if model == "erbs":
