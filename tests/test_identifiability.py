@@ -84,3 +84,95 @@ def test_profile_in_log_coordinates_moves_the_log_of_the_parameters():
     )
     np.testing.assert_allclose(slc, ts**2 + np.log(3.0) ** 2, rtol=1e-10)
     np.testing.assert_allclose(prof, ts**2, atol=1e-8)
+
+
+def test_the_table_pairs_each_eigenvalue_with_its_own_eigenvector_and_a_blind_parameter_is_unbounded():
+    """r(x) = (p, 3q, 2r), s unused: F = diag(1, 9, 4, 0) by hand, so the stiff-to-sloppy order is q
+    (λ 9, width 1/3), r (λ 4, width 1/2), p (λ 1, width 1), s (λ 0 exactly, the data say nothing:
+    width ∞, not 1/√1e-300). The eigenvector matrix is a permutation that is not symmetric, so a
+    table reading eigenvectors' rows instead of columns names the wrong parameter."""
+    import jax.numpy as jnp
+
+    from lightfit.inference.identifiability import fisher_information
+
+    fi = fisher_information(
+        lambda x: jnp.stack([x[0], 3.0 * x[1], 2.0 * x[2]]), np.ones(4), ("p", "q", "r", "s"), scale="natural"
+    )
+    rows = fi.table()
+    assert [r["combination"] for r in rows] == ["+1.00 q", "+1.00 r", "+1.00 p", "+1.00 s"]
+    np.testing.assert_allclose([r["eigenvalue"] for r in rows], [9.0, 4.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose([r["width_1sigma"] for r in rows[:3]], [1 / 3, 1 / 2, 1.0], rtol=1e-12)
+    assert rows[3]["width_1sigma"] == np.inf and fi.widths[3] == np.inf
+    assert fi.stiff == "+1.00 q" and fi.sloppy == "+1.00 s"
+
+
+def test_fisher_refuses_a_zero_in_log_coordinates_and_a_wrong_number_of_values():
+    """scale="log" differentiates with respect to log x, undefined at x = 0 (it would give NaN
+    eigenvectors, not an error); and one value per name, or the names would be paired with the
+    wrong entries of the eigenvectors (zip truncates silently)."""
+    import jax.numpy as jnp
+    import pytest
+
+    from lightfit.errors import InputError
+    from lightfit.inference.identifiability import fisher_information
+
+    with pytest.raises(InputError, match="non-positive"):
+        fisher_information(lambda x: x * 2.0, np.array([1.0, 0.0]), ("a", "b"), scale="log")
+    with pytest.raises(InputError, match="x0 shape"):
+        fisher_information(lambda x: jnp.asarray(x), np.array([1.0, 2.0, 3.0]), ("a", "b"), scale="natural")
+
+
+def test_the_profile_never_exceeds_the_slice_even_from_a_trapped_warm_start():
+    """A profile is a minimum over the other directions, and the slice (w = 0) is one candidate, so
+    profile ≤ slice at every offset. nll = 4y²(y − 1)² + (1 − x)(y − 1)² + ¼xy² through (0, 0) along
+    x: at x = 0 the only minimum is y = 1 (the slice y = 0 is worse), at x = ½ the only one is near
+    y = 1, at x = 1 (∂/∂y = y(16y² − 24y + 8.5): wells at y = 0 and y ≈ 0.93) the warm start from
+    y ≈ 1 lands in the local well (≈ 0.23) while the global minimum is y = 0, value 0, on the slice.
+    Reference: a brute-force grid over y."""
+    ts = np.array([0.0, 0.5, 1.0])
+    _, prof, slc = profile_likelihood(
+        lambda x: 4 * x[1] ** 2 * (x[1] - 1) ** 2 + (1 - x[0]) * (x[1] - 1) ** 2 + 0.25 * x[0] * x[1] ** 2,
+        np.zeros(2),
+        np.array([1.0, 0.0]),
+        ts,
+        scale="natural",
+    )
+    y = np.linspace(-2.0, 3.0, 500_001)
+    brute = [np.min(4 * y**2 * (y - 1) ** 2 + (1 - t) * (y - 1) ** 2 + 0.25 * t * y**2) for t in ts]
+    assert np.all(prof <= slc + 1e-12), (prof, slc)
+    np.testing.assert_allclose(prof, brute, atol=1e-8)
+
+
+def test_profile_of_a_nonlinear_model_against_a_brute_force_scalar_minimisation():
+    """m(τ) = a·exp(−kτ), Gaussian nll, profiled along a (k optimised) in natural and log coordinates:
+    each profile value is compared with scipy's bounded scalar minimisation over k at that a (not the
+    module's BFGS), to 1e-9 in nll, so an optimiser stopped early (a loose gradient tolerance leaves
+    errors ~4e-6 here: the inner problem is not quadratic) is caught."""
+    import jax.numpy as jnp
+    from scipy.optimize import minimize_scalar
+
+    tau = np.linspace(0.0, 3.0, 8)
+    y = 2.0 * np.exp(-0.7 * tau) + 0.05 * np.array([1.0, -1.0, 0.5, 0.3, -0.8, 0.2, -0.1, 0.6])
+
+    sigma = 1.0  # a shallow inner problem: an optimiser stopped early is far from its minimum
+
+    def nll_np(a, k):
+        return 0.5 * np.sum(((y - a * np.exp(-k * tau)) / sigma) ** 2)
+
+    x_hat = np.array([2.0, 0.7])
+    ts = np.array([-0.3, -0.15, 0.0, 0.15, 0.3])
+    for scale, amplitudes in (("natural", x_hat[0] + ts), ("log", x_hat[0] * np.exp(ts))):
+        _, prof, _ = profile_likelihood(
+            lambda x: 0.5 * jnp.sum(((y - x[0] * jnp.exp(-x[1] * tau)) / sigma) ** 2),
+            x_hat,
+            np.array([1.0, 0.0]),
+            ts,
+            scale=scale,
+        )
+        ref = [
+            minimize_scalar(
+                lambda k, a=a: nll_np(a, k), bounds=(0.01, 5.0), method="bounded", options={"xatol": 1e-12}
+            ).fun
+            for a in amplitudes
+        ]
+        np.testing.assert_allclose(prof, ref, atol=1e-9, err_msg=scale)
