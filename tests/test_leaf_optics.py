@@ -263,3 +263,40 @@ def test_a_glossy_lobe_brighter_than_prospects_reflectance_is_refused_even_with_
         leaf_bsdf_parameters(t, specular=1.0, roughness=0.5)
     ok = leaf_bsdf_parameters(t, specular=0.5, roughness=0.5)
     assert 0 <= ok["subsurface"] <= 1 and 0 <= ok["base_color"] <= 1
+
+
+def test_band_average_takes_the_photon_weighted_mean_over_400_to_700_nm_only():
+    """band_average on a 300–900 nm grid: values outside 400–700 nm (5 below, 7 above) must not
+    enter, so a function equal to 1 in the band averages to exactly 1 (a band starting at 380 nm
+    is invisible on PROSPECT's grid, which starts at 400 nm). And the photon-weighted mean
+    wavelength of a 5800 K blackbody over the band, against scipy's adaptive quadrature of the
+    Planck photon flux written out from SI constants (not the module's weights): ≈ 556 nm;
+    energy weighting (λ⁻⁵, W instead of µmol) or another temperature moves it by nanometres."""
+    from scipy.integrate import quad
+
+    from lightfit.light.leaf_optics import band_average
+
+    lam = np.arange(300.0, 901.0)
+    inside = (lam >= 400) & (lam <= 700)
+    assert band_average(lam, np.where(inside, 1.0, np.where(lam < 400, 5.0, 7.0))) == pytest.approx(1.0, abs=1e-12)
+    num = quad(lambda x: x * _planck_photons(np.array(x)), 400.0, 700.0, epsabs=0, epsrel=1e-12)[0]
+    den = quad(lambda x: _planck_photons(np.array(x)), 400.0, 700.0, epsabs=0, epsrel=1e-12)[0]
+    assert 550.0 < num / den < 560.0
+    assert band_average(lam, lam) == pytest.approx(num / den, abs=1e-3)  # trapezoid on 1 nm: ~1e-5 nm
+
+
+def test_a_given_chlorophyll_is_the_leaf_the_run_makes_and_records():
+    """leaf_traits: chlorophyll given → the default traits with that Cab (only Cab changes), none →
+    the defaults, the paper's grey leaf → None (not made from traits). A run's recorded
+    configuration (ReplicationConfig.effective, which goes through leaf_traits) names the chlorophyll
+    its leaf optics were made from, not the default 50.5."""
+    import dataclasses
+
+    from lightfit.light.leaf_optics import leaf_traits
+    from lightfit.replication import ReplicationConfig
+
+    assert leaf_traits("prospect", 36.4) == dataclasses.replace(LeafTraits(), Cab=36.4)
+    assert leaf_traits("prospect") == LeafTraits() and leaf_traits("paper") is None
+    cfg = ReplicationConfig(chlorophyll_ug_cm2=36.4)
+    assert cfg.effective()["chlorophyll_ug_cm2"] == 36.4
+    assert cfg.leaf_optics() == Optics.from_traits(leaf_traits("prospect", 36.4), soil_albedo=cfg.soil_albedo)
