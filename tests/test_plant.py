@@ -670,7 +670,9 @@ def test_a_measurement_area_of_whole_rows():
     fld = Field(n_plants=500, plants_per_row=25)
     assert (fld.n_rows, fld.n_along, fld.n_measured) == (20, 25, 500) and fld.area_label == "20 rows × 25 plants"
     assert Field(n_plants=501, plants_per_row=25).n_measured == 525  # rounded up to whole rows
-    assert Field(n_plants=3, plants_per_row=5).area_label == "1 row × 5 plants"
+    assert Field(n_plants=5, plants_per_row=5).area_label == "1 row × 5 plants"
+    with pytest.raises(InputError, match="plants_per_row=100"):  # a row longer than the plants asked for
+        Field(n_plants=5, plants_per_row=100)
     small = Field(n_plants=6, plants_per_row=3, row_spacing_m=0.2, plant_spacing_m=0.05, row_direction_deg=90)
     p = small.plants()
     assert len(p) == 6 and p["measured"].all()
@@ -716,6 +718,8 @@ def test_tiles_of_a_measurement_area_of_whole_rows():
         (Field(n_plants=4, plants_per_row=4, boundary="finite"), 4, (1, 4)),
         (Field(n_plants=20, plants_per_row=1), 4, (4, 1)),
         (Field(n_plants=300, plants_per_row=100), 16, (2, 8)),
+        (Field(n_plants=12, plants_per_row=2), 2, (2, 1)),  # both fit: two blocks across the 6 rows
+        (Field(n_plants=60, plants_per_row=3), 6, (2, 3)),  # 2 × 3 blocks of 10, not 3 × 2 of 14 and 7
     ):
         r, c = (fld.plants().loc[np.concatenate([t.measured for t in fld.tiles(n_tiles)])][k] for k in ("r", "c"))
         firsts = {(r[t.measured].min(), c[t.measured].min()) for t in fld.tiles(n_tiles)}
@@ -735,7 +739,7 @@ def test_a_square_keeps_its_key_and_ids_their_room():
     from lightfit.distributed.tiles import HaloField
 
     assert repr(HaloField.of(square)).endswith("headings='random', halo_rows=None)")
-    assert Field(n_plants=9000, plants_per_row=9000).plants()["plant_id"].is_unique
+    assert Field(n_plants=18000, plants_per_row=9000).plants()["plant_id"].is_unique  # two rows of the most
     with pytest.raises(InputError, match="plants per row") as err:
         Field(n_plants=9001, plants_per_row=9001)
     assert err.value.parameter == "plants_per_row"

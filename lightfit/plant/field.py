@@ -180,7 +180,13 @@ class Field:
             check_integer(self.buffer_along, "buffer_along", 0, why="or None for buffer_rows")
         check_integer(self.n_plants, "n_plants", 1)
         if self.plants_per_row is not None:
-            ppr = check_integer(self.plants_per_row, "plants_per_row", 1, why="or None for a square measurement area")
+            ppr = check_integer(
+                self.plants_per_row,
+                "plants_per_row",
+                1,
+                high=self.n_plants + 1,
+                why=f"at most n_plants={self.n_plants}: one row holds them all; or None for a square area",
+            )
             square = math.isqrt(self.n_plants - 1) + 1
             # A square given as rows is the square, under one name: the repr is a cache and resume key.
             same = ppr == square and -(-self.n_plants // ppr) == square
@@ -398,18 +404,22 @@ class Field:
         """Partition the measurement area into ``n_tiles`` blocks, each with its buffer ring.
 
         The block grid is a blocks across the rows by b along them, a × b = n_tiles: the most nearly
-        square factorisation that fits the area, the larger count along the rows unless the area
-        has more rows than plants per row (6 tiles of a square: 2 × 3); rows and columns are split
+        square factorisation that fits the area, of two as square the one with the smaller largest
+        block, then the larger count along the rows unless the area has more rows than plants per
+        row (6 tiles of a square: 2 × 3; of 20 rows × 3 plants: 2 × 3, blocks of 10); rows and columns are split
         as evenly as possible. In a periodic field a tile's buffer is the rest of the cell: light
         wraps through the whole cell, so every tile needs all of it.
         """
         if not isinstance(n_tiles, (int, np.integer)) or n_tiles < 1:
             raise InputError(f"n_tiles={n_tiles!r}", parameter="n_tiles", expected="an integer ≥ 1")
         more_rows = self.n_rows > self.n_along
-        pairs = sorted(
-            ((d, n_tiles // d) for d in range(1, n_tiles + 1) if n_tiles % d == 0),
-            key=lambda ab: (abs(ab[0] - ab[1]), (ab[0] > ab[1]) != more_rows),
-        )
+
+        def order(ab):  # squarest first, then the more even blocks, then more blocks on the longer side
+            a, b = ab
+            largest = -(-self.n_rows // a) * -(-self.n_along // b)
+            return abs(a - b), largest, (a > b) != more_rows
+
+        pairs = sorted(((d, n_tiles // d) for d in range(1, n_tiles + 1) if n_tiles % d == 0), key=order)
         fit = [(a, b) for a, b in pairs if a <= self.n_rows and b <= self.n_along]
         if not fit:
             raise InputError(
