@@ -2238,6 +2238,9 @@ def test_ctrl_c_after_a_command_finished_keeps_its_exit_status():
         import atexit, os, signal, sys, time
         import lightfit.cli as cli
 
+        # Ctrl-C as a terminal's Python has it: a suite started in the background (`cmd &` in a
+        # script) ignores SIGINT, which Python keeps, and this process then never saw its own.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         presses = int(sys.argv[1])
 
         def later_exit_handler():  # registered first: runs after main()'s own
