@@ -145,12 +145,8 @@ def ceptometer(
 def measured_area(field) -> PeriodicCell:
     """The measurement area of a :class:`~lightfit.plant.Field` as a rectangle in the row frame:
     N_along plants × plant spacing along the rows by N_rows rows × row spacing across, centred on the origin
-    (the periodic cell itself for a periodic field)."""
-    return field.cell or PeriodicCell(
-        along_m=field.n_along * float(field.plant_spacing_m),
-        across_m=field.n_rows * float(field.row_spacing_m),
-        row_direction_deg=float(field.row_direction_deg),
-    )
+    (the periodic cell itself for a periodic field): :attr:`~lightfit.plant.Field.measured_rectangle`."""
+    return field.measured_rectangle
 
 
 def default_sensors(field, height_m: float = SOIL_HEIGHT_M) -> tuple[Sensor, ...]:

@@ -65,6 +65,11 @@ ID_OFFSET = 1000
 ID_COLUMNS = 10_000
 
 
+def _square_side(n_plants: int) -> int:
+    """N = ⌈√n_plants⌉: the side of the square measurement area that holds ``n_plants``."""
+    return math.isqrt(n_plants - 1) + 1
+
+
 def plant_id(r: ArrayLike, c: ArrayLike) -> np.ndarray:
     """Stable plant id of the plant at (r, c) relative to the measurement area."""
     return (np.asarray(r) + ID_OFFSET) * ID_COLUMNS + (np.asarray(c) + ID_OFFSET)
@@ -187,10 +192,10 @@ class Field:
                 high=self.n_plants + 1,
                 why=f"at most n_plants={self.n_plants}: one row holds them all; or None for a square area",
             )
-            square = math.isqrt(self.n_plants - 1) + 1
+            object.__setattr__(self, "plants_per_row", ppr)  # numpy's integers as Python's
             # A square given as rows is the square, under one name: the repr is a cache and resume key.
-            same = ppr == square and -(-self.n_plants // ppr) == square
-            object.__setattr__(self, "plants_per_row", None if same else ppr)  # numpy's integers as Python's
+            if self.n_rows == self.n_along == _square_side(self.n_plants):
+                object.__setattr__(self, "plants_per_row", None)
         for name in ("row_spacing_m", "plant_spacing_m"):
             v = check_real(getattr(self, name), name, 0, open_lo=True, expected="a positive distance in metres")
             object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
@@ -307,8 +312,13 @@ class Field:
         plant of the measurement area sits in the middle of its own spacing × spacing patch, so
         the spacings continue across the seam.
         """
-        if not self.periodic:
-            return None
+        return self.measured_rectangle if self.periodic else None
+
+    @property
+    def measured_rectangle(self) -> PeriodicCell:
+        """The measurement area as a rectangle in the row frame, centred on the origin, for either
+        boundary (:attr:`cell` for a periodic field): N_along plants × plant spacing along the rows
+        by N_rows rows × row spacing across them, each plant in the middle of its own patch."""
         return PeriodicCell(
             along_m=self.n_along * float(self.plant_spacing_m),
             across_m=self.n_rows * float(self.row_spacing_m),
@@ -319,7 +329,7 @@ class Field:
     def n_along(self) -> int:
         """Plants along each row of the measurement area: ``plants_per_row``, or the square's side
         N = ⌈√n_plants⌉."""
-        return math.isqrt(self.n_plants - 1) + 1 if self.plants_per_row is None else int(self.plants_per_row)
+        return _square_side(self.n_plants) if self.plants_per_row is None else int(self.plants_per_row)
 
     @property
     def n_rows(self) -> int:
