@@ -26,7 +26,8 @@ from contextlib import contextmanager
 #: ``"render:N"`` (after the N-th new design render is stored), ``"sample:N"`` (after MCMC step N
 #: is stored, before its stop-rule check), ``"calibrate:N"`` (after accepted step N is in the
 #: history, before the optimiser state is saved), ``"field-task:N"`` (after field-run's N-th task
-#: is kept beside --out).
+#: is kept beside --out), ``"step:N"`` (after a run's N-th daytime step is kept,
+#: :attr:`lightfit.model.coupled.CoupledModel.keep_steps`; counted from the day's first step).
 KILL_HOOK = "LIGHTFIT_TEST_KILL_AFTER"
 
 

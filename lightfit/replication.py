@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import shutil
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
@@ -662,8 +663,10 @@ def check_growth_temperatures(cfg: ReplicationConfig, w: pd.DataFrame) -> None:
         _growth_temperature(cfg, wd)
 
 
-def model_for(cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False) -> CoupledModel:
-    return CoupledModel(scenario_for(cfg, w), progress=progress)
+def model_for(
+    cfg: ReplicationConfig, w: pd.DataFrame, progress: bool = False, keep_steps: Path | None = None
+) -> CoupledModel:
+    return CoupledModel(scenario_for(cfg, w), progress=progress, keep_steps=keep_steps)
 
 
 def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool | None = None) -> pd.DataFrame | None:
@@ -707,8 +710,14 @@ def run(
     progress: bool = False,
     forcing_df: pd.DataFrame | None = None,
     compare: ReplicationConfig | None = None,
+    keep_steps: Path | None = None,
 ):
     """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None).
+
+    ``keep_steps``: the folder that keeps each rendered step until the run has written its results
+    (:attr:`CoupledModel.keep_steps`), so that a run killed half-way and started again renders only
+    the steps it had not, to the same results; default ``out/.unfinished`` where ``out`` is given
+    (removed once the results are written), else none.
 
     ``compare``: a second configuration (e.g. ``cfg.with_preset("paper")``) run on the same forcing
     with its own leaf defaults (a second full run: twice the time); its results go to
@@ -728,9 +737,11 @@ def run(
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
     check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)
+    if keep_steps is None and out is not None:
+        keep_steps = Path(out) / UNFINISHED
     parts, steps = [], []
     for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
-        model = model_for(cfg, wd, progress)
+        model = model_for(cfg, wd, progress, keep_steps)
         steps.append(model.step)
         d = model.simulate(as_theta(theta, model.scenario.theta))  # leaf defaults: the run's optics
         d.attrs |= when_attrs(cfg, date)
@@ -762,7 +773,14 @@ def run(
         # run left its own results.nc beside the last run's comparison, figure and summary.
         other = None
         if compare is not None:
-            other, _ = run(compare, weather_file=weather_file, observations=None, progress=progress, forcing_df=w)
+            other, _ = run(
+                compare,
+                weather_file=weather_file,
+                observations=None,
+                progress=progress,
+                forcing_df=w,
+                keep_steps=keep_steps,
+            )
         out.mkdir(parents=True, exist_ok=True)
         write_netcdf(ds, out / "results.nc")
         if other is not None:
@@ -774,7 +792,13 @@ def run(
         if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does
             table = table.rename(columns=lambda c: c.replace("canopy_an_", "canopy_an_per_leaf_area_"))
         replace_text(out / "summary.csv", metadata_lines(summary_metadata(ds)) + table.to_csv(float_format="%.4g"))
+        if keep_steps == out / UNFINISHED:  # the run's own; a folder given stays the caller's
+            shutil.rmtree(keep_steps, ignore_errors=True)
     return ds, obs
+
+
+#: The folder in a run's ``out`` that keeps its rendered steps until its results are written.
+UNFINISHED = ".unfinished"
 
 
 #: Several-day results: a segment of day k has id ``segment_id + k · DAY_SEGMENT_STRIDE`` (ids of one day

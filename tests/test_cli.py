@@ -734,19 +734,25 @@ def test_an_interrupted_results_write_leaves_the_previous_file_whole(tmp_path, m
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.nc"]
 
 
-@pytest.mark.parametrize("command, extra", [("replicate", []), ("posterior", []), ("posterior", ["--no-resume"])])
+@pytest.mark.parametrize(
+    "command, extra", [("replicate", []), ("posterior", []), ("posterior", ["--no-resume"]), ("field", [])]
+)
 def test_ctrl_c_exits_130_saying_what_was_kept(command, extra, tmp_path, monkeypatch):
     """A KeyboardInterrupt anywhere in a command: exit 130 (128 + SIGINT) and one line on stderr;
-    a command that resumes says what it keeps (tests/test_resume.py sends a real SIGINT)."""
+    a command that resumes says what it keeps (tests/test_resume.py sends a real SIGINT), one that
+    does not (field, seconds long) that it starts again."""
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
     import importlib
 
-    # The module, not the command function of the same name that lightfit.cli exports.
-    monkeypatch.setattr(importlib.import_module(f"lightfit.cli.{command}"), "resolve", interrupted)
-    r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path), *extra])
+    if command == "field":
+        monkeypatch.setattr(importlib.import_module("lightfit.plant"), "build", interrupted)
+        r = runner.invoke(app, [command, "--n-plants", "4", "--export", str(tmp_path / "f.obj")])
+    else:  # the module, not the command function of the same name that lightfit.cli exports
+        monkeypatch.setattr(importlib.import_module(f"lightfit.cli.{command}"), "resolve", interrupted)
+        r = runner.invoke(app, [command, "--quick", "--out", str(tmp_path), *extra])
     assert r.exit_code == 130, r.output
     line = " ".join(r.stderr.split())
     assert line.startswith("interrupted: ") and "Traceback" not in r.output and "Aborted" not in r.output
@@ -754,6 +760,11 @@ def test_ctrl_c_exits_130_saying_what_was_kept(command, extra, tmp_path, monkeyp
         assert "design cache" in line and line.endswith("rerun without --no-resume to resume")
     elif command == "posterior":
         assert "design cache" in line and line.endswith("rerun the same command to resume")
+    elif command == "replicate":
+        assert line == (
+            "interrupted: every rendered step is kept in --out (its .unfinished folder); "
+            "rerun the same command to resume"
+        )
     else:
         assert line == "interrupted: rerun the command to start it again"
 
@@ -1695,7 +1706,8 @@ def test_ctrl_c_inside_a_render_exits_130_on_one_line(tmp_path, monkeypatch, cap
     monkeypatch.setattr(SegmentEstimator, "render", interrupted)
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "o")])
     assert r.exit_code == 130, r.output
-    assert " ".join(r.stderr.split()) == "interrupted: rerun the command to start it again", r.stderr
+    said = " ".join(r.stderr.split())
+    assert said.startswith("interrupted: every rendered step is kept in --out") and said.count("interrupted") == 1, said
     assert "pure_callback failed" not in caplog.text and "KeyboardInterrupt" not in caplog.text
 
 

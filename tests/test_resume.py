@@ -274,3 +274,39 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
     c = json.loads((tmp_path / "ctrl-c" / "calibration.json").read_text())
     assert c["theta"] == a["theta"] and c["loss"] == a["loss"]
     assert b["surrogate"]["renders_cached"] == 3 and b["surrogate"]["renders_new"] == 3 + len(strip)
+
+
+def test_replicate_interrupted_twice_ends_as_the_uninterrupted_run(tmp_path):
+    """replicate keeps each rendered step in --out's .unfinished folder: stopped by Ctrl-C after its
+    first daytime step (exit 130, the line saying what is kept), then killed after its second, and rerun,
+    it renders only the last step and ends with the uninterrupted run's results bit for bit (every
+    variable and attribute of results.nc, the summary's rows); the folder is gone once the results are
+    written."""
+    import xarray as xr
+
+    args = ["replicate", *MODEL]
+    rc, output = lightfit(args, tmp_path / "ref")
+    assert rc == 0, output
+    out = tmp_path / "run"
+    rc, output = lightfit(args, out, kill_after="step:1:INT")
+    assert rc == 130, output
+    said = " ".join(output.split())
+    assert "interrupted: every rendered step is kept in --out (its .unfinished folder); rerun the same command" in said
+    assert len(list((out / ".unfinished").glob("*.npz"))) == 1 and not (out / "results.nc").exists()
+    rc, output = lightfit(args, out, kill_after="step:2")
+    assert rc == KILLED, output  # (a killed run's progress line is never printed)
+    rc, output = lightfit(args, out)
+    assert rc == 0, output
+    assert "rendering steps (2 of 3 kept by an interrupted run)" in " ".join(output.split()), output
+    assert not (out / ".unfinished").exists()
+    with xr.open_dataset(tmp_path / "ref" / "results.nc") as a, xr.open_dataset(out / "results.nc") as b:
+        assert set(a.variables) == set(b.variables) and set(a.attrs) == set(b.attrs)
+        for k in a.variables:
+            np.testing.assert_array_equal(a[k].values, b[k].values, err_msg=k)
+        for k in a.attrs:
+            np.testing.assert_array_equal(np.asarray(a.attrs[k]), np.asarray(b.attrs[k]), err_msg=k)
+    rows = [
+        [x for x in (d / "summary.csv").read_text().splitlines() if not x.startswith("#")]
+        for d in (tmp_path / "ref", out)
+    ]
+    assert rows[0] == rows[1]

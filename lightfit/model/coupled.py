@@ -22,6 +22,7 @@ import json
 from collections.abc import Callable, Mapping
 from dataclasses import asdict
 from functools import cached_property
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +30,8 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError
+from lightfit.files import replaced
+from lightfit.killpoint import kill_point
 from lightfit.light.bridge import make_irradiance
 from lightfit.light.estimator import CLEAR_DAY_DHI_PER_DNI
 from lightfit.light.scene import FieldScene
@@ -77,6 +80,9 @@ class CoupledModel:
             default (``None``): a ceptometer on the soil of the measurement area
             (:func:`~lightfit.light.sensors.default_sensors`: ≈ 0.2 % of the main job's
             evaluations, so it is always rendered); ``()``: none (its observables are NaN).
+        keep_steps: a folder in which :meth:`render` keeps each step as soon as it is rendered and
+            from which it reads the steps already there, so that a run killed half-way and started
+            again renders only the rest, to the same bits (:meth:`step_file`; not while JAX traces).
     """
 
     def __init__(
@@ -86,6 +92,7 @@ class CoupledModel:
         light: LightParts | None = None,
         progress: bool = False,
         sensors: tuple[Sensor, ...] | None = None,
+        keep_steps: str | Path | None = None,
     ):
         if precision() != PRECISION:  # JAX would truncate every float64 array, with a warning each
             raise InputError(
@@ -96,6 +103,7 @@ class CoupledModel:
             )
         self.scenario = sc = scenario
         self.progress = progress
+        self.keep_steps = None if keep_steps is None else Path(keep_steps)
         self.sensors = default_sensors(sc.field, sc.ceptometer_height_m) if sensors is None else tuple(sensors)
         self.geometry = build(sc.field, tile=sc.measured_tile, progress=progress)
         seg = self.geometry.segments
@@ -219,22 +227,46 @@ class CoupledModel:
             "allocation_dhi_par_umol_m2_s": float(dhi),
         }
 
+    def step_file(self, leaf, i: int) -> Path:
+        """The file in :attr:`keep_steps` that keeps step ``i``'s render at ``leaf`` (3,): named by
+        everything the render depends on (:func:`~lightfit.model.emulator.render_key`, the leaf, the
+        step's time), so a run with other settings never reads it."""
+        from lightfit.model.emulator import render_file, render_key  # the emulator builds on this module
+
+        if "_render_key" not in self.__dict__:  # hashing the geometry once, not at every step
+            self.__dict__["_render_key"] = render_key(self)
+        key = self._render_key | {"step_utc": str(self.times[i].tz_convert("UTC"))}
+        return render_file(self.keep_steps, key, np.asarray(leaf, np.float64))
+
     def render(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""
         leaf = self.theta(theta).leaf
         vals, ses = [], []
         days = np.flatnonzero(self.day)
         # Not while JAX traces (calibration's jit and grad): the loop runs once then, at trace time.
-        show = self.progress and len(days) > 0 and not isinstance(leaf, jax.core.Tracer)
+        eager = not isinstance(leaf, jax.core.Tracer)
+        show = self.progress and len(days) > 0 and eager
+        keep = [self.step_file(leaf, i) if self.keep_steps is not None and eager else None for i in days]
+        kept = sum(f is not None and f.exists() for f in keep)
+        label = "rendering steps" + (f" ({kept} of {len(days)} kept by an interrupted run)" if kept else "")
         first = "choosing each segment's K" if self.scenario.target_rse is not None else ""
-        with progress_bar("rendering steps", len(days), show=show) as bar:
+        with progress_bar(label, len(days), show=show) as bar:
             bar.update(info=first)
-            for n, i in enumerate(days):
-                v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
-                vals.append(v)
-                ses.append(s)
+            for n, (i, file) in enumerate(zip(days, keep)):
+                if file is not None and file.exists():
+                    with np.load(file) as z:
+                        v, s = jnp.asarray(z["values"]), jnp.asarray(z["se"])
+                else:
+                    v, s = self.irradiance(leaf, jnp.asarray(self.sun_deg[i]), self.scenario.seed)
+                    if file is not None:
+                        file.parent.mkdir(parents=True, exist_ok=True)
+                        with replaced(file) as tmp:  # a kill leaves the step whole or absent
+                            np.savez(tmp, values=np.asarray(v), se=np.asarray(s))
+                        kill_point("step", n + 1)
                 if show:  # JAX dispatches asynchronously: the bar moves when the step is rendered
                     jax.block_until_ready(v)
+                vals.append(v)
+                ses.append(s)
                 bar.update(completed=n + 1, info=f"sun {self.sun_deg[i, 0]:.0f}°")
         if not vals:  # only night steps: nothing to render (and no scene to build)
             none = jnp.zeros((0, 4, self.n_columns), jnp.asarray(leaf).dtype)
