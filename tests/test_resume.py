@@ -278,7 +278,8 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
 
 def test_replicate_interrupted_twice_ends_as_the_uninterrupted_run(tmp_path):
     """replicate keeps each rendered step in --out's .unfinished folder: stopped by Ctrl-C after its
-    first daytime step (exit 130, the line saying what is kept), then killed after its second, and rerun,
+    first daytime step (exit 130, the line saying what is kept; again with --no-resume, which first
+    discards what the folder held), then killed after its second, and rerun,
     it renders only the last step and ends with the uninterrupted run's results bit for bit (every
     variable and attribute of results.nc, the summary's rows); the folder is gone once the results are
     written."""
@@ -293,6 +294,11 @@ def test_replicate_interrupted_twice_ends_as_the_uninterrupted_run(tmp_path):
     said = " ".join(output.split())
     assert "interrupted: every rendered step is kept in --out (its .unfinished folder); rerun the same command" in said
     assert len(list((out / ".unfinished").glob("*.npz"))) == 1 and not (out / "results.nc").exists()
+    stale = out / ".unfinished" / "stale.npz"  # another run's step: --no-resume discards what is kept
+    stale.write_bytes(b"")
+    rc, output = lightfit([*args, "--no-resume"], out, kill_after="step:1:INT")
+    assert rc == 130 and " ".join(output.split()).endswith("rerun without --no-resume to resume"), output
+    assert not stale.exists() and len(list((out / ".unfinished").glob("*.npz"))) == 1
     rc, output = lightfit(args, out, kill_after="step:2")
     assert rc == KILLED, output  # (a killed run's progress line is never printed)
     rc, output = lightfit(args, out)

@@ -4,6 +4,7 @@ and site with ``--date``, ``--start-time/--hours/--step`` and ``--site`` or coor
 from __future__ import annotations
 
 import dataclasses
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,11 @@ def replicate(
         help="Also run this preset (default or paper) on the same forcing and draw it dashed in the figure "
         "(results_compare.nc; a second full run).",
     ),
+    resume: bool = typer.Option(
+        True,
+        help="Take the steps that an interrupted or killed run of the same settings kept in OUT/.unfinished/, "
+        "where every run keeps its rendered steps until its results are written (--no-resume: discard them first).",
+    ),
     *,
     model: ModelOptions,
 ) -> None:
@@ -105,6 +111,8 @@ def replicate(
             expected="a folder name (e.g. results/run1; field-run's --out is the .nc file itself)",
         )
     out.mkdir(parents=True, exist_ok=True)
+    if not resume:
+        shutil.rmtree(out / rep.UNFINISHED, ignore_errors=True)
     before = stored_settings(out / "results.nc")  # compared with the run's own once it has run
     weather_report(w)
     label = provenance_label(w.attrs)
