@@ -82,7 +82,7 @@ class CoupledModel:
             evaluations, so it is always rendered); ``()``: none (its observables are NaN).
         keep_steps: a folder in which :meth:`render` keeps each step as soon as it is rendered and
             from which it reads the steps already there, so that a run killed half-way and started
-            again renders only the rest, to the same bits (:meth:`step_file`; not while JAX traces).
+            again renders only the rest, to the same bits (:meth:`step_files`; not while JAX traces).
     """
 
     def __init__(
@@ -227,16 +227,18 @@ class CoupledModel:
             "allocation_dhi_par_umol_m2_s": float(dhi),
         }
 
-    def step_file(self, leaf, i: int) -> Path:
-        """The file in :attr:`keep_steps` that keeps step ``i``'s render at ``leaf`` (3,): named by
-        everything the render depends on (:func:`~lightfit.model.emulator.render_key`, the leaf, the
-        step's time), so a run with other settings never reads it."""
+    def step_files(self, leaf, steps) -> list[Path]:
+        """The files in :attr:`keep_steps` that keep the renders of ``steps`` (indices of
+        :attr:`times`) at ``leaf`` (3,): named by everything a render depends on
+        (:func:`~lightfit.model.emulator.render_key`, the leaf, the step's time), so a run with other
+        settings never reads them."""
         from lightfit.model.emulator import render_file, render_key  # the emulator builds on this module
 
-        if "_render_key" not in self.__dict__:  # hashing the geometry once, not at every step
-            self.__dict__["_render_key"] = render_key(self)
-        key = self._render_key | {"step_utc": str(self.times[i].tz_convert("UTC"))}
-        return render_file(self.keep_steps, key, np.asarray(leaf, np.float64))
+        key = render_key(self)  # hashes the geometry: once for all the steps
+        leaf = np.asarray(leaf, np.float64)
+        return [
+            render_file(self.keep_steps, key | {"step_utc": str(self.times[i].tz_convert("UTC"))}, leaf) for i in steps
+        ]
 
     def render(self, theta: Theta | Mapping[str, float]):
         """Rendered parts for every daytime step: values and SE arrays of shape (T_day, 4, S + P)."""
@@ -246,7 +248,7 @@ class CoupledModel:
         # Not while JAX traces (calibration's jit and grad): the loop runs once then, at trace time.
         eager = not isinstance(leaf, jax.core.Tracer)
         show = self.progress and len(days) > 0 and eager
-        keep = [self.step_file(leaf, i) if self.keep_steps is not None and eager else None for i in days]
+        keep = self.step_files(leaf, days) if self.keep_steps is not None and eager else [None] * len(days)
         kept = sum(f is not None and f.exists() for f in keep)
         label = "rendering steps" + (f" ({kept} of {len(days)} kept by an interrupted run)" if kept else "")
         first = "choosing each segment's K" if self.scenario.target_rse is not None else ""
