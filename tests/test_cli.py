@@ -1075,7 +1075,7 @@ BAD_VALUES = {
     "--date": ["2016-02-30", "April", "2015-06-23", "2016-12-01"],
     "--start-time": ["25:00", "5"],
     "--hours": ["0", "30"],
-    "--step": ["2x", "0min", "20h"],
+    "--step": ["2x", "0min", "20h", "30"],
     "--site": ["atlantis"],
     "--latitude": ["95"],
     "--timezone": ["Mars/Olympus"],

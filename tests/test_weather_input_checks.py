@@ -708,6 +708,14 @@ def test_air_pressure_outside_what_a_field_can_have_is_refused(kpa, ok):
             check_and_repair(df, lines, "w.csv")
 
 
+@pytest.mark.parametrize("step", ["30", 30, "1.5", "30s", "0min", "2x", "20h"])
+def test_a_window_step_needs_its_unit_and_at_least_a_minute(step):
+    """A bare number is no step: pandas reads "30" as 30 ns, and --step 30 (or Window(step="30")) ended in
+    a MemoryError allocating 20.8 TiB of steps, a traceback instead of this message (a newcomer's review)."""
+    with pytest.raises(InputError, match=r"parameter 'step'.*a time step with its unit, from 1min to the window"):
+        Window("10:00", 10.0, step)
+
+
 def test_a_window_may_end_on_the_series_last_row():
     """A window inside the series' span is taken, its end included: the bundled day's instants run
     00:00–23:50 UTC, so 20:50 + 3 h ends on its last row and gives 7 half-hourly steps (a mutation

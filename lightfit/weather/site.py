@@ -163,6 +163,9 @@ def site_named(name: str) -> Site:
     return SITES[key]
 
 
+#: The shortest step a :class:`Window` takes (no weather series is finer).
+MIN_STEP = pd.Timedelta(minutes=1)
+
 _HHMM = re.compile(r"^([01]?\d|2[0-3]):([0-5]\d)$")
 
 
@@ -176,7 +179,8 @@ class Window:
     Attributes:
         start: local clock time ``HH:MM`` (in the site's time zone).
         hours: window length, hours (> 0, ≤ 24).
-        step: time step, a pandas offset such as ``30min`` or ``1h`` (> 0, ≤ ``hours``).
+        step: time step, a pandas offset with its unit such as ``30min`` or ``1h`` (≥ 1 min,
+            ≤ ``hours``; a bare number is refused: pandas reads ``"30"`` as 30 ns).
     """
 
     start: str = "05:00"
@@ -191,14 +195,16 @@ class Window:
         h = check_real(self.hours, "hours", 0, 24, open_lo=True, expected="a window length in hours, 0 < hours ≤ 24")
         object.__setattr__(self, "hours", h)
         try:
-            step = pd.Timedelta(self.step)
+            # a bare number has no unit: pandas reads "30" (or 30) as 30 ns, and a day of such steps
+            # ended in a MemoryError building the run's steps instead of this message
+            step = None if re.fullmatch(r"\s*[-+]?[\d.]+\s*", str(self.step)) else pd.Timedelta(self.step)
         except (ValueError, TypeError):
             step = None
-        if step is None or step <= pd.Timedelta(0) or step > pd.Timedelta(hours=h):
+        if step is None or step < MIN_STEP or step > pd.Timedelta(hours=h):
             raise InputError(
                 f"step={self.step!r}",
                 parameter="step",
-                expected=f"a positive time step ≤ the window ({h:g} h), e.g. 30min",
+                expected=f"a time step with its unit, from 1min to the window ({h:g} h), e.g. 30min",
             )
 
     def start_local(self, date: str | dt.date, timezone: str) -> pd.Timestamp:
