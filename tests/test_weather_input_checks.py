@@ -492,6 +492,14 @@ def test_unrecognised_files_say_what_each_format_needs(tmp_path):
     plain.write_text("\n".join(ln for ln in RECON.read_text().splitlines() if not ln.startswith("#")) + "\n")
     with pytest.raises(InputError, match=r"line 1: a lightfit CSV \(time_utc, …\) without its metadata lines"):
         read_weather(plain)
+    # metadata lines, then a table whose time column is not time_utc: the header is named, not the
+    # metadata ("unrecognised weather file format (first line '# provenance: measured')" before)
+    timed = tmp_path / "timed.csv"
+    timed.write_text(
+        "# provenance: measured\ntime,ghi_w_m2,tair_c,rh,co2_ppm,pair_kpa\n2016-05-10T09:00:00Z,680,15,0.65,400,100.5\n"
+    )
+    with pytest.raises(InputError, match=r"timed\.csv, line 2: .*no time_utc column \(header 'time,ghi_w_m2"):
+        read_weather(timed)
     junk = tmp_path / "junk.csv"
     junk.write_text("a,b\n1,2\n")
     with pytest.raises(InputError, match=r"unrecognised weather file format \(first line 'a,b'\).*time<TAB>PAR"):

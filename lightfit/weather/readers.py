@@ -1050,6 +1050,18 @@ def sniff_format(path: str | Path) -> str:
     if any(re.search(pat.lstrip("^"), head) for pat, _, _ in TERENO_QUANTITIES.values()):
         return "tereno"
     first = next((ln for ln in head.splitlines() if ln.strip()), "")
+    if re.match(r"#\s*provenance\s*:", first):  # a lightfit CSV's metadata, then a table without time_utc
+        lines = head.splitlines()
+        k = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+        if k is not None:
+            raise InputError(
+                f"a lightfit CSV ('# provenance: …' first) whose table has no time_utc column "
+                f"(header {lines[k][:60]!r})",
+                file=path,
+                row=k + 1,
+                expected="the time column named time_utc (UTC, ISO 8601), then contract columns such as "
+                "ghi_w_m2, tair_c, rh, pair_kpa, co2_ppm",
+            )
     if first.split(",")[0].strip().strip('"') == "time_utc":
         raise InputError(
             "a lightfit CSV (time_utc, …) without its metadata lines",
