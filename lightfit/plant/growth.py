@@ -4,7 +4,8 @@ CPlantBox (Schnepf et al. 2018, Zhou et al. 2020; Giraud et al. 2023 for the whe
 in cm and days. The segment table converts to metres; its columns (docs/design.md §3):
 
 ========================  ==========================================================
-``plant_id``              plant index in the field grid (row * n + col), 0 for one plant
+``plant_id``              the plant's field id, (r + 1000)·10⁴ + (c + 1000) from its row and
+                          column (:func:`lightfit.plant.field.plant_id`); 0 for one plant
 ``segment_index``         CPlantBox segment index within the plant (= end node − 1)
 ``segment_id``            stable field-wide id: ``plant_id * SEGMENT_ID_STRIDE + segment_index``
 ``organ_type``            ``"root"``, ``"stem"`` or ``"leaf"``
