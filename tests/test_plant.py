@@ -489,6 +489,12 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         Field(boundary="finite", row_spacing_m=-0.1)
     with pytest.raises(InputError, match="plant_spacing_m"):
         Field(boundary="finite", plant_spacing_m=0.0)
+    # centimetres given as metres (a newcomer's review: 12.5 m rows were grown without a word)
+    with pytest.raises(InputError, match=r"row_spacing_m=12.5.*at most 2 m \(12.5 is 12.5 cm given in metres"):
+        Field(row_spacing_m=12.5)
+    with pytest.raises(InputError, match="plant_spacing_m=3"):
+        Field(plant_spacing_m=3)
+    assert Field(row_spacing_m=2.0, plant_spacing_m=0.75).row_spacing_m == 2.0  # maize's rows and wider pass
     with pytest.raises(InputError, match="buffer_rows"):
         Field(boundary="finite", buffer_rows=-1)
     for d in (float("nan"), float("inf"), "90"):  # NaN built a mesh of NaN vertices

@@ -102,6 +102,12 @@ def turned(seg: pd.DataFrame, heading_deg: float) -> pd.DataFrame:
     return seg
 
 
+#: Largest row or plant spacing a field takes [m]: wider than any crop's rows (maize's are
+#: ≈ 0.75 m), so that centimetres given as metres (12.5 for wheat's 0.125) are refused, not grown
+#: as plants 12.5 m apart.
+MAX_SPACING_M = 2.0
+
+
 @dataclass(frozen=True)
 class Field:
     """Layout of a field.
@@ -197,7 +203,15 @@ class Field:
             if self.n_rows == self.n_along == _square_side(self.n_plants):
                 object.__setattr__(self, "plants_per_row", None)
         for name in ("row_spacing_m", "plant_spacing_m"):
-            v = check_real(getattr(self, name), name, 0, open_lo=True, expected="a positive distance in metres")
+            v = check_real(
+                getattr(self, name),
+                name,
+                0,
+                MAX_SPACING_M,
+                open_lo=True,
+                expected=f"a positive distance in metres, at most {MAX_SPACING_M:g} m "
+                "(12.5 is 12.5 cm given in metres)",
+            )
             object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
         # NaN built a mesh of NaN, inf a math domain error; 400 was kept as 400 (the field of 40°
         # under another name and cache key)
