@@ -23,8 +23,6 @@ differentiated computation (a standard deviation at night, a discriminant that v
 
 from __future__ import annotations
 
-import os
-
 #: The one precision lightfit computes in (name of the JAX default float dtype).
 PRECISION = "float64"
 
@@ -41,11 +39,6 @@ def use_float64() -> None:
         jax.config.update("jax_enable_x64", True)
 
 
-#: Size cap of JAX's compilation cache that :func:`use_compilation_cache` sets [bytes]: 1 GiB,
-#: about 2 500 times the main job's 64 programs (≈ 0.4 MB).
-COMPILATION_CACHE_MAX_BYTES = 2**30
-
-
 def use_compilation_cache(directory=None) -> None:
     """Keep JAX's compiled programs in ``directory`` (default ``<cache root>/jax``,
     :func:`lightfit.cache.cache_root`) and reuse them in later processes. Idempotent.
@@ -56,12 +49,11 @@ def use_compilation_cache(directory=None) -> None:
     program, the jaxlib version and the machine, so a stale entry is never used; the directory may
     be deleted at any time.
 
-    The directory is capped at :data:`COMPILATION_CACHE_MAX_BYTES` (the least recently used programs
-    go first; a ``JAX_COMPILATION_CACHE_MAX_SIZE`` set by the user wins). Why a cap: without one
-    JAX neither bounds the directory nor locks it, and its entries are written in place, so one of
-    ``lightfit field-run``'s workers could read a program another was still writing (JAX then warns
-    and compiles again). With a cap JAX takes a file lock (``filelock``) around every read and
-    write of an entry.
+    No size cap, so no lock: JAX locks its entries only with a cap (``jax_compilation_cache_max_size``),
+    whose eviction reads every entry's ``-atime`` file and, where one is missing (an entry of a
+    cache made without a cap, or of a process killed between its two writes), fails every later
+    write with a warning, for good. Uncapped, two of ``field-run``'s workers compiling the same
+    program at once may read one another's half-written entry: JAX then warns and compiles again.
     """
     import jax
 
@@ -69,8 +61,6 @@ def use_compilation_cache(directory=None) -> None:
 
     if jax.config.jax_compilation_cache_dir is None:  # JAX_COMPILATION_CACHE_DIR sets it
         jax.config.update("jax_compilation_cache_dir", str(directory or cache_root() / "jax"))
-    if "JAX_COMPILATION_CACHE_MAX_SIZE" not in os.environ:
-        jax.config.update("jax_compilation_cache_max_size", COMPILATION_CACHE_MAX_BYTES)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 

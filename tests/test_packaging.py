@@ -33,7 +33,6 @@ NOT_IMPORTED = {
     "jaxlib": "JAX's compiled backend; jax imports it",
     "karellen-llvm-core": "ships libLLVM for Dr.Jit's CPU backend; light/backend.py finds it by path",
     "h5netcdf": "xarray's netCDF engine, named as engine='h5netcdf'",
-    "filelock": "JAX locks its compilation cache's entries with it once the cache has a size cap (precision.py)",
 }
 
 
