@@ -227,7 +227,7 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     alone, _ = rep.run(replace(cfg, dates=("2016-04-27",)), weather_file=REAL_DAY, observations=None)
     np.testing.assert_array_equal(ds["canopy_an_umol_m2_s"].values[2:], alone["canopy_an_umol_m2_s"].values)
     assert (ds["organ_type"].values[day_of_segment == 1] == alone["organ_type"].values).all()
-    for v in ("leaf_area_above", "capacity_factor"):  # per segment, each day's plants their own
+    for v in ("leaf_area_above", "capacity_factor", "height_m"):  # per segment, each day's plants their own
         assert ds[v].dims == ("segment",), v
         np.testing.assert_array_equal(ds[v].values[day_of_segment == 1], alone[v].values)
     rep.write_netcdf(ds, tmp_path / "r.nc")  # the union is writable
@@ -334,6 +334,7 @@ def test_several_days_list_each_days_growth_temperature():
                 "organ_type": ("segment", ["leaf"] * 2),
                 "area_m2": ("segment", [1.0, 1.0]),
                 "is_blade": ("segment", [True, True]),
+                "height_m": ("segment", [0.1, 0.2]),
             },
             attrs={
                 "date": date,

@@ -7,6 +7,7 @@ import dataclasses
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 
 from lightfit.errors import InputError
@@ -156,6 +157,14 @@ def test_results_carry_the_profile_computed_from_the_grown_plants(weather_quick)
     assert ds.attrs["growth_temperature_c"] == ds.attrs["growth_temperature_applied_c"] == 15.0  # winter_wheat's own
     np.testing.assert_allclose(ds["capacity_factor"].values[is_blade], np.exp(-ds.attrs["kn_per_lai"] * got[is_blade]))
     assert ds["capacity_factor"].attrs["units"] == "1" and ds["leaf_area_above"].attrs["units"] == "m2 m-2"
+    # Every segment's centre height above the soil, by its id (a newcomer's review: plotting PAR
+    # against height meant joining the model's segment table by hand); the LAI above a blade never
+    # grows with its height.
+    centre = pd.Series(0.5 * (seg["z0"] + seg["z1"]).to_numpy(), index=seg["segment_id"].to_numpy())
+    np.testing.assert_array_equal(ds["height_m"].values, centre.loc[ds["segment"].values].to_numpy())
+    assert ds["height_m"].attrs["units"] == "m" and ds["height_m"].dims == ("segment",)
+    by_height = np.argsort(ds["height_m"].values[is_blade], kind="stable")
+    assert (np.diff(got[is_blade][by_height]) <= 0).all()
     # Summed over the canopy (every blade measured in a periodic cell) the profile integrates
     # analytically: mean capacity = (1 − e^(−kn·LAI)) / (kn·LAI), up to the blades' finite size.
     kn, area = ds.attrs["kn_per_lai"], ds["area_m2"].values[is_blade]

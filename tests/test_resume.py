@@ -316,3 +316,23 @@ def test_replicate_interrupted_twice_ends_as_the_uninterrupted_run(tmp_path):
         for d in (tmp_path / "ref", out)
     ]
     assert rows[0] == rows[1]
+
+
+def test_step_files_are_named_by_the_backend_that_renders_them(tmp_path, monkeypatch):
+    """A step kept by a run on another Mitsuba variant or CPU target (another machine, another
+    LIGHTFIT_LLVM_TARGET) is not read: its kernels round otherwise, so a resumed run mixed two
+    backends' steps, the results those of neither run (every light variable differed; a review)."""
+    import dataclasses
+
+    from lightfit import replication as rep
+    from lightfit.light import backend
+
+    w = rep.forcing().loc["2016-04-20 10:00+00:00":"2016-04-20 10:00+00:00"]
+    model = rep.model_for(rep.ReplicationConfig.quick(), w, keep_steps=tmp_path)
+    leaf, steps = model.theta().leaf, np.flatnonzero(model.day)[:1]
+    here = model.step_files(leaf, steps)
+    assert model.step_files(leaf, steps) == here  # the same run: the same file
+    for other in ({"llvm_target": "x86-64-v3, 8 lanes (LIGHTFIT_LLVM_TARGET=avx2)"}, {"variant": "cuda_ad_mono"}):
+        monkeypatch.setitem(backend._STATE, "info", dataclasses.replace(backend.info(), **other))
+        assert model.step_files(leaf, steps) != here, other
+        monkeypatch.undo()

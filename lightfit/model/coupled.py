@@ -42,7 +42,7 @@ from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import Forcing, Scenario, adaptive_limits, projected_rays, sun_positions_deg
 from lightfit.photosynthesis.canopy import capacity_factor, leaf_area_above, profile_for
 from lightfit.photosynthesis.parameters import growth_temperature, kattge_knorr_growth_temperature
-from lightfit.plant import build, one_sided_area_m2, organ_class
+from lightfit.plant import build, centre_height_m, one_sided_area_m2, organ_class
 from lightfit.precision import PRECISION, precision
 from lightfit.progress import progress_bar
 from lightfit.weather import timestamps
@@ -159,7 +159,7 @@ class CoupledModel:
         # Sorted by id: the sums then run in one order whatever order a tile's geometry has.
         seg = self.geometry.segments.sort_values("segment_id")
         blade = organ_class(seg) == "blade"
-        z = 0.5 * (seg["z0"].to_numpy() + seg["z1"].to_numpy())[blade]
+        z = centre_height_m(seg)[blade]
         area = one_sided_area_m2(seg)[blade]
         ground = len(self.geometry.plants) * self.scenario.field.area_per_plant_m2
         lai = pd.Series(leaf_area_above(z, area, ground), index=seg["segment_id"].to_numpy()[blade])
@@ -230,11 +230,16 @@ class CoupledModel:
     def step_files(self, leaf, steps) -> list[Path]:
         """The files in :attr:`keep_steps` that keep the renders of ``steps`` (indices of
         :attr:`times`) at ``leaf`` (3,): named by everything a render depends on
-        (:func:`~lightfit.model.emulator.render_key`, the leaf, the step's time), so a run with other
-        settings never reads them."""
+        (:func:`~lightfit.model.emulator.render_key`, the leaf, the step's time, and the Mitsuba
+        variant and CPU target that render it: other kernels round otherwise, and a run resumed on
+        another machine or with another ``LIGHTFIT_LLVM_TARGET`` mixed two backends' steps, its
+        results those of neither), so a run with other settings never reads them."""
+        from lightfit.light.backend import info
         from lightfit.model.emulator import render_file, render_key  # the emulator builds on this module
 
-        key = render_key(self)  # hashes the geometry: once for all the steps
+        backend = info()  # configures Mitsuba as the render would: the variant and target it renders with
+        # hashes the geometry: once for all the steps
+        key = render_key(self) | {"mitsuba_variant": backend.variant, "llvm_target": backend.llvm_target}
         leaf = np.asarray(leaf, np.float64)
         return [
             render_file(self.keep_steps, key | {"step_utc": str(self.times[i].tz_convert("UTC"))}, leaf) for i in steps
@@ -363,6 +368,7 @@ class CoupledModel:
                 "plant_id": ("segment", seg["plant_id"].to_numpy()),
                 "organ_type": ("segment", seg["organ_type"].astype(str).to_numpy()),
                 "area_m2": ("segment", self.area_m2),
+                "height_m": ("segment", centre_height_m(seg)),
                 "is_blade": ("segment", self.is_blade),
             },
         )

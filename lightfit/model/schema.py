@@ -118,6 +118,7 @@ VARIABLES: dict[str, Variable] = {
     "organ_type": Variable(S, None, "organ of the segment: leaf (blade or sheath) or stem"),
     "area_m2": Variable(S, "m2", "one-sided area of the segment", "blade area, or 2 pi r l for stems and sheaths"),
     "is_blade": Variable(S, "1", "segment is a leaf blade (has photosynthesis)", flags="0 no, 1 yes"),
+    "height_m": Variable(S, "m", "height of the segment's centre above the soil", "mean of its end points' z"),
     "leaf_area_above": Variable(
         S,
         "m2 m-2",

@@ -12,6 +12,7 @@ from lightfit.plant.export import export
 from lightfit.plant.field import HEADINGS, Field, FieldGeometry, Tile, build
 from lightfit.plant.growth import (
     GrowthConfig,
+    centre_height_m,
     grow_plant,
     is_shoot,
     one_sided_area_m2,
@@ -35,6 +36,7 @@ __all__ = [
     "Tile",
     "build",
     "cache_dir",
+    "centre_height_m",
     "expected_area",
     "export",
     "grow_plant",

@@ -84,6 +84,11 @@ def one_sided_area_m2(segments: pd.DataFrame) -> np.ndarray:
     return np.where(blade, segments["blade_area_m2"].to_numpy(), lateral)
 
 
+def centre_height_m(segments: pd.DataFrame) -> np.ndarray:
+    """Each segment's centre height above the soil (z = 0), m: the mean of its end points' z."""
+    return 0.5 * (segments["z0"].to_numpy() + segments["z1"].to_numpy())
+
+
 def parameter_dir() -> Path:
     """CPlantBox's bundled plant structure parameter directory."""
     import plantbox
