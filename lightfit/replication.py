@@ -717,7 +717,7 @@ def run(
     ``keep_steps``: the folder that keeps each rendered step until the run has written its results
     (:attr:`CoupledModel.keep_steps`), so that a run killed half-way and started again renders only
     the steps it had not, to the same results; default ``out/.unfinished`` where ``out`` is given
-    (removed once the results are written), else none.
+    (removed once the results are written), else none. A folder given is the caller's to remove.
 
     ``compare``: a second configuration (e.g. ``cfg.with_preset("paper")``) run on the same forcing
     with its own leaf defaults (a second full run: twice the time); its results go to
@@ -737,8 +737,10 @@ def run(
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
     check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)
-    if keep_steps is None and out is not None:
+    own = keep_steps is None and out is not None  # the run's own folder, removed at its end
+    if own:
         keep_steps = Path(out) / UNFINISHED
+    keep_steps = None if keep_steps is None else Path(keep_steps)
     parts, steps = [], []
     for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
         model = model_for(cfg, wd, progress, keep_steps)
@@ -792,7 +794,7 @@ def run(
         if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does
             table = table.rename(columns=lambda c: c.replace("canopy_an_", "canopy_an_per_leaf_area_"))
         replace_text(out / "summary.csv", metadata_lines(summary_metadata(ds)) + table.to_csv(float_format="%.4g"))
-        if keep_steps == out / UNFINISHED:  # the run's own; a folder given stays the caller's
+        if own:  # a folder given stays the caller's
             shutil.rmtree(keep_steps, ignore_errors=True)
     return ds, obs
 

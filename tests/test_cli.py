@@ -1788,6 +1788,7 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
 
     w = rep.forcing()
     rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "lib")
+    assert not (tmp_path / "lib" / rep.UNFINISHED).exists()  # the run's kept steps go with its end
     same = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(tmp_path / "lib")])
     assert same.exit_code == 0 and "replaced" not in same.output, same.output
     # the weather is a setting: another file is said

@@ -148,11 +148,13 @@ def replicate(
         out=out,
         progress=True,
         compare=cmp,
+        keep_steps=out / rep.UNFINISHED,  # removed below, once every file is written
     )
     # Written with the results, not before the run: interrupted, a run left its forcing beside the
     # last run's results (a review of interrupted runs).
     wx.write_lightfit_csv(w, out / "forcing.csv", meta)
     plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
+    shutil.rmtree(out / rep.UNFINISHED, ignore_errors=True)
     changed = replaced_settings(before, ds)
     if changed:  # a quick test run into the default folder replaced the main job's results unsaid
         console.print(f"note: replaced the results in {out}, made with other settings ({changed}); --out keeps both")
