@@ -716,7 +716,7 @@ def test_air_pressure_outside_what_a_field_can_have_is_refused(kpa, ok):
             check_and_repair(df, lines, "w.csv")
 
 
-@pytest.mark.parametrize("step", ["30", 30, "1.5", "30s", "0min", "2x", "20h"])
+@pytest.mark.parametrize("step", ["30", 30, "1.5", "30s", "0min", "2x", "20h", "", "nan", None])
 def test_a_window_step_needs_its_unit_and_at_least_a_minute(step):
     """A bare number is no step: pandas reads "30" as 30 ns, and --step 30 (or Window(step="30")) ended in
     a MemoryError allocating 20.8 TiB of steps, a traceback instead of this message (a newcomer's review)."""

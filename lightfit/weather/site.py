@@ -200,7 +200,8 @@ class Window:
             step = None if re.fullmatch(r"\s*[-+]?[\d.]+\s*", str(self.step)) else pd.Timedelta(self.step)
         except (ValueError, TypeError):
             step = None
-        if step is None or step < MIN_STEP or step > pd.Timedelta(hours=h):
+        # NaT ("", "nan", None) compares False with anything: refused here, not as an unnamed 'freq' later
+        if step is None or pd.isna(step) or step < MIN_STEP or step > pd.Timedelta(hours=h):
             raise InputError(
                 f"step={self.step!r}",
                 parameter="step",
