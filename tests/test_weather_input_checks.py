@@ -500,6 +500,13 @@ def test_unrecognised_files_say_what_each_format_needs(tmp_path):
     )
     with pytest.raises(InputError, match=r"timed\.csv, line 2: .*no time_utc column \(header 'time,ghi_w_m2"):
         read_weather(timed)
+    # the same said of a file lightfit wrote (its '# columns: time_utc …' line read as lightfit's:
+    # "no time_utc column" without the header before), and with the format given
+    renamed = tmp_path / "renamed.csv"
+    renamed.write_text(RECON.read_text().replace("\ntime_utc,", "\ntime,", 1))
+    for fmt in ("auto", "lightfit"):
+        with pytest.raises(InputError, match=r"renamed\.csv, line 10: .*no time_utc column \(header 'time,ghi_w_m2"):
+            read_weather(renamed, format=fmt)
     junk = tmp_path / "junk.csv"
     junk.write_text("a,b\n1,2\n")
     with pytest.raises(InputError, match=r"unrecognised weather file format \(first line 'a,b'\).*time<TAB>PAR"):

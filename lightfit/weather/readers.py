@@ -967,7 +967,14 @@ def read_lightfit_csv(
         raise InputError("file not found", file=path, expected="a lightfit weather CSV")
     meta, n_meta, table = read_csv_with_metadata(path, provenances=WEATHER_PROVENANCES, short_rows="error")
     if "time_utc" not in table.columns:
-        raise InputError("no time_utc column", file=path, row=n_meta + 1, expected="a header starting with time_utc")
+        header = f" (header {','.join(map(str, table.columns))[:60]!r})" if len(table.columns) else ""
+        raise InputError(
+            f"a lightfit CSV whose table has no time_utc column{header}",
+            file=path,
+            row=n_meta + 1,
+            expected="the time column named time_utc (UTC, ISO 8601), then contract columns such as "
+            "ghi_w_m2, tair_c, rh, pair_kpa, co2_ppm",
+        )
     unknown = [c for c in table.columns if c != "time_utc" and c not in COLUMNS]
     if unknown:
         raise InputError(
@@ -1050,18 +1057,8 @@ def sniff_format(path: str | Path) -> str:
     if any(re.search(pat.lstrip("^"), head) for pat, _, _ in TERENO_QUANTITIES.values()):
         return "tereno"
     first = next((ln for ln in head.splitlines() if ln.strip()), "")
-    if re.match(r"#\s*provenance\s*:", first):  # a lightfit CSV's metadata, then a table without time_utc
-        lines = head.splitlines()
-        k = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
-        if k is not None:
-            raise InputError(
-                f"a lightfit CSV ('# provenance: …' first) whose table has no time_utc column "
-                f"(header {lines[k][:60]!r})",
-                file=path,
-                row=k + 1,
-                expected="the time column named time_utc (UTC, ISO 8601), then contract columns such as "
-                "ghi_w_m2, tair_c, rh, pair_kpa, co2_ppm",
-            )
+    if re.match(r"#\s*provenance\s*:", first):  # a lightfit CSV's metadata: its reader says what its table lacks
+        return "lightfit"
     if first.split(",")[0].strip().strip('"') == "time_utc":
         raise InputError(
             "a lightfit CSV (time_utc, …) without its metadata lines",
