@@ -716,7 +716,7 @@ def run(
 
     ``keep_steps``: the folder that keeps each rendered step until the run has written its results
     (:attr:`CoupledModel.keep_steps`), so that a run killed half-way and started again renders only
-    the steps it had not, to the same results; default ``out/.unfinished`` where ``out`` is given
+    the steps it had not, to the same results; default ``out/.kept-steps`` where ``out`` is given
     (removed once the results are written), else none. A folder given is the caller's to remove.
 
     ``compare``: a second configuration (e.g. ``cfg.with_preset("paper")``) run on the same forcing
@@ -800,7 +800,7 @@ def run(
 
 
 #: The folder in a run's ``out`` that keeps its rendered steps until its results are written.
-UNFINISHED = ".unfinished"
+UNFINISHED = ".kept-steps"
 
 
 #: Several-day results: a segment of day k has id ``segment_id + k · DAY_SEGMENT_STRIDE`` (ids of one day

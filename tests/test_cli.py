@@ -762,7 +762,7 @@ def test_ctrl_c_exits_130_saying_what_was_kept(command, extra, tmp_path, monkeyp
         assert "design cache" in line and line.endswith("rerun the same command to resume")
     elif command == "replicate":
         assert line == (
-            "interrupted: every rendered step is kept in --out (its .unfinished folder); "
+            "interrupted: every rendered step is kept in --out (its .kept-steps folder); "
             "rerun the same command to resume"
         )
     else:
@@ -1789,6 +1789,9 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
     w = rep.forcing()
     rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "lib")
     assert not (tmp_path / "lib" / rep.UNFINISHED).exists()  # the run's kept steps go with its end
+    # ... which it kept while it ran: a folder given is the caller's, and holds the two daytime steps
+    rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "kept", keep_steps=tmp_path / "k")
+    assert len(list((tmp_path / "k").glob("*.npz"))) == 2
     same = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(tmp_path / "lib")])
     assert same.exit_code == 0 and "replaced" not in same.output, same.output
     # the weather is a setting: another file is said

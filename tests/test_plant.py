@@ -490,7 +490,7 @@ def test_bad_inputs_are_clear_errors(tmp_path):
     with pytest.raises(InputError, match="plant_spacing_m"):
         Field(boundary="finite", plant_spacing_m=0.0)
     # centimetres given as metres (a newcomer's review: 12.5 m rows were grown without a word)
-    with pytest.raises(InputError, match=r"row_spacing_m=12.5.*at most 2 m \(12.5 is 12.5 cm given in metres"):
+    with pytest.raises(InputError, match=r"row_spacing_m=12.5.*at most 2 m \(centimetres given as metres"):
         Field(row_spacing_m=12.5)
     with pytest.raises(InputError, match="plant_spacing_m=3"):
         Field(plant_spacing_m=3)

@@ -277,7 +277,7 @@ def test_surrogate_calibrate_killed_during_its_design_ends_as_the_uninterrupted_
 
 
 def test_replicate_interrupted_twice_ends_as_the_uninterrupted_run(tmp_path):
-    """replicate keeps each rendered step in --out's .unfinished folder: stopped by Ctrl-C after its
+    """replicate keeps each rendered step in --out's .kept-steps folder: stopped by Ctrl-C after its
     first daytime step (exit 130, the line saying what is kept; again with --no-resume, which first
     discards what the folder held), then killed after its second, and rerun,
     it renders only the last step and ends with the uninterrupted run's results bit for bit (every
@@ -292,19 +292,19 @@ def test_replicate_interrupted_twice_ends_as_the_uninterrupted_run(tmp_path):
     rc, output = lightfit(args, out, kill_after="step:1:INT")
     assert rc == 130, output
     said = " ".join(output.split())
-    assert "interrupted: every rendered step is kept in --out (its .unfinished folder); rerun the same command" in said
-    assert len(list((out / ".unfinished").glob("*.npz"))) == 1 and not (out / "results.nc").exists()
-    stale = out / ".unfinished" / "stale.npz"  # another run's step: --no-resume discards what is kept
+    assert "interrupted: every rendered step is kept in --out (its .kept-steps folder); rerun the same command" in said
+    assert len(list((out / ".kept-steps").glob("*.npz"))) == 1 and not (out / "results.nc").exists()
+    stale = out / ".kept-steps" / "stale.npz"  # another run's step: --no-resume discards what is kept
     stale.write_bytes(b"")
     rc, output = lightfit([*args, "--no-resume"], out, kill_after="step:1:INT")
     assert rc == 130 and " ".join(output.split()).endswith("rerun without --no-resume to resume"), output
-    assert not stale.exists() and len(list((out / ".unfinished").glob("*.npz"))) == 1
+    assert not stale.exists() and len(list((out / ".kept-steps").glob("*.npz"))) == 1
     rc, output = lightfit(args, out, kill_after="step:2")
     assert rc == KILLED, output  # (a killed run's progress line is never printed)
     rc, output = lightfit(args, out)
     assert rc == 0, output
     assert "rendering steps (2 of 3 kept by an interrupted run)" in " ".join(output.split()), output
-    assert not (out / ".unfinished").exists()
+    assert not (out / ".kept-steps").exists()
     with xr.open_dataset(tmp_path / "ref" / "results.nc") as a, xr.open_dataset(out / "results.nc") as b:
         assert set(a.variables) == set(b.variables) and set(a.attrs) == set(b.attrs)
         for k in a.variables:

@@ -160,7 +160,7 @@ RESUMABLE = {
     "and optimisations on the surrogate from them (seconds) without rendering again",
     "calibrate --no-surrogate": "every accepted step is kept in --out's history.jsonl",
     "field-run": "every finished task is kept beside --out (OUT.parts/)",
-    "replicate": "every rendered step is kept in --out (its .unfinished folder)",
+    "replicate": "every rendered step is kept in --out (its .kept-steps folder)",
     "render-dataset": "every rendered camera is kept in --out (its .unfinished folder)",
 }
 

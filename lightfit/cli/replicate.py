@@ -68,7 +68,7 @@ def replicate(
     ),
     resume: bool = typer.Option(
         True,
-        help="Take the steps that an interrupted or killed run of the same settings kept in OUT/.unfinished/, "
+        help="Take the steps that an interrupted or killed run of the same settings kept in OUT/.kept-steps/, "
         "where every run keeps its rendered steps until its results are written (--no-resume: discard them first).",
     ),
     *,

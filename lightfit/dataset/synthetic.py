@@ -20,7 +20,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     import xarray as xr
 
     from lightfit import weather
-    from lightfit.plant import build, one_sided_area_m2
+    from lightfit.plant import build, centre_height_m, one_sided_area_m2
 
     times = pd.DatetimeIndex(times)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
@@ -32,7 +32,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     rng = np.random.default_rng(seed)
     sun = weather.solar_position(times)
     par_top = 2000.0 * np.clip(np.sin(np.radians(sun["sun_elevation_deg"].to_numpy())), 0.0, None)  # µmol m-2 s-1
-    height = np.maximum(seg[["z0", "z1"]].to_numpy().mean(axis=1), 0.0)
+    height = np.maximum(centre_height_m(seg), 0.0)
     rel = np.clip(height / max(height.max(), 1e-9), 0.0, 1.0) ** 2
     shade = rng.uniform(0.3, 1.0, size=len(seg))
     par = 0.85 * par_top[:, None] * (0.05 + 0.95 * rel * shade)[None, :]

@@ -115,8 +115,8 @@ class Field:
     Attributes:
         n_plants: plants in the measurement area; rounded up to the next square N² (or, with
             ``plants_per_row``, to whole rows).
-        row_spacing_m: distance between wheat rows, m.
-        plant_spacing_m: distance between plants within a row, m.
+        row_spacing_m: distance between wheat rows, m (at most :data:`MAX_SPACING_M`, 2 m).
+        plant_spacing_m: distance between plants within a row, m (at most 2 m).
         buffer_rows: rows of unmeasured neighbour plants around the measurement area (and
             around each tile); default :data:`DEFAULT_BUFFER_ROWS` for a finite field, 0 (the
             only allowed value) for a periodic one.
@@ -210,7 +210,7 @@ class Field:
                 MAX_SPACING_M,
                 open_lo=True,
                 expected=f"a positive distance in metres, at most {MAX_SPACING_M:g} m "
-                "(12.5 is 12.5 cm given in metres)",
+                "(centimetres given as metres read 100× too far apart: 12.5 for 0.125 m)",
             )
             object.__setattr__(self, name, v)  # np.float32(0.125) hashed otherwise than 0.125
         # NaN built a mesh of NaN, inf a math domain error; 400 was kept as 400 (the field of 40°
