@@ -12,6 +12,10 @@ modules import them from here. A value no help text states stays in its own modu
 #: within the row (≈ 330 seeds m⁻² sown at ~80 % establishment).
 DEFAULT_ROW_SPACING_M = 0.125
 DEFAULT_PLANT_SPACING_M = 0.03
+#: Largest row or plant spacing a field takes [m]: wider than any crop's rows (maize's are
+#: ≈ 0.75 m), so that centimetres given as metres (12.5 for wheat's 0.125) are refused, not grown
+#: as plants 12.5 m apart.
+MAX_SPACING_M = 2.0
 #: Compass azimuth of the rows unless given, degrees: east–west (the rows along x).
 DEFAULT_ROW_DIRECTION_DEG = 90.0
 #: Plant headings (:attr:`lightfit.plant.Field.headings`): the default first.

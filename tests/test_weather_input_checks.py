@@ -507,6 +507,17 @@ def test_unrecognised_files_say_what_each_format_needs(tmp_path):
     for fmt in ("auto", "lightfit"):
         with pytest.raises(InputError, match=r"renamed\.csv, line 10: .*no time_utc column \(header 'time,ghi_w_m2"):
             read_weather(renamed, format=fmt)
+    # a blank line between the metadata and the header: the header's own line, not the one after
+    # the metadata (the last review: "line 10" named the blank line)
+    renamed.write_text(RECON.read_text().replace("\ntime_utc,", "\n\ntime,", 1))
+    with pytest.raises(InputError, match=r"renamed\.csv, line 11: .*no time_utc column"):
+        read_weather(renamed)
+    from lightfit.inference.observations import read_observations
+
+    obs = tmp_path / "obs.csv"
+    obs.write_text("# provenance: synthetic\n\nwhen,plant_par_umol_m2_s\n2016-04-20T10:00:00Z,300\n")
+    with pytest.raises(InputError, match=r"obs\.csv, line 3: no 'time' column"):
+        read_observations(obs)
     junk = tmp_path / "junk.csv"
     junk.write_text("a,b\n1,2\n")
     with pytest.raises(InputError, match=r"unrecognised weather file format \(first line 'a,b'\).*time<TAB>PAR"):

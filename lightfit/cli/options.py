@@ -34,6 +34,7 @@ from lightfit.defaults import (
     DEFAULT_ROW_DIRECTION_DEG,
     DEFAULT_ROW_SPACING_M,
     MAX_ADAPTIVE_SAMPLES,
+    MAX_SPACING_M,
     MIN_PILOT,
     SEASON_START_MONTH_DAY,
     SKY_MODELS,
@@ -48,10 +49,12 @@ _FIELD, _LIGHT, _PHOTO, _WEATHER, _WHEN = "Field", "Light", "Photosynthesis", "W
 
 #: Help of the field options (shared with the ``field`` command).
 ROW_SPACING_HELP = (
-    f"Distance between wheat rows, m (default {DEFAULT_ROW_SPACING_M:g}: drill rows, common German practice)."
+    f"Distance between wheat rows, m, at most {MAX_SPACING_M:g} (default {DEFAULT_ROW_SPACING_M:g}: drill rows, "
+    "common German practice)."
 )
 PLANT_SPACING_HELP = (
-    f"Distance between plants in a row, m (default {DEFAULT_PLANT_SPACING_M:g}: with the default rows "
+    f"Distance between plants in a row, m, at most {MAX_SPACING_M:g} (default {DEFAULT_PLANT_SPACING_M:g}: with "
+    "the default rows "
     f"{1 / (DEFAULT_ROW_SPACING_M * DEFAULT_PLANT_SPACING_M):.0f} plants m⁻²)."
 )
 ROW_DIRECTION_HELP = (

@@ -352,15 +352,15 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         raise InputError("file not found", file=path, expected="an observations CSV")
     if not path.is_file():
         raise InputError("a folder, not a file", file=path, expected="an observations CSV")
-    meta, n_meta, df = read_csv_with_metadata(path)
+    meta, header_line, df = read_csv_with_metadata(path)
     if "time" not in df.columns:
-        raise InputError("no 'time' column", file=path, row=n_meta + 1, expected="columns time, " + ", ".join(COLUMNS))
+        raise InputError("no 'time' column", file=path, row=header_line, expected="columns time, " + ", ".join(COLUMNS))
     old = [c for c in RENAMED if c in df.columns]
     if old:
         raise InputError(
             "old-style column names " + ", ".join(f"{c} (now {RENAMED[c]})" for c in old),
             file=path,
-            row=n_meta + 1,
+            row=header_line,
             expected="columns time, " + ", ".join(COLUMNS),
         )
     unknown = [c for c in df.columns if c != "time" and c not in COLUMNS]
@@ -368,7 +368,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         raise InputError(
             f"unknown column(s) {unknown}",
             file=path,
-            row=n_meta + 1,
+            row=header_line,
             expected="time and value/SD column pairs of " + ", ".join(COLUMNS),
         )
     present = [s for s in SERIES if s.value in df.columns or s.sd in df.columns]
@@ -377,11 +377,11 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         raise InputError(
             f"missing column(s) {missing}" if missing else "no observed quantity",
             file=path,
-            row=n_meta + 1,
+            row=header_line,
             expected="time and at least one value/SD column pair of " + ", ".join(COLUMNS),
         )
     if df.empty:
-        raise InputError("no data rows", file=path, row=n_meta + 2, expected="at least one row of observations")
+        raise InputError("no data rows", file=path, row=header_line + 1, expected="at least one row of observations")
     if "time_zone" in meta:  # read as --timezone reads it: an IANA name, UTC or UTC±H
         try:
             meta["time_zone"] = zone(meta["time_zone"], "time_zone")

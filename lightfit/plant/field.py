@@ -44,6 +44,7 @@ from lightfit.defaults import (
     DEFAULT_ROW_DIRECTION_DEG,
     DEFAULT_ROW_SPACING_M,
     HEADINGS,
+    MAX_SPACING_M,
     SHEATHS,
 )
 from lightfit.errors import InputError, check_integer, check_real
@@ -102,12 +103,6 @@ def turned(seg: pd.DataFrame, heading_deg: float) -> pd.DataFrame:
     return seg
 
 
-#: Largest row or plant spacing a field takes [m]: wider than any crop's rows (maize's are
-#: ≈ 0.75 m), so that centimetres given as metres (12.5 for wheat's 0.125) are refused, not grown
-#: as plants 12.5 m apart.
-MAX_SPACING_M = 2.0
-
-
 @dataclass(frozen=True)
 class Field:
     """Layout of a field.
@@ -115,7 +110,7 @@ class Field:
     Attributes:
         n_plants: plants in the measurement area; rounded up to the next square N² (or, with
             ``plants_per_row``, to whole rows).
-        row_spacing_m: distance between wheat rows, m (at most :data:`MAX_SPACING_M`, 2 m).
+        row_spacing_m: distance between wheat rows, m (at most :data:`lightfit.defaults.MAX_SPACING_M`, 2 m).
         plant_spacing_m: distance between plants within a row, m (at most 2 m).
         buffer_rows: rows of unmeasured neighbour plants around the measurement area (and
             around each tile); default :data:`DEFAULT_BUFFER_ROWS` for a finite field, 0 (the

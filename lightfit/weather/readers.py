@@ -898,8 +898,10 @@ def read_csv_with_metadata(
     """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required (one of
     ``provenances``).
 
-    Returns (metadata, number of metadata lines, table of strings); ``table.attrs["lines"]`` holds
-    each row's line number in the file (blank lines are skipped, the numbers stay the file's). A
+    Returns (metadata, the header's line number in the file (1-based; blank lines may sit between
+    it and the metadata; the line after the metadata where there is no table), table of strings);
+    ``table.attrs["lines"]`` holds each row's line number in the file (blank lines are skipped, the
+    numbers stay the file's). A
     file that is not UTF-8, or a row with more cells than the header (fewer: unless
     ``short_rows="pad"``), is refused naming its line. Shared by lightfit's own weather files and
     the observations CSV.
@@ -935,7 +937,7 @@ def read_csv_with_metadata(
         )
     header = next((i for i in range(n_meta, len(text)) if text[i].strip()), None)  # blank lines may precede it
     if header is None:
-        return meta, n_meta, pd.DataFrame()
+        return meta, n_meta + 1, pd.DataFrame()
     other = [sep for sep in (";", "\t") if sep in text[header]]
     if "," not in text[header] and other:  # else one column named 'time;par…', refused as no 'time' column
         raise InputError(
@@ -946,7 +948,7 @@ def read_csv_with_metadata(
         )
     table, lines = _table_rows(text, header, ",", path, short_rows=short_rows)
     table.attrs["lines"] = lines
-    return meta, n_meta, table
+    return meta, header + 1, table
 
 
 def read_lightfit_csv(
@@ -965,13 +967,13 @@ def read_lightfit_csv(
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="a lightfit weather CSV")
-    meta, n_meta, table = read_csv_with_metadata(path, provenances=WEATHER_PROVENANCES, short_rows="error")
+    meta, header_line, table = read_csv_with_metadata(path, provenances=WEATHER_PROVENANCES, short_rows="error")
     if "time_utc" not in table.columns:
         header = f" (header {','.join(map(str, table.columns))[:60]!r})" if len(table.columns) else ""
         raise InputError(
             f"a lightfit CSV whose table has no time_utc column{header}",
             file=path,
-            row=n_meta + 1,
+            row=header_line,
             expected="the time column named time_utc (UTC, ISO 8601), then contract columns such as "
             "ghi_w_m2, tair_c, rh, pair_kpa, co2_ppm",
         )
@@ -980,7 +982,7 @@ def read_lightfit_csv(
         raise InputError(
             f"unknown column(s) {unknown}",
             file=path,
-            row=n_meta + 1,
+            row=header_line,
             expected="time_utc and columns among " + ", ".join(COLUMNS),
         )
     provenance = _resolve_provenance(meta["provenance"], f"line '# provenance: {meta['provenance']}'", provenance, path)
