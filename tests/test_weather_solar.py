@@ -1,6 +1,7 @@
 """Sun position against the NOAA solar calculator formulas (independent of pvlib) and split closure."""
 
 import math
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -9,6 +10,7 @@ import pytest
 
 from lightfit.errors import InputError
 from lightfit.weather import SELHAUSEN, Site, add_solar, resample, solar_position, split_direct_diffuse
+from lightfit.weather.solar import pvlib_deprecations_quiet
 
 
 def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> float:
@@ -346,3 +348,29 @@ def test_a_diffuse_fraction_above_one_gives_no_negative_direct_par():
     np.testing.assert_allclose(par_diffuse_fraction([1.2, 1.0, -0.1, 0.0], 39.2), [1.0, 1.0, 0.0, 0.0], atol=1e-15)
     dni_par, dhi_par = par_direct_diffuse([-10.0], [300.0], [30.0], [590.0])
     assert dni_par[0] == pytest.approx(0.0, abs=1e-12) and dhi_par[0] == pytest.approx(590.0, rel=1e-12)
+
+
+def test_the_forcing_runs_under_warnings_as_errors_and_leaves_the_filters_as_they_were():
+    """pvlib 0.16 reads pandas' deprecated ``dayofyear`` (a Pandas4Warning under pandas 3.1): with
+    warnings as errors (``PYTHONWARNINGS=error``, a strict test harness) the main job stopped at its
+    forcing. pvlib's own deprecations are silenced around its calls, and nothing else is."""
+    from lightfit import replication as rep
+    from lightfit.weather.reconstruct import reconstruct_day, solar_noon_utc
+
+    times = pd.date_range("2016-04-20 04:00", "2016-04-20 18:00", freq="30min", tz="UTC")
+    ghi = pd.Series(np.linspace(0.0, 600.0, len(times)), index=times)
+    elevation = solar_position(times)["sun_elevation_deg"]
+    before = list(warnings.filters)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        forcing = rep.forcing()  # the bundled day: sun, the split from its diffuse column, clear sky
+        day = reconstruct_day("2016-04-20")
+        noon = solar_noon_utc("2016-04-20")
+        splits = [split_direct_diffuse(ghi, elevation, model=m) for m in ("erbs", "boland")]
+        with pytest.warns(DeprecationWarning, match="lightfit's own"):  # only pvlib's are silenced
+            with pvlib_deprecations_quiet():
+                warnings.warn("lightfit's own", DeprecationWarning, stacklevel=1)
+    assert warnings.filters == before
+    assert len(forcing) and len(day) and noon.hour == 11  # Selhausen (6.45° E): transit ≈ 11:35 UTC
+    for split in splits:
+        assert np.isfinite(np.asarray(split, dtype=float)).all()

@@ -16,7 +16,7 @@ import pandas as pd
 import pvlib
 
 from lightfit.weather import units
-from lightfit.weather.solar import SELHAUSEN, Site, add_solar
+from lightfit.weather.solar import SELHAUSEN, Site, add_solar, pvlib_deprecations_quiet
 
 
 @dataclass(frozen=True)
@@ -80,9 +80,12 @@ class DayAssumptions:
 
 def solar_noon_utc(date: str, site: Site = SELHAUSEN) -> pd.Timestamp:
     """Time of solar transit (UTC) on ``date`` at ``site``, from pvlib's SPA."""
-    tr = pvlib.solarposition.sun_rise_set_transit_spa(
-        pd.DatetimeIndex([pd.Timestamp(date, tz="UTC") + pd.Timedelta("12h")]), site.latitude_deg, site.longitude_deg
-    )
+    with pvlib_deprecations_quiet():
+        tr = pvlib.solarposition.sun_rise_set_transit_spa(
+            pd.DatetimeIndex([pd.Timestamp(date, tz="UTC") + pd.Timedelta("12h")]),
+            site.latitude_deg,
+            site.longitude_deg,
+        )
     return pd.Timestamp(tr["transit"].iloc[0]).tz_convert("UTC")
 
 
@@ -116,7 +119,8 @@ def reconstruct_day(
     times = pd.date_range(pd.Timestamp(date, tz="UTC"), periods=int(pd.Timedelta("1D") / pd.Timedelta(step)), freq=step)
     loc = pvlib.location.Location(site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
     t_anchor = anchor.time_utc
-    clear = loc.get_clearsky(times.append(pd.DatetimeIndex([t_anchor])), model=assumptions.clear_sky_model)
+    with pvlib_deprecations_quiet():
+        clear = loc.get_clearsky(times.append(pd.DatetimeIndex([t_anchor])), model=assumptions.clear_sky_model)
     k = anchor.par_umol_m2_s / float(units.par_from_ghi(clear["ghi"].iloc[-1]))
     ghi, diffuse = k * clear["ghi"].iloc[:-1], k * clear["dhi"].iloc[:-1]
 

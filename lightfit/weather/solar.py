@@ -6,6 +6,9 @@ Selhausen field minirhizotron facility (:data:`~lightfit.weather.site.SELHAUSEN`
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import numpy as np
 import pandas as pd
 import pvlib
@@ -50,6 +53,18 @@ CLEAR_SKY_MIN_FRACTION = 0.02
 CLEAR_SKY_MIN_ELEVATION_DEG = 20.0
 
 
+@contextlib.contextmanager
+def pvlib_deprecations_quiet():
+    """Within it, pvlib's own use of pandas APIs that pandas deprecates (pvlib 0.16 reads
+    ``DatetimeIndex.dayofyear``, a ``Pandas4Warning`` under pandas 3.1) warns nothing: a user cannot
+    act on it, and under ``-W error`` (``PYTHONWARNINGS=error``) it stopped every run at the forcing.
+    Only warnings that pvlib's modules raise are silenced, and only here."""
+    with warnings.catch_warnings():
+        for category in (DeprecationWarning, FutureWarning):
+            warnings.filterwarnings("ignore", category=category, module=r"pvlib\.")
+        yield
+
+
 def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFrame:
     """Apparent solar elevation and azimuth (degrees) at tz-aware ``times``, and the true (geometric,
     unrefracted) elevation ``sun_true_elevation_deg`` that decomposition models take
@@ -62,7 +77,10 @@ def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFr
         raise InputError(
             "timestamps are timezone-naive", column="time", expected="tz-aware timestamps (lightfit uses UTC)"
         )
-    sp = pvlib.solarposition.get_solarposition(times, site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
+    with pvlib_deprecations_quiet():
+        sp = pvlib.solarposition.get_solarposition(
+            times, site.latitude_deg, site.longitude_deg, altitude=site.altitude_m
+        )
     return pd.DataFrame(
         {
             "sun_elevation_deg": sp["apparent_elevation"],
@@ -115,11 +133,12 @@ def split_direct_diffuse(
     ghi_w_m2 = ghi_w_m2.astype(float).clip(lower=0.0)
     zenith = 90.0 - (sun_elevation_deg if true_elevation_deg is None else true_elevation_deg)
     times = ghi_w_m2.index
-    if model == "erbs":
-        out = pvlib.irradiance.erbs(ghi_w_m2, zenith, times)
-    else:
-        a, b = boland_coeffs(times)
-        out = pvlib.irradiance.boland(ghi_w_m2, zenith, times, a_coeff=a, b_coeff=b)
+    with pvlib_deprecations_quiet():
+        if model == "erbs":
+            out = pvlib.irradiance.erbs(ghi_w_m2, zenith, times)
+        else:
+            a, b = boland_coeffs(times)
+            out = pvlib.irradiance.boland(ghi_w_m2, zenith, times, a_coeff=a, b_coeff=b)
     # pvlib's DHI closes with its own (true) zenith and is all of GHI beyond 87°; the rest is the
     # beam, along the apparent sun, so that the light model sees exactly GHI.
     dhi = np.minimum(pd.Series(np.asarray(out["dhi"], float), index=times).fillna(ghi_w_m2), ghi_w_m2).clip(lower=0.0)
@@ -249,11 +268,12 @@ def split_from_diffuse(
     dhi = diffuse.clip(lower=0.0, upper=ghi).where(up, ghi)
     zenith = 90.0 - sun_elevation_deg
     loc = pvlib.location.Location(site.latitude_deg, site.longitude_deg, altitude=site.altitude_m)
-    clear = loc.get_clearsky(
-        ghi.index,
-        model="ineichen",
-        solar_position=pd.DataFrame({"apparent_zenith": zenith, "apparent_elevation": sun_elevation_deg}),
-    )
+    with pvlib_deprecations_quiet():
+        clear = loc.get_clearsky(
+            ghi.index,
+            model="ineichen",
+            solar_position=pd.DataFrame({"apparent_zenith": zenith, "apparent_elevation": sun_elevation_deg}),
+        )
     raw = beam_normal(ghi - dhi, sun_elevation_deg)
     dni = pvlib.irradiance.dni(ghi, dhi, zenith, dni_clear=clear["dni"]).fillna(0.0).where(up, 0.0)
     # The closure GHI = DNI sin β + DHI; clipped at 0 and GHI: where the file's diffuse is 0 (a clamped
