@@ -223,6 +223,32 @@ def test_results_carry_the_schema(simulated, tmp_path):
         back.close()
 
 
+def test_synthetic_results_describe_the_segments_as_a_run_does(simulated, tmp_path):
+    """The synthetic results of the same plants carry every coordinate along ``segment`` that a run's
+    results do, with equal values, dtypes and attributes (a review: they lacked height_m, is_blade and
+    organ_type), and the schema's attributes on every variable, through netCDF too."""
+    import xarray as xr
+
+    from lightfit.dataset import synthetic_results
+
+    synthetic = synthetic_results(FIELD, simulated.indexes["time"])
+    on_segment = [c for c in simulated.coords if simulated[c].dims == ("segment",)]
+    assert {"segment", "plant_id", "organ_type", "area_m2", "height_m", "is_blade"} <= set(on_segment)
+
+    def read_back(ds, name):
+        with xr.open_dataset(rep.write_netcdf(ds, tmp_path / name), engine="h5netcdf") as f:
+            return f.load()
+
+    pairs = ((synthetic, simulated), (read_back(synthetic, "synthetic.nc"), read_back(simulated, "run.nc")))
+    for ds, rendered in pairs:
+        assert sorted(c for c in ds.coords if ds[c].dims == ("segment",)) == sorted(on_segment)
+        for c in on_segment:
+            np.testing.assert_array_equal(ds[c].values, rendered[c].values, err_msg=c)
+            assert ds[c].dtype == rendered[c].dtype and ds[c].attrs == rendered[c].attrs, c
+        for name in ds.variables:
+            assert ds[name].attrs == schema.variable(str(name)).attrs(), name
+
+
 def test_schema_refuses_unknown_variables(simulated):
     ds = simulated[["plant_par_umol_m2_s"]].assign(mystery=("time", np.zeros(simulated.sizes["time"])))
     with pytest.raises(InputError, match="mystery"):

@@ -20,7 +20,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     import xarray as xr
 
     from lightfit import weather
-    from lightfit.plant import build, centre_height_m, one_sided_area_m2
+    from lightfit.plant import build, centre_height_m
 
     times = pd.DatetimeIndex(times)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
@@ -51,12 +51,7 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
             "leaf_gs_mol_m2_s": (dims, gs.astype(np.float32)),
             "limitation": (dims, (vj < vc).astype(np.int8)),
         },
-        coords={
-            "time": times.tz_convert(None).to_numpy(),
-            "segment": seg["segment_id"].to_numpy(np.int64),
-            "plant_id": ("segment", seg["plant_id"].to_numpy(np.int64)),
-            "area_m2": ("segment", one_sided_area_m2(seg)),
-        },
+        coords={"time": times.tz_convert(None).to_numpy(), **schema.segment_coords(seg)},
         attrs={
             **fld.attrs(),
             "synthetic": "true",

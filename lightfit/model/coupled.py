@@ -351,7 +351,6 @@ class CoupledModel:
         w = self.scenario.weather
         weather = {"weather_par_umol_m2_s": "par_umol_m2_s", "dni_w_m2": "dni_w_m2", "dhi_w_m2": "dhi_w_m2"}
         weather |= {k: k for k in ("tair_c", "co2_ppm", "rh", "pair_kpa", "sun_elevation_deg", "sun_azimuth_deg")}
-        seg = self.segments
         ds = xr.Dataset(
             {
                 **{k: (("time", "segment"), np.asarray(o[k])) for k in light},
@@ -364,12 +363,7 @@ class CoupledModel:
             },
             coords={
                 "time": self.times.tz_convert("UTC").tz_localize(None).values,
-                "segment": self.segment_id,
-                "plant_id": ("segment", seg["plant_id"].to_numpy()),
-                "organ_type": ("segment", seg["organ_type"].astype(str).to_numpy()),
-                "area_m2": ("segment", self.area_m2),
-                "height_m": ("segment", centre_height_m(seg)),
-                "is_blade": ("segment", self.is_blade),
+                **schema.segment_coords(self.segments),
             },
         )
         ds["leaf_area_above"] = ("segment", np.where(self.is_blade, 0.0, np.nan))

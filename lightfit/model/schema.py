@@ -12,16 +12,21 @@ row spacing) or per one-sided leaf area of the measured blades (results attribut
 canopy APAR and chamber NEE are always per ground area of the measured plants; above-canopy PAR
 is per unit horizontal area.
 
-:meth:`lightfit.model.coupled.CoupledModel.simulate` writes these attributes (:func:`annotate`);
-readers (:mod:`lightfit.dataset`, :func:`lightfit.distributed.gather`) take units and meaning
-from here (:func:`units`), not from variable names.
+:meth:`lightfit.model.coupled.CoupledModel.simulate` writes these attributes (:func:`annotate`) and
+takes the coordinates along ``segment`` from :func:`segment_coords`, as the synthetic results do
+(:func:`lightfit.dataset.synthetic_results`); readers (:mod:`lightfit.dataset`,
+:func:`lightfit.distributed.gather`) take units and meaning from here (:func:`units`), not from
+variable names.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from lightfit.errors import InputError
+from lightfit.plant.growth import centre_height_m, one_sided_area_m2, organ_class
 
 UMOL = "umol m-2 s-1"
 _SEGMENT_AREA = "per unit one-sided area of the segment (leaf blade, or stem/sheath lateral surface)"
@@ -347,6 +352,23 @@ def units(name: str) -> str:
     return variable(name).units or "1"
 
 
+def segment_coords(segments) -> dict:
+    """The results' coordinates along ``segment`` of a segment table (``FieldGeometry.segments``'
+    rows, in their order), for ``xarray.Dataset(coords=...)``: ``segment`` (id), ``plant_id``,
+    ``organ_type``, ``area_m2`` (one-sided, m²), ``is_blade`` and ``height_m`` (centre, m).
+
+    Every writer of results takes them from here, so that a synthetic file and a rendered run
+    describe the same plants' segments alike (:data:`VARIABLES` gives their attributes)."""
+    on_segment = {
+        "plant_id": segments["plant_id"].to_numpy(np.int64),
+        "organ_type": segments["organ_type"].astype(str).to_numpy(),
+        "area_m2": one_sided_area_m2(segments),
+        "height_m": centre_height_m(segments),
+        "is_blade": organ_class(segments) == "blade",
+    }
+    return {"segment": segments["segment_id"].to_numpy(np.int64)} | {k: ("segment", v) for k, v in on_segment.items()}
+
+
 def annotate(ds):
     """``ds`` with the schema's attributes on every variable and coordinate (in place; returned).
 
@@ -360,4 +382,13 @@ def annotate(ds):
     return ds
 
 
-__all__ = ["OBSERVABLES", "SENSOR_OBSERVABLES", "VARIABLES", "Variable", "annotate", "units", "variable"]
+__all__ = [
+    "OBSERVABLES",
+    "SENSOR_OBSERVABLES",
+    "VARIABLES",
+    "Variable",
+    "annotate",
+    "segment_coords",
+    "units",
+    "variable",
+]
