@@ -554,6 +554,23 @@ def _span(df: pd.DataFrame, tz: str) -> str:
     return f"{a} … {b} ({zone_label(tz)}){cut_at_ends(df)}"
 
 
+def describe_steps(cfg: ReplicationConfig, w: pd.DataFrame) -> str:
+    """The steps of the forcing ``w`` in words (forcing.csv's note, the command's table of the forcing):
+    each date's window (:meth:`Window.describe`); where ``w`` holds only some of their steps (the
+    command's ``--steps``, a ``forcing_df`` cut short), its first and last step in the site's time
+    and, where every day runs the same positions of its window, those positions ``a:b``."""
+    tz, step = cfg.site.timezone, pd.Timedelta(cfg.window.step)
+    windows = "; ".join(cfg.window.describe(d, tz) for d in cfg.dates)
+    at = [tuple(int(i) for i in (wd.index - cfg.window_utc(d)[0]) // step) for d, wd in days(cfg, w)]
+    if len(w) == len(cfg.dates) * cfg.window.n_steps and set(at) == {tuple(range(cfg.window.n_steps))}:
+        return windows
+    local = w.index.tz_convert(tz)
+    last = f"{local[-1]:%H:%M}" if local[-1].date() == local[0].date() else f"{local[-1]:%Y-%m-%d %H:%M}"
+    a, b = at[0][0], at[0][-1] + 1
+    which = f", steps {a}:{b}" if set(at) == {tuple(range(a, b))} else ""
+    return f"{local[0]:%Y-%m-%d %H:%M} … {last}{which} of {windows}"
+
+
 def days(cfg: ReplicationConfig, w: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     """A (several-day) forcing split into (date, that day's steps) by the configuration's windows."""
     out = []
@@ -712,12 +729,16 @@ def run(
     compare: ReplicationConfig | None = None,
     keep_steps: Path | None = None,
 ):
-    """Run the replication; write outputs to ``out`` if given. Returns (Dataset, observations or None).
+    """Run the replication. Returns (Dataset, observations or None).
 
-    ``keep_steps``: the folder that keeps each rendered step until the run has written its results
+    ``out``: a folder for results.nc, replication.png (:func:`lightfit.report.plot`), summary.csv,
+    the forcing as forcing.csv (:func:`lightfit.weather.write_lightfit_csv`) and forcing.png, and
+    with ``compare`` results_compare.nc; written once everything is computed (default: none).
+
+    ``keep_steps``: the folder that keeps each rendered step until the run has written its files
     (:attr:`CoupledModel.keep_steps`), so that a run killed half-way and started again renders only
     the steps it had not, to the same results; default ``out/.kept-steps`` where ``out`` is given
-    (removed once the results are written), else none. A folder given is the caller's to remove.
+    (removed once every file is written), else none. A folder given is the caller's to remove.
 
     ``compare``: a second configuration (e.g. ``cfg.with_preset("paper")``) run on the same forcing
     with its own leaf defaults (a second full run: twice the time); its results go to
@@ -783,6 +804,17 @@ def run(
                 forcing_df=w,
                 keep_steps=keep_steps,
             )
+        # The forcing is written with the results, not before the run: an interrupted run left its
+        # forcing beside the last run's results (a review of interrupted runs). Imported here: the
+        # module sets matplotlib's backend.
+        from lightfit.weather.plot import plot_forcing, provenance_label
+
+        meta = {
+            "provenance": w.attrs.get("provenance", "unstated"),  # as provenance_label says a series that does not
+            "source": str(w.attrs.get("source")),
+            "note": f"{len(w)} steps, {describe_steps(cfg, w)}, {cfg.site.name} ({cfg.how})",
+        }
+        title = f"{provenance_label(w.attrs)} forcing, {cfg.site.name} {', '.join(cfg.dates)}"
         out.mkdir(parents=True, exist_ok=True)
         write_netcdf(ds, out / "results.nc")
         if other is not None:
@@ -794,12 +826,14 @@ def run(
         if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does
             table = table.rename(columns=lambda c: c.replace("canopy_an_", "canopy_an_per_leaf_area_"))
         replace_text(out / "summary.csv", metadata_lines(summary_metadata(ds)) + table.to_csv(float_format="%.4g"))
+        weather.write_lightfit_csv(w, out / "forcing.csv", meta)
+        plot_forcing(w, out / "forcing.png", title=title, tz=cfg.site.timezone)
         if own:  # a folder given stays the caller's
             shutil.rmtree(keep_steps, ignore_errors=True)
     return ds, obs
 
 
-#: The folder in a run's ``out`` that keeps its rendered steps until its results are written.
+#: The folder in a run's ``out`` that keeps its rendered steps until its files are written.
 UNFINISHED = ".kept-steps"
 
 

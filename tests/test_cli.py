@@ -1787,13 +1787,26 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
     from lightfit import replication as rep
 
     w = rep.forcing()
-    rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "lib")
-    assert not (tmp_path / "lib" / rep.UNFINISHED).exists()  # the run's kept steps go with its end
+    lib = tmp_path / "lib"
+    rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=lib)
+    assert not (lib / rep.UNFINISHED).exists()  # the run's kept steps go with its end
     # ... which it kept while it ran: a folder given is the caller's, and holds the two daytime steps
     rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "kept", keep_steps=tmp_path / "k")
     assert len(list((tmp_path / "k").glob("*.npz"))) == 2
-    same = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(tmp_path / "lib")])
+    # The library's folder is the command's: the forcing it ran on too (written by the command alone before)
+    f = read_weather(lib / "forcing.csv")
+    np.testing.assert_array_equal(f.index, w.index[14:16])
+    np.testing.assert_allclose(f[w.columns].to_numpy(float), w.iloc[14:16].to_numpy(float), rtol=1e-7, atol=1e-9)
+    assert f.attrs["provenance"] == w.attrs["provenance"] == "reconstructed"
+    assert f.attrs["metadata"]["note"] == (
+        "2 steps, 2016-04-20 12:00 … 12:30, steps 14:16 of 2016-04-20 05:00 + 14 h (Europe/Berlin), 30min steps, "
+        "Selhausen (sample)"
+    )
+    written = {n: (lib / n).read_bytes() for n in ("forcing.csv", "forcing.png", "summary.csv")}
+    same = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(lib)])
     assert same.exit_code == 0 and "replaced" not in same.output, same.output
+    assert {n: (lib / n).read_bytes() for n in written} == written
+    assert not (lib / rep.UNFINISHED).exists()
     # the weather is a setting: another file is said
     dim = tmp_path / "dim.csv"
     dim.write_text((tmp_path / "lib" / "forcing.csv").read_text())

@@ -261,7 +261,7 @@ class ModelSettings:
         cfg = self.replication_config().effective(w)
         out |= {k: cfg[k] for k in _FROM_CONFIG}
         out["weather_file"] = source_setting(weather_source(self.weather_file))
-        n = _n_steps(self.window())
+        n = self.window().n_steps
         first, last, _ = _steps(self.steps or ":", n).indices(n)
         out["steps"] = f"{first}:{last}"
         if w is not None:
@@ -993,7 +993,7 @@ def resolve(opts: ModelOptions, say=None) -> ModelSettings:
         check_split_model(s.split)
     option_error(s.window, "--start-time, --hours or --step")
     if s.steps:
-        _steps(s.steps, _n_steps(s.window()))
+        _steps(s.steps, s.window().n_steps)
     if s.weather_file is not None:
         from lightfit import weather as wx
 
@@ -1033,12 +1033,6 @@ def option_error(make, flags: str):
         return make()
     except InputError as e:
         raise InputError(f"{flags}: {e.problem}", expected=e.expected) from None
-
-
-def _n_steps(window: Window) -> int:
-    import pandas as pd
-
-    return int(pd.Timedelta(hours=window.hours) // pd.Timedelta(window.step)) + 1
 
 
 def _season_start(opts: ModelOptions, site: Site) -> str | None:

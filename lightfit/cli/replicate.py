@@ -79,10 +79,9 @@ def replicate(
     Another day or site: --date, --start-time/--hours/--step, --site or --latitude/--longitude/--timezone.
     """
     from lightfit import replication as rep
-    from lightfit import weather as wx
     from lightfit.inference.observations import observation_cautions, observed
     from lightfit.report import field_label, summary
-    from lightfit.weather.plot import plot_forcing, provenance_label
+    from lightfit.weather.plot import provenance_label
 
     s = resolve(model)
     cfg = s.replication_config()
@@ -116,17 +115,8 @@ def replicate(
     before = stored_settings(out / "results.nc")  # compared with the run's own once it has run
     weather_report(w)
     label = provenance_label(w.attrs)
-    tz, when = s.site.timezone, "; ".join(s.window().describe(d, s.site.timezone) for d in s.dates)
-    if s.steps:  # the steps run, not only the window they were taken from
-        local = w.index.tz_convert(tz)
-        last = f"{local[-1]:%H:%M}" if local[-1].date() == local[0].date() else f"{local[-1]:%Y-%m-%d %H:%M}"
-        when = f"{local[0]:%Y-%m-%d %H:%M} … {last}, --steps {s.steps} of {when}"
-    console.print(weather_table(w, f"{label} forcing of the diurnal run ({len(w)} steps: {when})", tz=tz))
-    meta = {
-        "provenance": w.attrs["provenance"],
-        "source": str(w.attrs.get("source")),
-        "note": f"{len(w)} steps, {when}, {s.site.name} ({s.how})",
-    }
+    title = f"{label} forcing of the diurnal run ({len(w)} steps: {rep.describe_steps(cfg, w)})"
+    console.print(weather_table(w, title, tz=s.site.timezone))
     k, n_b = s.samples, cfg.render_bounces()  # bounces None: resolved from the leaf, as the run does
     rays = "" if s.direct != "projection" else ", {:.3g} / {:.3g} sun / sky rays per m²".format(*cfg.direct_rays_per_m2)
     k = samples_label(k, cfg.target_rse)
@@ -148,13 +138,7 @@ def replicate(
         out=out,
         progress=True,
         compare=cmp,
-        keep_steps=out / rep.UNFINISHED,  # removed below, once every file is written
     )
-    # Written with the results, not before the run: interrupted, a run left its forcing beside the
-    # last run's results (a review of interrupted runs).
-    wx.write_lightfit_csv(w, out / "forcing.csv", meta)
-    plot_forcing(w, out / "forcing.png", title=f"{label} forcing, {s.site.name} {', '.join(s.dates)}", tz=tz)
-    shutil.rmtree(out / rep.UNFINISHED, ignore_errors=True)
     changed = replaced_settings(before, ds)
     if changed:  # a quick test run into the default folder replaced the main job's results unsaid
         console.print(f"note: replaced the results in {out}, made with other settings ({changed}); --out keeps both")

@@ -208,6 +208,11 @@ class Window:
                 expected=f"a time step with its unit, from 1min to the window ({h:g} h), e.g. 30min",
             )
 
+    @property
+    def n_steps(self) -> int:
+        """Steps in each day's window, both ends counted (29 for the defaults)."""
+        return int(pd.Timedelta(hours=self.hours) // pd.Timedelta(self.step)) + 1
+
     def start_local(self, date: str | dt.date, timezone: str) -> pd.Timestamp:
         """The window's first step on ``date`` as a tz-aware timestamp in ``timezone``."""
         day = parse_date(date, "date")
