@@ -512,8 +512,9 @@ def forcing(
     source = weather_source(weather_file)
     if not weather_file and set(dates) != {DEFAULT_DATE}:
         raise InputError(
-            f"--date {', '.join(d for d in dates if d != DEFAULT_DATE)}: no bundled forcing for that day",
-            expected=f"--weather FILE covering the date(s) (the bundled forcing is {DEFAULT_DATE} only)",
+            f"no bundled forcing for {', '.join(d for d in dates if d != DEFAULT_DATE)}",
+            parameter="dates",
+            expected=f"a weather_file (--weather) covering the date(s); the bundled forcing is {DEFAULT_DATE} only",
         )
     weather.require_date(source, dates if given else None)
     undated = weather.is_undated(source)
@@ -531,11 +532,13 @@ def forcing(
             src.attrs["file_time_label"] = timestamps.of(src).label
         t0, t1 = window.bounds_utc(d, site.timezone)
         if t0 < src.index[0] or t1 > src.index[-1]:
+            # Three parameters, one error's name: each said both ways, the library's and the command line's
             raise InputError(
-                f"the window {window.describe(d, site.timezone)} (--date {d}, --start-time {window.start}, "
-                f"--hours {window.hours:g}) is not covered: the file spans {_span(src, site.timezone)}",
+                f"the window {window.describe(d, site.timezone)} is not covered: the file spans "
+                f"{_span(src, site.timezone)}",
                 file=src.attrs.get("source"),
-                expected="a --date inside the file's span and a --start-time/--hours window within it",
+                expected="dates inside the file's span and a window within it "
+                "(dates, window.start, window.hours: --date, --start-time, --hours)",
             )
         days.append(weather.window(src, t0, window.hours, window.step, how=how))
         if month_before:

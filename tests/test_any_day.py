@@ -137,15 +137,55 @@ def test_bundled_real_day_by_name_and_by_path_is_the_same_forcing():
 
 
 def test_undated_file_needs_a_date_and_the_window_must_be_in_the_file():
-    with pytest.raises(InputError, match="no date.*--date"):
+    with pytest.raises(InputError, match="selhausen_cplantbox_day.txt, parameter 'date': the file has no date"):
         rep.forcing(REAL_DAY)
-    with pytest.raises(InputError, match=r"selhausen_cplantbox_day.txt.*--date 2016-04-27.*--start-time 20:00"):
+    with pytest.raises(InputError, match=r"day.txt: the window 2016-04-27 20:00 \+ 6 h .* not covered.*window.start"):
         rep.forcing(REAL_DAY, dates="2016-04-27", window=Window("20:00", 6.0))
     # A date the file's light does not fit: dark with the sun up (data/README.md)
     with pytest.raises(InputError, match=r"PAR .* with the sun at 10.4°.*darker than any sky"):
         rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("12:00", 1.0))
-    with pytest.raises(InputError, match="--date 2016-06-23: no bundled forcing"):
+    with pytest.raises(InputError, match="parameter 'dates': no bundled forcing for 2016-06-23"):
         rep.forcing(dates="2016-06-23")
+
+
+@pytest.mark.parametrize(
+    ("library", "args", "said"),
+    [
+        (
+            lambda: rep.forcing(dates="2016-06-23"),
+            ["--date", "2016-06-23"],
+            ("parameter 'dates'", "option --date", ": no bundled forcing for 2016-06-23 (expected a weather_file"),
+        ),
+        (
+            lambda: rep.forcing("selhausen-cplantbox-day"),
+            ["--weather", "selhausen-cplantbox-day"],
+            ("day.txt, parameter 'date'", "day.txt: option --date", ": the file has no date (a CPlantBox day file)"),
+        ),
+        (
+            lambda: rep.check_growth_temperatures(
+                rep.ReplicationConfig(growth_temperature_c="series"), rep.forcing(month_before=True)
+            ),
+            ["--growth-temperature-c", "series"],
+            (
+                "reconstructed.csv, parameter 'growth_temperature_c'",
+                "reconstructed.csv: option --growth-temperature-c",
+                ": growth_temperature_c='series': the weather series does not cover the month before 2016-04-20",
+            ),
+        ),
+    ],
+)
+def test_library_errors_name_the_parameter_and_the_command_its_option(library, args, said, tmp_path):
+    """Library errors named the command line's flags (--date, --start-time) to a Python caller: they
+    name the parameter, and the command restates it as its option (lightfit.cli.common.error_message:
+    its aliases, and the options applied to a file), before anything is written."""
+    python, option, problem = said
+    with pytest.raises(InputError) as e:
+        library()
+    assert python + problem in str(e.value) and "--date" not in str(e.value), str(e.value)
+    r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path / "o"), *args])
+    flat = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and flat.startswith("error: ") and option + problem in flat, r.output
+    assert not (tmp_path / "o").exists()
 
 
 def test_plants_are_grown_to_the_run_date_within_the_growth_models_range():

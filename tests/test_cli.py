@@ -1150,7 +1150,8 @@ def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_pa
         ["replicate", "--quick", "--out", str(tmp_path), "--weather", "selhausen-cplantbox-day", "--date", "2016-04-27"]
         + ["--start-time", "20:00", "--hours", "6"],
     )
-    assert_user_error(r, "selhausen_cplantbox_day.txt", "--date 2016-04-27", "--start-time 20:00", "--hours 6")
+    said = ("selhausen_cplantbox_day.txt: the window 2016-04-27 20:00 + 6 h", "--date, --start-time, --hours")
+    assert_user_error(r, *said)
     two = ["--date", "2016-04-20", "--date", "2016-04-21"]
     assert_user_error(runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / "r.nc"), *two]), "one --date")
     bad = tmp_path / "renamed.txt"

@@ -213,9 +213,22 @@ OPTION_ALIASES = {
 
 
 #: Parameters that, named in an error about a file (without a line), are the option applied to it:
-#: ``--tz`` on a lightfit CSV, ``--provenance`` contradicting the file. Others (a ``time_label``
+#: ``--tz`` on a lightfit CSV, ``--provenance`` contradicting the file, ``--date`` placing an undated
+#: file, ``--growth-temperature-c series`` reading its month before. Others (a ``time_label``
 #: metadata line) are the file's own.
-FILE_OPTIONS = {"tz", "provenance", "format", "out", "start_time", "use", "theta", "start", "freq"}
+FILE_OPTIONS = {
+    "tz",
+    "provenance",
+    "format",
+    "out",
+    "start_time",
+    "use",
+    "theta",
+    "start",
+    "freq",
+    "date",
+    "growth_temperature_c",
+}
 
 
 def option_flags(command) -> dict[str, str]:

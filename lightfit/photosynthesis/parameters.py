@@ -466,7 +466,7 @@ def check_growth_temperature(name: str, growth_temperature_c, *, problem: str | 
             file=file,
             parameter="growth_temperature_c",
             expected=f"the mean air temperature of the month before, a number in [{lo:g}, {hi:g}] °C"
-            + ("" if problem is None else ": give --growth-temperature-c a number"),
+            + ("" if problem is None else "; give a number instead"),
         )
     return float(growth_temperature_c)
 

@@ -72,9 +72,10 @@ def require_date(source: str | Path, date, format: str = "auto") -> None:
     """An undated source (CPlantBox day file) needs a date from the caller; lightfit never invents one."""
     if date is None and is_undated(source, format):
         raise InputError(
-            "the file has no date (a CPlantBox day file) and no --date was given",
+            "the file has no date (a CPlantBox day file) and none was given",
             file=source_path(source),
-            expected="the day it was measured on, --date YYYY-MM-DD",
+            parameter="date",
+            expected="the day it was measured on, YYYY-MM-DD",
         )
 
 
