@@ -585,6 +585,30 @@ def test_an_interrupt_while_a_worker_is_busy_stops_it_at_once_and_quietly(capfd)
     assert logging.getLogger("distributed").level != logging.CRITICAL  # muted for the close only
 
 
+def test_a_finished_run_closes_its_workers_at_once_and_quietly(capfd):
+    """A worker's own exit after a finished run (Dr.Jit's and JAX's teardown) outlasted the nanny's
+    4 s on a loaded 2-core machine: every field-run ended with two "Worker process still alive after
+    4.0 seconds, killing" lines and 4 s more. Here a worker's exit takes 30 s; the embedded
+    cluster's workers are killed at once after a finished block, its results already returned."""
+    import logging
+
+    from lightfit.distributed.run import connect
+
+    def slow_to_exit():
+        import atexit
+        import time
+
+        atexit.register(time.sleep, 30.0)
+        return 42
+
+    with connect(workers=1, threads_per_worker=1) as client:
+        assert client.submit(slow_to_exit, pure=False).result() == 42
+        t0 = time.perf_counter()
+    closed_in = time.perf_counter() - t0
+    err = capfd.readouterr().err
+    assert closed_in < 2.0 and "still alive" not in err and "Traceback" not in err, (closed_in, err)
+    assert logging.getLogger("distributed").level != logging.CRITICAL  # muted for the close only
+
 def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
     """On --timeout or Ctrl-C lightfit cancels its tasks and says so in one line; a worker logged
     "Async instruction … ended with CancelledError" above it. Worker setup drops that record, and

@@ -510,7 +510,7 @@ def connect(
         ).strip()
     # dashboard_address ":0": a free port. None does not disable the scheduler's HTTP server: it
     # takes port 8787 and warns when another cluster (another lightfit run) holds it.
-    muted = None  # the Dask logger's level while the cluster closes after a Ctrl-C (_stop_workers)
+    muted = None  # the Dask logger's level while the cluster closes (_stop_workers)
     with _interrupts_handled_here(), _interrupt_deferred() as interrupted:
         try:
             cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True, env=env, dashboard_address=":0")
@@ -539,10 +539,8 @@ def connect(
                 if g:
                     client.register_plugin(PinGPU(g))
                 yield client
-            except KeyboardInterrupt:
-                muted = _stop_workers(cluster)
-                raise
             finally:
+                muted = _stop_workers(cluster)
                 client.close()
         finally:
             cluster.close()
@@ -551,10 +549,14 @@ def connect(
 
 
 def _stop_workers(cluster) -> int:
-    """Kill the embedded cluster's worker processes and mute Dask's loggers for the close: a worker
-    busy in a task cannot answer the close, and printed 30–60 lines of heartbeat tracebacks while
-    the nanny waited 4 s to kill it (a review of interrupted runs). The finished tasks are kept by
-    this process (``parts``); a task in a worker is lost either way. Returns the logger's level before."""
+    """Kill the embedded cluster's worker processes and mute Dask's loggers for the close, whichever
+    way the block ends. On Ctrl-C a worker busy in a task cannot answer the close, and printed 30–60
+    lines of heartbeat tracebacks while the nanny waited 4 s to kill it (a review of interrupted
+    runs); after a finished run a worker's own exit (Dr.Jit's and JAX's teardown) outlasted those
+    4 s on a loaded 2-core machine, which added them to the run and printed "Worker process still
+    alive after 4.0 seconds, killing" twice under its result. Every finished task's result is in this
+    process by then (``parts``); a task still in a worker is lost either way. Returns the logger's
+    level before."""
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(getattr(nanny, "process", None), "pid", None)
         if pid:
