@@ -609,6 +609,7 @@ def test_a_finished_run_closes_its_workers_at_once_and_quietly(capfd):
     assert closed_in < 2.0 and "still alive" not in err and "Traceback" not in err, (closed_in, err)
     assert logging.getLogger("distributed").level != logging.CRITICAL  # muted for the close only
 
+
 def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
     """On --timeout or Ctrl-C lightfit cancels its tasks and says so in one line; a worker logged
     "Async instruction … ended with CancelledError" above it. Worker setup drops that record, and
