@@ -856,3 +856,32 @@ def test_a_tereno_file_without_a_zone_line_reads_times_with_offsets_by_them(tmp_
     assert read_tereno(_tereno(tmp_path, edit=offset_2h, header_edit=no_zone, name="b.csv")).index.equals(expected)
     with pytest.raises(InputError, match=r"is in UTC\+2, but the stated time zone UTC\+1 was at UTC\+1 then"):
         read_tereno(_tereno(tmp_path, edit=offset_2h, name="c.csv"))
+
+
+@pytest.mark.parametrize("content", [b"", b"\xef\xbb\xbf", b"\r\n\r\n  \n"], ids=["0 bytes", "BOM only", "blank lines"])
+def test_an_empty_file_or_a_folder_is_named_so_by_every_reader(tmp_path, content):
+    """A failed export (0 bytes, a BOM, blank lines) was told only what its first line lacked ("no
+    metadata line '# provenance'", "unrecognised weather file format (first line '')"), and the
+    CPlantBox reader raised IndexError; a folder was the OS's IsADirectoryError, outside the CLI. Each
+    reader now says the file is empty, or a folder, and what it expected."""
+    from lightfit.inference.observations import read_observations
+
+    empty = tmp_path / "export.csv"
+    empty.write_bytes(content)
+    folder = tmp_path / "folder.csv"
+    folder.mkdir()
+    readers = {
+        "a TERENO CSV export": read_tereno,
+        "a CPlantBox weather file": lambda p: read_cplantbox_day(p, "2016-04-27"),
+        "a lightfit weather CSV": read_lightfit_csv,
+        "a weather file": read_weather,
+        "an observations CSV": read_observations,
+    }
+    for expected, read in readers.items():
+        with pytest.raises(InputError, match=rf"export\.csv: the file is empty \({len(content)} bytes, no text\)") as e:
+            read(empty)
+        assert f"(expected {expected})" in str(e.value)
+        with pytest.raises(InputError, match=rf"folder\.csv: a folder, not a file \(expected {expected}\)"):
+            read(folder)
+    _cli_error(["weather", "show", str(empty)], "export.csv", "the file is empty", "expected a weather file")
+    _cli_error(["weather", "show", str(empty), "--format", "cplantbox", "--date", "2016-04-27"], "the file is empty")

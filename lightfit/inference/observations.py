@@ -348,11 +348,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     ``timestamps``: the rows' :class:`~lightfit.weather.timestamps.Timestamps`, instants unless the
     file's ``# time_label`` says otherwise)."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", file=path, expected="an observations CSV")
-    if not path.is_file():
-        raise InputError("a folder, not a file", file=path, expected="an observations CSV")
-    meta, header_line, df = read_csv_with_metadata(path)
+    meta, header_line, df = read_csv_with_metadata(path, "an observations CSV")
     if "time" not in df.columns:
         raise InputError("no 'time' column", file=path, row=header_line, expected="columns time, " + ", ".join(COLUMNS))
     old = [c for c in RENAMED if c in df.columns]

@@ -165,11 +165,20 @@ def _find_table(text_lines: list[str], file) -> tuple[int, str]:
     )
 
 
-def _read_text(path: Path) -> str:
-    """The file's text; a file that is not UTF-8 is refused naming the line of its first foreign byte."""
+def _read_text(path: str | Path, expected: str, *, strict: bool = True) -> str:
+    """The text of a user's file (weather, observations), or :class:`InputError` saying ``expected``
+    where there is none: no such file, a folder, a file without text (an export that failed; each
+    format's own check said only what its first line lacked, and the CPlantBox reader raised
+    IndexError). A file that is not UTF-8 is refused naming the line of its first foreign byte;
+    ``strict=False`` reads such bytes as U+FFFD instead (to tell formats apart)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("file not found", file=path, expected=expected)
+    if path.is_dir():
+        raise InputError("a folder, not a file", file=path, expected=expected)
     data = path.read_bytes()
     try:
-        return data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig", errors="strict" if strict else "replace")
     except UnicodeDecodeError as e:
         line = data[: e.start].count(b"\n") + 1
         raise InputError(
@@ -178,6 +187,9 @@ def _read_text(path: Path) -> str:
             row=line,
             expected="a UTF-8 file: save it as UTF-8",
         ) from None
+    if not text.strip():
+        raise InputError(f"the file is empty ({len(data)} bytes, no text)", file=path, expected=expected)
+    return text
 
 
 _DECIMAL_COMMA = re.compile(r"(?:^|,)(?P<n>-?\d+,\d+)(?=,|$)")
@@ -625,10 +637,8 @@ def read_tereno(
             ``"center"``); the interval is the radiation columns' (``Avg10min``: 10 min).
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", file=path, expected="a TERENO CSV export")
     timestamps.check_mean_label(time_label)
-    text_lines = _read_text(path).splitlines()
+    text_lines = _read_text(path, "a TERENO CSV export").splitlines()
     hdr, delim = _find_table(text_lines, path)
     try:
         tz, zone_stated = _header_zone(text_lines, hdr, path, tz)
@@ -835,8 +845,6 @@ def read_cplantbox_day(
     is ``"measured"``, :data:`lightfit.weather.bundled.BUNDLED`).
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", file=path, expected="a CPlantBox weather file")
     timestamps.check_mean_label(time_label)
     day = parse_date(date, "date")
     try:
@@ -844,7 +852,7 @@ def read_cplantbox_day(
     except InputError as e:
         raise e.in_file(path) from None
     provenance = _resolve_provenance(None, "", provenance, path)
-    table, lines = _table_rows(_read_text(path).splitlines(), 0, "\t", path)
+    table, lines = _table_rows(_read_text(path, "a CPlantBox weather file").splitlines(), 0, "\t", path)
     need = {"time": None, "PAR": "par_umol_m2_s", "co2": "co2_ppm", "RH": "rh", "Tair": "tair_c", "Pair": "pair_kpa"}
     missing = [c for c in need if c not in table.columns]
     if missing:
@@ -893,7 +901,7 @@ def metadata_lines(metadata: dict) -> str:
 
 
 def read_csv_with_metadata(
-    path: Path, *, provenances: tuple[str, ...] = PROVENANCES, short_rows: str = "pad"
+    path: Path, expected: str, *, provenances: tuple[str, ...] = PROVENANCES, short_rows: str = "pad"
 ) -> tuple[dict[str, str], int, pd.DataFrame]:
     """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required (one of
     ``provenances``).
@@ -903,10 +911,11 @@ def read_csv_with_metadata(
     ``table.attrs["lines"]`` holds each row's line number in the file (blank lines are skipped, the
     numbers stay the file's). A
     file that is not UTF-8, or a row with more cells than the header (fewer: unless
-    ``short_rows="pad"``), is refused naming its line. Shared by lightfit's own weather files and
-    the observations CSV.
+    ``short_rows="pad"``), is refused naming its line; a missing or empty file, or a folder, saying
+    ``expected`` (what the file should be). Shared by lightfit's own weather files and the
+    observations CSV.
     """
-    text = _read_text(path).splitlines()
+    text = _read_text(path, expected).splitlines()
     meta: dict[str, str] = {}
     n_meta = 0
     for line in text:
@@ -965,9 +974,9 @@ def read_lightfit_csv(
     (:mod:`lightfit.weather.timestamps`; without them, instants).
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", file=path, expected="a lightfit weather CSV")
-    meta, header_line, table = read_csv_with_metadata(path, provenances=WEATHER_PROVENANCES, short_rows="error")
+    meta, header_line, table = read_csv_with_metadata(
+        path, "a lightfit weather CSV", provenances=WEATHER_PROVENANCES, short_rows="error"
+    )
     if "time_utc" not in table.columns:
         header = f" (header {','.join(map(str, table.columns))[:60]!r})" if len(table.columns) else ""
         raise InputError(
@@ -1049,9 +1058,7 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
 def sniff_format(path: str | Path) -> str:
     """``"tereno"``, ``"cplantbox"`` or ``"lightfit"`` from the file's first lines."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", file=path, expected="a weather file")
-    head = path.read_text(encoding="utf-8-sig", errors="replace")[:20000]
+    head = _read_text(path, "a weather file", strict=False)[:20000]
     if head.startswith("#") and "time_utc" in head:
         return "lightfit"
     if head.startswith('"time"\t"PAR"') or head.startswith("time\tPAR"):
