@@ -885,3 +885,23 @@ def test_an_empty_file_or_a_folder_is_named_so_by_every_reader(tmp_path, content
             read(folder)
     _cli_error(["weather", "show", str(empty)], "export.csv", "the file is empty", "expected a weather file")
     _cli_error(["weather", "show", str(empty), "--format", "cplantbox", "--date", "2016-04-27"], "the file is empty")
+
+
+@pytest.mark.parametrize("text", ["inf", "-Infinity", "1e999"])
+def test_an_infinite_value_is_refused_as_not_a_number_not_as_a_unit(tmp_path, text):
+    """'inf' in a weather column was read as a number: called implausible with "check the unit"
+    (after a RuntimeWarning from the humidity conversion), or passed a column without bounds. It is
+    refused as text, naming the file, line and column, as observations files refuse it."""
+
+    def edit(rows):
+        rows[40][TAIR] = text
+
+    p = _tereno(tmp_path, edit)
+    with pytest.raises(
+        InputError, match=rf"line {_line_of(p, text)}, column 'AirTemperature[^']*': value '{text}' is not a finite"
+    ):
+        read_tereno(p)
+    lf = tmp_path / "lf.csv"  # the 12:00 row's global radiation
+    lf.write_text(re.sub(r"(?m)^(2016-04-20T12:00:00Z),[^,]*", rf"\1,{text}", RECON.read_text()))
+    err = _cli_error(["weather", "show", str(lf)], "lf.csv", f"line {_line_of(lf, text)}", "column 'ghi_w_m2'")
+    assert f"value '{text}' is not a finite number" in err and "check the unit" not in err

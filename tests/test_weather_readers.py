@@ -298,7 +298,7 @@ def test_not_a_number_names_line_and_column(tmp_path):
     _, hdr = _table_lines(FIXTURE)
     # The edited row is list index hdr + 10, i.e. the file's line hdr + 11 (lines count from 1).
     with pytest.raises(
-        InputError, match=rf"line {hdr + 11}, column 'AirTemperature[^']*': value 'warm' is not a number"
+        InputError, match=rf"line {hdr + 11}, column 'AirTemperature[^']*': value 'warm' is not a finite number"
     ):
         read_tereno(_variant(tmp_path, edit))
 

@@ -171,7 +171,8 @@ def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column:
 
     Empty cells, "NaN" and the sentinels :data:`MISSING_SENTINELS` become NaN (gaps that
     :func:`check_and_repair` interpolates or rejects; sentinels are counted in ``qc``);
-    any other unparseable text raises, naming the line.
+    any other unparseable text raises, naming the line, as does text that reads as infinite
+    ("inf", "1e999": it was called implausible, "check the unit", or passed a column without bounds).
     """
     if pd.api.types.is_numeric_dtype(values):
         out = values.astype(float)
@@ -179,15 +180,15 @@ def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column:
         text = values.astype("string").str.strip()
         empty = text.isna() | text.isin(["", "NaN", "nan", "NA", "null"])
         out = pd.to_numeric(text.where(~empty), errors="coerce")
-        bad = out.isna() & ~empty
+        bad = (out.isna() & ~empty) | np.isinf(out.astype(float))
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise InputError(
-                f"value {text.iloc[i]!r} is not a number",
+                f"value {text.iloc[i]!r} is not a finite number",
                 file=file,
                 row=int(lines.iloc[i]),
                 column=column,
-                expected="a decimal number or an empty cell for a missing value",
+                expected="a decimal number ('.' as the decimal separator) or an empty cell for a missing value",
             )
         out = out.astype(float)
     sentinel = out.isin(MISSING_SENTINELS)
