@@ -1208,7 +1208,7 @@ def test_nee_with_uptake_counted_positive_gets_a_caution_before_the_plants_grow(
     file, the column and the convention, before the plants grow; a caution, not a refusal, because a
     sparse canopy over a respiring soil can release CO2 by day. Uptake negative: nothing said."""
     from lightfit import replication as rep
-    from lightfit.inference.observations import nee_sign_caution, read_observations
+    from lightfit.inference.observations import co2_sign_caution, read_observations
 
     head = "# provenance: synthetic\n# time_zone: UTC\ntime,nee_umol_m2_s,nee_sd_umol_m2_s\n"
     rows = "".join(f"2016-04-20T{h}:00:00Z,{{sign}}{v},1.5\n" for h, v in (("10", 25), ("10:30", 28), ("11", 30)))
@@ -1217,18 +1217,45 @@ def test_nee_with_uptake_counted_positive_gets_a_caution_before_the_plants_grow(
     wrong.write_text(head + rows.format(sign=""))
     right.write_text(head + rows.format(sign="-"))
     w = rep.forcing()
-    said = nee_sign_caution(read_observations(wrong), w)
+    said = co2_sign_caution(read_observations(wrong), w)
     assert "nee_wrong.csv, column 'nee_umol_m2_s'" in said and "positive (a release) at all 3 readings" in said
-    assert "negate the column" in said and nee_sign_caution(read_observations(right), w) is None
+    assert "negate the column" in said and co2_sign_caution(read_observations(right), w) is None
     # A NaN reading is not counted, and one reading alone is not judged.
     one = tmp_path / "one.csv"
     one.write_text(head + "2016-04-20T10:00:00Z,25,1.5\n")
-    assert nee_sign_caution(read_observations(one), w) is None
+    assert co2_sign_caution(read_observations(one), w) is None
     args = ["calibrate", str(wrong), "--quick", "--steps", "14:17", "--parameters", "vcmax_scale", "--no-surrogate"]
     r = runner.invoke(app, [*args, "--max-steps", "1", "--out", str(tmp_path / "out")])
     text = " ".join(r.output.split())
     assert "caution" in text and "NEE is positive (a release) at all 3 readings" in text, text
     assert r.exit_code == 0 and text.index("NEE is positive") < text.index("observations:"), text  # before growing
+
+
+def test_canopy_an_with_uptake_counted_negative_gets_a_caution(tmp_path):
+    """Canopy An in NEE's sign (uptake negative: a chamber's NEE copied into canopy_an_umol_m2_s, or the
+    bundled twin negated) passed unsaid, while the same slip in NEE is cautioned: fitted, it drives
+    vcmax_scale to 0. Negative at every reading in strong light is now named with the file, the
+    column and the convention; the twin as it is says nothing."""
+    from lightfit import replication as rep
+    from lightfit.inference.observations import observation_cautions, read_observations
+
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    lines = twin.read_text().splitlines()
+    k = lines.index(next(ln for ln in lines if ln.startswith("time,"))) + 1
+    an = lines[k - 1].split(",").index("canopy_an_umol_m2_s")
+
+    def negated(ln):
+        c = ln.split(",")
+        c[an] = f"{-float(c[an]):g}" if c[an] else ""
+        return ",".join(c)
+
+    flipped = tmp_path / "twin_flipped.csv"
+    flipped.write_text("\n".join(lines[:k] + [negated(ln) for ln in lines[k:]]) + "\n")
+    w = rep.forcing()
+    said = " ".join(observation_cautions(read_observations(flipped), w))
+    assert "twin_flipped.csv, column 'canopy_an_umol_m2_s': canopy An is negative (a release) at all" in said, said
+    assert "positive for uptake" in said and "negate the column if the file counts uptake as negative" in said
+    assert observation_cautions(read_observations(twin), w) == []
 
 
 def test_above_canopy_par_in_w_m2_gets_a_caution_before_the_plants_grow(tmp_path):

@@ -687,40 +687,52 @@ def par_unit_caution(obs: pd.DataFrame, forcing: pd.DataFrame) -> str | None:
     )
 
 
-#: Forcing PAR (µmol m⁻² s⁻¹) above which a green wheat canopy takes up CO2 (:func:`nee_sign_caution`):
+#: Forcing PAR (µmol m⁻² s⁻¹) above which a green wheat canopy takes up CO2 (:func:`co2_sign_caution`):
 #: its light compensation lies near 100–200 at the canopy's respiration (docs/photosynthesis.md).
 UPTAKE_PAR_UMOL_M2_S = 800.0
+#: The CO2 fluxes whose sign tells uptake from release: the sign of uptake in lightfit's convention,
+#: what the caution calls the flux, and the convention's name.
+UPTAKE_SIGN = {
+    "nee": (-1, "NEE", "micrometeorological sign"),
+    "canopy_an": (1, "canopy An", "photosynthesis's sign, NEE's opposite"),
+}
 
 
-def nee_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame) -> str | None:
-    """A caution naming the file and column where every chamber NEE reading (two or more) at a step
-    of ``forcing`` with PAR above :data:`UPTAKE_PAR_UMOL_M2_S` is positive, else ``None``. NEE is
-    micrometeorological, negative for uptake (Baldocchi 2003), and a green canopy takes up CO2 in
-    such light, so all-positive readings there are most likely uptake counted positive: fitted as
-    they were, they drove vcmax_scale to 0 with only generic cautions (a review). A caution, not a
-    refusal: a sparse canopy over a respiring soil (``--soil-respiration``) can release CO2 by day."""
-    col = BY_NAME["nee"].value
+def co2_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "nee") -> str | None:
+    """A caution naming the file and column where every reading (two or more) of the CO2 flux
+    ``name`` (:data:`UPTAKE_SIGN`) at a step of ``forcing`` with PAR above
+    :data:`UPTAKE_PAR_UMOL_M2_S` is a release, else ``None``. A green canopy takes up CO2 in such
+    light, so a release at every such reading is most likely uptake counted with the other sign:
+    NEE is micrometeorological, negative for uptake (Baldocchi 2003), canopy An positive; fitted as
+    they were, such readings drove vcmax_scale to 0 with only generic cautions (a review; canopy An
+    in NEE's sign passed unsaid until a later one). A caution, not a refusal: a sparse canopy over a
+    respiring soil (``--soil-respiration``) can release CO2 by day."""
+    uptake, label, convention = UPTAKE_SIGN[name]
+    col = BY_NAME[name].value
     if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
         return None
     idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
     par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
     value = obs[col].to_numpy(float)
     sel = (dist <= NEAR_STEP) & (par >= UPTAKE_PAR_UMOL_M2_S) & np.isfinite(value)
-    if sel.sum() >= 2 and (value[sel] > 0).all():
+    if sel.sum() >= 2 and (uptake * value[sel] < 0).all():
+        release, taken = ("positive", "negative") if uptake < 0 else ("negative", "positive")
+        nearest = value[sel].min() if uptake < 0 else value[sel].max()
         return (
-            f"{obs.attrs.get('source', 'the observations')}, column {col!r}: NEE is positive (a release) at all "
-            f"{int(sel.sum())} readings in strong light (forcing PAR ≥ {UPTAKE_PAR_UMOL_M2_S:g} µmol m⁻² s⁻¹; "
-            f"smallest {value[sel].min():.3g}); lightfit's NEE is negative for uptake (micrometeorological sign): "
-            "negate the column if the file counts uptake as positive"
+            f"{obs.attrs.get('source', 'the observations')}, column {col!r}: {label} is {release} (a release) at "
+            f"all {int(sel.sum())} readings in strong light (forcing PAR ≥ {UPTAKE_PAR_UMOL_M2_S:g} µmol m⁻² s⁻¹; "
+            f"{'smallest' if uptake < 0 else 'largest'} {nearest:.3g}); lightfit's {label} is {taken} for uptake "
+            f"({convention}): negate the column if the file counts uptake as {release}"
         )
     return None
 
 
 def observation_cautions(obs: pd.DataFrame, forcing: pd.DataFrame) -> list[str]:
     """What to say of observations read against the run's forcing before they are fitted or
-    compared: a sign slip in NEE (:func:`nee_sign_caution`), above-canopy PAR in W m⁻²
+    compared: a sign slip in NEE or canopy An (:func:`co2_sign_caution`), above-canopy PAR in W m⁻²
     (:func:`par_unit_caution`). A unit slip past doubt is refused instead (:func:`check_light_scale`)."""
-    return [c for c in (nee_sign_caution(obs, forcing), par_unit_caution(obs, forcing)) if c]
+    said = [co2_sign_caution(obs, forcing, name) for name in UPTAKE_SIGN]
+    return [c for c in (*said, par_unit_caution(obs, forcing)) if c]
 
 
 def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:
