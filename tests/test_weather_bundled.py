@@ -100,3 +100,24 @@ def test_write_requires_provenance(tmp_path):
     for c in add_solar(df).columns:
         assert f"{c}: {COLUMNS[c]}" in meta["columns"], c
     assert meta["sun_site"] == "Selhausen, 50.865 N, 6.447 E"
+
+
+def test_a_lightfit_csv_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A write cut half-way (a kill, a full disk) leaves the file there before untouched: a run killed
+    while writing its forcing.csv left a cut one beside its results."""
+    from pathlib import Path
+
+    df = load("2016-04-20")
+    path = write_lightfit_csv(df, tmp_path / "forcing.csv", {"provenance": "reconstructed"})
+    before = path.read_bytes()
+    real = Path.write_text
+
+    def cut(self, text, *args, **kw):
+        real(self, text[: len(text) // 2], *args, **kw)
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", cut)
+    with pytest.raises(OSError, match="No space"):
+        write_lightfit_csv(df.iloc[:3], path, {"provenance": "reconstructed"})
+    monkeypatch.undo()
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["forcing.csv"]

@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, listed, parse_date
+from lightfit.files import replace_text
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric, record_sorted
 from lightfit.weather.site import check_timezone, localize, offset_label, zone_label
@@ -1051,8 +1052,8 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     head = metadata_lines(metadata)
     body = df.rename_axis("time_utc").reset_index()
     body["time_utc"] = body["time_utc"].dt.strftime("%Y-%m-%dT%H:%M:%SZ")
-    path.write_text(head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n"), encoding="utf-8")
-    return path
+    # whole or not at all: a run killed while writing it left a cut forcing.csv beside its results
+    return replace_text(path, head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n"))
 
 
 def sniff_format(path: str | Path) -> str:
