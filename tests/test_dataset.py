@@ -91,6 +91,14 @@ def test_labels_map_to_stored_segment_values(mono_dataset, results_file, geometr
         np.testing.assert_array_equal(lab["valid"], known)
         margin = res.values(MARGIN, entry["time_index"])
         np.testing.assert_allclose(lab[MARGIN][known], margin.reindex(seg[known]).to_numpy(np.float32))
+        # Stems and sheaths, which have no photosynthesis in a run's results nor in these: valid pixels
+        # with their PAR and without leaf values.
+        no_leaf = np.isin(seg, res.ds["segment"].values[~res.ds["is_blade"].values.astype(bool)])
+        assert no_leaf.sum() > 10, "the camera should see stems or sheaths"
+        assert np.isfinite(lab["absorbed_par"][no_leaf]).all()
+        for q in ("an", "vc", "vj", "gs", MARGIN):
+            assert np.isnan(lab[q][no_leaf]).all(), q
+        assert (lab["limitation"][no_leaf] == -1).all()
         # Plant id and organ follow the segment table.
         table = geometry.segments.set_index("segment_id")
         np.testing.assert_array_equal(lab["plant_id"][fg], table["plant_id"].reindex(seg[fg]).to_numpy())

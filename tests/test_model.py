@@ -223,30 +223,60 @@ def test_results_carry_the_schema(simulated, tmp_path):
         back.close()
 
 
-def test_synthetic_results_describe_the_segments_as_a_run_does(simulated, tmp_path):
-    """The synthetic results of the same plants carry every coordinate along ``segment`` that a run's
-    results do, with equal values, dtypes and attributes (a review: they lacked height_m, is_blade and
-    organ_type), and the schema's attributes on every variable, through netCDF too."""
+@pytest.fixture(scope="module")
+def synthetic_and_run(simulated, tmp_path_factory):
+    """(synthetic results, run) of the same plants and steps, in memory and read back from netCDF."""
     import xarray as xr
 
     from lightfit.dataset import synthetic_results
 
-    synthetic = synthetic_results(FIELD, simulated.indexes["time"])
-    on_segment = [c for c in simulated.coords if simulated[c].dims == ("segment",)]
-    assert {"segment", "plant_id", "organ_type", "area_m2", "height_m", "is_blade"} <= set(on_segment)
+    tmp = tmp_path_factory.mktemp("synthetic_and_run")
 
     def read_back(ds, name):
-        with xr.open_dataset(rep.write_netcdf(ds, tmp_path / name), engine="h5netcdf") as f:
+        with xr.open_dataset(rep.write_netcdf(ds, tmp / name), engine="h5netcdf") as f:
             return f.load()
 
-    pairs = ((synthetic, simulated), (read_back(synthetic, "synthetic.nc"), read_back(simulated, "run.nc")))
-    for ds, rendered in pairs:
+    synthetic = synthetic_results(FIELD, simulated.indexes["time"])
+    return (synthetic, simulated), (read_back(synthetic, "synthetic.nc"), read_back(simulated, "run.nc"))
+
+
+def test_synthetic_results_describe_the_segments_as_a_run_does(synthetic_and_run):
+    """The synthetic results of the same plants carry every coordinate along ``segment`` that a run's
+    results do, with equal values, dtypes and attributes (a review: they lacked height_m, is_blade and
+    organ_type), and the schema's attributes on every variable, through netCDF too."""
+    simulated = synthetic_and_run[0][1]
+    on_segment = [c for c in simulated.coords if simulated[c].dims == ("segment",)]
+    assert {"segment", "plant_id", "organ_type", "area_m2", "height_m", "is_blade"} <= set(on_segment)
+    for ds, rendered in synthetic_and_run:
         assert sorted(c for c in ds.coords if ds[c].dims == ("segment",)) == sorted(on_segment)
         for c in on_segment:
             np.testing.assert_array_equal(ds[c].values, rendered[c].values, err_msg=c)
             assert ds[c].dtype == rendered[c].dtype and ds[c].attrs == rendered[c].attrs, c
         for name in ds.variables:
             assert ds[name].attrs == schema.variable(str(name)).attrs(), name
+
+
+def test_synthetic_results_have_no_value_where_a_run_has_none(synthetic_and_run):
+    """Every per-segment variable of the synthetic results has no value (NaN; limitation −1) on the
+    segments where a run of the same plants has none, the stems and sheaths for the variables of the
+    leaf blades alone, and the run's dtype, in memory and read back from netCDF (a review: their leaf
+    variables had values there, limitation 0 or 1, and all were float32 where a run's are float64)."""
+
+    def no_value(da):
+        x = da.values
+        return np.isnan(x) if x.dtype.kind == "f" else x == schema.variable(str(da.name)).off_blade
+
+    for ds, rendered in synthetic_and_run:
+        not_blade = ~rendered["is_blade"].values.astype(bool)
+        assert not_blade.any() and not not_blade.all()  # stems and sheaths beside the blades
+        per_segment = [v for v in ds.data_vars if ds[v].dims == ("time", "segment")]
+        assert {"absorbed_par_umol_m2_s", "leaf_an_umol_m2_s", "leaf_vc_umol_m2_s", "limitation"} <= set(per_segment)
+        for v in per_segment:
+            assert ds[v].dtype == rendered[v].dtype, v
+            np.testing.assert_array_equal(no_value(ds[v]), no_value(rendered[v]), err_msg=v)
+            blades_only = schema.variable(v).off_blade is not None
+            expect = np.broadcast_to(not_blade & blades_only, rendered[v].shape)
+            np.testing.assert_array_equal(no_value(rendered[v]), expect, err_msg=v)
 
 
 def test_schema_refuses_unknown_variables(simulated):

@@ -2,8 +2,9 @@
 
 The values are not a model run: absorbed PAR grows with segment height under the day's PAR,
 Vj follows a saturating light response, Vc is constant per plant, An = min(Vc, Vj) − Rd, and
-gs ∝ An. The dataset's attrs say ``synthetic = "true"`` so nothing downstream mistakes it for
-model output.
+gs ∝ An on the leaf blades; stems and sheaths have what a run writes there (NaN, limitation −1:
+:func:`lightfit.model.schema.on_segments`). The dataset's attrs say ``synthetic = "true"`` so
+nothing downstream mistakes it for model output.
 """
 
 from __future__ import annotations
@@ -41,17 +42,21 @@ def synthetic_results(fld, times, *, seed: int = 0, cache_dir=None, measured_onl
     vj = 40.0 * par / (par + 600.0)
     an = np.minimum(vc, vj) - 1.0
     gs = np.clip(0.01 + 0.012 * an, 0.01, None)
-    dims = ("time", "segment")
+    dims, on_segment = ("time", "segment"), schema.segment_coords(seg)
+    blade = on_segment["is_blade"][1]
+    leaf = {
+        "leaf_an_umol_m2_s": an,
+        "leaf_vc_umol_m2_s": vc,
+        "leaf_vj_umol_m2_s": vj,
+        "leaf_gs_mol_m2_s": gs,
+        "limitation": vj < vc,
+    }
     ds = xr.Dataset(
         {
-            "absorbed_par_umol_m2_s": (dims, par.astype(np.float32)),
-            "leaf_an_umol_m2_s": (dims, an.astype(np.float32)),
-            "leaf_vc_umol_m2_s": (dims, vc.astype(np.float32)),
-            "leaf_vj_umol_m2_s": (dims, vj.astype(np.float32)),
-            "leaf_gs_mol_m2_s": (dims, gs.astype(np.float32)),
-            "limitation": (dims, (vj < vc).astype(np.int8)),
+            "absorbed_par_umol_m2_s": (dims, par),
+            **{k: (dims, schema.on_segments(k, v[:, blade], blade)) for k, v in leaf.items()},
         },
-        coords={"time": times.tz_convert(None).to_numpy(), **schema.segment_coords(seg)},
+        coords={"time": times.tz_convert(None).to_numpy(), **on_segment},
         attrs={
             **fld.attrs(),
             "synthetic": "true",

@@ -329,13 +329,6 @@ class CoupledModel:
             leaf=self.operator.leaf(),
         )
         canopy_bias = area_total(an_bias, jnp.zeros_like(an_bias), self.area_m2[b], self.operator.denominator_m2)[0]
-        T, S = len(self.times), len(self.segment_id)
-
-        def per_segment(x, fill=np.nan, dtype=float):
-            out = np.full((T, S), fill, dtype=dtype)
-            out[:, b] = np.asarray(x)
-            return out
-
         ps = o["photosynthesis"]
         light = ("incident_par_umol_m2_s", "absorbed_par_umol_m2_s")
         light += tuple(k.replace("_par_", "_par_mc_sd_") for k in light)
@@ -347,6 +340,8 @@ class CoupledModel:
             "leaf_ci_umol_mol": ps.ci_umol_mol,
             "leaf_vc_umol_m2_s": ps.vc_umol_m2_s,
             "leaf_vj_umol_m2_s": ps.vj_umol_m2_s,
+            "limitation": ps.limitation,
+            "converged": ps.converged,
         }
         w = self.scenario.weather
         weather = {"weather_par_umol_m2_s": "par_umol_m2_s", "dni_w_m2": "dni_w_m2", "dhi_w_m2": "dhi_w_m2"}
@@ -354,9 +349,7 @@ class CoupledModel:
         ds = xr.Dataset(
             {
                 **{k: (("time", "segment"), np.asarray(o[k])) for k in light},
-                **{k: (("time", "segment"), per_segment(v)) for k, v in leaf.items()},
-                "limitation": (("time", "segment"), per_segment(ps.limitation, -1, np.int8)),
-                "converged": (("time", "segment"), per_segment(ps.converged, True, bool)),
+                **{k: (("time", "segment"), schema.on_segments(k, v, self.is_blade)) for k, v in leaf.items()},
                 **{k: ("time", np.asarray(o[k])) for k in OBSERVABLES},
                 "canopy_an_mc_bias_umol_m2_s": ("time", np.asarray(canopy_bias)),
                 **{k: ("time", w[c].to_numpy(np.float64)) for k, c in weather.items() if c in w},
@@ -366,11 +359,9 @@ class CoupledModel:
                 **schema.segment_coords(self.segments),
             },
         )
-        ds["leaf_area_above"] = ("segment", np.where(self.is_blade, 0.0, np.nan))
-        ds["leaf_area_above"].values[b] = self.lai_above
-        ds["capacity_factor"] = ("segment", np.where(self.is_blade, 1.0, np.nan))
-        if self.operator.capacity is not None:
-            ds["capacity_factor"].values[b] = self.operator.capacity
+        capacity = np.ones(len(b)) if self.operator.capacity is None else self.operator.capacity
+        ds["leaf_area_above"] = ("segment", schema.on_segments("leaf_area_above", self.lai_above, self.is_blade))
+        ds["capacity_factor"] = ("segment", schema.on_segments("capacity_factor", capacity, self.is_blade))
         sc = self.scenario
         if sc.target_rse is not None:
             alloc = self.irradiance.allocation(sc.seed)

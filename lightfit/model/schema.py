@@ -12,8 +12,9 @@ row spacing) or per one-sided leaf area of the measured blades (results attribut
 canopy APAR and chamber NEE are always per ground area of the measured plants; above-canopy PAR
 is per unit horizontal area.
 
-:meth:`lightfit.model.coupled.CoupledModel.simulate` writes these attributes (:func:`annotate`) and
-takes the coordinates along ``segment`` from :func:`segment_coords`, as the synthetic results do
+:meth:`lightfit.model.coupled.CoupledModel.simulate` writes these attributes (:func:`annotate`),
+takes the coordinates along ``segment`` from :func:`segment_coords` and fills the variables of the
+leaf blades alone on the other segments with :func:`on_segments`, as the synthetic results do
 (:func:`lightfit.dataset.synthetic_results`); readers (:mod:`lightfit.dataset`,
 :func:`lightfit.distributed.gather`) take units and meaning from here (:func:`units`), not from
 variable names.
@@ -53,13 +54,18 @@ _PLANT_PAR = "incident or absorbed PAR (attribute par_kind), per unit one-sided 
 
 @dataclass(frozen=True)
 class Variable:
-    """One results variable: dimensions and CF attributes (``units`` None: none, e.g. time)."""
+    """One results variable: dimensions and CF attributes (``units`` None: none, e.g. time).
+
+    ``off_blade``: for a variable of the leaf blades alone, its value on the other segments (stems,
+    sheaths), whose numpy type is the variable's dtype (:func:`on_segments`); None where every
+    segment has a value."""
 
     dims: tuple[str, ...]
     units: str | None
     long_name: str
     comment: str = ""
     flags: str = ""
+    off_blade: np.generic | None = None
 
     def attrs(self) -> dict[str, str]:
         a = {"long_name": self.long_name}
@@ -75,6 +81,7 @@ class Variable:
 
 
 TS, T, S = ("time", "segment"), ("time",), ("segment",)
+_NAN = np.float64(np.nan)
 
 #: Observables of the virtual sensors (:mod:`lightfit.light.sensors`): NaN where a run renders none.
 SENSOR_OBSERVABLES = (
@@ -129,6 +136,7 @@ VARIABLES: dict[str, Variable] = {
         "m2 m-2",
         "cumulative leaf area index above the blade segment's centre",
         "one-sided blade area of the grown plants above it per their ground area; NaN for stems and sheaths",
+        off_blade=_NAN,
     ),
     "capacity_factor": Variable(
         S,
@@ -136,6 +144,7 @@ VARIABLES: dict[str, Variable] = {
         "photosynthetic capacity per area relative to the parameter set's (Vcmax, Jmax, Rd, g0)",
         "exp(-kn * leaf_area_above), attributes vcmax_profile and kn_per_lai (docs/photosynthesis.md, "
         "Capacity through the canopy); NaN for stems and sheaths",
+        off_blade=_NAN,
     ),
     # -- per segment: light -----------------------------------------------------------------
     "incident_par_umol_m2_s": Variable(TS, UMOL, "PAR incident on the segment", _SEGMENT_AREA),
@@ -173,18 +182,20 @@ VARIABLES: dict[str, Variable] = {
         flags="0 no, 1 yes",
     ),
     # -- per segment: leaf photosynthesis (blades) ------------------------------------------
-    "leaf_an_umol_m2_s": Variable(TS, UMOL, "leaf net CO2 assimilation", _LEAF_AREA),
+    "leaf_an_umol_m2_s": Variable(TS, UMOL, "leaf net CO2 assimilation", _LEAF_AREA, off_blade=_NAN),
     "leaf_an_mc_sd_umol_m2_s": Variable(
         TS,
         UMOL,
         "Monte Carlo standard deviation of leaf net CO2 assimilation",
         _LEAF_AREA + "; |dAn/dPAR| times the absorbed-PAR Monte Carlo SD",
+        off_blade=_NAN,
     ),
     "leaf_an_mc_bias_umol_m2_s": Variable(
         TS,
         UMOL,
         "expected shift of leaf net CO2 assimilation caused by Monte Carlo noise in absorbed PAR",
         _LEAF_AREA + "; Jensen bias (negative where An saturates), not subtracted from leaf_an",
+        off_blade=_NAN,
     ),
     "leaf_gs_mol_m2_s": Variable(
         TS,
@@ -192,19 +203,24 @@ VARIABLES: dict[str, Variable] = {
         "stomatal conductance to CO2",
         _LEAF_AREA + "; x 1.6 for water vapour (Medlyn et al. 2011); with the cplantbox and giraud2023 sets CPlantBox's"
         " diagnostic from the gross rate (gs (cs - ci) = An + Rd, docs/photosynthesis.md)",
+        off_blade=_NAN,
     ),
-    "leaf_ci_umol_mol": Variable(TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only"),
+    "leaf_ci_umol_mol": Variable(
+        TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only (NaN elsewhere)", off_blade=_NAN
+    ),
     "leaf_vc_umol_m2_s": Variable(
         TS,
         UMOL,
         "Rubisco-limited gross CO2 assimilation rate",
         _LEAF_AREA + "; carboxylation minus photorespiratory CO2 release, Vcmax (c - G*) / (c + Km)",
+        off_blade=_NAN,
     ),
     "leaf_vj_umol_m2_s": Variable(
         TS,
         UMOL,
         "electron-transport-limited gross CO2 assimilation rate",
         _LEAF_AREA + "; carboxylation minus photorespiratory CO2 release, J (c - G*) / (4 c + 8 G*)",
+        off_blade=_NAN,
     ),
     "limitation": Variable(
         TS,
@@ -212,8 +228,11 @@ VARIABLES: dict[str, Variable] = {
         "limiting process of leaf photosynthesis",
         "-1 where not a leaf blade",
         flags="-1 not a blade, 0 Rubisco limited, 1 electron transport limited",
+        off_blade=np.int8(-1),
     ),
-    "converged": Variable(TS, "1", "photosynthesis solver converged", flags="0 no, 1 yes"),
+    "converged": Variable(
+        TS, "1", "photosynthesis solver converged", "1 where not a leaf blade", flags="0 no, 1 yes", off_blade=np.True_
+    ),
     # -- per time: observables (lightfit.model.observe) ---------------------------------------
     "plant_par_umol_m2_s": Variable(T, UMOL, "mean PAR at the measured plants", _PLANT_PAR + " mean over segments"),
     "plant_par_spread_umol_m2_s": Variable(
@@ -369,6 +388,23 @@ def segment_coords(segments) -> dict:
     return {"segment": segments["segment_id"].to_numpy(np.int64)} | {k: ("segment", v) for k, v in on_segment.items()}
 
 
+def on_segments(name: str, on_blades, is_blade) -> np.ndarray:
+    """A variable of the leaf blades alone on every segment: ``on_blades`` (..., B) its values on
+    the blades (``is_blade``'s true segments, in order), its ``off_blade`` value on the others, in
+    that value's dtype.
+
+    Every writer of results fills these variables here, so that a synthetic file and a rendered run
+    have no value on the same segments, in the same dtype."""
+    fill = variable(name).off_blade
+    if fill is None:
+        raise ValueError(f"{name} has a value on every segment, not on the blades alone")
+    is_blade = np.asarray(is_blade, bool)
+    on_blades = np.asarray(on_blades)
+    out = np.full((*on_blades.shape[:-1], is_blade.size), fill, dtype=np.asarray(fill).dtype)
+    out[..., is_blade] = on_blades
+    return out
+
+
 def annotate(ds):
     """``ds`` with the schema's attributes on every variable and coordinate (in place; returned).
 
@@ -388,6 +424,7 @@ __all__ = [
     "VARIABLES",
     "Variable",
     "annotate",
+    "on_segments",
     "segment_coords",
     "units",
     "variable",
