@@ -867,12 +867,13 @@ def concat_days(parts: list) -> xr.Dataset:
         segments.append(p[per_segment])
         p = p.reset_coords(static, drop=True).drop_vars(per_segment)
         days_.append(p.assign_coords(day=("time", [p.attrs["date"]] * p.sizes["time"])))
-    fill = {"limitation": -1, "converged": True}
-    out = xr.concat(days_, dim="time", data_vars="all", join="outer", combine_attrs="override", fill_value=fill)
+    # another day's segment has no leaf there: the schema's value off a blade (NaN, limitation -1), its dtype
+    off = {v: schema.variable(v).off_blade for v in parts[0].data_vars if schema.variable(v).off_blade is not None}
+    out = xr.concat(days_, dim="time", data_vars="all", join="outer", combine_attrs="override", fill_value=off)
     out = out.assign_coords(xr.concat(statics, dim="segment"))
     out = out.assign(xr.concat(segments, dim="segment").data_vars)
-    out["limitation"] = out["limitation"].astype(np.int8)
-    out["converged"] = out["converged"].astype(bool)
+    for v, value in off.items():  # the outer join made int8 and bool float
+        out[v] = out[v].astype(value.dtype)
     # Each day allocates adaptive sampling at its own highest sun: every day's point, in order.
     per_day = [k for k in parts[0].attrs if k.startswith("allocation_")]
     temperatures = ("growth_temperature_c", "growth_temperature_applied_c")

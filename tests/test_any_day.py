@@ -264,6 +264,10 @@ def test_several_days_in_one_results_set(tmp_path, monkeypatch):
     for k, steps in enumerate((slice(0, 2), slice(2, 4))):
         assert np.isfinite(par[steps][:, day_of_segment == k]).all()
         assert np.isnan(par[steps][:, day_of_segment != k]).all()
+        other = ds.isel(time=steps, segment=day_of_segment != k)  # no leaf there: the schema's off-blade values
+        assert (other["limitation"] == -1).all() and other["converged"].all()
+        assert np.isnan(other["leaf_an_umol_m2_s"]).all()
+    assert ds["limitation"].dtype == np.int8 and ds["converged"].dtype == bool
     alone, _ = rep.run(replace(cfg, dates=("2016-04-27",)), weather_file=REAL_DAY, observations=None)
     np.testing.assert_array_equal(ds["canopy_an_umol_m2_s"].values[2:], alone["canopy_an_umol_m2_s"].values)
     assert (ds["organ_type"].values[day_of_segment == 1] == alone["organ_type"].values).all()
