@@ -14,7 +14,8 @@
    (docs/calibration.md).
 3. Calibrate specular, roughness and subsurface together: the fit is as good, the parameters are
    not recovered — the non-identifiability the reference paper warned about (see issue 7 for the
-   posterior). Prints and writes a JSON summary.
+   posterior). Prints and writes a JSON summary, OUT/twin.json (the calibrations' steps in
+   OUT/history_*.jsonl).
 """
 
 from __future__ import annotations
@@ -45,14 +46,14 @@ DATA = ROOT / "data" / "observations" / "twin_2016-04-20_synthetic.csv"
 
 
 def main(quick: bool = False, out: Path = ROOT / "results" / "twin", write_data: bool = False) -> dict:
+    if write_data and quick:  # before the model is built and the twin rendered
+        raise SystemExit("--write-data replaces the bundled twin series: not with --quick")
     out.mkdir(parents=True, exist_ok=True)
     cfg = (
         rep.ReplicationConfig.quick() if quick else dataclasses.replace(rep.ReplicationConfig(), n_plants=9, samples=32)
     )
     model = rep.model_for(cfg, rep.forcing())
     obs = twin_observations(model, TRUTH, render_seed=101, noise_seed=7)
-    if write_data and quick:
-        raise SystemExit("--write-data replaces the bundled twin series: not with --quick")
     path = DATA if write_data else out / "twin_observations.csv"
     write_observations(
         obs,
