@@ -17,6 +17,11 @@ PAR: no bias expected, its differences from the fit are noise), and the bias the
 itself predicts (``canopy_an_mc_bias_umol_m2_s``, :func:`lightfit.model.observe.an_noise_bias`),
 an independent check of the fit. Writes JSON and prints a table. Plants and kernels come from the
 user's caches.
+
+The stored experiments/results/an_noise_bias.json (2026-12-02) is of the main job as it was then:
+its direct light from the paths, the sheaths as rods. Today's main job projects the direct light,
+so this script now measures a bias an order of magnitude smaller: that file is not reproduced
+(docs/model.md, "Monte Carlo bias of canopy An").
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
     python experiments/buffer_edge_bias.py [--n-plants 16] [--samples 128]
 
 Same measured plants (4 × 4 by default), same sun and weather (2016-04-20 10:00 UTC,
-reconstructed forcing), K samples, 3 bounces; canopy absorbed PAR of the measured segments for
+reconstructed forcing), the paper's grey leaf, K samples, 3 bounces; canopy absorbed PAR of the measured segments for
 several (buffer_rows, buffer_along) against the widest field (10 rows, 40 plants along). Prints the
 "Field-edge bias" table in docs/light.md and writes ``--out`` (default
 experiments/results/buffer_edge_bias.json).

@@ -18,7 +18,8 @@ leaf sheaths laid out as ``--sheaths`` says, default the model's: docs/plant.md 
   stems' and sheaths' projected area (the faces facing the sun, per ground area, / sin β) — to
   compare with the rendered ceptometer transmittance (docs/model.md).
 
-Writes JSON and prints a table.
+Writes JSON and prints a table. The stored experiments/results/canopy_structure.json, which the docs
+quote, is the ``--sheaths rods`` run: the default layout written to the default ``--out`` replaces it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Speed/accuracy trade of the per-segment irradiance estimator, at the defaults users run.
 
     python experiments/light_speed_accuracy.py [--n-plants 16] [--optics prospect|paper]
-        [--out experiments/results/light_speed_accuracy]
+        [--out experiments/results/light_speed_accuracy] [--replot]
 
 One field and sun position (2016-04-20, 10:00 UTC at Selhausen, reconstructed weather), the
 default leaf (PROSPECT-D, ``Optics.preset("prospect")``) and the default boundary (a periodic cell

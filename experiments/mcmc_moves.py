@@ -1,6 +1,7 @@
 """Which emcee moves mix lightfit's posteriors, and is the ESS the stop rule reports honest?
 
-    python experiments/mcmc_moves.py [--seeds 24] [--out experiments/results/mcmc_moves.json]
+    python experiments/mcmc_moves.py [--seeds 24] [--targets flat,ridge,banana,gaussian]
+        [--out experiments/results/mcmc_moves.json]
 
 Four analytic stand-ins for lightfit's posteriors over (specular, roughness, subsurface,
 light_factor) with the informed priors' boxes (``PRIORS_INFORMED``) and the light factor's

@@ -1,6 +1,7 @@
 """Posterior and identifiability study for the 20 April 2016 configuration (twin experiments).
 
-    .venv/bin/python experiments/posterior_2016_04_20.py [--out results/posterior] [--n-design 64] [--tiny PATH]
+    .venv/bin/python experiments/posterior_2016_04_20.py [--out results/posterior] [--n-design 64] [--n-test 8]
+        [--walkers 32] [--max-steps 3000] [--tiny PATH]
 
 1. Emulator of the renders over the wide prior box (specular, subsurface ∈ [0, 1], roughness ∈
    [0.3, 1]) from a Sobol design of full renders; its error measured on held-out full renders.

@@ -1,6 +1,7 @@
 """Twins rendered at other seeds than the model's: does the posterior recover their truth? (issue 15 item 3)
 
-    .venv/bin/python experiments/twin_seeds.py [--out results/twin_seeds] [--n-design 32] [--max-steps 2000]
+    .venv/bin/python experiments/twin_seeds.py [--out results/twin_seeds] [--n-design 32] [--walkers 32]
+        [--max-steps 2000]
 
 Quick field (4 plants, K = 16, 2 bounces), model render seed 0, emulator over the informed prior box
 (one design for all points). At three leaf-parameter points that no test uses, twin observations
