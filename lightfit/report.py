@@ -276,7 +276,8 @@ def figure(ds, compare=None):
         lines.append("θ given: " + ", ".join(f"{k} {float(v):.4g}" for k, v in given.items()))
     if compare is not None:
         lines.append(runs[1][2] + " (dashed)")
-    fig.suptitle("\n".join(lines), fontsize=10)
+    # wrapped at the figure's edges: a run label with a given θ, a profile and overrides is wider than it
+    fig.suptitle("\n".join(lines), fontsize=10, wrap=True)
     return fig
 
 

@@ -491,6 +491,16 @@ def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_thet
         assert any(lab.startswith("absorbed PAR") and lab.endswith(", θ given)") for lab in labels), labels
     finally:
         plt.close(fig)
+    # A long run label (a given θ, the capacity profile, overrides) wraps inside the figure: the
+    # review's calibrated fit had the title's model line cut at both edges of replication.png.
+    ds.attrs.update(vcmax_profile="lloyd2010", photosynthesis_overrides=json.dumps({"vcmax_ref_umol_m2_s": 85.0}))
+    fig = figure(ds)
+    try:
+        fig.canvas.draw()
+        box = fig._suptitle.get_window_extent()
+        assert box.x0 >= 0 and box.x1 <= fig.bbox.width, (box, fig.bbox.width)
+    finally:
+        plt.close(fig)
 
 
 def test_an_per_leaf_changes_canopy_an_only():
