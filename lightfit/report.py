@@ -63,7 +63,7 @@ def _plants(attrs):
 
 def summary_metadata(ds) -> dict[str, str]:
     """The ``# key: value`` header of a results folder's summary.csv: that it is model output, the
-    forcing's and the observations' provenance and files, the preset, site, window and field, and
+    forcing's and the observations' provenance and files, the preset and any θ given, site, window and field, and
     lightfit's versions; every setting is in results.nc's attributes. Without it the table could
     pass for numbers from measured weather (data honesty: a reconstructed forcing says so here)."""
     a = ds.attrs
@@ -75,6 +75,7 @@ def summary_metadata(ds) -> dict[str, str]:
         "forcing_source": a.get("weather_source"),
         "observations": a.get("observations"),
         "preset": a.get("preset"),
+        "theta_given": a.get("theta_given"),  # --theta: the leaf and scales are not the preset's
         "site": a.get("site"),
         "window": a.get("window"),
         "local_time": f"the site's clock, HH:MM in {_tz(ds)} (time_utc is UTC)",

@@ -379,3 +379,15 @@ def test_a_configuration_records_what_its_scenario_takes():
     # dates in two years: each its own 5 March
     two = rep.ReplicationConfig(dates=("2016-04-20", "2017-04-20")).effective()
     assert two["season_start"] == {"2016-04-20": "2016-03-05", "2017-04-20": "2017-03-05"}
+
+
+def test_the_summary_header_names_a_given_theta():
+    """summary.csv of `replicate --theta` said "preset: default" and nothing of the fitted leaf, so a
+    calibrated day's table read as the preset's (a review with a user's own data); the figure's
+    title named θ already."""
+    from lightfit.report import summary_metadata
+
+    attrs = {"preset": "default", "samples": 16, "bounces": 2}
+    assert "theta_given" not in summary_metadata(xr.Dataset(attrs=attrs))
+    given = json.dumps({"specular": 0.4625, "light_factor": 0.9643})
+    assert summary_metadata(xr.Dataset(attrs=attrs | {"theta_given": given}))["theta_given"] == given
