@@ -80,7 +80,7 @@ def main(argv=None):
         leaf_test, full = z["leaf_test"], (z["values"], z["se"])
     else:
         leaf_test = E.sobol_design(16, *WIDE_BOX, seed=1)[: args.n_test]
-        full = E.render_parts(model, leaf_test, progress=True)
+        full = E.render_parts(model, leaf_test, progress=True, label=E.HELD_OUT_LABEL)
         np.savez_compressed(val_path, leaf_test=leaf_test, values=full[0], se=full[1])
     summary["emulator"] = {
         "degree": emu.degree,

@@ -274,6 +274,8 @@ def test_the_emulator_is_checked_at_the_maps_own_leaf(tmp_path):
     # the held-out render is counted apart from the design's six (a review: one line counted both)
     assert "design: 6 new renders, 0 from the cache" in r.output.replace("\n", "")
     assert "; held-out check: 1 new, 0 from the cache" in r.output.replace("\n", "")
+    # and its progress line says so: "rendering design: 1/1" read as a design render (a review)
+    assert "rendering design: 6/6" in r.output and "rendering held-out check: 1/1" in r.output, r.output
     assert np.asarray(ee["se_ratio_per_point"]).shape == (2,) and (np.asarray(ee["se_ratio_per_point"]) > 0).all()
 
 

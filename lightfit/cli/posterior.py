@@ -221,7 +221,8 @@ def posterior(
                 start = dict(E.COUNTS)
                 if render_points is not None:
                     render_points(d, leaf_test, renders, E.render_key(d))
-                val.append((leaf_test, E.render_parts(d, leaf_test, progress=True, cache=renders)))
+                check = E.render_parts(d, leaf_test, progress=True, cache=renders, label=E.HELD_OUT_LABEL)
+                val.append((leaf_test, check))
                 held = {k: held[k] + E.COUNTS[k] - start[k] for k in held}
     where = ", ".join(str(E.design_dir(d, cache)) for d in days)
     new, cached = (E.COUNTS[k] - counts[k] - held[k] for k in ("rendered", "cached"))

@@ -72,6 +72,8 @@ DEGREES = (1, 2, 3, 4, 5)
 #: Scramble seed of the design's Sobol points, and of the posterior's held-out check points (another
 #: scramble, so that they fall between the design's).
 DESIGN_SEED, HELD_OUT_SEED = 0, 1
+#: Progress label of the held-out renders, which "rendering design" made read as the design's own.
+HELD_OUT_LABEL = "rendering held-out check"
 
 
 def exponents(degree: int) -> np.ndarray:
@@ -211,19 +213,24 @@ RenderPoints = Callable[[CoupledModel, np.ndarray, Path, dict], object]
 
 
 def render_parts(
-    model: CoupledModel, leaf, progress: bool = False, cache: str | Path | None = None, key: dict | None = None
+    model: CoupledModel,
+    leaf,
+    progress: bool = False,
+    cache: str | Path | None = None,
+    key: dict | None = None,
+    label: str = "rendering design",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Full renders at each row of ``leaf`` (n, 3): values and SE, each (n, T_day, 4, S).
 
     ``cache``: a directory keeping each finished render (``<hash>.npz``, written atomically): points
     already there are read instead of rendered. ``key``: :func:`render_key` of ``model`` if already
-    computed.
+    computed. ``label``: the progress line's, for renders that are not a design's.
     """
-    v, s, _ = _render_parts(model, leaf, progress, cache, key)
+    v, s, _ = _render_parts(model, leaf, progress, cache, key, label)
     return v, s
 
 
-def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.ndarray, float]:
+def _render_parts(model, leaf, progress, cache, key, label) -> tuple[np.ndarray, np.ndarray, float]:
     """:func:`render_parts` and the summed render time of the points, s (stored with each render, so
     it is the same whether a point was rendered now or read from the cache)."""
     leaf = np.atleast_2d(np.asarray(leaf, float))
@@ -251,7 +258,7 @@ def _render_parts(model, leaf, progress, cache, key) -> tuple[np.ndarray, np.nda
             todo.append(i)
             first[file] = i
     done = len(leaf) - len(todo)  # a point repeated in ``leaf`` is done with its first
-    label = "rendering design" + (f" ({cached} of {len(leaf)} from the cache)" if cached else "")  # a rerun says so
+    label += f" ({cached} of {len(leaf)} from the cache)" if cached else ""  # a rerun says so
     with progress_bar(label, len(leaf), completed=done, show=progress) as bar:
         # All missing points in one batch (CoupledModel.render_many: the paths are traced once and
         # weighed at every point); each point is stored as soon as it is done, so a design killed
@@ -478,7 +485,7 @@ def build_emulator(
                 "render_points without a cache", parameter="cache", expected="the render directory the hook fills"
             )
         render_points(model, design, Path(cache), rkey)  # with its own progress: reading them back is not news
-    v, s, seconds = _render_parts(model, design, progress and render_points is None, cache, rkey)
+    v, s, seconds = _render_parts(model, design, progress and render_points is None, cache, rkey, "rendering design")
     if v.shape[1] == 0:  # nothing rendered (no step needs it): the constant zero, exact
         z = np.zeros((1, *v.shape[1:]))
         emu = PartsEmulator(lo, hi, 0, z, z.copy(), design, {}, 0.0, model.scenario.seed)
@@ -738,7 +745,7 @@ def validate(
     """
     leaf_test = np.atleast_2d(np.asarray(leaf_test, float))
     if full is None:
-        full = render_parts(model, leaf_test, progress)
+        full = render_parts(model, leaf_test, progress, label=HELD_OUT_LABEL)
     out = {k: [] for k in ("err_" + o for o in VALIDATED)}
     out.update({"full_" + o: [] for o in VALIDATED})
     parts_err, se_ratio = [], []
