@@ -1162,6 +1162,11 @@ def test_cautions_name_a_rejected_fit_an_edge_map_and_an_uninformed_parameter():
     assert "for 22 values and 1 parameter (" in line and "the data scatter 3 × them at the MAP (noise_scale)" in line
     (line,) = _cautions({**base, "sd_over_prior_sd": {"specular": 0.99, "light_factor": 0.05}})
     assert line.startswith("the data hardly inform specular: its posterior SD is 0.99 × its prior's")
+    # both: one line, for a flat likelihood tips the MAP onto an edge without pulling it there (a
+    # review read "the data pull it on" and "the data hardly inform" of one parameter, one under the other)
+    (line,) = _cautions({**edge, "sd_over_prior_sd": {"specular": 1.01, "light_factor": 0.05}})
+    assert line.startswith("the data hardly inform specular: its posterior SD is 1.01 × its prior's"), line
+    assert "MAP = 0.4625 on the edge of its prior's range [0.4625, 0.7375]" in line and "pull" not in line, line
 
 
 def test_the_map_search_holds_the_monte_carlo_sds_of_its_start():

@@ -371,13 +371,17 @@ def _cautions(d: dict) -> list[str]:
             )
         k = len([n for n in names if n != "noise_scale"])  # λ does not enter χ² taken at λ = 1
         out += [line + why for line in misfit(d["chi2_map"], d["n_observations"], k, what="the MAP")]
+    uninformed = {n: r for n, r in (d.get("sd_over_prior_sd") or {}).items() if r >= UNINFORMED_SD_RATIO}
+    edges = {}
     for n, (lo, hi) in (d.get("prior_support") or {}).items():
         v = (d.get("x_map") or {}).get(n)
         if v is not None and on_edge(v, lo, hi):
-            out.append(f"{n}'s MAP = {v:.4g} is on the edge of its prior's range [{lo:g}, {hi:g}]: the data pull it on")
-    for n, r in (d.get("sd_over_prior_sd") or {}).items():
-        if r >= UNINFORMED_SD_RATIO:
-            out.append(f"the data hardly inform {n}: its posterior SD is {r:.2f} × its prior's (the prior speaks)")
+            edges[n] = f"MAP = {v:.4g}", f"on the edge of its prior's range [{lo:g}, {hi:g}]"
+            if n not in uninformed:  # an uninformed one's edge is where a nearly flat likelihood tips it: below
+                out.append(f"{n}'s {edges[n][0]} is {edges[n][1]}: the data pull it on")
+    for n, r in uninformed.items():
+        edge = f"; its {' '.join(edges[n])} is where a nearly flat likelihood tips it" if n in edges else ""
+        out.append(f"the data hardly inform {n}: its posterior SD is {r:.2f} × its prior's (the prior speaks{edge})")
     if d.get("map_converged") is False:
         where = "the best sample it started from" if d.get("map_kept_start") else "the best point it reached"
         out.append(f"the MAP search did not converge ({d.get('map_message')}): MAP is {where}")
