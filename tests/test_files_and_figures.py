@@ -101,3 +101,26 @@ def test_clock_axis_labels_the_local_time_of_the_zone():
             assert ax.xaxis.get_major_formatter()(noon_utc) == want, tz
     finally:
         plt.close(fig)
+
+
+def test_the_forcing_plots_co2_axis_does_not_magnify_rounding(tmp_path, monkeypatch):
+    """The bundled TERENO fixture's CO2, 400 ppm converted from mmol m⁻³ given to four decimals,
+    wanders by ±0.007 ppm; the CO2 panel filled its height with it, spikes a reader takes for a
+    signal (a review with the fixture as "my weather"). The axis spans at least 10 ppm; a real
+    diurnal course, tens of ppm, is drawn at its own scale."""
+    import matplotlib.figure
+    import pandas as pd
+
+    from lightfit.weather.plot import plot_forcing
+
+    t = pd.date_range("2016-04-20 04:00", periods=12, freq="1h", tz="UTC")
+    wobble = np.tile([-0.007, 0.005, 0.0], 4)
+    df = pd.DataFrame(
+        {"par_umol_m2_s": 1000.0, "tair_c": 15.0, "rh": 0.6, "pair_kpa": 100.1, "co2_ppm": 400.0 + wobble}, index=t
+    )
+    drawn = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: drawn.append(fig))
+    for co2, span in ((400.0 + wobble, (10.0, 10.0)), (380.0 + np.linspace(0, 40, 12), (40.0, 50.0))):
+        plot_forcing(df.assign(co2_ppm=co2), tmp_path / "f.png")
+        lo, hi = drawn[-1].axes[2].get_ylim()
+        assert span[0] <= hi - lo <= span[1] + 1e-9 and lo <= co2.min() and co2.max() <= hi, (lo, hi)

@@ -84,6 +84,9 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     co2 = ax[2].plot(t, local["co2_ppm"], color="tab:green", label=named("CO2", local["co2_ppm"], "ppm", ".0f"))
     ax[2].set_ylabel("CO2 (ppm)", color="tab:green")
     ax[2].ticklabel_format(axis="y", useOffset=False)  # ppm as read: an offset made 0.01 ppm look like a signal
+    lo, hi = ax[2].get_ylim()
+    if hi - lo < 10:  # so did a span of 0.01 ppm (unit conversion's rounding); a crop's diurnal course is tens of ppm
+        ax[2].set_ylim((lo + hi) / 2 - 5, (lo + hi) / 2 + 5)
     p = ax[2].twinx()
     pair = named("air pressure", local["pair_kpa"], "kPa", ".1f")
     kpa = p.plot(t, local["pair_kpa"], color="tab:gray", ls="--", lw=1.0, label=pair)
