@@ -19,13 +19,42 @@ def test_the_profile_is_infinite_where_no_allowed_point_exists():
         np.array([1.0, 0.0]),
         ts,
         scale="natural",
-        allowed=lambda x: (x[0] >= 0.5) & (x[0] <= 1.5),
+        box=([0.5, -np.inf], [1.5, np.inf]),
     )
     x0 = 1.0 + ts
     np.testing.assert_allclose(slc, (x0 - 3.0) ** 2, rtol=1e-12)  # the slice goes wherever the line goes
     inside = (x0 >= 0.5) & (x0 <= 1.5)
     np.testing.assert_allclose(prof[inside], (x0[inside] - 3.0) ** 2, atol=1e-9)
     assert np.all(prof[~inside] == np.inf), prof
+
+
+def test_the_profile_through_a_corner_of_the_box_starts_each_offset_inside_it():
+    """A posterior's MAP on its prior box's corner (the review's: specular and subsurface at their
+    lower bounds, roughness at its upper one) put the warm start of every other offset outside the box,
+    where the objective is flat +∞: the profile was +∞ at all offsets but 0, and the notebook's
+    profile panel showed one point, though the box holds points at small offsets. Here the box is
+    [0, 1]², the line through its corner (0, 0) along (1, −1)/√2 leaves it at once, the box meets
+    the offset's line for |t| ≤ √2/2; reference: the constrained minimum on a fine grid (the line
+    search stops short of the boundary: within 2 %)."""
+    ts = np.array([-1.0, -0.5, -0.2, 0.0, 0.2, 0.5, 1.0])
+    _, prof, _ = profile_likelihood(
+        lambda x: (x[0] - 0.2) ** 2 + (x[1] - 0.2) ** 2,
+        np.zeros(2),
+        np.array([1.0, -1.0]),
+        ts,
+        scale="natural",
+        box=(np.zeros(2), np.ones(2)),
+    )
+    g = np.linspace(0.0, 1.0, 2001)
+    x0, x1 = np.meshgrid(g, g)
+    ref = []
+    for t in ts:
+        on = np.abs((x0 - x1) / np.sqrt(2) - t) < 1e-3
+        ref.append(np.min(((x0 - 0.2) ** 2 + (x1 - 0.2) ** 2)[on]) if on.any() else np.inf)
+    ref = np.asarray(ref)
+    assert np.array_equal(np.isinf(prof), np.isinf(ref)), (prof, ref)
+    ok = np.isfinite(ref)
+    assert (prof[ok] >= ref[ok] - 1e-3).all() and (prof[ok] <= 1.02 * ref[ok] + 1e-3).all(), (prof, ref)
 
 
 def test_combination_orients_by_the_dominant_entry_and_keeps_entries_at_tol():

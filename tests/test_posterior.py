@@ -410,7 +410,7 @@ def test_profile_likelihood_on_quadratic_toy():
 
 
 def test_profile_likelihood_stays_where_it_is_allowed():
-    """With ``allowed`` the other directions are optimised inside it only (the posterior keeps them
+    """With ``box`` the other directions are optimised inside it only (the posterior keeps them
     in the emulator's box). ½ xᵀHx along d = (1, 0) with x₂ ≥ −0.3: the optimum w = −0.75 t is
     clamped at −0.3 for t > 0.4, where the profile rises above the unconstrained t²·0.4375 (0.64
     against 0.4375 at t = 1); never below the constrained minimum, within 2 % of it (the line
@@ -423,7 +423,7 @@ def test_profile_likelihood_stays_where_it_is_allowed():
         np.array([1.0, 0.0]),
         ts,
         scale="natural",
-        allowed=lambda x: x[1] >= -0.3,
+        box=([-np.inf, -0.3], [np.inf, np.inf]),
     )
     w = np.maximum(-0.75 * ts, -0.3)
     ref = 0.5 * (2 * ts**2 + 3 * ts * w + 2 * w**2)

@@ -94,18 +94,21 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
 
 
 def profile_likelihood(
-    nll, x_hat, direction, ts, *, scale: str = "log", allowed=None
+    nll, x_hat, direction, ts, *, scale: str = "log", box=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Profile of ``nll(x)`` along ``direction`` through ``x_hat``.
 
     At each offset t the parameters are :math:`u = u(\hat x) + t\,d + P_\perp w` (u = log x or x;
     d the unit vector along ``direction``, so t is a distance in u), and w (orthogonal to d) is
     optimised (scipy BFGS with JAX gradients, warm-started from the neighbouring t).
-    ``allowed(x)`` (JAX bool; ``None``: everywhere) keeps the optimised points where ``nll`` may be
-    evaluated, e.g. an emulator's box: outside it the objective is +∞, so the line search steps
-    back; the profile is +∞ at an offset with no allowed point (the slice itself is evaluated
-    wherever the line goes, and counts for the profile only where allowed). Returns
-    ``(ts, profile, slice)``: the profiled and the plain-slice nll.
+    ``box`` (``(lo, hi)`` in the parameters' units, inclusive, ±∞ where unbounded; ``None``:
+    everywhere) keeps the optimised points where ``nll`` may be evaluated, e.g. an emulator's box:
+    outside it the objective is +∞, so the line search steps back. A warm start outside the box is
+    first moved to the box's point nearest it on the offset's hyperplane (through a box's corner the
+    line leaves the box at once, and every start outside it stayed there at +∞); the profile is +∞ at
+    an offset with no point in the box (the slice itself is evaluated wherever the line goes, and
+    counts for the profile only inside). Returns ``(ts, profile, slice)``: the profiled and the
+    plain-slice nll.
     """
     from scipy.optimize import minimize
 
@@ -118,15 +121,42 @@ def profile_likelihood(
     q, _ = np.linalg.qr(np.column_stack([d, np.eye(len(d))]))
     basis = q[:, 1 : len(d)]
     ts = np.asarray(ts, float)
+    if box is not None:
+        lo, hi = (np.broadcast_to(np.asarray(b, float), x_hat.shape) for b in box)
+        with np.errstate(divide="ignore"):  # a bound at 0 is −∞ in log x
+            lo_u, hi_u = (np.log(lo), np.log(hi)) if scale == "log" else (lo, hi)
+        width = hi_u - lo_u
+        hair = 1e-9 * np.where(np.isfinite(width), width, 1.0)  # strictly inside after round-off
+        lo_u, hi_u = lo_u + hair, hi_u - hair
+
+    def inside(x):
+        return True if box is None else jnp.all((x >= lo) & (x <= hi))
+
+    def into_box(u, t):
+        """The point clip(u + λd) of the (hair-shrunk) box on the offset's hyperplane d·(u − u₀) = t,
+        found by bisection in λ (d·clip(u + λd) rises with λ), or ``None`` where the plane misses it."""
+
+        def h(lam):
+            return d @ (np.clip(u + lam * d, lo_u, hi_u) - u0) - t
+
+        a, b = -1.0, 1.0
+        while h(a) > 0 and a > -1e12:
+            a *= 2
+        while h(b) < 0 and b < 1e12:
+            b *= 2
+        if h(a) > 0 or h(b) < 0:
+            return None
+        for _ in range(200):
+            m = 0.5 * (a + b)
+            a, b = (m, b) if h(m) < 0 else (a, m)
+        return np.clip(u + b * d, lo_u, hi_u)
 
     def f_w(w, t):
         return nll(to_x(jnp.asarray(u0 + t * d) + jnp.asarray(basis) @ w))
 
     def f_inside(w, t):
-        if allowed is None:
-            return f_w(w, t)
         x = to_x(jnp.asarray(u0 + t * d) + jnp.asarray(basis) @ w)
-        return jnp.where(allowed(x), f_w(w, t), jnp.inf)
+        return jnp.where(inside(x), f_w(w, t), jnp.inf)
 
     vg = jax.jit(jax.value_and_grad(f_inside))
     f_j = jax.jit(f_w)
@@ -135,16 +165,17 @@ def profile_likelihood(
     w = np.zeros(basis.shape[1])
     last = {}
 
-    def slice_allowed(t) -> bool:
-        return allowed is None or bool(allowed(to_x(jnp.asarray(u0 + t * d))))
-
     for i in order:
         t = ts[i]
         slc[i] = float(f_j(jnp.zeros(basis.shape[1]), t))
-        on_slice = slc[i] if slice_allowed(t) else np.inf  # an extrapolation is no profile value
+        on_slice = slc[i] if bool(inside(to_x(jnp.asarray(u0 + t * d)))) else np.inf  # no extrapolation
         # warm start from the nearest already-solved offset on the same side
         near = [j for j in last if np.sign(ts[j]) == np.sign(t) or ts[j] == 0]
         w0 = last[min(near, key=lambda j: abs(ts[j] - t))] if near else w
+        start = u0 + t * d + basis @ w0
+        if not bool(inside(to_x(jnp.asarray(start)))):
+            moved = into_box(start, t)
+            w0 = w0 if moved is None else basis.T @ (moved - u0 - t * d)
 
         def fun(wv, t=t):
             v, g = vg(jnp.asarray(wv), t)

@@ -429,7 +429,7 @@ def identifiability(lp: LogPosterior, x_map: np.ndarray, n_profile: int = 15) ->
         d,
         ts,
         scale=scale,
-        allowed=lambda xm: jnp.isfinite(lp.log_prior(at(xm))),
+        box=tuple(np.array([lp.priors[n].support[k] for n in model_names]) for k in (0, 1)),
     )
     to_x = (lambda t: np.exp(np.log(x_map[idx]) + t * d)) if scale == "log" else (lambda t: x_map[idx] + t * d)
     inside = np.array([lp.in_support(np.asarray(at(to_x(t)))) for t in ts])
