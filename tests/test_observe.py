@@ -148,6 +148,10 @@ def test_every_series_has_an_observable_and_schema_entries():
         assert schema.units(s.value) == s.unit, s.name
         for c in (s.value, s.sd):
             assert f"obs_{c}" in schema.VARIABLES, c
+        # results.nc called observed PAR at the plants and canopy An "(chamber)", whatever the file held:
+        # no instrument reads PAR at the plants (docs/calibration.md), and uptake may come from a tower
+        if s.name != "nee":
+            assert "chamber" not in schema.VARIABLES[f"obs_{s.value}"].long_name, s.name
 
 
 def _write(tmp_path, body, name="o.csv"):

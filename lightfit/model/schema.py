@@ -308,9 +308,9 @@ VARIABLES: dict[str, Variable] = {
     "sun_elevation_deg": Variable(T, "degree", "solar elevation angle"),
     "sun_azimuth_deg": Variable(T, "degree", "solar azimuth angle (clockwise from north)"),
     # -- per time: observations added by the replication (lightfit.inference.observations) ----
-    "obs_plant_par_umol_m2_s": Variable(T, UMOL, "observed mean PAR at the plants (chamber)", _PLANT_PAR),
+    "obs_plant_par_umol_m2_s": Variable(T, UMOL, "observed mean PAR at the plants", _PLANT_PAR),
     "obs_plant_par_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed PAR at the plants"),
-    "obs_canopy_an_umol_m2_s": Variable(T, UMOL, "observed canopy net CO2 uptake (chamber)", _CANOPY_AREA),
+    "obs_canopy_an_umol_m2_s": Variable(T, UMOL, "observed canopy net CO2 uptake", _CANOPY_AREA),
     "obs_canopy_an_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed canopy net CO2 uptake"),
     "obs_above_canopy_par_umol_m2_s": Variable(
         T, UMOL, "observed PAR on a horizontal quantum sensor above the canopy", "per unit horizontal area"
