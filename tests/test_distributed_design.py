@@ -229,6 +229,27 @@ def test_render_design_shares_the_missing_points_over_the_workers(tmp_path, monk
         render_design(_Client(), model, pts, tmp_path, key, chunk=0, progress=False)
 
 
+def test_render_design_names_what_it_renders_in_its_progress_line(tmp_path, monkeypatch):
+    """The posterior's held-out renders on workers read "rendering design on 2 worker(s)" beside a line
+    saying the design needed no renders (a review): the line takes the caller's label."""
+    import contextlib
+
+    from lightfit.distributed import design
+
+    said = []
+
+    @contextlib.contextmanager
+    def bar(label, total, show):
+        said.append(label)
+        yield type("Bar", (), {"update": lambda self, **kw: None})()
+
+    monkeypatch.setattr(design, "progress_bar", bar)
+    pts = np.array([[0.1, 0.1, 0.1]])
+    render_design(_Client(), _fake_model(), pts, tmp_path, {"design": "test"}, progress=False)
+    render_design(_Client(), _fake_model(), pts, tmp_path / "b", {"design": "test"}, label=E.HELD_OUT_LABEL)
+    assert said == ["rendering design on 2 worker(s)", "rendering held-out check on 2 worker(s)"]
+
+
 def test_design_renderer_joins_the_scheduler_only_when_a_point_is_missing(tmp_path, monkeypatch):
     """A design already in the cache starts or joins no cluster; the first missing point joins the
     given --scheduler (once, reused for the next call)."""

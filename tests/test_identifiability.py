@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from lightfit.inference.identifiability import profile_likelihood
 
@@ -205,3 +206,28 @@ def test_profile_of_a_nonlinear_model_against_a_brute_force_scalar_minimisation(
             for a in amplitudes
         ]
         np.testing.assert_allclose(prof, ref, atol=1e-9, err_msg=scale)
+
+
+@pytest.mark.parametrize("scale", ["natural", "log"])
+def test_offsets_in_box_span_the_boxs_corners_along_the_direction(scale):
+    """The offsets whose hyperplane meets the box run from the lowest to the highest corner's
+    d·(u − û): against every corner of the box enumerated, and a bound at ±∞ (or 0 in log) leaving
+    the side it bounds open unless the direction has no component there."""
+    import itertools
+
+    from lightfit.inference.identifiability import offsets_in_box
+
+    rng = np.random.default_rng(3)
+    lo, hi = np.array([0.2, 0.5, 1.0]), np.array([0.9, 2.0, 3.0])
+    u = np.log if scale == "log" else (lambda v: v)
+    for _ in range(5):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        x_hat = rng.uniform(lo, hi)
+        along = [d @ (u(np.array(c)) - u(x_hat)) for c in itertools.product(*zip(lo, hi, strict=True))]
+        assert offsets_in_box(x_hat, d, (lo, hi), scale) == pytest.approx((min(along), max(along)), abs=1e-12)
+    open_lo = (np.array([0.0 if scale == "log" else -np.inf, 0.5]), np.array([1.0, 2.0]))
+    t_lo, t_hi = offsets_in_box(np.array([0.5, 1.0]), np.array([1.0, 1.0]), open_lo, scale)
+    assert t_lo == -np.inf and np.isfinite(t_hi)
+    t_lo, t_hi = offsets_in_box(np.array([0.5, 1.0]), np.array([0.0, 1.0]), open_lo, scale)  # x₀ not along d
+    assert (t_lo, t_hi) == pytest.approx((u(0.5) - u(1.0), u(2.0) - u(1.0)))

@@ -220,7 +220,7 @@ def posterior(
                 renders = E.design_dir(d, cache) / "renders"
                 start = dict(E.COUNTS)
                 if render_points is not None:
-                    render_points(d, leaf_test, renders, E.render_key(d))
+                    render_points(d, leaf_test, renders, E.render_key(d), label=E.HELD_OUT_LABEL)
                 check = E.render_parts(d, leaf_test, progress=True, cache=renders, label=E.HELD_OUT_LABEL)
                 val.append((leaf_test, check))
                 held = {k: held[k] + E.COUNTS[k] - start[k] for k in held}

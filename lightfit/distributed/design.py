@@ -148,6 +148,7 @@ def render_design(
     chunk: int | None = None,
     progress: bool = True,
     timeout_s: float | None = None,
+    label: str = "rendering design",
 ) -> list[dict]:
     """Render the points of ``leaf`` (n, 3) that ``cache`` lacks on the workers of ``client``.
 
@@ -159,6 +160,8 @@ def render_design(
         chunk: points per task (default: the missing points shared evenly over the workers).
         progress: a bar over finished points (files appearing in the cache).
         timeout_s: give up waiting after this many seconds (``None``: no bound).
+        label: the progress line's (the posterior's held-out renders say so:
+            :data:`~lightfit.model.emulator.HELD_OUT_LABEL`).
 
     Returns one dict per task (points, new renders, worker pid, build and render seconds, each point's
     render seconds); ``[]``
@@ -188,7 +191,7 @@ def render_design(
     ]
     files = [E.render_file(cache, key, x) for x in todo]
     t0 = time.perf_counter()
-    label = f"rendering design on {n_workers} worker(s)"
+    label = f"{label} on {n_workers} worker(s)"
     try:
         with progress_bar(label, len(files), show=progress) as bar:
             # Poll: a chunk's points land in the cache one by one, so the bar counts points, not tasks.

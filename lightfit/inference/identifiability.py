@@ -93,6 +93,23 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     return FisherResult(names, x0, scale, F, lam[order], vec[:, order])
 
 
+def offsets_in_box(x_hat, direction, box, scale: str = "log") -> tuple[float, float]:
+    r"""The offsets t of :func:`profile_likelihood` whose hyperplane :math:`d\cdot(u - \hat u) = t` meets
+    ``box`` (``(lo, hi)`` in the parameters' units, ±∞ where unbounded; u = log x or x, d the unit
+    ``direction``): :math:`[\sum_i \min(d_i l_i, d_i h_i),\ \sum_i \max(d_i l_i, d_i h_i)] - d\cdot\hat u`
+    over the box's bounds l, h in u. Outside it the profile is +∞ (no point of the box to optimise)."""
+    d = np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    x_hat = np.asarray(x_hat, float)
+    lo, hi = (np.broadcast_to(np.asarray(b, float), x_hat.shape) for b in box)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a bound at 0 is −∞ in log x; 0 · ∞ below
+        lo_u, hi_u = (np.log(lo), np.log(hi)) if scale == "log" else (lo, hi)
+        a, b = d * lo_u, d * hi_u
+    a, b = np.where(d == 0, 0.0, a), np.where(d == 0, 0.0, b)  # a direction without x_i: its bounds do not count
+    c = float(d @ (np.log(x_hat) if scale == "log" else x_hat))
+    return float(np.minimum(a, b).sum()) - c, float(np.maximum(a, b).sum()) - c
+
+
 def profile_likelihood(
     nll, x_hat, direction, ts, *, scale: str = "log", box=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -191,4 +208,4 @@ def profile_likelihood(
     return ts, prof, slc
 
 
-__all__ = ["FisherResult", "combination", "fisher_information", "profile_likelihood"]
+__all__ = ["FisherResult", "combination", "fisher_information", "offsets_in_box", "profile_likelihood"]
