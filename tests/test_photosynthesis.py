@@ -256,6 +256,39 @@ def test_plain_and_robust_agree_where_plain_converges():
     np.testing.assert_allclose(np.asarray(robust.an_umol_m2_s)[ok], np.asarray(plain.an_umol_m2_s)[ok], rtol=1e-8)
 
 
+@pytest.mark.parametrize("jit", [True, False])
+def test_the_root_finders_flag_what_they_did_not_find(jit):
+    """Elementwise, with and without jit: x² − 2 on [0, 2] converges to √2 (with and without a
+    residual scale); x² + 1 on [−1, 1] has no root (the bracket's precondition fn(lo) ≤ 0 fails),
+    and the bisection shrank onto −1 and reported it converged where no residual scale was given;
+    a NaN residual is flagged. The plain iteration x ← a·x + 1 converges to 2 for a = ½ and flags
+    a = 2 (divergent) and a NaN map."""
+    from lightfit.photosynthesis.solver import bracketed_newton, fixed_point_iteration
+
+    config = ps.SolverConfig()
+    a = jnp.array([-2.0, 1.0, np.nan])
+
+    def newton(scale):
+        def run(a):
+            fn = lambda x, a: x**2 + a  # noqa: E731
+            lo, hi, x0 = jnp.array([0.0, -1.0, 0.0]), jnp.array([2.0, 1.0, 2.0]), jnp.array([1.0, 0.0, 1.0])
+            return bracketed_newton(fn, x0, lo, hi, a, config, scale)
+
+        return jax.jit(run)(a) if jit else run(a)
+
+    for scale in (None, lambda x, a: jnp.abs(x**2) + jnp.abs(a)):
+        with jax.disable_jit(not jit):
+            r = newton(scale)
+        assert np.asarray(r.converged).tolist() == [True, False, False]
+        assert float(r.x[0]) == pytest.approx(np.sqrt(2.0), abs=config.atol_umol_mol)
+        assert np.asarray(r.iterations)[1:].tolist() == [config.max_steps] * 2
+    run = lambda a: fixed_point_iteration(lambda x, a: a * x + 1.0, jnp.ones(3), a, config)  # noqa: E731
+    with jax.disable_jit(not jit):
+        r = jax.jit(run)(jnp.array([0.5, 2.0, np.nan])) if jit else run(jnp.array([0.5, 2.0, np.nan]))
+    assert np.asarray(r.converged).tolist() == [True, False, False]
+    assert float(r.x[0]) == pytest.approx(2.0, abs=1e-8)  # the last step (≤ 1e-9), halved each step
+
+
 def test_non_convergence_is_flagged():
     p = tuzet_leaf()
     res = ps.solve(np.array([50.0, 900.0]), 25.0, 100.0, 0.6, P_KPA, p, config=ps.SolverConfig(max_steps=1))

@@ -94,7 +94,9 @@ def bracketed_newton(
 
     Returns:
         :class:`RootResult`; ``converged`` is False where the cap was hit or the residual
-        was not finite.
+        was not finite. A step or bracket shrunk below the tolerance counts only once residuals
+        of both signs have been seen: on a bracket without a sign change (``fn(lo) > 0``, no
+        root) the bisection shrank onto its end and reported it converged.
     """
 
     def small_residual(x, r):
@@ -113,14 +115,15 @@ def bracketed_newton(
         & small_residual(x0, r0)
     )
     zeros = jnp.zeros(x0.shape, jnp.int32)
-    init = (x0, r0, d0, lo, hi, width, width, done0, zeros, jnp.asarray(0, jnp.int32))
+    signs = (r0 <= 0, r0 >= 0)
+    init = (x0, r0, d0, lo, hi, width, width, signs, done0, zeros, jnp.asarray(0, jnp.int32))
 
     def cond(state):
         *_, done, _, step = state
         return (step < config.max_steps) & ~jnp.all(done)
 
     def body(state):
-        x, r, d, lo, hi, dx_last, dx_prev, done, n, step = state
+        x, r, d, lo, hi, dx_last, dx_prev, (seen_neg, seen_pos), done, n, step = state
         newton = x - r / d
         inside = (newton - lo) * (newton - hi) < 0
         fast = jnp.abs(2.0 * r) <= jnp.abs(dx_prev * d)
@@ -135,11 +138,9 @@ def bracketed_newton(
         # The predicted Newton correction |r/r'| is the error estimate once Newton has
         # converged; the bisection fallback would otherwise take over at round-off level.
         predicted = jnp.abs(r_new) <= tol * jnp.abs(d_new)
-        finished = (
-            jnp.isfinite(r_new)
-            & ((jnp.abs(dx) <= tol) | predicted | (hi_new - lo_new <= tol))
-            & small_residual(x_new, r_new)
-        )
+        seen_neg, seen_pos = seen_neg | (r_new <= 0), seen_pos | (r_new >= 0)
+        shrunk = seen_neg & seen_pos & ((jnp.abs(dx) <= tol) | (hi_new - lo_new <= tol))
+        finished = jnp.isfinite(r_new) & (predicted | shrunk) & small_residual(x_new, r_new)
 
         def upd(new, old):
             return jnp.where(active, new, old)
@@ -152,12 +153,13 @@ def bracketed_newton(
             hi_new,
             upd(dx, dx_last),
             upd(dx_last, dx_prev),
+            (seen_neg, seen_pos),
             done | (active & finished),
             n + active.astype(jnp.int32),
             step + 1,
         )
 
-    x, r, _, _, _, _, _, done, n, _ = jax.lax.while_loop(cond, body, init)
+    x, r, _, _, _, _, _, _, done, n, _ = jax.lax.while_loop(cond, body, init)
     return RootResult(x, done & jnp.isfinite(r), n)
 
 
