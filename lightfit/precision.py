@@ -18,7 +18,9 @@ photosynthesis and observation operator compile ~64 small XLA programs, several 
 run that a second run of the same configuration need not repeat.
 
 :func:`sqrt_or_zero` is the one guard for a square root whose argument can be exactly 0 in a
-differentiated computation (a standard deviation at night, a discriminant that vanishes).
+differentiated computation (a standard deviation at night, a discriminant that vanishes);
+:func:`power_of_two_scale` the one for a quotient whose numbers can be as small as 1e-154, where its
+derivative would square them out of float64's range.
 """
 
 from __future__ import annotations
@@ -87,3 +89,24 @@ def sqrt_or_zero(x, xp=None):
         import jax.numpy as xp
     positive = x > 0
     return xp.where(positive, xp.sqrt(xp.where(positive, x, 1.0)), xp.where(x <= 0, 0.0, xp.nan))
+
+
+def power_of_two_scale(x, xp=None):
+    r"""A power of two :math:`k` with :math:`|k x|` in [0.5, 1) where :math:`x` is a normal number
+    and :math:`k` and :math:`1/k` are too; 1 elsewhere (0, NaN, infinite, subnormal). Its derivative
+    is 0 (it is made of the integer exponent alone).
+
+    Multiplying by :math:`k` is exact, so a formula homogeneous of degree one gives the same numbers
+    taken on its inputs times :math:`k` and divided by :math:`k`, and its derivatives stay in range:
+    JAX's quotient rule takes ``x·y⁻²``, and ``y⁻²`` overflows for ``|y| < 1e-154`` in float64 (with
+    the chain rule's ``0 · ∞``, a NaN) where the derivative itself is of order ``1/y``. A product,
+    not a division by ``2^e``: XLA rewrites ``(a/b)/(c/b)`` as a quotient of products, which
+    underflowed again. ``xp``: the array namespace (default :mod:`jax.numpy`; :mod:`numpy` for
+    plain arrays).
+    """
+    if xp is None:
+        import jax.numpy as xp
+    x = xp.asarray(x)
+    e = xp.frexp(x)[1]
+    e = xp.where(xp.abs(e) <= xp.finfo(x.dtype).maxexp - 2, e, 0)
+    return xp.ldexp(xp.ones_like(x), -e)

@@ -173,7 +173,7 @@ def test_the_log_posterior_and_the_loss_at_the_parameters_bounds(operator):
     the box emcee's log-probability is −inf with a zero gradient, never NaN. The calibration loss
     (SDs held at the start, as calibrate holds them) on its unconstrained coordinates (log f, log s)
     at z = ±log 4 (the priors' bounds): finite and its gradient the central difference; as z → −∞
-    (f, s → 0) still finite."""
+    (f, s → 0, down to e⁻⁷⁰⁰) still finite."""
     op, values, se = operator
     obs, times = _twin(op, values, se)
 
@@ -219,7 +219,7 @@ def test_the_log_posterior_and_the_loss_at_the_parameters_bounds(operator):
         ]
         assert np.isfinite(float(v)) and np.all(np.isfinite(np.asarray(g))), z
         np.testing.assert_allclose(np.asarray(g), fd, rtol=1e-5, err_msg=str(z))
-    far = jnp.asarray([-40.0, -40.0])  # f = s = 4e-18: no light, no leaf
-    v, g = value_and_grad(far)
-    assert np.isfinite(float(v)) and np.all(np.isfinite(np.asarray(g)))
-    assert math.isclose(float(loss.to_natural(far)[0]), math.exp(-40.0), rel_tol=1e-12)
+    for far in ([-40.0, -40.0], [0.0, -360.0], [-700.0, -700.0]):  # f, s down to 1e-304: no light, no leaf
+        v, g = value_and_grad(jnp.asarray(far))
+        assert np.isfinite(float(v)) and np.all(np.isfinite(np.asarray(g))), far  # s < 1e-156: NaN before
+    assert math.isclose(float(loss.to_natural(jnp.asarray(far))[0]), math.exp(-700.0), rel_tol=1e-12)

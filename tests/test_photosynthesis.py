@@ -1065,6 +1065,54 @@ def test_out_of_range_inputs_under_jit_are_not_converged(name):
     assert bool(vpd_run(1.0)) and not bool(vpd_run(-1.0)) and not bool(vpd_run(25.0))
 
 
+def test_light_response_keeps_its_initial_slope_at_any_capacity():
+    """dJ/dQ at Q = 0 is the quantum yield α whatever Jmax > 0 (the non-rectangular hyperbola's
+    initial slope), with and without jit; dJ/dJmax is 0 there and → 1 where αQ ≫ Jmax. For Jmax
+    below ≈ 1e-154 the quotient rule squared the hyperbola's denominator to 0: NaN."""
+    jmax = jnp.array([1e-300, 1e-160, 1e-12, 1.0, 206.5, 1e150])
+
+    slopes = jax.vmap(jax.grad(ps.electron_transport_rate, argnums=(0, 1)), (None, 0, None, None))
+
+    def grads(q):
+        return slopes(q, jmax, 0.352, 0.7)
+
+    for fn in (grads, jax.jit(grads)):
+        dq, dj = (np.asarray(g) for g in fn(0.0))
+        np.testing.assert_allclose(dq, 0.352, rtol=1e-12)
+        np.testing.assert_array_equal(dj, 0.0)
+        dq, dj = (np.asarray(g) for g in fn(1.0))
+        np.testing.assert_allclose(dj[:2], 1.0, rtol=1e-12)
+        assert np.all(np.isfinite(dq)) and np.all(np.isfinite(dj))
+
+
+def test_vcmax_scale_just_inside_its_bounds():
+    """winter_wheat's Vcmax (with Jmax and Rd, tied to it) times 1e-300, 1e-200 and 1e-12 (just
+    inside the Vcmax scale's bound 0) and 1e6, 1e150 (far above any leaf), in the dark, in dim light
+    and in full sun, in one jit-compiled value and gradient: converged and finite, with finite dAn/dq
+    and gradients in the scale and in PAR. In the dark An = −Rd, proportional to the scale, and dAn/dq
+    is the same at every small scale (J ≈ αQ whatever Jmax). Below a scale of ≈ 1e-156 dAn/dq was NaN
+    in the dark, flagged converged, and the gradient raised lineax's non-finite-input error (the light
+    response's dJ/dQ, test above, which also runs without jit)."""
+    base = _wheat()
+    scales = np.array([1e-300, 1e-200, 1e-12, 1.0, 1e6, 1e150])[:, None]
+
+    def total(s, q):
+        p = eqx.tree_at(lambda r: r.fvcb.vcmax_ref_umol_m2_s, base, base.fvcb.vcmax_ref_umol_m2_s * s)
+        res, slope = ps.solve_with_par_slope(q, 25.0, 400.0, 0.5, P_KPA, p)
+        return jnp.sum(res.an_umol_m2_s), (res, slope)
+
+    run = jax.jit(jax.value_and_grad(total, argnums=(0, 1), has_aux=True))
+    (_, (res, slope)), grads = run(jnp.asarray(scales), jnp.array([0.0, 50.0, 2200.0]))
+    assert np.all(res.converged)
+    for field, value in res._asdict().items():
+        assert np.all(np.isfinite(np.asarray(value, float))), field
+    for x in (slope, *grads):
+        assert np.all(np.isfinite(np.asarray(x)))
+    an, slope = np.asarray(res.an_umol_m2_s), np.asarray(slope)
+    np.testing.assert_allclose(an[:, 0] / scales[:, 0], an[3, 0], rtol=1e-12)
+    np.testing.assert_allclose(slope[:3, 0], slope[0, 0], rtol=1e-9)
+
+
 @pytest.mark.parametrize("name", list(ps.PARAMETER_SET_NAMES))
 def test_gradient_at_zero_vcmax_is_the_one_sided_difference(name):
     """At a Vcmax scale of 0 both rates are 0: jnp.minimum split the gradient 50/50 between Vc and

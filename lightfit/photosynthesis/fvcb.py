@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
-from ..precision import sqrt_or_zero
+from ..precision import power_of_two_scale, sqrt_or_zero
 from .constants import GAMMA_STAR_REFERENCE_O2_MMOL_MOL, REFERENCE_PRESSURE_KPA, ZERO_CELSIUS_K
 from .parameters import FvCBParams, TemperatureParams
 from .temperature import arrhenius, deactivation, peaked_arrhenius
@@ -69,12 +69,17 @@ def electron_transport_rate(
     CPlantBox ``photoC3_init``.
     """
     aq = quantum_yield * par_abs_umol_m2_s
-    disc = (aq - jmax_umol_m2_s) ** 2 + 4.0 * (1.0 - curvature) * aq * jmax_umol_m2_s
+    # J is homogeneous of degree one in (αQ, Jmax): taken on both times a power of two that brings
+    # the larger near 1 (exact: the same numbers), so that its derivatives stay finite at any
+    # capacity (in the dark with Jmax < 1e-154, a Vcmax scale below 1e-156, den² underflowed: dJ/dQ NaN).
+    k = power_of_two_scale(jnp.maximum(aq, jmax_umol_m2_s))
+    aq, jmax = k * aq, k * jmax_umol_m2_s
+    disc = (aq - jmax) ** 2 + 4.0 * (1.0 - curvature) * aq * jmax
     # Double-where keeps the division differentiable where it degenerates (sqrt_or_zero: the root).
     root = sqrt_or_zero(disc)
-    den = aq + jmax_umol_m2_s + root
+    den = aq + jmax + root
     ok = den > 0
-    return jnp.where(ok, 2.0 * aq * jmax_umol_m2_s / jnp.where(ok, den, 1.0), 0.0)
+    return jnp.where(ok, 2.0 * aq * jmax / jnp.where(ok, den, 1.0), 0.0) / k
 
 
 def rubisco_limited_rate(
