@@ -99,7 +99,7 @@ from lightfit.photosynthesis import (
     PhotosynthesisResult,
     solve_with_par_slope,
 )
-from lightfit.precision import sqrt_or_zero
+from lightfit.precision import power_of_two_scale, sqrt_or_zero
 from lightfit.weather.solar import horizontal_irradiance
 
 
@@ -189,7 +189,10 @@ def _ratio(x, x_mc_sd, above_par) -> tuple:
     xp = np if _numpy(x, x_mc_sd, above_par) else jnp
     lit = above_par > 0
     safe = xp.where(lit, above_par, 1.0)  # double-where: no NaN gradient from 0/0 at night
-    return xp.where(lit, x / safe, 0.0), xp.where(lit, x_mc_sd / safe, 0.0)
+    # Both times a power of two that brings the light near 1 (exact): the quotient rule squares the
+    # divisor, which underflowed below 1e-154 µmol m-2 s-1 (a light factor below 1e-156: an infinite gradient).
+    k = power_of_two_scale(safe, xp)
+    return xp.where(lit, (k * x) / (k * safe), 0.0), xp.where(lit, (k * x_mc_sd) / (k * safe), 0.0)
 
 
 def fapar(apar, apar_mc_sd, above_par) -> tuple:
