@@ -195,3 +195,37 @@ def test_bridge_refuses_bad_settings_and_shapes_and_is_flat_outside_the_box():
     g_out, g_edge = np.asarray(jax.grad(loss)(out)), np.asarray(jax.grad(loss)(edge))
     assert g_out[0] == 0.0 and g_edge[0] != 0.0
     assert np.array_equal(g_out[1:], g_edge[1:])
+
+
+def test_grazing_suns_and_the_leaf_boxs_corners_under_jit_and_eagerly():
+    """The bridge with the sun at 0.5°, 1e-6°, exactly on the horizon and 0.5° below it, at the
+    corners of the leaf box and a hair inside them: every part and standard error finite and ≥ 0,
+    absorbed ≤ incident, the sun's parts exactly 0 with the sun not above the horizon (the sky's
+    still lit), and a finite gradient; jit and eager give the same numbers."""
+    g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
+    ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()
+    f = make_irradiance(FieldScene(g.mesh, Optics.preset("paper")), ids, samples=4, bounces=2)
+
+    def loss(leaf, sun):
+        values, se = f(leaf, sun, 1)
+        return jnp.sum(values), (values, se)
+
+    eager = jax.value_and_grad(loss, has_aux=True)
+    jitted = jax.jit(eager)
+    leaves = [(0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (1.0, 0.0, 1.0), (1e-9,) * 3, (1 - 1e-9,) * 3]
+    for elevation in (0.5, 1e-6, 0.0, -0.5):
+        for leaf in leaves:
+            args = (jnp.array(leaf), jnp.array([elevation, 200.0]))
+            (_, (values, se)), grad = jitted(*args)
+            (_, (values_e, se_e)), grad_e = eager(*args)
+            values, se, grad = np.asarray(values), np.asarray(se), np.asarray(grad)
+            assert np.isfinite(values).all() and np.isfinite(se).all() and np.isfinite(grad).all(), (elevation, leaf)
+            assert (values >= 0).all() and (se >= 0).all()
+            for kind in ("sun", "sky"):
+                i, a = PARTS.index(f"incident_{kind}"), PARTS.index(f"absorbed_{kind}")
+                assert (values[a] <= values[i] * (1 + 1e-6) + 1e-12).all(), (elevation, leaf, kind)
+            lit = [PARTS.index("incident_sun"), PARTS.index("absorbed_sun")]
+            assert (values[lit].max() > 0) == (elevation > 0), (elevation, leaf)
+            assert values[PARTS.index("incident_sky")].max() > 0
+            np.testing.assert_array_equal(np.asarray(values_e), values)
+            np.testing.assert_allclose(np.asarray(grad_e), grad, rtol=1e-12, atol=1e-12)

@@ -48,6 +48,30 @@ def test_an_matches_cplantbox_on_grid(name):
     np.testing.assert_allclose(res.gs_mol_m2_s, peer.gs_mol_m2_s, rtol=1e-4)
 
 
+@pytest.mark.parametrize("name", ["cplantbox", "giraud2023"])
+def test_an_matches_cplantbox_at_frost_heat_and_extreme_co2(name):
+    """The grid above stays within 5–35 °C and 250–800 ppm; here frost (−10, −2 °C) and heat (45,
+    50 °C) at 50, 400 and 2 000 ppm, dark to full sun. Measured: |ΔAn| ≤ 3.7e-3 µmol m⁻² s⁻¹ (≤ 2e-4
+    relative; 2e-3 at |An| = 0.13, next to the compensation point), ci, Vc, Vj and gs ≤ 7e-5
+    relative: the gas constants' difference (CODATA against CPlantBox's 8.3143) grows with the
+    distance from the 20 °C reference. Where CPlantBox's gs is infinite (cs ≤ Γ', in the heat at low
+    CO2: its questionable case 2 below) lightfit's is g0."""
+    params = ps.parameter_set(name)
+    par, t, co2 = (
+        g.ravel() for g in np.meshgrid([0.0, 200.0, 2000.0], [-10.0, -2.0, 45.0, 50.0], [50.0, 400.0, 2000.0])
+    )
+    peer = run_cplantbox(par, t, co2, params)
+    res = ps.solve(par, t, co2, 0.6, 101.325, params, fw=peer.fw)
+    assert np.all(res.converged) and np.all(np.isfinite(peer.an_umol_m2_s))
+    np.testing.assert_allclose(res.an_umol_m2_s, peer.an_umol_m2_s, rtol=3e-4, atol=1e-3)
+    for q in ("ci_umol_mol", "vc_umol_m2_s", "vj_umol_m2_s"):
+        np.testing.assert_allclose(getattr(res, q), getattr(peer, q), rtol=2e-4, atol=1e-9, err_msg=q)
+    finite = np.isfinite(peer.gs_mol_m2_s)
+    assert 0 < (~finite).sum() < finite.sum()
+    np.testing.assert_allclose(np.asarray(res.gs_mol_m2_s)[finite], peer.gs_mol_m2_s[finite], rtol=2e-4)
+    np.testing.assert_array_equal(np.asarray(res.gs_mol_m2_s)[~finite], float(params.stomata.g0_mol_m2_s))
+
+
 def test_cplantbox_questionable_cases_are_documented():
     """The two CPlantBox results docs/photosynthesis.md flags, reproduced on identical inputs.
 
