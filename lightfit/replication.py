@@ -69,7 +69,7 @@ from lightfit.plant.growth import GrowthConfig, parameter_file_setting
 from lightfit.report import plot, summary, summary_metadata
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
-from lightfit.weather.readers import metadata_lines
+from lightfit.weather.readers import lightfit_csv_text, metadata_lines
 from lightfit.weather.series import MONTH_BEFORE_DAYS, MONTH_BEFORE_MIN_DAYS, check_how, cut_at_ends
 from lightfit.weather.site import SELHAUSEN, Site, Window, zone_label
 
@@ -735,7 +735,7 @@ def run(
     """Run the replication. Returns (Dataset, observations or None).
 
     ``out``: a folder for results.nc, replication.png (:func:`lightfit.report.plot`), summary.csv,
-    the forcing as forcing.csv (:func:`lightfit.weather.write_lightfit_csv`) and forcing.png, and
+    the forcing as forcing.csv (a lightfit CSV, :func:`lightfit.weather.write_lightfit_csv`) and forcing.png, and
     with ``compare`` results_compare.nc; written once everything is computed (default: none).
 
     ``keep_steps``: the folder that keeps each rendered step until the run has written its files
@@ -761,21 +761,29 @@ def run(
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
     check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)
+    by_day = days(cfg, w)
+    if not by_day:
+        raise InputError(
+            "the forcing has no step in the run's windows", parameter="date", expected=", ".join(cfg.dates)
+        )
+    if out is not None:  # forcing.csv's text, from the forcing alone: refused (its provenance) before the run
+        meta = {
+            "provenance": w.attrs.get("provenance", "unstated"),  # as provenance_label says a series that does not
+            "source": str(w.attrs.get("source")),
+            "note": f"{len(w)} steps, {describe_steps(cfg, w)}, {cfg.site.name} ({cfg.how})",
+        }
+        forcing_csv = lightfit_csv_text(w, meta)
     own = keep_steps is None and out is not None  # the run's own folder, removed at its end
     if own:
         keep_steps = Path(out) / UNFINISHED
     keep_steps = None if keep_steps is None else Path(keep_steps)
     parts, steps = [], []
-    for date, wd in days(cfg, w):  # one model per day: its plants are grown to its date
+    for date, wd in by_day:  # one model per day: its plants are grown to its date
         model = model_for(cfg, wd, progress, keep_steps)
         steps.append(model.step)
         d = model.simulate(as_theta(theta, model.scenario.theta))  # leaf defaults: the run's optics
         d.attrs |= when_attrs(cfg, date)
         parts.append(d)
-    if not parts:
-        raise InputError(
-            "the forcing has no step in the run's windows", parameter="date", expected=", ".join(cfg.dates)
-        )
     ds = parts[0] if len(parts) == 1 else concat_days(parts)
     ds.attrs["replication_config"] = json.dumps(cfg.effective(w))  # what ran, not None for "the default"
     ds.attrs["preset"] = cfg.preset or "none"
@@ -812,11 +820,6 @@ def run(
         # module sets matplotlib's backend.
         from lightfit.weather.plot import plot_forcing, provenance_label
 
-        meta = {
-            "provenance": w.attrs.get("provenance", "unstated"),  # as provenance_label says a series that does not
-            "source": str(w.attrs.get("source")),
-            "note": f"{len(w)} steps, {describe_steps(cfg, w)}, {cfg.site.name} ({cfg.how})",
-        }
         title = f"{provenance_label(w.attrs)} forcing, {cfg.site.name} {', '.join(cfg.dates)}"
         out.mkdir(parents=True, exist_ok=True)
         write_netcdf(ds, out / "results.nc")
@@ -829,7 +832,7 @@ def run(
         if ds.attrs.get("an_per") == "leaf":  # the file names what its canopy An is per, as results.nc does
             table = table.rename(columns=lambda c: c.replace("canopy_an_", "canopy_an_per_leaf_area_"))
         replace_text(out / "summary.csv", metadata_lines(summary_metadata(ds)) + table.to_csv(float_format="%.4g"))
-        weather.write_lightfit_csv(w, out / "forcing.csv", meta)
+        replace_text(out / "forcing.csv", forcing_csv)  # whole or not at all (weather.write_lightfit_csv)
         plot_forcing(w, out / "forcing.png", title=title, tz=cfg.site.timezone)
         if own:  # a folder given stays the caller's
             shutil.rmtree(keep_steps, ignore_errors=True)

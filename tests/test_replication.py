@@ -391,3 +391,23 @@ def test_the_summary_header_names_a_given_theta():
     assert "theta_given" not in summary_metadata(xr.Dataset(attrs=attrs))
     given = json.dumps({"specular": 0.4625, "light_factor": 0.9643})
     assert summary_metadata(xr.Dataset(attrs=attrs | {"theta_given": given}))["theta_given"] == given
+
+
+def test_a_forcing_its_forcing_csv_cannot_hold_is_refused_before_the_run(tmp_path, monkeypatch):
+    """run(out=...) writes the forcing as a lightfit CSV, whose provenance is one of four words. A
+    forcing_df saying another ("station") rendered every step, wrote results.nc, replication.png and
+    summary.csv, and only then failed at forcing.csv: a folder without its forcing, after minutes.
+    It is refused before the plants grow and nothing is written; so is a forcing with no step in the
+    run's windows, with its own error (its description raised an IndexError there first)."""
+    from lightfit.errors import InputError
+
+    monkeypatch.setattr(rep, "model_for", lambda *a, **k: pytest.fail("the run began"))
+    w = rep.forcing().iloc[14:15]
+    w.attrs = dict(w.attrs, provenance="station")
+    with pytest.raises(InputError, match="provenance.*measured / reconstructed / synthetic / unstated"):
+        rep.run(rep.ReplicationConfig.quick(), forcing_df=w, observations=None, out=tmp_path / "o")
+    later = rep.forcing().iloc[14:15]
+    later.index = later.index + np.timedelta64(1, "D")
+    with pytest.raises(InputError, match="the forcing has no step in the run's windows"):
+        rep.run(rep.ReplicationConfig.quick(), forcing_df=later, observations=None, out=tmp_path / "o")
+    assert not (tmp_path / "o").exists()

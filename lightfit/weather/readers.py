@@ -1024,8 +1024,16 @@ def read_lightfit_csv(
 
 
 def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
-    """Write a contract series with ``# key: value`` metadata (must include ``provenance``, one of
-    :data:`WEATHER_PROVENANCES`: a series whose source did not say is written ``unstated``).
+    """Write :func:`lightfit_csv_text` at ``path`` (its folders made), whole or not at all."""
+    text, path = lightfit_csv_text(df, metadata), Path(path)  # refused before a folder is made
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # whole or not at all: a run killed while writing it left a cut forcing.csv beside its results
+    return replace_text(path, text)
+
+
+def lightfit_csv_text(df: pd.DataFrame, metadata: dict[str, str]) -> str:
+    """A contract series as a lightfit CSV's text: ``# key: value`` metadata lines (which must include
+    ``provenance``, one of :data:`WEATHER_PROVENANCES`: a series whose source did not say is written ``unstated``).
     A series with its DNI/DHI written says how they were split (``split_model``), which
     :func:`read_lightfit_csv` keeps.
 
@@ -1047,13 +1055,10 @@ def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     site = df.attrs.get("site")
     if "sun_elevation_deg" in df.columns and site is not None and "sun_site" not in metadata:
         metadata = metadata | {"sun_site": f"{site.name}, {site.latitude_deg:g} N, {site.longitude_deg:g} E"}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     head = metadata_lines(metadata)
     body = df.rename_axis("time_utc").reset_index()
     body["time_utc"] = body["time_utc"].dt.strftime("%Y-%m-%dT%H:%M:%SZ")
-    # whole or not at all: a run killed while writing it left a cut forcing.csv beside its results
-    return replace_text(path, head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n"))
+    return head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n")
 
 
 def sniff_format(path: str | Path) -> str:
