@@ -247,6 +247,17 @@ def test_joining_a_scheduler_from_inside_an_event_loop(client):
     assert asyncio.run(main()) == client.scheduler.address
 
 
+def test_a_cluster_joined_by_address_keeps_its_workers_after_the_block(client):
+    """connect() kills the workers of the cluster it started when its block ends (at once, whichever
+    way it ends); a scheduler given by address is another's cluster: the block closes only its own
+    client, and the cluster's workers, the same processes, take the next task."""
+    pids = client.run(os.getpid)
+    with connect(client.scheduler.address, timeout_s=20) as cl:
+        assert cl.submit(os.getpid, pure=False).result() in pids.values()
+    assert client.run(os.getpid) == pids
+    assert client.submit(lambda: 42, pure=False).result(timeout=30) == 42
+
+
 def test_cli_joins_existing_scheduler(client, tmp_path):
     import xarray as xr
     from typer.testing import CliRunner
