@@ -621,6 +621,29 @@ def test_a_finished_run_closes_its_workers_at_once_and_quietly(capfd):
     assert logging.getLogger("distributed").level != logging.CRITICAL  # muted for the close only
 
 
+
+def test_an_error_in_the_block_leaves_a_task_about_to_finish_its_grace(tmp_path):
+    """Only Ctrl-C and a finished block kill the workers at once: on another error (a --timeout, a
+    task's failure) the nanny's grace lets a task that is about to finish write its render to the
+    design cache, as before (a review: killed, it left an orphan partial file instead)."""
+    from lightfit.distributed.run import connect
+
+    def write_soon(path):
+        import time
+
+        time.sleep(1.5)
+        with open(path, "w") as f:
+            f.write("render")
+        return path
+
+    done = tmp_path / "render.npz"
+    with pytest.raises(RuntimeError, match="the block failed"):
+        with connect(workers=1, threads_per_worker=1) as client:
+            client.submit(write_soon, str(done), pure=False)
+            time.sleep(0.5)  # the task is running
+            raise RuntimeError("the block failed")
+    assert done.read_text() == "render"
+
 def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
     """On --timeout or Ctrl-C lightfit cancels its tasks and says so in one line; a worker logged
     "Async instruction … ended with CancelledError" above it. Worker setup drops that record, and

@@ -539,8 +539,12 @@ def connect(
                 if g:
                     client.register_plugin(PinGPU(g))
                 yield client
-            finally:
+            except KeyboardInterrupt:
                 muted = _stop_workers(cluster)
+                raise
+            else:  # every result is in this process: nothing a worker still does is needed
+                muted = _stop_workers(cluster)
+            finally:
                 client.close()
         finally:
             cluster.close()
@@ -549,14 +553,15 @@ def connect(
 
 
 def _stop_workers(cluster) -> int:
-    """Kill the embedded cluster's worker processes and mute Dask's loggers for the close, whichever
-    way the block ends. On Ctrl-C a worker busy in a task cannot answer the close, and printed 30–60
-    lines of heartbeat tracebacks while the nanny waited 4 s to kill it (a review of interrupted
-    runs); after a finished run a worker's own exit (Dr.Jit's and JAX's teardown) outlasted those
-    4 s on a loaded 2-core machine, which added them to the run and printed "Worker process still
-    alive after 4.0 seconds, killing" twice under its result. Every finished task's result is in this
-    process by then (``parts``); a task still in a worker is lost either way. Returns the logger's
-    level before."""
+    """Kill the embedded cluster's worker processes and mute Dask's loggers for the close, on Ctrl-C
+    and after a block that ended normally; another error (a timeout) leaves the nanny's 4 s grace,
+    in which a task about to finish still writes its render to the cache. On Ctrl-C a worker busy
+    in a task cannot answer the close, and printed 30–60 lines of heartbeat tracebacks while the
+    nanny waited to kill it (a review of interrupted runs); after a finished run a worker's own exit
+    (Dr.Jit's and JAX's teardown) outlasted those 4 s on a loaded 2-core machine, which added them
+    to the run and printed "Worker process still alive after 4.0 seconds, killing" twice under its
+    result. Every finished task's result is in this process by then (``parts``); on Ctrl-C a task
+    still in a worker is lost either way. Returns the logger's level before."""
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(getattr(nanny, "process", None), "pid", None)
         if pid:
