@@ -621,7 +621,6 @@ def test_a_finished_run_closes_its_workers_at_once_and_quietly(capfd):
     assert logging.getLogger("distributed").level != logging.CRITICAL  # muted for the close only
 
 
-
 def test_an_error_in_the_block_leaves_a_task_about_to_finish_its_grace(tmp_path):
     """Only Ctrl-C and a finished block kill the workers at once: on another error (a --timeout, a
     task's failure) the nanny's grace lets a task that is about to finish write its render to the
@@ -643,6 +642,7 @@ def test_an_error_in_the_block_leaves_a_task_about_to_finish_its_grace(tmp_path)
             time.sleep(0.5)  # the task is running
             raise RuntimeError("the block failed")
     assert done.read_text() == "render"
+
 
 def test_workers_drop_the_warning_of_a_task_lightfit_cancelled(caplog):
     """On --timeout or Ctrl-C lightfit cancels its tasks and says so in one line; a worker logged
