@@ -148,7 +148,7 @@ def render_design(
     chunk: int | None = None,
     progress: bool = True,
     timeout_s: float | None = None,
-    label: str = "rendering design",
+    label: str = E.DESIGN_LABEL,
 ) -> list[dict]:
     """Render the points of ``leaf`` (n, 3) that ``cache`` lacks on the workers of ``client``.
 

@@ -72,8 +72,9 @@ DEGREES = (1, 2, 3, 4, 5)
 #: Scramble seed of the design's Sobol points, and of the posterior's held-out check points (another
 #: scramble, so that they fall between the design's).
 DESIGN_SEED, HELD_OUT_SEED = 0, 1
-#: Progress label of the held-out renders, which "rendering design" made read as the design's own.
-HELD_OUT_LABEL = "rendering held-out check"
+#: Progress labels of the design's renders and of the held-out ones (which the design's label made
+#: read as the design's own).
+DESIGN_LABEL, HELD_OUT_LABEL = "rendering design", "rendering held-out check"
 
 
 def exponents(degree: int) -> np.ndarray:
@@ -207,9 +208,10 @@ def render_file(cache: str | Path, key: dict, leaf) -> Path:
 
 
 #: Signature of the ``render_points`` hook of :func:`build_emulator`: ``(model, leaf (n, 3), render
-#: directory, render_key(model)) -> Any``; it makes sure each point's render is in the directory
-#: (e.g. :func:`lightfit.distributed.design.render_design` on a Dask cluster).
-RenderPoints = Callable[[CoupledModel, np.ndarray, Path, dict], object]
+#: directory, render_key(model)) -> Any``, and by keyword ``label=`` (its progress line's: the
+#: posterior's held-out renders pass :data:`HELD_OUT_LABEL`); it makes sure each point's render is in
+#: the directory (e.g. :func:`lightfit.distributed.design.render_design` on a Dask cluster).
+RenderPoints = Callable[..., object]
 
 
 def render_parts(
@@ -218,7 +220,7 @@ def render_parts(
     progress: bool = False,
     cache: str | Path | None = None,
     key: dict | None = None,
-    label: str = "rendering design",
+    label: str = DESIGN_LABEL,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Full renders at each row of ``leaf`` (n, 3): values and SE, each (n, T_day, 4, S).
 
@@ -485,7 +487,7 @@ def build_emulator(
                 "render_points without a cache", parameter="cache", expected="the render directory the hook fills"
             )
         render_points(model, design, Path(cache), rkey)  # with its own progress: reading them back is not news
-    v, s, seconds = _render_parts(model, design, progress and render_points is None, cache, rkey, "rendering design")
+    v, s, seconds = _render_parts(model, design, progress and render_points is None, cache, rkey, DESIGN_LABEL)
     if v.shape[1] == 0:  # nothing rendered (no step needs it): the constant zero, exact
         z = np.zeros((1, *v.shape[1:]))
         emu = PartsEmulator(lo, hi, 0, z, z.copy(), design, {}, 0.0, model.scenario.seed)
