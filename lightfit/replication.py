@@ -859,8 +859,8 @@ def concat_days(parts: list) -> xr.Dataset:
     first day's, with ``date``/``window``/``target_date`` (and an adaptive run's ``allocation_*``)
     listing every day.
     """
-    # the segments' own coordinates, those the parts have (height_m since it was added)
-    static = [c for c in ("plant_id", "organ_type", "area_m2", "is_blade", "height_m") if c in parts[0].coords]
+    # the segments' own coordinates (schema.segment_coords), along segment alone
+    static = [c for c in parts[0].coords if c != "segment" and parts[0][c].dims == ("segment",)]
     # Per-segment data (leaf_area_above, capacity_factor, an adaptive run's samples): along segment too.
     per_segment = [v for v in parts[0].data_vars if parts[0][v].dims == ("segment",)]
     days_, statics, segments = [], [], []

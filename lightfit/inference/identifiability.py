@@ -93,6 +93,15 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     return FisherResult(names, x0, scale, F, lam[order], vec[:, order])
 
 
+def _box(box, shape, scale: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``box`` (``(lo, hi)`` in the parameters' units) broadcast to ``shape``: its bounds in x and in
+    u (log x or x; a bound at 0 is −∞ in log x)."""
+    lo, hi = (np.broadcast_to(np.asarray(b, float), shape) for b in box)
+    with np.errstate(divide="ignore"):
+        lo_u, hi_u = (np.log(lo), np.log(hi)) if scale == "log" else (lo, hi)
+    return lo, hi, lo_u, hi_u
+
+
 def offsets_in_box(x_hat, direction, box, scale: str = "log") -> tuple[float, float]:
     r"""The offsets t of :func:`profile_likelihood` whose hyperplane :math:`d\cdot(u - \hat u) = t` meets
     ``box`` (``(lo, hi)`` in the parameters' units, ±∞ where unbounded; u = log x or x, d the unit
@@ -101,9 +110,8 @@ def offsets_in_box(x_hat, direction, box, scale: str = "log") -> tuple[float, fl
     d = np.asarray(direction, float)
     d = d / np.linalg.norm(d)
     x_hat = np.asarray(x_hat, float)
-    lo, hi = (np.broadcast_to(np.asarray(b, float), x_hat.shape) for b in box)
-    with np.errstate(divide="ignore", invalid="ignore"):  # a bound at 0 is −∞ in log x; 0 · ∞ below
-        lo_u, hi_u = (np.log(lo), np.log(hi)) if scale == "log" else (lo, hi)
+    _, _, lo_u, hi_u = _box(box, x_hat.shape, scale)
+    with np.errstate(invalid="ignore"):  # 0 · ∞, taken out below
         a, b = d * lo_u, d * hi_u
     a, b = np.where(d == 0, 0.0, a), np.where(d == 0, 0.0, b)  # a direction without x_i: its bounds do not count
     c = float(d @ (np.log(x_hat) if scale == "log" else x_hat))
@@ -139,9 +147,7 @@ def profile_likelihood(
     basis = q[:, 1 : len(d)]
     ts = np.asarray(ts, float)
     if box is not None:
-        lo, hi = (np.broadcast_to(np.asarray(b, float), x_hat.shape) for b in box)
-        with np.errstate(divide="ignore"):  # a bound at 0 is −∞ in log x
-            lo_u, hi_u = (np.log(lo), np.log(hi)) if scale == "log" else (lo, hi)
+        lo, hi, lo_u, hi_u = _box(box, x_hat.shape, scale)
         width = hi_u - lo_u
         hair = 1e-9 * np.where(np.isfinite(width), width, 1.0)  # strictly inside after round-off
         lo_u, hi_u = lo_u + hair, hi_u - hair
