@@ -37,13 +37,15 @@ from lightfit.defaults import (
 )
 from lightfit.errors import InputError, check_fraction, parse_date
 from lightfit.files import is_netcdf, replace_text, replaced
+from lightfit.inference.likelihood import GaussianLikelihood
 from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf, leaf_traits
 from lightfit.light.projection import check_rays
 from lightfit.light.scene import Optics
 from lightfit.model import schema
-from lightfit.model.coupled import CoupledModel
+from lightfit.model.coupled import CoupledModel, unconverged_per_step
+from lightfit.model.observe import CONVERGENCE_KEY
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.model.scenario import (
     BOUNCE_TOLERANCE,
@@ -799,6 +801,8 @@ def run(
                 ds[f"obs_{s.value}"], ds[f"obs_{s.sd}"] = ("time", a[s.value]), ("time", a[s.sd])
                 ds[f"obs_{s.name}_time_offset_s"] = ("time", offsets[s.name])
         schema.annotate(ds)
+        lik = GaussianLikelihood(obs, times, stamps=timestamps.of(w), step=max(steps))
+        ds.attrs["observations_fit"] = lik.series_fit(outputs_of(ds, lik)).to_json(orient="index", double_precision=15)
         ds.attrs["observations"] = f"{obs.attrs['source']} ({obs.attrs['provenance']})"
         ds.attrs["observations_provenance"] = obs.attrs["provenance"]
     if out is not None:
@@ -837,6 +841,13 @@ def run(
         if own:  # a folder given stays the caller's
             shutil.rmtree(keep_steps, ignore_errors=True)
     return ds, obs
+
+
+def outputs_of(ds: xr.Dataset, lik: GaussianLikelihood) -> dict:
+    """The forward outputs that ``lik`` reads (each used series' value and Monte Carlo SD, (T,), and
+    the unconverged blades per step) from a results set ``ds``."""
+    m = {k: ds[k].values for s in lik.series for k in (s.value, s.mc_sd)}
+    return m | {CONVERGENCE_KEY: unconverged_per_step(ds)}
 
 
 #: The folder in a run's ``out`` that keeps its rendered steps until its files are written.

@@ -74,6 +74,7 @@ def summary_metadata(ds) -> dict[str, str]:
         "forcing_provenance": a.get("weather_provenance", "unstated"),
         "forcing_source": a.get("weather_source"),
         "observations": a.get("observations"),
+        "observations_fit": None if (fit := observations_fit(ds)) is None else fit_text(fit),
         "preset": a.get("preset"),
         "theta_given": a.get("theta_given"),  # --theta: the leaf and scales are not the preset's
         "site": a.get("site"),
@@ -84,6 +85,29 @@ def summary_metadata(ds) -> dict[str, str]:
         "settings": "every setting is an attribute of results.nc beside this file",
     }
     return {k: v for k, v in meta.items() if v is not None}
+
+
+def observations_fit(ds) -> pd.DataFrame | None:
+    """How a run's model met its observations, one row per series (index: the series' name): ``n``
+    readings, ``bias`` (mean of model − observed) and ``rmse`` in the series' ``unit``, and ``chi2``
+    of the series alone with the observations' SDs and the model's Monte Carlo SDs (the results'
+    ``observations_fit`` attribute, written by :func:`lightfit.replication.run` with
+    :meth:`~lightfit.inference.likelihood.GaussianLikelihood.series_fit`); ``None`` for a run
+    without observations."""
+    text = ds.attrs.get("observations_fit")
+    if not text:
+        return None
+    fit = pd.DataFrame.from_dict(json.loads(text), orient="index").rename_axis("series")
+    return fit.astype({"n": int, "bias": float, "rmse": float, "chi2": float})
+
+
+def fit_text(fit: pd.DataFrame) -> str:
+    """One line per series of :func:`observations_fit`, joined by "; ": ``above_canopy_par: n 3,
+    bias +12.1, RMSE 15 umol m-2 s-1, χ² 4.2``."""
+    return "; ".join(
+        f"{name}: n {r.n}, bias {r.bias:+.3g}, RMSE {r.rmse:.3g} {r.unit}, χ² {r.chi2:.3g}"
+        for name, r in fit.iterrows()
+    )
 
 
 def _tz(ds) -> str:

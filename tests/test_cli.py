@@ -2142,6 +2142,34 @@ def test_replicate_notes_nee_compared_without_soil_respiration(tmp_path):
     assert r.exit_code == 0 and note not in _flat(r.stdout), r.output
 
 
+def test_replicate_says_how_the_model_meets_the_observations(tmp_path):
+    """replicate prints each series' n, bias, RMSE and χ² against its observations (it printed only
+    how many readings it compared), and cautions where χ² is beyond the readings' SDs; the values
+    against results.nc are in ``test_replication.py::test_cli_replicate_quick_and_calibrate``."""
+    import xarray as xr
+
+    from lightfit.report import observations_fit
+
+    obs = tmp_path / "par.csv"
+    args = ["replicate", "--quick", "--steps", "14:16", "--observations", str(obs), "--out", str(tmp_path / "r")]
+    caution = "the run leaves χ²"
+    for sd, cautioned in ((1.0, True), (1e4, False)):  # the quick run: ≈ 240 at the plants at noon
+        obs.write_text(
+            "# provenance: synthetic\n# time_zone: Europe/Berlin\n"
+            f"time,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n2016-04-20 12:00,100,{sd}\n",
+            encoding="utf-8",
+        )
+        r = runner.invoke(app, args)
+        assert r.exit_code == 0, r.output
+        with xr.open_dataset(tmp_path / "r" / "results.nc") as ds:
+            fit = observations_fit(ds).loc["plant_par"]
+            model = float(ds["plant_par_umol_m2_s"].values[0])  # step 14 is 12:00
+        assert fit.bias == pytest.approx(model - 100.0, rel=1e-6) and fit.bias > 100
+        out = _flat(r.stdout)
+        assert "model against the observations" in out and f"plant_par 1 {fit.bias:+.3g}" in out
+        assert (caution in _flat(r.stderr)) is cautioned, r.stderr
+
+
 def test_weather_show_prints_the_local_clock_of_the_site_given(monkeypatch):
     """--timezone UTC+3 (with coordinates): the table's local column is that zone's clock, UTC + 3 h
     on every row (a mutation audit: the table kept Selhausen's zone and this survived)."""

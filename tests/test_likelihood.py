@@ -90,6 +90,36 @@ def test_log_likelihood_matches_scipy_multivariate_normal(jit):
     assert np.allclose(full.whitened(m), diag.whitened(m), rtol=1e-12)
 
 
+def test_series_fit_by_hand_and_against_the_loss():
+    """Each series' n, bias and RMSE of model − observed and its χ² alone, written out from the
+    observations and outputs; with independent steps the rows add up to 2·loss, with a correlation
+    each row is its block's quadratic form (the covariance built as in ``_peer``)."""
+    obs, m, corr = _problem(2)
+    diag = GaussianLikelihood(obs, TIMES, ("plant_par", "an"))
+    fit = diag.series_fit(m)
+    assert list(fit.index) == ["plant_par", "canopy_an"]
+    for ser in (PAR, AN):
+        ok = ~np.isnan(obs[ser.value].to_numpy())
+        d = np.asarray(m[ser.value])[ok] - obs[ser.value].to_numpy()[ok]
+        v = obs[ser.sd].to_numpy()[ok] ** 2 + np.asarray(m[ser.mc_sd])[ok] ** 2
+        row = fit.loc[ser.name]
+        assert row.n == ok.sum() and row.unit == "umol m-2 s-1"
+        assert row.bias == pytest.approx(d.mean(), rel=1e-12) and row.rmse == pytest.approx(np.sqrt(np.mean(d**2)))
+        assert row.chi2 == pytest.approx(np.sum(d**2 / v), rel=1e-12)
+    assert fit.chi2.sum() == pytest.approx(2 * float(diag.loss(m)), rel=1e-12)
+    full = GaussianLikelihood(obs, TIMES, ("plant_par", "an"), mc_correlation=corr).series_fit(m)
+    for i, ser in enumerate((PAR, AN)):
+        ok = ~np.isnan(obs[ser.value].to_numpy())
+        d = np.asarray(m[ser.value])[ok] - obs[ser.value].to_numpy()[ok]
+        s = np.asarray(m[ser.mc_sd])[ok]
+        keep = i * T + np.flatnonzero(ok)
+        cov = np.diag(obs[ser.sd].to_numpy()[ok] ** 2) + np.outer(s, s) * corr.matrix[np.ix_(keep, keep)]
+        assert full.loc[ser.name, "chi2"] == pytest.approx(d @ np.linalg.solve(cov, d), rel=1e-10)
+    # a model whose photosynthesis did not converge has no χ², as it has no loss
+    bad = {**m, "unconverged_blades": jnp.asarray([0, 1, 0, 0, 0, 0])}
+    assert np.isinf(diag.series_fit(bad).chi2).all() and np.isinf(float(diag.loss(bad)))
+
+
 @pytest.mark.parametrize("jit", [False, True])
 def test_finite_at_extremes_and_gradient_matches_differences(jit):
     obs, m, corr = _problem(1)

@@ -107,6 +107,10 @@ def test_a_model_linear_in_time_is_read_exactly_at_the_readings():
     want = multivariate_normal(np.zeros(3), cov).logpdf(np.zeros(3))
     for f in (lik.log_likelihood, jax.jit(lik.log_likelihood)):
         assert float(f(m, 1.0)) == pytest.approx(want, rel=1e-12)
+    # the model 7 too high everywhere: bias 7, and χ² = 7² 1ᵀΣ⁻¹1 with the readings' shared step
+    fit = lik.series_fit(_linear_model(a + 7.0, b, s)).loc["above_canopy_par"]
+    assert fit.n == 3 and fit.bias == pytest.approx(7.0) and fit.rmse == pytest.approx(7.0)
+    assert fit.chi2 == pytest.approx(49.0 * np.sum(np.linalg.solve(cov, np.ones(3))), rel=1e-12)
     # read at the nearest steps instead, the morning's rise would be a residual of 828 s × b
     shifted = _obs([STEPS[0], STEPS[2], STEPS[3]], a + b * t, [10.0, 10.0, 10.0])
     off = GaussianLikelihood(shifted, STEPS, ("above_canopy_par",))

@@ -180,6 +180,26 @@ def test_cli_replicate_quick_and_calibrate(tmp_path, monkeypatch):
     k = int(np.flatnonzero(np.isfinite(ds[obs_par].values))[0])
     assert str(ds["time"].values[k])[:16] == "2016-04-20T10:00" and offset[k] == pytest.approx(828.0)
     assert ds["obs_above_canopy_par_time_offset_s"].attrs["units"] == "s" and np.count_nonzero(offset) == 1
+    # How the model meets that reading, written out: read 828 s of 1 800 towards the next step, its
+    # Monte Carlo variance (1 − w)²s_k² + w²s_{k+1}² beside the reading's SD².
+    from lightfit.report import observations_fit
+
+    w = 828.0 / 1800.0
+    model = ds["above_canopy_par_umol_m2_s"].values[k : k + 2].astype(float)
+    s_mc = ds["above_canopy_par_mc_sd_umol_m2_s"].values[k : k + 2].astype(float)
+    d = (1 - w) * model[0] + w * model[1] - float(ds[obs_par].values[k])
+    v = (
+        float(ds["obs_above_canopy_par_sd_umol_m2_s"].values[k]) ** 2
+        + (1 - w) ** 2 * s_mc[0] ** 2
+        + w**2 * s_mc[1] ** 2
+    )
+    fit = observations_fit(ds)
+    assert list(fit.index) == ["above_canopy_par"] and fit.loc["above_canopy_par", "n"] == 1
+    assert fit.loc["above_canopy_par", "bias"] == pytest.approx(d, rel=1e-9)
+    assert fit.loc["above_canopy_par", "rmse"] == pytest.approx(abs(d), rel=1e-9)
+    assert fit.loc["above_canopy_par", "chi2"] == pytest.approx(d**2 / v, rel=1e-9)
+    assert head["observations_fit"].startswith(f"above_canopy_par: n 1, bias {d:+.3g}, RMSE {abs(d):.3g} umol m-2 s-1")
+    assert "model against the observations" in r.stdout and "above_canopy_par" in r.stdout
     assert ds.attrs["preset"] == "default"
     # The run's PAR at the plants and its Monte Carlo SD at 10:00 and 11:00 UTC (θ's defaults:
     # light_factor 1), for the least-squares light factor below.

@@ -79,8 +79,9 @@ def replicate(
     Another day or site: --date, --start-time/--hours/--step, --site or --latitude/--longitude/--timezone.
     """
     from lightfit import replication as rep
+    from lightfit.inference.calibration import misfit
     from lightfit.inference.observations import observation_cautions, observed
-    from lightfit.report import field_label, summary
+    from lightfit.report import field_label, observations_fit, summary
     from lightfit.weather.plot import provenance_label
 
     s = resolve(model)
@@ -167,12 +168,34 @@ def replicate(
         caution(short)
     if obs is not None:
         observations_lines(obs, w)
+        fit = observations_fit(ds)
+        console.print(fit_table(fit))
+        # the series' χ² add up: without a Monte Carlo correlation the series' errors are independent
+        for said in misfit(fit.chi2.sum(), fit.n.sum(), 0, what="the run"):
+            caution(said)
         soil_respiration_note(observed(obs), s.soil_respiration)  # as calibrate and posterior say it
         for said in observation_cautions(obs, w):
             caution(said)
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):
         console.print(f"[green]wrote[/] {out / f}")
+
+
+def fit_table(fit) -> Table:
+    """The run against its observations, one row per series (:func:`lightfit.report.observations_fit`)."""
+    t = Table(
+        title="model against the observations (model − observed)",
+        caption="χ²: of each series alone, with the observations' SDs and the model's Monte Carlo SDs "
+        "(about n where the model is right)",
+        box=box.SIMPLE_HEAD,
+        padding=(0, 1),
+        pad_edge=False,
+    )
+    for head in ("series", "n", "bias", "RMSE", "unit", "χ²"):
+        t.add_column(head, justify="left" if head in ("series", "unit") else "right")
+    for name, r in fit.iterrows():
+        t.add_row(name, str(r.n), f"{r.bias:+.3g}", f"{r.rmse:.3g}", r.unit, f"{r.chi2:.3g}")
+    return t
 
 
 #: Results attributes that say nothing about the settings (or repeat one another's): not compared.
@@ -182,6 +205,7 @@ NOT_SETTINGS = {
     "llvm_target",
     "replication_config",
     "theta_given",
+    "observations_fit",
     "title",
     "conventions",
     "layout_fingerprint",

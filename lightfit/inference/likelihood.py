@@ -424,12 +424,49 @@ class GaussianLikelihood:
         """Observed entries of per-series (T,) arrays, stacked in series order: (n_observations,)."""
         return jnp.concatenate([jnp.asarray(per_series[s.name]) for s in self.series])[self.observed_index]
 
+    def covariance(self, m: Mapping, noise_scale=1.0) -> jax.Array:
+        """Σ over the observed entries, (n_observations, n_observations), µmol² m⁻⁴ s⁻²: λ²diag(σ²)
+        plus c times the model's Monte Carlo covariance (:meth:`_correlated_mc`), or diag(v)
+        (:meth:`variances`) where Σ is diagonal (not :attr:`dense`)."""
+        if not self.dense:
+            return jnp.diag(self._stack(self.variances(m, noise_scale)))
+        sd = jnp.asarray(noise_scale, jnp.float64) * self._stack(self.sd)
+        return jnp.diag(sd**2) + self.mc_scale * self._correlated_mc(m)
+
     def cholesky(self, m: Mapping, noise_scale=1.0) -> jax.Array:
-        """Lower Cholesky factor L of Σ over the observed entries, (n_observations, n_observations);
-        only where Σ is a full matrix (:attr:`dense`)."""
-        lam = jnp.asarray(noise_scale, jnp.float64)
-        sd = lam * self._stack(self.sd)
-        return jnp.linalg.cholesky(jnp.diag(sd**2) + self.mc_scale * self._correlated_mc(m))
+        """Lower Cholesky factor L of Σ over the observed entries (:meth:`covariance`),
+        (n_observations, n_observations)."""
+        return jnp.linalg.cholesky(self.covariance(m, noise_scale))
+
+    def series_fit(self, m: Mapping) -> pd.DataFrame:
+        r"""How model outputs ``m`` meet each used series at λ = 1, one row per series (index: its
+        name, :data:`SERIES` order) with the residuals :math:`d = \hat m - y` (model read at the
+        observations minus observed, the series' ``unit``):
+
+        * ``n``: readings; ``bias``: mean of d; ``rmse``: :math:`\sqrt{\overline{d^2}}`;
+        * ``chi2``: :math:`d_s^\top \Sigma_{ss}^{-1} d_s`, Σ_ss the series' own block of
+          :meth:`covariance` (the χ² of the series alone; with χ²_{n} as its distribution where the
+          model is right). Where Σ is diagonal the rows add up to the whole χ² = 2·:meth:`loss`;
+          with correlated errors across series they need not. +inf where ``m``'s photosynthesis did
+          not converge (:meth:`loss`'s refusal).
+        """
+        refused, m, _ = self._refusable(m, None)
+        d = -np.asarray(self._stack(self._residuals(m)), np.float64)
+        cov = np.asarray(self.covariance(m), np.float64)
+        series_of = self.observed_index // len(self.y[self.series[0].name])
+        rows = {}
+        for i, s in enumerate(self.series):
+            k = series_of == i
+            ds = d[k]
+            chi2 = np.inf if bool(refused) else float(ds @ np.linalg.solve(cov[np.ix_(k, k)], ds))
+            rows[s.name] = {
+                "n": int(k.sum()),
+                "bias": float(ds.mean()),
+                "rmse": float(np.sqrt(np.mean(ds**2))),
+                "chi2": chi2,
+                "unit": s.unit,
+            }
+        return pd.DataFrame.from_dict(rows, orient="index").rename_axis("series")
 
     def _correlated_mc(self, m: Mapping) -> jax.Array:
         """diag(s) C diag(s) over the observed entries, or, where the model is read between steps,
