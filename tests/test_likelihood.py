@@ -216,6 +216,26 @@ def test_an_observations_file_with_inf_is_refused_with_its_line(tmp_path):
         read_observations(f)
 
 
+def test_observations_and_weather_read_number_cells_alike(tmp_path):
+    """A "NaN" or "NA" cell (R's and pandas' missing value) is a missing reading in an observations
+    file, as it is a gap in a weather file (it was refused as "not a finite number" in observations
+    only); other text is refused by both, naming line and column."""
+    from lightfit.inference.observations import read_observations
+    from lightfit.weather.series import MISSING_TEXTS, cell_numbers
+
+    f = tmp_path / "obs.csv"
+    head = "# provenance: synthetic\n# time_zone: UTC\ntime,canopy_an_umol_m2_s,canopy_an_sd_umol_m2_s\n"
+    rows = ["2016-04-20 10:00,20,1"] + [f"2016-04-20 {10 + k}:30,{t},{t}" for k, t in enumerate(MISSING_TEXTS)]
+    f.write_text(head + "\n".join(rows) + "\n")
+    obs = read_observations(f)
+    assert obs["canopy_an_umol_m2_s"].notna().sum() == 1 and obs["canopy_an_umol_m2_s"].iloc[0] == 20.0
+    f.write_text(head + "2016-04-20 10:00,20,1\n2016-04-20 10:30,n/a,1\n")
+    with pytest.raises(InputError, match=r"line 5, column 'canopy_an_umol_m2_s'.*'n/a' is not a finite number"):
+        read_observations(f)
+    with pytest.raises(InputError, match=r"line 7, column 'tair_c'.*'n/a' is not a finite number"):
+        cell_numbers(pd.Series(["1.5", "NA", "n/a"]), [5, 6, 7], "w.csv", "tair_c")
+
+
 @pytest.mark.parametrize("correlated", [True, False])
 def test_loss_sd_matches_monte_carlo_draws_of_the_model_error(correlated):
     """σ_L of the trust region's full-render check (trust_region.loss_sd): the SD of the loss

@@ -86,6 +86,7 @@ from lightfit.weather.readers import (
     read_csv_with_metadata,
     zone,
 )
+from lightfit.weather.series import cell_numbers
 from lightfit.weather.timestamps import INSTANTS, Timestamps
 from lightfit.weather.units import UMOL_PER_JOULE_PAR
 
@@ -397,17 +398,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
         "2016-04-20T12:13:48+02:00",
     )
     for c in (c for s in present for c in (s.value, s.sd)):
-        text = df[c].str.strip()
-        vals = pd.to_numeric(text.where(text != ""), errors="coerce")
-        first_bad_row(
-            (vals.isna() & (text != "")) | np.isinf(vals),
-            line,
-            path,
-            c,
-            "a finite number or an empty cell (missing)",
-            lambda i, text=text: f"value {text.iloc[i]!r} is not a finite number",
-        )
-        out[c] = vals.astype(float)
+        out[c] = cell_numbers(df[c], line, path, c)
     times = pd.DatetimeIndex(out["time"])
     for c in (s.value for s in present):
         # Two values of one quantity stamped alike are a copy slip or a clock fault, not a mean (two

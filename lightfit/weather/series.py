@@ -166,31 +166,39 @@ def _gap_problem(run: pd.Series, present: pd.DatetimeIndex, lines: pd.Series, at
     return f"{len(run)} missing value(s) of {col}, {times}{where}"
 
 
-def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column: str, qc: list[dict]) -> pd.Series:
-    """Convert a column to float.
+#: Cell texts that say "no value" in the files lightfit reads (weather and observations alike).
+MISSING_TEXTS = ("", "NaN", "nan", "NA", "null")
 
-    Empty cells, "NaN" and the sentinels :data:`MISSING_SENTINELS` become NaN (gaps that
-    :func:`check_and_repair` interpolates or rejects; sentinels are counted in ``qc``);
-    any other unparseable text raises, naming the line, as does text that reads as infinite
-    ("inf", "1e999": it was called implausible, "check the unit", or passed a column without bounds).
-    """
+
+def cell_numbers(values: pd.Series, lines, file: str | Path, column: str) -> pd.Series:
+    """A column's cells as floats: :data:`MISSING_TEXTS` (and absent cells) become NaN; any other
+    text that is not a finite decimal number raises, naming the file, its line (``lines``: each
+    row's line in the file) and the column, as does text that reads as infinite ("inf", "1e999":
+    it was called implausible, "check the unit", or passed a column without bounds). The one
+    reading of number cells of lightfit's file readers (weather and observations)."""
     if pd.api.types.is_numeric_dtype(values):
-        out = values.astype(float)
-    else:
-        text = values.astype("string").str.strip()
-        empty = text.isna() | text.isin(["", "NaN", "nan", "NA", "null"])
-        out = pd.to_numeric(text.where(~empty), errors="coerce")
-        bad = (out.isna() & ~empty) | np.isinf(out.astype(float))
-        if bad.any():
-            i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(
-                f"value {text.iloc[i]!r} is not a finite number",
-                file=file,
-                row=int(lines.iloc[i]),
-                column=column,
-                expected="a decimal number ('.' as the decimal separator) or an empty cell for a missing value",
-            )
-        out = out.astype(float)
+        return values.astype(float)
+    text = values.astype("string").str.strip()
+    empty = text.isna() | text.isin(MISSING_TEXTS)
+    out = pd.to_numeric(text.where(~empty), errors="coerce")
+    bad = (out.isna() & ~empty) | np.isinf(out.astype(float))
+    if bad.any():
+        i = int(np.flatnonzero(bad.to_numpy())[0])
+        raise InputError(
+            f"value {text.iloc[i]!r} is not a finite number",
+            file=file,
+            row=int(np.asarray(lines)[i]),
+            column=column,
+            expected="a decimal number ('.' as the decimal separator) or an empty cell for a missing value",
+        )
+    return out.astype(float)
+
+
+def parse_numeric(values: pd.Series, lines: pd.Series, file: str | Path, column: str, qc: list[dict]) -> pd.Series:
+    """Convert a column to float (:func:`cell_numbers`): empty cells, "NaN" and the sentinels
+    :data:`MISSING_SENTINELS` become NaN (gaps that :func:`check_and_repair` interpolates or rejects;
+    sentinels are counted in ``qc``)."""
+    out = cell_numbers(values, lines, file, column)
     sentinel = out.isin(MISSING_SENTINELS)
     if sentinel.any():
         out = out.mask(sentinel)
