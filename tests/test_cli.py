@@ -1784,7 +1784,7 @@ def test_a_thinned_weather_table_says_so():
     [
         (["field", "--quick", "--segments", "DIR"], ["option --segments", "is a folder"]),
         (["field", "--quick", "--preview", "DIR"], ["option --preview", "is a folder"]),
-        (["weather", "show", "DIR"], ["is a folder", "bundled names"]),
+        (["weather", "show", "DIR"], ["a folder, not a file", "bundled names"]),
     ],
 )
 def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path):

@@ -46,7 +46,7 @@ def source_path(source: str | Path) -> Path:
     path = Path(source)
     if not path.is_file():
         raise InputError(
-            "is a folder" if path.is_dir() else "no such weather file or bundled name",
+            "a folder, not a file" if path.is_dir() else "no such weather file or bundled name",
             file=path,
             expected=f"a weather file or one of the bundled names {', '.join(BUNDLED)}",
         )
