@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import glob
 import os
+import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -16,12 +18,39 @@ def replaced(path: str | Path) -> Iterator[Path]:
     none: never a cut one that the next run cannot read (a cut history lost its steps, a cut
     emulator stopped every rerun)."""
     path = Path(path)
-    tmp = path.with_name(f".partial-{os.getpid()}-{path.name}")  # per process: two writers never share one
+    _remove_orphans(path)
+    tmp = path.with_name(f"{_PARTIAL}-{_HOST}-{os.getpid()}-{path.name}")  # per process: two writers never share one
     try:
         yield tmp
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+_PARTIAL = ".partial"
+#: This machine in a temporary file's name: a folder shared with other machines' workers (a
+#: distributed run) holds their writers' files too, whose process ids mean nothing here.
+_HOST = "".join(c if c.isalnum() else "_" for c in socket.gethostname()) or "host"
+
+
+def _remove_orphans(path: Path) -> None:
+    """Remove the temporary files of ``path`` that this machine's processes left when they were
+    killed outright (SIGKILL, a worker stopped at once after Ctrl-C: no ``finally`` ran), whose
+    process no longer exists; another machine's, and a live process's, are left alone."""
+    for tmp in path.parent.glob(f"{_PARTIAL}-{_HOST}-*-{glob.escape(path.name)}"):
+        pid = tmp.name[len(f"{_PARTIAL}-{_HOST}-") : -len(path.name) - 1]
+        if pid.isdigit() and not _alive(int(pid)):
+            tmp.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
 
 
 def replace_text(path: str | Path, text: str) -> Path:

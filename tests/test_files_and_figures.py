@@ -39,6 +39,39 @@ def test_replaced_swaps_the_whole_file_in_and_leaves_the_old_one_on_error(tmp_pa
     assert (tmp_path / "u.txt").read_bytes() == "µmol m⁻² s⁻¹".encode()
 
 
+def test_a_killed_writers_partial_file_is_removed_by_the_next_writer(tmp_path):
+    """A process killed outright while writing (SIGKILL: no ``finally`` ran) leaves its temporary
+    file; the next write of that file removes it. A live process's, another machine's (a shared
+    folder of a distributed run) and another file's temporary files stay."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from lightfit import files
+
+    path = tmp_path / "design [1].npz"  # glob characters in the name are the name's own
+    code = (
+        "import sys, time\nfrom lightfit.files import replaced\n"
+        f"with replaced({str(path)!r}) as tmp:\n"
+        "    tmp.write_bytes(b'half'); print(tmp.name, flush=True); time.sleep(60)\n"
+    )
+    writer = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    orphan = tmp_path / writer.stdout.readline().strip()
+    assert orphan.exists() and orphan.name.startswith(f".partial-{files._HOST}-{writer.pid}-")
+    os.kill(writer.pid, signal.SIGKILL)
+    writer.wait()
+    live = tmp_path / f".partial-{files._HOST}-{os.getppid()}-{path.name}"  # a live writer, not this one
+    other_host = tmp_path / f".partial-elsewhere-{writer.pid}-{path.name}"
+    other_file = tmp_path / f".partial-{files._HOST}-{writer.pid}-other.npz"
+    for p in (live, other_host, other_file):
+        p.write_bytes(b"x")
+    assert orphan.exists()  # nothing cleans up after a killed writer but the next one
+    replace_text(path, "whole")
+    assert not orphan.exists() and path.read_text() == "whole"
+    assert all(p.exists() for p in (live, other_host, other_file))
+
+
 def test_netcdf_is_known_by_its_first_bytes(tmp_path):
     """netCDF-4 (an HDF5 file written by h5py), classic netCDF versions 1 and 2 (scipy's writer) and
     CDF-5 (its 4 magic bytes) are netCDF; a CSV and a short file are not."""
