@@ -572,6 +572,8 @@ def describe_steps(cfg: ReplicationConfig, w: pd.DataFrame) -> str:
     local = w.index.tz_convert(tz)
     last = f"{local[-1]:%H:%M}" if local[-1].date() == local[0].date() else f"{local[-1]:%Y-%m-%d %H:%M}"
     a, b = at[0][0], at[0][-1] + 1
+    if len(local) == 1:  # not "12:00 … 12:00, steps 14:15"
+        return f"{local[0]:%Y-%m-%d %H:%M}, step {a} of {windows}"
     which = f", steps {a}:{b}" if set(at) == {tuple(range(a, b))} else ""
     return f"{local[0]:%Y-%m-%d %H:%M} … {last}{which} of {windows}"
 

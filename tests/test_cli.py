@@ -1830,6 +1830,8 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
         "2 steps, 2016-04-20 12:00 … 12:30, steps 14:16 of 2016-04-20 05:00 + 14 h (Europe/Berlin), 30min steps, "
         "Selhausen (sample)"
     )
+    one = "2016-04-20 12:00, step 14 of 2016-04-20 05:00 + 14 h (Europe/Berlin), 30min steps"
+    assert rep.describe_steps(rep.ReplicationConfig.quick(), w.iloc[14:15]) == one  # was "12:00 … 12:00, steps 14:15"
     written = {n: (lib / n).read_bytes() for n in ("forcing.csv", "forcing.png", "summary.csv")}
     same = runner.invoke(app, ["replicate", "--quick", "--steps", "14:16", "--out", str(lib)])
     assert same.exit_code == 0 and "replaced" not in same.output, same.output
