@@ -142,8 +142,21 @@ def test_undated_file_needs_a_date_and_the_window_must_be_in_the_file():
     with pytest.raises(InputError, match=r"day.txt: the window 2016-04-27 20:00 \+ 6 h .* not covered.*window.start"):
         rep.forcing(REAL_DAY, dates="2016-04-27", window=Window("20:00", 6.0))
     # A date the file's light does not fit: dark with the sun up (data/README.md)
-    with pytest.raises(InputError, match=r"PAR .* with the sun at 10.4°.*darker than any sky"):
+    with pytest.raises(InputError, match=r"PAR .* with the sun at 10.4°.*darker than any sky") as wrong_date:
         rep.forcing(REAL_DAY, dates="2016-06-23", window=Window("12:00", 1.0))
+    assert "W m⁻²" not in str(wrong_date.value)  # × 4.57 leaves its dawn dark: not taken for a unit slip
+
+
+def test_par_in_watts_under_a_micromole_header_is_named_a_unit_slip(tmp_path):
+    """The measured day's PAR ÷ 4.57 (W m⁻² of PAR in the µmol column): its dawn is "darker than any
+    sky with the sun up", which blamed the timestamps alone; the series × 4.57 fits its sun, so the
+    unit is named too."""
+    lines = REAL_DAY.read_text().splitlines()
+    cut = [lines[0]] + ["\t".join([f[0], repr(float(f[1]) / 4.57), *f[2:]]) for f in (x.split("\t") for x in lines[1:])]
+    path = tmp_path / "watts.txt"
+    path.write_text("\n".join(cut) + "\n")
+    with pytest.raises(InputError, match=r"column 'PAR'.*darker than any sky.*× 4.57 µmol J⁻¹ every step would fit"):
+        rep.forcing(path, dates="2016-04-27")
     with pytest.raises(InputError, match="parameter 'dates': no bundled forcing for 2016-06-23"):
         rep.forcing(dates="2016-06-23")
 

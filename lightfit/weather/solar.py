@@ -498,8 +498,13 @@ def check_light_fits_sun(
         if col not in columns or col not in df.columns:
             continue
         v = np.asarray(df[col], dtype=np.float64)
-        over = np.flatnonzero(v > scale * bound)
-        dark = np.flatnonzero((el >= DARK_SUN_MIN_DEG) & (v < scale * DARK_MAX_W_M2))
+
+        def misfits(x, scale=scale):
+            return np.flatnonzero(x > scale * bound), np.flatnonzero(
+                (el >= DARK_SUN_MIN_DEG) & (x < scale * DARK_MAX_W_M2)
+            )
+
+        over, dark = misfits(v)
         for steps, worst, said in (  # the worst step named: the brightest against its bound, the highest sun
             (over, v[over] / (scale * bound[over]), "have more light than their sun can give"),
             (dark, el[dark], f"are darker than any sky with their sun {DARK_SUN_MIN_DEG:g}° or more up"),
@@ -507,12 +512,16 @@ def check_light_fits_sun(
             if len(steps) < 2:
                 continue
             i = steps[np.argmax(worst)]
+            # PAR in W m⁻² under a µmol header is 4.57× too dark: dawn reads as night with the sun up,
+            # which the timestamps were blamed for. Said where the series × 4.57 fits its sun.
+            slip = col == "par_umol_m2_s" and all(len(x) < 2 for x in misfits(v * UMOL_PER_JOULE_PAR))
             raise InputError(
                 f"{what} {v[i]:.4g} {unit} at {df.index[i]:%Y-%m-%d %H:%M} UTC with the sun at {el[i]:.1f}°{at} (clear "
-                f"sky {scale * clear[i]:.3g} {unit}): {len(steps)} steps {said}",
+                f"sky {scale * clear[i]:.3g} {unit}): {len(steps)} steps {said}"
+                + (f"; × {UMOL_PER_JOULE_PAR:g} µmol J⁻¹ every step would fit its sun: PAR in W m⁻²?" if slip else ""),
                 file=file,
                 column=used.get(col, col),
-                expected=expected,
+                expected=(f"PAR in {unit} (W m⁻² of PAR × {UMOL_PER_JOULE_PAR:g}), or " if slip else "") + expected,
             )
 
 
