@@ -1531,3 +1531,31 @@ def test_the_profile_spans_the_offsets_the_prior_box_reaches():
     t_lo, t_hi = offsets_in_box(x_map, profile["direction"], (lo, hi), profile["scale"])
     assert t_lo - 1e-12 <= t.min() and t.max() <= t_hi + 1e-12 and 0.0 in t and t.max() > t.min()
     assert np.isfinite(profile["profile_nll"]).all(), profile
+
+
+def test_the_corner_plot_shows_a_map_on_the_box_edge_and_beyond_the_walkers(tmp_path, monkeypatch):
+    """corner's axes ended at the samples' extremes: a MAP on the prior box's edge (where the walkers'
+    extreme sits too) was drawn on the axis frame, one beyond the walkers not at all. Each axis now
+    holds every sample and the MAP with room to spare."""
+    import matplotlib.pyplot as plt
+
+    from lightfit.inference.plots import AXIS_PAD, axis_ranges, corner_figure
+
+    rng = np.random.default_rng(3)
+    x = np.column_stack([rng.uniform(0.2, 0.5, 400), rng.uniform(1.0, 2.0, 400)])
+    x[0, 0] = 0.2  # a walker on the box's edge, where the MAP is
+    x_map = {"specular": 0.2, "vcmax_scale": 2.6}  # on the edge; beyond the walkers
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
+    corner_figure(x, list(x_map), x_map, tmp_path / "corner.png")
+    assert (tmp_path / "corner.png").stat().st_size > 0
+    bottom = figs[0].axes[2:]  # the bottom row: its x axes are the two parameters
+    for ax, (j, m) in zip(bottom, enumerate(x_map.values())):
+        lo, hi = ax.get_xlim()
+        span = max(x[:, j].max(), m) - min(x[:, j].min(), m)
+        assert lo < min(x[:, j].min(), m) - 0.9 * AXIS_PAD * span and hi > max(x[:, j].max(), m) + 0.9 * AXIS_PAD * span
+    assert axis_ranges(x, [None, np.nan]) == [
+        (x[:, j].min() - AXIS_PAD * np.ptp(x[:, j]), x[:, j].max() + AXIS_PAD * np.ptp(x[:, j])) for j in (0, 1)
+    ]
+    lo, hi = axis_ranges(np.full((5, 1), 0.3), [0.3])[0]  # one value: still a width
+    assert lo < 0.3 < hi

@@ -6,6 +6,23 @@ from pathlib import Path
 
 import numpy as np
 
+#: Room beside the samples and the MAP on each axis of the corner plot, as a share of their span.
+AXIS_PAD = 0.04
+
+
+def axis_ranges(x: np.ndarray, marked) -> list[tuple[float, float]]:
+    """Per column of ``x`` (n, d), an axis range that holds every sample and the ``marked`` value
+    (None: none) with :data:`AXIS_PAD` of their span to spare at both ends. corner's own range is the
+    samples' extremes: a MAP on the prior box's edge, where the walkers' extreme sits too, was drawn
+    on the axis frame, and one beyond the walkers not at all."""
+    out = []
+    for j, m in enumerate(marked):
+        v = x[:, j] if m is None or not np.isfinite(m) else np.append(x[:, j], m)
+        lo, hi = float(np.min(v)), float(np.max(v))
+        pad = AXIS_PAD * (hi - lo) or max(abs(hi), 1.0) * 1e-6  # one value: a visible width still
+        out.append((lo - pad, hi + pad))
+    return out
+
 
 def corner_figure(samples: np.ndarray, names, x_map: dict, path: str | Path, *, title: str = "") -> Path:
     """A corner plot (corner, Foreman-Mackey 2016, JOSS 1:24) of ``samples`` (n, len(names)) with the
@@ -37,6 +54,7 @@ def corner_figure(samples: np.ndarray, names, x_map: dict, path: str | Path, *, 
             quantiles=(0.05, 0.5, 0.95),
             truths=[x_map.get(n) for n in names],
             truth_color="tab:red",
+            range=axis_ranges(x, [x_map.get(n) for n in names]),
         )
     fig.suptitle(
         (title + "\n" if title else "") + f"{len(samples):,} samples after burn-in; red lines: the MAP; "
