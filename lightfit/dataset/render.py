@@ -206,8 +206,13 @@ class _SceneBuilder:
         )
         mesh = mi.Mesh("data_scene", len(arrays.vertices), len(arrays.faces), props, False, False)
         mesh.add_attribute("face_rgb", 3, mi.Float(np.ascontiguousarray(arrays.face_rgb, dtype=np.float32).ravel()))
+        # principledthin's diff_trans runs from 0 to 2 and is halved inside (its documentation):
+        # diff_trans = 2τ sends the share τ of the diffuse light through, 1 − τ back (passed τ as is,
+        # leaves transmitted half the documented share; a review, tested against hand values).
         mesh.add_attribute(
-            "face_transmission", 1, mi.Float(np.ascontiguousarray(arrays.face_transmission, dtype=np.float32))
+            "face_transmission",
+            1,
+            mi.Float(np.ascontiguousarray(2.0 * np.asarray(arrays.face_transmission), dtype=np.float32)),
         )
         p = mi.traverse(mesh)
         p["vertex_positions"] = dr.ravel(mi.Point3f(np.ascontiguousarray(arrays.vertices.T, dtype=np.float32)))

@@ -42,7 +42,8 @@ class VisualMaterials:
     """Visible-band appearance of the data scene (linear sRGB reflectances in [0, 1]).
 
     Attributes:
-        leaf_rgb: leaf blade/sheath albedo; green leaves reflect ~5 % red, ~12 % green, ~3 % blue.
+        leaf_rgb: leaf blade/sheath albedo (~5 % red, ~12 % green, ~3 % blue), the diffuse light
+            reflected and transmitted together: a leaf reflects (1 − leaf_transmission)·leaf_rgb.
         stem_rgb: stem albedo (paler green).
         soil_rgb: soil albedo (moist loam, brownish).
         leaf_transmission: share of a leaf's diffuse light transmitted to its other side.
