@@ -1321,3 +1321,25 @@ def test_leaves_transmit_the_documented_share_of_their_diffuse_light():
     seen_below, seen_above = (float(out.radiance[c][0].mean()) for c in (0, 1))
     assert seen_below == pytest.approx(tau * rho * dni / np.pi, rel=0.01)
     assert seen_above == pytest.approx((1 - tau) * rho * dni / np.pi, rel=0.01)
+
+
+def test_gallery_shows_no_class_where_a_class_label_has_no_value(mono_dataset, monkeypatch):
+    """A class label's "no value" (−1: soil, sky, stems, buffer plants) is no class: the gallery's
+    limitation panel painted it as a third class over the whole background, on a colour bar from
+    −1 to 1. Now those pixels are left out (the panel's background), as NaN is for float labels, and
+    the two classes keep their codes."""
+    from matplotlib.figure import Figure
+
+    from lightfit.dataset.gallery import gallery
+
+    out, meta = mono_dataset
+    entry = meta["images"][0]
+    lim = _labels(out, entry)["limitation"]
+    assert (lim == -1).any() and ((lim == 0) | (lim == 1)).any()
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
+    gallery(out, [entry], ["absorbed_par", "limitation"], {"absorbed_par": "umol m-2 s-1", "limitation": "1"})
+    (ax,) = [a for a in seen[0].axes if a.get_title().startswith("limitation")]
+    shown = np.ma.masked_invalid(ax.images[0].get_array())
+    np.testing.assert_array_equal(np.ma.getmaskarray(shown), lim == -1)
+    np.testing.assert_array_equal(shown.compressed(), lim[lim != -1])

@@ -3,7 +3,8 @@
 Columns: the tone-mapped image, segment ids (one colour per segment), absorbed PAR, and the
 limitation margin (Vj − Vc)/(Vj + Vc) on a divergent red/blue scale centred on 0 — red where
 Fj > Fc (Rubisco limited), blue where Fj < Fc (electron-transport limited) — or, when Vc/Vj are
-not in the results, the first other quantity.
+not in the results, the first other quantity. Pixels without a value (NaN, or a class map's −1)
+show the panel's dark background.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lightfit.dataset.labels import NO_CLASS
 from lightfit.dataset.results import MARGIN
 
 PREFERRED = ("absorbed_par", MARGIN)
@@ -61,6 +63,8 @@ def gallery(out_dir: Path, images: list[dict], quantities: list[str], units: dic
         for j, q in enumerate(cols):
             a = ax[2 + j]
             v = np.ma.masked_invalid(labels[q].astype(float))
+            if labels[q].dtype.kind in "iu":  # a class map: its "no value" code is no class (was painted as one)
+                v = np.ma.masked_where(labels[q] == NO_CLASS, v)
             if q == MARGIN:
                 lim = float(np.nanmax(np.abs(v))) if v.count() else 1.0
                 im = a.imshow(v, cmap="RdBu_r", norm=TwoSlopeNorm(0.0, -lim or -1.0, lim or 1.0))
