@@ -1343,3 +1343,21 @@ def test_gallery_shows_no_class_where_a_class_label_has_no_value(mono_dataset, m
     shown = np.ma.masked_invalid(ax.images[0].get_array())
     np.testing.assert_array_equal(np.ma.getmaskarray(shown), lim == -1)
     np.testing.assert_array_equal(shown.compressed(), lim[lim != -1])
+
+
+def test_a_results_variable_outside_the_schema_is_refused_before_rendering(results_file, tmp_path):
+    """The labels' units come from the schema (metadata.json's quantities), so a per-segment variable
+    outside it has none: it was accepted as a quantity, every image rendered and written, and the run
+    then failed on its units, leaving a half-written folder. Now it is refused before anything is
+    written, naming the file and the variable; the variables it may name are the schema's."""
+    ds = open_results(results_file).ds.copy()
+    ds["my_index"] = ds["absorbed_par_umol_m2_s"] / 1000.0
+    res = open_results(ds)
+    out = tmp_path / "d"
+    spec = DatasetSpec(cameras=[CAM], quantities=("my_index",), settings=RenderSettings(spp=1, colour="mono"))
+    with pytest.raises(InputError, match="my_index") as err:
+        make_dataset(res, out, spec)
+    assert "schema" in str(err.value) and "my_index" not in err.value.expected
+    assert not out.exists() or not any(out.iterdir())
+    with pytest.raises(InputError, match="absorbed_par_umol_m2_s"):  # listed among what it may name
+        res.variable("my_index")

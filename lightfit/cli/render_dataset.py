@@ -50,8 +50,8 @@ def render_dataset(
         "--quantity",
         "-q",
         help="Quantity to label (repeatable): absorbed_par, an, vc, vj, gs, limitation, "
-        "limitation_margin or a results variable (e.g. absorbed_par_mc_sd_umol_m2_s, the Monte Carlo SD, "
-        "or reached_rse of an adaptive run); default: all available.",
+        "limitation_margin or a per-segment results variable of the schema (e.g. absorbed_par_mc_sd_umol_m2_s, "
+        "the Monte Carlo SD, or reached_rse of an adaptive run); default: all available.",
     ),
     spp: int = typer.Option(16, help="Paths per pixel (noise ∝ 1/√spp)."),
     max_depth: int = typer.Option(4, help="Longest light path in vertices (2 = direct light only)."),

@@ -64,12 +64,23 @@ class Results:
     times: pd.DatetimeIndex
 
     def variable(self, name: str) -> str:
-        """The dataset variable of a quantity (short name, full name or ``limitation_margin``)."""
+        """The dataset variable of a quantity (short name, full name of a per-segment variable of the
+        results schema, or ``limitation_margin``)."""
         full = QUANTITIES.get(name, name)
-        if full == MARGIN or (full in self.ds.data_vars and "segment" in self.ds[full].dims):
+        # Schema variables only: the labels take their units from it (:meth:`units`), so one outside
+        # it was accepted, rendered, and failed on its units once every image was written.
+        per_segment = {str(v) for v in self.ds.data_vars if "segment" in self.ds[v].dims and str(v) in schema.VARIABLES}
+        if full == MARGIN or full in per_segment:
             return full
-        per_segment = {v for v in self.ds.data_vars if "segment" in self.ds[v].dims}
         avail = sorted({q for q, v in QUANTITIES.items() if v in per_segment} | per_segment | {MARGIN})
+        if full in self.ds.data_vars and "segment" in self.ds[full].dims:
+            raise InputError(
+                f"quantity {name!r}: results variable {full} is not in the results schema, so the units of "
+                "its labels are unknown",
+                file=self.path or "results",
+                parameter="quantities",
+                expected=f"a variable of lightfit.model.schema: one of {', '.join(avail)}",
+            )
         if name in QUANTITIES:  # a known quantity these results lack (not a typo)
             raise InputError(
                 f"quantity {name!r}: the results have no variable {full}",
