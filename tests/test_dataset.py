@@ -1361,3 +1361,18 @@ def test_a_results_variable_outside_the_schema_is_refused_before_rendering(resul
     assert not out.exists() or not any(out.iterdir())
     with pytest.raises(InputError, match="absorbed_par_umol_m2_s"):  # listed among what it may name
         res.variable("my_index")
+
+
+def test_a_camera_file_that_cannot_be_read_as_text_is_refused_by_name(tmp_path):
+    """A --cameras file in another encoding (or a folder) ended in a UnicodeDecodeError traceback
+    (a bare "Is a directory"): each is an InputError naming the file and what was expected."""
+    p = tmp_path / "cams.json"
+    p.write_bytes(b"\xff\xfe[\x00{\x00")  # UTF-16, as some editors save JSON
+    for path in (p, tmp_path):
+        with pytest.raises(InputError) as err:
+            load_cameras(path)
+        assert str(err.value).startswith(str(path)) and "camera objects" in err.value.expected
+    args = ["render-dataset", str(tmp_path / "r.nc"), "-o", str(tmp_path / "o"), "--cameras", str(p)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code != 0 and isinstance(result.exception, SystemExit), result.exception
+    assert "error:" in result.output and "cams.json" in result.output

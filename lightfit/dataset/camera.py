@@ -242,6 +242,12 @@ def load_cameras(path: str | Path) -> list[Camera]:
         raise InputError("camera file not found", file=path, expected="a JSON list of camera objects") from err
     except json.JSONDecodeError as err:
         raise InputError(f"not valid JSON: {err}", file=path, expected="a JSON list of camera objects") from err
+    except UnicodeDecodeError as err:  # another encoding (UTF-16 from some editors): a traceback before
+        raise InputError(f"not UTF-8 text: {err}", file=path, expected="a JSON list of camera objects") from err
+    except OSError as err:  # a folder, no permission
+        raise InputError(
+            f"cannot be read ({err.strerror})", file=path, expected="a JSON list of camera objects"
+        ) from err
     if isinstance(raw, dict):
         raw = [raw]
     if not isinstance(raw, list) or not raw:
