@@ -1245,6 +1245,14 @@ def test_job_key_changes_with_what_renders_and_not_with_threads(geometry):
         key(materials=VisualMaterials(roughness=0.4)),
     ]
     assert k0 not in others and len(set(others)) == len(others)
+    # a renderer that renders the same arrays otherwise (diff_trans = 2τ) takes over no kept camera
+    from lightfit.dataset import dataset as D
+
+    D.RENDER_REVISION += 1
+    try:
+        assert key() != k0
+    finally:
+        D.RENDER_REVISION -= 1
 
 
 def test_field_export_carries_the_first_selected_steps_values(mono_dataset, results_file):
@@ -1321,6 +1329,9 @@ def test_leaves_transmit_the_documented_share_of_their_diffuse_light():
     seen_below, seen_above = (float(out.radiance[c][0].mean()) for c in (0, 1))
     assert seen_below == pytest.approx(tau * rho * dni / np.pi, rel=0.01)
     assert seen_above == pytest.approx((1 - tau) * rho * dni / np.pi, rel=0.01)
+    # the default leaf reflects the documented green-leaf reflectance (≈ 5 / 12 / 3 %)
+    m = VisualMaterials()
+    np.testing.assert_allclose((1 - m.leaf_transmission) * np.asarray(m.leaf_rgb), (0.05, 0.12, 0.03), rtol=1e-12)
 
 
 def test_gallery_shows_no_class_where_a_class_label_has_no_value(mono_dataset, monkeypatch):

@@ -25,7 +25,7 @@ import lightfit
 from lightfit.dataset.camera import Camera, Sweep, camera_sweep, check_unique_names
 from lightfit.dataset.exposure import meter, tone_map, write_exr, write_png
 from lightfit.dataset.labels import class_map, geometric_labels, quantity_map
-from lightfit.dataset.render import RenderSettings, load_camera, render, variant_for
+from lightfit.dataset.render import RENDER_REVISION, RenderSettings, load_camera, render, variant_for
 from lightfit.dataset.results import (
     MARGIN,
     Results,
@@ -91,7 +91,8 @@ UNFINISHED = ".unfinished"
 def _job_key(arrays, cams, lights, settings: RenderSettings, materials: VisualMaterials) -> str:
     """Hash of everything a camera's render depends on: the scene's arrays (geometry, colours,
     transmission), the cameras, the lighting of each time, the render settings but its thread count,
-    the materials, the variant that would render and lightfit's version. Options that change only
+    the materials, the variant that would render, lightfit's version and the renderer's revision
+    (:data:`~lightfit.dataset.render.RENDER_REVISION`). Options that change only
     what is written from the renders (labels, export, gallery) are not in it: those files are
     written again from the kept renders."""
     import hashlib
@@ -106,6 +107,7 @@ def _job_key(arrays, cams, lights, settings: RenderSettings, materials: VisualMa
         "materials": asdict(materials),
         "variant": variant_for(settings.colour)[0],
         "lightfit": lightfit.__version__,
+        "render_revision": RENDER_REVISION,
     }
     h.update(json.dumps(job, sort_keys=True, default=str).encode())
     return h.hexdigest()[:32]

@@ -39,6 +39,9 @@ from lightfit.light.keyed_random import check_seed
 from lightfit.light.scene import ISOTROPIC_RADIANCE_PER_DHI, overcast_radiance_per_dhi, sun_vector
 
 COLOURS = ("rgb", "mono")
+#: How the scene's arrays become a Mitsuba scene; raised when that changes what a render gives for the
+#: same arrays (an interrupted run's kept cameras are then rendered again). 2: diff_trans = 2τ.
+RENDER_REVISION = 2
 
 
 @dataclass(frozen=True)

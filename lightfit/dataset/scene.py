@@ -42,8 +42,10 @@ class VisualMaterials:
     """Visible-band appearance of the data scene (linear sRGB reflectances in [0, 1]).
 
     Attributes:
-        leaf_rgb: leaf blade/sheath albedo (~5 % red, ~12 % green, ~3 % blue), the diffuse light
-            reflected and transmitted together: a leaf reflects (1 − leaf_transmission)·leaf_rgb.
+        leaf_rgb: leaf blade/sheath albedo, the diffuse light reflected and transmitted together:
+            a leaf reflects (1 − leaf_transmission)·leaf_rgb and transmits leaf_transmission·leaf_rgb.
+            The defaults reflect ≈ 5 % red, 12 % green, 3 % blue, as green leaves do, and transmit
+            two thirds of that.
         stem_rgb: stem albedo (paler green).
         soil_rgb: soil albedo (moist loam, brownish).
         leaf_transmission: share of a leaf's diffuse light transmitted to its other side.
@@ -55,7 +57,9 @@ class VisualMaterials:
             from its centre, m (beyond, oblique views see bare soil towards the horizon).
     """
 
-    leaf_rgb: tuple[float, float, float] = (0.05, 0.12, 0.03)
+    # the reflectance above ÷ (1 − leaf_transmission) (the images reflected 0.8 × (0.05, 0.12, 0.03)
+    # while principledthin's diff_trans was given τ instead of 2τ)
+    leaf_rgb: tuple[float, float, float] = (0.05 / 0.6, 0.12 / 0.6, 0.03 / 0.6)
     stem_rgb: tuple[float, float, float] = (0.09, 0.15, 0.05)
     soil_rgb: tuple[float, float, float] = (0.13, 0.09, 0.06)
     leaf_transmission: float = 0.4
