@@ -734,7 +734,7 @@ def run(
     progress: bool = False,
     forcing_df: pd.DataFrame | None = None,
     compare: ReplicationConfig | None = None,
-    keep_steps: Path | None = None,
+    keep_steps: Path | bool | None = None,
 ):
     """Run the replication. Returns (Dataset, observations or None).
 
@@ -745,7 +745,8 @@ def run(
     ``keep_steps``: the folder that keeps each rendered step until the run has written its files
     (:attr:`CoupledModel.keep_steps`), so that a run killed half-way and started again renders only
     the steps it had not, to the same results; default ``out/.kept-steps`` where ``out`` is given
-    (removed once every file is written), else none. A folder given is the caller's to remove.
+    (removed once every file is written), else none; ``False``: none. A folder given is the
+    caller's to remove.
 
     ``compare``: a second configuration (e.g. ``cfg.with_preset("paper")``) run on the same forcing
     with its own leaf defaults (a second full run: twice the time); its results go to
@@ -780,7 +781,7 @@ def run(
     own = keep_steps is None and out is not None  # the run's own folder, removed at its end
     if own:
         keep_steps = Path(out) / UNFINISHED
-    keep_steps = None if keep_steps is None else Path(keep_steps)
+    keep_steps = None if keep_steps in (None, False) else Path(keep_steps)
     parts, steps = [], []
     for date, wd in by_day:  # one model per day: its plants are grown to its date
         model = model_for(cfg, wd, progress, keep_steps)

@@ -1794,7 +1794,7 @@ def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path
     assert_user_error(r, *words)
 
 
-def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_path):
+def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_path, monkeypatch):
     """A quick test run into the main job's folder replaced its 100-plant results unsaid (a
     newcomer's review); now one line names what differs, as the results record the settings
     (resolved: a library run's "auto" is the command's resolved value). The same command again says
@@ -1821,6 +1821,13 @@ def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_pa
     # ... which it kept while it ran: a folder given is the caller's, and holds the two daytime steps
     rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:16], out=tmp_path / "kept", keep_steps=tmp_path / "k")
     assert len(list((tmp_path / "k").glob("*.npz"))) == 2
+    # ... and keeps none with keep_steps=False (the library could not opt out)
+    given = []
+    real = rep.model_for
+    monkeypatch.setattr(rep, "model_for", lambda *a: given.append(a[3]) or real(*a))
+    rep.run(rep.ReplicationConfig.quick(), forcing_df=w.iloc[14:15], out=tmp_path / "nokeep", keep_steps=False)
+    assert given == [None] and not (tmp_path / "nokeep" / rep.UNFINISHED).exists()
+    monkeypatch.undo()
     # The library's folder is the command's: the forcing it ran on too (written by the command alone before)
     f = read_weather(lib / "forcing.csv")
     np.testing.assert_array_equal(f.index, w.index[14:16])
