@@ -817,7 +817,7 @@ def run(
             other, _ = run(
                 compare,
                 weather_file=weather_file,
-                observations=None,
+                observations=obs,  # met by both runs: each run's results say how (observations_fit)
                 progress=progress,
                 forcing_df=w,
                 keep_steps=keep_steps,

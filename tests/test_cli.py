@@ -1375,6 +1375,16 @@ def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path)
         assert (cmp.attrs["preset"], cmp.attrs["boundary"], cmp.attrs["direct"]) == ("paper", "finite", "paths")
         assert cmp.attrs["photosynthesis"] == "giraud2023" and cmp.attrs["sheaths"] == "rods"
         np.testing.assert_array_equal(main["time"].values, cmp["time"].values)
+        # both runs met the bundled record's 12:13:48 PAR reading, each says how
+        from lightfit.report import observations_fit
+
+        assert (
+            observations_fit(main).loc["above_canopy_par", "n"]
+            == observations_fit(cmp).loc["above_canopy_par", "n"]
+            == 1
+        )
+    out = _flat(r.stdout)
+    assert "model against the observations" in out and "the paper preset against the observations" in out
     assert (tmp_path / "replication.png").stat().st_size > 10_000
     # Rerun into the same folder without the option: the earlier comparison does not stay beside
     # results it does not belong to (a newcomer review).

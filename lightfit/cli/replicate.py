@@ -170,6 +170,11 @@ def replicate(
         observations_lines(obs, w)
         fit = observations_fit(ds)
         console.print(fit_table(fit))
+        if cmp is not None:  # the compared preset against the same readings
+            import xarray as xr
+
+            with xr.open_dataset(out / "results_compare.nc", engine="h5netcdf") as other:
+                console.print(fit_table(observations_fit(other), f"the {compare_preset} preset"))
         # the series' χ² add up: without a Monte Carlo correlation the series' errors are independent
         for said in misfit(fit.chi2.sum(), fit.n.sum(), 0, what="the run"):
             caution(said)
@@ -181,10 +186,10 @@ def replicate(
         console.print(f"[green]wrote[/] {out / f}")
 
 
-def fit_table(fit) -> Table:
+def fit_table(fit, model: str = "model") -> Table:
     """The run against its observations, one row per series (:func:`lightfit.report.observations_fit`)."""
     t = Table(
-        title="model against the observations (model − observed)",
+        title=f"{model} against the observations (model − observed)",
         caption="χ²: of each series alone, with the observations' SDs and the model's Monte Carlo SDs "
         "(about n where the model is right)",
         box=box.SIMPLE_HEAD,
