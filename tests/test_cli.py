@@ -1168,6 +1168,11 @@ def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_pa
         ("# time_zone: UTC\ntime,fapar,fapar_sd\n", ["no data rows"]),
         ("time,fapar,fapar_sd\n2016-04-20 12:00,0.9,0.05\n", ["line 3", "time", "# time_zone:"]),
         ("# time_zone: UTC\ntime,fapar,fapar_sd\n2016-04-20 12:00,94,3\n", ["line 4", "fapar", "percentage"]),
+        # a ratio of light in the dark (03:00 UTC, before sunrise): the model's is 0 by convention there
+        (
+            "# time_zone: UTC\ntime,fapar,fapar_sd\n2016-04-20 03:00,0.9,0.03\n2016-04-20 10:00,0.9,0.03\n",
+            ["line 4", "column 'fapar'", "no PAR above the canopy", "daylight"],
+        ),
     ],
 )
 def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path, monkeypatch):

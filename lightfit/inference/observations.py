@@ -619,7 +619,10 @@ def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     (:data:`LIGHT_SERIES`) is not on the forcing's scale: the median, over observations whose
     nearest step of ``forcing`` (a weather frame with ``par_umol_m2_s``) is daylight, of value ÷
     forcing PAR outside :data:`LIGHT_RATIO_RANGE`. A file in mmol m⁻² s⁻¹ (a unit slip the weather
-    reader refuses in the forcing) otherwise calibrated a light factor of 0.001 with a caution."""
+    reader refuses in the forcing) otherwise calibrated a light factor of 0.001 with a caution. Also
+    refused: a reading of a ratio of light (:data:`RATIO_SERIES`) whose nearest step has no forcing
+    PAR (night), where the model's ratio is 0 by convention, not a value (:func:`check_ratios_lit`)."""
+    check_ratios_lit(obs, forcing)
     lo, hi = LIGHT_RATIO_RANGE
     for name, (ratio, n) in _light_ratios(obs, forcing).items():
         if not lo <= ratio <= hi:
@@ -629,6 +632,39 @@ def check_light_scale(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
                 file=obs.attrs.get("source"),
                 column=BY_NAME[name].value,
                 expected=f"µmol m-2 s-1, {lo:g}–{hi:g} × the forcing's PAR (a value in mmol m-2 s-1 is 10⁻³ of it)",
+            )
+
+
+#: Observed series that are ratios of two lights (dimensionless: fAPAR, a ceptometer's τ and fAPAR).
+RATIO_SERIES = tuple(s.name for s in SERIES if s.unit == "1")
+
+
+def check_ratios_lit(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
+    """:class:`InputError` naming the file, line and column of the first reading of a ratio of light
+    (:data:`RATIO_SERIES`) whose nearest step of ``forcing`` has no PAR above the canopy: at night
+    the model's ratio is 0 by convention (:func:`lightfit.model.observe.fapar`, no 0/0), so a
+    reading there (a logger's fAPAR of 1 in the dark) would weigh in the fit against a number that
+    is not the model's."""
+    if "par_umol_m2_s" not in forcing.columns or not len(obs):
+        return
+    idx, _ = nearest_steps(obs, forcing.index, timestamps.of(forcing))
+    dark = forcing["par_umol_m2_s"].to_numpy(float)[idx] <= 0
+    lines = obs.attrs.get("lines")
+    for name in RATIO_SERIES:
+        col = BY_NAME[name].value
+        if col not in obs.columns:
+            continue
+        bad = dark & obs[col].notna().to_numpy()
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise InputError(
+                f"{name} read at {obs.index[k].isoformat()}, where the forcing has no PAR above the canopy "
+                f"(night at its nearest step, {forcing.index[idx[k]].isoformat()}): a ratio of light has no "
+                "value there",
+                file=obs.attrs.get("source"),
+                row=int(lines[k]) if lines is not None and len(lines) == len(obs) else None,
+                column=col,
+                expected="ratios of light read in daylight (leave the night's cells empty)",
             )
 
 
