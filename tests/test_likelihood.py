@@ -120,6 +120,22 @@ def test_series_fit_by_hand_and_against_the_loss():
     assert np.isinf(diag.series_fit(bad).chi2).all() and np.isinf(float(diag.loss(bad)))
 
 
+def test_series_fit_of_an_unconverged_run_reports_the_models_own_residuals():
+    """A run with one unconverged blade at one step has no χ² (as it has no loss), but its bias and
+    RMSE are still those of the values it reports (results.nc keeps the solver's last iterate): they
+    were those of a model of zeros (the loss's refusal zeroes the outputs), bias −mean(observed) for
+    every series, the light at the plants too, which no leaf solve touches."""
+    obs, m, _ = _problem(2)
+    bad = {**m, "unconverged_blades": jnp.asarray([0, 1, 0, 0, 0, 0])}
+    fit = GaussianLikelihood(obs, TIMES, ("plant_par", "an")).series_fit(bad)
+    for ser in (PAR, AN):
+        ok = ~np.isnan(obs[ser.value].to_numpy())
+        d = np.asarray(m[ser.value])[ok] - obs[ser.value].to_numpy()[ok]
+        assert fit.loc[ser.name, "bias"] == pytest.approx(d.mean(), rel=1e-12)
+        assert fit.loc[ser.name, "rmse"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=1e-12)
+    assert np.isinf(fit.chi2).all()
+
+
 @pytest.mark.parametrize("jit", [False, True])
 def test_finite_at_extremes_and_gradient_matches_differences(jit):
     obs, m, corr = _problem(1)

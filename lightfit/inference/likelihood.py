@@ -448,9 +448,11 @@ class GaussianLikelihood:
           :meth:`covariance` (the χ² of the series alone; with χ²_{n} as its distribution where the
           model is right). Where Σ is diagonal the rows add up to the whole χ² = 2·:meth:`loss`;
           with correlated errors across series they need not. +inf where ``m``'s photosynthesis did
-          not converge (:meth:`loss`'s refusal).
+          not converge (:meth:`loss`'s refusal); ``bias`` and ``rmse`` are still those of ``m``'s
+          values (the solver's last iterate that results.nc keeps), not of the zeros the refusal
+          puts in their place.
         """
-        refused, m, _ = self._refusable(m, None)
+        refused = bool(unconverged(m) > 0)
         d = -np.asarray(self._stack(self._residuals(m)), np.float64)
         cov = np.asarray(self.covariance(m), np.float64)
         series_of = self.observed_index // len(self.y[self.series[0].name])
@@ -458,7 +460,7 @@ class GaussianLikelihood:
         for i, s in enumerate(self.series):
             k = series_of == i
             ds = d[k]
-            chi2 = np.inf if bool(refused) else float(ds @ np.linalg.solve(cov[np.ix_(k, k)], ds))
+            chi2 = np.inf if refused else float(ds @ np.linalg.solve(cov[np.ix_(k, k)], ds))
             rows[s.name] = {
                 "n": int(k.sum()),
                 "bias": float(ds.mean()),
