@@ -1173,6 +1173,12 @@ def test_weather_option_takes_bundled_names_and_undated_files_need_a_date(tmp_pa
             "# time_zone: UTC\ntime,fapar,fapar_sd\n2016-04-20 03:00,0.9,0.03\n2016-04-20 10:00,0.9,0.03\n",
             ["line 4", "column 'fapar'", "no PAR above the canopy", "daylight"],
         ),
+        # ... and at dawn (04:50 UTC, the sun 3° up) between a dark step (04:30) and a lit one (05:00): read
+        # between them, the model's fAPAR is a third its conventional 0 there (0.63 for 07:00's 0.94)
+        (
+            "# time_zone: UTC\ntime,fapar,fapar_sd\n2016-04-20 10:00,0.9,0.03\n2016-04-20 04:50,0.9,0.03\n",
+            ["line 5", "column 'fapar'", "no PAR above the canopy", "night at 2016-04-20T04:30:00+00:00"],
+        ),
     ],
 )
 def test_replicate_refuses_bad_observations_before_running(body, words, tmp_path, monkeypatch):

@@ -641,30 +641,44 @@ RATIO_SERIES = tuple(s.name for s in SERIES if s.unit == "1")
 
 def check_ratios_lit(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     """:class:`InputError` naming the file, line and column of the first reading of a ratio of light
-    (:data:`RATIO_SERIES`) whose nearest step of ``forcing`` has no PAR above the canopy: at night
-    the model's ratio is 0 by convention (:func:`lightfit.model.observe.fapar`, no 0/0), so a
-    reading there (a logger's fAPAR of 1 in the dark) would weigh in the fit against a number that
-    is not the model's."""
+    (:data:`RATIO_SERIES`) that the model would read at a step of ``forcing`` without PAR above the
+    canopy: its nearest step, or the neighbour it is interpolated towards between two instants
+    (:func:`interpolation`: a reading at dawn between a dark step and a lit one). At night the
+    model's ratio is 0 by convention (:func:`lightfit.model.observe.fapar`, no 0/0), so a reading
+    there (a logger's fAPAR of 1 in the dark) would weigh in the fit against a number that is not
+    the model's, and one read between would meet a share of that 0 (a fAPAR of 0.9 at 06:50 between
+    a dark 06:30 and 07:00's 0.94 met 0.63)."""
     if "par_umol_m2_s" not in forcing.columns or not len(obs):
         return
-    idx, _ = nearest_steps(obs, forcing.index, timestamps.of(forcing))
-    dark = forcing["par_umol_m2_s"].to_numpy(float)[idx] <= 0
+    stamps = timestamps.of(forcing)
+    idx, _ = nearest_steps(obs, forcing.index, stamps)
+    par = forcing["par_umol_m2_s"].to_numpy(float)
+    read = interpolation(obs, forcing.index, stamps)
+    dark = par[idx] <= 0
     lines = obs.attrs.get("lines")
     for name in RATIO_SERIES:
         col = BY_NAME[name].value
         if col not in obs.columns:
             continue
-        bad = dark & obs[col].notna().to_numpy()
+        nb, w = (a[idx] for a in read[col])  # each row's step's neighbour and weight
+        between = (w > 0) & (par[nb] <= 0)
+        bad = (dark | between) & obs[col].notna().to_numpy()
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
+            where = (
+                f"night at its nearest step, {forcing.index[idx[k]].isoformat()}"
+                if dark[k]
+                else f"night at {forcing.index[nb[k]].isoformat()}, which the model is read towards from "
+                f"{forcing.index[idx[k]].isoformat()}"
+            )
             raise InputError(
                 f"{name} read at {obs.index[k].isoformat()}, where the forcing has no PAR above the canopy "
-                f"(night at its nearest step, {forcing.index[idx[k]].isoformat()}): a ratio of light has no "
-                "value there",
+                f"({where}): a ratio of light has no value there",
                 file=obs.attrs.get("source"),
                 row=int(lines[k]) if lines is not None and len(lines) == len(obs) else None,
                 column=col,
-                expected="ratios of light read in daylight (leave the night's cells empty)",
+                expected="ratios of light read in daylight, between steps with PAR above the canopy (leave the "
+                "night's cells empty; finer steps, --step, put a reading at dawn or dusk beside lit ones)",
             )
 
 
