@@ -38,7 +38,14 @@ from lightfit.defaults import (
 from lightfit.errors import InputError, check_fraction, parse_date
 from lightfit.files import is_netcdf, replace_text, replaced
 from lightfit.inference.likelihood import GaussianLikelihood
-from lightfit.inference.observations import SERIES, align, check_light_scale, read_observations, read_offsets_s
+from lightfit.inference.observations import (
+    SERIES,
+    align,
+    check_light_scale,
+    check_sds,
+    read_observations,
+    read_offsets_s,
+)
 from lightfit.light.estimator import bounces_for_tolerance
 from lightfit.light.leaf_optics import DEFAULT_PRESET, LeafTraits, check_leaf, leaf_traits
 from lightfit.light.projection import check_rays
@@ -720,6 +727,7 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool 
         if not optional:
             raise
         return None
+    check_sds(obs)  # a frame's readings obey a file's rules: the run's fit reads their SDs after it
     check_light_scale(obs, w)
     return obs
 

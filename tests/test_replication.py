@@ -431,3 +431,29 @@ def test_a_forcing_its_forcing_csv_cannot_hold_is_refused_before_the_run(tmp_pat
     with pytest.raises(InputError, match="the forcing has no step in the run's windows"):
         rep.run(rep.ReplicationConfig.quick(), forcing_df=later, observations=None, out=tmp_path / "o")
     assert not (tmp_path / "o").exists()
+
+
+def test_an_observations_frame_without_sds_is_refused_before_the_run(tmp_path, monkeypatch):
+    """run(observations=frame) reads the run's fit with the readings' SDs (observations_fit). A frame
+    with a value but no SD passed the checks before the run, rendered every step and then failed
+    there, after the whole simulation; it is refused first, as the same readings in a file are by
+    their reader."""
+    import pandas as pd
+
+    from lightfit.errors import InputError
+    from lightfit.inference.observations import read_observations
+
+    w = rep.forcing().iloc[14:15]
+    f = tmp_path / "obs.csv"
+    f.write_text(
+        "# provenance: synthetic\n# time_zone: UTC\ntime,plant_par_umol_m2_s,plant_par_sd_umol_m2_s\n"
+        f"{w.index[0]:%Y-%m-%d %H:%M},200,\n"
+    )
+    with pytest.raises(InputError, match="without a positive standard deviation"):
+        read_observations(f)  # the file: refused by its reader
+    obs = pd.DataFrame({"plant_par_umol_m2_s": [200.0], "plant_par_sd_umol_m2_s": [np.nan]}, index=w.index)
+    obs.attrs = {"source": "frame", "provenance": "synthetic"}
+    monkeypatch.setattr(rep, "model_for", lambda *a, **k: pytest.fail("the run began"))
+    with pytest.raises(InputError, match="plant_par_sd_umol_m2_s.*a finite SD > 0"):
+        rep.run(rep.ReplicationConfig.quick(), forcing_df=w, observations=obs, out=tmp_path / "o")
+    assert not (tmp_path / "o").exists()
