@@ -75,7 +75,7 @@ from lightfit.photosynthesis.parameters import (
 from lightfit.plant import Field
 from lightfit.plant.field import DEFAULT_BUFFER_ROWS
 from lightfit.plant.growth import GrowthConfig, parameter_file_setting
-from lightfit.report import plot, summary, summary_metadata
+from lightfit.report import fit_attribute, plot, summary, summary_metadata
 from lightfit.weather import timestamps
 from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.readers import lightfit_csv_text, metadata_lines
@@ -813,7 +813,7 @@ def run(
                 ds[f"obs_{s.name}_time_offset_s"] = ("time", offsets[s.name])
         schema.annotate(ds)
         lik = GaussianLikelihood(obs, times, stamps=timestamps.of(w), step=max(steps))
-        ds.attrs["observations_fit"] = lik.series_fit(outputs_of(ds, lik)).to_json(orient="index", double_precision=15)
+        ds.attrs["observations_fit"] = fit_attribute(lik.series_fit(outputs_of(ds, lik)))
         ds.attrs["observations"] = f"{obs.attrs['source']} ({obs.attrs['provenance']})"
         ds.attrs["observations_provenance"] = obs.attrs["provenance"]
     if out is not None:

@@ -87,9 +87,17 @@ def summary_metadata(ds) -> dict[str, str]:
     return {k: v for k, v in meta.items() if v is not None}
 
 
+def fit_attribute(fit: pd.DataFrame) -> str:
+    """The results attribute ``observations_fit`` of a table of
+    :meth:`~lightfit.inference.likelihood.GaussianLikelihood.series_fit` (:func:`observations_fit`
+    reads it back): JSON by series, every float to the last digit, an unconverged run's χ² as
+    ``Infinity`` (pandas' ``to_json`` writes it as null, read back as NaN)."""
+    return json.dumps(fit.to_dict(orient="index"))
+
+
 def observations_fit(ds) -> pd.DataFrame | None:
     """How a run's model met its observations, one row per series (index: the series' name): ``n``
-    readings, ``bias`` (mean of model − observed) and ``rmse`` in the series' ``unit``, and ``chi2``
+    steps with a reading, ``bias`` (mean of model − observed) and ``rmse`` in the series' ``unit``, and ``chi2``
     of the series alone with the observations' SDs and the model's Monte Carlo SDs (the results'
     ``observations_fit`` attribute, written by :func:`lightfit.replication.run` with
     :meth:`~lightfit.inference.likelihood.GaussianLikelihood.series_fit`); ``None`` for a run

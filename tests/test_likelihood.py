@@ -134,6 +134,14 @@ def test_series_fit_of_an_unconverged_run_reports_the_models_own_residuals():
         assert fit.loc[ser.name, "bias"] == pytest.approx(d.mean(), rel=1e-12)
         assert fit.loc[ser.name, "rmse"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=1e-12)
     assert np.isinf(fit.chi2).all()
+    # ... and keeps it through results.nc's attribute and summary.csv's line (to_json made it NaN)
+    import xarray as xr
+
+    from lightfit.report import fit_attribute, fit_text, observations_fit
+
+    back = observations_fit(xr.Dataset(attrs={"observations_fit": fit_attribute(fit)}))
+    pd.testing.assert_frame_equal(back, fit.astype({"n": int, "bias": float, "rmse": float, "chi2": float}))
+    assert "χ² inf" in fit_text(back)
 
 
 @pytest.mark.parametrize("jit", [False, True])

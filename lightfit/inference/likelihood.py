@@ -443,7 +443,9 @@ class GaussianLikelihood:
         name, :data:`SERIES` order) with the residuals :math:`d = \hat m - y` (model read at the
         observations minus observed, the series' ``unit``):
 
-        * ``n``: readings; ``bias``: mean of d; ``rmse``: :math:`\sqrt{\overline{d^2}}`;
+        * ``n``: steps with a reading (the readings of one step enter as their inverse-variance
+          mean, :func:`~lightfit.inference.observations.align`, as everywhere in the likelihood);
+          ``bias``: mean of d over them; ``rmse``: :math:`\sqrt{\overline{d^2}}`;
         * ``chi2``: :math:`d_s^\top \Sigma_{ss}^{-1} d_s`, Σ_ss the series' own block of
           :meth:`covariance` (the χ² of the series alone; with χ²_{n} as its distribution where the
           model is right). Where Σ is diagonal the rows add up to the whole χ² = 2·:meth:`loss`;
