@@ -5,6 +5,7 @@ from __future__ import annotations
 import glob
 import os
 import socket
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -33,13 +34,23 @@ _PARTIAL = ".partial"
 _HOST = "".join(c if c.isalnum() else "_" for c in socket.gethostname()) or "host"
 
 
+#: Seconds since its last change after which a dead writer's temporary file is an orphan.
+ORPHAN_AGE_S = 600.0
+
+
 def _remove_orphans(path: Path) -> None:
     """Remove the temporary files of ``path`` that this machine's processes left when they were
-    killed outright (SIGKILL, a worker stopped at once after Ctrl-C: no ``finally`` ran), whose
-    process no longer exists; another machine's, and a live process's, are left alone."""
+    killed outright (SIGKILL, a worker stopped at once after Ctrl-C: no ``finally`` ran): their
+    process no longer exists and they have not changed for :data:`ORPHAN_AGE_S`. Another machine's
+    and a live process's are left alone; the age spares a live writer whose process id this one
+    cannot see (a container with its own process ids sharing the folder and the host name)."""
     for tmp in path.parent.glob(f"{_PARTIAL}-{_HOST}-*-{glob.escape(path.name)}"):
         pid = tmp.name[len(f"{_PARTIAL}-{_HOST}-") : -len(path.name) - 1]
-        if pid.isdigit() and not _alive(int(pid)):
+        try:
+            old = time.time() - tmp.stat().st_mtime > ORPHAN_AGE_S
+        except FileNotFoundError:  # its writer finished meanwhile
+            continue
+        if old and pid.isdigit() and not _alive(int(pid)):
             tmp.unlink(missing_ok=True)
 
 

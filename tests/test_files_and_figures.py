@@ -47,6 +47,7 @@ def test_a_killed_writers_partial_file_is_removed_by_the_next_writer(tmp_path):
     import signal
     import subprocess
     import sys
+    import time
 
     from lightfit import files
 
@@ -67,8 +68,13 @@ def test_a_killed_writers_partial_file_is_removed_by_the_next_writer(tmp_path):
     for p in (live, other_host, other_file):
         p.write_bytes(b"x")
     assert orphan.exists()  # nothing cleans up after a killed writer but the next one
-    replace_text(path, "whole")
-    assert not orphan.exists() and path.read_text() == "whole"
+    replace_text(path, "whole")  # a dead writer's file changed just now: perhaps a writer it cannot see
+    assert orphan.exists() and path.read_text() == "whole"
+    stale = time.time() - files.ORPHAN_AGE_S - 60
+    for p in (orphan, live, other_host, other_file):
+        os.utime(p, (stale, stale))
+    replace_text(path, "again")
+    assert not orphan.exists() and path.read_text() == "again"
     assert all(p.exists() for p in (live, other_host, other_file))
 
 
