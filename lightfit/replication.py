@@ -37,7 +37,7 @@ from lightfit.defaults import (
 )
 from lightfit.errors import InputError, check_fraction, parse_date
 from lightfit.files import is_netcdf, replace_text, replaced
-from lightfit.inference.likelihood import GaussianLikelihood
+from lightfit.inference.likelihood import GaussianLikelihood, resolve_use
 from lightfit.inference.observations import (
     SERIES,
     align,
@@ -728,6 +728,7 @@ def observations_for(w: pd.DataFrame, observations=OBSERVATIONS, optional: bool 
             raise
         return None
     check_sds(obs)  # a frame's readings obey a file's rules: the run's fit reads their SDs after it
+    resolve_use(None, obs)  # ... and its values: a frame without any was refused by that fit
     check_light_scale(obs, w)
     return obs
 

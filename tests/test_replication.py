@@ -457,3 +457,8 @@ def test_an_observations_frame_without_sds_is_refused_before_the_run(tmp_path, m
     with pytest.raises(InputError, match="plant_par_sd_umol_m2_s.*a finite SD > 0"):
         rep.run(rep.ReplicationConfig.quick(), forcing_df=w, observations=obs, out=tmp_path / "o")
     assert not (tmp_path / "o").exists()
+    # a frame without any value (its reader refuses such a file): refused first too
+    empty = obs.assign(plant_par_umol_m2_s=np.nan)
+    with pytest.raises(InputError, match="frame: no observed value in any column"):
+        rep.run(rep.ReplicationConfig.quick(), forcing_df=w, observations=empty, out=tmp_path / "o")
+    assert not (tmp_path / "o").exists()
