@@ -190,9 +190,8 @@ def fit_table(fit, model: str = "model") -> Table:
     """The run against its observations, one row per series (:func:`lightfit.report.observations_fit`)."""
     t = Table(
         title=f"{model} against the observations (model − observed)",
-        caption="n: steps with a reading (a step's readings as their inverse-variance mean); χ²: of each "
-        "series alone, with the observations' SDs and the model's Monte Carlo SDs (about n where the model is "
-        "right; inf where a leaf solve did not converge)",
+        caption="n: steps with a reading; χ²: the series alone, with the readings' and the Monte Carlo "
+        "SDs (≈ n where the model fits; inf: a leaf solve did not converge)",
         box=box.SIMPLE_HEAD,
         padding=(0, 1),
         pad_edge=False,
