@@ -116,6 +116,28 @@ def test_paper_halo_equals_per_tile_runs(client, weather):
     assert 1 < ds.attrs["buffer_overhead"] < 2 * 16 / 4
 
 
+def test_a_halo_without_the_whole_field_leaves_the_ceptometer_unrendered(client, weather, reference):
+    """The ceptometer spans the whole measurement area and gather takes tile 0's reading: under tile
+    0's block + halo it saw bare soil where the other tile's plants were left out (a review: fAPAR
+    0.055 against the whole field's 0.26). With a halo that holds the whole field it is the single
+    process's; with less, NaN (not rendered) and said so in the attributes."""
+    from lightfit.model.schema import SENSOR_OBSERVABLES
+
+    run = make_run(weather, tiles=2, halo_rows=0)
+    ds = run_field(run, client=client, timeout_s=240)
+    day = ds["sun_elevation_deg"].values > 0
+    for v in ("transmitted_par_umol_m2_s", "ceptometer_transmittance"):
+        assert np.isnan(ds[v].values[day]).all(), v  # was tile 0's reading under half a canopy
+    assert ds.attrs["ceptometer"] == "none (not rendered)"
+    assert run.partial_scenes and run.sensors == ()
+    whole = make_run(weather, tiles=2, halo_rows=HaloField.of(FIELD).exact_halo_rows(2))
+    assert not whole.partial_scenes and whole.sensors is None
+    ds = run_field(whole, client=client, timeout_s=240)
+    for v in SENSOR_OBSERVABLES:
+        np.testing.assert_array_equal(ds[v].values, reference[v].values, err_msg=v)
+    assert ds.attrs["ceptometer"] == reference.attrs["ceptometer"]
+
+
 def test_periodic_field_is_bitwise_partition_independent(client, weather):
     """A periodic Field (one cell of an infinite field) reaches every task: each tile renders the whole cell."""
     run = make_run(weather, Field(n_plants=4, seed=1, boundary="periodic"), tiles=2)

@@ -89,7 +89,8 @@ def field_run(
         caution(
             f"--halo-rows {halo_rows} < {exact}, which holds the whole field in each of the {tiles} tiles: "
             "segments near tile boundaries miss plants that shade them, a bias and not Monte Carlo noise (canopy "
-            "APAR +49 % at 1 row, +11 % at 4 in docs/distributed.md's 6 × 6 field); without --halo-rows it is exact"
+            "APAR +49 % at 1 row, +11 % at 4 in docs/distributed.md's 6 × 6 field), and the ceptometer, which spans "
+            "the whole area, is not rendered (its observables NaN); without --halo-rows it is exact"
         )
     try:
         ds = run_field(

@@ -65,7 +65,8 @@ from lightfit.progress import progress_bar
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
 #: Observables recomputed from the gathered segments. The virtual sensors' (ceptometer) are not
 #: per segment: every tile renders them with the same layout, and gather takes tile 0's — exact
-#: when the tiles render the whole field (``halo_rows=None``, periodic), approximate with halos.
+#: when the tiles render the whole field (``halo_rows=None``, periodic, or a halo that holds it);
+#: with a smaller halo no task renders them (:attr:`FieldRun.sensors`) and they are NaN.
 AGGREGATES = tuple(k for k in schema.OBSERVABLES if k not in schema.SENSOR_OBSERVABLES)
 #: Per-time variables recomputed from the gathered per-segment values: the observables and the
 #: canopy's Monte Carlo bias (a sum over blades, like canopy An).
@@ -109,6 +110,12 @@ class FieldRun:
             )
         self.halo_field = HaloField.of(sc.field, self.halo_rows)  # validates halo_rows
         self.tile_list = check_tiles(self.halo_field, self.tiles)
+        #: Whether some tile's scene lacks plants of the field (``halo_rows`` below
+        #: :meth:`HaloField.exact_halo_rows`): its virtual sensors would read the light under a
+        #: partial canopy, so the tasks render none (:attr:`sensors`).
+        self.partial_scenes = self.halo_rows is not None and self.halo_rows < self.halo_field.exact_halo_rows(
+            self.tiles
+        )
         tc = check_integer(self.time_chunks, "time_chunks", 1)
         n_day = int(daytime(sc.weather).sum())
         if n_day == 0:
@@ -123,6 +130,16 @@ class FieldRun:
                 parameter="time_chunks",
                 expected=f"at most {n_day} (every chunk needs a daytime step)",
             )
+
+    @property
+    def sensors(self) -> tuple | None:
+        """The virtual sensors each task renders (``CoupledModel``'s ``sensors``): ``None``, the run's
+        default ceptometer over the whole measurement area, where every tile's scene is the whole
+        field; ``()`` where it is not (:attr:`partial_scenes`). The ceptometer spans the whole area,
+        and under a tile's block + halo it saw bare soil where the other tiles' plants were left out
+        (ceptometer fAPAR 0.055 against the whole field's 0.26 with ``halo_rows=0`` on 2 × 3 plants
+        in 3 tiles, a review); its observables are then NaN, as in a run that renders no sensor."""
+        return () if self.partial_scenes else None
 
     def chunk_index(self) -> list[np.ndarray]:
         """Row positions of the weather in each time chunk: daytime and night steps dealt out
@@ -208,7 +225,7 @@ def run_task(spec: TaskSpec):
 
     t1 = time.perf_counter()
     sc = spec.run.task_scenario(spec.tile, spec.rows)
-    model = CoupledModel(sc)
+    model = CoupledModel(sc, sensors=spec.run.sensors)
     t2 = time.perf_counter()
     ds = model.simulate(spec.run.theta)
     t3 = time.perf_counter()
