@@ -2024,6 +2024,25 @@ def test_field_reports_each_tiles_plants_and_the_overhead(tmp_path, monkeypatch)
     assert "tiles (measured+buffer plants), overhead ×6.00" in out and "2+10, 2+10" in out, out
 
 
+def test_field_segments_of_one_tile_say_the_tile(tmp_path, monkeypatch):
+    """--tile K --segments writes tile K's scene: its measured plants are the tile's (Field.tiles), the
+    rest of the field's measured plants its buffer; the header says which tile (it said only the
+    field, so the table read as the whole field's with half its measured plants unmeasured)."""
+    from lightfit.plant import Field
+
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    csv = tmp_path / "t.csv"
+    args = ["field", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1", "--tiles", "2", "--tile", "1"]
+    r = runner.invoke(app, [*args, "--segments", str(csv)])
+    assert r.exit_code == 0, r.output
+    seg = pd.read_csv(csv, comment="#")
+    want = Field(4, buffer_rows=1, boundary="finite").tiles(2)[1].measured
+    np.testing.assert_array_equal(np.unique(seg.loc[seg["measured"], "plant_id"]), want)
+    head = [ln for ln in csv.read_text().splitlines() if ln.startswith("#")]
+    assert "# tile: 1 of 2 (0-based)" in head and "# n_plants: 4" in head, head
+    assert any("measured True for a plant the tile measures" in ln for ln in head), head
+
+
 def test_info_lists_the_installed_versions():
     """Each package's row holds the version importlib.metadata reports; the CUDA row says True or False."""
     import importlib.metadata

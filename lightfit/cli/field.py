@@ -167,12 +167,18 @@ def field(
         from lightfit.weather.readers import metadata_lines
 
         segments_csv.parent.mkdir(parents=True, exist_ok=True)
+        # With --tile the table is one tile's scene: its measured plants are the tile's, and the rest of
+        # the field's measured plants are its buffer (False). Without the tile said, the file read as the
+        # whole field's with most of its measured plants unmeasured (a review).
+        part = {} if tile is None else {"tile": f"{tile} of {len(parts)} (0-based)"}
+        whose = "a measured plant's" if tile is None else "a plant the tile measures"
         head = {  # what the table is and stands on, as lightfit's other CSVs say it (read with comment="#")
             "provenance": "synthetic (CPlantBox plants grown and placed by lightfit, not measured)",
             **fld.attrs(),
+            **part,
             "columns": "x0 y0 z0 x1 y1 z1 in m (field coordinates, z up); bx by bz a unit vector (the parent "
             "organ's axis where the organ branches off); length_m, radius_m, blade_width_m in m; blade_area_m2 "
-            "in m2 (one side); creation_time_d in days after season_start; measured True for a measured plant's "
+            f"in m2 (one side); creation_time_d in days after season_start; measured True for {whose} "
             "segment, False for a buffer plant's; docs/plant.md",
         }
         replace_text(segments_csv, metadata_lines(head) + seg.to_csv(index=False, float_format="%.8g"))
