@@ -130,6 +130,15 @@ def test_a_halo_without_the_whole_field_leaves_the_ceptometer_unrendered(client,
         assert np.isnan(ds[v].values[day]).all(), v  # was tile 0's reading under half a canopy
     assert ds.attrs["ceptometer"] == "none (not rendered)"
     assert run.partial_scenes and run.sensors == ()
+    # a task kept by a partial-halo run before (it rendered the ceptometer) is not taken over; the keys
+    # of runs whose scenes hold the whole field stay as they were (their kept tasks resume)
+    from dataclasses import replace
+
+    from lightfit.distributed.run import task_key, task_specs
+
+    before = replace(run)
+    before.partial_scenes = False  # the key as computed before partial runs said so
+    assert {task_key(s) for s in task_specs(run)}.isdisjoint({task_key(s) for s in task_specs(before)})
     whole = make_run(weather, tiles=2, halo_rows=HaloField.of(FIELD).exact_halo_rows(2))
     assert not whole.partial_scenes and whole.sensors is None
     ds = run_field(whole, client=client, timeout_s=240)

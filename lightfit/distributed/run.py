@@ -681,7 +681,8 @@ def task_key(spec: TaskSpec) -> str:
     """Hash of everything the task's result depends on: its scenario (tile, time rows, field and its
     growth file's contents, estimator, optics, photosynthesis, … :
     :meth:`~lightfit.model.scenario.Scenario.digest`, whose growth entry holds CPlantBox's version),
-    θ, and the versions of the code it ran (:func:`~lightfit.model.emulator.run_versions`)."""
+    θ, the versions of the code it ran (:func:`~lightfit.model.emulator.run_versions`), and, where a
+    partial halo leaves the virtual sensors unrendered (:attr:`FieldRun.sensors`), that."""
     import hashlib
 
     from lightfit.model.emulator import run_versions
@@ -692,6 +693,9 @@ def task_key(spec: TaskSpec) -> str:
         "theta": as_theta(spec.run.theta, spec.run.scenario.theta).to_dict(),  # as the task runs it
         "versions": versions,
         "task": [spec.tile, spec.chunk],
+        # only where the tasks render no sensor (a partial halo): every other run keeps its keys, and a
+        # task kept before (it rendered tile 0's ceptometer under part of the canopy) is not taken over
+        **({"sensors": "none"} if spec.run.partial_scenes else {}),
     }
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
 
