@@ -383,3 +383,19 @@ def test_sampled_steps_pass_through_the_origin_from_the_series_start():
     want = pd.date_range("2016-04-20 00:10", "2016-04-20 23:40", freq="30min", tz="UTC")
     assert list(out.index) == list(want) and origin in out.index
     np.testing.assert_array_equal(out["tair_c"].to_numpy(), df.loc[want, "tair_c"].to_numpy())
+
+
+def test_mean_steps_whose_bounds_cut_a_source_interval_are_refused():
+    """A window of 30-min means from 07:05 UTC over end-stamped 10-min means: its first mean, stamped
+    07:35, took the rows ending 07:10, 07:20, 07:30, which cover 07:00–07:30 (by hand), so its sun
+    (07:20) was 5 min late against the data's centre (07:15). Refused, naming the start time; on the
+    stamps' grid the mean is the three rows ending within (t − 30 min, t] and the sun at t − 15 min."""
+    df = add_solar(read_tereno(FIXTURE))
+    with pytest.raises(InputError, match="falls inside a source interval") as e:
+        window(df, "2016-04-20 07:05", 1, "30min", how="mean", tz="UTC")
+    assert e.value.parameter == "start_time"
+    w = window(df, "2016-04-20 07:00", 1, "30min", how="mean", tz="UTC")
+    t = pd.Timestamp("2016-04-20 07:30", tz="UTC")
+    rows = df.loc[t - pd.Timedelta("20min") : t, "ghi_w_m2"]
+    assert w.loc[t, "ghi_w_m2"] == pytest.approx(rows.mean(), rel=1e-12)
+    assert w.loc[t, "sun_elevation_deg"] == pytest.approx(_noaa(t - pd.Timedelta("15min")), abs=0.05)

@@ -516,10 +516,24 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                     parameter="freq",
                     expected=f"rows every {_minutes(source.interval)} and a step that is a multiple of it",
                 )
+            # The new steps' bounds must be bounds of the source's intervals: a bound inside one puts the
+            # intervals it cuts whole into the step on its side, so that the mean covers another span than
+            # its stamp says (a window from 09:05 of end-stamped 10-min means: the rows ending 09:10 …
+            # 09:30 cover 09:00–09:30, stamped 09:35, their sun taken 5 min late).
+            edge = df.index[0].normalize() if origin is None else pd.Timestamp(origin)
+            if len(df) and (edge - df.index[0]) % source.interval:
+                said = "midnight" if origin is None else f"{edge.tz_convert('UTC'):%Y-%m-%d %H:%M} UTC"
+                raise InputError(
+                    f"cannot average {source.describe()} at {freq} from {said}: it falls inside a source interval "
+                    f"(the intervals' bounds are the stamps, {df.index[0].tz_convert('UTC'):%H:%M} UTC and every "
+                    f"{_minutes(source.interval)} from it)",
+                    file=df.attrs.get("source"),
+                    parameter="start_time" if origin is not None else "freq",
+                    expected="steps starting on a bound of the source's intervals (a start time on its stamps), "
+                    "or sampling (how='sample', --how sample)",
+                )
             side = "right" if source.label == "end" else "left"
-            bins = df[measured].resample(
-                freq, closed=side, label=side, origin="start_day" if origin is None else origin
-            )
+            bins = df[measured].resample(freq, closed=side, label=side, origin=edge)
             out, n = bins.mean(), bins.size()
             whole = n == step // source.interval
             if not whole.all():  # the series' first and last new steps may reach past its ends
