@@ -9,8 +9,11 @@ import pvlib
 import pytest
 
 from lightfit.errors import InputError
-from lightfit.weather import SELHAUSEN, Site, add_solar, resample, solar_position, split_direct_diffuse
+from lightfit.weather import SELHAUSEN, Site, add_solar, read_tereno, resample, solar_position, split_direct_diffuse
+from lightfit.weather.bundled import DATA_DIR
 from lightfit.weather.solar import pvlib_deprecations_quiet
+
+FIXTURE = DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"
 
 
 def noaa_apparent_elevation_deg(ts: pd.Timestamp, lat: float, lon: float) -> float:
@@ -377,3 +380,20 @@ def test_the_forcing_runs_under_warnings_as_errors_and_leaves_the_filters_as_the
     assert len(forcing) and len(day) and noon.hour == 11  # Selhausen (6.45° E): transit ≈ 11:35 UTC
     for split in splits:
         assert np.isfinite(np.asarray(split, dtype=float)).all()
+
+
+def test_bolands_fit_follows_the_averaging_interval_not_the_step():
+    """10-min means (the TERENO fixture, end-stamped) sampled every hour are still 10-min means: Boland,
+    Scott & Luther's (2001) 15-minute fit (8.645, 0.613), k_t by hand from pvlib's extraterrestrial
+    irradiance at the true zenith; the hourly fit (7.997, 0.586) was taken by the step (at k_t 0.68
+    the diffuse fraction 0.32 for 0.36). Hourly means (resampled by averaging) take the hourly fit."""
+    df = read_tereno(FIXTURE)
+    for how, (a, b) in (("sample", (8.645, 0.613)), ("mean", (7.997, 0.586))):
+        out = add_solar(resample(add_solar(df, split_model="boland"), "1h", how))
+        lit = out["sun_elevation_deg"] > 20
+        assert lit.sum() >= 5
+        sp = solar_position(out.index[lit] + out.attrs["timestamps"].centre_offset)
+        e0 = pvlib.irradiance.get_extra_radiation(out.index[lit]).to_numpy()
+        kt = out.loc[lit, "ghi_w_m2"].to_numpy() / (e0 * np.sin(np.radians(sp["sun_true_elevation_deg"].to_numpy())))
+        got = (out.loc[lit, "dhi_w_m2"] / out.loc[lit, "ghi_w_m2"]).to_numpy()
+        np.testing.assert_allclose(got, 1.0 / (1.0 + np.exp(a * (kt - b))), rtol=1e-9, err_msg=how)

@@ -103,15 +103,25 @@ def check_split_model(model, models=SPLIT_MODELS, where: str = "split_model") ->
 BOLAND_COEFFS = {15: (8.645, 0.613), 60: (7.997, 0.586)}
 
 
-def boland_coeffs(times: pd.DatetimeIndex) -> tuple[float, float]:
-    """Boland's (a, b) for a series with timestamps ``times``: the 15-minute fit for steps up to
-    30 min (and a single step), the hourly fit for longer steps (:data:`BOLAND_COEFFS`)."""
-    step_min = pd.Series(times).diff().median() / pd.Timedelta(minutes=1) if len(times) > 1 else 15.0
-    return BOLAND_COEFFS[15 if step_min <= 30 else 60]
+def boland_coeffs(times: pd.DatetimeIndex, interval: pd.Timedelta | None = None) -> tuple[float, float]:
+    """Boland's (a, b) for a series with timestamps ``times`` whose values are means over ``interval``
+    (``None``: instants, or not known): the 15-minute fit for intervals up to 30 min, the hourly fit
+    for longer ones (:data:`BOLAND_COEFFS`). The fits differ by the averaging of the data they were
+    fitted to, not by how far apart the values lie: 10-min means sampled every hour are 10-min
+    means. Without an interval the step stands for it (a single step: the 15-minute fit)."""
+    if interval is not None:
+        minutes = pd.Timedelta(interval) / pd.Timedelta(minutes=1)
+    else:
+        minutes = pd.Series(times).diff().median() / pd.Timedelta(minutes=1) if len(times) > 1 else 15.0
+    return BOLAND_COEFFS[15 if minutes <= 30 else 60]
 
 
 def split_direct_diffuse(
-    ghi_w_m2: pd.Series, sun_elevation_deg: pd.Series, model: str = "erbs", true_elevation_deg: pd.Series | None = None
+    ghi_w_m2: pd.Series,
+    sun_elevation_deg: pd.Series,
+    model: str = "erbs",
+    true_elevation_deg: pd.Series | None = None,
+    interval: pd.Timedelta | None = None,
 ) -> pd.DataFrame:
     r"""Split global horizontal irradiance into direct normal and diffuse horizontal parts.
 
@@ -119,7 +129,8 @@ def split_direct_diffuse(
     and ``"boland"`` (the logistic diffuse fraction 1 / (1 + exp(a (k_t − b))) of Boland, Scott &
     Luther 2001, Environmetrics 12, 103), both from the clearness index k_t. Boland et al. fitted
     (a, b) per averaging interval: (8.645, 0.613) for 15-minute and (7.997, 0.586) for hourly data;
-    series with steps up to 30 min take the first, longer steps the second (:data:`BOLAND_COEFFS`).
+    series of means over up to 30 min take the first, longer means the second, by their averaging
+    ``interval`` (:func:`boland_coeffs`; ``None``: by the step).
     The models take the clearness index from the extraterrestrial irradiance on a horizontal plane
     at the true (unrefracted) solar zenith, as they were fitted (pvlib's ``zenith``):
     ``true_elevation_deg`` (:func:`solar_position`'s ``sun_true_elevation_deg``; default
@@ -137,7 +148,7 @@ def split_direct_diffuse(
         if model == "erbs":
             out = pvlib.irradiance.erbs(ghi_w_m2, zenith, times)
         else:
-            a, b = boland_coeffs(times)
+            a, b = boland_coeffs(times, interval)
             out = pvlib.irradiance.boland(ghi_w_m2, zenith, times, a_coeff=a, b_coeff=b)
     # pvlib's DHI closes with its own (true) zenith and is all of GHI beyond 87°; the rest is the
     # beam, along the apparent sun, so that the light model sees exactly GHI.
@@ -718,7 +729,11 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
         qc.append({"kind": "split", "column": None, "count": len(out), "detail": detail})
     else:
         split = split_direct_diffuse(
-            out["ghi_w_m2"], out["sun_elevation_deg"], split_model, sp["sun_true_elevation_deg"].set_axis(out.index)
+            out["ghi_w_m2"],
+            out["sun_elevation_deg"],
+            split_model,
+            sp["sun_true_elevation_deg"].set_axis(out.index),
+            stamps.interval,
         )
         if has_diffuse:
             qc.append(
