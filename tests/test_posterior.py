@@ -1559,3 +1559,22 @@ def test_the_corner_plot_shows_a_map_on_the_box_edge_and_beyond_the_walkers(tmp_
     ]
     lo, hi = axis_ranges(np.full((5, 1), 0.3), [0.3])[0]  # one value: still a width
     assert lo < 0.3 < hi
+
+
+def test_a_stored_runs_samples_leave_out_its_own_rules_burn_in(tmp_path):
+    """A run sampled under a rule with another burn-in (``StopRule(burn_fraction=0.5)``): the samples
+    read back from its file (``flat_samples(load_run(...))``, what the notebook's corner plot and
+    summary table use) leave out that rule's burn-in, the one its stored diagnostics and analysis
+    discarded, not the default quarter (the notebook's table disagreed with the run's own numbers)."""
+    stop = P.StopRule(burn_fraction=0.5, check_every=50)
+    path = tmp_path / "g.h5"
+    P.sample(Gauss(), NAMES, path, nwalkers=8, max_steps=120, seed=1, initial=_init(), stop=stop, progress=False)
+    run = P.load_run(path)
+    chain = run["chain"]
+    assert run["diagnostics"]["burn"] == 60
+    want = chain[60:].reshape(-1, 3)  # numpy on the stored chain: its second half
+    np.testing.assert_array_equal(P.flat_samples(run), want)
+    np.testing.assert_allclose(P.summarize(P.flat_samples(run), NAMES)["mean"], want.mean(0), rtol=0, atol=0)
+    # an explicit burn-in, and a bare chain, as before
+    np.testing.assert_array_equal(P.flat_samples(run, 0.25), chain[30:].reshape(-1, 3))
+    np.testing.assert_array_equal(P.flat_samples({"chain": chain}), chain[30:].reshape(-1, 3))

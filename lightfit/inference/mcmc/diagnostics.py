@@ -143,8 +143,13 @@ class StopRule:
         return d | {"rhat_max": self.rhat_max}
 
 
-def flat_samples(run, burn_fraction: float = BURN_FRACTION) -> np.ndarray:
-    """Post-burn-in samples of a run (from ``load_run`` or a ``SamplerResult``), shape (n, ndim)."""
+def flat_samples(run, burn_fraction: float | None = None) -> np.ndarray:
+    """Post-burn-in samples of a run (from ``load_run`` or a ``SamplerResult``), shape (n, ndim).
+    ``burn_fraction`` None: the burn-in of the rule the run was sampled under (``load_run``'s
+    ``stop_rule``, which its stored diagnostics and analysis discarded), else :data:`BURN_FRACTION`."""
+    if burn_fraction is None:
+        rule = run.get("stop_rule") if isinstance(run, dict) else None
+        burn_fraction = BURN_FRACTION if rule is None else rule.burn_fraction
     chain = run["chain"] if isinstance(run, dict) else run.chain
     return chain[burn_in(len(chain), burn_fraction) :].reshape(-1, chain.shape[-1])
 
