@@ -1025,3 +1025,35 @@ def test_twin_noise_is_the_documented_draws_on_a_stand_in_model(monkeypatch):
         np.testing.assert_allclose(df["canopy_an_sd_umol_m2_s"], np.where(an_steps, 0.7, np.nan), rtol=1e-12)
         assert df.attrs["provenance"] == "synthetic" and df.index.equals(times)
     assert df.loc[times[1], "plant_par_umol_m2_s"] == 0.0
+
+
+def test_a_start_of_a_parameter_not_calibrated_is_refused_unless_it_is_the_held_value():
+    """A start value of a parameter outside ``names`` was ignored: the parameter stayed at the run
+    leaf's value (the result listed it as fixed there) while the loss's Monte Carlo SDs were taken
+    at the start (a review: --parameters light_factor --start specular=0.2 fitted at specular 0.5
+    unsaid). It is refused, naming it and the value held; the held value itself (a calibration.json
+    of the same run lists every parameter) passes, and fits as without it."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor",), progress=False, say=lambda _: None)
+    held = model.theta().roughness
+    with pytest.raises(InputError, match=r"parameter 'start'.*roughness=0\.2 \(held at") as e:
+        calibrate(model, obs, start={"light_factor": 1.0, "roughness": 0.2}, **kw)
+    assert "only for the calibrated parameters (light_factor)" in str(e.value)
+    same = calibrate(model, obs, start={"light_factor": 1.0, "roughness": held}, **kw)
+    plain = calibrate(model, obs, start={"light_factor": 1.0}, **kw)
+    assert same.theta == plain.theta and same.theta["roughness"] == held
+
+
+def test_cli_start_of_a_parameter_not_calibrated_is_refused_before_the_plants_grow(tmp_path):
+    """The command line's --start specular=0.2 with --parameters light_factor: refused at once
+    (it calibrated the light factor at specular 0.5 and listed specular 0.5 as fixed)."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    args = ["calibrate", str(rep.OBSERVATIONS), "--quick", "--parameters", "light_factor"]
+    r = CliRunner().invoke(app, [*args, "--start", "specular=0.2", "--out", str(tmp_path)])
+    assert r.exit_code == 2, r.output
+    err = " ".join(r.stderr.split())
+    assert "--start" in err and "specular=0.2 (held at 0.5)" in err and "(light_factor)" in err
+    assert not (tmp_path / "settings.json").exists()  # refused before anything was built or written

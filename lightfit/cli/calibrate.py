@@ -58,7 +58,9 @@ def calibrate(
         show_default=False,
     ),
     start: str = typer.Option(
-        None, help="Start values key=value,... (default: the run leaf's parameters, light_factor 1, vcmax_scale 1)."
+        None,
+        help="Start values key=value,... of calibrated parameters (default: the run leaf's parameters, light_factor "
+        "1, vcmax_scale 1); a value of one not calibrated is refused unless it is the value the run holds.",
     ),
     method: str = typer.Option(
         "lbfgsb",
@@ -108,14 +110,14 @@ def calibrate(
     --n-plants 9 (a SYNTHETIC twin series made by the model on that 9-plant cell; not a measurement)."""
     from lightfit.distributed.design import design_renderer
     from lightfit.inference import mcmc as P
-    from lightfit.inference.calibration import METHODS, check_max_steps, fit_cautions
+    from lightfit.inference.calibration import METHODS, check_max_steps, check_start_names, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
     from lightfit.inference.observations import observation_table_digest
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
-    from lightfit.model.parameters import BOUNDS, check_names, interval
+    from lightfit.model.parameters import BOUNDS, Theta, check_names, interval
     from lightfit.precision import precision
 
     s = resolve(model)
@@ -137,6 +139,8 @@ def calibrate(
     uses = resolve_use(parse_names(use) or None)  # names checked before the observations are read
     names = check_names(parse_names(parameters), fitted=True)
     th0 = parse_theta(start, "start")
+    # a start of a parameter not calibrated would be ignored (held at the run leaf's value): refused
+    check_start_names(th0, names, Theta.for_optics(s.replication_config().leaf_optics()))
     given = [n for n in names if n in th0 and n in E.LEAF_PARAMETERS]
     if surrogate and given:
         # The emulator is valid only in its box (the priors' leaf support); calibrate() refuses a

@@ -416,6 +416,31 @@ def check_max_steps(max_steps) -> int:
     return check_integer(max_steps, "max_steps", 1)
 
 
+def check_start_names(start, names: Sequence[str], base: Theta) -> None:
+    """Refuse a start value of a parameter not in ``names`` that differs from the value the run holds
+    it at (``base``: the fixed values or the run leaf's defaults): it would be ignored, the parameter
+    held at ``base``'s value while the result listed it as fixed there (a review: ``--parameters
+    light_factor --start specular=0.2`` fitted at specular 0.5 unsaid). Equal values pass (a start
+    read from a calibration.json of the same run lists every parameter). A :class:`Theta` start
+    (every value given) is not checked here."""
+    if start is None or isinstance(start, Theta):
+        return
+    names = tuple(names)
+    held = {
+        n: float(v)
+        for n, v in start.items()
+        if n not in names and not math.isclose(float(v), float(getattr(base, n)), rel_tol=1e-12, abs_tol=0.0)
+    }
+    if held:
+        said = ", ".join(f"{n}={v:g} (held at {float(getattr(base, n)):g})" for n, v in held.items())
+        raise InputError(
+            f"start values of parameters not calibrated: {said}",
+            parameter="start",
+            expected=f"start values only for the calibrated parameters ({', '.join(names)}), or those "
+            "parameters calibrated too",
+        )
+
+
 def _check_start(th0: Theta, start, box: Mapping, narrowed: Mapping) -> None:
     """Refuse a start value outside its ``bounds`` (``box``: the checked (lo, hi) per calibrated name;
     ``narrowed``: the names given bounds) instead of letting the optimisers move it to the edge
@@ -554,6 +579,7 @@ def calibrate(
     base = model.theta(fixed)
     th0 = as_theta(start, base=base, what="start")
     names = check_names(names, fitted=True)
+    check_start_names(start, names, base)
     _check_start(th0, start, check_bounds(bounds, names), bounds or {})
     hist = Path(history) if history else None
     state_file = hist.with_name(hist.name + ".state.npz") if hist else None
@@ -868,6 +894,7 @@ __all__ = [
     "calibrate",
     "check_bounds",
     "check_max_steps",
+    "check_start_names",
     "fit_cautions",
     "from_unconstrained",
     "make_loss",

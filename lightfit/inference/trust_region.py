@@ -65,7 +65,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, check_real
-from lightfit.inference.calibration import MAX_STEPS, CalibrationResult, calibrate
+from lightfit.inference.calibration import MAX_STEPS, CalibrationResult, calibrate, check_start_names
 from lightfit.inference.likelihood import (
     USES,
     GaussianLikelihood,
@@ -292,6 +292,7 @@ def surrogate_calibrate(
     use = resolve_use(use, o)
     check_informed(names, use, **run_settings(model))  # before the design renders
     base = model.theta(fixed)
+    check_start_names(start, names, base)  # before the design renders
     x0 = as_theta(start, base=base)
     out = None if out is None else Path(out)
     if out is not None:
