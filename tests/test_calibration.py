@@ -1057,3 +1057,16 @@ def test_cli_start_of_a_parameter_not_calibrated_is_refused_before_the_plants_gr
     err = " ".join(r.stderr.split())
     assert "--start" in err and "specular=0.2 (held at 0.5)" in err and "(light_factor)" in err
     assert not (tmp_path / "settings.json").exists()  # refused before anything was built or written
+
+
+def test_an_unconverged_calibration_is_told_what_helps():
+    """More steps help a run that ran out of them (a resume resets only those limits,
+    calibration.py); after a failed line search or an unconverged leaf a rerun restores the same
+    state and stops the same way, where "a larger --max-steps" was said too (a review)."""
+    from lightfit.cli.calibrate import unconverged_remedy
+
+    for limit in ("max_steps", "stalled"):
+        assert unconverged_remedy(limit).startswith("rerun with a larger --max-steps")
+    for failed in ("failed: line search", "unconverged: specular=0.5", "against unconverged: specular=0.9"):
+        said = unconverged_remedy(failed)
+        assert "stop the same way" in said and "--no-resume" in said and "rerun with a larger" not in said

@@ -344,7 +344,7 @@ def calibrate(
     if not res.converged:  # said before the fit's cautions, whose "the fit is good" reads as a verdict
         caution(
             f"the optimiser did not converge ({res.reason}): the values are where it stopped, not an optimum; "
-            "rerun with a larger --max-steps (the run continues from its history)"
+            + unconverged_remedy(res.stopped_by)
         )
     others = " or ".join(f"--priors {p}" for p in P.PRIOR_SETS if p != priors)
     for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):
@@ -360,6 +360,19 @@ def calibrate(
         f"{out / ('trust_region' if tr else 'history.jsonl')}; "
         f"to see the fit: {shlex.join(again)}",
         soft_wrap=True,
+    )
+
+
+def unconverged_remedy(stopped_by: str) -> str:
+    """What helps a calibration that stopped unconverged (``CalibrationResult.stopped_by``): more steps
+    where it ran out of them; elsewhere a rerun restores the same optimiser state and stops the same
+    way (a review: "a larger --max-steps" was said after a failed line search too)."""
+    if stopped_by in ("max_steps", "stalled"):
+        return "rerun with a larger --max-steps (the run continues from its history)"
+    return (
+        "a larger --max-steps would resume the same state and stop the same way: start again (--no-resume or "
+        "another --out) with the other --method, another --start or fewer --parameters, and check the "
+        "observations' units and SDs"
     )
 
 
