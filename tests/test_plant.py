@@ -630,6 +630,32 @@ def test_a_broken_parameter_file_is_named_not_a_cplantbox_traceback(tmp_path):
     assert e.value.file == parameter_dir() / "0.xml"
 
 
+def test_segment_end_points_are_the_nodes_cplantbox_s_segments_join(tmp_path):
+    """A segment's end points are the mapped nodes its CPlantBox segment joins (``plant.nodes``, which
+    ``plant.segments``, radii and organ types index). ``getNodes()``, read before, can be one node
+    short: CPlantBox's bundled maize of Leitner 2014 (a pea as well) stopped on an IndexError in
+    the segment table instead of the file's named refusal (no leaf blade; a review)."""
+    import plantbox as pb
+
+    from lightfit.plant.growth import parameter_dir, segment_table
+
+    path = parameter_dir() / "Zea_mays_4_Leitner_2014.xml"
+    plant = pb.MappedPlant(1)
+    plant.readParameters(str(path))
+    plant.initialize(False)
+    plant.simulate(10.0, False)
+    assert len(plant.getNodes()) == len(plant.nodes) - 1  # the case: getNodes() misses one
+    nodes = np.array([[v.x, v.y, v.z] for v in plant.nodes]) / 100  # cm → m
+    ends = np.array([[s.x, s.y] for s in plant.segments])
+    table = segment_table(plant)
+    np.testing.assert_allclose(table[["x0", "y0", "z0"]].to_numpy(), nodes[ends[:, 0]], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(table[["x1", "y1", "z1"]].to_numpy(), nodes[ends[:, 1]], rtol=1e-12, atol=1e-15)
+    growth = GrowthConfig(parameter_file=path.name, target_date="2016-03-15")
+    with pytest.raises(InputError, match="no leaf blade") as e:
+        build(Field(n_plants=1, growth=growth), cache_dir=tmp_path)
+    assert e.value.file == path
+
+
 def test_growth_dates_and_spacings_are_read_as_values():
     """A date typed another way grows the same plants under the same key; spacings are numbers,
     numpy's too, and not booleans (True was taken as 1 m)."""

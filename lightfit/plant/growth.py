@@ -331,7 +331,10 @@ def segment_table(plant: Any, plant_id: int = 0, include_roots: bool = True) -> 
     With ``include_roots=False`` root organs are not visited (their ``organ_id`` stays −1),
     which is 5× faster for wheat.
     """
-    nodes = np.array(plant.getNodes(), dtype=float) * CM
+    # The mapped node list, the one ``plant.segments`` index (as the radii, organ types and node times
+    # are mapped): ``getNodes()`` collects the organs' nodes and can miss one (CPlantBox's bundled
+    # Zea_mays_4_Leitner_2014.xml, Pisum_sativum_b_TSEGAYE_1995.xml: one node short, an IndexError).
+    nodes = np.array(plant.nodes, dtype=float) * CM
     segs = np.array([[s.x, s.y] for s in plant.segments], dtype=np.int64)
     if not np.array_equal(segs[:, 1], np.arange(1, len(segs) + 1)):
         raise RuntimeError("CPlantBox segment order changed: segment i no longer ends at node i + 1")
