@@ -228,7 +228,8 @@ class GrowthConfig:
             made: ``dataclasses.replace(config, target_date=...)`` keeps the resolved date (pass
             ``season_start=None`` with it to take the new year's).
         target_date: date the plants are grown to (the measurement day, 2016-04-20): after
-            ``season_start`` and at most :data:`MAX_GROWTH_DAYS` days after it.
+            ``season_start`` and at most :data:`MAX_GROWTH_DAYS` days after it. Both dates may be
+            given as text or ``datetime.date``; they are kept as ``YYYY-MM-DD`` text.
         include_roots: keep root segments in the table. Off by default: roots are ~98 % of a
             wheat plant's segments and never enter the light model.
     """
@@ -245,6 +246,10 @@ class GrowthConfig:
         if default:  # frozen: set once; recorded as a date, so that repr, attrs and keys name it
             object.__setattr__(self, "season_start", default_season_start([end.isoformat()]))
         start = parse_date(self.season_start, "season_start")
+        # Recorded as YYYY-MM-DD text, whatever form they came in (a date, a datetime, 20160420): the
+        # repr keys caches and resumes, and attrs() go into netCDF results, which hold no date objects.
+        object.__setattr__(self, "season_start", start.isoformat())
+        object.__setattr__(self, "target_date", end.isoformat())
         if end <= start:
             raise InputError(
                 f"target_date {end} is not after season_start {start}"
