@@ -510,6 +510,15 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         MeshResolution(along=0)
 
 
+def test_a_field_s_growth_must_be_a_growth_config():
+    """``Field(growth="Triticum_aestivum_adapted_2023.xml")``, the file where its GrowthConfig belongs,
+    was taken and failed later, in build() or attrs(), on an AttributeError ('str' object has no
+    attribute 'fingerprint'; a review)."""
+    with pytest.raises(InputError, match="growth='Triticum_aestivum_adapted_2023.xml'.*GrowthConfig") as e:
+        Field(growth="Triticum_aestivum_adapted_2023.xml")
+    assert e.value.parameter == "growth"
+
+
 def test_blade_inclination_against_analytic_and_trimesh(plant_table):
     """A flat and a 30°-tilted blade give 0° and 30°; on a grown plant the area-weighted mean equals
     trimesh's face normals and areas (an independent geometry library)."""

@@ -166,6 +166,12 @@ class Field:
     def __post_init__(self):
         check_sheaths(self.sheaths)
         check_headings(self.headings)
+        if not isinstance(self.growth, GrowthConfig):  # an AttributeError in build() or attrs()
+            raise InputError(
+                f"growth={self.growth!r}",
+                parameter="growth",
+                expected="a GrowthConfig (GrowthConfig(parameter_file=..., target_date=...))",
+            )
         if self.boundary not in BOUNDARIES:
             raise InputError(f"boundary={self.boundary!r}", parameter="boundary", expected=" or ".join(BOUNDARIES))
         if self.boundary == "periodic":
