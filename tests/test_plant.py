@@ -519,6 +519,15 @@ def test_a_field_s_growth_must_be_a_growth_config():
     assert e.value.parameter == "growth"
 
 
+def test_a_tile_of_another_field_is_named(tmp_path):
+    """build(fld, tile=t) with t a tile of another, larger field (plants ``fld`` has no row for)
+    stopped on a pandas KeyError listing every plant id (a review)."""
+    other = Field(boundary="finite", n_plants=16).tiles(2)[1]
+    with pytest.raises(InputError, match="tile 1 holds plants that 2 rows × 2 plants") as e:
+        build(Field(n_plants=4, seed=1), tile=other, cache_dir=tmp_path)
+    assert e.value.parameter == "tile"
+
+
 def test_blade_inclination_against_analytic_and_trimesh(plant_table):
     """A flat and a 30°-tilted blade give 0° and 30°; on a grown plant the area-weighted mean equals
     trimesh's face normals and areas (an independent geometry library)."""

@@ -533,6 +533,12 @@ def build(
         ids, measured_ids = table.index.to_numpy(), table.index[table["measured"]].to_numpy()
     else:
         ids, measured_ids = tile.plant_ids, tile.measured
+        if not np.isin(ids, table.index.to_numpy()).all():  # a KeyError listing every plant id
+            raise InputError(
+                f"tile {tile.index} holds plants that {fld.area_label} ({fld.boundary}) does not",
+                parameter="tile",
+                expected="a tile of this field: fld.tiles(n)[k]",
+            )
     chosen = table.loc[ids]
     parts, hits = [], 0
     it = chosen.itertuples()
