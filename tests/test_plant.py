@@ -674,6 +674,28 @@ def test_segment_end_points_are_the_nodes_cplantbox_s_segments_join(tmp_path):
     assert e.value.file == path
 
 
+def test_a_plant_with_more_segments_than_its_id_stride_is_refused(monkeypatch):
+    """Segment ids are plant_id · SEGMENT_ID_STRIDE + index: a plant with as many segments as the
+    stride (10⁶; CPlantBox counts the roots in the index) would take its neighbour's ids, silently.
+    Shown with the stride lowered to fewer than the plant's segments; the roots flag takes booleans
+    only ("no" is true in Python: the roots were kept)."""
+    import plantbox as pb
+
+    from lightfit.plant import growth as G
+
+    plant = pb.MappedPlant(1)
+    plant.readParameters(str(G.parameter_dir() / GrowthConfig().path.name))
+    plant.initialize(False)
+    plant.simulate(10.0, False)
+    n = len(plant.segments)
+    assert len(G.segment_table(plant)) == n
+    monkeypatch.setattr(G, "SEGMENT_ID_STRIDE", n)
+    with pytest.raises(InputError, match=f"a plant of {n} segments.*fewer than {n:,} segments"):
+        G.segment_table(plant)
+    with pytest.raises(InputError, match="include_roots='no'.*True or False"):
+        GrowthConfig(include_roots="no")
+
+
 def test_growth_dates_and_spacings_are_read_as_values():
     """A date typed another way grows the same plants under the same key; spacings are numbers,
     numpy's too, and not booleans (True was taken as 1 m)."""

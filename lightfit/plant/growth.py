@@ -264,6 +264,10 @@ class GrowthConfig:
                 parameter="target_date",
                 expected=f"a date at most {MAX_GROWTH_DAYS} days after season_start",
             )
+        if not isinstance(self.include_roots, bool):  # "no" is a true value: the roots were kept
+            raise InputError(
+                f"include_roots={self.include_roots!r}", parameter="include_roots", expected="True or False"
+            )
         object.__setattr__(self, "_path", resolve_parameter_file(self.parameter_file))
 
     @property
@@ -344,6 +348,12 @@ def segment_table(plant: Any, plant_id: int = 0, include_roots: bool = True) -> 
     if not np.array_equal(segs[:, 1], np.arange(1, len(segs) + 1)):
         raise RuntimeError("CPlantBox segment order changed: segment i no longer ends at node i + 1")
     n = len(segs)
+    if n >= SEGMENT_ID_STRIDE:  # ids plant_id · stride + index would run into the next plant's
+        raise InputError(
+            f"a plant of {n} segments (roots counted: CPlantBox indexes them with the shoot)",
+            parameter="parameter_file",
+            expected=f"plants of fewer than {SEGMENT_ID_STRIDE:,} segments (an earlier date, a coarser resolution)",
+        )
     organ_id = np.full(n, -1, dtype=np.int64)
     branch = np.tile([0.0, 0.0, 1.0], (n, 1))
     organs = {o.getId(): o for t in ((2, 3, 4) if include_roots else (3, 4)) for o in plant.getOrgans(t)}
