@@ -489,6 +489,30 @@ def test_fast_observables_cut_emulated_parts_at_zero_as_the_emulator_does(model)
     assert float(jnp.max(jnp.abs(dark["plant_par_umol_m2_s"]))) == 0.0
 
 
+def test_fast_observables_fill_unnamed_leaf_parameters_from_the_scenarios_optics(weather):
+    """FastObservables is observe() on emulated parts, also for a mapping that names only some
+    parameters: the rest are the scenario's (``model.theta``), not Theta's defaults. With the paper's
+    grey leaf (subsurface 0.3; Theta's default 0.596) ``fast({"light_factor": 1.2})`` emulated the light
+    at subsurface 0.596: plant PAR 31 % above observe's on these leaf-dependent parts (a review)."""
+    from lightfit.light.scene import Optics
+
+    sc = Scenario(weather=weather, field=FIELD, samples=8, bounces=2, optics=Optics.preset("paper"))
+    model = CoupledModel(sc)
+    assert model.theta().subsurface != Theta().subsurface
+    n_day = int(np.asarray(model.day).sum())
+    design = E.sobol_design(16, [0, 0, 0], [1, 1, 1], seed=0)
+    base = np.random.default_rng(0).uniform(0.2, 1.0, (1, n_day, 4, model.n_columns))
+    v = base * (0.5 + design[:, 2] + 0.3 * design[:, 0])[:, None, None, None]  # parts that depend on the leaf
+    emu = E.fit_emulator(design, v, 0.01 * v, [0, 0, 0], [1, 1, 1], degrees=(1,))
+    fast = E.FastObservables(model, emu, n_grid=None)
+    given = {"light_factor": 1.2}
+    ref = E.emulated_model(model, emu).observe(given)
+    got = fast(given)
+    for k in ("plant_par_umol_m2_s", "canopy_an_umol_m2_s"):
+        np.testing.assert_allclose(np.asarray(got[k]), np.asarray(ref[k]), rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(fast.parts(given)[0]), np.asarray(fast.parts(model.theta(given))[0]))
+
+
 def test_every_variables_units_are_the_unit_its_name_carries():
     """A variable's name ends in its unit (``_umol_m2_s`` …), written out here as UDUNITS strings; the
     fractions and their SDs are dimensionless. The results' own check compares attributes with the

@@ -709,13 +709,13 @@ class FastObservables:
 
     def parts(self, theta: Theta | Mapping[str, float]):
         """Emulated parts of :attr:`rows` only: values and SE, each (T_day, len(rows), S)."""
-        b = self.emulator.basis(as_theta(theta).leaf)
+        b = self.emulator.basis(self.model.theta(theta).leaf)
         v = jnp.maximum((b @ self._cv).reshape(self._shape), 0.0)  # ratios ≥ 0, as PartsEmulator's
         s = jax.lax.stop_gradient(jnp.maximum((b @ self._cs).reshape(self._shape), 0.0))
         return v, s
 
     def __call__(self, theta: Theta | Mapping[str, float]) -> dict:
-        th = as_theta(theta)
+        th = self.model.theta(theta)  # names not given: the scenario's (its optics' leaf), as observe()
         o = self.model.operator(*self.parts(th), th, rows=self.rows, leaf=self.leaf)
         return {k: o[k] for k in (*OBSERVABLES, CONVERGENCE_KEY)}
 
