@@ -1356,6 +1356,19 @@ def test_the_emulators_degree_is_chosen_by_true_leave_one_out_errors():
     assert emu.degree == 2 and emu.loo_rms[2] < 0.1 * emu.loo_rms[1]
 
 
+def test_bad_emulator_degrees_are_refused_naming_degrees():
+    """The degrees tried are integers ≥ 0, at least one: none tried was blamed on the design size
+    ("n_design=16: no polynomial degree fits … more design points"), a negative one stopped on numpy's
+    "zero-size array" and 2.5 on "'float' object cannot be interpreted as an integer" (a review)."""
+    lo, hi = np.zeros(3), np.ones(3)
+    design = E.sobol_design(16, lo, hi, seed=0)
+    y = np.ones((16, 1, 4, 1)) * design[:, :1, None, None]
+    for bad in ((), (-1,), (2.5,), (True,), ("2",), 2):
+        with pytest.raises(InputError, match="parameter 'degrees'"):
+            E.fit_emulator(design, y, 0.01 * y, lo, hi, degrees=bad)
+    assert E.fit_emulator(design, y, 0.01 * y, lo, hi, degrees=(np.int64(1), 0)).degree in (0, 1)
+
+
 def test_the_emulator_error_shift_is_the_linearised_posterior_mean_shift_by_hand():
     """emulator_error_vs_width on the closed-form model, everything written out in numpy: whitened
     residuals r = (y − m)/√v with v = (λσ)² + s², their Jacobian J in (light factor, Vcmax scale, λ)

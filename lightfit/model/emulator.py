@@ -420,6 +420,7 @@ def fit_emulator(
     design, values, se, lo, hi, degrees=DEGREES, render_seconds: float = float("nan"), render_seed: int = 0
 ) -> PartsEmulator:
     """Least-squares fit at the design; degree by leave-one-out RMS (degrees with ≤ 0.8 n terms)."""
+    degrees = check_degrees(degrees)
     design = np.asarray(design, float)
     n = len(design)
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
@@ -477,6 +478,7 @@ def build_emulator(
             parameter="specular, roughness, subsurface",
             expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters",
         )
+    degrees = check_degrees(degrees)  # before any render
     design = sobol_design(n_design, lo, hi, seed)
     if extra is not None and len(extra):
         design = np.concatenate([design, np.asarray(extra, float).reshape(-1, 3)])
@@ -574,6 +576,16 @@ def cached_emulator(
 
 #: Fewest design renders an emulator is fitted from (the smallest polynomial degree needs them).
 MIN_DESIGN_SIZE = 5
+
+
+def check_degrees(degrees) -> tuple[int, ...]:
+    """The polynomial degrees to try: a non-empty sequence of integers ≥ 0, checked before any
+    render (:func:`build_emulator`) and by :func:`fit_emulator`."""
+    expected = "a non-empty sequence of integers ≥ 0 (total polynomial degrees to try, e.g. (1, 2, 3))"
+    items = None if isinstance(degrees, (str, bytes)) or not hasattr(degrees, "__iter__") else list(degrees)
+    if not items:
+        raise InputError(f"degrees={degrees!r}", parameter="degrees", expected=expected)
+    return tuple(check_integer(d, "degrees", 0, expected=expected) for d in items)
 
 
 def check_design_size(n) -> int:
@@ -782,6 +794,7 @@ __all__ = [
     "COUNTS",
     "DESIGN_SIZE",
     "MIN_DESIGN_SIZE",
+    "check_degrees",
     "check_design_size",
     "code_versions",
     "run_versions",
