@@ -513,6 +513,17 @@ def test_fast_observables_fill_unnamed_leaf_parameters_from_the_scenarios_optics
     np.testing.assert_array_equal(np.asarray(fast.parts(given)[0]), np.asarray(fast.parts(model.theta(given))[0]))
 
 
+def test_build_emulator_refuses_a_bad_design_size_before_rendering(model):
+    """n_design is checked before any render (check_design_size, as the command line does): 3 points
+    were rendered and only then refused, 2.5 stopped on "'float' object cannot be interpreted as an
+    integer" (a review)."""
+    before = dict(E.COUNTS)
+    for bad in (3, 2.5, True, -1):
+        with pytest.raises(InputError, match="parameter 'n_design'"):
+            E.build_emulator(model, n_design=bad, degrees=(1,))
+    assert E.COUNTS == before
+
+
 def test_every_variables_units_are_the_unit_its_name_carries():
     """A variable's name ends in its unit (``_umol_m2_s`` …), written out here as UDUNITS strings; the
     fractions and their SDs are dimensionless. The results' own check compares attributes with the

@@ -479,6 +479,7 @@ def build_emulator(
             expected="0 ≤ lo < hi ≤ 1 for each of the 3 leaf parameters",
         )
     degrees = check_degrees(degrees)  # before any render
+    n_design = check_design_size(n_design)
     design = sobol_design(n_design, lo, hi, seed)
     if extra is not None and len(extra):
         design = np.concatenate([design, np.asarray(extra, float).reshape(-1, 3)])
