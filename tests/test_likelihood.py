@@ -522,3 +522,27 @@ def test_the_observations_digest_sees_values_sds_and_gaps_but_not_the_files_layo
         assert digest(other) != base, col
     assert digest(obs[obs.columns[::-1]]) == base
     assert digest(obs.assign(above_canopy_par_umol_m2_s=1500.0, above_canopy_par_sd_umol_m2_s=50.0)) == base
+
+
+def test_the_monte_carlo_correlation_completes_theta_from_the_scenario(monkeypatch):
+    """Parameters a mapping does not name are the scenario's (``model.theta``, its optics' leaf), as
+    ``observe`` and ``FastObservables`` take them; ``Theta()``'s defaults were taken (a review of the
+    emulator: with the paper's grey leaf the correlation was rendered at subsurface 0.596, not 0.3)."""
+    from lightfit.inference import likelihood as L
+
+    seen = []
+
+    class Model:  # a stand-in with the scenario's leaf: subsurface 0.3
+        times = TIMES
+        operator = None
+
+        def theta(self, theta=None):
+            return Theta(**{**Theta().to_dict(), "subsurface": 0.3, **dict(theta or {})})
+
+        def parts(self, theta):
+            seen.append(theta)
+            return None, None
+
+    monkeypatch.setattr(L, "mc_covariance", lambda op, v, se, th, keys: np.eye(len(keys) * T))
+    corr = L.mc_correlation(Model(), {"light_factor": 1.2}, ("plant_par",))
+    assert seen[0].subsurface == 0.3 and seen[0].light_factor == 1.2 and corr.theta["subsurface"] == 0.3

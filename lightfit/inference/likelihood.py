@@ -245,7 +245,9 @@ def mc_correlation(model, theta=None, names: Sequence[str] | None = None, parts=
     """
     if getattr(model, "day_models", None) is not None:  # several days (lightfit.inference.multiday)
         return model.mc_correlation(theta, names)
-    theta = as_theta(theta)
+    # parameters not named: the scenario's (its optics' leaf, CoupledModel.theta), as observe() takes them
+    complete = getattr(model, "theta", None)
+    theta = complete(theta) if callable(complete) else as_theta(theta)
     names = tuple(series(n).name for n in (names or USES))
     values, se = model.parts(theta) if parts is None else parts
     cov = mc_covariance(model.operator, values, se, theta, [BY_NAME[n].value for n in names])
