@@ -316,3 +316,42 @@ def test_status_of_a_chain_too_short_for_its_diagnostics_prints_dashes_not_nan()
     text = " ".join(cap.get().split())
     assert "nan" not in text.lower() and "False" not in text, text
     assert "emcee suggests 50): no; max split-R̂ –;" in text and "max τ –;" in text and "│ specular │ – │ – │" in text
+
+
+def test_status_before_the_first_step_has_no_acceptance_to_judge():
+    """A run read before its first step (posterior-status while it starts, a Ctrl-C during the first
+    step) read "acceptance 0.00 (outside 0.2–0.5)": 0 accepted of max(0, 1) steps. There is no rate
+    yet: NaN, not judged, printed as a dash."""
+    from pathlib import Path
+
+    from lightfit.cli.common import console
+    from lightfit.cli.posterior import _print_status
+    from lightfit.inference.mcmc.backend import run_status
+    from lightfit.inference.mcmc.diagnostics import diagnostics
+
+    d = diagnostics(np.zeros((0, 4, 2)), np.zeros(4))
+    assert np.isnan(d["acceptance_mean"]) and np.isnan(d["acceptance"]).all() and d["acceptance_ok"] is True
+    assert diagnostics(np.zeros((10, 4, 2)), np.zeros(4))["acceptance_ok"] is False  # 0 of 10: judged
+    st = run_status(Path(__file__).parent / "fixtures" / "posterior_tiny.h5")
+    st["diagnostics"] |= {k: d[k] for k in ("acceptance", "acceptance_mean", "acceptance_ok")}
+    with console.capture() as cap:
+        _print_status(st)
+    text = " ".join(cap.get().split())
+    assert "acceptance –; τ reliable" in text and "outside" not in text, text
+
+
+def test_cautions_say_how_a_short_chain_goes_on_by_why_it_stopped():
+    """After a Ctrl-C (or a kill, or --max-minutes) the R̂ and τ cautions said "resume with a larger
+    --max-steps" beside Ctrl-C's right "rerun the same command": a rerun resumes the chain, the steps
+    limit was not what stopped it. Only a run that used its --max-steps needs a larger one."""
+    from lightfit.cli.posterior import _cautions
+
+    short = {"names": ["specular"], "rhat": [1.6], "tau_reliable": False, "tau_multiple": 20}
+    for why in ({"stopped_by": "interrupted"}, {"stopped_by": "max_seconds"}, {"state": "killed"}):
+        said = _cautions(short | why)
+        assert len(said) == 2 and all("rerun the same command to resume it" in s for s in said), said
+        assert not any("--max-steps" in s for s in said), said
+    said = _cautions(short | {"stopped_by": "max_steps"})
+    assert len(said) == 2 and all("resume with a larger --max-steps" in s for s in said), said
+    said = _cautions(short | {"state": "running", "stopped_by": None})
+    assert all("it is still running" in s for s in said), said

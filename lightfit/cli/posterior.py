@@ -345,7 +345,7 @@ def _cautions(d: dict) -> list[str]:
         i = int(np.argmax(rhat))
         out.append(
             f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): the chain has not mixed "
-            "yet (resume with a larger --max-steps), or they sit in separate modes, whose shares the ensemble "
+            f"yet ({_going_on(d)}), or they sit in separate modes, whose shares the ensemble "
             "cannot correct; either way the summary is not the posterior (the run's corner.png shows where they "
             "are)"
         )
@@ -353,7 +353,7 @@ def _cautions(d: dict) -> list[str]:
         m = d.get("tau_multiple") or 50
         out.append(
             f"τ is not reliable yet (fewer than {m:g} τ kept steps, the stop rule's length): the SDs, τ and ESS "
-            "are rough; resume with a larger --max-steps"
+            f"are rough; {_going_on(d)}"
         )
     if not d.get("acceptance_ok", True):
         lo, hi = ACCEPTANCE_OK
@@ -400,6 +400,17 @@ def _cautions(d: dict) -> list[str]:
             "corners"
         )
     return out
+
+
+def _going_on(d: dict) -> str:
+    """How a chain too short for its diagnostics gets longer, by why it stopped (``d``'s ``state`` of
+    :func:`~lightfit.inference.mcmc.backend.run_status` or ``stopped_by``): a run cut short by Ctrl-C, a
+    kill or ``--max-minutes`` resumes by the same command; one that used its ``--max-steps`` needs more."""
+    if d.get("state") == "running":
+        return "it is still running"
+    if d.get("state") == "killed" or d.get("stopped_by") in ("interrupted", "max_seconds"):
+        return "rerun the same command to resume it"
+    return "resume with a larger --max-steps"
 
 
 def posterior_status(
@@ -478,7 +489,7 @@ def _print_status(st: dict) -> None:
     check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
     rhat = np.asarray(d["rhat"], float)
     console.print(
-        f"acceptance {acc:.2f}{flag}; τ reliable (n_kept ≥ {d['tau_multiple']:g} τ, the stop rule's length; "
+        f"acceptance {_shown(acc, '.2f')}{flag}; τ reliable (n_kept ≥ {d['tau_multiple']:g} τ, the stop rule's length; "
         f"emcee suggests 50): {'yes' if d['tau_reliable'] else 'no'}; "
         f"max split-R̂ {_shown(np.nanmax(rhat) if np.isfinite(rhat).any() else None, '.3f')}; {check}; "
         f"max τ {_shown(np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else None, '.1f')}; "
@@ -491,6 +502,7 @@ def _print_status(st: dict) -> None:
         "map_kept_start": ms.get("kept_start"),
     }
     said = {"names": st["names"], **d, "acceptance_ok": True, **map_info, "emulator_error": st.get("emulator_error")}
+    said |= {"state": st["state"], "stopped_by": st["stopped_by"]}  # how the chain goes on
     said |= st.get("fit") or {}  # the MAP's χ², its place in the prior, the priors' say
     for line in _cautions(said):  # acceptance said above
         caution(line)

@@ -99,10 +99,11 @@ def diagnostics(
         "tau_reliable": bool(np.all(len(kept) >= tau_multiple * tau)),
     }
     if accepted is not None:
-        acc = np.asarray(accepted, float) / max(n, 1)
+        # No step yet (a run read before its first step): no acceptance to judge, not a rate of 0.
+        acc = np.asarray(accepted, float) / n if n else np.full(w, np.nan)
         out["acceptance"] = acc
         out["acceptance_mean"] = float(acc.mean())
-        out["acceptance_ok"] = bool(ACCEPTANCE_OK[0] <= acc.mean() <= ACCEPTANCE_OK[1])
+        out["acceptance_ok"] = not n or bool(ACCEPTANCE_OK[0] <= acc.mean() <= ACCEPTANCE_OK[1])
     return out
 
 
