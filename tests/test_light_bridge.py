@@ -229,3 +229,32 @@ def test_grazing_suns_and_the_leaf_boxs_corners_under_jit_and_eagerly():
             assert values[PARTS.index("incident_sky")].max() > 0
             np.testing.assert_array_equal(np.asarray(values_e), values)
             np.testing.assert_allclose(np.asarray(grad_e), grad, rtol=1e-12, atol=1e-12)
+
+
+def test_bridge_refuses_a_sun_beyond_the_zenith_and_a_bad_seed_by_name():
+    """Eagerly, a sun elevation outside [−90, 90] and a seed outside [0, 2³²) are the InputError
+    naming them, not 'INTERNAL: CpuCallback error' around the estimator's; a float seed (any
+    dtype but an integer's) is refused when traced, not truncated (1.5 rendered seed 1); a
+    traced sun beyond the zenith renders NaN, as a traced NaN does."""
+    import pytest
+
+    from lightfit.errors import InputError
+
+    g = build(Field(boundary="finite", n_plants=1, buffer_rows=1, seed=2))
+    ids = g.segments.loc[g.segments.measured, "segment_id"].to_numpy()[:3]
+    f = make_irradiance(FieldScene(g.mesh, Optics.preset("paper")), ids, samples=8, bounces=1)
+    leaf, sun = jnp.array([0.5, 0.5, 0.5]), jnp.array([40.0, 170.0])
+    for el in (95.0, -90.5):
+        with pytest.raises(InputError, match=r"sun_deg=.*elevation in \[−90, 90\]"):
+            f(leaf, jnp.array([el, 170.0]), 1)
+    for seed in (-1, 2**33):
+        with pytest.raises(InputError, match="seed"):
+            f(leaf, sun, seed)
+    for seed in (1.5, jnp.array(1.0), True):
+        with pytest.raises(InputError, match="seed of dtype"):
+            f(leaf, sun, seed)
+        with pytest.raises(InputError, match="seed of dtype"):
+            jax.jit(f)(leaf, sun, seed)
+    values, _ = jax.jit(f)(leaf, jnp.array([95.0, 170.0]), 1)
+    assert np.isnan(np.asarray(values)).all()
+    assert np.isfinite(np.asarray(f(leaf, jnp.array([90.0, 170.0]), 1)[0])).all()

@@ -46,6 +46,7 @@ from lightfit.light.estimator import (
     check_target_rse,
     checked_segment_ids,
 )
+from lightfit.light.keyed_random import check_seed
 from lightfit.light.scene import FieldScene
 from lightfit.light.sensors import DEFAULT_SENSOR_SAMPLES, Sensor, SensorEstimator
 
@@ -96,7 +97,7 @@ def make_irradiance(
 
     The returned function's arguments: ``leaf`` — (3,) specular, roughness, subsurface in
     [0, 1] (a value outside is clamped to it: the function is flat there, its gradient 0);
-    ``sun_deg`` — (2,) sun elevation and azimuth, degrees; ``seed`` — integer in [0, 2³²).
+    ``sun_deg`` — (2,) sun elevation in [−90, 90] and azimuth, degrees; ``seed`` — integer in [0, 2³²).
     Gradients flow to ``leaf`` only. Wrong shapes are refused when the function is traced.
     """
     ids = checked_segment_ids(segment_ids)
@@ -163,7 +164,9 @@ def make_irradiance(
         )
 
     def finite(leaf, sun_deg) -> bool:  # host arrays in a callback: a traced NaN (eager ones are refused)
-        return bool(np.isfinite(leaf).all() and np.isfinite(sun_deg).all())
+        # A traced sun beyond the zenith is no sun either: set_state's error would reach the
+        # caller wrapped as 'INTERNAL: CpuCallback error'.
+        return bool(np.isfinite(leaf).all() and np.isfinite(sun_deg).all() and abs(sun_deg[0]) <= 90)
 
     def forward_cb(leaf, sun_deg, seed):
         leaf, sun_deg, seed = _host(leaf, sun_deg, seed)
@@ -220,22 +223,34 @@ def make_irradiance(
         ):
             if jnp.shape(a) != shape:
                 raise InputError(f"{name} of shape {jnp.shape(a)}", parameter=name, expected=f"shape {shape}: {what}")
+        # A float seed was truncated by int() in the callback (1.5 rendered seed 1), a bool taken as 0/1.
+        if jnp.result_type(seed).kind not in "iu":
+            raise InputError(
+                f"seed of dtype {jnp.result_type(seed)}", parameter="seed", expected="an integer in [0, 2³²)"
+            )
 
-    def check_finite(leaf, sun_deg):
-        """Concrete (eager) values that are not finite, refused here: raised inside the callback the
+    def check_finite(leaf, sun_deg, seed):
+        """Concrete (eager) values that are not finite, a sun beyond the zenith (|elevation| > 90°) and a
+        seed outside [0, 2³²), refused here: raised inside the callback the
         error reached the caller as 'INTERNAL: CpuCallback error' (a review). Traced ones cannot be
         read: their render is NaN, and the model flags them (:func:`lightfit.model.parameters.outside_domain`)."""
         for name, a, what in (
             ("leaf", leaf, "finite (specular, roughness, subsurface)"),
-            ("sun_deg", sun_deg, "a finite (elevation, azimuth) in degrees"),
+            ("sun_deg", sun_deg, "a finite (elevation, azimuth) in degrees, elevation in [−90, 90]"),
         ):
-            if not isinstance(a, jax.core.Tracer) and not np.isfinite(np.asarray(a, dtype=np.float64)).all():
+            if isinstance(a, jax.core.Tracer):
+                continue
+            v = np.asarray(a, dtype=np.float64)
+            if not np.isfinite(v).all() or (name == "sun_deg" and abs(v[0]) > 90):
                 raise InputError(f"{name}={np.asarray(a).tolist()}", parameter=name, expected=what)
+        # Likewise a concrete seed outside [0, 2³²), refused by the estimator inside the callback.
+        if not isinstance(seed, jax.core.Tracer):
+            check_seed(np.asarray(seed).item())
 
     @jax.custom_vjp
     def irradiance(leaf, sun_deg, seed):
         check_shapes(leaf, sun_deg, seed)
-        check_finite(leaf, sun_deg)
+        check_finite(leaf, sun_deg, seed)
         leaf = jnp.asarray(leaf)
         out = jax.ShapeDtypeStruct((len(PARTS), n_out), leaf.dtype)
         return jax.pure_callback(
