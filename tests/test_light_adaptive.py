@@ -476,3 +476,18 @@ def test_no_bias_line_for_a_canopy_that_took_up_nothing():
         attrs={"samples": 32, "direct": "projection"},
     )
     assert mc_bias_line(zero) == ""
+
+
+def test_adaptive_vjp_refuses_a_cotangent_of_the_wrong_shape_by_name(scene):
+    """AdaptiveEstimator.vjp checks its cotangent as SegmentEstimator.vjp does: a shape other than
+    (), (1,) or (S,) is the InputError naming the output, not numpy's broadcast error; a scalar
+    and a missing part give the gradient of the full arrays."""
+    fs, ids = scene
+    est = AdaptiveEstimator(fs, ids[:4], 0.3, bounces=1, seed=2, max_samples=64)
+    for bad in (np.ones(5), np.ones((2, 2))):
+        with pytest.raises(InputError, match=r"cotangent\['absorbed_sun'\] of shape"):
+            est.vjp({"absorbed_sun": bad})
+    with pytest.raises(InputError, match="unknown output"):
+        est.vjp({"bogus": np.ones(4)})
+    full = est.vjp({"absorbed_sun": np.ones(4), "incident_sky": np.zeros(4)})
+    assert est.vjp({"absorbed_sun": 1.0}) == pytest.approx(full, rel=1e-12)

@@ -1070,17 +1070,7 @@ class SegmentEstimator:
 
         mi = self.fs.mi
         S, K = len(self.segment_id), self.samples
-        unknown = set(cotangent) - set(PARTS)
-        if unknown:
-            raise InputError(f"unknown output(s) {sorted(unknown)}", parameter="cotangent", expected=", ".join(PARTS))
-        c = {}
-        for p in PARTS:
-            v = np.asarray(cotangent.get(p, 0.0), dtype=np.float64)
-            if v.shape not in ((), (1,), (S,)):  # numpy's broadcast error named no output
-                raise InputError(
-                    f"cotangent[{p!r}] of shape {v.shape}", parameter="cotangent", expected=f"a scalar or shape ({S},)"
-                )
-            c[p] = np.broadcast_to(v, (S,))
+        c = _checked_cotangent(cotangent, S)
         si = self._evaluations()[0] // dr.opaque(mi.UInt32, K)
         w = {p: dr.gather(mi.Float, owned(c[p] / K, mi.Float), si) for p in PARTS}
         # Differentiate with respect to per-lane copies of the parameters: the backward pass is
@@ -1104,6 +1094,23 @@ class SegmentEstimator:
                 setattr(bsdf, k, v)
         g = _projection_vjp(self._direct, c)
         return {k: grads[k] + g[k] for k in grads}
+
+
+def _checked_cotangent(cotangent: dict, S: int) -> dict[str, np.ndarray]:
+    """A vjp's ``cotangent`` as one (S,) float64 array per part (:data:`PARTS`; missing parts 0), or
+    :class:`InputError` naming the output of an unknown name or a shape other than (), (1,), (S,)."""
+    unknown = set(cotangent) - set(PARTS)
+    if unknown:
+        raise InputError(f"unknown output(s) {sorted(unknown)}", parameter="cotangent", expected=", ".join(PARTS))
+    c = {}
+    for p in PARTS:
+        v = np.asarray(cotangent.get(p, 0.0), dtype=np.float64)
+        if v.shape not in ((), (1,), (S,)):  # numpy's broadcast error named no output
+            raise InputError(
+                f"cotangent[{p!r}] of shape {v.shape}", parameter="cotangent", expected=f"a scalar or shape ({S},)"
+            )
+        c[p] = np.broadcast_to(v, (S,))
+    return c
 
 
 def _trim_suns(proj: DirectProjection | None, fs: FieldScene) -> None:
@@ -1515,12 +1522,11 @@ class AdaptiveEstimator:
 
     def vjp(self, cotangent: dict[str, np.ndarray]) -> dict[str, float]:
         """:meth:`SegmentEstimator.vjp`, summed over the groups."""
-        S = len(self.segment_id)
+        # Checked as SegmentEstimator.vjp checks it: a wrong shape stopped on numpy's broadcast error.
+        c = _checked_cotangent(cotangent, len(self.segment_id))
         out = dict.fromkeys(LEAF_PARAMETERS, 0.0)
         for i, est in self.groups:
-            c = {p: np.broadcast_to(np.asarray(v, dtype=np.float64), (S,))[i] for p, v in cotangent.items()}
-            for k, g in est.vjp(c).items():
+            for k, g in est.vjp({p: v[i] for p, v in c.items()}).items():
                 out[k] += g
-        c = {p: np.broadcast_to(np.asarray(cotangent.get(p, 0.0), dtype=np.float64), (S,)) for p in PARTS}
         g = _projection_vjp(self._direct, {p: np.where(self.projected, v, 0.0) for p, v in c.items()})
         return {k: out[k] + g[k] for k in out}
