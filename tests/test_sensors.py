@@ -344,3 +344,23 @@ def test_sensor_heights_are_refused_below_the_soil_and_averaged_over_placements(
         Sensor("buried", ((0.0, 0.0, -0.05),), ((0.8, 0.0, -0.05),))
     two = Sensor("two", ((0.0, 0.0, 0.2), (0.0, 1.0, 0.4)), ((0.8, 0.0, 0.2), (0.8, 1.0, 0.4)))
     assert two.height_m == pytest.approx(0.3, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "kw, name",
+    [
+        (dict(placements=True), "placements"),
+        (dict(placements=2.0), "placements"),
+        (dict(length_m="0.8"), "length_m"),
+        (dict(length_m=math.inf), "length_m"),
+        (dict(height_m=-0.1), "height_m"),
+        (dict(height_m=math.nan), "height_m"),
+        (dict(height_m="1"), "height_m"),
+    ],
+)
+def test_ceptometer_arguments_are_refused_by_name(kw, name):
+    """A bad ceptometer argument is the InputError naming it: placements=True stopped on a numpy
+    TypeError, a text length or height on Python's, and a negative or NaN height was blamed on
+    'sensors' (the end points) instead of height_m."""
+    with pytest.raises(InputError, match=f"parameter '{name}'"):
+        ceptometer(CELL, **kw)

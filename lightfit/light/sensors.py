@@ -31,13 +31,12 @@ shadow and scatter nothing.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer, check_real
 from lightfit.light.backend import owned
 from lightfit.light.estimator import DEFAULT_BOUNCES, SegmentEstimator
 from lightfit.light.scene import RAY_OFFSET_M, FieldScene
@@ -125,10 +124,11 @@ def ceptometer(
             on the measured plants; a periodic one wraps and needs no clipping).
         name: the sensor's name.
     """
-    if not (isinstance(placements, (int, np.integer)) and placements >= 1):
-        raise InputError(f"placements={placements!r}", parameter="placements", expected="an integer ≥ 1")
-    if not (math.isfinite(length_m) and length_m >= 0):
-        raise InputError(f"length_m={length_m!r}", parameter="length_m", expected="a bar length ≥ 0 m")
+    # check_integer and check_real: placements=True stopped on a numpy TypeError, a text length or
+    # height on Python's, and a negative or NaN height was blamed on "sensors".
+    placements = check_integer(placements, "placements", 1, expected="an integer ≥ 1")
+    length_m = check_real(length_m, "length_m", 0.0, expected="a bar length ≥ 0 m")
+    height_m = check_real(height_m, "height_m", 0.0, expected="a height ≥ 0 m (0: on the soil)")
     A, B = area.size_m
     half = 0.5 * (min(length_m, B) if clip else length_m)
     k = np.arange(placements)
