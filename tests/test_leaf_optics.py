@@ -300,3 +300,16 @@ def test_a_given_chlorophyll_is_the_leaf_the_run_makes_and_records():
     cfg = ReplicationConfig(chlorophyll_ug_cm2=36.4)
     assert cfg.effective()["chlorophyll_ug_cm2"] == 36.4
     assert cfg.leaf_optics() == Optics.from_traits(leaf_traits("prospect", 36.4), soil_albedo=cfg.soil_albedo)
+
+
+def test_traits_without_absorbers_are_refused_by_name():
+    """A leaf without absorbers (every pigment, water and dry matter 0, each inside its range) has
+    PROSPECT-D's R + T = 1, which the diffuse lobe reproduces only with a base colour of 1.005 beside
+    the default glossy lobe: Optics.from_traits then refused 'base_color', a parameter the user never
+    gave (a review). Refused here naming the traits; a leaf that absorbs a little still maps."""
+    bare = LeafTraits(Cab=0.0, Car=0.0, Anth=0.0, Cw=0.0, Cm=0.0)
+    with pytest.raises(InputError, match="absorbs") as e:
+        Optics.from_traits(bare)
+    assert e.value.parameter == "traits"
+    leaf = leaf_bsdf_parameters(LeafTraits(Cab=0.5, Car=0.0, Anth=0.0, Cw=0.0, Cm=0.0))
+    assert 0.9 < leaf["base_color"] < 1

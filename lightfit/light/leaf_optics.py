@@ -207,11 +207,19 @@ def leaf_bsdf_parameters(
             parameter="specular",
             expected="a smaller specular for these traits",
         )
+    base_color = diffuse / (1.0 - f0)
+    if base_color > 1:  # Optics would refuse a base_color the user never gave (a review)
+        raise InputError(
+            f"leaf traits {traits}: PROSPECT-D's PAR R + T = {par.R + par.T:.4f}, a leaf that absorbs (almost) "
+            f"nothing, which the BSDF's diffuse lobe (base colour ≤ 1) cannot reproduce beside specular={specular!r}",
+            parameter="traits",
+            expected="traits with some absorption in PAR (e.g. Cab ≥ 0.5 µg cm⁻²)",
+        )
     return {
         "specular": float(specular),
         "roughness": float(roughness),
         "subsurface": float(par.T / diffuse),
-        "base_color": float(diffuse / (1.0 - f0)),
+        "base_color": float(base_color),
     }
 
 
