@@ -1591,3 +1591,21 @@ def test_a_stored_runs_samples_leave_out_its_own_rules_burn_in(tmp_path):
     # an explicit burn-in, and a bare chain, as before
     np.testing.assert_array_equal(P.flat_samples(run, 0.25), chain[30:].reshape(-1, 3))
     np.testing.assert_array_equal(P.flat_samples({"chain": chain}), chain[30:].reshape(-1, 3))
+
+
+@pytest.mark.parametrize("scale", ["log", "natural"])
+def test_the_identifiability_datasets_name_the_coordinates_they_are_in(tmp_path, scale):
+    """identifiability() works in the parameters themselves where the MAP sits on a zero bound
+    (scale "natural", e.g. --priors wide with specular at 0); the run file's long_name said
+    "log-parameter space" for the Fisher matrix, its eigenvectors and the profile's t and direction
+    whatever the group's scale attribute said."""
+    import h5py
+
+    from lightfit.inference.mcmc.backend import write_group
+
+    group = {"matrix": np.eye(2), "eigenvectors": np.eye(2), "scale": scale}
+    write_group(tmp_path / "run.h5", "analysis", {"fisher": group, "profile": {"t": np.zeros(3), "scale": scale}})
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        names = [f[f"analysis/{k}"].attrs["long_name"] for k in ("fisher/matrix", "fisher/eigenvectors", "profile/t")]
+    assert all(("log-parameter space" in n) == (scale == "log") for n in names), names
+    assert names[0].endswith("(d log theta)" if scale == "log" else "(d theta)"), names[0]

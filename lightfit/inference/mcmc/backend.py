@@ -111,8 +111,10 @@ DESCRIPTIONS = {
 }
 
 
-def describe(dataset) -> None:
-    """Set a dataset's ``units`` and ``long_name`` from :data:`DESCRIPTIONS` or the results schema."""
+def describe(dataset, scale: str = "log") -> None:
+    """Set a dataset's ``units`` and ``long_name`` from :data:`DESCRIPTIONS` or the results schema;
+    ``scale``: the coordinates of an identifiability group (``"natural"``: the parameters themselves,
+    where the MAP sits on a zero bound, :func:`lightfit.inference.posterior.identifiability`)."""
     from lightfit.model import schema
 
     name = dataset.name.rsplit("/", 1)[-1]
@@ -122,6 +124,9 @@ def describe(dataset) -> None:
         units, long_name = DESCRIPTIONS[name]
     else:
         return
+    if scale == "natural":
+        long_name = long_name.replace("log-parameter space (d log theta)", "parameter space (d theta)")
+        long_name = long_name.replace("log-parameter space", "parameter space")
     dataset.attrs["units"], dataset.attrs["long_name"] = units, long_name
 
 
@@ -360,7 +365,7 @@ def _write(g, data: dict):
         if isinstance(v, dict):
             _write(g.create_group(k), v)
         elif isinstance(v, np.ndarray) and v.dtype.kind in "fiub":
-            describe(g.create_dataset(k, data=v))
+            describe(g.create_dataset(k, data=v), data.get("scale", "log"))
         else:
             g.attrs[k] = json.dumps(jsonable(v))
 
