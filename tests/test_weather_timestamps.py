@@ -111,6 +111,8 @@ def test_lightfit_csv_carries_the_convention(tmp_path):
         ({"time_label": "end"}, "averaging_interval"),
         ({"time_label": "end", "averaging_interval": "ten minutes"}, "averaging_interval: ten minutes"),
         ({"time_label": "instant", "averaging_interval": "10min"}, "averaging_interval"),
+        # NaT compared False with 0: the file was read, and every mean went to one step's centre
+        ({"time_label": "end", "averaging_interval": "nan"}, "averaging_interval"),
     ],
 )
 def test_bad_metadata_names_the_file_and_key(tmp_path, meta, match):
@@ -291,6 +293,12 @@ def test_observations_file_carries_its_time_label(tmp_path):
     with pytest.raises(InputError, match="middle") as e:
         read_observations(bad)
     assert "bad.csv" in str(e.value.file) and e.value.column == "time_label"
+    # an interval that is no duration ('nan' reads as NaT): both readings went to the first of the run's
+    # steps, averaged into one observation, without a word
+    bad.write_text("# time_label: start\n# averaging_interval: nan\n" + plain.read_text(encoding="utf-8"))
+    with pytest.raises(InputError, match="averaging interval NaT") as e:
+        read_observations(bad)
+    assert "bad.csv" in str(e.value.file) and e.value.column == "averaging_interval"
 
 
 class _Day:

@@ -49,7 +49,7 @@ class Timestamps:
             )
         if self.interval is not None:
             iv = pd.Timedelta(self.interval)
-            if iv <= pd.Timedelta(0):
+            if pd.isna(iv) or iv <= pd.Timedelta(0):  # NaT ('nan', 'NaT') compares False: every mean at one step
                 raise InputError(f"averaging interval {self.interval}", column="averaging_interval", expected="> 0")
             object.__setattr__(self, "interval", iv)
 
