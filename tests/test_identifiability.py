@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lightfit.inference.identifiability import profile_likelihood
+from lightfit.inference.identifiability import offsets_in_box, profile_likelihood
 
 
 def test_the_profile_is_infinite_where_no_allowed_point_exists():
@@ -248,3 +248,27 @@ def test_the_profile_slides_along_a_face_of_the_box_to_its_minimum():
         box=(np.zeros(3), np.ones(3)),
     )
     np.testing.assert_allclose(prof, 5.0 + ts**2, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("kw", "parameter"),
+    [
+        ({"scale": "LOG"}, "scale"),  # was taken for "natural" without a word
+        ({"direction": [0.0, 0.0]}, "direction"),  # a profile of NaN
+        ({"direction": [1.0, 0.0, 0.0]}, "direction"),  # JAX's broadcast TypeError
+        ({"x_hat": [np.nan, 1.0]}, "x_hat"),
+        ({"x_hat": [0.0, 1.0], "scale": "log"}, "x_hat"),
+        ({"ts": [0.0, np.nan]}, "ts"),  # a profile of NaN
+    ],
+)
+def test_the_profile_refuses_a_line_it_cannot_follow_by_name(kw, parameter):
+    from lightfit.errors import InputError
+
+    args = {"x_hat": [1.0, 1.0], "direction": [1.0, 0.0], "ts": [0.0, 0.1], "scale": "natural"} | kw
+    with pytest.raises(InputError) as e:
+        profile_likelihood(lambda x: (x**2).sum(), args["x_hat"], args["direction"], args["ts"], scale=args["scale"])
+    assert e.value.parameter == parameter
+    if parameter in ("scale", "direction", "x_hat"):
+        with pytest.raises(InputError) as e:
+            offsets_in_box(args["x_hat"], args["direction"], (0.0, 2.0), scale=args["scale"])
+        assert e.value.parameter == parameter

@@ -93,6 +93,30 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     return FisherResult(names, x0, scale, F, lam[order], vec[:, order])
 
 
+def _checked_line(x_hat, direction, scale: str) -> tuple[np.ndarray, np.ndarray]:
+    """``x_hat`` and the unit ``direction`` as float arrays, or :class:`InputError`: a scale other than
+    "log" and "natural" (it was taken for "natural" unsaid), a point that is not finite (or not > 0
+    in log coordinates), a direction of another length (JAX's broadcast error), zero or not finite
+    (a profile of NaN)."""
+    if scale not in ("log", "natural"):
+        raise InputError(f"scale={scale!r}", parameter="scale", expected="'log' or 'natural'")
+    x_hat = np.asarray(x_hat, float)
+    d = np.asarray(direction, float)
+    if x_hat.ndim != 1 or not np.all(np.isfinite(x_hat)) or (scale == "log" and np.any(x_hat <= 0)):
+        raise InputError(
+            f"x_hat={x_hat.tolist()}",
+            parameter="x_hat",
+            expected="a vector of finite values" + (", each > 0 for scale='log'" if scale == "log" else ""),
+        )
+    if d.shape != x_hat.shape or not np.all(np.isfinite(d)) or not np.any(d != 0):
+        raise InputError(
+            f"direction={d.tolist()}",
+            parameter="direction",
+            expected=f"{len(x_hat)} finite values, not all 0 (one per parameter of x_hat)",
+        )
+    return x_hat, d / np.linalg.norm(d)
+
+
 def _box(box, shape, scale: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``box`` (``(lo, hi)`` in the parameters' units) broadcast to ``shape``: its bounds in x and in
     u (log x or x; a bound at 0 is −∞ in log x)."""
@@ -107,9 +131,7 @@ def offsets_in_box(x_hat, direction, box, scale: str = "log") -> tuple[float, fl
     ``box`` (``(lo, hi)`` in the parameters' units, ±∞ where unbounded; u = log x or x, d the unit
     ``direction``): :math:`[\sum_i \min(d_i l_i, d_i h_i),\ \sum_i \max(d_i l_i, d_i h_i)] - d\cdot\hat u`
     over the box's bounds l, h in u. Outside it the profile is +∞ (no point of the box to optimise)."""
-    d = np.asarray(direction, float)
-    d = d / np.linalg.norm(d)
-    x_hat = np.asarray(x_hat, float)
+    x_hat, d = _checked_line(x_hat, direction, scale)
     _, _, lo_u, hi_u = _box(box, x_hat.shape, scale)
     with np.errstate(invalid="ignore"):  # 0 · ∞, taken out below
         a, b = d * lo_u, d * hi_u
@@ -138,15 +160,15 @@ def profile_likelihood(
     """
     from scipy.optimize import minimize
 
-    x_hat = np.asarray(x_hat, float)
-    d = np.asarray(direction, float)
-    d = d / np.linalg.norm(d)
+    x_hat, d = _checked_line(x_hat, direction, scale)
     u0 = np.log(x_hat) if scale == "log" else x_hat
     to_x = (lambda u: jnp.exp(u)) if scale == "log" else (lambda u: u)
     # orthonormal basis of the complement of d
     q, _ = np.linalg.qr(np.column_stack([d, np.eye(len(d))]))
     basis = q[:, 1 : len(d)]
     ts = np.asarray(ts, float)
+    if ts.ndim != 1 or not np.all(np.isfinite(ts)):
+        raise InputError(f"ts={ts.tolist()}", parameter="ts", expected="a vector of finite offsets")
     if box is not None:
         lo, hi, lo_u, hi_u = _box(box, x_hat.shape, scale)
         width = hi_u - lo_u
