@@ -272,3 +272,15 @@ def test_the_profile_refuses_a_line_it_cannot_follow_by_name(kw, parameter):
         with pytest.raises(InputError) as e:
             offsets_in_box(args["x_hat"], args["direction"], (0.0, 2.0), scale=args["scale"])
         assert e.value.parameter == parameter
+
+
+@pytest.mark.parametrize("scale", ["log", "natural"])
+def test_fisher_refuses_a_value_that_is_not_finite(scale):
+    """NaN passed the log scale's "> 0" test (NaN ≤ 0 is False), and the natural scale took it as
+    given: a Fisher matrix and eigenvalues of NaN, unsaid."""
+    from lightfit.errors import InputError
+    from lightfit.inference.identifiability import fisher_information
+
+    with pytest.raises(InputError, match=r"non-finite value\(s\) of \['b'\]") as e:
+        fisher_information(lambda x: x * 2.0, np.array([1.0, np.nan]), ("a", "b"), scale=scale)
+    assert e.value.parameter == "x0"

@@ -77,6 +77,9 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     names = tuple(names)
     if x0.shape != (len(names),):
         raise InputError(f"x0 shape {x0.shape}", parameter="x0", expected=f"({len(names)},) — one value per name")
+    if not np.all(np.isfinite(x0)):  # NaN passed the log scale's "> 0" test: a Fisher matrix of NaN
+        bad = [n for n, v in zip(names, x0) if not np.isfinite(v)]
+        raise InputError(f"non-finite value(s) of {bad}", parameter="x0", expected="finite values")
     if scale == "log":
         if np.any(x0 <= 0):
             bad = [n for n, v in zip(names, x0) if v <= 0]
