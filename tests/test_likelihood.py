@@ -171,8 +171,9 @@ def test_finite_at_extremes_and_gradient_matches_differences(jit):
 
 def test_bad_correlation_and_scale_are_refused():
     obs, _, corr = _problem()
-    with pytest.raises(InputError, match="mc_scale"):
-        GaussianLikelihood(obs, TIMES, ("an",), mc_scale=-1.0)
+    for bad in (-1.0, float("nan"), "2", None, True):  # "2", None: numpy's TypeError; True: read as 1
+        with pytest.raises(InputError, match="mc_scale"):
+            GaussianLikelihood(obs, TIMES, ("an",), mc_scale=bad)
     with pytest.raises(InputError, match="lacks series"):
         GaussianLikelihood(obs, TIMES, ("an",), mc_correlation=dataclasses.replace(corr, names=("plant_par", "nee")))
     with pytest.raises(InputError, match="steps"):

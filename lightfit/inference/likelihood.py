@@ -96,7 +96,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_real
 from lightfit.inference.observations import (
     ALIASES,
     BY_NAME,
@@ -321,8 +321,7 @@ class GaussianLikelihood:
             )
         if use is not None and (isinstance(use, str) or not tuple(use)):
             raise InputError(f"use={use!r}", parameter="use", expected="a non-empty sequence of " + ", ".join(USES))
-        if not (np.isfinite(mc_scale) and mc_scale >= 0):
-            raise InputError(f"mc_scale={mc_scale!r}", parameter="mc_scale", expected="a finite number ≥ 0")
+        mc_scale = check_real(mc_scale, "mc_scale", 0.0, expected="a finite number ≥ 0")  # "2": numpy's TypeError
         use = resolve_use(use, obs)  # a series the observations lack refused
         check_sds(obs)
         self.stamps = stamps
