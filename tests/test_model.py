@@ -524,6 +524,24 @@ def test_build_emulator_refuses_a_bad_design_size_before_rendering(model):
     assert E.COUNTS == before
 
 
+def test_emulator_refuses_extra_points_outside_its_box_and_renders_that_are_not_finite(model):
+    """Two silent paths (a review): extra design points outside the box were rendered and fitted,
+    bending the polynomial towards where it is never evaluated; a NaN render made every degree's
+    leave-one-out RMS NaN and the first degree was kept. Both are refused by name, before any
+    render for the extra points."""
+    before = dict(E.COUNTS)
+    for bad in ([[0.5, 0.5, 1.2]], [[0.5, np.nan, 0.5]], [[0.5, 0.5]]):
+        with pytest.raises(InputError, match="parameter 'extra'"):
+            E.build_emulator(model, (0.2, 0.2, 0.2), (0.8, 0.8, 0.8), n_design=5, degrees=(1,), extra=bad)
+    assert E.COUNTS == before
+    design = E.sobol_design(8, np.zeros(3), np.ones(3), 0)
+    v = np.ones((8, 2)) + design[:, :1]
+    E.fit_emulator(design, v, 0.01 * v, [0, 0, 0], [1, 1, 1], degrees=(1,))  # finite: fitted
+    v[3, 1] = np.nan
+    with pytest.raises(InputError, match=r"1 design render\(s\) not finite, the first at point 3"):
+        E.fit_emulator(design, v, 0.01 * np.ones_like(v), [0, 0, 0], [1, 1, 1], degrees=(1,))
+
+
 def test_every_variables_units_are_the_unit_its_name_carries():
     """A variable's name ends in its unit (``_umol_m2_s`` …), written out here as UDUNITS strings; the
     fractions and their SDs are dimensionless. The results' own check compares attributes with the

@@ -425,6 +425,14 @@ def fit_emulator(
     n = len(design)
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     y = np.asarray(values).reshape(n, -1)
+    bad = ~(np.isfinite(y).all(1) & np.isfinite(np.asarray(se).reshape(n, -1)).all(1))
+    if bad.any():  # every leave-one-out RMS was NaN and the first degree was kept unsaid (a review)
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"{int(bad.sum())} design render(s) not finite, the first at point {i} {design[i].tolist()}",
+            parameter="values",
+            expected="finite rendered parts and SEs at every design point",
+        )
     u = 2.0 * (design - lo) / (hi - lo) - 1.0
     loo, best = {}, None
     for d in degrees:
@@ -449,6 +457,26 @@ def fit_emulator(
     cv = (pinv @ y).reshape((-1,) + shape)
     cs = (pinv @ np.asarray(se).reshape(n, -1)).reshape((-1,) + shape)
     return PartsEmulator(lo, hi, best, cv, cs, design, loo, render_seconds, render_seed)
+
+
+def checked_extra(extra, lo, hi) -> np.ndarray:
+    """``extra`` design points as an (m, 3) float array, each inside the box [lo, hi], else
+    :class:`InputError` naming ``extra``: a point outside was rendered and fitted, bending the
+    polynomial to a place it is never evaluated (a review)."""
+    try:
+        x = np.asarray(extra, float).reshape(-1, 3)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"extra of shape {np.shape(extra)}", parameter="extra", expected="(m, 3) leaf parameters"
+        ) from None
+    out = ~(np.isfinite(x) & (x >= lo) & (x <= hi)).all(1)
+    if out.any():
+        raise InputError(
+            f"extra point {x[out][0].tolist()}",
+            parameter="extra",
+            expected=f"inside the emulator's box [{lo.tolist()}, {hi.tolist()}]",
+        )
+    return x
 
 
 def build_emulator(
@@ -482,7 +510,7 @@ def build_emulator(
     n_design = check_design_size(n_design)
     design = sobol_design(n_design, lo, hi, seed)
     if extra is not None and len(extra):
-        design = np.concatenate([design, np.asarray(extra, float).reshape(-1, 3)])
+        design = np.concatenate([design, checked_extra(extra, lo, hi)])
     rkey = render_key(model) if cache is not None else None
     if render_points is not None:
         if cache is None:
