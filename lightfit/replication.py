@@ -41,6 +41,7 @@ from lightfit.inference.likelihood import GaussianLikelihood, resolve_use
 from lightfit.inference.observations import (
     SERIES,
     align,
+    check_an_area,
     check_light_scale,
     check_sds,
     read_observations,
@@ -775,6 +776,8 @@ def run(
     w = forcing_of(cfg, weather_file) if forcing_df is None else forcing_df
     check_growth_temperatures(cfg, w)
     obs = observations_for(w, observations)
+    if obs is not None:
+        check_an_area(obs, cfg.an_per)
     by_day = days(cfg, w)
     if not by_day:
         raise InputError(

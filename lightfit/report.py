@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from lightfit.defaults import MAX_ADAPTIVE_SAMPLES
 from lightfit.figure import clock_axis
 from lightfit.photosynthesis.canopy import PROFILES
 from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
@@ -39,7 +40,7 @@ def summary(ds) -> pd.DataFrame:
     light_limited = np.where((lim >= 0).any(1), (lim == 1).sum(1) / np.maximum((lim >= 0).sum(1), 1), np.nan)
     return pd.DataFrame(
         {
-            "local_time": local_clock(t, _tz(ds)),
+            "local_time": local_clock(t, site_timezone(ds)),
             "sun_elevation_deg": ds["sun_elevation_deg"].values,
             **{k: ds[k].values for k in SUMMARY_COLUMNS if k in ds},
             "frac_light_limited": light_limited,
@@ -61,6 +62,19 @@ def _plants(attrs):
         return n
 
 
+def samples_label(samples: int, target_rse: float | None, max_samples: int | None = None) -> str:
+    """What a run says about its samples: ``K=32``, or an adaptive run's target and the range of K
+    per segment (its pilot and the cap ``max_samples``, default
+    :data:`~lightfit.defaults.MAX_ADAPTIVE_SAMPLES`, as ``make_irradiance`` takes them)."""
+    from lightfit.light.estimator import adaptive_pilot
+
+    if target_rse is None:
+        return f"K={samples}"
+    pilot = adaptive_pilot(samples)
+    cap = MAX_ADAPTIVE_SAMPLES if max_samples is None else int(max_samples)
+    return f"target {target_rse:.3g} (K from {pilot} to {max(cap, pilot)} per segment)"
+
+
 def summary_metadata(ds) -> dict[str, str]:
     """The ``# key: value`` header of a results folder's summary.csv: that it is model output, the
     forcing's and the observations' provenance and files, the preset and any θ given, site, window and field, and
@@ -68,7 +82,9 @@ def summary_metadata(ds) -> dict[str, str]:
     pass for numbers from measured weather (data honesty: a reconstructed forcing says so here)."""
     a = ds.attrs
     field = f"{_plants(a)} plants, {a.get('boundary')} boundary"
-    field += f", K = {a.get('samples')}, {a.get('bounces')} bounces"
+    # an adaptive run's K is per segment: its target said, not the pilot's base K (a review)
+    k = samples_label(a.get("samples"), a.get("target_rse"), a.get("max_samples"))
+    field += f", {k}, {a.get('bounces')} bounces"
     meta = {
         "content": "lightfit model output, one row per time step (units in the column names)",
         "forcing_provenance": a.get("weather_provenance", "unstated"),
@@ -79,7 +95,7 @@ def summary_metadata(ds) -> dict[str, str]:
         "theta_given": a.get("theta_given"),  # --theta: the leaf and scales are not the preset's
         "site": a.get("site"),
         "window": a.get("window"),
-        "local_time": f"the site's clock, HH:MM in {_tz(ds)} (time_utc is UTC)",
+        "local_time": f"the site's clock, HH:MM in {site_timezone(ds)} (time_utc is UTC)",
         "field": field,
         "software_versions": a.get("software_versions"),
         "settings": "every setting is an attribute of results.nc beside this file",
@@ -118,7 +134,7 @@ def fit_text(fit: pd.DataFrame) -> str:
     )
 
 
-def _tz(ds) -> str:
+def site_timezone(ds) -> str:
     """The run's local time zone (results attr ``site_timezone``; Selhausen's before sites were options)."""
     from lightfit.weather.site import Site
 
@@ -202,7 +218,7 @@ def figure(ds, compare=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    tz = _tz(ds)
+    tz = site_timezone(ds)
 
     def local(d):  # aware: drawn at their instants, so a clock change neither folds nor gaps the axis
         return step_instants(d).tz_convert(tz)

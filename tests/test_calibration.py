@@ -421,6 +421,7 @@ class _FakeScenario:
 
     optics: object
     photosynthesis: str = "winter_wheat"
+    an_per: str = "ground"
     theta = property(lambda self: Theta.for_optics(self.optics))
 
 
@@ -991,6 +992,7 @@ def test_twin_noise_is_the_documented_draws_on_a_stand_in_model(monkeypatch):
     @dataclasses.dataclass(frozen=True)
     class Scenario:
         seed: int = 0
+        an_per: str = "ground"
 
     par = np.array([0.0, 0.2, 800.0, 1500.0, 0.0])
     an = np.array([-2.0, 5.0, 20.0, 25.0, -1.5])
@@ -1070,3 +1072,48 @@ def test_an_unconverged_calibration_is_told_what_helps():
     for failed in ("failed: line search", "unconverged: specular=0.5", "against unconverged: specular=0.9"):
         said = unconverged_remedy(failed)
         assert "stop the same way" in said and "--no-resume" in said and "rerun with a larger" not in said
+
+
+def test_canopy_an_per_another_area_than_the_run_is_refused(tmp_path):
+    """A chamber's canopy An is per ground area; with --an-per leaf the model's is per leaf area,
+    ≈ LAI × smaller, and the two were compared as they stood (a review). A file now says its area
+    (`# canopy_an_per: leaf`; ground where unsaid), written back as read, and a likelihood or
+    log-posterior of a model whose an_per differs is refused naming the file and column."""
+    from lightfit.inference.likelihood import GaussianLikelihood
+    from lightfit.inference.mcmc.log_posterior import LogPosterior
+    from lightfit.inference.observations import check_an_area
+
+    times = pd.date_range("2016-04-20 09:00", periods=3, freq="30min", tz="UTC")
+    an = {"canopy_an_umol_m2_s": [2.0, 3.0, 4.0], "canopy_an_sd_umol_m2_s": [0.5, 0.5, 0.5]}
+    df = pd.DataFrame(an, index=times)
+    ground = read_observations(write_observations(df, tmp_path / "ground.csv", {"provenance": "synthetic"}))
+    assert (
+        ground.attrs["canopy_an_per"] == "ground" and "# canopy_an_per: ground" in (tmp_path / "ground.csv").read_text()
+    )
+    df.attrs["canopy_an_per"] = "leaf"
+    leaf = read_observations(write_observations(df, tmp_path / "leaf.csv", {"provenance": "synthetic"}))
+    assert leaf.attrs["canopy_an_per"] == "leaf"
+    check_an_area(leaf, "leaf")
+    check_an_area(ground, "ground")
+    with pytest.raises(InputError, match="canopy An per ground area") as e:
+        check_an_area(ground, "leaf")
+    assert (
+        e.value.column == "canopy_an_umol_m2_s" and "ground.csv" in str(e.value) and "--an-per ground" in str(e.value)
+    )
+    unsaid = (tmp_path / "ground.csv").read_text().replace("# canopy_an_per: ground\n", "")
+    (tmp_path / "unsaid.csv").write_text(unsaid)
+    with pytest.raises(InputError, match="unsaid"):
+        check_an_area(read_observations(tmp_path / "unsaid.csv"), "leaf")
+    par_only = pd.DataFrame({"plant_par_umol_m2_s": [1.0], "plant_par_sd_umol_m2_s": [0.1]}, index=times[:1])
+    check_an_area(par_only, "leaf")  # no canopy An reading: nothing to compare per an area
+    (tmp_path / "bad.csv").write_text(unsaid.replace("# provenance", "# canopy_an_per: plant\n# provenance"))
+    with pytest.raises(InputError, match="plant") as e:
+        read_observations(tmp_path / "bad.csv")
+    assert e.value.column == "canopy_an_per"
+    model = SimpleNamespace(scenario=SimpleNamespace(an_per="leaf"), times=times, timestamps=None, step=None)
+    for build in (
+        lambda: GaussianLikelihood.of_model(model, ground),
+        lambda: LogPosterior.of_model(lambda th: {}, model, ground, ["specular"]),
+    ):
+        with pytest.raises(InputError, match="per leaf area"):
+            build()

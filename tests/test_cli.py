@@ -1484,11 +1484,21 @@ def test_multiline_library_errors_print_as_one_line(tmp_path):
 def test_banners_name_an_adaptive_runs_target_and_k_range():
     """replicate's and field-run's banner: a fixed K, or the target with the pilot raised to 32 and
     the cap (the estimator's; field-run said K=16 under --quick --target-rse)."""
-    from lightfit.cli.common import samples_label
+    from lightfit.report import samples_label
 
     assert samples_label(16, None) == "K=16"
     assert samples_label(16, 0.1) == "target 0.1 (K from 32 to 8192 per segment)"
     assert samples_label(16384, 0.05) == "target 0.05 (K from 16384 to 16384 per segment)"
+    # summary.csv's header said "K = 16" of an adaptive run (the pilot's base; a review): its target
+    # and the cap the results file records
+    import xarray as xr
+
+    from lightfit.report import summary_metadata
+
+    a = {"samples": 16, "bounces": 2, "n_plants": 9, "boundary": "periodic"}
+    adaptive = summary_metadata(xr.Dataset(attrs=a | {"target_rse": 0.05, "max_samples": 4096}))["field"]
+    assert adaptive == "9 plants, periodic boundary, target 0.05 (K from 32 to 4096 per segment), 2 bounces"
+    assert summary_metadata(xr.Dataset(attrs=a))["field"] == "9 plants, periodic boundary, K=16, 2 bounces"
 
 
 def test_field_run_records_where_and_when_as_replicate_does(tmp_path):
@@ -1783,6 +1793,16 @@ def test_an_per_leaf_is_named_in_the_caption_and_the_summary_file(tmp_path):
         fapar, an = rows[row["local_time"]][6:8]
         assert re.fullmatch(r"\d\.\d\d", fapar) and abs(float(fapar) - row["fapar"]) <= 0.0051, (fapar, row)
         assert re.fullmatch(r"-?\d+\.\d", an) and abs(float(an) - row["canopy_an_per_leaf_area_umol_m2_s"]) <= 0.051, an
+
+
+def test_an_per_leaf_refuses_observations_of_canopy_an_per_ground_area_before_running(tmp_path):
+    """The bundled twin's canopy An is per ground area (its file unsaid: a chamber's area); with
+    --an-per leaf it met the model's per-leaf-area An unsaid (a review). Refused before plants grow."""
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    for cmd in (["replicate", "--observations", str(twin)], ["calibrate", str(twin)], ["posterior", str(twin)]):
+        r = runner.invoke(app, [*cmd, "--quick", "--an-per", "leaf", "--out", str(tmp_path / "o")])
+        assert_user_error(r, "twin_2016-04-20_synthetic.csv", "canopy An per ground area", "--an-per ground")
+        assert "running" not in _flat(r.stdout)
 
 
 def test_a_thinned_weather_table_says_so():
@@ -2484,3 +2504,17 @@ def test_fixed_prints_no_negative_zero_and_a_dash_for_no_number():
     assert [fixed(v, 1) for v in (-0.04, -0.06, 0.04, -12.345)] == ["0.0", "-0.1", "0.0", "-12.3"]
     assert fixed(-0.4, 0) == "0" and fixed(-0.6, 0) == "-1"
     assert fixed(float("nan"), 2) == fixed(float("inf"), 0) == "–"
+
+
+def test_printed_summary_of_several_days_says_each_days_date():
+    """With --date twice the printed table showed each day's local times again and nothing to tell
+    the days apart (the UTC date is in summary.csv's index only; a review). A row with the local date
+    now opens each day; one day's table is unchanged. 22:30 UTC is already the next day in Berlin."""
+    from lightfit.cli.replicate import summary_rows
+
+    t = pd.DatetimeIndex(["2016-04-20 10:00", "2016-04-20 22:30", "2016-04-21 10:00"], tz="UTC")
+    table = pd.DataFrame({"local_time": ["12:00", "00:30", "12:00"], "fapar": [0.9, 0.0, 0.91]}, index=t)
+    rows = summary_rows(table, "Europe/Berlin")
+    assert rows == [["20 Apr", ""], ["12:00", "0.90"], ["21 Apr", ""], ["00:30", "0.00"], ["12:00", "0.91"]]
+    assert summary_rows(table.iloc[:1], "Europe/Berlin") == [["12:00", "0.90"]]
+    assert summary_rows(table, "UTC")[3] == ["21 Apr", ""]  # the same instants, another day's bounds

@@ -672,6 +672,26 @@ def test_canopy_apar_and_fapar_are_absorbed_par_whatever_the_plant_par_kind():
     np.testing.assert_allclose(o["fapar_mc_sd"], [925.0**0.5 / 1500.0], rtol=1e-12)
 
 
+def test_without_a_ceptometer_its_observables_are_nan_at_night_too():
+    """With no ceptometer rendered (``sensors=()``) the schema says its observables are NaN; its
+    transmittance and fAPAR were NaN by day but 0 at night, the ratios' night convention of a sensor
+    that is there (a review). With one, night stays 0."""
+    area = np.array([0.1])
+    part = np.array([[500.0], [0.0]])
+    kw = dict(absorbed=part, absorbed_mc_sd=part / 50, ground_area_m2=0.2, above_par=np.array([1500.0, 0.0]))
+    o = O.observables(part, part / 50, area, np.array([[5.0], [-1.0]]), np.full((2, 1), 0.1), area, 0.2, **kw)
+    from lightfit.model.schema import SENSOR_OBSERVABLES
+
+    for key in SENSOR_OBSERVABLES:
+        assert np.isnan(o[key]).all(), (key, o[key])
+    seen = O.observables(
+        part, part / 50, area, np.array([[5.0], [-1.0]]), np.full((2, 1), 0.1), area, 0.2, **kw,
+        transmitted=np.array([150.0, 0.0]), transmitted_mc_sd=np.array([3.0, 0.0]),
+    )  # fmt: skip
+    np.testing.assert_allclose(seen["ceptometer_transmittance"], [0.1, 0.0])
+    np.testing.assert_allclose(seen["ceptometer_fapar"], [0.9, 0.0])
+
+
 def test_the_operator_on_a_two_segment_canopy_worked_by_hand():
     """The whole operator on hand-made light parts of one blade (0.1 m²) and one stem (0.3 m²) on
     0.4 m² of ground, with a linear leaf An = 0.02·q − 1.5 (dAn/dq = 0.02), so every observable is a

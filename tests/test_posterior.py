@@ -431,9 +431,11 @@ def test_profile_likelihood_stays_where_it_is_allowed():
 
 
 class _Scenario:
-    """The part of a Scenario the inference uses: its optics and their leaf defaults."""
+    """The part of a Scenario the inference uses: its optics and their leaf defaults, and the area
+    canopy An is per (the observations' must agree)."""
 
     theta = Scenario.theta  # the real property: Theta.for_optics(self.optics)
+    an_per = "ground"
 
     def __init__(self, optics):
         self.optics = optics

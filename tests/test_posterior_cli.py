@@ -320,7 +320,7 @@ def test_status_of_a_chain_too_short_for_its_diagnostics_prints_dashes_not_nan()
 
 def test_status_before_the_first_step_has_no_acceptance_to_judge():
     """A run read before its first step (posterior-status while it starts, a Ctrl-C during the first
-    step) read "acceptance 0.00 (outside 0.2–0.5)": 0 accepted of max(0, 1) steps. There is no rate
+    step) read "acceptance 0.00 (outside 0.1–0.8)": 0 accepted of max(0, 1) steps. There is no rate
     yet: NaN, not judged, printed as a dash."""
     from pathlib import Path
 

@@ -493,18 +493,6 @@ _SHORT = {
 _DIGITS = {"rh": 2, "tair_c": 1, "pair_kpa": 1}
 
 
-def samples_label(samples: int, target_rse: float | None) -> str:
-    """What a run's banner says about its samples: ``K=32``, or an adaptive run's target and the
-    range of K per segment (its pilot and the cap, as ``make_irradiance`` takes them)."""
-    from lightfit.defaults import MAX_ADAPTIVE_SAMPLES
-    from lightfit.light.estimator import adaptive_pilot
-
-    if target_rse is None:
-        return f"K={samples}"
-    pilot = adaptive_pilot(samples)
-    return f"target {target_rse:.3g} (K from {pilot} to {max(MAX_ADAPTIVE_SAMPLES, pilot)} per segment)"
-
-
 #: ``--priors``' help, shared by calibrate and posterior (the ranges: lightfit.inference.mcmc.priors,
 #: checked against it in tests/test_cli.py).
 PRIORS_HELP = (
@@ -632,10 +620,12 @@ def offset_line(obs, w) -> str:
 def observations_for_run(path, w, s):
     """The observations file at ``path`` read for a run of forcing ``w`` and settings ``s``: an SD
     given without its value cautioned (:func:`~lightfit.inference.observations.sd_without_value`),
-    then :func:`observations_within_steps`."""
-    from lightfit.inference.observations import read_observations, sd_without_value, short_rows
+    canopy An per another area than the run's refused before the plants grow
+    (:func:`~lightfit.inference.observations.check_an_area`), then :func:`observations_within_steps`."""
+    from lightfit.inference.observations import check_an_area, read_observations, sd_without_value, short_rows
 
     obs = read_observations(path)
+    check_an_area(obs, s.an_per)
     if alone := sd_without_value(obs):
         caution(alone)
     if short := short_rows(obs):

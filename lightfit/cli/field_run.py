@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import THETA_HELP, caution, console, parse_theta, samples_label, theta_cautions
+from lightfit.cli.common import THETA_HELP, caution, console, parse_theta, theta_cautions
 from lightfit.cli.options import DASK_PANEL as _DASK
 from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
 from lightfit.errors import InputError
@@ -55,7 +55,7 @@ def field_run(
     from lightfit.distributed.run import PARTS_SUFFIX, FieldRun, check_cluster_options, run_field
     from lightfit.distributed.tiles import HaloField
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
-    from lightfit.report import field_label
+    from lightfit.report import field_label, samples_label
 
     s = resolve(model)  # the model options' errors first (resolving the leaf may build its albedo table)
     out = check_netcdf_name(out)  # before any plant grows

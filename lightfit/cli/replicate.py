@@ -21,7 +21,6 @@ from lightfit.cli.common import (
     observations_lines,
     output_folder,
     parse_theta,
-    samples_label,
     soil_respiration_note,
     theta_cautions,
     weather_report,
@@ -44,6 +43,23 @@ SUMMARY_HEADS = {
     "frac_light_limited": ("light", 2),
     "unconverged_blades": ("nc", 0),
 }
+
+
+def summary_rows(table, tz: str) -> list[list[str]]:
+    """The printed rows of :func:`lightfit.report.summary`'s ``table``: its cells with the short
+    decimals of :data:`SUMMARY_HEADS`, and, where the steps span several local dates (``--date`` twice),
+    a row with the local date (``21 Apr``) before each day's first step: the local clock alone repeats
+    every day's times (the UTC date is in summary.csv's index only)."""
+    import pandas as pd
+
+    days = pd.DatetimeIndex(table.index).tz_convert(tz).date
+    dated = len(set(days)) > 1
+    rows = []
+    for i, (_, r) in enumerate(table.iterrows()):
+        if dated and (i == 0 or days[i] != days[i - 1]):
+            rows.append([f"{days[i]:%d %b}"] + [""] * (len(table.columns) - 1))
+        rows.append([_cell(r[c], SUMMARY_HEADS.get(c, (c, 3))[1]) for c in table.columns])
+    return rows
 
 
 def _cell(value, decimals: int | None) -> str:
@@ -81,7 +97,7 @@ def replicate(
     from lightfit import replication as rep
     from lightfit.inference.calibration import misfit
     from lightfit.inference.observations import observation_cautions, observed
-    from lightfit.report import field_label, observations_fit, summary
+    from lightfit.report import field_label, observations_fit, samples_label, site_timezone, summary
     from lightfit.weather.plot import provenance_label
 
     s = resolve(model)
@@ -158,8 +174,8 @@ def replicate(
     # keep all of them readable in an 80-column terminal.
     for c in table.columns:
         t.add_column(SUMMARY_HEADS.get(c, (c, 3))[0], justify="right")
-    for _, r in table.iterrows():
-        t.add_row(*(_cell(r[c], SUMMARY_HEADS.get(c, (c, 3))[1]) for c in table.columns))
+    for row in summary_rows(table, site_timezone(ds)):
+        t.add_row(*row)
     console.print(t)
     for line in (mc_bias_line(ds), edge_line(ds)):
         if line:

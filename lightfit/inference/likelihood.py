@@ -102,6 +102,7 @@ from lightfit.inference.observations import (
     BY_NAME,
     SERIES,
     align,
+    check_an_area,
     check_sds,
     dependencies,
     interpolation,
@@ -388,7 +389,10 @@ class GaussianLikelihood:
     def of_model(cls, model, obs: pd.DataFrame, use: Sequence[str] | None = None, **kw) -> GaussianLikelihood:
         """The likelihood of ``obs`` on ``model``'s steps: its ``times``, ``timestamps`` and forcing
         ``step`` (a :class:`~lightfit.model.coupled.CoupledModel`, one cut to its observed steps, or a
-        :class:`~lightfit.inference.multiday.MultiDayModel`); ``kw``: ``mc_correlation``, ``mc_scale``."""
+        :class:`~lightfit.inference.multiday.MultiDayModel`); ``kw``: ``mc_correlation``, ``mc_scale``.
+        Observations of canopy An per another area than the model's ``an_per`` are refused
+        (:func:`~lightfit.inference.observations.check_an_area`)."""
+        check_an_area(obs, model.scenario.an_per)
         return cls(obs, model.times, use, stamps=model.timestamps, step=model.step, **kw)
 
     def _interpolation_matrix(self, T: int) -> np.ndarray:

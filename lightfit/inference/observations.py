@@ -7,6 +7,7 @@ Format (UTF-8 CSV; ``#`` metadata lines first, ``provenance`` required)::
                                       time has no offset, and a time's offset must agree with it)
     # time_label: instant             (optional; or start / center / end of means)
     # averaging_interval: 30min       (with start / center / end: the means' interval)
+    # canopy_an_per: ground           (optional; or leaf: the area canopy An is per, as the run's an_per)
     time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s
     2016-04-20 12:13:48,1549.31,77.47
 
@@ -62,6 +63,10 @@ is one that straddles two steps' intervals: run the model at the observation's i
 model interpolated linearly in time between them (:func:`interpolation`, :func:`read_between`).
 Files with the names before issue 12 (``par_umol_m2_s`` …) and unknown columns are refused with
 a message naming the known columns.
+
+Area of canopy An. A chamber's canopy An is per ground area, which a file means by default; a
+``# canopy_an_per: leaf`` line says its values are per one-sided leaf area. A model run whose
+``an_per`` is the other area is refused (:func:`check_an_area`): at LAI 4 the two differ 4×.
 """
 
 from __future__ import annotations
@@ -77,6 +82,7 @@ import pandas as pd
 from lightfit.errors import InputError, listed
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
+from lightfit.model.scenario import CHOICES
 from lightfit.weather import timestamps
 from lightfit.weather.readers import (
     PROVENANCES,
@@ -245,6 +251,9 @@ MAX_FRACTION = 1.5
 #: (SD⁻², :func:`_per_step`) or a residual over it squared (the likelihood's χ²) leaves float64, and
 #: the reading became NaN and dropped out of the fit unsaid (a review: SD 1e200).
 SD_RANGE = (1e-100, 1e100)
+#: Metadata line naming the area canopy An is per (:func:`check_an_area`), and its values.
+AN_PER_KEY = "canopy_an_per"
+AN_AREAS = CHOICES["an_per"]
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
@@ -386,6 +395,11 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             raise InputError(e.problem, file=path, column="time_zone", expected=e.expected) from None
     tz = meta.get("time_zone")
     stamps = Timestamps.from_metadata(meta, path)
+    an_per = meta.get(AN_PER_KEY, "ground").strip().lower()
+    if an_per not in AN_AREAS:
+        raise InputError(
+            f"{AN_PER_KEY}: {meta[AN_PER_KEY]!r}", file=path, column=AN_PER_KEY, expected=" or ".join(AN_AREAS)
+        )
     line = df.attrs["lines"].to_numpy()  # each row's line in the file (blank lines skipped)
     out = pd.DataFrame(index=range(len(df)))
     out["time"] = parse_times(
@@ -437,6 +451,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     out = out.set_index(pd.DatetimeIndex(out.pop("time")).rename("time_utc")).sort_index(kind="stable")
     lines = out.pop("_line").to_numpy()
     out.attrs = {"provenance": meta["provenance"], "source": str(path), "metadata": meta, "timestamps": stamps}
+    out.attrs[AN_PER_KEY] = an_per
     # each row's line in the file, for errors found later (align); a tuple, as pandas compares attrs
     # with == (concat), which an array cannot answer
     out.attrs["lines"] = tuple(int(x) for x in lines)
@@ -468,6 +483,29 @@ def short_rows(obs: pd.DataFrame) -> str | None:
     )
 
 
+def an_area(obs: pd.DataFrame) -> str:
+    """The area ``obs``'s canopy An is per: ``"ground"`` or ``"leaf"`` (attrs ``canopy_an_per``, as
+    the file's ``# canopy_an_per:`` line says; ground where unsaid, as a chamber measures)."""
+    return obs.attrs.get(AN_PER_KEY, "ground")
+
+
+def check_an_area(obs: pd.DataFrame, an_per: str) -> None:
+    """Refuse observations whose canopy An is per another area than a run's ``an_per`` (``"ground"``
+    or ``"leaf"``): compared as they stand, a chamber's per-ground-area uptake met the model's per
+    leaf area, ≈ LAI × smaller, unsaid (a review)."""
+    col = BY_NAME["canopy_an"].value
+    if col in obs and obs[col].notna().any() and an_area(obs) != an_per:
+        raise InputError(
+            f"canopy An per {an_area(obs)} area (the file's {AN_PER_KEY}"
+            + (")" if AN_PER_KEY in obs.attrs.get("metadata", {}) else ", unsaid: a chamber's area)")
+            + f" against a run whose An is per {an_per} area",
+            file=obs.attrs.get("source"),
+            column=col,
+            expected=f"the run's --an-per {an_area(obs)}, or readings per {an_per} area with a "
+            f"'# {AN_PER_KEY}: {an_per}' line",
+        )
+
+
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
     """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance
     and the rows' time label (``attrs["timestamps"]``, instants where absent)."""
@@ -478,6 +516,8 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
     body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
     meta = {**metadata, "time_zone": "UTC", **timestamps.of(df).metadata()}
+    if BY_NAME["canopy_an"].value in body:
+        meta[AN_PER_KEY] = an_area(df)
     head = metadata_lines(meta)
     replace_text(path, head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"))
     return path

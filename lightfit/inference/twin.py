@@ -76,6 +76,7 @@ def twin_observations(
     df.attrs = {
         "timestamps": model.timestamps,  # the model's values at its steps: what its stamps label
         "provenance": "synthetic",
+        "canopy_an_per": model.scenario.an_per,  # the model's area, which the file then says
         "source": f"twin: theta={as_theta(theta).to_dict()}, render_seed={render_seed}, noise_seed={noise_seed}",
     }
     return df

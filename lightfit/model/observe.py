@@ -299,10 +299,11 @@ def observables(
     apar, apar_sd = canopy_apar(absorbed, absorbed_mc_sd, area_m2, ground_area_m2)
     fa, fa_sd = fapar(apar, apar_sd, above_par)
     nee, nee_sd = chamber_nee(an_ground, an_ground_sd, soil_respiration_umol_m2_s)
-    if transmitted is None:
-        transmitted = transmitted_mc_sd = xp.full_like(above_par, xp.nan)
-    tau, tau_sd = ceptometer_transmittance(transmitted, transmitted_mc_sd, above_par)
-    cf, cf_sd = ceptometer_fapar(tau, tau_sd, above_par)
+    if transmitted is None:  # no ceptometer: none of its readings, at night either (its 0 there is a convention)
+        transmitted = transmitted_mc_sd = tau = tau_sd = cf = cf_sd = xp.full_like(above_par, xp.nan)
+    else:
+        tau, tau_sd = ceptometer_transmittance(transmitted, transmitted_mc_sd, above_par)
+        cf, cf_sd = ceptometer_fapar(tau, tau_sd, above_par)
     values = (mean, spread, par_sd, can, can_sd, above_par, xp.zeros_like(above_par), apar, apar_sd, fa, fa_sd)
     values += (nee, nee_sd, transmitted, transmitted_mc_sd, tau, tau_sd, cf, cf_sd)
     return dict(zip(OBSERVABLES, values, strict=True))
@@ -365,12 +366,13 @@ def with_capacity(leaf: LeafPhotosynthesis, capacity, base: float | None = None)
     (:mod:`lightfit.photosynthesis.canopy`; ``None``: ``leaf`` itself).
 
     A leaf with every per-area rate and conductance (Vcmax, Jmax, Rd, g0, gm) times r at absorbed
-    PAR q is that leaf at q/r with its fluxes times r: An = r·A(q/r), dAn/dq = A'(q/r); gs, Vc, Vj
-    and Rd times r, ci, cs, cc and the limitation unchanged (exact with cs = ca, the coupled
-    model's leaf without a boundary layer). The base leaf has capacity m₀ = ``base`` (default the
-    blades' lowest; at most every blade's): the set's parameters scaled once, shared by all, so a
-    tabulated leaf still tabulates one leaf per step, and r = m/m₀ ≥ 1, so q/r ≤ q stays within
-    the range the solver accepts.
+    PAR q (scaled here through Vcmax, gm and g0: Jmax and Rd are ratios to Vcmax in every parameter
+    set, :class:`~lightfit.photosynthesis.parameters.FvCBParams`) is that leaf at q/r with its
+    fluxes times r: An = r·A(q/r), dAn/dq = A'(q/r); gs, Vc, Vj and Rd times r, ci, cs, cc and the
+    limitation unchanged (exact with cs = ca, the coupled model's leaf without a boundary layer).
+    The base leaf has capacity m₀ = ``base`` (default the blades' lowest; at most every blade's):
+    the set's parameters scaled once, shared by all, so a tabulated leaf still tabulates one leaf
+    per step, and r = m/m₀ ≥ 1, so q/r ≤ q stays within the range the solver accepts.
     """
     if capacity is None:
         return leaf

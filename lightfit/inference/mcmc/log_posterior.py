@@ -22,6 +22,7 @@ import pandas as pd
 from lightfit.errors import InputError
 from lightfit.inference.likelihood import USES, GaussianLikelihood, MCCorrelation, plug_in
 from lightfit.inference.mcmc.priors import NOISE_SCALE, PRIORS_INFORMED, Prior, check_sampled
+from lightfit.inference.observations import check_an_area
 from lightfit.model.coupled import NonConvergenceWarning
 from lightfit.model.parameters import Theta, as_theta
 from lightfit.weather.timestamps import INSTANTS, Timestamps
@@ -88,7 +89,9 @@ class LogPosterior:
     ) -> LogPosterior:
         """The log-posterior of ``obs`` on ``model``'s steps: its ``times``, ``timestamps`` and forcing
         ``step``, as :meth:`GaussianLikelihood.of_model` takes them; ``args``, ``kw``: the rest of
-        the constructor's (``priors``, ``fixed``, ``use``, ``mc_correlation``, ``mc_scale``)."""
+        the constructor's (``priors``, ``fixed``, ``use``, ``mc_correlation``, ``mc_scale``); canopy An
+        per another area than the model's refused (:func:`~lightfit.inference.observations.check_an_area`)."""
+        check_an_area(obs, model.scenario.an_per)
         return cls(forward, model.times, obs, names, *args, stamps=model.timestamps, step=model.step, **kw)
 
     def vector(self, x) -> jax.Array:
