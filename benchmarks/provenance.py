@@ -16,6 +16,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,11 +49,30 @@ def commit_state() -> dict:
     return dict(zip(keys, (commit, lightfit, *scripts)))
 
 
+def writable_path(text: str) -> Path:
+    """``--out``'s type: a file that can be written (its folder is made and a file tried in it),
+    checked when the options are read, so that an unwritable ``--out`` stops the script at once
+    with argparse's message, not with a traceback after minutes of work."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder, not a file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be written: {err}") from None
+    return path
+
+
 def out_option(parser: argparse.ArgumentParser, default: Path) -> None:
     """``--out``: the JSON to write (default ``default``, the tracked result)."""
     rel = default.resolve().relative_to(ROOT) if default.resolve().is_relative_to(ROOT) else default
     parser.add_argument(
-        "--out", type=Path, default=default, help=f"JSON to write (default {rel}, the tracked result the docs cite)"
+        "--out",
+        type=writable_path,
+        default=default,
+        help=f"JSON to write (default {rel}, the tracked result the docs cite)",
     )
 
 

@@ -1,0 +1,43 @@
+"""benchmarks/provenance.py's ``--out`` option: a JSON that cannot be written is refused when the
+options are read, not after the benchmark's minutes of work."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def provenance():
+    spec = importlib.util.spec_from_file_location("provenance", ROOT / "benchmarks" / "provenance.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _parser(provenance, tmp_path):
+    ap = argparse.ArgumentParser(prog="bench_x.py")
+    provenance.out_option(ap, tmp_path / "default.json")
+    return ap
+
+
+def test_unwritable_out_is_refused_by_argparse(provenance, tmp_path, capsys):
+    (tmp_path / "a_file").write_text("")
+    for bad in (tmp_path, tmp_path / "a_file" / "x.json"):
+        with pytest.raises(SystemExit) as err:
+            _parser(provenance, tmp_path).parse_args(["--out", str(bad)])
+        assert err.value.code == 2
+        assert "argument --out" in capsys.readouterr().err
+
+
+def test_writable_out_and_default_pass(provenance, tmp_path):
+    ap = _parser(provenance, tmp_path)
+    assert ap.parse_args([]).out == tmp_path / "default.json"
+    new = tmp_path / "new" / "x.json"
+    assert ap.parse_args(["--out", str(new)]).out == new
+    assert new.parent.is_dir()
