@@ -108,6 +108,15 @@ def int_list(text: str) -> list[int]:
     return [int(k) for k in text.split(",")]
 
 
+def rays_pair(text: str) -> tuple[float, float]:
+    """``"1.5e7,2e7"`` → ``(1.5e7, 2e7)``, sun and sky rays per m², both > 0 (argparse names the
+    option when this raises)."""
+    sun, sky = (float(x) for x in text.split(","))
+    if not (sun > 0 and sky > 0):
+        raise ValueError(text)
+    return sun, sky
+
+
 def table(res: dict) -> Table:
     t = Table(
         title=f"one render, {res.get('measurement_area', str(res['n_plants']) + ' plants')} "
@@ -148,7 +157,7 @@ if __name__ == "__main__":
         help="plants per row of the cell, comma-separated; square: N × N (500 builds 23² = 529)",
     )
     ap.add_argument("--samples", default="16", type=int_list, help="paths per segment K, comma-separated")
-    ap.add_argument("--rays", default="1.5e7,2e7", help="projection rays per m², sun,sky")
+    ap.add_argument("--rays", default="1.5e7,2e7", type=rays_pair, help="projection rays per m², sun,sky")
     ap.add_argument(
         "--sheaths", default=SHEATHS[0], help="leaf sheath layout(s), comma-separated: " + ", ".join(SHEATHS)
     )
@@ -161,7 +170,7 @@ if __name__ == "__main__":
     a = ap.parse_args()
     if a.seeds < 2:
         ap.error(f"--seeds {a.seeds}: at least 2 (the steady-state time is the second estimator's)")
-    sun, sky = (float(x) for x in a.rays.split(","))
+    sun, sky = a.rays
     layouts = a.sheaths.split(",")
     for x in layouts:
         check_sheaths(x)
