@@ -24,6 +24,19 @@ ROOT = Path(__file__).resolve().parents[1]
 LOAD_AT_START = os.getloadavg()[0]
 
 
+def _said_not_traced(kind, value, tb) -> None:
+    """Every script imports this module: lightfit's refusal of a bad setting (an
+    :class:`~lightfit.errors.InputError`, e.g. ``--n-plants -5``) ends it with its one-line message,
+    as the command line does, not a traceback through the script; anything else is traced."""
+    if any(c.__module__ == "lightfit.errors" and c.__name__ == "InputError" for c in kind.__mro__):
+        print(f"error: {value}", file=sys.stderr)
+    else:
+        sys.__excepthook__(kind, value, tb)
+
+
+sys.excepthook = _said_not_traced
+
+
 def commit_state() -> dict:
     """The commit measured, and whether lightfit/, benchmarks/ or experiments/ had uncommitted changes; ``None``
     for each where the tree is no git checkout (the device machine's copy: device_light.py names

@@ -41,3 +41,16 @@ def test_writable_out_and_default_pass(provenance, tmp_path):
     new = tmp_path / "new" / "x.json"
     assert ap.parse_args(["--out", str(new)]).out == new
     assert new.parent.is_dir()
+
+
+def test_a_setting_lightfit_refuses_ends_a_script_with_its_message_not_a_traceback(tmp_path):
+    """`--n-plants -5` ended nearly every script on a traceback through it with lightfit's clear
+    message at the bottom (a review); provenance, which every script imports, prints the message."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_variance.py"), "--n-plants", "-5"]
+    p = subprocess.run([*cmd, "--out", str(tmp_path / "v.json")], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1 and "Traceback" not in p.stderr, p.stderr
+    assert p.stderr.strip() == "error: parameter 'n_plants': n_plants=-5 (expected an integer ≥ 1)", p.stderr
+    assert not (tmp_path / "v.json").exists()

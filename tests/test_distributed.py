@@ -901,6 +901,23 @@ def test_cli_field_run_options_reach_the_run(tmp_path, monkeypatch):
     assert not out.exists()
 
 
+def test_cli_field_run_no_resume_discards_nothing_when_an_option_is_refused(tmp_path):
+    """--no-resume emptied OUT.parts before --theta, the weather and the tiles were checked, so a
+    typo in a later option cost every finished task of the run before (a review). Refused first."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    out, parts = tmp_path / "r.nc", tmp_path / "r.nc.parts"
+    parts.mkdir()
+    (parts / "tile0-chunk0.pkl").write_bytes(b"kept")
+    args = ["field-run", "--quick", "--no-resume", "--out", str(out)]
+    for bad in (["--theta", "specular=2"], ["--tiles", "0"], ["--time-chunks", "999"]):
+        r = CliRunner().invoke(app, [*args, *bad])
+        assert r.exit_code == 2, (bad, r.output)
+        assert (parts / "tile0-chunk0.pkl").read_bytes() == b"kept", bad
+
+
 @pytest.mark.parametrize(
     "fld",
     [

@@ -71,8 +71,6 @@ def field_run(
         raise InputError(
             f"{parts} is a file", parameter="out", expected=f"a folder or nothing at {parts} (the finished tasks)"
         )
-    if not resume and parts.is_dir():
-        shutil.rmtree(parts)
     th = parse_theta(theta)
     sc = scenario(s)  # one date; its forcing read
     w = sc.weather
@@ -92,6 +90,8 @@ def field_run(
             "APAR +49 % at 1 row, +11 % at 4 in docs/distributed.md's 6 × 6 field), and the ceptometer, which spans "
             "the whole area, is not rendered (its observables NaN); without --halo-rows it is exact"
         )
+    if not resume and parts.is_dir():  # after every option is checked: a refused run discards nothing
+        shutil.rmtree(parts)
     try:
         ds = run_field(
             run,
