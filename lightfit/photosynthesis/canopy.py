@@ -51,7 +51,7 @@ LLOYD2010_INTERCEPT = -2.43
 PROFILES = ("auto", "lloyd2010", "depury1997", "uniform")
 #: kn of de Pury & Farquhar's (1997, Plant Cell Environ. 20:537) wheat canopy, per unit LAI: a
 #: crop's own value, three times as steep as Lloyd et al.'s at Vcmax25 = 100 (as the Daisy crop model
-#: takes it for its wheat).
+#: takes it for its wheat; the paper's own profile may be per relative depth l/Lc: docs/photosynthesis.md).
 DEPURY1997_KN = 0.713
 #: The profile ``"auto"`` gives a set: Lloyd et al.'s for the literature set; the CPlantBox-derived
 #: sets (the reference paper's among them) model none, and giraud2023's Vcmax lies far outside Lloyd's fit.
