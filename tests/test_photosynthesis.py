@@ -655,6 +655,16 @@ def test_bad_input_raises_naming_the_parameter(kwargs, match):
         ps.solve(**args)
 
 
+def test_a_per_segment_parameter_that_does_not_broadcast_is_named():
+    """A parameter leaf given per segment with the wrong length stopped inside the compiled solve with
+    JAX's TypeError ("incompatible shapes for broadcasting"), naming no input (a review)."""
+    params = eqx.tree_at(lambda q: q.fvcb.vcmax_ref_umol_m2_s, tuzet_leaf(), np.array([60.0, 80.0, 100.0]))
+    with pytest.raises(InputError, match=r"params\.fvcb\.vcmax_ref_umol_m2_s.*\(3,\).*\(2,\)"):
+        ps.solve(np.array([100.0, 500.0]), 20.0, 400.0, 0.5, P_KPA, params)
+    res = ps.solve(np.array([[100.0], [500.0]]), 20.0, 400.0, 0.5, P_KPA, params)  # (2, 1) with (3,): fine
+    assert res.an_umol_m2_s.shape == (2, 3) and bool(np.all(res.converged))
+
+
 def test_bad_parameters_and_names():
     with pytest.raises(InputError, match="unknown name 'wheat'.*giraud2023"):
         ps.parameter_set("wheat")

@@ -500,6 +500,18 @@ def prepare_environment(
         raise InputError(
             f"input shapes do not broadcast together: {shapes}", expected="shapes that broadcast (numpy's rules)"
         ) from None
+    # Parameter leaves may be per-segment arrays: one that does not broadcast with the drivers (and
+    # the leaves before it) stopped inside the jit-compiled solve with JAX's TypeError, naming nothing.
+    for name, label in OVERRIDABLE.items():
+        leaf_shape = np.shape(value_of(params, name))
+        try:
+            shape = np.broadcast_shapes(shape, leaf_shape)
+        except ValueError:
+            raise InputError(
+                f"params.{label} of shape {leaf_shape} does not broadcast with the inputs' shape {shape}",
+                parameter=f"params.{label}",
+                expected="a scalar or an array that broadcasts with the drivers (numpy's rules)",
+            ) from None
     r = INPUT_RANGES
     _check_range("par_abs_umol_m2_s", par_abs_umol_m2_s, *r["par_abs_umol_m2_s"])
     _check_range("tleaf_c", tleaf_c, *r["tleaf_c"])
