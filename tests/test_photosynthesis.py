@@ -644,6 +644,8 @@ def test_property_cplantbox_closure_identity(par, tleaf, cs, fw):
         (dict(fw=1.5), "fw"),
         (dict(gb_mol_m2_s=0.0), "gb_mol_m2_s"),
         (dict(par_abs_umol_m2_s=np.ones(3), tleaf_c=np.ones(4)), "broadcast"),
+        (dict(pair_kpa=None), "pair_kpa"),
+        (dict(par_abs_umol_m2_s=None), "par_abs_umol_m2_s"),
     ],
 )
 def test_bad_input_raises_naming_the_parameter(kwargs, match):

@@ -492,6 +492,9 @@ def prepare_environment(
             and not isinstance(value, (int, float, np.number, list, tuple))
         ):
             raise TypeError(f"{name} must be a number or array, got {type(value).__name__}")
+    for name in ("par_abs_umol_m2_s", "tleaf_c", "co2_ppm", "pair_kpa"):
+        if named[name] is None:  # reached jnp.asarray(None): "None is not a valid value for jnp.array"
+            raise InputError(f"{name}=None", parameter=name, expected="a number or array (it has no default of None)")
     present = {k: v for k, v in named.items() if v is not None}
     try:
         shape = np.broadcast_shapes(*(np.shape(v) for v in present.values()))
