@@ -902,6 +902,33 @@ def test_an_exact_resume_drops_history_lines_written_after_its_state(tmp_path):
     assert steps[2]["loss"] != orphan["loss"]
 
 
+def test_a_resumed_calibration_counts_the_seconds_of_every_call(tmp_path):
+    """``seconds`` (the result's and the history's) counted the last call alone, so a run resumed for
+    its last step read as seconds long (a review). The state (exact resume) and the history (resume
+    without a state) carry the time spent before: here a first call said to have taken 1000 s."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False, say=lambda _: None)
+    for exact in (True, False):
+        h = tmp_path / f"exact_{exact}" / "h.jsonl"
+        first = calibrate(model, obs, history=h, max_steps=2, **kw)
+        assert first.seconds < 1000
+        state = h.with_name(h.name + ".state.npz")
+        if exact:
+            with np.load(state) as z:
+                arrays = dict(z)
+            meta = json.loads(str(arrays["meta"]))
+            arrays["meta"] = np.asarray(json.dumps(meta | {"seconds": 1000.0}))
+            np.savez(state, **arrays)
+        else:
+            state.unlink()
+            *steps, _ = [json.loads(x) for x in h.read_text().splitlines()]
+            steps[-1]["seconds"] = 1000.0
+            h.write_text("".join(json.dumps(r) + "\n" for r in steps))
+        res = calibrate(model, obs, history=h, max_steps=3, **kw)
+        *steps, _ = [json.loads(x) for x in h.read_text().splitlines()]
+        assert 1000 < res.seconds < 1000 + 600 and steps[-1]["seconds"] > 1000, (exact, res.seconds, steps)
+
+
 def test_cli_start_on_the_emulator_boxs_edge_is_inside_it(tmp_path, monkeypatch):
     """The box is closed, [lo, hi] as its error says: --start specular=0.4625 (the informed priors'
     lower end for the default leaf) passes the check (a mutation audit: the check made strict

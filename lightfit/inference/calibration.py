@@ -250,6 +250,8 @@ class CalibrationResult:
             (the leaf photosynthesis did not converge at the start) or ``"against unconverged: θ"``
             (BFGS's steps shrank against a region where it does not converge, the gradient not small).
         reason: the same as a sentence with the numbers (tolerances, counts).
+        seconds: wall time of the calibration, s, summed over the calls of a resumed run (the
+            history's ``seconds`` likewise: each step's time since the run began).
         n_observations: the likelihood's entries (readings in one model step are one entry, their
             inverse-variance mean): the n of χ²/(n − k).
     """
@@ -668,11 +670,15 @@ def calibrate(
         state_file.unlink(missing_ok=True)
     opt = (_BFGS if method == "bfgs" else _LBFGSB)(loss, np.asarray(th0.vector(names)), rtol=rtol, atol=atol, gtol=gtol)
     t0 = time.perf_counter()
+    # seconds: of every call's work on this run, so that a resumed run's reads as the run's (it read
+    # the last call's alone); a history resumed without its state goes on from its last step's
+    spent = float(past[-1].get("seconds", 0.0)) if past else 0.0
     c = {"accepted": len(past), "trials": 0, "best_loss": math.inf, "best_x": None, "stopped_by": None}
+    c |= {"seconds": spent}
     c["best_x"] = [float(v) for v in np.asarray(th0.vector(names))]
     if saved is not None:
         opt.restore(saved["point"], saved["leaves"], saved["evaluations"])
-        c = {k: saved[k] for k in c}
+        c = {k: saved[k] if k != "seconds" else saved.get(k, 0.0) for k in c}  # "seconds": absent before
         if c["stopped_by"] in ("max_steps", "stalled"):
             c["stopped_by"] = None  # limits, not the optimiser's verdict: a rerun with a larger max_steps goes on
         # lines appended after the saved state (a kill in between) are redone identically below
@@ -680,6 +686,9 @@ def calibrate(
         say(f"resuming {hist}: {c['accepted']} accepted steps kept, continued exactly from the saved state")
     if past and best_past["loss"] < c["best_loss"]:
         c["best_loss"], c["best_x"] = best_past["loss"], [best_past["theta"][n] for n in names]
+
+    def elapsed() -> float:
+        return c["seconds"] + time.perf_counter() - t0
 
     def counts() -> str:
         return f"{c['accepted']} steps, {opt.evaluations} evaluations, {opt.gradients} gradients"
@@ -719,7 +728,7 @@ def calibrate(
                         "coordinates": opt.coordinates,
                         "evaluations": opt.evaluations,
                         "gradients": opt.gradients,
-                        "seconds": time.perf_counter() - t0,
+                        "seconds": elapsed(),
                     }
                     hist.parent.mkdir(parents=True, exist_ok=True)
                     with open(hist, "a", encoding="utf-8") as fh:
@@ -732,13 +741,13 @@ def calibrate(
             if reason is not None:
                 c["stopped_by"] = reason
             if state_file is not None:
-                _save_state(state_file, opt, {**c, "evaluations": opt.evaluations}, key)
+                _save_state(state_file, opt, {**c, "seconds": elapsed(), "evaluations": opt.evaluations}, key)
         if method == "bfgs" and c["stopped_by"] == "converged" and _against_unconverged(opt, rtol, atol, gtol):
             c["stopped_by"] = "against unconverged: " + at(opt.point()[0])
         why = _reason(c["stopped_by"], method, rtol, atol, gtol, max_steps, c["trials"])
         bar.update(info=f"{why}; {counts()}")
     if state_file is not None:
-        _save_state(state_file, opt, {**c, "evaluations": opt.evaluations}, key)
+        _save_state(state_file, opt, {**c, "seconds": elapsed(), "evaluations": opt.evaluations}, key)
     if hist:
         steps = _read_history(hist)
         final = {
@@ -762,7 +771,7 @@ def calibrate(
         c["stopped_by"],
         method,
         hist,
-        time.perf_counter() - t0,
+        elapsed(),
         why,
         loss.n_observations,
     )
