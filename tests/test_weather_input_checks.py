@@ -905,3 +905,25 @@ def test_an_infinite_value_is_refused_as_not_a_number_not_as_a_unit(tmp_path, te
     lf.write_text(re.sub(r"(?m)^(2016-04-20T12:00:00Z),[^,]*", rf"\1,{text}", RECON.read_text()))
     err = _cli_error(["weather", "show", str(lf)], "lf.csv", f"line {_line_of(lf, text)}", "column 'ghi_w_m2'")
     assert f"value '{text}' is not a finite number" in err and "check the unit" not in err
+
+
+@pytest.mark.parametrize("year", ["0001", "1600", "2263", "9999"])
+def test_a_year_outside_what_lightfit_computes_with_is_refused_naming_its_line(tmp_path, year):
+    """A lightfit CSV in the year 0001 or 9999 (a slip in the year) was read, and `weather show` then
+    stopped on pandas' OutOfBoundsDatetime traceback (its stamps cast to nanoseconds, which end in
+    1677 and 2262); a TERENO export of such a year was read and shown as if it were weather. Both are
+    refused naming line and column."""
+    lf = tmp_path / "lf.csv"
+    lf.write_text(RECON.read_text(encoding="utf-8").replace("2016-04-20T", f"{year}-04-20T"), encoding="utf-8")
+    stamp = f"{year}-04-20T00:00:00Z"
+    with pytest.raises(InputError, match=rf"lf\.csv, line {_line_of(lf, stamp)}, column 'time_utc': time '{stamp}'"):
+        read_weather(lf)
+    _cli_error(["weather", "show", str(lf)], "lf.csv", f"line {_line_of(lf, stamp)}", "1678–2261")
+
+    def in_year(y):
+        return lambda rows: [[r[0].replace("2016", y), *r[1:]] for r in rows]
+
+    p = _tereno(tmp_path, edit=in_year(year))
+    with pytest.raises(InputError, match=rf"export\.csv, line {_line_of(p, year + '-04-20')}, column 'Timestamp'"):
+        read_tereno(p)
+    assert len(read_tereno(_tereno(tmp_path, edit=in_year("2261")))) == len(read_tereno(FIXTURE))

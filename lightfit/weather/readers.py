@@ -398,6 +398,8 @@ def _header_provenance(text_lines: list[str], end: int, file) -> tuple[str | Non
     return None, ""
 
 
+#: The years a file's timestamps may be in: pandas' nanosecond range (1677-09-21 … 2262-04-11), whole years.
+YEARS = (1678, 2261)
 _ISO = re.compile(r"\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?)?\s*(?P<offset>Z|[+-]\d{2}(?::?\d{2})?)?")
 _DAY_MONTH = re.compile(r"^\d{1,2}[./-]\d{1,2}[./-]\d{2,4}\b")
 
@@ -465,6 +467,17 @@ def parse_times(
         raise InputError(
             f"cannot parse time {text.iloc[i]!r}", file=file, row=int(lines.iloc[i]), column=column, expected=expected
         )
+    # pandas reads any year, but lightfit's time arithmetic (nanosecond Timedeltas, plots) stops with a
+    # traceback outside pandas' nanosecond range: 0001 or 9999 in a weather file is a slip in the year.
+    years = t.dt.year.to_numpy()
+    first_bad_row(
+        (years < YEARS[0]) | (years > YEARS[1]),
+        lines,
+        file,
+        column,
+        f"a timestamp in the years {YEARS[0]}–{YEARS[1]} (a slip in the year?)",
+        lambda i: f"time {text.iloc[i]!r} is in the year {years[i]}, outside the years lightfit computes with",
+    )
     idx = pd.DatetimeIndex(t)
     if idx.tz is None:
         try:
