@@ -927,3 +927,29 @@ def test_a_year_outside_what_lightfit_computes_with_is_refused_naming_its_line(t
     with pytest.raises(InputError, match=rf"export\.csv, line {_line_of(p, year + '-04-20')}, column 'Timestamp'"):
         read_tereno(p)
     assert len(read_tereno(_tereno(tmp_path, edit=in_year("2261")))) == len(read_tereno(FIXTURE))
+
+
+def test_tereno_humidity_repairs_and_errors_name_the_files_column(tmp_path):
+    """A TERENO export's humidity is read into rh, but the series recorded its source column under
+    "humidity": every other column's repairs and errors named the file's column, humidity's said "rh",
+    a column the file does not have (an interpolated gap, a value implausible after conversion)."""
+    header = next(c for c in FIXTURE.read_text(encoding="utf-8").splitlines() if c.startswith("Timestamp"))
+    hum = header.split(",")[HUM]
+
+    def blank(rows):
+        rows[10][HUM] = ""
+
+    p = _tereno(tmp_path, edit=blank)
+    assert read_tereno(p).attrs["columns_used"]["rh"] == hum
+    r = runner.invoke(app, ["weather", "show", str(p)])
+    assert r.exit_code == 0, r.output
+    assert f"repair interpolated: {hum}: 1 missing value(s)" in " ".join(r.stdout.split())
+
+    def wet(rows):
+        rows[40][HUM] = "100"  # g m⁻³: far above saturation
+
+    p = _tereno(tmp_path, edit=wet, name="wet.csv")
+    with pytest.raises(
+        InputError, match=rf"line {_line_of(p, ',100,')}, column 'rh': value .* \(read from {re.escape(hum)},"
+    ):
+        read_tereno(p)

@@ -97,8 +97,15 @@ _TERENO_UNIT_EXAMPLES = {
     "pair_kpa": "hPa",
     "co2_ppm": "ppm or mmol*m-3",
 }
+
+
+def _contract(qty: str) -> str:
+    """The contract column a TERENO quantity is read into: ``rh`` for ``humidity`` (relative or absolute)."""
+    return "rh" if qty == "humidity" else qty
+
+
 TERENO_NAMES = {
-    ("rh" if qty == "humidity" else qty): f"a header like {preferred} [{_TERENO_UNIT_EXAMPLES[qty]}]"
+    _contract(qty): f"a header like {preferred} [{_TERENO_UNIT_EXAMPLES[qty]}]"
     for qty, (_, preferred, _) in TERENO_QUANTITIES.items()
 }
 _TIME_NAMES = re.compile(r"^(timestamp|time|date|datetime|date_time|zeitstempel)\b", re.IGNORECASE)
@@ -730,7 +737,7 @@ def read_tereno(
         vocabulary = _flag_vocabulary(text_lines, hdr)
         for qty, fc in flag_cols.items():
             raw[qty] = _mask_flagged_bad(
-                raw[qty], table[fc].set_axis(times), lines.set_axis(times), vocabulary, path, fc, qty, qc
+                raw[qty], table[fc].set_axis(times), lines.set_axis(times), vocabulary, path, fc, _contract(qty), qc
             )
     for qty in ("ghi_w_m2", "diffuse_w_m2"):
         if conv.get(qty) == "kilo":  # kW m-2, as some loggers export
@@ -812,7 +819,8 @@ def read_tereno(
         "format": "tereno",
         "provenance": provenance,
         "timezone_assumed": tz,
-        "columns_used": used,
+        # keyed by contract column (humidity is read into rh), as the checks and repairs look the file's names up
+        "columns_used": {_contract(qty): src for qty, src in used.items()},
         "column_names": TERENO_NAMES,
         "unused_columns": [
             c for c in table.columns if c not in used.values() and c != time_col and c not in flag_cols.values()
