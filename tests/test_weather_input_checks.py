@@ -953,3 +953,15 @@ def test_tereno_humidity_repairs_and_errors_name_the_files_column(tmp_path):
         InputError, match=rf"line {_line_of(p, ',100,')}, column 'rh': value .* \(read from {re.escape(hum)},"
     ):
         read_tereno(p)
+
+
+@pytest.mark.parametrize("source", [FIXTURE, RECON, CPB])
+def test_a_utf16_file_is_refused_for_its_encoding_not_as_an_unknown_format(tmp_path, source):
+    """A UTF-16 file (Excel's "Unicode text") was called an "unrecognised weather file format", its
+    first line shown as '��T\\x00E\\x00…'; the docs promise a file in another encoding is refused as such."""
+    p = tmp_path / "utf16.csv"
+    p.write_bytes(source.read_text(encoding="utf-8").encode("utf-16"))
+    with pytest.raises(InputError, match=r"utf16\.csv, line 1: byte 0xff is not UTF-8 text \(the file is in UTF-16\)"):
+        read_weather(p, **({"date": "2016-04-27"} if source == CPB else {}))
+    err = _cli_error(["weather", "show", str(p)], "utf16.csv", "line 1", "UTF-16")
+    assert "unrecognised" not in err

@@ -189,8 +189,9 @@ def _read_text(path: str | Path, expected: str, *, strict: bool = True) -> str:
         text = data.decode("utf-8-sig", errors="strict" if strict else "replace")
     except UnicodeDecodeError as e:
         line = data[: e.start].count(b"\n") + 1
+        other = "UTF-16" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else "another encoding, e.g. Latin-1"
         raise InputError(
-            f"byte 0x{data[e.start]:02x} is not UTF-8 text (the file is in another encoding, e.g. Latin-1)",
+            f"byte 0x{data[e.start]:02x} is not UTF-8 text (the file is in {other})",
             file=path,
             row=line,
             expected="a UTF-8 file: save it as UTF-8",
@@ -1095,6 +1096,7 @@ def sniff_format(path: str | Path) -> str:
     first = next((ln for ln in head.splitlines() if ln.strip()), "")
     if re.match(r"#\s*provenance\s*:", first):  # a lightfit CSV's metadata: its reader says what its table lacks
         return "lightfit"
+    _read_text(path, "a weather file")  # a file not in UTF-8 (UTF-16): its encoding is what to fix, not its format
     if first.split(",")[0].strip().strip('"') == "time_utc":
         raise InputError(
             "a lightfit CSV (time_utc, …) without its metadata lines",
