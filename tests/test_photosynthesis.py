@@ -667,6 +667,18 @@ def test_a_per_segment_parameter_that_does_not_broadcast_is_named():
     assert res.an_umol_m2_s.shape == (2, 3) and bool(np.all(res.converged))
 
 
+def test_half_precision_inputs_and_a_config_that_is_none_are_refused_by_name():
+    """float16 drivers were solved with float32's tolerances and came back unconverged everywhere (An
+    −1.5 at PAR 500; bfloat16 is no numpy number and refused before); config="fast" stopped on an
+    AttributeError inside the solve (a review). Both are refused by name; float32 and float64 solve."""
+    with pytest.raises(InputError, match="parameter 'dtype'"):
+        ps.solve(jnp.asarray(500.0, jnp.float16), 20.0, 400.0, 0.5, P_KPA, tuzet_leaf())
+    with pytest.raises(InputError, match="parameter 'config'"):
+        ps.solve(500.0, 20.0, 400.0, 0.5, P_KPA, tuzet_leaf(), config="fast")
+    for dt in (jnp.float32, jnp.float64):
+        assert bool(ps.solve(jnp.asarray(500.0, dt), 20.0, 400.0, 0.5, P_KPA, tuzet_leaf()).converged)
+
+
 def test_bad_parameters_and_names():
     with pytest.raises(InputError, match="unknown name 'wheat'.*giraud2023"):
         ps.parameter_set("wheat")

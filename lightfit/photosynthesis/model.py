@@ -539,6 +539,8 @@ def prepare_environment(
 
     floats = [v for v in present.values() if hasattr(v, "dtype") and jnp.issubdtype(v.dtype, jnp.floating)]
     dtype = jnp.result_type(*floats) if floats else jnp.result_type(float)
+    if jnp.finfo(dtype).bits < 32:  # float16/bfloat16: solved with float32's tolerances, unconverged unsaid
+        raise InputError(f"inputs of dtype {jnp.dtype(dtype).name}", parameter="dtype", expected="float32 or float64")
 
     def arr(x):
         return jnp.asarray(x, dtype)
@@ -574,6 +576,8 @@ def _prepared(config: SolverConfig | None, *args, **kwargs):
     """:func:`prepare_environment` of ``args``/``kwargs``, and ``config`` or, if ``None``, the
     default :class:`SolverConfig` for the inputs' dtype: what every solver entry point starts with."""
     env, params = prepare_environment(*args, **kwargs)
+    if config is not None and not isinstance(config, SolverConfig):  # "fast" was an AttributeError in the solve
+        raise InputError(f"config={config!r}", parameter="config", expected="a SolverConfig or None (the dtype's)")
     return env, params, SolverConfig.for_dtype(env.par_abs_umol_m2_s.dtype) if config is None else config
 
 
