@@ -1453,6 +1453,17 @@ def test_field_refuses_an_unknown_export_format_before_growing(tmp_path, monkeyp
     assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
 
 
+@pytest.mark.parametrize("option, name", [("--export", "f.ply"), ("--segments", "s.csv"), ("--preview", "p.png")])
+def test_field_refuses_an_output_under_a_file_before_growing(tmp_path, monkeypatch, option, name):
+    """An output whose folder is a file (`--export notes.txt/f.ply`) cannot be written: it failed
+    with "notes.txt: File exists" only after the plants had grown and the report was printed."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "notes.txt").write_text("a file\n")
+    r = runner.invoke(app, ["field", "--n-plants", "4", option, str(tmp_path / "notes.txt" / "sub" / name)])
+    assert_user_error(r, f"option {option}", "notes.txt is a file, not a folder")
+    assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
+
+
 @pytest.mark.parametrize("name", ["f.stl", "f"])
 def test_figure_names_without_a_known_format_are_refused_first(tmp_path, monkeypatch, name):
     """`field --preview` and `weather show --plot` take the format from the suffix (a .jpg

@@ -305,9 +305,15 @@ def output_folder(out: Path, option: str = "out") -> Path:
 
 def output_file(path: Path, option: str) -> Path:
     """``path`` as a file a command will write, checked before any work: a folder there is an error
-    naming the option (writing said only "Is a directory", after the plants had grown)."""
+    naming the option (writing said only "Is a directory", after the plants had grown), and so is a
+    file where its folder, or a folder above it, would be ("File exists", after the plants had grown)."""
     if path.is_dir():
         raise InputError(f"{path} is a folder", parameter=option, expected="a file name to write")
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:  # the folders that do not exist are made
+        folder = folder.parent
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder} is a file, not a folder", parameter=option, expected="a file name in a folder")
     return path
 
 
