@@ -1464,6 +1464,16 @@ def test_field_refuses_an_output_under_a_file_before_growing(tmp_path, monkeypat
     assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
 
 
+def test_field_refuses_an_obj_whose_sidecar_is_a_folder_before_growing(tmp_path, monkeypatch):
+    """`--export f.obj` writes the values to f.segments.csv too: a folder of that name failed with
+    "Is a directory" after the plants had grown, the OBJ written without its values."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "f.segments.csv").mkdir()
+    r = runner.invoke(app, ["field", "--n-plants", "4", "--export", str(tmp_path / "f.obj")])
+    assert_user_error(r, "option --export", "f.segments.csv is a folder")
+    assert "plants" not in r.stdout and not (tmp_path / "cache").exists() and not (tmp_path / "f.obj").exists()
+
+
 @pytest.mark.parametrize("name", ["f.stl", "f"])
 def test_figure_names_without_a_known_format_are_refused_first(tmp_path, monkeypatch, name):
     """`field --preview` and `weather show --plot` take the format from the suffix (a .jpg

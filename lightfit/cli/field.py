@@ -91,7 +91,8 @@ def field(
         n_plants = (ReplicationConfig.quick() if quick else ReplicationConfig()).n_plants
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
     for path in export or []:  # before minutes of plant growth
-        mesh_format(output_file(path, "export"))
+        if mesh_format(output_file(path, "export")) == "obj":  # and the OBJ's values beside it
+            output_file(sidecar_path(path), "export")
     if preview:
         figure_format(output_file(preview, "preview"))
     if segments_csv:
