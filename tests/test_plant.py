@@ -936,6 +936,17 @@ def test_exports_of_a_hand_built_mesh_read_back_by_face(tmp_path):
     assert vtk[vtk.index("POLYGONS 2 8") + 1 :][:2] == ["3 0 1 2", "3 1 3 2"]
 
 
+def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
+    """A mesh of no faces (a plant with no shoot yet) was written as PLY and VTK, but the OBJ writer
+    stopped on an IndexError (it named the first segment's group)."""
+    empty = Mesh.concatenate([])
+    for suffix in ("obj", "ply", "vtk"):
+        assert export(empty, tmp_path / f"e.{suffix}", {"an": pd.Series(dtype=float)}).exists()
+    text = (tmp_path / "e.obj").read_text().splitlines()
+    assert not [line for line in text if line.startswith(("v ", "f ", "g "))]
+    assert pd.read_csv(tmp_path / "e.segments.csv").empty
+
+
 def test_a_blade_along_its_branching_direction_lies_across_horizontally():
     """Where a blade segment runs along its branching direction (t × s = 0) the width falls back to
     the horizontal direction square to the segment (mesh module): a segment rising at 45° towards +y

@@ -53,7 +53,7 @@ def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     path = Path(path)
     order = np.argsort(mesh.face_segment, kind="stable")
     seg_sorted = mesh.face_segment[order]
-    starts = np.flatnonzero(np.r_[True, seg_sorted[1:] != seg_sorted[:-1]])
+    starts = np.flatnonzero(np.r_[len(order) > 0, seg_sorted[1:] != seg_sorted[:-1]])  # none if no faces
     lines = ["# lightfit shoot mesh; units: m; groups seg_<segment_id>"]
     lines += [f"v {x:.7g} {y:.7g} {z:.7g}" for x, y, z in mesh.vertices]
     faces = mesh.faces[order] + 1
