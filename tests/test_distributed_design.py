@@ -86,6 +86,25 @@ def test_a_design_resumed_from_the_cache_says_so(model, tmp_path, capsys):
     assert "rendering design: 2/2" in capsys.readouterr().out
 
 
+def test_a_damaged_render_in_the_cache_is_rendered_again(model, tmp_path):
+    """A render file cut or damaged outside lightfit (a cut copy, a full disk) stopped every rerun
+    with a BadZipFile or EOFError traceback (a review): it is rendered again and replaced, never read
+    as data, as the plant cache's and a fitted emulator's are."""
+    key, pts = E.render_key(model), E.sobol_design(2, LO, HI, seed=2)
+    v, s = E.render_parts(model, pts, cache=tmp_path, key=key)
+    file = E.render_file(tmp_path, key, pts[1])
+    whole = file.read_bytes()
+    for damaged in (whole[:200], b"", whole[:-30] + bytes(30)):
+        file.write_bytes(damaged)
+        before = dict(E.COUNTS)
+        v2, s2 = E.render_parts(model, pts, cache=tmp_path, key=key)
+        np.testing.assert_array_equal(v2, v)
+        np.testing.assert_array_equal(s2, s)
+        assert E.COUNTS["rendered"] - before["rendered"] == 1 and E.COUNTS["cached"] - before["cached"] == 1
+        with np.load(file) as z:
+            np.testing.assert_array_equal(z["values"], v[1])
+
+
 def test_build_emulator_with_the_hook_renders_nothing_locally(model, client, tmp_path):
     """build_emulator(render_points=...) sends the design to the cluster and fits from the cache: the
     same emulator as a local build of the same design."""

@@ -251,9 +251,8 @@ def _render_parts(model, leaf, progress, cache, key, label) -> tuple[np.ndarray,
     todo, first = [], {}  # points to render; the first index of each cache file among them
     cached = 0
     for i, file in enumerate(files):
-        if file is not None and file.exists():
-            with np.load(file) as z:
-                vals[i], ses[i], secs[i] = z["values"], z["se"], float(z["seconds"])
+        if file is not None and (stored := _stored_render(file)) is not None:
+            vals[i], ses[i], secs[i] = stored
             COUNTS["cached"] += 1
             cached += 1
         elif file is None or file not in first:
@@ -287,6 +286,20 @@ def _render_parts(model, leaf, progress, cache, key, label) -> tuple[np.ndarray,
             COUNTS["cached"] += 1
     seconds = float(sum(secs))
     return np.stack(vals), np.stack(ses), seconds
+
+
+def _stored_render(file: Path) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The render kept in ``file`` (values, SE, seconds), or None if there is none or it cannot be
+    read: a file damaged outside lightfit (a cut copy, a full disk, a byte flipped) is rendered
+    again and replaced, as the plant cache's and a fitted emulator's are; it stopped every rerun
+    with a BadZipFile or EOFError traceback."""
+    if not file.exists():
+        return None
+    try:
+        with np.load(file) as z:
+            return z["values"], z["se"], float(z["seconds"])
+    except (ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
 
 
 def in_box(x, lo, hi) -> np.ndarray:
