@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -14,13 +16,16 @@ from pathlib import Path
 @contextmanager
 def replaced(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` (same folder, same suffix, so that numpy and netCDF writers
-    keep its name; one per process) to write in the block: renamed onto ``path`` when the block
+    keep its name; one per process and thread) to write in the block: renamed onto ``path`` when the block
     ends, removed if it raises. A process killed while writing leaves the previous file whole, or
     none: never a cut one that the next run cannot read (a cut history lost its steps, a cut
     emulator stopped every rerun)."""
     path = Path(path)
     _remove_orphans(path)
-    tmp = path.with_name(f"{_PARTIAL}-{_HOST}-{os.getpid()}-{path.name}")  # per process: two writers never share one
+    # Per process and thread: two writers never share one. Per process only, two threads of one
+    # Dask worker (--threads-per-worker 2) writing one file (a plant both grew) wrote into the same
+    # temporary file, and the second to finish failed with FileNotFoundError (the first had moved it).
+    tmp = path.with_name(f"{_PARTIAL}-{_HOST}-{os.getpid()}-t{threading.get_native_id()}-{path.name}")
     try:
         yield tmp
         os.replace(tmp, path)
@@ -45,12 +50,13 @@ def _remove_orphans(path: Path) -> None:
     and a live process's are left alone; the age spares a live writer whose process id this one
     cannot see (a container with its own process ids sharing the folder and the host name)."""
     for tmp in path.parent.glob(f"{_PARTIAL}-{_HOST}-*-{glob.escape(path.name)}"):
-        pid = tmp.name[len(f"{_PARTIAL}-{_HOST}-") : -len(path.name) - 1]
+        # "<pid>-t<thread>", or "<pid>" (written before the thread was in the name)
+        writer = re.fullmatch(r"(\d+)(?:-t\d+)?", tmp.name[len(f"{_PARTIAL}-{_HOST}-") : -len(path.name) - 1])
         try:
             old = time.time() - tmp.stat().st_mtime > ORPHAN_AGE_S
         except FileNotFoundError:  # its writer finished meanwhile
             continue
-        if old and pid.isdigit() and not _alive(int(pid)):
+        if old and writer and not _alive(int(writer[1])):
             tmp.unlink(missing_ok=True)
 
 

@@ -78,6 +78,51 @@ def test_a_killed_writers_partial_file_is_removed_by_the_next_writer(tmp_path):
     assert all(p.exists() for p in (live, other_host, other_file))
 
 
+def test_two_threads_writing_one_file_do_not_share_a_temporary_file(tmp_path):
+    """Two threads of one process (a Dask worker with --threads-per-worker 2, both growing one plant)
+    wrote the same file through one temporary file: the second to finish failed with
+    FileNotFoundError, its rename's source moved by the first (a review). Each has its own now; the
+    file is one writer's whole, and a dead process's thread-named file is still an orphan."""
+    import os
+    import threading
+    import time
+
+    from lightfit import files
+
+    path = tmp_path / "plant.npz"
+    both_written, first_done = threading.Barrier(2), threading.Event()
+    errors = []
+
+    def write(text: str, wait_for_the_other: bool) -> None:
+        try:
+            with replaced(path) as tmp:
+                tmp.write_text(text * 1000, encoding="utf-8")
+                both_written.wait(timeout=10)
+                if wait_for_the_other:
+                    first_done.wait(timeout=10)
+            if not wait_for_the_other:
+                first_done.set()
+        except Exception as err:  # noqa: BLE001 - reported below
+            errors.append(err)
+            first_done.set()
+
+    threads = [threading.Thread(target=write, args=(t, t == "b")) for t in "ab"]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == [] and path.read_text(encoding="utf-8") == "b" * 1000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plant.npz"]
+    dead = 2**22 + 1  # above Linux's default pid_max: no such process
+    orphans = [tmp_path / f".partial-{files._HOST}-{dead}{t}-plant.npz" for t in ("-t123", "")]
+    stale = time.time() - files.ORPHAN_AGE_S - 60
+    for p in orphans:
+        p.write_bytes(b"x")
+        os.utime(p, (stale, stale))
+    replace_text(path, "whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plant.npz"]
+
+
 def test_netcdf_is_known_by_its_first_bytes(tmp_path):
     """netCDF-4 (an HDF5 file written by h5py), classic netCDF versions 1 and 2 (scipy's writer) and
     CDF-5 (its 4 magic bytes) are netCDF; a CSV and a short file are not."""
