@@ -1474,6 +1474,16 @@ def test_field_refuses_an_obj_whose_sidecar_is_a_folder_before_growing(tmp_path,
     assert "plants" not in r.stdout and not (tmp_path / "cache").exists() and not (tmp_path / "f.obj").exists()
 
 
+def test_field_refuses_a_segment_table_named_as_the_obj_sidecar_before_growing(tmp_path, monkeypatch):
+    """`--export a.obj --segments a.segments.csv`: the segment table silently replaced the OBJ's
+    sidecar of per-segment values (same name; a review). Refused before any plant grows."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    args = ["field", "--n-plants", "4", "--export", str(tmp_path / "a.obj")]
+    r = runner.invoke(app, [*args, "--segments", str(tmp_path / "a.segments.csv")])
+    assert_user_error(r, "a.segments.csv is also the OBJ export's sidecar")
+    assert "plants" not in r.stdout and not (tmp_path / "cache").exists()
+
+
 @pytest.mark.parametrize("name", ["f.stl", "f"])
 def test_figure_names_without_a_known_format_are_refused_first(tmp_path, monkeypatch, name):
     """`field --preview` and `weather show --plot` take the format from the suffix (a .jpg

@@ -97,6 +97,13 @@ def field(
         figure_format(output_file(preview, "preview"))
     if segments_csv:
         output_file(segments_csv, "segments_csv")
+        sidecars = {sidecar_path(p).resolve() for p in export or [] if mesh_format(p) == "obj"}
+        if segments_csv.resolve() in sidecars:  # one file would silently replace the other
+            raise InputError(
+                f"{segments_csv} is also the OBJ export's sidecar of per-segment values",
+                parameter="segments_csv",
+                expected="another file name than the --export OBJ's <name>.segments.csv",
+            )
     g = plant.GrowthConfig(parameter_file, season_start, date)
     fld = plant.Field(
         n_plants,
