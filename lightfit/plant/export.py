@@ -2,8 +2,9 @@
 
 - OBJ (Wavefront; DART, Blender): one group ``g seg_<id>`` per segment, so the id survives in
   every OBJ reader; values go to a sidecar CSV ``<name>.segments.csv``.
-- PLY (binary little-endian; ParaView, MeshLab, trimesh): face properties ``segment_id`` and one
-  float property per value.
+- PLY (binary little-endian; MeshLab, trimesh): face properties ``segment_id`` and one float
+  property per value. VTK's PLY reader (9.7, so ParaView) reads the faces without their properties:
+  for ParaView write VTK.
 - VTK legacy polydata (ParaView, VisIt): ``CELL_DATA`` arrays ``segment_id`` and the values.
 """
 
