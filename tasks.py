@@ -21,7 +21,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
-VENV = Path(os.environ.get("LIGHTFIT_VENV", ROOT / ".venv"))
+# A relative LIGHTFIT_VENV is taken from the caller's directory, once: the commands below run in ROOT.
+VENV = Path(os.environ.get("LIGHTFIT_VENV", ROOT / ".venv")).absolute()
 BIN = VENV / "bin"
 STAMP = VENV / ".lightfit-installed"
 

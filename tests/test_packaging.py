@@ -246,3 +246,23 @@ def test_tasks_py_says_its_tasks():
         assert f"python3 tasks.py {task}" in ok.stdout
     bad = subprocess.run([sys.executable, str(tasks), "nope"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 1 and bad.stderr.startswith("tasks.py: unknown task 'nope'"), bad.stderr
+
+
+def test_tasks_py_relative_venv_is_the_callers(tmp_path):
+    """`LIGHTFIT_VENV=rel python3 /repo/tasks.py setup` from another directory made the venv in the
+    repository (venv ran there) but wrote its install stamp under the caller's directory: it installed
+    everything, then failed with FileNotFoundError, every time. A relative path is the caller's."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "LIGHTFIT_VENV": "rel", "PYTHONPATH": str(ROOT)}
+    out = subprocess.run(
+        [sys.executable, "-c", "import tasks; print(tasks.VENV, tasks.STAMP, sep='\\n')"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    ).stdout.split("\n")
+    assert Path(out[0]) == tmp_path / "rel" and Path(out[1]).parent == tmp_path / "rel"
