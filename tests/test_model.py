@@ -534,6 +534,8 @@ def test_emulator_refuses_extra_points_outside_its_box_and_renders_that_are_not_
         with pytest.raises(InputError, match="parameter 'extra'"):
             E.build_emulator(model, (0.2, 0.2, 0.2), (0.8, 0.8, 0.8), n_design=5, degrees=(1,), extra=bad)
     assert E.COUNTS == before
+    on_face = np.array([[0.8 + 1e-12, 0.5, 0.2 - 1e-12]])  # an optimum on the box's faces, to round-off
+    np.testing.assert_array_equal(E.checked_extra(on_face, np.full(3, 0.2), np.full(3, 0.8)), on_face)
     design = E.sobol_design(8, np.zeros(3), np.ones(3), 0)
     v = np.ones((8, 2)) + design[:, :1]
     E.fit_emulator(design, v, 0.01 * v, [0, 0, 0], [1, 1, 1], degrees=(1,))  # finite: fitted

@@ -482,7 +482,7 @@ def checked_extra(extra, lo, hi) -> np.ndarray:
         raise InputError(
             f"extra of shape {np.shape(extra)}", parameter="extra", expected="(m, 3) leaf parameters"
         ) from None
-    out = ~(np.isfinite(x) & (x >= lo) & (x <= hi)).all(1)
+    out = ~(np.isfinite(x) & in_box(x, lo, hi)).all(1)  # a trust region's optimum on a face may lie a hair out
     if out.any():
         raise InputError(
             f"extra point {x[out][0].tolist()}",
