@@ -157,6 +157,14 @@ def test_bad_adaptive_inputs(scene):
             render_adaptive(fs, ids, 0.1, dni=dni, dhi=dhi)
     with pytest.raises(InputError, match="finite field"):  # the scene fixture is finite
         render_adaptive(fs, ids, 0.1, direct="projection")
+    # A sun below the horizon and no sky: the light floor was 0 and every segment ran to the cap
+    # (a review); refused before the pilot, and the scene's sun put back for the other tests.
+    fs.set_sun(-5, 180)
+    try:
+        with pytest.raises(InputError, match=r"dni=1 with the sun -5.0° high and dhi=0"):
+            render_adaptive(fs, ids, 0.1, dni=1.0, dhi=0.0)
+    finally:
+        fs.set_sun(45, 180)
 
 
 # -- the accuracy knob: Scenario.target_rse through the coupled model, the cache key and the CLI ----

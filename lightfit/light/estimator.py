@@ -1286,6 +1286,12 @@ def render_adaptive(
     rse = np.full(S, np.inf)
     goal = np.full(S, float(target_rse))  # each segment's relative target, the floor's included
     floor = float(dark_floor) * (dni * max(float(field_scene.sun[2]), 0.0) + dhi)
+    if dark_floor > 0 and floor == 0:  # a sun below the horizon and no sky: every segment went to the cap
+        raise InputError(
+            f"dni={dni:g} with the sun {math.degrees(math.asin(float(field_scene.sun[2]))):.1f}° high and dhi=0",
+            parameter="dni, dhi",
+            expected="light above the canopy to judge the error by (a sun above the horizon or dhi > 0)",
+        )
     # Points after which a segment that has received nothing is below the floor (rule of three).
     zero_points = math.ceil(3.0 / dark_floor) if floor > 0 else math.inf
     first, rounds, n_eval, meta0 = 0, [], 0, None
