@@ -364,3 +364,20 @@ def test_ceptometer_arguments_are_refused_by_name(kw, name):
     'sensors' (the end points) instead of height_m."""
     with pytest.raises(InputError, match=f"parameter '{name}'"):
         ceptometer(CELL, **kw)
+
+
+def test_a_sensor_area_or_end_points_that_are_no_numbers_and_a_text_leaf_value_are_refused_by_name():
+    """ceptometer(area=None) stopped on an AttributeError naming size_m, a Sensor of text or ragged end
+    points on numpy's ValueError naming no sensor, and FieldScene.set_optics(specular="x") on
+    float()'s ValueError (a review); each is the InputError naming its argument."""
+    with pytest.raises(InputError, match="parameter 'area'"):
+        ceptometer(None)
+    for starts in ((("a", 0.0, 0.1),), ((0.0, 0.0, 0.1), (0.0, 0.1))):
+        with pytest.raises(InputError, match="parameter 'sensors'.*numbers"):
+            Sensor("s", starts, ((0.5, 0.0, 0.1),) * len(starts))
+    scene = FieldScene(square((0.0, 0.0, 0.3), (0.0, 0.0, 1.0), 0.1, 1), Optics.preset("paper"))
+    for bad in ("x", 1.5, math.nan):
+        with pytest.raises(InputError, match="parameter 'specular'"):
+            scene.set_optics(specular=bad)
+    scene.set_optics(specular=0.25)
+    assert scene.optics.specular == 0.25

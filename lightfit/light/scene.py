@@ -266,8 +266,7 @@ class FieldScene:
                 raise InputError(
                     f"unknown leaf parameter {name!r}", parameter=name, expected=", ".join(LEAF_PARAMETERS)
                 )
-            if not (0.0 <= float(v) <= 1.0):
-                raise InputError(f"{name}={v!r}", parameter=name, expected="a value in [0, 1]")
-            self.params[f"plants.bsdf.{name}"] = self.mi.Float(float(v))
+            v = check_fraction(v, name, parameter=name)  # a text value was float()'s ValueError
+            self.params[f"plants.bsdf.{name}"] = self.mi.Float(v)
         self.params.update()
         self.optics = Optics(**{**asdict(self.optics), **{k: float(v) for k, v in leaf.items()}})

@@ -71,7 +71,14 @@ class Sensor:
     ends_m: tuple
 
     def __post_init__(self):
-        a, b = self.lines()
+        try:
+            a, b = self.lines()
+        except (TypeError, ValueError):  # text or ragged end points: numpy's error named no sensor
+            raise InputError(
+                f"sensor {self.name!r}: end points {self.starts_m!r} … {self.ends_m!r}",
+                parameter="sensors",
+                expected="(P, 3) numbers, m",
+            ) from None
         if a.ndim != 2 or a.shape[1] != 3 or a.shape != b.shape or len(a) == 0:
             raise InputError(
                 f"sensor {self.name!r}: end points of shape {a.shape} and {b.shape}",
@@ -126,6 +133,10 @@ def ceptometer(
     """
     # check_integer and check_real: placements=True stopped on a numpy TypeError, a text length or
     # height on Python's, and a negative or NaN height was blamed on "sensors".
+    if not isinstance(area, PeriodicCell):  # None stopped on an AttributeError naming size_m
+        raise InputError(
+            f"area of type {type(area).__name__}", parameter="area", expected="the measured area, e.g. Field.cell"
+        )
     placements = check_integer(placements, "placements", 1, expected="an integer ≥ 1")
     length_m = check_real(length_m, "length_m", 0.0, expected="a bar length ≥ 0 m")
     height_m = check_real(height_m, "height_m", 0.0, expected="a height ≥ 0 m (0: on the soil)")
