@@ -90,14 +90,14 @@ def field(
     if n_plants is None:  # the field the model commands run, so that a preview shows it
         n_plants = (ReplicationConfig.quick() if quick else ReplicationConfig()).n_plants
     buffer_rows, buffer_along = check_boundary(boundary, buffer_rows, buffer_along)
+    sidecars = set()  # the OBJs' files of values beside them
     for path in export or []:  # before minutes of plant growth
-        if mesh_format(output_file(path, "export")) == "obj":  # and the OBJ's values beside it
-            output_file(sidecar_path(path), "export")
+        if mesh_format(output_file(path, "export")) == "obj":
+            sidecars.add(output_file(sidecar_path(path), "export").resolve())
     if preview:
         figure_format(output_file(preview, "preview"))
     if segments_csv:
         output_file(segments_csv, "segments_csv")
-        sidecars = {sidecar_path(p).resolve() for p in export or [] if mesh_format(p) == "obj"}
         if segments_csv.resolve() in sidecars:  # one file would silently replace the other
             raise InputError(
                 f"{segments_csv} is also the OBJ export's sidecar of per-segment values",

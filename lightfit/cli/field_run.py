@@ -53,7 +53,6 @@ def field_run(
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
     from lightfit.distributed.run import PARTS_SUFFIX, FieldRun, check_cluster_options, run_field
-    from lightfit.distributed.tiles import HaloField
     from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
     from lightfit.report import field_label, samples_label
 
@@ -83,9 +82,10 @@ def field_run(
         f"chunk(s), {len(sc.weather)} steps, {samples_label(sc.samples, sc.target_rse)}, {sc.bounces} bounces, halo: "
         f"{'whole field' if halo_rows is None else f'{halo_rows} rows'}"
     )
-    if halo_rows is not None and halo_rows < (exact := HaloField.of(sc.field).exact_halo_rows(tiles)):
+    if run.partial_scenes:
         caution(
-            f"--halo-rows {halo_rows} < {exact}, which holds the whole field in each of the {tiles} tiles: "
+            f"--halo-rows {halo_rows} < {run.halo_field.exact_halo_rows(tiles)}, which holds the whole field in "
+            f"each of the {tiles} tiles: "
             "segments near tile boundaries miss plants that shade them, a bias and not Monte Carlo noise (canopy "
             "APAR +49 % at 1 row, +11 % at 4 in docs/distributed.md's 6 × 6 field), and the ceptometer, which spans "
             "the whole area, is not rendered (its observables NaN); without --halo-rows it is exact"

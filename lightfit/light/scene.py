@@ -261,12 +261,14 @@ class FieldScene:
 
     def set_optics(self, **leaf: float) -> None:
         """Change leaf parameters (``specular``, ``roughness``, ``subsurface``) in place, no rebuild."""
-        for name, v in leaf.items():
+        for name in leaf:
             if name not in LEAF_PARAMETERS:
                 raise InputError(
                     f"unknown leaf parameter {name!r}", parameter=name, expected=", ".join(LEAF_PARAMETERS)
                 )
-            v = check_fraction(v, name, parameter=name)  # a text value was float()'s ValueError
+        # every value checked before any is set (a text value was float()'s ValueError)
+        leaf = {name: check_fraction(v, name, parameter=name) for name, v in leaf.items()}
+        for name, v in leaf.items():
             self.params[f"plants.bsdf.{name}"] = self.mi.Float(v)
         self.params.update()
-        self.optics = Optics(**{**asdict(self.optics), **{k: float(v) for k, v in leaf.items()}})
+        self.optics = Optics(**{**asdict(self.optics), **leaf})

@@ -131,12 +131,12 @@ def ceptometer(
             on the measured plants; a periodic one wraps and needs no clipping).
         name: the sensor's name.
     """
-    # check_integer and check_real: placements=True stopped on a numpy TypeError, a text length or
-    # height on Python's, and a negative or NaN height was blamed on "sensors".
     if not isinstance(area, PeriodicCell):  # None stopped on an AttributeError naming size_m
         raise InputError(
             f"area of type {type(area).__name__}", parameter="area", expected="the measured area, e.g. Field.cell"
         )
+    # check_integer and check_real: placements=True stopped on a numpy TypeError, a text length or
+    # height on Python's, and a negative or NaN height was blamed on "sensors".
     placements = check_integer(placements, "placements", 1, expected="an integer ≥ 1")
     length_m = check_real(length_m, "length_m", 0.0, expected="a bar length ≥ 0 m")
     height_m = check_real(height_m, "height_m", 0.0, expected="a height ≥ 0 m (0: on the soil)")
