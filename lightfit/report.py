@@ -203,13 +203,14 @@ def plot(ds, path: Path, compare=None) -> Path:
 def figure(ds, compare=None):
     """The replication figure: like with like, one panel per kind of quantity.
 
-    (a) PAR on a horizontal quantum sensor above the canopy — the model's sensor
-    (``above_canopy_par_umol_m2_s``) with the observed above-canopy PAR (the chamber's record) on
-    the same axis, and the weather series' own PAR; (b) PAR absorbed (or incident) at the plants,
-    the area-weighted mean over segments per one-sided area with the band of the segments' 10–90 %
-    of area, and canopy APAR per ground area, with any
-    observations of these; (c) canopy net CO2 uptake per ground (or leaf) area ± 2 Monte Carlo
-    SD, with observed uptake. ``compare``: a second run's results (e.g. the ``paper`` preset,
+    (a) PAR per ground area — on a horizontal quantum sensor above the canopy, the model's sensor
+    (``above_canopy_par_umol_m2_s``) with the observed above-canopy PAR (the chamber's record) and
+    the weather series' own PAR, and what the canopy absorbs of it (canopy APAR), with any
+    observations of these; (b) PAR absorbed (or incident) at the plants per one-sided leaf/stem
+    area, the area-weighted mean over segments with the band of the segments' 10–90 % of area, with
+    any observations of it (per-ground and per-leaf-area fluxes never share an axis); (c) canopy net
+    CO2 uptake per ground (or leaf) area ± 2 Monte Carlo SD, with observed uptake. ``compare``: a
+    second run's results (e.g. the ``paper`` preset,
     :meth:`lightfit.replication.ReplicationConfig.paper`) drawn dashed beside this one's.
     Observations are labelled with their provenance (legends and title), as the forcing is.
     """
@@ -246,9 +247,24 @@ def figure(ds, compare=None):
             )
     if "weather_par_umol_m2_s" in ds:  # drawn over the model's sensor, which it equals at light factor 1
         ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="k", lw=1, ls=":", label="weather series' PAR", zorder=3)
+    for d, ls, lab in runs:
+        if "canopy_apar_umol_m2_s" in d:
+            ax_a.plot(
+                local(d),
+                d["canopy_apar_umol_m2_s"].values,
+                color="tab:green",
+                lw=1.5,
+                ls=ls,
+                label=f"absorbed by the canopy, APAR ({lab.split(':')[0]})",
+            )
     _observed(ax_a, ds, t, "above_canopy_par", "s", "navy", "PAR above the canopy")
-    ax_a.set_ylabel("PAR above the canopy\n(µmol m⁻² s⁻¹, horizontal)")
-    ax_a.set_title("(a) horizontal quantum sensor above the canopy", loc="left", fontsize=10)
+    _observed(ax_a, ds, t, "canopy_apar", "D", "darkgreen", "canopy APAR")
+    ax_a.set_ylabel("PAR per ground area\n(µmol m⁻² ground s⁻¹)")
+    ax_a.set_title(
+        "(a) PAR per ground area: above the canopy (horizontal quantum sensor) and absorbed by it",
+        loc="left",
+        fontsize=10,
+    )
 
     # (b) at the plants
     kind = ds.attrs.get("par_kind", "absorbed")
@@ -271,19 +287,9 @@ def figure(ds, compare=None):
             ls=ls,
             label=f"{k} PAR per leaf/stem area, mean over segments ({lab.split(':')[0]})",
         )
-        if "canopy_apar_umol_m2_s" in d:
-            ax_b.plot(
-                local(d),
-                d["canopy_apar_umol_m2_s"].values,
-                color="tab:green",
-                lw=1.5,
-                ls=ls,
-                label=f"canopy APAR per ground area ({lab.split(':')[0]})",
-            )
     _observed(ax_b, ds, t, "plant_par", "s", "navy", "PAR at the plants")
-    _observed(ax_b, ds, t, "canopy_apar", "D", "darkgreen", "canopy APAR")
-    ax_b.set_ylabel("PAR at the plants\n(µmol m⁻² s⁻¹ of leaf/stem\nor ground area: legend)")
-    ax_b.set_title("(b) PAR at the plants", loc="left", fontsize=10)
+    ax_b.set_ylabel("PAR at the plants\n(µmol m⁻² leaf/stem s⁻¹)")
+    ax_b.set_title("(b) PAR at the plants per one-sided leaf/stem area", loc="left", fontsize=10)
 
     # (c) net CO2 uptake
     per = ds.attrs.get("an_per", "ground")

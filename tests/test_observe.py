@@ -487,6 +487,12 @@ def test_figure_band_is_the_segments_area_range_and_the_title_names_a_given_thet
         b = fig.axes[1]
         labels = [t.get_text() for t in b.get_legend().get_texts()]
         assert "10–90 % of the segments' area" in labels, labels
+        # per leaf/stem area in (b), per ground area in (a): canopy APAR, a flux per ground area, was
+        # drawn on (b)'s axis beside the per-segment-area PAR (a review of the main job's figure)
+        a_labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        assert not any("APAR" in lab for lab in labels), labels
+        assert any(lab.startswith("absorbed by the canopy, APAR") for lab in a_labels), a_labels
+        assert "ground s⁻¹" in fig.axes[0].get_ylabel() and "leaf/stem s⁻¹" in b.get_ylabel()
         band = next(c for c in b.collections if c.get_label() == "10–90 % of the segments' area")
         path = band.get_paths()[0].vertices[:, 1]
         np.testing.assert_allclose(np.unique(path), np.unique(np.r_[lo, hi]), rtol=1e-12)
