@@ -234,29 +234,18 @@ def figure(ds, compare=None):
     if compare is not None:
         runs.append((compare, "--", f"{name(compare, 'compared')}: {run_label(compare.attrs)}"))
 
-    # (a) above the canopy
+    # (a) per ground area: above the canopy, and what the canopy absorbs of it
     for d, ls, lab in runs:
-        if "above_canopy_par_umol_m2_s" in d:
-            ax_a.plot(
-                local(d),
-                d["above_canopy_par_umol_m2_s"].values,
-                color="darkorange",
-                lw=2,
-                ls=ls,
-                label=f"model sensor ({lab.split(':')[0]}, light factor {d.attrs.get('theta_light_factor', 1):.3g})",
-            )
+        who = lab.split(":")[0]
+        sensor = f"model sensor ({who}, light factor {d.attrs.get('theta_light_factor', 1):.3g})"
+        for var, color, lw, label in (
+            ("above_canopy_par_umol_m2_s", "darkorange", 2, sensor),
+            ("canopy_apar_umol_m2_s", "tab:green", 1.5, f"absorbed by the canopy, APAR ({who})"),
+        ):
+            if var in d:
+                ax_a.plot(local(d), d[var].values, color=color, lw=lw, ls=ls, label=label)
     if "weather_par_umol_m2_s" in ds:  # drawn over the model's sensor, which it equals at light factor 1
         ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="k", lw=1, ls=":", label="weather series' PAR", zorder=3)
-    for d, ls, lab in runs:
-        if "canopy_apar_umol_m2_s" in d:
-            ax_a.plot(
-                local(d),
-                d["canopy_apar_umol_m2_s"].values,
-                color="tab:green",
-                lw=1.5,
-                ls=ls,
-                label=f"absorbed by the canopy, APAR ({lab.split(':')[0]})",
-            )
     _observed(ax_a, ds, t, "above_canopy_par", "s", "navy", "PAR above the canopy")
     _observed(ax_a, ds, t, "canopy_apar", "D", "darkgreen", "canopy APAR")
     ax_a.set_ylabel("PAR per ground area\n(µmol m⁻² ground s⁻¹)")
