@@ -11,6 +11,9 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 
 @contextmanager
@@ -88,3 +91,20 @@ def is_netcdf(path: str | Path) -> bool:
 
 
 __all__ = ["NETCDF_MAGIC", "is_netcdf", "replace_text", "replaced"]
+
+
+def jsonable(d: Any, strict: bool = False) -> Any:
+    """``d`` with numpy arrays and scalars turned into lists and Python numbers (for ``json.dumps``);
+    ``strict``: non-finite numbers as ``None`` too (JSON has no Infinity or NaN: strict parsers,
+    jq and JavaScript, refuse them)."""
+    if isinstance(d, dict):
+        return {k: jsonable(v, strict) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [jsonable(v, strict) for v in d]
+    if isinstance(d, np.ndarray):
+        return jsonable(d.tolist(), strict) if strict else d.tolist()
+    if isinstance(d, (np.floating, np.integer, np.bool_)):
+        d = d.item()
+    if strict and isinstance(d, float) and not np.isfinite(d):
+        return None
+    return d

@@ -2549,3 +2549,32 @@ def test_printed_summary_of_several_days_says_each_days_date():
     assert rows == [["20 Apr", ""], ["12:00", "0.90"], ["21 Apr", ""], ["00:30", "0.00"], ["12:00", "0.91"]]
     assert summary_rows(table.iloc[:1], "Europe/Berlin") == [["12:00", "0.90"]]
     assert summary_rows(table, "UTC")[3] == ["21 Apr", ""]  # the same instants, another day's bounds
+
+
+def test_calibration_json_is_strict_json_when_a_full_render_did_not_converge(tmp_path, monkeypatch):
+    """A surrogate round whose full render's photosynthesis did not converge has loss +inf; its
+    calibration.json and trust_region.jsonl rows wrote ``Infinity``, which strict JSON parsers (jq,
+    JavaScript) refuse: null now. The real run's result with such a round put in (the quick model)."""
+    import dataclasses
+    import importlib
+    import math
+
+    tr_mod = importlib.import_module("lightfit.inference.trust_region")
+    real = tr_mod.surrogate_calibrate
+    bad = {"round": 1, "design": 8, "degree": 1, "theta": {"light_factor": 1.0}, "loss_surrogate": 2.0}
+    bad |= {"loss_full": math.inf, "loss_sd": 0.5, "difference_over_sd": math.inf, "passed": False}
+
+    def with_an_unconverged_round(*a, **k):
+        return dataclasses.replace(real(*a, **k), loss_full=math.inf, rounds=[bad])
+
+    monkeypatch.setattr(tr_mod, "surrogate_calibrate", with_an_unconverged_round)
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]
+    r = runner.invoke(app, [*args, "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+
+    def refuse(c):
+        raise ValueError(f"not strict JSON: {c}")
+
+    res = json.loads((tmp_path / "calibration.json").read_text(), parse_constant=refuse)
+    assert res["surrogate"]["loss_full"] is None
+    assert res["surrogate"]["rounds"] == [bad | {"loss_full": None, "difference_over_sd": None}]

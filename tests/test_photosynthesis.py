@@ -679,6 +679,20 @@ def test_half_precision_inputs_and_a_config_that_is_none_are_refused_by_name():
         assert bool(ps.solve(jnp.asarray(500.0, dt), 20.0, 400.0, 0.5, P_KPA, tuzet_leaf()).converged)
 
 
+@pytest.mark.parametrize(
+    "field, value",
+    [("rtol", -1e-3), ("atol_umol_mol", np.nan), ("flux_rtol", "1e-3"), ("max_steps", 0), ("max_steps", 2.5)],
+)
+def test_a_solver_config_out_of_range_is_refused_by_name(field, value):
+    """A negative tolerance or max_steps=0 was accepted and every element came back unconverged, with
+    no word why (a review); refused naming the field. The smallest valid values solve (one step:
+    unconverged, flagged)."""
+    with pytest.raises(InputError, match=f"parameter 'SolverConfig.{field}'"):
+        ps.SolverConfig(**{field: value})
+    one = ps.solve(500.0, 20.0, 400.0, 0.5, P_KPA, tuzet_leaf(), config=ps.SolverConfig(rtol=0.0, max_steps=1))
+    assert not bool(one.converged) and np.isfinite(float(one.an_umol_m2_s))
+
+
 def test_bad_parameters_and_names():
     with pytest.raises(InputError, match="unknown name 'wheat'.*giraud2023"):
         ps.parameter_set("wheat")

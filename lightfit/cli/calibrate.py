@@ -36,7 +36,7 @@ from lightfit.cli.options import (
 )
 from lightfit.defaults import DESIGN_SIZE
 from lightfit.errors import InputError
-from lightfit.files import replace_text
+from lightfit.files import jsonable, replace_text
 
 
 @model_options
@@ -302,7 +302,7 @@ def calibrate(
             "passed": tr.passed,
             "criterion": f"|full-render loss - surrogate loss| <= {tr.z:g} sigma_L at the optimum "
             "(sigma_L: Monte Carlo SD of the loss, lightfit.inference.trust_region)",
-            "loss_full": tr.loss_full if math.isfinite(tr.loss_full) else None,  # strict JSON
+            "loss_full": tr.loss_full,
             "renders_new": tr.rendered,
             "renders_cached": tr.cached,
             "sun_positions_rendered": tr.steps_rendered,
@@ -316,7 +316,9 @@ def calibrate(
             else str(tr.design_dir),
             "rounds": tr.rounds,
         }
-    replace_text(out / "calibration.json", json.dumps(record, indent=2))
+    # strict JSON (jq and JavaScript refuse Infinity): a round whose full render's photosynthesis did
+    # not converge has loss_full null, not Infinity
+    replace_text(out / "calibration.json", json.dumps(jsonable(record, strict=True), indent=2, allow_nan=False))
     t = Table(
         # The counts go below: a title is wrapped to the table's width, and a long one read badly.
         title=f"calibration: {res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}",

@@ -65,6 +65,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, check_real
+from lightfit.files import jsonable
 from lightfit.inference.calibration import MAX_STEPS, CalibrationResult, calibrate, check_start_names
 from lightfit.inference.likelihood import (
     USES,
@@ -437,7 +438,7 @@ def surrogate_calibrate(
         rounds.append(row)
         if log is not None:
             with open(log, "a", encoding="utf-8") as fh:
-                fh.write(json.dumps(row) + "\n")
+                fh.write(json.dumps(jsonable(row, strict=True), allow_nan=False) + "\n")  # strict JSON
         say(
             f"round {r}: design {row['design']} (degree {row['degree']}), surrogate loss {l_sur:.4g}, "
             f"full-render loss {l_full:.4g}, |Δ| = {row['difference_over_sd']:.2f} σ_L "

@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 from jax.typing import DTypeLike
 
+from lightfit.errors import check_integer, check_real
+
 
 class SolverConfig(eqx.Module):
     """Tolerances of the CO2 solve (all static).
@@ -49,6 +51,12 @@ class SolverConfig(eqx.Module):
     max_steps: int = eqx.field(static=True, default=100)
     flux_rtol: float = eqx.field(static=True, default=1e-7)
     flux_atol_umol_m2_s: float = eqx.field(static=True, default=1e-9)
+
+    def __check_init__(self):
+        # a negative tolerance or no step at all only ever reported "unconverged", with no word why
+        for name in ("rtol", "atol_umol_mol", "flux_rtol", "flux_atol_umol_m2_s"):
+            check_real(getattr(self, name), f"SolverConfig.{name}", 0.0, expected="a finite tolerance ≥ 0")
+        check_integer(self.max_steps, "SolverConfig.max_steps", 1, why="iterations of the CO2 solve")
 
     @classmethod
     def for_dtype(cls, dtype: DTypeLike, max_steps: int = 100) -> SolverConfig:

@@ -26,13 +26,13 @@ import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import emcee
 import h5py
 import numpy as np
 
 from lightfit.errors import InputError
+from lightfit.files import jsonable
 from lightfit.inference.mcmc.diagnostics import StopRule
 
 
@@ -191,23 +191,6 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
                 return None
             pos, has_gauss, cached = g["rng_meta"][i - 1]
             return ("MT19937", np.asarray(g["rng_key"][i - 1], np.uint32), int(pos), int(has_gauss), float(cached))
-
-
-def jsonable(d: Any, strict: bool = False) -> Any:
-    """``d`` with numpy arrays and scalars turned into lists and Python numbers (for ``json.dumps``);
-    ``strict``: non-finite numbers as ``None`` too (JSON has no Infinity or NaN: strict parsers,
-    jq and JavaScript, refuse them)."""
-    if isinstance(d, dict):
-        return {k: jsonable(v, strict) for k, v in d.items()}
-    if isinstance(d, (list, tuple)):
-        return [jsonable(v, strict) for v in d]
-    if isinstance(d, np.ndarray):
-        return jsonable(d.tolist(), strict) if strict else d.tolist()
-    if isinstance(d, (np.floating, np.integer, np.bool_)):
-        d = d.item()
-    if strict and isinstance(d, float) and not np.isfinite(d):
-        return None
-    return d
 
 
 def stored_run(path: Path, group: str) -> tuple[tuple[str, ...], int] | None:
