@@ -150,6 +150,11 @@ def test_fisher_refuses_a_zero_in_log_coordinates_and_a_wrong_number_of_values()
         fisher_information(lambda x: x * 2.0, np.array([1.0, 0.0]), ("a", "b"), scale="log")
     with pytest.raises(InputError, match="x0 shape"):
         fisher_information(lambda x: jnp.asarray(x), np.array([1.0, 2.0, 3.0]), ("a", "b"), scale="natural")
+    # a residual that is NaN at x0 (an unconverged photosynthesis) gave NaN eigenvalues unsaid (a review)
+    nan_row = lambda x: jnp.stack([x[0] * 2.0, jnp.sqrt(x[1] - 3.0), x[0] + x[1]])  # noqa: E731
+    with pytest.raises(InputError, match=r"x0=\[1.0, 2.0\] is not finite with respect to \['b'\]"):
+        fisher_information(nan_row, np.array([1.0, 2.0]), ("a", "b"), scale="natural")
+    assert fisher_information(nan_row, np.array([1.0, 4.0]), ("a", "b"), scale="natural").eigenvalues.all()
 
 
 def test_the_profile_never_exceeds_the_slice_even_from_a_trapped_warm_start():

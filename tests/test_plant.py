@@ -934,6 +934,10 @@ def test_exports_of_a_hand_built_mesh_read_back_by_face(tmp_path):
     i = vtk.index("SCALARS an double 1") + 2
     assert [float(x) for x in vtk[i : i + 2]] == [4.5, -1.25]  # face 0 is segment 7, face 1 segment 3
     assert vtk[vtk.index("POLYGONS 2 8") + 1 :][:2] == ["3 0 1 2", "3 1 3 2"]
+    # a value named segment_id replaced the ids in the OBJ sidecar (and doubled PLY's property); refused
+    for fmt in ("obj", "ply", "vtk"):
+        with pytest.raises(InputError, match="'segment_id' is the id column's own name"):
+            export(mesh, tmp_path / f"id.{fmt}", {"segment_id": pd.Series({3: 0.0, 7: 1.0})})
 
 
 def test_a_mesh_without_faces_exports_in_every_format(tmp_path):

@@ -90,6 +90,13 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     else:
         raise InputError(f"scale={scale!r}", parameter="scale", expected="'log' or 'natural'")
     J = np.asarray(jac, float)
+    if not np.all(np.isfinite(J)):  # eigh of a NaN matrix: NaN eigenvalues, or LinAlgError, unsaid
+        cols = [n for n, ok in zip(names, np.all(np.isfinite(J), axis=0)) if not ok]
+        raise InputError(
+            f"the residuals' Jacobian at x0={x0.tolist()} is not finite with respect to {cols}",
+            parameter="x0",
+            expected="a point where the model and its residuals are finite (e.g. photosynthesis converged)",
+        )
     F = J.T @ J
     lam, vec = np.linalg.eigh(F)
     order = np.argsort(lam)[::-1]

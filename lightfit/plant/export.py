@@ -30,6 +30,12 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
                 parameter=name,
                 expected="letters, digits and underscores (it becomes a file attribute)",
             )
+        if name == "segment_id":  # it would overwrite the ids every format writes beside the values
+            raise InputError(
+                "value name 'segment_id' is the id column's own name",
+                parameter=name,
+                expected="another name (the ids are written with every value)",
+            )
         series = pd.Series(series)
         absent = ~np.isin(mesh.face_segment, series.index.to_numpy())
         if absent.any():  # a NaN entry is a value (e.g. An of a stem); an absent one is a mistake
