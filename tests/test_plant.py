@@ -707,6 +707,19 @@ def test_growth_dates_and_spacings_are_read_as_values():
         Field(boundary="finite", row_spacing_m=True)
 
 
+def test_counts_and_seed_given_as_numpy_integers_are_the_same_field_under_the_same_key():
+    """n_plants, seed and the buffers from numpy (a sweep over np.arange) were kept as numpy
+    integers: the repr, a cache and resume key (Scenario.digest), read np.int64(16) where the
+    same field typed by hand reads 16."""
+    given = Field(
+        n_plants=np.int64(16), seed=np.int32(3), boundary="finite", buffer_rows=np.int64(1), buffer_along=np.uint8(4)
+    )
+    typed = Field(n_plants=16, seed=3, boundary="finite", buffer_rows=1, buffer_along=4)
+    assert repr(given) == repr(typed)
+    assert [type(getattr(given, k)) for k in ("n_plants", "seed", "buffer_rows", "buffer_along")] == [int] * 4
+    assert repr(Field(n_plants=np.int64(9))) == repr(Field(n_plants=9))  # periodic: buffer_rows set to 0
+
+
 def test_dates_given_as_date_objects_are_the_same_growth_and_go_into_results_files(tmp_path):
     """``parse_date`` takes a ``datetime.date`` (or datetime), so GrowthConfig did; it kept the object:
     the repr (a cache and resume key) differed from the same day as text, and the field's attrs,

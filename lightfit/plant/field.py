@@ -189,8 +189,11 @@ class Field:
         if self.buffer_rows is None:  # frozen dataclass: set the boundary's default once
             object.__setattr__(self, "buffer_rows", DEFAULT_BUFFER_ROWS if self.boundary == "finite" else 0)
         if self.buffer_along is not None:
-            check_integer(self.buffer_along, "buffer_along", 0, why="or None for buffer_rows")
-        check_integer(self.n_plants, "n_plants", 1)
+            # numpy's integers kept as Python's, as the spacings below: the repr keys caches and resumes
+            object.__setattr__(
+                self, "buffer_along", check_integer(self.buffer_along, "buffer_along", 0, why="or None for buffer_rows")
+            )
+        object.__setattr__(self, "n_plants", check_integer(self.n_plants, "n_plants", 1))
         if self.plants_per_row is not None:
             ppr = check_integer(
                 self.plants_per_row,
@@ -225,8 +228,9 @@ class Field:
             expected="a compass azimuth in degrees, 0 ≤ azimuth < 360 (rows at 270 run as at 90)",
         )
         object.__setattr__(self, "row_direction_deg", d)  # a float, as the spacings above
-        check_integer(self.buffer_rows, "buffer_rows", 0, high=ID_OFFSET + 1, why="plant ids hold 1 000 rows")
-        check_integer(self.seed, "seed", 0)
+        b = check_integer(self.buffer_rows, "buffer_rows", 0, high=ID_OFFSET + 1, why="plant ids hold 1 000 rows")
+        object.__setattr__(self, "buffer_rows", b)
+        object.__setattr__(self, "seed", check_integer(self.seed, "seed", 0))
         if self.b_along > ID_OFFSET or self.n_along + self.b_along > ID_COLUMNS - ID_OFFSET:
             raise InputError(
                 f"{self.n_along} plants per row and {self.b_along} buffer plants along them",
