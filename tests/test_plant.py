@@ -1,6 +1,7 @@
 """Plant structure (G1), mesh (G3), field layout, tiles, cache and exports."""
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -718,6 +719,27 @@ def test_counts_and_seed_given_as_numpy_integers_are_the_same_field_under_the_sa
     assert repr(given) == repr(typed)
     assert [type(getattr(given, k)) for k in ("n_plants", "seed", "buffer_rows", "buffer_along")] == [int] * 4
     assert repr(Field(n_plants=np.int64(9))) == repr(Field(n_plants=9))  # periodic: buffer_rows set to 0
+
+
+def test_a_parameter_file_given_as_a_path_is_kept_as_text_and_goes_into_results_files(tmp_path):
+    """GrowthConfig kept a pathlib.Path as given: the field's attrs held it, and xarray refuses a
+    Path as a netCDF attribute (a TypeError when the results file was written, after the run), and
+    the repr (a cache and resume key) differed from the same file named as text. None was a
+    TypeError from pathlib."""
+    import xarray as xr
+
+    from lightfit.plant.growth import resolve_parameter_file
+
+    path = resolve_parameter_file("Triticum_aestivum_adapted_2023.xml")
+    g = GrowthConfig(parameter_file=path)
+    assert g.parameter_file == str(path) and repr(g) == repr(GrowthConfig(parameter_file=str(path)))
+    assert GrowthConfig(parameter_file=Path("Triticum_aestivum_adapted_2023.xml")) == GrowthConfig()
+    ds = xr.Dataset(attrs=Field(growth=g).attrs())
+    ds.to_netcdf(tmp_path / "r.nc", engine="h5netcdf")
+    assert xr.open_dataset(tmp_path / "r.nc", engine="h5netcdf").attrs["parameter_file"] == str(path)
+    for bad in (None, 3):
+        with pytest.raises(InputError, match="parameter 'parameter_file'.*a file name or path"):
+            GrowthConfig(parameter_file=bad)
 
 
 def test_dates_given_as_date_objects_are_the_same_growth_and_go_into_results_files(tmp_path):

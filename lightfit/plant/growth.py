@@ -241,6 +241,15 @@ class GrowthConfig:
     _path: Path = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
+        if not isinstance(self.parameter_file, (str, os.PathLike)):  # Path(None): a TypeError
+            raise InputError(
+                f"parameter_file={self.parameter_file!r}",
+                parameter="parameter_file",
+                expected=f"a file name or path (default {DEFAULT_PARAMETER_FILE})",
+            )
+        # Kept as text: the repr keys caches and resumes, and attrs() go into netCDF results, which
+        # hold no Path (a pathlib.Path failed the results file's write at the end of a run).
+        object.__setattr__(self, "parameter_file", os.fspath(self.parameter_file))
         end = parse_date(self.target_date, "target_date")
         default = self.season_start is None
         if default:  # frozen: set once; recorded as a date, so that repr, attrs and keys name it
