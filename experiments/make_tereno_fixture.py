@@ -6,10 +6,12 @@ The values are lightfit's reconstructed 2016-04-20 forcing converted back to TER
 (absolute humidity g m-3, CO2 mmol m-3 every 30 min, pressure mbar, local time UTC+1), with
 two night-time PAR sensor offsets (-1.2, -0.8 umol m-2 s-1) as real quantum sensors show.
 It exists to test the reader's layout handling; it is not a measurement.
+Its header's ``Made by:`` line records the command and the lightfit commit.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +20,9 @@ from lightfit.precision import use_float64
 from lightfit.weather import load, units
 
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from provenance import commit_state  # noqa: E402  (the commit, as every script's JSON records it)
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "data" / "fixtures" / "tereno_SE_EC_001_fixture.csv"
@@ -39,6 +44,18 @@ Parameters:
   AirConcentration_CO2_2m_Avg30min [mmol*m-3]: CO2 concentration at 2 m, 30 min average
 Quality flags: ok, doubtful, bad, unevaluated
 """
+
+
+def made_by() -> str:
+    """The header line that says how the file was made: the command and the commit (with whether
+    lightfit/ or experiments/ had uncommitted changes); no seed, nothing in it is random."""
+    state = commit_state()
+    return (
+        "Made by: python experiments/make_tereno_fixture.py at lightfit commit "
+        f"{state['lightfit_commit']} (uncommitted changes: lightfit/ {state['lightfit_uncommitted_changes']}, "
+        f"experiments/ {state['experiments_uncommitted_changes']})\n"
+    )
+
 
 COLS = [
     "Timestamp",
@@ -78,7 +95,8 @@ def main() -> Path:
         )
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(
-        HEADER + "\n" + ",".join(COLS) + "\n" + "\n".join(",".join(r) for r in rows) + "\n", encoding="utf-8"
+        HEADER + made_by() + "\n" + ",".join(COLS) + "\n" + "\n".join(",".join(r) for r in rows) + "\n",
+        encoding="utf-8",
     )
     assert np.isfinite(par).all()
     return OUT

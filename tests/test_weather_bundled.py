@@ -121,3 +121,42 @@ def test_a_lightfit_csv_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
         write_lightfit_csv(df.iloc[:3], path, {"provenance": "reconstructed"})
     monkeypatch.undo()
     assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["forcing.csv"]
+
+
+def _script_module(name):
+    """An experiments/ script imported as a module (its ``main`` not run)."""
+    import importlib.util
+
+    path = DATA_DIR.parent / "experiments" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"experiment_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _head_commit():
+    import subprocess
+
+    return subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=DATA_DIR.parent, capture_output=True, text=True
+    ).stdout.strip()
+
+
+def test_the_tereno_fixture_script_records_how_it_was_made(tmp_path, monkeypatch):
+    """experiments/make_tereno_fixture.py wrote its command nowhere and no commit (a review): its
+    header now says both, and the file still reads as the bundled fixture does, row for row."""
+    from lightfit.weather import read_tereno
+
+    script = _script_module("make_tereno_fixture")
+    monkeypatch.setattr(script, "OUT", tmp_path / "fixture.csv")
+    text = script.main().read_text(encoding="utf-8")
+    made = [line for line in text.splitlines() if line.startswith("Made by:")]
+    commit = _head_commit()
+    assert commit and len(made) == 1
+    assert "python experiments/make_tereno_fixture.py" in made[0] and f"commit {commit} " in made[0]
+    fresh, bundled = (
+        read_tereno(tmp_path / "fixture.csv"),
+        read_tereno(DATA_DIR / "fixtures" / "tereno_SE_EC_001_fixture.csv"),
+    )
+    assert fresh.attrs["provenance"] == "synthetic"
+    pd.testing.assert_frame_equal(fresh, bundled)
