@@ -38,7 +38,7 @@ from lightfit.precision import use_float64
 use_float64()  # lightfit's precision policy (lightfit.precision), before any JAX array exists
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import record, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = {"specular": 0.7, "roughness": 0.4, "subsurface": 0.6}
@@ -55,19 +55,7 @@ def main(quick: bool = False, out: Path = ROOT / "results" / "twin", write_data:
     model = rep.model_for(cfg, rep.forcing())
     obs = twin_observations(model, TRUTH, render_seed=101, noise_seed=7)
     path = DATA if write_data else out / "twin_observations.csv"
-    write_observations(
-        obs,
-        path,
-        {
-            "provenance": "synthetic",
-            "title": "SYNTHETIC twin observations, 2016-04-20 configuration (not measured)",
-            "generator": "experiments/twin_2016_04_20.py",
-            "truth": json.dumps(TRUTH),
-            "config": json.dumps(dataclasses.asdict(cfg)),
-            "render_seed": "101",
-            "noise_seed": "7",
-        },
-    )
+    write_observations(obs, path, data_metadata(cfg))
     obs = read_observations(path)
     names_all = ("specular", "roughness", "subsurface")
     loss_all = make_loss(model, obs, names_all, at=TRUTH)  # the SDs held there: truth's own
@@ -100,6 +88,24 @@ def main(quick: bool = False, out: Path = ROOT / "results" / "twin", write_data:
     write_result(out / "twin.json", res)
     print(json.dumps(res, indent=2))
     return res
+
+
+def data_metadata(cfg) -> dict:
+    """The twin series' ``#`` header: what it is, its truth, configuration and seeds, and the command
+    and lightfit commit that made it (``provenance.record``, as every result JSON has them)."""
+    rec = record()
+    return {
+        "provenance": "synthetic",
+        "title": "SYNTHETIC twin observations, 2016-04-20 configuration (not measured)",
+        "generator": "experiments/twin_2016_04_20.py",
+        "command": rec["command"],
+        "lightfit_commit": str(rec["lightfit_commit"]),
+        "uncommitted_changes": json.dumps({d: rec[f"{d}_uncommitted_changes"] for d in ("lightfit", "experiments")}),
+        "truth": json.dumps(TRUTH),
+        "config": json.dumps(dataclasses.asdict(cfg)),
+        "render_seed": "101",
+        "noise_seed": "7",
+    }
 
 
 def _summary(r) -> dict:

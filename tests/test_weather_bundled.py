@@ -160,3 +160,23 @@ def test_the_tereno_fixture_script_records_how_it_was_made(tmp_path, monkeypatch
     )
     assert fresh.attrs["provenance"] == "synthetic"
     pd.testing.assert_frame_equal(fresh, bundled)
+
+
+def test_the_twin_series_records_the_command_and_commit_that_made_it(tmp_path):
+    """experiments/twin_2016_04_20.py wrote the twin series (data/observations/, ``--write-data``)
+    with its seeds and configuration but no command and no commit (a review): its header has both."""
+    from lightfit import replication as rep
+    from lightfit.inference.observations import read_observations, write_observations
+
+    script = _script_module("twin_2016_04_20")
+    obs = pd.DataFrame(
+        {"plant_par_umol_m2_s": [100.0, 200.0], "plant_par_sd_umol_m2_s": [3.0, 6.0]},
+        index=pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-20T10:30Z"]),
+    )
+    path = write_observations(obs, tmp_path / "twin.csv", script.data_metadata(rep.ReplicationConfig.quick()))
+    head = dict(
+        line[2:].split(": ", 1) for line in path.read_text(encoding="utf-8").splitlines() if line.startswith("# ")
+    )
+    assert head["lightfit_commit"] == _head_commit() != ""
+    assert head["command"] and (head["render_seed"], head["noise_seed"]) == ("101", "7")
+    assert read_observations(path).attrs["provenance"] == "synthetic"
