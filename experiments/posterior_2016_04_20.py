@@ -15,7 +15,8 @@
 4. Equal-fit parameter sets: the two most distant (in prior-scaled units) posterior samples whose
    log-likelihood is within 0.5 of the best, re-evaluated with FULL renders.
 5. The real single-point record (bundled chamber observation) with informed priors.
-Results: OUT/*.h5 (runs), OUT/summary.json. ``--tiny`` writes the notebook fixture.
+Results: OUT/*.h5 (runs, each with the command and lightfit commit that made it), OUT/summary.json.
+``--tiny`` writes the notebook fixture (the same record).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ use_float64()  # lightfit's precision policy (lightfit.precision), before any JA
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import numpy as np  # noqa: E402
-from provenance import write_result  # noqa: E402  (commit, cores, load and command with every JSON)
+from provenance import record, write_result  # noqa: E402  (commit, cores, load and command with every JSON)
 
 from lightfit.inference import mcmc as P  # noqa: E402
 from lightfit.inference import posterior as A  # noqa: E402
@@ -52,6 +53,14 @@ WIDE_BOX = ([0.0, 0.3, 0.0], [1.0, 1.0, 1.0])
 #: The twin is rendered with another seed than the model: its Monte Carlo error is a second,
 #: independent copy of the model's (docs/posterior.md, "mc_scale"); sampled and re-evaluated alike.
 MC_SCALE = 2.0
+
+
+def run_attrs(experiment: str) -> dict:
+    """What each run's HDF5 (and the ``--tiny`` notebook fixture) stores beside the sampler's seed:
+    the experiment, and the command and lightfit commit that made it (``provenance.record``)."""
+    rec = record()
+    keep = ("command", "lightfit_commit", "lightfit_uncommitted_changes", "experiments_uncommitted_changes")
+    return {"experiment": experiment, **{k: rec[k] for k in keep}}
 
 
 def main(argv=None):
@@ -120,7 +129,7 @@ def main(argv=None):
             mc_scale=MC_SCALE,
             validation_renders=(leaf_test, full),
             progress=True,
-            attrs={"experiment": f"twin, {label}"},
+            attrs=run_attrs(f"twin, {label}"),
         )
         r["wall_seconds"] = time.perf_counter() - t
         runs[label] = r
@@ -195,7 +204,7 @@ def main(argv=None):
         seed=0,
         validation_renders=(leaf_test, full),
         progress=True,
-        attrs={"experiment": "real single PAR record"},
+        attrs=run_attrs("real single PAR record"),
     )
     summary["record_informed"] = r
     write_result(out / "summary.json", P.jsonable(summary), default=str)
@@ -219,7 +228,7 @@ def main(argv=None):
             progress=False,
             n_predictive=32,
             n_profile=9,
-            attrs={"experiment": "tiny twin run (notebook fixture)"},
+            attrs=run_attrs("tiny twin run (notebook fixture)"),
         )
         shutil.copy(tmp, args.tiny)
         print("tiny run", args.tiny, args.tiny.stat().st_size, "bytes")

@@ -126,3 +126,32 @@ def test_a_run_path_given_from_the_repository_root_is_found(monkeypatch):
     ).execute()
     head = _text(_cell(nb, "load_run(path)"))
     assert str(FIXTURE) in head and "tiny twin run (notebook fixture)" in head
+
+
+def test_the_fixture_script_stores_the_command_and_commit_with_each_run(tmp_path):
+    """experiments/posterior_2016_04_20.py ``--tiny`` wrote the notebook fixture with its seed and no
+    command or commit (a review): every run it makes stores both, and they survive the HDF5 file."""
+    import importlib.util
+    import subprocess
+
+    from lightfit.inference.mcmc.backend import run_attrs
+    from lightfit.inference.mcmc.sampler import sample
+
+    spec = importlib.util.spec_from_file_location(
+        "posterior_experiment", ROOT / "experiments" / "posterior_2016_04_20.py"
+    )
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    path = tmp_path / "tiny.h5"
+    attrs = script.run_attrs("tiny twin run (notebook fixture)")
+
+    def log_prob(xs):  # a standard normal in one parameter
+        return -0.5 * np.sum(np.asarray(xs) ** 2, axis=1)
+
+    init = np.random.default_rng(3).normal(size=(4, 1))
+    sample(log_prob, ["x"], path, nwalkers=4, max_steps=3, seed=3, initial=init, progress=False, attrs=attrs)
+    stored = run_attrs(path)
+    assert stored["lightfit_commit"] == head.stdout.strip() != ""
+    assert stored["command"] and stored["experiment"] == "tiny twin run (notebook fixture)"
+    assert stored["seed"] == 3
