@@ -93,6 +93,8 @@ def test_notebook_executes(tmp_path, monkeypatch):
         np.testing.assert_allclose(table[k], np.round(summ[k], 4), atol=5.1e-5, err_msg=k)
     fisher = _text(_cell(nb, 'fi = an["fisher"]'))
     assert f"stiffest: {an['fisher']['stiff']}" in fisher and f"sloppiest: {an['fisher']['sloppy']}" in fisher
+    # its text said log-parameters always; a MAP on a zero bound has them in natural units (a review)
+    assert f"Fisher information in {an['fisher']['scale']} parameters" in fisher
     # the predictive panels are the series the run observed (values present in its stored observations)
     pred = an["predictive"]
     seen = [k[4:] for k in pred if k.startswith("obs_") and not k.endswith(("_sd", "_sd_umol_m2_s"))]
