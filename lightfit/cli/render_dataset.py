@@ -9,6 +9,11 @@ import typer
 from lightfit.cli.common import caution, console, output_folder
 from lightfit.errors import InputError
 
+#: Help panels: in one table with --out's required mark and -o/-q, the options' columns left too
+#: little width at 80 columns and rich cut --sweep-elevation-deg and two examples with "…".
+_CAMERAS = "Sweep cameras (without --cameras)"
+_IMAGES = "Images and labels"
+
 #: Options that describe the sweep's cameras: with --cameras (whose JSON carries each camera's own
 #: settings) they would be ignored, so naming one there is refused.
 SWEEP_OPTIONS = (
@@ -29,22 +34,39 @@ def render_dataset(
     results: Path = typer.Argument(..., help="Results netCDF of the coupled model (dims time × segment)."),
     out: Path = typer.Option(..., "--out", "-o", help="Dataset directory to write (created if missing)."),
     cameras: Path = typer.Option(None, "--cameras", help="JSON list of cameras (Camera fields); default: a sweep."),
-    sweep: int = typer.Option(4, "--sweep", help="Cameras on a circle around the field when --cameras is not given."),
-    sweep_distance_m: float = typer.Option(1.0, help="Horizontal distance of sweep cameras from the field centre, m."),
-    sweep_elevation_deg: float = typer.Option(35.0, help="Elevation of the sweep cameras' line of sight, degrees."),
-    width: int = typer.Option(512, help="Image width of sweep cameras, pixels."),
-    height: int = typer.Option(512, help="Image height of sweep cameras, pixels."),
-    fov_deg: float = typer.Option(45.0, help="Horizontal field of view of sweep cameras, degrees."),
-    exposure_mode: str = typer.Option("leaf", help="Sweep cameras' metering: leaf (leaf pixels only), scene or fixed."),
-    exposure_ev: float = typer.Option(0.0, help="Exposure compensation of sweep cameras, stops."),
-    meter_percentile: float = typer.Option(99.0, help="Leaf metering: percentile of leaf pixels mapped to white."),
+    sweep: int = typer.Option(
+        4, "--sweep", help="Cameras on a circle around the field when --cameras is not given.", rich_help_panel=_CAMERAS
+    ),
+    sweep_distance_m: float = typer.Option(
+        1.0, help="Horizontal distance of sweep cameras from the field centre, m.", rich_help_panel=_CAMERAS
+    ),
+    sweep_elevation_deg: float = typer.Option(
+        35.0, help="Elevation of the sweep cameras' line of sight, degrees.", rich_help_panel=_CAMERAS
+    ),
+    width: int = typer.Option(512, help="Image width of sweep cameras, pixels.", rich_help_panel=_CAMERAS),
+    height: int = typer.Option(512, help="Image height of sweep cameras, pixels.", rich_help_panel=_CAMERAS),
+    fov_deg: float = typer.Option(
+        45.0, help="Horizontal field of view of sweep cameras, degrees.", rich_help_panel=_CAMERAS
+    ),
+    exposure_mode: str = typer.Option(
+        "leaf", help="Sweep cameras' metering: leaf (leaf pixels only), scene or fixed.", rich_help_panel=_CAMERAS
+    ),
+    exposure_ev: float = typer.Option(
+        0.0, help="Exposure compensation of sweep cameras, stops.", rich_help_panel=_CAMERAS
+    ),
+    meter_percentile: float = typer.Option(
+        99.0, help="Leaf metering: percentile of leaf pixels mapped to white.", rich_help_panel=_CAMERAS
+    ),
     time: list[str] = typer.Option(
         None,
         "--time",
         help="Results time step(s) (repeatable): HH:MM local site time on the results' day, or ISO 8601 "
         "(UTC unless zoned, e.g. 2016-04-20T10:00 or 2016-04-20T12:00+02:00); default: highest sun.",
+        rich_help_panel=_IMAGES,
     ),
-    all_times: bool = typer.Option(False, "--all-times", help="Render every time step of the results."),
+    all_times: bool = typer.Option(
+        False, "--all-times", help="Render every time step of the results.", rich_help_panel=_IMAGES
+    ),
     quantity: list[str] = typer.Option(
         None,
         "--quantity",
@@ -52,12 +74,19 @@ def render_dataset(
         help="Quantity to label (repeatable): absorbed_par, an, vc, vj, gs, limitation, "
         "limitation_margin or a per-segment results variable of the schema (e.g. absorbed_par_mc_sd_umol_m2_s, "
         "the Monte Carlo SD, or reached_rse of an adaptive run); default: all available.",
+        rich_help_panel=_IMAGES,
     ),
-    spp: int = typer.Option(16, help="Paths per pixel (noise ∝ 1/√spp)."),
-    max_depth: int = typer.Option(4, help="Longest light path in vertices (2 = direct light only)."),
-    colour: str = typer.Option("rgb", help="rgb or mono (luminance) images."),
-    seed: int = typer.Option(0, help="Seed of the render and of organ colours (same seed → same images)."),
-    threads: int = typer.Option(None, help="Dr.Jit render threads (default: Dr.Jit's choice)."),
+    spp: int = typer.Option(16, help="Paths per pixel (noise ∝ 1/√spp).", rich_help_panel=_IMAGES),
+    max_depth: int = typer.Option(
+        4, help="Longest light path in vertices (2 = direct light only).", rich_help_panel=_IMAGES
+    ),
+    colour: str = typer.Option("rgb", help="rgb or mono (luminance) images.", rich_help_panel=_IMAGES),
+    seed: int = typer.Option(
+        0, help="Seed of the render and of organ colours (same seed → same images).", rich_help_panel=_IMAGES
+    ),
+    threads: int = typer.Option(
+        None, help="Dr.Jit render threads (default: Dr.Jit's choice).", rich_help_panel=_IMAGES
+    ),
     weather: str = typer.Option(
         None, help="Weather (bundled name or file) for results that carry no sun/sky (refused for those that do)."
     ),
