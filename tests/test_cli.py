@@ -849,8 +849,16 @@ def test_photosynthesis_override_options_reach_the_configuration():
         with pytest.raises(InputError, match=match) as e:
             resolve(ModelOptions(quick=True, photosynthesis_override=[text]))
         assert e.value.parameter == "photosynthesis_override"
-    r = runner.invoke(app, ["replicate", "--quick", "--photosynthesis-override", "curvature=2"])
-    assert r.exit_code == 2 and "curvature=2.0" in r.output and "in (0, 1]" in r.output, r.output
+    # A value outside its domain is refused by the set's own check (parameter photosynthesis_overrides):
+    # the message names the option given, not "parameter 'photosynthesis_overrides'".
+    for command in ("replicate", "calibrate", "posterior"):
+        args = [
+            command,
+            *([str(DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv")] if command == "calibrate" else []),
+        ]
+        r = runner.invoke(app, [*args, "--quick", "--photosynthesis-override", "curvature=2"])
+        assert r.exit_code == 2 and "curvature=2.0" in r.output and "in (0, 1]" in r.output, r.output
+        assert "error: option --photosynthesis-override: curvature=2.0" in r.stderr, (command, r.stderr)
 
 
 def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):

@@ -204,6 +204,7 @@ OPTION_ALIASES = {
     "n_tiles": ("--tiles",),
     "target_date": ("--date",),
     "soil_respiration_umol_m2_s": ("--soil-respiration",),
+    "photosynthesis_overrides": ("--photosynthesis-override",),  # a value outside its domain (with_overrides)
     "row_direction_deg": ("--row-direction",),
     "season_start": ("--season-start",),
     "date": ("--date",),
