@@ -633,3 +633,24 @@ def test_rays_cast_are_the_requested_density_over_all_replicates(field):
         for kind, rho in (("sun", 1e6), ("sky", 2e6)):
             assert s[kind]["rays"] == pytest.approx(rho * area, rel=0.02), (samples, kind)
             assert s[kind]["rays_per_m2"] == pytest.approx(rho, rel=0.02), (samples, kind)
+
+
+def test_more_rays_of_a_kind_than_32_bits_can_number_are_refused_before_casting():
+    """A ray's index (UInt32) keys its random numbers and its replicate: past 2³² rays of a kind on
+    one render they wrapped (rays repeated, light put in the wrong replicate) or Dr.Jit stopped on a
+    pass starting beyond 2³². On a 2 m × 2 m cell (4 m²), 1.1 × 10⁹ sun rays per m² are 4.4 × 10⁹
+    > 2³² ≈ 4.295 × 10⁹ rays: refused by name, before anything renders; 10⁹ per m² (4 × 10⁹) is not."""
+    from lightfit.light.estimator import render_adaptive
+
+    cell = PeriodicCell(2.0, 2.0, row_direction_deg=90.0)
+    fs = FieldScene(square([0.0, 0.0, 0.3], [0, 0, 1], 0.5, 1), OPTICS, cell=cell)
+    fs.set_sun(50.0, 180.0)
+    kw = dict(samples=8, bounces=0, seed=0, direct="projection")
+    est = SegmentEstimator(fs, [1], direct_rays_per_m2=(1.0e9, 1.0e6), **kw)  # built, not cast
+    assert est._direct.grid["sun"][0] * est._direct.grid["sun"][1] * est.replicates <= 2**32
+    for rays in ((1.1e9, 1.0e6), (1.0e6, 1.1e9)):
+        with pytest.raises(InputError, match="direct_rays_per_m2") as info:
+            SegmentEstimator(fs, [1], direct_rays_per_m2=rays, **kw)
+        assert "4.4e+09 rays" in str(info.value), str(info.value)
+        with pytest.raises(InputError, match="direct_rays_per_m2"):
+            render_adaptive(fs, [1], 0.1, bounces=0, direct="projection", direct_rays_per_m2=rays)

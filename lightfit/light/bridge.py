@@ -45,6 +45,7 @@ from lightfit.light.estimator import (
     check_samples,
     check_target_rse,
     checked_segment_ids,
+    replicates_for,
 )
 from lightfit.light.keyed_random import check_seed
 from lightfit.light.scene import FieldScene
@@ -104,7 +105,8 @@ def make_irradiance(
     # Checked here, once: inside the callbacks an error reaches the caller wrapped in JAX's.
     check_samples(samples)
     check_bounces(bounces)
-    check_direct_light(field_scene, direct, direct_rays_per_m2)
+    k = samples if target_rse is None else adaptive_pilot(samples)  # the projection's replicates are the paths'
+    check_direct_light(field_scene, direct, direct_rays_per_m2, replicates_for(int(k)))
     if sensors:
         check_samples(sensor_samples)
     if target_rse is not None:

@@ -281,15 +281,16 @@ def check_target_rse(value) -> float:
     )
 
 
-def check_direct_light(field_scene: FieldScene, direct: str, rays_per_m2) -> None:
+def check_direct_light(field_scene: FieldScene, direct: str, rays_per_m2, replicates: int = 8) -> None:
     """A user's choice of the segments' unscattered light: ``"paths"``, or ``"projection"`` on a
-    periodic scene with valid rays per m² (:func:`~lightfit.light.projection.check_rays`); checked
-    before anything renders."""
+    periodic scene with valid rays per m² (:func:`~lightfit.light.projection.check_rays`), no more
+    of a kind than the projection can number over the scene's cell with ``replicates``
+    (:func:`~lightfit.light.projection.ray_grids`); checked before anything renders."""
     if direct not in DIRECT_MODES[:2]:
         raise InputError(f"direct={direct!r}", parameter="direct", expected="'paths' or 'projection'")
     if direct == "projection":
         projection.check_periodic(field_scene)
-        projection.check_rays(rays_per_m2)
+        projection.ray_grids(field_scene.cell, projection.check_rays(rays_per_m2), replicates)
 
 
 def check_par_weights(dni, dhi) -> tuple[float, float]:
@@ -1271,7 +1272,7 @@ def render_adaptive(
         raise InputError(
             f"max_samples={max_samples!r}", parameter="max_samples", expected=f"an integer ≥ pilot ({pilot})"
         )
-    check_direct_light(field_scene, direct, direct_rays_per_m2)
+    check_direct_light(field_scene, direct, direct_rays_per_m2, replicates_for(int(pilot)))
     check_bounces(bounces)
     check_seed(seed)
     ids = checked_segment_ids(segment_ids)

@@ -113,6 +113,33 @@ def check_rays(rays_per_m2) -> tuple[float, float]:
     return out
 
 
+#: Most rays of one kind a render casts, all replicates together: a ray's index, which keys its
+#: random numbers and its replicate, is a 32-bit integer.
+MAX_RAYS_PER_KIND = 2**32
+
+
+def ray_grids(cell, rays_per_m2, replicates: int) -> dict[str, tuple[int, int]]:
+    """Per kind ("sun", "sky"): the grid (n_a, n_b) of one replicate's rays over ``cell`` for
+    ``rays_per_m2`` (``(sun, sky)``, :func:`check_rays`) and ``replicates`` R. InputError when a
+    kind's R · n_a · n_b rays exceed :data:`MAX_RAYS_PER_KIND` (their indices would wrap)."""
+    A, B = (float(v) for v in cell.size_m)
+    grids = {}
+    for kind, rho in zip(("sun", "sky"), rays_per_m2):
+        m = max(1, round(rho * cell.area_m2 / replicates))
+        nx = max(1, round(math.sqrt(m * A / B)))
+        grids[kind] = (nx, max(1, -(-m // nx)))
+        n = replicates * nx * grids[kind][1]
+        if n > MAX_RAYS_PER_KIND:
+            raise InputError(
+                f"direct_rays_per_m2: {rho:.3g} {kind} rays per m² over a cell of {cell.area_m2:.4g} m² are "
+                f"{n:.3g} rays",
+                parameter="direct_rays_per_m2",
+                expected=f"at most 2³² = {MAX_RAYS_PER_KIND:.3g} rays of a kind per render (their indices are 32-bit): "
+                f"≤ {MAX_RAYS_PER_KIND / cell.area_m2:.3g} per m² on this cell",
+            )
+    return grids
+
+
 #: Share of the rays meeting a leaf or the soil whose once-scattered light is carried on, per kind
 #: (Russian roulette, each continued ray carrying 1/q of the flux). The continued rays go in every
 #: direction, so they trace ≈ 3× slower than the parallel first rays, while they carried ≈ 5 %
@@ -247,14 +274,8 @@ class DirectProjection:
         self.scatter = bounces >= 1
         mi = field_scene.mi
         self.fs, self.mi, self.R, self.seed = field_scene, mi, int(replicates), int(seed)
-        cell = field_scene.cell
-        A, B = (float(v) for v in cell.size_m)
         #: Per kind: the grid (n_a, n_b) of one replicate's rays over the cell.
-        self.grid = {}
-        for kind, rho in self.rays_per_m2.items():
-            m = max(1, round(rho * cell.area_m2 / self.R))
-            nx = max(1, round(math.sqrt(m * A / B)))
-            self.grid[kind] = (nx, max(1, -(-m // nx)))
+        self.grid = ray_grids(field_scene.cell, self.rays_per_m2.values(), self.R)
         seg = np.asarray(segment_ids, dtype=np.int64)
         self.S = len(seg)
         # A segment without area gets no hits and 0 light, as the paths give it (not 0 × ∞).
