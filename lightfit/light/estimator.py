@@ -1255,11 +1255,11 @@ def render_adaptive(
     ``direct="projection"`` (:class:`SegmentEstimator`): the direct light is projected once for
     all segments and the rounds add paths with scattered light only. A segment still above the
     target whose projected part alone is above it (more points cannot reduce that: typically
-    stems deep in the canopy, which few projected rays reach) takes its direct light from its
-    own points from then on: the points it has are rendered again with ``direct="paths"`` (their
-    scattered-only values dropped), as are its later rounds, so it ends with exactly the estimate
-    of a ``direct="paths"`` render with its K. ``meta["projected"]``: whose direct light is
-    projected.
+    stems deep in the canopy, which few projected rays reach; or no projected ray met it at all)
+    takes its direct light from its own points from then on: the points it has are rendered
+    again with ``direct="paths"`` (their scattered-only values dropped), as are its later rounds,
+    so it ends with exactly the estimate of a ``direct="paths"`` render with its K.
+    ``meta["projected"]``: whose direct light is projected.
     """
     check_target_rse(target_rse)
     check_dark_floor(dark_floor)
@@ -1366,6 +1366,9 @@ def render_adaptive(
             # again, then paths rounds), exactly as a direct="paths" render.
             own = D["absorbed_sun"][idx] * dni + D["absorbed_sky"][idx] * dhi
             own_rse = np.divide(own.std(1, ddof=1) / math.sqrt(R), value, out=np.zeros(len(idx)), where=value > 0)
+            # No projected ray met it (too few rays per m² for its size): its direct light is
+            # unknown, not 0 with SE 0, and more points cannot add it.
+            own_rse[~(own != 0).any(1)] = np.inf
             # Judged against the relative target, so that every segment the floor does not stop
             # switches exactly as it would without the floor.
             switch = idx[projected[idx] & (rse[idx] > target_rse) & (own_rse > target_rse)]
