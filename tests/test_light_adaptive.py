@@ -499,3 +499,21 @@ def test_adaptive_vjp_refuses_a_cotangent_of_the_wrong_shape_by_name(scene):
         est.vjp({"bogus": np.ones(4)})
     full = est.vjp({"absorbed_sun": np.ones(4), "incident_sky": np.zeros(4)})
     assert est.vjp({"absorbed_sun": 1.0}) == pytest.approx(full, rel=1e-12)
+
+
+@pytest.mark.parametrize(("pilot", "max_samples", "reached"), [(32, 40, 32), (33, 100, 80), (32, 100, 96)])
+def test_a_cap_the_rounds_do_not_reach_by_doubling_is_not_a_broadcast_error(scene, pilot, max_samples, reached):
+    """Each round renders its new points with 8 replicates, which takes ≥ 32 of them
+    (replicates_for). A last round up to a cap of 40 added 8 points with 2 replicates and stopped
+    on numpy's "operands could not be broadcast together with shapes (n,8) (n,2)". By hand, points
+    per replicate: pilot 32 → 4, cap 40 → 5: a step of 1 is not taken, K = 32; pilot 33 → 5, 10,
+    cap 100 → 12: a step of 2 is not taken, K = 80; pilot 32, cap 100 → 4, 8, 12 (steps of 4,
+    32 points each), K = 96. A 0.1 % target keeps every segment going, so each ends at that K, with
+    the estimate of one fixed render of K points."""
+    fs, ids = scene
+    ids = ids[:20]
+    a = render_adaptive(fs, ids, 0.001, bounces=1, seed=4, pilot=pilot, max_samples=max_samples, dark_floor=0.0)
+    assert (a.meta["samples_per_segment"] == reached).all()
+    fixed = SegmentEstimator(fs, ids, samples=reached, bounces=1, seed=4).render()
+    for p in PARTS:
+        np.testing.assert_allclose(getattr(a, p), getattr(fixed, p), rtol=1e-9, atol=1e-12)

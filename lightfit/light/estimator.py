@@ -1221,11 +1221,12 @@ def render_adaptive(
     still above ``target_rse``, by continuing the same randomised Kronecker sequences
     (:class:`SegmentEstimator` with ``first``): a segment that stops with K points has exactly
     the estimate of ``SegmentEstimator(samples=K)`` (up to summation order). Segments stop at
-    ``max_samples``. A segment receiving nothing so far (zero estimate, no SE to judge) goes on
-    until its points K reach :math:`3/f` (``dark_floor`` f; the cap when f = 0): by the rule of
-    three its light is then below the floor with 95 % confidence. (Stopping such segments after
-    the pilot, as before, left those with rare light at zero: the segments below the floor came
-    out 23–27 % low, ``experiments/dark_floor_bias.py``.)
+    ``max_samples`` (or, where a last round to it would add fewer than 32 points, at the round
+    before: fewer would be too few for the 8 replicates). A segment receiving nothing so far
+    (zero estimate, no SE to judge) goes on until its points K reach :math:`3/f` (``dark_floor``
+    f; the cap when f = 0): by the rule of three its light is then below the floor with 95 %
+    confidence. (Stopping such segments after the pilot, as before, left those with rare light
+    at zero: the segments below the floor came out 23–27 % low, ``experiments/dark_floor_bias.py``.)
     Deterministic given seed and target (the stopping rule reads only the estimates).
 
     **The light floor.** A segment is done when its SE :math:`\sigma_s` of absorbed PAR meets
@@ -1390,9 +1391,12 @@ def render_adaptive(
         # goes on until zero_points: its few hits make its SE too unreliable to stop on earlier.
         relative_met = rse[idx] <= target_rse
         active[idx] = (R * J < zero_points) & ~relative_met | (rse[idx] > goal[idx]) & np.isfinite(rse[idx])
-        if J >= J_max or not active.any():
+        nxt = min(J * int(growth), J_max)
+        # A round's R·(nxt − J) points per segment must keep the R replicates (replicates_for: 32
+        # points or more); a last step to the cap shorter than that is not taken.
+        if J >= J_max or not active.any() or replicates_for(R * (nxt - J)) != R:
             break
-        first, J = J, min(J * int(growth), J_max)
+        first, J = J, nxt
     return _from_replicate_means(
         ids,
         *_with_projected({p: sums[p] / M[:, None] for p in PARTS}, {p: fsum[p] / (R * M) for p in PARTS}, D),
