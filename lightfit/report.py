@@ -309,7 +309,9 @@ def figure(ds, compare=None):
     src = Path(str(ds.attrs.get("weather_source", ""))).name
     lines = [
         f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
-        f"{_plants(ds.attrs)} plants, K={ds.attrs.get('samples')}",
+        # an adaptive run's K is per segment: its target and K range, not the pilot's base K
+        f"{_plants(ds.attrs)} plants, "
+        f"{samples_label(ds.attrs.get('samples'), ds.attrs.get('target_rse'), ds.attrs.get('max_samples'))}",
         runs[0][2],
     ]
     if "observations" in ds.attrs:  # a line of its own: the title must fit the figure's width

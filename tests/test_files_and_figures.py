@@ -208,3 +208,45 @@ def test_the_forcing_plots_co2_axis_does_not_magnify_rounding(tmp_path, monkeypa
         plot_forcing(df.assign(co2_ppm=co2), tmp_path / "f.png")
         lo, hi = drawn[-1].axes[2].get_ylim()
         assert span[0] <= hi - lo <= span[1] + 1e-9 and lo <= co2.min() and co2.max() <= hi, (lo, hi)
+
+
+def _per_step_results(times_utc, **attrs):
+    """The per-step variables the replication figure draws (lightfit.report.figure), made up by
+    hand: a bell of PAR over the steps, no segments."""
+    import pandas as pd
+    import xarray as xr
+
+    t = pd.DatetimeIndex(times_utc).tz_convert("UTC").tz_localize(None)
+    par = 1500.0 * np.sin(np.linspace(0.1, np.pi - 0.1, len(t)))
+    per_step = {
+        "above_canopy_par_umol_m2_s": par,
+        "canopy_apar_umol_m2_s": 0.9 * par,
+        "plant_par_umol_m2_s": 0.2 * par,
+        "plant_par_spread_umol_m2_s": 0.1 * par,
+        "canopy_an_umol_m2_s": par / 50.0,
+        "canopy_an_mc_sd_umol_m2_s": np.full(len(t), 0.01),
+    }
+    base = {"site": "Selhausen", "site_timezone": "Europe/Berlin", "n_plants": 4, "samples": 32}
+    return xr.Dataset({k: ("time", v) for k, v in per_step.items()}, coords={"time": t.values}, attrs=base | attrs)
+
+
+def test_the_replication_figures_title_says_an_adaptive_runs_k_range_not_its_pilot():
+    """With --target-rse, --samples is each segment's pilot count and K differs per segment (up to
+    the cap); the figure's title said "K=32" as for a fixed K, where summary.csv's header says the
+    target and the range (a review of the main job's outputs)."""
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from lightfit.report import figure
+
+    t = pd.date_range("2016-04-20 06:00", periods=5, freq="2h", tz="UTC")
+    for attrs, said, unsaid in (
+        ({}, "4 plants, K=32", "target"),
+        ({"target_rse": 0.05, "max_samples": 512}, "4 plants, target 0.05 (K from 32 to 512 per segment)", "K=32"),
+    ):
+        fig = figure(_per_step_results(t, **attrs))
+        try:
+            title = fig._suptitle.get_text()
+            assert said in title and unsaid not in title, title
+        finally:
+            plt.close(fig)
