@@ -2590,3 +2590,18 @@ def test_calibration_json_is_strict_json_when_a_full_render_did_not_converge(tmp
     res = json.loads((tmp_path / "calibration.json").read_text(), parse_constant=refuse)
     assert res["surrogate"]["loss_full"] is None
     assert res["surrogate"]["rounds"] == [bad | {"loss_full": None, "difference_over_sd": None}]
+
+
+def test_the_compared_presets_edge_is_noted_too():
+    """`replicate --compare-preset paper` draws the paper preset's canopy APAR dashed beside the
+    run's; its finite field's edge put that line above the PAR above the canopy (fAPAR up to 2.2 on
+    20 April) with no word, where the run's own table gets the edge note (a review of the main job)."""
+    import xarray as xr
+
+    from lightfit.cli.replicate import compared_edge_line
+
+    paper = xr.Dataset({"fapar": ("time", [0.0, 2.22, 1.02, 0.99])}, attrs={"boundary": "finite"})
+    line = compared_edge_line(paper, "paper")
+    assert line.startswith("note: the paper preset (dashed in the figure): fAPAR above 1 at 2 of 4 steps (up to 2.22)")
+    assert "finite field" in line
+    assert compared_edge_line(xr.Dataset({"fapar": ("time", [0.0, 0.95])}), "default") == ""

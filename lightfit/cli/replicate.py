@@ -180,6 +180,12 @@ def replicate(
     for line in (mc_bias_line(ds), edge_line(ds)):
         if line:
             console.print(line)
+    if cmp is not None:  # the compared preset's APAR above the sensor is drawn beside this run's
+        import xarray as xr
+
+        with xr.open_dataset(out / "results_compare.nc", engine="h5netcdf") as other:
+            if line := compared_edge_line(other, compare_preset):
+                console.print(line)
     if short := target_shortfall(ds):
         caution(short)
     if obs is not None:
@@ -341,6 +347,13 @@ def edge_line(ds) -> str:
         f"plants take light through the sides of the {ds.attrs.get('boundary', 'finite')} field, so APAR, PAR at "
         "the plants and An are an edge's, not a canopy's (docs/model.md; the periodic default has no edge)"
     )
+
+
+def compared_edge_line(other, preset: str) -> str:
+    """:func:`edge_line` of the ``--compare-preset`` run's results ``other``, named as that preset's
+    (its dashed lines in the figure); "" where its fAPAR stays at or below 1."""
+    line = edge_line(other)
+    return line and f"note: the {preset} preset (dashed in the figure): " + line.removeprefix("note: ")
 
 
 def _comparison(model: ModelOptions, preset: str):
