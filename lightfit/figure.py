@@ -28,8 +28,19 @@ def figure_format(path: str | Path) -> str:
 
 
 def clock_axis(ax, tz: str) -> None:
-    """Ticks of a time axis drawn with aware instants, placed and labelled ``HH:MM`` in ``tz``."""
+    """Ticks of a time axis drawn with aware instants, placed and labelled ``HH:MM`` in ``tz``;
+    where the axis, as drawn so far, spans more than a day (several dates), ticks at midnight read
+    the date (``21 Apr``) and the others ``HH:MM``: a clock alone repeats every day, and daily ticks
+    all read ``00:00``."""
     import matplotlib.dates as mdates
 
-    ax.xaxis.set_major_locator(mdates.AutoDateLocator(tz=tz))
-    ax.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M", tz=tz))
+    lo, hi = ax.get_xlim()  # days
+    locator = mdates.AutoDateLocator(tz=tz)
+    ax.xaxis.set_major_locator(locator)
+    if hi - lo <= 1:
+        ax.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M", tz=tz))
+        return
+    dated = mdates.ConciseDateFormatter(locator, tz=tz, show_offset=False)
+    dated.formats = ["%Y", "%b", "%d %b", "%H:%M", "%H:%M", "%S.%f"]
+    dated.zero_formats = ["", "%Y", "%d %b", "%d %b", "%H:%M", "%H:%M"]
+    ax.xaxis.set_major_formatter(dated)

@@ -297,7 +297,8 @@ def figure(ds, compare=None):
         f"(c) canopy net CO2 uptake per {per} area (leaf dark respiration included)", loc="left", fontsize=10
     )
 
-    day = pd.Timestamp(t[0]).strftime("%Y-%m-%d") if len(t) else ""
+    days = sorted({f"{x:%Y-%m-%d}" for x in t})  # several dates (--date twice): the axis spans them all
+    day = " to ".join(dict.fromkeys(days[:1] + days[-1:]))  # "" without steps
     clock_axis(ax_c, tz)
     ax_c.set_xlabel(f"local time ({zone_label(tz)}), {day}")
     for ax in (ax_a, ax_b, ax_c):

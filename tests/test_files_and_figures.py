@@ -250,3 +250,40 @@ def test_the_replication_figures_title_says_an_adaptive_runs_k_range_not_its_pil
             assert said in title and unsaid not in title, title
         finally:
             plt.close(fig)
+
+
+def test_several_days_figures_name_each_days_date_on_the_time_axis(tmp_path, monkeypatch):
+    """Two dates a week apart (`replicate --date` twice): the clock ticks fell on midnights and all
+    read "00:00", and the replication figure's axis named the first date alone (a review of the
+    main job with the bundled CPlantBox day placed on 20 and 27 April). One day keeps HH:MM."""
+    import matplotlib.figure
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from lightfit.report import figure
+    from lightfit.weather.plot import plot_forcing
+
+    one = pd.date_range("2016-04-20 04:00", periods=8, freq="2h", tz="UTC")  # 06:00–20:00 CEST
+    two = one.append(one + pd.Timedelta(days=7))
+    for times, date in ((one, "2016-04-20"), (two, "2016-04-20 to 2016-04-27")):
+        fig = figure(_per_step_results(times))
+        try:
+            fig.canvas.draw()
+            ax = fig.axes[2]
+            assert ax.get_xlabel() == f"local time (Europe/Berlin), {date}"
+            ticks = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+            if times is one:
+                assert "08:00" in ticks and all(len(t) == 5 for t in ticks), ticks
+            else:  # daily ticks at local midnight, with their dates
+                assert "21 Apr" in ticks and len(set(ticks)) == len(ticks), ticks
+        finally:
+            plt.close(fig)
+    drawn = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: drawn.append(fig))
+    df = pd.DataFrame(
+        {"par_umol_m2_s": 1000.0, "tair_c": 15.0, "rh": 0.6, "pair_kpa": 100.1, "co2_ppm": 400.0}, index=two
+    )
+    plot_forcing(df, tmp_path / "f.png")
+    drawn[-1].canvas.draw()
+    ticks = [t.get_text() for t in drawn[-1].axes[3].get_xticklabels() if t.get_text()]
+    assert "21 Apr" in ticks and len(set(ticks)) == len(ticks), ticks
