@@ -6,6 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+
 from lightfit.errors import InputError
 
 #: Suffixes matplotlib writes without a display through lightfit's dependencies (Pillow for the
@@ -44,3 +47,26 @@ def clock_axis(ax, tz: str) -> None:
     dated.formats = ["%Y", "%b", "%d %b", "%H:%M", "%H:%M", "%S.%f"]
     dated.zero_formats = ["", "%Y", "%d %b", "%d %b", "%H:%M", "%H:%M"]
     ax.xaxis.set_major_formatter(dated)
+
+
+def day_breaks(t: pd.DatetimeIndex) -> pd.DatetimeIndex:
+    """The middle of each gap in the instants ``t`` longer than three of its median steps: the
+    nights between the dates of a run over several days (``--date`` twice), where a line drawn
+    from one day's last step to the next day's first would invent the hours between."""
+    t = pd.DatetimeIndex(t)
+    if len(t) < 3:
+        return t[:0]
+    dt = t[1:] - t[:-1]
+    at = np.flatnonzero(dt > 3 * dt.median())
+    return t[at] + dt[at] / 2
+
+
+def gapped(t: pd.DatetimeIndex, *ys) -> tuple:
+    """``t`` and each series of ``ys`` with a masked point at every :func:`day_breaks` instant, so
+    that a line or a ``fill_between`` band stops there; as given where there is no gap."""
+    t, breaks = pd.DatetimeIndex(t), day_breaks(t)
+    if breaks.empty:
+        return (t, *ys)
+    order = np.argsort(np.r_[np.arange(len(t)), np.searchsorted(t, breaks) - 0.5])
+    nan = np.full(len(breaks), np.nan)
+    return (t.append(breaks)[order], *(np.ma.masked_invalid(np.r_[np.asarray(y, float), nan][order]) for y in ys))

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.defaults import MAX_ADAPTIVE_SAMPLES
-from lightfit.figure import clock_axis
+from lightfit.figure import clock_axis, gapped
 from lightfit.photosynthesis.canopy import PROFILES
 from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
 from lightfit.plant import Field
@@ -243,9 +243,16 @@ def figure(ds, compare=None):
             ("canopy_apar_umol_m2_s", "tab:green", 1.5, f"absorbed by the canopy, APAR ({who})"),
         ):
             if var in d:
-                ax_a.plot(local(d), d[var].values, color=color, lw=lw, ls=ls, label=label)
+                ax_a.plot(*gapped(local(d), d[var].values), color=color, lw=lw, ls=ls, label=label)
     if "weather_par_umol_m2_s" in ds:  # drawn over the model's sensor, which it equals at light factor 1
-        ax_a.plot(t, ds["weather_par_umol_m2_s"].values, color="k", lw=1, ls=":", label="weather series' PAR", zorder=3)
+        ax_a.plot(
+            *gapped(t, ds["weather_par_umol_m2_s"].values),
+            color="k",
+            lw=1,
+            ls=":",
+            label="weather series' PAR",
+            zorder=3,
+        )
     _observed(ax_a, ds, t, "above_canopy_par", "s", "navy", "PAR above the canopy")
     _observed(ax_a, ds, t, "canopy_apar", "D", "darkgreen", "canopy APAR")
     ax_a.set_ylabel("PAR per ground area\n(µmol m⁻² ground s⁻¹)")
@@ -263,14 +270,16 @@ def figure(ds, compare=None):
         if i == 0 and f"{k}_par_umol_m2_s" in d and "area_m2" in d.coords:
             # the segments' range, area-weighted: PAR ≥ 0 is skewed, and mean ± SD was cut at 0
             lo, hi = area_quantiles(d[f"{k}_par_umol_m2_s"].values, d["area_m2"].values, (0.1, 0.9))
-            ax_b.fill_between(t, lo, hi, color="tab:blue", alpha=0.2, label="10–90 % of the segments' area")
+            ax_b.fill_between(*gapped(t, lo, hi), color="tab:blue", alpha=0.2, label="10–90 % of the segments' area")
         elif i == 0:
             ax_b.fill_between(
-                t, np.maximum(par - sd, 0), par + sd, color="tab:blue", alpha=0.2, label="± SD of segments, cut at 0"
+                *gapped(t, np.maximum(par - sd, 0), par + sd),
+                color="tab:blue",
+                alpha=0.2,
+                label="± SD of segments, cut at 0",
             )
         ax_b.plot(
-            local(d),
-            par,
+            *gapped(local(d), par),
             color="tab:blue",
             lw=2,
             ls=ls,
@@ -287,9 +296,12 @@ def figure(ds, compare=None):
         if i == 0:  # its width in the label: often narrower than the line
             width = f" (at most ± {2 * np.nanmax(an_sd):.2g})" if np.isfinite(an_sd).any() else ""
             ax_c.fill_between(
-                t, an - 2 * an_sd, an + 2 * an_sd, color="tab:red", alpha=0.2, label=f"± 2 Monte Carlo SD{width}"
+                *gapped(t, an - 2 * an_sd, an + 2 * an_sd),
+                color="tab:red",
+                alpha=0.2,
+                label=f"± 2 Monte Carlo SD{width}",
             )
-        ax_c.plot(local(d), an, color="tab:red", lw=2, ls=ls, label=f"model ({lab.split(':')[0]})")
+        ax_c.plot(*gapped(local(d), an), color="tab:red", lw=2, ls=ls, label=f"model ({lab.split(':')[0]})")
     _observed(ax_c, ds, t, "canopy_an", "o", "darkred", "net CO2 uptake")
     ax_c.axhline(0, color="k", lw=0.5)
     ax_c.set_ylabel(f"canopy net CO2 uptake\n(µmol m⁻² {per} s⁻¹)")

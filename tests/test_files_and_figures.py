@@ -276,6 +276,7 @@ def test_several_days_figures_name_each_days_date_on_the_time_axis(tmp_path, mon
                 assert "08:00" in ticks and all(len(t) == 5 for t in ticks), ticks
             else:  # daily ticks at local midnight, with their dates
                 assert "21 Apr" in ticks and len(set(ticks)) == len(ticks), ticks
+            _assert_lines_stop_between_the_days(fig.axes, times)
         finally:
             plt.close(fig)
     drawn = []
@@ -287,3 +288,26 @@ def test_several_days_figures_name_each_days_date_on_the_time_axis(tmp_path, mon
     drawn[-1].canvas.draw()
     ticks = [t.get_text() for t in drawn[-1].axes[3].get_xticklabels() if t.get_text()]
     assert "21 Apr" in ticks and len(set(ticks)) == len(ticks), ticks
+    _assert_lines_stop_between_the_days(drawn[-1].axes, two)
+
+
+def _assert_lines_stop_between_the_days(axes, times):
+    """Every curve over the steps ``times`` (8 a day) and every band: with two days, a line drawn
+    from one day's last step to the next day's first slid through the nights between (a review);
+    now each curve has one missing point there and each band two pieces. One day: unbroken."""
+    import matplotlib.dates as mdates
+    import numpy as np
+
+    days = len(times) // 8
+    curves = [ln for ax in axes for ln in ax.get_lines() if len(ln.get_xdata()) >= len(times)]
+    bands = [c for ax in axes for c in ax.collections if len(c.get_paths())]
+    assert len(curves) >= 3, len(curves)
+    for ln in curves:
+        y = np.ma.masked_invalid(np.ma.asarray(ln.get_ydata(), float))
+        assert len(y) == len(times) + days - 1 and int(y.mask.sum()) == days - 1, (ln.get_label(), y)
+        if days == 2:
+            x = mdates.date2num(ln.get_xdata())
+            gap = int(np.flatnonzero(y.mask)[0])
+            assert mdates.date2num(times[7]) < x[gap] < mdates.date2num(times[8]), ln.get_label()
+    for band in bands:
+        assert len(band.get_paths()) == days, band.get_label()

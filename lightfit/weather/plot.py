@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from lightfit.figure import clock_axis, figure_format  # noqa: E402
+from lightfit.figure import clock_axis, day_breaks, figure_format  # noqa: E402
 from lightfit.weather.reconstruct import Anchor  # noqa: E402
 from lightfit.weather.site import SELHAUSEN, zone_label  # noqa: E402
 from lightfit.weather.units import PAR_PER_GHI_UMOL_J  # noqa: E402
@@ -37,27 +37,29 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     figure_format(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     local = df.tz_convert(tz)
-    t = local.index  # aware: drawn at their instants, so a clock change neither folds nor gaps the axis
+    # a row of NaN in each night between several dates: a line through it would invent those hours
+    drawn = local.reindex(local.index.append(day_breaks(local.index)).sort_values())
+    t = drawn.index  # aware: drawn at their instants, so a clock change neither folds nor gaps the axis
     fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
     # Estimated series say so under a MEASURED title: PAR from GHI or GHI from PAR, DNI and DHI from a split.
     derived = {q.get("column") for q in df.attrs.get("qc", []) if q.get("kind") == "derived"}
     estimated = ", estimated from GHI" if "par_umol_m2_s" in derived else ""
     ax[0].plot([], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)" + estimated)
     ax[0].set_ylabel("PAR\nµmol m⁻² s⁻¹")
-    ax[0].plot(t, local["par_umol_m2_s"], color="tab:orange", lw=2.5)
+    ax[0].plot(t, drawn["par_umol_m2_s"], color="tab:orange", lw=2.5)
     if {"dni_w_m2", "dhi_w_m2"} <= set(local.columns):
         r = ax[0].twinx()
         split = df.attrs.get("split_model")
         parts = "" if split == "diffuse" else f", estimated ({split or 'split'} split)"
         r.plot(
             t,
-            local["ghi_w_m2"],
+            drawn["ghi_w_m2"],
             color="k",
             lw=0.8,
             label="GHI" + (", estimated from PAR" if "ghi_w_m2" in derived else ""),
         )
-        r.plot(t, local["dhi_w_m2"], color="tab:blue", lw=0.8, ls="--", label="DHI" + parts)
-        r.plot(t, local["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI" + parts)
+        r.plot(t, drawn["dhi_w_m2"], color="tab:blue", lw=0.8, ls="--", label="DHI" + parts)
+        r.plot(t, drawn["dni_w_m2"], color="tab:red", lw=0.8, ls=":", label="DNI" + parts)
         # One scale for both axes (PAR = 2.285 µmol J⁻¹ × GHI): the thin GHI line lies on the thick PAR
         # line where the two sensors agree and shows where they do not (free scales hid it exactly).
         k = PAR_PER_GHI_UMOL_J
@@ -71,17 +73,17 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[0].plot([ta], [a.par_umol_m2_s], "k*", ms=12, label="recorded chamber point (anchor)")
         ax[1].plot([ta], [a.tair_c], "k*", ms=12)
     ax[0].legend(loc="upper left", fontsize=8)
-    ax[1].plot(t, local["tair_c"], color="tab:red")
+    ax[1].plot(t, drawn["tair_c"], color="tab:red")
     ax[1].set_ylabel("T air (°C)", color="tab:red")
     h = ax[1].twinx()
-    h.plot(t, 100 * local["rh"], color="tab:blue")
+    h.plot(t, 100 * drawn["rh"], color="tab:blue")
     h.set_ylabel("RH (%)", color="tab:blue")
 
     def named(what: str, x: pd.Series, unit: str, fmt: str) -> str:
         # a constant series says so: two flat lines on twin axes meet and cannot be told apart
         return f"{what}, constant {x.iloc[0]:{fmt}} {unit}" if len(x) and (x == x.iloc[0]).all() else f"{what} ({unit})"
 
-    co2 = ax[2].plot(t, local["co2_ppm"], color="tab:green", label=named("CO2", local["co2_ppm"], "ppm", ".0f"))
+    co2 = ax[2].plot(t, drawn["co2_ppm"], color="tab:green", label=named("CO2", local["co2_ppm"], "ppm", ".0f"))
     ax[2].set_ylabel("CO2 (ppm)", color="tab:green")
     ax[2].ticklabel_format(axis="y", useOffset=False)  # ppm as read: an offset made 0.01 ppm look like a signal
     lo, hi = ax[2].get_ylim()
@@ -89,11 +91,11 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[2].set_ylim((lo + hi) / 2 - 5, (lo + hi) / 2 + 5)
     p = ax[2].twinx()
     pair = named("air pressure", local["pair_kpa"], "kPa", ".1f")
-    kpa = p.plot(t, local["pair_kpa"], color="tab:gray", ls="--", lw=1.0, label=pair)
+    kpa = p.plot(t, drawn["pair_kpa"], color="tab:gray", ls="--", lw=1.0, label=pair)
     p.set_ylabel("p (kPa)", color="tab:gray")
     ax[2].legend(handles=co2 + kpa, loc="upper left", fontsize=8)
     if "sun_elevation_deg" in local.columns:
-        ax[3].plot(t, local["sun_elevation_deg"], color="goldenrod")
+        ax[3].plot(t, drawn["sun_elevation_deg"], color="goldenrod")
         ax[3].axhline(0, color="k", lw=0.5)
     ax[3].set_ylabel("sun elevation (°)")
     ax[3].set_xlabel(f"time ({zone_label(tz)})")
