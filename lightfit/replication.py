@@ -557,6 +557,8 @@ def forcing(
     if len(days) > 1:
         out = pd.concat(days)
         out.attrs = dict(days[0].attrs)
+        if undated:  # placed on every date: the first day's alone named one date as the file's place
+            out.attrs["date_given"] = "; ".join(str(d.attrs["date_given"]) for d in days)
     if month_before:
         out.attrs["month_before_tair_c"] = month
     return out

@@ -203,3 +203,15 @@ def test_days_are_joined_in_date_order_and_may_not_overlap():
         MultiDayModel({"x": _Day("2016-04-21 10:00"), "y": _Day("2016-04-21 11:00")})
     with pytest.raises(InputError, match="overlap"):
         MultiDayModel({"x": _Day("2016-04-21 10:00"), "y": _Day("2016-04-21 10:15")})
+
+
+def test_an_undated_file_placed_on_two_dates_names_both():
+    """The bundled undated day placed on two dates: the forcing's ``date_given`` (the figures' titles,
+    results.nc's ``weather_date_given``) named the first date alone (a review); each date now, as
+    ``provenance_label`` prints it. One date keeps its one date."""
+    from lightfit.weather.plot import provenance_label
+
+    both = rep.forcing(REAL_DAY, dates=DATES, window=WINDOW)
+    assert both.attrs["date_given"] == "; ".join(DATES)
+    assert provenance_label(both.attrs).endswith(f"(undated file placed on {DATES[0]}; {DATES[1]})")
+    assert rep.forcing(REAL_DAY, dates=DATES[:1], window=WINDOW).attrs["date_given"] == DATES[0]
