@@ -89,6 +89,27 @@ def test_instant_series_mean_resampling_is_centred():
     assert r.loc[t, "sun_elevation_deg"] == df.loc[t, "sun_elevation_deg"]
 
 
+@pytest.mark.parametrize(("source", "freq"), [("10min", "1h"), ("30min", "1h"), ("10min", "20min")])
+def test_mean_of_instants_over_an_even_number_of_rows_is_centred_on_its_stamp(source, freq):
+    """With an even number of source rows per step, one row lies on each bound of a centred window:
+    it counts half in each (the trapezoid rule), so that the mean of a quantity linear in time is its
+    value at the stamp. A half-open window counted it whole in the later step: the hourly mean of
+    10-min instants was the value 5 min before the stamp (15 min for 30-min instants)."""
+    t = pd.date_range("2016-04-20 00:00", "2016-04-20 23:50", freq=source, tz="UTC")
+    minutes = (t - t[0]) / pd.Timedelta(minutes=1)
+    df = pd.DataFrame(
+        {"ghi_w_m2": np.asarray(minutes, float), "tair_c": 10.0, "rh": 0.5, "pair_kpa": 100.0, "co2_ppm": 400.0},
+        index=t,
+    )
+    r = resample(df, freq, "mean")
+    assert r.attrs["timestamps"] == Timestamps("center", pd.Timedelta(freq))
+    inside = r.index[(r.index > t[0] + pd.Timedelta(freq)) & (r.index < t[-1] - pd.Timedelta(freq))]
+    assert len(inside) > 10
+    expected = (inside - t[0]) / pd.Timedelta(minutes=1)  # a linear ramp's mean over a centred window
+    np.testing.assert_allclose(r.loc[inside, "ghi_w_m2"], expected, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(r.loc[inside, "tair_c"], 10.0)
+
+
 def test_lightfit_csv_carries_the_convention(tmp_path):
     df = add_solar(read_tereno(FIXTURE))
     p = write_lightfit_csv(df, tmp_path / "forcing.csv", {"provenance": "synthetic"})

@@ -460,7 +460,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     Args:
         freq: new step (pandas offset alias), e.g. ``"30min"`` as in the reference paper.
         how: ``"mean"`` averages to means over ``freq`` (keeps daily radiation sums): for
-            instants (and centred means), in a window centred on each new timestamp; for means
+            instants (and centred means), in a window centred on each new timestamp (a row
+            on its bound counts half in each window: the trapezoid rule); for means
             stamped at their intervals' ends (starts), over the whole source intervals that end
             (start) within the new interval, stamped the same way (:mod:`lightfit.weather.timestamps`).
             ``"sample"`` takes the value at each new timestamp (what the reference paper did when
@@ -553,7 +554,15 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
         else:  # instants or centred means: a window centred on each new stamp
             shifted = df[measured].copy()
             shifted.index = shifted.index + step / 2
-            out = shifted.resample(freq, origin="start_day" if origin is None else origin).mean()
+            start = "start_day" if origin is None else origin
+            # A row on the bound of two windows (an even number of rows per step: 10-min instants at 1h)
+            # counts half in each (the trapezoid rule): a half-open window took it whole into the later
+            # step only, so that an hourly mean of 10-min instants was centred 5 min before its stamp
+            # (15 min for 30-min instants), its sun taken at the stamp.
+            halves = [shifted.resample(freq, origin=start, closed=side, label="left") for side in ("left", "right")]
+            total = halves[0].sum().add(halves[1].sum(), fill_value=0.0)
+            count = halves[0].count().add(halves[1].count(), fill_value=0)
+            out = total / count.where(count > 0)
             stamps = Timestamps("center", step)
         missing = out.index[out.isna().all(axis=1)]
         if len(missing):
