@@ -799,9 +799,20 @@ def test_gather_refuses_a_missing_or_repeated_task_and_records_the_split(weather
     assert a["triangles_rendered"] == tri and a["buffer_overhead"] == tri / a["triangles_measured"]
 
 
-@pytest.mark.parametrize("name, value", [("timeout_s", 0), ("timeout_s", float("nan")), ("connect_timeout_s", 0.0)])
+@pytest.mark.parametrize(
+    "name, value",
+    [
+        ("timeout_s", 0),
+        ("timeout_s", float("nan")),
+        ("connect_timeout_s", 0.0),
+        ("timeout_s", float("inf")),
+        ("connect_timeout_s", float("inf")),
+    ],
+)
 def test_run_field_refuses_a_timeout_not_above_zero_before_any_cluster(weather, monkeypatch, name, value):
-    """--timeout / --connect-timeout must be > 0 (0 timed out at once, NaN never), refused before a cluster starts."""
+    """--timeout / --connect-timeout must be finite and > 0 (0 timed out at once, NaN never; inf was
+    Dask's KeyError "Invalid time unit: inf" as a traceback, or with --scheduler an error blaming the
+    address), refused before a cluster starts."""
     import lightfit.distributed.run as R
 
     def no_cluster(*a, **k):

@@ -455,12 +455,17 @@ def check_cluster_options(
     connect_timeout_s: float = 30.0,
 ) -> None:
     """What can be told of the cluster options without a cluster, as :class:`InputError` naming the
-    option: both timeouts > 0 s, workers and threads ≥ 1, no workers with a scheduler, a scheduler
+    option: both timeouts finite and > 0 s, workers and threads ≥ 1, no workers with a scheduler, a scheduler
     address that parses (host and port for TCP/TLS). ``field-run`` checks them before any plant
     grows; :func:`run_field` and :func:`connect` again."""
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
-        if value is not None and not value > 0:
-            raise InputError(f"{name}={value!r}", parameter=name, expected="> 0 seconds")
+        # inf too: Dask parses a timeout's number as a string, and "inf" was a KeyError traceback
+        if value is not None and not (value > 0 and math.isfinite(value)):
+            raise InputError(
+                f"{name}={value!r}",
+                parameter=name,
+                expected="a finite number > 0 of seconds" + (" (no --timeout: no limit)" if name == "timeout" else ""),
+            )
     for name, v in (("workers", workers), ("threads_per_worker", threads_per_worker)):
         if v is not None:
             check_integer(v, name, 1)
