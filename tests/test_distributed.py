@@ -929,6 +929,24 @@ def test_cli_field_run_no_resume_discards_nothing_when_an_option_is_refused(tmp_
         assert (parts / "tile0-chunk0.pkl").read_bytes() == b"kept", bad
 
 
+def test_cli_field_run_refuses_threads_per_worker_with_a_scheduler(tmp_path):
+    """--threads-per-worker sizes only the embedded cluster: with --scheduler it was silently dropped
+    (the joined cluster's workers keep their own threads) while --workers was refused. Now refused
+    too, naming the option, before any plant grows or the scheduler is contacted."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+    from lightfit.distributed.run import check_cluster_options
+
+    with pytest.raises(InputError) as err:
+        check_cluster_options("tcp://127.0.0.1:8786", threads_per_worker=4)
+    assert err.value.parameter == "threads_per_worker"
+    check_cluster_options(None, threads_per_worker=4)  # the embedded cluster's option
+    args = ["field-run", "--quick", "--out", str(tmp_path / "r.nc"), "--scheduler", "tcp://127.0.0.1:9"]
+    r = CliRunner().invoke(app, [*args, "--threads-per-worker", "4"])
+    assert r.exit_code == 2 and "--threads-per-worker" in r.output and "cannot connect" not in r.output, r.output
+
+
 @pytest.mark.parametrize(
     "fld",
     [

@@ -455,7 +455,7 @@ def check_cluster_options(
     connect_timeout_s: float = 30.0,
 ) -> None:
     """What can be told of the cluster options without a cluster, as :class:`InputError` naming the
-    option: both timeouts finite and > 0 s, workers and threads ≥ 1, no workers with a scheduler, a scheduler
+    option: both timeouts finite and > 0 s, workers and threads ≥ 1, no workers or threads with a scheduler, a scheduler
     address that parses (host and port for TCP/TLS). ``field-run`` checks them before any plant
     grows; :func:`run_field` and :func:`connect` again."""
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
@@ -475,6 +475,13 @@ def check_cluster_options(
                 f"workers={workers} with scheduler={scheduler!r}",
                 parameter="workers",
                 expected="no --workers when joining an existing cluster (its workers are given)",
+            )
+        if threads_per_worker is not None:  # connect() does not use it there: it was dropped unsaid
+            raise InputError(
+                f"threads_per_worker={threads_per_worker} with scheduler={scheduler!r}",
+                parameter="threads_per_worker",
+                expected="no --threads-per-worker when joining an existing cluster (its workers' threads are "
+                "set where they were started: dask worker --nthreads)",
             )
         from distributed.comm.addressing import parse_address, parse_host_port
 
