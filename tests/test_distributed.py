@@ -797,6 +797,24 @@ def test_gather_refuses_a_missing_or_repeated_task_and_records_the_split(weather
     assert a["halo"] == "1 plant rows/columns around each tile"
     tri = sum(i["triangles"] for _, i in results)
     assert a["triangles_rendered"] == tri and a["buffer_overhead"] == tri / a["triangles_measured"]
+    # An unconverged solve in a task is warned of by gather, for the whole run, as a single process
+    # warns (the worker's warning went to its log, or nowhere on a joined cluster or when resumed).
+    import warnings
+
+    from lightfit.model.coupled import NonConvergenceWarning
+
+    flagged = results[1][0].copy(deep=True)
+    blade = np.flatnonzero(flagged["is_blade"].values.astype(bool))[0]
+    flagged["converged"][0, blade] = 0
+    n_bad = sum(
+        int((d["converged"].values[:, d["is_blade"].values.astype(bool)] == 0).sum()) for d in (results[0][0], flagged)
+    )
+    with pytest.warns(NonConvergenceWarning, match=f"did not converge for {n_bad} blade-step"):
+        gather([results[0], (flagged, results[1][1])], run)
+    if n_bad == 1:  # the task's own results converged: gathering them says nothing
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", NonConvergenceWarning)
+            gather(results, run)
 
 
 @pytest.mark.parametrize(

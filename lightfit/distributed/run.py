@@ -47,6 +47,7 @@ import signal
 import threading
 import time
 import uuid
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -221,13 +222,15 @@ def run_task(spec: TaskSpec):
     """Worker side: build the tile, render, photosynthesis. Returns (Dataset, timing/size info)."""
     t0 = time.perf_counter()
     _worker_setup()
-    from lightfit.model.coupled import CoupledModel
+    from lightfit.model.coupled import CoupledModel, NonConvergenceWarning
 
     t1 = time.perf_counter()
     sc = spec.run.task_scenario(spec.tile, spec.rows)
     model = CoupledModel(sc, sensors=spec.run.sensors)
     t2 = time.perf_counter()
-    ds = model.simulate(spec.run.theta)
+    with warnings.catch_warnings():  # said once for the whole run by gather, in the client
+        warnings.simplefilter("ignore", NonConvergenceWarning)
+        ds = model.simulate(spec.run.theta)
     t3 = time.perf_counter()
     mesh = model.geometry.mesh
     tile = spec.run.tile_list[spec.tile]
@@ -310,9 +313,12 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     (sorted by segment id, then time); per-time weather/sun variables are taken from the parts;
     the observables are recomputed from the per-segment values by the observation operator
     (:func:`lightfit.model.observe.observables`): segments are independent, so canopy sums and
-    Monte Carlo variances add over tiles.
+    Monte Carlo variances add over tiles. Unconverged photosynthesis solves are warned of here,
+    once for the whole run (:func:`~lightfit.model.coupled.warn_unconverged`), as by a single process.
     """
     import xarray as xr
+
+    from lightfit.model.coupled import warn_unconverged
 
     if not results:
         raise InputError("no task results to gather", parameter="results", expected="one result per task")
@@ -368,6 +374,9 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
             **(extra_attrs or {}),
         }
     )
+    # As a single-process run warns: the workers' own warnings went to their logs (or nowhere, on a
+    # joined cluster) and a task taken from the parts folder gave none.
+    warn_unconverged(out)
     return out
 
 
