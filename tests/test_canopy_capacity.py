@@ -38,6 +38,20 @@ def test_leaf_area_above_counts_the_higher_leaves_per_ground_area():
         leaf_area_above(z, a, 0.0)
 
 
+@pytest.mark.parametrize(
+    "height, area, name",
+    [(np.nan, 1.0, "height_m"), (np.inf, 1.0, "height_m"), (0.3, -1.0, "area_m2"), (0.3, np.nan, "area_m2")],
+)
+def test_leaf_area_above_refuses_heights_and_areas_it_cannot_count(height, area, name):
+    """A NaN height was counted below every leaf (LAI above it 4.0 here, with nothing said) and a
+    negative area subtracted from the leaves beneath it (the lowest leaf's LAI above 3.0, not 3.5)."""
+    z = np.array([0.1, height, 0.3, 0.5])
+    a = np.array([1.0, area, 3.0, 4.0])
+    with pytest.raises(InputError, match=name):
+        leaf_area_above(z, a, 2.0)
+    np.testing.assert_allclose(leaf_area_above(z[[0, 2, 3]], a[[0, 2, 3]], 2.0), [3.5, 2.0, 0.0])
+
+
 def test_kn_of_lloyd_2010():
     """ln kn = 0.00963·Vcmax25 − 2.43 (Lloyd et al. 2010, eq. A2): 0.2306 at 100, 0.1425 at 50."""
     assert kn_lloyd2010(100.0) == pytest.approx(0.23062, abs=1e-5)

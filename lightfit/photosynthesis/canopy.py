@@ -144,11 +144,27 @@ def leaf_area_above(height_m, area_m2, ground_area_m2: float) -> np.ndarray:
     elements whose height is greater than its own, per ``ground_area_m2`` (elements at one height
     do not count each other). ``height_m``, ``area_m2``: (B,) heights (m) and one-sided areas (m²)
     of the canopy's leaf elements (lightfit: blade segments, so one leaf's base and tip differ), all
-    of those the ground area holds."""
+    of those the ground area holds. A height that is not finite or an area that is not finite and
+    ≥ 0 is refused (:class:`InputError` naming ``height_m`` or ``area_m2``): a NaN height was
+    counted below every leaf and a negative area subtracted from the leaves beneath it."""
     z = np.asarray(height_m, np.float64)
     a = np.asarray(area_m2, np.float64)
     if z.shape != a.shape or z.ndim != 1:
         raise InputError(f"heights {z.shape} and areas {a.shape}", parameter="area_m2", expected="two (B,) arrays")
+    if not np.isfinite(z).all():
+        bad = np.flatnonzero(~np.isfinite(z))
+        raise InputError(
+            f"height_m[{bad[0]}] = {z[bad[0]]!r} ({len(bad)} of {len(z)} not finite)",
+            parameter="height_m",
+            expected="finite heights of the leaf elements, m",
+        )
+    if not (np.isfinite(a) & (a >= 0)).all():
+        bad = np.flatnonzero(~(np.isfinite(a) & (a >= 0)))
+        raise InputError(
+            f"area_m2[{bad[0]}] = {a[bad[0]]!r} ({len(bad)} of {len(a)} not finite and ≥ 0)",
+            parameter="area_m2",
+            expected="finite one-sided areas ≥ 0 of the leaf elements, m²",
+        )
     if not (np.isfinite(ground_area_m2) and ground_area_m2 > 0):
         raise InputError(f"ground_area_m2={ground_area_m2!r}", parameter="ground_area_m2", expected="a finite area > 0")
     order = np.argsort(-z, kind="stable")
