@@ -1144,3 +1144,25 @@ def test_canopy_an_per_another_area_than_the_run_is_refused(tmp_path):
     ):
         with pytest.raises(InputError, match="per leaf area"):
             build()
+
+
+@pytest.mark.parametrize("damage", ["empty", "cut"])
+def test_an_unreadable_state_restarts_from_the_historys_best_point(tmp_path, damage):
+    """A state file that cannot be read (empty, or cut short: a full disk, a copy interrupted) is
+    what the module docstring says it is, no state: the resume restarts from the history's best point
+    and says so. An empty file raised EOFError (the command line's bare "Aborted."), a cut one
+    zipfile.BadZipFile (a traceback)."""
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), progress=False)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=2, say=lambda _: None, **kw)
+    kept = [json.loads(x) for x in h.read_text().splitlines()][:2]
+    state = tmp_path / "h.jsonl.state.npz"
+    state.write_bytes(b"" if damage == "empty" else state.read_bytes()[:300])
+    said = []
+    res = calibrate(model, obs, history=h, max_steps=3, say=said.append, **kw)
+    assert len(said) == 1 and "without a saved state: 2 steps kept" in said[0], said
+    steps = [json.loads(x) for x in h.read_text().splitlines() if "loss" in json.loads(x)]
+    assert steps[:2] == kept and res.steps == len(steps) == 3
+    best = min(kept, key=lambda r: r["loss"])["theta"]
+    assert steps[2]["theta"] == best  # BFGS's first accepted point is its start: the best kept one

@@ -48,6 +48,7 @@ import json
 import math
 import time
 import warnings
+import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -302,8 +303,10 @@ def _load_state(path: Path) -> dict | None:
             meta = json.loads(str(z["meta"]))
             n = sum(1 for k in z.files if k.startswith("leaf"))
             return {**meta, "point": z["point"], "leaves": [z[f"leaf{i}"] for i in range(n)]}
-    except (OSError, ValueError, KeyError):
-        return None  # unreadable: start from the history's best point instead
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        # unreadable (an empty file: EOFError, which click turned into a bare "Aborted."; a cut one:
+        # BadZipFile, a traceback): start from the history's best point instead
+        return None
 
 
 class _BFGS:
