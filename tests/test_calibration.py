@@ -1166,3 +1166,37 @@ def test_an_unreadable_state_restarts_from_the_historys_best_point(tmp_path, dam
     assert steps[:2] == kept and res.steps == len(steps) == 3
     best = min(kept, key=lambda r: r["loss"])["theta"]
     assert steps[2]["theta"] == best  # BFGS's first accepted point is its start: the best kept one
+
+
+def test_a_history_damaged_before_its_last_line_is_refused_naming_it(tmp_path):
+    """Only an interruption's cut last line may be unreadable (the history is appended to). A line
+    damaged before it dropped every later step unsaid: with the state, the resumed history read steps
+    1, 2, 5, 6 (the state's count went on); without it, the restart took the best of the first two.
+    Refused now, naming the file and line; the intact history resumes as before."""
+    model, obs = _fake()
+    start = {"light_factor": 0.6, "vcmax_scale": 0.6}  # four steps before it converges
+    kw = dict(names=("light_factor", "vcmax_scale"), start=start, progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    calibrate(model, obs, history=h, max_steps=4, **kw)
+    intact = h.read_text()
+    lines = intact.splitlines()
+    assert len(lines) == 5  # four steps and the final record
+    state = tmp_path / "h.jsonl.state.npz"
+    saved = state.read_bytes()
+    h.write_text("\n".join([*lines[:2], "{not json", *lines[3:]]) + "\n")
+    with pytest.raises(InputError, match="line 3: not a JSON object") as e:
+        calibrate(model, obs, history=h, max_steps=6, **kw)
+    assert e.value.file == h and "--no-resume" in str(e.value)
+    state.unlink()  # the same without the state
+    with pytest.raises(InputError, match="line 3: not a JSON object"):
+        calibrate(model, obs, history=h, max_steps=6, **kw)
+    # lines lost (not damaged) since the state was saved: fewer steps than the state's four
+    state.write_bytes(saved)
+    h.write_text("\n".join(lines[:2]) + "\n")
+    with pytest.raises(InputError, match="2 readable steps, where its saved optimiser state") as e:
+        calibrate(model, obs, history=h, max_steps=6, **kw)
+    assert e.value.file == h
+    h.write_text(intact + '{"step": 5, "lo')  # a cut last line: an interruption's, dropped
+    res = calibrate(model, obs, history=h, max_steps=5, **kw)
+    steps = [json.loads(x) for x in h.read_text().splitlines()][:-1]
+    assert [r["step"] for r in steps] == [1, 2, 3, 4, 5] and res.steps == 5

@@ -275,14 +275,28 @@ class CalibrationResult:
 
 
 def _read_history(path: Path) -> list[dict]:
-    """The step records of a history (the final ``stopped_by`` record and a cut last line skipped)."""
+    """The step records of a history (the final ``stopped_by`` record and a cut last line skipped).
+    An unreadable line before the last (not an interruption's cut: the history is appended to) raises
+    :class:`InputError` naming the file and line: the steps after it were dropped unsaid."""
     if not path.exists():
         return []
     out = []
-    for line in path.read_text(encoding="utf-8").splitlines():
+    lines = path.read_text(encoding="utf-8").splitlines()
+    for i, line in enumerate(lines):
         try:
             r = json.loads(line)
         except json.JSONDecodeError:
+            r = None
+        if not isinstance(r, dict):
+            if any(rest.strip() for rest in lines[i + 1 :]):
+                raise InputError(
+                    "not a JSON object of a calibration step, and lines follow it (an interruption cuts only "
+                    "the last line)",
+                    file=path,
+                    row=i + 1,
+                    expected="the history lightfit wrote, --no-resume (resume=False) to start again, or another "
+                    "--out (history)",
+                )
             break  # a line cut by an interruption; everything before it is intact
         if "loss" in r:
             out.append(r)
@@ -685,7 +699,15 @@ def calibrate(
         if c["stopped_by"] in ("max_steps", "stalled"):
             c["stopped_by"] = None  # limits, not the optimiser's verdict: a rerun with a larger max_steps goes on
         # lines appended after the saved state (a kill in between) are redone identically below
-        replace_text(hist, "".join(json.dumps(r) + "\n" for r in _read_history(hist)[: c["accepted"]]))
+        kept = _read_history(hist)
+        if len(kept) < c["accepted"]:  # written before the state, so lost since: the steps would skip them
+            raise InputError(
+                f"{len(kept)} readable steps, where its saved optimiser state ({state_file.name}) has {c['accepted']}",
+                file=hist,
+                expected="the history written with that state, --no-resume (resume=False) to start again, or "
+                "another --out (history)",
+            )
+        replace_text(hist, "".join(json.dumps(r) + "\n" for r in kept[: c["accepted"]]))
         say(f"resuming {hist}: {c['accepted']} accepted steps kept, continued exactly from the saved state")
     if past and best_past["loss"] < c["best_loss"]:
         c["best_loss"], c["best_x"] = best_past["loss"], [best_past["theta"][n] for n in names]
