@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -1611,3 +1612,19 @@ def test_the_identifiability_datasets_name_the_coordinates_they_are_in(tmp_path,
         names = [f[f"analysis/{k}"].attrs["long_name"] for k in ("fisher/matrix", "fisher/eigenvectors", "profile/t")]
     assert all(("log-parameter space" in n) == (scale == "log") for n in names), names
     assert names[0].endswith("(d log theta)" if scale == "log" else "(d theta)"), names[0]
+
+
+def test_the_run_files_diagnostics_attribute_is_strict_json(tmp_path):
+    """The ``diagnostics`` attribute of a run stopped after 3 steps (too short for τ, ESS and split-R̂)
+    is strict JSON, as summary.json is: a parser that refuses NaN (jq, JavaScript) reads it, with null
+    where the estimate does not exist yet (it held NaN)."""
+    import h5py
+
+    def refuse(c):
+        raise ValueError(f"not strict JSON: {c}")
+
+    P.sample(Gauss(), NAMES, tmp_path / "r.h5", nwalkers=8, max_steps=3, seed=11, initial=_init(), progress=False)
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        d = json.loads(f["mcmc"].attrs["diagnostics"], parse_constant=refuse)
+    assert d["n_steps"] == 3 and d["tau"] == [None, None, None] and d["rhat"] == [None, None, None]
+    assert d["acceptance_mean"] == pytest.approx(np.mean(d["acceptance"]))  # finite numbers kept as they are

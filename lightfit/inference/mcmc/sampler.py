@@ -203,7 +203,8 @@ def _sample(
     d = (stop or StopRule()).diagnostics(chain, backend.accepted, names=names)
     d["rule_met"] = stopped_by == "rule"
     with open_h5(path, "a") as f:
-        f[group].attrs["diagnostics"] = json.dumps(jsonable(d))
+        # strict JSON (jq and JavaScript refuse NaN): τ, ESS and R̂ of a chain too short for them are null
+        f[group].attrs["diagnostics"] = json.dumps(jsonable(d, strict=True), allow_nan=False)
         f[group].attrs["stopped_by"] = stopped_by
         f[group].attrs["stopped_at"] = len(chain)
         refused = int(f[group].attrs.get("refused", 0))
