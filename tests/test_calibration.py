@@ -1200,3 +1200,18 @@ def test_a_history_damaged_before_its_last_line_is_refused_naming_it(tmp_path):
     res = calibrate(model, obs, history=h, max_steps=5, **kw)
     steps = [json.loads(x) for x in h.read_text().splitlines()][:-1]
     assert [r["step"] for r in steps] == [1, 2, 3, 4, 5] and res.steps == 5
+
+
+def test_a_resume_with_a_smaller_step_limit_says_how_many_steps_it_has(tmp_path):
+    """A run of 3 steps resumed with max_steps=2 takes none: its reason said "step limit: 2 accepted
+    steps" beside 3 steps in the result and the history; it now says the 3 are already taken."""
+    model, obs = _fake()
+    start = {"light_factor": 0.6, "vcmax_scale": 0.6}  # not converged in 3 steps
+    kw = dict(names=("light_factor", "vcmax_scale"), start=start, progress=False, say=lambda _: None)
+    h = tmp_path / "h.jsonl"
+    first = calibrate(model, obs, history=h, max_steps=3, **kw)
+    assert first.reason == "step limit: 3 accepted steps"
+    res = calibrate(model, obs, history=h, max_steps=2, **kw)
+    assert res.steps == 3 and res.theta == first.theta
+    assert res.reason == "step limit: 2 accepted steps (3 already taken)"
+    assert json.loads(h.read_text().splitlines()[-1])["reason"] == res.reason

@@ -769,7 +769,7 @@ def calibrate(
                 _save_state(state_file, opt, {**c, "seconds": elapsed(), "evaluations": opt.evaluations}, key)
         if method == "bfgs" and c["stopped_by"] == "converged" and _against_unconverged(opt, rtol, atol, gtol):
             c["stopped_by"] = "against unconverged: " + at(opt.point()[0])
-        why = _reason(c["stopped_by"], method, rtol, atol, gtol, max_steps, c["trials"])
+        why = _reason(c["stopped_by"], method, rtol, atol, gtol, max_steps, c["trials"], c["accepted"])
         bar.update(info=f"{why}; {counts()}")
     if state_file is not None:
         _save_state(state_file, opt, {**c, "seconds": elapsed(), "evaluations": opt.evaluations}, key)
@@ -816,14 +816,18 @@ def _against_unconverged(opt: _BFGS, rtol: float, atol: float, gtol: float) -> b
     return not math.isfinite(float(opt.fn(jnp.asarray(z - step * g / np.linalg.norm(g)))[0]))
 
 
-def _reason(stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, trials: int) -> str:
-    """``stopped_by`` as a sentence with the numbers."""
+def _reason(
+    stopped_by: str, method: str, rtol, atol, gtol, max_steps: int, trials: int, accepted: int | None = None
+) -> str:
+    """``stopped_by`` as a sentence with the numbers (``accepted``: the steps taken, resumed ones included)."""
     if stopped_by == "converged":
         if method == "bfgs":
             return f"converged: parameter and loss changes within rtol {rtol:g}, atol {atol:g}"
         return f"converged: projected gradient ∞-norm ≤ gtol {gtol:g}"
     if stopped_by == "max_steps":
-        return f"step limit: {max_steps} accepted step{'s' * (max_steps != 1)}"
+        limit = f"step limit: {max_steps} accepted step{'s' * (max_steps != 1)}"
+        # a resume with a smaller max_steps than the steps already taken: it took none, and said it stopped at max_steps
+        return limit + (f" ({accepted} already taken)" if accepted is not None and accepted > max_steps else "")
     if stopped_by == "stalled":
         return f"stalled: {trials} trials (limit 10 × max_steps) without reaching {max_steps} accepted steps"
     if stopped_by.startswith("unconverged: "):
