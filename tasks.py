@@ -47,6 +47,9 @@ def _fingerprint() -> str:
     h = hashlib.sha256()
     for name in ("requirements.lock", "pyproject.toml"):
         h.update((ROOT / name).read_bytes())
+    # and the interpreter the venv runs: one remade by another Python (python3 upgraded to 3.12) has
+    # none of the packages installed for the old one, which the stamp alone would not notice
+    h.update(os.path.realpath(BIN / "python").encode())
     return h.hexdigest()
 
 

@@ -266,3 +266,25 @@ def test_tasks_py_relative_venv_is_the_callers(tmp_path):
         check=True,
     ).stdout.split("\n")
     assert Path(out[0]) == tmp_path / "rel" and Path(out[1]).parent == tmp_path / "rel"
+
+
+def test_tasks_py_reinstalls_a_venv_remade_by_another_python(tmp_path, monkeypatch):
+    """The install stamp was the lock file's and pyproject's hash alone: a venv that `python3 -m venv`
+    remade over the old one for another Python (its python3.11 gone after an upgrade) kept a matching
+    stamp and none of its packages. The interpreter the venv runs is part of the stamp now."""
+    import importlib.util
+    import os
+
+    spec = importlib.util.spec_from_file_location("tasks_under_test", ROOT / "tasks.py")
+    tasks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tasks)
+    (tmp_path / "a").write_text("")
+    (tmp_path / "b").write_text("")
+    monkeypatch.setattr(tasks, "BIN", tmp_path / "bin")
+    (tmp_path / "bin").mkdir()
+    os.symlink(tmp_path / "a", tmp_path / "bin" / "python")
+    first = tasks._fingerprint()
+    assert tasks._fingerprint() == first  # the same venv: no reinstall
+    (tmp_path / "bin" / "python").unlink()
+    os.symlink(tmp_path / "b", tmp_path / "bin" / "python")
+    assert tasks._fingerprint() != first
