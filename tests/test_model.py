@@ -544,6 +544,26 @@ def test_emulator_refuses_extra_points_outside_its_box_and_renders_that_are_not_
         E.fit_emulator(design, v, 0.01 * np.ones_like(v), [0, 0, 0], [1, 1, 1], degrees=(1,))
 
 
+def test_key_changes_show_where_two_long_values_differ():
+    """A cache key's optics and field are reprs longer than the 40 characters shown: a change of the
+    soil albedo or the field's seed read "optics: 'Optics(specular=0.5, roughness=0.5, … →
+    'Optics(specular=0.5, roughness=0.5, …", the same on both sides (a review), in the posterior's
+    refusal to resume and the rebuild line. The part that differs is shown."""
+    optics = "Optics(specular=0.5, roughness=0.5, subsurface=0.6, base_color=0.07, soil_albedo={})"
+    before = {"optics": optics.format(0.12), "samples": 16, "sky": "isotropic"}
+    now = {"optics": optics.format(0.2), "samples": 16, "sky": "isotropic"}
+    (line,) = E.key_changes(before, now)
+    old, new = line.split(" → ")
+    assert old.startswith("optics: ") and "soil_albedo=0.12" in old and "soil_albedo=0.2)" in new
+    assert len(old) <= len("optics: ") + 40 and len(new) <= 40
+    # short values and values that differ within the first 37 characters are shown as before
+    assert E.key_changes({**before, "samples": 16}, {**before, "samples": 32}) == ["samples: 16 → 32"]
+    field = "Field(n_plants={}, row_spacing_m=0.125, plant_spacing_m=0.03, buffer_rows=0)"
+    assert E.key_changes({"field": field.format(4)}, {"field": field.format(9)}) == [
+        "field: 'Field(n_plants=4, row_spacing_m=0.12… → 'Field(n_plants=9, row_spacing_m=0.12…"
+    ]
+
+
 def test_every_variables_units_are_the_unit_its_name_carries():
     """A variable's name ends in its unit (``_umol_m2_s`` …), written out here as UDUNITS strings; the
     fractions and their SDs are dimensionless. The results' own check compares attributes with the

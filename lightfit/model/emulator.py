@@ -559,13 +559,24 @@ def emulator_key(render: dict, lo, hi, n_design: int, seed: int, degrees, extra=
 
 
 def key_changes(before: dict, now: dict) -> list[str]:
-    """``"entry: before → now"`` for each entry of two cache keys that differs (long values shortened)."""
+    """``"entry: before → now"`` for each entry of two cache keys that differs (long values shortened,
+    from where they differ when their first characters are the same: the optics' or the field's
+    repr cut at 37 characters read the same on both sides, naming no change; a review)."""
 
-    def short(v):
+    def short(v, start=0):
         s = repr(v)
+        s = s if start == 0 else "…" + s[start:]
         return s if len(s) <= 40 else s[:37] + "…"
 
-    return [f"{k}: {short(before.get(k))} → {short(now.get(k))}" for k in now if before.get(k) != now.get(k)] + [
+    def change(a, b):
+        if short(a) != short(b):
+            return f"{short(a)} → {short(b)}"
+        ra, rb = repr(a), repr(b)
+        common = next((i for i, (x, y) in enumerate(zip(ra, rb)) if x != y), min(len(ra), len(rb)))
+        start = max(ra.rfind(" ", 0, common) + 1, common - 24, 1)  # from the word that differs
+        return f"{short(a, start)} → {short(b, start)}"
+
+    return [f"{k}: {change(before.get(k), now.get(k))}" for k in now if before.get(k) != now.get(k)] + [
         f"{k}: {short(before[k])} → None" for k in before if k not in now
     ]
 
