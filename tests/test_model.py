@@ -564,6 +564,22 @@ def test_key_changes_show_where_two_long_values_differ():
     ]
 
 
+def test_the_emulator_refuses_points_outside_its_box_naming_the_parameter():
+    """PartsEmulator.basis takes points (n, 3) as well as one (3,): one of several points outside the
+    box stopped on "IndexError: tuple index out of range" (the flat index of the point's entry taken
+    for a parameter's; a review), or named the wrong parameter. It names the parameter and the point."""
+    lo, hi = np.array([0.2, 0.3, 0.0]), np.array([0.8, 1.0, 0.5])
+    design = E.sobol_design(8, lo, hi, seed=0)
+    emu = E.fit_emulator(design, np.ones((8, 1, 4, 1)) + design[:, :1, None, None], np.ones((8, 1, 4, 1)), lo, hi)
+    points = np.array([[0.5, 0.5, 0.25], [0.5, 0.5, 0.25], [0.5, 1.2, 0.25]])
+    with pytest.raises(InputError, match=r"roughness=1\.2 outside the emulator's box \[0\.3, 1\] \(point 2\)"):
+        emu.basis(points)
+    with pytest.raises(InputError, match=r"subsurface=0\.6 outside the emulator's box \[0, 0\.5\]") as one:
+        emu.basis(np.array([0.5, 0.5, 0.6]))
+    assert "point" not in str(one.value)  # one point: no index to name
+    assert np.asarray(emu.basis(points[:2])).shape == (2, 4)  # inside: the degree-1 basis of each point
+
+
 def test_every_variables_units_are_the_unit_its_name_carries():
     """A variable's name ends in its unit (``_umol_m2_s`` …), written out here as UDUNITS strings; the
     fractions and their SDs are dimensionless. The results' own check compares attributes with the

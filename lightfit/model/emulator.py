@@ -352,11 +352,12 @@ class PartsEmulator:
         if isinstance(leaf, jax.core.Tracer):
             return
         x = np.asarray(leaf, np.float64)
-        out = np.flatnonzero(~in_box(x, self.lo, self.hi))
+        out = np.argwhere(~in_box(x, self.lo, self.hi))  # points (n, 3) too: a flat index named no parameter
         if len(out):
-            i = int(out[0])
+            at, i = tuple(out[0]), int(out[0][-1])
             raise InputError(
-                f"{LEAF_PARAMETERS[i]}={x[i]:.6g} outside the emulator's box [{self.lo[i]:.6g}, {self.hi[i]:.6g}]",
+                f"{LEAF_PARAMETERS[i]}={x[at]:.6g} outside the emulator's box [{self.lo[i]:.6g}, {self.hi[i]:.6g}]"
+                + (f" (point {out[0][0]})" if x.ndim > 1 else ""),
                 parameter=LEAF_PARAMETERS[i],
                 expected="leaf parameters inside the box the emulator was fitted on (or an emulator fitted on a "
                 "box that holds them)",
