@@ -524,6 +524,16 @@ def test_build_emulator_refuses_a_bad_design_size_before_rendering(model):
     assert E.COUNTS == before
 
 
+def test_build_emulator_refuses_a_box_with_a_nan_bound_before_rendering(model):
+    """A NaN bound passed the box's check (every comparison with NaN is false) and stopped in scipy's
+    Sobol scaling ("ValueError: Bounds are not consistent 'l_bounds' < 'u_bounds'"): refused by name."""
+    before = dict(E.COUNTS)
+    for lo, hi in (((np.nan, 0.0, 0.0), (1.0, 1.0, 1.0)), ((0.0, 0.0, 0.0), (1.0, np.nan, 1.0))):
+        with pytest.raises(InputError, match="parameter 'specular, roughness, subsurface'.*nan"):
+            E.build_emulator(model, lo, hi, n_design=5, degrees=(1,))
+    assert E.COUNTS == before
+
+
 def test_emulator_refuses_extra_points_outside_its_box_and_renders_that_are_not_finite(model):
     """Two silent paths (a review): extra design points outside the box were rendered and fitted,
     bending the polynomial towards where it is never evaluated; a NaN render made every degree's

@@ -514,7 +514,9 @@ def build_emulator(
     into ``cache`` elsewhere first (:data:`RenderPoints`; needs ``cache``); the fit then reads every
     point from the cache, and renders here only what the hook left missing."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo) or np.any(lo < 0) or np.any(hi > 1):
+    # written as what must hold: a NaN bound fails it (NaN compares false both ways; it reached scipy's
+    # "Bounds are not consistent" ValueError)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all((0 <= lo) & (lo < hi) & (hi <= 1)):
         raise InputError(
             f"emulator box lo={lo.tolist()}, hi={hi.tolist()}",
             parameter="specular, roughness, subsurface",
