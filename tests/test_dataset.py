@@ -1201,6 +1201,17 @@ def test_default_time_is_the_highest_sun(results_file):
     assert select_times(own, None) == [0]
 
 
+def test_a_date_with_unpadded_month_and_day_is_a_date(results_file):
+    """2016-4-20T11:00 is the step 2016-04-20T11:00 (UTC), as pandas reads it: it was refused as
+    "has no date and is not HH:MM" (a review); a clock time is still not a date."""
+    from lightfit.dataset.results import select_times
+
+    res = open_results(results_file)
+    assert select_times(res, ["2016-4-20T11:00", "2016-4-20 08:00"]) == [1, 0]
+    with pytest.raises(InputError, match="has no date and is not HH:MM"):
+        select_times(res, ["11:00 UTC"])
+
+
 def test_weather_irradiance_is_interpolated_linearly_between_records(results_file):
     """Results without their own sun and sky at 08:05 UTC, halfway between two 10-min records of the
     bundled 2016-04-20 series: DNI and DHI are the records' mean."""

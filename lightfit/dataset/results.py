@@ -248,7 +248,9 @@ def select_times(res: Results, times: list[str] | None) -> list[int]:
     expected = f"ISO 8601 with its date, e.g. 2016-04-20T10:00 (UTC unless zoned), or HH:MM local time ({tz})"
     for t in times:
         clock = re.fullmatch(r"\s*\d{1,2}:\d{2}(:\d{2})?\s*", str(t))
-        if clock is None and not re.match(r"\s*\d{4}-?\d{2}-?\d{2}", str(t)):  # pandas dates a bare time today
+        # pandas dates a bare time today; a date's month and day may go unpadded (2016-4-20: it was
+        # refused as having no date)
+        if clock is None and not re.match(r"\s*(\d{4}-\d{1,2}-\d{1,2}|\d{4}-?\d{2}-?\d{2})", str(t)):
             raise InputError(f"time {t!r} has no date and is not HH:MM", parameter="times", expected=expected)
         if clock is not None:  # the site's clock on the results' one day
             days = sorted(set(local.date))
