@@ -1378,6 +1378,10 @@ def test_errors_name_the_option_that_caused_them(tmp_path):
         assert_user_error(runner.invoke(app, [*command, "--out", str(a_file)]), "option --out:", "is a file")
     r = runner.invoke(app, ["render-dataset", str(tmp_path / "results.nc"), "--out", str(a_file)])
     assert_user_error(r, "option --out:", "is a file")
+    # a file above the output folder: "Not a directory", naming .unfinished, once the field was built
+    for command in (["render-dataset", str(tmp_path / "results.nc")], ["replicate", "--quick"]):
+        r = runner.invoke(app, [*command, "--out", str(a_file / "ds")])
+        assert_user_error(r, "option --out:", "a_file is a file, not a folder")
 
 
 def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path):

@@ -298,9 +298,15 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 def output_folder(out: Path, option: str = "out") -> Path:
     """``out`` as a command's output folder, checked before any work: an existing file there is an
-    error naming the option (``mkdir`` said only "File exists", after the run had begun)."""
+    error naming the option (``mkdir`` said only "File exists", after the run had begun), and so is
+    a file where a folder above it would be (``-o results.nc/ds``: "Not a directory" after the run)."""
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} is a file", parameter=option, expected="a folder to write into (created if missing)")
+    folder = out.parent
+    while not folder.exists() and folder != folder.parent:  # the folders that do not exist are made
+        folder = folder.parent
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder} is a file, not a folder", parameter=option, expected="a folder to write into")
     return out
 
 
