@@ -302,12 +302,18 @@ def output_folder(out: Path, option: str = "out") -> Path:
     a file where a folder above it would be (``-o results.nc/ds``: "Not a directory" after the run)."""
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} is a file", parameter=option, expected="a folder to write into (created if missing)")
-    folder = out.parent
-    while not folder.exists() and folder != folder.parent:  # the folders that do not exist are made
+    _no_file_above(out, option, "a folder to write into")
+    return out
+
+
+def _no_file_above(path: Path, option: str, expected: str) -> None:
+    """:class:`InputError` naming ``option`` where the nearest existing folder above ``path`` (the
+    folders that do not exist are made) is a file."""
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder} is a file, not a folder", parameter=option, expected="a folder to write into")
-    return out
+        raise InputError(f"{folder} is a file, not a folder", parameter=option, expected=expected)
 
 
 def output_file(path: Path, option: str) -> Path:
@@ -316,11 +322,7 @@ def output_file(path: Path, option: str) -> Path:
     file where its folder, or a folder above it, would be ("File exists", after the plants had grown)."""
     if path.is_dir():
         raise InputError(f"{path} is a folder", parameter=option, expected="a file name to write")
-    folder = path.parent
-    while not folder.exists() and folder != folder.parent:  # the folders that do not exist are made
-        folder = folder.parent
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder} is a file, not a folder", parameter=option, expected="a file name in a folder")
+    _no_file_above(path, option, "a file name in a folder")
     return path
 
 
