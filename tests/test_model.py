@@ -180,7 +180,7 @@ def test_results_carry_the_schema(simulated, tmp_path):
     for name in ds.data_vars:
         attrs = ds[name].attrs
         assert attrs["units"] and attrs["long_name"], name
-        assert attrs == schema.variable(name).attrs(), name
+        assert same_attrs(attrs, schema.variable(name).attrs()), name
     for name in ds.coords:
         assert ds[name].attrs["long_name"], name
     # Spot checks of units a reader relies on (written out here, not taken from the schema).
@@ -251,9 +251,9 @@ def test_synthetic_results_describe_the_segments_as_a_run_does(synthetic_and_run
         assert sorted(c for c in ds.coords if ds[c].dims == ("segment",)) == sorted(on_segment)
         for c in on_segment:
             np.testing.assert_array_equal(ds[c].values, rendered[c].values, err_msg=c)
-            assert ds[c].dtype == rendered[c].dtype and ds[c].attrs == rendered[c].attrs, c
+            assert ds[c].dtype == rendered[c].dtype and same_attrs(ds[c].attrs, rendered[c].attrs), c
         for name in ds.variables:
-            assert ds[name].attrs == schema.variable(str(name)).attrs(), name
+            assert same_attrs(ds[name].attrs, schema.variable(str(name)).attrs()), name
 
 
 def test_synthetic_results_have_no_value_where_a_run_has_none(synthetic_and_run):
@@ -618,13 +618,45 @@ def test_every_variables_units_are_the_unit_its_name_carries():
     assert checked > 60
 
 
-def test_flags_are_cf_blank_separated_lists():
-    """CF flag_values and flag_meanings are blank-separated lists, one word per meaning (CF 1.x §3.5)."""
-    assert schema.variable("is_blade").attrs()["flag_values"] == "0 1"
-    assert schema.variable("is_blade").attrs()["flag_meanings"] == "no yes"
+def test_flags_are_cf_lists():
+    """CF 1.x §3.5: flag_values is a list of the flag variable's own type (int8 as written), flag_meanings
+    a blank-separated string, one word per meaning. flag_values was the text "-1 0 1" (a review)."""
+    a = schema.variable("is_blade").attrs()
+    assert a["flag_values"].dtype == np.int8 and a["flag_values"].tolist() == [0, 1]
+    assert a["flag_meanings"] == "no yes"
     a = schema.variable("limitation").attrs()
-    assert a["flag_values"] == "-1 0 1"
+    assert a["flag_values"].dtype == np.int8 and a["flag_values"].tolist() == [-1, 0, 1]
     assert a["flag_meanings"] == "not_a_blade Rubisco_limited electron_transport_limited"
+
+
+def test_flag_values_are_written_in_the_type_of_their_variable(tmp_path):
+    """In the file (read with h5py, no xarray decoding) each flag variable's flag_values attribute is
+    numbers of the variable's on-disk type, booleans written as int8 included."""
+    import h5py
+    import xarray as xr
+
+    ds = xr.Dataset(
+        {
+            "limitation": (("time", "segment"), np.array([[-1, 0, 1]], np.int8)),
+            "converged": (("time", "segment"), np.array([[True, False, True]])),
+        },
+        coords={
+            "time": pd.DatetimeIndex(["2016-04-20 10:00"]).values,
+            "segment": np.arange(3, dtype=np.int64),
+            "is_blade": ("segment", np.array([False, True, True])),
+        },
+    )
+    path = rep.write_netcdf(schema.annotate(ds), tmp_path / "flags.nc")
+    with h5py.File(path, "r") as f:
+        for name, values in (("limitation", [-1, 0, 1]), ("converged", [0, 1]), ("is_blade", [0, 1])):
+            flags = f[name].attrs["flag_values"]
+            assert flags.dtype == f[name].dtype == np.int8, name
+            assert flags.tolist() == values, name
+
+
+def same_attrs(a, b) -> bool:
+    """Two attribute dicts alike, arrays (flag_values) compared by value."""
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
 def test_nee_is_described_in_the_micrometeorological_sign_convention():

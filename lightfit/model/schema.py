@@ -67,7 +67,7 @@ class Variable:
     flags: str = ""
     off_blade: np.generic | None = None
 
-    def attrs(self) -> dict[str, str]:
+    def attrs(self) -> dict:
         a = {"long_name": self.long_name}
         if self.units is not None:
             a["units"] = self.units
@@ -75,7 +75,9 @@ class Variable:
             a["comment"] = self.comment
         if self.flags:
             values, meanings = zip(*(f.split(" ", 1) for f in self.flags.split(", ")))
-            a["flag_values"] = " ".join(values)
+            # CF 1.x section 3.5: flag_values is a list of the variable's own type, not text; every flag
+            # variable is written as int8 (booleans too: lightfit.replication.write_netcdf).
+            a["flag_values"] = np.array([int(v) for v in values], dtype=np.int8)
             a["flag_meanings"] = " ".join(m.replace(" ", "_") for m in meanings)
         return a
 
