@@ -533,3 +533,41 @@ def test_a_results_file_missing_some_site_keys_takes_selhausens_for_them():
     assert (site.latitude_deg, site.longitude_deg, site.altitude_m) == (-33.92, 6.447, 103.0)
     assert site.name == "south" and site.timezone == "Europe/Berlin"
     assert Site.from_attrs({}) == Site(50.865, 6.447, 103.0, "Selhausen", "Europe/Berlin")
+
+
+def test_several_days_results_say_what_a_blades_value_at_another_days_step_is():
+    """Several days' results (concat_days) have, at day 1's steps, day 2's blade segments with no value
+    (limitation −1, converged 1, NaN): the file's own flag meanings and comments cover them. The −1 of
+    limitation read "not_a_blade" on a segment whose is_blade is 1, and the comments said NaN / −1 / 1
+    only where not a blade (a review)."""
+    import xarray as xr
+
+    def part(date):
+        t = pd.DatetimeIndex([f"{date} 10:00"]).values
+        return xr.Dataset(
+            {
+                "absorbed_par_umol_m2_s": (("time", "segment"), np.full((1, 2), 500.0)),
+                "leaf_an_umol_m2_s": (("time", "segment"), np.array([[20.0, np.nan]])),
+                "limitation": (("time", "segment"), np.array([[1, -1]], np.int8)),
+                "converged": (("time", "segment"), np.array([[True, True]])),
+            },
+            coords={
+                "time": t,
+                "segment": [1, 2],
+                "plant_id": ("segment", [0, 0]),
+                "organ_type": ("segment", ["leaf", "stem"]),
+                "area_m2": ("segment", [1.0, 1.0]),
+                "is_blade": ("segment", [True, False]),
+                "height_m": ("segment", [0.1, 0.2]),
+            },
+            attrs={"date": date, "window": "w", "target_date": date},
+        )
+
+    both = rep.concat_days([part("2016-04-20"), part("2016-05-20")])
+    day2_blade = both.sel(segment=1 + rep.DAY_SEGMENT_STRIDE)
+    assert bool(day2_blade["is_blade"]) and int(day2_blade["limitation"][0]) == -1  # a blade, day 1's step
+    lim = both["limitation"].attrs
+    meaning = dict(zip(lim["flag_values"].tolist(), lim["flag_meanings"].split()))[-1]
+    assert meaning == "no_value"
+    for name in ("limitation", "converged", "leaf_an_umol_m2_s", "absorbed_par_umol_m2_s"):
+        assert "at the steps of another day" in both[name].attrs["comment"], name

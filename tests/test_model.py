@@ -626,7 +626,7 @@ def test_flags_are_cf_lists():
     assert a["flag_meanings"] == "no yes"
     a = schema.variable("limitation").attrs()
     assert a["flag_values"].dtype == np.int8 and a["flag_values"].tolist() == [-1, 0, 1]
-    assert a["flag_meanings"] == "not_a_blade Rubisco_limited electron_transport_limited"
+    assert a["flag_meanings"] == "no_value Rubisco_limited electron_transport_limited"
 
 
 def test_flag_values_are_written_in_the_type_of_their_variable(tmp_path):

@@ -30,12 +30,17 @@ from lightfit.errors import InputError
 from lightfit.plant.growth import centre_height_m, one_sided_area_m2, organ_class
 
 UMOL = "umol m-2 s-1"
-_SEGMENT_AREA = "per unit one-sided area of the segment (leaf blade, or stem/sheath lateral surface)"
+#: Several-day results (lightfit.replication.concat_days): each day has its own plants, so a segment has
+#: no value at the steps of the other days.
+_OTHER_DAYS = "in several-day results also at the steps of another day than the segment's"
+_SEGMENT_AREA = (
+    "per unit one-sided area of the segment (leaf blade, or stem/sheath lateral surface); NaN " + _OTHER_DAYS
+)
 _SD_BOUND = (
     "hypot(DNI SE_sun, DHI SE_sky) of the step: an upper bound, without the sun-sky covariance that "
     "reached_rse includes (1.00x at the blades' median, 1.25x at their 90th percentile; docs/model.md)"
 )
-_LEAF_AREA = "per unit one-sided leaf area; leaf blades only (NaN elsewhere)"
+_LEAF_AREA = f"per unit one-sided leaf area; leaf blades only (NaN elsewhere, {_OTHER_DAYS})"
 _CANOPY_AREA = (
     "per unit ground area of the measured plants (an_per = 'ground') or per unit one-sided leaf area "
     "of the measured blades (an_per = 'leaf'), see the attribute an_per"
@@ -208,7 +213,11 @@ VARIABLES: dict[str, Variable] = {
         off_blade=_NAN,
     ),
     "leaf_ci_umol_mol": Variable(
-        TS, "umol mol-1", "intercellular CO2 mole fraction", "leaf blades only (NaN elsewhere)", off_blade=_NAN
+        TS,
+        "umol mol-1",
+        "intercellular CO2 mole fraction",
+        f"leaf blades only (NaN elsewhere, {_OTHER_DAYS})",
+        off_blade=_NAN,
     ),
     "leaf_vc_umol_m2_s": Variable(
         TS,
@@ -228,12 +237,17 @@ VARIABLES: dict[str, Variable] = {
         TS,
         "1",
         "limiting process of leaf photosynthesis",
-        "-1 where not a leaf blade",
-        flags="-1 not a blade, 0 Rubisco limited, 1 electron transport limited",
+        "-1 where not a leaf blade, " + _OTHER_DAYS,
+        flags="-1 no value, 0 Rubisco limited, 1 electron transport limited",
         off_blade=np.int8(-1),
     ),
     "converged": Variable(
-        TS, "1", "photosynthesis solver converged", "1 where not a leaf blade", flags="0 no, 1 yes", off_blade=np.True_
+        TS,
+        "1",
+        "photosynthesis solver converged",
+        "1 where not a leaf blade, " + _OTHER_DAYS,
+        flags="0 no, 1 yes",
+        off_blade=np.True_,
     ),
     # -- per time: observables (lightfit.model.observe) ---------------------------------------
     "plant_par_umol_m2_s": Variable(T, UMOL, "mean PAR at the measured plants", _PLANT_PAR + " mean over segments"),
