@@ -25,7 +25,9 @@ so the leaf's absorptance is PROSPECT's :math:`1 - R - T` and its transmittance 
 **Presets** (:data:`PRESETS`): ``prospect``, lightfit's default (:data:`DEFAULT_PRESET`: the
 default traits :class:`LeafTraits` with the default specular 0.5 and roughness 0.5; base colour
 ≈ 0.067 and subsurface ≈ 0.596 derived) and ``paper`` (the reference paper's grey leaf: base
-colour 0.5, specular 0.5, roughness 0.5, subsurface 0.3).
+colour 0.5, the paper's §2.2; specular 0.5 and roughness 0.5, Unreal Engine's defaults; subsurface
+0.3, lightfit's first leaf's: the paper prints no subsurface value and its §2.4 says the leaf
+surface leaves subsurface scattering out).
 """
 
 from __future__ import annotations
@@ -47,7 +49,10 @@ DEFAULT_PRESET = "prospect"
 #: genotypes over several environments (Hamblin et al. 2014, PLoS ONE 9:e92529) through the SPAD
 #: fit of :attr:`LeafTraits.Cab` (Qian et al. 2021; mg m⁻² / 10). The default 50.5 (SPAD 41) lies inside.
 CHLOROPHYLL_PRIOR_UG_CM2 = (36.4, 70.3)
-#: The reference paper's grey leaf (Baker et al. 2025; lightfit's defaults until the `prospect` preset).
+#: The reference paper's grey leaf (Baker et al. 2025; lightfit's defaults until the `prospect` preset):
+#: base colour 0.5 is the paper's (§2.2, diffuse grey (0.5, 0.5, 0.5)); specular and roughness 0.5
+#: are Unreal Engine's defaults; subsurface 0.3 is lightfit's own (the paper prints none, and its
+#: §2.4 says the leaf surface leaves subsurface scattering out).
 PAPER_LEAF = {"specular": 0.5, "roughness": 0.5, "subsurface": 0.3, "base_color": 0.5}
 
 # Valid ranges of the traits (PROSPECT-D calibration and validation data span well inside them).

@@ -77,8 +77,8 @@ class Optics:
     The defaults are lightfit's default leaf, ``Optics() == Optics.preset("prospect")``: base
     colour and subsurface derived from the PROSPECT-D wheat leaf's PAR reflectance and
     transmittance (:mod:`lightfit.light.leaf_optics`; ≈ 0.067 and 0.60, absorptance 0.90), the
-    same leaf as the coupled model's. The reference paper's grey leaf (base colour 0.5,
-    subsurface 0.3, absorptance 0.49) is ``Optics.preset("paper")``; other traits
+    same leaf as the coupled model's. The reference paper's grey leaf (base colour 0.5, the
+    paper's; subsurface 0.3, lightfit's own; absorptance 0.49) is ``Optics.preset("paper")``; other traits
     ``Optics.from_traits(LeafTraits(Cab=40))``.
     """
 
