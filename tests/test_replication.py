@@ -85,6 +85,29 @@ def test_cli_preset_paper_reproduces_the_papers_setup(tmp_path):
         assert_matches_curve(ds, ref["curve"])
 
 
+def test_paper_preset_is_what_the_paper_prints():
+    """Each setting of ``ReplicationConfig.paper()`` that the reference paper prints (Baker et al.,
+    in silico Plants 2025), typed from the paper's text, against the settings the run records
+    (``effective``): not against lightfit's own constants."""
+    from lightfit.light.scene import Optics
+
+    eff = rep.ReplicationConfig.paper().effective()
+    # §2.4: the Field Minirhizotron Facility, 50.865° N, 6.447° E
+    assert (eff["site"]["latitude_deg"], eff["site"]["longitude_deg"]) == (50.865, 6.447)
+    # §2.4: growth simulated from 5 March 2016; §3.2: the day compared is 20 April 2016
+    assert (eff["season_start"], eff["dates"]) == ("2016-03-05", ["2016-04-20"])
+    # §3.2: the 10-minute weather "sub-sampled" to 30-minute intervals (values taken, not averaged)
+    assert (eff["window"]["step"], eff["how"]) == ("30min", "sample")
+    # §4.1: two rows of buffer plants around the measurement area
+    assert (eff["boundary"], eff["buffer_rows"], eff["buffer_along"]) == ("finite", 2, 2)
+    # §2.2: the leaf's diffuse colour set to grey (0.5, 0.5, 0.5)
+    assert Optics.preset(eff["optics"]).base_color == 0.5
+    # §2.4 and Fig. 4: absorbed PAR per segment and CO2 uptake per (ground) area
+    assert (eff["par_kind"], eff["an_per"]) == ("absorbed", "ground")
+    # §1, §3.1: CPlantBox's photosynthesis module (Giraud et al. 2023)
+    assert eff["photosynthesis"] == "giraud2023"
+
+
 def test_presets_and_leaf_options():
     """The paper preset is the paper's setup; presets keep the run's size; bad leaf options name themselves."""
     from lightfit.errors import InputError
