@@ -73,8 +73,9 @@ class LeafTraits:
     Attributes:
         N: leaf structure parameter (number of layers). 1.5: thin monocot leaves
             (Jacquemoud & Baret 1990: 1–1.5 for monocots; PROSPECT's usual default).
-        Cab: chlorophyll a+b, µg cm⁻². 50.5: SPAD 41 (the reference paper's reading for
-            20 April 2016) through the SPAD fit the paper's wheat photosynthesis uses (Qian et
+        Cab: chlorophyll a+b, µg cm⁻². 50.5: SPAD 41 (CPlantBox's Giraud et al. 2023 wheat
+            file, which ``giraud2023`` takes; the reference paper prints no SPAD reading, and its
+            own script set 56.5, docs/design.md §4) through the SPAD fit the paper's wheat photosynthesis uses (Qian et
             al. 2021, 0.114·SPAD² + 7.39·SPAD + 10.6 mg m⁻² = 505 mg m⁻²; Markwell et al. 1995
             gives 42 at the same SPAD).
         Car: carotenoids, µg cm⁻². 10: Car/Cab ≈ 0.2 of green leaves (Féret et al. 2017 data).

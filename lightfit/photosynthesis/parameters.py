@@ -46,7 +46,8 @@ Named sets (:func:`parameter_set`; :data:`~lightfit.defaults.DEFAULT_PARAMETER_S
     Giraud et al. (2023) as the reference paper used them through
     CPlantBox (``plant_photosynthesis/wheat_FcVB_Giraud2023adapted.py`` and docs/design.md §4):
     VcmaxrefChl1/2 = 1.28/8.33, Chl from SPAD 41 (Qian et al. 2021 formula, value passed
-    to CPlantBox unchanged), a1 = 1.5, a3 = 1.5, alpha = 0.4, theta = 0.6, g0 = 8e-3.
+    to CPlantBox unchanged; SPAD 41 is that file's, the reference paper's own script set 56.5,
+    docs/design.md §4), a1 = 1.5, a3 = 1.5, alpha = 0.4, theta = 0.6, g0 = 8e-3.
 ``"giraud2023_coupled"``
     The same leaf, but CO2 at the leaf surface, ci, gs and An solved as one coupled fixed
     point with the Tuzet (2003) conductance (``a1_tuzet = 1 + a1_cplantbox = 2.5``, which
