@@ -465,7 +465,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             stamped at their intervals' ends (starts), over the whole source intervals that end
             (start) within the new interval, stamped the same way (:mod:`lightfit.weather.timestamps`).
             ``"sample"`` takes the value at each new timestamp (what the reference paper did when
-            it "sub-sampled 10-minute intervals to 30 minutes"); the values keep their meaning.
+            it "sub-sampled the 10-minute intervals to 30-minute intervals", §3.2); the values keep their meaning.
         origin: a timestamp (tz-aware) the new steps pass through, e.g. a run's first step;
             ``None``: the series' first timestamp (``"sample"``) or midnight (``"mean"``).
 
