@@ -143,7 +143,8 @@ PRIORS_INFORMED: dict[str, Prior] = {
         1.0,
         0.5,
         "broad: median 1 (the weather's PAR: measured, else 0.5 × 4.57 µmol/J × radiation), "
-        "±1 SD in log covers the reference paper's fitted 1.637",
+        "±1 SD in log covers 1.637, the reference paper's light scaling as lightfit's first notes give it "
+        "(not in the paper's text: unverified)",
         lo=0.25,
         hi=4.0,
     ),
