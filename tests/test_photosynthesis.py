@@ -1203,14 +1203,14 @@ def test_light_response_keeps_its_initial_slope_at_any_capacity():
 
 def test_vcmax_scale_just_inside_its_bounds():
     """winter_wheat's Vcmax (with Jmax and Rd, tied to it) times 1e-300, 1e-200 and 1e-12 (just
-    inside the Vcmax scale's bound 0) and 1e6, 1e150 (far above any leaf), in the dark, in dim light
+    inside the Vcmax scale's bound 0) and 1e6, 1e90 (far above any leaf), in the dark, in dim light
     and in full sun, in one jit-compiled value and gradient: converged and finite, with finite dAn/dq
     and gradients in the scale and in PAR. In the dark An = −Rd, proportional to the scale, and dAn/dq
     is the same at every small scale (J ≈ αQ whatever Jmax). Below a scale of ≈ 1e-156 dAn/dq was NaN
     in the dark, flagged converged, and the gradient raised lineax's non-finite-input error (the light
     response's dJ/dQ, test above, which also runs without jit)."""
     base = _wheat()
-    scales = np.array([1e-300, 1e-200, 1e-12, 1.0, 1e6, 1e150])[:, None]
+    scales = np.array([1e-300, 1e-200, 1e-12, 1.0, 1e6, 1e90])[:, None]
 
     def total(s, q):
         p = eqx.tree_at(lambda r: r.fvcb.vcmax_ref_umol_m2_s, base, base.fvcb.vcmax_ref_umol_m2_s * s)
@@ -1227,6 +1227,27 @@ def test_vcmax_scale_just_inside_its_bounds():
     an, slope = np.asarray(res.an_umol_m2_s), np.asarray(slope)
     np.testing.assert_allclose(an[:, 0] / scales[:, 0], an[3, 0], rtol=1e-12)
     np.testing.assert_allclose(slope[:3, 0], slope[0, 0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["winter_wheat", "giraud2023_coupled"])
+def test_a_vcmax_beyond_float64s_reach_is_flagged_with_a_zero_gradient(name):
+    """A Vcmax scale of 1e200 or 1e300 (an unconstrained optimiser's exp(z) reaches it): Vcmax·ci
+    overflows float64 in the coupled closures. Every element is flagged, the loss a line search
+    sees is +inf and its gradient 0, under jit and eagerly. Before, the gradient raised lineax's
+    non-finite-input error from the implicit adjoint's linear solve (a JaxRuntimeError that
+    stopped a calibration whose line search tried such a point)."""
+    base = ps.parameter_set(name)
+
+    def loss(s):
+        p = eqx.tree_at(lambda r: r.fvcb.vcmax_ref_umol_m2_s, base, base.fvcb.vcmax_ref_umol_m2_s * s)
+        r = ps.solve(jnp.array([0.0, 50.0, 1500.0]), 20.0, 400.0, 0.5, P_KPA, p)
+        return jnp.where(jnp.any(~r.converged), jnp.inf, jnp.sum(r.an_umol_m2_s)), r.converged
+
+    for vg in (jax.jit(jax.value_and_grad(loss, has_aux=True)), jax.value_and_grad(loss, has_aux=True)):
+        for scale in (1e200, 1e300):
+            (value, converged), slope = vg(jnp.asarray(scale))
+            assert float(value) == np.inf and float(slope) == 0.0, (scale, value, slope)
+            assert not np.asarray(converged).any()
 
 
 @pytest.mark.parametrize("name", list(ps.PARAMETER_SET_NAMES))

@@ -312,6 +312,13 @@ _STAND_IN = {
 }
 
 
+#: Largest Vcmax_ref (µmol m⁻² s⁻¹) a solve takes as it is: beyond ≈ 1e153 Vcmax·ci overflows float64 in
+#: the coupled closures, and the gradient through such a solve raised lineax's non-finite-input error
+#: (an optimiser's exp(z) reaches it: a Vcmax scale of 1e200). Above it the elements are flagged
+#: and solved at the stand-ins (:func:`_guarded`): 1e100 is 96 orders of magnitude above any leaf.
+MAX_SOLVED_VCMAX_UMOL_M2_S = 1e100
+
+
 @functools.cache
 def _stand_in_values() -> dict[str, float]:
     """The numbers a parameter set's solve runs on where its own are outside their domain
@@ -329,10 +336,11 @@ def _guarded(env: Environment, params: PhotosynthesisParams) -> tuple[Environmen
     linear solve, finite (a NaN or infinite light, or a NaN Vcmax, made ``jax.grad`` raise in
     lineax's check, though the value was flagged), and their cotangents 0. Their outputs stay the
     stand-in's, finite: a NaN output would poison the sums the likelihood takes before it masks
-    unconverged steps (0 × NaN in the reverse pass, and lineax raised again)."""
+    unconverged steps (0 × NaN in the reverse pass, and lineax raised again). A Vcmax_ref above
+    :data:`MAX_SOLVED_VCMAX_UMOL_M2_S`, inside its domain but beyond float64's reach, counts as outside it."""
     ok = _in_range(env)
     safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
-    keep = params_in_domain(params)
+    keep = params_in_domain(params) & (params.fvcb.vcmax_ref_umol_m2_s <= MAX_SOLVED_VCMAX_UMOL_M2_S)
     mine = {name: jnp.asarray(value_of(params, name)) for name in OVERRIDABLE}
     stand_in = _stand_in_values()
     params = replaced(params, {n: jnp.where(keep, v, jnp.asarray(stand_in[n], v.dtype)) for n, v in mine.items()})
@@ -629,7 +637,8 @@ def solve(
             and meaningless) and gradients of 0 (the other elements' are unaffected). A traced
             parameter outside its domain (NaN, infinite, a curvature of 1.5; shared by all
             elements) flags every element, solved at the default set's numbers, with gradients of
-            0. A gradient through an infinite cotangent still raises lineax's "non-finite input"
+            0; so does a Vcmax_ref above :data:`MAX_SOLVED_VCMAX_UMOL_M2_S` (1e100), concrete or
+            traced. A gradient through an infinite cotangent still raises lineax's "non-finite input"
             error from the implicit adjoint's linear solve.
     """
     env, params, config = _prepared(
