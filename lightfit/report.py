@@ -117,7 +117,18 @@ def observations_fit(ds) -> pd.DataFrame | None:
     of the series alone with the observations' SDs and the model's Monte Carlo SDs (the results'
     ``observations_fit`` attribute, written by :func:`lightfit.replication.run` with
     :meth:`~lightfit.inference.likelihood.GaussianLikelihood.series_fit`); ``None`` for a run
-    without observations."""
+    without observations. ``ds``: the results (an xarray Dataset) or the path of a results.nc."""
+    if isinstance(ds, str | Path):
+        import xarray as xr
+
+        from lightfit.errors import InputError
+        from lightfit.files import is_netcdf
+
+        path = Path(ds)
+        if not path.is_file() or not is_netcdf(path):
+            raise InputError("not a netCDF file", file=path, expected="a results.nc written by the coupled model")
+        with xr.open_dataset(path) as opened:
+            ds = xr.Dataset(attrs=dict(opened.attrs))
     text = ds.attrs.get("observations_fit")
     if not text:
         return None

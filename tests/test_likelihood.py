@@ -547,3 +547,30 @@ def test_the_monte_carlo_correlation_completes_theta_from_the_scenario(monkeypat
     monkeypatch.setattr(L, "mc_covariance", lambda op, v, se, th, keys: np.eye(len(keys) * T))
     corr = L.mc_correlation(Model(), {"light_factor": 1.2}, ("plant_par",))
     assert seen[0].subsurface == 0.3 and seen[0].light_factor == 1.2 and corr.theta["subsurface"] == 0.3
+
+
+def test_observations_fit_reads_a_results_file_by_its_path(tmp_path):
+    """README: results.nc's attribute ``observations_fit`` holds the numbers and
+    ``lightfit.report.observations_fit`` reads them; given the file's path (str or Path) it took
+    ``.attrs`` of the string (AttributeError). Values written by hand, read back from the file."""
+    import json
+
+    import xarray as xr
+
+    from lightfit.errors import InputError
+    from lightfit.report import observations_fit
+
+    numbers = {"above_canopy_par": {"n": 1, "bias": -3.16, "rmse": 3.16, "unit": "umol m-2 s-1", "chi2": 0.00167}}
+    path = tmp_path / "results.nc"
+    xr.Dataset({"x": ("time", [1.0])}, attrs={"observations_fit": json.dumps(numbers)}).to_netcdf(path)
+    for given in (path, str(path)):
+        fit = observations_fit(given)
+        assert list(fit.index) == ["above_canopy_par"]
+        assert fit.loc["above_canopy_par", "n"] == 1
+        assert fit.loc["above_canopy_par", "bias"] == -3.16
+        assert fit.loc["above_canopy_par", "chi2"] == 0.00167
+    xr.Dataset({"x": ("time", [1.0])}).to_netcdf(tmp_path / "bare.nc")
+    assert observations_fit(tmp_path / "bare.nc") is None
+    (tmp_path / "summary.csv").write_text("time_utc\n")
+    with pytest.raises(InputError, match="summary.csv"):
+        observations_fit(tmp_path / "summary.csv")
