@@ -127,7 +127,7 @@ def observations_fit(ds) -> pd.DataFrame | None:
         path = Path(ds)
         if not path.is_file() or not is_netcdf(path):
             raise InputError("not a netCDF file", file=path, expected="a results.nc written by the coupled model")
-        with xr.open_dataset(path) as opened:
+        with xr.open_dataset(path, engine="h5netcdf") as opened:
             ds = xr.Dataset(attrs=dict(opened.attrs))
     text = ds.attrs.get("observations_fit")
     if not text:
