@@ -340,7 +340,10 @@ def _guarded(env: Environment, params: PhotosynthesisParams) -> tuple[Environmen
     :data:`MAX_SOLVED_VCMAX_UMOL_M2_S`, inside its domain but beyond float64's reach, counts as outside it."""
     ok = _in_range(env)
     safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
-    keep = params_in_domain(params) & (params.fvcb.vcmax_ref_umol_m2_s <= MAX_SOLVED_VCMAX_UMOL_M2_S)
+    vcmax = jnp.asarray(params.fvcb.vcmax_ref_umol_m2_s)
+    # float32 holds no 1e100 (casting it overflowed with a RuntimeWarning): its largest number is the limit there
+    limit = min(MAX_SOLVED_VCMAX_UMOL_M2_S, float(jnp.finfo(vcmax.dtype).max))
+    keep = params_in_domain(params) & (vcmax <= limit)
     mine = {name: jnp.asarray(value_of(params, name)) for name in OVERRIDABLE}
     stand_in = _stand_in_values()
     params = replaced(params, {n: jnp.where(keep, v, jnp.asarray(stand_in[n], v.dtype)) for n, v in mine.items()})
