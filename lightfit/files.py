@@ -90,9 +90,6 @@ def is_netcdf(path: str | Path) -> bool:
         return f.read(8).startswith(NETCDF_MAGIC)
 
 
-__all__ = ["NETCDF_MAGIC", "is_netcdf", "replace_text", "replaced"]
-
-
 def jsonable(d: Any, strict: bool = False) -> Any:
     """``d`` with numpy arrays and scalars turned into lists and Python numbers (for ``json.dumps``);
     ``strict``: non-finite numbers as ``None`` too (JSON has no Infinity or NaN: strict parsers,
@@ -108,3 +105,6 @@ def jsonable(d: Any, strict: bool = False) -> Any:
     if strict and isinstance(d, float) and not np.isfinite(d):
         return None
     return d
+
+
+__all__ = ["NETCDF_MAGIC", "is_netcdf", "jsonable", "replace_text", "replaced"]
