@@ -341,6 +341,37 @@ def test_the_stop_rule_does_not_stop_walkers_stuck_in_separate_modes(tmp_path):
     assert status["diagnostics"]["rhat"][0] > 5 and status["diagnostics"]["tau_multiple"] == 20
 
 
+def test_a_walker_that_never_moves_is_reported(tmp_path):
+    """A walker started on a spike of the log-probability (+60 on a point no proposal lands on) never
+    moves: it put 1/32 of the samples on one point (the mean of N(0, 1) 2.5/32 off) with the mean
+    acceptance 0.41 "ok", and emcee's τ (0/0 for a constant walker) made every τ and ESS NaN, which
+    the cautions called "not reliable yet … resume with a larger --max-steps". The diagnostics name
+    the walker, and the cautions say that it stands still and that a longer chain does not help."""
+    from lightfit.cli.posterior import _cautions
+
+    spike = np.array([2.5, 2.5])
+
+    def log_prob(xs):
+        xs = np.atleast_2d(xs)
+        return -0.5 * (xs**2).sum(1) + 60.0 * np.all(np.abs(xs - spike) < 1e-9, axis=1)
+
+    initial = np.random.default_rng(1).normal(size=(32, 2))
+    initial[5] = spike
+    r = P.sample(
+        log_prob, ("a", "b"), tmp_path / "s.h5", nwalkers=32, max_steps=300, seed=3, initial=initial,
+        stop=P.StopRule(), progress=False,
+    )  # fmt: skip
+    assert np.all(r.chain[:, 5] == spike)  # the premise: it stood still, the others moved
+    assert r.diagnostics["stuck"] == [5]
+    status = P.backend.run_status(tmp_path / "s.h5")
+    assert status["diagnostics"]["stuck"] == [5]
+    said = " ".join(_cautions(status["diagnostics"] | {"stopped_by": status["stopped_by"]}))
+    assert "1 of 32 walkers never moved" in said and "walker 5" in said
+    assert "larger --max-steps" not in said
+    moving = P.diagnostics(np.random.default_rng(0).normal(size=(100, 8, 2)))
+    assert moving["stuck"] == [] and not any("never moved" in c for c in _cautions(moving))
+
+
 def test_a_run_the_rule_stopped_is_not_called_unreliable(tmp_path):
     """The rule asks n_kept ≥ 20 τ and `tau_reliable` asked 50 τ: every rule stop between the two was
     then told to resume with a larger --max-steps, which does nothing to a finished run. τ is now

@@ -325,11 +325,11 @@ def posterior(
 
 def _cautions(d: dict) -> list[str]:
     """What a posterior's diagnostics ``d`` (a run's summary or its stored diagnostics) warn of:
-    walkers that disagree (split-R̂, separate modes), τ not yet reliable by the stop rule's own
-    multiple, an acceptance outside 0.1–0.8, a MAP the optimiser did not reach, a MAP whose χ² the
-    data reject or that sits on its prior's edge, a parameter the data hardly narrowed (posterior SD
-    ≥ ``UNINFORMED_SD_RATIO`` of its prior's), an emulator whose measured error moves the posterior
-    by more than ``EMULATOR_SHIFT_CAUTION_SD``."""
+    walkers that never moved over the kept steps, walkers that disagree (split-R̂, separate modes),
+    τ not yet reliable by the stop rule's own multiple, an acceptance outside 0.1–0.8, a MAP the
+    optimiser did not reach, a MAP whose χ² the data reject or that sits on its prior's edge, a
+    parameter the data hardly narrowed (posterior SD ≥ ``UNINFORMED_SD_RATIO`` of its prior's), an
+    emulator whose measured error moves the posterior by more than ``EMULATOR_SHIFT_CAUTION_SD``."""
     import numpy as np
 
     from lightfit.inference.calibration import misfit, on_edge
@@ -339,8 +339,18 @@ def _cautions(d: dict) -> list[str]:
     out = []
     names, rhat = list(d.get("names", [])), np.asarray(d.get("rhat", []), float)
     limit = d.get("rhat_max", StopRule().rhat_max)
+    stuck = list(d.get("stuck") or [])
+    if stuck:  # emcee's τ is NaN while a walker stands still: the τ and R̂ lines below would blame the length
+        shown = ", ".join(str(i) for i in stuck[:8]) + (", …" if len(stuck) > 8 else "")
+        out.append(
+            f"{len(stuck)} of {d.get('n_walkers', '?')} walkers never moved over the kept steps (walker "
+            f"{shown}): each repeats one point in the samples, which the summary and corner.png average in, "
+            "and τ and ESS cannot be estimated; a longer chain does not help: look at where they sit (a spike "
+            "or a refused region of the log-probability) and start again (--no-resume, another --sampler-seed)"
+        )
     if rhat.size and np.isnan(rhat).any():
-        out.append("split-R̂ cannot be computed yet (fewer than 4 kept steps): nothing says the walkers agree")
+        if not stuck:  # else NaN as 0/0: no walker moved
+            out.append("split-R̂ cannot be computed yet (fewer than 4 kept steps): nothing says the walkers agree")
     elif rhat.size and rhat.max() >= limit:
         i = int(np.argmax(rhat))
         out.append(
@@ -349,7 +359,7 @@ def _cautions(d: dict) -> list[str]:
             "cannot correct; either way the summary is not the posterior (the run's corner.png shows where they "
             "are)"
         )
-    if not d.get("tau_reliable", True):
+    if not d.get("tau_reliable", True) and not stuck:
         m = d.get("tau_multiple") or 50
         out.append(
             f"τ is not reliable yet (fewer than {m:g} τ kept steps, the stop rule's length): the SDs, τ and ESS "

@@ -637,6 +637,8 @@ def run(
         "rhat_max": res.diagnostics["rhat_max"],
         "tau_reliable": bool(res.diagnostics.get("tau_reliable", False)),
         "tau_multiple": res.diagnostics.get("tau_multiple"),
+        "n_walkers": int(res.diagnostics["n_walkers"]),
+        "stuck": res.diagnostics["stuck"],  # walkers that never moved over the kept steps
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
         "acceptance_ok": res.diagnostics.get("acceptance_ok", True),
         "refused": res.refused,

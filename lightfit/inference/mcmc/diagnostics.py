@@ -71,7 +71,9 @@ def diagnostics(
     autocorrelation time per parameter, in steps; emcee's estimator with window constant ``c``),
     ``ess`` (n_walkers · n_kept / τ), ``rhat`` (:func:`split_rhat`), ``acceptance`` (per walker, if
     given) with its mean, ``tau_reliable`` (n_kept ≥ ``tau_multiple`` τ: 50 is emcee's rule of
-    thumb; a run's stop rule passes its own, ``tau_multiple`` records which) and ``names``.
+    thumb; a run's stop rule passes its own, ``tau_multiple`` records which), ``stuck`` (indices of
+    the walkers that never moved over the kept steps: each repeats one point n_kept times in the
+    samples, and emcee's τ, hence the ESS, is NaN for every parameter while one does) and ``names``.
     """
     chain = np.asarray(chain)
     if chain.ndim != 3:
@@ -95,6 +97,7 @@ def diagnostics(
         "tau": tau,
         "ess": ess,
         "rhat": split_rhat(kept),
+        "stuck": np.flatnonzero(np.all(kept == kept[:1], axis=(0, 2))).tolist() if len(kept) >= 2 else [],
         "tau_multiple": float(tau_multiple),
         "tau_reliable": bool(np.all(len(kept) >= tau_multiple * tau)),
     }

@@ -185,10 +185,7 @@ def _sample(
                 if checks.due(it):
                     met = checks.met(it)
                     d = checks.last
-                    bar.update(
-                        info=f"τ max {np.nanmax(d['tau']):.1f}  ESS min {np.nanmin(d['ess']):.0f}  "
-                        f"acc {d['acceptance_mean']:.2f}"
-                    )
+                    bar.update(info=_bar_info(d))
                     if met:
                         stopped_by = "rule"
                         break
@@ -211,6 +208,15 @@ def _sample(
     return SamplerResult(
         names, chain, backend.get_log_prob(), d, path, stopped_by, time.perf_counter() - t0, k, refused
     )
+
+
+def _bar_info(d: dict) -> str:
+    """The progress bar's τ, ESS and acceptance; "–" where no τ is finite (a chain too short, or a
+    walker that never moved: emcee's τ is NaN then, and numpy warned of an all-NaN slice)."""
+    tau, ess = np.asarray(d["tau"], float), np.asarray(d["ess"], float)
+    if not np.isfinite(tau).any():
+        return f"τ max –  ESS min –  acc {d['acceptance_mean']:.2f}"
+    return f"τ max {np.nanmax(tau):.1f}  ESS min {np.nanmin(ess):.0f}  acc {d['acceptance_mean']:.2f}"
 
 
 class _Checks:
