@@ -341,6 +341,17 @@ def test_the_stop_rule_does_not_stop_walkers_stuck_in_separate_modes(tmp_path):
     assert status["diagnostics"]["rhat"][0] > 5 and status["diagnostics"]["tau_multiple"] == 20
 
 
+def test_non_finite_initial_positions_are_refused_by_name(tmp_path):
+    """A NaN starting position reached emcee, which said "Initial state has a large condition number.
+    Make sure that your walkers are linearly independent": the walker and parameter are named now,
+    and the file is left as it was."""
+    initial = np.random.default_rng(0).normal(size=(8, 3))
+    initial[3, 1] = np.nan
+    with pytest.raises(InputError, match=r"initial\[3, 1\] = nan \(walker 3, b; 1 non-finite") as e:
+        P.sample(Gauss(), NAMES, tmp_path / "n.h5", nwalkers=8, max_steps=10, initial=initial, progress=False)
+    assert "finite starting positions" in str(e.value) and not (tmp_path / "n.h5").exists()
+
+
 def test_a_walker_that_never_moves_is_reported(tmp_path):
     """A walker started on a spike of the log-probability (+60 on a point no proposal lands on) never
     moves: it put 1/32 of the samples on one point (the mean of N(0, 1) 2.5/32 off) with the mean

@@ -293,6 +293,14 @@ def _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs
     initial = np.asarray(initial, float)
     if initial.shape != (nwalkers, len(names)):
         raise InputError(f"initial shape {initial.shape}", parameter="initial", expected=f"({nwalkers}, {len(names)})")
+    bad = np.argwhere(~np.isfinite(initial))
+    if len(bad):  # emcee said "Initial state has a large condition number" of a NaN
+        w, j = bad[0]
+        raise InputError(
+            f"initial[{w}, {j}] = {initial[w, j]} (walker {w}, {names[j]}; {len(bad)} non-finite values in all)",
+            parameter="initial",
+            expected="finite starting positions",
+        )
     backend.reset(nwalkers, len(names))
     with open_h5(path, "a") as f:
         g = f[group]
