@@ -341,6 +341,21 @@ def test_the_stop_rule_does_not_stop_walkers_stuck_in_separate_modes(tmp_path):
     assert status["diagnostics"]["rhat"][0] > 5 and status["diagnostics"]["tau_multiple"] == 20
 
 
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("burn_fraction", 1.0), ("burn_fraction", -0.1), ("check_every", 0), ("check_every", 2.5), ("min_steps", -1),
+     ("tau_multiple", 0.0), ("tau_rtol", float("nan")), ("rhat_max", 1.0)],
+)  # fmt: skip
+def test_stop_rule_refuses_settings_it_cannot_work_with(field, value):
+    """burn_fraction 1 discarded every step (τ, ESS, R̂ and the summary all NaN, the run on to
+    max_steps) and check_every 0 ended in ZeroDivisionError at the first step: each is an InputError
+    naming the field; the defaults and a plain variation pass."""
+    with pytest.raises(InputError, match=field):
+        P.StopRule(**{field: value})
+    P.StopRule()
+    P.StopRule(burn_fraction=0.0, check_every=10, min_steps=0, tau_multiple=50, tau_rtol=0.01, rhat_max=1.01)
+
+
 def test_non_finite_initial_positions_are_refused_by_name(tmp_path):
     """A NaN starting position reached emcee, which said "Initial state has a large condition number.
     Make sure that your walkers are linearly independent": the walker and parameter are named now,

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import emcee
 import numpy as np
 
-from lightfit.errors import InputError
+from lightfit.errors import InputError, check_integer, check_real
 
 #: Acceptance fractions outside which the walkers move badly (flagged): 0.15–0.8 for the stretch
 #: move (Foreman-Mackey et al. 2013); the default moves (differential evolution 0.8, stretch 0.2)
@@ -129,6 +129,13 @@ class StopRule:
             raise InputError(
                 f"target_ess={self.target_ess!r}", parameter="target_ess", expected="> 0 effective samples"
             )
+        # burn_fraction 1 kept no step (every τ, ESS and summary NaN); check_every 0 divided by zero
+        check_real(self.burn_fraction, "burn_fraction", 0.0, 1.0, open_hi=True, expected="a fraction in [0, 1)")
+        check_integer(self.check_every, "check_every", 1, expected="an integer ≥ 1 (steps between checks)")
+        check_integer(self.min_steps, "min_steps", 0)
+        check_real(self.tau_multiple, "tau_multiple", 0.0, open_lo=True, expected="> 0 (kept steps per τ)")
+        check_real(self.tau_rtol, "tau_rtol", 0.0, open_lo=True, expected="> 0 (relative change of τ)")
+        check_real(self.rhat_max, "rhat_max", 1.0, open_lo=True, expected="> 1 (split-R̂ is ≥ 1 up to noise)")
 
     def check(self, d: dict, tau_prev) -> bool:
         """Whether diagnostics ``d`` (and τ at the previous check, None at the first) meet the rule."""
