@@ -396,6 +396,10 @@ def test_a_walker_that_never_moves_is_reported(tmp_path):
     assert "larger --max-steps" not in said
     moving = P.diagnostics(np.random.default_rng(0).normal(size=(100, 8, 2)))
     assert moving["stuck"] == [] and not any("never moved" in c for c in _cautions(moving))
+    # a short chain is not judged: a healthy walker often stands still over a few steps
+    short = np.random.default_rng(0).normal(size=(40, 8, 2))
+    short[:, 3] = short[0, 3]
+    assert P.diagnostics(short)["stuck"] == [] and P.diagnostics(np.concatenate([short] * 2))["stuck"] == [3]
 
 
 def test_a_run_the_rule_stopped_is_not_called_unreliable(tmp_path):

@@ -56,6 +56,12 @@ def split_rhat(kept: np.ndarray) -> np.ndarray:
         return np.sqrt(((n - 1) / n * within + between / n) / within)
 
 
+#: Kept steps from which a walker that never moved counts as stuck: a healthy walker at an
+#: acceptance of 0.1 stands still over 50 steps with probability 0.9⁵⁰ ≈ 0.005, over 10 with 0.35
+#: (a short chain's walkers would be called stuck, and told that a longer chain does not help).
+STUCK_MIN_KEPT_STEPS = 50
+
+
 def diagnostics(
     chain: np.ndarray,
     accepted: np.ndarray | None = None,
@@ -72,8 +78,9 @@ def diagnostics(
     ``ess`` (n_walkers · n_kept / τ), ``rhat`` (:func:`split_rhat`), ``acceptance`` (per walker, if
     given) with its mean, ``tau_reliable`` (n_kept ≥ ``tau_multiple`` τ: 50 is emcee's rule of
     thumb; a run's stop rule passes its own, ``tau_multiple`` records which), ``stuck`` (indices of
-    the walkers that never moved over the kept steps: each repeats one point n_kept times in the
-    samples, and emcee's τ, hence the ESS, is NaN for every parameter while one does) and ``names``.
+    the walkers that never moved over the kept steps, judged from :data:`STUCK_MIN_KEPT_STEPS` kept
+    steps on: each repeats one point n_kept times in the samples, and emcee's τ, hence the ESS, is
+    NaN for every parameter while one does) and ``names``.
     """
     chain = np.asarray(chain)
     if chain.ndim != 3:
@@ -97,7 +104,9 @@ def diagnostics(
         "tau": tau,
         "ess": ess,
         "rhat": split_rhat(kept),
-        "stuck": np.flatnonzero(np.all(kept == kept[:1], axis=(0, 2))).tolist() if len(kept) >= 2 else [],
+        "stuck": np.flatnonzero(np.all(kept == kept[:1], axis=(0, 2))).tolist()
+        if len(kept) >= STUCK_MIN_KEPT_STEPS
+        else [],
         "tau_multiple": float(tau_multiple),
         "tau_reliable": bool(np.all(len(kept) >= tau_multiple * tau)),
     }
