@@ -769,6 +769,36 @@ def test_the_operator_on_a_two_segment_canopy_worked_by_hand():
     np.testing.assert_allclose(o["fapar"], [0, 607.5 / 1050], rtol=1e-12)
 
 
+def test_a_twilight_step_that_is_not_rendered_reads_no_ceptometer_fapar():
+    """A step with the sun at −3° and diffuse light above (DHI 20 µmol m⁻² s⁻¹) is not rendered
+    (daytime: sun above −1°): the plants and the ceptometer get no light there, the canopy fAPAR is
+    0, and the ceptometer's τ and fAPAR are 0 as at night. 1 − τ gave a ceptometer fAPAR of 1 there
+    (a review). The day step: sun at 30°, DNI 1000, DHI 200; the ceptometer's parts 0.1 per DNI and
+    0.2 per DHI read 1000·0.1 + 200·0.2 = 140 under 1000·½ + 200 = 700 above, τ = 0.2."""
+    from lightfit.light.estimator import PARTS
+    from lightfit.model.scenario import Forcing
+    from lightfit.photosynthesis import parameter_set
+
+    fc = Forcing(
+        day=np.array([False, True]), dni_par=np.array([0.0, 1000.0]), dhi_par=np.array([20.0, 200.0]),
+        tair_c=np.array([5.0, 25.0]), co2_ppm=np.full(2, 400.0), rh=np.full(2, 0.6), pair_kpa=np.full(2, 100.0),
+    )  # fmt: skip
+    op = O.ObservationOperator(
+        forcing=fc, area_m2=np.array([0.1]), is_blade=np.array([True]), par_kind="absorbed", denominator_m2=0.4,
+        params=parameter_set("winter_wheat"), ground_area_m2=0.4, sun_elevation_deg=np.array([-3.0, 30.0]),
+        sensors=("ceptometer",),
+    )  # fmt: skip
+    blade = {"incident_sun": 0.8, "incident_sky": 0.5, "absorbed_sun": 0.7, "absorbed_sky": 0.4}
+    sensor = {"incident_sun": 0.1, "incident_sky": 0.2, "absorbed_sun": 0.0, "absorbed_sky": 0.0}
+    values = jnp.asarray([[[blade[p], sensor[p]] for p in PARTS]])  # (T_day, PARTS, S + 1)
+    o = op(values, jnp.zeros_like(values), Theta())
+    np.testing.assert_allclose(np.asarray(o["above_canopy_par_umol_m2_s"]), [20.0, 700.0], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(o["transmitted_par_umol_m2_s"]), [0.0, 140.0], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(o["fapar"])[0], 0.0, atol=0)
+    np.testing.assert_allclose(np.asarray(o["ceptometer_transmittance"]), [0.0, 0.2], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(o["ceptometer_fapar"]), [0.0, 0.8], rtol=1e-12)
+
+
 def test_daytime_is_light_with_the_sun_above_minus_one_degree():
     """The rendered steps: DNI + DHI > 0 and the sun above −1° (the documented rule, which keeps the
     twilight steps where refraction already shows the sun's disc and the sky is lit)."""

@@ -278,11 +278,18 @@ def observables(
     soil_respiration_umol_m2_s: float | np.ndarray = SOIL_RESPIRATION_UMOL_M2_S,
     transmitted=None,
     transmitted_mc_sd=None,
+    rendered=None,
 ) -> dict:
     """The :data:`OBSERVABLES` (each (T,)) from per-segment PAR (T, S), per-blade leaf An (T, B),
     per-segment absorbed PAR (T, S), PAR above the canopy (T,) (:func:`above_canopy_par`) and
     PAR on the ceptometer on the soil (T,) with its SD (``None``: no ceptometer rendered, its
     observables are NaN).
+
+    ``rendered`` (T,) bool marks the steps whose light was rendered (``None``: every step); the
+    others are night to the ceptometer, whose τ and fAPAR are 0 there as at night. A twilight step
+    (sun below −1°, :func:`~lightfit.model.scenario.daytime`) with diffuse light above is not
+    rendered: its transmitted PAR is 0, and 1 − τ gave a ceptometer fAPAR of 1 beside a canopy
+    fAPAR of 0.
 
     ``par``/``par_mc_sd`` are the plant-PAR kind (incident or absorbed); canopy An is per
     ``denominator_m2``, APAR and NEE per ``ground_area_m2``. Units: every PAR and An in
@@ -302,8 +309,9 @@ def observables(
     if transmitted is None:  # no ceptometer: none of its readings, at night either (its 0 there is a convention)
         transmitted = transmitted_mc_sd = tau = tau_sd = cf = cf_sd = xp.full_like(above_par, xp.nan)
     else:
-        tau, tau_sd = ceptometer_transmittance(transmitted, transmitted_mc_sd, above_par)
-        cf, cf_sd = ceptometer_fapar(tau, tau_sd, above_par)
+        read = above_par if rendered is None else xp.where(xp.asarray(rendered), above_par, 0.0)
+        tau, tau_sd = ceptometer_transmittance(transmitted, transmitted_mc_sd, read)
+        cf, cf_sd = ceptometer_fapar(tau, tau_sd, read)
     values = (mean, spread, par_sd, can, can_sd, above_par, xp.zeros_like(above_par), apar, apar_sd, fa, fa_sd)
     values += (nee, nee_sd, transmitted, transmitted_mc_sd, tau, tau_sd, cf, cf_sd)
     return dict(zip(OBSERVABLES, values, strict=True))
@@ -620,6 +628,7 @@ class ObservationOperator:
             ),
             transmitted=sensor[0],
             transmitted_mc_sd=None if sensor[1] is None else jax.lax.stop_gradient(sensor[1]),
+            rendered=self.forcing.day,
         )
         out |= {
             "leaf_an_umol_m2_s": r.an,
