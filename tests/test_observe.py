@@ -908,3 +908,25 @@ def test_a_run_of_one_step_a_day_takes_only_readings_near_its_steps():
     # steps 30 min apart on each of two days: the spacing is the steps', not the night's gap
     two = pd.DatetimeIndex(["2016-04-20T10:00Z", "2016-04-20T10:30Z", "2016-04-21T10:00Z", "2016-04-21T10:30Z"])
     assert far_from_steps(obs, two).tolist() == [False, True]
+
+
+def test_a_ratio_of_light_read_at_an_unrendered_twilight_step_is_refused(tmp_path):
+    """A step with diffuse light and PAR above but the sun at −5° is not rendered (daytime: above −1°),
+    so the model's fAPAR and ceptometer readings are 0 there by convention, as at night: a ceptometer
+    fAPAR read then is refused as one read in the dark is (it was accepted: the forcing had PAR)."""
+    from lightfit.inference.observations import check_light_scale, read_observations
+
+    w = rep.forcing().copy()
+    t = pd.Timestamp("2016-04-20 04:00", tz="UTC")
+    assert w.loc[t, "sun_elevation_deg"] == pytest.approx(-5.03, abs=0.01)
+    w.loc[t, ["dhi_w_m2", "par_umol_m2_s"]] = (5.0, 11.0)
+    f = tmp_path / "obs.csv"
+    f.write_text(
+        "# provenance: synthetic\n# time_zone: UTC\ntime,ceptometer_fapar,ceptometer_fapar_sd\n"
+        "2016-04-20 10:00,0.9,0.03\n2016-04-20 04:00,0.9,0.03\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(InputError, match=r"ceptometer_fapar read at 2016-04-20T04:00.*sun below −1°"):
+        check_light_scale(read_observations(f), w)
+    f.write_text(f.read_text().replace("2016-04-20 04:00,0.9,0.03\n", ""))
+    check_light_scale(read_observations(f), w)  # daylight alone: no error
