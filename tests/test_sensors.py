@@ -381,3 +381,16 @@ def test_a_sensor_area_or_end_points_that_are_no_numbers_and_a_text_leaf_value_a
             scene.set_optics(specular=bad)
     scene.set_optics(specular=0.25)
     assert scene.optics.specular == 0.25
+
+
+def test_the_ceptometer_variables_do_not_put_a_raised_ceptometer_on_the_soil():
+    """results.nc's long names and comments of the ceptometer's variables said "on the soil under
+    the canopy" whatever --ceptometer-height-m was (a review): they name the height knob instead."""
+    from lightfit.inference.observations import BY_NAME
+    from lightfit.model.schema import VARIABLES
+
+    for k in ("transmitted_par_umol_m2_s", "transmitted_par_mc_sd_umol_m2_s"):
+        v = VARIABLES[k]
+        assert "on the soil under" not in v.long_name and "bars on the soil" not in v.comment, k
+        assert "ceptometer_height_m" in v.comment, k
+    assert "ceptometer_height_m" in BY_NAME["transmitted_par"].meaning

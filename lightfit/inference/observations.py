@@ -199,7 +199,7 @@ SERIES = (
         "transmitted_par_umol_m2_s",
         "transmitted_par_sd_umol_m2_s",
         "transmitted_par_mc_sd_umol_m2_s",
-        meaning="PAR on a line quantum sensor (ceptometer) on the soil under the canopy",
+        meaning="PAR on a line quantum sensor (ceptometer) under the canopy (on the soil or at ceptometer_height_m)",
         depends_on=_LIGHT,
         incident=True,
         nonnegative=True,

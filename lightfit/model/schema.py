@@ -51,8 +51,9 @@ _NEE = (
     "per 10 K of air temperature) minus canopy net uptake"
 )
 _CEPTOMETER = (
-    "per unit horizontal area; upward-facing bars on the soil across the rows, mean over the placements "
-    "(results attribute ceptometer); NaN where the run renders no ceptometer"
+    "per unit horizontal area; upward-facing bars across the rows at the height of the results attribute "
+    "ceptometer (default on the soil, ceptometer_height_m), mean over the placements; NaN where the run "
+    "renders no ceptometer"
 )
 _PLANT_PAR = "incident or absorbed PAR (attribute par_kind), per unit one-sided segment area, area-weighted"
 
@@ -292,7 +293,7 @@ VARIABLES: dict[str, Variable] = {
     ),
     "nee_mc_sd_umol_m2_s": Variable(T, UMOL, "Monte Carlo standard deviation of NEE", _NEE),
     "transmitted_par_umol_m2_s": Variable(
-        T, UMOL, "PAR on a line quantum sensor (ceptometer) on the soil under the canopy", _CEPTOMETER
+        T, UMOL, "PAR on a line quantum sensor (ceptometer) under the canopy or at a height in it", _CEPTOMETER
     ),
     "transmitted_par_mc_sd_umol_m2_s": Variable(
         T, UMOL, "Monte Carlo standard deviation of transmitted PAR", _CEPTOMETER
