@@ -134,6 +134,8 @@ def test_lightfit_csv_carries_the_convention(tmp_path):
         ({"time_label": "instant", "averaging_interval": "10min"}, "averaging_interval"),
         # NaT compared False with 0: the file was read, and every mean went to one step's centre
         ({"time_label": "end", "averaging_interval": "nan"}, "averaging_interval"),
+        # a bare number is nanoseconds to pandas: 30-min means were read as instants at their stamps
+        ({"time_label": "end", "averaging_interval": "30"}, "averaging_interval: 30' has no unit"),
     ],
 )
 def test_bad_metadata_names_the_file_and_key(tmp_path, meta, match):
@@ -318,6 +320,12 @@ def test_observations_file_carries_its_time_label(tmp_path):
     # steps, averaged into one observation, without a word
     bad.write_text("# time_label: start\n# averaging_interval: nan\n" + plain.read_text(encoding="utf-8"))
     with pytest.raises(InputError, match="averaging interval NaT") as e:
+        read_observations(bad)
+    assert "bad.csv" in str(e.value.file) and e.value.column == "averaging_interval"
+    # minutes without their unit: pandas reads '30' as 30 ns, and end-stamped 30-min means were read
+    # at their stamps, 15 min after their centres, without a word
+    bad.write_text("# time_label: end\n# averaging_interval: 30\n" + plain.read_text(encoding="utf-8"))
+    with pytest.raises(InputError, match="has no unit") as e:
         read_observations(bad)
     assert "bad.csv" in str(e.value.file) and e.value.column == "averaging_interval"
 

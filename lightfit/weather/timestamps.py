@@ -14,6 +14,7 @@ series carries a :class:`Timestamps` in ``attrs["timestamps"]`` (absent: instant
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import pandas as pd
@@ -92,6 +93,17 @@ class Timestamps:
         """From a lightfit CSV's metadata; a file without ``time_label`` holds instants."""
         label = meta.get("time_label", "instant")
         raw = meta.get("averaging_interval")
+        try:  # a bare number ("30", "1800") is a duration in nanoseconds to pandas: means read as instants
+            bare = math.isfinite(float(raw))
+        except (TypeError, ValueError):
+            bare = False
+        if bare:
+            raise InputError(
+                f"metadata line '# averaging_interval: {raw}' has no unit (it would read as {raw} nanoseconds)",
+                file=file,
+                column="averaging_interval",
+                expected="a duration with its unit such as 30min, 10min or 1h",
+            )
         try:
             interval = None if raw is None else pd.Timedelta(raw)
         except ValueError as e:
