@@ -330,6 +330,29 @@ def test_observations_file_carries_its_time_label(tmp_path):
     assert "bad.csv" in str(e.value.file) and e.value.column == "averaging_interval"
 
 
+def test_write_observations_keeps_what_its_metadata_states(tmp_path):
+    """A table built in code says nothing in its attrs; metadata that states the rows' time label or
+    canopy An's area is what the file says (a stated 'canopy_an_per: leaf' was written as ground,
+    LAI x off; a stated 10-min interval was written beside 'time_label: instant', a file its reader
+    refuses). Metadata that contradicts the attrs is refused, naming the key."""
+    times = pd.date_range("2016-04-20 09:10", periods=3, freq="10min", tz="UTC")
+    df = pd.DataFrame({"canopy_an_umol_m2_s": [2.0, 3.0, 4.0], "canopy_an_sd_umol_m2_s": 0.5}, index=times)
+    said = {"provenance": "measured", "canopy_an_per": "leaf", "time_label": "end", "averaging_interval": "10min"}
+    back = read_observations(write_observations(df, tmp_path / "o.csv", said))
+    assert back.attrs["canopy_an_per"] == "leaf"
+    assert back.attrs["timestamps"] == Timestamps("end", pd.Timedelta("10min"))
+    np.testing.assert_array_equal(back["canopy_an_umol_m2_s"], [2.0, 3.0, 4.0])
+    df.attrs = {"canopy_an_per": "ground", "timestamps": Timestamps()}
+    with pytest.raises(InputError, match="leaf area") as e:
+        write_observations(df, tmp_path / "x.csv", {"provenance": "measured", "canopy_an_per": "leaf"})
+    assert e.value.column == "canopy_an_per"
+    with pytest.raises(InputError, match="ends of 10-min means") as e:
+        write_observations(
+            df, tmp_path / "x.csv", {"provenance": "measured", "time_label": "end", "averaging_interval": "10min"}
+        )
+    assert e.value.column == "time_label"
+
+
 class _Day:
     """What :class:`MultiDayModel` reads of a day's model."""
 

@@ -508,16 +508,48 @@ def check_an_area(obs: pd.DataFrame, an_per: str) -> None:
 
 def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
     """Write observations (index: tz-aware times) with ``# key: value`` metadata incl. provenance
-    and the rows' time label (``attrs["timestamps"]``, instants where absent)."""
+    and the rows' time label (``attrs["timestamps"]``, instants where absent) and canopy An's area
+    (``attrs["canopy_an_per"]``, ground where absent). ``metadata`` may state the time label
+    (``time_label``, ``averaging_interval``) and ``canopy_an_per`` of a table whose attrs do not;
+    one that contradicts its attrs is refused, naming the key."""
     if metadata.get("provenance") not in PROVENANCES:
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
     path = Path(path)
+    stamps, area = timestamps.of(df), an_area(df)
+    # What metadata states of the rows is written, not overwritten by the attrs' defaults (a stated
+    # 'canopy_an_per: leaf' was written as ground, LAI × off, and a stated 10-min interval beside
+    # 'time_label: instant', a file its reader refuses).
+    if "time_label" in metadata or "averaging_interval" in metadata:
+        said = Timestamps.from_metadata(metadata)
+        if "timestamps" not in df.attrs:
+            stamps = said
+        elif said != stamps:
+            raise InputError(
+                f"metadata says {said.describe()}, the table's attrs['timestamps'] {stamps.describe()}",
+                column="time_label",
+                expected="metadata that agrees with the table's time label, or leave it to the attrs",
+            )
+    if AN_PER_KEY in metadata:
+        said_area = str(metadata[AN_PER_KEY]).strip().lower()
+        if said_area not in AN_AREAS:
+            raise InputError(
+                f"{AN_PER_KEY}: {metadata[AN_PER_KEY]!r}", column=AN_PER_KEY, expected=" or ".join(AN_AREAS)
+            )
+        if AN_PER_KEY not in df.attrs:
+            area = said_area
+        elif said_area != area:
+            raise InputError(
+                f"metadata says canopy An per {said_area} area, the table's attrs['{AN_PER_KEY}'] per {area} area",
+                column=AN_PER_KEY,
+                expected="metadata that agrees with the table's area, or leave it to the attrs",
+            )
     path.parent.mkdir(parents=True, exist_ok=True)
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
     body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
-    meta = {**metadata, "time_zone": "UTC", **timestamps.of(df).metadata()}
+    meta = {k: v for k, v in metadata.items() if k not in ("time_label", "averaging_interval", AN_PER_KEY)}
+    meta = {**meta, "time_zone": "UTC", **stamps.metadata()}
     if BY_NAME["canopy_an"].value in body:
-        meta[AN_PER_KEY] = an_area(df)
+        meta[AN_PER_KEY] = area
     head = metadata_lines(meta)
     replace_text(path, head + body.to_csv(index=False, float_format="%.6g", lineterminator="\n"))
     return path
