@@ -353,6 +353,27 @@ def test_write_observations_keeps_what_its_metadata_states(tmp_path):
     assert e.value.column == "time_label"
 
 
+def test_write_observations_keeps_fractions_of_a_second(tmp_path):
+    """A chamber log's times to the tenth of a second are read as written; written back, they were
+    cut to whole seconds: readings 0.2 s apart became one time, which the reader refuses."""
+    p = tmp_path / "log.csv"
+    p.write_text(
+        "# provenance: measured\n# time_zone: UTC\n"
+        "time,above_canopy_par_umol_m2_s,above_canopy_par_sd_umol_m2_s\n"
+        "2016-04-20 12:10:00.5,1000,10\n2016-04-20 12:10:00.7,1010,10\n2016-04-20 12:11:00,1020,10\n",
+        encoding="utf-8",
+    )
+    back = read_observations(
+        write_observations(read_observations(p), tmp_path / "back.csv", {"provenance": "measured"})
+    )
+    expected = pd.DatetimeIndex(["2016-04-20 12:10:00.5", "2016-04-20 12:10:00.7", "2016-04-20 12:11:00"], tz="UTC")
+    assert (back.index == expected).all()
+    np.testing.assert_array_equal(back["above_canopy_par_umol_m2_s"], [1000.0, 1010.0, 1020.0])
+    # whole seconds are written as before
+    whole = write_observations(read_observations(p).iloc[2:], tmp_path / "whole.csv", {"provenance": "measured"})
+    assert "\n2016-04-20T12:11:00Z," in whole.read_text(encoding="utf-8")
+
+
 class _Day:
     """What :class:`MultiDayModel` reads of a day's model."""
 

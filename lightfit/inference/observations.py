@@ -545,7 +545,10 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
             )
     path.parent.mkdir(parents=True, exist_ok=True)
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
-    body.insert(0, "time", df.index.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ"))
+    utc = df.index.tz_convert("UTC")
+    # whole seconds unless a time has a fraction (cut, two readings 0.4 s apart read back as one time)
+    fraction = (utc != utc.floor("s")).any()
+    body.insert(0, "time", utc.strftime("%Y-%m-%dT%H:%M:%S.%fZ" if fraction else "%Y-%m-%dT%H:%M:%SZ"))
     meta = {k: v for k, v in metadata.items() if k not in ("time_label", "averaging_interval", AN_PER_KEY)}
     meta = {**meta, "time_zone": "UTC", **stamps.metadata()}
     if BY_NAME["canopy_an"].value in body:
