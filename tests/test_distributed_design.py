@@ -294,3 +294,33 @@ def test_design_renderer_joins_the_scheduler_only_when_a_point_is_missing(tmp_pa
         assert len(hook(model, [done, todo], tmp_path, key, progress=False)) == 1
         hook(model, [todo], tmp_path, key, progress=False)
     assert calls == [("tcp://scheduler:8786", None)]
+
+
+@pytest.mark.parametrize(
+    ("command", "options", "named"),
+    [
+        ("calibrate", ["--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"], "--workers"),
+        ("posterior", ["--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"], "--workers"),
+        ("posterior", ["--scheduler", "tcp://host-without-port"], "--scheduler"),
+        ("calibrate", ["--no-surrogate", "--workers", "2"], "--workers"),
+        ("calibrate", ["--no-surrogate", "--scheduler", "tcp://127.0.0.1:8786"], "--scheduler"),
+    ],
+)
+def test_cluster_options_that_cannot_work_are_refused_before_the_plants_grow(tmp_path, command, options, named):
+    """--workers with --scheduler was refused only when the first design point was sent (after the
+    plants grew; never when the design was cached), and calibrate --no-surrogate --workers 2 ran in
+    this process without a word (a review). They are refused first: here before the observations file,
+    which does not exist, is read."""
+    from lightfit.cli import app
+
+    args = [command, str(tmp_path / "missing.csv"), "--quick", "--out", str(tmp_path / "out"), *options]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 2, r.output
+    text = r.output.replace("\n", "")
+    assert f"option {named}" in text and "missing.csv" not in text
+
+
+def test_design_renderer_refuses_workers_with_a_scheduler_even_for_a_cached_design():
+    """The library hook accepted workers=2 with a scheduler and ignored it while the design was cached."""
+    with pytest.raises(InputError, match="workers"), design_renderer("tcp://127.0.0.1:8786", 2):
+        pass

@@ -109,6 +109,7 @@ def calibrate(
     A first try (≈ 1 min): lightfit calibrate data/observations/twin_2016-04-20_synthetic.csv --quick
     --n-plants 9 (a SYNTHETIC twin series made by the model on that 9-plant cell; not a measurement)."""
     from lightfit.distributed.design import design_renderer
+    from lightfit.distributed.run import check_cluster_options
     from lightfit.inference import mcmc as P
     from lightfit.inference.calibration import METHODS, check_max_steps, check_start_names, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
@@ -122,6 +123,15 @@ def calibrate(
 
     s = resolve(model)
     output_folder(out)
+    check_cluster_options(scheduler, workers=workers)  # before the plants grow (design_renderer again)
+    if not surrogate and (scheduler is not None or workers is not None):  # they would render nothing
+        given = "--scheduler" if scheduler is not None else "--workers"
+        raise InputError(
+            f"{given} with --no-surrogate",
+            parameter="scheduler" if scheduler is not None else "workers",
+            expected="--scheduler / --workers only with the surrogate, whose design they render; "
+            "--no-surrogate makes its full renders in this process",
+        )
     # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
     if method not in METHODS:
         raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))

@@ -88,6 +88,7 @@ def posterior(
 
     from lightfit import replication as rep
     from lightfit.distributed.design import design_renderer
+    from lightfit.distributed.run import check_cluster_options
     from lightfit.inference import mcmc as P
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
@@ -98,6 +99,7 @@ def posterior(
 
     s = resolve(model)
     output_folder(out)
+    check_cluster_options(scheduler, workers=workers)  # before the plants grow (design_renderer again)
     n_design = E.check_design_size(DESIGN_SIZE if n_design is None else n_design)  # before any render
     stop = P.StopRule(target_ess=target_ess)  # checked before any render
     if max_minutes is not None and not max_minutes > 0:

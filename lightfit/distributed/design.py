@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lightfit.distributed.run import _worker_setup, connect
+from lightfit.distributed.run import _worker_setup, check_cluster_options, connect
 from lightfit.errors import InputError
 from lightfit.model import emulator as E
 from lightfit.model.scenario import Scenario
@@ -223,7 +223,10 @@ def design_renderer(scheduler: str | None = None, workers: int | None = None) ->
     """The ``render_points`` hook of the emulator for the command line's ``--scheduler`` / ``--workers``:
     ``None`` (render in this process) when neither is given, else :func:`render_design` on a client
     of :func:`~lightfit.distributed.run.connect`, started at the first call that has a point to
-    render (a design already in the cache starts no cluster) and closed on exit."""
+    render (a design already in the cache starts no cluster) and closed on exit. Options that
+    contradict each other (``workers`` with ``scheduler``, ``workers < 1``, an address that does not
+    parse) are refused on entry, whether or not a point is missing."""
+    check_cluster_options(scheduler, workers=workers)
     if scheduler is None and workers is None:
         yield None
         return
