@@ -224,6 +224,20 @@ def test_info_names_variant_llvm_and_precision():
         assert f"{cpu}, {lanes} lanes (" in r.stdout
 
 
+@pytest.mark.parametrize(
+    ("args", "env", "source"), [(["--variant", "llvm_ad_mono"], None, "argument"), ([], "llvm_ad_mono", "env")]
+)
+def test_info_says_where_the_variant_came_from(tmp_path, args, env, source):
+    """A variant from LIGHTFIT_VARIANT was reported as "(argument)": typer passes the variable to the
+    --variant option. A fresh process each, as the backend keeps its first choice."""
+    environ = {k: v for k, v in os.environ.items() if k != backend.ENV_VARIANT}
+    environ |= {"COLUMNS": "200", "LIGHTFIT_CACHE": str(tmp_path)} | ({backend.ENV_VARIANT: env} if env else {})
+    cmd = [sys.executable, "-m", "lightfit.cli", *args, "info"]
+    r = subprocess.run(cmd, env=environ, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert f"llvm_ad_mono ({source})" in r.stdout, r.stdout
+
+
 def test_info_bad_variant_exits_2():
     r = runner.invoke(app, ["--variant", "nonsense_variant", "info"])
     assert_user_error(r, "nonsense_variant")

@@ -53,6 +53,7 @@ app = typer.Typer(
 
 @app.callback()
 def _main(
+    ctx: typer.Context,
     variant: str = typer.Option(
         None,
         "--variant",
@@ -66,7 +67,10 @@ def _main(
     if variant:
         from lightfit.light import backend
 
-        backend.mitsuba(variant)  # a bad variant is a user error (BackendError → exit 2) before any work
+        # From LIGHTFIT_VARIANT: the backend reads it itself, so that `lightfit info` says "(env)". By
+        # name: typer vendors click, so click's own ParameterSource is another enum.
+        from_env = getattr(ctx.get_parameter_source("variant"), "name", "") == "ENVIRONMENT"
+        backend.mitsuba(None if from_env else variant)  # a bad variant is a user error (exit 2) before any work
 
 
 app.command("info", cls=LightfitCommand)(info)
