@@ -30,6 +30,25 @@ def test_user_llvm_path_wins_and_is_checked(monkeypatch, tmp_path):
         backend.configure_libllvm()
 
 
+@pytest.mark.parametrize("what", ["folder", "text file"])
+def test_a_user_llvm_path_that_is_no_library_is_a_clear_error(tmp_path, what):
+    """DRJIT_LIBLLVM_PATH naming a folder or a file that is no shared library stopped `lightfit info`
+    (and every render) with Dr.Jit's ImportError and a traceback; now exit 2 naming the variable."""
+    path = tmp_path
+    if what == "text file":
+        path = tmp_path / "libLLVM.so.99"
+        path.write_text("not a library\n")
+    env = os.environ | {"DRJIT_LIBLLVM_PATH": str(path), "LIGHTFIT_CACHE": str(tmp_path), "COLUMNS": "400"}
+    env.pop(backend.ENV_VARIANT, None)
+    cmd = [sys.executable, "-m", "lightfit.cli", "--variant", "llvm_ad_mono", "info"]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    assert "Traceback" not in out.stderr, out.stderr
+    err = " ".join(out.stderr.split())
+    assert "error: Mitsuba variant 'llvm_ad_mono' could not start" in err, err  # after Dr.Jit's own lines
+    assert f"DRJIT_LIBLLVM_PATH='{path}' (you set): point it at a libLLVM.so >= 16" in err, err
+
+
 def test_the_libllvm_lightfit_found_is_not_reported_as_the_users(monkeypatch):
     """Importing lightfit sets DRJIT_LIBLLVM_PATH to the libLLVM it found; a later call read that
     variable back and `lightfit info` said "(user)" (a CLI review). A fresh process, no variable set."""

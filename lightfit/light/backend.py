@@ -190,7 +190,8 @@ def mitsuba(variant: str | None = None) -> ModuleType:
 
     Raises:
         BackendError: libLLVM >= 16 missing for an ``llvm_*`` variant, the variant is not
-            compiled into this Mitsuba build, or CUDA was requested without a device.
+            compiled into this Mitsuba build, CUDA was requested without a device, or Dr.Jit
+            cannot start the variant (e.g. ``DRJIT_LIBLLVM_PATH`` names a file that is no libLLVM).
     """
     if "mi" in _STATE and variant in (None, _STATE["info"].variant):  # type: ignore[union-attr]
         return _STATE["mi"]
@@ -218,7 +219,14 @@ def mitsuba(variant: str | None = None) -> ModuleType:
             f"Mitsuba variant {chosen!r} {why}; lightfit needs a vectorised differentiable one "
             f"(llvm_ad_* or cuda_ad_*, not polarised), here: {', '.join(usable)}"
         )
-    mi.set_variant(chosen)
+    try:
+        mi.set_variant(chosen)
+    except ImportError as e:  # Dr.Jit could not load its backend, e.g. DRJIT_LIBLLVM_PATH is no libLLVM
+        hint = ""
+        if chosen.startswith("llvm"):
+            who = "you set" if llvm_source == "user" else "lightfit found"
+            hint = f" {ENV_LLVM}={libllvm!r} ({who}): point it at a libLLVM.so >= {MIN_LLVM_MAJOR}, or unset it."
+        raise BackendError(f"Mitsuba variant {chosen!r} could not start: {e}{hint}") from e
     target = configure_llvm_target() if chosen.startswith("llvm") else None
     _STATE["mi"] = mi
     _STATE["info"] = BackendInfo(chosen, libllvm, llvm_source, source, target)
