@@ -136,6 +136,29 @@ def test_unknown_variant_and_missing_cuda_are_clear_errors():
             backend.mitsuba("cuda_ad_mono")
 
 
+def test_a_bad_variant_names_its_option_and_only_the_variants_that_run_here(monkeypatch):
+    """Without CUDA, the list offered cuda_ad_mono, which was then refused, and a misspelt cuda_ad_*
+    was told to find a CUDA device instead of that it does not exist; neither said which option."""
+    monkeypatch.setattr(backend, "cuda_usable", lambda: False)
+    monkeypatch.delenv(backend.ENV_VARIANT, raising=False)
+    for variant, why in (("cuda_ad_mnoo", "is not in this Mitsuba build"), ("scalar_rgb", "cannot run")):
+        with pytest.raises(backend.BackendError) as e:
+            backend.mitsuba(variant)
+        msg = str(e.value)
+        assert f"--variant: Mitsuba variant '{variant}' {why}" in msg, msg
+        offered = msg.split("usable here: ")[1].split(", ")
+        assert "llvm_ad_mono" in offered and not [v for v in offered if v.startswith("cuda")], msg
+    with pytest.raises(
+        backend.BackendError, match=r"^--variant: Mitsuba variant 'cuda_ad_mono' needs a CUDA device.*llvm_ad_mono"
+    ):
+        backend.mitsuba("cuda_ad_mono")
+    monkeypatch.setenv(backend.ENV_VARIANT, "llvm_ad_mnoo")
+    with pytest.raises(
+        backend.BackendError, match=r"^LIGHTFIT_VARIANT: Mitsuba variant 'llvm_ad_mnoo' is not in this Mitsuba build"
+    ):
+        backend.mitsuba()
+
+
 def test_missing_llvm_message(monkeypatch):
     monkeypatch.setitem(backend._STATE, "llvm", (None, None))
     monkeypatch.delitem(backend._STATE, "mi", raising=False)

@@ -203,21 +203,25 @@ def mitsuba(variant: str | None = None) -> ModuleType:
             f"{sys.prefix}/lib or the system library path. Install the 'karellen-llvm-core' wheel "
             f"(a lightfit dependency: `python3 tasks.py setup`) or set {ENV_LLVM} to a libLLVM.so."
         )
-    if chosen.startswith("cuda") and not cuda_usable():
-        raise BackendError(
-            f"Mitsuba variant {chosen!r} needs a CUDA device and driver; none is usable here. "
-            f"Use an llvm_ad_* variant (unset {ENV_VARIANT} or drop --variant)."
-        )
     mi = importlib.import_module("mitsuba")
+    # The option that asked for it (the command line passes --variant as the argument).
+    asked = ENV_VARIANT if source == "env" else "--variant"
+    cuda = cuda_usable()
     usable = [v for v in mi.variants() if v.startswith(("llvm_ad_", "cuda_ad_")) and "polarized" not in v]
+    here = [v for v in usable if (cuda if v.startswith("cuda") else libllvm is not None)]
     if chosen not in usable:
         # The estimator runs vectorised Dr.Jit kernels and differentiates them, with unpolarised
         # spectra: scalar_*, non-AD and *_polarized variants are in the build but cannot render
         # lightfit's scenes (a traceback deep in the leaf BSDF before).
         why = "is not in this Mitsuba build" if chosen not in mi.variants() else "cannot run lightfit's renders"
         raise BackendError(
-            f"Mitsuba variant {chosen!r} {why}; lightfit needs a vectorised differentiable one "
-            f"(llvm_ad_* or cuda_ad_*, not polarised), here: {', '.join(usable)}"
+            f"{asked}: Mitsuba variant {chosen!r} {why}; lightfit needs a vectorised differentiable one "
+            f"(llvm_ad_* or cuda_ad_*, not polarised), usable here: {', '.join(here)}"
+        )
+    if chosen.startswith("cuda") and not cuda:
+        raise BackendError(
+            f"{asked}: Mitsuba variant {chosen!r} needs a CUDA device and driver; none is usable here. "
+            f"Use an llvm_ad_* variant (unset {ENV_VARIANT} or drop --variant), usable here: {', '.join(here)}"
         )
     try:
         mi.set_variant(chosen)
