@@ -1036,3 +1036,26 @@ def test_growth_runs_from_after_its_season_start_to_at_most_the_models_range():
     assert GrowthConfig(season_start="2016-03-05", target_date="2016-08-02").days == 150.0
     with pytest.raises(InputError, match="151 days after season_start"):
         GrowthConfig(season_start="2016-03-05", target_date="2016-08-03")
+
+
+def test_the_preview_shows_the_whole_cell_of_a_wide_row_field(tmp_path, monkeypatch):
+    """The top view's limits came from the plants alone: with rows 0.75 m apart the cell (2 rows ×
+    1 plant: 1.5 m across the east–west rows, y from −0.75 to +0.75 m; 0.03 m along them) reaches
+    past the leaves (≈ 0.3 m from each plant), and its dashed north and south sides were cut off,
+    leaving two lines. The view now holds the whole cell."""
+    import matplotlib.figure
+
+    from lightfit.plant.preview import plot_field
+
+    seen = []
+    save = matplotlib.figure.Figure.savefig
+    monkeypatch.setattr(
+        matplotlib.figure.Figure,
+        "savefig",
+        lambda fig, *a, **k: seen.append((fig.axes[0].get_xlim(), fig.axes[0].get_ylim())) or save(fig, *a, **k),
+    )
+    fld = Field(n_plants=2, plants_per_row=1, row_spacing_m=0.75)
+    plot_field(build(fld, cache_dir=tmp_path / "cache"), tmp_path / "p.png")
+    (x0, x1), (y0, y1) = seen[0]
+    assert y0 < -0.75 and y1 > 0.75  # the cell's south and north sides are inside the view
+    assert x0 < -0.015 and x1 > 0.015

@@ -44,7 +44,10 @@ def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
         order = np.argsort(-tri[sel][:, :, 1].mean(1))  # far (north) faces first in the side view
         ax[1].add_collection(PolyCollection(tri[sel][order][:, :, [0, 2]], facecolors=colour, edgecolors="none"))
     for a, (i, j), lab in ((ax[0], (0, 1), ("x east (m)", "y north (m)")), (ax[1], (0, 2), ("x east (m)", "z up (m)"))):
-        lo, hi = m.vertices[:, [i, j]].min(0), m.vertices[:, [i, j]].max(0)
+        pts = m.vertices[:, [i, j]]
+        if a is ax[0] and geom.cell is not None:  # the dashed cell whole, also where it is wider than the plants
+            pts = np.vstack([pts, geom.cell.corners_xy])
+        lo, hi = pts.min(0), pts.max(0)
         pad = 0.03 * (hi - lo).max()
         a.set_xlim(lo[0] - pad, hi[0] + pad)
         a.set_ylim(lo[1] - pad, hi[1] + pad)
