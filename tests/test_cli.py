@@ -2623,3 +2623,26 @@ def test_the_compared_presets_edge_is_noted_too():
     assert line.startswith("note: the paper preset (dashed in the figure): fAPAR above 1 at 2 of 4 steps (up to 2.22)")
     assert "finite field" in line
     assert compared_edge_line(xr.Dataset({"fapar": ("time", [0.0, 0.95])}), "default") == ""
+
+
+def test_field_segments_csv_says_how_many_plants_it_measures(tmp_path, monkeypatch):
+    """--n-plants 3 builds a 2 × 2 square, 4 measured plants, but the CSV's head said only
+    ``n_plants: 3`` (the number asked for): a reader dividing the blade area by 3 plants' ground got
+    the leaf area index a third too high. The head now says the measured plants and their ground
+    area, 4 × 0.125 m × 0.03 m = 0.015 m² by hand, and the LAI printed is the CSV's blade area over it."""
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    csv = tmp_path / "seg.csv"
+    r = runner.invoke(app, ["field", "--n-plants", "3", "--segments", str(csv)])
+    assert r.exit_code == 0, r.output
+    head = dict(ln[2:].split(": ", 1) for ln in csv.read_text().splitlines() if ln.startswith("# "))
+    seg = pd.read_csv(csv, comment="#")
+    assert head["n_plants"] == "3"
+    assert (
+        head["measured_plants"]
+        == "4 (2 rows × 2 plants)"
+        == f"{seg.loc[seg.measured, 'plant_id'].nunique()} (2 rows × 2 plants)"
+    )
+    assert float(head["measured_ground_area_m2"]) == pytest.approx(4 * 0.125 * 0.03, rel=1e-9)
+    lai = seg.loc[seg.measured, "blade_area_m2"].sum() / (4 * 0.125 * 0.03)
+    line = next(ln for ln in r.stdout.splitlines() if "leaf area index" in ln)
+    assert f"{lai:.2f}" in line

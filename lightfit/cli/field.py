@@ -184,6 +184,11 @@ def field(
             "provenance": "synthetic (CPlantBox plants grown and placed by lightfit, not measured)",
             **fld.attrs(),
             **part,
+            # n_plants is the number asked for; the area holds it rounded up to a square or whole rows
+            "measured_plants": f"{n_meas} ("
+            + (fld.area_label if tile is None else f"tile {tile}'s of the field's {fld.area_label}")
+            + ")",
+            "measured_ground_area_m2": f"{fld.measured_area_m2(parts[tile] if tile is not None else None):.8g}",
             "columns": "x0 y0 z0 x1 y1 z1 in m (field coordinates, z up); bx by bz a unit vector (the parent "
             "organ's axis where the organ branches off); length_m, radius_m, blade_width_m in m; blade_area_m2 "
             f"in m2 (one side); creation_time_d in days after season_start; measured True for {whose} "
