@@ -406,6 +406,31 @@ def test_an_noise_bias_matches_noise_averaged_photosynthesis(weather):
     assert abs(three[2, 2] - brute[2, 2]) > 5 * se[2, 2]  # the kink (6 SE off): why nine nodes
 
 
+def test_an_noise_bias_of_a_very_noisy_blade_stays_in_the_leaf_solves_range(weather):
+    """Blades at 5 000 ± 1 500 and 3 000 ± 1 600 µmol m⁻² s⁻¹: the top node q + 4.5σ is beyond the
+    leaf solve's 1e4 (as in `lightfit replicate --quick --direct-rays-per-m2 1e3`, which rendered and
+    then failed with "parameter 'par_abs_umol_m2_s' ... expected absorbed PAR in [0, 1e4]"). The bias
+    is the brute-force average over the noise with the light held to [0, 1e4] (the leaf is
+    saturated there: A(1e4) within 1 % of A(5 000)), within 4 SE + 5 %."""
+    from lightfit.model.observe import an_noise_bias, exact_leaf
+    from lightfit.model.scenario import Forcing
+    from lightfit.photosynthesis import MAX_PAR_ABS_UMOL_M2_S, parameter_set
+
+    f, p = Forcing.of(weather.iloc[[2]]), parameter_set("winter_wheat")  # 12:00
+    q, sd = np.array([[5000.0, 3000.0]]), np.array([[1500.0, 1600.0]])
+    bias = np.asarray(an_noise_bias(jnp.asarray(q), jnp.asarray(sd), f, p))
+    z = np.random.default_rng(11).standard_normal(2000)
+    z = np.concatenate([z, -z])
+    draws = np.clip(q[:, :, None] + sd[:, :, None] * z, 0.0, MAX_PAR_ABS_UMOL_M2_S).reshape(1, -1)
+    an_draws = np.asarray(exact_leaf(jnp.asarray(draws), f, p).an).reshape(1, 2, -1)
+    pair = 0.5 * (an_draws[..., :2000] + an_draws[..., 2000:])
+    brute = pair.mean(-1) - np.asarray(exact_leaf(jnp.asarray(q), f, p).an)
+    se = pair.std(-1, ddof=1) / np.sqrt(2000)
+    sat = np.asarray(exact_leaf(jnp.asarray([[5000.0, MAX_PAR_ABS_UMOL_M2_S]]), f, p).an)[0]
+    assert abs(sat[1] / sat[0] - 1) < 0.01  # saturated: holding the light at 1e4 changes little
+    assert np.all(bias < 0) and np.all(np.abs(bias - brute) <= 4 * se + 0.05 * np.abs(brute)), (bias, brute, se)
+
+
 @pytest.mark.parametrize("target_rse", [None, 0.1])
 def test_a_run_of_night_steps_only_gives_zero_light_and_respiration(weather, target_rse):
     """Only night steps (a short early window): no render, zero light, the leaves' dark

@@ -434,13 +434,15 @@ def an_noise_bias(
 
     .. math::
 
-        b = \sum_i w_i\,A(\max(\hat q + x_i\sigma, 0)) - A(\hat q),
+        b = \sum_i w_i\,A(\min(\max(\hat q + x_i\sigma, 0), q_{max})) - A(\hat q),
 
     with the ``nodes`` probabilists' Gauss–Hermite nodes :math:`x_i` and weights :math:`w_i`
-    (normalised to sum 1). Nine nodes, not three: where the noise straddles the switch from
-    electron-transport to Rubisco limitation, An has a kink and a three-point rule overstates the
-    bias (−0.19 against −0.14 µmol m⁻² s⁻¹ brute-force at 1 600 ± 400 µmol m⁻² s⁻¹; nine nodes:
-    −0.13; tests/test_model.py). The bias falls as 1/K with K samples per segment, while the
+    (normalised to sum 1) and :math:`q_{max}` the leaf solve's upper limit,
+    :data:`~lightfit.photosynthesis.MAX_PAR_ABS_UMOL_M2_S` (a light-saturated leaf). Nine nodes,
+    not three: where the noise straddles the switch from electron-transport to Rubisco
+    limitation, An has a kink and a three-point rule overstates the bias (−0.19 against −0.14
+    µmol m⁻² s⁻¹ brute-force at 1 600 ± 400 µmol m⁻² s⁻¹; nine nodes: −0.13; tests/test_model.py).
+    The bias falls as 1/K with K samples per segment, while the
     canopy's Monte Carlo SD, the spread of a sum over many blades, falls only as 1/√K and is much
     smaller: summed over the blades the bias can exceed it (docs/model.md, "Monte Carlo bias of
     canopy An"). :math:`A(\hat q) - b` removes it to second order.
@@ -457,8 +459,12 @@ def an_noise_bias(
     sd = jax.lax.stop_gradient(jnp.asarray(q_mc_sd, jnp.float64))
     at_q = leaf(q, forcing, params).an
     # The middle node of an odd rule is q itself: solved once.
+    # The nodes are held to the leaf solve's range [0, MAX_PAR_ABS_UMOL_M2_S]: a noisy blade (few
+    # projected rays per m²) put its top node q + 4.5σ above 1e4 and a rendered run then failed here,
+    # naming the solver's internal par_abs_umol_m2_s; the leaf is light-saturated up there.
     mean = sum(
-        float(wi) * (at_q if xi == 0 else leaf(jnp.maximum(q + float(xi) * sd, 0.0), forcing, params).an)
+        float(wi)
+        * (at_q if xi == 0 else leaf(jnp.clip(q + float(xi) * sd, 0.0, MAX_PAR_ABS_UMOL_M2_S), forcing, params).an)
         for xi, wi in zip(x, w)
     )
     return mean - at_q
