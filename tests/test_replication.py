@@ -334,6 +334,17 @@ def test_a_configuration_refuses_a_bad_setting_when_it_is_made(setting, value, n
         rep.ReplicationConfig(**{setting: value})
 
 
+def test_an_adaptive_pilot_above_the_cap_is_refused_naming_samples():
+    """With a target, samples is each segment's pilot count and the documented cap is 8 192
+    (docs/light.md, "Adaptive sampling"): `lightfit replicate --target-rse 0.1 --samples 8200` grew
+    the plants and then stopped naming 'max_samples', which no option sets. Now the configuration
+    refuses it naming samples; the cap itself is a valid pilot, and a fixed K has no such cap."""
+    with pytest.raises(rep.InputError, match=r"parameter 'samples'.*at most the adaptive cap of 8192"):
+        rep.ReplicationConfig(samples=8200, target_rse=0.1)
+    assert rep.ReplicationConfig(samples=8192, target_rse=0.1).samples == 8192
+    assert rep.ReplicationConfig(samples=16384).samples == 16384
+
+
 def test_overrides_are_stored_in_one_form_and_read_back_equal():
     """A configuration's photosynthesis_overrides from a mapping or from the lists its JSON gives
     back are the same sorted pairs: the configuration read back compares equal."""

@@ -263,8 +263,16 @@ def check_samples(value, *, exact: bool = False) -> int:
 
 def check_run_samples(value, target_rse: float | None) -> int:
     """A run's ``samples`` (:func:`check_samples`) that it also renders as given: the fixed K, or
-    with a target the adaptive pilot (:func:`adaptive_pilot`), so the K recorded is the K rendered."""
+    with a target the adaptive pilot (:func:`adaptive_pilot`), so the K recorded is the K rendered;
+    with a target also a pilot no larger than the cap :data:`MAX_ADAPTIVE_SAMPLES` (refused after
+    the plants had grown, naming ``max_samples``, which no command-line option sets)."""
     k = check_samples(value)
+    if target_rse is not None and k > MAX_ADAPTIVE_SAMPLES:
+        raise InputError(
+            f"samples={k} with target_rse={target_rse!r}",
+            parameter="samples",
+            expected=f"with a target, the pilot count per segment: at most the adaptive cap of {MAX_ADAPTIVE_SAMPLES}",
+        )
     check_samples(k if target_rse is None else adaptive_pilot(k), exact=True)
     return k
 
