@@ -473,7 +473,7 @@ def check_cluster_options(
             raise InputError(
                 f"{name}={value!r}",
                 parameter=name,
-                expected="a finite number > 0 of seconds" + (" (no --timeout: no limit)" if name == "timeout" else ""),
+                expected="finite and > 0 seconds" + (" (no --timeout: no limit)" if name == "timeout" else ""),
             )
     for name, v in (("workers", workers), ("threads_per_worker", threads_per_worker)):
         if v is not None:
