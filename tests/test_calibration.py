@@ -820,6 +820,16 @@ def test_the_surrogates_check_fails_on_either_side():
     assert not agrees(float("inf"), 10.0, 1.0, 3.0)
 
 
+@pytest.mark.parametrize("max_rounds", [0, -1, 2.5, True])
+def test_surrogate_max_rounds_below_one_or_not_an_integer_is_refused(max_rounds):
+    """max_rounds 0 ended in an IndexError (rounds[-1] of no round) once the model had been cut, 2.5
+    in a TypeError from range(): refused first, naming max_rounds (no model is touched)."""
+    from lightfit.inference.trust_region import surrogate_calibrate
+
+    with pytest.raises(InputError, match=r"parameter 'max_rounds'.*max_rounds=.*expected an integer ≥ 1"):
+        surrogate_calibrate(None, None, names=("specular",), max_rounds=max_rounds)
+
+
 def test_bounds_may_reach_the_domains_own_ends():
     """check_bounds takes lo_d ≤ lo < hi ≤ hi_d (its docstring and its message): a pair on the
     domain's own ends, [0, 1] for specular or [0, ∞) for the light factor, is valid and kept (a

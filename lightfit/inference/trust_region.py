@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from lightfit.errors import InputError, check_real
+from lightfit.errors import InputError, check_integer, check_real
 from lightfit.files import jsonable
 from lightfit.inference.calibration import MAX_STEPS, CalibrationResult, calibrate, check_start_names
 from lightfit.inference.likelihood import (
@@ -264,7 +264,7 @@ def surrogate_calibrate(
         n_design, design_seed: Sobol design of the first round.
         cache: shared cache root (:func:`~lightfit.cache.cache_root`).
         out: directory for ``trust_region.jsonl`` and the rounds' optimiser histories.
-        max_rounds: most emulator rounds (each adds one render when its check fails).
+        max_rounds: most emulator rounds, an integer ≥ 1 (each adds one render when its check fails).
         z: acceptance threshold in σ_L.
         method, max_steps: the optimiser on the surrogate (:func:`~lightfit.inference.calibration.calibrate`).
         n_grid: leaf photosynthesis table size of :class:`~lightfit.model.emulator.FastObservables`
@@ -288,6 +288,8 @@ def surrogate_calibrate(
     form = likelihood_form(mc_correlation, mc_scale)
     # z ≤ 0 never passes: a render every round
     check_real(z, "z", 0, open_lo=True, expected="a positive acceptance threshold in σ_L, e.g. 2")
+    # 0 rounds ended in an IndexError after the model was cut; 2.5 in a TypeError (a review)
+    max_rounds = check_integer(max_rounds, "max_rounds", 1, why="emulator rounds, each with one full render")
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)
