@@ -830,6 +830,17 @@ def test_surrogate_max_rounds_below_one_or_not_an_integer_is_refused(max_rounds)
         surrogate_calibrate(None, None, names=("specular",), max_rounds=max_rounds)
 
 
+@pytest.mark.parametrize("box", [dict(lo=(0.4,), hi=(0.9,)), dict(hi=(1.0, 1.0)), dict(lo=0.0)])
+def test_surrogate_box_of_other_than_the_three_leaf_parameters_is_refused(box):
+    """lo/hi are the box of (specular, roughness, subsurface) whatever is calibrated: one number per
+    calibrated parameter ended in an IndexError; refused naming lo or hi and the three expected."""
+    from lightfit.inference.trust_region import surrogate_calibrate
+
+    name = next(iter(box))
+    with pytest.raises(InputError, match=rf"parameter '{name}'.*expected 3 numbers.*specular, roughness, subsurface"):
+        surrogate_calibrate(None, None, names=("specular",), **box)
+
+
 def test_bounds_may_reach_the_domains_own_ends():
     """check_bounds takes lo_d ≤ lo < hi ≤ hi_d (its docstring and its message): a pair on the
     domain's own ends, [0, 1] for specular or [0, ∞) for the light factor, is valid and kept (a

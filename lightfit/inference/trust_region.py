@@ -290,6 +290,14 @@ def surrogate_calibrate(
     check_real(z, "z", 0, open_lo=True, expected="a positive acceptance threshold in σ_L, e.g. 2")
     # 0 rounds ended in an IndexError after the model was cut; 2.5 in a TypeError (a review)
     max_rounds = check_integer(max_rounds, "max_rounds", 1, why="emulator rounds, each with one full render")
+    for what, b in (("lo", lo), ("hi", hi)):  # a box of the calibrated names alone ended in an IndexError
+        if np.shape(b) != (len(E.LEAF_PARAMETERS),):
+            raise InputError(
+                f"{what}={b!r}",
+                parameter=what,
+                expected=f"{len(E.LEAF_PARAMETERS)} numbers, the box's {what} of ({', '.join(E.LEAF_PARAMETERS)}), "
+                "whichever are calibrated",
+            )
     counts0 = dict(E.COUNTS)
     m, o, n_steps = observed_model(model, obs, use)
     use = resolve_use(use, o)
