@@ -841,6 +841,31 @@ def test_surrogate_box_of_other_than_the_three_leaf_parameters_is_refused(box):
         surrogate_calibrate(None, None, names=("specular",), **box)
 
 
+@pytest.mark.parametrize("stopped_by", ["unconverged: specular=0.5", "converged"])
+def test_the_check_table_says_why_the_surrogate_did_not_pass(stopped_by, monkeypatch):
+    """A surrogate run whose round-1 optimisation stopped on unconverged photosynthesis (no check
+    render) was captioned "not passed within --max-rounds" though rounds were left; now it says the
+    round's optimisation stopped before its check. One that ran out of rounds still says so."""
+    import importlib
+
+    from rich.console import Console
+
+    C = importlib.import_module("lightfit.cli.calibrate")  # the module (lightfit.cli exports the command)
+    rec = Console(record=True, width=400)
+    monkeypatch.setattr(C, "console", rec)
+    row = dict(round=0, design=8, degree=1, loss_surrogate=4.0, loss_full=9.0, loss_sd=1.0)
+    row |= dict(difference_over_sd=5.0, passed=False)
+    tr = SimpleNamespace(mode="surrogate", passed=False, rounds=[row], rendered=9, cached=0, steps_rendered=3, z=2.0)
+    tr.result = SimpleNamespace(stopped_by=stopped_by)
+    C._print_check(tr)
+    text = " ".join(rec.export_text().split())  # the caption wraps to the table's width
+    if stopped_by == "converged":
+        assert "not passed within --max-rounds" in text
+    else:
+        assert "--max-rounds" not in text
+        assert "not passed: round 1's optimisation on the emulator stopped before its full-render check" in text
+
+
 def test_bounds_may_reach_the_domains_own_ends():
     """check_bounds takes lo_d ≤ lo < hi ≤ hi_d (its docstring and its message): a pair on the
     domain's own ends, [0, 1] for specular or [0, ∞) for the light factor, is valid and kept (a

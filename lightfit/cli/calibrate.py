@@ -393,12 +393,20 @@ def _print_check(tr) -> None:
     if tr.mode != "surrogate":
         console.print(f"full-render check: not needed ({tr.mode}; the loss was exact); renders: {tr.rendered} new")
         return
+    if tr.passed:
+        verdict = "[green]passed[/]"
+    elif tr.result.stopped_by.startswith("unconverged"):  # the loop ended before this round's check
+        verdict = (
+            f"[red]not passed: round {len(tr.rounds)}'s optimisation on the emulator stopped before its "
+            "full-render check (below: why)[/]"
+        )
+    else:
+        verdict = "[red]not passed within --max-rounds[/]"
     t = Table(
         title=f"full-render check at the optimum (renders for the design and the checks: {tr.rendered} new, "
         f"{tr.cached} from the cache, "
         f"{tr.steps_rendered} sun positions each)",
-        caption=f"passes when |full − surrogate| ≤ {tr.z:g} σ_L (σ_L: Monte Carlo SD of the loss); "
-        + ("[green]passed[/]" if tr.passed else "[red]not passed within --max-rounds[/]"),
+        caption=f"passes when |full − surrogate| ≤ {tr.z:g} σ_L (σ_L: Monte Carlo SD of the loss); " + verdict,
     )
     for c in ("round", "design", "degree", "surrogate loss", "full-render loss", "σ_L", "|Δ|/σ_L", "check"):
         t.add_column(c, justify="right")
