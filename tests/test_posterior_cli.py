@@ -355,3 +355,29 @@ def test_cautions_say_how_a_short_chain_goes_on_by_why_it_stopped():
     assert len(said) == 2 and all("resume with a larger --max-steps" in s for s in said), said
     said = _cautions(short | {"state": "running", "stopped_by": None})
     assert all("it is still running" in s for s in said), said
+
+
+def test_no_analysis_on_an_analysed_chain_it_does_not_extend_keeps_its_summary_and_corner(tmp_path):
+    """--no-analysis on a finished, analysed run whose chain it did not extend replaced summary.json
+    with the sampling's numbers alone (no MAP, means or SDs: --theta OUT/summary.json found no MAP)
+    and removed corner.png, while run.h5 kept the analysis and the status it printed said "analysis
+    written"; it also told to rerun to analyse. Both now stay; a call that extends the chain still
+    drops them (they describe the shorter chain)."""
+    out = tmp_path / "post"
+    args = ["posterior", "--quick", "--steps", "12:15", "--out", str(out), "--parameters", "light_factor"]
+    args += ["--walkers", "4", "--n-design", "6", "--n-test", "0"]
+    r = CliRunner().invoke(app, [*args, "--max-steps", "20"])
+    assert r.exit_code == 0, r.output
+    before = json.loads((out / "summary.json").read_text())
+    assert "x_map" in before and (out / "corner.png").exists()
+    r = CliRunner().invoke(app, [*args, "--max-steps", "20", "--no-analysis"])
+    assert r.exit_code == 0, r.output
+    said = " ".join(r.output.split())
+    assert "analysis written" in said and "the chain was not extended" in said and "rerun with" not in said
+    assert json.loads((out / "summary.json").read_text()) == before and (out / "corner.png").exists()
+    assert "analysis" in load_run(out / "run.h5")
+    r = CliRunner().invoke(app, [*args, "--max-steps", "30", "--no-analysis"])  # extends it: 20 → 30 steps
+    assert r.exit_code == 0, r.output
+    after = json.loads((out / "summary.json").read_text())
+    assert after["n_steps"] == 30 and "x_map" not in after and not (out / "corner.png").exists()
+    assert "analysis" not in load_run(out / "run.h5") and "rerun with --analysis" in " ".join(r.output.split())

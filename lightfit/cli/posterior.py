@@ -274,12 +274,25 @@ def posterior(
     # strict JSON: an unbounded Fisher width (eigenvalue 0) is null, not Infinity. Not written when
     # interrupted: it replaced the last finished run's summary with a part of a chain.
     summary = P.jsonable(res | settings, strict=True)
-    replace_text(out / "summary.json", json.dumps(summary, indent=2, default=str, allow_nan=False))
     if not analysis:
-        (out / "corner.png").unlink(missing_ok=True)  # drawn from a shorter chain, if from this run at all
-        _print_status(P.backend.run_status(out / "run.h5"))
-        console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")
+        st = P.backend.run_status(out / "run.h5")
+        # A chain not extended by this call keeps its stored analysis (A.run drops it otherwise): its
+        # summary and corner plot describe it still (they were replaced by the sampling's alone and removed).
+        kept = st["analysis"] and (out / "summary.json").exists()
+        if not kept:
+            replace_text(out / "summary.json", json.dumps(summary, indent=2, default=str, allow_nan=False))
+            (out / "corner.png").unlink(missing_ok=True)  # drawn from a shorter chain, if from this run at all
+        _print_status(st)
+        if kept:
+            files = [str(out / f) for f in ("summary.json", "corner.png") if (out / f).exists()]
+            console.print(
+                f"[green]kept[/] {out / 'run.h5'}: the chain was not extended, so its stored analysis and "
+                f"{' and '.join(files)} still describe it"
+            )
+        else:
+            console.print(f"[green]wrote[/] {out / 'run.h5'}; rerun with --analysis (the default) to analyse it")
         return
+    replace_text(out / "summary.json", json.dumps(summary, indent=2, default=str, allow_nan=False))
     refused = res["refused"]
     why = "photosynthesis unconverged or likelihood not finite"
     t = Table(
