@@ -381,3 +381,37 @@ def test_no_analysis_on_an_analysed_chain_it_does_not_extend_keeps_its_summary_a
     after = json.loads((out / "summary.json").read_text())
     assert after["n_steps"] == 30 and "x_map" not in after and not (out / "corner.png").exists()
     assert "analysis" not in load_run(out / "run.h5") and "rerun with --analysis" in " ".join(r.output.split())
+
+
+def test_the_rhat_caution_points_to_corner_png_only_where_it_shows_this_chain(tmp_path, monkeypatch):
+    """The walkers-disagree caution ended "(the run's corner.png shows where they are)" also where no
+    corner plot of the chain exists: posterior-status of an interrupted run or of one sampled with
+    --no-analysis (none, or an earlier, shorter chain's left beside it). Said only where the run has
+    its analysis and the file is there."""
+    import importlib
+    import shutil
+    from pathlib import Path
+
+    from lightfit.inference.mcmc.backend import run_status
+
+    C = importlib.import_module("lightfit.cli.posterior")  # the module (lightfit.cli's name is the command)
+
+    path = tmp_path / "run.h5"
+    shutil.copy(Path(__file__).parent / "fixtures" / "posterior_tiny.h5", path)
+    lines = []
+    monkeypatch.setattr(C, "caution", lines.append)  # the cautions, as printed on stderr
+
+    def said(analysed: bool) -> str:
+        st = run_status(path)
+        st["diagnostics"]["rhat"] = np.full_like(st["diagnostics"]["rhat"], 1.5)  # walkers disagree
+        st["analysis"] = analysed
+        lines.clear()
+        with C.console.capture():
+            C._print_status(st)
+        (text,) = [x for x in lines if x.startswith("the walkers disagree (split-R̂ 1.5")]
+        return text
+
+    assert "corner.png" not in said(True)  # analysed, but no corner plot beside it
+    (tmp_path / "corner.png").write_bytes(b"")
+    assert "(the run's corner.png shows where they are)" in said(True)
+    assert "corner.png" not in said(False)  # an earlier chain's plot: the analysis was dropped

@@ -344,7 +344,8 @@ def _cautions(d: dict) -> list[str]:
     τ not yet reliable by the stop rule's own multiple, an acceptance outside 0.1–0.8, a MAP the
     optimiser did not reach, a MAP whose χ² the data reject or that sits on its prior's edge, a
     parameter the data hardly narrowed (posterior SD ≥ ``UNINFORMED_SD_RATIO`` of its prior's), an
-    emulator whose measured error moves the posterior by more than ``EMULATOR_SHIFT_CAUTION_SD``."""
+    emulator whose measured error moves the posterior by more than ``EMULATOR_SHIFT_CAUTION_SD``.
+    ``d["corner_png"]`` False: the run has no corner plot of this chain to point to (default: it has)."""
     import numpy as np
 
     from lightfit.inference.calibration import misfit, on_edge
@@ -368,11 +369,12 @@ def _cautions(d: dict) -> list[str]:
             out.append("split-R̂ cannot be computed yet (fewer than 4 kept steps): nothing says the walkers agree")
     elif rhat.size and rhat.max() >= limit:
         i = int(np.argmax(rhat))
+        # corner.png is drawn with the analysis: a run without one has none, or an earlier chain's
+        corner = " (the run's corner.png shows where they are)" if d.get("corner_png", True) else ""
         out.append(
             f"the walkers disagree (split-R̂ {rhat[i]:.3g} for {names[i]}, ≥ {limit:g}): the chain has not mixed "
             f"yet ({_going_on(d)}), or they sit in separate modes, whose shares the ensemble "
-            "cannot correct; either way the summary is not the posterior (the run's corner.png shows where they "
-            "are)"
+            f"cannot correct; either way the summary is not the posterior{corner}"
         )
     if not d.get("tau_reliable", True) and not stuck:
         m = d.get("tau_multiple") or 50
@@ -528,6 +530,7 @@ def _print_status(st: dict) -> None:
     }
     said = {"names": st["names"], **d, "acceptance_ok": True, **map_info, "emulator_error": st.get("emulator_error")}
     said |= {"state": st["state"], "stopped_by": st["stopped_by"]}  # how the chain goes on
+    said["corner_png"] = bool(st["analysis"]) and Path(st["path"]).with_name("corner.png").exists()
     said |= st.get("fit") or {}  # the MAP's χ², its place in the prior, the priors' say
     for line in _cautions(said):  # acceptance said above
         caution(line)
