@@ -415,3 +415,23 @@ def test_the_rhat_caution_points_to_corner_png_only_where_it_shows_this_chain(tm
     (tmp_path / "corner.png").write_bytes(b"")
     assert "(the run's corner.png shows where they are)" in said(True)
     assert "corner.png" not in said(False)  # an earlier chain's plot: the analysis was dropped
+
+
+def test_reanalysing_a_finished_chain_says_it_sampled_nothing_now_and_gives_the_same_numbers(tmp_path):
+    """The same command on a finished run analyses the stored chain again without sampling. Its table
+    read "(max_steps, 20 steps, 0 s sampling)", as if the 20 steps had taken no time (the seconds are
+    this call's): it now says how many steps this call sampled, as summary.json does; the means, SDs
+    and MAP are the first analysis's."""
+    out = tmp_path / "post"
+    args = ["posterior", "--quick", "--steps", "12:15", "--out", str(out), "--parameters", "light_factor"]
+    args += ["--walkers", "4", "--n-design", "6", "--n-test", "0", "--max-steps", "20"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    first = json.loads((out / "summary.json").read_text())
+    assert first["steps_this_call"] == 20 and "20 steps; this call sampled 20 in" in " ".join(r.output.split())
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    again = json.loads((out / "summary.json").read_text())
+    assert again["steps_this_call"] == 0 and "20 steps; this call sampled 0 in" in " ".join(r.output.split())
+    for k in ("mean", "sd", "x_map", "chi2_map", "tau", "ess", "rhat", "acceptance_mean"):
+        assert again[k] == first[k], k

@@ -296,9 +296,8 @@ def posterior(
     refused = res["refused"]
     why = "photosynthesis unconverged or likelihood not finite"
     t = Table(
-        title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps, {res['seconds_sampling']:.0f} s sampling"
-        + (f", {refused} proposals refused: {why}" if refused else "")
-        + ")"
+        title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps; this call sampled {res['steps_this_call']} "
+        f"in {res['seconds_sampling']:.0f} s" + (f", {refused} proposals refused: {why}" if refused else "") + ")"
     )
     for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS", "R̂"):
         t.add_column(c, justify="right")

@@ -629,7 +629,8 @@ def run(
     out = {
         "names": list(lp.names),
         "stopped_by": res.stopped_by,
-        "seconds_sampling": res.seconds,
+        "seconds_sampling": res.seconds,  # this call's: a resumed or re-analysed chain's earlier steps not counted
+        "steps_this_call": int(res.steps_this_call),
         "n_steps": int(res.diagnostics["n_steps"]),
         "tau": res.diagnostics["tau"].tolist(),
         "ess": res.diagnostics["ess"].tolist(),
