@@ -177,15 +177,16 @@ def replicate(
     for row in summary_rows(table, site_timezone(ds)):
         t.add_row(*row)
     console.print(t)
-    for line in (mc_bias_line(ds), edge_line(ds)):
-        if line:
-            console.print(line)
-    if cmp is not None:  # the compared preset's APAR above the sensor is drawn beside this run's
+    cmp_edge, cmp_fit = "", None
+    if cmp is not None:  # the compared preset's results, read back once: its edge note and its fit below
         import xarray as xr
 
         with xr.open_dataset(out / "results_compare.nc", engine="h5netcdf") as other:
-            if line := compared_edge_line(other, compare_preset):
-                console.print(line)
+            cmp_edge, cmp_fit = compared_edge_line(other, compare_preset), observations_fit(other)
+    # the compared preset's APAR above the sensor is drawn beside this run's: its edge note too
+    for line in (mc_bias_line(ds), edge_line(ds), cmp_edge):
+        if line:
+            console.print(line)
     if short := target_shortfall(ds):
         caution(short)
     if obs is not None:
@@ -193,10 +194,7 @@ def replicate(
         fit = observations_fit(ds)
         console.print(fit_table(fit))
         if cmp is not None:  # the compared preset against the same readings
-            import xarray as xr
-
-            with xr.open_dataset(out / "results_compare.nc", engine="h5netcdf") as other:
-                console.print(fit_table(observations_fit(other), f"the {compare_preset} preset"))
+            console.print(fit_table(cmp_fit, f"the {compare_preset} preset"))
         # the series' χ² add up: without a Monte Carlo correlation the series' errors are independent
         for said in misfit(fit.chi2.sum(), fit.n.sum(), 0, what="the run"):
             caution(said)
