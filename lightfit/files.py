@@ -8,6 +8,7 @@ import re
 import socket
 import threading
 import time
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -107,4 +108,9 @@ def jsonable(d: Any, strict: bool = False) -> Any:
     return d
 
 
-__all__ = ["NETCDF_MAGIC", "is_netcdf", "jsonable", "replace_text", "replaced"]
+#: What ``np.load`` of a damaged or unreadable ``.npz`` raises (a cut copy, a full disk, a byte
+#: flipped, an empty file): a cache that catches these renders or rebuilds the file instead.
+UNREADABLE_NPZ = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
+
+
+__all__ = ["NETCDF_MAGIC", "UNREADABLE_NPZ", "is_netcdf", "jsonable", "replace_text", "replaced"]

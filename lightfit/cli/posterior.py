@@ -32,7 +32,7 @@ from lightfit.cli.options import (
     weather,
 )
 from lightfit.defaults import DESIGN_SIZE
-from lightfit.errors import InputError
+from lightfit.errors import InputError, listed
 from lightfit.files import replace_text
 
 
@@ -356,10 +356,9 @@ def _cautions(d: dict) -> list[str]:
     limit = d.get("rhat_max", StopRule().rhat_max)
     stuck = list(d.get("stuck") or [])
     if stuck:  # emcee's τ is NaN while a walker stands still: the τ and R̂ lines below would blame the length
-        shown = ", ".join(str(i) for i in stuck[:8]) + (", …" if len(stuck) > 8 else "")
         out.append(
             f"{len(stuck)} of {d.get('n_walkers', '?')} walkers never moved over the kept steps (walker "
-            f"{shown}): each repeats one point in the samples, which the summary and corner.png average in, "
+            f"{listed(stuck, 8)}): each repeats one point in the samples, which the summary and corner.png average in, "
             "and τ and ESS cannot be estimated; a longer chain does not help: look at where they sit (a spike "
             "or a refused region of the log-probability) and start again (--no-resume, another --sampler-seed)"
         )

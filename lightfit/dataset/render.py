@@ -26,7 +26,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import numpy as np
 from lightfit.dataset.camera import Camera
 from lightfit.dataset.scene import Lighting, SceneArrays, VisualMaterials
 from lightfit.errors import InputError, check_integer
+from lightfit.files import UNREADABLE_NPZ
 from lightfit.light.keyed_random import check_seed
 from lightfit.light.scene import ISOTROPIC_RADIANCE_PER_DHI, overcast_radiance_per_dhi, sun_vector
 
@@ -160,7 +160,7 @@ def load_camera(path: Path, n_lights: int) -> tuple[list[np.ndarray], np.ndarray
     try:
         with np.load(path) as z:
             return [z[f"radiance_{t}"] for t in range(n_lights)], z["face"], z["depth"]
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # damaged: rendered again
+    except UNREADABLE_NPZ:  # damaged: rendered again
         return None
 
 

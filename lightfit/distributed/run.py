@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from lightfit.distributed.tiles import HaloField, check_tiles
-from lightfit.errors import InputError, check_integer
+from lightfit.errors import InputError, check_integer, check_real
 from lightfit.files import replaced
 from lightfit.killpoint import INTERRUPT_HANDLED_BY, kill_point
 from lightfit.model import schema
@@ -468,13 +468,10 @@ def check_cluster_options(
     address that parses (host and port for TCP/TLS). ``field-run`` checks them before any plant
     grows; :func:`run_field` and :func:`connect` again."""
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
-        # inf too: Dask parses a timeout's number as a string, and "inf" was a KeyError traceback
-        if value is not None and not (value > 0 and math.isfinite(value)):
-            raise InputError(
-                f"{name}={value!r}",
-                parameter=name,
-                expected="finite and > 0 seconds" + (" (no --timeout: no limit)" if name == "timeout" else ""),
-            )
+        # finite too: Dask parses a timeout's number as a string, and "inf" was a KeyError traceback
+        if value is not None:
+            limit = " (no --timeout: no limit)" if name == "timeout" else ""
+            check_real(value, name, 0.0, open_lo=True, expected="finite and > 0 seconds" + limit)
     for name, v in (("workers", workers), ("threads_per_worker", threads_per_worker)):
         if v is not None:
             check_integer(v, name, 1)

@@ -48,7 +48,6 @@ import json
 import math
 import time
 import warnings
-import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,7 +59,7 @@ import optimistix as optx
 import pandas as pd
 
 from lightfit.errors import InputError, check_integer, check_real, is_real
-from lightfit.files import replace_text, replaced
+from lightfit.files import UNREADABLE_NPZ, replace_text, replaced
 from lightfit.inference.likelihood import (
     USES,
     GaussianLikelihood,
@@ -317,7 +316,7 @@ def _load_state(path: Path) -> dict | None:
             meta = json.loads(str(z["meta"]))
             n = sum(1 for k in z.files if k.startswith("leaf"))
             return {**meta, "point": z["point"], "leaves": [z[f"leaf{i}"] for i in range(n)]}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    except UNREADABLE_NPZ:
         # unreadable (an empty file: EOFError, which click turned into a bare "Aborted."; a cut one:
         # BadZipFile, a traceback): start from the history's best point instead
         return None

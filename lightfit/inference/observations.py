@@ -395,11 +395,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             raise InputError(e.problem, file=path, column="time_zone", expected=e.expected) from None
     tz = meta.get("time_zone")
     stamps = Timestamps.from_metadata(meta, path)
-    an_per = meta.get(AN_PER_KEY, "ground").strip().lower()
-    if an_per not in AN_AREAS:
-        raise InputError(
-            f"{AN_PER_KEY}: {meta[AN_PER_KEY]!r}", file=path, column=AN_PER_KEY, expected=" or ".join(AN_AREAS)
-        )
+    an_per = an_area_of(meta, path)
     line = df.attrs["lines"].to_numpy()  # each row's line in the file (blank lines skipped)
     out = pd.DataFrame(index=range(len(df)))
     out["time"] = parse_times(
@@ -483,6 +479,17 @@ def short_rows(obs: pd.DataFrame) -> str | None:
     )
 
 
+def an_area_of(meta: dict, file: str | Path | None = None) -> str:
+    """The area a file's metadata ``meta`` says its canopy An is per (the ``# canopy_an_per:`` line;
+    ``"ground"`` where unsaid), or :class:`InputError` naming ``file`` and the line."""
+    an_per = str(meta.get(AN_PER_KEY, "ground")).strip().lower()
+    if an_per not in AN_AREAS:
+        raise InputError(
+            f"{AN_PER_KEY}: {meta[AN_PER_KEY]!r}", file=file, column=AN_PER_KEY, expected=" or ".join(AN_AREAS)
+        )
+    return an_per
+
+
 def an_area(obs: pd.DataFrame) -> str:
     """The area ``obs``'s canopy An is per: ``"ground"`` or ``"leaf"`` (attrs ``canopy_an_per``, as
     the file's ``# canopy_an_per:`` line says; ground where unsaid, as a chamber measures)."""
@@ -530,11 +537,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
                 expected="metadata that agrees with the table's time label, or leave it to the attrs",
             )
     if AN_PER_KEY in metadata:
-        said_area = str(metadata[AN_PER_KEY]).strip().lower()
-        if said_area not in AN_AREAS:
-            raise InputError(
-                f"{AN_PER_KEY}: {metadata[AN_PER_KEY]!r}", column=AN_PER_KEY, expected=" or ".join(AN_AREAS)
-            )
+        said_area = an_area_of(metadata)
         if AN_PER_KEY not in df.attrs:
             area = said_area
         elif said_area != area:

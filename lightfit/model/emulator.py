@@ -54,7 +54,7 @@ import numpy as np
 from lightfit.cache import cache_root
 from lightfit.defaults import DESIGN_SIZE
 from lightfit.errors import InputError, check_integer
-from lightfit.files import replace_text, replaced
+from lightfit.files import UNREADABLE_NPZ, replace_text, replaced
 from lightfit.killpoint import kill_point
 from lightfit.light.backend import package_versions
 from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -409,7 +409,7 @@ class PartsEmulator:
         rerun with a BadZipFile; such a file is rebuilt like one of other settings."""
         try:
             return PartsEmulator.load(path)
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+        except UNREADABLE_NPZ as err:
             say(f"emulator {path} cannot be read ({type(err).__name__}: {err}): rebuilding")
             return None
 
