@@ -883,9 +883,10 @@ def concat_days(parts: list) -> xr.Dataset:
     it grows: segment *i* on 20 April is not segment *i* on 23 June. So the days' segments are
     kept apart: day *k*'s segment ids are offset by *k* × :data:`DAY_SEGMENT_STRIDE`, and a
     per-segment value is NaN (``limitation`` −1, ``converged`` true) at the steps of other days;
-    canopy variables are each day's own. ``day`` (time) names each step's date; the attrs are the
-    first day's, with ``date``/``window``/``target_date`` (and an adaptive run's ``allocation_*``)
-    listing every day.
+    canopy variables are each day's own. ``day`` (time) names each step's date; the attrs the days
+    share are kept, and ``date``/``window``/``target_date`` and every attribute whose value differs
+    between the days (an adaptive run's ``allocation_*``, ``growth_fingerprint``, a forcing's
+    ``weather_source`` …) list each day's value, ``"; "``-separated in date order.
     """
     # the segments' own coordinates (schema.segment_coords), along segment alone
     static = [c for c in parts[0].coords if c != "segment" and parts[0][c].dims == ("segment",)]
@@ -910,8 +911,13 @@ def concat_days(parts: list) -> xr.Dataset:
     temperatures = ("growth_temperature_c", "growth_temperature_applied_c")
     # "series": each day's own, listed like the dates
     per_day += [k for k in temperatures if len({p.attrs.get(k) for p in parts}) > 1]
+    # Any other attribute the days do not share (a growth fingerprint, which hashes the target date; a
+    # forcing of another source or provenance where the days were run on their own): each day's, not
+    # the first day's claimed for all.
+    listed = ("date", "window", "target_date", *per_day)
+    per_day += [k for k in parts[0].attrs if k not in listed and len({str(p.attrs.get(k)) for p in parts}) > 1]
     for k in ("date", "window", "target_date", *per_day):
-        out.attrs[k] = "; ".join(f"{p.attrs[k]:.3g}" if k in temperatures else str(p.attrs[k]) for p in parts)
+        out.attrs[k] = "; ".join(f"{p.attrs[k]:.3g}" if k in temperatures else str(p.attrs.get(k, "")) for p in parts)
     return schema.annotate(out)
 
 

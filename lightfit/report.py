@@ -330,7 +330,8 @@ def figure(ds, compare=None):
     from lightfit.weather.plot import provenance_label
 
     prov = provenance_label(ds.attrs, "weather_provenance", "weather_date_given")
-    src = Path(str(ds.attrs.get("weather_source", ""))).name
+    # several days' results list each day's file where they differ (concat_days)
+    src = "; ".join(dict.fromkeys(Path(s).name for s in str(ds.attrs.get("weather_source", "")).split("; ")))
     lines = [
         f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
         # an adaptive run's K is per segment: its target and K range, not the pilot's base K

@@ -571,3 +571,41 @@ def test_several_days_results_say_what_a_blades_value_at_another_days_step_is():
     assert meaning == "no_value"
     for name in ("limitation", "converged", "leaf_an_umol_m2_s", "absorbed_par_umol_m2_s"):
         assert "at the steps of another day" in both[name].attrs["comment"], name
+
+
+def test_several_days_results_list_each_days_attributes_where_the_days_differ():
+    """Several days' results (concat_days) kept the first day's attributes but date/window/target_date:
+    a second day grown to its own date (another growth fingerprint) or run on another forcing file
+    (weather_source, weather_provenance) was described by the first day's values (a review). Each
+    day's value is listed where the days differ; what they share stays as it was."""
+    import xarray as xr
+
+    def part(date, source, provenance, fingerprint):
+        return xr.Dataset(
+            {"absorbed_par_umol_m2_s": (("time", "segment"), np.full((1, 1), 500.0))},
+            coords={"time": pd.DatetimeIndex([f"{date} 10:00"]).values, "segment": [1]},
+            attrs={
+                "date": date,
+                "window": "w",
+                "target_date": date,
+                "weather_source": source,
+                "weather_provenance": provenance,
+                "growth_fingerprint": fingerprint,
+                "n_plants": 9,
+            },
+        )
+
+    both = rep.concat_days(
+        [
+            part("2016-04-20", "a.csv", "measured", "f1"),
+            part("2016-05-20", "b.csv", "reconstructed", "f2"),
+        ]
+    )
+    assert both.attrs["weather_source"] == "a.csv; b.csv"
+    assert both.attrs["weather_provenance"] == "measured; reconstructed"
+    assert both.attrs["growth_fingerprint"] == "f1; f2"
+    assert both.attrs["n_plants"] == 9  # shared: kept as the value it is
+    same = rep.concat_days(
+        [part("2016-04-20", "a.csv", "measured", "f1"), part("2016-05-20", "a.csv", "measured", "f2")]
+    )
+    assert same.attrs["weather_source"] == "a.csv" and same.attrs["weather_provenance"] == "measured"
