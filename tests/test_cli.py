@@ -224,6 +224,30 @@ def test_info_names_variant_llvm_and_precision():
         assert f"{cpu}, {lanes} lanes (" in r.stdout
 
 
+def test_info_says_the_drjit_threads_in_use_and_how_to_set_them():
+    """`lightfit info` said nothing of how many CPU threads render (Dr.Jit's pool: one per core by
+    default, set by drjit.set_thread_count alone, no environment variable), a first question on a
+    shared machine (a review). It prints the count in use, here one set by hand, and the ways to set it."""
+    import drjit as dr
+
+    r0 = runner.invoke(app, ["info"])  # loads the backend (variant, libLLVM) first
+    assert r0.exit_code == 0, r0.output
+    if "llvm_ad_" not in r0.stdout:
+        pytest.skip("a CUDA variant: no CPU thread pool renders")
+    before = dr.thread_count()
+    try:
+        dr.set_thread_count(3)
+        r = runner.invoke(app, ["info"])
+    finally:
+        dr.set_thread_count(before)
+    assert r.exit_code == 0, r.output
+    row = next(line for line in r.stdout.splitlines() if "Dr.Jit CPU threads" in line)
+    assert "│ 3 (" in row, row
+    text = re.sub(r"[│\s]+", " ", r.stdout)  # the table wraps its cells
+    for way in ("drjit.set_thread_count(n)", "--threads on render-dataset", "--threads-per-worker"):
+        assert way in text, way
+
+
 @pytest.mark.parametrize(
     ("args", "env", "source"), [(["--variant", "llvm_ad_mono"], None, "argument"), ([], "llvm_ad_mono", "env")]
 )

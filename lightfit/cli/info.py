@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 from rich.table import Table
@@ -27,7 +28,8 @@ _PACKAGES = (
 
 
 def info() -> None:
-    """Print versions, the Mitsuba variant in use, the libLLVM path, the CPU target and the JAX precision."""
+    """Print versions, the Mitsuba variant in use, the libLLVM path, the CPU target, Dr.Jit's CPU threads
+    and the JAX precision."""
     from lightfit.light import backend
     from lightfit.precision import precision
 
@@ -44,5 +46,14 @@ def info() -> None:
     t.add_row("mitsuba variant", f"{b.variant} ({b.variant_source})")
     t.add_row("libLLVM", f"{b.libllvm} ({b.libllvm_source})")
     t.add_row("LLVM target", b.llvm_target or "none (CUDA)")
+    threads = backend.thread_count()
+    if threads is not None:  # how many threads render, and how to change it: Dr.Jit reads no variable
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        t.add_row(
+            "Dr.Jit CPU threads",
+            f"{threads} ({cores} cores available to this process; set with drjit.set_thread_count(n) in Python, "
+            "--threads on render-dataset, --threads-per-worker on field-run's embedded cluster; "
+            "no environment variable sets it)",
+        )
     t.add_row("CUDA usable", str(backend.cuda_usable()))
     console.print(t)

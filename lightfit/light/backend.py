@@ -326,6 +326,19 @@ def llvm_target_in_use() -> str | None:
     return _STATE["info"].llvm_target if "info" in _STATE else None  # type: ignore[union-attr]
 
 
+def thread_count() -> int | None:
+    """Dr.Jit's CPU thread pool size in this process (its LLVM kernels run on it), or ``None`` where
+    the variant in use is a CUDA one. Dr.Jit's default is one thread per core this process may run
+    on (its CPU affinity); no environment variable sets it: ``drjit.set_thread_count(n)`` does
+    (render-dataset's ``--threads``; field-run's ``--threads-per-worker``, through
+    ``LIGHTFIT_WORKER_THREADS``, in each worker)."""
+    if "info" in _STATE and not _STATE["info"].variant.startswith("llvm"):  # type: ignore[union-attr]
+        return None
+    import drjit as dr
+
+    return int(dr.thread_count())
+
+
 def info() -> BackendInfo:
     """Configure (if needed) and describe the backend in use."""
     mitsuba()
