@@ -930,8 +930,8 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     head = [ln for ln in (tmp_path / "seg.csv").read_text().splitlines() if ln.startswith("#")]
     assert "# provenance: synthetic" in head[0] and "# seed: 1" in head and "# n_plants: 4" in head
     assert any(ln.startswith("# columns: x0 y0 z0 x1 y1 z1 in m") for ln in head)
-    # The plant height reported is the mean of each plant's top (not the field's single tallest tip).
-    tops = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
+    # The plant height reported is the mean of each measured plant's top (not the field's single tallest tip).
+    tops = seg[seg["measured"]][["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
     line = next(ln for ln in r.stdout.splitlines() if "plant height" in ln)
     assert f"{tops.mean():.3f}" in line and tops.mean() < tops.max()
     assert_user_error(runner.invoke(app, ["field", "--row-spacing", "-1"]), "row_spacing_m")
@@ -952,6 +952,44 @@ def test_field_command_reports_exports_and_previews(tmp_path, monkeypatch):
     assert "4 (4 / 0)" in r.stdout and "field 1 row × 4 plants measured" in _flat(r.stdout)
     assert "# plants_per_row: 4" in (tmp_path / "r.csv").read_text().splitlines()
     assert_user_error(runner.invoke(app, ["field", "--n-plants", "4", "--plants-per-row", "0"]), "plants_per_row")
+
+
+def test_field_summary_is_the_measured_plants_as_the_lai_is(tmp_path, monkeypatch):
+    """A finite field's buffer plants are geometry only: the heights and the blade inclination are the
+    measured plants', as the LAI is (they averaged every plant built, the 12 buffer plants of a 2×2 area
+    with one buffer row included, beside a measured-only LAI). Checked against the segment table and
+    trimesh's face normals and areas of the measured plants' blade faces."""
+    from lightfit import plant
+
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
+    args = ["field", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1"]
+    r = runner.invoke(app, [*args, "--segments", str(tmp_path / "seg.csv")])
+    assert r.exit_code == 0, r.output
+    out = _flat(r.stdout)
+    assert "the measured plants only" in out, out
+    seg = pd.read_csv(tmp_path / "seg.csv", comment="#")
+    meas = seg[seg["measured"]]
+    tops = meas[["z0", "z1"]].max(axis=1).groupby(meas["plant_id"]).max()
+    everyone = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
+    assert f"{tops.mean():.3f}" != f"{everyone.mean():.3f}"  # the buffer plants would move it
+    line = next(ln for ln in r.stdout.splitlines() if "plant height" in ln)
+    assert f"{tops.mean():.3f}" in line, line
+    # the blades' area-weighted tilt from trimesh's normals, measured plants' faces only
+    geom = plant.build(plant.Field(4, boundary="finite", buffer_rows=1, seed=1))  # the CLI's --field-seed 1
+    tm = geom.mesh.to_trimesh()
+    keep = geom.mesh.face_is_blade & np.isin(tm.face_attributes["segment_id"], meas["segment_id"])
+    tilt = np.degrees(np.arccos(np.abs(tm.face_normals[keep, 2])))
+    want = np.average(tilt, weights=tm.area_faces[keep])
+    every = geom.mesh.face_is_blade
+    assert (
+        f"{want:.1f}"
+        != f"{np.average(np.degrees(np.arccos(np.abs(tm.face_normals[every, 2]))), weights=tm.area_faces[every]):.1f}"
+    )
+    line = next(ln for ln in r.stdout.splitlines() if "blade inclination" in ln)
+    assert f"{want:.1f}" in line, line
+    top = max(tm.vertices[tm.faces[np.isin(tm.face_attributes["segment_id"], meas["segment_id"])]][..., 2].ravel())
+    line = next(ln for ln in r.stdout.splitlines() if "highest point" in ln)
+    assert f"{top:.3f}" in line, line
 
 
 def test_plants_per_row_reaches_the_field_and_is_a_render_setting():

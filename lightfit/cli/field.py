@@ -80,6 +80,8 @@ def field(
     ),
 ) -> None:
     """Build a field of CPlantBox wheat: report plants, segments, triangles; export and preview."""
+    import numpy as np
+
     from lightfit import plant
     from lightfit.figure import figure_format
     from lightfit.plant.export import mesh_format, sidecar_path
@@ -130,7 +132,9 @@ def field(
     t = Table(
         title=f"field {fld.area_label} measured, "
         f"{field_label(fld)}, grown "
-        f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}"
+        f"{g.season_start} → {g.target_date} ({g.days:.0f} d), {g.path.name}",
+        caption="blade area, leaf area index, heights and inclination: the measured plants only "
+        "(buffer plants are geometry only)",
     )
     t.add_column("quantity")
     t.add_column("value", justify="right")
@@ -146,14 +150,25 @@ def field(
     t.add_row("plant headings", fld.headings)
     t.add_row("triangles", str(geom.mesh.n_faces))
     t.add_row("triangles per plant", f"{geom.mesh.n_faces / len(geom.plants):.0f}")
-    t.add_row("one-sided leaf blade area per plant (m²)", f"{seg['blade_area_m2'].sum() / len(geom.plants):.4f}")
+    # The plant summary is the measured plants' (the tile's with --tile), as the LAI is: buffer plants
+    # are geometry only. It averaged every plant built, buffer included, beside a measured-only LAI.
+    blade_m2 = meas["blade_area_m2"].sum()
+    t.add_row("one-sided leaf blade area per measured plant (m²)", f"{blade_m2 / max(n_meas, 1):.4f}")
     if tile is None:
-        t.add_row("leaf area index of the measurement area", f"{meas['blade_area_m2'].sum() / area_m2:.2f}")
+        t.add_row("leaf area index of the measurement area", f"{blade_m2 / area_m2:.2f}")
     # A crew's canopy height is a typical plant's top, not the one tallest leaf tip of the field.
-    tops = seg[["z0", "z1"]].max(axis=1).groupby(seg["plant_id"]).max()
-    t.add_row("plant height, mean of the plants' tops (m)", f"{tops.mean():.3f}")
-    t.add_row("highest point of the mesh (m)", f"{geom.mesh.vertices[:, 2].max():.3f}")
-    t.add_row("blade inclination, mean (° from horizontal)", f"{geom.mesh.blade_inclination_deg():.1f}")
+    tops = meas[["z0", "z1"]].max(axis=1).groupby(meas["plant_id"]).max()
+    t.add_row("plant height, mean of the measured plants' tops (m)", f"{tops.mean():.3f}")
+    faces = np.isin(geom.mesh.face_segment, meas["segment_id"].to_numpy())
+    measured_mesh = plant.Mesh(
+        geom.mesh.vertices, geom.mesh.faces[faces], geom.mesh.face_segment[faces], geom.mesh.face_is_blade[faces]
+    )
+    t.add_row(
+        "highest point of the measured plants' mesh (m)", f"{measured_mesh.vertices[measured_mesh.faces, 2].max():.3f}"
+    )
+    t.add_row(
+        "blade inclination, measured plants' mean (° from horizontal)", f"{measured_mesh.blade_inclination_deg():.1f}"
+    )
     if tiles > 1:
         sizes = [f"{len(p.measured)}+{len(p.buffer)}" for p in parts]
         t.add_row(
