@@ -1140,6 +1140,34 @@ def test_model_options_as_arguments_parse_back_to_themselves():
 
 
 @pytest.mark.slow
+def test_calibrate_exits_3_when_the_full_render_check_did_not_pass(tmp_path, monkeypatch):
+    """A surrogate calibration whose full-render check did not pass exited 0, said in red only, so a
+    script running calibrations could not tell (a review): it writes its result (converged false)
+    and exits 3, neither 0 nor bad input's 2. The check's outcome is stood in for (a real failure
+    needs a design that the emulator misses); the run itself is the cheap light-factor one."""
+    import dataclasses
+
+    import lightfit.inference.trust_region as T
+
+    real = T.surrogate_calibrate
+    monkeypatch.setattr(
+        T, "surrogate_calibrate", lambda *a, **k: dataclasses.replace(real(*a, **k), passed=False, mode="surrogate")
+    )
+    args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]
+    r = runner.invoke(app, [*args, "--out", str(tmp_path)])
+    assert r.exit_code == 3, r.output
+    assert isinstance(r.exception, SystemExit), r.exception  # no traceback
+    res = json.loads((tmp_path / "calibration.json").read_text())
+    assert res["converged"] is False and res["surrogate"]["passed"] is False
+    assert "not passed within --max-rounds" in _flat(r.stdout)
+    assert "the full-render check did not pass" in _flat(r.stderr) and "exit status 3" in _flat(r.stderr)
+    # the same run, checked as passed (one render: exact), exits 0
+    monkeypatch.setattr(T, "surrogate_calibrate", real)
+    r = runner.invoke(app, [*args, "--out", str(tmp_path / "passed")])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "passed" / "calibration.json").read_text())["surrogate"]["passed"] is True
+
+
 def test_calibrate_subprocess_runs_bfgs_in_float64(tmp_path):
     """Two time steps around the bundled record's one PAR observation (12:13 local), two BFGS steps."""
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]

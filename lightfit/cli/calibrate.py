@@ -11,10 +11,12 @@ import typer
 from rich.table import Table
 
 from lightfit.cli.common import (
+    CHECK_NOT_PASSED,
     PRIORS_HELP,
     caution,
     check_observations,
     console,
+    err_console,
     json_object,
     observations_for_run,
     observations_lines,
@@ -106,6 +108,8 @@ def calibrate(
 
     Several --date: one calibration against the observations of every day (each day's plants and forcing).
     --workers / --scheduler: the surrogate's design renders run on a Dask cluster (docs/posterior.md).
+    Exit status 3: the surrogate's full-render check did not pass (the result is written, marked
+    not converged, but the full renders did not confirm it); 2: bad input.
     A first try (≈ 1 min): lightfit calibrate data/observations/twin_2016-04-20_synthetic.csv --quick
     --n-plants 9 (a SYNTHETIC twin series made by the model on that 9-plant cell; not a measurement)."""
     from lightfit.distributed.design import design_renderer
@@ -373,6 +377,14 @@ def calibrate(
         f"to see the fit: {shlex.join(again)}",
         soft_wrap=True,
     )
+    if tr is not None and not tr.passed:  # said in red above; a script running calibrations must tell too
+        err_console.print(
+            f"[red]the full-render check did not pass[/]: {out / 'calibration.json'} is not confirmed by the full "
+            f"renders (exit status {CHECK_NOT_PASSED})",
+            soft_wrap=True,
+            highlight=False,
+        )
+        raise typer.Exit(CHECK_NOT_PASSED)
 
 
 def unconverged_remedy(stopped_by: str) -> str:

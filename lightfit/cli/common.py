@@ -125,6 +125,11 @@ class LightfitCommand(TyperCommand):
 #: Exit status of an interrupted command: 128 + SIGINT, as shells report it.
 INTERRUPTED = 130
 
+#: Exit status of a ``calibrate`` whose surrogate optimum the full renders did not confirm (its
+#: trust region's check did not pass): the result is written, but is not an answer. Distinct from 2
+#: (bad input, usage errors), 1 (an uncaught error: a bug) and 130 (interrupted).
+CHECK_NOT_PASSED = 3
+
 
 def interrupted(kept: str | None, started_over: bool = False) -> NoReturn:
     """Ctrl-C's one line on stderr — what was kept (``None``: nothing to resume from) and how to
