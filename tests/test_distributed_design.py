@@ -279,8 +279,8 @@ def test_design_renderer_joins_the_scheduler_only_when_a_point_is_missing(tmp_pa
     calls = []
 
     @contextmanager
-    def fake_connect(scheduler=None, *, workers=None):
-        calls.append((scheduler, workers))
+    def fake_connect(scheduler=None, *, workers=None, timeout_s=None):
+        calls.append((scheduler, workers, timeout_s))
         yield _Client()
 
     monkeypatch.setattr(D, "connect", fake_connect)
@@ -293,7 +293,7 @@ def test_design_renderer_joins_the_scheduler_only_when_a_point_is_missing(tmp_pa
         assert calls == []
         assert len(hook(model, [done, todo], tmp_path, key, progress=False)) == 1
         hook(model, [todo], tmp_path, key, progress=False)
-    assert calls == [("tcp://scheduler:8786", None)]
+    assert calls == [("tcp://scheduler:8786", None, 30.0)]  # connect's default timeout (--connect-timeout)
 
 
 @pytest.mark.parametrize(
@@ -324,3 +324,39 @@ def test_design_renderer_refuses_workers_with_a_scheduler_even_for_a_cached_desi
     """The library hook accepted workers=2 with a scheduler and ignored it while the design was cached."""
     with pytest.raises(InputError, match="workers"), design_renderer("tcp://127.0.0.1:8786", 2):
         pass
+
+
+@pytest.mark.parametrize("command", ["calibrate", "posterior"])
+def test_the_connect_timeout_the_cluster_error_advises_is_an_option_and_is_used(command, tmp_path, monkeypatch):
+    """When the embedded cluster did not answer, calibrate and posterior advised "a longer
+    --connect-timeout", an option only field-run had (a review): both take it now, and it is the
+    client's timeout. The cluster is stood in for, with a client that cannot reach it (distributed's
+    "Timed out trying to connect", an OSError)."""
+    import distributed
+
+    from lightfit.cli import app
+
+    made = []
+
+    class Cluster:
+        def __init__(self, **kw):
+            pass
+
+        def close(self):
+            pass
+
+    def unreachable(*a, **k):
+        made.append(k)
+        raise OSError("Timed out trying to connect to tcp://127.0.0.1:1 after 7 s")
+
+    monkeypatch.setattr(distributed, "LocalCluster", Cluster)
+    monkeypatch.setattr(distributed, "Client", unreachable)
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path / "cache"))  # no design cached: a point to render
+    obs = tmp_path / "obs.csv"
+    obs.write_text(OBS, encoding="utf-8")
+    args = [command, str(obs), "--quick", "--steps", "12:15", "--n-design", "6", "--parameters", "specular"]
+    args += ["--workers", "1", "--connect-timeout", "7", "--out", str(tmp_path / "out")]
+    r = CliRunner().invoke(app, args)
+    err = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "option --connect-timeout" in err and "did not answer within 7 s" in err, r.output
+    assert made == [{"timeout": 7.0}]

@@ -26,6 +26,7 @@ from lightfit.cli.common import (
     soil_respiration_note,
 )
 from lightfit.cli.options import (
+    ConnectTimeout,
     DesignWorkers,
     ModelOptions,
     Scheduler,
@@ -101,6 +102,7 @@ def calibrate(
     ),
     scheduler: Scheduler = None,
     workers: DesignWorkers = None,
+    connect_timeout: ConnectTimeout = 30.0,
     *,
     model: ModelOptions,
 ) -> None:
@@ -127,7 +129,7 @@ def calibrate(
 
     s = resolve(model)
     output_folder(out)
-    check_cluster_options(scheduler, workers=workers)  # before the plants grow (design_renderer again)
+    check_cluster_options(scheduler, workers=workers, connect_timeout_s=connect_timeout)  # before the plants grow
     if not surrogate and (scheduler is not None or workers is not None):  # they would render nothing
         given = "--scheduler" if scheduler is not None else "--workers"
         raise InputError(
@@ -249,7 +251,7 @@ def calibrate(
     if surrogate:
         lo = [box[n].support[0] for n in E.LEAF_PARAMETERS]
         hi = [box[n].support[1] for n in E.LEAF_PARAMETERS]
-        with design_renderer(scheduler, workers) as render_points:
+        with design_renderer(scheduler, workers, connect_timeout) as render_points:
             tr = surrogate_calibrate(
                 m,
                 obs,

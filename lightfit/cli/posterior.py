@@ -21,6 +21,7 @@ from lightfit.cli.common import (
     soil_respiration_note,
 )
 from lightfit.cli.options import (
+    ConnectTimeout,
     DesignWorkers,
     ModelOptions,
     Scheduler,
@@ -78,6 +79,7 @@ def posterior(
     ),
     scheduler: Scheduler = None,
     workers: DesignWorkers = None,
+    connect_timeout: ConnectTimeout = 30.0,
     *,
     model: ModelOptions,
 ) -> None:
@@ -99,7 +101,7 @@ def posterior(
 
     s = resolve(model)
     output_folder(out)
-    check_cluster_options(scheduler, workers=workers)  # before the plants grow (design_renderer again)
+    check_cluster_options(scheduler, workers=workers, connect_timeout_s=connect_timeout)  # before the plants grow
     n_design = E.check_design_size(DESIGN_SIZE if n_design is None else n_design)  # before any render
     stop = P.StopRule(target_ess=target_ess)  # checked before any render
     if max_minutes is not None and not max_minutes > 0:
@@ -193,7 +195,7 @@ def posterior(
     # copy (several days: OUT/emulator-<date>.npz, one per day, each day in its own design directory).
     counts, held = dict(E.COUNTS), {"rendered": 0, "cached": 0}  # held: the held-out renders' share
     emus, val = [], []
-    with design_renderer(scheduler, workers) as render_points:
+    with design_renderer(scheduler, workers, connect_timeout) as render_points:
         for i, (d, key) in enumerate(zip(days, keys)):
             copy = out / ("emulator.npz" if dates is None else f"emulator-{dates[i]}.npz")
             stored = E.PartsEmulator.readable(copy, console.print) if copy.exists() else None

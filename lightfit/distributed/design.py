@@ -219,14 +219,17 @@ def render_design(
 
 
 @contextmanager
-def design_renderer(scheduler: str | None = None, workers: int | None = None) -> Iterator[Callable | None]:
+def design_renderer(
+    scheduler: str | None = None, workers: int | None = None, connect_timeout_s: float = 30.0
+) -> Iterator[Callable | None]:
     """The ``render_points`` hook of the emulator for the command line's ``--scheduler`` / ``--workers``:
     ``None`` (render in this process) when neither is given, else :func:`render_design` on a client
     of :func:`~lightfit.distributed.run.connect`, started at the first call that has a point to
     render (a design already in the cache starts no cluster) and closed on exit. Options that
     contradict each other (``workers`` with ``scheduler``, ``workers < 1``, an address that does not
-    parse) are refused on entry, whether or not a point is missing."""
-    check_cluster_options(scheduler, workers=workers)
+    parse, a timeout that is not finite and > 0) are refused on entry, whether or not a point is missing.
+    ``connect_timeout_s``: :func:`~lightfit.distributed.run.connect`'s ``timeout_s`` (``--connect-timeout``)."""
+    check_cluster_options(scheduler, workers=workers, connect_timeout_s=connect_timeout_s)
     if scheduler is None and workers is None:
         yield None
         return
@@ -239,7 +242,7 @@ def design_renderer(scheduler: str | None = None, workers: int | None = None) ->
             if not np.asarray(model.day).any() or not len(missing_points(leaf, cache, key)):
                 return []
             if client is None:
-                client = stack.enter_context(connect(scheduler, workers=workers))
+                client = stack.enter_context(connect(scheduler, workers=workers, timeout_s=connect_timeout_s))
             return render_design(client, model, leaf, cache, key, **kw)
 
         yield render_points
