@@ -81,3 +81,30 @@ def test_a_posterior_of_the_noise_scale_alone_is_refused():
     with pytest.raises(InputError, match="no model parameter"):
         check_sampled(("noise_scale",), PRIORS_INFORMED)
     assert check_sampled(["light_factor", "noise_scale"], PRIORS_INFORMED) == ("light_factor", "noise_scale")
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (("lognormal", 1.0, 0.5, "test", 4.0, 0.25), "truncated to [4.0, 0.25]"),  # bounds swapped
+        (("lognormal", 10.0, 0.5, "test", 0.25, 4.0), "median 10.0 truncated to [0.25, 4.0]"),
+        (("lognormal", 1.0, 0.5, "test", -1.0, 4.0), "truncated to [-1.0, 4.0]"),
+        (("lognormal", 1.0, math.inf, "test"), "b=inf"),
+        (("uniform", 0.0, math.inf, "test"), "b=inf"),
+        (("uniform", 0.2, 0.8, "test", 0.3, 0.5), "uniform prior with lo=0.3, hi=0.5"),
+        (("loguniform", 0.3, 3.0, "test", None, 2.0), "loguniform prior with lo=None, hi=2.0"),
+    ],
+)
+def test_a_prior_whose_bounds_cannot_hold_it_is_refused(args, said):
+    """A Prior the library user builds (log_posterior's priors=): a log-normal truncated to lo > hi was
+    accepted and a numpy traceback ("high - low < 0") when the walkers were drawn; one whose median lay
+    outside its truncation had its centre (the fallback point of the sampler, the Monte Carlo
+    correlation's reference) at zero density; an infinite log-SD drew 0 and inf; lo / hi given to a
+    uniform or log-uniform prior were ignored (its support stayed [a, b]). Each is refused, naming
+    the prior. A one-sided truncation stays allowed."""
+    from lightfit.errors import InputError
+
+    with pytest.raises(InputError, match="parameter 'prior'") as e:
+        Prior(*args)
+    assert said in str(e.value), e.value
+    assert Prior("lognormal", 1.3, 0.5, "test", lo=0.8, hi=None).support == (0.8, math.inf)

@@ -45,6 +45,25 @@ class Prior:
             raise InputError(f"prior bounds a={self.a}, b={self.b}", parameter="prior", expected="a < b")
         if self.kind in ("loguniform", "lognormal") and not (self.a > 0 and self.b > 0):
             raise InputError(f"prior a={self.a}, b={self.b}", parameter="prior", expected="a > 0 and b > 0")
+        if not (math.isfinite(self.a) and math.isfinite(self.b)):  # an infinite SD drew 0 and inf
+            raise InputError(f"prior a={self.a}, b={self.b}", parameter="prior", expected="finite a and b")
+        if self.kind != "lognormal":
+            if self.lo is not None or self.hi is not None:  # were ignored: the support is [a, b]
+                raise InputError(
+                    f"{self.kind} prior with lo={self.lo}, hi={self.hi}",
+                    parameter="prior",
+                    expected=f"no lo / hi for a {self.kind} prior (its support is [a, b])",
+                )
+            return
+        lo, hi = self.support
+        # lo > hi was a numpy traceback when sampled; a median outside [lo, hi] made the centre (the
+        # walkers' fallback point, the Monte Carlo correlation's reference) a point of zero density
+        if not (lo >= 0 and lo < hi and lo <= self.a <= hi):
+            raise InputError(
+                f"log-normal prior of median {self.a} truncated to [{lo}, {hi}]",
+                parameter="prior",
+                expected="0 <= lo < hi with the median a in [lo, hi]",
+            )
 
     @property
     def support(self) -> tuple[float, float]:
