@@ -820,3 +820,39 @@ def test_photosynthesis_overrides_reach_the_model_and_its_results(model):
     assert json.loads(model.simulate(THETA).attrs["photosynthesis_overrides"]) == {}
     with pytest.raises(InputError, match="photosynthesis_overrides.*a1=-1"):
         dataclasses.replace(sc, photosynthesis_overrides={"a1": -1.0})
+
+
+def test_a_civil_twilight_step_with_diffuse_light_is_rendered_by_the_sky_alone():
+    """A step with the sun at −5° and diffuse light above (DHI 5 W m⁻², PAR 11 µmol m⁻² s⁻¹) is
+    rendered (daytime: diffuse light in civil twilight, above −6°): its plants absorb light, by the
+    sky alone. The reference: the same field at 12:00 UTC with the sun's part switched off (DNI 0,
+    DHI 100 W m⁻², PAR 228.5), whose canopy APAR scaled by the ratio of the two diffuse PARs is the
+    twilight step's (linearity in DHI; the sky's radiance does not depend on the sun), within the
+    Monte Carlo error. Before, the twilight step was not rendered: 0 absorbed under 11 above, a
+    canopy fAPAR of 0, and a render key without that step, so a cache of the dark run would have
+    served the lit one."""
+    from lightfit.model.emulator import render_key
+
+    w = rep.forcing().iloc[[2, 14]].copy()  # 04:00 UTC (sun −5.03°) and 10:00 UTC (46.5°)
+    assert w["sun_elevation_deg"].iloc[0] == pytest.approx(-5.03, abs=0.01)
+    w.loc[w.index[0], ["dni_w_m2", "dhi_w_m2", "par_umol_m2_s"]] = (0.0, 5.0, 11.0)
+    w.loc[w.index[1], ["dni_w_m2", "dhi_w_m2", "par_umol_m2_s"]] = (0.0, 100.0, 228.5)
+    m = CoupledModel(Scenario(weather=w, field=FIELD, samples=8, bounces=2, par_kind="absorbed"))
+    o = m.observe(Theta())
+    above = np.asarray(o["above_canopy_par_umol_m2_s"])
+    np.testing.assert_allclose(above, [11.0, 228.5], rtol=1e-12)  # all diffuse: the horizontal PAR
+    apar, sd = np.asarray(o["canopy_apar_umol_m2_s"]), np.asarray(o["canopy_apar_mc_sd_umol_m2_s"])
+    assert apar[0] > 0 and np.asarray(o["transmitted_par_umol_m2_s"])[0] > 0
+    assert m.day.tolist() == [True, True]
+    assert str(w.index[0]) in render_key(m)["times_utc"]
+    expected = apar[1] * 11.0 / 228.5
+    assert abs(apar[0] - expected) <= 4 * np.hypot(sd[0], sd[1] * 11.0 / 228.5) + 1e-12 * expected
+    # the canopy's fAPAR under a sky alone is the same at both steps (a finite field: > 1 with its edge light)
+    f = np.asarray(o["fapar"])
+    assert f[0] > 0 and f[0] == pytest.approx(f[1], abs=4 * float(np.asarray(o["fapar_mc_sd"])[1]) + 1e-12)
+    # the twilight leaves photosynthesise: their An lies above the dark respiration at the same step
+    dark = w.copy()
+    dark.loc[dark.index[0], ["dhi_w_m2", "par_umol_m2_s"]] = (0.0, 0.0)
+    d = CoupledModel(Scenario(weather=dark, field=FIELD, samples=8, bounces=2, par_kind="absorbed"))
+    assert d.day.tolist() == [False, True] and str(w.index[0]) not in render_key(d)["times_utc"]
+    assert float(o["canopy_an_umol_m2_s"][0]) > float(d.observe(Theta())["canopy_an_umol_m2_s"][0])

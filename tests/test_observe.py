@@ -43,7 +43,8 @@ def test_above_canopy_sensor_matches_pvlib_on_a_horizontal_plane():
 
 def test_above_canopy_sensor_takes_no_beam_from_a_sun_below_the_horizon():
     """Steps with the sun just below the horizon are rendered (above −1°,
-    test_daytime_is_light_with_the_sun_above_minus_one_degree) and a series may carry a beam there:
+    test_daytime_is_light_with_the_sun_above_minus_one_degree_or_diffuse_light_in_civil_twilight)
+    and a series may carry a beam there:
     the horizontal sensor takes DNI·sin⁺β, so at β = −0.5° it reads the DHI alone, at +0.5°
     8 + 40·sin 0.5° (a mutation audit: sin β without its clip, a negative beam, passed every test,
     whose steps below the horizon all had DNI = 0)."""
@@ -769,12 +770,13 @@ def test_the_operator_on_a_two_segment_canopy_worked_by_hand():
     np.testing.assert_allclose(o["fapar"], [0, 607.5 / 1050], rtol=1e-12)
 
 
-def test_a_twilight_step_that_is_not_rendered_reads_no_ceptometer_fapar():
-    """A step with the sun at −3° and diffuse light above (DHI 20 µmol m⁻² s⁻¹) is not rendered
-    (daytime: sun above −1°): the plants and the ceptometer get no light there, the canopy fAPAR is
-    0, and the ceptometer's τ and fAPAR are 0 as at night. 1 − τ gave a ceptometer fAPAR of 1 there
-    (a review). The day step: sun at 30°, DNI 1000, DHI 200; the ceptometer's parts 0.1 per DNI and
-    0.2 per DHI read 1000·0.1 + 200·0.2 = 140 under 1000·½ + 200 = 700 above, τ = 0.2."""
+def test_a_step_with_light_above_that_is_not_rendered_reads_no_ceptometer_fapar():
+    """A step with the sun at −7° and diffuse light above (DHI 20 µmol m⁻² s⁻¹, a sensor's offset)
+    is not rendered (daytime: below civil twilight, −6°): the plants and the ceptometer get no light
+    there, the canopy fAPAR is 0, and the ceptometer's τ and fAPAR are 0 as at night. 1 − τ gave a
+    ceptometer fAPAR of 1 there (a review). The day step: sun at 30°, DNI 1000, DHI 200; the
+    ceptometer's parts 0.1 per DNI and 0.2 per DHI read 1000·0.1 + 200·0.2 = 140 under
+    1000·½ + 200 = 700 above, τ = 0.2."""
     from lightfit.light.estimator import PARTS
     from lightfit.model.scenario import Forcing
     from lightfit.photosynthesis import parameter_set
@@ -785,7 +787,7 @@ def test_a_twilight_step_that_is_not_rendered_reads_no_ceptometer_fapar():
     )  # fmt: skip
     op = O.ObservationOperator(
         forcing=fc, area_m2=np.array([0.1]), is_blade=np.array([True]), par_kind="absorbed", denominator_m2=0.4,
-        params=parameter_set("winter_wheat"), ground_area_m2=0.4, sun_elevation_deg=np.array([-3.0, 30.0]),
+        params=parameter_set("winter_wheat"), ground_area_m2=0.4, sun_elevation_deg=np.array([-7.0, 30.0]),
         sensors=("ceptometer",),
     )  # fmt: skip
     blade = {"incident_sun": 0.8, "incident_sky": 0.5, "absorbed_sun": 0.7, "absorbed_sky": 0.4}
@@ -799,19 +801,21 @@ def test_a_twilight_step_that_is_not_rendered_reads_no_ceptometer_fapar():
     np.testing.assert_allclose(np.asarray(o["ceptometer_fapar"]), [0.0, 0.8], rtol=1e-12)
 
 
-def test_daytime_is_light_with_the_sun_above_minus_one_degree():
-    """The rendered steps: DNI + DHI > 0 and the sun above −1° (the documented rule, which keeps the
-    twilight steps where refraction already shows the sun's disc and the sky is lit)."""
+def test_daytime_is_light_with_the_sun_above_minus_one_degree_or_diffuse_light_in_civil_twilight():
+    """The rendered steps: DNI + DHI > 0 and the sun above −1° (where refraction already shows the
+    sun's disc), or DHI > 0 with the sun above −6° (civil twilight: the sky alone lights the canopy;
+    such steps at −3° and −1° were left dark under their PAR above). A beam alone below −1° is not
+    light (its part is 0 below the horizon), nor diffuse light below −6° (a sensor's offset)."""
     from lightfit.model.scenario import daytime
 
     w = pd.DataFrame(
         {
-            "sun_elevation_deg": [-3.0, -1.0, -0.5, 0.5, 30.0, 30.0],
-            "dni_w_m2": [0.0, 0.0, 0.0, 5.0, 0.0, 0.0],
-            "dhi_w_m2": [2.0, 3.0, 4.0, 8.0, 100.0, 0.0],
+            "sun_elevation_deg": [-7.0, -6.0, -5.9, -3.0, -1.0, -3.0, -0.5, 0.5, 30.0, 30.0],
+            "dni_w_m2": [0.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0, 5.0, 0.0, 0.0],
+            "dhi_w_m2": [2.0, 2.0, 2.0, 2.0, 3.0, 0.0, 4.0, 8.0, 100.0, 0.0],
         }
     )
-    np.testing.assert_array_equal(daytime(w), [False, False, True, True, True, False])
+    np.testing.assert_array_equal(daytime(w), [False, False, True, True, True, False, True, True, True, False])
 
 
 def test_soil_respiration_q10_takes_the_ends_of_its_range():
@@ -910,23 +914,26 @@ def test_a_run_of_one_step_a_day_takes_only_readings_near_its_steps():
     assert far_from_steps(obs, two).tolist() == [False, True]
 
 
-def test_a_ratio_of_light_read_at_an_unrendered_twilight_step_is_refused(tmp_path):
-    """A step with diffuse light and PAR above but the sun at −5° is not rendered (daytime: above −1°),
-    so the model's fAPAR and ceptometer readings are 0 there by convention, as at night: a ceptometer
-    fAPAR read then is refused as one read in the dark is (it was accepted: the forcing had PAR)."""
+def test_a_ratio_of_light_read_at_an_unrendered_step_with_par_is_refused(tmp_path):
+    """A step with diffuse light and PAR above but the sun at −9.2° is not rendered (daytime: diffuse
+    light above −6°; below, a sensor's offset), so the model's fAPAR and ceptometer readings are 0
+    there by convention, as at night: a ceptometer fAPAR read then is refused as one read in the
+    dark is (it was accepted: the forcing had PAR). One read at −5°, in civil twilight, with light
+    above is rendered and accepted (it was refused while twilight steps were left dark)."""
     from lightfit.inference.observations import check_light_scale, read_observations
 
     w = rep.forcing().copy()
-    t = pd.Timestamp("2016-04-20 04:00", tz="UTC")
-    assert w.loc[t, "sun_elevation_deg"] == pytest.approx(-5.03, abs=0.01)
-    w.loc[t, ["dhi_w_m2", "par_umol_m2_s"]] = (5.0, 11.0)
+    night, dusk = pd.Timestamp("2016-04-20 03:30", tz="UTC"), pd.Timestamp("2016-04-20 04:00", tz="UTC")
+    assert w.loc[night, "sun_elevation_deg"] == pytest.approx(-9.20, abs=0.01)
+    assert w.loc[dusk, "sun_elevation_deg"] == pytest.approx(-5.03, abs=0.01)
+    w.loc[[night, dusk], ["dhi_w_m2", "par_umol_m2_s"]] = (5.0, 11.0)
     f = tmp_path / "obs.csv"
     f.write_text(
         "# provenance: synthetic\n# time_zone: UTC\ntime,ceptometer_fapar,ceptometer_fapar_sd\n"
-        "2016-04-20 10:00,0.9,0.03\n2016-04-20 04:00,0.9,0.03\n",
+        "2016-04-20 10:00,0.9,0.03\n2016-04-20 03:30,0.9,0.03\n",
         encoding="utf-8",
     )
-    with pytest.raises(InputError, match=r"ceptometer_fapar read at 2016-04-20T04:00.*sun below −1°"):
+    with pytest.raises(InputError, match=r"ceptometer_fapar read at 2016-04-20T03:30.*not rendered: DNI \+ DHI > 0"):
         check_light_scale(read_observations(f), w)
-    f.write_text(f.read_text().replace("2016-04-20 04:00,0.9,0.03\n", ""))
-    check_light_scale(read_observations(f), w)  # daylight alone: no error
+    f.write_text(f.read_text().replace("2016-04-20 03:30,0.9,0.03\n", "2016-04-20 04:00,0.9,0.03\n"))
+    check_light_scale(read_observations(f), w)  # daylight and civil twilight: no error

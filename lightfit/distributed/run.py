@@ -60,7 +60,7 @@ from lightfit.files import replaced
 from lightfit.killpoint import INTERRUPT_HANDLED_BY, kill_point
 from lightfit.model import schema
 from lightfit.model.parameters import Theta, as_theta
-from lightfit.model.scenario import Forcing, Scenario, daytime, sun_positions_deg
+from lightfit.model.scenario import DAYTIME_RULE, Forcing, Scenario, daytime, sun_positions_deg
 from lightfit.progress import progress_bar
 
 #: Per-time canopy aggregates recomputed on the gathered Dataset (the observation operator's outputs).
@@ -123,7 +123,7 @@ class FieldRun:
             raise InputError(
                 f"all {len(sc.weather)} steps of the run are at night: nothing to distribute",
                 parameter="steps",
-                expected="at least one step with sun elevation > -1° and DNI + DHI > 0 (--steps, the window)",
+                expected=f"at least one step that is rendered ({DAYTIME_RULE}; --steps, the window)",
             )
         if tc > n_day:
             raise InputError(

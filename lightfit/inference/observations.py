@@ -82,7 +82,7 @@ import pandas as pd
 from lightfit.errors import InputError, listed
 from lightfit.files import replace_text
 from lightfit.light.bsdf import LEAF_PARAMETERS
-from lightfit.model.scenario import CHOICES, daytime
+from lightfit.model.scenario import CHOICES, DAYTIME_RULE, daytime
 from lightfit.weather import timestamps
 from lightfit.weather.readers import (
     PROVENANCES,
@@ -725,16 +725,17 @@ def check_ratios_lit(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     model's ratio is 0 by convention (:func:`lightfit.model.observe.fapar`, no 0/0), so a reading
     there (a logger's fAPAR of 1 in the dark) would weigh in the fit against a number that is not
     the model's, and one read between would meet a share of that 0 (a fAPAR of 0.9 at 06:50 between
-    a dark 06:30 and 07:00's 0.94 met 0.63). A twilight step with PAR but the sun below −1° is not
-    rendered (:func:`~lightfit.model.scenario.daytime`): no light reaches the plants or the
-    ceptometer there, so it is dark to these readings too."""
+    a dark 06:30 and 07:00's 0.94 met 0.63). A step with PAR that is not rendered (the sun below
+    :data:`~lightfit.model.scenario.TWILIGHT_SUN_MIN_DEG`, :func:`~lightfit.model.scenario.daytime`:
+    a sensor's offset, not light) sends no light to the plants or the ceptometer, so it is dark to
+    these readings too; a civil-twilight step with diffuse light is rendered and lit."""
     if "par_umol_m2_s" not in forcing.columns or not len(obs):
         return
     stamps = timestamps.of(forcing)
     idx, _ = nearest_steps(obs, forcing.index, stamps)
     par = forcing["par_umol_m2_s"].to_numpy(float)
     if {"sun_elevation_deg", "dni_w_m2", "dhi_w_m2"} <= set(forcing.columns):
-        par = np.where(daytime(forcing), par, 0.0)  # twilight: PAR above, but nothing rendered
+        par = np.where(daytime(forcing), par, 0.0)  # PAR above, but nothing rendered (below civil twilight)
     read = interpolation(obs, forcing.index, stamps)
     dark = par[idx] <= 0
     lines = obs.attrs.get("lines")
@@ -755,7 +756,7 @@ def check_ratios_lit(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
             )
             raise InputError(
                 f"{name} read at {obs.index[k].isoformat()}, where the forcing has no PAR above the canopy "
-                f"or the model no light (the sun below −1°) ({where}): a ratio of light has no value there",
+                f"or the model no light (not rendered: {DAYTIME_RULE}) ({where}): a ratio of light has no value there",
                 file=obs.attrs.get("source"),
                 row=int(lines[k]) if lines is not None and len(lines) == len(obs) else None,
                 column=col,

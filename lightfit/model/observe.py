@@ -286,10 +286,11 @@ def observables(
     observables are NaN).
 
     ``rendered`` (T,) bool marks the steps whose light was rendered (``None``: every step); the
-    others are night to the ceptometer, whose τ and fAPAR are 0 there as at night. A twilight step
-    (sun below −1°, :func:`~lightfit.model.scenario.daytime`) with diffuse light above is not
-    rendered: its transmitted PAR is 0, and 1 − τ gave a ceptometer fAPAR of 1 beside a canopy
-    fAPAR of 0.
+    others are night to the ceptometer, whose τ and fAPAR are 0 there as at night. A step with
+    light above that is not rendered (diffuse light with the sun below
+    :data:`~lightfit.model.scenario.TWILIGHT_SUN_MIN_DEG`, a sensor's offset; a beam alone with the
+    sun below −1°, :func:`~lightfit.model.scenario.daytime`) has transmitted PAR 0, and 1 − τ gave
+    a ceptometer fAPAR of 1 there beside a canopy fAPAR of 0.
 
     ``par``/``par_mc_sd`` are the plant-PAR kind (incident or absorbed); canopy An is per
     ``denominator_m2``, APAR and NEE per ``ground_area_m2``. Units: every PAR and An in

@@ -2,7 +2,9 @@ r"""What a coupled run needs besides the calibrated parameters: the :class:`Scen
 per-step :class:`Forcing` the observation operator reads from its weather.
 
 A step is *daytime* (rendered) when :math:`\mathrm{DNI} + \mathrm{DHI} > 0` and the sun is above
-−1° elevation (:func:`daytime`); night steps get zero light. The weather's DNI and DHI are turned
+−1° elevation, or in civil twilight (the sun above :data:`TWILIGHT_SUN_MIN_DEG`, −6°) with diffuse
+light, DHI > 0: the sky alone lights the canopy then, the sun's part is 0 below the horizon
+(:func:`daytime`); night steps get zero light. The weather's DNI and DHI are turned
 into photon fluxes by :func:`lightfit.weather.solar.par_direct_diffuse`: scaled to the measured PAR
 where the series has a PAR sensor, else 0.50 × 4.57 = 2.285 µmol J⁻¹, with PAR's diffuse fraction
 from global radiation's (Spitters et al. 1986).
@@ -83,10 +85,25 @@ def check_weather_values(weather: pd.DataFrame) -> None:
             )
 
 
+#: Lowest sun elevation, degrees, at which a step's diffuse light is rendered: the end of civil
+#: twilight. Below it the clear sky gives under ≈ 0.1 µmol m⁻² s⁻¹ of PAR, far below any leaf's
+#: light compensation point, and a radiation sensor's reading there is its offset, not light (the
+#: readers keep small positive night readings): rendering it would spend a render on every night step.
+TWILIGHT_SUN_MIN_DEG = -6.0
+#: :func:`daytime` in words, for messages.
+DAYTIME_RULE = f"DNI + DHI > 0 with the sun above −1°, or DHI > 0 with the sun above {TWILIGHT_SUN_MIN_DEG:g}°"
+
+
 def daytime(weather: pd.DataFrame) -> np.ndarray:
-    """Steps the coupled model renders: DNI + DHI > 0 and sun elevation > −1° (bool, (T,))."""
+    """Steps the coupled model renders (bool, (T,)): DNI + DHI > 0 with the sun above −1° elevation
+    (where refraction already shows the disc), or DHI > 0 with the sun above
+    :data:`TWILIGHT_SUN_MIN_DEG` (civil twilight: the sky alone lights the canopy, and the sun's
+    part is 0 below the horizon). A twilight step with diffuse light was left dark before, so its
+    plants got no light under the above-canopy PAR of the forcing."""
     w = weather
-    return ((w["dni_w_m2"] + w["dhi_w_m2"]) > 0).to_numpy() & (w["sun_elevation_deg"] > -1).to_numpy()
+    el = w["sun_elevation_deg"].to_numpy()
+    lit = ((w["dni_w_m2"] + w["dhi_w_m2"]) > 0).to_numpy() & (el > -1)
+    return lit | ((w["dhi_w_m2"] > 0).to_numpy() & (el > TWILIGHT_SUN_MIN_DEG))
 
 
 @dataclass(frozen=True)
@@ -536,6 +553,8 @@ __all__ = [
     "Scenario",
     "WEATHER_COLUMNS",
     "daytime",
+    "TWILIGHT_SUN_MIN_DEG",
+    "DAYTIME_RULE",
     "main_job_samples",
     "resolve_direct",
 ]
