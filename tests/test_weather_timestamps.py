@@ -89,6 +89,28 @@ def test_instant_series_mean_resampling_is_centred():
     assert r.loc[t, "sun_elevation_deg"] == df.loc[t, "sun_elevation_deg"]
 
 
+def test_mean_of_instants_drops_steps_the_series_covers_only_in_part():
+    """10-min instants 09:00 … 11:00 UTC of a linear ramp (1 W m⁻² per minute) at 30 min: the windows
+    centred on 09:00 and 11:00 reach 15 min past the series (it covers 08:55 … 11:05, each row
+    standing for its 10 min) and were kept as whole means, 09:00's the mean of the rows 09:00 and
+    09:10 (5 W m⁻², the ramp's value at 09:05, stamped 09:00); they are dropped and said, as for
+    means of means, and a series covering no step whole is refused rather than returned empty."""
+    t = pd.date_range("2016-04-20 09:00", "2016-04-20 11:00", freq="10min", tz="UTC")
+    minutes = np.asarray((t - t[0]) / pd.Timedelta(minutes=1), float)
+    df = pd.DataFrame({"ghi_w_m2": minutes, "tair_c": 10.0, "rh": 0.5, "pair_kpa": 100.0, "co2_ppm": 400.0}, index=t)
+    r = resample(df, "30min", "mean")
+    assert list(r.index) == list(pd.date_range("2016-04-20 09:30", "2016-04-20 10:30", freq="30min", tz="UTC"))
+    np.testing.assert_allclose(r["ghi_w_m2"], [30.0, 60.0, 90.0], rtol=0, atol=1e-9)  # the ramp at each stamp
+    (drop,) = [q for q in r.attrs["qc"] if q["kind"] == "dropped"]
+    assert drop["count"] == 2 and "09:00" in drop["detail"] and "11:00" in drop["detail"]
+    h = resample(df, "1h", "mean")
+    assert list(h.index) == [pd.Timestamp("2016-04-20 10:00", tz="UTC")] and h["ghi_w_m2"].iloc[0] == 60.0
+    with pytest.raises(InputError, match=r"parameter 'freq'.*covers no 1h step whole"):
+        resample(df.iloc[:3], "1h", "mean")
+    with pytest.raises(InputError, match="cover only"):  # a window whose first step is partial
+        window(df, "2016-04-20 09:00", 1, "30min", how="mean", tz="UTC")
+
+
 @pytest.mark.parametrize(("source", "freq"), [("10min", "1h"), ("30min", "1h"), ("10min", "20min")])
 def test_mean_of_instants_over_an_even_number_of_rows_is_centred_on_its_stamp(source, freq):
     """With an even number of source rows per step, one row lies on each bound of a centred window:

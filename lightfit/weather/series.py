@@ -471,7 +471,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
 
     A step finer than the source's is refused for both (``"mean"`` would leave empty windows). A mean
     of start- or end-stamped means needs rows every interval and a step that is a multiple of it;
-    new steps the series covers only in part (at its ends) are dropped and reported in ``qc``.
+    new steps the series covers only in part (at its ends; for instants, each row standing for its
+    spacing around it) are dropped and reported in ``qc``, and a series covering no step whole is refused.
     Solar geometry is recomputed at the new timestamps by :func:`lightfit.weather.add_solar`
     (with the input's split model) when the input had it; averaging sun angles would be wrong.
     """
@@ -563,7 +564,35 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             total = halves[0].sum().add(halves[1].sum(), fill_value=0.0)
             count = halves[0].count().add(halves[1].count(), fill_value=0)
             out = total / count.where(count > 0)
+            # A window the series covers only in part (at its ends: a 30-min mean of 10-min instants
+            # stamped at the first row has the rows 0 and +10 min only) is no mean over the step: each
+            # row stands for its own spacing around it, so the series covers its first row − spacing/2 …
+            # its last + spacing/2, and a window reaching past that is dropped, as for means of means.
+            if len(gaps):
+                half = gaps.median() / 2
+                whole = (out.index - step / 2 >= df.index[0] - half) & (out.index + step / 2 <= df.index[-1] + half)
+                if not whole.all():
+                    dropped.append(
+                        {
+                            "kind": "dropped",
+                            "column": None,
+                            "count": int((~whole).sum()),
+                            "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers "
+                            "only in part (a mean needs data over its whole window): "
+                            + ", ".join(_in_file_zone(df.attrs)(t) for t in out.index[~whole])
+                            + f" ({_zone_said(df.attrs)}, stamped at each mean's centre)",
+                        }
+                    )
+                    out = out[whole]
             stamps = Timestamps("center", step)
+        if dropped and not len(out):  # every step reaches past the series' ends: no mean is whole
+            raise InputError(
+                f"cannot average at {freq}: the series ({_in_file_zone(df.attrs)(df.index[0])} … "
+                f"{_in_file_zone(df.attrs)(df.index[-1])}, {_zone_said(df.attrs)}) covers no {freq} step whole",
+                file=df.attrs.get("source"),
+                parameter="freq",
+                expected=f"a series spanning at least one whole {freq} step, or a shorter step",
+            )
         missing = out.index[out.isna().all(axis=1)]
         if len(missing):
             raise InputError(
