@@ -53,6 +53,27 @@ def test_sun_of_a_10_min_mean_is_its_intervals_mean_sun():
     assert abs(math.sin(math.radians(_noaa(t0))) / math.sin(math.radians(beta0)) - 1) > 0.08
 
 
+def test_sun_elevation_is_described_as_what_it_is(tmp_path):
+    """sun_elevation_deg is the apparent (refracted) elevation at the centre of each stamp's interval:
+    NOAA's apparent elevation 5 min before the end-stamps of 10-min means (0.8° below the stamp's
+    own at 9.4° in the morning; the refraction there lifts it 0.09° above the true one). Its
+    descriptions said "apparent solar elevation" (lightfit's CSV) and "solar elevation angle"
+    (results.nc's long_name), neither saying when."""
+    from lightfit.model.schema import VARIABLES
+    from lightfit.weather.series import COLUMNS
+
+    df = add_solar(read_tereno(FIXTURE))
+    t = df.index[(df["sun_elevation_deg"] > 8) & (df["sun_elevation_deg"] < 12)][0]
+    assert df.loc[t, "sun_elevation_deg"] == pytest.approx(_noaa(t - pd.Timedelta("5min")), abs=0.05)
+    assert _noaa(t) - df.loc[t, "sun_elevation_deg"] > 0.4  # not the stamp's sun
+    for said in (VARIABLES["sun_elevation_deg"].long_name, COLUMNS["sun_elevation_deg"]):
+        assert "apparent" in said and "refraction" in said and "centre of" in said and "interval" in said, said
+    assert "same instant as sun_elevation_deg" in VARIABLES["sun_azimuth_deg"].long_name
+    csv = write_lightfit_csv(df, tmp_path / "w.csv", {"provenance": "synthetic"})
+    (columns,) = [x for x in csv.read_text(encoding="utf-8").splitlines() if x.startswith("# columns:")]
+    assert "sun_elevation_deg: apparent (refraction-corrected) solar elevation at the centre of" in columns
+
+
 def test_instants_keep_the_sun_at_their_stamps():
     """The bundled reconstruction is computed at instants: its sun is at its stamps."""
     df = add_solar(read_source("2016-04-20"))

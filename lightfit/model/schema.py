@@ -322,8 +322,17 @@ VARIABLES: dict[str, Variable] = {
     "co2_ppm": Variable(T, "ppm", "air CO2 mole fraction (taken as CO2 at the leaf surface)"),
     "rh": Variable(T, "1", "relative humidity (fraction, 0-1)"),
     "pair_kpa": Variable(T, "kPa", "air pressure"),
-    "sun_elevation_deg": Variable(T, "degree", "solar elevation angle"),
-    "sun_azimuth_deg": Variable(T, "degree", "solar azimuth angle (clockwise from north)"),
+    "sun_elevation_deg": Variable(
+        T,
+        "degree",
+        "apparent (refraction-corrected) solar elevation angle at the centre of each step's interval",
+        "NREL SPA (pvlib) with refraction for the site altitude's standard pressure and 12 degC; at the step's "
+        "stamp for instants, else at the centre of the interval it labels (weather_timestamps, time_bnds); "
+        "the true (geometric) elevation is lower by the refraction, about 0.5 degree at the horizon",
+    ),
+    "sun_azimuth_deg": Variable(
+        T, "degree", "solar azimuth angle (clockwise from north) at the same instant as sun_elevation_deg"
+    ),
     # -- per time: observations added by the replication (lightfit.inference.observations) ----
     "obs_plant_par_umol_m2_s": Variable(T, UMOL, "observed mean PAR at the plants", _PLANT_PAR),
     "obs_plant_par_sd_umol_m2_s": Variable(T, UMOL, "SD stated with the observed PAR at the plants"),

@@ -34,8 +34,9 @@ COLUMNS: dict[str, str] = {
     "co2_ppm": "CO2 mole fraction in air, ppm (µmol mol⁻¹)",
     "dni_w_m2": "direct normal irradiance, W m⁻² (derived)",
     "dhi_w_m2": "diffuse horizontal irradiance, W m⁻² (derived)",
-    "sun_elevation_deg": "apparent solar elevation, degrees (derived)",
-    "sun_azimuth_deg": "solar azimuth, degrees clockwise from north (derived)",
+    "sun_elevation_deg": "apparent (refraction-corrected) solar elevation at the centre of the interval each "
+    "stamp labels (at the stamp for instants), degrees (derived)",
+    "sun_azimuth_deg": "solar azimuth at the same instant as sun_elevation_deg, degrees clockwise from north (derived)",
 }
 
 

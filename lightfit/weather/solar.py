@@ -70,7 +70,8 @@ def solar_position(times: pd.DatetimeIndex, site: Site = SELHAUSEN) -> pd.DataFr
     unrefracted) elevation ``sun_true_elevation_deg`` that decomposition models take
     (:func:`split_direct_diffuse`).
 
-    Uses pvlib's NREL SPA (Reda & Andreas 2004, Solar Energy 76, 577), with refraction.
+    Uses pvlib's NREL SPA (Reda & Andreas 2004, Solar Energy 76, 577), with refraction for the
+    standard pressure at the site's altitude and 12 °C (pvlib's default; not the series' own air).
     Azimuth is clockwise from north.
     """
     if times.tz is None:
