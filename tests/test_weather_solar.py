@@ -397,3 +397,36 @@ def test_bolands_fit_follows_the_averaging_interval_not_the_step():
         kt = out.loc[lit, "ghi_w_m2"].to_numpy() / (e0 * np.sin(np.radians(sp["sun_true_elevation_deg"].to_numpy())))
         got = (out.loc[lit, "dhi_w_m2"] / out.loc[lit, "ghi_w_m2"]).to_numpy()
         np.testing.assert_allclose(got, 1.0 / (1.0 + np.exp(a * (kt - b))), rtol=1e-9, err_msg=how)
+
+
+def test_par_only_series_in_w_m2_is_cautioned_not_read_silently_as_overcast(tmp_path):
+    """A lightfit CSV with PAR only: global radiation is estimated as PAR / 2.285 µmol J⁻¹ and split by
+    Erbs from that. PAR written in W m⁻² (the bundled clear 20 April ÷ 4.57) is then a sky at ≈ 20 % of
+    clear sky, split as overcast (noon diffuse share ≈ 0.99 where the same day in µmol gives ≈ 0.27), and
+    nothing said so. It is cautioned now, naming the column; the same day in µmol and the bundled real
+    overcast day (PAR only, CPlantBox file on 2016-04-27, at most 67 % of clear sky) are not."""
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+    from lightfit.weather import read_lightfit_csv, read_source, write_lightfit_csv
+
+    day = read_source("2016-04-20")[["par_umol_m2_s", "tair_c", "rh", "pair_kpa", "co2_ppm"]]
+    noon = pd.Timestamp("2016-04-20 11:30", tz="UTC")
+    for name, scale, cautioned in (("umol", 1.0, False), ("w", 1 / 4.57, True)):
+        w = day.copy()
+        w["par_umol_m2_s"] *= scale
+        w.attrs = {}
+        path = write_lightfit_csv(w, tmp_path / f"{name}.csv", {"provenance": "synthetic"})
+        s = add_solar(read_lightfit_csv(path))
+        kd = s.loc[noon, "dhi_w_m2"] / s.loc[noon, "ghi_w_m2"]
+        assert (kd > 0.9) if cautioned else (kd < 0.35), (name, kd)
+        cautions = [q for q in s.attrs["qc"] if q["kind"] == "caution"]
+        assert bool(cautions) == cautioned, cautions
+        if cautioned:
+            assert cautions[0]["column"] == "par_umol_m2_s" and "PAR in W m⁻²" in cautions[0]["detail"]
+            # kept once through resampling, and printed by `lightfit weather show`
+            assert [q["kind"] for q in resample(s, "30min", "mean").attrs["qc"]].count("caution") == 1
+            out = CliRunner().invoke(app, ["weather", "show", str(path)], terminal_width=400)
+            assert out.exit_code == 0 and "caution par_umol_m2_s: PAR reaches at most 20% of clear-sky" in out.output
+    real = add_solar(read_source("selhausen-cplantbox-day", date="2016-04-27"))
+    assert not [q for q in real.attrs["qc"] if q["kind"] == "caution"]

@@ -586,6 +586,8 @@ def weather_report(df) -> None:
             if q["kind"] in ("checked", "sun at centres")
             else "[cyan]split[/]"
             if q["kind"] == "split"
+            else "[yellow]caution[/]"
+            if q["kind"] == "caution"
             else f"[yellow]repair[/] {q['kind']}:"
         )
         col = q.get("column")  # the file's own name of the column repaired, where one was

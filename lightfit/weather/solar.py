@@ -460,6 +460,43 @@ def check_radiation_scale(
             )
 
 
+#: A series with PAR only (global radiation estimated from it) whose PAR stays below this share of
+#: clear-sky PAR at every step with the sun above :data:`CLEAR_SKY_MIN_ELEVATION_DEG`, and which × 4.57
+#: would fit its sun, is cautioned: PAR in W m⁻² under the µmol column reads as ≈ 0.2 of clear sky on a
+#: clear day (0.31 under broken-cloud enhancement), which the split turns into an overcast (20 April
+#: 2016: noon diffuse share 0.99 against 0.27). Not refused: a thick overcast day in µmol m⁻² s⁻¹ stays
+#: below it too (10–20 % of clear sky), so only a global radiation or diffuse column tells them apart.
+PAR_ONLY_DIM_SHARE = 0.35
+
+
+def par_only_caution(df: pd.DataFrame, sun_elevation_deg: pd.Series) -> dict | None:
+    """The ``qc`` caution for a PAR-only series that may hold PAR in W m⁻² (:data:`PAR_ONLY_DIM_SHARE`),
+    else ``None``."""
+    el = np.asarray(sun_elevation_deg, dtype=np.float64)
+    high = el > CLEAR_SKY_MIN_ELEVATION_DEG
+    if not high.any():
+        return None
+    par = np.asarray(df["par_umol_m2_s"], dtype=np.float64)
+    clear_par = par_from_ghi(clear_sky_ghi_w_m2(el))
+    share = float(np.nanmax(par[high] / clear_par[high]))
+    as_w = par * UMOL_PER_JOULE_PAR  # the series read as W m⁻² of PAR
+    fits = (
+        as_w > PAR_PER_GHI_UMOL_J * (LIGHT_MAX_CLEAR_SKY_FACTOR * clear_sky_ghi_w_m2(el) + LIGHT_MARGIN_W_M2)
+    ).sum() < 2
+    if share >= PAR_ONLY_DIM_SHARE or not fits:
+        return None
+    return {
+        "kind": "caution",
+        "column": "par_umol_m2_s",
+        "count": int(high.sum()),
+        "detail": f"PAR reaches at most {share:.0%} of clear-sky PAR over the {int(high.sum())} steps with the sun "
+        f"above {CLEAR_SKY_MIN_ELEVATION_DEG:g}°, and the series has no global or diffuse radiation: the split "
+        "reads it as overcast throughout. If the column holds PAR in W m⁻² (× "
+        f"{UMOL_PER_JOULE_PAR:g} µmol J⁻¹ it would fit a clearer sky), convert it to µmol m⁻² s⁻¹; a "
+        "ghi_w_m2 or diffuse_w_m2 column from the station would settle it",
+    }
+
+
 #: Light a sun can give at most: clear sky (Haurwitz) × this factor + :data:`LIGHT_MARGIN_W_M2`. Broken
 #: clouds lift 10-minute global radiation to 1.3–1.4 × clear sky at most (cloud enhancement); the
 #: margin covers twilight and sensor offsets near sunrise and sunset.
@@ -701,6 +738,13 @@ def add_solar(df: pd.DataFrame, site: Site | None = None, split_model: str | Non
     out["sun_azimuth_deg"] = sp["sun_azimuth_deg"].to_numpy()
     check_radiation_scale(out, out["sun_elevation_deg"], out.attrs.get("source"), measured)
     check_light_fits_sun(out, out["sun_elevation_deg"], out.attrs.get("source"), measured, site or SELHAUSEN)
+    qc = [q for q in qc if q["kind"] != "caution" or q["column"] != "par_umol_m2_s"]  # a resampled series' own
+    # PAR only: global radiation estimated here, or by the add_solar of a series resampled since
+    par_only = "ghi_w_m2" not in measured or any(q["kind"] == "derived" and q["column"] == "ghi_w_m2" for q in qc)
+    if par_only and not any(c in out.columns for c in DIFFUSE_COLUMNS):
+        caution = par_only_caution(out, out["sun_elevation_deg"])
+        if caution is not None:
+            qc.append(caution)
     if stamps.centre_offset != pd.Timedelta(0):
         qc = [q for q in qc if q["kind"] != "sun at centres"]  # a resampled series replaces its source's
         qc.append(
