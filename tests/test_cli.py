@@ -2736,3 +2736,20 @@ def test_field_segments_csv_says_how_many_plants_it_measures(tmp_path, monkeypat
     lai = seg.loc[seg.measured, "blade_area_m2"].sum() / (4 * 0.125 * 0.03)
     line = next(ln for ln in r.stdout.splitlines() if "leaf area index" in ln)
     assert f"{lai:.2f}" in line
+
+
+def test_weather_show_spans_without_a_unit_are_refused_and_iso_ones_resample():
+    """pandas reads a number without a unit as nanoseconds: --max-gap 10 (meant as 10 min) turned
+    interpolation off unsaid, --resample 7 ended in a pandas ValueError traceback; both are refused
+    naming the option. A span pandas' Timedelta reads but its offsets do not ('1 hour', ISO 8601 'PT1H')
+    was a traceback too; it resamples now, to hourly steps 1 h apart."""
+    for option, value in (("--max-gap", "10"), ("--resample", "7")):
+        out = runner.invoke(app, ["weather", "show", "2016-04-20", option, value])
+        assert out.exit_code == 2, (option, out.output)
+        assert f"option {option}" in out.output and "with its unit" in out.output, out.output
+    from lightfit.weather import read_source, resample
+
+    day = read_source("2016-04-20")
+    for freq in ("1 hour", "PT1H"):
+        r = resample(day, freq, "mean")
+        assert (r.index[1:] - r.index[:-1] == pd.Timedelta(hours=1)).all() and len(r) == 23

@@ -64,9 +64,11 @@ def show(
         help="Where a TERENO or CPlantBox file stamps each mean in its interval: end (the default), start "
         "or center; the sun is taken at the interval's centre. --csv records it for every later command.",
     ),
-    max_gap: str = typer.Option("30min", help="Longest gap to interpolate."),
+    max_gap: str = typer.Option(
+        "30min", help="Longest gap to interpolate, a time span with its unit (e.g. 30min, 2h; 0min: none)."
+    ),
     split: str = typer.Option(None, help=SPLIT_HELP),
-    resample: str = typer.Option(None, help="New time step, e.g. 30min."),
+    resample: str = typer.Option(None, help="New time step, a time span with its unit, e.g. 30min or 1h."),
     how: str = typer.Option(
         None,
         help="Resampling (with --resample): mean (whole intervals; a centred window for instants; the default) or "

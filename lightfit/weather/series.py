@@ -111,16 +111,24 @@ def _line_of(lines: pd.Series, ts) -> int | None:
 
 def duration(value, name: str, *, zero: bool = False) -> pd.Timedelta:
     """A time span such as ``"30min"`` or ``"1h"`` (a pandas Timedelta), > 0 (≥ 0 with ``zero``),
-    or :class:`InputError` naming ``name``."""
+    or :class:`InputError` naming ``name``. A span under a second other than 0 is refused: pandas reads
+    a number without a unit (``--max-gap 10``) as nanoseconds, which turned interpolation off unsaid
+    and made ``--resample 7`` a traceback."""
     try:
         d = pd.Timedelta(value)
     except (ValueError, TypeError):
         d = None
-    if d is None or pd.isna(d) or d < pd.Timedelta(0) or (d == pd.Timedelta(0) and not zero):
+    if (
+        d is None
+        or pd.isna(d)
+        or d < pd.Timedelta(0)
+        or (d == pd.Timedelta(0) and not zero)
+        or pd.Timedelta(0) < d < pd.Timedelta(seconds=1)
+    ):
         raise InputError(
             f"{name}={value!r}",
             parameter=name,
-            expected="a time span such as 30min or 1h" + (", ≥ 0" if zero else ", > 0"),
+            expected="a time span with its unit, such as 30min or 1h" + (", ≥ 0" if zero else ", > 0"),
         )
     return d
 
@@ -536,7 +544,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
                     "or sampling (how='sample', --how sample)",
                 )
             side = "right" if source.label == "end" else "left"
-            bins = df[measured].resample(freq, closed=side, label=side, origin=edge)
+            bins = df[measured].resample(step, closed=side, label=side, origin=edge)
             out, n = bins.mean(), bins.size()
             whole = n == step // source.interval
             if not whole.all():  # the series' first and last new steps may reach past its ends
@@ -561,7 +569,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             # counts half in each (the trapezoid rule): a half-open window took it whole into the later
             # step only, so that an hourly mean of 10-min instants was centred 5 min before its stamp
             # (15 min for 30-min instants), its sun taken at the stamp.
-            halves = [shifted.resample(freq, origin=start, closed=side, label="left") for side in ("left", "right")]
+            halves = [shifted.resample(step, origin=start, closed=side, label="left") for side in ("left", "right")]
             total = halves[0].sum().add(halves[1].sum(), fill_value=0.0)
             count = halves[0].count().add(halves[1].count(), fill_value=0)
             out = total / count.where(count > 0)
