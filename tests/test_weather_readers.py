@@ -579,3 +579,28 @@ def test_a_pressure_column_in_pascal_reads_as_kilopascal(tmp_path):
     a, b = read_weather(FIXTURE), read_weather(pa)
     np.testing.assert_allclose(b["pair_kpa"], a["pair_kpa"], rtol=1e-12)
     assert 95 < b["pair_kpa"].median() < 105
+
+
+def test_tereno_qf_flag_column_is_applied_not_ignored(tmp_path):
+    """A flag column named '<column>_QF' (the reader's flag pattern names QF beside QualityFlag and
+    Flag) was listed as 'not used' and its 'bad' flags ignored, the flagged value read as good. Its
+    'bad' value is now missing, interpolated between its neighbours (10-min rows: their mean) and
+    counted naming the column, as with 'QualityFlag'."""
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines()
+    hdr = next(i for i, x in enumerate(lines) if x.startswith("Timestamp"))
+    assert lines[hdr].count("RadiationGlobal_Avg10min QualityFlag") == 1
+    lines[hdr] = lines[hdr].replace("RadiationGlobal_Avg10min QualityFlag", "RadiationGlobal_Avg10min_QF")
+    i = hdr + 40  # a daylight row (2016-04-20 10:30 UTC+1)
+    cells = lines[i].split(",")
+    cells[1], cells[2] = "999.0", "bad"  # a spike the logger flagged
+    lines[i] = ",".join(cells)
+    before, after = (float(lines[j].split(",")[1]) for j in (i - 1, i + 1))
+    path = tmp_path / "qf.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    df = read_tereno(path)
+    assert "RadiationGlobal_Avg10min_QF" not in df.attrs["unused_columns"]
+    t = pd.Timestamp(cells[0], tz="Etc/GMT-1").tz_convert("UTC")
+    assert df.loc[t, "ghi_w_m2"] == pytest.approx((before + after) / 2)
+    (flagged,) = [q for q in df.attrs["qc"] if q["kind"] == "flagged bad"]
+    assert flagged["column"] == "ghi_w_m2" and "'RadiationGlobal_Avg10min_QF'" in flagged["detail"]
+    assert f"line {i + 1}" in flagged["detail"]

@@ -112,6 +112,14 @@ _TIME_NAMES = re.compile(r"^(timestamp|time|date|datetime|date_time|zeitstempel)
 _COL = re.compile(r"^\s*(?P<name>[^\[]+?)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 
 
+def _is_flag_column(name: str) -> bool:
+    """A quality-flag column: its name says quality or flag, or ends in a separate ``QF``
+    (``RadiationGlobal_Avg10min_QF``), which :data:`_FLAG_COL` reads. The QF suffix was matched
+    there but not here, so that such a column's ``bad`` flags were ignored (the column listed as
+    not used) and the values it flagged read as good."""
+    return bool(re.search(r"(qual|flag)", name, re.IGNORECASE) or re.search(r"(^|[\s_])qfs?$", name, re.IGNORECASE))
+
+
 def _split_header(name: str) -> tuple[str, str | None]:
     m = _COL.match(name)
     return (m.group("name"), m.group("unit")) if m else (name.strip(), None)
@@ -130,7 +138,7 @@ def _check_near_misses(table: pd.DataFrame, used: dict[str, str], time_col: str,
     import difflib
 
     for c in table.columns:
-        if c == time_col or c in used.values() or re.search(r"(qual|flag)", c, re.IGNORECASE):
+        if c == time_col or c in used.values() or _is_flag_column(c):
             continue
         name = _split_header(c)[0]
         for qty, (pattern, preferred, _) in TERENO_QUANTITIES.items():
@@ -557,7 +565,7 @@ def _quality_flags(table: pd.DataFrame, used: dict[str, str]) -> dict[str, str]:
     out = {}
     for c in table.columns:
         m = _FLAG_COL.match(c)
-        if not m or not re.search(r"(qual|flag)", c, re.IGNORECASE):
+        if not m or not _is_flag_column(c):
             continue
         base = m["base"].strip()
         for qty, src in used.items():
@@ -711,11 +719,7 @@ def read_tereno(
                 )
             src = columns[qty]
         else:
-            cands = [
-                c
-                for c in table.columns
-                if re.search(pattern, _split_header(c)[0]) and not re.search(r"(qual|flag)", c, re.IGNORECASE)
-            ]
+            cands = [c for c in table.columns if re.search(pattern, _split_header(c)[0]) and not _is_flag_column(c)]
             if not cands:
                 continue
             src = next((c for c in cands if _split_header(c)[0] == preferred), cands[0])
