@@ -604,3 +604,20 @@ def test_tereno_qf_flag_column_is_applied_not_ignored(tmp_path):
     (flagged,) = [q for q in df.attrs["qc"] if q["kind"] == "flagged bad"]
     assert flagged["column"] == "ghi_w_m2" and "'RadiationGlobal_Avg10min_QF'" in flagged["detail"]
     assert f"line {i + 1}" in flagged["detail"]
+
+
+def test_tereno_missing_last_co2_mean_is_a_gap_not_the_mean_before(tmp_path):
+    """The 30-min CO2 of end-stamped means covers the 10-min rows of its own interval; only rows past
+    the file's last 30-min stamp keep that stamp's mean. With the last mean's cell empty (19:30 UTC+1),
+    the rows 19:10–19:50 took the 19:00 mean, as if it were theirs; they have no CO2 of their own now
+    and are cut at the series' end (the 'trimmed' repair names them), as any end without a value."""
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines()
+    last = max(i for i, x in enumerate(lines) if x[:1].isdigit() and x.split(",")[-1])
+    assert lines[last].startswith("2016-04-20 19:30:00")
+    lines[last] = lines[last].rsplit(",", 1)[0] + ","
+    path = tmp_path / "co2.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    df = read_tereno(path)
+    assert df.index[-1] == pd.Timestamp("2016-04-20 19:00", tz="Etc/GMT-1")
+    (cut,) = [q for q in df.attrs["qc"] if q["kind"] == "trimmed"]
+    assert "5 row(s) 2016-04-20 19:10 … 2016-04-20 19:50" in cut["detail"] and "CO2" in cut["detail"]

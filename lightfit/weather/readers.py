@@ -800,8 +800,12 @@ def read_tereno(
         co2 = out["co2_ppm"]
         if time_label == "end":
             held = co2.bfill(limit=2)
-            last = co2.last_valid_index()
-            if last is not None:  # only the rows past the last mean keep it
+            first = co2.first_valid_index()
+            if first is not None:  # only the rows past the file's last 30-min stamp keep its mean
+                # (a last mean missing from its stamp's row is a gap, cut or refused as any other:
+                # its interval's rows took the mean before, as if it were the interval after it)
+                stamps = co2.index[(co2.index - first) % pd.Timedelta("30min") == pd.Timedelta(0)]
+                last = stamps[-1]
                 held[held.index > last] = co2[last]
         elif time_label == "start":
             held = co2.ffill(limit=2)
