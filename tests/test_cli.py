@@ -307,6 +307,11 @@ def test_weather_show_bad_input_exits_2_with_message(tmp_path):
     # --how was checked only with --resample: a misspelled one, or one without --resample, passed unsaid
     assert_user_error(runner.invoke(app, ["weather", "show", str(FIXTURE), "--how", "foo"]), "--how", "'foo'", "sample")
     assert_user_error(runner.invoke(app, ["weather", "show", str(FIXTURE), "--how", "sample"]), "without --resample")
+    # a folder as --csv or --plot failed after the table, naming a temporary file beside it
+    for option in ("--csv", "--plot"):
+        r = runner.invoke(app, ["weather", "show", str(FIXTURE), option, str(tmp_path)])
+        assert_user_error(r, option.lstrip("-"), f"{tmp_path} is a folder")
+        assert "time" not in r.stdout  # refused before the series' table
 
 
 def test_replicate_interrupted_leaves_the_last_run_s_files_whole(tmp_path, monkeypatch):

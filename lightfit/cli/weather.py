@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from lightfit.cli.common import LightfitCommand, console, weather_report, weather_table
+from lightfit.cli.common import LightfitCommand, console, output_file, weather_report, weather_table
 from lightfit.cli.options import SPLIT_HELP, ModelOptions, option, site_of
 
 app = typer.Typer(
@@ -95,8 +95,11 @@ def show(
             file=weather.source_path(source),
             expected="no --date (it places an undated CPlantBox day only)",
         )
+    # before the series is read: a folder given as --csv failed after the table, naming a temporary file
     if plot:
-        figure_format(plot)
+        figure_format(output_file(plot, "plot"))
+    if csv:
+        output_file(csv, "csv")
     if how is not None:  # it was checked only with --resample: --how foo alone passed unsaid
         weather.series.check_how(how)
         if not resample:
