@@ -67,10 +67,16 @@ a message naming the known columns.
 Area of canopy An. A chamber's canopy An is per ground area, which a file means by default; a
 ``# canopy_an_per: leaf`` line says its values are per one-sided leaf area. A model run whose
 ``an_per`` is the other area is refused (:func:`check_an_area`): at LAI 4 the two differ 4×.
+
+Other metadata keys (``# site: …``, ``# source: …``) are free and not read, unless one resembles a
+key the reader knows (:data:`METADATA_KEYS`, e.g. ``# an_per: leaf`` or ``# timezone: UTC``): that
+is refused naming the key it resembles (:func:`check_metadata_keys`), as a typo would otherwise
+change the data's meaning unsaid.
 """
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -254,6 +260,12 @@ SD_RANGE = (1e-100, 1e100)
 #: Metadata line naming the area canopy An is per (:func:`check_an_area`), and its values.
 AN_PER_KEY = "canopy_an_per"
 AN_AREAS = CHOICES["an_per"]
+#: The metadata keys :func:`read_observations` reads; any other key is free (not read).
+METADATA_KEYS = ("provenance", "time_zone", "time_label", "averaging_interval", AN_PER_KEY)
+#: difflib similarity from which a free metadata key reads as a misspelling of a known one
+#: (:func:`check_metadata_keys`): ``an_per`` 0.63, ``timezone`` 0.94 against ``title`` 0.53,
+#: ``station`` 0.50, ``source`` 0.38.
+MISSPELT_KEY_RATIO = 0.6
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
@@ -325,6 +337,27 @@ def reading_rules(s: Series) -> list[tuple[str, object, str, object]]:
     return rules
 
 
+def check_metadata_keys(meta: dict, file: str | Path | None = None) -> None:
+    """:class:`InputError` naming ``file`` and the key where a metadata key of an observations file
+    is not one of :data:`METADATA_KEYS` but resembles one (difflib ratio ≥
+    :data:`MISSPELT_KEY_RATIO`, case, spaces and hyphens aside): ``# an_per: leaf`` for
+    ``# canopy_an_per: leaf`` was ignored as a free key, and the readings read per ground area."""
+    for key in meta:
+        if key in METADATA_KEYS:
+            continue
+        plain = key.strip().lower().replace(" ", "_").replace("-", "_")
+        close = difflib.get_close_matches(plain, METADATA_KEYS, n=1, cutoff=MISSPELT_KEY_RATIO)
+        if close:
+            raise InputError(
+                f"metadata key {key!r} resembles {close[0]!r}, which the reader knows, and would be ignored as "
+                "a free key",
+                file=file,
+                column=key,
+                expected=f"'# {close[0]}: …' if that is meant, else a free key that resembles none of "
+                + ", ".join(METADATA_KEYS),
+            )
+
+
 def check_sds(obs: pd.DataFrame) -> None:
     """Observations built in code (not read from a file, which :func:`read_observations` checks
     line by line): every present value finite, then :func:`reading_rules` (an SD of 0 makes the
@@ -359,6 +392,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     file's ``# time_label`` says otherwise)."""
     path = Path(path)
     meta, header_line, df = read_csv_with_metadata(path, "an observations CSV")
+    check_metadata_keys(meta, path)
     if "time" not in df.columns:
         raise InputError("no 'time' column", file=path, row=header_line, expected="columns time, " + ", ".join(COLUMNS))
     old = [c for c in RENAMED if c in df.columns]
@@ -521,6 +555,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     one that contradicts its attrs is refused, naming the key."""
     if metadata.get("provenance") not in PROVENANCES:
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
+    check_metadata_keys(metadata)  # a key its reader would refuse
     path = Path(path)
     stamps, area = timestamps.of(df), an_area(df)
     # What metadata states of the rows is written, not overwritten by the attrs' defaults (a stated

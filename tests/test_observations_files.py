@@ -1,0 +1,48 @@
+"""Observation files: metadata keys and what write_observations writes (reviews)."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from lightfit.errors import InputError
+from lightfit.inference.observations import read_observations, write_observations
+
+BODY = "time,canopy_an_umol_m2_s,canopy_an_sd_umol_m2_s\n2016-04-20T10:00:00Z,2.5,0.5\n"
+
+
+@pytest.mark.parametrize(
+    ("key", "meant"),
+    [
+        ("an_per", "canopy_an_per"),
+        ("timezone", "time_zone"),
+        ("Time_Label", "time_label"),
+        ("canopy-an-per", "canopy_an_per"),
+    ],
+)
+def test_a_misspelt_metadata_key_is_refused_naming_the_key_it_resembles(tmp_path, key, meant):
+    """`# an_per: leaf` for `# canopy_an_per: leaf` was read as a free key and ignored: the file's
+    canopy An then counted per ground area, LAI × off, unsaid. Refused now, naming the file, the key
+    and the known key it resembles; free keys unlike any known one are still read (and ignored)."""
+    path = tmp_path / "obs.csv"
+    path.write_text(f"# provenance: measured\n# {key}: leaf\n" + BODY)
+    with pytest.raises(InputError) as e:
+        read_observations(path)
+    said = str(e.value)
+    assert "obs.csv" in said and repr(key) in said and repr(meant) in said and e.value.column == key
+    free = tmp_path / "free.csv"
+    free.write_text("# provenance: measured\n# site: Jülich\n# title: chamber 3\n# source: logger\n" + BODY)
+    obs = read_observations(free)
+    assert obs.attrs["canopy_an_per"] == "ground" and obs.attrs["metadata"]["site"] == "Jülich"
+
+
+def test_write_observations_refuses_a_key_its_reader_would_refuse(tmp_path):
+    """What write_observations writes, read_observations reads: a misspelt key in ``metadata`` is
+    refused at the writing, not at the next read."""
+    df = pd.DataFrame(
+        {"canopy_an_umol_m2_s": [2.5], "canopy_an_sd_umol_m2_s": [0.5]},
+        index=pd.DatetimeIndex(["2016-04-20T10:00:00Z"]),
+    )
+    with pytest.raises(InputError, match="'an_per' resembles 'canopy_an_per'"):
+        write_observations(df, tmp_path / "o.csv", {"provenance": "synthetic", "an_per": "leaf"})
+    assert not (tmp_path / "o.csv").exists()
