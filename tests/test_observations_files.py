@@ -46,3 +46,21 @@ def test_write_observations_refuses_a_key_its_reader_would_refuse(tmp_path):
     with pytest.raises(InputError, match="'an_per' resembles 'canopy_an_per'"):
         write_observations(df, tmp_path / "o.csv", {"provenance": "synthetic", "an_per": "leaf"})
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_write_observations_without_an_sd_column_names_it(tmp_path):
+    """The file format pairs every value column with its SD column (the reader refuses one alone);
+    a table with canopy An but no SD column raised a bare KeyError listing both columns. Refused now
+    naming the SD column; a value without an SD in a present column is refused as the reader would."""
+    t = pd.DatetimeIndex(["2016-04-20T10:00:00Z", "2016-04-20T10:30:00Z"])
+    df = pd.DataFrame({"canopy_an_umol_m2_s": [2.5, 3.0]}, index=t)
+    with pytest.raises(InputError, match="no SD column canopy_an_sd_umol_m2_s") as e:
+        write_observations(df, tmp_path / "o.csv", {"provenance": "synthetic"})
+    assert e.value.column == "canopy_an_sd_umol_m2_s"
+    df["canopy_an_sd_umol_m2_s"] = [0.5, float("nan")]
+    with pytest.raises(InputError, match="canopy_an_sd_umol_m2_s"):
+        write_observations(df, tmp_path / "o.csv", {"provenance": "synthetic"})
+    assert not (tmp_path / "o.csv").exists()
+    df["canopy_an_sd_umol_m2_s"] = [0.5, 0.25]
+    back = read_observations(write_observations(df, tmp_path / "o.csv", {"provenance": "synthetic"}))
+    assert back["canopy_an_sd_umol_m2_s"].tolist() == [0.5, 0.25]

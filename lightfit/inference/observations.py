@@ -581,6 +581,16 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
                 column=AN_PER_KEY,
                 expected="metadata that agrees with the table's area, or leave it to the attrs",
             )
+    # The reader needs every value column's SD column and an SD > 0 at every value: refused here,
+    # naming the column (a value column without its SD raised a bare KeyError).
+    no_sd = [s.sd for s in SERIES if s.value in df.columns and s.sd not in df.columns]
+    if no_sd:
+        raise InputError(
+            f"no SD column {', '.join(no_sd)} beside its value column",
+            column=no_sd[0],
+            expected="each value column with its measurement SD column (same unit): the file format needs both",
+        )
+    check_sds(df)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = df[[c for s in SERIES if s.value in df.columns for c in (s.value, s.sd)]].copy()
     utc = df.index.tz_convert("UTC")
