@@ -52,7 +52,9 @@ def posterior(
     priors: str = typer.Option("informed", help=PRIORS_HELP),
     use: Use = "",
     walkers: int = typer.Option(32, help="Walkers (even, ≥ 2 × parameters and ≥ 4)."),
-    max_steps: int = typer.Option(4000, help="Maximum total steps (the stop rule usually ends earlier)."),
+    max_steps: int = typer.Option(
+        4000, help="Maximum total steps, a resumed chain's stored steps included (the stop rule usually ends earlier)."
+    ),
     target_ess: float = typer.Option(50.0, help="Stop rule: effective samples per parameter."),
     max_minutes: float = typer.Option(
         None, help="Stop sampling after this many minutes (resumable; default: no limit, the stop rule or --max-steps)."
@@ -145,6 +147,7 @@ def posterior(
         check_resumable(stored.get("config"), s, run_h5, "posterior run", w)
         A.check_likelihood(run_h5, form)
         A.check_resume(run_h5, {"seed": sampler_seed})
+        P.check_max_steps(int(stored.get("iteration", 0)), max_steps, run_h5)  # after what says it is another run
     m = run_model(s, w)  # several --date: one model per day
     # Only the steps the observations need are kept, and only those needing the light at the plants rendered.
     m, obs, n_rendered = observed_model(m, obs, uses)

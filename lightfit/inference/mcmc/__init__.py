@@ -17,7 +17,7 @@ from lightfit.inference.mcmc.priors import (
     check_sampled,
     priors_table,
 )
-from lightfit.inference.mcmc.sampler import SamplerResult, check_run_size, sample
+from lightfit.inference.mcmc.sampler import SamplerResult, check_max_steps, check_run_size, sample
 
 __all__ = [
     "LogPosterior",
@@ -30,6 +30,7 @@ __all__ = [
     "SAMPLED",
     "SamplerResult",
     "StopRule",
+    "check_max_steps",
     "check_run_size",
     "check_sampled",
     "diagnostics",

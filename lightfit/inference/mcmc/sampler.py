@@ -67,6 +67,21 @@ def check_run_size(ndim: int, nwalkers: int, max_steps: int, seed: int = 0, seed
     check_integer(seed, seed_name, 0, why="numpy's RandomState takes seeds 0 … 2³² − 1")
 
 
+def check_max_steps(stored_steps: int, max_steps: int, path: str | Path | None = None) -> None:
+    """Refuse resuming a chain of ``stored_steps`` with a ``max_steps`` below it: ``max_steps`` is
+    the total (stored steps included), so such a resume samples nothing, and the status read e.g.
+    "120/60 steps". :class:`InputError` naming ``--max-steps`` and the stored length."""
+    if max_steps < stored_steps:
+        raise InputError(
+            f"max_steps={max_steps}, below the {stored_steps} steps the stored chain already has (max_steps counts "
+            "them: nothing would be sampled)",
+            file=path,
+            parameter="max-steps",
+            expected=f"--max-steps ≥ {stored_steps} (the total; {stored_steps} re-analyses the chain as it is), or "
+            "--no-resume (resume=False) to start again",
+        )
+
+
 def sample(
     log_prob: Callable[[np.ndarray], np.ndarray],
     names: Sequence[str],
@@ -149,6 +164,7 @@ def _sample(
         state = _start(backend, path, group, log_prob, names, nwalkers, seed, initial, attrs, moves)
     else:
         _check_resumed(path, group, initial, moves)
+        check_max_steps(backend.iteration, max_steps, path)
         state = backend.get_last_sample()
     refused_stored = 0  # refusals of the steps stored so far: a resumed run goes on counting
     if stored is not None:
