@@ -337,7 +337,7 @@ def test_status_before_the_first_step_has_no_acceptance_to_judge():
     with console.capture() as cap:
         _print_status(st)
     text = " ".join(cap.get().split())
-    assert "acceptance –; τ reliable" in text and "outside" not in text, text
+    assert "acceptance (kept steps) –; τ reliable" in text and "outside" not in text, text
 
 
 def test_cautions_say_how_a_short_chain_goes_on_by_why_it_stopped():

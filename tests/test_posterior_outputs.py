@@ -46,3 +46,21 @@ def test_a_resume_with_max_steps_below_the_stored_chain_is_refused(tmp_path, mon
     said = " ".join(r.stderr.split())
     assert r.exit_code == 2 and "--max-steps ≥ 12" in said and "resuming" not in r.output, r.output + said
     assert P.load_run(path)["attrs"]["max_steps"] == 12
+
+
+def test_the_acceptance_is_over_the_kept_steps(tmp_path):
+    """The diagnostics' acceptance (summary.json's acceptance_mean, posterior-status, the caution
+    outside 0.1–0.8) counted the burn-in's steps, where τ, ESS and the samples do not. It is over the
+    kept steps now, and says so (``acceptance_steps``). By hand: a walker's move was accepted at a step
+    where its position changed (a continuous target: a proposal is never its start)."""
+    names, path = ("a", "b"), tmp_path / "run.h5"
+    far = MU + 100 * SD * np.random.default_rng(5).normal(size=(8, 2))  # spread wide: a burn-in that shows
+    res = P.sample(gauss, names, path, nwalkers=8, max_steps=80, seed=2, initial=far, progress=False)
+    chain = np.concatenate([far[None], res.chain])
+    moved = (chain[1:] != chain[:-1]).any(-1)  # (steps, walkers)
+    burn = int(0.25 * 80)  # the default stop rule's burn-in, 25 % (docs/posterior.md)
+    kept, every = moved[burn:].mean(), moved.mean()
+    assert abs(kept - every) > 0.02  # the burn-in's acceptance differs here
+    for d in (res.diagnostics, P.load_run(path)["diagnostics"]):
+        assert d["acceptance_steps"] == "kept" and d["acceptance_mean"] == pytest.approx(kept, abs=1e-12)
+        np.testing.assert_allclose(d["acceptance"], moved[burn:].mean(0))

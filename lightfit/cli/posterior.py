@@ -342,6 +342,11 @@ def posterior(
     )
 
 
+def _acceptance_over(d: dict) -> str:
+    """The steps the diagnostics' acceptance is over, for a message (``acceptance_steps``)."""
+    return {"kept": " (kept steps)", "all": " (all steps)"}.get(d.get("acceptance_steps"), "")
+
+
 def _cautions(d: dict) -> list[str]:
     """What a posterior's diagnostics ``d`` (a run's summary or its stored diagnostics) warn of:
     walkers that never moved over the kept steps, walkers that disagree (split-R̂, separate modes),
@@ -388,7 +393,8 @@ def _cautions(d: dict) -> list[str]:
     if not d.get("acceptance_ok", True):
         lo, hi = ACCEPTANCE_OK
         out.append(
-            f"acceptance {d.get('acceptance_mean', float('nan')):.2f} outside {lo:g}–{hi:g}: the walkers move badly"
+            f"acceptance{_acceptance_over(d)} {d.get('acceptance_mean', float('nan')):.2f} outside {lo:g}–{hi:g}: "
+            "the walkers move badly"
         )
     if "chi2_map" in d:  # the posterior of a model the data reject describes that model, not the leaf
         lam = (d.get("x_map") or {}).get("noise_scale")
@@ -519,7 +525,8 @@ def _print_status(st: dict) -> None:
     check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
     rhat = np.asarray(d["rhat"], float)
     console.print(
-        f"acceptance {_shown(acc, '.2f')}{flag}; τ reliable (n_kept ≥ {d['tau_multiple']:g} τ, the stop rule's length; "
+        f"acceptance{_acceptance_over(d)} {_shown(acc, '.2f')}{flag}; "
+        f"τ reliable (n_kept ≥ {d['tau_multiple']:g} τ, the stop rule's length; "
         f"emcee suggests 50): {'yes' if d['tau_reliable'] else 'no'}; "
         f"max split-R̂ {_shown(np.nanmax(rhat) if np.isfinite(rhat).any() else None, '.3f')}; {check}; "
         f"max τ {_shown(np.nanmax(d['tau']) if np.isfinite(d['tau']).any() else None, '.1f')}; "

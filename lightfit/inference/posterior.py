@@ -641,6 +641,7 @@ def run(
         "n_walkers": int(res.diagnostics["n_walkers"]),
         "stuck": res.diagnostics["stuck"],  # walkers that never moved over the kept steps
         "acceptance_mean": res.diagnostics.get("acceptance_mean"),
+        "acceptance_steps": res.diagnostics.get("acceptance_steps"),  # "kept": after the burn-in, as τ and ESS
         "acceptance_ok": res.diagnostics.get("acceptance_ok", True),
         "refused": res.refused,
         # every seed the run used: the sampler's, the renders' and the emulator designs' (None: not keyed)

@@ -182,6 +182,13 @@ class ResumableHDFBackend(emcee.backends.HDFBackend):
                 g.attrs["refused"] = int(self.refused())
             g.attrs["iteration"] = i + 1  # last: commits the step
 
+    def get_accepted_steps(self) -> np.ndarray:
+        """Each stored step's acceptance flags, (iteration, nwalkers) booleans (a run stored before
+        they were: each walker's count over the run, (nwalkers,))."""
+        with self.open() as f:
+            g = f[self.name]
+            return g["accepted_step"][: int(g.attrs["iteration"])] if "accepted_step" in g else g["accepted"][:]
+
     @property
     def random_state(self):
         with self.open() as f:
@@ -252,6 +259,8 @@ def _load_run(path: Path, group: str) -> dict:
             "chain": g["chain"][:n],
             "log_prob": g["log_prob"][:n],
             "accepted": g["accepted_step"][:n].sum(axis=0) if "accepted_step" in g else g["accepted"][:],
+            # each step's flags (runs stored before them: None, and the acceptance is over all steps)
+            "accepted_step": g["accepted_step"][:n] if "accepted_step" in g else None,
             "checks": {k: g[f"check_{k}"][:] for k in ("step", "tau", "ess") if f"check_{k}" in g},
             "attrs": _decoded_attrs(g),
         }
@@ -261,7 +270,8 @@ def _load_run(path: Path, group: str) -> dict:
     rule = out["attrs"].get("stop_rule")
     known = {f.name for f in dataclasses.fields(StopRule)}
     stop = StopRule(**{k: v for k, v in rule.items() if k in known}) if isinstance(rule, dict) else StopRule()
-    out["diagnostics"] = stop.diagnostics(out["chain"], out["accepted"], names=out["names"])
+    flags = out["accepted"] if out["accepted_step"] is None else out["accepted_step"]
+    out["diagnostics"] = stop.diagnostics(out["chain"], flags, names=out["names"])
     out["stop_rule"] = stop  # the rule the run was sampled under (thresholds to judge it by)
     return out
 

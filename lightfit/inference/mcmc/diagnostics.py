@@ -76,11 +76,14 @@ def diagnostics(
     Returns a dict: ``n_steps``, ``n_kept`` (after discarding ``burn_fraction``), ``tau`` (integrated
     autocorrelation time per parameter, in steps; emcee's estimator with window constant ``c``),
     ``ess`` (n_walkers · n_kept / τ), ``rhat`` (:func:`split_rhat`), ``acceptance`` (per walker, if
-    given) with its mean, ``tau_reliable`` (n_kept ≥ ``tau_multiple`` τ: 50 is emcee's rule of
-    thumb; a run's stop rule passes its own, ``tau_multiple`` records which), ``stuck`` (indices of
-    the walkers that never moved over the kept steps, judged from :data:`STUCK_MIN_KEPT_STEPS` kept
-    steps on: each repeats one point n_kept times in the samples, and emcee's τ, hence the ESS, is
-    NaN for every parameter while one does) and ``names``.
+    ``accepted`` is given) with its mean and ``acceptance_steps``, the steps it is over: ``"kept"``
+    (after the burn-in, as τ and ESS) where ``accepted`` holds each step's flags (n_steps, n_walkers),
+    ``"all"`` where it holds only each walker's count over the run (n_walkers,); ``tau_reliable``
+    (n_kept ≥ ``tau_multiple`` τ: 50 is emcee's rule of thumb; a run's stop rule passes its own,
+    ``tau_multiple`` records which), ``stuck`` (indices of the walkers that never moved over the kept
+    steps, judged from :data:`STUCK_MIN_KEPT_STEPS` kept steps on: each repeats one point n_kept
+    times in the samples, and emcee's τ, hence the ESS, is NaN for every parameter while one does)
+    and ``names``.
     """
     chain = np.asarray(chain)
     if chain.ndim != 3:
@@ -112,7 +115,13 @@ def diagnostics(
     }
     if accepted is not None:
         # No step yet (a run read before its first step): no acceptance to judge, not a rate of 0.
-        acc = np.asarray(accepted, float) / n if n else np.full(w, np.nan)
+        accepted = np.asarray(accepted, float)
+        if accepted.ndim == 2:  # each step's flags: over the kept steps, as τ and ESS (the burn-in counted before)
+            acc = accepted[burn:n].mean(0) if n else np.full(w, np.nan)
+            out["acceptance_steps"] = "kept"
+        else:
+            acc = accepted / n if n else np.full(w, np.nan)
+            out["acceptance_steps"] = "all"
         out["acceptance"] = acc
         out["acceptance_mean"] = float(acc.mean())
         out["acceptance_ok"] = not n or bool(ACCEPTANCE_OK[0] <= acc.mean() <= ACCEPTANCE_OK[1])

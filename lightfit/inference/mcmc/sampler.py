@@ -213,7 +213,7 @@ def _sample(
                 raise
             stopped_by = "interrupted"
     chain = backend.get_chain()
-    d = (stop or StopRule()).diagnostics(chain, backend.accepted, names=names)
+    d = (stop or StopRule()).diagnostics(chain, backend.get_accepted_steps(), names=names)
     d["rule_met"] = stopped_by == "rule"
     with open_h5(path, "a") as f:
         # strict JSON (jq and JavaScript refuse NaN): τ, ESS and R̂ of a chain too short for them are null
@@ -277,7 +277,7 @@ class _Checks:
 
     def met(self, step: int) -> bool:
         """Check the rule at ``step`` (the last stored step), record τ and ESS, return whether it is met."""
-        d = self._diagnostics(self.backend.get_chain(), self.backend.accepted)
+        d = self._diagnostics(self.backend.get_chain(), self.backend.get_accepted_steps())
         self.last = d
         self.rows[step] = (d["tau"], d["ess"])
         self._write()
