@@ -64,3 +64,25 @@ def test_the_acceptance_is_over_the_kept_steps(tmp_path):
     for d in (res.diagnostics, P.load_run(path)["diagnostics"]):
         assert d["acceptance_steps"] == "kept" and d["acceptance_mean"] == pytest.approx(kept, abs=1e-12)
         np.testing.assert_allclose(d["acceptance"], moved[burn:].mean(0))
+
+
+def test_status_of_a_run_without_a_recorded_max_steps(tmp_path):
+    """posterior-status of a run stored before its max_steps was recorded (the notebook's fixture,
+    150 steps) read "150/None steps"; it says the steps and that the limit was not recorded."""
+    from pathlib import Path
+
+    from lightfit.cli.common import console
+    from lightfit.cli.posterior import _print_status
+    from lightfit.inference.mcmc.backend import run_status
+
+    st = run_status(Path(__file__).parent / "fixtures" / "posterior_tiny.h5")
+    assert st["max_steps"] is None and st["steps"] == 150
+    with console.capture() as cap:
+        _print_status(st)
+    text = " ".join(cap.get().split())
+    assert "None" not in text and "150 steps (its --max-steps not recorded), stopped" in text, text
+    path = tmp_path / "run.h5"
+    P.sample(gauss, ("a", "b"), path, nwalkers=8, max_steps=6, initial=_init(), progress=False)
+    with console.capture() as cap:
+        _print_status(run_status(path))
+    assert "6/6 steps, stopped" in " ".join(cap.get().split())

@@ -519,7 +519,9 @@ def _print_status(st: dict) -> None:
             "–" if last is None else _shown(last["ess"][i], ".0f"),
         )
     console.print(t)
-    console.print(f"{st['steps']}/{st['max_steps']} steps, {state}")
+    # a run stored before its max_steps was recorded read "150/None steps"
+    of = f"/{st['max_steps']} steps" if st.get("max_steps") is not None else " steps (its --max-steps not recorded)"
+    console.print(f"{st['steps']}{of}, {state}")
     acc = d.get("acceptance_mean", float("nan"))
     flag = "" if d.get("acceptance_ok", True) else " (outside {:g}–{:g})".format(*ACCEPTANCE_OK)
     check = "no stop-rule check yet" if last is None else f"last stop-rule check at step {last['step']}"
