@@ -97,6 +97,12 @@ def test_posterior_cli_quick(tmp_path):
     # numbers not yet estimable show "–", the flag yes/no (they printed "nan" and Python's False)
     assert "nan" not in status.output + r.output and "emcee suggests 50): no;" in " ".join(status.output.split())
     run = load_run(out / "run.h5")
+    # the 5/50/95 % quantiles (in run.h5 and marked in corner.png, not in the summary before): numpy's of
+    # the stored chain after the documented burn-in, 25 % of the 30 steps
+    kept = run["chain"][int(0.25 * 30) :].reshape(-1, 2)
+    for q, p in (("q05", 5), ("q50", 50), ("q95", 95)):
+        expect = np.percentile(kept, p, axis=0)
+        assert [s[q][n] for n in s["names"]] == pytest.approx(expect, rel=1e-12), q
     # 30 steps keep far fewer than 50 τ: the command's own table says so, as posterior-status does
     assert not run["diagnostics"]["tau_reliable"] and s["tau_reliable"] is False
     assert "τ is not reliable yet" in " ".join(r.output.split())

@@ -724,6 +724,8 @@ def run(
             "map_kept_start": map_info["kept_start"],
             "mean": dict(zip(lp.names, summ["mean"].tolist())),
             "sd": dict(zip(lp.names, summ["sd"].tolist())),
+            # the 5/50/95 % quantiles after the burn-in, as run.h5's analysis/summary and corner.png mark them
+            **{q: dict(zip(lp.names, summ[q].tolist())) for q in ("q05", "q50", "q95")},
             **{k: fit[k] for k in ("sd_over_prior_sd", "prior_support", "chi2_map", "n_observations")},
             "corr": summ["corr"].tolist(),
             "fisher": fisher["table"],
