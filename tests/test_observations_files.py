@@ -64,3 +64,20 @@ def test_write_observations_without_an_sd_column_names_it(tmp_path):
     df["canopy_an_sd_umol_m2_s"] = [0.5, 0.25]
     back = read_observations(write_observations(df, tmp_path / "o.csv", {"provenance": "synthetic"}))
     assert back["canopy_an_sd_umol_m2_s"].tolist() == [0.5, 0.25]
+
+
+def test_write_observations_without_time_zone_names_the_index(tmp_path):
+    """The index must be tz-aware times (the file is written in UTC); a naive DatetimeIndex raised
+    pandas' TypeError and a RangeIndex an AttributeError. Refused naming the index and the remedy."""
+    an = {"canopy_an_umol_m2_s": [2.5], "canopy_an_sd_umol_m2_s": [0.5]}
+    for index, says in (
+        (pd.DatetimeIndex(["2016-04-20 10:00"]), "DatetimeIndex without a time zone"),
+        (pd.RangeIndex(1), "RangeIndex"),
+    ):
+        with pytest.raises(InputError, match=says) as e:
+            write_observations(pd.DataFrame(an, index=index), tmp_path / "o.csv", {"provenance": "measured"})
+        assert e.value.column == "df" and "tz_localize" in str(e.value)
+    assert not (tmp_path / "o.csv").exists()
+    local = pd.DataFrame(an, index=pd.DatetimeIndex(["2016-04-20 12:00"]).tz_localize("Europe/Berlin"))
+    back = read_observations(write_observations(local, tmp_path / "o.csv", {"provenance": "measured"}))
+    assert back.index[0] == pd.Timestamp("2016-04-20 10:00", tz="UTC")  # CEST is UTC+2
