@@ -668,6 +668,7 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
         ("replicate", ["--out", "run/results.nc"], ["--out is the folder", "field-run"]),
         ("field-run", ["--steps", "0"], ["steps"]),
         ("field-run", ["--bounces", "-1"], ["bounces"]),
+        ("replicate", ["--bounces", "10000"], ["bounces", "[0, 64]"]),  # memory ran out
         ("replicate", ["--buffer-rows", "2"], ["--buffer-rows", "--boundary periodic"]),
         ("calibrate", ["OBS", "--buffer-along", "8"], ["--buffer-along", "--boundary periodic"]),
         ("posterior", ["--boundary", "torus"], ["boundary", "torus", "periodic"]),

@@ -390,6 +390,12 @@ def test_bad_inputs():
         SegmentEstimator(fs, ids, samples=1)
     with pytest.raises(InputError, match="bounces"):
         SegmentEstimator(fs, ids, bounces=-1)
+    # More orders than the bounce rule ever hands out (64: ρ⁶⁵/(1 − ρ) ≈ 1.1 % at ρ = 0.9) were
+    # accepted, 10⁴ too, with memory growing as samples × bounces: refused naming the limit.
+    for many in (65, 10_000):
+        with pytest.raises(InputError, match=r"bounces.*\[0, 64\]"):
+            SegmentEstimator(fs, ids, samples=8, bounces=many)
+    assert SegmentEstimator(fs, ids, samples=8, bounces=64).bounces == 64
     with pytest.raises(InputError, match="sky"):
         FieldScene(g.mesh, sky="cloudy")
     with pytest.raises(InputError, match="soil_albedo"):

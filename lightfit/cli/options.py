@@ -34,6 +34,7 @@ from lightfit.defaults import (
     DEFAULT_ROW_DIRECTION_DEG,
     DEFAULT_ROW_SPACING_M,
     MAX_ADAPTIVE_SAMPLES,
+    MAX_BOUNCES_FOR_TOLERANCE,
     MAX_SPACING_M,
     MIN_PILOT,
     SEASON_START_MONTH_DAY,
@@ -458,8 +459,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         int | None,
         typer.Option(
             "--bounces",
-            help="Scattering orders, 0 = unscattered light only (default: as many as keep the truncated light "
-            "under 1 % for the leaf, "
+            help=f"Scattering orders, 0 = unscattered light only, at most {MAX_BOUNCES_FOR_TOLERANCE} (default: as "
+            "many as keep the truncated light under 1 % for the leaf, "
             "2 for the default leaf, 8 for --optics paper; --quick: 2; docs/light.md, Recommended settings).",
             rich_help_panel=_LIGHT,
         ),
