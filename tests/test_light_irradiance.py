@@ -9,6 +9,7 @@ import pytest
 import lightfit  # noqa: F401
 from lightfit.errors import InputError
 from lightfit.light import backend
+from lightfit.light.bridge import make_irradiance
 from lightfit.light.estimator import PARTS, SegmentEstimator, bounces_for_tolerance, render_adaptive
 from lightfit.light.scene import FieldScene, Optics, sun_vector
 from lightfit.plant import Field, build
@@ -514,3 +515,22 @@ def test_sun_azimuth_is_clockwise_from_north(az, expected):
     el = 35.0
     c, s = math.cos(math.radians(el)), math.sin(math.radians(el))
     assert sun_vector(el, az) == pytest.approx([expected[0] * c, expected[1] * c, s], abs=1e-12)
+
+
+def test_more_samples_than_a_render_can_hold_are_refused_naming_the_largest_that_fits():
+    """K = 10⁸ ended in a Dr.Jit error (arrays past 2³² entries) instead of an error naming samples.
+    A render holds at most 2 × S × K evaluations (both sides of a blade) in arrays of 2³² entries, and
+    2²⁴ points per replicate (8 replicates): for S segments the largest K is the smaller of
+    ⌊(2³² − 1) / 2S⌋ and 8 × 2²⁴ = 134 217 728, rounded down to a multiple of 8."""
+    g, ids = _small_field()
+    fs = FieldScene(g.mesh, Optics.preset("paper"))
+    S = len(ids)
+    largest = min((2**32 - 1) // (2 * S), 8 * 2**24) // 8 * 8
+    for k in (10**8, largest + 8):
+        with pytest.raises(InputError, match=rf"parameter 'samples'.*at most {largest} samples"):
+            SegmentEstimator(fs, ids, samples=k, bounces=0)
+    # One segment: the 2²⁴ points per replicate bound (it was refused as 'first=0').
+    with pytest.raises(InputError, match=r"parameter 'samples'.*at most 134217728 samples"):
+        SegmentEstimator(fs, ids[:1], samples=8 * 2**24 + 8, bounces=0)
+    with pytest.raises(InputError, match="samples"):
+        make_irradiance(fs, ids, samples=10**8, bounces=0)

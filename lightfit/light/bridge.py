@@ -43,6 +43,7 @@ from lightfit.light.estimator import (
     check_dark_floor,
     check_direct_light,
     check_samples,
+    check_samples_fit,
     check_target_rse,
     checked_segment_ids,
     replicates_for,
@@ -103,7 +104,7 @@ def make_irradiance(
     """
     ids = checked_segment_ids(segment_ids)
     # Checked here, once: inside the callbacks an error reaches the caller wrapped in JAX's.
-    check_samples(samples)
+    check_samples_fit(samples, len(ids))
     check_bounces(bounces)
     k = samples if target_rse is None else adaptive_pilot(samples)  # the projection's replicates are the paths'
     check_direct_light(field_scene, direct, direct_rays_per_m2, replicates_for(int(k)))

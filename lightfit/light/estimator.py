@@ -267,6 +267,33 @@ def check_samples(value, *, exact: bool = False) -> int:
     return k
 
 
+#: Most evaluations (points × sides) a render holds: Dr.Jit's arrays have at most 2³² entries, as
+#: the projection's rays of a kind (:data:`~lightfit.light.projection.MAX_RAYS_PER_KIND`).
+MAX_EVALUATIONS = projection.MAX_RAYS_PER_KIND - 1
+#: Most points per replicate: a point's index in its replicate's sequence is exact in float32.
+MAX_PER_REPLICATE = 2**24
+
+
+def check_samples_fit(samples: int, n_segments: int) -> int:
+    """``samples`` (K, :func:`check_samples`) if a render of ``n_segments`` segments can hold it: at
+    most 2 × S × K evaluations (a blade's points on both sides) within :data:`MAX_EVALUATIONS`, and
+    at most :data:`MAX_PER_REPLICATE` points per replicate; else :class:`InputError` naming
+    ``samples`` and the largest K that fits (10⁸ ended in a Dr.Jit error about arrays past 2³²)."""
+    k = check_samples(samples)
+    r = replicates_for(k)
+    fits = min(MAX_EVALUATIONS // (2 * max(int(n_segments), 1)), 8 * MAX_PER_REPLICATE)
+    if samples_used(k) > fits:
+        largest = fits // replicates_for(fits) * replicates_for(fits)
+        raise InputError(
+            f"samples={k} for {n_segments} segment(s): {samples_used(k) // r} points in each of {r} replicates",
+            parameter="samples",
+            expected=f"at most {largest} samples per segment here (a render holds 2 × segments × samples "
+            f"evaluations, both sides of a blade, in arrays of at most 2³² entries, and at most 2²⁴ points "
+            "per replicate)",
+        )
+    return k
+
+
 def check_run_samples(value, target_rse: float | None) -> int:
     """A run's ``samples`` (:func:`check_samples`) that it also renders as given: the fixed K, or
     with a target the adaptive pilot (:func:`adaptive_pilot`), so the K recorded is the K rendered;
@@ -445,6 +472,7 @@ class SegmentEstimator:
                 expected="first=0: the projection is the whole of the direct light, not a continuation",
             )
         self.fs, self.bounces, self.seed = field_scene, int(bounces), int(seed)
+        check_samples_fit(samples, len(checked_segment_ids(segment_ids)))
         self.samples = samples_used(samples)  # K rounded up to R·M
         self.replicates = replicates_for(int(samples))
         self.per_replicate = self.samples // self.replicates
