@@ -676,3 +676,17 @@ def test_adaptive_segments_no_projected_ray_met_take_their_own_direct_light(fiel
     assert not a.meta["stopped_on_floor"][lit].any()
     z = (v - vr) / np.hypot(a.total_se(), ref.total_se())
     assert abs(z.mean()) < 0.3 and 0.7 < z.std() < 1.5, (z.mean(), z.std())
+
+
+def test_fewer_rays_than_one_per_replicate_are_refused_not_raised_unsaid(field):
+    """10⁻³ rays per m² over the 0.09 m² cell are 9 × 10⁻⁵ rays: the grid was raised to one ray per
+    replicate (8 rays, ≈ 89 per m²) with only the render's meta saying so. Refused naming the option and
+    the least that casts one ray per replicate, R / A_c = 8 / 0.09 = 88.9 per m²; that many are taken."""
+    fs, ids = field
+    assert fs.cell.area_m2 == pytest.approx(0.09)
+    kw = dict(samples=32, bounces=0, seed=0, direct="projection")
+    for rays in (1e-3, (1e7, 80.0), (80.0, 1e7)):
+        with pytest.raises(InputError, match=r"direct_rays_per_m2.*fewer than one ray.*at least 88\.9 per m²"):
+            SegmentEstimator(fs, ids, direct_rays_per_m2=rays, **kw)
+    est = SegmentEstimator(fs, ids, direct_rays_per_m2=(89.0, 1e6), **kw)
+    assert est._direct.grid["sun"][0] * est._direct.grid["sun"][1] == 1

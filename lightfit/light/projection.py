@@ -63,6 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lightfit.defaults import DEFAULT_RAYS_PER_M2
 from lightfit.errors import InputError
 from lightfit.light.backend import owned, sum_float64
 from lightfit.light.bsdf import LEAF_PARAMETERS, leaf_albedo
@@ -121,10 +122,20 @@ MAX_RAYS_PER_KIND = 2**32
 def ray_grids(cell, rays_per_m2, replicates: int) -> dict[str, tuple[int, int]]:
     """Per kind ("sun", "sky"): the grid (n_a, n_b) of one replicate's rays over ``cell`` for
     ``rays_per_m2`` (``(sun, sky)``, :func:`check_rays`) and ``replicates`` R. InputError when a
-    kind's R · n_a · n_b rays exceed :data:`MAX_RAYS_PER_KIND` (their indices would wrap)."""
+    kind's R · n_a · n_b rays exceed :data:`MAX_RAYS_PER_KIND` (their indices would wrap), or when
+    fewer than one ray per replicate was asked over the cell (it was raised to one silently, shown
+    only in the render's meta: 10⁻³ per m² cast 10⁵ times that)."""
     A, B = (float(v) for v in cell.size_m)
     grids = {}
     for kind, rho in zip(("sun", "sky"), rays_per_m2):
+        if rho * cell.area_m2 < replicates:
+            raise InputError(
+                f"direct_rays_per_m2: {rho:.3g} {kind} rays per m² over a cell of {cell.area_m2:.4g} m² are "
+                f"fewer than one ray for each of the {replicates} replicates",
+                parameter="direct_rays_per_m2",
+                expected=f"at least {replicates / cell.area_m2:.3g} per m² on this cell (one ray per replicate; "
+                "the default is {:g},{:g})".format(*DEFAULT_RAYS_PER_M2),
+            )
         m = max(1, round(rho * cell.area_m2 / replicates))
         nx = max(1, round(math.sqrt(m * A / B)))
         grids[kind] = (nx, max(1, -(-m // nx)))
