@@ -334,9 +334,7 @@ def figure(ds, compare=None):
     src = "; ".join(dict.fromkeys(Path(s).name for s in str(ds.attrs.get("weather_source", "")).split("; ")))
     lines = [
         f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
-        # an adaptive run's K is per segment: its target and K range, not the pilot's base K
-        f"{_plants(ds.attrs)} plants, "
-        f"{samples_label(ds.attrs.get('samples'), ds.attrs.get('target_rse'), ds.attrs.get('max_samples'))}",
+        f"{run_size(ds.attrs)}",
         runs[0][2],
     ]
     if "observations" in ds.attrs:  # a line of its own: the title must fit the figure's width
@@ -345,11 +343,20 @@ def figure(ds, compare=None):
     if ds.attrs.get("theta_given"):  # the leaf and scales given (--theta), not the preset's defaults
         given = json.loads(ds.attrs["theta_given"])
         lines.append("θ given: " + ", ".join(f"{k} {float(v):.4g}" for k, v in given.items()))
-    if compare is not None:
-        lines.append(runs[1][2] + " (dashed)")
+    if compare is not None:  # its own size: a preset resolves K and bounces for its leaf and light
+        lines.append(runs[1][2] + f" (dashed; {run_size(compare.attrs)})")
     # wrapped at the figure's edges: a run label with a given θ, a profile and overrides is wider than it
     fig.suptitle("\n".join(lines), fontsize=10, wrap=True)
     return fig
+
+
+def run_size(attrs) -> str:
+    """A run's size in the figure's title, from results attrs: its measured plants, K (an adaptive
+    run's target and K range per segment, not the pilot's base K) and scattering orders
+    (``4 plants, K=16, 2 bounces``)."""
+    k = samples_label(attrs.get("samples"), attrs.get("target_rse"), attrs.get("max_samples"))
+    n_b = attrs.get("bounces")  # a file without the attribute: unsaid, not "None bounces"
+    return f"{_plants(attrs)} plants, {k}" + ("" if n_b is None else f", {n_b} bounces")
 
 
 def area_quantiles(values: np.ndarray, area_m2: np.ndarray, qs) -> np.ndarray:

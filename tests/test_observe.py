@@ -405,6 +405,31 @@ def test_figure_with_a_compared_preset(noon_model, tmp_path):
     assert plot(a, tmp_path / "f.png", compare=b).stat().st_size > 10_000
 
 
+def test_figure_title_gives_the_compared_runs_own_size(noon_model):
+    """--compare-preset paper runs the paper's leaf and field with K and bounces resolved for them (64
+    from the paths, 8 for the grey leaf, where the main job has 32 and 2): the title gave the main
+    run's plants and K alone, read as the dashed run's too. Each run's line now says its own."""
+    import json
+    from dataclasses import asdict
+
+    import matplotlib.pyplot as plt
+
+    from lightfit.report import figure
+
+    ds = noon_model.simulate(Theta())  # the quick configuration: 2 × 2 plants, K=16, 2 bounces
+    paper = rep.ReplicationConfig.quick().with_preset("paper")
+    other = ds.assign_attrs(
+        replication_config=json.dumps(asdict(paper)), preset="paper", n_plants=9, samples=64, bounces=8
+    )
+    fig = figure(ds, compare=other)
+    try:
+        lines = fig._suptitle.get_text().splitlines()
+        assert lines[0].endswith("; 4 plants, K=16, 2 bounces"), lines
+        assert lines[-1].startswith("paper: ") and lines[-1].endswith(" (dashed; 9 plants, K=64, 8 bounces)"), lines
+    finally:
+        plt.close(fig)
+
+
 def test_figure_names_the_observations_provenance(noon_model):
     """Synthetic observations are drawn as synthetic, in the legend and the title (a review found
     every observation labelled "observed (chamber quantum sensor …)", whatever its file said)."""
