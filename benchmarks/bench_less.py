@@ -58,6 +58,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -65,6 +66,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from less_runner import LESS_HOW
 from provenance import out_option, wide_console, write_result
 from rich.console import Console
 from rich.table import Table
@@ -96,6 +98,25 @@ BOUNCES = 3
 GROUND_HALF_M = 200.0
 LESS_WRAP_CAP = 100  # LESS's own default (repetitive=True)
 MIX_DHI = 0.3  # DHI / DNI of the noise runs (a clear day)
+
+
+def less_version() -> str | None:
+    """less3d's version in :data:`LESS_PYTHON`'s environment; ``None`` where that Python is missing or
+    cannot import LESS (an environment whose ``pip install less3d`` failed)."""
+    exe = shutil.which(str(LESS_PYTHON))
+    if exe is None:
+        return None
+    code = "import less, importlib.metadata as m; print(m.version('less3d'))"
+    proc = subprocess.run([exe, "-c", code], capture_output=True, text=True)
+    version = proc.stdout.strip()
+    return version if proc.returncode == 0 and version else None
+
+
+def less_missing() -> str:
+    """What the LESS scripts say when :func:`less_version` finds no LESS: where they looked, how to
+    get it and its licence."""
+    found = "has no LESS 3" if shutil.which(str(LESS_PYTHON)) else "missing"
+    return f"LESS 3 is not installed ({LESS_PYTHON}: {found}). {LESS_HOW}"
 
 
 def lambertian_optics() -> Optics:
@@ -487,17 +508,10 @@ def allocated(lf_class: dict, less_noise: dict) -> dict:
 
 def main(n_plants, boundaries, less_n, lf_k, reps, target, lf_alloc=None, sheaths=SHEATHS[0], out=OUT) -> dict | None:
     console = wide_console()
-    if not LESS_PYTHON.exists():
-        console.print(
-            f"LESS 3 is not installed ({LESS_PYTHON} missing): skipping. "
-            "Install it in its own environment: python -m venv .venv-less && .venv-less/bin/pip install less3d==3.0.7"
-        )
+    version = less_version()
+    if version is None:
+        console.print(f"{less_missing()} Skipping.", markup=False, highlight=False)
         return None
-    version = subprocess.run(
-        [str(LESS_PYTHON), "-c", "import importlib.metadata as m; print(m.version('less3d'))"],
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
     res = {
         "less3d": version,
         "settings": {

@@ -58,6 +58,15 @@ from pathlib import Path
 
 import numpy as np
 
+#: How to get LESS 3 and on what terms: said by every script that stops without it.
+LESS_HOW = (
+    "LESS 3 (PyPI less3d) is an optional benchmark peer, never a lightfit dependency: install it in "
+    "its own environment with `python -m venv .venv-less && .venv-less/bin/pip install less3d==3.0.7` "
+    "(or set LIGHTFIT_LESS_PYTHON to a Python that has it). Its licence, the LESS Academic and "
+    "Non-Commercial Research License 1.0, allows teaching and non-commercial research and evaluation "
+    "only; commercial use needs a separate licence from its authors (README, 'Optional: LESS 3 peer')."
+)
+
 
 def write_obj(path: Path, triangles: np.ndarray, ground: np.ndarray, width_m: float) -> None:
     """Plant triangles (group ``plant``) and the soil quad (group ``soil``) in LESS's OBJ axes:
@@ -151,5 +160,5 @@ if __name__ == "__main__":
     ap.add_argument("permutation_seed", type=int, nargs="?", help="run only this face order's runs")
     a = ap.parse_args()
     if importlib.util.find_spec("less") is None:  # run by bench_less.py with .venv-less's Python
-        sys.exit("less_runner.py needs LESS 3 (less3d): run it with .venv-less/bin/python (README, LESS 3 peer)")
+        sys.exit(f"less_runner.py needs LESS 3 (less3d) in the Python that runs it. {LESS_HOW}")
     main(a.export, a.permutation_seed)

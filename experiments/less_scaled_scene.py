@@ -48,8 +48,8 @@ CLASSES = ("blades", "sheaths", "culms")
 
 def main(scales: list[float], ground_half_m: float, reps: int, out: Path) -> dict | None:
     console = wide_console()
-    if not bl.LESS_PYTHON.exists():
-        console.print(f"LESS not installed ({bl.LESS_PYTHON}): see README 'Optional: LESS 3 peer'. Nothing run.")
+    if bl.less_version() is None:
+        console.print(f"{bl.less_missing()} Nothing run.", markup=False, highlight=False)
         return None
     fld = Field(n_plants=16, seed=1, boundary="finite")
     geom = build(fld)

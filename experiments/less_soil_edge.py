@@ -56,8 +56,8 @@ CLASSES = ("blades", "stems", "sheaths", "culms")
 
 def main(half_widths: list[float], reps: int, sheaths: str = SHEATHS[0], out: Path = OUT) -> dict | None:
     console = wide_console()
-    if not bl.LESS_PYTHON.exists():
-        console.print(f"LESS not installed ({bl.LESS_PYTHON}): see README 'Optional: LESS 3 peer'. Nothing run.")
+    if bl.less_version() is None:
+        console.print(f"{bl.less_missing()} Nothing run.", markup=False, highlight=False)
         return None
     geom = build(Field(n_plants=16, seed=1, boundary="finite", sheaths=sheaths))
     fs = FieldScene(geom.mesh, bl.lambertian_optics())
