@@ -119,6 +119,18 @@ def less_missing() -> str:
     return f"LESS 3 is not installed ({LESS_PYTHON}: {found}). {LESS_HOW}"
 
 
+def check_counts(ap: argparse.ArgumentParser, replicates: int, pairs: dict | None = None) -> None:
+    """Refuse, when the options are read, what would end a run in NaN or a traceback after its
+    minutes of work: fewer than 2 replicates (every SE, noise and |z| is a spread over them) and,
+    per option in ``pairs``, sample counts that are not two different counts ≥ 1 (the error's
+    exponent and the time per sample are fitted from the two)."""
+    if replicates < 2:
+        ap.error(f"--replicates {replicates}: at least 2 (the SEs and noise are spreads over the replicates)")
+    for option, (n1, n2) in (pairs or {}).items():
+        if min(n1, n2) < 1 or n1 == n2:
+            ap.error(f"{option} {n1} {n2}: two different counts ≥ 1 (the error's exponent is fitted from the two)")
+
+
 def lambertian_optics() -> Optics:
     """lightfit optics equal to LESS's ``Lambertian(reflectance=R, transmittance=T)``: no glossy lobe
     (F0 = 0), diffuse albedo c = R + T, transmitted share T / (R + T)."""
@@ -654,6 +666,11 @@ if __name__ == "__main__":
     ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
     out_option(ap, OUT)
     a = ap.parse_args()
+    check_counts(ap, a.replicates, {"--less-samples": a.less_samples, "--lightfit-samples": a.lightfit_samples})
+    if not 0 < a.target < 1:
+        ap.error(f"--target {a.target}: a median relative SE in (0, 1), e.g. 0.02")
+    if a.allocated_samples is not None and min(a.allocated_samples) < 1:
+        ap.error(f"--allocated-samples {' '.join(map(str, a.allocated_samples))}: counts ≥ 1")
     args = (a.plants, a.boundary, a.less_samples, a.lightfit_samples, a.replicates, a.target, a.allocated_samples)
     if main(*args, sheaths=a.sheaths, out=a.out) is None:
         sys.exit(0)

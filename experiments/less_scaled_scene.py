@@ -103,4 +103,7 @@ if __name__ == "__main__":
     ap.add_argument("--replicates", type=int, default=4)
     ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args()
+    bl.check_counts(ap, a.replicates)
+    if min(a.scales) <= 0 or a.ground_half_width <= 0:
+        ap.error("--scales and --ground-half-width: numbers > 0")
     main(a.scales, a.ground_half_width, a.replicates, a.out)

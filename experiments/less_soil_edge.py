@@ -125,4 +125,10 @@ if __name__ == "__main__":
     ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
     ap.add_argument("--out", type=Path, default=OUT, help="JSON written")
     a = ap.parse_args()
+    bl.check_counts(ap, a.replicates)
+    if len(set(a.half_widths)) < 2 or min(a.half_widths) <= 0:
+        ap.error(
+            f"--half-widths {' '.join(map(str, a.half_widths))}: "
+            "at least two different widths > 0 m (c₀ + c₁/W is fitted)"
+        )
     main(a.half_widths, a.replicates, a.sheaths, a.out)

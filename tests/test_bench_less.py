@@ -88,3 +88,30 @@ def test_less_runner_without_less_says_how_to_get_it_and_its_licence(tmp_path):
     assert p.returncode == 1 and "Traceback" not in p.stderr, p.stderr
     for text in MUST_SAY:
         assert text in p.stderr, (text, p.stderr)
+
+
+@pytest.mark.parametrize(
+    ("script", "args", "option"),
+    [
+        # one replicate: every SE, noise and |z| was NaN in the JSON (a spread over one value)
+        ("benchmarks/bench_less.py", ["--replicates", "1"], "--replicates"),
+        # two equal counts: a ZeroDivisionError or ValueError traceback after the whole run
+        ("benchmarks/bench_less.py", ["--less-samples", "64", "64"], "--less-samples"),
+        ("benchmarks/bench_less.py", ["--lightfit-samples", "0", "256"], "--lightfit-samples"),
+        ("benchmarks/bench_less.py", ["--target", "0"], "--target"),
+        ("experiments/less_soil_edge.py", ["--replicates", "1"], "--replicates"),
+        # one width: the c₀ + c₁/W fit's covariance is singular (a LinAlgError after the LESS runs)
+        ("experiments/less_soil_edge.py", ["--half-widths", "50"], "--half-widths"),
+        ("experiments/less_scaled_scene.py", ["--replicates", "1"], "--replicates"),
+    ],
+)
+def test_settings_that_end_in_nan_or_a_traceback_are_refused_when_read(tmp_path, script, args, option):
+    p = subprocess.run(
+        [sys.executable, str(ROOT / script), *args, "--out", str(tmp_path / "x.json")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert p.returncode == 2 and "Traceback" not in p.stderr, (p.stdout, p.stderr)
+    assert f"error: {option} " in p.stderr, p.stderr
+    assert not (tmp_path / "x.json").exists()
