@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
-from provenance import wide_console, write_result  # noqa: E402
+from provenance import out_option, wide_console, write_result  # noqa: E402
 
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
@@ -101,7 +101,7 @@ if __name__ == "__main__":
     ap.add_argument("--scales", type=float, nargs="+", default=[1.0, 10.0])
     ap.add_argument("--ground-half-width", type=float, default=200.0, help="LESS's soil quad half-width, scaled m")
     ap.add_argument("--replicates", type=int, default=4)
-    ap.add_argument("--out", type=Path, default=OUT)
+    out_option(ap, OUT)
     a = ap.parse_args()
     bl.check_counts(ap, a.replicates)
     if min(a.scales) <= 0 or a.ground_half_width <= 0:

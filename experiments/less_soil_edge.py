@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_less as bl  # noqa: E402  (benchmarks/ is a script folder, not a package)
-from provenance import wide_console, write_result  # noqa: E402
+from provenance import out_option, wide_console, write_result  # noqa: E402
 
 from lightfit.light.scene import FieldScene  # noqa: E402
 from lightfit.plant import Field, build  # noqa: E402
@@ -123,7 +123,7 @@ if __name__ == "__main__":
     ap.add_argument("--half-widths", type=float, nargs="+", default=[5.0, 12.5, 50.0, 200.0])
     ap.add_argument("--replicates", type=int, default=4)
     ap.add_argument("--sheaths", choices=SHEATHS, default=SHEATHS[0], help="leaf sheath layout (lightfit.plant.Field)")
-    ap.add_argument("--out", type=Path, default=OUT, help="JSON written")
+    out_option(ap, OUT)
     a = ap.parse_args()
     bl.check_counts(ap, a.replicates)
     if len(set(a.half_widths)) < 2 or min(a.half_widths) <= 0:

@@ -115,3 +115,17 @@ def test_settings_that_end_in_nan_or_a_traceback_are_refused_when_read(tmp_path,
     assert p.returncode == 2 and "Traceback" not in p.stderr, (p.stdout, p.stderr)
     assert f"error: {option} " in p.stderr, p.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize("script", ["less_soil_edge", "less_scaled_scene"])
+def test_less_experiments_refuse_an_unwritable_out_when_read(tmp_path, script):
+    """Their --out was a plain path: one that cannot be written ended the run on a traceback after
+    all its LESS and lightfit runs (provenance.out_option, which the benchmarks use, checks it first)."""
+    (tmp_path / "a_file").write_text("")
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "experiments" / f"{script}.py"), "--out", str(tmp_path / "a_file" / "x.json")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert p.returncode == 2 and "argument --out" in p.stderr and "Traceback" not in p.stderr, p.stderr
