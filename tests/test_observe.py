@@ -18,6 +18,7 @@ from lightfit.inference.calibration import calibrate
 from lightfit.inference.likelihood import GaussianLikelihood, resolve_use
 from lightfit.inference.observations import COLUMNS, SERIES, read_observations
 from lightfit.light import backend
+from lightfit.light.estimator import PARTS
 from lightfit.model import observe as O
 from lightfit.model import schema
 from lightfit.model.coupled import NonConvergenceWarning, warn_unconverged
@@ -274,6 +275,32 @@ def test_a_light_factor_beyond_the_leaves_range_is_named(noon_model):
     flagged = jax.jit(lambda f: m.observe(Theta(light_factor=f))[CONVERGENCE_KEY])(9.0)
     assert int(np.asarray(flagged).sum()) > 0
     assert int(np.asarray(m.observe(Theta(light_factor=2.0))[CONVERGENCE_KEY]).sum()) == 0
+
+
+def test_blade_light_beyond_the_leaves_range_at_light_factor_1_names_the_renders_noise(noon_model):
+    """`replicate --quick --direct-rays-per-m2 300`: one projected ray's flux on a small blade gave it
+    22349 µmol m-2 s-1 at light_factor=1, refused as if the light factor were too large ("a smaller
+    light_factor"). At light_factor=1 the cause is the render's noise: named, with that blade's
+    Monte Carlo SD, and the options that reduce it."""
+    values, se = noon_model.render(Theta())
+    values, se = np.array(values), np.array(se)
+    blade = int(np.flatnonzero(noon_model.operator.is_blade)[3])
+    sun = PARTS.index("absorbed_sun")
+    values[:, sun, blade] = 40.0  # per unit DNI: ~40 × full sun, far beyond 1e4 µmol m-2 s-1
+    se[:, sun, blade], se[:, PARTS.index("absorbed_sky"), blade] = 35.0, 0.0
+    m = noon_model.with_light(lambda theta: (values, se))
+    with pytest.raises(InputError, match="at light_factor=1") as e:
+        m.observe(Theta())
+    msg = str(e.value)
+    assert "Monte Carlo" in msg and "--direct-rays-per-m2" in msg and "--samples" in msg
+    assert "smaller light_factor" not in msg and e.value.column == "direct_rays_per_m2"
+    # the blade's light and its SD, from the forcing's PAR at the brightest daytime step
+    fc = noon_model.operator.forcing
+    day = np.flatnonzero(fc.day)
+    dni, dhi = np.asarray(fc.dni_par)[day], np.asarray(fc.dhi_par)[day]
+    t = int(np.argmax(40.0 * dni + dhi * values[:, PARTS.index("absorbed_sky"), blade]))
+    expected = 40.0 * dni[t] + dhi[t] * values[t, PARTS.index("absorbed_sky"), blade]
+    assert f"{expected:.0f} ± {35.0 * dni[t]:.0f}" in msg
 
 
 @pytest.mark.parametrize(

@@ -611,7 +611,7 @@ class ObservationOperator:
             sensor = (jnp.zeros(len(self.forcing.day)),) * 2
         b = self.blades
         q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
-        _check_leaf_light(q, theta.light_factor)
+        _check_leaf_light(q, theta.light_factor, out["absorbed_par_mc_sd_umol_m2_s"][:, b])
         r = self.leaf(leaf)(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
         an_sd = jax.lax.stop_gradient(jnp.abs(r.dan_dq)) * out["absorbed_par_mc_sd_umol_m2_s"][:, b]
         f = jnp.asarray(theta.light_factor, jnp.float64)
@@ -648,14 +648,28 @@ class ObservationOperator:
         return out
 
 
-def _check_leaf_light(q, light_factor) -> None:
+def _check_leaf_light(q, light_factor, sd=None) -> None:
     """Concrete blade light above what a leaf solve accepts (:data:`MAX_PAR_ABS_UMOL_M2_S`) is refused
     naming the light factor, the run's one multiplier of light (``--theta light_factor=9`` ended in a
-    traceback from the photosynthesis's range check). Traced values (calibration, sampling) are
-    flagged unconverged there instead, which gives them no likelihood."""
+    traceback from the photosynthesis's range check); or, where the light at light factor 1 is itself
+    above it, naming the render's Monte Carlo noise (``sd``: the blades' SD, µmol m-2 s-1, as ``q``)
+    and the options that reduce it: few projected rays put one ray's flux on a small blade. Traced
+    values (calibration, sampling) are flagged unconverged there instead, which gives them no
+    likelihood."""
     if isinstance(q, jax.core.Tracer) or isinstance(light_factor, jax.core.Tracer) or not q.size:
         return
     top = float(jnp.max(q))
+    factor = float(light_factor)
+    if top > MAX_PAR_ABS_UMOL_M2_S and top / factor > MAX_PAR_ABS_UMOL_M2_S:
+        at = np.unravel_index(int(jnp.argmax(q)), q.shape)
+        noise = "" if sd is None else f" ± {float(np.asarray(sd)[at]):.0f} (its Monte Carlo SD)"
+        raise InputError(
+            f"the render gives a blade {top / factor:.0f}{noise} µmol m-2 s-1 of absorbed PAR at light_factor=1"
+            f" (step {at[0]}, blade {at[1]}): Monte Carlo noise, one ray's flux on a small blade",
+            parameter="direct_rays_per_m2",
+            expected=f"at most {MAX_PAR_ABS_UMOL_M2_S:g} µmol m-2 s-1 (about 4x full sun): a less noisy render,"
+            " more projected rays (--direct-rays-per-m2) or more points per segment (--samples)",
+        )
     if top > MAX_PAR_ABS_UMOL_M2_S:
         raise InputError(
             f"light_factor={float(light_factor):g} gives the blades up to {top:.0f} µmol m-2 s-1 of absorbed PAR",
