@@ -8,7 +8,7 @@
 2. **Synthetic** observations (twin experiment): the coupled model at known parameters with a
    DIFFERENT render seed (7) than the calibrated model (0), plus Gaussian noise (seed 0): PAR at
    every daytime step, SD 5 % + 5 µmol m⁻² s⁻¹; net CO2 uptake at every step, SD 1 µmol m⁻² s⁻¹.
-   Written to OUT/synthetic_observations.csv with provenance ``synthetic``.
+   Written to OUT/synthetic_observations.csv with provenance ``synthetic`` and a ``truth`` line.
 3. Posteriors with PAR only, CO2 only and both (wide priors): posterior SD per parameter and the
    tightening ratios; Fisher spectrum and profile likelihood of each; emulator error relative to
    the posterior width.
@@ -63,6 +63,17 @@ def run_attrs(experiment: str) -> dict:
     return {"experiment": experiment, **{k: rec[k] for k in keep}}
 
 
+def observations_metadata() -> dict:
+    """The ``# key: value`` lines of OUT/synthetic_observations.csv: provenance, a description and
+    the twin's ``truth`` (JSON), which notebooks/posterior_analysis.ipynb draws on the corner plot."""
+    return {
+        "provenance": "synthetic",
+        "description": "twin experiment: lightfit coupled model (quick field, render "
+        f"seed 7) at {json.dumps(TRUTH.to_dict())} + Gaussian noise (seed 0)",
+        "truth": json.dumps(TRUTH.to_dict()),
+    }
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "posterior")
@@ -101,15 +112,7 @@ def main(argv=None):
     syn = twin_observations(
         model, TRUTH, render_seed=7, noise_seed=0, par_sd=lambda par: 0.05 * par + 5.0, an_at_night=True
     )
-    write_observations(
-        syn,
-        obs_path,
-        {
-            "provenance": "synthetic",
-            "description": "twin experiment: lightfit coupled model (quick field, render "
-            f"seed 7) at {json.dumps(TRUTH.to_dict())} + Gaussian noise (seed 0)",
-        },
-    )
+    write_observations(syn, obs_path, observations_metadata())
     obs = read_observations(obs_path)
     wide = P.PRIORS_WIDE
     runs = {}

@@ -157,3 +157,32 @@ def test_the_fixture_script_stores_the_command_and_commit_with_each_run(tmp_path
     assert stored["lightfit_commit"] == head.stdout.strip() != ""
     assert stored["command"] and stored["experiment"] == "tiny twin run (notebook fixture)"
     assert stored["seed"] == 3
+
+
+def test_the_experiments_twin_file_states_its_truth_for_the_notebook(tmp_path):
+    """The notebook draws a synthetic twin's truth from its observations file's ``# truth:`` line;
+    experiments/posterior_2016_04_20.py wrote its twin (the notebook fixture's observations) without
+    one, so no run of it ever had its truth drawn (a review). Its truth, as docs/posterior.md states
+    it: specular 0.6, roughness 0.6, subsurface 0.1, light factor 1, Vcmax scale 1."""
+    import importlib.util
+    import json
+
+    from lightfit.inference.observations import read_observations, write_observations
+
+    spec = importlib.util.spec_from_file_location(
+        "posterior_experiment", ROOT / "experiments" / "posterior_2016_04_20.py"
+    )
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    rows = read_observations(ROOT / "data" / "observations" / "twin_2016-04-20_synthetic.csv")
+    path = write_observations(rows, tmp_path / "synthetic_observations.csv", script.observations_metadata())
+    meta = read_observations(path).attrs["metadata"]
+    assert meta["provenance"] == "synthetic"
+    truth = json.loads(meta["truth"])
+    assert {n: truth[n] for n in ("specular", "roughness", "subsurface", "light_factor", "vcmax_scale")} == {
+        "specular": 0.6,
+        "roughness": 0.6,
+        "subsurface": 0.1,
+        "light_factor": 1.0,
+        "vcmax_scale": 1.0,
+    }
