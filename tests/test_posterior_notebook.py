@@ -86,6 +86,12 @@ def test_notebook_executes(tmp_path, monkeypatch):
     assert "thresholds (n_kept ≥ 20 τ, ESS ≥ 50, split-R̂ < 1.2) met by 0 of 5 parameters: not converged" in _text(
         _cell(nb, 'd = run["diagnostics"]')
     )
+    # the fixture's twin file is not bundled: its truth is not drawn, and the cell says so (it said nothing)
+    said = run["attrs"]["observations"]["source"]
+    assert not (ROOT / said).exists()
+    assert f"twin's truth not drawn: its observations file {ROOT / said} is not on this machine" in _text(
+        _cell(nb, "corner.corner(")
+    )
     summ = summarize(flat_samples(run), run["names"])
     table = _table(_cell(nb, "summ = summarize"))
     assert list(table.index) == list(run["names"])
@@ -186,3 +192,17 @@ def test_the_experiments_twin_file_states_its_truth_for_the_notebook(tmp_path):
         "light_factor": 1.0,
         "vcmax_scale": 1.0,
     }
+
+
+def test_the_notebook_states_the_fixtures_truth_and_run_size():
+    """The fixture's twin file is not bundled, so the notebook's opening text states the truth the
+    corner plot cannot draw: the experiment's (specular 0.6, roughness 0.6, subsurface 0.1, light
+    factor 1, Vcmax scale 1, docs/posterior.md), and the run's size, as the fixture holds them."""
+    nbformat = pytest.importorskip("nbformat")
+    intro = " ".join(nbformat.read(NOTEBOOK, as_version=4).cells[0].source.split())
+    assert (
+        "specular 0.6, roughness 0.6, subsurface 0.1, light factor 1 and Vcmax scale 1" in intro
+        and "corner plot cannot draw it" in intro
+    )
+    d = load_run(FIXTURE)["diagnostics"]
+    assert (d["n_walkers"], d["n_steps"]) == (12, 150) and "(12 walkers, 150 steps" in intro
