@@ -107,6 +107,11 @@ def test_notebook_executes(tmp_path, monkeypatch):
     observed = [s.name for s in SERIES if s.value in seen and np.isfinite(pred["obs_" + s.value]).any()]
     assert observed and f"observed series: {', '.join(observed)}" in _text(_cell(nb, 'p = an["predictive"]'))
     ee = an["emulator_error"]
+    # both errors with their unit (ΔAn's was a bare number)
+    assert (
+        f"max |ΔPAR| {ee['max_abs_error_plant_par_umol_m2_s']:.3g} µmol m⁻² s⁻¹, "
+        f"max |ΔAn| {ee['max_abs_error_canopy_an_umol_m2_s']:.3g} µmol m⁻² s⁻¹;"
+    ) in _text(_cell(nb, 'ee = an.get("emulator_error")'))
     assert f"max shift {ee['max_shift_over_sd']:.3g} posterior SD over {ee['n_test']} held-out renders" in _text(
         _cell(nb, 'ee = an.get("emulator_error")')
     )
