@@ -46,6 +46,16 @@ def _table(cell) -> pd.DataFrame:
     return pd.read_csv(io.StringIO(out[-1]["data"]["text/plain"]), sep=r"\s+", index_col=0)
 
 
+def _kernel_imports_this_checkout(monkeypatch):
+    """The kernel runs in notebooks/: a relative PYTHONPATH ('.', from the repository root) resolves
+    there, and the kernel imported whatever lightfit the environment had installed (another checkout's),
+    so the notebook was tested against other code than the test beside it (seen: 'acceptance 0.40'
+    from another checkout's load_run against this one's 0.39)."""
+    import os
+
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
+
+
 def test_notebook_executes(tmp_path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
@@ -57,6 +67,7 @@ def test_notebook_executes(tmp_path, monkeypatch):
         pytest.skip("no python3 kernel spec (install ipykernel)")
     monkeypatch.delenv("LIGHTFIT_POSTERIOR_RUN", raising=False)  # the notebook's default: the fixture
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    _kernel_imports_this_checkout(monkeypatch)
     # figures come back as image/png outputs only with the inline backend the notebook selects
     monkeypatch.delenv("MPLBACKEND", raising=False)
     nb = nbformat.read(NOTEBOOK, as_version=4)
@@ -132,6 +143,7 @@ def test_a_run_path_given_from_the_repository_root_is_found(monkeypatch):
         pytest.skip("no python3 kernel spec (install ipykernel)")
     monkeypatch.setenv("LIGHTFIT_POSTERIOR_RUN", str(FIXTURE.relative_to(ROOT)))
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    _kernel_imports_this_checkout(monkeypatch)
     nb = nbformat.read(NOTEBOOK, as_version=4)
     nb.cells = [c for c in nb.cells if c.cell_type == "code" and "load_run(path)" in c.source]
     nbclient.NotebookClient(
