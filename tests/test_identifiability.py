@@ -289,3 +289,43 @@ def test_fisher_refuses_a_value_that_is_not_finite(scale):
     with pytest.raises(InputError, match=r"non-finite value\(s\) of \['b'\]") as e:
         fisher_information(lambda x: x * 2.0, np.array([1.0, np.nan]), ("a", "b"), scale=scale)
     assert e.value.parameter == "x0"
+
+
+def test_a_product_model_is_singular_and_its_sloppy_eigenvector_points_as_its_combination_reads():
+    """y = a·b·x fixes only the product: by hand in log coordinates ∂r/∂log a = ∂r/∂log b = −a·b·x/σ, so
+    F = S·[[1, 1], [1, 1]] with S = Σ(a·b·x/σ)² (checked against central differences), eigenvalues 2S and 0,
+    the null direction (1, −1)/√2 in log space, (a, −b)/‖(a, −b)‖ in natural space. The eigenvector is the
+    one stored as the profile's direction, beside the combination's string: it must point as the string
+    reads (eigh returned (−0.71, +0.71) here, the profile's offset axis then ran against its label)."""
+    import jax.numpy as jnp
+
+    from lightfit.inference.identifiability import fisher_information
+
+    x, sigma, a, b = np.linspace(0.1, 2.0, 20), 0.05, 2.0, 0.5
+    y = a * b * x
+
+    def residuals(p):
+        return (y - p[0] * p[1] * jnp.asarray(x)) / sigma
+
+    s = np.sum((a * b * x / sigma) ** 2)
+    h, lx = 1e-5, np.log([a, b])
+    jac = np.column_stack(
+        [
+            (np.asarray(residuals(np.exp(lx + h * e))) - np.asarray(residuals(np.exp(lx - h * e)))) / (2 * h)
+            for e in np.eye(2)
+        ]
+    )
+    fi = fisher_information(residuals, [a, b], ("a", "b"), scale="log")
+    np.testing.assert_allclose(fi.fisher, jac.T @ jac, rtol=1e-6)
+    np.testing.assert_allclose(fi.fisher, s * np.ones((2, 2)), rtol=1e-10)
+    np.testing.assert_allclose(fi.eigenvalues, [2 * s, 0.0], atol=1e-8 * s)
+    assert fi.sloppy == "+0.71 log a -0.71 log b" and fi.widths[-1] > 1e3
+    np.testing.assert_allclose(fi.eigenvectors[:, -1], np.array([1.0, -1.0]) / np.sqrt(2), atol=1e-10)
+    np.testing.assert_allclose(fi.eigenvectors[:, 0], np.array([1.0, 1.0]) / np.sqrt(2), atol=1e-10)
+    nat = fisher_information(residuals, [a, b], ("a", "b"), scale="natural")
+    assert nat.sloppy == "+0.97 a -0.24 b"
+    np.testing.assert_allclose(nat.eigenvectors[:, -1], np.array([a, -b]) / np.hypot(a, b), atol=1e-10)
+    # the profile of a along the null direction is flat (b follows a), the slice is not
+    ts, prof, slc = profile_likelihood(lambda p: 0.5 * jnp.sum(residuals(p) ** 2), [a, b], [1.0, 0.0], [-0.5, 0.5])
+    np.testing.assert_allclose(prof, 0.0, atol=1e-8)
+    assert np.all(slc > 100.0)

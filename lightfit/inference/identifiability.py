@@ -23,7 +23,8 @@ from lightfit.errors import InputError
 
 @dataclass
 class FisherResult:
-    """Fisher matrix (in the chosen coordinates), eigenvalues (descending) and eigenvectors (columns)."""
+    """Fisher matrix (in the chosen coordinates), eigenvalues (descending) and eigenvectors (columns,
+    each oriented as :func:`combination` writes it: its largest entry positive)."""
 
     names: tuple
     x: np.ndarray
@@ -100,7 +101,11 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     F = J.T @ J
     lam, vec = np.linalg.eigh(F)
     order = np.argsort(lam)[::-1]
-    return FisherResult(names, x0, scale, F, lam[order], vec[:, order])
+    lam, vec = lam[order], vec[:, order]
+    # each eigenvector oriented as combination() writes it (its largest entry positive): eigh's sign is
+    # arbitrary, and a profile stored along a column read as the combination's string was mirrored
+    vec = vec * np.sign(vec[np.argmax(np.abs(vec), axis=0), np.arange(vec.shape[1])])
+    return FisherResult(names, x0, scale, F, lam, vec)
 
 
 def _checked_line(x_hat, direction, scale: str) -> tuple[np.ndarray, np.ndarray]:
