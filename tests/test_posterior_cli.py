@@ -441,3 +441,27 @@ def test_reanalysing_a_finished_chain_says_it_sampled_nothing_now_and_gives_the_
     assert again["steps_this_call"] == 0 and "20 steps; this call sampled 0 in" in " ".join(r.output.split())
     for k in ("mean", "sd", "x_map", "chi2_map", "tau", "ess", "rhat", "acceptance_mean"):
         assert again[k] == first[k], k
+
+
+def test_the_printed_directions_say_their_widths_and_which_the_data_leave_free():
+    """y = a·b·x fixes only a·b: by hand F = S·[[1, 1], [1, 1]] in log coordinates, S = Σ(a·b·x/σ)², so the
+    stiff direction's 1σ width is 1/√(2S) and the sloppy one's is unbounded (eigenvalue 0). The printed
+    line named both combinations alike, a direction the data fix to 0.7 % and one they say nothing of."""
+    import jax.numpy as jnp
+
+    from lightfit.cli.posterior import _directions
+    from lightfit.inference.identifiability import fisher_information
+
+    x, sigma, a, b = np.linspace(0.1, 2.0, 20), 0.05, 2.0, 0.5
+    fi = fisher_information(lambda p: (a * b * x - p[0] * p[1] * jnp.asarray(x)) / sigma, [a, b], ("a", "b"))
+    res = {"fisher": fi.table(), "stiff": fi.stiff, "sloppy": fi.sloppy}
+    stiff_width = 1.0 / np.sqrt(2.0 * np.sum((a * b * x / sigma) ** 2))
+    line = _directions(res)
+    assert f"stiffest: +0.71 log a +0.71 log b (1σ width {stiff_width:.3g})" in line
+    assert "sloppiest: +0.71 log a -0.71 log b (1σ width ∞)" in line
+    assert "1 of 2 directions not identifiable" in line and "log units" in line
+    # summary.json's strict JSON writes the unbounded width as null
+    json_rows = [
+        r | {"width_1sigma": None if not np.isfinite(r["width_1sigma"]) else r["width_1sigma"]} for r in res["fisher"]
+    ]
+    assert _directions(res | {"fisher": json_rows}) == line

@@ -319,7 +319,7 @@ def posterior(
     console.print(t)
     for line in _cautions(res):  # what posterior-status reports, said where the numbers are
         caution(line)
-    console.print(f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}")
+    console.print(_directions(res))
     from lightfit.inference.plots import corner_figure
 
     samples = P.flat_samples(P.backend.load_run(out / "run.h5"), stop.burn_fraction)
@@ -340,6 +340,38 @@ def posterior(
         "the predictive curves open notebooks/posterior_analysis.ipynb "
         f"with LIGHTFIT_POSTERIOR_RUN={(out / 'run.h5').resolve()}"  # Jupyter runs it in notebooks/
     )
+
+
+def _directions(res: dict) -> str:
+    """The stiffest and sloppiest combinations of ``res["fisher"]`` (its table, stiff to sloppy) with
+    their 1σ widths and units, and how many directions the data leave free (eigenvalue 0): the
+    combinations alone read the same whether the data fix a direction to 1 % or say nothing of it."""
+    import math
+
+    table = res.get("fisher") or []
+    if not table:
+        return f"stiffest: {res['stiff']}   sloppiest: {res['sloppy']}"
+    scale = table[0].get("width_scale", "log")
+    units = "in log units (relative)" if scale == "log" else "in the parameters' own units"
+
+    def bounded(row) -> bool:  # null in summary.json, inf in the run's own table
+        w = row.get("width_1sigma")
+        return w is not None and math.isfinite(w)
+
+    def width(row) -> str:
+        return f"{row['width_1sigma']:.3g}" if bounded(row) else "∞"
+
+    free = sum(not bounded(row) for row in table)
+    line = (
+        f"stiffest: {res['stiff']} (1σ width {width(table[0])})   sloppiest: {res['sloppy']} "
+        f"(1σ width {width(table[-1])}); Fisher widths {units}"
+    )
+    if free:
+        line += (
+            f"; {free} of {len(table)} directions not identifiable (Fisher eigenvalue 0: the data say nothing "
+            f"along {'it' if free == 1 else 'them'}, only the priors do)"
+        )
+    return line
 
 
 def _acceptance_over(d: dict) -> str:
