@@ -329,3 +329,23 @@ def test_a_product_model_is_singular_and_its_sloppy_eigenvector_points_as_its_co
     ts, prof, slc = profile_likelihood(lambda p: 0.5 * jnp.sum(residuals(p) ** 2), [a, b], [1.0, 0.0], [-0.5, 0.5])
     np.testing.assert_allclose(prof, 0.0, atol=1e-8)
     assert np.all(slc > 100.0)
+
+
+def test_a_parameter_the_residuals_ignore_has_eigenvalue_zero_whatever_the_round_off():
+    """r = J x with J's column of s all zero: F has a zero row and column, so s's eigenvalue is 0 exactly
+    and its width ∞ (the data say nothing of it); the others are those of F without s. eigh returned
+    ±1e-16…1e-14 there (19 of these 40 matrices positive), a finite width of ~10⁷ instead: unbounded or
+    not by chance of the round-off's sign."""
+    import jax.numpy as jnp
+
+    from lightfit.inference.identifiability import fisher_information
+
+    rng = np.random.default_rng(0)
+    names = ("p", "q", "s", "r", "u")
+    for _ in range(40):
+        jac = rng.standard_normal((54, 5)) * np.array([300.0, 60.0, 1.0, 0.3, 0.1])
+        jac[:, 2] = 0.0
+        fi = fisher_information(lambda x, j=jac: jnp.asarray(j) @ x, np.ones(5), names, "natural")
+        assert fi.eigenvalues[-1] == 0.0 and fi.widths[-1] == np.inf and fi.sloppy == "+1.00 s"
+        rest = np.delete(jac, 2, axis=1)
+        np.testing.assert_allclose(fi.eigenvalues[:4], np.linalg.eigvalsh(rest.T @ rest)[::-1], rtol=1e-9)

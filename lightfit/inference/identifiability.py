@@ -43,7 +43,8 @@ class FisherResult:
 
     @property
     def widths(self) -> np.ndarray:
-        """1σ widths along each eigenvector, 1/√λ (inf for λ ≤ 0)."""
+        """1σ widths along each eigenvector, 1/√λ (inf for λ ≤ 0; eigenvalues within eigh's round-off
+        of 0, n·eps·λ_max, are 0)."""
         lam = np.asarray(self.eigenvalues)
         return np.where(lam > 0, 1.0 / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
 
@@ -100,6 +101,9 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
         )
     F = J.T @ J
     lam, vec = np.linalg.eigh(F)
+    # eigh's round-off, |δλ| ≲ n·eps·λ_max (numpy's matrix_rank tolerance): a direction the residuals do
+    # not depend on came out as ±1e-17·λ_max, a 1σ width of 10⁶ (or ∞) by chance of the sign; it is 0
+    lam = np.where(np.abs(lam) <= len(lam) * np.finfo(float).eps * max(float(np.max(lam)), 0.0), 0.0, lam)
     order = np.argsort(lam)[::-1]
     lam, vec = lam[order], vec[:, order]
     # each eigenvector oriented as combination() writes it (its largest entry positive): eigh's sign is
