@@ -8,6 +8,7 @@ import re
 import socket
 import threading
 import time
+import tokenize
 import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -108,9 +109,11 @@ def jsonable(d: Any, strict: bool = False) -> Any:
     return d
 
 
-#: What ``np.load`` of a damaged or unreadable ``.npz`` raises (a cut copy, a full disk, a byte
-#: flipped, an empty file): a cache that catches these renders or rebuilds the file instead.
-UNREADABLE_NPZ = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile)
+#: What ``np.load`` of a damaged or unreadable ``.npz`` or ``.npy`` raises (a cut copy, a full disk, a
+#: byte flipped, an empty file): a cache that catches these renders or rebuilds the file instead.
+#: ``tokenize.TokenError``: a flipped byte that unbalances an array header's brackets, which numpy
+#: re-reads through :mod:`tokenize` (whose error is no ValueError) for headers of format 1 and 2.
+UNREADABLE_NPZ = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, tokenize.TokenError)
 
 
 __all__ = ["NETCDF_MAGIC", "UNREADABLE_NPZ", "is_netcdf", "jsonable", "replace_text", "replaced"]

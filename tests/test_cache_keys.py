@@ -170,3 +170,55 @@ def test_every_growth_setting_and_the_seed_change_the_plant_cache_key(tmp_path):
     assert len(set(changed.values())) == len(changed)
     assert cache_key(GrowthConfig(parameter_file=str(same_name)), 7) == key  # the contents, not the path
     assert cache_key(GrowthConfig(target_date="20160420", season_start="2016-03-05"), 7) == key
+
+
+def _unbalance_header(path, member=""):
+    """Damage a .npy/.npz written uncompressed as a flipped bit can: the closing brace of the header of
+    array ``member`` (of the first array where ``""``) becomes a space. numpy then re-reads the header
+    through tokenize, which raises TokenError. (The array must be over 4 KiB: zipfile reads a smaller
+    member whole and finds its CRC wrong first.)"""
+    b = bytearray(path.read_bytes())
+    i = b.index(b"}", b.index(member.encode()))
+    b[i : i + 1] = b" "
+    path.write_bytes(bytes(b))
+
+
+def test_a_render_file_with_a_damaged_array_header_is_rendered_again(tmp_path):
+    """The design cache's render files: a damaged header is a miss (rendered again), not a tokenize
+    traceback on every rerun."""
+    import numpy as np
+
+    from lightfit.model.emulator import _stored_render
+
+    path = tmp_path / "render.npz"
+    np.savez(path, values=np.ones((1, 4, 300)), se=np.zeros((1, 4, 300)), seconds=1.0, leaf=np.ones(3), key="k")
+    assert _stored_render(path) is not None
+    _unbalance_header(path, "values.npy")
+    assert _stored_render(path) is None
+
+
+def test_an_emulator_file_with_a_damaged_array_header_is_rebuilt(tmp_path):
+    import numpy as np
+
+    from lightfit.model.emulator import PartsEmulator
+
+    path = tmp_path / "emulator.npz"
+    np.savez(path, lo=np.zeros(3), hi=np.ones(3), degree=1, coef_values=np.ones((4, 1, 4, 300)))
+    _unbalance_header(path, "coef_values.npy")
+    said = []
+    assert PartsEmulator.readable(path, said.append) is None
+    assert len(said) == 1 and "TokenError" in said[0] and "rebuilding" in said[0]
+
+
+def test_a_ggx_table_with_a_damaged_array_header_is_recomputed(tmp_path, monkeypatch):
+    import numpy as np
+
+    from lightfit.light import backend, bsdf
+
+    monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path))
+    variant = backend.mitsuba().variant()
+    fresh = bsdf._stored_table(variant, 256, 3)
+    (path,) = (tmp_path / "tables").glob("*.npy")
+    _unbalance_header(path)
+    assert np.array_equal(bsdf._stored_table(variant, 256, 3), bsdf._compute_table(256, 3))
+    assert np.array_equal(np.load(path), fresh)  # replaced

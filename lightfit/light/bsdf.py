@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lightfit.files import replaced
+from lightfit.files import UNREADABLE_NPZ, replaced
 from lightfit.light.backend import mitsuba
 
 ALPHA_MIN = 1e-2  # α floor (r ≈ 0.1): leaf cuticles are not mirrors, and it bounds the variance
@@ -313,7 +313,7 @@ def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
         table = np.load(path)
         if table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all():
             return table
-    except (OSError, ValueError):
+    except UNREADABLE_NPZ:
         pass
     table = _compute_table(n_samples, seed)
     try:

@@ -42,7 +42,6 @@ import hashlib
 import itertools
 import json
 import time
-import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -298,7 +297,7 @@ def _stored_render(file: Path) -> tuple[np.ndarray, np.ndarray, float] | None:
     try:
         with np.load(file) as z:
             return z["values"], z["se"], float(z["seconds"])
-    except (ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    except UNREADABLE_NPZ:
         return None
 
 
