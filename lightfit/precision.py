@@ -54,8 +54,11 @@ def use_compilation_cache(directory=None) -> None:
     No size cap, so no lock: JAX locks its entries only with a cap (``jax_compilation_cache_max_size``),
     whose eviction reads every entry's ``-atime`` file and, where one is missing (an entry of a
     cache made without a cap, or of a process killed between its two writes), fails every later
-    write with a warning, for good. Uncapped, two of ``field-run``'s workers compiling the same
-    program at once may read one another's half-written entry: JAX then warns and compiles again.
+    write with a warning, for good. Uncapped, JAX writes an entry in place, so entries are written
+    whole here instead (:func:`_write_entries_whole`): a process killed while writing one
+    (``field-run``'s workers are killed outright on Ctrl-C or ``--timeout``) left a cut entry that every
+    later run read, warned about ("Error reading persistent compilation cache entry") and compiled
+    again, for good, and two workers compiling one program at once read one another's half entry.
     """
     import jax
 
@@ -65,6 +68,38 @@ def use_compilation_cache(directory=None) -> None:
         jax.config.update("jax_compilation_cache_dir", str(directory or cache_root() / "jax"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    _write_entries_whole()
+
+
+def _write_entries_whole() -> None:
+    """Make JAX's uncapped file cache write each entry through :func:`lightfit.files.replaced` (a
+    temporary file renamed onto it), and write it even where a file of that name exists. JAX writes
+    in place and skips an existing entry: it reaches the write only after a miss or an entry it could
+    not read, so an existing file is a cut one (rewritten whole now: the cache heals) or one another
+    process has just written (the same program, replaced by a whole copy). A capped cache (its own
+    lock and access times) and a folder that is no local path are left to JAX, as is a JAX whose
+    cache lacks the names used here."""
+    try:
+        from jax._src import lru_cache
+    except ImportError:
+        return
+    cls, suffix = getattr(lru_cache, "LRUCache", None), getattr(lru_cache, "_CACHE_SUFFIX", None)
+    put = getattr(cls, "put", None)
+    if put is None or suffix is None or getattr(put, "_whole", False):
+        return
+
+    def put_whole(self, key: str, value: bytes) -> None:
+        if getattr(self, "eviction_enabled", True) or not key or "://" in str(self.path):
+            return put(self, key, value)
+        from pathlib import Path
+
+        from lightfit.files import replaced
+
+        with replaced(Path(str(self.path)) / f"{key}{suffix}") as tmp:
+            tmp.write_bytes(value)
+
+    put_whole._whole = True
+    cls.put = put_whole
 
 
 def precision() -> str:

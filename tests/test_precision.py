@@ -1,6 +1,7 @@
 """The precision policy: one call makes JAX compute in float64, and every entry point makes it."""
 
 import ast
+import math
 import os
 import subprocess
 import sys
@@ -140,3 +141,39 @@ def test_sqrt_or_zero_has_the_roots_value_and_a_finite_slope_at_zero():
     # a sum of squares through the origin: the norm's slope along a ray, 0 at the origin
     assert float(jax.grad(lambda t: sqrt_or_zero((3 * t) ** 2 + (4 * t) ** 2))(0.0)) == 0.0
     assert float(jax.grad(lambda t: sqrt_or_zero((3 * t) ** 2 + (4 * t) ** 2))(2.0)) == 5.0
+
+
+def test_a_cut_compilation_cache_entry_is_rewritten_whole_by_the_next_run(tmp_path):
+    """A process killed while JAX wrote an entry leaves it cut. JAX reads it, warns and compiles
+    again, but never writes an existing entry: every later run warned, for good. The run after the
+    cut one now rewrites it whole (through a temporary file), and the run after that reads it back."""
+    code = textwrap.dedent(
+        """
+        import warnings
+        import jax, jax.numpy as jnp
+        from lightfit.precision import use_compilation_cache, use_float64
+        use_float64()
+        use_compilation_cache()
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            print(float(jax.jit(lambda x: jnp.cos(x) * 2.0 + x**3)(0.5)))
+        print(sum("persistent compilation cache" in str(x.message) for x in w))
+        """
+    )
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["LIGHTFIT_CACHE"] = str(tmp_path)
+
+    def run():
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+        value, warned = out.stdout.split()
+        return float(value), int(warned)
+
+    expected = math.cos(0.5) * 2.0 + 0.5**3
+    assert run() == (pytest.approx(expected, rel=1e-15), 0)
+    (entry,) = (tmp_path / "jax").glob("*-cache")
+    whole = entry.read_bytes()
+    entry.write_bytes(whole[: len(whole) // 2])  # a writer killed half-way
+    assert run() == (pytest.approx(expected, rel=1e-15), 1)  # read cut: said once, compiled, rewritten
+    assert entry.read_bytes() == whole
+    assert run() == (pytest.approx(expected, rel=1e-15), 0)
+    assert [p.name for p in (tmp_path / "jax").iterdir()] == [entry.name]  # no temporary file left
