@@ -144,6 +144,8 @@ def render_key(model: CoupledModel) -> dict:
 
     sc = model.scenario
     day = np.asarray(model.day, bool)
+    # Not the Mitsuba variant nor the CPU target: the client keys renders its workers make, in
+    # their own variant (docs/light.md, "CPU targets": what a GPU's renders differ by).
     return {
         **code_versions(),
         "samples": int(sc.samples),
