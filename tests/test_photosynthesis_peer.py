@@ -149,3 +149,20 @@ def test_cplantbox_keeps_gamma_star_whatever_the_o2(o2):
     # the check means something: at this O2 the Rubisco rate is far from its value at 210 mmol mol⁻¹
     air = ps.solve(par, t, co2, 0.6, 101.325, ps.parameter_set("cplantbox"), fw=peer.fw)
     assert np.all(np.abs(np.asarray(res.vc_umol_m2_s) / np.asarray(air.vc_umol_m2_s) - 1) > 0.05)
+
+
+@pytest.mark.parametrize(
+    "field", ["ea_vcmax_j_mol", "ea_jmax_j_mol", "ea_rd_j_mol", "ea_kc_j_mol", "hd_vcmax_j_mol", "entropy_jmax_j_mol_k"]
+)
+def test_a_temperature_constant_cplantbox_cannot_take_is_refused(field):
+    """CPlantBox's temperature constants are compiled in: with ea_vcmax_j_mol 80 000 instead of its
+    58 520 the peer ran on its own and was compared silently (at PAR 1 500, 30 °C, 250 ppm
+    CPlantBox's Vc 9.85 against lightfit's 13.08 µmol m⁻² s⁻¹, the Arrhenius factor by hand
+    exp(21 480/(R·293.2)·(1 − 293.2/303.15)) = 1.33 apart). Only T_ref, Kc, Ko and Γ* were checked."""
+    import equinox as eqx
+
+    params = ps.parameter_set("cplantbox")
+    value = getattr(params.temperature, field)
+    changed = eqx.tree_at(lambda p: getattr(p.temperature, field), params, 1.1 * value)
+    with pytest.raises(ValueError, match=field):
+        run_cplantbox([1500.0], [30.0], [250.0], changed)

@@ -10,6 +10,7 @@ lazily).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import time
@@ -68,14 +69,19 @@ def _check_comparable(params: PhotosynthesisParams) -> None:
     if params.stomata.model != "cplantbox":
         raise ValueError("params.stomata.model must be 'cplantbox' to compare with CPlantBox")
     ref = TemperatureParams.cplantbox()
-    same = all(
-        np.allclose(np.asarray(getattr(params.temperature, f)), np.asarray(getattr(ref, f)))
-        for f in ("t_ref_k", "kc_ref_umol_mol", "ko_ref_mmol_mol", "gamma_star_ref_umol_mol")
-    )
-    if params.temperature.form != "cplantbox" or not same:
+    # Every number, activation and deactivation energies and entropies too: CPlantBox runs on its
+    # own whatever it is given, so a changed Ea was compared silently against the default's (Vc
+    # 13.1 against 9.8 µmol m-2 s-1 at 30 °C with ea_vcmax_j_mol 80 000 instead of 58 520).
+    differ = [
+        f.name
+        for f in dataclasses.fields(ref)
+        if f.name != "form"
+        and not np.allclose(np.asarray(getattr(params.temperature, f.name)), np.asarray(getattr(ref, f.name)))
+    ]
+    if params.temperature.form != "cplantbox" or differ:
         raise ValueError(
             "params.temperature must be TemperatureParams.cplantbox(): CPlantBox's "
-            "temperature constants are compiled in"
+            "temperature constants are compiled in" + (f" (these differ: {', '.join(differ)})" if differ else "")
         )
     if not np.isclose(float(params.fvcb.rd_to_vcmax), 0.015) or not params.fvcb.clip_rates:
         raise ValueError("CPlantBox fixes rd_to_vcmax = 0.015 and clips the rates")
