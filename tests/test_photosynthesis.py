@@ -1251,6 +1251,35 @@ def test_a_vcmax_beyond_float64s_reach_is_flagged_with_a_zero_gradient(name):
 
 
 @pytest.mark.parametrize("name", list(ps.PARAMETER_SET_NAMES))
+def test_a_vcmax_beyond_float32s_reach_is_flagged_with_a_zero_gradient(name):
+    """The float32 case of the test above (float32 is JAX's default): ci ≈ Rd/g0 = 0.015·Vcmax/g0 in
+    the dark, so Vcmax·ci ≈ 0.015·Vcmax²/g0 passes float32's 3.4e38 from Vcmax ≈ 1e20 for g0 of order
+    1e-2 to 1e-4. With float32's largest number as the limit, a Vcmax_ref of 1e25 came back flagged
+    but its gradient raised lineax's non-finite-input error. Now such elements are flagged with
+    gradient 0, under jit and eagerly, while a Vcmax_ref of 1e11 is still solved: An = −Rd =
+    −0.015·Vcmax_ref·f_Rd in the dark (f_Rd = 1 at each set's reference temperature)."""
+    f32 = np.float32
+    base = ps.parameter_set(name)
+    t_ref_c = f32(float(base.temperature.t_ref_k) - 273.15)
+    par = jnp.array([0.0, 50.0, 1500.0], f32)
+
+    def loss(v):
+        p = eqx.tree_at(lambda r: r.fvcb.vcmax_ref_umol_m2_s, base, v)
+        r = ps.solve(par, t_ref_c, f32(400.0), f32(0.5), f32(P_KPA), p)
+        return jnp.where(jnp.any(~r.converged), jnp.inf, jnp.sum(r.an_umol_m2_s)), r
+
+    for vg in (jax.jit(jax.value_and_grad(loss, has_aux=True)), jax.value_and_grad(loss, has_aux=True)):
+        for v in (1e25, 1e35):
+            (value, res), slope = vg(jnp.asarray(v, f32))
+            assert float(value) == np.inf and float(slope) == 0.0, (v, value, slope)
+            assert not np.asarray(res.converged).any()
+        (value, res), slope = vg(jnp.asarray(1e11, f32))
+        assert np.asarray(res.converged).all() and res.an_umol_m2_s.dtype == f32
+        assert float(res.an_umol_m2_s[0]) == pytest.approx(-0.015 * 1e11, rel=1e-5)
+        assert np.isfinite(float(slope))
+
+
+@pytest.mark.parametrize("name", list(ps.PARAMETER_SET_NAMES))
 def test_gradient_at_zero_vcmax_is_the_one_sided_difference(name):
     """At a Vcmax scale of 0 both rates are 0: jnp.minimum split the gradient 50/50 between Vc and
     Vj (jacfwd 14.6 where the one-sided difference is -1.5 in the dark). The tie rule now takes

@@ -317,6 +317,12 @@ _STAND_IN = {
 #: (an optimiser's exp(z) reaches it: a Vcmax scale of 1e200). Above it the elements are flagged
 #: and solved at the stand-ins (:func:`_guarded`): 1e100 is 96 orders of magnitude above any leaf.
 MAX_SOLVED_VCMAX_UMOL_M2_S = 1e100
+#: The same limit for a float32 solve [µmol m⁻² s⁻¹]: Vcmax·ci overflows float32 from a Vcmax_ref of
+#: ≈ 1e20 (the default set: converged at 1e19, NaN and a gradient that raised lineax's error at 1e25);
+#: float32's own largest number (3.4e38), the limit before, let those through. 1e12 is 8 orders of
+#: magnitude above any leaf and 2 below the overflow for a g0 as small as 1e-9 mol m⁻² s⁻¹
+#: (ci ≈ Rd/g0: Vcmax·ci ≈ 0.015·Vcmax²/g0 reaches 3.4e38 at Vcmax ≈ 1.5e14).
+MAX_SOLVED_VCMAX_FLOAT32_UMOL_M2_S = 1e12
 
 
 @functools.cache
@@ -337,12 +343,14 @@ def _guarded(env: Environment, params: PhotosynthesisParams) -> tuple[Environmen
     lineax's check, though the value was flagged), and their cotangents 0. Their outputs stay the
     stand-in's, finite: a NaN output would poison the sums the likelihood takes before it masks
     unconverged steps (0 × NaN in the reverse pass, and lineax raised again). A Vcmax_ref above
-    :data:`MAX_SOLVED_VCMAX_UMOL_M2_S`, inside its domain but beyond float64's reach, counts as outside it."""
+    :data:`MAX_SOLVED_VCMAX_UMOL_M2_S` (float32: :data:`MAX_SOLVED_VCMAX_FLOAT32_UMOL_M2_S`), inside its
+    domain but beyond the dtype's reach, counts as outside it."""
     ok = _in_range(env)
     safe = {k: jnp.where(ok, getattr(env, k), jnp.asarray(v, getattr(env, k).dtype)) for k, v in _STAND_IN.items()}
     vcmax = jnp.asarray(params.fvcb.vcmax_ref_umol_m2_s)
-    # float32 holds no 1e100 (casting it overflowed with a RuntimeWarning): its largest number is the limit there
-    limit = min(MAX_SOLVED_VCMAX_UMOL_M2_S, float(jnp.finfo(vcmax.dtype).max))
+    # float32 holds no 1e100 (casting it overflowed with a RuntimeWarning) and overflows far below its largest number
+    wide = jnp.finfo(vcmax.dtype).bits >= 64
+    limit = MAX_SOLVED_VCMAX_UMOL_M2_S if wide else MAX_SOLVED_VCMAX_FLOAT32_UMOL_M2_S
     keep = params_in_domain(params) & (vcmax <= limit)
     mine = {name: jnp.asarray(value_of(params, name)) for name in OVERRIDABLE}
     stand_in = _stand_in_values()
@@ -640,9 +648,10 @@ def solve(
             and meaningless) and gradients of 0 (the other elements' are unaffected). A traced
             parameter outside its domain (NaN, infinite, a curvature of 1.5; shared by all
             elements) flags every element, solved at the default set's numbers, with gradients of
-            0; so does a Vcmax_ref above :data:`MAX_SOLVED_VCMAX_UMOL_M2_S` (1e100), concrete or
-            traced. A gradient through an infinite cotangent still raises lineax's "non-finite input"
-            error from the implicit adjoint's linear solve.
+            0; so does a Vcmax_ref above :data:`MAX_SOLVED_VCMAX_UMOL_M2_S` (1e100; 1e12 in float32,
+            :data:`MAX_SOLVED_VCMAX_FLOAT32_UMOL_M2_S`), concrete or traced. A gradient through an
+            infinite cotangent still raises lineax's "non-finite input" error from the implicit
+            adjoint's linear solve.
     """
     env, params, config = _prepared(
         config,
