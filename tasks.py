@@ -7,7 +7,7 @@
     python3 tasks.py bench   # set up, then every benchmarks/bench_*.py (long: see docs/benchmarks.md)
 
 Setup is idempotent: the virtual environment ``.venv`` is (re)installed only when
-``requirements.lock`` or ``pyproject.toml`` changed since the last install. A Makefile
+``requirements.lock``, ``pyproject.toml`` or its Python changed since the last install. A Makefile
 would do the same, but `make` is not on a bare Debian/Ubuntu image and Python is.
 """
 
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -53,11 +54,30 @@ def _fingerprint() -> str:
     return h.hexdigest()
 
 
+def _venv_python_changed() -> bool:
+    """Whether the venv's ``python`` can no longer run what was installed for it: its interpreter was
+    removed (a dangling link, which ``python3 -m venv`` leaves as it is) or it now runs another
+    Python X.Y than the venv was made for (``pyvenv.cfg``; ``/usr/bin/python3`` upgraded), which sees
+    none of the venv's packages, pip included."""
+    py = BIN / "python"
+    if not py.exists():
+        return os.path.lexists(py)
+    cfg = VENV / "pyvenv.cfg"
+    made = re.search(r"^version(?:_info)?\s*=\s*(\d+)\.(\d+)", cfg.read_text(), re.M) if cfg.exists() else None
+    if made is None:
+        return False
+    ran = subprocess.run([str(py), "-c", "import sys; print(*sys.version_info[:2])"], capture_output=True, text=True)
+    return ran.returncode != 0 or ran.stdout.split() != list(made.groups())
+
+
 def _make_venv() -> None:
-    if (BIN / "python").exists():
+    changed = _venv_python_changed()
+    if (BIN / "python").exists() and not changed:
         return
+    if changed:
+        print(f"tasks.py: the Python {VENV} was made with is gone or changed; making it anew", flush=True)
     try:
-        _sh(sys.executable, "-m", "venv", VENV)
+        _sh(sys.executable, "-m", "venv", *(["--clear"] if changed else []), VENV)
     except subprocess.CalledProcessError:
         # Debian/Ubuntu split ensurepip into python3-venv; install it if we can.
         shutil.rmtree(VENV, ignore_errors=True)

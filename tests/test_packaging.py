@@ -288,3 +288,39 @@ def test_tasks_py_reinstalls_a_venv_remade_by_another_python(tmp_path, monkeypat
     (tmp_path / "bin" / "python").unlink()
     os.symlink(tmp_path / "b", tmp_path / "bin" / "python")
     assert tasks._fingerprint() != first
+
+
+def _tasks_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("tasks_under_test", ROOT / "tasks.py")
+    tasks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tasks)
+    return tasks
+
+
+@pytest.mark.parametrize("python", ["gone", "3 12", "3 11"])
+def test_tasks_py_remakes_a_venv_whose_python_is_gone_or_changed(tmp_path, monkeypatch, python):
+    """A venv made by a Python that was then removed (bin/python a dangling link) or that now runs
+    another X.Y (/usr/bin/python3 upgraded under it) was kept: `python3 -m venv` left the dangling link
+    (then failed, and tasks.py told to install python3-venv), or nothing was remade and pip was run by
+    a Python that sees none of the venv's packages ("No module named pip"). Such a venv is made anew
+    (`venv --clear`); one whose Python still is the one in pyvenv.cfg is left alone."""
+    tasks = _tasks_module()
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    (venv / "pyvenv.cfg").write_text("home = /nowhere\ninclude-system-site-packages = false\nversion = 3.11.7\n")
+    if python == "gone":
+        (venv / "bin" / "python").symlink_to(tmp_path / "removed-python3.11")
+    else:  # a stand-in interpreter answering the version query with "X Y"
+        (venv / "bin" / "python").write_text(f"#!/bin/sh\necho {python}\n")
+        (venv / "bin" / "python").chmod(0o755)
+    monkeypatch.setattr(tasks, "VENV", venv)
+    monkeypatch.setattr(tasks, "BIN", venv / "bin")
+    ran = []
+    monkeypatch.setattr(tasks, "_sh", lambda *cmd: ran.append([str(c) for c in cmd]))
+    tasks._make_venv()
+    if python == "3 11":
+        assert ran == []
+    else:
+        assert ran == [[sys.executable, "-m", "venv", "--clear", str(venv)]]
