@@ -2,6 +2,7 @@
 """Set up lightfit and run its two entry points, needing only Python >= 3.11.
 
     python3 tasks.py run     # set up, then run the main job (20 April 2016, bundled data, CPU)
+    python3 tasks.py run [lightfit replicate options]   # paths in them are the caller's directory's
     python3 tasks.py test    # set up, then lint (ruff) and run the test suite
     python3 tasks.py setup   # set up only (.venv)
     python3 tasks.py bench   # set up, then every benchmarks/bench_*.py (long: see docs/benchmarks.md)
@@ -28,9 +29,9 @@ BIN = VENV / "bin"
 STAMP = VENV / ".lightfit-installed"
 
 
-def _sh(*cmd: str | Path) -> None:
+def _sh(*cmd: str | Path, cwd: Path = ROOT) -> None:
     print("+", " ".join(map(str, cmd)), flush=True)
-    subprocess.run([str(c) for c in cmd], check=True, cwd=ROOT)
+    subprocess.run([str(c) for c in cmd], check=True, cwd=cwd)
 
 
 def _install(*args: str) -> None:
@@ -110,7 +111,9 @@ def main(argv: list[str]) -> None:
         setup()
     elif task == "run":
         setup()
-        _sh(BIN / "lightfit", "replicate", *(rest or ["--out", "results/2016-04-20"]))
+        # in the caller's directory, where the paths given after `run` (--weather, --out …) are; the
+        # default results still go to the repository's results/2016-04-20
+        _sh(BIN / "lightfit", "replicate", *(rest or ["--out", ROOT / "results" / "2016-04-20"]), cwd=Path.cwd())
     elif task == "test":
         setup()
         _sh(BIN / "ruff", "check", ".")

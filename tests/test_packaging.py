@@ -324,3 +324,27 @@ def test_tasks_py_remakes_a_venv_whose_python_is_gone_or_changed(tmp_path, monke
         assert ran == []
     else:
         assert ran == [[sys.executable, "-m", "venv", "--clear", str(venv)]]
+
+
+def test_tasks_py_run_takes_paths_from_the_callers_directory(tmp_path, monkeypatch):
+    """`cd ~/data && python3 ~/lightfit/tasks.py run --weather SE_EC_001.csv` ran `lightfit replicate`
+    in the repository, so the file beside the user was "no such weather file" and `--out` went into
+    the repository. It runs in the caller's directory now; with no options the results still go to
+    the repository's results/2016-04-20."""
+    tasks = _tasks_module()
+    bin_ = tmp_path / "bin"
+    bin_.mkdir()
+    log = tmp_path / "log"
+    (bin_ / "lightfit").write_text(f'#!/bin/sh\necho "$PWD" "$@" >> {log}\n[ "$2" != --weather ] || test -f "$3"\n')
+    (bin_ / "lightfit").chmod(0o755)
+    caller = tmp_path / "data"
+    caller.mkdir()
+    (caller / "SE_EC_001.csv").write_text("a weather export\n")
+    monkeypatch.setattr(tasks, "BIN", bin_)
+    monkeypatch.setattr(tasks, "setup", lambda: None)
+    monkeypatch.chdir(caller)
+    tasks.main(["run", "--weather", "SE_EC_001.csv", "--out", "results/real"])  # fails if the file is not found
+    tasks.main(["run"])
+    first, second = log.read_text().splitlines()
+    assert first == f"{caller} replicate --weather SE_EC_001.csv --out results/real"
+    assert second.split()[1:] == ["replicate", "--out", str(ROOT / "results" / "2016-04-20")]
