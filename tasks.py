@@ -97,9 +97,22 @@ def setup() -> None:
     _make_venv()
     if STAMP.exists() and STAMP.read_text() == _fingerprint():
         return
-    _install("--upgrade", "pip")
-    _install("-r", "requirements.lock")
-    _install("--no-deps", "-e", ".")
+    try:
+        _install("--upgrade", "pip")
+        _install("-r", "requirements.lock")
+        _install("--no-deps", "-e", ".")
+    except subprocess.CalledProcessError:
+        ver = f"{sys.version_info.major}.{sys.version_info.minor}"
+        print(
+            f"tasks.py: pip could not install lightfit's locked dependencies for Python {ver} (its message "
+            "above). Connection errors or 'from versions: none' mean this machine cannot reach PyPI (no "
+            "network, or a proxy or mirror to set: HTTPS_PROXY, PIP_INDEX_URL); 'No matching distribution' "
+            f"with versions listed means a pinned package has no build for Python {ver}: requirements.lock "
+            "was made and tested with Python 3.11.",
+            file=sys.stderr,
+            flush=True,
+        )
+        raise
     STAMP.write_text(_fingerprint())
 
 

@@ -348,3 +348,25 @@ def test_tasks_py_run_takes_paths_from_the_callers_directory(tmp_path, monkeypat
     first, second = log.read_text().splitlines()
     assert first == f"{caller} replicate --weather SE_EC_001.csv --out results/real"
     assert second.split()[1:] == ["replicate", "--out", str(ROOT / "results" / "2016-04-20")]
+
+
+def test_tasks_py_says_why_the_install_may_have_failed(tmp_path, monkeypatch, capsys):
+    """A failed install (no network, or a Python the lock has no wheels for) ended with pip's message
+    alone and exit 1: tasks.py now adds what the two usual causes look like, naming this Python."""
+    import subprocess
+
+    tasks = _tasks_module()
+    monkeypatch.setattr(tasks, "_make_venv", lambda: None)
+    monkeypatch.setattr(tasks, "STAMP", tmp_path / "stamp")
+    monkeypatch.setattr(tasks, "BIN", tmp_path / "bin")
+
+    def fail(*args):
+        raise subprocess.CalledProcessError(1, ["pip", "install", *args])
+
+    monkeypatch.setattr(tasks, "_install", fail)
+    with pytest.raises(subprocess.CalledProcessError):
+        tasks.setup()
+    err = capsys.readouterr().err
+    ver = f"{sys.version_info.major}.{sys.version_info.minor}"
+    assert f"for Python {ver}" in err and "network" in err and "made and tested with Python 3.11" in err
+    assert not (tmp_path / "stamp").exists()  # nothing claims to be installed
