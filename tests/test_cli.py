@@ -839,6 +839,21 @@ def test_soil_respiration_options_reach_the_run_configuration():
     assert (default.soil_respiration_umol_m2_s, default.soil_respiration_q10) == (0.0, 2.0)
 
 
+def test_soil_respiration_help_says_how_to_bring_a_reading_to_10_c():
+    """--soil-respiration is R₁₀, at 10 °C; its help sends the user to bare-soil or night readings,
+    made at other temperatures, and said nothing of scaling them, so a reading given as it was came
+    back at its own temperature as Q₁₀^((T − 10)/10) times itself (0.71× at 5 °C, Q₁₀ = 2). The help
+    now states R / Q10^((T − 10)/10); by that rule a 1.0 µmol m⁻² s⁻¹ reading at 5 °C is
+    1/2^(−0.5) = 1.4142 at 10 °C, and the model returns the reading at 5 °C."""
+    from lightfit.model.observe import soil_respiration
+
+    (param,) = [p for p in typer.main.get_command(app).commands["replicate"].params if p.name == "soil_respiration"]
+    assert "R / Q10^((T − 10)/10)" in param.help, param.help
+    r10 = 1.0 / 2.0 ** ((5.0 - 10.0) / 10.0)
+    assert r10 == pytest.approx(1.41421356)
+    assert float(soil_respiration(r10, 2.0, 5.0)) == pytest.approx(1.0, rel=1e-12)
+
+
 @pytest.mark.parametrize(
     "args, words",
     [

@@ -631,7 +631,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             "--soil-respiration",
             help="Soil and root respiration at 10 °C, µmol m⁻² s⁻¹, added to the chamber NEE only "
             "(default 0: not modelled; from bare-soil readings, or night readings minus the leaves' "
-            "dark respiration, which the model adds itself).",
+            "dark respiration, which the model adds itself; a reading R at air temperature T is "
+            "R / Q10^((T − 10)/10) at 10 °C).",
             rich_help_panel=_PHOTO,
         ),
     ),

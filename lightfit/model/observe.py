@@ -66,7 +66,8 @@ own terms (:data:`OBSERVABLES`; the observations CSV names them, :mod:`lightfit.
   :func:`soil_respiration`; R₁₀ default :data:`SOIL_RESPIRATION_UMOL_M2_S` = 0: lightfit does not
   model soil or root respiration, so a user comparing with a chamber on soil gives R₁₀, e.g. from
   bare-soil readings, or from night readings *minus* the leaves' modelled dark respiration, which
-  those readings include and the model adds itself; Q₁₀ default 2).
+  those readings include and the model adds itself; either brought to 10 °C, R₁₀ = R / Q₁₀^((T - 10)/10)
+  for a reading R at air temperature T; Q₁₀ default 2).
 
 Absorbed PAR per segment stays an output (``absorbed_par_umol_m2_s``, results.nc) for users who
 compare leaf by leaf.

@@ -428,7 +428,8 @@ class Scenario:
             10 °C, µmol m⁻² ground s⁻¹ (default 0: not modelled), and its Q₁₀ (default 2), added
             at each step's air temperature to the chamber NEE observable only
             (:func:`lightfit.model.observe.soil_respiration`). Take it from bare-soil readings, or
-            from night readings minus the leaves' dark respiration that the model adds itself.
+            from night readings minus the leaves' dark respiration that the model adds itself,
+            brought to 10 °C: a reading R at air temperature T gives R / Q₁₀^((T − 10)/10).
         n_tiles, tile: run only tile ``tile`` of ``field.tiles(n_tiles)`` (its plants measured,
             its buffer ring as geometry); ``None`` runs the whole measurement area.
     """
