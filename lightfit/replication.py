@@ -160,7 +160,7 @@ class ReplicationConfig:
     "Recommended settings").
     ``soil_respiration_umol_m2_s`` and ``soil_respiration_q10``: soil and root respiration added to
     NEE, µmol m⁻² s⁻¹ at 10 °C air temperature and its Q10 (:attr:`Scenario.soil_respiration_umol_m2_s`;
-    default 0: the default NEE is −canopy An). ``how``: how the weather meets the steps, ``"sample"``
+    default 0: the default NEE is −canopy An per ground area). ``how``: how the weather meets the steps, ``"sample"``
     (each step's instant, where its sun is taken) or ``"mean"`` (:func:`lightfit.weather.resample`).
     """
 

@@ -90,6 +90,30 @@ def test_chamber_nee_sign_convention():
     assert O.SOIL_RESPIRATION_UMOL_M2_S == 0.0
 
 
+def test_nee_is_per_ground_area_when_canopy_an_is_per_leaf_area():
+    """With an_per = "leaf" and no soil respiration, NEE is −canopy An per *ground* area, not −canopy_an:
+    blades of 0.01 and 0.03 m² at An 10 and 20 µmol m⁻² s⁻¹ on 0.02 m² of ground take up
+    0.1 + 0.6 = 0.7 µmol s⁻¹, so canopy An is 0.7 / 0.04 = 17.5 per leaf area and NEE −0.7 / 0.02 = −35
+    (by hand)."""
+    area = np.array([0.01, 0.03])
+    one = np.ones((1, 2))
+    out = O.observables(
+        one,
+        0 * one,
+        area,
+        np.array([[10.0, 20.0]]),
+        0 * one,
+        area,
+        O.an_denominator(area, "leaf", 0.02),
+        absorbed=one,
+        absorbed_mc_sd=0 * one,
+        ground_area_m2=0.02,
+        above_par=np.array([1.0]),
+    )
+    assert float(out["canopy_an_umol_m2_s"][0]) == pytest.approx(17.5)
+    assert float(out["nee_umol_m2_s"][0]) == pytest.approx(-35.0)
+
+
 def test_soil_respiration_follows_q10():
     """R = R₁₀ Q₁₀^((T − 10)/10): doubling every 10 K at Q₁₀ = 2; constant at Q₁₀ = 1."""
     t = np.array([0.0, 10.0, 20.0, 25.0])
