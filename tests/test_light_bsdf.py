@@ -140,7 +140,7 @@ def test_albedo_table_is_kept_on_disk_bitwise(tmp_path, monkeypatch):
     path.write_bytes(path.read_bytes()[:100])  # truncated
     assert np.array_equal(bsdf._stored_table(variant, 256, 3), fresh)
     assert np.array_equal(np.load(path), fresh)
-    assert not np.array_equal(bsdf._stored_table(variant, 256, 4), fresh)  # another seed, another file
+    assert not np.array_equal(bsdf._stored_table(variant, 256, 4), fresh)  # other nodes, another file
     assert len(list((tmp_path / "tables").glob("*.npy"))) == 2
 
 
@@ -215,3 +215,47 @@ def test_white_sky_albedo_is_the_cosine_weighted_sampled_albedo(rough):
     _, w = b.sample(mi.BSDFContext(), si, s.next_1d(), s.next_2d())
     sampled = float(dr.mean(w[0])[0]) / 0.08
     assert ggx_white_sky_albedo(rough) == pytest.approx(sampled, abs=2e-3)
+
+
+def _ggx_albedo_by_adaptive_quadrature(mu, alpha):
+    """E(μ) = ∫ D(h) G1(ω_i) G1(ω_o) / (4μ) dω_o over the upper hemisphere, integrated over ω_o
+    (θ_o, φ_o) by scipy's adaptive quadrature: another variable than the table's (microfacet
+    normals), written from Walter et al. 2007 (GGX D, separable Smith G1)."""
+    from scipy.integrate import dblquad
+
+    wi = np.array([np.sqrt(1 - mu * mu), 0.0, mu])
+
+    def g1(c):
+        return 2 / (1 + np.sqrt(1 + alpha**2 * (1 - c * c) / (c * c)))
+
+    def f(theta, phi):
+        wo = np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+        h = (wi + wo) / np.linalg.norm(wi + wo)
+        d = 1 / (np.pi * alpha**2 * h[2] ** 4 * (1 + (1 - h[2] ** 2) / (h[2] ** 2 * alpha**2)) ** 2)
+        return d * g1(mu) * g1(wo[2]) / (4 * mu) * np.sin(theta)  # f·cos θ_o·sin θ_o, f = DG/(4 cos_i cos_o)
+
+    return 2 * dblquad(f, 0, np.pi, 0, np.pi / 2, epsabs=1e-7, epsrel=1e-7)[0]  # φ over [0, π], even
+
+
+@pytest.mark.parametrize("i, j", [(24, 24), (16, 32), (4, 32), (32, 24), (32, 16), (24, 16), (16, 8)])
+def test_ggx_albedo_table_matches_an_adaptive_quadrature(i, j):
+    """The tabulated GGX albedo at its nodes against scipy's adaptive quadrature over ω_o. It was a
+    Monte Carlo estimate (16 384 samples a cell, documented as within 0.1 %) that missed this by
+    up to 8.4e-3 (μ 0.75, r 0.75) and put the roughness slopes, hence the roughness gradient of
+    absorbed light, up to 14 % off."""
+    from lightfit.light.bsdf import ALPHA_MIN, TABLE_MU, TABLE_R, ggx_albedo_table
+
+    expected = _ggx_albedo_by_adaptive_quadrature(TABLE_MU[i], max(TABLE_R[j] ** 2, ALPHA_MIN))
+    assert ggx_albedo_table()[i, j] == pytest.approx(expected, abs=1e-4)
+
+
+def test_white_sky_albedo_at_the_default_roughness_matches_a_quadrature():
+    """Ē(0.5) = 2∫E(μ)μ dμ (the default leaf's glossy reflectance under a uniform sky per unit F0,
+    which sets the prospect preset's base colour) against 2∫ by Gauss–Legendre over μ (16 nodes)
+    of the adaptive quadrature: 0.87946 (the Monte Carlo table gave 0.87890)."""
+    from lightfit.light.bsdf import ggx_white_sky_albedo
+
+    x, w = np.polynomial.legendre.leggauss(16)
+    mu = 0.5 * (x + 1)
+    expected = float(np.sum(0.5 * w * 2 * mu * [_ggx_albedo_by_adaptive_quadrature(m, 0.25) for m in mu]))
+    assert ggx_white_sky_albedo(0.5) == pytest.approx(expected, abs=1e-4)

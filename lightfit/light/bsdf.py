@@ -274,32 +274,37 @@ def leaf_bsdf_dict(specular: float, roughness: float, subsurface: float, base_co
 
 _ALBEDO_TABLE: dict[str, np.ndarray] = {}
 #: Bump when :func:`_compute_table` changes what it estimates: stored tables are then not read.
-_TABLE_FORMAT = 1
+#: 2: midpoint quadrature instead of Monte Carlo (16 384 samples per cell: errors up to 8e-3 and
+#: roughness slopes up to 14 % off).
+_TABLE_FORMAT = 2
 TABLE_MU = np.linspace(0.0, 1.0, 33)
 TABLE_R = np.linspace(0.0, 1.0, 33)  # roughness r; α = max(r², ALPHA_MIN)
-#: Monte Carlo samples per (μ, r) cell of :func:`ggx_albedo_table` (its standard error < 0.1 %).
-TABLE_SAMPLES = 16384
+#: Quadrature nodes (θ_m, φ_m over [0, π]) per (μ, r) cell of :func:`ggx_albedo_table`: measured
+#: within 1.2e-5 of an adaptive quadrature over ω_o at 7 nodes (``tests/test_light_bsdf.py``, which
+#: allows 1e-4).
+TABLE_QUADRATURE = (400, 64)
 
 
 def ggx_albedo_table() -> np.ndarray:
     r"""Directional albedo :math:`E(\mu, r)` of the unit-weight GGX lobe (F = 1), tabulated.
 
-    :math:`E(\mu) = \int D\,G / (4\mu)\,d\omega_o` over the upper hemisphere, estimated by
-    visible-normal sampling (weight G₂/G₁, standard error < 0.1 %) on a 33 × 33 grid of
-    incidence cosine μ and roughness r. E = 1 at normal incidence for smooth surfaces and falls
-    at grazing incidence and high roughness (shadowing-masking).
+    :math:`E(\mu) = \int D\,G / (4\mu)\,d\omega_o` over the upper hemisphere (GGX D, separable
+    Smith G as Mitsuba's ``MicrofacetDistribution``), computed by midpoint quadrature over the
+    microfacet normals (:func:`_compute_table`, to about 1e-5) on a 33 × 33 grid of incidence cosine
+    μ and roughness r. E = 1 at normal incidence for smooth surfaces and falls at grazing incidence
+    and high roughness (shadowing-masking).
     """
     key = mitsuba().variant()
     if key not in _ALBEDO_TABLE:
-        _ALBEDO_TABLE[key] = _stored_table(key, TABLE_SAMPLES, seed=0)
+        _ALBEDO_TABLE[key] = _stored_table(key, *TABLE_QUADRATURE)
     return _ALBEDO_TABLE[key]
 
 
-def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
-    """:func:`ggx_albedo_table` kept on disk (``<cache root>/tables``, :mod:`lightfit.cache`): its
-    17 M samples cost 3–5 s of CPU in every process. The file name carries everything the table
-    depends on (format, variant, Mitsuba version, grid, samples, seed), so a stale file is never read; a
-    file that does not load as the expected finite table is recomputed and replaced."""
+def _stored_table(variant: str, n_theta: int, n_phi: int) -> np.ndarray:
+    """:func:`ggx_albedo_table` kept on disk (``<cache root>/tables``, :mod:`lightfit.cache`): it
+    costs about a second of CPU in every process. The file name carries everything the table
+    depends on (format, variant, Mitsuba version, grid, quadrature nodes), so a stale file is never
+    read; a file that does not load as the expected finite table is recomputed and replaced."""
     from lightfit.cache import cache_root
 
     mi = mitsuba()
@@ -307,7 +312,7 @@ def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
     path = (
         cache_root()
         / "tables"
-        / f"ggx_albedo_v{_TABLE_FORMAT}_{variant}_{mi.__version__}_{shape[0]}x{shape[1]}_{n_samples}_{seed}.npy"
+        / f"ggx_albedo_v{_TABLE_FORMAT}_{variant}_{mi.__version__}_{shape[0]}x{shape[1]}_{n_theta}_{n_phi}.npy"
     )
     try:
         table = np.load(path)
@@ -315,7 +320,7 @@ def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
             return table
     except UNREADABLE_NPZ:
         pass
-    table = _compute_table(n_samples, seed)
+    table = _compute_table(n_theta, n_phi)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with replaced(path) as tmp:  # another process reads the whole table or none
@@ -325,25 +330,39 @@ def _stored_table(variant: str, n_samples: int, seed: int) -> np.ndarray:
     return table
 
 
-def _compute_table(n_samples: int, seed: int) -> np.ndarray:
-    """The Monte Carlo estimate of :func:`ggx_albedo_table` in the current Mitsuba variant."""
-    mi = mitsuba()
-    import drjit as dr
+def _compute_table(n_theta: int, n_phi: int) -> np.ndarray:
+    r""":func:`ggx_albedo_table` by midpoint quadrature over microfacet normals m (numpy, float64).
 
-    mu, r = np.meshgrid(np.maximum(TABLE_MU, 1e-3), TABLE_R, indexing="ij")
-    n = mu.size * n_samples
-    mu_f = np.repeat(mu.ravel(), n_samples).astype(np.float32)
-    alpha = np.maximum(np.repeat(r.ravel(), n_samples) ** 2, ALPHA_MIN).astype(np.float32)
-    wi = mi.Vector3f(mi.Float(np.sqrt(1 - mu_f**2)), 0.0, mi.Float(mu_f))
-    distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, mi.Float(alpha), True)
-    s = mi.load_dict({"type": "independent"})
-    s.seed(seed, n)
-    m, pdf_m = distr.sample(wi, s.next_2d())
-    wo = mi.reflect(wi, m)
-    # f·cos θo / pdf(ωo) with f = D G / (4 cos θi cos θo) and pdf(ωo) = pdf(m) / (4 |ωo·m|)
-    w = distr.eval(m) * distr.G(wi, wo, m) * dr.abs(dr.dot(wo, m)) / (mi.Float(mu_f) * pdf_m)
-    w = dr.select((mi.Frame3f.cos_theta(wo) > 0) & (pdf_m > 0), w, 0.0)
-    return np.asarray(w, dtype=np.float64).reshape(mu.size, n_samples).mean(1).reshape(mu.shape)
+    :math:`E(\mu) = \int D(m)\,G_1(\omega_i)\,G_1(\omega_o)\,(\omega_i\cdot m)/\mu\,d\omega_m` with
+    :math:`\omega_o` the mirror of :math:`\omega_i` about m (:math:`d\omega_o = 4(\omega_o\cdot m)\,d\omega_m`),
+    on ``n_theta`` nodes of s, :math:`\tan\theta_m = \alpha s/(1 - s)` (dense where D is, at every
+    α), times ``n_phi`` of φ_m over [0, π] (the integrand is even in φ_m). It was a Monte Carlo
+    estimate (16 384 samples per cell, said to be within 0.1 %): off by up to 8e-3 (1.3 %), and
+    the roughness slopes taken from it (the roughness gradient of absorbed light) by up to 14 %.
+    """
+    s = (np.arange(n_theta) + 0.5) / n_theta
+    cos_p = np.cos((np.arange(n_phi) + 0.5) / n_phi * np.pi)
+    table = np.empty((len(TABLE_MU), len(TABLE_R)))
+    for j, r in enumerate(TABLE_R):
+        a = max(r * r, ALPHA_MIN)
+
+        def g1(cos, a=a):
+            cos = np.maximum(cos, 1e-12)  # masked below 0; tends to 0 at the horizon
+            return 2.0 / (1.0 + np.sqrt(1.0 + a * a * np.maximum(1.0 - cos * cos, 0.0) / (cos * cos)))
+
+        tan_t = a * s / (1.0 - s)
+        cos_t = 1.0 / np.sqrt(1.0 + tan_t**2)
+        sin_t = tan_t * cos_t
+        d = 1.0 / (np.pi * a * a * cos_t**4 * (1.0 + (tan_t / a) ** 2) ** 2)  # GGX D(m)
+        # dω_m = sin θ dθ dφ, dθ = cos²θ d(tan θ), d(tan θ) = α / (1 − s)² ds; φ over [0, π], doubled
+        dw = d * sin_t * cos_t**2 * a / (1.0 - s) ** 2 / n_theta * (2.0 * np.pi / n_phi)
+        mx, mz = sin_t[:, None] * cos_p, cos_t[:, None]
+        for i, mu in enumerate(np.maximum(TABLE_MU, 1e-3)):
+            c = mx * np.sqrt(1.0 - mu * mu) + mz * mu  # ω_i·m
+            cos_o = 2.0 * c * mz - mu
+            value = np.where((c > 0) & (cos_o > 0), g1(mu) * g1(cos_o) * c / mu, 0.0)
+            table[i, j] = float(np.sum(value * dw[:, None]))
+    return table
 
 
 def catmull_rom_weights(t):

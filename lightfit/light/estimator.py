@@ -94,7 +94,9 @@ DIRECT_MODES = ("paths", "projection", "none")
 #: between the table's nodes move by at most F0 × 2.5e-3 ≤ 2e-4 of the albedo). 4: each plant's
 #: stem and sheath prisms turned about their axes by its own angle (:func:`lightfit.plant.mesh.prism_turn`;
 #: the mesh, not the sampling, but the segment table that keys the geometry is unchanged).
-ESTIMATOR_VERSION = 4
+#: 5: the GGX albedo table by quadrature instead of Monte Carlo (:func:`~lightfit.light.bsdf._compute_table`;
+#: the glossy lobe's albedo moves by up to 8e-3, the leaf's by F0 × that ≤ 7e-4).
+ESTIMATOR_VERSION = 5
 # Random dimensions: 0–2 point on the segment; per side 8 (front 3–10, back 11–18), of which the
 # first 2 draw the direction and the other 6 are unused since absorptance became a tabulated
 # albedo (kept in the numbering, never generated); then 3 per scattering order and side.
