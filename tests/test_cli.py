@@ -1560,6 +1560,15 @@ def test_compare_preset_paper_runs_the_papers_setup_beside_the_default(tmp_path)
     assert dataclasses.replace(ReplicationConfig.paper(), vcmax_profile="uniform").preset == "paper"
 
 
+def test_compare_preset_help_says_the_compared_run_does_not_take_theta():
+    """replication.run runs the --compare-preset configuration with its preset's own leaf and
+    scales (no θ): a reader of --help must not take the dashed curves for the preset at the θ given
+    (a review: the help of neither option said so)."""
+    params = {p.name: p.help for p in typer.main.get_command(app).commands["replicate"].params}
+    assert "--theta is not applied to it" in params["compare_preset"]
+    assert "not the --compare-preset run" in params["theta"]
+
+
 @pytest.mark.parametrize(
     "args, flag",
     [

@@ -76,11 +76,12 @@ def replicate(
         help="Chamber observations CSV (default: the bundled record of 20 April 2016, "
         "used when the run's steps reach it).",
     ),
-    theta: str = typer.Option(None, help=THETA_HELP),
+    theta: str = typer.Option(None, help=THETA_HELP + " This run only: not the --compare-preset run."),
     compare_preset: str = typer.Option(
         None,
         help="Also run this preset (default or paper) on the same forcing and draw it dashed in the figure "
-        "(results_compare.nc; a second full run).",
+        "(results_compare.nc; a second full run). It runs the preset's own leaf and scales: --theta is not "
+        "applied to it.",
     ),
     resume: bool = typer.Option(
         True,
