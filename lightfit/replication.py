@@ -621,6 +621,15 @@ def when_attrs(cfg: ReplicationConfig, date: str) -> dict[str, str | float]:
     return {"date": date, "window": cfg.window.describe(date, site.timezone), **site.attrs()}
 
 
+def steps_attrs(cfg: ReplicationConfig, w: pd.DataFrame) -> dict[str, str]:
+    """netCDF attr ``steps_run`` where the forcing ``w`` holds only some of the windows' steps
+    (``--steps``, a ``forcing_df`` cut short): :func:`describe_steps`, beside the ``window`` that
+    :func:`when_attrs` records whole; ``{}`` where every step of every window ran."""
+    windows = "; ".join(cfg.window.describe(d, cfg.site.timezone) for d in cfg.dates)
+    said = describe_steps(cfg, w)
+    return {} if said == windows else {"steps_run": said}
+
+
 def scenario_for(cfg: ReplicationConfig, w: pd.DataFrame) -> Scenario:
     """The :class:`Scenario` of a configuration over the forcing ``w`` (the one place that maps one to the other)."""
     optics = cfg.leaf_optics()
@@ -804,6 +813,7 @@ def run(
         d.attrs |= when_attrs(cfg, date)
         parts.append(d)
     ds = parts[0] if len(parts) == 1 else concat_days(parts)
+    ds.attrs |= steps_attrs(cfg, w)  # the window is recorded whole: which of its steps ran
     ds.attrs["replication_config"] = json.dumps(cfg.effective(w))  # what ran, not None for "the default"
     ds.attrs["preset"] = cfg.preset or "none"
     if theta:  # the values given, as given (the figure's title names them: not the preset's defaults)

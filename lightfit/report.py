@@ -77,9 +77,10 @@ def samples_label(samples: int, target_rse: float | None, max_samples: int | Non
 
 def summary_metadata(ds) -> dict[str, str]:
     """The ``# key: value`` header of a results folder's summary.csv: that it is model output, the
-    forcing's and the observations' provenance and files, the preset and any θ given, site, window and field, and
-    lightfit's versions; every setting is in results.nc's attributes. Without it the table could
-    pass for numbers from measured weather (data honesty: a reconstructed forcing says so here)."""
+    forcing's and the observations' provenance and files, the preset and any θ given, site, window
+    (and the steps run, where not all of it) and field, and lightfit's versions; every setting is in
+    results.nc's attributes. Without it the table could pass for numbers from measured weather (data
+    honesty: a reconstructed forcing says so here)."""
     a = ds.attrs
     field = f"{_plants(a)} plants, {a.get('boundary')} boundary"
     # an adaptive run's K is per segment: its target said, not the pilot's base K (a review)
@@ -95,6 +96,7 @@ def summary_metadata(ds) -> dict[str, str]:
         "theta_given": a.get("theta_given"),  # --theta: the leaf and scales are not the preset's
         "site": a.get("site"),
         "window": a.get("window"),
+        "steps_run": a.get("steps_run"),  # --steps: only these steps of the window ran
         "local_time": f"the site's clock, HH:MM in {site_timezone(ds)} (time_utc is UTC)",
         "field": field,
         "software_versions": a.get("software_versions"),

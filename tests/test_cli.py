@@ -338,6 +338,29 @@ def test_replicate_interrupted_leaves_the_last_run_s_files_whole(tmp_path, monke
     assert {f.name: f.read_bytes() for f in tmp_path.iterdir() if f.is_file()} == before
 
 
+def test_replicate_with_steps_records_the_steps_it_ran(tmp_path):
+    """With --steps, summary.csv's window line and results.nc's window attribute gave the whole
+    window (05:00 + 14 h) of a run of two steps (a review): the steps run are said beside it. Steps
+    12 and 13 of a window from 05:00 local in 30-min steps are 05:00 + 6 h and + 6.5 h."""
+    import xarray as xr
+
+    r = runner.invoke(app, ["replicate", "--quick", "--steps", "12:14", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    head = dict(
+        line[2:].split(": ", 1) for line in (tmp_path / "summary.csv").read_text().splitlines() if line.startswith("# ")
+    )
+    ran = "2016-04-20 11:00 … 11:30, steps 12:14 of 2016-04-20 05:00 + 14 h"
+    assert head["window"].startswith("2016-04-20 05:00 + 14 h") and head["steps_run"].startswith(ran), head
+    with xr.open_dataset(tmp_path / "results.nc", engine="h5netcdf") as ds:
+        assert ds.attrs["steps_run"].startswith(ran) and ds.sizes["time"] == 2
+    # the whole window run: no steps_run, the window alone says what ran
+    r = runner.invoke(app, ["replicate", "--quick", "--start-time", "11:00", "--hours", "0.5", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "steps_run" not in (tmp_path / "summary.csv").read_text()
+    with xr.open_dataset(tmp_path / "results.nc", engine="h5netcdf") as ds:
+        assert "steps_run" not in ds.attrs and ds.attrs["window"].startswith("2016-04-20 11:00 + 0.5 h")
+
+
 def test_replicate_writes_labelled_forcing(tmp_path):
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output

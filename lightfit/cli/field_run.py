@@ -53,7 +53,7 @@ def field_run(
 ) -> None:
     """Run a field on Dask: tiles (with their halo) and time chunks as tasks, one gathered netCDF."""
     from lightfit.distributed.run import PARTS_SUFFIX, FieldRun, check_cluster_options, run_field
-    from lightfit.replication import check_netcdf_name, when_attrs, write_netcdf
+    from lightfit.replication import check_netcdf_name, steps_attrs, when_attrs, write_netcdf
     from lightfit.report import field_label, samples_label
 
     s = resolve(model)  # the model options' errors first (resolving the leaf may build its albedo table)
@@ -114,7 +114,7 @@ def field_run(
             expected="a longer --timeout, or none",
         ) from None
     cfg = s.replication_config()  # where and when, as replicate records them
-    ds.attrs |= when_attrs(cfg, cfg.dates[0]) | {"preset": cfg.preset or "none"}
+    ds.attrs |= when_attrs(cfg, cfg.dates[0]) | steps_attrs(cfg, w) | {"preset": cfg.preset or "none"}
     ds.attrs["replication_config"] = json.dumps(cfg.effective(w))  # as replicate records it
     out.parent.mkdir(parents=True, exist_ok=True)
     write_netcdf(ds, out)

@@ -230,6 +230,7 @@ NOT_SETTINGS = {
     "mitsuba_variant",
     "llvm_target",
     "replication_config",
+    "steps_run",  # the steps are compared as steps (the results' times)
     "theta_given",
     "observations_fit",
     "title",
