@@ -246,6 +246,8 @@ def figure(ds, compare=None):
     runs = [(ds, "-", f"{name(ds)}: {run_label(ds.attrs)}")]
     if compare is not None:
         runs.append((compare, "--", f"{name(compare, 'compared')}: {run_label(compare.attrs)}"))
+    # the bands of (b) and (c) are the main run's alone: with a compared run drawn, their labels say so
+    whose = "" if compare is None else f" — solid line ({runs[0][2].split(':')[0]}) only"
 
     # (a) per ground area: above the canopy, and what the canopy absorbs of it
     for d, ls, lab in runs:
@@ -283,13 +285,15 @@ def figure(ds, compare=None):
         if i == 0 and f"{k}_par_umol_m2_s" in d and "area_m2" in d.coords:
             # the segments' range, area-weighted: PAR ≥ 0 is skewed, and mean ± SD was cut at 0
             lo, hi = area_quantiles(d[f"{k}_par_umol_m2_s"].values, d["area_m2"].values, (0.1, 0.9))
-            ax_b.fill_between(*gapped(t, lo, hi), color="tab:blue", alpha=0.2, label="10–90 % of the segments' area")
+            ax_b.fill_between(
+                *gapped(t, lo, hi), color="tab:blue", alpha=0.2, label=f"10–90 % of the segments' area{whose}"
+            )
         elif i == 0:
             ax_b.fill_between(
                 *gapped(t, np.maximum(par - sd, 0), par + sd),
                 color="tab:blue",
                 alpha=0.2,
-                label="± SD of segments, cut at 0",
+                label=f"± SD of segments, cut at 0{whose}",
             )
         ax_b.plot(
             *gapped(local(d), par),
@@ -312,7 +316,7 @@ def figure(ds, compare=None):
                 *gapped(t, an - 2 * an_sd, an + 2 * an_sd),
                 color="tab:red",
                 alpha=0.2,
-                label=f"± 2 Monte Carlo SD{width}",
+                label=f"± 2 Monte Carlo SD{width}{whose}",
             )
         ax_c.plot(*gapped(local(d), an), color="tab:red", lw=2, ls=ls, label=f"model ({lab.split(':')[0]})")
     _observed(ax_c, ds, t, "canopy_an", "o", "darkred", "net CO2 uptake")

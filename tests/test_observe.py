@@ -481,6 +481,38 @@ def test_figure_title_gives_the_compared_runs_own_size(noon_model):
         plt.close(fig)
 
 
+def test_figure_says_whose_bands_they_are_beside_a_compared_run(noon_model):
+    """Panel (b)'s 10–90 % band and panel (c)'s ±2 Monte Carlo SD band are drawn for the main
+    (solid) run alone; beside a compared (dashed) run their labels did not say so, and could be read
+    as the compared run's too. They name the main run where a compared run is drawn, and only then."""
+    import json
+    from dataclasses import asdict
+
+    import matplotlib.pyplot as plt
+
+    from lightfit.report import figure
+
+    ds = noon_model.simulate(Theta()).assign_attrs(preset="default")
+    paper = rep.ReplicationConfig.quick().with_preset("paper")
+    other = ds.assign_attrs(replication_config=json.dumps(asdict(paper)), preset="paper")
+    for compare, said in ((other, " — solid line (default) only"), (None, "")):
+        fig = figure(ds, compare=compare)
+        try:
+            _, ax_b, ax_c = fig.axes[:3]
+            bands = [
+                t.get_text()
+                for ax in (ax_b, ax_c)
+                for t in ax.get_legend().get_texts()
+                if t.get_text().startswith(("10–90 %", "± SD", "± 2 Monte Carlo SD"))
+            ]
+            assert len(bands) == 2, bands
+            assert bands[0].startswith(("10–90 % of the segments' area", "± SD of segments")), bands
+            assert bands[1].startswith("± 2 Monte Carlo SD"), bands
+            assert all(b.endswith(said) for b in bands) and (said or "solid" not in " ".join(bands)), bands
+        finally:
+            plt.close(fig)
+
+
 def test_figure_names_the_observations_provenance(noon_model):
     """Synthetic observations are drawn as synthetic, in the legend and the title (a review found
     every observation labelled "observed (chamber quantum sensor …)", whatever its file said)."""
