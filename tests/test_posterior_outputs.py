@@ -86,3 +86,44 @@ def test_status_of_a_run_without_a_recorded_max_steps(tmp_path):
     with console.capture() as cap:
         _print_status(run_status(path))
     assert "6/6 steps, stopped" in " ".join(cap.get().split())
+
+
+def test_a_run_stored_with_a_mirrored_profile_direction_is_read_as_its_combination_reads(tmp_path):
+    """Runs written before the Fisher eigenvectors were oriented (largest entry positive) kept eigh's
+    arbitrary sign: a profile stored along -d, with its offsets t along -d, was plotted against the
+    combination string of +d (always written oriented), so the notebook's profile was mirrored. A
+    hand-made mirror of the notebook's fixture (direction and an eigenvector negated, t negated and
+    its points in ascending order of the mirrored t, as such a run stored them) reads back as the
+    fixture: each entry of the direction as its combination string gives it, and every profile
+    point at the same parameters."""
+    import re
+    import shutil
+    from pathlib import Path
+
+    import h5py
+
+    fixture = Path(__file__).parent / "fixtures" / "posterior_tiny.h5"
+    mirrored = shutil.copy(fixture, tmp_path / "run.h5")
+    with h5py.File(mirrored, "a") as f:
+        pr, fi = f["analysis/profile"], f["analysis/fisher"]
+        pr["direction"][...] = -pr["direction"][()]
+        pr["t"][...] = -pr["t"][()][::-1]
+        for k in ("profile_nll", "slice_nll", "in_prior_box"):
+            pr[k][...] = pr[k][()][::-1]
+        vec = fi["eigenvectors"][()]
+        vec[:, -1] *= -1
+        fi["eigenvectors"][...] = vec
+    want, got = (P.load_run(p)["analysis"] for p in (fixture, mirrored))
+    pr = got["profile"]
+    # the combination string's coefficients (|entry| ≥ 0.1), read independently of the stored vector
+    said = {n: float(c) for c, n in re.findall(r"([+−-]\d\.\d\d) log (\w+)", pr["combination"].replace("−", "-"))}
+    names = list(got["fisher"]["names"])
+    assert said and all(abs(pr["direction"][names.index(n)] - c) <= 0.005 for n, c in said.items()), said
+    assert np.all(np.diff(pr["t"]) > 0)
+    for k in ("direction", "t", "profile_nll", "slice_nll", "in_prior_box"):
+        np.testing.assert_array_equal(pr[k], want["profile"][k], err_msg=k)
+    np.testing.assert_array_equal(got["fisher"]["eigenvectors"], want["fisher"]["eigenvectors"])
+    # the fixture, written oriented, reads as stored
+    with h5py.File(fixture, "r") as f:
+        np.testing.assert_array_equal(want["profile"]["t"], f["analysis/profile/t"][()])
+        np.testing.assert_array_equal(want["profile"]["direction"], f["analysis/profile/direction"][()])

@@ -215,7 +215,9 @@ def load_run(path: str | Path, group: str = "mcmc") -> dict:
     """Read a stored run: ``names``, ``chain`` (n, walkers, ndim), ``log_prob``, ``accepted``, ``attrs``
     (JSON-decoded), ``diagnostics`` (recomputed with the run's own ``stop_rule``, a
     :class:`~lightfit.inference.mcmc.diagnostics.StopRule`), the stop rule's ``checks`` (step, τ, ESS
-    per check) and any analysis groups written next to it. Safe while the run is being written (see the module doc)."""
+    per check) and any analysis groups written next to it (the Fisher eigenvectors and the profile's
+    direction oriented as their combination strings read, :func:`oriented_analysis`: older runs stored
+    some mirrored). Safe while the run is being written (see the module doc)."""
     path = Path(path)
     if not path.exists():
         raise InputError("file not found", file=path, expected="an HDF5 file written by lightfit.inference.mcmc")
@@ -265,7 +267,7 @@ def _load_run(path: Path, group: str) -> dict:
             "attrs": _decoded_attrs(g),
         }
         if "analysis" in f:
-            out["analysis"] = _read_group(f["analysis"])
+            out["analysis"] = oriented_analysis(_read_group(f["analysis"]))
     # With the run's own stop rule (its burn-in and τ multiple), as the sampler judged the run.
     rule = out["attrs"].get("stop_rule")
     known = {f.name for f in dataclasses.fields(StopRule)}
@@ -326,6 +328,38 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
         "fit": run.get("analysis", {}).get("fit"),  # the MAP's χ² and the priors' say (absent in older runs)
         "refused": int(a.get("refused", 0)),
     }
+
+
+def _largest_entry_sign(vec: np.ndarray) -> np.ndarray:
+    """Sign (±1) of each column's largest-magnitude entry (a vector: its own); 1 for an all-zero column."""
+    vec = np.asarray(vec, float)
+    cols = vec.reshape(len(vec), -1)
+    sign = np.sign(cols[np.argmax(np.abs(cols), axis=0), np.arange(cols.shape[1])])
+    return np.where(sign == 0, 1.0, sign)
+
+
+#: The stored profile's per-point arrays, one value per offset ``t``.
+PROFILE_POINTS = ("t", "profile_nll", "slice_nll", "in_prior_box")
+
+
+def oriented_analysis(an: dict) -> dict:
+    """A stored ``analysis`` group with its Fisher eigenvectors (columns) and profile ``direction``
+    oriented as the combination strings beside them read (largest entry positive,
+    :func:`lightfit.inference.identifiability.combination`). Runs written before the eigenvectors
+    were oriented kept eigh's arbitrary sign: a profile stored along ``-d`` read against the
+    combination of ``d`` was mirrored. A mirrored direction is flipped with its offsets ``t`` (and the
+    profile's points reordered so that ``t`` still ascends); an oriented run is returned as stored."""
+    fisher, profile = an.get("fisher"), an.get("profile")
+    if isinstance(fisher, dict) and np.ndim(fisher.get("eigenvectors")) == 2:
+        fisher["eigenvectors"] = np.asarray(fisher["eigenvectors"]) * _largest_entry_sign(fisher["eigenvectors"])
+    if isinstance(profile, dict) and np.ndim(profile.get("direction")) == 1 and "t" in profile:
+        if _largest_entry_sign(profile["direction"])[0] < 0:
+            profile["direction"] = -np.asarray(profile["direction"])
+            profile["t"] = -np.asarray(profile["t"])
+            for k in PROFILE_POINTS:  # t ascending again
+                if k in profile:
+                    profile[k] = np.asarray(profile[k])[::-1]
+    return an
 
 
 def _read_group(g) -> dict:
