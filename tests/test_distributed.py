@@ -777,6 +777,34 @@ def test_task_keys_tell_the_splits_apart():
     assert [task_key(s) for s in task_specs(make_run(w, tiles=2, time_chunks=2))] == keys[-1]
 
 
+def test_a_resume_with_a_renamed_copy_of_the_forcing_says_which_forcing_it_ran(tmp_path):
+    """Two forcing files of the same values, one the bundled reconstruction, the other a copy under
+    another name that declares itself synthetic: their tasks have the same key (the scenario's digest
+    hashes the rows, not the file's name or provenance), so a resume with the copy takes the first
+    run's kept tasks — the values, rightly — but the results' forcing attributes must be the copy's.
+    They were the kept task's (``gather`` took the attributes from ``results[0]``): a results file
+    calling its forcing reconstructed, from a.csv, for a run of b.csv. Tasks run here (no cluster)."""
+    import shutil
+
+    from lightfit.distributed.run import run_task, task_key, task_specs
+    from lightfit.weather.bundled import DATA_DIR
+
+    src = DATA_DIR / "weather" / "selhausen_2016-04-20_reconstructed.csv"
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    shutil.copy(src, a)
+    text = src.read_text()
+    assert "# provenance: reconstructed\n" in text
+    b.write_text(text.replace("# provenance: reconstructed\n", "# provenance: synthetic\n"))
+    run_a, run_b = (make_run(forcing(f).iloc[[14]], samples=4) for f in (a, b))
+    specs_a, specs_b = task_specs(run_a), task_specs(run_b)
+    assert [task_key(s) for s in specs_a] == [task_key(s) for s in specs_b]  # b's resume takes a's tasks
+    kept = [run_task(s) for s in specs_a]
+    ds = gather(kept, run_b)
+    assert ds.attrs["weather_source"] == str(b) and ds.attrs["weather_provenance"] == "synthetic"
+    assert gather(kept, run_a).attrs["weather_source"] == str(a)
+    assert list(ds.attrs) == list(kept[0][0].attrs) + [k for k in ds.attrs if k not in kept[0][0].attrs]
+
+
 def test_gather_refuses_a_missing_or_repeated_task_and_records_the_split(weather):
     """Two tiles with a one-row halo, run here (no cluster). A result set without tile 1 is refused (it
     would have half the segments); tile 0 given twice is refused (its segments twice). The merged

@@ -25,7 +25,9 @@ Resume: with ``parts=`` (the command line's default, ``results.nc.parts`` beside
 finished task is kept on disk as it arrives, under a hash of everything its result depends on
 (:func:`task_key`: its scenario and growth file, θ, the code's versions). A run killed or timed out and started
 again with the same settings takes those tasks from disk and submits only the rest; a kept task
-of other settings is computed again. The command removes the folder once the results are written.
+of other settings is computed again. The key holds the forcing's values, not its file's name or
+declared provenance: the results' forcing attributes (``weather_source``, ``weather_provenance``, …)
+are always the current run's. The command removes the folder once the results are written.
 
 Worker processes: the task function imports lightfit (which points Dr.Jit at libLLVM before
 Mitsuba loads), sets the Dr.Jit CPU thread count to ``LIGHTFIT_WORKER_THREADS`` (set by the
@@ -318,7 +320,7 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     """
     import xarray as xr
 
-    from lightfit.model.coupled import warn_unconverged
+    from lightfit.model.coupled import WEATHER_ATTRS, warn_unconverged, weather_attrs
 
     if not results:
         raise InputError("no task results to gather", parameter="results", expected="one result per task")
@@ -347,7 +349,17 @@ def gather(results: list, run: FieldRun, extra_attrs: dict | None = None):
     out = out.sortby("time")
     if len(np.unique(out["segment"].values)) != out.sizes["segment"]:
         raise InputError("a segment id occurs in two tiles", parameter="results", expected="disjoint tiles")
-    out.attrs = dict(ds0.attrs) | {"ground_area_m2": run.scenario.ground_area_m2}
+    # The forcing's description from this run's forcing, not from a task's: a kept task (a resume) is
+    # keyed by the forcing's rows, and may come from a copy of it under another name or provenance.
+    # (in the place a single-process run puts them).
+    forcing_attrs = weather_attrs(run.scenario.weather)
+    attrs = {}
+    for k, v in ds0.attrs.items():
+        if k == WEATHER_ATTRS[0]:
+            attrs |= forcing_attrs
+        elif k not in WEATHER_ATTRS:
+            attrs[k] = v
+    out.attrs = attrs | forcing_attrs | {"ground_area_m2": run.scenario.ground_area_m2}
     for k, v in _aggregates(out).items():
         if k in RECOMPUTED:
             out[k] = ("time", v)

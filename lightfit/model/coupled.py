@@ -381,12 +381,7 @@ class CoupledModel:
             "conventions": "variable attributes: lightfit.model.schema (CF-style units, long_name)",
             "precision": precision(),
             "time_zone": "UTC",
-            "weather_provenance": str(w.attrs.get("provenance", "unknown")),
-            **({"weather_date_given": w.attrs["date_given"]} if w.attrs.get("date_given") else {}),
-            "weather_source": str(w.attrs.get("source", "")),
-            "weather_timestamps": self.timestamps.describe(),
-            "weather_split_model": str(w.attrs.get("split_model", "unknown")),
-            **({"weather_anchor": json.dumps(asdict(a))} if (a := Anchor.of(w.attrs)) else {}),
+            **weather_attrs(w),
             **fld.attrs(),
             "n_tiles": sc.n_tiles,
             "tile": -1 if sc.tile is None else sc.tile,
@@ -425,6 +420,35 @@ class CoupledModel:
             **software_attrs(),
         }
         return ds
+
+
+#: The results attributes that describe the forcing (:func:`weather_attrs`): the optional ones
+#: (``weather_date_given``, ``weather_anchor``) are absent where the forcing has none.
+WEATHER_ATTRS = (
+    "weather_provenance",
+    "weather_date_given",
+    "weather_source",
+    "weather_timestamps",
+    "weather_split_model",
+    "weather_anchor",
+)
+
+
+def weather_attrs(w) -> dict:
+    """What the forcing ``w`` is, as results attributes (:data:`WEATHER_ATTRS`): its declared
+    provenance, date, source file, timestamps, direct/diffuse split and anchor — from its
+    attributes, which a scenario's digest does not hash (it hashes the rows), so a field-run
+    resumed with a copy of the forcing under another name or provenance takes them from here, not
+    from a kept task (:func:`lightfit.distributed.run.gather`)."""
+    a = Anchor.of(w.attrs)
+    return {
+        "weather_provenance": str(w.attrs.get("provenance", "unknown")),
+        **({"weather_date_given": w.attrs["date_given"]} if w.attrs.get("date_given") else {}),
+        "weather_source": str(w.attrs.get("source", "")),
+        "weather_timestamps": timestamps.of(w).describe(),
+        "weather_split_model": str(w.attrs.get("split_model", "unknown")),
+        **({"weather_anchor": json.dumps(asdict(a))} if a else {}),
+    }
 
 
 def software_attrs() -> dict:
