@@ -1124,6 +1124,23 @@ def test_replicate_subprocess_runs_float64_without_warnings(tmp_path):
         assert ds.attrs["precision"] == "float64"
 
 
+def test_calibration_json_says_the_observations_are_synthetic(tmp_path):
+    """calibration.json kept the observations' path (settings.json their SHA-256) but not what the
+    file declares itself: a reader of the result alone could not tell a fit to the bundled synthetic
+    twin from one to measurements. It now records the file's provenance and its title and generator
+    lines, and the printed result says the fit was to synthetic observations."""
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    args = ["calibrate", str(twin), "--quick", "--steps", "14:16", "--parameters", "light_factor", "--no-surrogate"]
+    r = runner.invoke(app, [*args, "--max-steps", "1", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    res = json.loads((tmp_path / "calibration.json").read_text())
+    assert res["observations"] == str(twin.resolve()) and res["observations_provenance"] == "synthetic"
+    head = dict(line[2:].split(": ", 1) for line in twin.read_text().splitlines() if line.startswith("# "))
+    assert res["observations_metadata"] == {k: head[k] for k in ("title", "generator")}
+    assert "SYNTHETIC twin" in res["observations_metadata"]["title"]
+    assert "calibration: lbfgsb, to synthetic observations" in _flat(r.stdout)
+
+
 def test_calibrate_bounded_method_on_two_steps(tmp_path):
     """--method lbfgsb and --use reach the calibration; --steps keeps it to the two steps around the observation."""
     args = ["calibrate", str(OBSERVATIONS), "--quick", "--steps", "14:16", "--parameters", "light_factor"]

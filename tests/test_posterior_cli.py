@@ -165,6 +165,25 @@ def test_posterior_cli_n_test_zero(tmp_path):
     assert (tmp_path / "corner.png").stat().st_size > 10_000  # one parameter: a histogram, not corner's grid
 
 
+def test_posterior_summary_says_the_observations_are_synthetic(tmp_path):
+    """summary.json named neither the observations nor what they are (run.h5 had their path and
+    provenance): a summary read alone, as --theta reads it, could not tell a posterior of the
+    bundled synthetic twin from one of measurements. It now has the file, its provenance and its
+    title and generator lines, and the printed table says the observations are synthetic."""
+    from lightfit.weather.bundled import DATA_DIR
+
+    twin = DATA_DIR / "observations" / "twin_2016-04-20_synthetic.csv"
+    args = ["posterior", str(twin), "--quick", "--steps", "12:15", "--out", str(tmp_path), "--parameters"]
+    args += ["light_factor", "--walkers", "4", "--max-steps", "20", "--n-design", "6", "--n-test", "0"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["observations"] == str(twin.resolve()) and s["observations_provenance"] == "synthetic"
+    head = dict(line[2:].split(": ", 1) for line in twin.read_text().splitlines() if line.startswith("# "))
+    assert s["observations_metadata"] == {k: head[k] for k in ("title", "generator")}
+    assert "posterior to synthetic observations" in " ".join(r.output.split())
+
+
 def test_posterior_cli_refuses_a_leaf_parameter_outside_the_emulator_box(tmp_path):
     """--optics paper without subsurface among the parameters: the grey leaf's own subsurface (0.3)
     lies outside the box the emulator is built on (its informed prior, 0.04–0.17), where the emulated

@@ -120,7 +120,7 @@ def calibrate(
     from lightfit.inference.calibration import METHODS, check_max_steps, check_start_names, fit_cautions
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
-    from lightfit.inference.observations import observation_table_digest
+    from lightfit.inference.observations import declared, observation_table_digest
     from lightfit.inference.posterior import prior_set
     from lightfit.inference.trust_region import observed_model, surrogate_calibrate
     from lightfit.model import emulator as E
@@ -175,6 +175,7 @@ def calibrate(
     w = weather(s)
     obs = observations_for_run(observations, w, s)
     check_observations(obs, w)  # a unit slip refused, a sign slip cautioned, before the plants grow
+    declared_obs = declared(obs)  # recorded in calibration.json: a fit to a synthetic twin says so
     uses = resolve_use(parse_names(use) or None, obs)  # default: every series the file has
     cfg = s.replication_config()
     config = s.effective(w)  # what the run takes, recorded below (not None for "the default")
@@ -305,7 +306,8 @@ def calibrate(
         "dates": list(getattr(m, "dates", s.dates)),
         "likelihood": form,
         "seconds": res.seconds if tr is None else tr.seconds,
-        "observations": str(Path(observations).resolve()),  # read back from elsewhere it still names the file
+        # the file (absolute: read back from elsewhere it still names it) and what it says it is
+        **declared_obs,
         "n_observations": int(res.n_observations),
         "parameters": list(names),
         "config": config,
@@ -337,7 +339,8 @@ def calibrate(
     replace_text(out / "calibration.json", json.dumps(jsonable(record, strict=True), indent=2, allow_nan=False))
     t = Table(
         # The counts go below: a title is wrapped to the table's width, and a long one read badly.
-        title=f"calibration: {res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}",
+        title=f"calibration: {res.method}{' on the emulator' if tr and tr.mode == 'surrogate' else ''}"
+        + (", to synthetic observations" if declared_obs["observations_provenance"] == "synthetic" else ""),
         caption=f"{res.steps} accepted steps, {res.evaluations} loss and {res.gradients} gradient evaluations, "
         f"{record['seconds']:.0f} s; stopped: {res.reason}",
     )

@@ -97,6 +97,7 @@ def posterior(
     from lightfit.inference import posterior as A
     from lightfit.inference.likelihood import likelihood_form, resolve_use, uninformed
     from lightfit.inference.multiday import days_of
+    from lightfit.inference.observations import declared
     from lightfit.inference.trust_region import observed_model
     from lightfit.light.bsdf import LEAF_PARAMETERS
     from lightfit.model import emulator as E
@@ -278,7 +279,8 @@ def posterior(
         interrupted(f"{out / 'run.h5'} keeps every finished step", started_over=not resume)
     # strict JSON: an unbounded Fisher width (eigenvalue 0) is null, not Infinity. Not written when
     # interrupted: it replaced the last finished run's summary with a part of a chain.
-    summary = P.jsonable(res | settings, strict=True)
+    # the observations' file and what it says it is (a fit to a synthetic twin says so without run.h5)
+    summary = P.jsonable(res | settings | declared(obs), strict=True)
     if not analysis:
         st = P.backend.run_status(out / "run.h5")
         # A chain not extended by this call keeps its stored analysis (A.run drops it otherwise): its
@@ -301,7 +303,8 @@ def posterior(
     refused = res["refused"]
     why = "photosynthesis unconverged or likelihood not finite"
     t = Table(
-        title=f"posterior ({res['stopped_by']}, {res['n_steps']} steps; this call sampled {res['steps_this_call']} "
+        title=f"posterior{' to synthetic observations' if obs.attrs.get('provenance') == 'synthetic' else ''} "
+        f"({res['stopped_by']}, {res['n_steps']} steps; this call sampled {res['steps_this_call']} "
         f"in {res['seconds_sampling']:.0f} s" + (f", {refused} proposals refused: {why}" if refused else "") + ")"
     )
     for c in ("parameter", "mean", "sd", "MAP", "τ (steps)", "ESS", "R̂"):

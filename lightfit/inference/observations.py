@@ -530,6 +530,25 @@ def an_area(obs: pd.DataFrame) -> str:
     return obs.attrs.get(AN_PER_KEY, "ground")
 
 
+#: Metadata lines of an observations file that say what it is, kept in a result fitted to it
+#: (:func:`declared`) beside its provenance.
+DECLARED_KEYS = ("title", "source", "generator")
+
+
+def declared(obs: pd.DataFrame) -> dict:
+    """What the observations a result was fitted to are, for that result's record (calibration.json,
+    a posterior's summary.json): ``observations`` (the file, absolute), ``observations_provenance``
+    (its ``# provenance:`` line: measured or synthetic, as results.nc's attribute of that name) and
+    ``observations_metadata`` (its ``# title:``, ``# source:``, ``# generator:`` lines, those present):
+    a reader of the result alone can tell a fit to a synthetic twin from one to measurements."""
+    meta = obs.attrs.get("metadata") or {}
+    return {
+        "observations": str(Path(obs.attrs["source"]).resolve()),
+        "observations_provenance": str(obs.attrs.get("provenance", "unstated")),
+        "observations_metadata": {k: str(meta[k]) for k in DECLARED_KEYS if meta.get(k)},
+    }
+
+
 def check_an_area(obs: pd.DataFrame, an_per: str) -> None:
     """Refuse observations whose canopy An is per another area than a run's ``an_per`` (``"ground"``
     or ``"leaf"``): compared as they stand, a chamber's per-ground-area uptake met the model's per
