@@ -606,6 +606,31 @@ def test_tereno_qf_flag_column_is_applied_not_ignored(tmp_path):
     assert f"line {i + 1}" in flagged["detail"]
 
 
+@pytest.mark.parametrize("flag_col", ["QualityFlag RadiationGlobal_Avg10min", "QF_RadiationGlobal_Avg10min"])
+def test_tereno_flag_column_named_flag_word_first_is_applied(tmp_path, flag_col):
+    """A flag column written with the flag word first ('QualityFlag <column>', 'QF_<column>') was not
+    matched to its value column (the flag pattern read the word at the end only): listed as not used,
+    its 'bad' flags ignored and the flagged spike read as good. The spike is now missing, interpolated
+    between its neighbours (10-min rows: their mean) and counted naming the flag column."""
+    lines = FIXTURE.read_text(encoding="utf-8").splitlines()
+    hdr = next(i for i, x in enumerate(lines) if x.startswith("Timestamp"))
+    assert lines[hdr].count("RadiationGlobal_Avg10min QualityFlag") == 1
+    lines[hdr] = lines[hdr].replace("RadiationGlobal_Avg10min QualityFlag", flag_col)
+    i = hdr + 40  # a daylight row (2016-04-20 10:30 UTC+1)
+    cells = lines[i].split(",")
+    cells[1], cells[2] = "999.0", "bad"  # a spike the logger flagged
+    lines[i] = ",".join(cells)
+    before, after = (float(lines[j].split(",")[1]) for j in (i - 1, i + 1))
+    path = tmp_path / "qf_first.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    df = read_tereno(path)
+    assert flag_col not in df.attrs["unused_columns"]
+    t = pd.Timestamp(cells[0], tz="Etc/GMT-1").tz_convert("UTC")
+    assert df.loc[t, "ghi_w_m2"] == pytest.approx((before + after) / 2)
+    (flagged,) = [q for q in df.attrs["qc"] if q["kind"] == "flagged bad"]
+    assert flagged["column"] == "ghi_w_m2" and f"{flag_col!r}" in flagged["detail"]
+
+
 def test_tereno_missing_last_co2_mean_is_a_gap_not_the_mean_before(tmp_path):
     """The 30-min CO2 of end-stamped means covers the 10-min rows of its own interval; only rows past
     the file's last 30-min stamp keep that stamp's mean. With the last mean's cell empty (19:30 UTC+1),

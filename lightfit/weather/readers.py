@@ -113,11 +113,13 @@ _COL = re.compile(r"^\s*(?P<name>[^\[]+?)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 
 
 def _is_flag_column(name: str) -> bool:
-    """A quality-flag column: its name says quality or flag, or ends in a separate ``QF``
-    (``RadiationGlobal_Avg10min_QF``), which :data:`_FLAG_COL` reads. The QF suffix was matched
-    there but not here, so that such a column's ``bad`` flags were ignored (the column listed as
-    not used) and the values it flagged read as good."""
-    return bool(re.search(r"(qual|flag)", name, re.IGNORECASE) or re.search(r"(^|[\s_])qfs?$", name, re.IGNORECASE))
+    """A quality-flag column: its name says quality or flag, or ends or begins with a separate ``QF``
+    (``RadiationGlobal_Avg10min_QF``, ``QF_RadiationGlobal_Avg10min``), which :data:`_FLAG_COL` reads.
+    The QF suffix was matched there but not here, so that such a column's ``bad`` flags were ignored
+    (the column listed as not used) and the values it flagged read as good."""
+    return bool(
+        re.search(r"(qual|flag)", name, re.IGNORECASE) or re.search(r"(^|[\s_])qfs?$|^qfs?[\s_]", name, re.IGNORECASE)
+    )
 
 
 def _split_header(name: str) -> tuple[str, str | None]:
@@ -550,7 +552,11 @@ def first_bad_row(bad, lines, file, column: str, expected: str, problem) -> None
 
 #: Quality flags of a TERENO export where its header does not list them (``Quality flags: …``).
 TERENO_FLAGS = ("ok", "doubtful", "bad", "unevaluated")
-_FLAG_COL = re.compile(r"^(?P<base>.*?)[\s_]*(?:quality[\s_]*flag|qualityflag|flag|qf)s?$", re.IGNORECASE)
+#: A flag column's name: its value column's name then the flag word (``<name> QualityFlag``,
+#: ``<name>_QF``), or the flag word first (``QualityFlag <name>``, ``QF_<name>``); ``base`` or
+#: ``base_after`` is the value column's name.
+_FLAG_WORD = r"(?:quality[\s_]*flag|qualityflag|flag|qf)s?"
+_FLAG_COL = re.compile(rf"^(?:(?P<base>.*?)[\s_]*{_FLAG_WORD}|{_FLAG_WORD}[\s_]+(?P<base_after>.+?))$", re.IGNORECASE)
 
 
 def _flag_vocabulary(text_lines: list[str], end: int) -> tuple[str, ...]:
@@ -567,7 +573,7 @@ def _quality_flags(table: pd.DataFrame, used: dict[str, str]) -> dict[str, str]:
         m = _FLAG_COL.match(c)
         if not m or not _is_flag_column(c):
             continue
-        base = m["base"].strip()
+        base = (m["base"] if m["base"] is not None else m["base_after"]).strip()
         for qty, src in used.items():
             if base and base in (src, _split_header(src)[0]):
                 out[qty] = c
