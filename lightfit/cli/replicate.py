@@ -95,9 +95,11 @@ def replicate(
 
     Another day or site: --date, --start-time/--hours/--step, --site or --latitude/--longitude/--timezone.
     """
+    import pandas as pd
+
     from lightfit import replication as rep
     from lightfit.inference.calibration import misfit
-    from lightfit.inference.observations import observation_cautions, observed
+    from lightfit.inference.observations import SERIES, observation_cautions, observed
     from lightfit.report import field_label, observations_fit, samples_label, site_timezone, summary
     from lightfit.weather.plot import provenance_label
 
@@ -200,7 +202,11 @@ def replicate(
         for said in misfit(fit.chi2.sum(), fit.n.sum(), 0, what="the run"):
             caution(said)
         soil_respiration_note(observed(obs), s.soil_respiration)  # as calibrate and posterior say it
-        for said in observation_cautions(obs, w):
+        # judged against the model's own values (its fit factor), not the forcing's alone
+        times = pd.DatetimeIndex(ds["time"].values).tz_localize("UTC")
+        values = [x.value for x in SERIES if x.value in ds and ds[x.value].dims == ("time",)]
+        model_at = {c: pd.Series(ds[c].values, index=times) for c in values}
+        for said in observation_cautions(obs, w, model_at):
             caution(said)
     files = ("forcing.csv", "forcing.png", "results.nc", "replication.png", "summary.csv")
     for f in files + (("results_compare.nc",) if cmp is not None else ()):

@@ -44,7 +44,10 @@ The short names ``par`` and ``an`` of earlier versions mean ``plant_par`` and ``
 Empty cells are missing observations (a row may have some quantities only). Every present value
 needs its SD (> 0); fractions (unit 1) are refused beyond ±:data:`MAX_FRACTION` (a percentage
 such as 94 is not a fraction); a quantity given twice at one time is refused (two
-instruments may share a time on their own rows).
+instruments may share a time on their own rows). CO2 fluxes beyond ±:data:`MAX_CO2_FLUX` are
+refused (another unit); ones in mg CO2 m⁻² s⁻¹, 1 / 22.7 of µmol m⁻² s⁻¹ and inside that bound,
+are cautioned where a run meets them with its forcing (:func:`co2_unit_caution`) or its model
+(:func:`unit_slip_caution`), through :func:`observation_cautions`.
 
 Time zone. Times with an offset (``2016-04-20T12:13:48+02:00``, ``…Z``) are read as written; times
 without one need the ``# time_zone`` line (e.g. ``Europe/Berlin`` for a chamber log kept in local
@@ -923,12 +926,114 @@ def co2_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "nee"
     return None
 
 
-def observation_cautions(obs: pd.DataFrame, forcing: pd.DataFrame) -> list[str]:
+#: Forcing PAR (µmol m⁻² s⁻¹) from which :func:`co2_unit_caution` judges a CO2 flux's size: full
+#: light, where a green wheat canopy's net uptake is near its largest.
+BRIGHT_PAR_UMOL_M2_S = 1000.0
+#: mg CO2 per µmol CO2 (molar mass 44.01 g mol⁻¹): a flux in mg CO2 m⁻² s⁻¹ is this × the same flux
+#: in µmol m⁻² s⁻¹, i.e. 1 / 22.7 of it.
+MG_PER_UMOL_CO2 = 0.04401
+#: Largest |CO2 flux| (µmol m⁻² s⁻¹, per ground or leaf area) at every reading in full light
+#: (:data:`BRIGHT_PAR_UMOL_M2_S`) below which, without the model's values, the readings read as mg
+#: CO2 m⁻² s⁻¹ (:func:`co2_unit_caution`): the most productive crop canopies' 50–60 µmol m⁻² s⁻¹
+#: (:data:`MAX_CO2_FLUX`) are 2.2–2.6 in mg, this model's wheat field's ≈ 40 at noon 1.8 (the bundled
+#: twin: 30–40 at forcing PAR ≥ 1000, 1.3–1.8 in mg), while a green wheat canopy of LAI ≥ 1 takes
+#: up ≥ 10 in such light (per leaf area: a dense canopy's 40 over LAI 4–7 is 6–10). A caution, not a
+#: refusal: a sparse or senescent canopy, or chamber NEE near its compensation over a respiring
+#: soil, can read below it in µmol m⁻² s⁻¹ too.
+CO2_IN_MG_MAX = 3.0
+#: The fit factor k (model ≈ k × readings, least squares over the readings in full light) that reads
+#: as a unit slip, per series, where the model's values are known (:func:`unit_slip_caution`): the
+#: slip's factor ± what a model and a field can differ by (a factor 1.5). CO2 fluxes in mg CO2
+#: m⁻² s⁻¹ read 1 / 22.7 of µmol m⁻² s⁻¹.
+UNIT_SLIPS = {
+    "canopy_an": (1 / MG_PER_UMOL_CO2, "mg CO2 m⁻² s⁻¹"),
+    "nee": (1 / MG_PER_UMOL_CO2, "mg CO2 m⁻² s⁻¹"),
+}
+UNIT_SLIP_TOLERANCE = 1.5
+
+
+def _bright_readings(obs: pd.DataFrame, forcing: pd.DataFrame, col: str) -> tuple[np.ndarray, np.ndarray]:
+    """The readings of ``col`` whose nearest step of ``forcing`` (within :data:`NEAR_STEP`) has PAR ≥
+    :data:`BRIGHT_PAR_UMOL_M2_S`: a mask over ``obs``' rows and each row's step (index into ``forcing``)."""
+    idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
+    par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
+    value = obs[col].to_numpy(float)
+    return (dist <= NEAR_STEP) & (par >= BRIGHT_PAR_UMOL_M2_S) & np.isfinite(value), idx
+
+
+def co2_unit_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "canopy_an") -> str | None:
+    """A caution naming the file and column where the CO2 flux ``name`` (``canopy_an`` or ``nee``)
+    stays below :data:`CO2_IN_MG_MAX` in size at every reading in full light (forcing PAR ≥
+    :data:`BRIGHT_PAR_UMOL_M2_S`): readings in mg CO2 m⁻² s⁻¹ (1 / 22.7 of µmol m⁻² s⁻¹), which pass
+    the reader's bound (:data:`MAX_CO2_FLUX`) and were fitted as they were (vcmax_scale driven down
+    unsaid); else ``None``. Judged from the forcing alone, before the plants grow; where the model's
+    values are known, :func:`unit_slip_caution` judges against them instead."""
+    col = BY_NAME[name].value
+    if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
+        return None
+    sel, _ = _bright_readings(obs, forcing, col)
+    if not sel.any():
+        return None
+    largest = float(np.abs(obs[col].to_numpy(float)[sel]).max())
+    if largest >= CO2_IN_MG_MAX:
+        return None
+    return (
+        f"{obs.attrs.get('source', 'the observations')}, column {col!r}: |{UPTAKE_SIGN[name][1]}| is at most "
+        f"{largest:.3g} µmol m⁻² s⁻¹ at the {int(sel.sum())} reading(s) in full light (forcing PAR ≥ "
+        f"{BRIGHT_PAR_UMOL_M2_S:g} µmol m⁻² s⁻¹), where a green wheat canopy exchanges ≈ 10–50; in mg CO2 m⁻² s⁻¹ "
+        f"such a flux reads 1 / {1 / MG_PER_UMOL_CO2:.1f} of it: if the column is in mg CO2 m⁻² s⁻¹, divide it "
+        f"by {MG_PER_UMOL_CO2:g} (mg µmol⁻¹); a sparse or senescent canopy can read this low in µmol m⁻² s⁻¹ too"
+    )
+
+
+def unit_slip_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str, model: pd.Series) -> str | None:
+    """A caution naming the file and column where the model's values of series ``name``
+    (:data:`UNIT_SLIPS`) are k × the readings in full light (least squares, k = Σ m·y / Σ y², over
+    the readings whose nearest step of ``forcing`` has PAR ≥ :data:`BRIGHT_PAR_UMOL_M2_S`; ``model``:
+    the model's values indexed by the steps' times) with k within :data:`UNIT_SLIP_TOLERANCE` of
+    the slip's factor: CO2 fluxes in mg CO2 m⁻² s⁻¹ (22.7); else ``None``."""
+    col = BY_NAME[name].value
+    if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
+        return None
+    sel, idx = _bright_readings(obs, forcing, col)
+    times = pd.DatetimeIndex(model.index)
+    times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
+    at = pd.Series(np.asarray(model, float), index=times).reindex(forcing.index[idx].tz_convert("UTC"))
+    m = at.to_numpy(float)
+    y = obs[col].to_numpy(float)
+    sel &= np.isfinite(m)
+    if not sel.any() or not (y[sel] ** 2).sum() > 0:
+        return None
+    k = float((m[sel] * y[sel]).sum() / (y[sel] ** 2).sum())
+    factor, unit = UNIT_SLIPS[name]
+    if not factor / UNIT_SLIP_TOLERANCE <= k <= factor * UNIT_SLIP_TOLERANCE:
+        return None
+    undo = f"divide it by {MG_PER_UMOL_CO2:g} (mg µmol⁻¹)" if factor > 10 else f"multiply it by {factor:g} (µmol J⁻¹)"
+    return (
+        f"{obs.attrs.get('source', 'the observations')}, column {col!r}: the model's {name} is {k:.3g} × the "
+        f"readings at the {int(sel.sum())} reading(s) in full light (forcing PAR ≥ {BRIGHT_PAR_UMOL_M2_S:g} "
+        f"µmol m⁻² s⁻¹; least squares); in {unit} they read 1 / {factor:.3g} of µmol m⁻² s⁻¹: if the column is "
+        f"in {unit}, {undo}"
+    )
+
+
+def observation_cautions(obs: pd.DataFrame, forcing: pd.DataFrame, model=None) -> list[str]:
     """What to say of observations read against the run's forcing before they are fitted or
     compared: a sign slip in NEE or canopy An (:func:`co2_sign_caution`), above-canopy PAR in W m⁻²
-    (:func:`par_unit_caution`). A unit slip past doubt is refused instead (:func:`check_light_scale`)."""
+    (:func:`par_unit_caution`), CO2 fluxes in mg CO2 m⁻² s⁻¹ (:func:`co2_unit_caution`). A unit slip
+    past doubt is refused instead (:func:`check_light_scale`). ``model``: where the run's model values
+    are known (a mapping of value column to a series over the steps' times, e.g. replicate's
+    results), the CO2 fluxes are judged against them instead (:func:`unit_slip_caution`)."""
     said = [co2_sign_caution(obs, forcing, name) for name in UPTAKE_SIGN]
-    return [c for c in (*said, par_unit_caution(obs, forcing)) if c]
+    said.append(par_unit_caution(obs, forcing))
+    model = {} if model is None else model
+    for name in UNIT_SLIPS:
+        col = BY_NAME[name].value
+        if col in model:
+            said.append(unit_slip_caution(obs, forcing, name, model[col]))
+        elif name in UPTAKE_SIGN:
+            said.append(co2_unit_caution(obs, forcing, name))
+    return [c for c in said if c]
 
 
 def _per_step(obs: pd.DataFrame, s: Series, idx: np.ndarray, n_steps: int, x) -> tuple[np.ndarray, np.ndarray]:
