@@ -64,7 +64,7 @@ def test_co2_flux_in_mg_is_cautioned_from_the_forcing(tmp_path):
 def test_unit_slips_are_judged_against_the_models_values(tmp_path):
     """Where the model's values are known, the fit factor k = Σ m·y / Σ y² over the readings in full
     light says the slip: readings that are the model's (the twin read against itself) × 0.04401 give
-    k = 1 / 0.04401 = 22.72; the twin itself k = 1, nothing."""
+    k = 1 / 0.04401 = 22.72, plant PAR / 4.57 (W m⁻²) gives 4.57; the twin itself k = 1, nothing."""
     w = rep.forcing()
     obs = read_observations(TWIN)
     model = {c: obs[c] for c in ("canopy_an_umol_m2_s", "plant_par_umol_m2_s")}
@@ -73,6 +73,11 @@ def test_unit_slips_are_judged_against_the_models_values(tmp_path):
     (said,) = observation_cautions(mg, w, model)
     assert f"the model's canopy_an is {1 / MG_PER_UMOL:.3g} × the readings" in said, said
     assert "twin_mg.csv, column 'canopy_an_umol_m2_s'" in said and "divide it by 0.04401" in said
+    w_m2 = read_observations(scaled(tmp_path, "twin_w.csv", "plant_par_umol_m2_s", 1 / 4.57))
+    (said,) = observation_cautions(w_m2, w, model)
+    assert "column 'plant_par_umol_m2_s': the model's plant_par is 4.57 × the readings" in said, said
+    assert "multiply it by 4.57" in said
+    assert observation_cautions(w_m2, w) == []  # 0.17 × the forcing's PAR: a dense canopy's own, unsaid
     # a model indexed by naive UTC times (as results.nc keeps them) reads the same
     naive = {c: pd.Series(v.to_numpy(), index=v.index.tz_localize(None)) for c, v in model.items()}
     assert observation_cautions(mg, w, naive) == observation_cautions(mg, w, model)

@@ -47,7 +47,7 @@ such as 94 is not a fraction); a quantity given twice at one time is refused (tw
 instruments may share a time on their own rows). CO2 fluxes beyond ±:data:`MAX_CO2_FLUX` are
 refused (another unit); ones in mg CO2 m⁻² s⁻¹, 1 / 22.7 of µmol m⁻² s⁻¹ and inside that bound,
 are cautioned where a run meets them with its forcing (:func:`co2_unit_caution`) or its model
-(:func:`unit_slip_caution`), through :func:`observation_cautions`.
+(:func:`unit_slip_caution`, also for light in W m⁻²), through :func:`observation_cautions`.
 
 Time zone. Times with an offset (``2016-04-20T12:13:48+02:00``, ``…Z``) are read as written; times
 without one need the ``# time_zone`` line (e.g. ``Europe/Berlin`` for a chamber log kept in local
@@ -944,10 +944,13 @@ CO2_IN_MG_MAX = 3.0
 #: The fit factor k (model ≈ k × readings, least squares over the readings in full light) that reads
 #: as a unit slip, per series, where the model's values are known (:func:`unit_slip_caution`): the
 #: slip's factor ± what a model and a field can differ by (a factor 1.5). CO2 fluxes in mg CO2
-#: m⁻² s⁻¹ read 1 / 22.7 of µmol m⁻² s⁻¹.
+#: m⁻² s⁻¹ read 1 / 22.7 of µmol m⁻² s⁻¹; PAR in W m⁻² reads 1 / 4.57 (McCree 1972).
 UNIT_SLIPS = {
     "canopy_an": (1 / MG_PER_UMOL_CO2, "mg CO2 m⁻² s⁻¹"),
     "nee": (1 / MG_PER_UMOL_CO2, "mg CO2 m⁻² s⁻¹"),
+    "plant_par": (UMOL_PER_JOULE_PAR, "W m⁻²"),
+    "canopy_apar": (UMOL_PER_JOULE_PAR, "W m⁻²"),
+    "transmitted_par": (UMOL_PER_JOULE_PAR, "W m⁻²"),
 }
 UNIT_SLIP_TOLERANCE = 1.5
 
@@ -991,7 +994,7 @@ def unit_slip_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str, model
     (:data:`UNIT_SLIPS`) are k × the readings in full light (least squares, k = Σ m·y / Σ y², over
     the readings whose nearest step of ``forcing`` has PAR ≥ :data:`BRIGHT_PAR_UMOL_M2_S`; ``model``:
     the model's values indexed by the steps' times) with k within :data:`UNIT_SLIP_TOLERANCE` of
-    the slip's factor: CO2 fluxes in mg CO2 m⁻² s⁻¹ (22.7); else ``None``."""
+    the slip's factor: CO2 fluxes in mg CO2 m⁻² s⁻¹ (22.7), PAR in W m⁻² (4.57); else ``None``."""
     col = BY_NAME[name].value
     if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
         return None
@@ -1023,7 +1026,8 @@ def observation_cautions(obs: pd.DataFrame, forcing: pd.DataFrame, model=None) -
     (:func:`par_unit_caution`), CO2 fluxes in mg CO2 m⁻² s⁻¹ (:func:`co2_unit_caution`). A unit slip
     past doubt is refused instead (:func:`check_light_scale`). ``model``: where the run's model values
     are known (a mapping of value column to a series over the steps' times, e.g. replicate's
-    results), the CO2 fluxes are judged against them instead (:func:`unit_slip_caution`)."""
+    results), the CO2 fluxes and the light at the plants, on the canopy and under it are judged
+    against them instead (:func:`unit_slip_caution`)."""
     said = [co2_sign_caution(obs, forcing, name) for name in UPTAKE_SIGN]
     said.append(par_unit_caution(obs, forcing))
     model = {} if model is None else model
