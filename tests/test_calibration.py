@@ -628,6 +628,40 @@ def test_bounds_hold_the_fit_and_a_start_outside_them_is_refused():
         calibrate(model, obs, bounds={"specular": (0.6, 0.9)}, **kw)
 
 
+def test_lbfgsb_reaches_a_bound_the_loss_falls_towards_and_it_is_reported_on_the_edge():
+    """jaxopt's L-BFGS-B error is the projected gradient step, which near a bound is the distance to
+    it: with gtol 1e-2 it said "converged" at vcmax_scale 0.79899, short of a bound at 0.8 (loss
+    12.026 against 11.919 on the bound, and no edge caution). Against numpy: PAR and An decouple, so
+    the constrained optimum is vcmax_scale on the bound and the light factor's weighted least squares
+    Σ(yP/v)/Σ(P²/v) (v = σ² + s², s the model's SD at the start)."""
+    from lightfit.inference.calibration import on_edge
+
+    model, obs = _fake()
+    sh = np.asarray(model.shape)
+    p = (400 + 100 * model.theta().specular) * sh
+    y, ok = obs["plant_par_umol_m2_s"].to_numpy(), obs["plant_par_umol_m2_s"].notna().to_numpy()
+    v = 10.0**2 + 2.0**2 * sh
+    f_star = float(np.sum((y * p / v)[ok]) / np.sum((p * p / v)[ok]))
+    y_an, ok_an = obs["canopy_an_umol_m2_s"].to_numpy(), obs["canopy_an_umol_m2_s"].notna().to_numpy()
+    r_an = (y_an - (0.8 * 20 * sh - 2.0)) / np.sqrt(1.0 + 0.1**2 * sh)
+    want = 0.5 * np.sum(((y - f_star * p) ** 2 / v)[ok]) + 0.5 * np.sum(r_an[ok_an] ** 2)
+    res = calibrate(
+        model,
+        obs,
+        names=("light_factor", "vcmax_scale"),
+        method="lbfgsb",
+        bounds={"vcmax_scale": (0.2, 0.8)},
+        start={"vcmax_scale": 0.5},
+        progress=False,
+        say=lambda _: None,
+    )
+    assert res.stopped_by == "converged", res.reason
+    assert res.theta["vcmax_scale"] == pytest.approx(0.8, abs=1e-5)
+    assert on_edge(res.theta["vcmax_scale"], 0.2, 0.8)
+    assert res.theta["light_factor"] == pytest.approx(f_star, rel=1e-5)
+    assert res.loss == pytest.approx(want, rel=1e-4)
+
+
 def test_theta_values_are_checked_like_numbers():
     """A Theta is built unchecked (JAX rebuilds it inside traces): its concrete values are checked
     where it enters (as_theta, calibrate's start and fixed), naming the argument; traced values
