@@ -1179,6 +1179,11 @@ def test_an_unconverged_calibration_is_told_what_helps():
     for failed in ("failed: line search", "unconverged: specular=0.5", "against unconverged: specular=0.9"):
         said = unconverged_remedy(failed)
         assert "stop the same way" in said and "--no-resume" in said and "rerun with a larger" not in said
+    # on the surrogate (the command line's default) the rounds are redone, not resumed from a history
+    # (trust_region.surrogate_calibrate: resume=False), where "continues from its history" was said
+    said = unconverged_remedy("max_steps", surrogate=True)
+    assert "history" not in said and "redoes the optimisation on the cached renders" in said
+    assert "resume the same state" not in unconverged_remedy("failed: line search", surrogate=True)
 
 
 def test_canopy_an_per_another_area_than_the_run_is_refused(tmp_path):

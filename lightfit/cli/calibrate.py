@@ -365,7 +365,7 @@ def calibrate(
     if not res.converged:  # said before the fit's cautions, whose "the fit is good" reads as a verdict
         caution(
             f"the optimiser did not converge ({res.reason}): the values are where it stopped, not an optimum; "
-            + unconverged_remedy(res.stopped_by)
+            + unconverged_remedy(res.stopped_by, surrogate=tr is not None)
         )
     others = " or ".join(f"--priors {p}" for p in P.PRIOR_SETS if p != priors)
     for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):
@@ -392,14 +392,18 @@ def calibrate(
         raise typer.Exit(CHECK_NOT_PASSED)
 
 
-def unconverged_remedy(stopped_by: str) -> str:
+def unconverged_remedy(stopped_by: str, surrogate: bool = False) -> str:
     """What helps a calibration that stopped unconverged (``CalibrationResult.stopped_by``): more steps
     where it ran out of them; elsewhere a rerun restores the same optimiser state and stops the same
-    way (a review: "a larger --max-steps" was said after a failed line search too)."""
+    way (a review: "a larger --max-steps" was said after a failed line search too). ``surrogate``: the
+    optimisation ran on the emulator (``trust_region.surrogate_calibrate``), whose rounds are not
+    resumed but redone from the cached renders, the same steps again."""
     if stopped_by in ("max_steps", "stalled"):
-        return "rerun with a larger --max-steps (the run continues from its history)"
+        how = "redoes the optimisation on the cached renders" if surrogate else "continues from its history"
+        return f"rerun with a larger --max-steps (the run {how})"
+    again = "redo the same steps" if surrogate else "resume the same state"
     return (
-        "a larger --max-steps would resume the same state and stop the same way: start again (--no-resume or "
+        f"a larger --max-steps would {again} and stop the same way: start again (--no-resume or "
         "another --out) with the other --method, another --start or fewer --parameters, and check the "
         "observations' units and SDs"
     )
