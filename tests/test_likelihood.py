@@ -574,3 +574,39 @@ def test_observations_fit_reads_a_results_file_by_its_path(tmp_path):
     (tmp_path / "summary.csv").write_text("time_utc\n")
     with pytest.raises(InputError, match="summary.csv"):
         observations_fit(tmp_path / "summary.csv")
+
+
+def test_a_ratio_of_light_read_in_the_dark_is_refused_by_the_library_too():
+    """A fAPAR reading at a step the model does not render (night: its ratio is 0 by convention, no
+    0/0), or between two steps towards one, has no model value to meet. The command line refused such
+    a file (observations.check_ratios_lit), but the likelihood built in code (of_model, LogPosterior.of_model:
+    the library's calibration and posterior) took it: a fAPAR of 0.9 ± 0.05 at night met 0 and added
+    (0.9/0.05)² = 324 to χ² unsaid. Lit readings are accepted and enter as before."""
+    from types import SimpleNamespace
+
+    from lightfit.inference.mcmc.log_posterior import LogPosterior
+    from lightfit.weather.timestamps import INSTANTS
+
+    fapar = BY_NAME["fapar"]
+    day = np.array([False, True, True, True, True, False])
+    model = SimpleNamespace(
+        times=TIMES, timestamps=INSTANTS, step=pd.Timedelta("30min"), day=day, scenario=SimpleNamespace(an_per="ground")
+    )
+
+    def obs(*stamps):
+        o = pd.DataFrame({fapar.value: 0.9, fapar.sd: 0.05}, index=pd.DatetimeIndex(stamps))
+        o.attrs = {"source": "hand.csv", "provenance": "synthetic"}
+        return o
+
+    lit = obs(TIMES[2], TIMES[3])
+    lik = GaussianLikelihood.of_model(model, lit, ("fapar",))
+    m = {fapar.value: jnp.full(T, 0.9), fapar.mc_sd: jnp.zeros(T)}
+    assert lik.n_observations == 2 and float(lik.loss(m)) == 0.0
+    LogPosterior.of_model(lambda th: m, model, lit, ("light_factor",), use=("fapar",))
+    dark_at = TIMES[0]  # at a dark step itself; at 10:10, a third of the way from the lit 10:00 to the dark 10:30
+    for o in (obs(dark_at, TIMES[2]), obs(TIMES[4] + pd.Timedelta("10min"))):
+        with pytest.raises(InputError, match="fapar observed at the step .* without light") as e:
+            GaussianLikelihood.of_model(model, o, ("fapar",))
+        assert e.value.column == fapar.value and "hand.csv" in str(e.value)
+        with pytest.raises(InputError, match="without light"):
+            LogPosterior.of_model(lambda th: m, model, o, ("light_factor",), use=("fapar",))

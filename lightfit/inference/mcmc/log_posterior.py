@@ -92,7 +92,10 @@ class LogPosterior:
         the constructor's (``priors``, ``fixed``, ``use``, ``mc_correlation``, ``mc_scale``); canopy An
         per another area than the model's refused (:func:`~lightfit.inference.observations.check_an_area`)."""
         check_an_area(obs, model.scenario.an_per)
-        return cls(forward, model.times, obs, names, *args, stamps=model.timestamps, step=model.step, **kw)
+        lp = cls(forward, model.times, obs, names, *args, stamps=model.timestamps, step=model.step, **kw)
+        if getattr(model, "day", None) is not None:  # ratios of light read in the dark refused, as of_model does
+            lp.likelihood.check_ratios_lit(model.times, model.day, obs.attrs.get("source"))
+        return lp
 
     def vector(self, x) -> jax.Array:
         """``x`` as a float64 vector of the sampled parameters, or :class:`InputError` for another
