@@ -100,10 +100,10 @@ from lightfit.errors import InputError, check_real
 from lightfit.inference.observations import (
     ALIASES,
     BY_NAME,
-    RATIO_SERIES,
     SERIES,
     align,
     check_an_area,
+    check_ratios_lit_at,
     check_sds,
     dependencies,
     interpolation,
@@ -396,36 +396,14 @@ class GaussianLikelihood:
         check_an_area(obs, model.scenario.an_per)
         lik = cls(obs, model.times, use, stamps=model.timestamps, step=model.step, **kw)
         if getattr(model, "day", None) is not None:  # a test double may have none
-            lik.check_ratios_lit(model.times, model.day, obs.attrs.get("source"))
+            lik.check_ratios_lit(obs, model)
         return lik
 
-    def check_ratios_lit(self, times: pd.DatetimeIndex, day, file=None) -> None:
-        """:class:`InputError` naming the series and step where a used ratio of light (fAPAR, the
-        ceptometer's transmittance and fAPAR: :data:`~lightfit.inference.observations.RATIO_SERIES`)
-        is read at a step without light (``day`` False: ``model.day``, the rendered steps), or
-        between two steps towards one. The model's ratio is 0 there by convention (no 0/0), not a
-        value: a fAPAR of 0.9 read there met 0 and weighed in the fit as a misfit of 0.9. The command
-        line refuses such a file first, naming its line
-        (:func:`~lightfit.inference.observations.check_ratios_lit`); this holds for observations
-        given in code too (:meth:`of_model`, the library's calibration and posterior)."""
-        day = np.asarray(day, bool)
-        for s in self.series:
-            if s.name not in RATIO_SERIES:
-                continue
-            mask, nb = np.asarray(self.mask[s.name]), np.asarray(self.neighbour[s.name])
-            towards = (np.asarray(self.weight[s.name]) > 0) & ~day[nb]
-            bad = mask & (~day | towards)
-            if bad.any():
-                k = int(np.flatnonzero(bad)[0])
-                at = times[k].isoformat() + (f", read towards {times[nb[k]].isoformat()}" if day[k] else "")
-                raise InputError(
-                    f"{s.name} observed at the step {at} without light (not rendered): the model's ratio is 0"
-                    f" there by convention, not a value ({int(bad.sum())} such step(s))",
-                    file=file,
-                    column=s.value,
-                    expected="ratios of light read in daylight, between steps with light"
-                    " (leave the night's cells empty)",
-                )
+    def check_ratios_lit(self, obs: pd.DataFrame, model) -> None:
+        """The used ratios of light read at a step ``model`` does not render, or towards one, refused
+        (:func:`~lightfit.inference.observations.check_ratios_lit_at`); unused series are not judged."""
+        used = {c for s in self.series for c in (s.value, s.sd)}
+        check_ratios_lit_at(obs[[c for c in obs.columns if c in used]], model.times, model.timestamps, model.day)
 
     def _interpolation_matrix(self, T: int) -> np.ndarray:
         """A (n_observations, len(use)·T): row r reads the stacked steps at observed entry r,

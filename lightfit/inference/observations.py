@@ -806,28 +806,39 @@ def check_ratios_lit(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     these readings too; a civil-twilight step with diffuse light is rendered and lit."""
     if "par_umol_m2_s" not in forcing.columns or not len(obs):
         return
-    stamps = timestamps.of(forcing)
-    idx, _ = nearest_steps(obs, forcing.index, stamps)
     par = forcing["par_umol_m2_s"].to_numpy(float)
     if {"sun_elevation_deg", "dni_w_m2", "dhi_w_m2"} <= set(forcing.columns):
         par = np.where(daytime(forcing), par, 0.0)  # PAR above, but nothing rendered (below civil twilight)
-    read = interpolation(obs, forcing.index, stamps)
-    dark = par[idx] <= 0
+    check_ratios_lit_at(obs, forcing.index, timestamps.of(forcing), par > 0)
+
+
+def check_ratios_lit_at(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps, lit) -> None:
+    """:func:`check_ratios_lit` at the steps ``times`` (their ``stamps``) whose light is ``lit``
+    (bool, one per step): from a forcing's PAR and :func:`~lightfit.model.scenario.daytime` on the
+    command line, before the plants grow; from a model's rendered steps (``model.day``) where a
+    likelihood is built in code (:meth:`lightfit.inference.likelihood.GaussianLikelihood.of_model`:
+    a fAPAR of 0.9 ± 0.05 read at night met 0 and added 324 to χ² unsaid)."""
+    if not len(obs):
+        return
+    lit = np.asarray(lit, bool)
+    idx, _ = nearest_steps(obs, times, stamps)
+    read = interpolation(obs, times, stamps)
+    dark = ~lit[idx]
     lines = obs.attrs.get("lines")
     for name in RATIO_SERIES:
         col = BY_NAME[name].value
         if col not in obs.columns:
             continue
         nb, w = (a[idx] for a in read[col])  # each row's step's neighbour and weight
-        between = (w > 0) & (par[nb] <= 0)
+        between = (w > 0) & ~lit[nb]
         bad = (dark | between) & obs[col].notna().to_numpy()
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             where = (
-                f"night at its nearest step, {forcing.index[idx[k]].isoformat()}"
+                f"night at its nearest step, {times[idx[k]].isoformat()}"
                 if dark[k]
-                else f"night at {forcing.index[nb[k]].isoformat()}, which the model is read towards from "
-                f"{forcing.index[idx[k]].isoformat()}"
+                else f"night at {times[nb[k]].isoformat()}, which the model is read towards from "
+                f"{times[idx[k]].isoformat()}"
             )
             raise InputError(
                 f"{name} read at {obs.index[k].isoformat()}, where the forcing has no PAR above the canopy "

@@ -94,7 +94,7 @@ class LogPosterior:
         check_an_area(obs, model.scenario.an_per)
         lp = cls(forward, model.times, obs, names, *args, stamps=model.timestamps, step=model.step, **kw)
         if getattr(model, "day", None) is not None:  # ratios of light read in the dark refused, as of_model does
-            lp.likelihood.check_ratios_lit(model.times, model.day, obs.attrs.get("source"))
+            lp.likelihood.check_ratios_lit(obs, model)
         return lp
 
     def vector(self, x) -> jax.Array:
