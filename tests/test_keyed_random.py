@@ -143,3 +143,28 @@ def test_random_bits_are_sixteen_rounds_of_tea_of_the_index_under_one_key_per_st
                 assert (v1 == v1[0]).all(), (seed, kind, dim)
                 keys[seed, kind, dim] = int(v1[0])
     assert len(set(keys.values())) == len(keys), keys
+
+
+def _splitmix_reference(seed: int, key: int, dim: int) -> float:
+    """keyed_uniforms' number in Python integers: the SplitMix64 finaliser (Steele et al. 2014)
+    over seed, key and dimension, mod 2⁶⁴, its top 24 bits."""
+    m = 2**64
+
+    def mix(z):
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) % m
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) % m
+        return z ^ (z >> 31)
+
+    g = 0x9E3779B97F4A7C15
+    base = mix((key * g + mix((seed + 1) % m)) % m)
+    return (mix((base + (dim + 1) * g) % m) >> 40) / 2**24
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**32 - 1, np.int64(7), np.uint32(2**32 - 1), np.uint64(3)])
+def test_keyed_uniforms_are_splitmix64_for_python_and_numpy_seeds(seed):
+    """check_seed accepts numpy integers; keyed_uniforms raised OverflowError on them (``seed %
+    2**64`` in numpy's int64). Values against a Python-integer transcription, seeds up to 2³² − 1."""
+    keys = np.array([0, 1, 255, 256, (12_345 << 8) + 7, (1 << 48) + 3], dtype=np.uint64)
+    got = keyed_uniforms(seed, keys, [0, 4, 37])
+    ref = [[_splitmix_reference(int(seed), int(k), d) for d in (0, 4, 37)] for k in keys]
+    np.testing.assert_array_equal(got, ref)

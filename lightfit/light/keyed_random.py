@@ -64,7 +64,8 @@ def keyed_uniforms(seed: int, keys: np.ndarray, dims: ArrayLike) -> np.ndarray:
     golden = np.uint64(0x9E3779B97F4A7C15)
     out = np.empty(keys.shape + (len(dims),))
     with np.errstate(over="ignore"):  # modular 64-bit arithmetic is the point
-        base = mix(keys.astype(np.uint64) * golden + mix(np.uint64(seed % 2**64) + np.uint64(1)))
+        # int(): a numpy integer seed (check_seed accepts them) % 2**64 overflowed numpy's int64.
+        base = mix(keys.astype(np.uint64) * golden + mix(np.uint64(int(seed) % 2**64) + np.uint64(1)))
         # One dimension at a time: temporaries of the keys' size, not of keys × dims.
         for i, d in enumerate(np.asarray(dims, dtype=np.uint64)):
             z = mix(base + (d + np.uint64(1)) * golden)
