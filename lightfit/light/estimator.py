@@ -112,6 +112,12 @@ _DIMS_PER_BOUNCE = 3
 # dimensions are independent uniforms hashed from (replicate shift, point index).
 _QMC_FRONT = (0, 1, 2, 3, 4)
 _QMC_BACK = (11, 12)
+# The first directions' sequence {Δ + j·α} is computed in float32, where j·α keeps only
+# 24 bits: from j = 2¹⁷ on its rounding (2⁻⁷) wiped out the shift Δ's bits below it, so the
+# coordinate took 128 values (a biased Riemann sum; 16 at j = 2²⁰, one at j = 2²⁴ − 8: every
+# path started in the same direction). From this j on, j·α mod 1 is taken in 32-bit fixed point
+# instead; below it (up to 1023: every adaptive and default render) the float32 values as before.
+_FLOAT32_J = 2**10
 
 
 def _side_dims(bounces: int) -> tuple[list[int], list[int]]:
@@ -634,7 +640,9 @@ class SegmentEstimator:
                     # The replicate's keyed shift (24 bits) keys the hash; the point index varies it.
                     h = hash32(hash32(mi.UInt32(delta * 2.0**24) + (dim * 0x9E3779B9) % 2**32) + j_int)
                     return mi.Float(h >> 8) * 2.0**-24
-                return delta + jj * float(self._alpha[dim])
+                step = round(float(self._alpha[dim]) * 2**32) % 2**32  # α in 32-bit fixed point
+                exact = mi.Float(((mi.UInt32(delta * 2.0**24) << 8) + j_int * step) >> 8) * 2.0**-24
+                return dr.select(j_int < _FLOAT32_J, delta + jj * float(self._alpha[dim]), exact)
 
             u = []
             for df, db in zip(front_dims, back_dims):
