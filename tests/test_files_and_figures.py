@@ -208,6 +208,9 @@ def test_the_forcing_plots_co2_axis_does_not_magnify_rounding(tmp_path, monkeypa
         plot_forcing(df.assign(co2_ppm=co2), tmp_path / "f.png")
         lo, hi = drawn[-1].axes[2].get_ylim()
         assert span[0] <= hi - lo <= span[1] + 1e-9 and lo <= co2.min() and co2.max() <= hi, (lo, hi)
+    # 04:00–15:00 UTC is 06:00–17:00 CEST on the 20th: the axis names the day (`weather show --plot`
+    # of a TERENO file said "time (Europe/Berlin)" and the day nowhere in the figure)
+    assert drawn[-1].axes[3].get_xlabel() == "local time (Europe/Berlin), 2016-04-20"
 
 
 def _per_step_results(times_utc, **attrs):
@@ -286,6 +289,7 @@ def test_several_days_figures_name_each_days_date_on_the_time_axis(tmp_path, mon
     )
     plot_forcing(df, tmp_path / "f.png")
     drawn[-1].canvas.draw()
+    assert drawn[-1].axes[3].get_xlabel() == "local time (Europe/Berlin), 2016-04-20 to 2016-04-27"
     ticks = [t.get_text() for t in drawn[-1].axes[3].get_xticklabels() if t.get_text()]
     assert "21 Apr" in ticks and len(set(ticks)) == len(ticks), ticks
     _assert_lines_stop_between_the_days(drawn[-1].axes, two)

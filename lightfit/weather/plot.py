@@ -98,7 +98,10 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[3].plot(t, drawn["sun_elevation_deg"], color="goldenrod")
         ax[3].axhline(0, color="k", lw=0.5)
     ax[3].set_ylabel("sun elevation (°)")
-    ax[3].set_xlabel(f"time ({zone_label(tz)})")
+    # the date(s) in local time, as the replication figure's axis says them: the clock alone names no day
+    days = sorted({f"{x:%Y-%m-%d}" for x in local.index})
+    day = " to ".join(dict.fromkeys(days[:1] + days[-1:]))
+    ax[3].set_xlabel(f"local time ({zone_label(tz)})" + (f", {day}" if day else ""))
     clock_axis(ax[3], tz)
     src = Path(str(df.attrs.get("source", ""))).name
     fig.suptitle(title or f"{provenance_label(df.attrs)} forcing — {src}", fontsize=11)
