@@ -822,6 +822,11 @@ def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_fi
     shown = [q for q in quantities if any(q in ax.get_title() for ax in seen[0].axes)]
     assert any(units[q] != "1" for q in shown)
     assert all(units[q] in labels for q in shown if units[q] != "1")
+    # the margin's unit "1" (CF for a ratio) stood on its bar as a lone number; its title named no
+    # limitation, only Fj>Fc, which a reader must look up to learn that red is Rubisco limited
+    margin = next(ax for ax in seen[0].axes if "(Vj−Vc)/(Vj+Vc)" in ax.get_title())
+    assert units["limitation_margin"] == "1" and "dimensionless" in labels and "1" not in labels
+    assert "red Fj>Fc, Rubisco limited" in margin.get_title() and "blue Fj<Fc, electron-transport" in margin.get_title()
 
 
 def test_results_it_cannot_label_or_place_are_refused(results_file, tmp_path):

@@ -68,14 +68,16 @@ def gallery(out_dir: Path, images: list[dict], quantities: list[str], units: dic
             if q == MARGIN:
                 lim = float(np.nanmax(np.abs(v))) if v.count() else 1.0
                 im = a.imshow(v, cmap="RdBu_r", norm=TwoSlopeNorm(0.0, -lim or -1.0, lim or 1.0))
-                a.set_title("(Vj−Vc)/(Vj+Vc): red Fj>Fc, blue Fj<Fc", fontsize=8)
+                a.set_title(
+                    "(Vj−Vc)/(Vj+Vc): red Fj>Fc, Rubisco limited;\nblue Fj<Fc, electron-transport limited", fontsize=8
+                )
             else:
                 im = a.imshow(v, cmap="viridis")
                 a.set_title(q, fontsize=8)
             a.set_facecolor("0.15")
             bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
-            if units.get(q):
-                bar.set_label(units[q], fontsize=7)
+            if units.get(q):  # a ratio's CF unit "1" read as a number on the bar
+                bar.set_label("dimensionless" if units[q] == "1" else units[q], fontsize=7)
         for a in ax:
             a.set_xticks([])
             a.set_yticks([])
