@@ -897,15 +897,21 @@ def test_the_preview_says_what_it_draws(tmp_path, monkeypatch):
     monkeypatch.setattr(
         matplotlib.figure.Figure,
         "savefig",
-        lambda fig, *a, **k: seen.append((fig.axes[0].get_title(), len(fig.axes[0].lines))) or save(fig, *a, **k),
+        lambda fig, *a, **k: (
+            seen.append((fig.axes[0].get_title(), len(fig.axes[0].lines), fig._suptitle.get_text()))
+            or save(fig, *a, **k)
+        ),
     )
     cache = tmp_path / "cache"
     plot_field(build(Field(n_plants=4), cache_dir=cache), tmp_path / "p.png")
     plot_field(build(Field(n_plants=4, boundary="finite", buffer_rows=1), cache_dir=cache), tmp_path / "f.png")
-    assert seen == [
+    assert [s[:2] for s in seen] == [
         ("top view (dashed: the periodic cell, repeated without end)", 1),
         ("top view (pale: buffer plants)", 0),
     ]
+    # the title's count: --n-plants 4 with one buffer row all round is 4 measured among 4 × 4; the
+    # title said "16 plants" alone, another field than the one asked for at a glance
+    assert seen[0][2].startswith("4 plants, ") and seen[1][2].startswith("16 plants (4 measured, 12 buffer), ")
 
 
 def test_a_valid_archive_whose_payload_does_not_match_its_checksum_is_rebuilt(tmp_path, monkeypatch):

@@ -61,7 +61,12 @@ def plot_field(geom: FieldGeometry, path: str | Path, title: str = "") -> Path:
         notes.append("dashed: the periodic cell, repeated without end")
     ax[0].set_title("top view" + (f" ({'; '.join(notes)})" if notes else ""))
     ax[1].set_title("side view from the south")
-    fig.suptitle(title or f"{len(geom.plants)} plants, {len(geom.segments)} shoot segments, {m.n_faces} triangles")
+    # --n-plants counts the measured plants: a finite field's total alone read as a different field
+    n_meas = int(geom.plants["measured"].sum())
+    plants = f"{len(geom.plants)} plants" + (
+        f" ({n_meas} measured, {len(geom.plants) - n_meas} buffer)" if n_meas < len(geom.plants) else ""
+    )
+    fig.suptitle(title or f"{plants}, {len(geom.segments)} shoot segments, {m.n_faces} triangles")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
