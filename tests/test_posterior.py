@@ -1640,6 +1640,25 @@ def test_the_corner_plot_shows_a_map_on_the_box_edge_and_beyond_the_walkers(tmp_
     assert lo < 0.3 < hi
 
 
+def test_the_corner_plot_of_one_parameter_titles_its_median_and_5_to_95_percent(tmp_path, monkeypatch):
+    """Several parameters' histograms carry corner's title, "name = median −(median − 5 %) +(95 % −
+    median)"; one parameter's (`posterior --parameters light_factor`, its own histogram) had none: the
+    figure gave no number. 0, 0.001, …, 1: the 5, 50 and 95 % points are 0.05, 0.5 and 0.95."""
+    import matplotlib.pyplot as plt
+
+    from lightfit.inference.plots import corner_figure
+
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
+    corner_figure(np.linspace(0.0, 1.0, 1001)[:, None], ["light_factor"], {"light_factor": 0.4}, tmp_path / "c.png")
+    assert figs[0].axes[0].get_title() == "light_factor = ${0.5}_{-0.45}^{+0.45}$"
+    figs.clear()
+    rng = np.random.default_rng(5)
+    two = np.column_stack([np.linspace(0.0, 1.0, 1001), rng.uniform(size=1001)])
+    corner_figure(two, ["light_factor", "specular"], {}, tmp_path / "c2.png")
+    assert figs[0].axes[0].get_title() == "light_factor = ${0.5}_{-0.45}^{+0.45}$"  # corner's own, alike
+
+
 def test_a_stored_runs_samples_leave_out_its_own_rules_burn_in(tmp_path):
     """A run sampled under a rule with another burn-in (``StopRule(burn_fraction=0.5)``): the samples
     read back from its file (``flat_samples(load_run(...))``, what the notebook's corner plot and

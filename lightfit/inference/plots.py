@@ -40,8 +40,11 @@ def corner_figure(samples: np.ndarray, names, x_map: dict, path: str | Path, *, 
     if len(names) == 1:  # corner indexes a grid of axes, which one parameter does not make
         fig, ax = plt.subplots(figsize=(4.5, 4))
         ax.hist(x[:, 0], bins=40, histtype="step", color="k")
-        for q in np.percentile(x[:, 0], (5, 50, 95)):
+        q5, q50, q95 = np.percentile(x[:, 0], (5, 50, 95))
+        for q in (q5, q50, q95):
             ax.axvline(q, color="k", ls="--", lw=0.8)
+        # the median and 5–95 % as corner titles each histogram of several parameters (show_titles)
+        ax.set_title(f"{names[0]} = ${{{q50:.3g}}}_{{-{q50 - q5:.3g}}}^{{+{q95 - q50:.3g}}}$")
         ax.axvline(x_map.get(names[0], np.nan), color="tab:red")
         ax.set_xlabel(names[0])
         ax.set_yticks([])
@@ -59,7 +62,7 @@ def corner_figure(samples: np.ndarray, names, x_map: dict, path: str | Path, *, 
     fig.suptitle(
         (title + "\n" if title else "") + f"{len(samples):,} samples after burn-in; red lines: the MAP; "
         "dashed: 5, 50, 95 %; all parameters dimensionless",
-        y=1.02,
+        y=1.02 if len(names) > 1 else 1.08,  # above the one histogram's own title, not on it
         fontsize=10,
     )
     path = Path(path)
