@@ -3,6 +3,7 @@ and the local-time axis (lightfit.figure)."""
 
 from __future__ import annotations
 
+import re
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -289,6 +290,15 @@ def test_several_days_figures_name_each_days_date_on_the_time_axis(tmp_path, mon
     )
     plot_forcing(df, tmp_path / "f.png")
     drawn[-1].canvas.draw()
+    # every y axis names its quantity and, in parentheses, its unit: the radiation axes read
+    # "PAR\nµmol m⁻² s⁻¹" and "W m⁻² (× 2.285 = PAR scale)", the right one naming no quantity
+    with_split = df.assign(ghi_w_m2=437.6, dni_w_m2=300.0, dhi_w_m2=150.0)
+    plot_forcing(with_split, tmp_path / "g.png")
+    for ax in drawn[-1].axes:
+        label = ax.get_ylabel()
+        assert re.fullmatch(r"[A-Za-z][^(]*\([^()]*(µmol m⁻² s⁻¹|W m⁻²|°C|%|ppm|kPa|°)[^()]*\)", label, re.S), label
+    assert [ax.get_ylabel() for ax in drawn[-1].axes][:2] == ["PAR\n(µmol m⁻² s⁻¹)", "T air (°C)"]
+    assert "GHI, DHI, DNI\n(W m⁻²" in "".join(ax.get_ylabel() for ax in drawn[-1].axes)
     assert drawn[-1].axes[3].get_xlabel() == "local time (Europe/Berlin), 2016-04-20 to 2016-04-27"
     ticks = [t.get_text() for t in drawn[-1].axes[3].get_xticklabels() if t.get_text()]
     assert "21 Apr" in ticks and len(set(ticks)) == len(ticks), ticks

@@ -45,7 +45,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
     derived = {q.get("column") for q in df.attrs.get("qc", []) if q.get("kind") == "derived"}
     estimated = ", estimated from GHI" if "par_umol_m2_s" in derived else ""
     ax[0].plot([], [], color="tab:orange", lw=2.5, label="PAR (µmol m⁻² s⁻¹)" + estimated)
-    ax[0].set_ylabel("PAR\nµmol m⁻² s⁻¹")
+    ax[0].set_ylabel("PAR\n(µmol m⁻² s⁻¹)")
     ax[0].plot(t, drawn["par_umol_m2_s"], color="tab:orange", lw=2.5)
     if {"dni_w_m2", "dhi_w_m2"} <= set(local.columns):
         r = ax[0].twinx()
@@ -66,7 +66,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         top = max(ax[0].get_ylim()[1], k * float(local[["ghi_w_m2", "dni_w_m2"]].max().max()) * 1.05)
         ax[0].set_ylim(0, top)
         r.set_ylim(0, top / k)
-        r.set_ylabel(f"W m⁻² (× {k:.3f} = PAR scale)")
+        r.set_ylabel(f"GHI, DHI, DNI\n(W m⁻²; × {k:.3f} = PAR scale)")
         r.legend(loc="upper right", fontsize=8)
     if a := Anchor.of(df.attrs):
         ta = a.time_utc.tz_convert(tz)
