@@ -544,9 +544,9 @@ def declared(obs: pd.DataFrame) -> dict:
     (its ``# provenance:`` line: measured or synthetic, as results.nc's attribute of that name) and
     ``observations_metadata`` (its ``# title:``, ``# source:``, ``# generator:`` lines, those present):
     a reader of the result alone can tell a fit to a synthetic twin from one to measurements."""
-    meta = obs.attrs.get("metadata") or {}
+    meta, src = obs.attrs.get("metadata") or {}, obs.attrs.get("source")
     return {
-        "observations": str(Path(obs.attrs["source"]).resolve()),
+        "observations": str(Path(src).resolve()) if src else None,  # observations made in code: no file
         "observations_provenance": str(obs.attrs.get("provenance", "unstated")),
         "observations_metadata": {k: str(meta[k]) for k in DECLARED_KEYS if meta.get(k)},
     }
