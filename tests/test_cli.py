@@ -714,6 +714,9 @@ def test_model_commands_reject_bad_input_before_running(command, args, words, tm
     [
         (["--timeout", "0"], ["--timeout", "> 0 seconds"]),
         (["--connect-timeout", "nan"], ["--connect-timeout", "> 0 seconds"]),
+        # passed, ran, then a traceback (OverflowError) when Dask closed the cluster (a review of bad input)
+        (["--timeout", "1e15"], ["--timeout", "at most 10,000,000 (116 days)"]),
+        (["--connect-timeout", "1e308"], ["--connect-timeout", "at most 10,000,000"]),
         (["--threads-per-worker", "0"], ["--threads-per-worker", "≥ 1"]),
         (["--scheduler", "foo"], ["--scheduler", "'foo'", "tcp://host:8786"]),
         (["--scheduler", "tcp://host:8786", "--workers", "2"], ["--workers", "joining an existing cluster"]),

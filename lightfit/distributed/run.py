@@ -467,6 +467,11 @@ def _probe(address: str, timeout_s: float) -> None:
         pool.submit(asyncio.run, bounded()).result()
 
 
+#: The longest --timeout / --connect-timeout, s (about 116 days): Dask and Python turn a timeout into
+#: a C timestamp, which overflows from about 9.2e9 s (threading.TIMEOUT_MAX).
+MAX_TIMEOUT_S = 1e7
+
+
 def check_cluster_options(
     scheduler: str | None = None,
     *,
@@ -480,10 +485,20 @@ def check_cluster_options(
     address that parses (host and port for TCP/TLS). ``field-run`` checks them before any plant
     grows; :func:`run_field` and :func:`connect` again."""
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
-        # finite too: Dask parses a timeout's number as a string, and "inf" was a KeyError traceback
+        # finite too: Dask parses a timeout's number as a string, and "inf" was a KeyError traceback;
+        # at most MAX_TIMEOUT_S: 1e15 s passed, ran, then Dask's close turned it into a C timestamp
+        # (OverflowError traceback, exit 1, after the run; 2 × 1e308 parsed as inf the same)
         if value is not None:
             limit = " (no --timeout: no limit)" if name == "timeout" else ""
-            check_real(value, name, 0.0, open_lo=True, expected="finite and > 0 seconds" + limit)
+            most = f"at most {MAX_TIMEOUT_S:,.0f} ({MAX_TIMEOUT_S / 86400:.0f} days)"
+            check_real(
+                value,
+                name,
+                0.0,
+                MAX_TIMEOUT_S,
+                open_lo=True,
+                expected=f"finite and > 0 seconds, {most}" + limit,
+            )
     for name, v in (("workers", workers), ("threads_per_worker", threads_per_worker)):
         if v is not None:
             check_integer(v, name, 1)
