@@ -2050,12 +2050,13 @@ def test_a_thinned_weather_table_says_so():
         (["field", "--quick", "--segments", "DIR"], ["option --segments", "is a folder"]),
         (["field", "--quick", "--preview", "DIR"], ["option --preview", "is a folder"]),
         (["weather", "show", "DIR"], ["a folder, not a file", "bundled names"]),
+        (["render-dataset", "DIR", "--out", "DIR/ds"], ["a folder, not a file", "a netCDF written by the coupled"]),
     ],
 )
 def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path):
     """A folder given for a file: "Is a directory" after the plants grew, or "no such weather file"
     (a CLI review); now refused first, naming the option."""
-    r = runner.invoke(app, [str(tmp_path) if a == "DIR" else a for a in args])
+    r = runner.invoke(app, [a.replace("DIR", str(tmp_path)) for a in args])
     assert_user_error(r, *words)
 
 

@@ -938,10 +938,15 @@ def test_results_of_other_plants_are_refused(results_file, tmp_path):
 
 def test_cli_a_results_file_that_is_not_netcdf_is_refused_by_name(tmp_path):
     """The run's forcing.csv given as results passed on xarray's list of backends and their web
-    pages (a CLI review); a folder was "results file not found"'s business too."""
+    pages (a CLI review); a folder is said to be one (it was "results file not found", though there)."""
     csv = tmp_path / "forcing.csv"
     csv.write_text("time_utc,par_umol_m2_s\n2016-04-20T10:00:00Z,1500\n")
-    for source, text in ((csv, "not a netCDF file"), (tmp_path, "results file not found")):
+    missing = tmp_path / "no-such.nc"
+    for source, text in (
+        (csv, "not a netCDF file"),
+        (tmp_path, "a folder, not a file"),
+        (missing, "results file not found"),
+    ):
         r = CliRunner().invoke(app, ["render-dataset", str(source), "--out", str(tmp_path / "x")])
         err = " ".join(r.stderr.split())
         assert r.exit_code == 2 and err.startswith(f"error: {source}: {text}") and "http" not in err, err

@@ -115,8 +115,9 @@ def open_results(source) -> Results:
     path = None
     if isinstance(source, (str, Path)):
         path = Path(source)
-        if not path.is_file():
-            raise InputError("results file not found", file=path, expected="a netCDF written by the coupled model")
+        if not path.is_file():  # a folder was "not found" too, though it is there (a review of bad input)
+            problem = "a folder, not a file" if path.is_dir() else "results file not found"
+            raise InputError(problem, file=path, expected="a netCDF written by the coupled model")
         if not is_netcdf(path):  # xarray's own message lists backends and their web pages
             raise InputError("not a netCDF file", file=path, expected="a results.nc written by the coupled model")
         try:
