@@ -2060,6 +2060,35 @@ def test_a_folder_where_a_file_is_read_or_written_is_named(args, words, tmp_path
     assert_user_error(r, *words)
 
 
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (
+            ["replicate", "--quick", "--observations", "XLSX"],
+            ["a ZIP archive", "Excel .xlsx", "export the sheet as CSV"],
+        ),
+        (["calibrate", "XLSX", "--quick"], ["not text", "expected an observations CSV"]),
+        (["replicate", "--quick", "--weather", "XLSX"], ["a ZIP archive", "expected a weather file"]),
+        (["weather", "show", "PNG"], ["the file is a PNG image, not text", "expected a weather file"]),
+    ],
+)
+def test_a_spreadsheet_or_image_given_for_a_csv_is_called_what_it_is(args, words, tmp_path):
+    """An Excel workbook (or a PNG) given for a CSV was refused as "line 3: byte 0x.. is not UTF-8 text
+    (the file is in another encoding, e.g. Latin-1) (expected a UTF-8 file: save it as UTF-8)", which
+    sends a user to re-save a spreadsheet's encoding (a review of bad input); now named from its
+    signature, before anything runs."""
+    import zipfile
+
+    xlsx, png = tmp_path / "book.xlsx", tmp_path / "plot.png"
+    with zipfile.ZipFile(xlsx, "w", zipfile.ZIP_STORED) as z:  # stored: the sheet's bytes as they are
+        z.writestr("xl/worksheets/sheet1.xml", bytes(range(256)) * 4)
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    args = [{"XLSX": str(xlsx), "PNG": str(png)}.get(a, a) for a in args]
+    r = runner.invoke(app, [*args, *(["--out", str(tmp_path / "out")] if args[0] != "weather" else [])])
+    assert_user_error(r, *words)
+    assert "UTF-8" not in r.stderr and not (tmp_path / "out").exists()
+
+
 def test_replicate_says_when_it_replaces_results_made_with_other_settings(tmp_path, monkeypatch):
     """A quick test run into the main job's folder replaced its 100-plant results unsaid (a
     newcomer's review); now one line names what differs, as the results record the settings

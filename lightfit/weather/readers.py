@@ -183,6 +183,17 @@ def _find_table(text_lines: list[str], file) -> tuple[int, str]:
     )
 
 
+#: Signatures of binary files a user may give for a CSV, and what to call them.
+_BINARY = {
+    b"PK\x03\x04": "a ZIP archive (e.g. an Excel .xlsx workbook: export the sheet as CSV)",
+    b"\xd0\xcf\x11\xe0": "an Office document (e.g. an Excel .xls workbook: export the sheet as CSV)",
+    b"\x89PNG": "a PNG image",
+    b"\xff\xd8\xff": "a JPEG image",
+    b"%PDF": "a PDF document",
+    b"\x89HDF": "an HDF5 / netCDF-4 file",
+}
+
+
 def _read_text(path: str | Path, expected: str, *, strict: bool = True) -> str:
     """The text of a user's file (weather, observations), or :class:`InputError` saying ``expected``
     where there is none: no such file, a folder, a file without text (an export that failed; each
@@ -198,6 +209,9 @@ def _read_text(path: str | Path, expected: str, *, strict: bool = True) -> str:
     try:
         text = data.decode("utf-8-sig", errors="strict" if strict else "replace")
     except UnicodeDecodeError as e:
+        kind = next((k for magic, k in _BINARY.items() if data.startswith(magic)), None)
+        if kind:  # "save it as UTF-8" misleads for a spreadsheet or an image given as a CSV
+            raise InputError(f"the file is {kind}, not text", file=path, expected=expected) from None
         line = data[: e.start].count(b"\n") + 1
         other = "UTF-16" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else "another encoding, e.g. Latin-1"
         raise InputError(
