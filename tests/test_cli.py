@@ -674,6 +674,14 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
         # which then refused the corrected rerun as "run with other use" (a newcomer review).
         ("calibrate", ["OBS", "--use", "fapar"], ["use names fapar", "no value of", "above_canopy_par"]),
         ("calibrate", ["OBS", "--use", "fapar", "--no-surrogate"], ["use names fapar"]),
+        # the surrogate's settings were dropped unsaid with --no-surrogate (a review of bad input)
+        ("calibrate", ["OBS", "--no-surrogate", "--n-design", "10"], ["option --n-design", "with --no-surrogate"]),
+        (
+            "calibrate",
+            ["OBS", "--no-surrogate", "--max-rounds", "3"],
+            ["option --max-rounds", "only with the surrogate"],
+        ),
+        ("calibrate", ["OBS", "--no-surrogate", "--cache", "ADIR"], ["option --cache", "with --no-surrogate"]),
         ("calibrate", ["OBS", "--parameters", "shininess"], ["unknown parameter", "shininess"]),
         ("calibrate", ["OBS", "--parameters", "specular,specular"], ["['specular'] given more than once"]),
         # crashed after the design renders ("Need at least one array to stack"), leaving a settings.json

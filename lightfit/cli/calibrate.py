@@ -44,6 +44,7 @@ from lightfit.files import jsonable, replace_text
 
 @model_options
 def calibrate(
+    ctx: typer.Context,
     observations: Path = typer.Argument(
         ...,
         help="Observations CSV: a time column and a value and SD column for each observed quantity (PAR "
@@ -138,6 +139,17 @@ def calibrate(
             expected="--scheduler / --workers only with the surrogate, whose design they render; "
             "--no-surrogate makes its full renders in this process",
         )
+    if not surrogate:  # the surrogate's design and rounds: with --no-surrogate they were dropped unsaid
+        # By name: typer vendors click, so click's own ParameterSource is another enum.
+        given = [n for n in ("n_design", "max_rounds", "cache") if ctx.get_parameter_source(n).name == "COMMANDLINE"]
+        if given:
+            flags = ", ".join("--" + n.replace("_", "-") for n in given)
+            raise InputError(
+                f"{flags} with --no-surrogate",
+                parameter=given[0],
+                expected="--n-design / --max-rounds / --cache only with the surrogate, whose design and rounds "
+                "they set; --no-surrogate renders at every loss evaluation",
+            )
     # Checked before the model is built (growing the plants can take minutes); calibrate() checks again.
     if method not in METHODS:
         raise InputError(f"method={method!r}", parameter="method", expected=" or ".join(METHODS))
