@@ -693,6 +693,7 @@ def test_weather_tz_and_time_label_options_read_a_file_as_weather_show_does(tmp_
         ("replicate", ["--theta", "glossiness=1"], ["theta", "glossiness"]),
         ("posterior", ["--priors", "flat"], ["priors", "flat"]),
         ("posterior", ["--samples", "0"], ["samples"]),
+        ("posterior", ["--no-analysis", "--n-test", "3"], ["option --n-test", "with --no-analysis"]),  # was dropped
         ("posterior", ["--parameters", "noise_scale"], ["no model parameter", "specular"]),  # crashed after sampling
         ("posterior", ["--sampler-seed", "-1"], ["--sampler-seed", "-1", "≥ 0"]),  # numpy: ValueError
         ("replicate", ["--samples", "50"], ["samples=50", "48 or 56"]),  # 8 replicates × 7 = 56 would run

@@ -39,6 +39,7 @@ from lightfit.files import replace_text
 
 @model_options
 def posterior(
+    ctx: typer.Context,
     observations: Path = typer.Argument(
         None, help="Observations CSV (default: the bundled 2016-04-20 chamber record)."
     ),
@@ -112,6 +113,13 @@ def posterior(
     if n_test < 0:
         raise InputError(
             f"n_test={n_test}", parameter="n-test", expected="0 (no emulator check) or more held-out renders"
+        )
+    # By name: typer vendors click, so click's own ParameterSource is another enum.
+    if not analysis and n_test and ctx.get_parameter_source("n_test").name == "COMMANDLINE":
+        raise InputError(  # the held-out renders are the analysis's emulator check: dropped unsaid without it
+            f"--n-test {n_test} with --no-analysis",
+            parameter="n_test",
+            expected="--n-test only with the analysis (its emulator check), or --n-test 0",
         )
     if priors not in P.PRIOR_SETS:
         raise InputError(f"priors={priors!r}", parameter="priors", expected=" or ".join(P.PRIOR_SETS))
