@@ -2386,6 +2386,18 @@ def test_render_dataset_options_reach_the_dataset_spec(tmp_path, monkeypatch):
     assert specs[0][2].times == ["all"] and specs[0][2].quantities is None and specs[0][2].depth is True
 
 
+@pytest.mark.parametrize("ev", ["1100", "-1100", "65"])
+def test_render_dataset_refuses_an_exposure_beyond_64_stops_before_reading_the_results(ev, tmp_path):
+    """2.0 ** 1100 (the gain of --exposure-ev 1100) was an OverflowError traceback after the renders,
+    -1100 a gain of 0 (black images, unsaid); now refused with the sweep's other settings, first."""
+    r = runner.invoke(app, ["render-dataset", str(tmp_path / "none.nc"), "--out", str(tmp_path / "ds")])
+    assert_user_error(r, "results file not found")  # the results are read after the cameras are checked
+    r = runner.invoke(
+        app, ["render-dataset", str(tmp_path / "none.nc"), "--out", str(tmp_path / "ds"), "--exposure-ev", ev]
+    )
+    assert_user_error(r, "option --exposure-ev", "−64 … 64")
+
+
 def test_a_run_over_other_steps_of_the_same_count_is_said_to_replace_them():
     """replaced_settings against the steps and settings written out by hand (a mutation audit: the
     steps compared only by their number survived): same count, other times → "other steps"; what

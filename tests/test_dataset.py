@@ -292,6 +292,8 @@ def test_metering_on_known_arrays():
         ({"exposure_mode": "auto"}, "exposure_mode"),
         ({"meter_percentile": 0.0}, "meter_percentile"),
         ({"exposure_ev": float("inf")}, "exposure_ev"),
+        ({"exposure_ev": 1100.0}, "exposure_ev"),  # 2.0**1100: an OverflowError after the renders
+        ({"exposure_ev": -1100.0}, "exposure_ev"),  # a gain of 0: black images
         ({"name": "a/b"}, "name"),
     ],
 )

@@ -18,6 +18,8 @@ from lightfit.errors import InputError
 from lightfit.plant.periodic import compass_vector
 
 EXPOSURE_MODES = ("leaf", "scene", "fixed")
+#: The largest exposure compensation, stops either way: a gain 2^±64 is finite and non-zero in float32.
+MAX_EXPOSURE_EV = 64.0
 #: Largest image side accepted, pixels: 16 k × 16 k already needs ~3 GB per float RGB image.
 MAX_SIDE_PX = 16384
 
@@ -101,11 +103,13 @@ class Camera:
                 parameter="exposure_mode",
                 expected=" or ".join(EXPOSURE_MODES),
             )
-        if not _finite_number(self.exposure_ev):
+        # bounded: the gain 2^exposure_ev overflowed (an OverflowError traceback after the renders, from
+        # about 1024 stops) or became 0 (black images, unsaid)
+        if not (_finite_number(self.exposure_ev) and abs(self.exposure_ev) <= MAX_EXPOSURE_EV):
             raise InputError(
                 f"camera {self.name!r}: exposure_ev={self.exposure_ev!r}",
                 parameter="exposure_ev",
-                expected="a finite number of stops",
+                expected=f"a finite number of stops, −{MAX_EXPOSURE_EV:g} … {MAX_EXPOSURE_EV:g}",
             )
         if not (_finite_number(self.meter_percentile) and 0.0 < self.meter_percentile <= 100.0):
             raise InputError(
