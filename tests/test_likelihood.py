@@ -610,3 +610,36 @@ def test_a_ratio_of_light_read_in_the_dark_is_refused_by_the_library_too():
         assert e.value.column == fapar.value and "hand.csv" in str(e.value)
         with pytest.raises(InputError, match="the model no light"):
             LogPosterior.of_model(lambda th: m, model, o, ("light_factor",), use=("fapar",))
+
+
+def test_a_model_cut_to_its_steps_judges_dark_neighbours_at_its_forcing_step():
+    """A model cut to the steps its observations need (emulator.restrict) keeps its forcing's step
+    (30 min) while its times are further apart (10:00, 11:00, 12:00). The likelihood reads a fAPAR at
+    10:20 at 10:00 alone (its neighbour is further than one step), but the dark-ratio check read it
+    between steps at the times' own spacing (1 h) and refused it as read towards the dark 11:00. It is
+    accepted now, and one read within a step of a dark step is still refused."""
+    from types import SimpleNamespace
+
+    from lightfit.weather.timestamps import INSTANTS
+
+    fapar = BY_NAME["fapar"]
+    times = pd.DatetimeIndex(["2016-04-20 10:00", "2016-04-20 11:00", "2016-04-20 12:00"], tz="UTC")
+    model = SimpleNamespace(
+        times=times,
+        timestamps=INSTANTS,
+        step=pd.Timedelta("30min"),
+        day=np.array([True, False, True]),
+        scenario=SimpleNamespace(an_per="ground"),
+    )
+
+    def obs(stamp):
+        o = pd.DataFrame({fapar.value: [0.9], fapar.sd: [0.05]}, index=pd.DatetimeIndex([stamp], tz="UTC"))
+        o.attrs = {"source": "hand.csv", "provenance": "synthetic"}
+        return o
+
+    lik = GaussianLikelihood.of_model(model, obs("2016-04-20 10:20"), ("fapar",))
+    assert not lik.interpolated  # met at 10:00 alone: (0.9 - 0.9) / 0.05 = 0
+    m = {fapar.value: jnp.asarray([0.9, 0.0, 0.9]), fapar.mc_sd: jnp.zeros(3)}
+    assert float(lik.loss(m)) == 0.0
+    with pytest.raises(InputError, match="the model no light"):  # 10:40 is nearest the dark 11:00
+        GaussianLikelihood.of_model(model, obs("2016-04-20 10:40"), ("fapar",))

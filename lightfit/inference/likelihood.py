@@ -403,7 +403,9 @@ class GaussianLikelihood:
         """The used ratios of light read at a step ``model`` does not render, or towards one, refused
         (:func:`~lightfit.inference.observations.check_ratios_lit_at`); unused series are not judged."""
         used = {c for s in self.series for c in (s.value, s.sd)}
-        check_ratios_lit_at(obs[[c for c in obs.columns if c in used]], model.times, model.timestamps, model.day)
+        used_obs = obs[[c for c in obs.columns if c in used]]
+        # read between steps as this likelihood reads them: the model's forcing step, not its times' spacing
+        check_ratios_lit_at(used_obs, model.times, model.timestamps, model.day, getattr(model, "step", None))
 
     def _interpolation_matrix(self, T: int) -> np.ndarray:
         """A (n_observations, len(use)·T): row r reads the stacked steps at observed entry r,

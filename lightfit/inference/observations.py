@@ -812,17 +812,20 @@ def check_ratios_lit(obs: pd.DataFrame, forcing: pd.DataFrame) -> None:
     check_ratios_lit_at(obs, forcing.index, timestamps.of(forcing), par > 0)
 
 
-def check_ratios_lit_at(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps, lit) -> None:
+def check_ratios_lit_at(obs: pd.DataFrame, times: pd.DatetimeIndex, stamps, lit, step=None) -> None:
     """:func:`check_ratios_lit` at the steps ``times`` (their ``stamps``) whose light is ``lit``
     (bool, one per step): from a forcing's PAR and :func:`~lightfit.model.scenario.daytime` on the
     command line, before the plants grow; from a model's rendered steps (``model.day``) where a
     likelihood is built in code (:meth:`lightfit.inference.likelihood.GaussianLikelihood.of_model`:
-    a fAPAR of 0.9 ± 0.05 read at night met 0 and added 324 to χ² unsaid)."""
+    a fAPAR of 0.9 ± 0.05 read at night met 0 and added 324 to χ² unsaid). ``step``: the run's
+    forcing step, as the likelihood reads between steps (:func:`interpolation`; ``model.step`` for a
+    model cut to its observed steps, whose times are further apart: without it a reading the
+    likelihood meets at its lit step was refused as read towards a dark neighbour an hour away)."""
     if not len(obs):
         return
     lit = np.asarray(lit, bool)
     idx, _ = nearest_steps(obs, times, stamps)
-    read = interpolation(obs, times, stamps)
+    read = interpolation(obs, times, stamps, step)
     dark = ~lit[idx]
     lines = obs.attrs.get("lines")
     for name in RATIO_SERIES:
