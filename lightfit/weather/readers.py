@@ -1022,7 +1022,8 @@ def read_lightfit_csv(
     declare an unstated file's, never contradict a stated one. Every column must be a contract
     column (:data:`~lightfit.weather.series.COLUMNS`): an unknown (e.g. misspelt) one is refused
     rather than ignored. ``time_label`` and ``averaging_interval`` say what the stamps mean
-    (:mod:`lightfit.weather.timestamps`; without them, instants).
+    (:mod:`lightfit.weather.timestamps`; without them, instants); a ``time_zone`` line may only say
+    ``UTC`` (the times are UTC: one naming another zone is refused, not ignored).
     """
     path = Path(path)
     meta, header_line, table = read_csv_with_metadata(
@@ -1046,6 +1047,7 @@ def read_lightfit_csv(
             expected="time_utc and columns among " + ", ".join(COLUMNS),
         )
     provenance = _resolve_provenance(meta["provenance"], f"line '# provenance: {meta['provenance']}'", provenance, path)
+    _check_utc_line(meta, path)
     lines = table.attrs["lines"]
     times = parse_times(table["time_utc"], lines, path, "time_utc", "UTC")
     lt = lines.set_axis(times)
@@ -1071,6 +1073,28 @@ def read_lightfit_csv(
         except InputError as e:
             raise e.in_file(path) from None
     return check_and_repair(out, lt, path, max_gap=max_gap)
+
+
+def _check_utc_line(meta: dict[str, str], path: Path) -> None:
+    """A lightfit CSV's times are UTC (its ``time_utc`` column): a ``# time_zone:`` line may say
+    so (``UTC``, ``UTC+0``, ``Etc/UTC``), and one naming another zone is refused. It was ignored,
+    and local times stated as ``Europe/Berlin`` read as UTC, 1–2 h off, unsaid."""
+    if "time_zone" not in meta:
+        return
+    said = meta["time_zone"]
+    try:
+        name = zone(said, "time_zone")
+    except InputError as e:
+        raise InputError(e.problem, file=path, column="time_zone", expected=e.expected) from None
+    offsets = {pd.Timestamp(day, tz=name).utcoffset() for day in ("2016-01-01", "2016-07-01")}
+    if offsets != {pd.Timedelta(0)}:
+        raise InputError(
+            f"metadata line '# time_zone: {said}' in a lightfit CSV, whose times are UTC (column time_utc)",
+            file=path,
+            column="time_zone",
+            expected="'# time_zone: UTC' or no such line, and the times in UTC (ISO 8601, e.g. "
+            "2016-04-20T10:10:00Z); local times convert to UTC before they are written",
+        )
 
 
 def write_lightfit_csv(df: pd.DataFrame, path: str | Path, metadata: dict[str, str]) -> Path:
