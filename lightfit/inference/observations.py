@@ -79,7 +79,6 @@ change the data's meaning unsaid.
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -95,6 +94,7 @@ from lightfit.model.scenario import CHOICES, DAYTIME_RULE, daytime
 from lightfit.weather import timestamps
 from lightfit.weather.readers import (
     PROVENANCES,
+    check_metadata_keys,
     first_bad_row,
     metadata_lines,
     parse_times,
@@ -263,12 +263,9 @@ SD_RANGE = (1e-100, 1e100)
 #: Metadata line naming the area canopy An is per (:func:`check_an_area`), and its values.
 AN_PER_KEY = "canopy_an_per"
 AN_AREAS = CHOICES["an_per"]
-#: The metadata keys :func:`read_observations` reads; any other key is free (not read).
+#: The metadata keys :func:`read_observations` reads; any other key is free (not read), unless it
+#: resembles one of these (:func:`~lightfit.weather.readers.check_metadata_keys`).
 METADATA_KEYS = ("provenance", "time_zone", "time_label", "averaging_interval", AN_PER_KEY)
-#: difflib similarity from which a free metadata key reads as a misspelling of a known one
-#: (:func:`check_metadata_keys`): ``an_per`` 0.63, ``timezone`` 0.94 against ``title`` 0.53,
-#: ``station`` 0.50, ``source`` 0.38.
-MISSPELT_KEY_RATIO = 0.6
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))
@@ -340,27 +337,6 @@ def reading_rules(s: Series) -> list[tuple[str, object, str, object]]:
     return rules
 
 
-def check_metadata_keys(meta: dict, file: str | Path | None = None) -> None:
-    """:class:`InputError` naming ``file`` and the key where a metadata key of an observations file
-    is not one of :data:`METADATA_KEYS` but resembles one (difflib ratio ≥
-    :data:`MISSPELT_KEY_RATIO`, case, spaces and hyphens aside): ``# an_per: leaf`` for
-    ``# canopy_an_per: leaf`` was ignored as a free key, and the readings read per ground area."""
-    for key in meta:
-        if key in METADATA_KEYS:
-            continue
-        plain = key.strip().lower().replace(" ", "_").replace("-", "_")
-        close = difflib.get_close_matches(plain, METADATA_KEYS, n=1, cutoff=MISSPELT_KEY_RATIO)
-        if close:
-            raise InputError(
-                f"metadata key {key!r} resembles {close[0]!r}, which the reader knows, and would be ignored as "
-                "a free key",
-                file=file,
-                column=key,
-                expected=f"'# {close[0]}: …' if that is meant, else a free key that resembles none of "
-                + ", ".join(METADATA_KEYS),
-            )
-
-
 def check_sds(obs: pd.DataFrame) -> None:
     """Observations built in code (not read from a file, which :func:`read_observations` checks
     line by line): every present value finite, then :func:`reading_rules` (an SD of 0 makes the
@@ -394,8 +370,7 @@ def read_observations(path: str | Path) -> pd.DataFrame:
     ``timestamps``: the rows' :class:`~lightfit.weather.timestamps.Timestamps`, instants unless the
     file's ``# time_label`` says otherwise)."""
     path = Path(path)
-    meta, header_line, df = read_csv_with_metadata(path, "an observations CSV")
-    check_metadata_keys(meta, path)
+    meta, header_line, df = read_csv_with_metadata(path, "an observations CSV", known_keys=METADATA_KEYS)
     if "time" not in df.columns:
         raise InputError("no 'time' column", file=path, row=header_line, expected="columns time, " + ", ".join(COLUMNS))
     old = [c for c in RENAMED if c in df.columns]
@@ -577,7 +552,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     one that contradicts its attrs is refused, naming the key."""
     if metadata.get("provenance") not in PROVENANCES:
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
-    check_metadata_keys(metadata)  # a key its reader would refuse
+    check_metadata_keys(metadata, METADATA_KEYS)  # a key its reader would refuse
     if not isinstance(df.index, pd.DatetimeIndex) or df.index.tz is None:  # a TypeError/AttributeError before
         raise InputError(
             f"the table's index is {type(df.index).__name__}"

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import difflib
 import re
 from pathlib import Path
 from typing import Any
@@ -53,6 +54,13 @@ CPLANTBOX_TZ = "Europe/Berlin"
 #: What a file may say it is (an observations file's ``# provenance:`` line, a TERENO header); a lightfit
 #: weather CSV may also say ``unstated`` (:data:`WEATHER_PROVENANCES`).
 PROVENANCES = ("measured", "reconstructed", "synthetic")
+#: The metadata keys :func:`read_lightfit_csv` reads; any other key is free (not read), unless it
+#: resembles one of these (:func:`check_metadata_keys`).
+LIGHTFIT_CSV_KEYS = ("provenance", "time_zone", "time_label", "averaging_interval", "split_model")
+#: difflib similarity from which a free metadata key reads as a misspelling of a known one
+#: (:func:`check_metadata_keys`): ``an_per`` 0.63 against ``canopy_an_per``, ``timezone`` 0.94
+#: against ``time_zone``, where ``title`` 0.53, ``station`` 0.50, ``source`` 0.38 are free.
+MISSPELT_KEY_RATIO = 0.6
 
 
 def _norm_unit(u: str) -> str:
@@ -951,11 +959,40 @@ def metadata_lines(metadata: dict) -> str:
     return "".join(f"# {k}: {v}\n" for k, v in metadata.items())
 
 
+def check_metadata_keys(meta: dict, known: tuple[str, ...], file: str | Path | None = None) -> None:
+    """:class:`InputError` naming ``file`` and the key where a metadata key is not one of ``known``
+    (the keys its reader reads) but resembles one (difflib ratio ≥ :data:`MISSPELT_KEY_RATIO`,
+    case, spaces and hyphens aside): a typo was ignored as a free key and the reader's default
+    taken unsaid (``# an_per: leaf`` in an observations file read per ground area; ``# provenence:
+    reconstructed``, ``# time_lable: end`` in a weather CSV). Shared by the readers of lightfit's
+    CSV files and their writers (a key the reader would refuse is refused at the writing)."""
+    for key in meta:
+        if key in known:
+            continue
+        plain = key.strip().lower().replace(" ", "_").replace("-", "_")
+        close = difflib.get_close_matches(plain, known, n=1, cutoff=MISSPELT_KEY_RATIO)
+        if close:
+            raise InputError(
+                f"metadata key {key!r} resembles {close[0]!r}, which the reader knows, and would be ignored as "
+                "a free key",
+                file=file,
+                column=key,
+                expected=f"'# {close[0]}: …' if that is meant, else a free key that resembles none of "
+                + ", ".join(known),
+            )
+
+
 def read_csv_with_metadata(
-    path: Path, expected: str, *, provenances: tuple[str, ...] = PROVENANCES, short_rows: str = "pad"
+    path: Path,
+    expected: str,
+    *,
+    known_keys: tuple[str, ...],
+    provenances: tuple[str, ...] = PROVENANCES,
+    short_rows: str = "pad",
 ) -> tuple[dict[str, str], int, pd.DataFrame]:
     """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required (one of
-    ``provenances``).
+    ``provenances``); a key that is not one of ``known_keys`` but resembles one is refused
+    (:func:`check_metadata_keys`).
 
     Returns (metadata, the header's line number in the file (1-based; blank lines may sit between
     it and the metadata; the line after the metadata where there is no table), table of strings);
@@ -983,6 +1020,7 @@ def read_csv_with_metadata(
                     expected="each '# key: value' line once",
                 )
             meta[k.strip()] = v.strip()
+    check_metadata_keys(meta, known_keys, path)  # before provenance: '# provenence:' names the typo
     if meta.get("provenance") not in provenances:
         said = meta.get("provenance")
         raise InputError(
@@ -1023,11 +1061,17 @@ def read_lightfit_csv(
     column (:data:`~lightfit.weather.series.COLUMNS`): an unknown (e.g. misspelt) one is refused
     rather than ignored. ``time_label`` and ``averaging_interval`` say what the stamps mean
     (:mod:`lightfit.weather.timestamps`; without them, instants); a ``time_zone`` line may only say
-    ``UTC`` (the times are UTC: one naming another zone is refused, not ignored).
+    ``UTC`` (the times are UTC: one naming another zone is refused, not ignored). Other keys are
+    free (not read) unless one resembles a key of :data:`LIGHTFIT_CSV_KEYS` (``# time_lable: end``):
+    that is refused (:func:`check_metadata_keys`).
     """
     path = Path(path)
     meta, header_line, table = read_csv_with_metadata(
-        path, "a lightfit weather CSV", provenances=WEATHER_PROVENANCES, short_rows="error"
+        path,
+        "a lightfit weather CSV",
+        known_keys=LIGHTFIT_CSV_KEYS,
+        provenances=WEATHER_PROVENANCES,
+        short_rows="error",
     )
     if "time_utc" not in table.columns:
         header = f" (header {','.join(map(str, table.columns))[:60]!r})" if len(table.columns) else ""
@@ -1119,6 +1163,7 @@ def lightfit_csv_text(df: pd.DataFrame, metadata: dict[str, str]) -> str:
         raise InputError(
             "metadata must state provenance", column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
         )
+    check_metadata_keys(metadata, LIGHTFIT_CSV_KEYS)  # a key its reader would refuse
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()
     if "dhi_w_m2" in df.columns and df.attrs.get("split_model") and "split_model" not in metadata:
