@@ -121,3 +121,30 @@ def test_what_lightfit_writes_reads_back_with_its_metadata(tmp_path):
     again = read_weather(forcing)
     assert again.attrs["metadata"]["note"] == "144 steps, 10 min" and len(again) == len(back)
     assert again.attrs["provenance"] == back.attrs["provenance"]
+
+
+def _local_series(tz):
+    index = pd.date_range("2016-04-20 12:00", periods=3, freq="10min", tz=tz)
+    values = {"ghi_w_m2": [500.0, 510, 520], "tair_c": 15.0, "rh": 0.6, "pair_kpa": 100.0, "co2_ppm": 400.0}
+    return pd.DataFrame(values, index=index)
+
+
+def test_write_lightfit_csv_writes_a_local_series_in_utc(tmp_path):
+    """A series indexed in local time was written with its local clock marked Z: 12:00 CEST read
+    back as 12:00 UTC, 2 h late. Written in UTC now: 12:00 CEST (UTC+2 on 20 April) is 10:00Z."""
+    path = write_lightfit_csv(_local_series("Europe/Berlin"), tmp_path / "w.csv", {"provenance": "measured"})
+    assert "\n2016-04-20T10:00:00Z," in path.read_text()
+    back = read_weather(path)
+    assert back.index[0] == pd.Timestamp("2016-04-20 10:00", tz="UTC")
+
+
+def test_write_lightfit_csv_refuses_a_series_without_a_zone_or_a_local_time_zone_line(tmp_path):
+    """A naive index was written as if UTC; a ``time_zone`` other than UTC in ``metadata`` gave a
+    file its reader refuses. Both refused at the writing, nothing written."""
+    with pytest.raises(InputError, match="without a time zone") as e:
+        write_lightfit_csv(_local_series(None), tmp_path / "w.csv", {"provenance": "measured"})
+    assert e.value.parameter == "df"
+    meta = {"provenance": "measured", "time_zone": "Europe/Berlin"}
+    with pytest.raises(InputError, match="whose times are UTC"):
+        write_lightfit_csv(_local_series("UTC"), tmp_path / "w.csv", meta)
+    assert not (tmp_path / "w.csv").exists()

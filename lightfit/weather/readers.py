@@ -1155,7 +1155,8 @@ def lightfit_csv_text(df: pd.DataFrame, metadata: dict[str, str]) -> str:
     A series with its DNI/DHI written says how they were split (``split_model``), which
     :func:`read_lightfit_csv` keeps.
 
-    The series' timestamps' meaning (``attrs["timestamps"]``), its columns' meanings and units
+    The times are written in UTC (an index in another zone is converted; one without a zone is
+    refused). The series' timestamps' meaning (``attrs["timestamps"]``), its columns' meanings and units
     (:data:`~lightfit.weather.series.COLUMNS`) and the site its sun columns are for are written with
     it unless ``metadata`` states them.
     """
@@ -1164,6 +1165,15 @@ def lightfit_csv_text(df: pd.DataFrame, metadata: dict[str, str]) -> str:
             "metadata must state provenance", column="provenance", expected=" / ".join(WEATHER_PROVENANCES)
         )
     check_metadata_keys(metadata, LIGHTFIT_CSV_KEYS)  # a key its reader would refuse
+    _check_utc_line(metadata, None)  # '# time_zone: Europe/Berlin' too
+    if not isinstance(df.index, pd.DatetimeIndex) or df.index.tz is None:
+        raise InputError(
+            f"the series' index is {type(df.index).__name__}"
+            + (" without a time zone" if isinstance(df.index, pd.DatetimeIndex) else ""),
+            parameter="df",
+            expected="a DatetimeIndex with a time zone (e.g. index.tz_localize('Europe/Berlin') for local times): "
+            "the file is written in UTC",
+        )
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()
     if "dhi_w_m2" in df.columns and df.attrs.get("split_model") and "split_model" not in metadata:
@@ -1175,7 +1185,8 @@ def lightfit_csv_text(df: pd.DataFrame, metadata: dict[str, str]) -> str:
     if "sun_elevation_deg" in df.columns and site is not None and "sun_site" not in metadata:
         metadata = metadata | {"sun_site": f"{site.name}, {site.latitude_deg:g} N, {site.longitude_deg:g} E"}
     head = metadata_lines(metadata)
-    body = df.rename_axis("time_utc").reset_index()
+    # in UTC: a series indexed in local time was written with its local clock marked Z, 1-2 h off
+    body = df.set_axis(df.index.tz_convert("UTC")).rename_axis("time_utc").reset_index()
     body["time_utc"] = body["time_utc"].dt.strftime("%Y-%m-%dT%H:%M:%SZ")
     return head + body.to_csv(index=False, float_format="%.8g", lineterminator="\n")
 
