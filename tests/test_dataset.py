@@ -1410,3 +1410,33 @@ def test_a_camera_file_that_cannot_be_read_as_text_is_refused_by_name(tmp_path):
     result = CliRunner().invoke(app, args)
     assert result.exit_code != 0 and isinstance(result.exception, SystemExit), result.exception
     assert "error:" in result.output and "cams.json" in result.output
+
+
+def test_gallery_title_says_what_data_it_shows_and_when(results_file, tmp_path, monkeypatch):
+    """The gallery had no title: it named no results file, not that the values are synthetic, nor
+    the provenance of the weather that lit the images, and its images were named by UTC times
+    ("Z") alone. Now the title says them and the site's local date and time zone, and each image
+    its local time: 08:00 UTC on 2016-04-20 is 10:00 in Selhausen (CEST, UTC+2)."""
+    from matplotlib.figure import Figure
+
+    from lightfit.dataset.gallery import gallery_title
+
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
+    spec = DatasetSpec(
+        cameras=[CAM], times=[TIMES[0]], settings=RenderSettings(spp=1, colour="mono"), gallery_images=1, export="none"
+    )
+    make_dataset(results_file, tmp_path / "d", spec)
+    title = seen[0]._suptitle.get_text()
+    assert "results.nc" in title and "SYNTHETIC values" in title
+    # the bundled 2016-04-20 series that lit the images is a reconstruction (data/weather)
+    assert "RECONSTRUCTED weather (selhausen_2016-04-20_reconstructed.csv)" in title
+    assert "2016-04-20" in title and "Europe/Berlin" in title
+    assert "2016-04-20 10:00 local time" in seen[0].axes[0].get_title()
+    # a model run's results name their forcing's provenance and file
+    res = open_results(results_file)
+    res.ds.attrs.pop("synthetic")
+    res.ds.attrs |= {"weather_provenance": "measured", "weather_source": "/x/selhausen.csv"}
+    title = gallery_title(res, {"from": "results"}, [pd.Timestamp("2016-04-20T22:30", tz="UTC")])
+    assert "model output; MEASURED forcing (selhausen.csv)" in title and "results' own sun and sky" in title
+    assert "2016-04-21, local time (Europe/Berlin)" in title  # 00:30 local, the next day

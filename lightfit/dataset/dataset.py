@@ -35,6 +35,7 @@ from lightfit.dataset.results import (
     lighting_provenance,
     open_results,
     select_times,
+    synthetic_values,
 )
 from lightfit.dataset.scene import ORGAN_CODES, VisualMaterials, periodic_canopy, scene_arrays, view_reach_m
 from lightfit.errors import InputError, check_integer
@@ -211,12 +212,13 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
     meta["field_sheaths"], meta["field_headings"] = fld.sheaths, fld.headings
     if periodic:
         meta["periodic_canopy"] = periodic
+    meta["lighting"] = lighting_provenance(res, spec.weather)
     if spec.gallery_images and images:
         from lightfit.dataset.gallery import gallery
 
         units = {q: res.units(q) for q in quantities}
-        meta["gallery"] = gallery(out, images[: spec.gallery_images], quantities, units).name
-    meta["lighting"] = lighting_provenance(res, spec.weather)
+        shown = images[: spec.gallery_images]
+        meta["gallery"] = gallery(out, shown, quantities, units, results=res, lighting=meta["lighting"]).name
     if spec.export != "none":
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
         meta["field_export"]["time_utc"] = res.times[tix[0]].isoformat()  # the first selected step
@@ -315,7 +317,7 @@ def _metadata(res: Results, spec: DatasetSpec, quantities, cams, images, rendere
         "lightfit_version": lightfit.__version__,
         "results_file": str(res.path) if res.path else None,
         "results_attrs": {k: res.ds.attrs[k] for k in res.ds.attrs},
-        "synthetic_values": bool(str(res.ds.attrs.get("synthetic", "")).lower() in ("1", "true", "yes")),
+        "synthetic_values": synthetic_values(res.ds.attrs),
         "render": asdict(spec.settings) | _how_rendered(spec.settings, rendered),
         "materials": asdict(spec.materials),
         "cameras": [c.to_dict() for c in cams],

@@ -5,6 +5,11 @@ limitation margin (Vj − Vc)/(Vj + Vc) on a divergent red/blue scale centred on
 Fj > Fc (Rubisco limited), blue where Fj < Fc (electron-transport limited) — or, when Vc/Vj are
 not in the results, the first other quantity. Pixels without a value (NaN, or a class map's −1)
 show the panel's dark background.
+
+The figure's title says what it shows (data honesty): the results file and whether its values are a
+model run or synthetic, the provenance of the forcing the run was driven by and of the sun and sky
+that lit the images (:func:`lightfit.weather.plot.provenance_label`), and the site's local date and
+time zone; each row gives its image's local time (the file names carry UTC).
 """
 
 from __future__ import annotations
@@ -35,10 +40,61 @@ def _columns(quantities: list[str]) -> list[str]:
     return cols
 
 
-def gallery(out_dir: Path, images: list[dict], quantities: list[str], units: dict[str, str] | None = None) -> Path:
+def gallery_title(res, lighting: dict | None = None, times_utc=()) -> str:
+    """The gallery's title, from a :class:`~lightfit.dataset.results.Results` ``res``: the results'
+    source and what its values are, the run's forcing provenance, the provenance of the images'
+    sun and sky (``lighting``: :func:`~lightfit.dataset.results.lighting_provenance`), and the
+    site's local date(s) of ``times_utc`` (aware instants) with its time zone."""
+    import pandas as pd
+
+    from lightfit.dataset.results import _site, synthetic_values
+    from lightfit.weather.plot import provenance_label
+    from lightfit.weather.site import zone_label
+
+    a = res.ds.attrs
+    source = Path(res.path).name if res.path else "results given in memory"
+    line = f"Labels from {source}: " + ("SYNTHETIC values (not a model run)" if synthetic_values(a) else "model output")
+    if not synthetic_values(a) or "weather_provenance" in a:  # a synthetic file was driven by no forcing
+        wx = "; ".join(dict.fromkeys(Path(s).name for s in str(a.get("weather_source", "")).split("; ") if s))
+        line += f"; {provenance_label(a, 'weather_provenance', 'weather_date_given')} forcing" + (
+            f" ({wx})" if wx else ""
+        )
+    lines = [line]
+    if lighting and lighting.get("from") == "weather":  # not the run's own sun and sky: another series lit them
+        lit = provenance_label(lighting, "provenance", "placed_on_date")
+        lines.append(f"images lit by {lit} weather ({Path(str(lighting.get('source'))).name})")
+    elif lighting:
+        lines.append("images lit by the results' own sun and sky")
+    site = _site(res)
+    local = pd.DatetimeIndex(list(times_utc)).tz_convert(site.timezone)
+    days = sorted({f"{x:%Y-%m-%d}" for x in local})
+    day = " to ".join(dict.fromkeys(days[:1] + days[-1:]))
+    lines.append(f"{site.name}, {day}, local time ({zone_label(site.timezone)}); file names in UTC (Z)")
+    return "\n".join(lines)
+
+
+def gallery(
+    out_dir: Path,
+    images: list[dict],
+    quantities: list[str],
+    units: dict[str, str] | None = None,
+    *,
+    results=None,
+    lighting: dict | None = None,
+) -> Path:
     """Write ``gallery.png`` in ``out_dir`` for the image entries of the metadata; return its path.
-    ``units``: each quantity's units, written on its colour bar."""
+    ``units``: each quantity's units, written on its colour bar. ``results``: the
+    :class:`~lightfit.dataset.results.Results` the labels come from, for the title
+    (:func:`gallery_title`, with ``lighting``) and each image's local time."""
+    import pandas as pd
+
     units = units or {}
+    times = [pd.Timestamp(e["time_utc"]) for e in images]
+    title, tz = None, None
+    if results is not None:
+        from lightfit.dataset.results import _site
+
+        title, tz = gallery_title(results, lighting, times), _site(results).timezone
     # The object API needs no pyplot backend: safe in any process (tests, notebooks, servers).
     from matplotlib.colors import TwoSlopeNorm
     from matplotlib.figure import Figure
@@ -55,9 +111,10 @@ def gallery(out_dir: Path, images: list[dict], quantities: list[str], units: dic
         ax = axes[r]
         ax[0].imshow(png, cmap="gray" if png.ndim == 2 else None, vmin=0, vmax=255)
         clip = entry["exposure"]["clipped_leaf_fraction"]
-        ax[0].set_title(
-            f"{entry['name']}\nclipped leaf px {clip:.1%}" if clip is not None else entry["name"], fontsize=8
-        )
+        head = entry["name"]
+        if tz is not None:  # the site's clock: the name's time is UTC
+            head += f"\n{times[r].tz_convert(tz):%Y-%m-%d %H:%M} local time"
+        ax[0].set_title(head + (f"\nclipped leaf px {clip:.1%}" if clip is not None else ""), fontsize=8)
         ax[1].imshow(segment_colours(labels["segment_id"]))
         ax[1].set_title("segment id", fontsize=8)
         for j, q in enumerate(cols):
@@ -81,6 +138,8 @@ def gallery(out_dir: Path, images: list[dict], quantities: list[str], units: dic
         for a in ax:
             a.set_xticks([])
             a.set_yticks([])
+    if title:
+        fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     path = Path(out_dir) / "gallery.png"
     fig.savefig(path, dpi=100)

@@ -108,6 +108,12 @@ class Results:
         return "1" if full == MARGIN else schema.units(full)
 
 
+def synthetic_values(attrs) -> bool:
+    """Whether results attrs say the values are synthetic (:func:`lightfit.dataset.synthetic_results`),
+    not a model run."""
+    return str(attrs.get("synthetic", "")).lower() in ("1", "true", "yes")
+
+
 def open_results(source) -> Results:
     """Load a results netCDF (path) or wrap an in-memory ``xarray.Dataset``; check the contract."""
     import xarray as xr
