@@ -4,6 +4,7 @@ the local-time axis."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,26 @@ def figure_format(path: str | Path) -> str:
             expected="a file name ending in " + ", ".join(f".{k}" for k in FORMATS),
         )
     return fmt
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def unit_label(units: str) -> str:
+    """A UDUNITS string of the results schema as lightfit's figures write units: ``umol m-2 s-1``
+    as ``µmol m⁻² s⁻¹``, ``mol m-2 s-1`` as ``mol m⁻² s⁻¹``; ``"1"`` (CF's dimensionless) as
+    ``dimensionless``."""
+    if units.strip() == "1":
+        return "dimensionless"
+    words = []
+    for word in units.split():
+        m = re.fullmatch(r"([A-Za-z]+?)(-?\d+)?", word)
+        if m is None:  # a word that is no unit with a power: as given
+            words.append(word)
+            continue
+        base = "µ" + m[1][1:] if m[1].startswith("u") and m[1][1:] in ("mol", "m", "g", "s") else m[1]
+        words.append(base + (m[2] or "").translate(_SUPERSCRIPT))
+    return " ".join(words)
 
 
 def clock_axis(ax, tz: str) -> None:

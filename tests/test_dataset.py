@@ -823,7 +823,9 @@ def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_fi
     labels = {ax.get_ylabel() for ax in seen[0].axes}
     shown = [q for q in quantities if any(q in ax.get_title() for ax in seen[0].axes)]
     assert any(units[q] != "1" for q in shown)
-    assert all(units[q] in labels for q in shown if units[q] != "1")
+    # in the project's figure style, not UDUNITS' ASCII (every other figure writes µmol m⁻² s⁻¹)
+    assert units["absorbed_par"] == "umol m-2 s-1" and "µmol m⁻² s⁻¹" in labels
+    assert not any("m-2" in label for label in labels)
     # the margin's unit "1" (CF for a ratio) stood on its bar as a lone number; its title named no
     # limitation, only Fj>Fc, which a reader must look up to learn that red is Rubisco limited
     margin = next(ax for ax in seen[0].axes if "(Vj−Vc)/(Vj+Vc)" in ax.get_title())
@@ -1440,3 +1442,15 @@ def test_gallery_title_says_what_data_it_shows_and_when(results_file, tmp_path, 
     title = gallery_title(res, {"from": "results"}, [pd.Timestamp("2016-04-20T22:30", tz="UTC")])
     assert "model output; MEASURED forcing (selhausen.csv)" in title and "results' own sun and sky" in title
     assert "2016-04-21, local time (Europe/Berlin)" in title  # 00:30 local, the next day
+
+
+def test_unit_label_writes_udunits_as_the_figures_do():
+    """The gallery's colour bars read "umol m-2 s-1" (the schema's UDUNITS) while every other figure
+    writes µmol m⁻² s⁻¹: :func:`lightfit.figure.unit_label` turns one into the other."""
+    from lightfit.figure import unit_label
+
+    assert unit_label("umol m-2 s-1") == "µmol m⁻² s⁻¹"
+    assert unit_label("mol m-2 s-1") == "mol m⁻² s⁻¹"
+    assert unit_label("W m-2 sr-1") == "W m⁻² sr⁻¹"
+    assert unit_label("umol mol-1") == "µmol mol⁻¹"
+    assert unit_label("1") == "dimensionless" and unit_label("ppm") == "ppm"

@@ -20,6 +20,7 @@ import numpy as np
 
 from lightfit.dataset.labels import NO_CLASS
 from lightfit.dataset.results import MARGIN
+from lightfit.figure import unit_label
 
 PREFERRED = ("absorbed_par", MARGIN)
 
@@ -133,8 +134,8 @@ def gallery(
                 a.set_title(q, fontsize=8)
             a.set_facecolor("0.15")
             bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
-            if units.get(q):  # a ratio's CF unit "1" read as a number on the bar
-                bar.set_label("dimensionless" if units[q] == "1" else units[q], fontsize=7)
+            if units.get(q):  # a ratio's CF unit "1" read as a number on the bar; the others in the figures' style
+                bar.set_label(unit_label(units[q]), fontsize=7)
         for a in ax:
             a.set_xticks([])
             a.set_yticks([])
