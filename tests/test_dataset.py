@@ -812,7 +812,7 @@ def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_fi
     """Each label panel's colour bar says its units (from the results schema, as the metadata does)."""
     from matplotlib.figure import Figure
 
-    from lightfit.dataset.gallery import gallery
+    from lightfit.dataset.gallery import gallery, quantity_title
 
     out, meta = mono_dataset
     quantities = list(meta["quantities"])
@@ -821,7 +821,7 @@ def test_gallery_colour_bars_carry_the_quantities_units(mono_dataset, results_fi
     monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
     gallery(out, meta["images"][:1], quantities, units)
     labels = {ax.get_ylabel() for ax in seen[0].axes}
-    shown = [q for q in quantities if any(q in ax.get_title() for ax in seen[0].axes)]
+    shown = [q for q in quantities if any(quantity_title(q) == ax.get_title() for ax in seen[0].axes)]
     assert any(units[q] != "1" for q in shown)
     # in the project's figure style, not UDUNITS' ASCII (every other figure writes µmol m⁻² s⁻¹)
     assert units["absorbed_par"] == "umol m-2 s-1" and "µmol m⁻² s⁻¹" in labels
@@ -1375,7 +1375,7 @@ def test_gallery_shows_no_class_where_a_class_label_has_no_value(mono_dataset, m
     seen = []
     monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
     gallery(out, [entry], ["absorbed_par", "limitation"], {"absorbed_par": "umol m-2 s-1", "limitation": "1"})
-    (ax,) = [a for a in seen[0].axes if a.get_title().startswith("limitation")]
+    (ax,) = [a for a in seen[0].axes if a.get_title().startswith("limiting process")]
     shown = np.ma.masked_invalid(ax.images[0].get_array())
     np.testing.assert_array_equal(np.ma.getmaskarray(shown), lim == -1)
     np.testing.assert_array_equal(shown.compressed(), lim[lim != -1])
@@ -1454,3 +1454,22 @@ def test_unit_label_writes_udunits_as_the_figures_do():
     assert unit_label("W m-2 sr-1") == "W m⁻² sr⁻¹"
     assert unit_label("umol mol-1") == "µmol mol⁻¹"
     assert unit_label("1") == "dimensionless" and unit_label("ppm") == "ppm"
+
+
+def test_gallery_panels_name_their_quantity_in_words(mono_dataset, monkeypatch):
+    """A label panel was titled by its variable name (``absorbed_par``), and the limitation panel did
+    not say which of its two colours is which process. Now each names its quantity as the results
+    schema does, and a class map its codes."""
+    from matplotlib.figure import Figure
+
+    from lightfit.dataset.gallery import gallery
+
+    out, meta = mono_dataset
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
+    gallery(
+        out, meta["images"][:1], ["absorbed_par", "limitation"], {"absorbed_par": "umol m-2 s-1", "limitation": "1"}
+    )
+    titles = [a.get_title() for a in seen[0].axes]
+    assert "PAR absorbed by the segment" in titles and "absorbed_par" not in titles
+    assert "limiting process of leaf photosynthesis\n0 Rubisco limited, 1 electron transport limited" in titles

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from lightfit.dataset.labels import NO_CLASS
-from lightfit.dataset.results import MARGIN
+from lightfit.dataset.results import MARGIN, QUANTITIES
 from lightfit.figure import unit_label
 
 PREFERRED = ("absorbed_par", MARGIN)
@@ -32,6 +32,19 @@ def segment_colours(segment_id: np.ndarray) -> np.ndarray:
     rgb = 0.25 + 0.75 * rgb  # never as dark as the background
     rgb[segment_id < 0] = 0.0
     return rgb
+
+
+def quantity_title(name: str) -> str:
+    """A label panel's title: the quantity's ``long_name`` in the results schema (``absorbed_par``:
+    "PAR absorbed by the segment"), with a class map's codes (``limitation``: 0 Rubisco limited,
+    1 electron transport limited; its −1, no value, is not drawn); the name itself outside the schema."""
+    from lightfit.model import schema
+
+    var = schema.VARIABLES.get(QUANTITIES.get(name, name))
+    if var is None:
+        return name
+    codes = [f for f in var.flags.split(", ") if f and not f.startswith("-1 ")]
+    return var.long_name + ("\n" + ", ".join(codes) if codes else "")
 
 
 def _columns(quantities: list[str]) -> list[str]:
@@ -131,7 +144,7 @@ def gallery(
                 )
             else:
                 im = a.imshow(v, cmap="viridis")
-                a.set_title(q, fontsize=8)
+                a.set_title(quantity_title(q), fontsize=8)
             a.set_facecolor("0.15")
             bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
             if units.get(q):  # a ratio's CF unit "1" read as a number on the bar; the others in the figures' style
