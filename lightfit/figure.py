@@ -51,6 +51,14 @@ def unit_label(units: str) -> str:
     return " ".join(words)
 
 
+def date_span(local) -> str:
+    """The local date(s) of the times ``local`` (already in the site's zone) as a time axis names
+    them: ``2016-04-20``, or ``2016-04-20 to 2016-04-21`` over several; ``""`` without times. The
+    clock alone names no day."""
+    days = sorted({f"{x:%Y-%m-%d}" for x in local})
+    return " to ".join(dict.fromkeys(days[:1] + days[-1:]))
+
+
 def clock_axis(ax, tz: str) -> None:
     """Ticks of a time axis drawn with aware instants, placed and labelled ``HH:MM`` in ``tz``;
     where the axis, as drawn so far, spans more than a day (several dates), ticks at midnight read

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.defaults import MAX_ADAPTIVE_SAMPLES
-from lightfit.figure import clock_axis, gapped
+from lightfit.figure import clock_axis, date_span, gapped
 from lightfit.photosynthesis.canopy import PROFILES
 from lightfit.photosynthesis.parameters import ACCLIMATING_SETS
 from lightfit.plant import Field
@@ -326,8 +326,7 @@ def figure(ds, compare=None):
         f"(c) canopy net CO2 uptake per {per} area (leaf dark respiration included)", loc="left", fontsize=10
     )
 
-    days = sorted({f"{x:%Y-%m-%d}" for x in t})  # several dates (--date twice): the axis spans them all
-    day = " to ".join(dict.fromkeys(days[:1] + days[-1:]))  # "" without steps
+    day = date_span(t)  # several dates (--date twice): the axis spans them all
     clock_axis(ax_c, tz)
     ax_c.set_xlabel(f"local time ({zone_label(tz)}), {day}")
     for ax in (ax_a, ax_b, ax_c):

@@ -20,7 +20,7 @@ import numpy as np
 
 from lightfit.dataset.labels import NO_CLASS
 from lightfit.dataset.results import MARGIN, QUANTITIES
-from lightfit.figure import unit_label
+from lightfit.figure import date_span, unit_label
 
 PREFERRED = ("absorbed_par", MARGIN)
 
@@ -81,8 +81,7 @@ def gallery_title(res, lighting: dict | None = None, times_utc=()) -> str:
         lines.append("images lit by the results' own sun and sky")
     site = _site(res)
     local = pd.DatetimeIndex(list(times_utc)).tz_convert(site.timezone)
-    days = sorted({f"{x:%Y-%m-%d}" for x in local})
-    day = " to ".join(dict.fromkeys(days[:1] + days[-1:]))
+    day = date_span(local)
     lines.append(f"{site.name}, {day}, local time ({zone_label(site.timezone)}); file names in UTC (Z)")
     return "\n".join(lines)
 

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from lightfit.figure import clock_axis, day_breaks, figure_format  # noqa: E402
+from lightfit.figure import clock_axis, date_span, day_breaks, figure_format  # noqa: E402
 from lightfit.weather.reconstruct import Anchor  # noqa: E402
 from lightfit.weather.site import SELHAUSEN, zone_label  # noqa: E402
 from lightfit.weather.units import PAR_PER_GHI_UMOL_J  # noqa: E402
@@ -99,8 +99,7 @@ def plot_forcing(df: pd.DataFrame, path: str | Path, *, title: str | None = None
         ax[3].axhline(0, color="k", lw=0.5)
     ax[3].set_ylabel("sun elevation (°)")
     # the date(s) in local time, as the replication figure's axis says them: the clock alone names no day
-    days = sorted({f"{x:%Y-%m-%d}" for x in local.index})
-    day = " to ".join(dict.fromkeys(days[:1] + days[-1:]))
+    day = date_span(local.index)
     ax[3].set_xlabel(f"local time ({zone_label(tz)})" + (f", {day}" if day else ""))
     clock_axis(ax[3], tz)
     src = Path(str(df.attrs.get("source", ""))).name
