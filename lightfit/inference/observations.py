@@ -93,10 +93,12 @@ from lightfit.light.bsdf import LEAF_PARAMETERS
 from lightfit.model.scenario import CHOICES, DAYTIME_RULE, daytime
 from lightfit.weather import timestamps
 from lightfit.weather.readers import (
+    METADATA_VALUES,
     PROVENANCES,
     check_metadata_keys,
     first_bad_row,
     metadata_lines,
+    one_of,
     parse_times,
     read_csv_with_metadata,
     zone,
@@ -265,7 +267,7 @@ AN_PER_KEY = "canopy_an_per"
 AN_AREAS = CHOICES["an_per"]
 #: The metadata keys :func:`read_observations` reads; any other key is free (not read), unless it
 #: resembles one of these (:func:`~lightfit.weather.readers.check_metadata_keys`).
-METADATA_KEYS = ("provenance", "time_zone", "time_label", "averaging_interval", AN_PER_KEY)
+METADATA_KEYS = METADATA_VALUES | {AN_PER_KEY: one_of(*AN_AREAS)}
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
 COLUMNS = tuple(c for s in SERIES for c in (s.value, s.sd))

@@ -46,7 +46,7 @@ from lightfit.files import replace_text
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric, record_sorted
 from lightfit.weather.site import check_timezone, localize, offset_label, zone_label
-from lightfit.weather.solar import check_split_model
+from lightfit.weather.solar import SPLIT_MODELS, check_split_model
 from lightfit.weather.timestamps import Timestamps
 
 TERENO_TZ = "Etc/GMT-1"  # POSIX sign convention: Etc/GMT-1 is UTC+1
@@ -54,9 +54,6 @@ CPLANTBOX_TZ = "Europe/Berlin"
 #: What a file may say it is (an observations file's ``# provenance:`` line, a TERENO header); a lightfit
 #: weather CSV may also say ``unstated`` (:data:`WEATHER_PROVENANCES`).
 PROVENANCES = ("measured", "reconstructed", "synthetic")
-#: The metadata keys :func:`read_lightfit_csv` reads; any other key is free (not read), unless it
-#: resembles one of these (:func:`check_metadata_keys`).
-LIGHTFIT_CSV_KEYS = ("provenance", "time_zone", "time_label", "averaging_interval", "split_model")
 #: difflib similarity from which a free metadata key reads as a misspelling of a known one
 #: (:func:`check_metadata_keys`): ``an_per`` 0.63 against ``canopy_an_per``, ``timezone`` 0.94
 #: against ``time_zone``, where ``title`` 0.53, ``station`` 0.50, ``source`` 0.38 are free.
@@ -959,18 +956,59 @@ def metadata_lines(metadata: dict) -> str:
     return "".join(f"# {k}: {v}\n" for k, v in metadata.items())
 
 
-def check_metadata_keys(meta: dict, known: tuple[str, ...], file: str | Path | None = None) -> None:
+def one_of(*choices: str):
+    """A metadata value test (:func:`check_metadata_keys`): the value is one of ``choices``."""
+    return lambda value: value.strip().lower() in choices
+
+
+def _is_zone(value: str) -> bool:
+    try:
+        zone(value.strip(), "time_zone")
+    except InputError:
+        return False
+    return True
+
+
+def _is_span(value: str) -> bool:
+    try:
+        return pd.Timedelta(value.strip()) > pd.Timedelta(0)
+    except (ValueError, TypeError):
+        return False
+
+
+#: The metadata keys lightfit's CSV readers read, each with a test of the values it takes
+#: (:func:`check_metadata_keys`: a free key that resembles one is refused where its value is one the
+#: known key takes).
+METADATA_VALUES = {
+    "provenance": one_of(*PROVENANCES, "unstated"),
+    "time_zone": _is_zone,
+    "time_label": one_of(*timestamps.LABELS),
+    "averaging_interval": _is_span,
+}
+#: The metadata keys :func:`read_lightfit_csv` reads and their values; any other key is free (not
+#: read), unless it resembles one of these with a value it takes (:func:`check_metadata_keys`).
+LIGHTFIT_CSV_KEYS = METADATA_VALUES | {"split_model": one_of(*SPLIT_MODELS)}
+
+
+def check_metadata_keys(meta: dict, known: dict, file: str | Path | None = None) -> None:
     """:class:`InputError` naming ``file`` and the key where a metadata key is not one of ``known``
-    (the keys its reader reads) but resembles one (difflib ratio ≥ :data:`MISSPELT_KEY_RATIO`,
-    case, spaces and hyphens aside): a typo was ignored as a free key and the reader's default
-    taken unsaid (``# an_per: leaf`` in an observations file read per ground area; ``# provenence:
-    reconstructed``, ``# time_lable: end`` in a weather CSV). Shared by the readers of lightfit's
-    CSV files and their writers (a key the reader would refuse is refused at the writing)."""
-    for key in meta:
+    (the keys its reader reads, each with a test of its values: :data:`METADATA_VALUES`) but
+    resembles one (difflib ratio ≥ :data:`MISSPELT_KEY_RATIO`, case, spaces and hyphens aside) and
+    holds a value that key takes: a typo was ignored as a free key and the reader's default taken
+    unsaid (``# an_per: leaf`` in an observations file read per ground area; ``# provenence:
+    reconstructed``, ``# time_lable: end`` in a weather CSV). A note that only resembles a key
+    (``# canopy: winter wheat``, ``# provenance_note: …``, ``# time_zone_note: logger kept CET``)
+    stays free. Shared by the readers of lightfit's CSV files and their writers (a key the reader
+    would refuse is refused at the writing)."""
+    for key, value in meta.items():
         if key in known:
             continue
         plain = key.strip().lower().replace(" ", "_").replace("-", "_")
-        close = difflib.get_close_matches(plain, known, n=1, cutoff=MISSPELT_KEY_RATIO)
+        close = [
+            k
+            for k in difflib.get_close_matches(plain, list(known), n=3, cutoff=MISSPELT_KEY_RATIO)
+            if known[k](str(value))
+        ]
         if close:
             raise InputError(
                 f"metadata key {key!r} resembles {close[0]!r}, which the reader knows, and would be ignored as "
@@ -986,7 +1024,7 @@ def read_csv_with_metadata(
     path: Path,
     expected: str,
     *,
-    known_keys: tuple[str, ...],
+    known_keys: dict,
     provenances: tuple[str, ...] = PROVENANCES,
     short_rows: str = "pad",
 ) -> tuple[dict[str, str], int, pd.DataFrame]:
