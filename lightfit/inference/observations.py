@@ -72,9 +72,10 @@ Area of canopy An. A chamber's canopy An is per ground area, which a file means 
 ``an_per`` is the other area is refused (:func:`check_an_area`): at LAI 4 the two differ 4×.
 
 Other metadata keys (``# site: …``, ``# source: …``) are free and not read, unless one resembles a
-key the reader knows (:data:`METADATA_KEYS`, e.g. ``# an_per: leaf`` or ``# timezone: UTC``): that
-is refused naming the key it resembles (:func:`check_metadata_keys`), as a typo would otherwise
-change the data's meaning unsaid.
+key the reader knows and holds a value that key takes (:data:`METADATA_KEYS`, e.g. ``# an_per: leaf``
+or ``# timezone: UTC``): that is refused naming the key it resembles (:func:`check_metadata_keys`),
+as a typo would otherwise change the data's meaning unsaid. A note that only resembles a key
+(``# canopy: winter wheat``, ``# provenance_note: …``) stays free.
 """
 
 from __future__ import annotations
@@ -265,8 +266,9 @@ SD_RANGE = (1e-100, 1e100)
 #: Metadata line naming the area canopy An is per (:func:`check_an_area`), and its values.
 AN_PER_KEY = "canopy_an_per"
 AN_AREAS = CHOICES["an_per"]
-#: The metadata keys :func:`read_observations` reads; any other key is free (not read), unless it
-#: resembles one of these (:func:`~lightfit.weather.readers.check_metadata_keys`).
+#: The metadata keys :func:`read_observations` reads, each with a test of its values; any other key is
+#: free (not read), unless it resembles one of these with a value it takes
+#: (:func:`~lightfit.weather.readers.check_metadata_keys`).
 METADATA_KEYS = METADATA_VALUES | {AN_PER_KEY: one_of(*AN_AREAS)}
 #: Short names of earlier versions.
 ALIASES = {"par": "plant_par", "an": "canopy_an"}
