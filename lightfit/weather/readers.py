@@ -1029,8 +1029,8 @@ def read_csv_with_metadata(
     short_rows: str = "pad",
 ) -> tuple[dict[str, str], int, pd.DataFrame]:
     """A CSV whose leading ``# key: value`` lines are metadata, ``provenance`` required (one of
-    ``provenances``); a key that is not one of ``known_keys`` but resembles one is refused
-    (:func:`check_metadata_keys`).
+    ``provenances``); a key that is not one of ``known_keys`` but resembles one and holds a value
+    that key takes is refused (:func:`check_metadata_keys`).
 
     Returns (metadata, the header's line number in the file (1-based; blank lines may sit between
     it and the metadata; the line after the metadata where there is no table), table of strings);
@@ -1100,8 +1100,8 @@ def read_lightfit_csv(
     rather than ignored. ``time_label`` and ``averaging_interval`` say what the stamps mean
     (:mod:`lightfit.weather.timestamps`; without them, instants); a ``time_zone`` line may only say
     ``UTC`` (the times are UTC: one naming another zone is refused, not ignored). Other keys are
-    free (not read) unless one resembles a key of :data:`LIGHTFIT_CSV_KEYS` (``# time_lable: end``):
-    that is refused (:func:`check_metadata_keys`).
+    free (not read) unless one resembles a key of :data:`LIGHTFIT_CSV_KEYS` and holds a value that
+    key takes (``# time_lable: end``): that is refused (:func:`check_metadata_keys`).
     """
     path = Path(path)
     meta, header_line, table = read_csv_with_metadata(
