@@ -467,7 +467,9 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
     """Change the time step of a contract series.
 
     Args:
-        freq: new step (pandas offset alias), e.g. ``"30min"`` as in the reference paper.
+        freq: new step, a time span with its unit (:func:`duration`: ``"30min"`` as in the reference
+            paper, ``"1h"``, ``"1 hour"``, ``"PT1H"``); a bare number or a calendar offset such as
+            ``"MS"`` is refused.
         how: ``"mean"`` averages to means over ``freq`` (keeps daily radiation sums): for
             instants (and centred means), in a window centred on each new timestamp (a row
             on its bound counts half in each window: the trapezoid rule); for means
