@@ -39,7 +39,10 @@ def field_run(
         None, help="Give up waiting for the tasks after this many seconds (default: no limit).", rich_help_panel=_DASK
     ),
     connect_timeout: float = typer.Option(
-        30.0, help="Give up connecting to the scheduler after this many seconds.", rich_help_panel=_DASK
+        30.0,
+        help="Give up connecting to --scheduler, or to the embedded cluster started without one, after this "
+        "many seconds.",
+        rich_help_panel=_DASK,
     ),
     theta: str = typer.Option(None, help=THETA_HELP),
     progress: bool = typer.Option(True, help="Progress bar over tiles."),
