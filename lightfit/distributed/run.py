@@ -481,9 +481,10 @@ def check_cluster_options(
     connect_timeout_s: float = 30.0,
 ) -> None:
     """What can be told of the cluster options without a cluster, as :class:`InputError` naming the
-    option: both timeouts finite and > 0 s, workers and threads ≥ 1, no workers or threads with a scheduler, a scheduler
-    address that parses (host and port for TCP/TLS). ``field-run`` checks them before any plant
-    grows; :func:`run_field` and :func:`connect` again."""
+    option: both timeouts finite, > 0 s and at most :data:`MAX_TIMEOUT_S`, workers and threads ≥ 1,
+    no workers or threads with a scheduler, a scheduler address that parses (host and port for
+    TCP/TLS). ``field-run`` checks them before any plant grows; :func:`run_field` and
+    :func:`connect` again."""
     for name, value in (("timeout", timeout_s), ("connect_timeout", connect_timeout_s)):
         # finite too: Dask parses a timeout's number as a string, and "inf" was a KeyError traceback;
         # at most MAX_TIMEOUT_S: 1e15 s passed, ran, then Dask's close turned it into a C timestamp
