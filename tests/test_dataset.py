@@ -444,7 +444,7 @@ def test_cli_renders_rgb_dataset(results_file, tmp_path):
     png = np.asarray(Image.open(out / meta["images"][0]["png"]))
     assert png.shape == (32, 40, 3)
     assert not np.array_equal(png[..., 0], png[..., 1])  # colour, not grey
-    assert "SCALARS limitation_margin double 1" in (out / "field_values.vtk").read_text()
+    assert b"SCALARS limitation_margin double 1" in (out / "field_values.vtk").read_bytes()
     lab = _labels(out, meta["images"][0])
     assert set(lab) == {"segment_id", "plant_id", "organ", "depth_m", "valid", "absorbed_par", "vc", "vj", MARGIN}
     assert (out / "gallery.png").exists() and "clipped leaf pixels" in r.output

@@ -1,6 +1,7 @@
 """Plant structure (G1), mesh (G3), field layout, tiles, cache and exports."""
 
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -405,6 +406,56 @@ def test_cache_hit_corrupt_and_stale_entries(tmp_path, caplog):
     assert cache_key(GrowthConfig(target_date="2016-04-21"), 42) != cache_key(g, 42)
 
 
+def read_legacy_vtk(path) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Points, triangles and cell arrays of a legacy VTK polydata file, read as VTK's
+    vtkDataReader does (the file-format spec, independent of lightfit's writer): BINARY data big-endian
+    after the keyword's line, ASCII numbers as C++ ``>>`` reads them (no ``nan`` or ``inf``: VTK's
+    reader stops there with "Error reading ascii data")."""
+    data = Path(path).read_bytes()
+    pos = 0
+
+    def line():
+        nonlocal pos
+        end = data.index(b"\n", pos)
+        text, pos = data[pos:end].decode("ascii"), end + 1
+        return text
+
+    def numbers(n, dtype):
+        nonlocal pos
+        if binary:
+            size = np.dtype(dtype).itemsize * n
+            out, pos = np.frombuffer(data, dtype, n, pos), pos + size
+            return out
+        words = []
+        while len(words) < n:
+            words += line().split()
+        for w in words:
+            if not re.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", w):
+                raise ValueError(f"VTK's ASCII reader cannot read {w!r}")
+        return np.array(words, dtype=float)
+
+    assert line().startswith("# vtk DataFile Version")
+    line()  # title
+    binary = line() == "BINARY"
+    assert line() == "DATASET POLYDATA"
+    _, n, kind = line().split()
+    assert kind == "double"
+    points = numbers(3 * int(n), ">f8").reshape(-1, 3)
+    arrays, tri = {}, None
+    while pos < len(data):
+        words = line().split()
+        if not words:
+            continue
+        if words[0] == "POLYGONS":
+            cells = numbers(int(words[2]), ">i4").astype(np.int64).reshape(-1, 4)
+            assert (cells[:, 0] == 3).all()
+            tri = cells[:, 1:]
+        elif words[0] == "SCALARS":
+            assert line() == "LOOKUP_TABLE default" and words[2] == "double"
+            arrays[words[1]] = numbers(len(tri), ">f8")
+    return points, tri, arrays
+
+
 def test_exports_read_back_with_segment_ids(small_field, tmp_path):
     _, g = small_field
     m = g.mesh
@@ -420,10 +471,10 @@ def test_exports_read_back_with_segment_ids(small_field, tmp_path):
     assert types <= {"char", "uchar", "short", "ushort", "int", "uint", "float", "double"}, types
     assert np.allclose(raw["blade_area_m2"].ravel(), seg.loc[m.face_segment, "blade_area_m2"])
     assert np.allclose(ply.vertices, m.vertices) and np.array_equal(ply.faces, m.faces)
-    # VTK legacy: parse the cell data back.
-    text = export(m, tmp_path / "f.vtk", values).read_text().splitlines()
-    i = text.index("SCALARS segment_id double 1") + 2  # double, as in the PLY (VTK long: 32 bits on Windows)
-    assert np.array_equal(np.array(text[i : i + m.n_faces], dtype=np.int64), m.face_segment)
+    # VTK legacy: parse the points, triangles and cell data back.
+    pts, tri, cell = read_legacy_vtk(export(m, tmp_path / "f.vtk", values))
+    assert np.array_equal(pts, m.vertices) and np.array_equal(tri, m.faces)
+    assert np.array_equal(cell["segment_id"], m.face_segment)  # double, as in the PLY (VTK long: 32 bits on Windows)
     # OBJ: groups name the segments; face count per group matches.
     obj = export(m, tmp_path / "f.obj", values).read_text().splitlines()
     counts, current = {}, None
@@ -971,14 +1022,32 @@ def test_exports_of_a_hand_built_mesh_read_back_by_face(tmp_path):
     tm = trimesh.load(obj, process=False, force="mesh")
     assert np.allclose(tm.vertices, mesh.vertices)
     assert {tuple(f) for f in tm.faces} == {(0, 1, 2), (1, 3, 2)}
-    vtk = export(mesh, tmp_path / "m.vtk", values).read_text().splitlines()
-    i = vtk.index("SCALARS an double 1") + 2
-    assert [float(x) for x in vtk[i : i + 2]] == [4.5, -1.25]  # face 0 is segment 7, face 1 segment 3
-    assert vtk[vtk.index("POLYGONS 2 8") + 1 :][:2] == ["3 0 1 2", "3 1 3 2"]
+    _, tri, cell = read_legacy_vtk(export(mesh, tmp_path / "m.vtk", values))
+    assert cell["an"].tolist() == [4.5, -1.25]  # face 0 is segment 7, face 1 segment 3
+    assert tri.tolist() == [[0, 1, 2], [1, 3, 2]]
     # a value named segment_id replaced the ids in the OBJ sidecar (and doubled PLY's property); refused
     for fmt in ("obj", "ply", "vtk"):
         with pytest.raises(InputError, match="'segment_id' is the id column's own name"):
             export(mesh, tmp_path / f"id.{fmt}", {"segment_id": pd.Series({3: 0.0, 7: 1.0})})
+
+
+def test_a_nan_value_and_a_large_id_read_back_from_vtk_as_paraview_reads_it(tmp_path):
+    """Leaf An is NaN on stems (docs/dataset.md), so every dataset's field_values.vtk held NaN: the
+    ASCII file said ``nan``, which VTK's reader (C++ ``>>``, so ParaView's) cannot read, and the
+    file did not open. Written binary, NaN and a segment id of plant 10⁷·10⁶ read back exactly."""
+    big = 10_001_000_007_295  # plant_id·10⁶ + index, 14 digits: past float32 and %.9g
+    mesh = Mesh(
+        vertices=np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0.05]]),
+        faces=np.array([[0, 1, 2], [1, 3, 2]]),
+        face_segment=np.array([big, 3]),
+        face_is_blade=np.array([True, False]),
+    )
+    values = {"an": pd.Series({big: 4.5, 3: np.nan}), "parent": pd.Series({big: float(big - 1), 3: -1.0})}
+    pts, tri, cell = read_legacy_vtk(export(mesh, tmp_path / "m.vtk", values))
+    assert np.array_equal(pts, mesh.vertices) and tri.tolist() == [[0, 1, 2], [1, 3, 2]]
+    assert cell["segment_id"].tolist() == [big, 3]
+    assert cell["an"][0] == 4.5 and np.isnan(cell["an"][1])  # NaN, not 0 or a missing file
+    assert cell["parent"].tolist() == [big - 1, -1]
 
 
 def test_a_mesh_without_faces_exports_in_every_format(tmp_path):

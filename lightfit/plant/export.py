@@ -5,7 +5,9 @@
 - PLY (binary little-endian; MeshLab, trimesh): face properties ``segment_id`` and one float
   property per value. VTK's PLY reader (9.7, so ParaView) reads the faces without their properties:
   for ParaView write VTK.
-- VTK legacy polydata (ParaView, VisIt): ``CELL_DATA`` arrays ``segment_id`` and the values.
+- VTK legacy polydata, binary (ParaView, VisIt): ``CELL_DATA`` arrays ``segment_id`` and the values.
+  Binary, not ASCII: VTK's ASCII reader reads numbers with C++ ``>>``, which fails on ``nan`` (the
+  value of a quantity that does not apply, leaf An on a stem), so ParaView refused the file.
 """
 
 from __future__ import annotations
@@ -119,25 +121,28 @@ def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
 
 
 def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
-    """VTK legacy ASCII polydata with cell arrays ``segment_id`` and the values."""
+    """VTK legacy binary polydata (big-endian, as the format says) with cell arrays ``segment_id``
+    and the values, all ``double``: exact ids below 2⁵³ (VTK's long is 32 bits on Windows) and NaN
+    kept as NaN (an ASCII ``nan`` stops VTK's reader)."""
     path = Path(path)
     fv = _face_values(mesh, values)
-    out = [
+    head = [
         "# vtk DataFile Version 3.0",
         "lightfit shoot mesh (m)",
-        "ASCII",
+        "BINARY",
         "DATASET POLYDATA",
         f"POINTS {len(mesh.vertices)} double",
     ]
-    out += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices]
-    out.append(f"POLYGONS {mesh.n_faces} {4 * mesh.n_faces}")
-    out += [f"3 {a} {b} {c}" for a, b, c in mesh.faces]
-    out.append(f"CELL_DATA {mesh.n_faces}")
-    # double, as the PLY export: exact below 2⁵³ (ids < 10¹³), where VTK's long is 32 bits on Windows
-    out += ["SCALARS segment_id double 1", "LOOKUP_TABLE default"] + [str(i) for i in mesh.face_segment]
-    for k, v in fv.items():
-        out += [f"SCALARS {k} double 1", "LOOKUP_TABLE default"] + [f"{x:.9g}" for x in v]
-    path.write_text("\n".join(out) + "\n", encoding="ascii")
+    cells = np.column_stack([np.full(mesh.n_faces, 3), mesh.faces]).astype(">i4")
+    with open(path, "wb") as f:
+        f.write(("\n".join(head) + "\n").encode("ascii"))
+        f.write(np.asarray(mesh.vertices, dtype=">f8").tobytes())
+        f.write(f"\nPOLYGONS {mesh.n_faces} {4 * mesh.n_faces}\n".encode("ascii"))
+        f.write(cells.tobytes())
+        f.write(f"\nCELL_DATA {mesh.n_faces}\n".encode("ascii"))
+        for k, v in ({"segment_id": mesh.face_segment} | fv).items():
+            f.write(f"SCALARS {k} double 1\nLOOKUP_TABLE default\n".encode("ascii"))
+            f.write(np.asarray(v, dtype=">f8").tobytes() + b"\n")
     return path
 
 
