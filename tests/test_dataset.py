@@ -1293,6 +1293,13 @@ def test_field_export_carries_the_first_selected_steps_values(mono_dataset, resu
     last = res.values("absorbed_par", 1).reindex(seg).to_numpy(float)
     assert meta["images"][0]["time_index"] == 0 and not np.allclose(first, last)
     np.testing.assert_allclose(raw["absorbed_par"].ravel(), first, rtol=1e-6)
+    # The file alone says which step, whose values and their units (PLY comments, read by hand: the
+    # header is ASCII lines up to end_header); it said only "units m", the vertices'.
+    head = (out / meta["field_export"]["file"]).read_bytes().split(b"end_header")[0].decode("ascii")
+    notes = dict(line[8:].split(": ", 1) for line in head.splitlines() if line.startswith("comment ") and ": " in line)
+    assert notes["time_utc"] == meta["images"][0]["time_utc"] == "2016-04-20T08:00:00+00:00"
+    assert notes["values"].startswith("SYNTHETIC") and notes["results_file"] == "results.nc"
+    assert notes["units of absorbed_par"] == "umol m-2 s-1"  # µmol photons m⁻² s⁻¹, UDUNITS spelling
 
 
 def test_gallery_columns_absorbed_par_and_margin_or_the_next_quantity():

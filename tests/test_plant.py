@@ -1050,6 +1050,26 @@ def test_a_nan_value_and_a_large_id_read_back_from_vtk_as_paraview_reads_it(tmp_
     assert cell["parent"].tolist() == [big - 1, -1]
 
 
+def test_exports_say_what_their_values_are_in_the_header(tmp_path):
+    """``notes`` (units, time, provenance) go where each format keeps text: PLY comments (trimesh
+    still reads the file), OBJ ``#`` lines, the VTK title; a note that cannot be a header line is refused."""
+    mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]), np.array([5]), np.array([True]))
+    values, notes = (
+        {"an": pd.Series({5: 2.0})},
+        {"units of an": "umol m-2 s-1", "time_utc": "2016-04-20T10:00:00+00:00"},
+    )
+    ply = export(mesh, tmp_path / "m.ply", values, notes)
+    head = ply.read_bytes().split(b"end_header")[0].decode("ascii").splitlines()
+    assert "comment units of an: umol m-2 s-1" in head and "comment time_utc: 2016-04-20T10:00:00+00:00" in head
+    assert trimesh.load(ply, process=False).metadata["_ply_raw"]["face"]["data"]["an"].ravel().tolist() == [2.0]
+    assert "# units of an: umol m-2 s-1" in export(mesh, tmp_path / "m.obj", values, notes).read_text().splitlines()
+    title = export(mesh, tmp_path / "m.vtk", values, notes).read_bytes().split(b"\n")[1].decode("ascii")
+    assert title == "lightfit shoot mesh (m); units of an: umol m-2 s-1; time_utc: 2016-04-20T10:00:00+00:00"
+    assert read_legacy_vtk(tmp_path / "m.vtk")[2]["an"].tolist() == [2.0]
+    with pytest.raises(InputError, match="printable ASCII on one line"):
+        export(mesh, tmp_path / "n.ply", values, {"units of an": "µmol m⁻² s⁻¹"})
+
+
 def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
     """A mesh of no faces (a plant with no shoot yet) was written as PLY and VTK, but the OBJ writer
     stopped on an IndexError (it named the first segment's group)."""

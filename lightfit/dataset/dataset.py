@@ -220,7 +220,14 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
         shown = images[: spec.gallery_images]
         meta["gallery"] = gallery(out, shown, quantities, units, results=res, lighting=meta["lighting"]).name
     if spec.export != "none":
-        meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], out / f"field_values.{spec.export}")
+        # The file says which step, whose values and their units: opened alone (MeshLab, ParaView) it said none
+        notes = {
+            "time_utc": res.times[tix[0]].isoformat(),
+            "values": "SYNTHETIC (not a model run)" if synthetic_values(res.ds.attrs) else "model output",
+            "results_file": ascii(Path(res.path).name)[1:-1] if res.path else "in memory",  # a header's ASCII
+        } | {f"units of {q}": res.units(q) for q in quantities}
+        path = out / f"field_values.{spec.export}"
+        meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], path, notes)
         meta["field_export"]["time_utc"] = res.times[tix[0]].isoformat()  # the first selected step
     replace_text(out / "metadata.json", json.dumps(meta, indent=2, default=_json_default))
     shutil.rmtree(marker)
@@ -291,12 +298,13 @@ def _write_image(out: Path, cam: Camera, time, t: int, light, radiance: np.ndarr
     }
 
 
-def export_field(mesh, values: dict[str, pd.Series], path: Path) -> dict:
+def export_field(mesh, values: dict[str, pd.Series], path: Path, notes: dict[str, str] | None = None) -> dict:
     """Write the faces of segments with results (a finite value of some quantity), per-face values
     attached (NaN where a quantity does not apply: leaf An on stems and sheaths).
 
     Uses :func:`lightfit.plant.export` (PLY or VTK by suffix). Buffer plants (no results) are left
-    out; the counts are returned for the metadata.
+    out; the counts are returned for the metadata. ``notes`` (time, provenance, units) go into
+    the file's header.
     """
     from lightfit.plant import export
     from lightfit.plant.mesh import Mesh
@@ -308,7 +316,7 @@ def export_field(mesh, values: dict[str, pd.Series], path: Path) -> dict:
     if not keep.any():
         return {"file": None, "faces": 0, "faces_left_out": int(mesh.n_faces), "reason": "no segment has finite values"}
     sub = Mesh(mesh.vertices, mesh.faces[keep], mesh.face_segment[keep], mesh.face_is_blade[keep])
-    export(sub, path, values=numeric)
+    export(sub, path, values=numeric, notes=notes)
     return {"file": path.name, "faces": int(keep.sum()), "faces_left_out": int((~keep).sum()), "values": list(numeric)}
 
 

@@ -52,18 +52,36 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
     return out
 
 
+def _notes(notes: dict[str, str] | None) -> list[str]:
+    """``key: value`` lines saying what the values are (units, time, provenance), checked to fit
+    a header line: ASCII, one line each."""
+    out = []
+    for k, v in (notes or {}).items():
+        line = f"{k}: {v}"
+        if not line.isascii() or not line.isprintable():
+            raise InputError(
+                f"note {line!r} cannot go into a mesh file's header",
+                parameter="notes",
+                expected="printable ASCII on one line (UDUNITS units such as 'umol m-2 s-1')",
+            )
+        out.append(line)
+    return out
+
+
 def sidecar_path(obj_path: str | Path) -> Path:
     """Where :func:`write_obj` puts the segments' values: OBJ has no face attributes."""
     return Path(obj_path).with_suffix(".segments.csv")
 
 
-def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+def write_obj(
+    mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None, notes: dict[str, str] | None = None
+) -> Path:
     """Wavefront OBJ with one group per segment; ``values`` go to ``<path>.segments.csv``."""
     path = Path(path)
     order = np.argsort(mesh.face_segment, kind="stable")
     seg_sorted = mesh.face_segment[order]
     starts = np.flatnonzero(np.r_[len(order) > 0, seg_sorted[1:] != seg_sorted[:-1]])  # none if no faces
-    lines = ["# lightfit shoot mesh; units: m; groups seg_<segment_id>"]
+    lines = ["# lightfit shoot mesh; units: m; groups seg_<segment_id>"] + [f"# {n}" for n in _notes(notes)]
     lines += [f"v {x:.7g} {y:.7g} {z:.7g}" for x, y, z in mesh.vertices]
     faces = mesh.faces[order] + 1
     bounds = list(starts) + [len(order)]
@@ -85,7 +103,9 @@ def write_obj(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     return path
 
 
-def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+def write_ply(
+    mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None, notes: dict[str, str] | None = None
+) -> Path:
     """Binary PLY with face properties ``segment_id`` and the values, all ``double``: the PLY format
     has no 64-bit integer (``int64`` was written, which VTK's reader and so ParaView do not know),
     and segment ids (plant id · 10⁶ + index) are exact in a double below 2⁵³."""
@@ -95,6 +115,7 @@ def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
         "ply",
         "format binary_little_endian 1.0",
         "comment lightfit shoot mesh, units m",
+        *(f"comment {n}" for n in _notes(notes)),
         f"element vertex {len(mesh.vertices)}",
         "property double x",
         "property double y",
@@ -120,7 +141,9 @@ def write_ply(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     return path
 
 
-def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
+def write_vtk(
+    mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None, notes: dict[str, str] | None = None
+) -> Path:
     """VTK legacy binary polydata (big-endian, as the format says) with cell arrays ``segment_id``
     and the values, all ``double``: exact ids below 2⁵³ (VTK's long is 32 bits on Windows) and NaN
     kept as NaN (an ASCII ``nan`` stops VTK's reader)."""
@@ -128,7 +151,7 @@ def write_vtk(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None 
     fv = _face_values(mesh, values)
     head = [
         "# vtk DataFile Version 3.0",
-        "lightfit shoot mesh (m)",
+        "; ".join(["lightfit shoot mesh (m)", *_notes(notes)])[:255],  # the format's title: one line, 256 bytes
         "BINARY",
         "DATASET POLYDATA",
         f"POINTS {len(mesh.vertices)} double",
@@ -156,9 +179,14 @@ def mesh_format(path: str | Path) -> str:
     return fmt
 
 
-def export(mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None) -> Path:
-    """Write ``mesh`` in the format named by the suffix of ``path`` (.obj, .ply or .vtk)."""
+def export(
+    mesh: Mesh, path: str | Path, values: dict[str, pd.Series] | None = None, notes: dict[str, str] | None = None
+) -> Path:
+    """Write ``mesh`` in the format named by the suffix of ``path`` (.obj, .ply or .vtk).
+
+    ``notes`` (``{"units of an": "umol m-2 s-1", "time_utc": ...}``) say what the values are: PLY
+    ``comment`` and OBJ ``#`` lines, and the VTK title (one line, cut at 255 characters)."""
     path = Path(path)
     fmt = mesh_format(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    return {"obj": write_obj, "ply": write_ply, "vtk": write_vtk}[fmt](mesh, path, values)
+    return {"obj": write_obj, "ply": write_ply, "vtk": write_vtk}[fmt](mesh, path, values, notes)
