@@ -1070,6 +1070,16 @@ def test_exports_say_what_their_values_are_in_the_header(tmp_path):
         export(mesh, tmp_path / "n.ply", values, {"units of an": "µmol m⁻² s⁻¹"})
 
 
+def test_a_value_with_two_entries_for_a_segment_is_refused_by_name(tmp_path):
+    """A value series of a long table (two time steps, so each segment id twice) stopped in pandas'
+    reindex with "cannot reindex on an axis with duplicate labels", naming neither the value nor the ids."""
+    mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]), np.array([5]), np.array([True]))
+    two_steps = pd.Series([1.0, 2.0], index=[5, 5])
+    for fmt in ("obj", "ply", "vtk"):
+        with pytest.raises(InputError, match=r"parameter 'an'.*more than one entry for segment id\(s\) \[5\]"):
+            export(mesh, tmp_path / f"m.{fmt}", {"an": two_steps})
+
+
 def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
     """A mesh of no faces (a plant with no shoot yet) was written as PLY and VTK, but the OBJ writer
     stopped on an IndexError (it named the first segment's group)."""

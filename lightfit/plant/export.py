@@ -39,6 +39,13 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
                 expected="another name (the ids are written with every value)",
             )
         series = pd.Series(series)
+        if series.index.has_duplicates:  # pandas' reindex stopped on "duplicate labels", naming no value
+            twice = series.index[series.index.duplicated()].unique()[:5]
+            raise InputError(
+                f"value {name!r} has more than one entry for segment id(s) {twice.tolist()}",
+                parameter=name,
+                expected="one value per segment id (a table of several time steps: select one step)",
+            )
         absent = ~np.isin(mesh.face_segment, series.index.to_numpy())
         if absent.any():  # a NaN entry is a value (e.g. An of a stem); an absent one is a mistake
             missing = np.unique(mesh.face_segment[absent])[:5]
