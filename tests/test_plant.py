@@ -1080,6 +1080,14 @@ def test_a_value_with_two_entries_for_a_segment_is_refused_by_name(tmp_path):
             export(mesh, tmp_path / f"m.{fmt}", {"an": two_steps})
 
 
+def test_a_text_value_is_refused_by_name(tmp_path):
+    """A text column (``organ_type``) stopped in numpy with "could not convert string to float: 'leaf'"."""
+    mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]), np.array([5]), np.array([True]))
+    for fmt in ("obj", "ply", "vtk"):
+        with pytest.raises(InputError, match=r"parameter 'organ_type'.*is not numeric.*integer code"):
+            export(mesh, tmp_path / f"m.{fmt}", {"organ_type": pd.Series(["leaf"], index=[5])})
+
+
 def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
     """A mesh of no faces (a plant with no shoot yet) was written as PLY and VTK, but the OBJ writer
     stopped on an IndexError (it named the first segment's group)."""

@@ -54,7 +54,14 @@ def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, n
                 parameter=name,
                 expected="a value (NaN allowed) for every segment in the mesh",
             )
-        v = series.reindex(mesh.face_segment).to_numpy(dtype=float)
+        try:
+            v = series.reindex(mesh.face_segment).to_numpy(dtype=float)
+        except (TypeError, ValueError) as e:  # a text column (organ_type) stopped in numpy's conversion
+            raise InputError(
+                f"value {name!r} is not numeric ({e})",
+                parameter=name,
+                expected="numbers, booleans or NaN (a category as its integer code)",
+            ) from None
         out[name] = v
     return out
 
