@@ -1186,6 +1186,29 @@ def test_an_unconverged_calibration_is_told_what_helps():
     assert "resume the same state" not in unconverged_remedy("failed: line search", surrogate=True)
 
 
+def test_bfgs_stopped_on_max_steps_at_a_bound_is_told_to_use_lbfgsb():
+    """bfgs works in logit coordinates and approaches a bound without reaching it: with the optimum
+    on a bound (vcmax_scale's loss falls towards 0.8, the test above) it ran to the step limit at
+    every limit tried, and "rerun with a larger --max-steps" was advised, which cannot help (a
+    review). Where it stopped on max_steps with a parameter on its range's edge, lbfgsb (which
+    steps onto bounds and converges there, the test above) is advised instead."""
+    from lightfit.cli.calibrate import unconverged_remedy
+    from lightfit.inference.calibration import on_edge
+
+    model, obs = _fake()
+    kw = dict(names=("light_factor", "vcmax_scale"), bounds={"vcmax_scale": (0.2, 0.8)}, progress=False)
+    res = calibrate(model, obs, method="bfgs", start={"vcmax_scale": 0.5}, max_steps=8, say=lambda _: None, **kw)
+    assert res.stopped_by == "max_steps" and 0.79 < res.theta["vcmax_scale"] < 0.8
+    edges = [n for n, (lo, hi) in {"vcmax_scale": (0.2, 0.8)}.items() if on_edge(res.theta[n], lo, hi)]
+    assert edges == ["vcmax_scale"]
+    said = unconverged_remedy(res.stopped_by, method="bfgs", edges=edges)
+    assert "--method lbfgsb" in said and "vcmax_scale" in said and "rerun with a larger" not in said
+    assert "--no-resume" in said  # a resume keeps the method (check_resumable)
+    # more steps still help bfgs away from an edge, and lbfgsb at one
+    assert unconverged_remedy("max_steps", method="bfgs").startswith("rerun with a larger --max-steps")
+    assert unconverged_remedy("max_steps", method="lbfgsb", edges=edges).startswith("rerun with a larger")
+
+
 def test_canopy_an_per_another_area_than_the_run_is_refused(tmp_path):
     """A chamber's canopy An is per ground area; with --an-per leaf the model's is per leaf area,
     ≈ LAI × smaller, and the two were compared as they stood (a review). A file now says its area

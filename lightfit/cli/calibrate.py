@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import shlex
+from collections.abc import Sequence
 from pathlib import Path
 
 import typer
@@ -118,7 +119,7 @@ def calibrate(
     from lightfit.distributed.design import design_renderer
     from lightfit.distributed.run import check_cluster_options
     from lightfit.inference import mcmc as P
-    from lightfit.inference.calibration import METHODS, check_max_steps, check_start_names, fit_cautions
+    from lightfit.inference.calibration import METHODS, check_max_steps, check_start_names, fit_cautions, on_edge
     from lightfit.inference.calibration import calibrate as run_calibration
     from lightfit.inference.likelihood import check_informed, likelihood_form, resolve_use
     from lightfit.inference.observations import declared, observation_table_digest
@@ -377,7 +378,12 @@ def calibrate(
     if not res.converged:  # said before the fit's cautions, whose "the fit is good" reads as a verdict
         caution(
             f"the optimiser did not converge ({res.reason}): the values are where it stopped, not an optimum; "
-            + unconverged_remedy(res.stopped_by, surrogate=tr is not None)
+            + unconverged_remedy(
+                res.stopped_by,
+                surrogate=tr is not None,
+                method=res.method,
+                edges=[n for n in names if on_edge(float(res.theta[n]), *search[n])],
+            )
         )
     others = " or ".join(f"--priors {p}" for p in P.PRIOR_SETS if p != priors)
     for line in fit_cautions(res.theta, names, res.loss, res.n_observations, search, support):
@@ -404,12 +410,24 @@ def calibrate(
         raise typer.Exit(CHECK_NOT_PASSED)
 
 
-def unconverged_remedy(stopped_by: str, surrogate: bool = False) -> str:
+def unconverged_remedy(
+    stopped_by: str, surrogate: bool = False, method: str = "lbfgsb", edges: Sequence[str] = ()
+) -> str:
     """What helps a calibration that stopped unconverged (``CalibrationResult.stopped_by``): more steps
     where it ran out of them; elsewhere a rerun restores the same optimiser state and stops the same
     way (a review: "a larger --max-steps" was said after a failed line search too). ``surrogate``: the
     optimisation ran on the emulator (``trust_region.surrogate_calibrate``), whose rounds are not
-    resumed but redone from the cached renders, the same steps again."""
+    resumed but redone from the cached renders, the same steps again. ``edges``: the calibrated
+    parameters on the edge of their search range (``calibration.on_edge``) where it stopped; with
+    ``method`` bfgs, which works in logit/log coordinates and only approaches a bound, more steps
+    do not reach an optimum there: lbfgsb, which steps onto bounds, is advised instead (a review)."""
+    if stopped_by in ("max_steps", "stalled") and method == "bfgs" and edges:
+        return (
+            f"{', '.join(edges)} on the edge of {'its' if len(edges) == 1 else 'their'} search range, which "
+            "bfgs (on logit/log-transformed parameters) approaches but never reaches, so a larger --max-steps "
+            "does not help: start again (--no-resume or another --out) with --method lbfgsb, which steps onto "
+            "bounds"
+        )
     if stopped_by in ("max_steps", "stalled"):
         how = "redoes the optimisation on the cached renders" if surrogate else "continues from its history"
         return f"rerun with a larger --max-steps (the run {how})"
