@@ -420,10 +420,33 @@ def _observed(ax, ds, t, name: str, marker: str, color: str, label: str) -> None
         )
 
 
+def _anchors(attrs) -> list:
+    """The anchor (a dict, or ``None``) of each day of results, from ``attrs["weather_anchor"]``: one
+    JSON object, or several days' (:func:`lightfit.replication.concat_days`, where the days' differ)
+    ``"; "``-separated in date order, an empty one for a day without (JSON text has no ``"; "``)."""
+    text = attrs.get("weather_anchor")
+    if not text:
+        return [None]
+    return [json.loads(piece) if piece else None for piece in str(text).split("; ")]
+
+
 def _anchored(ds, name: str, values: np.ndarray) -> str:
     """``"; the forcing is scaled to it"`` where a reconstructed forcing was anchored on one of these
-    above-canopy PAR readings (model and reading then agree by construction, not as a check)."""
-    anchor = json.loads(ds.attrs.get("weather_anchor", "null"))
-    if name != "above_canopy_par" or anchor is None:
+    above-canopy PAR readings (model and reading then agree by construction, not as a check). Several
+    days' results with their own anchors (a review: json.loads of the joined text raised): each
+    day's readings against that day's anchor."""
+    anchors = _anchors(ds.attrs)
+    if name != "above_canopy_par" or all(a is None for a in anchors):
         return ""
-    return "; the forcing is scaled to it" if np.isclose(values, anchor["par_umol_m2_s"], atol=0.01).any() else ""
+    values = np.asarray(values)
+    dates = str(ds.attrs.get("date", "")).split("; ")
+    if len(anchors) > 1 and len(dates) == len(anchors) and "day" in ds.coords:
+        # one per date of attrs["date"], in its order; each step's date in the "day" coordinate
+        day = np.asarray(ds["day"].values).astype(str)
+        days = [day == d for d in dates]
+    else:  # one anchor for all the steps (or days that cannot be told apart: every anchor against all)
+        days = [np.ones(values.shape, bool)] * len(anchors)
+    scaled = any(
+        a is not None and np.isclose(values[on], a["par_umol_m2_s"], atol=0.01).any() for a, on in zip(anchors, days)
+    )
+    return "; the forcing is scaled to it" if scaled else ""

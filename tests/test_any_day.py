@@ -609,3 +609,44 @@ def test_several_days_results_list_each_days_attributes_where_the_days_differ():
         [part("2016-04-20", "a.csv", "measured", "f1"), part("2016-05-20", "a.csv", "measured", "f2")]
     )
     assert same.attrs["weather_source"] == "a.csv" and same.attrs["weather_provenance"] == "measured"
+
+
+def test_several_days_with_their_own_weather_anchors_are_read_per_day():
+    """concat_days lists an attribute the days do not share, "; "-separated: two days of forcings
+    anchored on different readings gave weather_anchor two JSON objects joined, and the report's
+    reader (json.loads) raised on it (a review). Each day's readings are now held against that day's
+    anchor: the label says the forcing is scaled to a reading only where that day's anchor is it."""
+    import json
+    from dataclasses import asdict
+
+    import xarray as xr
+
+    from lightfit.report import _anchored
+    from lightfit.weather.reconstruct import Anchor
+
+    def part(date, anchor):
+        t = pd.DatetimeIndex([f"{date} 10:00", f"{date} 12:00"]).values
+        attrs = {"date": date, "window": "w", "target_date": date}
+        if anchor is not None:
+            attrs["weather_anchor"] = json.dumps(asdict(anchor))
+        return xr.Dataset(
+            {"absorbed_par_umol_m2_s": (("time", "segment"), np.full((2, 1), 500.0))},
+            coords={"time": t, "segment": [1]},
+            attrs=attrs,
+        )
+
+    a1 = Anchor(time_local="2016-04-20 12:00:00", par_umol_m2_s=1549.31)
+    a2 = Anchor(time_local="2016-05-20 12:00:00", par_umol_m2_s=900.0)
+    both = rep.concat_days([part("2016-04-20", a1), part("2016-05-20", a2)])
+    assert both.attrs["weather_anchor"].count("par_umol_m2_s") == 2  # each day's, joined
+    said = "; the forcing is scaled to it"
+    # day 2's noon reading is day 2's anchor
+    assert _anchored(both, "above_canopy_par", np.array([700.0, 1200.0, 600.0, 900.0])) == said
+    # each day's reading is the other day's anchor: neither forcing was scaled to it
+    assert _anchored(both, "above_canopy_par", np.array([700.0, 900.0, 600.0, 1549.31])) == ""
+    assert _anchored(both, "plant_par", np.array([700.0, 1200.0, 600.0, 900.0])) == ""  # other series: never
+    # a day without an anchor (listed empty) after one with
+    one = rep.concat_days([part("2016-04-20", a1), part("2016-05-20", None)])
+    assert one.attrs["weather_anchor"].endswith("; ")
+    assert _anchored(one, "above_canopy_par", np.array([700.0, 1549.31, 600.0, 900.0])) == said
+    assert _anchored(one, "above_canopy_par", np.array([700.0, 900.0, 600.0, 1549.31])) == ""
