@@ -925,7 +925,10 @@ def concat_days(parts: list) -> xr.Dataset:
     # forcing of another source or provenance where the days were run on their own): each day's, not
     # the first day's claimed for all.
     listed = ("date", "window", "target_date", *per_day)
-    per_day += [k for k in parts[0].attrs if k not in listed and len({str(p.attrs.get(k)) for p in parts}) > 1]
+    # a key some day lacks is listed too (empty for that day): one only a later day has (its forcing's
+    # anchor, its date_given) was dropped with combine_attrs="override", which keeps the first day's
+    every = dict.fromkeys(k for p in parts for k in p.attrs)
+    per_day += [k for k in every if k not in listed and len({str(p.attrs.get(k)) for p in parts}) > 1]
     for k in ("date", "window", "target_date", *per_day):
         out.attrs[k] = "; ".join(f"{p.attrs[k]:.3g}" if k in temperatures else str(p.attrs.get(k, "")) for p in parts)
     return schema.annotate(out)

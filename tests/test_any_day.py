@@ -650,3 +650,8 @@ def test_several_days_with_their_own_weather_anchors_are_read_per_day():
     assert one.attrs["weather_anchor"].endswith("; ")
     assert _anchored(one, "above_canopy_par", np.array([700.0, 1549.31, 600.0, 900.0])) == said
     assert _anchored(one, "above_canopy_par", np.array([700.0, 900.0, 600.0, 1549.31])) == ""
+    # a day without an anchor before one with: the second day's was dropped (the first day's attrs kept)
+    late = rep.concat_days([part("2016-04-20", None), part("2016-05-20", a2)])
+    assert late.attrs["weather_anchor"].startswith("; ")
+    assert _anchored(late, "above_canopy_par", np.array([700.0, 1200.0, 600.0, 900.0])) == said
+    assert _anchored(late, "above_canopy_par", np.array([700.0, 900.0, 600.0, 1000.0])) == ""
