@@ -1043,5 +1043,8 @@ def test_a_ratio_of_light_read_at_an_unrendered_step_with_par_is_refused(tmp_pat
     )
     with pytest.raises(InputError, match=r"ceptometer_fapar read at 2016-04-20T03:30.*not rendered: DNI \+ DHI > 0"):
         check_light_scale(read_observations(f), w)
+    # the rule's two angles with the Unicode minus the messages use (the second had an ASCII hyphen)
+    with pytest.raises(InputError, match="the sun above −1°, or DHI > 0 with the sun above −6°\\)"):
+        check_light_scale(read_observations(f), w)
     f.write_text(f.read_text().replace("2016-04-20 03:30,0.9,0.03\n", "2016-04-20 04:00,0.9,0.03\n"))
     check_light_scale(read_observations(f), w)  # daylight and civil twilight: no error

@@ -90,8 +90,12 @@ def check_weather_values(weather: pd.DataFrame) -> None:
 #: light compensation point, and a radiation sensor's reading there is its offset, not light (the
 #: readers keep small positive night readings): rendering it would spend a render on every night step.
 TWILIGHT_SUN_MIN_DEG = -6.0
-#: :func:`daytime` in words, for messages.
-DAYTIME_RULE = f"DNI + DHI > 0 with the sun above −1°, or DHI > 0 with the sun above {TWILIGHT_SUN_MIN_DEG:g}°"
+#: :func:`daytime` in words, for messages (a Unicode minus in both angles, as the messages write one:
+#: the second read "-6°" with the hyphen of :g beside "−1°").
+DAYTIME_RULE = (
+    "DNI + DHI > 0 with the sun above −1°, or DHI > 0 with the sun above "
+    + f"{TWILIGHT_SUN_MIN_DEG:g}°".replace("-", "−")
+)
 
 
 def daytime(weather: pd.DataFrame) -> np.ndarray:
