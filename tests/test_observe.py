@@ -325,6 +325,21 @@ def test_blade_light_beyond_the_leaves_range_at_light_factor_1_names_the_renders
     t = int(np.argmax(40.0 * dni + dhi * values[:, PARTS.index("absorbed_sky"), blade]))
     expected = 40.0 * dni[t] + dhi[t] * values[t, PARTS.index("absorbed_sky"), blade]
     assert f"{expected:.0f} ± {35.0 * dni[t]:.0f}" in msg
+    # where, as results.nc names it: the blade's segment id and the step's time in UTC (it said
+    # "blade 3", an index among the blade columns that no file shows)
+    seg_id = int(noon_model.segment_id[blade])
+    step = int(day[t])
+    when = noon_model.times[step].tz_convert("UTC").tz_localize(None).isoformat()
+    assert f"(step {step}, time {when} UTC, segment {seg_id})" in msg, msg
+    assert seg_id != 3  # not the blade column's index (the fourth blade)
+    # a model cut to some steps (emulator.restrict, a calibration's) names the same instant
+    from lightfit.model import emulator as E
+
+    assert fc.day.all()  # every step of the window is rendered: the parts' rows are the steps
+    keep = np.arange(len(fc.day)) >= 2
+    cut = E.restrict(noon_model, keep).with_light(lambda theta: (values[keep], se[keep]))
+    with pytest.raises(InputError, match=f"step {step - 2}, time {when} UTC, segment {seg_id}"):
+        cut.observe(Theta())
 
 
 @pytest.mark.parametrize(

@@ -148,6 +148,8 @@ class CoupledModel:
             sensors=tuple(s.name for s in self.sensors),
             capacity=None if self.kn == 0 else capacity_factor(self.lai_above, self.kn),
             capacity_base=float(capacity_factor(lai, self.kn)),
+            segment_id=self.segment_id,
+            times=self.times,
         )
         self.light = self.render if light is None else light
 

@@ -733,7 +733,10 @@ def restrict(model: CoupledModel, keep, rendered=None) -> CoupledModel:
     other.day = day
     other.sun_deg = model.sun_deg[keep]
     other.operator = dataclasses.replace(
-        model.operator, forcing=forcing, sun_elevation_deg=np.asarray(model.operator.sun_elevation_deg)[keep]
+        model.operator,
+        forcing=forcing,
+        sun_elevation_deg=np.asarray(model.operator.sun_elevation_deg)[keep],
+        times=None if model.operator.times is None else model.operator.times[keep],
     )
     if model.light == model.render:  # a bound method of the original: render the kept steps instead
         other.light = other.render

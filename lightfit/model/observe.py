@@ -88,6 +88,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 
 from lightfit.errors import InputError
 from lightfit.light.estimator import PARTS
@@ -535,6 +536,9 @@ class ObservationOperator:
             set's. Applied to whatever leaf evaluator the operator is called with (:meth:`leaf`).
         capacity_base: the base leaf's capacity of :func:`with_capacity` (≤ every blade's; the
             whole canopy's bottom, so that tiles measuring other blades compute alike).
+        segment_id: (S,) the measured segments' ids (results' ``segment``) and ``times`` (T,) the
+            steps' instants: where a refusal of a blade's light says which blade and step (``None``:
+            their indices).
     """
 
     forcing: Forcing
@@ -550,6 +554,8 @@ class ObservationOperator:
     sensors: tuple[str, ...] = ()
     capacity: np.ndarray | None = None
     capacity_base: float | None = None
+    segment_id: np.ndarray | None = None
+    times: pd.DatetimeIndex | None = None
 
     @property
     def blades(self) -> np.ndarray:
@@ -612,7 +618,13 @@ class ObservationOperator:
             sensor = (jnp.zeros(len(self.forcing.day)),) * 2
         b = self.blades
         q = jnp.maximum(out["absorbed_par_umol_m2_s"][:, b], 0.0)
-        _check_leaf_light(q, theta.light_factor, out["absorbed_par_mc_sd_umol_m2_s"][:, b])
+        _check_leaf_light(
+            q,
+            theta.light_factor,
+            out["absorbed_par_mc_sd_umol_m2_s"][:, b],
+            segment_id=None if self.segment_id is None else np.asarray(self.segment_id)[b],
+            times=self.times,
+        )
         r = self.leaf(leaf)(q, self.forcing, self.photosynthesis_params(theta.vcmax_scale))
         an_sd = jax.lax.stop_gradient(jnp.abs(r.dan_dq)) * out["absorbed_par_mc_sd_umol_m2_s"][:, b]
         f = jnp.asarray(theta.light_factor, jnp.float64)
@@ -649,14 +661,16 @@ class ObservationOperator:
         return out
 
 
-def _check_leaf_light(q, light_factor, sd=None) -> None:
+def _check_leaf_light(q, light_factor, sd=None, segment_id=None, times=None) -> None:
     """Concrete blade light above what a leaf solve accepts (:data:`MAX_PAR_ABS_UMOL_M2_S`) is refused
     naming the light factor, the run's one multiplier of light (``--theta light_factor=9`` ended in a
     traceback from the photosynthesis's range check); or, where the light at light factor 1 is itself
     above it, naming the render's Monte Carlo noise (``sd``: the blades' SD, µmol m-2 s-1, as ``q``)
-    and the options that reduce it: few projected rays put one ray's flux on a small blade. Traced
-    values (calibration, sampling) are flagged unconverged there instead, which gives them no
-    likelihood."""
+    and the options that reduce it: few projected rays put one ray's flux on a small blade, named by
+    its segment id (``segment_id``: (B,) the blades', as results' ``segment``) and its step's
+    instant (``times``: (T,), told in UTC as results' ``time``), not by its index among the blade
+    columns. Traced values (calibration, sampling) are flagged unconverged there instead, which
+    gives them no likelihood."""
     if isinstance(q, jax.core.Tracer) or isinstance(light_factor, jax.core.Tracer) or not q.size:
         return
     top = float(jnp.max(q))
@@ -664,9 +678,15 @@ def _check_leaf_light(q, light_factor, sd=None) -> None:
     if top > MAX_PAR_ABS_UMOL_M2_S and top / factor > MAX_PAR_ABS_UMOL_M2_S:
         at = np.unravel_index(int(jnp.argmax(q)), q.shape)
         noise = "" if sd is None else f" ± {float(np.asarray(sd)[at]):.0f} (its Monte Carlo SD)"
+        step = f"step {at[0]}"
+        if times is not None and len(times) == q.shape[0]:
+            t = pd.DatetimeIndex(times)[at[0]]
+            t = t.tz_convert("UTC").tz_localize(None) if t.tzinfo is not None else t
+            step += f", time {t.isoformat()} UTC"
+        blade = f"blade column {at[1]}" if segment_id is None else f"segment {int(np.asarray(segment_id)[at[1]])}"
         raise InputError(
             f"the render gives a blade {top / factor:.0f}{noise} µmol m-2 s-1 of absorbed PAR at light_factor=1"
-            f" (step {at[0]}, blade {at[1]}): Monte Carlo noise, one ray's flux on a small blade",
+            f" ({step}, {blade}): Monte Carlo noise, one ray's flux on a small blade",
             parameter="direct_rays_per_m2",
             expected=f"at most {MAX_PAR_ABS_UMOL_M2_S:g} µmol m-2 s-1 (about 4x full sun): a less noisy render,"
             " more projected rays (--direct-rays-per-m2) or more points per segment (--samples)",
