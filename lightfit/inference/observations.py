@@ -96,6 +96,7 @@ from lightfit.weather import timestamps
 from lightfit.weather.readers import (
     METADATA_VALUES,
     PROVENANCES,
+    check_aware_index,
     check_metadata_keys,
     first_bad_row,
     metadata_lines,
@@ -557,14 +558,7 @@ def write_observations(df: pd.DataFrame, path: str | Path, metadata: dict[str, s
     if metadata.get("provenance") not in PROVENANCES:
         raise InputError("metadata must state provenance", column="provenance", expected="measured or synthetic")
     check_metadata_keys(metadata, METADATA_KEYS)  # a key its reader would refuse
-    if not isinstance(df.index, pd.DatetimeIndex) or df.index.tz is None:  # a TypeError/AttributeError before
-        raise InputError(
-            f"the table's index is {type(df.index).__name__}"
-            + (" without a time zone" if isinstance(df.index, pd.DatetimeIndex) else ""),
-            parameter="df",
-            expected="a DatetimeIndex with a time zone (e.g. index.tz_localize('Europe/Berlin') for local times): "
-            "the file is written in UTC",
-        )
+    check_aware_index(df, "table")  # a TypeError/AttributeError before
     path = Path(path)
     stamps, area = timestamps.of(df), an_area(df)
     # What metadata states of the rows is written, not overwritten by the attrs' defaults (a stated

@@ -950,6 +950,19 @@ def read_cplantbox_day(
     return _with_means(check_and_repair(out, lt, path, max_gap=max_gap), time_label)
 
 
+def check_aware_index(df: pd.DataFrame, what: str) -> None:
+    """:class:`InputError` naming ``df`` unless its index is times with a zone: lightfit's CSV writers
+    write UTC, and a naive index (or none of times) was written as if it were UTC, or failed in pandas."""
+    if not isinstance(df.index, pd.DatetimeIndex) or df.index.tz is None:
+        raise InputError(
+            f"the {what}'s index is {type(df.index).__name__}"
+            + (" without a time zone" if isinstance(df.index, pd.DatetimeIndex) else ""),
+            parameter="df",
+            expected="a DatetimeIndex with a time zone (e.g. index.tz_localize('Europe/Berlin') for local times): "
+            "the file is written in UTC",
+        )
+
+
 def metadata_lines(metadata: dict) -> str:
     """``# key: value`` lines, one per item: the header of lightfit's CSV files, which
     :func:`read_csv_with_metadata` reads (and ``pandas.read_csv(path, comment="#")`` skips)."""
@@ -1204,14 +1217,7 @@ def lightfit_csv_text(df: pd.DataFrame, metadata: dict[str, str]) -> str:
         )
     check_metadata_keys(metadata, LIGHTFIT_CSV_KEYS)  # a key its reader would refuse
     _check_utc_line(metadata, None)  # '# time_zone: Europe/Berlin' too
-    if not isinstance(df.index, pd.DatetimeIndex) or df.index.tz is None:
-        raise InputError(
-            f"the series' index is {type(df.index).__name__}"
-            + (" without a time zone" if isinstance(df.index, pd.DatetimeIndex) else ""),
-            parameter="df",
-            expected="a DatetimeIndex with a time zone (e.g. index.tz_localize('Europe/Berlin') for local times): "
-            "the file is written in UTC",
-        )
+    check_aware_index(df, "series")
     if "time_label" not in metadata:
         metadata = metadata | timestamps.of(df).metadata()
     if "dhi_w_m2" in df.columns and df.attrs.get("split_model") and "split_model" not in metadata:
