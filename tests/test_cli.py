@@ -858,11 +858,17 @@ def test_bad_par_kind_names_the_parameter(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args, token", [(["--soil-respiration", "-1"], "--soil-respiration"), (["--soil-respiration-q10", "9"], "q10")]
+    "args, token",
+    [
+        (["--soil-respiration", "-1"], "--soil-respiration"),
+        (["--soil-respiration", "1e308"], "--soil-respiration"),  # NEE was inf
+        (["--soil-respiration", "101"], "--soil-respiration"),
+        (["--soil-respiration-q10", "9"], "q10"),
+    ],
 )
 def test_bad_soil_respiration_names_the_option(tmp_path, args, token):
     r = runner.invoke(app, ["replicate", "--quick", "--out", str(tmp_path), *args])
-    assert_user_error(r, token, args[1])
+    assert_user_error(r, token, repr(float(args[1])).replace("inf", args[1]))
 
 
 def test_soil_respiration_options_reach_the_run_configuration():
@@ -1287,6 +1293,8 @@ BAD_VALUES = {
     "--walkers": ["3", "2"],
     "--render-seed": ["-1"],
     "--ceptometer-height-m": ["-1"],
+    "--soil-respiration": ["-1", "1e308"],
+    "--soil-respiration-q10": ["0.5", "1e308"],
     "--n-design": ["0", "1"],
     "--target-ess": ["0"],
     "--max-minutes": ["-1", "0"],

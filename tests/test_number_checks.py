@@ -47,6 +47,17 @@ def test_numpy_scalars_are_numbers_and_the_rest_is_refused(name):
             check(bad)
 
 
+def test_soil_respiration_has_an_upper_bound():
+    """R₁₀ had no upper bound: 1e308 µmol m⁻² s⁻¹ was taken and the chamber NEE came out infinite.
+    Arable soils respire ≈ 0.5–10 µmol m⁻² s⁻¹ at 10 °C; 100 is taken, above it is refused, naming
+    the parameter and the range."""
+    assert check_soil_respiration(100, 2.0) == (100.0, 2.0)
+    for bad in (100.5, 1e6, 1e308):
+        with pytest.raises(InputError, match=r"soil_respiration_umol_m2_s=.*\[0, 100\]") as e:
+            check_soil_respiration(bad, 2.0)
+        assert e.value.parameter == "soil_respiration_umol_m2_s"
+
+
 def test_seed_takes_numpy_integers_below_2_to_32():
     assert check_seed(np.int64(3)) == 3 and check_seed(np.uint32(2**32 - 1)) == 2**32 - 1
     for bad in (True, "3", 1.5, np.float32(3), -1, 2**32):

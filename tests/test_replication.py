@@ -323,6 +323,7 @@ def test_run_refuses_what_is_not_a_configuration():
         ("headings", "north", "headings"),
         ("chlorophyll_ug_cm2", -5.0, "chlorophyll_ug_cm2"),
         ("soil_respiration_q10", 0.5, "soil_respiration_q10"),
+        ("soil_respiration_umol_m2_s", 1e308, "soil_respiration_umol_m2_s"),
         ("parameter_file", "no_such_plant.xml", "parameter_file"),
     ],
 )

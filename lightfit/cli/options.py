@@ -629,9 +629,9 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--soil-respiration",
-            help="Soil and root respiration at 10 °C, µmol m⁻² s⁻¹, added to the chamber NEE only "
-            "(default 0: not modelled; from bare-soil readings, or night readings minus the leaves' "
-            "dark respiration, which the model adds itself; a reading R at air temperature T is "
+            help="Soil and root respiration at 10 °C, µmol m⁻² s⁻¹, 0–100 (arable soils ≈ 0.5–10), added to "
+            "the chamber NEE only (default 0: not modelled; from bare-soil readings, or night readings minus the "
+            "leaves' dark respiration, which the model adds itself; a reading R at air temperature T is "
             "R / Q10^((T − 10)/10) at 10 °C).",
             rich_help_panel=_PHOTO,
         ),
@@ -640,7 +640,7 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
         float | None,
         typer.Option(
             "--soil-respiration-q10",
-            help="Q10 of that respiration, its factor per 10 K of air temperature (default 2; 1: constant).",
+            help="Q10 of that respiration, its factor per 10 K of air temperature, 1–5 (default 2; 1: constant).",
             rich_help_panel=_PHOTO,
         ),
     ),

@@ -219,16 +219,23 @@ SOIL_RESPIRATION_Q10 = 2.0
 SOIL_RESPIRATION_T_REF_C = 10.0
 #: Q₁₀ accepted: 1 (no temperature dependence) to 5, beyond the range soils show (≈ 1.3–3.5).
 SOIL_RESPIRATION_Q10_RANGE = (1.0, 5.0)
+#: Highest R₁₀ accepted, µmol m⁻² ground s⁻¹: a typo guard. Soil (and root) respiration of arable
+#: soils at 10 °C is ≈ 0.5–10 µmol m⁻² s⁻¹ (Raich & Schlesinger 1992; Davidson & Janssens 2006; the
+#: summer peaks of manured, irrigated croplands, ≈ 15–20 at 20–25 °C, are ≈ 10 at 10 °C): 100 is
+#: ten times the top of that range. Beyond any bound, 1e308 made the chamber NEE infinite.
+MAX_SOIL_RESPIRATION_UMOL_M2_S = 100.0
 
 
 def check_soil_respiration(r10, q10) -> tuple[float, float]:
-    """``(R₁₀ ≥ 0 finite, Q₁₀ in :data:`SOIL_RESPIRATION_Q10_RANGE`)`` as floats, else
-    :class:`InputError` naming the parameter."""
+    """``(R₁₀ in [0, :data:`MAX_SOIL_RESPIRATION_UMOL_M2_S`], Q₁₀ in :data:`SOIL_RESPIRATION_Q10_RANGE`)``
+    as floats, else :class:`InputError` naming the parameter."""
     r10 = check_real(
         r10,
         "soil_respiration_umol_m2_s",
         0,
-        expected="soil respiration at 10 °C in µmol m⁻² s⁻¹, a finite number ≥ 0 (CO2 released)",
+        MAX_SOIL_RESPIRATION_UMOL_M2_S,
+        expected="soil respiration at 10 °C in µmol m⁻² s⁻¹, a number in "
+        f"[0, {MAX_SOIL_RESPIRATION_UMOL_M2_S:g}] (CO2 released; arable soils ≈ 0.5–10)",
     )
     lo, hi = SOIL_RESPIRATION_Q10_RANGE
     return r10, check_real(
