@@ -1295,6 +1295,7 @@ BAD_VALUES = {
     "--ceptometer-height-m": ["-1"],
     "--soil-respiration": ["-1", "1e308"],
     "--soil-respiration-q10": ["0.5", "1e308"],
+    "--photosynthesis-override": ["curvature=1.5", "a1=1e308", "vcmax_ref_umol_m2_s=1e30"],
     "--n-design": ["0", "1"],
     "--target-ess": ["0"],
     "--max-minutes": ["-1", "0"],

@@ -741,6 +741,16 @@ def test_overrides_replace_the_sets_numbers_and_refuse_bad_ones():
         ({"curvature": 1.5}, r"curvature=1.5.*in \(0, 1\]"),
         ({"vcmax_ref_umol_m2_s": float("nan")}, "vcmax_ref_umol_m2_s=nan.*finite"),
         ({"g0_mol_m2_s": 0.0}, "g0_mol_m2_s.*> 0 for the coupled"),
+        # finite but absurd: a1 1e308 gave NaN, Vcmax 1e30 a "converged" An of -1.5e28
+        ({"a1": 1e308}, r"a1=1e\+308.*a1 in \[0, 50\]: stomatal slopes"),
+        ({"vcmax_ref_umol_m2_s": 1e30}, r"vcmax_ref_umol_m2_s=1e\+30.*\[0, 1000\]"),
+        ({"rd_to_vcmax": 1e6}, r"rd_to_vcmax=.*\[0, 0.2\]"),
+        ({"quantum_yield": 0.6}, r"quantum_yield=0.6.*\[0, 0.5\]: at most 0.5 electrons"),
+        ({"o2_mmol_mol": 1001.0}, r"o2_mmol_mol=1001.0.*\[0, 1000\]"),
+        ({"g0_mol_m2_s": 2.0}, r"g0_mol_m2_s=2.0.*\[0, 1\]"),
+        ({"t_ref_k": 25.0}, r"t_ref_k=25.0.*\[273.15, 323.15\]"),
+        ({"ea_vcmax_j_mol": -1e30}, r"ea_vcmax_j_mol=-1e\+30.*\[0, 300000\]"),
+        ({"entropy_jmax_j_mol_k": 1e308}, r"entropy_jmax_j_mol_k=1e\+308.*\[400, 900\]"),
         (5, "photosynthesis_overrides=5"),
         ([("a1",)], r"\('a1',\)"),
     ]
@@ -748,6 +758,33 @@ def test_overrides_replace_the_sets_numbers_and_refuse_bad_ones():
         with pytest.raises(InputError, match=match) as e:
             with_overrides(base, overrides)
         assert e.value.parameter == "photosynthesis_overrides"
+
+
+def test_override_ranges_hold_every_named_sets_values():
+    """The credible ranges of overrides (OVERRIDE_RANGES) are typo guards: every named set's own
+    numbers, at the ends of the growth temperatures taken, lie inside them (an override by a set's own
+    value is always taken), and every overridable number has one but θ (domain (0, 1]) and gm
+    (inf: none)."""
+    from lightfit.photosynthesis.parameters import (
+        GROWTH_TEMPERATURE_RANGE_C,
+        OVERRIDABLE,
+        OVERRIDE_RANGES,
+        value_of,
+        with_overrides,
+    )
+
+    assert set(OVERRIDABLE) - set(OVERRIDE_RANGES) == {"curvature", "gm_mol_m2_s"}
+    assert set(OVERRIDE_RANGES) <= set(OVERRIDABLE)
+    sets = [ps.parameter_set(n) for n in ps.PARAMETER_SET_NAMES]
+    sets += [ps.parameter_set("winter_wheat", t) for t in GROWTH_TEMPERATURE_RANGE_C]
+    for p in sets:
+        own = {n: float(value_of(p, n)) for n in OVERRIDE_RANGES}
+        for name, v in own.items():
+            lo, hi, _ = OVERRIDE_RANGES[name]
+            assert lo <= v <= hi, (p.name, name, v)
+        with_overrides(p, own)  # taken
+    lo, hi, _ = OVERRIDE_RANGES["vcmax_ref_umol_m2_s"]
+    assert 655.0 < hi and with_overrides(sets[0], {"vcmax_ref_umol_m2_s": hi, "quantum_yield": 0.5})
 
 
 def test_parameter_sets_have_sources_and_values():

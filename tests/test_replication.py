@@ -315,6 +315,7 @@ def test_run_refuses_what_is_not_a_configuration():
         ("photosynthesis", "maize", "photosynthesis"),
         ("photosynthesis_overrides", {"curvature": 1.5}, "photosynthesis_overrides"),
         ("photosynthesis_overrides", {"g1": 4.0}, "photosynthesis_overrides"),
+        ("photosynthesis_overrides", {"a1": 1e308}, "photosynthesis_overrides"),
         ("ceptometer_height_m", -0.1, "ceptometer_height_m"),
         ("render_seed", "a", "render_seed"),
         ("row_spacing_m", 0.0, "row_spacing_m"),

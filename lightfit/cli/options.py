@@ -566,7 +566,8 @@ _OPTIONS: dict[str, tuple[Any, Any]] = {
             metavar="NAME=VALUE",
             help="Set one number of the photosynthesis set, e.g. vcmax_ref_umol_m2_s=85 (Vcmax at the set's "
             "reference temperature, 25 °C for winter_wheat) or a1=4.5 (Medlyn's g1, kPa^0.5, for winter_wheat); "
-            "repeat for more. Applied after the growth temperature. Names and units: docs/photosynthesis.md, "
+            "repeat for more. Applied after the growth temperature; each value within a range well beyond its "
+            "published one (Vcmax ≤ 1000, a1 ≤ 50, …). Names, units and ranges: docs/photosynthesis.md, "
             "'Your own values'.",
             rich_help_panel=_PHOTO,
         ),

@@ -565,6 +565,45 @@ def params_in_domain(params: PhotosynthesisParams) -> jax.Array:
 OVERRIDABLE: dict[str, str] = {label.split(".")[1]: label for label, *_ in _DOMAINS}
 
 
+_EA = (0.0, 300e3, "activation energies of C3 kinetics and capacities are ≈ 35–120 kJ mol⁻¹")
+#: Credible ranges of the numbers a run sets over its set (:func:`with_overrides`), name → (low, high,
+#: why), both ends taken: typo guards, each well beyond the parameter's published range and holding
+#: every named set's own value. The domains (:data:`_DOMAINS`) say only what the solver can do: a1,
+#: Vcmax or Rd/Vcmax of 1e30 gave "converged" fluxes of −1e28 µmol m⁻² s⁻¹, 1e308 NaN. Checked on the
+#: concrete overrides only; under ``jit`` (calibration) the domains alone apply.
+OVERRIDE_RANGES: dict[str, tuple[float, float, str]] = {
+    # leaf Vcmax25 of C3 crops ≈ 20–200 (wheat flag leaves 80–150, Silva-Pérez et al. 2020); the
+    # giraud2023 set's 655 at 20 °C must stay possible
+    "vcmax_ref_umol_m2_s": (0.0, 1000.0, "leaf Vcmax of C3 crops is ≈ 20–200 µmol m⁻² s⁻¹"),
+    # 1.4–2.6 (Wullschleger 1993; Kattge & Knorr 2007 give 2.2–1.4 over 0–35 °C growth)
+    "jmax_to_vcmax": (0.0, 5.0, "Jmax/Vcmax of C3 leaves is ≈ 1.4–2.6"),
+    # 0.01–0.03 (Collatz et al. 1991: 0.015; Atkin et al. 2015)
+    "rd_to_vcmax": (0.0, 0.2, "Rd/Vcmax of C3 leaves is ≈ 0.01–0.03"),
+    # linear electron transport takes two photons per electron (PSII and PSI): at most 0.5
+    "quantum_yield": (0.0, 0.5, "at most 0.5 electrons per absorbed photon (two photosystems); leaves ≈ 0.2–0.4"),
+    # a mole fraction: air 210 mmol mol⁻¹, pure O2 1000
+    "o2_mmol_mol": (0.0, 1000.0, "a mole fraction: 210 in air, 1000 in pure O2"),
+    # Medlyn g1 1.6–7.2 kPa^0.5 across plant types (Lin et al. 2015); Leuning / Tuzet a1 ≈ 5–20;
+    # CPlantBox's ratio 1.5–4
+    "a1": (0.0, 50.0, "stomatal slopes are ≈ 1–20 (Medlyn g1 1.6–7.2 kPa^0.5, Lin et al. 2015)"),
+    # Leuning (1995) D0 ≈ 0.35–3 kPa; air seldom reaches a VPD of 7 kPa
+    "d0_kpa": (0.0, 20.0, "Leuning's D0 is ≈ 0.35–3 kPa"),
+    # night conductances ≈ 0.01–0.1 mol H2O m⁻² s⁻¹ (Caird et al. 2007); a fully open leaf ≈ 1 mol
+    # H2O (0.6 CO2)
+    "g0_mol_m2_s": (0.0, 1.0, "residual conductances to CO2 are ≈ 0.0003–0.06 mol m⁻² s⁻¹"),
+    "t_ref_k": (273.15, 323.15, "a reference temperature of 0–50 °C (sets: 20.05 or 25 °C)"),
+    # at 25 °C: Kc ≈ 260–460 µmol mol⁻¹, Ko ≈ 150–500 mmol mol⁻¹, Γ* ≈ 35–45 µmol mol⁻¹ (von
+    # Caemmerer 2000; Bernacchi et al. 2001); ≈ 12×, 2× and 3× that at a 50 °C reference
+    "kc_ref_umol_mol": (0.0, 10e3, "Kc is ≈ 260–460 µmol mol⁻¹ at 25 °C"),
+    "ko_ref_mmol_mol": (0.0, 5e3, "Ko is ≈ 150–500 mmol mol⁻¹ at 25 °C"),
+    "gamma_star_ref_umol_mol": (0.0, 500.0, "Γ* is ≈ 35–45 µmol mol⁻¹ at 25 °C"),
+    **{f"ea_{n}_j_mol": _EA for n in ("kc", "ko", "gamma_star", "vcmax", "jmax", "rd")},
+    # Hd ≈ 150–220 kJ mol⁻¹, ΔS ≈ 480–720 J mol⁻¹ K⁻¹ (Medlyn et al. 2002; Kattge & Knorr 2007; CPlantBox 700)
+    **{f"hd_{n}_j_mol": (0.0, 500e3, "deactivation energies are ≈ 150–220 kJ mol⁻¹") for n in ("vcmax", "jmax")},
+    **{f"entropy_{n}_j_mol_k": (400.0, 900.0, "entropy terms are ≈ 480–720 J mol⁻¹ K⁻¹") for n in ("vcmax", "jmax")},
+}
+
+
 def _group(name: str) -> str:
     """The parameter group (``fvcb``, ``stomata``, …) holding the number ``name`` (:data:`OVERRIDABLE`)."""
     return OVERRIDABLE[name].split(".")[0]
@@ -626,7 +665,8 @@ def with_overrides(
     leaf's own measured Vcmax at the set's reference temperature and Medlyn's g1. They are applied
     last: an override of ``jmax_to_vcmax`` wins over the growth temperature's. The set keeps its
     name; its ``source`` lists what was set. :class:`InputError` naming ``parameter`` where a value
-    lies outside its domain (:func:`check_params`'s rules for the set's stomatal model)."""
+    lies outside its domain (:func:`check_params`'s rules for the set's stomatal model) or its
+    credible range (:data:`OVERRIDE_RANGES`)."""
     given = dict(check_overrides(overrides, parameter=parameter))
     if not given:
         return params
@@ -636,4 +676,8 @@ def with_overrides(
         name = label.split(".")[1]
         if name in given and not np.all(ok(np.asarray(value, float), np)):
             raise InputError(f"{name}={value!r}", parameter=parameter, expected=f"{name} {expected}")
+    for name, value in given.items():
+        lo, hi, why = OVERRIDE_RANGES.get(name, (-np.inf, np.inf, ""))
+        if not lo <= value <= hi:
+            raise InputError(f"{name}={value!r}", parameter=parameter, expected=f"{name} in [{lo:g}, {hi:g}]: {why}")
     return out
