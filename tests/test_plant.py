@@ -1031,6 +1031,34 @@ def test_exports_of_a_hand_built_mesh_read_back_by_face(tmp_path):
             export(mesh, tmp_path / f"id.{fmt}", {"segment_id": pd.Series({3: 0.0, 7: 1.0})})
 
 
+def test_the_obj_sidecar_reads_back_exactly_large_ids_full_precision_and_nan(tmp_path):
+    """The OBJ's sidecar CSV wrote every value with 12 significant digits: a parent id of plant
+    10⁷·10⁶ (14 digits) read back as 10001000007300 and An lost its last digits. Integer-valued
+    columns now read back as the same integers, the others as the same doubles, NaN as an empty cell."""
+    big = 10_001_000_007_295
+    mesh = Mesh(
+        vertices=np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0.05]]),
+        faces=np.array([[0, 1, 2], [1, 3, 2]]),
+        face_segment=np.array([big, 3]),
+        face_is_blade=np.array([True, False]),
+    )
+    an = 0.1 + 2.0**-40  # needs 17 significant digits
+    values = {
+        "an": pd.Series({big: an, 3: np.nan}),
+        "parent": pd.Series({big: float(big - 1), 3: -1.0}),
+        "tiller": pd.Series({big: np.nan, 3: 2.0}),
+    }
+    obj = export(mesh, tmp_path / "m.obj", values)
+    text = (tmp_path / "m.segments.csv").read_text().splitlines()
+    assert text[0] == "segment_id,an,parent,tiller"
+    assert text[1:] == ["3,,-1,2", f"{big},{an!r},{big - 1},"]  # NaN: an empty cell
+    side = pd.read_csv(obj.with_suffix(".segments.csv"))
+    assert side["segment_id"].tolist() == [3, big]
+    assert side["parent"].tolist() == [-1, big - 1] and side["parent"].dtype == np.int64
+    assert np.isnan(side["an"][0]) and side["an"][1] == an  # exact, not to 12 digits
+    assert np.isnan(side["tiller"][1]) and side["tiller"][0] == 2.0
+
+
 def test_a_nan_value_and_a_large_id_read_back_from_vtk_as_paraview_reads_it(tmp_path):
     """Leaf An is NaN on stems (docs/dataset.md), so every dataset's field_values.vtk held NaN: the
     ASCII file said ``nan``, which VTK's reader (C++ ``>>``, so ParaView's) cannot read, and the

@@ -113,7 +113,15 @@ def write_obj(
                 for k, v in fv.items()
             }
         )
-        side.to_csv(sidecar_path(path), index=False, float_format="%.12g")  # ids and flags read as integers
+        # Integer-valued columns (ids, flags, counts) as integers, exact at any size (%.12g rounded a
+        # parent id of 10001000007295 to 1.00010000073e+13); the others as the shortest text that
+        # reads back to the same double. NaN: an empty cell.
+        for k in fv:
+            v = side[k].to_numpy()
+            known = ~np.isnan(v)  # ±inf keeps its column float
+            if np.all(np.isfinite(v[known]) & (v[known] == np.round(v[known])) & (np.abs(v[known]) <= 2.0**53)):
+                side[k] = pd.Series(np.where(known, v, 0).astype(np.int64), dtype="Int64").mask(~known)
+        side.to_csv(sidecar_path(path), index=False)
     return path
 
 
