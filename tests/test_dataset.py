@@ -1480,3 +1480,36 @@ def test_gallery_panels_name_their_quantity_in_words(mono_dataset, monkeypatch):
     titles = [a.get_title() for a in seen[0].axes]
     assert "PAR absorbed by the segment" in titles and "absorbed_par" not in titles
     assert "limiting process of leaf photosynthesis\n0 Rubisco limited, 1 electron transport limited" in titles
+
+
+def test_gallery_class_map_has_one_colour_per_class_named_on_its_bar(mono_dataset, monkeypatch):
+    """The limitation panel (codes 0 Rubisco limited, 1 electron transport limited) was drawn on a
+    continuous viridis scale whose colour bar ran 0.0 … 1.0 with fractional ticks and read
+    "dimensionless". Now each class has one colour (red Rubisco limited, blue electron-transport
+    limited, as on the margin's scale) and the bar's two ticks name the classes, as the schema's
+    flag meanings do."""
+    from matplotlib.colors import to_rgba
+    from matplotlib.figure import Figure
+
+    from lightfit.dataset.gallery import gallery
+
+    out, meta = mono_dataset
+    entry = meta["images"][0]
+    lim = _labels(out, entry)["limitation"]
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: seen.append(fig))
+    gallery(out, [entry], ["absorbed_par", "limitation"], {"absorbed_par": "umol m-2 s-1", "limitation": "1"})
+    (ax,) = [a for a in seen[0].axes if a.get_title().startswith("limiting process")]
+    im = ax.images[0]
+    bar = im.colorbar
+    assert list(bar.get_ticks()) == [0, 1]
+    names = [" ".join(t.get_text().split()) for t in bar.ax.get_yticklabels()]
+    assert names == ["Rubisco limited", "electron transport limited"]
+    assert bar.ax.get_ylabel() == ""  # a class has no unit ("dimensionless" said nothing)
+    # exactly two colours, one per class: red for code 0, blue for code 1
+    rgba = im.to_rgba(im.get_array())
+    drawn = {tuple(c) for c in rgba[lim >= 0].reshape(-1, 4)}
+    assert drawn == {tuple(to_rgba(im.cmap(0))), tuple(to_rgba(im.cmap(1)))}
+    r0, _, b0, _ = im.cmap(0)
+    r1, _, b1, _ = im.cmap(1)
+    assert r0 > b0 and b1 > r1

@@ -3,8 +3,10 @@
 Columns: the tone-mapped image, segment ids (one colour per segment), absorbed PAR, and the
 limitation margin (Vj − Vc)/(Vj + Vc) on a divergent red/blue scale centred on 0 — red where
 Fj > Fc (Rubisco limited), blue where Fj < Fc (electron-transport limited) — or, when Vc/Vj are
-not in the results, the first other quantity. Pixels without a value (NaN, or a class map's −1)
-show the panel's dark background.
+not in the results, the first other quantity. A class map (``limitation``) is drawn in one colour
+per class (red Rubisco limited, blue electron-transport limited, as on the margin's scale), its
+colour bar naming the classes. Pixels without a value (NaN, or a class map's −1) show the panel's
+dark background.
 
 The figure's title says what it shows (data honesty): the results file and whether its values are a
 model run or synthetic, the provenance of the forcing the run was driven by and of the sun and sky
@@ -15,6 +17,7 @@ time zone; each row gives its image's local time (the file names carry UTC).
 from __future__ import annotations
 
 from pathlib import Path
+from textwrap import fill
 
 import numpy as np
 
@@ -45,6 +48,24 @@ def quantity_title(name: str) -> str:
         return name
     codes = [f for f in var.flags.split(", ") if f and not f.startswith("-1 ")]
     return var.long_name + ("\n" + ", ".join(codes) if codes else "")
+
+
+#: A class map's colours by code: 0 red, 1 blue, so that ``limitation``'s Rubisco-limited class is
+#: red and its electron-transport-limited class blue, as on the margin's divergent scale.
+CLASS_COLOURS = ("#d6604d", "#4393c3", "#7fbf7b", "#c2a5cf")
+
+
+def class_codes(name: str) -> list[tuple[int, str]]:
+    """A class map's codes and their meanings from the results schema's flags (``limitation``:
+    ``[(0, "Rubisco limited"), (1, "electron transport limited")]``), without the −1 "no value"
+    code (not drawn); ``[]`` for a quantity that is not a class map."""
+    from lightfit.model import schema
+
+    var = schema.VARIABLES.get(QUANTITIES.get(name, name))
+    if var is None or not var.flags:
+        return []
+    pairs = [f.split(" ", 1) for f in var.flags.split(", ")]
+    return [(int(v), m) for v, m in pairs if int(v) != NO_CLASS]
 
 
 def _columns(quantities: list[str]) -> list[str]:
@@ -109,7 +130,7 @@ def gallery(
 
         title, tz = gallery_title(results, lighting, times), _site(results).timezone
     # The object API needs no pyplot backend: safe in any process (tests, notebooks, servers).
-    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.colors import BoundaryNorm, ListedColormap, TwoSlopeNorm
     from matplotlib.figure import Figure
     from PIL import Image
 
@@ -141,12 +162,27 @@ def gallery(
                 a.set_title(
                     "(Vj−Vc)/(Vj+Vc): red Fj>Fc, Rubisco limited;\nblue Fj<Fc, electron-transport limited", fontsize=8
                 )
+            elif labels[q].dtype.kind in "iu" and class_codes(q):  # classes: one colour each, named on the bar
+                codes = class_codes(q)
+                values = [c for c, _ in codes]
+                edges = [values[0] - 0.5, *(c + 0.5 for c in values)]
+                im = a.imshow(
+                    v,
+                    cmap=ListedColormap(CLASS_COLOURS[: len(codes)]),
+                    norm=BoundaryNorm(edges, len(codes)),
+                    interpolation="nearest",
+                )
+                a.set_title(quantity_title(q), fontsize=8)
             else:
                 im = a.imshow(v, cmap="viridis")
                 a.set_title(quantity_title(q), fontsize=8)
             a.set_facecolor("0.15")
             bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
-            if units.get(q):  # a ratio's CF unit "1" read as a number on the bar; the others in the figures' style
+            if q != MARGIN and labels[q].dtype.kind in "iu" and class_codes(q):  # named classes, no unit
+                bar.set_ticks([c for c, _ in class_codes(q)])
+                bar.set_ticklabels([fill(m, 12) for _, m in class_codes(q)], fontsize=7)
+                bar.minorticks_off()
+            elif units.get(q):  # a ratio's CF unit "1" read as a number on the bar; the others in the figures' style
                 bar.set_label(unit_label(units[q]), fontsize=7)
         for a in ax:
             a.set_xticks([])
