@@ -564,7 +564,9 @@ def calibrate(
         fixed: values of the parameters not calibrated (default: ``Theta()``), inside their domains
             (a mapping or a :class:`Theta`, whose concrete values are checked as a mapping's).
         method: ``"bfgs"`` (rtol/atol: optimistix's Cauchy termination on parameters and loss) or
-            ``"lbfgsb"`` (gtol: ∞-norm of the projected gradient step, loss per natural unit). On
+            ``"lbfgsb"`` (gtol: ∞-norm of the projected gradient step, loss per natural unit; it
+            converges when that norm is ≤ gtol and no parameter stands short of a bound its
+            projected gradient step reaches, where the norm is only the distance to the bound). On
             rendered losses L-BFGS-B usually ends with ``"failed: line search"`` at the optimum: loss
             and gradient disagree below ≈ 1e-4 in the parameters (float32 renders; on the twin
             benchmark the gradient is ≈ −0.05 where the loss is lowest), so no Wolfe step exists.
@@ -831,7 +833,10 @@ def _reason(
     if stopped_by == "converged":
         if method == "bfgs":
             return f"converged: parameter and loss changes within rtol {rtol:g}, atol {atol:g}"
-        return f"converged: projected gradient ∞-norm ≤ gtol {gtol:g}"
+        return (
+            f"converged: projected gradient ∞-norm ≤ gtol {gtol:g}, "
+            "no parameter short of a bound its projected gradient step reaches"
+        )
     if stopped_by == "max_steps":
         limit = f"step limit: {max_steps} accepted step{'s' * (max_steps != 1)}"
         # a resume with a smaller max_steps than the steps already taken: it took none, and said it stopped at max_steps
