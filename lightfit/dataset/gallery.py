@@ -46,7 +46,7 @@ def quantity_title(name: str) -> str:
     var = schema.VARIABLES.get(QUANTITIES.get(name, name))
     if var is None:
         return name
-    codes = [f for f in var.flags.split(", ") if f and not f.startswith("-1 ")]
+    codes = [f"{c} {m}" for c, m in class_codes(name)]
     return var.long_name + ("\n" + ", ".join(codes) if codes else "")
 
 
