@@ -884,6 +884,16 @@ UPTAKE_SIGN = {
 }
 
 
+def _readings_in_light(
+    obs: pd.DataFrame, forcing: pd.DataFrame, col: str, par_min: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The finite readings of ``col`` whose nearest step of ``forcing`` (within :data:`NEAR_STEP`) has
+    PAR ≥ ``par_min`` µmol m⁻² s⁻¹: a mask over ``obs``' rows and each row's step (index into ``forcing``)."""
+    idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
+    par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
+    return (dist <= NEAR_STEP) & (par >= par_min) & np.isfinite(obs[col].to_numpy(float)), idx
+
+
 def co2_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "nee") -> str | None:
     """A caution naming the file and column where every reading (two or more) of the CO2 flux
     ``name`` (:data:`UPTAKE_SIGN`) at a step of ``forcing`` with PAR above
@@ -897,10 +907,8 @@ def co2_sign_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "nee"
     col = BY_NAME[name].value
     if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
         return None
-    idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
-    par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
+    sel, _ = _readings_in_light(obs, forcing, col, UPTAKE_PAR_UMOL_M2_S)
     value = obs[col].to_numpy(float)
-    sel = (dist <= NEAR_STEP) & (par >= UPTAKE_PAR_UMOL_M2_S) & np.isfinite(value)
     if sel.sum() >= 2 and (uptake * value[sel] < 0).all():
         release, taken = ("positive", "negative") if uptake < 0 else ("negative", "positive")
         nearest = value[sel].min() if uptake < 0 else value[sel].max()
@@ -942,15 +950,6 @@ UNIT_SLIPS = {
 UNIT_SLIP_TOLERANCE = 1.5
 
 
-def _bright_readings(obs: pd.DataFrame, forcing: pd.DataFrame, col: str) -> tuple[np.ndarray, np.ndarray]:
-    """The readings of ``col`` whose nearest step of ``forcing`` (within :data:`NEAR_STEP`) has PAR ≥
-    :data:`BRIGHT_PAR_UMOL_M2_S`: a mask over ``obs``' rows and each row's step (index into ``forcing``)."""
-    idx, dist = nearest_steps(obs, forcing.index, timestamps.of(forcing))
-    par = forcing["par_umol_m2_s"].to_numpy(float)[idx]
-    value = obs[col].to_numpy(float)
-    return (dist <= NEAR_STEP) & (par >= BRIGHT_PAR_UMOL_M2_S) & np.isfinite(value), idx
-
-
 def co2_unit_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "canopy_an") -> str | None:
     """A caution naming the file and column where the CO2 flux ``name`` (``canopy_an`` or ``nee``)
     stays below :data:`CO2_IN_MG_MAX` in size at every reading in full light (forcing PAR ≥
@@ -961,7 +960,7 @@ def co2_unit_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str = "cano
     col = BY_NAME[name].value
     if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
         return None
-    sel, _ = _bright_readings(obs, forcing, col)
+    sel, _ = _readings_in_light(obs, forcing, col, BRIGHT_PAR_UMOL_M2_S)
     if not sel.any():
         return None
     largest = float(np.abs(obs[col].to_numpy(float)[sel]).max())
@@ -985,7 +984,7 @@ def unit_slip_caution(obs: pd.DataFrame, forcing: pd.DataFrame, name: str, model
     col = BY_NAME[name].value
     if col not in obs.columns or "par_umol_m2_s" not in forcing.columns or not len(obs):
         return None
-    sel, idx = _bright_readings(obs, forcing, col)
+    sel, idx = _readings_in_light(obs, forcing, col, BRIGHT_PAR_UMOL_M2_S)
     times = pd.DatetimeIndex(model.index)
     times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
     at = pd.Series(np.asarray(model, float), index=times).reindex(forcing.index[idx].tz_convert("UTC"))
