@@ -144,6 +144,27 @@ def _clock(ts: pd.Timestamp, zone: str, seconds: bool = False) -> str:
     return ts.tz_convert(zone).strftime("%Y-%m-%d %H:%M:%S" if seconds else "%Y-%m-%d %H:%M")
 
 
+def _whole_steps(out: pd.DataFrame, whole, attrs: dict, freq, needs: str, stamped: str, dropped: list) -> pd.DataFrame:
+    """``out`` (new steps of :func:`resample`) without those ``whole`` marks False, the steps at the
+    series' ends that it covers only in part, each named in a ``"dropped"`` entry appended to
+    ``dropped`` (the series' ``qc``): a mean needs ``needs``; ``stamped``: where each mean is stamped."""
+    whole = np.asarray(whole, bool)
+    if whole.all():
+        return out
+    dropped.append(
+        {
+            "kind": "dropped",
+            "column": None,
+            "count": int((~whole).sum()),
+            "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers only in part "
+            f"(a mean needs {needs}): "
+            + ", ".join(_in_file_zone(attrs)(t) for t in out.index[~whole])
+            + f" ({_zone_said(attrs)}, stamped at each mean's {stamped})",
+        }
+    )
+    return out[whole]
+
+
 def _zone_said(attrs: dict) -> str:
     """The file's zone as people write it (``UTC+1``, not tzdata's ``Etc/GMT-1``)."""
     return zone_label(_file_zone(attrs))
@@ -548,20 +569,8 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             side = "right" if source.label == "end" else "left"
             bins = df[measured].resample(step, closed=side, label=side, origin=edge)
             out, n = bins.mean(), bins.size()
-            whole = n == step // source.interval
-            if not whole.all():  # the series' first and last new steps may reach past its ends
-                dropped.append(
-                    {
-                        "kind": "dropped",
-                        "column": None,
-                        "count": int((~whole).sum()),
-                        "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers only "
-                        "in part (a mean needs every source interval inside it): "
-                        + ", ".join(_in_file_zone(df.attrs)(t) for t in out.index[~whole.to_numpy()])
-                        + f" ({_zone_said(df.attrs)}, stamped at each mean's {source.label})",
-                    }
-                )
-                out = out[whole]
+            whole = n == step // source.interval  # the series' first and last new steps may reach past its ends
+            out = _whole_steps(out, whole, df.attrs, freq, "every source interval inside it", source.label, dropped)
             stamps = Timestamps(source.label, step)
         else:  # instants or centred means: a window centred on each new stamp
             shifted = df[measured].copy()
@@ -582,19 +591,7 @@ def resample(df: pd.DataFrame, freq: str = "30min", how: str = "mean", origin=No
             if len(gaps):
                 half = gaps.median() / 2
                 whole = (out.index - step / 2 >= df.index[0] - half) & (out.index + step / 2 <= df.index[-1] + half)
-                if not whole.all():
-                    dropped.append(
-                        {
-                            "kind": "dropped",
-                            "column": None,
-                            "count": int((~whole).sum()),
-                            "detail": f"{int((~whole).sum())} {freq} step(s) at the series' ends that it covers "
-                            "only in part (a mean needs data over its whole window): "
-                            + ", ".join(_in_file_zone(df.attrs)(t) for t in out.index[~whole])
-                            + f" ({_zone_said(df.attrs)}, stamped at each mean's centre)",
-                        }
-                    )
-                    out = out[whole]
+                out = _whole_steps(out, whole, df.attrs, freq, "data over its whole window", "centre", dropped)
             stamps = Timestamps("center", step)
         if dropped and not len(out):  # every step reaches past the series' ends: no mean is whole
             raise InputError(
