@@ -332,11 +332,11 @@ def figure(ds, compare=None):
     for ax in (ax_a, ax_b, ax_c):
         ax.grid(alpha=0.3)
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
-    from lightfit.weather.plot import provenance_label
+    from lightfit.weather.plot import provenance_label, source_names
 
     prov = provenance_label(ds.attrs, "weather_provenance", "weather_date_given")
     # several days' results list each day's file where they differ (concat_days)
-    src = "; ".join(dict.fromkeys(Path(s).name for s in str(ds.attrs.get("weather_source", "")).split("; ")))
+    src = source_names(ds.attrs)
     lines = [
         f"{ds.attrs.get('site', 'Selhausen')} {ds.attrs.get('date', day)} — {prov} forcing ({src}); "
         f"{run_size(ds.attrs)}",

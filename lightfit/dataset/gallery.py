@@ -83,14 +83,14 @@ def gallery_title(res, lighting: dict | None = None, times_utc=()) -> str:
     import pandas as pd
 
     from lightfit.dataset.results import _site, synthetic_values
-    from lightfit.weather.plot import provenance_label
+    from lightfit.weather.plot import provenance_label, source_names
     from lightfit.weather.site import zone_label
 
     a = res.ds.attrs
     source = Path(res.path).name if res.path else "results given in memory"
     line = f"Labels from {source}: " + ("SYNTHETIC values (not a model run)" if synthetic_values(a) else "model output")
     if not synthetic_values(a) or "weather_provenance" in a:  # a synthetic file was driven by no forcing
-        wx = "; ".join(dict.fromkeys(Path(s).name for s in str(a.get("weather_source", "")).split("; ") if s))
+        wx = source_names(a)
         line += f"; {provenance_label(a, 'weather_provenance', 'weather_date_given')} forcing" + (
             f" ({wx})" if wx else ""
         )
@@ -154,6 +154,7 @@ def gallery(
         for j, q in enumerate(cols):
             a = ax[2 + j]
             v = np.ma.masked_invalid(labels[q].astype(float))
+            codes = class_codes(q) if labels[q].dtype.kind in "iu" else []  # a class map's (code, meaning)
             if labels[q].dtype.kind in "iu":  # a class map: its "no value" code is no class (was painted as one)
                 v = np.ma.masked_where(labels[q] == NO_CLASS, v)
             if q == MARGIN:
@@ -162,8 +163,7 @@ def gallery(
                 a.set_title(
                     "(Vj−Vc)/(Vj+Vc): red Fj>Fc, Rubisco limited;\nblue Fj<Fc, electron-transport limited", fontsize=8
                 )
-            elif labels[q].dtype.kind in "iu" and class_codes(q):  # classes: one colour each, named on the bar
-                codes = class_codes(q)
+            elif codes:  # classes: one colour each, named on the bar
                 values = [c for c, _ in codes]
                 edges = [values[0] - 0.5, *(c + 0.5 for c in values)]
                 im = a.imshow(
@@ -178,9 +178,9 @@ def gallery(
                 a.set_title(quantity_title(q), fontsize=8)
             a.set_facecolor("0.15")
             bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
-            if q != MARGIN and labels[q].dtype.kind in "iu" and class_codes(q):  # named classes, no unit
-                bar.set_ticks([c for c, _ in class_codes(q)])
-                bar.set_ticklabels([fill(m, 12) for _, m in class_codes(q)], fontsize=7)
+            if q != MARGIN and codes:  # named classes, no unit
+                bar.set_ticks([c for c, _ in codes])
+                bar.set_ticklabels([fill(m, 12) for _, m in codes], fontsize=7)
                 bar.minorticks_off()
             elif units.get(q):  # a ratio's CF unit "1" read as a number on the bar; the others in the figures' style
                 bar.set_label(unit_label(units[q]), fontsize=7)

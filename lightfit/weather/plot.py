@@ -16,6 +16,12 @@ from lightfit.weather.site import SELHAUSEN, zone_label  # noqa: E402
 from lightfit.weather.units import PAR_PER_GHI_UMOL_J  # noqa: E402
 
 
+def source_names(attrs: dict, key: str = "weather_source") -> str:
+    """The file name(s) of the forcing in results ``attrs`` for a title: each once, ``"; "``-separated
+    where several days' results list each day's (:func:`lightfit.replication.concat_days`)."""
+    return "; ".join(dict.fromkeys(Path(s).name for s in str(attrs.get(key, "")).split("; ") if s))
+
+
 def provenance_label(attrs: dict, key: str = "provenance", date_key: str = "date_given") -> str:
     """Upper-case provenance word for titles, so a reconstruction is never mistaken for data
     (``UNSTATED-PROVENANCE`` where neither the file nor the user said what it is); an undated
