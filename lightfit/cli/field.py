@@ -159,10 +159,7 @@ def field(
     # A crew's canopy height is a typical plant's top, not the one tallest leaf tip of the field.
     tops = meas[["z0", "z1"]].max(axis=1).groupby(meas["plant_id"]).max()
     t.add_row("plant height, mean of the measured plants' tops (m)", f"{tops.mean():.3f}")
-    faces = np.isin(geom.mesh.face_segment, meas["segment_id"].to_numpy())
-    measured_mesh = plant.Mesh(
-        geom.mesh.vertices, geom.mesh.faces[faces], geom.mesh.face_segment[faces], geom.mesh.face_is_blade[faces]
-    )
+    measured_mesh = geom.mesh.of_faces(np.isin(geom.mesh.face_segment, meas["segment_id"].to_numpy()))
     t.add_row(
         "highest point of the measured plants' mesh (m)", f"{measured_mesh.vertices[measured_mesh.faces, 2].max():.3f}"
     )

@@ -307,7 +307,6 @@ def export_field(mesh, values: dict[str, pd.Series], path: Path, notes: dict[str
     the file's header.
     """
     from lightfit.plant import export
-    from lightfit.plant.mesh import Mesh
 
     numeric = {q: v.astype(float) for q, v in values.items()}
     keep = np.zeros(mesh.n_faces, dtype=bool)
@@ -315,7 +314,7 @@ def export_field(mesh, values: dict[str, pd.Series], path: Path, notes: dict[str
         keep |= np.isfinite(v.reindex(mesh.face_segment).to_numpy())
     if not keep.any():
         return {"file": None, "faces": 0, "faces_left_out": int(mesh.n_faces), "reason": "no segment has finite values"}
-    sub = Mesh(mesh.vertices, mesh.faces[keep], mesh.face_segment[keep], mesh.face_is_blade[keep])
+    sub = mesh.of_faces(keep)
     export(sub, path, values=numeric, notes=notes)
     return {"file": path.name, "faces": int(keep.sum()), "faces_left_out": int((~keep).sum()), "values": list(numeric)}
 

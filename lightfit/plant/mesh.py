@@ -105,6 +105,10 @@ class Mesh:
         tilt = np.degrees(np.arccos(np.clip(np.abs(self.normals()[blade, 2]), 0.0, 1.0)))
         return float(np.average(tilt, weights=self.face_areas()[blade]))
 
+    def of_faces(self, keep: np.ndarray) -> Mesh:
+        """The mesh of the faces ``keep`` marks ((F,) bool), its vertices shared (unused ones kept)."""
+        return Mesh(self.vertices, self.faces[keep], self.face_segment[keep], self.face_is_blade[keep])
+
     def area_per_segment(self) -> pd.Series:
         """Mesh area per segment id, m²."""
         return pd.Series(self.face_areas()).groupby(self.face_segment).sum()
