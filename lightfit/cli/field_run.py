@@ -10,7 +10,7 @@ import typer
 
 from lightfit.cli.common import THETA_HELP, caution, console, parse_theta, theta_cautions
 from lightfit.cli.options import DASK_PANEL as _DASK
-from lightfit.cli.options import ModelOptions, Scheduler, Workers, model_options, resolve, scenario
+from lightfit.cli.options import ConnectTimeout, ModelOptions, Scheduler, Workers, model_options, resolve, scenario
 from lightfit.errors import InputError
 
 
@@ -38,12 +38,7 @@ def field_run(
     timeout: float = typer.Option(
         None, help="Give up waiting for the tasks after this many seconds (default: no limit).", rich_help_panel=_DASK
     ),
-    connect_timeout: float = typer.Option(
-        30.0,
-        help="Give up connecting to --scheduler, or to the embedded cluster started without one, after this "
-        "many seconds.",
-        rich_help_panel=_DASK,
-    ),
+    connect_timeout: ConnectTimeout = 30.0,
     theta: str = typer.Option(None, help=THETA_HELP),
     progress: bool = typer.Option(True, help="Progress bar over tiles."),
     resume: bool = typer.Option(

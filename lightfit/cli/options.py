@@ -826,11 +826,11 @@ Workers = workers_option("one per GPU, else one per core, at most one per 2 GiB 
 #: ``--workers`` of commands whose Dask use is optional (the emulator design of calibrate and posterior).
 DesignWorkers = workers_option("no cluster: the design is rendered in this process unless --workers or --scheduler")
 
-#: ``--connect-timeout`` of calibrate and posterior, as field-run's: how long to wait for the cluster.
+#: ``--connect-timeout`` of every command with Dask options: how long to wait for the cluster.
 ConnectTimeout = Annotated[
     float,
     typer.Option(
-        help="Give up connecting to --scheduler, or to the embedded cluster of --workers, after this many seconds.",
+        help="Give up connecting to --scheduler, or to the embedded cluster, after this many seconds.",
         rich_help_panel=DASK_PANEL,
     ),
 ]
