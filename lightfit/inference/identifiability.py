@@ -60,10 +60,19 @@ class FisherResult:
         ]
 
 
+def oriented(vec) -> np.ndarray:
+    """``vec`` (one direction, or directions as columns) with each one's largest-magnitude entry
+    positive, as :func:`combination` writes it (an all-zero one as it is): a direction and its
+    opposite are one combination, and eigh's sign is arbitrary."""
+    vec = np.asarray(vec, float)
+    cols = vec.reshape(len(vec), -1)
+    sign = np.sign(cols[np.argmax(np.abs(cols), axis=0), np.arange(cols.shape[1])])
+    return (cols * np.where(sign == 0, 1.0, sign)).reshape(vec.shape)
+
+
 def combination(vec, names, scale: str = "log") -> str:
     """Human-readable combination, e.g. ``+0.71 log specular −0.70 log subsurface`` (|entry| ≥ 0.1)."""
-    vec = np.asarray(vec, float)
-    vec = vec * np.sign(vec[np.argmax(np.abs(vec))])
+    vec = oriented(vec)
     pre = "log " if scale == "log" else ""
     terms = [f"{v:+.2f} {pre}{n}" for v, n in sorted(zip(vec, names), key=lambda t: -abs(t[0])) if abs(v) >= 0.1]
     return " ".join(terms)
@@ -108,7 +117,7 @@ def fisher_information(residuals, x0, names, scale: str = "log") -> FisherResult
     lam, vec = lam[order], vec[:, order]
     # each eigenvector oriented as combination() writes it (its largest entry positive): eigh's sign is
     # arbitrary, and a profile stored along a column read as the combination's string was mirrored
-    vec = vec * np.sign(vec[np.argmax(np.abs(vec), axis=0), np.arange(vec.shape[1])])
+    vec = oriented(vec)
     return FisherResult(names, x0, scale, F, lam, vec)
 
 

@@ -330,14 +330,6 @@ def run_status(path: str | Path, group: str = "mcmc") -> dict:
     }
 
 
-def _largest_entry_sign(vec: np.ndarray) -> np.ndarray:
-    """Sign (±1) of each column's largest-magnitude entry (a vector: its own); 1 for an all-zero column."""
-    vec = np.asarray(vec, float)
-    cols = vec.reshape(len(vec), -1)
-    sign = np.sign(cols[np.argmax(np.abs(cols), axis=0), np.arange(cols.shape[1])])
-    return np.where(sign == 0, 1.0, sign)
-
-
 #: The stored profile's per-point arrays, one value per offset ``t``.
 PROFILE_POINTS = ("t", "profile_nll", "slice_nll", "in_prior_box")
 
@@ -349,11 +341,14 @@ def oriented_analysis(an: dict) -> dict:
     were oriented kept eigh's arbitrary sign: a profile stored along ``-d`` read against the
     combination of ``d`` was mirrored. A mirrored direction is flipped with its offsets ``t`` (and the
     profile's points reordered so that ``t`` still ascends); an oriented run is returned as stored."""
+    from lightfit.inference.identifiability import oriented
+
     fisher, profile = an.get("fisher"), an.get("profile")
     if isinstance(fisher, dict) and np.ndim(fisher.get("eigenvectors")) == 2:
-        fisher["eigenvectors"] = np.asarray(fisher["eigenvectors"]) * _largest_entry_sign(fisher["eigenvectors"])
+        fisher["eigenvectors"] = oriented(fisher["eigenvectors"])
     if isinstance(profile, dict) and np.ndim(profile.get("direction")) == 1 and "t" in profile:
-        if _largest_entry_sign(profile["direction"])[0] < 0:
+        d = np.asarray(profile["direction"], float)
+        if np.dot(oriented(d), d) < 0:  # stored along the opposite of its combination
             profile["direction"] = -np.asarray(profile["direction"])
             profile["t"] = -np.asarray(profile["t"])
             for k in PROFILE_POINTS:  # t ascending again
