@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.errors import InputError, listed, parse_date
-from lightfit.files import replace_text
+from lightfit.files import NETCDF_MAGIC, replace_text
 from lightfit.weather import timestamps, units
 from lightfit.weather.series import COLUMNS, DEFAULT_MAX_GAP, check_and_repair, parse_numeric, record_sorted
 from lightfit.weather.site import check_timezone, localize, offset_label, zone_label
@@ -195,7 +195,8 @@ _BINARY = {
     b"\x89PNG": "a PNG image",
     b"\xff\xd8\xff": "a JPEG image",
     b"%PDF": "a PDF document",
-    b"\x89HDF": "an HDF5 / netCDF-4 file",
+    # files.NETCDF_MAGIC: netCDF-4 is HDF5
+    **{magic: "an HDF5 / netCDF file" for magic in NETCDF_MAGIC},
 }
 
 
