@@ -29,6 +29,8 @@ for light from ω_i is :math:`1 - F_0 E_{GGX}(\theta_i) - (1 - F_0)c`.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from lightfit.files import UNREADABLE_NPZ, replaced
@@ -272,7 +274,6 @@ def leaf_bsdf_dict(specular: float, roughness: float, subsurface: float, base_co
     }
 
 
-_ALBEDO_TABLE: dict[str, np.ndarray] = {}
 #: Bump when :func:`_compute_table` changes what it estimates: stored tables are then not read.
 #: 2: midpoint quadrature instead of Monte Carlo (16 384 samples per cell: errors up to 8e-3 and
 #: roughness slopes up to 14 % off).
@@ -285,6 +286,7 @@ TABLE_R = np.linspace(0.0, 1.0, 33)  # roughness r; α = max(r², ALPHA_MIN)
 TABLE_QUADRATURE = (400, 64)
 
 
+@functools.cache
 def ggx_albedo_table() -> np.ndarray:
     r"""Directional albedo :math:`E(\mu, r)` of the unit-weight GGX lobe (F = 1), tabulated.
 
@@ -294,26 +296,19 @@ def ggx_albedo_table() -> np.ndarray:
     μ and roughness r. E = 1 at normal incidence for smooth surfaces and falls at grazing incidence
     and high roughness (shadowing-masking).
     """
-    key = mitsuba().variant()
-    if key not in _ALBEDO_TABLE:
-        _ALBEDO_TABLE[key] = _stored_table(key, *TABLE_QUADRATURE)
-    return _ALBEDO_TABLE[key]
+    return _stored_table(*TABLE_QUADRATURE)
 
 
-def _stored_table(variant: str, n_theta: int, n_phi: int) -> np.ndarray:
+def _stored_table(n_theta: int, n_phi: int) -> np.ndarray:
     """:func:`ggx_albedo_table` kept on disk (``<cache root>/tables``, :mod:`lightfit.cache`): it
     costs about a second of CPU in every process. The file name carries everything the table
-    depends on (format, variant, Mitsuba version, grid, quadrature nodes), so a stale file is never
-    read; a file that does not load as the expected finite table is recomputed and replaced."""
+    depends on (format, grid, quadrature nodes; a numpy quadrature, the same in every Mitsuba
+    variant), so a stale file is never read; a file that does not load as the expected finite
+    table is recomputed and replaced."""
     from lightfit.cache import cache_root
 
-    mi = mitsuba()
     shape = (len(TABLE_MU), len(TABLE_R))
-    path = (
-        cache_root()
-        / "tables"
-        / f"ggx_albedo_v{_TABLE_FORMAT}_{variant}_{mi.__version__}_{shape[0]}x{shape[1]}_{n_theta}_{n_phi}.npy"
-    )
+    path = cache_root() / "tables" / f"ggx_albedo_v{_TABLE_FORMAT}_{shape[0]}x{shape[1]}_{n_theta}_{n_phi}.npy"
     try:
         table = np.load(path)
         if table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all():
