@@ -69,6 +69,14 @@ def pytest_handlecrashitem(crashitem, report, sched):
         report.outcome = "rerun"
 
 
+def pytest_unconfigure(config):
+    folder = os.environ.get(_CRASH_DIR)
+    if folder and "PYTEST_XDIST_WORKER" not in os.environ:
+        import shutil
+
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def pytest_report_teststatus(report):
     if report.outcome == "rerun":
         return "rerun", "R", "RERUN"
