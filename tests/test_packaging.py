@@ -370,3 +370,13 @@ def test_tasks_py_says_why_the_install_may_have_failed(tmp_path, monkeypatch, ca
     ver = f"{sys.version_info.major}.{sys.version_info.minor}"
     assert f"for Python {ver}" in err and "network" in err and "made and tested with Python 3.11" in err
     assert not (tmp_path / "stamp").exists()  # nothing claims to be installed
+
+
+def test_the_declared_licence_has_its_text():
+    """pyproject declares BSD-3-Clause and names LICENSE as its file: the file is there, is that
+    licence (its title and the third clause, the one BSD-2 lacks) and is shipped (license-files)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"] == "BSD-3-Clause" and project["license-files"] == ["LICENSE"]
+    text = (ROOT / "LICENSE").read_text()
+    assert text.startswith("BSD 3-Clause License")
+    assert "Neither the name of the copyright holder nor the names of its" in text
