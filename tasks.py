@@ -91,6 +91,11 @@ def _make_venv() -> None:
             sys.exit("tasks.py: `python3 -m venv` failed; install the python3-venv package and retry")
 
 
+#: The pip that installs the lock (the one the lock was tested with): an unpinned upgrade could
+#: bring a pip that resolves or builds the lock differently on a later day.
+PIP = "pip==26.3"
+
+
 def setup() -> None:
     if sys.version_info < (3, 11):  # noqa: UP036 — tasks.py runs under any python3
         sys.exit(f"tasks.py: lightfit needs Python >= 3.11, this is {sys.version.split()[0]}")
@@ -98,7 +103,7 @@ def setup() -> None:
     if STAMP.exists() and STAMP.read_text() == _fingerprint():
         return
     try:
-        _install("--upgrade", "pip")
+        _install(PIP)
         _install("-r", "requirements.lock")
         _install("--no-deps", "-e", ".")
     except subprocess.CalledProcessError:
