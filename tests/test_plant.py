@@ -1127,6 +1127,17 @@ def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
     assert pd.read_csv(tmp_path / "e.segments.csv").empty
 
 
+def test_a_value_name_that_is_not_ascii_is_refused_by_name(tmp_path):
+    """``An_µmol`` is a Python identifier (µ is a letter) but the PLY and VTK headers are ASCII: the
+    export stopped on a UnicodeEncodeError (and left an empty .vtk). Refused in every format, as the
+    other names that cannot be a file attribute are, before the file is opened."""
+    mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]), np.array([5]), np.array([True]))
+    for fmt in ("obj", "ply", "vtk"):
+        with pytest.raises(InputError, match=r"parameter 'An_µmol'.*not a plain identifier.*ASCII letters"):
+            export(mesh, tmp_path / f"m.{fmt}", {"An_µmol": pd.Series([1.0], index=[5])})
+    assert not (tmp_path / "m.ply").exists() and not (tmp_path / "m.vtk").exists()
+
+
 def test_a_blade_along_its_branching_direction_lies_across_horizontally():
     """Where a blade segment runs along its branching direction (t × s = 0) the width falls back to
     the horizontal direction square to the segment (mesh module): a segment rising at 45° towards +y

@@ -26,11 +26,11 @@ FORMATS = ("obj", "ply", "vtk")
 def _face_values(mesh: Mesh, values: dict[str, pd.Series] | None) -> dict[str, np.ndarray]:
     out = {}
     for name, series in (values or {}).items():
-        if not name.isidentifier():
-            raise InputError(
+        if not (name.isascii() and name.isidentifier()):  # 'An_µmol' is a Python identifier
+            raise InputError(  # but not ASCII: the PLY and VTK headers stopped on a UnicodeEncodeError
                 f"value name {name!r} is not a plain identifier",
                 parameter=name,
-                expected="letters, digits and underscores (it becomes a file attribute)",
+                expected="ASCII letters, digits and underscores (it becomes a file attribute)",
             )
         if name == "segment_id":  # it would overwrite the ids every format writes beside the values
             raise InputError(
