@@ -1127,6 +1127,24 @@ def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
     assert pd.read_csv(tmp_path / "e.segments.csv").empty
 
 
+def test_a_vtk_of_points_without_faces_ends_after_its_points_as_vtk_writes_it(tmp_path):
+    """VTK's legacy reader (9.7, so ParaView) stops on "POLYGONS 0 0" with "Error reading
+    polygons": a mesh without faces was written with that line and an empty CELL_DATA. VTK's own
+    writer (vtkPolyDataWriter, binary) ends such a file after the points; so does write_vtk now.
+    Checked on the bytes as the legacy format lays them out: header lines, then 3 big-endian doubles
+    per point."""
+    points = np.array([[0.0, 0.1, 0.2], [1.5, -2.0, 0.25]])
+    mesh = Mesh(points, np.zeros((0, 3), dtype=int), np.zeros(0, dtype=int), np.zeros(0, dtype=bool))
+    data = export(mesh, tmp_path / "p.vtk", {"an": pd.Series(dtype=float)}).read_bytes()
+    head = b"# vtk DataFile Version 3.0\nlightfit shoot mesh (m)\nBINARY\nDATASET POLYDATA\nPOINTS 2 double\n"
+    assert data.startswith(head)
+    body = data[len(head) :]
+    assert body[48:] == b"\n"  # nothing after the points: no POLYGONS, no CELL_DATA
+    assert np.frombuffer(body[:48], dtype=">f8").reshape(2, 3).tolist() == points.tolist()
+    empty = export(Mesh.concatenate([]), tmp_path / "e.vtk").read_bytes()
+    assert empty == head.replace(b"POINTS 2", b"POINTS 0") + b"\n"
+
+
 def test_a_value_name_that_is_not_ascii_is_refused_by_name(tmp_path):
     """``An_µmol`` is a Python identifier (µ is a letter) but the PLY and VTK headers are ASCII: the
     export stopped on a UnicodeEncodeError (and left an empty .vtk). Refused in every format, as the

@@ -182,6 +182,9 @@ def write_vtk(
     with open(path, "wb") as f:
         f.write(("\n".join(head) + "\n").encode("ascii"))
         f.write(np.asarray(mesh.vertices, dtype=">f8").tobytes())
+        if not mesh.n_faces:  # VTK's reader fails on "POLYGONS 0 0" ("Error reading polygons"); its
+            f.write(b"\n")  # own writer ends the file after the points, as here
+            return path
         f.write(f"\nPOLYGONS {mesh.n_faces} {4 * mesh.n_faces}\n".encode("ascii"))
         f.write(cells.tobytes())
         f.write(f"\nCELL_DATA {mesh.n_faces}\n".encode("ascii"))
