@@ -1116,6 +1116,20 @@ def test_a_text_value_is_refused_by_name(tmp_path):
             export(mesh, tmp_path / f"m.{fmt}", {"organ_type": pd.Series(["leaf"], index=[5])})
 
 
+def test_a_refused_value_leaves_an_earlier_obj_and_its_sidecar_as_they_were(tmp_path):
+    """write_obj checked the values only after writing the OBJ: a refused value (here a text column)
+    replaced the OBJ but not its sidecar CSV, so the new geometry sat beside the old values. The
+    values are now checked before anything is written."""
+    mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]), np.array([5]), np.array([True]))
+    obj = export(mesh, tmp_path / "m.obj", {"an": pd.Series([1.5], index=[5])})
+    before = obj.read_bytes(), (tmp_path / "m.segments.csv").read_bytes()
+    moved = Mesh(np.eye(3) * 2, np.array([[0, 1, 2]]), np.array([5]), np.array([True]))
+    with pytest.raises(InputError, match=r"parameter 'organ_type'.*is not numeric"):
+        export(moved, obj, {"organ_type": pd.Series(["leaf"], index=[5])})
+    assert (obj.read_bytes(), (tmp_path / "m.segments.csv").read_bytes()) == before
+    assert "v 1 0 0" in obj.read_text().splitlines()  # the first mesh's vertices, not the refused one's
+
+
 def test_a_mesh_without_faces_exports_in_every_format(tmp_path):
     """A mesh of no faces (a plant with no shoot yet) was written as PLY and VTK, but the OBJ writer
     stopped on an IndexError (it named the first segment's group)."""

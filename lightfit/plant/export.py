@@ -92,6 +92,7 @@ def write_obj(
 ) -> Path:
     """Wavefront OBJ with one group per segment; ``values`` go to ``<path>.segments.csv``."""
     path = Path(path)
+    fv = _face_values(mesh, values)  # before the OBJ is written: a refused value left a new OBJ beside an old sidecar
     order = np.argsort(mesh.face_segment, kind="stable")
     seg_sorted = mesh.face_segment[order]
     starts = np.flatnonzero(np.r_[len(order) > 0, seg_sorted[1:] != seg_sorted[:-1]])  # none if no faces
@@ -103,7 +104,6 @@ def write_obj(
         lines.append(f"g seg_{seg_sorted[starts[k]]}")
         lines += [f"f {a} {b} {c}" for a, b, c in faces[bounds[k] : bounds[k + 1]]]
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
-    fv = _face_values(mesh, values)
     if fv:
         ids = np.unique(mesh.face_segment)
         side = pd.DataFrame(
