@@ -217,7 +217,8 @@ SOIL_RESPIRATION_UMOL_M2_S = 0.0
 SOIL_RESPIRATION_Q10 = 2.0
 #: Reference temperature of :data:`SOIL_RESPIRATION_UMOL_M2_S`, °C (R₁₀, Lloyd & Taylor 1994).
 SOIL_RESPIRATION_T_REF_C = 10.0
-#: Q₁₀ accepted: 1 (no temperature dependence) to 5, beyond the range soils show (≈ 1.3–3.5).
+#: Q₁₀ accepted: 1 (no temperature dependence) to 5, beyond the range soils show (≈ 1.3–3.5 at
+#: temperate temperatures; Lloyd & Taylor's 1994 fit implies 3.3–4.4 between −5 and 10 °C).
 SOIL_RESPIRATION_Q10_RANGE = (1.0, 5.0)
 #: Highest R₁₀ accepted, µmol m⁻² ground s⁻¹: a typo guard. Soil (and root) respiration of arable
 #: soils at 10 °C is ≈ 0.5–10 µmol m⁻² s⁻¹ (Raich & Schlesinger 1992; Davidson & Janssens 2006; the
