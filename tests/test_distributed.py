@@ -1032,3 +1032,30 @@ def test_a_field_run_without_theta_takes_its_scenarios_own_leaf(weather):
     (own,), (old,) = (task_specs(FieldRun(sc, theta=t)) for t in ({}, Theta()))
     assert task_key(own) != task_key(old)
     assert task_key(own) == task_key(task_specs(FieldRun(sc, theta=sc.theta))[0])  # the same values, one key
+
+
+def test_a_task_taken_by_the_client_is_no_longer_held_by_the_workers(client, weather, monkeypatch, tmp_path):
+    """Once run_field has a task's result, the cluster forgets it: a worker killed later made Dask
+    compute again every finished task it still held ("lose already computed task(s), which will be
+    recomputed elsewhere"), results the client had already taken and kept beside --out."""
+    import lightfit.distributed.run as dr
+
+    def held():
+        return client.run_on_scheduler(
+            lambda dask_scheduler: [
+                k for k, t in dask_scheduler.tasks.items() if str(k).startswith("lightfit-tile") and t.state == "memory"
+            ]
+        )
+
+    seen = []
+
+    def hook(kind, n):  # after the n-th result is taken and kept
+        if n == 2:  # both taken: none held (the release reaches the scheduler within moments)
+            deadline = time.monotonic() + 10
+            while held() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            seen.append(len(held()))
+
+    monkeypatch.setattr(dr, "kill_point", hook)
+    ds = run_field(make_run(weather, tiles=2), client=client, timeout_s=240, parts=tmp_path / "results.nc.parts")
+    assert ds.attrs["tasks"] == 2 and seen == [0]

@@ -828,6 +828,9 @@ def run_field(
         with progress_bar("tiles × time chunks", total, completed=resumed, show=progress) as bar:
             for n, fut in enumerate(as_completed(futures, timeout=timeout_s), 1):
                 ds, info = fut.result()
+                # Forgotten by the cluster once here: a worker that dies later made Dask compute again
+                # every task it still held, results this process already had (and kept beside --out).
+                fut.release()
                 results.append((ds, info))
                 if parts is not None:
                     _keep_part(_part(parts, info["tile"], info["chunk"]), keys[info["tile"], info["chunk"]], (ds, info))
