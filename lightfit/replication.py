@@ -941,7 +941,9 @@ def check_netcdf_name(path: str | Path) -> Path:
     existing file that is not netCDF (it would be overwritten) are refused too."""
     path = Path(path)
     if path.suffix.lower() != ".nc":
-        raise InputError("results are written as netCDF", file=path, expected="a file name ending in .nc")
+        raise InputError(
+            "results are written as netCDF", file=path, parameter="out", expected="a file name ending in .nc"
+        )
     if path.is_dir():
         raise InputError(
             "is a folder", file=path, parameter="out", expected="a netCDF file name (the file is written there)"

@@ -772,8 +772,8 @@ def test_a_cache_that_cannot_be_written_is_an_error_naming_lightfit_cache(tmp_pa
 
 
 def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, monkeypatch):
-    """A folder named r.nc, a file where the folder should be, or an existing file that is not
-    netCDF (it was overwritten) are refused naming --out before any plant grows (a folder was
+    """A name without .nc, a folder named r.nc, a file where the folder should be, or an existing file
+    that is not netCDF (it was overwritten) are refused naming --out before any plant grows (a folder was
     found only after every task had run)."""
     monkeypatch.setenv("LIGHTFIT_CACHE", str(tmp_path / "cache"))
     (tmp_path / "d.nc").mkdir()
@@ -782,6 +782,7 @@ def test_field_run_refuses_unwritable_results_names_before_any_work(tmp_path, mo
         ("d.nc", ["is a folder"]),
         ("text.nc", ["exists and is not a netCDF file"]),
         ("text.nc/r.nc", ["text.nc is a file"]),
+        ("r.csv", ["results are written as netCDF", "a file name ending in .nc"]),  # named --out too
     ):
         r = runner.invoke(app, ["field-run", "--quick", "--out", str(tmp_path / out)])
         assert_user_error(r, "option --out", *words)
