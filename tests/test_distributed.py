@@ -1059,3 +1059,25 @@ def test_a_task_taken_by_the_client_is_no_longer_held_by_the_workers(client, wea
     monkeypatch.setattr(dr, "kill_point", hook)
     ds = run_field(make_run(weather, tiles=2), client=client, timeout_s=240, parts=tmp_path / "results.nc.parts")
     assert ds.attrs["tasks"] == 2 and seen == [0]
+
+
+def test_cli_a_scheduler_without_workers_is_named_not_the_timeout(client, tmp_path):
+    """Joined to a scheduler with no workers, no task runs however long the command waits: --timeout
+    ran out with "expected a longer --timeout". The error names --scheduler and its lack of workers;
+    with workers, a timeout says how many tasks finished on how many."""
+    from distributed import LocalCluster
+    from typer.testing import CliRunner
+
+    from lightfit.cli import app
+
+    args = ["field-run", "--n-plants", "4", "--boundary", "finite", "--buffer-rows", "1", "--samples", "8"]
+    args += ["--bounces", "2", "--steps", "14:15", "--no-progress", "--out", str(tmp_path / "r.nc")]
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as empty:
+        r = CliRunner().invoke(app, [*args, "--scheduler", empty.scheduler_address, "--timeout", "2"])
+    err = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "option --scheduler" in err and "has no workers" in err, r.output
+    assert "longer --timeout" not in err and not (tmp_path / "r.nc").exists()
+    late = CliRunner().invoke(app, [*args, "--scheduler", client.scheduler.address, "--timeout", "0.001"])
+    err = " ".join(late.stderr.split())
+    assert late.exit_code == 2 and "option --timeout" in err and "0 of 1 tasks finished" in err, late.output
+    assert "on 2 worker(s)" in err

@@ -101,13 +101,19 @@ def field_run(
             connect_timeout_s=connect_timeout,
             parts=parts,
         )
-    except TimeoutError:
+    except TimeoutError as err:
         if timeout is None:  # not --timeout's: the message below would misname it (and format None)
             raise
         again = "the same command" if resume else "the command without --no-resume"
+        kept = f"no results written; the finished tasks are kept in {parts}: {again} resumes"
+        if scheduler and getattr(err, "workers", None) == 0:  # "a longer --timeout" would wait for nothing
+            raise InputError(
+                f"scheduler={scheduler!r} has no workers: no task ran within --timeout {timeout:g} s ({kept})",
+                parameter="scheduler",
+                expected="a scheduler with workers (dask worker <address> where they are to run)",
+            ) from None
         raise InputError(
-            f"the tasks did not finish within {timeout:g} s (no results written; the finished tasks are kept in "
-            f"{parts}: {again} resumes)",
+            f"the tasks did not finish within {timeout:g} s ({f'{err}; ' if str(err) else ''}{kept})",
             parameter="timeout",
             expected="a longer --timeout, or none",
         ) from None

@@ -787,7 +787,8 @@ def run_field(
     """Run ``run`` on Dask and return the gathered Dataset (layout of a single-process run).
 
     Uses ``client`` if given, else joins ``scheduler``, else starts an embedded LocalCluster.
-    ``timeout_s`` bounds the wait for all tasks (``None``: no bound); ``connect_timeout_s`` the
+    ``timeout_s`` bounds the wait for all tasks (``None``: no bound; past it a ``TimeoutError`` says how
+    many finished on how many workers, its ``workers`` attribute the latter); ``connect_timeout_s`` the
     wait for the scheduler; both must be > 0 (checked before a cluster is started or joined).
     ``parts``: a folder where each finished task is kept, and from which the tasks of the same
     settings are taken instead of run (module doc, "Resume"); the Dataset's ``tasks_resumed``
@@ -839,6 +840,14 @@ def run_field(
                     completed=resumed + n,
                     info=f"tile {info['tile']} chunk {info['chunk']}: {info['total_s']:.1f} s on {info['worker']}",
                 )
+    except TimeoutError:
+        # The count of workers too: a joined scheduler without any runs nothing, however long it waits.
+        err = TimeoutError(
+            f"{len(results) - resumed} of {len(futures)} tasks finished within {timeout_s:g} s "
+            f"on {len(client.nthreads())} worker(s)"
+        )
+        err.workers = len(client.nthreads())
+        raise err from None
     finally:
         for f in futures:
             f.release()
