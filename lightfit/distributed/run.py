@@ -841,6 +841,8 @@ def run_field(
                     info=f"tile {info['tile']} chunk {info['chunk']}: {info['total_s']:.1f} s on {info['worker']}",
                 )
     except TimeoutError:
+        if timeout_s is None:  # a task's own TimeoutError, not the wait's: passed on as it is
+            raise
         # The count of workers too: a joined scheduler without any runs nothing, however long it waits.
         err = TimeoutError(
             f"{len(results) - resumed} of {len(futures)} tasks finished within {timeout_s:g} s "
