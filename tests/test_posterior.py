@@ -797,6 +797,28 @@ def test_a_cut_emulator_file_is_rebuilt_not_fatal(tmp_path):
     assert path.read_bytes() == whole and sorted(p.name for p in tmp_path.iterdir()) == ["emulator.npz"]
 
 
+def test_a_foreign_file_in_the_design_cache_is_rebuilt_not_fatal(tmp_path):
+    """A single .npy array under an emulator's or a render's name (np.load returns the array, which
+    is no context manager) and an emulator whose key is no JSON object (key_changes called .get on
+    it) stopped the run with a TypeError / AttributeError traceback: they read as unreadable now,
+    the emulator said in one line, the render rendered again."""
+    npy = tmp_path / "emulator.npz"
+    with open(npy, "wb") as f:
+        np.save(f, np.ones((4, 3)))
+    said = []
+    assert E.PartsEmulator.readable(npy, said.append) is None
+    assert len(said) == 1 and "not an .npz archive" in said[0] and "rebuilding" in said[0]
+    assert E._stored_render(npy) is None
+    lo, hi = np.zeros(3), np.ones(3)
+    design = E.sobol_design(8, lo, hi, seed=0)
+    y = np.ones((8, 1, 4, 1)) * design[:, :1, None, None]
+    emu = E.fit_emulator(design, y, 0.01 * y + 0.01, lo, hi, degrees=(1,))
+    emu.key = [1, 2]
+    path = emu.save(tmp_path / "listkey.npz")
+    assert E.PartsEmulator.readable(path, said.append) is None
+    assert len(said) == 2 and "not an object" in said[1] and "rebuilding" in said[1]
+
+
 def test_emulated_light_is_never_negative():
     """A field that dips below 0 inside the box (light parts are irradiance ratios, ≥ 0; fitted
     polynomials did dip near the corners for dim segments): emulated at 0 there, exactly the
