@@ -393,6 +393,24 @@ def test_surrogate_calibration_reaches_the_full_render_optimum(twin_model, twin_
     assert again.result.theta == res.result.theta and again.loss_full == res.loss_full
 
 
+@pytest.mark.slow
+def test_the_last_rounds_line_does_not_say_refining(short_model, tmp_path):
+    """A check that failed in the last round said "(refining)", though no round was left and the run
+    ended unpassed: it says so now. The check is made to fail with z = 1e-12 (no surrogate is that
+    exact), one round, the smallest design."""
+    from lightfit.inference.trust_region import surrogate_calibrate
+
+    obs = twin_observations(short_model, TRUTH, render_seed=3, noise_seed=1)
+    said = []
+    kw = dict(names=("specular",), n_design=5, max_rounds=1, z=1e-12, lo=(0.0, 0.3, 0.0), hi=(1.0, 1.0, 1.0))
+    res = surrogate_calibrate(
+        short_model, obs, cache=tmp_path, progress=False, say=said.append, mc_correlation=None, **kw
+    )
+    assert not res.passed and len(res.rounds) == 1
+    line = next(x for x in said if x.startswith("round 0:"))
+    assert "refining" not in line and "not passed, no round left of 1" in line, line
+
+
 def test_a_twin_on_unconverged_photosynthesis_is_refused(short_model, monkeypatch):
     """Synthetic observations are never built on a solve that did not converge (solver capped at one
     iteration): the error names θ."""

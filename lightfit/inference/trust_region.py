@@ -449,10 +449,13 @@ def surrogate_calibrate(
         if log is not None:
             with open(log, "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(jsonable(row, strict=True), allow_nan=False) + "\n")  # strict JSON
+        # the last round's failure refines nothing: it said "refining" all the same (a review)
+        verdict = (
+            "passed" if passed else "refining" if r + 1 < max_rounds else f"not passed, no round left of {max_rounds}"
+        )
         say(
             f"round {r}: design {row['design']} (degree {row['degree']}), surrogate loss {l_sur:.4g}, "
-            f"full-render loss {l_full:.4g}, |Δ| = {row['difference_over_sd']:.2f} σ_L "
-            f"({'passed' if passed else 'refining'})"
+            f"full-render loss {l_full:.4g}, |Δ| = {row['difference_over_sd']:.2f} σ_L ({verdict})"
         )
         if passed:
             return done(res, rounds, True, l_full, "surrogate", emus)
