@@ -116,4 +116,14 @@ def jsonable(d: Any, strict: bool = False) -> Any:
 UNREADABLE_NPZ = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, tokenize.TokenError)
 
 
-__all__ = ["NETCDF_MAGIC", "UNREADABLE_NPZ", "is_netcdf", "jsonable", "replace_text", "replaced"]
+def load_npz(path: str | Path, **kwargs):
+    """``np.load(path, **kwargs)`` of an ``.npz`` archive, for files a cache reads back: a single
+    ``.npy`` array under that name (a foreign file: ``np.load`` returns the array itself, and ``with``
+    on it stopped with a TypeError traceback) raises ValueError, one of :data:`UNREADABLE_NPZ`."""
+    z = np.load(path, **kwargs)
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path} holds a single array (.npy), not an .npz archive")
+    return z
+
+
+__all__ = ["NETCDF_MAGIC", "UNREADABLE_NPZ", "is_netcdf", "jsonable", "load_npz", "replace_text", "replaced"]

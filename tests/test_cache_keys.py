@@ -221,3 +221,30 @@ def test_a_ggx_table_with_a_damaged_array_header_is_recomputed(tmp_path, monkeyp
     _unbalance_header(path)
     assert np.array_equal(bsdf._stored_table(256, 3), bsdf._compute_table(256, 3))
     assert np.array_equal(np.load(path), fresh)  # replaced
+
+
+def test_a_single_array_under_a_cache_files_name_reads_as_unreadable(tmp_path):
+    """``np.load`` of a ``.npy`` array saved under an ``.npz`` name returns the bare array, on which
+    ``with`` stopped with a TypeError traceback: the caches that read their files back (calibration
+    state, data-scene cameras, grown plants) take it as unreadable and start again."""
+    import numpy as np
+
+    from lightfit.dataset.render import load_camera
+    from lightfit.files import UNREADABLE_NPZ, load_npz
+    from lightfit.inference.calibration import _load_state
+    from lightfit.plant.cache import load_or_grow
+
+    foreign = tmp_path / "x.npz"
+    with open(foreign, "wb") as f:
+        np.save(f, np.arange(3))
+    with pytest.raises(UNREADABLE_NPZ, match="single array"):
+        load_npz(foreign)
+    assert _load_state(foreign) is None
+    assert load_camera(foreign, 1) is None
+    config, seed = GrowthConfig(), 1
+    grown, cached = load_or_grow(config, seed, directory=tmp_path / "plants")
+    (entry,) = (tmp_path / "plants").glob("*.npz")
+    with open(entry, "wb") as f:
+        np.save(f, np.arange(3))
+    again, cached = load_or_grow(config, seed, directory=tmp_path / "plants")
+    assert not cached and again.equals(grown)

@@ -34,7 +34,7 @@ import numpy as np
 from lightfit.dataset.camera import Camera
 from lightfit.dataset.scene import Lighting, SceneArrays, VisualMaterials
 from lightfit.errors import InputError, check_integer
-from lightfit.files import UNREADABLE_NPZ
+from lightfit.files import UNREADABLE_NPZ, load_npz
 from lightfit.light.keyed_random import check_seed
 from lightfit.light.scene import ISOTROPIC_RADIANCE_PER_DHI, overcast_radiance_per_dhi, sun_vector
 
@@ -158,7 +158,7 @@ def load_camera(path: Path, n_lights: int) -> tuple[list[np.ndarray], np.ndarray
     """A camera saved by :func:`save_camera` (``None``: missing, unreadable or of another count of
     lightings)."""
     try:
-        with np.load(path) as z:
+        with load_npz(path) as z:
             return [z[f"radiance_{t}"] for t in range(n_lights)], z["face"], z["depth"]
     except UNREADABLE_NPZ:  # damaged: rendered again
         return None

@@ -59,7 +59,7 @@ import optimistix as optx
 import pandas as pd
 
 from lightfit.errors import InputError, check_integer, check_real, is_real
-from lightfit.files import UNREADABLE_NPZ, replace_text, replaced
+from lightfit.files import UNREADABLE_NPZ, load_npz, replace_text, replaced
 from lightfit.inference.likelihood import (
     USES,
     GaussianLikelihood,
@@ -312,7 +312,7 @@ def _save_state(path: Path, opt, counters: dict, key: dict) -> None:
 
 def _load_state(path: Path) -> dict | None:
     try:
-        with np.load(path) as z:
+        with load_npz(path) as z:
             meta = json.loads(str(z["meta"]))
             n = sum(1 for k in z.files if k.startswith("leaf"))
             return {**meta, "point": z["point"], "leaves": [z[f"leaf{i}"] for i in range(n)]}

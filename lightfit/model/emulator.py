@@ -53,7 +53,7 @@ import numpy as np
 from lightfit.cache import cache_root
 from lightfit.defaults import DESIGN_SIZE
 from lightfit.errors import InputError, check_integer
-from lightfit.files import UNREADABLE_NPZ, replace_text, replaced
+from lightfit.files import UNREADABLE_NPZ, load_npz, replace_text, replaced
 from lightfit.killpoint import kill_point
 from lightfit.light.backend import package_versions
 from lightfit.light.bsdf import LEAF_PARAMETERS
@@ -289,16 +289,6 @@ def _render_parts(model, leaf, progress, cache, key, label) -> tuple[np.ndarray,
     return np.stack(vals), np.stack(ses), seconds
 
 
-def _load_npz(path: str | Path):
-    """``np.load(path)`` of an ``.npz`` archive; a single ``.npy`` array under that name (a foreign
-    file: ``np.load`` returns the array itself, and ``with`` on it stopped with a TypeError
-    traceback) raises ValueError, one of :data:`~lightfit.files.UNREADABLE_NPZ`."""
-    z = np.load(path)
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        raise ValueError(f"{path} holds a single array (.npy), not an .npz archive")
-    return z
-
-
 def _stored_render(file: Path) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The render kept in ``file`` (values, SE, seconds), or None if there is none or it cannot be
     read: a file damaged outside lightfit (a cut copy, a full disk, a byte flipped) is rendered
@@ -307,7 +297,7 @@ def _stored_render(file: Path) -> tuple[np.ndarray, np.ndarray, float] | None:
     if not file.exists():
         return None
     try:
-        with _load_npz(file) as z:
+        with load_npz(file) as z:
             return z["values"], z["se"], float(z["seconds"])
     except UNREADABLE_NPZ:
         return None
@@ -426,7 +416,7 @@ class PartsEmulator:
 
     @staticmethod
     def load(path: str | Path) -> PartsEmulator:
-        with _load_npz(path) as z:
+        with load_npz(path) as z:
             key = json.loads(str(z["key"])) if "key" in z else {}
             if not isinstance(key, dict):  # a foreign file's: key_changes stopped with an AttributeError
                 raise ValueError(f"{path}: its key is a JSON {type(key).__name__}, not an object")

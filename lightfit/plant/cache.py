@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from lightfit.cache import cache_root
-from lightfit.files import replaced
+from lightfit.files import load_npz, replaced
 from lightfit.plant.growth import ORGAN_CATEGORIES, GrowthConfig, grow_plant
 
 log = logging.getLogger(__name__)
@@ -70,7 +70,7 @@ def load_or_grow(
     path = directory / f"{key}.npz"
     if path.exists():
         try:
-            with np.load(path, allow_pickle=False) as z:
+            with load_npz(path, allow_pickle=False) as z:
                 meta = {k: str(z[k]) for k in ("_key", "_digest", "_columns")}
                 arrays = {k: z[k] for k in z.files if not k.startswith("_")}
             columns = meta["_columns"].split(",")
