@@ -550,8 +550,10 @@ def connect(
             _probe(scheduler, timeout_s)  # Client's own timeout does not bound a handshake that never answers
             client = Client(scheduler, timeout=timeout_s)
         except Exception as err:  # noqa: BLE001 - whatever a wrong address does (bytes of another protocol: MemoryError)
+            # a port that never answers: a TimeoutError without text (it read "TimeoutError: ")
+            why = f"{type(err).__name__}: {str(err)[:200]}" if str(err) else type(err).__name__
             raise InputError(
-                f"scheduler={scheduler!r}: cannot connect ({type(err).__name__}: {str(err)[:200]})",
+                f"scheduler={scheduler!r}: cannot connect ({why})",
                 parameter="scheduler",
                 expected=f"the address of a running Dask scheduler answering within {timeout_s:g} s, e.g. tcp://host:8786",
             ) from None
