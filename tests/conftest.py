@@ -41,7 +41,8 @@ _crashed: set[str] = set()
 
 
 def pytest_configure(config):
-    if "PYTEST_XDIST_WORKER" not in os.environ and config.pluginmanager.has_plugin("xdist"):
+    workers = config.pluginmanager.has_plugin("xdist") and config.getoption("dist", "no") != "no"
+    if workers and "PYTEST_XDIST_WORKER" not in os.environ:
         import tempfile
 
         os.environ[_CRASH_DIR] = tempfile.mkdtemp(prefix="lightfit-test-crashes-")  # the workers inherit it
