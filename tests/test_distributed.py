@@ -1082,3 +1082,18 @@ def test_cli_a_scheduler_without_workers_is_named_not_the_timeout(client, tmp_pa
     err = " ".join(late.stderr.split())
     assert late.exit_code == 2 and "option --timeout" in err and "0 of 1 tasks finished" in err, late.output
     assert "on 2 worker(s)" in err
+
+
+def test_a_local_cluster_that_does_not_start_names_the_workers_not_the_connect_timeout(monkeypatch):
+    """--connect-timeout bounds the client's connection, not the workers' start (a review started
+    workers with 0.3 s): a cluster that fails to start was blamed on it ("a longer one")."""
+    import distributed
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("Nanny failed to start")
+
+    monkeypatch.setattr(distributed, "LocalCluster", fail)
+    with pytest.raises(InputError, match="did not start") as refused:
+        with connect(workers=1, threads_per_worker=1, timeout_s=5):
+            pass
+    assert refused.value.parameter == "workers" and "connect" not in str(refused.value), refused.value

@@ -584,9 +584,9 @@ def connect(
             raise InputError(
                 f"a local Dask cluster of {n} worker(s) × {t} thread(s) did not start ({type(err).__name__}: "
                 f"{str(err)[:200]})",
-                parameter="connect_timeout",
-                expected=f"workers that start within --connect-timeout ({timeout_s:g} s): a longer one, "
-                "or fewer --workers",
+                # not --connect-timeout's: it bounds the client's connection, not the workers' start
+                parameter="workers",
+                expected="fewer --workers, or the cause the error names (memory, ports, a worker's import)",
             ) from None
         try:
             interrupted.restore()  # a Ctrl-C while the cluster started is raised here, where it is closed
