@@ -34,7 +34,7 @@ def pytest_collection_modifyitems(config, items):
 # A worker killed by a fatal signal (a crash in native code: XLA, Dr.Jit, HDF5) printed its Python
 # stacks to stderr followed by ~180 extension module names, and CI logs keep only the tail: the stacks
 # were lost. Each worker writes its fatal-error report to a file instead, the controller prints the
-# stacks in its summary, and a test that crashed its worker runs once more in a fresh worker: a second
+# stacks in its summary, and a test that crashed its worker runs once more in another worker process: a second
 # crash fails the run as before, one that passes is listed as "rerun" with the first crash's stacks.
 _CRASH_DIR = "LIGHTFIT_TEST_CRASH_DIR"
 _crashed: set[str] = set()
@@ -93,7 +93,7 @@ def pytest_terminal_summary(terminalreporter):
     if reports or _crashed:
         terminalreporter.section("worker crashes", red=True)
         for item in sorted(_crashed):
-            terminalreporter.line(f"crashed its worker, run again in a fresh one: {item}")
+            terminalreporter.line(f"crashed its worker, run again in another worker: {item}")
         for name, text in reports:
             terminalreporter.line(f"--- fatal error in worker {name} (its Python stacks) ---")
             terminalreporter.line(text.rstrip())

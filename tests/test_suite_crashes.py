@@ -1,5 +1,5 @@
 """The suite's handling of a worker killed by a fatal signal (tests/conftest.py): the crashed test
-runs once more in a fresh worker, and the crash's Python stacks are printed in the summary, where a
+runs once more in another worker process, and the crash's Python stacks are printed in the summary, where a
 CI log's tail keeps them."""
 
 import os
@@ -45,7 +45,7 @@ def test_a_crashed_test_runs_again_and_its_stack_is_printed(tmp_path):
     run = _suite(tmp_path)
     assert run.returncode == 0, run.stdout + run.stderr
     summary = run.stdout.split("worker crashes")[1]
-    assert "run again in a fresh one: test_crash.py::test_crashes_once" in summary
+    assert "run again in another worker: test_crash.py::test_crashes_once" in summary
     assert "Fatal Python error: Segmentation fault" in summary and "in test_crashes_once" in summary
     assert "Extension modules" not in summary and "_pytest/" not in summary
     assert "2 passed, 1 rerun" in run.stdout
@@ -54,4 +54,4 @@ def test_a_crashed_test_runs_again_and_its_stack_is_printed(tmp_path):
     run = _suite(tmp_path)
     assert run.returncode == 1, run.stdout + run.stderr
     assert "FAILED test_crash.py::test_crashes_always" in run.stdout
-    assert "run again in a fresh one: test_crash.py::test_crashes_always" in run.stdout
+    assert "run again in another worker: test_crash.py::test_crashes_always" in run.stdout
