@@ -643,6 +643,18 @@ def test_every_variables_units_are_the_unit_its_name_carries():
     assert checked > 60
 
 
+def test_the_fractions_say_what_a_finite_field_does_to_them():
+    """fAPAR is APAR per ground area of the measured plants over the PAR above: on a finite field it
+    reached 4.5 at a 4° sun (`--quick --boundary finite`, docs/model.md) with results.nc saying only
+    "fraction of absorbed PAR ... canopy APAR / PAR above" (a review). The attributes name the area and
+    the field's sides, for fAPAR and for the ceptometer's transmittance that reads the same side light."""
+    fapar = schema.variable("fapar").attrs()["comment"]
+    assert "ground area of the measured plants" in fapar and "ground_area_m2" in fapar
+    assert "finite field" in fapar and "exceed 1" in fapar and "sides" in fapar
+    tau = schema.variable("ceptometer_transmittance").attrs()["comment"]
+    assert "finite field" in tau and "sides" in tau
+
+
 def test_flags_are_cf_lists():
     """CF 1.x §3.5: flag_values is a list of the flag variable's own type (int8 as written), flag_meanings
     a blank-separated string, one word per meaning. flag_values was the text "-1 0 1" (a review)."""

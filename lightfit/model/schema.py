@@ -282,7 +282,13 @@ VARIABLES: dict[str, Variable] = {
         T, UMOL, "Monte Carlo standard deviation of canopy APAR", "per unit ground area of the measured plants"
     ),
     "fapar": Variable(
-        T, "1", "fraction of absorbed PAR", "canopy APAR / PAR on a horizontal plane above the canopy; 0 at night"
+        T,
+        "1",
+        "fraction of absorbed PAR",
+        "canopy APAR (per unit ground area of the measured plants, attribute ground_area_m2) / PAR on a "
+        "horizontal plane above the canopy; 0 at night; at most 1 in a periodic field, but on a finite field "
+        "(attribute boundary) it can exceed 1, most at low sun: the measured plants also take light through "
+        "the field's sides",
     ),
     "fapar_mc_sd": Variable(T, "1", "Monte Carlo standard deviation of fAPAR"),
     "nee_umol_m2_s": Variable(
@@ -299,7 +305,11 @@ VARIABLES: dict[str, Variable] = {
         T, UMOL, "Monte Carlo standard deviation of transmitted PAR", _CEPTOMETER
     ),
     "ceptometer_transmittance": Variable(
-        T, "1", "canopy PAR transmittance read by the ceptometer", "transmitted PAR / above-canopy PAR; 0 at night"
+        T,
+        "1",
+        "canopy PAR transmittance read by the ceptometer",
+        "transmitted PAR / above-canopy PAR; 0 at night; on a finite field (attribute boundary) light through "
+        "the field's sides reaches the bars too, so it reads more than under a field without edges",
     ),
     "ceptometer_transmittance_mc_sd": Variable(T, "1", "Monte Carlo standard deviation of the transmittance"),
     "ceptometer_fapar": Variable(
