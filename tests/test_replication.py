@@ -449,6 +449,21 @@ def test_the_summary_header_names_a_given_theta():
     assert summary_metadata(xr.Dataset(attrs=attrs | {"theta_given": given}))["theta_given"] == given
 
 
+def test_the_summary_header_says_where_fapar_exceeds_one_and_per_which_area():
+    """A finite field's fapar reached 4.50 at a 4° sun (`--quick --boundary finite`): the console
+    said why in a note, summary.csv's column stood there without it. Its header now says how many
+    steps, the largest value and the area APAR is per; nothing where fAPAR stays at or below 1."""
+    from lightfit.report import summary_metadata
+
+    attrs = {"boundary": "finite", "ground_area_m2": 4 * 0.03 * 0.125, "samples": 16, "bounces": 2}
+    edge = xr.Dataset({"fapar": ("time", [0.0, 0.93, 4.497, 2.079, 1.0])}, attrs=attrs)
+    line = summary_metadata(edge)["fapar"]
+    assert line.startswith("above 1 at 2 of 5 steps (up to 4.50)")  # 4.497 and 2.079; 1.0 is not above
+    assert "per ground area of the measured plants (0.015 m2)" in line and "finite field" in line
+    canopy = xr.Dataset({"fapar": ("time", [0.0, 0.9397, 0.954])}, attrs=attrs | {"boundary": "periodic"})
+    assert "fapar" not in summary_metadata(canopy)
+
+
 def test_a_forcing_its_forcing_csv_cannot_hold_is_refused_before_the_run(tmp_path, monkeypatch):
     """run(out=...) writes the forcing as a lightfit CSV, whose provenance is one of four words. A
     forcing_df saying another ("station") rendered every step, wrote results.nc, replication.png and
