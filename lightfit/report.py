@@ -79,7 +79,7 @@ def summary_metadata(ds) -> dict[str, str]:
     """The ``# key: value`` header of a results folder's summary.csv: that it is model output, the
     forcing's and the observations' provenance and files, the preset and any θ given, site, window
     (and the steps run, where not all of it) and field, where fAPAR exceeds 1 how often and why (a
-    finite field's sides: :func:`_fapar_over_one`), and lightfit's versions; every setting is in
+    finite field's sides: :func:`fapar_over_one`), and lightfit's versions; every setting is in
     results.nc's attributes. Without it the table could pass for numbers from measured weather (data
     honesty: a reconstructed forcing says so here)."""
     a = ds.attrs
@@ -100,16 +100,17 @@ def summary_metadata(ds) -> dict[str, str]:
         "steps_run": a.get("steps_run"),  # --steps: only these steps of the window ran
         "local_time": f"the site's clock, HH:MM in {site_timezone(ds)} (time_utc is UTC)",
         "field": field,
-        "fapar": _fapar_over_one(ds),
+        "fapar": fapar_over_one(ds),
         "software_versions": a.get("software_versions"),
         "settings": "every setting is an attribute of results.nc beside this file",
     }
     return {k: v for k, v in meta.items() if v is not None}
 
 
-def _fapar_over_one(ds) -> str | None:
-    """summary.csv's line where fAPAR exceeds 1 (a finite field's measured plants lit through its
-    sides; the console's note, which the file lacked), ``None`` where it stays at or below 1."""
+def fapar_over_one(ds) -> str | None:
+    """Where fAPAR exceeds 1 (a finite field's measured plants lit through its sides): how often, how
+    far, per which ground area and why, for summary.csv's header and the command's note
+    (:func:`lightfit.cli.replicate.edge_line`); ``None`` where it stays at or below 1."""
     if "fapar" not in ds:
         return None
     fapar = np.asarray(ds["fapar"].values, dtype=float)
@@ -120,8 +121,8 @@ def _fapar_over_one(ds) -> str | None:
     per = "per ground area of the measured plants" + (f" ({float(area):.4g} m2)" if area is not None else "")
     return (
         f"above 1 at {int(over.sum())} of {fapar.size} steps (up to {np.nanmax(fapar):.2f}): APAR is {per}, "
-        f"which take light through the sides of the {ds.attrs.get('boundary', 'finite')} field, so fapar, "
-        "APAR and An are an edge's, not a canopy's (docs/model.md; the periodic default has no edge)"
+        f"which take light through the sides of the {ds.attrs.get('boundary', 'finite')} field, so APAR, "
+        "PAR at the plants and An are an edge's, not a canopy's (docs/model.md; the periodic default has no edge)"
     )
 
 

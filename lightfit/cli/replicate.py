@@ -344,15 +344,10 @@ def edge_line(ds) -> str:
     """A note where canopy APAR exceeds the PAR above the canopy (fAPAR > 1: light entering a
     finite field's measured area through its sides), so the table is not read as a canopy's
     ("" when fAPAR stays at or below 1)."""
-    fapar = np.asarray(ds["fapar"].values, dtype=float)
-    over = fapar > 1.0
-    if not over.any():
-        return ""
-    return (
-        f"note: fAPAR above 1 at {int(over.sum())} of {fapar.size} steps (up to {np.nanmax(fapar):.2f}): the measured "
-        f"plants take light through the sides of the {ds.attrs.get('boundary', 'finite')} field, so APAR, PAR at "
-        "the plants and An are an edge's, not a canopy's (docs/model.md; the periodic default has no edge)"
-    )
+    from lightfit.report import fapar_over_one
+
+    line = fapar_over_one(ds)
+    return f"note: fAPAR {line}" if line else ""
 
 
 def compared_edge_line(other, preset: str) -> str:
