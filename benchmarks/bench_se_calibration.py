@@ -54,6 +54,13 @@ def _ratios(spread: np.ndarray, se2: np.ndarray) -> dict:
     }
 
 
+def expected_ratio(d1: int, d2: int) -> tuple[float | None, float]:
+    """Mean and median of F(d1, d2), the ratio's distribution when the SEs are right. The mean is
+    d2 / (d2 − 2) only for d2 > 2; with fewer degrees of freedom (2 seeds at R = 2) it is infinite:
+    ``None``, not a division by zero after the renders."""
+    return (d2 / (d2 - 2) if d2 > 2 else None), float(fisher.median(d1, d2))
+
+
 def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) -> dict:
     """The seeds' spread against the reported SE² at the current :data:`keyed_random.TEA_ROUNDS`."""
     values, se2, times = [], [], []
@@ -73,6 +80,7 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
     ok = np.all(np.isfinite(se2) & (se2 > 0), axis=0)
     spread, mse2 = values.var(0, ddof=1)[ok], se2.mean(0)[ok]
     d1, d2 = seeds - 1, seeds * (R - 1)
+    expected_mean, expected_median = expected_ratio(d1, d2)
     rse = np.sqrt(mse2) / values.mean(0)[ok]
     edges = np.quantile(rse, [0, 0.25, 0.5, 0.75, 1])
     groups = {"all": np.ones(rse.size, bool), "blades": blade[ok], "stems": ~blade[ok]}
@@ -87,8 +95,8 @@ def calibration(fs, ids, bounces: int, seeds: int, samples: int, rays, console) 
         "median_rse_reported": float(np.median(rse)),
         "median_rse_seed_spread": float(np.median(np.sqrt(spread) / values.mean(0)[ok])),
         "render_s_mean": float(np.mean(times[1:])),  # the first compiles the kernels
-        "expected_mean": d2 / (d2 - 2),
-        "expected_median": float(fisher.median(d1, d2)),
+        "expected_mean": expected_mean,  # None: infinite (d2 ≤ 2)
+        "expected_median": expected_median,
         "groups": {k: _ratios(spread[m], mse2[m]) for k, m in groups.items()},
     }
 
@@ -122,9 +130,8 @@ def main(n_plants: int = 100, seeds: int = 12, samples: int = 16, rays=(1.5e7, 2
         )
         for c in ("segments", "n", "mean", "median", "Σ spread / Σ SE²"):
             t.add_column(c, justify="right")
-        t.add_row(
-            "expected if the SEs are right", "", f"{run['expected_mean']:.3f}", f"{run['expected_median']:.3f}", "1"
-        )
+        mean = "∞ (d₂ ≤ 2)" if run["expected_mean"] is None else f"{run['expected_mean']:.3f}"
+        t.add_row("expected if the SEs are right", "", mean, f"{run['expected_median']:.3f}", "1")
         for k, q in run["groups"].items():
             t.add_row(k, str(q["n"]), f"{q['mean']:.3f}", f"{q['median']:.3f}", f"{q['ratio_of_sums']:.3f}")
         console.print(t)
