@@ -62,6 +62,14 @@ TARGET = 0.02
 BINS = 150
 
 
+def lit_median(num, den) -> float:
+    """Median of num / den over the segments with den > 0: an unlit segment (no light, no variance)
+    has no relative SE or share, and its 0 / 0 would make the median NaN (small cells have some)."""
+    num, den = np.asarray(num, float), np.asarray(den, float)
+    keep = den > 0
+    return float(np.median(num[keep] / den[keep])) if keep.any() else float("nan")
+
+
 def hybrid_time(a, T, var, var_sky, c_blade, t_point, x, blade, rounded):
     """Time for a 2 % all-segment median: the projection at a × its rays plus gathered points."""
     xb, vb, sb = x[blade], var[blade], var_sky[blade]
@@ -131,8 +139,8 @@ def main(n_plants: int, samples: int) -> dict:
         "blades": len(bl),
         "rays_per_m2": list(RAYS),
         "render_s": T,
-        "median_rse_as_reported": float(np.median(np.sqrt(var) / x)),
-        "sky_direct_variance_share_median_blades": float(np.median((var_sky / var)[blade])),
+        "median_rse_as_reported": lit_median(np.sqrt(var), x),
+        "sky_direct_variance_share_median_blades": lit_median(var_sky[blade], var[blade]),
         "gather_samples": samples,
         "gather_s": T_gather,
         "gather_s_per_point": t_point,
