@@ -5,6 +5,7 @@ peer comparisons) are available; float32 paths are exercised by passing float32 
 explicitly. lightfit itself never changes JAX's global configuration on import.
 """
 
+import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -29,6 +30,29 @@ def pytest_collection_modifyitems(config, items):
         return _LONGEST_FIRST.index(name) if name in _LONGEST_FIRST else len(_LONGEST_FIRST)
 
     items.sort(key=rank)  # stable: the order within each module is kept
+
+
+@pytest.fixture(scope="session")
+def script_module():
+    """``load(path)``: a script under benchmarks/ or experiments/ (a path, or a benchmark's name) run as
+    a module, with benchmarks/ and the script's folder on ``sys.path`` while it loads (the scripts
+    import their sibling scripts by name)."""
+    benchmarks = Path(__file__).resolve().parents[1] / "benchmarks"
+
+    def load(path):
+        path = Path(path) if str(path).endswith(".py") else benchmarks / f"{path}.py"
+        folders = [str(benchmarks), str(path.parent)]
+        sys.path[:0] = folders
+        try:
+            spec = importlib.util.spec_from_file_location(path.stem, path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+            return module
+        finally:
+            for folder in folders:
+                sys.path.remove(folder)
+
+    return load
 
 
 # A worker killed by a fatal signal (a crash in native code: XLA, Dr.Jit, HDF5) printed its Python

@@ -6,7 +6,6 @@ LESS itself is never installed for the tests (docs/light.md, "Peer: LESS 3")."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -18,20 +17,9 @@ ROOT = Path(__file__).resolve().parents[1]
 MUST_SAY = ("pip install less3d==3.0.7", "Academic and Non-Commercial Research License", "non-commercial")
 
 
-def _load(path: Path, name: str):
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # the scripts' imports of sibling scripts
-    try:
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-
-
 @pytest.fixture(scope="module")
-def bench_less():
-    return _load(ROOT / "benchmarks" / "bench_less.py", "bench_less")
+def bench_less(script_module):
+    return script_module("bench_less")
 
 
 def _said(capsys) -> str:
@@ -62,10 +50,10 @@ def test_bench_less_without_less_says_how_to_get_it_and_its_licence(bench_less, 
 
 @pytest.mark.parametrize("script", ["less_soil_edge", "less_scaled_scene"])
 def test_less_experiments_without_less_say_how_to_get_it_and_its_licence(
-    bench_less, monkeypatch, capsys, tmp_path, script
+    bench_less, script_module, monkeypatch, capsys, tmp_path, script
 ):
     """The experiments pointed to the README only, and took any existing interpreter for LESS."""
-    module = _load(ROOT / "experiments" / f"{script}.py", script)
+    module = script_module(ROOT / "experiments" / f"{script}.py")
     monkeypatch.setattr(module.bl, "LESS_PYTHON", Path(sys.executable))
     monkeypatch.setattr(module, "build", _never)
     out = tmp_path / "x.json"

@@ -4,7 +4,6 @@ options are read, not after the benchmark's minutes of work."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 from pathlib import Path
 
 import pytest
@@ -13,11 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def provenance():
-    spec = importlib.util.spec_from_file_location("provenance", ROOT / "benchmarks" / "provenance.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def provenance(script_module):
+    return script_module("provenance")
 
 
 def _parser(provenance, tmp_path):

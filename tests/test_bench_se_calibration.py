@@ -3,27 +3,13 @@ scipy's and the closed form, including few degrees of freedom (2 seeds at R = 2:
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 from scipy.stats import f as fisher
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
-def bench():
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # its imports of sibling scripts
-    try:
-        path = ROOT / "benchmarks" / "bench_se_calibration.py"
-        spec = importlib.util.spec_from_file_location("bench_se_calibration", path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+def bench(script_module):
+    return script_module("bench_se_calibration")
 
 
 @pytest.mark.parametrize(("d1", "d2"), [(11, 36), (1, 3), (3, 10)])

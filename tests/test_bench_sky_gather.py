@@ -2,26 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
-def bench():
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # its imports of sibling scripts
-    try:
-        spec = importlib.util.spec_from_file_location("bench_sky_gather", ROOT / "benchmarks" / "bench_sky_gather.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+def bench(script_module):
+    return script_module("bench_sky_gather")
 
 
 def test_lit_median_skips_unlit_segments(bench):

@@ -7,28 +7,14 @@ standard errors by this factor; a factor that is too large makes a setting look 
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
-def bench_light():
-    import sys
-
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # its imports of sibling scripts
-    try:
-        spec = importlib.util.spec_from_file_location("bench_light", ROOT / "benchmarks" / "bench_light.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+def bench_light(script_module):
+    return script_module("bench_light")
 
 
 def _estimated(sigma, dof, rng):

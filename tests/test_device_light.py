@@ -8,22 +8,11 @@ found only there, in a session's scarce device time.
 
 from __future__ import annotations
 
-import importlib.util
 import zipfile
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
-def _device_light():
-    spec = importlib.util.spec_from_file_location("device_light", ROOT / "benchmarks" / "device_light.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_stripped_wheel_keeps_the_two_variants_and_a_matching_record(tmp_path):
-    dl = _device_light()
+def test_stripped_wheel_keeps_the_two_variants_and_a_matching_record(tmp_path, script_module):
+    dl = script_module("device_light")
     ext = ".cpython-312-x86_64-linux-gnu.so"
     members = [
         *(f"mitsuba/{v}{ext}" for v in ("cuda_ad_mono", "llvm_ad_mono", "cuda_ad_mono_polarized")),
