@@ -125,3 +125,27 @@ def test_every_name_a_script_or_docs_example_takes_from_lightfit_exists():
     assert lines[-1].startswith("checked ") and int(lines[-1].split()[1]) >= 40, r.stdout
     assert int(lines[-1].split()[4]) >= 12, r.stdout  # the ```python blocks of README.md and docs/
     assert lines[:-1] == [], "\n".join(lines[:-1])
+
+
+def test_model_md_an_noise_bias_table_reads_its_stored_json():
+    """docs/model.md's "Measured" table of experiments/an_noise_bias.py quotes
+    experiments/results/an_noise_bias.json: every percentage is the JSON's value rounded to the
+    two decimals shown (its 64-sample row once read canopy APAR ± 0.03 % for a stored 0.0247 %)."""
+    import json
+    import re
+
+    res = json.loads((ROOT / "experiments" / "results" / "an_noise_bias.json").read_text())
+    text = (ROOT / "docs" / "model.md").read_text()
+    an, apar = res["canopy_an"], res["canopy_apar"]
+    for k in ("32", "64", "512"):
+        row = next(line for line in text.splitlines() if re.match(rf"\| {k}\b[^|]*\| [−+*\d]", line))
+        cells = [re.findall(r"[−+]?\d+\.\d+", c) for c in row.strip("|").split("|")[1:]]
+        shown = [[float(x.replace("−", "-")) for x in c] for c in cells]
+        expected = [
+            [100 * an["relative_bias"][k], 100 * an["relative_bias_se"][k]],
+            [100 * an["relative_predicted_bias"][k]],
+            [100 * x for x in an["relative_reported_mc_sd_one_run_bounds"][k]],
+            [100 * apar["relative_bias"][k], 100 * apar["relative_bias_se"][k]],
+        ]
+        for got, want in zip(shown, expected, strict=True):
+            assert got == [round(w, 2) for w in want], (k, row)
