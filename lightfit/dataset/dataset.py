@@ -221,14 +221,15 @@ def make_dataset(results, out_dir: str | Path, spec: DatasetSpec = DatasetSpec()
         meta["gallery"] = gallery(out, shown, quantities, units, results=res, lighting=meta["lighting"]).name
     if spec.export != "none":
         # The file says which step, whose values and their units: opened alone (MeshLab, ParaView) it said none
+        when = res.times[tix[0]].isoformat()  # the first selected step's
         notes = {
-            "time_utc": res.times[tix[0]].isoformat(),
+            "time_utc": when,
             "values": "SYNTHETIC (not a model run)" if synthetic_values(res.ds.attrs) else "model output",
             "results_file": ascii(Path(res.path).name)[1:-1] if res.path else "in memory",  # a header's ASCII
         } | {f"units of {q}": res.units(q) for q in quantities}
         path = out / f"field_values.{spec.export}"
         meta["field_export"] = export_field(geom.mesh, per_segment[tix[0]], path, notes)
-        meta["field_export"]["time_utc"] = res.times[tix[0]].isoformat()  # the first selected step
+        meta["field_export"]["time_utc"] = when
     replace_text(out / "metadata.json", json.dumps(meta, indent=2, default=_json_default))
     shutil.rmtree(marker)
     return meta

@@ -154,9 +154,11 @@ def gallery(
         for j, q in enumerate(cols):
             a = ax[2 + j]
             v = np.ma.masked_invalid(labels[q].astype(float))
-            codes = class_codes(q) if labels[q].dtype.kind in "iu" else []  # a class map's (code, meaning)
-            if labels[q].dtype.kind in "iu":  # a class map: its "no value" code is no class (was painted as one)
+            is_class_map = labels[q].dtype.kind in "iu"
+            if is_class_map:  # its "no value" code is no class (was painted as one)
                 v = np.ma.masked_where(labels[q] == NO_CLASS, v)
+            # a class map's (code, meaning); the margin has its own scale
+            codes = class_codes(q) if is_class_map and q != MARGIN else []
             if q == MARGIN:
                 lim = float(np.nanmax(np.abs(v))) if v.count() else 1.0
                 im = a.imshow(v, cmap="RdBu_r", norm=TwoSlopeNorm(0.0, -lim or -1.0, lim or 1.0))
@@ -178,7 +180,7 @@ def gallery(
                 a.set_title(quantity_title(q), fontsize=8)
             a.set_facecolor("0.15")
             bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
-            if q != MARGIN and codes:  # named classes, no unit
+            if codes:  # named classes, no unit
                 bar.set_ticks([c for c, _ in codes])
                 bar.set_ticklabels([fill(m, 12) for _, m in codes], fontsize=7)
                 bar.minorticks_off()

@@ -846,11 +846,11 @@ def run_field(
         if timeout_s is None:  # a task's own TimeoutError, not the wait's: passed on as it is
             raise
         # The count of workers too: a joined scheduler without any runs nothing, however long it waits.
+        n_workers = len(client.nthreads())  # asked of the scheduler once
         err = TimeoutError(
-            f"{len(results) - resumed} of {len(futures)} tasks finished within {timeout_s:g} s "
-            f"on {len(client.nthreads())} worker(s)"
+            f"{len(results) - resumed} of {len(futures)} tasks finished within {timeout_s:g} s on {n_workers} worker(s)"
         )
-        err.workers = len(client.nthreads())
+        err.workers = n_workers
         raise err from None
     finally:
         for f in futures:

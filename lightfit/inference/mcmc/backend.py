@@ -349,7 +349,7 @@ def oriented_analysis(an: dict) -> dict:
     if isinstance(profile, dict) and np.ndim(profile.get("direction")) == 1 and "t" in profile:
         d = np.asarray(profile["direction"], float)
         if np.dot(oriented(d), d) < 0:  # stored along the opposite of its combination
-            profile["direction"] = -np.asarray(profile["direction"])
+            profile["direction"] = -d
             profile["t"] = -np.asarray(profile["t"])
             for k in PROFILE_POINTS:  # t ascending again
                 if k in profile:
